@@ -1,0 +1,33 @@
+"""ament_python build script for aeropend_ident."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "aeropend_ident"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    package_data={PACKAGE: ["rigs/*.yaml"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
+        ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/launch", glob("launch/*.py")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="aeropend maintainers",
+    maintainer_email="maintainers@aeropend.invalid",
+    description="Offline identification and sim-to-real gap diagnosis on rosbag2 files (rosbags, no ROS install needed); recorder, player and CSV import.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            'record = aeropend_ident.record_node:main',
+            'play = aeropend_ident.play_node:main',
+            'csv_import = aeropend_ident.csv_import:main',
+            'baseline = aeropend_ident.baseline_cli:main'
+        ],
+    },
+)

@@ -1,0 +1,222 @@
+"""Topic contract shared by the simulated plant, the hardware bridge, controllers and tools.
+
+This module is the single source of truth for topic names, message types, channel layout,
+units and QoS of the aeropend node graph. It imports no ROS package, so the offline tools
+(bag reading with ``rosbags``) use the same definitions as the nodes (``rclpy``); the rclpy
+message conversions live in :mod:`aeropend_sim.ros_contract`.
+
+Topics (all SI units; duty cycle as a fraction in [0, 1]; angles in rad)
+
+==============================  ===========================  =====  ==========================
+topic                           type                         dir.   content
+==============================  ===========================  =====  ==========================
+``/aeropend/duty_cycle``        ``std_msgs/msg/Float64``     in     duty-cycle command τ
+``/aeropend/joint_states``      ``sensor_msgs/msg/JointState``  out  θ, θ̇, ω₁, ω₂, applied τ
+``/aeropend/armature``          ``sensor_msgs/msg/BatteryState`` out armature v_a [V], i_a [A]
+``/clock``                      ``rosgraph_msgs/msg/Clock``  out    simulated time (sim only)
+==============================  ===========================  =====  ==========================
+
+``joint_states`` carries three joints in this order:
+
+* ``pendulum``: position θ [rad] (0 = rod hanging down), velocity θ̇ [rad/s] or NaN when the
+  source does not measure it, effort NaN.
+* ``motor``: position NaN, velocity ω₁ rotor speed [rad/s] or NaN, effort = the duty cycle τ
+  that was applied to the H-bridge over the sample interval that *ends* at this stamp
+  (ros2_control convention: a PWM-driven joint's effort command is its duty cycle).
+* ``propeller``: position NaN, velocity ω₂ propeller speed [rad/s] or NaN, effort NaN.
+
+``armature`` uses ``sensor_msgs/BatteryState`` because it is the standard message that carries
+a stamped voltage/current pair: ``voltage`` = armature voltage v_a [V] over the interval that
+ends at the stamp (like the applied duty), ``current`` = armature current i_a [A] at the stamp
+(NaN when not measured); every other field is NaN / unknown.
+
+θ, θ̇, ω₁, ω₂ and i_a are instantaneous values at the stamp. Offline, the bag reader shifts the
+applied duty and v_a back by one sample into the batch convention of
+:class:`aeropend_sim.recording.Recording` (``duty[k]`` held over [t_k, t_{k+1})).
+
+Both sample messages of one acquisition sample carry the **same header stamp**: the sample
+instant. A recording therefore aligns exactly at the sample rate (490 Hz on the thesis rig).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+#: Nominal sample period of the thesis rig: Timer1 phase-correct 8-bit PWM overflow (thesis §4.3.2).
+SAMPLE_PERIOD_S: float = 2.048e-3
+#: Nominal sample rate [Hz] (1 / 2.048 ms ≈ 488.28 Hz, "490 Hz" in the thesis).
+SAMPLE_RATE_HZ: float = 1.0 / SAMPLE_PERIOD_S
+
+TOPIC_DUTY_CYCLE = "/aeropend/duty_cycle"
+TOPIC_JOINT_STATES = "/aeropend/joint_states"
+TOPIC_ARMATURE = "/aeropend/armature"
+TOPIC_CLOCK = "/clock"
+
+TYPE_DUTY_CYCLE = "std_msgs/msg/Float64"
+TYPE_JOINT_STATES = "sensor_msgs/msg/JointState"
+TYPE_ARMATURE = "sensor_msgs/msg/BatteryState"
+TYPE_CLOCK = "rosgraph_msgs/msg/Clock"
+
+#: Topic -> message type of every contract topic (what the recorder records by default).
+CONTRACT_TOPICS: dict[str, str] = {
+    TOPIC_DUTY_CYCLE: TYPE_DUTY_CYCLE,
+    TOPIC_JOINT_STATES: TYPE_JOINT_STATES,
+    TOPIC_ARMATURE: TYPE_ARMATURE,
+}
+
+#: Joint names of ``joint_states`` in their fixed order.
+JOINT_NAMES: tuple[str, str, str] = ("pendulum", "motor", "propeller")
+
+#: Sample channels, their unit and meaning (column names used by every array API).
+CHANNELS: dict[str, tuple[str, str]] = {
+    "theta": ("rad", "pendulum angle θ, 0 = hanging down"),
+    "theta_dot": ("rad/s", "pendulum angular velocity θ̇"),
+    "omega_rotor": ("rad/s", "rotor speed ω₁"),
+    "omega_prop": ("rad/s", "propeller speed ω₂"),
+    "i_a": ("A", "armature current i_a"),
+    "v_a": ("V", "armature voltage v_a"),
+    "duty": ("1", "applied duty cycle τ in [0, 1]"),
+}
+
+#: QoS of sample topics: ROS 2 ``qos_profile_sensor_data`` (best effort, keep last 5, volatile).
+SAMPLE_QOS_DEPTH = 5
+#: QoS of the command topic: reliable, keep last 10, volatile.
+COMMAND_QOS_DEPTH = 10
+
+
+class ContractError(ValueError):
+    """A message or value violates the topic contract."""
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One acquisition sample of the plant (simulated or real).
+
+    Attributes
+    ----------
+    stamp_ns : int
+        Sample instant [ns] (ROS time; simulated time in lock-step mode).
+    theta, theta_dot, omega_rotor, omega_prop, i_a, v_a : float
+        Channels in SI units (see :data:`CHANNELS`); NaN where the source does not measure it.
+    duty : float
+        Duty cycle τ in [0, 1] applied from this sample instant to the next.
+    """
+
+    stamp_ns: int
+    theta: float
+    theta_dot: float = math.nan
+    omega_rotor: float = math.nan
+    omega_prop: float = math.nan
+    i_a: float = math.nan
+    v_a: float = math.nan
+    duty: float = math.nan
+
+    def joint_state_fields(self) -> dict[str, list[float] | list[str]]:
+        """Field values of the ``joint_states`` message for this sample (see module doc)."""
+        nan = math.nan
+        return {
+            "name": list(JOINT_NAMES),
+            "position": [self.theta, nan, nan],
+            "velocity": [self.theta_dot, self.omega_rotor, self.omega_prop],
+            "effort": [nan, self.duty, nan],
+        }
+
+    def armature_fields(self) -> dict[str, float]:
+        """Field values of the ``armature`` message for this sample (see module doc)."""
+        return {"voltage": self.v_a, "current": self.i_a}
+
+
+CHANNEL_NAMES: tuple[str, ...] = tuple(f.name for f in fields(Sample) if f.name != "stamp_ns")
+
+
+def sample_from_fields(
+    stamp_ns: int,
+    names: list[str],
+    position: list[float],
+    velocity: list[float],
+    effort: list[float],
+    voltage: float = math.nan,
+    current: float = math.nan,
+) -> Sample:
+    """Rebuild a :class:`Sample` from the fields of a ``joint_states`` (+ ``armature``) message.
+
+    Parameters
+    ----------
+    stamp_ns : int
+        Header stamp [ns].
+    names, position, velocity, effort : list
+        JointState arrays; joints are looked up by name, so their order may differ.
+    voltage, current : float
+        ``armature`` message fields [V], [A]; NaN when absent.
+
+    Raises
+    ------
+    ContractError
+        If a contract joint is missing or the arrays are shorter than ``names``.
+    """
+    names = list(names)
+    missing = [j for j in JOINT_NAMES if j not in names]
+    if missing:
+        raise ContractError(
+            f"joint_states lacks joint(s) {missing}; expected names {list(JOINT_NAMES)}, "
+            f"got {names}"
+        )
+    n = len(names)
+
+    def pick(arr: list[float], joint: str, what: str) -> float:
+        if len(arr) == 0:
+            return math.nan
+        if len(arr) != n:
+            raise ContractError(
+                f"joint_states.{what} has {len(arr)} entries, expected {n} (one per name)"
+            )
+        return float(arr[names.index(joint)])
+
+    return Sample(
+        stamp_ns=int(stamp_ns),
+        theta=pick(position, "pendulum", "position"),
+        theta_dot=pick(velocity, "pendulum", "velocity"),
+        omega_rotor=pick(velocity, "motor", "velocity"),
+        omega_prop=pick(velocity, "propeller", "velocity"),
+        duty=pick(effort, "motor", "effort"),
+        v_a=float(voltage),
+        i_a=float(current),
+    )
+
+
+def validate_duty(value: float) -> float:
+    """Check a duty-cycle command against the contract.
+
+    Parameters
+    ----------
+    value : float
+        Commanded duty cycle τ (fraction).
+
+    Returns
+    -------
+    float
+        ``value`` unchanged.
+
+    Raises
+    ------
+    ContractError
+        If ``value`` is NaN/inf or outside [0, 1].
+    """
+    v = float(value)
+    if not math.isfinite(v):
+        raise ContractError(f"duty cycle {value!r} is not finite; expected a fraction in [0, 1]")
+    if v < 0.0 or v > 1.0:
+        raise ContractError(f"duty cycle {v:g} is outside [0, 1] (a fraction, not percent)")
+    return v
+
+
+def stamp_to_ns(sec: int, nanosec: int) -> int:
+    """Convert a ``builtin_interfaces/Time`` (sec, nanosec) to integer nanoseconds."""
+    return int(sec) * 1_000_000_000 + int(nanosec)
+
+
+def ns_to_stamp(ns: int) -> tuple[int, int]:
+    """Convert integer nanoseconds to ``builtin_interfaces/Time`` (sec, nanosec)."""
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return sec, nanosec

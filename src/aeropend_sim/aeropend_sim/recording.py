@@ -1,0 +1,132 @@
+"""In-memory recording of a plant run: the array form of a contract bag or an imported CSV.
+
+Alignment convention (the batch convention of :func:`aeropend_sim.simulate.simulate`):
+``duty[k]`` is the duty cycle held over [t_k, t_{k+1}) and every channel ``y[k]`` is the value at
+t_k. On the wire (contract topics) the applied duty of a sample describes the interval that
+*ends* at its stamp; the bag reader shifts it by one sample into this convention.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from aeropend_sim.contract import CHANNELS
+
+#: Measured channels a recording may carry (everything in :data:`CHANNELS` except duty).
+MEASURED_CHANNELS: tuple[str, ...] = tuple(c for c in CHANNELS if c != "duty")
+
+
+class RecordingError(ValueError):
+    """A recording is inconsistent (lengths, NaNs, time base) or lacks a needed channel."""
+
+
+@dataclass
+class Recording:
+    """Uniformly or non-uniformly sampled run: time, duty-cycle input and measured channels.
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Sample instants [s], strictly increasing, starting at 0.
+    duty : ndarray, shape (N,)
+        Duty cycle τ_k ∈ [0, 1] held over [t_k, t_{k+1}).
+    channels : dict[str, ndarray]
+        Measured channels (names from :data:`MEASURED_CHANNELS`), each shape (N,), SI units.
+        A channel that was not measured is absent (never filled with zeros).
+    source : str
+        Where the data came from (file path, bag, simulation).
+    stamp0_ns : int
+        Absolute time of t = 0 [ns] (ROS time of the first sample; 0 if unknown).
+    meta : dict
+        Free-form provenance (rig name, column mapping, licence note, ...).
+    """
+
+    t: np.ndarray
+    duty: np.ndarray
+    channels: dict[str, np.ndarray]
+    source: str = ""
+    stamp0_ns: int = 0
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.t = np.asarray(self.t, dtype=float)
+        self.duty = np.asarray(self.duty, dtype=float)
+        n = self.t.size
+        if self.t.ndim != 1 or n < 2:
+            raise RecordingError(f"{self.source}: need at least 2 samples, got t of shape {self.t.shape}")
+        if not np.all(np.diff(self.t) > 0):
+            k = int(np.flatnonzero(np.diff(self.t) <= 0)[0])
+            raise RecordingError(
+                f"{self.source}: time not strictly increasing at sample {k + 1} "
+                f"(t = {self.t[k]:.6g} then {self.t[k + 1]:.6g} s)"
+            )
+        if self.duty.shape != (n,):
+            raise RecordingError(f"{self.source}: duty has shape {self.duty.shape}, expected ({n},)")
+        for name, y in list(self.channels.items()):
+            if name not in MEASURED_CHANNELS:
+                raise RecordingError(f"{self.source}: unknown channel {name!r}; expected one of {MEASURED_CHANNELS}")
+            y = np.asarray(y, dtype=float)
+            if y.shape != (n,):
+                raise RecordingError(f"{self.source}: channel {name} has shape {y.shape}, expected ({n},)")
+            self.channels[name] = y
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+    @property
+    def dt(self) -> float:
+        """Median sample period [s]."""
+        return float(np.median(np.diff(self.t)))
+
+    def require(self, *names: str) -> None:
+        """Raise :class:`RecordingError` unless every named channel is present and finite."""
+        missing = [n for n in names if n not in self.channels]
+        if missing:
+            raise RecordingError(
+                f"{self.source}: recording lacks channel(s) {missing} (has {sorted(self.channels)})"
+            )
+        for n in names:
+            bad = ~np.isfinite(self.channels[n])
+            if bad.any():
+                raise RecordingError(
+                    f"{self.source}: channel {n} has {int(bad.sum())} non-finite value(s), "
+                    f"first at sample {int(np.flatnonzero(bad)[0])}"
+                )
+
+    def slice(self, start: int, stop: int) -> Recording:
+        """Samples [start, stop) as a new recording with time re-based to 0."""
+        t = self.t[start:stop]
+        return Recording(
+            t=t - t[0],
+            duty=self.duty[start:stop].copy(),
+            channels={k: v[start:stop].copy() for k, v in self.channels.items()},
+            source=f"{self.source}[{start}:{stop}]",
+            stamp0_ns=self.stamp0_ns + int(round(self.t[start] * 1e9)),
+            meta=dict(self.meta),
+        )
+
+    def split(self, train_fraction: float) -> tuple[Recording, Recording]:
+        """Time-ordered split: first ``train_fraction`` for training, the rest held out."""
+        if not 0.0 < train_fraction < 1.0:
+            raise RecordingError(f"train_fraction {train_fraction} must be in (0, 1)")
+        k = int(round(train_fraction * len(self)))
+        return self.slice(0, k), self.slice(k, len(self))
+
+    @classmethod
+    def from_trajectory(cls, traj: Any, source: str = "simulation", channels: tuple[str, ...] | None = None,
+                        meta: dict[str, Any] | None = None) -> Recording:
+        """Recording of a :class:`aeropend_sim.simulate.Trajectory` (measured channels).
+
+        Parameters
+        ----------
+        channels : tuple of str, optional
+            Channels to keep (default all measured channels), e.g. ``("theta",)`` to mimic a
+            rig that logs only the angle.
+        """
+        names = MEASURED_CHANNELS if channels is None else channels
+        all_ch = traj.channels()
+        return cls(t=traj.t.copy(), duty=traj.duty.copy(), channels={n: all_ch[n].copy() for n in names},
+                   source=source, meta=dict(meta or {}))
