@@ -158,7 +158,10 @@ def _delayed_segments(
         edges, values = k, duty
     else:
         shifted = np.arange(n) * dt + delay
-        edges = np.union1d(k, shifted[shifted < t_end])
+        edges = np.sort(np.concatenate((k, shifted[shifted < t_end])))
+        # merge breakpoints that coincide up to rounding (delay a whole number of samples)
+        keep = np.concatenate(([True], np.diff(edges) > 1e-9 * dt))
+        edges = edges[keep]
         mids = 0.5 * (edges[:-1] + edges[1:])
         idx = np.floor((mids - delay) / dt + 1e-9).astype(int)
         values = np.where(idx < 0, tau_before, duty[np.clip(idx, 0, n - 1)])
