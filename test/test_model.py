@@ -105,7 +105,7 @@ def test_steady_back_emf_reproduces_thesis_table_4_2():
     v, i_meas, rpm = TABLE_4_2.T
     rig = RIG.with_effects(hbridge_map=False)
     k_hat = []
-    for vk, rpm_k in zip(v, rpm):
+    for vk, rpm_k in zip(v, rpm, strict=True):
         r = rig.with_params("actuator", v_supply=vk)
         traj = simulate(r, np.ones(int(0.3 / r.sample_period)))  # ≈15 mechanical time constants
         w = traj.omega_rotor[-1]
@@ -118,7 +118,7 @@ def test_steady_back_emf_reproduces_thesis_table_4_2():
     # the thesis' estimator applied to the model's steady states gives Table 4.2's K̂ω
     assert k_hat.mean() == pytest.approx(6.606e-4, abs=1.38e-5)
     # and the simulated currents match the measured ones within the same scatter
-    for vk, ik in zip(v, i_meas):
+    for vk, ik in zip(v, i_meas, strict=True):
         r = rig.with_params("actuator", v_supply=vk)
         traj = simulate(r, np.ones(int(0.3 / r.sample_period)))
         assert traj.i_a[-1] == pytest.approx(ik, rel=0.08)
@@ -162,7 +162,7 @@ def test_actuator_lag_is_first_order():
     T_a = 0.05
     rig = RIG.with_effects(actuator_lag=True).with_params("actuator", lag_time_constant=T_a)
     traj = simulate(rig, np.full(200, 0.5))
-    k = int(round(T_a / rig.sample_period))
+    k = round(T_a / rig.sample_period)
     t = traj.t[k]
     assert traj.x[k, TAU_F] == pytest.approx(0.5 * (1 - math.exp(-t / T_a)), rel=1e-6)
 
@@ -189,7 +189,8 @@ def test_coulomb_friction_gives_linear_decay():
     rig = rig.with_params("pendulum", coulomb_over_J=0.5)
     traj = simulate(rig, np.zeros(int(8.0 / rig.sample_period)), x0=np.array([0.6, 0, 0, 0, 0]))
     th = traj.theta
-    peaks = [th[k] for k in range(1, th.size - 1) if th[k] > th[k - 1] and th[k] >= th[k + 1] and th[k] > 0.05]
+    peaks = [th[k] for k in range(1, th.size - 1)
+             if th[k] > th[k - 1] and th[k] >= th[k + 1] and th[k] > 0.05]
     drops = np.diff(peaks)
     assert len(drops) >= 3
     assert np.std(drops) < 0.05 * abs(np.mean(drops))
@@ -218,7 +219,7 @@ def test_invalid_duty_is_rejected_with_index():
     duty[4] = np.nan
     with pytest.raises(SimulationError, match=r"duty\[4\]"):
         simulate(RIG, duty)
-    with pytest.raises(SimulationError, match="1.2"):
+    with pytest.raises(SimulationError, match=r"1\.2"):
         simulate(RIG, np.array([0.1, 1.2]))
     with pytest.raises(SimulationError, match="initial state"):
         simulate(RIG, duty[:3], x0=np.array([0.0, 1.0]))

@@ -20,11 +20,14 @@ setup(
     zip_safe=True,
     maintainer="aeropend maintainers",
     maintainer_email="maintainers@aeropend.invalid",
-    description="Serial bridge to the Arduino Mega acquisition firmware; publishes the same topics as the simulated plant.",
+    description=(
+        "Serial bridge to the Arduino Mega acquisition firmware; publishes the same "
+        "topics as the simulated plant."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            
+
         ],
     },
 )

@@ -20,11 +20,14 @@ setup(
     zip_safe=True,
     maintainer="aeropend maintainers",
     maintainer_email="maintainers@aeropend.invalid",
-    description="Aeropendulum controllers: PID, small-signal linearisation, feedback linearisation, cascade (thesis chapter 6).",
+    description=(
+        "Aeropendulum controllers: PID, small-signal linearisation, feedback "
+        "linearisation, cascade (thesis chapter 6)."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            
+
         ],
     },
 )

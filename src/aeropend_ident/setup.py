@@ -20,7 +20,10 @@ setup(
     zip_safe=True,
     maintainer="aeropend maintainers",
     maintainer_email="maintainers@aeropend.invalid",
-    description="Offline identification and sim-to-real gap diagnosis on rosbag2 files (rosbags, no ROS install needed); recorder, player and CSV import.",
+    description=(
+        "Offline identification and sim-to-real gap diagnosis on rosbag2 files (rosbags, "
+        "no ROS install needed); recorder, player and CSV import."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

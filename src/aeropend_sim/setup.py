@@ -20,7 +20,10 @@ setup(
     zip_safe=True,
     maintainer="aeropend maintainers",
     maintainer_email="maintainers@aeropend.invalid",
-    description="Aeropendulum plant model library (thesis Eqs. 3.1-3.10), rig parameter files, topic contract, simulated plant node and excitation node.",
+    description=(
+        "Aeropendulum plant model library (thesis Eqs. 3.1-3.10), rig parameter files, "
+        "topic contract, simulated plant node and excitation node."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

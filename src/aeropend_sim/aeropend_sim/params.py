@@ -239,11 +239,15 @@ def rig_from_dict(data: dict[str, Any], where: str = "<dict>") -> Rig:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(node) - known)
         if unknown:
-            raise RigFileError(f"{where}: unknown key(s) {unknown} in section {section!r}; expected {sorted(known)}")
+            raise RigFileError(
+                f"{where}: unknown key(s) {unknown} in section {section!r}; expected {sorted(known)}"
+            )
         kwargs = {}
         for f in fields(cls):
             if f.name not in node:
-                raise RigFileError(f"{where}: missing {section}.{f.name} [{f.metadata['unit']}] ({f.metadata['doc']})")
+                raise RigFileError(
+                    f"{where}: missing {section}.{f.name} [{f.metadata['unit']}] ({f.metadata['doc']})"
+                )
             kwargs[f.name], sources[f"{section}.{f.name}"] = _read_quantity(
                 node[f.name], f"{section}.{f.name}", f.metadata["unit"], where
             )
@@ -322,7 +326,8 @@ def load_rig(name_or_path: str | Path) -> Rig:
 
 def save_rig(rig: Rig, path: str | Path) -> None:
     """Write a rig file (YAML) that :func:`load_rig` reads back to an equal :class:`Rig`."""
-    Path(path).write_text(yaml.safe_dump(rig_to_dict(rig), sort_keys=False, allow_unicode=True), encoding="utf-8")
+    text = yaml.safe_dump(rig_to_dict(rig), sort_keys=False, allow_unicode=True)
+    Path(path).write_text(text, encoding="utf-8")
 
 
 def shipped_rigs() -> list[str]:

@@ -67,7 +67,9 @@ class Recording:
             raise RecordingError(f"{self.source}: duty has shape {self.duty.shape}, expected ({n},)")
         for name, y in list(self.channels.items()):
             if name not in MEASURED_CHANNELS:
-                raise RecordingError(f"{self.source}: unknown channel {name!r}; expected one of {MEASURED_CHANNELS}")
+                raise RecordingError(
+                    f"{self.source}: unknown channel {name!r}; expected one of {MEASURED_CHANNELS}"
+                )
             y = np.asarray(y, dtype=float)
             if y.shape != (n,):
                 raise RecordingError(f"{self.source}: channel {name} has shape {y.shape}, expected ({n},)")
@@ -104,7 +106,7 @@ class Recording:
             duty=self.duty[start:stop].copy(),
             channels={k: v[start:stop].copy() for k, v in self.channels.items()},
             source=f"{self.source}[{start}:{stop}]",
-            stamp0_ns=self.stamp0_ns + int(round(self.t[start] * 1e9)),
+            stamp0_ns=self.stamp0_ns + round(self.t[start] * 1e9),
             meta=dict(self.meta),
         )
 
@@ -112,7 +114,7 @@ class Recording:
         """Time-ordered split: first ``train_fraction`` for training, the rest held out."""
         if not 0.0 < train_fraction < 1.0:
             raise RecordingError(f"train_fraction {train_fraction} must be in (0, 1)")
-        k = int(round(train_fraction * len(self)))
+        k = round(train_fraction * len(self))
         return self.slice(0, k), self.slice(k, len(self))
 
     @classmethod

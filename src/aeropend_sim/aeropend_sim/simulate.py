@@ -219,7 +219,7 @@ def simulate(
     starts = np.concatenate(([0], change))
     stops = np.concatenate((change, [values.size]))
     k = 0
-    for a, b in zip(starts, stops):
+    for a, b in zip(starts, stops, strict=True):
         t_grid = edges[a : b + 1]
         u = float(values[a])
         if not model.dynamic_current:
@@ -280,7 +280,7 @@ class PlantStepper:
         self.k = 0
         self.rng = np.random.default_rng(seed)
         n_delay = self.model.delay / self.dt
-        self._delay_whole = int(math.floor(n_delay + 1e-9))
+        self._delay_whole = math.floor(n_delay + 1e-9)
         self._delay_frac = (n_delay - self._delay_whole) * self.dt
         self._queue: list[float] = [0.0] * (self._delay_whole + 1)
         self._u_now = 0.0
