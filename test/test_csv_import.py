@@ -1,0 +1,315 @@
+"""CSV import: real third-party logs (numbers from shared/data/real/README.md) and malformed files."""
+
+from __future__ import annotations
+
+import gzip
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aeropend_ident.bags import read_bag
+from aeropend_ident.csv_import import PRESETS, CsvImportError, CsvSpec, find_preset, import_csv, main
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+HOJA3 = REAL / "jahoyosr__Aeropendulum" / "sheet_Hoja3_pwm_steps_openloop.csv"
+AEROSHIELD = REAL / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"
+ETCHE = REAL / "BA-Etchepareborda__adaptive-control-aeropendulum"
+MATHEUS = REAL / "matheusbucater__aeropendulo"
+
+real_data = pytest.mark.skipif(not REAL.is_dir(), reason=f"real recordings not found at {REAL}")
+
+
+def _segments(duty: np.ndarray) -> list[np.ndarray]:
+    """Index arrays of constant-duty segments."""
+    return np.split(np.arange(duty.size), np.flatnonzero(np.diff(duty)) + 1)
+
+
+# ------------------------------------------------------------------ real files
+
+
+@real_data
+@pytest.mark.real_data
+def test_hoja3_staircase() -> None:
+    rec = import_csv(HOJA3, "jahoyosr_hoja3")
+    assert len(rec) == 15555
+    assert rec.dt == pytest.approx(1 / 70, rel=1e-5)
+    assert rec.meta["rate_hz"] == pytest.approx(70.0, rel=1e-5)
+    assert rec.t[-1] == pytest.approx(222.2143746, abs=1e-9)
+    # one dropped sample (a 2-period gap) is kept and reported, not resampled
+    assert rec.meta["n_gaps"] == 1 and rec.meta["max_gap_s"] == pytest.approx(2 / 70, rel=1e-5)
+    # PWM steps by 2 every 10 s from 180 to 224
+    segs = _segments(rec.duty)
+    pwm = [rec.duty[s[0]] * 255 for s in segs]
+    assert np.allclose(pwm, np.arange(180, 225, 2))
+    assert rec.duty.min() == 180 / 255 and rec.duty.max() == 224 / 255
+    assert [len(s) for s in segs[:-1]] == [700] * 22  # 10 s at 70 Hz
+    # angle in rad, README: range -37.4 deg (lower stop) .. +36.1 deg (upper stop)
+    deg = np.degrees(rec.channels["theta"])
+    assert deg.min() == pytest.approx(-37.49, abs=1e-9) and deg.max() == pytest.approx(36.26, abs=1e-9)
+    # README steady angles (PWM -> deg); mean over the last 2 s of each step
+    steady = {round(rec.duty[s[0]] * 255): deg[s[-140:]].mean() for s in segs}
+    for p in (180, 186, 192):
+        assert steady[p] == pytest.approx(-37.4, abs=0.3)
+    for p, readme in ((194, -35.1), (200, -31.5), (210, -24.9), (214, -21.4), (222, 36.1)):
+        assert steady[p] == pytest.approx(readme, abs=0.3), p
+    assert rec.meta["licence"].startswith("none stated")
+    assert "735dd93e" in rec.meta["provenance"]
+
+
+@real_data
+@pytest.mark.real_data
+def test_aeroshield_identification() -> None:
+    rec = import_csv(AEROSHIELD, "aeroshield_ident")
+    assert len(rec) == 4812
+    assert rec.dt == pytest.approx(0.015, rel=1e-12)
+    assert rec.meta["uniform"] and rec.meta["n_gaps"] == 0
+    assert rec.t[-1] == pytest.approx(4811 * 0.015, rel=1e-12)
+    # README: u takes 15 levels between 0 and 1.91 V -> 15 duty levels; firmware:
+    # PWM = floor(255 u^2 / 3.7^2), so the top level 1.90572 V gives floor(67.65) = 67 counts
+    levels = np.unique(rec.duty)
+    assert levels.size == 15
+    assert levels[0] == 0.0 and levels[-1] == 67 / 255
+    assert np.allclose(levels * 255, np.round(levels * 255))  # integer PWM counts
+    th = rec.channels["theta"]
+    assert th.min() == 0.0 and th.max() == pytest.approx(1.06612, abs=1e-12)
+    assert "CC BY-NC-ND 4.0" in rec.meta["licence"]
+    assert "3.7" in rec.meta["input_note"]
+
+
+@real_data
+@pytest.mark.real_data
+def test_etchepareborda_steps() -> None:
+    rec = import_csv(ETCHE / "openloop_steps_0_100_180.csv", "etchepareborda_openloop")
+    assert len(rec) == 8708
+    assert rec.dt == pytest.approx(0.02, rel=1e-9) and rec.meta["n_gaps"] == 0
+    assert rec.t[-1] == pytest.approx(174.14, abs=1e-9)
+    assert set(np.unique(rec.duty)) == {0.0, 100 / 255, 180 / 255}
+    segs = _segments(rec.duty)
+    assert [round(rec.duty[s[0]] * 255) for s in segs[:6]] == [0, 100, 180, 0, 100, 180]
+    assert [len(s) * 0.02 for s in segs[:3]] == pytest.approx([4.0, 4.0, 8.0])
+    # README steady theta: PWM 100 -> 0.39-0.41 rad, PWM 180 -> 0.68-0.79 rad. Mean of the last second of
+    # each step: the first six PWM-100 steps match; later repeats drift up (0.44-0.47 rad, the rig warms up
+    # or the MPU6050 filter drifts), which the README's range does not mention; imported as is.
+    steady: dict[int, list[float]] = {100: [], 180: []}
+    for s in segs:
+        level = round(rec.duty[s[0]] * 255)
+        if level in steady and len(s) >= 200:
+            steady[level].append(float(rec.channels["theta"][s[-50:]].mean()))
+    assert len(steady[100]) == 11 and len(steady[180]) == 11
+    assert all(0.39 <= v <= 0.42 for v in steady[100][:6])
+    assert max(steady[100]) == pytest.approx(0.47, abs=0.005)
+    assert 0.68 <= float(np.median(steady[180])) <= 0.79
+    other = import_csv(ETCHE / "openloop_steps_0_100_130.csv", "etchepareborda_openloop")
+    assert set(np.unique(other.duty)) == {0.0, 100 / 255, 130 / 255}
+    assert other.t[-1] == pytest.approx(116.46, abs=1e-9)
+
+
+@real_data
+@pytest.mark.real_data
+def test_matheusbucater_sawtooth_and_step() -> None:
+    saw = import_csv(MATHEUS / "aeropendulum.csv", "matheusbucater_sawtooth")
+    assert saw.meta["delimiter"] == ";"
+    assert len(saw) == 799
+    assert saw.dt == pytest.approx(0.016)  # FreeRTOS tick 16-17 ms
+    dts = set(np.round(np.diff(saw.t) * 1e3).astype(int).tolist())
+    assert dts == {16, 17, 32}
+    assert saw.t[-1] == pytest.approx(12.887, abs=1e-12)
+    assert saw.duty.min() == 0.0 and saw.duty.max() == 149 / 255  # sawtooth 0..149
+    deg = np.degrees(saw.channels["theta"])
+    assert np.allclose(deg, np.round(deg))  # 1-degree potentiometer resolution
+
+    step = import_csv(MATHEUS / "aeropendulum_step.csv", "matheusbucater_step")
+    assert len(step) == 799
+    assert np.all(step.duty == 80 / 255)  # no PWM column: the preset's constant
+    assert step.t[-1] == pytest.approx(12.870, abs=1e-12)
+    final = np.degrees(step.channels["theta"][step.t > step.t[-1] - 2.0]).mean()
+    assert final == pytest.approx(60.6, abs=1.0)  # README: settles at about 60.6 deg
+    assert "held at" in step.meta["input_note"]
+
+
+@real_data
+@pytest.mark.real_data
+def test_presets_found_by_file_name() -> None:
+    assert find_preset(HOJA3) == "jahoyosr_hoja3"
+    assert find_preset(AEROSHIELD) == "aeroshield_ident"
+    assert find_preset(ETCHE / "openloop_random_binary_80_120.csv") == "etchepareborda_openloop"
+    assert find_preset(MATHEUS / "aeropendulum_step.csv") == "matheusbucater_step"
+    assert find_preset("unrelated.csv") is None
+    for name, spec in PRESETS.items():
+        assert spec.name == name
+        assert spec.meta["licence"] and spec.meta["provenance"].startswith("https://github.com/")
+
+
+@real_data
+@pytest.mark.real_data
+def test_cli_writes_bag_that_reads_back(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "hoja3_bag"
+    assert main([str(HOJA3), "-o", str(out), "--preset", "auto", "--storage", "sqlite3"]) == 0
+    text = capsys.readouterr().out
+    assert "15555 samples" in text and "70.00 Hz" in text and "['theta']" in text
+    rec = import_csv(HOJA3, "jahoyosr_hoja3")
+    back = read_bag(out)
+    assert np.array_equal(back.duty, rec.duty)
+    assert np.array_equal(back.channels["theta"], rec.channels["theta"])
+    assert sorted(back.channels) == ["theta"]
+    assert np.max(np.abs(back.t - rec.t)) <= 0.5e-9
+    assert back.meta["licence"] == rec.meta["licence"] and back.meta["preset"] == "jahoyosr_hoja3"
+
+
+# ------------------------------------------------------------------ synthetic files
+
+
+def _write(path: Path, text: str) -> Path:
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def _rows(n: int, bad_line: int | None = None, bad: str = "abc") -> str:
+    lines = ["t [s],PWM [0-255],angle [deg]"]
+    for k in range(n):
+        angle = f"{-10 + 0.5 * k:.2f}"
+        lines.append(f"{k * 0.02:.2f},{100 + k % 7},{angle}")
+    if bad_line is not None:
+        fields = lines[bad_line - 1].split(",")
+        fields[2] = bad
+        lines[bad_line - 1] = ",".join(fields)
+    return "\n".join(lines) + "\n"
+
+
+SPEC = CsvSpec(time_col="t [s]", input_col="PWM [0-255]", input_kind="pwm", angle_col="angle [deg]",
+               angle_unit="deg")
+
+
+def test_not_a_number_names_file_line_column(tmp_path: Path) -> None:
+    path = _write(tmp_path / "data.csv", _rows(80, bad_line=57))
+    with pytest.raises(CsvImportError) as err:
+        import_csv(path, SPEC)
+    assert str(err.value) == f"{path} line 57 column 'angle [deg]': 'abc' is not a number"
+
+
+def test_empty_cell_and_short_line(tmp_path: Path) -> None:
+    path = _write(tmp_path / "empty.csv", _rows(20, bad_line=9, bad=""))
+    with pytest.raises(CsvImportError, match=r"empty\.csv line 9 column 'angle \[deg\]': '' is empty"):
+        import_csv(path, SPEC)
+    text = _rows(20).splitlines()
+    text[13] = "0.24,101"  # line 14 lacks the angle field
+    path = _write(tmp_path / "short.csv", "\n".join(text))
+    with pytest.raises(CsvImportError, match=r"short\.csv line 14 column 'angle \[deg\]': missing"):
+        import_csv(path, SPEC)
+
+
+def test_nan_cell_in_required_column(tmp_path: Path) -> None:
+    path = _write(tmp_path / "nan.csv", _rows(20, bad_line=5, bad="nan"))
+    expected = r"nan\.csv line 5 column 'angle \[deg\]': 'nan' is not a finite"
+    with pytest.raises(CsvImportError, match=expected):
+        import_csv(path, SPEC)
+
+
+def test_time_must_increase(tmp_path: Path) -> None:
+    text = _rows(30).splitlines()
+    text[20] = "0.36,100,1.0"  # line 21: t = 0.36 after 0.38 on line 20
+    path = _write(tmp_path / "back.csv", "\n".join(text))
+    expected = r"back\.csv line 21 column 't \[s\]': time 0\.36 s is not after"
+    with pytest.raises(CsvImportError, match=expected):
+        import_csv(path, SPEC)
+
+
+def test_missing_column_lists_header(tmp_path: Path) -> None:
+    path = _write(tmp_path / "cols.csv", _rows(5))
+    spec = CsvSpec(time_col="time", input_col="PWM [0-255]", input_kind="pwm", angle_col="angle [deg]")
+    with pytest.raises(CsvImportError, match=r"cols\.csv line 1: no time column 'time'; header has"):
+        import_csv(path, spec)
+    with pytest.raises(CsvImportError, match="column index 7 out of range; the file has 3 column"):
+        import_csv(path, CsvSpec(time_col=0, input_col=1, input_kind="pwm", angle_col=7))
+
+
+def test_not_utf8_and_missing_file(tmp_path: Path) -> None:
+    path = tmp_path / "latin.csv"
+    path.write_bytes(b"t,u,angle\n0,1,2\n0.1,1,\xb0\n")
+    with pytest.raises(CsvImportError, match=r"latin\.csv line 3: bytes are not valid utf-8"):
+        import_csv(path, CsvSpec(time_col="t", input_col="u", angle_col="angle"))
+    with pytest.raises(CsvImportError, match="cannot read file"):
+        import_csv(tmp_path / "absent.csv", SPEC)
+
+
+def test_semicolon_decimal_comma_comments_gz(tmp_path: Path) -> None:
+    body = (
+        "# logged by the lab rig\n"
+        "# 3 columns\n"
+        "Zeit [ms];Tastgrad [%];Winkel [deg];Strom [mA]\n"
+        "0;10,5;-1,25;100\n"
+        "\n"
+        "20;12,5;-0,75;\n"
+        "# pause\n"
+        "45;150;0,5;120,5\n"
+        "60;-3;1,0;130\n"
+    )
+    spec = CsvSpec(time_col="Zeit", time_unit="ms", input_col="Tastgrad", input_kind="percent",
+                   angle_col="Winkel", angle_unit="deg", angle_zero=-1.25, angle_sign=-1.0,
+                   channels={"i_a": ("Strom [mA]", 1e-3)})
+    plain = _write(tmp_path / "comma.csv", body)
+    packed = tmp_path / "comma.csv.gz"
+    packed.write_bytes(gzip.compress(body.encode()))
+    for path in (plain, packed):
+        with pytest.warns(UserWarning, match="2 actuator value"):
+            rec = import_csv(path, spec)
+        assert rec.meta["delimiter"] == ";" and rec.meta["decimal"] == ","
+        assert rec.meta["comment_lines"] == 3 and rec.meta["blank_lines"] == 1
+        assert rec.t.tolist() == pytest.approx([0.0, 0.02, 0.045, 0.06])
+        assert rec.duty.tolist() == pytest.approx([0.105, 0.125, 1.0, 0.0])  # 150 % and -3 % clipped
+        assert rec.meta["duty_clipped"] == {"below_0": 1, "above_1": 1}
+        expected = [-(a + 1.25) * math.pi / 180 for a in (-1.25, -0.75, 0.5, 1.0)]
+        assert rec.channels["theta"].tolist() == pytest.approx(expected, abs=1e-15)
+        i_a = rec.channels["i_a"]
+        assert i_a[0] == pytest.approx(0.1) and math.isnan(i_a[1]) and i_a[2] == pytest.approx(0.1205)
+        # irregular time kept and reported
+        assert rec.meta["dt_median_s"] == pytest.approx(0.02)
+        assert rec.meta["max_gap_s"] == pytest.approx(0.025)
+
+
+def test_no_time_column_uses_rate(tmp_path: Path) -> None:
+    body = "".join(f"{0.3 + 0.01 * (k % 3)}\t{0.001 * k}\n" for k in range(250))
+    path = _write(tmp_path / "notime.tsv", body)
+    spec = CsvSpec(time_col=None, rate_hz=490.0, input_col=0, input_kind="duty", angle_col=1)
+    rec = import_csv(path, spec)
+    assert rec.meta["header"] is None and rec.meta["delimiter"] == "\t"
+    assert len(rec) == 250
+    assert rec.t[-1] == pytest.approx(249 / 490)
+    assert rec.meta["uniform"] and rec.meta["rate_hz"] == pytest.approx(490.0)
+    assert rec.duty[:3].tolist() == [0.3, 0.31, 0.32]
+    assert rec.channels["theta"][-1] == pytest.approx(0.249)
+    with pytest.raises(CsvImportError, match="rate_hz = None; a positive sample rate"):
+        import_csv(path, CsvSpec(input_col=0, angle_col=1))
+
+
+def test_voltage_input_linear_and_rms(tmp_path: Path) -> None:
+    path = _write(tmp_path / "volt.csv", "t,u [V],y\n0,0,0\n0.01,6,0.1\n0.02,12,0.2\n0.03,13,0.25\n")
+    lin = CsvSpec(time_col="t", input_col="u", input_kind="voltage", supply_voltage=12.0, angle_col="y")
+    with pytest.warns(UserWarning, match="1 actuator value"):
+        rec = import_csv(path, lin)
+    assert rec.duty.tolist() == [0.0, 0.5, 1.0, 1.0]
+    assert rec.meta["duty_clipped"] == {"below_0": 0, "above_1": 1}
+    rms = CsvSpec(time_col="t", input_col="u", input_kind="voltage", supply_voltage=12.0, voltage_law="rms",
+                  quantize_counts=255, angle_col="y")
+    with pytest.warns(UserWarning):
+        rec = import_csv(path, rms)
+    assert rec.duty.tolist() == [0.0, 63 / 255, 1.0, 1.0]  # floor(255 * 0.25) = 63
+    with pytest.raises(CsvImportError, match="needs supply_voltage > 0"):
+        import_csv(path, CsvSpec(time_col="t", input_col="u", input_kind="voltage", angle_col="y"))
+
+
+def test_cli_custom_columns(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = _write(tmp_path / "log.csv", _rows(100))
+    out = tmp_path / "bag"
+    code = main([str(path), "-o", str(out), "--time-col", "t [s]", "--angle-col", "angle",
+                 "--angle-unit", "deg", "--pwm-col", "PWM", "--pwm-full-scale", "255"])
+    assert code == 0
+    assert "100 samples over 1.980 s" in capsys.readouterr().out
+    back = read_bag(out)
+    assert back.duty[0] == 100 / 255 and back.duty[6] == 106 / 255
+    assert back.channels["theta"][2] == pytest.approx(math.radians(-9.0))
+    bad = _write(tmp_path / "bad.csv", _rows(10, bad_line=4, bad="x1"))
+    assert main([str(bad), "--time-col", "0", "--angle-col", "2", "--pwm-col", "1"]) == 1
+    assert "bad.csv line 4 column 'angle [deg]': 'x1' is not a number" in capsys.readouterr().err
