@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from aeropend_sim.contract import SAMPLE_PERIOD_S
 from aeropend_sim.excitation import (
     SIGNALS,
