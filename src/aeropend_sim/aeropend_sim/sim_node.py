@@ -1,0 +1,332 @@
+"""Simulated aeropendulum plant node ``aeropend_sim`` (console script ``sim_node``).
+
+Publishes the contract sample topics (``/aeropend/joint_states`` + ``/aeropend/armature``, same
+stamp, see :mod:`aeropend_sim.contract`) from a :class:`~aeropend_sim.simulate.PlantStepper`
+and subscribes the duty-cycle command ``/aeropend/duty_cycle``. A drop-in replacement for the
+hardware bridge.
+
+Usage::
+
+    sim_node --ros-args -p rig:=thesis_rig -p mode:=realtime
+    sim_node --ros-args -p mode:=lockstep -p seed:=3 -p noise:=true \\
+        -p "effects:=[dead_zone=true,armature_inductance=quasi_static]"
+
+Parameters
+----------
+rig : str, default ``thesis_rig``
+    Shipped rig name or path to a rig YAML file.
+effects : list of str
+    Effect-switch overrides ``name=value`` (e.g. ``dead_zone=true``).
+mode : str, default ``realtime``
+    ``realtime``: one sample every ``rig.sample_period`` of wall time (dedicated thread with
+    absolute deadlines), stamps = start + k·T_s in ROS time, latest command zero-order held,
+    duty -> 0 after ``command_timeout`` without command, samples with ``SAMPLE_QOS``.
+    ``lockstep``: sample 0 at start (re-published every 0.5 s of wall time while idle), then
+    exactly one sample per valid command, stamped with simulated time k·T_s, ``/clock``
+    published, samples with the reliable ``SAMPLE_QOS_LOCKSTEP``.
+seed : int, default 0
+    Seed of the measurement noise.
+initial_theta : float [rad], initial_state : 5 floats
+    Initial state (``initial_state`` = [θ, θ̇, i_a, ω₁, τ_f] wins).
+noise : bool
+    Switch sensor noise and quantisation on/off (default: as in the rig file).
+command_timeout : float [s], default 0.25
+    Real-time mode command timeout.
+publish_clock : bool
+    Publish ``/clock`` (default true in lock-step mode, false in real-time mode).
+frame_id : str, default ``aeropend``
+rt_priority : int, default 0
+    Real-time mode: run the sampler thread with SCHED_FIFO at this priority (1-99; needs
+    CAP_SYS_NICE or a suitable ``rtprio`` limit, else a warning and normal scheduling). Cuts
+    overruns on a loaded machine; 0 = normal scheduling.
+
+Invalid parameters log an error naming the value and exit with status 2. Invalid commands
+(NaN, outside [0, 1]) are rejected, counted and logged (throttled); the plant keeps running.
+All logic that is not rclpy lives in :mod:`aeropend_sim.sim_core`.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import sys
+import threading
+import time
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.clock import Clock, ClockType
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import BatteryState, JointState
+from std_msgs.msg import Float64
+
+from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_CLOCK, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES, Sample
+from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, sample_to_msgs, to_time
+from aeropend_sim.sim_core import (
+    DEFAULT_COMMAND_TIMEOUT_S,
+    DEFAULT_RIG,
+    LOCKSTEP_REPUBLISH_S,
+    CommandHold,
+    PlantClock,
+    RealtimeSchedule,
+    SimConfigError,
+    make_settings,
+)
+
+NODE_NAME = "aeropend_sim"
+#: QoS of /clock (reliable so that lock-step consumers see every tick; best-effort subscribers match).
+CLOCK_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+#: Minimum interval [s] between two log lines of the same repeated warning.
+LOG_THROTTLE_S = 1.0
+
+#: (name, default, description) of the node parameters; all dynamically typed and validated by
+#: :func:`aeropend_sim.sim_core.make_settings` so errors name the value and what was expected.
+PARAMETERS: tuple[tuple[str, Any, str], ...] = (
+    ("rig", DEFAULT_RIG, "shipped rig name or path to a rig YAML file"),
+    ("effects", None, "effect overrides, list of name=value strings"),
+    ("mode", "realtime", "realtime | lockstep"),
+    ("seed", 0, "measurement-noise seed (int >= 0)"),
+    ("initial_theta", None, "initial angle [rad]"),
+    ("initial_state", None, "initial state [theta rad, theta_dot rad/s, i_a A, omega_rotor rad/s, tau_f]"),
+    ("noise", None, "sensor noise + quantisation on/off (default: rig file)"),
+    ("command_timeout", DEFAULT_COMMAND_TIMEOUT_S, "realtime: duty -> 0 after this long without command [s]"),
+    ("publish_clock", None, "publish /clock (default: true in lockstep, false in realtime)"),
+    ("frame_id", "aeropend", "header.frame_id of the sample messages"),
+    ("rt_priority", 0, "realtime: SCHED_FIFO priority 1-99 of the sampler thread (0 = normal scheduling)"),
+)
+
+
+def _reduce_timer_slack() -> None:
+    """Ask Linux for 1 µs timer slack on the calling thread (default 50 µs) to cut sleep jitter."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(29, 1000, 0, 0, 0)  # PR_SET_TIMERSLACK
+    except (OSError, AttributeError):  # pragma: no cover - non-Linux
+        pass
+
+
+class SimPlantNode(Node):
+    """rclpy shell of the simulated plant (see module docstring).
+
+    Raises
+    ------
+    SimConfigError
+        From the constructor if a parameter is invalid (the node is destroyed first).
+    """
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        raw = {}
+        for name, default, doc in PARAMETERS:
+            desc = ParameterDescriptor(description=doc, dynamic_typing=True)
+            raw[name] = self.declare_parameter(name, default, desc).value
+        try:
+            self.settings = make_settings(**raw)
+        except SimConfigError:
+            self.destroy_node()
+            raise
+        s = self.settings
+        lockstep = s.mode == "lockstep"
+        sample_qos = SAMPLE_QOS_LOCKSTEP if lockstep else SAMPLE_QOS
+        self._pub_js = self.create_publisher(JointState, TOPIC_JOINT_STATES, sample_qos)
+        self._pub_arm = self.create_publisher(BatteryState, TOPIC_ARMATURE, sample_qos)
+        self._pub_clock = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS) if s.publish_clock else None
+        timeout_ns = None if lockstep else round(s.command_timeout * 1e9)
+        self.hold = CommandHold(timeout_ns)
+        self.published = 0
+        self.republished = 0
+        self.error: BaseException | None = None
+        self.schedule: RealtimeSchedule | None = None
+        self.plant: PlantClock | None = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._last_activity_ns = 0
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_subscription(Float64, TOPIC_DUTY_CYCLE, self._on_command, COMMAND_QOS)
+        over = ", ".join(f"{k}={v}" for k, v in s.effect_overrides.items()) or "none"
+        self.get_logger().info(
+            f"rig {s.rig.name!r}, mode {s.mode}, T_s = {s.period_s * 1e3:.3f} ms, seed {s.seed}, "
+            f"x0 = {s.x0.tolist()}, effect overrides: {over}, publish_clock {s.publish_clock}"
+        )
+
+    # ------------------------------------------------------------------ publishing
+    def _publish(self, msgs: tuple[JointState, BatteryState], stamp_ns: int) -> None:
+        if self._pub_clock is not None:
+            self._pub_clock.publish(ClockMsg(clock=to_time(stamp_ns)))
+        self._pub_js.publish(msgs[0])
+        self._pub_arm.publish(msgs[1])
+
+    def _msgs(self, sample: Sample) -> tuple[JointState, BatteryState]:
+        return sample_to_msgs(sample, self.settings.frame_id)
+
+    # ------------------------------------------------------------------ start / stop
+    def start(self) -> None:
+        """Publish sample 0 (lock-step) or start the real-time sampler thread."""
+        if self.settings.mode == "lockstep":
+            self.plant = PlantClock(self.settings, origin_ns=0)
+            self._last_msgs = self._msgs(self.plant.last)
+            self._publish(self._last_msgs, self.plant.last.stamp_ns)
+            self.published += 1
+            self._last_activity_ns = time.monotonic_ns()
+            self.create_timer(0.1, self._republish_if_idle, clock=self._steady)
+        else:
+            self._thread = threading.Thread(target=self._run_realtime, name="aeropend_sampler", daemon=True)
+            self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the sampler thread (idempotent)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+
+    # ------------------------------------------------------------------ commands
+    def _on_command(self, msg: Float64) -> None:
+        now = time.monotonic_ns()
+        reason = self.hold.offer(msg.data, now)
+        if reason is not None:
+            self.get_logger().warn(
+                f"rejected duty command {msg.data!r}: {reason} (rejected so far: {self.hold.rejected})",
+                throttle_duration_sec=LOG_THROTTLE_S,
+            )
+            return
+        if self.settings.mode == "lockstep":
+            assert self.plant is not None
+            sample = self.plant.advance(self.hold.value(now))
+            self._last_msgs = self._msgs(sample)
+            self._publish(self._last_msgs, sample.stamp_ns)
+            self.published += 1
+            self._last_activity_ns = time.monotonic_ns()
+
+    def _republish_if_idle(self) -> None:
+        now = time.monotonic_ns()
+        if self.plant is not None and now - self._last_activity_ns >= LOCKSTEP_REPUBLISH_S * 1e9:
+            self._publish(self._last_msgs, self.plant.last.stamp_ns)
+            self.republished += 1
+            self._last_activity_ns = now
+
+    # ------------------------------------------------------------------ real-time sampler
+    def _set_priority(self) -> None:
+        prio = self.settings.rt_priority
+        if prio <= 0:
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))  # 0 = this thread
+            self.get_logger().info(f"sampler thread runs with SCHED_FIFO priority {prio}")
+        except (OSError, AttributeError) as exc:
+            self.get_logger().warn(
+                f"rt_priority = {prio}: cannot set SCHED_FIFO ({exc}); sampler uses normal scheduling"
+            )
+
+    def _run_realtime(self) -> None:
+        _reduce_timer_slack()
+        self._set_priority()
+        period_ns = round(self.settings.period_s * 1e9)
+        lead_ns = 10 * period_ns
+        mono0 = time.monotonic_ns()
+        ros0 = self.get_clock().now().nanoseconds
+        # ROS time of sample 0 = ROS time now + lead (mapped once, here).
+        plant = PlantClock(self.settings, origin_ns=ros0 + lead_ns)
+        self.plant = plant
+        sched = RealtimeSchedule(period_ns, mono0 + lead_ns)
+        self.schedule = sched
+        msgs = self._msgs(plant.last)
+        stamp = plant.last.stamp_ns
+        k = 0
+        log = self.get_logger()
+        try:
+            while not self._stop.is_set():
+                deadline = sched.deadline_ns(k)
+                while (rem := deadline - time.monotonic_ns()) > 0:
+                    time.sleep(rem * 1e-9)
+                now = time.monotonic_ns()
+                overruns = sched.overruns
+                late = sched.on_wake(k, now)
+                if sched.overruns != overruns:
+                    log.warn(
+                        f"sampler overrun: sample {k} {late / 1e6:.2f} ms late (> 1 period "
+                        f"{period_ns / 1e6:.3f} ms); schedule re-anchored; overruns so far "
+                        f"{sched.overruns}, stamps now lag wall time by {sched.dropped_ns / 1e6:.1f} ms",
+                        throttle_duration_sec=LOG_THROTTLE_S,
+                    )
+                self._publish(msgs, stamp)
+                self.published += 1
+                was_timed_out = self.hold.timed_out
+                duty = self.hold.value(now)
+                if self.hold.timed_out and not was_timed_out:
+                    log.warn(
+                        f"no duty command for {self.settings.command_timeout:g} s: duty -> 0 "
+                        f"(timeouts so far: {self.hold.timeouts})"
+                    )
+                sample = plant.advance(duty)
+                msgs, stamp = self._msgs(sample), sample.stamp_ns
+                k += 1
+        except Exception as exc:
+            if self._stop.is_set() or not self.context.ok():
+                return  # shutting down: publishers may already be gone
+            self.error = exc
+            log.error(f"real-time sampler stopped at sample {k}: {type(exc).__name__}: {exc}")
+
+    # ------------------------------------------------------------------ report
+    def summary(self) -> str:
+        """One-line run summary (``key=value`` pairs, parsed by the benchmark)."""
+        parts = [
+            f"mode={self.settings.mode}", f"samples={self.published}",
+            f"republished={self.republished}", f"commands={self.hold.accepted}",
+            f"rejected={self.hold.rejected}", f"timeouts={self.hold.timeouts}",
+        ]
+        if self.schedule is not None:
+            sch = self.schedule
+            parts += [f"overruns={sch.overruns}", f"max_late_ms={sch.max_lateness_ns / 1e6:.3f}",
+                      f"dropped_ms={sch.dropped_ns / 1e6:.3f}"]
+        return "summary: " + " ".join(parts)
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``sim_node``; returns the process exit status (2 = bad parameter)."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+
+    def _on_signal(signum: int, frame: Any) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    # Let the sampler thread take the GIL within 0.5 ms of its deadline (default 5 ms).
+    sys.setswitchinterval(5e-4)
+    node: SimPlantNode | None = None
+    status = 0
+    try:
+        node = SimPlantNode()
+        node.start()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.is_set() and rclpy.ok() and node.error is None:
+            executor.spin_once(timeout_sec=0.1)
+        if node.error is not None:
+            status = 1
+    except SimConfigError as exc:
+        rclpy.logging.get_logger(NODE_NAME).error(f"invalid parameter: {exc}")
+        status = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.stop()
+            node.get_logger().info(node.summary())
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())
