@@ -69,6 +69,7 @@ def test_resolve_config_from_parameters_only():
         ({"zero_at_end": "maybe"}, "zero_at_end = 'maybe'"),
         ({"bogus": 1}, "unknown parameter(s) ['bogus']"),
         ({"signal": "lhs", "tau_max": 1.3}, "tau_max = 1.3"),
+        ({"min_subscribers": 0}, "min_subscribers = 0"),
     ],
 )
 def test_resolve_config_errors(params, needle):

@@ -34,6 +34,9 @@ zero_at_end : bool
     lock-step mode, where an extra command would advance the plant one more sample).
 wait_timeout : float [s], default 30
     Give up (exit status 1) if no plant appears within this time.
+min_subscribers : int, default 1
+    Send the first command only once this many subscriptions (plant, recorder, ...) are matched
+    on ``/aeropend/duty_cycle``, so a recorder started alongside misses nothing.
 
 Exit status: 0 signal sent, 1 no plant / interrupted, 2 invalid signal or parameter.
 """
@@ -61,7 +64,9 @@ SIGNAL_ARGS: tuple[str, ...] = (
     "min_hold", "max_hold", "n", "tau_min", "tau_max", "hold_min", "hold_max", "seed", "dt",
 )
 #: Node options besides the signal arguments: name -> default.
-OPTIONS: dict[str, Any] = {"signal": "lhs", "mode": "realtime", "zero_at_end": None, "wait_timeout": 30.0}
+OPTIONS: dict[str, Any] = {
+    "signal": "lhs", "mode": "realtime", "zero_at_end": None, "wait_timeout": 30.0, "min_subscribers": 1,
+}
 
 
 # ---------------------------------------------------------------------------------- pure part
@@ -73,6 +78,7 @@ class ExcitationConfig:
     mode: str
     zero_at_end: bool
     wait_timeout: float
+    min_subscribers: int = 1
 
 
 def build_arg_parser() -> argparse.ArgumentParser:
@@ -88,6 +94,8 @@ def build_arg_parser() -> argparse.ArgumentParser:
                     help="send duty 0 after the signal and on shutdown")
     ap.add_argument("--no-zero-at-end", dest="zero_at_end", action="store_false")
     ap.add_argument("--wait-timeout", dest="wait_timeout", type=float, help="seconds to wait for the plant")
+    ap.add_argument("--min-subscribers", dest="min_subscribers", type=int,
+                    help="matched duty-cycle subscribers needed before the first command (default 1)")
     f = float
     for name, typ, nargs, text in (
         ("level", f, None, "step: final duty"), ("duration", f, None, "step/aprbs: length [s]"),
@@ -188,11 +196,15 @@ def resolve_config(params: dict[str, Any], flags: argparse.Namespace | None = No
         raise ExcitationError(f"wait_timeout = {wait!r} is not a number of seconds") from exc
     if not (math.isfinite(wait) and wait > 0.0):
         raise ExcitationError(f"wait_timeout = {wait!r} s; expected a duration > 0")
+    min_subs = merged.pop("min_subscribers", OPTIONS["min_subscribers"])
+    if isinstance(min_subs, bool) or not isinstance(min_subs, int) or min_subs < 1:
+        raise ExcitationError(f"min_subscribers = {min_subs!r}; expected an integer >= 1")
     for key in ("levels", "hold"):  # ROS double arrays arrive as array.array
         if key in merged and not isinstance(merged[key], int | float | str):
             merged[key] = [float(v) for v in merged[key]]
     signal = make_signal(kind, **merged)
-    return ExcitationConfig(signal=signal, mode=mode, zero_at_end=bool(zero), wait_timeout=wait)
+    return ExcitationConfig(signal=signal, mode=mode, zero_at_end=bool(zero), wait_timeout=wait,
+                            min_subscribers=min_subs)
 
 
 class LockstepFeeder:
@@ -214,6 +226,11 @@ class LockstepFeeder:
         self.sent = 0
         self.resent = 0
         self._last_stamp: int | None = None
+
+    @property
+    def last_stamp(self) -> int | None:
+        """Stamp [ns] of the last sample answered (None before the first)."""
+        return self._last_stamp
 
     @property
     def done(self) -> bool:
@@ -290,10 +307,11 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
             return bool(cond())
 
         if cfg.mode == "realtime":
-            if not spin_until(lambda: pub.get_subscription_count() > 0, cfg.wait_timeout):
+            if not spin_until(lambda: pub.get_subscription_count() >= cfg.min_subscribers, cfg.wait_timeout):
                 if not stop.is_set():
                     log.error(
-                        f"no subscriber on {TOPIC_DUTY_CYCLE} within {cfg.wait_timeout:g} s; is the plant up?"
+                        f"{pub.get_subscription_count()} of {cfg.min_subscribers} subscriber(s) on "
+                        f"{TOPIC_DUTY_CYCLE} within {cfg.wait_timeout:g} s; is the plant up?"
                     )
                 return 1
             sent = [0]
@@ -326,13 +344,15 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
 
             def on_sample(msg: JointState) -> None:
                 stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                if pending and stamp == feeder.last_stamp:
+                    return  # re-published sample whose answer is still waiting to be sent
                 value = feeder.on_sample(stamp)
                 if value is not None:
                     pending.append(value)
                     flush()
 
             def flush() -> None:
-                if pending and pub.get_subscription_count() > 0:
+                if pending and pub.get_subscription_count() >= cfg.min_subscribers:
                     for value in pending:
                         pub.publish(Float64(data=value))
                     pending.clear()
