@@ -100,7 +100,8 @@ class Sample:
     theta, theta_dot, omega_rotor, omega_prop, i_a, v_a : float
         Channels in SI units (see :data:`CHANNELS`); NaN where the source does not measure it.
     duty : float
-        Duty cycle τ in [0, 1] applied from this sample instant to the next.
+        Duty cycle τ in [0, 1] applied over the sample interval that ends at this stamp
+        (wire convention; see the module doc and :mod:`aeropend_sim.recording`).
     """
 
     stamp_ns: int
