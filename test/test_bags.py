@@ -8,6 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from aeropend_ident import bags
 from aeropend_ident.bags import BagError, read_bag, write_bag
 from aeropend_sim.contract import (
     TOPIC_ARMATURE,
@@ -17,10 +21,6 @@ from aeropend_sim.contract import (
     TYPE_JOINT_STATES,
 )
 from aeropend_sim.recording import Recording
-from rosbags.highlevel import AnyReader
-from rosbags.rosbag2 import StoragePlugin, Writer
-
-from aeropend_ident import bags
 
 STORAGES = ["mcap", "sqlite3"]
 STAMP0 = 1_700_000_000_123_456_789
@@ -240,8 +240,42 @@ def test_duty_from_commands_only(tmp_path: Path) -> None:
     path = _raw_bag(tmp_path / "cmd", list(zip(stamps.tolist(), js, strict=True)),
                     cmd=list(zip(cmd_times, cmds, strict=True)))
     rec = read_bag(path)
-    assert rec.duty.tolist() == [0.1, 0.1, 0.1, 0.2, 0.2, 0.3, 0.3, 0.3, 0.3, 0.3]
-    assert rec.meta["duty_source"] == {"effort": 0, "command": 10, "missing": 0}
+    # a command received within (t_k, t_k+1) drives the interval starting at t_k (as the plant reports it)
+    assert rec.duty.tolist() == [0.1, 0.1, 0.2, 0.2, 0.2, 0.3, 0.3, 0.3, 0.3, 0.3]
+    assert rec.meta["duty_source"] == {"effort": 0, "command": 10, "effort_after_gap": 0, "missing": 0}
+
+
+@pytest.mark.parametrize("with_commands", [True, False])
+def test_lost_samples(tmp_path: Path, with_commands: bool) -> None:
+    """Samples lost in transit (best-effort QoS): before a gap the duty is the next received effort."""
+    rec = _recording(200)
+    full = write_bag(rec, tmp_path / "full")
+    lost = {50, 51, 120}
+    kept = np.array([k for k in range(len(rec)) if k not in lost])
+    topics = [TOPIC_JOINT_STATES, TOPIC_ARMATURE] + ([TOPIC_DUTY_CYCLE] if with_commands else [])
+    with AnyReader([full]) as reader:
+        msgs = {t: [] for t in topics}
+        for conn, logtime, raw in reader.messages():
+            if conn.topic in msgs:
+                msgs[conn.topic].append((logtime, bytes(raw)))
+    drop = lambda items: [items[k] for k in kept]  # noqa: E731
+    path = _raw_bag(tmp_path / "lossy", drop(msgs[TOPIC_JOINT_STATES]), drop(msgs[TOPIC_ARMATURE]),
+                    msgs.get(TOPIC_DUTY_CYCLE, []))
+    back = read_bag(path)
+    assert len(back) == len(kept) and back.meta["gaps"] == 2
+    assert np.array_equal(back.channels["theta"], rec.channels["theta"][kept])
+    gap_k = np.flatnonzero(np.diff(kept) > 1)
+    assert gap_k.tolist() == [49, 117]
+    # the duty applied just before the next received sample (samples 52 and 121)
+    assert back.duty[gap_k].tolist() == [rec.duty[51], rec.duty[120]]
+    assert back.meta["duty_source"]["effort_after_gap"] == 2
+    rest = np.setdiff1d(np.arange(len(kept) - 1), gap_k)
+    assert np.array_equal(back.duty[rest], rec.duty[kept][rest])
+    if with_commands:  # the last sample's duty comes from its command
+        assert back.duty[-1] == rec.duty[-1] and back.meta["duty_source"]["command"] == 1
+        assert back.meta["held_tail"] == ["v_a"]
+    else:
+        assert back.duty[-1] == back.duty[-2] and back.meta["held_tail"] == ["duty", "v_a"]
 
 
 def test_no_duty_at_all_is_an_error(tmp_path: Path) -> None:
@@ -350,3 +384,15 @@ def test_write_refuses_to_clobber(tmp_path: Path) -> None:
     with pytest.raises(BagError, match="not a rosbag2 directory"):
         write_bag(rec, tmp_path / "plain", overwrite=True)
     assert (tmp_path / "plain" / "keep.txt").read_text() == "precious"
+
+
+def test_dds_padded_payloads_decode_vectorized() -> None:
+    """Messages recorded from DDS are padded to a multiple of 4 bytes; the fast path must accept them."""
+    stamps = STAMP0 + np.arange(30, dtype=np.int64) * 2_048_000
+    raws = bags.encode_armature(stamps, np.linspace(1.0, 2.0, 30), np.full(30, 0.5))
+    assert len(raws[0]) % 4 != 0
+    padded = [r + b"\x00" * (-len(r) % 4) for r in raws]
+    dec = bags.decode_armature(padded)
+    assert dec.fallback == 0
+    assert np.array_equal(dec.columns["v_a"], np.linspace(1.0, 2.0, 30).astype(np.float32).astype(float))
+    assert np.array_equal(dec.columns["stamp"], stamps)

@@ -15,8 +15,9 @@ sample describe the interval that *ends* at its stamp: sample ``k + 1`` carries 
 ``v_a[k]`` of the :class:`Recording` (where ``duty[k]`` is held over ``[t_k, t_{k+1})``).
 :func:`write_bag` shifts forward, :func:`read_bag` shifts back. The first sample's effort is the
 duty before the recording started (``meta["duty_before_start"]``, NaN when unknown); the duty of
-the last sample comes from the command topic (the command logged at or before ``t_{N-1}``),
-else it is held from ``duty[N-2]``; ``v_a[N-1]`` is not on the wire and is held from
+the last sample comes from the command topic (the last command received at most ten
+sample periods after the last sample), else it is held from ``duty[N-2]``; ``v_a[N-1]`` is not
+on the wire and is held from
 ``v_a[N-2]`` (both noted in ``meta["held_tail"]``).
 
 Precision: ``BatteryState.voltage`` / ``current`` are ``float32`` on the wire, so ``v_a`` and
@@ -46,6 +47,17 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+
 from aeropend_sim.contract import (
     COMMAND_QOS_DEPTH,
     JOINT_NAMES,
@@ -60,22 +72,15 @@ from aeropend_sim.contract import (
     Sample,
 )
 from aeropend_sim.recording import MEASURED_CHANNELS, Recording, RecordingError
-from rosbags.interfaces import (
-    Qos,
-    QosDurability,
-    QosHistory,
-    QosLiveliness,
-    QosReliability,
-    QosTime,
-)
-from rosbags.rosbag2 import StoragePlugin, Writer
-from rosbags.typesys import Stores, get_typestore
 
 __all__ = [
     "COMMAND_QOS",
     "SAMPLE_QOS",
     "SAMPLE_QOS_RELIABLE",
     "BagError",
+    "BagSink",
+    "BagTopic",
+    "RawBagReader",
     "bag_metadata",
     "decode_armature",
     "decode_float64",
@@ -83,6 +88,7 @@ __all__ = [
     "encode_armature",
     "encode_float64",
     "encode_joint_states",
+    "playback_deadlines",
     "qos_for_topic",
     "read_bag",
     "typestore",
@@ -420,10 +426,12 @@ def _decode_groups(raws: Sequence[bytes], msgtype: str, layout_of: Any, columns_
             continue
         first = raws[int(idx[0])]
         layout = layout_of(ts.deserialize_cdr(first, msgtype)) if first[:4] == _CDR_LE else None
-        if layout is None or layout.size != length:
+        # DDS pads serialised payloads to a multiple of 4 bytes: up to 3 trailing bytes are ignored
+        if layout is None or not layout.size <= length < layout.size + 4:
             slow.extend(idx.tolist())
             continue
         arr = np.frombuffer(b"".join(raws[int(i)] for i in idx), dtype=np.uint8).reshape(len(idx), length)
+        arr = arr[:, :layout.size]
         fixed = ~layout.variable_mask()
         tmpl = np.frombuffer(layout.template, dtype=np.uint8)[fixed]
         ok = np.all(arr[:, fixed] == tmpl, axis=1)
@@ -802,10 +810,16 @@ def read_bag(path: str | Path, *, namespace: str = "",
     Samples are the ``joint_states`` messages ordered by header stamp; ``armature`` messages are
     paired by identical stamp (unpaired samples keep NaN ``v_a`` / ``i_a`` and are counted in
     ``meta["unmatched_joint_states"]``; armature messages without a sample in
-    ``meta["orphan_armature"]``). The applied duty is the motor effort of the *next* sample
-    (wire convention); where that is NaN (e.g. bags whose duty exists only as commands) the
-    last command logged at or before ``t_k`` is used (zero-order hold); ``meta["duty_source"]``
-    counts both. Channels that are NaN everywhere are absent from ``channels``.
+    ``meta["orphan_armature"]``). The applied duty ``duty[k]`` is the motor effort of sample
+    ``k + 1`` (wire convention), and ``v_a[k]`` its armature voltage. Where that effort is NaN
+    (bags whose duty exists only as commands) the last ``duty_cycle`` command *received before
+    the interval ended* is used, comparing log (receive) times, which share one clock even when
+    the stamps do not (replayed bags): the bound is the log time of sample ``k + 1`` (of sample
+    ``k`` plus the median log step before a gap). Before a gap (stamp step > 1.5 × median, e.g.
+    samples lost with best-effort QoS) the next received sample's effort is the duty applied at
+    the *end* of the interval, which for lost samples may differ from the duty at its start;
+    ``meta["duty_source"]["effort_after_gap"]`` counts those samples, ``meta["gaps"]`` the gaps.
+    Channels that are NaN everywhere are absent from ``channels``.
 
     Parameters
     ----------
@@ -890,24 +904,36 @@ def read_bag(path: str | Path, *, namespace: str = "",
         unmatched = int(n - hit.sum())
         orphan = int(a_stamp.size - np.unique(pos[hit]).size)
 
-    # duty: applied effort of the next sample, else the command in force (ZOH on log time)
+    # duty[k]: the applied effort carried by sample k+1 (wire convention). Where that is NaN (bags
+    # whose duty exists only as commands), the last command received before the interval
+    # [t_k, t_k+1) ended, judged on the recorder's clock: log times of joint_states and commands are
+    # comparable even when header stamps come from another clock (a replayed bag).
+    js_log = np.asarray(logs[t_js], dtype=np.int64)[order]
     effort = cols["effort"]
-    d_eff = np.concatenate((effort[1:], [np.nan]))
+    d_next = np.concatenate((effort[1:], [np.nan]))
+    dstamp = np.diff(stamps)
+    gap_after = np.concatenate((dstamp > 1.5 * np.median(dstamp), [False]))
     d_cmd = np.full(n, np.nan)
     if cmd is not None:
         c_log = np.asarray(logs[t_cmd], dtype=np.int64)
         c_val = cmd.columns["data"]
         c_order = np.argsort(c_log, kind="stable")
         c_log, c_val = c_log[c_order], c_val[c_order]
-        j = np.searchsorted(c_log, stamps, side="right") - 1
+        log_step = int(np.median(np.diff(js_log)))
+        # last sample: its command may trail it (recorder lag, DDS delivery order): allow 10 steps
+        bound = np.concatenate((js_log[1:], [js_log[-1] + 10 * log_step]))
+        bound[gap_after] = js_log[gap_after] + log_step
+        j = np.searchsorted(c_log, bound, side="left") - 1  # last command logged before the bound
         d_cmd[j >= 0] = c_val[j[j >= 0]]
-    use_eff = np.isfinite(d_eff)
-    duty = np.where(use_eff, d_eff, d_cmd)
+    use_eff = np.isfinite(d_next)
+    use_cmd = ~use_eff & np.isfinite(d_cmd)
+    duty = np.where(use_eff, d_next, d_cmd)
+    n_after_gap = int((gap_after & use_eff).sum())
     held: list[str] = []
     if not np.isfinite(duty[-1]) and np.isfinite(duty[-2]):
         duty[-1] = duty[-2]
         held.append("duty")
-    n_cmd = int((~use_eff & np.isfinite(d_cmd)).sum())
+    n_cmd = int(use_cmd.sum())
     if require_duty and not np.isfinite(duty).any():
         raise BagError(f"bag '{path}' has no duty information: the motor effort of {t_js} is NaN in every "
                        f"sample and {t_cmd} has {len(raws[t_cmd])} message(s) before the last sample")
@@ -928,8 +954,10 @@ def read_bag(path: str | Path, *, namespace: str = "",
         "message_counts": {t: len(raws[t]) for t in (t_js, t_arm, t_cmd)},
         "unmatched_joint_states": unmatched if arm is not None else n,
         "orphan_armature": orphan,
-        "duty_source": {"effort": int(use_eff.sum()), "command": n_cmd,
+        "duty_source": {"effort": int(use_eff.sum()) - n_after_gap, "command": n_cmd,
+                        "effort_after_gap": n_after_gap,
                         "missing": int((~np.isfinite(duty)).sum())},
+        "gaps": int(gap_after.sum()),
         "held_tail": held,
         "cdr_fallback_messages": js.fallback + (arm.fallback if arm else 0) + (cmd.fallback if cmd else 0),
     })
@@ -968,3 +996,193 @@ def sample_at(rec: Recording, k: int) -> Sample:
     ch = {name: float(rec.channels[name][k]) if name in rec.channels else _NAN for name in MEASURED_CHANNELS}
     return Sample(stamp_ns=rec.stamp0_ns + round(rec.t[k] * 1e9), duty=float(rec.duty[k]), **ch)
 
+
+
+# --------------------------------------------------------------------------------------------
+# Incremental raw writing / reading (ROS-free core of the recorder and player nodes)
+# --------------------------------------------------------------------------------------------
+
+
+class BagSink:
+    """Incremental rosbag2 writer of already-serialised (CDR) messages.
+
+    Topics are registered lazily (:meth:`add_topic`, typically on the first message, once the
+    publishers' offered QoS is known); :meth:`close` writes ``metadata.yaml`` and is idempotent.
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory to create (must not exist).
+    storage : {"mcap", "sqlite3"}
+        Storage plugin.
+    custom_data : dict of str, optional
+        ``custom_data`` entries of ``metadata.yaml``.
+
+    Raises
+    ------
+    BagError
+        If the storage is unknown or the bag cannot be created (e.g. ``path`` exists).
+    """
+
+    def __init__(self, path: str | Path, storage: Storage = "mcap",
+                 custom_data: dict[str, str] | None = None) -> None:
+        self.path = Path(path)
+        if storage not in _STORAGE_PLUGINS:
+            raise BagError(f"bag '{self.path}': unknown storage {storage!r}; "
+                           f"expected one of {sorted(_STORAGE_PLUGINS)}")
+        if self.path.exists():
+            raise BagError(f"bag '{self.path}' already exists; choose another output path")
+        self.storage = storage
+        typestore()  # build the typestore now (~0.1 s): doing it on the first message would drop samples
+        self._writer = Writer(self.path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
+        try:
+            self._writer.open()
+        except Exception as exc:
+            raise BagError(f"bag '{self.path}': cannot create ({type(exc).__name__}: {exc})") from exc
+        for key, value in (custom_data or {}).items():
+            self._writer.set_custom_data(key, str(value))
+        self._conns: dict[str, Any] = {}
+        self.counts: dict[str, int] = {}
+        self.closed = False
+
+    def has_topic(self, topic: str) -> bool:
+        """Whether ``topic`` is registered."""
+        return topic in self._conns
+
+    def add_topic(self, topic: str, msgtype: str, qos: Sequence[Qos] = ()) -> None:
+        """Register ``topic`` of ``msgtype`` (e.g. ``sensor_msgs/msg/JointState``) with its offered QoS."""
+        if topic in self._conns:
+            return
+        try:
+            self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=typestore(),
+                                                             offered_qos_profiles=list(qos))
+        except Exception as exc:
+            raise BagError(f"bag '{self.path}': cannot add topic {topic} of type {msgtype} "
+                           f"({type(exc).__name__}: {exc})") from exc
+        self.counts[topic] = 0
+
+    def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
+        """Append one serialised message with log time ``timestamp_ns``."""
+        self._writer.write(self._conns[topic], int(timestamp_ns), data)
+        self.counts[topic] += 1
+
+    def close(self) -> None:
+        """Finish the bag (writes ``metadata.yaml``); safe to call twice."""
+        if not self.closed:
+            self.closed = True
+            self._writer.close()
+
+
+@dataclass(frozen=True)
+class BagTopic:
+    """A topic of a bag: message type, offered QoS profiles and message count."""
+
+    name: str
+    msgtype: str
+    qos: tuple[Qos, ...]
+    count: int
+
+
+class RawBagReader:
+    """Raw (serialised) messages of a bag in log-time order, for replay.
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory or ``.mcap`` / ``.db3`` file.
+    topics : sequence of str, optional
+        Topics to read (default all).
+
+    Raises
+    ------
+    BagError
+        If ``path`` is not a readable bag or a requested topic is not in it.
+    """
+
+    def __init__(self, path: str | Path, topics: Sequence[str] | None = None) -> None:
+        from rosbags.highlevel import AnyReader
+
+        self.path = Path(path)
+        if not self.path.exists():
+            raise BagError(f"bag '{self.path}' does not exist")
+        if self.path.is_dir() and not (self.path / "metadata.yaml").exists():
+            raise BagError(f"'{self.path}' is not a rosbag2 bag: directory has no metadata.yaml")
+        try:
+            self._reader = AnyReader([self.path], default_typestore=typestore())
+            self._reader.open()
+        except Exception as exc:
+            raise _open_error(self.path, exc) from exc
+        conns = self._reader.connections
+        present = sorted({c.topic for c in conns})
+        if topics:
+            missing = [t for t in topics if t not in present]
+            if missing:
+                self.close()
+                raise BagError(f"bag '{self.path}' has no topic(s) {missing} (topics present: {present})")
+            conns = [c for c in conns if c.topic in topics]
+        self._conns = conns
+        self.topics: dict[str, BagTopic] = {}
+        for c in conns:
+            qos = tuple(getattr(c.ext, "offered_qos_profiles", ()) or ())
+            old = self.topics.get(c.topic)
+            self.topics[c.topic] = BagTopic(c.topic, c.msgtype, qos if old is None else old.qos + qos,
+                                            int(c.msgcount) + (old.count if old else 0))
+
+    def messages(self) -> Any:
+        """Yield ``(topic, log_time_ns, raw_bytes)`` in log-time order.
+
+        Raises
+        ------
+        BagError
+            If the storage turns out to be truncated or corrupt while reading.
+        """
+        try:
+            for conn, logtime, raw in self._reader.messages(connections=self._conns):
+                yield conn.topic, int(logtime), bytes(raw)
+        except BagError:
+            raise
+        except Exception as exc:
+            raise BagError(f"bag '{self.path}' is truncated or corrupt: reading failed "
+                           f"({type(exc).__name__}: {exc})") from exc
+
+    def close(self) -> None:
+        """Close the underlying reader."""
+        try:
+            self._reader.close()
+        except Exception:
+            pass
+
+    def __enter__(self) -> RawBagReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def playback_deadlines(log_times_ns: Sequence[int] | np.ndarray, rate: float) -> np.ndarray:
+    """Wall-clock offsets [ns] from the start at which each message is due on replay.
+
+    Parameters
+    ----------
+    log_times_ns : array of int, shape (M,)
+        Log times of the messages, in replay order.
+    rate : float
+        Playback speed factor (> 0; 2.0 = twice as fast).
+
+    Returns
+    -------
+    ndarray of int64, shape (M,)
+        ``(log_k − log_0) / rate``, rounded to ns. Sleeping until ``start + offset_k`` (absolute
+        deadlines) keeps timing errors from accumulating.
+
+    Raises
+    ------
+    ValueError
+        If ``rate`` is not a positive finite number.
+    """
+    if not (rate > 0 and math.isfinite(rate)):
+        raise ValueError(f"playback rate {rate!r} must be a positive finite number")
+    t = np.asarray(log_times_ns, dtype=np.int64)
+    if t.size == 0:
+        return t
+    return np.round((t - t[0]) / rate).astype(np.int64)

@@ -1,0 +1,209 @@
+"""Multi-process ROS 2 test: ``play`` a contract bag, ``record`` it in another process, compare.
+
+Each test uses its own random ROS_DOMAIN_ID (and localhost-only discovery) so parallel runs do
+not cross-talk. Sample topics are best effort, so up to 1 % of the samples may be lost; every
+sample that arrives must carry exactly the original values and stamps.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from aeropend_ident.bags import read_bag, write_bag
+from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
+from aeropend_sim.recording import Recording
+
+pytest.importorskip("rclpy")
+pytestmark = pytest.mark.ros
+
+BIN = Path(sys.executable).parent
+N = 1225  # 2.5 s at the thesis rate
+DT = 2.048e-3
+
+
+def _cmd(script: str, module: str) -> list[str]:
+    """Console script if installed next to this Python, else ``python -m module``."""
+    exe = BIN / script
+    return [str(exe)] if exe.exists() else [sys.executable, "-m", module]
+
+
+def _env() -> dict[str, str]:
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+def _source(tmp_path: Path) -> tuple[Recording, Path]:
+    rng = np.random.default_rng(11)
+    t = np.arange(N) * DT
+    rec = Recording(
+        t=t,
+        duty=np.clip(0.45 + 0.1 * np.sign(np.sin(2 * np.pi * 1.3 * t)) + 0.01 * rng.standard_normal(N), 0, 1),
+        channels={
+            "theta": 0.4 * np.sin(2 * np.pi * 0.5 * t) + 1e-3 * rng.standard_normal(N),
+            "theta_dot": rng.standard_normal(N),
+            "omega_rotor": 300 + rng.standard_normal(N),
+            "i_a": 0.7 + 0.01 * rng.standard_normal(N),
+            "v_a": 1.4 + 0.01 * rng.standard_normal(N),
+        },
+        source="test_record_play", stamp0_ns=1_700_000_000_000_000_000,
+    )
+    return rec, write_bag(rec, tmp_path / "source")
+
+
+def _stop(proc: subprocess.Popen[str], sig: int = signal.SIGINT, timeout: float = 10.0) -> None:
+    if proc.poll() is None:
+        proc.send_signal(sig)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(5)
+
+
+def _run(tmp_path: Path, record_args: list[str], play_args: list[str], stop_sig: int | None
+         ) -> tuple[subprocess.CompletedProcess[str], str, str]:
+    """Start the recorder, play the source bag, then stop the recorder (or let it stop itself)."""
+    env = _env()
+    rec_proc = subprocess.Popen([*_cmd("record", "aeropend_ident.record_node"), *record_args], env=env,
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    play_proc: subprocess.Popen[str] | None = None
+    try:
+        play_proc = subprocess.Popen([sys.executable, "-m", "aeropend_ident.play_node", *play_args,
+                                      "--wait-for-subscribers", "20"], env=env,
+                                     stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        play_out, _ = play_proc.communicate(timeout=40)
+        assert play_proc.returncode == 0, play_out
+        if stop_sig is not None:
+            time.sleep(0.3)
+            rec_proc.send_signal(stop_sig)
+        rec_out, _ = rec_proc.communicate(timeout=15)
+        return subprocess.CompletedProcess(rec_proc.args, rec_proc.returncode), rec_out, play_out
+    finally:
+        if play_proc is not None:
+            _stop(play_proc)
+        _stop(rec_proc)
+
+
+def _compare(src: Recording, got: Recording) -> np.ndarray:
+    """Indices of the received samples in ``src``; asserts values/stamps identical, loss <= 1 %."""
+    s_src = src.stamp0_ns + np.round(src.t * 1e9).astype(np.int64)
+    s_got = got.stamp0_ns + np.round(got.t * 1e9).astype(np.int64)
+    idx = np.searchsorted(s_src, s_got)
+    assert np.all(idx < len(src)) and np.array_equal(s_src[idx], s_got), "recorded stamps not in the source"
+    assert len(got) >= 0.99 * len(src), f"lost {len(src) - len(got)} of {len(src)} samples"
+    for name in ("theta", "theta_dot", "omega_rotor"):
+        assert np.array_equal(got.channels[name], src.channels[name][idx]), name
+    assert "omega_prop" not in got.channels  # NaN on the wire -> absent, as in the source
+    # duty[k] is the effort of the next received sample: exact, except before a gap where it is the
+    # duty applied just before that next sample (wire convention, see read_bag)
+    gap = np.flatnonzero(np.diff(idx) > 1)
+    assert got.meta["gaps"] == gap.size
+    assert np.array_equal(np.delete(got.duty, gap), np.delete(src.duty[idx], gap))
+    assert np.array_equal(got.duty[gap], src.duty[idx[gap + 1] - 1])
+    ok = np.isfinite(got.channels["i_a"])
+    assert (~ok).sum() <= 0.01 * len(src)
+    assert np.array_equal(got.channels["i_a"][ok], src.channels["i_a"][idx][ok].astype(np.float32))
+    assert got.meta["unmatched_joint_states"] <= 0.01 * len(src)
+    return idx
+
+
+def _check_timing(bag: Path, src: Recording, idx: np.ndarray, rate: float) -> None:
+    """Receive times (bag log times) follow the original sample times scaled by 1/rate.
+
+    The receive time includes DDS and recorder latency, so the tolerances (p95 10 ms, max
+    100 ms, span 1 %) are loose enough for a loaded machine yet catch a wrong rate, drift or
+    accumulated sleep error (which would grow with time).
+    """
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        conns = [c for c in reader.connections if c.topic == TOPIC_JOINT_STATES]
+        log = np.array([t for _, t, _ in reader.messages(connections=conns)], dtype=np.int64)
+    expected = (src.t[idx] - src.t[idx[0]]) / rate
+    err = (log - log[0]) / 1e9 - expected
+    err -= np.median(err)
+    p95, worst = float(np.percentile(np.abs(err), 95)), float(np.max(np.abs(err)))
+    assert p95 < 10e-3 and worst < 100e-3, f"timing error p95 {p95 * 1e3:.2f} ms, max {worst * 1e3:.2f} ms"
+    span = (log[-1] - log[0]) / 1e9
+    assert span == pytest.approx(expected[-1], rel=0.01), (span, expected[-1])
+    # no accumulation: error in the last quarter no larger than the tolerance either
+    assert np.median(np.abs(err[-len(err) // 4:])) < 5e-3
+
+
+def _qos(bag: Path) -> dict[str, dict[str, object]]:
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    return {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"][0]
+            for t in info["topics_with_message_count"]}
+
+
+def test_play_then_record_mcap_ros_args_sigint(tmp_path: Path) -> None:
+    src, source_bag = _source(tmp_path)
+    out = tmp_path / "recorded"
+    done, rec_out, play_out = _run(
+        tmp_path, ["--ros-args", "-p", f"output:={out}"], [str(source_bag)], signal.SIGINT)
+    assert done.returncode == 0, rec_out
+    assert f"published {3 * N} messages" in play_out
+    assert (out / "metadata.yaml").exists()
+    got = read_bag(out)
+    assert got.meta["storage"] == "mcap"
+    idx = _compare(src, got)
+    _check_timing(out, src, idx, rate=1.0)
+    span = (got.t[-1]) / (src.t[idx[-1]] - src.t[idx[0]])
+    assert span == pytest.approx(1.0, abs=1e-9)  # stamps are the original ones
+    qos = _qos(out)  # offered QoS of the player's publishers, which took them from the source bag
+    assert qos[TOPIC_JOINT_STATES]["reliability"] == "best_effort"
+    assert qos[TOPIC_ARMATURE]["reliability"] == "best_effort"
+    assert qos[TOPIC_DUTY_CYCLE]["reliability"] == "reliable"
+
+
+def test_play_twice_as_fast_record_sqlite3_friendly_flags_sigterm(tmp_path: Path) -> None:
+    src, source_bag = _source(tmp_path)
+    out = tmp_path / "recorded_sqlite"
+    done, rec_out, _ = _run(tmp_path, ["-o", str(out), "--storage", "sqlite3"],
+                            [str(source_bag), "--rate", "2.0"], signal.SIGTERM)
+    assert done.returncode == 0, rec_out
+    got = read_bag(out)
+    assert got.meta["storage"] == "sqlite3"
+    idx = _compare(src, got)
+    _check_timing(out, src, idx, rate=2.0)
+
+
+def test_recorder_stops_itself(tmp_path: Path) -> None:
+    src, source_bag = _source(tmp_path)
+    out = tmp_path / "first300"
+    t0 = time.monotonic()
+    done, rec_out, _ = _run(tmp_path, ["-o", str(out), "--max-samples", "300"], [str(source_bag)], None)
+    assert done.returncode == 0, rec_out
+    assert "300 samples recorded" in rec_out
+    got = read_bag(out)
+    assert len(got) == 300
+    s_src = src.stamp0_ns + np.round(src.t * 1e9).astype(np.int64)
+    assert np.isin(got.stamp0_ns + np.round(got.t * 1e9).astype(np.int64), s_src).all()
+
+    # duration limit with nobody publishing: a valid, empty bag listing the contract topics
+    empty = tmp_path / "empty"
+    env = _env()
+    args = [*_cmd("record", "aeropend_ident.record_node"), "--ros-args", "-p", f"output:={empty}",
+            "-p", "duration:=1.0"]
+    proc = subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        text, _ = proc.communicate(timeout=20)
+    finally:
+        _stop(proc)
+    assert proc.returncode == 0, text
+    assert "duration 1 s reached" in text
+    assert set(_qos(empty)) == {TOPIC_JOINT_STATES, TOPIC_ARMATURE, TOPIC_DUTY_CYCLE}
+    assert time.monotonic() - t0 < 40
