@@ -599,6 +599,25 @@ def initial_velocity(theta: np.ndarray, dt: float, n: int = N_DIFF) -> float:
     return float(coef[-2])
 
 
+def noise_level(theta: np.ndarray) -> float:
+    """Robust estimate of white measurement noise σ [rad] on θ.
+
+    σ̂ = 1.4826·MAD(Δ²θ)/√6 (the second difference of white noise has variance 6σ²; smooth motion
+    contributes little at the sample rate). Quantised signals that rarely change give 0.
+    """
+    d2 = np.diff(np.asarray(theta, dtype=float), 2)
+    if d2.size < 3:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
+def _slope_noise_gain(dt: float, n: int = N_DIFF) -> float:
+    """Standard deviation of :func:`initial_velocity` per unit σ of white noise on θ [1/s]."""
+    k = max(int(n), 3)
+    design = np.vander(np.arange(k) * dt, 3 if k >= 4 else 2)
+    return float(np.linalg.norm(np.linalg.pinv(design)[-2]))
+
+
 def initial_state(rig: Rig, theta: np.ndarray, duty: np.ndarray, dt: float, theta_offset: float = 0.0,
                   theta_dot0: float | None = None, theta0: float | None = None) -> np.ndarray:
     """Model state (shape (5,)) at the first sample of a recorded stretch.
@@ -856,11 +875,13 @@ def fit_greybox(
         together. Short horizons keep simulation errors from accumulating, so this stage is far
         less prone to local minima when the start is poor; the free-run stage then refines it.
     fit_initial_state : bool
-        Also fit the initial angle and angular velocity of the free run (nuisance parameters,
-        corrections to the estimates of :func:`initial_state`, bounded by ±0.2 rad and
-        ±5 rad/s). On noisy data the short-window velocity estimate alone would leave a
-        start-up transient in the residual and bias the fit; the fitted values are reported in
-        :attr:`GreyBoxResult.initial_state` and counted in the standard errors.
+        Also fit the initial angle and angular velocity of the free run (nuisance parameters:
+        corrections to the estimates of :func:`initial_state`, bounded by five standard
+        deviations of those estimates for the noise level of θ, :func:`noise_level`). On noisy
+        data the short-window velocity estimate alone would leave a start-up transient in the
+        residual and bias the fit; the bounds stop the initial state from absorbing model error.
+        Skipped when θ shows no noise (e.g. quantised, slowly varying logs). The values used are
+        reported in :attr:`GreyBoxResult.initial_state` and counted in the standard errors.
     verbose : int
         Passed to :func:`scipy.optimize.least_squares`.
 
@@ -903,8 +924,11 @@ def fit_greybox(
     penalty = 10.0 * max(float(np.ptp(data.theta)), 1e-3)
     n_p = len(specs)
     th0_est, thd0_est = float(data.theta[0]), initial_velocity(data.theta, data.dt)
-    # nuisance coordinates: corrections (δθ₀ [rad], δθ̇₀ [rad/s]) to the estimated initial state
-    lo_x, hi_x, scale_x = np.array([-0.2, -5.0]), np.array([0.2, 5.0]), np.array([0.01, 0.1])
+    # nuisance coordinates: corrections (δθ₀ [rad], δθ̇₀ [rad/s]) to the estimated initial state,
+    # bounded by 5 σ of the estimates for the measured noise level
+    sigma = noise_level(data.theta)
+    x_bound = 5.0 * sigma * np.array([1.0, _slope_noise_gain(data.dt)])
+    lo_x, hi_x, scale_x = -x_bound, x_bound, np.maximum(x_bound / 5.0, 1e-12)
 
     def candidate(z: np.ndarray) -> tuple[Rig, float]:
         values = {s.name: s.from_z(zi) for s, zi in zip(specs, z[:n_p], strict=True)}
@@ -954,7 +978,7 @@ def fit_greybox(
     nfev += int(sol.nfev)
     njev += int(sol.njev or 0)
     th0, thd0 = th0_est, thd0_est
-    if fit_initial_state:
+    if fit_initial_state and sigma > 1e-9:
         # polish with the initial state free, from the free-run optimum (cheap when the estimate
         # was already right, e.g. on noise-free data)
         sol = solve(make_residual(full, with_x0=True), np.concatenate([np.clip(sol.x, lo, hi), [0.0, 0.0]]),
