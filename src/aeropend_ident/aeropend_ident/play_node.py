@@ -67,19 +67,25 @@ def play(node: PlayerNode, reader: RawBagReader, rate: float) -> tuple[int, floa
         Messages published and the largest lateness [s] of a publication versus its deadline.
     """
     pubs = node.pubs
+    context = node.context
     worst = 0
     count = 0
     start = log0 = 0
     for topic, logtime, raw in reader.messages():
         if count == 0:
             start, log0 = time.monotonic_ns() + 1_000_000, logtime  # 1 ms to get going
-        elif count % 256 == 0 and not rclpy.ok():
-            break
         due = start + round((logtime - log0) / rate)  # = playback_deadlines(...)[k]
         wait = due - time.monotonic_ns()
         if wait > 0:
             time.sleep(wait / 1e9)
-        pubs[topic].publish(raw)
+        if not context.ok():  # SIGINT/SIGTERM: rclpy shut the context down
+            break
+        try:
+            pubs[topic].publish(raw)
+        except Exception:  # rclpy raises RCLError ("context is invalid") once shut down
+            if context.ok():
+                raise
+            break  # shut down between the check and the publish
         worst = max(worst, time.monotonic_ns() - due)
         count += 1
     return count, worst / 1e9
@@ -125,11 +131,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             time.sleep(args.delay)
         while True:
             count, late = play(node, reader, args.rate)
+            stopped = "" if rclpy.ok() else " (interrupted)"
             print(f"play: published {count} messages from {args.bag} at rate {args.rate:g} "
-                  f"(worst lateness {late * 1e3:.2f} ms)", flush=True)
+                  f"(worst lateness {late * 1e3:.2f} ms){stopped}", flush=True)
             if not args.loop or not rclpy.ok():
                 break
-        time.sleep(max(args.linger, 0.0))
+        if rclpy.ok():
+            time.sleep(max(args.linger, 0.0))
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except BagError as exc:
