@@ -25,6 +25,10 @@ queue_depth : int
     (``SAMPLE_QOS`` best effort / ``COMMAND_QOS`` reliable, volatile) with this deeper keep-last
     queue: depth does not affect QoS matching, and at 490 Hz the contract's depth 5 would drop
     samples whenever the recorder stalls for 10 ms.
+reliable : bool
+    Subscribe to the sample topics with RELIABLE delivery (default false: the contract's best
+    effort). Use it for lock-step runs, whose plant publishes samples reliably: the recorder then
+    loses nothing; a reliable subscription does not match a best-effort (real-time) publisher.
 
 Run as ``record --ros-args -p output:=/tmp/run -p duration:=2.0`` or with the friendly flags
 ``record -o /tmp/run --duration 2``. The bag is closed cleanly (valid ``metadata.yaml``) on
@@ -122,12 +126,14 @@ class RecorderNode(Node):
         self.declare_parameter("duration", 0.0)
         self.declare_parameter("max_samples", 0)
         self.declare_parameter("queue_depth", 1000)
+        self.declare_parameter("reliable", False)
         output = self.get_parameter("output").value or time.strftime("aeropend_%Y%m%d_%H%M%S")
         self.storage = str(self.get_parameter("storage").value)
         self.topics = [str(t) for t in self.get_parameter("topics").value]
         self.duration = float(self.get_parameter("duration").value)
         self.max_samples = int(self.get_parameter("max_samples").value)
         self.queue_depth = int(self.get_parameter("queue_depth").value)
+        self.reliable = bool(self.get_parameter("reliable").value)
         if self.duration < 0 or self.max_samples < 0:
             raise ValueError(f"duration {self.duration} s and max_samples {self.max_samples} must be >= 0")
         self.sink = BagSink(output, storage=self.storage,  # type: ignore[arg-type]
@@ -156,8 +162,10 @@ class RecorderNode(Node):
             base = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
         # same policies as the contract (so matching is unchanged), deeper queue: the depth is local
         # to the subscriber and lets the recorder ride out a stall (GC, disk) without dropping samples
+        reliable = self.reliable and topic != TOPIC_CLOCK
+        reliability = ReliabilityPolicy.RELIABLE if reliable else base.reliability
         qos = QoSProfile(history=base.history, depth=max(base.depth, self.queue_depth),
-                         reliability=base.reliability, durability=base.durability)
+                         reliability=reliability, durability=base.durability)
         self._types[topic] = msgtype
         self._subs[topic] = self.create_subscription(
             message_class(msgtype), topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
@@ -229,6 +237,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="seconds to record (0 = until Ctrl-C)")
     p.add_argument("--max-samples", type=int, help="stop after N joint_states messages")
     p.add_argument("--use-sim-time", action="store_true", help="use /clock time for stamps and duration")
+    p.add_argument("--reliable", action="store_true",
+                   help="reliable sample subscriptions (lock-step runs: no sample lost)")
     return p
 
 
@@ -249,6 +259,8 @@ def _overrides(args: argparse.Namespace) -> list[Parameter]:
         out.append(Parameter("max_samples", value=int(args.max_samples)))
     if args.use_sim_time:
         out.append(Parameter("use_sim_time", value=True))
+    if args.reliable:
+        out.append(Parameter("reliable", value=True))
     return out
 
 
