@@ -192,14 +192,18 @@ class BaselineResult:
 
 
 def _jsonable(obj: Any) -> Any:
-    """Replace non-finite floats by strings and NumPy scalars by Python numbers (strict JSON)."""
+    """Replace non-finite floats by None (JSON null) and NumPy scalars by Python numbers.
+
+    A null standard error means "not available": the parameter sits on a bound (``at_bound``)
+    or the data do not determine it.
+    """
     if isinstance(obj, dict):
         return {str(k): _jsonable(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
         return [_jsonable(v) for v in obj]
     if isinstance(obj, (np.floating, float)):
         v = float(obj)
-        return v if math.isfinite(v) else str(v)
+        return v if math.isfinite(v) else None
     if isinstance(obj, (np.integer,)):
         return int(obj)
     if isinstance(obj, np.bool_):

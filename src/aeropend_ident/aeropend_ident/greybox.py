@@ -26,8 +26,9 @@ Default parameter set for θ-only data (:func:`default_parameters`):
 * :data:`THETA_OFFSET` when the rig declares a recording-frame offset (see-saw rigs).
 
 Strictly positive parameters are fitted as log(p) (scale-free steps, positivity for free); the
-others linearly with an ``x_scale``. Bounds come from physics (:data:`PHYSICAL_BOUNDS`) or, for
-parameters without an entry, from the sign constraint of the rig field.
+others linearly with a parameter scale (:class:`ParameterSpec`). Bounds come from physics
+(:data:`PHYSICAL_BOUNDS`) or, for parameters without an entry, from the sign constraint of the
+rig field.
 
 Time grid: the simulator needs a uniform grid. A recording whose sample intervals deviate from
 their median by more than :data:`UNIFORM_TOLERANCE` (relative) is resampled onto
@@ -78,6 +79,8 @@ THETA_OFFSET = "theta_offset"
 MIN_SAMPLES = 50
 #: Samples used for the initial angular-velocity estimate (local quadratic fit).
 N_DIFF = 7
+#: ftol/xtol/gtol of the multiple-shooting initialisation stage (see ``init_horizon``).
+INIT_STAGE_TOL = 1e-4
 #: Relative deviation of a sample interval from the median above which a log is resampled.
 UNIFORM_TOLERANCE = 1e-3
 
@@ -92,6 +95,13 @@ PHYSICAL_BOUNDS: dict[str, tuple[float | None, float | None, bool]] = {
     "actuator.lag_time_constant": (1e-4, 10.0, True),
     "actuator.input_delay": (0.0, 1.0, False),
     "thrust.exponent": (0.5, 4.0, True),
+}
+
+#: Parameter units per optimiser unit of the usual linear parameters (about a typical change).
+_LINEAR_SCALE: dict[str, float] = {
+    "actuator.dead_zone": 0.05,
+    "pendulum.coulomb_over_J": 1.0,
+    "actuator.input_delay": 0.01,
 }
 
 #: Effect switch a parameter needs to influence the output (a fit of it is refused otherwise).
@@ -207,7 +217,15 @@ class ParameterSpec:
     log : bool
         Fitted as log(p) (strictly positive parameters).
     scale : float
-        ``x_scale`` of the optimiser coordinate (1 for log parameters).
+        Parameter units per optimiser unit of a linear parameter (unused for log parameters).
+
+    Notes
+    -----
+    Optimiser coordinates start at 1 at the lower bound: z = 1 + ln(p/lower) (log) or
+    z = 1 + (p − lower)/scale (linear). :func:`scipy.optimize.least_squares` takes relative
+    finite-difference steps (``diff_step``·|z|), which would collapse for a coordinate at or near 0
+    (a dead zone or Coulomb term of 0, a log-parameter of 1); z ≥ 1 keeps every step well above
+    the simulator's integration tolerance.
     """
 
     name: str
@@ -219,12 +237,20 @@ class ParameterSpec:
     scale: float
 
     def to_z(self, value: float) -> float:
-        """Optimiser coordinate of a parameter value."""
-        return math.log(value) if self.log else float(value)
+        """Optimiser coordinate (>= 1 inside the bounds) of a parameter value."""
+        if self.log:
+            return 1.0 + math.log(value / self.lower)
+        return 1.0 + (float(value) - self.lower) / self.scale
 
     def from_z(self, z: float) -> float:
         """Parameter value of an optimiser coordinate."""
-        return math.exp(z) if self.log else float(z)
+        if self.log:
+            return self.lower * math.exp(z - 1.0)
+        return self.lower + (float(z) - 1.0) * self.scale
+
+    def dp_dz(self, value: float) -> float:
+        """Derivative of the parameter with respect to its coordinate at ``value``."""
+        return value if self.log else self.scale
 
 
 def _field_meta(name: str, rig: Rig) -> tuple[str, str, Any]:
@@ -302,9 +328,7 @@ def parameter_spec(
         if hi_b is None:
             hi_b = x0 * 1e3 if log else max(10.0 * abs(x0), 1.0) + x0
         lo, hi = bounds if bounds is not None else (lo_b, hi_b)
-        scale = 1.0 if log else max(abs(x0), 0.1 * (hi - lo) if math.isfinite(hi - lo) else 1.0, 1e-3)
-        if name == "actuator.dead_zone":
-            scale = 0.05
+        scale = 1.0 if log else _LINEAR_SCALE.get(name, max(abs(x0), 0.01 * (hi - lo), 1e-3))
         spec = ParameterSpec(name, f.metadata["unit"], x0, float(lo), float(hi), bool(log), float(scale))
     if not spec.lower < spec.upper:
         raise IdentificationError(f"parameter {name!r}: bounds {spec.lower!r} .. {spec.upper!r} are empty")
@@ -799,10 +823,13 @@ class GreyBoxResult:
         raise KeyError(f"{name!r} was not fitted; fitted: {[p.name for p in self.parameters]}")
 
     def as_dict(self) -> dict[str, Any]:
-        """JSON-ready summary (parameters with units and standard errors, cost, metrics)."""
+        """JSON-ready summary (parameters with units and standard errors, cost, metrics).
+
+        Non-finite standard errors (parameter on a bound, or not determined) become None.
+        """
         return {
             "parameters": [
-                {k: (v if not isinstance(v, float) or math.isfinite(v) else str(v))
+                {k: (v if not isinstance(v, float) or math.isfinite(v) else None)
                  for k, v in dataclasses.asdict(p).items()}
                 for p in self.parameters
             ],
@@ -873,7 +900,8 @@ def fit_greybox(
         into windows of this length, each simulated from its own recorded initial state
         (:func:`initial_state` of the window's first samples), all windows' errors minimised
         together. Short horizons keep simulation errors from accumulating, so this stage is far
-        less prone to local minima when the start is poor; the free-run stage then refines it.
+        less prone to local minima when the start is poor; it is solved to the loose tolerance
+        :data:`INIT_STAGE_TOL` and the free-run stage then refines it.
     fit_initial_state : bool
         Also fit the initial angle and angular velocity of the free run (nuisance parameters:
         corrections to the estimates of :func:`initial_state`, bounded by five standard
@@ -920,15 +948,19 @@ def fit_greybox(
     lo = np.array([s.to_z(s.lower) for s in specs])
     hi = np.array([s.to_z(s.upper) for s in specs])
     z0 = np.clip(z0, lo, hi)
-    scale = np.array([s.scale for s in specs])
     penalty = 10.0 * max(float(np.ptp(data.theta)), 1e-3)
     n_p = len(specs)
     th0_est, thd0_est = float(data.theta[0]), initial_velocity(data.theta, data.dt)
     # nuisance coordinates: corrections (δθ₀ [rad], δθ̇₀ [rad/s]) to the estimated initial state,
     # bounded by 5 σ of the estimates for the measured noise level
     sigma = noise_level(data.theta)
-    x_bound = 5.0 * sigma * np.array([1.0, _slope_noise_gain(data.dt)])
-    lo_x, hi_x, scale_x = -x_bound, x_bound, np.maximum(x_bound / 5.0, 1e-12)
+    x_bound = np.maximum(5.0 * sigma * np.array([1.0, _slope_noise_gain(data.dt)]), 1e-12)
+    # coordinates w = 1 + (δ + bound)/(bound/5) ∈ [1, 11], δ = 0 at w = 6 (see ParameterSpec)
+    lo_x, hi_x, mid_x = np.array([1.0, 1.0]), np.array([11.0, 11.0]), np.array([6.0, 6.0])
+
+    def x0_correction(z: np.ndarray) -> tuple[float, float]:
+        d = (z[n_p:] - mid_x) * x_bound / 5.0
+        return float(d[0]), float(d[1])
 
     def candidate(z: np.ndarray) -> tuple[Rig, float]:
         values = {s.name: s.from_z(zi) for s, zi in zip(specs, z[:n_p], strict=True)}
@@ -943,7 +975,8 @@ def fit_greybox(
             try:
                 r_rig, r_off = candidate(z)
                 if with_x0:
-                    th = free_run(r_rig, data, r_off, thd0_est + z[n_p + 1], th0_est + z[n_p])
+                    d_th, d_thd = x0_correction(z)
+                    th = free_run(r_rig, data, r_off, thd0_est + d_thd, th0_est + d_th)
                 else:
                     th = np.concatenate(
                         [free_run(r_rig, p, r_off, v) for p, v in zip(parts, velocities, strict=True)]
@@ -957,10 +990,10 @@ def fit_greybox(
 
         return residual
 
-    def solve(residual: Any, z_start: np.ndarray, lo_z: np.ndarray, hi_z: np.ndarray, sc: np.ndarray) -> Any:
+    def solve(residual: Any, z_start: np.ndarray, lo_z: np.ndarray, hi_z: np.ndarray, t: float = tol) -> Any:
         return least_squares(
-            residual, z_start, bounds=(lo_z, hi_z), x_scale=sc, method="trf", jac="2-point",
-            diff_step=diff_step, ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev, verbose=verbose,
+            residual, z_start, bounds=(lo_z, hi_z), x_scale=1.0, method="trf", jac="2-point",
+            diff_step=diff_step, ftol=t, xtol=t, gtol=t, max_nfev=max_nfev, verbose=verbose,
         )
 
     full = [(0, len(data))]
@@ -971,33 +1004,36 @@ def fit_greybox(
     if init_horizon is not None:
         windows = _split_windows(len(data), data.dt, float(init_horizon))
         if len(windows) > 1:
-            stage1 = solve(make_residual(windows, with_x0=False), z0, lo, hi, scale)
+            # an initialiser only: a loose tolerance is enough (the free-run stage refines)
+            stage1 = solve(make_residual(windows, with_x0=False), z0, lo, hi, max(tol, INIT_STAGE_TOL))
             nfev, njev = int(stage1.nfev), int(stage1.njev or 0)
             z_start = np.clip(stage1.x, lo, hi)
-    sol = solve(free_residual, z_start, lo, hi, scale)
+    sol = solve(free_residual, z_start, lo, hi)
     nfev += int(sol.nfev)
     njev += int(sol.njev or 0)
     th0, thd0 = th0_est, thd0_est
     if fit_initial_state and sigma > 1e-9:
         # polish with the initial state free, from the free-run optimum (cheap when the estimate
         # was already right, e.g. on noise-free data)
-        sol = solve(make_residual(full, with_x0=True), np.concatenate([np.clip(sol.x, lo, hi), [0.0, 0.0]]),
-                    np.concatenate([lo, lo_x]), np.concatenate([hi, hi_x]), np.concatenate([scale, scale_x]))
+        sol = solve(make_residual(full, with_x0=True), np.concatenate([np.clip(sol.x, lo, hi), mid_x]),
+                    np.concatenate([lo, lo_x]), np.concatenate([hi, hi_x]))
         nfev += int(sol.nfev)
         njev += int(sol.njev or 0)
-        th0, thd0 = th0_est + float(sol.x[n_p]), thd0_est + float(sol.x[n_p + 1])
+        d_th, d_thd = x0_correction(sol.x)
+        th0, thd0 = th0_est + d_th, thd0_est + d_thd
     fit_rig, fit_off = candidate(sol.x)
     theta_fit = free_run(fit_rig, data, fit_off, thd0, th0)
-    std_z = _std_errors(sol.jac, sol.fun, sol.x.size)[:n_p]
+    lo_all = np.concatenate([lo, lo_x])[: sol.x.size]
+    hi_all = np.concatenate([hi, hi_x])[: sol.x.size]
+    pinned = (np.abs(sol.x - lo_all) <= 1e-6 * lo_all) | (np.abs(sol.x - hi_all) <= 1e-6 * hi_all)
+    std_z = _std_errors(sol.jac, sol.fun, pinned)[:n_p]
     estimates = []
-    for s, z, sz in zip(specs, sol.x[:n_p], std_z, strict=True):
+    for s, z, sz, at_bound in zip(specs, sol.x[:n_p], std_z, pinned[:n_p], strict=True):
         v = s.from_z(z)
-        se = v * sz if s.log else sz
-        at_bound = bool(np.isclose(z, s.to_z(s.lower), rtol=0, atol=1e-6 * max(1.0, abs(z)))
-                        or np.isclose(z, s.to_z(s.upper), rtol=0, atol=1e-6 * max(1.0, abs(z))))
+        se = s.dp_dz(v) * sz
         estimates.append(ParameterEstimate(
             name=s.name, unit=s.unit, value=v, std_error=float(abs(se)), initial=s.initial,
-            lower=s.lower, upper=s.upper, log=s.log, at_bound=at_bound,
+            lower=s.lower, upper=s.upper, log=s.log, at_bound=bool(at_bound),
         ))
     return GreyBoxResult(
         rig=fit_rig, theta_offset=fit_off, initial_rig=rig0, initial_theta_offset=off0,
@@ -1035,23 +1071,31 @@ def _split_windows(n: int, dt: float, horizon: float) -> list[tuple[int, int]]:
     return list(itertools.pairwise(edges))
 
 
-def _std_errors(jac: np.ndarray, res: np.ndarray, n: int) -> np.ndarray:
+def _std_errors(jac: np.ndarray, res: np.ndarray, pinned: np.ndarray) -> np.ndarray:
     """1-σ standard errors of the optimiser coordinates: sqrt(diag(s²·(JᵀJ)⁻¹)).
 
-    Directions the data do not determine (singular values below 1e-10 of the largest) get inf.
+    s² = Σr²/(m − n_free). Coordinates pinned at a bound are held fixed (their columns dropped;
+    their error is NaN: the bound, not the data, set them). Free coordinates with a weight above
+    1 % in a direction the data do not determine (singular value below 1e-10 of the largest)
+    get inf; the others are computed in the determined subspace.
     """
-    m = res.size
-    dof = max(m - n, 1)
-    s2 = float(np.sum(res**2)) / dof
     jac = np.asarray(jac, dtype=float)
-    _, sv, vt = np.linalg.svd(jac, full_matrices=False)
+    n = jac.shape[1]
+    std = np.full(n, math.nan)
+    free = np.flatnonzero(~np.asarray(pinned, dtype=bool))
+    if free.size == 0:
+        return std
+    dof = max(res.size - free.size, 1)
+    s2 = float(np.sum(res**2)) / dof
+    _, sv, vt = np.linalg.svd(jac[:, free], full_matrices=False)
     if sv.size == 0 or sv[0] == 0.0:
-        return np.full(n, math.inf)
+        std[free] = math.inf
+        return std
     keep = sv > 1e-10 * sv[0]
     cov = (vt[keep].T / sv[keep] ** 2) @ vt[keep] * s2
-    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    sub = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     if not keep.all():
-        # parameters with weight in an undetermined direction are unidentifiable
-        weak = np.abs(vt[~keep]).max(axis=0) > 1e-6
-        std[weak] = math.inf
+        weak = np.abs(vt[~keep]).max(axis=0) > 1e-2
+        sub[weak] = math.inf
+    std[free] = sub
     return std
