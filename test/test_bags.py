@@ -297,12 +297,25 @@ def test_nan_theta_is_an_error(tmp_path: Path) -> None:
     assert str(path) in str(err.value)
 
 
-def test_duplicate_stamps_are_an_error(tmp_path: Path) -> None:
+def test_conflicting_duplicate_stamps_are_an_error(tmp_path: Path) -> None:
     stamps = STAMP0 + np.array([0, 10, 10, 20], dtype=np.int64)
-    path = _raw_bag(tmp_path / "dup", list(zip(stamps.tolist(), _js(stamps, np.zeros(4), np.full(4, 0.2)),
+    theta = np.array([0.0, 0.1, 0.2, 0.3])
+    path = _raw_bag(tmp_path / "dup", list(zip(stamps.tolist(), _js(stamps, theta, np.full(4, 0.2)),
                                                strict=True)))
-    with pytest.raises(BagError, match="share a stamp"):
+    with pytest.raises(BagError, match=r"two different .* samples share the stamp"):
         read_bag(path)
+
+
+def test_republished_identical_samples_are_dropped(tmp_path: Path) -> None:
+    """A lock-step plant re-publishes its waiting sample: identical copies count once."""
+    stamps = STAMP0 + np.array([0, 0, 0, 10, 20], dtype=np.int64)
+    theta = np.array([0.0, 0.0, 0.0, 0.1, 0.2])
+    path = _raw_bag(tmp_path / "rep", list(zip(stamps.tolist(), _js(stamps, theta, np.full(5, 0.2)),
+                                               strict=True)))
+    rec = read_bag(path)
+    assert len(rec) == 3
+    assert np.array_equal(rec.channels["theta"], [0.0, 0.1, 0.2])
+    assert rec.meta["republished_samples_dropped"] == 2
 
 
 def test_missing_joint_states_topic_named(tmp_path: Path) -> None:

@@ -879,9 +879,23 @@ def read_bag(path: str | Path, *, namespace: str = "",
     cols = {k: v[order] for k, v in cols.items()}
     stamps = cols["stamp"]
     dup = np.flatnonzero(np.diff(stamps) == 0)
+    republished = 0
     if dup.size:
-        raise BagError(f"bag '{path}': {dup.size + 1} {t_js} messages share a stamp "
-                       f"(first {int(stamps[dup[0]])} ns); expected one message per sample instant")
+        # A lock-step plant re-publishes its last sample while it waits for a command: identical
+        # copies are dropped; two different samples with one stamp are a contract violation.
+        same = np.ones(dup.size, dtype=bool)
+        for v in cols.values():
+            a, b = v[dup], v[dup + 1]
+            same &= (a == b) | (np.isnan(a) & np.isnan(b)) if v.dtype.kind == "f" else a == b
+        if not same.all():
+            k = int(dup[np.flatnonzero(~same)[0]])
+            raise BagError(f"bag '{path}': two different {t_js} samples share the stamp {int(stamps[k])} ns; "
+                           "expected one sample per sample instant")
+        keep = np.ones(stamps.size, dtype=bool)
+        keep[dup + 1] = False
+        cols = {k: v[keep] for k, v in cols.items()}
+        stamps = cols["stamp"]
+        republished = int(dup.size)
     n = stamps.size
     bad = np.flatnonzero(~np.isfinite(cols["theta"]))
     if bad.size:
@@ -890,6 +904,8 @@ def read_bag(path: str | Path, *, namespace: str = "",
                        "the angle must be measured")
 
     meta: dict[str, Any] = _stored_meta(path)
+    if republished:
+        meta["republished_samples_dropped"] = republished
     v_wire = np.full(n, np.nan)
     i_a = np.full(n, np.nan)
     unmatched, orphan = n, 0
