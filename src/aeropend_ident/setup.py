@@ -30,7 +30,8 @@ setup(
             'record = aeropend_ident.record_node:main',
             'play = aeropend_ident.play_node:main',
             'csv_import = aeropend_ident.csv_import:main',
-            'baseline = aeropend_ident.baseline_cli:main'
+            'baseline = aeropend_ident.baseline_cli:main',
+            'pipeline = aeropend_ident.pipeline:main'
         ],
     },
 )

@@ -893,6 +893,7 @@ def read_bag(path: str | Path, *, namespace: str = "",
                            "expected one sample per sample instant")
         keep = np.ones(stamps.size, dtype=bool)
         keep[dup + 1] = False
+        order = order[keep]  # also selects the kept messages' log times below
         cols = {k: v[keep] for k, v in cols.items()}
         stamps = cols["stamp"]
         republished = int(dup.size)
