@@ -35,19 +35,24 @@ their median by more than :data:`UNIFORM_TOLERANCE` (relative) is resampled onto
 t_k = k·dt (dt = the median interval unless given): θ by linear interpolation, the duty cycle by
 zero-order hold (the value commanded at the last recorded instant ≤ t_k, the recording's
 convention). Optional decimation by an integer factor keeps every ``decimate``-th θ sample and
-averages the duty cycle over each block (this preserves the mean input; runtime shrinks in
-proportion).
+averages the duty cycle over each block (this preserves the mean input). It saves little time:
+the integrator's cost is set by the dynamics, not by the number of output samples
+(``bench/bench_greybox.py``).
 
 Initial state: θ(0) = first recorded angle (+ offset); θ̇(0) from a local quadratic least-squares
 fit over the first :data:`N_DIFF` samples (a short finite difference); motor current/speed at
 the steady state of the first duty cycle (:func:`motor_equilibrium`); lag state = first duty
-cycle. By default the fit then refines θ(0) and θ̇(0) as nuisance parameters (noisy data make
-the short-window velocity estimate poor); replays of other stretches (held-out data) use the
-estimates only.
+cycle. When θ shows measurement noise, the fit then refines θ(0) and θ̇(0) as bounded nuisance
+parameters (the short-window velocity estimate is poor on noisy data); replays of other
+stretches (held-out data) use the estimates only.
+
+Stages of :func:`fit_greybox`: optional multiple-shooting initialiser (``init_horizon``), the
+free-run fit, and the initial-state polish (noisy data only).
 
 Standard errors come from the Jacobian at the optimum, cov = s²·(JᵀJ)⁻¹ with
-s² = Σr²/(m − n), mapped through the log parametrisation by the delta method. Output-error
-residuals are autocorrelated, so these are lower bounds of the true uncertainty.
+s² = Σr²/(m − n), mapped through the parametrisation by the delta method; parameters pinned at a
+bound have none (NaN). Output-error residuals are autocorrelated, so these are lower bounds of
+the true uncertainty.
 
 No rclpy import: this module runs without ROS.
 """
@@ -762,7 +767,8 @@ class GreyBoxResult:
     initial_cost : float
         The same at the starting point.
     nfev, njev : int
-        Residual (simulation) and Jacobian evaluations.
+        Residual evaluations (simulations, excluding those of the finite-difference Jacobians)
+        and Jacobian evaluations, summed over the stages.
     success : bool
     status : int
     message : str
@@ -890,11 +896,13 @@ def fit_greybox(
     decimate : int
         Decimation factor (see :func:`uniform_data`).
     max_nfev : int
-        Most residual evaluations (each is one simulation).
+        Most residual evaluations per stage (each one simulation; SciPy does not count the
+        ``n_params`` simulations of each finite-difference Jacobian).
     tol : float
         ``ftol`` = ``xtol`` = ``gtol`` of the optimiser.
     diff_step : float
-        Relative finite-difference step of the Jacobian (well above the ODE tolerance 1e-8).
+        Relative finite-difference step of the Jacobian in the optimiser coordinates (z >= 1,
+        see :class:`ParameterSpec`), well above the ODE tolerance 1e-8.
     init_horizon : float, optional
         If given [s], the free-run fit starts from a **multiple-shooting** fit: the data are cut
         into windows of this length, each simulated from its own recorded initial state
