@@ -1,1 +1,4 @@
-"""Serial bridge to the Arduino Mega acquisition firmware; publishes the same topics as the simulated plant."""
+"""Serial bridge to the Arduino Mega acquisition firmware.
+
+Publishes the same topics as the simulated plant (:mod:`aeropend_sim.contract`).
+"""

@@ -1,1 +1,4 @@
-"""Aeropendulum controllers: PID, small-signal linearisation, feedback linearisation, cascade (thesis chapter 6)."""
+"""Aeropendulum controllers (thesis chapter 6).
+
+PID, small-signal linearisation, feedback linearisation and cascade control.
+"""
