@@ -897,6 +897,9 @@ def read_bag(path: str | Path, *, namespace: str = "",
         cols = {k: v[keep] for k, v in cols.items()}
         stamps = cols["stamp"]
         republished = int(dup.size)
+        if stamps.size < 2:
+            raise BagError(f"bag '{path}': {t_js} has {stamps.size} distinct sample(s) "
+                           f"({republished} re-published copies dropped); need at least 2 samples")
     n = stamps.size
     bad = np.flatnonzero(~np.isfinite(cols["theta"]))
     if bad.size:
