@@ -222,9 +222,8 @@ class PlantModel:
         else:
             dv = self.v_supply
         dv_dtau = dv * dte
-        # rows: which column receives the tau sensitivity
-        col = np.zeros(N_STATES)
-        b_tau = np.zeros(N_STATES)  # d(rhs)/d(tau) collected, then routed to A[:,4] or B
+        # d(rhs)/d(τ) of the actuator-side duty: routed to A[:, TAU_F] (lag) or to B (no lag)
+        b_tau = np.zeros(N_STATES)
         if self.lag:
             A[TAU_F, TAU_F] = -1.0 / self.T_a
             B[TAU_F, 0] = 1.0 / self.T_a
@@ -263,11 +262,10 @@ class PlantModel:
             self.K_q / self.n if self.alpha == 1.0 else 0.0
         )
         A[THETA_DOT, OMEGA] = self.b_f * df_dw
-        col[:] = b_tau
         if self.lag:
-            A[:, TAU_F] += col
+            A[:, TAU_F] += b_tau
         else:
-            B[:, 0] += col
+            B[:, 0] += b_tau
         return A, B
 
     # ------------------------------------------------------------------ steady state

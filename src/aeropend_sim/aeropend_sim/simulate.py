@@ -107,6 +107,13 @@ def _outputs(model: PlantModel, x: np.ndarray, u_eff: np.ndarray) -> dict[str, n
     }
 
 
+def _quanta(rig: Rig) -> dict[str, float]:
+    """LSB of each measured channel (0 = not quantised); θ̇ is estimated, never quantised."""
+    s = rig.sensors
+    return {"theta": s.theta_quantum, "theta_dot": 0.0, "i_a": s.i_a_quantum, "v_a": s.v_a_quantum,
+            "omega_rotor": s.omega_quantum, "omega_prop": s.omega_quantum}
+
+
 def measure(rig: Rig, true: dict[str, np.ndarray], rng: np.random.Generator) -> dict[str, np.ndarray]:
     """Apply sensor noise (at ``rig.sensors.snr_db``) and ADC quantisation to channels.
 
@@ -123,16 +130,8 @@ def measure(rig: Rig, true: dict[str, np.ndarray], rng: np.random.Generator) -> 
         Source of the noise (seeded by the caller for reproducibility).
     """
     s, e = rig.sensors, rig.effects
-    quanta = {
-        "theta": s.theta_quantum,
-        "theta_dot": 0.0,
-        "i_a": s.i_a_quantum,
-        "v_a": s.v_a_quantum,
-        "omega_rotor": s.omega_quantum,
-        "omega_prop": s.omega_quantum,
-    }
     out = {}
-    for name, q in quanta.items():
+    for name, q in _quanta(rig).items():
         y = true[name].copy()
         if e.sensor_noise:
             rms = float(np.sqrt(np.mean(y**2)))
@@ -293,12 +292,8 @@ class PlantStepper:
             "theta": s.theta_rms, "theta_dot": s.theta_rms * 5.0, "i_a": s.i_a_rms,
             "v_a": s.v_a_rms, "omega_rotor": s.omega_rms, "omega_prop": s.omega_rms / self.model.n,
         }
-        quanta = {
-            "theta": s.theta_quantum, "theta_dot": 0.0, "i_a": s.i_a_quantum, "v_a": s.v_a_quantum,
-            "omega_rotor": s.omega_quantum, "omega_prop": s.omega_quantum,
-        }
         out = {}
-        for name, q in quanta.items():
+        for name, q in _quanta(self.rig).items():
             y = float(true[name][0])
             if e.sensor_noise:
                 y += float(self.rng.normal(0.0, rms[name] / 10 ** (s.snr_db / 20.0)))
