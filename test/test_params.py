@@ -66,6 +66,13 @@ def test_unphysical_values_and_unknown_effects_are_refused():
         rig_from_dict(d, "x.yaml")
 
 
+def test_misspelt_top_level_section_is_refused():
+    d = _base()
+    d["efects"] = d.pop("effects")
+    with pytest.raises(RigFileError, match=r"unknown top-level key\(s\) \['efects'\]"):
+        rig_from_dict(d, "x.yaml")
+
+
 def test_load_errors_name_the_file(tmp_path):
     with pytest.raises(RigFileError, match="no rig named 'nope'"):
         load_rig("nope")

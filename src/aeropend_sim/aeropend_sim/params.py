@@ -177,6 +177,10 @@ _SECTIONS: dict[str, type] = {
     "sensors": SensorParams,
 }
 
+#: Keys a rig file may have at its top level. ``recording_frame`` (optional) describes how a rig's
+#: recorded angle relates to the model's θ (read by :func:`aeropend_ident.greybox.rig_theta_offset`).
+TOP_LEVEL_KEYS = frozenset({"name", "description", "sample_period", "effects", "recording_frame", *_SECTIONS})
+
 _UNIT_ALIASES = {"Ω": "ohm", "Ohm": "ohm", "ohms": "ohm", "-": "1", "": "1", "rad/s²": "1/s^2"}
 
 
@@ -230,6 +234,11 @@ def rig_from_dict(data: dict[str, Any], where: str = "<dict>") -> Rig:
     """
     if not isinstance(data, dict):
         raise RigFileError(f"{where}: top level must be a mapping, got {type(data).__name__}")
+    unknown_top = sorted(set(data) - TOP_LEVEL_KEYS)
+    if unknown_top:
+        raise RigFileError(
+            f"{where}: unknown top-level key(s) {unknown_top}; expected some of {sorted(TOP_LEVEL_KEYS)}"
+        )
     sources: dict[str, str] = {}
     built: dict[str, Any] = {}
     for section, cls in _SECTIONS.items():
