@@ -27,7 +27,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-
+            "design_gains = aeropend_control.design:main",
         ],
     },
 )

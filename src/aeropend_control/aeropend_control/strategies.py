@@ -1,0 +1,317 @@
+"""Position-control strategies of thesis chapter 6 as per-sample controllers (no rclpy).
+
+Every strategy measures **θ only** (the thesis rig has no θ̇ sensor) and runs once per sample:
+``step(r, theta) -> ControlOutput`` with the duty cycle τ ∈ [0, 1] for the next sample period.
+
+θ̇ estimate: a first-order low-pass filtered backward difference (:class:`VelocityEstimator`,
+θ̇_k = (T_f·θ̇_{k-1} + θ_k − θ_{k-1})/(T_f + h), i.e. s/(T_f·s + 1) discretised by backward
+Euler), the same filter the PID's derivative-on-measurement uses, so the D term and the
+feedback-linearising law see the same θ̇. Default T_f = 10 ms (4.6° phase lag at the 8 rad/s
+closed-loop bandwidth).
+
+Strategies
+----------
+:class:`FeedbackLinearizationPID` (thesis §6.6, Eqs. 6.4-6.7)
+    v = I-PD(r, θ) (the pseudo-control θ̈_desired), thrust
+    f = (v + (mgd/J)·sin θ + (c/J)·θ̂̇)/(L/J) (damping cancelled too; with
+    ``cancel_damping=False`` the thesis' Eq. 6.4 without the damping term), then thrust →
+    duty allocation (:mod:`aeropend_control.allocation`). The PID's output limits are the
+    thrust limits [f_min, f_max] mapped through the law at the current θ, θ̂̇, so back-calculation
+    anti-windup sees the real actuator saturation.
+:class:`SmallSignalPID` (thesis §6.5, Eqs. 6.1-6.3)
+    f = f₀(θ_op) + Δf, Δf = I-PD(r, θ) designed on the linearisation at θ_op; with gain
+    scheduling the operating point is the reference (θ_op = r, gains and f₀ interpolated in a
+    table of designs); a change of operating point is bumpless (the integrator absorbs the
+    jumps of f₀ and of kp), as in the linear design where the thrust is continuous.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from aeropend_control.allocation import Allocation, ModelAllocator, ThesisAllocator
+from aeropend_control.design import (
+    DEFAULT_GRID,
+    LoopDesign,
+    PoleSpec,
+    design_fl,
+    design_small_signal,
+    schedule,
+)
+from aeropend_control.pid import PID, PIDGains
+from aeropend_sim.model import PlantModel
+from aeropend_sim.params import Rig
+
+#: Default derivative / velocity filter time constant [s].
+DEFAULT_TF = 0.01
+#: Strategy names accepted by :func:`make_strategy`.
+STRATEGIES = ("fl_pid", "small_signal", "small_signal_fixed")
+#: Allocation chains accepted by the strategies.
+ALLOCATORS = ("model", "thesis")
+
+
+class StrategyError(ValueError):
+    """Invalid strategy configuration (the message names the value)."""
+
+
+@dataclass(frozen=True)
+class ControlOutput:
+    """One controller sample.
+
+    Attributes
+    ----------
+    duty : float
+        Duty cycle τ ∈ [0, 1] to apply.
+    error : float
+        r − θ [rad].
+    v : float
+        Loop output: pseudo-control θ̈_desired [rad/s²] (FL) or thrust deviation Δf [N] (small-signal).
+    thrust : float
+        Requested thrust f [N] (before allocation saturation).
+    theta_dot : float
+        Estimated θ̇ [rad/s].
+    saturated : int
+        Allocation saturation (+1 high, −1 low, 0 none).
+    nan_input : bool
+        True if θ or r was not finite (previous duty held).
+    """
+
+    duty: float
+    error: float
+    v: float
+    thrust: float
+    theta_dot: float
+    saturated: int
+    nan_input: bool = False
+
+
+class VelocityEstimator:
+    """θ̇ from θ: backward-Euler discretised s/(T_f·s + 1) (filtered difference; see module doc).
+
+    Parameters
+    ----------
+    dt : float
+        Sample period h [s].
+    tf : float
+        Filter time constant T_f [s] (0 = raw difference).
+    """
+
+    def __init__(self, dt: float, tf: float = DEFAULT_TF) -> None:
+        if not (dt > 0.0 and tf >= 0.0 and math.isfinite(tf)):
+            raise StrategyError(f"velocity estimator needs dt > 0 and tf >= 0, got dt = {dt!r}, tf = {tf!r}")
+        self.dt, self.tf = dt, tf
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the history (the next update returns 0)."""
+        self._prev: float | None = None
+        self.value = 0.0
+
+    def update(self, theta: float) -> float:
+        """New θ [rad] in, θ̇ estimate [rad/s] out."""
+        if self._prev is not None:
+            self.value = (self.tf * self.value + theta - self._prev) / (self.tf + self.dt)
+        self._prev = theta
+        return self.value
+
+
+def _allocator(rig: Rig, name: str) -> ModelAllocator | ThesisAllocator:
+    if name == "model":
+        return ModelAllocator(rig)
+    if name == "thesis":
+        return ThesisAllocator(rig)
+    raise StrategyError(f"allocator = {name!r}; expected one of {ALLOCATORS}")
+
+
+class _Base:
+    """Shared plumbing: estimator, PID, allocation, NaN handling, bumpless start."""
+
+    def __init__(self, rig: Rig, gains: PIDGains, allocator: str, tf: float, dt: float | None,
+                 f_init: float) -> None:
+        self.rig = rig
+        self.model = PlantModel(rig)
+        self.dt = float(rig.sample_period if dt is None else dt)
+        self.alloc = _allocator(rig, allocator)
+        self.f_min = getattr(self.alloc, "f_min", 0.0)
+        self.f_max = self.alloc.f_max
+        self.estimator = VelocityEstimator(self.dt, tf)
+        self.pid = PID(replace(gains, tf=tf), self.dt)
+        self.f_init = float(f_init)
+        self.last: ControlOutput | None = None
+        self._started = False
+
+    def reset(self) -> None:
+        """Back to the initial state (next sample starts bumpless from ``f_init``)."""
+        self.estimator.reset()
+        self.pid.reset()
+        self.last = None
+        self._started = False
+
+    def _finish(self, r: float, theta: float, thd: float, v: float, f: float) -> ControlOutput:
+        a: Allocation = self.alloc.allocate(f)
+        sat = a.saturated if a.saturated else self.pid.saturated  # PID clamps at the mapped limits
+        out = ControlOutput(a.duty, r - theta, v, f, thd, sat)
+        self.last = out
+        return out
+
+    def _nan(self, r: float, theta: float) -> ControlOutput | None:
+        if math.isfinite(r) and math.isfinite(theta):
+            return None
+        prev = self.last
+        duty = prev.duty if prev is not None else 0.0
+        out = ControlOutput(duty, math.nan, math.nan, math.nan, math.nan, 0, True)
+        self.pid.nan_count += 1
+        return out
+
+    def _pid_update(self, r: float, theta: float, u_start: float) -> float:
+        """PID update; on the very first sample the output is forced to ``u_start`` (bumpless start)."""
+        if not self._started:
+            self.pid.set_manual(u_start)
+            u = self.pid.update(r, theta)
+            self.pid.set_auto()
+            self._started = True
+            return u
+        return self.pid.update(r, theta)
+
+
+class FeedbackLinearizationPID(_Base):
+    """Input-output feedback linearisation + I-PD (thesis §6.6; see module doc).
+
+    Parameters
+    ----------
+    rig : Rig
+        Model parameters used by the linearising law (mgd/J, c/J, L/J) and the allocation.
+    design : LoopDesign, optional
+        Outer-loop gains (default :func:`design_fl` with :class:`PoleSpec` defaults).
+    cancel_damping : bool
+        Include (c/J)·θ̂̇ in the law (default True).
+    allocator : {"model", "thesis"}
+    tf : float
+        Velocity/derivative filter time constant [s].
+    dt : float, optional
+        Sample period [s] (default ``rig.sample_period``).
+    f_init : float
+        Thrust [N] the first sample continues from (0 = motor off).
+    """
+
+    name = "fl_pid"
+
+    def __init__(self, rig: Rig, design: LoopDesign | None = None, cancel_damping: bool = True,
+                 allocator: str = "model", tf: float = DEFAULT_TF, dt: float | None = None,
+                 f_init: float = 0.0) -> None:
+        self.design = design or design_fl(rig, cancel_damping=cancel_damping)
+        self.cancel_damping = cancel_damping
+        super().__init__(rig, self.design.pid_gains(), allocator, tf, dt, f_init)
+
+    def law(self, theta: float, theta_dot: float, v: float) -> float:
+        """Thrust f [N] for pseudo-control v [rad/s²] (thesis Eq. 6.4, plus damping if cancelled)."""
+        m = self.model
+        damp = m.a_c * theta_dot if self.cancel_damping else 0.0
+        return (v + m.a_g * math.sin(theta) + damp) / m.b_f
+
+    def v_for_thrust(self, theta: float, theta_dot: float, f: float) -> float:
+        """Inverse of :meth:`law`: the pseudo-control a thrust f realises."""
+        m = self.model
+        damp = m.a_c * theta_dot if self.cancel_damping else 0.0
+        return m.b_f * f - m.a_g * math.sin(theta) - damp
+
+    def step(self, r: float, theta: float) -> ControlOutput:
+        """One sample: reference r [rad], measured θ [rad] → duty (see :class:`ControlOutput`)."""
+        bad = self._nan(r, theta)
+        if bad is not None:
+            return bad
+        thd = self.estimator.update(theta)
+        lo = self.v_for_thrust(theta, thd, self.f_min)
+        hi = self.v_for_thrust(theta, thd, self.f_max)
+        self.pid.set_limits(lo, hi)
+        v = self._pid_update(r, theta, self.v_for_thrust(theta, thd, self.f_init))
+        return self._finish(r, theta, thd, v, self.law(theta, thd, v))
+
+
+class SmallSignalPID(_Base):
+    """Small-signal I-PD on thrust at an operating point, optionally gain-scheduled (thesis §6.5).
+
+    Parameters
+    ----------
+    rig : Rig
+    theta_op : float, optional
+        Fixed operating point [rad] (no scheduling). If None, gains are scheduled on the
+        reference over ``grid``.
+    grid : sequence of float
+        Scheduling grid [rad] (designs by :func:`aeropend_control.design.schedule`).
+    spec : PoleSpec, optional
+    allocator, tf, dt, f_init
+        As for :class:`FeedbackLinearizationPID`.
+    """
+
+    name = "small_signal"
+
+    def __init__(self, rig: Rig, theta_op: float | None = None, grid: tuple[float, ...] = DEFAULT_GRID,
+                 spec: PoleSpec | None = None, allocator: str = "model", tf: float = DEFAULT_TF,
+                 dt: float | None = None, f_init: float = 0.0) -> None:
+        if theta_op is None:
+            self.table = schedule(rig, list(grid), spec)
+        else:
+            self.table = [design_small_signal(rig, float(theta_op), spec)]
+        self.scheduled = theta_op is None
+        self._grid = np.array([d.theta_op for d in self.table])
+        first = self.table[0]
+        super().__init__(rig, first.pid_gains(), allocator, tf, dt, f_init)
+        self._op_r: float | None = None
+        self.f0 = first.u_op
+        self.gains_now = first.pid_gains(tf)
+
+    def _interp(self, r: float) -> tuple[PIDGains, float]:
+        if not self.scheduled:
+            d = self.table[0]
+            return d.pid_gains(self.estimator.tf), d.u_op
+        g = self._grid
+
+        def at(key: str) -> float:
+            return float(np.interp(r, g, [getattr(d, key) for d in self.table]))
+
+        f0 = self.model.a_g * math.sin(min(max(r, 0.0), math.pi / 2)) / self.model.b_f
+        gains = PIDGains(kp=at("kp"), ki=at("ki"), kd=at("kd"), b=0.0, c=0.0, tf=self.estimator.tf)
+        return gains, f0
+
+    def step(self, r: float, theta: float) -> ControlOutput:
+        """One sample: reference r [rad], measured θ [rad] → duty (see :class:`ControlOutput`)."""
+        bad = self._nan(r, theta)
+        if bad is not None:
+            return bad
+        thd = self.estimator.update(theta)
+        if r != self._op_r:  # new operating point (scheduled) / first sample
+            gains, f0 = self._interp(r)
+            if self._started:
+                self.pid.i -= f0 - self.f0  # keep f = f0 + Δf continuous
+            self.f0 = f0
+            self.pid.set_gains(replace(gains, u_min=self.pid.gains.u_min, u_max=self.pid.gains.u_max))
+            self.gains_now = gains
+            self._op_r = r
+        self.pid.set_limits(self.f_min - self.f0, self.f_max - self.f0)
+        df = self._pid_update(r, theta, self.f_init - self.f0)
+        return self._finish(r, theta, thd, df, self.f0 + df)
+
+
+def make_strategy(name: str, rig: Rig, **options: object) -> FeedbackLinearizationPID | SmallSignalPID:
+    """Build a strategy by name (:data:`STRATEGIES`); ``options`` go to its constructor.
+
+    ``small_signal`` is gain-scheduled; ``small_signal_fixed`` needs ``theta_op``.
+
+    Raises
+    ------
+    StrategyError
+        On an unknown name or a missing ``theta_op``.
+    """
+    if name == "fl_pid":
+        return FeedbackLinearizationPID(rig, **options)  # type: ignore[arg-type]
+    if name == "small_signal":
+        return SmallSignalPID(rig, **options)  # type: ignore[arg-type]
+    if name == "small_signal_fixed":
+        if options.get("theta_op") is None:
+            raise StrategyError("strategy 'small_signal_fixed' needs theta_op (operating point in rad)")
+        return SmallSignalPID(rig, **options)  # type: ignore[arg-type]
+    raise StrategyError(f"strategy = {name!r}; expected one of {STRATEGIES}")
