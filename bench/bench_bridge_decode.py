@@ -1,0 +1,70 @@
+"""Benchmark / fuzz driver of the bridge's frame decoder (pure Python, no ROS).
+
+Usage::
+
+    python bench/bench_bridge_decode.py                # decode throughput of valid sample frames
+    python bench/bench_bridge_decode.py --fuzz 1000000 # 1e6 random inputs: no exception escapes
+
+Writes ``bench/results/bridge_decode.json`` with ``--save``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import random
+import time
+from pathlib import Path
+
+from aeropend_bridge import protocol as proto
+
+
+def throughput(n_frames: int = 200_000) -> dict[str, float]:
+    """Decode ``n_frames`` sample frames fed in 64-byte chunks; return frames/s and MB/s."""
+    wire = b"".join(proto.encode(proto.SampleFrame(k & 0xFFFF, 2048 * k, 150, 280, 512, 15000, 110, 1))
+                    for k in range(1000))
+    stream = wire * (n_frames // 1000)
+    dec = proto.FrameDecoder()
+    t0 = time.perf_counter()
+    got = 0
+    for i in range(0, len(stream), 64):
+        got += len(dec.feed(stream[i:i + 64]))
+    dt = time.perf_counter() - t0
+    assert got == n_frames and dec.stats.errors == 0
+    return {"frames": n_frames, "seconds": dt, "frames_per_s": n_frames / dt,
+            "MB_per_s": len(stream) / dt / 1e6, "realtime_factor_at_488Hz": n_frames / dt / 488.28}
+
+
+def fuzz(n_inputs: int, seed: int = 0) -> dict[str, float]:
+    """Feed ``n_inputs`` random byte strings (0..128 bytes, some with valid frames spliced in)."""
+    rng = random.Random(seed)
+    valid = proto.encode(proto.SampleFrame(1, 2, 3, 4, 5, 6, 7, 0))
+    t0 = time.perf_counter()
+    frames = errors = 0
+    for _ in range(n_inputs):
+        data = rng.randbytes(rng.randint(0, 128))
+        if rng.random() < 0.2:
+            cut = rng.randint(0, len(data))
+            data = data[:cut] + b"\x00" + valid + data[cut:]
+        dec = proto.FrameDecoder()
+        frames += len(dec.feed(data))  # an exception here ends the run: that is the failure
+        errors += dec.stats.errors
+    return {"inputs": n_inputs, "seconds": time.perf_counter() - t0, "frames": frames, "errors": errors}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--fuzz", type=int, default=0, help="number of random inputs (e.g. 1000000)")
+    ap.add_argument("--save", action="store_true", help="write bench/results/bridge_decode.json")
+    a = ap.parse_args()
+    res: dict[str, object] = {"throughput": throughput()}
+    if a.fuzz:
+        res["fuzz"] = fuzz(a.fuzz)
+    print(json.dumps(res, indent=1))
+    if a.save:
+        out = Path(__file__).parent / "results" / "bridge_decode.json"
+        out.write_text(json.dumps(res, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,424 @@
+"""Wire protocol between the ATmega2560 firmware and the host (see ``firmware/PROTOCOL.md``).
+
+Pure Python, no rclpy. Byte-compatible with the C codec ``firmware/src/protocol.c``; both are
+checked against the golden vectors in ``firmware/test_vectors.json``.
+
+Framing: ``COBS(payload || crc16_le(payload)) || 0x00``.
+
+* COBS (Consistent Overhead Byte Stuffing) removes every 0x00 from the frame, so 0x00 is an
+  unambiguous frame delimiter: a receiver resynchronises at the next 0x00 after any error.
+* CRC-16/CCITT-FALSE: polynomial 0x1021, init 0xFFFF, no reflection, xorout 0x0000
+  (check value ``crc16(b"123456789") == 0x29B1``), computed over the unstuffed payload and
+  appended little-endian.
+* Payload byte 0 is the frame type; all multi-byte fields are little-endian.
+
+:class:`FrameDecoder` never raises on input bytes: every malformed frame is counted in
+:class:`DecoderStats` and decoding resumes at the next delimiter.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from dataclasses import dataclass, field
+
+#: Serial line rate [bit/s]: exact at 16 MHz with U2X (UBRR = 3), see PROTOCOL.md.
+BAUD = 500_000
+#: Frame delimiter.
+DELIM = 0x00
+#: Largest accepted *unstuffed* frame (payload + CRC) [bytes]; longer runs are dropped.
+MAX_FRAME = 64
+
+# Frame types (payload byte 0).
+T_SAMPLE = 0x01
+T_STATUS = 0x02
+T_DUTY = 0x10
+T_ENABLE = 0x11
+T_RATE = 0x12
+T_CALIBRATE = 0x13
+
+#: Timer4 input-capture tick [s] (16 MHz / prescaler 64 = 4 µs).
+TIMER4_TICK_S = 4e-6
+#: Calibration items of :class:`Calibrate`.
+CAL_I_A_OFFSET = 1
+CAL_THETA_OFFSET = 2
+
+# Sample flags.
+FLAG_ENABLED = 0x01
+FLAG_WATCHDOG = 0x02
+FLAG_SPIKE = 0x04
+FLAG_SPEED_STALE = 0x08
+
+
+class ProtocolError(ValueError):
+    """A frame or a field value violates the protocol."""
+
+
+# --------------------------------------------------------------------------- CRC + COBS
+def _crc_table() -> list[int]:
+    table = []
+    for byte in range(256):
+        crc = byte << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x1021) if crc & 0x8000 else (crc << 1)
+        table.append(crc & 0xFFFF)
+    return table
+
+
+_CRC_TABLE = _crc_table()
+
+
+def crc16(data: bytes | bytearray | memoryview, crc: int = 0xFFFF) -> int:
+    """CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF, no reflection, xorout 0).
+
+    Parameters
+    ----------
+    data : bytes-like
+        Bytes to check.
+    crc : int
+        Initial value (0xFFFF; pass a previous result to continue).
+
+    Returns
+    -------
+    int
+        CRC in [0, 0xFFFF]; ``crc16(b"123456789") == 0x29B1``.
+    """
+    table = _CRC_TABLE
+    for b in bytes(data):
+        crc = ((crc << 8) & 0xFFFF) ^ table[((crc >> 8) ^ b) & 0xFF]
+    return crc
+
+
+def cobs_encode(data: bytes) -> bytes:
+    """COBS-encode ``data`` (result contains no 0x00; delimiter not appended).
+
+    Same algorithm as ``cobs_encode`` in ``firmware/src/protocol.c``: a code byte gives the
+    distance to the next (implicit) zero; code 0xFF marks a full 254-byte block without zero.
+    """
+    out = bytearray([0])
+    code_idx = 0
+    code = 1
+    for b in bytes(data):
+        if b == 0:
+            out[code_idx] = code
+            code_idx = len(out)
+            out.append(0)
+            code = 1
+        else:
+            out.append(b)
+            code += 1
+            if code == 0xFF:
+                out[code_idx] = code
+                code_idx = len(out)
+                out.append(0)
+                code = 1
+    out[code_idx] = code
+    return bytes(out)
+
+
+def cobs_decode(data: bytes) -> bytes | None:
+    """Decode one COBS-encoded frame (without delimiter); ``None`` if it is malformed."""
+    out = bytearray()
+    idx = 0
+    n = len(data)
+    while idx < n:
+        code = data[idx]
+        if code == 0 or idx + code > n:
+            return None
+        block = data[idx + 1:idx + code]
+        if 0 in block:
+            return None
+        out += block
+        idx += code
+        if code != 0xFF and idx < n:
+            out.append(0)
+    return bytes(out)
+
+
+def encode_frame(payload: bytes) -> bytes:
+    """Frame ``payload``: COBS(payload + CRC16 little-endian) + 0x00 delimiter."""
+    if not payload:
+        raise ProtocolError("empty payload: a frame needs at least the type byte")
+    if len(payload) + 2 > MAX_FRAME:
+        raise ProtocolError(f"payload of {len(payload)} bytes exceeds {MAX_FRAME - 2}")
+    body = bytes(payload) + struct.pack("<H", crc16(payload))
+    return cobs_encode(body) + b"\x00"
+
+
+# --------------------------------------------------------------------------- frame types
+_SAMPLE = struct.Struct("<BHIHhHIBB")  # type seq t_us i_a v_a theta period duty flags
+_STATUS = struct.Struct("<BHHHHHH")    # type rx_frames rx_errors tx_overflows wd_trips spikes reserved
+
+
+@dataclass(frozen=True)
+class SampleFrame:
+    """MCU -> host: one acquisition sample (every TOV1 overflow, 2.048 ms).
+
+    Attributes
+    ----------
+    seq : int
+        Sequence number, uint16, +1 per sample sent (wraps).
+    t_us : int
+        MCU timestamp of the sample instant [µs], uint32 (wraps after 71.6 min).
+    i_a : int
+        Armature-current ADC counts (A0, 5 V reference, 10-bit, 0..1023; minus the
+        calibration offset, so it may go negative down to -1023).
+    v_a : int
+        Armature-voltage ADC counts, differential A3−A1, 2.56 V reference, signed 10-bit
+        (-512..511).
+    theta : int
+        Angle ADC counts (AS5040 PWM -> RC -> ADC, 0..1023 ↔ 0..360°, offset-corrected mod 1024).
+    period : int
+        Propeller period in Timer4 ticks (4 µs), uint32; 0 = no valid edge pair recently.
+    duty : int
+        Applied OCR1 value 0..255 over the interval ending at this sample (τ = duty/255).
+    flags : int
+        Bit 0 enabled, bit 1 watchdog tripped, bit 2 spike rejected, bit 3 speed stale.
+    """
+
+    seq: int
+    t_us: int
+    i_a: int
+    v_a: int
+    theta: int
+    period: int
+    duty: int
+    flags: int = 0
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        try:
+            return _SAMPLE.pack(T_SAMPLE, self.seq, self.t_us, self.i_a & 0xFFFF, self.v_a,
+                                self.theta, self.period, self.duty, self.flags)
+        except struct.error as exc:
+            raise ProtocolError(f"sample field out of range in {self}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class StatusFrame:
+    """MCU -> host: firmware counters, sent every 256 samples (all uint16, wrapping)."""
+
+    rx_frames: int
+    rx_errors: int
+    tx_overflows: int
+    watchdog_trips: int
+    spikes: int
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        return _STATUS.pack(T_STATUS, self.rx_frames, self.rx_errors, self.tx_overflows,
+                            self.watchdog_trips, self.spikes, 0)
+
+
+@dataclass(frozen=True)
+class Duty:
+    """Host -> MCU: duty cycle command, ``value`` = τ·65535 (uint16); feeds the watchdog."""
+
+    value: int
+
+    @classmethod
+    def from_fraction(cls, tau: float) -> Duty:
+        """Command for duty fraction ``tau`` in [0, 1].
+
+        Raises
+        ------
+        ProtocolError
+            If ``tau`` is NaN/inf or outside [0, 1].
+        """
+        t = float(tau)
+        if not math.isfinite(t) or t < 0.0 or t > 1.0:
+            raise ProtocolError(f"duty fraction {tau!r} is not a finite value in [0, 1]")
+        return cls(round(t * 65535))
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        return struct.pack("<BH", T_DUTY, self.value)
+
+
+@dataclass(frozen=True)
+class Enable:
+    """Host -> MCU: enable (1) / disable (0) the H-bridge output."""
+
+    on: bool
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        return struct.pack("<BB", T_ENABLE, 1 if self.on else 0)
+
+
+@dataclass(frozen=True)
+class Rate:
+    """Host -> MCU: send one sample every ``divider`` TOV1 overflows (1..255, 1 = 488 Hz)."""
+
+    divider: int
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        if not 1 <= self.divider <= 255:
+            raise ProtocolError(f"rate divider {self.divider} outside 1..255")
+        return struct.pack("<BB", T_RATE, self.divider)
+
+
+@dataclass(frozen=True)
+class Calibrate:
+    """Host -> MCU: set calibration ``item`` (1 = i_a zero offset, 2 = θ zero offset) in counts."""
+
+    item: int
+    value: int
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        if self.item not in (CAL_I_A_OFFSET, CAL_THETA_OFFSET):
+            raise ProtocolError(f"calibration item {self.item} unknown (1 = i_a, 2 = theta)")
+        if not -1024 < self.value < 1024:
+            raise ProtocolError(f"calibration offset {self.value} counts outside -1023..1023")
+        return struct.pack("<BBh", T_CALIBRATE, self.item, self.value)
+
+
+Frame = SampleFrame | StatusFrame | Duty | Enable | Rate | Calibrate
+
+
+def parse_payload(payload: bytes) -> Frame:
+    """Parse a CRC-checked payload into its frame dataclass.
+
+    Raises
+    ------
+    ProtocolError
+        Unknown type or wrong length for the type (the message names both).
+    """
+    if not payload:
+        raise ProtocolError("empty payload")
+    t = payload[0]
+    n = len(payload)
+
+    def need(size: int, name: str) -> None:
+        if n != size:
+            raise ProtocolError(f"{name} frame (type 0x{t:02x}) has {n} bytes, expected {size}")
+
+    if t == T_SAMPLE:
+        need(_SAMPLE.size, "sample")
+        _, seq, t_us, i_a, v_a, theta, period, duty, flags = _SAMPLE.unpack(payload)
+        if i_a >= 0x8000:
+            i_a -= 0x10000
+        return SampleFrame(seq, t_us, i_a, v_a, theta, period, duty, flags)
+    if t == T_STATUS:
+        need(_STATUS.size, "status")
+        return StatusFrame(*_STATUS.unpack(payload)[1:6])
+    if t == T_DUTY:
+        need(3, "duty")
+        return Duty(struct.unpack_from("<H", payload, 1)[0])
+    if t == T_ENABLE:
+        need(2, "enable")
+        return Enable(bool(payload[1]))
+    if t == T_RATE:
+        need(2, "rate")
+        if payload[1] == 0:
+            raise ProtocolError("rate divider 0 is invalid (1..255)")
+        return Rate(payload[1])
+    if t == T_CALIBRATE:
+        need(4, "calibrate")
+        item, value = struct.unpack_from("<Bh", payload, 1)
+        return Calibrate(item, value)
+    raise ProtocolError(f"unknown frame type 0x{t:02x} ({n} bytes)")
+
+
+def encode(frame: Frame) -> bytes:
+    """Encode a frame dataclass to wire bytes (including the trailing delimiter)."""
+    return encode_frame(frame.payload())
+
+
+# --------------------------------------------------------------------------- decoder
+@dataclass
+class DecoderStats:
+    """Counters of a :class:`FrameDecoder` (all monotonic)."""
+
+    frames: int = 0
+    bytes: int = 0
+    cobs_errors: int = 0
+    crc_errors: int = 0
+    length_errors: int = 0
+    type_errors: int = 0
+    oversize: int = 0
+    empty: int = 0
+    last_error: str = ""
+
+    @property
+    def errors(self) -> int:
+        """Total malformed frames (every kind)."""
+        return self.cobs_errors + self.crc_errors + self.length_errors + self.type_errors + self.oversize
+
+
+@dataclass
+class FrameDecoder:
+    """Incremental stream decoder: feed arbitrary bytes, get complete valid frames.
+
+    Never raises on input data. Bytes before the first delimiter are discarded as a partial
+    frame only if they do not form a valid frame; empty frames (``00 00``) are ignored.
+    """
+
+    max_frame: int = MAX_FRAME
+    stats: DecoderStats = field(default_factory=DecoderStats)
+    _buf: bytearray = field(default_factory=bytearray)
+    _overflow: bool = False
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[Frame]:
+        """Consume ``data``; return the frames completed by it, in order."""
+        out: list[Frame] = []
+        data = bytes(data)
+        self.stats.bytes += len(data)
+        start = 0
+        limit = self.max_frame + 2  # stuffed size bound: COBS adds 1 byte per 254
+        while True:
+            end = data.find(b"\x00", start)
+            chunk = data[start:] if end < 0 else data[start:end]
+            if not self._overflow:
+                if len(self._buf) + len(chunk) > limit:
+                    self._overflow = True
+                    self._buf.clear()
+                else:
+                    self._buf += chunk
+            if end < 0:
+                break
+            if self._overflow:
+                self.stats.oversize += 1
+                self.stats.last_error = f"frame longer than {limit} bytes"
+                self._overflow = False
+            else:
+                frame = self._finish(bytes(self._buf))
+                if frame is not None:
+                    out.append(frame)
+            self._buf.clear()
+            start = end + 1
+        return out
+
+    def _finish(self, raw: bytes) -> Frame | None:
+        s = self.stats
+        if not raw:
+            s.empty += 1
+            return None
+        body = cobs_decode(raw)
+        if body is None:
+            s.cobs_errors += 1
+            s.last_error = f"bad COBS encoding in {len(raw)}-byte frame {raw[:8].hex()}..."
+            return None
+        if len(body) < 3:
+            s.length_errors += 1
+            s.last_error = f"frame of {len(body)} bytes is shorter than type + CRC (3)"
+            return None
+        payload, crc_rx = body[:-2], body[-2] | (body[-1] << 8)
+        crc = crc16(payload)
+        if crc != crc_rx:
+            s.crc_errors += 1
+            s.last_error = f"CRC mismatch: received 0x{crc_rx:04x}, computed 0x{crc:04x}"
+            return None
+        try:
+            frame = parse_payload(payload)
+        except ProtocolError as exc:
+            if "unknown frame type" in str(exc):
+                s.type_errors += 1
+            else:
+                s.length_errors += 1
+            s.last_error = str(exc)
+            return None
+        s.frames += 1
+        return frame
