@@ -1,0 +1,745 @@
+"""Sparse identification of the aeropendulum: SINDy, ensemble, weak and discrepancy SINDy.
+
+Thesis §3.2 and chapter 5. All estimators regress state derivatives on a named candidate
+library (:mod:`aeropend_ident.libraries`) with pysindy 2.1's sequentially thresholded least
+squares (``pysindy.STLSQ``, threshold λ), after **column normalisation**: every library column
+and every target is scaled to unit RMS before the regression and the coefficients are scaled
+back afterwards. λ is therefore dimensionless: a term is kept when it contributes at least
+λ × RMS(target) per unit-RMS column, so one λ serves a 2 ms electrical equation and a 1 s
+pendulum equation together.
+
+Estimators (``method``):
+
+``"sindy"``
+    Strong form (thesis Eq. 3.15): Ẋ ≈ Θ(X, U)·Ξᵀ with Ẋ given (exact, or from
+    :mod:`aeropend_ident.preprocess`).
+``"ensemble"``
+    Bagging ensemble (``pysindy.EnsembleOptimizer(bagging=True)``): median coefficients,
+    per-term inclusion probability and coefficient spread (standard deviation over the models).
+``"weak"``
+    Weak/integral form (thesis §3.2.2, Eqs. 3.20-3.30) with control: the library columns
+    (which may involve the input v_a) are integrated against pysindy ``WeakPDELibrary`` test
+    functions on K subdomains; the left side −∫φ'·x dt needs no derivative. This is what
+    ``SINDy(feature_library=WeakPDELibrary(function_library=..., spatiotemporal_grid=t, K=...))
+    .fit(x, t=t, u=u)`` computes; the matrices are built with the same library calls so the
+    normalisation above can be applied.
+discrepancy (any method, ``base=`` a rig)
+    Thesis Eqs. 3.31-3.37: regress the residual Ẋ − f_model(X, U) of an approximate model (a
+    rig file through :class:`aeropend_sim.model.PlantModel`); the identified model is
+    f_model + Θ·Ξᵀ. In weak form the residual is −∫φ'·x − ∫φ·f_model.
+
+Targets are named by their state: ``"theta"`` (dθ/dt), ``"theta_dot"`` (θ̈), ``"i_a"``
+(di_a/dt), ``"omega_rotor"`` (dω₁/dt). A target whose state is not in the data is refused with
+a message naming it (e.g. the current equation when i_a was not recorded).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pysindy as ps
+from pysindy.utils import AxesArray
+
+from aeropend_ident.libraries import CandidateLibrary, LibraryError, symbol
+from aeropend_sim.model import N_STATES, PlantModel
+from aeropend_sim.params import Rig
+
+#: Target state -> readable left-hand side.
+TARGET_LHS: dict[str, str] = {
+    "theta": "dθ/dt",
+    "theta_dot": "θ̈",
+    "i_a": "di_a/dt",
+    "omega_rotor": "dω₁/dt",
+}
+#: Target state -> (unit of the derivative, what the equation is called in messages).
+TARGET_INFO: dict[str, tuple[str, str]] = {
+    "theta": ("rad/s", "kinematic equation dθ/dt"),
+    "theta_dot": ("rad/s^2", "pendulum equation θ̈"),
+    "i_a": ("A/s", "armature-current equation di_a/dt"),
+    "omega_rotor": ("rad/s^2", "rotor-speed equation dω₁/dt"),
+}
+METHODS = ("sindy", "ensemble", "weak")
+#: Model state order of :mod:`aeropend_sim.model` (τ_f is the duty cycle without actuator lag).
+_MODEL_STATES = ("theta", "theta_dot", "i_a", "omega_rotor")
+
+
+class IdentificationError(ValueError):
+    """Identification cannot be done on this data (missing channel, NaN, too short, bad option)."""
+
+
+def lhs(target: str) -> str:
+    """Readable left-hand side of a target's equation (``θ̈``, ``di_a/dt``, ``dx/dt``)."""
+    return TARGET_LHS.get(target, f"d{symbol(target)}/dt")
+
+
+# ---------------------------------------------------------------------------------- data
+@dataclass
+class IdentData:
+    """Uniformly sampled data for identification.
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Sample times [s], uniform.
+    variables : dict[str, ndarray]
+        States and inputs, each (N,), SI units (names as in ``Trajectory.channels()``:
+        ``theta`` [rad], ``theta_dot`` [rad/s], ``i_a`` [A], ``omega_rotor`` [rad/s], ``v_a``
+        [V], ``duty`` [1]).
+    derivatives : dict[str, ndarray]
+        Time derivatives of states, (N,), for the strong form (exact or estimated).
+    source : str
+        Provenance.
+    """
+
+    t: np.ndarray
+    variables: dict[str, np.ndarray]
+    derivatives: dict[str, np.ndarray] = field(default_factory=dict)
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        self.t = np.asarray(self.t, dtype=float)
+        n = self.t.size
+        if self.t.ndim != 1 or n < 3:
+            raise IdentificationError(f"{self.source}: need >= 3 samples, got t of shape {self.t.shape}")
+        dt = np.diff(self.t)
+        if not (dt > 0).all():
+            raise IdentificationError(f"{self.source}: time is not strictly increasing")
+        if np.ptp(dt) > 1e-6 * dt.mean():
+            raise IdentificationError(
+                f"{self.source}: sampling is not uniform (dt from {dt.min():.6g} to {dt.max():.6g} s); "
+                "resample first"
+            )
+        for kind, d in (("variable", self.variables), ("derivative", self.derivatives)):
+            for k, v in list(d.items()):
+                a = np.asarray(v, dtype=float)
+                if a.shape != (n,):
+                    raise IdentificationError(
+                        f"{self.source}: {kind} {k} has shape {a.shape}, expected ({n},)"
+                    )
+                bad = ~np.isfinite(a)
+                if bad.any():
+                    raise IdentificationError(
+                        f"{self.source}: {kind} {k} has {int(bad.sum())} non-finite value(s), "
+                        f"first at sample {int(np.flatnonzero(bad)[0])}"
+                    )
+                d[k] = a
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+    def slice(self, start: int, stop: int) -> IdentData:
+        """Samples [start, stop) (time kept, not re-based)."""
+        return IdentData(
+            t=self.t[start:stop].copy(),
+            variables={k: v[start:stop].copy() for k, v in self.variables.items()},
+            derivatives={k: v[start:stop].copy() for k, v in self.derivatives.items()},
+            source=f"{self.source}[{start}:{stop}]",
+        )
+
+    def split(self, train_fraction: float = 0.75) -> tuple[IdentData, IdentData]:
+        """Time-ordered split (thesis §5.2.1: 75 % training, 25 % test)."""
+        if not 0.0 < train_fraction < 1.0:
+            raise IdentificationError(f"train_fraction = {train_fraction!r} must be in (0, 1)")
+        k = round(train_fraction * len(self))
+        return self.slice(0, k), self.slice(k, len(self))
+
+
+def data_from_trajectory(traj: Any, rig: Rig | None = None, measured: bool = False,
+                         exact_derivatives: bool = False, source: str = "simulation") -> IdentData:
+    """Identification data from a :class:`aeropend_sim.simulate.Trajectory`.
+
+    Parameters
+    ----------
+    traj : Trajectory
+    rig : Rig, optional
+        Needed for ``exact_derivatives`` (the model's right-hand side at each sample).
+    measured : bool
+        Use the measured channels (noise/quantisation as configured) instead of the true ones.
+    exact_derivatives : bool
+        Attach the model's exact derivatives dx/dt = f(x_k, τ_k) of θ, θ̇, i_a, ω₁ (the thesis'
+        noise-free case, §5.2.1, where dX/dt "was composed directly from the simulation").
+    """
+    ch = traj.channels() if measured else traj.true
+    names = ("theta", "theta_dot", "i_a", "omega_rotor", "v_a")
+    variables = {k: np.asarray(ch[k], dtype=float).copy() for k in names}
+    variables["duty"] = np.asarray(traj.duty, dtype=float).copy()
+    derivatives: dict[str, np.ndarray] = {}
+    if exact_derivatives:
+        if rig is None:
+            raise IdentificationError("exact_derivatives needs the rig that produced the trajectory")
+        model = PlantModel(rig)
+        u = traj.x[:, 4] if not model.lag else traj.duty
+        f = np.array([model.rhs(0.0, xk, uk) for xk, uk in zip(traj.x, u, strict=True)])
+        derivatives = {k: f[:, i].copy() for i, k in enumerate(_MODEL_STATES)}
+    return IdentData(t=np.asarray(traj.t, dtype=float).copy(), variables=variables,
+                     derivatives=derivatives, source=source)
+
+
+def model_derivatives(rig: Rig, data: IdentData, targets: Sequence[str]) -> dict[str, np.ndarray]:
+    """Right-hand side of a rig's model at the data's samples (the f_model of discrepancy SINDy).
+
+    Needs θ, θ̇, ω₁, the duty cycle and, for a dynamic armature, i_a.
+
+    Raises
+    ------
+    IdentificationError
+        If a needed variable is missing or the rig has an actuator lag/delay (its hidden state
+        cannot be reconstructed from the data).
+    """
+    model = PlantModel(rig)
+    if model.lag or model.delay > 0:
+        raise IdentificationError(
+            f"rig {rig.name}: actuator lag / input delay switched on; the discrepancy model needs a "
+            "model whose state is in the data"
+        )
+    need = ["theta", "theta_dot", "omega_rotor", "duty"] + (["i_a"] if model.dynamic_current else [])
+    missing = [v for v in need if v not in data.variables]
+    if missing:
+        raise IdentificationError(
+            f"{data.source}: the approximate model of rig {rig.name} needs {missing}; data has "
+            f"{sorted(data.variables)}"
+        )
+    v = data.variables
+    x = np.zeros((len(data), N_STATES))
+    x[:, 0], x[:, 1], x[:, 3] = v["theta"], v["theta_dot"], v["omega_rotor"]
+    if model.dynamic_current:
+        x[:, 2] = v["i_a"]
+    x[:, 4] = v["duty"]
+    f = np.array([model.rhs(0.0, xk, uk) for xk, uk in zip(x, v["duty"], strict=True)])
+    return {k: f[:, _MODEL_STATES.index(k)] for k in targets}
+
+
+def input_step_mask(data: IdentData, width: int) -> np.ndarray:
+    """Boolean (N,): False within ± ``width`` samples of a change of the duty cycle.
+
+    Raises
+    ------
+    IdentificationError
+        If the data has no ``duty`` variable.
+    """
+    if "duty" not in data.variables:
+        raise IdentificationError(f"{data.source}: exclude_input_steps needs the duty cycle in the data")
+    steps = np.flatnonzero(np.diff(data.variables["duty"]) != 0.0) + 1
+    keep = np.ones(len(data), dtype=bool)
+    for k in range(-width, width + 1):
+        keep[np.clip(steps + k, 0, len(data) - 1)] = False
+    return keep
+
+
+#: A discrepancy base model given as a function: data -> {target: derivative (N,)}.
+BaseModel = Callable[[IdentData], Mapping[str, np.ndarray]]
+
+
+def _base_name(base: Rig | BaseModel) -> str:
+    return base.name if isinstance(base, Rig) else getattr(base, "__name__", "model")
+
+
+def base_derivatives(base: Rig | BaseModel, data: IdentData, targets: Sequence[str]) -> dict[str, np.ndarray]:
+    """f_model of discrepancy SINDy: a rig's model (:func:`model_derivatives`) or a function."""
+    if isinstance(base, Rig):
+        return model_derivatives(base, data, targets)
+    out = base(data)
+    missing = [tg for tg in targets if tg not in out]
+    if missing:
+        raise IdentificationError(f"base model {_base_name(base)} gives no derivative for {missing}")
+    return {tg: np.asarray(out[tg], dtype=float) for tg in targets}
+
+
+def check_targets(data: IdentData, targets: Sequence[str], library: CandidateLibrary,
+                  need_derivatives: bool) -> None:
+    """Refuse what the data cannot support, naming the equation and the missing channel.
+
+    Raises
+    ------
+    IdentificationError
+        Unknown target; the target's state not in the data (e.g. the current equation without
+        i_a); a library variable missing; a strong-form derivative missing.
+    """
+    if not targets:
+        raise IdentificationError("no target equation requested")
+    for tg in targets:
+        if tg not in TARGET_LHS and tg not in data.variables:
+            raise IdentificationError(
+                f"unknown target {tg!r}; expected some of {list(TARGET_LHS)} or a variable of the data "
+                f"{sorted(data.variables)}"
+            )
+        if tg not in data.variables:
+            raise IdentificationError(
+                f"{data.source}: the {TARGET_INFO[tg][1]} needs the state {tg} ({symbol(tg)}), which the "
+                f"data does not have (variables: {sorted(data.variables)}); record it or drop target {tg!r}"
+            )
+        if need_derivatives and tg not in data.derivatives:
+            raise IdentificationError(
+                f"{data.source}: strong-form SINDy needs d{tg}/dt; estimate it "
+                "(aeropend_ident.preprocess.add_derivatives) or use method='weak'"
+            )
+    missing = [v for v in library.variables if v not in data.variables]
+    if missing:
+        need = [c.name for c in library.candidates if set(c.variables) & set(missing)]
+        raise IdentificationError(
+            f"{data.source}: library candidate(s) {need} need {missing}, which the data does not have "
+            f"(variables: {sorted(data.variables)}); drop them from the library"
+        )
+
+
+# ---------------------------------------------------------------------------------- model
+@dataclass
+class SindyModel:
+    """An identified sparse model Ẋ = f_base(X, U) + Θ(X, U)·Ξᵀ.
+
+    Attributes
+    ----------
+    method : str
+        ``"sindy"``, ``"ensemble"`` or ``"weak"`` (prefixed ``"discrepancy-"`` with a base model).
+    targets : list of str
+        Target states, one equation each.
+    feature_names : list of str
+        Library column names (M).
+    coef : ndarray, shape (n_targets, M)
+        Ξ in SI units (derivative unit / candidate unit).
+    threshold : float
+        λ (dimensionless, on the unit-RMS scale).
+    coef_std : ndarray, shape (n_targets, M) or None
+        Ensemble spread (standard deviation over the bagged models).
+    inclusion : ndarray, shape (n_targets, M) or None
+        Ensemble inclusion probability of each term.
+    condition_number : float
+        Condition number of the normalised regression matrix.
+    fit_time : float
+        Wall time of the fit [s].
+    base : Rig or None
+        Approximate model of discrepancy SINDy.
+    """
+
+    method: str
+    targets: list[str]
+    feature_names: list[str]
+    coef: np.ndarray
+    threshold: float
+    library: CandidateLibrary = field(repr=False)
+    coef_std: np.ndarray | None = None
+    inclusion: np.ndarray | None = None
+    condition_number: float = float("nan")
+    fit_time: float = 0.0
+    base: Rig | BaseModel | None = field(default=None, repr=False)
+
+    def support(self) -> np.ndarray:
+        """Boolean (n_targets, M): which terms are active."""
+        return self.coef != 0.0
+
+    def coefficient(self, target: str, name: str) -> float:
+        """Coefficient of candidate ``name`` in the equation of ``target``."""
+        return float(self.coef[self.targets.index(target), self.feature_names.index(name)])
+
+    def terms(self, target: str) -> dict[str, float]:
+        """Active terms of one equation: candidate name -> coefficient."""
+        row = self.coef[self.targets.index(target)]
+        return {n: float(c) for n, c in zip(self.feature_names, row, strict=True) if c != 0.0}
+
+    def predict(self, data: IdentData) -> dict[str, np.ndarray]:
+        """Predicted derivatives of every target at the data's samples (strong form)."""
+        theta = self.library.evaluate(data.variables)
+        out = {tg: theta @ self.coef[i] for i, tg in enumerate(self.targets)}
+        if self.base is not None:
+            fb = base_derivatives(self.base, data, self.targets)
+            out = {tg: out[tg] + fb[tg] for tg in self.targets}
+        return out
+
+    def test_mse(self, data: IdentData, exclude_input_steps: int = 0) -> dict[str, float]:
+        """Mean squared derivative error per target on data with derivatives (thesis §5.2.2).
+
+        ``exclude_input_steps`` leaves out the samples next to duty steps as in :func:`fit`.
+        """
+        missing = [tg for tg in self.targets if tg not in data.derivatives]
+        if missing:
+            raise IdentificationError(f"{data.source}: no derivative(s) {missing} to score against")
+        pred = self.predict(data)
+        keep = input_step_mask(data, exclude_input_steps) if exclude_input_steps > 0 else slice(None)
+        return {tg: float(np.mean((pred[tg] - data.derivatives[tg])[keep] ** 2)) for tg in self.targets}
+
+    def equations(self, precision: int = 4) -> list[str]:
+        """Readable equations, e.g. ``θ̈ = −13.82 θ̇ − 131.75 sin(θ) + 1.7285 ω₁²``.
+
+        Ensemble models show ``±σ`` and ``[p]`` (inclusion probability) per term; discrepancy
+        models show ``f_model + ...``.
+        """
+        lines = []
+        for i, tg in enumerate(self.targets):
+            parts = []
+            for j, name in enumerate(self.feature_names):
+                c = self.coef[i, j]
+                if c == 0.0:
+                    continue
+                s = f"{abs(c):.{precision}g}"
+                if self.coef_std is not None:
+                    s += f"±{self.coef_std[i, j]:.2g}"
+                if self.inclusion is not None:
+                    s += f"[p={self.inclusion[i, j]:.2f}]"
+                term = s if name == "1" else f"{s} {name}"
+                parts.append(("− " if c < 0 else "+ ") + term)
+            rhs = " ".join(parts) if parts else "0"
+            if rhs.startswith("+ "):
+                rhs = rhs[2:]
+            if self.base is not None:
+                rhs = f"f_{_base_name(self.base)} {'' if rhs.startswith('−') else '+ '}{rhs}"
+            lines.append(f"{lhs(tg)} = {rhs}")
+        return lines
+
+    def derived_parameters(self, gear_ratio: float | None = None, L_over_J: float | None = None
+                           ) -> dict[str, tuple[float, str]]:
+        """Physical parameters implied by the coefficients (thesis §5.2.1), with units.
+
+        θ̈ = −(c/J)·θ̇ − (mgd/J)·sin θ + (L/J)·K_q·(ω₁/n)² gives c/J, mgd/J and, with the gear
+        ratio n = ω₁/ω₂ and L/J, K_q = ξ(ω₁²)·n²/(L/J) (the thesis' K_q = 1.729/((L/J)(N₁/N₂)²));
+        L_a·di_a/dt = v_a − R_a·i_a − K_ω·ω₁ gives L_a = 1/ξ(v_a), R_a/L_a = −ξ(i_a),
+        K_ω = −ξ(ω₁)·L_a; J_m·dω₁/dt = K_t·i_a − B_m·ω₁ gives K_t/J_m and B_m/J_m. Only
+        parameters whose coefficients are in the library and non-zero are returned. For a
+        discrepancy model the coefficients are corrections, so nothing is derived.
+        """
+        if self.base is not None:
+            return {}
+        out: dict[str, tuple[float, str]] = {}
+
+        def c(tg: str, name: str) -> float | None:
+            if tg not in self.targets or name not in self.feature_names:
+                return None
+            v = self.coefficient(tg, name)
+            return v if v != 0.0 else None
+
+        if (v := c("theta_dot", "θ̇")) is not None:
+            out["c_over_J"] = (-v, "1/s")
+        if (v := c("theta_dot", "sin(θ)")) is not None:
+            out["mgd_over_J"] = (-v, "1/s^2")
+        if (v := c("theta_dot", "ω₁²")) is not None:
+            out["thrust_gain"] = (v, "1/rad")  # (L/J)·K_q/n²: rad/s² per (rad/s)²
+            if gear_ratio is not None and L_over_J is not None:
+                out["K_q"] = (v * gear_ratio**2 / L_over_J, "N*s^2/rad^2")
+        if (inv_l := c("i_a", "v_a")) is not None:
+            l_a = 1.0 / inv_l
+            out["L_a"] = (l_a, "H")
+            if (v := c("i_a", "i_a")) is not None:
+                out["R_a_over_L_a"] = (-v, "1/s")
+                out["R_a"] = (-v * l_a, "ohm")
+            if (v := c("i_a", "ω₁")) is not None:
+                out["K_omega"] = (-v * l_a, "V*s/rad")
+        if (v := c("omega_rotor", "i_a")) is not None:
+            out["K_t_over_J_m"] = (v, "1/(A*s^2)")
+        if (v := c("omega_rotor", "ω₁")) is not None:
+            out["B_m_over_J_m"] = (-v, "1/s")
+        return out
+
+
+# ---------------------------------------------------------------------------------- regression
+def _rms(a: np.ndarray) -> np.ndarray:
+    r = np.sqrt(np.mean(np.asarray(a) ** 2, axis=0))
+    return np.where(r > 0, r, 1.0)
+
+
+def _normalised_cond(theta: np.ndarray) -> float:
+    s = np.linalg.svd(theta / _rms(theta), compute_uv=False)
+    return float(s.max() / s.min()) if s.min() > 0 else float("inf")
+
+
+def _stlsq(threshold: float, alpha: float, max_iter: int) -> ps.STLSQ:
+    return ps.STLSQ(threshold=threshold, alpha=alpha, max_iter=max_iter, normalize_columns=False, unbias=True)
+
+
+def sparse_regression(
+    theta: np.ndarray, y: np.ndarray, threshold: float, method: str = "sindy", alpha: float = 1e-10,
+    max_iter: int = 20, n_models: int = 40, subset_fraction: float = 0.6, seed: int = 0,
+    zero_below: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Normalised STLSQ (or bagged ensemble) on a regression matrix.
+
+    Parameters
+    ----------
+    theta : ndarray, shape (N, M)
+        Library matrix (strong or weak form).
+    y : ndarray, shape (N, T)
+        Targets.
+    threshold : float
+        λ on the unit-RMS scale.
+    method : {"sindy", "weak", "ensemble"}
+        ``"ensemble"`` bags ``n_models`` fits on random ``subset_fraction`` row subsets
+        (without replacement) and returns the median, the spread and the inclusion probability.
+    alpha : float
+        Ridge weight of STLSQ's thresholding iterations (on the unit scale); the final fit on the
+        support is unbiased least squares.
+    zero_below : ndarray, shape (T,), optional
+        A target whose RMS is below this is taken as identically zero (all coefficients 0)
+        instead of being scaled up to unit RMS: a discrepancy residual that is round-off only.
+
+    Returns
+    -------
+    coef : ndarray (T, M)
+    std : ndarray (T, M) or None
+    inclusion : ndarray (T, M) or None
+    """
+    if not threshold >= 0:
+        raise IdentificationError(f"threshold λ = {threshold!r} must be >= 0")
+    cs, ys = _rms(theta), _rms(y)
+    zero = np.zeros(y.shape[1], dtype=bool) if zero_below is None else ys <= np.asarray(zero_below)
+    if zero.all():
+        m = theta.shape[1]
+        empty = np.zeros((y.shape[1], m))
+        return empty, (empty.copy() if method == "ensemble" else None), (
+            empty.copy() if method == "ensemble" else None)
+    if zero.any():
+        coef, std, incl = sparse_regression(
+            theta, y[:, ~zero], threshold, method, alpha, max_iter, n_models, subset_fraction, seed
+        )
+        full = [np.zeros((y.shape[1], theta.shape[1])) if a is not None else None for a in (coef, std, incl)]
+        for f, a in zip(full, (coef, std, incl), strict=True):
+            if f is not None:
+                f[~zero] = a
+        return full[0], full[1], full[2]
+    a, b = theta / cs, y / ys
+    if method == "ensemble":
+        np.random.seed(seed)  # pysindy's bagging draws from the global generator
+        opt = ps.EnsembleOptimizer(
+            opt=_stlsq(threshold, alpha, max_iter), bagging=True, n_models=n_models,
+            n_subset=max(a.shape[1] + 1, int(subset_fraction * a.shape[0])), replace=False,
+        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            opt.fit(a, b)
+        stack = np.asarray(opt.coef_list) * ys[None, :, None] / cs[None, None, :]
+        return np.median(stack, axis=0), np.std(stack, axis=0), np.mean(stack != 0.0, axis=0)
+    opt = _stlsq(threshold, alpha, max_iter)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        opt.fit(a, b)
+    return np.asarray(opt.coef_) * ys[:, None] / cs[None, :], None, None
+
+
+def weak_matrices(data: IdentData, columns: np.ndarray, targets: Sequence[str], K: int = 200,
+                  p: int = 4, H_xt: float | None = None, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Weak-form regression matrices with pysindy's ``WeakPDELibrary`` (thesis Eqs. 3.20-3.30).
+
+    ``WeakPDELibrary(function_library=IdentityLibrary(), spatiotemporal_grid=t, K, p, H_xt)``
+    integrates each given column against K test functions φ_k (random subdomains, degree p);
+    the left side is pysindy's ``convert_u_dot_integral`` of the target states, −∫φ_k'·x dt.
+
+    Parameters
+    ----------
+    columns : ndarray, shape (N, M)
+        Strong-form columns to integrate (library columns, model right-hand sides, ...).
+    H_xt : float, optional
+        Half-width of the subdomains [s] (pysindy default: 1/20 of the record).
+
+    Returns
+    -------
+    theta_w : ndarray, shape (K, M)
+    lhs_w : ndarray, shape (K, n_targets)
+    """
+    t = data.t
+    if H_xt is not None and not 0 < 2 * H_xt < t[-1] - t[0]:
+        raise IdentificationError(f"H_xt = {H_xt!r} s must be in (0, record/2 = {(t[-1] - t[0]) / 2:g} s)")
+    np.random.seed(seed)  # pysindy draws the subdomain centres from the global generator
+    lib = ps.WeakPDELibrary(function_library=ps.IdentityLibrary(), spatiotemporal_grid=t, K=K, p=p, H_xt=H_xt)
+    cols = AxesArray(np.asarray(columns, dtype=float), {"ax_time": 0, "ax_coord": 1})
+    x = np.column_stack([data.variables[tg] for tg in targets])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lib.fit([cols])
+        theta_w = np.asarray(lib.transform([cols])[0])
+        lhs_w = np.asarray(lib.convert_u_dot_integral(AxesArray(x, {"ax_time": 0, "ax_coord": 1})))
+    return theta_w, lhs_w
+
+
+def fit(
+    data: IdentData,
+    library: CandidateLibrary,
+    targets: Sequence[str] = ("theta_dot", "i_a", "omega_rotor"),
+    threshold: float = 0.05,
+    method: str = "sindy",
+    base: Rig | BaseModel | None = None,
+    K: int = 200,
+    p: int = 4,
+    H_xt: float | None = None,
+    n_models: int = 40,
+    subset_fraction: float = 0.6,
+    alpha: float = 1e-10,
+    seed: int = 0,
+    exclude_input_steps: int = 0,
+) -> SindyModel:
+    """Identify a sparse model (see the module docstring for the methods).
+
+    Parameters
+    ----------
+    data : IdentData
+        Training data (strong form needs ``data.derivatives`` for the targets).
+    library : CandidateLibrary
+    targets : sequence of str
+        Target states (``"theta"``, ``"theta_dot"``, ``"i_a"``, ``"omega_rotor"``).
+    threshold : float
+        λ (dimensionless, unit-RMS scale).
+    method : {"sindy", "ensemble", "weak"}
+        Ensemble bagging uses the strong form.
+    base : Rig or callable, optional
+        Approximate model for discrepancy SINDy (strong or weak form): a rig (its
+        :class:`~aeropend_sim.model.PlantModel`) or ``f(data) -> {target: ndarray (N,)}``.
+    K, p, H_xt : int, int, float
+        Weak form: number of subdomains, test-function degree, subdomain half-width [s].
+    n_models, subset_fraction : int, float
+        Ensemble: number of bagged models and the row fraction each sees.
+    exclude_input_steps : int
+        Strong form: leave out the rows within ± this many samples of a duty-cycle step.
+        Estimated derivatives are wrong across the kinks a zero-order-hold input puts into
+        di_a/dt (at 490 Hz, central differences of a noise-free thesis_sim i_a are 16 % off in
+        RMS; 0.1 % with ±3 samples left out). Needs ``duty`` in the data.
+
+    Raises
+    ------
+    IdentificationError
+        Unknown method, a target or library variable the data lacks (named), too few samples
+        for the library, or a rank-deficient (unexcited) library.
+    """
+    if method not in METHODS:
+        raise IdentificationError(f"method = {method!r}; expected one of {METHODS}")
+    targets = list(targets)
+    check_targets(data, targets, library, need_derivatives=method != "weak")
+    t0 = time.perf_counter()
+    try:
+        theta = library.evaluate(data.variables)
+    except LibraryError as exc:
+        raise IdentificationError(f"{data.source}: {exc}") from exc
+    fb = base_derivatives(base, data, targets) if base is not None else None
+    if method == "weak":
+        extra = np.column_stack([fb[tg] for tg in targets]) if fb is not None else np.empty((len(data), 0))
+        mat, lhs = weak_matrices(data, np.hstack([theta, extra]), targets, K=K, p=p, H_xt=H_xt, seed=seed)
+        theta_r, y = mat[:, : theta.shape[1]], lhs
+        y_ref = lhs
+        if fb is not None:
+            y = lhs - mat[:, theta.shape[1]:]
+    else:
+        theta_r = theta
+        y = y_ref = np.column_stack([data.derivatives[tg] for tg in targets])
+        if fb is not None:
+            y = y - np.column_stack([fb[tg] for tg in targets])
+        if exclude_input_steps > 0:
+            keep = input_step_mask(data, exclude_input_steps)
+            theta_r, y, y_ref = theta_r[keep], y[keep], y_ref[keep]
+    if theta_r.shape[0] <= theta_r.shape[1]:
+        raise IdentificationError(
+            f"{data.source}: {theta_r.shape[0]} regression rows for {theta_r.shape[1]} candidates; "
+            "record longer data (or raise K for the weak form)"
+        )
+    cond = _normalised_cond(theta_r)
+    if not math.isfinite(cond) or cond > 1e13:
+        raise IdentificationError(
+            f"{data.source}: the library is rank deficient on this data (condition number {cond:.3g}): "
+            "the data does not excite it; see libraries.collinearity_report"
+        )
+    coef, std, incl = sparse_regression(
+        theta_r, y, threshold, method=method, alpha=alpha, n_models=n_models,
+        subset_fraction=subset_fraction, seed=seed,
+        zero_below=1e-9 * _rms(y_ref) if fb is not None else None,
+    )
+    name = method if base is None else f"discrepancy-{method}"
+    return SindyModel(
+        method=name, targets=targets, feature_names=library.names, coef=coef, threshold=threshold,
+        library=library, coef_std=std, inclusion=incl, condition_number=cond,
+        fit_time=time.perf_counter() - t0, base=base,
+    )
+
+
+# ---------------------------------------------------------------------------------- selection
+@dataclass(frozen=True)
+class SweepPoint:
+    """One λ of a threshold sweep, scored on held-out data.
+
+    Attributes
+    ----------
+    threshold : float
+    n_terms : dict[str, int]
+        Active terms per target.
+    test_mse : dict[str, float]
+        Held-out derivative MSE per target.
+    aic, bic : float
+        Sum over targets of N·ln(MSE/var) + 2k (AIC) or + k·ln N (BIC) on the held-out data
+        (MSE normalised by the target's variance, floored at 1e-300).
+    """
+
+    threshold: float
+    n_terms: dict[str, int]
+    test_mse: dict[str, float]
+    aic: float
+    bic: float
+
+
+def sweep_threshold(
+    train: IdentData, test: IdentData, library: CandidateLibrary, thresholds: Sequence[float],
+    targets: Sequence[str] = ("theta_dot", "i_a", "omega_rotor"), **fit_kw: Any,
+) -> tuple[list[SweepPoint], dict[float, SindyModel]]:
+    """Fit for each λ and score on held-out data (the Pareto front: terms vs test error).
+
+    ``fit_kw`` go to :func:`fit`; its ``exclude_input_steps`` also applies to the scoring.
+    """
+    points, models = [], {}
+    excl = int(fit_kw.get("exclude_input_steps", 0))
+    n = int(input_step_mask(test, excl).sum()) if excl > 0 else len(test)
+    for lam in thresholds:
+        m = fit(train, library, targets, threshold=float(lam), **fit_kw)
+        mse = m.test_mse(test, exclude_input_steps=excl)
+        k = {tg: int(m.support()[i].sum()) for i, tg in enumerate(m.targets)}
+        aic = bic = 0.0
+        for tg in m.targets:
+            var = float(np.var(test.derivatives[tg])) or 1.0
+            ll = n * math.log(max(mse[tg] / var, 1e-300))
+            aic += ll + 2 * k[tg]
+            bic += ll + k[tg] * math.log(n)
+        points.append(SweepPoint(float(lam), k, mse, aic, bic))
+        models[float(lam)] = m
+    return points, models
+
+
+def select_threshold(points: Sequence[SweepPoint], criterion: str = "bic") -> SweepPoint:
+    """Pick the sweep point with the lowest ``"bic"``, ``"aic"`` or total relative ``"test"`` MSE.
+
+    Ties (within 1e-9 relative) go to the sparser model (larger λ).
+    """
+    if criterion not in ("bic", "aic", "test"):
+        raise IdentificationError(f"criterion = {criterion!r}; expected 'bic', 'aic' or 'test'")
+    if not points:
+        raise IdentificationError("empty sweep")
+
+    def score(pt: SweepPoint) -> float:
+        if criterion == "test":
+            return float(sum(pt.test_mse.values()))
+        return pt.bic if criterion == "bic" else pt.aic
+
+    best = min(score(pt) for pt in points)
+    ok = [pt for pt in points if score(pt) <= best + 1e-9 * abs(best)]
+    return max(ok, key=lambda pt: pt.threshold)
+
+
+def structure_errors(model: SindyModel, truth: Mapping[str, Mapping[str, float]]) -> dict[str, Any]:
+    """Compare with a known model: false positives/negatives and coefficient errors per target.
+
+    Parameters
+    ----------
+    truth : mapping target -> {candidate name: coefficient}
+
+    Returns
+    -------
+    dict
+        Per target: ``false_positive`` (list of names), ``false_negative`` (list), ``max_rel_error``
+        (over the true terms; a missed term counts as 1.0).
+    """
+    out: dict[str, Any] = {}
+    for tg, terms in truth.items():
+        found = model.terms(tg)
+        rel = [abs(found.get(n, 0.0) - c) / abs(c) for n, c in terms.items()]
+        out[tg] = {
+            "false_positive": sorted(set(found) - set(terms)),
+            "false_negative": sorted(set(terms) - set(found)),
+            "max_rel_error": float(max(rel)) if rel else 0.0,
+        }
+    return out
