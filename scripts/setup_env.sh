@@ -23,6 +23,18 @@ if [ ! -x "$VENV/bin/python" ]; then
     fi
   fi
 fi
+# AVR toolchain + simavr for the firmware build and the emulated-MCU tests (issue 7):
+# installed only when missing, only as root with apt-get (else those tests skip with a reason).
+if ! command -v avr-gcc >/dev/null || ! command -v avr-size >/dev/null \
+    || [ ! -f /usr/lib/avr/include/avr/io.h ] || [ ! -f /usr/include/simavr/sim_avr.h ]; then
+  if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+    apt-get update -qq >/dev/null
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq gcc-avr avr-libc simavr libsimavr-dev \
+      libsimavrparts1 >/dev/null
+  else
+    echo "note: gcc-avr/avr-libc/simavr missing and not root: firmware tests will skip" >&2
+  fi
+fi
 stamp="$VENV/.aeropend-installed"
 want="$(cat "$ROOT/requirements.txt" "$ROOT"/src/*/setup.py | sha256sum | cut -d' ' -f1)"
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then

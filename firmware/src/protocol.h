@@ -1,0 +1,123 @@
+/*
+ * aeropend serial protocol codec (see firmware/PROTOCOL.md). Plain C99, no AVR headers, so it
+ * compiles for the ATmega2560 and on the host (firmware/test/test_codec.c).
+ *
+ * Framing: COBS(payload || crc16_le(payload)) || 0x00.
+ * CRC-16/CCITT-FALSE: polynomial 0x1021, init 0xFFFF, no reflection, xorout 0
+ * (check value 0x29B1 for "123456789").
+ */
+#ifndef AEROPEND_PROTOCOL_H
+#define AEROPEND_PROTOCOL_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define AP_MAX_FRAME 64u                   /* largest unstuffed frame: payload + CRC */
+#define AP_MAX_STUFFED (AP_MAX_FRAME + 2u) /* COBS adds 1 byte per 254 (+1) */
+#define AP_MAX_WIRE (AP_MAX_STUFFED + 1u)  /* + delimiter */
+
+#define AP_T_SAMPLE 0x01u
+#define AP_T_STATUS 0x02u
+#define AP_T_DUTY 0x10u
+#define AP_T_ENABLE 0x11u
+#define AP_T_RATE 0x12u
+#define AP_T_CALIBRATE 0x13u
+
+#define AP_SAMPLE_LEN 19u
+#define AP_STATUS_LEN 13u
+
+#define AP_CAL_I_A_OFFSET 1u
+#define AP_CAL_THETA_OFFSET 2u
+
+#define AP_FLAG_ENABLED 0x01u
+#define AP_FLAG_WATCHDOG 0x02u
+#define AP_FLAG_SPIKE 0x04u
+#define AP_FLAG_SPEED_STALE 0x08u
+
+typedef struct {
+    uint16_t seq;
+    uint32_t t_us;
+    int16_t i_a;
+    int16_t v_a;
+    uint16_t theta;
+    uint32_t period;
+    uint8_t duty;
+    uint8_t flags;
+} ap_sample_t;
+
+typedef struct {
+    uint16_t rx_frames, rx_errors, tx_overflows, watchdog_trips, spikes;
+} ap_status_t;
+
+typedef struct {
+    uint8_t type;    /* AP_T_DUTY, AP_T_ENABLE, AP_T_RATE, AP_T_CALIBRATE */
+    uint16_t value;  /* duty value (tau * 65535), enable flag, rate divider */
+    uint8_t item;    /* calibration item */
+    int16_t offset;  /* calibration offset [counts] */
+} ap_command_t;
+
+/* Error codes of ap_command_parse / ap_decoder_push. */
+enum { AP_OK = 0, AP_E_COBS = -1, AP_E_CRC = -2, AP_E_LENGTH = -3, AP_E_TYPE = -4,
+       AP_E_OVERSIZE = -5, AP_E_VALUE = -6 };
+
+uint16_t ap_crc16(const uint8_t *data, size_t n, uint16_t crc);
+/* COBS-encode n bytes into out (room for n + n / 254 + 1); returns the encoded length. */
+size_t ap_cobs_encode(const uint8_t *in, size_t n, uint8_t *out);
+/* COBS-decode n bytes (no delimiter) into out (cap bytes); returns length or AP_E_COBS. */
+int ap_cobs_decode(const uint8_t *in, size_t n, uint8_t *out, size_t cap);
+/* Frame a payload: out gets COBS(payload + CRC LE) + 0x00 (room AP_MAX_WIRE); returns the
+ * wire length, 0 if the payload is empty or too long. */
+size_t ap_frame_encode(const uint8_t *payload, size_t n, uint8_t *out);
+
+void ap_sample_pack(const ap_sample_t *s, uint8_t out[AP_SAMPLE_LEN]);
+void ap_status_pack(const ap_status_t *s, uint8_t out[AP_STATUS_LEN]);
+/* Parse a CRC-checked command payload; AP_OK or AP_E_LENGTH / AP_E_TYPE / AP_E_VALUE. */
+int ap_command_parse(const uint8_t *payload, size_t n, ap_command_t *cmd);
+/* Build a command payload (for host tests); returns its length. */
+size_t ap_command_pack(const ap_command_t *cmd, uint8_t *out);
+
+/* Incremental stream decoder: push one byte at a time. */
+typedef struct {
+    uint8_t buf[AP_MAX_STUFFED];
+    uint8_t len;
+    uint8_t overflow;
+    uint8_t payload[AP_MAX_FRAME];
+    uint8_t payload_len;  /* valid after ap_decoder_push returned 1 */
+} ap_decoder_t;
+
+void ap_decoder_init(ap_decoder_t *d);
+/* Returns 1 when a CRC-valid frame is complete (payload in d->payload, without CRC),
+ * 0 when more bytes are needed (or an empty frame), or a negative AP_E_* error for a
+ * malformed frame ending at this byte. Never reads or writes out of bounds. */
+int ap_decoder_push(ap_decoder_t *d, uint8_t byte);
+
+/* ------------------------------------------------------------------ Timer4 speed capture
+ * Pure logic of the input-capture speed measurement (host-testable). Ticks are Timer4 ticks
+ * (4 us), extended to 32 bits with a software overflow counter. */
+#define AP_CAP_MIN_PERIOD 5000u    /* 20 ms: > 50 rev/s is not physical for this propeller */
+#define AP_CAP_STALE_TICKS 250000u /* 1 s without an edge: speed unknown / stopped */
+
+/* 32-bit capture time from the 16-bit ICR value, the overflow count read in the capture ISR
+ * and whether an overflow interrupt was pending (TOV flag set) at that moment. If the
+ * overflow is pending and the captured value is in the lower half, the capture happened
+ * after the wrap: the pending overflow belongs before it. */
+uint32_t ap_capture_extend(uint16_t icr, uint16_t ovf_count, uint8_t tov_pending);
+
+typedef struct {
+    uint32_t last_edge;   /* extended time of the last accepted edge */
+    uint32_t hist[3];     /* last three accepted periods (median-of-3 output) */
+    uint8_t n;            /* accepted periods so far (saturates at 3) */
+    uint8_t have_edge;
+    uint8_t spike;        /* last edge rejected as spike */
+    uint16_t spikes;      /* rejected edges (wrapping) */
+} ap_speed_t;
+
+void ap_speed_init(ap_speed_t *s);
+/* Register a rising edge at extended time t. Edges closer than AP_CAP_MIN_PERIOD to the last
+ * accepted edge are rejected as spikes (double triggers, noise) and counted. */
+void ap_speed_edge(ap_speed_t *s, uint32_t t);
+/* Period to report at time now: median of the last three accepted periods, 0 if fewer than
+ * one period is known or no edge for AP_CAP_STALE_TICKS (sets *stale). */
+uint32_t ap_speed_period(const ap_speed_t *s, uint32_t now, uint8_t *stale);
+
+#endif
