@@ -28,6 +28,7 @@ setup(
     entry_points={
         "console_scripts": [
             "design_gains = aeropend_control.design:main",
+            "controller = aeropend_control.controller_node:main",
         ],
     },
 )

@@ -1,0 +1,233 @@
+"""Pure logic of the controller node (no rclpy): settings, reference, per-sample loop, trace.
+
+:mod:`aeropend_control.controller_node` is a thin rclpy shell around :class:`ControllerLoop`.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from aeropend_control.design import PoleSpec, design_fl
+from aeropend_control.strategies import (
+    ALLOCATORS,
+    DEFAULT_TF,
+    STRATEGIES,
+    ControlOutput,
+    FeedbackLinearizationPID,
+    SmallSignalPID,
+    make_strategy,
+)
+from aeropend_sim.params import Rig, RigFileError, load_rig
+
+MODES = ("realtime", "lockstep")
+#: Column names of the internal-signal vector (``/aeropend/controller/signals`` and the trace).
+SIGNALS: tuple[str, ...] = ("t", "reference", "theta", "error", "v", "thrust", "theta_dot_hat",
+                            "duty", "saturated")
+
+
+class ControllerConfigError(ValueError):
+    """A controller parameter is invalid (the message names the value)."""
+
+
+@dataclass
+class ControllerSettings:
+    """Validated controller-node parameters (see :func:`make_settings`)."""
+
+    rig: Rig
+    strategy: str
+    mode: str
+    steps: list[tuple[float, float]]
+    reference: float
+    allocator: str
+    spec: PoleSpec
+    tf: float
+    theta_op: float | None
+    duration: float
+    trace: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+
+def _float(name: str, value: Any) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise ControllerConfigError(f"{name} = {value!r} is not a number") from None
+    if not math.isfinite(out):
+        raise ControllerConfigError(f"{name} = {value!r} is not finite")
+    return out
+
+
+def parse_steps(value: Any) -> list[tuple[float, float]]:
+    """Step sequence from a flat list [t0, θ0, t1, θ1, ...] or pairs [[t, θ], ...] ([s], [rad]).
+
+    Raises
+    ------
+    ControllerConfigError
+        On an odd length, non-numbers or times that are negative or not increasing.
+    """
+    if value is None or (isinstance(value, Sequence | str) and len(value) == 0):
+        return []
+    if isinstance(value, str):
+        raise ControllerConfigError(f"steps = {value!r} must be a list [t0, theta0, t1, theta1, ...]")
+    items = list(value)
+    if all(isinstance(v, Sequence) and not isinstance(v, str) for v in items):
+        flat = [x for pair in items for x in pair]
+        if any(len(p) != 2 for p in items):
+            raise ControllerConfigError(f"steps = {value!r}: each entry must be [t, theta]")
+    else:
+        flat = items
+    if len(flat) % 2:
+        raise ControllerConfigError(f"steps = {value!r} has odd length {len(flat)}; expected t, theta pairs")
+    pairs = [(_float("steps time", flat[i]), _float("steps theta", flat[i + 1]))
+             for i in range(0, len(flat), 2)]
+    times = [p[0] for p in pairs]
+    if times[0] < 0.0 or any(b <= a for a, b in itertools.pairwise(times)):
+        raise ControllerConfigError(f"steps times {times} must be >= 0 and strictly increasing")
+    return pairs
+
+
+def make_settings(**raw: Any) -> ControllerSettings:
+    """Validate raw node parameters; raise :class:`ControllerConfigError` naming the bad value."""
+    try:
+        rig = load_rig(str(raw.get("rig", "thesis_rig")))
+    except (RigFileError, OSError, ValueError) as exc:
+        raise ControllerConfigError(f"rig = {raw.get('rig')!r}: {exc}") from exc
+    strategy = str(raw.get("strategy", "fl_pid"))
+    if strategy not in STRATEGIES:
+        raise ControllerConfigError(f"strategy = {strategy!r}; expected one of {STRATEGIES}")
+    mode = str(raw.get("mode", "realtime"))
+    if mode not in MODES:
+        raise ControllerConfigError(f"mode = {mode!r}; expected one of {MODES}")
+    allocator = str(raw.get("allocator", "model"))
+    if allocator not in ALLOCATORS:
+        raise ControllerConfigError(f"allocator = {allocator!r}; expected one of {ALLOCATORS}")
+    spec = PoleSpec(_float("omega_n", raw.get("omega_n", PoleSpec.omega_n)),
+                    _float("zeta", raw.get("zeta", PoleSpec.zeta)),
+                    _float("rho", raw.get("rho", PoleSpec.rho)))
+    try:
+        spec.poles()
+    except ValueError as exc:
+        raise ControllerConfigError(str(exc)) from exc
+    tf = _float("tf", raw.get("tf", DEFAULT_TF))
+    if tf < 0.0:
+        raise ControllerConfigError(f"tf = {tf!r} s must be >= 0")
+    theta_op = raw.get("theta_op")
+    theta_op = None if theta_op is None or (isinstance(theta_op, float) and math.isnan(theta_op)) else _float(
+        "theta_op", theta_op)
+    if strategy == "small_signal_fixed" and theta_op is None:
+        raise ControllerConfigError("strategy 'small_signal_fixed' needs theta_op [rad]")
+    duration = _float("duration", raw.get("duration", 0.0))
+    if duration < 0.0:
+        raise ControllerConfigError(f"duration = {duration!r} s must be >= 0 (0 = run until stopped)")
+    ref = _float("reference", raw.get("reference", 0.0))
+    return ControllerSettings(rig, strategy, mode, parse_steps(raw.get("steps")), ref, allocator, spec, tf,
+                              theta_op, duration, str(raw.get("trace") or ""))
+
+
+def build_strategy(s: ControllerSettings) -> FeedbackLinearizationPID | SmallSignalPID:
+    """The strategy object of the settings (raises :class:`ControllerConfigError` on failure)."""
+    try:
+        if s.strategy == "fl_pid":
+            return make_strategy("fl_pid", s.rig, design=design_fl(s.rig, s.spec), allocator=s.allocator,
+                                 tf=s.tf)
+        opts: dict[str, Any] = {"spec": s.spec, "allocator": s.allocator, "tf": s.tf}
+        if s.strategy == "small_signal_fixed":
+            opts["theta_op"] = s.theta_op
+        return make_strategy(s.strategy, s.rig, **opts)
+    except ValueError as exc:
+        raise ControllerConfigError(f"strategy {s.strategy!r}: {exc}") from exc
+
+
+class ReferenceSource:
+    """Reference θ_ref(t): the latest of the step-sequence breakpoints and topic messages.
+
+    Parameters
+    ----------
+    initial : float
+        Reference before any step or message [rad].
+    steps : list of (t, θ)
+        Breakpoints [s from the first sample], [rad].
+    """
+
+    def __init__(self, initial: float, steps: list[tuple[float, float]]) -> None:
+        self.initial = initial
+        self.steps = steps
+        self._topic: tuple[float, float] | None = None  # (time, value)
+
+    def set_topic(self, value: float, t: float) -> None:
+        """A reference message [rad] received at sample time t [s] (ignored if not finite)."""
+        if math.isfinite(value):
+            self._topic = (t, float(value))
+
+    def value(self, t: float) -> float:
+        """Reference at time t [s]."""
+        best_t, best = -math.inf, self.initial
+        for ts, v in self.steps:
+            if ts <= t:
+                best_t, best = ts, v
+        if self._topic is not None and self._topic[0] >= best_t:
+            best = self._topic[1]
+        return best
+
+
+class ControllerLoop:
+    """Per-sample loop: stamp handling (lock-step repeats), reference, strategy, trace.
+
+    ``on_sample(stamp_ns, theta)`` returns the duty to publish, or None for a stale sample (older
+    than the last one). A sample whose stamp equals the last one (a lock-step re-publication) is
+    answered with the same command without touching the controller state.
+    """
+
+    def __init__(self, settings: ControllerSettings) -> None:
+        self.settings = settings
+        self.strategy = build_strategy(settings)
+        self.reference = ReferenceSource(settings.reference, settings.steps)
+        self.t0_ns: int | None = None
+        self.last_stamp: int | None = None
+        self.last_out: ControlOutput | None = None
+        self.last_signals: list[float] = []
+        self.repeats = 0
+        self.stale = 0
+        self.rows: list[list[float]] = []
+
+    def time_of(self, stamp_ns: int) -> float:
+        """Seconds since the first sample."""
+        return 0.0 if self.t0_ns is None else (stamp_ns - self.t0_ns) * 1e-9
+
+    def done(self) -> bool:
+        """True once ``duration`` (> 0) of sample time has been controlled."""
+        d = self.settings.duration
+        return d > 0.0 and self.last_stamp is not None and self.time_of(self.last_stamp) >= d
+
+    def on_sample(self, stamp_ns: int, theta: float) -> float | None:
+        """Duty for a sample (see class doc)."""
+        if self.last_stamp is not None:
+            if stamp_ns == self.last_stamp:
+                self.repeats += 1
+                return self.last_out.duty if self.last_out is not None else 0.0
+            if stamp_ns < self.last_stamp:
+                self.stale += 1
+                return None
+        if self.t0_ns is None:
+            self.t0_ns = stamp_ns
+        t = self.time_of(stamp_ns)
+        r = self.reference.value(t)
+        out = self.strategy.step(r, theta)
+        self.last_stamp, self.last_out = stamp_ns, out
+        self.last_signals = [t, r, theta, out.error, out.v, out.thrust, out.theta_dot, out.duty,
+                             float(out.saturated)]
+        self.rows.append(self.last_signals)
+        return out.duty
+
+    def write_trace(self, path: str | Path) -> None:
+        """CSV of :data:`SIGNALS`, one row per controlled sample."""
+        with open(path, "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(SIGNALS)
+            w.writerows(self.rows)

@@ -1,0 +1,194 @@
+"""Position controller node ``aeropend_controller`` (console script ``controller``).
+
+Subscribes the contract samples (``/aeropend/joint_states``: θ only is used), publishes one
+duty-cycle command ``/aeropend/duty_cycle`` per new sample, so it runs at the sample rate of the
+plant (simulated or hardware bridge) and, in lock-step, drives the simulated plant.
+
+Usage::
+
+    controller --ros-args -p strategy:=fl_pid -p "steps:=[0.0, 0.4, 3.0, 0.2]"
+    controller --ros-args -p mode:=lockstep -p duration:=3.0 -p trace:=/tmp/run.csv
+
+Parameters
+----------
+rig : str, default ``thesis_rig``
+    Rig whose model the design and the allocation use.
+strategy : str, default ``fl_pid``
+    ``fl_pid`` | ``small_signal`` (gain-scheduled) | ``small_signal_fixed`` (needs ``theta_op``).
+mode : str, default ``realtime``
+    ``realtime``: samples with ``SAMPLE_QOS`` (best effort); ``lockstep``: reliable samples
+    (``SAMPLE_QOS_LOCKSTEP``), exactly one command per new sample stamp; a re-published sample
+    (same stamp) is answered again with the same command.
+steps : list of float
+    Reference step sequence [t0, θ0, t1, θ1, ...] (t in s from the first sample, θ in rad).
+reference : float, default 0
+    Reference before the first step [rad]. Messages on ``/aeropend/reference``
+    (std_msgs/Float64, rad) override the sequence from their arrival on (latest event wins).
+allocator : str, default ``model``
+    ``model`` | ``thesis`` (see :mod:`aeropend_control.allocation`).
+omega_n, zeta, rho : float
+    Closed-loop pole pattern (:class:`aeropend_control.design.PoleSpec`).
+tf : float [s], default 0.01
+    θ̇ / derivative filter time constant.
+theta_op : float [rad]
+    Operating point of ``small_signal_fixed``.
+duration : float [s], default 0
+    Stop (duty 0, exit 0) after this much sample time; 0 = run until SIGINT/SIGTERM.
+trace : str
+    Write a CSV of the internal signals to this path on exit.
+
+Publishes ``/aeropend/controller/signals`` (std_msgs/Float64MultiArray, one per sample, labelled
+layout: t, reference, θ, error, v, thrust, θ̂̇, duty, saturated). Invalid parameters log an error
+naming the value and exit with status 2. On shutdown the node publishes duty 0.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import sys
+import threading
+from typing import Any
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
+
+from aeropend_control.controller_core import SIGNALS, ControllerConfigError, ControllerLoop, make_settings
+from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES, ContractError, stamp_to_ns
+from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, duty_msg
+
+NODE_NAME = "aeropend_controller"
+TOPIC_REFERENCE = "/aeropend/reference"
+TOPIC_SIGNALS = "/aeropend/controller/signals"
+
+PARAMETERS: tuple[tuple[str, Any, str], ...] = (
+    ("rig", "thesis_rig", "rig name or YAML path"),
+    ("strategy", "fl_pid", "fl_pid | small_signal | small_signal_fixed"),
+    ("mode", "realtime", "realtime | lockstep"),
+    ("steps", None, "reference steps [t0, theta0, t1, theta1, ...] (s, rad)"),
+    ("reference", 0.0, "reference before the first step [rad]"),
+    ("allocator", "model", "model | thesis"),
+    ("omega_n", 9.0, "closed-loop natural frequency [rad/s]"),
+    ("zeta", 0.7, "closed-loop damping ratio"),
+    ("rho", 1.0, "real closed-loop pole / omega_n"),
+    ("tf", 0.01, "theta_dot / derivative filter time constant [s]"),
+    ("theta_op", None, "operating point of small_signal_fixed [rad]"),
+    ("duration", 0.0, "stop after this much sample time [s] (0 = never)"),
+    ("trace", "", "CSV path for the internal signals (written on exit)"),
+)
+
+
+class ControllerNode(Node):
+    """rclpy shell around :class:`~aeropend_control.controller_core.ControllerLoop`."""
+
+    def __init__(self) -> None:
+        super().__init__(NODE_NAME)
+        raw = {}
+        for name, default, doc in PARAMETERS:
+            desc = ParameterDescriptor(description=doc, dynamic_typing=True)
+            raw[name] = self.declare_parameter(name, default, desc).value
+        try:
+            self.settings = make_settings(**raw)
+            self.loop = ControllerLoop(self.settings)
+        except ControllerConfigError:
+            self.destroy_node()
+            raise
+        s = self.settings
+        qos = SAMPLE_QOS_LOCKSTEP if s.mode == "lockstep" else SAMPLE_QOS
+        self._pub_duty = self.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
+        self._pub_sig = self.create_publisher(Float64MultiArray, TOPIC_SIGNALS, 10)
+        self.create_subscription(JointState, TOPIC_JOINT_STATES, self._on_sample, qos)
+        self.create_subscription(Float64, TOPIC_REFERENCE, self._on_reference, 10)
+        self.finished = threading.Event()
+        self.published = 0
+        self.bad_samples = 0
+        self._layout = [MultiArrayDimension(label=",".join(SIGNALS), size=len(SIGNALS), stride=len(SIGNALS))]
+        self.get_logger().info(
+            f"rig {s.rig.name!r}, strategy {s.strategy}, mode {s.mode}, steps {s.steps}, "
+            f"poles {s.spec}, allocator {s.allocator}, duration {s.duration:g} s"
+        )
+
+    def _on_reference(self, msg: Float64) -> None:
+        t = self.loop.time_of(self.loop.last_stamp) if self.loop.last_stamp is not None else 0.0
+        if not math.isfinite(msg.data):
+            self.get_logger().warn(f"ignored non-finite reference {msg.data!r}")
+            return
+        self.loop.reference.set_topic(msg.data, t)
+
+    def _on_sample(self, msg: JointState) -> None:
+        if self.finished.is_set():
+            return
+        try:
+            idx = list(msg.name).index("pendulum")
+            theta = float(msg.position[idx])
+        except (ValueError, IndexError, ContractError):
+            self.bad_samples += 1
+            self.get_logger().warn(f"sample without pendulum position: names {list(msg.name)}",
+                                   throttle_duration_sec=1.0)
+            return
+        if self._pub_duty.get_subscription_count() == 0:
+            return  # nobody would hear the command; the lock-step plant re-publishes while idle
+        duty = self.loop.on_sample(stamp_to_ns(msg.header.stamp.sec, msg.header.stamp.nanosec), theta)
+        if duty is None:
+            return
+        self._pub_duty.publish(duty_msg(duty))
+        self.published += 1
+        self._pub_sig.publish(Float64MultiArray(data=[float(x) for x in self.loop.last_signals]))
+        if self.loop.done():
+            self.finished.set()
+
+    def shutdown(self) -> None:
+        """Publish duty 0 and write the trace (if configured)."""
+        try:
+            self._pub_duty.publish(duty_msg(0.0))
+            self._pub_duty.wait_for_all_acked(Duration(seconds=0.5))
+        except Exception as exc:  # context may already be gone
+            self.get_logger().warn(f"could not publish duty 0 on shutdown: {exc}")
+        if self.settings.trace:
+            self.loop.write_trace(self.settings.trace)
+        self.get_logger().info(
+            f"summary: commands={self.published} samples={len(self.loop.rows)} repeats={self.loop.repeats} "
+            f"stale={self.loop.stale} bad_samples={self.bad_samples} "
+            f"nan_inputs={self.loop.strategy.pid.nan_count}"
+        )
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``controller``; returns the exit status (2 = bad parameter)."""
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+
+    def _on_signal(signum: int, frame: Any) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    node: ControllerNode | None = None
+    status = 0
+    try:
+        node = ControllerNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.is_set() and rclpy.ok() and not node.finished.is_set():
+            executor.spin_once(timeout_sec=0.1)
+    except ControllerConfigError as exc:
+        rclpy.logging.get_logger(NODE_NAME).error(f"invalid parameter: {exc}")
+        status = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.shutdown()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,98 @@
+"""Multi-process ROS 2 closed loop: ``sim_node`` (lock-step) ↔ ``controller``, each in a subprocess.
+
+The controller subscribes to the plant and writes its own trace (no third subscriber on the
+lock-step plant). Random ROS_DOMAIN_ID in 1..100, localhost discovery; processes are killed in
+``finally``.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import random
+import re
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("rclpy")
+
+from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
+from aeropend_control.strategies import make_strategy
+from aeropend_sim.params import load_rig
+from aeropend_sim.simulate import PlantStepper
+
+pytestmark = [pytest.mark.ros, pytest.mark.timeout(90)]
+
+BIN = Path(sys.executable).parent
+
+
+def _exe(name: str) -> str:
+    exe = shutil.which(name, path=str(BIN))
+    if exe is None:
+        pytest.skip(f"console script {name!r} not installed in {BIN}")
+    return exe
+
+
+def _env(domain: int) -> dict[str, str]:
+    return dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                PYTHONUNBUFFERED="1")
+
+
+def _summary(text: str, key: str) -> int:
+    m = re.findall(rf"summary:.*\b{key}=(\d+)", text)
+    assert m, f"no '{key}=' in summary of:\n{text[-2000:]}"
+    return int(m[-1])
+
+
+@pytest.mark.parametrize("strategy", ["fl_pid", "small_signal"])
+def test_lockstep_closed_loop_step_to_0_4(tmp_path: Path, strategy: str) -> None:
+    domain = random.randint(1, 100)
+    trace = tmp_path / "trace.csv"
+    env = _env(domain)
+    sim = subprocess.Popen([_exe("sim_node"), "--ros-args", "-p", "mode:=lockstep", "-p", "rig:=thesis_rig"],
+                           env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    ctl = None
+    try:
+        ctl = subprocess.Popen(
+            [_exe("controller"), "--ros-args", "-p", "mode:=lockstep", "-p", f"strategy:={strategy}",
+             "-p", "steps:=[0.0, 0.4]", "-p", "duration:=3.0", "-p", f"trace:={trace}"],
+            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        ctl_out, _ = ctl.communicate(timeout=60)
+        assert ctl.returncode == 0, ctl_out
+        sim.send_signal(signal.SIGTERM)
+        sim_out, _ = sim.communicate(timeout=10)
+    finally:
+        for p in (ctl, sim):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.communicate(timeout=10)
+    rows = list(csv.reader(trace.open()))
+    data = np.array(rows[1:], dtype=float)
+    t, theta, duty = data[:, 0], data[:, 2], data[:, 7]
+    assert t[-1] >= 3.0 and np.allclose(np.diff(t), 2.048e-3, atol=1e-9)  # one command per sample
+    met = step_metrics(t, theta, 0.4)
+    assert met.failures(TABLE_6_1) == [] and met.failures(GOAL) == []
+    # every controller command reached the plant, plus the duty 0 sent on shutdown
+    assert _summary(sim_out, "commands") == _summary(ctl_out, "commands") + 1
+    # the ROS loop is the batch loop: same plant, same controller, same samples
+    rig = load_rig("thesis_rig")
+    ref_ctl, plant = make_strategy(strategy, rig), PlantStepper(rig)
+    s = plant.sample()
+    for k in range(len(t)):
+        assert abs(s["theta"] - theta[k]) < 1e-9, f"sample {k}"
+        d = ref_ctl.step(0.4, s["theta"]).duty
+        assert abs(d - duty[k]) < 1e-9
+        s = plant.step(d)
+
+
+def test_controller_refuses_bad_configuration() -> None:
+    proc = subprocess.run([_exe("controller"), "--ros-args", "-p", "strategy:=pd"],
+                          env=_env(random.randint(1, 100)), capture_output=True, text=True, timeout=30)
+    assert proc.returncode == 2
+    assert "strategy = 'pd'" in proc.stderr + proc.stdout
