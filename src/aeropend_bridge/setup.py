@@ -27,7 +27,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-
+            "fake_mcu = aeropend_bridge.fake_mcu:main",
         ],
     },
 )

@@ -1,0 +1,240 @@
+"""Fake firmware on a pseudo-terminal, for tests, benchmarks and demos without hardware.
+
+:class:`FakeMcu` opens a pty pair, publishes a stable symlink to the slave side (like a
+``/dev/serial/by-id`` link) and writes sample frames of the real protocol at the firmware's
+rate from a thread; it decodes the commands the bridge writes and applies them like the
+firmware (duty, 250 ms command watchdog). Optional random byte corruption (seeded) records
+which sample frames were damaged. :meth:`unplug` / :meth:`replug` close and reopen the pty.
+
+Console script ``fake_mcu``: ``fake_mcu --link /tmp/aeropend_tty`` then
+``bridge --ros-args -p port:=/tmp/aeropend_tty``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import random
+import select
+import threading
+import time
+import tty
+from pathlib import Path
+
+from aeropend_bridge.protocol import (
+    FLAG_ENABLED,
+    FLAG_WATCHDOG,
+    Duty,
+    FrameDecoder,
+    SampleFrame,
+    StatusFrame,
+    encode,
+)
+
+#: Firmware sample period [s]: Timer1 phase-correct 8-bit PWM, 510 ticks of 4 µs.
+FIRMWARE_PERIOD_S = 2.040e-3
+FIRMWARE_WATCHDOG_S = 0.25
+
+
+class FakeMcu:
+    """Pty-backed fake of the acquisition firmware.
+
+    Parameters
+    ----------
+    link : str or Path
+        Path of the symlink to the pty slave (replaced on :meth:`replug`).
+    period_s : float
+        Sample period (0 = as fast as possible, for soak tests).
+    corrupt_p : float
+        Probability that a written byte is replaced by a different random byte.
+    seed : int
+        Seed of the corruption and the signals.
+    n_frames : int or None
+        Stop after this many sample frames (None = run until :meth:`stop`).
+    clean_tail : int
+        The last ``clean_tail`` frames of ``n_frames`` are never corrupted.
+    paused : bool
+        Write nothing until :meth:`resume` (so a soak test starts after the reader connected;
+        the bridge flushes stale input when it opens the port).
+    """
+
+    def __init__(self, link: str | Path, period_s: float = FIRMWARE_PERIOD_S, corrupt_p: float = 0.0,
+                 seed: int = 0, n_frames: int | None = None, clean_tail: int = 5,
+                 paused: bool = False) -> None:
+        self.link = Path(link)
+        self.period_s = period_s
+        self.corrupt_p = corrupt_p
+        self.rng = random.Random(seed)
+        self.n_frames = n_frames
+        self.clean_tail = clean_tail
+        self.sent: dict[int, SampleFrame] = {}  # index -> frame (index = frames written so far)
+        self.corrupted: set[int] = set()         # indices of frames damaged on the line
+        self.commands: list[tuple[float, object]] = []
+        self.decoder = FrameDecoder()
+        self.duty_ocr = 0
+        self.watchdog_trips = 0
+        self.done = threading.Event()
+        self._master: int | None = None
+        self._slave: int | None = None
+        self._stop = threading.Event()
+        self._plugged = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._last_cmd = time.monotonic()
+        self._wd = True
+        self._go = threading.Event()
+        if not paused:
+            self._go.set()
+
+    # ------------------------------------------------------------------ pty
+    def _open_pty(self) -> None:
+        master, slave = os.openpty()
+        tty.setraw(slave)
+        tty.setraw(master)
+        tmp = self.link.with_name(self.link.name + ".tmp")
+        if tmp.is_symlink() or tmp.exists():
+            tmp.unlink()
+        tmp.symlink_to(os.ttyname(slave))
+        tmp.replace(self.link)
+        self._master, self._slave = master, slave
+        self._plugged.set()
+
+    def resume(self) -> None:
+        """Start writing frames (see ``paused``)."""
+        self._go.set()
+
+    def unplug(self) -> None:
+        """Close the pty (the bridge sees the device vanish)."""
+        self._plugged.clear()
+        for fd in (self._master, self._slave):
+            if fd is not None:
+                try:
+                    os.close(fd)
+                except OSError:
+                    pass
+        self._master = self._slave = None
+        if self.link.is_symlink():
+            self.link.unlink()
+
+    def replug(self) -> None:
+        """Open a new pty under the same link path."""
+        self._open_pty()
+
+    # ------------------------------------------------------------------ run
+    def start(self) -> FakeMcu:
+        """Open the pty and start the writer thread."""
+        self._open_pty()
+        self._thread = threading.Thread(target=self._run, name="fake_mcu", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop the thread and close the pty."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2.0)
+        self.unplug()
+
+    def _frame(self, k: int) -> SampleFrame:
+        t = k * self.period_s if self.period_s > 0 else k * FIRMWARE_PERIOD_S
+        theta = 512 + int(200 * math.sin(2 * math.pi * 0.5 * t))
+        flags = FLAG_ENABLED | (FLAG_WATCHDOG if self._wd else 0)
+        return SampleFrame(seq=k & 0xFFFF, t_us=round(k * FIRMWARE_PERIOD_S * 1e6) & 0xFFFFFFFF,
+                           i_a=100 + k % 7, v_a=-50 + k % 11, theta=theta, period=15000 + k % 13,
+                           duty=self.duty_ocr, flags=flags)
+
+    def _corrupt(self, wire: bytes, last_clean: bool, n_sample: int) -> tuple[bytes, bool, bool]:
+        """Corrupt bytes of ``wire`` (sample frame = first ``n_sample`` bytes, maybe + status).
+
+        Returns (bytes, sample frame hit, final delimiter hit: the next frame merges in).
+        """
+        if self.corrupt_p <= 0 or last_clean:
+            return wire, False, False
+        out = bytearray(wire)
+        hit = delim_hit = False
+        for i in range(len(out)):
+            if self.rng.random() < self.corrupt_p:
+                out[i] = (out[i] + self.rng.randint(1, 255)) & 0xFF
+                hit |= i < n_sample
+                delim_hit |= i == len(out) - 1
+        return bytes(out), hit, delim_hit
+
+    def _read_commands(self) -> None:
+        fd = self._master
+        if fd is None:
+            return
+        try:
+            r, _, _ = select.select([fd], [], [], 0)
+            if r:
+                data = os.read(fd, 4096)
+                now = time.monotonic()
+                for f in self.decoder.feed(data):
+                    self.commands.append((now, f))
+                    self._last_cmd = now
+                    if isinstance(f, Duty):
+                        self.duty_ocr = (f.value * 255 + 32767) // 65535
+                        self._wd = False
+        except OSError:
+            pass
+        if time.monotonic() - self._last_cmd > FIRMWARE_WATCHDOG_S and not self._wd:
+            self._wd = True
+            self.watchdog_trips += 1
+            self.duty_ocr = 0
+
+    def _run(self) -> None:
+        k = 0
+        t0 = time.monotonic()
+        while not self._stop.is_set():
+            if self.n_frames is not None and k >= self.n_frames:
+                self.done.set()
+                self._stop.wait(0.05)
+                self._read_commands()
+                continue
+            if not self._plugged.wait(0.05) or not self._go.wait(0.05):
+                continue
+            self._read_commands()
+            frame = self._frame(k)
+            last_clean = self.n_frames is not None and k >= self.n_frames - self.clean_tail
+            wire = encode(frame)
+            n_sample = len(wire)
+            if k % 256 == 255:
+                wire += encode(StatusFrame(len(self.commands) & 0xFFFF, 0, 0, self.watchdog_trips, 0))
+            wire, hit, delim_hit = self._corrupt(wire, last_clean, n_sample)
+            try:
+                os.write(self._master, wire)  # type: ignore[arg-type]
+            except (OSError, TypeError):
+                continue  # unplugged between wait and write: frame k is re-sent after replug
+            self.sent[k] = frame
+            if hit:
+                self.corrupted.add(k)
+            if delim_hit:
+                self.corrupted.add(k + 1)  # the next frame merges with this one
+            k += 1
+            if self.period_s > 0:
+                delay = t0 + k * self.period_s - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                elif delay < -0.5:
+                    t0 = time.monotonic() - k * self.period_s  # re-anchor after a long stall
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script ``fake_mcu``: serve fake firmware frames on a pty link until Ctrl-C."""
+    ap = argparse.ArgumentParser(description="fake aeropend firmware on a pty")
+    ap.add_argument("--link", default="/tmp/aeropend_tty", help="symlink to create for the pty slave")
+    ap.add_argument("--corrupt", type=float, default=0.0, help="byte corruption probability")
+    a = ap.parse_args(argv)
+    mcu = FakeMcu(a.link, corrupt_p=a.corrupt).start()
+    print(f"fake MCU on {a.link} -> {os.path.realpath(a.link)}", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        mcu.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
