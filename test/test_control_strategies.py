@@ -19,10 +19,20 @@ import pytest
 import yaml
 from scipy.integrate import solve_ivp
 
-from aeropend_control.design import DesignError, PoleSpec, design_fl, design_small_signal, main, place_ipd
+from aeropend_control.design import (
+    DesignError,
+    PoleSpec,
+    design_cascade,
+    design_fl,
+    design_small_signal,
+    main,
+    place_ipd,
+)
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
 from aeropend_control.strategies import (
+    NEEDS_MOTOR,
     FeedbackLinearizationPID,
+    MotorCascade,
     StrategyError,
     VelocityEstimator,
     make_strategy,
@@ -107,14 +117,17 @@ def _run(name: str, r: float, horizon: float = 3.0, **opts: object) -> tuple[np.
     s = plant.sample()
     for k in range(n):
         theta[k] = s["theta"]
-        o = ctl.step(r, s["theta"])
+        if name in NEEDS_MOTOR:
+            o = ctl.step(r, s["theta"], s["omega_rotor"], s["i_a"])
+        else:
+            o = ctl.step(r, s["theta"])
         duty[k] = o.duty
         outs.append(o)
         s = plant.step(o.duty)
     return theta, duty, outs
 
 
-@pytest.mark.parametrize("name", ["fl_pid", "small_signal"])
+@pytest.mark.parametrize("name", ["fl_pid", "small_signal", "cascade", "fl_cascade"])
 @pytest.mark.parametrize("r", [0.2, 0.4, 0.7])
 def test_step_on_nominal_rig_meets_table_6_1_and_goal(name: str, r: float) -> None:
     theta, duty, _ = _run(name, r)
@@ -184,3 +197,31 @@ def test_design_cli_writes_gains(tmp_path: pytest.TempPathFactory, capsys: pytes
     assert "fl_pid" in capsys.readouterr().out
     assert main(["--zeta", "2"]) == 2
     assert "zeta = 2.0" in capsys.readouterr().err
+
+
+def test_cascade_design_gains_and_speed_loop_on_the_plant() -> None:
+    m = PlantModel(RIG)
+    d = design_cascade(RIG, omega_speed=60.0, omega_current=200.0)
+    assert (d.kp_i, d.ki_i) == pytest.approx((m.L * 200.0, m.R * 200.0), rel=1e-12)
+    w0 = m.equilibrium(0.4)[0][OMEGA]
+    assert d.kp_w == pytest.approx(m.J_m * 60.0 / m.K_t, rel=1e-12)
+    assert d.ki_w == pytest.approx((m.B_m + 2 * m.K_d * w0) * 60.0 / m.K_t, rel=1e-12)
+    assert d.predicted.settling_time < 0.1 and d.predicted.overshoot < 5.0
+    with pytest.raises(DesignError, match="i_max = -1"):
+        design_cascade(RIG, i_max=-1.0)
+    # speed step 0 -> ω₁ of θ = 0.4 on the full model: the PI cascade settles with zero error
+    cas, plant = MotorCascade(RIG, d), PlantStepper(RIG)
+    s, w = plant.sample(), []
+    for _ in range(250):
+        w.append(s["omega_rotor"])
+        s = plant.step(cas.step(w0, s["omega_rotor"], s["i_a"]))
+    met = step_metrics(np.arange(len(w)) * RIG.sample_period, np.array(w), w0)
+    assert met.settling_time < 0.15 and abs(met.steady_state_error) < 1e-3 * w0
+    assert 0.0 <= cas.i_ref <= d.i_max
+
+
+def test_cascade_holds_duty_without_motor_measurements() -> None:
+    ctl = make_strategy("fl_cascade", RIG)
+    o1 = ctl.step(0.4, 0.0, 0.0, 0.0)
+    o2 = ctl.step(0.4, 0.0, math.nan, 0.0)
+    assert o2.nan_input and o2.duty == o1.duty

@@ -17,7 +17,9 @@ from aeropend_control.design import PoleSpec, design_fl
 from aeropend_control.strategies import (
     ALLOCATORS,
     DEFAULT_TF,
+    NEEDS_MOTOR,
     STRATEGIES,
+    CascadeStrategy,
     ControlOutput,
     FeedbackLinearizationPID,
     SmallSignalPID,
@@ -130,11 +132,14 @@ def make_settings(**raw: Any) -> ControllerSettings:
                               theta_op, duration, str(raw.get("trace") or ""))
 
 
-def build_strategy(s: ControllerSettings) -> FeedbackLinearizationPID | SmallSignalPID:
+def build_strategy(s: ControllerSettings) -> FeedbackLinearizationPID | SmallSignalPID | CascadeStrategy:
     """The strategy object of the settings (raises :class:`ControllerConfigError` on failure)."""
     try:
         if s.strategy == "fl_pid":
             return make_strategy("fl_pid", s.rig, design=design_fl(s.rig, s.spec), allocator=s.allocator,
+                                 tf=s.tf)
+        if s.strategy == "fl_cascade":
+            return make_strategy("fl_cascade", s.rig, design=design_fl(s.rig, s.spec), allocator=s.allocator,
                                  tf=s.tf)
         opts: dict[str, Any] = {"spec": s.spec, "allocator": s.allocator, "tf": s.tf}
         if s.strategy == "small_signal_fixed":
@@ -205,8 +210,14 @@ class ControllerLoop:
         d = self.settings.duration
         return d > 0.0 and self.last_stamp is not None and self.time_of(self.last_stamp) >= d
 
-    def on_sample(self, stamp_ns: int, theta: float) -> float | None:
-        """Duty for a sample (see class doc)."""
+    @property
+    def needs_motor(self) -> bool:
+        """True if the strategy needs ω₁ and i_a (cascade strategies)."""
+        return self.settings.strategy in NEEDS_MOTOR
+
+    def on_sample(self, stamp_ns: int, theta: float, omega: float = math.nan,
+                  i_a: float = math.nan) -> float | None:
+        """Duty for a sample (see class doc); ω₁ [rad/s] and i_a [A] are used by cascades only."""
         if self.last_stamp is not None:
             if stamp_ns == self.last_stamp:
                 self.repeats += 1
@@ -218,7 +229,10 @@ class ControllerLoop:
             self.t0_ns = stamp_ns
         t = self.time_of(stamp_ns)
         r = self.reference.value(t)
-        out = self.strategy.step(r, theta)
+        if isinstance(self.strategy, CascadeStrategy):
+            out = self.strategy.step(r, theta, omega, i_a)
+        else:
+            out = self.strategy.step(r, theta)
         self.last_stamp, self.last_out = stamp_ns, out
         self.last_signals = [t, r, theta, out.error, out.v, out.thrust, out.theta_dot, out.duty,
                              float(out.saturated)]

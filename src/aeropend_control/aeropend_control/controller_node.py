@@ -14,7 +14,9 @@ Parameters
 rig : str, default ``thesis_rig``
     Rig whose model the design and the allocation use.
 strategy : str, default ``fl_pid``
-    ``fl_pid`` | ``small_signal`` (gain-scheduled) | ``small_signal_fixed`` (needs ``theta_op``).
+    ``fl_pid`` | ``small_signal`` (gain-scheduled) | ``small_signal_fixed`` (needs ``theta_op``)
+    | ``cascade`` | ``fl_cascade`` (these also use ω₁ from ``joint_states`` and i_a from
+    ``/aeropend/armature``, paired by stamp).
 mode : str, default ``realtime``
     ``realtime``: samples with ``SAMPLE_QOS`` (best effort); ``lockstep``: reliable samples
     (``SAMPLE_QOS_LOCKSTEP``), exactly one command per new sample stamp; a re-published sample
@@ -56,20 +58,28 @@ from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 
 from aeropend_control.controller_core import SIGNALS, ControllerConfigError, ControllerLoop, make_settings
-from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES, ContractError, stamp_to_ns
+from aeropend_sim.contract import (
+    TOPIC_ARMATURE,
+    TOPIC_DUTY_CYCLE,
+    TOPIC_JOINT_STATES,
+    ContractError,
+    stamp_to_ns,
+)
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, duty_msg
 
 NODE_NAME = "aeropend_controller"
 TOPIC_REFERENCE = "/aeropend/reference"
 TOPIC_SIGNALS = "/aeropend/controller/signals"
+#: Unpaired joint_states / armature halves kept while waiting for the other half.
+PAIR_BUFFER = 20
 
 PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("rig", "thesis_rig", "rig name or YAML path"),
-    ("strategy", "fl_pid", "fl_pid | small_signal | small_signal_fixed"),
+    ("strategy", "fl_pid", "fl_pid | small_signal | small_signal_fixed | cascade | fl_cascade"),
     ("mode", "realtime", "realtime | lockstep"),
     ("steps", None, "reference steps [t0, theta0, t1, theta1, ...] (s, rad)"),
     ("reference", 0.0, "reference before the first step [rad]"),
@@ -104,6 +114,11 @@ class ControllerNode(Node):
         self._pub_duty = self.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
         self._pub_sig = self.create_publisher(Float64MultiArray, TOPIC_SIGNALS, 10)
         self.create_subscription(JointState, TOPIC_JOINT_STATES, self._on_sample, qos)
+        # cascades also need i_a: pair joint_states and armature by their common stamp
+        self._pending_js: dict[int, tuple[float, float]] = {}
+        self._pending_arm: dict[int, float] = {}
+        if self.loop.needs_motor:
+            self.create_subscription(BatteryState, TOPIC_ARMATURE, self._on_armature, qos)
         self.create_subscription(Float64, TOPIC_REFERENCE, self._on_reference, 10)
         self.finished = threading.Event()
         self.published = 0
@@ -132,9 +147,34 @@ class ControllerNode(Node):
             self.get_logger().warn(f"sample without pendulum position: names {list(msg.name)}",
                                    throttle_duration_sec=1.0)
             return
+        stamp = stamp_to_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)
+        if not self.loop.needs_motor:
+            self._control(stamp, theta)
+            return
+        try:
+            omega = float(msg.velocity[list(msg.name).index("motor")])
+        except (ValueError, IndexError):
+            omega = math.nan
+        self._pending_js[stamp] = (theta, omega)
+        self._pair(stamp)
+
+    def _on_armature(self, msg: BatteryState) -> None:
+        stamp = stamp_to_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)
+        self._pending_arm[stamp] = float(msg.current)
+        self._pair(stamp)
+
+    def _pair(self, stamp: int) -> None:
+        if stamp in self._pending_js and stamp in self._pending_arm:
+            theta, omega = self._pending_js.pop(stamp)
+            self._control(stamp, theta, omega, self._pending_arm.pop(stamp))
+        for d in (self._pending_js, self._pending_arm):  # forget unpaired halves of old samples
+            while len(d) > PAIR_BUFFER:
+                d.pop(min(d))
+
+    def _control(self, stamp: int, theta: float, omega: float = math.nan, i_a: float = math.nan) -> None:
         if self._pub_duty.get_subscription_count() == 0:
             return  # nobody would hear the command; the lock-step plant re-publishes while idle
-        duty = self.loop.on_sample(stamp_to_ns(msg.header.stamp.sec, msg.header.stamp.nanosec), theta)
+        duty = self.loop.on_sample(stamp, theta, omega, i_a)
         if duty is None:
             return
         self._pub_duty.publish(duty_msg(duty))

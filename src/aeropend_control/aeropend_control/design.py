@@ -41,7 +41,7 @@ import yaml
 
 from aeropend_control.metrics import TABLE_6_1, StepMetrics, step_metrics
 from aeropend_control.pid import PIDGains
-from aeropend_sim.model import TAU_F, THETA, THETA_DOT, PlantModel
+from aeropend_sim.model import OMEGA, TAU_F, THETA, THETA_DOT, PlantModel
 from aeropend_sim.params import Rig, load_rig
 
 
@@ -276,3 +276,75 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+# ---------------------------------------------------------------------------------- cascade
+@dataclass(frozen=True)
+class CascadeDesign:
+    """Gains and limits of the motor speed/current cascade (thesis §6.7, Fig. 6.10).
+
+    Attributes
+    ----------
+    kp_w, ki_w : float
+        Speed PI [A·s/rad, A/rad]: i_ref = PI(ω₁,ref − ω₁).
+    kp_i, ki_i : float
+        Current PI [V/A, V/(A·s)]: v_a = PI(i_ref − i_a).
+    i_max : float
+        Current-reference limit [A].
+    v_max : float
+        Voltage limit [V] (the H-bridge at τ = 1).
+    omega_speed, omega_current : float
+        Design bandwidths of the speed and current loops [rad/s].
+    predicted : StepMetrics
+        Unit step of ω₁,ref → ω₁ of the linear cascade at the design speed (python-control).
+    """
+
+    kp_w: float
+    ki_w: float
+    kp_i: float
+    ki_i: float
+    i_max: float
+    v_max: float
+    omega_speed: float
+    omega_current: float
+    predicted: StepMetrics
+
+
+def design_cascade(rig: Rig, omega_speed: float = 60.0, omega_current: float = 200.0,
+                   theta_op: float = 0.4, i_max: float = 2.0) -> CascadeDesign:
+    """PI gains of the speed and current loops by pole-zero cancellation (IMC / technical optimum).
+
+    Current loop, plant 1/(L_a·s + R_a) (back-EMF treated as a disturbance; Eq. 3.5):
+    kp_i = L_a·ω_c, ki_i = R_a·ω_c, closed loop ω_c/(s + ω_c).
+    Speed loop, plant K_t/(J_m·s + B_eff) (the back-EMF acts inside the current loop) with
+    B_eff = B_m + 2·K_d·ω₁₀ linearised at the rotor speed ω₁₀ of the equilibrium θ_op:
+    kp_w = J_m·ω_s/K_t, ki_w = B_eff·ω_s/K_t. ω_s ≪ ω_c keeps the loops separated;
+    ω_c·T_s ≈ 0.4 at 2.048 ms is about the most the sample rate allows. The predicted metrics
+    are those of the full linear cascade including the back-EMF coupling.
+
+    Raises
+    ------
+    DesignError
+        On non-positive bandwidths or a current limit ≤ 0.
+    """
+    for name, val in (("omega_speed", omega_speed), ("omega_current", omega_current), ("i_max", i_max)):
+        if not (math.isfinite(val) and val > 0.0):
+            raise DesignError(f"cascade {name} = {val!r} must be finite and > 0")
+    m = PlantModel(rig)
+    x_eq, _ = m.equilibrium(theta_op)
+    w0 = float(x_eq[OMEGA])
+    b_eff = m.B_m + 2.0 * m.K_d * w0
+    kp_i, ki_i = m.L * omega_current, m.R * omega_current
+    kp_w, ki_w = m.J_m * omega_speed / m.K_t, b_eff * omega_speed / m.K_t
+    # full linear loop with back-EMF: states (i_a, ω₁, z_i, z_w)
+    A = np.array([
+        [-(m.R + kp_i) / m.L, -(m.K_w + kp_i * kp_w) / m.L, ki_i / m.L, kp_i * ki_w / m.L],
+        [m.K_t / m.J_m, -b_eff / m.J_m, 0.0, 0.0],
+        [-1.0, -kp_w, 0.0, ki_w],
+        [0.0, -1.0, 0.0, 0.0],
+    ])
+    B = np.array([[kp_i * kp_w / m.L], [0.0], [kp_w], [1.0]])
+    C = np.array([[0.0, 1.0, 0.0, 0.0]])
+    pred = _predict(control.ss(A, B, C, 0.0), horizon=0.5, dt=1e-4)
+    return CascadeDesign(kp_w, ki_w, kp_i, ki_i, i_max, m.armature_voltage(1.0), omega_speed, omega_current,
+                         pred)

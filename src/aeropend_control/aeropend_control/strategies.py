@@ -35,8 +35,10 @@ import numpy as np
 from aeropend_control.allocation import Allocation, ModelAllocator, ThesisAllocator
 from aeropend_control.design import (
     DEFAULT_GRID,
+    CascadeDesign,
     LoopDesign,
     PoleSpec,
+    design_cascade,
     design_fl,
     design_small_signal,
     schedule,
@@ -48,7 +50,9 @@ from aeropend_sim.params import Rig
 #: Default derivative / velocity filter time constant [s].
 DEFAULT_TF = 0.01
 #: Strategy names accepted by :func:`make_strategy`.
-STRATEGIES = ("fl_pid", "small_signal", "small_signal_fixed")
+STRATEGIES = ("fl_pid", "small_signal", "small_signal_fixed", "cascade", "fl_cascade")
+#: Strategies that need the measured rotor speed ω₁ and armature current i_a.
+NEEDS_MOTOR = ("cascade", "fl_cascade")
 #: Allocation chains accepted by the strategies.
 ALLOCATORS = ("model", "thesis")
 
@@ -296,16 +300,24 @@ class SmallSignalPID(_Base):
         return self._finish(r, theta, thd, df, self.f0 + df)
 
 
-def make_strategy(name: str, rig: Rig, **options: object) -> FeedbackLinearizationPID | SmallSignalPID:
+def make_strategy(
+    name: str, rig: Rig, **options: object
+) -> FeedbackLinearizationPID | SmallSignalPID | CascadeStrategy:
     """Build a strategy by name (:data:`STRATEGIES`); ``options`` go to its constructor.
 
-    ``small_signal`` is gain-scheduled; ``small_signal_fixed`` needs ``theta_op``.
+    ``small_signal`` is gain-scheduled; ``small_signal_fixed`` needs ``theta_op``; ``cascade``
+    and ``fl_cascade`` take ``cascade_design`` (a :class:`CascadeDesign`) and pass the other
+    options to their outer loop (scheduled small-signal / FL).
 
     Raises
     ------
     StrategyError
         On an unknown name or a missing ``theta_op``.
     """
+    if name in NEEDS_MOTOR:
+        cdesign = options.pop("cascade_design", None)
+        outer = make_strategy("fl_pid" if name == "fl_cascade" else "small_signal", rig, **options)
+        return CascadeStrategy(outer, rig, cdesign)  # type: ignore[arg-type]
     if name == "fl_pid":
         return FeedbackLinearizationPID(rig, **options)  # type: ignore[arg-type]
     if name == "small_signal":
@@ -315,3 +327,88 @@ def make_strategy(name: str, rig: Rig, **options: object) -> FeedbackLinearizati
             raise StrategyError("strategy 'small_signal_fixed' needs theta_op (operating point in rad)")
         return SmallSignalPID(rig, **options)  # type: ignore[arg-type]
     raise StrategyError(f"strategy = {name!r}; expected one of {STRATEGIES}")
+
+
+# ---------------------------------------------------------------------------------- cascade
+class MotorCascade:
+    """Speed and current PI loops of the motor (thesis §6.7, Fig. 6.10), per sample.
+
+    i_ref = PI_ω(ω₁,ref − ω₁) limited to [0, i_max]; v_a = PI_I(i_ref − i_a) limited to
+    [0, v_max]; τ = inverse voltage map (Eq. 4.3 or ideal, :meth:`PlantModel.duty_for_voltage`).
+    Both PIs use back-calculation anti-windup, so the limits are the thesis' current and voltage
+    saturations.
+
+    Parameters
+    ----------
+    rig : Rig
+    design : CascadeDesign, optional
+        Default :func:`aeropend_control.design.design_cascade`.
+    dt : float, optional
+        Sample period [s].
+    """
+
+    def __init__(self, rig: Rig, design: CascadeDesign | None = None, dt: float | None = None) -> None:
+        self.design = design or design_cascade(rig)
+        d = self.design
+        self.model = PlantModel(rig)
+        self.dt = float(rig.sample_period if dt is None else dt)
+        self.speed = PID(PIDGains(kp=d.kp_w, ki=d.ki_w, u_min=0.0, u_max=d.i_max), self.dt)
+        self.current = PID(PIDGains(kp=d.kp_i, ki=d.ki_i, u_min=0.0, u_max=d.v_max), self.dt)
+        self.i_ref = 0.0
+        self.v_a = 0.0
+
+    def reset(self) -> None:
+        """Clear both integrators."""
+        self.speed.reset()
+        self.current.reset()
+
+    def step(self, omega_ref: float, omega: float, i_a: float) -> float:
+        """Speed reference ω₁,ref [rad/s], measured ω₁ [rad/s] and i_a [A] → duty τ."""
+        self.i_ref = self.speed.update(omega_ref, omega)
+        self.v_a = self.current.update(self.i_ref, i_a)
+        return self.model.duty_for_voltage(min(max(self.v_a, 0.0), self.design.v_max))
+
+    @property
+    def saturated(self) -> int:
+        """+1/−1 if a loop hit its upper/lower limit in the last sample, else 0."""
+        return self.current.saturated or self.speed.saturated
+
+
+class CascadeStrategy:
+    """Position loop + motor cascade (thesis §6.7-6.8).
+
+    The outer strategy (:class:`FeedbackLinearizationPID` for ``fl_cascade``, thesis §6.8, or the
+    scheduled :class:`SmallSignalPID` for ``cascade``) computes the thrust f; the rotor-speed
+    reference is ω₁,ref = n·(f/K_q)^(1/α) (inverse of Eqs. 3.3-3.4) and the motor cascade turns it
+    into the duty cycle. Needs the measured rotor speed ω₁ and armature current i_a
+    (thesis §4.2: SNS current, IR speed sensor); non-finite values hold the last duty.
+    """
+
+    def __init__(self, outer: FeedbackLinearizationPID | SmallSignalPID, rig: Rig,
+                 design: CascadeDesign | None = None, dt: float | None = None) -> None:
+        self.outer = outer
+        self.name = "fl_cascade" if isinstance(outer, FeedbackLinearizationPID) else "cascade"
+        self.inner = MotorCascade(rig, design, dt)
+        self.model = self.inner.model
+        self.pid = outer.pid
+        self.last: ControlOutput | None = None
+
+    def omega_ref(self, f: float) -> float:
+        """Rotor speed [rad/s] whose thrust is f [N] (0 for f ≤ 0)."""
+        m = self.model
+        return m.n * (f / m.K_q) ** (1.0 / m.alpha) if f > 0.0 else 0.0
+
+    def step(self, r: float, theta: float, omega: float = math.nan, i_a: float = math.nan) -> ControlOutput:
+        """One sample: reference, θ, ω₁, i_a → duty (see :class:`ControlOutput`)."""
+        o = self.outer.step(r, theta)
+        if o.nan_input:
+            return o
+        if not (math.isfinite(omega) and math.isfinite(i_a)):
+            self.pid.nan_count += 1
+            duty = self.last.duty if self.last is not None else 0.0
+            return replace(o, duty=duty, nan_input=True)
+        f = min(max(o.thrust, self.outer.f_min), self.outer.f_max)
+        duty = self.inner.step(self.omega_ref(f), omega, i_a)
+        out = replace(o, duty=duty, saturated=o.saturated or self.inner.saturated)
+        self.last = out
+        return out
