@@ -27,6 +27,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
+            "bridge = aeropend_bridge.bridge_node:main",
             "fake_mcu = aeropend_bridge.fake_mcu:main",
         ],
     },
