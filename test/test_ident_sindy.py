@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from aeropend_ident.libraries import collinearity_report, physics_library, thesis_library
+from aeropend_ident.libraries import collinearity_report, physics_library, structured_library, thesis_library
 from aeropend_ident.preprocess import add_derivatives
 from aeropend_ident.sindy import (
     IdentData,
@@ -219,3 +219,21 @@ def test_lorenz_sindy_weak_and_discrepancy() -> None:
         md = fit(data, lib, targets=["x", "y", "z"], threshold=0.05, method=method, base=approx, K=300)
         assert md.terms("x") == {} and md.terms("z") == {}
         assert md.terms("y") == {"x": pytest.approx(3.0, rel=1e-3)}
+
+
+def test_structured_library_per_equation_weak_50db(traj) -> None:
+    """One physically plausible library per equation (incl. θ, cos θ, 1, sgn θ̇, ω₁ for θ̈)."""
+    libs = structured_library()
+    assert set(libs) == {"theta_dot", "i_a", "omega_rotor"} and len(libs["theta_dot"]) == 8
+    noisy = RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=50)
+    data = data_from_trajectory(simulate(noisy, traj.duty, seed=3), noisy, measured=True)
+    m = fit(data, libs, targets=["theta_dot", "omega_rotor"], threshold=0.5, method="weak", K=300, H_xt=0.05)
+    assert m.feature_names[: len(libs["theta_dot"])] == libs["theta_dot"].names  # union of the libraries
+    e = structure_errors(m, {"theta_dot": TRUTH["theta_dot"]})["theta_dot"]
+    assert e["false_positive"] == [] and e["false_negative"] == [], m.equations()
+    assert e["max_rel_error"] < 0.01
+    k_q = m.derived_parameters(RIG.motor.gear_ratio, RIG.pendulum.L_over_J)["K_q"][0]
+    assert abs(k_q / 1e-4 - 1) < 0.01
+    assert "sgn(ω₁)" in m.feature_names and m.terms("omega_rotor")  # the rotor equation was fitted too
+    with pytest.raises(IdentificationError, match=r"no library for target\(s\) \['i_a'\]"):
+        fit(data, {"theta_dot": libs["theta_dot"]}, targets=["theta_dot", "i_a"], method="weak")

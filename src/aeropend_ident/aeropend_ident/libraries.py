@@ -306,3 +306,39 @@ def collinearity_report(
     ]
     pairs.sort(key=lambda p: -abs(p[2]))
     return CollinearityReport(condition_number=cond, rank=rank, n_columns=len(names), pairs=pairs)
+
+
+def structured_library(
+    variables: Sequence[str] = ("theta", "theta_dot", "i_a", "omega_rotor", "v_a"),
+) -> dict[str, CandidateLibrary]:
+    """One physically plausible library per equation (model effects of ``docs/model.md``).
+
+    Each equation is offered the terms of every effect the plant model can switch on for it, not
+    only the true ones:
+
+    * θ̈ (target ``theta_dot``): 1, θ, θ̇, sin θ, cos θ, sgn θ̇ (Coulomb), ω₁ and ω₁² (thrust
+      laws); needs θ, θ̇ and ω₁;
+    * di_a/dt (``i_a``): 1, i_a, ω₁ (back-EMF), v_a, ω₁² ;
+    * dω₁/dt (``omega_rotor``): 1, i_a, ω₁, ω₁² (propeller drag), sgn ω₁ (Coulomb).
+
+    Only equations whose variables are all present are returned.
+    """
+    vs = set(variables)
+    out: dict[str, CandidateLibrary] = {}
+    if {"theta", "theta_dot", "omega_rotor"} <= vs:
+        out["theta_dot"] = CandidateLibrary((
+            constant(), _var("theta"), _var("theta_dot"), _unary("sin", np.sin, "theta"),
+            _unary("cos", np.cos, "theta"),
+            Candidate("sgn(θ̇)", ("theta_dot",), lambda d: np.tanh(np.asarray(d["theta_dot"]) / 0.01)),
+            _var("omega_rotor"), _product("omega_rotor", "omega_rotor"),
+        ))
+    if {"i_a", "omega_rotor", "v_a"} <= vs:
+        out["i_a"] = CandidateLibrary((
+            constant(), _var("i_a"), _var("omega_rotor"), _var("v_a"), _product("omega_rotor", "omega_rotor"),
+        ))
+    if {"i_a", "omega_rotor"} <= vs:
+        out["omega_rotor"] = CandidateLibrary((
+            constant(), _var("i_a"), _var("omega_rotor"), _product("omega_rotor", "omega_rotor"),
+            Candidate("sgn(ω₁)", ("omega_rotor",), lambda d: np.tanh(np.asarray(d["omega_rotor"]))),
+        ))
+    return out

@@ -555,7 +555,7 @@ def weak_matrices(data: IdentData, columns: np.ndarray, targets: Sequence[str], 
 
 def fit(
     data: IdentData,
-    library: CandidateLibrary,
+    library: CandidateLibrary | Mapping[str, CandidateLibrary],
     targets: Sequence[str] = ("theta_dot", "i_a", "omega_rotor"),
     threshold: float = 0.05,
     method: str = "sindy",
@@ -575,7 +575,10 @@ def fit(
     ----------
     data : IdentData
         Training data (strong form needs ``data.derivatives`` for the targets).
-    library : CandidateLibrary
+    library : CandidateLibrary or mapping target -> CandidateLibrary
+        One library for all equations (as in the thesis), or one per target (physics-structured,
+        e.g. :func:`aeropend_ident.libraries.structured_library`); then each equation is fitted
+        on its own library and the model's columns are the union.
     targets : sequence of str
         Target states (``"theta"``, ``"theta_dot"``, ``"i_a"``, ``"omega_rotor"``).
     threshold : float
@@ -604,6 +607,12 @@ def fit(
     if method not in METHODS:
         raise IdentificationError(f"method = {method!r}; expected one of {METHODS}")
     targets = list(targets)
+    if isinstance(library, Mapping):
+        return _fit_per_target(
+            data, library, targets, threshold=threshold, method=method, base=base, K=K, p=p, H_xt=H_xt,
+            n_models=n_models, subset_fraction=subset_fraction, alpha=alpha, seed=seed,
+            exclude_input_steps=exclude_input_steps,
+        )
     check_targets(data, targets, library, need_derivatives=method != "weak")
     t0 = time.perf_counter()
     try:
@@ -650,6 +659,37 @@ def fit(
     )
 
 
+def _fit_per_target(data: IdentData, libraries: Mapping[str, CandidateLibrary], targets: list[str],
+                    **kw: Any) -> SindyModel:
+    """One equation per library; the merged model's columns are the union of the libraries."""
+    missing = [tg for tg in targets if tg not in libraries]
+    if missing:
+        raise IdentificationError(
+            f"no library for target(s) {missing}; libraries given for {sorted(libraries)}"
+        )
+    parts = [fit(data, libraries[tg], [tg], **kw) for tg in targets]
+    union = parts[0].library
+    for m in parts[1:]:
+        union = union + m.library
+    names = union.names
+    coef = np.zeros((len(targets), len(names)))
+    std = np.zeros_like(coef) if parts[0].coef_std is not None else None
+    incl = np.zeros_like(coef) if parts[0].inclusion is not None else None
+    for i, m in enumerate(parts):
+        cols = [names.index(n) for n in m.feature_names]
+        coef[i, cols] = m.coef[0]
+        if std is not None and m.coef_std is not None:
+            std[i, cols] = m.coef_std[0]
+        if incl is not None and m.inclusion is not None:
+            incl[i, cols] = m.inclusion[0]
+    return SindyModel(
+        method=parts[0].method, targets=targets, feature_names=names, coef=coef, threshold=parts[0].threshold,
+        library=union, coef_std=std, inclusion=incl,
+        condition_number=max(m.condition_number for m in parts), fit_time=sum(m.fit_time for m in parts),
+        base=parts[0].base,
+    )
+
+
 # ---------------------------------------------------------------------------------- selection
 @dataclass(frozen=True)
 class SweepPoint:
@@ -675,8 +715,8 @@ class SweepPoint:
 
 
 def sweep_threshold(
-    train: IdentData, test: IdentData, library: CandidateLibrary, thresholds: Sequence[float],
-    targets: Sequence[str] = ("theta_dot", "i_a", "omega_rotor"), **fit_kw: Any,
+    train: IdentData, test: IdentData, library: CandidateLibrary | Mapping[str, CandidateLibrary],
+    thresholds: Sequence[float], targets: Sequence[str] = ("theta_dot", "i_a", "omega_rotor"), **fit_kw: Any,
 ) -> tuple[list[SweepPoint], dict[float, SindyModel]]:
     """Fit for each λ and score on held-out data (the Pareto front: terms vs test error).
 
