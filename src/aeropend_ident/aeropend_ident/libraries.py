@@ -319,7 +319,8 @@ def structured_library(
     * θ̈ (target ``theta_dot``): 1, θ, θ̇, sin θ, cos θ, sgn θ̇ (Coulomb), ω₁ and ω₁² (thrust
       laws); needs θ, θ̇ and ω₁;
     * di_a/dt (``i_a``): 1, i_a, ω₁ (back-EMF), v_a, ω₁² ;
-    * dω₁/dt (``omega_rotor``): 1, i_a, ω₁, ω₁² (propeller drag), sgn ω₁ (Coulomb).
+    * dω₁/dt (``omega_rotor``): i_a, ω₁, ω₁² (propeller drag), sgn ω₁ (Coulomb; no separate
+      constant: for a rotor that only turns one way sgn ω₁ ≡ 1 and the two are the same column).
 
     Only equations whose variables are all present are returned.
     """
@@ -338,7 +339,7 @@ def structured_library(
         ))
     if {"i_a", "omega_rotor"} <= vs:
         out["omega_rotor"] = CandidateLibrary((
-            constant(), _var("i_a"), _var("omega_rotor"), _product("omega_rotor", "omega_rotor"),
+            _var("i_a"), _var("omega_rotor"), _product("omega_rotor", "omega_rotor"),
             Candidate("sgn(ω₁)", ("omega_rotor",), lambda d: np.tanh(np.asarray(d["omega_rotor"]))),
         ))
     return out
