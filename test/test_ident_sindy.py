@@ -20,6 +20,7 @@ from aeropend_ident.sindy import (
     IdentificationError,
     data_from_trajectory,
     fit,
+    free_run,
     select_threshold,
     structure_errors,
     sweep_threshold,
@@ -237,3 +238,15 @@ def test_structured_library_per_equation_weak_50db(traj) -> None:
     assert "sgn(ω₁)" in m.feature_names and m.terms("omega_rotor")  # the rotor equation was fitted too
     with pytest.raises(IdentificationError, match=r"no library for target\(s\) \['i_a'\]"):
         fit(data, {"theta_dot": libs["theta_dot"]}, targets=["theta_dot", "i_a"], method="weak")
+
+
+def test_free_run_of_identified_model(traj) -> None:
+    data = data_from_trajectory(traj, RIG, exact_derivatives=True)
+    train, test = data.split(0.75)
+    m = fit(train, physics_library(), threshold=0.05)
+    fr = free_run(m, test, substeps=1)
+    assert set(fr.nrmse) == {"theta", "theta_dot", "i_a", "omega_rotor"}
+    assert max(fr.nrmse.values()) < 1e-5  # the exact model reproduces the held-out run
+    no_current = IdentData(t=test.t, variables={k: v for k, v in test.variables.items() if k != "i_a"})
+    with pytest.raises(IdentificationError, match=r"free run needs \['i_a'\]"):
+        free_run(m, no_current)

@@ -783,3 +783,88 @@ def structure_errors(model: SindyModel, truth: Mapping[str, Mapping[str, float]]
             "max_rel_error": float(max(rel)) if rel else 0.0,
         }
     return out
+
+
+# ---------------------------------------------------------------------------------- free run
+@dataclass(frozen=True)
+class FreeRun:
+    """Free-run simulation of an identified model against data.
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+    states : dict[str, ndarray]
+        Simulated states (targets, plus θ integrated from θ̇ when θ̈ is modelled).
+    nrmse : dict[str, float]
+        RMS(simulated − measured)/std(measured) per simulated state (inf if it diverged).
+    """
+
+    t: np.ndarray
+    states: dict[str, np.ndarray]
+    nrmse: dict[str, float]
+
+
+def free_run(model: SindyModel, data: IdentData, substeps: int = 2) -> FreeRun:
+    """Simulate the identified model from the data's first sample, inputs held from the data.
+
+    The simulated states are the model's targets (θ integrated from θ̇ when ``theta_dot`` is a
+    target and ``theta`` is not); every other library variable (v_a, and measured states the
+    model does not describe) is taken from the data, held over each sample period (zero-order
+    hold, like the duty cycle). Fixed-step RK4 with ``substeps`` steps per sample.
+
+    Raises
+    ------
+    IdentificationError
+        If a needed variable is not in the data.
+    """
+    states = list(model.targets)
+    if "theta_dot" in states and "theta" not in states:
+        states = ["theta", *states]
+    need = set(model.library.variables) | set(states)
+    if isinstance(model.base, Rig):  # the approximate model reads the whole model state and τ
+        need |= {"theta", "theta_dot", "omega_rotor", "duty", "i_a"} & set(data.variables)
+    missing = sorted(v for v in need if v not in data.variables)
+    if missing:
+        raise IdentificationError(
+            f"{data.source}: free run needs {missing}; data has {sorted(data.variables)}"
+        )
+    n = len(data)
+    x = np.array([data.variables[s][0] for s in states], dtype=float)
+    out = np.full((n, len(states)), np.nan)
+    out[0] = x
+    idx = {s: i for i, s in enumerate(states)}
+    exo_names = sorted(v for v in need if v not in idx)
+
+    def rhs(xs: np.ndarray, k: int) -> np.ndarray:
+        vals = {v: np.array([data.variables[v][k]]) for v in exo_names}
+        vals.update({s: np.array([xs[i]]) for s, i in idx.items()})
+        if model.base is None:
+            row = model.library.evaluate(vals)[0]
+            pred = {tg: np.array([row @ model.coef[j]]) for j, tg in enumerate(model.targets)}
+        else:
+            d = IdentData(t=np.arange(3.0), variables={k_: np.repeat(v, 3) for k_, v in vals.items()})
+            pred = model.predict(d)
+        dx = np.empty(len(states))
+        for s, i in idx.items():
+            dx[i] = xs[idx["theta_dot"]] if (s == "theta" and s not in model.targets) else pred[s][0]
+        return dx
+
+    h = float(np.mean(np.diff(data.t))) / substeps
+    with np.errstate(all="ignore"):
+        for k in range(n - 1):
+            for _ in range(substeps):
+                k1 = rhs(x, k)
+                k2 = rhs(x + 0.5 * h * k1, k)
+                k3 = rhs(x + 0.5 * h * k2, k)
+                k4 = rhs(x + h * k3, k)
+                x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            if not np.isfinite(x).all() or np.abs(x).max() > 1e9:
+                break
+            out[k + 1] = x
+    sim = {s: out[:, i] for s, i in idx.items()}
+    nrmse = {}
+    for s, y in sim.items():
+        ref = data.variables[s]
+        ok = np.isfinite(y).all()
+        nrmse[s] = float(np.sqrt(np.mean((y - ref) ** 2)) / (np.std(ref) or 1.0)) if ok else float("inf")
+    return FreeRun(t=data.t.copy(), states=sim, nrmse=nrmse)
