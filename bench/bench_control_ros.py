@@ -1,0 +1,98 @@
+"""Benchmark: closed-loop steps over ROS 2, plant and controller in separate processes (lock-step).
+
+For every scenario of :mod:`bench_control` (nominal, 50 dB noise, unmodelled effects; the rig
+variants are written to temporary rig files), strategy and set point (0.2, 0.4, 0.7 rad), runs
+``sim_node --ros-args -p mode:=lockstep -p rig:=<file>`` and
+``controller --ros-args -p mode:=lockstep -p duration:=4.0 -p trace:=<csv>`` as subprocesses on a
+private ROS domain, computes the step metrics from the controller's trace (the **measured** θ,
+so in the noise scenario the metrics include the sensor noise, unlike the batch benchmark which
+uses the true θ) and compares them with the batch loop of :mod:`bench_control` (same stepper).
+
+Writes ``bench/results/control_ros.json``. Run: ``.venv/bin/python bench/bench_control_ros.py``
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import random
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from bench_control import BENCH_STRATEGIES, HORIZON_S, SETPOINTS, scenarios
+
+from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
+from aeropend_sim.params import save_rig
+
+OUT = Path(__file__).resolve().parent / "results" / "control_ros.json"
+BIN = Path(sys.executable).parent
+
+
+def run_ros(rig_file: Path, strategy: str, r: float, trace: Path) -> tuple[np.ndarray, float]:
+    """One lock-step run; returns the trace array and the wall time [s]."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    t0 = time.perf_counter()
+    sim_cmd = [str(BIN / "sim_node"), "--ros-args", "-p", "mode:=lockstep", "-p", f"rig:={rig_file}"]
+    sim = subprocess.Popen(sim_cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    ctl = None
+    try:
+        ctl = subprocess.Popen(
+            [str(BIN / "controller"), "--ros-args", "-p", "mode:=lockstep", "-p", f"strategy:={strategy}",
+             "-p", f"steps:=[0.0, {r}]", "-p", f"duration:={HORIZON_S}", "-p", f"trace:={trace}"],
+            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        out, _ = ctl.communicate(timeout=120)
+        if ctl.returncode != 0:
+            raise RuntimeError(f"controller exit {ctl.returncode}: {out[-1000:]}")
+    finally:
+        for p in (ctl, sim):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.communicate(timeout=10)
+    wall = time.perf_counter() - t0
+    rows = list(csv.reader(trace.open()))
+    return np.array(rows[1:], dtype=float), wall
+
+
+def main() -> dict:
+    batch_file = OUT.parent / "control.json"
+    batch = json.loads(batch_file.read_text()) if batch_file.exists() else {"runs": []}
+    batch_ts = {(b["scenario"], b["strategy"], b["reference"]): b["settling_time"] for b in batch["runs"]}
+    results: dict = {"setup": {"horizon_s": HORIZON_S, "mode": "lockstep", "metrics_on": "measured theta"},
+                     "runs": []}
+    print(f"{'scenario':11s} {'strategy':13s} {'θref':>5s} {'tr':>6s} {'tp':>6s} {'ts':>6s} {'Mp%':>6s} "
+          f"{'e_ss':>9s} {'ts batch':>8s} T6.1 goal wall[s]")
+    with tempfile.TemporaryDirectory() as tmp:
+        for scen, rig in scenarios().items():
+            rig_file = Path(tmp) / f"{scen}.yaml"
+            save_rig(rig, rig_file)
+            for name in BENCH_STRATEGIES:
+                for r in SETPOINTS:
+                    data, wall = run_ros(rig_file, name, r, Path(tmp) / "trace.csv")
+                    t, theta = data[:, 0], data[:, 2]
+                    met = step_metrics(t, theta, r)
+                    row = {"scenario": scen, "strategy": name, "reference": r, **met.as_dict(),
+                           "table_6_1": met.meets(TABLE_6_1), "goal": met.meets(GOAL),
+                           "samples": int(t.size), "wall_s": round(wall, 2),
+                           "batch_settling_time": batch_ts.get((scen, name, r), math.nan)}
+                    results["runs"].append(row)
+                    print(f"{scen:11s} {name:13s} {r:5.2f} {met.rise_time:6.3f} {met.peak_time:6.3f} "
+                          f"{met.settling_time:6.3f} {met.overshoot:6.2f} {met.steady_state_error:9.2e} "
+                          f"{row['batch_settling_time']:8.3f} {'ok' if row['table_6_1'] else 'FAIL':4s} "
+                          f"{'ok' if row['goal'] else 'no':4s} {wall:6.1f}", flush=True)
+    OUT.write_text(json.dumps(results, indent=1, default=float) + "\n", encoding="utf-8")
+    print(f"wrote {OUT}")
+    return results
+
+
+if __name__ == "__main__":
+    main()
