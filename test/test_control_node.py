@@ -74,3 +74,14 @@ def test_loop_duration() -> None:
         assert not loop.done()
         loop.on_sample(k * 2_048_000, 0.0)
     assert loop.done()
+
+
+def test_latency_columns() -> None:
+    loop = ControllerLoop(make_settings())
+    loop.on_sample(1_000_000_000, 0.0, recv_ns=1_000_300_000)
+    loop.mark_published(1_000_450_000)
+    row = dict(zip(SIGNALS, loop.rows[-1], strict=True))
+    assert row["stamp_s"] == 1.0
+    assert row["recv_latency"] == pytest.approx(3e-4) and row["pub_latency"] == pytest.approx(4.5e-4)
+    loop.on_sample(1_002_048_000, 0.0)  # lock-step: no receipt time -> NaN
+    assert row is not None and loop.rows[-1][-2] != loop.rows[-1][-2]

@@ -29,8 +29,10 @@ from aeropend_sim.params import Rig, RigFileError, load_rig
 
 MODES = ("realtime", "lockstep")
 #: Column names of the internal-signal vector (``/aeropend/controller/signals`` and the trace).
+#: ``recv_latency`` / ``pub_latency`` [s]: sample stamp → receipt / → command published (ROS time,
+#: real-time mode only; NaN in lock-step where stamps are simulated time).
 SIGNALS: tuple[str, ...] = ("t", "reference", "theta", "error", "v", "thrust", "theta_dot_hat",
-                            "duty", "saturated")
+                            "duty", "saturated", "stamp_s", "recv_latency", "pub_latency")
 
 
 class ControllerConfigError(ValueError):
@@ -216,8 +218,12 @@ class ControllerLoop:
         return self.settings.strategy in NEEDS_MOTOR
 
     def on_sample(self, stamp_ns: int, theta: float, omega: float = math.nan,
-                  i_a: float = math.nan) -> float | None:
-        """Duty for a sample (see class doc); ω₁ [rad/s] and i_a [A] are used by cascades only."""
+                  i_a: float = math.nan, recv_ns: int | None = None) -> float | None:
+        """Duty for a sample (see class doc); ω₁ [rad/s] and i_a [A] are used by cascades only.
+
+        ``recv_ns`` is the receipt time on the stamp's clock (real-time mode), for the latency
+        columns of the trace; :meth:`mark_published` fills in the publish latency.
+        """
         if self.last_stamp is not None:
             if stamp_ns == self.last_stamp:
                 self.repeats += 1
@@ -234,10 +240,16 @@ class ControllerLoop:
         else:
             out = self.strategy.step(r, theta)
         self.last_stamp, self.last_out = stamp_ns, out
+        recv = (recv_ns - stamp_ns) * 1e-9 if recv_ns is not None else math.nan
         self.last_signals = [t, r, theta, out.error, out.v, out.thrust, out.theta_dot, out.duty,
-                             float(out.saturated)]
+                             float(out.saturated), stamp_ns * 1e-9, recv, math.nan]
         self.rows.append(self.last_signals)
         return out.duty
+
+    def mark_published(self, pub_ns: int) -> None:
+        """Record when the command of the last new sample was published (stamp's clock)."""
+        if self.last_stamp is not None and self.rows:
+            self.rows[-1][-1] = (pub_ns - self.last_stamp) * 1e-9
 
     def write_trace(self, path: str | Path) -> None:
         """CSV of :data:`SIGNALS`, one row per controlled sample."""

@@ -40,7 +40,8 @@ trace : str
     Write a CSV of the internal signals to this path on exit.
 
 Publishes ``/aeropend/controller/signals`` (std_msgs/Float64MultiArray, one per sample, labelled
-layout: t, reference, θ, error, v, thrust, θ̂̇, duty, saturated). Invalid parameters log an error
+layout: t, reference, θ, error, v, thrust, θ̂̇, duty, saturated, stamp, receipt latency; the
+trace adds the stamp → command-published latency, real-time mode only). Invalid parameters log an error
 naming the value and exit with status 2. On shutdown the node publishes duty 0.
 """
 
@@ -174,10 +175,15 @@ class ControllerNode(Node):
     def _control(self, stamp: int, theta: float, omega: float = math.nan, i_a: float = math.nan) -> None:
         if self._pub_duty.get_subscription_count() == 0:
             return  # nobody would hear the command; the lock-step plant re-publishes while idle
-        duty = self.loop.on_sample(stamp, theta, omega, i_a)
+        realtime = self.settings.mode == "realtime"
+        recv = self.get_clock().now().nanoseconds if realtime else None
+        repeat = stamp == self.loop.last_stamp
+        duty = self.loop.on_sample(stamp, theta, omega, i_a, recv)
         if duty is None:
             return
         self._pub_duty.publish(duty_msg(duty))
+        if realtime and not repeat:
+            self.loop.mark_published(self.get_clock().now().nanoseconds)
         self.published += 1
         self._pub_sig.publish(Float64MultiArray(data=[float(x) for x in self.loop.last_signals]))
         if self.loop.done():
