@@ -18,7 +18,8 @@ switched instantly between 0 and f_max = thrust at τ = 1, motor dynamics ignore
 0 to rest at θ_ref (one switch, bang-bang), a lower bound for any controller's settling time;
 ``ts_ratio`` = ts / that bound.
 
-Not done here (issue 6 item 7 asks for it): the runs over ROS for every cell, and plots.
+The same cells over ROS: ``bench/bench_control_ros.py``. Plots of θ and τ per run:
+``bench/results/control_<scenario>.png``.
 
 Writes ``bench/results/control.json`` and prints a table. Run:
 ``.venv/bin/python bench/bench_control.py``
@@ -87,8 +88,8 @@ def time_optimal_bound(rig: Rig, r: float) -> float:
     return arrive(t1)[1]
 
 
-def run(name: str, rig: Rig, r: float, seed: int = 0) -> dict:
-    """One closed-loop step; metrics on the true θ, plus duty statistics."""
+def run(name: str, rig: Rig, r: float, seed: int = 0, traces: dict | None = None) -> dict:
+    """One closed-loop step; metrics on the true θ, plus duty statistics (traces stored if given)."""
     design_rig = load_rig("thesis_rig")  # the controller knows only the nominal model
     ctl = make_strategy(name, design_rig)
     plant = PlantStepper(rig, seed=seed)
@@ -108,9 +109,39 @@ def run(name: str, rig: Rig, r: float, seed: int = 0) -> dict:
         s = plant.step(o.duty)
     wall = time.perf_counter() - t0
     met = step_metrics(np.arange(n) * rig.sample_period, theta_true, r)
+    if traces is not None:
+        traces[(name, r)] = (np.arange(n) * rig.sample_period, theta_true, duty)
     return {**met.as_dict(), "table_6_1": met.meets(TABLE_6_1), "goal": met.meets(GOAL),
             "failures_goal": met.failures(GOAL), "saturated_samples": int(sat),
-            "duty_max": float(duty.max()), "duty_final": float(duty[-1]), "wall_s": round(wall, 2)}
+            "duty_max": float(duty.max()), "duty_final": float(duty[-1]),
+            "duty_std_last_1s": float(np.std(duty[-round(1.0 / rig.sample_period):])),
+            "wall_s": round(wall, 2)}
+
+
+def plot(scenario: str, traces: dict) -> Path:
+    """θ (true) and τ of every run of one scenario → ``bench/results/control_<scenario>.png``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(2, len(BENCH_STRATEGIES), figsize=(4 * len(BENCH_STRATEGIES), 6), sharex=True)
+    for j, name in enumerate(BENCH_STRATEGIES):
+        for r in SETPOINTS:
+            t, th, du = traces[(name, r)]
+            axes[0, j].plot(t, th, label=f"θ_ref {r} rad")
+            axes[0, j].axhline(r, color="grey", lw=0.5, ls="--")
+            axes[1, j].plot(t, du)
+        axes[0, j].set_title(f"{name} ({scenario})")
+        axes[1, j].set_xlabel("t [s]")
+    axes[0, 0].set_ylabel("θ [rad]")
+    axes[1, 0].set_ylabel("duty τ")
+    axes[0, 0].legend(fontsize=8)
+    fig.tight_layout()
+    out = OUT.parent / f"control_{scenario}.png"
+    fig.savefig(out, dpi=80)
+    plt.close(fig)
+    return out
 
 
 def main() -> dict:
@@ -121,12 +152,13 @@ def main() -> dict:
     for r in SETPOINTS:
         results["bound_s"][str(r)] = round(time_optimal_bound(rigs["nominal"], r), 4)
     hdr = (f"{'scenario':11s} {'strategy':13s} {'θref':>5s} {'tr':>6s} {'tp':>6s} {'ts':>6s} {'Mp%':>6s} "
-           f"{'e_ss':>9s} {'ts/bnd':>6s} T6.1 goal")
+           f"{'e_ss':>9s} {'ts/bnd':>6s} T6.1 goal τ_std(last 1 s)")
     print(hdr)
     for scen, rig in rigs.items():
+        traces: dict = {}
         for name in BENCH_STRATEGIES:
             for r in SETPOINTS:
-                row = {"scenario": scen, "strategy": name, "reference": r, **run(name, rig, r)}
+                row = {"scenario": scen, "strategy": name, "reference": r, **run(name, rig, r, traces=traces)}
                 bound = results["bound_s"][str(r)]
                 ts = row["settling_time"]
                 row["ts_ratio"] = ts / bound if math.isfinite(ts) else None
@@ -134,7 +166,9 @@ def main() -> dict:
                 ratio = f"{row['ts_ratio']:6.2f}" if row["ts_ratio"] is not None else "   nan"
                 print(f"{scen:11s} {name:13s} {r:5.2f} {row['rise_time']:6.3f} {row['peak_time']:6.3f} "
                       f"{row['settling_time']:6.3f} {row['overshoot']:6.2f} {row['steady_state_error']:9.2e} "
-                      f"{ratio} {'ok' if row['table_6_1'] else 'FAIL':4s} {'ok' if row['goal'] else 'no'}")
+                      f"{ratio} {'ok' if row['table_6_1'] else 'FAIL':4s} {'ok' if row['goal'] else 'no':4s} "
+                      f"{row['duty_std_last_1s']:.3f}")
+        plot(scen, traces)
     print("time-optimal bound (ideal thrust, rest to rest) [s]:", results["bound_s"])
     OUT.parent.mkdir(parents=True, exist_ok=True)
     OUT.write_text(json.dumps(results, indent=1, default=float) + "\n", encoding="utf-8")
