@@ -20,6 +20,7 @@
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
+#include <avr/sleep.h>
 #include <avr/wdt.h>
 #include <stdint.h>
 #include <util/atomic.h>
@@ -36,7 +37,8 @@
 #define REF_AVCC (1 << REFS0)
 #define REF_2V56 ((1 << REFS1) | (1 << REFS0))
 #define TOV1_US 2040u            /* 510 ticks * 4 us */
-#define WATCHDOG_TICKS 122u      /* 122 * 2.040 ms = 248.9 ms < 250 ms */
+#define WATCHDOG_TICKS 121u      /* trips at tick 122 after the last command: <= 248.9 ms, + <= 1 ms until
+                                    the new OCR latches at TOP: duty 0 within 250 ms */
 #define STATUS_EVERY 256u
 
 /* ------------------------------------------------------------------ UART rings */
@@ -215,8 +217,17 @@ static void hw_init(void)
     DDRH |= (1 << PH5);
     PORTH &= (uint8_t)~(1 << PH5);
     OCR1A = 0;
+#ifdef SIMAVR_TIMER1
+    /* Emulator build only: simavr 1.6 does not implement Timer1 phase-correct PWM on the
+     * ATmega2560 (writes to OCR1A are "UNSUPPORTED", TOV1 comes every 65536 ticks). Fast PWM
+     * with TOP = ICR1 = 509 gives the same 510-tick (2.040 ms) TOV1 period. */
+    ICR1 = 509;
+    TCCR1A = (1 << COM1A1) | (1 << WGM11);
+    TCCR1B = (1 << WGM13) | (1 << WGM12) | (1 << CS11) | (1 << CS10);
+#else
     TCCR1A = (1 << COM1A1) | (1 << WGM10);  /* non-inverting, phase-correct 8-bit */
     TCCR1B = (1 << CS11) | (1 << CS10);     /* prescaler 64 */
+#endif
     TIMSK1 = (1 << TOIE1);
     /* ADC: enabled, interrupt, prescaler 128; digital input buffers off on A0-A3. */
     DIDR0 = 0x0F;
@@ -242,8 +253,19 @@ int main(void)
     sei();
     ap_decoder_t dec;
     ap_decoder_init(&dec);
+    set_sleep_mode(SLEEP_MODE_IDLE);
     for (;;) {
         wdt_reset();
+        /* Idle until an interrupt when there is nothing to do (timers, ADC and UART keep
+         * running in idle mode); sei + sleep are atomic, so no wake-up is missed. */
+        cli();
+        if (rx_tail == rx_head && !sample_ready) {
+            sleep_enable();
+            sei();
+            sleep_cpu();
+            sleep_disable();
+        }
+        sei();
         while (rx_tail != rx_head) {
             uint8_t b = rx_buf[rx_tail];
             rx_tail = (uint8_t)((rx_tail + 1) & (RX_SIZE - 1));
