@@ -11,6 +11,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+import yaml
 from scipy.integrate import solve_ivp
 
 from aeropend_ident.libraries import collinearity_report, physics_library, structured_library, thesis_library
@@ -21,6 +22,7 @@ from aeropend_ident.sindy import (
     data_from_trajectory,
     fit,
     free_run,
+    save_model,
     select_threshold,
     structure_errors,
     sweep_threshold,
@@ -250,3 +252,19 @@ def test_free_run_of_identified_model(traj) -> None:
     no_current = IdentData(t=test.t, variables={k: v for k, v in test.variables.items() if k != "i_a"})
     with pytest.raises(IdentificationError, match=r"free run needs \['i_a'\]"):
         free_run(m, no_current)
+
+
+def test_model_file_yaml(traj, tmp_path) -> None:
+    data = add_derivatives(data_from_trajectory(traj, RIG), method="finite_difference")
+    train, test = data.split(0.75)
+    m = fit(train, physics_library(), threshold=0.05, method="ensemble", n_models=10, exclude_input_steps=3)
+    path = tmp_path / "model.yaml"
+    save_model(path, m, gear_ratio=RIG.motor.gear_ratio, L_over_J=RIG.pendulum.L_over_J,
+               test_mse=m.test_mse(test, exclude_input_steps=3), provenance={"rig": RIG.name})
+    doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    assert doc["method"] == "ensemble" and doc["threshold"] == 0.05
+    terms = doc["equations"]["theta_dot"]["terms"]
+    assert set(terms) == {"θ̇", "sin(θ)", "ω₁²"} and terms["ω₁²"]["inclusion"] == 1.0 and "std" in terms["ω₁²"]
+    assert doc["derived_parameters"]["K_q"]["unit"] == "N*s^2/rad^2"
+    assert doc["derived_parameters"]["K_q"]["value"] == pytest.approx(1e-4, rel=0.01)
+    assert doc["equations_text"][0].startswith("θ̈ = ") and set(doc["test_mse"]) == set(TRUTH)

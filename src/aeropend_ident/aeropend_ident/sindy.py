@@ -40,10 +40,12 @@ import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pysindy as ps
+import yaml
 from pysindy.utils import AxesArray
 
 from aeropend_ident.libraries import CandidateLibrary, LibraryError, symbol
@@ -868,3 +870,57 @@ def free_run(model: SindyModel, data: IdentData, substeps: int = 2) -> FreeRun:
         ok = np.isfinite(y).all()
         nrmse[s] = float(np.sqrt(np.mean((y - ref) ** 2)) / (np.std(ref) or 1.0)) if ok else float("inf")
     return FreeRun(t=data.t.copy(), states=sim, nrmse=nrmse)
+
+
+# ---------------------------------------------------------------------------------- model file
+def model_to_dict(
+    model: SindyModel, gear_ratio: float | None = None, L_over_J: float | None = None,
+    test_mse: Mapping[str, float] | None = None, free_run_nrmse: Mapping[str, float] | None = None,
+    provenance: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Plain-data description of an identified model (for a YAML model file).
+
+    Contains the method, λ, the readable equations, every non-zero coefficient per equation
+    (with ensemble spread and inclusion probability when available), the derived physical
+    parameters with units, the condition number, fit time and optional test scores.
+    """
+    eqs: dict[str, Any] = {}
+    for i, tg in enumerate(model.targets):
+        terms = {}
+        for j, name in enumerate(model.feature_names):
+            c = float(model.coef[i, j])
+            if c == 0.0:
+                continue
+            entry: dict[str, float] = {"coefficient": c}
+            if model.coef_std is not None:
+                entry["std"] = float(model.coef_std[i, j])
+            if model.inclusion is not None:
+                entry["inclusion"] = float(model.inclusion[i, j])
+            terms[name] = entry
+        eqs[tg] = {"lhs": lhs(tg), "unit": TARGET_INFO.get(tg, ("", ""))[0], "terms": terms}
+    out: dict[str, Any] = {
+        "method": model.method,
+        "threshold": float(model.threshold),
+        "library": list(model.feature_names),
+        "equations_text": model.equations(),
+        "equations": eqs,
+        "derived_parameters": {k: {"value": float(v), "unit": u}
+                               for k, (v, u) in model.derived_parameters(gear_ratio, L_over_J).items()},
+        "condition_number": float(model.condition_number),
+        "fit_time_s": float(model.fit_time),
+    }
+    if model.base is not None:
+        out["base_model"] = _base_name(model.base)
+    if test_mse is not None:
+        out["test_mse"] = {k: float(v) for k, v in test_mse.items()}
+    if free_run_nrmse is not None:
+        out["free_run_nrmse"] = {k: float(v) for k, v in free_run_nrmse.items()}
+    if provenance is not None:
+        out["provenance"] = dict(provenance)
+    return out
+
+
+def save_model(path: str | Path, model: SindyModel, **kw: Any) -> None:
+    """Write :func:`model_to_dict` as a YAML model file (UTF-8, readable symbols kept)."""
+    text = yaml.safe_dump(model_to_dict(model, **kw), sort_keys=False, allow_unicode=True)
+    Path(path).write_text(text, encoding="utf-8")
