@@ -1,0 +1,86 @@
+"""Benchmark of the ``bridge`` node at the firmware rate: frames/s sustained and host CPU.
+
+Runs the pty fake MCU (490.2 frames/s) and the bridge node in a subprocess for ``--seconds``,
+subscribes to ``/aeropend/joint_states`` and reads the bridge's CPU time from /proc.
+
+    python bench/bench_bridge_node.py --seconds 10 [--save]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from sensor_msgs.msg import JointState
+
+from aeropend_bridge.fake_mcu import FakeMcu
+from aeropend_sim.contract import TOPIC_JOINT_STATES
+from aeropend_sim.ros_contract import SAMPLE_QOS
+
+
+def _cpu_s(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def run(seconds: float) -> dict[str, float]:
+    """Measure for ``seconds`` after a 3 s warm-up."""
+    domain = random.randint(101, 200)
+    tmp = Path(tempfile.mkdtemp())
+    mcu = FakeMcu(tmp / "tty").start()
+    exe = shutil.which("bridge", path=str(Path(sys.executable).parent)) or "bridge"
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    proc = subprocess.Popen([exe, "--ros-args", "-p", f"port:={tmp / 'tty'}"], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    node = rclpy.create_node("bench_bridge", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    got: list[int] = [0]
+    node.create_subscription(JointState, TOPIC_JOINT_STATES, lambda m: got.__setitem__(0, got[0] + 1),
+                             SAMPLE_QOS)
+    try:
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.01)
+        n0, c0, t0 = got[0], _cpu_s(proc.pid), time.monotonic()
+        while time.monotonic() < t0 + seconds:
+            ex.spin_once(timeout_sec=0.01)
+        n1, c1, t1 = got[0], _cpu_s(proc.pid), time.monotonic()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        proc.wait(10)
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        mcu.stop()
+    return {"seconds": t1 - t0, "frames_per_s_received": (n1 - n0) / (t1 - t0),
+            "firmware_rate_hz": 16e6 / 64 / 510,
+            "bridge_cpu_percent_of_one_core": 100 * (c1 - c0) / (t1 - t0)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--save", action="store_true", help="write bench/results/bridge_node.json")
+    a = ap.parse_args()
+    res = run(a.seconds)
+    print(json.dumps(res, indent=1))
+    if a.save:
+        (Path(__file__).parent / "results" / "bridge_node.json").write_text(json.dumps(res, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
