@@ -31,7 +31,8 @@ setup(
             'play = aeropend_ident.play_node:main',
             'csv_import = aeropend_ident.csv_import:main',
             'baseline = aeropend_ident.baseline_cli:main',
-            'pipeline = aeropend_ident.pipeline:main'
+            'pipeline = aeropend_ident.pipeline:main',
+            'identify = aeropend_ident.identify:main'
         ],
     },
 )

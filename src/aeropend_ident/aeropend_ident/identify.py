@@ -132,7 +132,7 @@ def identify(bag: Path, out: Path, rig: Rig | None, method: str = "weak", librar
 
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
-        prog="python -m aeropend_ident.identify", description=__doc__.splitlines()[0]
+        prog="identify", description=__doc__.splitlines()[0]
     )
     ap.add_argument("bag", type=Path)
     ap.add_argument("--rig", help="rig name or YAML file (for the duty -> v_a map and K_q)")
