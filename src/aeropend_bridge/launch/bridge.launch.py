@@ -1,0 +1,44 @@
+"""Launch the hardware bridge (``aeropend_bridge`` node, console script ``bridge``).
+
+Examples::
+
+    ros2 launch aeropend_bridge bridge.launch.py port:=/dev/ttyACM0 theta_offset:=3.1416
+    fake_mcu --link /tmp/aeropend_tty &   # no hardware: the pty fake firmware
+    ros2 launch aeropend_bridge bridge.launch.py port:=/tmp/aeropend_tty
+
+Arguments mirror the node parameters (see ``aeropend_bridge.bridge_node``).
+"""
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.substitutions import LaunchConfiguration
+from launch_ros.actions import Node
+
+ARGUMENTS = (
+    ("port", "/dev/ttyACM0", "serial device of the Arduino Mega"),
+    ("rig", "thesis_rig", "rig name or YAML path (ADC LSBs, gear ratio)"),
+    ("theta_offset", "0.0", "angle read with the rod hanging down [rad]"),
+    ("command_timeout", "0.1", "duty 0 at most this long after the last valid command [s]"),
+    ("frame_id", "aeropend", "header.frame_id of the sample messages"),
+)
+
+
+def _bridge(context, *args, **kwargs):
+    value = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
+    params = {
+        "port": value["port"],
+        "rig": value["rig"],
+        "theta_offset": float(value["theta_offset"]),
+        "command_timeout": float(value["command_timeout"]),
+        "frame_id": value["frame_id"],
+    }
+    return [Node(package="aeropend_bridge", executable="bridge", name="aeropend_bridge", output="screen",
+                 parameters=[params])]
+
+
+def generate_launch_description():
+    return LaunchDescription(
+        [DeclareLaunchArgument(name, default_value=default, description=doc)
+         for name, default, doc in ARGUMENTS]
+        + [OpaqueFunction(function=_bridge)]
+    )
