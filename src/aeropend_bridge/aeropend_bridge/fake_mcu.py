@@ -57,11 +57,17 @@ class FakeMcu:
     paused : bool
         Write nothing until :meth:`resume` (so a soak test starts after the reader connected;
         the bridge flushes stale input when it opens the port).
+    plant : aeropend_sim.simulate.PlantStepper, optional
+        Plant in the loop: each period applies the current duty (OCR/255) to the plant and sends
+        its outputs as ADC counts / Timer4 ticks (inverse of ``calibration``).
+    calibration : aeropend_bridge.bridge_core.Calibration, optional
+        Count conversion for ``plant`` (required with it).
     """
 
     def __init__(self, link: str | Path, period_s: float = FIRMWARE_PERIOD_S, corrupt_p: float = 0.0,
                  seed: int = 0, n_frames: int | None = None, clean_tail: int = 5,
-                 paused: bool = False) -> None:
+                 paused: bool = False, plant: object | None = None,
+                 calibration: object | None = None) -> None:
         self.link = Path(link)
         self.period_s = period_s
         self.corrupt_p = corrupt_p
@@ -82,6 +88,11 @@ class FakeMcu:
         self._thread: threading.Thread | None = None
         self._last_cmd = time.monotonic()
         self._wd = True
+        self._applied = 0
+        if plant is not None and calibration is None:
+            raise ValueError("FakeMcu(plant=...) needs calibration= to convert outputs to counts")
+        self.plant = plant
+        self.cal = calibration
         self._go = threading.Event()
         if not paused:
             self._go.set()
@@ -135,7 +146,25 @@ class FakeMcu:
             self._thread.join(2.0)
         self.unplug()
 
+    def _plant_frame(self, k: int) -> SampleFrame:
+        cal, plant = self.cal, self.plant
+        if k > 0:
+            plant.step(self._applied / 255.0)  # type: ignore[union-attr]
+        y = plant.sample()  # type: ignore[union-attr]
+        w = y["omega_prop"]
+        period = round(2 * math.pi / (w * cal.tick_s)) if w > 0.5 else 0  # type: ignore[union-attr]
+        theta = round((y["theta"] + cal.theta_offset) / cal.theta_lsb) % 1024  # type: ignore[union-attr]
+        flags = FLAG_ENABLED | (FLAG_WATCHDOG if self._wd else 0)
+        return SampleFrame(seq=k & 0xFFFF, t_us=round(k * FIRMWARE_PERIOD_S * 1e6) & 0xFFFFFFFF,
+                           i_a=max(-1023, min(1023, round(y["i_a"] / cal.i_a_lsb))),  # type: ignore[union-attr]
+                           v_a=max(-512, min(511, round(y["v_a"] / cal.v_a_lsb))),  # type: ignore[union-attr]
+                           theta=theta, period=min(period, 2**32 - 1), duty=self._applied, flags=flags)
+
     def _frame(self, k: int) -> SampleFrame:
+        if self.plant is not None:
+            frame = self._plant_frame(k)
+            self._applied = self.duty_ocr
+            return frame
         t = k * self.period_s if self.period_s > 0 else k * FIRMWARE_PERIOD_S
         theta = 512 + int(200 * math.sin(2 * math.pi * 0.5 * t))
         flags = FLAG_ENABLED | (FLAG_WATCHDOG if self._wd else 0)
