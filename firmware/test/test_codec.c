@@ -91,9 +91,35 @@ static void fuzz_decoder(unsigned long n)
     printf("fuzz bytes=%lu frames=%lu errors=%lu\n", n, frames, errors);
 }
 
+/* "stream" mode: each stdin line is a hex byte stream; print one line per stream:
+ * the hex payloads of the CRC-valid frames (space separated) then "| <errors>". */
+static int stream_mode(void)
+{
+    static char line[1 << 16];
+    static uint8_t raw[1 << 15];
+    while (fgets(line, sizeof line, stdin)) {
+        line[strcspn(line, "\r\n")] = 0;
+        size_t n = unhex(line[0] ? line : "-", raw, sizeof raw);
+        ap_decoder_t d; ap_decoder_init(&d);
+        int errors = 0;
+        for (size_t i = 0; i < n; i++) {
+            int r = ap_decoder_push(&d, raw[i]);
+            if (r < 0) errors++;
+            else if (r == 1) {
+                for (uint8_t k = 0; k < d.payload_len; k++) printf("%02x", d.payload[k]);
+                putchar(' ');
+            }
+        }
+        printf("| %d\n", errors);
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     char line[4096];
+    if (argc > 1 && strcmp(argv[1], "stream") == 0)
+        return stream_mode();
     int vectors = 0;
     while (fgets(line, sizeof line, stdin)) {
         char kind[16], a[1200], b[1200];
