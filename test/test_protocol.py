@@ -1,7 +1,8 @@
 """Python codec of the serial protocol: golden vectors, round trips, decoder fuzzing.
 
-The random-stream fuzz (1e5 examples) is in ``test_protocol_fuzz.py``; the frames-in-noise
-property here runs ``AEROPEND_FUZZ_EXAMPLES // 20`` examples (default 5000).
+The no-exception fuzz (1e5 hypothesis examples in total) is in ``test_protocol_fuzz.py`` and
+``test_protocol_fuzz_spliced.py``; the frames-in-noise property here runs
+``AEROPEND_FUZZ_EXAMPLES // 20`` examples (default 5000).
 """
 
 from __future__ import annotations
