@@ -40,7 +40,6 @@ off (duty 0 sent) before the port is closed.
 from __future__ import annotations
 
 import math
-import signal
 import sys
 import threading
 import time
@@ -48,11 +47,9 @@ from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
@@ -69,6 +66,7 @@ from aeropend_bridge.bridge_core import (
 from aeropend_bridge.protocol import BAUD, Duty, Rate, SampleFrame, StatusFrame
 from aeropend_bridge.serial_link import SerialLink
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
+from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event
 from aeropend_sim.params import RigFileError, load_rig
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, sample_to_msgs
 
@@ -114,10 +112,7 @@ class BridgeNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        p = {}
-        for name, default, doc in PARAMETERS:
-            desc = ParameterDescriptor(description=doc, dynamic_typing=True)
-            p[name] = self.declare_parameter(name, default, desc).value
+        p = declare_parameter_table(self, PARAMETERS)
         try:
             self._configure(p)
         except (BridgeConfigError, RigFileError) as exc:
@@ -305,14 +300,7 @@ class BridgeNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``bridge``; returns the exit status (2 = bad parameter)."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-
-    def _on_signal(signum: int, frame: Any) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
+    stop = init_with_stop_event(args)
     node: BridgeNode | None = None
     status = 0
     try:

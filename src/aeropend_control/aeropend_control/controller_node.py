@@ -48,17 +48,14 @@ naming the value and exit with status 2. On shutdown the node publishes duty 0.
 from __future__ import annotations
 
 import math
-import signal
 import sys
 import threading
 from typing import Any
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 
@@ -70,6 +67,7 @@ from aeropend_sim.contract import (
     ContractError,
     stamp_to_ns,
 )
+from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, duty_msg
 
 NODE_NAME = "aeropend_controller"
@@ -100,10 +98,7 @@ class ControllerNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        raw = {}
-        for name, default, doc in PARAMETERS:
-            desc = ParameterDescriptor(description=doc, dynamic_typing=True)
-            raw[name] = self.declare_parameter(name, default, desc).value
+        raw = declare_parameter_table(self, PARAMETERS)
         try:
             self.settings = make_settings(**raw)
             self.loop = ControllerLoop(self.settings)
@@ -207,14 +202,7 @@ class ControllerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``controller``; returns the exit status (2 = bad parameter)."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-
-    def _on_signal(signum: int, frame: Any) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
+    stop = init_with_stop_event(args)
     node: ControllerNode | None = None
     status = 0
     try:

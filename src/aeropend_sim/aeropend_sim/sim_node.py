@@ -49,24 +49,22 @@ from __future__ import annotations
 
 import ctypes
 import os
-import signal
 import sys
 import threading
 import time
 from typing import Any
 
 import rclpy
-from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.clock import Clock, ClockType
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_CLOCK, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES, Sample
+from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, sample_to_msgs, to_time
 from aeropend_sim.sim_core import (
     DEFAULT_COMMAND_TIMEOUT_S,
@@ -125,10 +123,7 @@ class SimPlantNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        raw = {}
-        for name, default, doc in PARAMETERS:
-            desc = ParameterDescriptor(description=doc, dynamic_typing=True)
-            raw[name] = self.declare_parameter(name, default, desc).value
+        raw = declare_parameter_table(self, PARAMETERS)
         try:
             self.settings = make_settings(**raw)
         except SimConfigError:
@@ -293,14 +288,7 @@ class SimPlantNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``sim_node``; returns the process exit status (2 = bad parameter)."""
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-
-    def _on_signal(signum: int, frame: Any) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
+    stop = init_with_stop_event(args)
     # Let the sampler thread take the GIL within 0.5 ms of its deadline (default 5 ms).
     sys.setswitchinterval(5e-4)
     node: SimPlantNode | None = None
