@@ -45,10 +45,8 @@ import threading
 import time
 from typing import Any
 
-import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
@@ -66,7 +64,7 @@ from aeropend_bridge.bridge_core import (
 from aeropend_bridge.protocol import BAUD, Duty, Rate, SampleFrame, StatusFrame
 from aeropend_bridge.serial_link import SerialLink
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
-from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event
+from aeropend_sim.node_shell import declare_parameter_table, run_node
 from aeropend_sim.params import RigFileError, load_rig
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, sample_to_msgs
 
@@ -300,29 +298,17 @@ class BridgeNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``bridge``; returns the exit status (2 = bad parameter)."""
-    stop = init_with_stop_event(args)
-    node: BridgeNode | None = None
-    status = 0
-    try:
+
+    def make() -> BridgeNode:
         node = BridgeNode()
         node.start()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=0.05)
-    except BridgeConfigError as exc:
-        rclpy.logging.get_logger(NODE_NAME).error(f"invalid parameter: {exc}")
-        status = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.shutdown_motor()
-            node.get_logger().info("motor off (duty 0 sent), port closed; " + node.summary())
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return status
+        return node
 
+    def cleanup(node: BridgeNode) -> None:
+        node.shutdown_motor()
+        node.get_logger().info("motor off (duty 0 sent), port closed; " + node.summary())
+
+    return run_node(NODE_NAME, args, make, (BridgeConfigError,), cleanup, period=0.05)
 
 if __name__ == "__main__":
     sys.exit(main())

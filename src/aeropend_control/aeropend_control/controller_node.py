@@ -52,9 +52,7 @@ import sys
 import threading
 from typing import Any
 
-import rclpy
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
@@ -67,7 +65,7 @@ from aeropend_sim.contract import (
     ContractError,
     stamp_to_ns,
 )
-from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event
+from aeropend_sim.node_shell import declare_parameter_table, run_node
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, duty_msg
 
 NODE_NAME = "aeropend_controller"
@@ -202,27 +200,8 @@ class ControllerNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``controller``; returns the exit status (2 = bad parameter)."""
-    stop = init_with_stop_event(args)
-    node: ControllerNode | None = None
-    status = 0
-    try:
-        node = ControllerNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while not stop.is_set() and rclpy.ok() and not node.finished.is_set():
-            executor.spin_once(timeout_sec=0.1)
-    except ControllerConfigError as exc:
-        rclpy.logging.get_logger(NODE_NAME).error(f"invalid parameter: {exc}")
-        status = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.shutdown()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return status
-
+    return run_node(NODE_NAME, args, ControllerNode, (ControllerConfigError,), ControllerNode.shutdown,
+                    done=lambda node: node.finished.is_set())
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,20 +1,23 @@
 """Shared rclpy shell pieces of the aeropend nodes (plant, bridge, controller).
 
 Each node declares its parameters from a table of ``(name, default, description)`` and runs its
-own spin loop until SIGINT/SIGTERM; these two helpers keep that identical across nodes.
+own spin loop until SIGINT/SIGTERM; these helpers keep that identical across nodes.
 """
 
 from __future__ import annotations
 
 import signal
 import threading
-from collections.abc import Iterable
-from typing import Any
+from collections.abc import Callable, Iterable
+from typing import Any, TypeVar
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+
+N = TypeVar("N", bound=Node)
 
 
 def declare_parameter_table(node: Node, table: Iterable[tuple[str, Any, str]]) -> dict[str, Any]:
@@ -41,3 +44,63 @@ def init_with_stop_event(args: list[str] | None) -> threading.Event:
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
     return stop
+
+
+def run_node(
+    name: str,
+    args: list[str] | None,
+    make_node: Callable[[], N],
+    config_errors: tuple[type[Exception], ...],
+    cleanup: Callable[[N], None],
+    *,
+    done: Callable[[N], bool] = lambda node: False,
+    exit_status: Callable[[N], int] = lambda node: 0,
+    period: float = 0.1,
+) -> int:
+    """Lifecycle shared by the nodes' ``main``: build, spin until stopped, clean up.
+
+    Parameters
+    ----------
+    name : str
+        Node name, used for the logger of a parameter error (raised before the node exists).
+    args : list of str or None
+        Command-line arguments for ``rclpy.init`` (``--ros-args ...``).
+    make_node : callable
+        Builds (and starts) the node; raises one of ``config_errors`` on a bad parameter.
+    config_errors : tuple of exception types
+        Logged as ``invalid parameter: ...``; the process then exits with status 2.
+    cleanup : callable
+        Run on the node before it is destroyed (motor off, summary logged, ...).
+    done : callable
+        Stops the spin loop when it returns True (besides SIGINT/SIGTERM and rclpy shutdown).
+    exit_status : callable
+        Exit status after a normal stop.
+    period : float
+        Spin timeout [s] between checks of the stop conditions.
+
+    Returns
+    -------
+    int
+        Process exit status: ``exit_status(node)``, or 2 on an invalid parameter.
+    """
+    stop = init_with_stop_event(args)
+    node: N | None = None
+    status = 0
+    try:
+        node = make_node()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.is_set() and rclpy.ok() and not done(node):
+            executor.spin_once(timeout_sec=period)
+        status = exit_status(node)
+    except config_errors as exc:
+        rclpy.logging.get_logger(name).error(f"invalid parameter: {exc}")
+        status = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            cleanup(node)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status

@@ -54,9 +54,7 @@ import threading
 import time
 from typing import Any
 
-import rclpy
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -64,7 +62,7 @@ from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_CLOCK, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES, Sample
-from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event
+from aeropend_sim.node_shell import declare_parameter_table, run_node
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, sample_to_msgs, to_time
 from aeropend_sim.sim_core import (
     DEFAULT_COMMAND_TIMEOUT_S,
@@ -288,33 +286,21 @@ class SimPlantNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``sim_node``; returns the process exit status (2 = bad parameter)."""
-    stop = init_with_stop_event(args)
     # Let the sampler thread take the GIL within 0.5 ms of its deadline (default 5 ms).
     sys.setswitchinterval(5e-4)
-    node: SimPlantNode | None = None
-    status = 0
-    try:
+
+    def make() -> SimPlantNode:
         node = SimPlantNode()
         node.start()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while not stop.is_set() and rclpy.ok() and node.error is None:
-            executor.spin_once(timeout_sec=0.1)
-        if node.error is not None:
-            status = 1
-    except SimConfigError as exc:
-        rclpy.logging.get_logger(NODE_NAME).error(f"invalid parameter: {exc}")
-        status = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.stop()
-            node.get_logger().info(node.summary())
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return status
+        return node
 
+    def cleanup(node: SimPlantNode) -> None:
+        node.stop()
+        node.get_logger().info(node.summary())
+
+    return run_node(NODE_NAME, args, make, (SimConfigError,), cleanup,
+                    done=lambda node: node.error is not None,
+                    exit_status=lambda node: 1 if node.error is not None else 0)
 
 if __name__ == "__main__":
     sys.exit(main())
