@@ -3,8 +3,10 @@
 Compiles ``firmware/test/test_codec.c`` + ``firmware/src/protocol.c`` with the system gcc
 (AddressSanitizer + UBSan when available), feeds it ``firmware/test_vectors.json`` as text
 lines, and checks the Python and C codecs agree byte for byte. The C test also covers the
-Timer4 capture logic (16-bit overflow race, 32-bit wrap, spike rejection, median, stale) and
-runs 1e6 random bytes through the C decoder.
+Timer4 capture logic (16-bit overflow race, 32-bit wrap, spike rejection, median, stale), the
+AS5040 SSI word decoder of the ``ANGLE=ssi`` build (bit order, even parity, OCF/COF/field/LIN
+status; all 65 536 words against a bit-serial reference) and runs 1e6 random bytes through the
+C decoder.
 """
 
 from __future__ import annotations
@@ -38,7 +40,8 @@ def _vector_lines() -> str:
             vals = [x[k] for k in ("seq", "t_us", "i_a", "v_a", "theta", "period", "duty", "flags")]
             lines.append("sample " + " ".join(map(str, vals)) + " " + f["wire"])
         elif f["type"] == "StatusFrame":
-            vals = [x[k] for k in ("rx_frames", "rx_errors", "tx_overflows", "watchdog_trips", "spikes")]
+            vals = [x[k] for k in ("rx_frames", "rx_errors", "tx_overflows", "watchdog_trips", "spikes",
+                                   "angle_errors")]
             lines.append("status " + " ".join(map(str, vals)) + " " + f["wire"])
         else:
             t = CMD_TYPES[f["type"]]

@@ -1,16 +1,32 @@
 /*
  * simavr harness: runs the real aeropend firmware ELF on an emulated ATmega2560 at 16 MHz,
- * exposes USART0 as a pty (simavr's uart_pty part) and drives the ADC inputs.
+ * exposes USART0 as a pty (simavr's uart_pty part), drives the ADC inputs and, from an event
+ * file, the IR propeller sensor on ICP4 and an AS5040 SSI slave on the GPIO pins.
  *
- *   build/harness firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]]
+ *   build/harness firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events.txt]
  *
  * Prints "PTY <slave path>" on stdout once the UART is connected, then runs `cycles` CPU
- * cycles of 1/16 us (0 = until SIGTERM / SIGINT) and prints "CYCLES <n>" on exit. AVcc = 5 V. The firmware idles in SLEEP_MODE_IDLE between interrupts, so simavr's raw sleep
- * callback paces the simulation to wall-clock time (when the host is fast enough).
+ * cycles of 1/16 us (0 = until SIGTERM / SIGINT) and prints "CYCLES <n>" on exit; with an
+ * event file also "T4START <cycle>" (stderr) and "IREDGES <n>" / "SSIREADS <n> <bad>" (stdout)
+ * on exit. AVcc = 5 V. The firmware idles in SLEEP_MODE_IDLE between interrupts, so simavr's
+ * raw sleep callback paces the simulation to wall-clock time (when the host is fast enough).
  *
- * Not emulated here: the IR sensor edges on ICP4 (simavr 1.6 has no input-capture pin
- * stimulus), PWM output waveform checking, the AS5040 and the motor shield. The capture logic
- * is covered by the host unit test firmware/test/test_codec.c.
+ * Event file, one event per line, times in microseconds after the firmware starts Timer4 (its
+ * write of a non-zero clock select to TCCR4B), so Timer4 ticks (4 us) are known exactly:
+ *   ir  <t_us> <level>   set the IR sensor output on ICP4 = PL0 (Mega D49) to 0/1; the pin
+ *                        IRQ drives simavr's Timer4 input-capture unit (TIMER_IRQ_IN_ICP
+ *                        path of avr_timer.c, edge chosen by ICES4)
+ *   ssi <t_us> <word>    from t_us on, the AS5040 shifts out this 16-bit SSI word (D9..D0,
+ *                        OCF, COF, LIN, MagINC, MagDEC, even parity; MSB first), hex or dec
+ * Lines are sorted by time per kind; '#' starts a comment.
+ *
+ * AS5040 SSI slave (datasheet "Synchronous Serial Interface"): CSn = PA0 (D22) and CLK = PA1
+ * (D23) are firmware outputs, DO = PA2 (D24) is driven here. CSn low: DO goes high; the first
+ * falling CLK edge latches the word; each following rising CLK edge shifts out one bit, MSB
+ * first; after 16 bits DO reads 0 (the daisy-chain input DI tied low); CSn high: DO tri-state,
+ * read as 1 (pull-up). Timing limits (t_CLKFE, t_CSn, 1 MHz) are not checked here.
+ *
+ * Not emulated: PWM output waveform checking, the analogue front end, the motor shield.
  */
 #include <signal.h>
 #include <stdio.h>
@@ -19,23 +35,183 @@
 #include <unistd.h>
 
 #include "avr_adc.h"
+#include "avr_ioport.h"
 #include "sim_avr.h"
 #include "sim_elf.h"
+#include "sim_io.h"
 #include "uart_pty.h"
+
+#define TCCR4B_ADDR 0xA1 /* data-space address on the ATmega2560 */
+#define MAX_EVENTS 20000
+
+typedef struct {
+    unsigned long long t_us;
+    unsigned value;
+} event_t;
+
+typedef struct {
+    avr_t *avr;
+    event_t *ir, *ssi;
+    int n_ir, n_ssi, i_ir, i_ssi;
+    avr_cycle_count_t t4_start; /* 0 until Timer4 starts */
+    avr_irq_t *icp, *dout;
+    /* SSI slave state */
+    unsigned cs, clk, latched, bit, word;
+    unsigned reads, bad_reads;
+    unsigned long ir_edges;
+} sim_t;
 
 static volatile sig_atomic_t stop;
 static void on_signal(int sig) { (void)sig; stop = 1; }
 
+static avr_cycle_count_t us_to_cycles(const sim_t *s, unsigned long long us)
+{
+    return s->t4_start + (avr_cycle_count_t)us * (s->avr->frequency / 1000000u);
+}
+
+static void set_dout(sim_t *s, unsigned level)
+{
+    /* An input pin with PORT = 1 (pull-up) is re-raised to 1 by simavr on every PORT write
+     * unless an "external" level is declared: declare the driven level, then raise it. */
+    avr_ioport_external_t ext = {.name = 'A', .mask = 1u << 2, .value = (level ? 1u : 0u) << 2};
+    avr_ioctl(s->avr, AVR_IOCTL_IOPORT_SET_EXTERNAL('A'), &ext);
+    avr_raise_irq(s->dout, level ? 1 : 0);
+}
+
+static avr_cycle_count_t ir_timer(avr_t *avr, avr_cycle_count_t when, void *param)
+{
+    (void)avr; (void)when;
+    sim_t *s = param;
+    while (s->i_ir < s->n_ir && us_to_cycles(s, s->ir[s->i_ir].t_us) <= s->avr->cycle) {
+        unsigned v = s->ir[s->i_ir].value ? 1 : 0;
+        if (v && !s->icp->value)
+            s->ir_edges++;
+        avr_raise_irq(s->icp, v);
+        s->i_ir++;
+    }
+    return s->i_ir < s->n_ir ? us_to_cycles(s, s->ir[s->i_ir].t_us) : 0;
+}
+
+static void on_tccr4b(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    sim_t *s = param;
+    if (s->t4_start || (value & 0x07) == 0)
+        return;
+    s->t4_start = s->avr->cycle;
+    fprintf(stderr, "T4START %llu\n", (unsigned long long)s->t4_start);
+    if (s->n_ir)
+        avr_cycle_timer_register(s->avr, us_to_cycles(s, s->ir[0].t_us) - s->avr->cycle, ir_timer, s);
+}
+
+static unsigned ssi_word_now(sim_t *s)
+{
+    if (!s->t4_start)
+        return 0; /* not started: OCF = 0, the firmware must reject it */
+    while (s->i_ssi + 1 < s->n_ssi && us_to_cycles(s, s->ssi[s->i_ssi + 1].t_us) <= s->avr->cycle)
+        s->i_ssi++;
+    if (s->n_ssi == 0 || us_to_cycles(s, s->ssi[s->i_ssi].t_us) > s->avr->cycle)
+        return 0;
+    return s->ssi[s->i_ssi].value & 0xFFFFu;
+}
+
+static void on_csn(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    sim_t *s = param;
+    value = value ? 1 : 0;
+    if (value == s->cs)
+        return;
+    s->cs = value;
+    s->latched = 0;
+    set_dout(s, 1); /* CSn low: DO driven high; CSn high: tri-state, pulled up */
+}
+
+static void on_clk(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    sim_t *s = param;
+    value = value ? 1 : 0;
+    if (value == s->clk)
+        return;
+    s->clk = value;
+    if (s->cs)
+        return;
+    if (!value && !s->latched) { /* first falling edge: latch */
+        s->latched = 1;
+        s->bit = 0;
+        s->word = ssi_word_now(s);
+        s->reads++;
+        unsigned p = 0;
+        for (unsigned w = s->word; w; w >>= 1)
+            p ^= w & 1u;
+        if (p || !((s->word >> 5) & 1u) || ((s->word >> 4) & 1u))
+            s->bad_reads++;
+    } else if (value && s->latched) { /* rising edge: shift out the next bit */
+        unsigned b = s->bit < 16 ? (s->word >> (15 - s->bit)) & 1u : 0u;
+        s->bit++;
+        set_dout(s, b);
+    }
+}
+
+static int read_events(const char *path, sim_t *s)
+{
+    FILE *f = fopen(path, "r");
+    if (!f) {
+        fprintf(stderr, "cannot open event file %s\n", path);
+        return -1;
+    }
+    s->ir = calloc(MAX_EVENTS, sizeof *s->ir);
+    s->ssi = calloc(MAX_EVENTS, sizeof *s->ssi);
+    char line[256], kind[16];
+    unsigned long long t;
+    char val[32];
+    while (fgets(line, sizeof line, f)) {
+        char *hash = strchr(line, '#');
+        if (hash)
+            *hash = 0;
+        if (sscanf(line, "%15s %llu %31s", kind, &t, val) != 3)
+            continue;
+        unsigned v = (unsigned)strtoul(val, NULL, 0);
+        event_t **arr = strcmp(kind, "ir") == 0 ? &s->ir : strcmp(kind, "ssi") == 0 ? &s->ssi : NULL;
+        int *n = arr == &s->ir ? &s->n_ir : &s->n_ssi;
+        if (!arr || *n >= MAX_EVENTS) {
+            fprintf(stderr, "bad event line: %s", line);
+            fclose(f);
+            return -1;
+        }
+        if (*n && (*arr)[*n - 1].t_us > t) {
+            fprintf(stderr, "events not sorted: %s", line);
+            fclose(f);
+            return -1;
+        }
+        (*arr)[*n].t_us = t;
+        (*arr)[*n].value = v;
+        (*n)++;
+    }
+    fclose(f);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
-    if (argc < 2) {
-        fprintf(stderr, "usage: %s firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]]\n", argv[0]);
+    const char *pos[6] = {0};
+    int npos = 0;
+    const char *events = NULL;
+    for (int i = 1; i < argc; i++) {
+        if (strcmp(argv[i], "-e") == 0 && i + 1 < argc)
+            events = argv[++i];
+        else if (npos < 6)
+            pos[npos++] = argv[i];
+    }
+    if (npos < 1) {
+        fprintf(stderr, "usage: %s firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events]\n", argv[0]);
         return 2;
     }
     elf_firmware_t fw;
     memset(&fw, 0, sizeof fw);
-    if (elf_read_firmware(argv[1], &fw) != 0) {
-        fprintf(stderr, "cannot read firmware %s\n", argv[1]);
+    if (elf_read_firmware(pos[0], &fw) != 0) {
+        fprintf(stderr, "cannot read firmware %s\n", pos[0]);
         return 2;
     }
     avr_t *avr = avr_make_mcu_by_name("atmega2560");
@@ -50,15 +226,28 @@ int main(int argc, char **argv)
     avr_load_firmware(avr, &fw);
     avr->log = LOG_ERROR;
 
+    static sim_t s;
+    s.avr = avr;
+    s.cs = 1;
+    s.clk = 1;
+    if (events && read_events(events, &s) != 0)
+        return 2;
+    s.icp = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('L'), 0);
+    s.dout = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A'), 2);
+    avr_irq_register_notify(avr_iomem_getirq(avr, TCCR4B_ADDR, NULL, AVR_IOMEM_IRQ_ALL), on_tccr4b, &s);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A'), 0), on_csn, &s);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A'), 1), on_clk, &s);
+    set_dout(&s, 1);
+
     uart_pty_t pty;
     memset(&pty, 0, sizeof pty);
     uart_pty_init(avr, &pty);
     uart_pty_connect(&pty, '0');
 
-    unsigned long long max_cycles = argc > 2 ? strtoull(argv[2], NULL, 10) : 0;
+    unsigned long long max_cycles = npos > 1 ? strtoull(pos[1], NULL, 10) : 0;
     int mv[4] = {500, 1000, 2500, 1250};
-    for (int i = 0; i < 4 && 3 + i < argc; i++)
-        mv[i] = atoi(argv[3 + i]);
+    for (int i = 0; i < 4 && 2 + i < npos; i++)
+        mv[i] = atoi(pos[2 + i]);
     for (int i = 0; i < 4; i++)
         avr_raise_irq(avr_io_getirq(avr, AVR_IOCTL_ADC_GETIRQ, ADC_IRQ_ADC0 + i), (uint32_t)mv[i]);
 
@@ -72,6 +261,8 @@ int main(int argc, char **argv)
            (max_cycles == 0 || avr->cycle < max_cycles))
         state = avr_run(avr);
     printf("CYCLES %llu\n", (unsigned long long)avr->cycle);
+    if (events)
+        printf("IREDGES %lu\nSSIREADS %u %u\n", s.ir_edges, s.reads, s.bad_reads);
     fflush(stdout);
     fprintf(stderr, "harness: stopped (cpu state %d, %llu cycles)\n", state,
             (unsigned long long)avr->cycle);

@@ -15,6 +15,11 @@
  *         counter (race-safe, see ap_capture_extend), spike rejection + median of three.
  * USART0  500000 baud 8N1 (U2X0, UBRR0 = 3, 0 % error), RX interrupt into a ring, TX ring
  *         drained by the UDRE interrupt.
+ * Angle   default: AS5040 PWM output -> RC low-pass -> ADC2 (thesis §4.3.2). Build option
+ *         ANGLE=ssi (-DANGLE_SSI): the AS5040's SSI read-out (thesis §4.3.1), bit-banged in the
+ *         TOV1 ISR at the sample instant: CSn = PA0 (D22), CLK = PA1 (D23), DO = PA2 (D24,
+ *         pull-up); 16-bit word checked for parity and status (ap_as5040_decode); no theta ADC
+ *         conversion. The frame layout is the same (flags bit4..6, STATUS angle_errors).
  * Safety  command watchdog: no valid command for 250 ms -> duty 0 (flag bit1) until the next
  *         DUTY command; AVR hardware watchdog (120 ms) resets a hung main loop.
  */
@@ -41,6 +46,22 @@
                                     the new OCR latches at TOP: duty 0 within 250 ms */
 #define STATUS_EVERY 256u
 
+#ifdef ANGLE_SSI
+/* AS5040 SSI pins on PORTA (Mega D22..D24, free of the motor shield). */
+#define SSI_CSN PA0
+#define SSI_CLK PA1
+#define SSI_DO PA2
+#ifndef SSI_CLOCKS
+#define SSI_CLOCKS 16 /* rising CLK edges per read-out; 16..22 (the thesis clocked 22) */
+#endif
+#if SSI_CLOCKS < 16 || SSI_CLOCKS > 22
+#error "SSI_CLOCKS must be 16..22 (the AS5040 word has 16 bits)"
+#endif
+/* Half clock period: 10 cycles = 625 ns >= the AS5040's 500 ns (CLK <= 1 MHz); also covers
+ * t_CLKFE (CSn low to first CLK falling edge, 500 ns) and t_DO valid (375 ns). */
+#define SSI_HALF_CYCLES 10
+#endif
+
 /* ------------------------------------------------------------------ UART rings */
 #define TX_SIZE 256u /* power of two */
 #define RX_SIZE 64u
@@ -66,6 +87,33 @@ static ap_sample_t cur;                 /* sample being built by the ADC chain *
 static ap_sample_t done;                /* last complete sample, handed to the main loop */
 static volatile uint8_t sample_ready;
 static uint8_t status_cnt;
+#ifdef ANGLE_SSI
+static uint16_t ssi_theta;              /* last valid raw angle [counts] */
+static volatile uint16_t angle_errors;  /* rejected read-outs (wrapping) */
+
+/* Read one 16-bit word from the AS5040 (ISR context, ~25 us at 16 MHz). Idle: CSn high,
+ * CLK high. CSn low; the first falling CLK edge latches the angle; each rising edge shifts
+ * out one bit (MSB first), read before the next falling edge; SSI_CLOCKS - 16 extra clocks
+ * (thesis: 22 in all) shift out the daisy-chain input and are ignored; then CSn high. */
+static uint16_t ssi_read(void)
+{
+    uint16_t w = 0;
+    PORTA &= (uint8_t)~(1 << SSI_CSN);
+    __builtin_avr_delay_cycles(SSI_HALF_CYCLES);
+    PORTA &= (uint8_t)~(1 << SSI_CLK);
+    for (uint8_t i = 0; i < SSI_CLOCKS; i++) {
+        __builtin_avr_delay_cycles(SSI_HALF_CYCLES);
+        PORTA |= (1 << SSI_CLK);
+        __builtin_avr_delay_cycles(SSI_HALF_CYCLES);
+        if (i < 16)
+            w = (uint16_t)((w << 1) | ((PINA >> SSI_DO) & 1u));
+        if (i + 1 < SSI_CLOCKS)
+            PORTA &= (uint8_t)~(1 << SSI_CLK);
+    }
+    PORTA |= (1 << SSI_CSN); /* CLK is high again: idle; next read >= t_CSn (500 ns) later */
+    return w;
+}
+#endif
 
 static void tx_push_frame(const uint8_t *wire, uint8_t n, uint8_t is_sample)
 {
@@ -157,6 +205,21 @@ ISR(TIMER1_OVF_vect)
                           (speed.spike ? AP_FLAG_SPIKE : 0) | (stale ? AP_FLAG_SPEED_STALE : 0));
     adc_step = 1;
     adc_start(REF_AVCC, I_A_CHANNEL);
+#ifdef ANGLE_SSI
+    /* Read while the i_a conversion runs (104 us): the angle at the sample instant. */
+    uint16_t angle;
+    uint8_t st = ap_as5040_decode(ssi_read(), &angle);
+    if (st & AP_SSI_INVALID) {
+        angle_errors++;
+        cur.flags |= AP_FLAG_ANGLE_INVALID; /* theta repeats the last valid angle */
+    } else {
+        ssi_theta = angle;
+    }
+    if (st & AP_SSI_W_LIN)
+        cur.flags |= AP_FLAG_ANGLE_LIN;
+    cur.flags |= AP_FLAG_ANGLE_SSI;
+    cur.theta = (uint16_t)(((int16_t)ssi_theta - theta_offset) & 0x3FF);
+#endif
 }
 
 ISR(ADC_vect)
@@ -165,8 +228,13 @@ ISR(ADC_vect)
     switch (adc_step) {
     case 1:
         cur.i_a = (int16_t)((int16_t)raw - i_a_offset);
+#ifdef ANGLE_SSI
+        adc_step = 3; /* theta came over SSI: go straight to v_a */
+        adc_start(REF_2V56, MUX_V_A);
+#else
         adc_step = 2;
         adc_start(REF_AVCC, THETA_CHANNEL);
+#endif
         break;
     case 2:
         cur.theta = (uint16_t)(((int16_t)raw - theta_offset) & 0x3FF);
@@ -229,6 +297,12 @@ static void hw_init(void)
     TCCR1B = (1 << CS11) | (1 << CS10);     /* prescaler 64 */
 #endif
     TIMSK1 = (1 << TOIE1);
+#ifdef ANGLE_SSI
+    /* AS5040 SSI: CSn, CLK outputs idling high; DO input with pull-up (defined level when the
+     * sensor is absent: an all-ones word has COF = 1 and is rejected). */
+    PORTA |= (1 << SSI_CSN) | (1 << SSI_CLK) | (1 << SSI_DO);
+    DDRA |= (1 << SSI_CSN) | (1 << SSI_CLK);
+#endif
     /* ADC: enabled, interrupt, prescaler 128; digital input buffers off on A0-A3. */
     DIDR0 = 0x0F;
     ADCSRA = (1 << ADEN) | (1 << ADIE) | (1 << ADPS2) | (1 << ADPS1) | (1 << ADPS0);
@@ -303,6 +377,11 @@ int main(void)
                     st.rx_frames = rx_frames; st.rx_errors = rx_errors;
                     st.tx_overflows = tx_overflows; st.watchdog_trips = wd_trips;
                     st.spikes = speed.spikes;
+#ifdef ANGLE_SSI
+                    st.angle_errors = angle_errors;
+#else
+                    st.angle_errors = 0;
+#endif
                 }
                 ap_status_pack(&st, payload);
                 uint8_t n = (uint8_t)ap_frame_encode(payload, AP_STATUS_LEN, wire);

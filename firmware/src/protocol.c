@@ -100,7 +100,7 @@ void ap_status_pack(const ap_status_t *s, uint8_t out[AP_STATUS_LEN])
     put16(out + 5, s->tx_overflows);
     put16(out + 7, s->watchdog_trips);
     put16(out + 9, s->spikes);
-    put16(out + 11, 0);
+    put16(out + 11, s->angle_errors);
 }
 
 int ap_command_parse(const uint8_t *p, size_t n, ap_command_t *cmd)
@@ -251,4 +251,23 @@ uint32_t ap_speed_period(const ap_speed_t *s, uint32_t now, uint8_t *stale)
     if (a > b) { uint32_t t = a; a = b; b = t; }
     if (b > c) { b = c; }
     return a > b ? a : b; /* median of three */
+}
+
+uint8_t ap_as5040_decode(uint16_t word, uint16_t *angle)
+{
+    uint8_t r = 0, ones = 0;
+    for (uint16_t w = word; w; w &= (uint16_t)(w - 1u))
+        ones++;
+    if (ones & 1u)
+        r |= AP_SSI_E_PARITY;
+    if (!(word & (1u << 5)))
+        r |= AP_SSI_E_OCF;
+    if (word & (1u << 4))
+        r |= AP_SSI_E_COF;
+    if ((word & 0x06u) == 0x06u)
+        r |= AP_SSI_E_FIELD;
+    if (word & (1u << 3))
+        r |= AP_SSI_W_LIN;
+    *angle = (uint16_t)(word >> 6);
+    return r;
 }

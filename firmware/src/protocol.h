@@ -33,6 +33,9 @@
 #define AP_FLAG_WATCHDOG 0x02u
 #define AP_FLAG_SPIKE 0x04u
 #define AP_FLAG_SPEED_STALE 0x08u
+#define AP_FLAG_ANGLE_INVALID 0x10u  /* SSI build: read-out rejected, theta repeats the last valid angle */
+#define AP_FLAG_ANGLE_LIN 0x20u      /* SSI build: AS5040 linearity alarm (angle used, may be inaccurate) */
+#define AP_FLAG_ANGLE_SSI 0x40u      /* theta comes from the AS5040 SSI read-out (else RC-filtered PWM) */
 
 typedef struct {
     uint16_t seq;
@@ -47,6 +50,7 @@ typedef struct {
 
 typedef struct {
     uint16_t rx_frames, rx_errors, tx_overflows, watchdog_trips, spikes;
+    uint16_t angle_errors; /* rejected AS5040 SSI read-outs (0 in the PWM-interface build) */
 } ap_status_t;
 
 typedef struct {
@@ -119,5 +123,20 @@ void ap_speed_edge(ap_speed_t *s, uint32_t t);
 /* Period to report at time now: median of the last three accepted periods, 0 if fewer than
  * one period is known or no edge for AP_CAP_STALE_TICKS (sets *stale). */
 uint32_t ap_speed_period(const ap_speed_t *s, uint32_t now, uint8_t *stale);
+
+/* ------------------------------------------------------------------ AS5040 SSI word
+ * 16-bit word as clocked out by the AS5040 (MSB first): bits 15..6 = angle D9..D0, bit 5 OCF
+ * (offset compensation finished), bit 4 COF (CORDIC overflow), bit 3 LIN (linearity alarm),
+ * bit 2 MagINC, bit 1 MagDEC, bit 0 even parity over bits 15..1 (AS5040 datasheet, SSI). */
+#define AP_SSI_E_PARITY 0x01u  /* odd number of ones in the 16-bit word */
+#define AP_SSI_E_OCF 0x02u     /* OCF = 0: start-up offset compensation not finished */
+#define AP_SSI_E_COF 0x04u     /* COF = 1: CORDIC overflow, D9..D0 invalid */
+#define AP_SSI_E_FIELD 0x08u   /* MagINC = MagDEC = 1: magnetic field out of range */
+#define AP_SSI_W_LIN 0x10u     /* LIN = 1: linearity alarm (warning only) */
+#define AP_SSI_INVALID (AP_SSI_E_PARITY | AP_SSI_E_OCF | AP_SSI_E_COF | AP_SSI_E_FIELD)
+
+/* Check an SSI word; *angle gets D9..D0 (0..1023, 1024 counts per revolution). Returns a mask
+ * of AP_SSI_* bits: 0 = valid; any AP_SSI_INVALID bit = reject the angle. */
+uint8_t ap_as5040_decode(uint16_t word, uint16_t *angle);
 
 #endif

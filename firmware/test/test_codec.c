@@ -5,7 +5,7 @@
  *   crc <hex|-> <crc>
  *   cobs <raw hex|-> <encoded hex>
  *   sample <seq> <t_us> <i_a> <v_a> <theta> <period> <duty> <flags> <wire hex>
- *   status <rx_frames> <rx_errors> <tx_overflows> <watchdog_trips> <spikes> <wire hex>
+ *   status <rx_frames> <rx_errors> <tx_overflows> <watchdog_trips> <spikes> <angle_errors> <wire hex>
  *   cmd <type> <value> <item> <offset> <wire hex>
  *   invalid <wire hex> <error code>
  * Prints "ok <n>" and exits 0 when every check passes.
@@ -73,6 +73,56 @@ static void test_capture(void)
           (unsigned long)ap_speed_period(&s, t, &stale));
     /* Stale after 1 s without edges. */
     CHECK(ap_speed_period(&s, t + AP_CAP_STALE_TICKS, &stale) == 0 && stale, "stale after 1 s");
+}
+
+/* AS5040 SSI word as the sensor builds it: angle D9..D0, status bits, then the even-parity bit
+ * over the 15 bits before it; bits are assembled one at a time, MSB first, as they arrive. */
+static uint16_t as5040_word(uint16_t angle, int ocf, int cof, int lin, int inc, int dec, int flip_parity)
+{
+    int bits[16], ones = 0;
+    for (int i = 0; i < 10; i++) bits[i] = (angle >> (9 - i)) & 1;
+    bits[10] = ocf; bits[11] = cof; bits[12] = lin; bits[13] = inc; bits[14] = dec;
+    for (int i = 0; i < 15; i++) ones += bits[i];
+    bits[15] = (ones & 1) ^ (flip_parity ? 1 : 0);
+    uint16_t w = 0;
+    for (int i = 0; i < 16; i++) w = (uint16_t)((w << 1) | (uint16_t)bits[i]);
+    return w;
+}
+
+static void test_as5040(void)
+{
+    uint16_t angle;
+    /* Bit order: D9 is the first bit on the wire = bit 15 of the word. */
+    CHECK(as5040_word(512, 1, 0, 0, 0, 0, 0) == 0x8020, "D9 first: got 0x%04x", as5040_word(512, 1, 0, 0, 0, 0, 0));
+    CHECK(ap_as5040_decode(0x8020, &angle) == 0 && angle == 512, "angle 512 from 0x8020 (got %u)", angle);
+    CHECK(ap_as5040_decode(0x0060, &angle) == 0 && angle == 1, "angle 1 (D0) from 0x0060");
+    CHECK(ap_as5040_decode(0xFFE1, &angle) == 0 && angle == 1023, "angle 1023 from 0xFFE1");
+    /* Stuck lines: DO high (pull-up, sensor absent) -> COF + field; DO low -> OCF = 0. */
+    CHECK(ap_as5040_decode(0xFFFF, &angle) == (AP_SSI_E_COF | AP_SSI_E_FIELD | AP_SSI_W_LIN), "all ones");
+    CHECK(ap_as5040_decode(0x0000, &angle) == AP_SSI_E_OCF, "all zeros");
+    /* Every angle with every status combination, correct and flipped parity. */
+    unsigned n = 0, bad = 0;
+    for (uint16_t a = 0; a < 1024; a++) {
+        for (int st = 0; st < 32; st++) {
+            int ocf = st & 1, cof = (st >> 1) & 1, lin = (st >> 2) & 1, inc = (st >> 3) & 1, dec = (st >> 4) & 1;
+            for (int flip = 0; flip < 2; flip++) {
+                uint8_t want = (uint8_t)((flip ? AP_SSI_E_PARITY : 0) | (ocf ? 0 : AP_SSI_E_OCF) |
+                                         (cof ? AP_SSI_E_COF : 0) | (inc && dec ? AP_SSI_E_FIELD : 0) |
+                                         (lin ? AP_SSI_W_LIN : 0));
+                uint8_t got = ap_as5040_decode(as5040_word(a, ocf, cof, lin, inc, dec, flip), &angle);
+                n++;
+                if (got != want || angle != a) bad++;
+            }
+        }
+    }
+    CHECK(bad == 0 && n == 65536u, "exhaustive AS5040 words: %u of %u wrong", bad, n);
+    /* Any single corrupted bit of a valid word is caught by the parity check. */
+    uint16_t ok = as5040_word(300, 1, 0, 0, 0, 0, 0);
+    for (int b = 0; b < 16; b++)
+        CHECK(ap_as5040_decode((uint16_t)(ok ^ (1u << b)), &angle) & AP_SSI_E_PARITY, "bit %d flip", b);
+    /* Valid iff no AP_SSI_INVALID bit: LIN alone is only a warning. */
+    CHECK(!(ap_as5040_decode(as5040_word(7, 1, 0, 1, 0, 0, 0), &angle) & AP_SSI_INVALID) && angle == 7,
+          "LIN is a warning");
 }
 
 static void fuzz_decoder(unsigned long n)
@@ -146,9 +196,10 @@ int main(int argc, char **argv)
             ap_sample_pack(&s, payload);
             check_wire("sample", payload, AP_SAMPLE_LEN, a);
         } else if (!strcmp(kind, "status")) {
-            long f[5];
-            sscanf(line, "%*s %ld %ld %ld %ld %ld %1199s", &f[0], &f[1], &f[2], &f[3], &f[4], a);
-            ap_status_t s = {(uint16_t)f[0], (uint16_t)f[1], (uint16_t)f[2], (uint16_t)f[3], (uint16_t)f[4]};
+            long f[6];
+            sscanf(line, "%*s %ld %ld %ld %ld %ld %ld %1199s", &f[0], &f[1], &f[2], &f[3], &f[4], &f[5], a);
+            ap_status_t s = {(uint16_t)f[0], (uint16_t)f[1], (uint16_t)f[2], (uint16_t)f[3], (uint16_t)f[4],
+                             (uint16_t)f[5]};
             ap_status_pack(&s, payload);
             check_wire("status", payload, AP_STATUS_LEN, a);
         } else if (!strcmp(kind, "cmd")) {
@@ -183,6 +234,7 @@ int main(int argc, char **argv)
     CHECK(ap_command_parse(cal9, 4, &c) == AP_E_VALUE, "calibration item 9 rejected");
     CHECK(ap_command_parse(duty2, 2, &c) == AP_E_LENGTH, "short duty rejected");
     test_capture();
+    test_as5040();
     fuzz_decoder(argc > 1 ? strtoul(argv[1], NULL, 10) : 1000000ul);
     if (vectors == 0) { fprintf(stderr, "no vectors on stdin\n"); return 2; }
     printf("vectors %d checks %d failures %d\n", vectors, checks, failures);

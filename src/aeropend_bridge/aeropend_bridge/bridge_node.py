@@ -223,7 +223,7 @@ class BridgeNode(Node):
                 self.stats.mcu_status = {
                     "rx_frames": frame.rx_frames, "rx_errors": frame.rx_errors,
                     "tx_overflows": frame.tx_overflows, "watchdog_trips": frame.watchdog_trips,
-                    "speed_spikes": frame.spikes,
+                    "speed_spikes": frame.spikes, "angle_errors": frame.angle_errors,
                 }
 
     # ------------------------------------------------------------------ commands

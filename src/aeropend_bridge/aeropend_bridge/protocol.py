@@ -48,6 +48,13 @@ FLAG_ENABLED = 0x01
 FLAG_WATCHDOG = 0x02
 FLAG_SPIKE = 0x04
 FLAG_SPEED_STALE = 0x08
+#: SSI build: the AS5040 read-out was rejected (parity, OCF, COF or field range); θ repeats the
+#: last valid angle.
+FLAG_ANGLE_INVALID = 0x10
+#: SSI build: AS5040 linearity alarm (θ used, may be inaccurate).
+FLAG_ANGLE_LIN = 0x20
+#: θ comes from the AS5040 SSI read-out (firmware built with ``ANGLE=ssi``), else PWM -> RC -> ADC.
+FLAG_ANGLE_SSI = 0x40
 
 
 class ProtocolError(ValueError):
@@ -147,7 +154,7 @@ def encode_frame(payload: bytes) -> bytes:
 
 # --------------------------------------------------------------------------- frame types
 _SAMPLE = struct.Struct("<BHIHhHIBB")  # type seq t_us i_a v_a theta period duty flags
-_STATUS = struct.Struct("<BHHHHHH")    # type rx_frames rx_errors tx_overflows wd_trips spikes reserved
+_STATUS = struct.Struct("<BHHHHHH")    # type rx_frames rx_errors tx_overflows wd_trips spikes angle_errors
 
 
 @dataclass(frozen=True)
@@ -167,13 +174,15 @@ class SampleFrame:
         Armature-voltage ADC counts, differential A3−A1, 2.56 V reference, signed 10-bit
         (-512..511).
     theta : int
-        Angle ADC counts (AS5040 PWM -> RC -> ADC, 0..1023 ↔ 0..360°, offset-corrected mod 1024).
+        Angle counts, 0..1023 ↔ 0..360°, offset-corrected mod 1024: AS5040 PWM -> RC -> ADC, or
+        the AS5040 SSI word's D9..D0 in the ``ANGLE=ssi`` build (flag bit 6).
     period : int
         Propeller period in Timer4 ticks (4 µs), uint32; 0 = no valid edge pair recently.
     duty : int
         Applied OCR1 value 0..255 over the interval ending at this sample (τ = duty/255).
     flags : int
-        Bit 0 enabled, bit 1 watchdog tripped, bit 2 spike rejected, bit 3 speed stale.
+        Bit 0 enabled, bit 1 watchdog tripped, bit 2 spike rejected, bit 3 speed stale,
+        bit 4 angle read-out invalid, bit 5 AS5040 linearity alarm, bit 6 angle from SSI.
     """
 
     seq: int
@@ -196,18 +205,23 @@ class SampleFrame:
 
 @dataclass(frozen=True)
 class StatusFrame:
-    """MCU -> host: firmware counters, sent every 256 samples (all uint16, wrapping)."""
+    """MCU -> host: firmware counters, sent every 256 samples (all uint16, wrapping).
+
+    ``angle_errors`` counts rejected AS5040 SSI read-outs (``ANGLE=ssi`` build; always 0 in
+    the PWM-interface build, where the field was reserved).
+    """
 
     rx_frames: int
     rx_errors: int
     tx_overflows: int
     watchdog_trips: int
     spikes: int
+    angle_errors: int = 0
 
     def payload(self) -> bytes:
         """Unstuffed payload (without CRC)."""
         return _STATUS.pack(T_STATUS, self.rx_frames, self.rx_errors, self.tx_overflows,
-                            self.watchdog_trips, self.spikes, 0)
+                            self.watchdog_trips, self.spikes, self.angle_errors)
 
 
 @dataclass(frozen=True)
@@ -303,7 +317,7 @@ def parse_payload(payload: bytes) -> Frame:
         return SampleFrame(seq, t_us, i_a, v_a, theta, period, duty, flags)
     if t == T_STATUS:
         need(_STATUS.size, "status")
-        return StatusFrame(*_STATUS.unpack(payload)[1:6])
+        return StatusFrame(*_STATUS.unpack(payload)[1:])
     if t == T_DUTY:
         need(3, "duty")
         return Duty(struct.unpack_from("<H", payload, 1)[0])
