@@ -11,8 +11,9 @@
  * on exit. AVcc = 5 V. The firmware idles in SLEEP_MODE_IDLE between interrupts, so simavr's
  * raw sleep callback paces the simulation to wall-clock time (when the host is fast enough).
  *
- * Event file, one event per line, times in microseconds after the firmware starts Timer4 (its
- * write of a non-zero clock select to TCCR4B), so Timer4 ticks (4 us) are known exactly:
+ * Event file, one event per line, times in microseconds (fractions allowed, 1/16 us = one CPU
+ * cycle) after the firmware starts Timer4 (its write of a non-zero clock select to TCCR4B), so
+ * the Timer4 tick (4 us) and overflow (65536 ticks = 262144 us) instants are known exactly:
  *   ir  <t_us> <level>   set the IR sensor output on ICP4 = PL0 (Mega D49) to 0/1; the pin
  *                        IRQ drives simavr's Timer4 input-capture unit (TIMER_IRQ_IN_ICP
  *                        path of avr_timer.c, edge chosen by ICES4)
@@ -45,7 +46,7 @@
 #define MAX_EVENTS 20000
 
 typedef struct {
-    unsigned long long t_us;
+    double t_us; /* fractional: 1/16 us = one CPU cycle */
     unsigned value;
 } event_t;
 
@@ -64,9 +65,9 @@ typedef struct {
 static volatile sig_atomic_t stop;
 static void on_signal(int sig) { (void)sig; stop = 1; }
 
-static avr_cycle_count_t us_to_cycles(const sim_t *s, unsigned long long us)
+static avr_cycle_count_t us_to_cycles(const sim_t *s, double us)
 {
-    return s->t4_start + (avr_cycle_count_t)us * (s->avr->frequency / 1000000u);
+    return s->t4_start + (avr_cycle_count_t)(us * (s->avr->frequency / 1e6) + 0.5);
 }
 
 static void set_dout(sim_t *s, unsigned level)
@@ -100,8 +101,10 @@ static void on_tccr4b(struct avr_irq_t *irq, uint32_t value, void *param)
         return;
     s->t4_start = s->avr->cycle;
     fprintf(stderr, "T4START %llu\n", (unsigned long long)s->t4_start);
-    if (s->n_ir)
-        avr_cycle_timer_register(s->avr, us_to_cycles(s, s->ir[0].t_us) - s->avr->cycle, ir_timer, s);
+    if (s->n_ir) {
+        avr_cycle_count_t first = us_to_cycles(s, s->ir[0].t_us);
+        avr_cycle_timer_register(s->avr, first > s->avr->cycle ? first - s->avr->cycle : 1, ir_timer, s);
+    }
 }
 
 static unsigned ssi_word_now(sim_t *s)
@@ -145,8 +148,8 @@ static void on_clk(struct avr_irq_t *irq, uint32_t value, void *param)
         unsigned p = 0;
         for (unsigned w = s->word; w; w >>= 1)
             p ^= w & 1u;
-        if (p || !((s->word >> 5) & 1u) || ((s->word >> 4) & 1u))
-            s->bad_reads++;
+        if (p || !((s->word >> 5) & 1u) || ((s->word >> 4) & 1u) || (s->word & 6u) == 6u)
+            s->bad_reads++; /* parity, OCF = 0, COF = 1, MagINC = MagDEC = 1 */
     } else if (value && s->latched) { /* rising edge: shift out the next bit */
         unsigned b = s->bit < 16 ? (s->word >> (15 - s->bit)) & 1u : 0u;
         s->bit++;
@@ -164,14 +167,19 @@ static int read_events(const char *path, sim_t *s)
     s->ir = calloc(MAX_EVENTS, sizeof *s->ir);
     s->ssi = calloc(MAX_EVENTS, sizeof *s->ssi);
     char line[256], kind[16];
-    unsigned long long t;
+    double t;
     char val[32];
     while (fgets(line, sizeof line, f)) {
         char *hash = strchr(line, '#');
         if (hash)
             *hash = 0;
-        if (sscanf(line, "%15s %llu %31s", kind, &t, val) != 3)
+        if (sscanf(line, "%15s %lf %31s", kind, &t, val) != 3)
             continue;
+        if (t < 0) {
+            fprintf(stderr, "negative event time: %s", line);
+            fclose(f);
+            return -1;
+        }
         unsigned v = (unsigned)strtoul(val, NULL, 0);
         event_t **arr = strcmp(kind, "ir") == 0 ? &s->ir : strcmp(kind, "ssi") == 0 ? &s->ssi : NULL;
         int *n = arr == &s->ir ? &s->n_ir : &s->n_ssi;
