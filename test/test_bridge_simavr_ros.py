@@ -3,7 +3,9 @@
 Same emulator build and harness as ``test_firmware_simavr.py``; here the ROS node reads it:
 contract topics with SI values from the rig's LSBs, stamps 2.040 ms apart (490.2 Hz ± 1 %),
 no sequence gaps (diagnostics), duty commands reach the firmware and come back as the applied
-duty, and the bridge's watchdog zeroes the duty when the controller falls silent.
+duty, the bridge's watchdog zeroes the duty when the controller falls silent, and a 50 ms IR
+pulse train on ICP4 (driven by the harness) arrives as ω₂ = 2π/0.05 s rad/s and
+ω₁ = gear ratio · ω₂ on ``joint_states``.
 """
 
 from __future__ import annotations
@@ -54,8 +56,13 @@ def test_bridge_node_on_emulated_firmware(tmp_path: Path) -> None:
         r = subprocess.run(["make", "-C", str(FW), f"BUILD={tmp_path}", target, *extra], capture_output=True,
                            text=True, timeout=120)
         assert r.returncode == 0, r.stdout + r.stderr
+    ir_period_us = 50_000  # = 12500 Timer4 ticks; 2 ms pulses for 60 s of MCU time
+    events = tmp_path / "ir.txt"
+    edges = range(10_000, 60_000_000, ir_period_us)
+    events.write_text("".join(f"ir {t} 1\nir {t + 2000} 0\n" for t in edges))
     sim = subprocess.Popen([str(tmp_path / "harness"), str(tmp_path / "aeropend.elf"), "0", "500", "1000",
-                            "2500", "1500"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            "2500", "1500", "-e", str(events)], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
     domain = random.randint(101, 200)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                PYTHONUNBUFFERED="1")
@@ -110,6 +117,9 @@ def test_bridge_node_on_emulated_firmware(tmp_path: Path) -> None:
         m = js[-1]
         assert m.position[0] == pytest.approx(
             math.remainder(512 * rig.sensors.theta_quantum, 2 * math.pi), abs=2 * rig.sensors.theta_quantum)
+        omega2 = 2 * math.pi / (ir_period_us * 1e-6)
+        assert m.velocity[2] == pytest.approx(omega2, rel=1e-9)
+        assert m.velocity[1] == pytest.approx(rig.motor.gear_ratio * omega2, rel=1e-9)
         spin(0.6)
         last = {kv.key: kv.value for kv in diag[-1].status[0].values}
         print(f"diagnostics: {last}")

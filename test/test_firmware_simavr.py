@@ -7,9 +7,10 @@ UART as a pty, ADC inputs driven in mV), runs 3 s of MCU time and checks: decode
 the sample rate in emulated time (490.2 Hz ± 1 %), no sequence gaps, commands (duty) applied,
 the 250 ms firmware watchdog, and firmware counters (no RX errors).
 
-Not emulated (simavr 1.6): Timer1 phase-correct PWM, the IR edges on ICP4 (no input-capture
-stimulus in the harness: speed stays "stale", period 0), the analogue front end. The capture
-logic is covered by ``firmware/test/test_codec.c`` (test_firmware_codec.py).
+Not emulated (simavr 1.6): Timer1 phase-correct PWM, the analogue front end. No IR edges are
+driven in this run (speed stays "stale", period 0); the IR capture path and the AS5040 SSI
+read-out run on simavr in ``test_firmware_simavr_io.py`` (the harness drives ICP4 and the SSI
+pins), and the capture logic's corner cases also in ``firmware/test/test_codec.c``.
 """
 
 from __future__ import annotations
