@@ -23,16 +23,34 @@ if [ ! -x "$VENV/bin/python" ]; then
     fi
   fi
 fi
-# AVR toolchain + simavr for the firmware build and the emulated-MCU tests (issue 7):
-# installed only when missing, only as root with apt-get (else those tests skip with a reason).
-if ! command -v avr-gcc >/dev/null || ! command -v avr-size >/dev/null \
-    || [ ! -f /usr/lib/avr/include/avr/io.h ] || [ ! -f /usr/include/simavr/sim_avr.h ]; then
-  if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
-    apt-get update -qq >/dev/null
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq gcc-avr avr-libc simavr libsimavr-dev \
-      libsimavrparts1 >/dev/null
-  else
-    echo "note: gcc-avr/avr-libc/simavr missing and not root: firmware tests will skip" >&2
+# AVR toolchain + simavr for the firmware build and the emulated-MCU tests (issue 7). Debian /
+# Ubuntu packages: gcc-avr (avr-gcc; pulls binutils-avr: avr-size/avr-nm/avr-objcopy), avr-libc,
+# simavr, libsimavr-dev (headers + libsimavr/libsimavrparts; pulls libsimavr2, libsimavrparts1,
+# libelf1) and, for the harness and the host-compiled C unit tests, gcc, make, libc6-dev.
+# Only the packages not yet installed are installed, as root or through passwordless sudo;
+# otherwise the firmware tests skip with a reason. AEROPEND_SKIP_APT=1 skips this block.
+AVR_PKGS="gcc-avr binutils-avr avr-libc simavr libsimavr-dev libsimavrparts1 gcc make libc6-dev"
+if [ "${AEROPEND_SKIP_APT:-0}" != 1 ] && command -v dpkg-query >/dev/null; then
+  missing=""
+  for pkg in $AVR_PKGS; do
+    status="$(dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null || true)"
+    [ "$status" = "install ok installed" ] || missing="$missing $pkg"
+  done
+  if [ -n "$missing" ]; then
+    if [ "$(id -u)" = 0 ]; then SUDO=""
+    elif command -v sudo >/dev/null && sudo -n true 2>/dev/null; then SUDO="sudo -n"
+    else SUDO="none"
+    fi
+    if [ "$SUDO" != none ] && command -v apt-get >/dev/null; then
+      echo "installing:$missing" >&2
+      $SUDO env DEBIAN_FRONTEND=noninteractive apt-get update -qq >/dev/null \
+        && $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+          $missing >/dev/null \
+        || echo "note: apt-get could not install$missing: firmware tests will skip" >&2
+    else
+      echo "note: missing$missing and neither root nor passwordless sudo: firmware tests will skip" \
+        "(sudo apt-get install$missing)" >&2
+    fi
   fi
 fi
 stamp="$VENV/.aeropend-installed"
