@@ -47,8 +47,9 @@ recording (all on the recording's uniform grid, :func:`aeropend_ident.greybox.un
 A gap is **significant** when the free-run residual is not white (Ljung-Box p < :data:`ALPHA`)
 and its RMS exceeds both 3× the measurement noise (:func:`aeropend_ident.greybox.noise_level`)
 and :data:`MIN_NRMSE` of the measured range. An equation is flagged when its relative residual
-exceeds :data:`MIN_RELATIVE` and 1.5× its method floor (the same equation error on the nominal
-model's own simulation of the input) plus 3× its measurement-noise floor.
+exceeds :data:`MIN_RELATIVE`, its RMS exceeds the measurement-noise floor by three standard
+errors of an RMS estimate, and the part of its RMS not explained by noise exceeds 1.5× its
+method floor (the same equation error on the nominal model's own simulation of the input).
 
 No rclpy import. Units SI, angles in the recording's frame unless said otherwise.
 """
@@ -155,7 +156,7 @@ class EquationCheck:
         RMS of the same equation error computed on the nominal model's own simulation of this
         input (what the derivative filters leave on a perfect model).
     flagged : bool
-        relative > :data:`MIN_RELATIVE` and rms > 1.5·method_floor + 3·noise_floor.
+        see :func:`_flag` (above the noise floor and 1.5× the method floor).
     groups : dict[str, float]
         R² of the residual on each term group alone (0..1).
     residual : ndarray, shape (N,)
@@ -341,7 +342,8 @@ class WhereReport:
                     "relative": "RMS(equation residual) / RMS(equation driving term)",
                     "significant": f"Ljung-Box p < {ALPHA} on the free-run residual and RMS > 3 x noise and "
                     f"NRMSE > {MIN_NRMSE}",
-                    "flagged": f"relative > {MIN_RELATIVE} and RMS > 1.5 x method floor + 3 x noise floor",
+                    "flagged": f"relative > {MIN_RELATIVE}, RMS above the noise floor (3 standard "
+                    "errors) and sqrt(RMS^2 - noise^2) > 1.5 x method floor",
                 },
             }
         )
@@ -379,6 +381,18 @@ def _group_r2(residual: np.ndarray, groups: dict[str, list[np.ndarray]]) -> dict
         fitted = a @ coef
         out[name] = float(np.clip(1.0 - float((residual - fitted) @ (residual - fitted)) / ss, 0.0, 1.0))
     return out
+
+
+def _flag(e: EquationCheck, n_eff: float) -> bool:
+    """Flag rule: relative > MIN_RELATIVE; RMS above the noise floor by 3 standard errors of an
+    RMS estimate over ``n_eff`` independent samples; and the part of the RMS not due to noise
+    above 1.5× the method floor."""
+    if not (e.relative > MIN_RELATIVE):
+        return False
+    if e.rms <= e.noise_floor * (1.0 + 3.0 / math.sqrt(2.0 * n_eff)):
+        return False
+    excess = math.sqrt(max(e.rms**2 - e.noise_floor**2, 0.0))
+    return bool(excess > 1.5 * e.method_floor)
 
 
 def _check(
@@ -962,12 +976,13 @@ def locate_recording(
     sim_theta = theta_free
     sim_ch = {k: (traj.true[k] - (theta_offset if k == "theta" else 0.0)) for k in ch if k in traj.true}
     sim_rate = sim_ch["theta_dot"] if "theta_dot" in sim_ch else measured_rate(sim_theta, dt)
+    n_eff = max(data.t.size / _sg_window(data.t.size, dt, 2.0 * SG_WINDOW), 1.0)
     for e, f in zip(
         eqs, _equations(rig, sim_theta, data.duty, dt, sim_ch, states, theta_offset, sim_rate), strict=True
     ):
         if e.checked:
             e.method_floor = f.rms
-            e.flagged = bool(e.relative > MIN_RELATIVE and e.rms > 1.5 * e.method_floor + 3.0 * e.noise_floor)
+            e.flagged = _flag(e, n_eff)
     pend = next(e for e in eqs if e.equation == "pendulum")
     if pend.residual is not None:
         regions["pendulum_equation"] = {
