@@ -7,7 +7,8 @@
  *
  * Prints "PTY <slave path>" on stdout once the UART is connected, then runs `cycles` CPU
  * cycles of 1/16 us (0 = until SIGTERM / SIGINT) and prints "CYCLES <n>" on exit; with an
- * event file also "T4START <cycle>" (stderr) and "IREDGES <n>" / "SSIREADS <n> <bad>" (stdout)
+ * event file also "T4START <cycle>" (stderr) and "IREDGES <n>" / "SSIREADS <n> <bad>" /
+ * "SSITIMING clkfe_min <ns> half_min <ns> read_min <ns> read_max <ns> rises <min> <max>" (stdout)
  * on exit. AVcc = 5 V. The firmware idles in SLEEP_MODE_IDLE between interrupts, so simavr's
  * raw sleep callback paces the simulation to wall-clock time (when the host is fast enough).
  *
@@ -25,7 +26,8 @@
  * (D23) are firmware outputs, DO = PA2 (D24) is driven here. CSn low: DO goes high; the first
  * falling CLK edge latches the word; each following rising CLK edge shifts out one bit, MSB
  * first; after 16 bits DO reads 0 (the daisy-chain input DI tied low); CSn high: DO tri-state,
- * read as 1 (pull-up). Timing limits (t_CLKFE, t_CSn, 1 MHz) are not checked here.
+ * read as 1 (pull-up). The pin timing is measured (SSITIMING) for the test to check against the
+ * datasheet: t_CLKFE (CSn low to first CLK fall) >= 500 ns, CLK half period >= 500 ns (1 MHz).
  *
  * Not emulated: PWM output waveform checking, the analogue front end, the motor shield.
  */
@@ -60,6 +62,9 @@ typedef struct {
     unsigned cs, clk, latched, bit, word;
     unsigned reads, bad_reads;
     unsigned long ir_edges;
+    /* SSI timing seen on the pins [cycles]: CSn fall, last CLK edge, extremes */
+    avr_cycle_count_t cs_fall, clk_edge, min_clkfe, min_half, min_read, max_read;
+    unsigned rises, min_rises, max_rises;
 } sim_t;
 
 static volatile sig_atomic_t stop;
@@ -127,6 +132,20 @@ static void on_csn(struct avr_irq_t *irq, uint32_t value, void *param)
         return;
     s->cs = value;
     s->latched = 0;
+    avr_cycle_count_t now = s->avr->cycle;
+    if (!value) {
+        s->cs_fall = now;
+        s->rises = 0;
+    } else if (s->cs_fall) {
+        if (now - s->cs_fall > s->max_read)
+            s->max_read = now - s->cs_fall;
+        if (now - s->cs_fall < s->min_read)
+            s->min_read = now - s->cs_fall;
+        if (s->rises < s->min_rises)
+            s->min_rises = s->rises;
+        if (s->rises > s->max_rises)
+            s->max_rises = s->rises;
+    }
     set_dout(s, 1); /* CSn low: DO driven high; CSn high: tri-state, pulled up */
 }
 
@@ -140,7 +159,15 @@ static void on_clk(struct avr_irq_t *irq, uint32_t value, void *param)
     s->clk = value;
     if (s->cs)
         return;
+    avr_cycle_count_t now = s->avr->cycle;
+    if (s->latched && now - s->clk_edge < s->min_half)
+        s->min_half = now - s->clk_edge;
+    s->clk_edge = now;
+    if (value)
+        s->rises++;
     if (!value && !s->latched) { /* first falling edge: latch */
+        if (now - s->cs_fall < s->min_clkfe)
+            s->min_clkfe = now - s->cs_fall;
         s->latched = 1;
         s->bit = 0;
         s->word = ssi_word_now(s);
@@ -238,6 +265,8 @@ int main(int argc, char **argv)
     s.avr = avr;
     s.cs = 1;
     s.clk = 1;
+    s.min_clkfe = s.min_half = s.min_read = ~(avr_cycle_count_t)0;
+    s.min_rises = ~0u;
     if (events && read_events(events, &s) != 0)
         return 2;
     s.icp = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('L'), 0);
@@ -271,6 +300,12 @@ int main(int argc, char **argv)
     printf("CYCLES %llu\n", (unsigned long long)avr->cycle);
     if (events)
         printf("IREDGES %lu\nSSIREADS %u %u\n", s.ir_edges, s.reads, s.bad_reads);
+    if (s.reads) /* ns; CLK rising edges per read-out (min max) */
+        printf("SSITIMING clkfe_min %llu half_min %llu read_min %llu read_max %llu rises %u %u\n",
+               (unsigned long long)(s.min_clkfe * 1000000000ull / avr->frequency),
+               (unsigned long long)(s.min_half * 1000000000ull / avr->frequency),
+               (unsigned long long)(s.min_read * 1000000000ull / avr->frequency),
+               (unsigned long long)(s.max_read * 1000000000ull / avr->frequency), s.min_rises, s.max_rises);
     fflush(stdout);
     fprintf(stderr, "harness: stopped (cpu state %d, %llu cycles)\n", state,
             (unsigned long long)avr->cycle);

@@ -57,9 +57,12 @@
 #if SSI_CLOCKS < 16 || SSI_CLOCKS > 22
 #error "SSI_CLOCKS must be 16..22 (the AS5040 word has 16 bits)"
 #endif
-/* Half clock period: 10 cycles = 625 ns >= the AS5040's 500 ns (CLK <= 1 MHz); also covers
- * t_CLKFE (CSn low to first CLK falling edge, 500 ns) and t_DO valid (375 ns). */
-#define SSI_HALF_CYCLES 10
+/* Delays in CPU cycles (62.5 ns). CLK high phase: 8 cycles (500 ns) from the rising edge to
+ * sampling DO >= t_DO valid (375 ns) + the 1-cycle input synchroniser; CLK low phase: 6 cycles
+ * + loop overhead; each half period >= 500 ns (CLK <= 1 MHz), CSn low to the first CLK fall
+ * >= t_CLKFE (500 ns). test_firmware_simavr_io.py measures the emulated pin timing. */
+#define SSI_HIGH_CYCLES 8
+#define SSI_LOW_CYCLES 6
 #endif
 
 /* ------------------------------------------------------------------ UART rings */
@@ -91,7 +94,7 @@ static uint8_t status_cnt;
 static uint16_t ssi_theta;              /* last valid raw angle [counts] */
 static volatile uint16_t angle_errors;  /* rejected read-outs (wrapping) */
 
-/* Read one 16-bit word from the AS5040 (ISR context, ~25 us at 16 MHz). Idle: CSn high,
+/* Read one 16-bit word from the AS5040 (~30 us at 16 MHz). Idle: CSn high,
  * CLK high. CSn low; the first falling CLK edge latches the angle; each rising edge shifts
  * out one bit (MSB first), read before the next falling edge; SSI_CLOCKS - 16 extra clocks
  * (thesis: 22 in all) shift out the daisy-chain input and are ignored; then CSn high. */
@@ -99,12 +102,12 @@ static uint16_t ssi_read(void)
 {
     uint16_t w = 0;
     PORTA &= (uint8_t)~(1 << SSI_CSN);
-    __builtin_avr_delay_cycles(SSI_HALF_CYCLES);
+    __builtin_avr_delay_cycles(SSI_HIGH_CYCLES);
     PORTA &= (uint8_t)~(1 << SSI_CLK);
     for (uint8_t i = 0; i < SSI_CLOCKS; i++) {
-        __builtin_avr_delay_cycles(SSI_HALF_CYCLES);
+        __builtin_avr_delay_cycles(SSI_LOW_CYCLES);
         PORTA |= (1 << SSI_CLK);
-        __builtin_avr_delay_cycles(SSI_HALF_CYCLES);
+        __builtin_avr_delay_cycles(SSI_HIGH_CYCLES);
         if (i < 16)
             w = (uint16_t)((w << 1) | ((PINA >> SSI_DO) & 1u));
         if (i + 1 < SSI_CLOCKS)
@@ -206,7 +209,13 @@ ISR(TIMER1_OVF_vect)
     adc_step = 1;
     adc_start(REF_AVCC, I_A_CHANNEL);
 #ifdef ANGLE_SSI
-    /* Read while the i_a conversion runs (104 us): the angle at the sample instant. */
+    /* Read while the i_a conversion runs (104 us): the angle at the sample instant. Interrupts
+     * are re-enabled for the ~30 us bit-bang so the UART RX/UDRE and Timer4 interrupts are not
+     * held off (RX overrun at 500 kbaud after ~3 byte times). Safe: everything shared is done
+     * above; TOV1 cannot recur for 2 ms; the ADC chain publishes `cur` only 3 conversions
+     * (>= 300 us) later; only this ISR writes angle_errors / ssi_theta / cur.theta; SSI has no
+     * clock timeout, so a stretched clock phase is harmless. */
+    sei();
     uint16_t angle;
     uint8_t st = ap_as5040_decode(ssi_read(), &angle);
     if (st & AP_SSI_INVALID) {
