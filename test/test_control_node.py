@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import math
 from pathlib import Path
 
 import pytest
@@ -84,4 +85,6 @@ def test_latency_columns() -> None:
     assert row["stamp_s"] == 1.0
     assert row["recv_latency"] == pytest.approx(3e-4) and row["pub_latency"] == pytest.approx(4.5e-4)
     loop.on_sample(1_002_048_000, 0.0)  # lock-step: no receipt time -> NaN
-    assert row is not None and loop.rows[-1][-2] != loop.rows[-1][-2]
+    row = dict(zip(SIGNALS, loop.rows[-1], strict=True))
+    assert math.isnan(row["recv_latency"]) and math.isnan(row["pub_latency"])
+    assert row["theta_hat"] == pytest.approx(0.0, abs=1e-3)  # observer estimate of the measured 0

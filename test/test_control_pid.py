@@ -140,3 +140,12 @@ def test_nan_holds_last_output() -> None:
 def test_bad_config_names_value(kwargs: dict, dt: float, needle: str) -> None:
     with pytest.raises(PIDConfigError, match=needle.replace("(", r"\(").replace(".", r"\.")):
         PID(PIDGains(**kwargs), dt)
+
+
+def test_external_derivative_replaces_the_filtered_difference() -> None:
+    pid = PID(PIDGains(kp=2.0, ki=0.0, kd=0.5, b=0.0, c=0.0, tf=0.01), 0.01)
+    u = pid.update(1.0, 0.2, dy=3.0)
+    assert pid.d == pytest.approx(-1.5) and u == pytest.approx(-2.0 * 0.2 - 1.5)
+    assert pid.update(1.0, 0.2, dy=math.nan) == u and pid.nan_flag  # non-finite dy holds the output
+    with pytest.raises(PIDConfigError, match=r"c = 1\.0"):
+        PID(PIDGains(kp=1.0, kd=1.0, c=1.0), 0.01).update(1.0, 0.0, dy=0.0)

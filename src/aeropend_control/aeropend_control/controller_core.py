@@ -17,6 +17,7 @@ from aeropend_control.design import PoleSpec, design_fl
 from aeropend_control.strategies import (
     ALLOCATORS,
     DEFAULT_TF,
+    ESTIMATORS,
     NEEDS_MOTOR,
     STRATEGIES,
     CascadeStrategy,
@@ -30,9 +31,13 @@ from aeropend_sim.params import Rig, RigFileError, load_rig
 MODES = ("realtime", "lockstep")
 #: Column names of the internal-signal vector (``/aeropend/controller/signals`` and the trace).
 #: ``recv_latency`` / ``pub_latency`` [s]: sample stamp → receipt / → command published (ROS time,
-#: real-time mode only; NaN in lock-step where stamps are simulated time).
+#: real-time mode only; NaN in lock-step where stamps are simulated time). ``theta_hat`` [rad] and
+#: ``dist_hat`` [rad/s²]: the observer's angle and disturbance estimates (NaN with the difference
+#: estimator).
 SIGNALS: tuple[str, ...] = ("t", "reference", "theta", "error", "v", "thrust", "theta_dot_hat",
-                            "duty", "saturated", "stamp_s", "recv_latency", "pub_latency")
+                            "duty", "saturated", "stamp_s", "recv_latency", "pub_latency",
+                            "theta_hat", "dist_hat")
+_PUB = SIGNALS.index("pub_latency")
 
 
 class ControllerConfigError(ValueError):
@@ -54,6 +59,7 @@ class ControllerSettings:
     theta_op: float | None
     duration: float
     trace: str
+    estimator: str = "observer"
     options: dict[str, Any] = field(default_factory=dict)
 
 
@@ -130,20 +136,20 @@ def make_settings(**raw: Any) -> ControllerSettings:
     if duration < 0.0:
         raise ControllerConfigError(f"duration = {duration!r} s must be >= 0 (0 = run until stopped)")
     ref = _float("reference", raw.get("reference", 0.0))
+    estimator = str(raw.get("estimator", "observer"))
+    if estimator not in ESTIMATORS:
+        raise ControllerConfigError(f"estimator = {estimator!r}; expected one of {ESTIMATORS}")
     return ControllerSettings(rig, strategy, mode, parse_steps(raw.get("steps")), ref, allocator, spec, tf,
-                              theta_op, duration, str(raw.get("trace") or ""))
+                              theta_op, duration, str(raw.get("trace") or ""), estimator)
 
 
 def build_strategy(s: ControllerSettings) -> FeedbackLinearizationPID | SmallSignalPID | CascadeStrategy:
     """The strategy object of the settings (raises :class:`ControllerConfigError` on failure)."""
     try:
-        if s.strategy == "fl_pid":
-            return make_strategy("fl_pid", s.rig, design=design_fl(s.rig, s.spec), allocator=s.allocator,
-                                 tf=s.tf)
-        if s.strategy == "fl_cascade":
-            return make_strategy("fl_cascade", s.rig, design=design_fl(s.rig, s.spec), allocator=s.allocator,
-                                 tf=s.tf)
-        opts: dict[str, Any] = {"spec": s.spec, "allocator": s.allocator, "tf": s.tf}
+        common: dict[str, Any] = {"allocator": s.allocator, "tf": s.tf, "estimator": s.estimator}
+        if s.strategy in ("fl_pid", "fl_cascade"):
+            return make_strategy(s.strategy, s.rig, design=design_fl(s.rig, s.spec), **common)
+        opts: dict[str, Any] = {"spec": s.spec, **common}
         if s.strategy == "small_signal_fixed":
             opts["theta_op"] = s.theta_op
         return make_strategy(s.strategy, s.rig, **opts)
@@ -241,15 +247,17 @@ class ControllerLoop:
             out = self.strategy.step(r, theta)
         self.last_stamp, self.last_out = stamp_ns, out
         recv = (recv_ns - stamp_ns) * 1e-9 if recv_ns is not None else math.nan
+        obs = self.strategy.observer
+        th_hat, d_hat = (obs.theta_k, obs.dist_k) if obs is not None else (math.nan, math.nan)
         self.last_signals = [t, r, theta, out.error, out.v, out.thrust, out.theta_dot, out.duty,
-                             float(out.saturated), stamp_ns * 1e-9, recv, math.nan]
+                             float(out.saturated), stamp_ns * 1e-9, recv, math.nan, th_hat, d_hat]
         self.rows.append(self.last_signals)
         return out.duty
 
     def mark_published(self, pub_ns: int) -> None:
         """Record when the command of the last new sample was published (stamp's clock)."""
         if self.last_stamp is not None and self.rows:
-            self.rows[-1][-1] = (pub_ns - self.last_stamp) * 1e-9
+            self.rows[-1][_PUB] = (pub_ns - self.last_stamp) * 1e-9
 
     def write_trace(self, path: str | Path) -> None:
         """CSV of :data:`SIGNALS`, one row per controlled sample."""

@@ -310,7 +310,7 @@ class CascadeDesign:
     predicted: StepMetrics
 
 
-def design_cascade(rig: Rig, omega_speed: float = 60.0, omega_current: float = 200.0,
+def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 120.0,
                    theta_op: float = 0.4, i_max: float = 2.0) -> CascadeDesign:
     """PI gains of the speed and current loops by pole-zero cancellation (IMC / technical optimum).
 
@@ -318,8 +318,12 @@ def design_cascade(rig: Rig, omega_speed: float = 60.0, omega_current: float = 2
     kp_i = L_a·ω_c, ki_i = R_a·ω_c, closed loop ω_c/(s + ω_c).
     Speed loop, plant K_t/(J_m·s + B_eff) (the back-EMF acts inside the current loop) with
     B_eff = B_m + 2·K_d·ω₁₀ linearised at the rotor speed ω₁₀ of the equilibrium θ_op:
-    kp_w = J_m·ω_s/K_t, ki_w = B_eff·ω_s/K_t. ω_s ≪ ω_c keeps the loops separated;
-    ω_c·T_s ≈ 0.4 at 2.048 ms is about the most the sample rate allows. The predicted metrics
+    kp_w = J_m·ω_s/K_t, ki_w = B_eff·ω_s/K_t. ω_s < ω_c keeps the loops separated.
+    Defaults ω_c = 120 rad/s, ω_s = 45 rad/s: robust to an unmodelled 10 ms actuator lag plus
+    5 ms delay (ω_c = 200 rad/s, ω_s = 60 rad/s, the sample-rate limit ω_c·T_s ≈ 0.4, is faster
+    on the nominal rig but the current loop then limit-cycles under that lag + delay; below
+    ω_s ≈ 30 rad/s the speed loop is too slow for the 9 rad/s position loop and the step
+    overshoots; sweep in docs/control.md). The predicted metrics
     are those of the full linear cascade including the back-EMF coupling.
 
     Raises

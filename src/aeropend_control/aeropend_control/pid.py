@@ -218,15 +218,24 @@ class PID:
             self._dstate = ((2 * g.tf - h) * self._dstate + 2.0 * delta) / (2 * g.tf + h)
         return g.kd * self._dstate
 
-    def update(self, r: float, y: float) -> float:
+    def update(self, r: float, y: float, dy: float | None = None) -> float:
         """One sample: setpoint ``r`` and measurement ``y`` in, saturated output ``u`` out.
+
+        Parameters
+        ----------
+        r, y : float
+            Setpoint and measurement.
+        dy : float, optional
+            Externally estimated derivative dy/dt (e.g. an observer's θ̂̇). When given, the
+            derivative part is kd·(−dy) and the internal filtered difference is bypassed; this
+            needs derivative on measurement (c = 0).
 
         Returns
         -------
         float
             u_k in [u_min, u_max]; the last output if ``r`` or ``y`` is not finite.
         """
-        if not (math.isfinite(r) and math.isfinite(y)):
+        if not (math.isfinite(r) and math.isfinite(y)) or (dy is not None and not math.isfinite(dy)):
             self.nan_flag = True
             self.nan_count += 1
             return self.output
@@ -238,7 +247,13 @@ class PID:
         e = r - y
         e_prev = self._prev_e if self._prev is not None else e
         self.p = self._p_term(g, r, y)
-        self.d = self._derivative(g.c * r - y, g.c * r0 - y0)
+        if dy is None:
+            self.d = self._derivative(g.c * r - y, g.c * r0 - y0)
+        else:
+            if g.c != 0.0:
+                raise PIDConfigError(f"PID with an external derivative dy needs c = 0, got c = {g.c!r}")
+            self._dstate = -float(dy)
+            self.d = g.kd * self._dstate
         self._prev = (r, y)
         self._prev_e = e
         if self.manual:  # integrator tracks the manual output: bumpless return to auto

@@ -43,6 +43,7 @@ from aeropend_control.design import (
     design_small_signal,
     schedule,
 )
+from aeropend_control.observer import ObserverSpec, PendulumObserver
 from aeropend_control.pid import PID, PIDGains
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig
@@ -55,6 +56,9 @@ STRATEGIES = ("fl_pid", "small_signal", "small_signal_fixed", "cascade", "fl_cas
 NEEDS_MOTOR = ("cascade", "fl_cascade")
 #: Allocation chains accepted by the strategies.
 ALLOCATORS = ("model", "thesis")
+#: θ̇ estimators: filtered difference (:class:`VelocityEstimator`) or Kalman observer
+#: (:class:`aeropend_control.observer.PendulumObserver`).
+ESTIMATORS = ("difference", "observer")
 
 
 class StrategyError(ValueError):
@@ -134,7 +138,10 @@ class _Base:
     """Shared plumbing: estimator, PID, allocation, NaN handling, bumpless start."""
 
     def __init__(self, rig: Rig, gains: PIDGains, allocator: str, tf: float, dt: float | None,
-                 f_init: float) -> None:
+                 f_init: float, estimator: str = "observer",
+                 observer_spec: ObserverSpec | None = None) -> None:
+        if estimator not in ESTIMATORS:
+            raise StrategyError(f"estimator = {estimator!r}; expected one of {ESTIMATORS}")
         self.rig = rig
         self.model = PlantModel(rig)
         self.dt = float(rig.sample_period if dt is None else dt)
@@ -142,6 +149,10 @@ class _Base:
         self.f_min = getattr(self.alloc, "f_min", 0.0)
         self.f_max = self.alloc.f_max
         self.estimator = VelocityEstimator(self.dt, tf)
+        self.observer = (PendulumObserver(self.model, self.dt, observer_spec) if estimator == "observer"
+                         else None)
+        #: True when an enclosing cascade applies another duty and calls :meth:`advance` itself.
+        self.defer_predict = False
         self.pid = PID(replace(gains, tf=tf), self.dt)
         self.f_init = float(f_init)
         self.last: ControlOutput | None = None
@@ -150,15 +161,31 @@ class _Base:
     def reset(self) -> None:
         """Back to the initial state (next sample starts bumpless from ``f_init``)."""
         self.estimator.reset()
+        if self.observer is not None:
+            self.observer.reset()
         self.pid.reset()
         self.last = None
         self._started = False
+
+    def _estimate(self, theta: float) -> tuple[float, float]:
+        """(angle the loop uses, θ̇ estimate): (θ, filtered difference) or the observer's (θ̂, θ̂̇)."""
+        if self.observer is None:
+            return theta, self.estimator.update(theta)
+        thd = self.observer.correct(theta)
+        return self.observer.theta, thd
+
+    def advance(self, duty: float, omega: float = math.nan) -> None:
+        """Tell the observer (if any) the duty applied until the next sample (and the measured ω₁)."""
+        if self.observer is not None:
+            self.observer.predict(duty, omega)
 
     def _finish(self, r: float, theta: float, thd: float, v: float, f: float) -> ControlOutput:
         a: Allocation = self.alloc.allocate(f)
         sat = a.saturated if a.saturated else self.pid.saturated  # PID clamps at the mapped limits
         out = ControlOutput(a.duty, r - theta, v, f, thd, sat)
         self.last = out
+        if not self.defer_predict:
+            self.advance(out.duty)
         return out
 
     def _nan(self, r: float, theta: float) -> ControlOutput | None:
@@ -168,17 +195,24 @@ class _Base:
         duty = prev.duty if prev is not None else 0.0
         out = ControlOutput(duty, math.nan, math.nan, math.nan, math.nan, 0, True)
         self.pid.nan_count += 1
+        if not self.defer_predict:
+            self.advance(duty)
         return out
 
-    def _pid_update(self, r: float, theta: float, u_start: float) -> float:
-        """PID update; on the very first sample the output is forced to ``u_start`` (bumpless start)."""
+    def _pid_update(self, r: float, theta: float, u_start: float, thd: float) -> float:
+        """PID update; on the very first sample the output is forced to ``u_start`` (bumpless start).
+
+        With the observer the PID's derivative is the observer's θ̂̇ (``thd``), else its own
+        filtered difference of ``theta``.
+        """
+        dy = thd if self.observer is not None else None
         if not self._started:
             self.pid.set_manual(u_start)
-            u = self.pid.update(r, theta)
+            u = self.pid.update(r, theta, dy)
             self.pid.set_auto()
             self._started = True
             return u
-        return self.pid.update(r, theta)
+        return self.pid.update(r, theta, dy)
 
 
 class FeedbackLinearizationPID(_Base):
@@ -194,21 +228,27 @@ class FeedbackLinearizationPID(_Base):
         Include (c/J)·θ̂̇ in the law (default True).
     allocator : {"model", "thesis"}
     tf : float
-        Velocity/derivative filter time constant [s].
+        Velocity/derivative filter time constant [s] (``estimator="difference"``).
     dt : float, optional
         Sample period [s] (default ``rig.sample_period``).
     f_init : float
         Thrust [N] the first sample continues from (0 = motor off).
+    estimator : {"observer", "difference"}
+        θ̇ from :class:`~aeropend_control.observer.PendulumObserver` (default; the loop then also
+        uses the observer's θ̂ instead of the raw θ) or from the filtered difference.
+    observer_spec : ObserverSpec, optional
+        Noise model of the observer.
     """
 
     name = "fl_pid"
 
     def __init__(self, rig: Rig, design: LoopDesign | None = None, cancel_damping: bool = True,
                  allocator: str = "model", tf: float = DEFAULT_TF, dt: float | None = None,
-                 f_init: float = 0.0) -> None:
+                 f_init: float = 0.0, estimator: str = "observer",
+                 observer_spec: ObserverSpec | None = None) -> None:
         self.design = design or design_fl(rig, cancel_damping=cancel_damping)
         self.cancel_damping = cancel_damping
-        super().__init__(rig, self.design.pid_gains(), allocator, tf, dt, f_init)
+        super().__init__(rig, self.design.pid_gains(), allocator, tf, dt, f_init, estimator, observer_spec)
 
     def law(self, theta: float, theta_dot: float, v: float) -> float:
         """Thrust f [N] for pseudo-control v [rad/s²] (thesis Eq. 6.4, plus damping if cancelled)."""
@@ -227,12 +267,12 @@ class FeedbackLinearizationPID(_Base):
         bad = self._nan(r, theta)
         if bad is not None:
             return bad
-        thd = self.estimator.update(theta)
-        lo = self.v_for_thrust(theta, thd, self.f_min)
-        hi = self.v_for_thrust(theta, thd, self.f_max)
+        y, thd = self._estimate(theta)
+        lo = self.v_for_thrust(y, thd, self.f_min)
+        hi = self.v_for_thrust(y, thd, self.f_max)
         self.pid.set_limits(lo, hi)
-        v = self._pid_update(r, theta, self.v_for_thrust(theta, thd, self.f_init))
-        return self._finish(r, theta, thd, v, self.law(theta, thd, v))
+        v = self._pid_update(r, y, self.v_for_thrust(y, thd, self.f_init), thd)
+        return self._finish(r, theta, thd, v, self.law(y, thd, v))
 
 
 class SmallSignalPID(_Base):
@@ -247,7 +287,7 @@ class SmallSignalPID(_Base):
     grid : sequence of float
         Scheduling grid [rad] (designs by :func:`aeropend_control.design.schedule`).
     spec : PoleSpec, optional
-    allocator, tf, dt, f_init
+    allocator, tf, dt, f_init, estimator, observer_spec
         As for :class:`FeedbackLinearizationPID`.
     """
 
@@ -255,7 +295,8 @@ class SmallSignalPID(_Base):
 
     def __init__(self, rig: Rig, theta_op: float | None = None, grid: tuple[float, ...] = DEFAULT_GRID,
                  spec: PoleSpec | None = None, allocator: str = "model", tf: float = DEFAULT_TF,
-                 dt: float | None = None, f_init: float = 0.0) -> None:
+                 dt: float | None = None, f_init: float = 0.0, estimator: str = "observer",
+                 observer_spec: ObserverSpec | None = None) -> None:
         if theta_op is None:
             self.table = schedule(rig, list(grid), spec)
         else:
@@ -263,7 +304,7 @@ class SmallSignalPID(_Base):
         self.scheduled = theta_op is None
         self._grid = np.array([d.theta_op for d in self.table])
         first = self.table[0]
-        super().__init__(rig, first.pid_gains(), allocator, tf, dt, f_init)
+        super().__init__(rig, first.pid_gains(), allocator, tf, dt, f_init, estimator, observer_spec)
         self._op_r: float | None = None
         self.f0 = first.u_op
         self.gains_now = first.pid_gains(tf)
@@ -286,7 +327,7 @@ class SmallSignalPID(_Base):
         bad = self._nan(r, theta)
         if bad is not None:
             return bad
-        thd = self.estimator.update(theta)
+        y, thd = self._estimate(theta)
         if r != self._op_r:  # new operating point (scheduled) / first sample
             gains, f0 = self._interp(r)
             if self._started:
@@ -296,7 +337,7 @@ class SmallSignalPID(_Base):
             self.gains_now = gains
             self._op_r = r
         self.pid.set_limits(self.f_min - self.f0, self.f_max - self.f0)
-        df = self._pid_update(r, theta, self.f_init - self.f0)
+        df = self._pid_update(r, y, self.f_init - self.f0, thd)
         return self._finish(r, theta, thd, df, self.f0 + df)
 
 
@@ -387,9 +428,11 @@ class CascadeStrategy:
     def __init__(self, outer: FeedbackLinearizationPID | SmallSignalPID, rig: Rig,
                  design: CascadeDesign | None = None, dt: float | None = None) -> None:
         self.outer = outer
+        outer.defer_predict = True  # the observer must see the duty the cascade applies
         self.name = "fl_cascade" if isinstance(outer, FeedbackLinearizationPID) else "cascade"
         self.inner = MotorCascade(rig, design, dt)
         self.model = self.inner.model
+        self.observer = outer.observer
         self.pid = outer.pid
         self.last: ControlOutput | None = None
 
@@ -401,14 +444,17 @@ class CascadeStrategy:
     def step(self, r: float, theta: float, omega: float = math.nan, i_a: float = math.nan) -> ControlOutput:
         """One sample: reference, θ, ω₁, i_a → duty (see :class:`ControlOutput`)."""
         o = self.outer.step(r, theta)
+        held = self.last.duty if self.last is not None else 0.0
         if o.nan_input:
-            return o
+            self.outer.advance(held)
+            return replace(o, duty=held)
         if not (math.isfinite(omega) and math.isfinite(i_a)):
             self.pid.nan_count += 1
-            duty = self.last.duty if self.last is not None else 0.0
-            return replace(o, duty=duty, nan_input=True)
+            self.outer.advance(held)
+            return replace(o, duty=held, nan_input=True)
         f = min(max(o.thrust, self.outer.f_min), self.outer.f_max)
         duty = self.inner.step(self.omega_ref(f), omega, i_a)
+        self.outer.advance(duty, omega)
         out = replace(o, duty=duty, saturated=o.saturated or self.inner.saturated)
         self.last = out
         return out
