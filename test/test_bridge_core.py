@@ -10,13 +10,14 @@ import pytest
 from aeropend_bridge.bridge_core import (
     Backoff,
     BridgeConfigError,
+    BridgeStats,
     Calibration,
     ClockMapper,
     CommandWatchdog,
     RateMeter,
     SequenceTracker,
 )
-from aeropend_bridge.protocol import SampleFrame
+from aeropend_bridge.protocol import FLAG_ANGLE_INVALID, FLAG_ANGLE_SSI, FLAG_ENABLED, SampleFrame
 from aeropend_sim.params import load_rig
 
 
@@ -116,3 +117,15 @@ def test_backoff_and_rate_meter() -> None:
     for k in range(1000):
         r.tick(k * 2_040_000)
     assert r.rate(999 * 2_040_000) == pytest.approx(490, abs=2)
+
+
+def test_stats_count_rejected_ssi_angles() -> None:
+    """Samples flagged 'angle invalid' (SSI build) are counted and shown on the diagnostics."""
+    st = BridgeStats()
+    ok, bad = FLAG_ENABLED | FLAG_ANGLE_SSI, FLAG_ENABLED | FLAG_ANGLE_SSI | FLAG_ANGLE_INVALID
+    for k, flags in enumerate([ok] * 5 + [bad] * 3 + [ok] * 2 + [bad]):
+        st.count_sample(SampleFrame(k, k * 2040, 0, 0, 700, 0, 0, flags))
+        assert st.angle_valid == (flags == ok)
+    assert (st.samples, st.angle_invalid) == (11, 4)
+    kv = dict(st.diagnostics(490.0, SequenceTracker(), {}, CommandWatchdog(timeout_ns=10**8), ClockMapper()))
+    assert kv["angle_invalid_samples"] == "4" and kv["samples"] == "11"

@@ -17,7 +17,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from aeropend_bridge.protocol import TIMER4_TICK_S, SampleFrame
+from aeropend_bridge.protocol import FLAG_ANGLE_INVALID, TIMER4_TICK_S, SampleFrame
 from aeropend_sim.contract import Sample, validate_duty
 
 TWO_PI = 2.0 * math.pi
@@ -328,13 +328,27 @@ class RateMeter:
 
 @dataclass
 class BridgeStats:
-    """Counters reported on ``/diagnostics``."""
+    """Counters reported on ``/diagnostics``.
+
+    ``angle_invalid`` counts samples whose AS5040 SSI read-out the firmware rejected (flag
+    bit 4, ``ANGLE=ssi`` build: θ repeats the last valid angle); ``angle_valid`` is False
+    while the latest sample carries that flag.
+    """
 
     samples: int = 0
     status_frames: int = 0
     reconnects: int = 0
     connected: bool = False
+    angle_invalid: int = 0
+    angle_valid: bool = True
     mcu_status: dict[str, int] = field(default_factory=dict)
+
+    def count_sample(self, f: SampleFrame) -> None:
+        """Register one received sample frame (sample and angle-validity counters)."""
+        self.samples += 1
+        self.angle_valid = not f.flags & FLAG_ANGLE_INVALID
+        if not self.angle_valid:
+            self.angle_invalid += 1
 
     def diagnostics(self, rate_hz: float, seq: SequenceTracker, decoder_errors: dict[str, int],
                     watchdog: CommandWatchdog, clock: ClockMapper) -> list[tuple[str, str]]:
@@ -343,6 +357,7 @@ class BridgeStats:
             ("connected", str(self.connected)),
             ("rate_hz", f"{rate_hz:.2f}"),
             ("samples", str(self.samples)),
+            ("angle_invalid_samples", str(self.angle_invalid)),
             ("sequence_gaps_lost_frames", str(seq.lost)),
             ("sequence_resets", str(seq.resets)),
             ("reconnects", str(self.reconnects)),

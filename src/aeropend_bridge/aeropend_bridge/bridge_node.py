@@ -203,7 +203,7 @@ class BridgeNode(Node):
                 if self.seq.resets != resets:
                     self.clock_map.reset()  # MCU restarted: its clock restarted too
                 stamp = self.clock_map.update(frame.t_us, host_ns)
-                self.stats.samples += 1
+                self.stats.count_sample(frame)
                 self.rate.tick(time.monotonic_ns())
             if gap:
                 self.get_logger().warn(
@@ -258,11 +258,14 @@ class BridgeNode(Node):
             kv = self.stats.diagnostics(rate, self.seq, self._decoder_errors(), self.watchdog,
                                         self.clock_map)
             connected = self.stats.connected and self.link.connected
+            angle_valid = self.stats.angle_valid
         expected = NOMINAL_RATE_HZ / self.rate_divider
         if not connected:
             level, message = DiagnosticStatus.ERROR, f"not connected to {self.port}"
         elif abs(rate - expected) > 0.05 * expected:
             level, message = DiagnosticStatus.WARN, f"sample rate {rate:.1f} Hz, expected {expected:.1f} Hz"
+        elif not angle_valid:
+            level, message = DiagnosticStatus.WARN, "AS5040 read-out rejected by the firmware: angle held"
         else:
             level, message = DiagnosticStatus.OK, f"{rate:.1f} Hz"
         return DiagnosticStatus(level=level, name=f"{NODE_NAME}: serial link", message=message,
