@@ -5,7 +5,9 @@ contract topics with SI values from the rig's LSBs, stamps 2.040 ms apart (490.2
 no sequence gaps (diagnostics), duty commands reach the firmware and come back as the applied
 duty, the bridge's watchdog zeroes the duty when the controller falls silent, and a 50 ms IR
 pulse train on ICP4 (driven by the harness) arrives as ω₂ = 2π/0.05 s rad/s and
-ω₁ = gear ratio · ω₂ on ``joint_states``.
+ω₁ = gear ratio · ω₂ on ``joint_states``. Run for both angle interfaces: the default build
+reads θ from A2 (2500 mV → 512 counts), the ``ANGLE=ssi`` build from the harness's AS5040 SSI
+slave (word for 512 counts): the bridge and its outputs are the same (no rejected angles).
 """
 
 from __future__ import annotations
@@ -51,17 +53,20 @@ def _bridge_cmd() -> list[str]:
     return [exe] if exe else [sys.executable, "-m", "aeropend_bridge.bridge_node"]
 
 
-def test_bridge_node_on_emulated_firmware(tmp_path: Path) -> None:
-    for target, extra in (("all", ["EXTRA_CFLAGS=-DSIMAVR_TIMER1"]), ("harness", [])):
+@pytest.mark.parametrize("angle", ["pwm", "ssi"])
+def test_bridge_node_on_emulated_firmware(tmp_path: Path, angle: str) -> None:
+    for target, extra in (("all", [f"ANGLE={angle}", "EXTRA_CFLAGS=-DSIMAVR_TIMER1"]), ("harness", [])):
         r = subprocess.run(["make", "-C", str(FW), f"BUILD={tmp_path}", target, *extra], capture_output=True,
                            text=True, timeout=120)
         assert r.returncode == 0, r.stdout + r.stderr
     ir_period_us = 50_000  # = 12500 Timer4 ticks; 2 ms pulses for 60 s of MCU time
     events = tmp_path / "ir.txt"
     edges = range(10_000, 60_000_000, ir_period_us)
-    events.write_text("".join(f"ir {t} 1\nir {t + 2000} 0\n" for t in edges))
+    # AS5040 SSI word for 512 counts: D9 set, OCF = 1, even parity 0 (only read by the ssi build)
+    events.write_text("ssi 0 0x8020\n" + "".join(f"ir {t} 1\nir {t + 2000} 0\n" for t in edges))
+    a2_mv = "2500" if angle == "pwm" else "1000"  # ssi build: A2 is not read (1000 mV would be 205 counts)
     sim = subprocess.Popen([str(tmp_path / "harness"), str(tmp_path / "aeropend.elf"), "0", "500", "1000",
-                            "2500", "1500", "-e", str(events)], stdout=subprocess.PIPE,
+                            a2_mv, "1500", "-e", str(events)], stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
     domain = random.randint(101, 200)
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
@@ -123,7 +128,7 @@ def test_bridge_node_on_emulated_firmware(tmp_path: Path) -> None:
         spin(0.6)
         last = {kv.key: kv.value for kv in diag[-1].status[0].values}
         print(f"diagnostics: {last}")
-        assert last["sequence_gaps_lost_frames"] == "0"
+        assert last["sequence_gaps_lost_frames"] == "0" and last["angle_invalid_samples"] == "0"
         assert last["connected"] == "True" and last["reconnects"] == "0"
         assert int(last["mcu_rx_errors"]) == 0 and int(last["mcu_watchdog_trips"]) <= 1
         bridge.send_signal(signal.SIGINT)
