@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import random
 import time
 from pathlib import Path
@@ -60,6 +61,8 @@ def main() -> None:
     res: dict[str, object] = {"throughput": throughput()}
     if a.fuzz:
         res["fuzz"] = fuzz(a.fuzz)
+    res["host_load_avg_1min"] = os.getloadavg()[0]  # other processes on the machine skew the rates
+    res["host_cpus"] = os.cpu_count()
     print(json.dumps(res, indent=1))
     if a.save:
         out = Path(__file__).parent / "results" / "bridge_decode.json"

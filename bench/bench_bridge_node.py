@@ -76,7 +76,8 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--save", action="store_true", help="write bench/results/bridge_node.json")
     a = ap.parse_args()
-    res = run(a.seconds)
+    res: dict[str, object] = {**run(a.seconds), "host_load_avg_1min": os.getloadavg()[0],
+                              "host_cpus": os.cpu_count()}
     print(json.dumps(res, indent=1))
     if a.save:
         (Path(__file__).parent / "results" / "bridge_node.json").write_text(json.dumps(res, indent=1) + "\n")
