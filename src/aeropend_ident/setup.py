@@ -32,7 +32,8 @@ setup(
             'csv_import = aeropend_ident.csv_import:main',
             'baseline = aeropend_ident.baseline_cli:main',
             'pipeline = aeropend_ident.pipeline:main',
-            'identify = aeropend_ident.identify:main'
+            'identify = aeropend_ident.identify:main',
+            'gap = aeropend_ident.gap_cli:main'
         ],
     },
 )

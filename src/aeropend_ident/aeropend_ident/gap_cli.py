@@ -1,0 +1,230 @@
+"""Command line of the sim-to-real gap diagnosis (console script ``gap``; ``ros2 run aeropend_ident gap``).
+
+Usage::
+
+    gap RECORDING [RECORDING ...] --rig RIG --out DIR
+        [--preset NAME] [--held-out RECORDING [RECORDING ...] | --split FRACTION]
+        [--max-effects 2] [--horizon 0.2] [--theta-offset RAD] [--seed 0]
+
+``RECORDING`` is a rosbag2 directory (or ``.mcap`` / ``.db3``) read with
+:func:`aeropend_ident.bags.read_bag`, or a CSV log read with
+:func:`aeropend_ident.csv_import.import_csv` and ``--preset NAME`` (``auto``: by file name).
+``RIG`` is a shipped rig name (``thesis_rig``, ``jahoyosr_rig``, ...) or a rig-file path.
+
+Held-out rule: ``--held-out FILES`` keeps those recordings for the check only (the positional
+recordings are used to find the effects); otherwise every recording is split in time order and
+its last ``1 − FRACTION`` is held out (``--split``, default 0.7).
+
+The report folder gets ``report.json``, ``report.html``, ``corrected_rig.yaml`` and
+``figures/*.png`` (:mod:`aeropend_ident.gap_report`); a one-screen summary is printed.
+
+Exit status: 0 on success, 2 on bad input (message naming the problem: unknown rig, missing
+channel, too short, NaNs, bad option).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from aeropend_ident.baseline_cli import load_input
+from aeropend_ident.greybox import IdentificationError, rig_theta_offset, uniform_data
+from aeropend_sim.params import RigFileError, load_rig, shipped_rigs
+from aeropend_sim.recording import Recording, RecordingError
+
+#: Fewest samples per recording part (fit or held out).
+MIN_PART_SAMPLES = 200
+
+
+class GapCliError(ValueError):
+    """A command-line input the gap tool cannot use."""
+
+
+def to_uniform(rec: Recording) -> Recording:
+    """The recording on a uniform grid (θ, channels linear, duty zero-order hold) if it is not already.
+
+    Raises
+    ------
+    GapCliError
+        No θ, NaNs, constant input or too few samples (message names the recording).
+    """
+    src = rec.source or "<recording>"
+    if "theta" not in rec.channels:
+        raise GapCliError(
+            f"{src}: recording lacks the 'theta' channel (has {sorted(rec.channels)}); the gap "
+            "diagnosis needs at least the angle and the duty cycle"
+        )
+    for name, y in [("duty", rec.duty), *rec.channels.items()]:
+        bad = ~np.isfinite(y)
+        if bad.any():
+            raise GapCliError(
+                f"{src}: {name} has {int(bad.sum())} NaN/inf value(s), first at sample "
+                f"{int(np.flatnonzero(bad)[0])}; repair or cut the recording"
+            )
+    try:
+        data = uniform_data(rec, min_samples=2)
+    except IdentificationError as exc:
+        raise GapCliError(str(exc)) from exc
+    if not data.resampled:
+        return rec
+    t = rec.t - rec.t[0]
+    ch = {k: (data.theta if k == "theta" else np.interp(data.t, t, v)) for k, v in rec.channels.items()}
+    meta = {**rec.meta, "resampled_to_uniform_dt_s": data.dt}
+    return Recording(
+        t=data.t, duty=data.duty, channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta
+    )
+
+
+def _check_length(rec: Recording, what: str) -> None:
+    if len(rec) < MIN_PART_SAMPLES:
+        raise GapCliError(
+            f"{rec.source or what}: only {len(rec)} samples in the {what}; the gap diagnosis needs "
+            f"at least {MIN_PART_SAMPLES} (record longer or change --split)"
+        )
+    if np.ptp(rec.duty) == 0.0:
+        raise GapCliError(
+            f"{rec.source or what}: the duty cycle is constant ({rec.duty[0]:g}) in the {what}: "
+            "unexcited input, nothing to compare"
+        )
+
+
+def resolve_rig(ref: str) -> tuple[object, float]:
+    """Load a rig by shipped name or YAML path; return (rig, recording-frame θ offset [rad]).
+
+    Raises
+    ------
+    GapCliError
+        Unknown rig name, missing file or malformed rig file.
+    """
+    p = Path(ref)
+    if p.suffix not in (".yaml", ".yml") and ref not in shipped_rigs():
+        raise GapCliError(f"unknown rig {ref!r}; expected a rig-file path (.yaml) or one of {shipped_rigs()}")
+    if p.suffix in (".yaml", ".yml") and not p.is_file():
+        raise GapCliError(f"rig file {p} does not exist")
+    try:
+        return load_rig(ref), rig_theta_offset(ref)
+    except (RigFileError, IdentificationError) as exc:
+        raise GapCliError(f"rig {ref}: {exc}") from exc
+
+
+def prepare(
+    inputs: Sequence[Path], held_out: Sequence[Path] | None, split: float, preset: str | None
+) -> tuple[list[Recording], list[Recording], str]:
+    """Read and split the recordings into (fit, held_out, rule description).
+
+    Raises
+    ------
+    GapCliError, RecordingError, ValueError
+        Unreadable file, unknown preset, missing channel, NaNs, too short, bad split.
+    """
+    if not (isinstance(split, float) and math.isfinite(split) and 0.0 < split < 1.0):
+        raise GapCliError(f"--split {split!r}: expected a fraction in (0, 1)")
+    recs = [to_uniform(load_input(p, preset)) for p in inputs]
+    if held_out:
+        held = [to_uniform(load_input(p, preset)) for p in held_out]
+        for r in recs:
+            _check_length(r, "fit recording")
+        for r in held:
+            _check_length(r, "held-out recording")
+        rule = f"separate held-out file(s): {', '.join(Path(p).name for p in held_out)}"
+        return recs, held, rule
+    fit, held = [], []
+    for r in recs:
+        a, b = r.split(split)
+        _check_length(a, "fit part")
+        _check_length(b, "held-out part")
+        fit.append(a)
+        held.append(b)
+    return fit, held, f"time-ordered split: first {split:.0%} of each recording to fit, the rest held out"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of ``gap``."""
+    p = argparse.ArgumentParser(
+        prog="gap",
+        description="Sim-to-real gap diagnosis: where the nominal simulator disagrees with the recordings, "
+        "which unmodelled effect causes it, and how far the disagreement shrinks on held-out recordings.",
+    )
+    p.add_argument(
+        "inputs", nargs="+", type=Path, help="recordings: bag directories (.mcap/.db3) or CSV logs"
+    )
+    p.add_argument(
+        "--rig", required=True, help="nominal rig: shipped name (e.g. thesis_rig) or rig-file path"
+    )
+    p.add_argument("-o", "--out", required=True, type=Path, help="report folder (created)")
+    p.add_argument(
+        "--preset", default=None, help="CSV preset of aeropend_ident.csv_import ('auto' = by file name)"
+    )
+    g = p.add_mutually_exclusive_group()
+    g.add_argument(
+        "--held-out",
+        nargs="+",
+        type=Path,
+        default=None,
+        metavar="RECORDING",
+        help="recordings kept for the check only (never used to find or fit the effects)",
+    )
+    g.add_argument(
+        "--split",
+        type=float,
+        default=0.7,
+        help="time-ordered split: leading fraction of each recording used to find the effects (0-1)",
+    )
+    p.add_argument("--max-effects", type=int, default=2,
+                   help="most effects added to the corrected rig (1 or 2)")
+    p.add_argument("--horizon", type=float, default=0.2, help="short-horizon prediction length [s]")
+    p.add_argument(
+        "--theta-offset",
+        type=float,
+        default=None,
+        help="angle offset theta_model - theta_recorded [rad] (default: the rig file's)",
+    )
+    p.add_argument("--seed", type=int, default=0, help="seed of the effect ranking's resampling")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the gap diagnosis; print the summary; write the report folder."""
+    args = build_parser().parse_args(argv)
+    from aeropend_ident.gap_report import run_gap, terminal_summary, write_report
+
+    def progress(msg: str) -> None:
+        if not args.quiet:
+            print(f"gap: {msg}", file=sys.stderr, flush=True)
+
+    try:
+        if not 1 <= args.max_effects <= 2:
+            raise GapCliError(f"--max-effects {args.max_effects}: expected 1 or 2")
+        rig, offset = resolve_rig(args.rig)
+        if args.theta_offset is not None:
+            offset = float(args.theta_offset)
+        fit, held, rule = prepare(args.inputs, args.held_out, args.split, args.preset)
+        result = run_gap(
+            rig,
+            fit,
+            held,
+            rig_ref=args.rig,
+            theta_offset=offset,
+            split_rule=rule,  # type: ignore[arg-type]
+            max_effects=args.max_effects,
+            horizon=args.horizon,
+            seed=args.seed,
+            progress=progress,
+        )
+        paths = write_report(result, args.out)
+    except (RecordingError, RigFileError, ValueError) as exc:
+        print(f"gap: error: {exc}", file=sys.stderr)
+        return 2
+    print(terminal_summary(result))
+    print(f"report: {paths['report']}\nhtml: {paths['html']}\ncorrected rig: {paths['corrected_rig']}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,860 @@
+"""Sim-to-real gap, part 3: run the whole diagnosis and report it (JSON, HTML, terminal).
+
+:func:`run_gap` is the pipeline behind the ``gap`` command:
+
+1. **where** — :func:`aeropend_ident.gap_where.locate_gap` of the nominal rig on the *fit*
+   recordings (equation errors per subsystem, regions, bands, residual tests);
+2. **which** — :func:`aeropend_ident.gap_which.diagnose_effects` screens and ranks the catalog's
+   unmodelled effects (:mod:`aeropend_ident.gap_effects`) on the fit recordings, fits the best
+   one or two and measures the shrink of the free-run error on the **held-out** recordings,
+   which neither step has seen;
+3. **after** — the corrected rig is replayed on the held-out recordings (overlay before/after)
+   and :func:`~aeropend_ident.gap_where.locate_gap` is run again there, for the nominal and the
+   corrected rig (does the residual become white, does the flagged equation clear?).
+
+:func:`write_report` writes ``report.json`` (everything, machine-readable), ``report.html``
+(one self-contained page: matplotlib PNGs embedded as base64), ``corrected_rig.yaml`` (loadable
+by :func:`aeropend_sim.params.load_rig`) and the figures as PNG files; :func:`terminal_summary`
+is the one-screen text summary.
+
+No rclpy import; matplotlib is used with the Agg backend.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime as _dt
+import html
+import io
+import json
+import math
+import platform
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy
+import yaml
+
+from aeropend_ident.baseline import _jsonable
+from aeropend_ident.gap_where import EQUATIONS, WhereReport, locate_gap
+from aeropend_ident.greybox import THETA_OFFSET, error_metrics
+from aeropend_sim.params import Rig, rig_to_dict
+from aeropend_sim.recording import Recording
+
+#: Most held-out recordings drawn in the overlay figure.
+MAX_OVERLAYS = 3
+
+
+@dataclass
+class GapResult:
+    """Everything :func:`run_gap` computed.
+
+    Attributes
+    ----------
+    rig : Rig
+        Nominal rig.
+    rig_ref : str
+        Rig name or file given (provenance).
+    theta_offset : float
+        θ_model − θ_recorded [rad].
+    fit, held_out : list[Recording]
+        Recordings used to find the effects / to prove them.
+    split_rule : str
+        How the held-out recordings were chosen.
+    where : WhereReport
+        Nominal rig on the fit recordings.
+    where_heldout_nominal, where_heldout_corrected : WhereReport
+        Nominal and corrected rig on the held-out recordings.
+    diagnosis : Any
+        :class:`aeropend_ident.gap_which.EffectDiagnosis`.
+    overlays : list[dict]
+        Per held-out recording: ``source``, ``t``, ``duty``, ``theta``, ``nominal``,
+        ``corrected`` (arrays, recording frame) and their ``metrics``.
+    """
+
+    rig: Rig
+    rig_ref: str
+    theta_offset: float
+    fit: list[Recording]
+    held_out: list[Recording]
+    split_rule: str
+    where: WhereReport
+    where_heldout_nominal: WhereReport
+    where_heldout_corrected: WhereReport
+    diagnosis: Any
+    overlays: list[dict[str, Any]]
+
+    # ------------------------------------------------------------------ headline
+    def headline(self) -> dict[str, Any]:
+        """Pooled held-out NRMSE before/after (sample-weighted RMS over held-out recordings)."""
+        n = np.array([o["metrics"]["nominal"]["n"] for o in self.overlays], dtype=float)
+
+        def pooled(model: str) -> float:
+            v = np.array([o["metrics"][model]["nrmse"] for o in self.overlays])
+            return float(np.sqrt(np.sum(v**2 * n) / np.sum(n)))
+
+        before, after = pooled("nominal"), pooled("corrected")
+        d = self.diagnosis
+        return {
+            "significant_gap": bool(self.where.significant or d.significant),
+            "where_subsystem": self.where.subsystem,
+            "effects_chosen": list(d.chosen),
+            "heldout_nrmse_nominal": before,
+            "heldout_nrmse_corrected": after,
+            "heldout_shrink": (1.0 - after / before) if before > 0 else math.nan,
+            "n_fit_recordings": len(self.fit),
+            "n_heldout_recordings": len(self.held_out),
+        }
+
+    def as_dict(self) -> dict[str, Any]:
+        """What ``report.json`` holds."""
+        return _jsonable(
+            {
+                "tool": "aeropend_ident gap",
+                "headline": self.headline(),
+                "where": self.where.as_dict(),
+                "which": self.diagnosis.as_dict(),
+                "after": {
+                    "heldout_nominal": _where_brief(self.where_heldout_nominal),
+                    "heldout_corrected": _where_brief(self.where_heldout_corrected),
+                    "overlay_metrics": [{"source": o["source"], **o["metrics"]} for o in self.overlays],
+                },
+                "inputs": {
+                    "rig": {
+                        "ref": self.rig_ref,
+                        "name": self.rig.name,
+                        "description": self.rig.description,
+                        "effects": dict(vars(self.rig.effects)),
+                    },
+                    "theta_offset_rad": self.theta_offset,
+                    "split_rule": self.split_rule,
+                    "fit": [_rec_info(r) for r in self.fit],
+                    "held_out": [_rec_info(r) for r in self.held_out],
+                },
+                "provenance": {
+                    "created_utc": _dt.datetime.now(_dt.UTC).isoformat(),
+                    "versions": {
+                        "python": platform.python_version(),
+                        "numpy": np.__version__,
+                        "scipy": scipy.__version__,
+                    },
+                },
+            }
+        )
+
+
+def _rec_info(r: Recording) -> dict[str, Any]:
+    return {
+        "source": r.source,
+        "n_samples": len(r),
+        "duration_s": float(r.t[-1] - r.t[0]),
+        "dt_s": r.dt,
+        "channels": sorted(r.channels),
+    }
+
+
+def _where_brief(w: WhereReport) -> dict[str, Any]:
+    return {
+        "significant": w.significant,
+        "subsystem": w.subsystem,
+        "located": w.located,
+        "verdict": w.verdict(),
+        "recordings": [
+            {
+                "source": r.source,
+                "free_run": r.free_run,
+                "short_horizon": r.short_horizon,
+                "whiteness_p": r.whiteness["p_value"],
+                "input_xcorr_p": r.input_xcorr["p_value"],
+                "significant": r.significant,
+            }
+            for r in w.recordings
+        ],
+    }
+
+
+# --------------------------------------------------------------------------- pipeline
+def _shift(rec: Recording, offset: float) -> Recording:
+    """The recording with θ moved into the model frame (θ_model = θ_recorded + offset)."""
+    if offset == 0.0:
+        return rec
+    ch = {**rec.channels, "theta": rec.channels["theta"] + offset}
+    return Recording(
+        t=rec.t, duty=rec.duty, channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=dict(rec.meta)
+    )
+
+
+def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, Any]:
+    """Held-out replay of the nominal and the corrected rig (the diagnosis' own replay, so the
+    numbers match its shrink table), θ in the recording's frame."""
+    from aeropend_ident.gap_effects import MeasurementMap
+    from aeropend_ident.gap_which import prepare as which_prepare
+    from aeropend_ident.gap_which import replay
+
+    shifted = _shift(rec, offset)
+    prep = which_prepare([shifted], frozenset({"theta"}))[0]
+    nom = replay(rig, MeasurementMap(), prep)["theta"] - offset
+    cor = replay(diag.corrected_rig, diag.measurement, prep)["theta"] - offset
+    theta = rec.channels["theta"]
+    return {
+        "source": rec.source,
+        "t": rec.t - rec.t[0],
+        "duty": rec.duty,
+        "theta": theta,
+        "nominal": nom,
+        "corrected": cor,
+        "metrics": {"nominal": error_metrics(theta, nom), "corrected": error_metrics(theta, cor)},
+    }
+
+
+def run_gap(
+    rig: Rig,
+    fit: Sequence[Recording],
+    held_out: Sequence[Recording],
+    *,
+    rig_ref: str = "",
+    theta_offset: float = 0.0,
+    split_rule: str = "",
+    max_effects: int = 2,
+    horizon: float = 0.2,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> GapResult:
+    """Where + which + after (module doc) for a nominal rig and fit / held-out recordings.
+
+    Parameters
+    ----------
+    rig : Rig
+        Nominal simulator.
+    fit, held_out : sequence of Recording
+        Recordings used to find the effects, and recordings used only to check them.
+    rig_ref : str
+        Rig name or path (provenance).
+    theta_offset : float
+        θ_model − θ_recorded [rad] (see :func:`aeropend_ident.greybox.rig_theta_offset`).
+    split_rule : str
+        How the held-out set was chosen (provenance).
+    max_effects : int
+        Most effects added to the corrected rig.
+    horizon : float
+        Short-horizon prediction length [s] of the where-analysis.
+    seed : int
+        Seed of the effect ranking's resampling.
+    progress : callable, optional
+        Receives one-line progress messages.
+
+    Returns
+    -------
+    GapResult
+
+    Raises
+    ------
+    aeropend_ident.gap_effects.GapError, aeropend_ident.gap_where.GapInputError
+        Unusable recordings (no θ, NaNs, too short, constant input) or rig.
+    """
+    from aeropend_ident.gap_which import diagnose_effects
+
+    say = progress or (lambda _msg: None)
+    fit, held_out = list(fit), list(held_out)
+    say(f"where: nominal {rig.name} on {len(fit)} fit recording(s)")
+    where = locate_gap(rig, fit, horizon=horizon, theta_offset=theta_offset)
+    say("which: screening and fitting the effect catalog")
+    # the diagnosis works in the model's angle frame: shift θ by the rig's recording-frame offset
+    diag = diagnose_effects(
+        rig,
+        [_shift(r, theta_offset) for r in fit],
+        [_shift(r, theta_offset) for r in held_out],
+        max_effects=max_effects,
+        seed=seed,
+        progress=progress,
+    )
+    corrected = diag.corrected_rig
+    say("after: replaying the held-out recordings")
+    overlays = [_overlay(rig, diag, r, theta_offset) for r in held_out]
+    w_nom = locate_gap(rig, held_out, horizon=horizon, theta_offset=theta_offset)
+    # the corrected rig's where-analysis in the model frame of the diagnosis (sensor offset included)
+    meas = getattr(diag, "measurement", None)
+    off_c = theta_offset + (float(meas.theta_offset) if meas is not None else 0.0)
+    w_cor = locate_gap(corrected, held_out, horizon=horizon, theta_offset=off_c)
+    return GapResult(
+        rig=rig,
+        rig_ref=rig_ref or rig.name,
+        theta_offset=theta_offset,
+        fit=fit,
+        held_out=held_out,
+        split_rule=split_rule,
+        where=where,
+        where_heldout_nominal=w_nom,
+        where_heldout_corrected=w_cor,
+        diagnosis=diag,
+        overlays=overlays,
+    )
+
+
+def _call_diagnose(
+    fn: Callable[..., Any],
+    rig: Rig,
+    fit: list[Recording],
+    held: list[Recording],
+    theta_offset: float,
+    kwargs: dict[str, Any],
+) -> Any:
+    """Call ``diagnose_effects``, passing the angle offset when it takes one."""
+    import inspect
+
+    params = inspect.signature(fn).parameters
+    if "theta_offset" in params:
+        kwargs = {**kwargs, "theta_offset": theta_offset}
+    elif theta_offset != 0.0:
+        from aeropend_ident.gap_effects import GapError
+
+        raise GapError(
+            f"rig {rig.name!r} declares a recording-frame angle offset of {theta_offset:g} rad, "
+            "which this version of gap_which.diagnose_effects cannot take"
+        )
+    return fn(rig, fit, held, **kwargs)
+
+
+# --------------------------------------------------------------------------- corrected rig file
+def corrected_rig_dict(result: GapResult) -> dict[str, Any]:
+    """The corrected rig in the rig-file format; the changed numbers' sources name the diagnosis."""
+    rig, nominal = result.diagnosis.corrected_rig, result.rig
+    data = rig_to_dict(rig)
+    base = rig_to_dict(nominal)
+    chosen = ", ".join(result.diagnosis.chosen) or "none"
+    data["name"] = f"{nominal.name}_corrected"
+    data["description"] = (
+        f"{nominal.description} -- corrected by the gap diagnosis (aeropend_ident gap): "
+        f"effects added: {chosen}"
+    )
+    fits = ", ".join(Path(r.source).name or "recording" for r in result.fit)
+    for section, fields in data.items():
+        if not isinstance(fields, dict) or section == "effects":
+            continue
+        for key, node in fields.items():
+            old = base.get(section, {}).get(key)
+            if isinstance(node, dict) and isinstance(old, dict) and node.get("value") != old.get("value"):
+                node["source"] = (
+                    f"gap diagnosis ({chosen}) fitted on {fits}; nominal {old.get('value')!r} "
+                    f"({old.get('source', '')})"
+                )
+    offset = getattr(result.diagnosis, "theta_offset", None)
+    offset = result.theta_offset if offset is None else float(offset)
+    if offset != 0.0:
+        data["recording_frame"] = {
+            THETA_OFFSET: {"value": offset, "unit": "rad", "source": "nominal rig file / gap diagnosis"}
+        }
+    return data
+
+
+# --------------------------------------------------------------------------- figures
+def _plt() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _png(fig: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    _plt().close(fig)
+    return buf.getvalue()
+
+
+def fig_overlay(result: GapResult) -> bytes:
+    """Held-out recordings: measured θ, nominal and corrected free run; duty below."""
+    plt = _plt()
+    ovs = result.overlays[:MAX_OVERLAYS]
+    fig, axes = plt.subplots(
+        2 * len(ovs),
+        1,
+        figsize=(11, 3.6 * len(ovs)),
+        squeeze=False,
+        height_ratios=[3, 1] * len(ovs),
+        constrained_layout=True,
+    )
+    for j, o in enumerate(ovs):
+        ax, axu = axes[2 * j, 0], axes[2 * j + 1, 0]
+        ax.plot(o["t"], o["theta"], color="black", lw=1.2, label="recorded (held out)")
+        ax.plot(o["t"], o["nominal"], color="tab:orange", lw=1.0, ls="--", label="nominal simulator")
+        ax.plot(o["t"], o["corrected"], color="tab:blue", lw=1.0, label="corrected simulator")
+        m = o["metrics"]
+        ax.set_title(
+            f"{Path(o['source']).name}: NRMSE nominal {m['nominal']['nrmse']:.4f} -> corrected "
+            f"{m['corrected']['nrmse']:.4f}",
+            fontsize=9,
+        )
+        ax.set_ylabel("θ [rad]")
+        ax.legend(loc="best", fontsize=8)
+        ax.grid(alpha=0.3)
+        axu.step(o["t"], o["duty"], where="post", color="tab:green", lw=1.0)
+        axu.set_ylabel("duty τ [1]")
+        axu.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("time t [s] (from the held-out part's start)")
+    return _png(fig)
+
+
+def fig_equations(where: WhereReport) -> bytes:
+    """Relative equation residual per state equation (bars) and the residual time series."""
+    plt = _plt()
+    rec = where.recordings[0]
+    checked = [e for e in rec.equations if e.checked]
+    fig, axes = plt.subplots(
+        1 + len(checked), 1, figsize=(11, 2.4 * (1 + len(checked))), squeeze=False, constrained_layout=True
+    )
+    ax = axes[0, 0]
+    names = [f"{r['equation']}\n({r['subsystem']})" for r in where.located]
+    vals = [r["relative"] for r in where.located]
+    colors = ["tab:red" if r["flagged"] else "tab:gray" for r in where.located]
+    ax.bar(names, vals, color=colors)
+    for k, r in enumerate(where.located):
+        ax.text(k, vals[k], f" {vals[k]:.1%}\n top: {r['top_group']}", ha="center", va="bottom", fontsize=8)
+    miss = ", ".join(nc["equation"] for nc in where.not_checked)
+    ax.set_title(
+        "equation residual / driving term (red = flagged)" + (f"; not checked: {miss}" if miss else ""),
+        fontsize=9,
+    )
+    ax.set_ylabel("relative residual [1]")
+    ax.set_ylim(0, max([*vals, 0.01]) * 1.5)
+    for j, e in enumerate(checked, start=1):
+        a = axes[j, 0]
+        a.plot(rec.t, e.residual, lw=0.7, color="tab:red" if e.flagged else "tab:gray")
+        a.axhline(0, color="black", lw=0.5)
+        a.set_ylabel(f"{e.equation}\n[{e.unit}]")
+        a.set_title(
+            f"{e.equation} equation residual on {Path(rec.source).name} (RMS {e.rms:.3g} {e.unit}, "
+            f"method floor {e.method_floor:.3g}, noise floor {e.noise_floor:.3g})",
+            fontsize=8,
+        )
+        a.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("time t [s]")
+    return _png(fig)
+
+
+def fig_regions(where: WhereReport) -> bytes:
+    """Free-run residual per θ, duty and |θ̇| bin, transient vs steady, and per frequency band."""
+    plt = _plt()
+    rec = where.recordings[0]
+    reg = rec.regions
+    fig, axes = plt.subplots(2, 3, figsize=(12, 6.5), constrained_layout=True)
+    for ax, key, label in (
+        (axes[0, 0], "theta_bins", "θ [rad]"),
+        (axes[0, 1], "duty_bins", "duty τ [1]"),
+        (axes[0, 2], "rate_bins", "|θ̇| [rad/s]"),
+    ):
+        bins = reg[key]
+        centres = [0.5 * (b["lower"] + b["upper"]) for b in bins]
+        width = [(b["upper"] - b["lower"]) * 0.9 or 0.01 for b in bins]
+        rms = [b["rms_residual"] or 0.0 for b in bins]
+        mean = [b["mean_residual"] or 0.0 for b in bins]
+        ax.bar(centres, rms, width=width, color="tab:orange", alpha=0.6, label="RMS")
+        ax.bar(centres, mean, width=[w * 0.5 for w in width], color="tab:blue", label="mean")
+        ax.set_xlabel(label)
+        ax.set_ylabel("residual θ_sim − θ_meas [rad]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    mo = reg["motion"]
+    ax = axes[1, 0]
+    ax.bar(
+        ["transient", "steady"],
+        [mo["transient"]["rms_residual"] or 0.0, mo["steady"]["rms_residual"] or 0.0],
+        color="tab:orange",
+    )
+    ax.set_ylabel("RMS residual [rad]")
+    ax.set_title(f"|θ̇| threshold {reg['rate_threshold']} rad/s", fontsize=9)
+    ax = axes[1, 1]
+    bands = [b for b in rec.bands if "residual_power_fraction" in b]
+    ax.bar(
+        [f"{b['band']}\n{b['f_lo_hz']:.2g}-{b['f_hi_hz']:.2g} Hz" for b in bands],
+        [b["residual_power_fraction"] for b in bands],
+        color="tab:purple",
+    )
+    ax.set_ylabel("share of residual power")
+    ax.tick_params(axis="x", labelsize=7)
+    ax = axes[1, 2]
+    holds = rec.holds
+    if holds:
+        ax.plot([h["duty"] for h in holds], [h["theta_meas_ss"] for h in holds], "ko", label="recorded")
+        ax.plot(
+            [h["duty"] for h in holds],
+            [h["theta_sim_ss"] for h in holds],
+            "x",
+            color="tab:orange",
+            label="nominal",
+        )
+        ax.set_xlabel("duty τ [1]")
+        ax.set_ylabel("steady θ [rad]")
+        ax.legend(fontsize=8)
+        ax.set_title("steady state per constant-duty hold", fontsize=9)
+    else:
+        ax.text(0.5, 0.5, "no constant-duty hold >= 1 s", ha="center", va="center")
+    ax.grid(alpha=0.3)
+    fig.suptitle(f"free-run residual by operating region: {Path(rec.source).name}", fontsize=10)
+    return _png(fig)
+
+
+def fig_tests(where: WhereReport) -> bytes:
+    """Residual autocorrelation (Ljung-Box) and input-residual cross-correlation with bounds."""
+    plt = _plt()
+    rec = where.recordings[0]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.4), constrained_layout=True)
+    acf = rec.whiteness["acf"]
+    n = rec.t.size
+    a1.bar(np.arange(1, len(acf) + 1), acf, color="tab:blue")
+    b = 2.58 / math.sqrt(n)
+    a1.axhline(b, color="red", ls=":")
+    a1.axhline(-b, color="red", ls=":")
+    a1.set_title(
+        f"residual autocorrelation: Ljung-Box Q = {rec.whiteness['q']:.3g}, "
+        f"p = {rec.whiteness['p_value']:.3g}",
+        fontsize=9,
+    )
+    a1.set_xlabel("lag [samples]")
+    xc = rec.input_xcorr
+    if xc["lags"]:
+        a2.plot(np.array(xc["lags"]) * rec.dt, xc["rho"], color="tab:green")
+        a2.axhline(xc["bound"], color="red", ls=":")
+        a2.axhline(-xc["bound"], color="red", ls=":")
+        a2.axvline(xc["peak_lag_s"], color="black", lw=0.8)
+    a2.set_title(
+        f"input-residual cross-correlation (prewhitened): peak {xc['max_abs']:.3f} at "
+        f"{xc['peak_lag_s']} s, p = {xc['p_value']:.3g}",
+        fontsize=9,
+    )
+    a2.set_xlabel("lag [s] (> 0: residual follows input)")
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+    return _png(fig)
+
+
+def fig_effects(result: GapResult) -> bytes:
+    """Ranked effects (score and held-out explained) and the before/after NRMSE per effect set."""
+    plt = _plt()
+    d = result.diagnosis
+    rank = list(d.ranking)[:8]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.8), constrained_layout=True)
+    if rank:
+        names = [r["effect"] for r in rank][::-1]
+        expl = [float(r.get("held_out_explained") or 0.0) for r in rank][::-1]
+        conf = [float(r.get("confidence") or 0.0) for r in rank][::-1]
+        y = np.arange(len(names))
+        a1.barh(y, expl, color="tab:blue", label="held-out explained")
+        a1.scatter(conf, y, color="black", marker="D", label="confidence", zorder=3)
+        a1.set_yticks(y, names, fontsize=8)
+        a1.set_xlabel("fraction [1]")
+        a1.legend(fontsize=8)
+    a1.set_title("ranked effects (best on top)", fontsize=9)
+    rows = list(d.shrink)
+    if rows:
+        labels = ["nominal" if not r["effects"] else "+" + "+".join(r["effects"]) for r in rows]
+        a2.bar(labels, [r["nrmse"] for r in rows], color=["tab:orange"] + ["tab:blue"] * (len(rows) - 1))
+        a2.set_ylabel("held-out NRMSE [1]")
+        a2.tick_params(axis="x", labelsize=8)
+    a2.set_title("held-out NRMSE as effects are added", fontsize=9)
+    for a in (a1, a2):
+        a.grid(alpha=0.3)
+    return _png(fig)
+
+
+def figures(result: GapResult) -> dict[str, bytes]:
+    """All report figures as PNG bytes, keyed by file stem."""
+    return {
+        "overlay": fig_overlay(result),
+        "equations": fig_equations(result.where),
+        "regions": fig_regions(result.where),
+        "tests": fig_tests(result.where),
+        "effects": fig_effects(result),
+    }
+
+
+# --------------------------------------------------------------------------- text
+def _fmt(v: Any, spec: str = ".4g") -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return format(v, spec) if math.isfinite(v) else "–"
+    return str(v)
+
+
+def terminal_summary(result: GapResult) -> str:
+    """One-screen summary: verdict, located subsystem, ranked effects, before/after."""
+    h = result.headline()
+    d = result.diagnosis
+    lines = [
+        f"gap: nominal rig {result.rig.name}; {h['n_fit_recordings']} fit / "
+        f"{h['n_heldout_recordings']} held-out recording(s) ({result.split_rule})",
+        f"  significant gap: {'yes' if h['significant_gap'] else 'no'}",
+        "  WHERE (nominal on fit recordings):",
+    ]
+    for row in result.where.located:
+        mark = "!" if row["flagged"] else " "
+        lines.append(
+            f"   {mark} {row['equation']:9s} ({row['subsystem']:10s}) residual {row['relative']:7.1%} "
+            f"of driving term; top terms: {row['top_group']}"
+        )
+    for nc in result.where.not_checked:
+        lines.append(f"     {nc['equation']:9s} not checked: {nc['reason']}")
+    r0 = result.where.recordings[0]
+    lines.append(
+        f"    free-run NRMSE {r0.free_run['nrmse']:.4f}, {result.where.recordings[0].horizon:g} s-ahead "
+        f"NRMSE {r0.short_horizon['nrmse']:.4f}; Ljung-Box p {r0.whiteness['p_value']:.2g}; "
+        f"alignment lag {r0.alignment['lag_s']:.3f} s"
+    )
+    lines.append("  WHICH (ranked effects):")
+    for r in list(d.ranking)[:5]:
+        lines.append(
+            f"    {r['effect']:22s} {r.get('subsystem', ''):12s} score {_fmt(r.get('score'), '.3g'):>8s} "
+            f"held-out explained {_fmt(r.get('held_out_explained'), '.2f'):>5s} "
+            f"confidence {_fmt(r.get('confidence'), '.2f')}"
+        )
+    for ni in list(d.not_identifiable)[:4]:
+        lines.append(f"    (not identifiable: {ni['effect']}: {ni['reason'][:70]})")
+    lines.append(f"  chosen: {', '.join(d.chosen) or 'none'}")
+    lines.append("  HELD-OUT before/after:")
+    for row in d.shrink:
+        lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} NRMSE {row['nrmse']:.4f}")
+    lines.append(
+        f"  held-out NRMSE {h['heldout_nrmse_nominal']:.4f} -> {h['heldout_nrmse_corrected']:.4f} "
+        f"(shrink {h['heldout_shrink']:.1%})"
+    )
+    return "\n".join(lines)
+
+
+def _table(rows: list[list[Any]], head: list[str]) -> str:
+    th = "".join(f"<th>{html.escape(str(c))}</th>" for c in head)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(c))}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{th}</tr>{body}</table>"
+
+
+def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
+    """The self-contained HTML report (figures embedded as base64 PNG)."""
+    h = result.headline()
+    d = result.diagnosis
+    w = result.where
+
+    def img(key: str, alt: str) -> str:
+        return f'<img alt="{alt}" src="data:image/png;base64,{base64.b64encode(figs[key]).decode()}">'
+
+    verdict = "".join(f"<li>{html.escape(v)}</li>" for v in w.verdict())
+    eq_rows = [
+        [
+            r["equation"],
+            r["subsystem"],
+            f"{r['relative']:.2%}",
+            "yes" if r["flagged"] else "no",
+            r["top_group"],
+            r["top_group_subsystem"],
+        ]
+        for r in w.located
+    ]
+    eq_rows += [[nc["equation"], "", "not checked", "", nc["reason"], ""] for nc in w.not_checked]
+    rec_rows = [
+        [
+            Path(r.source).name,
+            r.free_run["nrmse"],
+            r.short_horizon["nrmse"],
+            r.whiteness["p_value"],
+            r.input_xcorr["p_value"],
+            r.input_xcorr["peak_lag_s"],
+            r.alignment["lag_s"],
+            "yes" if r.significant else "no",
+        ]
+        for r in w.recordings
+    ]
+    rank_rows = [
+        [
+            k + 1,
+            r["effect"],
+            r.get("subsystem"),
+            r.get("score"),
+            r.get("held_out_explained"),
+            r.get("bic_delta"),
+            r.get("confidence"),
+            "; ".join(
+                f"{n} = {_fmt(p.get('value'))} ± {_fmt(p.get('std'), '.2g')} {p.get('unit', '')}"
+                for n, p in (r.get("parameters") or {}).items()
+            ),
+        ]
+        for k, r in enumerate(d.ranking)
+    ]
+    ni_rows = [[n["effect"], n["reason"]] for n in d.not_identifiable]
+    shrink_rows = []
+    for row in d.shrink:
+        sm = row.get("step_metrics") or {}
+        shrink_rows.append(
+            [
+                "+".join(row["effects"]) or "nominal",
+                row.get("nrmse"),
+                row.get("max_error"),
+                row.get("steady_state_error"),
+                ", ".join(f"{k} {_fmt(v, '.3g')}" for k, v in sm.items() if not isinstance(v, dict)),
+            ]
+        )
+    after_rows = [
+        [
+            Path(o["source"]).name,
+            o["metrics"]["nominal"]["nrmse"],
+            o["metrics"]["corrected"]["nrmse"],
+            o["metrics"]["nominal"]["max_abs_error"],
+            o["metrics"]["corrected"]["max_abs_error"],
+        ]
+        for o in result.overlays
+    ]
+    wc = result.where_heldout_corrected
+    wn = result.where_heldout_nominal
+    white_rows = [
+        [
+            Path(a.source).name,
+            a.whiteness["p_value"],
+            b.whiteness["p_value"],
+            "yes" if a.significant else "no",
+            "yes" if b.significant else "no",
+        ]
+        for a, b in zip(wn.recordings, wc.recordings, strict=True)
+    ]
+    css = (
+        "body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em;color:#222}"
+        "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 7px;"
+        "font-size:13px}th{background:#eee}img{max-width:100%}.big{font-size:1.2em}"
+    )
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>aeropend gap report: {html.escape(result.rig.name)}</title>
+<style>{css}</style></head><body>
+<h1>Sim-to-real gap report: {html.escape(result.rig.name)}</h1>
+<p class="big">Held-out NRMSE <b>{h["heldout_nrmse_nominal"]:.4f}</b> (nominal) &rarr;
+<b>{h["heldout_nrmse_corrected"]:.4f}</b> (corrected with {html.escape(", ".join(d.chosen) or "no effect")}):
+shrink <b>{h["heldout_shrink"]:.1%}</b>. Significant gap: {"yes" if h["significant_gap"] else "no"};
+located in: <b>{html.escape(str(h["where_subsystem"]))}</b>.</p>
+<p>Rig {html.escape(result.rig_ref)}; {len(result.fit)} fit recording(s), {len(result.held_out)} held-out
+recording(s) ({html.escape(result.split_rule)}). The held-out recordings were used neither to locate the gap
+nor to choose or fit the effects.</p>
+<h2>1. Before / after on held-out recordings</h2>
+{img("overlay", "overlay")}
+{
+        _table(
+            after_rows,
+            [
+                "recording",
+                "NRMSE nominal",
+                "NRMSE corrected",
+                "max |e| nominal [rad]",
+                "max |e| corrected [rad]",
+            ],
+        )
+    }
+{
+        _table(
+            shrink_rows,
+            ["effects added", "NRMSE", "max error [rad]", "steady-state error [rad]", "step metrics"],
+        )
+    }
+<h3>Residual tests on held-out data, nominal vs corrected</h3>
+{
+        _table(
+            white_rows,
+            ["recording", "Ljung-Box p nominal", "Ljung-Box p corrected", "gap nominal", "gap corrected"],
+        )
+    }
+<h2>2. Where: residual per state equation (fit recordings)</h2>
+<ul>{verdict}</ul>
+<p>Each state equation is evaluated on the measured signals; its residual is shown relative to the equation's
+driving term (v<sub>a</sub> for the armature, K<sub>t</sub>i<sub>a</sub> for the rotor, (L/J)f for the
+pendulum). The "top terms" column is the term group whose regressors explain most of the residual (R²).
+Equations whose channels were not recorded cannot be checked.</p>
+{_table(eq_rows, ["equation", "subsystem", "residual / driving term", "flagged", "top terms", "points to"])}
+{img("equations", "equation residuals")}
+{
+        _table(
+            rec_rows,
+            [
+                "recording",
+                "free-run NRMSE",
+                f"{w.recordings[0].horizon:g} s-ahead NRMSE",
+                "Ljung-Box p",
+                "input xcorr p",
+                "xcorr peak lag [s]",
+                "alignment lag [s]",
+                "significant",
+            ],
+        )
+    }
+<h2>3. Where: residual by operating region, frequency band, residual tests</h2>
+{img("regions", "regions")}
+{img("tests", "residual tests")}
+<h2>4. Which: ranked unmodelled effects</h2>
+{img("effects", "effects")}
+{
+        _table(
+            rank_rows,
+            [
+                "rank",
+                "effect",
+                "subsystem",
+                "score",
+                "held-out explained",
+                "ΔBIC",
+                "confidence",
+                "parameters",
+            ],
+        )
+    }
+<h3>Not identifiable from these recordings</h3>
+{_table(ni_rows, ["effect", "reason"])}
+<h2>5. Definitions</h2>
+<ul>
+<li>NRMSE = RMS(θ<sub>sim</sub> − θ<sub>meas</sub>) / (max θ<sub>meas</sub> − min θ<sub>meas</sub>),
+free run from the recording's first samples, driven by the recorded duty cycle only.</li>
+<li>Significant gap: the free-run residual fails the Ljung-Box whiteness test (p &lt; 0.01), its RMS exceeds
+3&times; the measurement noise and the NRMSE exceeds 0.01.</li>
+<li>Confidence: how often the effect is selected when the fit data are resampled (0..1).</li>
+<li>Corrected rig: <code>corrected_rig.yaml</code> next to this page (load with
+<code>aeropend_sim.params.load_rig</code>); the full numbers are in <code>report.json</code>.</li>
+</ul>
+</body></html>
+"""
+
+
+def write_report(result: GapResult, outdir: str | Path) -> dict[str, Path]:
+    """Write ``report.json``, ``report.html``, ``corrected_rig.yaml`` and ``figures/*.png``.
+
+    Returns
+    -------
+    dict
+        Paths keyed ``report``, ``html``, ``corrected_rig`` and ``fig_<name>``.
+    """
+    out = Path(outdir)
+    (out / "figures").mkdir(parents=True, exist_ok=True)
+    figs = figures(result)
+    paths: dict[str, Path] = {}
+    for k, png in figs.items():
+        p = out / "figures" / f"{k}.png"
+        p.write_bytes(png)
+        paths[f"fig_{k}"] = p
+    paths["report"] = out / "report.json"
+    paths["report"].write_text(json.dumps(result.as_dict(), indent=2, allow_nan=False), encoding="utf-8")
+    paths["html"] = out / "report.html"
+    paths["html"].write_text(html_page(result, figs), encoding="utf-8")
+    paths["corrected_rig"] = out / "corrected_rig.yaml"
+    paths["corrected_rig"].write_text(
+        yaml.safe_dump(_jsonable(corrected_rig_dict(result)), sort_keys=False, allow_unicode=True),
+        encoding="utf-8",
+    )
+    return paths
+
+
+__all__ = [
+    "EQUATIONS",
+    "GapResult",
+    "corrected_rig_dict",
+    "figures",
+    "html_page",
+    "run_gap",
+    "terminal_summary",
+    "write_report",
+]

@@ -1,0 +1,182 @@
+"""End to end: the ``gap`` command on small contract bags (write_bag -> gap -> report folder).
+
+The "real" rig is the thesis rig with Coulomb friction on the rod (an effect the nominal rig
+lacks); the recording is angle-only with 50 dB noise, as most real logs are. The tool must write
+report.json, a self-contained report.html and a loadable corrected rig, put the gap in the
+pendulum and shrink the held-out error. Bad inputs must exit with status 2 and a message naming
+the problem.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aeropend_ident.bags import write_bag
+from aeropend_ident.gap_cli import main
+from aeropend_sim.excitation import aprbs
+from aeropend_sim.params import load_rig
+from aeropend_sim.recording import Recording
+from aeropend_sim.simulate import simulate
+
+DT = 0.01
+NOMINAL = load_rig("thesis_rig")
+REAL = NOMINAL.with_effects(coulomb_friction=True, sensor_noise=True).with_params(
+    "pendulum", coulomb_over_J=0.5
+)
+
+
+def _recording(seed: int, duration: float = 30.0, channels=("theta",)) -> Recording:
+    d = aprbs(duration, lo=0.3, hi=0.8, min_hold=0.3, max_hold=1.5, seed=seed, dt=DT).duty.copy()
+    d[:50] = 0.0
+    return Recording.from_trajectory(
+        simulate(REAL, d, dt=DT, seed=seed), channels=channels, source=f"synthetic seed {seed}"
+    )
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory) -> dict[str, Path]:
+    root = tmp_path_factory.mktemp("bags")
+    return {
+        "fit": write_bag(_recording(1, 24.0), root / "fit", rig_name="thesis_rig"),
+        "held": write_bag(_recording(2, 15.0), root / "held", rig_name="thesis_rig"),
+    }
+
+
+@pytest.fixture(scope="module")
+def report(bags, tmp_path_factory) -> tuple[dict, Path, str]:
+    out = tmp_path_factory.mktemp("gap_out")
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = main(
+            [
+                str(bags["fit"]),
+                "--held-out",
+                str(bags["held"]),
+                "--rig",
+                "thesis_rig",
+                "--out",
+                str(out),
+                "-q",
+            ]
+        )
+    assert rc == 0
+    return json.loads((out / "report.json").read_text()), out, buf.getvalue()
+
+
+def test_report_files(report):
+    rep, out, text = report
+    html = (out / "report.html").read_text()
+    assert html.startswith("<!DOCTYPE html>")
+    assert html.count('src="data:image/png;base64,') == 5  # self-contained: no external image
+    assert "<img" in html and 'src="figures' not in html
+    for key in ("overlay", "equations", "regions", "tests", "effects"):
+        assert (out / "figures" / f"{key}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    corrected = load_rig(out / "corrected_rig.yaml")
+    assert corrected.name == "thesis_rig_corrected"
+    assert set(rep) >= {"headline", "where", "which", "after", "inputs"}
+    assert rep["inputs"]["split_rule"].startswith("separate held-out file")
+    assert len(text.splitlines()) <= 40  # one screen
+    assert "held-out NRMSE" in text
+
+
+def test_gap_found_named_and_shrunk_on_held_out(report):
+    rep, out, _ = report
+    h = rep["headline"]
+    assert h["significant_gap"]
+    assert h["effects_chosen"][0] == "coulomb_friction"
+    assert h["heldout_shrink"] >= 0.5
+    assert h["heldout_nrmse_corrected"] < h["heldout_nrmse_nominal"]
+    # the overlay numbers are the diagnosis' own held-out numbers
+    shrink = rep["which"]["shrink"]
+    assert shrink[0]["effects"] == [] and shrink[0]["nrmse"] == pytest.approx(
+        h["heldout_nrmse_nominal"], rel=1e-6
+    )
+    # fitted rod Coulomb friction close to the truth, and in the corrected rig file
+    corrected = load_rig(out / "corrected_rig.yaml")
+    assert corrected.effects.coulomb_friction
+    assert corrected.pendulum.coulomb_over_J == pytest.approx(0.5, rel=0.2)
+    # where: the pendulum equation is the only one checkable with θ alone; the others say why
+    where = rep["where"]
+    assert [r["equation"] for r in where["located"]] == ["pendulum"]
+    assert {nc["equation"] for nc in where["not_checked"]} == {"actuator", "armature", "rotor"}
+    assert where["located"][0]["top_group"] == "friction"
+
+
+def test_split_rule_and_ros2_entry_point(bags, tmp_path):
+    out = tmp_path / "split"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "aeropend_ident.gap_cli",
+            str(bags["fit"]),
+            "--rig",
+            "thesis_rig",
+            "--split",
+            "0.6",
+            "--max-effects",
+            "1",
+            "-o",
+            str(out),
+            "-q",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["inputs"]["split_rule"].startswith("time-ordered split: first 60%")
+    n_fit = rep["inputs"]["fit"][0]["n_samples"]
+    n_held = rep["inputs"]["held_out"][0]["n_samples"]
+    assert n_fit == 1440 and n_held == 960
+    assert len(rep["headline"]["effects_chosen"]) == 1
+    # console script registered in setup.py (so `ros2 run aeropend_ident gap` finds it)
+    setup = (Path(__file__).resolve().parents[1] / "src" / "aeropend_ident" / "setup.py").read_text()
+    assert "'gap = aeropend_ident.gap_cli:main'" in setup
+    exe = shutil.which("gap") or str(Path(sys.executable).parent / "gap")
+    if Path(exe).exists():
+        assert subprocess.run([exe, "--help"], capture_output=True, timeout=60).returncode == 0
+
+
+def _err(capsys, argv) -> str:
+    rc = main(argv)
+    assert rc == 2
+    return capsys.readouterr().err
+
+
+def test_error_exits(bags, tmp_path, capsys):
+    out = str(tmp_path / "o")
+    assert "unknown rig 'no_such_rig'" in _err(capsys, [str(bags["fit"]), "--rig", "no_such_rig", "-o", out])
+    # a recording without θ
+    rec = _recording(3, 10.0, channels=("i_a",))
+    no_theta = write_bag(rec, tmp_path / "no_theta")
+    msg = _err(capsys, [str(no_theta), "--rig", "thesis_rig", "-o", out])
+    assert "theta" in msg and "gap: error:" in msg
+    # too short
+    short = write_bag(_recording(4, 3.0), tmp_path / "short")
+    assert "samples" in _err(capsys, [str(short), "--rig", "thesis_rig", "-o", out])
+    # NaNs (CSV with a preset)
+    r = _recording(5, 10.0)
+    th = np.degrees(r.channels["theta"])
+    th[200] = np.nan
+    csv = tmp_path / "nan.csv"
+    lines = ["t,pwm,theta"] + [
+        f"{t:.4f},{round(d * 255)},{np.radians(a)}" for t, d, a in zip(r.t, r.duty, th, strict=True)
+    ]
+    csv.write_text("\n".join(lines).replace(",nan", ",NaN"))
+    assert "NaN" in _err(
+        capsys, [str(csv), "--preset", "etchepareborda_openloop", "--rig", "thesis_rig", "-o", out]
+    )
+    assert "does not exist" in _err(capsys, [str(tmp_path / "missing"), "--rig", "thesis_rig", "-o", out])
+    assert "--split" in _err(capsys, [str(bags["fit"]), "--rig", "thesis_rig", "--split", "1.5", "-o", out])
