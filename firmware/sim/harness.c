@@ -3,7 +3,7 @@
  * exposes USART0 as a pty (simavr's uart_pty part), drives the ADC inputs and, from an event
  * file, the IR propeller sensor on ICP4 and an AS5040 SSI slave on the GPIO pins.
  *
- *   build/harness firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events.txt]
+ *   build/harness firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events.txt] [-r]
  *
  * Prints "PTY <slave path>" on stdout once the UART is connected, then runs `cycles` CPU
  * cycles of 1/16 us (0 = until SIGTERM / SIGINT) and prints "CYCLES <n>" on exit; with an
@@ -11,6 +11,10 @@
  * "SSITIMING clkfe_min <ns> half_min <ns> read_min <ns> read_max <ns> rises <min> <max>" (stdout)
  * on exit. AVcc = 5 V. The firmware idles in SLEEP_MODE_IDLE between interrupts, so simavr's
  * raw sleep callback paces the simulation to wall-clock time (when the host is fast enough).
+ *
+ * -r prints "REG <name> <value>" for the peripheral configuration registers on exit (data-space
+ * values as the firmware wrote them), so a test can decode the production build's Timer1 set-up
+ * that simavr does not emulate.
  *
  * Event file, one event per line, times in microseconds (fractions allowed, 1/16 us = one CPU
  * cycle) after the firmware starts Timer4 (its write of a non-zero clock select to TCCR4B), so
@@ -66,6 +70,16 @@ typedef struct {
     avr_cycle_count_t cs_fall, clk_edge, min_clkfe, min_half, min_read, max_read;
     unsigned rises, min_rises, max_rises;
 } sim_t;
+
+/* ATmega2560 data-space addresses (avr-libc iomxx0_1.h). */
+static const struct { const char *name; uint16_t addr; } REGS[] = {
+    {"TCCR1A", 0x80}, {"TCCR1B", 0x81}, {"OCR1AL", 0x88}, {"OCR1AH", 0x89}, {"ICR1L", 0x86},
+    {"ICR1H", 0x87}, {"TIMSK1", 0x6F}, {"TCCR4A", 0xA0}, {"TCCR4B", 0xA1}, {"TIMSK4", 0x72},
+    {"UCSR0A", 0xC0}, {"UCSR0B", 0xC1}, {"UCSR0C", 0xC2}, {"UBRR0L", 0xC4}, {"UBRR0H", 0xC5},
+    {"ADMUX", 0x7C}, {"ADCSRA", 0x7A}, {"ADCSRB", 0x7B}, {"DIDR0", 0x7E}, {"DDRA", 0x21},
+    {"PORTA", 0x22}, {"DDRB", 0x24}, {"PORTB", 0x25}, {"DDRH", 0x101}, {"PORTH", 0x102},
+    {"DDRL", 0x10A}, {"PORTL", 0x10B}, {"WDTCSR", 0x60}, {"SMCR", 0x53},
+};
 
 static volatile sig_atomic_t stop;
 static void on_signal(int sig) { (void)sig; stop = 1; }
@@ -233,14 +247,18 @@ int main(int argc, char **argv)
     const char *pos[6] = {0};
     int npos = 0;
     const char *events = NULL;
+    int dump_regs = 0;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "-e") == 0 && i + 1 < argc)
             events = argv[++i];
+        else if (strcmp(argv[i], "-r") == 0)
+            dump_regs = 1;
         else if (npos < 6)
             pos[npos++] = argv[i];
     }
     if (npos < 1) {
-        fprintf(stderr, "usage: %s firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events]\n", argv[0]);
+        fprintf(stderr, "usage: %s firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events] [-r]\n",
+                argv[0]);
         return 2;
     }
     elf_firmware_t fw;
@@ -298,6 +316,9 @@ int main(int argc, char **argv)
            (max_cycles == 0 || avr->cycle < max_cycles))
         state = avr_run(avr);
     printf("CYCLES %llu\n", (unsigned long long)avr->cycle);
+    if (dump_regs)
+        for (size_t i = 0; i < sizeof REGS / sizeof REGS[0]; i++)
+            printf("REG %s %u\n", REGS[i].name, avr->data[REGS[i].addr]);
     if (events)
         printf("IREDGES %lu\nSSIREADS %u %u\n", s.ir_edges, s.reads, s.bad_reads);
     if (s.reads) /* ns; CLK rising edges per read-out (min max) */
