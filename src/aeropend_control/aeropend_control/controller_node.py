@@ -30,29 +30,46 @@ allocator : str, default ``model``
     ``model`` | ``thesis`` (see :mod:`aeropend_control.allocation`).
 omega_n, zeta, rho : float
     Closed-loop pole pattern (:class:`aeropend_control.design.PoleSpec`).
+estimator : str, default ``observer``
+    θ̇ estimate: ``observer`` (stationary Kalman filter with the model thrust as known input,
+    :mod:`aeropend_control.observer`) | ``difference`` (filtered difference, time constant ``tf``).
 tf : float [s], default 0.01
-    θ̇ / derivative filter time constant.
+    θ̇ / derivative filter time constant of the ``difference`` estimator.
 theta_op : float [rad]
     Operating point of ``small_signal_fixed``.
 duration : float [s], default 0
     Stop (duty 0, exit 0) after this much sample time; 0 = run until SIGINT/SIGTERM.
 trace : str
     Write a CSV of the internal signals to this path on exit.
+rt_priority : int, default 0
+    Run the executor thread (sample receipt → command) with SCHED_FIFO at this priority (1-99;
+    needs CAP_SYS_NICE or an ``rtprio`` limit, else a warning) and switch Python's cyclic
+    garbage collector off after start-up (``gc.freeze``; its pauses reach milliseconds; the
+    per-sample path creates no reference cycles); 0 = normal scheduling.
+executor : str, default ``events``
+    ``events`` (rclpy's C++ ``EventsExecutor``: callbacks dispatched from events, lower latency)
+    | ``single`` (``SingleThreadedExecutor``).
 
 Publishes ``/aeropend/controller/signals`` (std_msgs/Float64MultiArray, one per sample, labelled
-layout: t, reference, θ, error, v, thrust, θ̂̇, duty, saturated, stamp, receipt latency; the
-trace adds the stamp → command-published latency, real-time mode only). Invalid parameters log an error
-naming the value and exit with status 2. On shutdown the node publishes duty 0.
+layout: :data:`~aeropend_control.controller_core.SIGNALS`: t, reference, θ, error, v, thrust, θ̂̇,
+duty, saturated, stamp, receipt latency, publish latency (filled in the trace only), θ̂, d̂).
+Invalid parameters log an error naming the value and exit with status 2.
+On shutdown the node publishes duty 0.
 """
 
 from __future__ import annotations
 
+import gc
 import math
+import os
 import sys
 import threading
 from typing import Any
 
+import rclpy
 from rclpy.duration import Duration
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
@@ -65,7 +82,7 @@ from aeropend_sim.contract import (
     ContractError,
     stamp_to_ns,
 )
-from aeropend_sim.node_shell import declare_parameter_table, run_node
+from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, duty_msg
 
 NODE_NAME = "aeropend_controller"
@@ -88,7 +105,11 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("theta_op", None, "operating point of small_signal_fixed [rad]"),
     ("duration", 0.0, "stop after this much sample time [s] (0 = never)"),
     ("trace", "", "CSV path for the internal signals (written on exit)"),
+    ("estimator", "observer", "theta_dot estimate: observer | difference"),
+    ("rt_priority", 0, "SCHED_FIFO priority 1-99 of the executor thread (0 = normal scheduling)"),
+    ("executor", "events", "events (EventsExecutor) | single (SingleThreadedExecutor)"),
 )
+EXECUTORS = ("events", "single")
 
 
 class ControllerNode(Node):
@@ -98,8 +119,14 @@ class ControllerNode(Node):
         super().__init__(NODE_NAME)
         raw = declare_parameter_table(self, PARAMETERS)
         try:
+            self.rt_priority = _rt_priority(raw.pop("rt_priority"))
+            self.executor_kind = str(raw.pop("executor"))
+            if self.executor_kind not in EXECUTORS:
+                raise ControllerConfigError(f"executor = {self.executor_kind!r}; expected one of {EXECUTORS}")
             self.settings = make_settings(**raw)
             self.loop = ControllerLoop(self.settings)
+            if self.settings.mode == "realtime":
+                _warm_up(self.settings)
         except ControllerConfigError:
             self.destroy_node()
             raise
@@ -120,7 +147,8 @@ class ControllerNode(Node):
         self._layout = [MultiArrayDimension(label=",".join(SIGNALS), size=len(SIGNALS), stride=len(SIGNALS))]
         self.get_logger().info(
             f"rig {s.rig.name!r}, strategy {s.strategy}, mode {s.mode}, steps {s.steps}, "
-            f"poles {s.spec}, allocator {s.allocator}, duration {s.duration:g} s"
+            f"poles {s.spec}, allocator {s.allocator}, estimator {s.estimator}, duration {s.duration:g} s, "
+            f"executor {self.executor_kind}"
         )
 
     def _on_reference(self, msg: Float64) -> None:
@@ -198,10 +226,63 @@ class ControllerNode(Node):
         )
 
 
+def _warm_up(settings: Any, n: int = 200) -> None:
+    """Run a throw-away copy of the loop on synthetic samples so the first real samples do not pay
+    first-call costs (lazy imports, caches); the node's own loop is untouched."""
+    loop = ControllerLoop(settings)
+    for k in range(n):
+        loop.on_sample(k * 2_048_000, 0.001 * k, 100.0, 0.3, k * 2_048_000 + 100_000)
+        loop.mark_published(k * 2_048_000 + 200_000)
+    Float64MultiArray(data=[float(x) for x in loop.last_signals])
+    duty_msg(0.0)
+
+
+def _rt_priority(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 99:
+        raise ControllerConfigError(f"rt_priority = {value!r}; expected an integer in 0..99 (0 = off)")
+    return value
+
+
+def _set_rt_priority(node: ControllerNode) -> None:
+    if node.rt_priority <= 0:
+        return
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(node.rt_priority))
+        node.get_logger().info(f"executor thread runs with SCHED_FIFO priority {node.rt_priority}")
+        gc.collect()
+        gc.freeze()
+        gc.disable()
+    except (OSError, AttributeError) as exc:
+        node.get_logger().warn(f"rt_priority = {node.rt_priority}: cannot set SCHED_FIFO ({exc})")
+
+
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``controller``; returns the exit status (2 = bad parameter)."""
-    return run_node(NODE_NAME, args, ControllerNode, (ControllerConfigError,), ControllerNode.shutdown,
-                    done=lambda node: node.finished.is_set())
+    """Entry point of ``controller``; returns the exit status (2 = bad parameter).
+
+    Same lifecycle as :func:`aeropend_sim.node_shell.run_node` (SIGINT/SIGTERM stop, duty 0 and
+    trace on exit), with the executor chosen by the ``executor`` parameter.
+    """
+    stop = init_with_stop_event(args)
+    node: ControllerNode | None = None
+    status = 0
+    try:
+        node = ControllerNode()
+        _set_rt_priority(node)
+        executor = EventsExecutor() if node.executor_kind == "events" else SingleThreadedExecutor()
+        executor.add_node(node)
+        while not stop.is_set() and rclpy.ok() and not node.finished.is_set():
+            executor.spin_once(timeout_sec=0.1)
+    except ControllerConfigError as exc:
+        rclpy.logging.get_logger(NODE_NAME).error(f"invalid parameter: {exc}")
+        status = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.shutdown()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status
 
 if __name__ == "__main__":
     sys.exit(main())

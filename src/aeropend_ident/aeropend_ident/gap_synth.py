@@ -218,7 +218,9 @@ def score_case(case: SynthCase, diagnosis: Any) -> dict[str, Any]:
         one; for a plant without effect: "no significant gap" was reported), ``top1_confusable``
         (first is true or confusable with a true one), ``top3`` (every true effect among the first
         three), ``magnitude_error`` (per true effect found: |fitted − true|/|true − off|),
-        ``nrmse_before``/``nrmse_after``/``shrink`` (held-out, 1 − after/before), ``identifiable``
+        ``nrmse_before``/``nrmse_after``/``shrink`` (held-out, 1 − after/before, on the NRMSE over
+        all compared channels), ``theta_nrmse_before``/``theta_nrmse_after``/``theta_shrink`` (θ
+        only), ``identifiable``
         (every true effect identifiable from the channels), ``reported_not_identifiable``.
     """
     d = diagnosis if isinstance(diagnosis, dict) else diagnosis.as_dict()
@@ -247,16 +249,20 @@ def score_case(case: SynthCase, diagnosis: Any) -> dict[str, Any]:
         if row is None:
             mag[t] = None
             continue
+        if p.name not in row["parameters"]:
+            mag[t] = None
+            continue
         est = row["parameters"][p.name]["value"]
         true_v = case.truth[t][p.name]
         size = abs(true_v - p.off) if p.off else abs(true_v)
         mag[t] = abs(est - true_v) / size if size > 0 else None
     out["magnitude_error"] = mag
     shrink = d["shrink"]
-    before = shrink[0]["nrmse"]
-    after = shrink[-1]["nrmse"]
-    out["nrmse_before"], out["nrmse_after"] = before, after
-    out["shrink"] = (1.0 - after / before) if before and len(shrink) > 1 else 0.0
+    for key, tag in (("nrmse", "theta_"), ("nrmse_channels", "")):
+        before = shrink[0].get(key, shrink[0]["nrmse"])
+        after = shrink[-1].get(key, shrink[-1]["nrmse"])
+        out[f"{tag}nrmse_before"], out[f"{tag}nrmse_after"] = before, after
+        out[f"{tag}shrink"] = (1.0 - after / before) if before and len(shrink) > 1 else 0.0
     out["elapsed_s"] = d.get("elapsed_s")
     return out
 
@@ -274,11 +280,13 @@ def summarise(scores: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     with_effect = [s for s in scored if s["truth"]]
     shrinks = [s["shrink"] for s in with_effect if s["significant"]]
     shrink_all = [s["shrink"] for s in with_effect]
+    shrink_theta = [s.get("theta_shrink", s["shrink"]) for s in with_effect]
     per: dict[str, dict[str, Any]] = {}
     for s in scored:
         keys = list(s["truth"]) or ["none"]
         for k in keys:
-            per.setdefault(k, {"top1": [], "top3": [], "top1_confusable": [], "mag": [], "shrink": []})
+            per.setdefault(k, {"top1": [], "top3": [], "top1_confusable": [], "mag": [], "shrink": [],
+                               "theta_shrink": []})
             per[k]["top1"].append(bool(s["top1"]))
             per[k]["top3"].append(bool(s["top3"]))
             per[k]["top1_confusable"].append(bool(s["top1_confusable"]))
@@ -287,11 +295,13 @@ def summarise(scores: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
                 per[k]["mag"].append(m)
             if k != "none":
                 per[k]["shrink"].append(s["shrink"])
+                per[k]["theta_shrink"].append(s.get("theta_shrink", s["shrink"]))
     per_out = {
         k: {"cases": len(v["top1"]), "top1": frac(v["top1"]), "top3": frac(v["top3"]),
             "top1_confusable": frac(v["top1_confusable"]),
             "median_magnitude_error": float(np.median(v["mag"])) if v["mag"] else None,
-            "median_shrink": float(np.median(v["shrink"])) if v["shrink"] else None}
+            "median_shrink": float(np.median(v["shrink"])) if v["shrink"] else None,
+            "median_theta_shrink": float(np.median(v["theta_shrink"])) if v["theta_shrink"] else None}
         for k, v in per.items()
     }
     ni = [s for s in scores if s["top1"] is None]
@@ -303,6 +313,7 @@ def summarise(scores: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "top1_confusable": frac([bool(s["top1_confusable"]) for s in scored]),
         "median_shrink": float(np.median(shrink_all)) if shrink_all else None,
         "median_shrink_significant": float(np.median(shrinks)) if shrinks else None,
+        "median_theta_shrink": float(np.median(shrink_theta)) if shrink_theta else None,
         "median_magnitude_error": (float(np.median(m)) if (m := [v for s in scored for v in
                                    s["magnitude_error"].values() if v is not None]) else None),
         "not_identifiable_cases": len(ni),

@@ -76,6 +76,8 @@ FIT_CHANNELS = ("theta", "i_a", "v_a", "omega_rotor")
 MIN_EXPLAINED = 0.25
 #: Least further fraction of the remaining held-out SSE a second effect must remove.
 MIN_EXPLAINED_SECOND = 0.3
+#: A second effect is only searched when the first leaves more than this share unexplained.
+SECOND_EFFECT_BELOW = 0.9
 #: BIC gain (negative change) an effect must reach on the fit data.
 MIN_BIC_GAIN = 10.0
 #: Nominal held-out θ error below this many noise standard deviations counts as noise floor.
@@ -85,9 +87,11 @@ BIC_DECIMATION = 20
 #: Number of shortlisted effects confirmed by grey-box fits.
 SHORTLIST = 5
 #: Bootstrap resamples for screening inclusion and ranking confidence.
-N_BOOTSTRAP = 40
+N_BOOTSTRAP = 30
 #: Savitzky-Golay window [s] of the derivative estimates (strong form) and initial rates.
 SAVGOL_WINDOW = 0.06
+#: Sample period [s] of the screening regressions (the recordings are decimated to it).
+SCREEN_DT = 0.016
 #: Segment length [s] of the bootstraps.
 SEGMENT = 1.0
 
@@ -217,7 +221,7 @@ def _assemble(rig: Rig, coords: list[tuple[Effect, Any]], z: np.ndarray,
 
 def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], *,
                 start: Mapping[str, Mapping[str, float]] | None = None, scan: bool = True,
-                max_nfev: int = 40) -> EffectFit:
+                max_nfev: int = 25) -> EffectFit:
     """Fit the parameters of one or more catalog effects by free-run output error.
 
     Parameters
@@ -231,7 +235,7 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], *,
     start : mapping, optional
         Starting values ``{effect: {parameter: value}}`` (default the probe values).
     scan : bool
-        For a one-parameter fit, first scan 9 values across the bounds and start from the best
+        For a one-parameter fit, first scan 7 values across the bounds and start from the best
         (output error in a delay, dead zone or stop angle has local minima).
     max_nfev : int
         Most residual evaluations of the local optimiser.
@@ -269,7 +273,7 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], *,
         return r if np.all(np.isfinite(r)) else np.full(n_res, penalty)
 
     if scan and len(coords) == 1:
-        grid = np.linspace(lo[0], hi[0], 9)
+        grid = np.linspace(lo[0], hi[0], 7)
         costs = [float(np.sum(fun(np.array([g])) ** 2)) for g in grid]
         cost0 = float(np.sum(fun(z0) ** 2))
         if min(costs) < cost0:
@@ -318,12 +322,18 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
         ``steady_state_error`` (RMS over holds ≥ 0.5 s of the difference of the mean angles over
         each hold's last quarter [rad]), ``step_metrics`` (python-control ``step_info`` of the
         recorded and simulated response to the largest duty step of the first recording with one),
-        ``per_recording`` NRMSEs.
+        ``per_recording`` θ NRMSEs, ``channel_nrmse`` (mean NRMSE of every compared channel),
+        ``nrmse_channels`` (RMS over the compared channels of their NRMSEs: the gauge of a gap
+        that lies in i_a, v_a or ω₁ rather than in θ).
     """
     nrmse, maxe, ss = [], 0.0, []
+    per_channel: dict[str, list[float]] = {}
     step: dict[str, Any] = {}
     for p in preps:
-        th = replay(rig, meas, p)["theta"]
+        sim_all = replay(rig, meas, p)
+        for c, yc in p.y.items():
+            per_channel.setdefault(c, []).append(float(np.sqrt(np.mean((sim_all[c] - yc) ** 2)) / p.scale[c]))
+        th = sim_all["theta"]
         y = p.y["theta"]
         e = th - y
         nrmse.append(float(np.sqrt(np.mean(e**2)) / p.scale["theta"]))
@@ -349,12 +359,15 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
                             "abs_error": {k: abs(sim[k] - rec[k]) for k in rec}}
                 except Exception:
                     step = {}
+    ch_nrmse = {c: float(np.mean(v)) for c, v in per_channel.items()}
     return {
         "nrmse": float(np.mean(nrmse)),
+        "nrmse_channels": float(np.sqrt(np.mean(np.square(list(ch_nrmse.values()))))),
         "max_error": maxe,
         "steady_state_error": float(np.sqrt(np.mean(np.square(ss)))) if ss else math.nan,
         "step_metrics": step,
         "per_recording": nrmse,
+        "channel_nrmse": ch_nrmse,
     }
 
 
@@ -393,17 +406,19 @@ def _savgol(y: np.ndarray, dt: float, deriv: int) -> np.ndarray:
 
 
 def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.ndarray,
-               equations: Sequence[str]) -> dict[str, np.ndarray]:
+               equations: Sequence[str], step: int = 1) -> dict[str, np.ndarray]:
     """Model right-hand side on the recorded states, in the recording's frame.
 
     θ and θ̇ come from the recording (through the inverse measurement map); i_a and ω₁ from the
     recording when recorded, else from a simulation of the rig driven by the recorded duty cycle
     (the motor chain does not depend on θ); τ_f and the delayed input from that simulation.
 
+    ``step`` evaluates every ``step``-th sample only (the simulation still runs at full rate).
+
     Returns
     -------
     dict
-        ``equation -> (N,)``: ``"theta_dot"`` θ̈_recorded [rad/s²], ``"i_a"`` [A/s],
+        ``equation -> (ceil(N/step),)``: ``"theta_dot"`` θ̈_recorded [rad/s²], ``"i_a"`` [A/s],
         ``"omega_rotor"`` [rad/s²], ``"v_a"`` [V].
     """
     model = PlantModel(_sim_rig(rig))
@@ -417,6 +432,7 @@ def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.nda
     if "omega_rotor" in prep.y:
         x[:, 3] = prep.y["omega_rotor"]
     u = _delayed(prep.duty, prep.dt, model.delay)
+    x, u = x[::step], u[::step]
     need = set(equations)
     f = np.array([model.rhs(0.0, xk, uk) for xk, uk in zip(x, u, strict=True)])
     out: dict[str, np.ndarray] = {}
@@ -543,7 +559,7 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
     """Discrepancy SINDy (strong and weak form) over the catalog's term groups.
 
     See the module docstring, step 2. Each equation's rows are scaled by the RMS of its
-    recorded left-hand side so the equations weigh alike; each column is scaled to unit RMS.
+    nominal residual so the equations weigh alike; each column is scaled to unit RMS.
 
     Returns
     -------
@@ -561,22 +577,24 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
     groups: list[int] = []
     seg_base = 0
     for pi, p in enumerate(preps):
+        dec = max(1, round(SCREEN_DT / p.dt))
         th = p.y["theta"]
         thd = _savgol(th, p.dt, 1)
-        lhs = {"theta_dot": _savgol(th, p.dt, 2)}
+        lhs = {"theta_dot": _savgol(th, p.dt, 2)[::dec]}
         for c in ("i_a", "omega_rotor"):
             if c in eqs:
-                lhs[c] = _savgol(p.y[c], p.dt, 1)
+                lhs[c] = _savgol(p.y[c], p.dt, 1)[::dec]
         if "v_a" in eqs:
-            lhs["v_a"] = p.y["v_a"]
-        nominal = hybrid_rhs(rig, MeasurementMap(), p, thd, eqs)
+            lhs["v_a"] = p.y["v_a"][::dec]
+        n_d = lhs["theta_dot"].size
+        nominal = hybrid_rhs(rig, MeasurementMap(), p, thd, eqs, dec)
         cols: dict[str, list[np.ndarray]] = {q: [] for q in eqs}
         grp: list[int] = []
         for gi, e in enumerate(effs):
             for prm in e.parameters:
                 r2, m2 = apply_effects(rig, {e.name: {prm.name: prm.probe}})
                 try:
-                    alt = hybrid_rhs(r2, m2, p, thd, eqs)
+                    alt = hybrid_rhs(r2, m2, p, thd, eqs, dec)
                 except GapError:
                     alt = {q: nominal[q] for q in eqs}
                 for q in eqs:
@@ -589,23 +607,26 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
             groups = grp
         # strong form: rows of every equation stacked, scaled by the RMS of its left side
         for q in eqs:
-            sc = float(np.sqrt(np.mean(lhs[q] ** 2))) or 1.0
+            res = lhs[q] - nominal[q]
+            sc = float(np.sqrt(np.mean(res**2))) or 1.0
             strong_rows.append(np.column_stack(cols[q]) / sc)
-            strong_y.append((lhs[q] - nominal[q]) / sc)
-            w = max(round(SEGMENT / p.dt), 1)
-            seg_id.append(seg_base + np.arange(p.n) // w)
-        seg_base += p.n // max(round(SEGMENT / p.dt), 1) + 1
+            strong_y.append(res / sc)
+            w = max(round(SEGMENT / (p.dt * dec)), 1)
+            seg_id.append(seg_base + np.arange(n_d) // w)
+        seg_base += n_d // max(round(SEGMENT / (p.dt * dec)), 1) + 1
         # weak form (differential equations only; the v_a map is algebraic)
-        data = IdentData(t=np.arange(p.n) * p.dt, variables={"theta_dot": thd, **{c: p.y[c] for c in p.y}},
+        data = IdentData(t=np.arange(n_d) * p.dt * dec,
+                         variables={"theta_dot": thd[::dec], **{c: p.y[c][::dec] for c in p.y}},
                          source=p.rec.source)
         for q in eqs:
             if q == "v_a":
                 continue
             mat, lw = weak_matrices(data, np.column_stack([nominal[q], *cols[q]]), [q], K=weak_K,
                                     seed=seed + pi)
-            sc = float(np.sqrt(np.mean(lw**2))) or 1.0
+            res = lw[:, 0] - mat[:, 0]
+            sc = float(np.sqrt(np.mean(res**2))) or 1.0
             weak_rows.append(mat[:, 1:] / sc)
-            weak_y.append((lw[:, 0] - mat[:, 0]) / sc)
+            weak_y.append(res / sc)
     Xs, ys, seg = np.vstack(strong_rows), np.concatenate(strong_y), np.concatenate(seg_id)
     Xw, yw = np.vstack(weak_rows), np.concatenate(weak_y)
     cs = np.sqrt(np.mean(Xs**2, axis=0))
@@ -810,9 +831,10 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
     seg0 = segment_sse(rig, nominal_meas, ph)
     sse_ho0 = float(seg0.sum())
     base_metrics = gap_metrics(rig, nominal_meas, ph)
-    # noise floor of θ on the held-out data
-    sigma = float(np.mean([noise_level(p.y["theta"]) / p.scale["theta"] for p in ph]))
-    floor = NOISE_FLOOR_FACTOR * sigma
+    # noise floor of every compared channel on the held-out data (relative to its range)
+    floors = {c: NOISE_FLOOR_FACTOR * float(np.mean([noise_level(p.y[c]) / p.scale[c] for p in ph]))
+              for c in ph[0].y}
+    floor = floors["theta"]
     # direct detection: quantisation
     quanta = [detect_quantum(p.y["theta"]) for p in (*pf, *ph)]
     q_hat = float(np.median(quanta)) if all(q > 0 for q in quanta) else 0.0
@@ -869,7 +891,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
             "confusable_with": list(e.confusable_with),
         })
     best = ranking[0] if ranking else None
-    above_floor = base_metrics["nrmse"] > floor + 1e-4
+    above_floor = any(base_metrics["channel_nrmse"][c] > floors[c] + 1e-4 for c in floors)
     sig_first = bool(best and above_floor and best["held_out_explained"] >= MIN_EXPLAINED
                      and best["bic_delta"] <= -MIN_BIC_GAIN)
     chosen: list[str] = []
@@ -883,14 +905,14 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
         corrected, meas = cur.rig, cur.meas
         shrink.append({"effects": list(chosen), **gap_metrics(corrected, meas, ph)})
         cur_sse = float(segs[name].sum())
-        if max_effects > 1:
-            others = [r["effect"] for r in ranking[1:4] if r["held_out_explained"] > 0.0]
+        if max_effects > 1 and best["held_out_explained"] < SECOND_EFFECT_BELOW:
+            others = [r["effect"] for r in ranking[1:3] if r["held_out_explained"] > 0.1]
             best2 = None
             for o in others:
                 say(f"joint fit of {name} + {o}")
                 start = {name: cur.values[name], o: fits[o].values[o]}
                 try:
-                    fr2 = fit_effects(rig, [name, o], pf, start=start, scan=False, max_nfev=25)
+                    fr2 = fit_effects(rig, [name, o], pf, start=start, scan=False, max_nfev=20)
                 except GapError:
                     continue
                 sse2 = float(segment_sse(fr2.rig, fr2.meas, ph).sum())
@@ -920,7 +942,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
         reason = "no identifiable candidate effect"
     elif not above_floor:
         reason = (f"nominal held-out NRMSE {base_metrics['nrmse']:.4g} is at the noise floor "
-                  f"({floor:.4g} = {NOISE_FLOOR_FACTOR:g} σ_noise/range)")
+                  f"({floor:.4g} = {NOISE_FLOOR_FACTOR:g} σ_noise/range; other channels likewise)")
     else:
         reason = (f"best candidate {best['effect']} removes only {100 * best['held_out_explained']:.1f} % "
                   f"of the held-out residual (needs {100 * MIN_EXPLAINED:.0f} % and a BIC gain of "

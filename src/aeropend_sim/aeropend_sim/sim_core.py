@@ -456,3 +456,79 @@ class PlantClock:
         self.k += 1
         self.last = to_sample(self.stamp_ns(self.k), channels, duty)
         return self.last
+
+
+class CommandTiming:
+    """Plant-side loop timing of the real-time mode: sample instants and command receipts.
+
+    The sampler records, for every sample k, its stamp and the monotonic instant it was taken
+    (the wake-up at its deadline, just before publishing); the command callback records the
+    monotonic receipt instant of every accepted command. Both go into preallocated arrays (no
+    allocation in the hot path); when ``capacity`` is reached further entries are only counted.
+
+    :meth:`summary` attributes each command to the latest sample taken before its receipt
+    (latency = receipt − that sample's instant) and counts the samples whose period ended
+    without a command (``unanswered``: the plant applied a stale duty to the next period). A
+    benchmark with the controller's own trace can match commands to samples exactly
+    by the duty values (``bench/bench_control_latency.py``).
+
+    Parameters
+    ----------
+    capacity : int
+        Maximum number of samples and of commands recorded (e.g. 2^18 ≈ 9 min at 488 Hz).
+    """
+
+    def __init__(self, capacity: int = 1 << 18) -> None:
+        if capacity < 1:
+            raise SimConfigError(f"timing capacity = {capacity!r} must be >= 1")
+        self.stamp_ns = np.zeros(capacity, dtype=np.int64)
+        self.taken_ns = np.zeros(capacity, dtype=np.int64)
+        self.recv_ns = np.zeros(capacity, dtype=np.int64)
+        self.duty = np.zeros(capacity, dtype=np.float64)
+        self.n_samples = 0
+        self.n_commands = 0
+        self.overflow = 0
+
+    def on_sample(self, stamp_ns: int, taken_ns: int) -> None:
+        """Sample with header stamp ``stamp_ns`` taken at monotonic ``taken_ns``."""
+        k = self.n_samples
+        if k < self.stamp_ns.size:
+            self.stamp_ns[k] = stamp_ns
+            self.taken_ns[k] = taken_ns
+            self.n_samples = k + 1
+        else:
+            self.overflow += 1
+
+    def on_command(self, recv_ns: int, duty: float) -> None:
+        """Accepted command ``duty`` received at monotonic ``recv_ns``."""
+        i = self.n_commands
+        if i < self.recv_ns.size:
+            self.recv_ns[i] = recv_ns
+            self.duty[i] = duty
+            self.n_commands = i + 1
+        else:
+            self.overflow += 1
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(stamps, sample instants, command receipts) recorded so far [ns], copies."""
+        n, m = self.n_samples, self.n_commands
+        return self.stamp_ns[:n].copy(), self.taken_ns[:n].copy(), self.recv_ns[:m].copy()
+
+    def summary(self) -> dict[str, float]:
+        """Latency percentiles [ms] by latest-sample attribution and the unanswered-sample count."""
+        _, taken, recv = self.arrays()
+        if taken.size == 0 or recv.size == 0:
+            return {"commands_timed": float(recv.size), "unanswered": math.nan}
+        idx = np.searchsorted(taken, recv, side="right") - 1
+        ok = idx >= 0
+        lat = (recv[ok] - taken[idx[ok]]) * 1e-6
+        answered = np.bincount(idx[ok], minlength=taken.size)
+        lo, hi = int(idx[ok].min()), int(idx[ok].max())
+        return {"commands_timed": float(lat.size), "lat_p50_ms": float(np.percentile(lat, 50)),
+                "lat_p99_ms": float(np.percentile(lat, 99)), "lat_max_ms": float(lat.max()),
+                "unanswered": float(np.count_nonzero(answered[lo:hi + 1] == 0))}
+
+    def write(self, path: str) -> None:
+        """Write ``path`` (.npz): ``stamp_ns``, ``taken_ns``, ``recv_ns`` (int64 ns, monotonic), ``duty``."""
+        stamp, taken, recv = self.arrays()
+        np.savez(path, stamp_ns=stamp, taken_ns=taken, recv_ns=recv, duty=self.duty[:recv.size].copy())

@@ -38,7 +38,14 @@ frame_id : str, default ``aeropend``
 rt_priority : int, default 0
     Real-time mode: run the sampler thread with SCHED_FIFO at this priority (1-99; needs
     CAP_SYS_NICE or a suitable ``rtprio`` limit, else a warning and normal scheduling). Cuts
-    overruns on a loaded machine; 0 = normal scheduling.
+    overruns on a loaded machine; 0 = normal scheduling. The executor thread (command receipt)
+    then runs with SCHED_FIFO priority ``rt_priority − 1`` (at least 1) and Python's cyclic
+    garbage collector is switched off after start-up (its pauses reach milliseconds).
+timing_log : str, default ``""``
+    Real-time mode: record the monotonic instant every sample is taken and every command is
+    received (:class:`~aeropend_sim.sim_core.CommandTiming`); the summary line then adds the
+    sample → command-receipt latency (p50/p99/max) and the number of unanswered samples, and the
+    arrays are written to this path (.npz) on exit. Empty = off.
 
 Invalid parameters log an error naming the value and exit with status 2. Invalid commands
 (NaN, outside [0, 1]) are rejected, counted and logged (throttled); the plant keeps running.
@@ -48,6 +55,7 @@ All logic that is not rclpy lives in :mod:`aeropend_sim.sim_core`.
 from __future__ import annotations
 
 import ctypes
+import gc
 import os
 import sys
 import threading
@@ -69,6 +77,7 @@ from aeropend_sim.sim_core import (
     DEFAULT_RIG,
     LOCKSTEP_REPUBLISH_S,
     CommandHold,
+    CommandTiming,
     PlantClock,
     RealtimeSchedule,
     SimConfigError,
@@ -98,6 +107,7 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("publish_clock", None, "publish /clock (default: true in lockstep, false in realtime)"),
     ("frame_id", "aeropend", "header.frame_id of the sample messages"),
     ("rt_priority", 0, "realtime: SCHED_FIFO priority 1-99 of the sampler thread (0 = normal scheduling)"),
+    ("timing_log", "", "realtime: .npz path for sample instants and command receipts (empty = off)"),
 )
 
 
@@ -122,6 +132,7 @@ class SimPlantNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         raw = declare_parameter_table(self, PARAMETERS)
+        self.timing_log = str(raw.pop("timing_log") or "")
         try:
             self.settings = make_settings(**raw)
         except SimConfigError:
@@ -135,6 +146,7 @@ class SimPlantNode(Node):
         self._pub_clock = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS) if s.publish_clock else None
         timeout_ns = None if lockstep else round(s.command_timeout * 1e9)
         self.hold = CommandHold(timeout_ns)
+        self.timing = CommandTiming() if self.timing_log and not lockstep else None
         self.published = 0
         self.republished = 0
         self.error: BaseException | None = None
@@ -172,6 +184,11 @@ class SimPlantNode(Node):
             self._last_activity_ns = time.monotonic_ns()
             self.create_timer(0.1, self._republish_if_idle, clock=self._steady)
         else:
+            if self.settings.rt_priority > 0:  # the calling thread spins the executor (command receipt)
+                self._set_priority(max(self.settings.rt_priority - 1, 1), "executor thread")
+                gc.collect()  # no cyclic-GC pauses (milliseconds) in the real-time threads
+                gc.freeze()
+                gc.disable()
             self._thread = threading.Thread(target=self._run_realtime, name="aeropend_sampler", daemon=True)
             self._thread.start()
 
@@ -192,6 +209,8 @@ class SimPlantNode(Node):
                 throttle_duration_sec=LOG_THROTTLE_S,
             )
             return
+        if self.timing is not None:
+            self.timing.on_command(now, float(msg.data))
         if self.settings.mode == "lockstep":
             assert self.plant is not None
             sample = self.plant.advance(self.hold.value(now))
@@ -208,16 +227,16 @@ class SimPlantNode(Node):
             self._last_activity_ns = now
 
     # ------------------------------------------------------------------ real-time sampler
-    def _set_priority(self) -> None:
-        prio = self.settings.rt_priority
+    def _set_priority(self, prio: int | None = None, what: str = "sampler thread") -> None:
+        prio = self.settings.rt_priority if prio is None else prio
         if prio <= 0:
             return
         try:
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))  # 0 = this thread
-            self.get_logger().info(f"sampler thread runs with SCHED_FIFO priority {prio}")
+            self.get_logger().info(f"{what} runs with SCHED_FIFO priority {prio}")
         except (OSError, AttributeError) as exc:
             self.get_logger().warn(
-                f"rt_priority = {prio}: cannot set SCHED_FIFO ({exc}); sampler uses normal scheduling"
+                f"rt_priority = {prio}: cannot set SCHED_FIFO ({exc}); {what} uses normal scheduling"
             )
 
     def _run_realtime(self) -> None:
@@ -251,6 +270,8 @@ class SimPlantNode(Node):
                         f"{sched.overruns}, stamps now lag wall time by {sched.dropped_ns / 1e6:.1f} ms",
                         throttle_duration_sec=LOG_THROTTLE_S,
                     )
+                if self.timing is not None:
+                    self.timing.on_sample(stamp, now)
                 self._publish(msgs, stamp)
                 self.published += 1
                 was_timed_out = self.hold.timed_out
@@ -281,6 +302,9 @@ class SimPlantNode(Node):
             sch = self.schedule
             parts += [f"overruns={sch.overruns}", f"max_late_ms={sch.max_lateness_ns / 1e6:.3f}",
                       f"dropped_ms={sch.dropped_ns / 1e6:.3f}"]
+        if self.timing is not None:
+            parts += [f"{k}={v:.3f}" if k.endswith("_ms") else f"{k}={v:.0f}"
+                      for k, v in self.timing.summary().items()]
         return "summary: " + " ".join(parts)
 
 
@@ -297,6 +321,8 @@ def main(args: list[str] | None = None) -> int:
     def cleanup(node: SimPlantNode) -> None:
         node.stop()
         node.get_logger().info(node.summary())
+        if node.timing is not None:
+            node.timing.write(node.timing_log)
 
     return run_node(NODE_NAME, args, make, (SimConfigError,), cleanup,
                     done=lambda node: node.error is not None,
