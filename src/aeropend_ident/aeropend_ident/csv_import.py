@@ -297,6 +297,33 @@ PRESETS: dict[str, CsvSpec] = {
             "angle_reference": "0 = pendulum hanging down",
         },
     ),
+    "yangzhu_pitch_step": CsvSpec(
+        name="yangzhu_pitch_step",
+        time_col="t", time_unit="s",
+        input_col="Vp_pitch_motor_cmd", input_kind="voltage", supply_voltage=24.0,
+        angle_col="theta_enc", angle_unit="rad",
+        channels={
+            "theta_dot": ("thetadot_gyro", 1.0),
+            "i_a": ("current_pitch_motor", 1.0),
+            "omega_rotor": ("tach_pitch_motor", 2.0 * math.pi / 2048.0),
+            "v_a": ("Vp_pitch_motor_cmd", 1.0),
+        },
+        meta={
+            "files": ["aero_pitch_step_16p5V_1kHz.csv"],
+            "rig": "Quanser AERO (1st generation), half-quadrotor mode, yaw locked: pitch only; QUARC log",
+            "provenance": "https://github.com/YangZhu-uestc/"
+                          "Quanser-AERO-2-DOF-helicopter-Model-Identification @ "
+                          "2e019700e8a0cfdcc62eb27eb3561b2fc1980839, 'Pitch-channel motion model "
+                          "identification source files/Log_*.mat' (converted; data README section 1)",
+            "licence": _NO_LICENCE,
+            "input_note": "constant pitch-motor voltage 16.51 V from t = 0 (open-loop step); duty = V / 24 V "
+                          "(presumed amplifier full scale); the voltage itself is kept as channel v_a",
+            "channel_note": "theta_dot = on-board gyro rate [rad/s] (unfiltered column); omega_rotor = tach "
+                            "x 2*pi/2048 (PRESUMED: tach in encoder counts/s of a 2048-count/rev encoder; "
+                            "the source states no unit)",
+            "angle_reference": "0 = pitch level at rest (encoder zero at start)",
+        },
+    ),
 }
 
 
