@@ -228,7 +228,10 @@ def test_ssi_angles_status_and_parity(run: dict) -> None:
     last = run["status"][-1].angle_errors
     assert last == len(invalid_seqs) == pytest.approx(400_000 / 2040, abs=3)
     reads, bad = map(int, run["out"]["SSIREADS"])
-    assert bad == last and abs(reads - (run["samples"][-1].seq - first_seq + 1)) <= 2
+    # One read-out per sample; the last few samples may still be in the ADC chain / TX ring /
+    # pty when the emulation stops.
+    sent = run["samples"][-1].seq - first_seq + 1
+    assert bad == last and 0 <= reads - sent <= 10, (reads, sent)
 
 
 def test_ssi_pin_timing_meets_as5040_datasheet(run: dict) -> None:
