@@ -94,7 +94,7 @@ static uint8_t status_cnt;
 static uint16_t ssi_theta;              /* last valid raw angle [counts] */
 static volatile uint16_t angle_errors;  /* rejected read-outs (wrapping) */
 
-/* Read one 16-bit word from the AS5040 (~30 us at 16 MHz). Idle: CSn high,
+/* Read one 16-bit word from the AS5040 (~34 us at 16 MHz). Idle: CSn high,
  * CLK high. CSn low; the first falling CLK edge latches the angle; each rising edge shifts
  * out one bit (MSB first), read before the next falling edge; SSI_CLOCKS - 16 extra clocks
  * (thesis: 22 in all) shift out the daisy-chain input and are ignored; then CSn high. */
@@ -210,7 +210,7 @@ ISR(TIMER1_OVF_vect)
     adc_start(REF_AVCC, I_A_CHANNEL);
 #ifdef ANGLE_SSI
     /* Read while the i_a conversion runs (104 us): the angle at the sample instant. Interrupts
-     * are re-enabled for the ~30 us bit-bang so the UART RX/UDRE and Timer4 interrupts are not
+     * are re-enabled for the ~34 us bit-bang so the UART RX/UDRE and Timer4 interrupts are not
      * held off (RX overrun at 500 kbaud after ~3 byte times). Safe: everything shared is done
      * above; TOV1 cannot recur for 2 ms; the ADC chain publishes `cur` only 3 conversions
      * (>= 300 us) later; only this ISR writes angle_errors / ssi_theta / cur.theta; SSI has no
