@@ -146,6 +146,11 @@ class GapResult:
         )
 
 
+def _label(source: str) -> str:
+    """Short label of a recording source: the file name for files (and their slices), else as is."""
+    return Path(source).name if Path(source.split("[")[0]).exists() else source
+
+
 def _rec_info(r: Recording) -> dict[str, Any]:
     return {
         "source": r.source,
@@ -330,7 +335,7 @@ def corrected_rig_dict(result: GapResult) -> dict[str, Any]:
         f"{nominal.description} -- corrected by the gap diagnosis (aeropend_ident gap): "
         f"effects added: {chosen}"
     )
-    fits = ", ".join(Path(r.source).name or "recording" for r in result.fit)
+    fits = ", ".join(_label(r.source) or "recording" for r in result.fit)
     for section, fields in data.items():
         if not isinstance(fields, dict) or section == "effects":
             continue
@@ -386,7 +391,7 @@ def fig_overlay(result: GapResult) -> bytes:
         ax.plot(o["t"], o["corrected"], color="tab:blue", lw=1.0, label="corrected simulator")
         m = o["metrics"]
         ax.set_title(
-            f"{Path(o['source']).name}: NRMSE nominal {m['nominal']['nrmse']:.4f} -> corrected "
+            f"{_label(o['source'])}: NRMSE nominal {m['nominal']['nrmse']:.4f} -> corrected "
             f"{m['corrected']['nrmse']:.4f}",
             fontsize=9,
         )
@@ -428,7 +433,7 @@ def fig_equations(where: WhereReport) -> bytes:
         a.axhline(0, color="black", lw=0.5)
         a.set_ylabel(f"{e.equation}\n[{e.unit}]")
         a.set_title(
-            f"{e.equation} equation residual on {Path(rec.source).name} (RMS {e.rms:.3g} {e.unit}, "
+            f"{e.equation} equation residual on {_label(rec.source)} (RMS {e.rms:.3g} {e.unit}, "
             f"method floor {e.method_floor:.3g}, noise floor {e.noise_floor:.3g})",
             fontsize=8,
         )
@@ -495,7 +500,7 @@ def fig_regions(where: WhereReport) -> bytes:
     else:
         ax.text(0.5, 0.5, "no constant-duty hold >= 1 s", ha="center", va="center")
     ax.grid(alpha=0.3)
-    fig.suptitle(f"free-run residual by operating region: {Path(rec.source).name}", fontsize=10)
+    fig.suptitle(f"free-run residual by operating region: {_label(rec.source)}", fontsize=10)
     return _png(fig)
 
 
@@ -656,7 +661,7 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
     eq_rows += [[nc["equation"], "", "not checked", "", nc["reason"], ""] for nc in w.not_checked]
     rec_rows = [
         [
-            Path(r.source).name,
+            _label(r.source),
             r.free_run["nrmse"],
             r.short_horizon["nrmse"],
             r.whiteness["p_value"],
@@ -698,7 +703,7 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
         )
     after_rows = [
         [
-            Path(o["source"]).name,
+            _label(o["source"]),
             o["metrics"]["nominal"]["nrmse"],
             o["metrics"]["corrected"]["nrmse"],
             o["metrics"]["nominal"]["max_abs_error"],
@@ -710,7 +715,7 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
     wn = result.where_heldout_nominal
     white_rows = [
         [
-            Path(a.source).name,
+            _label(a.source),
             a.whiteness["p_value"],
             b.whiteness["p_value"],
             "yes" if a.significant else "no",

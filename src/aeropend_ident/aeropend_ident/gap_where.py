@@ -316,7 +316,12 @@ class WhereReport:
                 )
         for r in self.recordings:
             a = r.alignment
-            if a.get("lag_samples") and abs(a["lag_samples"]) >= 1 and a.get("correlation", 0) > 0.5:
+            if (
+                a.get("lag_samples")
+                and abs(a["lag_samples"]) >= 1
+                and a.get("correlation", 0) > 0.5
+                and not a.get("at_search_limit")
+            ):
                 out.append(
                     f"{r.source}: simulated θ̇ best aligns with the measured one when delayed by "
                     f"{a['lag_s']:.3f} s ({a['lag_samples']} samples)"
@@ -559,7 +564,8 @@ def alignment_lag(
     -------
     dict
         ``lag_samples``, ``lag_s``, ``correlation`` (normalised, at the peak),
-        ``correlation_at_zero``.
+        ``correlation_at_zero``, ``at_search_limit`` (the peak lies on the ±``max_lag`` edge:
+        no meaningful alignment).
     """
     n = measured.size
     w = _sg_window(n, dt)
@@ -569,7 +575,13 @@ def alignment_lag(
     m = int(min(round(max_lag / dt), n // 4))
     na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
     if na == 0.0 or nb == 0.0 or m < 1:
-        return {"lag_samples": 0, "lag_s": 0.0, "correlation": 0.0, "correlation_at_zero": 0.0}
+        return {
+            "lag_samples": 0,
+            "lag_s": 0.0,
+            "correlation": 0.0,
+            "correlation_at_zero": 0.0,
+            "at_search_limit": False,
+        }
     best, best_k, c0 = -math.inf, 0, 0.0
     for k in range(-m, m + 1):
         c = float(a[k:] @ b[: n - k]) if k >= 0 else float(a[: n + k] @ b[-k:])
@@ -583,6 +595,7 @@ def alignment_lag(
         "lag_s": float(best_k * dt),
         "correlation": float(best),
         "correlation_at_zero": float(c0),
+        "at_search_limit": bool(abs(best_k) == m),
     }
 
 

@@ -1,0 +1,323 @@
+"""Sim-to-real gap diagnosis on real third-party rigs and on the thesis' own gap.
+
+Cases (real data read from ``../shared/data/real``, never copied into the repository):
+
+* ``jahoyosr_hoja3`` — see-saw rig, nominal model ``jahoyosr_rig`` (stated parameters) vs the
+  Hoja3 open-loop PWM staircase; time-ordered split 70 % / 30 %.
+* ``aeroshield`` — AeroShield identification run, nominal ``aeroshield_rig`` (the repository's
+  grey-box initial guesses); time-ordered split 70 % / 30 % (the split of the grey-box
+  baseline, ``test/test_baseline_real.py``).
+* ``etchepareborda`` — BA-Etchepareborda rig, nominal ``etchepareborda_rig`` (stated m and Ts,
+  assumed arm and motor, one-point static calibration); fit on the PWM 0/100/180 step cycle,
+  held out: the separate PWM 0/100/130 step-cycle recording.
+* ``thesis_gap`` — the thesis' simulated pendulum (``thesis_sim``: c/J = 13.82 s⁻¹,
+  mgd/J = 131.75 s⁻²) vs recordings synthesised from ``thesis_rig``, whose pendulum was fitted to
+  the rig's own open-loop step (τ = 43.14 %: tr 0.43 s, tp 0.84 s, ts 3.53 s, θss 0.54 rad;
+  docs/parameters.md). Fit: that step (10 s, 50 dB noise, sampled at 10 ms); held out: a
+  different excitation of the same synthetic rig (a staircase 0 → 40 → 43.14 → 46 % and back),
+  i.e. an extrapolation of the rig model beyond the one measured step, stated as such.
+
+Each case runs :func:`aeropend_ident.gap_report.run_gap` (where + which + after) exactly as the
+``gap`` command does. Results: ``bench/results/gap_real.json`` and ``.md``; figures
+``docs/results/gap_<case>_overlay.png`` / ``_where.png`` / ``_effects.png``.
+
+Run: ``python bench/bench_gap_real.py [case ...]`` (≈ 1–3 min per case on two cores).
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from aeropend_ident.baseline import _jsonable
+from aeropend_ident.csv_import import import_csv
+from aeropend_ident.gap_cli import resolve_rig, to_uniform
+from aeropend_ident.gap_report import fig_effects, fig_equations, fig_overlay, run_gap, write_report
+from aeropend_sim.params import load_rig
+from aeropend_sim.recording import Recording
+from aeropend_sim.simulate import simulate
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = ROOT.parent / "shared" / "data" / "real"
+RESULTS = ROOT / "bench" / "results"
+FIGS = ROOT / "docs" / "results"
+
+THESIS_STEP = {"duty": 0.4314, "tr": 0.43, "tp": 0.84, "ts": 3.53, "theta_ss": 0.54}
+
+
+def _csv(rel: str, preset: str) -> Recording:
+    return to_uniform(import_csv(REAL / rel, preset))
+
+
+def _split(rec: Recording, frac: float = 0.7) -> tuple[list[Recording], list[Recording], str]:
+    a, b = rec.split(frac)
+    return [a], [b], f"time-ordered split: first {frac:.0%} to fit, the rest held out"
+
+
+def case_jahoyosr() -> dict[str, Any]:
+    rec = _csv("jahoyosr__Aeropendulum/sheet_Hoja3_pwm_steps_openloop.csv", "jahoyosr_hoja3")
+    return {"rig": "jahoyosr_rig", "split": _split(rec)}
+
+
+def case_aeroshield() -> dict[str, Any]:
+    rec = _csv("gergelytakacs__AutomationShield/AeroShield/Identification_Data.csv", "aeroshield_ident")
+    return {"rig": "aeroshield_rig", "split": _split(rec)}
+
+
+def case_etchepareborda() -> dict[str, Any]:
+    d = "BA-Etchepareborda__adaptive-control-aeropendulum/"
+    fit = _csv(d + "openloop_steps_0_100_180.csv", "etchepareborda_openloop")
+    held = _csv(d + "openloop_steps_0_100_130.csv", "etchepareborda_openloop")
+    return {
+        "rig": "etchepareborda_rig",
+        "split": ([fit], [held], "separate held-out file: openloop_steps_0_100_130.csv"),
+    }
+
+
+def step_metrics(t: np.ndarray, y: np.ndarray) -> dict[str, float]:
+    """Rise (10–90 %), peak and 2 % settling time [s] and final value of a step from rest
+    (python-control ``step_info``; final value = mean of the last second)."""
+    import control
+
+    yss = float(np.mean(y[t > t[-1] - 1.0]))
+    info = control.step_info(y, timepts=t, final_output=yss)
+    return {
+        "tr": float(info["RiseTime"]),
+        "tp": float(info["PeakTime"]),
+        "ts": float(info["SettlingTime"]),
+        "theta_ss": yss,
+        "overshoot_pct": float(info["Overshoot"]),
+    }
+
+
+def thesis_recordings(dt: float = 0.01) -> tuple[list[Recording], list[Recording], dict[str, Any]]:
+    """Synthetic 'rig' recordings from thesis_rig (50 dB noise on θ, θ only)."""
+    rig = load_rig("thesis_rig").with_effects(sensor_noise=True)
+    n = round(10.0 / dt)
+    duty = np.full(n, THESIS_STEP["duty"])
+    duty[: round(0.5 / dt)] = 0.0
+    tr = simulate(rig, duty, dt=dt, seed=11)
+    step = Recording.from_trajectory(tr, channels=("theta",), source="synthetic thesis_rig step τ = 43.14 %")
+    k0 = round(0.5 / dt)
+    metrics = step_metrics(tr.t[k0:] - tr.t[k0], tr.true["theta"][k0:])
+    levels = [0.0, 0.40, 0.4314, 0.46, 0.4314, 0.40, 0.0]
+    stair = np.concatenate([np.full(round(4.0 / dt), v) for v in levels])
+    tr2 = simulate(rig, stair, dt=dt, seed=12)
+    held = Recording.from_trajectory(
+        tr2, channels=("theta",), source="synthetic thesis_rig staircase 0/40/43.14/46 %"
+    )
+    return [step], [held], {"synthetic_step_metrics": metrics, "target_step_metrics": THESIS_STEP}
+
+
+def case_thesis() -> dict[str, Any]:
+    fit, held, extra = thesis_recordings()
+    return {
+        "rig": "thesis_sim",
+        "split": (fit, held, "fit: the synthesised step; held out: synthesised staircase"),
+        "extra": extra,
+    }
+
+
+CASES = {
+    "jahoyosr_hoja3": case_jahoyosr,
+    "aeroshield": case_aeroshield,
+    "etchepareborda": case_etchepareborda,
+    "thesis_gap": case_thesis,
+}
+NEEDS_REAL = {"jahoyosr_hoja3", "aeroshield", "etchepareborda"}
+
+
+def run_case(name: str) -> dict[str, Any]:
+    spec = CASES[name]()
+    rig, offset = resolve_rig(spec["rig"])
+    fit, held, rule = spec["split"]
+    t0 = time.perf_counter()
+    res = run_gap(
+        rig,
+        fit,
+        held,
+        rig_ref=spec["rig"],
+        theta_offset=offset,
+        split_rule=rule,  # type: ignore[arg-type]
+        progress=lambda m: print(f"  [{name}] {m}", flush=True),
+    )
+    elapsed = time.perf_counter() - t0
+    out = Path("/tmp") / f"gap_bench_{name}"
+    write_report(res, out)
+    FIGS.mkdir(parents=True, exist_ok=True)
+    (FIGS / f"gap_{name}_overlay.png").write_bytes(fig_overlay(res))
+    (FIGS / f"gap_{name}_where.png").write_bytes(fig_equations(res.where))
+    (FIGS / f"gap_{name}_effects.png").write_bytes(fig_effects(res))
+    d = res.diagnosis
+    h = res.headline()
+    row: dict[str, Any] = {
+        "rig": spec["rig"],
+        "split_rule": rule,
+        "elapsed_s": elapsed,
+        "fit": [{"source": r.source, "n": len(r), "dt_s": r.dt} for r in fit],
+        "held_out": [{"source": r.source, "n": len(r), "dt_s": r.dt} for r in held],
+        "headline": h,
+        "meets_bar_50pct": bool(h["heldout_shrink"] >= 0.5 and d.chosen),
+        "where": {
+            "significant": res.where.significant,
+            "subsystem": res.where.subsystem,
+            "located": res.where.located,
+            "not_checked": res.where.not_checked,
+            "verdict": res.where.verdict(),
+            "recordings": [
+                {
+                    "source": r.source,
+                    "free_run_nrmse": r.free_run["nrmse"],
+                    "short_horizon_nrmse": r.short_horizon["nrmse"],
+                    "ljung_box_p": r.whiteness["p_value"],
+                    "xcorr_peak_lag_s": r.input_xcorr["peak_lag_s"],
+                    "alignment_lag_s": r.alignment["lag_s"],
+                    "holds": r.holds[:12],
+                }
+                for r in res.where.recordings
+            ],
+        },
+        "which": {
+            "significant": d.significant,
+            "reason": getattr(d, "reason", ""),
+            "chosen": d.chosen,
+            "ranking": [
+                {
+                    k: r.get(k)
+                    for k in (
+                        "effect",
+                        "subsystem",
+                        "held_out_explained",
+                        "bic_delta",
+                        "confidence",
+                        "parameters",
+                    )
+                }
+                for r in d.ranking[:6]
+            ],
+            "not_identifiable": [n["effect"] for n in d.not_identifiable],
+            "shrink": d.shrink,
+        },
+        "after": {
+            "heldout_corrected_significant": res.where_heldout_corrected.significant,
+            "heldout_corrected_ljung_box_p": [
+                r.whiteness["p_value"] for r in res.where_heldout_corrected.recordings
+            ],
+        },
+        "report_folder": str(out),
+    }
+    if "extra" in spec:
+        row.update(spec["extra"])
+        row["nominal_vs_rig_pendulum"] = {
+            k: {
+                "thesis_sim": getattr(rig.pendulum, k),
+                "thesis_rig": getattr(load_rig("thesis_rig").pendulum, k),
+            }
+            for k in ("mgd_over_J", "c_over_J", "L_over_J")
+        }
+        row["corrected_pendulum"] = {
+            k: getattr(d.corrected_rig.pendulum, k)
+            for k in ("mgd_over_J", "c_over_J", "L_over_J", "coulomb_over_J")
+        }
+    return row
+
+
+def markdown(results: dict[str, Any]) -> str:
+    lines = [
+        "# Sim-to-real gap diagnosis on real rigs and the thesis gap (bench/bench_gap_real.py)",
+        "",
+        "Held-out NRMSE = RMS(θ_sim − θ_meas)/range(θ_meas) over recordings/parts never used to locate, "
+        "choose or fit the effects. Bar: shrink ≥ 50 % with the effects named.",
+        "",
+        "| case | nominal rig | where (subsystem) | effects chosen | held-out NRMSE nominal | corrected | "
+        "shrink | bar |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for name, r in results["cases"].items():
+        if "error" in r:
+            lines.append(f"| {name} | {r.get('rig', '')} | error: {r['error']} | | | | | |")
+            continue
+        h = r["headline"]
+        lines.append(
+            f"| {name} | {r['rig']} | {r['where']['subsystem']} | {', '.join(h['effects_chosen']) or '–'} | "
+            f"{h['heldout_nrmse_nominal']:.4f} | {h['heldout_nrmse_corrected']:.4f} | "
+            f"{100 * h['heldout_shrink']:.1f} % | {'yes' if r['meets_bar_50pct'] else 'no'} |"
+        )
+    for name, r in results["cases"].items():
+        if "error" in r:
+            continue
+        lines += ["", f"## {name}", "", f"Split: {r['split_rule']}. Run time {r['elapsed_s']:.0f} s.", ""]
+        lines += [f"* where: {v}" for v in r["where"]["verdict"]]
+        lines.append(f"* which: {r['which']['reason']}")
+        lines.append("")
+        lines.append("| rank | effect | subsystem | held-out explained | ΔBIC | confidence | parameters |")
+        lines.append("|---|---|---|---|---|---|---|")
+        for k, e in enumerate(r["which"]["ranking"], start=1):
+            pars = "; ".join(
+                f"{n} = {p['value']:.4g}"
+                for n, p in (e.get("parameters") or {}).items()
+                if p.get("value") is not None
+            )
+            hx = e.get("held_out_explained")
+            bic = e.get("bic_delta")
+            lines.append(
+                f"| {k} | {e['effect']} | {e['subsystem']} | {hx:.3f} | "
+                f"{'–' if bic is None else f'{bic:.1f}'} | {e.get('confidence') or 0:.2f} | {pars} |"
+            )
+        lines.append("")
+        lines.append("| effects | held-out NRMSE |")
+        lines.append("|---|---|")
+        for s in r["which"]["shrink"]:
+            lines.append(f"| {'+'.join(s['effects']) or 'nominal'} | {s['nrmse']:.4f} |")
+        if "synthetic_step_metrics" in r:
+            m, tg = r["synthetic_step_metrics"], r["target_step_metrics"]
+            lines += [
+                "",
+                f"Synthesised step (thesis_rig): tr {m['tr']:.2f} s, tp {m['tp']:.2f} s, ts {m['ts']:.2f} s, "
+                f"θss {m['theta_ss']:.3f} rad (rig: tr {tg['tr']}, tp {tg['tp']}, ts {tg['ts']}, θss "
+                f"{tg['theta_ss']}).",
+                "",
+                f"Pendulum nominal (thesis_sim) vs rig model (thesis_rig): {r['nominal_vs_rig_pendulum']}; "
+                f"corrected: {r['corrected_pendulum']}.",
+            ]
+    lines += [
+        "",
+        f"Figures: docs/results/gap_<case>_overlay.png, _where.png, _effects.png. Host: {results['host']}.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str]) -> int:
+    names = argv or list(CASES)
+    path = RESULTS / "gap_real.json"
+    results = json.loads(path.read_text()) if path.exists() else {"cases": {}}
+    results["host"] = {
+        "python": platform.python_version(),
+        "cpus": __import__("os").cpu_count(),
+        "load_avg": list(__import__("os").getloadavg()),
+    }
+    for name in names:
+        if name in NEEDS_REAL and not REAL.is_dir():
+            print(f"skip {name}: {REAL} missing")
+            continue
+        print(f"case {name}", flush=True)
+        try:
+            results["cases"][name] = run_case(name)
+        except ValueError as exc:  # a diagnosis that cannot run is a result too
+            results["cases"][name] = {"rig": name, "error": str(exc)}
+            print(f"  [{name}] error: {exc}")
+        RESULTS.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(_jsonable(results), indent=2, allow_nan=False))
+        (RESULTS / "gap_real.md").write_text(markdown(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
