@@ -448,6 +448,9 @@ def yangzhu_case(real_dir: Path | None = None, train_fraction: float = 0.2, meth
         "train": theta_scores(train.variables["theta"], tr_run.states["theta"]),
         "heldout": theta_scores(held.variables["theta"], ho_run.states["theta"]),
         "heldout_omega_nrmse_std": float(ho_run.nrmse.get("omega_rotor", math.inf)),
+        "heldout_omega_rms_over_mean": float(
+            np.sqrt(np.mean((ho_run.states["omega_rotor"] - held.variables["omega_rotor"]) ** 2))
+            / np.mean(held.variables["omega_rotor"])),
         "author_model_heldout": theta_scores(held.variables["theta"], author[len(train):]),
         "notes": [
             f"di_a/dt refused: the current reaches {jump:.0%} of its peak in the first sample after the step "
