@@ -143,6 +143,9 @@ class Effect:
     kind : str
         ``"model"`` (changes the plant), ``"measurement"`` (θ transform) or ``"direct"``
         (detected from the data itself, e.g. quantisation).
+    data_probe : callable, optional
+        Recorded angle -> probe values, for effects whose typical magnitude depends on the data
+        (the end-stop angle must lie inside the recorded range).
     """
 
     name: str
@@ -155,6 +158,21 @@ class Effect:
     confusable_with: tuple[str, ...] = ()
     kind: str = "model"
     _apply: Callable[[Rig, Mapping[str, float]], Rig] | None = field(default=None, repr=False, compare=False)
+    data_probe: Callable[[np.ndarray], dict[str, float]] | None = field(
+        default=None, repr=False, compare=False)
+
+    def probe_for(self, theta_model: np.ndarray) -> dict[str, float]:
+        """Probe values for data whose model-frame angle is ``theta_model`` [rad].
+
+        Most effects use their fixed ``probe``; an end stop must sit inside the recorded range
+        to change anything, so its probe is taken just below the largest recorded angle.
+        """
+        vals = {p.name: p.probe for p in self.parameters}
+        if self.data_probe is not None and np.size(theta_model):
+            for k, v in self.data_probe(np.asarray(theta_model, dtype=float)).items():
+                p = next(q for q in self.parameters if q.name == k)
+                vals[k] = float(min(max(v, p.lower), p.upper))
+        return vals
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -440,6 +458,7 @@ CATALOG: tuple[Effect, ...] = (
               "upper stop angle"),),
         {_TH: ("contact(θ − θ_max)",)},
         "end_stops", (), _apply=_end_stops,
+        data_probe=lambda th: {"theta_max": float(np.max(th)) - 0.01},
     ),
     Effect(
         "sensor_offset", "sensor",

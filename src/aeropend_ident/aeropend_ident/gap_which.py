@@ -233,9 +233,11 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], *,
     preps : sequence of Prepared
         Fit recordings.
     start : mapping, optional
-        Starting values ``{effect: {parameter: value}}`` (default the probe values).
+        Starting values ``{effect: {parameter: value}}`` (default the probe values,
+        :meth:`Effect.probe_for` the fit data).
     scan : bool
-        For a one-parameter fit, first scan 7 values across the bounds and start from the best
+        For a one-parameter fit, first scan 7 values across the bounds and the start value, and
+        start from the best
         (output error in a delay, dead zone or stop angle has local minima).
     max_nfev : int
         Most residual evaluations of the local optimiser.
@@ -254,8 +256,9 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], *,
     if bad:
         raise GapError(f"effect(s) {bad} are detected from the data, not fitted")
     coords = _coords(effs)
-    start = start or {}
-    z0 = np.array([_to_z(p, start.get(e.name, {}).get(p.name, p.probe)) for e, p in coords])
+    th_all = np.concatenate([p.y["theta"] for p in preps])
+    start = {e.name: {**e.probe_for(th_all), **dict((start or {}).get(e.name, {}))} for e in effs}
+    z0 = np.array([_to_z(p, start[e.name][p.name]) for e, p in coords])
     lo = np.array([_to_z(p, p.lower) if not (p.log and p.lower <= 0) else -30.0 for e, p in coords])
     hi = np.array([_to_z(p, p.upper) for e, p in coords])
     n_res = sum(len(p.y) * p.n for p in preps)
@@ -576,6 +579,7 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
     col_names: dict[str, list[str]] = {e.name: [] for e in effs}
     groups: list[int] = []
     seg_base = 0
+    th_all = np.concatenate([p.y["theta"] for p in preps])
     for pi, p in enumerate(preps):
         dec = max(1, round(SCREEN_DT / p.dt))
         th = p.y["theta"]
@@ -590,9 +594,10 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
         nominal = hybrid_rhs(rig, MeasurementMap(), p, thd, eqs, dec)
         cols: dict[str, list[np.ndarray]] = {q: [] for q in eqs}
         grp: list[int] = []
+        probes = {e.name: e.probe_for(th_all) for e in effs}
         for gi, e in enumerate(effs):
             for prm in e.parameters:
-                r2, m2 = apply_effects(rig, {e.name: {prm.name: prm.probe}})
+                r2, m2 = apply_effects(rig, {e.name: {prm.name: probes[e.name][prm.name]}})
                 try:
                     alt = hybrid_rhs(r2, m2, p, thd, eqs, dec)
                 except GapError:
