@@ -631,6 +631,20 @@ def terminal_summary(result: GapResult) -> str:
     return "\n".join(lines)
 
 
+def _step_text(sm: dict[str, Any]) -> str:
+    """'simulated (recorded)' step metrics of the diagnosis' first step, or the flat entries."""
+    sim, rec = sm.get("simulated"), sm.get("recorded")
+    if isinstance(sim, dict) and isinstance(rec, dict):
+        parts = [f"{k.replace('_', ' ')} {_fmt(sim.get(k), '.3g')} ({_fmt(rec.get(k), '.3g')})" for k in sim]
+        t0 = sm.get("t_start")
+        return (
+            (f"step at {t0:.3g} s: " if isinstance(t0, (int, float)) else "")
+            + ", ".join(parts)
+            + " — simulated (recorded)"
+        )
+    return ", ".join(f"{k} {_fmt(v, '.3g')}" for k, v in sm.items() if not isinstance(v, dict))
+
+
 def _table(rows: list[list[Any]], head: list[str]) -> str:
     th = "".join(f"<th>{html.escape(str(c))}</th>" for c in head)
     body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(c))}</td>" for c in r) + "</tr>" for r in rows)
@@ -698,7 +712,7 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
                 row.get("nrmse"),
                 row.get("max_error"),
                 row.get("steady_state_error"),
-                ", ".join(f"{k} {_fmt(v, '.3g')}" for k, v in sm.items() if not isinstance(v, dict)),
+                _step_text(sm),
             ]
         )
     after_rows = [
