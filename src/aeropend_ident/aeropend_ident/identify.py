@@ -1,34 +1,57 @@
-"""Identify a sparse model from a contract bag: ``python -m aeropend_ident.identify BAG --rig RIG``.
+"""Identify a sparse model from recordings: ``identify BAG_OR_CSV [...] --rig RIG --out DIR``.
 
-Plain command (no ROS needed): bag + rig file + method in, results folder out
-(``model.yaml``, ``summary.json``). The equations identified are those the recorded channels
-support: θ̈ when θ is recorded (θ̇ estimated when not recorded), di_a/dt when i_a, ω₁ and v_a are,
-dω₁/dt when i_a and ω₁ are; v_a is computed from the duty cycle with the rig's map (thesis
-Eq. 4.3) when it was not recorded. Derivatives: cross-validated Savitzky-Golay; split: first
-75 % to fit, last 25 % held out; λ by BIC over a sweep; free-run NRMSE on the held-out part.
+Plain command (no ROS needed; also ``ros2 run aeropend_ident identify``): one or more contract
+bags or CSV logs (``--preset`` of :data:`aeropend_ident.csv_import.PRESETS`, or picked by file
+name) + rig file + method in, results folder out:
 
-Errors (bag without the needed topics, NaNs, too short or unexcited data) are reported with the
-message of the failing step and exit status 2.
+* ``model.yaml``: equations in readable form, coefficients (with spread for ``ensemble``),
+  derived physical parameters with units, held-out scores, provenance;
+* ``summary.json``: the same headline figures, the selection sweep and what was *not*
+  identified and why;
+* ``coefficients.png`` (heat-map, rows = equations, columns = library terms),
+  ``derivatives.png`` (held-out predicted vs estimated derivatives), ``free_run.png``.
+
+What is identified follows from the recorded channels:
+
+* θ, i_a and ω₁ recorded (full state): θ̈ (θ̇ estimated when not recorded), di_a/dt when i_a,
+  ω₁ and v_a are, dω₁/dt when i_a and ω₁ are; v_a from the duty cycle with the rig's map
+  (thesis Eq. 4.3) when not recorded; λ by BIC over a sweep on the held-out part.
+* θ and τ only (partial state, most real logs): the pendulum equation with estimated θ̇ and a
+  static or first-order thrust map (:func:`aeropend_ident.partial.select_thrust_map`: lag time
+  constant and delay chosen by the free-run error on the training part); the current and rotor
+  equations are refused (named in ``summary.json``).
+
+Split: each recording in time order, first ``--train-fraction`` (default 75 %) to fit, the rest
+held out; free-run NRMSE of θ on every held-out part. Several recordings: the training parts are
+stacked (strong form: ``--method sindy`` or ``ensemble``), each held-out part is scored alone.
+
+Errors (unreadable input, a bag without the needed topics, NaNs, too short or unexcited data,
+i.e. a rank-deficient library) are printed with the message of the failing step; exit status 2.
+Progress goes to stderr (``--quiet`` to silence it).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from aeropend_ident.bags import BagError, read_bag
+from aeropend_ident.csv_import import CsvImportError, find_preset, import_csv
 from aeropend_ident.libraries import CandidateLibrary, physics_library, structured_library, thesis_library
+from aeropend_ident.partial import angle_only_data, concat_data, nrmse_range, select_thrust_map
 from aeropend_ident.preprocess import add_derivatives, differentiate
 from aeropend_ident.sindy import (
     IdentData,
     IdentificationError,
+    SindyModel,
     free_run,
     save_model,
     select_threshold,
@@ -39,6 +62,15 @@ from aeropend_sim.params import Rig, RigFileError, load_rig
 from aeropend_sim.recording import Recording, RecordingError
 
 LAMBDAS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
+#: Thrust-map grids of the partial-state path: T [s] and delay [samples].
+FIRST_ORDER_T = (0.0, 0.02, 0.05, 0.1, 0.2)
+FIRST_ORDER_DELAYS = (0, 1, 2)
+
+Progress = Callable[[str], None]
+
+
+def _quiet(_msg: str) -> None:
+    return None
 
 
 def data_from_recording(rec: Recording, rig: Rig | None = None) -> IdentData:
@@ -78,6 +110,21 @@ def supported_targets(data: IdentData) -> list[str]:
     return out
 
 
+def refused_targets(channels: Sequence[str]) -> dict[str, str]:
+    """Equations a recording with these channels cannot support, with the reason."""
+    have = set(channels)
+    out = {}
+    if "i_a" not in have:
+        out["i_a"] = "armature-current equation di_a/dt: the armature current i_a was not recorded"
+    elif "omega_rotor" not in have:
+        out["i_a"] = "armature-current equation di_a/dt: needs the rotor speed ω₁ (back-EMF), not recorded"
+    if "omega_rotor" not in have:
+        out["omega_rotor"] = "rotor-speed equation dω₁/dt: the rotor speed ω₁ was not recorded"
+    elif "i_a" not in have:
+        out["omega_rotor"] = "rotor-speed equation dω₁/dt: needs the armature current i_a, not recorded"
+    return out
+
+
 def _library(
     name: str, data: IdentData, targets: list[str]
 ) -> CandidateLibrary | dict[str, CandidateLibrary]:
@@ -95,37 +142,186 @@ def _library(
     return {tg: libs[tg] for tg in targets}
 
 
-def identify(bag: Path, out: Path, rig: Rig | None, method: str = "weak", library: str = "structured",
-             namespace: str = "") -> dict[str, Any]:
-    """Run the whole pipeline; returns the summary written to ``out/summary.json``."""
+def load_recording(path: Path, preset: str | None = None, namespace: str = "") -> Recording:
+    """A contract bag (directory, ``.mcap``, ``.db3``) or a CSV log (``.csv``/``.csv.gz``).
+
+    Raises
+    ------
+    IdentificationError
+        If the path does not exist, or a CSV has no preset given and none matches its name.
+    BagError, CsvImportError, RecordingError
+        From the readers (unreadable file, missing topics/columns, bad values).
+    """
+    path = Path(path)
+    if not path.exists():
+        raise IdentificationError(f"{path}: no such bag or CSV file")
+    name = path.name.lower()
+    if name.endswith((".csv", ".csv.gz")):
+        key = preset or find_preset(path)
+        if key is None:
+            raise IdentificationError(f"{path}: CSV input needs --preset (no preset matches this file name)")
+        return import_csv(path, key)
+    return read_bag(path, namespace=namespace)
+
+
+def _check_theta(rec: Recording) -> None:
+    if "theta" not in rec.channels:
+        raise IdentificationError(f"{rec.source}: no angle θ recorded (channels {sorted(rec.channels)}); "
+                                  "nothing to identify")
+    for k, y in [("theta", rec.channels["theta"]), ("duty", rec.duty)]:
+        bad = ~np.isfinite(y)
+        if bad.any():
+            t_bad = rec.t[int(np.flatnonzero(bad)[0])]
+            raise IdentificationError(f"{rec.source}: {k} has {int(bad.sum())} NaN/inf value(s), first at "
+                                      f"t = {t_bad:.4g} s; cut or repair the log")
+
+
+def _theta_scores(measured: np.ndarray, simulated: np.ndarray) -> dict[str, float]:
+    m = np.asarray(measured, dtype=float)
+    s = np.asarray(simulated, dtype=float)
+    ok = bool(np.isfinite(s).all())
+    rms = float(np.sqrt(np.mean((s - m) ** 2))) if ok else math.inf
+    return {"nrmse_range": nrmse_range(m, s), "nrmse_std": rms / float(np.std(m) or 1.0) if ok else math.inf,
+            "rms_rad": rms}
+
+
+def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, say: Progress) -> list[str]:
+    from aeropend_ident.ident_plots import plot_coefficients, plot_derivatives, plot_free_run
+
+    files = [plot_coefficients(model, out / "coefficients.png")]
+    if any(tg in held.derivatives for tg in model.targets):
+        files.append(plot_derivatives(model, held, out / "derivatives.png"))
+    tr, ho = free_run(model, train, substeps=1), free_run(model, held, substeps=1)
+    states = [s for s in ho.states if s in held.variables and s in ("theta", "i_a", "omega_rotor")]
+    t = np.concatenate([train.t - train.t[0], held.t - train.t[0]])
+    meas = {s: np.concatenate([train.variables[s], held.variables[s]]) for s in states}
+    sim = {s: np.concatenate([tr.states[s], ho.states[s]]) for s in states}
+    files.append(plot_free_run(t, meas, sim, out / "free_run.png", t_split=float(held.t[0] - train.t[0]),
+                               states=states))
+    say(f"plots: {', '.join(p.name for p in files)}")
+    return [p.name for p in files]
+
+
+def identify(
+    bag: Path | Sequence[Path], out: Path, rig: Rig | None, method: str | None = None,
+    library: str = "structured", namespace: str = "", preset: str | None = None,
+    train_fraction: float = 0.75, thrust_map: str = "first_order", plots: bool = True,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Run the whole pipeline; returns the summary written to ``out/summary.json``.
+
+    Parameters
+    ----------
+    bag : Path or sequence of Path
+        Contract bag(s) and/or CSV log(s).
+    rig : Rig, optional
+        Duty -> v_a map (thesis Eq. 4.3), gear ratio and L/J for K_q.
+    method : {"weak", "sindy", "ensemble"}, optional
+        Default: ``"weak"`` for one full-state recording, ``"sindy"`` otherwise.
+    thrust_map : {"first_order", "static"}
+        Partial-state path: lag grid :data:`FIRST_ORDER_T` × :data:`FIRST_ORDER_DELAYS`, or T = 0.
+
+    Raises
+    ------
+    IdentificationError, BagError, CsvImportError, RecordingError
+        With the message of the failing step.
+    """
+    say = progress or _quiet
     t0 = time.perf_counter()
-    rec = read_bag(bag, namespace=namespace)
-    data = data_from_recording(rec, rig)
-    targets = supported_targets(data)
-    data = add_derivatives(data, targets=targets, method="savgol")
-    train, test = data.split(0.75)
-    lib = _library(library, data, targets)
-    kw: dict[str, Any] = {"method": method, "exclude_input_steps": 3}
-    if method == "weak":
-        kw.update(K=300, H_xt=min(0.05, 0.2 * (train.t[-1] - train.t[0])))
-    pts, models = sweep_threshold(train, test, lib, LAMBDAS, targets=targets, **kw)
-    best = select_threshold(pts, "bic")
-    model = models[best.threshold]
-    fr = free_run(model, test, substeps=1)
+    paths = [Path(bag)] if isinstance(bag, (str, Path)) else [Path(b) for b in bag]
+    if not paths:
+        raise IdentificationError("no input recording given")
+    if thrust_map not in ("first_order", "static"):
+        raise IdentificationError(f"thrust_map = {thrust_map!r}; expected 'first_order' or 'static'")
+    recs = []
+    for p in paths:
+        say(f"reading {p}")
+        rec = load_recording(p, preset, namespace)
+        _check_theta(rec)
+        say(f"  {len(rec)} samples at {1.0 / rec.dt:.4g} Hz, channels {sorted(rec.channels)}")
+        recs.append(rec)
+    full = all({"i_a", "omega_rotor"} <= set(r.channels) for r in recs)
+    if method is None:
+        method = "weak" if (full and len(recs) == 1) else "sindy"
+    if len(recs) > 1 and method == "weak":
+        raise IdentificationError("several recordings are stacked for a strong-form regression; use "
+                                  "--method sindy or ensemble (the weak form would integrate across joins)")
+    refused = {} if full else refused_targets(sorted(set.intersection(*(set(r.channels) for r in recs))))
+    for why in refused.values():
+        say(f"not identified: {why}")
     out.mkdir(parents=True, exist_ok=True)
+    extra: dict[str, Any] = {}
+    if full:
+        datas = []
+        for r in recs:
+            d = data_from_recording(r, rig)
+            datas.append(add_derivatives(d, targets=supported_targets(d), method="savgol"))
+        targets = supported_targets(datas[0])
+        parts = [d.split(train_fraction) for d in datas]
+        train = concat_data([p[0] for p in parts])
+        test = concat_data([p[1] for p in parts])
+        lib = _library(library, train, targets)
+        kw: dict[str, Any] = {"method": method, "exclude_input_steps": 3}
+        if method == "weak":
+            kw.update(K=300, H_xt=min(0.05, 0.2 * (train.t[-1] - train.t[0])))
+        say(f"sweeping λ over {list(LAMBDAS)} ({method}, {library} library, targets {targets})")
+        pts, models = sweep_threshold(train, test, lib, LAMBDAS, targets=targets, **kw)
+        best = select_threshold(pts, "bic")
+        model = models[best.threshold]
+        test_mse = best.test_mse
+        extra["threshold_selection"] = "BIC on the held-out derivatives"
+        extra["sweep"] = [{"threshold": p.threshold, "n_terms": p.n_terms, "bic": p.bic} for p in pts]
+    else:
+        vmap = PlantModel(rig).armature_voltage if rig is not None else None
+        datas = [angle_only_data(r.t - r.t[0], r.channels["theta"], r.duty, vmap, source=r.source)
+                 for r in recs]
+        grid_t, grid_d = ((FIRST_ORDER_T, FIRST_ORDER_DELAYS) if thrust_map == "first_order"
+                          else ((0.0,), (0,)))
+        kw = {"K": 300, "H_xt": min(0.5, 0.1 * (datas[0].t[-1] - datas[0].t[0]))} if method == "weak" else {}
+        say(f"partial state (θ, τ): pendulum equation with a {thrust_map} thrust map, "
+            f"{len(grid_t) * len(grid_d)} (T, delay) candidates, {method}")
+        sel = select_thrust_map(datas, train_fraction, time_constants=grid_t, delays=grid_d,
+                                method=method, progress=say, **kw)
+        model, parts = sel.model, sel.parts
+        test = concat_data([p[1] for p in parts])
+        test_mse = model.test_mse(test)
+        targets = ["theta_dot"]
+        extra["thrust_map"] = {"kind": thrust_map, "time_constant_s": sel.time_constant,
+                               "delay_samples": sel.delay, "training_free_run_nrmse": sel.train_nrmse,
+                               "input": "v_a [V] from the rig's duty map" if vmap else "duty cycle τ [1]",
+                               "grid": sel.grid}
+        extra["notes"] = sel.notes
+        for n in sel.notes:
+            say(f"note: {n}")
+    say("free runs on the held-out part(s)")
+    scores = []
+    for r, (_tr, ho) in zip(recs, parts, strict=True):
+        fr = free_run(model, ho, substeps=1)
+        sc = _theta_scores(ho.variables["theta"], fr.states["theta"])
+        sc.update({"recording": r.source, "heldout_samples": len(ho), "free_run_nrmse_std": fr.nrmse})
+        scores.append(sc)
+        say(f"  {r.source}: held-out free-run NRMSE(range) of θ {sc['nrmse_range']:.4g}")
     gear = rig.motor.gear_ratio if rig is not None else None
     l_j = rig.pendulum.L_over_J if rig is not None else None
-    save_model(out / "model.yaml", model, gear_ratio=gear, L_over_J=l_j, test_mse=best.test_mse,
-               free_run_nrmse=fr.nrmse, provenance={"bag": str(bag), "rig": rig.name if rig else None,
-                                                    "library": library, "samples": len(data)})
+    prov = {"inputs": [str(p) for p in paths], "rig": rig.name if rig else None, "library": library,
+            "samples": [len(r) for r in recs], "train_fraction": train_fraction}
+    if "thrust_map" in extra:
+        prov["thrust_map"] = {k: v for k, v in extra["thrust_map"].items() if k != "grid"}
+    save_model(out / "model.yaml", model, gear_ratio=gear, L_over_J=l_j, test_mse=test_mse,
+               free_run_nrmse=scores[0]["free_run_nrmse_std"], provenance=prov)
+    files = ["model.yaml", "summary.json"]
+    if plots:
+        files += _plots(out, model, parts[0][1], parts[0][0], say)
     summary = {
-        "bag": str(bag), "samples": len(data), "targets": targets, "method": model.method,
-        "library": library, "threshold": best.threshold, "equations": model.equations(),
-        "test_mse": best.test_mse, "free_run_nrmse": fr.nrmse,
-        "sweep": [{"threshold": p.threshold, "n_terms": p.n_terms, "bic": p.bic} for p in pts],
-        "wall_time_s": round(time.perf_counter() - t0, 3),
+        "inputs": [str(p) for p in paths], "bag": str(paths[0]), "samples": sum(len(r) for r in recs),
+        "targets": targets, "not_identified": refused, "method": model.method, "library": library,
+        "threshold": model.threshold, "equations": model.equations(),
+        "derived_parameters": {k: {"value": v, "unit": u} for k, (v, u) in
+                               model.derived_parameters(gear, l_j).items()},
+        "test_mse": test_mse, "heldout": scores, "free_run_nrmse": scores[0]["free_run_nrmse_std"],
+        **extra, "files": files, "wall_time_s": round(time.perf_counter() - t0, 3),
     }
-    text = json.dumps(summary, indent=1, ensure_ascii=False) + "\n"
+    text = json.dumps(summary, indent=1, ensure_ascii=False, default=float) + "\n"
     (out / "summary.json").write_text(text, encoding="utf-8")
     return summary
 
@@ -134,20 +330,39 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="identify", description=__doc__.splitlines()[0]
     )
-    ap.add_argument("bag", type=Path)
+    ap.add_argument("inputs", type=Path, nargs="+", metavar="BAG_OR_CSV")
     ap.add_argument("--rig", help="rig name or YAML file (for the duty -> v_a map and K_q)")
-    ap.add_argument("--method", default="weak", choices=("sindy", "ensemble", "weak"))
-    ap.add_argument("--library", default="structured", choices=("structured", "physics", "thesis"))
+    ap.add_argument("--method", default=None, choices=("sindy", "ensemble", "weak"),
+                    help="default: weak for one full-state recording, sindy otherwise")
+    ap.add_argument("--library", default="structured", choices=("structured", "physics", "thesis"),
+                    help="full-state path only")
+    ap.add_argument("--preset", default=None, help="csv_import preset for CSV inputs (default: by file name)")
+    ap.add_argument("--thrust-map", default="first_order", choices=("first_order", "static"),
+                    help="partial-state path (θ and τ only)")
+    ap.add_argument("--train-fraction", type=float, default=0.75)
     ap.add_argument("--namespace", default="")
     ap.add_argument("--out", type=Path, default=Path("ident_results"))
+    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+
+    def say(msg: str) -> None:
+        print(f"[identify {time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
     try:
         rig = load_rig(args.rig) if args.rig else None
-        summary = identify(args.bag, args.out, rig, args.method, args.library, args.namespace)
-    except (BagError, RecordingError, IdentificationError, RigFileError) as exc:
+        summary = identify(args.inputs, args.out, rig, args.method, args.library, args.namespace,
+                           preset=args.preset, train_fraction=args.train_fraction, thrust_map=args.thrust_map,
+                           plots=not args.no_plots, progress=None if args.quiet else say)
+    except (BagError, RecordingError, IdentificationError, RigFileError, CsvImportError) as exc:
         print(f"identify: {exc}", file=sys.stderr)
         return 2
     print("\n".join(summary["equations"]))
+    for tg, why in summary["not_identified"].items():
+        print(f"not identified ({tg}): {why}")
+    for sc in summary["heldout"]:
+        print(f"held-out free-run NRMSE(range) of θ: {sc['nrmse_range']:.4g} ({sc['recording']})")
     print(f"λ = {summary['threshold']:g}; results in {args.out} ({summary['wall_time_s']} s)")
     return 0
 

@@ -211,6 +211,36 @@ def nrmse_range(measured: np.ndarray, simulated: np.ndarray) -> float:
     return rms / rng if rng > 0 else math.inf
 
 
+def concat_data(parts: Sequence[IdentData], source: str | None = None) -> IdentData:
+    """Stack several records into one for a strong-form regression (rows are independent).
+
+    The time axis is rebuilt as k·dt (all parts must share dt within 1e-6 relative); variables
+    and derivatives present in every part are kept. Do not differentiate, integrate (weak form)
+    or free-run across the joins.
+
+    Raises
+    ------
+    IdentificationError
+        On an empty list or different sample periods.
+    """
+    if not parts:
+        raise IdentificationError("concat_data: no records")
+    if len(parts) == 1:
+        return parts[0]
+    dts = [float(np.mean(np.diff(p.t))) for p in parts]
+    if max(dts) - min(dts) > 1e-6 * min(dts):
+        raise IdentificationError(f"records have different sample periods {dts} s; resample them to one rate")
+    keys_v = set.intersection(*(set(p.variables) for p in parts))
+    keys_d = set.intersection(*(set(p.derivatives) for p in parts))
+    n = sum(len(p) for p in parts)
+    return IdentData(
+        t=np.arange(n) * dts[0],
+        variables={k: np.concatenate([p.variables[k] for p in parts]) for k in sorted(keys_v)},
+        derivatives={k: np.concatenate([p.derivatives[k] for p in parts]) for k in sorted(keys_d)},
+        source=source or " + ".join(p.source for p in parts),
+    )
+
+
 @dataclass
 class ThrustMapFit:
     """Pendulum equation with a (first-order) thrust map, selected on the training part.
@@ -227,7 +257,8 @@ class ThrustMapFit:
         Whether F(v_a²) was offered (dropped when the input has at most two levels: then v_a²
         is an affine function of v_a and the two are collinear with the constant).
     train, heldout : IdentData
-        The two parts, with the lagged features of the selected (T, d).
+        The two parts, with the lagged features of the selected (T, d) (several records: the
+        stacked training parts, and the first record's held-out part).
     train_nrmse : float
         Free-run θ NRMSE (range-normalised) on the training part, the selection score.
     grid : list of dict
@@ -245,6 +276,7 @@ class ThrustMapFit:
     train_nrmse: float
     grid: list[dict[str, Any]] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    parts: list[tuple[IdentData, IdentData]] = field(default_factory=list)
 
     def heldout_run(self, substeps: int = 1) -> FreeRun:
         """Free run of the model over the held-out part (from its first measured θ, θ̇)."""
@@ -252,7 +284,7 @@ class ThrustMapFit:
 
 
 def select_thrust_map(
-    data: IdentData, train_fraction: float = 0.7,
+    data: IdentData | Sequence[IdentData], train_fraction: float = 0.7,
     time_constants: Sequence[float] = (0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3),
     delays: Sequence[int] = (0, 1, 2, 3), threshold: float = 0.02, method: str = "sindy",
     bias: bool = True, coulomb: bool = False, quadratic: bool | None = None,
@@ -268,8 +300,11 @@ def select_thrust_map(
 
     Parameters
     ----------
-    data : IdentData
+    data : IdentData or sequence of IdentData
         θ, θ̇ (measured or estimated), v_a (or a per-unit duty), θ̈ estimate for the strong form.
+        Several records (same sample period): each is split, the training parts are stacked for
+        the regression (strong form only), and the score is the mean training free-run NRMSE
+        over the records (each simulated on its own).
     train_fraction : float
         Share of the record (from its start) used for fitting and selection.
     time_constants, delays : sequences
@@ -287,10 +322,17 @@ def select_thrust_map(
     """
     if not 0.0 < train_fraction < 1.0:
         raise IdentificationError(f"train_fraction = {train_fraction!r} must be in (0, 1)")
+    records = [data] if isinstance(data, IdentData) else list(data)
+    if not records:
+        raise IdentificationError("select_thrust_map: no records")
+    if len(records) > 1 and method == "weak":
+        raise IdentificationError("the weak form would integrate across the joins of several records; "
+                                  "use method 'sindy' or 'ensemble' for more than one record")
     notes: list[str] = []
     if quadratic is None:
-        k = round(train_fraction * len(data))
-        levels = np.unique(data.variables["v_a"][:k]) if "v_a" in data.variables else np.array([])
+        levels = np.unique(np.concatenate([
+            r.variables["v_a"][: round(train_fraction * len(r))] for r in records if "v_a" in r.variables
+        ] or [np.array([])]))
         quadratic = levels.size > 2
         if not quadratic:
             notes.append(f"input has {levels.size} level(s) in the training part: v_a² is affine in v_a, "
@@ -301,29 +343,32 @@ def select_thrust_map(
     last_error: Exception | None = None
     for tc in time_constants:
         for d in delays:
-            full = with_thrust_map(data, float(tc), int(d))
-            train, held = full.split(train_fraction)
+            parts = [with_thrust_map(r, float(tc), int(d)).split(train_fraction) for r in records]
+            train, held = concat_data([p[0] for p in parts]), parts[0][1]
             try:
                 m = fit(train, lib, ["theta_dot"], threshold=threshold, method=method, **fit_kw)
             except IdentificationError as exc:
                 last_error = exc
                 grid.append({"time_constant": float(tc), "delay": int(d), "error": str(exc)})
                 continue
-            fr = free_run(m, train, substeps=1)
-            score = nrmse_range(train.variables["theta"], fr.states["theta"])
+            scores = []
+            for tr_part, _ in parts:
+                fr = free_run(m, tr_part, substeps=1)
+                scores.append(nrmse_range(tr_part.variables["theta"], fr.states["theta"]))
+            score = float(np.mean(scores))
             grid.append({"time_constant": float(tc), "delay": int(d), "train_nrmse": score,
                          "equation": m.equations()[0]})
             if progress is not None:
                 progress(f"thrust map T = {tc:g} s, delay {d}: training free-run NRMSE {score:.4g}")
             if math.isfinite(score) and (best is None or score < best.train_nrmse):
                 best = ThrustMapFit(model=m, time_constant=float(tc), delay=int(d), quadratic=quadratic,
-                                    train=train, heldout=held, train_nrmse=score)
+                                    train=train, heldout=held, train_nrmse=score, parts=parts)
     if best is None:
         if last_error is not None and all("error" in g for g in grid):
             raise IdentificationError(str(last_error)) from last_error
         raise IdentificationError(
-            f"{data.source}: no thrust map (T in {list(time_constants)} s, delay in {list(delays)}) gives a "
-            "stable free run on the training part"
+            f"{records[0].source}: no thrust map (T in {list(time_constants)} s, delay in {list(delays)}) "
+            "gives a stable free run on the training part"
         )
     best.grid = grid
     best.notes = notes
