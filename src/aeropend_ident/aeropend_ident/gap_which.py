@@ -27,8 +27,10 @@ Pipeline of :func:`diagnose_effects` (issue 5, parts 2 and 3):
    stays first (or significant, for the others).
 4. **Decision**: "no significant gap" when no effect removes at least
    :data:`MIN_EXPLAINED` of the held-out residual with a BIC gain, or the nominal error is at the
-   noise floor. A second effect is added when it removes a further :data:`MIN_EXPLAINED_SECOND`
-   of what the first left.
+   noise floor. When the first effect leaves more than 1 − :data:`SECOND_EFFECT_BELOW` of the
+   held-out residual, the residual of the corrected model is screened again and the best
+   candidates are fitted jointly with the first; a second effect is added when it removes a
+   further :data:`MIN_EXPLAINED_SECOND` of what the first left, with a BIC gain.
 5. **Shrink** (:func:`gap_metrics`): the corrected rig (nominal + chosen effects, fitted) is
    replayed in free run on the held-out recordings: NRMSE, max error, steady-state map error and
    step metrics before and after, per cumulative effect set.
@@ -558,10 +560,12 @@ class Screening:
 
 
 def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels: frozenset[str], *,
-           n_bootstrap: int = N_BOOTSTRAP, seed: int = 0, weak_K: int = 150) -> Screening:
+           n_bootstrap: int = N_BOOTSTRAP, seed: int = 0, weak_K: int = 150,
+           meas: MeasurementMap | None = None) -> Screening:
     """Discrepancy SINDy (strong and weak form) over the catalog's term groups.
 
-    See the module docstring, step 2. Each equation's rows are scaled by the RMS of its
+    ``rig``/``meas`` are the base model (the nominal rig, or a corrected one when screening for a
+    second effect). See the module docstring, step 2. Each equation's rows are scaled by the RMS of its
     nominal residual so the equations weigh alike; each column is scaled to unit RMS.
 
     Returns
@@ -579,6 +583,7 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
     col_names: dict[str, list[str]] = {e.name: [] for e in effs}
     groups: list[int] = []
     seg_base = 0
+    base_meas = meas or MeasurementMap()
     th_all = np.concatenate([p.y["theta"] for p in preps])
     for pi, p in enumerate(preps):
         dec = max(1, round(SCREEN_DT / p.dt))
@@ -591,13 +596,13 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
         if "v_a" in eqs:
             lhs["v_a"] = p.y["v_a"][::dec]
         n_d = lhs["theta_dot"].size
-        nominal = hybrid_rhs(rig, MeasurementMap(), p, thd, eqs, dec)
+        nominal = hybrid_rhs(rig, base_meas, p, thd, eqs, dec)
         cols: dict[str, list[np.ndarray]] = {q: [] for q in eqs}
         grp: list[int] = []
         probes = {e.name: e.probe_for(th_all) for e in effs}
         for gi, e in enumerate(effs):
             for prm in e.parameters:
-                r2, m2 = apply_effects(rig, {e.name: {prm.name: probes[e.name][prm.name]}})
+                r2, m2 = apply_effects(rig, {e.name: {prm.name: probes[e.name][prm.name]}}, base_meas)
                 try:
                     alt = hybrid_rhs(r2, m2, p, thd, eqs, dec)
                 except GapError:
@@ -779,6 +784,14 @@ def _param_table(fitres: EffectFit, name: str) -> dict[str, dict[str, Any]]:
                      "unit": p.unit} for p in e.parameters}
 
 
+def _rig_values(rig: Rig, name: str, values: Mapping[str, float]) -> dict[str, float]:
+    """Physical values an effect writes into the rig (or the measurement map)."""
+    e = get_effect(name)
+    if e.kind == "model":
+        return e.rig_values(rig, values)
+    return {p.rig_field: float(values[p.name]) for p in e.parameters}
+
+
 def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Recording], *,
                      max_effects: int = 2, seed: int = 0,
                      progress: Callable[[str], None] | None = None) -> EffectDiagnosis:
@@ -889,8 +902,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
             "held_out_explained": c["held_out_explained"], "bic_delta": c["bic_delta"],
             "confidence": (first[name] if i == 0 else signif[name]) / N_BOOTSTRAP,
             "parameters": _param_table(fits[name], name),
-            "rig_values": e.rig_values(rig, fits[name].values[name]) if e.kind == "model" else {
-                p.rig_field: fits[name].values[name][p.name] for p in e.parameters},
+            "rig_values": _rig_values(rig, name, fits[name].values[name]),
             "screening": {"explained_strong": scr.explained_strong[name],
                           "explained_weak": scr.explained_weak[name], "inclusion": scr.inclusion[name]},
             "confusable_with": list(e.confusable_with),
@@ -911,35 +923,55 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
         shrink.append({"effects": list(chosen), **gap_metrics(corrected, meas, ph)})
         cur_sse = float(segs[name].sum())
         if max_effects > 1 and best["held_out_explained"] < SECOND_EFFECT_BELOW:
-            others = [r["effect"] for r in ranking[1:3] if r["held_out_explained"] > 0.1]
+            # screen the residual left by the first effect (discrepancy SINDy on the corrected
+            # model), then confirm the best candidates by a joint output-error fit
+            rest = [n for n in model_effects if n != name]
+            say(f"screening the residual left by {name}")
+            scr2 = screen(corrected, pf, rest, channels, seed=seed + 2, meas=meas)
+            others: list[str] = []
+            for o in scr2.shortlist(2) + [r["effect"] for r in ranking[1:3] if r["held_out_explained"] > 0.1]:
+                if o not in others and o != name:
+                    others.append(o)
             best2 = None
-            for o in others:
+            for o in others[:3]:
                 say(f"joint fit of {name} + {o}")
-                start = {name: cur.values[name], o: fits[o].values[o]}
                 try:
+                    alone = fit_effects(corrected, [o], pf)
+                    start = {name: cur.values[name], o: alone.values[o]}
                     fr2 = fit_effects(rig, [name, o], pf, start=start, scan=False, max_nfev=20)
                 except GapError:
                     continue
                 sse2 = float(segment_sse(fr2.rig, fr2.meas, ph).sum())
                 gain = 1.0 - sse2 / max(cur_sse, 1e-300)
-                k2 = len(get_effect(name).parameters) + len(get_effect(o).parameters)
-                bic_gain = (_bic(fr2.sse * n_eff / n_fit, n_eff, k2)
-                            - _bic(cur.sse * n_eff / n_fit, n_eff, k2 - len(get_effect(o).parameters)))
+                k1 = len(get_effect(name).parameters)
+                k2 = k1 + len(get_effect(o).parameters)
+                bic_gain = _bic(fr2.sse * n_eff / n_fit, n_eff, k2) - _bic(cur.sse * n_eff / n_fit, n_eff, k1)
                 if gain >= MIN_EXPLAINED_SECOND and bic_gain <= -MIN_BIC_GAIN and (
                         best2 is None or gain > best2[0]):
-                    best2 = (gain, o, fr2)
+                    best2 = (gain, o, fr2, bic_gain)
             if best2 is not None:
-                gain, o, fr2 = best2
+                gain, o, fr2, bic_gain = best2
                 chosen.append(o)
                 corrected, meas = fr2.rig, fr2.meas
+                if o not in [r["effect"] for r in ranking]:
+                    eo = get_effect(o)
+                    ranking.append({
+                        "effect": o, "subsystem": eo.subsystem, "score": None, "held_out_explained": None,
+                        "bic_delta": None, "confidence": None, "parameters": {}, "rig_values": {},
+                        "screening": {"explained_strong": scr2.explained_strong[o],
+                                      "explained_weak": scr2.explained_weak[o],
+                                      "inclusion": scr2.inclusion[o]},
+                        "confusable_with": list(eo.confusable_with),
+                    })
                 for r in ranking:
                     if r["effect"] in (name, o):
                         r["parameters"] = _param_table(fr2, r["effect"])
-                        if get_effect(r["effect"]).kind == "model":
-                            r["rig_values"] = get_effect(r["effect"]).rig_values(rig, fr2.values[r["effect"]])
-                for r in ranking:
+                        r["rig_values"] = _rig_values(rig, r["effect"], fr2.values[r["effect"]])
                     if r["effect"] == o:
                         r["added_explained"] = gain
+                        r["added_bic_delta"] = bic_gain
+                # the pair is the answer: keep both at the top of the ranking
+                ranking.sort(key=lambda r: (r["effect"] != name, r["effect"] != o))
                 shrink.append({"effects": list(chosen), **gap_metrics(corrected, meas, ph)})
         reason = (f"{name} removes {100 * best['held_out_explained']:.1f} % of the held-out residual "
                   f"(BIC change {best['bic_delta']:.1f})")
