@@ -89,7 +89,10 @@ def test_weak_sindy_50db_pendulum_equation(traj) -> None:
     noisy = RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=50)
     tr = simulate(noisy, traj.duty, seed=3)
     data = data_from_trajectory(tr, noisy, measured=True)
-    m = fit(data, physics_library(), targets=["theta_dot"], threshold=0.2, method="weak", K=200, H_xt=0.05)
+    # ridge 1 on the unit-RMS scale shrinks the near-null combination of i_a, ω₁ and v_a (collinear at
+    # steady state) that the exact hold quadrature otherwise leaves in θ̈; λ is then enforced on the refit
+    m = fit(data, physics_library(), targets=["theta_dot"], threshold=0.2, method="weak", K=200, H_xt=0.05,
+            alpha=1.0)
     e = structure_errors(m, {"theta_dot": TRUTH["theta_dot"]})["theta_dot"]
     assert e["false_positive"] == [] and e["false_negative"] == [], m.equations()
     assert e["max_rel_error"] < 0.01  # measured 0.2 %
@@ -227,7 +230,7 @@ def test_lorenz_sindy_weak_and_discrepancy() -> None:
 def test_structured_library_per_equation_weak_50db(traj) -> None:
     """One physically plausible library per equation (incl. θ, cos θ, 1, sgn θ̇, ω₁ for θ̈)."""
     libs = structured_library()
-    assert set(libs) == {"theta_dot", "i_a", "omega_rotor"} and len(libs["theta_dot"]) == 8
+    assert set(libs) == {"theta", "theta_dot", "i_a", "omega_rotor"} and len(libs["theta_dot"]) == 8
     noisy = RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=50)
     data = data_from_trajectory(simulate(noisy, traj.duty, seed=3), noisy, measured=True)
     m = fit(data, libs, targets=["theta_dot", "omega_rotor"], threshold=0.5, method="weak", K=300, H_xt=0.05)

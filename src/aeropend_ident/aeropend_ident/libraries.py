@@ -316,6 +316,7 @@ def structured_library(
     Each equation is offered the terms of every effect the plant model can switch on for it, not
     only the true ones:
 
+    * dθ/dt (target ``theta``, the kinematic equation): 1, θ, θ̇, sin θ;
     * θ̈ (target ``theta_dot``): 1, θ, θ̇, sin θ, cos θ, sgn θ̇ (Coulomb), ω₁ and ω₁² (thrust
       laws); needs θ, θ̇ and ω₁;
     * di_a/dt (``i_a``): 1, i_a, ω₁ (back-EMF), v_a, ω₁² ;
@@ -326,6 +327,10 @@ def structured_library(
     """
     vs = set(variables)
     out: dict[str, CandidateLibrary] = {}
+    if {"theta", "theta_dot"} <= vs:
+        out["theta"] = CandidateLibrary(
+            (constant(), _var("theta"), _var("theta_dot"), _unary("sin", np.sin, "theta"))
+        )
     if {"theta", "theta_dot", "omega_rotor"} <= vs:
         out["theta_dot"] = CandidateLibrary((
             constant(), _var("theta"), _var("theta_dot"), _unary("sin", np.sin, "theta"),

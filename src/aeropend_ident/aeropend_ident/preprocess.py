@@ -5,7 +5,10 @@
 * :func:`moving_average` — the thesis' moving-average filter (40 samples in §5.3.1);
 * :func:`differentiate` — derivatives by finite differences (``pysindy.FiniteDifference``),
   Savitzky-Golay (``scipy.signal.savgol_filter``) with the window chosen automatically by
-  leave-every-other-sample-out cross-validation of the smoother, or the smoothers of the
+  leave-every-other-sample-out cross-validation of the smoother, total-variation
+  regularisation (Chartrand's iterative TVRegDiff, ``pynumdiff``'s ``iterative_velocity``,
+  which needs no convex solver) with the weight γ chosen by the same cross-validation, or the
+  smoothers of the
   ``derivative`` package through ``pysindy.SINDyDerivative`` (``spline``, ``kalman``,
   ``trend_filtered`` with their parameters given);
 * :func:`add_derivatives` — the same for every target state of an :class:`IdentData`.
@@ -13,6 +16,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -24,7 +28,9 @@ from scipy.signal import savgol_filter
 
 from aeropend_ident.sindy import IdentData, IdentificationError
 
-DERIVATIVE_METHODS = ("finite_difference", "savgol", "spline", "kalman", "trend_filtered")
+DERIVATIVE_METHODS = ("finite_difference", "savgol", "tv", "spline", "kalman", "trend_filtered")
+#: Candidate TV weights γ (pynumdiff ``iterative_velocity``, on the signal's own scale).
+TV_GAMMAS = (1e-4, 1e-3, 1e-2, 1e-1)
 
 
 def _signal(name: str, y: np.ndarray) -> np.ndarray:
@@ -110,6 +116,37 @@ def _savgol_cv(a: np.ndarray, order: int, windows: Sequence[int]) -> tuple[int, 
     return min(scores, key=lambda w: scores[w]), scores
 
 
+def _tv(a: np.ndarray, dt: float, gamma: float, iterations: int) -> tuple[np.ndarray, np.ndarray]:
+    """TV-regularised derivative on the signal's unit scale (γ is dimensionless)."""
+    from pynumdiff.total_variation_regularization import iterative_velocity
+
+    scale = float(np.std(a)) or 1.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        x_hat, d = iterative_velocity(a / scale, dt, iterations, gamma, cg_maxiter=1000, scale="large")
+    return np.asarray(x_hat) * scale, np.asarray(d) * scale
+
+
+def _tv_cv(a: np.ndarray, dt: float, gammas: Sequence[float], iterations: int
+           ) -> tuple[float, dict[float, float]]:
+    """γ minimising the error of predicting odd samples from the TV fit of the even ones.
+
+    The even samples are differentiated with weight γ, the derivative integrated
+    (trapezoid, constant fitted) and each odd sample predicted as the mean of its two
+    neighbours on that reconstruction; the score is the mean squared prediction error.
+    """
+    even, odd = a[0::2], a[1::2]
+    n = min(even.size - 1, odd.size)
+    scores: dict[float, float] = {}
+    for g in gammas:
+        _, d = _tv(even, 2 * dt, g, iterations)
+        rec = np.concatenate(([0.0], np.cumsum(0.5 * (d[1:] + d[:-1]) * 2 * dt)))
+        rec += float(np.mean(even - rec))
+        pred = 0.5 * (rec[:n] + rec[1 : n + 1])
+        scores[g] = float(np.mean((pred - odd[:n]) ** 2))
+    return min(scores, key=lambda g: scores[g]), scores
+
+
 def differentiate(t: np.ndarray, y: np.ndarray, method: str = "savgol", window: int | None = None,
                   order: int = 3, **kwargs: Any) -> Derivative:
     """Time derivative of a uniformly sampled signal.
@@ -122,7 +159,12 @@ def differentiate(t: np.ndarray, y: np.ndarray, method: str = "savgol", window: 
     method : {"finite_difference", "savgol", "spline", "kalman", "trend_filtered"}
         ``finite_difference``: second-order centred differences (pysindy ``FiniteDifference``);
         ``savgol``: Savitzky-Golay of polynomial ``order``; with ``window=None`` the window is
-        chosen among odd sizes 5…401 by cross-validation (never by hand); the others go through
+        chosen among odd sizes 5…401 by cross-validation (never by hand); ``tv``: total-variation
+        regularised derivative (pynumdiff ``iterative_velocity``, Chartrand 2011, no convex
+        solver needed) on the signal scaled to unit standard deviation, with the weight γ chosen
+        among ``gammas`` (default :data:`TV_GAMMAS`) by the same leave-every-other-sample-out
+        cross-validation unless ``gamma=`` is given (``iterations=``, default 1; slow: seconds
+        per thousand samples); the others go through
         ``pysindy.SINDyDerivative(kind=method, **kwargs)`` (e.g. ``s=`` for spline,
         ``alpha=`` for kalman/trend_filtered).
 
@@ -152,6 +194,16 @@ def differentiate(t: np.ndarray, y: np.ndarray, method: str = "savgol", window: 
         smooth = savgol_filter(a, window, order, mode="interp")
         d = savgol_filter(a, window, order, deriv=1, delta=dt, mode="interp")
         return Derivative(d, smooth, method, params)
+    if method == "tv":
+        iterations = int(kwargs.get("iterations", 1))
+        gamma = kwargs.get("gamma")
+        tv_params: dict[str, Any] = {"iterations": iterations}
+        if gamma is None:
+            gamma, tv_scores = _tv_cv(a, dt, kwargs.get("gammas", TV_GAMMAS), iterations)
+            tv_params["cv_scores"] = tv_scores
+        tv_params["gamma"] = float(gamma)
+        smooth, d = _tv(a, dt, float(gamma), iterations)
+        return Derivative(d, smooth, method, tv_params)
     if method in ("spline", "kalman", "trend_filtered"):
         diff = ps.SINDyDerivative(kind=method, **kwargs)
         d = np.asarray(diff(a[:, None], tt))[:, 0]
