@@ -88,3 +88,15 @@ def test_latency_columns() -> None:
     row = dict(zip(SIGNALS, loop.rows[-1], strict=True))
     assert math.isnan(row["recv_latency"]) and math.isnan(row["pub_latency"])
     assert row["theta_hat"] == pytest.approx(0.0, abs=1e-3)  # observer estimate of the measured 0
+
+
+def test_pole_defaults_per_strategy_and_override() -> None:
+    from aeropend_control.strategies import DEFAULT_SPECS
+
+    assert make_settings(strategy="fl_pid").spec == DEFAULT_SPECS["fl_pid"]
+    assert make_settings(strategy="cascade").spec.omega_n == 9.0
+    s = make_settings(strategy="fl_pid", omega_n=8.0, zeta=None)
+    assert (s.spec.omega_n, s.spec.zeta, s.spec.rho) == (8.0, 0.7, 1.0)
+    with pytest.raises(ControllerConfigError, match="estimator = 'ekf'"):
+        make_settings(estimator="ekf")
+    assert make_settings(estimator="difference").estimator == "difference"

@@ -30,6 +30,7 @@ from aeropend_control.design import (
 )
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
 from aeropend_control.strategies import (
+    DEFAULT_SPECS,
     NEEDS_MOTOR,
     FeedbackLinearizationPID,
     MotorCascade,
@@ -155,7 +156,7 @@ def test_small_signal_fixed_operating_point_and_scheduling_bumpless() -> None:
         s = plant.step(outs[-1].duty)
     # bumpless: the thrust moves only by the I-PD's own increment ki·h·(r − θ) − kp·Δθ − kd·ΔD,
     # not by the jump of f₀ (0.0925 N) between the operating points 0.3 and 0.6 rad
-    d06 = design_small_signal(RIG, 0.6, SPEC)
+    d06 = design_small_signal(RIG, 0.6, DEFAULT_SPECS["small_signal"])
     df = outs[700].thrust - outs[699].thrust
     expected = d06.ki * RIG.sample_period * (0.6 - thetas[700])
     assert abs(thetas[700] - 0.3) < 1e-3

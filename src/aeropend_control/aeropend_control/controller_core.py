@@ -24,6 +24,7 @@ from aeropend_control.strategies import (
     ControlOutput,
     FeedbackLinearizationPID,
     SmallSignalPID,
+    default_spec,
     make_strategy,
 )
 from aeropend_sim.params import Rig, RigFileError, load_rig
@@ -117,9 +118,13 @@ def make_settings(**raw: Any) -> ControllerSettings:
     allocator = str(raw.get("allocator", "model"))
     if allocator not in ALLOCATORS:
         raise ControllerConfigError(f"allocator = {allocator!r}; expected one of {ALLOCATORS}")
-    spec = PoleSpec(_float("omega_n", raw.get("omega_n", PoleSpec.omega_n)),
-                    _float("zeta", raw.get("zeta", PoleSpec.zeta)),
-                    _float("rho", raw.get("rho", PoleSpec.rho)))
+    base = default_spec(strategy)  # a pole parameter not given (None) takes the strategy's default
+
+    def pole(name: str) -> float:
+        val = raw.get(name)
+        return getattr(base, name) if val is None else _float(name, val)
+
+    spec = PoleSpec(pole("omega_n"), pole("zeta"), pole("rho"))
     try:
         spec.poles()
     except ValueError as exc:

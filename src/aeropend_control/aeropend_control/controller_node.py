@@ -29,7 +29,9 @@ reference : float, default 0
 allocator : str, default ``model``
     ``model`` | ``thesis`` (see :mod:`aeropend_control.allocation`).
 omega_n, zeta, rho : float
-    Closed-loop pole pattern (:class:`aeropend_control.design.PoleSpec`).
+    Closed-loop pole pattern (:class:`aeropend_control.design.PoleSpec`); unset = the strategy's
+    default (:data:`aeropend_control.strategies.DEFAULT_SPECS`: ω_n 9.5 rad/s for FL and
+    small-signal, 9 rad/s for the cascades, ζ 0.7, ρ 1).
 estimator : str, default ``observer``
     θ̇ estimate: ``observer`` (stationary Kalman filter with the model thrust as known input,
     :mod:`aeropend_control.observer`) | ``difference`` (filtered difference, time constant ``tf``).
@@ -98,9 +100,9 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("steps", None, "reference steps [t0, theta0, t1, theta1, ...] (s, rad)"),
     ("reference", 0.0, "reference before the first step [rad]"),
     ("allocator", "model", "model | thesis"),
-    ("omega_n", 9.0, "closed-loop natural frequency [rad/s]"),
-    ("zeta", 0.7, "closed-loop damping ratio"),
-    ("rho", 1.0, "real closed-loop pole / omega_n"),
+    ("omega_n", None, "closed-loop natural frequency [rad/s] (default: per strategy)"),
+    ("zeta", None, "closed-loop damping ratio (default 0.7)"),
+    ("rho", None, "real closed-loop pole / omega_n (default 1)"),
     ("tf", 0.01, "theta_dot / derivative filter time constant [s]"),
     ("theta_op", None, "operating point of small_signal_fixed [rad]"),
     ("duration", 0.0, "stop after this much sample time [s] (0 = never)"),

@@ -59,6 +59,19 @@ ALLOCATORS = ("model", "thesis")
 #: θ̇ estimators: filtered difference (:class:`VelocityEstimator`) or Kalman observer
 #: (:class:`aeropend_control.observer.PendulumObserver`).
 ESTIMATORS = ("difference", "observer")
+#: Default closed-loop poles of each strategy's position loop. FL and small-signal PID use
+#: ω_n = 9.5 rad/s (settling within 1.5× the time-optimal bound in all bench scenarios); the
+#: cascades keep ω_n = 9 rad/s because their speed loop (ω_s = 45 rad/s) adds lag and a faster
+#: outer loop overshoots > 5 % at 0.7 rad (docs/control.md).
+DEFAULT_SPECS: dict[str, PoleSpec] = {
+    "fl_pid": PoleSpec(9.5), "small_signal": PoleSpec(9.5), "small_signal_fixed": PoleSpec(9.5),
+    "cascade": PoleSpec(9.0), "fl_cascade": PoleSpec(9.0),
+}
+
+
+def default_spec(name: str) -> PoleSpec:
+    """Default :class:`PoleSpec` of strategy ``name`` (:data:`DEFAULT_SPECS`; ``PoleSpec()`` if unknown)."""
+    return DEFAULT_SPECS.get(name, PoleSpec())
 
 
 class StrategyError(ValueError):
@@ -223,7 +236,7 @@ class FeedbackLinearizationPID(_Base):
     rig : Rig
         Model parameters used by the linearising law (mgd/J, c/J, L/J) and the allocation.
     design : LoopDesign, optional
-        Outer-loop gains (default :func:`design_fl` with :class:`PoleSpec` defaults).
+        Outer-loop gains (default :func:`design_fl` with ``DEFAULT_SPECS["fl_pid"]``).
     cancel_damping : bool
         Include (c/J)·θ̂̇ in the law (default True).
     allocator : {"model", "thesis"}
@@ -246,7 +259,7 @@ class FeedbackLinearizationPID(_Base):
                  allocator: str = "model", tf: float = DEFAULT_TF, dt: float | None = None,
                  f_init: float = 0.0, estimator: str = "observer",
                  observer_spec: ObserverSpec | None = None) -> None:
-        self.design = design or design_fl(rig, cancel_damping=cancel_damping)
+        self.design = design or design_fl(rig, DEFAULT_SPECS["fl_pid"], cancel_damping=cancel_damping)
         self.cancel_damping = cancel_damping
         super().__init__(rig, self.design.pid_gains(), allocator, tf, dt, f_init, estimator, observer_spec)
 
@@ -287,6 +300,7 @@ class SmallSignalPID(_Base):
     grid : sequence of float
         Scheduling grid [rad] (designs by :func:`aeropend_control.design.schedule`).
     spec : PoleSpec, optional
+        Default ``DEFAULT_SPECS["small_signal"]``.
     allocator, tf, dt, f_init, estimator, observer_spec
         As for :class:`FeedbackLinearizationPID`.
     """
@@ -297,6 +311,7 @@ class SmallSignalPID(_Base):
                  spec: PoleSpec | None = None, allocator: str = "model", tf: float = DEFAULT_TF,
                  dt: float | None = None, f_init: float = 0.0, estimator: str = "observer",
                  observer_spec: ObserverSpec | None = None) -> None:
+        spec = spec or DEFAULT_SPECS["small_signal"]
         if theta_op is None:
             self.table = schedule(rig, list(grid), spec)
         else:
@@ -357,6 +372,10 @@ def make_strategy(
     """
     if name in NEEDS_MOTOR:
         cdesign = options.pop("cascade_design", None)
+        if name == "fl_cascade" and options.get("design") is None:
+            options["design"] = design_fl(rig, DEFAULT_SPECS[name])
+        if name == "cascade" and options.get("spec") is None:
+            options["spec"] = DEFAULT_SPECS[name]
         outer = make_strategy("fl_pid" if name == "fl_cascade" else "small_signal", rig, **options)
         return CascadeStrategy(outer, rig, cdesign)  # type: ignore[arg-type]
     if name == "fl_pid":
