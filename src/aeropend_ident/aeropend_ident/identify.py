@@ -19,7 +19,9 @@ What is identified follows from the recorded channels:
 * θ and τ only (partial state, most real logs): the pendulum equation with estimated θ̇ and a
   static or first-order thrust map (:func:`aeropend_ident.partial.select_thrust_map`: lag time
   constant and delay chosen by the free-run error on the training part); the current and rotor
-  equations are refused (named in ``summary.json``).
+  equations are refused (named in ``summary.json``). With the per-equation (structured) library,
+  an equation whose library the data leaves rank deficient (e.g. di_a/dt under a constant v_a)
+  is refused with that reason and the others are still identified.
 
 Split: each recording in time order, first ``--train-fraction`` (default 75 %) to fit, the rest
 held out; free-run NRMSE of θ on every held-out part. Several recordings: the training parts are
@@ -49,9 +51,11 @@ from aeropend_ident.libraries import CandidateLibrary, physics_library, structur
 from aeropend_ident.partial import angle_only_data, concat_data, nrmse_range, select_thrust_map
 from aeropend_ident.preprocess import add_derivatives, differentiate
 from aeropend_ident.sindy import (
+    TARGET_INFO,
     IdentData,
     IdentificationError,
     SindyModel,
+    fit,
     free_run,
     save_model,
     select_threshold,
@@ -264,6 +268,17 @@ def identify(
         kw: dict[str, Any] = {"method": method, "exclude_input_steps": 3}
         if method == "weak":
             kw.update(K=300, H_xt=min(0.05, 0.2 * (train.t[-1] - train.t[0])))
+        if isinstance(lib, dict):  # one library per equation: drop the equations the data cannot support
+            for tg in list(targets):
+                try:
+                    fit(train, lib[tg], [tg], threshold=LAMBDAS[0], **kw)
+                except IdentificationError as exc:
+                    refused[tg] = f"{TARGET_INFO[tg][1]}: {exc}"
+                    say(f"not identified: {refused[tg]}")
+                    targets.remove(tg)
+                    del lib[tg]
+            if not targets:
+                raise IdentificationError(f"no equation can be identified from {paths}: {refused}")
         say(f"sweeping λ over {list(LAMBDAS)} ({method}, {library} library, targets {targets})")
         pts, models = sweep_threshold(train, test, lib, LAMBDAS, targets=targets, **kw)
         best = select_threshold(pts, "bic")
