@@ -60,9 +60,45 @@ def _split(rec: Recording, frac: float = 0.7) -> tuple[list[Recording], list[Rec
     return [a], [b], f"time-ordered split: first {frac:.0%} to fit, the rest held out"
 
 
+def _blocks(rec: Recording, block_s: float, every: int = 3) -> tuple[list[Recording], list[Recording], str]:
+    """Interleaved held-out blocks: consecutive blocks of ``block_s`` seconds, every ``every``-th
+    one (starting with the 2nd) held out, the others used to fit. Each block is replayed from its
+    own first samples, so fit and held-out data cover the same operating range (interpolation),
+    unlike the time-ordered split (extrapolation to the last part of the run)."""
+    n = len(rec)
+    k = max(1, round(block_s / rec.dt))
+    fit, held = [], []
+    for j, a in enumerate(range(0, n, k)):
+        b = min(n, a + k)
+        if b - a < k // 2:
+            break
+        part = rec.slice(a, b)
+        if np.ptp(part.duty) == 0.0:  # a block with a constant input carries no information
+            continue
+        (held if j % every == 1 else fit).append(part)
+    return (
+        fit,
+        held,
+        (
+            f"interleaved blocks of {block_s:g} s: every {every}rd block (from the 2nd) held out, "
+            "the others fit"
+        ),
+    )
+
+
 def case_jahoyosr() -> dict[str, Any]:
     rec = _csv("jahoyosr__Aeropendulum/sheet_Hoja3_pwm_steps_openloop.csv", "jahoyosr_hoja3")
     return {"rig": "jahoyosr_rig", "split": _split(rec)}
+
+
+def case_jahoyosr_blocks() -> dict[str, Any]:
+    rec = _csv("jahoyosr__Aeropendulum/sheet_Hoja3_pwm_steps_openloop.csv", "jahoyosr_hoja3")
+    return {"rig": "jahoyosr_rig", "split": _blocks(rec, 20.0)}
+
+
+def case_aeroshield_blocks() -> dict[str, Any]:
+    rec = _csv("gergelytakacs__AutomationShield/AeroShield/Identification_Data.csv", "aeroshield_ident")
+    return {"rig": "aeroshield_rig", "split": _blocks(rec, 12.0)}
 
 
 def case_aeroshield() -> dict[str, Any]:
@@ -126,11 +162,13 @@ def case_thesis() -> dict[str, Any]:
 
 CASES = {
     "jahoyosr_hoja3": case_jahoyosr,
+    "jahoyosr_hoja3_blocks": case_jahoyosr_blocks,
     "aeroshield": case_aeroshield,
+    "aeroshield_blocks": case_aeroshield_blocks,
     "etchepareborda": case_etchepareborda,
     "thesis_gap": case_thesis,
 }
-NEEDS_REAL = {"jahoyosr_hoja3", "aeroshield", "etchepareborda"}
+NEEDS_REAL = {"jahoyosr_hoja3", "jahoyosr_hoja3_blocks", "aeroshield", "aeroshield_blocks", "etchepareborda"}
 
 
 def run_case(name: str) -> dict[str, Any]:

@@ -27,9 +27,9 @@ def noisy_run():
 
 @pytest.fixture(scope="module")
 def rig_runs():
-    """Two 30 s APRBS runs of thesis_rig at 100 Hz, 50 dB (angle-only logs)."""
+    """Two 20 s APRBS runs of thesis_rig at 100 Hz, 50 dB (angle-only logs)."""
     rig = load_rig("thesis_rig").with_effects(sensor_noise=True).with_params("sensors", snr_db=50)
-    return [simulate(rig, aprbs(30.0, lo=0.35, hi=0.65, min_hold=0.3, max_hold=3.0, seed=s, dt=0.01).duty,
+    return [simulate(rig, aprbs(20.0, lo=0.35, hi=0.65, min_hold=0.3, max_hold=3.0, seed=s, dt=0.01).duty,
                      seed=s, dt=0.01) for s in (4, 5)]
 
 
