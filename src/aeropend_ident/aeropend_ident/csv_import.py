@@ -235,6 +235,27 @@ PRESETS: dict[str, CsvSpec] = {
             "ignored_columns": "y_raw [encoder counts] (same angle, raw), i [undocumented]",
         },
     ),
+    "aeroshield_ident2": CsvSpec(
+        name="aeroshield_ident2",
+        time_col="t", time_unit="s",
+        input_col="u_motor", input_kind="voltage", supply_voltage=3.7, voltage_law="rms",
+        quantize_counts=255,
+        angle_col="y_angle", angle_unit="rad",
+        meta={
+            "files": ["Identification_Data2.csv"],
+            "rig": "AutomationShield AeroShield: Arduino shield, small DC motor + propeller on a pendulum, "
+                   "AS5600 Hall angle sensor",
+            "provenance": "https://github.com/gergelytakacs/AutomationShield @ "
+                          "bc0778f97a156d4ea5158725e09068d438e59a39, "
+                          "matlab/examples/AeroShield/Identification_Data2.mat "
+                          "(converted; data README section 4)",
+            "licence": "CC BY-NC-ND 4.0 (repository LICENSE; file headers say CC BY-NC 4.0): non-commercial "
+                       "use with attribution only",
+            "sample_period_note": "Ts = 0.01 s per the repository's .ino and August 2023 script",
+            "input_note": "as aeroshield_ident: duty = floor(255 (u / 3.7 V)^2) / 255",
+            "angle_reference": "0 = pendulum hanging down (rest position at u = 0)",
+        },
+    ),
     "etchepareborda_openloop": CsvSpec(
         name="etchepareborda_openloop",
         time_col="t", time_unit="s",

@@ -59,6 +59,7 @@ from aeropend_sim.recording import Recording
 Progress = Callable[[str], None] | None
 
 AEROSHIELD = Path("gergelytakacs__AutomationShield") / "AeroShield" / "Identification_Data.csv"
+AEROSHIELD2 = Path("gergelytakacs__AutomationShield") / "AeroShield" / "Identification_Data2.csv"
 ETCHEPAREBORDA = Path("BA-Etchepareborda__adaptive-control-aeropendulum")
 ETCHEPAREBORDA_RUNS = (
     "openloop_random_binary_80_120.csv",
@@ -201,7 +202,9 @@ def aeroshield_case(real_dir: Path | None = None, train_fraction: float = 0.7,
                     delays: Sequence[int] = (0, 1, 2), progress: Progress = None) -> CaseResult:
     """AeroShield ``Identification_Data`` (APRBS, θ only): θ̈ with a first-order thrust map.
 
-    Split 70/30 as the grey-box baseline (``test/test_baseline_real.py``). v_a = 3.7 V·τ, the
+    Split 70/30 as the grey-box baseline (``test/test_baseline_real.py``); the model is also
+    replayed over the independent run ``Identification_Data2`` (2023-08, 100 Hz) when present
+    (``summary["cross_run"]``). v_a = 3.7 V·τ, the
     ``aeroshield_rig`` map of the firmware's duty (u/3.7 V)²; so F(v_a) ∝ u²/3.7 V.
     Stated: the repository's grey-box guesses θ̈ = (K/(l·m))·u − (g/l)·sin θ − c/(m·l²)·θ̇ with
     m = 0.005 kg, l = 0.1 m, c = 0.001, K = 0.01, i.e. c/J = 20 s⁻¹, mgd/J = 98.07 s⁻² and a
@@ -236,12 +239,25 @@ def aeroshield_case(real_dir: Path | None = None, train_fraction: float = 0.7,
         {"name": "thrust time constant T", "unit": "s", "identified": sel.time_constant, "stated": None,
          "stated_source": "not stated (aeroshield_rig assumes 0.05 s at u = 1 V)"},
     ]
+    cross: dict[str, Any] = {}
+    if (real_dir / AEROSHIELD2).is_file():
+        # an independent run (2023-08, 100 Hz): the lag features are recomputed at its rate with the same T
+        if progress:
+            progress("replaying Identification_Data2 (independent run, 100 Hz)")
+        rec2 = import_csv(real_dir / AEROSHIELD2, "aeroshield_ident2")
+        d2 = angle_only_data(rec2.t, rec2.channels["theta"], rec2.duty, vmap, source="AeroShield Data2")
+        delay2 = round(sel.delay * rec.dt / rec2.dt)
+        d2 = with_thrust_map(d2, sel.time_constant, delay2)
+        fr2 = free_run(final, d2, substeps=1)
+        cross["Identification_Data2.csv"] = theta_scores(d2.variables["theta"], fr2.states["theta"])
+    s["cross_run"] = cross
     s["notes"].append("angle only: θ̇ and θ̈ are estimated (Savitzky-Golay, CV window); no current or rotor "
                       "speed recorded, so di_a/dt and dω₁/dt cannot be identified and K_q is not separable "
                       "from L/J (only the product, as the input term)")
     s["recording"] = {"file": str(AEROSHIELD), "samples": len(rec), "dt_s": rec.dt,
                       "preset": "aeroshield_ident"}
-    return CaseResult("aeroshield", s, final, sel.train, sel.heldout, tr_run, ho_run)
+    return CaseResult("aeroshield", s, final, sel.train, sel.heldout, tr_run, ho_run,
+                      extra={"cross_run": cross})
 
 
 # ------------------------------------------------------------------------------ BA-Etchepareborda
