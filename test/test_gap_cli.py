@@ -96,11 +96,18 @@ def test_gap_found_named_and_shrunk_on_held_out(report):
     assert h["effects_chosen"][0] == "coulomb_friction"
     assert h["heldout_shrink"] >= 0.5
     assert h["heldout_nrmse_corrected"] < h["heldout_nrmse_nominal"]
-    # the overlay numbers are the diagnosis' own held-out numbers
-    shrink = rep["which"]["shrink"]
-    assert shrink[0]["effects"] == [] and shrink[0]["nrmse"] == pytest.approx(
-        h["heldout_nrmse_nominal"], rel=1e-6
+    # the before/after is on the held-out file, which the diagnosis never saw: it fitted and chose
+    # the effects on parts of the fit file (train / validation / test)
+    test = rep["after"]["test"]
+    assert test[0]["effects"] == [] and test[0]["nrmse"] == pytest.approx(
+        h["heldout_nrmse_nominal"], rel=1e-9
     )
+    assert test[-1]["effects"] == h["effects_chosen"]
+    assert h["heldout_never_seen_by_diagnosis"]
+    seen = {r["source"] for r in rep["inputs"]["diagnosis_fit"] + rep["inputs"]["diagnosis_validation"]}
+    assert all(src.startswith(str(rep["inputs"]["fit"][0]["source"])) for src in seen)
+    assert not seen & {r["source"] for r in rep["inputs"]["held_out"]}
+    assert rep["which"]["shrink"][0]["effects"] == []  # the diagnosis' own table is on validation data
     # fitted rod Coulomb friction close to the truth, and in the corrected rig file
     corrected = load_rig(out / "corrected_rig.yaml")
     assert corrected.effects.coulomb_friction

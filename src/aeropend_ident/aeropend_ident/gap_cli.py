@@ -4,7 +4,7 @@ Usage::
 
     gap RECORDING [RECORDING ...] --rig RIG --out DIR
         [--preset NAME] [--held-out RECORDING [RECORDING ...] | --split FRACTION]
-        [--max-effects 2] [--horizon 0.2] [--theta-offset RAD] [--seed 0]
+        [--max-effects 2] [--horizon 0.2] [--validation-fraction 0.3] [--theta-offset RAD] [--seed 0]
 
 ``RECORDING`` is a rosbag2 directory (or ``.mcap`` / ``.db3``) read with
 :func:`aeropend_ident.bags.read_bag`, or a CSV log read with
@@ -13,7 +13,10 @@ Usage::
 
 Held-out rule: ``--held-out FILES`` keeps those recordings for the check only (the positional
 recordings are used to find the effects); otherwise every recording is split in time order and
-its last ``1 − FRACTION`` is held out (``--split``, default 0.7).
+its last ``1 − FRACTION`` is held out (``--split``, default 0.7). Inside the fit data the
+diagnosis fits on the first part and chooses the effects on the last ``--validation-fraction``
+(default 0.3) of each fit recording, so the held-out data stay unseen until the final
+before/after.
 
 The report folder gets ``report.json``, ``report.html``, ``corrected_rig.yaml`` and
 ``figures/*.png`` (:mod:`aeropend_ident.gap_report`); a one-screen summary is printed.
@@ -175,9 +178,17 @@ def build_parser() -> argparse.ArgumentParser:
         default=0.7,
         help="time-ordered split: leading fraction of each recording used to find the effects (0-1)",
     )
-    p.add_argument("--max-effects", type=int, default=2,
-                   help="most effects added to the corrected rig (1 or 2)")
+    p.add_argument(
+        "--max-effects", type=int, default=2, help="most effects added to the corrected rig (1 or 2)"
+    )
     p.add_argument("--horizon", type=float, default=0.2, help="short-horizon prediction length [s]")
+    p.add_argument(
+        "--validation-fraction",
+        type=float,
+        default=0.3,
+        help="share of the fit data the diagnosis uses to choose the effects (train/validation/test); "
+        "0 = let the held-out recordings choose them too (optimistic)",
+    )
     p.add_argument(
         "--theta-offset",
         type=float,
@@ -215,6 +226,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             max_effects=args.max_effects,
             horizon=args.horizon,
             seed=args.seed,
+            validation_fraction=args.validation_fraction,
             progress=progress,
         )
         paths = write_report(result, args.out)

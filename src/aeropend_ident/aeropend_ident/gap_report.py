@@ -4,12 +4,14 @@
 
 1. **where** — :func:`aeropend_ident.gap_where.locate_gap` of the nominal rig on the *fit*
    recordings (equation errors per subsystem, regions, bands, residual tests);
-2. **which** — :func:`aeropend_ident.gap_which.diagnose_effects` screens and ranks the catalog's
-   unmodelled effects (:mod:`aeropend_ident.gap_effects`) on the fit recordings, fits the best
-   one or two and measures the shrink of the free-run error on the **held-out** recordings,
-   which neither step has seen;
-3. **after** — the corrected rig is replayed on the held-out recordings (overlay before/after)
-   and :func:`~aeropend_ident.gap_where.locate_gap` is run again there, for the nominal and the
+2. **which** — :func:`aeropend_ident.gap_which.diagnose_effects` screens, fits and ranks the
+   catalog's unmodelled effects (:mod:`aeropend_ident.gap_effects`). It fits on the *fit core*
+   and ranks / chooses on a *validation* part, both carved out of the fit recordings
+   (:func:`validation_split`: train / validation / test), because the ranking itself selects on
+   the data it is given;
+3. **after** — the corrected rig is replayed on the **held-out** recordings, which neither step
+   has seen (overlay and before/after NRMSE, :func:`aeropend_ident.gap_which.gap_metrics`), and
+   :func:`~aeropend_ident.gap_where.locate_gap` is run again there, for the nominal and the
    corrected rig (does the residual become white, does the flagged equation clear?).
 
 :func:`write_report` writes ``report.json`` (everything, machine-readable), ``report.html``
@@ -30,7 +32,7 @@ import json
 import math
 import platform
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -39,13 +41,48 @@ import scipy
 import yaml
 
 from aeropend_ident.baseline import _jsonable
-from aeropend_ident.gap_where import EQUATIONS, WhereReport, locate_gap
+from aeropend_ident.gap_where import EQUATIONS, GapInputError, WhereReport, locate_gap
 from aeropend_ident.greybox import THETA_OFFSET, error_metrics
 from aeropend_sim.params import Rig, rig_to_dict
 from aeropend_sim.recording import Recording
 
 #: Most held-out recordings drawn in the overlay figure.
 MAX_OVERLAYS = 3
+#: Default share of the fit data used by the diagnosis to choose the effects.
+VALIDATION_FRACTION = 0.3
+#: Fewest samples of a fit-core or validation part.
+MIN_PART = 200
+
+
+def validation_split(
+    fit: Sequence[Recording], fraction: float = VALIDATION_FRACTION
+) -> tuple[list[Recording], list[Recording]]:
+    """Carve the diagnosis' validation set out of the fit recordings (train / validation / test).
+
+    Each fit recording is split in time order, its last ``fraction`` becoming validation, when
+    both parts keep :data:`MIN_PART` samples; otherwise, with several fit recordings, the last
+    ceil(fraction·n) whole recordings are the validation set.
+
+    Raises
+    ------
+    GapInputError
+        ``fraction`` outside (0, 1) or fit data too short to carve a validation part.
+    """
+    if not 0.0 < fraction < 1.0:
+        raise GapInputError(f"validation fraction {fraction!r}; expected a number in (0, 1)")
+    fit = list(fit)
+    if all(len(r) * min(fraction, 1.0 - fraction) >= MIN_PART for r in fit):
+        parts = [r.split(1.0 - fraction) for r in fit]
+        return [a for a, _ in parts], [b for _, b in parts]
+    if len(fit) >= 2:
+        k = max(1, math.ceil(fraction * len(fit)))
+        k = min(k, len(fit) - 1)
+        return fit[:-k], fit[-k:]
+    raise GapInputError(
+        f"{fit[0].source or 'the fit recording'}: {len(fit[0])} samples cannot give both a fit part and a "
+        f"validation part ({fraction:.0%}) of at least {MIN_PART} samples; record longer, add fit recordings "
+        "or use a smaller validation fraction"
+    )
 
 
 @dataclass
@@ -73,6 +110,12 @@ class GapResult:
     overlays : list[dict]
         Per held-out recording: ``source``, ``t``, ``duty``, ``theta``, ``nominal``,
         ``corrected`` (arrays, recording frame) and their ``metrics``.
+    fit_core, validation : list[Recording]
+        What the effect diagnosis saw: it fits on ``fit_core`` and chooses / ranks the effects on
+        ``validation`` (both carved from ``fit``); the held-out recordings stay unseen.
+    test : list[dict]
+        Held-out gap of the nominal rig (``effects`` = []) and of the corrected rig
+        (:func:`aeropend_ident.gap_which.gap_metrics`: ``nrmse`` = mean over recordings, ...).
     """
 
     rig: Rig
@@ -86,17 +129,16 @@ class GapResult:
     where_heldout_corrected: WhereReport
     diagnosis: Any
     overlays: list[dict[str, Any]]
+    fit_core: list[Recording] = field(default_factory=list)
+    validation: list[Recording] = field(default_factory=list)
+    test: list[dict[str, Any]] = field(default_factory=list)
 
     # ------------------------------------------------------------------ headline
     def headline(self) -> dict[str, Any]:
-        """Pooled held-out NRMSE before/after (sample-weighted RMS over held-out recordings)."""
-        n = np.array([o["metrics"]["nominal"]["n"] for o in self.overlays], dtype=float)
-
-        def pooled(model: str) -> float:
-            v = np.array([o["metrics"][model]["nrmse"] for o in self.overlays])
-            return float(np.sqrt(np.sum(v**2 * n) / np.sum(n)))
-
-        before, after = pooled("nominal"), pooled("corrected")
+        """Held-out (test) NRMSE before/after: mean over held-out recordings of
+        RMS(θ_sim − θ_meas)/range(θ_meas), the nominal and the corrected rig."""
+        before = float(self.test[0]["nrmse"])
+        after = float(self.test[-1]["nrmse"])
         d = self.diagnosis
         return {
             "significant_gap": bool(self.where.significant or d.significant),
@@ -107,6 +149,7 @@ class GapResult:
             "heldout_shrink": (1.0 - after / before) if before > 0 else math.nan,
             "n_fit_recordings": len(self.fit),
             "n_heldout_recordings": len(self.held_out),
+            "heldout_never_seen_by_diagnosis": bool(self.validation is not self.held_out),
         }
 
     def as_dict(self) -> dict[str, Any]:
@@ -121,6 +164,7 @@ class GapResult:
                     "heldout_nominal": _where_brief(self.where_heldout_nominal),
                     "heldout_corrected": _where_brief(self.where_heldout_corrected),
                     "overlay_metrics": [{"source": o["source"], **o["metrics"]} for o in self.overlays],
+                    "test": self.test,
                 },
                 "inputs": {
                     "rig": {
@@ -133,6 +177,8 @@ class GapResult:
                     "split_rule": self.split_rule,
                     "fit": [_rec_info(r) for r in self.fit],
                     "held_out": [_rec_info(r) for r in self.held_out],
+                    "diagnosis_fit": [_rec_info(r) for r in self.fit_core],
+                    "diagnosis_validation": [_rec_info(r) for r in self.validation],
                 },
                 "provenance": {
                     "created_utc": _dt.datetime.now(_dt.UTC).isoformat(),
@@ -226,6 +272,7 @@ def run_gap(
     max_effects: int = 2,
     horizon: float = 0.2,
     seed: int = 0,
+    validation_fraction: float = VALIDATION_FRACTION,
     progress: Callable[[str], None] | None = None,
 ) -> GapResult:
     """Where + which + after (module doc) for a nominal rig and fit / held-out recordings.
@@ -248,6 +295,11 @@ def run_gap(
         Short-horizon prediction length [s] of the where-analysis.
     seed : int
         Seed of the effect ranking's resampling.
+    validation_fraction : float
+        Share of the fit data the diagnosis uses to choose and rank the effects
+        (:func:`validation_split`); the held-out recordings are then never seen before the final
+        before/after. 0 hands the held-out recordings to the diagnosis as its validation set
+        (then they also choose the effects: an optimistic before/after).
     progress : callable, optional
         Receives one-line progress messages.
 
@@ -260,18 +312,31 @@ def run_gap(
     aeropend_ident.gap_effects.GapError, aeropend_ident.gap_where.GapInputError
         Unusable recordings (no θ, NaNs, too short, constant input) or rig.
     """
-    from aeropend_ident.gap_which import diagnose_effects
+    from aeropend_ident.gap_effects import MeasurementMap
+    from aeropend_ident.gap_which import diagnose_effects, gap_metrics
+    from aeropend_ident.gap_which import prepare as which_prepare
 
     say = progress or (lambda _msg: None)
     fit, held_out = list(fit), list(held_out)
+    if not fit or not held_out:
+        raise GapInputError(
+            f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} held out)"
+        )
     say(f"where: nominal {rig.name} on {len(fit)} fit recording(s)")
     where = locate_gap(rig, fit, horizon=horizon, theta_offset=theta_offset)
-    say("which: screening and fitting the effect catalog")
+    if validation_fraction > 0.0:
+        fit_core, validation = validation_split(fit, validation_fraction)
+    else:
+        fit_core, validation = fit, held_out
+    say(
+        f"which: screening and fitting the effect catalog ({len(fit_core)} fit / {len(validation)} "
+        "validation recording(s))"
+    )
     # the diagnosis works in the model's angle frame: shift θ by the rig's recording-frame offset
     diag = diagnose_effects(
         rig,
-        [_shift(r, theta_offset) for r in fit],
-        [_shift(r, theta_offset) for r in held_out],
+        [_shift(r, theta_offset) for r in fit_core],
+        [_shift(r, theta_offset) for r in validation],
         max_effects=max_effects,
         seed=seed,
         progress=progress,
@@ -279,6 +344,10 @@ def run_gap(
     corrected = diag.corrected_rig
     say("after: replaying the held-out recordings")
     overlays = [_overlay(rig, diag, r, theta_offset) for r in held_out]
+    preps = which_prepare([_shift(r, theta_offset) for r in held_out], frozenset(diag.channels or ("theta",)))
+    test = [{"effects": [], **gap_metrics(rig, MeasurementMap(), preps)}]
+    if diag.chosen:
+        test.append({"effects": list(diag.chosen), **gap_metrics(corrected, diag.measurement, preps)})
     w_nom = locate_gap(rig, held_out, horizon=horizon, theta_offset=theta_offset)
     # the corrected rig's where-analysis in the model frame of the diagnosis (sensor offset included)
     meas = getattr(diag, "measurement", None)
@@ -290,6 +359,9 @@ def run_gap(
         theta_offset=theta_offset,
         fit=fit,
         held_out=held_out,
+        fit_core=fit_core,
+        validation=validation,
+        test=test,
         split_rule=split_rule,
         where=where,
         where_heldout_nominal=w_nom,
@@ -555,13 +627,20 @@ def fig_effects(result: GapResult) -> bytes:
         a1.set_xlabel("fraction [1]")
         a1.legend(fontsize=8)
     a1.set_title("ranked effects (best on top)", fontsize=9)
-    rows = list(d.shrink)
+    rows = [("validation", r) for r in d.shrink] + [("HELD OUT", r) for r in result.test]
     if rows:
-        labels = ["nominal" if not r["effects"] else "+" + "+".join(r["effects"]) for r in rows]
-        a2.bar(labels, [r["nrmse"] for r in rows], color=["tab:orange"] + ["tab:blue"] * (len(rows) - 1))
-        a2.set_ylabel("held-out NRMSE [1]")
-        a2.tick_params(axis="x", labelsize=8)
-    a2.set_title("held-out NRMSE as effects are added", fontsize=9)
+        labels = [
+            f"{part}\n" + ("nominal" if not r["effects"] else "+" + "+".join(r["effects"]))
+            for part, r in rows
+        ]
+        colors = [("tab:orange" if not r["effects"] else "tab:blue") for _, r in rows]
+        alpha = [0.45 if part == "validation" else 1.0 for part, _ in rows]
+        bars = a2.bar(labels, [r["nrmse"] for _, r in rows], color=colors)
+        for b, al in zip(bars, alpha, strict=True):
+            b.set_alpha(al)
+        a2.set_ylabel("NRMSE [1]")
+        a2.tick_params(axis="x", labelsize=7)
+    a2.set_title("NRMSE as effects are added: validation (chooses) and held out (never seen)", fontsize=9)
     for a in (a1, a2):
         a.grid(alpha=0.3)
     return _png(fig)
@@ -621,8 +700,11 @@ def terminal_summary(result: GapResult) -> str:
     for ni in list(d.not_identifiable)[:4]:
         lines.append(f"    (not identifiable: {ni['effect']}: {ni['reason'][:70]})")
     lines.append(f"  chosen: {', '.join(d.chosen) or 'none'}")
-    lines.append("  HELD-OUT before/after:")
+    lines.append("  VALIDATION (carved from the fit data; chooses the effects):")
     for row in d.shrink:
+        lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} NRMSE {row['nrmse']:.4f}")
+    lines.append("  HELD OUT (never seen by the diagnosis):")
+    for row in result.test:
         lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} NRMSE {row['nrmse']:.4f}")
     lines.append(
         f"  held-out NRMSE {h['heldout_nrmse_nominal']:.4f} -> {h['heldout_nrmse_corrected']:.4f} "
@@ -704,10 +786,11 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
     ]
     ni_rows = [[n["effect"], n["reason"]] for n in d.not_identifiable]
     shrink_rows = []
-    for row in d.shrink:
+    for part, row in [("held out", r) for r in result.test] + [("validation", r) for r in d.shrink]:
         sm = row.get("step_metrics") or {}
         shrink_rows.append(
             [
+                part,
                 "+".join(row["effects"]) or "nominal",
                 row.get("nrmse"),
                 row.get("max_error"),
@@ -752,7 +835,8 @@ shrink <b>{h["heldout_shrink"]:.1%}</b>. Significant gap: {"yes" if h["significa
 located in: <b>{html.escape(str(h["where_subsystem"]))}</b>.</p>
 <p>Rig {html.escape(result.rig_ref)}; {len(result.fit)} fit recording(s), {len(result.held_out)} held-out
 recording(s) ({html.escape(result.split_rule)}). The held-out recordings were used neither to locate the gap
-nor to choose or fit the effects.</p>
+nor to choose or fit the effects: the diagnosis fitted on {len(result.fit_core)} part(s) of the fit recordings
+and chose the effects on {len(result.validation)} validation part(s) carved from them.</p>
 <h2>1. Before / after on held-out recordings</h2>
 {img("overlay", "overlay")}
 {
@@ -770,7 +854,14 @@ nor to choose or fit the effects.</p>
 {
         _table(
             shrink_rows,
-            ["effects added", "NRMSE", "max error [rad]", "steady-state error [rad]", "step metrics"],
+            [
+                "data",
+                "effects added",
+                "NRMSE (mean over recordings)",
+                "max error [rad]",
+                "steady-state error [rad]",
+                "step metrics",
+            ],
         )
     }
 <h3>Residual tests on held-out data, nominal vs corrected</h3>
