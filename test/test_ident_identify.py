@@ -117,6 +117,7 @@ def test_identify_csv_logs_several_recordings(rig_runs, tmp_path, capsys) -> Non
     p = summary["derived_parameters"]
     assert p["c_over_J"]["value"] == pytest.approx(2.2343, rel=0.10)
     assert p["mgd_over_J"]["value"] == pytest.approx(15.472, rel=0.10)
+    assert p["thrust_time_constant"]["unit"] == "s" and p["thrust_time_constant"]["value"] <= 0.05
     doc = yaml.safe_load((out / "model.yaml").read_text(encoding="utf-8"))
     assert all("std" in v for v in doc["equations"]["theta_dot"]["terms"].values())
     assert doc["provenance"]["thrust_map"]["time_constant_s"] >= 0.0

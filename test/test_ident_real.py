@@ -12,7 +12,7 @@ recording                                  held-out NRMSE   reference on the sam
 =========================================  ===============  =====================================
 AeroShield (70/30, first-order map T 0.1)  0.0537           grey-box baseline fitted 0.0540;
                                                             independent run Data2: 0.0809
-AeroShield, static map (T = 0)             0.108
+AeroShield, static map (T = 0)             0.105
 YangZhu AERO (first 6 s / 6-30 s, weak)    0.0257           author's logged model 0.0621
 Etchepareborda random binary (70/30)       0.0885           replayed on steps 0/100/180: 0.0557
 =========================================  ===============  =====================================
@@ -74,7 +74,7 @@ def test_aeroshield_first_order_thrust_map_matches_greybox_on_heldout() -> None:
 def test_aeroshield_static_map_is_worse_on_heldout() -> None:
     static = aeroshield_case(REAL, time_constants=(0.0,), delays=(0,))
     assert static.summary["selection"]["time_constant_s"] == 0.0
-    assert 0.08 < static.summary["heldout"]["nrmse_range"] < 0.14  # measured 0.108
+    assert 0.08 < static.summary["heldout"]["nrmse_range"] < 0.14  # measured 0.105
 
 
 def test_yangzhu_pitch_rotor_and_armature_against_stated_parameters() -> None:

@@ -336,6 +336,11 @@ def identify(
         "test_mse": test_mse, "heldout": scores, "free_run_nrmse": scores[0]["free_run_nrmse_std"],
         **extra, "files": files, "wall_time_s": round(time.perf_counter() - t0, 3),
     }
+    if "thrust_map" in extra:
+        tm = extra["thrust_map"]
+        summary["derived_parameters"]["thrust_time_constant"] = {"value": tm["time_constant_s"], "unit": "s"}
+        summary["derived_parameters"]["thrust_delay"] = {"value": tm["delay_samples"] * recs[0].dt,
+                                                         "unit": "s"}
     text = json.dumps(summary, indent=1, ensure_ascii=False, default=float) + "\n"
     (out / "summary.json").write_text(text, encoding="utf-8")
     return summary
