@@ -15,7 +15,8 @@ What is identified follows from the recorded channels:
 
 * θ, i_a and ω₁ recorded (full state): θ̈ (θ̇ estimated when not recorded), di_a/dt when i_a,
   ω₁ and v_a are, dω₁/dt when i_a and ω₁ are; v_a from the duty cycle with the rig's map
-  (thesis Eq. 4.3) when not recorded; λ by BIC over a sweep on the held-out part.
+  (thesis Eq. 4.3) when not recorded; λ by BIC over a sweep scored on the last quarter of the
+  training part, then refitted on the whole training part.
 * θ and τ only (partial state, most real logs): the pendulum equation with estimated θ̇ and a
   static or first-order thrust map (:func:`aeropend_ident.partial.select_thrust_map`: lag time
   constant and delay chosen by the free-run error on the training part); the current and rotor
@@ -66,6 +67,8 @@ from aeropend_sim.params import Rig, RigFileError, load_rig
 from aeropend_sim.recording import Recording, RecordingError
 
 LAMBDAS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
+#: Share of each training part used as the validation tail for λ selection (full-state path).
+VALIDATION_FRACTION = 0.25
 #: Thrust-map grids of the partial-state path: T [s] and delay [samples].
 FIRST_ORDER_T = (0.0, 0.02, 0.05, 0.1, 0.2)
 FIRST_ORDER_DELAYS = (0, 1, 2)
@@ -279,12 +282,20 @@ def identify(
                     del lib[tg]
             if not targets:
                 raise IdentificationError(f"no equation can be identified from {paths}: {refused}")
+        # λ by BIC on a validation tail of each training part (the held-out parts are only scored),
+        # then the model is refitted with that λ on the whole training parts
+        fits = [p[0].split(1.0 - VALIDATION_FRACTION) for p in parts]
+        fit_part, val_part = concat_data([f[0] for f in fits]), concat_data([f[1] for f in fits])
+        if method == "weak":
+            kw["H_xt"] = min(kw["H_xt"], 0.2 * (fit_part.t[-1] - fit_part.t[0]))
         say(f"sweeping λ over {list(LAMBDAS)} ({method}, {library} library, targets {targets})")
-        pts, models = sweep_threshold(train, test, lib, LAMBDAS, targets=targets, **kw)
+        pts, _models = sweep_threshold(fit_part, val_part, lib, LAMBDAS, targets=targets, **kw)
         best = select_threshold(pts, "bic")
-        model = models[best.threshold]
-        test_mse = best.test_mse
-        extra["threshold_selection"] = "BIC on the held-out derivatives"
+        say(f"λ = {best.threshold:g} (BIC on the validation tail); refitting on the training part(s)")
+        model = fit(train, lib, targets, threshold=best.threshold, **kw)
+        test_mse = model.test_mse(test, exclude_input_steps=kw["exclude_input_steps"])
+        extra["threshold_selection"] = (f"BIC on the last {VALIDATION_FRACTION:.0%} of each training part "
+                                        "(held-out parts not used)")
         extra["sweep"] = [{"threshold": p.threshold, "n_terms": p.n_terms, "bic": p.bic} for p in pts]
     else:
         vmap = PlantModel(rig).armature_voltage if rig is not None else None
