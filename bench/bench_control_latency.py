@@ -59,12 +59,12 @@ def _pct(x: np.ndarray) -> dict[str, float]:
             "max_ms": round(float(x.max()), 4), "n": int(x.size)}
 
 
-def _cpu_busy() -> tuple[int, int]:
-    """(busy, total) jiffies of all CPUs from /proc/stat."""
+def _cpu_busy() -> tuple[int, int, int]:
+    """(busy, total, steal) jiffies of all CPUs from /proc/stat (steal: time the hypervisor ran others)."""
     with open("/proc/stat", encoding="ascii") as fh:
         vals = [int(v) for v in fh.readline().split()[1:]]
     idle = vals[3] + vals[4]
-    return sum(vals) - idle, sum(vals)
+    return sum(vals) - idle, sum(vals), vals[7] if len(vals) > 7 else 0
 
 
 def match_commands(ctl_duty: np.ndarray, cmd_duty: np.ndarray) -> np.ndarray:
@@ -171,7 +171,8 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict
                   "executor": executor, "python": platform.python_version(), "machine": platform.machine(),
                   "cpus": os.cpu_count()},
         "load": {"loadavg_1min_before": round(load0[0], 2), "loadavg_1min_after": round(load1[0], 2),
-                 "cpu_busy_fraction_during_run": round((cpu1[0] - cpu0[0]) / max(cpu1[1] - cpu0[1], 1), 3)},
+                 "cpu_busy_fraction_during_run": round((cpu1[0] - cpu0[0]) / max(cpu1[1] - cpu0[1], 1), 3),
+                 "cpu_steal_fraction_during_run": round((cpu1[2] - cpu0[2]) / max(cpu1[1] - cpu0[1], 1), 4)},
         **analyse(d, timing),
         "plant_summary": summary,
         "controller_summary": re.findall(r"summary: (.*)", ctl_out)[-1:],
@@ -186,8 +187,12 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--executor", default="events", choices=("events", "single"))
     ap.add_argument("--strategy", default="fl_pid")
     ap.add_argument("--out", default=str(OUT))
+    ap.add_argument("--baseline", action="store_true",
+                    help="also run with rt_priority 0 and the single executor ('baseline')")
     args = ap.parse_args(argv)
     res = run(args.duration, args.rt_priority, args.executor, args.strategy)
+    if args.baseline:
+        res["baseline"] = run(args.duration, 0, "single", args.strategy)
     print(json.dumps(res, indent=1))
     Path(args.out).write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
     return res

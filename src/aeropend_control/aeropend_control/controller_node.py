@@ -47,7 +47,8 @@ rt_priority : int, default 0
     Run the executor thread (sample receipt → command) with SCHED_FIFO at this priority (1-99;
     needs CAP_SYS_NICE or an ``rtprio`` limit, else a warning) and switch Python's cyclic
     garbage collector off after start-up (``gc.freeze``; its pauses reach milliseconds; the
-    per-sample path creates no reference cycles); 0 = normal scheduling.
+    per-sample path creates no reference cycles) and lock the process memory (``mlockall``, no
+    page faults after memory reclaim); 0 = normal scheduling.
 executor : str, default ``events``
     ``events`` (rclpy's C++ ``EventsExecutor``: callbacks dispatched from events, lower latency)
     | ``single`` (``SingleThreadedExecutor``).
@@ -61,6 +62,7 @@ On shutdown the node publishes duty 0.
 
 from __future__ import annotations
 
+import ctypes
 import gc
 import math
 import os
@@ -245,6 +247,16 @@ def _rt_priority(value: Any) -> int:
     return value
 
 
+def _lock_memory(node: Node) -> None:
+    """``mlockall(MCL_CURRENT | MCL_FUTURE)``: no page faults on code or data evicted by memory reclaim."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.mlockall(3) != 0:
+            node.get_logger().warn(f"mlockall failed (errno {ctypes.get_errno()}); memory not locked")
+    except (OSError, AttributeError) as exc:  # pragma: no cover - non-Linux
+        node.get_logger().warn(f"mlockall unavailable: {exc}")
+
+
 def _set_rt_priority(node: ControllerNode) -> None:
     if node.rt_priority <= 0:
         return
@@ -254,6 +266,7 @@ def _set_rt_priority(node: ControllerNode) -> None:
         gc.collect()
         gc.freeze()
         gc.disable()
+        _lock_memory(node)
     except (OSError, AttributeError) as exc:
         node.get_logger().warn(f"rt_priority = {node.rt_priority}: cannot set SCHED_FIFO ({exc})")
 

@@ -39,8 +39,9 @@ rt_priority : int, default 0
     Real-time mode: run the sampler thread with SCHED_FIFO at this priority (1-99; needs
     CAP_SYS_NICE or a suitable ``rtprio`` limit, else a warning and normal scheduling). Cuts
     overruns on a loaded machine; 0 = normal scheduling. The executor thread (command receipt)
-    then runs with SCHED_FIFO priority ``rt_priority − 1`` (at least 1) and Python's cyclic
-    garbage collector is switched off after start-up (its pauses reach milliseconds).
+    then runs with SCHED_FIFO priority ``rt_priority − 1`` (at least 1), Python's cyclic
+    garbage collector is switched off after start-up (its pauses reach milliseconds) and the
+    process memory is locked (``mlockall``).
 timing_log : str, default ``""``
     Real-time mode: record the monotonic instant every sample is taken and every command is
     received (:class:`~aeropend_sim.sim_core.CommandTiming`); the summary line then adds the
@@ -189,6 +190,7 @@ class SimPlantNode(Node):
                 gc.collect()  # no cyclic-GC pauses (milliseconds) in the real-time threads
                 gc.freeze()
                 gc.disable()
+                self._lock_memory()
             self._thread = threading.Thread(target=self._run_realtime, name="aeropend_sampler", daemon=True)
             self._thread.start()
 
@@ -238,6 +240,15 @@ class SimPlantNode(Node):
             self.get_logger().warn(
                 f"rt_priority = {prio}: cannot set SCHED_FIFO ({exc}); {what} uses normal scheduling"
             )
+
+    def _lock_memory(self) -> None:
+        """``mlockall(MCL_CURRENT | MCL_FUTURE)``: no page faults on memory evicted by reclaim."""
+        try:
+            libc = ctypes.CDLL(None, use_errno=True)
+            if libc.mlockall(3) != 0:
+                self.get_logger().warn(f"mlockall failed (errno {ctypes.get_errno()}); memory not locked")
+        except (OSError, AttributeError) as exc:  # pragma: no cover - non-Linux
+            self.get_logger().warn(f"mlockall unavailable: {exc}")
 
     def _run_realtime(self) -> None:
         _reduce_timer_slack()
