@@ -758,12 +758,15 @@ def fit_weak_refined(
             curv = curvature(data.variables, rhs, states, held, dt)
         sim, sim_curv = None, {}
         if instruments:
-            fr = free_run(model, data, substeps=1)
+            # drive the free run with the noise-free stand-in of v_a: the measured v_a's noise,
+            # filtered by the model, would otherwise reach the instruments of the same subdomain
+            drive = IdentData(t=data.t, variables={**data.variables, **_input_instruments(data)},
+                              source=data.source)
+            fr = free_run(model, drive, substeps=1)
             good = {k: v for k, v in fr.states.items() if fr.nrmse[k] < max_nrmse}
             if good:
-                sim = dict(data.variables)
+                sim = dict(drive.variables)
                 sim.update(good)
-                sim.update(_input_instruments(data))
                 with np.errstate(all="ignore"):
                     sim_curv = curvature(sim, rhs, states, held, dt)
         ctx = WeakContext(operator=op, held=held, curvature=curv, simulated=sim, simulated_curvature=sim_curv)
@@ -775,18 +778,20 @@ def fit_weak_refined(
 def _input_instruments(data: IdentData) -> dict[str, np.ndarray]:
     """Noise-free stand-in for a measured input that is a static function of the duty cycle.
 
-    v_a is the H-bridge's static response to τ (thesis Eq. 4.3), measured with noise; the mean
-    of the measured v_a over all samples with the same commanded τ is noise-free up to the
-    averaging and can serve as its instrument.
+    v_a is the H-bridge's static response to τ (thesis Eq. 4.3), measured with noise. A
+    degree-5 polynomial in τ fitted to all samples (the map is a smooth square root) averages
+    the noise over the whole record, so the fitted v_a(τ) is practically noise-free and
+    serves as its instrument. (A per-level mean would keep the noise of short holds, which
+    the regressor of the same subdomain shares.)
     """
     v = data.variables
     if "duty" not in v or "v_a" not in v:
         return {}
-    levels, inv = np.unique(v["duty"], return_inverse=True)
-    if levels.size > len(data) // 4:  # not a held command: nothing to average over
+    levels = np.unique(v["duty"])
+    if levels.size < 2 or levels.size > len(data) // 4:  # not a held command
         return {}
-    means = np.bincount(inv, weights=v["v_a"]) / np.bincount(inv)
-    return {"v_a": means[inv]}
+    poly = np.polynomial.Polynomial.fit(v["duty"], v["v_a"], deg=min(5, levels.size - 1))
+    return {"v_a": poly(v["duty"])}
 
 
 def _first_rows(variables: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
