@@ -3,11 +3,13 @@
 Every strategy measures **θ only** (the thesis rig has no θ̇ sensor) and runs once per sample:
 ``step(r, theta) -> ControlOutput`` with the duty cycle τ ∈ [0, 1] for the next sample period.
 
-θ̇ estimate: a first-order low-pass filtered backward difference (:class:`VelocityEstimator`,
-θ̇_k = (T_f·θ̇_{k-1} + θ_k − θ_{k-1})/(T_f + h), i.e. s/(T_f·s + 1) discretised by backward
-Euler), the same filter the PID's derivative-on-measurement uses, so the D term and the
-feedback-linearising law see the same θ̇. Default T_f = 10 ms (4.6° phase lag at the 8 rad/s
-closed-loop bandwidth).
+θ̇ estimate (``estimator``): by default the Kalman observer of :mod:`aeropend_control.observer`
+(stationary gain, state [θ, θ̇, d], the model thrust predicted from the applied duty as known
+input; the loop then uses θ̂ and θ̂̇ throughout, the PID's derivative via its external-derivative
+input); alternatively (``estimator="difference"``) a first-order low-pass filtered backward
+difference (:class:`VelocityEstimator`, θ̇_k = (T_f·θ̇_{k-1} + θ_k − θ_{k-1})/(T_f + h), i.e.
+s/(T_f·s + 1) by backward Euler, T_f = 10 ms), the same filter the PID's derivative on
+measurement uses.
 
 Strategies
 ----------
