@@ -97,3 +97,32 @@ def test_disturbance_state_estimates_an_unmodelled_constant_acceleration() -> No
     assert abs(thd) < 1e-3 and th > 0.1  # at rest at the equilibrium shifted by d0
     assert obs.dist_k == pytest.approx(d0, abs=0.02)
     assert obs.theta_k == pytest.approx(th, abs=1e-4)
+
+
+def _closed_loop(rig: Rig, r: float, estimator: str) -> tuple[np.ndarray, np.ndarray]:
+    from aeropend_control.strategies import make_strategy
+
+    ctl = make_strategy("fl_pid", RIG, estimator=estimator)
+    plant = PlantStepper(rig, seed=0)
+    n = round(3.0 / H)
+    true, duty = np.empty(n), np.empty(n)
+    s = plant.sample()
+    for k in range(n):
+        true[k] = plant.x[THETA]
+        duty[k] = ctl.step(r, s["theta"]).duty
+        s = plant.step(duty[k])
+    return true, duty
+
+
+def test_closed_loop_at_50_dB_observer_vs_difference() -> None:
+    from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
+
+    noisy = RIG.with_effects(sensor_noise=True)
+    t = np.arange(round(3.0 / H)) * H
+    true_o, duty_o = _closed_loop(noisy, 0.2, "observer")
+    true_d, duty_d = _closed_loop(noisy, 0.2, "difference")
+    met_o, met_d = step_metrics(t, true_o, 0.2), step_metrics(t, true_d, 0.2)
+    assert met_o.failures(TABLE_6_1) == [] and met_o.failures(GOAL) == []
+    assert met_o.settling_time < 0.6 < met_d.settling_time  # the difference's noise widens the settling
+    tail = slice(-round(1.0 / H), None)
+    assert np.std(duty_o[tail]) < 0.5 * np.std(duty_d[tail])  # far less actuator noise
