@@ -187,3 +187,25 @@ def test_error_exits(bags, tmp_path, capsys):
     )
     assert "does not exist" in _err(capsys, [str(tmp_path / "missing"), "--rig", "thesis_rig", "-o", out])
     assert "--split" in _err(capsys, [str(bags["fit"]), "--rig", "thesis_rig", "--split", "1.5", "-o", out])
+
+
+def test_validation_split_rules():
+    from aeropend_ident.gap_report import MIN_PART, validation_split
+    from aeropend_ident.gap_where import GapInputError
+
+    long = _recording(6, 20.0)  # 2000 samples, APRBS: both parts excited
+    core, val = validation_split([long], 0.3)
+    assert [len(r) for r in core] == [1400] and [len(r) for r in val] == [600]
+    # a recording whose last 30 % has a constant duty cannot give a validation part of its own:
+    # with several fit recordings every third whole one (from the second on) is the validation set
+    step = Recording(
+        t=long.t, duty=np.where(long.t < 5.0, 0.0, 0.5), channels=dict(long.channels), source="step"
+    )
+    recs = [step, long, step, step, long]
+    core, val = validation_split(recs, 0.3)
+    assert val == [recs[1], recs[4]] and core == [recs[0], recs[2], recs[3]]
+    with pytest.raises(GapInputError, match="validation"):
+        validation_split([step], 0.3)
+    with pytest.raises(GapInputError, match="validation fraction"):
+        validation_split([long], 1.0)
+    assert MIN_PART == 200

@@ -4,7 +4,8 @@ Usage::
 
     gap RECORDING [RECORDING ...] --rig RIG --out DIR
         [--preset NAME] [--held-out RECORDING [RECORDING ...] | --split FRACTION]
-        [--max-effects 2] [--horizon 0.2] [--validation-fraction 0.3] [--theta-offset RAD] [--seed 0]
+        [--validation RECORDING ... | --validation-fraction 0.3]
+        [--max-effects 2] [--horizon 0.2] [--theta-offset RAD] [--seed 0]
 
 ``RECORDING`` is a rosbag2 directory (or ``.mcap`` / ``.db3``) read with
 :func:`aeropend_ident.bags.read_bag`, or a CSV log read with
@@ -15,8 +16,8 @@ Held-out rule: ``--held-out FILES`` keeps those recordings for the check only (t
 recordings are used to find the effects); otherwise every recording is split in time order and
 its last ``1 − FRACTION`` is held out (``--split``, default 0.7). Inside the fit data the
 diagnosis fits on the first part and chooses the effects on the last ``--validation-fraction``
-(default 0.3) of each fit recording, so the held-out data stay unseen until the final
-before/after.
+(default 0.3) of each fit recording, or on explicit ``--validation`` recordings, so the
+held-out data stay unseen until the final before/after.
 
 The report folder gets ``report.json``, ``report.html``, ``corrected_rig.yaml`` and
 ``figures/*.png`` (:mod:`aeropend_ident.gap_report`); a one-screen summary is printed.
@@ -183,6 +184,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--horizon", type=float, default=0.2, help="short-horizon prediction length [s]")
     p.add_argument(
+        "--validation",
+        nargs="+",
+        type=Path,
+        default=None,
+        metavar="RECORDING",
+        help="explicit validation recordings on which the diagnosis chooses the effects (instead of "
+        "--validation-fraction of the fit recordings)",
+    )
+    p.add_argument(
         "--validation-fraction",
         type=float,
         default=0.3,
@@ -216,6 +226,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.theta_offset is not None:
             offset = float(args.theta_offset)
         fit, held, rule = prepare(args.inputs, args.held_out, args.split, args.preset)
+        val = None
+        if args.validation:
+            val = [to_uniform(load_input(p, args.preset)) for p in args.validation]
+            for r in val:
+                _check_length(r, "validation recording")
+            rule += f"; validation file(s): {', '.join(Path(p).name for p in args.validation)}"
         result = run_gap(
             rig,
             fit,
@@ -227,6 +243,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             horizon=args.horizon,
             seed=args.seed,
             validation_fraction=args.validation_fraction,
+            validation=val,
             progress=progress,
         )
         paths = write_report(result, args.out)

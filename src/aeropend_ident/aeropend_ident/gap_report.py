@@ -60,8 +60,9 @@ def validation_split(
     """Carve the diagnosis' validation set out of the fit recordings (train / validation / test).
 
     Each fit recording is split in time order, its last ``fraction`` becoming validation, when
-    both parts keep :data:`MIN_PART` samples; otherwise, with several fit recordings, the last
-    ceil(fraction·n) whole recordings are the validation set.
+    both parts keep :data:`MIN_PART` samples and a varying duty cycle; otherwise, with several
+    fit recordings, every round(1/fraction)-th whole recording from the second on is the
+    validation set (interleaved, so fit core and validation cover the same operating range).
 
     Raises
     ------
@@ -71,17 +72,22 @@ def validation_split(
     if not 0.0 < fraction < 1.0:
         raise GapInputError(f"validation fraction {fraction!r}; expected a number in (0, 1)")
     fit = list(fit)
+
+    def usable(r: Recording) -> bool:
+        return len(r) >= MIN_PART and float(np.ptp(r.duty)) > 0.0
+
     if all(len(r) * min(fraction, 1.0 - fraction) >= MIN_PART for r in fit):
         parts = [r.split(1.0 - fraction) for r in fit]
-        return [a for a, _ in parts], [b for _, b in parts]
+        if all(usable(a) and usable(b) for a, b in parts):
+            return [a for a, _ in parts], [b for _, b in parts]
     if len(fit) >= 2:
-        k = max(1, math.ceil(fraction * len(fit)))
-        k = min(k, len(fit) - 1)
-        return fit[:-k], fit[-k:]
+        step = max(2, round(1.0 / fraction))
+        pick = set(range(1, len(fit), step))
+        return [r for i, r in enumerate(fit) if i not in pick], [r for i, r in enumerate(fit) if i in pick]
     raise GapInputError(
         f"{fit[0].source or 'the fit recording'}: {len(fit[0])} samples cannot give both a fit part and a "
-        f"validation part ({fraction:.0%}) of at least {MIN_PART} samples; record longer, add fit recordings "
-        "or use a smaller validation fraction"
+        f"validation part ({fraction:.0%}) of at least {MIN_PART} samples with a varying duty cycle; record "
+        "longer, add fit recordings or pass validation fraction 0 (the held-out data then choose the effects)"
     )
 
 
@@ -273,6 +279,7 @@ def run_gap(
     horizon: float = 0.2,
     seed: int = 0,
     validation_fraction: float = VALIDATION_FRACTION,
+    validation: Sequence[Recording] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> GapResult:
     """Where + which + after (module doc) for a nominal rig and fit / held-out recordings.
@@ -300,6 +307,9 @@ def run_gap(
         (:func:`validation_split`); the held-out recordings are then never seen before the final
         before/after. 0 hands the held-out recordings to the diagnosis as its validation set
         (then they also choose the effects: an optimistic before/after).
+    validation : sequence of Recording, optional
+        Explicit validation recordings (a different experiment than the fit recordings); then
+        the whole fit recordings are the fit core and ``validation_fraction`` is ignored.
     progress : callable, optional
         Receives one-line progress messages.
 
@@ -324,7 +334,11 @@ def run_gap(
         )
     say(f"where: nominal {rig.name} on {len(fit)} fit recording(s)")
     where = locate_gap(rig, fit, horizon=horizon, theta_offset=theta_offset)
-    if validation_fraction > 0.0:
+    if validation is not None:
+        fit_core, validation = fit, list(validation)
+        if not validation:
+            raise GapInputError("validation recordings given but empty")
+    elif validation_fraction > 0.0:
         fit_core, validation = validation_split(fit, validation_fraction)
     else:
         fit_core, validation = fit, held_out
