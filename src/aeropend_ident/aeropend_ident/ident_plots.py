@@ -62,7 +62,8 @@ def plot_coefficients(model: SindyModel, path: str | Path, title: str | None = N
                 txt = f"{coef[i, j]:.3g}"
                 if model.coef_std is not None:
                     txt += f"\n±{model.coef_std[i, j]:.2g}"
-                ax.text(j, i, txt, ha="center", va="center", fontsize=7)
+                dark = abs(scaled[i, j]) > 0.6 * vmax
+                ax.text(j, i, txt, ha="center", va="center", fontsize=7, color="white" if dark else "black")
     cb = fig.colorbar(im, ax=ax, fraction=0.04)
     cb.set_label("sign·log-magnitude")
     ax.set_title(title or f"{model.method}, λ = {model.threshold:g}")
