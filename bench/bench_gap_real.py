@@ -380,7 +380,7 @@ def markdown(results: dict[str, Any]) -> str:
             hx = e.get("held_out_explained")
             bic = e.get("bic_delta")
             lines.append(
-                f"| {k} | {e['effect']} | {e['subsystem']} | {hx:.3f} | "
+                f"| {k} | {e['effect']} | {e['subsystem']} | {'–' if hx is None else f'{hx:.3f}'} | "
                 f"{'–' if bic is None else f'{bic:.1f}'} | {e.get('confidence') or 0:.2f} | {pars} |"
             )
         lines.append("")

@@ -4,7 +4,8 @@
   pendulum equation can be checked; the gap is real and located);
 * the whole ``gap`` command on the BA-Etchepareborda rig: fit on the PWM 0/100/180 step cycle,
   held out the separate 0/100/130 recording; figures measured when written (bench/results/
-  gap_real.md): held-out NRMSE 0.358 -> 0.162 with thrust_exponent + viscous_friction.
+  gap_real.md): held-out NRMSE 0.358 -> 0.237 with thrust_exponent (the held-out file never seen
+  by the diagnosis).
 """
 
 from __future__ import annotations
@@ -54,23 +55,27 @@ def test_where_on_real_angle_only_logs(path, preset, rig):
 
 @pytest.mark.slow
 def test_gap_cli_etchepareborda_held_out_shrink(tmp_path):
+    """Fit on the 0/100/180 cycle (the diagnosis chooses on its last 30 %), check on the separate
+    0/100/130 recording: the quadratic thrust law of the nominal rig is the named gap."""
     out = tmp_path / "etch"
-    rc = main(
-        [
-            str(ETCH / "openloop_steps_0_100_180.csv"),
-            "--held-out",
-            str(ETCH / "openloop_steps_0_100_130.csv"),
-            "--preset",
-            "etchepareborda_openloop",
-            "--rig",
-            "etchepareborda_rig",
-            "-o",
-            str(out),
-            "-q",
-        ]
-    )
-    assert rc == 0
-    h = json.loads((out / "report.json").read_text())["headline"]
+    argv = [
+        str(ETCH / "openloop_steps_0_100_180.csv"),
+        "--held-out",
+        str(ETCH / "openloop_steps_0_100_130.csv"),
+        "--preset",
+        "etchepareborda_openloop",
+        "--rig",
+        "etchepareborda_rig",
+        "-o",
+        str(out),
+        "-q",
+    ]
+    assert main(argv) == 0
+    rep = json.loads((out / "report.json").read_text())
+    h = rep["headline"]
+    assert h["heldout_never_seen_by_diagnosis"]
     assert h["effects_chosen"] and h["effects_chosen"][0] == "thrust_exponent"
-    assert h["heldout_shrink"] >= 0.5
     assert h["heldout_nrmse_nominal"] == pytest.approx(0.358, abs=0.01)
+    # measured when written: 0.3576 -> 0.2369 (33.8 %); flatter-than-quadratic thrust (α -> 1)
+    assert h["heldout_shrink"] >= 0.3
+    assert rep["where"]["located"][0]["top_group"] == "thrust"
