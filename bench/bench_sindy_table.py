@@ -157,10 +157,32 @@ def rig(result: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def identifiability(result: dict[str, Any]) -> str:
+    """Condition numbers and ensemble inclusion: LHS steps against APRBS."""
+    lines = [
+        "| excitation | SNR | cond. 31-term library (raw data) | cond. weak-iv/physics (worst eq.) "
+        "| ensemble/physics di_a/dt and dω₁/dt, [p = inclusion] |",
+        "|---|---|---|---|---|",
+    ]
+    for case in result["cases"]:
+        snr = "none" if case["snr_db"] is None else f"{case['snr_db']:g} dB"
+        ens = case["methods"].get("ensemble/physics", {})
+        eqs = "; ".join(e for e in ens.get("equations", []) if e.startswith(("di_a", "dω")))
+        iv = case["methods"].get("weak-iv/physics", {})
+        cond = iv.get("condition_number")
+        c31 = case["collinearity_thesis_library"]["condition_number"]
+        lines.append(
+            f"| {case['excitation']} | {snr} | {c31:.3g} | "
+            f"{'–' if cond is None else f'{cond:.3g}'} | {eqs} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     result = json.loads(SRC.read_text(encoding="utf-8"))
     text = ("## Bar (issue 4) and the thesis' figures\n\n" + bar(result)
             + "\n## weak-iv/physics over noise seeds (APRBS)\n\n" + seeds(result)
+            + "\n## Identifiability: LHS steps against APRBS\n\n" + identifiability(result)
             + "\n## thesis_rig: what 490 Hz sampling resolves\n\n" + rig(result)
             + "\n## Condensed\n\n" + condensed(result) + "\n## All methods\n\n" + table(result))
     OUT.write_text(text, encoding="utf-8")

@@ -23,6 +23,11 @@ Estimators (``method``):
     ``SINDy(feature_library=WeakPDELibrary(function_library=..., spatiotemporal_grid=t, K=...))
     .fit(x, t=t, u=u)`` computes; the matrices are built with the same library calls so the
     normalisation above can be applied.
+``"weak"`` with ``refine=n`` (the benchmark's *weak-iv*)
+    Inputs held over each sample period (``zoh_inputs``, default v_a and τ) are integrated
+    exactly; then n passes of :func:`fit_weak_refined` correct the intra-sample curvature of
+    the states and regress on instruments from the previous model's free run (consistent under
+    noise in the regressors).
 discrepancy (any method, ``base=`` a rig)
     Thesis Eqs. 3.31-3.37: regress the residual Ẋ − f_model(X, U) of an approximate model (a
     rig file through :class:`aeropend_sim.model.PlantModel`); the identified model is
