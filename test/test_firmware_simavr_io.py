@@ -247,3 +247,38 @@ def test_ssi_pin_timing_meets_as5040_datasheet(run: dict) -> None:
     assert t["clkfe_min"] >= 500 and t["half_min"] >= 500
     assert rises == (16, 16)
     assert t["read_min"] < 40_000 and t["read_max"] < 300_000
+
+
+def test_ssi_22_clocks_like_the_thesis(tmp_path: Path) -> None:
+    """``-DSSI_CLOCKS=22``: 22 rising CLK edges per read-out; the 6 bits after the word are ignored."""
+    for args in (["all", "ANGLE=ssi", "EXTRA_CFLAGS=-DSIMAVR_TIMER1 -DSSI_CLOCKS=22"], ["harness"]):
+        r = subprocess.run(["make", "-C", str(FW), f"BUILD={tmp_path}", *args], capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode == 0, r.stdout + r.stderr
+    ev = tmp_path / "ev.txt"
+    ev.write_text(f"ssi 0 0x{as5040_word(345, lin=1):04x}\n")
+    proc = subprocess.Popen([str(tmp_path / "harness"), str(tmp_path / "aeropend.elf"), str(F_CPU // 2),
+                             "-e", str(ev)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    frames: list[object] = []
+    link = None
+    try:
+        line = proc.stdout.readline()  # type: ignore[union-attr]
+        while line and not line.startswith("PTY "):
+            line = proc.stdout.readline()  # type: ignore[union-attr]
+        link = SerialLink(line.split()[1], lambda f, _t: frames.append(f), clock_ns=time.monotonic_ns)
+        link.start()
+        assert link.wait_connected(5)
+        out, _ = proc.communicate(timeout=30)
+        time.sleep(0.2)
+    finally:
+        if link is not None:
+            link.stop()
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    kv = {ln.split()[0]: ln.split()[1:] for ln in out.splitlines() if ln.strip()}
+    assert kv["SSITIMING"][-2:] == ["22", "22"]
+    samples = [f for f in frames if isinstance(f, SampleFrame)]
+    assert len(samples) > 100
+    assert {(f.theta, f.flags & (FLAG_ANGLE_INVALID | FLAG_ANGLE_LIN | FLAG_ANGLE_SSI)) for f in samples} == {
+        (345, FLAG_ANGLE_LIN | FLAG_ANGLE_SSI)}
