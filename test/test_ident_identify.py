@@ -93,7 +93,7 @@ def test_identify_refuses_bad_recordings(noisy_run, tmp_path, capsys) -> None:
                       channels={"theta": noisy_run.channels()["theta"][:6]})
     bag = write_bag(short, tmp_path / "short")
     assert main([str(bag), "--out", str(tmp_path / "d"), "--quiet", "--thrust-map", "static"]) == 2
-    assert "identify:" in capsys.readouterr().err
+    assert "6 samples" in capsys.readouterr().err
 
 
 def test_identify_csv_logs_several_recordings(rig_runs, tmp_path, capsys) -> None:

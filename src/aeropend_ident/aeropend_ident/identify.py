@@ -67,6 +67,8 @@ from aeropend_sim.params import Rig, RigFileError, load_rig
 from aeropend_sim.recording import Recording, RecordingError
 
 LAMBDAS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
+#: Fewest samples per recording (derivative windows, split, library fit).
+MIN_SAMPLES = 50
 #: Share of each training part used as the validation tail for λ selection (full-state path).
 VALIDATION_FRACTION = 0.25
 #: Thrust-map grids of the partial-state path: T [s] and delay [samples].
@@ -172,6 +174,9 @@ def load_recording(path: Path, preset: str | None = None, namespace: str = "") -
 
 
 def _check_theta(rec: Recording) -> None:
+    if len(rec) < MIN_SAMPLES:
+        raise IdentificationError(f"{rec.source}: {len(rec)} samples ({rec.t[-1] - rec.t[0]:.3g} s); need at "
+                                  f"least {MIN_SAMPLES} to estimate derivatives, split and fit")
     if "theta" not in rec.channels:
         raise IdentificationError(f"{rec.source}: no angle θ recorded (channels {sorted(rec.channels)}); "
                                   "nothing to identify")
