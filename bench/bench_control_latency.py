@@ -12,11 +12,15 @@ sample stamp) by their duty value in arrival order (:func:`match_commands`). Rep
   before the next sample was taken (the plant then applied the previous duty for one more
   period); causes: ``dropped_samples`` (never seen by the controller: best-effort sample QoS),
   ``late_commands`` (received after the next sample) and ``lost_commands`` (published by the
-  controller, never received by the plant); ``missed_samples_after_first_100ms`` leaves out the
+  controller, never received by the plant); ``missed_samples_after_first_500ms`` leaves out the
   start-up transient (the first samples after the controller's subscription matched);
 * the controller's compute time (its receipt → command published), the plant's overruns and
   dropped time, the load average before and after the run (the machine is shared), and the step
   metrics of the run.
+
+Platform check (``--wakeup-check`` seconds, default 20; 0 = skip): a bare SCHED_FIFO Python
+thread (no ROS, memory locked, GC off) sleeping to absolute 2.048 ms deadlines, in its own
+process; its wake-up lateness shows what the machine alone allows (stored as ``platform_wakeup``).
 
 Options: ``--duration`` [s], ``--rt-priority`` (SCHED_FIFO for the plant's sampler/executor and
 the controller's executor; 0 = normal scheduling), ``--executor events|single`` (controller),
@@ -49,8 +53,9 @@ from aeropend_control.metrics import step_metrics
 OUT = Path(__file__).resolve().parent / "results" / "control_latency.json"
 BIN = Path(sys.executable).parent
 PERIOD_S = 2.048e-3
-#: Samples of the start-up transient (first 0.1 s: DDS matching, first callbacks) reported apart.
-STARTUP = round(0.1 / PERIOD_S)
+#: Samples of the start-up transient (first 0.5 s: DDS matching of the command path, first
+#: callbacks) reported apart.
+STARTUP = round(0.5 / PERIOD_S)
 
 
 def _pct(x: np.ndarray) -> dict[str, float]:
@@ -114,11 +119,11 @@ def analyse(trace_rows: np.ndarray, timing: dict[str, np.ndarray]) -> dict:
         "commands_published": int(ctl_stamp.size),
         "loop_latency_sample_to_command_receipt": _pct(lat_ms),
         "missed_samples": int(np.count_nonzero(~answered_on_time[window])),
-        "missed_samples_after_first_100ms": int(np.count_nonzero(~answered_on_time[window[STARTUP:]])),
+        "missed_samples_after_first_500ms": int(np.count_nonzero(~answered_on_time[window[STARTUP:]])),
         "dropped_samples": int(np.count_nonzero(~seen[window])),
         "late_commands": int(np.count_nonzero(~on_time)),
         "late_at_s_ms": [[round((taken[kk] - taken[k_row[0]]) * 1e-9, 3), round(float(lm), 2)]
-                         for kk, lm in zip(k[~on_time][:30], lat_ms[~on_time][:30], strict=True)],
+                         for kk, lm in zip(k[~on_time][:500], lat_ms[~on_time][:500], strict=True)],
         "lost_commands": int(ctl_stamp.size - np.count_nonzero(ok)),
         "controller_compute_receipt_to_publish": _pct((col["pub_latency"] - col["recv_latency"]) * 1e3),
         "stamp_to_controller_receipt": _pct(col["recv_latency"] * 1e3),
@@ -180,6 +185,39 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict
     }
 
 
+def _wakeup_child(seconds: float, prio: int) -> None:
+    """Child process of :func:`wakeup_check`: prints the lateness statistics as JSON."""
+    import ctypes
+    import gc
+
+    if prio > 0:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
+    libc = ctypes.CDLL(None)
+    libc.mlockall(3)
+    libc.prctl(29, 1000, 0, 0, 0)  # 1 µs timer slack
+    gc.disable()
+    period = round(PERIOD_S * 1e9)
+    n = int(seconds * 1e9 // period)
+    late = np.empty(n, dtype=np.int64)
+    t0 = time.monotonic_ns() + period
+    for k in range(n):
+        deadline = t0 + k * period
+        while (rem := deadline - time.monotonic_ns()) > 0:
+            time.sleep(rem * 1e-9)
+        late[k] = time.monotonic_ns() - deadline
+    ms = late * 1e-6
+    print(json.dumps({"seconds": seconds, "sched_fifo_priority": prio, **_pct(ms),
+                      "over_1ms": int((ms > 1.0).sum()), "over_2ms": int((ms > 2.048).sum()),
+                      "over_5ms": int((ms > 5.0).sum())}))
+
+
+def wakeup_check(seconds: float, prio: int) -> dict:
+    """Wake-up lateness of a bare SCHED_FIFO sleeper at the sample period (see module doc)."""
+    out = subprocess.run([sys.executable, __file__, "--wakeup-child", str(seconds), str(prio)],
+                         capture_output=True, text=True, timeout=seconds + 30, check=True)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=60.0, help="seconds of sample time")
@@ -187,10 +225,13 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--executor", default="events", choices=("events", "single"))
     ap.add_argument("--strategy", default="fl_pid")
     ap.add_argument("--out", default=str(OUT))
+    ap.add_argument("--wakeup-check", type=float, default=20.0, help="platform check [s] (0 = skip)")
     ap.add_argument("--baseline", action="store_true",
                     help="also run with rt_priority 0 and the single executor ('baseline')")
     args = ap.parse_args(argv)
     res = run(args.duration, args.rt_priority, args.executor, args.strategy)
+    if args.wakeup_check > 0:
+        res["platform_wakeup"] = wakeup_check(args.wakeup_check, args.rt_priority + 10)
     if args.baseline:
         res["baseline"] = run(args.duration, 0, "single", args.strategy)
     print(json.dumps(res, indent=1))
@@ -199,4 +240,7 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) == 4 and sys.argv[1] == "--wakeup-child":
+        _wakeup_child(float(sys.argv[2]), int(sys.argv[3]))
+    else:
+        main()
