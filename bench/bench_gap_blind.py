@@ -119,8 +119,8 @@ def write_md(path: Path, summary: dict[str, Any], groups: dict[str, Any], conf: 
         "",
         "## Per group",
         "",
-        "| group | cases | top-1 | top-3 | median shrink |",
-        "|---|---|---|---|---|",
+        "| group | cases | top-1 | top-3 | median shrink (all channels) | median shrink (θ) |",
+        "|---|---|---|---|---|---|",
     ]
     for g, v in groups.items():
         lines.append(f"| {g} | {v['cases']} | {_pct(v['top1'])} | {_pct(v['top3'])} | "
@@ -147,7 +147,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="one seed per effect, all channels only")
     ap.add_argument("--out", default=str(RESULTS / "gap_blind"))
+    ap.add_argument("--render", action="store_true", help="only re-write the .md from the existing .json")
     args = ap.parse_args(argv)
+    out = Path(args.out)
+    if args.render:
+        doc = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))
+        write_md(out.with_suffix(".md"), doc["summary"], doc["groups"], doc["confusion"], doc["meta"])
+        return 0
     specs = case_list(args.reps, args.quick)
     t0 = time.perf_counter()
     scores: list[dict[str, Any]] = []
@@ -162,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
     for g in dict.fromkeys(s["group"] for s in scores):
         sub = summarise([s for s in scores if s["group"] == g])
         groups[g] = {"cases": sub["cases"], "top1": sub["top1"], "top3": sub["top3"],
-                     "median_shrink": sub["median_shrink"]}
+                     "median_shrink": sub["median_shrink"], "median_theta_shrink": sub["median_theta_shrink"]}
     conf = confusion(scores)
     times = sorted(s["elapsed_s"] for s in scores)
     cpus = sorted(s["cpu_s"] for s in scores)
@@ -170,7 +176,6 @@ def main(argv: list[str] | None = None) -> int:
             "median_case_cpu_s": cpus[len(cpus) // 2], "total_cpu_s": sum(cpus),
             "python": sys.version.split()[0], "machine": platform.machine(), "reps": args.reps,
             "quick": args.quick}
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(
         {"meta": meta, "summary": summary, "groups": groups, "confusion": conf, "cases": scores},

@@ -27,8 +27,11 @@ Pipeline of :func:`diagnose_effects` (issue 5, parts 2 and 3):
    stays first (or significant, for the others).
 4. **Decision**: "no significant gap" when no effect removes at least
    :data:`MIN_EXPLAINED` of the held-out residual with a BIC gain, or the nominal error is at the
-   noise floor. When the first effect leaves more than 1 − :data:`SECOND_EFFECT_BELOW` of the
-   held-out residual, the residual of the corrected model is screened again and the best
+   noise floor. When the best shortlisted effect leaves a held-out SSE above
+   :data:`RESIDUAL_NOISE_FACTOR` times its noise part and above :data:`EXTEND_BELOW_GAP` of the
+   gap, :data:`EXTEND_SHORTLIST` more screened effects are confirmed; when the chosen effect
+   leaves more than :data:`SECOND_ABOVE_GAP` of the gap (and more than the noise bound), the
+   residual of the corrected model is screened again and the best
    candidates are fitted jointly with the first; a second effect is added when it removes a
    further :data:`MIN_EXPLAINED_SECOND` of what the first left, with a BIC gain.
 5. **Shrink** (:func:`gap_metrics`): the corrected rig (nominal + chosen effects, fitted) is
@@ -78,8 +81,16 @@ FIT_CHANNELS = ("theta", "i_a", "v_a", "omega_rotor")
 MIN_EXPLAINED = 0.25
 #: Least further fraction of the remaining held-out SSE a second effect must remove.
 MIN_EXPLAINED_SECOND = 0.3
-#: A second effect is only searched when the first leaves more than this share unexplained.
-SECOND_EFFECT_BELOW = 0.9
+#: More effects are confirmed (and a second effect searched) while the held-out SSE left by the
+#: best candidate exceeds this multiple of its noise part.
+RESIDUAL_NOISE_FACTOR = 4.0
+#: Further screened effects confirmed when the shortlist leaves a gap above the noise.
+EXTEND_SHORTLIST = 3
+#: ... and above this share of the nominal held-out SSE.
+EXTEND_BELOW_GAP = 0.2
+#: A second effect is searched when the first leaves more than this share of the nominal
+#: held-out SSE (and more than RESIDUAL_NOISE_FACTOR times its noise part).
+SECOND_ABOVE_GAP = 0.03
 #: BIC gain (negative change) an effect must reach on the fit data.
 MIN_BIC_GAIN = 10.0
 #: Nominal held-out θ error below this many noise standard deviations counts as noise floor.
@@ -868,17 +879,30 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
     cand: dict[str, dict[str, Any]] = {}
     fits: dict[str, EffectFit] = {}
     segs: dict[str, np.ndarray] = {}
-    for name in short:
-        say(f"grey-box fit of {name}")
-        fr = fit_effects(rig, [name], pf)
-        fits[name] = fr
-        sg = segment_sse(fr.rig, fr.meas, ph)
-        segs[name] = sg
-        k = len(get_effect(name).parameters)
-        cand[name] = {
-            "held_out_explained": 1.0 - float(sg.sum()) / max(sse_ho0, 1e-300),
-            "bic_delta": (_bic(fr.sse * n_eff / n_fit, n_eff, k) - _bic(sse_fit0 * n_eff / n_fit, n_eff, 0)),
-        }
+    # noise part of the held-out SSE (normalised like segment_sse): what no effect can remove
+    noise_sse = float(sum((noise_level(y) / p.scale[c]) ** 2 for p in ph for c, y in p.y.items()))
+
+    def confirm(names: Sequence[str]) -> None:
+        for name in names:
+            say(f"grey-box fit of {name}")
+            fr = fit_effects(rig, [name], pf)
+            fits[name] = fr
+            sg = segment_sse(fr.rig, fr.meas, ph)
+            segs[name] = sg
+            k = len(get_effect(name).parameters)
+            cand[name] = {
+                "held_out_explained": 1.0 - float(sg.sum()) / max(sse_ho0, 1e-300),
+                "bic_delta": (_bic(fr.sse * n_eff / n_fit, n_eff, k)
+                              - _bic(sse_fit0 * n_eff / n_fit, n_eff, 0)),
+            }
+
+    confirm(short)
+    best_ex = max((c["held_out_explained"] for c in cand.values()), default=0.0)
+    if 1.0 - best_ex > EXTEND_BELOW_GAP and sse_ho0 * (1.0 - best_ex) > RESIDUAL_NOISE_FACTOR * noise_sse:
+        # the best candidate leaves a gap well above the noise: confirm the next screened effects too
+        extra = [n for n in scr.shortlist(SHORTLIST + EXTEND_SHORTLIST) if n not in cand]
+        say(f"best candidate leaves {100 * (1 - best_ex):.1f} % of the gap; also confirming {extra}")
+        confirm(extra)
     order = sorted(cand, key=lambda n: -cand[n]["held_out_explained"])
     # bootstrap over held-out segments: how often each effect is first / significant
     rng = np.random.default_rng(seed + 1)
@@ -922,7 +946,8 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
         corrected, meas = cur.rig, cur.meas
         shrink.append({"effects": list(chosen), **gap_metrics(corrected, meas, ph)})
         cur_sse = float(segs[name].sum())
-        if max_effects > 1 and best["held_out_explained"] < SECOND_EFFECT_BELOW:
+        say(f"{name} leaves a held-out SSE of {cur_sse / max(noise_sse, 1e-300):.2f} × its noise part")
+        if max_effects > 1 and cur_sse > max(RESIDUAL_NOISE_FACTOR * noise_sse, SECOND_ABOVE_GAP * sse_ho0):
             # screen the residual left by the first effect (discrepancy SINDy on the corrected
             # model), then confirm the best candidates by a joint output-error fit
             rest = [n for n in model_effects if n != name]
@@ -1008,6 +1033,9 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
         elif len(chosen) < max_effects:
             chosen.append("quantisation")
         sig_first = True
+    if not_ident and sig_first:
+        reason += ("; not identifiable from the recorded channels (their θ signature may be what the "
+                   f"ranked effect stands in for): {', '.join(x['effect'] for x in not_ident)}")
     return EffectDiagnosis(
         significant=sig_first, ranking=ranking, not_identifiable=not_ident, chosen=chosen,
         corrected_rig=corrected, shrink=shrink, measurement=meas, screening=scr.as_dict(),
