@@ -112,31 +112,43 @@ def test_reference_topic_drives_the_lockstep_loop(tmp_path: Path) -> None:
     from std_msgs.msg import Float64, Float64MultiArray
 
     from aeropend_control.controller_core import SIGNALS
+    from aeropend_control.controller_node import TOPIC_REFERENCE, TOPIC_SIGNALS
 
     domain = random.randint(1, 100)
     trace = tmp_path / "trace.csv"
     env = _env(domain)
-    sim = subprocess.Popen([_exe("sim_node"), "--ros-args", "-p", "mode:=lockstep"],
-                           env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    ctl = None
+    sim = ctl = None
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=domain)
     node = rclpy.create_node("test_reference", context=ctx)
     signals: list[list[float]] = []
     try:
-        pub = node.create_publisher(Float64, "/aeropend/reference", 10)
-        node.create_subscription(Float64MultiArray, "/aeropend/controller/signals",
+        pub = node.create_publisher(Float64, TOPIC_REFERENCE, 10)
+        node.create_subscription(Float64MultiArray, TOPIC_SIGNALS,
                                  lambda m: signals.append(list(m.data)), 50)
-        ctl = subprocess.Popen(
-            [_exe("controller"), "--ros-args", "-p", "mode:=lockstep", "-p", "strategy:=fl_pid",
-             "-p", "duration:=5.0", "-p", f"trace:={trace}"],
-            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         ex = SingleThreadedExecutor(context=ctx)
         ex.add_node(node)
-        deadline = time.monotonic() + 80.0
-        while ctl.poll() is None and time.monotonic() < deadline:  # publish until the controller is done
-            pub.publish(Float64(data=0.3))
+        # controller first (it waits for samples), then the plant once this node is matched to the
+        # controller both ways, so the set point reaches it within a few samples of being sent
+        ctl = subprocess.Popen(
+            [_exe("controller"), "--ros-args", "-p", "mode:=lockstep", "-p", "strategy:=fl_pid",
+             "-p", "duration:=4.0", "-p", f"trace:={trace}"],
+            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        deadline = time.monotonic() + 40.0
+
+        def matched() -> bool:
+            return pub.get_subscription_count() > 0 and node.count_publishers(TOPIC_SIGNALS) > 0
+
+        while not matched() and time.monotonic() < deadline:
             ex.spin_once(timeout_sec=0.05)
+        assert pub.get_subscription_count() > 0, "controller not discovered"
+        sim = subprocess.Popen([_exe("sim_node"), "--ros-args", "-p", "mode:=lockstep"],
+                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 80.0
+        while ctl.poll() is None and time.monotonic() < deadline:
+            ex.spin_once(timeout_sec=0.01)
+            if signals and signals[-1][0] >= 0.5:  # 0.5 s of sample time at rest, then the set point
+                pub.publish(Float64(data=0.3))
         ctl_out = ctl.communicate(timeout=30)[0]
         assert ctl.returncode == 0, ctl_out
     finally:
@@ -153,7 +165,7 @@ def test_reference_topic_drives_the_lockstep_loop(tmp_path: Path) -> None:
     k0 = int(on[0])
     assert np.all(col["reference"][:k0] == 0.0) and np.all(col["reference"][k0:] == 0.3)
     t = col["t"][k0:] - col["t"][k0]
-    assert t[-1] >= 1.5, f"reference arrived too late ({col['t'][k0]:.2f} s of 5 s)"
+    assert t[-1] >= 1.5, f"reference arrived too late ({col['t'][k0]:.2f} s of 4 s)"
     assert np.all(np.abs(col["theta"][:k0]) < 1e-3)  # at rest before the set point
     met = step_metrics(t, col["theta"][k0:] - col["theta"][k0], 0.3 - col["theta"][k0])
     assert met.failures(TABLE_6_1) == []
