@@ -68,6 +68,7 @@ import math
 import os
 import sys
 import threading
+import time
 from typing import Any
 
 import rclpy
@@ -94,6 +95,10 @@ TOPIC_REFERENCE = "/aeropend/reference"
 TOPIC_SIGNALS = "/aeropend/controller/signals"
 #: Unpaired joint_states / armature halves kept while waiting for the other half.
 PAIR_BUFFER = 20
+#: Real-time mode: wait this long after the command publisher first matched before answering
+#: samples (the plant's side of the match may complete later; commands sent before it would be
+#: delivered late by the reliable history).
+MATCH_GRACE_NS = 250_000_000
 
 PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("rig", "thesis_rig", "rig name or YAML path"),
@@ -146,6 +151,7 @@ class ControllerNode(Node):
             self.create_subscription(BatteryState, TOPIC_ARMATURE, self._on_armature, qos)
         self.create_subscription(Float64, TOPIC_REFERENCE, self._on_reference, 10)
         self.finished = threading.Event()
+        self._matched_ns: int | None = None
         self.published = 0
         self.bad_samples = 0
         self._layout = [MultiArrayDimension(label=",".join(SIGNALS), size=len(SIGNALS), stride=len(SIGNALS))]
@@ -198,9 +204,13 @@ class ControllerNode(Node):
                 d.pop(min(d))
 
     def _control(self, stamp: int, theta: float, omega: float = math.nan, i_a: float = math.nan) -> None:
-        if self._pub_duty.get_subscription_count() == 0:
-            return  # nobody would hear the command; the lock-step plant re-publishes while idle
         realtime = self.settings.mode == "realtime"
+        if self._matched_ns is None:
+            if self._pub_duty.get_subscription_count() == 0:
+                return  # nobody would hear the command; the lock-step plant re-publishes while idle
+            self._matched_ns = time.monotonic_ns()
+        if realtime and time.monotonic_ns() - self._matched_ns < MATCH_GRACE_NS:
+            return
         recv = self.get_clock().now().nanoseconds if realtime else None
         repeat = stamp == self.loop.last_stamp
         duty = self.loop.on_sample(stamp, theta, omega, i_a, recv)
