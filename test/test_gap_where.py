@@ -158,3 +158,14 @@ def test_bad_inputs_are_refused(duty):
         locate_gap(RIG, [rec.slice(40, 70)])
     with pytest.raises(GapInputError, match="horizon"):
         locate_gap(RIG, [rec], horizon=0.0)
+
+
+def test_nominal_that_flips_over_is_reported(duty):
+    rec = _record(RIG, duty, ("theta",))
+    strong = RIG.with_params("thrust", K_q=6.0 * RIG.thrust.K_q)  # thrust above the largest gravity torque
+    rep = locate_gap(strong, [rec])
+    r = rep.recordings[0]
+    assert r.free_run["diverged"] and np.max(np.abs(r.theta_free)) > math.pi
+    assert any("flips over the pivot" in v for v in rep.verdict())
+    assert r.short_horizon["nrmse"] < r.free_run["nrmse"]
+    assert not locate_gap(RIG, [rec]).recordings[0].free_run["diverged"]

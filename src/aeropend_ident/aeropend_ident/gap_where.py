@@ -315,6 +315,12 @@ class WhereReport:
                     f"(R² {row['groups'].get(grp, math.nan):.2f}, {row['top_group_subsystem']})"
                 )
         for r in self.recordings:
+            if r.free_run.get("diverged"):
+                out.append(
+                    f"{r.source}: the nominal free run flips over the pivot (leaves the measured angle range "
+                    f"by more than π); its NRMSE is meaningless, the {r.horizon:g} s-ahead NRMSE is "
+                    f"{r.short_horizon['nrmse']:.3f}"
+                )
             a = r.alignment
             if (
                 a.get("lag_samples")
@@ -979,6 +985,11 @@ def locate_recording(
     theta_short = _short_horizon(rig, data, theta_rate, states, ch, theta_offset, horizon, omega)
     resid = theta_free - data.theta
     free = error_metrics(data.theta, theta_free)
+    # a free run that leaves the measured angle range by more than π has flipped over the pivot:
+    # its NRMSE only says "diverged"
+    free["diverged"] = bool(
+        np.max(np.abs(theta_free - np.clip(theta_free, data.theta.min(), data.theta.max()))) > math.pi
+    )
     short = error_metrics(data.theta, theta_short)
     regions = residual_regions(data.theta, data.duty, resid, dt, n_bins)
     regions["rate_bins"] = _bins(np.abs(rate), resid, n_bins, "rad/s")
