@@ -169,3 +169,25 @@ def test_nominal_that_flips_over_is_reported(duty):
     assert any("flips over the pivot" in v for v in rep.verdict())
     assert r.short_horizon["nrmse"] < r.free_run["nrmse"]
     assert not locate_gap(RIG, [rec]).recordings[0].free_run["diverged"]
+
+
+def test_drift_between_repeats_is_reported():
+    cycle = np.concatenate([np.full(300, 0.0), np.full(300, 0.5)])
+    d = np.tile(cycle, 5)  # 30 s: five repeats of the same two holds
+    rec = _record(RIG, d, ("theta",))
+    clean = locate_gap(RIG, [rec]).recordings[0]
+    # the model repeats exactly what the rig repeats (here: the same partly decayed swings)
+    assert all(
+        rp["count"] == 5 and abs(rp["measured_spread"] - rp["simulated_spread"]) < 0.005
+        for rp in clean.repeats
+    )
+    assert not any("time-varying effect" in v for v in locate_gap(RIG, [rec]).verdict())
+    drift = 0.004 * rec.t  # 0.24 rad/min sensor drift
+    drifting = Recording(
+        t=rec.t, duty=rec.duty, channels={"theta": rec.channels["theta"] + drift}, source="drift"
+    )
+    rep = locate_gap(RIG, [drifting])
+    rp = {round(r["duty"], 3): r for r in rep.recordings[0].repeats}
+    assert rp[0.5]["measured_drift_per_min"] == pytest.approx(0.24, rel=0.1)
+    assert rp[0.5]["measured_spread"] == pytest.approx(0.004 * 24.0, rel=0.1)
+    assert any("time-varying effect" in v for v in rep.verdict())

@@ -232,6 +232,7 @@ class RecordingWhere:
     alignment: dict[str, Any]
     noise_rms: float
     significant: bool
+    repeats: list[dict[str, Any]] = field(default_factory=list)
 
     def equation(self, name: str) -> EquationCheck:
         """The :class:`EquationCheck` of ``name``."""
@@ -249,6 +250,7 @@ class RecordingWhere:
             "equations": [e.as_dict() for e in self.equations],
             "regions": self.regions,
             "holds": self.holds,
+            "repeatability": self.repeats,
             "bands": self.bands,
             "whiteness": self.whiteness,
             "input_xcorr": self.input_xcorr,
@@ -321,6 +323,15 @@ class WhereReport:
                     f"by more than π); its NRMSE is meaningless, the {r.horizon:g} s-ahead NRMSE is "
                     f"{r.short_horizon['nrmse']:.3f}"
                 )
+            for rp in r.repeats:
+                if rp["measured_spread"] > 3.0 * rp["simulated_spread"] + 0.02:
+                    out.append(
+                        f"{r.source}: at duty {rp['duty']:.3f} the recorded steady angle varies by "
+                        f"{rp['measured_spread']:.3f} rad over {rp['count']} repeats "
+                        f"({rp['measured_drift_per_min']:+.3f} rad/min), the model by "
+                        f"{rp['simulated_spread']:.3f} rad: a time-varying effect (drift) no constant "
+                        "parameter removes"
+                    )
             a = r.alignment
             if (
                 a.get("lag_samples")
@@ -650,6 +661,43 @@ def frequency_bands(
                 "residual_rms": math.sqrt(p_e),
                 "measured_rms": math.sqrt(p_m),
                 "ratio": math.sqrt(p_e / p_m) if p_m > 0 else math.inf,
+            }
+        )
+    return out
+
+
+def repeatability(holds: Sequence[dict[str, Any]], min_repeats: int = 3) -> list[dict[str, Any]]:
+    """Spread and drift of the steady angle over repeated holds at the same duty cycle.
+
+    A deterministic model repeats itself; a rig whose steady angle at the same duty wanders from
+    repeat to repeat has a time-varying effect (sensor drift, temperature, battery) that no
+    constant parameter can fix.
+
+    Returns
+    -------
+    list of dict
+        Per duty level with at least ``min_repeats`` holds: ``duty``, ``count``,
+        ``measured_spread`` and ``simulated_spread`` (max − min of the steady angles [rad]),
+        ``measured_drift_per_min`` (least-squares slope against the hold's end time [rad/min]).
+    """
+    levels: dict[float, list[dict[str, Any]]] = {}
+    for h in holds:
+        levels.setdefault(round(h["duty"], 9), []).append(h)
+    out = []
+    for duty, hs in sorted(levels.items()):
+        if len(hs) < min_repeats:
+            continue
+        tm = np.array([h["t_end_s"] for h in hs]) / 60.0
+        ym = np.array([h["theta_meas_ss"] for h in hs])
+        ys = np.array([h["theta_sim_ss"] for h in hs])
+        slope = float(np.polyfit(tm, ym, 1)[0]) if np.ptp(tm) > 0 else 0.0
+        out.append(
+            {
+                "duty": duty,
+                "count": len(hs),
+                "measured_spread": float(np.ptp(ym)),
+                "simulated_spread": float(np.ptp(ys)),
+                "measured_drift_per_min": slope,
             }
         )
     return out
@@ -985,6 +1033,7 @@ def locate_recording(
     theta_short = _short_horizon(rig, data, theta_rate, states, ch, theta_offset, horizon, omega)
     resid = theta_free - data.theta
     free = error_metrics(data.theta, theta_free)
+    all_holds = constant_holds(data.t, data.duty, data.theta, theta_free, limit=100_000)
     # a free run that leaves the measured angle range by more than π has flipped over the pivot:
     # its NRMSE only says "diverged"
     free["diverged"] = bool(
@@ -1037,7 +1086,8 @@ def locate_recording(
         horizon=horizon,
         equations=eqs,
         regions=regions,
-        holds=constant_holds(data.t, data.duty, data.theta, theta_free),
+        holds=all_holds[:60],
+        repeats=repeatability(all_holds),
         bands=[*frequency_bands(resid, data.theta, dt, f_n), {"band": "nominal f_n", "f_hz": f_n}],
         whiteness=wb,
         input_xcorr=input_cross_correlation(data.duty, resid, dt),
