@@ -135,6 +135,26 @@ def case_etchepareborda_val() -> dict[str, Any]:
     }
 
 
+def case_etchepareborda_all() -> dict[str, Any]:
+    d = "BA-Etchepareborda__adaptive-control-aeropendulum/"
+    fit = [
+        _csv(d + f, "etchepareborda_openloop")
+        for f in ("openloop_steps_0_100_180.csv", "openloop_random_binary_80_120.csv")
+    ]
+    val = _csv(d + "openloop_gaussian_pwm.csv", "etchepareborda_openloop")
+    held = _csv(d + "openloop_steps_0_100_130.csv", "etchepareborda_openloop")
+    return {
+        "rig": "etchepareborda_rig",
+        "split": (
+            fit,
+            [held],
+            "fit: the 0/100/180 step cycle and the 80/120 random-binary run; validation: "
+            "the Gaussian-PWM run; held out: the 0/100/130 step cycle (all four open-loop runs)",
+        ),
+        "validation": [val],
+    }
+
+
 def _heldout_selects(case: Any) -> Any:
     """The same case with ``validation_fraction = 0``: the held-out data also choose the effects
     (the diagnosis' own protocol; optimistic, reported for comparison only)."""
@@ -214,6 +234,7 @@ CASES = {
     "aeroshield_blocks": case_aeroshield_blocks,
     "etchepareborda": case_etchepareborda,
     "etchepareborda_val": case_etchepareborda_val,
+    "etchepareborda_all": case_etchepareborda_all,
     "thesis_gap": case_thesis,
 }
 CASES["etchepareborda_heldout_selects"] = _heldout_selects(case_etchepareborda)
@@ -225,6 +246,7 @@ NEEDS_REAL = {
     "aeroshield_blocks",
     "etchepareborda",
     "etchepareborda_val",
+    "etchepareborda_all",
     "etchepareborda_heldout_selects",
     "jahoyosr_hoja3_blocks_heldout_selects",
 }
