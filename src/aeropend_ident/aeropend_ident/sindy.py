@@ -821,6 +821,7 @@ def fit(
     zoh_inputs: Sequence[str] = ZOH_INPUTS,
     refine: int = 0,
     instruments: bool = True,
+    output_error: Sequence[str] = (),
     _context: WeakContext | None = None,
 ) -> SindyModel:
     """Identify a sparse model (see the module docstring for the methods).
@@ -864,6 +865,11 @@ def fit(
         With ``refine``: regress on the library projected onto instruments built from a free
         run of the previous pass's model (instrumental variables, consistent when the
         regressors are noisy); ``False`` keeps only the curvature correction.
+    output_error : sequence of str
+        Equations whose non-zero coefficients are then re-estimated by output-error
+        (simulation-error) minimisation with the selected structure kept
+        (:func:`aeropend_ident.output_error.refine_output_error`, default options), e.g.
+        ``("i_a", "omega_rotor")``; ``()`` (default) skips it.
 
     Raises
     ------
@@ -874,6 +880,12 @@ def fit(
     if method not in METHODS:
         raise IdentificationError(f"method = {method!r}; expected one of {METHODS}")
     targets = list(targets)
+    if output_error:
+        from aeropend_ident.output_error import refine_output_error  # imports this module
+
+        model = fit(data, library, targets, threshold, method, base, K, p, H_xt, n_models, subset_fraction,
+                    alpha, seed, exclude_input_steps, zoh_inputs, refine, instruments, (), _context)
+        return refine_output_error(model, data, targets=output_error, zoh_inputs=zoh_inputs)
     kw: dict[str, Any] = dict(
         threshold=threshold, method=method, base=base, K=K, p=p, H_xt=H_xt, n_models=n_models,
         subset_fraction=subset_fraction, alpha=alpha, seed=seed, exclude_input_steps=exclude_input_steps,
