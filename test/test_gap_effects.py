@@ -36,7 +36,7 @@ SUBSYSTEMS = {"electrical", "motor", "aerodynamic", "pendulum", "actuator", "sen
 
 def test_catalog_covers_the_issue_list_with_valid_entries():
     names = [e.name for e in CATALOG]
-    assert len(names) == len(set(names)) == 16
+    assert len(names) == len(set(names)) == 17
     for required in ("hbridge_drop", "dead_zone", "back_emf", "armature_inductance", "coulomb_friction",
                      "viscous_friction", "thrust_exponent", "propeller_drag", "actuator_lag", "input_delay",
                      "gravity", "inertia", "end_stops", "sensor_offset", "sensor_scale", "quantisation"):

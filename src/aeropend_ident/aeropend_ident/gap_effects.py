@@ -4,8 +4,9 @@ Each :class:`Effect` is a small group of physically meaningful parameters that, 
 nominal rig, changes the simulated response in one characteristic way: an H-bridge voltage drop,
 a duty-cycle dead zone, a misscaled back-EMF, a wrong armature inductance, Coulomb friction on
 the rod, a viscous-friction error, a thrust-law exponent other than 2, a propeller-drag error, an
-actuator lag, an input (transport) delay, a gravity-torque error, an inertia error, end stops, a
-sensor offset or scale on θ, and angle quantisation. Every entry says
+actuator lag, a motor mechanical time constant (rotor inertia J_m), an input (transport) delay,
+a gravity-torque error, an inertia error, end stops, a sensor offset or scale on θ, and angle
+quantisation. Every entry says
 
 * how to switch it on in a :class:`aeropend_sim.params.Rig` and which parameters to fit, with
   units, physical bounds, the value meaning "absent" and a typical magnitude (``probe``) used for
@@ -324,6 +325,10 @@ def _lag(rig: Rig, v: Mapping[str, float]) -> Rig:
     return new.with_effects(actuator_lag=True)
 
 
+def _motor_time_constant(rig: Rig, v: Mapping[str, float]) -> Rig:
+    return rig.with_params("motor", J_m=rig.motor.J_m * v["J_m_scale"])
+
+
 def _delay(rig: Rig, v: Mapping[str, float]) -> Rig:
     base = rig.actuator.input_delay if rig.effects.input_delay else 0.0
     return rig.with_params("actuator", input_delay=base + v["input_delay"]).with_effects(input_delay=True)
@@ -425,7 +430,17 @@ CATALOG: tuple[Effect, ...] = (
         (_par("lag_time_constant", "s", 1e-3, 2.0, 0.0, 0.05, True, "actuator.lag_time_constant",
               "lag time constant T_a"),),
         {_TH: ("L/J·Δf(T_a)",), "i_a": ("Δv_a(T_a)/L_a",), "v_a": ("Δv_a(T_a)",)},
-        "actuator_lag", ("input_delay",), _apply=_lag,
+        "actuator_lag", ("input_delay", "motor_time_constant"), _apply=_lag,
+    ),
+    Effect(
+        "motor_time_constant", "motor",
+        "rotor-side inertia error J_m → k·J_m (rotor + gear + propeller): the motor's mechanical time "
+        "constant J_m/(B_m + 2·K_d·ω₁ + K_t·K_ω/R_a) scales with k, the thrust follows the duty cycle "
+        "more slowly (k > 1) or faster (k < 1)",
+        ("theta",),
+        (_par("J_m_scale", "1", 0.05, 20.0, 1.0, 2.0, True, "motor.J_m", "J_m true / J_m nominal"),),
+        {_TH: ("L/J·Δf(J_m)",), "omega_rotor": ("−ΔJ_m·ω̇₁/J_m",)},
+        "", ("actuator_lag", "input_delay"), _apply=_motor_time_constant,
     ),
     Effect(
         "input_delay", "actuator",
@@ -433,7 +448,7 @@ CATALOG: tuple[Effect, ...] = (
         ("theta",),
         (_par("input_delay", "s", 0.0, 0.5, 0.0, 0.04, False, "actuator.input_delay", "delay T_d"),),
         {_TH: ("L/J·Δf(T_d)",), "i_a": ("Δv_a(T_d)/L_a",), "v_a": ("Δv_a(T_d)",)},
-        "input_delay", ("actuator_lag",), _apply=_delay,
+        "input_delay", ("actuator_lag", "motor_time_constant"), _apply=_delay,
     ),
     Effect(
         "gravity", "pendulum",

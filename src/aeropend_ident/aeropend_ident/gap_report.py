@@ -323,7 +323,8 @@ def run_gap(
         Unusable recordings (no θ, NaNs, too short, constant input) or rig.
     """
     from aeropend_ident.gap_effects import MeasurementMap
-    from aeropend_ident.gap_which import diagnose_effects, gap_metrics
+    from aeropend_ident.gap_where import timing_lag_seen
+    from aeropend_ident.gap_which import TIMING_EFFECTS, diagnose_effects, gap_metrics
     from aeropend_ident.gap_which import prepare as which_prepare
 
     say = progress or (lambda _msg: None)
@@ -347,6 +348,9 @@ def run_gap(
         "validation recording(s))"
     )
     # the diagnosis works in the model's angle frame: shift θ by the rig's recording-frame offset
+    # a clear lead/lag of the simulated response (alignment lag) asks the diagnosis to confirm
+    # the timing effects even when the θ̈-equation screening does not shortlist them
+    timing = any(timing_lag_seen(r.alignment) for r in where.recordings)
     diag = diagnose_effects(
         rig,
         [_shift(r, theta_offset) for r in fit_core],
@@ -354,6 +358,7 @@ def run_gap(
         max_effects=max_effects,
         seed=seed,
         progress=progress,
+        also_confirm=TIMING_EFFECTS if timing else (),
     )
     corrected = diag.corrected_rig
     say("after: replaying the held-out recordings")

@@ -46,6 +46,7 @@ TRUTH_RANGES: dict[str, dict[str, list[tuple[float, float]]]] = {
     "propeller_drag": {"K_d_scale": [(0.4, 0.6), (1.6, 2.5)]},
     "actuator_lag": {"lag_time_constant": [(0.05, 0.12)]},
     "input_delay": {"input_delay": [(0.04, 0.1)]},
+    "motor_time_constant": {"J_m_scale": [(0.2, 0.4), (3.0, 6.0)]},
     "gravity": {"mgd_scale": [(0.8, 0.9), (1.12, 1.25)]},
     "inertia": {"J_scale": [(0.7, 0.85), (1.2, 1.45)]},
     "end_stops": {"theta_max": [(0.6, 0.8)]},

@@ -333,12 +333,7 @@ class WhereReport:
                         "parameter removes"
                     )
             a = r.alignment
-            if (
-                a.get("lag_samples")
-                and abs(a["lag_samples"]) >= 1
-                and a.get("correlation", 0) > 0.5
-                and not a.get("at_search_limit")
-            ):
+            if timing_lag_seen(a):
                 out.append(
                     f"{r.source}: simulated θ̇ best aligns with the measured one when delayed by "
                     f"{a['lag_s']:.3f} s ({a['lag_samples']} samples)"
@@ -566,6 +561,20 @@ def input_cross_correlation(
         "lags": lags.tolist(),
         "rho": rho.tolist(),
     }
+
+
+def timing_lag_seen(alignment: dict[str, Any]) -> bool:
+    """True when an :func:`alignment_lag` result shows a clear lead or lag (≥ 1 sample).
+
+    Clear: peak correlation above 0.5 and not on the search limit. The effect diagnosis then also
+    confirms the timing effects (motor time constant, actuator lag, input delay).
+    """
+    return bool(
+        alignment.get("lag_samples")
+        and abs(alignment["lag_samples"]) >= 1
+        and alignment.get("correlation", 0) > 0.5
+        and not alignment.get("at_search_limit")
+    )
 
 
 def alignment_lag(

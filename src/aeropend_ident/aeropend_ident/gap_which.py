@@ -32,8 +32,9 @@ Pipeline of :func:`diagnose_effects` (issue 5, parts 2 and 3):
    gap, :data:`EXTEND_SHORTLIST` more screened effects are confirmed; when the chosen effect
    leaves more than :data:`SECOND_ABOVE_GAP` of the gap (and more than the noise bound), the
    residual of the corrected model is screened again and the best
-   candidates are fitted jointly with the first; a second effect is added when it removes a
-   further :data:`MIN_EXPLAINED_SECOND` of what the first left, with a BIC gain.
+   candidates (and the timing effects the caller asked to confirm, ``also_confirm``) are fitted
+   jointly with the first; a second effect is added when it removes a further
+   :data:`MIN_EXPLAINED_SECOND` of what the first left, with a BIC gain (the largest removal wins).
 5. **Shrink** (:func:`gap_metrics`): the corrected rig (nominal + chosen effects, fitted) is
    replayed in free run on the held-out recordings: NRMSE, max error, steady-state map error and
    step metrics before and after, per cumulative effect set.
@@ -97,6 +98,8 @@ MIN_BIC_GAIN = 10.0
 NOISE_FLOOR_FACTOR = 3.0
 #: Residual samples per independent sample in the BIC (free-run residuals are autocorrelated).
 BIC_DECIMATION = 20
+#: Effects that change the timing of the response (confirmed on request, see ``also_confirm``).
+TIMING_EFFECTS = ("motor_time_constant", "actuator_lag", "input_delay")
 #: Number of shortlisted effects confirmed by grey-box fits.
 SHORTLIST = 5
 #: Bootstrap resamples for screening inclusion and ranking confidence.
@@ -805,7 +808,8 @@ def _rig_values(rig: Rig, name: str, values: Mapping[str, float]) -> dict[str, f
 
 def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Recording], *,
                      max_effects: int = 2, seed: int = 0,
-                     progress: Callable[[str], None] | None = None) -> EffectDiagnosis:
+                     progress: Callable[[str], None] | None = None,
+                     also_confirm: Sequence[str] = ()) -> EffectDiagnosis:
     """Find which catalog effect(s) explain the gap between a rig file and recordings.
 
     Parameters
@@ -824,6 +828,12 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
         Seed of the bootstraps and weak-form test functions.
     progress : callable, optional
         Called with short status messages.
+    also_confirm : sequence of str
+        Catalog effects confirmed by a grey-box fit in addition to the screening shortlist, e.g.
+        the timing effects (:data:`TIMING_EFFECTS`) when the where-analysis finds the simulated
+        response leading or lagging the recorded one (a dynamic effect the θ̈-equation screening
+        can miss because its columns are small next to the friction-like ones). Effects the
+        channels cannot reveal are skipped.
 
     Returns
     -------
@@ -833,9 +843,12 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
     ------
     GapError
         Recordings lacking θ or the duty cycle, with NaNs, too short, non-uniform or unexcited;
-        an unusable nominal rig; ``max_effects`` outside 1..2.
+        an unusable nominal rig; ``max_effects`` outside 1..2; an unknown effect in
+        ``also_confirm``.
     """
     t0 = time.perf_counter()
+    for name in also_confirm:
+        get_effect(name)
     say = progress or (lambda _m: None)
     if max_effects not in (1, 2):
         raise GapError(f"max_effects = {max_effects!r}; expected 1 or 2")
@@ -897,6 +910,10 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
             }
 
     confirm(short)
+    forced = [n for n in also_confirm if n in model_effects and n not in cand]
+    if forced:
+        say(f"also confirming {forced} (requested: timing lead/lag seen by the where-analysis)")
+        confirm(forced)
     best_ex = max((c["held_out_explained"] for c in cand.values()), default=0.0)
     if 1.0 - best_ex > EXTEND_BELOW_GAP and sse_ho0 * (1.0 - best_ex) > RESIDUAL_NOISE_FACTOR * noise_sse:
         # the best candidate leaves a gap well above the noise: confirm the next screened effects too
@@ -958,7 +975,10 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
                 if o not in others and o != name:
                     others.append(o)
             best2 = None
-            for o in others[:3]:
+            # timing effects requested by the caller are also tried as the second effect: a lead or
+            # lag often shows only once the dominant (e.g. damping) error is removed
+            pair_cands = others[:3] + [f for f in forced if f not in others[:3] and f != name]
+            for o in pair_cands:
                 say(f"joint fit of {name} + {o}")
                 try:
                     alone = fit_effects(corrected, [o], pf)
