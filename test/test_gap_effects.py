@@ -39,7 +39,8 @@ def test_catalog_covers_the_issue_list_with_valid_entries():
     assert len(names) == len(set(names)) == 17
     for required in ("hbridge_drop", "dead_zone", "back_emf", "armature_inductance", "coulomb_friction",
                      "viscous_friction", "thrust_exponent", "propeller_drag", "actuator_lag", "input_delay",
-                     "gravity", "inertia", "end_stops", "sensor_offset", "sensor_scale", "quantisation"):
+                     "gravity", "inertia", "end_stops", "sensor_offset", "sensor_scale", "quantisation",
+                     "motor_time_constant"):
         assert required in EFFECTS
     for e in CATALOG:
         assert e.subsystem in SUBSYSTEMS
@@ -151,7 +152,7 @@ TRUTH = {
     "hbridge_drop": 0.2, "dead_zone": 0.08, "back_emf": 1.6, "armature_inductance": 8.0,
     "coulomb_friction": 1.0, "viscous_friction": 2.0, "thrust_exponent": 2.25, "propeller_drag": 2.0,
     "actuator_lag": 0.08, "input_delay": 0.06, "gravity": 1.2, "inertia": 1.3, "end_stops": 0.7,
-    "sensor_offset": 0.06, "sensor_scale": 1.1,
+    "sensor_offset": 0.06, "sensor_scale": 1.1, "motor_time_constant": 3.0,
 }
 #: Relative tolerance on the effect size |value − off| (50 dB noise, 12 s recording).
 REL_TOL = 0.1

@@ -20,6 +20,7 @@ from aeropend_ident.gap_where import (
     input_cross_correlation,
     ljung_box,
     locate_gap,
+    timing_lag_seen,
 )
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
@@ -112,6 +113,9 @@ def test_input_delay_gives_alignment_lag_and_actuator_residual(duty):
     lag = rep.recordings[0].alignment["lag_samples"]
     assert abs(lag - round(delay / DT)) <= 1
     assert any("delayed by" in v for v in rep.verdict())
+    # the lead/lag makes run_gap ask the effect diagnosis to confirm the timing effects
+    assert timing_lag_seen(rep.recordings[0].alignment)
+    assert not timing_lag_seen(locate_gap(RIG, [_record(RIG, duty, ("theta",))]).recordings[0].alignment)
     rep_v = locate_gap(RIG, [_record(real, duty, ("theta", "v_a"))])
     assert rep_v.subsystem == "actuator"
 

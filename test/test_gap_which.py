@@ -53,6 +53,21 @@ def test_hidden_input_delay_is_ranked_first_fitted_and_closes_the_held_out_gap()
     assert rig_from_dict(doc["corrected_rig"]).actuator.input_delay == pytest.approx(got)
 
 
+def test_slow_motor_found_when_timing_effects_are_confirmed():
+    # rotor inertia 4x the nominal: the thrust follows the duty cycle 4x more slowly
+    case = _case(["motor_time_constant"], 23, truth={"motor_time_constant": {"J_m_scale": 4.0}},
+                 snr_db=50.0, channels=("theta",))
+    d = diagnose_effects(RIG, case.fit, case.held_out, max_effects=1,
+                         also_confirm=("motor_time_constant", "actuator_lag", "input_delay"))
+    ranked = [r["effect"] for r in d.ranking]
+    assert {"motor_time_constant", "actuator_lag", "input_delay"} <= set(ranked)
+    assert d.significant and d.chosen == ["motor_time_constant"]
+    got = d.ranking[0]["parameters"]["J_m_scale"]["value"]
+    assert got == pytest.approx(4.0, rel=0.15)
+    assert d.corrected_rig.motor.J_m == pytest.approx(got * RIG.motor.J_m)
+    assert d.shrink[-1]["nrmse"] < 0.3 * d.shrink[0]["nrmse"]
+
+
 def test_electrical_effect_found_from_the_current_channel():
     case = _case(["back_emf"], 22, truth={"back_emf": {"K_omega_scale": 1.6}}, snr_db=50.0)
     d = diagnose_effects(RIG, case.fit, case.held_out, max_effects=1)
@@ -121,3 +136,5 @@ def test_recordings_lacking_needed_channels_or_broken_raise_gap_error():
         diagnose_effects(RIG, [good], [])
     with pytest.raises(GapError, match="max_effects"):
         diagnose_effects(RIG, [good], [good], max_effects=3)
+    with pytest.raises(GapError, match="unknown effect 'rotor_lag'"):
+        diagnose_effects(RIG, [good], [good], also_confirm=("rotor_lag",))
