@@ -7,7 +7,9 @@ first 75 % (22.5 s at 490 Hz), measured channels at the given SNR and noise seed
   λ=0.1, H_xt=20 ms)``;
 * ``weak-iv + OE``: the same model, then
   :func:`aeropend_ident.output_error.refine_output_error` on di_a/dt and dω₁/dt (structure kept,
-  coefficients re-estimated by simulation-error minimisation, 0.5 s multiple-shooting windows).
+  coefficients re-estimated by simulation-error minimisation, 0.5 s multiple-shooting windows;
+  this run drives the simulation with the fitted v_a(τ), ``clean_inputs=True``;
+  ``--measured-va`` with the measured v_a, the library default).
 
 Also ``fast APRBS`` (holds 2-10 ms, electrical equations only, 50 dB): the experiment-design
 effect on the standard error of R_a/L_a.
@@ -132,7 +134,7 @@ def main() -> None:
         OUT.mkdir(exist_ok=True)
         text = json.dumps({"rows": rows}, indent=1, ensure_ascii=False)
         (OUT / f"sindy_oe{suffix}.json").write_text(text, encoding="utf-8")
-        note = " — OE driven by the measured v_a" if measured_va else ""
+        note = " — OE driven by the measured v_a" if measured_va else " — OE driven by the fitted v_a(τ)"
         (OUT / f"sindy_oe{suffix}.md").write_text(table(rows, note), encoding="utf-8")
     fifty = [r for r in rows if r["excitation"] == "aprbs" and r["snr_db"] == 50.0]
     for key in ("weak_iv", "weak_iv_oe"):
