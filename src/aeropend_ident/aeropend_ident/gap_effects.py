@@ -147,6 +147,10 @@ class Effect:
     data_probe : callable, optional
         Recorded angle -> probe values, for effects whose typical magnitude depends on the data
         (the end-stop angle must lie inside the recorded range).
+    screened : bool
+        Part of the discrepancy-SINDy screening (default). False: always confirmed by a grey-box
+        fit instead (the motor time constant, whose θ̈ column is nearly collinear with the damping
+        term and would crowd it out of the group selection).
     """
 
     name: str
@@ -161,6 +165,7 @@ class Effect:
     _apply: Callable[[Rig, Mapping[str, float]], Rig] | None = field(default=None, repr=False, compare=False)
     data_probe: Callable[[np.ndarray], dict[str, float]] | None = field(
         default=None, repr=False, compare=False)
+    screened: bool = True
 
     def probe_for(self, theta_model: np.ndarray) -> dict[str, float]:
         """Probe values for data whose model-frame angle is ``theta_model`` [rad].
@@ -440,7 +445,7 @@ CATALOG: tuple[Effect, ...] = (
         ("theta",),
         (_par("J_m_scale", "1", 0.05, 20.0, 1.0, 2.0, True, "motor.J_m", "J_m true / J_m nominal"),),
         {_TH: ("L/J·Δf(J_m)",), "omega_rotor": ("−ΔJ_m·ω̇₁/J_m",)},
-        "", ("actuator_lag", "input_delay"), _apply=_motor_time_constant,
+        "", ("actuator_lag", "input_delay"), _apply=_motor_time_constant, screened=False,
     ),
     Effect(
         "input_delay", "actuator",

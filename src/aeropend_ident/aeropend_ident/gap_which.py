@@ -885,7 +885,12 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
     # screening
     model_effects = [e.name for e in ident if e.kind != "direct"]
     say(f"screening {len(model_effects)} effects by discrepancy SINDy (strong + weak, group sparse)")
-    scr = screen(rig, pf, model_effects, channels, seed=seed)
+    # effects marked screened=False (the motor time constant: its θ̈ column, through the simulated
+    # thrust, is nearly collinear with the damping term and crowds it out of the group selection)
+    # are not screened but always confirmed by a grey-box fit
+    screened = [n for n in model_effects if get_effect(n).screened]
+    unscreened = [n for n in model_effects if not get_effect(n).screened]
+    scr = screen(rig, pf, screened, channels, seed=seed)
     short = scr.shortlist(SHORTLIST)
     say(f"shortlist: {short}")
     n_eff = max(n_fit // BIC_DECIMATION, 10)
@@ -910,9 +915,11 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
             }
 
     confirm(short)
-    forced = [n for n in also_confirm if n in model_effects and n not in cand]
+    forced = [n for n in (*unscreened, *also_confirm) if n in model_effects and n not in cand]
+    forced = list(dict.fromkeys(forced))
     if forced:
-        say(f"also confirming {forced} (requested: timing lead/lag seen by the where-analysis)")
+        say(f"also confirming {forced} (not screened, or requested: timing lead/lag seen by the "
+            "where-analysis)")
         confirm(forced)
     best_ex = max((c["held_out_explained"] for c in cand.values()), default=0.0)
     if 1.0 - best_ex > EXTEND_BELOW_GAP and sse_ho0 * (1.0 - best_ex) > RESIDUAL_NOISE_FACTOR * noise_sse:
@@ -944,8 +951,9 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
             "confidence": (first[name] if i == 0 else signif[name]) / N_BOOTSTRAP,
             "parameters": _param_table(fits[name], name),
             "rig_values": _rig_values(rig, name, fits[name].values[name]),
-            "screening": {"explained_strong": scr.explained_strong[name],
-                          "explained_weak": scr.explained_weak[name], "inclusion": scr.inclusion[name]},
+            "screening": ({"explained_strong": scr.explained_strong[name],
+                           "explained_weak": scr.explained_weak[name], "inclusion": scr.inclusion[name]}
+                          if name in scr.explained_strong else {"not_screened": True}),
             "confusable_with": list(e.confusable_with),
         })
     best = ranking[0] if ranking else None
@@ -967,7 +975,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
         if max_effects > 1 and cur_sse > max(RESIDUAL_NOISE_FACTOR * noise_sse, SECOND_ABOVE_GAP * sse_ho0):
             # screen the residual left by the first effect (discrepancy SINDy on the corrected
             # model), then confirm the best candidates by a joint output-error fit
-            rest = [n for n in model_effects if n != name]
+            rest = [n for n in screened if n != name]
             say(f"screening the residual left by {name}")
             scr2 = screen(corrected, pf, rest, channels, seed=seed + 2, meas=meas)
             others: list[str] = []
@@ -1003,9 +1011,10 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
                     ranking.append({
                         "effect": o, "subsystem": eo.subsystem, "score": None, "held_out_explained": None,
                         "bic_delta": None, "confidence": None, "parameters": {}, "rig_values": {},
-                        "screening": {"explained_strong": scr2.explained_strong[o],
-                                      "explained_weak": scr2.explained_weak[o],
-                                      "inclusion": scr2.inclusion[o]},
+                        "screening": ({"explained_strong": scr2.explained_strong[o],
+                                       "explained_weak": scr2.explained_weak[o],
+                                       "inclusion": scr2.inclusion[o]}
+                                      if o in scr2.explained_strong else {"not_screened": True}),
                         "confusable_with": list(eo.confusable_with),
                     })
                 for r in ranking:
