@@ -53,6 +53,7 @@ from aeropend_ident.partial import angle_only_data, concat_data, nrmse_range, se
 from aeropend_ident.preprocess import add_derivatives, differentiate
 from aeropend_ident.sindy import (
     TARGET_INFO,
+    FreeRun,
     IdentData,
     IdentificationError,
     SindyModel,
@@ -197,13 +198,21 @@ def _theta_scores(measured: np.ndarray, simulated: np.ndarray) -> dict[str, floa
             "rms_rad": rms}
 
 
-def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, say: Progress) -> list[str]:
+#: Training time shown before the held-out part in ``free_run.png`` [s] (the free run over it is
+#: recomputed for the plot, so it is kept short).
+PLOT_TRAIN_TAIL_S = 10.0
+
+
+def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, held_run: FreeRun,
+           say: Progress) -> list[str]:
     from aeropend_ident.ident_plots import plot_coefficients, plot_derivatives, plot_free_run
 
     files = [plot_coefficients(model, out / "coefficients.png")]
     if any(tg in held.derivatives for tg in model.targets):
         files.append(plot_derivatives(model, held, out / "derivatives.png"))
-    tr, ho = free_run(model, train, substeps=1), free_run(model, held, substeps=1)
+    dt = float(np.median(np.diff(train.t))) if len(train) > 1 else 1.0
+    train = train.slice(max(0, len(train) - int(PLOT_TRAIN_TAIL_S / dt)), len(train))
+    tr, ho = free_run(model, train, substeps=1), held_run
     states = [s for s in ho.states if s in held.variables and s in ("theta", "i_a", "omega_rotor")]
     t = np.concatenate([train.t - train.t[0], held.t - train.t[0]])
     meas = {s: np.concatenate([train.variables[s], held.variables[s]]) for s in states}
@@ -325,9 +334,10 @@ def identify(
         for n in sel.notes:
             say(f"note: {n}")
     say("free runs on the held-out part(s)")
-    scores = []
+    scores, held_runs = [], []
     for r, (_tr, ho) in zip(recs, parts, strict=True):
         fr = free_run(model, ho, substeps=1)
+        held_runs.append(fr)
         sc = _theta_scores(ho.variables["theta"], fr.states["theta"])
         sc.update({"recording": r.source, "heldout_samples": len(ho), "free_run_nrmse_std": fr.nrmse})
         scores.append(sc)
@@ -342,7 +352,7 @@ def identify(
                free_run_nrmse=scores[0]["free_run_nrmse_std"], provenance=prov)
     files = ["model.yaml", "summary.json"]
     if plots:
-        files += _plots(out, model, parts[0][1], parts[0][0], say)
+        files += _plots(out, model, parts[0][1], parts[0][0], held_runs[0], say)
     summary = {
         "inputs": [str(p) for p in paths], "bag": str(paths[0]), "samples": sum(len(r) for r in recs),
         "targets": targets, "not_identified": refused, "method": model.method, "library": library,
