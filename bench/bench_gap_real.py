@@ -36,10 +36,10 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.baseline import _jsonable
 from aeropend_ident.csv_import import import_csv
 from aeropend_ident.gap_cli import resolve_rig, to_uniform
 from aeropend_ident.gap_report import fig_effects, fig_equations, fig_overlay, run_gap, write_report
+from aeropend_ident.jsonutil import jsonable
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
@@ -468,7 +468,7 @@ def main(argv: list[str]) -> int:
             results["cases"][name] = {"rig": name, "error": str(exc)}
             print(f"  [{name}] error: {exc}")
         RESULTS.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps(_jsonable(results), indent=2, allow_nan=False))
+        path.write_text(json.dumps(jsonable(results), indent=2, allow_nan=False))
         (RESULTS / "gap_real.md").write_text(markdown(results))
     return 0
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import platform
 import sys
 import time
@@ -23,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.ident_plots import plot_coefficients, plot_derivatives, plot_free_run
+from aeropend_ident.jsonutil import jsonable
 from aeropend_ident.real_ident import (
     ETCHEPAREBORDA_RUNS,
     CaseResult,
@@ -39,21 +39,6 @@ PLOTS = ROOT / "docs" / "results"
 
 def _log(msg: str) -> None:
     print(f"[bench_ident_real] {msg}", file=sys.stderr, flush=True)
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        return v if math.isfinite(v) else str(v)
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    return x
 
 
 def _plots(res: CaseResult) -> dict[str, str]:
@@ -183,7 +168,7 @@ def write_markdown(doc: dict[str, Any], path: Path) -> None:
     if "baseline_aeroshield" in doc:
         b = doc["baseline_aeroshield"].get("summary") or {}
         lines += ["## Grey-box baseline on AeroShield (same 70/30 split)", "", "```",
-                  json.dumps(_jsonable(b), indent=1, ensure_ascii=False), "```", ""]
+                  json.dumps(jsonable(b), indent=1, ensure_ascii=False), "```", ""]
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
@@ -219,9 +204,9 @@ def main(argv: list[str] | None = None) -> int:
         doc["thesis_sim_reference"] = _thesis_sim_reference()
     doc["wall_time_s"] = round(time.perf_counter() - t_all, 1)
     RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "ident_real.json").write_text(json.dumps(_jsonable(doc), indent=1, ensure_ascii=False) + "\n",
+    (RESULTS / "ident_real.json").write_text(json.dumps(jsonable(doc), indent=1, ensure_ascii=False) + "\n",
                                              encoding="utf-8")
-    write_markdown(_jsonable(doc), RESULTS / "ident_real.md")
+    write_markdown(jsonable(doc), RESULTS / "ident_real.md")
     _log(f"wrote {RESULTS / 'ident_real.json'} and .md in {doc['wall_time_s']} s")
     return 0
 

@@ -50,6 +50,7 @@ from aeropend_ident.greybox import (
     rig_theta_offset,
     uniform_data,
 )
+from aeropend_ident.jsonutil import jsonable
 from aeropend_sim.params import Rig, RigFileError, load_rig, rig_to_dict
 from aeropend_sim.recording import Recording, RecordingError
 
@@ -137,7 +138,7 @@ class BaselineResult:
         meta_keys = ("preset", "provenance", "licence", "rig", "files", "csv_file", "csv_sha256",
                      "angle_reference", "input_note", "sample_period_note")
         m = self.metrics
-        return _jsonable({
+        return jsonable({
             "summary": {
                 "rig": self.nominal_rig.name,
                 "recording": rec.source,
@@ -189,26 +190,6 @@ class BaselineResult:
                              "scipy": scipy.__version__},
             },
         })
-
-
-def _jsonable(obj: Any) -> Any:
-    """Replace non-finite floats by None (JSON null) and NumPy scalars by Python numbers.
-
-    A null standard error means "not available": the parameter sits on a bound (``at_bound``)
-    or the data do not determine it.
-    """
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    return obj
 
 
 # --------------------------------------------------------------------------- regions
@@ -465,7 +446,7 @@ def write_report(result: BaselineResult, outdir: str | Path) -> dict[str, Path]:
     report = out / "report.json"
     report.write_text(json.dumps(result.report(), indent=2, allow_nan=False), encoding="utf-8")
     rig_path = out / "fitted_rig.yaml"
-    text = yaml.safe_dump(_jsonable(fitted_rig_dict(result)), sort_keys=False, allow_unicode=True)
+    text = yaml.safe_dump(jsonable(fitted_rig_dict(result)), sort_keys=False, allow_unicode=True)
     rig_path.write_text(text, encoding="utf-8")
     overlay = plot_overlay(result, out / "overlay.png")
     return {"report": report, "overlay": overlay, "fitted_rig": rig_path}

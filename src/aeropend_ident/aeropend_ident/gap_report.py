@@ -40,9 +40,9 @@ import numpy as np
 import scipy
 import yaml
 
-from aeropend_ident.baseline import _jsonable
 from aeropend_ident.gap_where import EQUATIONS, GapInputError, WhereReport, locate_gap
 from aeropend_ident.greybox import THETA_OFFSET, error_metrics
+from aeropend_ident.jsonutil import jsonable
 from aeropend_sim.params import Rig, rig_to_dict
 from aeropend_sim.recording import Recording
 
@@ -160,7 +160,7 @@ class GapResult:
 
     def as_dict(self) -> dict[str, Any]:
         """What ``report.json`` holds."""
-        return _jsonable(
+        return jsonable(
             {
                 "tool": "aeropend_ident gap",
                 "headline": self.headline(),
@@ -971,7 +971,7 @@ def write_report(result: GapResult, outdir: str | Path) -> dict[str, Path]:
     paths["html"].write_text(html_page(result, figs), encoding="utf-8")
     paths["corrected_rig"] = out / "corrected_rig.yaml"
     paths["corrected_rig"].write_text(
-        yaml.safe_dump(_jsonable(corrected_rig_dict(result)), sort_keys=False, allow_unicode=True),
+        yaml.safe_dump(jsonable(corrected_rig_dict(result)), sort_keys=False, allow_unicode=True),
         encoding="utf-8",
     )
     return paths

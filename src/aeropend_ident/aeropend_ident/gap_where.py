@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
-from aeropend_ident.baseline import _bins, _jsonable, measured_rate, residual_regions
+from aeropend_ident.baseline import _bins, measured_rate, residual_regions
 from aeropend_ident.greybox import (
     IdentificationError,
     UniformData,
@@ -73,6 +73,7 @@ from aeropend_ident.greybox import (
     noise_level,
     uniform_data,
 )
+from aeropend_ident.jsonutil import jsonable
 from aeropend_sim.model import I_A, OMEGA, ROTOR_FRICTION_VELOCITY, TAU_F, ModelError, PlantModel
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
@@ -343,7 +344,7 @@ class WhereReport:
         return out
 
     def as_dict(self) -> dict[str, Any]:
-        return _jsonable(
+        return jsonable(
             {
                 "rig": self.rig,
                 "theta_offset_rad": self.theta_offset,

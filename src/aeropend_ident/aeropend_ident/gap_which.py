@@ -70,6 +70,7 @@ from aeropend_ident.gap_effects import (
     nominal_model_check,
 )
 from aeropend_ident.greybox import IdentificationError, motor_equilibrium, noise_level
+from aeropend_ident.jsonutil import jsonable
 from aeropend_ident.sindy import IdentData, weak_matrices
 from aeropend_sim.model import ModelError, PlantModel
 from aeropend_sim.params import Rig, rig_to_dict
@@ -762,7 +763,7 @@ class EffectDiagnosis:
             rig["recording_frame"] = {"theta_offset": {
                 "value": self.measurement.theta_offset, "unit": "rad",
                 "source": "gap diagnosis: fitted sensor offset"}}
-        return _jsonable({
+        return jsonable({
             "significant": self.significant,
             "reason": self.reason,
             "ranking": self.ranking,
@@ -775,21 +776,6 @@ class EffectDiagnosis:
             "channels": self.channels,
             "elapsed_s": self.elapsed,
         })
-
-
-def _jsonable(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.ndarray):
-        return _jsonable(obj.tolist())
-    return obj
 
 
 def _param_table(fitres: EffectFit, name: str) -> dict[str, dict[str, Any]]:
