@@ -24,6 +24,7 @@ from pathlib import Path
 
 from aeropend_bridge.protocol import Duty, SampleFrame
 from aeropend_bridge.serial_link import SerialLink
+from aeropend_bridge.simavr_harness import read_pty_path
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware"
@@ -66,16 +67,11 @@ def ssi_on_simavr(tmp: Path, seconds: float) -> dict[str, float]:
     frames: list[SampleFrame] = []
     link = None
     try:
-        line = ""
-        for _ in range(20):
-            line = proc.stdout.readline()  # type: ignore[union-attr]
-            if line.startswith("PTY ") or not line:
-                break
         def on_frame(f: object, _t: int) -> None:
             if isinstance(f, SampleFrame):
                 frames.append(f)
 
-        link = SerialLink(line.split()[1], on_frame, clock_ns=time.monotonic_ns)
+        link = SerialLink(read_pty_path(proc), on_frame, clock_ns=time.monotonic_ns)
         link.start()
         link.wait_connected(5)
         while proc.poll() is None:

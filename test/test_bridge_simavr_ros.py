@@ -32,6 +32,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
+from aeropend_bridge.simavr_harness import read_pty_path  # noqa: E402
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES  # noqa: E402
 from aeropend_sim.params import load_rig  # noqa: E402
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS  # noqa: E402
@@ -93,13 +94,7 @@ def test_bridge_node_on_emulated_firmware(tmp_path: Path, angle: str) -> None:
             ex.spin_once(timeout_sec=0.005)
 
     try:
-        line = ""
-        for _ in range(20):
-            line = sim.stdout.readline()  # type: ignore[union-attr]
-            if line.startswith("PTY ") or not line:
-                break
-        assert line.startswith("PTY "), line
-        bridge = subprocess.Popen([*_bridge_cmd(), "--ros-args", "-p", f"port:={line.split()[1]}",
+        bridge = subprocess.Popen([*_bridge_cmd(), "--ros-args", "-p", f"port:={read_pty_path(sim)}",
                                    "-p", "diagnostics_period:=0.5"], env=env, stdout=subprocess.PIPE,
                                   stderr=subprocess.PIPE, text=True)
         end = time.monotonic() + 20

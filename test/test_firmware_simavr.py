@@ -33,6 +33,7 @@ from aeropend_bridge.protocol import (
     StatusFrame,
 )
 from aeropend_bridge.serial_link import SerialLink
+from aeropend_bridge.simavr_harness import read_pty_path
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware"
@@ -73,13 +74,7 @@ def test_firmware_on_simavr(built: tuple[Path, Path]) -> None:
     link = None
     sends: list[float] = []
     try:
-        line = ""
-        for _ in range(20):  # simavr prints "Loaded ..." lines first
-            line = proc.stdout.readline()  # type: ignore[union-attr]
-            if line.startswith("PTY ") or not line:
-                break
-        assert line.startswith("PTY "), line + proc.stderr.read()  # type: ignore[union-attr]
-        link = SerialLink(line.split()[1], on_frame, clock_ns=time.monotonic_ns)
+        link = SerialLink(read_pty_path(proc), on_frame, clock_ns=time.monotonic_ns)
         link.start()
         assert link.wait_connected(5)
         t0 = time.monotonic()

@@ -45,6 +45,7 @@ from aeropend_bridge.protocol import (
     StatusFrame,
 )
 from aeropend_bridge.serial_link import SerialLink
+from aeropend_bridge.simavr_harness import read_pty_path
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware"
@@ -144,13 +145,7 @@ def run(built: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -> d
     frames: list[object] = []
     link = None
     try:
-        line = ""
-        for _ in range(20):
-            line = proc.stdout.readline()  # type: ignore[union-attr]
-            if line.startswith("PTY ") or not line:
-                break
-        assert line.startswith("PTY "), line
-        link = SerialLink(line.split()[1], lambda f, _t: frames.append(f), clock_ns=time.monotonic_ns)
+        link = SerialLink(read_pty_path(proc), lambda f, _t: frames.append(f), clock_ns=time.monotonic_ns)
         link.start()
         assert link.wait_connected(5)
         end = time.monotonic() + 60
@@ -264,10 +259,7 @@ def test_ssi_22_clocks_like_the_thesis(tmp_path: Path) -> None:
     frames: list[object] = []
     link = None
     try:
-        line = proc.stdout.readline()  # type: ignore[union-attr]
-        while line and not line.startswith("PTY "):
-            line = proc.stdout.readline()  # type: ignore[union-attr]
-        link = SerialLink(line.split()[1], lambda f, _t: frames.append(f), clock_ns=time.monotonic_ns)
+        link = SerialLink(read_pty_path(proc), lambda f, _t: frames.append(f), clock_ns=time.monotonic_ns)
         link.start()
         assert link.wait_connected(5)
         out, _ = proc.communicate(timeout=30)

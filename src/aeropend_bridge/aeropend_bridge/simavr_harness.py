@@ -1,0 +1,51 @@
+"""Start-up handshake of the simavr harness (``firmware/sim/harness``) for tests and benches.
+
+The harness runs the real firmware on an emulated ATmega2560 and exposes its UART0 as a pty;
+after simavr's own "Loaded ..." lines it prints ``PTY <path>`` on stdout. The bridge (or a
+:class:`~aeropend_bridge.serial_link.SerialLink`) then connects to that path like to a board.
+"""
+
+from __future__ import annotations
+
+import subprocess
+
+#: simavr prints a few "Loaded ..." lines before the harness announces its pty.
+MAX_STARTUP_LINES = 20
+
+
+class HarnessError(RuntimeError):
+    """The harness ended or printed something else before announcing its pty."""
+
+
+def read_pty_path(proc: subprocess.Popen[str], max_lines: int = MAX_STARTUP_LINES) -> str:
+    """Read the harness's start-up lines until ``PTY <path>`` and return the path.
+
+    Parameters
+    ----------
+    proc : subprocess.Popen
+        The harness, started with ``stdout=PIPE, stderr=PIPE, text=True``.
+    max_lines : int
+        Start-up lines read at most before giving up.
+
+    Returns
+    -------
+    str
+        The pty device path (e.g. ``/dev/pts/7``).
+
+    Raises
+    ------
+    HarnessError
+        No ``PTY`` line within ``max_lines`` lines or before the harness closed stdout; the
+        message holds the last line read and, if the harness has exited, its stderr.
+    """
+    if proc.stdout is None:
+        raise HarnessError("the harness must be started with stdout=subprocess.PIPE")
+    line = ""
+    for _ in range(max_lines):
+        line = proc.stdout.readline()
+        if line.startswith("PTY ") or not line:
+            break
+    if not line.startswith("PTY "):
+        err = proc.stderr.read() if proc.stderr is not None and proc.poll() is not None else ""
+        raise HarnessError(f"simavr harness did not announce its pty: last line {line!r}; stderr: {err!r}")
+    return line.split()[1]
