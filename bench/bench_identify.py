@@ -1,0 +1,158 @@
+"""Wall time of the ``identify`` command on a 60 s, 490 Hz bag (issue 4 bar: < 10 s on this machine).
+
+Bag: ``thesis_sim`` with sensor noise at 50 dB SNR (noise seed 7), APRBS duty cycle 60 s, levels
+0.2-0.9, holds 20-300 ms, seed 1 (the excitation of ``test/test_ident_identify.py``, three times as
+long), written as a contract bag (mcap) with :func:`aeropend_ident.bags.write_bag`.
+
+The command ``.venv/bin/identify BAG --rig thesis_sim --out DIR [--no-plots]`` (default method:
+weak form, structured library, λ by BIC over 7 values) runs as a subprocess ``--repeats`` times
+with and without plots; recorded per run: wall time of the whole process (interpreter start,
+imports, bag reading, identification, plots, writing), the time inside ``identify`` (its
+``summary.json`` ``wall_time_s``), the machine load before the run (``os.getloadavg``), and the
+identified λ and held-out free-run NRMSE (so a faster run with a worse result would show).
+
+Run: ``.venv/bin/python bench/bench_identify.py [--repeats 3] [--tag after]`` ->
+``bench/results/identify.{json,md}`` (about 1 min). ``--keep DIR`` keeps the bag and results.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent
+REPO = ROOT.parent
+OUT = ROOT / "results"
+DURATION_S = 60.0
+SNR_DB = 50.0
+EXCITATION = {"lo": 0.2, "hi": 0.9, "min_hold": 0.02, "max_hold": 0.3, "seed": 1}
+NOISE_SEED = 7
+
+
+def make_bag(path: Path) -> Path:
+    """Simulate the 60 s, 490 Hz, 50 dB thesis_sim run and write it as a contract bag."""
+    from aeropend_ident.bags import write_bag
+    from aeropend_sim.excitation import aprbs
+    from aeropend_sim.params import load_rig
+    from aeropend_sim.recording import Recording
+    from aeropend_sim.simulate import simulate
+
+    rig = load_rig("thesis_sim").with_effects(sensor_noise=True).with_params("sensors", snr_db=SNR_DB)
+    traj = simulate(rig, aprbs(DURATION_S, **EXCITATION).duty, seed=NOISE_SEED)
+    return write_bag(Recording.from_trajectory(traj), path)
+
+
+def run_once(exe: Path, bag: Path, out: Path, plots: bool) -> dict[str, Any]:
+    """One ``identify`` subprocess; wall time, load before, time inside identify, results."""
+    cmd = [str(exe), str(bag), "--rig", "thesis_sim", "--out", str(out), "--quiet"]
+    if not plots:
+        cmd.append("--no-plots")
+    load = os.getloadavg()
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr}")
+    summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    return {"plots": plots, "wall_s": round(wall, 3), "inside_identify_s": summary["wall_time_s"],
+            "loadavg_1_5_15": [round(x, 2) for x in load], "threshold": summary["threshold"],
+            "heldout_nrmse_range_theta": summary["heldout"][0]["nrmse_range"],
+            "equations": summary["equations"], "files": summary["files"]}
+
+
+def _stats(xs: list[float]) -> dict[str, float]:
+    return {"median": round(statistics.median(xs), 3), "min": round(min(xs), 3), "max": round(max(xs), 3)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--tag", default="current", help="label of this measurement in the results")
+    ap.add_argument("--keep", type=Path, default=None, help="keep bag and results in this folder")
+    args = ap.parse_args(argv)
+    exe = Path(sys.executable).parent / "identify"
+    if not exe.exists():
+        raise SystemExit(f"{exe}: identify entry point not found (install the packages into this venv)")
+    with tempfile.TemporaryDirectory() as tmp:
+        work = args.keep or Path(tmp)
+        work.mkdir(parents=True, exist_ok=True)
+        t0 = time.perf_counter()
+        bag = make_bag(work / "bag_60s_490hz_50db")
+        t_bag = time.perf_counter() - t0
+        runs = []
+        for rep in range(args.repeats):
+            for plots in (True, False):
+                r = run_once(exe, bag, work / f"res_{'plots' if plots else 'noplots'}_{rep}", plots)
+                print(f"run {rep} plots={plots}: {r['wall_s']:.2f} s wall, {r['inside_identify_s']:.2f} s in "
+                      f"identify, load {r['loadavg_1_5_15'][0]:.2f}", file=sys.stderr)
+                runs.append(r)
+    res: dict[str, Any] = {
+        "tag": args.tag,
+        "bag": {"plant": "thesis_sim", "duration_s": DURATION_S, "rate_hz": 490, "snr_db": SNR_DB,
+                "excitation": {"kind": "aprbs", **EXCITATION}, "noise_seed": NOISE_SEED,
+                "generation_s": round(t_bag, 2)},
+        "command": "identify BAG --rig thesis_sim --out DIR --quiet [--no-plots]",
+        "cpu_count": os.cpu_count(), "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
+        "bar_s": 10.0, "runs": runs,
+    }
+    for plots in (True, False):
+        sel = [r for r in runs if r["plots"] == plots]
+        key = "with_plots" if plots else "without_plots"
+        res[key] = {"wall_s": _stats([r["wall_s"] for r in sel]),
+                    "inside_identify_s": _stats([r["inside_identify_s"] for r in sel]),
+                    "loadavg_1min": _stats([r["loadavg_1_5_15"][0] for r in sel])}
+    OUT.mkdir(exist_ok=True)
+    path = OUT / "identify.json"
+    old = json.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
+    history = [h for h in old.get("history", []) if h.get("tag") != args.tag]
+    if old.get("tag") and old["tag"] != args.tag:
+        history.append({k: old[k] for k in ("tag", "date_utc", "with_plots", "without_plots") if k in old})
+    res["history"] = history
+    path.write_text(json.dumps(res, indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
+    (OUT / "identify.md").write_text(_markdown(res), encoding="utf-8")
+    print(_markdown(res))
+    return 0
+
+
+def _markdown(res: dict[str, Any]) -> str:
+    b = res["bag"]
+    lines = [
+        "# identify on a 60 s, 490 Hz bag (bench/bench_identify.py)",
+        "",
+        f"Bag: {b['plant']}, {b['duration_s']:g} s at {b['rate_hz']} Hz, {b['snr_db']:g} dB SNR (noise seed "
+        f"{b['noise_seed']}), APRBS levels {b['excitation']['lo']}-{b['excitation']['hi']}, holds "
+        f"{b['excitation']['min_hold'] * 1e3:g}-{b['excitation']['max_hold'] * 1e3:g} ms, seed "
+        f"{b['excitation']['seed']}. Command: `{res['command']}` as a subprocess; wall = whole process "
+        f"(interpreter start included), inside = `summary.json` `wall_time_s`. {res['cpu_count']} CPUs, "
+        f"{res['date_utc']} UTC. Bar: < {res['bar_s']:g} s wall.",
+        "",
+        "| measurement | plots | wall median [s] | wall min-max [s] | inside identify median [s] "
+        "| load (1 min) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for h in [*res.get("history", []), res]:
+        for key, label in (("with_plots", "yes"), ("without_plots", "no")):
+            if key not in h:
+                continue
+            s = h[key]
+            lines.append(f"| {h['tag']} ({h.get('date_utc', '')}) | {label} | {s['wall_s']['median']:.2f} | "
+                         f"{s['wall_s']['min']:.2f}-{s['wall_s']['max']:.2f} | "
+                         f"{s['inside_identify_s']['median']:.2f} | "
+                         f"{s['loadavg_1min']['min']:.2f}-{s['loadavg_1min']['max']:.2f} |")
+    r0 = res["runs"][0]
+    lines += ["", f"Result of the current code: λ = {r0['threshold']:g}, held-out free-run NRMSE(range) of θ "
+              f"{r0['heldout_nrmse_range_theta']:.4g}:", ""]
+    lines += [f"    {e}" for e in r0["equations"]]
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
