@@ -12,6 +12,7 @@ from aeropend_sim.excitation import (
     SIGNALS,
     ExcitationError,
     aprbs,
+    density_modulated_prbs,
     lhs_steps,
     make_signal,
     prbs,
@@ -148,6 +149,44 @@ def test_aprbs_reproducible():
     c = aprbs(5.0, seed=4)
     np.testing.assert_array_equal(a.duty, b.duty)
     assert not np.array_equal(a.duty, c.duty)
+
+
+# ---------------------------------------------------------------- density-modulated binary
+def test_density_prbs_is_binary_with_fast_holds_and_exact_duration():
+    sig = density_modulated_prbs(30.0, lo=0.1, hi=0.95, min_hold=0.005, max_hold=0.03, seed=5)
+    assert len(sig) == round(30.0 / DT)
+    assert set(np.unique(sig.duty).tolist()) == {0.1, 0.95}
+    counts = np.rint(sig.holds / DT).astype(int)
+    assert counts.sum() == len(sig)
+    np.testing.assert_array_equal(np.repeat(sig.levels, counts), sig.duty)
+    assert np.all(sig.levels[1:] != sig.levels[:-1])  # equal neighbours merged
+    assert np.all(counts[:-1] >= math.ceil(0.005 / DT))  # merged runs are at least one fast hold
+    assert make_signal("density_prbs", duration=30.0, lo=0.1, hi=0.95, seed=5).duty.tolist() == sig.duty.tolist()
+
+
+@pytest.mark.parametrize("density", [0.2, 0.5, 0.8])
+def test_density_prbs_mean_follows_the_density(density: float):
+    sig = density_modulated_prbs(120.0, density_lo=density, density_hi=density, seed=2)
+    # fraction of time high = density (holds are i.i.d., so ~1/sqrt(#holds) scatter, here ≈ 0.01)
+    assert abs(sig.duty.mean() - density) < 0.03
+
+
+def test_density_prbs_slow_density_moves_the_local_mean():
+    sig = density_modulated_prbs(120.0, density_lo=0.1, density_hi=0.9, density_min_hold=2.0,
+                                 density_max_hold=4.0, seed=3)
+    n = round(1.0 / DT)
+    local = sig.duty[: len(sig) // n * n].reshape(-1, n).mean(axis=1)  # 1 s windows
+    assert local.min() < 0.3 and local.max() > 0.7  # the pendulum sees a slowly moving mean thrust
+
+
+def test_density_prbs_reproducible_and_validated():
+    a, b = density_modulated_prbs(5.0, seed=3), density_modulated_prbs(5.0, seed=3)
+    np.testing.assert_array_equal(a.duty, b.duty)
+    assert not np.array_equal(a.duty, density_modulated_prbs(5.0, seed=4).duty)
+    with pytest.raises(ExcitationError, match=r"density_hi = 1\.2"):
+        density_modulated_prbs(5.0, density_hi=1.2)
+    with pytest.raises(ExcitationError, match="density_lo = 0.8 must be <= density_hi = 0.5"):
+        density_modulated_prbs(5.0, density_lo=0.8, density_hi=0.5)
 
 
 def test_aprbs_validation():

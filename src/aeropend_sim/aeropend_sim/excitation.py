@@ -15,6 +15,9 @@ Generators
     Maximum-length pseudo-random binary sequence (``scipy.signal.max_len_seq``), two levels.
 :func:`aprbs`
     Amplitude-modulated PRBS: random levels in [lo, hi], random holds in [min_hold, max_hold].
+:func:`density_modulated_prbs`
+    Random binary signal (fast holds) whose local density of high holds follows a slow APRBS:
+    excites the electrical and rotor dynamics and moves the pendulum in one record.
 :func:`lhs_steps`
     The thesis' Latin-hypercube step design (§5.1): the input space τ × T (step amplitude ×
     step duration) is partitioned into ``n`` intervals along each axis and ``n`` points are drawn
@@ -59,7 +62,8 @@ class ExcitationSignal:
     dt : float
         Sample period [s].
     kind : str
-        Generator name (``"step"``, ``"staircase"``, ``"prbs"``, ``"aprbs"``, ``"lhs"``).
+        Generator name (``"step"``, ``"staircase"``, ``"prbs"``, ``"aprbs"``, ``"density_prbs"``,
+        ``"lhs"``).
     params : dict
         The generator arguments (for provenance, e.g. in a bag's metadata).
     levels : ndarray, shape (M,)
@@ -381,6 +385,75 @@ def aprbs(
     )
 
 
+def density_modulated_prbs(
+    duration: float, *, lo: float = 0.0, hi: float = 1.0, min_hold: float = 0.005, max_hold: float = 0.03,
+    density_lo: float = 0.3, density_hi: float = 0.7, density_min_hold: float = 0.3,
+    density_max_hold: float = 2.0, seed: int = 0, dt: float = SAMPLE_PERIOD_S,
+) -> ExcitationSignal:
+    """Random binary signal whose local density of high holds follows a slow APRBS.
+
+    An input designed for identifiability of the whole plant at once. Fast holds (``min_hold``
+    … ``max_hold``, a few ms) switch between the two levels ``lo`` and ``hi`` and excite the
+    armature and rotor dynamics above the mechanical pole, where i_a, ω₁ and v_a stop being
+    collinear; the probability that a hold is high follows a slow APRBS density in
+    [``density_lo``, ``density_hi``] (holds ``density_min_hold`` … ``density_max_hold``), so the
+    mean thrust, and with it the pendulum, moves slowly through its angle range (pulse-density
+    modulation of a slow APRBS). On ``thesis_sim`` at 50 dB the Cramér-Rao bound of R_a/L_a
+    over 45 s is 0.5 % with the defaults against 6 % for an APRBS with 20-300 ms holds
+    (bench/bench_sindy_oe.py).
+
+    Parameters
+    ----------
+    duration : float
+        Total length [s], > 0.
+    lo, hi : float
+        The two duty-cycle levels, 0 <= lo <= hi <= 1.
+    min_hold, max_hold : float
+        Range [s] of the fast binary holds (uniform in whole samples, as in :func:`aprbs`).
+    density_lo, density_hi : float
+        Range of the slow density (probability of ``hi``), 0 <= density_lo <= density_hi <= 1.
+    density_min_hold, density_max_hold : float
+        Hold-time range [s] of the slow density APRBS.
+    seed : int
+        Seed; the fast and the slow draws use independent streams spawned from it.
+    dt : float
+        Sample period [s].
+
+    Returns
+    -------
+    ExcitationSignal
+        ``levels``/``holds`` are the binary segments (consecutive equal holds merged).
+
+    Raises
+    ------
+    ExcitationError
+        On bad levels, densities or durations, as :func:`aprbs`.
+    """
+    dt = _check_dt(dt)
+    lo = _check_level("lo", lo)
+    hi = _check_level("hi", hi)
+    _check_range("lo", lo, "hi", hi)
+    density_lo = _check_level("density_lo", density_lo)
+    density_hi = _check_level("density_hi", density_hi)
+    _check_range("density_lo", density_lo, "density_hi", density_hi)
+    fast_seed, slow_seed = (int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(2))
+    density = aprbs(duration, lo=density_lo, hi=density_hi, min_hold=density_min_hold,
+                    max_hold=density_max_hold, seed=slow_seed, dt=dt)
+    draw = aprbs(duration, lo=0.0, hi=1.0, min_hold=min_hold, max_hold=max_hold, seed=fast_seed, dt=dt)
+    starts = np.concatenate(([0], np.cumsum(np.rint(draw.holds / dt).astype(np.int64))[:-1]))
+    high = draw.levels < density.duty[starts]
+    levels, counts = _merge_equal(np.where(high, hi, lo), np.rint(draw.holds / dt).astype(np.int64))
+    params = {"duration": density.params["duration"], "lo": lo, "hi": hi, "min_hold": draw.params["min_hold"],
+              "max_hold": draw.params["max_hold"], "density_lo": density_lo, "density_hi": density_hi,
+              "density_min_hold": density.params["min_hold"], "density_max_hold": density.params["max_hold"],
+              "seed": seed, "dt": dt}
+    duty = np.repeat(levels, counts)
+    return ExcitationSignal(
+        t=np.arange(duty.size) * dt, duty=duty, dt=dt, kind="density_prbs", params=params,
+        levels=levels, holds=counts * dt,
+    )
+
+
 def lhs_steps(
     n: int = 10, *, tau_min: float = 0.35, tau_max: float = 0.65, hold_min: float = 1.0,
     hold_max: float = 5.0, seed: int = 0, dt: float = SAMPLE_PERIOD_S,
@@ -455,6 +528,7 @@ SIGNALS: dict[str, Callable[..., ExcitationSignal]] = {
     "staircase": staircase,
     "prbs": prbs,
     "aprbs": aprbs,
+    "density_prbs": density_modulated_prbs,
     "lhs": lhs_steps,
 }
 
@@ -484,7 +558,7 @@ def make_signal(kind: str, **params: Any) -> ExcitationSignal:
     Parameters
     ----------
     kind : str
-        One of :data:`SIGNALS` (``step``, ``staircase``, ``prbs``, ``aprbs``, ``lhs``).
+        One of :data:`SIGNALS` (``step``, ``staircase``, ``prbs``, ``aprbs``, ``density_prbs``, ``lhs``).
     **params
         Arguments of the generator; ``None`` values are dropped (use the default).
 

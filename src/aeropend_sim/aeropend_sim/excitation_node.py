@@ -24,10 +24,13 @@ Usage::
 Parameters (``-p name:=value``; the friendly ``--flags`` override them)
 -----------------------------------------------------------------------
 signal : str, default ``lhs``
-    ``step``, ``staircase``, ``prbs``, ``aprbs`` or ``lhs`` (thesis §5.1 Latin-hypercube steps).
+    ``step``, ``staircase``, ``prbs``, ``aprbs``, ``density_prbs`` (fast binary holds whose
+    density follows a slow APRBS: the identifiability design) or ``lhs`` (thesis §5.1
+    Latin-hypercube steps).
 signal arguments
     ``level duration initial step_time levels hold order lo hi clock periods min_hold max_hold
-    n tau_min tau_max hold_min hold_max seed dt`` (see :mod:`aeropend_sim.excitation`).
+    n tau_min tau_max hold_min hold_max density_lo density_hi density_min_hold density_max_hold
+    seed dt`` (see :mod:`aeropend_sim.excitation`).
 mode : str, default ``realtime``
 zero_at_end : bool
     Send duty 0 after the signal and on shutdown (default true in real-time mode, false in
@@ -61,7 +64,8 @@ MODES = ("realtime", "lockstep")
 #: Every argument name of every signal kind (declared as node parameters).
 SIGNAL_ARGS: tuple[str, ...] = (
     "level", "duration", "initial", "step_time", "levels", "hold", "order", "lo", "hi", "clock", "periods",
-    "min_hold", "max_hold", "n", "tau_min", "tau_max", "hold_min", "hold_max", "seed", "dt",
+    "min_hold", "max_hold", "n", "tau_min", "tau_max", "hold_min", "hold_max", "density_lo", "density_hi",
+    "density_min_hold", "density_max_hold", "seed", "dt",
 )
 #: Node options besides the signal arguments: name -> default.
 OPTIONS: dict[str, Any] = {
@@ -101,13 +105,19 @@ def build_arg_parser() -> argparse.ArgumentParser:
         ("level", f, None, "step: final duty"), ("duration", f, None, "step/aprbs: length [s]"),
         ("initial", f, None, "step: duty before the step"), ("step-time", f, None, "step: instant [s]"),
         ("levels", f, "+", "staircase: duty levels"), ("hold", f, "+", "staircase: hold time(s) [s]"),
-        ("order", int, None, "prbs: register length m"), ("lo", f, None, "prbs/aprbs: low duty"),
-        ("hi", f, None, "prbs/aprbs: high duty"), ("clock", int, None, "prbs: samples per bit"),
-        ("periods", int, None, "prbs: number of periods"), ("min-hold", f, None, "aprbs: min hold [s]"),
-        ("max-hold", f, None, "aprbs: max hold [s]"), ("n", int, None, "lhs: number of steps/intervals"),
+        ("order", int, None, "prbs: register length m"), ("lo", f, None, "prbs/aprbs/density_prbs: low duty"),
+        ("hi", f, None, "prbs/aprbs/density_prbs: high duty"), ("clock", int, None, "prbs: samples per bit"),
+        ("periods", int, None, "prbs: number of periods"),
+        ("min-hold", f, None, "aprbs/density_prbs: min hold [s]"),
+        ("max-hold", f, None, "aprbs/density_prbs: max hold [s]"),
+        ("n", int, None, "lhs: number of steps/intervals"),
         ("tau-min", f, None, "lhs: min duty"), ("tau-max", f, None, "lhs: max duty"),
         ("hold-min", f, None, "lhs: min step duration [s]"),
         ("hold-max", f, None, "lhs: max step duration [s]"),
+        ("density-lo", f, None, "density_prbs: min probability of the high level"),
+        ("density-hi", f, None, "density_prbs: max probability of the high level"),
+        ("density-min-hold", f, None, "density_prbs: min hold of the slow density [s]"),
+        ("density-max-hold", f, None, "density_prbs: max hold of the slow density [s]"),
         ("seed", int, None, "seed of random signals"),
         ("dt", f, None, "sample period [s] (default 2.048 ms)"),
     ):

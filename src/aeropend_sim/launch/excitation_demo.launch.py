@@ -27,7 +27,8 @@ from launch_ros.actions import Node
 ARGUMENTS = (
     ("rig", "thesis_rig", "shipped rig name or path to a rig YAML file"),
     ("mode", "lockstep", "lockstep (deterministic ping-pong) | realtime"),
-    ("signal", "lhs", "step | staircase | prbs | aprbs | lhs (thesis §5.1 Latin-hypercube steps)"),
+    ("signal", "lhs",
+     "step | staircase | prbs | aprbs | density_prbs | lhs (thesis §5.1 Latin-hypercube steps)"),
     ("seed", "1", "seed of the signal and of the measurement noise"),
     ("noise", "", "true/false: sensor noise + quantisation on/off (empty: as in the rig file)"),
     ("output", "", "bag directory (empty: recorder default aeropend_<date>)"),
@@ -44,11 +45,11 @@ def _nodes(context, *args, **kwargs):
         plant_params["noise"] = value["noise"].strip().lower() in ("true", "1", "yes", "on")
     # wait for plant + recorder on the duty topic so the bag starts at sample 0
     signal_params = {"signal": value["signal"], "mode": value["mode"], "min_subscribers": 2}
-    if value["signal"] in ("prbs", "aprbs", "lhs"):
+    if value["signal"] in ("prbs", "aprbs", "density_prbs", "lhs"):
         signal_params["seed"] = seed
     if value["signal"] == "staircase":
         signal_params.update(levels=[0.3, 0.45, 0.6, 0.45], hold=[3.0])
-    if value["signal"] in ("step", "aprbs"):
+    if value["signal"] in ("step", "aprbs", "density_prbs"):
         signal_params.setdefault("duration", 20.0)
     if value["signal"] == "step":
         signal_params["level"] = 0.4314  # thesis open-loop step (§4.5)
