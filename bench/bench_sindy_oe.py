@@ -12,10 +12,14 @@ first 75 % (22.5 s at 490 Hz), measured channels at the given SNR and noise seed
   ``--measured-va`` with the measured v_a, the library default).
 
 Also ``fast APRBS`` (holds 2-10 ms, electrical equations only, 50 dB): the experiment-design
-effect on the standard error of R_a/L_a.
+effect on the standard error of R_a/L_a; and ``designed``: the excitation designed for
+identifiability, :func:`aeropend_sim.excitation.density_modulated_prbs` (binary 0/1 holds of
+5-30 ms whose density follows a slow APRBS in [0.3, 0.7]), 120 s, first 75 % (90 s), all four
+equations, at 50 dB (6 seeds), 30 and 20 dB (3 seeds).
 
 Run: ``.venv/bin/python bench/bench_sindy_oe.py`` -> ``bench/results/sindy_oe.{json,md}``
-(about 10 min on 2 loaded cores); ``--measured-va``: the OE simulation driven by the measured
+(about 10 min on 2 loaded cores); ``--designed``: only the ``designed`` rows ->
+``sindy_oe_designed.{json,md}`` (about 15 min); ``--measured-va``: the OE simulation driven by the measured
 v_a instead of its noise-free fit v_a(τ), 50 dB only -> ``sindy_oe_measured_va.{json,md}``.
 """
 
@@ -35,7 +39,7 @@ from test_ident_noise import RIG, TRUTH, _data, _fit  # noqa: E402
 
 from aeropend_ident.output_error import refine_output_error  # noqa: E402
 from aeropend_ident.sindy import data_from_trajectory, structure_errors  # noqa: E402
-from aeropend_sim.excitation import aprbs  # noqa: E402
+from aeropend_sim.excitation import aprbs, density_modulated_prbs  # noqa: E402
 from aeropend_sim.simulate import simulate  # noqa: E402
 
 OUT = ROOT / "results"
@@ -59,6 +63,12 @@ def _score(model: Any, truth: dict[str, dict[str, float]]) -> dict[str, Any]:
 def run(kind: str, snr: float | None, seed: int, clean_inputs: bool = True) -> dict[str, Any]:
     if kind == "aprbs":
         data, targets = _data(snr, seed=seed), list(TRUTH)
+    elif kind == "designed":
+        duty = density_modulated_prbs(120.0, seed=1).duty
+        rig = RIG if snr is None else RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=snr)
+        traj = simulate(rig, duty, seed=seed)
+        data = data_from_trajectory(traj, rig, measured=snr is not None).split(0.75)[0]
+        targets = list(TRUTH)
     else:
         duty = aprbs(30.0, lo=0.2, hi=0.9, min_hold=0.002, max_hold=0.01, seed=1).duty
         rig = RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=snr)
@@ -119,12 +129,16 @@ def table(rows: list[dict[str, Any]], note: str = "") -> str:
 
 def main() -> None:
     measured_va = "--measured-va" in sys.argv  # OE driven by the measured v_a instead of its v_a(τ) fit
-    suffix = "_measured_va" if measured_va else ""
+    designed = "--designed" in sys.argv  # only the identifiability design (its own result files)
+    suffix = "_measured_va" if measured_va else "_designed" if designed else ""
     cases = [("aprbs", None, 7)]
     cases += [("aprbs", 50.0, s) for s in (7, 8, 9, 10, 11, 12)]
     if not measured_va:
         cases += [("aprbs", snr, s) for snr in (30.0, 20.0) for s in (7, 8, 9)]
         cases += [("fast", 50.0, s) for s in (7, 8, 9)]
+    if designed:
+        cases = [("designed", 50.0, s) for s in (7, 8, 9, 10, 11, 12)]
+        cases += [("designed", snr, s) for snr in (30.0, 20.0) for s in (7, 8, 9)]
     rows = []
     for kind, snr, seed in cases:
         r = run(kind, snr, seed, clean_inputs=not measured_va)
@@ -135,11 +149,15 @@ def main() -> None:
         text = json.dumps({"rows": rows}, indent=1, ensure_ascii=False)
         (OUT / f"sindy_oe{suffix}.json").write_text(text, encoding="utf-8")
         note = " — OE driven by the measured v_a" if measured_va else " — OE driven by the fitted v_a(τ)"
+        if designed:
+            note += ", excitation designed for identifiability (density_prbs, 120 s)"
         (OUT / f"sindy_oe{suffix}.md").write_text(table(rows, note), encoding="utf-8")
-    fifty = [r for r in rows if r["excitation"] == "aprbs" and r["snr_db"] == 50.0]
-    for key in ("weak_iv", "weak_iv_oe"):
-        v = np.array([r[key]["R_a_over_L_a"] for r in fifty if "error" not in r[key]])
-        print(key, "R_a/L_a at 50 dB over seeds: mean", v.mean(), "std", v.std(ddof=1))
+    for kind in ("aprbs", "designed"):
+        fifty = [r for r in rows if r["excitation"] == kind and r["snr_db"] == 50.0]
+        for key in ("weak_iv", "weak_iv_oe"):
+            v = np.array([r[key]["R_a_over_L_a"] for r in fifty if "error" not in r[key]])
+            if v.size > 1:
+                print(kind, key, "R_a/L_a at 50 dB over seeds: mean", v.mean(), "std", v.std(ddof=1))
 
 
 if __name__ == "__main__":

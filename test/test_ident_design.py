@@ -1,0 +1,56 @@
+"""Issue 4's 50 dB bar on an excitation designed for identifiability (thesis_sim plant).
+
+On the thesis' Latin-hypercube steps and on an APRBS with 20-300 ms holds, i_a, ω₁ and v_a stay
+nearly collinear (the rotor follows the current below its 162 s⁻¹ pole), so R_a/L_a has a 6 %
+standard error at 50 dB (test_ident_output_error.py): no unbiased estimator can meet 1 %. The
+design here, ``density_prbs`` (binary 0/1 holds of 5-30 ms whose density follows a slow APRBS
+in [0.3, 0.7]), excites the armature and rotor above that pole and still moves the pendulum.
+120 s at 490 Hz, first 75 % (90 s) fitted, 50 dB noise on every channel (seed 7), weak-iv
+(``fit(method="weak", refine=2, alpha=1)``) followed by output-error refinement of di_a/dt and
+dω₁/dt. Other seeds: bench/results/sindy_oe.md.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_ident_noise import RIG, TRUTH, _fit, _k_q_error
+
+from aeropend_ident.sindy import data_from_trajectory, structure_errors
+from aeropend_sim.excitation import density_modulated_prbs
+from aeropend_sim.simulate import simulate
+
+OE = ("i_a", "omega_rotor")
+R_OVER_L = 8.6957
+
+
+@pytest.fixture(scope="module")
+def designed50():
+    duty = density_modulated_prbs(120.0, seed=1).duty
+    rig = RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=50.0)
+    data = data_from_trajectory(simulate(rig, duty, seed=7), rig, measured=True).split(0.75)[0]
+    return data, _fit(data, output_error=OE)
+
+
+def test_50db_bar_exact_structure_and_all_coefficients_within_one_percent(designed50) -> None:
+    _, m = designed50
+    for tg, e in structure_errors(m, TRUTH).items():
+        assert e["false_positive"] == [] and e["false_negative"] == [], (tg, m.equations())
+        assert e["max_rel_error"] < 0.01, (tg, e, m.equations())
+    assert _k_q_error(m) < 0.01
+
+
+def test_design_cuts_the_standard_error_of_r_over_l(designed50) -> None:
+    _, m = designed50
+    i, j = m.targets.index("i_a"), m.feature_names.index("i_a")
+    # Cramér-Rao bound of this design over 90 s: 0.37 %; the APRBS record: > 3 % (6 %)
+    assert m.coef_std[i, j] / R_OVER_L < 0.006
+    for tg in OE:  # every refined coefficient within 3 of its own standard errors of the truth
+        i = m.targets.index(tg)
+        for name, c in TRUTH[tg].items():
+            k = m.feature_names.index(name)
+            assert abs(m.coef[i, k] - c) < 3.0 * m.coef_std[i, k], (tg, name, m.equations())
