@@ -56,9 +56,10 @@ from aeropend_ident.sindy import (
     FreeRun,
     IdentData,
     IdentificationError,
+    NoEquationError,
     SindyModel,
-    fit,
     free_run,
+    regression_problem,
     save_model,
     select_threshold,
     sweep_threshold,
@@ -285,17 +286,21 @@ def identify(
         kw: dict[str, Any] = {"method": method, "exclude_input_steps": 3}
         if method == "weak":
             kw.update(K=300, H_xt=min(0.05, 0.2 * (train.t[-1] - train.t[0])))
-        if isinstance(lib, dict):  # one library per equation: drop the equations the data cannot support
-            for tg in list(targets):
-                try:
-                    fit(train, lib[tg], [tg], threshold=LAMBDAS[0], **kw)
-                except IdentificationError as exc:
-                    refused[tg] = f"{TARGET_INFO[tg][1]}: {exc}"
-                    say(f"not identified: {refused[tg]}")
-                    targets.remove(tg)
-                    del lib[tg]
-            if not targets:
-                raise IdentificationError(f"no equation can be identified from {paths}: {refused}")
+        # the λ-independent regression on the whole training part(s), built once: it refuses the
+        # equations the data cannot support (per-equation library) and serves the final refit
+        train_kw = dict(kw)
+        try:
+            problem = regression_problem(train, lib, targets, drop_unidentifiable=isinstance(lib, dict),
+                                         **train_kw)
+            dropped = problem.dropped
+        except NoEquationError as exc:
+            problem, dropped = None, exc.dropped
+        for tg, why in dropped.items():
+            refused[tg] = f"{TARGET_INFO[tg][1]}: {why}"
+            say(f"not identified: {refused[tg]}")
+        if problem is None:
+            raise IdentificationError(f"no equation can be identified from {paths}: {refused}")
+        targets, lib = list(problem.targets), problem.library
         # λ by BIC on a validation tail of each training part (the held-out parts are only scored),
         # then the model is refitted with that λ on the whole training parts
         fits = [p[0].split(1.0 - VALIDATION_FRACTION) for p in parts]
@@ -306,7 +311,9 @@ def identify(
         pts, _models = sweep_threshold(fit_part, val_part, lib, LAMBDAS, targets=targets, **kw)
         best = select_threshold(pts, "bic")
         say(f"λ = {best.threshold:g} (BIC on the validation tail); refitting on the training part(s)")
-        model = fit(train, lib, targets, threshold=best.threshold, **kw)
+        if kw != train_kw:  # a shorter subdomain half-width for a short record: rebuild
+            problem = regression_problem(train, lib, targets, **kw)
+        model = problem.solve(best.threshold)
         test_mse = model.test_mse(test, exclude_input_steps=kw["exclude_input_steps"])
         extra["threshold_selection"] = (f"BIC on the last {VALIDATION_FRACTION:.0%} of each training part "
                                         "(held-out parts not used)")

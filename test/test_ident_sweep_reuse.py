@@ -1,0 +1,136 @@
+"""The λ sweep builds the regression once and solves it per λ: same models as independent fits.
+
+``sweep_threshold`` (and ``identify``) build the λ-independent part of ``fit`` — library
+evaluation, weak-form test-function integrals, base-model residual, rank check — once with
+``regression_problem`` and solve it for every λ. These tests check on a short 50 dB thesis_sim
+record that every swept model equals an independent ``fit`` call with that λ (same support,
+coefficients equal to rounding) for the strong and the weak form, per-equation libraries, the
+ensemble, discrepancy SINDy and the refined weak form (whose refinement passes depend on λ),
+and that the shared problem is not altered by solving it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from aeropend_ident.libraries import physics_library, structured_library
+from aeropend_ident.preprocess import add_derivatives
+from aeropend_ident.sindy import (
+    IdentificationError,
+    NoEquationError,
+    data_from_trajectory,
+    fit,
+    regression_problem,
+    sweep_threshold,
+)
+from aeropend_sim.excitation import aprbs
+from aeropend_sim.params import load_rig
+from aeropend_sim.simulate import simulate
+
+VARIABLES = ["theta", "theta_dot", "i_a", "omega_rotor", "v_a"]
+TARGETS = ["theta_dot", "i_a", "omega_rotor"]
+LAMBDAS = [0.0, 0.005, 0.02, 0.1, 0.5, 2.0]
+
+
+@pytest.fixture(scope="module")
+def split():
+    """6 s APRBS (levels 0.2-0.9, holds 20-300 ms) of thesis_sim at 490 Hz, 50 dB, SG derivatives."""
+    rig = load_rig("thesis_sim").with_effects(sensor_noise=True).with_params("sensors", snr_db=50)
+    traj = simulate(rig, aprbs(6.0, lo=0.2, hi=0.9, min_hold=0.02, max_hold=0.3, seed=1).duty, seed=7)
+    data = add_derivatives(data_from_trajectory(traj, measured=True), targets=TARGETS, method="savgol")
+    return data.split(0.75)
+
+
+def _assert_same(swept, single, lam) -> None:
+    assert swept.feature_names == single.feature_names and swept.targets == single.targets
+    np.testing.assert_array_equal(swept.support(), single.support(), err_msg=f"support at λ = {lam}")
+    np.testing.assert_allclose(swept.coef, single.coef, rtol=1e-12, atol=0.0, err_msg=f"λ = {lam}")
+    for a, b in ((swept.coef_std, single.coef_std), (swept.inclusion, single.inclusion)):
+        assert (a is None) == (b is None)
+        if a is not None:
+            np.testing.assert_allclose(a, b, rtol=1e-12, atol=0.0)
+    assert swept.threshold == single.threshold == lam
+    assert swept.condition_number == pytest.approx(single.condition_number, rel=1e-12)
+    assert swept.method == single.method
+
+
+CASES = {
+    "strong": (physics_library, dict(method="sindy", exclude_input_steps=3)),
+    "weak": (physics_library, dict(method="weak", K=120, H_xt=0.05)),
+    "weak-structured": (structured_library, dict(method="weak", K=120, H_xt=0.05, exclude_input_steps=3)),
+    "strong-structured": (structured_library, dict(method="sindy", exclude_input_steps=3)),
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_sweep_models_equal_independent_fits(split, case) -> None:
+    train, test = split
+    make, kw = CASES[case]
+    lib = make(VARIABLES)
+    pts, models = sweep_threshold(train, test, lib, LAMBDAS, targets=TARGETS, **kw)
+    assert [p.threshold for p in pts] == LAMBDAS and sorted(models) == LAMBDAS
+    supports = []
+    for lam in LAMBDAS:
+        single = fit(train, lib, TARGETS, threshold=lam, **kw)
+        _assert_same(models[lam], single, lam)
+        pt = next(p for p in pts if p.threshold == lam)
+        excl = kw.get("exclude_input_steps", 0)
+        assert pt.test_mse == pytest.approx(single.test_mse(test, exclude_input_steps=excl), rel=1e-12)
+        supports.append(int(single.support().sum()))
+    # the sweep is not degenerate: λ = 0 keeps every term, the largest λ prunes
+    n_columns = sum(len(lib[tg]) for tg in TARGETS) if isinstance(lib, dict) else models[0.0].coef.size
+    assert supports[0] == n_columns
+    assert supports[-1] < supports[0]
+    assert supports == sorted(supports, reverse=True)
+
+
+def test_sweep_equal_for_ensemble_discrepancy_and_refined(split) -> None:
+    train, test = split
+    lib = physics_library(VARIABLES)
+    lams = [0.01, 0.1, 0.5]
+    for kw in (dict(method="ensemble", n_models=8, seed=3),
+               dict(method="weak", K=120, H_xt=0.05, base=load_rig("thesis_sim")),
+               dict(method="weak", K=120, H_xt=0.05, refine=1)):
+        _pts, models = sweep_threshold(train, test, lib, lams, targets=TARGETS, **kw)
+        for lam in lams:
+            _assert_same(models[lam], fit(train, lib, TARGETS, threshold=lam, **kw), lam)
+
+
+def test_problem_solves_repeatably(split) -> None:
+    train, _ = split
+    lib = physics_library(VARIABLES)
+    problem = regression_problem(train, lib, TARGETS, method="weak", K=120, H_xt=0.05)
+    first = problem.solve(0.1)
+    problem.solve(0.0)
+    problem.solve(1.0)
+    again = problem.solve(0.1)
+    np.testing.assert_array_equal(first.coef, again.coef)  # solving other λ left the problem unchanged
+    assert problem.targets == TARGETS and problem.dropped == {}
+    with pytest.raises(IdentificationError, match=r"threshold λ = -0\.1"):
+        problem.solve(-0.1)
+
+
+def test_drop_unidentifiable_equations(split) -> None:
+    """A per-equation library the data leaves rank deficient (constant v_a) is dropped, with its reason."""
+    train, _ = split
+    flat = type(train)(t=train.t, variables={**train.variables, "v_a": np.full(len(train), 2.0)},
+                       derivatives=train.derivatives, source="constant v_a")
+    libs = structured_library(VARIABLES)
+    with pytest.raises(IdentificationError, match="rank deficient"):
+        regression_problem(flat, libs, TARGETS, method="weak", K=120, H_xt=0.05)
+    problem = regression_problem(flat, libs, TARGETS, method="weak", K=120, H_xt=0.05,
+                                 drop_unidentifiable=True)
+    assert problem.targets == ["theta_dot", "omega_rotor"] and list(problem.dropped) == ["i_a"]
+    assert "rank deficient" in problem.dropped["i_a"]
+    model = problem.solve(0.05)
+    assert model.targets == ["theta_dot", "omega_rotor"]
+    _assert_same(model, fit(flat, {tg: libs[tg] for tg in problem.targets}, problem.targets, threshold=0.05,
+                            method="weak", K=120, H_xt=0.05), 0.05)
+    # the rotor equation needs no v_a: its coefficients recover thesis_sim's 4519.2 i_a − 192.31 ω₁ (±3 %)
+    assert model.coefficient("omega_rotor", "i_a") == pytest.approx(4519.2, rel=0.03)
+    assert model.coefficient("omega_rotor", "ω₁") == pytest.approx(-192.31, rel=0.03)
+    none = {tg: libs["i_a"] for tg in ["i_a"]}
+    with pytest.raises(NoEquationError) as err:
+        regression_problem(flat, none, ["i_a"], method="weak", K=120, H_xt=0.05, drop_unidentifiable=True)
+    assert list(err.value.dropped) == ["i_a"]
