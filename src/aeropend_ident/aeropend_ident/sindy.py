@@ -1368,13 +1368,26 @@ def free_run(model: SindyModel, data: IdentData, substeps: int = 2) -> FreeRun:
     out[0] = x
     idx = {s: i for i, s in enumerate(states)}
     exo_names = sorted(v for v in need if v not in idx)
+    exo_data = {v: np.asarray(data.variables[v], dtype=float) for v in exo_names}
+    candidates = model.library.candidates
+    row = np.empty(len(candidates))
 
-    def rhs(xs: np.ndarray, k: int) -> np.ndarray:
-        vals = {v: np.array([data.variables[v][k]]) for v in exo_names}
-        vals.update({s: np.array([xs[i]]) for s, i in idx.items()})
+    def library_row(vals: dict[str, np.ndarray]) -> np.ndarray:
+        # the library row of CandidateLibrary.evaluate without its per-column checks (the hot loop);
+        # a non-finite value is re-evaluated there to raise the library's own error
+        for j, c in enumerate(candidates):
+            y = np.asarray(c.func(vals), dtype=float)
+            row[j] = y if y.ndim == 0 else y[0]
+        if not np.isfinite(row).all():
+            model.library.evaluate(vals)
+        return row
+
+    def rhs(xs: np.ndarray, exo: dict[str, np.ndarray]) -> np.ndarray:
+        vals = dict(exo)
+        vals.update({s: xs[i:i + 1] for s, i in idx.items()})
         if model.base is None:
-            row = model.library.evaluate(vals)[0]
-            pred = {tg: np.array([row @ model.coef[j]]) for j, tg in enumerate(model.targets)}
+            r = library_row(vals)
+            pred = {tg: (r @ model.coef[j],) for j, tg in enumerate(model.targets)}
         else:
             d = IdentData(t=np.arange(3.0), variables={k_: np.repeat(v, 3) for k_, v in vals.items()})
             pred = model.predict(d)
@@ -1386,11 +1399,12 @@ def free_run(model: SindyModel, data: IdentData, substeps: int = 2) -> FreeRun:
     h = float(np.mean(np.diff(data.t))) / substeps
     with np.errstate(all="ignore"):
         for k in range(n - 1):
+            exo = {v: a[k:k + 1] for v, a in exo_data.items()}  # inputs held over the sample period
             for _ in range(substeps):
-                k1 = rhs(x, k)
-                k2 = rhs(x + 0.5 * h * k1, k)
-                k3 = rhs(x + 0.5 * h * k2, k)
-                k4 = rhs(x + h * k3, k)
+                k1 = rhs(x, exo)
+                k2 = rhs(x + 0.5 * h * k1, exo)
+                k3 = rhs(x + 0.5 * h * k2, exo)
+                k4 = rhs(x + h * k3, exo)
                 x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
             if not np.isfinite(x).all() or np.abs(x).max() > 1e9:
                 break
