@@ -8,13 +8,8 @@ lock-step plant). Random ROS_DOMAIN_ID in 1..100, localhost discovery; processes
 from __future__ import annotations
 
 import csv
-import os
-import random
-import re
-import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -23,6 +18,16 @@ import pytest
 
 pytest.importorskip("rclpy")
 
+from ros_support import (
+    isolated_env,
+    node_command,
+    private_node,
+    random_domain,
+    reap,
+    stop,
+    summary_count,
+)
+
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
 from aeropend_control.strategies import NEEDS_MOTOR, make_strategy
 from aeropend_sim.params import load_rig
@@ -30,49 +35,25 @@ from aeropend_sim.simulate import PlantStepper
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(90)]
 
-BIN = Path(sys.executable).parent
-
-
-def _exe(name: str) -> str:
-    exe = shutil.which(name, path=str(BIN))
-    if exe is None:
-        pytest.skip(f"console script {name!r} not installed in {BIN}")
-    return exe
-
-
-def _env(domain: int) -> dict[str, str]:
-    return dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-                PYTHONUNBUFFERED="1")
-
-
-def _summary(text: str, key: str) -> int:
-    m = re.findall(rf"summary:.*\b{key}=(\d+)", text)
-    assert m, f"no '{key}=' in summary of:\n{text[-2000:]}"
-    return int(m[-1])
-
 
 @pytest.mark.parametrize("strategy", ["fl_pid", "small_signal", "fl_cascade"])
 def test_lockstep_closed_loop_step_to_0_4(tmp_path: Path, strategy: str) -> None:
-    domain = random.randint(1, 100)
     trace = tmp_path / "trace.csv"
-    env = _env(domain)
-    sim = subprocess.Popen([_exe("sim_node"), "--ros-args", "-p", "mode:=lockstep", "-p", "rig:=thesis_rig"],
+    env = isolated_env(random_domain())
+    sim = subprocess.Popen([*node_command("sim_node"), "--ros-args", "-p", "mode:=lockstep",
+                            "-p", "rig:=thesis_rig"],
                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     ctl = None
     try:
         ctl = subprocess.Popen(
-            [_exe("controller"), "--ros-args", "-p", "mode:=lockstep", "-p", f"strategy:={strategy}",
+            [*node_command("controller"), "--ros-args", "-p", "mode:=lockstep", "-p", f"strategy:={strategy}",
              "-p", "steps:=[0.0, 0.4]", "-p", "duration:=3.0", "-p", f"trace:={trace}"],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         ctl_out, _ = ctl.communicate(timeout=60)
         assert ctl.returncode == 0, ctl_out
-        sim.send_signal(signal.SIGTERM)
-        sim_out, _ = sim.communicate(timeout=10)
+        sim_out = stop(sim, signal.SIGTERM, timeout=10).stdout
     finally:
-        for p in (ctl, sim):
-            if p is not None and p.poll() is None:
-                p.kill()
-                p.communicate(timeout=10)
+        reap(ctl, sim)
     rows = list(csv.reader(trace.open()))
     data = np.array(rows[1:], dtype=float)
     t, theta, duty = data[:, 0], data[:, 2], data[:, 7]
@@ -80,7 +61,7 @@ def test_lockstep_closed_loop_step_to_0_4(tmp_path: Path, strategy: str) -> None
     met = step_metrics(t, theta, 0.4)
     assert met.failures(TABLE_6_1) == [] and met.failures(GOAL) == []
     # every controller command reached the plant, plus the duty 0 sent on shutdown
-    assert _summary(sim_out, "commands") == _summary(ctl_out, "commands") + 1
+    assert summary_count(sim_out, "commands") == summary_count(ctl_out, "commands") + 1
     # the ROS loop is the batch loop: same plant, same controller, same samples
     rig = load_rig("thesis_rig")
     ref_ctl, plant = make_strategy(strategy, rig), PlantStepper(rig)
@@ -98,8 +79,8 @@ def test_lockstep_closed_loop_step_to_0_4(tmp_path: Path, strategy: str) -> None
 
 
 def test_controller_refuses_bad_configuration() -> None:
-    proc = subprocess.run([_exe("controller"), "--ros-args", "-p", "strategy:=pd"],
-                          env=_env(random.randint(1, 100)), capture_output=True, text=True, timeout=30)
+    proc = subprocess.run([*node_command("controller"), "--ros-args", "-p", "strategy:=pd"],
+                          env=isolated_env(random_domain()), capture_output=True, text=True, timeout=30)
     assert proc.returncode == 2
     assert "strategy = 'pd'" in proc.stderr + proc.stdout
 
@@ -107,57 +88,46 @@ def test_controller_refuses_bad_configuration() -> None:
 def test_reference_topic_drives_the_lockstep_loop(tmp_path: Path) -> None:
     """No step parameter: the set point comes from /aeropend/reference (std_msgs/Float64), published
     by this test process; the internal signals are checked on /aeropend/controller/signals."""
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
     from std_msgs.msg import Float64, Float64MultiArray
 
     from aeropend_control.controller_core import SIGNALS
     from aeropend_control.controller_node import TOPIC_REFERENCE, TOPIC_SIGNALS
 
-    domain = random.randint(1, 100)
+    domain = random_domain()
     trace = tmp_path / "trace.csv"
-    env = _env(domain)
+    env = isolated_env(domain)
     sim = ctl = None
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    node = rclpy.create_node("test_reference", context=ctx)
     signals: list[list[float]] = []
-    try:
-        pub = node.create_publisher(Float64, TOPIC_REFERENCE, 10)
-        node.create_subscription(Float64MultiArray, TOPIC_SIGNALS,
-                                 lambda m: signals.append(list(m.data)), 50)
-        ex = SingleThreadedExecutor(context=ctx)
-        ex.add_node(node)
-        # controller first (it waits for samples), then the plant once this node is matched to the
-        # controller both ways, so the set point reaches it within a few samples of being sent
-        ctl = subprocess.Popen(
-            [_exe("controller"), "--ros-args", "-p", "mode:=lockstep", "-p", "strategy:=fl_pid",
-             "-p", "duration:=4.0", "-p", f"trace:={trace}"],
-            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        deadline = time.monotonic() + 40.0
+    with private_node("test_reference", domain) as (node, ex):
+        try:
+            pub = node.create_publisher(Float64, TOPIC_REFERENCE, 10)
+            node.create_subscription(Float64MultiArray, TOPIC_SIGNALS,
+                                     lambda m: signals.append(list(m.data)), 50)
+            # controller first (it waits for samples), then the plant once this node is matched to
+            # the controller both ways, so the set point reaches it within a few samples of being sent
+            ctl = subprocess.Popen(
+                [*node_command("controller"), "--ros-args", "-p", "mode:=lockstep", "-p", "strategy:=fl_pid",
+                 "-p", "duration:=4.0", "-p", f"trace:={trace}"],
+                env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            deadline = time.monotonic() + 40.0
 
-        def matched() -> bool:
-            return pub.get_subscription_count() > 0 and node.count_publishers(TOPIC_SIGNALS) > 0
+            def matched() -> bool:
+                return pub.get_subscription_count() > 0 and node.count_publishers(TOPIC_SIGNALS) > 0
 
-        while not matched() and time.monotonic() < deadline:
-            ex.spin_once(timeout_sec=0.05)
-        assert pub.get_subscription_count() > 0, "controller not discovered"
-        sim = subprocess.Popen([_exe("sim_node"), "--ros-args", "-p", "mode:=lockstep"],
-                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        deadline = time.monotonic() + 80.0
-        while ctl.poll() is None and time.monotonic() < deadline:
-            ex.spin_once(timeout_sec=0.01)
-            if signals and signals[-1][0] >= 0.5:  # 0.5 s of sample time at rest, then the set point
-                pub.publish(Float64(data=0.3))
-        ctl_out = ctl.communicate(timeout=30)[0]
-        assert ctl.returncode == 0, ctl_out
-    finally:
-        for p in (ctl, sim):
-            if p is not None and p.poll() is None:
-                p.kill()
-                p.communicate(timeout=10)
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+            while not matched() and time.monotonic() < deadline:
+                ex.spin_once(timeout_sec=0.05)
+            assert pub.get_subscription_count() > 0, "controller not discovered"
+            sim = subprocess.Popen([*node_command("sim_node"), "--ros-args", "-p", "mode:=lockstep"],
+                                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            deadline = time.monotonic() + 80.0
+            while ctl.poll() is None and time.monotonic() < deadline:
+                ex.spin_once(timeout_sec=0.01)
+                if signals and signals[-1][0] >= 0.5:  # 0.5 s of sample time at rest, then the set point
+                    pub.publish(Float64(data=0.3))
+            ctl_out = ctl.communicate(timeout=30)[0]
+            assert ctl.returncode == 0, ctl_out
+        finally:
+            reap(ctl, sim)
     data = np.array(list(csv.reader(trace.open()))[1:], dtype=float)
     col = {name: data[:, i] for i, name in enumerate(SIGNALS)}
     on = np.flatnonzero(col["reference"] == 0.3)

@@ -3,17 +3,21 @@ plant <-> excitation lock-step ping-pong in separate processes."""
 
 from __future__ import annotations
 
-import os
-import random
-import shutil
 import signal
 import subprocess
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
+from ros_support import (
+    isolate_this_process,
+    isolated_env,
+    node_command,
+    private_node,
+    random_domain,
+    reap,
+    stop,
+)
 
 from aeropend_sim.excitation import ExcitationError, lhs_steps, make_signal, staircase
 from aeropend_sim.excitation_node import (
@@ -27,11 +31,6 @@ from aeropend_sim.params import shipped_rigs
 
 RIG = "thesis_rig" if "thesis_rig" in shipped_rigs() else "thesis_sim"
 PERIOD_NS = 2_048_000
-
-
-def _exe(name: str, module: str) -> list[str]:
-    exe = shutil.which(name, path=str(Path(sys.executable).parent))
-    return [exe] if exe else [sys.executable, "-m", module]
 
 
 # ------------------------------------------------------------------------------------- pure
@@ -98,8 +97,8 @@ def test_ros_param_overrides_syntax_error():
 # ------------------------------------------------------------------------------------- --print
 def test_print_outputs_csv_without_ros():
     out = subprocess.run(
-        [*_exe("excitation", "aeropend_sim.excitation_node"), "--print", "--ros-args", "-p", "signal:=prbs",
-         "-p", "order:=4", "-p", "clock:=2", "-p", "seed:=3"],
+        [*node_command("excitation", "aeropend_sim.excitation_node"), "--print", "--ros-args",
+         "-p", "signal:=prbs", "-p", "order:=4", "-p", "clock:=2", "-p", "seed:=3"],
         capture_output=True, text=True, timeout=60, check=True,
     )
     lines = out.stdout.strip().splitlines()
@@ -110,7 +109,7 @@ def test_print_outputs_csv_without_ros():
 
 def test_print_bad_signal_exits_2():
     out = subprocess.run(
-        [*_exe("excitation", "aeropend_sim.excitation_node"), "--print", "--signal", "staircase",
+        [*node_command("excitation", "aeropend_sim.excitation_node"), "--print", "--signal", "staircase",
          "--levels", "0.2", "1.4", "--hold", "1"],
         capture_output=True, text=True, timeout=60,
     )
@@ -122,65 +121,52 @@ def test_print_bad_signal_exits_2():
 @pytest.mark.ros
 @pytest.mark.timeout(60)
 def test_lockstep_plant_excitation_ping_pong(monkeypatch):
-    rclpy = pytest.importorskip("rclpy")
-    from rclpy.executors import SingleThreadedExecutor
+    pytest.importorskip("rclpy")
     from sensor_msgs.msg import JointState
 
     from aeropend_sim.ros_contract import SAMPLE_QOS_LOCKSTEP
 
-    domain = random.randint(1, 100)
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    domain = random_domain()
+    isolate_this_process(monkeypatch, domain)
+    env = isolated_env(domain)
     sig = staircase([0.45, 0.3, 0.55], [0.2, 0.1, 0.15])
     n = len(sig)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    node = rclpy.create_node("ping_pong_observer", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
     seen: dict[int, float] = {}
 
     def on_js(msg: JointState) -> None:
         seen[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = msg.effort[1]
 
-    node.create_subscription(JointState, "/aeropend/joint_states", on_js, SAMPLE_QOS_LOCKSTEP)
-    plant = subprocess.Popen(
-        [*_exe("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", f"rig:={RIG}",
-         "-p", "mode:=lockstep"],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
     exc = None
-    try:
-        # the observer must be matched before the ping-pong starts: wait for (re-published) sample 0
-        end = time.monotonic() + 20
-        while time.monotonic() < end and 0 not in seen:
-            ex.spin_once(timeout_sec=0.01)
-        assert 0 in seen, "plant sample 0 not received within 20 s"
-        exc = subprocess.Popen(
-            [*_exe("excitation", "aeropend_sim.excitation_node"), "--signal", "staircase",
-             "--levels", "0.45", "0.3", "0.55", "--hold", "0.2", "0.1", "0.15", "--mode", "lockstep"],
+    with private_node("ping_pong_observer", domain) as (node, ex):
+        node.create_subscription(JointState, "/aeropend/joint_states", on_js, SAMPLE_QOS_LOCKSTEP)
+        plant = subprocess.Popen(
+            [*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", f"rig:={RIG}",
+             "-p", "mode:=lockstep"],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )
-        end = time.monotonic() + 45
-        while time.monotonic() < end and exc.poll() is None:
-            ex.spin_once(timeout_sec=0.01)
-        _, exc_err = exc.communicate(timeout=10)
-        assert exc.returncode == 0, exc_err
-        end = time.monotonic() + 5
-        while time.monotonic() < end and n * PERIOD_NS not in seen:
-            ex.spin_once(timeout_sec=0.01)
-        assert plant.poll() is None
-        plant.send_signal(signal.SIGINT)
-        _, plant_err = plant.communicate(timeout=10)
-    finally:
-        for p in (exc, plant):
-            if p is not None and p.poll() is None:
-                p.kill()
-                p.communicate(timeout=10)
-        ex.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+        try:
+            # the observer must be matched before the ping-pong starts: wait for (re-published) sample 0
+            end = time.monotonic() + 20
+            while time.monotonic() < end and 0 not in seen:
+                ex.spin_once(timeout_sec=0.01)
+            assert 0 in seen, "plant sample 0 not received within 20 s"
+            exc = subprocess.Popen(
+                [*node_command("excitation", "aeropend_sim.excitation_node"), "--signal", "staircase",
+                 "--levels", "0.45", "0.3", "0.55", "--hold", "0.2", "0.1", "0.15", "--mode", "lockstep"],
+                env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            )
+            end = time.monotonic() + 45
+            while time.monotonic() < end and exc.poll() is None:
+                ex.spin_once(timeout_sec=0.01)
+            _, exc_err = exc.communicate(timeout=10)
+            assert exc.returncode == 0, exc_err
+            end = time.monotonic() + 5
+            while time.monotonic() < end and n * PERIOD_NS not in seen:
+                ex.spin_once(timeout_sec=0.01)
+            assert plant.poll() is None
+            plant_err = stop(plant, signal.SIGINT, timeout=10).stderr
+        finally:
+            reap(exc, plant)
     assert plant.returncode == 0
     # exactly one plant sample per command, stamped k·T_s, carrying the command that produced it
     assert sorted(seen) == [k * PERIOD_NS for k in range(n + 1)]

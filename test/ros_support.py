@@ -1,0 +1,265 @@
+"""Shared scaffolding of the multi-process ROS 2 tests and benchmarks (no test in here).
+
+One place for what every real multi-process test repeats: a private ROS domain with
+localhost-only discovery, the command line of a node's console script, stopping a node with a
+signal and collecting its output, killing whatever is still running in a ``finally`` block,
+parsing a node's shutdown ``summary: key=value ...`` line, and an rclpy node on its own context
+in the test process.
+
+rclpy is imported only inside :func:`private_node`, so test files that skip without rclpy can
+import this module. Benchmarks import it after ``sys.path.insert(0, str(ROOT / "test"))``.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import re
+import shutil
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import pytest
+
+if TYPE_CHECKING:
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+#: Folder of the running interpreter: the venv's ``bin`` holding the console scripts.
+BIN = Path(sys.executable).parent
+#: Localhost-only discovery: parallel runs on other domains and other hosts do not interfere.
+DISCOVERY = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+
+_SUMMARY_LINE = re.compile(r"summary: (.*)")
+_SUMMARY_FIELD = re.compile(r"(\w+)=([\w.]+)")
+
+
+def random_domain(first: int = 1, last: int = 100) -> int:
+    """A ROS_DOMAIN_ID drawn uniformly from ``first..last`` (both included).
+
+    Drawn from the OS entropy source, so a seeded global ``random`` (hypothesis, a benchmark
+    seed) cannot make two concurrent runs draw the same sequence. Files that may run at the
+    same time as a benchmark keep apart by range (1..100 and 101..200).
+
+    Parameters
+    ----------
+    first, last : int
+        Inclusive bounds, 0 <= first <= last <= 232 (the valid DDS domain IDs).
+
+    Returns
+    -------
+    int
+        The domain ID.
+
+    Raises
+    ------
+    ValueError
+        If the bounds are outside 0..232 or ``first > last``.
+    """
+    if not 0 <= first <= last <= 232:
+        raise ValueError(f"domain range {first}..{last}: expected 0 <= first <= last <= 232")
+    return random.SystemRandom().randint(first, last)
+
+
+def isolated_env(domain: int) -> dict[str, str]:
+    """Environment for a node subprocess: this process's environment on a private ROS domain.
+
+    Parameters
+    ----------
+    domain : int
+        ROS_DOMAIN_ID, e.g. from :func:`random_domain`.
+
+    Returns
+    -------
+    dict[str, str]
+        ``os.environ`` plus ``ROS_DOMAIN_ID=<domain>``, localhost-only discovery and
+        ``PYTHONUNBUFFERED=1`` (log lines reach a pipe as they are written).
+    """
+    return dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1", **DISCOVERY)
+
+
+def isolate_this_process(monkeypatch: pytest.MonkeyPatch, domain: int) -> None:
+    """Put the test process itself (and children started with ``os.environ``) on ``domain``.
+
+    Sets ``ROS_DOMAIN_ID`` and localhost-only discovery through ``monkeypatch``, so both are
+    undone after the test.
+    """
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    for key, value in DISCOVERY.items():
+        monkeypatch.setenv(key, value)
+
+
+def node_command(name: str, module: str | None = None) -> list[str]:
+    """Command line that starts the console script ``name`` of the running venv.
+
+    Parameters
+    ----------
+    name : str
+        Console script (``sim_node``, ``controller``, ``bridge``, ``excitation``, ``record``).
+    module : str, optional
+        Module to run with ``python -m`` when the script is not installed next to
+        ``sys.executable``. Without it the calling test is skipped instead.
+
+    Returns
+    -------
+    list[str]
+        ``[<bin>/name]`` or ``[sys.executable, "-m", module]``.
+
+    Raises
+    ------
+    pytest.skip.Exception
+        If the script is missing and no ``module`` is given.
+    """
+    exe = shutil.which(name, path=str(BIN))
+    if exe is not None:
+        return [exe]
+    if module is not None:
+        return [sys.executable, "-m", module]
+    pytest.skip(f"console script {name!r} not installed in {BIN}")
+
+
+def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM, timeout: float = 10.0, *,
+         kill_on_timeout: bool = False) -> subprocess.CompletedProcess:
+    """Send ``sig`` to a running process, wait for it to exit and collect its output.
+
+    Parameters
+    ----------
+    proc : subprocess.Popen
+        The process; if it has already exited only its remaining output is collected.
+    sig : int
+        Signal to send (``signal.SIGTERM``, ``signal.SIGINT``).
+    timeout : float
+        Seconds to wait for the exit after the signal.
+    kill_on_timeout : bool
+        What happens when the process is still running after ``timeout``: it is always killed
+        and reaped; then ``False`` re-raises the timeout (a node that does not stop is a
+        failure), ``True`` returns what it wrote (clean-up of a helper process).
+
+    Returns
+    -------
+    subprocess.CompletedProcess
+        ``returncode`` and the ``stdout`` / ``stderr`` text (``None`` for streams not piped).
+
+    Raises
+    ------
+    subprocess.TimeoutExpired
+        If the process outlived ``timeout`` and ``kill_on_timeout`` is False.
+    """
+    if proc.poll() is None:
+        proc.send_signal(sig)
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate(timeout=10)
+        if not kill_on_timeout:
+            raise
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
+def reap(*procs: subprocess.Popen | None, timeout: float = 10.0) -> None:
+    """Kill every process still running and collect its output (for ``finally`` blocks).
+
+    Parameters
+    ----------
+    *procs : subprocess.Popen or None
+        Processes in the order to reap them; ``None`` (never started) is skipped.
+    timeout : float
+        Seconds to wait for each killed process to be reaped.
+    """
+    for proc in procs:
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.communicate(timeout=timeout)
+
+
+def summary_line(text: str) -> str | None:
+    """The last ``summary: ...`` line a node logged, without the ``summary: `` prefix.
+
+    Parameters
+    ----------
+    text : str
+        The node's captured stdout/stderr.
+
+    Returns
+    -------
+    str or None
+        The rest of the line, or ``None`` if the node logged no summary.
+    """
+    lines = _SUMMARY_LINE.findall(text)
+    return lines[-1] if lines else None
+
+
+def summary_fields(text: str) -> dict[str, str]:
+    """``key=value`` pairs of a node's last summary line (``sim_node``, ``bridge``, ``controller``).
+
+    Parameters
+    ----------
+    text : str
+        The node's captured stdout/stderr.
+
+    Returns
+    -------
+    dict[str, str]
+        Field name -> value text (``"29299"``, ``"0.447"``, ``"realtime"``); empty if the node
+        logged no summary.
+    """
+    line = summary_line(text)
+    return dict(_SUMMARY_FIELD.findall(line)) if line is not None else {}
+
+
+def summary_count(text: str, key: str) -> int:
+    """Integer field ``key`` of a node's last summary line (e.g. ``commands``, ``samples``).
+
+    Raises
+    ------
+    AssertionError
+        If there is no summary line or it has no integer ``key=`` field (message shows the
+        end of ``text``).
+    """
+    value = summary_fields(text).get(key)
+    assert value is not None and value.isdigit(), f"no '{key}=' in summary of:\n{text[-2000:]}"
+    return int(value)
+
+
+@contextmanager
+def private_node(name: str, domain: int) -> Iterator[tuple[Node, SingleThreadedExecutor]]:
+    """An rclpy node with a single-threaded executor on its own context and ``domain``.
+
+    The context is independent of the global one, so several tests (or the same test twice)
+    can create and shut down nodes without interfering. On exit the executor is shut down, the
+    node destroyed and the context shut down.
+
+    Parameters
+    ----------
+    name : str
+        Node name.
+    domain : int
+        ROS_DOMAIN_ID of the context.
+
+    Yields
+    ------
+    (rclpy.node.Node, rclpy.executors.SingleThreadedExecutor)
+        The node, already added to the executor.
+    """
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=domain)
+    try:
+        node = rclpy.create_node(name, context=ctx)
+        executor = SingleThreadedExecutor(context=ctx)
+        executor.add_node(node)
+        try:
+            yield node, executor
+        finally:
+            executor.shutdown()
+            node.destroy_node()
+    finally:
+        rclpy.try_shutdown(context=ctx)
