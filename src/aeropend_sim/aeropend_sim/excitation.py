@@ -399,8 +399,8 @@ def density_modulated_prbs(
     [``density_lo``, ``density_hi``] (holds ``density_min_hold`` … ``density_max_hold``), so the
     mean thrust, and with it the pendulum, moves slowly through its angle range (pulse-density
     modulation of a slow APRBS). On ``thesis_sim`` at 50 dB the Cramér-Rao bound of R_a/L_a
-    over 45 s is 0.5 % with the defaults against 6 % for an APRBS with 20-300 ms holds
-    (bench/bench_sindy_oe.py).
+    on 22.5 s is 0.72 % with the defaults, against 6.3 % for an APRBS with 20-300 ms holds and
+    48 % for the thesis' Latin-hypercube steps (bench/bench_design_crb.py).
 
     Parameters
     ----------
