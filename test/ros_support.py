@@ -163,19 +163,24 @@ def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM, timeout: float = 10.
 
 
 def reap(*procs: subprocess.Popen | None, timeout: float = 10.0) -> None:
-    """Kill every process still running and collect its output (for ``finally`` blocks).
+    """Kill every process still running, then collect each one's output (for ``finally`` blocks).
+
+    Collecting also closes the pipes of a process that exited by itself; for one whose output
+    was already collected it returns at once.
 
     Parameters
     ----------
     *procs : subprocess.Popen or None
         Processes in the order to reap them; ``None`` (never started) is skipped.
     timeout : float
-        Seconds to wait for each killed process to be reaped.
+        Seconds to wait for each process to be reaped.
     """
     for proc in procs:
-        if proc is not None and proc.poll() is None:
+        if proc is None:
+            continue
+        if proc.poll() is None:
             proc.kill()
-            proc.communicate(timeout=timeout)
+        proc.communicate(timeout=timeout)
 
 
 def summary_line(text: str) -> str | None:

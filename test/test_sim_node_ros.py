@@ -8,43 +8,46 @@ discovery so parallel runs do not cross-talk; subprocesses are killed in ``final
 from __future__ import annotations
 
 import math
-import os
-import random
-import shutil
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
-from pathlib import Path
+from contextlib import ExitStack, contextmanager
 
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("rclpy")
 
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from sensor_msgs.msg import BatteryState, JointState  # noqa: E402
-from std_msgs.msg import Float64  # noqa: E402
+from ros_support import (
+    isolate_this_process,
+    isolated_env,
+    node_command,
+    private_node,
+    random_domain,
+    reap,
+    stop,
+)
+from sensor_msgs.msg import BatteryState, JointState
+from std_msgs.msg import Float64
 
-from aeropend_sim.contract import (  # noqa: E402
+from aeropend_sim.contract import (
     SAMPLE_RATE_HZ,
     TOPIC_ARMATURE,
     TOPIC_DUTY_CYCLE,
     TOPIC_JOINT_STATES,
     Sample,
 )
-from aeropend_sim.excitation import prbs  # noqa: E402
-from aeropend_sim.params import load_rig, shipped_rigs  # noqa: E402
-from aeropend_sim.ros_contract import (  # noqa: E402
+from aeropend_sim.excitation import prbs
+from aeropend_sim.params import load_rig, shipped_rigs
+from aeropend_sim.ros_contract import (
     COMMAND_QOS,
     SAMPLE_QOS,
     SAMPLE_QOS_LOCKSTEP,
     sample_from_msgs,
 )
-from aeropend_sim.sim_core import to_sample  # noqa: E402
-from aeropend_sim.simulate import PlantStepper  # noqa: E402
+from aeropend_sim.sim_core import to_sample
+from aeropend_sim.simulate import PlantStepper
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
 
@@ -52,56 +55,33 @@ RIG = "thesis_rig" if "thesis_rig" in shipped_rigs() else "thesis_sim"
 PERIOD_NS = 2_048_000
 
 
-def _sim_node_cmd() -> list[str]:
-    exe = shutil.which("sim_node", path=str(Path(sys.executable).parent))
-    return [exe] if exe else [sys.executable, "-m", "aeropend_sim.sim_node"]
-
-
-def _env(domain: int) -> dict[str, str]:
-    return dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-                PYTHONUNBUFFERED="1")
-
-
 @pytest.fixture
 def domain(monkeypatch: pytest.MonkeyPatch) -> int:
-    d = random.randint(1, 100)
-    monkeypatch.setenv("ROS_DOMAIN_ID", str(d))
-    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    d = random_domain()
+    isolate_this_process(monkeypatch, d)
     return d
 
 
 @contextmanager
 def plant(domain: int, *params: str) -> Iterator[subprocess.Popen]:
     """Run ``sim_node --ros-args -p ...`` in a subprocess; kill it on exit."""
-    args = [*_sim_node_cmd(), "--ros-args", "-p", f"rig:={RIG}"]
+    args = [*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", f"rig:={RIG}"]
     for p in params:
         args += ["-p", p]
-    proc = subprocess.Popen(args, env=_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    proc = subprocess.Popen(args, env=isolated_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     try:
         yield proc
     finally:
-        if proc.poll() is None:
-            proc.kill()
-        proc.communicate(timeout=10)
-
-
-def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM) -> tuple[int, str]:
-    """Send ``sig``, wait for exit; return (exit status, stderr)."""
-    proc.send_signal(sig)
-    _, err = proc.communicate(timeout=10)
-    return proc.returncode, err
+        reap(proc)
 
 
 class Client:
     """Subscriber of both sample topics (+ duty publisher) on a private rclpy context."""
 
     def __init__(self, domain: int, lockstep: bool) -> None:
-        self.ctx = rclpy.Context()
-        rclpy.init(context=self.ctx, domain_id=domain)
-        self.node = rclpy.create_node("test_client", context=self.ctx)
-        self.executor = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.node)
+        self._stack = ExitStack()
+        self.node, self.executor = self._stack.enter_context(private_node("test_client", domain))
         qos = SAMPLE_QOS_LOCKSTEP if lockstep else SAMPLE_QOS
         self.js: list[tuple[int, int, JointState]] = []  # (stamp ns, arrival ns, msg)
         self.arm: dict[int, BatteryState] = {}
@@ -134,9 +114,7 @@ class Client:
         return {st: sample_from_msgs(msg, self.arm[st]) for st, _, msg in self.js if st in self.arm}
 
     def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.ctx)
+        self._stack.close()
 
 
 @contextmanager
@@ -159,7 +137,8 @@ def test_realtime_rate_and_stamps(domain):
         c.arm.clear()
         c.spin_for(3.5)
         assert proc.poll() is None
-        status, err = stop(proc, signal.SIGTERM)
+        done = stop(proc, signal.SIGTERM)
+    status, err = done.returncode, done.stderr
     stamps = np.array([s for s, _, _ in c.js], dtype=np.int64)
     arrivals = np.array([a for _, a, _ in c.js], dtype=np.int64)
     assert stamps.size > 1500
@@ -203,7 +182,8 @@ def _drive_lockstep(domain: int, commands: np.ndarray, seed: int) -> list[Sample
             assert c.spin_until(lambda w=want: w in got(), 10.0), f"sample {k + 1} not received"
         samples = got()
         assert proc.poll() is None
-        status, err = stop(proc, signal.SIGINT)
+        done = stop(proc, signal.SIGINT)
+        status, err = done.returncode, done.stderr
         assert status == 0 and "Traceback" not in err, err
     return [samples[k * PERIOD_NS] for k in range(len(commands) + 1)]
 
@@ -254,7 +234,8 @@ def test_nan_and_out_of_range_commands_are_rejected(domain):
         assert c.spin_until(lambda: PERIOD_NS in c.samples(), 10.0)
         assert c.samples()[PERIOD_NS].duty == 0.5
         assert proc.poll() is None
-        status, err = stop(proc)
+        done = stop(proc)
+    status, err = done.returncode, done.stderr
     assert status == 0
     assert "rejected duty command nan" in err
     assert "rejected duty command 1.5" in err and "outside [0, 1]" in err
