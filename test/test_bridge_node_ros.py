@@ -8,48 +8,38 @@ bridge's 100 ms command watchdog, diagnostics, unplug/replug and duty 0 on shutd
 from __future__ import annotations
 
 import math
-import os
-import random
-import shutil
 import signal
 import subprocess
-import sys
 import time
 from collections.abc import Callable
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("rclpy")
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from sensor_msgs.msg import BatteryState, JointState  # noqa: E402
-from std_msgs.msg import Float64  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray
+from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop
+from sensor_msgs.msg import BatteryState, JointState
+from std_msgs.msg import Float64
 
-from aeropend_bridge.bridge_core import Calibration  # noqa: E402
-from aeropend_bridge.fake_mcu import FakeMcu  # noqa: E402
-from aeropend_bridge.protocol import Duty  # noqa: E402
-from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES  # noqa: E402
-from aeropend_sim.params import load_rig  # noqa: E402
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, sample_from_msgs  # noqa: E402
+from aeropend_bridge.bridge_core import Calibration
+from aeropend_bridge.fake_mcu import FakeMcu
+from aeropend_bridge.protocol import Duty
+from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
+from aeropend_sim.params import load_rig
+from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, sample_from_msgs
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
-
-
-def _bridge_cmd() -> list[str]:
-    exe = shutil.which("bridge", path=str(Path(sys.executable).parent))
-    return [exe] if exe else [sys.executable, "-m", "aeropend_bridge.bridge_node"]
+BRIDGE = node_command("bridge", "aeropend_bridge.bridge_node")
 
 
 class Client:
     def __init__(self, domain: int) -> None:
-        self.ctx = rclpy.Context()
-        rclpy.init(context=self.ctx, domain_id=domain)
-        self.node = rclpy.create_node("bridge_test_client", context=self.ctx)
-        self.executor = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.node)
+        self._stack = ExitStack()
+        self.node, self.executor = self._stack.enter_context(private_node("bridge_test_client", domain))
         self.js: list[JointState] = []
         self.arm: dict[int, BatteryState] = {}
         self.diag: list[DiagnosticArray] = []
@@ -76,9 +66,7 @@ class Client:
         return cond()
 
     def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.ctx)
+        self._stack.close()
 
 
 def _diag_value(arr: DiagnosticArray, key: str) -> str:
@@ -86,13 +74,12 @@ def _diag_value(arr: DiagnosticArray, key: str) -> str:
 
 
 def test_bridge_node_against_fake_mcu(tmp_path: Path) -> None:
-    domain = random.randint(101, 200)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
+    domain = random_domain(101, 200)
+    env = isolated_env(domain)
     link = tmp_path / "ttyACM_fake"
     mcu = FakeMcu(link).start()
     proc = subprocess.Popen(
-        [*_bridge_cmd(), "--ros-args", "-p", f"port:={link}", "-p", "theta_offset:=3.141592653589793",
+        [*BRIDGE, "--ros-args", "-p", f"port:={link}", "-p", "theta_offset:=3.141592653589793",
          "-p", "diagnostics_period:=0.5", "-p", "backoff_initial:=0.02", "-p", "backoff_max:=0.2"],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     client = Client(domain)
@@ -158,25 +145,21 @@ def test_bridge_node_against_fake_mcu(tmp_path: Path) -> None:
         assert _diag_value(client.diag[-1], "connected") == "True"
         # --- clean shutdown: motor off
         assert client.spin_until(lambda: mcu.duty_ocr == 128, 5, publish=0.5)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=10)
+        err = stop(proc, signal.SIGINT, timeout=10).stderr
         assert proc.returncode == 0, err
         time.sleep(0.1)
         assert mcu.duty_ocr == 0
         assert "motor off" in err and "summary:" in err
         assert "rejected duty command nan" in err
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate(timeout=10)
+        reap(proc)
         client.close()
         mcu.stop()
 
 
 def test_bridge_bad_parameter_exits_2(tmp_path: Path) -> None:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(101, 200)),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    r = subprocess.run([*_bridge_cmd(), "--ros-args", "-p", f"port:={tmp_path}/none",
+    env = isolated_env(random_domain(101, 200))
+    r = subprocess.run([*BRIDGE, "--ros-args", "-p", f"port:={tmp_path}/none",
                         "-p", "command_timeout:=-1.0"], env=env, capture_output=True, text=True, timeout=30)
     assert r.returncode == 2
     assert "command_timeout = -1.0" in r.stderr

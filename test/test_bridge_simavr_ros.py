@@ -13,29 +13,27 @@ slave (word for 512 counts): the bridge and its outputs are the same (no rejecte
 from __future__ import annotations
 
 import math
-import os
-import random
 import shutil
 import signal
 import subprocess
-import sys
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-rclpy = pytest.importorskip("rclpy")
+pytest.importorskip("rclpy")
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from rclpy.executors import SingleThreadedExecutor  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
-from std_msgs.msg import Float64  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray
+from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
 
-from aeropend_bridge.simavr_harness import read_pty_path  # noqa: E402
-from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES  # noqa: E402
-from aeropend_sim.params import load_rig  # noqa: E402
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS  # noqa: E402
+from aeropend_bridge.simavr_harness import read_pty_path
+from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
+from aeropend_sim.params import load_rig
+from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware"
@@ -47,11 +45,7 @@ pytestmark = [
         shutil.which("avr-gcc") is None or not Path("/usr/include/simavr/sim_avr.h").is_file(),
         reason="needs avr-gcc + libsimavr-dev/libsimavrparts1 (scripts/setup_env.sh installs them as root)"),
 ]
-
-
-def _bridge_cmd() -> list[str]:
-    exe = shutil.which("bridge", path=str(Path(sys.executable).parent))
-    return [exe] if exe else [sys.executable, "-m", "aeropend_bridge.bridge_node"]
+BRIDGE = node_command("bridge", "aeropend_bridge.bridge_node")
 
 
 @pytest.mark.parametrize("angle", ["pwm", "ssi"])
@@ -69,15 +63,11 @@ def test_bridge_node_on_emulated_firmware(tmp_path: Path, angle: str) -> None:
     sim = subprocess.Popen([str(tmp_path / "harness"), str(tmp_path / "aeropend.elf"), "0", "500", "1000",
                             a2_mv, "1500", "-e", str(events)], stdout=subprocess.PIPE,
                            stderr=subprocess.PIPE, text=True)
-    domain = random.randint(101, 200)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
+    domain = random_domain(101, 200)
+    env = isolated_env(domain)
     bridge = None
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    node = rclpy.create_node("simavr_client", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
+    client = ExitStack()
+    node, ex = client.enter_context(private_node("simavr_client", domain))
     js: list[JointState] = []
     diag: list[DiagnosticArray] = []
     node.create_subscription(JointState, TOPIC_JOINT_STATES, js.append, SAMPLE_QOS)
@@ -94,7 +84,7 @@ def test_bridge_node_on_emulated_firmware(tmp_path: Path, angle: str) -> None:
             ex.spin_once(timeout_sec=0.005)
 
     try:
-        bridge = subprocess.Popen([*_bridge_cmd(), "--ros-args", "-p", f"port:={read_pty_path(sim)}",
+        bridge = subprocess.Popen([*BRIDGE, "--ros-args", "-p", f"port:={read_pty_path(sim)}",
                                    "-p", "diagnostics_period:=0.5"], env=env, stdout=subprocess.PIPE,
                                   stderr=subprocess.PIPE, text=True)
         end = time.monotonic() + 20
@@ -135,19 +125,9 @@ def test_bridge_node_on_emulated_firmware(tmp_path: Path, angle: str) -> None:
         assert last["sequence_gaps_lost_frames"] == "0" and last["angle_invalid_samples"] == "0"
         assert last["connected"] == "True" and last["reconnects"] == "0"
         assert int(last["mcu_rx_errors"]) == 0 and int(last["mcu_watchdog_trips"]) <= 1
-        bridge.send_signal(signal.SIGINT)
-        _, err = bridge.communicate(timeout=10)
+        err = stop(bridge, signal.SIGINT, timeout=10).stderr
         assert bridge.returncode == 0 and "motor off" in err, err
     finally:
-        if bridge is not None and bridge.poll() is None:
-            bridge.kill()
-            bridge.communicate()
-        sim.send_signal(signal.SIGTERM)
-        try:
-            sim.communicate(timeout=5)
-        except subprocess.TimeoutExpired:
-            sim.kill()
-            sim.communicate()
-        ex.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+        reap(bridge)
+        stop(sim, signal.SIGTERM, timeout=5, kill_on_timeout=True)
+        client.close()

@@ -10,17 +10,16 @@ from __future__ import annotations
 
 import csv
 import math
-import os
-import random
-import shutil
+import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
 pytest.importorskip("rclpy")
+
+from ros_support import isolated_env, node_command, random_domain, stop
 
 from aeropend_bridge.bridge_core import Calibration
 from aeropend_bridge.fake_mcu import FakeMcu
@@ -32,13 +31,8 @@ REF = 0.4
 DURATION = 4.0
 
 
-def _exe(name: str, module: str) -> list[str]:
-    exe = shutil.which(name, path=str(Path(sys.executable).parent))
-    return [exe] if exe else [sys.executable, "-m", module]
-
-
 def _run_controller(env: dict[str, str], trace: Path) -> None:
-    r = subprocess.run([*_exe("controller", "aeropend_control.controller_node"), "--ros-args",
+    r = subprocess.run([*node_command("controller", "aeropend_control.controller_node"), "--ros-args",
                         "-p", f"steps:=[0.0, {REF}]", "-p", f"duration:={DURATION}", "-p", f"trace:={trace}"],
                        env=env, capture_output=True, text=True, timeout=40)
     assert r.returncode == 0, r.stderr[-2000:]
@@ -52,37 +46,30 @@ def _settled(trace: Path) -> tuple[float, int]:
     return sum(tail) / len(tail), len(rows)
 
 
-def _env() -> dict[str, str]:
-    return dict(os.environ, ROS_DOMAIN_ID=str(random.randint(101, 200)),
-                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
-
-
 def test_same_controller_against_sim_and_bridge(tmp_path: Path) -> None:
     rig = load_rig("thesis_rig")
     # (a) simulated plant
-    env = _env()
-    sim = subprocess.Popen([*_exe("sim_node", "aeropend_sim.sim_node"), "--ros-args",
+    env = isolated_env(random_domain(101, 200))
+    sim = subprocess.Popen([*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args",
                             "-p", "rig:=thesis_rig"], env=env, stdout=subprocess.DEVNULL,
                            stderr=subprocess.DEVNULL)
     try:
         time.sleep(1.0)
         _run_controller(env, tmp_path / "sim.csv")
     finally:
-        sim.terminate()
-        sim.wait(10)
+        stop(sim, signal.SIGTERM, timeout=10)
     # (b) hardware bridge + fake firmware with the same plant model
-    env = _env()
+    env = isolated_env(random_domain(101, 200))
     cal = Calibration.from_rig(rig, theta_offset=math.pi)
     mcu = FakeMcu(tmp_path / "tty", plant=PlantStepper(rig), calibration=cal).start()
-    bridge = subprocess.Popen([*_exe("bridge", "aeropend_bridge.bridge_node"), "--ros-args",
+    bridge = subprocess.Popen([*node_command("bridge", "aeropend_bridge.bridge_node"), "--ros-args",
                                "-p", f"port:={tmp_path / 'tty'}", "-p", f"theta_offset:={math.pi}"],
                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         time.sleep(1.0)
         _run_controller(env, tmp_path / "bridge.csv")
     finally:
-        bridge.terminate()
-        bridge.communicate(timeout=10)
+        stop(bridge, signal.SIGTERM, timeout=10)
         mcu.stop()
     theta_sim, n_sim = _settled(tmp_path / "sim.csv")
     theta_hw, n_hw = _settled(tmp_path / "bridge.csv")
