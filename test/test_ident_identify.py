@@ -125,3 +125,45 @@ def test_identify_csv_logs_several_recordings(rig_runs, tmp_path, capsys) -> Non
     # the weak form is refused for stacked recordings
     assert main([*paths, "--out", str(tmp_path / "w"), "--method", "weak", "--quiet"]) == 2
     assert "weak form" in capsys.readouterr().err
+
+
+def test_identify_plots_in_child_process_equal_in_process(noisy_run, tmp_path, monkeypatch) -> None:
+    """coefficients.png / derivatives.png drawn in the forked child while the free runs run are the
+    same pictures as drawn in-process; a failing child falls back to drawing in-process."""
+    import multiprocessing
+
+    import matplotlib.image as mpimg
+
+    from aeropend_ident import identify as ident
+
+    n = 3906  # 8 s at 490 Hz
+    rec = Recording.from_trajectory(noisy_run)
+    rec = Recording(t=rec.t[:n], duty=rec.duty[:n], channels={k: v[:n] for k, v in rec.channels.items()})
+    bag = write_bag(rec, tmp_path / "run8s")
+    rig = load_rig("thesis_sim")
+    names = ["coefficients.png", "derivatives.png", "free_run.png"]
+    started = []
+    real_start = ident._start_model_plots
+
+    def spy(*a):
+        proc = real_start(*a)
+        started.append(proc)
+        return proc
+
+    monkeypatch.setattr(ident, "_start_model_plots", spy)
+    s_child = ident.identify(bag, tmp_path / "child", rig)
+    assert started and started[0] is not None and started[0].exitcode == 0  # drawn by the child
+
+    def failing(out, model, held):
+        proc = multiprocessing.get_context("fork").Process(target=lambda: 1 / 0, daemon=True)
+        proc.start()
+        return proc
+
+    monkeypatch.setattr(ident, "_start_model_plots", failing)
+    s_fallback = ident.identify(bag, tmp_path / "fallback", rig)
+    assert s_child["files"] == s_fallback["files"] == ["model.yaml", "summary.json", *names]
+    assert s_child["equations"] == s_fallback["equations"]
+    for name in names:  # the fallback drew everything in this process (the same path as without fork)
+        ref = mpimg.imread(tmp_path / "fallback" / name)
+        assert ref.shape[0] > 100
+        np.testing.assert_array_equal(mpimg.imread(tmp_path / "child" / name), ref, err_msg=name)

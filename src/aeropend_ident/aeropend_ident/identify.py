@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -204,13 +205,37 @@ def _theta_scores(measured: np.ndarray, simulated: np.ndarray) -> dict[str, floa
 PLOT_TRAIN_TAIL_S = 10.0
 
 
-def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, held_run: FreeRun,
-           say: Progress) -> list[str]:
-    from aeropend_ident.ident_plots import plot_coefficients, plot_derivatives, plot_free_run
+def _model_plots(out: Path, model: SindyModel, held: IdentData) -> list[Path]:
+    """``coefficients.png`` and (with held-out derivatives) ``derivatives.png``: need only the model."""
+    from aeropend_ident.ident_plots import plot_coefficients, plot_derivatives
 
     files = [plot_coefficients(model, out / "coefficients.png")]
     if any(tg in held.derivatives for tg in model.targets):
         files.append(plot_derivatives(model, held, out / "derivatives.png"))
+    return files
+
+
+def _start_model_plots(out: Path, model: SindyModel, held: IdentData) -> Any:
+    """Draw :func:`_model_plots` in a forked child process while this one runs the free runs.
+
+    Importing matplotlib and drawing the two figures takes about as long as the free runs; on a
+    machine with a spare core they overlap. Returns the started process, or None where ``fork``
+    is not available or there is one CPU only (then :func:`_plots` draws them here).
+    """
+    import multiprocessing
+
+    if (os.cpu_count() or 1) < 2 or "fork" not in multiprocessing.get_all_start_methods():
+        return None
+    proc = multiprocessing.get_context("fork").Process(target=_model_plots, args=(out, model, held),
+                                                        name="identify-plots", daemon=True)
+    proc.start()
+    return proc
+
+
+def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, held_run: FreeRun,
+           say: Progress, child: Any = None) -> list[str]:
+    from aeropend_ident.ident_plots import plot_free_run
+
     dt = float(np.median(np.diff(train.t))) if len(train) > 1 else 1.0
     train = train.slice(max(0, len(train) - int(PLOT_TRAIN_TAIL_S / dt)), len(train))
     tr, ho = free_run(model, train, substeps=1), held_run
@@ -218,10 +243,34 @@ def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, held
     t = np.concatenate([train.t - train.t[0], held.t - train.t[0]])
     meas = {s: np.concatenate([train.variables[s], held.variables[s]]) for s in states}
     sim = {s: np.concatenate([tr.states[s], ho.states[s]]) for s in states}
-    files.append(plot_free_run(t, meas, sim, out / "free_run.png", t_split=float(held.t[0] - train.t[0]),
-                               states=states))
+    last = plot_free_run(t, meas, sim, out / "free_run.png", t_split=float(held.t[0] - train.t[0]),
+                         states=states)
+    if child is not None:
+        child.join()
+    if child is None or child.exitcode != 0:  # no child, or it failed: draw here (raises the real error)
+        first = _model_plots(out, model, held)
+    else:
+        first = [out / "coefficients.png"]
+        if any(tg in held.derivatives for tg in model.targets):
+            first.append(out / "derivatives.png")
+    files = [*first, last]
     say(f"plots: {', '.join(p.name for p in files)}")
     return [p.name for p in files]
+
+
+def _held_out_runs(model: SindyModel, recs: Sequence[Recording], parts: Sequence[tuple[IdentData, IdentData]],
+                   say: Progress) -> tuple[list[dict[str, Any]], list[FreeRun]]:
+    """Free run of the model on each held-out part: θ scores per recording and the runs."""
+    say("free runs on the held-out part(s)")
+    scores, held_runs = [], []
+    for r, (_tr, ho) in zip(recs, parts, strict=True):
+        fr = free_run(model, ho, substeps=1)
+        held_runs.append(fr)
+        sc = _theta_scores(ho.variables["theta"], fr.states["theta"])
+        sc.update({"recording": r.source, "heldout_samples": len(ho), "free_run_nrmse_std": fr.nrmse})
+        scores.append(sc)
+        say(f"  {r.source}: held-out free-run NRMSE(range) of θ {sc['nrmse_range']:.4g}")
+    return scores, held_runs
 
 
 def identify(
@@ -340,26 +389,23 @@ def identify(
         extra["notes"] = sel.notes
         for n in sel.notes:
             say(f"note: {n}")
-    say("free runs on the held-out part(s)")
-    scores, held_runs = [], []
-    for r, (_tr, ho) in zip(recs, parts, strict=True):
-        fr = free_run(model, ho, substeps=1)
-        held_runs.append(fr)
-        sc = _theta_scores(ho.variables["theta"], fr.states["theta"])
-        sc.update({"recording": r.source, "heldout_samples": len(ho), "free_run_nrmse_std": fr.nrmse})
-        scores.append(sc)
-        say(f"  {r.source}: held-out free-run NRMSE(range) of θ {sc['nrmse_range']:.4g}")
-    gear = rig.motor.gear_ratio if rig is not None else None
-    l_j = rig.pendulum.L_over_J if rig is not None else None
-    prov = {"inputs": [str(p) for p in paths], "rig": rig.name if rig else None, "library": library,
-            "samples": [len(r) for r in recs], "train_fraction": train_fraction}
-    if "thrust_map" in extra:
-        prov["thrust_map"] = {k: v for k, v in extra["thrust_map"].items() if k != "grid"}
-    save_model(out / "model.yaml", model, gear_ratio=gear, L_over_J=l_j, test_mse=test_mse,
-               free_run_nrmse=scores[0]["free_run_nrmse_std"], provenance=prov)
-    files = ["model.yaml", "summary.json"]
-    if plots:
-        files += _plots(out, model, parts[0][1], parts[0][0], held_runs[0], say)
+    child = _start_model_plots(out, model, parts[0][1]) if plots else None
+    try:
+        scores, held_runs = _held_out_runs(model, recs, parts, say)
+        gear = rig.motor.gear_ratio if rig is not None else None
+        l_j = rig.pendulum.L_over_J if rig is not None else None
+        prov = {"inputs": [str(p) for p in paths], "rig": rig.name if rig else None, "library": library,
+                "samples": [len(r) for r in recs], "train_fraction": train_fraction}
+        if "thrust_map" in extra:
+            prov["thrust_map"] = {k: v for k, v in extra["thrust_map"].items() if k != "grid"}
+        save_model(out / "model.yaml", model, gear_ratio=gear, L_over_J=l_j, test_mse=test_mse,
+                   free_run_nrmse=scores[0]["free_run_nrmse_std"], provenance=prov)
+        files = ["model.yaml", "summary.json"]
+        if plots:
+            files += _plots(out, model, parts[0][1], parts[0][0], held_runs[0], say, child)
+    finally:
+        if child is not None:  # also on an error: never leave the plotting child behind
+            child.join()
     summary = {
         "inputs": [str(p) for p in paths], "bag": str(paths[0]), "samples": sum(len(r) for r in recs),
         "targets": targets, "not_identified": refused, "method": model.method, "library": library,
