@@ -7,8 +7,6 @@ sample that arrives must carry exactly the original values and stamps.
 
 from __future__ import annotations
 
-import os
-import random
 import signal
 import subprocess
 import sys
@@ -18,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from ros_support import isolated_env, node_command, random_domain, stop
 
 from aeropend_ident.bags import read_bag, write_bag
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
@@ -26,23 +25,9 @@ from aeropend_sim.recording import Recording
 pytest.importorskip("rclpy")
 pytestmark = pytest.mark.ros
 
-BIN = Path(sys.executable).parent
 N = 1225  # 2.5 s at the thesis rate
 DT = 2.048e-3
-
-
-def _cmd(script: str, module: str) -> list[str]:
-    """Console script if installed next to this Python, else ``python -m module``."""
-    exe = BIN / script
-    return [str(exe)] if exe.exists() else [sys.executable, "-m", module]
-
-
-def _env() -> dict[str, str]:
-    env = dict(os.environ)
-    env["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 100))
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
+RECORD = node_command("record", "aeropend_ident.record_node")
 
 
 def _source(tmp_path: Path) -> tuple[Recording, Path]:
@@ -63,21 +48,11 @@ def _source(tmp_path: Path) -> tuple[Recording, Path]:
     return rec, write_bag(rec, tmp_path / "source")
 
 
-def _stop(proc: subprocess.Popen[str], sig: int = signal.SIGINT, timeout: float = 10.0) -> None:
-    if proc.poll() is None:
-        proc.send_signal(sig)
-        try:
-            proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(5)
-
-
 def _run(tmp_path: Path, record_args: list[str], play_args: list[str], stop_sig: int | None
          ) -> tuple[subprocess.CompletedProcess[str], str, str]:
     """Start the recorder, play the source bag, then stop the recorder (or let it stop itself)."""
-    env = _env()
-    rec_proc = subprocess.Popen([*_cmd("record", "aeropend_ident.record_node"), *record_args], env=env,
+    env = isolated_env(random_domain())
+    rec_proc = subprocess.Popen([*RECORD, *record_args], env=env,
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     play_proc: subprocess.Popen[str] | None = None
     try:
@@ -93,8 +68,8 @@ def _run(tmp_path: Path, record_args: list[str], play_args: list[str], stop_sig:
         return subprocess.CompletedProcess(rec_proc.args, rec_proc.returncode), rec_out, play_out
     finally:
         if play_proc is not None:
-            _stop(play_proc)
-        _stop(rec_proc)
+            stop(play_proc, signal.SIGINT, kill_on_timeout=True)
+        stop(rec_proc, signal.SIGINT, kill_on_timeout=True)
 
 
 def _compare(src: Recording, got: Recording) -> np.ndarray:
@@ -195,14 +170,14 @@ def test_recorder_stops_itself(tmp_path: Path) -> None:
 
     # duration limit with nobody publishing: a valid, empty bag listing the contract topics
     empty = tmp_path / "empty"
-    env = _env()
-    args = [*_cmd("record", "aeropend_ident.record_node"), "--ros-args", "-p", f"output:={empty}",
+    env = isolated_env(random_domain())
+    args = [*RECORD, "--ros-args", "-p", f"output:={empty}",
             "-p", "duration:=1.0"]
     proc = subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         text, _ = proc.communicate(timeout=20)
     finally:
-        _stop(proc)
+        stop(proc, signal.SIGINT, kill_on_timeout=True)
     assert proc.returncode == 0, text
     assert "duration 1 s reached" in text
     assert set(_qos(empty)) == {TOPIC_JOINT_STATES, TOPIC_ARMATURE, TOPIC_DUTY_CYCLE}
