@@ -11,8 +11,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import random
-import shutil
 import signal
 import subprocess
 import sys
@@ -20,13 +18,14 @@ import tempfile
 import time
 from pathlib import Path
 
-import rclpy
-from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import JointState
 
 from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_sim.contract import TOPIC_JOINT_STATES
 from aeropend_sim.ros_contract import SAMPLE_QOS
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+from ros_support import isolated_env, node_command, private_node, random_domain, stop
 
 
 def _cpu_s(pid: int) -> float:
@@ -36,35 +35,26 @@ def _cpu_s(pid: int) -> float:
 
 def run(seconds: float) -> dict[str, float]:
     """Measure for ``seconds`` after a 3 s warm-up."""
-    domain = random.randint(101, 200)
+    domain = random_domain(101, 200)
     tmp = Path(tempfile.mkdtemp())
     mcu = FakeMcu(tmp / "tty").start()
-    exe = shutil.which("bridge", path=str(Path(sys.executable).parent)) or "bridge"
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    proc = subprocess.Popen([exe, "--ros-args", "-p", f"port:={tmp / 'tty'}"], env=env,
+    proc = subprocess.Popen([*node_command("bridge", "aeropend_bridge.bridge_node"), "--ros-args",
+                             "-p", f"port:={tmp / 'tty'}"], env=isolated_env(domain),
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx, domain_id=domain)
-    node = rclpy.create_node("bench_bridge", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
     got: list[int] = [0]
-    node.create_subscription(JointState, TOPIC_JOINT_STATES, lambda m: got.__setitem__(0, got[0] + 1),
-                             SAMPLE_QOS)
     try:
-        end = time.monotonic() + 3.0
-        while time.monotonic() < end:
-            ex.spin_once(timeout_sec=0.01)
-        n0, c0, t0 = got[0], _cpu_s(proc.pid), time.monotonic()
-        while time.monotonic() < t0 + seconds:
-            ex.spin_once(timeout_sec=0.01)
-        n1, c1, t1 = got[0], _cpu_s(proc.pid), time.monotonic()
+        with private_node("bench_bridge", domain) as (node, ex):
+            node.create_subscription(JointState, TOPIC_JOINT_STATES, lambda m: got.__setitem__(0, got[0] + 1),
+                                     SAMPLE_QOS)
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end:
+                ex.spin_once(timeout_sec=0.01)
+            n0, c0, t0 = got[0], _cpu_s(proc.pid), time.monotonic()
+            while time.monotonic() < t0 + seconds:
+                ex.spin_once(timeout_sec=0.01)
+            n1, c1, t1 = got[0], _cpu_s(proc.pid), time.monotonic()
     finally:
-        proc.send_signal(signal.SIGINT)
-        proc.wait(10)
-        ex.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+        stop(proc, signal.SIGINT, timeout=10)
         mcu.stop()
     return {"seconds": t1 - t0, "frames_per_s_received": (n1 - n0) / (t1 - t0),
             "firmware_rate_hz": 16e6 / 64 / 510,

@@ -35,8 +35,6 @@ import csv
 import json
 import os
 import platform
-import random
-import re
 import shutil
 import signal
 import subprocess
@@ -50,8 +48,10 @@ import numpy as np
 from aeropend_control.controller_core import SIGNALS
 from aeropend_control.metrics import step_metrics
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+from ros_support import isolated_env, node_command, random_domain, reap, stop, summary_fields, summary_line
+
 OUT = Path(__file__).resolve().parent / "results" / "control_latency.json"
-BIN = Path(sys.executable).parent
 PERIOD_S = 2.048e-3
 #: Samples of the start-up transient (first 0.5 s: DDS matching of the command path, first
 #: callbacks) reported apart.
@@ -132,8 +132,7 @@ def analyse(trace_rows: np.ndarray, timing: dict[str, np.ndarray]) -> dict:
 
 def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict:
     """One real-time run; returns the result dict (see module doc)."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    env = isolated_env(random_domain())
     # SCHED_FIFO for the whole process (chrt) so that the DDS threads created at rclpy.init inherit
     # it; the nodes' rt_priority raises their hot thread (sampler / executor) above that.
     rt = ["chrt", "-f", str(max(rt_priority - 10, 1))] if rt_priority > 0 and shutil.which("chrt") else []
@@ -142,34 +141,30 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict
     with tempfile.TemporaryDirectory() as tmp:
         trace, timing_file = Path(tmp) / "trace.csv", Path(tmp) / "timing.npz"
         sim = subprocess.Popen(
-            [*rt, str(BIN / "sim_node"), "--ros-args", "-p", "mode:=realtime",
+            [*rt, *node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", "mode:=realtime",
              "-p", f"rt_priority:={rt_priority}", "-p", f"timing_log:={timing_file}"],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         ctl = None
         try:
             time.sleep(1.0)
             ctl = subprocess.Popen(
-                [*rt, str(BIN / "controller"), "--ros-args", "-p", "mode:=realtime",
-                 "-p", "steps:=[0.0, 0.4]", "-p", f"strategy:={strategy}", "-p", f"duration:={duration}",
-                 "-p", f"trace:={trace}",
+                [*rt, *node_command("controller", "aeropend_control.controller_node"), "--ros-args",
+                 "-p", "mode:=realtime", "-p", "steps:=[0.0, 0.4]", "-p", f"strategy:={strategy}",
+                 "-p", f"duration:={duration}", "-p", f"trace:={trace}",
                  "-p", f"rt_priority:={rt_priority}", "-p", f"executor:={executor}"],
                 env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
             ctl_out, _ = ctl.communicate(timeout=duration + 60)
             time.sleep(0.2)
-            sim.send_signal(signal.SIGTERM)
-            sim_out, _ = sim.communicate(timeout=15)
+            sim_out = stop(sim, signal.SIGTERM, timeout=15).stdout
         finally:
-            for p in (ctl, sim):
-                if p is not None and p.poll() is None:
-                    p.kill()
-                    p.communicate(timeout=10)
+            reap(ctl, sim)
         rows = list(csv.reader(trace.open()))
         timing = dict(np.load(timing_file))
     cpu1 = _cpu_busy()
     load1 = os.getloadavg()
     assert tuple(rows[0]) == SIGNALS, rows[0]
     d = np.array(rows[1:], dtype=float)
-    summary = dict(re.findall(r"(\w+)=([\d.na]+)", sim_out.split("summary:")[-1]))
+    ctl_summary = summary_line(ctl_out)
     met = step_metrics(d[:, SIGNALS.index("t")], d[:, SIGNALS.index("theta")], 0.4)
     return {
         "setup": {"duration_s": duration, "strategy": strategy, "rt_priority": rt_priority,
@@ -179,8 +174,8 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict
                  "cpu_busy_fraction_during_run": round((cpu1[0] - cpu0[0]) / max(cpu1[1] - cpu0[1], 1), 3),
                  "cpu_steal_fraction_during_run": round((cpu1[2] - cpu0[2]) / max(cpu1[1] - cpu0[1], 1), 4)},
         **analyse(d, timing),
-        "plant_summary": summary,
-        "controller_summary": re.findall(r"summary: (.*)", ctl_out)[-1:],
+        "plant_summary": summary_fields(sim_out),
+        "controller_summary": [ctl_summary] if ctl_summary is not None else [],
         "step_metrics": met.as_dict(),
     }
 

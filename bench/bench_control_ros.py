@@ -25,8 +25,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
-import random
 import subprocess
 import sys
 import tempfile
@@ -36,8 +34,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 
 from bench_control import BENCH_STRATEGIES, HORIZON_S, SETPOINTS, scenarios, time_optimal_bound
+from ros_support import isolated_env, node_command, random_domain, reap
 
 from aeropend_control.controller_core import SIGNALS
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
@@ -46,30 +46,27 @@ from aeropend_sim.params import Rig, save_rig
 from aeropend_sim.simulate import PlantStepper
 
 OUT = Path(__file__).resolve().parent / "results" / "control_ros.json"
-BIN = Path(sys.executable).parent
 
 
 def run_ros(rig_file: Path, strategy: str, r: float, trace: Path) -> tuple[np.ndarray, float]:
     """One lock-step run; returns the trace array and the wall time [s]."""
-    env = dict(os.environ, ROS_DOMAIN_ID=str(random.randint(1, 100)),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", PYTHONUNBUFFERED="1")
+    env = isolated_env(random_domain())
     t0 = time.perf_counter()
-    sim_cmd = [str(BIN / "sim_node"), "--ros-args", "-p", "mode:=lockstep", "-p", f"rig:={rig_file}"]
+    sim_cmd = [*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", "mode:=lockstep",
+               "-p", f"rig:={rig_file}"]
     sim = subprocess.Popen(sim_cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctl = None
     try:
         ctl = subprocess.Popen(
-            [str(BIN / "controller"), "--ros-args", "-p", "mode:=lockstep", "-p", f"strategy:={strategy}",
-             "-p", f"steps:=[0.0, {r}]", "-p", f"duration:={HORIZON_S}", "-p", f"trace:={trace}"],
+            [*node_command("controller", "aeropend_control.controller_node"), "--ros-args",
+             "-p", "mode:=lockstep", "-p", f"strategy:={strategy}", "-p", f"steps:=[0.0, {r}]",
+             "-p", f"duration:={HORIZON_S}", "-p", f"trace:={trace}"],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         out, _ = ctl.communicate(timeout=120)
         if ctl.returncode != 0:
             raise RuntimeError(f"controller exit {ctl.returncode}: {out[-1000:]}")
     finally:
-        for p in (ctl, sim):
-            if p is not None and p.poll() is None:
-                p.kill()
-                p.communicate(timeout=10)
+        reap(ctl, sim)
     wall = time.perf_counter() - t0
     rows = list(csv.reader(trace.open()))
     return np.array(rows[1:], dtype=float), wall

@@ -24,9 +24,6 @@ import argparse
 import json
 import os
 import platform
-import random
-import re
-import shutil
 import signal
 import subprocess
 import sys
@@ -41,6 +38,8 @@ from aeropend_sim.params import load_rig, shipped_rigs
 from aeropend_sim.simulate import PlantStepper
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "test"))
+from ros_support import isolated_env, node_command, random_domain, reap, stop, summary_fields  # noqa: E402
 
 
 # ------------------------------------------------------------------------------------- subscriber
@@ -117,22 +116,15 @@ def step_cost(rig_name: str, n: int = 5000) -> dict[str, float]:
             "max_us": float(us.max()), "n": n}
 
 
-def _sim_node_cmd() -> list[str]:
-    exe = shutil.which("sim_node", path=str(Path(sys.executable).parent))
-    return [exe] if exe else [sys.executable, "-m", "aeropend_sim.sim_node"]
-
-
 def measure_node(rig: str, rt_priority: int, duration: float, warmup: float) -> dict:
     """Run sim_node (realtime) and a subscriber process; return rate/jitter/overrun figures."""
-    domain = random.randint(101, 200)
-    env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               PYTHONUNBUFFERED="1")
+    env = isolated_env(random_domain(101, 200))
     load_before = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "sub.npz"
         node = subprocess.Popen(
-            [*_sim_node_cmd(), "--ros-args", "-p", f"rig:={rig}", "-p", "mode:=realtime",
-             "-p", f"rt_priority:={rt_priority}"],
+            [*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", f"rig:={rig}",
+             "-p", "mode:=realtime", "-p", f"rt_priority:={rt_priority}"],
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         )
         sub = subprocess.Popen(
@@ -143,15 +135,8 @@ def measure_node(rig: str, rt_priority: int, duration: float, warmup: float) -> 
         try:
             sub_status = sub.wait(timeout=duration + warmup + 60)
         finally:
-            if sub.poll() is None:
-                sub.kill()
-                sub.wait()
-            node.send_signal(signal.SIGINT)
-            try:
-                _, node_err = node.communicate(timeout=10)
-            except subprocess.TimeoutExpired:
-                node.kill()
-                _, node_err = node.communicate()
+            reap(sub)
+            node_err = stop(node, signal.SIGINT, timeout=10, kill_on_timeout=True).stderr
         if sub_status != 0:
             raise RuntimeError(f"subscriber failed (status {sub_status}); node log:\n{node_err}")
         rec = np.load(data)
@@ -159,9 +144,6 @@ def measure_node(rig: str, rt_priority: int, duration: float, warmup: float) -> 
     period = load_rig(rig).sample_period
     k = np.rint((stamps - stamps[0]) / (period * 1e9)).astype(np.int64)
     contiguous = np.flatnonzero(np.diff(k) == 1)
-    summary: dict[str, str] = {}
-    if "summary:" in node_err:
-        summary = dict(re.findall(r"(\w+)=([\w.]+)", node_err.split("summary:")[-1]))
     return {
         "rt_priority": rt_priority,
         "fifo_granted": rt_priority > 0 and "cannot set SCHED_FIFO" not in node_err,
@@ -172,7 +154,7 @@ def measure_node(rig: str, rt_priority: int, duration: float, warmup: float) -> 
         "stamps": jitter_stats(np.diff(stamps)[contiguous], int(stamps[-1] - stamps[0]), stamps.size, period),
         "arrivals": jitter_stats(np.diff(arrivals)[contiguous], int(arrivals[-1] - arrivals[0]), stamps.size,
                                  period),
-        "node_summary": summary,
+        "node_summary": summary_fields(node_err),
     }
 
 
