@@ -83,7 +83,7 @@ def isolated_env(domain: int) -> dict[str, str]:
     return dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1", **DISCOVERY)
 
 
-def isolate_this_process(monkeypatch: pytest.MonkeyPatch, domain: int) -> None:
+def isolate_process(monkeypatch: pytest.MonkeyPatch, domain: int) -> None:
     """Put the test process itself (and children started with ``os.environ``) on ``domain``.
 
     Sets ``ROS_DOMAIN_ID`` and localhost-only discovery through ``monkeypatch``, so both are
@@ -206,7 +206,7 @@ def summary_fields(text: str) -> dict[str, str]:
     Parameters
     ----------
     text : str
-        The node's captured stdout/stderr.
+        Captured output, as for :func:`summary_line`.
 
     Returns
     -------

@@ -18,15 +18,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from ros_support import (
-    isolated_env,
-    node_command,
-    private_node,
-    random_domain,
-    reap,
-    stop,
-    summary_count,
-)
+from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop, summary_count
 
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
 from aeropend_control.strategies import NEEDS_MOTOR, make_strategy

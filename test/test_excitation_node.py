@@ -9,15 +9,7 @@ import time
 
 import numpy as np
 import pytest
-from ros_support import (
-    isolate_this_process,
-    isolated_env,
-    node_command,
-    private_node,
-    random_domain,
-    reap,
-    stop,
-)
+from ros_support import isolate_process, isolated_env, node_command, private_node, random_domain, reap, stop
 
 from aeropend_sim.excitation import ExcitationError, lhs_steps, make_signal, staircase
 from aeropend_sim.excitation_node import (
@@ -127,7 +119,7 @@ def test_lockstep_plant_excitation_ping_pong(monkeypatch):
     from aeropend_sim.ros_contract import SAMPLE_QOS_LOCKSTEP
 
     domain = random_domain()
-    isolate_this_process(monkeypatch, domain)
+    isolate_process(monkeypatch, domain)
     env = isolated_env(domain)
     sig = staircase([0.45, 0.3, 0.55], [0.2, 0.1, 0.15])
     n = len(sig)

@@ -6,7 +6,7 @@ import json
 import os
 
 import pytest
-from ros_support import isolate_this_process, random_domain
+from ros_support import isolate_process, random_domain
 
 from aeropend_ident.bags import read_bag
 from aeropend_ident.pipeline import main
@@ -15,7 +15,7 @@ pytestmark = pytest.mark.ros
 
 
 def test_main_job_records_every_sample_and_reports(tmp_path, monkeypatch):
-    isolate_this_process(monkeypatch, random_domain(101, 200))
+    isolate_process(monkeypatch, random_domain(101, 200))
     signal = ["signal:=lhs", "n:=4", "tau_min:=0.35", "tau_max:=0.7", "hold_min:=1.0", "hold_max:=1.5"]
     assert main(["--out", str(tmp_path), "--seed", "3", "--signal", *signal]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())

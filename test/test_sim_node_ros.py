@@ -19,15 +19,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from ros_support import (
-    isolate_this_process,
-    isolated_env,
-    node_command,
-    private_node,
-    random_domain,
-    reap,
-    stop,
-)
+from ros_support import isolate_process, isolated_env, node_command, private_node, random_domain, reap, stop
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
@@ -58,7 +50,7 @@ PERIOD_NS = 2_048_000
 @pytest.fixture
 def domain(monkeypatch: pytest.MonkeyPatch) -> int:
     d = random_domain()
-    isolate_this_process(monkeypatch, d)
+    isolate_process(monkeypatch, d)
     return d
 
 
