@@ -1369,14 +1369,20 @@ def free_run(model: SindyModel, data: IdentData, substeps: int = 2) -> FreeRun:
     idx = {s: i for i, s in enumerate(states)}
     exo_names = sorted(v for v in need if v not in idx)
     exo_data = {v: np.asarray(data.variables[v], dtype=float) for v in exo_names}
-    candidates = model.library.candidates
-    row = np.empty(len(candidates))
+    funcs = [c.func for c in model.library.candidates]
+    row = np.empty(len(funcs))
+    coef_rows = [model.coef[j] for j in range(len(model.targets))]
+    idx_items = list(idx.items())
+    # where each simulated state's derivative comes from: a target's row of Ξ, or θ̇ for θ
+    source = [(i, -1 if (s == "theta" and s not in model.targets) else model.targets.index(s))
+              for s, i in idx_items]
+    i_theta_dot = idx.get("theta_dot", -1)
 
     def library_row(vals: dict[str, np.ndarray]) -> np.ndarray:
         # the library row of CandidateLibrary.evaluate without its per-column checks (the hot loop);
         # a non-finite value is re-evaluated there to raise the library's own error
-        for j, c in enumerate(candidates):
-            y = np.asarray(c.func(vals), dtype=float)
+        for j, f in enumerate(funcs):
+            y = np.asarray(f(vals), dtype=float)
             row[j] = y if y.ndim == 0 else y[0]
         if not np.isfinite(row).all():
             model.library.evaluate(vals)
@@ -1384,15 +1390,17 @@ def free_run(model: SindyModel, data: IdentData, substeps: int = 2) -> FreeRun:
 
     def rhs(xs: np.ndarray, exo: dict[str, np.ndarray]) -> np.ndarray:
         vals = dict(exo)
-        vals.update({s: xs[i:i + 1] for s, i in idx.items()})
+        for s, i in idx_items:
+            vals[s] = xs[i:i + 1]
+        dx = np.empty(len(states))
         if model.base is None:
             r = library_row(vals)
-            pred = {tg: (r @ model.coef[j],) for j, tg in enumerate(model.targets)}
-        else:
-            d = IdentData(t=np.arange(3.0), variables={k_: np.repeat(v, 3) for k_, v in vals.items()})
-            pred = model.predict(d)
-        dx = np.empty(len(states))
-        for s, i in idx.items():
+            for i, j in source:
+                dx[i] = xs[i_theta_dot] if j < 0 else r @ coef_rows[j]
+            return dx
+        d = IdentData(t=np.arange(3.0), variables={k_: np.repeat(v, 3) for k_, v in vals.items()})
+        pred = model.predict(d)
+        for s, i in idx_items:
             dx[i] = xs[idx["theta_dot"]] if (s == "theta" and s not in model.targets) else pred[s][0]
         return dx
 
