@@ -888,6 +888,10 @@ def fit(
 ) -> SindyModel:
     """Identify a sparse model (see the module docstring for the methods).
 
+    Runs as ``regression_problem(data, library, targets, ...).solve(threshold)``: build the
+    λ-independent regression, then the sparse regression for λ (several λ on the same data:
+    build the problem once, see :func:`regression_problem` and :func:`sweep_threshold`).
+
     Parameters
     ----------
     data : IdentData
