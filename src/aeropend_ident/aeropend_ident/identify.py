@@ -223,12 +223,18 @@ def _start_model_plots(out: Path, model: SindyModel, held: IdentData) -> Any:
     is not available or there is one CPU only (then :func:`_plots` draws them here).
     """
     import multiprocessing
+    import warnings
 
     if (os.cpu_count() or 1) < 2 or "fork" not in multiprocessing.get_all_start_methods():
         return None
+    # fork, not spawn: the model holds the library's lambdas, which do not pickle. The child only
+    # draws two figures and exits; OpenBLAS's worker threads are fork-safe (pthread_atfork), which
+    # Python >= 3.12's generic multi-threaded-fork DeprecationWarning cannot know.
     proc = multiprocessing.get_context("fork").Process(target=_model_plots, args=(out, model, held),
                                                         name="identify-plots", daemon=True)
-    proc.start()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        proc.start()
     return proc
 
 
