@@ -16,7 +16,9 @@ Case set:
 
 Writes ``bench/results/gap_blind.json`` and ``bench/results/gap_blind.md``.
 
-Usage: ``python bench/bench_gap_blind.py [--reps 2] [--workers 2] [--quick]``
+Usage: ``python bench/bench_gap_blind.py [--reps 2] [--workers 2] [--quick] [--max-effects 2]``
+(``--max-effects 3`` writes ``bench/results/gap_blind_3eff.*``: the diagnosis may add a third
+effect by the same forward-selection step as the second.)
 """
 
 from __future__ import annotations
@@ -72,7 +74,8 @@ def run_case(spec: dict[str, Any]) -> dict[str, Any]:
     rig = load_rig(RIG)
     case = make_case(rig, spec["effects"], spec["seed"], channels=spec["channels"])
     t0, c0 = time.perf_counter(), time.process_time()
-    d = diagnose_effects(rig, case.fit, case.held_out, seed=spec["seed"])
+    d = diagnose_effects(rig, case.fit, case.held_out, seed=spec["seed"],
+                         max_effects=spec.get("max_effects", 2))
     elapsed, cpu = time.perf_counter() - t0, time.process_time() - c0
     s = score_case(case, d)
     s["group"] = spec["group"]
@@ -95,7 +98,8 @@ def write_md(path: Path, summary: dict[str, Any], groups: dict[str, Any], conf: 
     lines = [
         "# Blind benchmark of the gap diagnosis (bench/bench_gap_blind.py)",
         "",
-        f"Nominal rig `{RIG}`; {summary['cases']} cases ({meta['wall_s']:.0f} s wall on {meta['workers']} "
+        f"Nominal rig `{RIG}`; at most {meta.get('max_effects', 2)} effects added; "
+        f"{summary['cases']} cases ({meta['wall_s']:.0f} s wall on {meta['workers']} "
         f"worker(s) on a shared machine; median {meta['median_case_s']:.1f} s wall and "
         f"{meta['median_case_cpu_s']:.1f} s CPU per case, {meta['total_cpu_s']:.0f} s CPU in all). "
         "Hidden plants = nominal + 1 or 2 catalog effects at random magnitudes, 45-60 dB sensor noise; "
@@ -117,6 +121,8 @@ def write_md(path: Path, summary: dict[str, Any], groups: dict[str, Any], conf: 
         f"{_pct(summary['median_magnitude_error'], 3)} |",
         f"| non-identifiable truths reported as such | {_pct(summary['not_identifiable_reported'])} "
         f"of {summary['not_identifiable_cases']} |",
+        f"| cases with more effects chosen than hidden | {meta.get('more_chosen_than_hidden', '—')} of "
+        f"{meta.get('n_cases', '—')} |",
         "",
         "## Per group",
         "",
@@ -163,15 +169,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reps", type=int, default=2, help="seeds per catalog effect (all channels)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="one seed per effect, all channels only")
-    ap.add_argument("--out", default=str(RESULTS / "gap_blind"))
+    ap.add_argument("--max-effects", type=int, default=2, choices=(1, 2, 3),
+                    help="most effects the diagnosis adds (the gap command's default is 2)")
+    ap.add_argument("--out", default=None, help="output stem (default bench/results/gap_blind[_3eff])")
     ap.add_argument("--render", action="store_true", help="only re-write the .md from the existing .json")
     args = ap.parse_args(argv)
-    out = Path(args.out)
+    stem = "gap_blind" if args.max_effects == 2 else f"gap_blind_{args.max_effects}eff"
+    out = Path(args.out or RESULTS / stem)
     if args.render:
         doc = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))
         write_md(out.with_suffix(".md"), doc["summary"], doc["groups"], doc["confusion"], doc["meta"])
         return 0
-    specs = case_list(args.reps, args.quick)
+    specs = [{**c, "max_effects": args.max_effects} for c in case_list(args.reps, args.quick)]
     t0 = time.perf_counter()
     scores: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=args.workers) as pool:
@@ -192,7 +201,8 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"rig": RIG, "workers": args.workers, "wall_s": wall, "median_case_s": times[len(times) // 2],
             "median_case_cpu_s": cpus[len(cpus) // 2], "total_cpu_s": sum(cpus),
             "python": sys.version.split()[0], "machine": platform.machine(), "reps": args.reps,
-            "quick": args.quick}
+            "quick": args.quick, "max_effects": args.max_effects, "n_cases": len(scores),
+            "more_chosen_than_hidden": sum(len(s["chosen"]) > len(s["truth"]) for s in scores)}
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(
         {"meta": meta, "summary": summary, "groups": groups, "confusion": conf, "cases": scores},

@@ -22,7 +22,9 @@ Each case runs :func:`aeropend_ident.gap_report.run_gap` (where + which + after)
 ``gap`` command does. Results: ``bench/results/gap_real.json`` and ``.md``; figures
 ``docs/results/gap_<case>_overlay.png`` / ``_where.png`` / ``_effects.png``.
 
-Run: ``python bench/bench_gap_real.py [case ...]`` (≈ 1–3 min per case on two cores).
+Run: ``python bench/bench_gap_real.py [--max-effects 3] [case ...]`` (≈ 1–3 min per case on two
+cores). ``--max-effects 3`` lets the diagnosis add a third effect by the same forward-selection
+step as the second (results under ``<case>_3eff``); the default is 2, as the ``gap`` command.
 """
 
 from __future__ import annotations
@@ -269,7 +271,7 @@ NEEDS_REAL = {
 }
 
 
-def run_case(name: str) -> dict[str, Any]:
+def run_case(name: str, max_effects: int = 2) -> dict[str, Any]:
     spec = CASES[name]()
     rig, offset = resolve_rig(spec["rig"])
     fit, held, rule = spec["split"]
@@ -283,19 +285,22 @@ def run_case(name: str) -> dict[str, Any]:
         split_rule=rule,  # type: ignore[arg-type]
         validation=spec.get("validation"),
         validation_fraction=spec.get("validation_fraction", 0.3),
+        max_effects=max_effects,
         progress=lambda m: print(f"  [{name}] {m}", flush=True),
     )
     elapsed = time.perf_counter() - t0
-    out = Path("/tmp") / f"gap_bench_{name}"
+    key = result_key(name, max_effects)
+    out = Path("/tmp") / f"gap_bench_{key}"
     write_report(res, out)
     FIGS.mkdir(parents=True, exist_ok=True)
-    (FIGS / f"gap_{name}_overlay.png").write_bytes(fig_overlay(res))
-    (FIGS / f"gap_{name}_where.png").write_bytes(fig_equations(res.where))
-    (FIGS / f"gap_{name}_effects.png").write_bytes(fig_effects(res))
+    (FIGS / f"gap_{key}_overlay.png").write_bytes(fig_overlay(res))
+    (FIGS / f"gap_{key}_where.png").write_bytes(fig_equations(res.where))
+    (FIGS / f"gap_{key}_effects.png").write_bytes(fig_effects(res))
     d = res.diagnosis
     h = res.headline()
     row: dict[str, Any] = {
         "rig": spec["rig"],
+        "max_effects": max_effects,
         "split_rule": rule,
         "elapsed_s": elapsed,
         "fit": [{"source": r.source, "n": len(r), "dt_s": r.dt} for r in fit],
@@ -369,6 +374,11 @@ def run_case(name: str) -> dict[str, Any]:
             for k in ("mgd_over_J", "c_over_J", "L_over_J", "coulomb_over_J")
         }
     return row
+
+
+def result_key(name: str, max_effects: int) -> str:
+    """Result / figure key of a case: the case name, with ``_3eff`` when up to 3 effects are added."""
+    return name if max_effects == 2 else f"{name}_{max_effects}eff"
 
 
 def markdown(results: dict[str, Any]) -> str:
@@ -449,6 +459,11 @@ def markdown(results: dict[str, Any]) -> str:
 
 
 def main(argv: list[str]) -> int:
+    max_effects = 2
+    if "--max-effects" in argv:
+        k = argv.index("--max-effects")
+        max_effects = int(argv[k + 1])
+        argv = argv[:k] + argv[k + 2:]
     names = argv or list(CASES)
     path = RESULTS / "gap_real.json"
     results = json.loads(path.read_text()) if path.exists() else {"cases": {}}
@@ -462,10 +477,11 @@ def main(argv: list[str]) -> int:
             print(f"skip {name}: {REAL} missing")
             continue
         print(f"case {name}", flush=True)
+        key = result_key(name, max_effects)
         try:
-            results["cases"][name] = run_case(name)
+            results["cases"][key] = run_case(name, max_effects)
         except ValueError as exc:  # a diagnosis that cannot run is a result too
-            results["cases"][name] = {"rig": name, "error": str(exc)}
+            results["cases"][key] = {"rig": name, "error": str(exc)}
             print(f"  [{name}] error: {exc}")
         RESULTS.mkdir(parents=True, exist_ok=True)
         path.write_text(json.dumps(jsonable(results), indent=2, allow_nan=False))

@@ -9,6 +9,7 @@ as not identifiable.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 
@@ -66,6 +67,31 @@ def test_slow_motor_found_when_timing_effects_are_confirmed():
     assert got == pytest.approx(4.0, rel=0.15)
     assert d.corrected_rig.motor.J_m == pytest.approx(got * RIG.motor.J_m)
     assert d.shrink[-1]["nrmse"] < 0.3 * d.shrink[0]["nrmse"]
+
+
+def test_three_hidden_effects_found_by_forward_selection_with_max_effects_3():
+    # the AeroShield pattern (bench/results/gap_real.md): a damping error, a slow motor and a
+    # static error at once; θ only, 50 dB; each forward step must add the next true effect
+    truth = {"viscous_friction": {"c_scale": 0.4}, "motor_time_constant": {"J_m_scale": 4.0},
+             "gravity": {"mgd_scale": 1.3}}
+    case = make_case(RIG, list(truth), 31, fit_duration=10.0, held_out_steps=4, truth=truth, snr_db=50.0,
+                     channels=("theta",))
+    d = diagnose_effects(RIG, case.fit, case.held_out, max_effects=3,
+                         also_confirm=("motor_time_constant", "actuator_lag", "input_delay"))
+    assert d.significant and sorted(d.chosen) == sorted(truth)
+    assert [r["effect"] for r in d.ranking[:3]] == d.chosen
+    got = {r["effect"]: r["parameters"] for r in d.ranking[:3]}
+    assert got["viscous_friction"]["c_scale"]["value"] == pytest.approx(0.4, rel=0.03)
+    assert got["motor_time_constant"]["J_m_scale"]["value"] == pytest.approx(4.0, rel=0.05)
+    assert got["gravity"]["mgd_scale"]["value"] == pytest.approx(1.3, rel=0.02)
+    assert d.corrected_rig.pendulum.mgd_over_J == pytest.approx(
+        got["gravity"]["mgd_scale"]["value"] * RIG.pendulum.mgd_over_J)
+    # one row per cumulative effect set, each added effect shrinks the validation gap further
+    assert [len(s["effects"]) for s in d.shrink] == [0, 1, 2, 3]
+    nrmse = [s["nrmse"] for s in d.shrink]
+    assert all(b < a for a, b in itertools.pairwise(nrmse))
+    assert nrmse[-1] < 0.1 * nrmse[0]
+    assert nrmse[-1] < 0.5 * nrmse[2]  # the third effect is not cosmetic
 
 
 def test_electrical_effect_found_from_the_current_channel():
@@ -135,6 +161,6 @@ def test_recordings_lacking_needed_channels_or_broken_raise_gap_error():
     with pytest.raises(GapError, match="no held-out recordings"):
         diagnose_effects(RIG, [good], [])
     with pytest.raises(GapError, match="max_effects"):
-        diagnose_effects(RIG, [good], [good], max_effects=3)
+        diagnose_effects(RIG, [good], [good], max_effects=4)
     with pytest.raises(GapError, match="unknown effect 'rotor_lag'"):
         diagnose_effects(RIG, [good], [good], also_confirm=("rotor_lag",))

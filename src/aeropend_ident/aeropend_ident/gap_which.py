@@ -35,6 +35,8 @@ Pipeline of :func:`diagnose_effects` (issue 5, parts 2 and 3):
    candidates (and the timing effects the caller asked to confirm, ``also_confirm``) are fitted
    jointly with the first; a second effect is added when it removes a further
    :data:`MIN_EXPLAINED_SECOND` of what the first left, with a BIC gain (the largest removal wins).
+   With ``max_effects = 3`` the same forward step is repeated once more on what the pair leaves
+   (:func:`_add_effect`), under the same thresholds.
 5. **Shrink** (:func:`gap_metrics`): the corrected rig (nominal + chosen effects, fitted) is
    replayed in free run on the held-out recordings: NRMSE, max error, steady-state map error and
    step metrics before and after, per cumulative effect set.
@@ -726,7 +728,7 @@ class EffectDiagnosis:
     not_identifiable : list of dict
         ``{"effect", "reason"}`` for effects the recorded channels cannot reveal.
     chosen : list of str
-        Effects added to the corrected rig (0, 1 or 2).
+        Effects added to the corrected rig (0 to ``max_effects``), in the order chosen.
     corrected_rig : Rig
         Nominal rig + chosen effects, fitted.
     shrink : list of dict
@@ -792,6 +794,56 @@ def _rig_values(rig: Rig, name: str, values: Mapping[str, float]) -> dict[str, f
     return {p.rig_field: float(values[p.name]) for p in e.parameters}
 
 
+def _add_effect(rig: Rig, corrected: Rig, meas: MeasurementMap, cur: EffectFit, chosen: Sequence[str],
+                ranking: Sequence[Mapping[str, Any]], screened: Sequence[str], forced: Sequence[str],
+                pf: Sequence[Prepared], ph: Sequence[Prepared], channels: frozenset[str], seed: int,
+                n_eff: int, n_fit: int, say: Callable[[str], None]) -> tuple | None:
+    """One forward-selection step of :func:`diagnose_effects`: the next effect, or None.
+
+    The residual left by the ``chosen`` effects (fitted in ``cur``) is screened (discrepancy SINDy
+    on the corrected model); its two best groups, the next two ranked single effects that remove
+    more than 10 % of the validation residual alone, and the ``forced`` (timing) effects are each
+    fitted jointly with the chosen ones, starting from the chosen values and the candidate's fit
+    on the corrected model. A candidate counts when it removes at least
+    :data:`MIN_EXPLAINED_SECOND` of the validation SSE the chosen set leaves, with a BIC gain of
+    :data:`MIN_BIC_GAIN` on the fit data; the largest removal wins.
+
+    Returns
+    -------
+    tuple or None
+        ``(gain, effect, EffectFit of chosen + effect, BIC change, Screening)``.
+    """
+    cur_sse = float(segment_sse(cur.rig, cur.meas, ph).sum())
+    rest = [n for n in screened if n not in chosen]
+    say(f"screening the residual left by {' + '.join(chosen)}")
+    scr2 = screen(corrected, pf, rest, channels, seed=seed, meas=meas)
+    ranked = [r for r in ranking if r["effect"] not in chosen and r["held_out_explained"] is not None][:2]
+    others: list[str] = []
+    for o in scr2.shortlist(2) + [r["effect"] for r in ranked if r["held_out_explained"] > 0.1]:
+        if o not in others and o not in chosen:
+            others.append(o)
+    best2 = None
+    # timing effects requested by the caller are also tried: a lead or lag often shows only once
+    # the dominant (e.g. damping) error is removed
+    cands = others[:3] + [f for f in forced if f not in others[:3] and f not in chosen]
+    k1 = sum(len(get_effect(n).parameters) for n in chosen)
+    for o in cands:
+        say(f"joint fit of {' + '.join(chosen)} + {o}")
+        try:
+            alone = fit_effects(corrected, [o], pf)
+            start = {**{n: cur.values[n] for n in chosen}, o: alone.values[o]}
+            fr2 = fit_effects(rig, [*chosen, o], pf, start=start, scan=False, max_nfev=20)
+        except GapError:
+            continue
+        sse2 = float(segment_sse(fr2.rig, fr2.meas, ph).sum())
+        gain = 1.0 - sse2 / max(cur_sse, 1e-300)
+        k2 = k1 + len(get_effect(o).parameters)
+        bic_gain = _bic(fr2.sse * n_eff / n_fit, n_eff, k2) - _bic(cur.sse * n_eff / n_fit, n_eff, k1)
+        if gain >= MIN_EXPLAINED_SECOND and bic_gain <= -MIN_BIC_GAIN and (best2 is None or gain > best2[0]):
+            best2 = (gain, o, fr2, bic_gain, scr2)
+    return best2
+
+
 def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Recording], *,
                      max_effects: int = 2, seed: int = 0,
                      progress: Callable[[str], None] | None = None,
@@ -809,7 +861,8 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
         Recordings used only for ranking and for the before/after gap (other excitation or
         segment).
     max_effects : int
-        Most effects added to the corrected rig (1 or 2).
+        Most effects added to the corrected rig (1, 2 or 3; each one after the first by the same
+        forward-selection step, :func:`_add_effect`).
     seed : int
         Seed of the bootstraps and weak-form test functions.
     progress : callable, optional
@@ -829,15 +882,15 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
     ------
     GapError
         Recordings lacking θ or the duty cycle, with NaNs, too short, non-uniform or unexcited;
-        an unusable nominal rig; ``max_effects`` outside 1..2; an unknown effect in
+        an unusable nominal rig; ``max_effects`` outside 1..3; an unknown effect in
         ``also_confirm``.
     """
     t0 = time.perf_counter()
     for name in also_confirm:
         get_effect(name)
     say = progress or (lambda _m: None)
-    if max_effects not in (1, 2):
-        raise GapError(f"max_effects = {max_effects!r}; expected 1 or 2")
+    if max_effects not in (1, 2, 3):
+        raise GapError(f"max_effects = {max_effects!r}; expected 1, 2 or 3")
     if not isinstance(rig, Rig):
         raise GapError(f"rig is a {type(rig).__name__}; expected aeropend_sim.params.Rig (load_rig)")
     nominal_model_check(rig)
@@ -958,61 +1011,40 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
         shrink.append({"effects": list(chosen), **gap_metrics(corrected, meas, ph)})
         cur_sse = float(segs[name].sum())
         say(f"{name} leaves a held-out SSE of {cur_sse / max(noise_sse, 1e-300):.2f} × its noise part")
-        if max_effects > 1 and cur_sse > max(RESIDUAL_NOISE_FACTOR * noise_sse, SECOND_ABOVE_GAP * sse_ho0):
-            # screen the residual left by the first effect (discrepancy SINDy on the corrected
-            # model), then confirm the best candidates by a joint output-error fit
-            rest = [n for n in screened if n != name]
-            say(f"screening the residual left by {name}")
-            scr2 = screen(corrected, pf, rest, channels, seed=seed + 2, meas=meas)
-            others: list[str] = []
-            for o in scr2.shortlist(2) + [r["effect"] for r in ranking[1:3] if r["held_out_explained"] > 0.1]:
-                if o not in others and o != name:
-                    others.append(o)
-            best2 = None
-            # timing effects requested by the caller are also tried as the second effect: a lead or
-            # lag often shows only once the dominant (e.g. damping) error is removed
-            pair_cands = others[:3] + [f for f in forced if f not in others[:3] and f != name]
-            for o in pair_cands:
-                say(f"joint fit of {name} + {o}")
-                try:
-                    alone = fit_effects(corrected, [o], pf)
-                    start = {name: cur.values[name], o: alone.values[o]}
-                    fr2 = fit_effects(rig, [name, o], pf, start=start, scan=False, max_nfev=20)
-                except GapError:
-                    continue
-                sse2 = float(segment_sse(fr2.rig, fr2.meas, ph).sum())
-                gain = 1.0 - sse2 / max(cur_sse, 1e-300)
-                k1 = len(get_effect(name).parameters)
-                k2 = k1 + len(get_effect(o).parameters)
-                bic_gain = _bic(fr2.sse * n_eff / n_fit, n_eff, k2) - _bic(cur.sse * n_eff / n_fit, n_eff, k1)
-                if gain >= MIN_EXPLAINED_SECOND and bic_gain <= -MIN_BIC_GAIN and (
-                        best2 is None or gain > best2[0]):
-                    best2 = (gain, o, fr2, bic_gain)
-            if best2 is not None:
-                gain, o, fr2, bic_gain = best2
-                chosen.append(o)
-                corrected, meas = fr2.rig, fr2.meas
-                if o not in [r["effect"] for r in ranking]:
-                    eo = get_effect(o)
-                    ranking.append({
-                        "effect": o, "subsystem": eo.subsystem, "score": None, "held_out_explained": None,
-                        "bic_delta": None, "confidence": None, "parameters": {}, "rig_values": {},
-                        "screening": ({"explained_strong": scr2.explained_strong[o],
-                                       "explained_weak": scr2.explained_weak[o],
-                                       "inclusion": scr2.inclusion[o]}
-                                      if o in scr2.explained_strong else {"not_screened": True}),
-                        "confusable_with": list(eo.confusable_with),
-                    })
-                for r in ranking:
-                    if r["effect"] in (name, o):
-                        r["parameters"] = _param_table(fr2, r["effect"])
-                        r["rig_values"] = _rig_values(rig, r["effect"], fr2.values[r["effect"]])
-                    if r["effect"] == o:
-                        r["added_explained"] = gain
-                        r["added_bic_delta"] = bic_gain
-                # the pair is the answer: keep both at the top of the ranking
-                ranking.sort(key=lambda r: (r["effect"] != name, r["effect"] != o))
-                shrink.append({"effects": list(chosen), **gap_metrics(corrected, meas, ph)})
+        # forward selection: while the chosen set leaves a gap above the noise, screen its
+        # residual (discrepancy SINDy on the corrected model) and confirm the best candidates by a
+        # joint output-error fit with the effects already chosen; the largest further removal wins
+        while len(chosen) < max_effects and cur_sse > max(RESIDUAL_NOISE_FACTOR * noise_sse,
+                                                          SECOND_ABOVE_GAP * sse_ho0):
+            added = _add_effect(rig, corrected, meas, cur, chosen, ranking, screened, forced, pf, ph,
+                                channels, seed + 2 * len(chosen), n_eff, n_fit, say)
+            if added is None:
+                break
+            gain, o, fr2, bic_gain, scr2 = added
+            chosen.append(o)
+            cur, cur_sse = fr2, float(segment_sse(fr2.rig, fr2.meas, ph).sum())
+            corrected, meas = fr2.rig, fr2.meas
+            if o not in [r["effect"] for r in ranking]:
+                eo = get_effect(o)
+                ranking.append({
+                    "effect": o, "subsystem": eo.subsystem, "score": None, "held_out_explained": None,
+                    "bic_delta": None, "confidence": None, "parameters": {}, "rig_values": {},
+                    "screening": ({"explained_strong": scr2.explained_strong[o],
+                                   "explained_weak": scr2.explained_weak[o],
+                                   "inclusion": scr2.inclusion[o]}
+                                  if o in scr2.explained_strong else {"not_screened": True}),
+                    "confusable_with": list(eo.confusable_with),
+                })
+            for r in ranking:
+                if r["effect"] in chosen:
+                    r["parameters"] = _param_table(fr2, r["effect"])
+                    r["rig_values"] = _rig_values(rig, r["effect"], fr2.values[r["effect"]])
+                if r["effect"] == o:
+                    r["added_explained"] = gain
+                    r["added_bic_delta"] = bic_gain
+            # the chosen set is the answer: keep it at the top of the ranking, in the order chosen
+            ranking.sort(key=lambda r: chosen.index(r["effect"]) if r["effect"] in chosen else len(chosen))
+            shrink.append({"effects": list(chosen), **gap_metrics(corrected, meas, ph)})
         reason = (f"{name} removes {100 * best['held_out_explained']:.1f} % of the held-out residual "
                   f"(BIC change {best['bic_delta']:.1f})")
     elif best is None:
