@@ -128,8 +128,9 @@ def test_identify_csv_logs_several_recordings(rig_runs, tmp_path, capsys) -> Non
 
 
 def test_identify_plots_in_child_process_equal_in_process(noisy_run, tmp_path, monkeypatch) -> None:
-    """coefficients.png / derivatives.png drawn in the forked child while the free runs run are the
-    same pictures as drawn in-process; a failing child falls back to drawing in-process."""
+    """The forked plotting child (training-tail free run sent back through a pipe, then
+    coefficients.png / derivatives.png) gives the same pictures as drawing everything in-process;
+    a child that dies before sending anything falls back to doing it all in-process."""
     import multiprocessing
 
     import matplotlib.image as mpimg
@@ -143,23 +144,26 @@ def test_identify_plots_in_child_process_equal_in_process(noisy_run, tmp_path, m
     rig = load_rig("thesis_sim")
     names = ["coefficients.png", "derivatives.png", "free_run.png"]
     started = []
-    real_start = ident._start_model_plots
+    real_start = ident._start_plot_child
 
     def spy(*a):
-        proc = real_start(*a)
-        started.append(proc)
-        return proc
+        child = real_start(*a)
+        started.append(child)
+        return child
 
-    monkeypatch.setattr(ident, "_start_model_plots", spy)
+    monkeypatch.setattr(ident, "_start_plot_child", spy)
     s_child = ident.identify(bag, tmp_path / "child", rig)
-    assert started and started[0] is not None and started[0].exitcode == 0  # drawn by the child
+    assert started and started[0] is not None and started[0].proc.exitcode == 0  # the child did its part
 
-    def failing(out, model, held):
-        proc = multiprocessing.get_context("fork").Process(target=lambda: 1 / 0, daemon=True)
+    def failing(out, model, held, train):
+        ctx = multiprocessing.get_context("fork")
+        recv, send = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=lambda: 1 / 0, daemon=True)
         proc.start()
-        return proc
+        send.close()
+        return ident._PlotChild(proc, recv)
 
-    monkeypatch.setattr(ident, "_start_model_plots", failing)
+    monkeypatch.setattr(ident, "_start_plot_child", failing)
     s_fallback = ident.identify(bag, tmp_path / "fallback", rig)
     assert s_child["files"] == s_fallback["files"] == ["model.yaml", "summary.json", *names]
     assert s_child["equations"] == s_fallback["equations"]

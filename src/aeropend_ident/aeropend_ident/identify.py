@@ -42,6 +42,7 @@ import os
 import sys
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -215,36 +216,73 @@ def _model_plots(out: Path, model: SindyModel, held: IdentData) -> list[Path]:
     return files
 
 
-def _start_model_plots(out: Path, model: SindyModel, held: IdentData) -> Any:
-    """Draw :func:`_model_plots` in a forked child process while this one runs the free runs.
+def _train_tail(train: IdentData) -> IdentData:
+    """The last :data:`PLOT_TRAIN_TAIL_S` of training shown before the held-out part in ``free_run.png``."""
+    dt = float(np.median(np.diff(train.t))) if len(train) > 1 else 1.0
+    return train.slice(max(0, len(train) - int(PLOT_TRAIN_TAIL_S / dt)), len(train))
 
-    Importing matplotlib and drawing the two figures takes about as long as the free runs; on a
-    machine with a spare core they overlap. Returns the started process, or None where ``fork``
-    is not available or there is one CPU only (then :func:`_plots` draws them here).
+
+def _plot_child_work(out: Path, model: SindyModel, held: IdentData, tail: IdentData, conn: Any) -> None:
+    """In the plotting child: the free run over the training tail (sent back first), then the model plots."""
+    conn.send(free_run(model, tail, substeps=1))
+    conn.close()
+    _model_plots(out, model, held)
+
+
+@dataclass
+class _PlotChild:
+    """A forked plotting process and the receiving end of its pipe (the training-tail free run)."""
+
+    proc: Any
+    conn: Any
+
+    def join(self) -> None:
+        self.proc.join()
+        self.conn.close()
+
+
+def _start_plot_child(out: Path, model: SindyModel, held: IdentData, train: IdentData) -> _PlotChild | None:
+    """Fork a child that runs the training-tail free run for ``free_run.png`` and draws :func:`_model_plots`
+    while this process runs the held-out free run(s) and draws ``free_run.png``.
+
+    The two halves take about equally long, so on a machine with a spare core they overlap.
+    Returns None where ``fork`` is not available or there is one CPU only (:func:`_plots` then
+    does everything here, as it does when the child fails).
     """
     import multiprocessing
     import warnings
 
     if (os.cpu_count() or 1) < 2 or "fork" not in multiprocessing.get_all_start_methods():
         return None
-    # fork, not spawn: the model holds the library's lambdas, which do not pickle. The child only
-    # draws two figures and exits; OpenBLAS's worker threads are fork-safe (pthread_atfork), which
-    # Python >= 3.12's generic multi-threaded-fork DeprecationWarning cannot know.
-    proc = multiprocessing.get_context("fork").Process(target=_model_plots, args=(out, model, held),
-                                                        name="identify-plots", daemon=True)
+    import aeropend_ident.ident_plots  # noqa: F401  matplotlib imported once, before the fork, for both
+    ctx = multiprocessing.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+    # fork, not spawn: the model holds the library's lambdas, which do not pickle. OpenBLAS's worker
+    # threads are fork-safe (pthread_atfork), which Python >= 3.12's generic multi-threaded-fork
+    # DeprecationWarning cannot know.
+    proc = ctx.Process(target=_plot_child_work, args=(out, model, held, _train_tail(train), send),
+                       name="identify-plots", daemon=True)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         proc.start()
-    return proc
+    send.close()  # this process's copy: a child that dies early then gives EOF, not a hang
+    return _PlotChild(proc, recv)
 
 
 def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, held_run: FreeRun,
-           say: Progress, child: Any = None) -> list[str]:
+           say: Progress, child: _PlotChild | None = None) -> list[str]:
     from aeropend_ident.ident_plots import plot_free_run
 
-    dt = float(np.median(np.diff(train.t))) if len(train) > 1 else 1.0
-    train = train.slice(max(0, len(train) - int(PLOT_TRAIN_TAIL_S / dt)), len(train))
-    tr, ho = free_run(model, train, substeps=1), held_run
+    train = _train_tail(train)
+    tr = None
+    if child is not None:
+        try:
+            tr = child.conn.recv()
+        except (EOFError, OSError):  # the child failed before sending: run it here
+            tr = None
+    if tr is None:
+        tr = free_run(model, train, substeps=1)
+    ho = held_run
     states = [s for s in ho.states if s in held.variables and s in ("theta", "i_a", "omega_rotor")]
     t = np.concatenate([train.t - train.t[0], held.t - train.t[0]])
     meas = {s: np.concatenate([train.variables[s], held.variables[s]]) for s in states}
@@ -253,7 +291,7 @@ def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, held
                          states=states)
     if child is not None:
         child.join()
-    if child is None or child.exitcode != 0:  # no child, or it failed: draw here (raises the real error)
+    if child is None or child.proc.exitcode != 0:  # no child, or it failed: draw here (raises the real error)
         first = _model_plots(out, model, held)
     else:
         first = [out / "coefficients.png"]
@@ -395,7 +433,7 @@ def identify(
         extra["notes"] = sel.notes
         for n in sel.notes:
             say(f"note: {n}")
-    child = _start_model_plots(out, model, parts[0][1]) if plots else None
+    child = _start_plot_child(out, model, parts[0][1], parts[0][0]) if plots else None
     try:
         scores, held_runs = _held_out_runs(model, recs, parts, say)
         gear = rig.motor.gear_ratio if rig is not None else None
