@@ -11,8 +11,12 @@ imports, bag reading, identification, plots, writing), the time inside ``identif
 ``summary.json`` ``wall_time_s``), the machine load before the run (``os.getloadavg``), and the
 identified λ and held-out free-run NRMSE (so a faster run with a worse result would show).
 
-Run: ``.venv/bin/python bench/bench_identify.py [--repeats 3] [--tag after]`` ->
-``bench/results/identify.{json,md}`` (about 1 min). ``--keep DIR`` keeps the bag and results.
+``--baseline REF`` also times the code of git revision REF (``git archive`` of ``src/aeropend_ident``
+and ``src/aeropend_sim`` into a temporary folder, put first on ``PYTHONPATH``), interleaved run by run
+with the current code, so both see the same machine load (other jobs share this 2-core machine).
+
+Run: ``.venv/bin/python bench/bench_identify.py [--repeats 3] [--tag after] [--baseline a5d6ba2]`` ->
+``bench/results/identify.{json,md}`` (about 1-2 min). ``--keep DIR`` keeps the bag and results.
 """
 
 from __future__ import annotations
@@ -50,14 +54,24 @@ def make_bag(path: Path) -> Path:
     return write_bag(Recording.from_trajectory(traj), path)
 
 
-def run_once(exe: Path, bag: Path, out: Path, plots: bool) -> dict[str, Any]:
-    """One ``identify`` subprocess; wall time, load before, time inside identify, results."""
-    cmd = [str(exe), str(bag), "--rig", "thesis_sim", "--out", str(out), "--quiet"]
+def run_once(exe: Path, bag: Path, out: Path, plots: bool, src: Path | None = None) -> dict[str, Any]:
+    """One ``identify`` subprocess; wall time, load before, time inside identify, results.
+
+    ``src``: a source tree (``git archive`` of a revision) whose packages shadow the installed ones.
+    """
+    args = [str(bag), "--rig", "thesis_sim", "--out", str(out), "--quiet"]
     if not plots:
-        cmd.append("--no-plots")
+        args.append("--no-plots")
+    env = dict(os.environ)
+    if src is None:
+        cmd = [str(exe), *args]
+    else:  # the same entry point, importing the packages of the older revision
+        code = "import sys; from aeropend_ident.identify import main; sys.exit(main())"
+        cmd = [sys.executable, "-c", code, *args]
+        env["PYTHONPATH"] = os.pathsep.join(str(src / "src" / p) for p in ("aeropend_ident", "aeropend_sim"))
     load = os.getloadavg()
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False, env=env)
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr}")
@@ -72,30 +86,48 @@ def _stats(xs: list[float]) -> dict[str, float]:
     return {"median": round(statistics.median(xs), 3), "min": round(min(xs), 3), "max": round(max(xs), 3)}
 
 
+def _archive(ref: str, dest: Path) -> Path:
+    """``git archive`` of the two packages identify imports at revision ``ref`` into ``dest``."""
+    dest.mkdir(parents=True, exist_ok=True)
+    tar = subprocess.run(["git", "-C", str(REPO), "archive", ref, "src/aeropend_ident", "src/aeropend_sim"],
+                         capture_output=True, check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(dest)], input=tar, check=True)
+    return dest
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--tag", default="current", help="label of this measurement in the results")
+    ap.add_argument("--baseline", default=None, metavar="REF", help="also time git revision REF, interleaved")
     ap.add_argument("--keep", type=Path, default=None, help="keep bag and results in this folder")
     args = ap.parse_args(argv)
     exe = Path(sys.executable).parent / "identify"
     if not exe.exists():
         raise SystemExit(f"{exe}: identify entry point not found (install the packages into this venv)")
+    head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"], capture_output=True,
+                          text=True, check=False).stdout.strip()
     with tempfile.TemporaryDirectory() as tmp:
         work = args.keep or Path(tmp)
         work.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
         bag = make_bag(work / "bag_60s_490hz_50db")
         t_bag = time.perf_counter() - t0
+        variants: list[tuple[str, Path | None]] = [(args.tag, None)]
+        if args.baseline:
+            variants.append((f"baseline {args.baseline}", _archive(args.baseline, Path(tmp) / "baseline")))
         runs = []
         for rep in range(args.repeats):
-            for plots in (True, False):
-                r = run_once(exe, bag, work / f"res_{'plots' if plots else 'noplots'}_{rep}", plots)
-                print(f"run {rep} plots={plots}: {r['wall_s']:.2f} s wall, {r['inside_identify_s']:.2f} s in "
-                      f"identify, load {r['loadavg_1_5_15'][0]:.2f}", file=sys.stderr)
-                runs.append(r)
+            for label, src in variants:
+                for plots in (True, False):
+                    out = work / f"res_{label.replace(' ', '_')}_{'plots' if plots else 'noplots'}_{rep}"
+                    r = {"code": label, **run_once(exe, bag, out, plots, src)}
+                    print(f"run {rep} {label} plots={plots}: {r['wall_s']:.2f} s wall, "
+                          f"{r['inside_identify_s']:.2f} s in identify, load {r['loadavg_1_5_15'][0]:.2f}",
+                          file=sys.stderr)
+                    runs.append(r)
     res: dict[str, Any] = {
-        "tag": args.tag,
+        "tag": args.tag, "head": head, "baseline": args.baseline,
         "bag": {"plant": "thesis_sim", "duration_s": DURATION_S, "rate_hz": 490, "snr_db": SNR_DB,
                 "excitation": {"kind": "aprbs", **EXCITATION}, "noise_seed": NOISE_SEED,
                 "generation_s": round(t_bag, 2)},
@@ -104,11 +136,17 @@ def main(argv: list[str] | None = None) -> int:
         "bar_s": 10.0, "runs": runs,
     }
     for plots in (True, False):
-        sel = [r for r in runs if r["plots"] == plots]
         key = "with_plots" if plots else "without_plots"
-        res[key] = {"wall_s": _stats([r["wall_s"] for r in sel]),
-                    "inside_identify_s": _stats([r["inside_identify_s"] for r in sel]),
-                    "loadavg_1min": _stats([r["loadavg_1_5_15"][0] for r in sel])}
+        for label, _src in variants:
+            sel = [r for r in runs if r["plots"] == plots and r["code"] == label]
+            stats = {"wall_s": _stats([r["wall_s"] for r in sel]),
+                     "inside_identify_s": _stats([r["inside_identify_s"] for r in sel]),
+                     "loadavg_1min": _stats([r["loadavg_1_5_15"][0] for r in sel])}
+            if label == args.tag:
+                res[key] = stats
+            else:
+                base = res.setdefault("interleaved_baseline", {"tag": label, "date_utc": res["date_utc"]})
+                base[key] = stats
     OUT.mkdir(exist_ok=True)
     path = OUT / "identify.json"
     old = json.loads(path.read_text(encoding="utf-8")) if path.exists() else {}
@@ -138,7 +176,9 @@ def _markdown(res: dict[str, Any]) -> str:
         "| load (1 min) |",
         "|---|---|---|---|---|---|",
     ]
-    for h in [*res.get("history", []), res]:
+    inter = [res["interleaved_baseline"]] if "interleaved_baseline" in res else []
+    rows = [*res.get("history", []), *inter, res]
+    for h in rows:
         for key, label in (("with_plots", "yes"), ("without_plots", "no")):
             if key not in h:
                 continue
@@ -147,10 +187,16 @@ def _markdown(res: dict[str, Any]) -> str:
                          f"{s['wall_s']['min']:.2f}-{s['wall_s']['max']:.2f} | "
                          f"{s['inside_identify_s']['median']:.2f} | "
                          f"{s['loadavg_1min']['min']:.2f}-{s['loadavg_1min']['max']:.2f} |")
-    r0 = res["runs"][0]
+    r0 = next(r for r in res["runs"] if r["code"] == res["tag"])
     lines += ["", f"Result of the current code: λ = {r0['threshold']:g}, held-out free-run NRMSE(range) of θ "
               f"{r0['heldout_nrmse_range_theta']:.4g}:", ""]
     lines += [f"    {e}" for e in r0["equations"]]
+    others = [r for r in res["runs"] if r["code"] != res["tag"]]
+    if others:
+        same = all(r["equations"] == r0["equations"] and r["threshold"] == r0["threshold"]
+                   and r["heldout_nrmse_range_theta"] == r0["heldout_nrmse_range_theta"] for r in others)
+        lines += ["", f"Baseline {res['baseline']}: {'the same' if same else 'DIFFERENT'} equations, λ and "
+                  "held-out NRMSE."]
     return "\n".join(lines) + "\n"
 
 
