@@ -9,14 +9,17 @@ name) + rig file + method in, results folder out:
 * ``summary.json``: the same headline figures, the selection sweep and what was *not*
   identified and why;
 * ``coefficients.png`` (heat-map, rows = equations, columns = library terms),
-  ``derivatives.png`` (held-out predicted vs estimated derivatives), ``free_run.png``.
+  ``derivatives.png`` (held-out predicted vs estimated derivatives), ``free_run.png``; the first
+  two (and the training-tail free run of the third) are drawn in a forked child process while
+  this one runs the held-out free runs (in-process where ``fork`` is unavailable).
 
 What is identified follows from the recorded channels:
 
 * θ, i_a and ω₁ recorded (full state): θ̈ (θ̇ estimated when not recorded), di_a/dt when i_a,
   ω₁ and v_a are, dω₁/dt when i_a and ω₁ are; v_a from the duty cycle with the rig's map
   (thesis Eq. 4.3) when not recorded; λ by BIC over a sweep scored on the last quarter of the
-  training part, then refitted on the whole training part.
+  training part, then refitted on the whole training part (the λ-independent regression is built
+  once per data set, :func:`aeropend_ident.sindy.regression_problem`).
 * θ and τ only (partial state, most real logs): the pendulum equation with estimated θ̇ and a
   static or first-order thrust map (:func:`aeropend_ident.partial.select_thrust_map`: lag time
   constant and delay chosen by the free-run error on the training part); the current and rotor
