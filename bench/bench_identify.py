@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import statistics
 import subprocess
 import sys
@@ -54,12 +55,14 @@ def make_bag(path: Path) -> Path:
     return write_bag(Recording.from_trajectory(traj), path)
 
 
-def run_once(exe: Path, bag: Path, out: Path, plots: bool, src: Path | None = None) -> dict[str, Any]:
+def run_once(exe: Path, bag: Path, out: Path, plots: bool, src: Path | None = None,
+             stages: bool = False) -> dict[str, Any]:
     """One ``identify`` subprocess; wall time, load before, time inside identify, results.
 
     ``src``: a source tree (``git archive`` of a revision) whose packages shadow the installed ones.
+    ``stages``: run with progress messages and split the time by stage (:func:`_stages`).
     """
-    args = [str(bag), "--rig", "thesis_sim", "--out", str(out), "--quiet"]
+    args = [str(bag), "--rig", "thesis_sim", "--out", str(out)] + ([] if stages else ["--quiet"])
     if not plots:
         args.append("--no-plots")
     env = dict(os.environ)
@@ -76,10 +79,40 @@ def run_once(exe: Path, bag: Path, out: Path, plots: bool, src: Path | None = No
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}): {proc.stderr}")
     summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
-    return {"plots": plots, "wall_s": round(wall, 3), "inside_identify_s": summary["wall_time_s"],
-            "loadavg_1_5_15": [round(x, 2) for x in load], "threshold": summary["threshold"],
-            "heldout_nrmse_range_theta": summary["heldout"][0]["nrmse_range"],
-            "equations": summary["equations"], "files": summary["files"]}
+    res = {"plots": plots, "wall_s": round(wall, 3), "inside_identify_s": summary["wall_time_s"],
+           "loadavg_1_5_15": [round(x, 2) for x in load], "threshold": summary["threshold"],
+           "heldout_nrmse_range_theta": summary["heldout"][0]["nrmse_range"],
+           "equations": summary["equations"], "files": summary["files"]}
+    if stages:
+        res["stages_s"] = _stages(proc.stderr, wall, summary["wall_time_s"])
+    return res
+
+
+#: Progress message (start of its text) -> the stage it ends (identify's stderr, 0.1 s resolution).
+STAGE_ENDS = [(" samples at ", "read bag"),
+              ("sweeping λ", "derivatives, equation checks / training regression"),
+              ("λ = ", "λ sweep (7 λ on the first 75 % of training)"),
+              ("free runs on the held-out", "refit, test MSE (+ matplotlib import and fork with plots)"),
+              ("held-out free-run NRMSE", "held-out free run"),
+              ("plots: ", "plots (after the held-out free run)")]
+
+
+def _stages(stderr: str, wall: float, inside: float) -> dict[str, float]:
+    """Split one run's time by stage from identify's time-stamped progress messages."""
+    marks = []
+    for line in stderr.splitlines():
+        m = re.match(r"\[identify\s+([\d.]+) s\] (.*)$", line)
+        if m:
+            marks.append((float(m.group(1)), m.group(2)))
+    out = {"start-up (interpreter, imports, rig file)": round(wall - inside, 2)}
+    last = 0.0
+    for key, stage in STAGE_ENDS:
+        hit = next((t for t, msg in marks if key in msg), None)
+        if hit is not None:
+            out[stage] = round(hit - last, 2)
+            last = hit
+    out["writing model.yaml / summary.json"] = round(max(0.0, inside - last), 2)
+    return out
 
 
 def _stats(xs: list[float]) -> dict[str, float]:
@@ -126,6 +159,10 @@ def main(argv: list[str] | None = None) -> int:
                           f"{r['inside_identify_s']:.2f} s in identify, load {r['loadavg_1_5_15'][0]:.2f}",
                           file=sys.stderr)
                     runs.append(r)
+        stage_runs = {}
+        for label, src in variants:  # one more run each with progress messages: where the time goes
+            stage_runs[label] = run_once(exe, bag, work / f"res_{label.replace(' ', '_')}_stages", True, src,
+                                         stages=True)["stages_s"]
     res: dict[str, Any] = {
         "tag": args.tag, "head": head, "baseline": args.baseline,
         "bag": {"plant": "thesis_sim", "duration_s": DURATION_S, "rate_hz": 490, "snr_db": SNR_DB,
@@ -133,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
                 "generation_s": round(t_bag, 2)},
         "command": "identify BAG --rig thesis_sim --out DIR --quiet [--no-plots]",
         "cpu_count": os.cpu_count(), "date_utc": time.strftime("%Y-%m-%d %H:%M", time.gmtime()),
-        "bar_s": 10.0, "runs": runs,
+        "bar_s": 10.0, "runs": runs, "stages_with_plots_s": stage_runs,
     }
     for plots in (True, False):
         key = "with_plots" if plots else "without_plots"
@@ -191,6 +228,15 @@ def _markdown(res: dict[str, Any]) -> str:
     lines += ["", f"Result of the current code: λ = {r0['threshold']:g}, held-out free-run NRMSE(range) of θ "
               f"{r0['heldout_nrmse_range_theta']:.4g}:", ""]
     lines += [f"    {e}" for e in r0["equations"]]
+    st = res.get("stages_with_plots_s", {})
+    if st:
+        labels = list(st)
+        names = list(dict.fromkeys(k for v in st.values() for k in v))
+        lines += ["", "Where the time goes (one further run with plots each, from identify's progress "
+                  "time stamps, 0.1 s resolution) [s]:", "", "| stage | " + " | ".join(labels) + " |",
+                  "|---|" + "---|" * len(labels)]
+        lines += [f"| {n} | " + " | ".join(f"{st[lab].get(n, float('nan')):.2f}" for lab in labels) + " |"
+                  for n in names]
     others = [r for r in res["runs"] if r["code"] != res["tag"]]
     if others:
         same = all(r["equations"] == r0["equations"] and r["threshold"] == r0["threshold"]
