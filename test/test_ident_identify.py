@@ -11,7 +11,7 @@ import yaml
 
 from aeropend_ident.bags import write_bag
 from aeropend_ident.identify import main
-from aeropend_sim.excitation import aprbs
+from aeropend_sim.excitation import aprbs, density_modulated_prbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulate import simulate
@@ -66,6 +66,39 @@ def test_identify_angle_only_bag_and_errors(noisy_run, tmp_path, capsys) -> None
     assert "not identified (i_a)" in capsys.readouterr().out
     assert main([str(tmp_path / "missing_bag"), "--out", str(tmp_path / "r2")]) == 2
     assert "no such bag or CSV file" in capsys.readouterr().err
+
+
+def test_identify_weak_iv_output_error_on_the_design(tmp_path, capsys) -> None:
+    """``--method weak-iv --output-error`` (the issue-4 estimator) through the command: 30 s of the
+    identifiability design, noise-free, recovers all three equations; fixed λ in the summary."""
+    rig = load_rig("thesis_sim")
+    bag = write_bag(Recording.from_trajectory(simulate(rig, density_modulated_prbs(30.0, seed=1).duty)),
+                    tmp_path / "design")
+    out = tmp_path / "res"
+    assert main([str(bag), "--rig", "thesis_sim", "--method", "weak-iv", "--library", "physics",
+                 "--output-error", "--no-plots", "--quiet", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
+    assert summary["threshold"] == 0.1 and summary["threshold_selection"] == "fixed"
+    assert summary["method"] == "weak+oe" and "sweep" not in summary
+    doc = yaml.safe_load((out / "model.yaml").read_text(encoding="utf-8"))
+    assert "std" in doc["equations"]["i_a"]["terms"]["i_a"]  # output-error standard errors
+    assert "std" not in doc["equations"]["theta_dot"]["terms"]["θ̇"]  # θ̈ not refined: no spread
+    truth = {"theta_dot": {"θ̇": -13.82, "sin(θ)": -131.75, "ω₁²": 1.7285},
+             "i_a": {"i_a": -8.6957, "ω₁": -1.0217, "v_a": 4.3478},
+             "omega_rotor": {"i_a": rig.motor.K_t / rig.motor.J_m, "ω₁": -192.31}}
+    for tg, terms in truth.items():
+        coefs = {name: c["coefficient"] for name, c in doc["equations"][tg]["terms"].items()}
+        assert set(coefs) == set(terms), (tg, coefs)
+        for name, c in terms.items():
+            assert coefs[name] == pytest.approx(c, rel=2e-3), (tg, name)
+    capsys.readouterr()
+    # weak-iv / output error need the full state; a λ must be finite and >= 0
+    bag = write_bag(Recording.from_trajectory(simulate(rig, density_modulated_prbs(5.0, seed=1).duty),
+                                              channels=("theta",)), tmp_path / "theta_only")
+    assert main([str(bag), "--method", "weak-iv", "--quiet", "--out", str(tmp_path / "x")]) == 2
+    assert "need the full state" in capsys.readouterr().err
+    assert main([str(bag), "--threshold", "-1", "--quiet", "--out", str(tmp_path / "y")]) == 2
+    assert "threshold = -1.0" in capsys.readouterr().err
 
 
 def test_identify_refuses_bad_recordings(noisy_run, tmp_path, capsys) -> None:

@@ -60,7 +60,7 @@ def plot_coefficients(model: SindyModel, path: str | Path, title: str | None = N
         for j in range(n_f):
             if nz[i, j]:
                 txt = f"{coef[i, j]:.3g}"
-                if model.coef_std is not None:
+                if model.coef_std is not None and np.isfinite(model.coef_std[i, j]):
                     txt += f"\n±{model.coef_std[i, j]:.2g}"
                 dark = abs(scaled[i, j]) > 0.6 * vmax
                 ax.text(j, i, txt, ha="center", va="center", fontsize=7, color="white" if dark else "black")

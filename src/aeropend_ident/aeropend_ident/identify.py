@@ -54,6 +54,7 @@ import numpy as np
 from aeropend_ident.bags import BagError, read_bag
 from aeropend_ident.csv_import import CsvImportError, find_preset, import_csv
 from aeropend_ident.libraries import CandidateLibrary, physics_library, structured_library, thesis_library
+from aeropend_ident.output_error import refine_output_error
 from aeropend_ident.partial import angle_only_data, concat_data, nrmse_range, select_thrust_map
 from aeropend_ident.preprocess import add_derivatives, differentiate
 from aeropend_ident.sindy import (
@@ -74,6 +75,13 @@ from aeropend_sim.params import Rig, RigFileError, load_rig
 from aeropend_sim.recording import Recording, RecordingError
 
 LAMBDAS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
+#: Estimators of ``--method``.
+METHODS = ("weak", "weak-iv", "sindy", "ensemble")
+#: weak-iv settings (as in bench/bench_sindy.py): subdomain half-width [s], test-function
+#: coverage of the record, refinement passes (curvature + instruments), ridge on the unit-RMS scale.
+WEAK_IV = {"H_xt": 0.02, "coverage": 3.0, "refine": 2, "alpha": 1.0}
+#: Fixed λ of weak-iv (its refinement passes make a sweep costly; the benchmark's value).
+WEAK_IV_THRESHOLD = 0.1
 #: Fewest samples per recording (derivative windows, split, library fit).
 MIN_SAMPLES = 50
 #: Share of each training part used as the validation tail for λ selection (full-state path).
@@ -324,7 +332,7 @@ def identify(
     bag: Path | Sequence[Path], out: Path, rig: Rig | None, method: str | None = None,
     library: str = "structured", namespace: str = "", preset: str | None = None,
     train_fraction: float = 0.75, thrust_map: str = "first_order", plots: bool = True,
-    progress: Progress | None = None,
+    progress: Progress | None = None, threshold: float | None = None, output_error: bool = False,
 ) -> dict[str, Any]:
     """Run the whole pipeline; returns the summary written to ``out/summary.json``.
 
@@ -334,10 +342,21 @@ def identify(
         Contract bag(s) and/or CSV log(s).
     rig : Rig, optional
         Duty -> v_a map (thesis Eq. 4.3), gear ratio and L/J for K_q.
-    method : {"weak", "sindy", "ensemble"}, optional
-        Default: ``"weak"`` for one full-state recording, ``"sindy"`` otherwise.
+    method : {"weak", "weak-iv", "sindy", "ensemble"}, optional
+        Default: ``"weak"`` for one full-state recording, ``"sindy"`` otherwise. ``"weak-iv"``
+        (full state, one recording): the weak form with the hold-exact input quadrature refined
+        twice (intra-sample curvature + instrumental variables, ridge 1; :data:`WEAK_IV`), at
+        the fixed λ = :data:`WEAK_IV_THRESHOLD` unless ``threshold`` is given (the estimator of
+        the issue-4 benchmark).
     thrust_map : {"first_order", "static"}
         Partial-state path: lag grid :data:`FIRST_ORDER_T` × :data:`FIRST_ORDER_DELAYS`, or T = 0.
+    threshold : float, optional
+        Fixed STLSQ threshold λ (no sweep); default: λ by BIC over :data:`LAMBDAS` (weak-iv:
+        :data:`WEAK_IV_THRESHOLD`).
+    output_error : bool
+        Full-state path: re-estimate the selected terms of di_a/dt and dω₁/dt by output-error
+        minimisation (:func:`aeropend_ident.output_error.refine_output_error`), with standard
+        errors in ``model.yaml``.
 
     Raises
     ------
@@ -361,7 +380,13 @@ def identify(
     full = all({"i_a", "omega_rotor"} <= set(r.channels) for r in recs)
     if method is None:
         method = "weak" if (full and len(recs) == 1) else "sindy"
-    if len(recs) > 1 and method == "weak":
+    if method not in METHODS:
+        raise IdentificationError(f"method = {method!r}; expected one of {list(METHODS)}")
+    if threshold is None and method == "weak-iv":
+        threshold = WEAK_IV_THRESHOLD
+    if threshold is not None and not (math.isfinite(threshold) and threshold >= 0.0):
+        raise IdentificationError(f"threshold = {threshold!r}; expected a finite λ >= 0")
+    if len(recs) > 1 and method in ("weak", "weak-iv"):
         raise IdentificationError("several recordings are stacked for a strong-form regression; use "
                                   "--method sindy or ensemble (the weak form would integrate across joins)")
     refused = {} if full else refused_targets(sorted(set.intersection(*(set(r.channels) for r in recs))))
@@ -382,6 +407,11 @@ def identify(
         kw: dict[str, Any] = {"method": method, "exclude_input_steps": 3}
         if method == "weak":
             kw.update(K=300, H_xt=min(0.05, 0.2 * (train.t[-1] - train.t[0])))
+        elif method == "weak-iv":
+            span = train.t[-1] - train.t[0]
+            h = min(WEAK_IV["H_xt"], 0.2 * span)
+            kw.update(method="weak", K=max(50, int(WEAK_IV["coverage"] * span / (2 * h))), H_xt=h,
+                      refine=WEAK_IV["refine"], alpha=WEAK_IV["alpha"])
         # the λ-independent regression on the whole training part(s), built once: it refuses the
         # equations the data cannot support (per-equation library) and serves the final refit
         train_kw = dict(kw)
@@ -399,28 +429,45 @@ def identify(
         targets, lib = list(problem.targets), problem.library
         # λ by BIC on a validation tail of each training part (the held-out parts are only scored),
         # then the model is refitted with that λ on the whole training parts
-        fits = [p[0].split(1.0 - VALIDATION_FRACTION) for p in parts]
-        fit_part, val_part = concat_data([f[0] for f in fits]), concat_data([f[1] for f in fits])
-        if method == "weak":
-            kw["H_xt"] = min(kw["H_xt"], 0.2 * (fit_part.t[-1] - fit_part.t[0]))
-        say(f"sweeping λ over {list(LAMBDAS)} ({method}, {library} library, targets {targets})")
-        pts, _models = sweep_threshold(fit_part, val_part, lib, LAMBDAS, targets=targets, **kw)
-        best = select_threshold(pts, "bic")
-        say(f"λ = {best.threshold:g} (BIC on the validation tail); refitting on the training part(s)")
-        if kw != train_kw:  # a shorter subdomain half-width for a short record: rebuild
-            problem = regression_problem(train, lib, targets, **kw)
-        model = problem.solve(best.threshold)
+        if threshold is None:
+            fits = [p[0].split(1.0 - VALIDATION_FRACTION) for p in parts]
+            fit_part, val_part = concat_data([f[0] for f in fits]), concat_data([f[1] for f in fits])
+            if method == "weak":
+                kw["H_xt"] = min(kw["H_xt"], 0.2 * (fit_part.t[-1] - fit_part.t[0]))
+            say(f"sweeping λ over {list(LAMBDAS)} ({method}, {library} library, targets {targets})")
+            pts, _models = sweep_threshold(fit_part, val_part, lib, LAMBDAS, targets=targets, **kw)
+            best = select_threshold(pts, "bic")
+            lam = best.threshold
+            say(f"λ = {lam:g} (BIC on the validation tail); refitting on the training part(s)")
+            if kw != train_kw:  # a shorter subdomain half-width for a short record: rebuild
+                problem = regression_problem(train, lib, targets, **kw)
+            extra["threshold_selection"] = (f"BIC on the last {VALIDATION_FRACTION:.0%} of each training "
+                                            "part (held-out parts not used)")
+            extra["sweep"] = [{"threshold": p.threshold, "n_terms": p.n_terms, "bic": p.bic} for p in pts]
+        else:
+            lam = float(threshold)
+            say(f"fitting at the fixed λ = {lam:g} ({method}, {library} library, targets {targets})")
+            extra["threshold_selection"] = "fixed"
+        model = problem.solve(lam)
+        oe = [tg for tg in ("i_a", "omega_rotor") if tg in model.targets]
+        if output_error and oe:
+            say(f"output-error refinement of {oe} (simulation error, multiple shooting)")
+            model = refine_output_error(model, train, targets=oe)
+        elif output_error:
+            say("output-error refinement skipped: neither di_a/dt nor dω₁/dt is identified")
         test_mse = model.test_mse(test, exclude_input_steps=kw["exclude_input_steps"])
-        extra["threshold_selection"] = (f"BIC on the last {VALIDATION_FRACTION:.0%} of each training part "
-                                        "(held-out parts not used)")
-        extra["sweep"] = [{"threshold": p.threshold, "n_terms": p.n_terms, "bic": p.bic} for p in pts]
     else:
         vmap = PlantModel(rig).armature_voltage if rig is not None else None
         datas = [angle_only_data(r.t - r.t[0], r.channels["theta"], r.duty, vmap, source=r.source)
                  for r in recs]
         grid_t, grid_d = ((FIRST_ORDER_T, FIRST_ORDER_DELAYS) if thrust_map == "first_order"
                           else ((0.0,), (0,)))
+        if method == "weak-iv" or output_error:
+            raise IdentificationError("weak-iv and --output-error need the full state (θ, i_a, ω₁); "
+                                      f"{paths} record only θ and the duty cycle: use weak or sindy")
         kw = {"K": 300, "H_xt": min(0.5, 0.1 * (datas[0].t[-1] - datas[0].t[0]))} if method == "weak" else {}
+        if threshold is not None:
+            kw["threshold"] = float(threshold)
         say(f"partial state (θ, τ): pendulum equation with a {thrust_map} thrust map, "
             f"{len(grid_t) * len(grid_d)} (T, delay) candidates, {method}")
         sel = select_thrust_map(datas, train_fraction, time_constants=grid_t, delays=grid_d,
@@ -478,8 +525,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     ap.add_argument("inputs", type=Path, nargs="+", metavar="BAG_OR_CSV")
     ap.add_argument("--rig", help="rig name or YAML file (for the duty -> v_a map and K_q)")
-    ap.add_argument("--method", default=None, choices=("sindy", "ensemble", "weak"),
-                    help="default: weak for one full-state recording, sindy otherwise")
+    ap.add_argument("--method", default=None, choices=METHODS,
+                    help="default: weak for one full-state recording, sindy otherwise; weak-iv: weak "
+                         "form refined by instrumental variables (one full-state recording, λ 0.1 unless "
+                         "--threshold)")
+    ap.add_argument("--threshold", type=float, default=None,
+                    help="fixed STLSQ threshold λ (default: chosen by BIC over a sweep)")
+    ap.add_argument("--output-error", action="store_true",
+                    help="refine di_a/dt and dω₁/dt by output-error minimisation (full state)")
     ap.add_argument("--library", default="structured", choices=("structured", "physics", "thesis"),
                     help="full-state path only")
     ap.add_argument("--preset", default=None, help="csv_import preset for CSV inputs (default: by file name)")
@@ -500,7 +553,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         rig = load_rig(args.rig) if args.rig else None
         summary = identify(args.inputs, args.out, rig, args.method, args.library, args.namespace,
                            preset=args.preset, train_fraction=args.train_fraction, thrust_map=args.thrust_map,
-                           plots=not args.no_plots, progress=None if args.quiet else say)
+                           plots=not args.no_plots, progress=None if args.quiet else say,
+                           threshold=args.threshold, output_error=args.output_error)
     except (BagError, RecordingError, IdentificationError, RigFileError, CsvImportError) as exc:
         print(f"identify: {exc}", file=sys.stderr)
         return 2

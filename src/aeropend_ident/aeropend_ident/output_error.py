@@ -102,7 +102,8 @@ def refine_output_error(
     SindyModel
         Same support, refined coefficients in the target rows; ``coef_std`` holds the
         coefficients' standard errors from the Jacobian, s²·(JᵀJ)⁻¹ with s² the residual
-        variance (0 for coefficients not refined); ``method`` gets the suffix ``"+oe"``.
+        variance (0 for terms outside the support; NaN in rows not refined when the input model
+        had no spread); ``method`` gets the suffix ``"+oe"``.
 
     Raises
     ------
@@ -242,7 +243,7 @@ def refine_output_error(
     coef_t, _ = unpack(sol.x)
     coef = model.coef.copy()
     coef[rows] = coef_t
-    std = np.zeros_like(coef) if model.coef_std is None else model.coef_std.copy()
+    std = np.full_like(coef, np.nan) if model.coef_std is None else model.coef_std.copy()  # NaN: unknown
     jac = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
     dof = max(n_r - p0.size, 1)
     s2 = 2.0 * sol.cost / dof

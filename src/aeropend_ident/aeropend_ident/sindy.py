@@ -339,7 +339,8 @@ class SindyModel:
     threshold : float
         λ (dimensionless, on the unit-RMS scale).
     coef_std : ndarray, shape (n_targets, M) or None
-        Ensemble spread (standard deviation over the bagged models).
+        Ensemble spread (standard deviation over the bagged models) or output-error standard
+        errors; NaN where not estimated (shown as no ± and left out of the model file).
     inclusion : ndarray, shape (n_targets, M) or None
         Ensemble inclusion probability of each term.
     condition_number : float
@@ -410,7 +411,7 @@ class SindyModel:
                 if c == 0.0:
                     continue
                 s = f"{abs(c):.{precision}g}"
-                if self.coef_std is not None:
+                if self.coef_std is not None and math.isfinite(self.coef_std[i, j]):
                     s += f"±{self.coef_std[i, j]:.2g}"
                 if self.inclusion is not None:
                     s += f"[p={self.inclusion[i, j]:.2f}]"
@@ -1450,7 +1451,7 @@ def model_to_dict(
             if c == 0.0:
                 continue
             entry: dict[str, float] = {"coefficient": c}
-            if model.coef_std is not None:
+            if model.coef_std is not None and math.isfinite(model.coef_std[i, j]):
                 entry["std"] = float(model.coef_std[i, j])
             if model.inclusion is not None:
                 entry["inclusion"] = float(model.inclusion[i, j])
