@@ -440,9 +440,10 @@ def density_modulated_prbs(
     density = aprbs(duration, lo=density_lo, hi=density_hi, min_hold=density_min_hold,
                     max_hold=density_max_hold, seed=slow_seed, dt=dt)
     draw = aprbs(duration, lo=0.0, hi=1.0, min_hold=min_hold, max_hold=max_hold, seed=fast_seed, dt=dt)
-    starts = np.concatenate(([0], np.cumsum(np.rint(draw.holds / dt).astype(np.int64))[:-1]))
-    high = draw.levels < density.duty[starts]
-    levels, counts = _merge_equal(np.where(high, hi, lo), np.rint(draw.holds / dt).astype(np.int64))
+    fast_counts = np.rint(draw.holds / dt).astype(np.int64)
+    starts = np.concatenate(([0], np.cumsum(fast_counts)[:-1]))
+    high = draw.levels < density.duty[starts]  # a hold is high with the density at its start
+    levels, counts = _merge_equal(np.where(high, hi, lo), fast_counts)
     params = {"duration": density.params["duration"], "lo": lo, "hi": hi, "min_hold": draw.params["min_hold"],
               "max_hold": draw.params["max_hold"], "density_lo": density_lo, "density_hi": density_hi,
               "density_min_hold": density.params["min_hold"], "density_max_hold": density.params["max_hold"],
