@@ -297,7 +297,8 @@ def run_gap(
     split_rule : str
         How the held-out set was chosen (provenance).
     max_effects : int
-        Most effects added to the corrected rig.
+        Most effects added to the corrected rig (1, 2 or 3: each one after the first by the
+        forward-selection step of :func:`aeropend_ident.gap_which.diagnose_effects`).
     horizon : float
         Short-horizon prediction length [s] of the where-analysis.
     seed : int
