@@ -165,6 +165,8 @@ def _err(capsys, argv) -> str:
 def test_error_exits(bags, tmp_path, capsys):
     out = str(tmp_path / "o")
     assert "unknown rig 'no_such_rig'" in _err(capsys, [str(bags["fit"]), "--rig", "no_such_rig", "-o", out])
+    assert "--max-effects 4: expected 1, 2 or 3" in _err(
+        capsys, [str(bags["fit"]), "--rig", "thesis_rig", "--max-effects", "4", "-o", out])
     # a recording without θ
     rec = _recording(3, 10.0, channels=("i_a",))
     no_theta = write_bag(rec, tmp_path / "no_theta")

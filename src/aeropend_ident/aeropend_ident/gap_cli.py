@@ -180,7 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="time-ordered split: leading fraction of each recording used to find the effects (0-1)",
     )
     p.add_argument(
-        "--max-effects", type=int, default=2, help="most effects added to the corrected rig (1 or 2)"
+        "--max-effects", type=int, default=2, help="most effects added to the corrected rig (1, 2 or 3)"
     )
     p.add_argument("--horizon", type=float, default=0.2, help="short-horizon prediction length [s]")
     p.add_argument(
@@ -220,8 +220,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"gap: {msg}", file=sys.stderr, flush=True)
 
     try:
-        if not 1 <= args.max_effects <= 2:
-            raise GapCliError(f"--max-effects {args.max_effects}: expected 1 or 2")
+        if not 1 <= args.max_effects <= 3:
+            raise GapCliError(f"--max-effects {args.max_effects}: expected 1, 2 or 3")
         rig, offset = resolve_rig(args.rig)
         if args.theta_offset is not None:
             offset = float(args.theta_offset)
