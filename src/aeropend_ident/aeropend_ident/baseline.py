@@ -193,7 +193,26 @@ class BaselineResult:
 
 
 # --------------------------------------------------------------------------- regions
-def _bins(values: np.ndarray, residual: np.ndarray, n_bins: int, unit: str) -> list[dict[str, Any]]:
+def residual_bins(values: np.ndarray, residual: np.ndarray, n_bins: int, unit: str) -> list[dict[str, Any]]:
+    """Residual statistics in ``n_bins`` equal-width bins of an operating variable.
+
+    Parameters
+    ----------
+    values : ndarray, shape (N,)
+        Operating variable per sample (angle, duty cycle, |θ̇|, ...).
+    residual : ndarray, shape (N,)
+        Residual per sample.
+    n_bins : int
+        Number of bins over [min(values), max(values)] (one bin when the values are constant).
+    unit : str
+        Unit of ``values`` (copied into each bin).
+
+    Returns
+    -------
+    list of dict
+        Per bin: ``lower``, ``upper``, ``unit``, ``count``, ``mean_residual`` and ``rms_residual``
+        (None for an empty bin).
+    """
     lo, hi = float(np.min(values)), float(np.max(values))
     if hi == lo:
         edges = np.array([lo, hi])
@@ -266,8 +285,8 @@ def residual_regions(theta: np.ndarray, duty: np.ndarray, residual: np.ndarray, 
                          "mean_residual": float(np.mean(r)) if r.size else None,
                          "rms_residual": float(np.sqrt(np.mean(r**2))) if r.size else None}
     return {
-        "theta_bins": _bins(theta, residual, n_bins, "rad"),
-        "duty_bins": _bins(duty, residual, n_bins, "1"),
+        "theta_bins": residual_bins(theta, residual, n_bins, "rad"),
+        "duty_bins": residual_bins(duty, residual, n_bins, "1"),
         "motion": motion,
         "rate_threshold": rate_threshold,
         "rate_threshold_unit": "rad/s",

@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
-from aeropend_ident.baseline import _bins, measured_rate, residual_regions
+from aeropend_ident.baseline import measured_rate, residual_bins, residual_regions
 from aeropend_ident.greybox import (
     IdentificationError,
     UniformData,
@@ -1051,7 +1051,7 @@ def locate_recording(
     )
     short = error_metrics(data.theta, theta_short)
     regions = residual_regions(data.theta, data.duty, resid, dt, n_bins)
-    regions["rate_bins"] = _bins(np.abs(rate), resid, n_bins, "rad/s")
+    regions["rate_bins"] = residual_bins(np.abs(rate), resid, n_bins, "rad/s")
     regions["short_horizon"] = residual_regions(data.theta, data.duty, theta_short - data.theta, dt, n_bins)
     eqs = _equations(rig, data.theta, data.duty, dt, ch, states, theta_offset, theta_rate)
     # method floor: the same equation errors on the nominal simulation of this input (what the
@@ -1069,9 +1069,9 @@ def locate_recording(
     pend = next(e for e in eqs if e.equation == "pendulum")
     if pend.residual is not None:
         regions["pendulum_equation"] = {
-            "theta_bins": _bins(data.theta, pend.residual, n_bins, "rad"),
-            "duty_bins": _bins(data.duty, pend.residual, n_bins, "1"),
-            "rate_bins": _bins(np.abs(rate), pend.residual, n_bins, "rad/s"),
+            "theta_bins": residual_bins(data.theta, pend.residual, n_bins, "rad"),
+            "duty_bins": residual_bins(data.duty, pend.residual, n_bins, "1"),
+            "rate_bins": residual_bins(np.abs(rate), pend.residual, n_bins, "rad/s"),
             "unit": "rad/s^2",
         }
     m = PlantModel(rig)
