@@ -17,6 +17,8 @@ Cases (real data read from ``../shared/data/real``, never copied into the reposi
   switched off again (43.14 % -> 0, the diagnosis' validation recording); held out: a
   different excitation of the same synthetic rig (a staircase 0 → 40 → 43.14 → 46 % and back),
   i.e. an extrapolation of the rig model beyond the one measured step, stated as such.
+* ``aeroshield_cross_run`` — fit on the whole AeroShield identification run, held out: the
+  independent run ``Identification_Data2`` (another session, 10 ms sampling).
 
 Each case runs :func:`aeropend_ident.gap_report.run_gap` (where + which + after) exactly as the
 ``gap`` command does. Results: ``bench/results/gap_real.json`` and ``.md``; figures
@@ -123,6 +125,15 @@ def case_aeroshield_blocks() -> dict[str, Any]:
 def case_aeroshield() -> dict[str, Any]:
     rec = _csv("gergelytakacs__AutomationShield/AeroShield/Identification_Data.csv", "aeroshield_ident")
     return {"rig": "aeroshield_rig", "split": _split(rec)}
+
+
+def case_aeroshield_cross_run() -> dict[str, Any]:
+    d = "gergelytakacs__AutomationShield/AeroShield/"
+    fit = _csv(d + "Identification_Data.csv", "aeroshield_ident")
+    held = _csv(d + "Identification_Data2.csv", "aeroshield_ident2")
+    return {"rig": "aeroshield_rig",
+            "split": ([fit], [held], "fit: Identification_Data (all 72 s, 15 ms); held out: the independent "
+                                     "run Identification_Data2 (2023-08, 50 s, 10 ms)")}
 
 
 def case_etchepareborda() -> dict[str, Any]:
@@ -250,6 +261,7 @@ CASES = {
     "jahoyosr_hoja3_moving_blocks": case_jahoyosr_moving_blocks,
     "aeroshield": case_aeroshield,
     "aeroshield_blocks": case_aeroshield_blocks,
+    "aeroshield_cross_run": case_aeroshield_cross_run,
     "etchepareborda": case_etchepareborda,
     "etchepareborda_val": case_etchepareborda_val,
     "etchepareborda_all": case_etchepareborda_all,
@@ -263,6 +275,7 @@ NEEDS_REAL = {
     "jahoyosr_hoja3_moving_blocks",
     "aeroshield",
     "aeroshield_blocks",
+    "aeroshield_cross_run",
     "etchepareborda",
     "etchepareborda_val",
     "etchepareborda_all",
