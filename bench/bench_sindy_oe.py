@@ -35,12 +35,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent / "test"))
-from test_ident_noise import RIG, TRUTH, _data, _fit  # noqa: E402
+from test_ident_noise import TRUTH, _data, _fit  # noqa: E402
 
 from aeropend_ident.output_error import refine_output_error  # noqa: E402
-from aeropend_ident.sindy import data_from_trajectory, structure_errors  # noqa: E402
+from aeropend_ident.sindy import structure_errors  # noqa: E402
 from aeropend_sim.excitation import aprbs, density_modulated_prbs  # noqa: E402
-from aeropend_sim.simulate import simulate  # noqa: E402
 
 OUT = ROOT / "results"
 SHORT = {"theta": "dθ/dt", "theta_dot": "θ̈", "i_a": "di_a/dt", "omega_rotor": "dω₁/dt"}
@@ -64,16 +63,10 @@ def run(kind: str, snr: float | None, seed: int, clean_inputs: bool = True) -> d
     if kind == "aprbs":
         data, targets = _data(snr, seed=seed), list(TRUTH)
     elif kind == "designed":
-        duty = density_modulated_prbs(120.0, seed=1).duty
-        rig = RIG if snr is None else RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=snr)
-        traj = simulate(rig, duty, seed=seed)
-        data = data_from_trajectory(traj, rig, measured=snr is not None).split(0.75)[0]
-        targets = list(TRUTH)
+        data, targets = _data(snr, seed=seed, duty=density_modulated_prbs(120.0, seed=1).duty), list(TRUTH)
     else:
         duty = aprbs(30.0, lo=0.2, hi=0.9, min_hold=0.002, max_hold=0.01, seed=1).duty
-        rig = RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=snr)
-        data = data_from_trajectory(simulate(rig, duty, seed=seed), rig, measured=True).split(0.75)[0]
-        targets = list(OE)
+        data, targets = _data(snr, seed=seed, duty=duty), list(OE)
     truth = {tg: TRUTH[tg] for tg in targets}
     t0 = time.perf_counter()
     m = _fit(data, targets=targets)

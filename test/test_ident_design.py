@@ -19,21 +19,19 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_ident_noise import RIG, TRUTH, _fit, _k_q_error
+from test_ident_noise import TRUTH, _data, _fit, _k_q_error
 
-from aeropend_ident.sindy import data_from_trajectory, structure_errors
+from aeropend_ident.sindy import structure_errors
 from aeropend_sim.excitation import density_modulated_prbs
-from aeropend_sim.simulate import simulate
 
 OE = ("i_a", "omega_rotor")
 R_OVER_L = 8.6957
+DESIGN = density_modulated_prbs(120.0, seed=1).duty
 
 
 @pytest.fixture(scope="module")
 def designed50():
-    duty = density_modulated_prbs(120.0, seed=1).duty
-    rig = RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=50.0)
-    data = data_from_trajectory(simulate(rig, duty, seed=7), rig, measured=True).split(0.75)[0]
+    data = _data(50.0, seed=7, duty=DESIGN)
     return data, _fit(data, output_error=OE)
 
 
@@ -60,10 +58,7 @@ def test_design_cuts_the_standard_error_of_r_over_l(designed50) -> None:
 def test_20db_all_four_structures_and_thrust_coefficient() -> None:
     """20 dB on every channel, weak-iv alone: the design keeps all four supports exact
     (bench, seeds 7-9: θ̈ 0.52-0.75 %, di_a/dt 11-12 %); bar: K_q within 10 %."""
-    duty = density_modulated_prbs(120.0, seed=1).duty
-    rig = RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=20.0)
-    data = data_from_trajectory(simulate(rig, duty, seed=7), rig, measured=True).split(0.75)[0]
-    m = _fit(data)
+    m = _fit(_data(20.0, seed=7, duty=DESIGN))
     errs = structure_errors(m, TRUTH)
     for tg, e in errs.items():
         assert e["false_positive"] == [] and e["false_negative"] == [], (tg, m.equations())

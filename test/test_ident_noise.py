@@ -32,12 +32,13 @@ H = 0.02
 DUTY = aprbs(30.0, lo=0.2, hi=0.9, min_hold=0.02, max_hold=0.3, seed=1).duty
 
 
-def _data(snr: float | None, seed: int = 7):
+def _data(snr: float | None, seed: int = 7, duty=DUTY):
+    """First 75 % of a thesis_sim run driven by ``duty``, noise-free or at ``snr`` dB (noise ``seed``)."""
     if snr is None:
-        d = data_from_trajectory(simulate(RIG, DUTY), RIG)
+        d = data_from_trajectory(simulate(RIG, duty), RIG)
     else:
         rig = RIG.with_effects(sensor_noise=True).with_params("sensors", snr_db=snr)
-        d = data_from_trajectory(simulate(rig, DUTY, seed=seed), rig, measured=True)
+        d = data_from_trajectory(simulate(rig, duty, seed=seed), rig, measured=True)
     return d.split(0.75)[0]
 
 
