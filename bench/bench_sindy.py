@@ -65,6 +65,7 @@ from aeropend_ident.libraries import (
 )
 from aeropend_ident.preprocess import add_derivatives
 from aeropend_ident.sindy import (
+    WEAK_IV,
     IdentData,
     IdentificationError,
     SindyModel,
@@ -75,6 +76,7 @@ from aeropend_ident.sindy import (
     select_threshold,
     structure_errors,
     sweep_threshold,
+    weak_iv_options,
 )
 from aeropend_sim.excitation import aprbs, lhs_steps
 from aeropend_sim.params import load_rig
@@ -98,8 +100,7 @@ DISCREPANCY_TRUTH = {"theta_dot": {"sin(θ)": -0.25, "ω₁²": 1.7285 - 1.65}}
 LAMBDAS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
 EXCL = 3
 WEAK = {"K": 300, "H_xt": 0.05}
-#: weak-iv: hold-exact weak form + 2 refinement passes (curvature, instruments), ridge 1, fixed λ
-WEAK_IV = {"H_xt": 0.02, "coverage": 3.0, "refine": 2, "alpha": 1.0, "threshold": 0.1}
+#: weak-iv (hold-exact weak form + 2 refinement passes, ridge 1, fixed λ): aeropend_ident.sindy.WEAK_IV
 IV_LIBS = ("physics", "structured")
 SEEDS = (7, 8, 9)
 
@@ -212,10 +213,8 @@ def run_case(kind: str, snr: float | None, libs: dict[str, Any]) -> dict[str, An
 
 def fit_weak_iv(train: IdentData, lib: Any) -> SindyModel:
     """The weak-iv estimator: ``fit(method="weak", refine=2, alpha=1, ...)`` (hold-exact quadrature)."""
-    h = WEAK_IV["H_xt"]
-    k = int(WEAK_IV["coverage"] * (train.t[-1] - train.t[0]) / (2 * h))
-    return fit(train, lib, TARGETS, threshold=WEAK_IV["threshold"], method="weak", K=k, H_xt=h,
-               refine=WEAK_IV["refine"], alpha=WEAK_IV["alpha"])
+    span = train.t[-1] - train.t[0]
+    return fit(train, lib, TARGETS, threshold=WEAK_IV["threshold"], **weak_iv_options(span))
 
 
 def report(kind: str, snr: float | None, key: str, res: dict[str, Any], disc: bool) -> None:

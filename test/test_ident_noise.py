@@ -15,7 +15,7 @@ import pytest
 
 from aeropend_ident.libraries import physics_library
 from aeropend_ident.preprocess import differentiate
-from aeropend_ident.sindy import data_from_trajectory, fit, structure_errors
+from aeropend_ident.sindy import WEAK_IV, data_from_trajectory, fit, structure_errors, weak_iv_options
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulate import simulate
@@ -43,8 +43,7 @@ def _data(snr: float | None, seed: int = 7, duty=DUTY):
 
 
 def _fit(data, targets=TARGETS, **kw):
-    k = int(3 * (data.t[-1] - data.t[0]) / (2 * H))
-    opts = dict(threshold=0.1, method="weak", K=k, H_xt=H, refine=2, alpha=1.0) | kw
+    opts = weak_iv_options(data.t[-1] - data.t[0]) | {"threshold": WEAK_IV["threshold"]} | kw
     return fit(data, physics_library(), targets, **opts)
 
 

@@ -59,6 +59,7 @@ from aeropend_ident.partial import angle_only_data, concat_data, nrmse_range, se
 from aeropend_ident.preprocess import add_derivatives, differentiate
 from aeropend_ident.sindy import (
     TARGET_INFO,
+    WEAK_IV,
     FreeRun,
     IdentData,
     IdentificationError,
@@ -69,6 +70,7 @@ from aeropend_ident.sindy import (
     save_model,
     select_threshold,
     sweep_threshold,
+    weak_iv_options,
 )
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig, RigFileError, load_rig
@@ -77,11 +79,8 @@ from aeropend_sim.recording import Recording, RecordingError
 LAMBDAS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
 #: Estimators of ``--method``.
 METHODS = ("weak", "weak-iv", "sindy", "ensemble")
-#: weak-iv settings (as in bench/bench_sindy.py): subdomain half-width [s], test-function
-#: coverage of the record, refinement passes (curvature + instruments), ridge on the unit-RMS scale.
-WEAK_IV = {"H_xt": 0.02, "coverage": 3.0, "refine": 2, "alpha": 1.0}
 #: Fixed λ of weak-iv (its refinement passes make a sweep costly; the benchmark's value).
-WEAK_IV_THRESHOLD = 0.1
+WEAK_IV_THRESHOLD = WEAK_IV["threshold"]
 #: Fewest samples per recording (derivative windows, split, library fit).
 MIN_SAMPLES = 50
 #: Share of each training part used as the validation tail for λ selection (full-state path).
@@ -345,7 +344,8 @@ def identify(
     method : {"weak", "weak-iv", "sindy", "ensemble"}, optional
         Default: ``"weak"`` for one full-state recording, ``"sindy"`` otherwise. ``"weak-iv"``
         (full state, one recording): the weak form with the hold-exact input quadrature refined
-        twice (intra-sample curvature + instrumental variables, ridge 1; :data:`WEAK_IV`), at
+        twice (intra-sample curvature + instrumental variables, ridge 1;
+        :data:`aeropend_ident.sindy.WEAK_IV`), at
         the fixed λ = :data:`WEAK_IV_THRESHOLD` unless ``threshold`` is given (the estimator of
         the issue-4 benchmark).
     thrust_map : {"first_order", "static"}
@@ -408,10 +408,7 @@ def identify(
         if method == "weak":
             kw.update(K=300, H_xt=min(0.05, 0.2 * (train.t[-1] - train.t[0])))
         elif method == "weak-iv":
-            span = train.t[-1] - train.t[0]
-            h = min(WEAK_IV["H_xt"], 0.2 * span)
-            kw.update(method="weak", K=max(50, int(WEAK_IV["coverage"] * span / (2 * h))), H_xt=h,
-                      refine=WEAK_IV["refine"], alpha=WEAK_IV["alpha"])
+            kw.update(weak_iv_options(train.t[-1] - train.t[0]))
         # the λ-independent regression on the whole training part(s), built once: it refuses the
         # equations the data cannot support (per-equation library) and serves the final refit
         train_kw = dict(kw)

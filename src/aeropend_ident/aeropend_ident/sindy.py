@@ -75,6 +75,11 @@ TARGET_INFO: dict[str, tuple[str, str]] = {
 METHODS = ("sindy", "ensemble", "weak")
 #: Inputs held constant over each sample period (zero-order hold) by default.
 ZOH_INPUTS = ("v_a", "duty")
+#: The weak-iv estimator of the issue-4 benchmark: weak form with the hold-exact input quadrature,
+#: subdomain half-width H_xt [s], test functions covering the record ``coverage`` times, two
+#: refinement passes (intra-sample curvature + instrumental variables), ridge α on the unit-RMS
+#: scale, STLSQ threshold λ (see :func:`weak_iv_options`).
+WEAK_IV: dict[str, float] = {"H_xt": 0.02, "coverage": 3.0, "refine": 2, "alpha": 1.0, "threshold": 0.1}
 #: Model state order of :mod:`aeropend_sim.model` (τ_f is the duty cycle without actuator lag).
 _MODEL_STATES = ("theta", "theta_dot", "i_a", "omega_rotor")
 
@@ -864,6 +869,23 @@ def _input_instruments(data: IdentData) -> dict[str, np.ndarray]:
 
 def _first_rows(variables: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     return {k: np.asarray(v, dtype=float)[:2] for k, v in variables.items()}
+
+
+def weak_iv_options(duration: float) -> dict[str, Any]:
+    """:func:`fit` keywords of the weak-iv estimator (:data:`WEAK_IV`) for a record of ``duration`` s.
+
+    The subdomain half-width is :data:`WEAK_IV` ``H_xt``, at most a fifth of the record; the number
+    of test functions K = coverage·duration/(2·H_xt), at least 50. λ is not included (``threshold``
+    of :data:`WEAK_IV` is the benchmark's fixed value).
+
+    Returns
+    -------
+    dict
+        ``method="weak"``, ``K``, ``H_xt``, ``refine``, ``alpha``.
+    """
+    h = min(WEAK_IV["H_xt"], 0.2 * duration)
+    k = max(50, int(WEAK_IV["coverage"] * duration / (2 * h)))
+    return {"method": "weak", "K": k, "H_xt": h, "refine": int(WEAK_IV["refine"]), "alpha": WEAK_IV["alpha"]}
 
 
 def fit(
