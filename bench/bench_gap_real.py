@@ -43,6 +43,7 @@ import numpy as np
 from aeropend_ident.csv_import import import_csv
 from aeropend_ident.gap_cli import resolve_rig, to_uniform
 from aeropend_ident.gap_report import fig_effects, fig_equations, fig_overlay, run_gap, write_report
+from aeropend_ident.gap_split import informative, interleaved_blocks, split_runs, time_ordered
 from aeropend_ident.jsonutil import jsonable
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
@@ -54,6 +55,7 @@ REAL = ROOT.parent / "shared" / "data" / "real"
 RESULTS = ROOT / "bench" / "results"
 FIGS = ROOT / "docs" / "results"
 
+MIN_RANGE = 0.02  # rad: blocks / pieces whose angle moves less are the rod resting on a stop
 THESIS_STEP = {"duty": 0.4314, "tr": 0.43, "tp": 0.84, "ts": 3.53, "theta_ss": 0.54}
 
 
@@ -62,44 +64,16 @@ def _csv(rel: str, preset: str) -> Recording:
 
 
 def _split(rec: Recording, frac: float = 0.7) -> tuple[list[Recording], list[Recording], str]:
-    a, b = rec.split(frac)
-    return [a], [b], f"time-ordered split: first {frac:.0%} to fit, the rest held out"
+    fit, held, _rule = time_ordered([rec], frac)
+    return fit, held, f"time-ordered split: first {frac:.0%} to fit, the rest held out"
 
 
 def _blocks(
     rec: Recording, block_s: float, every: int = 3, min_range: float = 0.0
 ) -> tuple[list[Recording], list[Recording], str]:
-    """Interleaved held-out blocks: consecutive blocks of ``block_s`` seconds, every ``every``-th
-    one (starting with the 2nd) held out, the others used to fit. Each block is replayed from its
-    own first samples, so fit and held-out data cover the same operating range (interpolation),
-    unlike the time-ordered split (extrapolation to the last part of the run).
-
-    ``min_range`` [rad] > 0 drops, before the split, blocks whose recorded angle moves less than
-    that (the rod resting on an end stop throughout: only sensor noise, no information on any
-    effect). The rule looks at the recorded angle only, never at a model."""
-    n = len(rec)
-    k = max(1, round(block_s / rec.dt))
-    fit, held = [], []
-    dropped = 0
-    for j, a in enumerate(range(0, n, k)):
-        b = min(n, a + k)
-        if b - a < k // 2:
-            break
-        part = rec.slice(a, b)
-        if np.ptp(part.duty) == 0.0:  # a block with a constant input carries no information
-            continue
-        if min_range > 0.0 and np.ptp(part.channels["theta"]) < min_range:
-            dropped += 1
-            continue
-        (held if j % every == 1 else fit).append(part)
-    rule = (
-        f"interleaved blocks of {block_s:g} s: every {every}rd block (from the 2nd) held out, "
-        "the others fit"
-    )
-    if min_range > 0.0:
-        rule += (f"; {dropped} block(s) with a recorded angle range below {min_range:g} rad "
-                 "(rod on a stop) dropped")
-    return fit, held, rule
+    """Interleaved held-out blocks (:func:`aeropend_ident.gap_split.interleaved_blocks`): fit and
+    held-out blocks cover the same operating range (interpolation), unlike the time-ordered split."""
+    return interleaved_blocks([rec], block_s, every, min_range)
 
 
 def case_jahoyosr() -> dict[str, Any]:
@@ -114,7 +88,7 @@ def case_jahoyosr_blocks() -> dict[str, Any]:
 
 def case_jahoyosr_moving_blocks() -> dict[str, Any]:
     rec = _csv("jahoyosr__Aeropendulum/sheet_Hoja3_pwm_steps_openloop.csv", "jahoyosr_hoja3")
-    return {"rig": "jahoyosr_rig", "split": _blocks(rec, 20.0, min_range=0.02)}
+    return {"rig": "jahoyosr_rig", "split": _blocks(rec, 20.0, min_range=MIN_RANGE)}
 
 
 def case_aeroshield_blocks() -> dict[str, Any]:
@@ -181,6 +155,64 @@ def case_etchepareborda_all() -> dict[str, Any]:
         ),
         "validation": [val],
     }
+
+
+# ------------------------------------------------------------------ pre-registered confirmation
+# (docs/gap.md "Pre-registered confirmation"): each case repeats the fit and validation data of a
+# reported configuration and replaces its held-out data by recordings no gap case had replayed.
+ETCH = "BA-Etchepareborda__adaptive-control-aeropendulum/"
+JAHO = "jahoyosr__Aeropendulum/"
+AERO = "gergelytakacs__AutomationShield/AeroShield/"
+def escalones_pieces() -> list[Recording]:
+    """The jahoyosr ``datosEscalones`` staircases: the A-B pieces (split at the file's ``block``
+    column) and the S-T run, each a separate recording, pieces without information dropped."""
+    ab_path = REAL / JAHO / "sheet_datosEscalones_colsAB_pwm_steps_no_time.csv"
+    ab = _csv(JAHO + ab_path.name, "jahoyosr_escalones")
+    pieces = split_runs(ab, np.loadtxt(ab_path, delimiter=",", skiprows=1, usecols=0), min_samples=200)
+    st = _csv(JAHO + "sheet_datosEscalones_colsST_pwm_steps_no_time.csv", "jahoyosr_escalones")
+    return [r for r in (*pieces, st) if informative(r, MIN_RANGE)]
+
+
+def _confirm(case: Any, held: Any, rule: str) -> Any:
+    """``case`` with its held-out recordings replaced by ``held()`` (the fit/validation unchanged)."""
+
+    def run() -> dict[str, Any]:
+        spec = case()
+        fit, _held, _rule = spec["split"]
+        spec["split"] = (fit, held(), f"{_rule}; held out instead: {rule}")
+        return spec
+
+    return run
+
+
+def _aeroshield2_blocks() -> dict[str, Any]:
+    rec = _csv(AERO + "Identification_Data2.csv", "aeroshield_ident2")
+    return {"rig": "aeroshield_rig", "split": _blocks(rec, 12.0)}
+
+
+CONFIRM = {
+    "etchepareborda_confirm": _confirm(
+        case_etchepareborda_all,
+        lambda: [_csv(ETCH + "closedloop_IMC_reference_steps.csv", "etchepareborda_openloop")],
+        "the closed-loop IMC run (its recorded PWM replayed open loop), never used by a gap case",
+    ),
+    "etchepareborda_confirm_str": _confirm(
+        case_etchepareborda_all,
+        lambda: [_csv(ETCH + "closedloop_STR_load_change.csv", "etchepareborda_openloop")],
+        "the closed-loop STR run with a load change (secondary: the load change is not in any model)",
+    ),
+    "jahoyosr_confirm": _confirm(
+        case_jahoyosr_moving_blocks,
+        escalones_pieces,
+        "the datosEscalones staircases of another session (70 Hz assumed), pieces on a stop dropped",
+    ),
+    "aeroshield_confirm": _confirm(
+        case_aeroshield_blocks,
+        lambda: [_csv(AERO + "Identification_Data2.csv", "aeroshield_ident2")],
+        "the whole run Identification_Data2 (another session; held out before in aeroshield_cross_run)",
+    ),
+    "aeroshield2_blocks": _aeroshield2_blocks,
+}
 
 
 def _heldout_selects(case: Any) -> Any:
@@ -267,6 +299,7 @@ CASES = {
     "etchepareborda_all": case_etchepareborda_all,
     "thesis_gap": case_thesis,
 }
+CASES.update(CONFIRM)
 CASES["etchepareborda_heldout_selects"] = _heldout_selects(case_etchepareborda)
 CASES["jahoyosr_hoja3_blocks_heldout_selects"] = _heldout_selects(case_jahoyosr_blocks)
 NEEDS_REAL = {
@@ -281,6 +314,7 @@ NEEDS_REAL = {
     "etchepareborda_all",
     "etchepareborda_heldout_selects",
     "jahoyosr_hoja3_blocks_heldout_selects",
+    *CONFIRM,
 }
 
 

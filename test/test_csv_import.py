@@ -15,6 +15,7 @@ from aeropend_ident.csv_import import PRESETS, CsvImportError, CsvSpec, find_pre
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 HOJA3 = REAL / "jahoyosr__Aeropendulum" / "sheet_Hoja3_pwm_steps_openloop.csv"
 AEROSHIELD = REAL / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"
+ESCALONES = REAL / "jahoyosr__Aeropendulum"
 ETCHE = REAL / "BA-Etchepareborda__adaptive-control-aeropendulum"
 MATHEUS = REAL / "matheusbucater__aeropendulo"
 
@@ -127,6 +128,26 @@ def test_matheusbucater_sawtooth_and_step() -> None:
     final = np.degrees(step.channels["theta"][step.t > step.t[-1] - 2.0]).mean()
     assert final == pytest.approx(60.6, abs=1.0)  # README: settles at about 60.6 deg
     assert "held at" in step.meta["input_note"]
+
+
+@real_data
+@pytest.mark.real_data
+def test_jahoyosr_escalones_no_time_column() -> None:
+    """datosEscalones: no time column (70 Hz assumed), README: S-T PWM 210..229 by 1, A-B 150..240 by 5."""
+    st = import_csv(ESCALONES / "sheet_datosEscalones_colsST_pwm_steps_no_time.csv", "jahoyosr_escalones")
+    assert len(st) == 23999 and st.dt == pytest.approx(1 / 70, rel=1e-9)
+    assert st.meta["n_gaps"] == 0
+    pwm = [round(st.duty[s[0]] * 255) for s in _segments(st.duty)]
+    assert pwm == list(range(210, 230))
+    assert [len(s) for s in _segments(st.duty)[1:-1]] == [1200] * 18
+    ab = import_csv(ESCALONES / "sheet_datosEscalones_colsAB_pwm_steps_no_time.csv", "jahoyosr_escalones")
+    assert len(ab) == 22478
+    assert sorted({round(d * 255) for d in ab.duty}) == list(range(150, 241, 5))
+    deg = np.degrees(ab.channels["theta"])
+    assert deg[0] == pytest.approx(-37.68, abs=1e-9) and deg.max() == pytest.approx(36.35, abs=1e-9)
+    for sheet in ("colsAB", "colsST"):
+        name = f"sheet_datosEscalones_{sheet}_pwm_steps_no_time.csv"
+        assert find_preset(ESCALONES / name) == "jahoyosr_escalones"
 
 
 @real_data

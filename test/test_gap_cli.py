@@ -191,6 +191,25 @@ def test_error_exits(bags, tmp_path, capsys):
     assert "--split" in _err(capsys, [str(bags["fit"]), "--rig", "thesis_rig", "--split", "1.5", "-o", out])
 
 
+def test_block_design_and_its_errors(bags, tmp_path, capsys):
+    """--blocks: every 3rd block of the fit bag (24 s) held out; bad block options exit 2."""
+    from aeropend_ident.gap_cli import prepare
+
+    fit, held, rule = prepare([bags["fit"]], None, 0.7, None, blocks=4.0)
+    assert (len(fit), len(held)) == (4, 2) and all(len(r) == 400 for r in (*fit, *held))
+    assert rule.startswith("interleaved blocks of 4 s: every 3rd block")
+    _f, held2, _r = prepare([bags["fit"]], None, 0.7, None, blocks=4.0, block_every=2)
+    assert len(held2) == 3
+    out = str(tmp_path / "o")
+    base = [str(bags["fit"]), "--rig", "thesis_rig", "-o", out]
+    assert "--blocks 0.0: expected a block length > 0" in _err(capsys, [*base, "--blocks", "0"])
+    assert "0 fit and 0 held-out block(s)" in _err(capsys, [*base, "--blocks", "100"])
+    assert "--block-every 1" in _err(capsys, [*base, "--blocks", "4", "--block-every", "1"])
+    assert "--min-range -1.0" in _err(capsys, [*base, "--blocks", "4", "--min-range", "-1"])
+    with pytest.raises(SystemExit):  # --blocks and --split are alternatives
+        main([*base, "--blocks", "4", "--split", "0.5"])
+
+
 def test_validation_split_rules():
     from aeropend_ident.gap_report import MIN_PART, validation_split
     from aeropend_ident.gap_where import GapInputError

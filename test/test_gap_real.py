@@ -6,7 +6,9 @@
   held out the separate 0/100/130 recording; figures measured when written (bench/results/
   gap_real.md): held-out NRMSE 0.358 -> 0.237 with thrust_exponent (the held-out file never seen
   by the diagnosis);
-* AeroShield with interleaved 12 s blocks and up to three effects: the held-out gap halves.
+* AeroShield with interleaved 12 s blocks and up to three effects: the held-out gap halves;
+* jahoyosr: the diagnosis fitted on the Hoja3 staircase carries to the staircases of another
+  session (the pre-registered confirmation of docs/gap.md).
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import pytest
 
 from aeropend_ident.csv_import import import_csv
 from aeropend_ident.gap_cli import main, resolve_rig, to_uniform
+from aeropend_ident.gap_split import informative, interleaved_blocks, split_runs
 from aeropend_ident.gap_where import locate_gap
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
@@ -83,19 +86,6 @@ def test_gap_cli_etchepareborda_held_out_shrink(tmp_path):
     assert rep["where"]["located"][0]["top_group"] == "thrust"
 
 
-def _blocks(rec, block_s=12.0, every=3):
-    """Interleaved blocks as in bench/bench_gap_real.py: every 3rd block (from the 2nd) held out."""
-    k = round(block_s / rec.dt)
-    fit, held = [], []
-    for j, a in enumerate(range(0, len(rec), k)):
-        b = min(len(rec), a + k)
-        if b - a < k // 2:
-            break
-        if np.ptp(rec.duty[a:b]) > 0.0:  # a block with a constant input carries no information
-            (held if j % every == 1 else fit).append(rec.slice(a, b))
-    return fit, held
-
-
 @pytest.mark.slow
 def test_aeroshield_blocks_three_effects_halve_the_held_out_gap():
     """AeroShield, interleaved 12 s blocks, up to three effects (forward selection on the
@@ -105,7 +95,7 @@ def test_aeroshield_blocks_three_effects_halve_the_held_out_gap():
     from aeropend_ident.gap_report import run_gap
 
     nominal, _ = resolve_rig("aeroshield_rig")
-    fit, held = _blocks(to_uniform(import_csv(AEROSHIELD, "aeroshield_ident")))
+    fit, held, _rule = interleaved_blocks([to_uniform(import_csv(AEROSHIELD, "aeroshield_ident"))], 12.0)
     assert (len(fit), len(held)) == (4, 2)
     res = run_gap(nominal, fit, held, max_effects=3)
     d = res.diagnosis
@@ -118,4 +108,31 @@ def test_aeroshield_blocks_three_effects_halve_the_held_out_gap():
     assert 2.0 < vals["motor_time_constant"]["J_m_scale"]["value"] < 4.0  # slower motor (θ̇ lag)
     h = res.headline()
     assert h["heldout_nrmse_nominal"] == pytest.approx(0.0829, abs=5e-4)
+    assert h["heldout_shrink"] >= 0.5
+
+
+@pytest.mark.slow
+def test_jahoyosr_diagnosis_carries_to_another_session():
+    """Pre-registered confirmation (docs/gap.md): the diagnosis fitted on the Hoja3 staircase
+    (20 s blocks, blocks with the rod resting on a stop dropped) is checked on the datosEscalones
+    staircases of another session, which no gap case had replayed. Measured when written
+    (bench/results/gap_real.md, jahoyosr_confirm): dry friction + dead zone, held-out NRMSE
+    1.957 -> 0.524 (73.2 %) over 10 staircase pieces."""
+    from aeropend_ident.gap_report import run_gap
+
+    nominal, offset = resolve_rig("jahoyosr_rig")
+    hoja3 = to_uniform(import_csv(HOJA3, "jahoyosr_hoja3"))
+    fit, _held, _rule = interleaved_blocks([hoja3], 20.0, min_range=0.02)
+    ab_path = HOJA3.parent / "sheet_datosEscalones_colsAB_pwm_steps_no_time.csv"
+    ab = to_uniform(import_csv(ab_path, "jahoyosr_escalones"))
+    runs = split_runs(ab, np.loadtxt(ab_path, delimiter=",", skiprows=1, usecols=0), min_samples=200)
+    st = to_uniform(import_csv(HOJA3.parent / "sheet_datosEscalones_colsST_pwm_steps_no_time.csv",
+                               "jahoyosr_escalones"))
+    held = [r for r in (*runs, st) if informative(r, 0.02)]
+    assert (len(runs), len(held)) == (15, 10)  # 5 pieces on the lower stop, 1 at constant PWM
+    res = run_gap(nominal, fit, held, theta_offset=offset)
+    assert res.diagnosis.chosen == ["coulomb_friction", "dead_zone"]
+    h = res.headline()
+    assert h["heldout_never_seen_by_diagnosis"]
+    assert h["heldout_nrmse_nominal"] == pytest.approx(1.957, abs=0.005)
     assert h["heldout_shrink"] >= 0.5

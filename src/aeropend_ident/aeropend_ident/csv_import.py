@@ -206,6 +206,25 @@ PRESETS: dict[str, CsvSpec] = {
             "nominal_rate_hz": 70.0,
         },
     ),
+    "jahoyosr_escalones": CsvSpec(
+        name="jahoyosr_escalones",
+        time_col=None, rate_hz=70.0,
+        input_col="PWM [0-255]", input_kind="pwm", pwm_full_scale=255.0,
+        angle_col="angle [deg]", angle_unit="deg",
+        meta={
+            "files": ["sheet_datosEscalones_*.csv"],
+            "rig": "jahoyosr Aeropendulum (as jahoyosr_hoja3), another session",
+            "provenance": "https://github.com/jahoyosr/Aeropendulum @ "
+                          "735dd93e6c3d9f8950a20421d5d14cf84b1e41ed, "
+                          "'Model identification and software development/VvsF.xlsx' sheet datosEscalones "
+                          "(columns A-B and S-T exported to CSV; data README section 5)",
+            "licence": _NO_LICENCE,
+            "angle_reference": "as jahoyosr_hoja3: 0 = see-saw horizontal; stops at about -37.4 and +37 deg",
+            "sample_period_note": "no time column: 70 Hz assumed (the rate of Hoja3, same rig and firmware)",
+            "input_note": "8-bit analogWrite PWM counts / 255; columns A-B: PWM 150..240 in steps of 5 in "
+                          "15 pieces (column 'block'); columns S-T: PWM 210..229 in steps of 1",
+        },
+    ),
     "aeroshield_ident": CsvSpec(
         name="aeroshield_ident",
         time_col="k", time_unit="sample", rate_hz=1.0 / 0.015,

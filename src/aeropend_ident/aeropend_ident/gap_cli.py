@@ -3,9 +3,11 @@
 Usage::
 
     gap RECORDING [RECORDING ...] --rig RIG --out DIR
-        [--preset NAME] [--held-out RECORDING [RECORDING ...] | --split FRACTION]
+        [--preset NAME]
+        [--held-out RECORDING [RECORDING ...] | --split FRACTION | --blocks SECONDS]
+        [--block-every 3] [--min-range RAD]
         [--validation RECORDING ... | --validation-fraction 0.3]
-        [--max-effects 2] [--horizon 0.2] [--theta-offset RAD] [--seed 0]
+        [--max-effects 2 (1-3)] [--horizon 0.2] [--theta-offset RAD] [--seed 0]
 
 ``RECORDING`` is a rosbag2 directory (or ``.mcap`` / ``.db3``) read with
 :func:`aeropend_ident.bags.read_bag`, or a CSV log read with
@@ -14,7 +16,9 @@ Usage::
 
 Held-out rule: ``--held-out FILES`` keeps those recordings for the check only (the positional
 recordings are used to find the effects); otherwise every recording is split in time order and
-its last ``1 − FRACTION`` is held out (``--split``, default 0.7). Inside the fit data the
+its last ``1 − FRACTION`` is held out (``--split``, default 0.7); ``--blocks SECONDS`` holds out
+every ``--block-every``-th block of that length instead (interleaved blocks, optionally dropping
+blocks whose angle moves less than ``--min-range``; :mod:`aeropend_ident.gap_split`). Inside the fit data the
 diagnosis fits on the first part and chooses the effects on the last ``--validation-fraction``
 (default 0.3) of each fit recording, or on explicit ``--validation`` recordings, so the
 held-out data stay unseen until the final before/after.
@@ -37,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_ident.baseline_cli import load_input
+from aeropend_ident.gap_split import interleaved_blocks, time_ordered
 from aeropend_ident.greybox import IdentificationError, rig_theta_offset, uniform_data
 from aeropend_sim.params import RigFileError, load_rig, shipped_rigs
 from aeropend_sim.recording import Recording, RecordingError
@@ -117,17 +122,29 @@ def resolve_rig(ref: str) -> tuple[object, float]:
 
 
 def prepare(
-    inputs: Sequence[Path], held_out: Sequence[Path] | None, split: float, preset: str | None
+    inputs: Sequence[Path],
+    held_out: Sequence[Path] | None,
+    split: float,
+    preset: str | None,
+    blocks: float | None = None,
+    block_every: int = 3,
+    min_range: float = 0.0,
 ) -> tuple[list[Recording], list[Recording], str]:
     """Read and split the recordings into (fit, held_out, rule description).
+
+    The held-out design (:mod:`aeropend_ident.gap_split`): separate ``held_out`` files, else
+    interleaved blocks of ``blocks`` seconds (every ``block_every``-th held out; blocks whose
+    angle moves less than ``min_range`` [rad] dropped), else the time-ordered ``split``.
 
     Raises
     ------
     GapCliError, RecordingError, ValueError
-        Unreadable file, unknown preset, missing channel, NaNs, too short, bad split.
+        Unreadable file, unknown preset, missing channel, NaNs, too short, bad split or blocks.
     """
     if not (isinstance(split, float) and math.isfinite(split) and 0.0 < split < 1.0):
         raise GapCliError(f"--split {split!r}: expected a fraction in (0, 1)")
+    if not (math.isfinite(min_range) and min_range >= 0.0):
+        raise GapCliError(f"--min-range {min_range!r}: expected an angle range >= 0 [rad]")
     recs = [to_uniform(load_input(p, preset)) for p in inputs]
     if held_out:
         held = [to_uniform(load_input(p, preset)) for p in held_out]
@@ -137,14 +154,25 @@ def prepare(
             _check_length(r, "held-out recording")
         rule = f"separate held-out file(s): {', '.join(Path(p).name for p in held_out)}"
         return recs, held, rule
-    fit, held = [], []
-    for r in recs:
-        a, b = r.split(split)
+    if blocks is not None:
+        if not (math.isfinite(blocks) and blocks > 0.0):
+            raise GapCliError(f"--blocks {blocks!r}: expected a block length > 0 [s]")
+        if block_every < 2:
+            raise GapCliError(f"--block-every {block_every!r}: expected 2 or more")
+        fit, held, rule = interleaved_blocks(recs, blocks, block_every, min_range)
+        if not fit or not held:
+            raise GapCliError(
+                f"--blocks {blocks:g}: {len(fit)} fit and {len(held)} held-out block(s) with a changing "
+                "duty cycle; use shorter blocks or --split"
+            )
+        for r in (*fit, *held):
+            _check_length(r, "block")
+        return fit, held, rule
+    fit, held, rule = time_ordered(recs, split)
+    for a, b in zip(fit, held, strict=True):
         _check_length(a, "fit part")
         _check_length(b, "held-out part")
-        fit.append(a)
-        held.append(b)
-    return fit, held, f"time-ordered split: first {split:.0%} of each recording to fit, the rest held out"
+    return fit, held, rule
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -178,6 +206,24 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=0.7,
         help="time-ordered split: leading fraction of each recording used to find the effects (0-1)",
+    )
+    g.add_argument(
+        "--blocks",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="interleaved held-out blocks of this length: every --block-every-th block (from the 2nd) "
+        "held out, the others fit (held-out blocks inside the fitted operating range)",
+    )
+    p.add_argument(
+        "--block-every", type=int, default=3, help="with --blocks: hold out every N-th block (default 3)"
+    )
+    p.add_argument(
+        "--min-range",
+        type=float,
+        default=0.0,
+        metavar="RAD",
+        help="with --blocks: drop blocks whose recorded angle moves less than this (rod resting on a stop)",
     )
     p.add_argument(
         "--max-effects", type=int, default=2, help="most effects added to the corrected rig (1, 2 or 3)"
@@ -225,7 +271,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         rig, offset = resolve_rig(args.rig)
         if args.theta_offset is not None:
             offset = float(args.theta_offset)
-        fit, held, rule = prepare(args.inputs, args.held_out, args.split, args.preset)
+        fit, held, rule = prepare(
+            args.inputs, args.held_out, args.split, args.preset, args.blocks, args.block_every, args.min_range
+        )
         val = None
         if args.validation:
             val = [to_uniform(load_input(p, args.preset)) for p in args.validation]

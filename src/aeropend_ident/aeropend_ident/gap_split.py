@@ -1,0 +1,170 @@
+"""Held-out designs of the gap diagnosis: which parts of the recordings find the effects and which check them.
+
+* :func:`time_ordered` — the first fraction of each recording to fit, the rest held out. The held-out
+  part is an *extrapolation* when the run ends in an operating range the fit part never held.
+* :func:`interleaved_blocks` — consecutive blocks of ``block_s`` seconds, every ``every``-th one
+  (from the 2nd) held out: the held-out blocks lie inside the operating range of the fit blocks
+  (*interpolation* within a run). Each block is replayed from its own first samples.
+* :func:`informative` — whether a part carries information on any effect: a changing duty cycle
+  and an angle that moves by at least ``min_range`` (a rod resting on an end stop throughout shows
+  only sensor noise). The rule looks at the recording only, never at a model.
+* :func:`split_runs` — one recording per run of a log that stores several runs one after the
+  other with a run label column (e.g. the jahoyosr ``datosEscalones`` sheet).
+
+Used by the ``gap`` command (``--split``, ``--blocks``, ``--min-range``), the real-rig bench
+(``bench/bench_gap_real.py``) and the real-data tests.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from aeropend_sim.recording import Recording
+
+__all__ = ["informative", "interleaved_blocks", "split_runs", "time_ordered"]
+
+
+def informative(part: Recording, min_range: float = 0.0) -> bool:
+    """Whether a recording part can inform the diagnosis.
+
+    Parameters
+    ----------
+    part : Recording
+        Recording (part) with a ``theta`` channel [rad].
+    min_range : float
+        Smallest peak-to-peak recorded angle [rad] (0: any).
+
+    Returns
+    -------
+    bool
+        False when the duty cycle is constant over the part, or its angle range is below
+        ``min_range``.
+    """
+    if np.ptp(part.duty) == 0.0:
+        return False
+    return not (min_range > 0.0 and np.ptp(part.channels["theta"]) < min_range)
+
+
+def time_ordered(
+    recs: Sequence[Recording], fraction: float
+) -> tuple[list[Recording], list[Recording], str]:
+    """The first ``fraction`` of each recording to fit, the rest held out.
+
+    Returns
+    -------
+    fit, held_out : list of Recording
+        One part of each recording in each list.
+    rule : str
+        The design in words (report provenance).
+
+    Raises
+    ------
+    ValueError
+        ``fraction`` not in (0, 1).
+    """
+    if not (math.isfinite(fraction) and 0.0 < fraction < 1.0):
+        raise ValueError(f"split fraction {fraction!r}: expected a fraction in (0, 1)")
+    parts = [r.split(fraction) for r in recs]
+    rule = f"time-ordered split: first {fraction:.0%} of each recording to fit, the rest held out"
+    return [a for a, _ in parts], [b for _, b in parts], rule
+
+
+def interleaved_blocks(
+    recs: Sequence[Recording], block_s: float, every: int = 3, min_range: float = 0.0
+) -> tuple[list[Recording], list[Recording], str]:
+    """Interleaved held-out blocks of each recording.
+
+    Each recording is cut into consecutive blocks of ``block_s`` seconds (a last block shorter
+    than half of that is dropped); block ``j`` (0-based) is held out when ``j % every == 1``,
+    the others are fit blocks. Blocks that are not :func:`informative` (constant duty, or an angle
+    range below ``min_range``) are dropped from both sides before the assignment is used.
+
+    Parameters
+    ----------
+    recs : sequence of Recording
+        Uniformly sampled recordings with ``theta``.
+    block_s : float
+        Block length [s] (> 0 and at least 2 samples).
+    every : int
+        Every ``every``-th block (from the 2nd) is held out (≥ 2).
+    min_range : float
+        Smallest recorded angle range [rad] of a kept block (0: keep any moving-input block).
+
+    Returns
+    -------
+    fit, held_out : list of Recording
+        Blocks, each re-based to t = 0 (``source`` names the sample range).
+    rule : str
+        The design in words, with the number of blocks dropped by ``min_range``.
+
+    Raises
+    ------
+    ValueError
+        Bad ``block_s`` / ``every`` / ``min_range``.
+    """
+    if not (math.isfinite(block_s) and block_s > 0.0):
+        raise ValueError(f"block length {block_s!r} s: expected a positive number of seconds")
+    if every < 2:
+        raise ValueError(f"every {every!r}: expected every 2nd block or sparser (>= 2)")
+    if not (math.isfinite(min_range) and min_range >= 0.0):
+        raise ValueError(f"min_range {min_range!r} rad: expected >= 0")
+    fit: list[Recording] = []
+    held: list[Recording] = []
+    dropped = 0
+    for rec in recs:
+        n = len(rec)
+        k = max(2, round(block_s / rec.dt))
+        for j, a in enumerate(range(0, n, k)):
+            b = min(n, a + k)
+            if b - a < k // 2:
+                break
+            part = rec.slice(a, b)
+            if not informative(part):
+                continue
+            if not informative(part, min_range):
+                dropped += 1
+                continue
+            (held if j % every == 1 else fit).append(part)
+    nth = {2: "2nd", 3: "3rd"}.get(every, f"{every}th")
+    rule = (
+        f"interleaved blocks of {block_s:g} s: every {nth} block (from the 2nd) held out, "
+        "the others fit"
+    )
+    if min_range > 0.0:
+        rule += (f"; {dropped} block(s) with a recorded angle range below {min_range:g} rad "
+                 "(rod on a stop) dropped")
+    return fit, held, rule
+
+
+def split_runs(rec: Recording, labels: np.ndarray, min_samples: int = 2) -> list[Recording]:
+    """One recording per run of a log that holds several runs, labelled per sample.
+
+    Parameters
+    ----------
+    rec : Recording
+        The whole log, shape (n,) per channel.
+    labels : ndarray, shape (n,)
+        Run label of each sample; a new run starts wherever the label changes.
+    min_samples : int
+        Runs with fewer samples are dropped.
+
+    Returns
+    -------
+    list of Recording
+        The runs in file order, each re-based to t = 0.
+
+    Raises
+    ------
+    ValueError
+        ``labels`` does not have one entry per sample.
+    """
+    labels = np.asarray(labels)
+    if labels.shape != (len(rec),):
+        raise ValueError(f"{rec.source or 'recording'}: {labels.shape} run labels for {len(rec)} samples; "
+                         "expected one per sample")
+    edges = [0, *(np.flatnonzero(labels[1:] != labels[:-1]) + 1).tolist(), len(rec)]
+    return [rec.slice(a, b) for a, b in itertools.pairwise(edges) if b - a >= min_samples]
