@@ -19,6 +19,12 @@ Cases (real data read from ``../shared/data/real``, never copied into the reposi
   i.e. an extrapolation of the rig model beyond the one measured step, stated as such.
 * ``aeroshield_cross_run`` — fit on the whole AeroShield identification run, held out: the
   independent run ``Identification_Data2`` (another session, 10 ms sampling).
+* pre-registered confirmation (docs/gap.md, written before these runs): ``etchepareborda_confirm``
+  (``_str``), ``jahoyosr_confirm``, ``aeroshield_confirm`` repeat the fit and validation data of
+  ``etchepareborda_all``, ``jahoyosr_hoja3_moving_blocks`` and ``aeroshield_blocks`` and replace
+  the held-out data by recordings no case had replayed (the closed-loop runs, the
+  ``datosEscalones`` staircases, ``Identification_Data2``); ``aeroshield2_blocks`` applies the
+  12 s block protocol within ``Identification_Data2``.
 
 Each case runs :func:`aeropend_ident.gap_report.run_gap` (where + which + after) exactly as the
 ``gap`` command does. Results: ``bench/results/gap_real.json`` and ``.md``; figures
