@@ -169,6 +169,8 @@ def case_etchepareborda_all() -> dict[str, Any]:
 ETCH = "BA-Etchepareborda__adaptive-control-aeropendulum/"
 JAHO = "jahoyosr__Aeropendulum/"
 AERO = "gergelytakacs__AutomationShield/AeroShield/"
+
+
 def escalones_pieces() -> list[Recording]:
     """The jahoyosr ``datosEscalones`` staircases: the A-B pieces (split at the file's ``block``
     column) and the S-T run, each a separate recording, pieces without information dropped."""

@@ -206,6 +206,7 @@ def test_block_design_and_its_errors(bags, tmp_path, capsys):
     assert "0 fit and 0 held-out block(s)" in _err(capsys, [*base, "--blocks", "100"])
     assert "--block-every 1" in _err(capsys, [*base, "--blocks", "4", "--block-every", "1"])
     assert "--min-range -1.0" in _err(capsys, [*base, "--blocks", "4", "--min-range", "-1"])
+    assert "apply to interleaved blocks only" in _err(capsys, [*base, "--min-range", "0.02"])
     with pytest.raises(SystemExit):  # --blocks and --split are alternatives
         main([*base, "--blocks", "4", "--split", "0.5"])
 

@@ -18,10 +18,10 @@ Held-out rule: ``--held-out FILES`` keeps those recordings for the check only (t
 recordings are used to find the effects); otherwise every recording is split in time order and
 its last ``1 − FRACTION`` is held out (``--split``, default 0.7); ``--blocks SECONDS`` holds out
 every ``--block-every``-th block of that length instead (interleaved blocks, optionally dropping
-blocks whose angle moves less than ``--min-range``; :mod:`aeropend_ident.gap_split`). Inside the fit data the
-diagnosis fits on the first part and chooses the effects on the last ``--validation-fraction``
-(default 0.3) of each fit recording, or on explicit ``--validation`` recordings, so the
-held-out data stay unseen until the final before/after.
+blocks whose angle moves less than ``--min-range``; :mod:`aeropend_ident.gap_split`). Inside the
+fit data the diagnosis fits on the first part and chooses the effects on the last
+``--validation-fraction`` (default 0.3) of each fit recording, or on explicit ``--validation``
+recordings, so the held-out data stay unseen until the final before/after.
 
 The report folder gets ``report.json``, ``report.html``, ``corrected_rig.yaml`` and
 ``figures/*.png`` (:mod:`aeropend_ident.gap_report`); a one-screen summary is printed.
@@ -145,6 +145,10 @@ def prepare(
         raise GapCliError(f"--split {split!r}: expected a fraction in (0, 1)")
     if not (math.isfinite(min_range) and min_range >= 0.0):
         raise GapCliError(f"--min-range {min_range!r}: expected an angle range >= 0 [rad]")
+    if blocks is None and (min_range != 0.0 or block_every != 3):
+        raise GapCliError(
+            "--min-range and --block-every apply to interleaved blocks only: give --blocks SECONDS"
+        )
     recs = [to_uniform(load_input(p, preset)) for p in inputs]
     if held_out:
         held = [to_uniform(load_input(p, preset)) for p in held_out]
