@@ -91,6 +91,13 @@ def test_bridge_node_on_emulated_firmware(tmp_path: Path, angle: str) -> None:
         while len(js) < 300 and time.monotonic() < end:
             ex.spin_once(timeout_sec=0.01)
         assert len(js) >= 300, "no samples from the bridge on the emulated firmware"
+        # MCU watchdog trips before the bridge's keep-alives flow (firmware boot, a start-up stall
+        # of the bridge process on a loaded host) are not under test: count from here on.
+        n_diag = len(diag)
+        spin(0.6)
+        assert len(diag) > n_diag, "no diagnostics from the bridge"
+        trips0 = int({kv.key: kv.value for kv in diag[-1].status[0].values}["mcu_watchdog_trips"])
+        assert trips0 <= 2  # one at boot (no host yet), one more if the bridge stalled right after connecting
         spin(1.5, duty=0.5)
         n_on = len(js)
         assert any(abs(m.effort[1] - 128 / 255) < 1e-9 for m in js[-50:]), [m.effort[1] for m in js[-5:]]
@@ -124,7 +131,9 @@ def test_bridge_node_on_emulated_firmware(tmp_path: Path, angle: str) -> None:
         print(f"diagnostics: {last}")
         assert last["sequence_gaps_lost_frames"] == "0" and last["angle_invalid_samples"] == "0"
         assert last["connected"] == "True" and last["reconnects"] == "0"
-        assert int(last["mcu_rx_errors"]) == 0 and int(last["mcu_watchdog_trips"]) <= 1
+        # the bridge keeps feeding the firmware watchdog (its own watchdog sends duty 0 when the
+        # controller is silent), so the MCU watchdog must not trip while the bridge runs
+        assert int(last["mcu_rx_errors"]) == 0 and int(last["mcu_watchdog_trips"]) == trips0
         err = stop(bridge, signal.SIGINT, timeout=10).stderr
         assert bridge.returncode == 0 and "motor off" in err, err
     finally:
