@@ -23,8 +23,7 @@ import time
 from pathlib import Path
 
 from aeropend_bridge.protocol import Duty, SampleFrame
-from aeropend_bridge.serial_link import SerialLink
-from aeropend_bridge.simavr_harness import read_pty_path
+from aeropend_bridge.simavr_harness import harness_link
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware"
@@ -62,29 +61,20 @@ def ssi_on_simavr(tmp: Path, seconds: float) -> dict[str, float]:
     ev.write_text("ssi 0 0x8020\n" + "".join(f"ir {t} 1\nir {t + 2000} 0\n"
                                              for t in range(10_000, int(seconds * 1e6), 60_000)))
     t_wall = time.monotonic()
-    proc = subprocess.Popen([str(build / "harness"), str(build / "aeropend.elf"), str(int(seconds * F_CPU)),
-                             "-e", str(ev)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     frames: list[SampleFrame] = []
-    link = None
-    try:
-        def on_frame(f: object, _t: int) -> None:
-            if isinstance(f, SampleFrame):
-                frames.append(f)
 
-        link = SerialLink(read_pty_path(proc), on_frame, clock_ns=time.monotonic_ns)
-        link.start()
+    def on_frame(f: object, _t: int) -> None:
+        if isinstance(f, SampleFrame):
+            frames.append(f)
+
+    argv = [str(build / "harness"), str(build / "aeropend.elf"), str(int(seconds * F_CPU)), "-e", str(ev)]
+    with harness_link(argv, on_frame) as (proc, link):
         link.wait_connected(5)
         while proc.poll() is None:
             link.send(Duty.from_fraction(0.3))
             time.sleep(0.05)
         out, _ = proc.communicate(timeout=30)
         wall = time.monotonic() - t_wall
-    finally:
-        if link is not None:
-            link.stop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
     v = next(ln.split()[1:] for ln in out.splitlines() if ln.startswith("SSITIMING"))
     t = dict(zip(v[0:8:2], (int(x) / 1000 for x in v[1:8:2]), strict=True))
     return {

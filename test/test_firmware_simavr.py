@@ -32,8 +32,7 @@ from aeropend_bridge.protocol import (
     SampleFrame,
     StatusFrame,
 )
-from aeropend_bridge.serial_link import SerialLink
-from aeropend_bridge.simavr_harness import read_pty_path
+from aeropend_bridge.simavr_harness import harness_link
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware"
@@ -62,8 +61,6 @@ def built(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
 def test_firmware_on_simavr(built: tuple[Path, Path]) -> None:
     elf, harness = built
     cycles = int(SIM_SECONDS * F_CPU)
-    proc = subprocess.Popen([str(harness), str(elf), str(cycles), str(A0_MV), str(A1_MV), str(A2_MV),
-                             str(A3_MV)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     frames: list[tuple[int, object]] = []
     lock = threading.Lock()
 
@@ -71,11 +68,9 @@ def test_firmware_on_simavr(built: tuple[Path, Path]) -> None:
         with lock:
             frames.append((host_ns, frame))
 
-    link = None
     sends: list[float] = []
-    try:
-        link = SerialLink(read_pty_path(proc), on_frame, clock_ns=time.monotonic_ns)
-        link.start()
+    argv = [str(harness), str(elf), str(cycles), str(A0_MV), str(A1_MV), str(A2_MV), str(A3_MV)]
+    with harness_link(argv, on_frame) as (proc, link):
         assert link.wait_connected(5)
         t0 = time.monotonic()
         while time.monotonic() - t0 < 1.0:  # 1 s of duty 0.5 at 50 Hz
@@ -84,12 +79,6 @@ def test_firmware_on_simavr(built: tuple[Path, Path]) -> None:
             time.sleep(0.02)
         out, err = proc.communicate(timeout=30)  # then silence until the emulation ends
         time.sleep(0.2)
-    finally:
-        if link is not None:
-            link.stop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
     assert "CYCLES" in out, err
     samples = [(t, f) for t, f in frames if isinstance(f, SampleFrame)]
     status = [f for _, f in frames if isinstance(f, StatusFrame)]

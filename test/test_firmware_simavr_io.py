@@ -44,8 +44,7 @@ from aeropend_bridge.protocol import (
     SampleFrame,
     StatusFrame,
 )
-from aeropend_bridge.serial_link import SerialLink
-from aeropend_bridge.simavr_harness import read_pty_path
+from aeropend_bridge.simavr_harness import harness_link
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware"
@@ -140,13 +139,9 @@ def run(built: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -> d
     lines = [f"ir {t:.4f} {v}" for t, v in _ir_events()]
     lines += [f"ssi {t:.1f} 0x{w:04x}" for t, w, *_ in SSI]
     events.write_text("\n".join(lines) + "\n")
-    proc = subprocess.Popen([str(harness), str(elf), str(int(SIM_S * F_CPU)), "-e", str(events)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     frames: list[object] = []
-    link = None
-    try:
-        link = SerialLink(read_pty_path(proc), lambda f, _t: frames.append(f), clock_ns=time.monotonic_ns)
-        link.start()
+    argv = [str(harness), str(elf), str(int(SIM_S * F_CPU)), "-e", str(events)]
+    with harness_link(argv, lambda f, _t: frames.append(f)) as (proc, link):
         assert link.wait_connected(5)
         end = time.monotonic() + 60
         while proc.poll() is None and time.monotonic() < end:
@@ -154,12 +149,6 @@ def run(built: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -> d
             time.sleep(0.05)
         out, err = proc.communicate(timeout=30)
         time.sleep(0.2)
-    finally:
-        if link is not None:
-            link.stop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
     t4 = int(next(ln.split()[1] for ln in err.splitlines() if ln.startswith("T4START")))
     kv = {ln.split()[0]: ln.split()[1:] for ln in out.splitlines() if ln.strip()}
     samples = [f for f in frames if isinstance(f, SampleFrame)]
@@ -254,22 +243,12 @@ def test_ssi_22_clocks_like_the_thesis(tmp_path: Path) -> None:
         assert r.returncode == 0, r.stdout + r.stderr
     ev = tmp_path / "ev.txt"
     ev.write_text(f"ssi 0 0x{as5040_word(345, lin=1):04x}\n")
-    proc = subprocess.Popen([str(tmp_path / "harness"), str(tmp_path / "aeropend.elf"), str(F_CPU // 2),
-                             "-e", str(ev)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     frames: list[object] = []
-    link = None
-    try:
-        link = SerialLink(read_pty_path(proc), lambda f, _t: frames.append(f), clock_ns=time.monotonic_ns)
-        link.start()
+    argv = [str(tmp_path / "harness"), str(tmp_path / "aeropend.elf"), str(F_CPU // 2), "-e", str(ev)]
+    with harness_link(argv, lambda f, _t: frames.append(f)) as (proc, link):
         assert link.wait_connected(5)
         out, _ = proc.communicate(timeout=30)
         time.sleep(0.2)
-    finally:
-        if link is not None:
-            link.stop()
-        if proc.poll() is None:
-            proc.kill()
-            proc.communicate()
     kv = {ln.split()[0]: ln.split()[1:] for ln in out.splitlines() if ln.strip()}
     assert kv["SSITIMING"][-2:] == ["22", "22"]
     samples = [f for f in frames if isinstance(f, SampleFrame)]

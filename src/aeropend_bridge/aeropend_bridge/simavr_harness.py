@@ -2,12 +2,18 @@
 
 The harness runs the real firmware on an emulated ATmega2560 and exposes its UART0 as a pty;
 after simavr's own "Loaded ..." lines it prints ``PTY <path>`` on stdout. The bridge (or a
-:class:`~aeropend_bridge.serial_link.SerialLink`) then connects to that path like to a board.
+:class:`~aeropend_bridge.serial_link.SerialLink`) then connects to that path like to a board;
+:func:`harness_link` does both and tears them down.
 """
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
+import time
+from collections.abc import Iterator, Sequence
+
+from aeropend_bridge.serial_link import FrameCallback, SerialLink
 
 #: simavr prints a few "Loaded ..." lines before the harness announces its pty.
 MAX_STARTUP_LINES = 20
@@ -49,3 +55,43 @@ def read_pty_path(proc: subprocess.Popen[str], max_lines: int = MAX_STARTUP_LINE
         err = proc.stderr.read() if proc.stderr is not None and proc.poll() is not None else ""
         raise HarnessError(f"simavr harness did not announce its pty: last line {line!r}; stderr: {err!r}")
     return line.split()[1]
+
+
+@contextlib.contextmanager
+def harness_link(
+    argv: Sequence[str], on_frame: FrameCallback
+) -> Iterator[tuple[subprocess.Popen[str], SerialLink]]:
+    """Start the harness and a started :class:`SerialLink` on its pty; stop both on exit.
+
+    Parameters
+    ----------
+    argv : sequence of str
+        Harness command line (``harness ELF CYCLES ...``).
+    on_frame : callable
+        Frame callback of the link, ``on_frame(frame, host_ns)`` (host clock ``time.monotonic_ns``).
+
+    Yields
+    ------
+    proc, link
+        The harness process (stdout/stderr piped, text) and the link; the caller waits for the
+        connection (``link.wait_connected``).
+
+    Raises
+    ------
+    HarnessError
+        The harness did not announce its pty (:func:`read_pty_path`).
+
+    On exit the link is stopped and a harness that is still running is killed and reaped.
+    """
+    proc = subprocess.Popen(list(argv), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    link = None
+    try:
+        link = SerialLink(read_pty_path(proc), on_frame, clock_ns=time.monotonic_ns)
+        link.start()
+        yield proc, link
+    finally:
+        if link is not None:
+            link.stop()
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
