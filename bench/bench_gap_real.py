@@ -25,6 +25,10 @@ Cases (real data read from ``../shared/data/real``, never copied into the reposi
   the held-out data by recordings no case had replayed (the closed-loop runs, the
   ``datosEscalones`` staircases, ``Identification_Data2``); ``aeroshield2_blocks`` applies the
   12 s block protocol within ``Identification_Data2``.
+* pre-registered cross-validation (docs/gap.md, written before these runs): ``*_fold<k>`` rotate
+  the roles of the blocks (``aeroshield_blocks``, ``jahoyosr_hoja3_moving_blocks``: the held-out
+  blocks start at block k) or of the four runs (``etchepareborda_all``: leave-one-run-out), so that
+  over the folds every block / run is held out once; the markdown pools them (:data:`FOLDS`).
 
 Each case runs :func:`aeropend_ident.gap_report.run_gap` (where + which + after) exactly as the
 ``gap`` command does. Results: ``bench/results/gap_real.json`` and ``.md``; figures
@@ -75,11 +79,11 @@ def _split(rec: Recording, frac: float = 0.7) -> tuple[list[Recording], list[Rec
 
 
 def _blocks(
-    rec: Recording, block_s: float, every: int = 3, min_range: float = 0.0
+    rec: Recording, block_s: float, every: int = 3, min_range: float = 0.0, offset: int = 1
 ) -> tuple[list[Recording], list[Recording], str]:
     """Interleaved held-out blocks (:func:`aeropend_ident.gap_split.interleaved_blocks`): fit and
     held-out blocks cover the same operating range (interpolation), unlike the time-ordered split."""
-    return interleaved_blocks([rec], block_s, every, min_range)
+    return interleaved_blocks([rec], block_s, every, min_range, offset)
 
 
 def case_jahoyosr() -> dict[str, Any]:
@@ -92,14 +96,14 @@ def case_jahoyosr_blocks() -> dict[str, Any]:
     return {"rig": "jahoyosr_rig", "split": _blocks(rec, 20.0)}
 
 
-def case_jahoyosr_moving_blocks() -> dict[str, Any]:
+def case_jahoyosr_moving_blocks(offset: int = 1) -> dict[str, Any]:
     rec = _csv("jahoyosr__Aeropendulum/sheet_Hoja3_pwm_steps_openloop.csv", "jahoyosr_hoja3")
-    return {"rig": "jahoyosr_rig", "split": _blocks(rec, 20.0, min_range=MIN_RANGE)}
+    return {"rig": "jahoyosr_rig", "split": _blocks(rec, 20.0, min_range=MIN_RANGE, offset=offset)}
 
 
-def case_aeroshield_blocks() -> dict[str, Any]:
+def case_aeroshield_blocks(offset: int = 1) -> dict[str, Any]:
     rec = _csv("gergelytakacs__AutomationShield/AeroShield/Identification_Data.csv", "aeroshield_ident")
-    return {"rig": "aeroshield_rig", "split": _blocks(rec, 12.0)}
+    return {"rig": "aeroshield_rig", "split": _blocks(rec, 12.0, offset=offset)}
 
 
 def case_aeroshield() -> dict[str, Any]:
@@ -143,23 +147,31 @@ def case_etchepareborda_val() -> dict[str, Any]:
     }
 
 
-def case_etchepareborda_all() -> dict[str, Any]:
+ETCH_OPENLOOP = (  # the four open-loop runs, in the order of the fold rotation
+    ("openloop_steps_0_100_180.csv", "the 0/100/180 step cycle"),
+    ("openloop_random_binary_80_120.csv", "the 80/120 random-binary run"),
+    ("openloop_gaussian_pwm.csv", "the Gaussian-PWM run"),
+    ("openloop_steps_0_100_130.csv", "the 0/100/130 step cycle"),
+)
+
+
+def case_etchepareborda_all(fold: int = 0) -> dict[str, Any]:
+    """All four open-loop runs: fit runs ``fold``, ``fold + 1``, validation ``fold + 2``, held
+    out ``fold + 3`` (mod 4, in :data:`ETCH_OPENLOOP` order). Fold 0 is the reported
+    configuration; folds 0-3 hold out each run once (leave-one-run-out, pre-registered)."""
     d = "BA-Etchepareborda__adaptive-control-aeropendulum/"
-    fit = [
-        _csv(d + f, "etchepareborda_openloop")
-        for f in ("openloop_steps_0_100_180.csv", "openloop_random_binary_80_120.csv")
-    ]
-    val = _csv(d + "openloop_gaussian_pwm.csv", "etchepareborda_openloop")
-    held = _csv(d + "openloop_steps_0_100_130.csv", "etchepareborda_openloop")
+    runs = [ETCH_OPENLOOP[(fold + k) % 4] for k in range(4)]
+    fit, val, held = ([_csv(d + f, "etchepareborda_openloop") for f, _ in part]
+                      for part in (runs[:2], runs[2:3], runs[3:]))
     return {
         "rig": "etchepareborda_rig",
         "split": (
             fit,
-            [held],
-            "fit: the 0/100/180 step cycle and the 80/120 random-binary run; validation: "
-            "the Gaussian-PWM run; held out: the 0/100/130 step cycle (all four open-loop runs)",
+            held,
+            f"fit: {runs[0][1]} and {runs[1][1]}; validation: {runs[2][1]}; held out: {runs[3][1]} "
+            "(all four open-loop runs)",
         ),
-        "validation": [val],
+        "validation": val,
     }
 
 
@@ -221,6 +233,55 @@ CONFIRM = {
     ),
     "aeroshield2_blocks": _aeroshield2_blocks,
 }
+
+
+# ------------------------------------------------------------------ pre-registered block folds
+# (docs/gap.md "Pre-registered cross-validation"): the reported within-experiment configurations
+# with the roles of their blocks / runs rotated, so that over all folds every block / run is held
+# out exactly once. Fold 1 of the blocks and fold 0 of the runs are the reported cases.
+FOLDS = {
+    "aeroshield_blocks": ["aeroshield_blocks_fold0", "aeroshield_blocks", "aeroshield_blocks_fold2"],
+    "jahoyosr_hoja3_moving_blocks": [
+        "jahoyosr_hoja3_moving_blocks_fold0",
+        "jahoyosr_hoja3_moving_blocks",
+        "jahoyosr_hoja3_moving_blocks_fold2",
+    ],
+    "etchepareborda_all": [
+        "etchepareborda_all",
+        "etchepareborda_all_fold1",
+        "etchepareborda_all_fold2",
+        "etchepareborda_all_fold3",
+    ],
+}
+FOLD_CASES = {
+    "aeroshield_blocks_fold0": lambda: case_aeroshield_blocks(0),
+    "aeroshield_blocks_fold2": lambda: case_aeroshield_blocks(2),
+    "jahoyosr_hoja3_moving_blocks_fold0": lambda: case_jahoyosr_moving_blocks(0),
+    "jahoyosr_hoja3_moving_blocks_fold2": lambda: case_jahoyosr_moving_blocks(2),
+    **{f"etchepareborda_all_fold{k}": (lambda k=k: case_etchepareborda_all(k)) for k in (1, 2, 3)},
+}
+
+
+def cross_validation(results: dict[str, Any], folds: list[str], max_effects: int) -> dict[str, Any] | None:
+    """Pooled held-out NRMSE over the folds of one configuration (every block / run held out once).
+
+    Returns None unless every fold has a result. ``shrink`` = 1 − mean corrected / mean nominal over
+    all held-out recordings of all folds; ``fold_shrinks`` per fold, in ``folds`` order.
+    """
+    rows = [results["cases"].get(result_key(f, max_effects)) for f in folds]
+    if any(r is None or "error" in r for r in rows):
+        return None
+    nominal = [x for r in rows for x in r["test"][0]["per_recording"]]
+    corrected = [x for r in rows for x in r["test"][-1]["per_recording"]]
+    return {
+        "folds": [result_key(f, max_effects) for f in folds],
+        "n_held_out": len(nominal),
+        "nrmse_nominal": float(np.mean(nominal)),
+        "nrmse_corrected": float(np.mean(corrected)),
+        "shrink": 1.0 - float(np.mean(corrected)) / float(np.mean(nominal)),
+        "fold_shrinks": [r["headline"]["heldout_shrink"] for r in rows],
+        "fold_effects": [r["headline"]["effects_chosen"] for r in rows],
+    }
 
 
 def _heldout_selects(case: Any) -> Any:
@@ -308,6 +369,7 @@ CASES = {
     "thesis_gap": case_thesis,
 }
 CASES.update(CONFIRM)
+CASES.update(FOLD_CASES)
 CASES["etchepareborda_heldout_selects"] = _heldout_selects(case_etchepareborda)
 CASES["jahoyosr_hoja3_blocks_heldout_selects"] = _heldout_selects(case_jahoyosr_blocks)
 NEEDS_REAL = {
@@ -323,6 +385,7 @@ NEEDS_REAL = {
     "etchepareborda_heldout_selects",
     "jahoyosr_hoja3_blocks_heldout_selects",
     *CONFIRM,
+    *FOLD_CASES,
 }
 
 
@@ -459,6 +522,31 @@ def markdown(results: dict[str, Any]) -> str:
             f"{h['heldout_nrmse_nominal']:.4f} | {h['heldout_nrmse_corrected']:.4f} | "
             f"{100 * h['heldout_shrink']:.1f} % | {'yes' if r['meets_bar_50pct'] else 'no'} |"
         )
+    cv_rows = [
+        (name, cv)
+        for name, folds in FOLDS.items()
+        for m in (2, 3)
+        if (cv := cross_validation(results, folds, m)) is not None
+    ]
+    if cv_rows:
+        lines += [
+            "",
+            "## Cross-validation over folds (pre-registered, docs/gap.md)",
+            "",
+            "Every block / run held out exactly once over the folds; pooled = mean over all held-out "
+            "recordings of all folds.",
+            "",
+            "| configuration | folds | held-out recordings | pooled NRMSE nominal → corrected "
+            "| pooled shrink | shrink per fold | effects per fold |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for name, cv in cv_rows:
+            lines.append(
+                f"| {name} | {', '.join(cv['folds'])} | {cv['n_held_out']} | {cv['nrmse_nominal']:.4f} → "
+                f"{cv['nrmse_corrected']:.4f} | {100 * cv['shrink']:.1f} % | "
+                f"{', '.join(f'{100 * x:.1f} %' for x in cv['fold_shrinks'])} | "
+                f"{'; '.join('+'.join(e) or '–' for e in cv['fold_effects'])} |"
+            )
     for name, r in results["cases"].items():
         if "error" in r:
             continue

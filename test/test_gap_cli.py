@@ -200,6 +200,9 @@ def test_block_design_and_its_errors(bags, tmp_path, capsys):
     assert rule.startswith("interleaved blocks of 4 s: every 3rd block")
     _f, held2, _r = prepare([bags["fit"]], None, 0.7, None, blocks=4.0, block_every=2)
     assert len(held2) == 3
+    fit0, held0, rule0 = prepare([bags["fit"]], None, 0.7, None, blocks=4.0, block_offset=0)
+    assert (len(fit0), len(held0)) == (4, 2) and "(from the 1st)" in rule0
+    assert not {h.source for h in held0} & {h.source for h in held}  # another fold
     out = str(tmp_path / "o")
     base = [str(bags["fit"]), "--rig", "thesis_rig", "-o", out]
     assert "--blocks 0.0: expected a block length > 0" in _err(capsys, [*base, "--blocks", "0"])
@@ -207,6 +210,10 @@ def test_block_design_and_its_errors(bags, tmp_path, capsys):
     assert "--block-every 1" in _err(capsys, [*base, "--blocks", "4", "--block-every", "1"])
     assert "--min-range -1.0" in _err(capsys, [*base, "--blocks", "4", "--min-range", "-1"])
     assert "apply to interleaved blocks only" in _err(capsys, [*base, "--min-range", "0.02"])
+    assert "apply to interleaved blocks only" in _err(capsys, [*base, "--block-offset", "0"])
+    assert "--block-offset 3: expected a block index in [0, 3)" in _err(
+        capsys, [*base, "--blocks", "4", "--block-offset", "3"]
+    )
     with pytest.raises(SystemExit):  # --blocks and --split are alternatives
         main([*base, "--blocks", "4", "--split", "0.5"])
 

@@ -34,6 +34,27 @@ def test_every_third_block_from_the_second_is_held_out():
     assert len(held2) == 5 and "every 2nd block" in rule2
 
 
+def test_block_folds_hold_out_every_block_exactly_once():
+    """offset 0, 1, 2 of every 3rd block: the folds of a cross-validation over blocks."""
+    rec = _staircase(10)
+    folds = [interleaved_blocks([rec], 1.0, offset=k) for k in range(3)]
+    held = [h.source for _f, hs, _r in folds for h in hs]
+    assert sorted(held) == sorted(f"r[{100 * j}:{100 * (j + 1)}]" for j in range(10))  # each once
+    assert [h.source for h in folds[0][1]] == ["r[0:100]", "r[300:400]", "r[600:700]", "r[900:1000]"]
+    for fit, hs, _rule in folds:  # fit and held out are complementary within a fold
+        assert len(fit) + len(hs) == 10 and not {p.source for p in fit} & {h.source for h in hs}
+    assert [r for _f, _h, r in folds] == [
+        f"interleaved blocks of 1 s: every 3rd block (from the {k}) held out, the others fit"
+        for k in ("1st", "2nd", "3rd")
+    ]
+    default = interleaved_blocks([rec], 1.0)[1]  # offset 1: from the 2nd block
+    assert [h.source for h in default] == [h.source for h in folds[1][1]]
+    with pytest.raises(ValueError, match="offset 3: expected a block index in \\[0, 3\\)"):
+        interleaved_blocks([rec], 1.0, offset=3)
+    with pytest.raises(ValueError, match="offset -1"):
+        interleaved_blocks([rec], 1.0, offset=-1)
+
+
 def test_blocks_without_information_are_dropped_and_counted():
     rec = _staircase(6)
     rec.duty[200:300] = 0.3  # block 2: constant input -> dropped silently

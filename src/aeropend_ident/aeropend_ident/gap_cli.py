@@ -5,7 +5,7 @@ Usage::
     gap RECORDING [RECORDING ...] --rig RIG --out DIR
         [--preset NAME]
         [--held-out RECORDING [RECORDING ...] | --split FRACTION | --blocks SECONDS]
-        [--block-every 3] [--min-range RAD]
+        [--block-every 3] [--block-offset 1] [--min-range RAD]
         [--validation RECORDING ... | --validation-fraction 0.3]
         [--max-effects 2 (1-3)] [--horizon 0.2] [--theta-offset RAD] [--seed 0]
 
@@ -17,8 +17,9 @@ Usage::
 Held-out rule: ``--held-out FILES`` keeps those recordings for the check only (the positional
 recordings are used to find the effects); otherwise every recording is split in time order and
 its last ``1 − FRACTION`` is held out (``--split``, default 0.7); ``--blocks SECONDS`` holds out
-every ``--block-every``-th block of that length instead (interleaved blocks, optionally dropping
-blocks whose angle moves less than ``--min-range``; :mod:`aeropend_ident.gap_split`). Inside the
+every ``--block-every``-th block of that length instead, from block ``--block-offset`` (0-based,
+default 1; the offsets 0 … N−1 are the folds of a cross-validation over blocks), optionally
+dropping blocks whose angle moves less than ``--min-range`` (:mod:`aeropend_ident.gap_split`). Inside the
 fit data the diagnosis fits on the first part and chooses the effects on the last
 ``--validation-fraction`` (default 0.3) of each fit recording, or on explicit ``--validation``
 recordings, so the held-out data stay unseen until the final before/after.
@@ -129,12 +130,14 @@ def prepare(
     blocks: float | None = None,
     block_every: int = 3,
     min_range: float = 0.0,
+    block_offset: int = 1,
 ) -> tuple[list[Recording], list[Recording], str]:
     """Read and split the recordings into (fit, held_out, rule description).
 
     The held-out design (:mod:`aeropend_ident.gap_split`): separate ``held_out`` files, else
-    interleaved blocks of ``blocks`` seconds (every ``block_every``-th held out; blocks whose
-    angle moves less than ``min_range`` [rad] dropped), else the time-ordered ``split``.
+    interleaved blocks of ``blocks`` seconds (every ``block_every``-th held out from block
+    ``block_offset``; blocks whose angle moves less than ``min_range`` [rad] dropped), else the
+    time-ordered ``split``.
 
     Raises
     ------
@@ -145,9 +148,10 @@ def prepare(
         raise GapCliError(f"--split {split!r}: expected a fraction in (0, 1)")
     if not (math.isfinite(min_range) and min_range >= 0.0):
         raise GapCliError(f"--min-range {min_range!r}: expected an angle range >= 0 [rad]")
-    if blocks is None and (min_range != 0.0 or block_every != 3):
+    if blocks is None and (min_range != 0.0 or block_every != 3 or block_offset != 1):
         raise GapCliError(
-            "--min-range and --block-every apply to interleaved blocks only: give --blocks SECONDS"
+            "--min-range, --block-every and --block-offset apply to interleaved blocks only: "
+            "give --blocks SECONDS"
         )
     recs = [to_uniform(load_input(p, preset)) for p in inputs]
     if held_out:
@@ -163,7 +167,12 @@ def prepare(
             raise GapCliError(f"--blocks {blocks!r}: expected a block length > 0 [s]")
         if block_every < 2:
             raise GapCliError(f"--block-every {block_every!r}: expected 2 or more")
-        fit, held, rule = interleaved_blocks(recs, blocks, block_every, min_range)
+        if not 0 <= block_offset < block_every:
+            raise GapCliError(
+                f"--block-offset {block_offset!r}: expected a block index in [0, {block_every}) "
+                "(below --block-every)"
+            )
+        fit, held, rule = interleaved_blocks(recs, blocks, block_every, min_range, block_offset)
         if not fit or not held:
             raise GapCliError(
                 f"--blocks {blocks:g}: {len(fit)} fit and {len(held)} held-out block(s) with a changing "
@@ -223,6 +232,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--block-every", type=int, default=3, help="with --blocks: hold out every N-th block (default 3)"
     )
     p.add_argument(
+        "--block-offset",
+        type=int,
+        default=1,
+        metavar="K",
+        help="with --blocks: first held-out block, 0-based (default 1); offsets 0..N-1 are the folds "
+        "of a cross-validation over blocks",
+    )
+    p.add_argument(
         "--min-range",
         type=float,
         default=0.0,
@@ -276,7 +293,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.theta_offset is not None:
             offset = float(args.theta_offset)
         fit, held, rule = prepare(
-            args.inputs, args.held_out, args.split, args.preset, args.blocks, args.block_every, args.min_range
+            args.inputs,
+            args.held_out,
+            args.split,
+            args.preset,
+            args.blocks,
+            args.block_every,
+            args.min_range,
+            args.block_offset,
         )
         val = None
         if args.validation:

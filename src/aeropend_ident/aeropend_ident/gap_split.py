@@ -3,8 +3,10 @@
 * :func:`time_ordered` — the first fraction of each recording to fit, the rest held out. The held-out
   part is an *extrapolation* when the run ends in an operating range the fit part never held.
 * :func:`interleaved_blocks` — consecutive blocks of ``block_s`` seconds, every ``every``-th one
-  (from the 2nd) held out: the held-out blocks lie inside the operating range of the fit blocks
-  (*interpolation* within a run). Each block is replayed from its own first samples.
+  (from the 2nd, or from block ``offset``) held out: the held-out blocks lie inside the operating
+  range of the fit blocks (*interpolation* within a run). Each block is replayed from its own
+  first samples. ``offset`` = 0 … ``every`` − 1 are the folds of a block cross-validation: over
+  all of them every block is held out exactly once.
 * :func:`informative` — whether a part carries information on any effect: a changing duty cycle
   and an angle that moves by at least ``min_range`` (a rod resting on an end stop throughout shows
   only sensor noise). The rule looks at the recording only, never at a model.
@@ -74,13 +76,18 @@ def time_ordered(
 
 
 def interleaved_blocks(
-    recs: Sequence[Recording], block_s: float, every: int = 3, min_range: float = 0.0
+    recs: Sequence[Recording],
+    block_s: float,
+    every: int = 3,
+    min_range: float = 0.0,
+    offset: int = 1,
 ) -> tuple[list[Recording], list[Recording], str]:
     """Interleaved held-out blocks of each recording.
 
     Each recording is cut into consecutive blocks of ``block_s`` seconds (a last block shorter
-    than half of that is dropped); block ``j`` (0-based) is held out when ``j % every == 1``,
-    the others are fit blocks. Blocks that are not :func:`informative` (constant duty, or an angle
+    than half of that is dropped); block ``j`` (0-based) is held out when
+    ``j % every == offset``, the others are fit blocks. Blocks that are not :func:`informative`
+    (constant duty, or an angle
     range below ``min_range``) are dropped from both sides before the assignment is used.
 
     Parameters
@@ -93,6 +100,9 @@ def interleaved_blocks(
         Every ``every``-th block (from the 2nd) is held out (≥ 2).
     min_range : float
         Smallest recorded angle range [rad] of a kept block (0: keep any moving-input block).
+    offset : int
+        Index of the first held-out block, in ``[0, every)`` (default 1: from the 2nd block). The
+        ``every`` offsets are the folds of a cross-validation over blocks.
 
     Returns
     -------
@@ -104,7 +114,7 @@ def interleaved_blocks(
     Raises
     ------
     ValueError
-        Bad ``block_s`` / ``every`` / ``min_range``.
+        Bad ``block_s`` / ``every`` / ``min_range`` / ``offset``.
     """
     if not (math.isfinite(block_s) and block_s > 0.0):
         raise ValueError(f"block length {block_s!r} s: expected a positive number of seconds")
@@ -112,6 +122,8 @@ def interleaved_blocks(
         raise ValueError(f"every {every!r}: expected every 2nd block or sparser (>= 2)")
     if not (math.isfinite(min_range) and min_range >= 0.0):
         raise ValueError(f"min_range {min_range!r} rad: expected >= 0")
+    if not 0 <= offset < every:
+        raise ValueError(f"offset {offset!r}: expected a block index in [0, {every})")
     fit: list[Recording] = []
     held: list[Recording] = []
     dropped = 0
@@ -128,16 +140,21 @@ def interleaved_blocks(
             if not informative(part, min_range):
                 dropped += 1
                 continue
-            (held if j % every == 1 else fit).append(part)
-    nth = {2: "2nd", 3: "3rd"}.get(every, f"{every}th")
+            (held if j % every == offset else fit).append(part)
     rule = (
-        f"interleaved blocks of {block_s:g} s: every {nth} block (from the 2nd) held out, "
-        "the others fit"
+        f"interleaved blocks of {block_s:g} s: every {_ordinal(every)} block (from the "
+        f"{_ordinal(offset + 1)}) held out, the others fit"
     )
     if min_range > 0.0:
         rule += (f"; {dropped} block(s) with a recorded angle range below {min_range:g} rad "
                  "(rod on a stop) dropped")
     return fit, held, rule
+
+
+def _ordinal(k: int) -> str:
+    """1st, 2nd, 3rd, 4th, ... 11th, 12th, 13th, 21st."""
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix}"
 
 
 def split_runs(rec: Recording, labels: np.ndarray, min_samples: int = 2) -> list[Recording]:
