@@ -50,10 +50,10 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.csv_import import import_csv
+from aeropend_ident.csv_import import import_csv, import_csv_runs
 from aeropend_ident.gap_cli import resolve_rig, to_uniform
 from aeropend_ident.gap_report import fig_effects, fig_equations, fig_overlay, run_gap, write_report
-from aeropend_ident.gap_split import informative, interleaved_blocks, split_runs, time_ordered
+from aeropend_ident.gap_split import informative, interleaved_blocks, time_ordered
 from aeropend_ident.jsonutil import jsonable
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
@@ -186,9 +186,8 @@ AERO = "gergelytakacs__AutomationShield/AeroShield/"
 def escalones_pieces() -> list[Recording]:
     """The jahoyosr ``datosEscalones`` staircases: the A-B pieces (split at the file's ``block``
     column) and the S-T run, each a separate recording, pieces without information dropped."""
-    ab_path = REAL / JAHO / "sheet_datosEscalones_colsAB_pwm_steps_no_time.csv"
-    ab = _csv(JAHO + ab_path.name, "jahoyosr_escalones")
-    pieces = split_runs(ab, np.loadtxt(ab_path, delimiter=",", skiprows=1, usecols=0), min_samples=200)
+    pieces = import_csv_runs(REAL / JAHO / "sheet_datosEscalones_colsAB_pwm_steps_no_time.csv",
+                             "jahoyosr_escalones", "block", min_samples=200)
     st = _csv(JAHO + "sheet_datosEscalones_colsST_pwm_steps_no_time.csv", "jahoyosr_escalones")
     return [r for r in (*pieces, st) if informative(r, MIN_RANGE)]
 

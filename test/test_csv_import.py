@@ -10,7 +10,15 @@ import numpy as np
 import pytest
 
 from aeropend_ident.bags import read_bag
-from aeropend_ident.csv_import import PRESETS, CsvImportError, CsvSpec, find_preset, import_csv, main
+from aeropend_ident.csv_import import (
+    PRESETS,
+    CsvImportError,
+    CsvSpec,
+    find_preset,
+    import_csv,
+    import_csv_runs,
+    main,
+)
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 HOJA3 = REAL / "jahoyosr__Aeropendulum" / "sheet_Hoja3_pwm_steps_openloop.csv"
@@ -303,6 +311,29 @@ def test_no_time_column_uses_rate(tmp_path: Path) -> None:
     assert rec.channels["theta"][-1] == pytest.approx(0.249)
     with pytest.raises(CsvImportError, match="rate_hz = None; a positive sample rate"):
         import_csv(path, CsvSpec(input_col=0, angle_col=1))
+
+
+def test_runs_split_at_the_label_column(tmp_path: Path) -> None:
+    """Three runs of 4, 1 and 5 samples stored one after the other; label 7 comes back later."""
+    labels = [7] * 4 + [2] + [7] * 5
+    body = "run,PWM [0-255],angle [deg]\n" + "".join(
+        f"{lab},{100 + k},{0.5 * k}\n" for k, lab in enumerate(labels)
+    )
+    path = _write(tmp_path / "runs.csv", body)
+    spec = CsvSpec(time_col=None, rate_hz=10.0, input_col="PWM [0-255]", input_kind="pwm",
+                   angle_col="angle [deg]", angle_unit="deg")
+    runs = import_csv_runs(path, spec, "run")
+    assert [len(r) for r in runs] == [4, 5]  # the 1-sample run is below min_samples = 2
+    assert runs[1].t[0] == 0.0 and runs[1].duty[0] == pytest.approx(105 / 255)  # re-based
+    assert runs[1].channels["theta"][0] == pytest.approx(math.radians(2.5))
+    assert [len(r) for r in import_csv_runs(path, spec, 0, min_samples=5)] == [5]  # label by index
+    with pytest.raises(ValueError, match="min_samples 1: expected >= 2"):
+        import_csv_runs(path, spec, "run", min_samples=1)
+    with pytest.raises(CsvImportError, match="no run label column 'piece'"):
+        import_csv_runs(path, spec, "piece")
+    bad = _write(tmp_path / "bad.csv", body.replace("\n2,", "\nx,"))
+    with pytest.raises(CsvImportError, match="line 6 column 'run': 'x' is not a number"):
+        import_csv_runs(bad, spec, "run")
 
 
 def test_voltage_input_linear_and_rms(tmp_path: Path) -> None:

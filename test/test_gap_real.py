@@ -16,12 +16,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from aeropend_ident.csv_import import import_csv
+from aeropend_ident.csv_import import import_csv, import_csv_runs
 from aeropend_ident.gap_cli import main, resolve_rig, to_uniform
-from aeropend_ident.gap_split import informative, interleaved_blocks, split_runs
+from aeropend_ident.gap_split import informative, interleaved_blocks
 from aeropend_ident.gap_where import locate_gap
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
@@ -123,9 +122,8 @@ def test_jahoyosr_diagnosis_carries_to_another_session():
     nominal, offset = resolve_rig("jahoyosr_rig")
     hoja3 = to_uniform(import_csv(HOJA3, "jahoyosr_hoja3"))
     fit, _held, _rule = interleaved_blocks([hoja3], 20.0, min_range=0.02)
-    ab_path = HOJA3.parent / "sheet_datosEscalones_colsAB_pwm_steps_no_time.csv"
-    ab = to_uniform(import_csv(ab_path, "jahoyosr_escalones"))
-    runs = split_runs(ab, np.loadtxt(ab_path, delimiter=",", skiprows=1, usecols=0), min_samples=200)
+    runs = import_csv_runs(HOJA3.parent / "sheet_datosEscalones_colsAB_pwm_steps_no_time.csv",
+                           "jahoyosr_escalones", "block", min_samples=200)
     st = to_uniform(import_csv(HOJA3.parent / "sheet_datosEscalones_colsST_pwm_steps_no_time.csv",
                                "jahoyosr_escalones"))
     held = [r for r in (*runs, st) if informative(r, 0.02)]

@@ -94,6 +94,8 @@ def test_split_runs_at_label_changes():
     assert [len(r) for r in split_runs(rec, labels, min_samples=60)] == [100, 150]
     with pytest.raises(ValueError, match=r"\(299,\) run labels for 300 samples"):
         split_runs(rec, labels[:-1])
+    with pytest.raises(ValueError, match="min_samples 1: expected >= 2"):
+        split_runs(rec, labels, min_samples=1)
 
 
 def test_time_ordered_and_errors():

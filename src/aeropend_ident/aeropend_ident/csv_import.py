@@ -41,6 +41,7 @@ __all__ = [
     "csv_to_bag",
     "find_preset",
     "import_csv",
+    "import_csv_runs",
     "main",
     "summary",
 ]
@@ -681,6 +682,49 @@ def import_csv(path: str | Path, spec: CsvSpec | str) -> Recording:
         return Recording(t=t, duty=duty, channels=channels, source=str(path), meta=meta)
     except RecordingError as exc:  # pragma: no cover - checked above
         raise CsvImportError(f"{path}: {exc}") from exc
+
+
+def import_csv_runs(
+    path: str | Path, spec: CsvSpec | str, run_col: Column, min_samples: int = 2
+) -> list[Recording]:
+    """Read a CSV log that stores several runs one after the other, one recording per run.
+
+    A run label column (e.g. the ``block`` column of the jahoyosr ``datosEscalones`` sheet)
+    marks the runs: a new run starts wherever its value changes
+    (:func:`aeropend_ident.gap_split.split_runs`).
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.csv`` or ``.csv.gz`` file.
+    spec : CsvSpec or str
+        Column mapping and units, or a preset name (as :func:`import_csv`).
+    run_col : str or int
+        Run label column (header name or 0-based index); numeric labels.
+    min_samples : int
+        Runs with fewer samples are dropped (≥ 2).
+
+    Returns
+    -------
+    list of Recording
+        The runs in file order, each re-based to t = 0 (``source`` names the sample range).
+
+    Raises
+    ------
+    CsvImportError
+        As :func:`import_csv`, plus a missing run label column or a label cell that is empty
+        or not a number (named by file, line and column).
+    ValueError
+        ``min_samples`` < 2.
+    """
+    from aeropend_ident.gap_split import split_runs
+
+    rec = import_csv(path, spec)
+    spec = PRESETS[spec] if isinstance(spec, str) else spec
+    path = Path(path)
+    tab = _tabulate(path, _read_text(path, spec.encoding)[0], spec)
+    idx, label = _resolve(tab, run_col, "run label")
+    return split_runs(rec, _column(tab, idx, label, allow_nan=False), min_samples=min_samples)
 
 
 def csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, storage: str = "mcap",

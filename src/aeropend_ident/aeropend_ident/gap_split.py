@@ -167,7 +167,7 @@ def split_runs(rec: Recording, labels: np.ndarray, min_samples: int = 2) -> list
     labels : ndarray, shape (n,)
         Run label of each sample; a new run starts wherever the label changes.
     min_samples : int
-        Runs with fewer samples are dropped.
+        Runs with fewer samples are dropped (≥ 2: a recording has at least two samples).
 
     Returns
     -------
@@ -177,8 +177,10 @@ def split_runs(rec: Recording, labels: np.ndarray, min_samples: int = 2) -> list
     Raises
     ------
     ValueError
-        ``labels`` does not have one entry per sample.
+        ``labels`` does not have one entry per sample, or ``min_samples`` < 2.
     """
+    if min_samples < 2:
+        raise ValueError(f"min_samples {min_samples!r}: expected >= 2 (a recording has at least 2 samples)")
     labels = np.asarray(labels)
     if labels.shape != (len(rec),):
         raise ValueError(f"{rec.source or 'recording'}: {labels.shape} run labels for {len(rec)} samples; "
