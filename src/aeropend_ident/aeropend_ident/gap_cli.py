@@ -225,8 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="SECONDS",
-        help="interleaved held-out blocks of this length: every --block-every-th block (from the 2nd) "
-        "held out, the others fit (held-out blocks inside the fitted operating range)",
+        help="interleaved held-out blocks of this length: every --block-every-th block (from block "
+        "--block-offset) held out, the others fit (held-out blocks inside the fitted operating range)",
     )
     p.add_argument(
         "--block-every", type=int, default=3, help="with --blocks: hold out every N-th block (default 3)"
