@@ -1419,16 +1419,16 @@ def free_run(model: SindyModel, data: IdentData, substeps: int = 2) -> FreeRun:
         vals = dict(exo)
         for s, i in idx_items:
             vals[s] = xs[i:i + 1]
-        dx = np.empty(len(states))
         if model.base is None:
             r = library_row(vals)
-            for i, j in source:
-                dx[i] = xs[i_theta_dot] if j < 0 else r @ coef_rows[j]
-            return dx
-        d = IdentData(t=np.arange(3.0), variables={k_: np.repeat(v, 3) for k_, v in vals.items()})
-        pred = model.predict(d)
-        for s, i in idx_items:
-            dx[i] = xs[idx["theta_dot"]] if (s == "theta" and s not in model.targets) else pred[s][0]
+            deriv = [r @ c for c in coef_rows]
+        else:
+            d = IdentData(t=np.arange(3.0), variables={k_: np.repeat(v, 3) for k_, v in vals.items()})
+            pred = model.predict(d)
+            deriv = [pred[tg][0] for tg in model.targets]
+        dx = np.empty(len(states))
+        for i, j in source:
+            dx[i] = xs[i_theta_dot] if j < 0 else deriv[j]
         return dx
 
     h = float(np.mean(np.diff(data.t))) / substeps
