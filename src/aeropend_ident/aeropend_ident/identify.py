@@ -216,14 +216,21 @@ def _theta_scores(measured: np.ndarray, simulated: np.ndarray) -> dict[str, floa
 PLOT_TRAIN_TAIL_S = 10.0
 
 
+def _model_plot_paths(out: Path, model: SindyModel, held: IdentData) -> list[Path]:
+    """Files :func:`_model_plots` draws: ``coefficients.png`` and, with held-out derivatives,
+    ``derivatives.png``."""
+    files = [out / "coefficients.png"]
+    if any(tg in held.derivatives for tg in model.targets):
+        files.append(out / "derivatives.png")
+    return files
+
+
 def _model_plots(out: Path, model: SindyModel, held: IdentData) -> list[Path]:
-    """``coefficients.png`` and (with held-out derivatives) ``derivatives.png``: need only the model."""
+    """Draw :func:`_model_plot_paths` (they need only the model and the held-out derivatives)."""
     from aeropend_ident.ident_plots import plot_coefficients, plot_derivatives
 
-    files = [plot_coefficients(model, out / "coefficients.png")]
-    if any(tg in held.derivatives for tg in model.targets):
-        files.append(plot_derivatives(model, held, out / "derivatives.png"))
-    return files
+    coef_path, *deriv_path = _model_plot_paths(out, model, held)
+    return [plot_coefficients(model, coef_path), *(plot_derivatives(model, held, p) for p in deriv_path)]
 
 
 def _train_tail(train: IdentData) -> IdentData:
@@ -304,9 +311,7 @@ def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, held
     if child is None or child.proc.exitcode != 0:  # no child, or it failed: draw here (raises the real error)
         first = _model_plots(out, model, held)
     else:
-        first = [out / "coefficients.png"]
-        if any(tg in held.derivatives for tg in model.targets):
-            first.append(out / "derivatives.png")
+        first = _model_plot_paths(out, model, held)
     files = [*first, last]
     say(f"plots: {', '.join(p.name for p in files)}")
     return [p.name for p in files]
