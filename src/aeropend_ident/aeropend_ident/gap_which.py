@@ -54,7 +54,7 @@ import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -794,26 +794,37 @@ def _rig_values(rig: Rig, name: str, values: Mapping[str, float]) -> dict[str, f
     return {p.rig_field: float(values[p.name]) for p in e.parameters}
 
 
-def _add_effect(rig: Rig, corrected: Rig, meas: MeasurementMap, cur: EffectFit, chosen: Sequence[str],
-                ranking: Sequence[Mapping[str, Any]], screened: Sequence[str], forced: Sequence[str],
-                pf: Sequence[Prepared], ph: Sequence[Prepared], channels: frozenset[str], seed: int,
-                n_eff: int, n_fit: int, say: Callable[[str], None]) -> tuple | None:
+class _Added(NamedTuple):
+    """The effect one forward-selection step adds (:func:`_add_effect`)."""
+
+    gain: float  # share of the validation SSE left by the chosen set that it removes
+    effect: str
+    fit: EffectFit  # chosen + effect, fitted jointly
+    bic_delta: float
+    screening: Screening  # of the residual the chosen set left
+    sse: float  # validation SSE of chosen + effect (segment_sse summed)
+
+
+def _add_effect(rig: Rig, corrected: Rig, meas: MeasurementMap, cur: EffectFit, cur_sse: float,
+                chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]], screened: Sequence[str],
+                forced: Sequence[str], pf: Sequence[Prepared], ph: Sequence[Prepared],
+                channels: frozenset[str], seed: int, n_eff: int, n_fit: int,
+                say: Callable[[str], None]) -> _Added | None:
     """One forward-selection step of :func:`diagnose_effects`: the next effect, or None.
 
-    The residual left by the ``chosen`` effects (fitted in ``cur``) is screened (discrepancy SINDy
-    on the corrected model); its two best groups, the next two ranked single effects that remove
-    more than 10 % of the validation residual alone, and the ``forced`` (timing) effects are each
-    fitted jointly with the chosen ones, starting from the chosen values and the candidate's fit
-    on the corrected model. A candidate counts when it removes at least
+    The residual left by the ``chosen`` effects (fitted in ``cur``, validation SSE ``cur_sse``) is
+    screened (discrepancy SINDy on the corrected model); its two best groups, the next two ranked
+    single effects that remove more than 10 % of the validation residual alone, and the
+    ``forced`` (timing) effects are each fitted jointly with the chosen ones, starting from the
+    chosen values and the candidate's fit on the corrected model. A candidate counts when it removes at least
     :data:`MIN_EXPLAINED_SECOND` of the validation SSE the chosen set leaves, with a BIC gain of
     :data:`MIN_BIC_GAIN` on the fit data; the largest removal wins.
 
     Returns
     -------
-    tuple or None
-        ``(gain, effect, EffectFit of chosen + effect, BIC change, Screening)``.
+    _Added or None
+        The winning candidate, or None when none passes.
     """
-    cur_sse = float(segment_sse(cur.rig, cur.meas, ph).sum())
     rest = [n for n in screened if n not in chosen]
     say(f"screening the residual left by {' + '.join(chosen)}")
     scr2 = screen(corrected, pf, rest, channels, seed=seed, meas=meas)
@@ -839,8 +850,9 @@ def _add_effect(rig: Rig, corrected: Rig, meas: MeasurementMap, cur: EffectFit, 
         gain = 1.0 - sse2 / max(cur_sse, 1e-300)
         k2 = k1 + len(get_effect(o).parameters)
         bic_gain = _bic(fr2.sse * n_eff / n_fit, n_eff, k2) - _bic(cur.sse * n_eff / n_fit, n_eff, k1)
-        if gain >= MIN_EXPLAINED_SECOND and bic_gain <= -MIN_BIC_GAIN and (best2 is None or gain > best2[0]):
-            best2 = (gain, o, fr2, bic_gain, scr2)
+        passes = gain >= MIN_EXPLAINED_SECOND and bic_gain <= -MIN_BIC_GAIN
+        if passes and (best2 is None or gain > best2.gain):
+            best2 = _Added(gain, o, fr2, bic_gain, scr2, sse2)
     return best2
 
 
@@ -1016,13 +1028,13 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Reco
         # joint output-error fit with the effects already chosen; the largest further removal wins
         while len(chosen) < max_effects and cur_sse > max(RESIDUAL_NOISE_FACTOR * noise_sse,
                                                           SECOND_ABOVE_GAP * sse_ho0):
-            added = _add_effect(rig, corrected, meas, cur, chosen, ranking, screened, forced, pf, ph,
-                                channels, seed + 2 * len(chosen), n_eff, n_fit, say)
+            added = _add_effect(rig, corrected, meas, cur, cur_sse, chosen, ranking, screened, forced, pf,
+                                ph, channels, seed + 2 * len(chosen), n_eff, n_fit, say)
             if added is None:
                 break
-            gain, o, fr2, bic_gain, scr2 = added
+            gain, o, fr2, bic_gain, scr2, sse2 = added
             chosen.append(o)
-            cur, cur_sse = fr2, float(segment_sse(fr2.rig, fr2.meas, ph).sum())
+            cur, cur_sse = fr2, sse2
             corrected, meas = fr2.rig, fr2.meas
             if o not in [r["effect"] for r in ranking]:
                 eo = get_effect(o)
