@@ -1,0 +1,340 @@
+"""Independent truth plant for blind benchmarks: an aeropendulum written as a lab writes its own.
+
+This module shares **no code** with ``aeropend_sim`` or ``aeropend_ident`` (it imports neither:
+checked by ``test/test_truth_plant.py``). It is the thesis' simulated plant (equations printed with
+thesis Figs. 5.3/5.4) written directly from its equations, integrated by a fixed-step classical
+Runge-Kutta scheme with the duty cycle held over each 2.048 ms sample::
+
+    θ̈       = −(mgd/J)·sin θ − (c/J)·θ̇ + (L/J)·f                      (thesis Eqs. 3.1-3.2)
+    f        = K_q·|ω₂|^α·sgn ω₂,  ω₂ = (N₁/N₂)·ω₁,  α = 2               (thesis Eqs. 3.3-3.4)
+    L_a·i̇_a  = v_a − R_a·i_a − K_ω·ω₁                                  (thesis Eq. 3.5)
+    J_m·ω̇₁   = K_t·i_a − B_m·ω₁                                         (thesis Eq. 3.8)
+    v_a      = V_s·τ  (ideal drive)
+
+with the Fig. 5.3 numbers (di_a/dt = −8.6957 i_a − 1.0217 ω₁ + 4.3478 v_a, dω₁/dt = 4519.2 i_a −
+192.31 ω₁, θ̈ = −13.82 θ̇ − 131.75 sin θ + 1.7285 ω₁²) split into physical parameters (R_a = 2 Ω,
+L_a = 0.23 H, K_ω = K_t = 0.235, J_m = K_t/4519.2, B_m = 192.31·J_m, K_q = 1e-4 N·s², N₁/N₂ =
+55/9, L/J = 1.7285/(K_q·(55/9)²)).
+
+Every unmodelled effect is implemented from its physics, in physical units
+(:data:`EFFECT_DOCS` gives the equation of each):
+
+* drive: H-bridge voltage drop, dead zone, first-order lag of the armature voltage, transport
+  delay of the duty command (a FIFO buffer of whole samples);
+* motor: back-EMF constant, armature resistance and inductance, torque constant, rotor
+  viscous friction, rotor inertia, propeller drag torque K_d·ω₁|ω₁|;
+* aerodynamics: thrust coefficient, thrust-law exponent;
+* pendulum: gravity torque, inertia, viscous and Coulomb friction, a hard end stop (restitution);
+* sensor: angle offset and gain;
+* effects outside aeropend's catalog: a thrust loss that grows with the rod angle, an
+  angle-sensor offset that drifts slowly in time, quadratic aerodynamic drag on the rod.
+
+Sensor noise: zero-mean Gaussian with σ = RMS(channel)/10^(SNR/20) on θ, i_a, v_a and ω₁.
+Excitations (own implementations): Latin-hypercube duty steps (thesis §5.1) and an
+amplitude-modulated PRBS (APRBS).
+
+Nothing here knows how aeropend parameterises its effects; the benches map a truth to the
+diagnosis' vocabulary only when they score (``bench/bench_gap_independent.py``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.stats import qmc
+
+#: Sample period of the Arduino acquisition [s] (Timer1 overflow at 490 Hz, thesis §4.3.2).
+DT = 2.048e-3
+#: Runge-Kutta substeps per sample.
+SUBSTEPS = 4
+#: Gear ratio N₁/N₂ of the propeller over the rotor speed (ω₂ = GEAR·ω₁).
+GEAR = 55.0 / 9.0
+#: Restitution coefficient of the hard end stop.
+RESTITUTION = 0.3
+#: Regularisation speed [rad/s] of sgn θ̇ in the rod's Coulomb friction (stiff, resolved by the
+#: substeps; a lab's simulator would use the same kind of smooth sign).
+COULOMB_VELOCITY = 2e-3
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """Physical parameters of the truth plant (SI).
+
+    Defaults: the thesis' simulated plant (Figs. 5.3/5.4 equations, ideal 2.32 V drive).
+    """
+
+    v_supply: float = 2.32          # V: drive voltage at τ = 1
+    R_a: float = 2.0                # Ω: 8.6957 s⁻¹ × L_a
+    L_a: float = 0.23               # H: 1/4.3478
+    K_omega: float = 0.235          # V·s/rad: 1.0217 × L_a
+    K_t: float = 0.235              # N·m/A
+    J_m: float = 0.235 / 4519.2     # kg·m²: K_t/4519.2
+    B_m: float = 192.31 * 0.235 / 4519.2  # N·m·s/rad: 192.31 s⁻¹ × J_m
+    K_q: float = 1.0e-4             # N·s²: thrust coefficient (propeller side)
+    L_over_J: float = 1.7285 / (1.0e-4 * GEAR**2)  # 1/(kg·m): lever over rod inertia
+    mgd_over_J: float = 131.75      # 1/s²
+    c_over_J: float = 13.82         # 1/s
+
+    def scaled(self, **factors: float) -> PlantParams:
+        """Copy with some parameters multiplied by factors (e.g. ``scaled(mgd_over_J=0.8)``)."""
+        return dataclasses.replace(self, **{k: getattr(self, k) * v for k, v in factors.items()})
+
+
+#: Effects the truth plant implements, with their physics (the magnitude's unit in brackets).
+EFFECT_DOCS: dict[str, str] = {
+    "hbridge_drop": "v_a = max(0, V_s·τ − V_d)  [V_d, V]: constant drop across the conducting switches",
+    "dead_zone": "v_a = V_s·max(0, τ − τ_dz)/(1 − τ_dz)  [τ_dz, 1]: driver output starts at τ_dz, full "
+                 "scale kept",
+    "actuator_lag": "T_a·v̇_a = v_a,cmd − v_a  [T_a, s]: first-order lag of the drive output",
+    "input_delay": "τ(t − T_d) reaches the drive, T_d a whole number of samples  [T_d, s]",
+    "back_emf": "K_ω ← K_ω·k  [K_ω, V·s/rad]",
+    "armature_resistance": "R_a ← R_a·k  [R_a, Ω]",
+    "armature_inductance": "L_a ← L_a·k  [L_a, H]",
+    "torque_constant": "K_t ← K_t·k  [K_t, N·m/A]",
+    "rotor_friction": "B_m ← B_m·k  [B_m, N·m·s/rad]",
+    "motor_time_constant": "J_m ← J_m·k  [J_m, kg·m²]: rotor + gear + propeller inertia",
+    "propeller_drag": "J_m·ω̇₁ −= K_d·ω₁|ω₁|  [K_d, N·m·s²]: aerodynamic drag torque of the propeller",
+    "thrust_coefficient": "K_q ← K_q·k  [K_q, N·s²]",
+    "thrust_law": "f = K_q·N²·|ω₁|^α (the thrust law fitted on the rotor speed ω₁ as a lab measures it; "
+                  "α = 2 nominal, its coefficient unchanged)  [α, 1]",
+    "gravity": "mgd/J ← k·mgd/J  [mgd/J, 1/s²]",
+    "inertia": "J ← k·J: mgd/J, c/J, L/J all divided by k  [k, 1]",
+    "viscous_friction": "c/J ← k·c/J  [c/J, 1/s]",
+    "coulomb_friction": "θ̈ −= (T_f/J)·sgn θ̇  [T_f/J, rad/s²]",
+    "end_stops": "hard stop at θ_max: the rod cannot pass it, impacts with restitution 0.3  [θ_max, rad]",
+    "sensor_offset": "θ_recorded = θ + δ  [δ, rad]",
+    "sensor_scale": "θ_recorded = s·θ  [s, 1]",
+    # outside aeropend's catalog
+    "angle_thrust_loss": "f ← f·(1 − κ·sin²θ)  [κ, 1]: inflow blocked as the rod swings up "
+                         "(not in aeropend's catalog)",
+    "offset_drift": "θ_recorded = θ + r·t  [r, rad/s]: sensor offset drifting in time (not in the catalog)",
+    "rod_air_drag": "θ̈ −= k_d·θ̇|θ̇|  [k_d, 1/rad]: quadratic aerodynamic drag on the rod "
+                    "(not in the catalog)",
+}
+#: Effects that aeropend's gap catalog does not contain (must be reported as unexplained).
+OUT_OF_CATALOG = ("angle_thrust_loss", "offset_drift", "rod_air_drag")
+#: Parameters changed by a multiplicative factor: effect -> PlantParams field.
+SCALE_EFFECTS = {
+    "back_emf": "K_omega", "armature_resistance": "R_a", "armature_inductance": "L_a",
+    "torque_constant": "K_t", "rotor_friction": "B_m", "motor_time_constant": "J_m",
+    "thrust_coefficient": "K_q", "gravity": "mgd_over_J", "viscous_friction": "c_over_J",
+}
+
+
+class TruthError(ValueError):
+    """An unknown effect or an impossible magnitude for the truth plant."""
+
+
+@dataclass
+class TruthPlant:
+    """The hidden plant: nominal parameters plus effects ``{name: magnitude}``.
+
+    Magnitudes are in the units of :data:`EFFECT_DOCS`; scale effects take the factor k.
+
+    Raises
+    ------
+    TruthError
+        On an unknown effect name or a non-finite magnitude.
+    """
+
+    params: PlantParams = field(default_factory=PlantParams)
+    effects: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for k, v in self.effects.items():
+            if k not in EFFECT_DOCS:
+                raise TruthError(f"unknown truth effect {k!r}; known: {sorted(EFFECT_DOCS)}")
+            if not math.isfinite(v):
+                raise TruthError(f"truth effect {k!r} magnitude {v!r} is not finite")
+
+    def physical(self) -> PlantParams:
+        """The plant's actual parameters (scale effects and inertia applied)."""
+        p = self.params
+        e = self.effects
+        factors = {SCALE_EFFECTS[k]: v for k, v in e.items() if k in SCALE_EFFECTS}
+        p = p.scaled(**factors) if factors else p
+        if "inertia" in e:
+            k = e["inertia"]
+            p = dataclasses.replace(p, mgd_over_J=p.mgd_over_J / k, c_over_J=p.c_over_J / k,
+                                    L_over_J=p.L_over_J / k)
+        return p
+
+    def simulate(self, duty: np.ndarray, dt: float = DT, substeps: int = SUBSTEPS) -> dict[str, np.ndarray]:
+        """Noise-free response to a duty sequence, from rest (rod hanging, motor stopped).
+
+        Parameters
+        ----------
+        duty : ndarray, shape (N,)
+            Duty cycle τ_k ∈ [0, 1] held over [k·dt, (k+1)·dt).
+
+        Returns
+        -------
+        dict
+            ``t`` (N,) [s], ``duty``, true ``theta`` [rad], ``theta_dot`` [rad/s], ``i_a`` [A],
+            ``v_a`` [V], ``omega_rotor`` [rad/s] at the sample instants (sample k before τ_k acts),
+            and ``theta_recorded`` (the angle sensor's reading before noise).
+
+        Raises
+        ------
+        TruthError
+            On duty values outside [0, 1] or NaN.
+        """
+        duty = np.asarray(duty, dtype=float)
+        if duty.ndim != 1 or not np.all(np.isfinite(duty)) or duty.min() < 0.0 or duty.max() > 1.0:
+            raise TruthError("duty must be a finite 1-D sequence in [0, 1]")
+        p = self.physical()
+        e = self.effects
+        n = duty.size
+        d_samples = round(e.get("input_delay", 0.0) / dt)
+        delayed = np.concatenate([np.zeros(d_samples), duty])[:n] if d_samples else duty
+        v_d = e.get("hbridge_drop", 0.0)
+        dz = e.get("dead_zone", 0.0)
+        t_lag = e.get("actuator_lag", 0.0)
+        alpha = e.get("thrust_law", 2.0)
+        k_drag = e.get("propeller_drag", 0.0)
+        coul = e.get("coulomb_friction", 0.0)
+        kappa = e.get("angle_thrust_loss", 0.0)
+        k_air = e.get("rod_air_drag", 0.0)
+        th_max = e.get("end_stops", math.inf)
+
+        def drive(tau: float) -> float:
+            if dz > 0.0:
+                tau = max(0.0, tau - dz) / (1.0 - dz)
+            return max(0.0, p.v_supply * tau - v_d)
+
+        def rhs(s: list[float], v_cmd: float) -> list[float]:
+            th, thd, i, w, v = s
+            v_a = v if t_lag > 0.0 else v_cmd
+            di = (v_a - p.R_a * i - p.K_omega * w) / p.L_a
+            dw = (p.K_t * i - p.B_m * w - k_drag * w * abs(w)) / p.J_m
+            f = p.K_q * GEAR**2 * abs(w) ** alpha * (1.0 if w >= 0.0 else -1.0)
+            if kappa:
+                f *= 1.0 - kappa * math.sin(th) ** 2
+            dthd = -p.mgd_over_J * math.sin(th) - p.c_over_J * thd + p.L_over_J * f
+            if coul:
+                dthd -= coul * math.tanh(thd / COULOMB_VELOCITY)
+            if k_air:
+                dthd -= k_air * thd * abs(thd)
+            dv = (v_cmd - v) / t_lag if t_lag > 0.0 else 0.0
+            return [thd, dthd, di, dw, dv]
+
+        h = dt / substeps
+        s = [0.0, 0.0, 0.0, 0.0, 0.0]
+        out = np.empty((n, 5))
+        v_out = np.empty(n)
+        for k in range(n):
+            v_cmd = drive(float(delayed[k]))
+            out[k] = s
+            v_out[k] = s[4] if t_lag > 0.0 else v_cmd
+            for _ in range(substeps):
+                k1 = rhs(s, v_cmd)
+                s2 = [a + 0.5 * h * b for a, b in zip(s, k1, strict=True)]
+                k2 = rhs(s2, v_cmd)
+                s3 = [a + 0.5 * h * b for a, b in zip(s, k2, strict=True)]
+                k3 = rhs(s3, v_cmd)
+                s4 = [a + h * b for a, b in zip(s, k3, strict=True)]
+                k4 = rhs(s4, v_cmd)
+                s = [a + h / 6.0 * (b + 2.0 * c + 2.0 * d + g)
+                     for a, b, c, d, g in zip(s, k1, k2, k3, k4, strict=True)]
+                if s[0] > th_max:  # hard stop: the rod is put back on the stop and rebounds
+                    s[0] = th_max
+                    if s[1] > 0.0:
+                        s[1] = -RESTITUTION * s[1]
+        t = np.arange(n) * dt
+        theta_rec = out[:, 0].copy()
+        if "sensor_scale" in e:
+            theta_rec = e["sensor_scale"] * theta_rec
+        if "sensor_offset" in e:
+            theta_rec = theta_rec + e["sensor_offset"]
+        if "offset_drift" in e:
+            theta_rec = theta_rec + e["offset_drift"] * t
+        return {"t": t, "duty": duty, "theta": out[:, 0], "theta_dot": out[:, 1], "i_a": out[:, 2],
+                "omega_rotor": out[:, 3], "v_a": v_out, "theta_recorded": theta_rec}
+
+
+#: Measured channels of a fully instrumented rig (what the Arduino acquisition samples).
+CHANNELS = ("theta", "i_a", "v_a", "omega_rotor")
+
+
+def add_noise(true: Mapping[str, np.ndarray], snr_db: float, seed: int,
+              channels: Sequence[str] = CHANNELS) -> dict[str, np.ndarray]:
+    """Measured channels: true values plus Gaussian noise σ = RMS/10^(SNR/20) (θ: the sensor reading).
+
+    Returns
+    -------
+    dict
+        channel -> (N,) array; the angle is the recorded one (offset/scale/drift applied).
+    """
+    rng = np.random.default_rng(seed)
+    out = {}
+    for c in channels:
+        y = np.asarray(true["theta_recorded" if c == "theta" else c], dtype=float)
+        sigma = float(np.sqrt(np.mean(y**2))) / 10.0 ** (snr_db / 20.0)
+        out[c] = y + sigma * rng.standard_normal(y.size)
+    return out
+
+
+# ------------------------------------------------------------------------------ excitations
+def lhs_steps(duration: float, seed: int, lo: float = 0.25, hi: float = 0.95, n_steps: int = 8,
+              rest: float = 0.5, dt: float = DT) -> np.ndarray:
+    """Latin-hypercube duty steps (thesis §5.1): levels and hold lengths from one LH sample.
+
+    ``rest`` seconds at τ = 0 first; the holds fill the rest of ``duration`` in proportion to
+    their Latin-hypercube lengths (each between 0.5 and 1.5 times the mean hold).
+    """
+    sample = qmc.LatinHypercube(d=2, seed=seed).random(n_steps)
+    levels = lo + (hi - lo) * sample[:, 0]
+    holds = 0.5 + sample[:, 1]
+    holds = holds / holds.sum() * (duration - rest)
+    n_rest = round(rest / dt)
+    parts = [np.zeros(n_rest)] + [np.full(max(round(hd / dt), 1), lv) for lv, hd in
+                                  zip(levels, holds, strict=True)]
+    duty = np.concatenate(parts)
+    n = round(duration / dt)
+    return np.pad(duty, (0, max(n - duty.size, 0)), mode="edge")[:n]
+
+
+def aprbs(duration: float, seed: int, lo: float = 0.25, hi: float = 0.95, min_hold: float = 0.15,
+          max_hold: float = 1.2, rest: float = 0.5, dt: float = DT) -> np.ndarray:
+    """Amplitude-modulated PRBS: uniform random levels held for uniform random times."""
+    rng = np.random.default_rng(seed)
+    n = round(duration / dt)
+    duty = np.zeros(n)
+    k = round(rest / dt)
+    while k < n:
+        m = round(rng.uniform(min_hold, max_hold) / dt)
+        duty[k:k + m] = rng.uniform(lo, hi)
+        k += m
+    return duty
+
+
+@dataclass
+class TruthRecording:
+    """What a lab's logger writes: time, duty and the measured channels (plus the hidden truth)."""
+
+    t: np.ndarray
+    duty: np.ndarray
+    channels: dict[str, np.ndarray]
+    true: dict[str, np.ndarray]
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def to_csv(self, path: Any) -> None:
+        """Write a CSV log (columns ``time_s, duty, theta_rad, i_a_A, v_a_V, omega_rad_s``)."""
+        units = {"theta": "theta_rad", "i_a": "i_a_A", "v_a": "v_a_V", "omega_rotor": "omega_rad_s"}
+        cols = ["time_s", "duty"] + [units[c] for c in self.channels]
+        data = np.column_stack([self.t, self.duty, *self.channels.values()])
+        np.savetxt(path, data, delimiter=",", header=",".join(cols), comments="", fmt="%.9g")
+
+
+def record(plant: TruthPlant, duty: np.ndarray, snr_db: float, seed: int,
+           channels: Sequence[str] = CHANNELS) -> TruthRecording:
+    """Simulate the plant under ``duty`` and measure ``channels`` at ``snr_db``."""
+    true = plant.simulate(duty)
+    meas = add_noise(true, snr_db, seed, channels)
+    return TruthRecording(t=true["t"], duty=true["duty"], channels=meas, true=true,
+                          meta={"snr_db": snr_db, "effects": dict(plant.effects)})
