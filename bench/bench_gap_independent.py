@@ -270,6 +270,8 @@ def score(spec: dict[str, Any], case: dict[str, Any], result: Any) -> dict[str, 
         "significant": bool(d.significant), "chosen": chosen, "ranked": [r["effect"] for r in ranking[:5]],
         "confidence": {r["effect"]: r.get("confidence") for r in ranking[:5]},
         "ambiguous_with": (first or {}).get("ambiguous_with", []), "reason": d.reason,
+        "explained": {k: dd.get("explained", {}).get(k) for k in ("completeness", "worst_channel",
+                                                                  "residual_over_noise")},
     }
     before = float(result.test[0]["nrmse"])
     after = float(result.test[-1]["nrmse"])

@@ -464,7 +464,7 @@ def run_case(name: str, max_effects: int = 2) -> dict[str, Any]:
                     for k in (
                         "effect",
                         "subsystem",
-                        "held_out_explained",
+                        "validation_explained",
                         "bic_delta",
                         "confidence",
                         "parameters",
@@ -473,7 +473,7 @@ def run_case(name: str, max_effects: int = 2) -> dict[str, Any]:
                 for r in d.ranking[:6]
             ],
             "not_identifiable": [n["effect"] for n in d.not_identifiable],
-            "shrink": d.shrink,
+            "validation": d.validation,
         },
         "after": {
             "heldout_corrected_significant": res.where_heldout_corrected.significant,
@@ -575,7 +575,7 @@ def markdown(results: dict[str, Any]) -> str:
                 for n, p in (e.get("parameters") or {}).items()
                 if p.get("value") is not None
             )
-            hx = e.get("held_out_explained")
+            hx = e.get("validation_explained", e.get("held_out_explained"))
             bic = e.get("bic_delta")
             lines.append(
                 f"| {k} | {e['effect']} | {e['subsystem']} | {'–' if hx is None else f'{hx:.3f}'} | "
@@ -584,7 +584,7 @@ def markdown(results: dict[str, Any]) -> str:
         lines.append("")
         lines.append("| data | effects | NRMSE |")
         lines.append("|---|---|---|")
-        for s in r["which"]["shrink"]:
+        for s in r["which"].get("validation", r["which"].get("shrink", [])):
             lines.append(f"| validation | {'+'.join(s['effects']) or 'nominal'} | {s['nrmse']:.4f} |")
         for s in r.get("test", []):
             lines.append(f"| **held out** | {'+'.join(s['effects']) or 'nominal'} | {s['nrmse']:.4f} |")

@@ -107,7 +107,7 @@ def test_gap_found_named_and_shrunk_on_held_out(report):
     seen = {r["source"] for r in rep["inputs"]["diagnosis_fit"] + rep["inputs"]["diagnosis_validation"]}
     assert all(src.startswith(str(rep["inputs"]["fit"][0]["source"])) for src in seen)
     assert not seen & {r["source"] for r in rep["inputs"]["held_out"]}
-    assert rep["which"]["shrink"][0]["effects"] == []  # the diagnosis' own table is on validation data
+    assert rep["which"]["validation"][0]["effects"] == []  # the diagnosis' own table is on validation data
     # fitted rod Coulomb friction close to the truth, and in the corrected rig file
     corrected = load_rig(out / "corrected_rig.yaml")
     assert corrected.effects.coulomb_friction
@@ -235,6 +235,15 @@ def test_validation_split_rules():
     assert val == [recs[1], recs[4]] and core == [recs[0], recs[2], recs[3]]
     with pytest.raises(GapInputError, match="validation"):
         validation_split([step], 0.3)
+    # a valid recording whose last 40 % holds one duty level (a long last step) is not refused: its
+    # validation part starts 1 s before the last duty step, settled on the previous level
+    flat = Recording(t=long.t, duty=np.where(long.t < 12.0, long.duty, long.duty[1199]),
+                     channels=dict(long.channels), source="flat tail")
+    core, val = validation_split([flat], 0.3)
+    k = len(core[0])
+    assert len(val[0]) == 2000 - k and 0.3 <= 1.0 - k / 2000 <= 0.5
+    assert flat.duty[k + 100] != flat.duty[k + 99]  # a duty step 1 s (100 samples) into the validation
+    assert np.ptp(val[0].duty) > 0.0 and np.ptp(core[0].duty) > 0.0
     with pytest.raises(GapInputError, match="validation fraction"):
         validation_split([long], 1.0)
     assert MIN_PART == 200

@@ -15,16 +15,17 @@ import pytest
 from aeropend_ident.gap_effects import (
     CATALOG,
     EFFECTS,
+    EffectContext,
     GapError,
     MeasurementMap,
     apply_effects,
     check_recordings,
     get_effect,
     identifiable,
-    thrust_reference_speed,
 )
 from aeropend_ident.gap_synth import record
 from aeropend_ident.gap_which import FIT_CHANNELS, fit_effects, prepare, residuals
+from aeropend_ident.greybox import motor_equilibrium
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
@@ -34,36 +35,106 @@ RIG = load_rig("thesis_rig")
 SUBSYSTEMS = {"electrical", "motor", "aerodynamic", "pendulum", "actuator", "sensor"}
 
 
-def test_catalog_covers_the_issue_list_with_valid_entries():
+def _ctx(rig=RIG):
+    t = np.arange(3000) * rig.sample_period
+    duty = np.where(t > 1.0, 0.6, 0.2)
+    return EffectContext.from_data(rig, 0.5 * np.sin(t), duty)
+
+
+def test_catalog_covers_the_issue_list_with_valid_physical_entries():
     names = [e.name for e in CATALOG]
-    assert len(names) == len(set(names)) == 17
-    for required in ("hbridge_drop", "dead_zone", "back_emf", "armature_inductance", "coulomb_friction",
-                     "viscous_friction", "thrust_exponent", "propeller_drag", "actuator_lag", "input_delay",
+    assert len(names) == len(set(names)) == 21
+    for required in ("hbridge_drop", "dead_zone", "back_emf", "armature_resistance", "armature_inductance",
+                     "torque_constant", "rotor_friction", "coulomb_friction", "viscous_friction",
+                     "thrust_coefficient", "thrust_law", "propeller_drag", "actuator_lag", "input_delay",
                      "gravity", "inertia", "end_stops", "sensor_offset", "sensor_scale", "quantisation",
                      "motor_time_constant"):
         assert required in EFFECTS
+    ctx = _ctx()
     for e in CATALOG:
         assert e.subsystem in SUBSYSTEMS
         assert set(e.needs_channels) <= set(FIT_CHANNELS)
         assert e.parameters
         for p in e.parameters:
-            assert p.lower < p.upper
-            assert p.lower <= p.probe <= p.upper
-        for other in e.confusable_with:
+            r = p.bind(ctx)
+            assert r.lower < r.upper and r.lower <= r.probe <= r.upper, (e.name, p.name, r)
+            assert r.probe != r.off, (e.name, p.name)
+            if r.log:
+                assert r.lower > 0
+        for other in (*e.confusable_with, *e.exclusive_with):
             assert other in EFFECTS
+    # parameters carry SI units, not scale factors (the inertia ratio J/J_nominal is the exception:
+    # the rig stores only per-inertia ratios)
+    units = {(e.name, p.name): p.unit for e in CATALOG for p in e.parameters}
+    assert units["propeller_drag", "K_d"] == "N*m*s^2/rad^2"
+    assert units["thrust_coefficient", "K_q"] == "N*s^2/rad^2"
+    assert units["input_delay", "input_delay"] == "s" and units["armature_resistance", "R_a"] == "ohm"
+    assert units["rotor_friction", "B_m"] == "N*m*s/rad"
 
 
-def test_apply_switches_effect_and_sets_parameter():
+def test_ranges_reach_physical_sizes_of_effects_the_nominal_omits():
+    # thesis_sim has no propeller drag (K_d = 0): the drag search must reach the drag that halves
+    # the steady rotor speed at the largest recorded duty cycle, whatever the nominal value
+    rig = load_rig("thesis_sim")
+    ctx = _ctx(rig)
+    r = get_effect("propeller_drag").ranges(ctx)["K_d"]
+    k_half = ctx.halving_drag()
+    assert r.off == 0.0 and r.lower <= 1e-3 * k_half and r.upper >= 2.0 * k_half
+    halved = get_effect("propeller_drag").apply(rig, {"K_d": k_half})
+    _, w_nom, _ = motor_equilibrium(rig, ctx.duty_max)
+    _, w_half, _ = motor_equilibrium(halved, ctx.duty_max)
+    assert w_half == pytest.approx(0.5 * w_nom, rel=1e-6)
+    # the same for the rotor's viscous friction (thesis_rig: B_m tiny next to the drag)
+    b_half = ctx.halving_friction()
+    slowed = get_effect("rotor_friction").apply(rig, {"B_m": b_half})
+    assert motor_equilibrium(slowed, ctx.duty_max)[1] == pytest.approx(0.5 * w_nom, rel=1e-6)
+    # the issue's drag −2.0·ω₁|ω₁| s⁻¹ on the thesis' simulated plant is K_d = 2·J_m: inside the range
+    assert r.lower < 2.0 * rig.motor.J_m < r.upper
+
+
+def test_apply_switches_effect_and_sets_the_physical_value():
     r = get_effect("dead_zone").apply(RIG, {"dead_zone": 0.1})
     assert r.effects.dead_zone and r.actuator.dead_zone == 0.1
     r = get_effect("actuator_lag").apply(RIG, {"lag_time_constant": 0.07})
     assert r.effects.actuator_lag and r.actuator.lag_time_constant == 0.07
-    r = get_effect("back_emf").apply(RIG, {"K_omega_scale": 2.0})
-    assert r.motor.K_omega == pytest.approx(2.0 * RIG.motor.K_omega)
+    r = get_effect("back_emf").apply(RIG, {"K_omega": 2.0e-3})
+    assert r.motor.K_omega == 2.0e-3
     r = get_effect("hbridge_drop").apply(RIG, {"V_drop": 0.2})
     assert r.actuator.hbridge_k0 == pytest.approx(RIG.actuator.hbridge_k0 - 0.2)
+    for name, key, section in (("armature_resistance", "R_a", "motor"), ("torque_constant", "K_t", "motor"),
+                               ("rotor_friction", "B_m", "motor"), ("propeller_drag", "K_d", "motor"),
+                               ("thrust_coefficient", "K_q", "thrust"),
+                               ("gravity", "mgd_over_J", "pendulum")):
+        value = 1.3 * getattr(getattr(RIG, section), key) + 1e-9
+        assert getattr(getattr(get_effect(name).apply(RIG, {key: value}), section), key) == value
+    r = get_effect("thrust_law").apply(RIG, {"K_q": 3e-6, "exponent": 1.8})
+    assert r.effects.thrust_exponent and r.thrust.exponent == 1.8 and r.thrust.K_q == 3e-6
     # the nominal rig is unchanged (frozen dataclasses)
     assert not RIG.effects.dead_zone and RIG.actuator.dead_zone == 0.0
+
+
+def test_rig_values_name_every_field_an_effect_writes():
+    ideal = RIG.with_effects(hbridge_map=False)
+    rv = get_effect("hbridge_drop").rig_values(ideal, {"V_drop": 0.3})
+    assert rv["hbridge_drop.V_drop"] == 0.3
+    assert rv["actuator.v_supply"] == pytest.approx(ideal.actuator.v_supply - 0.3)
+    assert rv["actuator.dead_zone"] == pytest.approx(0.3 / ideal.actuator.v_supply)
+    rv = get_effect("inertia").rig_values(RIG, {"J_scale": 1.25})
+    assert rv["pendulum.L_over_J"] == pytest.approx(RIG.pendulum.L_over_J / 1.25)
+    assert rv["pendulum.mgd_over_J"] == pytest.approx(RIG.pendulum.mgd_over_J / 1.25)
+    rv = get_effect("sensor_offset").rig_values(RIG, {"theta_offset": 0.04})
+    assert rv == {"sensor_offset.theta_offset": 0.04, "measurement.theta_offset": 0.04}
+
+
+def test_switching_an_effect_on_leaves_the_terms_the_nominal_had_off():
+    # a rig without viscous friction: adding the rotor's B_m must not switch the rod's c/J on
+    rig = RIG.with_effects(viscous_friction=False)
+    r = get_effect("rotor_friction").apply(rig, {"B_m": 1e-5})
+    assert r.effects.viscous_friction and r.motor.B_m == 1e-5 and r.pendulum.c_over_J == 0.0
+    r = get_effect("viscous_friction").apply(rig, {"c_over_J": 2.0})
+    assert r.motor.B_m == 0.0 and r.pendulum.c_over_J == 2.0
+    r = get_effect("coulomb_friction").apply(RIG, {"coulomb_over_J": 1.0})
+    assert r.effects.coulomb_friction and r.motor.T_c == 0.0
 
 
 def test_hbridge_drop_on_ideal_map_is_a_clipped_voltage_offset():
@@ -75,13 +146,11 @@ def test_hbridge_drop_on_ideal_map_is_a_clipped_voltage_offset():
         assert m.armature_voltage(tau) == pytest.approx(expected, abs=1e-12)
 
 
-def test_thrust_exponent_keeps_thrust_at_the_operating_point():
-    w_ref = thrust_reference_speed(RIG)
-    r = get_effect("thrust_exponent").apply(RIG, {"exponent": 2.3})
+def test_thrust_law_sets_level_and_shape():
+    r = get_effect("thrust_law").apply(RIG, {"K_q": 2 * RIG.thrust.K_q, "exponent": 2.3})
     n = RIG.motor.gear_ratio
-    assert PlantModel(r).thrust(n * w_ref) == pytest.approx(PlantModel(RIG).thrust(n * w_ref), rel=1e-12)
-    assert PlantModel(r).thrust(2 * n * w_ref) == pytest.approx(
-        PlantModel(RIG).thrust(2 * n * w_ref) * 2**0.3, rel=1e-12)
+    for w2 in (10.0, 50.0):
+        assert PlantModel(r).thrust(n * w2) == pytest.approx(2 * RIG.thrust.K_q * w2**2.3, rel=1e-12)
 
 
 def test_inertia_scales_every_per_inertia_term():
@@ -104,17 +173,23 @@ def test_bad_names_and_values_raise_gap_error():
     with pytest.raises(GapError, match="unknown effect 'friction'"):
         get_effect("friction")
     with pytest.raises(GapError, match="outside"):
-        get_effect("dead_zone").apply(RIG, {"dead_zone": 0.9})
+        get_effect("dead_zone").apply(RIG, {"dead_zone": 0.99})
+    with pytest.raises(GapError, match="outside"):
+        get_effect("propeller_drag").apply(RIG, {"K_d": -1e-6})
+    with pytest.raises(GapError, match="no value for K_d"):
+        get_effect("propeller_drag").apply(RIG, {})
     with pytest.raises(GapError, match="no parameter 'tau'"):
         get_effect("dead_zone").apply(RIG, {"tau": 0.1})
 
 
 def test_identifiability_from_recorded_channels():
     theta_only = frozenset({"theta"})
-    for name in ("back_emf", "armature_inductance"):
+    for name in ("back_emf", "armature_inductance", "armature_resistance", "torque_constant"):
         assert "needs i_a" in identifiable(EFFECTS[name], theta_only)
-    assert "needs omega_rotor" in identifiable(EFFECTS["propeller_drag"], theta_only)
-    for name in ("dead_zone", "input_delay", "coulomb_friction", "sensor_offset"):
+    for name in ("propeller_drag", "rotor_friction"):
+        assert "needs omega_rotor" in identifiable(EFFECTS[name], theta_only)
+    for name in ("dead_zone", "input_delay", "coulomb_friction", "sensor_offset", "thrust_coefficient",
+                 "thrust_law"):
         assert identifiable(EFFECTS[name], theta_only) is None
     assert identifiable(EFFECTS["back_emf"], frozenset(FIT_CHANNELS)) is None
 
@@ -148,30 +223,56 @@ def test_check_recordings_errors_name_the_problem():
 
 
 # ------------------------------------------------------------------ recovery of each effect
+#: Physical truths (SI) on the thesis rig (nominal values in comments).
+_P, _M, _T = RIG.pendulum, RIG.motor, RIG.thrust
 TRUTH = {
-    "hbridge_drop": 0.2, "dead_zone": 0.08, "back_emf": 1.6, "armature_inductance": 8.0,
-    "coulomb_friction": 1.0, "viscous_friction": 2.0, "thrust_exponent": 2.25, "propeller_drag": 2.0,
-    "actuator_lag": 0.08, "input_delay": 0.06, "gravity": 1.2, "inertia": 1.3, "end_stops": 0.7,
-    "sensor_offset": 0.06, "sensor_scale": 1.1, "motor_time_constant": 3.0,
+    "hbridge_drop": {"V_drop": 0.2}, "dead_zone": {"dead_zone": 0.08},
+    "back_emf": {"K_omega": 1.6 * _M.K_omega}, "armature_resistance": {"R_a": 1.4 * _M.R_a},
+    "armature_inductance": {"L_a": 8.0 * _M.L_a}, "torque_constant": {"K_t": 0.75 * _M.K_t},
+    "rotor_friction": {"B_m": 6.0 * _M.B_m}, "coulomb_friction": {"coulomb_over_J": 1.0},
+    "viscous_friction": {"c_over_J": 2.0 * _P.c_over_J}, "thrust_coefficient": {"K_q": 0.85 * _T.K_q},
+    "propeller_drag": {"K_d": 2.0 * _M.K_d}, "actuator_lag": {"lag_time_constant": 0.08},
+    "input_delay": {"input_delay": 0.06}, "gravity": {"mgd_over_J": 1.2 * _P.mgd_over_J},
+    "inertia": {"J_scale": 1.3}, "end_stops": {"theta_max": 0.7}, "sensor_offset": {"theta_offset": 0.06},
+    "sensor_scale": {"theta_scale": 1.1}, "motor_time_constant": {"J_m": 3.0 * _M.J_m},
 }
-#: Relative tolerance on the effect size |value − off| (50 dB noise, 12 s recording).
+#: Relative tolerance on the effect size |value − nominal| (50 dB noise, 12 s recording).
 REL_TOL = 0.1
 
 
 @pytest.mark.parametrize("name", sorted(TRUTH))
 def test_each_effect_recovered_by_output_error_fit(name):
-    e = get_effect(name)
-    p = e.parameters[0]
-    truth = {name: {p.name: TRUTH[name]}}
+    truth = {name: TRUTH[name]}
     real, meas = apply_effects(RIG, truth)
     real = real.with_params("sensors", snr_db=50.0).with_effects(sensor_noise=True)
     dt = RIG.sample_period
     duty = np.concatenate([np.zeros(200), aprbs(12.0, lo=0.1, hi=0.72, min_hold=0.4, max_hold=2.0, seed=3,
                                                  dt=dt).duty])
     rec = record(real, meas, duty, seed=5, channels=FIT_CHANNELS, source=f"unit-{name}")
-    res = fit_effects(RIG, [name], prepare([rec], frozenset(FIT_CHANNELS)))
-    got = res.values[name][p.name]
-    assert abs(got - TRUTH[name]) <= REL_TOL * abs(TRUTH[name] - p.off), (name, got)
+    preps = prepare([rec], frozenset(FIT_CHANNELS))
+    ctx = EffectContext.from_data(RIG, rec.channels["theta"], rec.duty)
+    res = fit_effects(RIG, [name], preps, ctx)
+    for pname, true_v in TRUTH[name].items():
+        off = get_effect(name).ranges(ctx)[pname].off
+        got = res.values[name][pname]
+        assert abs(got - true_v) <= REL_TOL * abs(true_v - off), (name, got, true_v)
     # the fitted error is at the noise floor: far below the nominal error
-    nominal = residuals(RIG, MeasurementMap(), prepare([rec], frozenset(FIT_CHANNELS)))
+    nominal = residuals(RIG, MeasurementMap(), preps)
     assert res.sse < 0.05 * float(nominal @ nominal)
+
+
+def test_fit_leaves_a_log_parameter_started_at_its_nominal_value():
+    # regression: a log parameter at its nominal value has optimiser coordinate 0, where scipy's
+    # relative finite-difference step collapses to 1e-8 and the gradient reads 0 (the fit never
+    # left its start); the absolute step of fit_effects must move it
+    truth = {"gravity": {"mgd_over_J": 0.8 * _P.mgd_over_J}}
+    real, meas = apply_effects(RIG, truth)
+    duty = np.concatenate([np.zeros(200), aprbs(8.0, lo=0.1, hi=0.72, min_hold=0.4, max_hold=2.0, seed=4,
+                                                 dt=RIG.sample_period).duty])
+    rec = record(real.with_params("sensors", snr_db=50.0).with_effects(sensor_noise=True), meas, duty, seed=6,
+                 channels=("theta",), source="unit-start")
+    preps = prepare([rec], frozenset({"theta"}))
+    ctx = EffectContext.from_data(RIG, rec.channels["theta"], rec.duty)
+    res = fit_effects(RIG, ["gravity"], preps, ctx, start={"gravity": {"mgd_over_J": _P.mgd_over_J}},
+                      scan=False)
+    assert res.values["gravity"]["mgd_over_J"] == pytest.approx(0.8 * _P.mgd_over_J, rel=0.01)

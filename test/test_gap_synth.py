@@ -7,6 +7,7 @@ import pytest
 
 from aeropend_ident.gap_effects import GapError
 from aeropend_ident.gap_synth import (
+    RELATIVE,
     REST,
     TRUTH_RANGES,
     confusion,
@@ -15,6 +16,7 @@ from aeropend_ident.gap_synth import (
     record,
     score_case,
     summarise,
+    thrust_reference_speed,
 )
 from aeropend_sim.params import load_rig
 
@@ -28,11 +30,21 @@ def test_truth_ranges_cover_the_catalog_and_draws_stay_inside():
     assert set(TRUTH_RANGES) == set(EFFECTS)
     for name, params in TRUTH_RANGES.items():
         for _ in range(5):
-            v = draw_truth(name, rng)
+            v = draw_truth(name, rng, RIG)
             for p, intervals in params.items():
-                assert any(lo <= v[p] <= hi for lo, hi in intervals)
+                scale = 1.0
+                if (name, p) in RELATIVE:  # factors of the nominal value
+                    section, field = RELATIVE[(name, p)].split(".")
+                    scale = getattr(getattr(RIG, section), field)
+                assert any(lo * scale <= v[p] <= hi * scale for lo, hi in intervals), (name, p, v)
+            # every drawn value is a valid physical value of the catalog effect
+            EFFECTS[name].values(v)
+    # the thrust-law truth keeps the nominal thrust at the reference speed
+    v = draw_truth("thrust_law", rng, RIG)
+    w = thrust_reference_speed(RIG)
+    assert v["K_q"] * w ** v["exponent"] == pytest.approx(RIG.thrust.K_q * w**2, rel=1e-12)
     with pytest.raises(GapError, match="unknown effect"):
-        draw_truth("magic", rng)
+        draw_truth("magic", rng, RIG)
 
 
 def test_case_is_reproducible_and_fit_differs_from_held_out():
@@ -81,14 +93,15 @@ def _diag(significant, ranked, params=None, not_ident=(), shrink=(0.1, 0.01)):
         "ranking": [{"effect": n, "parameters": (params or {}).get(n, {})} for n in ranked],
         "not_identifiable": [{"effect": n, "reason": "x"} for n in not_ident],
         "chosen": list(ranked[:1]),
-        "shrink": [{"effects": [], "nrmse": shrink[0]}] + ([{"effects": ranked[:1], "nrmse": shrink[1]}]
-                                                            if significant else []),
+        "validation": [{"effects": [], "nrmse": shrink[0]}] + (
+            [{"effects": ranked[:1], "nrmse": shrink[1]}] if significant else []),
     }
 
 
 class _Case:
-    def __init__(self, truth, channels=("theta",)):
+    def __init__(self, truth, channels=("theta",), off=None):
         self.case_id, self.truth, self.channels, self.snr_db = "c", truth, channels, 50.0
+        self.meta = {"off": off or {}}
 
 
 def test_scorer_top1_top3_confusable_magnitude_and_shrink():
@@ -100,9 +113,9 @@ def test_scorer_top1_top3_confusable_magnitude_and_shrink():
     assert s["shrink"] == pytest.approx(0.9)
     s = score_case(case, _diag(True, ["input_delay"], {"input_delay": {"input_delay": {"value": 0.05}}}))
     assert s["top1"] is True and s["magnitude_error"]["input_delay"] == pytest.approx(0.0)
-    # ratio effects: error relative to |true − 1|
-    case = _Case({"gravity": {"mgd_scale": 1.2}})
-    s = score_case(case, _diag(True, ["gravity"], {"gravity": {"mgd_scale": {"value": 1.25}}}))
+    # parameter errors: relative to |true − nominal|
+    case = _Case({"gravity": {"mgd_over_J": 120.0}}, off={"gravity": {"mgd_over_J": 100.0}})
+    s = score_case(case, _diag(True, ["gravity"], {"gravity": {"mgd_over_J": {"value": 125.0}}}))
     assert s["magnitude_error"]["gravity"] == pytest.approx(0.25)
 
 
@@ -111,7 +124,7 @@ def test_scorer_no_effect_and_not_identifiable():
     assert s["top1"] is True and s["shrink"] == 0.0
     s = score_case(_Case({}), _diag(True, ["gravity"]))
     assert s["top1"] is False
-    s = score_case(_Case({"back_emf": {"K_omega_scale": 1.5}}),
+    s = score_case(_Case({"back_emf": {"K_omega": 1.5}}),
                    _diag(True, ["gravity"], not_ident=["back_emf"]))
     assert s["top1"] is None and s["reported_not_identifiable"] == ["back_emf"]
 
@@ -121,7 +134,7 @@ def test_summary_and_confusion_aggregate_scores():
         score_case(_Case({"dead_zone": {"dead_zone": 0.1}}), _diag(True, ["dead_zone"])),
         score_case(_Case({"dead_zone": {"dead_zone": 0.1}}), _diag(True, ["hbridge_drop", "dead_zone"])),
         score_case(_Case({}), _diag(False, [])),
-        score_case(_Case({"back_emf": {"K_omega_scale": 1.5}}),
+        score_case(_Case({"back_emf": {"K_omega": 1.5}}),
                    _diag(True, ["gravity"], not_ident=["back_emf"])),
     ]
     summ = summarise(scores)

@@ -1,8 +1,8 @@
 """Gap diagnosis "which effect" and "how far it shrinks" (aeropend_ident.gap_which).
 
 Short synthetic recordings of the thesis rig with a hidden effect: the diagnosis, given only the
-nominal rig and the recordings, must rank the hidden effect first, fit its magnitude, write a
-corrected rig that closes the held-out gap; a plant without added effect must give "no
+nominal rig and the recordings, must rank the hidden effect first, fit its physical magnitude, write a
+corrected rig that closes the validation gap; a plant without added effect must give "no
 significant gap"; recordings lacking needed channels must give specific errors or be reported
 as not identifiable.
 """
@@ -40,13 +40,14 @@ def test_hidden_input_delay_is_ranked_first_fitted_and_closes_the_held_out_gap()
     assert got == pytest.approx(0.07, abs=0.007)
     assert d.corrected_rig.effects.input_delay
     assert d.corrected_rig.actuator.input_delay == pytest.approx(got)
-    before, after = d.shrink[0], d.shrink[-1]
+    before, after = d.validation[0], d.validation[-1]
     assert before["effects"] == [] and after["effects"] == ["input_delay"]
     assert after["nrmse"] < 0.2 * before["nrmse"]
     assert after["max_error"] < before["max_error"]
     # angle-only recordings: the electrical effects are reported, not guessed
     ni = {x["effect"]: x["reason"] for x in d.not_identifiable}
-    assert set(ni) == {"back_emf", "armature_inductance", "propeller_drag"}
+    assert set(ni) == {"back_emf", "armature_resistance", "armature_inductance", "torque_constant",
+                       "rotor_friction", "propeller_drag"}
     assert "needs i_a" in ni["back_emf"] and "needs omega_rotor" in ni["propeller_drag"]
     # JSON round trip; the corrected rig dict is a valid rig file
     doc = json.loads(json.dumps(d.as_dict()))
@@ -56,24 +57,26 @@ def test_hidden_input_delay_is_ranked_first_fitted_and_closes_the_held_out_gap()
 
 def test_slow_motor_found_when_timing_effects_are_confirmed():
     # rotor inertia 4x the nominal: the thrust follows the duty cycle 4x more slowly
-    case = _case(["motor_time_constant"], 23, truth={"motor_time_constant": {"J_m_scale": 4.0}},
+    case = _case(["motor_time_constant"], 23, truth={"motor_time_constant": {"J_m": 4.0 * RIG.motor.J_m}},
                  snr_db=50.0, channels=("theta",))
     d = diagnose_effects(RIG, case.fit, case.held_out, max_effects=1,
                          also_confirm=("motor_time_constant", "actuator_lag", "input_delay"))
     ranked = [r["effect"] for r in d.ranking]
     assert {"motor_time_constant", "actuator_lag", "input_delay"} <= set(ranked)
     assert d.significant and d.chosen == ["motor_time_constant"]
-    got = d.ranking[0]["parameters"]["J_m_scale"]["value"]
-    assert got == pytest.approx(4.0, rel=0.15)
-    assert d.corrected_rig.motor.J_m == pytest.approx(got * RIG.motor.J_m)
-    assert d.shrink[-1]["nrmse"] < 0.3 * d.shrink[0]["nrmse"]
+    got = d.ranking[0]["parameters"]["J_m"]["value"]
+    assert d.ranking[0]["parameters"]["J_m"]["unit"] == "kg*m^2"
+    assert got == pytest.approx(4.0 * RIG.motor.J_m, rel=0.15)
+    assert d.corrected_rig.motor.J_m == pytest.approx(got)
+    assert d.validation[-1]["nrmse"] < 0.3 * d.validation[0]["nrmse"]
 
 
 def test_three_hidden_effects_found_by_forward_selection_with_max_effects_3():
     # the AeroShield pattern (bench/results/gap_real.md): a damping error, a slow motor and a
     # static error at once; θ only, 50 dB; each forward step must add the next true effect
-    truth = {"viscous_friction": {"c_scale": 0.4}, "motor_time_constant": {"J_m_scale": 4.0},
-             "gravity": {"mgd_scale": 1.3}}
+    p, m = RIG.pendulum, RIG.motor
+    truth = {"viscous_friction": {"c_over_J": 0.4 * p.c_over_J}, "motor_time_constant": {"J_m": 4.0 * m.J_m},
+             "gravity": {"mgd_over_J": 1.3 * p.mgd_over_J}}
     case = make_case(RIG, list(truth), 31, fit_duration=10.0, held_out_steps=4, truth=truth, snr_db=50.0,
                      channels=("theta",))
     d = diagnose_effects(RIG, case.fit, case.held_out, max_effects=3,
@@ -81,27 +84,26 @@ def test_three_hidden_effects_found_by_forward_selection_with_max_effects_3():
     assert d.significant and sorted(d.chosen) == sorted(truth)
     assert [r["effect"] for r in d.ranking[:3]] == d.chosen
     got = {r["effect"]: r["parameters"] for r in d.ranking[:3]}
-    assert got["viscous_friction"]["c_scale"]["value"] == pytest.approx(0.4, rel=0.03)
-    assert got["motor_time_constant"]["J_m_scale"]["value"] == pytest.approx(4.0, rel=0.05)
-    assert got["gravity"]["mgd_scale"]["value"] == pytest.approx(1.3, rel=0.02)
-    assert d.corrected_rig.pendulum.mgd_over_J == pytest.approx(
-        got["gravity"]["mgd_scale"]["value"] * RIG.pendulum.mgd_over_J)
+    assert got["viscous_friction"]["c_over_J"]["value"] == pytest.approx(0.4 * p.c_over_J, rel=0.03)
+    assert got["motor_time_constant"]["J_m"]["value"] == pytest.approx(4.0 * m.J_m, rel=0.05)
+    assert got["gravity"]["mgd_over_J"]["value"] == pytest.approx(1.3 * p.mgd_over_J, rel=0.02)
+    assert d.corrected_rig.pendulum.mgd_over_J == pytest.approx(got["gravity"]["mgd_over_J"]["value"])
     # one row per cumulative effect set, each added effect shrinks the validation gap further
-    assert [len(s["effects"]) for s in d.shrink] == [0, 1, 2, 3]
-    nrmse = [s["nrmse"] for s in d.shrink]
+    assert [len(s["effects"]) for s in d.validation] == [0, 1, 2, 3]
+    nrmse = [s["nrmse"] for s in d.validation]
     assert all(b < a for a, b in itertools.pairwise(nrmse))
     assert nrmse[-1] < 0.1 * nrmse[0]
     assert nrmse[-1] < 0.5 * nrmse[2]  # the third effect is not cosmetic
 
 
 def test_electrical_effect_found_from_the_current_channel():
-    case = _case(["back_emf"], 22, truth={"back_emf": {"K_omega_scale": 1.6}}, snr_db=50.0)
+    case = _case(["back_emf"], 22, truth={"back_emf": {"K_omega": 1.6 * RIG.motor.K_omega}}, snr_db=50.0)
     d = diagnose_effects(RIG, case.fit, case.held_out, max_effects=1)
     assert d.significant and d.ranking[0]["effect"] == "back_emf"
-    assert d.ranking[0]["parameters"]["K_omega_scale"]["value"] == pytest.approx(1.6, rel=0.05)
+    assert d.ranking[0]["parameters"]["K_omega"]["value"] == pytest.approx(1.6 * RIG.motor.K_omega, rel=0.05)
     assert d.corrected_rig.motor.K_omega == pytest.approx(1.6 * RIG.motor.K_omega, rel=0.05)
     assert d.not_identifiable == []
-    assert d.shrink[-1]["nrmse_channels"] < 0.2 * d.shrink[0]["nrmse_channels"]
+    assert d.validation[-1]["nrmse_channels"] < 0.2 * d.validation[0]["nrmse_channels"]
 
 
 def test_plant_without_added_effect_gives_no_significant_gap():
@@ -110,7 +112,7 @@ def test_plant_without_added_effect_gives_no_significant_gap():
     assert not d.significant
     assert d.chosen == []
     assert d.corrected_rig == RIG
-    assert len(d.shrink) == 1
+    assert len(d.validation) == 1
     assert d.reason
 
 
@@ -158,7 +160,7 @@ def test_recordings_lacking_needed_channels_or_broken_raise_gap_error():
         diagnose_effects(RIG, [good], [_recording({"theta": th})])
     with pytest.raises(GapError, match="only 50 samples"):
         diagnose_effects(RIG, [good], [_recording({"theta": np.zeros(50)}, n=50)])
-    with pytest.raises(GapError, match="no held-out recordings"):
+    with pytest.raises(GapError, match="no validation recordings"):
         diagnose_effects(RIG, [good], [])
     with pytest.raises(GapError, match="max_effects"):
         diagnose_effects(RIG, [good], [good], max_effects=4)

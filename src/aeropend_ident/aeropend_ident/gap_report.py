@@ -52,6 +52,33 @@ MAX_OVERLAYS = 3
 VALIDATION_FRACTION = 0.3
 #: Fewest samples of a fit-core or validation part.
 MIN_PART = 200
+#: A validation part split before a duty step starts this long before it [s].
+SPLIT_LEAD = 1.0
+
+
+def _varying(r: Recording) -> bool:
+    return len(r) >= MIN_PART and float(np.ptp(r.duty)) > 0.0
+
+
+def _split_at_step(r: Recording, fraction: float) -> tuple[Recording, Recording] | None:
+    """Time-ordered split of one recording whose validation tail starts before a duty step.
+
+    Candidate split points lie :data:`SPLIT_LEAD` before each duty change, so the validation part
+    starts settled on the previous level and contains the step; the one whose validation share is
+    closest to ``fraction`` (within [0.1, 0.5]) wins. None when no candidate gives two parts of
+    :data:`MIN_PART` samples with a varying duty cycle.
+    """
+    n = len(r)
+    lead = max(round(SPLIT_LEAD / r.dt), 1)
+    best = None
+    for k in np.flatnonzero(np.diff(r.duty) != 0.0) + 1 - lead:
+        share = 1.0 - k / n
+        if not (0.1 <= share <= 0.5) or k < MIN_PART or n - k < MIN_PART:
+            continue
+        a, b = r.slice(0, int(k)), r.slice(int(k), n)
+        if _varying(a) and _varying(b) and (best is None or abs(share - fraction) < best[0]):
+            best = (abs(share - fraction), a, b)
+    return None if best is None else (best[1], best[2])
 
 
 def validation_split(
@@ -59,35 +86,55 @@ def validation_split(
 ) -> tuple[list[Recording], list[Recording]]:
     """Carve the diagnosis' validation set out of the fit recordings (train / validation / test).
 
-    Each fit recording is split in time order, its last ``fraction`` becoming validation, when
-    both parts keep :data:`MIN_PART` samples and a varying duty cycle; otherwise, with several
-    fit recordings, every round(1/fraction)-th whole recording from the second on is the
-    validation set (interleaved, so fit core and validation cover the same operating range).
+    In order of preference:
+
+    1. each fit recording split in time order, its last ``fraction`` becoming validation, when
+       both parts keep :data:`MIN_PART` samples and a varying duty cycle;
+    2. a recording whose tail holds one duty level (a long last step) is split instead just
+       before the duty step nearest to that share (:func:`_split_at_step`), so its validation part
+       starts settled and contains a step;
+    3. with several fit recordings, every round(1/fraction)-th whole recording from the second on;
+    4. interleaved blocks of each recording (:func:`aeropend_ident.gap_split.interleaved_blocks`,
+       every 3rd block of about ``fraction`` × 3 of the length is validation).
 
     Raises
     ------
     GapInputError
-        ``fraction`` outside (0, 1) or fit data too short to carve a validation part.
+        ``fraction`` outside (0, 1), or fit data too short or too little excited for any of these.
     """
+    from aeropend_ident.gap_split import interleaved_blocks
+
     if not 0.0 < fraction < 1.0:
         raise GapInputError(f"validation fraction {fraction!r}; expected a number in (0, 1)")
     fit = list(fit)
-
-    def usable(r: Recording) -> bool:
-        return len(r) >= MIN_PART and float(np.ptp(r.duty)) > 0.0
-
-    if all(len(r) * min(fraction, 1.0 - fraction) >= MIN_PART for r in fit):
-        parts = [r.split(1.0 - fraction) for r in fit]
-        if all(usable(a) and usable(b) for a, b in parts):
-            return [a for a, _ in parts], [b for _, b in parts]
+    parts: list[tuple[Recording, Recording]] = []
+    for r in fit:
+        pair = r.split(1.0 - fraction) if len(r) * min(fraction, 1.0 - fraction) >= MIN_PART else None
+        if pair is None or not (_varying(pair[0]) and _varying(pair[1])):
+            pair = _split_at_step(r, fraction)
+        if pair is None:
+            break
+        parts.append(pair)
+    if len(parts) == len(fit):
+        return [a for a, _ in parts], [b for _, b in parts]
     if len(fit) >= 2:
         step = max(2, round(1.0 / fraction))
         pick = set(range(1, len(fit), step))
-        return [r for i, r in enumerate(fit) if i not in pick], [r for i, r in enumerate(fit) if i in pick]
+        core = [r for i, r in enumerate(fit) if i not in pick]
+        val = [r for i, r in enumerate(fit) if i in pick]
+        if all(_varying(r) for r in core + val):
+            return core, val
+    for n_blocks in (6, 9, 12):
+        block = min(len(r) * r.dt for r in fit) / n_blocks
+        core, val, _ = interleaved_blocks(fit, block, 3, 0.0, 1)
+        if core and val and all(_varying(r) for r in core + val):
+            return core, val
     raise GapInputError(
         f"{fit[0].source or 'the fit recording'}: {len(fit[0])} samples cannot give both a fit part and a "
-        f"validation part ({fraction:.0%}) of at least {MIN_PART} samples with a varying duty cycle; record "
-        "longer, add fit recordings or pass validation fraction 0 (the held-out data then choose the effects)"
+        f"validation part (about {fraction:.0%}) of at least {MIN_PART} samples with a varying duty cycle, "
+        "neither in time order, split before a duty step, nor as interleaved blocks; record longer or with "
+        "more duty steps, add fit recordings, or pass validation fraction 0 (the held-out data then choose "
+        "the effects)"
     )
 
 
@@ -138,6 +185,7 @@ class GapResult:
     fit_core: list[Recording] = field(default_factory=list)
     validation: list[Recording] = field(default_factory=list)
     test: list[dict[str, Any]] = field(default_factory=list)
+    agreement: dict[str, Any] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ headline
     def headline(self) -> dict[str, Any]:
@@ -146,6 +194,7 @@ class GapResult:
         before = float(self.test[0]["nrmse"])
         after = float(self.test[-1]["nrmse"])
         d = self.diagnosis
+        ch0, ch1 = self.test[0].get("channel_nrmse", {}), self.test[-1].get("channel_nrmse", {})
         return {
             "significant_gap": bool(self.where.significant or d.significant),
             "where_subsystem": self.where.subsystem,
@@ -153,6 +202,12 @@ class GapResult:
             "heldout_nrmse_nominal": before,
             "heldout_nrmse_corrected": after,
             "heldout_shrink": (1.0 - after / before) if before > 0 else math.nan,
+            "heldout_channel_nrmse_nominal": dict(ch0),
+            "heldout_channel_nrmse_corrected": dict(ch1),
+            "heldout_channel_shrink": {c: (1.0 - ch1[c] / v) if v > 0 else math.nan
+                                       for c, v in ch0.items() if c in ch1},
+            "explained": getattr(d, "explained", {}).get("verdict", ""),
+            "where_which_agree": self.agreement.get("agree"),
             "n_fit_recordings": len(self.fit),
             "n_heldout_recordings": len(self.held_out),
             "heldout_never_seen_by_diagnosis": bool(self.validation is not self.held_out),
@@ -166,6 +221,7 @@ class GapResult:
                 "headline": self.headline(),
                 "where": self.where.as_dict(),
                 "which": self.diagnosis.as_dict(),
+                "where_which": self.agreement,
                 "after": {
                     "heldout_nominal": _where_brief(self.where_heldout_nominal),
                     "heldout_corrected": _where_brief(self.where_heldout_corrected),
@@ -388,31 +444,57 @@ def run_gap(
         where_heldout_corrected=w_cor,
         diagnosis=diag,
         overlays=overlays,
+        agreement=where_which_agreement(where, diag),
     )
 
 
-def _call_diagnose(
-    fn: Callable[..., Any],
-    rig: Rig,
-    fit: list[Recording],
-    held: list[Recording],
-    theta_offset: float,
-    kwargs: dict[str, Any],
-) -> Any:
-    """Call ``diagnose_effects``, passing the angle offset when it takes one."""
-    import inspect
+#: Where-analysis equation of each state equation a catalog effect's signature reaches.
+_EQUATION_OF_TERM = {"v_a": "actuator", "i_a": "armature", "omega_rotor": "rotor", "theta_dot": "pendulum"}
 
-    params = inspect.signature(fn).parameters
-    if "theta_offset" in params:
-        kwargs = {**kwargs, "theta_offset": theta_offset}
-    elif theta_offset != 0.0:
-        from aeropend_ident.gap_effects import GapError
 
-        raise GapError(
-            f"rig {rig.name!r} declares a recording-frame angle offset of {theta_offset:g} rad, "
-            "which this version of gap_which.diagnose_effects cannot take"
-        )
-    return fn(rig, fit, held, **kwargs)
+def where_which_agreement(where: WhereReport, diag: Any) -> dict[str, Any]:
+    """Do the where-analysis (equation errors) and the which-analysis (chosen effects) agree?
+
+    They agree when an equation the where-analysis flags is one whose right-hand side the first
+    chosen effect changes (its catalog term group). Otherwise the returned ``explanation`` says
+    why they may disagree (nothing flagged: a gap below the equation-error floors that the free-run
+    output error still resolves; a sensor effect, which distorts the recorded angle rather than an
+    equation; an upstream effect seen downstream through simulated signals).
+
+    Returns
+    -------
+    dict
+        ``agree`` (bool or None when nothing was chosen), ``where_equations`` (flagged),
+        ``which_effect``, ``which_equations`` (equations its signature reaches), ``explanation``.
+    """
+    from aeropend_ident.gap_effects import get_effect
+
+    flagged = [r["equation"] for r in where.located if r["flagged"]]
+    chosen = [c for c in getattr(diag, "chosen", []) if c != "quantisation"]
+    if not chosen:
+        note = (f"; the where-analysis flags {', '.join(flagged)}: a gap no catalog effect removes "
+                "significantly") if flagged else ""
+        return {"agree": None, "where_equations": flagged, "which_effect": None, "which_equations": [],
+                "explanation": "no effect chosen" + note}
+    eff = get_effect(chosen[0])
+    eqs = [_EQUATION_OF_TERM[k] for k in eff.terms if k in _EQUATION_OF_TERM]
+    agree = any(f in eqs for f in flagged)
+    if agree:
+        why = (f"the where-analysis flags the {', '.join(f for f in flagged if f in eqs)} equation, which "
+               f"{eff.name} changes")
+    elif not flagged:
+        why = ("the where-analysis flags no equation (each residual is within its noise and method floors); "
+               f"{eff.name} was found from the free-run output error, which integrates a small equation "
+               "error")
+    elif eff.kind == "measurement":
+        why = (f"{eff.name} distorts the recorded angle, so every equation evaluated on it shows a residual "
+               f"(flagged: {', '.join(flagged)})")
+    else:
+        why = (f"the where-analysis flags {', '.join(flagged)}, {eff.name} acts on {', '.join(eqs)}: the "
+               "located equation sees the effect only through simulated upstream signals, or the effect "
+               "stands in for one the catalog lacks")
+    return {"agree": agree, "where_equations": flagged, "which_effect": eff.name, "which_equations": eqs,
+            "explanation": why}
 
 
 # --------------------------------------------------------------------------- corrected rig file
@@ -631,23 +713,23 @@ def fig_tests(where: WhereReport) -> bytes:
 
 
 def fig_effects(result: GapResult) -> bytes:
-    """Ranked effects (score and held-out explained) and the before/after NRMSE per effect set."""
+    """Ranked effects (score and validation explained) and the before/after NRMSE per effect set."""
     plt = _plt()
     d = result.diagnosis
     rank = list(d.ranking)[:8]
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.8), constrained_layout=True)
     if rank:
         names = [r["effect"] for r in rank][::-1]
-        expl = [float(r.get("held_out_explained") or 0.0) for r in rank][::-1]
+        expl = [float(r.get("validation_explained") or 0.0) for r in rank][::-1]
         conf = [float(r.get("confidence") or 0.0) for r in rank][::-1]
         y = np.arange(len(names))
-        a1.barh(y, expl, color="tab:blue", label="held-out explained")
+        a1.barh(y, expl, color="tab:blue", label="validation explained")
         a1.scatter(conf, y, color="black", marker="D", label="confidence", zorder=3)
         a1.set_yticks(y, names, fontsize=8)
         a1.set_xlabel("fraction [1]")
         a1.legend(fontsize=8)
     a1.set_title("ranked effects (best on top)", fontsize=9)
-    rows = [("validation", r) for r in d.shrink] + [("HELD OUT", r) for r in result.test]
+    rows = [("validation", r) for r in d.validation] + [("HELD OUT", r) for r in result.test]
     if rows:
         labels = [
             f"{part}\n" + ("nominal" if not r["effects"] else "+" + "+".join(r["effects"]))
@@ -710,25 +792,33 @@ def terminal_summary(result: GapResult) -> str:
         f"NRMSE {r0.short_horizon['nrmse']:.4f}; Ljung-Box p {r0.whiteness['p_value']:.2g}; "
         f"alignment lag {r0.alignment['lag_s']:.3f} s"
     )
-    lines.append("  WHICH (ranked effects):")
+    lines.append("  WHICH (ranked effects; 'validation' = the part of the fit data that chooses them):")
     for r in list(d.ranking)[:5]:
         lines.append(
             f"    {r['effect']:22s} {r.get('subsystem', ''):12s} score {_fmt(r.get('score'), '.3g'):>8s} "
-            f"held-out explained {_fmt(r.get('held_out_explained'), '.2f'):>5s} "
+            f"validation explained {_fmt(r.get('validation_explained'), '.2f'):>5s} "
             f"confidence {_fmt(r.get('confidence'), '.2f')}"
         )
+        if r.get("ambiguous_with"):
+            lines.append(f"      not separated by these data from: {', '.join(r['ambiguous_with'])}")
     for ni in list(d.not_identifiable)[:4]:
         lines.append(f"    (not identifiable: {ni['effect']}: {ni['reason'][:70]})")
     lines.append(f"  chosen: {', '.join(d.chosen) or 'none'}")
+    if getattr(d, "explained", None):
+        lines.append(f"  explained: {d.explained['verdict']}")
+    if result.agreement:
+        lines.append(f"  WHERE vs WHICH: {result.agreement['explanation']}")
     lines.append("  VALIDATION (carved from the fit data; chooses the effects):")
-    for row in d.shrink:
+    for row in d.validation:
         lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} NRMSE {row['nrmse']:.4f}")
-    lines.append("  HELD OUT (never seen by the diagnosis):")
+    lines.append("  HELD OUT (never seen by the diagnosis), NRMSE per recorded channel:")
     for row in result.test:
-        lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} NRMSE {row['nrmse']:.4f}")
+        per = "  ".join(f"{c} {v:.4f}" for c, v in row.get("channel_nrmse", {}).items())
+        lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} {per}")
     lines.append(
-        f"  held-out NRMSE {h['heldout_nrmse_nominal']:.4f} -> {h['heldout_nrmse_corrected']:.4f} "
+        f"  held-out NRMSE θ {h['heldout_nrmse_nominal']:.4f} -> {h['heldout_nrmse_corrected']:.4f} "
         f"(shrink {h['heldout_shrink']:.1%})"
+        + "".join(f"; {c} {v:.1%}" for c, v in h["heldout_channel_shrink"].items() if c != "theta")
     )
     return "\n".join(lines)
 
@@ -794,7 +884,7 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
             r["effect"],
             r.get("subsystem"),
             r.get("score"),
-            r.get("held_out_explained"),
+            r.get("validation_explained"),
             r.get("bic_delta"),
             r.get("confidence"),
             "; ".join(
@@ -806,7 +896,7 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
     ]
     ni_rows = [[n["effect"], n["reason"]] for n in d.not_identifiable]
     shrink_rows = []
-    for part, row in [("held out", r) for r in result.test] + [("validation", r) for r in d.shrink]:
+    for part, row in [("held out", r) for r in result.test] + [("validation", r) for r in d.validation]:
         sm = row.get("step_metrics") or {}
         shrink_rows.append(
             [
@@ -828,6 +918,15 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
         ]
         for o in result.overlays
     ]
+    chans = list(result.test[0].get("channel_nrmse", {}))
+    channel_rows = [["+".join(row["effects"]) or "nominal", *[row["channel_nrmse"].get(c) for c in chans]]
+                    for row in result.test]
+    amb_rows = [[r["effect"], ", ".join(r["ambiguous_with"]),
+                 "; ".join(f"{k}: validation explained {_fmt(v['validation_explained'], '.3f')}, first in "
+                           f"{v['bootstrap_first']:.0%} of resamples"
+                           for k, v in r.get("ambiguity", {}).items())]
+                for r in d.ranking if r.get("ambiguous_with")]
+    explained = getattr(d, "explained", {}) or {}
     wc = result.where_heldout_corrected
     wn = result.where_heldout_nominal
     white_rows = [
@@ -884,6 +983,8 @@ and chose the effects on {len(result.validation)} validation part(s) carved from
             ],
         )
     }
+<h3>Held-out NRMSE per recorded channel</h3>
+{_table(channel_rows, ["effects added", *[f"NRMSE {c}" for c in chans]])}
 <h3>Residual tests on held-out data, nominal vs corrected</h3>
 {
         _table(
@@ -927,13 +1028,20 @@ Equations whose channels were not recorded cannot be checked.</p>
                 "effect",
                 "subsystem",
                 "score",
-                "held-out explained",
+                "validation explained",
                 "ΔBIC",
                 "confidence",
                 "parameters",
             ],
         )
     }
+<p>How completely the chosen effects explain the gap: {html.escape(explained.get("verdict", "–"))}
+(worst channel {html.escape(str(explained.get("worst_channel", "–")))}: share of its above-noise
+validation gap removed {_fmt(explained.get("share_above_noise"), ".3f")},
+validation residual / its noise part: {_fmt(explained.get("residual_over_noise"), ".3g")}).</p>
+<p>Where vs which: {html.escape(result.agreement.get("explanation", "–"))}.</p>
+<h3>Effects these data do not separate</h3>
+{_table(amb_rows, ["effect", "not separated from", "evidence"])}
 <h3>Not identifiable from these recordings</h3>
 {_table(ni_rows, ["effect", "reason"])}
 <h2>5. Definitions</h2>
@@ -942,7 +1050,12 @@ Equations whose channels were not recorded cannot be checked.</p>
 free run from the recording's first samples, driven by the recorded duty cycle only.</li>
 <li>Significant gap: the free-run residual fails the Ljung-Box whiteness test (p &lt; 0.01), its RMS exceeds
 3&times; the measurement noise and the NRMSE exceeds 0.01.</li>
-<li>Confidence: how often the effect is selected when the fit data are resampled (0..1).</li>
+<li>Validation: the part of the fit recordings on which the diagnosis chooses and ranks the effects
+("validation explained" = share of the nominal validation error an effect removes). Held out: the
+recordings only replayed here, at the end.</li>
+<li>Confidence: how often the effect comes first (or, for an added effect, passes its threshold) when the
+validation segments are resampled, times the completeness of the chosen set (1 when it leaves the noise
+level, 0 when more than a quarter of the gap above noise remains) (0..1).</li>
 <li>Corrected rig: <code>corrected_rig.yaml</code> next to this page (load with
 <code>aeropend_sim.params.load_rig</code>); the full numbers are in <code>report.json</code>.</li>
 </ul>
