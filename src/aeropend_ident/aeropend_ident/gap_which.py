@@ -92,16 +92,12 @@ FIT_CHANNELS = ("theta", "i_a", "v_a", "omega_rotor")
 MIN_EXPLAINED = 0.25
 #: Least further share of the remaining validation gap above noise a second effect must remove.
 MIN_EXPLAINED_SECOND = 0.3
-#: More effects are confirmed (and a second effect searched) while the held-out SSE left by the
-#: best candidate exceeds this multiple of its noise part.
-RESIDUAL_NOISE_FACTOR = 4.0
 #: Further screened effects confirmed when the best shortlisted effect leaves more than
 #: EXTEND_BELOW_GAP of the validation gap above noise.
 EXTEND_SHORTLIST = 3
 EXTEND_BELOW_GAP = 0.2
-#: A second effect is searched when the first leaves more than this share of the nominal
-#: held-out SSE (and more than RESIDUAL_NOISE_FACTOR times its noise part).
-SECOND_ABOVE_GAP = 0.03
+#: Screened groups and ranked single effects tried (each) as the next effect of forward selection.
+FORWARD_CANDIDATES = 3
 #: BIC gain (negative change) an effect must reach on the fit data.
 MIN_BIC_GAIN = 10.0
 #: Nominal θ error below this many noise standard deviations counts as noise floor (the floors
@@ -978,15 +974,20 @@ def _param_table(fitres: EffectFit, name: str) -> dict[str, dict[str, Any]]:
 
 
 def _noise_var(y: np.ndarray) -> float:
-    """Variance of the measurement noise of a channel: the white-noise estimate, at least the
-    quantisation floor Δ²/12 of its resolution Δ (quantised logs that rarely change have a
-    second-difference noise estimate of 0)."""
+    """Variance of the measurement noise of a channel.
+
+    The white-noise estimate of :func:`aeropend_ident.greybox.noise_level` (MAD of second
+    differences), at least the quantisation floor Δ²/12, Δ the median of the non-zero
+    sample-to-sample changes: on a quantised log that rarely changes (most second differences 0)
+    the MAD estimate is 0 while the changes are one LSB; resampling onto a uniform grid adds
+    off-lattice values, so the smallest gap between values is no measure of the resolution. On
+    white noise the median change is 0.95σ, so the floor (0.27σ) stays below the MAD estimate.
+    """
+    y = np.asarray(y, dtype=float)
     sigma = noise_level(y)
-    u = np.unique(np.round(np.asarray(y, dtype=float), 12))
-    q = 0.0
-    if 2 < u.size < y.size / 3:
-        gaps = np.diff(u)
-        q = float(np.min(gaps[gaps > 1e-12])) if np.any(gaps > 1e-12) else 0.0
+    dy = np.abs(np.diff(y))
+    dy = dy[dy > 1e-12 * max(float(np.max(np.abs(y))), 1e-300)]
+    q = float(np.median(dy)) if dy.size else 0.0
     return max(sigma**2, q * q / 12.0)
 
 
@@ -1219,8 +1220,9 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
     """One forward-selection step of :func:`diagnose_effects`: the next effect, or None.
 
     The residual left by the ``chosen`` effects (fitted in ``cur``) is screened (discrepancy SINDy
-    on the corrected model); its two best groups, the next two ranked single effects that remove
-    more than 10 % of the validation residual alone, and the ``forced`` (timing) effects are each
+    on the corrected model); its :data:`FORWARD_CANDIDATES` best groups, the next
+    :data:`FORWARD_CANDIDATES` ranked single effects that remove more than 10 % of the validation
+    residual alone, and the ``forced`` (timing) effects are each
     fitted jointly with the chosen ones, starting from the chosen values and the candidate's fit on
     the corrected model. A candidate counts when it removes at least :data:`MIN_EXPLAINED_SECOND`
     of the validation SSE the chosen set leaves, with a BIC gain of :data:`MIN_BIC_GAIN` on the fit
@@ -1232,14 +1234,16 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
     rest = [n for n in screened if n not in skip]
     st.say(f"screening the residual left by {' + '.join(chosen)}")
     scr2 = screen(cur.rig, st.pf, rest, st.channels, st.ctx, seed=seed, meas=cur.meas, estimate=False)
-    ranked = [r for r in ranking if r["effect"] not in skip and r["validation_explained"] is not None][:2]
+    ranked = [r for r in ranking if r["effect"] not in skip and r["validation_explained"] is not None]
+    ranked = ranked[:FORWARD_CANDIDATES]
     others: list[str] = []
-    for o in scr2.shortlist(2) + [r["effect"] for r in ranked if r["validation_explained"] > 0.1]:
+    for o in (*scr2.shortlist(FORWARD_CANDIDATES),
+              *(r["effect"] for r in ranked if r["validation_explained"] > 0.1)):
         if o not in others and o not in skip:
             others.append(o)
     # timing effects requested by the caller are also tried: a lead or lag often shows only once
     # the dominant (e.g. damping) error is removed
-    cands = others[:3] + [f for f in forced if f not in others[:3] and f not in skip]
+    cands = others + [f for f in forced if f not in others and f not in skip]
     k1 = sum(len(get_effect(n).parameters) for n in chosen)
     rng = np.random.default_rng(seed)
     best2 = None
@@ -1258,6 +1262,8 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
         bic_gain = (_bic(fr2.sse * st.n_eff / st.n_fit, st.n_eff, k2)
                     - _bic(cur.sse * st.n_eff / st.n_fit, st.n_eff, k1))
         passes = gain >= MIN_EXPLAINED_SECOND and bic_gain <= -MIN_BIC_GAIN
+        st.say(f"  {o}: removes {100 * gain:.1f} % of the remaining validation gap above noise, "
+               f"BIC change {bic_gain:.1f}")
         if passes and (best2 is None or gain > best2.gain):
             hits = 0
             for _ in range(N_BOOTSTRAP):
@@ -1418,10 +1424,11 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
         table.append({"effects": list(chosen), **gap_metrics(corrected, meas, st.pv)})
         say(f"{name} leaves a validation SSE of {st.noise_ratio(float(cur_segs.sum()))}")
         confidences = {name: best["bootstrap_first"]}
-        # forward selection: while the chosen set leaves a gap above the noise, screen its residual
-        # and confirm the best candidates by a joint fit with the effects already chosen
-        while len(chosen) < max_effects and float(cur_segs.sum()) > max(
-                RESIDUAL_NOISE_FACTOR * st.noise_sse, SECOND_ABOVE_GAP * st.sse_val0):
+        # forward selection: while the chosen set leaves some channel's residual above its noise
+        # (completeness < 1), screen its residual and confirm the best candidates by a joint fit with
+        # the effects already chosen
+        while (len(chosen) < max_effects
+               and _completeness(st, channel_sse(corrected, meas, st.pv))["completeness"] < 1.0):
             added = _add_effect(st, cur, cur_segs, chosen, ranking, screened, forced, seed + 2 * len(chosen))
             if added is None:
                 break
