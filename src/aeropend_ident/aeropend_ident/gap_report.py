@@ -922,8 +922,9 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
     channel_rows = [["+".join(row["effects"]) or "nominal", *[row["channel_nrmse"].get(c) for c in chans]]
                     for row in result.test]
     amb_rows = [[r["effect"], ", ".join(r["ambiguous_with"]),
-                 "; ".join(f"{k}: validation explained {_fmt(v['validation_explained'], '.3f')}, first in "
-                           f"{v['bootstrap_first']:.0%} of resamples"
+                 "; ".join(f"{k}: validation explained {_fmt(v.get('validation_explained'), '.3f')}, "
+                           + (f"first in {v['bootstrap_first']:.0%} of resamples" if v.get("bootstrap_first")
+                              is not None else "as good in the joint fit with the other chosen effects")
                            for k, v in r.get("ambiguity", {}).items())]
                 for r in d.ranking if r.get("ambiguous_with")]
     explained = getattr(d, "explained", {}) or {}
