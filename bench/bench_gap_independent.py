@@ -227,12 +227,13 @@ def to_recording(tr: Any, source: str) -> Any:
 def expected(effect: str, magnitude: float, params: PlantParams) -> tuple[str, float, float]:
     """(physical quantity the diagnosis should report, true value, nominal value) of a truth.
 
-    The quantity is a rig field ``section.field`` (or ``measurement.*``), read from the
-    diagnosis' ``rig_values``; what the truth changes follows from its physics.
+    The quantity is a rig field ``section.field`` (or ``measurement.*``, or the fitted parameter
+    ``effect.parameter`` where the rig stores a combination), read from the diagnosis'
+    ``rig_values``; what the truth changes follows from its physics.
     """
     p = params
     table: dict[str, tuple[str, float, float]] = {
-        "hbridge_drop": ("actuator.V_drop", magnitude, 0.0),
+        "hbridge_drop": ("hbridge_drop.V_drop", magnitude, 0.0),
         "dead_zone": ("actuator.dead_zone", magnitude, 0.0),
         "actuator_lag": ("actuator.lag_time_constant", magnitude, 0.0),
         "input_delay": ("actuator.input_delay", magnitude, 0.0),
@@ -409,7 +410,9 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         f"{s['cases']} cases; hidden plants from `bench/truth_plant.py` (no aeropend_sim code); "
         f"{m['workers']} worker(s), {m['wall_s']:.0f} s wall, median {s['median_case_s']:.1f} s wall / "
         f"{s['median_case_cpu_s']:.1f} s CPU per case, load average {m['load_before']} before and "
-        f"{m['load_after']} after, on {m['machine']}. Commit {m.get('commit', '?')}.",
+        f"{m['load_after']} after, on {m['machine']}. Commit {m.get('commit', '?')}."
+        + "".join(f" Re-run and merged at commit {x['commit']}: {', '.join(x['cases'])}."
+                  for x in m.get("merged", [])),
         "",
         "| bar (issue 14) | measured |",
         "|---|---|",
@@ -469,6 +472,8 @@ def main(argv: list[str] | None = None) -> int:
                     choices=("single", "pair", "out of catalog", "no effect"), help="only these case groups")
     ap.add_argument("--out", default=str(RESULTS / "gap_independent"), help="output stem")
     ap.add_argument("--render", action="store_true", help="only re-write the .md from the .json")
+    ap.add_argument("--merge", action="store_true",
+                    help="replace the selected cases in the existing .json (same case ids) and re-summarise")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if args.render:
@@ -491,6 +496,11 @@ def main(argv: list[str] | None = None) -> int:
             "load_after": [round(x, 2) for x in os.getloadavg()], "machine": f"{os.cpu_count()} cores, "
             f"{platform.platform()}", "python": platform.python_version(), "commit": commit,
             "argv": sys.argv[1:]}
+    if args.merge:
+        old = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))
+        new_ids = {s["case"] for s in scores}
+        scores = [s for s in old["cases"] if s["case"] not in new_ids] + scores
+        meta = {**old["meta"], "merged": [*old["meta"].get("merged", []), {**meta, "cases": sorted(new_ids)}]}
     doc = {"summary": summarise(scores), "meta": meta, "cases": scores}
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float), encoding="utf-8")
