@@ -398,8 +398,8 @@ def summarise(scores: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def _pct(x: float | None) -> str:
-    return "—" if x is None else f"{100 * x:.1f} %"
+def _pct(x: float | None, digits: int = 1) -> str:
+    return "—" if x is None else f"{100 * x:.{digits}f} %"
 
 
 def write_md(path: Path, doc: dict[str, Any]) -> None:
@@ -422,7 +422,7 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         f"{_pct(s['single']['median_shrink_correct'])} "
         f"(all single cases {_pct(s['single']['median_shrink_all'])}) |",
         "| median magnitude error ≤ 10 % of the effect size | "
-        f"{_pct(s['single']['median_magnitude_error'])} |",
+        f"{_pct(s['single']['median_magnitude_error'], 3)} |",
         f"| two-effect cases: both named ≥ 85 % | {_pct(s['pair']['both_named'])} of {s['pair']['cases']} "
         f"(named or reported as not separated from a chosen one: "
         f"{_pct(s['pair'].get('both_named_or_not_separated'))}) |",
@@ -441,7 +441,7 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     ]
     for e, v in s["per_effect"].items():
         lines.append(f"| {e} | {v['cases']} | {_pct(v['top1'])} | {_pct(v['top1_pair_named'])} | "
-                     f"{_pct(v['median_shrink'])} | {_pct(v['median_magnitude_error'])} | "
+                     f"{_pct(v['median_shrink'])} | {_pct(v['median_magnitude_error'], 2)} | "
                      f"{', '.join(v['first_named'])} |")
     lines += ["", "## By effect size (single-effect cases, terciles of the nominal held-out θ NRMSE)", "",
               "| size | nominal NRMSE | cases | top-1 | median shrink |", "|---|---|---|---|---|"]
