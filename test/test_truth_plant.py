@@ -1,0 +1,144 @@
+"""The independent truth plant of the blind benchmarks (bench/truth_plant.py).
+
+It must not share code with what it checks (no aeropend import at all), must agree with
+aeropend's nominal simulator where both model the same plant (two independent implementations of
+the thesis equations), must obey its own physics, and a lab's path through it (CSV log ->
+``csv_import`` -> ``gap``) must name the effect hidden in it.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+BENCH = Path(__file__).resolve().parents[1] / "bench"
+sys.path.insert(0, str(BENCH))
+
+import truth_plant as tp  # noqa: E402
+
+
+def test_truth_plant_imports_nothing_from_aeropend():
+    tree = ast.parse((BENCH / "truth_plant.py").read_text(encoding="utf-8"))
+    modules = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            modules |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            modules.add((node.module or "").split(".")[0])
+    assert not {m for m in modules if m.startswith("aeropend")}
+    assert modules <= {"__future__", "dataclasses", "math", "collections", "typing", "numpy", "scipy"}
+
+
+def test_steady_state_matches_the_analytic_equilibrium():
+    p = tp.PlantParams()
+    tau = 0.8
+    out = tp.TruthPlant(p).simulate(np.full(round(8.0 / tp.DT), tau))
+    v = p.v_supply * tau
+    i = v / (p.R_a + p.K_omega * p.K_t / p.B_m)  # armature and rotor at rest: di = dω = 0
+    w = p.K_t * i / p.B_m
+    theta = math.asin(p.L_over_J * p.K_q * (tp.GEAR * w) ** 2 / p.mgd_over_J)
+    assert out["i_a"][-1] == pytest.approx(i, rel=1e-6)
+    assert out["omega_rotor"][-1] == pytest.approx(w, rel=1e-6)
+    assert out["theta"][-1] == pytest.approx(theta, rel=1e-4)
+    # the thesis' printed coefficients: 1.7285 ω₁² in θ̈, 4519.2 and 192.31 in dω₁/dt
+    assert p.L_over_J * p.K_q * tp.GEAR**2 == pytest.approx(1.7285, rel=1e-12)
+    assert p.K_t / p.J_m == pytest.approx(4519.2, rel=1e-12)
+    assert p.B_m / p.J_m == pytest.approx(192.31, rel=1e-12)
+
+
+def test_agrees_with_aeropends_nominal_simulator():
+    """Two implementations of the same equations (RK4 here, LSODA there) agree to 1e-5 rad."""
+    from aeropend_sim.params import load_rig
+    from aeropend_sim.simulate import simulate
+
+    rig = load_rig("thesis_sim").with_effects(hbridge_map=False).with_params("actuator", v_supply=2.32)
+    duty = tp.aprbs(10.0, seed=2)
+    truth = tp.TruthPlant().simulate(duty)
+    sim = simulate(rig, duty)
+    for c in ("theta", "i_a", "omega_rotor", "v_a"):
+        assert np.max(np.abs(sim.true[c] - truth[c])) < 1e-5 * max(1.0, np.ptp(truth[c]))
+
+
+def test_effects_follow_their_physics():
+    duty = np.concatenate([np.zeros(200), np.full(3000, 0.9)])
+    base = tp.TruthPlant().simulate(duty)
+    # transport delay: the whole response shifts by exactly the delay's samples
+    d = tp.TruthPlant(effects={"input_delay": 10 * tp.DT}).simulate(duty)
+    np.testing.assert_allclose(d["theta"][10:], base["theta"][:-10], atol=1e-12)
+    # hard end stop: never passed
+    s = tp.TruthPlant(effects={"end_stops": 0.4}).simulate(duty)
+    assert s["theta"].max() <= 0.4 + 1e-12 and base["theta"].max() > 0.5
+    # H-bridge drop: the drive output is V_s·τ − V_d
+    h = tp.TruthPlant(effects={"hbridge_drop": 0.3}).simulate(duty)
+    assert h["v_a"][-1] == pytest.approx(2.32 * 0.9 - 0.3)
+    # propeller drag: steady speed from K_t·(v − K_ω·ω)/R_a = B_m·ω + K_d·ω² (a quadratic)
+    p = tp.PlantParams()
+    kd = 40.0 * p.J_m
+    g = tp.TruthPlant(effects={"propeller_drag": kd}).simulate(duty)
+    a, b, c = kd, p.B_m + p.K_t * p.K_omega / p.R_a, -p.K_t * 2.32 * 0.9 / p.R_a
+    w = (-b + math.sqrt(b * b - 4 * a * c)) / (2 * a)
+    assert g["omega_rotor"][-1] == pytest.approx(w, rel=1e-5) and w < 0.8 * base["omega_rotor"][-1]
+    # sensor effects change the reading only
+    o = tp.TruthPlant(effects={"sensor_offset": 0.05, "sensor_scale": 1.1}).simulate(duty)
+    np.testing.assert_allclose(o["theta"], base["theta"])
+    np.testing.assert_allclose(o["theta_recorded"], 1.1 * base["theta"] + 0.05)
+    with pytest.raises(tp.TruthError, match="unknown truth effect"):
+        tp.TruthPlant(effects={"magic": 1.0})
+
+
+def test_noise_has_the_requested_snr():
+    true = tp.TruthPlant().simulate(tp.lhs_steps(20.0, seed=1))
+    meas = tp.add_noise(true, 40.0, seed=3)
+    for c in tp.CHANNELS:
+        y = true["theta_recorded" if c == "theta" else c]
+        snr = 20 * math.log10(np.sqrt(np.mean(y**2)) / np.std(meas[c] - y))
+        assert snr == pytest.approx(40.0, abs=0.2)
+
+
+@pytest.mark.slow
+def test_a_lab_path_csv_import_gap_names_the_hidden_drag(tmp_path):
+    """CSV log of the independent plant -> ``csv_import`` mapping -> ``gap`` with a lab's rig file:
+    a propeller drag the rig file omits (K_d = 0) is named and fitted in physical units."""
+    import yaml
+
+    from aeropend_ident.csv_import import CsvSpec
+    from aeropend_ident.gap_cli import main
+
+    kd = 3.0 * tp.PlantParams().J_m  # dω₁/dt gains −3·ω₁|ω₁|
+    plant = tp.TruthPlant(effects={"propeller_drag": kd})
+    fit = tp.record(plant, tp.lhs_steps(40.0, seed=5), 50.0, seed=6)
+    held = tp.record(plant, tp.aprbs(30.0, seed=7), 50.0, seed=8)
+    fit.to_csv(tmp_path / "fit.csv")
+    held.to_csv(tmp_path / "held.csv")
+    spec = CsvSpec(angle_col="theta_rad", angle_unit="rad", time_col="time_s", time_unit="s",
+                   input_col="duty", input_kind="duty",
+                   channels={"i_a": ("i_a_A", 1.0), "v_a": ("v_a_V", 1.0),
+                             "omega_rotor": ("omega_rad_s", 1.0)})
+    from aeropend_ident import csv_import
+
+    csv_import.PRESETS["_truth_plant_test"] = spec
+    try:
+        rig = yaml.safe_load((Path(__file__).resolve().parents[1] / "src/aeropend_sim/aeropend_sim/rigs/"
+                              "thesis_sim.yaml").read_text(encoding="utf-8"))
+        rig["effects"]["hbridge_map"] = False
+        rig["actuator"]["v_supply"]["value"] = 2.32
+        (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig), encoding="utf-8")
+        out = tmp_path / "report"
+        assert main([str(tmp_path / "fit.csv"), "--held-out", str(tmp_path / "held.csv"), "--preset",
+                     "_truth_plant_test", "--rig", str(tmp_path / "rig.yaml"), "-o", str(out), "-q"]) == 0
+    finally:
+        del csv_import.PRESETS["_truth_plant_test"]
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["headline"]["effects_chosen"] == ["propeller_drag"]
+    drag = rep["which"]["ranking"][0]
+    assert drag["parameters"]["K_d"]["unit"] == "N*m*s^2/rad^2"
+    assert drag["parameters"]["K_d"]["value"] == pytest.approx(kd, rel=0.05)
+    assert rep["headline"]["heldout_shrink"] > 0.9
+    assert rep["headline"]["heldout_channel_shrink"]["omega_rotor"] > 0.8
+    assert rep["where_which"]["agree"]
