@@ -436,20 +436,20 @@ def _r_back_emf(c: EffectContext) -> tuple[float, float, float, float]:
     return 0.1 * base, 10.0 * base, off, (1.3 if on else 0.5) * base
 
 
+def _r_halving(nominal: float, on: bool, halving: float, probe: float) -> tuple[float, float, float, float]:
+    """Range of a rotor load coefficient: up to 3× the value that halves the steady rotor speed
+    (``halving``), and 0.05–20× a nominal value the rig has; probe ``probe``·halving if it has none."""
+    if on and nominal > 0.0:
+        return min(0.05 * nominal, 1e-3 * halving), max(20.0 * nominal, 3.0 * halving), nominal, 1.3 * nominal
+    return 1e-3 * halving, 3.0 * halving, 0.0, probe * halving
+
+
 def _r_rotor_friction(c: EffectContext) -> tuple[float, float, float, float]:
-    m, on = c.rig.motor, c.rig.effects.viscous_friction
-    b_half = c.halving_friction()
-    if on and m.B_m > 0.0:
-        return min(0.05 * m.B_m, 1e-3 * b_half), max(20.0 * m.B_m, 3.0 * b_half), m.B_m, 1.3 * m.B_m
-    return 1e-3 * b_half, 3.0 * b_half, 0.0, 0.2 * b_half
+    return _r_halving(c.rig.motor.B_m, c.rig.effects.viscous_friction, c.halving_friction(), 0.2)
 
 
 def _r_drag(c: EffectContext) -> tuple[float, float, float, float]:
-    m, on = c.rig.motor, c.rig.effects.propeller_drag
-    k_half = c.halving_drag()
-    if on and m.K_d > 0.0:
-        return min(0.05 * m.K_d, 1e-3 * k_half), max(20.0 * m.K_d, 3.0 * k_half), m.K_d, 1.3 * m.K_d
-    return 1e-3 * k_half, 3.0 * k_half, 0.0, 0.1 * k_half
+    return _r_halving(c.rig.motor.K_d, c.rig.effects.propeller_drag, c.halving_drag(), 0.1)
 
 
 def _r_viscous(c: EffectContext) -> tuple[float, float, float, float]:

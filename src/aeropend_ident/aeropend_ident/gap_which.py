@@ -1550,7 +1550,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
                 for old_name, new_name in zip(before, chosen, strict=True):
                     if old_name != new_name:
                         confidences[new_name] = confidences.pop(old_name)
-                _record_swap(ranking, st, cur, chosen, scr)
+                _record_chosen(ranking, st, cur, chosen, scr)
                 table.append({"effects": list(chosen), "replacement": True,
                               **gap_metrics(corrected, meas, st.pv)})
         explained = _completeness(st, channel_sse(corrected, meas, st.pv))
@@ -1600,10 +1600,11 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     )
 
 
-def _record_swap(ranking: list[dict[str, Any]], st: _Setup, cur: EffectFit, chosen: Sequence[str],
-                 scr: Screening) -> None:
-    """Update the ranking after the replacement pass: joint values of the final chosen set, an
-    entry for a replacing effect that was not ranked, the chosen set first in its order."""
+def _record_chosen(ranking: list[dict[str, Any]], st: _Setup, fit: EffectFit, chosen: Sequence[str],
+                   scr: Screening) -> None:
+    """Update the ranking for a (new) chosen set fitted jointly in ``fit``: an entry for a chosen
+    effect that was not ranked yet (screening figures from ``scr``), the joint values of the chosen
+    effects, and the chosen set first, in its order."""
     for name in chosen:
         if name not in [r["effect"] for r in ranking]:
             e = get_effect(name)
@@ -1617,30 +1618,16 @@ def _record_swap(ranking: list[dict[str, Any]], st: _Setup, cur: EffectFit, chos
             })
     for r in ranking:
         if r["effect"] in chosen:
-            r["parameters"] = _param_table(cur, r["effect"])
-            r["rig_values"] = get_effect(r["effect"]).rig_values(st.rig, cur.values[r["effect"]])
+            r["parameters"] = _param_table(fit, r["effect"])
+            r["rig_values"] = get_effect(r["effect"]).rig_values(st.rig, fit.values[r["effect"]])
     ranking.sort(key=lambda r: list(chosen).index(r["effect"]) if r["effect"] in chosen else len(chosen))
 
 
 def _record_added(ranking: list[dict[str, Any]], st: _Setup, added: _Added, chosen: Sequence[str]) -> None:
-    """Update the ranking after a forward-selection step: joint values of the chosen effects, the
-    added effect's gain, and the chosen set first, in the order chosen."""
-    o, fr2, scr2 = added.effect, added.fit, added.screening
-    if o not in [r["effect"] for r in ranking]:
-        eo = get_effect(o)
-        ranking.append({
-            "effect": o, "subsystem": eo.subsystem, "score": None, "validation_explained": None,
-            "bic_delta": None, "confidence": None, "parameters": {}, "rig_values": {},
-            "screening": ({"explained_strong": scr2.explained_strong[o],
-                           "explained_weak": scr2.explained_weak[o], "inclusion": scr2.inclusion[o]}
-                          if o in scr2.explained_strong else {"not_screened": True}),
-            "confusable_with": list(eo.confusable_with), "ambiguous_with": [],
-        })
+    """Update the ranking after a forward-selection step (:func:`_record_chosen`) and note the added
+    effect's gain."""
+    _record_chosen(ranking, st, added.fit, chosen, added.screening)
     for r in ranking:
-        if r["effect"] in chosen:
-            r["parameters"] = _param_table(fr2, r["effect"])
-            r["rig_values"] = get_effect(r["effect"]).rig_values(st.rig, fr2.values[r["effect"]])
-        if r["effect"] == o:
+        if r["effect"] == added.effect:
             r["added_explained"] = added.gain
             r["added_bic_delta"] = added.bic_delta
-    ranking.sort(key=lambda r: chosen.index(r["effect"]) if r["effect"] in chosen else len(chosen))
