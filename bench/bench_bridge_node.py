@@ -22,7 +22,7 @@ from sensor_msgs.msg import JointState
 
 from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_sim.contract import TOPIC_JOINT_STATES
-from aeropend_sim.ros_contract import SAMPLE_QOS
+from aeropend_sim.ros_contract import SAMPLE_SUB_QOS
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 from ros_support import isolated_env, node_command, private_node, random_domain, stop
@@ -45,7 +45,7 @@ def run(seconds: float) -> dict[str, float]:
     try:
         with private_node("bench_bridge", domain) as (node, ex):
             node.create_subscription(JointState, TOPIC_JOINT_STATES, lambda m: got.__setitem__(0, got[0] + 1),
-                                     SAMPLE_QOS)
+                                     SAMPLE_SUB_QOS)
             end = time.monotonic() + 3.0
             while time.monotonic() < end:
                 ex.spin_once(timeout_sec=0.01)

@@ -50,7 +50,7 @@ def run_subscriber(out: Path, duration: float, warmup: float) -> int:
     from sensor_msgs.msg import JointState
 
     from aeropend_sim.contract import TOPIC_JOINT_STATES
-    from aeropend_sim.ros_contract import SAMPLE_QOS
+    from aeropend_sim.ros_contract import SAMPLE_SUB_QOS
 
     rclpy.init()
     node = rclpy.create_node("bench_subscriber")
@@ -65,7 +65,7 @@ def run_subscriber(out: Path, duration: float, warmup: float) -> int:
         elif not stamps:
             recording.append(time.monotonic())  # first message seen
 
-    node.create_subscription(JointState, TOPIC_JOINT_STATES, on_js, SAMPLE_QOS)
+    node.create_subscription(JointState, TOPIC_JOINT_STATES, on_js, SAMPLE_SUB_QOS)
     ex = SingleThreadedExecutor()
     ex.add_node(node)
     deadline_first = time.monotonic() + 30.0

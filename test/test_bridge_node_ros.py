@@ -30,7 +30,7 @@ from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_bridge.protocol import Duty
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.params import load_rig
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, sample_from_msgs
+from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS, sample_from_msgs
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
 BRIDGE = node_command("bridge", "aeropend_bridge.bridge_node")
@@ -43,8 +43,8 @@ class Client:
         self.js: list[JointState] = []
         self.arm: dict[int, BatteryState] = {}
         self.diag: list[DiagnosticArray] = []
-        self.node.create_subscription(JointState, TOPIC_JOINT_STATES, self.js.append, SAMPLE_QOS)
-        self.node.create_subscription(BatteryState, TOPIC_ARMATURE, self._on_arm, SAMPLE_QOS)
+        self.node.create_subscription(JointState, TOPIC_JOINT_STATES, self.js.append, SAMPLE_SUB_QOS)
+        self.node.create_subscription(BatteryState, TOPIC_ARMATURE, self._on_arm, SAMPLE_SUB_QOS)
         self.node.create_subscription(DiagnosticArray, "/diagnostics", self.diag.append, 10)
         self.pub = self.node.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
         self.last_pub = 0.0  # time.monotonic() of the last command published

@@ -33,7 +33,7 @@ from std_msgs.msg import Float64
 from aeropend_bridge.simavr_harness import read_pty_path
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.params import load_rig
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS
+from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware"
@@ -70,7 +70,7 @@ def test_bridge_node_on_emulated_firmware(tmp_path: Path, angle: str) -> None:
     node, ex = client.enter_context(private_node("simavr_client", domain))
     js: list[JointState] = []
     diag: list[DiagnosticArray] = []
-    node.create_subscription(JointState, TOPIC_JOINT_STATES, js.append, SAMPLE_QOS)
+    node.create_subscription(JointState, TOPIC_JOINT_STATES, js.append, SAMPLE_SUB_QOS)
     node.create_subscription(DiagnosticArray, "/diagnostics", diag.append, 10)
     pub = node.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
 

@@ -101,6 +101,8 @@ def test_make_settings_applies_overrides():
         ({"noise": "sometimes"}, "noise = 'sometimes' is not a boolean"),
         ({"rig": "/tmp/definitely_missing_rig.yaml"}, "does not exist"),
         ({"rt_priority": 120}, "rt_priority = 120; expected an integer in [0, 99]"),
+        ({"min_subscribers": 0}, "min_subscribers = 0; expected an integer >= 1"),
+        ({"min_subscribers": True}, "min_subscribers = True"),
     ],
 )
 def test_make_settings_errors(kwargs, needle):

@@ -34,8 +34,8 @@ from aeropend_sim.excitation import prbs
 from aeropend_sim.params import load_rig, shipped_rigs
 from aeropend_sim.ros_contract import (
     COMMAND_QOS,
-    SAMPLE_QOS,
     SAMPLE_QOS_LOCKSTEP,
+    SAMPLE_SUB_QOS,
     sample_from_msgs,
 )
 from aeropend_sim.sim_core import to_sample
@@ -74,7 +74,7 @@ class Client:
     def __init__(self, domain: int, lockstep: bool) -> None:
         self._stack = ExitStack()
         self.node, self.executor = self._stack.enter_context(private_node("test_client", domain))
-        qos = SAMPLE_QOS_LOCKSTEP if lockstep else SAMPLE_QOS
+        qos = SAMPLE_QOS_LOCKSTEP if lockstep else SAMPLE_SUB_QOS
         self.js: list[tuple[int, int, JointState]] = []  # (stamp ns, arrival ns, msg)
         self.arm: dict[int, BatteryState] = {}
         self.node.create_subscription(JointState, TOPIC_JOINT_STATES, self._on_js, qos)
@@ -207,6 +207,22 @@ def test_lockstep_is_deterministic_and_matches_stepper(domain):
     assert first[0].theta_dot != 0.0
     # and the plant moved: the rod rose under 0.35-0.65 duty
     assert max(s.theta for s in first) > 0.01
+
+
+def test_lockstep_sample_zero_waits_for_every_named_subscriber(domain):
+    # a subscriber matched after sample 0 would miss the samples before it (volatile QoS): the
+    # main job names both consumers (excitation, recorder) and the run starts only once both match
+    with plant(domain, "mode:=lockstep", "min_subscribers:=2") as proc, \
+            client(domain, lockstep=True) as first:
+        first.spin_for(2.0)
+        assert first.js == [], "sample 0 published with 1 of 2 subscribers matched"
+        with client(domain, lockstep=True) as second:
+            assert second.spin_until(lambda: any(s == 0 for s, _, _ in second.js), 20.0)
+            assert first.spin_until(lambda: any(s == 0 for s, _, _ in first.js), 5.0)
+        assert proc.poll() is None
+        done = stop(proc, signal.SIGINT)
+    assert done.returncode == 0
+    assert "lock-step: waiting for subscriptions to match (joint_states " in done.stderr
 
 
 # ------------------------------------------------------------------------------------- (c) bad commands

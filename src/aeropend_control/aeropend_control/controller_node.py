@@ -18,7 +18,7 @@ strategy : str, default ``fl_pid``
     | ``cascade`` | ``fl_cascade`` (these also use ω₁ from ``joint_states`` and i_a from
     ``/aeropend/armature``, paired by stamp).
 mode : str, default ``realtime``
-    ``realtime``: samples with ``SAMPLE_QOS`` (best effort); ``lockstep``: reliable samples
+    ``realtime``: samples with ``SAMPLE_SUB_QOS`` (best effort, keep last 100); ``lockstep``: reliable samples
     (``SAMPLE_QOS_LOCKSTEP``), exactly one command per new sample stamp; a re-published sample
     (same stamp) is answered again with the same command.
 steps : list of float
@@ -88,7 +88,7 @@ from aeropend_sim.contract import (
     stamp_to_ns,
 )
 from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, duty_msg
+from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS_LOCKSTEP, SAMPLE_SUB_QOS, duty_msg
 
 NODE_NAME = "aeropend_controller"
 TOPIC_REFERENCE = "/aeropend/reference"
@@ -140,7 +140,7 @@ class ControllerNode(Node):
             self.destroy_node()
             raise
         s = self.settings
-        qos = SAMPLE_QOS_LOCKSTEP if s.mode == "lockstep" else SAMPLE_QOS
+        qos = SAMPLE_QOS_LOCKSTEP if s.mode == "lockstep" else SAMPLE_SUB_QOS
         self._pub_duty = self.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
         self._pub_sig = self.create_publisher(Float64MultiArray, TOPIC_SIGNALS, 10)
         self.create_subscription(JointState, TOPIC_JOINT_STATES, self._on_sample, qos)

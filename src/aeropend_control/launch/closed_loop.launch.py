@@ -14,7 +14,7 @@ is the interface). Examples::
 """
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
+from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironmentVariable
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
@@ -29,6 +29,9 @@ ARGUMENTS = (
     ("noise", "", "sim plant: true/false sensor noise (empty: as in the rig file)"),
     ("port", "/dev/ttyACM0", "bridge: serial device of the Arduino Mega"),
     ("rt_priority", "0", "SCHED_FIFO priority of the plant sampler and controller (0 = off)"),
+    ("discovery_range", "LOCALHOST",
+     "ROS_AUTOMATIC_DISCOVERY_RANGE of the demo's nodes: LOCALHOST keeps its DDS traffic on "
+     "this host; SUBNET / SYSTEM_DEFAULT for a lab network"),
 )
 
 
@@ -63,5 +66,6 @@ def generate_launch_description():
     return LaunchDescription(
         [DeclareLaunchArgument(name, default_value=default, description=doc)
          for name, default, doc in ARGUMENTS]
-        + [OpaqueFunction(function=_nodes)]
+        + [SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", LaunchConfiguration("discovery_range")),
+           OpaqueFunction(function=_nodes)]
     )

@@ -101,9 +101,9 @@ Storage = Literal["mcap", "sqlite3"]
 _INFINITE = QosTime(sec=9223372036, nsec=854775807)
 
 
-def _qos(reliability: QosReliability, depth: int) -> Qos:
+def _qos(reliability: QosReliability, depth: int, history: QosHistory = QosHistory.KEEP_LAST) -> Qos:
     return Qos(
-        history=QosHistory.KEEP_LAST,
+        history=history,
         depth=depth,
         reliability=reliability,
         durability=QosDurability.VOLATILE,
@@ -117,8 +117,8 @@ def _qos(reliability: QosReliability, depth: int) -> Qos:
 
 #: Offered QoS of sample topics: ``qos_profile_sensor_data`` (best effort, keep last 5, volatile).
 SAMPLE_QOS: Qos = _qos(QosReliability.BEST_EFFORT, SAMPLE_QOS_DEPTH)
-#: Offered QoS of sample topics published in lock-step mode (reliable, keep last 50, volatile).
-SAMPLE_QOS_RELIABLE: Qos = _qos(QosReliability.RELIABLE, max(SAMPLE_QOS_DEPTH, 50))
+#: Offered QoS of sample topics published in lock-step mode (reliable, keep all, volatile).
+SAMPLE_QOS_RELIABLE: Qos = _qos(QosReliability.RELIABLE, 0, QosHistory.KEEP_ALL)
 #: Offered QoS of the duty-cycle command topic (reliable, keep last 10, volatile).
 COMMAND_QOS: Qos = _qos(QosReliability.RELIABLE, COMMAND_QOS_DEPTH)
 

@@ -26,9 +26,13 @@ queue_depth : int
     queue: depth does not affect QoS matching, and at 490 Hz the contract's depth 5 would drop
     samples whenever the recorder stalls for 10 ms.
 reliable : bool
-    Subscribe to the sample topics with RELIABLE delivery (default false: the contract's best
-    effort). Use it for lock-step runs, whose plant publishes samples reliably: the recorder then
-    loses nothing; a reliable subscription does not match a best-effort (real-time) publisher.
+    Subscribe to the sample topics with the lock-step QoS (reliable, keep all; default false: the
+    contract's best effort). Use it for lock-step runs, whose plant publishes samples that way:
+    the recorder then loses nothing, a lagging recorder slows the loop down instead; a reliable
+    subscription does not match a best-effort (real-time) publisher.
+
+On SIGINT / SIGTERM the recorder first writes what is still queued (it spins until no message
+has arrived for ``DRAIN_IDLE_S``, at most ``DRAIN_MAX_S``), then closes the bag.
 
 Run as ``record --ros-args -p output:=/tmp/run -p duration:=2.0`` or with the friendly flags
 ``record -o /tmp/run --duration 2``. The bag is closed cleanly (valid ``metadata.yaml``) on
@@ -62,8 +66,13 @@ from aeropend_sim.contract import (
     TOPIC_JOINT_STATES,
     TYPE_CLOCK,
 )
+from aeropend_sim.node_shell import init_with_stop_event
 
 NODE_NAME = "aeropend_recorder"
+#: On stop: keep writing until no message arrived for this long [s] ...
+DRAIN_IDLE_S = 0.3
+#: ... but at most this long [s].
+DRAIN_MAX_S = 10.0
 _INFINITE_NS = 2**63 - 1
 _KNOWN_TYPES = {**CONTRACT_TOPICS, TOPIC_CLOCK: TYPE_CLOCK}
 
@@ -141,6 +150,7 @@ class RecorderNode(Node):
         self.done = False
         self.stop_reason = ""
         self.samples = 0
+        self.last_message_ns = time.monotonic_ns()
         self._types: dict[str, str] = {}
         self._subs: dict[str, Any] = {}
         self._subscribe_known()
@@ -157,15 +167,18 @@ class RecorderNode(Node):
     # -- subscriptions --------------------------------------------------------------------
 
     def _subscribe(self, topic: str, msgtype: str) -> None:
-        base = ros_contract.COMMAND_QOS if topic.endswith(TOPIC_DUTY_CYCLE) else ros_contract.SAMPLE_QOS
+        base = ros_contract.COMMAND_QOS if topic.endswith(TOPIC_DUTY_CYCLE) else ros_contract.SAMPLE_SUB_QOS
         if topic == TOPIC_CLOCK:
             base = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-        # same policies as the contract (so matching is unchanged), deeper queue: the depth is local
-        # to the subscriber and lets the recorder ride out a stall (GC, disk) without dropping samples
-        reliable = self.reliable and topic != TOPIC_CLOCK
-        reliability = ReliabilityPolicy.RELIABLE if reliable else base.reliability
-        qos = QoSProfile(history=base.history, depth=max(base.depth, self.queue_depth),
-                         reliability=reliability, durability=base.durability)
+        if self.reliable and topic != TOPIC_CLOCK and not topic.endswith(TOPIC_DUTY_CYCLE):
+            # lock-step samples: reliable keep-all like the plant's writer, so nothing the recorder
+            # has not written yet is ever evicted (a lagging recorder slows the loop instead)
+            qos = ros_contract.SAMPLE_QOS_LOCKSTEP
+        else:
+            # same policies as the contract (so matching is unchanged), deeper queue: the depth is
+            # local to the subscriber and lets the recorder ride out a stall (GC, disk)
+            qos = QoSProfile(history=base.history, depth=max(base.depth, self.queue_depth),
+                             reliability=base.reliability, durability=base.durability)
         self._types[topic] = msgtype
         self._subs[topic] = self.create_subscription(
             message_class(msgtype), topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
@@ -196,6 +209,7 @@ class RecorderNode(Node):
         return found or [default]
 
     def _on_message(self, topic: str, data: bytes) -> None:
+        self.last_message_ns = time.monotonic_ns()
         if self.done:
             return
         stamp = self.get_clock().now().nanoseconds
@@ -264,19 +278,29 @@ def _overrides(args: argparse.Namespace) -> list[Parameter]:
     return out
 
 
+def drain(executor: SingleThreadedExecutor, node: RecorderNode) -> None:
+    """Write what is still queued: spin until no message for ``DRAIN_IDLE_S`` (at most ``DRAIN_MAX_S``)."""
+    end = time.monotonic() + DRAIN_MAX_S
+    while rclpy.ok() and time.monotonic() < end and not node.done:
+        if time.monotonic_ns() - node.last_message_ns > DRAIN_IDLE_S * 1e9:
+            break
+        executor.spin_once(timeout_sec=0.05)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``record``."""
     argv = list(sys.argv if argv is None else argv)
     args = build_parser().parse_args(remove_ros_args(argv)[1:])
-    rclpy.init(args=argv)
+    stop = init_with_stop_event(argv)
     node: RecorderNode | None = None
     code = 0
     try:
         node = RecorderNode(parameter_overrides=_overrides(args))
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        while rclpy.ok() and not node.done:
+        while rclpy.ok() and not node.done and not stop.is_set():
             executor.spin_once(timeout_sec=0.1)
+        drain(executor, node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (BagError, ValueError) as exc:

@@ -81,6 +81,11 @@ CHANNELS: dict[str, tuple[str, str]] = {
 
 #: QoS of sample topics: ROS 2 ``qos_profile_sensor_data`` (best effort, keep last 5, volatile).
 SAMPLE_QOS_DEPTH = 5
+#: Queue depth of the contract's sample *subscriptions* (≈ 0.2 s at 488 Hz): a Python subscriber
+#: that is not scheduled for a few tens of milliseconds on a loaded machine keeps every sample
+#: (with depth 5 it lost every sample older than 10 ms; docs/data_plane.md). Depth is local to
+#: the subscriber and does not affect QoS matching.
+SAMPLE_SUB_DEPTH = 100
 #: QoS of the command topic: reliable, keep last 10, volatile.
 COMMAND_QOS_DEPTH = 10
 

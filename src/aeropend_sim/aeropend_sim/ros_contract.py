@@ -22,7 +22,7 @@ from std_msgs.msg import Float64
 
 from aeropend_sim.contract import (
     COMMAND_QOS_DEPTH,
-    SAMPLE_QOS_DEPTH,
+    SAMPLE_SUB_DEPTH,
     ContractError,
     Sample,
     ns_to_stamp,
@@ -38,15 +38,29 @@ COMMAND_QOS = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
 )
 
-#: QoS for subscribing to samples: ``qos_profile_sensor_data`` (best effort, keep last 5).
-#: A best-effort subscriber matches both best-effort and reliable publishers.
+#: QoS for *publishing* samples in real time: ``qos_profile_sensor_data`` (best effort, keep
+#: last 5, volatile), what a hardware driver offers.
 SAMPLE_QOS = qos_profile_sensor_data
 
-#: QoS for *publishing* samples in lock-step mode: reliable so no sample is lost (a lost sample
-#: would stall the closed loop); still matched by :data:`SAMPLE_QOS` subscribers.
-SAMPLE_QOS_LOCKSTEP = QoSProfile(
+#: QoS for *subscribing* to samples: the policies of :data:`SAMPLE_QOS` (best effort, volatile;
+#: matches best-effort and reliable publishers) with a keep-last queue of ``SAMPLE_SUB_DEPTH``
+#: (100 ≈ 0.2 s) instead of 5, so a subscriber that is not scheduled for a while on a loaded
+#: machine does not lose the samples that arrived meanwhile (docs/data_plane.md).
+SAMPLE_SUB_QOS = QoSProfile(
     history=HistoryPolicy.KEEP_LAST,
-    depth=max(SAMPLE_QOS_DEPTH, 50),
+    depth=SAMPLE_SUB_DEPTH,
+    reliability=ReliabilityPolicy.BEST_EFFORT,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+#: QoS of the samples in lock-step mode, publishers and subscribers: reliable, **keep all**,
+#: volatile. With keep-all the plant's writer holds every sample until each matched reader has
+#: acknowledged it, and a reader never evicts a sample the application has not taken, so a
+#: subscriber that falls behind slows the lock-step loop down instead of losing samples (with
+#: keep-last 50 a recorder lagging 50 samples lost them; docs/data_plane.md). Still matched by
+#: :data:`SAMPLE_SUB_QOS` (best-effort) subscribers.
+SAMPLE_QOS_LOCKSTEP = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL,
     reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )

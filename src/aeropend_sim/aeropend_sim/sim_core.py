@@ -199,6 +199,9 @@ class SimSettings:
         Real-time mode: SCHED_FIFO priority (1-99) of the sampler thread; 0 = normal scheduling.
     effect_overrides : dict
         The effect switches that were overridden (for the startup log).
+    min_subscribers : int
+        Lock-step mode: sample 0 is published (and the run can start) only once ``joint_states``
+        has at least this many matched subscriptions (>= 1).
     """
 
     rig: Rig
@@ -210,6 +213,7 @@ class SimSettings:
     frame_id: str
     effect_overrides: dict[str, bool | str]
     rt_priority: int = 0
+    min_subscribers: int = 1
 
     @property
     def period_s(self) -> float:
@@ -229,6 +233,7 @@ def make_settings(
     publish_clock: Any = None,
     frame_id: Any = "aeropend",
     rt_priority: Any = 0,
+    min_subscribers: Any = 1,
     rig_loader: Callable[[str], Rig] = load_rig,
 ) -> SimSettings:
     """Validate the node parameters and build the simulation settings.
@@ -256,6 +261,8 @@ def make_settings(
         Non-empty frame id.
     rt_priority : int
         0 (normal scheduling) or a SCHED_FIFO priority 1-99 for the real-time sampler thread.
+    min_subscribers : int
+        Lock-step mode: matched ``joint_states`` subscriptions needed before sample 0 (>= 1).
     rig_loader : callable
         Loads a rig by name/path (injectable for tests).
 
@@ -299,9 +306,14 @@ def make_settings(
         0 <= rt_priority <= 99
     ):
         raise SimConfigError(f"rt_priority = {rt_priority!r}; expected an integer in [0, 99] (0 = off)")
+    if isinstance(min_subscribers, bool) or not isinstance(min_subscribers, int | np.integer) or (
+        min_subscribers < 1
+    ):
+        raise SimConfigError(f"min_subscribers = {min_subscribers!r}; expected an integer >= 1")
     return SimSettings(
         rig=rig_obj, mode=mode_s, seed=int(seed), x0=x0, command_timeout=timeout, publish_clock=clock,
         frame_id=frame_id.strip(), effect_overrides=overrides, rt_priority=int(rt_priority),
+        min_subscribers=int(min_subscribers),
     )
 
 

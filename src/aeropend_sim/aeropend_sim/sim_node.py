@@ -21,9 +21,10 @@ mode : str, default ``realtime``
     ``realtime``: one sample every ``rig.sample_period`` of wall time (dedicated thread with
     absolute deadlines), stamps = start + k·T_s in ROS time, latest command zero-order held,
     duty -> 0 after ``command_timeout`` without command, samples with ``SAMPLE_QOS``.
-    ``lockstep``: sample 0 at start (re-published every 0.5 s of wall time while idle), then
-    exactly one sample per valid command, stamped with simulated time k·T_s, ``/clock``
-    published, samples with the reliable ``SAMPLE_QOS_LOCKSTEP``.
+    ``lockstep``: sample 0 once ``min_subscribers`` subscriptions are matched on
+    ``joint_states`` (re-published every 0.5 s of wall time while idle), then exactly one sample
+    per valid command, stamped with simulated time k·T_s, ``/clock`` published, samples with the
+    reliable keep-all ``SAMPLE_QOS_LOCKSTEP``.
 seed : int, default 0
     Seed of the measurement noise.
 initial_theta : float [rad], initial_state : 5 floats
@@ -35,6 +36,12 @@ command_timeout : float [s], default 0.25
 publish_clock : bool
     Publish ``/clock`` (default true in lock-step mode, false in real-time mode).
 frame_id : str, default ``aeropend``
+min_subscribers : int, default 1
+    Lock-step mode: subscriptions that must be matched on ``joint_states`` before sample 0 is
+    published (besides every subscriber of either sample topic the ROS graph already shows). A
+    subscriber that matches later misses the samples before it (volatile QoS), so a lock-step
+    graph names its consumers here (the main job: the excitation and the recorder, 2). A
+    command that arrives earlier starts the run anyway.
 rt_priority : int, default 0
     Real-time mode: run the sampler thread with SCHED_FIFO at this priority (1-99; needs
     CAP_SYS_NICE or a suitable ``rtprio`` limit, else a warning and normal scheduling). Cuts
@@ -107,6 +114,7 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("command_timeout", DEFAULT_COMMAND_TIMEOUT_S, "realtime: duty -> 0 after this long without command [s]"),
     ("publish_clock", None, "publish /clock (default: true in lockstep, false in realtime)"),
     ("frame_id", "aeropend", "header.frame_id of the sample messages"),
+    ("min_subscribers", 1, "lockstep: matched joint_states subscriptions needed before sample 0 (int >= 1)"),
     ("rt_priority", 0, "realtime: SCHED_FIFO priority 1-99 of the sampler thread (0 = normal scheduling)"),
     ("timing_log", "", "realtime: .npz path for sample instants and command receipts (empty = off)"),
 )
@@ -155,6 +163,7 @@ class SimPlantNode(Node):
         self.plant: PlantClock | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._wait_timer: Any = None
         self._last_activity_ns = 0
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_subscription(Float64, TOPIC_DUTY_CYCLE, self._on_command, COMMAND_QOS)
@@ -180,10 +189,8 @@ class SimPlantNode(Node):
         if self.settings.mode == "lockstep":
             self.plant = PlantClock(self.settings, origin_ns=0)
             self._last_msgs = self._msgs(self.plant.last)
-            self._publish(self._last_msgs, self.plant.last.stamp_ns)
-            self.published += 1
-            self._last_activity_ns = time.monotonic_ns()
-            self.create_timer(0.1, self._republish_if_idle, clock=self._steady)
+            self._waiting_since_ns = time.monotonic_ns()
+            self._wait_timer = self.create_timer(0.005, self._start_when_matched, clock=self._steady)
         else:
             if self.settings.rt_priority > 0:  # the calling thread spins the executor (command receipt)
                 self._set_priority(max(self.settings.rt_priority - 1, 1), "executor thread")
@@ -193,6 +200,38 @@ class SimPlantNode(Node):
                 self._lock_memory()
             self._thread = threading.Thread(target=self._run_realtime, name="aeropend_sampler", daemon=True)
             self._thread.start()
+
+    def _matched(self) -> tuple[int, int]:
+        return self._pub_js.get_subscription_count(), self._pub_arm.get_subscription_count()
+
+    def _start_when_matched(self) -> None:
+        """Lock-step: publish sample 0 once the sample topics' subscribers are matched.
+
+        ``joint_states`` needs ``min_subscribers`` matched subscriptions, and each sample topic at
+        least as many as the ROS graph shows (a subscriber discovered but not yet matched would
+        miss sample 0 and what follows until it matches).
+        """
+        matched = self._matched()
+        known = (self.count_subscribers(TOPIC_JOINT_STATES), self.count_subscribers(TOPIC_ARMATURE))
+        need = (max(self.settings.min_subscribers, known[0]), known[1])
+        if matched[0] < need[0] or matched[1] < need[1]:
+            self.get_logger().info(
+                f"lock-step: waiting for subscriptions to match (joint_states {matched[0]} of {need[0]}, "
+                f"armature {matched[1]} of {need[1]}; min_subscribers {self.settings.min_subscribers})",
+                throttle_duration_sec=2.0,
+            )
+            return
+        self._publish_first_sample()
+
+    def _publish_first_sample(self) -> None:
+        assert self.plant is not None
+        self._wait_timer.cancel()
+        self._wait_timer = None
+        self.get_logger().info(f"lock-step: sample 0 published (matched subscriptions {self._matched()})")
+        self._publish(self._last_msgs, self.plant.last.stamp_ns)
+        self.published += 1
+        self._last_activity_ns = time.monotonic_ns()
+        self.create_timer(0.1, self._republish_if_idle, clock=self._steady)
 
     def stop(self) -> None:
         """Stop the sampler thread (idempotent)."""
@@ -215,6 +254,10 @@ class SimPlantNode(Node):
             self.timing.on_command(now, float(msg.data))
         if self.settings.mode == "lockstep":
             assert self.plant is not None
+            if self._wait_timer is not None:
+                self.get_logger().warn(f"lock-step: command before sample 0 (matched {self._matched()}); "
+                                       "starting the run")
+                self._publish_first_sample()
             sample = self.plant.advance(self.hold.value(now))
             self._last_msgs = self._msgs(sample)
             self._publish(self._last_msgs, sample.stamp_ns)

@@ -18,7 +18,13 @@ Signal arguments other than ``signal``/``seed`` take their defaults (see
 """
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
+from launch.actions import (
+    DeclareLaunchArgument,
+    EmitEvent,
+    OpaqueFunction,
+    RegisterEventHandler,
+    SetEnvironmentVariable,
+)
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
@@ -33,6 +39,9 @@ ARGUMENTS = (
     ("noise", "", "true/false: sensor noise + quantisation on/off (empty: as in the rig file)"),
     ("output", "", "bag directory (empty: recorder default aeropend_<date>)"),
     ("storage", "mcap", "bag storage: mcap | sqlite3"),
+    ("discovery_range", "LOCALHOST",
+     "ROS_AUTOMATIC_DISCOVERY_RANGE of the demo's nodes: LOCALHOST keeps its DDS traffic on "
+     "this host; SUBNET / SYSTEM_DEFAULT for a lab network"),
 )
 
 
@@ -41,6 +50,8 @@ def _nodes(context, *args, **kwargs):
     lockstep = value["mode"] == "lockstep"
     seed = int(value["seed"])
     plant_params = {"rig": value["rig"], "mode": value["mode"], "seed": seed}
+    if lockstep:  # sample 0 waits for both sample consumers (excitation, recorder)
+        plant_params["min_subscribers"] = 2
     if value["noise"]:
         plant_params["noise"] = value["noise"].strip().lower() in ("true", "1", "yes", "on")
     # wait for plant + recorder on the duty topic so the bag starts at sample 0
@@ -75,5 +86,6 @@ def generate_launch_description():
     return LaunchDescription(
         [DeclareLaunchArgument(name, default_value=default, description=doc)
          for name, default, doc in ARGUMENTS]
-        + [OpaqueFunction(function=_nodes)]
+        + [SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", LaunchConfiguration("discovery_range")),
+           OpaqueFunction(function=_nodes)]
     )
