@@ -30,6 +30,8 @@ def test_crc_check_value_and_vectors() -> None:
     assert proto.crc16(b"123456789") == 0x29B1
     for v in VECTORS["crc16"]:
         assert proto.crc16(bytes.fromhex(v["data"])) == v["crc"], v
+    # continuing from a previous result equals checking the concatenation (streaming use)
+    assert proto.crc16(b"56789", proto.crc16(b"1234")) == 0x29B1
 
 
 def test_cobs_vectors_round_trip() -> None:
