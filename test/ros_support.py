@@ -13,7 +13,6 @@ import this module. Benchmarks import it after ``sys.path.insert(0, str(ROOT / "
 from __future__ import annotations
 
 import os
-import random
 import re
 import shutil
 import signal
@@ -26,6 +25,8 @@ from typing import TYPE_CHECKING
 
 import pytest
 
+from aeropend_sim.domain import DomainClaim, DomainError, claim_domain
+
 if TYPE_CHECKING:
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
@@ -35,16 +36,19 @@ BIN = Path(sys.executable).parent
 #: Localhost-only discovery: parallel runs on other domains and other hosts do not interfere.
 DISCOVERY = {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
 
+#: Domain claims of this process (released by the kernel when it exits).
+_CLAIMS: list[DomainClaim] = []
 _SUMMARY_LINE = re.compile(r"summary: (.*)")
 _SUMMARY_FIELD = re.compile(r"(\w+)=([\w.]+)")
 
 
 def random_domain(first: int = 1, last: int = 100) -> int:
-    """A ROS_DOMAIN_ID drawn uniformly from ``first..last`` (both included).
+    """A ROS_DOMAIN_ID in ``first..last`` claimed for the rest of this process.
 
-    Drawn from the OS entropy source, so a seeded global ``random`` (hypothesis, a benchmark
-    seed) cannot make two concurrent runs draw the same sequence. Files that may run at the
-    same time as a benchmark keep apart by range (1..100 and 101..200).
+    The ID is drawn from the OS entropy source among the IDs no other aeropend process on this
+    host holds (:func:`aeropend_sim.domain.claim_domain`: a lock file per ID), so a test and a
+    benchmark running at the same time never share a domain (two random draws did once and saw
+    each other's commands). The claim is kept until this process exits.
 
     Parameters
     ----------
@@ -59,11 +63,14 @@ def random_domain(first: int = 1, last: int = 100) -> int:
     Raises
     ------
     ValueError
-        If the bounds are outside 0..232 or ``first > last``.
+        If the bounds are outside 0..232, ``first > last`` or every ID in the range is claimed.
     """
-    if not 0 <= first <= last <= 232:
-        raise ValueError(f"domain range {first}..{last}: expected 0 <= first <= last <= 232")
-    return random.SystemRandom().randint(first, last)
+    try:
+        claim = claim_domain(first, last)
+    except DomainError as exc:
+        raise ValueError(str(exc)) from exc
+    _CLAIMS.append(claim)
+    return claim.domain_id
 
 
 def isolated_env(domain: int) -> dict[str, str]:

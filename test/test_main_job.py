@@ -22,10 +22,11 @@ def test_main_job_records_every_sample_and_reports(tmp_path, monkeypatch):
     rec = read_bag(tmp_path / "run_bag")
     # lock-step: the bag holds every sample from rest, one per command, on the 2.048 ms grid
     assert summary["recording"]["gaps"] == 0
-    # every sample the plant published is in the bag, in one run (no repeat; docs/data_plane.md);
-    # read_bag ends one sample early: the last sample has no command after it (its duty is unknown)
+    # every sample the plant published is in the bag, in one run (no repeat; docs/data_plane.md):
+    # sample 0 and one per command, the last one included
     assert summary["recording"]["complete"] is True
-    assert summary["recording"]["recorded"] == summary["recording"]["published"] == len(rec) + 1
+    assert summary["recording"]["recorded"] == summary["recording"]["published"] == len(rec)
+    assert rec.meta["message_counts"]["/aeropend/duty_cycle"] == len(rec) - 1
     assert rec.channels["theta"][0] == 0.0
     dt = rec.t[1:] - rec.t[:-1]
     assert abs(dt.max() - 2.048e-3) < 1e-9 and abs(dt.min() - 2.048e-3) < 1e-9

@@ -4,7 +4,8 @@ Steps (each node is a separate process, exactly as a lab would run them):
 
 1. ``record`` (rosbags recorder), ``sim_node`` (simulated plant, lock-step or real time) and
    ``excitation`` (thesis §5.1 Latin-hypercube duty-cycle steps by default) on a private
-   ``ROS_DOMAIN_ID``;
+   ``ROS_DOMAIN_ID`` (claimed in 100..200 unless set; :mod:`aeropend_sim.domain`) with
+   localhost-only discovery unless ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is set;
 2. when the excitation has sent its last command, the recorder and the plant are stopped with
    SIGINT (clean shutdown, valid bag);
 3. the bag is read back (``aeropend_ident.bags.read_bag``) and the grey-box baseline
@@ -23,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import random
 import re
 import shutil
 import signal
@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from aeropend_ident.bags import BagError, read_bag
+from aeropend_sim.domain import claim_domain
 
 #: Default excitation: thesis §5.1 Latin-hypercube steps (10 steps, τ ∈ [0.3, 0.8], 1-3 s each).
 DEFAULT_SIGNAL = ["signal:=lhs", "n:=10", "tau_min:=0.3", "tau_max:=0.8", "hold_min:=1.0",
@@ -104,7 +105,10 @@ def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: li
     if bag.exists():
         shutil.rmtree(bag)
     env = dict(os.environ)
-    env.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(100, 200)))
+    # a private domain unless the user chose one: claimed, so concurrent aeropend runs never share it
+    claim = None if "ROS_DOMAIN_ID" in env else claim_domain(100, 200)
+    if claim is not None:
+        env["ROS_DOMAIN_ID"] = str(claim.domain_id)
     # the demo's DDS traffic stays on this host unless the user chose otherwise (Jazzy variable)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
@@ -123,8 +127,7 @@ def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: li
     excitation = Stage("excitation", [*_exe("excitation"), "--ros-args", *exc_args], logs / "excitation.log")
     stages = [recorder, plant, excitation]
     try:
-        recorder.start(env)
-        time.sleep(1.0)  # let the recorder discover the graph before the first sample
+        recorder.start(env)  # no head start needed: sample 0 waits for the recorder's subscription
         plant.start(env)
         excitation.start(env)
         t0 = time.monotonic()
@@ -142,6 +145,8 @@ def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: li
     finally:
         for st in reversed(stages):  # the plant first (its summary counts what it published), then
             st.stop()                # the recorder, which writes what is still queued before closing
+        if claim is not None:
+            claim.release()
     if not (bag / "metadata.yaml").is_file():
         raise PipelineError(f"the recorder left no valid bag at {bag}; see {recorder.log}")
     return bag
