@@ -140,10 +140,16 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict
     cpu0 = _cpu_busy()
     with tempfile.TemporaryDirectory() as tmp:
         trace, timing_file = Path(tmp) / "trace.csv", Path(tmp) / "timing.npz"
-        sim = subprocess.Popen(
-            [*rt, *node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", "mode:=realtime",
-             "-p", f"rt_priority:={rt_priority}", "-p", f"timing_log:={timing_file}"],
-            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        # the plant's output goes to a file: a pipe read only at the end fills up (64 KiB) during a
+        # long run and then blocks the plant's next log call (docs/data_plane.md)
+        sim_log = Path(tmp) / "sim_node.log"
+        with sim_log.open("w") as f:
+            sim = subprocess.Popen(
+                [*rt, *node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args",
+                 "-p", "mode:=realtime", "-p", f"rt_priority:={rt_priority}",
+                 "-p", f"timing_log:={timing_file}",
+                 "-p", f"timing_capacity:={int(duration * 600) + 10_000}"],
+                env=env, stdout=f, stderr=subprocess.STDOUT, text=True)
         ctl = None
         try:
             time.sleep(1.0)
@@ -155,11 +161,12 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict
                 env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
             ctl_out, _ = ctl.communicate(timeout=duration + 60)
             time.sleep(0.2)
-            sim_out = stop(sim, signal.SIGTERM, timeout=15).stdout
+            stop(sim, signal.SIGTERM, timeout=15)
         finally:
             reap(ctl, sim)
         rows = list(csv.reader(trace.open()))
         timing = dict(np.load(timing_file))
+        sim_out = sim_log.read_text(errors="replace")
     cpu1 = _cpu_busy()
     load1 = os.getloadavg()
     assert tuple(rows[0]) == SIGNALS, rows[0]

@@ -159,35 +159,53 @@ def run_stream(duration: float, rt_priority: int, depth: int, tmp: Path) -> dict
     outs = [tmp / f"listener{i}.npz" for i in range(2)]
     capacity = int(duration * 600) + 10_000
     cmd = [*node_command("sim_node"), "--ros-args", "-p", "mode:=realtime", "-p", "noise:=true",
-           "-p", f"timing_log:={timing}", "-p", f"rt_priority:={rt_priority}"]
-    plant = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    subs = [subprocess.Popen([sys.executable, __file__, "--listener", str(o), "--capacity", str(capacity),
-                              "--sub-depth", str(depth)],
-                             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-            for o in outs]
+           "-p", f"timing_log:={timing}", "-p", f"timing_capacity:={capacity}",
+           "-p", f"rt_priority:={rt_priority}"]
+    # node output goes to files: a pipe nobody reads during a long run fills up (64 KiB) and then
+    # blocks the node's next log call (it stopped the plant's samples after ≈ 10 min once)
+    plant_log = tmp / "sim_node.log"
+    with plant_log.open("w") as f:
+        plant = subprocess.Popen(cmd, env=env, stdout=f, stderr=subprocess.STDOUT, text=True)
+    subs = []
+    for i, o in enumerate(outs):
+        with (tmp / f"listener{i}.log").open("w") as f:
+            subs.append(subprocess.Popen([sys.executable, __file__, "--listener", str(o), "--capacity",
+                                          str(capacity), "--sub-depth", str(depth)],
+                                         env=env, stdout=f, stderr=subprocess.STDOUT, text=True))
     try:
         time.sleep(duration + 3.0)  # discovery and matching, then the measured stretch
+        stop_ns = time.monotonic_ns()
         for s in subs:
             stop(s, signal.SIGINT, timeout=30)
-        done = stop(plant, signal.SIGINT, timeout=30)
+        stop(plant, signal.SIGINT, timeout=30)
     finally:
         for p in (*subs, plant):
             if p.poll() is None:
                 p.kill()
                 p.communicate()
-    fields = summary_fields(done.stderr + done.stdout)
+    log = plant_log.read_text(errors="replace")
+    fields = summary_fields(log)
     t = np.load(timing)
     ps, pt = t["stamp_ns"], t["taken_ns"]
     late = np.diff(pt)
+    published = int(fields.get("samples", -1))
     run: dict[str, Any] = {
-        "plant_published": int(ps.size), "plant_overruns": int(fields.get("overruns", -1)),
+        # the plant's own count (its summary) and how many of those its timing log holds
+        "plant_published": published, "plant_logged": int(ps.size),
+        "plant_overruns": int(fields.get("overruns", -1)),
         "plant_longest_sample_interval_ms": float(late.max() / 1e6) if late.size else 0.0,
+        # the sampler must have run to the end: its last sample taken just before the stop
+        "plant_last_sample_before_stop_s": round((stop_ns - int(pt[-1])) / 1e9, 3) if pt.size else None,
+        "plant_errors": [ln for ln in log.splitlines() if "ERROR" in ln or "stopped at sample" in ln][:5],
         "subscribers": [],
     }
     for o in outs:
         d = np.load(o)
         run["subscribers"].append(stream_stats(d["stamp_ns"], d["recv_ns"], ps, pt))
-    run["ok"] = all(s["stalls"] == 0 and s["fraction"] >= 0.999 for s in run["subscribers"])
+    last = run["plant_last_sample_before_stop_s"]
+    alive = last is not None and last < 1.0
+    run["ok"] = alive and not run["plant_errors"] and all(
+        s["stalls"] == 0 and s["fraction"] >= 0.999 for s in run["subscribers"])
     return run
 
 
@@ -213,13 +231,14 @@ def run_lockstep(tmp: Path, seed: int) -> dict[str, Any]:
                 os.environ[k] = v
     seconds = time.monotonic() - t0
     published = plant_sample_count(tmp / "logs" / "sim_node.log")
-    recorded, longest, stalls, where, first_k = 0, 0.0, 0, [], -1
+    recorded, longest, stalls, where, first_k, last_k = 0, 0.0, 0, [], -1, -1
     if bag is not None:
         try:
             rec = read_bag(bag, require_duty=False)
-            stamps = np.round(rec.t * 1e9).astype(np.int64)
+            # lock-step stamps are k·T_s of simulated time from 0: the sample index is the stamp
+            stamps = rec.stamp0_ns + np.round(rec.t * 1e9).astype(np.int64)
             recorded = int(stamps.size)
-            first_k = int(stamps[0] // PERIOD_NS) if stamps.size else -1
+            first_k, last_k = (int(stamps[i]) // PERIOD_NS for i in (0, -1))
             g, stalls, idx = gaps(stamps, STALL_NS)
             longest = g / 1e6
             where = [[round(stamps[i] * 1e-9, 3), round((stamps[i + 1] - stamps[i]) * 1e-6, 1)] for i in idx]
@@ -228,7 +247,7 @@ def run_lockstep(tmp: Path, seed: int) -> dict[str, Any]:
     # the plant's last sample (no command after it) counts: it was published and must be recorded
     return {"published": published, "recorded": recorded, "lost": (published or 0) - recorded,
             "longest_stamp_gap_ms": longest, "stalls": stalls, "stall_at_s_ms": where,
-            "first_recorded_sample": first_k,
+            "first_recorded_sample": first_k, "last_recorded_sample": last_k,
             "seconds": round(seconds, 1),
             "error": error, "ok": not error and published is not None and recorded == published}
 
@@ -250,8 +269,8 @@ def render(result: dict[str, Any]) -> str:
     lines += ["", "| scenario | hog | run | figures |", "|---|---|---|---|"]
     for r in result["runs"]:
         if r["scenario"] == "lockstep":
-            fig = (f"published {r['published']}, recorded {r['recorded']} (first: sample "
-                   f"{r.get('first_recorded_sample', '?')}), longest gap "
+            span = f"{r.get('first_recorded_sample', '?')}..{r.get('last_recorded_sample', '?')}"
+            fig = (f"published {r['published']}, recorded {r['recorded']} (samples {span}), longest gap "
                    f"{r['longest_stamp_gap_ms']:.1f} ms, stalls {r['stalls']}, {r['seconds']} s"
                    + (f", error: {r['error'][:80]}" if r["error"] else ""))
         else:

@@ -54,6 +54,9 @@ timing_log : str, default ``""``
     received (:class:`~aeropend_sim.sim_core.CommandTiming`); the summary line then adds the
     sample → command-receipt latency (p50/p99/max) and the number of unanswered samples, and the
     arrays are written to this path (.npz) on exit. Empty = off.
+timing_capacity : int, default 2^18
+    Samples (and commands) the timing log keeps (2^18 ≈ 9 min at 488 Hz; later entries are only
+    counted). Raise it for longer timed runs (32 bytes per entry).
 
 Invalid parameters log an error naming the value and exit with status 2. Invalid commands
 (NaN, outside [0, 1]) are rejected, counted and logged (throttled); the plant keeps running.
@@ -117,6 +120,7 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("min_subscribers", 1, "lockstep: matched joint_states subscriptions needed before sample 0 (int >= 1)"),
     ("rt_priority", 0, "realtime: SCHED_FIFO priority 1-99 of the sampler thread (0 = normal scheduling)"),
     ("timing_log", "", "realtime: .npz path for sample instants and command receipts (empty = off)"),
+    ("timing_capacity", 1 << 18, "realtime: samples and commands the timing log keeps (int >= 1)"),
 )
 
 
@@ -142,6 +146,7 @@ class SimPlantNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         raw = declare_parameter_table(self, PARAMETERS)
         self.timing_log = str(raw.pop("timing_log") or "")
+        timing_capacity = raw.pop("timing_capacity")
         try:
             self.settings = make_settings(**raw)
         except SimConfigError:
@@ -155,7 +160,12 @@ class SimPlantNode(Node):
         self._pub_clock = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS) if s.publish_clock else None
         timeout_ns = None if lockstep else round(s.command_timeout * 1e9)
         self.hold = CommandHold(timeout_ns)
-        self.timing = CommandTiming() if self.timing_log and not lockstep else None
+        try:
+            self.timing = CommandTiming(int(timing_capacity)) if self.timing_log and not lockstep else None
+        except (SimConfigError, TypeError, ValueError) as exc:
+            self.destroy_node()
+            raise SimConfigError(
+                f"timing_capacity = {timing_capacity!r}: expected an int >= 1 ({exc})") from exc
         self.published = 0
         self.republished = 0
         self.error: BaseException | None = None
@@ -164,6 +174,8 @@ class SimPlantNode(Node):
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._wait_timer: Any = None
+        self._last_overrun = (0, 0)  # (sample, lateness [ns]) of the sampler's latest overrun
+        self._reported = (0, 0)  # overruns and command timeouts already logged
         self._last_activity_ns = 0
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_subscription(Float64, TOPIC_DUTY_CYCLE, self._on_command, COMMAND_QOS)
@@ -200,6 +212,29 @@ class SimPlantNode(Node):
                 self._lock_memory()
             self._thread = threading.Thread(target=self._run_realtime, name="aeropend_sampler", daemon=True)
             self._thread.start()
+            self.create_timer(LOG_THROTTLE_S, self._report_sampler, clock=self._steady)
+
+    def _report_sampler(self) -> None:
+        """Log the sampler's new overruns and command timeouts (executor thread).
+
+        The sampler thread itself never logs: a log call writes to the console synchronously,
+        and a console that is not read (a full stderr pipe, a paused terminal) would block the
+        sampling; a parent that never read the plant's stderr stopped its samples after
+        ≈ 10 min (docs/data_plane.md).
+        """
+        sched = self.schedule
+        if sched is not None and sched.overruns != self._reported[0]:
+            k, late = self._last_overrun
+            self.get_logger().warn(
+                f"sampler overruns: {sched.overruns - self._reported[0]} in the last {LOG_THROTTLE_S:g} s "
+                f"(last: sample {k} {late / 1e6:.2f} ms late, > 1 period "
+                f"{sched.period_ns / 1e6:.3f} ms; schedule re-anchored); overruns so far "
+                f"{sched.overruns}, stamps now lag wall time by {sched.dropped_ns / 1e6:.1f} ms")
+        if self.hold.timeouts != self._reported[1]:
+            self.get_logger().warn(
+                f"no duty command for {self.settings.command_timeout:g} s: duty -> 0 "
+                f"(timeouts so far: {self.hold.timeouts})")
+        self._reported = (sched.overruns if sched is not None else 0, self.hold.timeouts)
 
     def _matched(self) -> tuple[int, int]:
         return self._pub_js.get_subscription_count(), self._pub_arm.get_subscription_count()
@@ -318,24 +353,12 @@ class SimPlantNode(Node):
                 overruns = sched.overruns
                 late = sched.on_wake(k, now)
                 if sched.overruns != overruns:
-                    log.warn(
-                        f"sampler overrun: sample {k} {late / 1e6:.2f} ms late (> 1 period "
-                        f"{period_ns / 1e6:.3f} ms); schedule re-anchored; overruns so far "
-                        f"{sched.overruns}, stamps now lag wall time by {sched.dropped_ns / 1e6:.1f} ms",
-                        throttle_duration_sec=LOG_THROTTLE_S,
-                    )
+                    self._last_overrun = (k, late)  # logged by _report_sampler, never from here
                 if self.timing is not None:
                     self.timing.on_sample(stamp, now)
                 self._publish(msgs, stamp)
                 self.published += 1
-                was_timed_out = self.hold.timed_out
-                duty = self.hold.value(now)
-                if self.hold.timed_out and not was_timed_out:
-                    log.warn(
-                        f"no duty command for {self.settings.command_timeout:g} s: duty -> 0 "
-                        f"(timeouts so far: {self.hold.timeouts})"
-                    )
-                sample = plant.advance(duty)
+                sample = plant.advance(self.hold.value(now))
                 msgs, stamp = self._msgs(sample), sample.stamp_ns
                 k += 1
         except Exception as exc:
