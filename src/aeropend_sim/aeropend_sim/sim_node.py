@@ -215,12 +215,13 @@ class SimPlantNode(Node):
             self.create_timer(LOG_THROTTLE_S, self._report_sampler, clock=self._steady)
 
     def _report_sampler(self) -> None:
-        """Log the sampler's new overruns and command timeouts (executor thread).
+        """Log the sampler's new overruns and command timeouts, at most once a second.
 
-        The sampler thread itself never logs: a log call writes to the console synchronously,
-        and a console that is not read (a full stderr pipe, a paused terminal) would block the
-        sampling; a parent that never read the plant's stderr stopped its samples after
-        ≈ 10 min (docs/data_plane.md).
+        Runs on the executor thread, so the sampler's loop holds no logging code. It does not make
+        the plant immune to a console nobody reads: rclpy's log call keeps the GIL while it writes,
+        so a full stderr pipe freezes every thread of the process (docs/data_plane.md,
+        ``bench/repro_unread_stderr.py``). Whoever starts the node must read its output (launch,
+        a terminal, the main job's log files).
         """
         sched = self.schedule
         if sched is not None and sched.overruns != self._reported[0]:
