@@ -52,10 +52,11 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.csv_import import import_csv, import_csv_runs
-from aeropend_ident.gap_cli import resolve_rig, to_uniform
+from aeropend_ident.gap_cli import resolve_rig
 from aeropend_ident.gap_report import fig_effects, fig_equations, fig_overlay, run_gap, write_report
 from aeropend_ident.gap_split import informative, interleaved_blocks, time_ordered
 from aeropend_ident.jsonutil import jsonable
+from aeropend_ident.recording_input import uniform_recording
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
@@ -71,7 +72,7 @@ THESIS_STEP = {"duty": 0.4314, "tr": 0.43, "tp": 0.84, "ts": 3.53, "theta_ss": 0
 
 
 def _csv(rel: str, preset: str) -> Recording:
-    return to_uniform(import_csv(REAL / rel, preset))
+    return uniform_recording(import_csv(REAL / rel, preset))
 
 
 def _split(rec: Recording, frac: float = 0.7) -> tuple[list[Recording], list[Recording], str]:

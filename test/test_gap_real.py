@@ -18,9 +18,10 @@ from pathlib import Path
 import pytest
 
 from aeropend_ident.csv_import import import_csv, import_csv_runs
-from aeropend_ident.gap_cli import main, resolve_rig, to_uniform
+from aeropend_ident.gap_cli import main, resolve_rig
 from aeropend_ident.gap_split import informative, interleaved_blocks
 from aeropend_ident.gap_where import locate_gap
+from aeropend_ident.recording_input import uniform_recording
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 AEROSHIELD = REAL / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"
@@ -43,7 +44,7 @@ pytestmark = [
 )
 def test_where_on_real_angle_only_logs(path, preset, rig):
     nominal, offset = resolve_rig(rig)
-    rec = to_uniform(import_csv(path, preset))
+    rec = uniform_recording(import_csv(path, preset))
     rep = locate_gap(nominal, [rec], theta_offset=offset)
     r = rep.recordings[0]
     assert rep.significant  # every nominal model misses something on real data
@@ -98,7 +99,8 @@ def test_aeroshield_blocks_three_effects_halve_the_held_out_gap():
     from aeropend_ident.gap_report import run_gap
 
     nominal, _ = resolve_rig("aeroshield_rig")
-    fit, held, _rule = interleaved_blocks([to_uniform(import_csv(AEROSHIELD, "aeroshield_ident"))], 12.0)
+    rec = uniform_recording(import_csv(AEROSHIELD, "aeroshield_ident"))
+    fit, held, _rule = interleaved_blocks([rec], 12.0)
     assert (len(fit), len(held)) == (4, 2)
     res = run_gap(nominal, fit, held, max_effects=3)
     d = res.diagnosis
@@ -125,11 +127,11 @@ def test_jahoyosr_diagnosis_carries_to_another_session():
     from aeropend_ident.gap_report import run_gap
 
     nominal, offset = resolve_rig("jahoyosr_rig")
-    hoja3 = to_uniform(import_csv(HOJA3, "jahoyosr_hoja3"))
+    hoja3 = uniform_recording(import_csv(HOJA3, "jahoyosr_hoja3"))
     fit, _held, _rule = interleaved_blocks([hoja3], 20.0, min_range=0.02)
     runs = import_csv_runs(HOJA3.parent / "sheet_datosEscalones_colsAB_pwm_steps_no_time.csv",
                            "jahoyosr_escalones", "block", min_samples=200)
-    st = to_uniform(import_csv(HOJA3.parent / "sheet_datosEscalones_colsST_pwm_steps_no_time.csv",
+    st = uniform_recording(import_csv(HOJA3.parent / "sheet_datosEscalones_colsST_pwm_steps_no_time.csv",
                                "jahoyosr_escalones"))
     held = [r for r in (*runs, st) if informative(r, 0.02)]
     assert (len(runs), len(held)) == (15, 10)  # 5 pieces on the lower stop, 1 at constant PWM

@@ -70,7 +70,7 @@ def test_identify_angle_only_bag_and_errors(noisy_run, tmp_path, capsys) -> None
     assert summary["thrust_map"]["time_constant_s"] == 0.0
     assert "not identified (i_a)" in capsys.readouterr().out
     assert main([str(tmp_path / "missing_bag"), "--out", str(tmp_path / "r2")]) == 2
-    assert "no such bag or CSV file" in capsys.readouterr().err
+    assert "missing_bag does not exist" in capsys.readouterr().err
 
 
 def test_identify_weak_iv_output_error_on_the_design(tmp_path, capsys) -> None:

@@ -33,7 +33,8 @@ setup(
             'baseline = aeropend_ident.baseline_cli:main',
             'pipeline = aeropend_ident.pipeline:main',
             'identify = aeropend_ident.identify:main',
-            'gap = aeropend_ident.gap_cli:main'
+            'gap = aeropend_ident.gap_cli:main',
+            'compare = aeropend_ident.compare_cli:main'
         ],
     },
 )

@@ -5,10 +5,10 @@ Usage::
     baseline INPUT --rig RIG -o OUTDIR [--preset NAME] [--train-fraction 0.7]
              [--params NAME [NAME ...]] [--theta-offset RAD] [--init-horizon S] [--decimate K]
 
-``INPUT`` is a rosbag2 directory (or ``.mcap`` / ``.db3`` file) read with
-:func:`aeropend_ident.bags.read_bag`, or a CSV log (``.csv`` / ``.csv.gz`` / ``.txt``) read with
-:func:`aeropend_ident.csv_import.import_csv` and a preset (``--preset NAME``, or ``auto`` to pick
-it from the file name). ``RIG`` is a shipped rig name or a rig-file path. The report folder gets
+``INPUT`` is a rosbag2 directory (or ``.mcap`` / ``.db3`` file) or a CSV log with its preset
+(``FILE.csv:PRESET``, else ``--preset NAME``, else picked by file name), read by
+:func:`aeropend_ident.recording_input.load_recording`. ``RIG`` is a shipped rig name or a rig-file
+path. The report folder gets
 ``report.json``, ``overlay.png`` and ``fitted_rig.yaml`` (see :mod:`aeropend_ident.baseline`).
 
 Exit status: 0 on success, 2 on bad input (the message names the problem).
@@ -23,45 +23,9 @@ from pathlib import Path
 
 from aeropend_ident.baseline import INIT_HORIZON, baseline, write_report
 from aeropend_ident.greybox import IdentificationError
+from aeropend_ident.recording_input import load_recording
 from aeropend_sim.params import RigFileError
-from aeropend_sim.recording import Recording, RecordingError
-
-_CSV_SUFFIXES = (".csv", ".gz", ".txt")
-
-
-def load_input(path: str | Path, preset: str | None) -> Recording:
-    """Read ``path`` as a bag (directory, ``.mcap``, ``.db3``) or a CSV with a preset.
-
-    Raises
-    ------
-    ValueError
-        (:class:`~aeropend_ident.bags.BagError`, :class:`~aeropend_ident.csv_import.CsvImportError`
-        or a plain ValueError) if the input does not exist, the preset is missing or unknown, or
-        the file cannot be read.
-    """
-    p = Path(path)
-    if not p.exists():
-        raise ValueError(f"input {p} does not exist; expected a bag directory or a .csv file")
-    if p.is_dir() or p.suffix in (".mcap", ".db3"):
-        from aeropend_ident.bags import read_bag
-
-        return read_bag(p)
-    if p.suffix in _CSV_SUFFIXES:
-        from aeropend_ident.csv_import import PRESETS, find_preset, import_csv
-
-        name = preset
-        if name is None or name == "auto":
-            name = find_preset(p)
-            if name is None:
-                raise ValueError(
-                    f"{p.name}: no preset matches this file name; pass --preset NAME "
-                    f"(one of {sorted(PRESETS)})"
-                )
-        if name not in PRESETS:
-            raise ValueError(f"unknown preset {name!r}; expected one of {sorted(PRESETS)}")
-        return import_csv(p, name)
-    raise ValueError(f"input {p}: unknown kind (suffix {p.suffix!r}); expected a bag directory, .mcap, "
-                     ".db3 or .csv")
+from aeropend_sim.recording import RecordingError
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -71,11 +35,12 @@ def build_parser() -> argparse.ArgumentParser:
         description="Grey-box baseline: fit a rig's nominal model on the first part of a recording "
                     "(output error, free run), replay the held-out rest, report NRMSE nominal vs fitted.",
     )
-    p.add_argument("input", type=Path, help="bag directory (.mcap/.db3) or CSV log")
+    p.add_argument("input", help="bag directory (.mcap/.db3) or CSV log, optionally FILE.csv:PRESET")
     p.add_argument("--rig", required=True, help="shipped rig name (e.g. jahoyosr_rig) or rig-file path")
     p.add_argument("-o", "--out", required=True, type=Path, help="report folder (created)")
     p.add_argument("--preset", default=None,
-                   help="CSV preset of aeropend_ident.csv_import ('auto' = by file name)")
+                   help="CSV preset of aeropend_ident.csv_import when INPUT has no :PRESET "
+                        "('auto' = by file name)")
     p.add_argument("--train-fraction", type=float, default=0.7,
                    help="leading fraction used for fitting (0-1)")
     p.add_argument("--params", nargs="+", default=None, metavar="NAME",
@@ -93,7 +58,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the baseline; print the summary; write the report folder."""
     args = build_parser().parse_args(argv)
     try:
-        rec = load_input(args.input, args.preset)
+        rec = load_recording(args.input, args.preset)
         result = baseline(
             rec, args.rig, train_fraction=args.train_fraction, params=args.params,
             theta_offset=args.theta_offset, init_horizon=args.init_horizon or None, decimate=args.decimate,

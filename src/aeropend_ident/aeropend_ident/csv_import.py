@@ -365,6 +365,32 @@ PRESETS: dict[str, CsvSpec] = {
             "angle_reference": "0 = pitch level at rest (encoder zero at start)",
         },
     ),
+    "dondi01_aero2": CsvSpec(
+        name="dondi01_aero2",
+        time_col="t", time_unit="s",
+        input_col="m0_voltage_cmd", input_kind="voltage", supply_voltage=24.0,
+        angle_col="pitch", angle_unit="rad",
+        channels={
+            "i_a": ("m0_current", 1.0),
+            "omega_rotor": ("m0_speed", 1.0),
+            "v_a": ("m0_voltage_cmd", 1.0),
+        },
+        meta={
+            "files": ["NO_WEIGHTS_*.csv", "WEIGHT_*.csv", "SATURATION_ANGLE.csv", "FREE_MOTION*.csv"],
+            "rig": "Quanser Aero 2, 1-DOF pitch, rotor m0 driven (m1 unpowered); QUARC log at 500 Hz",
+            "provenance": "https://github.com/dondi01/quanser_aero2_project @ "
+                          "1e6af14b102da03f58f400fe2aab3268b1b7ff74, experiments_data/*.mat (converted; "
+                          "data README section 2)",
+            "licence": _NO_LICENCE,
+            "input_note": "m0_voltage_cmd is the COMMANDED constant voltage (a step from rest at t = 0); "
+                          "duty = V / 24 V (Aero 2 amplifier full scale, presumed). NO_WEIGHTS_4V reads "
+                          "8 V; SATURATION_ANGLE reads 24 V with the motor effectively off (current and "
+                          "speed ~0): its duty is not what was applied",
+            "channel_note": "omega_rotor = m0_speed in rad/s PRESUMED (unit unverified: 108 at 8 V where "
+                            "k = 0.042 V s/rad predicts ~165)",
+            "angle_reference": "0 = pitch at the start of the log",
+        },
+    ),
 }
 
 

@@ -9,9 +9,9 @@ Usage::
         [--validation RECORDING ... | --validation-fraction 0.3]
         [--max-effects 2 (1-3)] [--horizon 0.2] [--theta-offset RAD] [--seed 0]
 
-``RECORDING`` is a rosbag2 directory (or ``.mcap`` / ``.db3``) read with
-:func:`aeropend_ident.bags.read_bag`, or a CSV log read with
-:func:`aeropend_ident.csv_import.import_csv` and ``--preset NAME`` (``auto``: by file name).
+``RECORDING`` is a rosbag2 directory (or ``.mcap`` / ``.db3``) or a CSV log with its own preset
+(``FILE.csv:PRESET``; else ``--preset NAME``; else picked by file name), read by
+:func:`aeropend_ident.recording_input.load_recording`, so formats can be mixed in one call.
 ``RIG`` is a shipped rig name (``thesis_rig``, ``jahoyosr_rig``, ...) or a rig-file path.
 
 Held-out rule: ``--held-out FILES`` keeps those recordings for the check only (the positional
@@ -41,9 +41,9 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_ident.baseline_cli import load_input
 from aeropend_ident.gap_split import interleaved_blocks, time_ordered
-from aeropend_ident.greybox import IdentificationError, rig_theta_offset, uniform_data
+from aeropend_ident.greybox import IdentificationError, rig_theta_offset
+from aeropend_ident.recording_input import load_recording, split_preset, uniform_recording
 from aeropend_sim.params import RigFileError, load_rig, shipped_rigs
 from aeropend_sim.recording import Recording, RecordingError
 
@@ -53,41 +53,6 @@ MIN_PART_SAMPLES = 200
 
 class GapCliError(ValueError):
     """A command-line input the gap tool cannot use."""
-
-
-def to_uniform(rec: Recording) -> Recording:
-    """The recording on a uniform grid (θ, channels linear, duty zero-order hold) if it is not already.
-
-    Raises
-    ------
-    GapCliError
-        No θ, NaNs, constant input or too few samples (message names the recording).
-    """
-    src = rec.source or "<recording>"
-    if "theta" not in rec.channels:
-        raise GapCliError(
-            f"{src}: recording lacks the 'theta' channel (has {sorted(rec.channels)}); the gap "
-            "diagnosis needs at least the angle and the duty cycle"
-        )
-    for name, y in [("duty", rec.duty), *rec.channels.items()]:
-        bad = ~np.isfinite(y)
-        if bad.any():
-            raise GapCliError(
-                f"{src}: {name} has {int(bad.sum())} NaN/inf value(s), first at sample "
-                f"{int(np.flatnonzero(bad)[0])}; repair or cut the recording"
-            )
-    try:
-        data = uniform_data(rec, min_samples=2)
-    except IdentificationError as exc:
-        raise GapCliError(str(exc)) from exc
-    if not data.resampled:
-        return rec
-    t = rec.t - rec.t[0]
-    ch = {k: (data.theta if k == "theta" else np.interp(data.t, t, v)) for k, v in rec.channels.items()}
-    meta = {**rec.meta, "resampled_to_uniform_dt_s": data.dt}
-    return Recording(
-        t=data.t, duty=data.duty, channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta
-    )
 
 
 def _check_length(rec: Recording, what: str) -> None:
@@ -123,8 +88,8 @@ def resolve_rig(ref: str) -> tuple[object, float]:
 
 
 def prepare(
-    inputs: Sequence[Path],
-    held_out: Sequence[Path] | None,
+    inputs: Sequence[str | Path],
+    held_out: Sequence[str | Path] | None,
     split: float,
     preset: str | None,
     blocks: float | None = None,
@@ -153,14 +118,14 @@ def prepare(
             "--min-range, --block-every and --block-offset apply to interleaved blocks only: "
             "give --blocks SECONDS"
         )
-    recs = [to_uniform(load_input(p, preset)) for p in inputs]
+    recs = [uniform_recording(load_recording(p, preset)) for p in inputs]
     if held_out:
-        held = [to_uniform(load_input(p, preset)) for p in held_out]
+        held = [uniform_recording(load_recording(p, preset)) for p in held_out]
         for r in recs:
             _check_length(r, "fit recording")
         for r in held:
             _check_length(r, "held-out recording")
-        rule = f"separate held-out file(s): {', '.join(Path(p).name for p in held_out)}"
+        rule = f"separate held-out file(s): {', '.join(split_preset(p)[0].name for p in held_out)}"
         return recs, held, rule
     if blocks is not None:
         if not (math.isfinite(blocks) and blocks > 0.0):
@@ -196,20 +161,20 @@ def build_parser() -> argparse.ArgumentParser:
         "which unmodelled effect causes it, and how far the disagreement shrinks on held-out recordings.",
     )
     p.add_argument(
-        "inputs", nargs="+", type=Path, help="recordings: bag directories (.mcap/.db3) or CSV logs"
+        "inputs", nargs="+", help="recordings: bag directories (.mcap/.db3) or CSV logs (FILE.csv[:PRESET])"
     )
     p.add_argument(
         "--rig", required=True, help="nominal rig: shipped name (e.g. thesis_rig) or rig-file path"
     )
     p.add_argument("-o", "--out", required=True, type=Path, help="report folder (created)")
     p.add_argument(
-        "--preset", default=None, help="CSV preset of aeropend_ident.csv_import ('auto' = by file name)"
+        "--preset", default=None, help="CSV preset of aeropend_ident.csv_import for CSV logs "
+        "without their own FILE.csv:PRESET ('auto' = by file name)"
     )
     g = p.add_mutually_exclusive_group()
     g.add_argument(
         "--held-out",
         nargs="+",
-        type=Path,
         default=None,
         metavar="RECORDING",
         help="recordings kept for the check only (never used to find or fit the effects)",
@@ -253,7 +218,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--validation",
         nargs="+",
-        type=Path,
         default=None,
         metavar="RECORDING",
         help="explicit validation recordings on which the diagnosis chooses the effects (instead of "
@@ -304,10 +268,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
         val = None
         if args.validation:
-            val = [to_uniform(load_input(p, args.preset)) for p in args.validation]
+            val = [uniform_recording(load_recording(p, args.preset)) for p in args.validation]
             for r in val:
                 _check_length(r, "validation recording")
-            rule += f"; validation file(s): {', '.join(Path(p).name for p in args.validation)}"
+            rule += f"; validation file(s): {', '.join(split_preset(p)[0].name for p in args.validation)}"
         result = run_gap(
             rig,
             fit,

@@ -520,12 +520,19 @@ def corrected_rig_dict(result: GapResult) -> dict[str, Any]:
                     f"gap diagnosis ({chosen}) fitted on {fits}; nominal {old.get('value')!r} "
                     f"({old.get('source', '')})"
                 )
-    offset = getattr(result.diagnosis, "theta_offset", None)
-    offset = result.theta_offset if offset is None else float(offset)
+    # the diagnosis' sensor map acts on θ_recorded + nominal offset: θ_rec + off_n = s·(θ_model − off_d),
+    # i.e. θ_rec = s·(θ_model − (off_d + off_n/s)) in the rig file's convention
+    meas = result.diagnosis.measurement
+    scale = float(meas.theta_scale)
+    offset = float(meas.theta_offset) + result.theta_offset / scale
+    frame: dict[str, Any] = {}
     if offset != 0.0:
-        data["recording_frame"] = {
-            THETA_OFFSET: {"value": offset, "unit": "rad", "source": "nominal rig file / gap diagnosis"}
-        }
+        frame[THETA_OFFSET] = {"value": offset, "unit": "rad", "source": (
+            "gap diagnosis: fitted sensor offset" if meas.theta_offset != 0.0 else "nominal rig file")}
+    if scale != 1.0:
+        frame["theta_scale"] = {"value": scale, "unit": "1", "source": "gap diagnosis: fitted sensor gain"}
+    if frame:
+        data["recording_frame"] = frame
     return data
 
 

@@ -150,9 +150,12 @@ def rig_theta_offset(rig_ref: str | Path) -> float:
 
         recording_frame:
           theta_offset: {value: 1.5707963, unit: rad, source: "..."}
+          theta_scale: {value: 1.0, unit: "1", source: "..."}   # optional sensor gain
 
     for rigs whose sensor zero is not the model's θ = 0 (centre of mass below the pivot), e.g.
-    a see-saw that measures from the horizontal.
+    a see-saw that measures from the horizontal; θ_recorded = theta_scale·(θ_model − theta_offset)
+    (``theta_scale`` is written by the gap diagnosis when it finds a sensor-gain error, see
+    :func:`rig_theta_scale`).
 
     Parameters
     ----------
@@ -170,6 +173,23 @@ def rig_theta_offset(rig_ref: str | Path) -> float:
         If the file cannot be found or read, or the block is malformed (wrong unit, no source,
         not a number).
     """
+    return _recording_frame_value(rig_ref, THETA_OFFSET, "rad", 0.0)
+
+
+def rig_theta_scale(rig_ref: str | Path) -> float:
+    """Angle-sensor gain s [1] of a rig file's ``recording_frame.theta_scale`` (1.0 if absent).
+
+    See :func:`rig_theta_offset` for the block. Raises :class:`IdentificationError` as it does,
+    and if s is not > 0.
+    """
+    value = _recording_frame_value(rig_ref, "theta_scale", "1", 1.0)
+    if value <= 0.0:
+        raise IdentificationError(f"{rig_ref}: recording_frame.theta_scale = {value!r}; expected a gain > 0")
+    return value
+
+
+def _recording_frame_value(rig_ref: str | Path, key: str, unit: str, default: float) -> float:
+    """One ``{value, unit, source}`` entry of a rig file's ``recording_frame`` block."""
     path = Path(rig_ref)
     try:
         if path.suffix in (".yaml", ".yml"):
@@ -180,27 +200,27 @@ def rig_theta_offset(rig_ref: str | Path) -> float:
     except (OSError, yaml.YAMLError) as exc:
         raise IdentificationError(f"cannot read rig file {rig_ref!s}: {exc}") from exc
     block = (data or {}).get("recording_frame") if isinstance(data, dict) else None
-    if not block:
-        return 0.0
-    node = block.get(THETA_OFFSET) if isinstance(block, dict) else None
+    if not block or (isinstance(block, dict) and key not in block):
+        return default
+    node = block.get(key) if isinstance(block, dict) else None
     if not isinstance(node, dict) or "value" not in node:
         raise IdentificationError(
-            f"{rig_ref}: recording_frame.theta_offset must be {{value, unit: rad, source}}, got {node!r}"
+            f"{rig_ref}: recording_frame.{key} must be {{value, unit: {unit}, source}}, got {node!r}"
         )
-    if str(node.get("unit", "")).strip() != "rad":
+    if str(node.get("unit", "")).strip() != unit:
         raise IdentificationError(
-            f"{rig_ref}: recording_frame.theta_offset has unit {node.get('unit')!r}; expected 'rad'"
+            f"{rig_ref}: recording_frame.{key} has unit {node.get('unit')!r}; expected {unit!r}"
         )
     if not str(node.get("source", "")).strip():
-        raise IdentificationError(f"{rig_ref}: recording_frame.theta_offset has no 'source'")
+        raise IdentificationError(f"{rig_ref}: recording_frame.{key} has no 'source'")
     try:
         value = float(node["value"])
     except (TypeError, ValueError) as exc:
         raise IdentificationError(
-            f"{rig_ref}: recording_frame.theta_offset.value = {node['value']!r} is not a number"
+            f"{rig_ref}: recording_frame.{key}.value = {node['value']!r} is not a number"
         ) from exc
     if not math.isfinite(value):
-        raise IdentificationError(f"{rig_ref}: recording_frame.theta_offset = {value!r} is not finite")
+        raise IdentificationError(f"{rig_ref}: recording_frame.{key} = {value!r} is not finite")
     return value
 
 

@@ -1,8 +1,9 @@
 """Identify a sparse model from recordings: ``identify BAG_OR_CSV [...] --rig RIG --out DIR``.
 
 Plain command (no ROS needed; also ``ros2 run aeropend_ident identify``): one or more contract
-bags or CSV logs (``--preset`` of :data:`aeropend_ident.csv_import.PRESETS`, or picked by file
-name) + rig file + method in, results folder out:
+bags or CSV logs (``FILE.csv:PRESET`` per file, else ``--preset`` of
+:data:`aeropend_ident.csv_import.PRESETS`, else picked by file name) + rig file + method in,
+results folder out:
 
 * ``model.yaml``: equations in readable form, coefficients (with spread for ``ensemble``),
   derived physical parameters with units, held-out scores, provenance;
@@ -51,12 +52,13 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.bags import BagError, read_bag
-from aeropend_ident.csv_import import CsvImportError, find_preset, import_csv
+from aeropend_ident.bags import BagError
+from aeropend_ident.csv_import import CsvImportError
 from aeropend_ident.libraries import CandidateLibrary, physics_library, structured_library, thesis_library
 from aeropend_ident.output_error import refine_output_error
 from aeropend_ident.partial import angle_only_data, concat_data, nrmse_range, select_thrust_map
 from aeropend_ident.preprocess import add_derivatives, differentiate
+from aeropend_ident.recording_input import RecordingInputError, load_recording
 from aeropend_ident.sindy import (
     TARGET_INFO,
     WEAK_IV,
@@ -163,28 +165,6 @@ def _library(
             f"structured library has no equation for {missing} with variables {variables}"
         )
     return {tg: libs[tg] for tg in targets}
-
-
-def load_recording(path: Path, preset: str | None = None, namespace: str = "") -> Recording:
-    """A contract bag (directory, ``.mcap``, ``.db3``) or a CSV log (``.csv``/``.csv.gz``).
-
-    Raises
-    ------
-    IdentificationError
-        If the path does not exist, or a CSV has no preset given and none matches its name.
-    BagError, CsvImportError, RecordingError
-        From the readers (unreadable file, missing topics/columns, bad values).
-    """
-    path = Path(path)
-    if not path.exists():
-        raise IdentificationError(f"{path}: no such bag or CSV file")
-    name = path.name.lower()
-    if name.endswith((".csv", ".csv.gz")):
-        key = preset or find_preset(path)
-        if key is None:
-            raise IdentificationError(f"{path}: CSV input needs --preset (no preset matches this file name)")
-        return import_csv(path, key)
-    return read_bag(path, namespace=namespace)
 
 
 def _check_theta(rec: Recording) -> None:
@@ -365,7 +345,7 @@ def identify(
 
     Raises
     ------
-    IdentificationError, BagError, CsvImportError, RecordingError
+    IdentificationError, BagError, CsvImportError, RecordingError, RecordingInputError
         With the message of the failing step.
     """
     say = progress or _quiet
@@ -525,7 +505,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="identify", description=__doc__.splitlines()[0]
     )
-    ap.add_argument("inputs", type=Path, nargs="+", metavar="BAG_OR_CSV")
+    ap.add_argument("inputs", nargs="+", metavar="BAG_OR_CSV",
+                    help="contract bags or CSV logs (FILE.csv[:PRESET])")
     ap.add_argument("--rig", help="rig name or YAML file (for the duty -> v_a map and K_q)")
     ap.add_argument("--method", default=None, choices=METHODS,
                     help="default: weak for one full-state recording, sindy otherwise; weak-iv: weak "
@@ -557,7 +538,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                            preset=args.preset, train_fraction=args.train_fraction, thrust_map=args.thrust_map,
                            plots=not args.no_plots, progress=None if args.quiet else say,
                            threshold=args.threshold, output_error=args.output_error)
-    except (BagError, RecordingError, IdentificationError, RigFileError, CsvImportError) as exc:
+    except (BagError, RecordingError, IdentificationError, RigFileError, CsvImportError,
+            RecordingInputError) as exc:
         print(f"identify: {exc}", file=sys.stderr)
         return 2
     print("\n".join(summary["equations"]))
