@@ -3,7 +3,7 @@
 Usage::
 
     gap RECORDING [RECORDING ...] --rig RIG --out DIR
-        [--preset NAME]
+        [--preset NAME] [--sessions A[,A2] B[,B2] ... (instead of RECORDING ...)] [--no-oracle]
         [--held-out RECORDING [RECORDING ...] | --split FRACTION | --blocks SECONDS]
         [--block-every 3] [--block-offset 1] [--min-range RAD]
         [--validation RECORDING ... | --validation-fraction 0.3]
@@ -24,6 +24,14 @@ fit data the diagnosis fits on the first part and chooses the effects on the las
 ``--validation-fraction`` (default 0.3) of each fit recording, or on explicit ``--validation``
 recordings, so the held-out data stay unseen until the final before/after.
 
+Before the held-out recordings are replayed, the corrected rig's held-out θ NRMSE is predicted with
+an 80 % interval from the fit data alone; after it, the prediction is checked, the correction and
+the best catalog set are fitted on each held-out recording (attainable shrink) and the held-out gap
+is split into removed / removable but not removed / not removable, with a drift table of fit vs
+held-out parameters; ``--sessions`` adds the leave-one-session-out diagnosis and the drift table
+across sessions, whose measured drift replaces the prior in the prediction
+(:mod:`aeropend_ident.gap_drift`).
+
 The report folder gets ``report.json``, ``report.html``, ``corrected_rig.yaml`` and
 ``figures/*.png`` (:mod:`aeropend_ident.gap_report`); a one-screen summary is printed.
 
@@ -34,6 +42,7 @@ channel, too short, NaNs, bad option).
 from __future__ import annotations
 
 import argparse
+import itertools
 import math
 import sys
 from collections.abc import Sequence
@@ -161,7 +170,21 @@ def build_parser() -> argparse.ArgumentParser:
         "which unmodelled effect causes it, and how far the disagreement shrinks on held-out recordings.",
     )
     p.add_argument(
-        "inputs", nargs="+", help="recordings: bag directories (.mcap/.db3) or CSV logs (FILE.csv[:PRESET])"
+        "inputs", nargs="*", help="recordings: bag directories (.mcap/.db3) or CSV logs (FILE.csv[:PRESET])"
+    )
+    p.add_argument(
+        "--sessions",
+        nargs="+",
+        default=None,
+        metavar="SESSION",
+        help="the fit recordings grouped by session, one argument per session, recordings of a session "
+        "joined by commas (A.csv B1.csv,B2.csv): leave-one-session-out diagnosis, effects per session, "
+        "a parameter-drift table; replaces the positional recordings",
+    )
+    p.add_argument(
+        "--no-oracle",
+        action="store_true",
+        help="attainable shrink without the best-catalog oracle (a diagnosis on each held-out recording)",
     )
     p.add_argument(
         "--rig", required=True, help="nominal rig: shipped name (e.g. thesis_rig) or rig-file path"
@@ -256,8 +279,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         rig, offset = resolve_rig(args.rig)
         if args.theta_offset is not None:
             offset = float(args.theta_offset)
+        inputs, groups = list(args.inputs), None
+        if args.sessions:
+            if inputs:
+                raise GapCliError("give the fit recordings either as positional arguments or as --sessions")
+            if args.blocks is not None:
+                raise GapCliError("--sessions works with --held-out or --split, not with --blocks")
+            groups = [[x for x in g.split(",") if x] for g in args.sessions]
+            if len(groups) < 2 or any(not g for g in groups):
+                raise GapCliError(f"--sessions {args.sessions}: expected two or more sessions, each one or "
+                                  "more recordings joined by commas")
+            inputs = [x for g in groups for x in g]
+        if not inputs:
+            raise GapCliError("no fit recording given (positional RECORDING ... or --sessions)")
         fit, held, rule = prepare(
-            args.inputs,
+            inputs,
             args.held_out,
             args.split,
             args.preset,
@@ -272,6 +308,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             for r in val:
                 _check_length(r, "validation recording")
             rule += f"; validation file(s): {', '.join(split_preset(p)[0].name for p in args.validation)}"
+        sessions, labels = None, None
+        if groups is not None:
+            bounds = np.cumsum([0] + [len(g) for g in groups])
+            sessions = [fit[a:b] for a, b in itertools.pairwise(bounds)]
+            labels = [",".join(split_preset(x)[0].name for x in g) for g in groups]
+            rule += f"; {len(groups)} sessions"
         result = run_gap(
             rig,
             fit,
@@ -285,6 +327,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             validation_fraction=args.validation_fraction,
             validation=val,
             progress=progress,
+            sessions=sessions,
+            session_labels=labels,
+            oracle=not args.no_oracle,
         )
         paths = write_report(result, args.out)
     except (RecordingError, RigFileError, ValueError) as exc:

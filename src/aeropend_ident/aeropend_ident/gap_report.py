@@ -31,7 +31,7 @@ import io
 import json
 import math
 import platform
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -169,6 +169,17 @@ class GapResult:
     test : list[dict]
         Held-out gap of the nominal rig (``effects`` = []) and of the corrected rig
         (:func:`aeropend_ident.gap_which.gap_metrics`: ``nrmse`` = mean over recordings, ...).
+    prediction : dict, optional
+        Predicted held-out θ NRMSE of the corrected rig with its 80 % interval, made from the fit
+        data before the held-out replay (:func:`aeropend_ident.gap_drift.predict_heldout`).
+    prediction_check : dict, optional
+        The prediction against the actual held-out NRMSE (``inside`` the interval or not).
+    attainable : list of dict, optional
+        Per held-out recording: oracle fits and the split of its gap
+        (:func:`aeropend_ident.gap_drift.attainable`).
+    sessions : dict, optional
+        Leave-one-session-out diagnosis and drift table
+        (:func:`aeropend_ident.gap_drift.session_analysis`).
     """
 
     rig: Rig
@@ -186,6 +197,10 @@ class GapResult:
     validation: list[Recording] = field(default_factory=list)
     test: list[dict[str, Any]] = field(default_factory=list)
     agreement: dict[str, Any] = field(default_factory=dict)
+    prediction: dict[str, Any] | None = None
+    prediction_check: dict[str, Any] | None = None
+    attainable: list[dict[str, Any]] | None = None
+    sessions: dict[str, Any] | None = None
 
     # ------------------------------------------------------------------ headline
     def headline(self) -> dict[str, Any]:
@@ -222,7 +237,11 @@ class GapResult:
                 "where": self.where.as_dict(),
                 "which": self.diagnosis.as_dict(),
                 "where_which": self.agreement,
+                "sessions": self.sessions,
+                "prediction": self.prediction,
                 "after": {
+                    "prediction_check": self.prediction_check,
+                    "attainable": self.attainable,
                     "heldout_nominal": _where_brief(self.where_heldout_nominal),
                     "heldout_corrected": _where_brief(self.where_heldout_corrected),
                     "overlay_metrics": [{"source": o["source"], **o["metrics"]} for o in self.overlays],
@@ -337,6 +356,11 @@ def run_gap(
     validation_fraction: float = VALIDATION_FRACTION,
     validation: Sequence[Recording] | None = None,
     progress: Callable[[str], None] | None = None,
+    sessions: Sequence[Sequence[Recording]] | None = None,
+    session_labels: Sequence[str] | None = None,
+    predict: bool = True,
+    oracle: bool = False,
+    drift_sigma: Mapping[str, float] | None = None,
 ) -> GapResult:
     """Where + which + after (module doc) for a nominal rig and fit / held-out recordings.
 
@@ -369,6 +393,20 @@ def run_gap(
         the whole fit recordings are the fit core and ``validation_fraction`` is ignored.
     progress : callable, optional
         Receives one-line progress messages.
+    sessions : sequence of sequences of Recording, optional
+        The fit recordings grouped by session (each recording of ``fit`` in exactly one group):
+        adds the leave-one-session-out diagnosis and the drift table, whose measured drift then
+        replaces the drift prior of the prediction (:mod:`aeropend_ident.gap_drift`).
+    session_labels : sequence of str, optional
+        Names of the sessions.
+    predict : bool
+        Predict the held-out NRMSE from the fit data before the held-out replay.
+    oracle : bool
+        Fit the best catalog set on each held-out recording (attainable shrink; the chosen set is
+        refitted there in any case; the command line does this unless --no-oracle).
+    drift_sigma : mapping, optional
+        σ of the session-to-session log change per drift-prone parameter (default: the measured
+        one with ``sessions``, else :data:`aeropend_ident.gap_drift.DRIFT_PRIOR`).
 
     Returns
     -------
@@ -418,6 +456,24 @@ def run_gap(
         also_confirm=TIMING_EFFECTS if timing else (),
     )
     corrected = diag.corrected_rig
+    from aeropend_ident.gap_drift import attainable, predict_heldout, session_analysis
+
+    sess = None
+    if sessions is not None:
+        say(f"sessions: {len(sessions)} sessions, leave-one-session-out and drift table")
+        sess = session_analysis(rig, [[_shift(r, theta_offset) for r in g] for g in sessions], diag.chosen,
+                                labels=session_labels, channels=diag.channels or ("theta",),
+                                max_effects=max_effects, seed=seed, progress=progress)
+        if drift_sigma is None and sess["drift_sigma"]:
+            drift_sigma = sess["drift_sigma"]
+    prediction = None
+    if predict:
+        say("predict: held-out NRMSE of the corrected rig from the fit data")
+        prediction = predict_heldout(rig, diag, [_shift(r, theta_offset) for r in validation],
+                                     drift_sigma=drift_sigma, seed=seed)
+        if sess is not None and drift_sigma is sess["drift_sigma"]:
+            prediction["drift_source"] = "sessions"
+        prediction["saw_heldout"] = validation is held_out
     say("after: replaying the held-out recordings")
     overlays = [_overlay(rig, diag, r, theta_offset) for r in held_out]
     preps = which_prepare([_shift(r, theta_offset) for r in held_out], frozenset(diag.channels or ("theta",)))
@@ -429,6 +485,18 @@ def run_gap(
     meas = getattr(diag, "measurement", None)
     off_c = theta_offset + (float(meas.theta_offset) if meas is not None else 0.0)
     w_cor = locate_gap(corrected, held_out, horizon=horizon, theta_offset=off_c)
+    check = None
+    if prediction is not None:
+        actual = float(test[-1]["nrmse"])
+        lo, hi = prediction["interval"]
+        check = {"predicted": prediction["predicted"], "interval": [lo, hi], "actual": actual,
+                 "inside": bool(lo <= actual <= hi),
+                 "verdict": ("inside the predicted 80 % interval" if lo <= actual <= hi else
+                             f"OUTSIDE the predicted 80 % interval ({'above' if actual > hi else 'below'})")}
+    say("after: attainable shrink (correction and best catalog set fitted on each held-out recording)")
+    attain = attainable(rig, diag, [_shift(r, theta_offset) for r in held_out], max_effects=max_effects,
+                        seed=seed, best_set=oracle, fit=[_shift(r, theta_offset) for r in fit],
+                        progress=progress)
     return GapResult(
         rig=rig,
         rig_ref=rig_ref or rig.name,
@@ -445,6 +513,10 @@ def run_gap(
         diagnosis=diag,
         overlays=overlays,
         agreement=where_which_agreement(where, diag),
+        prediction=prediction,
+        prediction_check=check,
+        attainable=attain,
+        sessions=sess,
     )
 
 
@@ -818,6 +890,19 @@ def terminal_summary(result: GapResult) -> str:
     lines.append("  VALIDATION (carved from the fit data; chooses the effects):")
     for row in d.validation:
         lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} NRMSE {row['nrmse']:.4f}")
+    if result.sessions:
+        lines.append("  SESSIONS (leave one session out: effects chosen on the others, θ NRMSE on it):")
+        for row in result.sessions["leave_one_out"]:
+            lines.append(f"    {row['left_out'][:30]:30s} {'+'.join(row['chosen_on_others']) or 'none':32s} "
+                         f"{row['nrmse_nominal']:.4f} -> {row['nrmse_corrected']:.4f} ({row['shrink']:.1%})")
+        lines += _drift_lines(result.sessions["drift"])
+    pr = result.prediction
+    if pr:
+        lines.append(
+            f"  PREDICTED held-out θ NRMSE of the corrected rig (fit data only): {pr['predicted']:.4f}, 80 % "
+            f"interval [{pr['interval'][0]:.4f}, {pr['interval'][1]:.4f}] (within session "
+            f"{pr['within_session']:.4f}, session drift {pr['drift_part']:.4f} from the "
+            f"{pr['drift_source']})")
     lines.append("  HELD OUT (never seen by the diagnosis), NRMSE per recorded channel:")
     for row in result.test:
         per = "  ".join(f"{c} {v:.4f}" for c, v in row.get("channel_nrmse", {}).items())
@@ -827,7 +912,63 @@ def terminal_summary(result: GapResult) -> str:
         f"(shrink {h['heldout_shrink']:.1%})"
         + "".join(f"; {c} {v:.1%}" for c, v in h["heldout_channel_shrink"].items() if c != "theta")
     )
+    chk = result.prediction_check
+    if chk:
+        lines.append(f"  prediction check: actual {chk['actual']:.4f} {chk['verdict']}")
+    for a in result.attainable or []:
+        sp = a["split"]
+        lines.append(
+            f"  ATTAINABLE on {_label(a['source'] or 'held-out')[:40]}: nominal {a['nominal']:.4f}, "
+            f"corrected {a['corrected']:.4f}, best constant-parameter fit there {a['oracle']:.4f}, "
+            f"noise floor {a['noise_floor']:.4f}")
+        lines.append(
+            f"    held-out gap: removed {sp['removed']:.0%}, removable but not removed (session drift or "
+            f"off parameters) {sp['removable_not_removed']:.0%}, not removable by the catalog "
+            f"{sp['not_removable']:.0%}")
+        if a.get("drift"):
+            lines += _drift_lines(a["drift"])
     return "\n".join(lines)
+
+
+def _drift_html(result: GapResult) -> str:
+    """HTML of the prediction, its check, the attainable shrink and the drift tables."""
+    parts = []
+    pr, chk = result.prediction, result.prediction_check
+    if pr:
+        rows = [["predicted (fit data only)", _fmt(pr["predicted"]),
+                 f"[{_fmt(pr['interval'][0])}, {_fmt(pr['interval'][1])}]", _fmt(pr["within_session"]),
+                 f"{_fmt(pr['drift_part'])} ({pr['drift_source']})",
+                 _fmt(chk["actual"]) if chk else "–", chk["verdict"] if chk else "–"]]
+        parts.append("<h3>Predicted vs actual held-out θ NRMSE of the corrected rig</h3>" + _table(
+            rows, ["", "predicted", "80 % interval", "within session", "session drift", "actual", "check"]))
+    if result.attainable:
+        rows = [[_label(a["source"] or "held-out"), _fmt(a["nominal"]), _fmt(a["corrected"]),
+                 _fmt(a["oracle"]), _fmt(a["noise_floor"]), f"{a['split']['removed']:.0%}",
+                 f"{a['split']['removable_not_removed']:.0%}", f"{a['split']['not_removable']:.0%}"]
+                for a in result.attainable]
+        parts.append("<h3>Attainable shrink: the held-out gap split</h3>" + _table(
+            rows, ["recording", "nominal", "corrected", "best constant-parameter fit there", "noise floor",
+                   "removed", "removable, not removed", "not removable"]))
+    tables = [a["drift"] for a in result.attainable or [] if a.get("drift")]
+    if result.sessions:
+        tables.insert(0, result.sessions["drift"])
+    for t in tables:
+        rows = [[f"{r['effect']}.{r['parameter']}", " / ".join(
+            f"{v:.4g} ± {sd:.2g}" for v, sd in zip(r["values"], r["std"], strict=True)), r["unit"],
+            f"{r['change']:+.1%}", _fmt(r["z"], ".1f"), "yes" if r["drifts"] else ""] for r in t["rows"]]
+        parts.append(f"<h3>Parameter drift: {' vs '.join(_label(x) for x in t['sessions'])}</h3>" + _table(
+            rows, ["parameter", "values ± std", "unit", "change", "z", "drifts"]))
+    return "\n".join(parts)
+
+
+def _drift_lines(table: dict[str, Any], top: int = 4) -> list[str]:
+    """Terminal lines of a drift table (most significant rows)."""
+    out = [f"    drift table ({' vs '.join(_label(x)[:24] for x in table['sessions'])}):"]
+    for r in table["rows"][:top]:
+        vals = " / ".join(f"{v:.4g}" for v in r["values"])
+        out.append(f"      {'!' if r['drifts'] else ' '} {r['effect']}.{r['parameter']:14s} {vals} "
+                   f"{r['unit']} change {r['change']:+.1%} (z {r['z']:.1f})")
+    return out
 
 
 def _step_text(sm: dict[str, Any]) -> str:
@@ -1000,6 +1141,7 @@ and chose the effects on {len(result.validation)} validation part(s) carved from
             ["recording", "Ljung-Box p nominal", "Ljung-Box p corrected", "gap nominal", "gap corrected"],
         )
     }
+{_drift_html(result)}
 <h2>2. Where: residual per state equation (fit recordings)</h2>
 <ul>{verdict}</ul>
 <p>Each state equation is evaluated on the measured signals; its residual is shown relative to the equation's

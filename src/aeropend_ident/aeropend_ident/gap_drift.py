@@ -1,0 +1,495 @@
+"""Held-out error prediction, attainable shrink and session drift of a gap correction.
+
+A constant-parameter correction found on one session removes the missing physics it names, but
+not the rig changing between sessions (battery, propeller, load, bearings, sensor mount). This
+module tells them apart, for :func:`aeropend_ident.gap_report.run_gap`:
+
+**Prediction** (:func:`predict_heldout`, computed from the fit data only, before any held-out
+recording is replayed): the corrected rig's held-out θ NRMSE e is modelled as
+
+    e² = e_in² + e_drift²
+
+* e_in: the corrected rig's error within the session, i.e. on the validation part the effects
+  were chosen on, taken per block of :data:`BLOCK_S` seconds (RMS error of the block over the
+  recording's θ range); its spread over blocks is the within-session variation, and the effect
+  parameters' standard errors (:func:`aeropend_ident.gap_which.fit_effects`) are drawn too;
+* e_drift: what a session-to-session change of the rig adds: the corrected rig is replayed with its
+  drift-prone parameters (:data:`DRIFT_PARAMETERS`: thrust coefficient K_q, gravity term mgd/J,
+  viscous friction c/J) multiplied by log-normal factors of standard deviation σ_p, and the
+  RMS difference to the unperturbed replay is taken over the same recordings. σ_p is the prior
+  :data:`DRIFT_PRIOR` unless the fit data hold several sessions, whose measured drift replaces it.
+
+:data:`N_DRAWS` draws give the predicted median and the 80 % interval (10 % and 90 % quantiles).
+
+**Attainable shrink** (:func:`attainable`, after the held-out replay): the chosen effect set,
+the chosen set plus the drift-prone parameters, and separately the best catalog set up to
+``max_effects`` (a diagnosis run on that recording alone), fitted directly on each held-out
+recording: the best a constant-parameter correction could
+do there (an oracle, in-sample on purpose). With N, C, O the nominal, corrected and oracle θ
+NRMSEs and n the θ noise floor (σ_θ / range), the nominal gap N² − n² splits into
+
+* removed by the correction: N² − C²;
+* removable but not removed: C² − O² (the correction's parameters are off for this session:
+  drift, or an effect the fit data did not show);
+* not removable by the catalog: O² − n² (missing physics).
+
+**Session drift** (:func:`drift_table`): the chosen effects plus the drift-prone parameters fitted
+on each session separately, with standard errors; a parameter drifts when its change between
+sessions exceeds :data:`DRIFT_Z` combined standard errors and :data:`DRIFT_MIN` relative.
+
+No rclpy import: this module runs without ROS.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from aeropend_ident.gap_effects import EffectContext, GapError, MeasurementMap, apply_effects, get_effect
+from aeropend_ident.gap_which import (
+    EffectDiagnosis,
+    Prepared,
+    diagnose_effects,
+    fit_effects,
+    prepare,
+    replay,
+)
+from aeropend_ident.greybox import noise_level
+from aeropend_sim.params import Rig
+from aeropend_sim.recording import Recording
+
+#: Drift-prone parameters: catalog effect -> (rig section, field).
+DRIFT_PARAMETERS: dict[str, tuple[str, str]] = {
+    "thrust_coefficient": ("thrust", "K_q"),
+    "gravity": ("pendulum", "mgd_over_J"),
+    "viscous_friction": ("pendulum", "c_over_J"),
+}
+#: Prior standard deviation of the session-to-session log change of each drift-prone parameter
+#: (0.15 ≈ ±15 %). Set from what the real rigs in ``../shared/data/real`` show between sessions:
+#: AeroShield's thrust per duty up to 35 % apart at 29–33 PWM counts, Etchepareborda's rod hanging
+#: 0.1–0.2 rad higher in another session (docs/gap.md); used only when the fit data hold one session.
+DRIFT_PRIOR: dict[str, float] = {"thrust_coefficient": 0.15, "gravity": 0.10, "viscous_friction": 0.25}
+#: Monte-Carlo draws of the prediction.
+N_DRAWS = 40
+#: Block length of the within-session error [s].
+BLOCK_S = 5.0
+#: Quantiles of the predicted interval (80 %).
+INTERVAL = (0.10, 0.90)
+#: A parameter drifts when |change| > DRIFT_Z combined standard errors ...
+DRIFT_Z = 3.0
+#: ... and more than this relative change.
+DRIFT_MIN = 0.03
+
+
+def _preps(recs: Sequence[Recording], channels: Sequence[str]) -> list[Prepared]:
+    return prepare(list(recs), frozenset(channels) | {"theta"})
+
+
+def theta_nrmse(rig: Rig, meas: MeasurementMap, prep: Prepared) -> float:
+    """Free-run θ NRMSE (RMS error / θ range) of a rig on one prepared recording."""
+    sim = replay(rig, meas, prep)["theta"]
+    return float(np.sqrt(np.mean((sim - prep.y["theta"]) ** 2)) / prep.scale["theta"])
+
+
+def noise_floor(prep: Prepared) -> float:
+    """θ noise floor n = σ̂_θ / range (robust σ̂: :func:`aeropend_ident.greybox.noise_level`)."""
+    return noise_level(prep.y["theta"]) / prep.scale["theta"]
+
+
+def _perturbed(rig: Rig, factors: Mapping[str, float]) -> Rig:
+    new = rig
+    for eff, f in factors.items():
+        section, name = DRIFT_PARAMETERS[eff]
+        v = float(getattr(getattr(new, section), name))
+        if v != 0.0 and f != 1.0:
+            new = new.with_params(section, **{name: v * f})
+    return new
+
+
+def _chosen_values(diag: EffectDiagnosis) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, float]]]:
+    """(values, standard errors) of the chosen effects' parameters from the diagnosis' ranking."""
+    vals: dict[str, dict[str, float]] = {}
+    std: dict[str, dict[str, float]] = {}
+    by_name = {r["effect"]: r for r in diag.ranking}
+    for name in diag.chosen:
+        params = by_name.get(name, {}).get("parameters", {})
+        vals[name] = {k: float(v["value"]) for k, v in params.items()}
+        std[name] = {k: (float(v["std"]) if v.get("std") is not None else 0.0) for k, v in params.items()}
+    return vals, std
+
+
+def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Recording], *,
+                    drift_sigma: Mapping[str, float] | None = None, draws: int = N_DRAWS,
+                    seed: int = 0) -> dict[str, Any]:
+    """Predicted held-out θ NRMSE of the corrected rig, from the fit data only (module docstring).
+
+    Parameters
+    ----------
+    nominal : Rig
+        The nominal rig (the chosen effects are re-applied to it for the parameter draws).
+    diag : EffectDiagnosis
+        The diagnosis (corrected rig, measurement map, chosen effects with standard errors).
+    validation : sequence of Recording
+        The diagnosis' validation recordings (model frame), never held-out ones.
+    drift_sigma : mapping, optional
+        σ of the log change per drift-prone parameter; default :data:`DRIFT_PRIOR`.
+    draws : int
+        Monte-Carlo draws.
+    seed : int
+        Random seed.
+
+    Returns
+    -------
+    dict
+        ``predicted`` (median), ``interval`` [lo, hi] (80 %), ``level`` 0.8, ``within_session``
+        (RMS of the block errors) and ``blocks`` (their values), ``drift_part`` (median e_drift),
+        ``drift_sigma`` used and its ``drift_source`` ("prior" / "sessions"), ``noise_floor``,
+        ``draws``.
+
+    Raises
+    ------
+    GapError
+        If a replay fails for the corrected rig.
+    """
+    sigma = dict(DRIFT_PRIOR if drift_sigma is None else drift_sigma)
+    preps = _preps(validation, diag.channels or ("theta",))
+    rng = np.random.default_rng(seed)
+    base = [replay(diag.corrected_rig, diag.measurement, p)["theta"] for p in preps]
+    blocks: list[float] = []
+    for p, sim in zip(preps, base, strict=True):
+        e = sim - p.y["theta"]
+        k = max(1, round(p.n * p.dt / BLOCK_S))
+        blocks += [float(np.sqrt(np.mean(b**2)) / p.scale["theta"]) for b in np.array_split(e, k) if b.size]
+    floors = [noise_floor(p) for p in preps]
+    vals, std = _chosen_values(diag)
+    samples, drift_parts = [], []
+    for _ in range(draws):
+        rig = diag.corrected_rig
+        if any(s > 0.0 for d in std.values() for s in d.values()):
+            drawn = {}
+            for eff, pv in vals.items():
+                e = get_effect(eff)
+                drawn[eff] = {}
+                for par in e.parameters:
+                    v, s = pv[par.name], std[eff].get(par.name, 0.0)
+                    lo, hi = par.limits
+                    drawn[eff][par.name] = float(np.clip(v + s * rng.standard_normal(), lo, hi))
+            try:
+                rig = apply_effects(nominal, drawn)[0]
+            except GapError:
+                rig = diag.corrected_rig
+        factors = {eff: float(np.exp(sigma.get(eff, 0.0) * rng.standard_normal()))
+                   for eff in DRIFT_PARAMETERS}
+        drifted = _perturbed(rig, factors)
+        d2 = []
+        e_fit = []
+        for p, sim in zip(preps, base, strict=True):
+            try:
+                s_fit = replay(rig, diag.measurement, p)["theta"] if rig is not diag.corrected_rig else sim
+                s_drift = replay(drifted, diag.measurement, p)["theta"]
+            except GapError:
+                continue
+            d2.append(float(np.mean((s_drift - s_fit) ** 2)) / p.scale["theta"] ** 2)
+            e_fit.append(float(np.mean((s_fit - sim) ** 2)) / p.scale["theta"] ** 2)
+        if not d2:
+            continue
+        e_in = float(blocks[int(rng.integers(len(blocks)))])
+        drift_parts.append(math.sqrt(float(np.mean(d2))))
+        samples.append(math.sqrt(e_in**2 + float(np.mean(e_fit)) + float(np.mean(d2))))
+    if not samples:
+        raise GapError("prediction: every replay of the corrected rig failed")
+    lo, hi = np.quantile(samples, INTERVAL)
+    return {
+        "predicted": float(np.median(samples)),
+        "interval": [float(lo), float(hi)],
+        "level": INTERVAL[1] - INTERVAL[0],
+        "within_session": float(np.sqrt(np.mean(np.square(blocks)))),
+        "blocks": blocks,
+        "drift_part": float(np.median(drift_parts)),
+        "drift_sigma": sigma,
+        "drift_source": "prior" if drift_sigma is None else "sessions",
+        "noise_floor": float(np.mean(floors)),
+        "draws": len(samples),
+    }
+
+
+def _oracle(rig: Rig, effects: Sequence[str], prep: Prepared, start: Mapping[str, Mapping[str, float]]
+            ) -> tuple[float, dict[str, Any]]:
+    ctx = EffectContext.from_data(rig, prep.y["theta"], prep.duty)
+    fr = fit_effects(rig, list(effects), [prep], ctx, start=start, scan=len(effects) == 1)
+    params = {e: {k: {"value": fr.values[e][k], "std": fr.std.get(e, {}).get(k)} for k in fr.values[e]}
+              for e in fr.values}
+    return theta_nrmse(fr.rig, fr.meas, prep), params
+
+
+def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording], *, max_effects: int = 2,
+               seed: int = 0, best_set: bool = True, fit: Sequence[Recording] = (),
+               progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+    """Oracle fits on each held-out recording and the split of its gap (module docstring).
+
+    Parameters
+    ----------
+    nominal : Rig
+    diag : EffectDiagnosis
+        The diagnosis made on the fit data.
+    held_out : sequence of Recording
+        Held-out recordings in the model frame (as the diagnosis saw its recordings).
+    max_effects : int
+        Largest set of the best-catalog oracle.
+    seed : int
+    best_set : bool
+        Also run the best-catalog oracle (a diagnosis on the held-out recording alone).
+    fit : sequence of Recording
+        The fit recordings (model frame): with them, the chosen set plus the drift-prone
+        parameters is fitted there too and each held-out recording gets a drift table (fit
+        session vs that recording, :func:`drift_rows`).
+    progress : callable, optional
+
+    Returns
+    -------
+    list of dict
+        Per recording: ``source``, θ NRMSEs ``nominal``, ``corrected``, ``oracle_same`` (the chosen
+        set refitted there), ``oracle_drift`` (the chosen set plus the drift-prone parameters,
+        :func:`drift_set`), ``oracle_best`` (and ``oracle_best_effects``), ``oracle`` (the
+        smallest), ``noise_floor``; ``split`` shares of N² − n²: ``removed``,
+        ``removable_not_removed``, ``not_removable``; ``parameters``: the correction's and the
+        oracle's values with standard errors side by side.
+    """
+    from aeropend_ident.gap_report import validation_split
+
+    say = progress or (lambda _m: None)
+    vals, std = _chosen_values(diag)
+    dset = drift_set(diag.chosen)
+    fit_a = None
+    if fit:
+        say(f"attainable: fitting {', '.join(dset)} on the fit recordings")
+        pa = _preps(fit, diag.channels or ("theta",))
+        ctx_a = EffectContext.from_data(nominal, np.concatenate([p.y["theta"] for p in pa]),
+                                        np.concatenate([p.duty for p in pa]))
+        fit_a = fit_effects(nominal, dset, pa, ctx_a, start=vals, scan=False)
+    out = []
+    for rec in held_out:
+        prep = _preps([rec], diag.channels or ("theta",))[0]
+        n_nom = theta_nrmse(nominal, MeasurementMap(), prep)
+        n_cor = theta_nrmse(diag.corrected_rig, diag.measurement, prep)
+        floor = noise_floor(prep)
+        row: dict[str, Any] = {"source": rec.source, "nominal": n_nom, "corrected": n_cor,
+                               "noise_floor": floor}
+        o_same, p_same = (n_cor, {}) if not diag.chosen else _oracle(nominal, diag.chosen, prep, vals)
+        row["oracle_same"] = min(o_same, n_cor) if diag.chosen else n_nom
+        row["parameters"] = {e: {k: {"correction": vals[e][k], "correction_std": std[e].get(k),
+                                     "oracle": p_same[e][k]["value"], "oracle_std": p_same[e][k]["std"]}
+                                 for k in vals[e]} for e in vals}
+        # the chosen set plus the drift-prone parameters: what a session change of the rig needs
+        try:
+            ctx_b = EffectContext.from_data(nominal, prep.y["theta"], prep.duty)
+            fit_b = fit_effects(nominal, dset, [prep], ctx_b, start=vals, scan=False)
+            o_drift = theta_nrmse(fit_b.rig, fit_b.meas, prep)
+            if fit_a is not None:
+                row["drift"] = {"sessions": ["fit", rec.source or "held-out"], "effects": dset,
+                                "rows": drift_rows([fit_a, fit_b], dset)}
+                row["drift"]["drifting"] = [f"{r['effect']}.{r['parameter']}" for r in row["drift"]["rows"]
+                                            if r["drifts"]]
+        except GapError as exc:
+            o_drift = math.inf
+            row["oracle_drift_error"] = str(exc)
+        row["oracle_drift"], row["oracle_drift_effects"] = o_drift, dset
+        o_best, best_eff = row["oracle_same"], list(diag.chosen)
+        if best_set:
+            say(f"attainable: best catalog set on {rec.source or 'a held-out recording'}")
+            try:
+                core, val = validation_split([rec])
+                d2 = diagnose_effects(nominal, core, val, max_effects=max_effects, seed=seed)
+                if d2.chosen:
+                    v2, _ = _chosen_values(d2)
+                    ob, _ = _oracle(nominal, d2.chosen, prep, v2)
+                    if ob < o_best:
+                        o_best, best_eff = ob, list(d2.chosen)
+            except GapError as exc:
+                row["oracle_best_error"] = str(exc)
+        row["oracle_best"], row["oracle_best_effects"] = o_best, best_eff
+        o = min(row["oracle_same"], o_drift, o_best, n_cor, n_nom)
+        row["oracle"] = o
+        total = n_nom**2 - floor**2
+        if total > 0.0:
+            row["split"] = {
+                "removed": (n_nom**2 - n_cor**2) / total,
+                "removable_not_removed": max(n_cor**2 - o**2, 0.0) / total,
+                "not_removable": max(o**2 - floor**2, 0.0) / total,
+            }
+        else:
+            row["split"] = {"removed": 0.0, "removable_not_removed": 0.0, "not_removable": 0.0}
+        out.append(row)
+    return out
+
+
+#: Chosen effects the drift-prone parameters express exactly (the rod inertia scales mgd/J, c/J
+#: and L/J together: gravity, viscous friction and thrust coefficient together are the same
+#: change), left out of :func:`drift_set` so that its joint fit stays identifiable.
+SPANNED_BY_DRIFT = ("inertia",)
+
+
+def drift_set(chosen: Sequence[str]) -> list[str]:
+    """The chosen effects plus the drift-prone parameters they do not already set (an effect the
+    drift-prone parameters span, :data:`SPANNED_BY_DRIFT`, is replaced by them)."""
+    kept = [n for n in chosen if n not in SPANNED_BY_DRIFT]
+    excluded = set(kept)
+    for n in kept:
+        excluded |= set(get_effect(n).exclusive_with)
+    return [*kept, *(e for e in DRIFT_PARAMETERS if e not in excluded)]
+
+
+def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: Sequence[str], *,
+                labels: Sequence[str] | None = None, channels: Sequence[str] = ("theta",),
+                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Fit ``effects`` on each session separately; which parameter changes between sessions.
+
+    Parameters
+    ----------
+    nominal : Rig
+    sessions : sequence of sequences of Recording
+        Two or more sessions (model frame), each one or more recordings.
+    effects : sequence of str
+        Effects fitted jointly on every session (e.g. :func:`drift_set` of the chosen ones).
+    labels : sequence of str, optional
+        Session names.
+    channels : sequence of str
+        Channels compared.
+    progress : callable, optional
+
+    Returns
+    -------
+    dict
+        ``sessions`` (labels), ``effects``, ``rows``: one per parameter, sorted by significance:
+        ``effect``, ``parameter``, ``unit``, ``values`` and ``std`` per session, ``change``
+        (largest relative change from the first session), ``z`` (largest |change| over combined
+        standard errors), ``drifts`` (bool); ``drifting`` (names of the drifting parameters).
+
+    Raises
+    ------
+    GapError
+        Fewer than two sessions, or a fit failing on a session.
+    """
+    if len(sessions) < 2:
+        raise GapError(f"drift table: {len(sessions)} session(s); need at least 2")
+    say = progress or (lambda _m: None)
+    labels = list(labels or [f"session {k + 1}" for k in range(len(sessions))])
+    fits = []
+    for lab, recs in zip(labels, sessions, strict=True):
+        say(f"drift: fitting {', '.join(effects)} on {lab}")
+        preps = _preps(recs, channels)
+        ctx = EffectContext.from_data(nominal, np.concatenate([p.y["theta"] for p in preps]),
+                                      np.concatenate([p.duty for p in preps]))
+        fits.append(fit_effects(nominal, list(effects), preps, ctx))
+    rows = drift_rows(fits, effects)
+    return {"sessions": labels, "effects": list(effects), "rows": rows,
+            "drifting": [f"{r['effect']}.{r['parameter']}" for r in rows if r["drifts"]]}
+
+
+def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, Any]]:
+    """Rows of a drift table from the same effect set fitted on several sessions (first = reference).
+
+    Each row: ``effect``, ``parameter``, ``unit``, ``values``, ``std``, ``change`` (largest
+    relative change from the first session), ``z`` (that change over the combined standard
+    errors), ``drifts`` (z > :data:`DRIFT_Z` and |change| > :data:`DRIFT_MIN`); drifting rows
+    first, most significant first.
+    """
+    rows = []
+    for eff in effects:
+        for par in get_effect(eff).parameters:
+            v = np.array([f.values[eff][par.name] for f in fits])
+            s = np.array([f.std.get(eff, {}).get(par.name, math.nan) for f in fits])
+            ref = v[0] if v[0] != 0.0 else 1.0
+            change = (v - v[0]) / abs(ref)
+            comb = np.sqrt(s**2 + s[0] ** 2)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                z = np.where(comb > 0.0, np.abs(v - v[0]) / comb, math.inf)
+            k = int(np.argmax(np.abs(change[1:]))) + 1
+            zk = float(z[k]) if np.isfinite(z[k]) else math.inf
+            rows.append({"effect": eff, "parameter": par.name, "unit": par.unit, "values": v.tolist(),
+                         "std": s.tolist(), "change": float(change[k]), "z": zk,
+                         "drifts": bool(zk > DRIFT_Z and abs(change[k]) > DRIFT_MIN)})
+    rows.sort(key=lambda r: (not r["drifts"], -r["z"]))
+    return rows
+
+
+def session_sigma(table: Mapping[str, Any]) -> dict[str, float]:
+    """σ of the log change per drift-prone parameter measured across sessions (for
+    :func:`predict_heldout`): the RMS deviation of log(value) from its session mean, times
+    √(1 + 1/k) for a new session (k sessions)."""
+    out = {}
+    k = len(table["sessions"])
+    for r in table["rows"]:
+        if r["effect"] in DRIFT_PARAMETERS and r["parameter"] == DRIFT_PARAMETERS[r["effect"]][1]:
+            v = np.asarray(r["values"], dtype=float)
+            if np.all(v > 0.0):
+                lv = np.log(v)
+                out[r["effect"]] = float(np.sqrt(np.sum((lv - lv.mean()) ** 2) / max(k - 1, 1))
+                                         * math.sqrt(1.0 + 1.0 / k))
+    return out
+
+
+def session_analysis(nominal: Rig, sessions: Sequence[Sequence[Recording]], chosen: Sequence[str], *,
+                     labels: Sequence[str] | None = None, channels: Sequence[str] = ("theta",),
+                     max_effects: int = 2, seed: int = 0,
+                     progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Leave-one-session-out diagnosis, the effects named per session, and the drift table.
+
+    Parameters
+    ----------
+    nominal : Rig
+    sessions : sequence of sequences of Recording
+        Two or more sessions (model frame).
+    chosen : sequence of str
+        Effects the diagnosis on all sessions chose (the drift table fits them plus the
+        drift-prone parameters, :func:`drift_set`).
+    labels, channels, max_effects, seed, progress
+        As in :func:`drift_table` / :func:`aeropend_ident.gap_which.diagnose_effects`.
+
+    Returns
+    -------
+    dict
+        ``per_session``: effects named by a diagnosis on each session alone; ``leave_one_out``:
+        per session, the effects chosen on the other sessions and the θ NRMSE of the nominal and
+        of that correction on the left-out session (``shrink``); ``drift``: :func:`drift_table`;
+        ``drift_sigma``: :func:`session_sigma` of it.
+
+    Raises
+    ------
+    GapError
+        Fewer than two sessions; unusable recordings.
+    """
+    from aeropend_ident.gap_report import validation_split
+
+    if len(sessions) < 2:
+        raise GapError(f"sessions: {len(sessions)} given; leave-one-session-out needs at least 2")
+    say = progress or (lambda _m: None)
+    labels = list(labels or [f"session {k + 1}" for k in range(len(sessions))])
+    diags = []
+    for lab, recs in zip(labels, sessions, strict=True):
+        say(f"sessions: diagnosis on {lab} alone")
+        core, val = validation_split(list(recs))
+        diags.append(diagnose_effects(nominal, core, val, max_effects=max_effects, seed=seed))
+    per = [{"session": lab, "chosen": list(d.chosen), "significant": bool(d.significant)}
+           for lab, d in zip(labels, diags, strict=True)]
+    loo = []
+    for k, (lab, recs) in enumerate(zip(labels, sessions, strict=True)):
+        others = [r for j, s in enumerate(sessions) if j != k for r in s]
+        if len(sessions) == 2:
+            d = diags[1 - k]
+        else:
+            say(f"sessions: diagnosis without {lab}")
+            core, val = validation_split(others)
+            d = diagnose_effects(nominal, core, val, max_effects=max_effects, seed=seed)
+        preps = _preps(recs, channels)
+        n0 = float(np.mean([theta_nrmse(nominal, MeasurementMap(), p) for p in preps]))
+        n1 = float(np.mean([theta_nrmse(d.corrected_rig, d.measurement, p) for p in preps]))
+        loo.append({"left_out": lab, "chosen_on_others": list(d.chosen), "nrmse_nominal": n0,
+                    "nrmse_corrected": n1, "shrink": 1.0 - n1 / n0 if n0 > 0 else math.nan})
+    table = drift_table(nominal, sessions, drift_set(chosen), labels=labels, channels=channels,
+                        progress=progress)
+    return {"sessions": labels, "per_session": per, "leave_one_out": loo, "drift": table,
+            "drift_sigma": session_sigma(table)}

@@ -1,0 +1,139 @@
+"""Held-out prediction, attainable shrink, drift tables and sessions of the gap tool (issue 16).
+
+Truth comes from the independent plant ``bench/truth_plant.py`` (no aeropend code): a hidden
+Coulomb friction in every session, and in a second session the rod's gravity term mgd/J 25 %
+lower (a heavier counterweight). The truth's drift share of the held-out gap is computed from
+the truth plant alone.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from aeropend_ident.gap_drift import DRIFT_Z, drift_rows, drift_set
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+import truth_plant as tp  # noqa: E402
+from bench_gap_independent import rig_dict, to_recording  # noqa: E402
+
+EFFECT = {"coulomb_friction": 1.5}
+DRIFT = 0.75  # mgd/J × 0.75 in the second session
+
+
+def test_drift_set_keeps_the_joint_fit_identifiable() -> None:
+    assert drift_set([]) == ["thrust_coefficient", "gravity", "viscous_friction"]
+    assert drift_set(["coulomb_friction"]) == ["coulomb_friction", "thrust_coefficient", "gravity",
+                                               "viscous_friction"]
+    # the thrust law sets K_q itself; the rod inertia is spanned by the three drift-prone parameters
+    assert drift_set(["thrust_law", "inertia"]) == ["thrust_law", "gravity", "viscous_friction"]
+
+
+def test_drift_rows_change_and_significance() -> None:
+    a = SimpleNamespace(values={"gravity": {"mgd_over_J": 100.0}, "viscous_friction": {"c_over_J": 10.0}},
+                        std={"gravity": {"mgd_over_J": 1.0}, "viscous_friction": {"c_over_J": 1.0}})
+    b = SimpleNamespace(values={"gravity": {"mgd_over_J": 80.0}, "viscous_friction": {"c_over_J": 11.0}},
+                        std={"gravity": {"mgd_over_J": 1.0}, "viscous_friction": {"c_over_J": 1.0}})
+    rows = drift_rows([a, b], ["viscous_friction", "gravity"])
+    assert [r["effect"] for r in rows] == ["gravity", "viscous_friction"]
+    g, v = rows
+    assert g["change"] == pytest.approx(-0.2) and g["z"] == pytest.approx(20.0 / math.sqrt(2.0))
+    assert g["drifts"] and g["z"] > DRIFT_Z
+    assert v["change"] == pytest.approx(0.1) and not v["drifts"]  # 1/√2 standard errors: noise
+
+
+def _sessions(seed: int) -> dict:
+    p = tp.PlantParams()
+    a = tp.TruthPlant(p, EFFECT)
+    b = tp.TruthPlant(p.scaled(mgd_over_J=DRIFT), EFFECT)
+    fit = tp.record(a, tp.lhs_steps(40.0, seed=seed), 50.0, seed + 1)
+    held = tp.record(b, tp.aprbs(30.0, seed=seed + 2), 50.0, seed + 3)
+    y = held.channels["theta"]
+    r = float(np.ptp(y))
+    n = float(np.std(y - held.true["theta"])) / r
+    e_d = float(np.sqrt(np.mean((a.simulate(held.duty)["theta"] - y) ** 2))) / r
+    big = float(np.sqrt(np.mean((tp.TruthPlant(p).simulate(held.duty)["theta"] - y) ** 2))) / r
+    return {"params": p, "fit": fit, "held": held, "b": b, "truth_share": (e_d**2 - n**2) / (big**2 - n**2)}
+
+
+@pytest.mark.slow
+def test_prediction_split_and_drift_table_on_a_drifting_second_session() -> None:
+    from aeropend_ident.gap_report import run_gap
+    from aeropend_sim.params import rig_from_dict
+
+    s = _sessions(700)
+    rig = rig_from_dict(rig_dict(s["params"], "lab_nominal"), where="test")
+    fit = [to_recording(s["fit"], "session1")]
+    held = [to_recording(s["held"], "session2")]
+    res = run_gap(rig, fit, held, seed=0, max_effects=2, oracle=False)
+    assert "coulomb_friction" in res.diagnosis.chosen
+    pr = res.prediction
+    assert pr["drift_source"] == "prior" and not pr["saw_heldout"]
+    assert pr["interval"][0] < pr["predicted"] < pr["interval"][1]
+    att = res.attainable[0]
+    # the correction (session 1) barely helps on session 2; a constant-parameter fit there would
+    assert att["corrected"] > 5 * att["oracle"]
+    assert att["split"]["removable_not_removed"] == pytest.approx(s["truth_share"], abs=0.10)
+    top = next(r for r in att["drift"]["rows"] if r["drifts"])
+    assert top["effect"] == "gravity"
+    assert top["change"] == pytest.approx(DRIFT - 1.0, abs=0.08)
+    # the held-out data never reach the diagnosis or the prediction: change them, and everything
+    # before the "after" section of the report stays bit-identical
+    noisy = s["held"].channels["theta"] + np.random.default_rng(1).normal(0.0, 0.05, s["held"].t.size)
+    held2 = [to_recording(s["held"], "session2")]
+    held2[0].channels["theta"] = noisy
+    res2 = run_gap(rig, fit, held2, seed=0, max_effects=2, oracle=False)
+    d1, d2 = res.as_dict(), res2.as_dict()
+    for d in (d1, d2):
+        d["which"].pop("elapsed_s")  # wall time, the one field that may differ
+    for key in ("where", "which", "where_which", "sessions", "prediction"):
+        assert json.dumps(d1[key], sort_keys=True) == json.dumps(d2[key], sort_keys=True), key
+    assert d1["after"]["test"] != d2["after"]["test"]
+
+
+@pytest.mark.slow
+def test_cli_sessions_leave_one_out_and_drift_table(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    import yaml
+
+    from aeropend_ident import csv_import
+    from aeropend_ident.csv_import import CsvSpec
+    from aeropend_ident.gap_cli import main
+
+    s = _sessions(800)
+    later = tp.record(s["b"], tp.lhs_steps(30.0, seed=810), 50.0, 811)
+    s["fit"].to_csv(tmp_path / "monday.csv")
+    s["held"].to_csv(tmp_path / "tuesday.csv")
+    later.to_csv(tmp_path / "wednesday.csv")
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig_dict(s["params"], "lab_nominal")), encoding="utf-8")
+    csv_import.PRESETS["_drift_test"] = CsvSpec(
+        angle_col="theta_rad", time_col="time_s", input_col="duty", input_kind="duty",
+        channels={"i_a": ("i_a_A", 1.0), "v_a": ("v_a_V", 1.0), "omega_rotor": ("omega_rad_s", 1.0)})
+    try:
+        arg = {k: f"{tmp_path / k}.csv:_drift_test" for k in ("monday", "tuesday", "wednesday")}
+        rc = main(["--sessions", arg["monday"], arg["tuesday"], "--held-out", arg["wednesday"],
+                   "--rig", str(tmp_path / "rig.yaml"), "-o", str(tmp_path / "out"), "--no-oracle", "-q"])
+    finally:
+        del csv_import.PRESETS["_drift_test"]
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "SESSIONS" in text and "PREDICTED" in text and "ATTAINABLE" in text
+    rep = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))
+    sess = rep["sessions"]
+    assert sess["sessions"] == ["monday.csv", "tuesday.csv"]
+    assert len(sess["leave_one_out"]) == 2
+    top = next(r for r in sess["drift"]["rows"] if r["drifts"])
+    assert top["effect"] == "gravity" and top["change"] == pytest.approx(DRIFT - 1.0, abs=0.08)
+    assert rep["prediction"]["drift_source"] == "sessions"
+    assert "gravity" in rep["prediction"]["drift_sigma"]
+    check = rep["after"]["prediction_check"]
+    assert check["actual"] == pytest.approx(rep["headline"]["heldout_nrmse_corrected"])
+    html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
+    assert "Parameter drift" in html and "Attainable shrink" in html
