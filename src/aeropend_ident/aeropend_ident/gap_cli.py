@@ -51,9 +51,8 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_ident.gap_split import interleaved_blocks, time_ordered
-from aeropend_ident.greybox import IdentificationError, rig_theta_offset
 from aeropend_ident.recording_input import load_recording, split_preset, uniform_recording
-from aeropend_sim.params import RigFileError, load_rig, shipped_rigs
+from aeropend_sim.params import RigFileError
 from aeropend_sim.recording import Recording, RecordingError
 
 #: Fewest samples per recording part (fit or held out).
@@ -85,15 +84,19 @@ def resolve_rig(ref: str) -> tuple[object, float]:
     GapCliError
         Unknown rig name, missing file or malformed rig file.
     """
-    p = Path(ref)
-    if p.suffix not in (".yaml", ".yml") and ref not in shipped_rigs():
-        raise GapCliError(f"unknown rig {ref!r}; expected a rig-file path (.yaml) or one of {shipped_rigs()}")
-    if p.suffix in (".yaml", ".yml") and not p.is_file():
-        raise GapCliError(f"rig file {p} does not exist")
+    from aeropend_ident.compare import CompareError, load_model
+
     try:
-        return load_rig(ref), rig_theta_offset(ref)
-    except (RigFileError, IdentificationError) as exc:
-        raise GapCliError(f"rig {ref}: {exc}") from exc
+        model = load_model(ref)
+    except CompareError as exc:
+        raise GapCliError(str(exc)) from exc
+    if model.measurement.theta_scale != 1.0:
+        raise GapCliError(
+            f"rig {ref}: recording_frame.theta_scale = {model.measurement.theta_scale:g}; the gap diagnosis "
+            "takes a nominal rig with a θ offset only (a sensor gain is one of the effects it finds): use "
+            "the nominal rig file, or compare this one with `compare`"
+        )
+    return model.rig, model.measurement.theta_offset
 
 
 def prepare(

@@ -88,6 +88,14 @@ def _preps(recs: Sequence[Recording], channels: Sequence[str]) -> list[Prepared]
     return prepare(list(recs), frozenset(channels) | {"theta"})
 
 
+def _fit_set(nominal: Rig, effects: Sequence[str], preps: Sequence[Prepared],
+             start: Mapping[str, Mapping[str, float]] | None = None, scan: bool = False) -> Any:
+    """The effect set fitted on prepared recordings, search ranges from those recordings."""
+    ctx = EffectContext.from_data(nominal, np.concatenate([p.y["theta"] for p in preps]),
+                                  np.concatenate([p.duty for p in preps]))
+    return fit_effects(nominal, list(effects), list(preps), ctx, start=start, scan=scan)
+
+
 def theta_nrmse(rig: Rig, meas: MeasurementMap, prep: Prepared) -> float:
     """Free-run θ NRMSE (RMS error / θ range) of a rig on one prepared recording."""
     sim = replay(rig, meas, prep)["theta"]
@@ -218,8 +226,7 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
 
 def _oracle(rig: Rig, effects: Sequence[str], prep: Prepared, start: Mapping[str, Mapping[str, float]]
             ) -> tuple[float, dict[str, Any]]:
-    ctx = EffectContext.from_data(rig, prep.y["theta"], prep.duty)
-    fr = fit_effects(rig, list(effects), [prep], ctx, start=start, scan=len(effects) == 1)
+    fr = _fit_set(rig, effects, [prep], start=start, scan=len(effects) == 1)
     params = {e: {k: {"value": fr.values[e][k], "std": fr.std.get(e, {}).get(k)} for k in fr.values[e]}
               for e in fr.values}
     return theta_nrmse(fr.rig, fr.meas, prep), params
@@ -266,10 +273,7 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
     fit_a = None
     if fit:
         say(f"attainable: fitting {', '.join(dset)} on the fit recordings")
-        pa = _preps(fit, diag.channels or ("theta",))
-        ctx_a = EffectContext.from_data(nominal, np.concatenate([p.y["theta"] for p in pa]),
-                                        np.concatenate([p.duty for p in pa]))
-        fit_a = fit_effects(nominal, dset, pa, ctx_a, start=vals, scan=False)
+        fit_a = _fit_set(nominal, dset, _preps(fit, diag.channels or ("theta",)), start=vals)
     out = []
     for rec in held_out:
         prep = _preps([rec], diag.channels or ("theta",))[0]
@@ -285,8 +289,7 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
                                  for k in vals[e]} for e in vals}
         # the chosen set plus the drift-prone parameters: what a session change of the rig needs
         try:
-            ctx_b = EffectContext.from_data(nominal, prep.y["theta"], prep.duty)
-            fit_b = fit_effects(nominal, dset, [prep], ctx_b, start=vals, scan=False)
+            fit_b = _fit_set(nominal, dset, [prep], start=vals)
             o_drift = theta_nrmse(fit_b.rig, fit_b.meas, prep)
             if fit_a is not None:
                 row["drift"] = {"sessions": ["fit", rec.source or "held-out"], "effects": dset,
@@ -380,10 +383,7 @@ def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: 
     fits = []
     for lab, recs in zip(labels, sessions, strict=True):
         say(f"drift: fitting {', '.join(effects)} on {lab}")
-        preps = _preps(recs, channels)
-        ctx = EffectContext.from_data(nominal, np.concatenate([p.y["theta"] for p in preps]),
-                                      np.concatenate([p.duty for p in preps]))
-        fits.append(fit_effects(nominal, list(effects), preps, ctx))
+        fits.append(_fit_set(nominal, effects, _preps(recs, channels)))
     rows = drift_rows(fits, effects)
     return {"sessions": labels, "effects": list(effects), "rows": rows,
             "drifting": [f"{r['effect']}.{r['parameter']}" for r in rows if r["drifts"]]}
