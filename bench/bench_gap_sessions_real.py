@@ -93,6 +93,12 @@ def run(name: str, case: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+def _change(x: dict[str, Any]) -> str:
+    """Effect and its change: relative, or absolute where the reference is ~0 (NaN relative)."""
+    c = x["change"]
+    return f"{x['effect']} " + (f"{c:+.0%}" if c == c else f"{x['abs_change']:+.3g} {x['unit']}")
+
+
 def write_md(path: Path, rows: list[dict[str, Any]]) -> None:
     lines = [
         "# Real rigs: predicted vs actual held-out NRMSE, attainable shrink, drift (issue 16)",
@@ -112,7 +118,7 @@ def write_md(path: Path, rows: list[dict[str, Any]]) -> None:
             sp = h["split"]
             drifting = (
                 ", ".join(
-                    f"{x['effect']} {x['change']:+.0%}" for x in (d or {}).get("rows", []) if x["drifts"]
+                    _change(x) for x in (d or {}).get("rows", []) if x["drifts"]
                 )
                 or "none"
             )

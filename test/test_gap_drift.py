@@ -47,6 +47,11 @@ def test_drift_rows_change_and_significance() -> None:
     assert g["change"] == pytest.approx(-0.2) and g["z"] == pytest.approx(20.0 / math.sqrt(2.0))
     assert g["drifts"] and g["z"] > DRIFT_Z
     assert v["change"] == pytest.approx(0.1) and not v["drifts"]  # 1/√2 standard errors: noise
+    # an effect absent in the first session (a dead zone at 0) has no relative change: absolute
+    a.values["dead_zone"], a.std["dead_zone"] = {"dead_zone": 0.0}, {"dead_zone": 0.001}
+    b.values["dead_zone"], b.std["dead_zone"] = {"dead_zone": 0.02}, {"dead_zone": 0.001}
+    dz = next(r for r in drift_rows([a, b], ["dead_zone"]) if r["effect"] == "dead_zone")
+    assert math.isnan(dz["change"]) and dz["abs_change"] == pytest.approx(0.02) and dz["drifts"]
 
 
 def _sessions(seed: int) -> dict:

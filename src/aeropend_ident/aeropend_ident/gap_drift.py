@@ -52,6 +52,7 @@ from aeropend_ident.gap_effects import EffectContext, GapError, MeasurementMap, 
 from aeropend_ident.gap_which import (
     EffectDiagnosis,
     Prepared,
+    detect_quantum,
     diagnose_effects,
     fit_effects,
     prepare,
@@ -82,6 +83,9 @@ INTERVAL = (0.10, 0.90)
 DRIFT_Z = 3.0
 #: ... and more than this relative change.
 DRIFT_MIN = 0.03
+#: A change is relative only when the reference value exceeds this share of the largest value
+#: (a dead zone, drop or delay absent in one session has no relative change; its absolute is given).
+RELATIVE_FLOOR = 1e-3
 
 
 def _preps(recs: Sequence[Recording], channels: Sequence[str]) -> list[Prepared]:
@@ -103,8 +107,11 @@ def theta_nrmse(rig: Rig, meas: MeasurementMap, prep: Prepared) -> float:
 
 
 def noise_floor(prep: Prepared) -> float:
-    """θ noise floor n = σ̂_θ / range (robust σ̂: :func:`aeropend_ident.greybox.noise_level`)."""
-    return noise_level(prep.y["theta"]) / prep.scale["theta"]
+    """θ noise floor n = σ̂_θ / range: the robust white-noise estimate
+    (:func:`aeropend_ident.greybox.noise_level`), at least the quantisation noise q/√12 of a
+    quantised angle (:func:`aeropend_ident.gap_which.detect_quantum`), which the first reads as 0."""
+    q = detect_quantum(prep.y["theta"])
+    return max(noise_level(prep.y["theta"]), q / math.sqrt(12.0)) / prep.scale["theta"]
 
 
 def _perturbed(rig: Rig, factors: Mapping[str, float]) -> Rig:
@@ -392,26 +399,28 @@ def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: 
 def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, Any]]:
     """Rows of a drift table from the same effect set fitted on several sessions (first = reference).
 
-    Each row: ``effect``, ``parameter``, ``unit``, ``values``, ``std``, ``change`` (largest
-    relative change from the first session), ``z`` (that change over the combined standard
-    errors), ``drifts`` (z > :data:`DRIFT_Z` and |change| > :data:`DRIFT_MIN`); drifting rows
-    first, most significant first.
+    Each row: ``effect``, ``parameter``, ``unit``, ``values``, ``std``, ``abs_change`` (largest
+    change from the first session, in the unit), ``change`` (the same relative to the first
+    session's value; NaN when that value is ~0, :data:`RELATIVE_FLOOR`), ``z`` (the change over the
+    combined standard errors), ``drifts`` (z > :data:`DRIFT_Z` and, where relative, |change| >
+    :data:`DRIFT_MIN`); drifting rows first, most significant first.
     """
     rows = []
     for eff in effects:
         for par in get_effect(eff).parameters:
             v = np.array([f.values[eff][par.name] for f in fits])
             s = np.array([f.std.get(eff, {}).get(par.name, math.nan) for f in fits])
-            ref = v[0] if v[0] != 0.0 else 1.0
-            change = (v - v[0]) / abs(ref)
+            # a relative change only where the reference is a size (not an absent effect at ~0)
+            relative = abs(v[0]) > RELATIVE_FLOOR * float(np.max(np.abs(v)))
             comb = np.sqrt(s**2 + s[0] ** 2)
             with np.errstate(divide="ignore", invalid="ignore"):
                 z = np.where(comb > 0.0, np.abs(v - v[0]) / comb, math.inf)
-            k = int(np.argmax(np.abs(change[1:]))) + 1
+            k = int(np.argmax(np.abs(v[1:] - v[0]))) + 1
+            change = float((v[k] - v[0]) / abs(v[0])) if relative else math.nan
             zk = float(z[k]) if np.isfinite(z[k]) else math.inf
             rows.append({"effect": eff, "parameter": par.name, "unit": par.unit, "values": v.tolist(),
-                         "std": s.tolist(), "change": float(change[k]), "z": zk,
-                         "drifts": bool(zk > DRIFT_Z and abs(change[k]) > DRIFT_MIN)})
+                         "std": s.tolist(), "change": change, "abs_change": float(v[k] - v[0]), "z": zk,
+                         "drifts": bool(zk > DRIFT_Z and (not relative or abs(change) > DRIFT_MIN))})
     rows.sort(key=lambda r: (not r["drifts"], -r["z"]))
     return rows
 

@@ -955,10 +955,18 @@ def _drift_html(result: GapResult) -> str:
     for t in tables:
         rows = [[f"{r['effect']}.{r['parameter']}", " / ".join(
             f"{v:.4g} ± {sd:.2g}" for v, sd in zip(r["values"], r["std"], strict=True)), r["unit"],
-            f"{r['change']:+.1%}", _fmt(r["z"], ".1f"), "yes" if r["drifts"] else ""] for r in t["rows"]]
+            _change(r), _fmt(r["z"], ".1f"), "yes" if r["drifts"] else ""] for r in t["rows"]]
         parts.append(f"<h3>Parameter drift: {' vs '.join(_label(x) for x in t['sessions'])}</h3>" + _table(
             rows, ["parameter", "values ± std", "unit", "change", "z", "drifts"]))
     return "\n".join(parts)
+
+
+def _change(row: dict[str, Any]) -> str:
+    """A drift-table change: relative where the reference is a size, else absolute in the unit."""
+    c = row.get("change")
+    if c is not None and math.isfinite(c):
+        return f"{c:+.1%}"
+    return f"{row['abs_change']:+.4g} {row['unit']}"
 
 
 def _drift_lines(table: dict[str, Any], top: int = 4) -> list[str]:
@@ -967,7 +975,7 @@ def _drift_lines(table: dict[str, Any], top: int = 4) -> list[str]:
     for r in table["rows"][:top]:
         vals = " / ".join(f"{v:.4g}" for v in r["values"])
         out.append(f"      {'!' if r['drifts'] else ' '} {r['effect']}.{r['parameter']:14s} {vals} "
-                   f"{r['unit']} change {r['change']:+.1%} (z {r['z']:.1f})")
+                   f"{r['unit']} change {_change(r)} (z {r['z']:.1f})")
     return out
 
 
