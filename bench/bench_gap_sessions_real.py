@@ -9,7 +9,7 @@ the best constant-parameter fit there and the drift table.
 Writes ``bench/results/gap_sessions_real.json`` and ``.md``; report folders under
 ``bench/results/gap_sessions_real/``.
 
-Usage: ``python bench/bench_gap_sessions_real.py [--only CASE ...]``
+Usage: ``python bench/bench_gap_sessions_real.py [--only CASE ...] [--md-only]``
 """
 
 from __future__ import annotations
@@ -94,9 +94,14 @@ def run(name: str, case: dict[str, Any]) -> dict[str, Any]:
 
 
 def _change(x: dict[str, Any]) -> str:
-    """Effect and its change: relative, or absolute where the reference is ~0 (NaN relative)."""
-    c = x["change"]
-    return f"{x['effect']} " + (f"{c:+.0%}" if c == c else f"{x['abs_change']:+.3g} {x['unit']}")
+    """Effect and its change: relative, or absolute where the reference value is ~0 (the rule of
+    :func:`aeropend_ident.gap_drift.drift_rows`, also applied to rows written before it)."""
+    from aeropend_ident.gap_drift import RELATIVE_FLOOR
+
+    v0, v1 = x["values"][0], x["values"][1]
+    if abs(v0) > RELATIVE_FLOOR * max(abs(v0), abs(v1)):
+        return f"{x['effect']} {(v1 - v0) / abs(v0):+.0%}"
+    return f"{x['effect']} {v1 - v0:+.3g} {x['unit']}"
 
 
 def write_md(path: Path, rows: list[dict[str, Any]]) -> None:
@@ -105,28 +110,25 @@ def write_md(path: Path, rows: list[dict[str, Any]]) -> None:
         "",
         "Protocol: docs/gap.md, pre-registered. θ NRMSE = RMS error / θ range of the held-out recording.",
         "",
-        "| case | chosen | predicted [80 %] | actual | inside | nominal → corrected → best there | removed / "
-        "removable not removed / not removable | drifting (fit vs held out) |",
-        "|---|---|---|---|---|---|---|---|",
+        "| case | chosen | predicted [80 %] | actual | inside | nominal → corrected | refitted there: same "
+        "set / + drift-prone parameters / best catalog set | removed / removable not removed / "
+        "not removable | drifting (fit vs held out) |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         if r["exit"] != 0:
-            lines.append(f"| {r['case']} | exit {r['exit']} | | | | | | |")
+            lines.append(f"| {r['case']} | exit {r['exit']} | | | | | | | |")
             continue
         p, c = r["prediction"], r["check"]
         for h, d in zip(r["heldout"], r["drift"], strict=True):
             sp = h["split"]
-            drifting = (
-                ", ".join(
-                    _change(x) for x in (d or {}).get("rows", []) if x["drifts"]
-                )
-                or "none"
-            )
+            drifting = ", ".join(_change(x) for x in (d or {}).get("rows", []) if x["drifts"]) or "none"
             lines.append(
                 f"| {r['case']} | {'+'.join(r['chosen']) or 'none'} | {p['predicted']:.4f} "
                 f"[{p['interval'][0]:.4f}, {p['interval'][1]:.4f}] | {c['actual']:.4f} | "
-                f"{'yes' if c['inside'] else 'no'} | {h['nominal']:.4f} → {h['corrected']:.4f} → "
-                f"{h['oracle']:.4f} ({'+'.join(h['oracle_best_effects'])}) | {sp['removed']:.0%} / "
+                f"{'yes' if c['inside'] else 'no'} | {h['nominal']:.4f} → {h['corrected']:.4f} | "
+                f"{h['oracle_same']:.4f} / {h['oracle_drift']:.4f} / {h['oracle_best']:.4f} "
+                f"({'+'.join(h['oracle_best_effects'])}) | {sp['removed']:.0%} / "
                 f"{sp['removable_not_removed']:.0%} / {sp['not_removable']:.0%} | {drifting} |"
             )
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
@@ -135,7 +137,12 @@ def write_md(path: Path, rows: list[dict[str, Any]]) -> None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--only", nargs="+", default=None, choices=sorted(CASES))
+    ap.add_argument("--md-only", action="store_true", help="rewrite the .md from the stored .json")
     args = ap.parse_args(argv)
+    if args.md_only:
+        rows = json.loads((RESULTS / "gap_sessions_real.json").read_text(encoding="utf-8"))
+        write_md(RESULTS / "gap_sessions_real.md", rows)
+        return 0
     rows = []
     for name, case in CASES.items():
         if args.only and name not in args.only:
