@@ -40,7 +40,16 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop
+from ros_support import (
+    frozen_gc,
+    gc_pauses,
+    isolated_env,
+    node_command,
+    private_node,
+    random_domain,
+    reap,
+    stop,
+)
 
 PERIOD_NS = 2_048_000
 
@@ -50,16 +59,6 @@ def run(domain: int, seconds: float, freeze: bool, force: bool) -> dict:
 
     from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_JOINT_STATES
     from aeropend_sim.ros_contract import SAMPLE_SUB_QOS
-
-    pauses: list[float] = []
-    t0 = [0.0]
-
-    def on_gc(phase: str, info: dict) -> None:
-        if info.get("generation") == 2:
-            if phase == "start":
-                t0[0] = time.perf_counter()
-            else:
-                pauses.append(time.perf_counter() - t0[0])
 
     args = [*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", "rig:=thesis_sim",
             "-p", "mode:=realtime", "-p", "rt_priority:=20"]
@@ -75,21 +74,13 @@ def run(domain: int, seconds: float, freeze: bool, force: bool) -> dict:
             end = time.monotonic() + 20.0
             while not js and time.monotonic() < end:
                 executor.spin_once(timeout_sec=0.005)
-            js.clear()
-            if freeze:
-                gc.collect()
-                gc.freeze()
-            gc.callbacks.append(on_gc)
-            if force:  # the full collection a late pytest process runs when its threshold is reached
-                threading.Timer(seconds / 2, gc.collect).start()
-            try:
+            with frozen_gc() if freeze else gc_pauses() as pauses:
+                js.clear()
+                if force:  # the full collection a late pytest process runs when its threshold is reached
+                    threading.Timer(seconds / 2, gc.collect).start()
                 end = time.monotonic() + seconds
                 while time.monotonic() < end:
                     executor.spin_once(timeout_sec=0.005)
-            finally:
-                gc.callbacks.remove(on_gc)
-                if freeze:
-                    gc.unfreeze()
     finally:
         stop(proc, signal.SIGTERM)
         reap(proc)

@@ -279,6 +279,28 @@ def private_node(name: str, domain: int) -> Iterator[tuple[Node, SingleThreadedE
 
 
 @contextmanager
+def gc_pauses() -> Iterator[list[float]]:
+    """Record the durations [s] of the generation-2 garbage collections run inside the block."""
+    import gc
+
+    pauses: list[float] = []
+    start = [0.0]
+
+    def watch(phase: str, info: dict) -> None:
+        if info.get("generation") == 2:
+            if phase == "start":
+                start[0] = time.perf_counter()
+            else:
+                pauses.append(time.perf_counter() - start[0])
+
+    gc.callbacks.append(watch)
+    try:
+        yield pauses
+    finally:
+        gc.callbacks.remove(watch)
+
+
+@contextmanager
 def frozen_gc() -> Iterator[list[float]]:
     """Keep this process' cyclic garbage collector from pausing a real-time subscriber.
 
@@ -296,21 +318,10 @@ def frozen_gc() -> Iterator[list[float]]:
     """
     import gc
 
-    pauses: list[float] = []
-    start = [0.0]
-
-    def watch(phase: str, info: dict) -> None:
-        if info.get("generation") == 2:
-            if phase == "start":
-                start[0] = time.perf_counter()
-            else:
-                pauses.append(time.perf_counter() - start[0])
-
     gc.collect()
     gc.freeze()
-    gc.callbacks.append(watch)
     try:
-        yield pauses
+        with gc_pauses() as pauses:
+            yield pauses
     finally:
-        gc.callbacks.remove(watch)
         gc.unfreeze()
