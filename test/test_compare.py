@@ -13,6 +13,7 @@ import fnmatch
 import json
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -178,21 +179,14 @@ def test_compare_refuses_unusable_input(tmp_path: Path) -> None:
         compare([], [rec])
 
 
-def test_cli_writes_json_and_overlays(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_writes_json_and_overlays(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                      truth_csv_preset: Callable[..., str]) -> None:
     plant = tp.TruthPlant(effects={"thrust_coefficient": 0.8})
     tr = tp.record(plant, tp.lhs_steps(16.0, seed=7), 50.0, seed=8)
     tr.to_csv(tmp_path / "log.csv")
-    from aeropend_ident import csv_import
-    from aeropend_ident.csv_import import CsvSpec
-
-    csv_import.PRESETS["_compare_test"] = CsvSpec(
-        angle_col="theta_rad", time_col="time_s", input_col="duty", input_kind="duty",
-        channels={"i_a": ("i_a_A", 1.0), "omega_rotor": ("omega_rad_s", 1.0)})
-    try:
-        rc = main([f"{tmp_path / 'log.csv'}:_compare_test", "--rig", str(_lab_rig(tmp_path)), "thesis_rig",
-                   "--label", "lab", "thesis", "-o", str(tmp_path / "out")])
-    finally:
-        del csv_import.PRESETS["_compare_test"]
+    preset = truth_csv_preset("_compare_test", ("i_a", "omega_rotor"))
+    rc = main([f"{tmp_path / 'log.csv'}:{preset}", "--rig", str(_lab_rig(tmp_path)), "thesis_rig",
+               "--label", "lab", "thesis", "-o", str(tmp_path / "out")])
     assert rc == 0
     out = capsys.readouterr().out
     assert "log.csv" in out and "lab" in out and "thesis" in out

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -104,12 +105,10 @@ def test_prediction_split_and_drift_table_on_a_drifting_second_session() -> None
 
 
 @pytest.mark.slow
-def test_cli_sessions_leave_one_out_and_drift_table(tmp_path: Path,
-                                                    capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_sessions_leave_one_out_and_drift_table(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                    truth_csv_preset: Callable[..., str]) -> None:
     import yaml
 
-    from aeropend_ident import csv_import
-    from aeropend_ident.csv_import import CsvSpec
     from aeropend_ident.gap_cli import main
 
     s = _sessions(800)
@@ -118,15 +117,10 @@ def test_cli_sessions_leave_one_out_and_drift_table(tmp_path: Path,
     s["held"].to_csv(tmp_path / "tuesday.csv")
     later.to_csv(tmp_path / "wednesday.csv")
     (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig_dict(s["params"], "lab_nominal")), encoding="utf-8")
-    csv_import.PRESETS["_drift_test"] = CsvSpec(
-        angle_col="theta_rad", time_col="time_s", input_col="duty", input_kind="duty",
-        channels={"i_a": ("i_a_A", 1.0), "v_a": ("v_a_V", 1.0), "omega_rotor": ("omega_rad_s", 1.0)})
-    try:
-        arg = {k: f"{tmp_path / k}.csv:_drift_test" for k in ("monday", "tuesday", "wednesday")}
-        rc = main(["--sessions", arg["monday"], arg["tuesday"], "--held-out", arg["wednesday"],
-                   "--rig", str(tmp_path / "rig.yaml"), "-o", str(tmp_path / "out"), "--no-oracle", "-q"])
-    finally:
-        del csv_import.PRESETS["_drift_test"]
+    preset = truth_csv_preset("_drift_test")
+    arg = {k: f"{tmp_path / k}.csv:{preset}" for k in ("monday", "tuesday", "wednesday")}
+    rc = main(["--sessions", arg["monday"], arg["tuesday"], "--held-out", arg["wednesday"],
+               "--rig", str(tmp_path / "rig.yaml"), "-o", str(tmp_path / "out"), "--no-oracle", "-q"])
     assert rc == 0
     text = capsys.readouterr().out
     assert "SESSIONS" in text and "PREDICTED" in text and "ATTAINABLE" in text

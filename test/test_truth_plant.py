@@ -102,12 +102,11 @@ def test_noise_has_the_requested_snr():
 
 
 @pytest.mark.slow
-def test_a_lab_path_csv_import_gap_names_the_hidden_drag(tmp_path):
+def test_a_lab_path_csv_import_gap_names_the_hidden_drag(tmp_path, truth_csv_preset):
     """CSV log of the independent plant -> ``csv_import`` mapping -> ``gap`` with a lab's rig file:
     a propeller drag the rig file omits (K_d = 0) is named and fitted in physical units."""
     import yaml
 
-    from aeropend_ident.csv_import import CsvSpec
     from aeropend_ident.gap_cli import main
 
     kd = 3.0 * tp.PlantParams().J_m  # dω₁/dt gains −3·ω₁|ω₁|
@@ -116,24 +115,15 @@ def test_a_lab_path_csv_import_gap_names_the_hidden_drag(tmp_path):
     held = tp.record(plant, tp.aprbs(30.0, seed=7), 50.0, seed=8)
     fit.to_csv(tmp_path / "fit.csv")
     held.to_csv(tmp_path / "held.csv")
-    spec = CsvSpec(angle_col="theta_rad", angle_unit="rad", time_col="time_s", time_unit="s",
-                   input_col="duty", input_kind="duty",
-                   channels={"i_a": ("i_a_A", 1.0), "v_a": ("v_a_V", 1.0),
-                             "omega_rotor": ("omega_rad_s", 1.0)})
-    from aeropend_ident import csv_import
-
-    csv_import.PRESETS["_truth_plant_test"] = spec
-    try:
-        rig = yaml.safe_load((Path(__file__).resolve().parents[1] / "src/aeropend_sim/aeropend_sim/rigs/"
-                              "thesis_sim.yaml").read_text(encoding="utf-8"))
-        rig["effects"]["hbridge_map"] = False
-        rig["actuator"]["v_supply"]["value"] = 2.32
-        (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig), encoding="utf-8")
-        out = tmp_path / "report"
-        assert main([str(tmp_path / "fit.csv"), "--held-out", str(tmp_path / "held.csv"), "--preset",
-                     "_truth_plant_test", "--rig", str(tmp_path / "rig.yaml"), "-o", str(out), "-q"]) == 0
-    finally:
-        del csv_import.PRESETS["_truth_plant_test"]
+    preset = truth_csv_preset("_truth_plant_test")
+    rig = yaml.safe_load((Path(__file__).resolve().parents[1] / "src/aeropend_sim/aeropend_sim/rigs/"
+                          "thesis_sim.yaml").read_text(encoding="utf-8"))
+    rig["effects"]["hbridge_map"] = False
+    rig["actuator"]["v_supply"]["value"] = 2.32
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig), encoding="utf-8")
+    out = tmp_path / "report"
+    assert main([str(tmp_path / "fit.csv"), "--held-out", str(tmp_path / "held.csv"), "--preset",
+                 preset, "--rig", str(tmp_path / "rig.yaml"), "-o", str(out), "-q"]) == 0
     rep = json.loads((out / "report.json").read_text())
     assert rep["headline"]["effects_chosen"] == ["propeller_drag"]
     drag = rep["which"]["ranking"][0]

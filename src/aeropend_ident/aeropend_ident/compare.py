@@ -39,7 +39,7 @@ from scipy.signal import savgol_filter
 
 from aeropend_ident.gap_effects import GapError, MeasurementMap
 from aeropend_ident.gap_where import input_cross_correlation, ljung_box
-from aeropend_ident.gap_which import FIT_CHANNELS, prepare, replay
+from aeropend_ident.gap_which import FIT_CHANNELS, duty_holds, prepare, replay, step_info
 from aeropend_ident.greybox import IdentificationError, rig_theta_offset, rig_theta_scale
 from aeropend_sim.params import Rig, RigFileError, load_rig, shipped_rigs
 from aeropend_sim.recording import Recording
@@ -99,12 +99,6 @@ def load_model(ref: str, label: str | None = None) -> RigModel:
     return RigModel(label=label or (p.stem if p.suffix else ref), ref=str(ref), rig=rig, measurement=meas)
 
 
-def _holds(duty: np.ndarray, dt: float, min_hold: float) -> list[tuple[int, int]]:
-    """[start, stop) of every constant-duty stretch of at least ``min_hold`` seconds."""
-    edges = np.concatenate(([0], np.flatnonzero(np.diff(duty) != 0.0) + 1, [duty.size]))
-    return [(int(a), int(b)) for a, b in itertools.pairwise(edges) if (b - a) * dt >= min_hold]
-
-
 def channel_scores(measured: np.ndarray, simulated: np.ndarray, duty: np.ndarray, dt: float,
                    min_hold: float = MIN_HOLD) -> dict[str, Any]:
     """Scores of one simulated channel against the recorded one (module docstring).
@@ -134,7 +128,7 @@ def channel_scores(measured: np.ndarray, simulated: np.ndarray, duty: np.ndarray
     rms = float(np.sqrt(np.mean(e**2)))
     spread = float(np.linalg.norm(y - np.mean(y)))
     ss = []
-    for a, b in _holds(duty, dt, min_hold):
+    for a, b in duty_holds(duty, dt, min_hold):
         q = a + 3 * (b - a) // 4
         ss.append(float(np.mean(e[q:b])))
     lb = ljung_box(-e)
@@ -158,15 +152,6 @@ def channel_scores(measured: np.ndarray, simulated: np.ndarray, duty: np.ndarray
     }
 
 
-def _step_info(y: np.ndarray, t: np.ndarray) -> dict[str, float]:
-    import control  # python-control: field-standard step metrics
-
-    tail = max(1, y.size // 4)
-    info = control.step_info(y, T=t, yfinal=float(np.mean(y[-tail:])))
-    return {"rise_time": float(info["RiseTime"]), "settling_time": float(info["SettlingTime"]),
-            "overshoot": float(info["Overshoot"]), "peak_time": float(info["PeakTime"])}
-
-
 def step_metrics(theta: np.ndarray, sim: np.ndarray, duty: np.ndarray, dt: float,
                  min_hold: float = MIN_HOLD) -> list[dict[str, Any]]:
     """Step metrics of the recorded and the simulated θ for every duty step between two holds.
@@ -184,7 +169,7 @@ def step_metrics(theta: np.ndarray, sim: np.ndarray, duty: np.ndarray, dt: float
     w = round(STEP_SMOOTHING / dt) | 1
     smooth = savgol_filter(theta, w, 2) if w >= 5 and theta.size > w else np.asarray(theta, dtype=float)
     out = []
-    holds = _holds(duty, dt, min_hold)
+    holds = duty_holds(duty, dt, min_hold)
     for (a0, b0), (a, b) in itertools.pairwise(holds):
         if b0 != a:
             continue
@@ -194,7 +179,8 @@ def step_metrics(theta: np.ndarray, sim: np.ndarray, duty: np.ndarray, dt: float
         ys = sim[a:b] - float(np.mean(sim[pre:b0]))
         if np.ptp(yr) == 0.0 or np.ptp(ys) == 0.0:
             continue
-        rec, simm = _step_info(yr, t), _step_info(ys, t)
+        rec = step_info(yr, t, float(np.mean(yr[-max(1, yr.size // 4):])))
+        simm = step_info(ys, t, float(np.mean(ys[-max(1, ys.size // 4):])))
         out.append({"t_start": float(a * dt), "duty_from": float(duty[a - 1]), "duty_to": float(duty[a]),
                     "recorded": rec, "simulated": simm,
                     "abs_error": {k: abs(simm[k] - rec[k]) for k in rec}})

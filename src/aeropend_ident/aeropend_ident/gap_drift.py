@@ -54,6 +54,7 @@ from aeropend_ident.gap_which import (
     Prepared,
     detect_quantum,
     diagnose_effects,
+    excluded_with,
     fit_effects,
     prepare,
     replay,
@@ -346,10 +347,16 @@ def drift_set(chosen: Sequence[str]) -> list[str]:
     """The chosen effects plus the drift-prone parameters they do not already set (an effect the
     drift-prone parameters span, :data:`SPANNED_BY_DRIFT`, is replaced by them)."""
     kept = [n for n in chosen if n not in SPANNED_BY_DRIFT]
-    excluded = set(kept)
-    for n in kept:
-        excluded |= set(get_effect(n).exclusive_with)
+    excluded = excluded_with(kept)
     return [*kept, *(e for e in DRIFT_PARAMETERS if e not in excluded)]
+
+
+def _session_labels(sessions: Sequence[Sequence[Recording]], labels: Sequence[str] | None,
+                    what: str) -> list[str]:
+    """Names of two or more sessions (default "session k"); GapError for fewer than two."""
+    if len(sessions) < 2:
+        raise GapError(f"{what}: {len(sessions)} session(s) given; need at least 2")
+    return list(labels or [f"session {k + 1}" for k in range(len(sessions))])
 
 
 def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: Sequence[str], *,
@@ -383,10 +390,8 @@ def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: 
     GapError
         Fewer than two sessions, or a fit failing on a session.
     """
-    if len(sessions) < 2:
-        raise GapError(f"drift table: {len(sessions)} session(s); need at least 2")
+    labels = _session_labels(sessions, labels, "drift table")
     say = progress or (lambda _m: None)
-    labels = list(labels or [f"session {k + 1}" for k in range(len(sessions))])
     fits = []
     for lab, recs in zip(labels, sessions, strict=True):
         say(f"drift: fitting {', '.join(effects)} on {lab}")
@@ -473,10 +478,8 @@ def session_analysis(nominal: Rig, sessions: Sequence[Sequence[Recording]], chos
     """
     from aeropend_ident.gap_report import validation_split
 
-    if len(sessions) < 2:
-        raise GapError(f"sessions: {len(sessions)} given; leave-one-session-out needs at least 2")
+    labels = _session_labels(sessions, labels, "leave-one-session-out")
     say = progress or (lambda _m: None)
-    labels = list(labels or [f"session {k + 1}" for k in range(len(sessions))])
     diags = []
     for lab, recs in zip(labels, sessions, strict=True):
         say(f"sessions: diagnosis on {lab} alone")

@@ -456,15 +456,19 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
 
 
 # ------------------------------------------------------------------------------ metrics
-def _holds(duty: np.ndarray, dt: float, min_hold: float = 0.5) -> list[tuple[int, int]]:
+def duty_holds(duty: np.ndarray, dt: float, min_hold: float = 0.5) -> list[tuple[int, int]]:
+    """[start, stop) sample spans of every constant-duty stretch of at least ``min_hold`` seconds."""
     edges = np.concatenate(([0], np.flatnonzero(np.diff(duty) != 0.0) + 1, [duty.size]))
     return [(int(a), int(b)) for a, b in itertools.pairwise(edges) if (b - a) * dt >= min_hold]
 
 
-def _step_info(y: np.ndarray, t: np.ndarray) -> dict[str, float]:
+def step_info(y: np.ndarray, t: np.ndarray, yfinal: float | None = None) -> dict[str, float]:
+    """python-control ``step_info`` of a response y(t) (from 0): ``rise_time`` (10-90 %),
+    ``settling_time`` (2 %), ``peak_time`` [s] and ``overshoot`` M_p [%], relative to ``yfinal``
+    (default: the last value)."""
     import control  # python-control: field-standard step metrics
 
-    info = control.step_info(y, T=t)
+    info = control.step_info(y, timepts=t, final_output=yfinal)
     return {"rise_time": float(info["RiseTime"]), "settling_time": float(info["SettlingTime"]),
             "overshoot": float(info["Overshoot"]), "peak_time": float(info["PeakTime"])}
 
@@ -495,7 +499,7 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
         e = th - y
         nrmse.append(float(np.sqrt(np.mean(e**2)) / p.scale["theta"]))
         maxe = max(maxe, float(np.max(np.abs(e))))
-        holds = _holds(p.duty, p.dt)
+        holds = duty_holds(p.duty, p.dt)
         for a, b in holds:
             q = a + 3 * (b - a) // 4
             ss.append(float(np.mean(th[q:b]) - np.mean(y[q:b])))
@@ -510,8 +514,8 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
                 _, a, b = best
                 t = np.arange(b - a) * p.dt
                 try:
-                    rec = _step_info(y[a:b] - y[a], t)
-                    sim = _step_info(th[a:b] - th[a], t)
+                    rec = step_info(y[a:b] - y[a], t)
+                    sim = step_info(th[a:b] - th[a], t)
                     step = {"recorded": rec, "simulated": sim, "t_start": float(a * p.dt),
                             "abs_error": {k: abs(sim[k] - rec[k]) for k in rec}}
                 except Exception:
@@ -1222,7 +1226,9 @@ class _Added(NamedTuple):
     confidence: float  # bootstrap frequency of the gain passing the threshold
 
 
-def _excluded(chosen: Sequence[str]) -> set[str]:
+def excluded_with(chosen: Sequence[str]) -> set[str]:
+    """The chosen effects and every effect that sets the same rig parameter as one of them
+    (``exclusive_with``): what may not join them in a fit."""
     out = set(chosen)
     for n in chosen:
         out |= set(get_effect(n).exclusive_with)
@@ -1261,7 +1267,7 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
     same rig parameter as a chosen one (``exclusive_with``) are not tried.
     """
     cur_sse = float(cur_segs.sum())
-    skip = _excluded(chosen)
+    skip = excluded_with(chosen)
     rest = [n for n in screened if n not in skip]
     st.say(f"screening the residual left by {' + '.join(chosen)}")
     scr2 = screen(cur.rig, st.pf, rest, st.channels, st.ctx, seed=seed, meas=cur.meas, estimate=False)
@@ -1337,7 +1343,7 @@ def _swap_confusables(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: 
     for i in range(len(chosen)):
         name = chosen[i]
         others = [n for n in chosen if n != name]
-        blocked = _excluded(others) | set(chosen)
+        blocked = excluded_with(others) | set(chosen)
         alts = [a for a in dict.fromkeys((*get_effect(name).nests, *get_effect(name).confusable_with))
                 if a in st.model_effects and a not in blocked]
         for alt in alts:

@@ -517,6 +517,30 @@ def check_recording(recording: Recording, min_samples: int = MIN_SAMPLES) -> Non
         raise IdentificationError(f"{src}: θ is constant ({theta[0]:g} rad): the output is unexcited")
 
 
+def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The uniform grid of period ``dt`` over time stamps ``t`` (from 0), or None if ``t`` is on it.
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,)
+        Increasing time stamps [s] starting at 0.
+    dt : float
+        Grid period [s] (> 0).
+
+    Returns
+    -------
+    (t_grid, idx) or None
+        ``t_grid = k·dt`` up to ``t[-1]`` and, per grid point, the index of the last sample at or
+        before it (zero-order hold of an input); None when every interval of ``t`` is within
+        ±UNIFORM_TOLERANCE of ``dt`` (no resampling needed).
+    """
+    if np.all(np.abs(np.diff(t) - dt) <= UNIFORM_TOLERANCE * dt):
+        return None
+    tu = np.arange(math.floor(t[-1] / dt + 1e-9) + 1) * dt
+    idx = np.clip(np.searchsorted(t, tu + 1e-9 * dt, side="right") - 1, 0, t.size - 1)
+    return tu, idx
+
+
 def uniform_data(
     recording: Recording, dt: float | None = None, decimate: int = 1, min_samples: int = MIN_SAMPLES
 ) -> UniformData:
@@ -549,20 +573,17 @@ def uniform_data(
     decimate = int(decimate)
     t = recording.t - recording.t[0]
     theta, duty = recording.channels["theta"], recording.duty
-    step = np.diff(t)
-    med = float(np.median(step))
-    grid_dt = med if dt is None else float(dt)
+    grid_dt = float(np.median(np.diff(t))) if dt is None else float(dt)
     if not (math.isfinite(grid_dt) and grid_dt > 0.0):
         raise IdentificationError(f"grid period dt = {dt!r}; expected a finite value > 0 s")
-    uniform = bool(np.all(np.abs(step - grid_dt) <= UNIFORM_TOLERANCE * grid_dt))
-    if uniform:
+    grid = uniform_grid(t, grid_dt)
+    uniform = grid is None
+    if grid is None:
         tu, th, du = t.copy(), theta.copy(), duty.copy()
     else:
-        n = math.floor(t[-1] / grid_dt + 1e-9) + 1
-        tu = np.arange(n) * grid_dt
+        tu, idx = grid
         th = np.interp(tu, t, theta)
-        idx = np.searchsorted(t, tu + 1e-9 * grid_dt, side="right") - 1
-        du = duty[np.clip(idx, 0, t.size - 1)]
+        du = duty[idx]
     if decimate > 1:
         m = tu.size // decimate
         if m < 1:

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_ident.greybox import UNIFORM_TOLERANCE
+from aeropend_ident.greybox import uniform_grid
 from aeropend_sim.recording import Recording
 
 #: File suffixes read as CSV logs.
@@ -112,9 +112,10 @@ def uniform_recording(rec: Recording) -> Recording:
     """The recording on a uniform grid (θ, channels linear, duty zero-order hold) if it is not already.
 
     What the replaying tools (``gap``, ``compare``) need: θ and the duty cycle, finite values, time
-    stamps in order. The grid period is the median interval; a recording whose intervals all lie
-    within ±UNIFORM_TOLERANCE of it is returned unchanged. A constant input is accepted here (a
-    step from rest at t = 0 is a valid recording to compare on); ``gap`` refuses it itself.
+    stamps in order. The grid period is the median interval; a recording already on that grid
+    (:func:`aeropend_ident.greybox.uniform_grid`) is returned unchanged. A constant input is
+    accepted here (a step from rest at t = 0 is a valid recording to compare on); ``gap`` refuses
+    it itself.
 
     Raises
     ------
@@ -138,12 +139,11 @@ def uniform_recording(rec: Recording) -> Recording:
     if t.size < 2 or not np.all(np.diff(t) > 0.0):
         raise RecordingInputError(f"{src}: {t.size} sample(s) or non-increasing time stamps; expected at "
                                   "least 2 samples in time order")
-    step = np.diff(t)
-    dt = float(np.median(step))
-    if np.all(np.abs(step - dt) <= UNIFORM_TOLERANCE * dt):
+    dt = float(np.median(np.diff(t)))
+    grid = uniform_grid(t, dt)
+    if grid is None:
         return rec
-    tu = np.arange(int(np.floor(t[-1] / dt + 1e-9)) + 1) * dt
-    idx = np.clip(np.searchsorted(t, tu + 1e-9 * dt, side="right") - 1, 0, t.size - 1)
+    tu, idx = grid
     ch = {k: np.interp(tu, t, v) for k, v in rec.channels.items()}
     meta = {**rec.meta, "resampled_to_uniform_dt_s": dt}
     return Recording(
