@@ -22,10 +22,21 @@ Platform check (``--wakeup-check`` seconds, default 20; 0 = skip): a bare SCHED_
 thread (no ROS, memory locked, GC off) sleeping to absolute 2.048 ms deadlines, in its own
 process; its wake-up lateness shows what the machine alone allows (stored as ``platform_wakeup``).
 
+Stall monitor (during every run): one such sleeper per CPU, pinned to it, at a SCHED_FIFO
+priority above the plant's and the controller's, waking every 2 ms for the whole run. A wake-up
+later than ``--stall-ms`` (default 0.5 ms) marks the interval [deadline, wake-up] on that CPU as a
+**machine stall**: the highest-priority thread of the machine could not run there, so nothing
+aeropend does (priorities, executors, QoS) could have run either. Each missed sample is then
+*attributed* (``missed_attribution``): ``all_cpus`` if every CPU was stalled at some instant between
+the sample and the command's receipt (a whole-VM stall), ``some_cpus`` if at least one was, else
+``none`` (the miss is aeropend's own). Every miss is listed with its latency split (plant publish
+→ controller receipt, controller compute, publish → plant receipt) and the overlapping stall.
+
 Options: ``--duration`` [s], ``--rt-priority`` (SCHED_FIFO for the plant's sampler/executor and
 the controller's executor; 0 = normal scheduling), ``--executor events|single`` (controller),
-``--strategy``, ``--out`` (JSON path; default ``bench/results/control_latency.json``). Run on a
-quiet machine for the figure that matters: ``.venv/bin/python bench/bench_control_latency.py``.
+``--strategy``, ``--stall-ms``, ``--out`` (JSON path; default
+``bench/results/control_latency.json``). Run on a quiet machine for the figure that matters:
+``.venv/bin/python bench/bench_control_latency.py``.
 """
 
 from __future__ import annotations
@@ -44,6 +55,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from scipy.ndimage import minimum_filter1d
 
 from aeropend_control.controller_core import SIGNALS
 from aeropend_control.metrics import step_metrics
@@ -56,6 +68,10 @@ PERIOD_S = 2.048e-3
 #: Samples of the start-up transient (first 0.5 s: DDS matching of the command path, first
 #: callbacks) reported apart.
 STARTUP = round(0.5 / PERIOD_S)
+#: Default wake-up period of the stall monitors [ns] (``--monitor-period-ms``).
+MONITOR_PERIOD_NS = 2_000_000
+#: SCHED_FIFO priority of the stall monitors: above the plant's and the controller's (50) and DDS'.
+MONITOR_PRIORITY = 70
 
 
 def _pct(x: np.ndarray) -> dict[str, float]:
@@ -92,8 +108,14 @@ def match_commands(ctl_duty: np.ndarray, cmd_duty: np.ndarray) -> np.ndarray:
     return rows
 
 
-def analyse(trace_rows: np.ndarray, timing: dict[str, np.ndarray]) -> dict:
-    """Match commands to samples (see module doc) and compute latency and missed samples."""
+def analyse(trace_rows: np.ndarray, timing: dict[str, np.ndarray]) -> tuple[dict, list[dict]]:
+    """Match commands to samples (see module doc) and compute latency and missed samples.
+
+    Returns the result fields and the missed samples of the controlled window, each a dict with
+    ``k`` (plant sample index), ``cause`` (``late`` / ``dropped`` / ``lost``), ``t_s`` (since the
+    window's first sample), ``window_ns`` (monotonic [sample taken, command received or next
+    sample taken]) and, for late commands, the latency and its split [ms].
+    """
     col = {name: trace_rows[:, i] for i, name in enumerate(SIGNALS)}
     stamps, taken, recv = timing["stamp_ns"], timing["taken_ns"], timing["recv_ns"]
     ctl_stamp = np.round(col["stamp_s"] * 1e9).astype(np.int64)
@@ -112,7 +134,39 @@ def analyse(trace_rows: np.ndarray, timing: dict[str, np.ndarray]) -> dict:
     answered_on_time[k[on_time]] = True
     seen = np.zeros(taken.size, dtype=bool)
     seen[k_row] = True
-    return {
+    # stamps are the ROS times of the plant's deadlines, ``taken`` its monotonic wake-ups: their
+    # difference is a clock offset plus the plant's lateness. The offset grows whenever the plant
+    # drops time after an overrun, so it is taken as the smallest difference over the next 0.5 s
+    # (samples taken within ~0.1 ms of their deadline are the rule there).
+    # The controller's receipt and publish instants are measured from the stamp, so they are moved
+    # to the instant the sample was taken by the whole offset change (dropped time + lateness).
+    offset = taken - stamps
+    w = STARTUP
+    plant_late_ms = (offset - minimum_filter1d(offset, size=w, origin=-(w // 2), mode="nearest")) * 1e-6
+    stamp_to_taken_ms = (offset - offset.min()) * 1e-6
+    first_rcv = {int(kk): (int(r), j) for j, (kk, r) in reversed(list(enumerate(zip(k, rcv, strict=True))))}
+    trace_of = {int(kk): j for j, kk in enumerate(k_row)}
+    matched_rows = row[ok]
+    misses = []
+    for kk in window[~answered_on_time[window]]:
+        kk = int(kk)
+        end = int(taken[min(kk + 1, taken.size - 1)])
+        miss = {"k": kk, "t_s": round((taken[kk] - taken[k_row[0]]) * 1e-9, 4)}
+        if kk in first_rcv:
+            r, j = first_rcv[kk]
+            tr = matched_rows[j]
+            # controller receipt / publish after the sample was taken (not after its stamp)
+            rl = col["recv_latency"][tr] * 1e3 - stamp_to_taken_ms[kk]
+            pl = col["pub_latency"][tr] * 1e3 - stamp_to_taken_ms[kk]
+            total = (r - taken[kk]) * 1e-6
+            miss.update(cause="late", window_ns=[int(taken[kk]), r], latency_ms=round(total, 3),
+                        split_ms={"plant_late": round(float(plant_late_ms[kk]), 3),
+                                  "to_controller": round(rl, 3), "controller_compute": round(pl - rl, 3),
+                                  "to_plant": round(total - pl, 3)})
+        else:
+            miss.update(cause="dropped" if kk not in trace_of else "lost", window_ns=[int(taken[kk]), end])
+        misses.append(miss)
+    fields = {
         "samples_in_window": int(window.size),
         "commands_received": int(recv.size),
         "commands_matched": int(np.count_nonzero(ok)),
@@ -122,16 +176,54 @@ def analyse(trace_rows: np.ndarray, timing: dict[str, np.ndarray]) -> dict:
         "missed_samples_after_first_500ms": int(np.count_nonzero(~answered_on_time[window[STARTUP:]])),
         "dropped_samples": int(np.count_nonzero(~seen[window])),
         "late_commands": int(np.count_nonzero(~on_time)),
-        "late_at_s_ms": [[round((taken[kk] - taken[k_row[0]]) * 1e-9, 3), round(float(lm), 2)]
-                         for kk, lm in zip(k[~on_time][:500], lat_ms[~on_time][:500], strict=True)],
         "lost_commands": int(ctl_stamp.size - np.count_nonzero(ok)),
         "controller_compute_receipt_to_publish": _pct((col["pub_latency"] - col["recv_latency"]) * 1e3),
         "stamp_to_controller_receipt": _pct(col["recv_latency"] * 1e3),
     }
+    return fields, misses
 
 
-def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict:
-    """One real-time run; returns the result dict (see module doc)."""
+def stall_intervals(monitor: dict[str, np.ndarray], stall_ms: float) -> np.ndarray:
+    """Machine stalls seen by one CPU's monitor: (n, 2) int64 [deadline, wake-up] ns, late > ``stall_ms``."""
+    late = monitor["late_ns"]
+    big = late > stall_ms * 1e6
+    dl = monitor["deadline_ns"][big]
+    return np.column_stack([dl, dl + late[big]]) if dl.size else np.zeros((0, 2), dtype=np.int64)
+
+
+def attribute(misses: list[dict], stalls: list[np.ndarray], bin_ns: int = 20_000) -> dict:
+    """Attribute each missed sample to machine stalls (module doc); annotates ``misses`` in place.
+
+    A miss is ``all_cpus`` if some instant of its window (sample taken → command received, or →
+    next sample) lies inside a stall of every CPU's monitor, ``some_cpus`` if it overlaps a stall of
+    at least one, else ``none``. Instants are resolved to ``bin_ns``.
+    """
+    counts = {"all_cpus": 0, "some_cpus": 0, "none": 0}
+    for miss in misses:
+        a, b = miss["window_ns"]
+        edges = np.arange(a, b + bin_ns, bin_ns)
+        hit = np.zeros((len(stalls), edges.size), dtype=bool)
+        worst = 0.0
+        for c, iv in enumerate(stalls):
+            sel = iv[(iv[:, 1] > a) & (iv[:, 0] < b)]
+            for s0, s1 in sel:
+                hit[c] |= (edges >= s0) & (edges <= s1)
+                worst = max(worst, (s1 - s0) * 1e-6)
+        if stalls and hit.all(axis=0).any():
+            kind = "all_cpus"
+        elif hit.any():
+            kind = "some_cpus"
+        else:
+            kind = "none"
+        miss["machine_stall"] = kind
+        miss["longest_overlapping_stall_ms"] = round(worst, 3)
+        counts[kind] += 1
+    return counts
+
+
+def run(duration: float, rt_priority: int, executor: str, strategy: str, stall_ms: float = 0.5,
+        monitor_period_ns: int = MONITOR_PERIOD_NS) -> dict:
+    """One real-time run under the stall monitor; returns the result dict (see module doc)."""
     env = isolated_env(random_domain())
     # SCHED_FIFO for the whole process (chrt) so that the DDS threads created at rclpy.init inherit
     # it; the nodes' rt_priority raises their hot thread (sampler / executor) above that.
@@ -143,6 +235,8 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict
         # the plant's output goes to a file: a pipe read only at the end fills up (64 KiB) during a
         # long run and then blocks the plant's next log call (docs/data_plane.md)
         sim_log = Path(tmp) / "sim_node.log"
+        monitors = (start_monitors(duration + 120, MONITOR_PRIORITY, Path(tmp), monitor_period_ns)
+                    if monitor_period_ns > 0 else [])
         with sim_log.open("w") as f:
             sim = subprocess.Popen(
                 [*rt, *node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args",
@@ -164,6 +258,7 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict
             stop(sim, signal.SIGTERM, timeout=15)
         finally:
             reap(ctl, sim)
+            watched = collect_monitors(monitors)
         rows = list(csv.reader(trace.open()))
         timing = dict(np.load(timing_file))
         sim_out = sim_log.read_text(errors="replace")
@@ -173,6 +268,9 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict
     d = np.array(rows[1:], dtype=float)
     ctl_summary = summary_line(ctl_out)
     met = step_metrics(d[:, SIGNALS.index("t")], d[:, SIGNALS.index("theta")], 0.4)
+    fields, misses = analyse(d, timing)
+    stalls = [stall_intervals(m, stall_ms) for m in watched]
+    attributed = attribute(misses, stalls)
     return {
         "setup": {"duration_s": duration, "strategy": strategy, "rt_priority": rt_priority,
                   "executor": executor, "python": platform.python_version(), "machine": platform.machine(),
@@ -180,7 +278,17 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str) -> dict
         "load": {"loadavg_1min_before": round(load0[0], 2), "loadavg_1min_after": round(load1[0], 2),
                  "cpu_busy_fraction_during_run": round((cpu1[0] - cpu0[0]) / max(cpu1[1] - cpu0[1], 1), 3),
                  "cpu_steal_fraction_during_run": round((cpu1[2] - cpu0[2]) / max(cpu1[1] - cpu0[1], 1), 4)},
-        **analyse(d, timing),
+        **fields,
+        "missed_attribution": attributed,
+        "stall_monitor": {"stall_ms": stall_ms, "period_ms": monitor_period_ns * 1e-6,
+                          "sched_fifo_priority": MONITOR_PRIORITY,
+                          "cpus": [{"cpu": int(m["cpu"]), "wakeups": int(m["n"]),
+                                    "p50_ms": round(float(m["p50_ns"]) * 1e-6, 4),
+                                    "p99_ms": round(float(m["p99_ns"]) * 1e-6, 4),
+                                    "max_ms": round(float(m["max_ns"]) * 1e-6, 4),
+                                    "stalls": int(iv.shape[0])}
+                                   for m, iv in zip(watched, stalls, strict=True)]},
+        "misses": misses[:2000],
         "plant_summary": summary_fields(sim_out),
         "controller_summary": [ctl_summary] if ctl_summary is not None else [],
         "step_metrics": met.as_dict(),
@@ -213,6 +321,63 @@ def _wakeup_child(seconds: float, prio: int) -> None:
                       "over_5ms": int((ms > 5.0).sum())}))
 
 
+
+
+def _monitor_child(seconds: float, prio: int, cpu: int, out: str, period_ns: int) -> None:
+    """Child process of the stall monitor: one sleeper pinned to ``cpu``; writes ``out`` (.npz)."""
+    import ctypes
+    import gc
+
+    os.sched_setaffinity(0, {cpu})
+    if prio > 0:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
+    libc = ctypes.CDLL(None)
+    libc.mlockall(3)
+    libc.prctl(29, 1000, 0, 0, 0)  # 1 µs timer slack
+    n = int(seconds * 1e9 // period_ns)
+    late = np.zeros(n, dtype=np.int64)
+    stop_flag = []
+    signal.signal(signal.SIGTERM, lambda *_: stop_flag.append(1))  # SIGTERM ends the watch, data kept
+    gc.disable()
+    t0 = time.monotonic_ns() + period_ns
+    for k in range(n):
+        deadline = t0 + k * period_ns
+        while (rem := deadline - time.monotonic_ns()) > 0:
+            time.sleep(rem * 1e-9)
+        late[k] = time.monotonic_ns() - deadline
+        if stop_flag:
+            n = k + 1
+            late = late[:n]
+            break
+    keep = np.flatnonzero(late > 100_000)  # only the wake-ups later than 0.1 ms are kept
+    np.savez(out, deadline_ns=t0 + keep * period_ns, late_ns=late[keep], n=n, cpu=cpu,
+             p50_ns=np.percentile(late, 50), p99_ns=np.percentile(late, 99), max_ns=late.max())
+
+
+def start_monitors(seconds: float, prio: int, tmp: Path,
+                   period_ns: int) -> list[tuple[subprocess.Popen, Path]]:
+    """Start one stall-monitor process per CPU for ``seconds`` (module doc)."""
+    procs = []
+    for cpu in sorted(os.sched_getaffinity(0)):
+        out = tmp / f"monitor_cpu{cpu}.npz"
+        procs.append((subprocess.Popen([sys.executable, __file__, "--monitor-child", str(seconds), str(prio),
+                                        str(cpu), str(out), str(period_ns)]), out))
+    return procs
+
+
+def collect_monitors(procs: list[tuple[subprocess.Popen, Path]],
+                     timeout: float = 10.0) -> list[dict[str, np.ndarray]]:
+    """End the monitors (SIGTERM) and load what each recorded."""
+    res = []
+    for proc, _ in procs:
+        proc.send_signal(signal.SIGTERM)
+    for proc, out in procs:
+        if proc.wait(timeout=timeout) != 0:
+            raise RuntimeError(f"stall monitor {out.name} exited with {proc.returncode}")
+        res.append(dict(np.load(out)))
+    return res
+
+
 def wakeup_check(seconds: float, prio: int) -> dict:
     """Wake-up lateness of a bare SCHED_FIFO sleeper at the sample period (see module doc)."""
     out = subprocess.run([sys.executable, __file__, "--wakeup-child", str(seconds), str(prio)],
@@ -230,12 +395,17 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--wakeup-check", type=float, default=20.0, help="platform check [s] (0 = skip)")
     ap.add_argument("--baseline", action="store_true",
                     help="also run with rt_priority 0 and the single executor ('baseline')")
+    ap.add_argument("--stall-ms", type=float, default=0.5,
+                    help="monitor wake-up lateness [ms] that counts as a machine stall")
+    ap.add_argument("--monitor-period-ms", type=float, default=MONITOR_PERIOD_NS * 1e-6,
+                    help="stall monitors' wake-up period [ms] (0 = no monitor: every miss counts as 'none')")
     args = ap.parse_args(argv)
-    res = run(args.duration, args.rt_priority, args.executor, args.strategy)
+    period_ns = round(args.monitor_period_ms * 1e6)
+    res = run(args.duration, args.rt_priority, args.executor, args.strategy, args.stall_ms, period_ns)
     if args.wakeup_check > 0:
         res["platform_wakeup"] = wakeup_check(args.wakeup_check, args.rt_priority + 10)
     if args.baseline:
-        res["baseline"] = run(args.duration, 0, "single", args.strategy)
+        res["baseline"] = run(args.duration, 0, "single", args.strategy, args.stall_ms, period_ns)
     print(json.dumps(res, indent=1))
     Path(args.out).write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
     return res
@@ -244,5 +414,7 @@ def main(argv: list[str] | None = None) -> dict:
 if __name__ == "__main__":
     if len(sys.argv) == 4 and sys.argv[1] == "--wakeup-child":
         _wakeup_child(float(sys.argv[2]), int(sys.argv[3]))
+    elif len(sys.argv) == 7 and sys.argv[1] == "--monitor-child":
+        _monitor_child(float(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4]), sys.argv[5], int(sys.argv[6]))
     else:
         main()
