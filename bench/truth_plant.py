@@ -24,7 +24,8 @@ Every unmodelled effect is implemented from its physics, in physical units
 * motor: back-EMF constant, armature resistance and inductance, torque constant, rotor
   viscous friction, rotor inertia, propeller drag torque K_d·ω₁|ω₁|;
 * aerodynamics: thrust coefficient, thrust-law exponent;
-* pendulum: gravity torque, inertia, viscous and Coulomb friction, a hard end stop (restitution);
+* pendulum: gravity torque, inertia, viscous and Coulomb friction, stiction with a Stribeck
+  curve (the friction at rest above the sliding one), a hard end stop (restitution);
 * sensor: angle offset and gain;
 * effects outside aeropend's catalog: a thrust loss that grows with the rod angle, an
   angle-sensor offset that drifts slowly in time, quadratic aerodynamic drag on the rod.
@@ -59,6 +60,9 @@ RESTITUTION = 0.3
 #: Regularisation speed [rad/s] of sgn θ̇ in the rod's Coulomb friction (stiff, resolved by the
 #: substeps; a lab's simulator would use the same kind of smooth sign).
 COULOMB_VELOCITY = 2e-3
+#: Stribeck velocity [rad/s] of the rod's stiction (``stiction``): the friction's excess over the
+#: sliding level falls to 1/e at this rate (Armstrong-Hélouvry's Gaussian Stribeck curve).
+STRIBECK_VELOCITY = 0.15
 
 
 @dataclass(frozen=True)
@@ -106,6 +110,8 @@ EFFECT_DOCS: dict[str, str] = {
     "inertia": "J ← k·J: mgd/J, c/J, L/J all divided by k  [k, 1]",
     "viscous_friction": "c/J ← k·c/J  [c/J, 1/s]",
     "coulomb_friction": "θ̈ −= (T_f/J)·sgn θ̇  [T_f/J, rad/s²]",
+    "stiction": "θ̈ −= ((T_s − T_f)/J)·exp(−(θ̇/v_s)²)·sgn θ̇, v_s = STRIBECK_VELOCITY  [(T_s − T_f)/J, "
+                "rad/s²]: static friction above the sliding (Coulomb) level, the Stribeck curve",
     "end_stops": "hard stop at θ_max: the rod cannot pass it, impacts with restitution 0.3  [θ_max, rad]",
     "sensor_offset": "θ_recorded = θ + δ  [δ, rad]",
     "sensor_scale": "θ_recorded = s·θ  [s, 1]",
@@ -198,6 +204,7 @@ class TruthPlant:
         alpha = e.get("thrust_law", 2.0)
         k_drag = e.get("propeller_drag", 0.0)
         coul = e.get("coulomb_friction", 0.0)
+        stick = e.get("stiction", 0.0)
         kappa = e.get("angle_thrust_loss", 0.0)
         k_air = e.get("rod_air_drag", 0.0)
         th_max = e.get("end_stops", math.inf)
@@ -216,8 +223,9 @@ class TruthPlant:
             if kappa:
                 f *= 1.0 - kappa * math.sin(th) ** 2
             dthd = -p.mgd_over_J * math.sin(th) - p.c_over_J * thd + p.L_over_J * f
-            if coul:
-                dthd -= coul * math.tanh(thd / COULOMB_VELOCITY)
+            if coul or stick:
+                level = coul + stick * math.exp(-((thd / STRIBECK_VELOCITY) ** 2))
+                dthd -= level * math.tanh(thd / COULOMB_VELOCITY)
             if k_air:
                 dthd -= k_air * thd * abs(thd)
             dv = (v_cmd - v) / t_lag if t_lag > 0.0 else 0.0

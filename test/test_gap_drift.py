@@ -35,6 +35,10 @@ def test_drift_set_keeps_the_joint_fit_identifiable() -> None:
                                                "viscous_friction"]
     # the thrust law sets K_q itself; the rod inertia is spanned by the three drift-prone parameters
     assert drift_set(["thrust_law", "inertia"]) == ["thrust_law", "gravity", "viscous_friction"]
+    # the supply voltage only where v_a is recorded (from θ alone it is a thrust-gain change)
+    assert drift_set([], ("theta", "i_a")) == drift_set([])
+    assert drift_set(["dead_zone"], ("theta", "v_a")) == ["dead_zone", "thrust_coefficient", "gravity",
+                                                          "viscous_friction", "supply_voltage"]
 
 
 def test_drift_rows_change_and_significance() -> None:
@@ -67,6 +71,25 @@ def _sessions(seed: int) -> dict:
     e_d = float(np.sqrt(np.mean((a.simulate(held.duty)["theta"] - y) ** 2))) / r
     big = float(np.sqrt(np.mean((tp.TruthPlant(p).simulate(held.duty)["theta"] - y) ** 2))) / r
     return {"params": p, "fit": fit, "held": held, "b": b, "truth_share": (e_d**2 - n**2) / (big**2 - n**2)}
+
+
+@pytest.mark.slow
+def test_drift_table_names_a_supply_voltage_drop_from_the_recorded_armature_voltage() -> None:
+    from aeropend_ident.gap_drift import drift_table
+    from aeropend_sim.params import rig_from_dict
+
+    # a battery 12 % lower on the second day; the rig file knows no friction error, so the drift
+    # table fits only the drift-prone parameters, and v_a tells a supply change from a K_q change
+    p = tp.PlantParams()
+    day1 = tp.record(tp.TruthPlant(p), tp.lhs_steps(30.0, seed=41), 50.0, 42)
+    day2 = tp.record(tp.TruthPlant(p.scaled(v_supply=0.88)), tp.lhs_steps(30.0, seed=43), 50.0, 44)
+    rig = rig_from_dict(rig_dict(p, "lab_nominal"), where="test")
+    channels = ("theta", "v_a")
+    table = drift_table(rig, [[to_recording(day1, "day1")], [to_recording(day2, "day2")]],
+                        drift_set([], channels), channels=channels)
+    top = next(r for r in table["rows"] if r["drifts"])
+    assert top["effect"] == "supply_voltage" and top["change"] == pytest.approx(-0.12, abs=0.01)
+    assert table["drifting"] == ["supply_voltage.v_supply"]
 
 
 @pytest.mark.slow

@@ -43,12 +43,12 @@ def _ctx(rig=RIG):
 
 def test_catalog_covers_the_issue_list_with_valid_physical_entries():
     names = [e.name for e in CATALOG]
-    assert len(names) == len(set(names)) == 21
+    assert len(names) == len(set(names)) == 22
     for required in ("hbridge_drop", "dead_zone", "back_emf", "armature_resistance", "armature_inductance",
                      "torque_constant", "rotor_friction", "coulomb_friction", "viscous_friction",
                      "thrust_coefficient", "thrust_law", "propeller_drag", "actuator_lag", "input_delay",
                      "gravity", "inertia", "end_stops", "sensor_offset", "sensor_scale", "quantisation",
-                     "motor_time_constant"):
+                     "motor_time_constant", "stribeck_friction"):
         assert required in EFFECTS
     ctx = _ctx()
     for e in CATALOG:
@@ -144,6 +144,22 @@ def test_hbridge_drop_on_ideal_map_is_a_clipped_voltage_offset():
     for tau in (0.0, 0.1, 0.13, 0.5, 1.0):
         expected = max(0.0, ideal.actuator.v_supply * tau - 0.3)
         assert m.armature_voltage(tau) == pytest.approx(expected, abs=1e-12)
+
+
+def test_supply_voltage_scales_the_drive_map_and_composes_with_a_bridge_drop():
+    # a drift-only entry (never a diagnosis candidate): V_s scales v_a(τ) on both maps
+    assert get_effect("supply_voltage").kind == "drift" and "supply_voltage" not in [e.name for e in CATALOG]
+    for rig in (RIG, RIG.with_effects(hbridge_map=False)):
+        m0 = PlantModel(rig)
+        m = PlantModel(get_effect("supply_voltage").apply(rig, {"v_supply": 0.8 * rig.actuator.v_supply}))
+        for tau in (0.2, 0.5, 1.0):
+            assert m.armature_voltage(tau) == pytest.approx(0.8 * m0.armature_voltage(tau), rel=1e-12)
+    # ideal map: a 12 V supply that dropped to 10 V, and a 0.3 V bridge drop: v_a = max(0, 10·τ − 0.3)
+    ideal = RIG.with_effects(hbridge_map=False).with_params("actuator", v_supply=12.0)
+    r, _ = apply_effects(ideal, {"hbridge_drop": {"V_drop": 0.3}, "supply_voltage": {"v_supply": 10.0}})
+    m = PlantModel(r)
+    for tau in (0.0, 0.02, 0.1, 0.5, 1.0):
+        assert m.armature_voltage(tau) == pytest.approx(max(0.0, 10.0 * tau - 0.3), abs=1e-12)
 
 
 def test_thrust_law_sets_level_and_shape():

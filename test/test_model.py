@@ -86,7 +86,7 @@ def test_linearisation_matches_finite_differences(switches):
     rig = RIG.with_effects(**switches)
     rig = rig.with_params("actuator", lag_time_constant=0.03, dead_zone=0.05)
     rig = rig.with_params("motor", T_c=2e-5)
-    rig = rig.with_params("pendulum", coulomb_over_J=0.3)
+    rig = rig.with_params("pendulum", coulomb_over_J=0.3, stribeck_over_J=0.4, stribeck_velocity=0.3)
     rig = rig.with_params("thrust", exponent=1.8)
     m = PlantModel(rig)
     rng = np.random.default_rng(3)
@@ -194,6 +194,25 @@ def test_coulomb_friction_gives_linear_decay():
     drops = np.diff(peaks)
     assert len(drops) >= 3
     assert np.std(drops) < 0.05 * abs(np.mean(drops))
+
+
+def test_stribeck_friction_exceeds_coulomb_at_low_rate_and_decays_to_it():
+    """Dry friction level T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²): static level at θ̇ ≈ 0, sliding
+    level well above v_s; off without the Coulomb switch; a rig file may omit the Stribeck keys."""
+    rig = RIG.with_effects(coulomb_friction=True).with_params(
+        "pendulum", coulomb_over_J=0.5, stribeck_over_J=0.8, stribeck_velocity=0.2)
+    m = PlantModel(rig)
+    eps = rig.pendulum.friction_velocity  # 0.01 rad/s: sgn(θ̇) saturated from ~5·v_ε on
+    slow = 5 * eps
+    assert m.dry_friction(slow) == pytest.approx(
+        (0.5 + 0.8 * math.exp(-((slow / 0.2) ** 2))) * math.tanh(slow / eps), rel=1e-12)
+    assert m.dry_friction(slow) > 1.2  # near the static level 1.3
+    assert m.dry_friction(2.0) == pytest.approx(0.5, rel=1e-6)  # 10·v_s: the sliding level only
+    assert m.dry_friction(-2.0) == pytest.approx(-0.5, rel=1e-6)
+    assert PlantModel(rig.with_effects(coulomb_friction=False)).a_s == 0.0
+    # thesis_rig.yaml predates the Stribeck keys: it loads with the defaults, and says so
+    assert RIG.pendulum.stribeck_over_J == 0.0
+    assert RIG.sources["pendulum.stribeck_over_J"].startswith("default")
 
 
 def test_sensor_noise_snr_and_quantisation():

@@ -48,7 +48,14 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.gap_effects import EffectContext, GapError, MeasurementMap, apply_effects, get_effect
+from aeropend_ident.gap_effects import (
+    EffectContext,
+    GapError,
+    MeasurementMap,
+    apply_effects,
+    get_effect,
+    identifiable,
+)
 from aeropend_ident.gap_which import (
     EffectDiagnosis,
     Prepared,
@@ -63,17 +70,23 @@ from aeropend_ident.greybox import noise_level
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
-#: Drift-prone parameters: catalog effect -> (rig section, field).
+#: Drift-prone parameters: effect -> (rig section, field). The supply voltage (a drift-only entry,
+#: :data:`aeropend_ident.gap_effects.DRIFT_ONLY`) needs the armature voltage v_a recorded: with the
+#: angle alone a supply change is a thrust-gain change (thrust ∝ v_a²), which K_q's prior covers.
 DRIFT_PARAMETERS: dict[str, tuple[str, str]] = {
     "thrust_coefficient": ("thrust", "K_q"),
     "gravity": ("pendulum", "mgd_over_J"),
     "viscous_friction": ("pendulum", "c_over_J"),
+    "supply_voltage": ("actuator", "v_supply"),
 }
 #: Prior standard deviation of the session-to-session log change of each drift-prone parameter
 #: (0.15 ≈ ±15 %). Set from what the real rigs in ``../shared/data/real`` show between sessions:
 #: AeroShield's thrust per duty up to 35 % apart at 29–33 PWM counts, Etchepareborda's rod hanging
-#: 0.1–0.2 rad higher in another session (docs/gap.md); used only when the fit data hold one session.
-DRIFT_PRIOR: dict[str, float] = {"thrust_coefficient": 0.15, "gravity": 0.10, "viscous_friction": 0.25}
+#: 0.1–0.2 rad higher in another session (docs/gap.md); the supply voltage from what lab supplies
+#: do (a 3-cell LiPo 12.6 → 10.5 V over its charge, a USB port 4.75–5.25 V, a bench supply < 1 %);
+#: used only when the fit data hold one session.
+DRIFT_PRIOR: dict[str, float] = {"thrust_coefficient": 0.15, "gravity": 0.10, "viscous_friction": 0.25,
+                                 "supply_voltage": 0.08}
 #: Monte-Carlo draws of the prediction.
 N_DRAWS = 40
 #: Block length of the within-session error [s].
@@ -115,13 +128,20 @@ def noise_floor(prep: Prepared) -> float:
     return max(noise_level(prep.y["theta"]), q / math.sqrt(12.0)) / prep.scale["theta"]
 
 
+def drift_parameters(channels: Sequence[str]) -> list[str]:
+    """The drift-prone parameters (:data:`DRIFT_PARAMETERS`) identifiable from these channels."""
+    have = frozenset(channels) | {"theta"}
+    return [e for e in DRIFT_PARAMETERS if identifiable(get_effect(e), have) is None]
+
+
 def _perturbed(rig: Rig, factors: Mapping[str, float]) -> Rig:
     new = rig
     for eff, f in factors.items():
         section, name = DRIFT_PARAMETERS[eff]
         v = float(getattr(getattr(new, section), name))
         if v != 0.0 and f != 1.0:
-            new = new.with_params(section, **{name: v * f})
+            new = get_effect(eff).apply(new, {name: v * f}) if eff == "supply_voltage" else \
+                new.with_params(section, **{name: v * f})
     return new
 
 
@@ -198,7 +218,7 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
             except GapError:
                 rig = diag.corrected_rig
         factors = {eff: float(np.exp(sigma.get(eff, 0.0) * rng.standard_normal()))
-                   for eff in DRIFT_PARAMETERS}
+                   for eff in drift_parameters(diag.channels or ("theta",))}
         drifted = _perturbed(rig, factors)
         d2 = []
         e_fit = []
@@ -277,7 +297,7 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
 
     say = progress or (lambda _m: None)
     vals, std = _chosen_values(diag)
-    dset = drift_set(diag.chosen)
+    dset = drift_set(diag.chosen, diag.channels or ("theta",))
     fit_a = None
     if fit:
         say(f"attainable: fitting {', '.join(dset)} on the fit recordings")
@@ -343,12 +363,13 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
 SPANNED_BY_DRIFT = ("inertia",)
 
 
-def drift_set(chosen: Sequence[str]) -> list[str]:
-    """The chosen effects plus the drift-prone parameters they do not already set (an effect the
-    drift-prone parameters span, :data:`SPANNED_BY_DRIFT`, is replaced by them)."""
+def drift_set(chosen: Sequence[str], channels: Sequence[str] = ("theta",)) -> list[str]:
+    """The chosen effects plus the drift-prone parameters identifiable from ``channels``
+    (:func:`drift_parameters`) they do not already set (an effect the drift-prone parameters span,
+    :data:`SPANNED_BY_DRIFT`, is replaced by them)."""
     kept = [n for n in chosen if n not in SPANNED_BY_DRIFT]
     excluded = excluded_with(kept)
-    return [*kept, *(e for e in DRIFT_PARAMETERS if e not in excluded)]
+    return [*kept, *(e for e in drift_parameters(channels) if e not in excluded)]
 
 
 def _session_labels(sessions: Sequence[Sequence[Recording]], labels: Sequence[str] | None,
@@ -501,7 +522,7 @@ def session_analysis(nominal: Rig, sessions: Sequence[Sequence[Recording]], chos
         n1 = float(np.mean([theta_nrmse(d.corrected_rig, d.measurement, p) for p in preps]))
         loo.append({"left_out": lab, "chosen_on_others": list(d.chosen), "nrmse_nominal": n0,
                     "nrmse_corrected": n1, "shrink": 1.0 - n1 / n0 if n0 > 0 else math.nan})
-    table = drift_table(nominal, sessions, drift_set(chosen), labels=labels, channels=channels,
+    table = drift_table(nominal, sessions, drift_set(chosen, channels), labels=labels, channels=channels,
                         progress=progress)
     return {"sessions": labels, "per_session": per, "leave_one_out": loo, "drift": table,
             "drift_sigma": session_sigma(table)}

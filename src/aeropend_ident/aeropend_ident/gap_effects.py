@@ -276,8 +276,10 @@ class Effect:
     confusable_with : tuple of str
         Effects with a similar signature on the channels named in ``needs_channels``.
     kind : str
-        ``"model"`` (changes the plant), ``"measurement"`` (θ transform) or ``"direct"``
-        (detected from the data itself, e.g. quantisation).
+        ``"model"`` (changes the plant), ``"measurement"`` (θ transform), ``"direct"``
+        (detected from the data itself, e.g. quantisation) or ``"drift"`` (a rig quantity that
+        changes between sessions rather than missing physics: fitted by the session-drift
+        analysis only, never chosen by the diagnosis; :data:`DRIFT_ONLY`).
     screened : bool
         Part of the discrepancy-SINDy screening (default). False: always confirmed by a grey-box
         fit instead (the motor time constant, whose θ̈ column is nearly collinear with the damping
@@ -287,6 +289,10 @@ class Effect:
     nests : tuple of str
         Simpler effects this one contains as a special case (the thrust law with α = 2 is a
         thrust-coefficient error); it is preferred to them only when it removes clearly more.
+    refines : tuple of str
+        An operating-point refinement of these effects (Stribeck friction of Coulomb friction):
+        never screened or confirmed on its own, only tried as a richer replacement once one of
+        them is chosen, and kept only when it removes clearly more (as ``nests``).
     """
 
     name: str
@@ -302,6 +308,7 @@ class Effect:
     screened: bool = True
     exclusive_with: tuple[str, ...] = ()
     nests: tuple[str, ...] = ()
+    refines: tuple[str, ...] = ()
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -467,6 +474,19 @@ def _r_coulomb(c: EffectContext) -> tuple[float, float, float, float]:
     return 0.0, off + 0.5 * p.mgd_over_J, off, off + 0.01 * p.mgd_over_J
 
 
+def _r_stribeck(c: EffectContext) -> tuple[float, float, float, float]:
+    p = c.rig.pendulum
+    off = p.stribeck_over_J if c.rig.effects.coulomb_friction else 0.0
+    return 0.0, off + 0.5 * p.mgd_over_J, off, off + 0.01 * p.mgd_over_J
+
+
+def _r_stribeck_velocity(c: EffectContext) -> tuple[float, float, float, float]:
+    # above 3× the width of the model's smooth sign tanh(θ̇/v_ε): a narrower "Stribeck" bump would
+    # only reshape the regularisation (it then stands in for a sharper sign, not for stiction)
+    lo = 3.0 * c.rig.pendulum.friction_velocity
+    return lo, max(2.0, 10.0 * lo), max(2.0, 10.0 * lo), max(0.1, 3.0 * lo)
+
+
 def _r_thrust_law_k(c: EffectContext) -> tuple[float, float, float, float]:
     """K_q of f = K_q·|ω₂|^α over every exponent in [1, 3.5], start: thrust kept at ω_ref for α = 2.2."""
     k, a0 = c.rig.thrust.K_q, (c.rig.thrust.exponent if c.rig.effects.thrust_exponent else 2.0)
@@ -564,6 +584,23 @@ def _coulomb(rig: Rig, v: Mapping[str, float]) -> Rig:
     if not rig.effects.coulomb_friction:
         new = rig.with_params("motor", T_c=0.0).with_effects(coulomb_friction=True)
     return new.with_params("pendulum", coulomb_over_J=v["coulomb_over_J"])
+
+
+def _supply(rig: Rig, v: Mapping[str, float]) -> Rig:
+    """Supply voltage V_s: the ideal map's v_supply; the Eq. 4.3 map's output k0 + k1·√(…)
+    scales with V_s / v_supply (the bridge passes a fixed share of its supply)."""
+    a = rig.actuator
+    new = rig.with_params("actuator", v_supply=v["v_supply"])
+    if rig.effects.hbridge_map:
+        f = v["v_supply"] / a.v_supply
+        new = new.with_params("actuator", hbridge_k0=a.hbridge_k0 * f, hbridge_k1=a.hbridge_k1 * f)
+    return new
+
+
+def _stribeck(rig: Rig, v: Mapping[str, float]) -> Rig:
+    new = _coulomb(rig, {"coulomb_over_J": v["coulomb_over_J"]})
+    return new.with_params("pendulum", stribeck_over_J=v["stribeck_over_J"],
+                           stribeck_velocity=v["stribeck_velocity"])
 
 
 def _gravity(rig: Rig, v: Mapping[str, float]) -> Rig:
@@ -740,7 +777,23 @@ CATALOG: tuple[Effect, ...] = (
         (_par("coulomb_over_J", "rad/s^2", (0.0, math.inf), "pendulum.coulomb_over_J",
               "friction torque over inertia T_f/J", _r_coulomb),),
         {_TH: ("−tanh(θ̇/v_ε)",)},
-        "coulomb_friction", ("viscous_friction",), _apply=_coulomb,
+        "coulomb_friction", ("viscous_friction",), _apply=_coulomb, exclusive_with=("stribeck_friction",),
+    ),
+    Effect(
+        "stribeck_friction", "pendulum",
+        "dry friction of the rod with a Stribeck part: θ̈ −= (T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²))·"
+        "sgn(θ̇): the friction at rest (stiction) exceeds the sliding friction and falls off over the "
+        "Stribeck velocity v_s, so the damping depends on the swing's amplitude",
+        ("theta",),
+        (_par("coulomb_over_J", "rad/s^2", (0.0, math.inf), "pendulum.coulomb_over_J",
+              "sliding (Coulomb) friction torque over inertia T_f/J", _r_coulomb),
+         _par("stribeck_over_J", "rad/s^2", (0.0, math.inf), "pendulum.stribeck_over_J",
+              "excess of the static over the sliding friction (T_s − T_f)/J", _r_stribeck),
+         _par("stribeck_velocity", "rad/s", (1e-4, 100.0), "pendulum.stribeck_velocity",
+              "Stribeck velocity v_s", _r_stribeck_velocity, log=True)),
+        {_TH: ("−tanh(θ̇/v_ε)", "−exp(−(θ̇/v_s)²)·tanh(θ̇/v_ε)")},
+        "coulomb_friction", ("coulomb_friction", "viscous_friction"), _apply=_stribeck, screened=False,
+        exclusive_with=("coulomb_friction",), nests=("coulomb_friction",), refines=("coulomb_friction",),
     ),
     Effect(
         "gravity", "pendulum",
@@ -797,17 +850,34 @@ CATALOG: tuple[Effect, ...] = (
     ),
 )
 
-#: Catalog keyed by effect name.
-EFFECTS: dict[str, Effect] = {e.name: e for e in CATALOG}
+#: Rig quantities that drift between sessions without being missing physics (kind ``"drift"``):
+#: fitted by :mod:`aeropend_ident.gap_drift` only, never candidates of the diagnosis.
+DRIFT_ONLY: tuple[Effect, ...] = (
+    Effect(
+        "supply_voltage", "electrical",
+        "supply voltage V_s of the H-bridge changed (battery charge, another supply): the whole drive "
+        "map scales, v_a = (V_s/V_s,nominal)·v_a,nominal(τ). With the angle alone it acts as a "
+        "thrust-gain change (thrust ∝ ω₁² ∝ v_a²); the recorded v_a separates the two",
+        ("v_a",),
+        (_par("v_supply", "V", _POS, "actuator.v_supply", "supply voltage V_s",
+              lambda c: _scale_range(0.5, 2.0, 1.1)(c.rig.actuator.v_supply), log=True),),
+        {"v_a": ("ΔV_s·τ",)},
+        "", ("thrust_coefficient", "hbridge_drop"), kind="drift", _apply=_supply,
+    ),
+)
+
+#: Catalog and drift-only entries keyed by effect name.
+EFFECTS: dict[str, Effect] = {e.name: e for e in (*CATALOG, *DRIFT_ONLY)}
 
 
 def get_effect(name: str) -> Effect:
-    """Catalog entry by name.
+    """Catalog (or drift-only) entry by name.
 
     Raises
     ------
     GapError
-        If ``name`` is not in :data:`CATALOG` (the message lists the known names).
+        If ``name`` is in neither :data:`CATALOG` nor :data:`DRIFT_ONLY` (the message lists the
+        known names).
     """
     try:
         return EFFECTS[name]
@@ -818,7 +888,7 @@ def get_effect(name: str) -> Effect:
 def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
                   measurement: MeasurementMap | None = None,
                   ctx: EffectContext | None = None) -> tuple[Rig, MeasurementMap]:
-    """Rig and measurement map with several effects applied in catalog order.
+    """Rig and measurement map with several effects applied in catalog order (drift-only first).
 
     Parameters
     ----------
@@ -844,7 +914,7 @@ def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
     for name in chosen:
         get_effect(name)
     meas = measurement or MeasurementMap()
-    for eff in CATALOG:
+    for eff in (*DRIFT_ONLY, *CATALOG):  # a supply voltage is the base a bridge drop acts on
         if eff.name in chosen:
             vals = eff.values(chosen[eff.name], ctx)
             rig = eff.apply(rig, vals)

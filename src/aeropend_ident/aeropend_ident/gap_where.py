@@ -965,7 +965,8 @@ def _equations(
     wp = w1 / m.n
     thrust = m.K_q * np.sign(wp) * np.abs(wp) ** m.alpha
     thd = ch["theta_dot"] if "theta_dot" in ch else theta_rate
-    rhs = -m.a_g * np.sin(th) - m.a_c * thd - m.a_f * np.tanh(thd / m.v_eps) + m.b_f * thrust
+    dry = (m.a_f + m.a_s * np.exp(-((thd / m.v_s) ** 2))) * np.tanh(thd / m.v_eps)  # PlantModel.dry_friction
+    rhs = -m.a_g * np.sin(th) - m.a_c * thd - dry + m.b_f * thrust
     if m.stops:
         rhs = rhs + np.array([m._stop_accel(a, b) for a, b in zip(th, thd, strict=True)])
     lhs = d1(thd) if "theta_dot" in ch else _smooth(theta, w2, 2, dt)

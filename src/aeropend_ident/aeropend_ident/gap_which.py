@@ -1020,6 +1020,7 @@ class _Setup:
     ctx: EffectContext
     channels: frozenset[str]
     model_effects: list[str]
+    refinements: list[str]
     not_ident: list[dict]
     sse_fit0: float
     n_fit: int
@@ -1057,11 +1058,13 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
     pf, pv = prepare(fit, channels), prepare(validation, channels)
     ctx = EffectContext.from_data(rig, np.concatenate([p.y["theta"] for p in pf]),
                                   np.concatenate([p.duty for p in pf]))
-    model_effects, not_ident = [], []
+    model_effects, refinements, not_ident = [], [], []
     for e in CATALOG:
         why = identifiable(e, channels)
         if why is not None:
             not_ident.append({"effect": e.name, "subsystem": e.subsystem, "reason": why})
+        elif e.refines:
+            refinements.append(e.name)
         elif e.kind != "direct":
             model_effects.append(e.name)
     say(f"nominal replay on {len(pf)} fit / {len(pv)} validation recordings, channels {sorted(channels)}")
@@ -1089,7 +1092,8 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
               for c in pv[0].y}
     noise_sse = max(sum(noise_c.values()), 1e-12 * float(seg0.sum()), 1e-300)
     return _Setup(rig=rig, pf=pf, pv=pv, ctx=ctx, channels=channels, model_effects=model_effects,
-                  not_ident=not_ident, sse_fit0=sse_fit0, n_fit=n_fit, n_eff=max(n_fit // BIC_DECIMATION, 10),
+                  refinements=refinements, not_ident=not_ident, sse_fit0=sse_fit0, n_fit=n_fit,
+                  n_eff=max(n_fit // BIC_DECIMATION, 10),
                   seg0=seg0, base_metrics=gap_metrics(rig, nominal, pv), floors=floors, noise_sse=noise_sse,
                   noise_c=noise_c, sse0_c=sse0_c, note=note, say=say)
 
@@ -1236,12 +1240,14 @@ def excluded_with(chosen: Sequence[str]) -> set[str]:
 
 
 def _joint(st: _Setup, cur: EffectFit, chosen: Sequence[str], o: str,
-           alone: EffectFit | None = None) -> tuple[EffectFit, np.ndarray] | None:
+           alone: EffectFit | None = None,
+           o_start: Mapping[str, float] | None = None) -> tuple[EffectFit, np.ndarray] | None:
     """``chosen`` + ``o`` fitted jointly from the chosen values and ``o``'s fit on the corrected
-    model (fitted here unless given); its validation SSE per segment. None when a fit fails."""
+    model (fitted here unless given, from ``o_start`` where given); its validation SSE per segment.
+    None when a fit fails."""
     st.say(f"joint fit of {' + '.join(chosen)} + {o}")
     try:
-        alone = alone or fit_effects(cur.rig, [o], st.pf, st.ctx)
+        alone = alone or fit_effects(cur.rig, [o], st.pf, st.ctx, start={o: dict(o_start or {})})
         start = {**{n: cur.values[n] for n in chosen}, o: alone.values[o]}
         fr2 = fit_effects(st.rig, [*chosen, o], st.pf, st.ctx, start=start, scan=False, max_nfev=MAX_NFEV)
     except GapError:
@@ -1374,6 +1380,49 @@ def _swap_confusables(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: 
                 cur_segs = segs2
                 break
     return cur, cur_segs, chosen, amb
+
+
+def _refine(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: list[str]
+            ) -> tuple[EffectFit, np.ndarray, list[str], dict[str, dict[str, float]]]:
+    """Refinement pass: each chosen effect that an operating-point refinement refines (Coulomb →
+    Stribeck friction, ``Effect.refines``) is replaced by it, fitted jointly with the other chosen
+    effects from the values they share, when the refinement earns its extra parameters twice:
+    it removes :data:`MIN_EXPLAINED_SECOND` of the validation gap above noise that the chosen set
+    leaves, and lowers the fit data's BIC by :data:`MIN_BIC_GAIN`. Returns the (new) fit, its
+    validation SSE per segment, the chosen names and, per tried refinement, its figures."""
+    tried: dict[str, dict[str, float]] = {}
+    for name in list(chosen):
+        for ref in st.refinements:
+            if name not in get_effect(ref).refines:
+                continue
+            others = [n for n in chosen if n != name]
+            if ref in excluded_with(others):
+                continue
+            st.say(f"refinement: {name} -> {ref}")
+            shared = {k: v for k, v in cur.values[name].items() if k in get_effect(ref).parameter_names}
+            base = EffectFit(effects=tuple(others), values={n: cur.values[n] for n in others}, std={},
+                             rig=cur.rig, meas=cur.meas, sse=cur.sse, n=cur.n, nfev=0)
+            res = _joint(st, base, others, ref, o_start=shared)
+            if res is None:
+                continue
+            fr2, segs2 = res
+            k1 = sum(len(get_effect(n).parameters) for n in chosen)
+            k2 = k1 - len(get_effect(name).parameters) + len(get_effect(ref).parameters)
+            bic = (_bic(fr2.sse * st.n_eff / st.n_fit, st.n_eff, k2)
+                   - _bic(cur.sse * st.n_eff / st.n_fit, st.n_eff, k1))
+            gain = st.above_noise_share(float(segs2.sum()), float(cur_segs.sum()))
+            kept = gain >= MIN_EXPLAINED_SECOND and bic <= -MIN_BIC_GAIN
+            tried[ref] = {"replaces": name, "above_noise_explained_of_rest": gain, "bic_delta": bic,
+                          "kept": kept}
+            st.say(f"  {ref} removes {100 * gain:.1f} % of what {name} leaves above noise, BIC change "
+                   f"{bic:.1f}: {'kept' if kept else 'not kept'}")
+            if kept:
+                chosen = [ref if n == name else n for n in chosen]
+                cur = EffectFit(effects=tuple(chosen), values={n: fr2.values[n] for n in chosen}, std=fr2.std,
+                                rig=fr2.rig, meas=fr2.meas, sse=fr2.sse, n=fr2.n, nfev=fr2.nfev)
+                cur_segs = segs2
+                break
+    return cur, cur_segs, chosen, tried
 
 
 def _completeness(st: _Setup, sse: Mapping[str, float]) -> dict[str, Any]:
@@ -1559,6 +1608,21 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
                 _record_chosen(ranking, st, cur, chosen, scr)
                 table.append({"effects": list(chosen), "replacement": True,
                               **gap_metrics(corrected, meas, st.pv)})
+        if st.refinements:
+            before = list(chosen)
+            cur, cur_segs, chosen, tried = _refine(st, cur, cur_segs, chosen)
+            if chosen != before:
+                corrected, meas = cur.rig, cur.meas
+                for old_name, new_name in zip(before, chosen, strict=True):
+                    if old_name != new_name:
+                        confidences[new_name] = confidences.pop(old_name)
+                _record_chosen(ranking, st, cur, chosen, scr)
+                table.append({"effects": list(chosen), "refinement": True,
+                              **gap_metrics(corrected, meas, st.pv)})
+            for r in ranking:  # the figures of each tried refinement, on the refined and the refining entry
+                refs = {k: v for k, v in tried.items() if r["effect"] in (k, v["replaces"])}
+                if refs:
+                    r["refinements"] = refs
         explained = _completeness(st, channel_sse(corrected, meas, st.pv))
         for r in ranking:
             if r["effect"] in chosen:

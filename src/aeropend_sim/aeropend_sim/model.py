@@ -29,7 +29,10 @@ Equations (each optional term is switched by :class:`aeropend_sim.params.Effects
 * gearbox (thesis Eq. 3.4): ω₂ = ω₁ / n
 * thrust (thesis Eq. 3.3): f = K_q·|ω₂|^α·sign(ω₂), α = 2 unless ``thrust_exponent``
 * pendulum (thesis Eqs. 3.1-3.2): θ̈ = −(mgd/J)·sin θ − (c/J)·θ̇ − (T_f/J)·sgn(θ̇) + (L/J)·f
-  + end-stop contact (``end_stops``: one-sided spring-damper beyond θ_min/θ_max that never pulls)
+  + end-stop contact (``end_stops``: one-sided spring-damper beyond θ_min/θ_max that never pulls);
+  with ``coulomb_friction`` the dry friction may carry a Stribeck part, T_f/J → T_f/J +
+  ((T_s − T_f)/J)·exp(−(θ̇/v_s)²) (``pendulum.stribeck_over_J``, ``stribeck_velocity``; 0 = none):
+  the static friction exceeds the sliding one and falls off over the Stribeck velocity v_s
 
 ``sgn(v)`` is regularised as ``tanh(v/v_ε)`` (v_ε = ``pendulum.friction_velocity`` for the rod,
 :data:`ROTOR_FRICTION_VELOCITY` for the rotor) so the ODE stays Lipschitz for the integrator.
@@ -96,6 +99,8 @@ class PlantModel:
         self.a_c = p.c_over_J if e.viscous_friction else 0.0
         self.a_f = p.coulomb_over_J if e.coulomb_friction else 0.0
         self.v_eps = p.friction_velocity
+        self.a_s = p.stribeck_over_J if e.coulomb_friction else 0.0
+        self.v_s = p.stribeck_velocity
         self.b_f = p.L_over_J
         self.stops = e.end_stops
         self.th_min, self.th_max = p.theta_min, p.theta_max
@@ -188,11 +193,29 @@ class PlantModel:
         w2 = w / self.n
         f = self.K_q * math.copysign(abs(w2) ** self.alpha, w2)
         dthd = -self.a_g * math.sin(th) - self.a_c * thd + self.b_f * f
-        if self.a_f > 0.0:
-            dthd -= self.a_f * math.tanh(thd / self.v_eps)
+        if self.a_f > 0.0 or self.a_s > 0.0:
+            dthd -= self.dry_friction(thd)
         if self.stops:
             dthd += self._stop_accel(th, thd)
         return [thd, dthd, di, dw, dtf]
+
+    def dry_friction(self, thd: float) -> float:
+        """Rod dry friction over inertia [rad/s²] at rate θ̇ [rad/s]: Coulomb plus Stribeck part,
+        (T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²))·tanh(θ̇/v_ε)."""
+        level = self.a_f
+        if self.a_s > 0.0:
+            level += self.a_s * math.exp(-((thd / self.v_s) ** 2))
+        return level * math.tanh(thd / self.v_eps)
+
+    def _dry_friction_slope(self, thd: float) -> float:
+        """d(:meth:`dry_friction`)/dθ̇ [1/s]."""
+        x = thd / self.v_eps
+        slope = self.a_f / self.v_eps / math.cosh(x) ** 2
+        if self.a_s > 0.0:
+            ex = math.exp(-((thd / self.v_s) ** 2))
+            slope += self.a_s * ex * (1.0 / self.v_eps / math.cosh(x) ** 2
+                                      - 2.0 * thd / self.v_s**2 * math.tanh(x))
+        return slope
 
     def _stop_accel(self, th: float, thd: float) -> float:
         if th > self.th_max:
@@ -245,8 +268,8 @@ class PlantModel:
         A[THETA, THETA_DOT] = 1.0
         dth = -self.a_g * math.cos(th)
         dthd = -self.a_c
-        if self.a_f > 0.0:
-            dthd -= self.a_f / self.v_eps / math.cosh(thd / self.v_eps) ** 2
+        if self.a_f > 0.0 or self.a_s > 0.0:
+            dthd -= self._dry_friction_slope(thd)
         if self.stops:
             for lim, sign in ((self.th_max, 1.0), (self.th_min, -1.0)):
                 pen = (th - lim) * sign

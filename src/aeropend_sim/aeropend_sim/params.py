@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -28,9 +28,12 @@ class RigFileError(ValueError):
     """A rig file or parameter set is malformed or physically invalid."""
 
 
-def _p(unit: str, doc: str, positive: bool = False, nonneg: bool = False) -> Any:
-    """Dataclass field metadata: unit, meaning, sign constraint."""
-    return field(metadata={"unit": unit, "doc": doc, "positive": positive, "nonneg": nonneg})
+def _p(unit: str, doc: str, positive: bool = False, nonneg: bool = False,
+       default: float | None = None) -> Any:
+    """Dataclass field metadata: unit, meaning, sign constraint; ``default``: an optional key (a
+    later model term whose default leaves the model as it was; rig files may omit it)."""
+    meta = {"unit": unit, "doc": doc, "positive": positive, "nonneg": nonneg}
+    return field(metadata=meta) if default is None else field(default=default, metadata=meta)
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,11 @@ class PendulumParams:
     stop_stiffness: float = _p("1/s^2", "end-stop contact stiffness over inertia", nonneg=True)
     stop_damping: float = _p("1/s", "end-stop contact damping over inertia", nonneg=True)
     friction_velocity: float = _p("rad/s", "tanh regularisation width of sign(θ̇)", positive=True)
+    stribeck_over_J: float = _p("rad/s^2", "Stribeck excess of the static over the Coulomb friction "
+                                "(T_s − T_f)/J (used when effects.coulomb_friction; 0 = none)", nonneg=True,
+                                default=0.0)
+    stribeck_velocity: float = _p("rad/s", "Stribeck velocity v_s: the excess decays as exp(−(θ̇/v_s)²)",
+                                  positive=True, default=0.1)
 
 
 @dataclass(frozen=True)
@@ -253,6 +261,10 @@ def rig_from_dict(data: dict[str, Any], where: str = "<dict>") -> Rig:
             )
         kwargs = {}
         for f in fields(cls):
+            if f.name not in node and f.default is not MISSING:
+                kwargs[f.name] = f.default
+                sources[f"{section}.{f.name}"] = "default (not in the rig file)"
+                continue
             if f.name not in node:
                 raise RigFileError(
                     f"{where}: missing {section}.{f.name} [{f.metadata['unit']}] ({f.metadata['doc']})"
