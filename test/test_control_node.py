@@ -100,3 +100,61 @@ def test_pole_defaults_per_strategy_and_override() -> None:
     with pytest.raises(ControllerConfigError, match="estimator = 'ekf'"):
         make_settings(estimator="ekf")
     assert make_settings(estimator="difference").estimator == "difference"
+
+
+def _closed_loop(loop: ControllerLoop, n: int, retune_at: int | None = None, new=None) -> list[tuple]:
+    """Batch closed loop around the nominal plant; optionally retune the loop before sample ``retune_at``."""
+    from aeropend_sim.simulate import PlantStepper
+
+    plant = PlantStepper(loop.settings.rig)
+    s, out = plant.sample(), []
+    for k in range(n):
+        if k == retune_at:
+            loop.retune(new)
+        d = loop.on_sample(k * 2_048_000, s["theta"])
+        out.append((s["theta"], d))
+        s = plant.step(d)
+    return out
+
+
+@pytest.mark.parametrize("strategy", ["fl_pid", "small_signal"])
+def test_retune_while_running_is_bumpless_and_gives_the_new_design(strategy: str) -> None:
+    """A pole-pattern change at rest (0.2 rad, before a step to 0.4 rad) is taken over without a
+    jump of the duty, and the following step is the new design's step, not the old one's."""
+    from aeropend_control.metrics import step_metrics
+
+    steps = [0.0, 0.2, 2.0, 0.4]
+    n, k_re, k_step = 2000, 800, round(2.0 / 2.048e-3)
+    old = make_settings(strategy=strategy, steps=steps, mode="lockstep")
+    new = make_settings(strategy=strategy, steps=steps, mode="lockstep", omega_n=5.0)
+    live = _closed_loop(ControllerLoop(old), n, k_re, new)
+    slow = _closed_loop(ControllerLoop(new), n)
+    fast = _closed_loop(ControllerLoop(old), n)
+    duty = [d for _, d in live]
+    assert abs(duty[k_re] - duty[k_re - 1]) < 2e-3  # bumpless: no jump at the change
+    t = [(k - k_step) * 2.048e-3 for k in range(k_step, n)]
+
+    def ts(run: list[tuple]) -> float:
+        th = [x for x, _ in run[k_step:]]
+        return step_metrics(t, [x - th[0] for x in th], 0.4 - th[0]).settling_time
+
+    assert ts(live) == pytest.approx(ts(slow), rel=0.05)
+    assert ts(live) > 1.3 * ts(fast)
+    # read-only settings are refused, the loop keeps running unchanged
+    loop = ControllerLoop(old)
+    with pytest.raises(ControllerConfigError, match="strategy cannot change"):
+        loop.retune(make_settings(strategy="cascade", steps=steps, mode="lockstep"))
+    assert loop.settings is old
+
+
+def test_retune_of_a_cascade_keeps_its_motor_loops() -> None:
+    from aeropend_control.controller_core import build_strategy
+    from aeropend_control.strategies import make_strategy
+
+    s_old = make_settings(strategy="fl_cascade")
+    s_new = make_settings(strategy="fl_cascade", omega_n=5.0)
+    a = build_strategy(s_old)
+    inner = a.inner
+    a.retune(build_strategy(s_new))
+    assert a.inner is inner and a.outer.design == build_strategy(s_new).outer.design
+    assert make_strategy("fl_cascade", s_old.rig).outer.design != a.outer.design

@@ -135,3 +135,64 @@ def test_reference_topic_drives_the_lockstep_loop(tmp_path: Path) -> None:
     # the internal signals topic carries the same rows as the trace (labelled layout)
     assert signals and all(len(row) == len(SIGNALS) for row in signals)
     assert any(row[SIGNALS.index("reference")] == 0.3 for row in signals)
+
+
+def test_live_parameters_change_the_running_controller(tmp_path: Path) -> None:
+    """``ros2 param set`` across processes: a slower pole pattern set on the running controller
+    (before its plant starts, so the run is reproducible sample by sample; the bumpless take-over
+    mid-run is tested on the core, test_control_node) gives the slower design's commands; a refused
+    value and a read-only parameter are rejected with a reason and change nothing."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    from aeropend_control.controller_core import SIGNALS, ControllerLoop, make_settings
+    from aeropend_control.controller_node import NODE_NAME
+    from aeropend_sim.simulate import PlantStepper
+
+    domain = random_domain()
+    trace = tmp_path / "trace.csv"
+    env = isolated_env(domain)
+    steps = [0.0, 0.0, 1.5, 0.4]
+    sim = ctl = None
+    with private_node("test_live_params", domain) as (node, ex):
+        try:
+            client = node.create_client(SetParameters, f"/{NODE_NAME}/set_parameters")
+            ctl = subprocess.Popen(
+                [*node_command("controller"), "--ros-args", "-p", "mode:=lockstep", "-p", "strategy:=fl_pid",
+                 "-p", f"steps:={steps}", "-p", "duration:=4.0", "-p", f"trace:={trace}"],
+                env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+            assert client.wait_for_service(timeout_sec=40.0), "controller's parameter service not found"
+
+            def call(**values: object) -> list:
+                req = SetParameters.Request(
+                    parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+                fut = client.call_async(req)
+                ex.spin_until_future_complete(fut, timeout_sec=20.0)
+                assert fut.done(), f"set_parameters {values} not answered"
+                return fut.result().results
+
+            bad, = call(zeta=-0.5)
+            assert not bad.successful and "zeta" in bad.reason
+            ro, = call(strategy="cascade")
+            assert not ro.successful and "read-only" in ro.reason
+            ok, = call(omega_n=5.0)
+            assert ok.successful, ok.reason
+            sim = subprocess.Popen([*node_command("sim_node"), "--ros-args", "-p", "mode:=lockstep"],
+                                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            ctl_out = ctl.communicate(timeout=80)[0]
+            assert ctl.returncode == 0, ctl_out
+        finally:
+            reap(ctl, sim)
+    data = np.array(list(csv.reader(trace.open()))[1:], dtype=float)
+    col = {name: data[:, i] for i, name in enumerate(SIGNALS)}
+    # the run is the batch loop with omega_n = 5 (the change came before the first sample here),
+    # and its step is the slow design's, not the default's
+    rig = load_rig("thesis_rig")
+    for omega_n, same in ((5.0, True), (None, False)):
+        loop, plant = ControllerLoop(make_settings(strategy="fl_pid", steps=steps, mode="lockstep",
+                                                   omega_n=omega_n)), PlantStepper(rig)
+        s, duty = plant.sample(), []
+        for k in range(len(col["t"])):
+            duty.append(loop.on_sample(k * 2_048_000, s["theta"]))
+            s = plant.step(duty[-1])
+        assert np.allclose(duty, col["duty"], atol=1e-9) == same

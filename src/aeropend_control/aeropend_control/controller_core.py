@@ -214,6 +214,31 @@ class ControllerLoop:
         self.stale = 0
         self.rows: list[list[float]] = []
 
+    def retune(self, settings: ControllerSettings) -> None:
+        """Apply new settings while running: the pole pattern (ω_n, ζ, ρ: a new design, taken over
+        bumpless, :meth:`FeedbackLinearizationPID.retune` / :meth:`SmallSignalPID.retune`), the
+        initial reference and the step sequence (times still from the first sample). Anything else
+        (rig, strategy, mode, allocator, estimator, θ_op, duration, trace) is fixed for a run.
+
+        Raises
+        ------
+        ControllerConfigError
+            If a fixed setting differs or the new design fails; the loop is then unchanged.
+        """
+        fixed = [f for f in ("rig", "strategy", "mode", "allocator", "estimator", "theta_op", "duration",
+                             "trace", "tf")
+                 if getattr(settings, f) != getattr(self.settings, f)]
+        if fixed:
+            raise ControllerConfigError(f"{', '.join(fixed)} cannot change while the loop runs")
+        if settings.spec != self.settings.spec:
+            fresh = build_strategy(settings)
+            try:
+                self.strategy.retune(fresh)  # type: ignore[arg-type]
+            except ValueError as exc:  # StrategyError, PIDConfigError
+                raise ControllerConfigError(f"retune to {settings.spec}: {exc}") from exc
+        self.reference.initial, self.reference.steps = settings.reference, settings.steps
+        self.settings = settings
+
     def time_of(self, stamp_ns: int) -> float:
         """Seconds since the first sample."""
         return 0.0 if self.t0_ns is None else (stamp_ns - self.t0_ns) * 1e-9

@@ -53,6 +53,10 @@ executor : str, default ``events``
     ``events`` (rclpy's C++ ``EventsExecutor``: callbacks dispatched from events, lower latency)
     | ``single`` (``SingleThreadedExecutor``).
 
+Live parameters (``ros2 param set /aeropend_controller omega_n 6.0``): ``omega_n``, ``zeta``,
+``rho`` (a new design, taken over bumpless), ``reference`` and ``steps``; a value the design
+refuses is rejected with the reason. The others are read-only (set them at start-up).
+
 Publishes ``/aeropend/controller/signals`` (std_msgs/Float64MultiArray, one per sample, labelled
 layout: :data:`~aeropend_control.controller_core.SIGNALS`: t, reference, θ, error, v, thrust, θ̂̇,
 duty, saturated, stamp, receipt latency, publish latency (filled in the trace only), θ̂, d̂).
@@ -72,10 +76,12 @@ import time
 from typing import Any
 
 import rclpy
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 
@@ -119,6 +125,10 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("executor", "events", "events (EventsExecutor) | single (SingleThreadedExecutor)"),
 )
 EXECUTORS = ("events", "single")
+#: Parameters that may be set while the controller runs (``ros2 param set``): the pole pattern
+#: (a new design taken over bumpless) and the reference (initial value and step sequence). The
+#: others fix the rig, the structure or the process set-up of a run and are read-only.
+LIVE_PARAMETERS = ("omega_n", "zeta", "rho", "reference", "steps")
 
 
 class ControllerNode(Node):
@@ -126,13 +136,14 @@ class ControllerNode(Node):
 
     def __init__(self) -> None:
         super().__init__(NODE_NAME)
-        raw = declare_parameter_table(self, PARAMETERS)
+        raw = declare_parameter_table(self, PARAMETERS, live=LIVE_PARAMETERS)
         try:
             self.rt_priority = _rt_priority(raw.pop("rt_priority"))
             self.executor_kind = str(raw.pop("executor"))
             if self.executor_kind not in EXECUTORS:
                 raise ControllerConfigError(f"executor = {self.executor_kind!r}; expected one of {EXECUTORS}")
             self.settings = make_settings(**raw)
+            self._raw = raw
             self.loop = ControllerLoop(self.settings)
             if self.settings.mode == "realtime":
                 _warm_up(self.settings)
@@ -150,6 +161,7 @@ class ControllerNode(Node):
         if self.loop.needs_motor:
             self.create_subscription(BatteryState, TOPIC_ARMATURE, self._on_armature, qos)
         self.create_subscription(Float64, TOPIC_REFERENCE, self._on_reference, 10)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self.finished = threading.Event()
         self._matched_ns: int | None = None
         self.published = 0
@@ -160,6 +172,23 @@ class ControllerNode(Node):
             f"poles {s.spec}, allocator {s.allocator}, estimator {s.estimator}, duration {s.duration:g} s, "
             f"executor {self.executor_kind}"
         )
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        """Validate and apply live parameters (:data:`LIVE_PARAMETERS`) between two samples (the
+        executor runs this and the sample callbacks in one thread); a bad value is refused with the
+        reason and the loop keeps its settings. Read-only ones never get here (rclpy refuses them)."""
+        changes = {p.name: p.value for p in params}
+        try:
+            settings = make_settings(**{**self._raw, **changes})
+            self.loop.retune(settings)
+        except ControllerConfigError as exc:
+            self.get_logger().warn(f"parameter change {changes} refused: {exc}")
+            return SetParametersResult(successful=False, reason=str(exc))
+        self._raw.update(changes)
+        self.settings = settings
+        self.get_logger().info(f"parameters set {changes}: poles {settings.spec}, reference "
+                               f"{settings.reference}, steps {settings.steps}")
+        return SetParametersResult(successful=True)
 
     def _on_reference(self, msg: Float64) -> None:
         t = self.loop.time_of(self.loop.last_stamp) if self.loop.last_stamp is not None else 0.0

@@ -265,6 +265,15 @@ class FeedbackLinearizationPID(_Base):
         self.cancel_damping = cancel_damping
         super().__init__(rig, self.design.pid_gains(), allocator, tf, dt, f_init, estimator, observer_spec)
 
+    def retune(self, other: FeedbackLinearizationPID) -> None:
+        """Take ``other``'s design (gains) while running: bumpless (:meth:`PID.set_gains`), the
+        observer, filters and integrator state kept; the output limits stay as they are."""
+        if not isinstance(other, FeedbackLinearizationPID):
+            raise StrategyError(f"cannot retune {self.name} with a {type(other).__name__} design")
+        self.design = other.design
+        g = self.pid.gains
+        self.pid.set_gains(replace(other.pid.gains, u_min=g.u_min, u_max=g.u_max))
+
     def law(self, theta: float, theta_dot: float, v: float) -> float:
         """Thrust f [N] for pseudo-control v [rad/s²] (thesis Eq. 6.4, plus damping if cancelled)."""
         m = self.model
@@ -325,6 +334,14 @@ class SmallSignalPID(_Base):
         self._op_r: float | None = None
         self.f0 = first.u_op
         self.gains_now = first.pid_gains(tf)
+
+    def retune(self, other: SmallSignalPID) -> None:
+        """Take ``other``'s design table (gains per operating point) while running; the gains of
+        the current operating point change at the next sample, bumpless (:meth:`PID.set_gains`)."""
+        if not isinstance(other, SmallSignalPID) or other.scheduled != self.scheduled:
+            raise StrategyError(f"cannot retune {self.name} with a {type(other).__name__} design")
+        self.table, self._grid = other.table, other._grid
+        self._op_r = None  # re-read the gains at the next sample (same r: f0 unchanged)
 
     def _interp(self, r: float) -> tuple[PIDGains, float]:
         if not self.scheduled:
@@ -456,6 +473,12 @@ class CascadeStrategy:
         self.observer = outer.observer
         self.pid = outer.pid
         self.last: ControlOutput | None = None
+
+    def retune(self, other: CascadeStrategy) -> None:
+        """Take ``other``'s outer-loop design while running (the motor loops depend on the rig only)."""
+        if not isinstance(other, CascadeStrategy):
+            raise StrategyError(f"cannot retune {self.name} with a {type(other).__name__} design")
+        self.outer.retune(other.outer)  # type: ignore[arg-type]
 
     def omega_ref(self, f: float) -> float:
         """Rotor speed [rad/s] whose thrust is f [N] (0 for f ≤ 0)."""

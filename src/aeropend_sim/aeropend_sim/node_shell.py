@@ -20,11 +20,21 @@ from rclpy.signals import SignalHandlerOptions
 N = TypeVar("N", bound=Node)
 
 
-def declare_parameter_table(node: Node, table: Iterable[tuple[str, Any, str]]) -> dict[str, Any]:
-    """Declare every ``(name, default, description)`` parameter (dynamic typing); return the values."""
+def declare_parameter_table(node: Node, table: Iterable[tuple[str, Any, str]],
+                            live: Iterable[str] = ()) -> dict[str, Any]:
+    """Declare every ``(name, default, description)`` parameter; return the values.
+
+    Parameters named in ``live`` may be set while the node runs (the node validates and applies
+    them in its ``add_on_set_parameters_callback``); every other one is declared read-only, so
+    ``ros2 param set`` is refused with "parameter is read-only" instead of reporting a success
+    that changes nothing. Values given at start-up (``-p``, a params file, launch) apply to both.
+    Types are dynamic: ``None`` defaults mean "unset" (e.g. a strategy's default pole pattern).
+    """
+    live = set(live)
     values = {}
     for name, default, doc in table:
-        desc = ParameterDescriptor(description=doc, dynamic_typing=True)
+        what = doc if name in live else f"{doc} (read-only: fixed at start-up)"
+        desc = ParameterDescriptor(description=what, dynamic_typing=True, read_only=name not in live)
         values[name] = node.declare_parameter(name, default, desc).value
     return values
 
