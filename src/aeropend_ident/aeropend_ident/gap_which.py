@@ -1382,13 +1382,41 @@ def _swap_confusables(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: 
     return cur, cur_segs, chosen, amb
 
 
+#: A refinement's own parameter this close to a bound of its search range (a factor for log
+#: parameters, a share of the range otherwise) does not describe the refinement.
+AT_BOUND_FACTOR = 1.25
+AT_BOUND_SHARE = 0.02
+
+
+def _added_at_bound(st: _Setup, name: str, ref: str, values: Mapping[str, float]) -> list[str]:
+    """The parameters ``ref`` adds to ``name`` whose fitted values sit at a bound of their search
+    range: a Stribeck velocity at its floor (3× the sign's regularisation width) only sharpens the
+    model's smooth sign, an excess static friction at 0 is no stiction; the refinement is then not
+    what the data show."""
+    out = []
+    shared = set(get_effect(name).parameter_names)
+    for p in get_effect(ref).parameters:
+        if p.name in shared:
+            continue
+        r, v = p.bind(st.ctx), values[p.name]
+        if r.log:
+            near = v <= r.lower * AT_BOUND_FACTOR or v >= r.upper / AT_BOUND_FACTOR
+        else:
+            span = r.upper - r.lower
+            near = v <= r.lower + AT_BOUND_SHARE * span or v >= r.upper - AT_BOUND_SHARE * span
+        if near:
+            out.append(p.name)
+    return out
+
+
 def _refine(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: list[str]
             ) -> tuple[EffectFit, np.ndarray, list[str], dict[str, dict[str, float]]]:
     """Refinement pass: each chosen effect that an operating-point refinement refines (Coulomb →
     Stribeck friction, ``Effect.refines``) is replaced by it, fitted jointly with the other chosen
     effects from the values they share, when the refinement earns its extra parameters twice:
     it removes :data:`MIN_EXPLAINED_SECOND` of the validation gap above noise that the chosen set
-    leaves, and lowers the fit data's BIC by :data:`MIN_BIC_GAIN`. Returns the (new) fit, its
+    leaves, and lowers the fit data's BIC by :data:`MIN_BIC_GAIN`; and its own parameters are not
+    at a bound of their range (:func:`_added_at_bound`). Returns the (new) fit, its
     validation SSE per segment, the chosen names and, per tried refinement, its figures."""
     tried: dict[str, dict[str, float]] = {}
     for name in list(chosen):
@@ -1411,11 +1439,13 @@ def _refine(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: list[str]
             bic = (_bic(fr2.sse * st.n_eff / st.n_fit, st.n_eff, k2)
                    - _bic(cur.sse * st.n_eff / st.n_fit, st.n_eff, k1))
             gain = st.above_noise_share(float(segs2.sum()), float(cur_segs.sum()))
-            kept = gain >= MIN_EXPLAINED_SECOND and bic <= -MIN_BIC_GAIN
+            at_bound = _added_at_bound(st, name, ref, fr2.values[ref])
+            kept = gain >= MIN_EXPLAINED_SECOND and bic <= -MIN_BIC_GAIN and not at_bound
             tried[ref] = {"replaces": name, "above_noise_explained_of_rest": gain, "bic_delta": bic,
-                          "kept": kept}
+                          "at_bound": at_bound, "kept": kept}
             st.say(f"  {ref} removes {100 * gain:.1f} % of what {name} leaves above noise, BIC change "
-                   f"{bic:.1f}: {'kept' if kept else 'not kept'}")
+                   f"{bic:.1f}{', ' + ', '.join(at_bound) + ' at a bound' if at_bound else ''}: "
+                   f"{'kept' if kept else 'not kept'}")
             if kept:
                 chosen = [ref if n == name else n for n in chosen]
                 cur = EffectFit(effects=tuple(chosen), values={n: fr2.values[n] for n in chosen}, std=fr2.std,
