@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -173,3 +174,21 @@ def test_plant_clock_matches_stepper_and_wire_convention():
         assert s.stamp_ns == 1_000 + (k + 1) * 2_048_000
         assert s.duty == u
         assert (s.theta, s.i_a, s.v_a) == (r["theta"], r["i_a"], r["v_a"])
+
+
+def test_set_rig_continues_from_the_state_and_refuses_a_new_delay_line():
+    rig = load_rig(RIG)
+    a, b = PlantStepper(rig), PlantStepper(rig)
+    for _ in range(200):
+        a.step(0.6)
+        b.step(0.6)
+    b.set_rig(rig.with_params("actuator", dead_zone=0.1).with_effects(dead_zone=True))
+    assert np.array_equal(a.x, b.x)  # same state at the switch
+    a2, b2 = a.step(0.6), b.step(0.6)
+    # the dead zone lowers the effective duty: the rotor accelerates less than without it
+    assert b2["omega_rotor"] < a2["omega_rotor"]
+    delayed = rig.with_params("actuator", input_delay=0.01).with_effects(input_delay=True)
+    with pytest.raises(ValueError, match="input delay"):
+        b.set_rig(delayed)
+    with pytest.raises(ValueError, match="sample period"):
+        b.set_rig(dataclasses.replace(rig, sample_period=1e-3))

@@ -174,14 +174,18 @@ def test_realtime_rate_and_stamps(domain):
 
 
 # ------------------------------------------------------------------------------------- (b) lockstep
-def _drive_lockstep(domain: int, commands: np.ndarray, seed: int) -> list[Sample]:
-    """Start a fresh lock-step plant, ping-pong ``commands``; return samples 0..N by stamp."""
+def _drive_lockstep(domain: int, commands: np.ndarray, seed: int,
+                    before: dict[int, Callable[[Client], None]] | None = None) -> list[Sample]:
+    """Start a fresh lock-step plant, ping-pong ``commands``; return samples 0..N by stamp.
+    ``before[k]`` is called with the client before command k is sent."""
     with plant(domain, "mode:=lockstep", f"seed:={seed}", "noise:=true") as proc, \
             client(domain, lockstep=True) as c:
         got = c.samples
         assert c.spin_until(lambda: 0 in got(), 20.0), "sample 0 not received within 20 s"
         assert c.spin_until(lambda: c.pub.get_subscription_count() > 0, 10.0)
         for k, u in enumerate(commands):
+            if before and k in before:
+                before[k](c)
             c.pub.publish(Float64(data=float(u)))
             want = (k + 1) * PERIOD_NS
             assert c.spin_until(lambda w=want: w in got(), 10.0), f"sample {k + 1} not received"
@@ -220,6 +224,60 @@ def test_lockstep_is_deterministic_and_matches_stepper(domain):
     assert first[0].theta_dot != 0.0
     # and the plant moved: the rod rose under 0.35-0.65 duty
     assert max(s.theta for s in first) > 0.01
+
+
+def _set_parameters(c: Client, **values: object) -> list:
+    """``ros2 param set`` from the test client: SetParameters on the plant node, answered."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    from aeropend_sim.sim_node import NODE_NAME
+
+    cli = c.node.create_client(SetParameters, f"/{NODE_NAME}/set_parameters")
+    assert cli.wait_for_service(timeout_sec=10.0), "plant's parameter service not found"
+    fut = cli.call_async(SetParameters.Request(
+        parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]))
+    assert c.spin_until(fut.done, 10.0), f"set_parameters {values} not answered"
+    c.node.destroy_client(cli)
+    return fut.result().results
+
+
+def test_live_effects_and_noise_continue_the_running_plant(domain):
+    """Live parameters mid-run: switching the propeller drag and the noise off at sample 150 makes the
+    plant continue from its state with the new rig (exactly a PlantStepper that switches rig
+    there); a read-only parameter and an unknown effect are refused with a reason."""
+    commands = prbs(5, lo=0.35, hi=0.65, clock=10, seed=4).duty[:300]
+    answers: dict[str, list] = {}
+
+    def change(c: Client) -> None:
+        answers["seed"] = _set_parameters(c, seed=9)
+        answers["bad"] = _set_parameters(c, effects=["warp_drive=true"])
+        answers["ok"] = _set_parameters(c, effects=["propeller_drag=false"], noise=False)
+
+    got = _drive_lockstep(domain, commands, seed=5, before={150: change})
+    (seed,), (bad,), ok = answers["seed"], answers["bad"], answers["ok"]
+    assert not seed.successful and "read-only" in seed.reason
+    assert not bad.successful and "warp_drive" in bad.reason
+    assert all(r.successful for r in ok), [r.reason for r in ok]
+
+    def reference(switch: bool) -> np.ndarray:
+        stepper = PlantStepper(load_rig(RIG).with_effects(sensor_noise=True, quantisation=True), seed=5)
+        ref = [to_sample(0, stepper.sample(), 0.0)]
+        for k, u in enumerate(commands):
+            if k == 150 and switch:
+                stepper.set_rig(load_rig(RIG).with_effects(propeller_drag=False, sensor_noise=False,
+                                                           quantisation=False))
+            ref.append(to_sample((k + 1) * PERIOD_NS, stepper.step(u), u))
+        out = _as_array(ref)
+        out[:, 5:7] = out[:, 5:7].astype(np.float32)
+        return out
+
+    a = _as_array(got)
+    assert reference(switch=True).tobytes() == a.tobytes()
+    unchanged = reference(switch=False)
+    assert unchanged[:151].tobytes() == a[:151].tobytes()
+    # without drag the rotor runs faster: ω₁ follows the new rig (not only the noise)
+    assert np.mean(a[200:, 3] - unchanged[200:, 3]) > 1.0
 
 
 def test_lockstep_sample_zero_waits_for_every_named_subscriber(domain):

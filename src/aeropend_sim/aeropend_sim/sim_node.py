@@ -58,6 +58,10 @@ timing_capacity : int, default 2^18
     Samples (and commands) the timing log keeps (2^18 ≈ 9 min at 488 Hz; later entries are only
     counted). Raise it for longer timed runs (32 bytes per entry).
 
+Live parameters (``ros2 param set /aeropend_sim noise true``): ``effects`` and ``noise``; the
+running plant continues from its state with the new rig (an input-delay change is refused: it
+sizes the command delay line). The others are read-only (set them at start-up).
+
 Invalid parameters log an error naming the value and exit with status 2. Invalid commands
 (NaN, outside [0, 1]) are rejected, counted and logged (throttled); the plant keeps running.
 All logic that is not rclpy lives in :mod:`aeropend_sim.sim_core`.
@@ -73,8 +77,10 @@ import threading
 import time
 from typing import Any
 
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import BatteryState, JointState
@@ -122,6 +128,10 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("timing_log", "", "realtime: .npz path for sample instants and command receipts (empty = off)"),
     ("timing_capacity", 1 << 18, "realtime: samples and commands the timing log keeps (int >= 1)"),
 )
+#: Parameters that may be set while the plant runs: the effect switches and the sensor noise (the
+#: plant continues from its state with the new rig; an input-delay change is refused: it sizes the
+#: command delay line). The others fix the rig, the run and the process set-up and are read-only.
+LIVE_PARAMETERS = ("effects", "noise")
 
 
 def _reduce_timer_slack() -> None:
@@ -144,7 +154,7 @@ class SimPlantNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        raw = declare_parameter_table(self, PARAMETERS)
+        raw = declare_parameter_table(self, PARAMETERS, live=LIVE_PARAMETERS)
         self.timing_log = str(raw.pop("timing_log") or "")
         timing_capacity = raw.pop("timing_capacity")
         try:
@@ -152,6 +162,7 @@ class SimPlantNode(Node):
         except SimConfigError:
             self.destroy_node()
             raise
+        self._raw = raw
         s = self.settings
         lockstep = s.mode == "lockstep"
         sample_qos = SAMPLE_QOS_LOCKSTEP if lockstep else SAMPLE_QOS
@@ -179,11 +190,29 @@ class SimPlantNode(Node):
         self._last_activity_ns = 0
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_subscription(Float64, TOPIC_DUTY_CYCLE, self._on_command, COMMAND_QOS)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         over = ", ".join(f"{k}={v}" for k, v in s.effect_overrides.items()) or "none"
         self.get_logger().info(
             f"rig {s.rig.name!r}, mode {s.mode}, T_s = {s.period_s * 1e3:.3f} ms, seed {s.seed}, "
             f"x0 = {s.x0.tolist()}, effect overrides: {over}, publish_clock {s.publish_clock}"
         )
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        """Apply live parameters (:data:`LIVE_PARAMETERS`): the running plant continues from its
+        state with the new rig (:meth:`PlantStepper.set_rig`); refused with the reason otherwise."""
+        changes = {p.name: p.value for p in params}
+        try:
+            settings = make_settings(**{**self._raw, **changes})
+            if self.plant is not None:
+                self.plant.stepper.set_rig(settings.rig)
+        except (SimConfigError, ValueError) as exc:
+            self.get_logger().warn(f"parameter change {changes} refused: {exc}")
+            return SetParametersResult(successful=False, reason=str(exc))
+        self._raw.update(changes)
+        self.settings = settings
+        over = ", ".join(f"{k}={v}" for k, v in settings.effect_overrides.items()) or "none"
+        self.get_logger().info(f"parameters set {changes}: effect overrides {over}")
+        return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ publishing
     def _publish(self, msgs: tuple[JointState, BatteryState], stamp_ns: int) -> None:

@@ -284,6 +284,24 @@ class PlantStepper:
         self._queue: list[float] = [0.0] * (self._delay_whole + 1)
         self._u_now = 0.0
 
+    def set_rig(self, rig: Rig) -> None:
+        """Continue with another rig (other effect switches, noise) from the current state, noise
+        generator and pending commands: what a live parameter change of the simulated plant does.
+
+        Raises
+        ------
+        ValueError
+            If the sample period or the input delay differ (they size the command delay line,
+            which cannot change under a running plant).
+        """
+        model = PlantModel(rig)
+        if rig.sample_period != self.dt:
+            raise ValueError(f"sample period {rig.sample_period} s differs from the running {self.dt} s")
+        if model.delay != self.model.delay:
+            raise ValueError(f"input delay {model.delay} s differs from the running {self.model.delay} s "
+                             "(it sizes the command delay line)")
+        self.model, self.rig = model, rig  # two assignments, each atomic: a step reads one or the other
+
     def sample(self) -> dict[str, float]:
         """Measured channels at the current sample instant (noise/quantisation applied)."""
         true = _outputs(self.model, self.x[None, :], np.array([self._u_now]))
