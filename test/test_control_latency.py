@@ -61,9 +61,33 @@ def test_analyse_latency_and_missed_samples() -> None:
     lat[4] = T + 100_000  # sample 4 answered after sample 5 was taken
     keep = np.arange(n) != 7  # command of sample 7 lost
     timing = {"stamp_ns": stamps, "taken_ns": taken, "recv_ns": (taken[:n] + lat)[keep], "duty": duty[keep]}
-    res = analyse(rows, timing)
+    res, misses = analyse(rows, timing)
     assert res["commands_matched"] == n - 1 and res["lost_commands"] == 1
     assert res["late_commands"] == 1 and res["missed_samples"] == 2 and res["dropped_samples"] == 0
     assert res["loop_latency_sample_to_command_receipt"]["max_ms"] == pytest.approx(2.148)
     assert res["loop_latency_sample_to_command_receipt"]["p50_ms"] == pytest.approx(0.4)
     assert res["controller_compute_receipt_to_publish"]["p50_ms"] == pytest.approx(0.2)
+    # each miss with its cause, window and latency split (plant on time here: lateness 0)
+    assert [(m["k"], m["cause"]) for m in misses] == [(4, "late"), (7, "lost")]
+    late = misses[0]
+    assert late["window_ns"] == [int(taken[4]), int(taken[4] + T + 100_000)]
+    assert late["latency_ms"] == pytest.approx(2.148)
+    assert late["split_ms"] == pytest.approx({"plant_late": 0.0, "to_controller": 0.1,
+                                              "controller_compute": 0.2, "to_plant": 2.148 - 0.3})
+    assert misses[1]["window_ns"] == [int(taken[7]), int(taken[8])]
+
+
+def test_misses_are_attributed_to_stalls_of_all_or_some_cpus() -> None:
+    from bench_control_latency import attribute, stall_intervals
+
+    ms = 1_000_000
+    misses = [{"window_ns": [a * ms, (a + 3) * ms]} for a in (0, 10, 20)]
+    cpu0 = {"deadline_ns": np.array([1 * ms, 11 * ms, 30 * ms]),
+            "late_ns": np.array([1 * ms, 1 * ms, 5 * ms])}
+    cpu1 = {"deadline_ns": np.array([int(1.5 * ms), 50 * ms]), "late_ns": np.array([1 * ms, 200_000])}
+    stalls = [stall_intervals(cpu0, 0.5), stall_intervals(cpu1, 0.5)]
+    assert stalls[1].tolist() == [[int(1.5 * ms), int(2.5 * ms)]]  # the 0.2 ms wake-up is no stall
+    counts = attribute(misses, stalls)
+    assert counts == {"all_cpus": 1, "some_cpus": 1, "none": 1}
+    assert [m["machine_stall"] for m in misses] == ["all_cpus", "some_cpus", "none"]
+    assert misses[0]["longest_overlapping_stall_ms"] == pytest.approx(1.0)

@@ -158,3 +158,54 @@ def test_retune_of_a_cascade_keeps_its_motor_loops() -> None:
     a.retune(build_strategy(s_new))
     assert a.inner is inner and a.outer.design == build_strategy(s_new).outer.design
     assert make_strategy("fl_cascade", s_old.rig).outer.design != a.outer.design
+
+
+def _weak_rig():
+    """thesis_sim with the ideal 2.32 V drive: it cannot hold the rod above ≈ 0.7 rad (issue 19)."""
+    from aeropend_sim.params import load_rig
+
+    return load_rig("thesis_sim").with_effects(hbridge_map=False).with_params("actuator", v_supply=2.32)
+
+
+def test_reachable_angle_is_the_equilibrium_with_duty_headroom() -> None:
+    from aeropend_control.design import REACH_ANGLE_CAP, REACH_DUTY_MARGIN, reachable_angle, reachable_grid
+    from aeropend_sim.model import PlantModel
+    from aeropend_sim.params import load_rig
+
+    rig = _weak_rig()
+    reach = reachable_angle(rig)
+    tau = PlantModel(rig).equilibrium(reach)[1]
+    assert tau == pytest.approx(1.0 - REACH_DUTY_MARGIN, abs=1e-3) and 0.5 < reach < 0.8
+    grid = reachable_grid(rig)
+    assert grid[-1] == reach and all(g < reach for g in grid[:-1])
+    # the thesis rig (Eq. 4.3 drive) holds the rod up to the cap: the default grid is kept whole
+    assert reachable_angle(load_rig("thesis_rig")) == REACH_ANGLE_CAP
+
+
+@pytest.mark.parametrize("strategy", ["fl_pid", "small_signal", "cascade", "fl_cascade"])
+def test_every_strategy_starts_on_a_weak_rig_and_clamps_an_unreachable_reference(strategy: str) -> None:
+    """No refusal to start on a valid rig with a smaller reach; a set point beyond the reach is
+    clamped to it and flagged, and the loop holds the rod there."""
+    from dataclasses import replace
+
+    from aeropend_control.controller_core import build_strategy
+    from aeropend_sim.simulate import PlantStepper
+
+    rig = _weak_rig()
+    base = make_settings(strategy=strategy, steps=[0.0, 0.3, 2.0, 1.0], mode="lockstep")
+    settings = replace(base, rig=rig)
+    build_strategy(settings)  # the design itself accepts the rig
+    loop = ControllerLoop(settings)
+    plant = PlantStepper(rig)
+    s, events = plant.sample(), []
+    for k in range(round(7.0 / 2.048e-3)):
+        d = loop.on_sample(k * 2_048_000, s["theta"], s["omega_rotor"], s["i_a"])
+        if loop.clamp_event:
+            events.append(loop.clamp_event)
+        s = plant.step(d)
+    col = {name: [row[i] for row in loop.rows] for i, name in enumerate(SIGNALS)}
+    k2 = round(2.0 / 2.048e-3)
+    assert events == [(1.0, loop.reach)]  # reported once, when the unreachable step came
+    assert set(col["reference_clamped"][:k2]) == {0.0} and set(col["reference_clamped"][k2:]) == {1.0}
+    assert col["reference"][-1] == loop.reach
+    assert abs(col["theta"][-1] - loop.reach) < 0.02 * loop.reach  # held at the reach

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aeropend_control.design import PoleSpec, design_fl
+from aeropend_control.design import DesignError, PoleSpec, design_fl, reachable_angle
 from aeropend_control.strategies import (
     ALLOCATORS,
     DEFAULT_TF,
@@ -34,10 +34,12 @@ MODES = ("realtime", "lockstep")
 #: ``recv_latency`` / ``pub_latency`` [s]: sample stamp → receipt / → command published (ROS time,
 #: real-time mode only; NaN in lock-step where stamps are simulated time). ``theta_hat`` [rad] and
 #: ``dist_hat`` [rad/s²]: the observer's angle and disturbance estimates (NaN with the difference
-#: estimator).
+#: estimator). ``reference`` is the set point the loop used, ``reference_clamped`` 1 when the
+#: requested one lay outside the rig's reach [0, :func:`~aeropend_control.design.reachable_angle`]
+#: and was clamped to it, else 0.
 SIGNALS: tuple[str, ...] = ("t", "reference", "theta", "error", "v", "thrust", "theta_dot_hat",
                             "duty", "saturated", "stamp_s", "recv_latency", "pub_latency",
-                            "theta_hat", "dist_hat")
+                            "theta_hat", "dist_hat", "reference_clamped")
 _PUB = SIGNALS.index("pub_latency")
 
 
@@ -205,6 +207,15 @@ class ControllerLoop:
     def __init__(self, settings: ControllerSettings) -> None:
         self.settings = settings
         self.strategy = build_strategy(settings)
+        try:
+            #: Largest set point [rad] the rig holds with duty headroom; references are clamped to it.
+            self.reach = reachable_angle(settings.rig)
+        except DesignError as exc:
+            raise ControllerConfigError(str(exc)) from exc
+        #: (requested, used) set point when the latest sample clamped a new reference, else None
+        #: (the node logs it once per change).
+        self.clamp_event: tuple[float, float] | None = None
+        self._clamped_from: float | None = None
         self.reference = ReferenceSource(settings.reference, settings.steps)
         self.t0_ns: int | None = None
         self.last_stamp: int | None = None
@@ -270,7 +281,11 @@ class ControllerLoop:
         if self.t0_ns is None:
             self.t0_ns = stamp_ns
         t = self.time_of(stamp_ns)
-        r = self.reference.value(t)
+        r_req = self.reference.value(t)
+        r = min(max(r_req, 0.0), self.reach) if math.isfinite(r_req) else r_req
+        clamped = r != r_req
+        self.clamp_event = (r_req, r) if clamped and r_req != self._clamped_from else None
+        self._clamped_from = r_req if clamped else None
         if isinstance(self.strategy, CascadeStrategy):
             out = self.strategy.step(r, theta, omega, i_a)
         else:
@@ -280,7 +295,8 @@ class ControllerLoop:
         obs = self.strategy.observer
         th_hat, d_hat = (obs.theta_k, obs.dist_k) if obs is not None else (math.nan, math.nan)
         self.last_signals = [t, r, theta, out.error, out.v, out.thrust, out.theta_dot, out.duty,
-                             float(out.saturated), stamp_ns * 1e-9, recv, math.nan, th_hat, d_hat]
+                             float(out.saturated), stamp_ns * 1e-9, recv, math.nan, th_hat, d_hat,
+                             float(clamped)]
         self.rows.append(self.last_signals)
         return out.duty
 

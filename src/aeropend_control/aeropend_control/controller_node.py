@@ -86,6 +86,7 @@ from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 
 from aeropend_control.controller_core import SIGNALS, ControllerConfigError, ControllerLoop, make_settings
+from aeropend_control.design import REACH_DUTY_MARGIN
 from aeropend_sim.contract import (
     TOPIC_ARMATURE,
     TOPIC_DUTY_CYCLE,
@@ -245,6 +246,12 @@ class ControllerNode(Node):
         duty = self.loop.on_sample(stamp, theta, omega, i_a, recv)
         if duty is None:
             return
+        if self.loop.clamp_event is not None:
+            req, used = self.loop.clamp_event
+            self.get_logger().warn(
+                f"reference {req:.4g} rad is outside the rig's reach [0, {self.loop.reach:.4g}] rad (holding "
+                f"it would need a duty cycle above {1.0 - REACH_DUTY_MARGIN:g}): clamped to {used:.4g} rad, "
+                "flagged in the signals (reference_clamped)")
         self._pub_duty.publish(duty_msg(duty))
         if realtime and not repeat:
             self.loop.mark_published(self.get_clock().now().nanoseconds)

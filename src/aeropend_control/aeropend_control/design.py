@@ -227,8 +227,57 @@ def schedule(rig: Rig, thetas: np.ndarray | list[float], spec: PoleSpec | None =
     return [design_small_signal(rig, float(t), spec) for t in th]
 
 
-#: Default gain-scheduling grid [rad].
+#: Default gain-scheduling grid [rad] (cut to the rig's reach by :func:`reachable_grid`).
 DEFAULT_GRID = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.1)
+#: Duty-cycle headroom kept above an equilibrium for control authority: a set point is reachable
+#: when holding it needs τ ≤ 1 − REACH_DUTY_MARGIN (the loop can still push up by this much).
+REACH_DUTY_MARGIN = 0.05
+#: Largest angle considered [rad]: the rod horizontal (π/2) less a margin (the thrust only lifts).
+REACH_ANGLE_CAP = math.pi / 2 - 0.05
+
+
+def reachable_angle(rig: Rig, duty_margin: float = REACH_DUTY_MARGIN, tol: float = 1e-4) -> float:
+    """Largest set point θ [rad] the rig holds with τ_eq ≤ 1 − ``duty_margin`` (equilibrium of
+    :meth:`PlantModel.equilibrium`, monotone in θ on [0, π/2]: the gravity torque grows); at most
+    :data:`REACH_ANGLE_CAP`. Bisection to ``tol`` rad.
+
+    Raises
+    ------
+    DesignError
+        If not even a small angle (0.01 rad) is reachable (the actuator cannot lift the rod).
+    """
+    m = PlantModel(rig)
+    top = 1.0 - duty_margin
+
+    def ok(theta: float) -> bool:
+        try:
+            return m.equilibrium(theta)[1] <= top
+        except ValueError:
+            return False
+
+    if ok(REACH_ANGLE_CAP):
+        return REACH_ANGLE_CAP
+    lo, hi = 0.0, REACH_ANGLE_CAP
+    if not ok(0.01):
+        raise DesignError(f"rig {rig.name!r}: holding even 0.01 rad needs a duty cycle above {top:g}: "
+                          "the actuator cannot lift the rod")
+    lo = 0.01
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
+    return lo
+
+
+def reachable_grid(rig: Rig, grid: tuple[float, ...] | list[float] = DEFAULT_GRID,
+                   duty_margin: float = REACH_DUTY_MARGIN) -> tuple[float, ...]:
+    """The scheduling grid cut to the rig's reach (:func:`reachable_angle`), with the reach itself
+    as the last point when the grid went beyond it: every design point is an equilibrium the
+    actuator holds with headroom, whatever the rig."""
+    reach = reachable_angle(rig, duty_margin)
+    kept = [float(t) for t in grid if t < reach - 1e-3]
+    if not kept or max(grid) > reach:
+        kept.append(reach)
+    return tuple(kept)
 
 
 def _row(d: LoopDesign) -> dict[str, float]:

@@ -43,6 +43,7 @@ from aeropend_control.design import (
     design_cascade,
     design_fl,
     design_small_signal,
+    reachable_grid,
     schedule,
 )
 from aeropend_control.observer import ObserverSpec, PendulumObserver
@@ -309,7 +310,9 @@ class SmallSignalPID(_Base):
         Fixed operating point [rad] (no scheduling). If None, gains are scheduled on the
         reference over ``grid``.
     grid : sequence of float
-        Scheduling grid [rad] (designs by :func:`aeropend_control.design.schedule`).
+        Scheduling grid [rad] (designs by :func:`aeropend_control.design.schedule`), cut to the
+        rig's reach (:func:`aeropend_control.design.reachable_grid`): a rig with less thrust
+        than the thesis rig is scheduled up to what it can hold.
     spec : PoleSpec, optional
         Default ``DEFAULT_SPECS["small_signal"]``.
     allocator, tf, dt, f_init, estimator, observer_spec
@@ -323,8 +326,8 @@ class SmallSignalPID(_Base):
                  dt: float | None = None, f_init: float = 0.0, estimator: str = "observer",
                  observer_spec: ObserverSpec | None = None) -> None:
         spec = spec or DEFAULT_SPECS["small_signal"]
-        if theta_op is None:
-            self.table = schedule(rig, list(grid), spec)
+        if theta_op is None:  # scheduled over the part of the grid the rig can hold (with headroom)
+            self.table = schedule(rig, list(reachable_grid(rig, grid)), spec)
         else:
             self.table = [design_small_signal(rig, float(theta_op), spec)]
         self.scheduled = theta_op is None
