@@ -63,7 +63,7 @@ from aeropend_bridge.bridge_core import (
 )
 from aeropend_bridge.protocol import BAUD, Duty, Rate, SampleFrame, StatusFrame
 from aeropend_bridge.serial_link import SerialLink
-from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
+from aeropend_sim.contract import REL_ARMATURE, REL_DUTY_CYCLE, REL_JOINT_STATES
 from aeropend_sim.node_shell import declare_parameter_table, run_node
 from aeropend_sim.params import RigFileError, load_rig
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, sample_to_msgs
@@ -116,10 +116,10 @@ class BridgeNode(Node):
         except (BridgeConfigError, RigFileError) as exc:
             self.destroy_node()
             raise BridgeConfigError(str(exc)) from None
-        self._pub_js = self.create_publisher(JointState, TOPIC_JOINT_STATES, SAMPLE_QOS)
-        self._pub_arm = self.create_publisher(BatteryState, TOPIC_ARMATURE, SAMPLE_QOS)
+        self._pub_js = self.create_publisher(JointState, REL_JOINT_STATES, SAMPLE_QOS)
+        self._pub_arm = self.create_publisher(BatteryState, REL_ARMATURE, SAMPLE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
-        self.create_subscription(Float64, TOPIC_DUTY_CYCLE, self._on_command, COMMAND_QOS)
+        self.create_subscription(Float64, REL_DUTY_CYCLE, self._on_command, COMMAND_QOS)
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(self.keepalive_s, self._keepalive, clock=self._steady)
         self.create_timer(self.diag_period_s, self._publish_diagnostics, clock=self._steady)

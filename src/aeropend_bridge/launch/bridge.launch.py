@@ -15,6 +15,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 ARGUMENTS = (
+    ("namespace", "", "ROS namespace of the rig's nodes and topics (rig2: /rig2/aeropend/*; empty: root)"),
     ("port", "/dev/ttyACM0", "serial device of the Arduino Mega"),
     ("rig", "thesis_rig", "rig name or YAML path (ADC LSBs, gear ratio)"),
     ("theta_offset", "0.0", "angle read with the rod hanging down [rad]"),
@@ -33,7 +34,7 @@ def _bridge(context, *args, **kwargs):
         "frame_id": value["frame_id"],
     }
     return [Node(package="aeropend_bridge", executable="bridge", name="aeropend_bridge", output="screen",
-                 parameters=[params])]
+                 parameters=[params], namespace=value["namespace"] or None)]
 
 
 def generate_launch_description():

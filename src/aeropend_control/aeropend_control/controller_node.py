@@ -88,9 +88,9 @@ from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 from aeropend_control.controller_core import SIGNALS, ControllerConfigError, ControllerLoop, make_settings
 from aeropend_control.design import REACH_DUTY_MARGIN
 from aeropend_sim.contract import (
-    TOPIC_ARMATURE,
-    TOPIC_DUTY_CYCLE,
-    TOPIC_JOINT_STATES,
+    REL_ARMATURE,
+    REL_DUTY_CYCLE,
+    REL_JOINT_STATES,
     ContractError,
     stamp_to_ns,
 )
@@ -98,8 +98,12 @@ from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_even
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS_LOCKSTEP, SAMPLE_SUB_QOS, duty_msg
 
 NODE_NAME = "aeropend_controller"
-TOPIC_REFERENCE = "/aeropend/reference"
-TOPIC_SIGNALS = "/aeropend/controller/signals"
+#: Reference and internal signals, relative to the node's namespace like the contract topics;
+#: ``TOPIC_*`` are their names in the root namespace.
+REL_REFERENCE = "aeropend/reference"
+REL_SIGNALS = "aeropend/controller/signals"
+TOPIC_REFERENCE = "/" + REL_REFERENCE
+TOPIC_SIGNALS = "/" + REL_SIGNALS
 #: Unpaired joint_states / armature halves kept while waiting for the other half.
 PAIR_BUFFER = 20
 #: Real-time mode: wait this long after the command publisher first matched before answering
@@ -153,15 +157,15 @@ class ControllerNode(Node):
             raise
         s = self.settings
         qos = SAMPLE_QOS_LOCKSTEP if s.mode == "lockstep" else SAMPLE_SUB_QOS
-        self._pub_duty = self.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
-        self._pub_sig = self.create_publisher(Float64MultiArray, TOPIC_SIGNALS, 10)
-        self.create_subscription(JointState, TOPIC_JOINT_STATES, self._on_sample, qos)
+        self._pub_duty = self.create_publisher(Float64, REL_DUTY_CYCLE, COMMAND_QOS)
+        self._pub_sig = self.create_publisher(Float64MultiArray, REL_SIGNALS, 10)
+        self.create_subscription(JointState, REL_JOINT_STATES, self._on_sample, qos)
         # cascades also need i_a: pair joint_states and armature by their common stamp
         self._pending_js: dict[int, tuple[float, float]] = {}
         self._pending_arm: dict[int, float] = {}
         if self.loop.needs_motor:
-            self.create_subscription(BatteryState, TOPIC_ARMATURE, self._on_armature, qos)
-        self.create_subscription(Float64, TOPIC_REFERENCE, self._on_reference, 10)
+            self.create_subscription(BatteryState, REL_ARMATURE, self._on_armature, qos)
+        self.create_subscription(Float64, REL_REFERENCE, self._on_reference, 10)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.finished = threading.Event()
         self._matched_ns: int | None = None

@@ -19,6 +19,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 ARGUMENTS = (
+    ("namespace", "", "ROS namespace of the rig's nodes and topics (rig2: /rig2/aeropend/*; empty: root)"),
     ("plant", "sim", "sim (simulated plant) | bridge (hardware through the serial bridge)"),
     ("rig", "thesis_rig", "rig name or YAML path, used by the plant/bridge and the controller"),
     ("mode", "realtime", "realtime | lockstep (lockstep: sim plant only)"),
@@ -49,16 +50,16 @@ def _nodes(context, *args, **kwargs):
         if v["effects"]:
             plant_params["effects"] = [e.strip() for e in v["effects"].split(",") if e.strip()]
         plant = Node(package="aeropend_sim", executable="sim_node", name="aeropend_sim", output="screen",
-                     parameters=[plant_params])
+                     parameters=[plant_params], namespace=v["namespace"] or None)
     else:
         plant = Node(package="aeropend_bridge", executable="bridge", name="aeropend_bridge", output="screen",
-                     parameters=[{"port": v["port"], "rig": v["rig"]}])
+                     parameters=[{"port": v["port"], "rig": v["rig"]}], namespace=v["namespace"] or None)
     ctrl_params = {"rig": v["rig"], "strategy": v["strategy"], "mode": v["mode"], "estimator": v["estimator"],
                    "rt_priority": rt}
     if v["steps"]:
         ctrl_params["steps"] = [float(x) for x in v["steps"].split(",") if x.strip()]
     controller = Node(package="aeropend_control", executable="controller", name="aeropend_controller",
-                      output="screen", parameters=[ctrl_params])
+                      output="screen", parameters=[ctrl_params], namespace=v["namespace"] or None)
     return [plant, controller]
 
 

@@ -14,7 +14,9 @@ output : str
 storage : str
     ``mcap`` (default) or ``sqlite3``.
 topics : string array
-    Topics to record (default the contract topics; add ``/clock`` to record simulated time).
+    Topics to record; an empty string stands for the contract topics in the recorder's
+    namespace (the default, ``[""]``: ``/aeropend/*``, or ``/rig2/aeropend/*`` with
+    ``-r __ns:=/rig2``); add ``/clock`` to record simulated time.
     Types of other topics are discovered from the graph.
 duration : float
     Stop after this many seconds of node-clock time; 0 = until SIGINT / SIGTERM.
@@ -65,6 +67,7 @@ from aeropend_sim.contract import (
     TOPIC_DUTY_CYCLE,
     TOPIC_JOINT_STATES,
     TYPE_CLOCK,
+    namespaced,
 )
 from aeropend_sim.node_shell import init_with_stop_event
 
@@ -74,7 +77,12 @@ DRAIN_IDLE_S = 0.3
 #: ... but at most this long [s].
 DRAIN_MAX_S = 10.0
 _INFINITE_NS = 2**63 - 1
-_KNOWN_TYPES = {**CONTRACT_TOPICS, TOPIC_CLOCK: TYPE_CLOCK}
+
+def _known_type(topic: str) -> str | None:
+    """Type of a contract topic in any namespace (``/rig2/aeropend/joint_states``) or of /clock."""
+    if topic == TOPIC_CLOCK:
+        return TYPE_CLOCK
+    return next((t for name, t in CONTRACT_TOPICS.items() if topic.endswith(name)), None)
 
 
 def message_class(msgtype: str) -> Any:
@@ -131,14 +139,16 @@ class RecorderNode(Node):
         super().__init__(NODE_NAME, **kwargs)
         self.declare_parameter("output", "")
         self.declare_parameter("storage", "mcap")
-        self.declare_parameter("topics", list(CONTRACT_TOPICS))
+        self.declare_parameter("topics", [""])  # [""]: the contract topics in this node's namespace
         self.declare_parameter("duration", 0.0)
         self.declare_parameter("max_samples", 0)
         self.declare_parameter("queue_depth", 1000)
         self.declare_parameter("reliable", False)
         output = self.get_parameter("output").value or time.strftime("aeropend_%Y%m%d_%H%M%S")
         self.storage = str(self.get_parameter("storage").value)
-        self.topics = [str(t) for t in self.get_parameter("topics").value]
+        raw = [str(t) for t in self.get_parameter("topics").value] or [""]
+        here = [namespaced(t, self.get_namespace()) for t in CONTRACT_TOPICS]  # what "" stands for
+        self.topics = list(dict.fromkeys(x for t in raw for x in (here if t == "" else [t])))
         self.duration = float(self.get_parameter("duration").value)
         self.max_samples = int(self.get_parameter("max_samples").value)
         self.queue_depth = int(self.get_parameter("queue_depth").value)
@@ -185,8 +195,9 @@ class RecorderNode(Node):
 
     def _subscribe_known(self) -> None:
         for topic in self.topics:
-            if topic in _KNOWN_TYPES:
-                self._subscribe(topic, _KNOWN_TYPES[topic])
+            known = _known_type(topic)
+            if known is not None:
+                self._subscribe(topic, known)
 
     def _discover(self) -> None:
         graph = dict(self.get_topic_names_and_types())
@@ -264,7 +275,7 @@ def _overrides(args: argparse.Namespace) -> list[Parameter]:
         out.append(Parameter("storage", value=args.storage))
     topics = list(args.topics) if args.topics else None
     if args.clock:
-        topics = (topics or list(CONTRACT_TOPICS)) + [TOPIC_CLOCK]
+        topics = (topics or [""]) + [TOPIC_CLOCK]  # "": the contract topics in the node's namespace
     if topics:
         out.append(Parameter("topics", value=topics))
     if args.duration is not None:

@@ -21,6 +21,7 @@ from launch_ros.actions import Node
 CONTRACT_TOPICS = ["/aeropend/duty_cycle", "/aeropend/joint_states", "/aeropend/armature"]
 
 ARGUMENTS = (
+    ("namespace", "", "ROS namespace of the rig's nodes and topics (rig2: /rig2/aeropend/*; empty: root)"),
     ("output", "", "bag directory to create (empty: aeropend_<date>_<time> in the working directory)"),
     ("storage", "mcap", "bag storage: mcap | sqlite3"),
     ("topics", "", "space-separated topics (empty: the contract topics)"),
@@ -37,7 +38,7 @@ def _truthy(text: str) -> bool:
 
 def _recorder(context, *args, **kwargs):
     value = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
-    topics = value["topics"].split() or list(CONTRACT_TOPICS)
+    topics = value["topics"].split() or [""]  # "": the contract topics in the recorder's namespace
     if _truthy(value["clock"]) and "/clock" not in topics:
         topics.append("/clock")
     params = {
@@ -50,7 +51,7 @@ def _recorder(context, *args, **kwargs):
     if value["output"]:
         params["output"] = value["output"]
     recorder = Node(package="aeropend_ident", executable="record", name="aeropend_recorder",
-                    output="screen", parameters=[params])
+                    output="screen", parameters=[params], namespace=value["namespace"] or None)
     shutdown = EmitEvent(event=Shutdown(reason="recorder finished"))
     stop_with_recorder = RegisterEventHandler(OnProcessExit(target_action=recorder, on_exit=[shutdown]))
     return [recorder, stop_with_recorder]

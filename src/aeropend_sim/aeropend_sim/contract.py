@@ -5,7 +5,8 @@ units and QoS of the aeropend node graph. It imports no ROS package, so the offl
 (bag reading with ``rosbags``) use the same definitions as the nodes (``rclpy``); the rclpy
 message conversions live in :mod:`aeropend_sim.ros_contract`.
 
-Topics (all SI units; duty cycle as a fraction in [0, 1]; angles in rad)
+Topics (all SI units; duty cycle as a fraction in [0, 1]; angles in rad; the names below are in
+the root namespace: a node's namespace prefixes them, see :data:`REL_JOINT_STATES`)
 
 ==============================  ===========================  =====  ==========================
 topic                           type                         dir.   content
@@ -48,10 +49,28 @@ SAMPLE_PERIOD_S: float = 2.048e-3
 #: Nominal sample rate [Hz] (1 / 2.048 ms ≈ 488.28 Hz, "490 Hz" in the thesis).
 SAMPLE_RATE_HZ: float = 1.0 / SAMPLE_PERIOD_S
 
-TOPIC_DUTY_CYCLE = "/aeropend/duty_cycle"
-TOPIC_JOINT_STATES = "/aeropend/joint_states"
-TOPIC_ARMATURE = "/aeropend/armature"
+#: Contract topics relative to a node's namespace: every node uses these, so a rig started with
+#: ``--ros-args -r __ns:=/rig2`` (or a launch ``namespace``) publishes ``/rig2/aeropend/joint_states``
+#: and a second rig or simulator runs beside it. In the root namespace (the default) they resolve to
+#: the absolute ``TOPIC_*`` names below, today's names.
+REL_DUTY_CYCLE = "aeropend/duty_cycle"
+REL_JOINT_STATES = "aeropend/joint_states"
+REL_ARMATURE = "aeropend/armature"
+
+TOPIC_DUTY_CYCLE = "/" + REL_DUTY_CYCLE
+TOPIC_JOINT_STATES = "/" + REL_JOINT_STATES
+TOPIC_ARMATURE = "/" + REL_ARMATURE
+#: Simulated time stays global (ROS convention): a second lock-step plant runs with
+#: ``publish_clock:=false``.
 TOPIC_CLOCK = "/clock"
+
+
+def namespaced(topic: str, namespace: str) -> str:
+    """Absolute name of a contract topic (``TOPIC_*`` or ``REL_*``) in ``namespace`` ("" or "/" =
+    root): ``namespaced(TOPIC_JOINT_STATES, "/rig2") == "/rig2/aeropend/joint_states"``."""
+    rel = topic.lstrip("/")
+    ns = namespace.strip("/")
+    return f"/{ns}/{rel}" if ns else f"/{rel}"
 
 TYPE_DUTY_CYCLE = "std_msgs/msg/Float64"
 TYPE_JOINT_STATES = "sensor_msgs/msg/JointState"

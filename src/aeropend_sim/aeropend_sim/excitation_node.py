@@ -274,7 +274,7 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
+    from aeropend_sim.contract import REL_DUTY_CYCLE, REL_JOINT_STATES
     from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS_LOCKSTEP
     from aeropend_sim.sim_core import RealtimeSchedule
 
@@ -300,7 +300,7 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
             log.error(f"invalid excitation: {exc}")
             return 2
         sig = cfg.signal
-        pub = node.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
+        pub = node.create_publisher(Float64, REL_DUTY_CYCLE, COMMAND_QOS)
         log.info(
             f"signal {sig.kind} {sig.params}: {len(sig)} samples, {sig.duration:.3f} s, "
             f"duty in [{sig.duty.min():.4g}, {sig.duty.max():.4g}], mode {cfg.mode}"
@@ -321,7 +321,7 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
                 if not stop.is_set():
                     log.error(
                         f"{pub.get_subscription_count()} of {cfg.min_subscribers} subscriber(s) on "
-                        f"{TOPIC_DUTY_CYCLE} within {cfg.wait_timeout:g} s; is the plant up?"
+                        f"{pub.topic_name} within {cfg.wait_timeout:g} s; is the plant up?"
                     )
                 return 1
             sent = [0]
@@ -367,12 +367,12 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
                         pub.publish(Float64(data=value))
                     pending.clear()
 
-            node.create_subscription(JointState, TOPIC_JOINT_STATES, on_sample, SAMPLE_QOS_LOCKSTEP)
+            sub = node.create_subscription(JointState, REL_JOINT_STATES, on_sample, SAMPLE_QOS_LOCKSTEP)
             node.create_timer(0.01, flush)
             if not spin_until(lambda: feeder.sent > 0, cfg.wait_timeout):
                 if not stop.is_set():
                     log.error(
-                        f"no sample on {TOPIC_JOINT_STATES} within {cfg.wait_timeout:g} s; "
+                        f"no sample on {sub.topic_name} within {cfg.wait_timeout:g} s; "
                         "is the plant up in lockstep mode?"
                     )
                 return 1

@@ -86,7 +86,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
-from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_CLOCK, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES, Sample
+from aeropend_sim.contract import REL_ARMATURE, REL_DUTY_CYCLE, REL_JOINT_STATES, TOPIC_CLOCK, Sample
 from aeropend_sim.node_shell import declare_parameter_table, run_node
 from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, sample_to_msgs, to_time
 from aeropend_sim.sim_core import (
@@ -166,8 +166,8 @@ class SimPlantNode(Node):
         s = self.settings
         lockstep = s.mode == "lockstep"
         sample_qos = SAMPLE_QOS_LOCKSTEP if lockstep else SAMPLE_QOS
-        self._pub_js = self.create_publisher(JointState, TOPIC_JOINT_STATES, sample_qos)
-        self._pub_arm = self.create_publisher(BatteryState, TOPIC_ARMATURE, sample_qos)
+        self._pub_js = self.create_publisher(JointState, REL_JOINT_STATES, sample_qos)
+        self._pub_arm = self.create_publisher(BatteryState, REL_ARMATURE, sample_qos)
         self._pub_clock = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS) if s.publish_clock else None
         timeout_ns = None if lockstep else round(s.command_timeout * 1e9)
         self.hold = CommandHold(timeout_ns)
@@ -189,7 +189,7 @@ class SimPlantNode(Node):
         self._reported = (0, 0)  # overruns and command timeouts already logged
         self._last_activity_ns = 0
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_subscription(Float64, TOPIC_DUTY_CYCLE, self._on_command, COMMAND_QOS)
+        self.create_subscription(Float64, REL_DUTY_CYCLE, self._on_command, COMMAND_QOS)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         over = ", ".join(f"{k}={v}" for k, v in s.effect_overrides.items()) or "none"
         self.get_logger().info(
@@ -277,7 +277,8 @@ class SimPlantNode(Node):
         miss sample 0 and what follows until it matches).
         """
         matched = self._matched()
-        known = (self.count_subscribers(TOPIC_JOINT_STATES), self.count_subscribers(TOPIC_ARMATURE))
+        known = (self.count_subscribers(self._pub_js.topic_name),
+                 self.count_subscribers(self._pub_arm.topic_name))
         need = (max(self.settings.min_subscribers, known[0]), known[1])
         if matched[0] < need[0] or matched[1] < need[1]:
             self.get_logger().info(

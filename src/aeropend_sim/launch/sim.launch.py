@@ -16,6 +16,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 ARGUMENTS = (
+    ("namespace", "", "ROS namespace of the rig's nodes and topics (rig2: /rig2/aeropend/*; empty: root)"),
     ("rig", "thesis_rig", "shipped rig name or path to a rig YAML file"),
     ("mode", "realtime", "realtime | lockstep"),
     ("seed", "0", "measurement-noise seed (int >= 0)"),
@@ -45,7 +46,7 @@ def _plant(context, *args, **kwargs):
         params["effects"] = [e.strip() for e in value["effects"].split(",") if e.strip()]
     return [
         Node(
-            package="aeropend_sim",
+            namespace=value["namespace"] or None, package="aeropend_sim",
             executable="sim_node",
             name="aeropend_sim",
             output="screen",

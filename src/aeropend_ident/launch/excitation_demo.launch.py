@@ -6,9 +6,9 @@ signal the launch shuts down, which closes the bag cleanly.
 
 Examples::
 
-    ros2 launch aeropend_sim excitation_demo.launch.py                       # LHS, lock-step
-    ros2 launch aeropend_sim excitation_demo.launch.py signal:=prbs mode:=realtime output:=/tmp/prbs
-    ros2 launch aeropend_sim excitation_demo.launch.py rig:=thesis_sim seed:=4 noise:=true
+    ros2 launch aeropend_ident excitation_demo.launch.py                       # LHS, lock-step
+    ros2 launch aeropend_ident excitation_demo.launch.py signal:=prbs mode:=realtime output:=/tmp/prbs
+    ros2 launch aeropend_ident excitation_demo.launch.py rig:=thesis_sim seed:=4 noise:=true
 
 In ``lockstep`` mode (default) plant and excitation ping-pong one sample per command, so the run
 is deterministic and as fast as the machine allows; the recorder then runs on simulated time
@@ -31,6 +31,7 @@ from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
 ARGUMENTS = (
+    ("namespace", "", "ROS namespace of the rig's nodes and topics (rig2: /rig2/aeropend/*; empty: root)"),
     ("rig", "thesis_rig", "shipped rig name or path to a rig YAML file"),
     ("mode", "lockstep", "lockstep (deterministic ping-pong) | realtime"),
     ("signal", "lhs",
@@ -64,17 +65,17 @@ def _nodes(context, *args, **kwargs):
         signal_params.setdefault("duration", 20.0)
     if value["signal"] == "step":
         signal_params["level"] = 0.4314  # thesis open-loop step (§4.5)
-    topics = ["/aeropend/duty_cycle", "/aeropend/joint_states", "/aeropend/armature"]
+    topics = [""]  # the recorder's contract topics in its namespace
     record_params = {"storage": value["storage"], "topics": topics + (["/clock"] if lockstep else []),
                      "use_sim_time": lockstep}
     if value["output"]:
         record_params["output"] = value["output"]
     recorder = Node(package="aeropend_ident", executable="record", name="aeropend_recorder", output="screen",
-                    parameters=[record_params])
+                    parameters=[record_params], namespace=value["namespace"] or None)
     plant = Node(package="aeropend_sim", executable="sim_node", name="aeropend_sim", output="screen",
-                 parameters=[plant_params])
+                 parameters=[plant_params], namespace=value["namespace"] or None)
     excitation = Node(package="aeropend_sim", executable="excitation", name="aeropend_excitation",
-                      output="screen", parameters=[signal_params])
+                      output="screen", parameters=[signal_params], namespace=value["namespace"] or None)
     done = RegisterEventHandler(
         OnProcessExit(target_action=excitation,
                       on_exit=[EmitEvent(event=Shutdown(reason="excitation signal finished"))])

@@ -1,0 +1,102 @@
+"""The launch files, evaluated without a ROS installation.
+
+``launch`` / ``launch_ros`` do not install from the package index here (no ``ros-jazzy-launch-ros``
+wheel), so each launch file is executed against minimal stand-ins of the launch API that record
+what it declares: its arguments, and, for a given set of argument values, the nodes its
+``OpaqueFunction`` returns (package, executable, name, namespace, parameters). Checked: every file
+imports and builds its description; every node of every file takes the ``namespace`` argument
+(two rigs side by side); every executable it starts is a console script of the package named;
+every package it starts is an ``exec_depend`` of the launch file's package.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import sys
+import types
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+LAUNCH_FILES = sorted(SRC.glob("*/launch/*.launch.py"))
+
+
+class _Action:
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.args, self.kwargs = args, kwargs
+
+
+class _Config:
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def perform(self, context: dict[str, str]) -> str:
+        return context[self.name]
+
+
+def _fake_launch() -> dict[str, types.ModuleType]:
+    mods = {n: types.ModuleType(n) for n in ("launch", "launch.actions", "launch.substitutions",
+                                             "launch.events", "launch.event_handlers", "launch_ros",
+                                             "launch_ros.actions")}
+    mods["launch"].LaunchDescription = lambda entities: list(entities)
+    for name in ("DeclareLaunchArgument", "OpaqueFunction", "SetEnvironmentVariable", "EmitEvent",
+                 "RegisterEventHandler"):
+        setattr(mods["launch.actions"], name, type(name, (_Action,), {}))
+    mods["launch.substitutions"].LaunchConfiguration = _Config
+    mods["launch.events"].Shutdown = type("Shutdown", (_Action,), {})
+    mods["launch.event_handlers"].OnProcessExit = type("OnProcessExit", (_Action,), {})
+    mods["launch_ros.actions"].Node = type("Node", (_Action,), {})
+    return mods
+
+
+def _load(path: Path, monkeypatch: pytest.MonkeyPatch) -> list[Any]:
+    for name, mod in _fake_launch().items():
+        monkeypatch.setitem(sys.modules, name, mod)
+    spec = importlib.util.spec_from_file_location(path.stem.replace(".", "_"), path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.generate_launch_description()
+
+
+def _nodes(entities: list[Any], **values: str) -> list[Any]:
+    args = {e.args[0]: e.kwargs["default_value"] for e in entities
+            if type(e).__name__ == "DeclareLaunchArgument"}
+    context = {**args, **values}
+    out = []
+    for e in entities:
+        if type(e).__name__ == "OpaqueFunction":
+            out += [n for n in e.kwargs["function"](context) if type(n).__name__ == "Node"]
+    return out
+
+
+def _console_scripts(package: str) -> set[str]:
+    text = (SRC / package / "setup.py").read_text(encoding="utf-8")
+    return set(re.findall(r"['\"](\w+)\s*=\s*[\w.]+:\w+['\"]", text))
+
+
+def _exec_depends(package: str) -> set[str]:
+    text = (SRC / package / "package.xml").read_text(encoding="utf-8")
+    return set(re.findall(r"<(?:exec_)?depend>([\w-]+)</(?:exec_)?depend>", text))
+
+
+def test_there_are_launch_files() -> None:
+    assert len(LAUNCH_FILES) >= 5, LAUNCH_FILES
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+def test_launch_file_nodes_take_the_namespace_and_exist(path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    entities = _load(path, monkeypatch)
+    default = _nodes(entities)
+    assert default, f"{path.name} starts no node"
+    assert all(n.kwargs.get("namespace") is None for n in default)  # root namespace by default
+    rig2 = _nodes(entities, namespace="rig2")
+    assert [n.kwargs.get("namespace") for n in rig2] == ["rig2"] * len(rig2)
+    owner = path.parents[1].name
+    for n in default:
+        pkg, exe = n.kwargs["package"], n.kwargs["executable"]
+        assert exe in _console_scripts(pkg), f"{path.name}: {pkg} has no executable {exe!r}"
+        assert pkg == owner or pkg in _exec_depends(owner), f"{owner}/package.xml does not depend on {pkg}"
+    assert {"launch", "launch_ros"} <= _exec_depends(owner), f"{owner}/package.xml lacks launch, launch_ros"
