@@ -6,8 +6,9 @@ process, ``stress --cpu 1``-like):
 ``lockstep``
     The main job's node graph (``pipeline.run_graph``: recorder + lock-step ``sim_node`` +
     excitation, separate processes), one attempt per run, no retry. Per run: samples the plant
-    published (its shutdown summary) vs ``joint_states`` messages in the bag, the longest gap in
-    the recorded stamps (simulated time) and the number of stalls (stamp gaps > 20 ms).
+    published (its shutdown summary) vs ``joint_states`` messages in the bag, the excitation's
+    commands (one per sample but the last) vs ``duty_cycle`` messages in the bag, the longest gap
+    in the recorded stamps (simulated time) and the number of stalls (stamp gaps > 20 ms).
 ``stream``
     A real-time ``sim_node`` (``timing_log``: the instant every sample was taken) and two plain
     rclpy subscriber processes (``--listener``, contract ``SAMPLE_SUB_QOS``, or ``--sub-depth``).
@@ -47,6 +48,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))
 from ros_support import isolated_env, node_command, random_domain, stop, summary_fields  # noqa: E402
+
+from aeropend_sim.contract import TOPIC_DUTY_CYCLE  # noqa: E402
 
 RESULTS = ROOT / "bench" / "results"
 PERIOD_NS = 2_048_000
@@ -232,9 +235,11 @@ def run_lockstep(tmp: Path, seed: int) -> dict[str, Any]:
     seconds = time.monotonic() - t0
     published = plant_sample_count(tmp / "logs" / "sim_node.log")
     recorded, longest, stalls, where, first_k, last_k = 0, 0.0, 0, [], -1, -1
+    commands = 0
     if bag is not None:
         try:
             rec = read_bag(bag, require_duty=False)
+            commands = int(rec.meta["message_counts"].get(TOPIC_DUTY_CYCLE, 0))
             # lock-step stamps are k·T_s of simulated time from 0: the sample index is the stamp
             stamps = rec.stamp0_ns + np.round(rec.t * 1e9).astype(np.int64)
             recorded = int(stamps.size)
@@ -244,12 +249,19 @@ def run_lockstep(tmp: Path, seed: int) -> dict[str, Any]:
             where = [[round(stamps[i] * 1e-9, 3), round((stamps[i + 1] - stamps[i]) * 1e-6, 1)] for i in idx]
         except Exception as exc:
             error = f"{type(exc).__name__}: {exc}"
-    # the plant's last sample (no command after it) counts: it was published and must be recorded
+    # the plant's last sample (no command after it) counts: it was published and must be recorded;
+    # lock-step: one command per sample but the last, each answered by the plant, so the
+    # excitation published published − 1 commands, and the bag must hold every one of them
+    commands_published = (published or 1) - 1
     return {"published": published, "recorded": recorded, "lost": (published or 0) - recorded,
+            "commands_published": commands_published, "commands_recorded": commands,
+            "commands_lost": commands_published - commands,
             "longest_stamp_gap_ms": longest, "stalls": stalls, "stall_at_s_ms": where,
             "first_recorded_sample": first_k, "last_recorded_sample": last_k,
             "seconds": round(seconds, 1),
-            "error": error, "ok": not error and published is not None and recorded == published}
+            "error": error,
+            "ok": (not error and published is not None and recorded == published
+                   and commands == commands_published)}
 
 
 # ------------------------------------------------------------------------------------ report
@@ -270,7 +282,8 @@ def render(result: dict[str, Any]) -> str:
     for r in result["runs"]:
         if r["scenario"] == "lockstep":
             span = f"{r.get('first_recorded_sample', '?')}..{r.get('last_recorded_sample', '?')}"
-            fig = (f"published {r['published']}, recorded {r['recorded']} (samples {span}), longest gap "
+            fig = (f"published {r['published']}, recorded {r['recorded']} (samples {span}), commands "
+                   f"{r.get('commands_recorded', '?')}/{r.get('commands_published', '?')}, longest gap "
                    f"{r['longest_stamp_gap_ms']:.1f} ms, stalls {r['stalls']}, {r['seconds']} s"
                    + (f", error: {r['error'][:80]}" if r["error"] else ""))
         else:
@@ -295,6 +308,8 @@ def totals(runs: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
             if scenario == "lockstep":
                 agg["lost_samples"] = sum(max(r["lost"], 0) for r in rs)
                 agg["runs_with_loss"] = sum(r["lost"] > 0 for r in rs)
+                agg["lost_commands"] = sum(max(r.get("commands_lost", 0), 0) for r in rs)
+                agg["runs_with_command_loss"] = sum(r.get("commands_lost", 0) > 0 for r in rs)
                 agg["stalls"] = sum(r["stalls"] for r in rs)
                 agg["errors"] = sum(bool(r["error"]) for r in rs)
             else:

@@ -14,19 +14,24 @@ from aeropend_ident.pipeline import main
 pytestmark = pytest.mark.ros
 
 
-def test_main_job_records_every_sample_and_reports(tmp_path, monkeypatch):
+@pytest.mark.parametrize("namespace", ["", "/lab/rig2"], ids=["root", "namespaced"])
+def test_main_job_records_every_sample_and_reports(tmp_path, monkeypatch, namespace):
     isolate_process(monkeypatch, random_domain(101, 200))
     signal = ["signal:=lhs", "n:=4", "tau_min:=0.35", "tau_max:=0.7", "hold_min:=1.0", "hold_max:=1.5"]
-    assert main(["--out", str(tmp_path), "--seed", "3", "--signal", *signal]) == 0
+    assert main(["--out", str(tmp_path), "--seed", "3", "--namespace", namespace, "--signal", *signal]) == 0
     summary = json.loads((tmp_path / "summary.json").read_text())
-    rec = read_bag(tmp_path / "run_bag")
+    rec = read_bag(tmp_path / "run_bag", namespace=namespace)
+    # the whole graph ran in the namespace: the bag holds <namespace>/aeropend/* only
+    assert set(rec.meta["message_counts"]) == {f"{namespace}/aeropend/{t}"
+                                               for t in ("duty_cycle", "joint_states", "armature")}
     # lock-step: the bag holds every sample from rest, one per command, on the 2.048 ms grid
     assert summary["recording"]["gaps"] == 0
     # every sample the plant published is in the bag, in one run (no repeat; docs/data_plane.md):
     # sample 0 and one per command, the last one included
     assert summary["recording"]["complete"] is True
     assert summary["recording"]["recorded"] == summary["recording"]["published"] == len(rec)
-    assert rec.meta["message_counts"]["/aeropend/duty_cycle"] == len(rec) - 1
+    assert summary["recording"]["commands"] == len(rec) - 1  # every command too (docs/data_plane.md)
+    assert rec.meta["message_counts"][f"{namespace}/aeropend/duty_cycle"] == len(rec) - 1
     assert rec.channels["theta"][0] == 0.0
     dt = rec.t[1:] - rec.t[:-1]
     assert abs(dt.max() - 2.048e-3) < 1e-9 and abs(dt.min() - 2.048e-3) < 1e-9

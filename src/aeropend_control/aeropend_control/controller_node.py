@@ -95,7 +95,13 @@ from aeropend_sim.contract import (
     stamp_to_ns,
 )
 from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS_LOCKSTEP, SAMPLE_SUB_QOS, duty_msg
+from aeropend_sim.ros_contract import (
+    COMMAND_QOS,
+    COMMAND_QOS_LOCKSTEP,
+    SAMPLE_QOS_LOCKSTEP,
+    SAMPLE_SUB_QOS,
+    duty_msg,
+)
 
 NODE_NAME = "aeropend_controller"
 #: Reference and internal signals, relative to the node's namespace like the contract topics;
@@ -157,7 +163,8 @@ class ControllerNode(Node):
             raise
         s = self.settings
         qos = SAMPLE_QOS_LOCKSTEP if s.mode == "lockstep" else SAMPLE_SUB_QOS
-        self._pub_duty = self.create_publisher(Float64, REL_DUTY_CYCLE, COMMAND_QOS)
+        self._pub_duty = self.create_publisher(Float64, REL_DUTY_CYCLE,
+                                               COMMAND_QOS_LOCKSTEP if s.mode == "lockstep" else COMMAND_QOS)
         self._pub_sig = self.create_publisher(Float64MultiArray, REL_SIGNALS, 10)
         self.create_subscription(JointState, REL_JOINT_STATES, self._on_sample, qos)
         # cascades also need i_a: pair joint_states and armature by their common stamp

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from aeropend_ident.bags import BagError, read_bag
+from aeropend_sim.contract import TOPIC_DUTY_CYCLE
 from aeropend_sim.domain import claim_domain
 
 #: Default excitation: thesis §5.1 Latin-hypercube steps (10 steps, τ ∈ [0.3, 0.8], 1-3 s each).
@@ -92,8 +93,11 @@ def _exe(name: str) -> list[str]:
 
 
 def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: list[str],
-              noise: bool, timeout: float = 240.0) -> Path:
+              noise: bool, timeout: float = 240.0, namespace: str = "") -> Path:
     """Run recorder + simulated plant + excitation as separate processes; return the bag path.
+
+    ``namespace`` ("" = root) puts the three nodes and their topics there (``-r __ns:=``): the bag
+    then holds ``<namespace>/aeropend/*``.
 
     Raises
     ------
@@ -113,9 +117,11 @@ def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: li
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
     logs = out / "logs"
-    ros = ["--ros-args", "-p"]
+    remap = ["-r", f"__ns:=/{namespace.strip('/')}"] if namespace.strip("/") else []
+    ros = ["--ros-args", *remap, "-p"]
     reliable = ["--reliable"] if mode == "lockstep" else []  # lock-step samples are published reliably
-    recorder = Stage("record", [*_exe("record"), "-o", str(bag), *reliable], logs / "record.log")
+    recorder = Stage("record", [*_exe("record"), "-o", str(bag), *reliable, *(["--ros-args", *remap] if remap
+                                                                              else [])], logs / "record.log")
     # lock-step: sample 0 (and so the run) waits until both sample consumers are matched
     plant = Stage("sim_node", _exe("sim_node") + ros + [f"rig:={plant_rig}", "-p", f"mode:={mode}", "-p",
                   f"seed:={seed}", "-p", f"noise:={'true' if noise else 'false'}", "-p",
@@ -124,7 +130,8 @@ def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: li
     # wait for both listeners of the command topic (plant and recorder) so the bag starts at sample 0
     for p in [*signal_params, f"seed:={seed}", f"mode:={mode}", "min_subscribers:=2"]:
         exc_args += ["-p", p]
-    excitation = Stage("excitation", [*_exe("excitation"), "--ros-args", *exc_args], logs / "excitation.log")
+    excitation = Stage("excitation", [*_exe("excitation"), "--ros-args", *remap, *exc_args],
+                       logs / "excitation.log")
     stages = [recorder, plant, excitation]
     try:
         recorder.start(env)  # no head start needed: sample 0 waits for the recorder's subscription
@@ -160,7 +167,7 @@ def plant_sample_count(log: Path) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def check_recording(bag: Path, log: Path, mode: str) -> dict[str, Any]:
+def check_recording(bag: Path, log: Path, mode: str, namespace: str = "") -> dict[str, Any]:
     """Completeness guard: samples the plant published (its summary) vs samples in the bag.
 
     A lock-step run is complete by construction (the plant waits for both sample consumers,
@@ -171,23 +178,34 @@ def check_recording(bag: Path, log: Path, mode: str) -> dict[str, Any]:
     -------
     dict
         ``published`` (None if the plant logged no summary), ``recorded`` (distinct sample
-        stamps in the bag, the last sample included) and ``complete``: every published sample
-        recorded (lock-step), or no published count to compare with (real time: best effort).
+        stamps in the bag, the last sample included), ``commands`` (duty-cycle messages in the
+        bag: one per sample but the last in lock-step) and ``complete``: every published sample
+        and every command recorded (lock-step), or no published count to compare with (real
+        time: best effort).
     """
     published = plant_sample_count(log)
     try:
-        recorded = len(read_bag(bag, require_duty=False))
+        rec = read_bag(bag, require_duty=False, namespace=_ns(namespace))
+        recorded = len(rec)
+        commands = int(rec.meta["message_counts"].get(f"{_ns(namespace)}{TOPIC_DUTY_CYCLE}", 0))
     except BagError:
-        recorded = 0
-    complete = mode != "lockstep" or (published is not None and recorded == published)
-    return {"published": published, "recorded": recorded, "complete": complete}
+        recorded = commands = 0
+    complete = mode != "lockstep" or (published is not None and recorded == published
+                                      and commands == published - 1)
+    return {"published": published, "recorded": recorded, "commands": commands, "complete": complete}
 
 
-def analyse(bag: Path, out: Path, nominal_rig: str, train_fraction: float) -> dict[str, Any]:
+def _ns(namespace: str) -> str:
+    """Topic prefix of a namespace for :func:`read_bag` ("" for the root)."""
+    return f"/{namespace.strip('/')}" if namespace.strip("/") else ""
+
+
+def analyse(bag: Path, out: Path, nominal_rig: str, train_fraction: float,
+            namespace: str = "") -> dict[str, Any]:
     """Read the bag and run the grey-box baseline; returns the baseline report dictionary."""
     from aeropend_ident.baseline import run_baseline
 
-    rec = read_bag(bag)
+    rec = read_bag(bag, namespace=_ns(namespace))
     report = run_baseline(rec, nominal_rig, out / "baseline", train_fraction=train_fraction)
     report["recording"] = {"samples": len(rec), "duration_s": float(rec.t[-1]),
                            "first_theta_rad": float(rec.channels["theta"][0]),
@@ -207,6 +225,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train-fraction", type=float, default=0.7)
     p.add_argument("--signal", nargs="*", default=DEFAULT_SIGNAL,
                    help="excitation parameters name:=value (default: thesis LHS steps)")
+    p.add_argument("--namespace", default="",
+                   help="ROS namespace of the node graph (topics <namespace>/aeropend/*; default root)")
     return p
 
 
@@ -218,16 +238,18 @@ def main(argv: list[str] | None = None) -> int:
     try:
         print(f"[1/2] node graph: record + sim_node ({args.plant_rig}, {args.mode}) + excitation ...",
               flush=True)
-        bag = run_graph(out, args.plant_rig, args.mode, args.seed, args.signal, not args.no_noise)
+        bag = run_graph(out, args.plant_rig, args.mode, args.seed, args.signal, not args.no_noise,
+                        namespace=args.namespace)
         t_graph = time.monotonic() - t0
-        completeness = check_recording(bag, out / "logs" / "sim_node.log", args.mode)
+        completeness = check_recording(bag, out / "logs" / "sim_node.log", args.mode, args.namespace)
         if not completeness["complete"]:
             raise PipelineError(
                 f"incomplete lock-step recording: {completeness['recorded']} of "
-                f"{completeness['published']} published samples in {bag} (see docs/data_plane.md)")
+                f"{completeness['published']} published samples and {completeness['commands']} of "
+                f"{(completeness['published'] or 1) - 1} commands in {bag} (see docs/data_plane.md)")
         print(f"      bag {bag} written in {t_graph:.1f} s", flush=True)
         print(f"[2/2] grey-box baseline of {args.nominal_rig} on the recording ...", flush=True)
-        report = analyse(bag, out, args.nominal_rig, args.train_fraction)
+        report = analyse(bag, out, args.nominal_rig, args.train_fraction, args.namespace)
     except PipelineError as exc:
         print(f"pipeline failed: {exc}", file=sys.stderr)
         return 1

@@ -180,10 +180,11 @@ class RecorderNode(Node):
         base = ros_contract.COMMAND_QOS if topic.endswith(TOPIC_DUTY_CYCLE) else ros_contract.SAMPLE_SUB_QOS
         if topic == TOPIC_CLOCK:
             base = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-        if self.reliable and topic != TOPIC_CLOCK and not topic.endswith(TOPIC_DUTY_CYCLE):
-            # lock-step samples: reliable keep-all like the plant's writer, so nothing the recorder
-            # has not written yet is ever evicted (a lagging recorder slows the loop instead)
-            qos = ros_contract.SAMPLE_QOS_LOCKSTEP
+        if self.reliable and topic != TOPIC_CLOCK:
+            # lock-step samples and commands: reliable keep-all like their writers, so nothing the
+            # recorder has not written yet is ever evicted (a lagging recorder slows the loop instead)
+            qos = (ros_contract.COMMAND_QOS_LOCKSTEP if topic.endswith(TOPIC_DUTY_CYCLE)
+                   else ros_contract.SAMPLE_QOS_LOCKSTEP)
         else:
             # same policies as the contract (so matching is unchanged), deeper queue: the depth is
             # local to the subscriber and lets the recorder ride out a stall (GC, disk)

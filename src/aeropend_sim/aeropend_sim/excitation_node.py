@@ -275,7 +275,7 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
     from std_msgs.msg import Float64
 
     from aeropend_sim.contract import REL_DUTY_CYCLE, REL_JOINT_STATES
-    from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS_LOCKSTEP
+    from aeropend_sim.ros_contract import COMMAND_QOS, COMMAND_QOS_LOCKSTEP, SAMPLE_QOS_LOCKSTEP
     from aeropend_sim.sim_core import RealtimeSchedule
 
     rclpy.init(args=["excitation", *argv], signal_handler_options=SignalHandlerOptions.NO)
@@ -300,7 +300,8 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
             log.error(f"invalid excitation: {exc}")
             return 2
         sig = cfg.signal
-        pub = node.create_publisher(Float64, REL_DUTY_CYCLE, COMMAND_QOS)
+        pub = node.create_publisher(Float64, REL_DUTY_CYCLE,
+                                    COMMAND_QOS_LOCKSTEP if cfg.mode == "lockstep" else COMMAND_QOS)
         log.info(
             f"signal {sig.kind} {sig.params}: {len(sig)} samples, {sig.duration:.3f} s, "
             f"duty in [{sig.duty.min():.4g}, {sig.duty.max():.4g}], mode {cfg.mode}"

@@ -65,6 +65,18 @@ SAMPLE_QOS_LOCKSTEP = QoSProfile(
     durability=DurabilityPolicy.VOLATILE,
 )
 
+#: QoS of the duty-cycle commands in lock-step mode (the excitation's and the controller's writer,
+#: the recorder's reader with ``--reliable``): reliable, **keep all**, volatile, for the reason of
+#: :data:`SAMPLE_QOS_LOCKSTEP`. The plant takes each command at once (it answers it with the next
+#: sample), but a recorder that falls behind the loop lost commands from the keep-last-10 writer of
+#: :data:`COMMAND_QOS` (264 of 2448 in one main-job run under load; docs/data_plane.md). Matched by
+#: :data:`COMMAND_QOS` readers (history is not part of QoS compatibility).
+COMMAND_QOS_LOCKSTEP = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL,
+    reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
 
 def to_time(ns: int) -> Time:
     """``builtin_interfaces/Time`` for an integer-nanosecond instant."""
