@@ -295,40 +295,17 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str, stall_m
     }
 
 
-def _wakeup_child(seconds: float, prio: int) -> None:
-    """Child process of :func:`wakeup_check`: prints the lateness statistics as JSON."""
+def _sleeper(seconds: float, prio: int, period_ns: int, cpu: int | None = None,
+             stop_on_sigterm: bool = False, ready: Path | None = None) -> tuple[int, np.ndarray]:
+    """A bare real-time sleeper in this process: SCHED_FIFO ``prio`` (0 = normal), memory locked,
+    1 µs timer slack, GC off, optionally pinned to ``cpu``, sleeping to absolute deadlines every
+    ``period_ns`` for ``seconds`` (or until SIGTERM; ``ready`` is created once that stops it
+    cleanly). Returns (first deadline [ns], lateness of every wake-up [ns])."""
     import ctypes
     import gc
 
-    if prio > 0:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
-    libc = ctypes.CDLL(None)
-    libc.mlockall(3)
-    libc.prctl(29, 1000, 0, 0, 0)  # 1 µs timer slack
-    gc.disable()
-    period = round(PERIOD_S * 1e9)
-    n = int(seconds * 1e9 // period)
-    late = np.empty(n, dtype=np.int64)
-    t0 = time.monotonic_ns() + period
-    for k in range(n):
-        deadline = t0 + k * period
-        while (rem := deadline - time.monotonic_ns()) > 0:
-            time.sleep(rem * 1e-9)
-        late[k] = time.monotonic_ns() - deadline
-    ms = late * 1e-6
-    print(json.dumps({"seconds": seconds, "sched_fifo_priority": prio, **_pct(ms),
-                      "over_1ms": int((ms > 1.0).sum()), "over_2ms": int((ms > 2.048).sum()),
-                      "over_5ms": int((ms > 5.0).sum())}))
-
-
-
-
-def _monitor_child(seconds: float, prio: int, cpu: int, out: str, period_ns: int) -> None:
-    """Child process of the stall monitor: one sleeper pinned to ``cpu``; writes ``out`` (.npz)."""
-    import ctypes
-    import gc
-
-    os.sched_setaffinity(0, {cpu})
+    if cpu is not None:
+        os.sched_setaffinity(0, {cpu})
     if prio > 0:
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(prio))
     libc = ctypes.CDLL(None)
@@ -336,8 +313,11 @@ def _monitor_child(seconds: float, prio: int, cpu: int, out: str, period_ns: int
     libc.prctl(29, 1000, 0, 0, 0)  # 1 µs timer slack
     n = int(seconds * 1e9 // period_ns)
     late = np.zeros(n, dtype=np.int64)
-    stop_flag = []
-    signal.signal(signal.SIGTERM, lambda *_: stop_flag.append(1))  # SIGTERM ends the watch, data kept
+    stop_flag: list[int] = []
+    if stop_on_sigterm:
+        signal.signal(signal.SIGTERM, lambda *_: stop_flag.append(1))  # ends the watch, data kept
+    if ready is not None:
+        ready.touch()
     gc.disable()
     t0 = time.monotonic_ns() + period_ns
     for k in range(n):
@@ -346,11 +326,24 @@ def _monitor_child(seconds: float, prio: int, cpu: int, out: str, period_ns: int
             time.sleep(rem * 1e-9)
         late[k] = time.monotonic_ns() - deadline
         if stop_flag:
-            n = k + 1
-            late = late[:n]
-            break
+            return t0, late[:k + 1]
+    return t0, late
+
+
+def _wakeup_child(seconds: float, prio: int) -> None:
+    """Child process of :func:`wakeup_check`: prints the lateness statistics as JSON."""
+    _, late = _sleeper(seconds, prio, round(PERIOD_S * 1e9))
+    ms = late * 1e-6
+    print(json.dumps({"seconds": seconds, "sched_fifo_priority": prio, **_pct(ms),
+                      "over_1ms": int((ms > 1.0).sum()), "over_2ms": int((ms > 2.048).sum()),
+                      "over_5ms": int((ms > 5.0).sum())}))
+
+
+def _monitor_child(seconds: float, prio: int, cpu: int, out: str, period_ns: int) -> None:
+    """Child process of the stall monitor: one sleeper pinned to ``cpu``; writes ``out`` (.npz)."""
+    t0, late = _sleeper(seconds, prio, period_ns, cpu, stop_on_sigterm=True, ready=Path(out + ".ready"))
     keep = np.flatnonzero(late > 100_000)  # only the wake-ups later than 0.1 ms are kept
-    np.savez(out, deadline_ns=t0 + keep * period_ns, late_ns=late[keep], n=n, cpu=cpu,
+    np.savez(out, deadline_ns=t0 + keep * period_ns, late_ns=late[keep], n=late.size, cpu=cpu,
              p50_ns=np.percentile(late, 50), p99_ns=np.percentile(late, 99), max_ns=late.max())
 
 
@@ -362,6 +355,12 @@ def start_monitors(seconds: float, prio: int, tmp: Path,
         out = tmp / f"monitor_cpu{cpu}.npz"
         procs.append((subprocess.Popen([sys.executable, __file__, "--monitor-child", str(seconds), str(prio),
                                         str(cpu), str(out), str(period_ns)]), out))
+    # the run starts only once every monitor watches (and a SIGTERM then ends it cleanly)
+    deadline = time.monotonic() + 60.0
+    while not all(Path(str(out) + ".ready").exists() for _, out in procs):
+        if time.monotonic() > deadline or any(proc.poll() is not None for proc, _ in procs):
+            raise RuntimeError("a stall monitor did not start within 60 s")
+        time.sleep(0.05)
     return procs
 
 

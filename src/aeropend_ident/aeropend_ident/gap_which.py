@@ -1631,24 +1631,14 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
                         {a: {"validation_explained": v, "bootstrap_first": None, "joint_fit": True}
                          for a, v in alts.items()})
             if chosen != before:
-                corrected, meas = cur.rig, cur.meas
-                for old_name, new_name in zip(before, chosen, strict=True):
-                    if old_name != new_name:
-                        confidences[new_name] = confidences.pop(old_name)
-                _record_chosen(ranking, st, cur, chosen, scr)
-                table.append({"effects": list(chosen), "replacement": True,
-                              **gap_metrics(corrected, meas, st.pv)})
+                corrected, meas = _take_over(st, cur, before, chosen, confidences, ranking, scr, table,
+                                             "replacement")
         if st.refinements:
             before = list(chosen)
             cur, cur_segs, chosen, tried = _refine(st, cur, cur_segs, chosen)
             if chosen != before:
-                corrected, meas = cur.rig, cur.meas
-                for old_name, new_name in zip(before, chosen, strict=True):
-                    if old_name != new_name:
-                        confidences[new_name] = confidences.pop(old_name)
-                _record_chosen(ranking, st, cur, chosen, scr)
-                table.append({"effects": list(chosen), "refinement": True,
-                              **gap_metrics(corrected, meas, st.pv)})
+                corrected, meas = _take_over(st, cur, before, chosen, confidences, ranking, scr, table,
+                                             "refinement")
             for r in ranking:  # the figures of each tried refinement, on the refined and the refining entry
                 refs = {k: v for k, v in tried.items() if r["effect"] in (k, v["replaces"])}
                 if refs:
@@ -1698,6 +1688,20 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
         reason=reason if sig_first or reason else "no significant gap", channels=sorted(st.channels),
         explained=explained, elapsed=time.perf_counter() - t0,
     )
+
+
+def _take_over(st: _Setup, cur: EffectFit, before: Sequence[str], chosen: Sequence[str],
+               confidences: dict[str, float], ranking: list[dict[str, Any]], scr: Screening,
+               table: list[dict[str, Any]], step: str) -> tuple[Rig, MeasurementMap]:
+    """A chosen set changed by a replacement or refinement pass (``step``): each new effect takes
+    over its predecessor's confidence, the ranking gets the joint values, the validation table a
+    row ``{step: True}``; returns the corrected rig and measurement map."""
+    for old_name, new_name in zip(before, chosen, strict=True):
+        if old_name != new_name:
+            confidences[new_name] = confidences.pop(old_name)
+    _record_chosen(ranking, st, cur, chosen, scr)
+    table.append({"effects": list(chosen), step: True, **gap_metrics(cur.rig, cur.meas, st.pv)})
+    return cur.rig, cur.meas
 
 
 def _record_chosen(ranking: list[dict[str, Any]], st: _Setup, fit: EffectFit, chosen: Sequence[str],
