@@ -7,6 +7,11 @@ bag recorded for it (:func:`aeropend_ident.record_node.qos_to_rclpy`; the contra
 the bag has none). Message k is published at ``start + (log_k − log_0) / rate`` on the
 monotonic clock (absolute deadlines, so sleep overshoot does not accumulate). The command
 exits when the bag is done (after ``--linger`` seconds so reliable messages are delivered).
+
+``--clock [HZ]`` publishes the bag's time on ``/clock`` (``rosgraph_msgs/Clock``, HZ default 40,
+as ``ros2 bag play --clock``): log_0 + (now − start)·rate, so nodes with ``use_sim_time`` run on
+the recording's time base (a bag recorded with simulated time, the main job's, replays in
+simulated time); a ``/clock`` recorded in the bag is then not replayed.
 """
 
 from __future__ import annotations
@@ -22,9 +27,12 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
+from rosgraph_msgs.msg import Clock as ClockMsg
 
 from aeropend_ident.bags import BagError, RawBagReader, qos_for_topic
 from aeropend_ident.record_node import message_class, qos_to_rclpy
+from aeropend_sim.contract import TOPIC_CLOCK
+from aeropend_sim.ros_contract import CLOCK_QOS, to_time
 
 NODE_NAME = "aeropend_player"
 
@@ -32,10 +40,13 @@ NODE_NAME = "aeropend_player"
 class PlayerNode(Node):
     """Publishers for the topics of one bag (raw bytes)."""
 
-    def __init__(self, reader: RawBagReader, **kwargs: Any) -> None:
+    def __init__(self, reader: RawBagReader, clock: bool = False, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.pubs: dict[str, Any] = {}
+        self.clock_pub = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS) if clock else None
         for topic, info in reader.topics.items():
+            if clock and topic == TOPIC_CLOCK:
+                continue  # the bag's own /clock gives way to the one published from the bag's time
             qos = info.qos[0] if info.qos else qos_for_topic(topic)
             self.pubs[topic] = self.create_publisher(message_class(info.msgtype), topic, qos_to_rclpy(qos))
 
@@ -55,11 +66,13 @@ class PlayerNode(Node):
         return False
 
 
-def play(node: PlayerNode, reader: RawBagReader, rate: float) -> tuple[int, float]:
+def play(node: PlayerNode, reader: RawBagReader, rate: float, clock_hz: float = 40.0) -> tuple[int, float]:
     """Publish every message of ``reader`` on schedule (streamed, constant memory).
 
     Message k is due at ``start + (log_k − log_0) / rate`` (as
     :func:`aeropend_ident.bags.playback_deadlines` computes); stops early when rclpy shuts down.
+    With the node's ``/clock`` publisher, the bag time log_0 + (now − start)·rate is published
+    every 1/``clock_hz`` s of wall time in between.
 
     Returns
     -------
@@ -71,10 +84,21 @@ def play(node: PlayerNode, reader: RawBagReader, rate: float) -> tuple[int, floa
     worst = 0
     count = 0
     start = log0 = 0
+    tick_ns = round(1e9 / clock_hz)
+    next_tick = 0
     for topic, logtime, raw in reader.messages():
+        if topic not in pubs:
+            continue
         if count == 0:
             start, log0 = time.monotonic_ns() + 1_000_000, logtime  # 1 ms to get going
+            next_tick = start
         due = start + round((logtime - log0) / rate)  # = playback_deadlines(...)[k]
+        while node.clock_pub is not None and next_tick <= due and context.ok():
+            wait = next_tick - time.monotonic_ns()
+            if wait > 0:
+                time.sleep(wait / 1e9)
+            node.clock_pub.publish(ClockMsg(clock=to_time(log0 + round((next_tick - start) * rate))))
+            next_tick += tick_ns
         wait = due - time.monotonic_ns()
         if wait > 0:
             time.sleep(wait / 1e9)
@@ -103,6 +127,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--wait-for-subscribers", type=float, default=0.0, metavar="TIMEOUT",
                    help="wait up to TIMEOUT s until every topic has a subscriber")
     p.add_argument("--linger", type=float, default=0.5, help="seconds to stay up after the last message")
+    p.add_argument("--clock", type=float, nargs="?", const=40.0, default=None, metavar="HZ",
+                   help="publish the bag's time on /clock at HZ (default 40), as ros2 bag play --clock")
     return p
 
 
@@ -113,6 +139,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not args.rate > 0:
         print(f"play: error: --rate {args.rate} must be > 0", file=sys.stderr)
         return 2
+    if args.clock is not None and not args.clock > 0:
+        print(f"play: error: --clock {args.clock} Hz must be > 0", file=sys.stderr)
+        return 2
     try:
         reader = RawBagReader(args.bag, args.topics)
     except BagError as exc:
@@ -122,7 +151,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     node: PlayerNode | None = None
     code = 0
     try:
-        node = PlayerNode(reader)
+        node = PlayerNode(reader, clock=args.clock is not None)
         if args.wait_for_subscribers > 0 and not node.wait_for_subscribers(args.wait_for_subscribers):
             missing = [t for t, p in node.pubs.items() if p.get_subscription_count() == 0]
             node.get_logger().warning(f"no subscriber on {missing} after {args.wait_for_subscribers:g} s; "
@@ -130,7 +159,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.delay > 0:
             time.sleep(args.delay)
         while True:
-            count, late = play(node, reader, args.rate)
+            count, late = play(node, reader, args.rate, args.clock or 40.0)
             stopped = "" if rclpy.ok() else " (interrupted)"
             print(f"play: published {count} messages from {args.bag} at rate {args.rate:g} "
                   f"(worst lateness {late * 1e3:.2f} ms){stopped}", flush=True)

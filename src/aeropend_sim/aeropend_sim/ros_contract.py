@@ -78,6 +78,14 @@ COMMAND_QOS_LOCKSTEP = QoSProfile(
 )
 
 
+#: QoS of /clock (the simulated plant, ``play --clock``): reliable so that lock-step consumers see
+#: every tick; best-effort subscribers (rclpy's time source) match.
+CLOCK_QOS = QoSProfile(
+    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+
 def to_time(ns: int) -> Time:
     """``builtin_interfaces/Time`` for an integer-nanosecond instant."""
     sec, nanosec = ns_to_stamp(ns)

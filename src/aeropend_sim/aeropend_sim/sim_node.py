@@ -81,14 +81,20 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
 from aeropend_sim.contract import REL_ARMATURE, REL_DUTY_CYCLE, REL_JOINT_STATES, TOPIC_CLOCK, Sample
 from aeropend_sim.node_shell import declare_parameter_table, run_node
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, SAMPLE_QOS_LOCKSTEP, sample_to_msgs, to_time
+from aeropend_sim.ros_contract import (
+    CLOCK_QOS,
+    COMMAND_QOS,
+    SAMPLE_QOS,
+    SAMPLE_QOS_LOCKSTEP,
+    sample_to_msgs,
+    to_time,
+)
 from aeropend_sim.sim_core import (
     DEFAULT_COMMAND_TIMEOUT_S,
     DEFAULT_RIG,
@@ -102,11 +108,6 @@ from aeropend_sim.sim_core import (
 )
 
 NODE_NAME = "aeropend_sim"
-#: QoS of /clock (reliable so that lock-step consumers see every tick; best-effort subscribers match).
-CLOCK_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
-    durability=DurabilityPolicy.VOLATILE,
-)
 #: Minimum interval [s] between two log lines of the same repeated warning.
 LOG_THROTTLE_S = 1.0
 
