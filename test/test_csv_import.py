@@ -365,3 +365,25 @@ def test_cli_custom_columns(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     bad = _write(tmp_path / "bad.csv", _rows(10, bad_line=4, bad="x1"))
     assert main([str(bad), "--time-col", "0", "--angle-col", "2", "--pwm-col", "1"]) == 1
     assert "bad.csv line 4 column 'angle [deg]': 'x1' is not a number" in capsys.readouterr().err
+
+
+def test_cli_start_time_gives_the_bag_a_real_clock(tmp_path: Path) -> None:
+    """Imported bags start at a wall-clock instant, not 1970: the file's modification time minus
+    the recording's length by default, or an ISO-8601 instant."""
+    import os
+
+    path = _write(tmp_path / "log.csv", _rows(100))
+    mtime_ns = 1_700_000_000_000_000_000  # 2023-11-14T22:13:20Z
+    os.utime(path, ns=(mtime_ns, mtime_ns))
+    cols = ["--time-col", "t [s]", "--angle-col", "angle", "--angle-unit", "deg", "--pwm-col", "PWM",
+            "--pwm-full-scale", "255"]
+    assert main([str(path), "-o", str(tmp_path / "a"), *cols]) == 0
+    back = read_bag(tmp_path / "a")
+    assert back.stamp0_ns == mtime_ns - round(back.t[-1] * 1e9)  # the last sample at the file's time
+    iso = ["--start-time", "2024-03-01T14:05:00+01:00"]
+    assert main([str(path), "-o", str(tmp_path / "b"), *cols, *iso]) == 0
+    assert read_bag(tmp_path / "b").stamp0_ns == 1_709_298_300_000_000_000
+    assert main([str(path), "-o", str(tmp_path / "c"), *cols, "--start-time", "zero"]) == 0
+    assert read_bag(tmp_path / "c").stamp0_ns == 0
+    with pytest.raises(SystemExit):
+        main([str(path), *cols, "--start-time", "yesterday"])

@@ -27,6 +27,7 @@ import sys
 import warnings
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Literal
 
@@ -794,6 +795,31 @@ def summary(rec: Recording) -> str:
 # --------------------------------------------------------------------------------------------
 
 
+def _start_time(text: str) -> str:
+    """Validate ``--start-time`` (kept as text; :func:`start_time_ns` resolves it)."""
+    if text not in ("file", "zero"):
+        try:
+            datetime.fromisoformat(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"--start-time {text!r}: expected an ISO-8601 instant, 'file' or 'zero'") from None
+    return text
+
+
+def start_time_ns(option: str, path: Path, duration_s: float) -> int:
+    """Wall-clock instant [ns since the epoch] of the first sample for ``--start-time``: an
+    ISO-8601 instant (UTC unless it carries an offset), ``file`` (the file's modification time
+    minus ``duration_s``: a logger closes its file after the last sample) or ``zero``."""
+    if option == "zero":
+        return 0
+    if option == "file":
+        return max(0, path.stat().st_mtime_ns - round(duration_s * 1e9))
+    when = datetime.fromisoformat(option)
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=UTC)
+    return round(when.timestamp() * 1e9)
+
+
 def _col_arg(s: str) -> Column:
     return int(s) if s.lstrip("-").isdigit() else s
 
@@ -829,6 +855,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     p.add_argument("--rig-name", help="rig name stored in the bag")
     p.add_argument("--overwrite", action="store_true", help="replace an existing bag directory")
+    p.add_argument("--start-time", type=_start_time, default="file", metavar="ISO|file|zero",
+                   help="wall-clock time of the first sample in the bag: an ISO-8601 instant "
+                        "(2024-03-01T14:05:00+01:00, UTC when no offset is given), 'file' (the CSV's "
+                        "modification time minus the recording's length; default) or 'zero' (1970)")
     g = p.add_argument_group("column mapping (name or 0-based index)")
     g.add_argument("--time-col", type=_col_arg)
     g.add_argument("--time-unit", choices=["s", "ms", "us", "sample"])
@@ -905,6 +935,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             rec = import_csv(args.input, spec)
+        # a real start time (Foxglove and rosbag2 tools show 1970 for stamps from 0)
+        rec = replace(rec, stamp0_ns=start_time_ns(args.start_time, args.input, float(rec.t[-1])))
         if args.output is not None:
             from aeropend_ident.bags import BagError, write_bag
 
