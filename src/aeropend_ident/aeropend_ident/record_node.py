@@ -78,6 +78,7 @@ DRAIN_IDLE_S = 0.3
 DRAIN_MAX_S = 10.0
 _INFINITE_NS = 2**63 - 1
 
+
 def _known_type(topic: str) -> str | None:
     """Type of a contract topic in any namespace (``/rig2/aeropend/joint_states``) or of /clock."""
     if topic == TOPIC_CLOCK:
