@@ -52,6 +52,8 @@ TRUTH_RANGES: dict[str, dict[str, list[tuple[float, float]]]] = {
     "torque_constant": {"K_t": [(0.6, 0.8), (1.25, 1.6)]},
     "rotor_friction": {"B_m": [(4.0, 10.0)]},
     "coulomb_friction": {"coulomb_over_J": [(0.6, 1.5)]},
+    "stribeck_friction": {"coulomb_over_J": [(0.6, 1.5)], "stribeck_over_J": [(1.5, 3.0)],
+                          "stribeck_velocity": [(0.1, 0.3)]},
     "viscous_friction": {"c_over_J": [(0.35, 0.6), (1.7, 2.5)]},
     "thrust_coefficient": {"K_q": [(0.75, 0.88), (1.12, 1.25)]},
     "thrust_law": {"exponent": [(1.7, 1.85), (2.15, 2.3)]},
