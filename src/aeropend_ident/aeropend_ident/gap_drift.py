@@ -15,7 +15,8 @@ recording is replayed): the corrected rig's held-out θ NRMSE e is modelled as
   parameters' standard errors (:func:`aeropend_ident.gap_which.fit_effects`) are drawn too;
 * e_drift: what a session-to-session change of the rig adds: the corrected rig is replayed with its
   drift-prone parameters (:data:`DRIFT_PARAMETERS`: thrust coefficient K_q, gravity term mgd/J,
-  viscous friction c/J) multiplied by log-normal factors of standard deviation σ_p, and the
+  viscous friction c/J, and the supply voltage V_s when v_a is recorded) multiplied by log-normal
+  factors of standard deviation σ_p, and the
   RMS difference to the unperturbed replay is taken over the same recordings. σ_p is the prior
   :data:`DRIFT_PRIOR` unless the fit data hold several sessions, whose measured drift replaces it.
 
@@ -140,8 +141,10 @@ def _perturbed(rig: Rig, factors: Mapping[str, float]) -> Rig:
         section, name = DRIFT_PARAMETERS[eff]
         v = float(getattr(getattr(new, section), name))
         if v != 0.0 and f != 1.0:
-            new = get_effect(eff).apply(new, {name: v * f}) if eff == "supply_voltage" else \
-                new.with_params(section, **{name: v * f})
+            if eff == "supply_voltage":  # the Eq. 4.3 drive map scales with the supply too
+                new = get_effect(eff).apply(new, {name: v * f})
+            else:
+                new = new.with_params(section, **{name: v * f})
     return new
 
 
