@@ -35,7 +35,7 @@ from pathlib import Path
 from typing import Any
 
 from aeropend_ident.bags import BagError, read_bag
-from aeropend_sim.contract import TOPIC_DUTY_CYCLE
+from aeropend_sim.contract import TOPIC_DUTY_CYCLE, namespaced
 from aeropend_sim.domain import claim_domain
 
 #: Default excitation: thesis §5.1 Latin-hypercube steps (10 steps, τ ∈ [0.3, 0.8], 1-3 s each).
@@ -187,7 +187,7 @@ def check_recording(bag: Path, log: Path, mode: str, namespace: str = "") -> dic
     try:
         rec = read_bag(bag, require_duty=False, namespace=_ns(namespace))
         recorded = len(rec)
-        commands = int(rec.meta["message_counts"].get(f"{_ns(namespace)}{TOPIC_DUTY_CYCLE}", 0))
+        commands = int(rec.meta["message_counts"].get(namespaced(TOPIC_DUTY_CYCLE, namespace), 0))
     except BagError:
         recorded = commands = 0
     complete = mode != "lockstep" or (published is not None and recorded == published
