@@ -14,8 +14,10 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from aeropend_sim.launch_arguments import NAMESPACE
+
 ARGUMENTS = (
-    ("namespace", "", "ROS namespace of the rig's nodes and topics (rig2: /rig2/aeropend/*; empty: root)"),
+    NAMESPACE,
     ("port", "/dev/ttyACM0", "serial device of the Arduino Mega"),
     ("rig", "thesis_rig", "rig name or YAML path (ADC LSBs, gear ratio)"),
     ("theta_offset", "0.0", "angle read with the rod hanging down [rad]"),

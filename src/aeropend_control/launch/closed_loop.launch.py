@@ -18,8 +18,10 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironment
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE
+
 ARGUMENTS = (
-    ("namespace", "", "ROS namespace of the rig's nodes and topics (rig2: /rig2/aeropend/*; empty: root)"),
+    NAMESPACE,
     ("plant", "sim", "sim (simulated plant) | bridge (hardware through the serial bridge)"),
     ("rig", "thesis_rig", "rig name or YAML path, used by the plant/bridge and the controller"),
     ("mode", "realtime", "realtime | lockstep (lockstep: sim plant only)"),
@@ -30,9 +32,7 @@ ARGUMENTS = (
     ("noise", "", "sim plant: true/false sensor noise (empty: as in the rig file)"),
     ("port", "/dev/ttyACM0", "bridge: serial device of the Arduino Mega"),
     ("rt_priority", "0", "SCHED_FIFO priority of the plant sampler and controller (0 = off)"),
-    ("discovery_range", "LOCALHOST",
-     "ROS_AUTOMATIC_DISCOVERY_RANGE of the demo's nodes: LOCALHOST keeps its DDS traffic on "
-     "this host; SUBNET / SYSTEM_DEFAULT for a lab network"),
+    DISCOVERY_RANGE,
 )
 
 

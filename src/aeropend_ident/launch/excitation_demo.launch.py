@@ -30,8 +30,10 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE
+
 ARGUMENTS = (
-    ("namespace", "", "ROS namespace of the rig's nodes and topics (rig2: /rig2/aeropend/*; empty: root)"),
+    NAMESPACE,
     ("rig", "thesis_rig", "shipped rig name or path to a rig YAML file"),
     ("mode", "lockstep", "lockstep (deterministic ping-pong) | realtime"),
     ("signal", "lhs",
@@ -40,9 +42,7 @@ ARGUMENTS = (
     ("noise", "", "true/false: sensor noise + quantisation on/off (empty: as in the rig file)"),
     ("output", "", "bag directory (empty: recorder default aeropend_<date>)"),
     ("storage", "mcap", "bag storage: mcap | sqlite3"),
-    ("discovery_range", "LOCALHOST",
-     "ROS_AUTOMATIC_DISCOVERY_RANGE of the demo's nodes: LOCALHOST keeps its DDS traffic on "
-     "this host; SUBNET / SYSTEM_DEFAULT for a lab network"),
+    DISCOVERY_RANGE,
 )
 
 

@@ -18,10 +18,12 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from aeropend_sim.launch_arguments import NAMESPACE
+
 CONTRACT_TOPICS = ["/aeropend/duty_cycle", "/aeropend/joint_states", "/aeropend/armature"]
 
 ARGUMENTS = (
-    ("namespace", "", "ROS namespace of the rig's nodes and topics (rig2: /rig2/aeropend/*; empty: root)"),
+    NAMESPACE,
     ("output", "", "bag directory to create (empty: aeropend_<date>_<time> in the working directory)"),
     ("storage", "mcap", "bag storage: mcap | sqlite3"),
     ("topics", "", "space-separated topics (empty: the contract topics)"),

@@ -15,8 +15,10 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from aeropend_sim.launch_arguments import NAMESPACE
+
 ARGUMENTS = (
-    ("namespace", "", "ROS namespace of the rig's nodes and topics (rig2: /rig2/aeropend/*; empty: root)"),
+    NAMESPACE,
     ("rig", "thesis_rig", "shipped rig name or path to a rig YAML file"),
     ("mode", "realtime", "realtime | lockstep"),
     ("seed", "0", "measurement-noise seed (int >= 0)"),
