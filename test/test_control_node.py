@@ -7,6 +7,7 @@ import math
 from pathlib import Path
 
 import pytest
+from loop_support import closed_loop
 
 from aeropend_control.controller_core import (
     SIGNALS,
@@ -102,21 +103,6 @@ def test_pole_defaults_per_strategy_and_override() -> None:
     assert make_settings(estimator="difference").estimator == "difference"
 
 
-def _closed_loop(loop: ControllerLoop, n: int, retune_at: int | None = None, new=None) -> list[tuple]:
-    """Batch closed loop around the nominal plant; optionally retune the loop before sample ``retune_at``."""
-    from aeropend_sim.simulate import PlantStepper
-
-    plant = PlantStepper(loop.settings.rig)
-    s, out = plant.sample(), []
-    for k in range(n):
-        if k == retune_at:
-            loop.retune(new)
-        d = loop.on_sample(k * 2_048_000, s["theta"])
-        out.append((s["theta"], d))
-        s = plant.step(d)
-    return out
-
-
 @pytest.mark.parametrize("strategy", ["fl_pid", "small_signal"])
 def test_retune_while_running_is_bumpless_and_gives_the_new_design(strategy: str) -> None:
     """A pole-pattern change at rest (0.2 rad, before a step to 0.4 rad) is taken over without a
@@ -127,9 +113,9 @@ def test_retune_while_running_is_bumpless_and_gives_the_new_design(strategy: str
     n, k_re, k_step = 2000, 800, round(2.0 / 2.048e-3)
     old = make_settings(strategy=strategy, steps=steps, mode="lockstep")
     new = make_settings(strategy=strategy, steps=steps, mode="lockstep", omega_n=5.0)
-    live = _closed_loop(ControllerLoop(old), n, k_re, new)
-    slow = _closed_loop(ControllerLoop(new), n)
-    fast = _closed_loop(ControllerLoop(old), n)
+    live = closed_loop(ControllerLoop(old), n, {k_re: lambda loop: loop.retune(new)})
+    slow = closed_loop(ControllerLoop(new), n)
+    fast = closed_loop(ControllerLoop(old), n)
     duty = [d for _, d in live]
     assert abs(duty[k_re] - duty[k_re - 1]) < 2e-3  # bumpless: no jump at the change
     t = [(k - k_step) * 2.048e-3 for k in range(k_step, n)]
@@ -189,20 +175,19 @@ def test_every_strategy_starts_on_a_weak_rig_and_clamps_an_unreachable_reference
     from dataclasses import replace
 
     from aeropend_control.controller_core import build_strategy
-    from aeropend_sim.simulate import PlantStepper
 
     rig = _weak_rig()
     base = make_settings(strategy=strategy, steps=[0.0, 0.3, 2.0, 1.0], mode="lockstep")
     settings = replace(base, rig=rig)
     build_strategy(settings)  # the design itself accepts the rig
     loop = ControllerLoop(settings)
-    plant = PlantStepper(rig)
-    s, events = plant.sample(), []
-    for k in range(round(7.0 / 2.048e-3)):
-        d = loop.on_sample(k * 2_048_000, s["theta"], s["omega_rotor"], s["i_a"])
-        if loop.clamp_event:
-            events.append(loop.clamp_event)
-        s = plant.step(d)
+    n = round(7.0 / 2.048e-3)
+    events: list[tuple[float, float]] = []
+    # each sample's clamp event, read just before the next sample (and after the last one)
+    closed_loop(loop, n, {k: lambda lp: events.append(lp.clamp_event) if lp.clamp_event else None
+                          for k in range(1, n)})
+    if loop.clamp_event:
+        events.append(loop.clamp_event)
     col = {name: [row[i] for row in loop.rows] for i, name in enumerate(SIGNALS)}
     k2 = round(2.0 / 2.048e-3)
     assert events == [(1.0, loop.reach)]  # reported once, when the unreachable step came

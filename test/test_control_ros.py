@@ -18,6 +18,7 @@ import pytest
 
 pytest.importorskip("rclpy")
 
+from loop_support import closed_loop
 from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop, summary_count
 
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
@@ -147,7 +148,6 @@ def test_live_parameters_change_the_running_controller(tmp_path: Path) -> None:
 
     from aeropend_control.controller_core import SIGNALS, ControllerLoop, make_settings
     from aeropend_control.controller_node import NODE_NAME
-    from aeropend_sim.simulate import PlantStepper
 
     domain = random_domain()
     trace = tmp_path / "trace.csv"
@@ -187,12 +187,7 @@ def test_live_parameters_change_the_running_controller(tmp_path: Path) -> None:
     col = {name: data[:, i] for i, name in enumerate(SIGNALS)}
     # the run is the batch loop with omega_n = 5 (the change came before the first sample here),
     # and its step is the slow design's, not the default's
-    rig = load_rig("thesis_rig")
     for omega_n, same in ((5.0, True), (None, False)):
-        loop, plant = ControllerLoop(make_settings(strategy="fl_pid", steps=steps, mode="lockstep",
-                                                   omega_n=omega_n)), PlantStepper(rig)
-        s, duty = plant.sample(), []
-        for k in range(len(col["t"])):
-            duty.append(loop.on_sample(k * 2_048_000, s["theta"]))
-            s = plant.step(duty[-1])
+        loop = ControllerLoop(make_settings(strategy="fl_pid", steps=steps, mode="lockstep", omega_n=omega_n))
+        duty = [d for _, d in closed_loop(loop, len(col["t"]))]
         assert np.allclose(duty, col["duty"], atol=1e-9) == same

@@ -18,12 +18,12 @@ import pytest
 
 pytest.importorskip("rclpy")
 
+from loop_support import closed_loop
 from ros_support import isolated_env, node_command, private_node, random_domain, reap
 
 from aeropend_control.controller_core import SIGNALS, ControllerLoop, make_settings
 from aeropend_sim.contract import TOPIC_JOINT_STATES, namespaced
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import PlantStepper
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(120)]
 
@@ -71,11 +71,8 @@ def test_two_rigs_in_namespaces_each_with_its_controller(tmp_path: Path) -> None
         data = np.array(list(csv.reader(traces[ns].open()))[1:], dtype=float)
         duty = data[:, SIGNALS.index("duty")]
         loop = ControllerLoop(make_settings(strategy="fl_pid", steps=steps, mode="lockstep"))
-        plant = PlantStepper(rig)
-        s, ref = plant.sample(), []
-        for k in range(duty.size):
-            ref.append(loop.on_sample(k * 2_048_000, s["theta"]))
-            s = plant.step(ref[-1])
+        assert loop.settings.rig == rig  # the plants ran thesis_rig
+        ref = [d for _, d in closed_loop(loop, duty.size)]
         np.testing.assert_allclose(duty, ref, rtol=0, atol=1e-12, err_msg=ns)
         # each rig at its own set point
         assert abs(data[-1, SIGNALS.index("theta")] - steps[1]) < 0.05 * steps[1]
