@@ -5,8 +5,13 @@ Examples::
     ros2 launch aeropend_bridge bridge.launch.py port:=/dev/ttyACM0 theta_offset:=3.1416
     fake_mcu --link /tmp/aeropend_tty &   # no hardware: the pty fake firmware
     ros2 launch aeropend_bridge bridge.launch.py port:=/tmp/aeropend_tty
+    ros2 launch aeropend_bridge bridge.launch.py autostart:=false   # managed: then
+    ros2 lifecycle set /aeropend_bridge configure && ros2 lifecycle set /aeropend_bridge activate
 
-Arguments mirror the node parameters (see ``aeropend_bridge.bridge_node``).
+Arguments mirror the node parameters (see ``aeropend_bridge.bridge_node``). The bridge is a
+lifecycle node; ``autostart:=true`` (default) configures and activates it at start-up, so it
+drives without a lifecycle manager; ``autostart:=false`` leaves it unconfigured for
+``ros2 lifecycle set`` or a lifecycle manager (e.g. nav2_lifecycle_manager's ``node_names``).
 """
 
 from launch import LaunchDescription
@@ -23,6 +28,7 @@ ARGUMENTS = (
     ("theta_offset", "0.0", "angle read with the rod hanging down [rad]"),
     ("command_timeout", "0.1", "duty 0 at most this long after the last valid command [s]"),
     ("frame_id", "aeropend", "header.frame_id of the sample messages"),
+    ("autostart", "true", "configure + activate at start-up (false: wait for lifecycle transitions)"),
 )
 
 
@@ -34,6 +40,7 @@ def _bridge(context, *args, **kwargs):
         "theta_offset": float(value["theta_offset"]),
         "command_timeout": float(value["command_timeout"]),
         "frame_id": value["frame_id"],
+        "autostart": value["autostart"].strip().lower() in ("true", "1", "yes", "on"),
     }
     return [Node(package="aeropend_bridge", executable="bridge", name="aeropend_bridge", output="screen",
                  parameters=[params], namespace=value["namespace"] or None)]
