@@ -17,6 +17,7 @@ setup(
         ("share/" + PACKAGE + "/launch", glob("launch/*.py")),
     ],
     install_requires=["setuptools"],
+    extras_require={"test": ["pytest"]},
     zip_safe=True,
     maintainer="aeropend maintainers",
     maintainer_email="maintainers@aeropend.invalid",
