@@ -100,3 +100,31 @@ def test_launch_file_nodes_take_the_namespace_and_exist(path: Path, monkeypatch:
         assert exe in _console_scripts(pkg), f"{path.name}: {pkg} has no executable {exe!r}"
         assert pkg == owner or pkg in _exec_depends(owner), f"{owner}/package.xml does not depend on {pkg}"
     assert {"launch", "launch_ros"} <= _exec_depends(owner), f"{owner}/package.xml lacks launch, launch_ros"
+
+
+@pytest.mark.parametrize("path", LAUNCH_FILES, ids=lambda p: p.name)
+def test_launch_file_nodes_take_the_params_file_last(path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                     tmp_path: Path) -> None:
+    entities = _load(path, monkeypatch)
+    assert all(len(n.kwargs["parameters"]) == 1 for n in _nodes(entities))  # no file by default
+    params_file = tmp_path / "lab.yaml"
+    params_file.write_text("/**:\n  ros__parameters:\n    rig: thesis_sim\n", encoding="utf-8")
+    nodes = _nodes(entities, params_file=str(params_file))
+    # launch_ros applies the entries in order: the file comes last, so its values win
+    assert [n.kwargs["parameters"][-1] for n in nodes] == [str(params_file)] * len(nodes)
+    assert all(isinstance(n.kwargs["parameters"][0], dict) for n in nodes)
+    with pytest.raises(FileNotFoundError, match=re.escape("params_file:='/nonexistent.yaml' is not a file")):
+        _nodes(entities, params_file="/nonexistent.yaml")
+
+
+def test_every_package_ships_a_params_file_for_its_launch_files_nodes() -> None:
+    import yaml
+
+    for path in LAUNCH_FILES:
+        owner = path.parents[1].name
+        configs = sorted((SRC / owner / "config").glob("*.yaml"))
+        assert configs, f"{owner} has no config/*.yaml"
+        for config in configs:
+            doc = yaml.safe_load(config.read_text(encoding="utf-8"))
+            assert doc and all(key.startswith("/**") and "ros__parameters" in value
+                               for key, value in doc.items()), config

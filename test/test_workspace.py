@@ -84,13 +84,22 @@ def test_colcon_build_installs_entry_points(colcon_ws: Path) -> None:
     out = subprocess.run(["bash", "-c", f"source {install}/setup.bash && echo $AMENT_PREFIX_PATH"],
                          capture_output=True, text=True, env=env, timeout=60)
     assert str(install / "aeropend_sim") in out.stdout
-    # rig files ship with the package
+    # rig files ship with the package (Python package data) and under share/ as ROS data
     assert list((install / "aeropend_sim").rglob("thesis_rig.yaml"))
+    rigs = install / "aeropend_sim" / "share" / "aeropend_sim" / "rigs"
+    assert {p.name for p in rigs.glob("*.yaml")} == {
+        p.name for p in (ROOT / "src" / "aeropend_sim" / "aeropend_sim" / "rigs").glob("*.yaml")}
+    # every package's ROS parameters files under share/<pkg>/config
+    for pkg in PACKAGES:
+        shipped = {p.name for p in (ROOT / "src" / pkg / "config").glob("*.yaml")}
+        assert shipped, f"{pkg} has no config/*.yaml"
+        assert {p.name for p in (install / pkg / "share" / pkg / "config").glob("*.yaml")} == shipped
 
 
 #: Test files of no single package: the workspace, launch files of several packages, the
 #: firmware (C, not a ROS package) and graphs of several packages' nodes.
 CROSS_PACKAGE_TESTS = {"test_workspace.py", "test_launch_files.py", "test_namespaces_ros.py",
+                       "test_params_files_ros.py",
                        "test_firmware_build.py", "test_firmware_codec.py", "test_firmware_simavr.py",
                        "test_firmware_simavr_io.py", "test_firmware_simavr_registers.py"}
 

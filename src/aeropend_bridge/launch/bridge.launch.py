@@ -19,10 +19,11 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import NAMESPACE
+from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,
+    PARAMS_FILE,
     ("port", "/dev/ttyACM0", "serial device of the Arduino Mega"),
     ("rig", "thesis_rig", "rig name or YAML path (ADC LSBs, gear ratio)"),
     ("theta_offset", "0.0", "angle read with the rod hanging down [rad]"),
@@ -43,7 +44,8 @@ def _bridge(context, *args, **kwargs):
         "autostart": value["autostart"].strip().lower() in ("true", "1", "yes", "on"),
     }
     return [Node(package="aeropend_bridge", executable="bridge", name="aeropend_bridge", output="screen",
-                 parameters=[params], namespace=value["namespace"] or None)]
+                 parameters=node_parameters(params, value["params_file"]),
+                 namespace=value["namespace"] or None)]
 
 
 def generate_launch_description():
