@@ -89,6 +89,12 @@ def test_colcon_build_installs_entry_points(colcon_ws: Path) -> None:
     rigs = install / "aeropend_sim" / "share" / "aeropend_sim" / "rigs"
     assert {p.name for p in rigs.glob("*.yaml")} == {
         p.name for p in (ROOT / "src" / "aeropend_sim" / "aeropend_sim" / "rigs").glob("*.yaml")}
+    # the robot description and the RViz configuration
+    share = install / "aeropend_sim" / "share" / "aeropend_sim"
+    assert (share / "urdf" / "aeropend.urdf").read_text(encoding="utf-8") == (
+        ROOT / "src" / "aeropend_sim" / "urdf" / "aeropend.urdf").read_text(encoding="utf-8")
+    assert (share / "rviz" / "aeropend.rviz").is_file()
+    assert (share / "launch" / "description.launch.py").is_file()
     # every package's ROS parameters files under share/<pkg>/config
     for pkg in PACKAGES:
         shipped = {p.name for p in (ROOT / "src" / pkg / "config").glob("*.yaml")}
