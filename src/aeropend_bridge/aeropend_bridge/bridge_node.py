@@ -111,6 +111,10 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
 )
 
 
+#: Parameters read by ``configure`` (settable while unconfigured).
+CONFIGURE_PARAMETERS = frozenset(name for name, _, _ in PARAMETERS)
+
+
 def _positive(name: str, value: Any) -> float:
     try:
         v = float(value)
@@ -161,8 +165,9 @@ class BridgeNode(LifecycleNode):
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        if self.link is not None:
-            names = ", ".join(p.name for p in params)
+        configured = [p.name for p in params if p.name in CONFIGURE_PARAMETERS]
+        if self.link is not None and configured:
+            names = ", ".join(configured)
             return SetParametersResult(
                 successful=False,
                 reason=f"{names} apply at configure: the bridge is configured; run the cleanup "
