@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib.util
 import re
 import sys
+import tempfile
 import types
 from pathlib import Path
 from typing import Any
@@ -56,7 +57,7 @@ def _load(path: Path, monkeypatch: pytest.MonkeyPatch) -> list[Any]:
     for name, mod in _fake_launch().items():
         monkeypatch.setitem(sys.modules, name, mod)
     # an ament prefix holding aeropend_sim, as after sourcing install/setup.bash (RViz config lookup)
-    prefix = Path(__file__).resolve().parents[1] / "build" / "test_launch_prefix"
+    prefix = Path(tempfile.gettempdir()) / "aeropend_test_launch_prefix"
     marker = prefix / "share" / "ament_index" / "resource_index" / "packages" / "aeropend_sim"
     marker.parent.mkdir(parents=True, exist_ok=True)
     marker.touch()
