@@ -26,7 +26,7 @@ from ros_support import isolated_env, node_command, private_node, random_domain,
 from sensor_msgs.msg import JointState
 
 from aeropend_sim.contract import TOPIC_JOINT_STATES
-from aeropend_sim.ros_contract import SAMPLE_SUB_QOS
+from aeropend_sim.ros_contract import SAMPLE_QOS_LOCKSTEP
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(120)]
 SRC = Path(__file__).resolve().parents[1] / "src"
@@ -89,7 +89,10 @@ def test_shipped_params_file_loads_into_the_node(pkg: str, file: str, name: str,
 def test_params_file_values_drive_the_plant_and_p_after_it_wins(tmp_path: Path) -> None:
     doc = yaml.safe_load((SRC / "aeropend_sim" / "config" / "sim.yaml").read_text(encoding="utf-8"))
     params = doc["/**/aeropend_sim"]["ros__parameters"]
-    params.update(frame_id="rig_from_file", seed=7, initial_theta=0.3)
+    # lock-step: sample 0 (the initial state) is published once this test's reader is matched,
+    # so the first sample shows the initial angle whatever the machine's load
+    params.update(frame_id="rig_from_file", seed=7, initial_theta=0.3, mode="lockstep", publish_clock=False,
+                  noise=False)
     custom = tmp_path / "my_sim.yaml"
     custom.write_text(yaml.safe_dump(doc), encoding="utf-8")
     domain = random_domain(101, 200)
@@ -100,16 +103,18 @@ def test_params_file_values_drive_the_plant_and_p_after_it_wins(tmp_path: Path) 
     try:
         with private_node("params_file_client", domain) as (node, executor):
             msgs: list[JointState] = []
-            node.create_subscription(JointState, "/rig2" + TOPIC_JOINT_STATES, msgs.append, SAMPLE_SUB_QOS)
+            node.create_subscription(JointState, "/rig2" + TOPIC_JOINT_STATES, msgs.append,
+                                     SAMPLE_QOS_LOCKSTEP)
             end = time.monotonic() + 20
-            while len(msgs) < 5 and time.monotonic() < end:
+            while not msgs and time.monotonic() < end:
                 executor.spin_once(timeout_sec=0.05)
-            assert len(msgs) >= 5, "no samples from /rig2/aeropend/joint_states"
+            assert msgs, "no sample 0 from /rig2/aeropend/joint_states"
             # the /**/aeropend_sim section matched the node in /rig2 and its values are in use
             assert msgs[0].header.frame_id == "rig_from_file"
-            assert msgs[0].position[0] == pytest.approx(0.3, abs=0.05)  # rod released at 0.3 rad
-            got = _get(node, executor, "rig2/aeropend_sim", ["seed", "initial_theta", "frame_id"])
-        assert got == {"seed": 11, "initial_theta": 0.3, "frame_id": "rig_from_file"}
+            assert msgs[0].header.stamp.sec == 0 and msgs[0].header.stamp.nanosec == 0  # sample 0
+            assert msgs[0].position[0] == pytest.approx(0.3, abs=1e-12)  # the initial angle, noise off
+            got = _get(node, executor, "rig2/aeropend_sim", ["seed", "initial_theta", "frame_id", "noise"])
+        assert got == {"seed": 11, "initial_theta": 0.3, "frame_id": "rig_from_file", "noise": False}
     finally:
         stop(proc, signal.SIGINT, timeout=15)
         reap(proc)
