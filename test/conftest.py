@@ -1,4 +1,10 @@
-"""Shared fixtures."""
+"""Shared fixtures and the test markers.
+
+The markers are registered here rather than in an ini file so that both ways of running the
+tests know them: ``./scripts/test.sh`` (pytest from the root, ``pyproject.toml``) and
+``colcon test`` (pytest in each package with its ``setup.cfg``, this file through
+``--confcutdir``).
+"""
 
 from __future__ import annotations
 
@@ -8,6 +14,17 @@ import pytest
 
 #: Columns of a CSV log written by ``bench/truth_plant.py`` (``TruthRecording.to_csv``).
 TRUTH_CSV_COLUMNS = {"i_a": "i_a_A", "v_a": "v_a_V", "omega_rotor": "omega_rad_s"}
+
+MARKERS = (
+    "ros: real multi-process ROS 2 test (rclpy nodes in separate processes)",
+    "real_data: reads third-party recordings from ../shared/data/real",
+    "slow: takes more than ~20 s",
+)
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    for marker in MARKERS:
+        config.addinivalue_line("markers", marker)
 
 
 @pytest.fixture

@@ -14,6 +14,7 @@ from aeropend_bridge.bridge_core import (
     Calibration,
     ClockMapper,
     CommandWatchdog,
+    FirmwareHandshake,
     RateMeter,
     SequenceTracker,
 )
@@ -129,3 +130,40 @@ def test_stats_count_rejected_ssi_angles() -> None:
     assert (st.samples, st.angle_invalid) == (11, 4)
     kv = dict(st.diagnostics(490.0, SequenceTracker(), {}, CommandWatchdog(timeout_ns=10**8), ClockMapper()))
     assert kv["angle_invalid_samples"] == "4" and kv["samples"] == "11"
+
+
+def test_firmware_handshake_recognises_the_protocol_1_sample_stream() -> None:
+    # divider 1, then a RATE 2 taking effect mid-run; seq and the 32-bit µs clock wrap
+    h = FirmwareHandshake(needed=8)
+    seq0, t0 = 65530, 2**32 - 3 * 2040 + 0  # t_us = overflow count × 2040 µs, wrapping
+    frames = [((seq0 + k) & 0xFFFF, (t0 + 2040 * k) & 0xFFFFFFFF) for k in range(5)]
+    frames += [((seq0 + 5 + k) & 0xFFFF, (t0 + 2040 * 4 + 4080 * (k + 1)) & 0xFFFFFFFF) for k in range(3)]
+    results = [h.update(s, t) for s, t in frames]
+    assert results == [False] * 7 + [True]
+    assert (h.frames, h.longest) == (8, 8)
+
+
+def test_firmware_handshake_rejects_other_streams() -> None:
+    # a lost frame restarts the run: 7 + 7 consistent frames never make 8
+    h = FirmwareHandshake(needed=8)
+    for k in [*range(7), *range(8, 15)]:
+        h.update(k, 2040 * k)
+    assert not h.recognised and h.longest == 7
+    # another clock (2048 µs per sample, e.g. a firmware with a different timer set-up)
+    h = FirmwareHandshake(needed=8)
+    assert not any(h.update(k, 2048 * k) for k in range(50)) and h.longest == 1
+    # a stalled clock (same t_us twice) and a divider beyond 255
+    h = FirmwareHandshake(needed=3)
+    assert not h.update(0, 0) and not h.update(1, 0) and not h.update(2, 256 * 2040)
+    assert h.longest == 1
+    with pytest.raises(BridgeConfigError, match="at least 2 frames, got 1"):
+        FirmwareHandshake(needed=1)
+
+
+def test_watchdog_disarm_forgets_the_held_command_keeps_counts() -> None:
+    wd = CommandWatchdog(timeout_ns=100_000_000)
+    assert wd.offer(0.6, 0) is None
+    assert wd.duty(1_000) == 0.6
+    wd.disarm()
+    assert wd.duty(2_000) == 0.0 and wd.accepted == 1
+    assert wd.offer(0.3, 3_000) is None and wd.duty(4_000) == 0.3

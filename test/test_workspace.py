@@ -5,6 +5,7 @@ from __future__ import annotations
 import configparser
 import importlib
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -46,18 +47,32 @@ def test_console_scripts_resolve(pkg):
         assert callable(getattr(importlib.import_module(module), func)), name
 
 
-def test_colcon_build_installs_entry_points(tmp_path):
+def _colcon() -> tuple[str, dict[str, str]]:
     colcon = shutil.which("colcon", path=str(Path(sys.executable).parent)) or shutil.which("colcon")
     if colcon is None:
         pytest.fail("colcon is not installed (requirements.txt pins colcon-common-extensions)")
     env = dict(os.environ, PATH=f"{Path(sys.executable).parent}:{os.environ.get('PATH', '')}")
+    return colcon, env
+
+
+@pytest.fixture(scope="module")
+def colcon_ws(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``colcon build`` of the four packages into a temporary workspace (built once)."""
+    ws = tmp_path_factory.mktemp("colcon_ws")
+    colcon, env = _colcon()
     proc = subprocess.run(
-        [colcon, "--log-base", str(tmp_path / "log"), "build", "--base-paths", str(ROOT / "src"),
-         "--build-base", str(tmp_path / "build"), "--install-base", str(tmp_path / "install")],
-        cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300,
+        [colcon, "--log-base", str(ws / "log"), "build", "--base-paths", str(ROOT / "src"),
+         "--build-base", str(ws / "build"), "--install-base", str(ws / "install")],
+        cwd=ws, env=env, capture_output=True, text=True, timeout=300,
     )
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "4 packages finished" in proc.stdout
+    return ws
+
+
+def test_colcon_build_installs_entry_points(colcon_ws: Path) -> None:
+    tmp_path = colcon_ws
+    _, env = _colcon()
     install = tmp_path / "install"
     assert (install / "setup.bash").is_file()
     for pkg in PACKAGES:
@@ -69,5 +84,92 @@ def test_colcon_build_installs_entry_points(tmp_path):
     out = subprocess.run(["bash", "-c", f"source {install}/setup.bash && echo $AMENT_PREFIX_PATH"],
                          capture_output=True, text=True, env=env, timeout=60)
     assert str(install / "aeropend_sim") in out.stdout
-    # rig files ship with the package
+    # rig files ship with the package (Python package data) and under share/ as ROS data
     assert list((install / "aeropend_sim").rglob("thesis_rig.yaml"))
+    rigs = install / "aeropend_sim" / "share" / "aeropend_sim" / "rigs"
+    assert {p.name for p in rigs.glob("*.yaml")} == {
+        p.name for p in (ROOT / "src" / "aeropend_sim" / "aeropend_sim" / "rigs").glob("*.yaml")}
+    # the robot description and the RViz configuration
+    share = install / "aeropend_sim" / "share" / "aeropend_sim"
+    assert (share / "urdf" / "aeropend.urdf").read_text(encoding="utf-8") == (
+        ROOT / "src" / "aeropend_sim" / "urdf" / "aeropend.urdf").read_text(encoding="utf-8")
+    assert (share / "rviz" / "aeropend.rviz").is_file()
+    assert (share / "launch" / "description.launch.py").is_file()
+    # every package's ROS parameters files under share/<pkg>/config
+    for pkg in PACKAGES:
+        shipped = {p.name for p in (ROOT / "src" / pkg / "config").glob("*.yaml")}
+        assert shipped, f"{pkg} has no config/*.yaml"
+        assert {p.name for p in (install / pkg / "share" / pkg / "config").glob("*.yaml")} == shipped
+
+
+#: Test files of no single package: the workspace, launch files of several packages, the
+#: firmware (C, not a ROS package) and graphs of several packages' nodes.
+CROSS_PACKAGE_TESTS = {"test_workspace.py", "test_launch_files.py", "test_namespaces_ros.py",
+                       "test_params_files_ros.py",
+                       "test_firmware_build.py", "test_firmware_codec.py", "test_firmware_simavr.py",
+                       "test_firmware_simavr_io.py", "test_firmware_simavr_registers.py"}
+
+
+def _package_test_globs(pkg: str) -> list[str]:
+    cfg = configparser.ConfigParser()
+    cfg.read(ROOT / "src" / pkg / "setup.cfg")
+    section = cfg["tool:pytest"]
+    assert section["testpaths"].strip() == "../../test"
+    return section["python_files"].split()
+
+
+def test_every_test_file_belongs_to_one_package_or_the_workspace() -> None:
+    """``colcon test`` (per package) and ``./scripts/test.sh`` (all of test/) lose no test file."""
+    owners: dict[str, list[str]] = {}
+    for pkg in PACKAGES:
+        for pattern in _package_test_globs(pkg):
+            matched = sorted(p.name for p in (ROOT / "test").glob(pattern))
+            assert matched, f"{pkg}: python_files pattern {pattern!r} matches no test file"
+            for name in matched:
+                owners.setdefault(name, []).append(pkg)
+    files = {p.name for p in (ROOT / "test").glob("test_*.py")}
+    doubles = {name: pkgs for name, pkgs in owners.items() if len(pkgs) > 1}
+    assert not doubles, f"test files run by more than one package: {doubles}"
+    unowned = files - set(owners) - CROSS_PACKAGE_TESTS
+    assert not unowned, f"test files no package runs (assign in a setup.cfg or list here): {unowned}"
+    assert not CROSS_PACKAGE_TESTS & set(owners)
+
+
+_RESULT = re.compile(r"(\d+) tests, (\d+) errors, (\d+) failures, (\d+) skipped")
+
+
+def test_colcon_test_runs_each_packages_tests(colcon_ws: Path) -> None:
+    """``colcon test`` runs the packages' own tests (here the fast ones of two packages)."""
+    colcon, env = _colcon()
+    selected = ["aeropend_sim", "aeropend_bridge"]
+    proc = subprocess.run(
+        [colcon, "--log-base", str(colcon_ws / "log"), "test", "--base-paths", str(ROOT / "src"),
+         "--build-base", str(colcon_ws / "build"), "--install-base", str(colcon_ws / "install"),
+         "--packages-select", *selected, "--pytest-args", "-m", "not ros and not slow"],
+        cwd=colcon_ws, env=env, capture_output=True, text=True, timeout=600,
+    )
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "2 packages finished" in proc.stdout
+    res = subprocess.run([colcon, "test-result", "--test-result-base", str(colcon_ws / "build"), "--all"],
+                         cwd=colcon_ws, env=env, capture_output=True, text=True, timeout=60)
+    print(res.stdout)
+    assert res.returncode == 0, res.stdout + res.stderr
+    per_package = {}
+    for line in res.stdout.splitlines():
+        m = _RESULT.search(line)
+        if m and "pytest.xml" in line:
+            per_package[Path(line.split(":")[0]).parent.name] = tuple(int(x) for x in m.groups())
+    assert set(per_package) == set(selected), res.stdout
+    for pkg, (tests, errors, failures, _) in per_package.items():
+        # exactly the tests the root suite has in this package's files, with the same selection
+        files = sorted({str(p) for pattern in _package_test_globs(pkg)
+                        for p in (ROOT / "test").glob(pattern)})
+        collected = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-m",
+                                    "not ros and not slow", *files], cwd=ROOT, capture_output=True,
+                                   text=True, timeout=120)
+        m = re.search(r"(\d+)/\d+ tests collected|(\d+) tests collected", collected.stdout)
+        assert m, collected.stdout[-2000:]
+        expected = int(m.group(1) or m.group(2))
+        print(f"{pkg}: colcon test ran {tests} tests, the root suite selects {expected}")
+        assert tests == expected > 0
+        assert (errors, failures) == (0, 0), f"{pkg}: {errors} errors, {failures} failures"

@@ -6,6 +6,8 @@
   envelope of (host receive time − MCU time), drift by a least-squares line through the
   per-window minima; stamps stay strictly increasing.
 * :class:`SequenceTracker` counts lost frames from 16-bit sequence gaps.
+* :class:`FirmwareHandshake` recognises the protocol-1 firmware from its sample stream (the
+  lifecycle bridge's configure step).
 * :class:`CommandWatchdog` forces duty 0 after controller silence.
 * :class:`Backoff` paces reconnection attempts.
 * :class:`BridgeStats` collects the diagnostics counters.
@@ -25,6 +27,10 @@ TWO_PI = 2.0 * math.pi
 
 class BridgeConfigError(ValueError):
     """A bridge parameter or calibration constant is invalid."""
+
+
+class FirmwareError(RuntimeError):
+    """The serial port cannot be opened or does not carry the aeropend firmware's protocol."""
 
 
 @dataclass(frozen=True)
@@ -126,6 +132,60 @@ class SequenceTracker:
     def restart(self) -> None:
         """Forget the last sequence number (after a reconnect)."""
         self._last = None
+
+
+@dataclass
+class FirmwareHandshake:
+    """Recognise the protocol-1 acquisition firmware from the sample frames it streams.
+
+    Protocol version 1 (``firmware/PROTOCOL.md``) has no version frame; its version is the frame
+    layout and the firmware's clock: a SAMPLE frame is 19 bytes with a valid CRC (checked by the
+    decoder), ``seq`` counts up by one per frame and ``t_us`` is the Timer1 overflow count times
+    ``period_us`` (2040 µs), so consecutive frames are ``divider · 2040`` µs apart with
+    ``divider`` in 1..255. ``needed`` consecutive frames that satisfy this identify the firmware;
+    a wrong baud rate, another sketch or a different firmware version does not produce them.
+
+    Attributes
+    ----------
+    needed : int
+        Consecutive consistent frames required.
+    period_us : int
+        Timer1 overflow period of the firmware [µs].
+    frames : int
+        Sample frames offered so far.
+    run, longest : int
+        Current and longest run of consecutive consistent frames.
+    """
+
+    needed: int = 8
+    period_us: int = 2040
+    frames: int = 0
+    run: int = 0
+    longest: int = 0
+    _last: tuple[int, int] | None = None
+
+    def __post_init__(self) -> None:
+        if self.needed < 2:
+            raise BridgeConfigError(f"handshake needs at least 2 frames, got {self.needed}")
+
+    def update(self, seq: int, t_us: int) -> bool:
+        """Offer one sample frame's ``seq`` and ``t_us``; return whether the firmware is recognised."""
+        self.frames += 1
+        if self._last is None:
+            self.run = 1
+        else:
+            dseq = (seq - self._last[0]) & 0xFFFF
+            dt = (t_us - self._last[1]) & 0xFFFFFFFF
+            steady = dseq == 1 and dt % self.period_us == 0 and 1 <= dt // self.period_us <= 255
+            self.run = self.run + 1 if steady else 1
+        self._last = (seq, t_us)
+        self.longest = max(self.longest, self.run)
+        return self.recognised
+
+    @property
+    def recognised(self) -> bool:
+        """True once ``needed`` consecutive consistent frames were seen."""
+        return self.longest >= self.needed
 
 
 @dataclass
@@ -263,6 +323,12 @@ class CommandWatchdog:
         self._last_ns = now_ns
         self._tripped = False
         return None
+
+    def disarm(self) -> None:
+        """Forget the held command: duty 0 until the next valid one (counters kept)."""
+        self._duty = 0.0
+        self._last_ns = None
+        self._tripped = True
 
     def duty(self, now_ns: int) -> float:
         """Duty to apply at ``now_ns`` (0 before the first command and after a timeout)."""

@@ -6,12 +6,22 @@ the real rig look exactly like the simulated plant (:mod:`aeropend_sim.sim_node`
 data QoS) and subscribes ``/aeropend/duty_cycle`` (reliable). Stamps come from the MCU clock
 mapped to ROS time (:class:`~aeropend_bridge.bridge_core.ClockMapper`).
 
+A managed (lifecycle) node: ``configure`` opens the port and recognises the firmware,
+``activate`` enables the duty output, ``deactivate`` drives 0 and stops, ``cleanup`` closes the
+port (see :class:`BridgeNode`). With ``autostart`` (default true) the plain command configures
+and activates itself, so a lab without a lifecycle manager runs it as before.
+
 Usage::
 
     bridge --ros-args -p port:=/dev/ttyACM0 -p rig:=thesis_rig -p theta_offset:=3.1416
+    bridge --ros-args -p port:=/dev/ttyACM0 -p autostart:=false   # then:
+    ros2 lifecycle set /aeropend_bridge configure
+    ros2 lifecycle set /aeropend_bridge activate
 
 Parameters
 ----------
+autostart : bool, default true (read-only)
+    Configure and activate at start-up; false leaves the node *unconfigured*.
 port : str, default ``/dev/ttyACM0``
     Serial device (a ``/dev/serial/by-id/...`` link survives re-enumeration).
 baud : int, default 500000
@@ -31,10 +41,16 @@ diagnostics_period : float [s], default 1.0
 backoff_initial, backoff_max : float [s], default 0.05, 2.0
     Reconnection delays after the port vanished (doubling).
 frame_id : str, default ``aeropend``
+handshake_timeout : float [s], default 3.0
+    ``configure`` fails unless the port opens and the protocol-1 firmware is recognised within
+    this time (opening the port resets a Mega: its boot loader runs first).
 
-Invalid parameters exit with status 2 and a message naming the value. NaN / out-of-range
-duty commands are rejected, counted and logged (throttled). On shutdown the motor is switched
-off (duty 0 sent) before the port is closed.
+Every parameter but ``autostart`` may be set while the node is *unconfigured* and applies at the
+next ``configure``; while configured ``ros2 param set`` is refused with that reason.
+Invalid parameters fail ``configure`` with a message naming the value (plain command: exit
+status 2); no firmware on the port fails it too (exit status 1). NaN / out-of-range duty
+commands are rejected, counted and logged (throttled). On deactivate and on shutdown the motor
+is switched off (duty 0 sent, output disabled) before anything else.
 """
 
 from __future__ import annotations
@@ -43,11 +59,14 @@ import math
 import sys
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
@@ -58,10 +77,12 @@ from aeropend_bridge.bridge_core import (
     Calibration,
     ClockMapper,
     CommandWatchdog,
+    FirmwareError,
+    FirmwareHandshake,
     RateMeter,
     SequenceTracker,
 )
-from aeropend_bridge.protocol import BAUD, Duty, Rate, SampleFrame, StatusFrame
+from aeropend_bridge.protocol import BAUD, Duty, Enable, Rate, SampleFrame, StatusFrame
 from aeropend_bridge.serial_link import SerialLink
 from aeropend_sim.contract import REL_ARMATURE, REL_DUTY_CYCLE, REL_JOINT_STATES
 from aeropend_sim.node_shell import declare_parameter_table, run_node
@@ -86,7 +107,12 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("backoff_initial", 0.05, "first reconnection delay [s]"),
     ("backoff_max", 2.0, "largest reconnection delay [s]"),
     ("frame_id", "aeropend", "header.frame_id of the sample messages"),
+    ("handshake_timeout", 3.0, "configure: time to open the port and recognise the firmware [s]"),
 )
+
+
+#: Parameters read by ``configure`` (settable while unconfigured).
+CONFIGURE_PARAMETERS = frozenset(name for name, _, _ in PARAMETERS)
 
 
 def _positive(name: str, value: Any) -> float:
@@ -99,38 +125,198 @@ def _positive(name: str, value: Any) -> float:
     return v
 
 
-class BridgeNode(Node):
-    """rclpy shell of the hardware bridge (see module docstring).
+class BridgeNode(LifecycleNode):
+    """rclpy shell of the hardware bridge, a managed (lifecycle) node (see module docstring).
 
-    Raises
-    ------
-    BridgeConfigError
-        From the constructor if a parameter is invalid (the node is destroyed first).
+    Transitions (``ros2 lifecycle set /aeropend_bridge <transition>``):
+
+    * ``configure``: validate the parameters, open the port and recognise the protocol-1
+      firmware from its sample stream (:class:`~aeropend_bridge.bridge_core.FirmwareHandshake`)
+      within ``handshake_timeout``; the H-bridge output is switched off (ENABLE 0, duty 0).
+      ``/diagnostics`` runs from here on. Fails (state stays *unconfigured*, port closed) with
+      the reason logged.
+    * ``activate``: ENABLE 1, duty commands are forwarded (duty 0 until the first command after
+      activation), keep-alives feed the firmware watchdog, samples are published.
+    * ``deactivate``: duty 0 on the wire, ENABLE 0, commands ignored, samples no longer
+      published (the port stays open, diagnostics continue).
+    * ``cleanup``: close the port and drop publishers, subscription and timers.
+    * ``shutdown`` (from any state, also on SIGINT/SIGTERM): motor off, port closed.
     """
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        p = declare_parameter_table(self, PARAMETERS)
-        try:
-            self._configure(p)
-        except (BridgeConfigError, RigFileError) as exc:
-            self.destroy_node()
-            raise BridgeConfigError(str(exc)) from None
-        self._pub_js = self.create_publisher(JointState, REL_JOINT_STATES, SAMPLE_QOS)
-        self._pub_arm = self.create_publisher(BatteryState, REL_ARMATURE, SAMPLE_QOS)
-        self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
-        self.create_subscription(Float64, REL_DUTY_CYCLE, self._on_command, COMMAND_QOS)
-        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_timer(self.keepalive_s, self._keepalive, clock=self._steady)
-        self.create_timer(self.diag_period_s, self._publish_diagnostics, clock=self._steady)
+        declare_parameter_table(self, PARAMETERS, live=[name for name, _, _ in PARAMETERS])
+        self.autostart = bool(self.declare_parameter(
+            "autostart", True, ParameterDescriptor(
+                description="configure and activate at start-up (plain command, no lifecycle manager)",
+                read_only=True)).value)
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         self._lock = threading.Lock()
+        self._steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._active = False
+        self._finalized = False
+        self.link: SerialLink | None = None
+        self._pub_js: Any = None
+        self._pub_arm: Any = None
+        self._pub_diag: Any = None
+        self._entities: list[Any] = []
+        self._transition_error: Exception | None = None
+        self._recognised = threading.Event()
+
+    # ------------------------------------------------------------------ parameters
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        configured = [p.name for p in params if p.name in CONFIGURE_PARAMETERS]
+        if self.link is not None and configured:
+            names = ", ".join(configured)
+            return SetParametersResult(
+                successful=False,
+                reason=f"{names} apply at configure: the bridge is configured; run the cleanup "
+                       "transition first, set the parameter, then configure again")
+        return SetParametersResult(successful=True)
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        """Configure and activate (``autostart``); raise the reason if either fails.
+
+        Raises
+        ------
+        BridgeConfigError
+            A parameter is invalid.
+        FirmwareError
+            The port cannot be opened or carries no protocol-1 firmware.
+        """
+        for step in (self.trigger_configure, self.trigger_activate):
+            if step() != TransitionCallbackReturn.SUCCESS:
+                exc = self._transition_error or FirmwareError("lifecycle transition failed")
+                self.destroy_node()
+                raise exc
+
+    def _transition(self, name: str, action: Callable[[], None]) -> TransitionCallbackReturn:
+        self._transition_error = None
+        try:
+            action()
+        except (BridgeConfigError, RigFileError, FirmwareError) as exc:
+            self._transition_error = exc if not isinstance(exc, RigFileError) else BridgeConfigError(str(exc))
+            self.get_logger().error(f"{name} failed: {exc}")
+            self._release()
+            return TransitionCallbackReturn.FAILURE
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Validate parameters, open the port, recognise the firmware; output off."""
+        return self._transition("configure", self._do_configure)
+
+    def _do_configure(self) -> None:
+        p = {name: self.get_parameter(name).value for name, _, _ in PARAMETERS}
+        self._configure(p)
+        self._pub_js = self.create_lifecycle_publisher(JointState, REL_JOINT_STATES, SAMPLE_QOS)
+        self._pub_arm = self.create_lifecycle_publisher(BatteryState, REL_ARMATURE, SAMPLE_QOS)
+        self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
+        self._entities = [
+            self.create_subscription(Float64, REL_DUTY_CYCLE, self._on_command, COMMAND_QOS),
+            self.create_timer(self.keepalive_s, self._keepalive, clock=self._steady),
+            self.create_timer(self.diag_period_s, self._publish_diagnostics, clock=self._steady),
+        ]
+        self._recognised.clear()
         self.link = SerialLink(self.port, self._on_frame, baud=self.baud,
                                clock_ns=lambda: self.get_clock().now().nanoseconds,
                                on_event=self._on_link_event, on_connect=self._on_connect,
                                backoff=self.backoff)
+        self._decoder = self.link.decoder
+        self.link.start()
+        if not self.link.wait_connected(self.handshake_timeout_s):
+            raise FirmwareError(f"cannot open {self.port} within {self.handshake_timeout_s:g} s "
+                                f"({self._last_link_event or 'no reply'})")
+        if not self._recognised.wait(self.handshake_timeout_s):
+            s = self.link.decoder.stats
+            h = self.handshake
+            raise FirmwareError(
+                f"no aeropend protocol-1 firmware on {self.port} within {self.handshake_timeout_s:g} s: "
+                f"{h.frames} sample frames, longest consistent run {h.longest} of {h.needed}; "
+                f"{s.bytes} bytes read, {s.crc_errors} CRC errors, {s.errors} framing errors "
+                "(wrong baud rate, another sketch, or the board still booting?)")
         self.get_logger().info(
-            f"port {self.port} at {self.baud} baud, rig {self.rig_name!r}, theta_offset "
-            f"{self.cal.theta_offset:g} rad, command_timeout {self.command_timeout_s:g} s")
+            f"configured: port {self.port} at {self.baud} baud, protocol-1 firmware recognised "
+            f"({self.handshake.longest} consistent sample frames), rig {self.rig_name!r}, theta_offset "
+            f"{self.cal.theta_offset:g} rad, command_timeout {self.command_timeout_s:g} s; output off")
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Enable the H-bridge output and forward duty commands (0 until the first one)."""
+        def action() -> None:
+            self.watchdog.disarm()  # no command from before the activation is applied
+            self._active = True
+            self.link.send(Enable(True))  # type: ignore[union-attr]
+            self._send_duty(0.0)
+            self.get_logger().info("active: duty output enabled")
+        ret = self._transition("activate", action)
+        return super().on_activate(state) if ret == TransitionCallbackReturn.SUCCESS else ret
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Duty 0 on the wire, output disabled, commands ignored."""
+        self._motor_off()
+        self.get_logger().info("inactive: duty 0 sent, output disabled")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Close the port; drop publishers, subscription and timers."""
+        self._release()
+        self.get_logger().info(f"unconfigured: {self.port} closed")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Motor off (if active), port closed."""
+        self._release()
+        self._finalized = True
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """An unexpected error in a transition: motor off, port closed, back to unconfigured."""
+        self.get_logger().error("error in a lifecycle transition: motor off, port closed")
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _motor_off(self) -> None:
+        """Duty 0 (three times, in case one frame is lost), then ENABLE 0; stop forwarding."""
+        self._active = False
+        if self.link is None:
+            return
+        for _ in range(3):
+            self.link.send(Duty(0))
+            time.sleep(0.005)
+        self.link.send(Enable(False))
+
+    def _release(self) -> None:
+        """Motor off if the port is open, close it, destroy the configured entities."""
+        link, was_active = self.link, self._active
+        if link is not None and was_active:
+            self._motor_off()
+        self._active = False
+        if link is not None:
+            link.stop()
+            self.link = None
+        for entity in self._entities:
+            if hasattr(entity, "cancel"):
+                entity.cancel()
+                self.destroy_timer(entity)
+            else:
+                self.destroy_subscription(entity)
+        self._entities = []
+        for name in ("_pub_js", "_pub_arm"):
+            pub = getattr(self, name, None)
+            if pub is not None:
+                self.destroy_lifecycle_publisher(pub)
+                setattr(self, name, None)
+        pub = getattr(self, "_pub_diag", None)
+        if pub is not None:
+            self.destroy_publisher(pub)
+            self._pub_diag = None
+
+    def finish(self) -> None:
+        """Shut down from any state (motor off, port closed) and log the run summary."""
+        summary = self.summary() if getattr(self, "stats", None) is not None else "summary: not configured"
+        if not self._finalized:
+            self.trigger_shutdown()
+        self.get_logger().info("motor off (duty 0 sent), port closed; " + summary)
 
     def _configure(self, p: dict[str, Any]) -> None:
         self.port = str(p["port"])
@@ -160,6 +346,9 @@ class BridgeNode(Node):
         self.backoff = Backoff(_positive("backoff_initial", p["backoff_initial"]),
                                _positive("backoff_max", p["backoff_max"]))
         self.frame_id = str(p["frame_id"])
+        self.handshake_timeout_s = _positive("handshake_timeout", p["handshake_timeout"])
+        self.handshake = FirmwareHandshake()
+        self._last_link_event = ""
         # The watchdog is checked on every keep-alive tick, so trip two ticks early: duty 0 is on
         # the wire at most command_timeout − keepalive_period after the last valid command, which
         # leaves one tick of margin for timer jitter on a loaded machine.
@@ -172,19 +361,24 @@ class BridgeNode(Node):
         self._last_sent: float | None = None
 
     # ------------------------------------------------------------------ serial side
-    def start(self) -> None:
-        """Start the serial reader thread."""
-        self.link.start()
-
     def _on_connect(self) -> None:
         with self._lock:
             self.seq.restart()
             self.clock_map.reset()
             self.stats.connected = True
-        self.link.send(Rate(self.rate_divider))
-        self.link.send(Duty.from_fraction(self.watchdog.duty(time.monotonic_ns())))
+        link = self.link
+        if link is None:
+            return
+        link.send(Rate(self.rate_divider))
+        if self._active:
+            link.send(Enable(True))
+            link.send(Duty.from_fraction(self.watchdog.duty(time.monotonic_ns())))
+        else:  # the firmware starts with its output enabled: off until activated
+            link.send(Enable(False))
+            link.send(Duty(0))
 
     def _on_link_event(self, msg: str) -> None:
+        self._last_link_event = msg
         if msg.startswith("lost"):
             with self._lock:
                 self.stats.connected = False
@@ -205,14 +399,19 @@ class BridgeNode(Node):
                 stamp = self.clock_map.update(frame.t_us, host_ns)
                 self.stats.count_sample(frame)
                 self.rate.tick(time.monotonic_ns())
+                if not self._recognised.is_set() and self.handshake.update(frame.seq, frame.t_us):
+                    self._recognised.set()
             if gap:
                 self.get_logger().warn(
                     f"{gap} sample frame(s) lost before seq {frame.seq} (total {self.seq.lost})",
                     throttle_duration_sec=LOG_THROTTLE_S)
+            pub_js, pub_arm = self._pub_js, self._pub_arm
+            if not self._active or pub_js is None or pub_arm is None:
+                return  # inactive: no samples published (lifecycle convention)
             js, arm = sample_to_msgs(self.cal.to_sample(frame, stamp), self.frame_id)
             try:
-                self._pub_js.publish(js)
-                self._pub_arm.publish(arm)
+                pub_js.publish(js)
+                pub_arm.publish(arm)
             except Exception as exc:  # publishers gone during shutdown; keep the reader alive
                 if self.context.ok():
                     self.get_logger().error(f"publishing sample {frame.seq} failed: {exc}",
@@ -228,6 +427,10 @@ class BridgeNode(Node):
 
     # ------------------------------------------------------------------ commands
     def _on_command(self, msg: Float64) -> None:
+        if not self._active:
+            self.get_logger().warn(f"duty command {msg.data!r} ignored: the bridge is not active",
+                                   throttle_duration_sec=5.0)
+            return
         reason = self.watchdog.offer(msg.data, time.monotonic_ns())
         if reason is not None:
             self.get_logger().warn(
@@ -237,10 +440,14 @@ class BridgeNode(Node):
         self._send_duty(self.watchdog.duty(time.monotonic_ns()))
 
     def _send_duty(self, duty: float) -> None:
-        self.link.send(Duty.from_fraction(duty))
-        self._last_sent = duty
+        link = self.link
+        if link is not None:
+            link.send(Duty.from_fraction(duty))
+            self._last_sent = duty
 
     def _keepalive(self) -> None:
+        if not self._active:
+            return
         now = time.monotonic_ns()
         trips = self.watchdog.trips
         duty = self.watchdog.duty(now)
@@ -257,7 +464,7 @@ class BridgeNode(Node):
             rate = self.rate.rate(time.monotonic_ns())
             kv = self.stats.diagnostics(rate, self.seq, self._decoder_errors(), self.watchdog,
                                         self.clock_map)
-            connected = self.stats.connected and self.link.connected
+            connected = self.stats.connected and self.link is not None and self.link.connected
             angle_valid = self.stats.angle_valid
         expected = NOMINAL_RATE_HZ / self.rate_divider
         if not connected:
@@ -268,11 +475,14 @@ class BridgeNode(Node):
             level, message = DiagnosticStatus.WARN, "AS5040 read-out rejected by the firmware: angle held"
         else:
             level, message = DiagnosticStatus.OK, f"{rate:.1f} Hz"
+        if not self._active:
+            message += "; inactive: output off"
+        kv.append(("active", str(self._active)))
         return DiagnosticStatus(level=level, name=f"{NODE_NAME}: serial link", message=message,
                                 hardware_id=self.port, values=[KeyValue(key=k, value=v) for k, v in kv])
 
     def _decoder_errors(self) -> dict[str, int]:
-        s = self.link.decoder.stats
+        s = self._decoder.stats
         return {"crc_errors": s.crc_errors, "cobs_errors": s.cobs_errors, "length_errors": s.length_errors,
                 "type_errors": s.type_errors, "oversize": s.oversize, "bytes": s.bytes}
 
@@ -282,17 +492,10 @@ class BridgeNode(Node):
         arr.status = [self.diagnostics()]
         self._pub_diag.publish(arr)
 
-    # ------------------------------------------------------------------ shutdown
-    def shutdown_motor(self) -> None:
-        """Send duty 0 (three times, in case one frame is lost), then close the port."""
-        for _ in range(3):
-            self.link.send(Duty(0))
-            time.sleep(0.005)
-        self.link.stop()
-
+    # ------------------------------------------------------------------ summary
     def summary(self) -> str:
         """One-line run summary (``key=value`` pairs)."""
-        s = self.link.decoder.stats
+        s = self._decoder.stats
         return (f"summary: samples={self.stats.samples} lost={self.seq.lost} crc_errors={s.crc_errors} "
                 f"decoder_errors={s.errors} reconnects={self.stats.reconnects} "
                 f"commands={self.watchdog.accepted} rejected={self.watchdog.rejected} "
@@ -300,18 +503,22 @@ class BridgeNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``bridge``; returns the exit status (2 = bad parameter)."""
+    """Entry point of ``bridge``; returns the exit status (2 = bad parameter, 1 = no firmware).
+
+    With ``autostart`` (default) the node configures and activates itself, so the plain command
+    drives the rig without a lifecycle manager; ``-p autostart:=false`` leaves it unconfigured
+    for ``ros2 lifecycle set`` or a lifecycle manager.
+    """
 
     def make() -> BridgeNode:
         node = BridgeNode()
-        node.start()
+        if node.autostart:
+            node.start()
         return node
 
-    def cleanup(node: BridgeNode) -> None:
-        node.shutdown_motor()
-        node.get_logger().info("motor off (duty 0 sent), port closed; " + node.summary())
+    return run_node(NODE_NAME, args, make, (BridgeConfigError,), BridgeNode.finish, period=0.05,
+                    start_errors=(FirmwareError,))
 
-    return run_node(NODE_NAME, args, make, (BridgeConfigError,), cleanup, period=0.05)
 
 if __name__ == "__main__":
     sys.exit(main())

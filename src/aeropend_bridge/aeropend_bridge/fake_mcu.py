@@ -3,7 +3,7 @@
 :class:`FakeMcu` opens a pty pair, publishes a stable symlink to the slave side (like a
 ``/dev/serial/by-id`` link) and writes sample frames of the real protocol at the firmware's
 rate from a thread; it decodes the commands the bridge writes and applies them like the
-firmware (duty, 250 ms command watchdog). Optional random byte corruption (seeded) records
+firmware (duty, ENABLE, 250 ms command watchdog). Optional random byte corruption (seeded) records
 which sample frames were damaged. :meth:`unplug` / :meth:`replug` close and reopen the pty.
 
 Console script ``fake_mcu``: ``fake_mcu --link /tmp/aeropend_tty`` then
@@ -26,6 +26,7 @@ from aeropend_bridge.protocol import (
     FLAG_ENABLED,
     FLAG_WATCHDOG,
     Duty,
+    Enable,
     FrameDecoder,
     SampleFrame,
     StatusFrame,
@@ -79,6 +80,7 @@ class FakeMcu:
         self.commands: list[tuple[float, object]] = []
         self.decoder = FrameDecoder()
         self.duty_ocr = 0
+        self.enabled = True  # the firmware's output is enabled at reset
         self.watchdog_trips = 0
         self.done = threading.Event()
         self._master: int | None = None
@@ -154,23 +156,30 @@ class FakeMcu:
         w = y["omega_prop"]
         period = round(2 * math.pi / (w * cal.tick_s)) if w > 0.5 else 0  # type: ignore[union-attr]
         theta = round((y["theta"] + cal.theta_offset) / cal.theta_lsb) % 1024  # type: ignore[union-attr]
-        flags = FLAG_ENABLED | (FLAG_WATCHDOG if self._wd else 0)
+        flags = self._flags()
         return SampleFrame(seq=k & 0xFFFF, t_us=round(k * FIRMWARE_PERIOD_S * 1e6) & 0xFFFFFFFF,
                            i_a=max(-1023, min(1023, round(y["i_a"] / cal.i_a_lsb))),  # type: ignore[union-attr]
                            v_a=max(-512, min(511, round(y["v_a"] / cal.v_a_lsb))),  # type: ignore[union-attr]
                            theta=theta, period=min(period, 2**32 - 1), duty=self._applied, flags=flags)
 
+    @property
+    def applied_ocr(self) -> int:
+        """OCR value on the H-bridge: the commanded duty, 0 while the output is disabled."""
+        return self.duty_ocr if self.enabled else 0
+
+    def _flags(self) -> int:
+        return (FLAG_ENABLED if self.enabled else 0) | (FLAG_WATCHDOG if self._wd else 0)
+
     def _frame(self, k: int) -> SampleFrame:
         if self.plant is not None:
             frame = self._plant_frame(k)
-            self._applied = self.duty_ocr
+            self._applied = self.applied_ocr
             return frame
         t = k * self.period_s if self.period_s > 0 else k * FIRMWARE_PERIOD_S
         theta = 512 + int(200 * math.sin(2 * math.pi * 0.5 * t))
-        flags = FLAG_ENABLED | (FLAG_WATCHDOG if self._wd else 0)
         return SampleFrame(seq=k & 0xFFFF, t_us=round(k * FIRMWARE_PERIOD_S * 1e6) & 0xFFFFFFFF,
                            i_a=100 + k % 7, v_a=-50 + k % 11, theta=theta, period=15000 + k % 13,
-                           duty=self.duty_ocr, flags=flags)
+                           duty=self.applied_ocr, flags=self._flags())
 
     def _corrupt(self, wire: bytes, last_clean: bool, n_sample: int) -> tuple[bytes, bool, bool]:
         """Corrupt bytes of ``wire`` (sample frame = first ``n_sample`` bytes, maybe + status).
@@ -203,6 +212,8 @@ class FakeMcu:
                     if isinstance(f, Duty):
                         self.duty_ocr = (f.value * 255 + 32767) // 65535
                         self._wd = False
+                    elif isinstance(f, Enable):
+                        self.enabled = f.on
         except OSError:
             pass
         if time.monotonic() - self._last_cmd > FIRMWARE_WATCHDOG_S and not self._wd:

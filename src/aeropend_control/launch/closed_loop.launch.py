@@ -18,10 +18,11 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironment
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE
+from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE, PARAMS_FILE, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,
+    PARAMS_FILE,
     ("plant", "sim", "sim (simulated plant) | bridge (hardware through the serial bridge)"),
     ("rig", "thesis_rig", "rig name or YAML path, used by the plant/bridge and the controller"),
     ("mode", "realtime", "realtime | lockstep (lockstep: sim plant only)"),
@@ -50,16 +51,19 @@ def _nodes(context, *args, **kwargs):
         if v["effects"]:
             plant_params["effects"] = [e.strip() for e in v["effects"].split(",") if e.strip()]
         plant = Node(package="aeropend_sim", executable="sim_node", name="aeropend_sim", output="screen",
-                     parameters=[plant_params], namespace=v["namespace"] or None)
+                     parameters=node_parameters(plant_params, v["params_file"]),
+                     namespace=v["namespace"] or None)
     else:
         plant = Node(package="aeropend_bridge", executable="bridge", name="aeropend_bridge", output="screen",
-                     parameters=[{"port": v["port"], "rig": v["rig"]}], namespace=v["namespace"] or None)
+                     parameters=node_parameters({"port": v["port"], "rig": v["rig"]}, v["params_file"]),
+                     namespace=v["namespace"] or None)
     ctrl_params = {"rig": v["rig"], "strategy": v["strategy"], "mode": v["mode"], "estimator": v["estimator"],
                    "rt_priority": rt}
     if v["steps"]:
         ctrl_params["steps"] = [float(x) for x in v["steps"].split(",") if x.strip()]
     controller = Node(package="aeropend_control", executable="controller", name="aeropend_controller",
-                      output="screen", parameters=[ctrl_params], namespace=v["namespace"] or None)
+                      output="screen", parameters=node_parameters(ctrl_params, v["params_file"]),
+                      namespace=v["namespace"] or None)
     return [plant, controller]
 
 

@@ -30,10 +30,11 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE
+from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE, PARAMS_FILE, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,
+    PARAMS_FILE,
     ("rig", "thesis_rig", "shipped rig name or path to a rig YAML file"),
     ("mode", "lockstep", "lockstep (deterministic ping-pong) | realtime"),
     ("signal", "lhs",
@@ -71,11 +72,14 @@ def _nodes(context, *args, **kwargs):
     if value["output"]:
         record_params["output"] = value["output"]
     recorder = Node(package="aeropend_ident", executable="record", name="aeropend_recorder", output="screen",
-                    parameters=[record_params], namespace=value["namespace"] or None)
+                    parameters=node_parameters(record_params, value["params_file"]),
+                    namespace=value["namespace"] or None)
     plant = Node(package="aeropend_sim", executable="sim_node", name="aeropend_sim", output="screen",
-                 parameters=[plant_params], namespace=value["namespace"] or None)
+                 parameters=node_parameters(plant_params, value["params_file"]),
+                 namespace=value["namespace"] or None)
     excitation = Node(package="aeropend_sim", executable="excitation", name="aeropend_excitation",
-                      output="screen", parameters=[signal_params], namespace=value["namespace"] or None)
+                      output="screen", parameters=node_parameters(signal_params, value["params_file"]),
+                      namespace=value["namespace"] or None)
     done = RegisterEventHandler(
         OnProcessExit(target_action=excitation,
                       on_exit=[EmitEvent(event=Shutdown(reason="excitation signal finished"))])

@@ -18,12 +18,13 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import NAMESPACE
+from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, node_parameters
 
 CONTRACT_TOPICS = ["/aeropend/duty_cycle", "/aeropend/joint_states", "/aeropend/armature"]
 
 ARGUMENTS = (
     NAMESPACE,
+    PARAMS_FILE,
     ("output", "", "bag directory to create (empty: aeropend_<date>_<time> in the working directory)"),
     ("storage", "mcap", "bag storage: mcap | sqlite3"),
     ("topics", "", "space-separated topics (empty: the contract topics)"),
@@ -53,7 +54,8 @@ def _recorder(context, *args, **kwargs):
     if value["output"]:
         params["output"] = value["output"]
     recorder = Node(package="aeropend_ident", executable="record", name="aeropend_recorder",
-                    output="screen", parameters=[params], namespace=value["namespace"] or None)
+                    output="screen", parameters=node_parameters(params, value["params_file"]),
+                    namespace=value["namespace"] or None)
     shutdown = EmitEvent(event=Shutdown(reason="recorder finished"))
     stop_with_recorder = RegisterEventHandler(OnProcessExit(target_action=recorder, on_exit=[shutdown]))
     return [recorder, stop_with_recorder]

@@ -66,6 +66,7 @@ def run_node(
     done: Callable[[N], bool] = lambda node: False,
     exit_status: Callable[[N], int] = lambda node: 0,
     period: float = 0.1,
+    start_errors: tuple[type[Exception], ...] = (),
 ) -> int:
     """Lifecycle shared by the nodes' ``main``: build, spin until stopped, clean up.
 
@@ -87,11 +88,14 @@ def run_node(
         Exit status after a normal stop.
     period : float
         Spin timeout [s] between checks of the stop conditions.
+    start_errors : tuple of exception types
+        Raised by ``make_node`` when the node cannot start for another reason than a parameter
+        (e.g. no firmware on the serial port); logged as ``cannot start: ...``, exit status 1.
 
     Returns
     -------
     int
-        Process exit status: ``exit_status(node)``, or 2 on an invalid parameter.
+        Process exit status: ``exit_status(node)``, 2 on an invalid parameter, 1 on a start error.
     """
     stop = init_with_stop_event(args)
     node: N | None = None
@@ -106,6 +110,9 @@ def run_node(
     except config_errors as exc:
         rclpy.logging.get_logger(name).error(f"invalid parameter: {exc}")
         status = 2
+    except start_errors as exc:
+        rclpy.logging.get_logger(name).error(f"cannot start: {exc}")
+        status = 1
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -5,6 +5,7 @@ Examples::
     ros2 launch aeropend_sim sim.launch.py
     ros2 launch aeropend_sim sim.launch.py rig:=thesis_sim mode:=lockstep seed:=3 noise:=true
     ros2 launch aeropend_sim sim.launch.py effects:=dead_zone=true,armature_inductance=quasi_static
+    ros2 launch aeropend_sim sim.launch.py namespace:=rig2 params_file:=my_sim.yaml
 
 Arguments mirror the node parameters (see ``aeropend_sim.sim_node``); ``effects`` is one
 comma-separated string of ``name=value`` overrides, ``noise`` empty keeps the rig's switches.
@@ -15,10 +16,11 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import NAMESPACE
+from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,
+    PARAMS_FILE,
     ("rig", "thesis_rig", "shipped rig name or path to a rig YAML file"),
     ("mode", "realtime", "realtime | lockstep"),
     ("seed", "0", "measurement-noise seed (int >= 0)"),
@@ -52,7 +54,7 @@ def _plant(context, *args, **kwargs):
             executable="sim_node",
             name="aeropend_sim",
             output="screen",
-            parameters=[params],
+            parameters=node_parameters(params, value["params_file"]),
         )
     ]
 
