@@ -5,10 +5,12 @@ from __future__ import annotations
 import json
 import os
 
+import numpy as np
 import pytest
 from ros_support import isolate_process, random_domain
+from rosbags.highlevel import AnyReader
 
-from aeropend_ident.bags import read_bag
+from aeropend_ident.bags import read_bag, typestore
 from aeropend_ident.pipeline import main
 
 pytestmark = pytest.mark.ros
@@ -33,6 +35,11 @@ def test_main_job_records_every_sample_and_reports(tmp_path, monkeypatch, namesp
     assert summary["recording"]["commands"] == len(rec) - 1  # every command too (docs/data_plane.md)
     assert rec.meta["message_counts"][f"{namespace}/aeropend/duty_cycle"] == len(rec) - 1
     assert rec.channels["theta"][0] == 0.0
+    # the plant's simulated time is in the bag too (/clock, as ros2 bag record --clock topics):
+    # its clock values are the samples' header stamps (best effort: a lagging recorder may skip some)
+    clock = _clock_ns(tmp_path / "run_bag")
+    stamps = set(np.round(rec.t * 1e9).astype(np.int64) + rec.stamp0_ns)
+    assert len(clock) > 0.5 * len(rec) and set(clock) <= stamps
     dt = rec.t[1:] - rec.t[:-1]
     assert abs(dt.max() - 2.048e-3) < 1e-9 and abs(dt.min() - 2.048e-3) < 1e-9
     assert 4 * 1.0 <= rec.t[-1] <= 4 * 1.5 + 0.01
@@ -42,3 +49,14 @@ def test_main_job_records_every_sample_and_reports(tmp_path, monkeypatch, namesp
     assert (tmp_path / "baseline" / "report.json").is_file()
     assert (tmp_path / "baseline" / "overlay.png").stat().st_size > 10_000
     assert os.path.isdir(tmp_path / "logs")
+
+
+def _clock_ns(bag) -> list[int]:
+    """The /clock values [ns] recorded in ``bag``."""
+    out = []
+    with AnyReader([bag], default_typestore=typestore()) as reader:
+        conns = [c for c in reader.connections if c.topic == "/clock"]
+        for conn, _, raw in reader.messages(connections=conns):
+            clock = reader.deserialize(raw, conn.msgtype).clock
+            out.append(clock.sec * 1_000_000_000 + clock.nanosec)
+    return out

@@ -55,7 +55,7 @@ from rosbags.interfaces import (
     QosReliability,
     QosTime,
 )
-from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.rosbag2 import StoragePlugin
 from rosbags.typesys import Stores, get_typestore
 
 from aeropend_sim.contract import (
@@ -72,6 +72,8 @@ from aeropend_sim.contract import (
     Sample,
 )
 from aeropend_sim.recording import MEASURED_CHANNELS, Recording, RecordingError
+
+from .mcap_jazzy import JazzyWriter
 
 __all__ = [
     "COMMAND_QOS",
@@ -652,7 +654,7 @@ def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_n
     else:
         raise BagError(f"unknown encoder {encoder!r}; expected 'vectorized' or 'typestore'")
     ts = typestore()
-    writer = Writer(path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
+    writer = JazzyWriter(path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
     try:
         writer.open()
         sample_qos = qos_for_topic(TOPIC_JOINT_STATES, lockstep_qos)
@@ -1054,7 +1056,7 @@ class BagSink:
             raise BagError(f"bag '{self.path}' already exists; choose another output path")
         self.storage = storage
         typestore()  # build the typestore now (~0.1 s): doing it on the first message would drop samples
-        self._writer = Writer(self.path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
+        self._writer = JazzyWriter(self.path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
         try:
             self._writer.open()
         except Exception as exc:

@@ -119,7 +119,9 @@ def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: li
     logs = out / "logs"
     remap = ["-r", f"__ns:=/{namespace.strip('/')}"] if namespace.strip("/") else []
     ros = ["--ros-args", *remap, "-p"]
-    reliable = ["--reliable"] if mode == "lockstep" else []  # lock-step samples are published reliably
+    # lock-step samples are published reliably; the plant's simulated time (/clock, which the header
+    # stamps follow) goes into the bag beside the wall-clock log times, as ros2 bag record does
+    reliable = ["--reliable", "--clock"] if mode == "lockstep" else []
     recorder = Stage("record", [*_exe("record"), "-o", str(bag), *reliable, *(["--ros-args", *remap] if remap
                                                                               else [])], logs / "record.log")
     # lock-step: sample 0 (and so the run) waits until both sample consumers are matched
