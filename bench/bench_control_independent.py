@@ -53,8 +53,8 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_gap_independent import rig_dict  # noqa: E402
-from truth_plant import CHANNELS, DT, GEAR, PlantParams, TruthPlant, TruthStepper, aprbs, lhs_steps, record  # noqa: E402
+from bench_gap_independent import rig_dict
+from truth_plant import CHANNELS, DT, GEAR, PlantParams, TruthPlant, TruthStepper, aprbs, lhs_steps, record
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STRATEGIES = ("small_signal", "fl_pid", "cascade", "fl_cascade")
@@ -350,7 +350,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         if d not in s:
             continue
         x = s[d]
-        lines.append(f"| {d} rig | {x['runs']} | {_pct(x['started'])} | {x['clamped']} | {x['within_reach']} | "
+        lines.append(f"| {d} rig | {x['runs']} | {_pct(x['started'])} | {x['clamped']} | "
+                     f"{x['within_reach']} | "
                      f"{_pct(x['table_6_1'])} | {_pct(x['no_limit_cycle'])} | {_pct(x['goal'])} | "
                      f"{_num(x['median_ts'])} | {_num(x['p90_ts'])} | {_num(x['median_mp'], '.2f')} |")
     for d in ("nominal", "gap"):
@@ -360,7 +361,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
                   "| strategy | runs | Table 6.1 | no limit cycle | goal | median ts [s] | median Mp [%] |",
                   "|---|---|---|---|---|---|---|"]
         for st, v in s[d]["per_strategy"].items():
-            lines.append(f"| {st} | {v['within_reach']} | {_pct(v['table_6_1'])} | {_pct(v['no_limit_cycle'])} | "
+            lines.append(f"| {st} | {v['within_reach']} | {_pct(v['table_6_1'])} | "
+                         f"{_pct(v['no_limit_cycle'])} | "
                          f"{_pct(v['goal'])} | {_num(v['median_ts'])} | {_num(v['median_mp'], '.2f')} |")
     if "paired" in s:
         p = s["paired"]
@@ -381,7 +383,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         for r in pl["runs"]:
             if r["within_reach"] and (not r["t61"] or r["limit_cycle"]):
                 lines.append(f"| {pl['index']} | {r['design']} | {r['strategy']} | {r['reference']} | "
-                             f"{_num(r['rise_time'])} | {_num(r['peak_time'])} | {_num(r['settling_time'])} | "
+                             f"{_num(r['rise_time'])} | {_num(r['peak_time'])} | "
+                             f"{_num(r['settling_time'])} | "
                              f"{_num(r['overshoot'], '.1f')} | {r['limit_cycle']} | {eff} |")
     refused = [f"plant {pl['index']} {r['design']} {r['strategy']}: {r['error']}" for pl in doc["plants"]
                for r in pl["runs"] if not r["started"]]

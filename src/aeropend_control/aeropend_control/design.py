@@ -302,11 +302,13 @@ def main(argv: list[str] | None = None) -> int:
         rig = load_rig(args.rig)
         spec = PoleSpec(args.omega_n, args.zeta, args.rho)
         fl = design_fl(rig, spec)
-        sched = schedule(rig, DEFAULT_GRID, spec)
+        reach = reachable_angle(rig)
+        sched = schedule(rig, list(reachable_grid(rig, DEFAULT_GRID)), spec)
     except (ValueError, OSError) as exc:
         print(f"design_gains: {exc}", file=sys.stderr)
         return 2
-    print(f"rig {rig.name}: poles {np.round(spec.poles(), 3).tolist()} rad/s")
+    print(f"rig {rig.name}: poles {np.round(spec.poles(), 3).tolist()} rad/s; reach {reach:.4g} rad "
+          f"(set points held with {REACH_DUTY_MARGIN:.0%} duty headroom; the schedule stops there)")
     print("strategy          θ0     kp        ki        kd        tr[s]  tp[s]  ts[s]  Mp[%]  Table 6.1")
     rows = [("fl_pid", fl)] + [("small_signal", d) for d in sched]
     for name, d in rows:
@@ -315,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{p.peak_time:6.3f} {p.settling_time:6.3f} {p.overshoot:6.2f}  "
               f"{'ok' if p.meets(TABLE_6_1) else 'FAIL'}")
     if args.output:
-        doc = {"rig": rig.name, "pole_spec": asdict(spec), "fl_pid": _row(fl),
+        doc = {"rig": rig.name, "pole_spec": asdict(spec), "reach_rad": reach, "fl_pid": _row(fl),
                "small_signal": [_row(d) for d in sched]}
         with open(args.output, "w", encoding="utf-8") as fh:
             yaml.safe_dump(doc, fh, sort_keys=False)
