@@ -361,6 +361,13 @@ class CascadeDesign:
     predicted: StepMetrics
 
 
+#: Phase margin [deg] the speed loop keeps against a drive lag + delay the rig file declares
+#: (T = T_a + T_d treated as one first-order lag: atan(ω_s·T) ≤ 90° − margin).
+LAG_PHASE_MARGIN_DEG = 35.0
+#: Current-loop bandwidth as a multiple of the speed loop's when a drive lag limits the latter.
+LAG_CURRENT_RATIO = 2.5
+
+
 def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 120.0,
                    theta_op: float = 0.4, i_max: float = 2.0) -> CascadeDesign:
     """PI gains of the speed and current loops by pole-zero cancellation (IMC / technical optimum).
@@ -374,7 +381,11 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
     5 ms delay (ω_c = 200 rad/s, ω_s = 60 rad/s, the sample-rate limit ω_c·T_s ≈ 0.4, is faster
     on the nominal rig but the current loop then limit-cycles under that lag + delay; below
     ω_s ≈ 30 rad/s the speed loop is too slow for the 9 rad/s position loop and the step
-    overshoots; sweep in docs/control.md). The predicted metrics
+    overshoots; sweep in docs/control.md). A rig file that declares a drive lag T_a and/or
+    delay T_d (``effects.actuator_lag`` / ``input_delay``, e.g. the ``corrected_rig.yaml`` of
+    ``gap``) limits ω_s ≤ tan(90° − :data:`LAG_PHASE_MARGIN_DEG`)/(T_a + T_d) and
+    ω_c ≤ :data:`LAG_CURRENT_RATIO`·ω_s (issue 19: at ω_s = 45 rad/s an unmodelled 40-60 ms lag
+    makes the loops limit-cycle, at 30 rad/s not). The predicted metrics
     are those of the full linear cascade including the back-EMF coupling.
 
     Raises
@@ -386,7 +397,11 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
         if not (math.isfinite(val) and val > 0.0):
             raise DesignError(f"cascade {name} = {val!r} must be finite and > 0")
     m = PlantModel(rig)
-    x_eq, _ = m.equilibrium(theta_op)
+    lag = (m.T_a if m.lag else 0.0) + m.delay
+    if lag > 0.0:  # the rig file knows a drive lag/delay: keep the speed loop's phase margin
+        omega_speed = min(omega_speed, math.tan(math.radians(90.0 - LAG_PHASE_MARGIN_DEG)) / lag)
+        omega_current = min(omega_current, LAG_CURRENT_RATIO * omega_speed)
+    x_eq, _ = m.equilibrium(min(theta_op, reachable_angle(rig)))
     w0 = float(x_eq[OMEGA])
     b_eff = m.B_m + 2.0 * m.K_d * w0
     kp_i, ki_i = m.L * omega_current, m.R * omega_current

@@ -104,6 +104,10 @@ def kalman_gain(a_c: float, dt: float, spec: ObserverSpec) -> tuple[np.ndarray, 
     return Ad, Bd, M
 
 
+#: The predictor keeps the armature current as a state when L_a/R_a exceeds this many samples.
+DYNAMIC_CURRENT_SAMPLES = 5.0
+
+
 class ThrustPredictor:
     """Rotor speed ω̂₁ and mean thrust over a sample period from the applied duty (see module doc).
 
@@ -112,9 +116,10 @@ class ThrustPredictor:
     voltage map (:meth:`PlantModel.armature_voltage`), the armature current — a state when the
     rig's inductance is ``dynamic`` (L_a·di/dt = v_a − R_a·i − K_ω·ω₁), else quasi-static — and
     the rotor J_m·ω̇₁ = K_t·i − B_m·ω₁ − K_d·ω₁|ω₁|; RK4 over one period, the thrust averaged by
-    Simpson's rule on the stages. A rig that knows its lag, delay or inductance thus predicts the
-    thrust the plant really produces, and the disturbance estimate is left with what the rig
-    file does not know.
+    Simpson's rule on the stages (a current faster than :data:`DYNAMIC_CURRENT_SAMPLES` samples
+    is quasi-static: thesis_rig's 2 ms, not thesis_sim's 115 ms). A rig that knows its lag, delay
+    or inductance thus predicts the thrust the plant really produces, and the disturbance estimate
+    is left with what the rig file does not know.
 
     Parameters
     ----------
@@ -128,6 +133,9 @@ class ThrustPredictor:
         self.m = model
         self.dt = dt
         self.n_delay = round(model.delay / dt) if model.delay > 0.0 else 0
+        #: Armature current as a state only when its time constant L_a/R_a spans several samples;
+        #: a faster one is quasi-static (one RK4 step per sample would misstate it anyway).
+        self.dynamic = model.dynamic_current and model.L / model.R > DYNAMIC_CURRENT_SAMPLES * dt
         self.reset()
 
     def reset(self) -> None:
@@ -141,7 +149,7 @@ class ThrustPredictor:
         """(dω/dt, di/dt, dτ_f/dt) at rotor speed w, current i, lagged duty tf, commanded duty τ."""
         m = self.m
         v_a = m.armature_voltage(min(max(tf if m.lag else tau, 0.0), 1.0))
-        if m.dynamic_current:
+        if self.dynamic:
             di = (v_a - m.R * i - m.K_w * w) / m.L
         else:
             i, di = (v_a - m.K_w * w) / m.R, 0.0
