@@ -274,6 +274,14 @@ def _med(xs: list[float]) -> float | None:
     return float(np.median(xs)) if xs else None
 
 
+def _late_peak_only(r: dict[str, Any]) -> bool:
+    """Table 6.1 missed only by tp > 0.9 s where the maximum is a late drift inside the 2 % band
+    (Mp < 2 %, settled within 1 s, no limit cycle): python-control's peak time is the instant of
+    the largest value, not of a first overshoot peak."""
+    return (not r["t61"] and r["rise_time"] <= TABLE_6_1["rise_time"] and r["overshoot"] < 2.0
+            and r["settling_time"] <= 1.0 and not r["limit_cycle"])
+
+
 def summarise(plants: list[dict[str, Any]]) -> dict[str, Any]:
     runs = [r for p in plants for r in p["runs"]]
     out: dict[str, Any] = {"plants": len(plants), "runs": len(runs)}
@@ -290,8 +298,11 @@ def summarise(plants: list[dict[str, Any]]) -> dict[str, Any]:
                       "goal": _frac([r["goal"] and not r["limit_cycle"] for r in w]),
                       "median_ts": _med([r["settling_time"] for r in w]),
                       "median_mp": _med([r["overshoot"] for r in w])}
+        late = [r for r in within if _late_peak_only(r)]
         out[design] = {
             "runs": len(rs), "started": _frac([r["started"] for r in rs]),
+            "late_peak_only": len(late),
+            "table_6_1_or_late_peak": _frac([r["t61"] or _late_peak_only(r) for r in within]),
             "clamped": sum(bool(r.get("clamped")) for r in rs), "within_reach": len(within),
             "table_6_1": _frac([r["t61"] for r in within]),
             "no_limit_cycle": _frac([not r["limit_cycle"] for r in within]),
@@ -354,6 +365,14 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
                      f"{x['within_reach']} | "
                      f"{_pct(x['table_6_1'])} | {_pct(x['no_limit_cycle'])} | {_pct(x['goal'])} | "
                      f"{_num(x['median_ts'])} | {_num(x['p90_ts'])} | {_num(x['median_mp'], '.2f')} |")
+    lines.append("")
+    for d in ("nominal", "gap"):
+        if d in s:
+            x = s[d]
+            lines.append(f"Designed on the {d} rig: {x['late_peak_only']} within-reach runs miss Table 6.1 "
+                         "only by a peak time > 0.9 s that is a late maximum inside the 2 % band (Mp < 2 %, "
+                         f"ts ≤ 1 s, no limit cycle); counting those as met: "
+                         f"{_pct(x['table_6_1_or_late_peak'])}.")
     for d in ("nominal", "gap"):
         if d not in s:
             continue
@@ -402,10 +421,26 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", default=str(RESULTS / "control_independent"))
     ap.add_argument("--render", action="store_true", help="only re-write the .md from the .json")
+    ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
+                    help="combine the plants of these result files (run separately) into --out")
     args = ap.parse_args(argv)
     out = Path(args.out)
+    if args.merge:
+        docs = [json.loads(Path(f).read_text(encoding="utf-8")) for f in args.merge]
+        plants = sorted((p for d in docs for p in d["plants"]), key=lambda p: p["index"])
+        meta = {**docs[0]["meta"], "merged_from": [{"file": f, **d["meta"]} for f, d in zip(args.merge, docs,
+                                                                                          strict=True)],
+                "wall_s": sum(d["meta"]["wall_s"] for d in docs),
+                "workers": sum(d["meta"]["workers"] for d in docs)}
+        doc = {"summary": summarise(plants), "meta": meta, "plants": plants}
+        out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float), encoding="utf-8")
+        write_md(out.with_suffix(".md"), doc)
+        return 0
     if args.render:
-        write_md(out.with_suffix(".md"), json.loads(out.with_suffix(".json").read_text(encoding="utf-8")))
+        doc = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))
+        doc["summary"] = summarise(doc["plants"])
+        out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float), encoding="utf-8")
+        write_md(out.with_suffix(".md"), doc)
         return 0
     n_gap = args.plants if args.gap < 0 else args.gap
     jobs = [{"index": i, "gap": k < n_gap} for k, i in enumerate(range(args.first, args.first + args.plants))]
