@@ -99,7 +99,7 @@ def test_design_gains_schedules_a_weak_rig_up_to_its_reach(tmp_path, capsys):
     assert "reach" in capsys.readouterr().out
 
 
-def _lag_rig(tmp_path: Path, lag: float | None) -> str:
+def _lag_rig(tmp_path: Path, lag: float | None, delay: float = 0.0) -> str:
     """The thesis_sim rig with an ideal drive (the truth plant's nominal), optionally declaring a
     drive lag as gap's corrected rig does."""
     doc = yaml.safe_load((RIGS / "thesis_sim.yaml").read_text(encoding="utf-8"))
@@ -108,6 +108,9 @@ def _lag_rig(tmp_path: Path, lag: float | None) -> str:
     if lag is not None:
         doc["effects"]["actuator_lag"] = True
         doc["actuator"]["lag_time_constant"]["value"] = lag
+    if delay:
+        doc["effects"]["input_delay"] = True
+        doc["actuator"]["input_delay"]["value"] = delay
     path = tmp_path / f"rig_{lag}.yaml"
     path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
     return str(path)
@@ -125,19 +128,21 @@ def _step_on_truth(rig: str, strategy: str, plant: tp.TruthPlant, r: float = 0.2
 
 
 def test_a_rig_file_that_knows_the_drive_lag_gives_a_better_controller(tmp_path):
-    """Truth plant with a 50 ms drive lag: FL designed on a rig file that declares it (thrust loop
-    on the predicted thrust) overshoots less; the cascade designed on it (bandwidths limited by the
-    lag) does not limit-cycle, the one designed on the nominal rig does."""
+    """Truth plant with a 50 ms drive lag, 2 samples delay, dead zone 0.04 and rod Coulomb friction
+    1 rad/s²: FL designed on a rig file that declares it (thrust loop
+    on the predicted thrust) overshoots less; the cascade designed on a rig file that declares the
+    lag and delay (bandwidths limited by them) does not limit-cycle, the one designed on the nominal rig does."""
     from aeropend_control.design import design_cascade
     from aeropend_control.strategies import THRUST_LOOP_GAIN, default_thrust_gain
     from aeropend_sim.params import load_rig
 
-    plant = tp.TruthPlant(effects={"actuator_lag": 0.05})
-    nominal, known = _lag_rig(tmp_path, None), _lag_rig(tmp_path, 0.05)
+    plant = tp.TruthPlant(effects={"actuator_lag": 0.05, "input_delay": 2 * tp.DT, "dead_zone": 0.04,
+                                   "coulomb_friction": 1.0})
+    nominal, known = _lag_rig(tmp_path, None), _lag_rig(tmp_path, 0.05, 2 * tp.DT)
     assert default_thrust_gain(load_rig(nominal)) == 0.0
     assert default_thrust_gain(load_rig(known)) == THRUST_LOOP_GAIN
     d = design_cascade(load_rig(known))
-    assert d.omega_speed == pytest.approx(math.tan(math.radians(55.0)) / 0.05)  # 28.6 rad/s < 45
+    assert d.omega_speed == pytest.approx(math.tan(math.radians(55.0)) / (0.05 + 2 * tp.DT))  # 26.4 < 45
     assert d.omega_current == pytest.approx(2.5 * d.omega_speed)
 
     def overshoot(th: np.ndarray) -> float:

@@ -104,22 +104,17 @@ def kalman_gain(a_c: float, dt: float, spec: ObserverSpec) -> tuple[np.ndarray, 
     return Ad, Bd, M
 
 
-#: The predictor keeps the armature current as a state when L_a/R_a exceeds this many samples.
-DYNAMIC_CURRENT_SAMPLES = 5.0
-
-
 class ThrustPredictor:
     """Rotor speed ω̂₁ and mean thrust over a sample period from the applied duty (see module doc).
 
-    The motor chain of the rig file, sample by sample: the input delay (a FIFO of whole samples,
+    The drive chain of the rig file, sample by sample: the input delay (a FIFO of whole samples,
     when the rig enables it), the first-order actuator lag (when enabled), the dead zone and
-    voltage map (:meth:`PlantModel.armature_voltage`), the armature current — a state when the
-    rig's inductance is ``dynamic`` (L_a·di/dt = v_a − R_a·i − K_ω·ω₁), else quasi-static — and
-    the rotor J_m·ω̇₁ = K_t·i − B_m·ω₁ − K_d·ω₁|ω₁|; RK4 over one period, the thrust averaged by
-    Simpson's rule on the stages (a current faster than :data:`DYNAMIC_CURRENT_SAMPLES` samples
-    is quasi-static: thesis_rig's 2 ms, not thesis_sim's 115 ms). A rig that knows its lag, delay
-    or inductance thus predicts the thrust the plant really produces, and the disturbance estimate
-    is left with what the rig file does not know.
+    voltage map (:meth:`PlantModel.armature_voltage`), the armature current quasi-static
+    (i = (v_a − K_ω·ω₁)/R_a) and the rotor J_m·ω̇₁ = K_t·i − B_m·ω₁ − K_d·ω₁|ω₁|; RK4 over one
+    period, the thrust averaged by Simpson's rule on the stages. A rig that knows its lag or delay
+    thus predicts the thrust the plant really produces. (The armature current as a state, for
+    thesis_sim's L_a/R_a = 115 ms, was tried: on the independent benchmark the cascades then
+    limit-cycled in 24 instead of 18 of 48 runs, FL/small-signal unchanged; docs/control.md.)
 
     Parameters
     ----------
@@ -133,29 +128,21 @@ class ThrustPredictor:
         self.m = model
         self.dt = dt
         self.n_delay = round(model.delay / dt) if model.delay > 0.0 else 0
-        #: Armature current as a state only when its time constant L_a/R_a spans several samples;
-        #: a faster one is quasi-static (one RK4 step per sample would misstate it anyway).
-        self.dynamic = model.dynamic_current and model.L / model.R > DYNAMIC_CURRENT_SAMPLES * dt
         self.reset()
 
     def reset(self) -> None:
         """Motor at rest, delay line empty (zeros)."""
         self.omega = 0.0
-        self.i_a = 0.0
         self.tau_f = 0.0
         self._fifo = [0.0] * self.n_delay
 
-    def _deriv(self, w: float, i: float, tf: float, tau: float) -> tuple[float, float, float]:
-        """(dω/dt, di/dt, dτ_f/dt) at rotor speed w, current i, lagged duty tf, commanded duty τ."""
+    def _deriv(self, w: float, tf: float, tau: float) -> tuple[float, float]:
+        """(dω/dt, dτ_f/dt) at rotor speed w, lagged duty tf and commanded duty τ."""
         m = self.m
         v_a = m.armature_voltage(min(max(tf if m.lag else tau, 0.0), 1.0))
-        if self.dynamic:
-            di = (v_a - m.R * i - m.K_w * w) / m.L
-        else:
-            i, di = (v_a - m.K_w * w) / m.R, 0.0
+        i = (v_a - m.K_w * w) / m.R
         dw = (m.K_t * i - m.B_m * w - m.K_d * w * abs(w)) / m.J_m
-        dtf = (tau - tf) / m.T_a if m.lag else 0.0
-        return dw, di, dtf
+        return dw, ((tau - tf) / m.T_a if m.lag else 0.0)
 
     def advance(self, duty: float) -> float:
         """Integrate the motor over one period at duty τ (after the delay line); return the mean
@@ -165,15 +152,14 @@ class ThrustPredictor:
         if self._fifo:
             self._fifo.append(tau)
             tau = self._fifo.pop(0)
-        w, i, tf = self.omega, self.i_a, self.tau_f
-        d1 = self._deriv(w, i, tf, tau)
-        d2 = self._deriv(w + 0.5 * h * d1[0], i + 0.5 * h * d1[1], tf + 0.5 * h * d1[2], tau)
-        d3 = self._deriv(w + 0.5 * h * d2[0], i + 0.5 * h * d2[1], tf + 0.5 * h * d2[2], tau)
-        d4 = self._deriv(w + h * d3[0], i + h * d3[1], tf + h * d3[2], tau)
+        w, tf = self.omega, self.tau_f
+        d1 = self._deriv(w, tf, tau)
+        d2 = self._deriv(w + 0.5 * h * d1[0], tf + 0.5 * h * d1[1], tau)
+        d3 = self._deriv(w + 0.5 * h * d2[0], tf + 0.5 * h * d2[1], tau)
+        d4 = self._deriv(w + h * d3[0], tf + h * d3[1], tau)
         w_mid = max(w + 0.5 * h * d2[0], 0.0)
         self.omega = max(w + h * (d1[0] + 2.0 * d2[0] + 2.0 * d3[0] + d4[0]) / 6.0, 0.0)
-        self.i_a = i + h * (d1[1] + 2.0 * d2[1] + 2.0 * d3[1] + d4[1]) / 6.0
-        self.tau_f = tf + h * (d1[2] + 2.0 * d2[2] + 2.0 * d3[2] + d4[2]) / 6.0
+        self.tau_f = tf + h * (d1[1] + 2.0 * d2[1] + 2.0 * d3[1] + d4[1]) / 6.0
         return (m.thrust(w) + 4.0 * m.thrust(w_mid) + m.thrust(self.omega)) / 6.0
 
 
