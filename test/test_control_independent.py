@@ -131,7 +131,8 @@ def test_a_rig_file_that_knows_the_drive_lag_gives_a_better_controller(tmp_path)
     """Truth plant with a 50 ms drive lag, 2 samples delay, dead zone 0.04 and rod Coulomb friction
     1 rad/s²: FL designed on a rig file that declares it (thrust loop
     on the predicted thrust) overshoots less; the cascade designed on a rig file that declares the
-    lag and delay (bandwidths limited by them) does not limit-cycle, the one designed on the nominal rig does."""
+    lag and delay (bandwidths limited by them) does not limit-cycle, the one designed on the
+    nominal rig does."""
     from aeropend_control.design import design_cascade
     from aeropend_control.strategies import THRUST_LOOP_GAIN, default_thrust_gain
     from aeropend_sim.params import load_rig
@@ -154,3 +155,31 @@ def test_a_rig_file_that_knows_the_drive_lag_gives_a_better_controller(tmp_path)
     cas_nom, cas_known = (_step_on_truth(rig, "cascade", plant) for rig in (nominal, known))
     assert np.ptp(cas_nom[tail]) > 0.005  # sustained oscillation (7 mrad peak to peak measured)
     assert np.ptp(cas_known[tail]) < 0.002 and abs(cas_known[tail].mean() - 0.2) < 0.004
+
+
+GAP_RIG = Path(__file__).resolve().parent / "data" / "gap_corrected_rig.yaml"
+
+
+def test_design_gains_and_every_strategy_take_the_rig_file_gap_wrote(tmp_path, capsys):
+    """``corrected_rig.yaml`` as ``gap`` wrote it for plant 1 of the independent closed-loop
+    benchmark (``corrected_rig_dict`` of ``run_gap`` on a 40 s APRBS recording; effects added:
+    actuator lag, thrust coefficient, dead zone): design_gains designs on it, the four strategies
+    start on it through the node's settings, the declared lag switches on the thrust loop and limits
+    the cascade's speed loop, and the loop holds the nominal rig's simulator at a set point."""
+    from aeropend_control.design import main
+    from aeropend_control.strategies import THRUST_LOOP_GAIN
+    from aeropend_sim.params import load_rig
+
+    rig = load_rig(GAP_RIG)
+    assert rig.effects.actuator_lag and rig.actuator.lag_time_constant > 0.0
+    assert main(["--rig", str(GAP_RIG), "-o", str(tmp_path / "gains.yaml")]) == 0
+    assert "reach" in capsys.readouterr().out
+    for name in ("small_signal", "fl_pid", "cascade", "fl_cascade"):
+        loop = ControllerLoop(make_settings(rig=str(GAP_RIG), strategy=name, mode="lockstep", reference=0.3))
+        outer = getattr(loop.strategy, "outer", loop.strategy)
+        assert outer.thrust_gain == THRUST_LOOP_GAIN
+        if name in ("cascade", "fl_cascade"):
+            assert loop.strategy.inner.design.omega_speed < 45.0
+    plant = tp.TruthPlant()  # the nominal plant: a corrected rig must still hold it
+    theta = _step_on_truth(str(GAP_RIG), "fl_pid", plant, r=0.3, n=1500)
+    assert abs(theta[-250:].mean() - 0.3) < 0.006
