@@ -136,6 +136,82 @@ class TruthError(ValueError):
     """An unknown effect or an impossible magnitude for the truth plant."""
 
 
+
+def _recorded_angle(theta: Any, t: Any, e: Mapping[str, float]) -> Any:
+    """The angle sensor's reading of the true θ at time t (sensor scale, offset, drift)."""
+    if "sensor_scale" in e:
+        theta = e["sensor_scale"] * theta
+    if "sensor_offset" in e:
+        theta = theta + e["sensor_offset"]
+    if "offset_drift" in e:
+        theta = theta + e["offset_drift"] * t
+    return theta
+
+
+class _Dynamics:
+    """Drive map and right-hand side of the truth plant for given parameters and effects.
+
+    State s = [θ, θ̇, i_a, ω₁, v_a] (v_a is the lagged drive output; unused without lag).
+    """
+
+    def __init__(self, p: PlantParams, e: Mapping[str, float]) -> None:
+        self.p = p
+        self.dz = e.get("dead_zone", 0.0)
+        self.v_d = e.get("hbridge_drop", 0.0)
+        self.t_lag = e.get("actuator_lag", 0.0)
+        self.alpha = e.get("thrust_law", 2.0)
+        self.k_drag = e.get("propeller_drag", 0.0)
+        self.coul = e.get("coulomb_friction", 0.0)
+        self.stick = e.get("stiction", 0.0)
+        self.kappa = e.get("angle_thrust_loss", 0.0)
+        self.k_air = e.get("rod_air_drag", 0.0)
+        self.th_max = e.get("end_stops", math.inf)
+
+    def drive(self, tau: float) -> float:
+        """Drive output v_a,cmd [V] for the duty τ reaching the drive."""
+        if self.dz > 0.0:
+            tau = max(0.0, tau - self.dz) / (1.0 - self.dz)
+        return max(0.0, self.p.v_supply * tau - self.v_d)
+
+    def rhs(self, s: list[float], v_cmd: float) -> list[float]:
+        """ds/dt [rad/s, rad/s², A/s, rad/s², V/s] at state s under drive command v_cmd [V]."""
+        p, t_lag, kappa = self.p, self.t_lag, self.kappa
+        th, thd, i, w, v = s
+        v_a = v if t_lag > 0.0 else v_cmd
+        di = (v_a - p.R_a * i - p.K_omega * w) / p.L_a
+        dw = (p.K_t * i - p.B_m * w - self.k_drag * w * abs(w)) / p.J_m
+        f = p.K_q * GEAR**2 * abs(w) ** self.alpha * (1.0 if w >= 0.0 else -1.0)
+        if kappa:
+            f *= 1.0 - kappa * math.sin(th) ** 2
+        dthd = -p.mgd_over_J * math.sin(th) - p.c_over_J * thd + p.L_over_J * f
+        if self.coul or self.stick:
+            level = self.coul + self.stick * math.exp(-((thd / STRIBECK_VELOCITY) ** 2))
+            dthd -= level * math.tanh(thd / COULOMB_VELOCITY)
+        if self.k_air:
+            dthd -= self.k_air * thd * abs(thd)
+        dv = (v_cmd - v) / t_lag if t_lag > 0.0 else 0.0
+        return [thd, dthd, di, dw, dv]
+
+    def advance(self, s: list[float], v_cmd: float, h: float, substeps: int) -> list[float]:
+        """``substeps`` classical RK4 steps of length h [s] with v_cmd held (end stop applied)."""
+        rhs, th_max = self.rhs, self.th_max
+        for _ in range(substeps):
+            k1 = rhs(s, v_cmd)
+            s2 = [a + 0.5 * h * b for a, b in zip(s, k1, strict=True)]
+            k2 = rhs(s2, v_cmd)
+            s3 = [a + 0.5 * h * b for a, b in zip(s, k2, strict=True)]
+            k3 = rhs(s3, v_cmd)
+            s4 = [a + h * b for a, b in zip(s, k3, strict=True)]
+            k4 = rhs(s4, v_cmd)
+            s = [a + h / 6.0 * (b + 2.0 * c + 2.0 * d + g)
+                 for a, b, c, d, g in zip(s, k1, k2, k3, k4, strict=True)]
+            if s[0] > th_max:  # hard stop: the rod is put back on the stop and rebounds
+                s[0] = th_max
+                if s[1] > 0.0:
+                    s[1] = -RESTITUTION * s[1]
+        return s
+
+
 @dataclass
 class TruthPlant:
     """The hidden plant: nominal parameters plus effects ``{name: magnitude}``.
@@ -198,69 +274,18 @@ class TruthPlant:
         n = duty.size
         d_samples = round(e.get("input_delay", 0.0) / dt)
         delayed = np.concatenate([np.zeros(d_samples), duty])[:n] if d_samples else duty
-        v_d = e.get("hbridge_drop", 0.0)
-        dz = e.get("dead_zone", 0.0)
-        t_lag = e.get("actuator_lag", 0.0)
-        alpha = e.get("thrust_law", 2.0)
-        k_drag = e.get("propeller_drag", 0.0)
-        coul = e.get("coulomb_friction", 0.0)
-        stick = e.get("stiction", 0.0)
-        kappa = e.get("angle_thrust_loss", 0.0)
-        k_air = e.get("rod_air_drag", 0.0)
-        th_max = e.get("end_stops", math.inf)
-
-        def drive(tau: float) -> float:
-            if dz > 0.0:
-                tau = max(0.0, tau - dz) / (1.0 - dz)
-            return max(0.0, p.v_supply * tau - v_d)
-
-        def rhs(s: list[float], v_cmd: float) -> list[float]:
-            th, thd, i, w, v = s
-            v_a = v if t_lag > 0.0 else v_cmd
-            di = (v_a - p.R_a * i - p.K_omega * w) / p.L_a
-            dw = (p.K_t * i - p.B_m * w - k_drag * w * abs(w)) / p.J_m
-            f = p.K_q * GEAR**2 * abs(w) ** alpha * (1.0 if w >= 0.0 else -1.0)
-            if kappa:
-                f *= 1.0 - kappa * math.sin(th) ** 2
-            dthd = -p.mgd_over_J * math.sin(th) - p.c_over_J * thd + p.L_over_J * f
-            if coul or stick:
-                level = coul + stick * math.exp(-((thd / STRIBECK_VELOCITY) ** 2))
-                dthd -= level * math.tanh(thd / COULOMB_VELOCITY)
-            if k_air:
-                dthd -= k_air * thd * abs(thd)
-            dv = (v_cmd - v) / t_lag if t_lag > 0.0 else 0.0
-            return [thd, dthd, di, dw, dv]
-
+        dyn = _Dynamics(p, e)
         h = dt / substeps
         s = [0.0, 0.0, 0.0, 0.0, 0.0]
         out = np.empty((n, 5))
         v_out = np.empty(n)
         for k in range(n):
-            v_cmd = drive(float(delayed[k]))
+            v_cmd = dyn.drive(float(delayed[k]))
             out[k] = s
-            v_out[k] = s[4] if t_lag > 0.0 else v_cmd
-            for _ in range(substeps):
-                k1 = rhs(s, v_cmd)
-                s2 = [a + 0.5 * h * b for a, b in zip(s, k1, strict=True)]
-                k2 = rhs(s2, v_cmd)
-                s3 = [a + 0.5 * h * b for a, b in zip(s, k2, strict=True)]
-                k3 = rhs(s3, v_cmd)
-                s4 = [a + h * b for a, b in zip(s, k3, strict=True)]
-                k4 = rhs(s4, v_cmd)
-                s = [a + h / 6.0 * (b + 2.0 * c + 2.0 * d + g)
-                     for a, b, c, d, g in zip(s, k1, k2, k3, k4, strict=True)]
-                if s[0] > th_max:  # hard stop: the rod is put back on the stop and rebounds
-                    s[0] = th_max
-                    if s[1] > 0.0:
-                        s[1] = -RESTITUTION * s[1]
+            v_out[k] = s[4] if dyn.t_lag > 0.0 else v_cmd
+            s = dyn.advance(s, v_cmd, h, substeps)
         t = np.arange(n) * dt
-        theta_rec = out[:, 0].copy()
-        if "sensor_scale" in e:
-            theta_rec = e["sensor_scale"] * theta_rec
-        if "sensor_offset" in e:
-            theta_rec = theta_rec + e["sensor_offset"]
-        if "offset_drift" in e:
-            theta_rec = theta_rec + e["offset_drift"] * t
+        theta_rec = _recorded_angle(out[:, 0].copy(), t, e)
         return {"t": t, "duty": duty, "theta": out[:, 0], "theta_dot": out[:, 1], "i_a": out[:, 2],
                 "omega_rotor": out[:, 3], "v_a": v_out, "theta_recorded": theta_rec}
 
@@ -346,3 +371,91 @@ def record(plant: TruthPlant, duty: np.ndarray, snr_db: float, seed: int,
     meas = add_noise(true, snr_db, seed, channels)
     return TruthRecording(t=true["t"], duty=true["duty"], channels=meas, true=true,
                           meta={"snr_db": snr_db, "effects": dict(plant.effects)})
+
+
+# ------------------------------------------------------------------------------ sample by sample
+class TruthStepper:
+    """The truth plant stepped one sample at a time, for closed loops (a controller in between).
+
+    Same equations, drive map, integration (``substeps`` RK4 steps per sample with the duty held)
+    and effects as :meth:`TruthPlant.simulate`: a duty sequence fed through :meth:`step` gives the
+    same states, bit for bit. The transport delay is a FIFO of whole samples (zeros first).
+
+    Parameters
+    ----------
+    plant : TruthPlant
+    sigma : mapping, optional
+        Noise std per measured channel (``theta`` [rad], ``i_a`` [A], ``v_a`` [V],
+        ``omega_rotor`` [rad/s]); channels not given are noise-free. Closed-loop runs have no
+        recording to take an RMS from, so the caller states σ (e.g. RMS of a typical run /
+        10^(SNR/20)).
+    seed : int
+        Seed of the noise generator.
+    dt : float
+        Sample period [s].
+    substeps : int
+        RK4 steps per sample.
+
+    Attributes
+    ----------
+    k : int
+        Index of the current sample.
+    state : list of float
+        True [θ, θ̇, i_a, ω₁, v_a] at the current sample.
+    """
+
+    def __init__(self, plant: TruthPlant, sigma: Mapping[str, float] | None = None, seed: int = 0,
+                 dt: float = DT, substeps: int = SUBSTEPS) -> None:
+        self.plant = plant
+        self.effects = dict(plant.effects)
+        self.dyn = _Dynamics(plant.physical(), self.effects)
+        self.dt, self.substeps, self.h = dt, substeps, dt / substeps
+        self.sigma = {c: float(v) for c, v in (sigma or {}).items()}
+        bad = set(self.sigma) - set(CHANNELS)
+        if bad or any(not (math.isfinite(v) and v >= 0.0) for v in self.sigma.values()):
+            raise TruthError(f"noise sigma {sigma!r}: channels must be among {CHANNELS}, values finite >= 0")
+        self.rng = np.random.default_rng(seed)
+        self.fifo = [0.0] * round(self.effects.get("input_delay", 0.0) / dt)
+        self.k = 0
+        self.state = [0.0, 0.0, 0.0, 0.0, 0.0]
+        self._v_cmd = self.dyn.drive(0.0)
+
+    @property
+    def t(self) -> float:
+        """Time of the current sample [s]."""
+        return self.k * self.dt
+
+    def true(self) -> dict[str, float]:
+        """True values at the current sample: θ, θ̇, i_a, ω₁ and v_a (the drive output)."""
+        th, thd, i, w, v = self.state
+        return {"theta": th, "theta_dot": thd, "i_a": i, "omega_rotor": w,
+                "v_a": v if self.dyn.t_lag > 0.0 else self._v_cmd}
+
+    def sample(self) -> dict[str, float]:
+        """Measured channels at the current sample (θ as the sensor records it, plus noise)."""
+        tr = self.true()
+        out = {c: tr[c] for c in CHANNELS}
+        out["theta"] = float(_recorded_angle(tr["theta"], self.t, self.effects))
+        for c, s in self.sigma.items():
+            if s > 0.0:
+                out[c] += s * float(self.rng.standard_normal())
+        return out
+
+    def step(self, duty: float) -> dict[str, float]:
+        """Apply duty τ ∈ [0, 1] over one sample period; return the next sample's measurement.
+
+        Raises
+        ------
+        TruthError
+            If τ is not finite or outside [0, 1].
+        """
+        duty = float(duty)
+        if not (math.isfinite(duty) and 0.0 <= duty <= 1.0):
+            raise TruthError(f"duty {duty!r} must be finite and in [0, 1]")
+        if self.fifo:
+            self.fifo.append(duty)
+            duty = self.fifo.pop(0)
+        self._v_cmd = self.dyn.drive(duty)
+        self.state = self.dyn.advance(self.state, self._v_cmd, self.h, self.substeps)
+        self.k += 1
+        return self.sample()

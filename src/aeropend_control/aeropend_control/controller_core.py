@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from aeropend_control.design import DesignError, PoleSpec, design_fl, reachable_angle
+from aeropend_control.frame import RecordingFrame, read_recording_frame
 from aeropend_control.strategies import (
     ALLOCATORS,
     DEFAULT_TF,
@@ -36,7 +37,8 @@ MODES = ("realtime", "lockstep")
 #: ``dist_hat`` [rad/s²]: the observer's angle and disturbance estimates (NaN with the difference
 #: estimator). ``reference`` is the set point the loop used, ``reference_clamped`` 1 when the
 #: requested one lay outside the rig's reach [0, :func:`~aeropend_control.design.reachable_angle`]
-#: and was clamped to it, else 0.
+#: and was clamped to it, else 0. ``theta`` is the model's angle: the measured one mapped through the
+#: rig file's ``recording_frame`` when it has one (:mod:`aeropend_control.frame`).
 SIGNALS: tuple[str, ...] = ("t", "reference", "theta", "error", "v", "thrust", "theta_dot_hat",
                             "duty", "saturated", "stamp_s", "recv_latency", "pub_latency",
                             "theta_hat", "dist_hat", "reference_clamped")
@@ -64,6 +66,8 @@ class ControllerSettings:
     trace: str
     estimator: str = "observer"
     options: dict[str, Any] = field(default_factory=dict)
+    #: The rig file's ``recording_frame`` (θ_recorded = scale·(θ_model − offset)); the loop runs on θ_model.
+    frame: RecordingFrame = field(default_factory=RecordingFrame)
 
 
 def _float(name: str, value: Any) -> float:
@@ -109,6 +113,7 @@ def make_settings(**raw: Any) -> ControllerSettings:
     """Validate raw node parameters; raise :class:`ControllerConfigError` naming the bad value."""
     try:
         rig = load_rig(str(raw.get("rig", "thesis_rig")))
+        frame = read_recording_frame(str(raw.get("rig", "thesis_rig")))
     except (RigFileError, OSError, ValueError) as exc:
         raise ControllerConfigError(f"rig = {raw.get('rig')!r}: {exc}") from exc
     strategy = str(raw.get("strategy", "fl_pid"))
@@ -147,7 +152,7 @@ def make_settings(**raw: Any) -> ControllerSettings:
     if estimator not in ESTIMATORS:
         raise ControllerConfigError(f"estimator = {estimator!r}; expected one of {ESTIMATORS}")
     return ControllerSettings(rig, strategy, mode, parse_steps(raw.get("steps")), ref, allocator, spec, tf,
-                              theta_op, duration, str(raw.get("trace") or ""), estimator)
+                              theta_op, duration, str(raw.get("trace") or ""), estimator, frame=frame)
 
 
 def build_strategy(s: ControllerSettings) -> FeedbackLinearizationPID | SmallSignalPID | CascadeStrategy:
@@ -280,6 +285,9 @@ class ControllerLoop:
                 return None
         if self.t0_ns is None:
             self.t0_ns = stamp_ns
+        frame = self.settings.frame
+        if not frame.identity:  # the rig file's sensor frame: the loop runs on the model's θ
+            theta = frame.to_model(theta)
         t = self.time_of(stamp_ns)
         r_req = self.reference.value(t)
         r = min(max(r_req, 0.0), self.reach) if math.isfinite(r_req) else r_req

@@ -302,11 +302,13 @@ def main(argv: list[str] | None = None) -> int:
         rig = load_rig(args.rig)
         spec = PoleSpec(args.omega_n, args.zeta, args.rho)
         fl = design_fl(rig, spec)
-        sched = schedule(rig, DEFAULT_GRID, spec)
+        reach = reachable_angle(rig)
+        sched = schedule(rig, list(reachable_grid(rig, DEFAULT_GRID)), spec)
     except (ValueError, OSError) as exc:
         print(f"design_gains: {exc}", file=sys.stderr)
         return 2
-    print(f"rig {rig.name}: poles {np.round(spec.poles(), 3).tolist()} rad/s")
+    print(f"rig {rig.name}: poles {np.round(spec.poles(), 3).tolist()} rad/s; reach {reach:.4g} rad "
+          f"(set points held with {REACH_DUTY_MARGIN:.0%} duty headroom; the schedule stops there)")
     print("strategy          θ0     kp        ki        kd        tr[s]  tp[s]  ts[s]  Mp[%]  Table 6.1")
     rows = [("fl_pid", fl)] + [("small_signal", d) for d in sched]
     for name, d in rows:
@@ -315,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{p.peak_time:6.3f} {p.settling_time:6.3f} {p.overshoot:6.2f}  "
               f"{'ok' if p.meets(TABLE_6_1) else 'FAIL'}")
     if args.output:
-        doc = {"rig": rig.name, "pole_spec": asdict(spec), "fl_pid": _row(fl),
+        doc = {"rig": rig.name, "pole_spec": asdict(spec), "reach_rad": reach, "fl_pid": _row(fl),
                "small_signal": [_row(d) for d in sched]}
         with open(args.output, "w", encoding="utf-8") as fh:
             yaml.safe_dump(doc, fh, sort_keys=False)
@@ -359,6 +361,13 @@ class CascadeDesign:
     predicted: StepMetrics
 
 
+#: Phase margin [deg] the speed loop keeps against a drive lag + delay the rig file declares
+#: (T = T_a + T_d treated as one first-order lag: atan(ω_s·T) ≤ 90° − margin).
+LAG_PHASE_MARGIN_DEG = 35.0
+#: Current-loop bandwidth as a multiple of the speed loop's when a drive lag limits the latter.
+LAG_CURRENT_RATIO = 2.5
+
+
 def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 120.0,
                    theta_op: float = 0.4, i_max: float = 2.0) -> CascadeDesign:
     """PI gains of the speed and current loops by pole-zero cancellation (IMC / technical optimum).
@@ -372,7 +381,11 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
     5 ms delay (ω_c = 200 rad/s, ω_s = 60 rad/s, the sample-rate limit ω_c·T_s ≈ 0.4, is faster
     on the nominal rig but the current loop then limit-cycles under that lag + delay; below
     ω_s ≈ 30 rad/s the speed loop is too slow for the 9 rad/s position loop and the step
-    overshoots; sweep in docs/control.md). The predicted metrics
+    overshoots; sweep in docs/control.md). A rig file that declares a drive lag T_a and/or
+    delay T_d (``effects.actuator_lag`` / ``input_delay``, e.g. the ``corrected_rig.yaml`` of
+    ``gap``) limits ω_s ≤ tan(90° − :data:`LAG_PHASE_MARGIN_DEG`)/(T_a + T_d) and
+    ω_c ≤ :data:`LAG_CURRENT_RATIO`·ω_s (issue 19: at ω_s = 45 rad/s an unmodelled 40-60 ms lag
+    makes the loops limit-cycle, at 30 rad/s not). The predicted metrics
     are those of the full linear cascade including the back-EMF coupling.
 
     Raises
@@ -384,7 +397,11 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
         if not (math.isfinite(val) and val > 0.0):
             raise DesignError(f"cascade {name} = {val!r} must be finite and > 0")
     m = PlantModel(rig)
-    x_eq, _ = m.equilibrium(theta_op)
+    lag = (m.T_a if m.lag else 0.0) + m.delay
+    if lag > 0.0:  # the rig file knows a drive lag/delay: keep the speed loop's phase margin
+        omega_speed = min(omega_speed, math.tan(math.radians(90.0 - LAG_PHASE_MARGIN_DEG)) / lag)
+        omega_current = min(omega_current, LAG_CURRENT_RATIO * omega_speed)
+    x_eq, _ = m.equilibrium(min(theta_op, reachable_angle(rig)))
     w0 = float(x_eq[OMEGA])
     b_eff = m.B_m + 2.0 * m.K_d * w0
     kp_i, ki_i = m.L * omega_current, m.R * omega_current

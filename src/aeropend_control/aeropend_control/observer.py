@@ -107,10 +107,19 @@ def kalman_gain(a_c: float, dt: float, spec: ObserverSpec) -> tuple[np.ndarray, 
 class ThrustPredictor:
     """Rotor speed ω̂₁ and mean thrust over a sample period from the applied duty (see module doc).
 
+    The drive chain of the rig file, sample by sample: the input delay (a FIFO of whole samples,
+    when the rig enables it), the first-order actuator lag (when enabled), the dead zone and
+    voltage map (:meth:`PlantModel.armature_voltage`), the armature current quasi-static
+    (i = (v_a − K_ω·ω₁)/R_a) and the rotor J_m·ω̇₁ = K_t·i − B_m·ω₁ − K_d·ω₁|ω₁|; RK4 over one
+    period, the thrust averaged by Simpson's rule on the stages. A rig that knows its lag or delay
+    thus predicts the thrust the plant really produces. (The armature current as a state, for
+    thesis_sim's L_a/R_a = 115 ms, was tried: on the independent benchmark the cascades then
+    limit-cycled in 24 instead of 18 of 48 runs, FL/small-signal unchanged; docs/control.md.)
+
     Parameters
     ----------
     model : PlantModel
-        Nominal model (its rotor and voltage-map parameters).
+        Nominal model (its actuator, motor and thrust parameters and effect switches).
     dt : float
         Sample period [s].
     """
@@ -118,25 +127,40 @@ class ThrustPredictor:
     def __init__(self, model: PlantModel, dt: float) -> None:
         self.m = model
         self.dt = dt
-        self.omega = 0.0
+        self.n_delay = round(model.delay / dt) if model.delay > 0.0 else 0
+        self.reset()
 
-    def _domega(self, w: float, v_a: float) -> float:
+    def reset(self) -> None:
+        """Motor at rest, delay line empty (zeros)."""
+        self.omega = 0.0
+        self.tau_f = 0.0
+        self._fifo = [0.0] * self.n_delay
+
+    def _deriv(self, w: float, tf: float, tau: float) -> tuple[float, float]:
+        """(dω/dt, dτ_f/dt) at rotor speed w, lagged duty tf and commanded duty τ."""
         m = self.m
+        v_a = m.armature_voltage(min(max(tf if m.lag else tau, 0.0), 1.0))
         i = (v_a - m.K_w * w) / m.R
-        return (m.K_t * i - m.B_m * w - m.K_d * w * abs(w)) / m.J_m
+        dw = (m.K_t * i - m.B_m * w - m.K_d * w * abs(w)) / m.J_m
+        return dw, ((tau - tf) / m.T_a if m.lag else 0.0)
 
     def advance(self, duty: float) -> float:
-        """Integrate ω̂₁ over one period at duty τ; return the mean thrust [N] (Simpson on RK4 stages)."""
-        m, h, w = self.m, self.dt, self.omega
-        v = m.armature_voltage(min(max(duty, 0.0), 1.0))
-        k1 = self._domega(w, v)
-        k2 = self._domega(w + 0.5 * h * k1, v)
-        k3 = self._domega(w + 0.5 * h * k2, v)
-        k4 = self._domega(w + h * k3, v)
-        w_end = max(w + h * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0, 0.0)
-        w_mid = max(w + 0.5 * h * k2, 0.0)
-        self.omega = w_end
-        return (m.thrust(w) + 4.0 * m.thrust(w_mid) + m.thrust(w_end)) / 6.0
+        """Integrate the motor over one period at duty τ (after the delay line); return the mean
+        thrust [N] over the period."""
+        m, h = self.m, self.dt
+        tau = min(max(duty, 0.0), 1.0)
+        if self._fifo:
+            self._fifo.append(tau)
+            tau = self._fifo.pop(0)
+        w, tf = self.omega, self.tau_f
+        d1 = self._deriv(w, tf, tau)
+        d2 = self._deriv(w + 0.5 * h * d1[0], tf + 0.5 * h * d1[1], tau)
+        d3 = self._deriv(w + 0.5 * h * d2[0], tf + 0.5 * h * d2[1], tau)
+        d4 = self._deriv(w + h * d3[0], tf + h * d3[1], tau)
+        w_mid = max(w + 0.5 * h * d2[0], 0.0)
+        self.omega = max(w + h * (d1[0] + 2.0 * d2[0] + 2.0 * d3[0] + d4[0]) / 6.0, 0.0)
+        self.tau_f = tf + h * (d1[1] + 2.0 * d2[1] + 2.0 * d3[1] + d4[1]) / 6.0
+        return (m.thrust(w) + 4.0 * m.thrust(w_mid) + m.thrust(self.omega)) / 6.0
 
 
 class PendulumObserver:
@@ -183,7 +207,7 @@ class PendulumObserver:
         """Forget the state; the next :meth:`correct` initialises θ̂ = θ, θ̂̇ = 0, d̂ = 0, ω̂₁ = 0."""
         self.theta = self.theta_dot = self.dist = 0.0
         self.theta_k = self.dist_k = math.nan
-        self.thrust.omega = 0.0
+        self.thrust.reset()
         self._init = False
 
     def correct(self, theta: float) -> float:

@@ -72,6 +72,21 @@ DEFAULT_SPECS: dict[str, PoleSpec] = {
 }
 
 
+#: Gain of the model-based thrust loop when the rig file declares a drive lag or delay
+#: (:func:`default_thrust_gain`; issue 19, docs/control.md).
+THRUST_LOOP_GAIN = 3.0
+
+
+def default_thrust_gain(rig: Rig) -> float:
+    """K of the thrust loop f_cmd = f + K·(f − f̂): :data:`THRUST_LOOP_GAIN` when the rig file
+    declares a drive lag T_a or input delay T_d (``effects.actuator_lag`` / ``input_delay`` with a
+    value > 0, as ``gap``'s corrected rig does when it finds one), else 0 (the static allocation
+    alone; the motor of thesis_rig is fast enough, README table)."""
+    e, a = rig.effects, rig.actuator
+    known = (e.actuator_lag and a.lag_time_constant > 0.0) or (e.input_delay and a.input_delay > 0.0)
+    return THRUST_LOOP_GAIN if known else 0.0
+
+
 def default_spec(name: str) -> PoleSpec:
     """Default :class:`PoleSpec` of strategy ``name`` (:data:`DEFAULT_SPECS`; ``PoleSpec()`` if unknown)."""
     return DEFAULT_SPECS.get(name, PoleSpec())
@@ -171,6 +186,9 @@ class _Base:
         self.defer_predict = False
         self.pid = PID(replace(gains, tf=tf), self.dt)
         self.f_init = float(f_init)
+        #: Gain K of the model-based thrust loop f_cmd = f + K·(f − f̂), f̂ the thrust the observer's
+        #: motor model predicts (:func:`default_thrust_gain`: on when the rig declares a drive lag).
+        self.thrust_gain = default_thrust_gain(rig)
         self.last: ControlOutput | None = None
         self._started = False
 
@@ -196,7 +214,10 @@ class _Base:
             self.observer.predict(duty, omega)
 
     def _finish(self, r: float, theta: float, thd: float, v: float, f: float) -> ControlOutput:
-        a: Allocation = self.alloc.allocate(f)
+        f_alloc = f
+        if self.thrust_gain > 0.0 and self.observer is not None:
+            f_alloc = f + self.thrust_gain * (f - self.model.thrust(self.observer.thrust.omega))
+        a: Allocation = self.alloc.allocate(f_alloc)
         sat = a.saturated if a.saturated else self.pid.saturated  # PID clamps at the mapped limits
         out = ControlOutput(a.duty, r - theta, v, f, thd, sat)
         self.last = out

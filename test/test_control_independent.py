@@ -1,0 +1,185 @@
+"""Controllers on the independent truth plant (issue 19): the sample-by-sample truth stepper, the
+rig file's recording frame, and the loop from a ``gap``-corrected rig file back to control."""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from aeropend_control.controller_core import ControllerConfigError, ControllerLoop, make_settings
+from aeropend_control.frame import RecordingFrame, read_recording_frame
+
+BENCH = Path(__file__).resolve().parents[1] / "bench"
+sys.path.insert(0, str(BENCH))
+
+import truth_plant as tp  # noqa: E402
+
+RIGS = Path(__file__).resolve().parents[1] / "src/aeropend_sim/aeropend_sim/rigs"
+
+
+def test_truth_stepper_reproduces_the_batch_simulation_bit_for_bit():
+    effects = {"actuator_lag": 0.04, "dead_zone": 0.07, "coulomb_friction": 1.2, "input_delay": 3 * tp.DT,
+               "sensor_offset": 0.03, "thrust_coefficient": 0.9}
+    plant = tp.TruthPlant(effects=effects)
+    duty = tp.aprbs(6.0, seed=4)
+    batch = plant.simulate(duty)
+    st = tp.TruthStepper(plant)
+    theta, omega, rec = [], [], []
+    for u in duty:
+        s = st.sample()
+        theta.append(st.state[0])
+        omega.append(s["omega_rotor"])
+        rec.append(s["theta"])
+        st.step(u)
+    assert np.array_equal(batch["theta"], theta)
+    assert np.array_equal(batch["omega_rotor"], omega)
+    assert np.array_equal(batch["theta_recorded"], rec)
+    assert batch["theta"].max() > 0.2  # the run moved the rod (0.229 rad)
+    with pytest.raises(tp.TruthError, match="duty"):
+        st.step(1.2)
+
+
+def test_truth_stepper_noise_has_the_stated_sigma():
+    st = tp.TruthStepper(tp.TruthPlant(), sigma={"theta": 2e-3}, seed=1)
+    x = np.array([st.step(0.0)["theta"] for _ in range(4000)])  # rod at rest: the reading is noise
+    assert np.std(x) == pytest.approx(2e-3, rel=0.05)
+    with pytest.raises(tp.TruthError, match="channels"):
+        tp.TruthStepper(tp.TruthPlant(), sigma={"speed": 1.0})
+
+
+def _rig_with_frame(tmp_path: Path, frame: dict) -> Path:
+    doc = yaml.safe_load((RIGS / "thesis_sim.yaml").read_text(encoding="utf-8"))
+    doc["recording_frame"] = frame
+    path = tmp_path / "rig.yaml"
+    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
+    return path
+
+
+def test_the_loop_runs_on_the_model_angle_of_the_rig_files_recording_frame(tmp_path):
+    path = _rig_with_frame(tmp_path, {
+        "theta_offset": {"value": 0.1, "unit": "rad", "source": "gap diagnosis: fitted sensor offset"},
+        "theta_scale": {"value": 1.25, "unit": "1", "source": "gap diagnosis: fitted sensor gain"}})
+    assert read_recording_frame(path) == RecordingFrame(0.1, 1.25)
+    assert read_recording_frame("thesis_sim") == RecordingFrame()
+    loop = ControllerLoop(make_settings(rig=str(path), strategy="fl_pid", mode="lockstep", reference=0.3))
+    loop.on_sample(0, 0.25)  # recorded 0.25 rad = model 0.25/1.25 + 0.1 = 0.3 rad
+    assert loop.last_signals[2] == pytest.approx(0.3)
+    assert loop.last_signals[3] == pytest.approx(0.0)  # at the reference: no error
+
+
+def test_a_malformed_recording_frame_is_refused_naming_the_key(tmp_path):
+    path = _rig_with_frame(tmp_path, {"theta_offset": {"value": 0.1, "unit": "deg", "source": "x"}})
+    with pytest.raises(ControllerConfigError, match=r"recording_frame\.theta_offset has unit 'deg'"):
+        make_settings(rig=str(path))
+    path = _rig_with_frame(tmp_path, {"theta_scale": {"value": 0.0, "unit": "1", "source": "x"}})
+    with pytest.raises(ControllerConfigError, match=r"theta_scale = 0\.0 must be finite and > 0"):
+        make_settings(rig=str(path))
+
+
+def test_design_gains_schedules_a_weak_rig_up_to_its_reach(tmp_path, capsys):
+    from aeropend_control.design import main
+
+    doc = yaml.safe_load((RIGS / "thesis_sim.yaml").read_text(encoding="utf-8"))
+    doc["effects"]["hbridge_map"] = False
+    doc["actuator"]["v_supply"]["value"] = 2.32  # ideal drive: reach ≈ 0.67 rad < the grid's 1.1 rad
+    rig = tmp_path / "weak.yaml"
+    rig.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
+    out = tmp_path / "gains.yaml"
+    assert main(["--rig", str(rig), "-o", str(out)]) == 0
+    gains = yaml.safe_load(out.read_text(encoding="utf-8"))
+    reach = gains["reach_rad"]
+    assert 0.6 < reach < 0.72
+    ops = [d["theta_op"] for d in gains["small_signal"]]
+    assert ops[-1] == pytest.approx(reach) and all(math.isfinite(x) for x in ops)
+    assert "reach" in capsys.readouterr().out
+
+
+def _lag_rig(tmp_path: Path, lag: float | None, delay: float = 0.0) -> str:
+    """The thesis_sim rig with an ideal drive (the truth plant's nominal), optionally declaring a
+    drive lag as gap's corrected rig does."""
+    doc = yaml.safe_load((RIGS / "thesis_sim.yaml").read_text(encoding="utf-8"))
+    doc["effects"]["hbridge_map"] = False
+    doc["actuator"]["v_supply"]["value"] = 2.32
+    if lag is not None:
+        doc["effects"]["actuator_lag"] = True
+        doc["actuator"]["lag_time_constant"]["value"] = lag
+    if delay:
+        doc["effects"]["input_delay"] = True
+        doc["actuator"]["input_delay"]["value"] = delay
+    path = tmp_path / f"rig_{lag}.yaml"
+    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
+    return str(path)
+
+
+def _step_on_truth(rig: str, strategy: str, plant: tp.TruthPlant, r: float = 0.2,
+                   n: int = 2000) -> np.ndarray:
+    loop = ControllerLoop(make_settings(rig=rig, strategy=strategy, mode="lockstep", reference=r))
+    st = tp.TruthStepper(plant)
+    s, theta = st.sample(), np.empty(n)
+    for k in range(n):
+        theta[k] = st.state[0]
+        s = st.step(loop.on_sample(k * 2_048_000, s["theta"], s["omega_rotor"], s["i_a"]))
+    return theta
+
+
+def test_a_rig_file_that_knows_the_drive_lag_gives_a_better_controller(tmp_path):
+    """Truth plant with a 50 ms drive lag, 2 samples delay, dead zone 0.04 and rod Coulomb friction
+    1 rad/s²: FL designed on a rig file that declares it (thrust loop
+    on the predicted thrust) overshoots less; the cascade designed on a rig file that declares the
+    lag and delay (bandwidths limited by them) does not limit-cycle, the one designed on the
+    nominal rig does."""
+    from aeropend_control.design import design_cascade
+    from aeropend_control.strategies import THRUST_LOOP_GAIN, default_thrust_gain
+    from aeropend_sim.params import load_rig
+
+    plant = tp.TruthPlant(effects={"actuator_lag": 0.05, "input_delay": 2 * tp.DT, "dead_zone": 0.04,
+                                   "coulomb_friction": 1.0})
+    nominal, known = _lag_rig(tmp_path, None), _lag_rig(tmp_path, 0.05, 2 * tp.DT)
+    assert default_thrust_gain(load_rig(nominal)) == 0.0
+    assert default_thrust_gain(load_rig(known)) == THRUST_LOOP_GAIN
+    d = design_cascade(load_rig(known))
+    assert d.omega_speed == pytest.approx(math.tan(math.radians(55.0)) / (0.05 + 2 * tp.DT))  # 26.4 < 45
+    assert d.omega_current == pytest.approx(2.5 * d.omega_speed)
+
+    def overshoot(th: np.ndarray) -> float:
+        return (th.max() - 0.2) / 0.2 * 100.0
+
+    fl_nom, fl_known = (_step_on_truth(rig, "fl_pid", plant) for rig in (nominal, known))
+    assert overshoot(fl_nom) > 15.0 and overshoot(fl_known) < 0.7 * overshoot(fl_nom)
+    tail = slice(-500, None)  # last 1 s
+    cas_nom, cas_known = (_step_on_truth(rig, "cascade", plant) for rig in (nominal, known))
+    assert np.ptp(cas_nom[tail]) > 0.005  # sustained oscillation (7 mrad peak to peak measured)
+    assert np.ptp(cas_known[tail]) < 0.002 and abs(cas_known[tail].mean() - 0.2) < 0.004
+
+
+GAP_RIG = Path(__file__).resolve().parent / "data" / "gap_corrected_rig.yaml"
+
+
+def test_design_gains_and_every_strategy_take_the_rig_file_gap_wrote(tmp_path, capsys):
+    """``corrected_rig.yaml`` as ``gap`` wrote it for plant 1 of the independent closed-loop
+    benchmark (``corrected_rig_dict`` of ``run_gap`` on a 40 s APRBS recording; effects added:
+    actuator lag, thrust coefficient, dead zone): design_gains designs on it, the four strategies
+    start on it through the node's settings, the declared lag switches on the thrust loop and limits
+    the cascade's speed loop, and the loop holds the nominal rig's simulator at a set point."""
+    from aeropend_control.design import main
+    from aeropend_control.strategies import THRUST_LOOP_GAIN
+    from aeropend_sim.params import load_rig
+
+    rig = load_rig(GAP_RIG)
+    assert rig.effects.actuator_lag and rig.actuator.lag_time_constant > 0.0
+    assert main(["--rig", str(GAP_RIG), "-o", str(tmp_path / "gains.yaml")]) == 0
+    assert "reach" in capsys.readouterr().out
+    for name in ("small_signal", "fl_pid", "cascade", "fl_cascade"):
+        loop = ControllerLoop(make_settings(rig=str(GAP_RIG), strategy=name, mode="lockstep", reference=0.3))
+        outer = getattr(loop.strategy, "outer", loop.strategy)
+        assert outer.thrust_gain == THRUST_LOOP_GAIN
+        if name in ("cascade", "fl_cascade"):
+            assert loop.strategy.inner.design.omega_speed < 45.0
+    plant = tp.TruthPlant()  # the nominal plant: a corrected rig must still hold it
+    theta = _step_on_truth(str(GAP_RIG), "fl_pid", plant, r=0.3, n=1500)
+    assert abs(theta[-250:].mean() - 0.3) < 0.006
