@@ -253,7 +253,8 @@ def run_lockstep(tmp: Path, seed: int) -> dict[str, Any]:
     # lock-step: one command per sample but the last, each answered by the plant, so the
     # excitation published published − 1 commands, and the bag must hold every one of them
     commands_published = (published or 1) - 1
-    return {"published": published, "recorded": recorded, "lost": (published or 0) - recorded,
+    return {"published": published, "unacked_warnings": unacked_warnings(tmp / "logs"),
+            "recorded": recorded, "lost": (published or 0) - recorded,
             "commands_published": commands_published, "commands_recorded": commands,
             "commands_lost": commands_published - commands,
             "longest_stamp_gap_ms": longest, "stalls": stalls, "stall_at_s_ms": where,
@@ -262,6 +263,15 @@ def run_lockstep(tmp: Path, seed: int) -> dict[str, Any]:
             "error": error,
             "ok": (not error and published is not None and recorded == published
                    and commands == commands_published)}
+
+
+def unacked_warnings(logs: Path) -> list[str]:
+    """Shutdown warnings of writers whose reliable readers had not acknowledged everything."""
+    out = []
+    for log in sorted(logs.glob("*.log")):
+        out += [f"{log.stem}: {line.strip()}" for line in log.read_text(errors="replace").splitlines()
+                if "not acknowledged within" in line]
+    return out
 
 
 # ------------------------------------------------------------------------------------ report

@@ -77,7 +77,6 @@ from typing import Any
 
 import rclpy
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
@@ -94,7 +93,7 @@ from aeropend_sim.contract import (
     ContractError,
     stamp_to_ns,
 )
-from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event
+from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event, wait_acknowledged
 from aeropend_sim.ros_contract import (
     COMMAND_QOS,
     COMMAND_QOS_LOCKSTEP,
@@ -275,7 +274,7 @@ class ControllerNode(Node):
         """Publish duty 0 and write the trace (if configured)."""
         try:
             self._pub_duty.publish(duty_msg(0.0))
-            self._pub_duty.wait_for_all_acked(Duration(seconds=0.5))
+            wait_acknowledged(self, [self._pub_duty])
         except Exception as exc:  # context may already be gone
             self.get_logger().warn(f"could not publish duty 0 on shutdown: {exc}")
         if self.settings.trace:

@@ -268,13 +268,13 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
 
     import rclpy
     from rcl_interfaces.msg import ParameterDescriptor
-    from rclpy.duration import Duration
     from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
     from rclpy.signals import SignalHandlerOptions
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
     from aeropend_sim.contract import REL_DUTY_CYCLE, REL_JOINT_STATES
+    from aeropend_sim.node_shell import wait_acknowledged
     from aeropend_sim.ros_contract import COMMAND_QOS, COMMAND_QOS_LOCKSTEP, SAMPLE_QOS_LOCKSTEP
     from aeropend_sim.sim_core import RealtimeSchedule
 
@@ -385,8 +385,8 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
                 log.warn(f"re-sent {feeder.resent} command(s) for re-published samples")
         if cfg.zero_at_end and rclpy.ok():
             pub.publish(Float64(data=0.0))
-        if rclpy.ok():
-            pub.wait_for_all_acked(Duration(seconds=2.0))
+        if rclpy.ok():  # a lagging recorder must get the last commands before the writer is gone
+            wait_acknowledged(node, [pub])
         if stop_requested:
             log.warn(f"interrupted after {n_sent} of {len(sig)} commands")
             return 1

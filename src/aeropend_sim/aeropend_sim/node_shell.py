@@ -8,16 +8,24 @@ from __future__ import annotations
 
 import signal
 import threading
+import time
 from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
+from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
 
 N = TypeVar("N", bound=Node)
+
+#: How long a reliable writer waits at shutdown for its readers' acknowledgements [s]. A sample
+#: the middleware lost on the way (a full socket buffer under load) is repaired only after the
+#: writer's next heartbeat (Fast DDS: every 3 s by default), so the wait must outlast one period.
+ACK_TIMEOUT_S = 10.0
 
 
 def declare_parameter_table(node: Node, table: Iterable[tuple[str, Any, str]],
@@ -37,6 +45,41 @@ def declare_parameter_table(node: Node, table: Iterable[tuple[str, Any, str]],
         desc = ParameterDescriptor(description=what, dynamic_typing=True, read_only=name not in live)
         values[name] = node.declare_parameter(name, default, desc).value
     return values
+
+
+def wait_acknowledged(node: Node, publishers: Iterable[Publisher],
+                      timeout_s: float = ACK_TIMEOUT_S) -> bool:
+    """Block until every reliable reader acknowledged every sample of ``publishers``.
+
+    A DDS writer that is destroyed drops what its reliable readers have not acknowledged yet:
+    a lock-step publisher that exits right after its last message loses the tail a lagging
+    recorder has not received (docs/data_plane.md). Call this before destroying the node.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        Owner of the publishers (its logger reports what was not acknowledged).
+    publishers : iterable of rclpy.publisher.Publisher
+        Writers to wait for (best-effort ones return at once).
+    timeout_s : float
+        Total time budget [s] for all of them.
+
+    Returns
+    -------
+    bool
+        True if everything was acknowledged in time; otherwise False and a warning naming the
+        topics whose readers may miss samples.
+    """
+    deadline = time.monotonic() + timeout_s
+    late = []
+    for pub in publishers:
+        left = max(deadline - time.monotonic(), 0.0)
+        if not pub.wait_for_all_acked(Duration(nanoseconds=round(left * 1e9))):
+            late.append(pub.topic_name)
+    if late:
+        node.get_logger().warn(f"not acknowledged within {timeout_s:g} s by every reliable reader: "
+                               f"{', '.join(late)} (a reader may miss the last samples)")
+    return not late
 
 
 def init_with_stop_event(args: list[str] | None) -> threading.Event:

@@ -81,12 +81,13 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.publisher import Publisher
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
 from aeropend_sim.contract import REL_ARMATURE, REL_DUTY_CYCLE, REL_JOINT_STATES, TOPIC_CLOCK, Sample
-from aeropend_sim.node_shell import declare_parameter_table, run_node
+from aeropend_sim.node_shell import declare_parameter_table, run_node, wait_acknowledged
 from aeropend_sim.ros_contract import (
     CLOCK_QOS,
     COMMAND_QOS,
@@ -267,6 +268,10 @@ class SimPlantNode(Node):
                 f"(timeouts so far: {self.hold.timeouts})")
         self._reported = (sched.overruns if sched is not None else 0, self.hold.timeouts)
 
+    def sample_publishers(self) -> list[Publisher]:
+        """The writers of the sample topics (joint_states, armature)."""
+        return [self._pub_js, self._pub_arm]
+
     def _matched(self) -> tuple[int, int]:
         return self._pub_js.get_subscription_count(), self._pub_arm.get_subscription_count()
 
@@ -429,6 +434,8 @@ def main(args: list[str] | None = None) -> int:
 
     def cleanup(node: SimPlantNode) -> None:
         node.stop()
+        if node.settings.mode == "lockstep":  # reliable samples: the recorder must have them all
+            wait_acknowledged(node, node.sample_publishers())
         node.get_logger().info(node.summary())
         if node.timing is not None:
             node.timing.write(node.timing_log)
