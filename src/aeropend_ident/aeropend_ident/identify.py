@@ -16,7 +16,9 @@ results folder out:
 
 What is identified follows from the recorded channels:
 
-* θ, i_a and ω₁ recorded (full state): θ̈ (θ̇ estimated when not recorded), di_a/dt when i_a,
+* θ, i_a and ω₁ recorded (full state): θ̈ (with the default physics-structured library in the
+  second-order weak form from θ alone, :mod:`aeropend_ident.second_order`; with the other
+  libraries θ̇ is estimated when not recorded), di_a/dt when i_a,
   ω₁ and v_a are, dω₁/dt when i_a and ω₁ are; v_a from the duty cycle with the rig's map
   (thesis Eq. 4.3) when not recorded; λ by BIC over a sweep scored on the last quarter of the
   training part, then refitted on the whole training part (the λ-independent regression is built
