@@ -63,11 +63,14 @@ COLUMNS = {"theta_dot": "theta_dot_rad_s", "i_a": "i_a_A", "v_a": "v_a_V", "omeg
 PROTOCOL_CHANNELS = {"a": ("theta", "theta_dot", "i_a", "v_a", "omega_rotor"),
                      "b": ("theta", "i_a", "v_a", "omega_rotor"),
                      "b_today": ("theta", "i_a", "v_a", "omega_rotor"),
-                     "c": ("theta",)}
+                     "b_pendulum": ("theta", "i_a", "v_a", "omega_rotor"), "c": ("theta",)}
 PROTOCOL_DOC = {
     "a": "thesis: θ, θ̇, i_a, v_a, ω₁; weak-iv / physics + OE (θ̈ first-order weak form on measured θ̇)",
     "b": "rig sensor set: θ, i_a, v_a, ω₁; weak-iv / physics-structured + OE (θ̈ second-order weak form)",
     "b_today": "rig sensor set, today's estimator: weak-iv / physics + OE on a Savitzky-Golay θ̇",
+    "b_pendulum": "rig sensor set, θ̈ only: the same CSV read by csv_import, second_order.fit_pendulum on "
+                  "the training part, held-out free run of θ driven by the measured ω₁ (minutes instead "
+                  "of the full identify run on a loaded machine)",
     "c": "angle and duty only: θ, τ; partial-state path (first-order thrust map)",
 }
 
@@ -161,6 +164,27 @@ def _removal_effects(out: Path, model_yaml: dict[str, Any], spurious: dict[str, 
     return effects
 
 
+def run_pendulum(log: Path, preset: str, rig_path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """θ̈ alone on a recorded CSV: (model-file-like dict, summary-like dict)."""
+    from aeropend_ident.identify import data_from_recording
+    from aeropend_ident.partial import nrmse_range
+    from aeropend_ident.recording_input import load_recording
+    from aeropend_ident.second_order import fit_pendulum
+    from aeropend_ident.sindy import free_run, model_to_dict
+
+    rec = load_recording(log, preset, "")
+    data = data_from_recording(rec, load_rig(str(rig_path)))
+    train, held = data.split(0.75)
+    fit = fit_pendulum(train)
+    fr = free_run(fit.model, held, substeps=1)
+    summary = {"equations": fit.model.equations(), "threshold": fit.threshold,
+               "heldout": [{"nrmse_range": nrmse_range(held.variables["theta"], fr.states["theta"])}],
+               "pendulum": {"threshold": fit.threshold, "pruning": fit.pruning}}
+    doc = model_to_dict(fit.model)
+    doc["provenance"] = {}
+    return doc, summary
+
+
 def run_one(protocol: str, snr: float, seed: int, true: dict[str, np.ndarray], work: Path) -> dict[str, Any]:
     channels = PROTOCOL_CHANNELS[protocol]
     folder = work / f"{protocol}_{snr:g}_{seed}"
@@ -176,7 +200,10 @@ def run_one(protocol: str, snr: float, seed: int, true: dict[str, np.ndarray], w
     elif protocol == "b":
         kw.update(method="weak-iv", library="physics-structured", output_error=True)
     t0 = time.perf_counter()
-    summary = identify([log], folder / "res", rig, **kw)
+    if protocol == "b_pendulum":
+        model_doc, summary = run_pendulum(log, preset, rig_path)
+    else:
+        summary = identify([log], folder / "res", rig, **kw)
     wall = time.perf_counter() - t0
     row: dict[str, Any] = {"protocol": protocol, "snr_db": snr, "noise_seed": seed, "wall_time_s": wall,
                            "equations": summary["equations"], "threshold": summary["threshold"],
@@ -184,18 +211,21 @@ def run_one(protocol: str, snr: float, seed: int, true: dict[str, np.ndarray], w
     if protocol == "c":
         row["thrust_map"] = {k: summary["thrust_map"][k] for k in ("time_constant_s", "delay_samples")}
         return row
-    model_yaml = yaml.safe_load((folder / "res" / "model.yaml").read_text(encoding="utf-8"))
-    model_yaml["provenance"].update(preset=preset, rig_file=str(rig_path))
+    if protocol == "b_pendulum":
+        model_yaml = model_doc
+    else:
+        model_yaml = yaml.safe_load((folder / "res" / "model.yaml").read_text(encoding="utf-8"))
+        model_yaml["provenance"].update(preset=preset, rig_file=str(rig_path))
     truth = truth_terms()
     sc = _score(model_yaml, truth)
     row["scores"] = sc
     row["K_q_error"] = sc["theta_dot"]["rel_error"]["ω₁²"]
-    row["R_a_over_L_a"] = -sc["i_a"]["coefficients"].get("i_a", 0.0)
+    row["R_a_over_L_a"] = -sc["i_a"]["coefficients"].get("i_a", 0.0) if "i_a" in sc else float("nan")
     if "pendulum" in summary:
         row["pendulum_threshold"] = summary["pendulum"]["threshold"]
         row["pendulum_pruned"] = [p["removed"] for p in summary["pendulum"]["pruning"] if p["removed"]]
     spurious = {tg: s["false_positive"] for tg, s in sc.items() if s["false_positive"]}
-    if spurious:
+    if spurious and protocol != "b_pendulum":
         row["spurious_removal"] = _removal_effects(folder / "res", model_yaml, spurious,
                                                    row["heldout_nrmse_range"])
     return row
@@ -203,6 +233,43 @@ def run_one(protocol: str, snr: float, seed: int, true: dict[str, np.ndarray], w
 
 def load_average() -> str:
     return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def _span(values: list[float], fmt: str) -> str:
+    if not values:
+        return "—"
+    lo, hi = min(values), max(values)
+    return format(lo, fmt) if lo == hi else f"{format(lo, fmt)} … {format(hi, fmt)}"
+
+
+def summary_table(rows: list[dict[str, Any]]) -> str:
+    """Per protocol and SNR: exact structures / seeds, K_q error, max coefficient errors, NRMSE, wall time."""
+    lines = ["| protocol | SNR | seeds | θ̈ exact | K_q error | di_a/dt exact, max err | "
+             "dω₁/dt exact, max err | "
+             "held-out NRMSE θ | wall [s] (load) |", "|---|---|---|---|---|---|---|---|---|"]
+    order = {"a": 0, "b": 1, "b_pendulum": 2, "b_today": 3, "c": 4}
+    groups: dict[tuple[str, float], list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault((r["protocol"], r["snr_db"]), []).append(r)
+    for (p, snr), rs in sorted(groups.items(), key=lambda kv: (-kv[0][1], order[kv[0][0]])):
+        seeds = ",".join(str(r["noise_seed"]) for r in sorted(rs, key=lambda r: r["noise_seed"]))
+        wall = _span([r["wall_time_s"] for r in rs], ".0f")
+        loads = _span([float(r["load"].split()[0]) for r in rs if r.get("load")], ".1f")
+        nr = _span([r["heldout_nrmse_range"] for r in rs], ".4f")
+
+        def eq(tg: str, rs: list[dict[str, Any]] = rs) -> str:
+            sc = [r["scores"][tg] for r in rs if tg in r.get("scores", {})]
+            if not sc:
+                return "—"
+            exact = sum(1 for s in sc if not s["false_positive"] and not s["false_negative"])
+            return f"{exact}/{len(sc)}, {_span([100 * s['max_rel_error'] for s in sc], '.2f')} %"
+
+        kq = _span([100 * r["K_q_error"] for r in rs if "K_q_error" in r], "+.2f")
+        th = eq("theta_dot").split(",")[0] if p != "c" else "—"
+        kq = kq + " %" if kq != "—" else kq
+        lines.append(f"| ({p}) | {snr:g} dB | {seeds} | {th} | {kq} | {eq('i_a')} | "
+                     f"{eq('omega_rotor')} | {nr} | {wall} ({loads}) |")
+    return "\n".join(lines)
 
 
 def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
@@ -214,7 +281,9 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
              "(see its docstring).", "",
              f"Machine: {meta.get('machine', '')}", "", "Protocols:", ""]
     lines += [f"* ({p}) {d}" for p, d in PROTOCOL_DOC.items()]
-    lines += ["", "| protocol | SNR | seed | θ̈ FP/FN, max err | K_q err | di_a/dt FP/FN, max err | R_a/L_a | "
+    lines += ["", "Summary (ranges over the noise seeds; exact = no spurious and no missed term):", "",
+              summary_table(rows), "", "Per seed:", "",
+              "| protocol | SNR | seed | θ̈ FP/FN, max err | K_q err | di_a/dt FP/FN, max err | R_a/L_a | "
               "dω₁/dt FP/FN, max err | held-out NRMSE θ | λ (θ̈ / el.) | wall [s] | load |",
               "|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
@@ -226,7 +295,7 @@ def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
         fn = ", ".join(s["false_negative"]) or "0"
         return f"{fp}/{fn}, {100 * s['max_rel_error']:.2f} %"
 
-    order = {"a": 0, "b": 1, "b_today": 2, "c": 3}
+    order = {"a": 0, "b": 1, "b_pendulum": 2, "b_today": 3, "c": 4}
     for r in sorted(rows, key=lambda r: (-r["snr_db"], order[r["protocol"]], r["noise_seed"])):
         if r["protocol"] == "c":
             lines.append(f"| (c) | {r['snr_db']:g} dB | {r['noise_seed']} | — | — | — | — | — | "
