@@ -97,7 +97,7 @@ def _thesis_sim_reference() -> dict[str, Any]:
     tr = simulate(noisy, aprbs(60.0, lo=0.2, hi=0.9, min_hold=0.02, max_hold=0.3, seed=1).duty, seed=3)
     with tempfile.TemporaryDirectory() as tmp:
         bag = write_bag(Recording.from_trajectory(tr), Path(tmp) / "bag")
-        summ = identify(bag, Path(tmp) / "out", rig, progress=_log)
+        summ = identify(bag, Path(tmp) / "out", rig, library="structured", progress=_log)
         for name in ("coefficients", "free_run"):
             shutil.copy(Path(tmp) / "out" / f"{name}.png", PLOTS / f"ident_thesis_sim_{name}.png")
     return {"equations": summ["equations"], "heldout": summ["heldout"], "derived_parameters":

@@ -62,7 +62,9 @@ def run_once(exe: Path, bag: Path, out: Path, plots: bool, src: Path | None = No
     ``src``: a source tree (``git archive`` of a revision) whose packages shadow the installed ones.
     ``stages``: run with progress messages and split the time by stage (:func:`_stages`).
     """
-    args = [str(bag), "--rig", "thesis_sim", "--out", str(out)] + ([] if stages else ["--quiet"])
+    # the structured library named explicitly: identify's default became physics-structured (issue 18)
+    args = [str(bag), "--rig", "thesis_sim", "--library", "structured", "--out", str(out)] + (
+        [] if stages else ["--quiet"])
     if not plots:
         args.append("--no-plots")
     env = dict(os.environ)

@@ -16,7 +16,9 @@ results folder out:
 
 What is identified follows from the recorded channels:
 
-* θ, i_a and ω₁ recorded (full state): θ̈ (θ̇ estimated when not recorded), di_a/dt when i_a,
+* θ, i_a and ω₁ recorded (full state): θ̈ (with the default physics-structured library in the
+  second-order weak form from θ alone, :mod:`aeropend_ident.second_order`; with the other
+  libraries θ̇ is estimated when not recorded), di_a/dt when i_a,
   ω₁ and v_a are, dω₁/dt when i_a and ω₁ are; v_a from the duty cycle with the rig's map
   (thesis Eq. 4.3) when not recorded; λ by BIC over a sweep scored on the last quarter of the
   training part, then refitted on the whole training part (the λ-independent regression is built
@@ -54,11 +56,18 @@ import numpy as np
 
 from aeropend_ident.bags import BagError
 from aeropend_ident.csv_import import CsvImportError
-from aeropend_ident.libraries import CandidateLibrary, physics_library, structured_library, thesis_library
+from aeropend_ident.libraries import (
+    CandidateLibrary,
+    physics_library,
+    physics_structured_library,
+    structured_library,
+    thesis_library,
+)
 from aeropend_ident.output_error import refine_output_error
 from aeropend_ident.partial import angle_only_data, concat_data, nrmse_range, select_thrust_map
 from aeropend_ident.preprocess import add_derivatives, differentiate
 from aeropend_ident.recording_input import RecordingInputError, load_recording
+from aeropend_ident.second_order import combine_models, fit_pendulum
 from aeropend_ident.sindy import (
     TARGET_INFO,
     WEAK_IV,
@@ -79,6 +88,11 @@ from aeropend_sim.params import Rig, RigFileError, load_rig
 from aeropend_sim.recording import Recording, RecordingError
 
 LAMBDAS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
+#: Candidate libraries of ``--library``: ``physics-structured`` (default: which variable may enter which
+#: equation, θ̈ in the second-order weak form from θ alone), ``structured`` (per-equation, every effect's
+#: terms), ``physics`` (one library of named physical terms for every equation), ``thesis`` /
+#: ``full`` (the thesis' unrestricted 31-term library, for discovery and discrepancy SINDy).
+LIBRARIES = ("physics-structured", "structured", "physics", "thesis", "full")
 #: Estimators of ``--method``.
 METHODS = ("weak", "weak-iv", "sindy", "ensemble")
 #: Fixed λ of weak-iv (its refinement passes make a sweep costly; the benchmark's value).
@@ -154,7 +168,14 @@ def _library(
     name: str, data: IdentData, targets: list[str]
 ) -> CandidateLibrary | dict[str, CandidateLibrary]:
     variables = [v for v in ("theta", "theta_dot", "i_a", "omega_rotor", "v_a") if v in data.variables]
-    if name == "thesis":
+    if name == "physics-structured":
+        psl = physics_structured_library(variables)
+        missing = [tg for tg in targets if tg not in psl]
+        if missing:
+            raise IdentificationError(f"physics-structured library has no equation for {missing} with "
+                                      f"variables {variables}")
+        return {tg: psl[tg] for tg in targets}
+    if name in ("thesis", "full"):
         return thesis_library(variables)
     if name == "physics":
         return physics_library(variables)
@@ -314,7 +335,7 @@ def _held_out_runs(model: SindyModel, recs: Sequence[Recording], parts: Sequence
 
 def identify(
     bag: Path | Sequence[Path], out: Path, rig: Rig | None, method: str | None = None,
-    library: str = "structured", namespace: str = "", preset: str | None = None,
+    library: str = "physics-structured", namespace: str = "", preset: str | None = None,
     train_fraction: float = 0.75, thrust_map: str = "first_order", plots: bool = True,
     progress: Progress | None = None, threshold: float | None = None, output_error: bool = False,
 ) -> dict[str, Any]:
@@ -338,6 +359,11 @@ def identify(
     threshold : float, optional
         Fixed STLSQ threshold λ (no sweep); default: λ by BIC over :data:`LAMBDAS` (weak-iv:
         :data:`WEAK_IV_THRESHOLD`).
+    library : str
+        One of :data:`LIBRARIES` (full-state path). ``"physics-structured"``: θ̈ from the angle
+        alone in the second-order weak form (:func:`aeropend_ident.second_order.fit_pendulum`: λ by
+        BIC, terms pruned by the validation free run), di_a/dt and dω₁/dt from their physical
+        terms with ``method``.
     output_error : bool
         Full-state path: re-estimate the selected terms of di_a/dt and dω₁/dt by output-error
         minimisation (:func:`aeropend_ident.output_error.refine_output_error`), with standard
@@ -389,6 +415,20 @@ def identify(
         train = concat_data([p[0] for p in parts])
         test = concat_data([p[1] for p in parts])
         lib = _library(library, train, targets)
+        pendulum = None
+        if library == "physics-structured" and "theta_dot" in targets:
+            say("pendulum equation θ̈ from θ alone (second-order weak form; λ by BIC, pruning by the "
+                "validation free run)")
+            pendulum = fit_pendulum(train, lib["theta_dot"])
+            say(f"  {pendulum.model.equations()[0]} (λ = {pendulum.threshold:g})")
+            extra["pendulum"] = {
+                "form": "second-order weak form (θ̈ and θ̇ integrated onto the test functions)",
+                "threshold_selection": "BIC on the weak residual of the last 25 % of the training part",
+                "threshold": pendulum.threshold, "H_xt_s": pendulum.H_xt, "K": pendulum.K,
+                "sweep": pendulum.sweep, "pruning": pendulum.pruning,
+            }
+            targets = [tg for tg in targets if tg != "theta_dot"]
+            lib = {tg: lib[tg] for tg in targets}
         kw: dict[str, Any] = {"method": method, "exclude_input_steps": 3}
         if method == "weak":
             kw.update(K=300, H_xt=min(0.05, 0.2 * (train.t[-1] - train.t[0])))
@@ -437,6 +477,10 @@ def identify(
             model = refine_output_error(model, train, targets=oe)
         elif output_error:
             say("output-error refinement skipped: neither di_a/dt nor dω₁/dt is identified")
+        if pendulum is not None:
+            extra["electrical_threshold"] = lam
+            model = combine_models([pendulum.model, model], method=f"weak2+{model.method}")
+            targets = list(model.targets)
         test_mse = model.test_mse(test, exclude_input_steps=kw["exclude_input_steps"])
     else:
         vmap = PlantModel(rig).armature_voltage if rig is not None else None
@@ -516,8 +560,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="fixed STLSQ threshold λ (default: chosen by BIC over a sweep)")
     ap.add_argument("--output-error", action="store_true",
                     help="refine di_a/dt and dω₁/dt by output-error minimisation (full state)")
-    ap.add_argument("--library", default="structured", choices=("structured", "physics", "thesis"),
-                    help="full-state path only")
+    ap.add_argument("--library", default="physics-structured", choices=LIBRARIES,
+                    help="full-state path only; physics-structured (default): θ̈ from θ alone (second-order "
+                         "weak form) with thrust, gravity, damping and friction terms, di_a/dt from i_a, ω₁, "
+                         "v_a, dω₁/dt from i_a, ω₁, ω₁²; full/thesis: the unrestricted 31-term library")
     ap.add_argument("--preset", default=None, help="csv_import preset for CSV inputs (default: by file name)")
     ap.add_argument("--thrust-map", default="first_order", choices=("first_order", "static"),
                     help="partial-state path (θ and τ only)")

@@ -61,11 +61,17 @@ class Candidate:
         Variables the function reads.
     func : callable
         ``func(data) -> ndarray (N,)`` with ``data`` mapping variable names to arrays (N,).
+    regressor : callable, optional
+        The same function estimated from *noisy samples* without the bias the noise puts on
+        ``func`` (errors in variables), used when a regression column is built from measured
+        data (``CandidateLibrary.evaluate(data, regressor=True)``); ``func`` is kept for
+        simulation. E.g. ω₁² from ω₁,k·(ω₁,k−1 + ω₁,k+1)/2 (:func:`lagged_square`). None: ``func``.
     """
 
     name: str
     variables: tuple[str, ...]
     func: Func = field(repr=False)
+    regressor: Func | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -112,8 +118,11 @@ class CandidateLibrary:
             raise LibraryError(f"library has no candidate(s) {bad}")
         return CandidateLibrary(tuple(c for c in self.candidates if c.name not in names))
 
-    def evaluate(self, data: Data) -> np.ndarray:
+    def evaluate(self, data: Data, regressor: bool = False) -> np.ndarray:
         """Library matrix Θ, shape (N, M), one column per candidate.
+
+        ``regressor=True`` evaluates each candidate's ``regressor`` where it has one (a column
+        built from noisy samples, see :class:`Candidate`), ``func`` otherwise.
 
         Raises
         ------
@@ -133,7 +142,8 @@ class CandidateLibrary:
         length = next(iter(n.values()))[0] if n else None
         cols = []
         for c in self.candidates:
-            y = np.asarray(c.func(data), dtype=float)
+            f = c.regressor if (regressor and c.regressor is not None) else c.func
+            y = np.asarray(f(data), dtype=float)
             if y.ndim == 0 or y.shape == ():
                 y = np.full(length if length is not None else 1, float(y))
             if not np.isfinite(y).all():
@@ -347,4 +357,77 @@ def structured_library(
             _var("i_a"), _var("omega_rotor"), _product("omega_rotor", "omega_rotor"),
             Candidate("sgn(ω₁)", ("omega_rotor",), lambda d: np.tanh(np.asarray(d["omega_rotor"]))),
         ))
+    return out
+
+
+def lagged_square(v: str) -> Candidate:
+    """x² of a measured variable, with the errors-in-variables-free regressor x_k·(x_k−1 + x_k+1)/2.
+
+    With white measurement noise e (variance σ²), the square of a sample is biased,
+    E[(x + e)²] = x² + σ², which moves the coefficient of a thrust term K_q·ω₁² by the share σ²
+    takes of the mean ω₁² (about 1 % at 20 dB on a ``density_prbs`` record). The product of a
+    sample with its neighbours' mean has independent noise factors, so its expectation is
+    x_k·(x_k−1 + x_k+1)/2 = x_k² + O(dt²·x·ẍ), without σ². The end samples use their one neighbour.
+    """
+    def lagged(d: Data, v: str = v) -> np.ndarray:
+        x = np.asarray(d[v], dtype=float)
+        if x.size < 3:
+            return x * x
+        nb = np.empty_like(x)
+        nb[1:-1] = 0.5 * (x[:-2] + x[2:])
+        nb[0], nb[-1] = x[1], x[-2]
+        return x * nb
+
+    return Candidate(f"{symbol(v)}²", (v,), lambda d, v=v: np.asarray(d[v], dtype=float) ** 2,
+                     regressor=lagged)
+
+
+#: Regularisation speed [rad/s] of sgn θ̇ in the friction candidate (as :func:`physics_library`).
+FRICTION_VELOCITY = 0.01
+
+
+def pendulum_library(friction: bool = True, friction_velocity: float = FRICTION_VELOCITY
+                     ) -> CandidateLibrary:
+    """Candidates of the pendulum equation θ̈ (thesis Eqs. 3.1-3.3): damping θ̇, gravity sin θ,
+    thrust ω₁² and, with ``friction``, Coulomb friction sgn θ̇ (tanh(θ̇/v_ε)).
+
+    i_a and v_a are deliberately absent: they reach θ̈ only through the thrust path (v_a → i_a →
+    ω₁ → thrust), so as direct terms they can only fit noise or stand in for a biased thrust
+    term (on the rig's sensor set at 30 dB they came out as −724 i_a + 26.8 ω₁ + 15.7 v_a).
+    ω₁² carries the noise-free regressor of :func:`lagged_square`.
+    """
+    cands = [_var("theta_dot"), _unary("sin", np.sin, "theta"), lagged_square("omega_rotor")]
+    if friction:
+        v_eps = friction_velocity
+        cands.append(Candidate("sgn(θ̇)", ("theta_dot",),
+                               lambda d: np.tanh(np.asarray(d["theta_dot"], dtype=float) / v_eps)))
+    return CandidateLibrary(tuple(cands))
+
+
+def physics_structured_library(
+    variables: Sequence[str] = ("theta", "i_a", "omega_rotor", "v_a"), friction: bool = True,
+    drag: bool = True,
+) -> dict[str, CandidateLibrary]:
+    """Which variable may enter which equation, from the rig's physics (thesis Eqs. 3.1-3.8).
+
+    * θ̈ (target ``theta_dot``): :func:`pendulum_library` (θ̇, sin θ, ω₁², sgn θ̇); needs θ, ω₁;
+    * di_a/dt (``i_a``): i_a, ω₁ (back-EMF), v_a (thesis Eq. 3.5); needs i_a, ω₁, v_a;
+    * dω₁/dt (``omega_rotor``): i_a (torque), ω₁ (viscous), and with ``drag`` ω₁² (propeller
+      drag torque, ω₁|ω₁| for a rotor turning one way) (thesis Eq. 3.8); needs i_a, ω₁.
+
+    θ̇ need not be a recorded variable: the pendulum equation is fitted in the second-order weak
+    form (:mod:`aeropend_ident.second_order`), where θ̇ is integrated onto the test functions.
+    Only equations whose variables are present are returned.
+    """
+    vs = set(variables)
+    out: dict[str, CandidateLibrary] = {}
+    if {"theta", "omega_rotor"} <= vs:
+        out["theta_dot"] = pendulum_library(friction=friction)
+    if {"i_a", "omega_rotor", "v_a"} <= vs:
+        out["i_a"] = CandidateLibrary((_var("i_a"), _var("omega_rotor"), _var("v_a")))
+    if {"i_a", "omega_rotor"} <= vs:
+        rotor = [_var("i_a"), _var("omega_rotor")]
+        if drag:
+            rotor.append(_product("omega_rotor", "omega_rotor"))
+        out["omega_rotor"] = CandidateLibrary(tuple(rotor))
     return out

@@ -171,3 +171,85 @@ def curvature(variables: Mapping[str, np.ndarray], rhs: Derivative, states: Sequ
         d = p - line
         out[s] = np.where(np.isfinite(d), d, 0.0)
     return out
+
+
+class SecondOrderTestFunctions:
+    """Test functions for the weak form of a second-order equation, ẍ = Θ(x, ẋ, u)·ξ.
+
+    With φ_k compactly supported and φ_k, φ_k' zero at both ends of its subdomain (degree
+    p ≥ 2), integration by parts moves both derivatives onto the test function,
+
+        ∫φ_k·ẍ dt = ∫φ_k''·x dt,        ∫φ_k·ẋ dt = −∫φ_k'·x dt,
+
+    so the pendulum equation can be regressed on the recorded angle alone: no derivative of the
+    noisy θ is ever formed. pysindy's ``WeakPDELibrary`` supplies the subdomain placement, the
+    test functions φ_k = (1 − t̃²)^p and its own piecewise-linear quadrature weights
+    (``_linear_weights(x, d, p)`` for the d-th derivative of φ); its regression only forms the
+    first-order left side ``convert_u_dot_integral`` (−∫φ'·x) and no second time derivative,
+    which is why the weights are assembled here.
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,)
+        Uniform sample times [s].
+    K : int
+        Number of subdomains.
+    p : int
+        Test-function degree (>= 2).
+    H_xt : float
+        Subdomain half-width [s].
+    seed : int
+        Seed of pysindy's subdomain placement.
+
+    Attributes
+    ----------
+    w0, w1, w2 : scipy.sparse.csr_matrix, shape (K, N)
+        Quadrature weights of ∫φ_k·f, ∫φ_k'·f and ∫φ_k''·f for f given at the samples.
+
+    Raises
+    ------
+    ValueError
+        If p < 2 or the subdomain does not fit into the record.
+    """
+
+    def __init__(self, t: np.ndarray, K: int, p: int = 4, H_xt: float = 0.2, seed: int = 0) -> None:
+        if p < 2:
+            raise ValueError(f"test-function degree p = {p!r}: the second-order weak form needs p >= 2 "
+                             "(φ and φ' zero at the subdomain ends)")
+        self.t = np.asarray(t, dtype=float)
+        n = self.t.size
+        if not 0.0 < 2.0 * H_xt < self.t[-1] - self.t[0]:
+            half = (self.t[-1] - self.t[0]) / 2
+            raise ValueError(f"H_xt = {H_xt!r} s must be in (0, record/2 = {half:g} s)")
+        np.random.seed(seed)  # pysindy draws the subdomain centres from the global generator
+        lib = ps.WeakPDELibrary(function_library=ps.IdentityLibrary(), spatiotemporal_grid=self.t, K=K, p=p,
+                                H_xt=H_xt)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            lib.fit([AxesArray(np.zeros((n, 1)), {"ax_time": 0, "ax_coord": 1})])
+        rows, cols, vals = [], [], ([], [], [])
+        for k in range(lib.K):
+            idx = np.asarray(lib.inds_k[k][0])
+            tk = self.t[idx]
+            h = 0.5 * (tk[-1] - tk[0])
+            xs = (tk - 0.5 * (tk[-1] + tk[0])) / h
+            rows.append(np.full(idx.size, k))
+            cols.append(idx)
+            for d in range(3):  # d/dt = (1/h)·d/dt̃, dt = h·dt̃
+                vals[d].append(lib._linear_weights(xs, d, p) * h ** (1 - d))
+        r, c = np.concatenate(rows), np.concatenate(cols)
+        self.w0, self.w1, self.w2 = (sp.csr_matrix((np.concatenate(v), (r, c)), shape=(lib.K, n))
+                                     for v in vals)
+        self.K = lib.K
+
+    def integrate(self, columns: np.ndarray) -> np.ndarray:
+        """∫φ_k·F dt: (N,) or (N, M) -> (K,) or (K, M)."""
+        return np.asarray(self.w0 @ np.asarray(columns, dtype=float))
+
+    def rate(self, x: np.ndarray) -> np.ndarray:
+        """∫φ_k·ẋ dt = −∫φ_k'·x dt from the samples of x: (N,) -> (K,)."""
+        return -np.asarray(self.w1 @ np.asarray(x, dtype=float))
+
+    def acceleration(self, x: np.ndarray) -> np.ndarray:
+        """∫φ_k·ẍ dt = ∫φ_k''·x dt from the samples of x: (N,) -> (K,)."""
+        return np.asarray(self.w2 @ np.asarray(x, dtype=float))
