@@ -5,22 +5,24 @@ not the rig changing between sessions (battery, propeller, load, bearings, senso
 module tells them apart, for :func:`aeropend_ident.gap_report.run_gap`:
 
 **Prediction** (:func:`predict_heldout`, computed from the fit data only, before any held-out
-recording is replayed): the corrected rig's held-out θ NRMSE e is modelled as
-
-    e² = e_in² + e_drift²
+recording is replayed): a Monte-Carlo predictive distribution of the corrected rig's held-out θ
+NRMSE e. Each of :data:`N_DRAWS` draws takes
 
 * e_in: the corrected rig's error within the session, i.e. on the validation part the effects
-  were chosen on, taken per block of :data:`BLOCK_S` seconds (RMS error of the block over the
-  recording's θ range); its spread over blocks is the within-session variation, and the effect
-  parameters' standard errors (:func:`aeropend_ident.gap_which.fit_effects`) are drawn too;
-* e_drift: what a session-to-session change of the rig adds: the corrected rig is replayed with its
-  drift-prone parameters (:data:`DRIFT_PARAMETERS`: thrust coefficient K_q, gravity term mgd/J,
-  viscous friction c/J, and the supply voltage V_s when v_a is recorded) multiplied by log-normal
-  factors of standard deviation σ_p, and the
-  RMS difference to the unperturbed replay is taken over the same recordings. σ_p is the prior
-  :data:`DRIFT_PRIOR` unless the fit data hold several sessions, whose measured drift replaces it.
+  were chosen on, of one random block of :data:`BLOCK_S` seconds (RMS error of the block over the
+  recording's θ range): the within-session variation;
+* the chosen effects' parameters from their standard errors
+  (:func:`aeropend_ident.gap_which.fit_effects`): the effect-fit spread;
+* a session-to-session log change of each drift-prone parameter (:data:`DRIFT_PARAMETERS`:
+  thrust coefficient K_q, gravity term mgd/J, viscous friction c/J, and the supply voltage V_s
+  when v_a is recorded) from :func:`draw_log_changes`: per session an unknown share
+  π ~ Uniform(0, 1) of the parameters changes, each by N(0, 2σ_p²) (σ_p: :data:`DRIFT_PRIOR`, the
+  standard deviation of the log change, kept), or, when the fit data hold several sessions, a
+  normal change with their measured σ_p;
 
-:data:`N_DRAWS` draws give the predicted median and the 80 % interval (10 % and 90 % quantiles).
+re-simulates the drawn rig on the validation recordings and records
+e² = e_in² + (mean squared change of the replay) / range². The median of the draws is the
+prediction, their 10 % and 90 % quantiles (:data:`INTERVAL`) the 80 % interval.
 
 **Attainable shrink** (:func:`attainable`, after the held-out replay): the chosen effect set,
 the chosen set plus the drift-prone parameters, and separately the best catalog set up to
@@ -81,11 +83,15 @@ DRIFT_PARAMETERS: dict[str, tuple[str, str]] = {
     "supply_voltage": ("actuator", "v_supply"),
 }
 #: Prior standard deviation of the session-to-session log change of each drift-prone parameter
-#: (0.15 ≈ ±15 %). Set from what the real rigs in ``../shared/data/real`` show between sessions:
-#: AeroShield's thrust per duty up to 35 % apart at 29–33 PWM counts, Etchepareborda's rod hanging
-#: 0.1–0.2 rad higher in another session (docs/gap.md); the supply voltage from what lab supplies
-#: do (a 3-cell LiPo 12.6 → 10.5 V over its charge, a USB port 4.75–5.25 V, a bench supply < 1 %);
-#: used only when the fit data hold one session.
+#: (0.15 ≈ ±15 %); its shape is :func:`draw_log_changes`'. Physical sizes (docs/gap.md, "Drift
+#: prior"): K_q from air density (weather ±2–3 %, temperature ±1.7 %) and a re-mounted or replaced
+#: propeller (a few to ~10 %); mgd/J from re-assembly (counterweight, cable, sensor mount);
+#: c/J from the bearing lubricant's viscosity (≈ −5 %/K at room temperature, drag ∝ ν^(2/3)) and
+#: standstill / run-in; the supply voltage from what lab supplies do (a 3-cell LiPo 12.6 → 10.5 V
+#: over its charge, a USB port 4.75–5.25 V, a bench supply < 1 %); the real rigs in
+#: ``../shared/data/real`` show such changes between sessions (AeroShield's thrust per duty up to
+#: 35 % apart at 29–33 PWM counts, Etchepareborda's rod hanging 0.1–0.2 rad higher). Used only
+#: when the fit data hold one session.
 DRIFT_PRIOR: dict[str, float] = {"thrust_coefficient": 0.15, "gravity": 0.10, "viscous_friction": 0.25,
                                  "supply_voltage": 0.08}
 #: Monte-Carlo draws of the prediction (one replay of each validation recording per draw).
