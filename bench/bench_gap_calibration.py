@@ -249,7 +249,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     lines = [
         "# Gap calibration benchmark (issue 16)",
         "",
-        f"{s['cases']} two-session cases from `bench/truth_plant.py`; {s['errors']} refused; median "
+        f"{s['cases']} two-session cases (of {doc['setup']['cases']} listed) from `bench/truth_plant.py`; "
+        f"{s['errors']} refused; median "
         f"{s['median_elapsed_s']:.0f} s per case; {doc['setup']['cpus']} CPUs, {doc['setup']['workers']} "
         f"worker(s); load average {doc['setup'].get('load_start', '?')} at the start, "
         f"{doc['setup'].get('load_end', '?')} at the end. Prediction: {doc['setup'].get('prediction', '')}",
@@ -311,37 +312,45 @@ def main(argv: list[str] | None = None) -> int:
     load_start = os.getloadavg()[0]
     t0 = time.perf_counter()
     rows: list[dict[str, Any]] = []
+    out = Path(args.out)
+
+    def write() -> dict[str, Any]:
+        # written after every case: a run stopped early keeps what it measured
+        doc = {
+            "setup": {
+                "cases": len(specs),
+                "done": len(rows),
+                "workers": args.workers,
+                "oracle": args.oracle,
+                "cpus": os.cpu_count(),
+                "load_start": round(load_start, 2),
+                "load_end": round(os.getloadavg()[0], 2),
+                "prediction": PREDICTION,
+                "python": platform.python_version(),
+                "wall_s": time.perf_counter() - t0,
+                "effects": EFFECTS,
+                "drifts": DRIFTS,
+                "drift_range": DRIFT_RANGE,
+                "snr_range_db": SNR_RANGE,
+                "ranges": {e: RANGES[e] for e in EFFECTS},
+            },
+            "summary": summarise(rows),
+            "cases": rows,
+        }
+        out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
+        write_md(out.with_suffix(".md"), doc)
+        return doc
+
     with ProcessPoolExecutor(max_workers=args.workers) as ex:
         for r in ex.map(_run, [(s, args.oracle) for s in specs]):
             rows.append(r)
             print(
-                f"{r['case']}: inside {r.get('inside')} named {r.get('named')} share_ok {r.get('share_ok')} "
+                f"{r['case']}: inside {r.get('inside')} ({r.get('side')}: {r.get('actual')} in "
+                f"{r.get('interval')}) named {r.get('named')} share_ok {r.get('share_ok')} "
                 f"({r['elapsed_s']:.0f} s)",
                 flush=True,
             )
-    doc = {
-        "setup": {
-            "cases": len(specs),
-            "workers": args.workers,
-            "oracle": args.oracle,
-            "cpus": os.cpu_count(),
-            "load_start": round(load_start, 2),
-            "load_end": round(os.getloadavg()[0], 2),
-            "prediction": PREDICTION,
-            "python": platform.python_version(),
-            "wall_s": time.perf_counter() - t0,
-            "effects": EFFECTS,
-            "drifts": DRIFTS,
-            "drift_range": DRIFT_RANGE,
-            "snr_range_db": SNR_RANGE,
-            "ranges": {e: RANGES[e] for e in EFFECTS},
-        },
-        "summary": summarise(rows),
-        "cases": rows,
-    }
-    out = Path(args.out)
-    out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
-    write_md(out.with_suffix(".md"), doc)
+            doc = write()
     print(json.dumps(doc["summary"], indent=1))
     return 0
 
