@@ -21,8 +21,9 @@ reports:
 
 Writes ``bench/results/gap_calibration.json`` and ``.md``.
 
-Usage: ``python bench/bench_gap_calibration.py [--workers 2] [--cases 64] [--oracle]``
-(``--oracle`` adds the best-catalog oracle: a diagnosis on each held-out recording, ~2x time).
+Usage: ``python bench/bench_gap_calibration.py [--workers 1] [--cases 64] [--only 2,6,10] [--oracle]``
+(``--only`` runs a subset of the ``--cases`` list by index, for development; ``--oracle`` adds the
+best-catalog oracle: a diagnosis on each held-out recording, ~2x time).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
 import sys
 import time
@@ -65,6 +67,23 @@ DRIFTS = {
 }
 DRIFT_RANGE = (0.05, 0.40)
 SNR_RANGE = (40.0, 60.0)
+#: What the prediction under test draws (aeropend_ident.gap_drift.predict_heldout), for the report.
+PREDICTION = ("300 re-simulated draws; per session an unknown share π ~ U(0, 1) of the drift-prone "
+              "parameters changes, each by N(0, 2σ_p²) in log (σ_p: gap_drift.DRIFT_PRIOR), with the "
+              "effect-fit spread and a within-session block error.")
+#: The figures of the previous prediction (commit df00959: every drift-prone parameter drawn at
+#: once from a log-normal prior, 40 draws), kept in the report for comparison.
+BEFORE = {
+    "inside_80_interval": 0.594,
+    "drift_named": 0.984,
+    "share_within_10_points": 0.859,
+    "per_drift_kind": {
+        "thrust_coefficient": {"inside": 0.875, "named": 0.938, "share_within_10_points": 0.875},
+        "gravity": {"inside": 0.812, "named": 1.0, "share_within_10_points": 0.875},
+        "viscous_friction": {"inside": 0.062, "named": 1.0, "share_within_10_points": 0.812},
+        "supply_voltage": {"inside": 0.625, "named": 1.0, "share_within_10_points": 0.875},
+    },
+}
 
 
 def case_list(n: int) -> list[dict[str, Any]]:
@@ -150,6 +169,7 @@ def run_case(spec: dict[str, Any], oracle: bool = False) -> dict[str, Any]:
         )
         return out
     chk = res.prediction_check or {}
+    pred = res.prediction or {}
     att = (res.attainable or [{}])[0]
     rows = (att.get("drift") or {}).get("rows", [])
     top = next((r for r in rows if r["drifts"]), None)
@@ -160,6 +180,11 @@ def run_case(spec: dict[str, Any], oracle: bool = False) -> dict[str, Any]:
         interval=chk.get("interval"),
         actual=chk.get("actual"),
         inside=bool(chk.get("inside")),
+        side=(None if not chk else "inside" if chk["inside"] else
+              "above" if chk["actual"] > chk["interval"][1] else "below"),
+        within_session=pred.get("within_session"),
+        drift_prior=pred.get("drift_prior"),
+        sensitivity=pred.get("sensitivity"),
         drift_top=(f"{top['effect']}" if top else None),
         drift_rows=[(r["effect"], r["change"], r["z"]) for r in rows],
         named=bool(top and top["effect"] == spec["drift"]),
@@ -192,9 +217,12 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "inside": frac([r for r in rows if r["drift"] == k], "inside"),
             "named": frac([r for r in rows if r["drift"] == k], "named"),
             "share_within_10_points": frac([r for r in rows if r["drift"] == k], "share_ok"),
+            "below": sum(r.get("side") == "below" for r in rows if r["drift"] == k),
+            "above": sum(r.get("side") == "above" for r in rows if r["drift"] == k),
         }
         for k in DRIFTS
     }
+    ok = [r for r in rows if r.get("interval")]
     return {
         "cases": len(rows),
         "errors": sum("error" in r for r in rows),
@@ -202,6 +230,11 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "drift_named": frac(rows, "named"),
         "share_within_10_points": frac(rows, "share_ok"),
         "per_drift_kind": per_kind,
+        "below": sum(r.get("side") == "below" for r in rows),
+        "above": sum(r.get("side") == "above" for r in rows),
+        # sharpness: the interval's width relative to the predicted median
+        "median_relative_width": (float(np.median([(r["interval"][1] - r["interval"][0]) / r["predicted"]
+                                                   for r in ok])) if ok else None),
         "median_elapsed_s": float(np.median([r["elapsed_s"] for r in rows])),
     }
 
@@ -212,28 +245,36 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     def pct(x: float | None) -> str:
         return "–" if x is None else f"{100 * x:.1f} %"
 
+    b = BEFORE
     lines = [
         "# Gap calibration benchmark (issue 16)",
         "",
-        f"{s['cases']} two-session cases from `bench/truth_plant.py`; {s['errors']} refused; median "
+        f"{s['cases']} two-session cases (of {doc['setup']['cases']} listed) from `bench/truth_plant.py`; "
+        f"{s['errors']} refused; median "
         f"{s['median_elapsed_s']:.0f} s per case; {doc['setup']['cpus']} CPUs, {doc['setup']['workers']} "
-        "workers.",
+        f"worker(s); load average {doc['setup'].get('load_start', '?')} at the start, "
+        f"{doc['setup'].get('load_end', '?')} at the end. Prediction: {doc['setup'].get('prediction', '')}",
         "",
-        "| measure | result | bar |",
-        "|---|---|---|",
+        "| measure | result | before (df00959) | bar |",
+        "|---|---|---|---|",
         f"| actual held-out NRMSE inside the predicted 80 % interval | {pct(s['inside_80_interval'])} "
-        "| 75-90 % |",
-        f"| drifting parameter named first in the drift table | {pct(s['drift_named'])} | ≥ 80 % |",
+        f"({s['below']} below, {s['above']} above) | {pct(b['inside_80_interval'])} | 75-90 % |",
+        f"| drifting parameter named first in the drift table | {pct(s['drift_named'])} | "
+        f"{pct(b['drift_named'])} | ≥ 80 % |",
         f"| drift share of the split within 10 points of the truth | {pct(s['share_within_10_points'])} | "
-        "≥ 80 % |",
+        f"{pct(b['share_within_10_points'])} | ≥ 80 % |",
+        f"| median interval width / predicted median | {s['median_relative_width']:.2f} | | |",
         "",
-        "| drift kind | cases | inside interval | named | share within 10 pts |",
-        "|---|---|---|---|---|",
+        "| drift kind | cases | inside interval (below / above) | before | named | before "
+        "| share within 10 pts | before |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for k, v in s["per_drift_kind"].items():
+        bk = b["per_drift_kind"][k]
         lines.append(
-            f"| {k} | {v['cases']} | {pct(v['inside'])} | {pct(v['named'])} | "
-            f"{pct(v['share_within_10_points'])} |"
+            f"| {k} | {v['cases']} | {pct(v['inside'])} ({v['below']} / {v['above']}) | "
+            f"{pct(bk['inside'])} | {pct(v['named'])} | {pct(bk['named'])} | "
+            f"{pct(v['share_within_10_points'])} | {pct(bk['share_within_10_points'])} |"
         )
     lines += [
         "",
@@ -257,44 +298,59 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--cases", type=int, default=64)
+    ap.add_argument("--only", default="", help="comma-separated case indices of the --cases list (a subset)")
     ap.add_argument(
         "--oracle", action="store_true", help="also the best-catalog oracle per held-out recording"
     )
     ap.add_argument("--out", default=str(RESULTS / "gap_calibration"))
     args = ap.parse_args(argv)
     specs = case_list(args.cases)
+    if args.only:
+        specs = [specs[int(k)] for k in args.only.split(",")]
+    load_start = os.getloadavg()[0]
     t0 = time.perf_counter()
     rows: list[dict[str, Any]] = []
+    out = Path(args.out)
+
+    def write() -> dict[str, Any]:
+        # written after every case: a run stopped early keeps what it measured
+        doc = {
+            "setup": {
+                "cases": len(specs),
+                "done": len(rows),
+                "workers": args.workers,
+                "oracle": args.oracle,
+                "cpus": os.cpu_count(),
+                "load_start": round(load_start, 2),
+                "load_end": round(os.getloadavg()[0], 2),
+                "prediction": PREDICTION,
+                "python": platform.python_version(),
+                "wall_s": time.perf_counter() - t0,
+                "effects": EFFECTS,
+                "drifts": DRIFTS,
+                "drift_range": DRIFT_RANGE,
+                "snr_range_db": SNR_RANGE,
+                "ranges": {e: RANGES[e] for e in EFFECTS},
+            },
+            "summary": summarise(rows),
+            "cases": rows,
+        }
+        out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
+        write_md(out.with_suffix(".md"), doc)
+        return doc
+
     with ProcessPoolExecutor(max_workers=args.workers) as ex:
         for r in ex.map(_run, [(s, args.oracle) for s in specs]):
             rows.append(r)
             print(
-                f"{r['case']}: inside {r.get('inside')} named {r.get('named')} share_ok {r.get('share_ok')} "
+                f"{r['case']}: inside {r.get('inside')} ({r.get('side')}: {r.get('actual')} in "
+                f"{r.get('interval')}) named {r.get('named')} share_ok {r.get('share_ok')} "
                 f"({r['elapsed_s']:.0f} s)",
                 flush=True,
             )
-    doc = {
-        "setup": {
-            "cases": len(specs),
-            "workers": args.workers,
-            "oracle": args.oracle,
-            "cpus": __import__("os").cpu_count(),
-            "python": platform.python_version(),
-            "wall_s": time.perf_counter() - t0,
-            "effects": EFFECTS,
-            "drifts": DRIFTS,
-            "drift_range": DRIFT_RANGE,
-            "snr_range_db": SNR_RANGE,
-            "ranges": {e: RANGES[e] for e in EFFECTS},
-        },
-        "summary": summarise(rows),
-        "cases": rows,
-    }
-    out = Path(args.out)
-    out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
-    write_md(out.with_suffix(".md"), doc)
+            doc = write()
     print(json.dumps(doc["summary"], indent=1))
     return 0
 

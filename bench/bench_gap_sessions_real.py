@@ -61,7 +61,12 @@ def run(name: str, case: dict[str, Any]) -> dict[str, Any]:
     out = RESULTS / "gap_sessions_real" / name
     t0 = time.perf_counter()
     rc = main([*case["fit"], "--held-out", *case["held"], "--rig", case["rig"], "-o", str(out), "-q"])
-    row: dict[str, Any] = {"case": name, "exit": rc, "elapsed_s": time.perf_counter() - t0}
+    return from_report(name, out, rc, time.perf_counter() - t0)
+
+
+def from_report(name: str, out: Path, rc: int = 0, elapsed_s: float | None = None) -> dict[str, Any]:
+    """A result row from a case's report folder (``report.json`` written by ``gap``)."""
+    row: dict[str, Any] = {"case": name, "exit": rc, "elapsed_s": elapsed_s}
     if rc != 0:
         return row
     rep = json.loads((out / "report.json").read_text(encoding="utf-8"))

@@ -18,7 +18,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from aeropend_ident.gap_drift import DRIFT_Z, drift_rows, drift_set
+from aeropend_ident.gap_drift import DRIFT_PRIOR, DRIFT_Z, draw_log_changes, drift_rows, drift_set
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
@@ -39,6 +39,26 @@ def test_drift_set_keeps_the_joint_fit_identifiable() -> None:
     assert drift_set([], ("theta", "i_a")) == drift_set([])
     assert drift_set(["dead_zone"], ("theta", "v_a")) == ["dead_zone", "thrust_coefficient", "gravity",
                                                           "viscous_friction", "supply_voltage"]
+
+
+def test_drift_prior_changes_any_number_of_parameters_and_keeps_its_spread() -> None:
+    params = list(DRIFT_PRIOR)
+    rng = np.random.default_rng(3)
+    draws = [draw_log_changes(DRIFT_PRIOR, params, rng) for _ in range(20000)]
+    x = np.array([[d[p] for p in params] for d in draws])
+    # per session an unknown share of the parameters changes: 0, 1, ..., 4 changing parameters
+    # equally likely (not "exactly one"), half of the single log changes exactly zero
+    counts = np.bincount(np.count_nonzero(x, axis=1), minlength=len(params) + 1) / len(draws)
+    assert counts == pytest.approx(np.full(len(params) + 1, 1.0 / (len(params) + 1)), abs=0.015)
+    assert np.mean(x == 0.0) == pytest.approx(0.5, abs=0.01)
+    # the prior's standard deviation per parameter is kept; the shape has heavier tails than normal
+    sigma = np.array([DRIFT_PRIOR[p] for p in params])
+    assert x.std(axis=0) == pytest.approx(sigma, rel=0.04)
+    assert np.mean(np.abs(x) > 3.0 * sigma, axis=0) == pytest.approx(np.full(len(params), 0.0169), abs=0.004)
+    # σ measured across sessions: normal log changes, none exactly zero
+    measured = [draw_log_changes(DRIFT_PRIOR, params, rng, occurrence=False) for _ in range(20000)]
+    y = np.array([[d[p] for p in params] for d in measured])
+    assert np.count_nonzero(y == 0.0) == 0 and y.std(axis=0) == pytest.approx(sigma, rel=0.04)
 
 
 def test_drift_rows_change_and_significance() -> None:

@@ -5,22 +5,24 @@ not the rig changing between sessions (battery, propeller, load, bearings, senso
 module tells them apart, for :func:`aeropend_ident.gap_report.run_gap`:
 
 **Prediction** (:func:`predict_heldout`, computed from the fit data only, before any held-out
-recording is replayed): the corrected rig's held-out θ NRMSE e is modelled as
-
-    e² = e_in² + e_drift²
+recording is replayed): a Monte-Carlo predictive distribution of the corrected rig's held-out θ
+NRMSE e. Each of :data:`N_DRAWS` draws takes
 
 * e_in: the corrected rig's error within the session, i.e. on the validation part the effects
-  were chosen on, taken per block of :data:`BLOCK_S` seconds (RMS error of the block over the
-  recording's θ range); its spread over blocks is the within-session variation, and the effect
-  parameters' standard errors (:func:`aeropend_ident.gap_which.fit_effects`) are drawn too;
-* e_drift: what a session-to-session change of the rig adds: the corrected rig is replayed with its
-  drift-prone parameters (:data:`DRIFT_PARAMETERS`: thrust coefficient K_q, gravity term mgd/J,
-  viscous friction c/J, and the supply voltage V_s when v_a is recorded) multiplied by log-normal
-  factors of standard deviation σ_p, and the
-  RMS difference to the unperturbed replay is taken over the same recordings. σ_p is the prior
-  :data:`DRIFT_PRIOR` unless the fit data hold several sessions, whose measured drift replaces it.
+  were chosen on, of one random block of :data:`BLOCK_S` seconds (RMS error of the block over the
+  recording's θ range): the within-session variation;
+* the chosen effects' parameters from their standard errors
+  (:func:`aeropend_ident.gap_which.fit_effects`): the effect-fit spread;
+* a session-to-session log change of each drift-prone parameter (:data:`DRIFT_PARAMETERS`:
+  thrust coefficient K_q, gravity term mgd/J, viscous friction c/J, and the supply voltage V_s
+  when v_a is recorded) from :func:`draw_log_changes`: per session an unknown share
+  π ~ Uniform(0, 1) of the parameters changes, each by N(0, 2σ_p²) (σ_p: :data:`DRIFT_PRIOR`, the
+  standard deviation of the log change, kept), or, when the fit data hold several sessions, a
+  normal change with their measured σ_p;
 
-:data:`N_DRAWS` draws give the predicted median and the 80 % interval (10 % and 90 % quantiles).
+re-simulates the drawn rig on the validation recordings and records
+e² = e_in² + (mean squared change of the replay) / range². The median of the draws is the
+prediction, their 10 % and 90 % quantiles (:data:`INTERVAL`) the 80 % interval.
 
 **Attainable shrink** (:func:`attainable`, after the held-out replay): the chosen effect set,
 the chosen set plus the drift-prone parameters, and separately the best catalog set up to
@@ -81,15 +83,19 @@ DRIFT_PARAMETERS: dict[str, tuple[str, str]] = {
     "supply_voltage": ("actuator", "v_supply"),
 }
 #: Prior standard deviation of the session-to-session log change of each drift-prone parameter
-#: (0.15 ≈ ±15 %). Set from what the real rigs in ``../shared/data/real`` show between sessions:
-#: AeroShield's thrust per duty up to 35 % apart at 29–33 PWM counts, Etchepareborda's rod hanging
-#: 0.1–0.2 rad higher in another session (docs/gap.md); the supply voltage from what lab supplies
-#: do (a 3-cell LiPo 12.6 → 10.5 V over its charge, a USB port 4.75–5.25 V, a bench supply < 1 %);
-#: used only when the fit data hold one session.
+#: (0.15 ≈ ±15 %); its shape is :func:`draw_log_changes`'. Physical sizes (docs/gap.md, "Drift
+#: prior"): K_q from air density (weather ±2–3 %, temperature ±1.7 %) and a re-mounted or replaced
+#: propeller (a few to ~10 %); mgd/J from re-assembly (counterweight, cable, sensor mount);
+#: c/J from the bearing lubricant's viscosity (≈ −5 %/K at room temperature, drag ∝ ν^(2/3)) and
+#: standstill / run-in; the supply voltage from what lab supplies do (a 3-cell LiPo 12.6 → 10.5 V
+#: over its charge, a USB port 4.75–5.25 V, a bench supply < 1 %); the real rigs in
+#: ``../shared/data/real`` show such changes between sessions (AeroShield's thrust per duty up to
+#: 35 % apart at 29–33 PWM counts, Etchepareborda's rod hanging 0.1–0.2 rad higher). Used only
+#: when the fit data hold one session.
 DRIFT_PRIOR: dict[str, float] = {"thrust_coefficient": 0.15, "gravity": 0.10, "viscous_friction": 0.25,
                                  "supply_voltage": 0.08}
-#: Monte-Carlo draws of the prediction.
-N_DRAWS = 40
+#: Monte-Carlo draws of the prediction (one replay of each validation recording per draw).
+N_DRAWS = 300
 #: Block length of the within-session error [s].
 BLOCK_S = 5.0
 #: Quantiles of the predicted interval (80 %).
@@ -160,10 +166,85 @@ def _chosen_values(diag: EffectDiagnosis) -> tuple[dict[str, dict[str, float]], 
     return vals, std
 
 
+def _draw_effects(nominal: Rig, diag: EffectDiagnosis, vals: Mapping[str, Mapping[str, float]],
+                  std: Mapping[str, Mapping[str, float]], rng: np.random.Generator) -> Rig:
+    """The corrected rig with its effect parameters drawn from N(value, standard error), clipped to
+    their search ranges (the effect-fit uncertainty); the corrected rig itself when no standard
+    error is known or the drawn set does not apply."""
+    if not any(s > 0.0 for d in std.values() for s in d.values()):
+        return diag.corrected_rig
+    drawn: dict[str, dict[str, float]] = {}
+    for eff, pv in vals.items():
+        drawn[eff] = {}
+        for par in get_effect(eff).parameters:
+            v, s = pv[par.name], std[eff].get(par.name, 0.0)
+            lo, hi = par.limits
+            drawn[eff][par.name] = float(np.clip(v + s * rng.standard_normal(), lo, hi))
+    try:
+        return apply_effects(nominal, drawn)[0]
+    except GapError:
+        return diag.corrected_rig
+
+
+def _ms_change(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared], base: Sequence[np.ndarray]
+               ) -> float | None:
+    """Mean over recordings of the squared θ change of a replay from the base replay, over range²;
+    None when the replay fails on any recording."""
+    out = []
+    for p, sim in zip(preps, base, strict=True):
+        try:
+            s = replay(rig, meas, p)["theta"]
+        except GapError:
+            return None
+        out.append(float(np.mean((s - sim) ** 2)) / p.scale["theta"] ** 2)
+    return float(np.mean(out))
+
+
+def draw_log_changes(sigma: Mapping[str, float], params: Sequence[str], rng: np.random.Generator, *,
+                     occurrence: bool = True) -> dict[str, float]:
+    """One draw of the session-to-session log change of each drift-prone parameter.
+
+    Parameters
+    ----------
+    sigma : mapping
+        Standard deviation σ_p of the log change of parameter p between two sessions.
+    params : sequence of str
+        The drift-prone parameters drawn (:func:`drift_parameters`).
+    rng : numpy.random.Generator
+    occurrence : bool
+        True (the prior): whether a parameter changes at all is an event of probability π, shared by
+        the rig's parameters and unknown, π ~ Uniform(0, 1) drawn per session (a rig left alone
+        changes nothing, one taken apart or moved changes several things at once); a parameter
+        that changes moves by N(0, 2σ_p²), so that the log change keeps the standard deviation σ_p
+        (E[π] = 1/2) and only its shape changes: mass at zero and heavier tails. The number of
+        changing parameters is uniform on 0..len(params). False (σ measured across sessions, which
+        already holds the sessions in which nothing changed): N(0, σ_p²) for every parameter.
+
+    Returns
+    -------
+    dict
+        Log change per parameter (0.0 for one that does not change).
+    """
+    pi, widen = (float(rng.uniform()), math.sqrt(2.0)) if occurrence else (1.0, 1.0)
+    out = {}
+    for eff in params:
+        changes = bool(rng.uniform() < pi)
+        x = float(widen * sigma.get(eff, 0.0) * rng.standard_normal())
+        out[eff] = x if changes else 0.0
+    return out
+
+
 def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Recording], *,
                     drift_sigma: Mapping[str, float] | None = None, draws: int = N_DRAWS,
                     seed: int = 0) -> dict[str, Any]:
     """Predicted held-out θ NRMSE of the corrected rig, from the fit data only (module docstring).
+
+    A Monte-Carlo predictive distribution: each draw takes one within-session block error e_in,
+    the chosen effects' parameters from their standard errors, and an independent log change of
+    every drift-prone parameter from its Laplace prior (:data:`DRIFT_PRIOR` is its standard
+    deviation), replays the drawn rig on the validation recordings and records
+    e = √(e_in² + mean squared change of the replay); the median and the 10 % / 90 % quantiles of
+    the draws are the prediction and its 80 % interval.
 
     Parameters
     ----------
@@ -174,9 +255,10 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     validation : sequence of Recording
         The diagnosis' validation recordings (model frame), never held-out ones.
     drift_sigma : mapping, optional
-        σ of the log change per drift-prone parameter; default :data:`DRIFT_PRIOR`.
+        Standard deviation of the log change per drift-prone parameter; default
+        :data:`DRIFT_PRIOR`.
     draws : int
-        Monte-Carlo draws.
+        Monte-Carlo draws (one replay per validation recording each).
     seed : int
         Random seed.
 
@@ -184,14 +266,17 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     -------
     dict
         ``predicted`` (median), ``interval`` [lo, hi] (80 %), ``level`` 0.8, ``within_session``
-        (RMS of the block errors) and ``blocks`` (their values), ``drift_part`` (median e_drift),
-        ``drift_sigma`` used and its ``drift_source`` ("prior" / "sessions"), ``noise_floor``,
-        ``draws``.
+        (RMS of the block errors) and ``blocks`` (their values), ``drift_part`` (median RMS change
+        of the drawn replays: drift and effect-fit spread), ``drift_sigma`` used, ``drift_prior``
+        ("occurrence" or "normal", :func:`draw_log_changes`) and its ``drift_source`` ("prior" /
+        "sessions"), ``sensitivity`` (per
+        drift-prone parameter: the θ NRMSE change of the corrected rig's replay for that parameter
+        alone changed by −σ and +σ), ``noise_floor``, ``draws`` (those whose replays succeeded).
 
     Raises
     ------
     GapError
-        If a replay fails for the corrected rig.
+        If a replay fails for the corrected rig, or for every draw.
     """
     sigma = dict(DRIFT_PRIOR if drift_sigma is None else drift_sigma)
     preps = _preps(validation, diag.channels or ("theta",))
@@ -204,40 +289,24 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         blocks += [float(np.sqrt(np.mean(b**2)) / p.scale["theta"]) for b in np.array_split(e, k) if b.size]
     floors = [noise_floor(p) for p in preps]
     vals, std = _chosen_values(diag)
-    samples, drift_parts = [], []
+    params = drift_parameters(diag.channels or ("theta",))
+    sensitivity = {}
+    for eff in params:
+        s = sigma.get(eff, 0.0)
+        ms = [_ms_change(_perturbed(diag.corrected_rig, {eff: math.exp(sign * s)}), diag.measurement, preps,
+                         base) for sign in (-1.0, 1.0)]
+        sensitivity[eff] = [math.sqrt(m) if m is not None else math.nan for m in ms]
+    samples, changes = [], []
     for _ in range(draws):
-        rig = diag.corrected_rig
-        if any(s > 0.0 for d in std.values() for s in d.values()):
-            drawn = {}
-            for eff, pv in vals.items():
-                e = get_effect(eff)
-                drawn[eff] = {}
-                for par in e.parameters:
-                    v, s = pv[par.name], std[eff].get(par.name, 0.0)
-                    lo, hi = par.limits
-                    drawn[eff][par.name] = float(np.clip(v + s * rng.standard_normal(), lo, hi))
-            try:
-                rig = apply_effects(nominal, drawn)[0]
-            except GapError:
-                rig = diag.corrected_rig
-        factors = {eff: float(np.exp(sigma.get(eff, 0.0) * rng.standard_normal()))
-                   for eff in drift_parameters(diag.channels or ("theta",))}
-        drifted = _perturbed(rig, factors)
-        d2 = []
-        e_fit = []
-        for p, sim in zip(preps, base, strict=True):
-            try:
-                s_fit = replay(rig, diag.measurement, p)["theta"] if rig is not diag.corrected_rig else sim
-                s_drift = replay(drifted, diag.measurement, p)["theta"]
-            except GapError:
-                continue
-            d2.append(float(np.mean((s_drift - s_fit) ** 2)) / p.scale["theta"] ** 2)
-            e_fit.append(float(np.mean((s_fit - sim) ** 2)) / p.scale["theta"] ** 2)
-        if not d2:
-            continue
+        rig = _draw_effects(nominal, diag, vals, std, rng)
+        factors = {eff: math.exp(x) for eff, x in
+                   draw_log_changes(sigma, params, rng, occurrence=drift_sigma is None).items()}
         e_in = float(blocks[int(rng.integers(len(blocks)))])
-        drift_parts.append(math.sqrt(float(np.mean(d2))))
-        samples.append(math.sqrt(e_in**2 + float(np.mean(e_fit)) + float(np.mean(d2))))
+        ms = _ms_change(_perturbed(rig, factors), diag.measurement, preps, base)
+        if ms is None:
+            continue
+        changes.append(math.sqrt(ms))
+        samples.append(math.sqrt(e_in**2 + ms))
     if not samples:
         raise GapError("prediction: every replay of the corrected rig failed")
     lo, hi = np.quantile(samples, INTERVAL)
@@ -247,9 +316,11 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         "level": INTERVAL[1] - INTERVAL[0],
         "within_session": float(np.sqrt(np.mean(np.square(blocks)))),
         "blocks": blocks,
-        "drift_part": float(np.median(drift_parts)),
+        "drift_part": float(np.median(changes)),
         "drift_sigma": sigma,
+        "drift_prior": "occurrence" if drift_sigma is None else "normal",
         "drift_source": "prior" if drift_sigma is None else "sessions",
+        "sensitivity": sensitivity,
         "noise_floor": float(np.mean(floors)),
         "draws": len(samples),
     }

@@ -903,6 +903,9 @@ def terminal_summary(result: GapResult) -> str:
             f"interval [{pr['interval'][0]:.4f}, {pr['interval'][1]:.4f}] (within session "
             f"{pr['within_session']:.4f}, session drift {pr['drift_part']:.4f} from the "
             f"{pr['drift_source']})")
+        if pr.get("sensitivity"):
+            lines.append("    NRMSE change for one drift-prone parameter alone at -σ / +σ: "
+                         + ", ".join(f"{k} {a:.4f}/{b:.4f}" for k, (a, b) in pr["sensitivity"].items()))
     lines.append("  HELD OUT (never seen by the diagnosis), NRMSE per recorded channel:")
     for row in result.test:
         per = "  ".join(f"{c} {v:.4f}" for c, v in row.get("channel_nrmse", {}).items())
