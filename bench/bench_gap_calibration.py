@@ -296,6 +296,26 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
+def merge_results(paths: list[Path], out: Path) -> int:
+    """Combine the cases of result files of disjoint ``--only`` runs (same prediction) into ``out``."""
+    docs = [json.loads(p.read_text(encoding="utf-8")) for p in paths]
+    rows = sorted((r for d in docs for r in d["cases"]), key=lambda r: int(str(r["case"]).rsplit("@", 1)[-1]))
+    names = [r["case"] for r in rows]
+    if len(set(names)) != len(names):
+        raise SystemExit(f"merge: a case appears twice in {[str(p) for p in paths]}")
+    if len({json.dumps(d["setup"]["prediction"], sort_keys=True) for d in docs}) != 1:
+        raise SystemExit("merge: the runs used different predictions")
+    setup = dict(docs[0]["setup"], cases=len(rows), done=len(rows), merged_from=[str(p) for p in paths],
+                 wall_s=sum(d["setup"]["wall_s"] for d in docs),
+                 load_start=[d["setup"]["load_start"] for d in docs],
+                 load_end=[d["setup"]["load_end"] for d in docs])
+    doc = {"setup": setup, "summary": summarise(rows), "cases": rows}
+    out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
+    write_md(out.with_suffix(".md"), doc)
+    print(json.dumps(doc["summary"], indent=1))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workers", type=int, default=1)
@@ -305,7 +325,11 @@ def main(argv: list[str] | None = None) -> int:
         "--oracle", action="store_true", help="also the best-catalog oracle per held-out recording"
     )
     ap.add_argument("--out", default=str(RESULTS / "gap_calibration"))
+    ap.add_argument("--merge", nargs="+", default=[],
+                    help="combine the cases of these result JSONs (disjoint --only runs) into --out")
     args = ap.parse_args(argv)
+    if args.merge:
+        return merge_results([Path(p) for p in args.merge], Path(args.out))
     specs = case_list(args.cases)
     if args.only:
         specs = [specs[int(k)] for k in args.only.split(",")]
