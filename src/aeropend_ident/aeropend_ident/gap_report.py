@@ -898,14 +898,15 @@ def terminal_summary(result: GapResult) -> str:
         lines += _drift_lines(result.sessions["drift"])
     pr = result.prediction
     if pr:
+        # one line, the screen is full: the NRMSE change of each drift-prone parameter alone at -σ / +σ
+        sens = pr.get("sensitivity") or {}
+        alone = ("; alone at -σ/+σ: " + ", ".join(f"{k} {a:.4f}/{b:.4f}" for k, (a, b) in sens.items())
+                 if sens else "")
         lines.append(
             f"  PREDICTED held-out θ NRMSE of the corrected rig (fit data only): {pr['predicted']:.4f}, 80 % "
             f"interval [{pr['interval'][0]:.4f}, {pr['interval'][1]:.4f}] (within session "
             f"{pr['within_session']:.4f}, session drift {pr['drift_part']:.4f} from the "
-            f"{pr['drift_source']})")
-        if pr.get("sensitivity"):
-            lines.append("    NRMSE change for one drift-prone parameter alone at -σ / +σ: "
-                         + ", ".join(f"{k} {a:.4f}/{b:.4f}" for k, (a, b) in pr["sensitivity"].items()))
+            f"{pr['drift_source']}{alone})")
     lines.append("  HELD OUT (never seen by the diagnosis), NRMSE per recorded channel:")
     for row in result.test:
         per = "  ".join(f"{c} {v:.4f}" for c, v in row.get("channel_nrmse", {}).items())
