@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from aeropend_control.controller_core import ControllerConfigError, ControllerLoop, make_settings
-from aeropend_control.frame import RecordingFrame, read_recording_frame
+from aeropend_sim.recording_frame import RecordingFrame, read_recording_frame
 
 BENCH = Path(__file__).resolve().parents[1] / "bench"
 sys.path.insert(0, str(BENCH))

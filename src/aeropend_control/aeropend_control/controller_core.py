@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from aeropend_control.design import DesignError, PoleSpec, design_fl, reachable_angle
-from aeropend_control.frame import RecordingFrame, read_recording_frame
 from aeropend_control.strategies import (
     ALLOCATORS,
     DEFAULT_TF,
@@ -29,6 +28,7 @@ from aeropend_control.strategies import (
     make_strategy,
 )
 from aeropend_sim.params import Rig, RigFileError, load_rig
+from aeropend_sim.recording_frame import RecordingFrame, read_recording_frame
 
 MODES = ("realtime", "lockstep")
 #: Column names of the internal-signal vector (``/aeropend/controller/signals`` and the trace).
@@ -38,7 +38,7 @@ MODES = ("realtime", "lockstep")
 #: estimator). ``reference`` is the set point the loop used, ``reference_clamped`` 1 when the
 #: requested one lay outside the rig's reach [0, :func:`~aeropend_control.design.reachable_angle`]
 #: and was clamped to it, else 0. ``theta`` is the model's angle: the measured one mapped through the
-#: rig file's ``recording_frame`` when it has one (:mod:`aeropend_control.frame`).
+#: rig file's ``recording_frame`` when it has one (:mod:`aeropend_sim.recording_frame`).
 SIGNALS: tuple[str, ...] = ("t", "reference", "theta", "error", "v", "thrust", "theta_dot_hat",
                             "duty", "saturated", "stamp_s", "recv_latency", "pub_latency",
                             "theta_hat", "dist_hat", "reference_clamped")

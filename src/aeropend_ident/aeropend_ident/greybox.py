@@ -65,17 +65,16 @@ import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 from scipy.optimize import brentq, least_squares
 
 from aeropend_sim.model import ROTOR_FRICTION_VELOCITY, ModelError, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.recording import Recording
+from aeropend_sim.recording_frame import FrameError, RecordingFrame, read_recording_frame
 from aeropend_sim.simulate import SimulationError, simulate
 
 #: Name of the angle-offset parameter: θ_model = θ_recorded + θ_offset [rad].
@@ -173,7 +172,7 @@ def rig_theta_offset(rig_ref: str | Path) -> float:
         If the file cannot be found or read, or the block is malformed (wrong unit, no source,
         not a number).
     """
-    return _recording_frame_value(rig_ref, THETA_OFFSET, "rad", 0.0)
+    return _recording_frame(rig_ref).offset
 
 
 def rig_theta_scale(rig_ref: str | Path) -> float:
@@ -182,46 +181,15 @@ def rig_theta_scale(rig_ref: str | Path) -> float:
     See :func:`rig_theta_offset` for the block. Raises :class:`IdentificationError` as it does,
     and if s is not > 0.
     """
-    value = _recording_frame_value(rig_ref, "theta_scale", "1", 1.0)
-    if value <= 0.0:
-        raise IdentificationError(f"{rig_ref}: recording_frame.theta_scale = {value!r}; expected a gain > 0")
-    return value
+    return _recording_frame(rig_ref).scale
 
 
-def _recording_frame_value(rig_ref: str | Path, key: str, unit: str, default: float) -> float:
-    """One ``{value, unit, source}`` entry of a rig file's ``recording_frame`` block."""
-    path = Path(rig_ref)
+def _recording_frame(rig_ref: str | Path) -> RecordingFrame:
+    """The rig file's ``recording_frame`` (:mod:`aeropend_sim.recording_frame`), errors as ours."""
     try:
-        if path.suffix in (".yaml", ".yml"):
-            text = path.read_text(encoding="utf-8")
-        else:
-            text = (resources.files("aeropend_sim") / "rigs" / f"{rig_ref}.yaml").read_text(encoding="utf-8")
-        data = yaml.safe_load(text)
-    except (OSError, yaml.YAMLError) as exc:
-        raise IdentificationError(f"cannot read rig file {rig_ref!s}: {exc}") from exc
-    block = (data or {}).get("recording_frame") if isinstance(data, dict) else None
-    if not block or (isinstance(block, dict) and key not in block):
-        return default
-    node = block.get(key) if isinstance(block, dict) else None
-    if not isinstance(node, dict) or "value" not in node:
-        raise IdentificationError(
-            f"{rig_ref}: recording_frame.{key} must be {{value, unit: {unit}, source}}, got {node!r}"
-        )
-    if str(node.get("unit", "")).strip() != unit:
-        raise IdentificationError(
-            f"{rig_ref}: recording_frame.{key} has unit {node.get('unit')!r}; expected {unit!r}"
-        )
-    if not str(node.get("source", "")).strip():
-        raise IdentificationError(f"{rig_ref}: recording_frame.{key} has no 'source'")
-    try:
-        value = float(node["value"])
-    except (TypeError, ValueError) as exc:
-        raise IdentificationError(
-            f"{rig_ref}: recording_frame.{key}.value = {node['value']!r} is not a number"
-        ) from exc
-    if not math.isfinite(value):
-        raise IdentificationError(f"{rig_ref}: recording_frame.{key} = {value!r} is not finite")
-    return value
+        return read_recording_frame(rig_ref)
+    except FrameError as exc:
+        raise IdentificationError(str(exc)) from exc
 
 
 # --------------------------------------------------------------------------- parameter specs

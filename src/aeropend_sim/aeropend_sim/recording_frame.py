@@ -8,10 +8,11 @@ zero carry)::
       theta_offset: {value: 0.05, unit: rad, source: "..."}
       theta_scale: {value: 1.02, unit: "1", source: "..."}
 
-with θ_recorded = theta_scale·(θ_model − theta_offset) (the convention of
-``aeropend_ident.greybox.rig_theta_offset``). :func:`aeropend_sim.params.load_rig` ignores the
-block, so the controller reads it here and closes its loop on θ_model = θ_recorded/s + offset:
-the reference is then the physical angle of the model, whatever the sensor's zero and gain.
+with θ_recorded = theta_scale·(θ_model − theta_offset). :func:`aeropend_sim.params.load_rig`
+ignores the block; this module is its one reader: the identification replays the model in the
+recording's frame (``aeropend_ident.greybox.rig_theta_offset``), the controller closes its loop
+on θ_model = θ_recorded/s + offset, so the reference is the physical angle of the model,
+whatever the sensor's zero and gain.
 """
 
 from __future__ import annotations
@@ -65,7 +66,8 @@ def read_recording_frame(rig_ref: str | Path) -> RecordingFrame:
     ------
     FrameError
         If the file cannot be read, or an entry is not ``{value, unit, source}`` with the unit
-        rad (offset) / 1 (scale), a finite value and, for the scale, a value > 0.
+        rad (offset) / 1 (scale), a non-empty source, a finite value and, for the scale, a
+        value > 0.
     """
     path = Path(rig_ref)
     try:
@@ -92,6 +94,8 @@ def read_recording_frame(rig_ref: str | Path) -> RecordingFrame:
         if str(node.get("unit", "")).strip() != unit:
             raise FrameError(f"{rig_ref}: recording_frame.{key} has unit {node.get('unit')!r}; "
                              f"expected {unit!r}")
+        if not str(node.get("source", "")).strip():
+            raise FrameError(f"{rig_ref}: recording_frame.{key} has no 'source'")
         try:
             val = float(node["value"])
         except (TypeError, ValueError):
