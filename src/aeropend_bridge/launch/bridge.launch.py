@@ -19,7 +19,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, node_parameters
+from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, is_true, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,
@@ -41,7 +41,7 @@ def _bridge(context, *args, **kwargs):
         "theta_offset": float(value["theta_offset"]),
         "command_timeout": float(value["command_timeout"]),
         "frame_id": value["frame_id"],
-        "autostart": value["autostart"].strip().lower() in ("true", "1", "yes", "on"),
+        "autostart": is_true(value["autostart"]),
     }
     return [Node(package="aeropend_bridge", executable="bridge", name="aeropend_bridge", output="screen",
                  parameters=node_parameters(params, value["params_file"]),

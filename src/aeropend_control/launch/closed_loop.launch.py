@@ -18,7 +18,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironment
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE, PARAMS_FILE, node_parameters
+from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE, PARAMS_FILE, is_true, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,
@@ -47,7 +47,7 @@ def _nodes(context, *args, **kwargs):
     if v["plant"] == "sim":
         plant_params = {"rig": v["rig"], "mode": v["mode"], "rt_priority": rt}
         if v["noise"]:
-            plant_params["noise"] = v["noise"].strip().lower() in ("true", "1", "yes", "on")
+            plant_params["noise"] = is_true(v["noise"])
         if v["effects"]:
             plant_params["effects"] = [e.strip() for e in v["effects"].split(",") if e.strip()]
         plant = Node(package="aeropend_sim", executable="sim_node", name="aeropend_sim", output="screen",

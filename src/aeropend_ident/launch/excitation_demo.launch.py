@@ -30,7 +30,7 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE, PARAMS_FILE, node_parameters
+from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE, PARAMS_FILE, is_true, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,
@@ -55,7 +55,7 @@ def _nodes(context, *args, **kwargs):
     if lockstep:  # sample 0 waits for both sample consumers (excitation, recorder)
         plant_params["min_subscribers"] = 2
     if value["noise"]:
-        plant_params["noise"] = value["noise"].strip().lower() in ("true", "1", "yes", "on")
+        plant_params["noise"] = is_true(value["noise"])
     # wait for plant + recorder on the duty topic so the bag starts at sample 0
     signal_params = {"signal": value["signal"], "mode": value["mode"], "min_subscribers": 2}
     if value["signal"] in ("prbs", "aprbs", "density_prbs", "lhs"):

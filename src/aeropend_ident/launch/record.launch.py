@@ -18,7 +18,7 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, node_parameters
+from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, is_true, node_parameters
 
 CONTRACT_TOPICS = ["/aeropend/duty_cycle", "/aeropend/joint_states", "/aeropend/armature"]
 
@@ -35,21 +35,17 @@ ARGUMENTS = (
 )
 
 
-def _truthy(text: str) -> bool:
-    return text.strip().lower() in ("true", "1", "yes", "on")
-
-
 def _recorder(context, *args, **kwargs):
     value = {name: LaunchConfiguration(name).perform(context) for name, _, _ in ARGUMENTS}
     topics = value["topics"].split() or [""]  # "": the contract topics in the recorder's namespace
-    if _truthy(value["clock"]) and "/clock" not in topics:
+    if is_true(value["clock"]) and "/clock" not in topics:
         topics.append("/clock")
     params = {
         "storage": value["storage"],
         "topics": topics,
         "duration": float(value["duration"]),
         "max_samples": int(value["max_samples"]),
-        "use_sim_time": _truthy(value["use_sim_time"]),
+        "use_sim_time": is_true(value["use_sim_time"]),
     }
     if value["output"]:
         params["output"] = value["output"]

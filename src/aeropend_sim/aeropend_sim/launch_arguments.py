@@ -20,6 +20,14 @@ PARAMS_FILE = ("params_file", "",
                "ROS parameters file (YAML, /**/<node>: ros__parameters: ...) for the nodes; applied "
                "after the other arguments, so its values win (empty: none)")
 
+#: Launch-argument spellings read as true (as ``sim_core`` reads boolean node parameters).
+TRUE_WORDS = ("true", "1", "yes", "on")
+
+
+def is_true(text: str) -> bool:
+    """A boolean launch argument: ``true``/``1``/``yes``/``on`` (any case, spaces ignored)."""
+    return text.strip().lower() in TRUE_WORDS
+
 
 def node_parameters(values: dict[str, Any], params_file: str) -> list[Any]:
     """``parameters=`` of a ``launch_ros`` node: the argument values, then the params file.

@@ -19,7 +19,7 @@ from launch_ros.actions import Node
 
 from aeropend_sim.contract import REL_JOINT_STATES
 from aeropend_sim.description import urdf_for_rig
-from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, node_parameters
+from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, is_true, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,
@@ -38,7 +38,7 @@ def _nodes(context, *args, **kwargs):
                   name="robot_state_publisher", output="screen", namespace=v["namespace"] or None,
                   parameters=node_parameters(params, v["params_file"]),
                   remappings=[("joint_states", REL_JOINT_STATES)])]
-    if v["rviz"].strip().lower() in ("true", "1", "yes", "on"):
+    if is_true(v["rviz"]):
         config = v["rviz_config"]
         if not config:
             from ament_index_python.packages import get_package_share_directory

@@ -16,7 +16,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, node_parameters
+from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, is_true, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,
@@ -45,7 +45,7 @@ def _plant(context, *args, **kwargs):
         "frame_id": value["frame_id"],
     }
     if value["noise"]:
-        params["noise"] = value["noise"].strip().lower() in ("true", "1", "yes", "on")
+        params["noise"] = is_true(value["noise"])
     if value["effects"]:
         params["effects"] = [e.strip() for e in value["effects"].split(",") if e.strip()]
     return [
