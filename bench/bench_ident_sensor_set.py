@@ -45,8 +45,10 @@ import yaml
 BENCH = Path(__file__).resolve().parent
 ROOT = BENCH.parent
 sys.path.insert(0, str(BENCH))
+sys.path.insert(0, str(ROOT / "test"))
 
 import truth_plant as tp  # noqa: E402
+from truth_support import lab_rig_doc, write_rig  # noqa: E402
 
 from aeropend_ident import csv_import  # noqa: E402
 from aeropend_ident.csv_import import CsvSpec  # noqa: E402
@@ -87,13 +89,7 @@ def truth_terms() -> dict[str, dict[str, float]]:
 
 def rig_file(folder: Path) -> Path:
     """thesis_sim with the ideal 2.32 V drive (the truth plant's drive) as a lab writes it."""
-    src = ROOT / "src/aeropend_sim/aeropend_sim/rigs/thesis_sim.yaml"
-    rig = yaml.safe_load(src.read_text(encoding="utf-8"))
-    rig["effects"]["hbridge_map"] = False
-    rig["actuator"]["v_supply"]["value"] = 2.32
-    path = folder / "rig.yaml"
-    path.write_text(yaml.safe_dump(rig), encoding="utf-8")
-    return path
+    return write_rig(lab_rig_doc(), folder / "rig.yaml")
 
 
 def write_log(path: Path, true: dict[str, np.ndarray], channels: tuple[str, ...], snr: float,

@@ -18,7 +18,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from aeropend_ident.compare import CompareError, channel_scores, compare, load_model, step_metrics
 from aeropend_ident.compare_cli import main
@@ -34,6 +33,7 @@ from aeropend_sim.recording import Recording
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
 import truth_plant as tp  # noqa: E402
+from truth_support import lab_rig_doc, write_rig  # noqa: E402
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 DT = tp.DT
@@ -41,18 +41,13 @@ DT = tp.DT
 
 def _lab_rig(tmp_path: Path, **frame: float) -> Path:
     """The lab's rig file for the truth plant: thesis_sim with an ideal 2.32 V drive."""
-    text = (ROOT / "src/aeropend_sim/aeropend_sim/rigs/thesis_sim.yaml").read_text(encoding="utf-8")
-    rig = yaml.safe_load(text)
-    rig["effects"]["hbridge_map"] = False
-    rig["actuator"]["v_supply"]["value"] = 2.32
+    rig = lab_rig_doc()
     if frame:
         rig["recording_frame"] = {
             k: {"value": v, "unit": "rad" if k == "theta_offset" else "1", "source": "test"}
             for k, v in frame.items()
         }
-    path = tmp_path / ("lab_rig_frame.yaml" if frame else "lab_rig.yaml")
-    path.write_text(yaml.safe_dump(rig), encoding="utf-8")
-    return path
+    return write_rig(rig, tmp_path / ("lab_rig_frame.yaml" if frame else "lab_rig.yaml"))
 
 
 def _recording(tr: tp.TruthRecording, name: str) -> Recording:

@@ -18,6 +18,7 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 sys.path.insert(0, str(BENCH))
 
 import truth_plant as tp  # noqa: E402
+from truth_support import lab_rig_doc, write_rig  # noqa: E402
 
 RIGS = Path(__file__).resolve().parents[1] / "src/aeropend_sim/aeropend_sim/rigs"
 
@@ -55,9 +56,7 @@ def test_truth_stepper_noise_has_the_stated_sigma():
 def _rig_with_frame(tmp_path: Path, frame: dict) -> Path:
     doc = yaml.safe_load((RIGS / "thesis_sim.yaml").read_text(encoding="utf-8"))
     doc["recording_frame"] = frame
-    path = tmp_path / "rig.yaml"
-    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
-    return path
+    return write_rig(doc, tmp_path / "rig.yaml")
 
 
 def test_the_loop_runs_on_the_model_angle_of_the_rig_files_recording_frame(tmp_path):
@@ -84,11 +83,8 @@ def test_a_malformed_recording_frame_is_refused_naming_the_key(tmp_path):
 def test_design_gains_schedules_a_weak_rig_up_to_its_reach(tmp_path, capsys):
     from aeropend_control.design import main
 
-    doc = yaml.safe_load((RIGS / "thesis_sim.yaml").read_text(encoding="utf-8"))
-    doc["effects"]["hbridge_map"] = False
-    doc["actuator"]["v_supply"]["value"] = 2.32  # ideal drive: reach ≈ 0.67 rad < the grid's 1.1 rad
-    rig = tmp_path / "weak.yaml"
-    rig.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
+    # the ideal drive: reach ≈ 0.67 rad < the grid's 1.1 rad
+    rig = write_rig(lab_rig_doc(), tmp_path / "weak.yaml")
     out = tmp_path / "gains.yaml"
     assert main(["--rig", str(rig), "-o", str(out)]) == 0
     gains = yaml.safe_load(out.read_text(encoding="utf-8"))
@@ -102,18 +98,14 @@ def test_design_gains_schedules_a_weak_rig_up_to_its_reach(tmp_path, capsys):
 def _lag_rig(tmp_path: Path, lag: float | None, delay: float = 0.0) -> str:
     """The thesis_sim rig with an ideal drive (the truth plant's nominal), optionally declaring a
     drive lag as gap's corrected rig does."""
-    doc = yaml.safe_load((RIGS / "thesis_sim.yaml").read_text(encoding="utf-8"))
-    doc["effects"]["hbridge_map"] = False
-    doc["actuator"]["v_supply"]["value"] = 2.32
+    doc = lab_rig_doc()
     if lag is not None:
         doc["effects"]["actuator_lag"] = True
         doc["actuator"]["lag_time_constant"]["value"] = lag
     if delay:
         doc["effects"]["input_delay"] = True
         doc["actuator"]["input_delay"]["value"] = delay
-    path = tmp_path / f"rig_{lag}.yaml"
-    path.write_text(yaml.safe_dump(doc, allow_unicode=True), encoding="utf-8")
-    return str(path)
+    return str(write_rig(doc, tmp_path / f"rig_{lag}.yaml"))
 
 
 def _step_on_truth(rig: str, strategy: str, plant: tp.TruthPlant, r: float = 0.2,

@@ -19,6 +19,7 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 sys.path.insert(0, str(BENCH))
 
 import truth_plant as tp  # noqa: E402
+from truth_support import lab_rig_doc, write_rig  # noqa: E402
 
 from aeropend_ident.libraries import lagged_square, pendulum_library, physics_structured_library  # noqa: E402
 from aeropend_ident.second_order import fit_pendulum  # noqa: E402
@@ -117,11 +118,7 @@ def test_identify_csv_of_the_rig_sensor_set_30db(truth_run, tmp_path, truth_csv_
     rec = tp.record(tp.TruthPlant(), truth_run["duty"], 30.0, seed=1)
     rec.to_csv(tmp_path / "log.csv")
     preset = truth_csv_preset("_sensor_set_test")
-    rig = yaml.safe_load((Path(__file__).resolve().parents[1] / "src/aeropend_sim/aeropend_sim/rigs/"
-                          "thesis_sim.yaml").read_text(encoding="utf-8"))
-    rig["effects"]["hbridge_map"] = False
-    rig["actuator"]["v_supply"]["value"] = 2.32
-    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig), encoding="utf-8")
+    write_rig(lab_rig_doc(), tmp_path / "rig.yaml")
     out = tmp_path / "res"
     assert main([str(tmp_path / "log.csv"), "--preset", preset, "--rig", str(tmp_path / "rig.yaml"),
                  "--method", "weak-iv", "--no-plots", "--quiet", "--out", str(out)]) == 0

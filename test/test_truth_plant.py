@@ -21,6 +21,7 @@ BENCH = Path(__file__).resolve().parents[1] / "bench"
 sys.path.insert(0, str(BENCH))
 
 import truth_plant as tp  # noqa: E402
+from truth_support import lab_rig_doc, write_rig  # noqa: E402
 
 
 def test_truth_plant_imports_nothing_from_aeropend():
@@ -105,7 +106,6 @@ def test_noise_has_the_requested_snr():
 def test_a_lab_path_csv_import_gap_names_the_hidden_drag(tmp_path, truth_csv_preset):
     """CSV log of the independent plant -> ``csv_import`` mapping -> ``gap`` with a lab's rig file:
     a propeller drag the rig file omits (K_d = 0) is named and fitted in physical units."""
-    import yaml
 
     from aeropend_ident.gap_cli import main
 
@@ -116,11 +116,7 @@ def test_a_lab_path_csv_import_gap_names_the_hidden_drag(tmp_path, truth_csv_pre
     fit.to_csv(tmp_path / "fit.csv")
     held.to_csv(tmp_path / "held.csv")
     preset = truth_csv_preset("_truth_plant_test")
-    rig = yaml.safe_load((Path(__file__).resolve().parents[1] / "src/aeropend_sim/aeropend_sim/rigs/"
-                          "thesis_sim.yaml").read_text(encoding="utf-8"))
-    rig["effects"]["hbridge_map"] = False
-    rig["actuator"]["v_supply"]["value"] = 2.32
-    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig), encoding="utf-8")
+    write_rig(lab_rig_doc(), tmp_path / "rig.yaml")
     out = tmp_path / "report"
     assert main([str(tmp_path / "fit.csv"), "--held-out", str(tmp_path / "held.csv"), "--preset",
                  preset, "--rig", str(tmp_path / "rig.yaml"), "-o", str(out), "-q"]) == 0
