@@ -37,7 +37,15 @@ import numpy as np
 
 from aeropend_ident.libraries import CandidateLibrary, LibraryError, pendulum_library
 from aeropend_ident.preprocess import differentiate
-from aeropend_ident.sindy import IdentData, IdentificationError, SindyModel, free_run, sparse_regression
+from aeropend_ident.sindy import (
+    IdentData,
+    IdentificationError,
+    SindyModel,
+    SweepPoint,
+    free_run,
+    select_threshold,
+    sparse_regression,
+)
 from aeropend_ident.weak_quadrature import SecondOrderTestFunctions
 
 #: λ grid of the pendulum equation (dimensionless, unit-RMS scale as in :mod:`aeropend_ident.sindy`).
@@ -205,18 +213,17 @@ def fit_pendulum(
         raise IdentificationError(f"{data.source}: the pendulum library {lib.names} is rank deficient on "
                                   "this data (is the rod excited?)")
     n = a_val.shape[0]
-    sweep, best = [], None
+    points, coefs = [], {}
     for lam in thresholds:
         coef = sparse_regression(a_fit, y_fit[:, None], float(lam))[0][0]
-        rss = float(np.sum((a_val @ coef - y_val) ** 2))
+        mse = float(np.mean((a_val @ coef - y_val) ** 2))
         k = int(np.count_nonzero(coef))
-        bic = n * math.log(max(rss / n, 1e-300)) + k * math.log(n)
-        sweep.append({"threshold": float(lam), "n_terms": k, "bic": bic})
-        if best is None or bic < best[0] - 1e-9 * abs(best[0]) or (
-                abs(bic - best[0]) <= 1e-9 * abs(best[0]) and lam > best[1]):
-            best = (bic, float(lam), coef)
-    assert best is not None
-    _, lam, coef = best
+        bic = n * math.log(max(mse, 1e-300)) + k * math.log(n)
+        points.append(SweepPoint(float(lam), {"theta_dot": k}, {"theta_dot": mse}, math.nan, bic))
+        coefs[float(lam)] = coef
+    sweep = [{"threshold": pt.threshold, "n_terms": pt.n_terms["theta_dot"], "bic": pt.bic} for pt in points]
+    lam = select_threshold(points, "bic").threshold  # ties go to the sparser model
+    coef = coefs[lam]
     support = coef != 0.0
     pruning = []
     base = _val_nrmse(lib, coef, val_part)
