@@ -296,6 +296,12 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
+def write_results(out: Path, doc: dict[str, Any]) -> None:
+    """``out``.json (the whole document) and ``out``.md (the tables)."""
+    out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
+    write_md(out.with_suffix(".md"), doc)
+
+
 def merge_results(paths: list[Path], out: Path) -> int:
     """Combine the cases of result files of disjoint ``--only`` runs (same prediction) into ``out``."""
     docs = [json.loads(p.read_text(encoding="utf-8")) for p in paths]
@@ -310,8 +316,7 @@ def merge_results(paths: list[Path], out: Path) -> int:
                  load_start=[d["setup"]["load_start"] for d in docs],
                  load_end=[d["setup"]["load_end"] for d in docs])
     doc = {"setup": setup, "summary": summarise(rows), "cases": rows}
-    out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
-    write_md(out.with_suffix(".md"), doc)
+    write_results(out, doc)
     print(json.dumps(doc["summary"], indent=1))
     return 0
 
@@ -361,8 +366,7 @@ def main(argv: list[str] | None = None) -> int:
             "summary": summarise(rows),
             "cases": rows,
         }
-        out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n", encoding="utf-8")
-        write_md(out.with_suffix(".md"), doc)
+        write_results(out, doc)
         return doc
 
     with ProcessPoolExecutor(max_workers=args.workers) as ex:
