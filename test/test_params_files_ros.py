@@ -42,10 +42,6 @@ CASES = [
 ]
 
 
-#: Seconds without a reply after which the (idempotent) get_parameters request is sent again.
-REPLY_WAIT_S = 2.0
-
-
 def _section(path: Path, node: str) -> dict[str, Any]:
     doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     return doc[f"/**/{node}"]["ros__parameters"]
@@ -54,22 +50,11 @@ def _section(path: Path, node: str) -> dict[str, Any]:
 def _get(node: Any, executor: Any, target: str, names: list[str], timeout: float = 20.0) -> dict[str, Any]:
     client = node.create_client(GetParameters, f"/{target}/get_parameters")
     assert client.wait_for_service(timeout_sec=timeout), f"no /{target}/get_parameters"
-    # rmw_fastrtps' service waits at most 100 ms for the client's reply reader to be matched and
-    # then drops the response (ros2/rmw_fastrtps#390, #467), while wait_for_service only tells that
-    # the client's side has matched: a request sent right after it can go unanswered (a fresh-clone
-    # run: "/aeropend_bridge/get_parameters did not answer" in 20 s). get_parameters is a read, so
-    # it is sent again after REPLY_WAIT_S without an answer; the attempts are counted in the message.
+    future = client.call_async(GetParameters.Request(names=names))
     end = time.monotonic() + timeout
-    attempts = 0
-    future = None
-    while time.monotonic() < end and not (future is not None and future.done()):
-        future = client.call_async(GetParameters.Request(names=names))
-        attempts += 1
-        resend = min(time.monotonic() + REPLY_WAIT_S, end)
-        while not future.done() and time.monotonic() < resend:
-            executor.spin_once(timeout_sec=0.05)
-    assert future is not None and future.done(), (
-        f"/{target}/get_parameters did not answer {attempts} requests in {timeout:g} s")
+    while not future.done() and time.monotonic() < end:
+        executor.spin_once(timeout_sec=0.05)
+    assert future.done(), f"/{target}/get_parameters did not answer"
     node.destroy_client(client)
     return {n: parameter_value_to_python(v) for n, v in zip(names, future.result().values, strict=True)}
 
