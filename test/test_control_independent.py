@@ -109,13 +109,20 @@ def _lag_rig(tmp_path: Path, lag: float | None, delay: float = 0.0) -> str:
 
 
 def _step_on_truth(rig: str, strategy: str, plant: tp.TruthPlant, r: float = 0.2,
-                   n: int = 2000) -> np.ndarray:
+                   n: int = 2000, detune: bool = True, detuned: list | None = None) -> np.ndarray:
+    """θ of a step from rest; ``detune=False`` keeps a cascade's design fixed; the cascade's
+    detuned bandwidths are appended to ``detuned``."""
     loop = ControllerLoop(make_settings(rig=rig, strategy=strategy, mode="lockstep", reference=r))
+    inner = getattr(loop.strategy, "inner", None)
+    if inner is not None and not detune:
+        inner.monitor = None
     st = tp.TruthStepper(plant)
     s, theta = st.sample(), np.empty(n)
     for k in range(n):
         theta[k] = st.state[0]
         s = st.step(loop.on_sample(k * 2_048_000, s["theta"], s["omega_rotor"], s["i_a"]))
+    if inner is not None and detuned is not None:
+        detuned.extend(inner.detuned)
     return theta
 
 
@@ -123,8 +130,8 @@ def test_a_rig_file_that_knows_the_drive_lag_gives_a_better_controller(tmp_path)
     """Truth plant with a 50 ms drive lag, 2 samples delay, dead zone 0.04 and rod Coulomb friction
     1 rad/s²: FL designed on a rig file that declares it (thrust loop
     on the predicted thrust) overshoots less; the cascade designed on a rig file that declares the
-    lag and delay (bandwidths limited by them) does not limit-cycle, the one designed on the
-    nominal rig does."""
+    lag and delay (bandwidths limited by them) does not limit-cycle and is never detuned, the one
+    designed on the nominal rig does with its design held fixed."""
     from aeropend_control.design import design_cascade
     from aeropend_control.strategies import THRUST_LOOP_GAIN, default_thrust_gain
     from aeropend_sim.params import load_rig
@@ -144,9 +151,33 @@ def test_a_rig_file_that_knows_the_drive_lag_gives_a_better_controller(tmp_path)
     fl_nom, fl_known = (_step_on_truth(rig, "fl_pid", plant) for rig in (nominal, known))
     assert overshoot(fl_nom) > 15.0 and overshoot(fl_known) < 0.7 * overshoot(fl_nom)
     tail = slice(-500, None)  # last 1 s
-    cas_nom, cas_known = (_step_on_truth(rig, "cascade", plant) for rig in (nominal, known))
-    assert np.ptp(cas_nom[tail]) > 0.005  # sustained oscillation (7 mrad peak to peak measured)
+    cas_fixed = _step_on_truth(nominal, "cascade", plant, detune=False)
+    assert np.ptp(cas_fixed[tail]) > 0.005  # sustained oscillation (7 mrad peak to peak measured)
+    known_detuned: list[float] = []
+    cas_known = _step_on_truth(known, "cascade", plant, detuned=known_detuned)
     assert np.ptp(cas_known[tail]) < 0.002 and abs(cas_known[tail].mean() - 0.2) < 0.004
+    assert known_detuned == []  # the declared lag's design does not cycle: never changed
+
+
+def test_the_cascade_detunes_itself_out_of_a_limit_cycle_an_unknown_drive_lag_causes(tmp_path):
+    """Same truth plant, cascade designed on the nominal rig file (it does not know the 50 ms lag):
+    with a fixed design the duty bangs between its limits and θ oscillates for ever; the limit-cycle
+    monitor detects it, the speed loop is redesigned at 30 rad/s (45 × 2/3) and the rod settles in
+    the 2 % band. On the nominal truth plant (no lag) the design is never touched."""
+    plant = tp.TruthPlant(effects={"actuator_lag": 0.05, "input_delay": 2 * tp.DT, "dead_zone": 0.04,
+                                   "coulomb_friction": 1.0})
+    nominal = _lag_rig(tmp_path, None)
+    tail = slice(-500, None)  # last 1 s of 4 s
+    fixed = _step_on_truth(nominal, "cascade", plant, detune=False)
+    detuned: list[float] = []
+    adaptive = _step_on_truth(nominal, "cascade", plant, detuned=detuned)
+    assert np.ptp(fixed[tail]) > 0.005
+    assert detuned == [pytest.approx(30.0)]
+    assert np.ptp(adaptive[tail]) < 0.002 and abs(adaptive[tail].mean() - 0.2) < 0.004
+    for strategy in ("cascade", "fl_cascade"):
+        clean: list[float] = []
+        theta = _step_on_truth(nominal, strategy, tp.TruthPlant(), detuned=clean)
+        assert clean == [] and abs(theta[tail].mean() - 0.2) < 0.004
 
 
 GAP_RIG = Path(__file__).resolve().parent / "data" / "gap_corrected_rig.yaml"

@@ -37,6 +37,7 @@ import numpy as np
 from aeropend_control.allocation import Allocation, ModelAllocator, ThesisAllocator
 from aeropend_control.design import (
     DEFAULT_GRID,
+    LAG_CURRENT_RATIO,
     CascadeDesign,
     LoopDesign,
     PoleSpec,
@@ -47,6 +48,7 @@ from aeropend_control.design import (
     schedule,
 )
 from aeropend_control.observer import ObserverSpec, PendulumObserver
+from aeropend_control.oscillation import OscillationMonitor
 from aeropend_control.pid import PID, PIDGains
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig
@@ -433,6 +435,13 @@ def make_strategy(
 
 
 # ---------------------------------------------------------------------------------- cascade
+#: Factor on the speed-loop bandwidth per detected limit cycle of the motor cascade.
+DETUNE_FACTOR = 2.0 / 3.0
+#: Lowest speed-loop bandwidth the detuning goes to [rad/s] (below ≈ 20 rad/s the position loop
+#: overshoots > 30 %, docs/control.md).
+MIN_OMEGA_SPEED = 20.0
+
+
 class MotorCascade:
     """Speed and current PI loops of the motor (thesis §6.7, Fig. 6.10), per sample.
 
@@ -441,6 +450,15 @@ class MotorCascade:
     Both PIs use back-calculation anti-windup, so the limits are the thesis' current and voltage
     saturations.
 
+    **Detuning on a limit cycle** (issue 19): a drive lag or delay the rig file does not know
+    (40-60 ms) leaves the 45 rad/s speed loop without phase margin and the duty cycles between
+    its limits at 6-8 Hz. An :class:`~aeropend_control.oscillation.OscillationMonitor` on the duty
+    detects that cycle (a relay-feedback experiment run by accident) and the loops are redesigned
+    with ω_s × :data:`DETUNE_FACTOR` (ω_c = :data:`~aeropend_control.design.LAG_CURRENT_RATIO`·ω_s,
+    the rule of a rig file that declares its lag), bumplessly (:meth:`PID.set_gains`), at most
+    down to :data:`MIN_OMEGA_SPEED`. A rig without such dynamics never cycles, so its design is
+    never changed. ``detune=False`` keeps the design fixed.
+
     Parameters
     ----------
     rig : Rig
@@ -448,9 +466,13 @@ class MotorCascade:
         Default :func:`aeropend_control.design.design_cascade`.
     dt : float, optional
         Sample period [s].
+    detune : bool
+        Detune the loops when the duty limit-cycles (default True).
     """
 
-    def __init__(self, rig: Rig, design: CascadeDesign | None = None, dt: float | None = None) -> None:
+    def __init__(self, rig: Rig, design: CascadeDesign | None = None, dt: float | None = None,
+                 detune: bool = True) -> None:
+        self.rig = rig
         self.design = design or design_cascade(rig)
         d = self.design
         self.model = PlantModel(rig)
@@ -459,17 +481,43 @@ class MotorCascade:
         self.current = PID(PIDGains(kp=d.kp_i, ki=d.ki_i, u_min=0.0, u_max=d.v_max), self.dt)
         self.i_ref = 0.0
         self.v_a = 0.0
+        self.monitor = OscillationMonitor(self.dt) if detune else None
+        #: Speed-loop bandwidths [rad/s] the loops were detuned to, in order (empty: as designed).
+        self.detuned: list[float] = []
+        #: Set for the one sample at which a limit cycle was detected: (ω_s before, ω_s after) [rad/s];
+        #: equal values mean the floor was reached and nothing changed.
+        self.detune_event: tuple[float, float] | None = None
 
     def reset(self) -> None:
-        """Clear both integrators."""
+        """Clear both integrators and the limit-cycle monitor (the design is kept)."""
         self.speed.reset()
         self.current.reset()
+        if self.monitor is not None:
+            self.monitor.reset()
 
     def step(self, omega_ref: float, omega: float, i_a: float) -> float:
         """Speed reference ω₁,ref [rad/s], measured ω₁ [rad/s] and i_a [A] → duty τ."""
         self.i_ref = self.speed.update(omega_ref, omega)
         self.v_a = self.current.update(self.i_ref, i_a)
-        return self.model.duty_for_voltage(min(max(self.v_a, 0.0), self.design.v_max))
+        duty = self.model.duty_for_voltage(min(max(self.v_a, 0.0), self.design.v_max))
+        self.detune_event = None
+        if self.monitor is not None and self.monitor.update(duty):
+            self._detune()
+        return duty
+
+    def _detune(self) -> None:
+        """Redesign both PIs at a lower speed-loop bandwidth, bumplessly (see the class docstring)."""
+        d = self.design
+        w_s = max(d.omega_speed * DETUNE_FACTOR, MIN_OMEGA_SPEED)
+        self.detune_event = (d.omega_speed, w_s)
+        if w_s >= d.omega_speed:
+            return
+        w_c = min(d.omega_current, LAG_CURRENT_RATIO * w_s)
+        new = design_cascade(self.rig, omega_speed=w_s, omega_current=w_c, i_max=d.i_max)
+        self.speed.set_gains(replace(self.speed.gains, kp=new.kp_w, ki=new.ki_w))
+        self.current.set_gains(replace(self.current.gains, kp=new.kp_i, ki=new.ki_i))
+        self.design = new
+        self.detuned.append(w_s)
 
     @property
     def saturated(self) -> int:
