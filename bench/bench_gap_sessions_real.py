@@ -9,7 +9,8 @@ the best constant-parameter fit there and the drift table.
 Writes ``bench/results/gap_sessions_real.json`` and ``.md``; report folders under
 ``bench/results/gap_sessions_real/``.
 
-Usage: ``python bench/bench_gap_sessions_real.py [--only CASE ...] [--md-only]``
+Usage: ``python bench/bench_gap_sessions_real.py [--only CASE ...] [--md-only]`` (``--only`` replaces
+those cases' rows in the stored results and keeps the others)
 """
 
 from __future__ import annotations
@@ -158,9 +159,12 @@ def main(argv: list[str] | None = None) -> int:
             json.dumps({k: rows[-1].get(k) for k in ("case", "exit", "chosen", "check")}, default=str),
             flush=True,
         )
-    (RESULTS / "gap_sessions_real.json").write_text(
-        json.dumps(rows, indent=1, default=float) + "\n", encoding="utf-8"
-    )
+    stored_path = RESULTS / "gap_sessions_real.json"
+    if args.only and stored_path.exists():  # keep the other cases' rows: replace only the re-run ones
+        fresh = {r["case"]: r for r in rows}
+        stored = json.loads(stored_path.read_text(encoding="utf-8"))
+        rows = [fresh.pop(r["case"], r) for r in stored] + list(fresh.values())
+    stored_path.write_text(json.dumps(rows, indent=1, default=float) + "\n", encoding="utf-8")
     write_md(RESULTS / "gap_sessions_real.md", rows)
     return 0
 
