@@ -104,8 +104,8 @@ def test_colcon_build_installs_entry_points(colcon_ws: Path) -> None:
 
 #: Test files of no single package: the workspace, launch files of several packages, the
 #: firmware (C, not a ROS package) and graphs of several packages' nodes.
-CROSS_PACKAGE_TESTS = {"test_workspace.py", "test_launch_files.py", "test_namespaces_ros.py",
-                       "test_params_files_ros.py",
+CROSS_PACKAGE_TESTS = {"test_workspace.py", "test_layout.py", "test_launch_files.py",
+                       "test_namespaces_ros.py", "test_params_files_ros.py",
                        "test_firmware_build.py", "test_firmware_codec.py", "test_firmware_simavr.py",
                        "test_firmware_simavr_io.py", "test_firmware_simavr_registers.py"}
 
