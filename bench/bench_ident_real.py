@@ -21,8 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.ident_plots import plot_coefficients, plot_derivatives, plot_free_run
-from aeropend_ident.jsonutil import jsonable
+from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.real_ident import (
     ETCHEPAREBORDA_RUNS,
     CaseResult,
@@ -31,6 +30,7 @@ from aeropend_ident.real_ident import (
     etchepareborda_case,
     yangzhu_case,
 )
+from aeropend_ident.sindy.plots import plot_coefficients, plot_derivatives, plot_free_run
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "bench" / "results"
@@ -70,8 +70,8 @@ def _case_entry(res: CaseResult, seconds: float) -> dict[str, Any]:
 
 
 def _baseline_aeroshield(real: Path) -> dict[str, Any]:
-    from aeropend_ident.baseline import run_baseline
-    from aeropend_ident.csv_import import import_csv
+    from aeropend_ident.greybox.baseline import run_baseline
+    from aeropend_ident.io.csv_import import import_csv
     from aeropend_ident.real_ident import AEROSHIELD
 
     rec = import_csv(real / AEROSHIELD, "aeroshield_ident")
@@ -85,8 +85,8 @@ def _thesis_sim_reference() -> dict[str, Any]:
     import shutil
     import tempfile
 
-    from aeropend_ident.bags import write_bag
-    from aeropend_ident.identify import identify
+    from aeropend_ident.io.bags import write_bag
+    from aeropend_ident.sindy.identify import identify
     from aeropend_sim.excitation import aprbs
     from aeropend_sim.params import load_rig
     from aeropend_sim.recording import Recording

@@ -11,8 +11,8 @@ import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from aeropend_ident import bags
-from aeropend_ident.bags import BagError, read_bag, write_bag
+from aeropend_ident.io import bags
+from aeropend_ident.io.bags import BagError, read_bag, write_bag
 from aeropend_sim.contract import (
     TOPIC_ARMATURE,
     TOPIC_DUTY_CYCLE,
@@ -170,7 +170,7 @@ def test_rclpy_serialized_messages_decode_vectorized() -> None:
     """Fast-CDR (rclpy) leaves garbage in alignment padding: the vectorised decoder must accept it."""
     serialization = pytest.importorskip("rclpy.serialization")
     from aeropend_sim.contract import Sample
-    from aeropend_sim.ros_contract import sample_to_msgs
+    from aeropend_sim.ros.ros_contract import sample_to_msgs
 
     samples = [Sample(stamp_ns=STAMP0 + k * 2_048_000, theta=0.01 * k, theta_dot=-0.5, omega_rotor=310.0 + k,
                       i_a=0.75, v_a=1.5, duty=0.4) for k in range(50)]

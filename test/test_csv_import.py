@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeropend_ident.bags import read_bag
-from aeropend_ident.csv_import import (
+from aeropend_ident.io.bags import read_bag
+from aeropend_ident.io.csv_import import (
     PRESETS,
     CsvImportError,
     CsvSpec,

@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeropend_ident.bags import write_bag
-from aeropend_ident.gap_cli import main
+from aeropend_ident.cli.gap import main
+from aeropend_ident.io.bags import write_bag
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
@@ -125,7 +125,7 @@ def test_split_rule_and_ros2_entry_point(bags, tmp_path):
         [
             sys.executable,
             "-m",
-            "aeropend_ident.gap_cli",
+            "aeropend_ident.cli.gap",
             str(bags["fit"]),
             "--rig",
             "thesis_rig",
@@ -150,7 +150,7 @@ def test_split_rule_and_ros2_entry_point(bags, tmp_path):
     assert len(rep["headline"]["effects_chosen"]) == 1
     # console script registered in setup.py (so `ros2 run aeropend_ident gap` finds it)
     setup = (Path(__file__).resolve().parents[1] / "src" / "aeropend_ident" / "setup.py").read_text()
-    assert "'gap = aeropend_ident.gap_cli:main'" in setup
+    assert "'gap = aeropend_ident.cli.gap:main'" in setup
     exe = shutil.which("gap") or str(Path(sys.executable).parent / "gap")
     if Path(exe).exists():
         assert subprocess.run([exe, "--help"], capture_output=True, timeout=60).returncode == 0
@@ -193,7 +193,7 @@ def test_error_exits(bags, tmp_path, capsys):
 
 def test_block_design_and_its_errors(bags, tmp_path, capsys):
     """--blocks: every 3rd block of the fit bag (24 s) held out; bad block options exit 2."""
-    from aeropend_ident.gap_cli import prepare
+    from aeropend_ident.cli.gap import prepare
 
     fit, held, rule = prepare([bags["fit"]], None, 0.7, None, blocks=4.0)
     assert (len(fit), len(held)) == (4, 2) and all(len(r) == 400 for r in (*fit, *held))
@@ -219,8 +219,8 @@ def test_block_design_and_its_errors(bags, tmp_path, capsys):
 
 
 def test_validation_split_rules():
-    from aeropend_ident.gap_report import MIN_PART, validation_split
-    from aeropend_ident.gap_where import GapInputError
+    from aeropend_ident.gap.report import MIN_PART, validation_split
+    from aeropend_ident.gap.where import GapInputError
 
     long = _recording(6, 20.0)  # 2000 samples, APRBS: both parts excited
     core, val = validation_split([long], 0.3)

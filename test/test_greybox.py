@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from aeropend_ident.greybox import (
+from aeropend_ident.greybox.fit import (
     THETA_OFFSET,
     IdentificationError,
     apply_parameters,

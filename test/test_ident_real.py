@@ -35,7 +35,7 @@ from aeropend_ident.real_ident import (
     quasi_static_armature,
     yangzhu_case,
 )
-from aeropend_ident.sindy import IdentificationError, fit
+from aeropend_ident.sindy.core import IdentificationError, fit
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
@@ -123,7 +123,7 @@ def test_etchepareborda_random_binary_heldout_and_other_run() -> None:
 
 def test_angle_only_log_refuses_current_equation() -> None:
     _, data = etchepareborda_data(REAL, "openloop_gaussian_pwm.csv")
-    from aeropend_ident.partial import static_thrust_library
+    from aeropend_ident.sindy.partial import static_thrust_library
 
     with pytest.raises(IdentificationError, match="needs the state i_a"):
         fit(data, static_thrust_library(), targets=["i_a"], method="weak")

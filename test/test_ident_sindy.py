@@ -14,9 +14,7 @@ import pytest
 import yaml
 from scipy.integrate import solve_ivp
 
-from aeropend_ident.libraries import collinearity_report, physics_library, structured_library, thesis_library
-from aeropend_ident.preprocess import add_derivatives
-from aeropend_ident.sindy import (
+from aeropend_ident.sindy.core import (
     IdentData,
     IdentificationError,
     data_from_trajectory,
@@ -27,6 +25,13 @@ from aeropend_ident.sindy import (
     structure_errors,
     sweep_threshold,
 )
+from aeropend_ident.sindy.libraries import (
+    collinearity_report,
+    physics_library,
+    structured_library,
+    thesis_library,
+)
+from aeropend_ident.sindy.preprocess import add_derivatives
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulate import simulate

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.static import (
+from aeropend_ident.greybox.static import (
     StaticEstimationError,
     armature_resistance,
     armature_time_constant,

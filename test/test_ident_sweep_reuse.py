@@ -15,9 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.libraries import physics_library, structured_library
-from aeropend_ident.preprocess import add_derivatives
-from aeropend_ident.sindy import (
+from aeropend_ident.sindy.core import (
     IdentificationError,
     NoEquationError,
     data_from_trajectory,
@@ -25,6 +23,8 @@ from aeropend_ident.sindy import (
     regression_problem,
     sweep_threshold,
 )
+from aeropend_ident.sindy.libraries import physics_library, structured_library
+from aeropend_ident.sindy.preprocess import add_derivatives
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulate import simulate
@@ -140,8 +140,8 @@ def test_drop_unidentifiable_equations(split) -> None:
 def test_free_run_matches_rk4_reference_and_keeps_library_errors(split) -> None:
     """``free_run``'s hot loop (library row without per-column checks) against a plain RK4 of the
     same identified model written out here, and the library's error for a non-finite column."""
-    from aeropend_ident.libraries import Candidate, CandidateLibrary, LibraryError
-    from aeropend_ident.sindy import SindyModel, free_run
+    from aeropend_ident.sindy.core import SindyModel, free_run
+    from aeropend_ident.sindy.libraries import Candidate, CandidateLibrary, LibraryError
 
     train, test = split
     model = fit(train, physics_library(VARIABLES), TARGETS, threshold=0.1, method="weak", K=120, H_xt=0.05)

@@ -10,7 +10,7 @@ import pytest
 from ros_support import isolate_process, random_domain
 from rosbags.highlevel import AnyReader
 
-from aeropend_ident.bags import read_bag, typestore
+from aeropend_ident.io.bags import read_bag, typestore
 from aeropend_ident.pipeline import main
 
 pytestmark = pytest.mark.ros

@@ -93,8 +93,8 @@ from aeropend_sim.contract import (
     ContractError,
     stamp_to_ns,
 )
-from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event, wait_acknowledged
-from aeropend_sim.ros_contract import (
+from aeropend_sim.ros.node_shell import declare_parameter_table, init_with_stop_event, wait_acknowledged
+from aeropend_sim.ros.ros_contract import (
     COMMAND_QOS,
     COMMAND_QOS_LOCKSTEP,
     SAMPLE_QOS_LOCKSTEP,
@@ -330,7 +330,7 @@ def _set_rt_priority(node: ControllerNode) -> None:
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``controller``; returns the exit status (2 = bad parameter).
 
-    Same lifecycle as :func:`aeropend_sim.node_shell.run_node` (SIGINT/SIGTERM stop, duty 0 and
+    Same lifecycle as :func:`aeropend_sim.ros.node_shell.run_node` (SIGINT/SIGTERM stop, duty 0 and
     trace on exit), with the executor chosen by the ``executor`` parameter.
     """
     stop = init_with_stop_event(args)

@@ -4,12 +4,12 @@ Steps (each node is a separate process, exactly as a lab would run them):
 
 1. ``record`` (rosbags recorder), ``sim_node`` (simulated plant, lock-step or real time) and
    ``excitation`` (thesis §5.1 Latin-hypercube duty-cycle steps by default) on a private
-   ``ROS_DOMAIN_ID`` (claimed in 100..200 unless set; :mod:`aeropend_sim.domain`) with
+   ``ROS_DOMAIN_ID`` (claimed in 100..200 unless set; :mod:`aeropend_sim.ros.domain`) with
    localhost-only discovery unless ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is set;
 2. when the excitation has sent its last command, the recorder and the plant are stopped with
    SIGINT (clean shutdown, valid bag);
-3. the bag is read back (``aeropend_ident.bags.read_bag``) and the grey-box baseline
-   (``aeropend_ident.baseline``) fits the nominal simulator's pendulum + actuator parameters on
+3. the bag is read back (``aeropend_ident.io.bags.read_bag``) and the grey-box baseline
+   (``aeropend_ident.greybox.baseline``) fits the nominal simulator's pendulum + actuator parameters on
    the first part and replays the held-out part: ``report.json`` and ``overlay.png``;
 4. a one-screen summary is printed and ``summary.json`` written.
 
@@ -34,9 +34,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aeropend_ident.bags import BagError, read_bag
+from aeropend_ident.io.bags import BagError, read_bag
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, namespaced
-from aeropend_sim.domain import claim_domain
+from aeropend_sim.ros.domain import claim_domain
 
 #: Default excitation: thesis §5.1 Latin-hypercube steps (10 steps, τ ∈ [0.3, 0.8], 1-3 s each).
 DEFAULT_SIGNAL = ["signal:=lhs", "n:=10", "tau_min:=0.3", "tau_max:=0.8", "hold_min:=1.0",
@@ -205,7 +205,7 @@ def _ns(namespace: str) -> str:
 def analyse(bag: Path, out: Path, nominal_rig: str, train_fraction: float,
             namespace: str = "") -> dict[str, Any]:
     """Read the bag and run the grey-box baseline; returns the baseline report dictionary."""
-    from aeropend_ident.baseline import run_baseline
+    from aeropend_ident.greybox.baseline import run_baseline
 
     rec = read_bag(bag, namespace=_ns(namespace))
     report = run_baseline(rec, nominal_rig, out / "baseline", train_fraction=train_fraction)

@@ -5,7 +5,7 @@ read from there, never copied into the repository):
 
 * **AeroShield** (gergelytakacs/AutomationShield, ``Identification_Data``): APRBS "voltage" u,
   angle only, 66.7 Hz. Pendulum equation with estimated θ̇ and a first-order thrust map
-  (:func:`aeropend_ident.partial.select_thrust_map`), v_a = 3.7 V·τ (``aeroshield_rig``'s map).
+  (:func:`aeropend_ident.sindy.partial.select_thrust_map`), v_a = 3.7 V·τ (``aeroshield_rig``'s map).
 * **BA-Etchepareborda** open-loop runs: PWM and MPU6050 angle, 50 Hz. The same pendulum equation
   per unit duty (no voltage map is stated); every run is also replayed by every other run's model.
 * **YangZhu** Quanser AERO pitch step (16.51 V, 1 kHz): angle, gyro rate, motor current and tach.
@@ -15,8 +15,8 @@ read from there, never copied into the repository):
 Every case splits its record in time order (first part fits and selects, the rest is held
 out), simulates the identified model freely over the held-out part from its first measured
 state with the measured inputs, and reports the held-out NRMSE of θ normalised by the range of
-the measured angle (as the grey-box baseline, :func:`aeropend_ident.greybox.error_metrics`) and
-by its standard deviation (as :func:`aeropend_ident.sindy.free_run`), next to the parameters the
+the measured angle (as the grey-box baseline, :func:`aeropend_ident.greybox.fit.error_metrics`) and
+by its standard deviation (as :func:`aeropend_ident.sindy.core.free_run`), next to the parameters the
 rigs' repositories state.
 """
 
@@ -32,18 +32,8 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.csv_import import import_csv
-from aeropend_ident.libraries import Candidate, CandidateLibrary
-from aeropend_ident.partial import (
-    ThrustMapFit,
-    angle_only_data,
-    nrmse_range,
-    select_thrust_map,
-    thrust_map_library,
-    with_thrust_map,
-)
-from aeropend_ident.preprocess import differentiate
-from aeropend_ident.sindy import (
+from aeropend_ident.io.csv_import import import_csv
+from aeropend_ident.sindy.core import (
     FreeRun,
     IdentData,
     IdentificationError,
@@ -52,6 +42,16 @@ from aeropend_ident.sindy import (
     free_run,
     model_to_dict,
 )
+from aeropend_ident.sindy.libraries import Candidate, CandidateLibrary
+from aeropend_ident.sindy.partial import (
+    ThrustMapFit,
+    angle_only_data,
+    nrmse_range,
+    select_thrust_map,
+    thrust_map_library,
+    with_thrust_map,
+)
+from aeropend_ident.sindy.preprocess import differentiate
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
