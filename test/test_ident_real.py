@@ -22,12 +22,16 @@ Etchepareborda random binary (70/30)       0.0885           replayed on steps 0/
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from aeropend_ident.real_ident import (
+from aeropend_ident.sindy.core import IdentificationError, fit
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from real_cases import (
     YANGZHU_STATED,
     aeroshield_case,
     etchepareborda_case,
@@ -35,7 +39,6 @@ from aeropend_ident.real_ident import (
     quasi_static_armature,
     yangzhu_case,
 )
-from aeropend_ident.sindy.core import IdentificationError, fit
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 

@@ -80,7 +80,12 @@ from aeropend_ident.sindy.libraries import (
     thesis_library,
 )
 from aeropend_ident.sindy.output_error import refine_output_error
-from aeropend_ident.sindy.partial import angle_only_data, concat_data, nrmse_range, select_thrust_map
+from aeropend_ident.sindy.partial import (
+    angle_only_data,
+    concat_data,
+    select_thrust_map,
+    theta_scores,
+)
 from aeropend_ident.sindy.preprocess import add_derivatives, differentiate
 from aeropend_ident.sindy.second_order import combine_models, fit_pendulum
 from aeropend_sim.model import PlantModel
@@ -203,15 +208,6 @@ def _check_theta(rec: Recording) -> None:
                                       f"t = {t_bad:.4g} s; cut or repair the log")
 
 
-def _theta_scores(measured: np.ndarray, simulated: np.ndarray) -> dict[str, float]:
-    m = np.asarray(measured, dtype=float)
-    s = np.asarray(simulated, dtype=float)
-    ok = bool(np.isfinite(s).all())
-    rms = float(np.sqrt(np.mean((s - m) ** 2))) if ok else math.inf
-    return {"nrmse_range": nrmse_range(m, s), "nrmse_std": rms / float(np.std(m) or 1.0) if ok else math.inf,
-            "rms_rad": rms}
-
-
 #: Training time shown before the held-out part in ``free_run.png`` [s] (the free run over it is
 #: recomputed for the plot, so it is kept short).
 PLOT_TRAIN_TAIL_S = 10.0
@@ -326,7 +322,8 @@ def _held_out_runs(model: SindyModel, recs: Sequence[Recording], parts: Sequence
     for r, (_tr, ho) in zip(recs, parts, strict=True):
         fr = free_run(model, ho, substeps=1)
         held_runs.append(fr)
-        sc = _theta_scores(ho.variables["theta"], fr.states["theta"])
+        sc = theta_scores(ho.variables["theta"], fr.states["theta"])
+        del sc["max_abs_rad"]  # not part of identify's report
         sc.update({"recording": r.source, "heldout_samples": len(ho), "free_run_nrmse_std": fr.nrmse})
         scores.append(sc)
         say(f"  {r.source}: held-out free-run NRMSE(range) of θ {sc['nrmse_range']:.4g}")

@@ -211,6 +211,26 @@ def nrmse_range(measured: np.ndarray, simulated: np.ndarray) -> float:
     return rms / rng if rng > 0 else math.inf
 
 
+def theta_scores(measured: np.ndarray, simulated: np.ndarray) -> dict[str, float]:
+    """Free-run angle scores: NRMSE by range and by std, RMS and max error [rad].
+
+    A diverged run (a non-finite value) scores inf throughout; a constant measured angle
+    (std 0) has ``nrmse_std`` inf, as its ``nrmse_range`` is.
+    """
+    m = np.asarray(measured, dtype=float)
+    s = np.asarray(simulated, dtype=float)
+    if not np.isfinite(s).all():
+        return {"nrmse_range": math.inf, "nrmse_std": math.inf, "rms_rad": math.inf, "max_abs_rad": math.inf}
+    e = s - m
+    rms = float(np.sqrt(np.mean(e**2)))
+    return {
+        "nrmse_range": nrmse_range(m, s),
+        "nrmse_std": rms / float(np.std(m)) if np.std(m) > 0 else math.inf,
+        "rms_rad": rms,
+        "max_abs_rad": float(np.max(np.abs(e))),
+    }
+
+
 def concat_data(parts: Sequence[IdentData], source: str | None = None) -> IdentData:
     """Stack several records into one for a strong-form regression (rows are independent).
 

@@ -46,8 +46,8 @@ from aeropend_ident.sindy.libraries import Candidate, CandidateLibrary
 from aeropend_ident.sindy.partial import (
     ThrustMapFit,
     angle_only_data,
-    nrmse_range,
     select_thrust_map,
+    theta_scores,
     thrust_map_library,
     with_thrust_map,
 )
@@ -128,22 +128,6 @@ class CaseResult:
     train_run: FreeRun
     heldout_run: FreeRun
     extra: dict[str, Any] = field(default_factory=dict)
-
-
-def theta_scores(measured: np.ndarray, simulated: np.ndarray) -> dict[str, float]:
-    """Free-run angle scores: NRMSE by range and by std, RMS and max error [rad]."""
-    m = np.asarray(measured, dtype=float)
-    s = np.asarray(simulated, dtype=float)
-    if not np.isfinite(s).all():
-        return {"nrmse_range": math.inf, "nrmse_std": math.inf, "rms_rad": math.inf, "max_abs_rad": math.inf}
-    e = s - m
-    rms = float(np.sqrt(np.mean(e**2)))
-    return {
-        "nrmse_range": nrmse_range(m, s),
-        "nrmse_std": rms / float(np.std(m)) if np.std(m) > 0 else math.inf,
-        "rms_rad": rms,
-        "max_abs_rad": float(np.max(np.abs(e))),
-    }
 
 
 def _static_angle(coef: dict[str, float], v: float) -> float | None:
