@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from aeropend_ident.errors import PipelineError
 from aeropend_ident.io.bags import BagError, read_bag
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, namespaced
 from aeropend_sim.ros.domain import claim_domain
@@ -41,10 +42,6 @@ from aeropend_sim.ros.domain import claim_domain
 #: Default excitation: thesis §5.1 Latin-hypercube steps (10 steps, τ ∈ [0.3, 0.8], 1-3 s each).
 DEFAULT_SIGNAL = ["signal:=lhs", "n:=10", "tau_min:=0.3", "tau_max:=0.8", "hold_min:=1.0",
                   "hold_max:=3.0"]
-
-
-class PipelineError(RuntimeError):
-    """A stage of the main job failed; the message names the stage and its log file."""
 
 
 @dataclass

@@ -50,6 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aeropend_ident.errors import GapCliError
 from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
 from aeropend_ident.io.split import interleaved_blocks, time_ordered
 from aeropend_sim.params import RigFileError
@@ -57,10 +58,6 @@ from aeropend_sim.recording import Recording, RecordingError
 
 #: Fewest samples per recording part (fit or held out).
 MIN_PART_SAMPLES = 200
-
-
-class GapCliError(ValueError):
-    """A command-line input the gap tool cannot use."""
 
 
 def _check_length(rec: Recording, what: str) -> None:

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 from scipy.signal import savgol_filter
 
+from aeropend_ident.errors import CompareError
 from aeropend_ident.gap.effects import GapError, MeasurementMap
 from aeropend_ident.gap.where import input_cross_correlation, ljung_box
 from aeropend_ident.gap.which import FIT_CHANNELS, duty_holds, prepare, replay, step_info
@@ -50,10 +51,6 @@ MIN_HOLD = 1.0
 STEP_SMOOTHING = 0.05
 #: Units of the compared channels.
 UNITS = {"theta": "rad", "i_a": "A", "v_a": "V", "omega_rotor": "rad/s"}
-
-
-class CompareError(ValueError):
-    """A rig or recording ``compare`` cannot use (message names it)."""
 
 
 @dataclass(frozen=True)

@@ -66,14 +66,10 @@ from typing import Any
 
 import numpy as np
 
+from aeropend_ident.errors import GapError
 from aeropend_sim.model import ROTOR_FRICTION_VELOCITY, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.recording import Recording
-
-
-class GapError(ValueError):
-    """Input the gap diagnosis cannot use (missing channel, NaNs, too short, unknown effect)."""
-
 
 #: Fewest samples a recording must have for the gap diagnosis.
 MIN_RECORDING_SAMPLES = 200

@@ -71,6 +71,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import brentq, least_squares
 
+from aeropend_ident.errors import IdentificationError
 from aeropend_sim.model import ROTOR_FRICTION_VELOCITY, ModelError, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.recording import Recording
@@ -134,10 +135,6 @@ _EFFECT_OF: dict[str, tuple[str, Any]] = {
 
 #: Parameters that never reach θ (sensor model) and cannot be fitted.
 _NOT_FITTABLE_SECTIONS = ("sensors",)
-
-
-class IdentificationError(ValueError):
-    """A recording or request that identification cannot use (missing θ, unexcited, NaNs, ...)."""
 
 
 # --------------------------------------------------------------------------- rig-frame offset

@@ -23,12 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import curve_fit
 
+from aeropend_ident.errors import StaticEstimationError
+
 #: 1 RPM in rad/s (2π/60).
 RPM_TO_RAD_S = 2.0 * math.pi / 60.0
-
-
-class StaticEstimationError(ValueError):
-    """Bad input to a static estimator (NaN, non-positive current, too few rows, no step...)."""
 
 
 def rpm_to_rad_s(rpm: np.ndarray | float) -> np.ndarray:

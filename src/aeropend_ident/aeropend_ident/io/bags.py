@@ -58,6 +58,7 @@ from rosbags.interfaces import (
 from rosbags.rosbag2 import StoragePlugin
 from rosbags.typesys import Stores, get_typestore
 
+from aeropend_ident.errors import BagError
 from aeropend_sim.contract import (
     COMMAND_QOS_DEPTH,
     JOINT_NAMES,
@@ -129,10 +130,6 @@ _CUSTOM_META = "aeropend.meta"
 _CUSTOM_RIG = "aeropend.rig_name"
 _CUSTOM_SOURCE = "aeropend.source"
 _NAN = math.nan
-
-
-class BagError(ValueError):
-    """A bag cannot be read as (or written as) a contract bag; the message names the bag."""
 
 
 @lru_cache(maxsize=1)

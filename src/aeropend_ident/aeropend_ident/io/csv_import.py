@@ -33,6 +33,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from aeropend_ident.errors import CsvImportError
 from aeropend_sim.recording import MEASURED_CHANNELS, Recording, RecordingError
 
 __all__ = [
@@ -52,10 +53,6 @@ InputKind = Literal["duty", "percent", "pwm", "voltage"]
 TimeUnit = Literal["s", "ms", "us", "sample"]
 _TIME_SCALE = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 _DELIMITERS = ("\t", ";", ",")
-
-
-class CsvImportError(ValueError):
-    """A CSV file cannot be imported; the message names file, line and column."""
 
 
 @dataclass(frozen=True)

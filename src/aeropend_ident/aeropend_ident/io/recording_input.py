@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
+from aeropend_ident.errors import RecordingInputError
 from aeropend_ident.greybox.fit import uniform_grid
 from aeropend_sim.recording import Recording
 
@@ -24,10 +25,6 @@ from aeropend_sim.recording import Recording
 CSV_SUFFIXES = (".csv", ".gz", ".txt")
 #: Preset value that picks the preset by file name.
 AUTO = "auto"
-
-
-class RecordingInputError(ValueError):
-    """A recording argument that cannot be read (missing file, unknown kind or preset)."""
 
 
 def split_preset(arg: str | Path) -> tuple[Path, str | None]:

@@ -53,6 +53,7 @@ import pysindy as ps
 import yaml
 from pysindy.utils import AxesArray
 
+from aeropend_ident.errors import IdentificationError
 from aeropend_ident.sindy.libraries import CandidateLibrary, LibraryError, symbol
 from aeropend_ident.sindy.weak_quadrature import WeakOperator, curvature
 from aeropend_sim.model import N_STATES, PlantModel
@@ -82,10 +83,6 @@ ZOH_INPUTS = ("v_a", "duty")
 WEAK_IV: dict[str, float] = {"H_xt": 0.02, "coverage": 3.0, "refine": 2, "alpha": 1.0, "threshold": 0.1}
 #: Model state order of :mod:`aeropend_sim.model` (τ_f is the duty cycle without actuator lag).
 _MODEL_STATES = ("theta", "theta_dot", "i_a", "omega_rotor")
-
-
-class IdentificationError(ValueError):
-    """Identification cannot be done on this data (missing channel, NaN, too short, bad option)."""
 
 
 class NoEquationError(IdentificationError):

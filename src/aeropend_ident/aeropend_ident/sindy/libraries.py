@@ -25,6 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from aeropend_ident.errors import LibraryError
+
 #: Readable symbols of the aeropendulum variables (names as in ``Trajectory.channels()``).
 SYMBOLS: dict[str, str] = {
     "theta": "θ",
@@ -38,10 +40,6 @@ SYMBOLS: dict[str, str] = {
 
 Data = Mapping[str, np.ndarray]
 Func = Callable[[Data], np.ndarray]
-
-
-class LibraryError(ValueError):
-    """A library cannot be evaluated on the given data (missing variable, NaN, bad shape)."""
 
 
 def symbol(name: str) -> str:
