@@ -214,8 +214,9 @@ def run_stream(duration: float, rt_priority: int, depth: int, tmp: Path) -> dict
 
 def run_lockstep(tmp: Path, seed: int) -> dict[str, Any]:
     """One attempt of the main job's node graph; published vs recorded samples."""
+    from aeropend_ident.errors import PipelineError
     from aeropend_ident.io.bags import read_bag
-    from aeropend_ident.pipeline import DEFAULT_SIGNAL, PipelineError, plant_sample_count, run_graph
+    from aeropend_ident.pipeline import DEFAULT_SIGNAL, plant_sample_count, run_graph
 
     env_domain = str(random_domain(101, 200))
     old = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}

@@ -127,9 +127,9 @@ def _removal_effects(out: Path, model_yaml: dict[str, Any], spurious: dict[str, 
                      base_nrmse: float) -> list[dict[str, Any]]:
     """Held-out free-run NRMSE(range) of θ with each spurious term's coefficient set to zero."""
     from aeropend_ident.io.recording_input import load_recording
-    from aeropend_ident.sindy.core import SindyModel, free_run
     from aeropend_ident.sindy.identify import data_from_recording
     from aeropend_ident.sindy.libraries import CandidateLibrary, physics_library, physics_structured_library
+    from aeropend_ident.sindy.model import SindyModel, free_run
     from aeropend_ident.sindy.partial import nrmse_range
 
     names = model_yaml["library"]
@@ -163,8 +163,8 @@ def _removal_effects(out: Path, model_yaml: dict[str, Any], spurious: dict[str, 
 def run_pendulum(log: Path, preset: str, rig_path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """θ̈ alone on a recorded CSV: (model-file-like dict, summary-like dict)."""
     from aeropend_ident.io.recording_input import load_recording
-    from aeropend_ident.sindy.core import free_run, model_to_dict
     from aeropend_ident.sindy.identify import data_from_recording
+    from aeropend_ident.sindy.model import free_run, model_to_dict
     from aeropend_ident.sindy.partial import nrmse_range
     from aeropend_ident.sindy.second_order import fit_pendulum
 

@@ -56,26 +56,22 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.sindy.core import (
-    WEAK_IV,
-    IdentData,
-    IdentificationError,
-    SindyModel,
-    data_from_trajectory,
-    fit,
-    free_run,
-    input_step_mask,
-    select_threshold,
-    structure_errors,
-    sweep_threshold,
-    weak_iv_options,
-)
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.core import WEAK_IV, fit, select_threshold, sweep_threshold, weak_iv_options
 from aeropend_ident.sindy.libraries import (
     CandidateLibrary,
     collinearity_report,
     physics_library,
     structured_library,
     thesis_library,
+)
+from aeropend_ident.sindy.model import (
+    IdentData,
+    SindyModel,
+    data_from_trajectory,
+    free_run,
+    input_step_mask,
+    structure_errors,
 )
 from aeropend_ident.sindy.preprocess import add_derivatives
 from aeropend_sim.excitation import aprbs, lhs_steps

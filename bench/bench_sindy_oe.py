@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent / "test"))
 from test_ident_noise import TRUTH, _data, _fit  # noqa: E402
 
-from aeropend_ident.sindy.core import structure_errors  # noqa: E402
+from aeropend_ident.sindy.model import structure_errors  # noqa: E402
 from aeropend_ident.sindy.output_error import refine_output_error  # noqa: E402
 from aeropend_sim.excitation import aprbs, density_modulated_prbs  # noqa: E402
 

@@ -16,7 +16,7 @@ Every case splits its record in time order (first part fits and selects, the res
 out), simulates the identified model freely over the held-out part from its first measured
 state with the measured inputs, and reports the held-out NRMSE of θ normalised by the range of
 the measured angle (as the grey-box baseline, :func:`aeropend_ident.greybox.fit.error_metrics`) and
-by its standard deviation (as :func:`aeropend_ident.sindy.core.free_run`), next to the parameters the
+by its standard deviation (as :func:`aeropend_ident.sindy.model.free_run`), next to the parameters the
 rigs' repositories state.
 """
 
@@ -32,17 +32,11 @@ from typing import Any
 
 import numpy as np
 
+from aeropend_ident.errors import IdentificationError
 from aeropend_ident.io.csv_import import import_csv
-from aeropend_ident.sindy.core import (
-    FreeRun,
-    IdentData,
-    IdentificationError,
-    SindyModel,
-    fit,
-    free_run,
-    model_to_dict,
-)
+from aeropend_ident.sindy.core import fit
 from aeropend_ident.sindy.libraries import Candidate, CandidateLibrary
+from aeropend_ident.sindy.model import FreeRun, IdentData, SindyModel, free_run, model_to_dict
 from aeropend_ident.sindy.partial import (
     ThrustMapFit,
     angle_only_data,

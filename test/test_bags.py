@@ -11,8 +11,9 @@ import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
+from aeropend_ident.errors import BagError
 from aeropend_ident.io import bags
-from aeropend_ident.io.bags import BagError, read_bag, write_bag
+from aeropend_ident.io.bags import read_bag, write_bag
 from aeropend_sim.contract import (
     TOPIC_ARMATURE,
     TOPIC_DUTY_CYCLE,

@@ -12,11 +12,11 @@ import math
 import numpy as np
 import pytest
 
+from aeropend_ident.errors import GapError
 from aeropend_ident.gap.effects import (
     CATALOG,
     EFFECTS,
     EffectContext,
-    GapError,
     MeasurementMap,
     apply_effects,
     check_recordings,

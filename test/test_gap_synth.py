@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.gap.effects import GapError
+from aeropend_ident.errors import GapError
 from aeropend_ident.gap.synth import (
     RELATIVE,
     REST,

@@ -16,7 +16,7 @@ import math
 import numpy as np
 import pytest
 
-from aeropend_ident.gap.effects import GapError
+from aeropend_ident.errors import GapError
 from aeropend_ident.gap.synth import make_case
 from aeropend_ident.gap.which import detect_quantum, diagnose_effects, group_select
 from aeropend_sim.params import load_rig, rig_from_dict

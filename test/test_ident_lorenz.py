@@ -14,8 +14,9 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from aeropend_ident.sindy.core import IdentData, fit, free_run, structure_errors
+from aeropend_ident.sindy.core import fit
 from aeropend_ident.sindy.libraries import thesis_library
+from aeropend_ident.sindy.model import IdentData, free_run, structure_errors
 from aeropend_ident.sindy.preprocess import add_derivatives
 
 SIGMA, RHO, BETA = 10.0, 28.0, 8.0 / 3.0

@@ -13,8 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.sindy.core import WEAK_IV, data_from_trajectory, fit, structure_errors, weak_iv_options
+from aeropend_ident.sindy.core import WEAK_IV, fit, weak_iv_options
 from aeropend_ident.sindy.libraries import physics_library
+from aeropend_ident.sindy.model import data_from_trajectory, structure_errors
 from aeropend_ident.sindy.preprocess import differentiate
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig

@@ -17,7 +17,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_ident_noise import TRUTH, _data, _fit
 
-from aeropend_ident.sindy.core import IdentificationError, structure_errors
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.model import structure_errors
 from aeropend_ident.sindy.output_error import refine_output_error
 
 OE = ("i_a", "omega_rotor")

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.sindy.core import IdentificationError, fit
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.core import fit
 from aeropend_ident.sindy.partial import (
     angle_only_data,
     concat_data,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.sindy.core import IdentificationError
+from aeropend_ident.errors import IdentificationError
 from aeropend_ident.sindy.preprocess import differentiate, hampel, moving_average
 
 T = np.arange(0.0, 4.0, 2.048e-3)

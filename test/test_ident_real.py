@@ -28,7 +28,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeropend_ident.sindy.core import IdentificationError, fit
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.core import fit
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 from real_cases import (

@@ -21,8 +21,9 @@ sys.path.insert(0, str(BENCH))
 import truth_plant as tp  # noqa: E402
 from truth_support import lab_rig_doc, write_rig  # noqa: E402
 
-from aeropend_ident.sindy.core import IdentData, IdentificationError  # noqa: E402
+from aeropend_ident.errors import IdentificationError  # noqa: E402
 from aeropend_ident.sindy.libraries import lagged_square, pendulum_library, physics_structured_library  # noqa: E402
+from aeropend_ident.sindy.model import IdentData  # noqa: E402
 from aeropend_ident.sindy.second_order import fit_pendulum  # noqa: E402
 from aeropend_ident.sindy.weak_quadrature import SecondOrderTestFunctions  # noqa: E402
 from aeropend_sim.excitation import density_modulated_prbs  # noqa: E402

@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aeropend_ident.errors import PipelineError
-from aeropend_ident.io.bags import BagError, read_bag
+from aeropend_ident.errors import BagError, PipelineError
+from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, namespaced
 from aeropend_sim.ros.domain import claim_domain
 

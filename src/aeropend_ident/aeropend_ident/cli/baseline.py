@@ -21,8 +21,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.baseline import INIT_HORIZON, baseline, write_report
-from aeropend_ident.greybox.fit import IdentificationError
 from aeropend_ident.io.recording_input import load_recording
 from aeropend_sim.params import RigFileError
 from aeropend_sim.recording import RecordingError

@@ -29,7 +29,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from aeropend_ident.gap.compare import MIN_HOLD, CompareError, CompareResult, compare, load_model
+from aeropend_ident.errors import CompareError
+from aeropend_ident.gap.compare import MIN_HOLD, CompareResult, compare, load_model
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.recording_input import load_recording, uniform_recording
 from aeropend_sim.recording import RecordingError

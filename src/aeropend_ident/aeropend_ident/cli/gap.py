@@ -81,7 +81,8 @@ def resolve_rig(ref: str) -> tuple[object, float]:
     GapCliError
         Unknown rig name, missing file or malformed rig file.
     """
-    from aeropend_ident.gap.compare import CompareError, load_model
+    from aeropend_ident.errors import CompareError
+    from aeropend_ident.gap.compare import load_model
 
     try:
         model = load_model(ref)

@@ -37,11 +37,11 @@ from typing import Any
 import numpy as np
 from scipy.signal import savgol_filter
 
-from aeropend_ident.errors import CompareError
-from aeropend_ident.gap.effects import GapError, MeasurementMap
+from aeropend_ident.errors import CompareError, GapError, IdentificationError
+from aeropend_ident.gap.effects import MeasurementMap
 from aeropend_ident.gap.where import input_cross_correlation, ljung_box
 from aeropend_ident.gap.which import FIT_CHANNELS, duty_holds, prepare, replay, step_info
-from aeropend_ident.greybox.fit import IdentificationError, rig_theta_offset, rig_theta_scale
+from aeropend_ident.greybox.fit import rig_theta_offset, rig_theta_scale
 from aeropend_sim.params import Rig, RigFileError, load_rig, shipped_rigs
 from aeropend_sim.recording import Recording
 

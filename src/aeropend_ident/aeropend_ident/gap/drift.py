@@ -51,14 +51,8 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.gap.effects import (
-    EffectContext,
-    GapError,
-    MeasurementMap,
-    apply_effects,
-    get_effect,
-    identifiable,
-)
+from aeropend_ident.errors import GapError
+from aeropend_ident.gap.effects import EffectContext, MeasurementMap, apply_effects, get_effect, identifiable
 from aeropend_ident.gap.which import (
     EffectDiagnosis,
     Prepared,

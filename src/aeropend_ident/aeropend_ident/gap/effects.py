@@ -144,7 +144,8 @@ class EffectContext:
         GapError
             If the nominal rig has no motor steady state (see :func:`nominal_model_check`).
         """
-        from aeropend_ident.greybox.fit import IdentificationError, motor_equilibrium
+        from aeropend_ident.errors import IdentificationError
+        from aeropend_ident.greybox.fit import motor_equilibrium
 
         duty = np.asarray(duty, dtype=float)
         d_max = float(np.clip(np.quantile(duty, 0.99), 0.05, 1.0))

@@ -25,14 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.gap.effects import (
-    EFFECTS,
-    EffectContext,
-    GapError,
-    MeasurementMap,
-    apply_effects,
-    get_effect,
-)
+from aeropend_ident.errors import GapError
+from aeropend_ident.gap.effects import EFFECTS, EffectContext, MeasurementMap, apply_effects, get_effect
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_sim.excitation import aprbs, lhs_steps
 from aeropend_sim.params import Rig

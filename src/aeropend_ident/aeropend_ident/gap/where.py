@@ -64,15 +64,9 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
+from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.baseline import measured_rate, residual_bins, residual_regions
-from aeropend_ident.greybox.fit import (
-    IdentificationError,
-    UniformData,
-    error_metrics,
-    initial_velocity,
-    noise_level,
-    uniform_data,
-)
+from aeropend_ident.greybox.fit import UniformData, error_metrics, initial_velocity, noise_level, uniform_data
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_sim.model import I_A, OMEGA, ROTOR_FRICTION_VELOCITY, TAU_F, ModelError, PlantModel
 from aeropend_sim.params import Rig

@@ -64,12 +64,12 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import savgol_filter
 
+from aeropend_ident.errors import GapError, IdentificationError
 from aeropend_ident.gap.effects import (
     CATALOG,
     Effect,
     EffectContext,
     EffectParameter,
-    GapError,
     MeasurementMap,
     ParamRange,
     apply_effects,
@@ -78,9 +78,10 @@ from aeropend_ident.gap.effects import (
     identifiable,
     nominal_model_check,
 )
-from aeropend_ident.greybox.fit import IdentificationError, motor_equilibrium, noise_level
+from aeropend_ident.greybox.fit import motor_equilibrium, noise_level
 from aeropend_ident.io.jsonutil import jsonable
-from aeropend_ident.sindy.core import IdentData, weak_matrices
+from aeropend_ident.sindy.core import weak_matrices
+from aeropend_ident.sindy.model import IdentData
 from aeropend_sim.model import ModelError, PlantModel
 from aeropend_sim.params import Rig, rig_to_dict
 from aeropend_sim.recording import Recording

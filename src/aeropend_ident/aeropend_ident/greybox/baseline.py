@@ -39,10 +39,10 @@ import scipy
 import yaml
 from scipy.signal import savgol_filter
 
+from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.fit import (
     THETA_OFFSET,
     GreyBoxResult,
-    IdentificationError,
     UniformData,
     error_metrics,
     fit_greybox,

@@ -29,7 +29,8 @@ from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock as ClockMsg
 
-from aeropend_ident.io.bags import BagError, RawBagReader, qos_for_topic
+from aeropend_ident.errors import BagError
+from aeropend_ident.io.bags import RawBagReader, qos_for_topic
 from aeropend_ident.nodes.record import message_class, qos_to_rclpy
 from aeropend_sim.contract import TOPIC_CLOCK
 from aeropend_sim.ros.ros_contract import CLOCK_QOS, to_time

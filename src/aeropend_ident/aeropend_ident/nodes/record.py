@@ -59,7 +59,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProf
 from rclpy.utilities import remove_ros_args
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
-from aeropend_ident.io.bags import BagError, BagSink, qos_for_topic
+from aeropend_ident.errors import BagError
+from aeropend_ident.io.bags import BagSink, qos_for_topic
 from aeropend_sim.contract import (
     CONTRACT_TOPICS,
     TOPIC_CLOCK,

@@ -54,20 +54,11 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.io.bags import BagError
-from aeropend_ident.io.csv_import import CsvImportError
-from aeropend_ident.io.recording_input import RecordingInputError, load_recording
+from aeropend_ident.errors import BagError, CsvImportError, IdentificationError, RecordingInputError
+from aeropend_ident.io.recording_input import load_recording
 from aeropend_ident.sindy.core import (
-    TARGET_INFO,
     WEAK_IV,
-    FreeRun,
-    IdentData,
-    IdentificationError,
-    NoEquationError,
-    SindyModel,
-    free_run,
     regression_problem,
-    save_model,
     select_threshold,
     sweep_threshold,
     weak_iv_options,
@@ -78,6 +69,15 @@ from aeropend_ident.sindy.libraries import (
     physics_structured_library,
     structured_library,
     thesis_library,
+)
+from aeropend_ident.sindy.model import (
+    TARGET_INFO,
+    FreeRun,
+    IdentData,
+    NoEquationError,
+    SindyModel,
+    free_run,
+    save_model,
 )
 from aeropend_ident.sindy.output_error import refine_output_error
 from aeropend_ident.sindy.partial import (

@@ -38,14 +38,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import least_squares
 
-from aeropend_ident.sindy.core import (
-    ZOH_INPUTS,
-    IdentData,
-    IdentificationError,
-    LibraryError,
-    SindyModel,
-    _input_instruments,
-)
+from aeropend_ident.errors import IdentificationError, LibraryError
+from aeropend_ident.sindy.model import ZOH_INPUTS, IdentData, SindyModel, input_instruments
 
 #: Forward-difference step on the scaled parameters (coefficient multipliers ~1, states / RMS).
 _EPS = 1e-7
@@ -90,7 +84,7 @@ def refine_output_error(
     zoh_inputs : sequence of str
         Data variables held constant over each sample period (default v_a and the duty cycle).
     clean_inputs : bool
-        Replace a measured v_a by its static fit v_a(τ) (``sindy._input_instruments``): removes
+        Replace a measured v_a by its static fit v_a(τ) (``sindy.model.input_instruments``): removes
         the input noise (an errors-in-variables bias at low SNR) but adds the polynomial's own
         error (0.09 % on R_a/L_a noise-free); at 50 dB on thesis_sim the measured v_a gave the
         smaller scatter over six noise seeds (bench/results/sindy_oe*.md), hence the default.
@@ -144,7 +138,7 @@ def refine_output_error(
 
     variables = dict(data.variables)
     if clean_inputs:
-        variables.update(_input_instruments(data))
+        variables.update(input_instruments(data))
     cols = np.flatnonzero(support.any(axis=0))
     lib = model.library.without(*[n for j, n in enumerate(model.feature_names) if j not in set(cols)])
     exo = [v for v in lib.variables if v not in targets]

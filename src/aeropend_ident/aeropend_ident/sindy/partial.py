@@ -33,8 +33,10 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.sindy.core import FreeRun, IdentData, IdentificationError, SindyModel, fit, free_run
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.core import fit
 from aeropend_ident.sindy.libraries import Candidate, CandidateLibrary, constant
+from aeropend_ident.sindy.model import FreeRun, IdentData, SindyModel, free_run
 from aeropend_ident.sindy.preprocess import differentiate
 
 

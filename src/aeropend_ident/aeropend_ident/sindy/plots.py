@@ -20,7 +20,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from aeropend_ident.sindy.core import IdentData, IdentificationError, SindyModel, lhs
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.model import IdentData, SindyModel, lhs
 
 _STATE_LABEL = {"theta": "θ [rad]", "theta_dot": "θ̇ [rad/s]", "i_a": "i_a [A]", "omega_rotor": "ω₁ [rad/s]"}
 

@@ -26,7 +26,8 @@ import pysindy as ps
 from scipy.ndimage import median_filter, uniform_filter1d
 from scipy.signal import savgol_filter
 
-from aeropend_ident.sindy.core import IdentData, IdentificationError
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.model import IdentData
 
 DERIVATIVE_METHODS = ("finite_difference", "savgol", "tv", "spline", "kalman", "trend_filtered")
 #: Candidate TV weights γ (pynumdiff ``iterative_velocity``, on the signal's own scale).

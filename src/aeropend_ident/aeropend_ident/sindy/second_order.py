@@ -35,16 +35,10 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.sindy.core import (
-    IdentData,
-    IdentificationError,
-    SindyModel,
-    SweepPoint,
-    free_run,
-    select_threshold,
-    sparse_regression,
-)
-from aeropend_ident.sindy.libraries import CandidateLibrary, LibraryError, pendulum_library
+from aeropend_ident.errors import IdentificationError, LibraryError
+from aeropend_ident.sindy.core import SweepPoint, select_threshold, sparse_regression
+from aeropend_ident.sindy.libraries import CandidateLibrary, pendulum_library
+from aeropend_ident.sindy.model import IdentData, SindyModel, free_run
 from aeropend_ident.sindy.preprocess import differentiate
 from aeropend_ident.sindy.weak_quadrature import SecondOrderTestFunctions
 
