@@ -219,8 +219,8 @@ def test_block_design_and_its_errors(bags, tmp_path, capsys):
 
 
 def test_validation_split_rules():
-    from aeropend_ident.gap.report import MIN_PART, validation_split
-    from aeropend_ident.gap.where import GapInputError
+    from aeropend_ident.errors import GapInputError
+    from aeropend_ident.io.split import MIN_PART, validation_split
 
     long = _recording(6, 20.0)  # 2000 samples, APRBS: both parts excited
     core, val = validation_split([long], 0.3)

@@ -12,10 +12,10 @@ import math
 import numpy as np
 import pytest
 
+from aeropend_ident.errors import GapInputError
 from aeropend_ident.gap.where import (
     ALPHA,
     THETA_ONLY_CHAIN,
-    GapInputError,
     alignment_lag,
     input_cross_correlation,
     ljung_box,

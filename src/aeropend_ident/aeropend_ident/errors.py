@@ -3,9 +3,8 @@
 Each class also derives from the builtin it always derived from (``ValueError`` for bad input,
 ``RuntimeError`` for a failed pipeline stage), so ``except ValueError`` callers keep working. The
 modules that raise them re-export them under their old names (``aeropend_ident.io.bags.BagError``
-is this module's ``BagError``). Two subclasses live beside their only raiser:
-:class:`aeropend_ident.sindy.model.NoEquationError` and
-:class:`aeropend_ident.gap.where.GapInputError` (both :class:`IdentificationError`).
+is this module's ``BagError``). :class:`aeropend_ident.sindy.model.NoEquationError` (an
+:class:`IdentificationError` carrying the reasons per equation) lives beside its only raiser.
 """
 
 from __future__ import annotations
@@ -54,3 +53,7 @@ class GapCliError(IdentError, ValueError):
 
 class PipelineError(IdentError, RuntimeError):
     """A stage of the main job failed; the message names the stage and its log file."""
+
+
+class GapInputError(IdentificationError):
+    """A recording or option the where-analysis cannot use (names the recording and the problem)."""

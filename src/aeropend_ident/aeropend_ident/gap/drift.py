@@ -361,7 +361,7 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
         ``removable_not_removed``, ``not_removable``; ``parameters``: the correction's and the
         oracle's values with standard errors side by side.
     """
-    from aeropend_ident.gap.report import validation_split
+    from aeropend_ident.io.split import validation_split
 
     say = progress or (lambda _m: None)
     vals, std = _chosen_values(diag)
@@ -565,7 +565,7 @@ def session_analysis(nominal: Rig, sessions: Sequence[Sequence[Recording]], chos
     GapError
         Fewer than two sessions; unusable recordings.
     """
-    from aeropend_ident.gap.report import validation_split
+    from aeropend_ident.io.split import validation_split
 
     labels = _session_labels(sessions, labels, "leave-one-session-out")
     say = progress or (lambda _m: None)

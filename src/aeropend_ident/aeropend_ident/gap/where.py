@@ -64,7 +64,7 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
-from aeropend_ident.errors import IdentificationError
+from aeropend_ident.errors import GapInputError, IdentificationError
 from aeropend_ident.greybox.baseline import measured_rate, residual_bins, residual_regions
 from aeropend_ident.greybox.fit import UniformData, error_metrics, initial_velocity, noise_level, uniform_data
 from aeropend_ident.io.jsonutil import jsonable
@@ -114,10 +114,6 @@ GROUP_SUBSYSTEM = {
 
 #: Subsystem label of the pendulum equation's thrust group when the rotor speed is not recorded.
 THETA_ONLY_CHAIN = "actuator chain (actuator, motor or aerodynamic: not separable from θ alone)"
-
-
-class GapInputError(IdentificationError):
-    """A recording or option the where-analysis cannot use (names the recording and the problem)."""
 
 
 # --------------------------------------------------------------------------- data classes

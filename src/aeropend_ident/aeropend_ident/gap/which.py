@@ -2,7 +2,7 @@
 
 Pipeline of :func:`diagnose_effects`. Two data sets: the **fit** recordings (effects are
 fitted there) and the **validation** recordings (effects are ranked and chosen there; carved from
-the fit data by :func:`aeropend_ident.gap.report.validation_split`). The **held-out** recordings of
+the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-out** recordings of
 :func:`aeropend_ident.gap.report.run_gap` are never seen here.
 
 1. **Validation of the inputs** (:func:`aeropend_ident.gap.effects.check_recordings`): θ and the

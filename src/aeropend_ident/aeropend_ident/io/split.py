@@ -10,6 +10,8 @@
 * :func:`informative` — whether a part carries information on any effect: a changing duty cycle
   and an angle that moves by at least ``min_range`` (a rod resting on an end stop throughout shows
   only sensor noise). The rule looks at the recording only, never at a model.
+* :func:`validation_split` — the diagnosis' own validation set carved out of the fit recordings
+  (train / validation / test), used by the gap run and the drift analysis.
 * :func:`split_runs` — one recording per run of a log that stores several runs one after the
   other with a run label column (e.g. the jahoyosr ``datosEscalones`` sheet).
 
@@ -25,9 +27,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from aeropend_ident.errors import GapInputError
 from aeropend_sim.recording import Recording
 
-__all__ = ["informative", "interleaved_blocks", "split_runs", "time_ordered"]
+__all__ = ["informative", "interleaved_blocks", "split_runs", "time_ordered", "validation_split"]
 
 
 def informative(part: Recording, min_range: float = 0.0) -> bool:
@@ -187,3 +190,95 @@ def split_runs(rec: Recording, labels: np.ndarray, min_samples: int = 2) -> list
                          "expected one per sample")
     edges = [0, *(np.flatnonzero(labels[1:] != labels[:-1]) + 1).tolist(), len(rec)]
     return [rec.slice(a, b) for a, b in itertools.pairwise(edges) if b - a >= min_samples]
+
+
+#: Default share of the fit data used by the diagnosis to choose the effects.
+VALIDATION_FRACTION = 0.3
+
+
+#: Fewest samples of a fit-core or validation part.
+MIN_PART = 200
+
+
+#: A validation part split before a duty step starts this long before it [s].
+SPLIT_LEAD = 1.0
+
+
+def _varying(r: Recording) -> bool:
+    return len(r) >= MIN_PART and float(np.ptp(r.duty)) > 0.0
+
+
+def _split_at_step(r: Recording, fraction: float) -> tuple[Recording, Recording] | None:
+    """Time-ordered split of one recording whose validation tail starts before a duty step.
+
+    Candidate split points lie :data:`SPLIT_LEAD` before each duty change, so the validation part
+    starts settled on the previous level and contains the step; the one whose validation share is
+    closest to ``fraction`` (within [0.1, 0.5]) wins. None when no candidate gives two parts of
+    :data:`MIN_PART` samples with a varying duty cycle.
+    """
+    n = len(r)
+    lead = max(round(SPLIT_LEAD / r.dt), 1)
+    best = None
+    for k in np.flatnonzero(np.diff(r.duty) != 0.0) + 1 - lead:
+        share = 1.0 - k / n
+        if not (0.1 <= share <= 0.5) or k < MIN_PART or n - k < MIN_PART:
+            continue
+        a, b = r.slice(0, int(k)), r.slice(int(k), n)
+        if _varying(a) and _varying(b) and (best is None or abs(share - fraction) < best[0]):
+            best = (abs(share - fraction), a, b)
+    return None if best is None else (best[1], best[2])
+
+
+def validation_split(
+    fit: Sequence[Recording], fraction: float = VALIDATION_FRACTION
+) -> tuple[list[Recording], list[Recording]]:
+    """Carve the diagnosis' validation set out of the fit recordings (train / validation / test).
+
+    In order of preference:
+
+    1. each fit recording split in time order, its last ``fraction`` becoming validation, when
+       both parts keep :data:`MIN_PART` samples and a varying duty cycle;
+    2. a recording whose tail holds one duty level (a long last step) is split instead just
+       before the duty step nearest to that share (:func:`_split_at_step`), so its validation part
+       starts settled and contains a step;
+    3. with several fit recordings, every round(1/fraction)-th whole recording from the second on;
+    4. interleaved blocks of each recording (:func:`aeropend_ident.io.split.interleaved_blocks`,
+       every 3rd block of about ``fraction`` × 3 of the length is validation).
+
+    Raises
+    ------
+    GapInputError
+        ``fraction`` outside (0, 1), or fit data too short or too little excited for any of these.
+    """
+    if not 0.0 < fraction < 1.0:
+        raise GapInputError(f"validation fraction {fraction!r}; expected a number in (0, 1)")
+    fit = list(fit)
+    parts: list[tuple[Recording, Recording]] = []
+    for r in fit:
+        pair = r.split(1.0 - fraction) if len(r) * min(fraction, 1.0 - fraction) >= MIN_PART else None
+        if pair is None or not (_varying(pair[0]) and _varying(pair[1])):
+            pair = _split_at_step(r, fraction)
+        if pair is None:
+            break
+        parts.append(pair)
+    if len(parts) == len(fit):
+        return [a for a, _ in parts], [b for _, b in parts]
+    if len(fit) >= 2:
+        step = max(2, round(1.0 / fraction))
+        pick = set(range(1, len(fit), step))
+        core = [r for i, r in enumerate(fit) if i not in pick]
+        val = [r for i, r in enumerate(fit) if i in pick]
+        if all(_varying(r) for r in core + val):
+            return core, val
+    for n_blocks in (6, 9, 12):
+        block = min(len(r) * r.dt for r in fit) / n_blocks
+        core, val, _ = interleaved_blocks(fit, block, 3, 0.0, 1)
+        if core and val and all(_varying(r) for r in core + val):
+            return core, val
+    raise GapInputError(
+        f"{fit[0].source or 'the fit recording'}: {len(fit[0])} samples cannot give both a fit part and a "
+        f"validation part (about {fraction:.0%}) of at least {MIN_PART} samples with a varying duty cycle, "
+        "neither in time order, split before a duty step, nor as interleaved blocks; record longer or with "
+        "more duty steps, add fit recordings, or pass validation fraction 0 (the held-out data then choose "
+        "the effects)"
+    )
