@@ -29,7 +29,7 @@ import pytest
 
 from aeropend_ident.cli.baseline import main
 from aeropend_ident.greybox.baseline import measured_rate, residual_regions
-from aeropend_ident.greybox.fit import error_metrics, free_run, rig_theta_offset, uniform_data
+from aeropend_ident.greybox.fit import error_metrics, free_run_theta, rig_theta_offset, uniform_data
 from aeropend_ident.io.csv_import import import_csv
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
@@ -192,7 +192,7 @@ def test_fitted_rig_file_loads_and_reproduces_held_out_metric(hoja3):
     rec = import_csv(HOJA3, "jahoyosr_hoja3")
     _, held = rec.split(0.7)
     data = uniform_data(held, dt=hoja3["provenance"]["recording"]["fit_grid_dt_s"], min_samples=10)
-    nrmse = error_metrics(data.theta, free_run(fitted, data, offset))["nrmse"]
+    nrmse = error_metrics(data.theta, free_run_theta(fitted, data, offset))["nrmse"]
     assert nrmse == pytest.approx(hoja3["metrics"]["heldout"]["fitted"]["nrmse"], rel=1e-9)
 
 

@@ -193,14 +193,14 @@ def test_error_exits(bags, tmp_path, capsys):
 
 def test_block_design_and_its_errors(bags, tmp_path, capsys):
     """--blocks: every 3rd block of the fit bag (24 s) held out; bad block options exit 2."""
-    from aeropend_ident.cli.gap import prepare
+    from aeropend_ident.io.recording_input import load_and_split
 
-    fit, held, rule = prepare([bags["fit"]], None, 0.7, None, blocks=4.0)
+    fit, held, rule = load_and_split([bags["fit"]], None, 0.7, None, blocks=4.0)
     assert (len(fit), len(held)) == (4, 2) and all(len(r) == 400 for r in (*fit, *held))
     assert rule.startswith("interleaved blocks of 4 s: every 3rd block")
-    _f, held2, _r = prepare([bags["fit"]], None, 0.7, None, blocks=4.0, block_every=2)
+    _f, held2, _r = load_and_split([bags["fit"]], None, 0.7, None, blocks=4.0, block_every=2)
     assert len(held2) == 3
-    fit0, held0, rule0 = prepare([bags["fit"]], None, 0.7, None, blocks=4.0, block_offset=0)
+    fit0, held0, rule0 = load_and_split([bags["fit"]], None, 0.7, None, blocks=4.0, block_offset=0)
     assert (len(fit0), len(held0)) == (4, 2) and "(from the 1st)" in rule0
     assert not {h.source for h in held0} & {h.source for h in held}  # another fold
     out = str(tmp_path / "o")

@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -51,26 +50,15 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_ident.errors import GapCliError
-from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
-from aeropend_ident.io.split import interleaved_blocks, time_ordered
+from aeropend_ident.io.recording_input import (
+    check_length,
+    load_and_split,
+    load_recording,
+    split_preset,
+    uniform_recording,
+)
 from aeropend_sim.params import RigFileError
-from aeropend_sim.recording import Recording, RecordingError
-
-#: Fewest samples per recording part (fit or held out).
-MIN_PART_SAMPLES = 200
-
-
-def _check_length(rec: Recording, what: str) -> None:
-    if len(rec) < MIN_PART_SAMPLES:
-        raise GapCliError(
-            f"{rec.source or what}: only {len(rec)} samples in the {what}; the gap diagnosis needs "
-            f"at least {MIN_PART_SAMPLES} (record longer or change --split)"
-        )
-    if np.ptp(rec.duty) == 0.0:
-        raise GapCliError(
-            f"{rec.source or what}: the duty cycle is constant ({rec.duty[0]:g}) in the {what}: "
-            "unexcited input, nothing to compare"
-        )
+from aeropend_sim.recording import RecordingError
 
 
 def resolve_rig(ref: str) -> tuple[object, float]:
@@ -95,72 +83,6 @@ def resolve_rig(ref: str) -> tuple[object, float]:
             "the nominal rig file, or compare this one with `compare`"
         )
     return model.rig, model.measurement.theta_offset
-
-
-def prepare(
-    inputs: Sequence[str | Path],
-    held_out: Sequence[str | Path] | None,
-    split: float,
-    preset: str | None,
-    blocks: float | None = None,
-    block_every: int = 3,
-    min_range: float = 0.0,
-    block_offset: int = 1,
-) -> tuple[list[Recording], list[Recording], str]:
-    """Read and split the recordings into (fit, held_out, rule description).
-
-    The held-out design (:mod:`aeropend_ident.io.split`): separate ``held_out`` files, else
-    interleaved blocks of ``blocks`` seconds (every ``block_every``-th held out from block
-    ``block_offset``; blocks whose angle moves less than ``min_range`` [rad] dropped), else the
-    time-ordered ``split``.
-
-    Raises
-    ------
-    GapCliError, RecordingError, ValueError
-        Unreadable file, unknown preset, missing channel, NaNs, too short, bad split or blocks.
-    """
-    if not (isinstance(split, float) and math.isfinite(split) and 0.0 < split < 1.0):
-        raise GapCliError(f"--split {split!r}: expected a fraction in (0, 1)")
-    if not (math.isfinite(min_range) and min_range >= 0.0):
-        raise GapCliError(f"--min-range {min_range!r}: expected an angle range >= 0 [rad]")
-    if blocks is None and (min_range != 0.0 or block_every != 3 or block_offset != 1):
-        raise GapCliError(
-            "--min-range, --block-every and --block-offset apply to interleaved blocks only: "
-            "give --blocks SECONDS"
-        )
-    recs = [uniform_recording(load_recording(p, preset)) for p in inputs]
-    if held_out:
-        held = [uniform_recording(load_recording(p, preset)) for p in held_out]
-        for r in recs:
-            _check_length(r, "fit recording")
-        for r in held:
-            _check_length(r, "held-out recording")
-        rule = f"separate held-out file(s): {', '.join(split_preset(p)[0].name for p in held_out)}"
-        return recs, held, rule
-    if blocks is not None:
-        if not (math.isfinite(blocks) and blocks > 0.0):
-            raise GapCliError(f"--blocks {blocks!r}: expected a block length > 0 [s]")
-        if block_every < 2:
-            raise GapCliError(f"--block-every {block_every!r}: expected 2 or more")
-        if not 0 <= block_offset < block_every:
-            raise GapCliError(
-                f"--block-offset {block_offset!r}: expected a block index in [0, {block_every}) "
-                "(below --block-every)"
-            )
-        fit, held, rule = interleaved_blocks(recs, blocks, block_every, min_range, block_offset)
-        if not fit or not held:
-            raise GapCliError(
-                f"--blocks {blocks:g}: {len(fit)} fit and {len(held)} held-out block(s) with a changing "
-                "duty cycle; use shorter blocks or --split"
-            )
-        for r in (*fit, *held):
-            _check_length(r, "block")
-        return fit, held, rule
-    fit, held, rule = time_ordered(recs, split)
-    for a, b in zip(fit, held, strict=True):
-        _check_length(a, "fit part")
-        _check_length(b, "held-out part")
-    return fit, held, rule
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -293,7 +215,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             inputs = [x for g in groups for x in g]
         if not inputs:
             raise GapCliError("no fit recording given (positional RECORDING ... or --sessions)")
-        fit, held, rule = prepare(
+        fit, held, rule = load_and_split(
             inputs,
             args.held_out,
             args.split,
@@ -307,7 +229,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.validation:
             val = [uniform_recording(load_recording(p, args.preset)) for p in args.validation]
             for r in val:
-                _check_length(r, "validation recording")
+                check_length(r, "validation recording")
             rule += f"; validation file(s): {', '.join(split_preset(p)[0].name for p in args.validation)}"
         sessions, labels = None, None
         if groups is not None:

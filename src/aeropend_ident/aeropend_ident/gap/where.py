@@ -4,7 +4,7 @@
 recording (all on the recording's uniform grid, :func:`aeropend_ident.greybox.fit.uniform_data`):
 
 1. **Free run** — the model driven by the duty cycle alone from the first samples' state
-   (:func:`aeropend_ident.greybox.fit.free_run`); residual e_k = θ_sim − θ_meas [rad], NRMSE as in
+   (:func:`aeropend_ident.greybox.fit.free_run_theta`); residual e_k = θ_sim − θ_meas [rad], NRMSE as in
    :func:`aeropend_ident.greybox.fit.error_metrics`. θ(0) and θ̇(0) are refined by least squares over
    the first :data:`INIT_WINDOW` seconds (a noisy first sample would otherwise start a spurious
    oscillation that colours the whole residual).

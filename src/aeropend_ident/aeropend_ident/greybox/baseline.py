@@ -46,7 +46,7 @@ from aeropend_ident.greybox.fit import (
     UniformData,
     error_metrics,
     fit_greybox,
-    free_run,
+    free_run_theta,
     rig_theta_offset,
     uniform_data,
 )
@@ -372,7 +372,7 @@ def baseline(
     regions: dict[str, dict[str, dict[str, Any]]] = {"train": {}, "heldout": {}}
     for part, data in (("train", train), ("heldout", held)):
         for model, r, o in (("nominal", nominal, off), ("fitted", fit.rig, fit.theta_offset)):
-            th = fit.theta_fit if (part == "train" and model == "fitted") else free_run(r, data, o)
+            th = fit.theta_fit if (part == "train" and model == "fitted") else free_run_theta(r, data, o)
             theta[part][model] = th
             metrics[part][model] = error_metrics(data.theta, th)
             regions[part][model] = residual_regions(data.theta, data.duty, th - data.theta, data.dt,

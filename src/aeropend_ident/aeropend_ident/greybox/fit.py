@@ -72,6 +72,7 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 
 from aeropend_ident.errors import IdentificationError
+from aeropend_ident.io.recording_input import uniform_grid  # moved
 from aeropend_sim.model import ROTOR_FRICTION_VELOCITY, ModelError, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.recording import Recording
@@ -86,8 +87,6 @@ MIN_SAMPLES = 50
 N_DIFF = 7
 #: ftol/xtol/gtol of the multiple-shooting initialisation stage (see ``init_horizon``).
 INIT_STAGE_TOL = 1e-4
-#: Relative deviation of a sample interval from the median above which a log is resampled.
-UNIFORM_TOLERANCE = 1e-3
 
 #: Physical bounds (lower, upper, log-parametrised) of the usual grey-box parameters, SI units.
 #: ``None`` bounds are relative to the initial value (factor 1e-3 .. 1e3).
@@ -482,30 +481,6 @@ def check_recording(recording: Recording, min_samples: int = MIN_SAMPLES) -> Non
         raise IdentificationError(f"{src}: θ is constant ({theta[0]:g} rad): the output is unexcited")
 
 
-def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """The uniform grid of period ``dt`` over time stamps ``t`` (from 0), or None if ``t`` is on it.
-
-    Parameters
-    ----------
-    t : ndarray, shape (N,)
-        Increasing time stamps [s] starting at 0.
-    dt : float
-        Grid period [s] (> 0).
-
-    Returns
-    -------
-    (t_grid, idx) or None
-        ``t_grid = k·dt`` up to ``t[-1]`` and, per grid point, the index of the last sample at or
-        before it (zero-order hold of an input); None when every interval of ``t`` is within
-        ±UNIFORM_TOLERANCE of ``dt`` (no resampling needed).
-    """
-    if np.all(np.abs(np.diff(t) - dt) <= UNIFORM_TOLERANCE * dt):
-        return None
-    tu = np.arange(math.floor(t[-1] / dt + 1e-9) + 1) * dt
-    idx = np.clip(np.searchsorted(t, tu + 1e-9 * dt, side="right") - 1, 0, t.size - 1)
-    return tu, idx
-
-
 def uniform_data(
     recording: Recording, dt: float | None = None, decimate: int = 1, min_samples: int = MIN_SAMPLES
 ) -> UniformData:
@@ -667,7 +642,7 @@ def initial_state(rig: Rig, theta: np.ndarray, duty: np.ndarray, dt: float, thet
     return np.array([th0 + theta_offset, thd, i_a, w, tf])
 
 
-def free_run(
+def free_run_theta(
     rig: Rig, data: UniformData, theta_offset: float = 0.0, theta_dot0: float | None = None,
     theta0: float | None = None,
 ) -> np.ndarray:
@@ -990,10 +965,10 @@ def fit_greybox(
                 r_rig, r_off = candidate(z)
                 if with_x0:
                     d_th, d_thd = x0_correction(z)
-                    th = free_run(r_rig, data, r_off, thd0_est + d_thd, th0_est + d_th)
+                    th = free_run_theta(r_rig, data, r_off, thd0_est + d_thd, th0_est + d_th)
                 else:
                     th = np.concatenate(
-                        [free_run(r_rig, p, r_off, v) for p, v in zip(parts, velocities, strict=True)]
+                        [free_run_theta(r_rig, p, r_off, v) for p, v in zip(parts, velocities, strict=True)]
                     )
             except IdentificationError:
                 return np.full(measured.size, penalty)
@@ -1036,7 +1011,7 @@ def fit_greybox(
         d_th, d_thd = x0_correction(sol.x)
         th0, thd0 = th0_est + d_th, thd0_est + d_thd
     fit_rig, fit_off = candidate(sol.x)
-    theta_fit = free_run(fit_rig, data, fit_off, thd0, th0)
+    theta_fit = free_run_theta(fit_rig, data, fit_off, thd0, th0)
     lo_all = np.concatenate([lo, lo_x])[: sol.x.size]
     hi_all = np.concatenate([hi, hi_x])[: sol.x.size]
     pinned = (np.abs(sol.x - lo_all) <= 1e-6 * lo_all) | (np.abs(sol.x - hi_all) <= 1e-6 * hi_all)

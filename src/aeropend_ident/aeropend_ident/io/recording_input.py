@@ -8,17 +8,21 @@ Every recording argument of ``compare``, ``gap``, ``baseline`` and ``identify`` 
   ``Identification_Data2.csv:aeroshield_ident2``), ``FILE.csv`` alone uses the tool's
   ``--preset`` or, without one (or with ``auto``), the preset whose file patterns match the name.
 
-So recordings of different formats can be mixed in one call.
+So recordings of different formats can be mixed in one call. :func:`load_and_split` reads the
+``gap`` tool's recordings and makes its held-out design (:mod:`aeropend_ident.io.split`);
+:func:`uniform_grid` / :func:`uniform_recording` put a recording on a uniform time grid.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from aeropend_ident.errors import RecordingInputError
-from aeropend_ident.greybox.fit import uniform_grid
+from aeropend_ident.errors import GapCliError, RecordingInputError
+from aeropend_ident.io.split import interleaved_blocks, time_ordered
 from aeropend_sim.recording import Recording
 
 #: File suffixes read as CSV logs.
@@ -110,7 +114,7 @@ def uniform_recording(rec: Recording) -> Recording:
 
     What the replaying tools (``gap``, ``compare``) need: θ and the duty cycle, finite values, time
     stamps in order. The grid period is the median interval; a recording already on that grid
-    (:func:`aeropend_ident.greybox.fit.uniform_grid`) is returned unchanged. A constant input is
+    (:func:`uniform_grid`) is returned unchanged. A constant input is
     accepted here (a step from rest at t = 0 is a valid recording to compare on); ``gap`` refuses
     it itself.
 
@@ -146,3 +150,121 @@ def uniform_recording(rec: Recording) -> Recording:
     return Recording(
         t=tu, duty=rec.duty[idx], channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta
     )
+
+
+#: Relative deviation of a sample interval from the median above which a log is resampled.
+UNIFORM_TOLERANCE = 1e-3
+
+
+def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The uniform grid of period ``dt`` over time stamps ``t`` (from 0), or None if ``t`` is on it.
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,)
+        Increasing time stamps [s] starting at 0.
+    dt : float
+        Grid period [s] (> 0).
+
+    Returns
+    -------
+    (t_grid, idx) or None
+        ``t_grid = k·dt`` up to ``t[-1]`` and, per grid point, the index of the last sample at or
+        before it (zero-order hold of an input); None when every interval of ``t`` is within
+        ±UNIFORM_TOLERANCE of ``dt`` (no resampling needed).
+    """
+    if np.all(np.abs(np.diff(t) - dt) <= UNIFORM_TOLERANCE * dt):
+        return None
+    tu = np.arange(math.floor(t[-1] / dt + 1e-9) + 1) * dt
+    idx = np.clip(np.searchsorted(t, tu + 1e-9 * dt, side="right") - 1, 0, t.size - 1)
+    return tu, idx
+
+
+#: Fewest samples per recording part (fit or held out) of the gap tool.
+MIN_PART_SAMPLES = 200
+
+
+def check_length(rec: Recording, what: str) -> None:
+    """Refuse a recording part the gap diagnosis cannot use (too short, constant duty cycle).
+
+    Raises
+    ------
+    GapCliError
+        Fewer than :data:`MIN_PART_SAMPLES` samples, or a constant duty cycle; names ``what``.
+    """
+    if len(rec) < MIN_PART_SAMPLES:
+        raise GapCliError(
+            f"{rec.source or what}: only {len(rec)} samples in the {what}; the gap diagnosis needs "
+            f"at least {MIN_PART_SAMPLES} (record longer or change --split)"
+        )
+    if np.ptp(rec.duty) == 0.0:
+        raise GapCliError(
+            f"{rec.source or what}: the duty cycle is constant ({rec.duty[0]:g}) in the {what}: "
+            "unexcited input, nothing to compare"
+        )
+
+
+def load_and_split(
+    inputs: Sequence[str | Path],
+    held_out: Sequence[str | Path] | None,
+    split: float,
+    preset: str | None,
+    blocks: float | None = None,
+    block_every: int = 3,
+    min_range: float = 0.0,
+    block_offset: int = 1,
+) -> tuple[list[Recording], list[Recording], str]:
+    """Read and split the recordings into (fit, held_out, rule description).
+
+    The held-out design (:mod:`aeropend_ident.io.split`): separate ``held_out`` files, else
+    interleaved blocks of ``blocks`` seconds (every ``block_every``-th held out from block
+    ``block_offset``; blocks whose angle moves less than ``min_range`` [rad] dropped), else the
+    time-ordered ``split``.
+
+    Raises
+    ------
+    GapCliError, RecordingError, ValueError
+        Unreadable file, unknown preset, missing channel, NaNs, too short, bad split or blocks.
+    """
+    if not (isinstance(split, float) and math.isfinite(split) and 0.0 < split < 1.0):
+        raise GapCliError(f"--split {split!r}: expected a fraction in (0, 1)")
+    if not (math.isfinite(min_range) and min_range >= 0.0):
+        raise GapCliError(f"--min-range {min_range!r}: expected an angle range >= 0 [rad]")
+    if blocks is None and (min_range != 0.0 or block_every != 3 or block_offset != 1):
+        raise GapCliError(
+            "--min-range, --block-every and --block-offset apply to interleaved blocks only: "
+            "give --blocks SECONDS"
+        )
+    recs = [uniform_recording(load_recording(p, preset)) for p in inputs]
+    if held_out:
+        held = [uniform_recording(load_recording(p, preset)) for p in held_out]
+        for r in recs:
+            check_length(r, "fit recording")
+        for r in held:
+            check_length(r, "held-out recording")
+        rule = f"separate held-out file(s): {', '.join(split_preset(p)[0].name for p in held_out)}"
+        return recs, held, rule
+    if blocks is not None:
+        if not (math.isfinite(blocks) and blocks > 0.0):
+            raise GapCliError(f"--blocks {blocks!r}: expected a block length > 0 [s]")
+        if block_every < 2:
+            raise GapCliError(f"--block-every {block_every!r}: expected 2 or more")
+        if not 0 <= block_offset < block_every:
+            raise GapCliError(
+                f"--block-offset {block_offset!r}: expected a block index in [0, {block_every}) "
+                "(below --block-every)"
+            )
+        fit, held, rule = interleaved_blocks(recs, blocks, block_every, min_range, block_offset)
+        if not fit or not held:
+            raise GapCliError(
+                f"--blocks {blocks:g}: {len(fit)} fit and {len(held)} held-out block(s) with a changing "
+                "duty cycle; use shorter blocks or --split"
+            )
+        for r in (*fit, *held):
+            check_length(r, "block")
+        return fit, held, rule
+    fit, held, rule = time_ordered(recs, split)
+    for a, b in zip(fit, held, strict=True):
+        check_length(a, "fit part")
+        check_length(b, "held-out part")
+    return fit, held, rule
