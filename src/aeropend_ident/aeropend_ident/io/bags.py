@@ -1010,13 +1010,6 @@ def _stored_meta(path: Path) -> dict[str, Any]:
     return meta
 
 
-def sample_at(rec: Recording, k: int) -> Sample:
-    """Contract :class:`Sample` of recording sample ``k`` (array convention; NaN for absent channels)."""
-    ch = {name: float(rec.channels[name][k]) if name in rec.channels else _NAN for name in MEASURED_CHANNELS}
-    return Sample(stamp_ns=rec.stamp0_ns + round(rec.t[k] * 1e9), duty=float(rec.duty[k]), **ch)
-
-
-
 # --------------------------------------------------------------------------------------------
 # Incremental raw writing / reading (ROS-free core of the recorder and player nodes)
 # --------------------------------------------------------------------------------------------
