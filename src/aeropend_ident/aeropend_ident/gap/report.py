@@ -44,7 +44,7 @@ from aeropend_ident.errors import GapInputError
 from aeropend_ident.gap.where import EQUATIONS, WhereReport, locate_gap
 from aeropend_ident.greybox.fit import THETA_OFFSET, error_metrics
 from aeropend_ident.io.jsonutil import jsonable
-from aeropend_ident.io.split import (  # moved
+from aeropend_ident.io.split import (
     VALIDATION_FRACTION,
     validation_split,
 )

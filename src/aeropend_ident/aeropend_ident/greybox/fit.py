@@ -72,7 +72,7 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.io.recording_input import uniform_grid  # moved
+from aeropend_ident.io.recording_input import uniform_grid
 from aeropend_sim.model import ROTOR_FRICTION_VELOCITY, ModelError, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.recording import Recording

@@ -3,7 +3,7 @@
 ``play BAG [--rate 1.0] [--loop] [--topics T ...]`` reads the bag with ``rosbags``
 (:class:`aeropend_ident.io.bags.RawBagReader`) and publishes each message's serialised bytes
 unchanged (header stamps included) on its topic, with a publisher per topic using the QoS the
-bag recorded for it (:func:`aeropend_ident.nodes.record.qos_to_rclpy`; the contract QoS when
+bag recorded for it (:func:`aeropend_ident.nodes.qos.qos_to_rclpy`; the contract QoS when
 the bag has none). Message k is published at ``start + (log_k − log_0) / rate`` on the
 monotonic clock (absolute deadlines, so sleep overshoot does not accumulate). The command
 exits when the bag is done (after ``--linger`` seconds so reliable messages are delivered).
@@ -31,7 +31,7 @@ from rosgraph_msgs.msg import Clock as ClockMsg
 
 from aeropend_ident.errors import BagError
 from aeropend_ident.io.bags import RawBagReader, qos_for_topic
-from aeropend_ident.nodes.record import message_class, qos_to_rclpy
+from aeropend_ident.nodes.qos import message_class, qos_to_rclpy
 from aeropend_sim.contract import TOPIC_CLOCK
 from aeropend_sim.ros.ros_contract import CLOCK_QOS, to_time
 

@@ -44,23 +44,25 @@ SIGINT, SIGTERM, duration or sample limit.
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 import time
 from collections.abc import Sequence
 from typing import Any
 
 import rclpy
-from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
-from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.interfaces import Qos
 
 from aeropend_ident.errors import BagError
 from aeropend_ident.io.bags import BagSink, qos_for_topic
+from aeropend_ident.nodes.qos import (
+    message_class,
+    qos_from_rclpy,
+)
 from aeropend_sim.contract import (
     CONTRACT_TOPICS,
     TOPIC_CLOCK,
@@ -77,7 +79,6 @@ NODE_NAME = "aeropend_recorder"
 DRAIN_IDLE_S = 0.3
 #: ... but at most this long [s].
 DRAIN_MAX_S = 10.0
-_INFINITE_NS = 2**63 - 1
 
 
 def _known_type(topic: str) -> str | None:
@@ -85,53 +86,6 @@ def _known_type(topic: str) -> str | None:
     if topic == TOPIC_CLOCK:
         return TYPE_CLOCK
     return next((t for name, t in CONTRACT_TOPICS.items() if topic.endswith(name)), None)
-
-
-def message_class(msgtype: str) -> Any:
-    """Python class of a ROS 2 message type name such as ``sensor_msgs/msg/JointState``."""
-    pkg, kind, name = msgtype.split("/")
-    return getattr(importlib.import_module(f"{pkg}.{kind}"), name)
-
-
-def _qtime(d: Duration) -> QosTime:
-    ns = d.nanoseconds
-    if ns <= 0 or ns >= _INFINITE_NS:
-        return QosTime(sec=9223372036, nsec=854775807) if ns >= _INFINITE_NS else QosTime(0, 0)
-    sec, nsec = divmod(ns, 1_000_000_000)
-    return QosTime(sec=sec, nsec=nsec)
-
-
-def qos_from_rclpy(profile: QoSProfile, default_depth: int) -> Qos:
-    """rosbags :class:`Qos` of an rclpy profile (a depth of 0 from graph discovery -> ``default_depth``)."""
-    return Qos(
-        history=QosHistory[profile.history.name],
-        depth=int(profile.depth) or default_depth,
-        reliability=QosReliability[profile.reliability.name],
-        durability=QosDurability[profile.durability.name],
-        deadline=_qtime(profile.deadline),
-        lifespan=_qtime(profile.lifespan),
-        liveliness=QosLiveliness[profile.liveliness.name],
-        liveliness_lease_duration=_qtime(profile.liveliness_lease_duration),
-        avoid_ros_namespace_conventions=bool(profile.avoid_ros_namespace_conventions),
-    )
-
-
-def qos_to_rclpy(qos: Qos) -> QoSProfile:
-    """rclpy profile of a rosbags :class:`Qos` (infinite / unset durations keep rclpy defaults)."""
-    kwargs: dict[str, Any] = {
-        "history": HistoryPolicy[qos.history.name],
-        "depth": int(qos.depth) or 10,
-        "reliability": ReliabilityPolicy[qos.reliability.name],
-        "durability": DurabilityPolicy[qos.durability.name],
-        "liveliness": LivelinessPolicy[qos.liveliness.name],
-        "avoid_ros_namespace_conventions": bool(qos.avoid_ros_namespace_conventions),
-    }
-    for key in ("deadline", "lifespan", "liveliness_lease_duration"):
-        t: QosTime = getattr(qos, key)
-        ns = int(t.sec) * 1_000_000_000 + int(t.nsec)
-        if 0 < ns < _INFINITE_NS:
-            kwargs[key] = Duration(nanoseconds=ns)
-    return QoSProfile(**kwargs)
 
 
 class RecorderNode(Node):

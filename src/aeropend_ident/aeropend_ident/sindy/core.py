@@ -53,7 +53,7 @@ from pysindy.utils import AxesArray
 
 from aeropend_ident.errors import IdentificationError, LibraryError
 from aeropend_ident.sindy.libraries import CandidateLibrary
-from aeropend_ident.sindy.model import (  # moved
+from aeropend_ident.sindy.model import (
     ZOH_INPUTS,
     BaseModel,
     IdentData,
