@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from aeropend_ident.cli.csv_import import main
 from aeropend_ident.errors import CsvImportError
 from aeropend_ident.io.bags import read_bag
-from aeropend_ident.io.csv_import import PRESETS, CsvSpec, find_preset, import_csv, import_csv_runs, main
+from aeropend_ident.io.csv_import import PRESETS, CsvSpec, find_preset, import_csv, import_csv_runs
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 HOJA3 = REAL / "jahoyosr__Aeropendulum" / "sheet_Hoja3_pwm_steps_openloop.csv"

@@ -114,7 +114,7 @@ def test_identify_csv_of_the_rig_sensor_set_30db(truth_run, tmp_path, truth_csv_
     exceeded the 600 s test timeout on the loaded 2-core machine."""
     import yaml
 
-    from aeropend_ident.sindy.identify import main
+    from aeropend_ident.cli.identify import main
 
     rec = tp.record(tp.TruthPlant(), truth_run["duty"], 30.0, seed=1)
     rec.to_csv(tmp_path / "log.csv")

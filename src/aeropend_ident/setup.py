@@ -31,10 +31,10 @@ setup(
         "console_scripts": [
             'record = aeropend_ident.nodes.record:main',
             'play = aeropend_ident.nodes.play:main',
-            'csv_import = aeropend_ident.io.csv_import:main',
+            'csv_import = aeropend_ident.cli.csv_import:main',
             'baseline = aeropend_ident.cli.baseline:main',
-            'pipeline = aeropend_ident.pipeline:main',
-            'identify = aeropend_ident.sindy.identify:main',
+            'pipeline = aeropend_ident.cli.pipeline:main',
+            'identify = aeropend_ident.cli.identify:main',
             'gap = aeropend_ident.cli.gap:main',
             'compare = aeropend_ident.cli.compare:main'
         ],
