@@ -165,6 +165,23 @@ def test_presets_found_by_file_name() -> None:
         assert spec.meta["licence"] and spec.meta["provenance"].startswith("https://github.com/")
 
 
+def test_presets_are_yaml_package_data() -> None:
+    """Every preset is one YAML file in ``aeropend_ident/io/presets`` and loads to a valid spec."""
+    from importlib import resources
+
+    from aeropend_ident.io.csv_import import load_presets
+
+    files = sorted(e.name for e in (resources.files("aeropend_ident.io") / "presets").iterdir()
+                   if e.name.endswith(".yaml"))
+    assert files == sorted(f"{name}.yaml" for name in PRESETS)
+    assert load_presets() == PRESETS
+    for name, spec in PRESETS.items():
+        spec.check()
+        assert spec.name == name and spec.meta["files"] and spec.meta["licence"]
+        assert all(isinstance(col, str) and isinstance(scale, float) for col, scale in spec.channels.values())
+    assert PRESETS["yangzhu_pitch_step"].channels["omega_rotor"] == ("tach_pitch_motor", 2 * math.pi / 2048)
+
+
 @real_data
 @pytest.mark.real_data
 def test_cli_writes_bag_that_reads_back(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

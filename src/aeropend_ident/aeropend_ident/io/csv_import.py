@@ -24,10 +24,12 @@ import hashlib
 import math
 import warnings
 from dataclasses import asdict, dataclass, field
+from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+import yaml
 
 from aeropend_ident.errors import CsvImportError
 from aeropend_sim.recording import MEASURED_CHANNELS, Recording, RecordingError
@@ -175,216 +177,38 @@ class CsvSpec:
 # Presets for the real recordings in shared/data/real (see its README.md, sections 4-7)
 # --------------------------------------------------------------------------------------------
 
-_NO_LICENCE = ("none stated (no LICENSE file): no reuse rights granted; internal testing only, "
-               "do not redistribute or commit the data")
 
-PRESETS: dict[str, CsvSpec] = {
-    "jahoyosr_hoja3": CsvSpec(
-        name="jahoyosr_hoja3",
-        time_col="t [s]", time_unit="s",
-        input_col="PWM [0-255]", input_kind="pwm", pwm_full_scale=255.0,
-        angle_col="angle [deg]", angle_unit="deg",
-        meta={
-            "files": ["sheet_Hoja3_pwm_steps_openloop.csv"],
-            "rig": "jahoyosr Aeropendulum (Universidad Nacional de Colombia): Arduino + L298N + DC motor + "
-                   "propeller see-saw, potentiometer angle",
-            "provenance": "https://github.com/jahoyosr/Aeropendulum @ "
-                          "735dd93e6c3d9f8950a20421d5d14cf84b1e41ed, "
-                          "'Model identification and software development/VvsF.xlsx' sheet Hoja3 "
-                          "(exported to CSV; data README section 5)",
-            "licence": _NO_LICENCE,
-            "angle_reference": "0 = see-saw horizontal (balanced with counterweights), not hanging down; "
-                               "mechanical stops at about -37.4 deg and +37 deg",
-            "input_note": "8-bit analogWrite PWM counts / 255; open-loop staircase 180..224 in steps of 2 "
-                          "every 10 s",
-            "nominal_rate_hz": 70.0,
-        },
-    ),
-    "jahoyosr_escalones": CsvSpec(
-        name="jahoyosr_escalones",
-        time_col=None, rate_hz=70.0,
-        input_col="PWM [0-255]", input_kind="pwm", pwm_full_scale=255.0,
-        angle_col="angle [deg]", angle_unit="deg",
-        meta={
-            "files": ["sheet_datosEscalones_*.csv"],
-            "rig": "jahoyosr Aeropendulum (as jahoyosr_hoja3), another session",
-            "provenance": "https://github.com/jahoyosr/Aeropendulum @ "
-                          "735dd93e6c3d9f8950a20421d5d14cf84b1e41ed, "
-                          "'Model identification and software development/VvsF.xlsx' sheet datosEscalones "
-                          "(columns A-B and S-T exported to CSV; data README section 5)",
-            "licence": _NO_LICENCE,
-            "angle_reference": "as jahoyosr_hoja3: 0 = see-saw horizontal; stops at about -37.4 and +37 deg",
-            "sample_period_note": "no time column: 70 Hz assumed (the rate of Hoja3, same rig and firmware)",
-            "input_note": "8-bit analogWrite PWM counts / 255; columns A-B: PWM 150..240 in steps of 5 in "
-                          "15 pieces (column 'block'); columns S-T: PWM 210..229 in steps of 1",
-        },
-    ),
-    "aeroshield_ident": CsvSpec(
-        name="aeroshield_ident",
-        time_col="k", time_unit="sample", rate_hz=1.0 / 0.015,
-        input_col="u_motor", input_kind="voltage", supply_voltage=3.7, voltage_law="rms",
-        quantize_counts=255,
-        angle_col="y_angle", angle_unit="rad",
-        meta={
-            "files": ["Identification_Data.csv"],
-            "rig": "AutomationShield AeroShield: Arduino shield, small DC motor + propeller on a pendulum, "
-                   "AS5600 Hall angle sensor",
-            "provenance": "https://github.com/gergelytakacs/AutomationShield @ "
-                          "bc0778f97a156d4ea5158725e09068d438e59a39, "
-                          "matlab/examples/AeroShield/Identification_Data.mat "
-                          "(converted; data README section 4)",
-            "licence": "CC BY-NC-ND 4.0 (repository LICENSE; file headers say CC BY-NC 4.0): non-commercial "
-                       "use with attribution only",
-            "sample_period_note": "Ts = 0.015 s per the repository's January 2023 identification script",
-            "input_note": "u_motor is the argument of AeroShield.actuatorWriteVolt(u), which the repository "
-                          "firmware (src/AeroShield.cpp) converts as "
-                          "analogWrite(pin, sq(constrain(u, 0, 3.7)) * 255 / sq(3.7)): "
-                          "u is treated as an RMS voltage with 3.7 V full scale (the top of the "
-                          "0-3.7 V range the library accepts; the data README states no supply voltage). "
-                          "Hence duty = floor(255 (u / 3.7 V)^2) / 255, the integer PWM duty actually "
-                          "applied "
-                          "(u = 1.90572 V -> 67/255)",
-            "angle_reference": "0 = pendulum hanging down (rest position at u = 0)",
-            "ignored_columns": "y_raw [encoder counts] (same angle, raw), i [undocumented]",
-        },
-    ),
-    "aeroshield_ident2": CsvSpec(
-        name="aeroshield_ident2",
-        time_col="t", time_unit="s",
-        input_col="u_motor", input_kind="voltage", supply_voltage=3.7, voltage_law="rms",
-        quantize_counts=255,
-        angle_col="y_angle", angle_unit="rad",
-        meta={
-            "files": ["Identification_Data2.csv"],
-            "rig": "AutomationShield AeroShield: Arduino shield, small DC motor + propeller on a pendulum, "
-                   "AS5600 Hall angle sensor",
-            "provenance": "https://github.com/gergelytakacs/AutomationShield @ "
-                          "bc0778f97a156d4ea5158725e09068d438e59a39, "
-                          "matlab/examples/AeroShield/Identification_Data2.mat "
-                          "(converted; data README section 4)",
-            "licence": "CC BY-NC-ND 4.0 (repository LICENSE; file headers say CC BY-NC 4.0): non-commercial "
-                       "use with attribution only",
-            "sample_period_note": "Ts = 0.01 s per the repository's .ino and August 2023 script",
-            "input_note": "as aeroshield_ident: duty = floor(255 (u / 3.7 V)^2) / 255",
-            "angle_reference": "0 = pendulum hanging down (rest position at u = 0)",
-        },
-    ),
-    "etchepareborda_openloop": CsvSpec(
-        name="etchepareborda_openloop",
-        time_col="t", time_unit="s",
-        input_col="pwm", input_kind="pwm", pwm_full_scale=255.0,
-        angle_col="theta", angle_unit="rad",
-        meta={
-            "files": ["openloop_*.csv", "closedloop_*.csv"],
-            "rig": "BA-Etchepareborda adaptive-control-aeropendulum: Arduino + H-bridge + DC motor + "
-                   "propeller, "
-                   "MPU6050 complementary-filter angle",
-            "provenance": "https://github.com/BA-Etchepareborda/adaptive-control-aeropendulum @ "
-                          "6c18028a5c756cc1b977be6ce2e23552e90d31a6, mediciones/ "
-                          "(headerless originals paired "
-                          "into CSV; data README section 6)",
-            "licence": _NO_LICENCE,
-            "sample_period_note": "Ts = 0.02 s (firmware dtime = 0.02 and tiempo*.csv)",
-            "input_note": "8-bit analogWrite PWM counts / 255",
-            "angle_reference": "0 = pendulum hanging down",
-        },
-    ),
-    "matheusbucater_sawtooth": CsvSpec(
-        name="matheusbucater_sawtooth",
-        time_col="Time", time_unit="ms",
-        input_col="PWM", input_kind="pwm", pwm_full_scale=255.0,
-        angle_col="Theta", angle_unit="deg",
-        delimiter=";",
-        meta={
-            "files": ["aeropendulum.csv"],
-            "rig": "matheusbucater aeropendulo: Arduino UNO + L298N + DC motor + propeller, 9 V battery, "
-                   "potentiometer angle theta = (ADC - 497) / 4 deg (1 deg resolution)",
-            "provenance": "https://github.com/matheusbucater/aeropendulo @ "
-                          "dd3532e1480338268b0b44bf04e6a4763bd72460, dados/aeropendulum.csv "
-                          "(original; data README section 7)",
-            "licence": _NO_LICENCE,
-            "input_note": "PWM = 8-bit analogWrite counts (sawtooth 0..149); duty = PWM / 255 (the file's "
-                          "PWM_norm column is PWM / 150, a plotting normalisation, and is ignored)",
-            "sample_period_note": "FreeRTOS tick, 16-17 ms",
-            "angle_reference": "0 = pendulum hanging down",
-        },
-    ),
-    "matheusbucater_step": CsvSpec(
-        name="matheusbucater_step",
-        time_col="Time", time_unit="ms",
-        input_col=None, input_kind="pwm", pwm_full_scale=255.0, input_constant=80.0,
-        angle_col="Theta", angle_unit="deg",
-        delimiter=";",
-        meta={
-            "files": ["aeropendulum_step.csv"],
-            "rig": "matheusbucater aeropendulo: Arduino UNO + L298N + DC motor + propeller, 9 V battery, "
-                   "potentiometer angle theta = (ADC - 497) / 4 deg (1 deg resolution)",
-            "provenance": "https://github.com/matheusbucater/aeropendulo @ "
-                          "dd3532e1480338268b0b44bf04e6a4763bd72460, dados/aeropendulum_step.csv "
-                          "(original; data README section 7)",
-            "licence": _NO_LICENCE,
-            "input_note": "the file has no PWM column; the data README (from the firmware) says PWM is "
-                          "held at "
-                          "80, so duty = 80/255 is assumed constant over the whole log, applied from t = 0 "
-                          "(theta starts at rest at -3 deg and settles near 60.6 deg)",
-            "sample_period_note": "FreeRTOS tick, 16-17 ms",
-            "angle_reference": "0 = pendulum hanging down",
-        },
-    ),
-    "yangzhu_pitch_step": CsvSpec(
-        name="yangzhu_pitch_step",
-        time_col="t", time_unit="s",
-        input_col="Vp_pitch_motor_cmd", input_kind="voltage", supply_voltage=24.0,
-        angle_col="theta_enc", angle_unit="rad",
-        channels={
-            "theta_dot": ("thetadot_gyro", 1.0),
-            "i_a": ("current_pitch_motor", 1.0),
-            "omega_rotor": ("tach_pitch_motor", 2.0 * math.pi / 2048.0),
-            "v_a": ("Vp_pitch_motor_cmd", 1.0),
-        },
-        meta={
-            "files": ["aero_pitch_step_16p5V_1kHz.csv"],
-            "rig": "Quanser AERO (1st generation), half-quadrotor mode, yaw locked: pitch only; QUARC log",
-            "provenance": "https://github.com/YangZhu-uestc/"
-                          "Quanser-AERO-2-DOF-helicopter-Model-Identification @ "
-                          "2e019700e8a0cfdcc62eb27eb3561b2fc1980839, 'Pitch-channel motion model "
-                          "identification source files/Log_*.mat' (converted; data README section 1)",
-            "licence": _NO_LICENCE,
-            "input_note": "constant pitch-motor voltage 16.51 V from t = 0 (open-loop step); duty = V / 24 V "
-                          "(presumed amplifier full scale); the voltage itself is kept as channel v_a",
-            "channel_note": "theta_dot = on-board gyro rate [rad/s] (unfiltered column); omega_rotor = tach "
-                            "x 2*pi/2048 (PRESUMED: tach in encoder counts/s of a 2048-count/rev encoder; "
-                            "the source states no unit)",
-            "angle_reference": "0 = pitch level at rest (encoder zero at start)",
-        },
-    ),
-    "dondi01_aero2": CsvSpec(
-        name="dondi01_aero2",
-        time_col="t", time_unit="s",
-        input_col="m0_voltage_cmd", input_kind="voltage", supply_voltage=24.0,
-        angle_col="pitch", angle_unit="rad",
-        channels={
-            "i_a": ("m0_current", 1.0),
-            "omega_rotor": ("m0_speed", 1.0),
-            "v_a": ("m0_voltage_cmd", 1.0),
-        },
-        meta={
-            "files": ["NO_WEIGHTS_*.csv", "WEIGHT_*.csv", "SATURATION_ANGLE.csv", "FREE_MOTION*.csv"],
-            "rig": "Quanser Aero 2, 1-DOF pitch, rotor m0 driven (m1 unpowered); QUARC log at 500 Hz",
-            "provenance": "https://github.com/dondi01/quanser_aero2_project @ "
-                          "1e6af14b102da03f58f400fe2aab3268b1b7ff74, experiments_data/*.mat (converted; "
-                          "data README section 2)",
-            "licence": _NO_LICENCE,
-            "input_note": "m0_voltage_cmd is the COMMANDED constant voltage (a step from rest at t = 0); "
-                          "duty = V / 24 V (Aero 2 amplifier full scale, presumed). NO_WEIGHTS_4V reads "
-                          "8 V; SATURATION_ANGLE reads 24 V with the motor effectively off (current and "
-                          "speed ~0): its duty is not what was applied",
-            "channel_note": "omega_rotor = m0_speed in rad/s PRESUMED (unit unverified: 108 at 8 V where "
-                            "k = 0.042 V s/rad predicts ~165)",
-            "angle_reference": "0 = pitch at the start of the log",
-        },
-    ),
-}
+def load_presets() -> dict[str, CsvSpec]:
+    """The shipped presets: one YAML file per preset in ``aeropend_ident/io/presets/``.
+
+    Each file holds the :class:`CsvSpec` fields that differ from the defaults (``channels`` as
+    ``name: [column, scale]``); read with :mod:`importlib.resources`, so they ship as package data.
+
+    Returns
+    -------
+    dict of str -> CsvSpec
+        Preset name (the file's ``name``) -> spec, in file-name order.
+
+    Raises
+    ------
+    CsvImportError
+        A preset file that is not a mapping or whose ``name`` is not its file name.
+    """
+    folder = resources.files("aeropend_ident.io") / "presets"
+    presets: dict[str, CsvSpec] = {}
+    for entry in sorted(folder.iterdir(), key=lambda e: e.name):
+        if not entry.name.endswith(".yaml"):
+            continue
+        data = yaml.safe_load(entry.read_text(encoding="utf-8"))
+        if not isinstance(data, dict) or data.get("name") != entry.name[: -len(".yaml")]:
+            raise CsvImportError(f"preset file {entry.name}: expected a mapping whose name is the file name")
+        data["channels"] = {ch: (col, float(scale)) for ch, (col, scale) in data.get("channels", {}).items()}
+        presets[data["name"]] = CsvSpec(**data)
+    return presets
+
+
+#: The shipped presets (:func:`load_presets`), by name.
+PRESETS: dict[str, CsvSpec] = load_presets()
 
 
 def find_preset(path: str | Path) -> str | None:
