@@ -136,7 +136,7 @@ def build(spec: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_case(spec: dict[str, Any], oracle: bool = False) -> dict[str, Any]:
-    from aeropend_ident.gap.report import run_gap
+    from aeropend_ident.gap.run import run_gap
     from aeropend_sim.params import rig_from_dict
 
     case = build(spec)

@@ -30,7 +30,7 @@ Cases (real data read from ``../shared/data/real``, never copied into the reposi
   blocks start at block k) or of the four runs (``etchepareborda_all``: leave-one-run-out), so that
   over the folds every block / run is held out once; the markdown pools them (:data:`FOLDS`).
 
-Each case runs :func:`aeropend_ident.gap.report.run_gap` (where + which + after) exactly as the
+Each case runs :func:`aeropend_ident.gap.run.run_gap` (where + which + after) exactly as the
 ``gap`` command does. Results: ``bench/results/gap_real.json`` and ``.md``; figures
 ``docs/results/gap_<case>_overlay.png`` / ``_where.png`` / ``_effects.png``.
 
@@ -52,7 +52,9 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.cli.gap import resolve_rig
-from aeropend_ident.gap.report import fig_effects, fig_equations, fig_overlay, run_gap, write_report
+from aeropend_ident.gap.figures import fig_effects, fig_equations, fig_overlay
+from aeropend_ident.gap.report import write_report
+from aeropend_ident.gap.run import run_gap
 from aeropend_ident.io.csv_import import import_csv, import_csv_runs
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.recording_input import uniform_recording

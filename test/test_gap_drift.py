@@ -114,7 +114,7 @@ def test_drift_table_names_a_supply_voltage_drop_from_the_recorded_armature_volt
 
 @pytest.mark.slow
 def test_prediction_split_and_drift_table_on_a_drifting_second_session() -> None:
-    from aeropend_ident.gap.report import run_gap
+    from aeropend_ident.gap.run import run_gap
     from aeropend_sim.params import rig_from_dict
 
     s = _sessions(700)

@@ -190,7 +190,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the gap diagnosis; print the summary; write the report folder."""
     args = build_parser().parse_args(argv)
-    from aeropend_ident.gap.report import run_gap, terminal_summary, write_report
+    from aeropend_ident.gap.report import terminal_summary, write_report
+    from aeropend_ident.gap.run import run_gap
 
     def progress(msg: str) -> None:
         if not args.quiet:

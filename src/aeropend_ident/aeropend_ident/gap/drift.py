@@ -2,7 +2,7 @@
 
 A constant-parameter correction found on one session removes the missing physics it names, but
 not the rig changing between sessions (battery, propeller, load, bearings, sensor mount). This
-module tells them apart, for :func:`aeropend_ident.gap.report.run_gap`:
+module tells them apart, for :func:`aeropend_ident.gap.run.run_gap`:
 
 **Prediction** (:func:`predict_heldout`, computed from the fit data only, before any held-out
 recording is replayed): a Monte-Carlo predictive distribution of the corrected rig's held-out θ

@@ -3,7 +3,7 @@
 Pipeline of :func:`diagnose_effects`. Two data sets: the **fit** recordings (effects are
 fitted there) and the **validation** recordings (effects are ranked and chosen there; carved from
 the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-out** recordings of
-:func:`aeropend_ident.gap.report.run_gap` are never seen here.
+:func:`aeropend_ident.gap.run.run_gap` are never seen here.
 
 1. **Validation of the inputs** (:func:`aeropend_ident.gap.effects.check_recordings`): θ and the
    duty cycle present and finite, enough samples; the channels recorded in every recording decide
@@ -911,7 +911,7 @@ class EffectDiagnosis:
     """Outcome of :func:`diagnose_effects` (see the module docstring).
 
     "Validation" is the part of the fit data the diagnosis chooses and ranks on; the held-out
-    recordings of :func:`aeropend_ident.gap.report.run_gap` are never seen here.
+    recordings of :func:`aeropend_ident.gap.run.run_gap` are never seen here.
 
     Attributes
     ----------
