@@ -1506,6 +1506,57 @@ def _quantisation_entry(st: _Setup, q_hat: float) -> dict[str, Any]:
     }
 
 
+def _screen_and_confirm(rig: Rig, st: _Setup, also_confirm: Sequence[str], seed: int,
+                        say: Callable[[str], None]) -> tuple[Screening, _Candidates, list[str], list[str]]:
+    """Screening and grey-box confirmation of :func:`diagnose_effects`: (screening, candidates,
+    screened effects, effects confirmed without screening)."""
+    # screening; effects marked screened=False (the motor time constant: its θ̈ column, through the
+    # simulated thrust, is nearly collinear with the damping term and crowds it out of the group
+    # selection) are not screened but always confirmed by a grey-box fit
+    screened = [n for n in st.model_effects if get_effect(n).screened]
+    unscreened = [n for n in st.model_effects if not get_effect(n).screened]
+    say(f"screening {len(screened)} effects by discrepancy SINDy (strong + weak, group sparse)")
+    scr = screen(rig, st.pf, screened, st.channels, st.ctx, seed=seed)
+    short = scr.shortlist(SHORTLIST)
+    say(f"shortlist: {short}")
+    cands = _Candidates()
+    cands.confirm(st, short, scr)
+    forced = list(dict.fromkeys(n for n in (*unscreened, *also_confirm) if n in st.model_effects))
+    if forced:
+        say(f"also confirming {[f for f in forced if f not in cands.fits]} (not screened, or requested: "
+            "timing lead/lag seen by the where-analysis)")
+        cands.confirm(st, forced, scr)
+    if 1.0 - cands.best_above_noise() > EXTEND_BELOW_GAP:
+        # the best candidate leaves much of the gap above noise: confirm the next screened effects
+        extra = [n for n in scr.shortlist(SHORTLIST + EXTEND_SHORTLIST) if n not in cands.fits]
+        say(f"best candidate leaves {100 * (1 - cands.best_above_noise()):.0f} % of the gap above noise; "
+            f"also confirming {extra}")
+        cands.confirm(st, extra, scr)
+    if cands.best_above_noise() < MIN_EXPLAINED and _above_noise(st.sse0_c, st.noise_c):
+        # a gap, but nothing the screening proposed explains it (small gaps at low SNR blur the
+        # derivative-based screening): confirm every remaining identifiable effect
+        rest = [n for n in st.model_effects if n not in cands.fits]
+        say(f"no shortlisted effect explains the gap; confirming the rest of the catalog {rest}")
+        cands.confirm(st, rest, scr)
+    return scr, cands, screened, forced
+
+
+def _no_effect_reason(st: _Setup, best: dict[str, Any] | None, above_floor: bool) -> str:
+    """Why :func:`diagnose_effects` names no dynamic effect."""
+    if best is None:
+        reason = "no identifiable candidate effect"
+    elif not above_floor:
+        worst = max(st.sse0_c, key=lambda c: st.sse0_c[c] / st.noise_c[c])
+        reason = (f"nominal validation error is at the noise floor: every channel's error is within "
+                  f"{math.sqrt(ABOVE_NOISE):.2f}× its noise RMS (largest: {worst}, "
+                  f"{math.sqrt(st.sse0_c[worst] / st.noise_c[worst]):.2f}×)")
+    else:
+        reason = (f"best candidate {best['effect']} removes only {100 * best['above_noise_explained']:.1f} % "
+                  f"of the validation gap above noise (needs {100 * MIN_EXPLAINED:.0f} % and a BIC gain of "
+                  f"{MIN_BIC_GAIN:g}; BIC change {best['bic_delta']:.1f})")
+    return reason
+
+
 def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording], *,
                      max_effects: int = 2, seed: int = 0,
                      progress: Callable[[str], None] | None = None,
@@ -1560,34 +1611,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     q_hat = float(np.median(quanta)) if all(q > 0 for q in quanta) else 0.0
     q_nominal = rig.sensors.theta_quantum if rig.effects.quantisation else 0.0
     quant_found = q_hat > 0.0 and q_hat > 1.5 * q_nominal
-    # screening; effects marked screened=False (the motor time constant: its θ̈ column, through the
-    # simulated thrust, is nearly collinear with the damping term and crowds it out of the group
-    # selection) are not screened but always confirmed by a grey-box fit
-    screened = [n for n in st.model_effects if get_effect(n).screened]
-    unscreened = [n for n in st.model_effects if not get_effect(n).screened]
-    say(f"screening {len(screened)} effects by discrepancy SINDy (strong + weak, group sparse)")
-    scr = screen(rig, st.pf, screened, st.channels, st.ctx, seed=seed)
-    short = scr.shortlist(SHORTLIST)
-    say(f"shortlist: {short}")
-    cands = _Candidates()
-    cands.confirm(st, short, scr)
-    forced = list(dict.fromkeys(n for n in (*unscreened, *also_confirm) if n in st.model_effects))
-    if forced:
-        say(f"also confirming {[f for f in forced if f not in cands.fits]} (not screened, or requested: "
-            "timing lead/lag seen by the where-analysis)")
-        cands.confirm(st, forced, scr)
-    if 1.0 - cands.best_above_noise() > EXTEND_BELOW_GAP:
-        # the best candidate leaves much of the gap above noise: confirm the next screened effects
-        extra = [n for n in scr.shortlist(SHORTLIST + EXTEND_SHORTLIST) if n not in cands.fits]
-        say(f"best candidate leaves {100 * (1 - cands.best_above_noise()):.0f} % of the gap above noise; "
-            f"also confirming {extra}")
-        cands.confirm(st, extra, scr)
-    if cands.best_above_noise() < MIN_EXPLAINED and _above_noise(st.sse0_c, st.noise_c):
-        # a gap, but nothing the screening proposed explains it (small gaps at low SNR blur the
-        # derivative-based screening): confirm every remaining identifiable effect
-        rest = [n for n in st.model_effects if n not in cands.fits]
-        say(f"no shortlisted effect explains the gap; confirming the rest of the catalog {rest}")
-        cands.confirm(st, rest, scr)
+    scr, cands, screened, forced = _screen_and_confirm(rig, st, also_confirm, seed, say)
     ranking = _ranking(st, cands, scr, seed + 1)
     best = ranking[0] if ranking else None
     # a gap above the noise floor: some channel's nominal validation error exceeds its noise part
@@ -1650,17 +1674,8 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
                 r["confidence"] = confidences[r["effect"]] * explained["completeness"]
         reason = (f"{name} removes {100 * best['above_noise_explained']:.1f} % of the validation gap above "
                   f"noise (BIC change {best['bic_delta']:.1f}); {explained['verdict']}")
-    elif best is None:
-        reason = "no identifiable candidate effect"
-    elif not above_floor:
-        worst = max(st.sse0_c, key=lambda c: st.sse0_c[c] / st.noise_c[c])
-        reason = (f"nominal validation error is at the noise floor: every channel's error is within "
-                  f"{math.sqrt(ABOVE_NOISE):.2f}× its noise RMS (largest: {worst}, "
-                  f"{math.sqrt(st.sse0_c[worst] / st.noise_c[worst]):.2f}×)")
     else:
-        reason = (f"best candidate {best['effect']} removes only {100 * best['above_noise_explained']:.1f} % "
-                  f"of the validation gap above noise (needs {100 * MIN_EXPLAINED:.0f} % and a BIC gain of "
-                  f"{MIN_BIC_GAIN:g}; BIC change {best['bic_delta']:.1f})")
+        reason = _no_effect_reason(st, best, above_floor)
     if quant_found:
         entry = _quantisation_entry(st, q_hat)
         first_ex = ranking[0]["validation_explained"] if ranking else 0.0
