@@ -63,7 +63,7 @@ import dataclasses
 import itertools
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
@@ -837,6 +837,96 @@ class GreyBoxResult:
 
 
 # --------------------------------------------------------------------------- the fit
+def _parameter_specs(rig: Rig, params: Sequence[str] | None, theta_offset: float,
+                     initial: Mapping[str, float] | None,
+                     bounds: Mapping[str, tuple[float, float]] | None) -> list[ParameterSpec]:
+    """The checked :class:`ParameterSpec` of every parameter :func:`fit_greybox` fits."""
+    names = list(default_parameters(rig, theta_offset) if params is None else params)
+    if not names:
+        raise IdentificationError("no parameters to fit; expected at least one name")
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise IdentificationError(f"parameter(s) {dup} requested more than once")
+    initial = dict(initial or {})
+    bounds = dict(bounds or {})
+    unknown = sorted((set(initial) | set(bounds)) - set(names))
+    if unknown:
+        raise IdentificationError(f"initial/bounds given for {unknown}, which are not fitted ({names})")
+    specs = [parameter_spec(n, rig, theta_offset, initial.get(n), bounds.get(n)) for n in names]
+    return specs
+
+
+def _initial_state_box(data: UniformData) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Noise level of θ and the bounded coordinates of the initial-state corrections (:func:`fit_greybox`)."""
+    # nuisance coordinates: corrections (δθ₀ [rad], δθ̇₀ [rad/s]) to the estimated initial state,
+    # bounded by 5 σ of the estimates for the measured noise level
+    sigma = noise_level(data.theta)
+    x_bound = np.maximum(5.0 * sigma * np.array([1.0, _slope_noise_gain(data.dt)]), 1e-12)
+    # coordinates w = 1 + (δ + bound)/(bound/5) ∈ [1, 11], δ = 0 at w = 6 (see ParameterSpec)
+    lo_x, hi_x, mid_x = np.array([1.0, 1.0]), np.array([11.0, 11.0]), np.array([6.0, 6.0])
+    return sigma, x_bound, lo_x, hi_x, mid_x
+
+
+def _solve_stages(
+    data: UniformData, make_residual: Callable[[list[tuple[int, int]], bool], Any], solve: Callable[..., Any],
+    x0_correction: Callable[[np.ndarray], tuple[float, float]], z0: np.ndarray, lo: np.ndarray,
+    hi: np.ndarray,
+    box: tuple[np.ndarray, np.ndarray, np.ndarray], *, init_horizon: float | None, tol: float,
+    fit_initial_state: bool, sigma: float, th0_est: float, thd0_est: float,
+) -> tuple[Any, np.ndarray, int, int, float, float]:
+    """The stages of :func:`fit_greybox`: optional multiple shooting, free run, initial-state polish.
+
+    Returns the final ``least_squares`` solution, the start residual, the evaluation counts and
+    the initial state (θ₀, θ̇₀) used.
+    """
+    lo_x, hi_x, mid_x = box
+    full = [(0, len(data))]
+    free_residual = make_residual(full, with_x0=False)
+    r0 = free_residual(z0)
+    nfev = njev = 0
+    z_start = z0
+    if init_horizon is not None:
+        windows = _split_windows(len(data), data.dt, float(init_horizon))
+        if len(windows) > 1:
+            # an initialiser only: a loose tolerance is enough (the free-run stage refines)
+            stage1 = solve(make_residual(windows, with_x0=False), z0, lo, hi, max(tol, INIT_STAGE_TOL))
+            nfev, njev = int(stage1.nfev), int(stage1.njev or 0)
+            z_start = np.clip(stage1.x, lo, hi)
+    sol = solve(free_residual, z_start, lo, hi)
+    nfev += int(sol.nfev)
+    njev += int(sol.njev or 0)
+    th0, thd0 = th0_est, thd0_est
+    if fit_initial_state and sigma > 1e-9:
+        # polish with the initial state free, from the free-run optimum (cheap when the estimate
+        # was already right, e.g. on noise-free data)
+        sol = solve(make_residual(full, with_x0=True), np.concatenate([np.clip(sol.x, lo, hi), mid_x]),
+                    np.concatenate([lo, lo_x]), np.concatenate([hi, hi_x]))
+        nfev += int(sol.nfev)
+        njev += int(sol.njev or 0)
+        d_th, d_thd = x0_correction(sol.x)
+        th0, thd0 = th0_est + d_th, thd0_est + d_thd
+    return sol, r0, nfev, njev, th0, thd0
+
+
+def _parameter_estimates(specs: Sequence[ParameterSpec], sol: Any, lo_z: np.ndarray,
+                         hi_z: np.ndarray) -> list[ParameterEstimate]:
+    """Fitted values with standard errors (and bound flags) of the parameters of :func:`fit_greybox`."""
+    n_p = len(specs)
+    lo_all = lo_z[: sol.x.size]
+    hi_all = hi_z[: sol.x.size]
+    pinned = (np.abs(sol.x - lo_all) <= 1e-6 * lo_all) | (np.abs(sol.x - hi_all) <= 1e-6 * hi_all)
+    std_z = _std_errors(sol.jac, sol.fun, pinned)[:n_p]
+    estimates = []
+    for s, z, sz, at_bound in zip(specs, sol.x[:n_p], std_z, pinned[:n_p], strict=True):
+        v = s.from_z(z)
+        se = s.dp_dz(v) * sz
+        estimates.append(ParameterEstimate(
+            name=s.name, unit=s.unit, value=v, std_error=float(abs(se)), initial=s.initial,
+            lower=s.lower, upper=s.upper, log=s.log, at_bound=bool(at_bound),
+        ))
+    return estimates
+
+
 def fit_greybox(
     recording: Recording | UniformData,
     rig: Rig,
@@ -918,18 +1008,7 @@ def fit_greybox(
         data = uniform_data(recording, dt=dt, decimate=decimate)
     else:
         data = recording
-    names = list(default_parameters(rig, theta_offset) if params is None else params)
-    if not names:
-        raise IdentificationError("no parameters to fit; expected at least one name")
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        raise IdentificationError(f"parameter(s) {dup} requested more than once")
-    initial = dict(initial or {})
-    bounds = dict(bounds or {})
-    unknown = sorted((set(initial) | set(bounds)) - set(names))
-    if unknown:
-        raise IdentificationError(f"initial/bounds given for {unknown}, which are not fitted ({names})")
-    specs = [parameter_spec(n, rig, theta_offset, initial.get(n), bounds.get(n)) for n in names]
+    specs = _parameter_specs(rig, params, theta_offset, initial, bounds)
     start_values = {s.name: s.initial for s in specs}
     rig0, off0 = apply_parameters(rig, start_values, theta_offset)
     # the end stops of rig0 are written for off0; offsets are applied relative to it from here on
@@ -940,12 +1019,7 @@ def fit_greybox(
     penalty = 10.0 * max(float(np.ptp(data.theta)), 1e-3)
     n_p = len(specs)
     th0_est, thd0_est = float(data.theta[0]), initial_velocity(data.theta, data.dt)
-    # nuisance coordinates: corrections (δθ₀ [rad], δθ̇₀ [rad/s]) to the estimated initial state,
-    # bounded by 5 σ of the estimates for the measured noise level
-    sigma = noise_level(data.theta)
-    x_bound = np.maximum(5.0 * sigma * np.array([1.0, _slope_noise_gain(data.dt)]), 1e-12)
-    # coordinates w = 1 + (δ + bound)/(bound/5) ∈ [1, 11], δ = 0 at w = 6 (see ParameterSpec)
-    lo_x, hi_x, mid_x = np.array([1.0, 1.0]), np.array([11.0, 11.0]), np.array([6.0, 6.0])
+    sigma, x_bound, lo_x, hi_x, mid_x = _initial_state_box(data)
 
     def x0_correction(z: np.ndarray) -> tuple[float, float]:
         d = (z[n_p:] - mid_x) * x_bound / 5.0
@@ -985,45 +1059,12 @@ def fit_greybox(
             diff_step=diff_step, ftol=t, xtol=t, gtol=t, max_nfev=max_nfev, verbose=verbose,
         )
 
-    full = [(0, len(data))]
-    free_residual = make_residual(full, with_x0=False)
-    r0 = free_residual(z0)
-    nfev = njev = 0
-    z_start = z0
-    if init_horizon is not None:
-        windows = _split_windows(len(data), data.dt, float(init_horizon))
-        if len(windows) > 1:
-            # an initialiser only: a loose tolerance is enough (the free-run stage refines)
-            stage1 = solve(make_residual(windows, with_x0=False), z0, lo, hi, max(tol, INIT_STAGE_TOL))
-            nfev, njev = int(stage1.nfev), int(stage1.njev or 0)
-            z_start = np.clip(stage1.x, lo, hi)
-    sol = solve(free_residual, z_start, lo, hi)
-    nfev += int(sol.nfev)
-    njev += int(sol.njev or 0)
-    th0, thd0 = th0_est, thd0_est
-    if fit_initial_state and sigma > 1e-9:
-        # polish with the initial state free, from the free-run optimum (cheap when the estimate
-        # was already right, e.g. on noise-free data)
-        sol = solve(make_residual(full, with_x0=True), np.concatenate([np.clip(sol.x, lo, hi), mid_x]),
-                    np.concatenate([lo, lo_x]), np.concatenate([hi, hi_x]))
-        nfev += int(sol.nfev)
-        njev += int(sol.njev or 0)
-        d_th, d_thd = x0_correction(sol.x)
-        th0, thd0 = th0_est + d_th, thd0_est + d_thd
+    sol, r0, nfev, njev, th0, thd0 = _solve_stages(
+        data, make_residual, solve, x0_correction, z0, lo, hi, (lo_x, hi_x, mid_x), init_horizon=init_horizon,
+        tol=tol, fit_initial_state=fit_initial_state, sigma=sigma, th0_est=th0_est, thd0_est=thd0_est)
     fit_rig, fit_off = candidate(sol.x)
     theta_fit = free_run_theta(fit_rig, data, fit_off, thd0, th0)
-    lo_all = np.concatenate([lo, lo_x])[: sol.x.size]
-    hi_all = np.concatenate([hi, hi_x])[: sol.x.size]
-    pinned = (np.abs(sol.x - lo_all) <= 1e-6 * lo_all) | (np.abs(sol.x - hi_all) <= 1e-6 * hi_all)
-    std_z = _std_errors(sol.jac, sol.fun, pinned)[:n_p]
-    estimates = []
-    for s, z, sz, at_bound in zip(specs, sol.x[:n_p], std_z, pinned[:n_p], strict=True):
-        v = s.from_z(z)
-        se = s.dp_dz(v) * sz
-        estimates.append(ParameterEstimate(
-            name=s.name, unit=s.unit, value=v, std_error=float(abs(se)), initial=s.initial,
-            lower=s.lower, upper=s.upper, log=s.log, at_bound=bool(at_bound),
-        ))
+    estimates = _parameter_estimates(specs, sol, np.concatenate([lo, lo_x]), np.concatenate([hi, hi_x]))
     return GreyBoxResult(
         rig=fit_rig, theta_offset=fit_off, initial_rig=rig0, initial_theta_offset=off0,
         parameters=tuple(estimates), cost=float(sol.cost), initial_cost=float(0.5 * np.sum(r0**2)),
