@@ -798,6 +798,91 @@ def _files(path: Path) -> list[Path]:
     return [path] if path.is_file() else sorted(path.iterdir())
 
 
+def _read_contract_topics(
+    path: Path, namespace: str, decoder: str,
+) -> tuple[tuple[str, str, str], dict[str, list[Any]], dict[str, list[int]], str, tuple[Any, Any, Any]]:
+    """The three contract topics of a bag, checked and decoded (:func:`read_bag`, first step).
+
+    Returns the topic names (joint_states, armature, duty_cycle), the raw messages and log times
+    per topic, the storage plugin and the decoded columns (armature and commands None when absent).
+    """
+    t_js, t_arm, t_cmd = (namespace + t for t in (TOPIC_JOINT_STATES, TOPIC_ARMATURE, TOPIC_DUTY_CYCLE))
+    raws, logs, types, declared, storage = _read_raw(path, [t_js, t_arm, t_cmd])
+    expected = {t_js: TYPE_JOINT_STATES, t_arm: TYPE_ARMATURE, t_cmd: TYPE_DUTY_CYCLE}
+    for topic, typ in expected.items():
+        if topic in types and types[topic] != typ:
+            raise BagError(f"bag '{path}': topic {topic} has type {types[topic]}, expected {typ}")
+    if t_js not in types:
+        raise BagError(f"bag '{path}' has no {t_js} topic (topics present: {sorted(types) or 'none'}); "
+                       f"a contract bag needs {TYPE_JOINT_STATES} samples on it")
+    for topic in expected:
+        if topic in declared and declared[topic] != len(raws[topic]):
+            raise BagError(f"bag '{path}' is truncated: its metadata declares {declared[topic]} message(s) "
+                           f"on {topic} but only {len(raws[topic])} could be read")
+    if len(raws[t_js]) < 2:
+        raise BagError(f"bag '{path}': {t_js} has {len(raws[t_js])} message(s); need at least 2 samples")
+    vec = decoder == "vectorized"
+    if decoder not in ("vectorized", "typestore"):
+        raise BagError(f"unknown decoder {decoder!r}; expected 'vectorized' or 'typestore'")
+    try:
+        js = decode_joint_states(raws[t_js], vec)
+        arm = decode_armature(raws[t_arm], vec) if raws[t_arm] else None
+        cmd = decode_float64(raws[t_cmd], vec) if raws[t_cmd] else None
+    except ContractError as exc:
+        raise BagError(f"bag '{path}': {exc}") from exc
+    except Exception as exc:
+        raise BagError(f"bag '{path}' is corrupt: a message cannot be decoded "
+                       f"({type(exc).__name__}: {exc})") from exc
+    return (t_js, t_arm, t_cmd), raws, logs, storage, (js, arm, cmd)
+
+
+def _drop_republished(path: Path, t_js: str, cols: dict[str, np.ndarray], order: np.ndarray,
+                      stamps: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int]:
+    """Drop identical re-published samples (:func:`read_bag`); refuse two different ones at one stamp."""
+    dup = np.flatnonzero(np.diff(stamps) == 0)
+    republished = 0
+    if dup.size:
+        # A lock-step plant re-publishes its last sample while it waits for a command: identical
+        # copies are dropped; two different samples with one stamp are a contract violation.
+        same = np.ones(dup.size, dtype=bool)
+        for v in cols.values():
+            a, b = v[dup], v[dup + 1]
+            same &= (a == b) | (np.isnan(a) & np.isnan(b)) if v.dtype.kind == "f" else a == b
+        if not same.all():
+            k = int(dup[np.flatnonzero(~same)[0]])
+            raise BagError(f"bag '{path}': two different {t_js} samples share the stamp {int(stamps[k])} ns; "
+                           "expected one sample per sample instant")
+        keep = np.ones(stamps.size, dtype=bool)
+        keep[dup + 1] = False
+        order = order[keep]  # also selects the kept messages' log times below
+        cols = {k: v[keep] for k, v in cols.items()}
+        stamps = cols["stamp"]
+        republished = int(dup.size)
+        if stamps.size < 2:
+            raise BagError(f"bag '{path}': {t_js} has {stamps.size} distinct sample(s) "
+                           f"({republished} re-published copies dropped); need at least 2 samples")
+    return cols, order, stamps, republished
+
+
+def _pair_armature(arm: Any, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Armature v_a / i_a paired with the samples by identical stamp, unmatched and orphan counts."""
+    n = stamps.size
+    v_wire = np.full(n, np.nan)
+    i_a = np.full(n, np.nan)
+    unmatched, orphan = n, 0
+    if arm is not None:
+        a_stamp = arm.columns["stamp"]
+        a_order = np.argsort(a_stamp, kind="stable")
+        a_stamp = a_stamp[a_order]
+        pos = np.clip(np.searchsorted(a_stamp, stamps), 0, a_stamp.size - 1)
+        hit = a_stamp[pos] == stamps
+        v_wire[hit] = arm.columns["v_a"][a_order][pos[hit]]
+        i_a[hit] = arm.columns["i_a"][a_order][pos[hit]]
+        unmatched = int(n - hit.sum())
+        orphan = int(a_stamp.size - np.unique(pos[hit]).size)
+    return v_wire, i_a, unmatched, orphan
+
+
 def read_bag(path: str | Path, *, namespace: str = "",
              decoder: Literal["vectorized", "typestore"] = "vectorized",
              require_duty: bool = True) -> Recording:
@@ -845,60 +930,14 @@ def read_bag(path: str | Path, *, namespace: str = "",
         has NaNs, or (``require_duty``) there is no duty information.
     """
     path = Path(path)
-    t_js, t_arm, t_cmd = (namespace + t for t in (TOPIC_JOINT_STATES, TOPIC_ARMATURE, TOPIC_DUTY_CYCLE))
-    raws, logs, types, declared, storage = _read_raw(path, [t_js, t_arm, t_cmd])
-    expected = {t_js: TYPE_JOINT_STATES, t_arm: TYPE_ARMATURE, t_cmd: TYPE_DUTY_CYCLE}
-    for topic, typ in expected.items():
-        if topic in types and types[topic] != typ:
-            raise BagError(f"bag '{path}': topic {topic} has type {types[topic]}, expected {typ}")
-    if t_js not in types:
-        raise BagError(f"bag '{path}' has no {t_js} topic (topics present: {sorted(types) or 'none'}); "
-                       f"a contract bag needs {TYPE_JOINT_STATES} samples on it")
-    for topic in expected:
-        if topic in declared and declared[topic] != len(raws[topic]):
-            raise BagError(f"bag '{path}' is truncated: its metadata declares {declared[topic]} message(s) "
-                           f"on {topic} but only {len(raws[topic])} could be read")
-    if len(raws[t_js]) < 2:
-        raise BagError(f"bag '{path}': {t_js} has {len(raws[t_js])} message(s); need at least 2 samples")
-    vec = decoder == "vectorized"
-    if decoder not in ("vectorized", "typestore"):
-        raise BagError(f"unknown decoder {decoder!r}; expected 'vectorized' or 'typestore'")
-    try:
-        js = decode_joint_states(raws[t_js], vec)
-        arm = decode_armature(raws[t_arm], vec) if raws[t_arm] else None
-        cmd = decode_float64(raws[t_cmd], vec) if raws[t_cmd] else None
-    except ContractError as exc:
-        raise BagError(f"bag '{path}': {exc}") from exc
-    except Exception as exc:
-        raise BagError(f"bag '{path}' is corrupt: a message cannot be decoded "
-                       f"({type(exc).__name__}: {exc})") from exc
+    (t_js, t_arm, t_cmd), raws, logs, storage, (js, arm, cmd) = _read_contract_topics(
+        path, namespace, decoder)
 
     cols = js.columns
     order = np.argsort(cols["stamp"], kind="stable")
     cols = {k: v[order] for k, v in cols.items()}
     stamps = cols["stamp"]
-    dup = np.flatnonzero(np.diff(stamps) == 0)
-    republished = 0
-    if dup.size:
-        # A lock-step plant re-publishes its last sample while it waits for a command: identical
-        # copies are dropped; two different samples with one stamp are a contract violation.
-        same = np.ones(dup.size, dtype=bool)
-        for v in cols.values():
-            a, b = v[dup], v[dup + 1]
-            same &= (a == b) | (np.isnan(a) & np.isnan(b)) if v.dtype.kind == "f" else a == b
-        if not same.all():
-            k = int(dup[np.flatnonzero(~same)[0]])
-            raise BagError(f"bag '{path}': two different {t_js} samples share the stamp {int(stamps[k])} ns; "
-                           "expected one sample per sample instant")
-        keep = np.ones(stamps.size, dtype=bool)
-        keep[dup + 1] = False
-        order = order[keep]  # also selects the kept messages' log times below
-        cols = {k: v[keep] for k, v in cols.items()}
-        stamps = cols["stamp"]
-        republished = int(dup.size)
-        if stamps.size < 2:
-            raise BagError(f"bag '{path}': {t_js} has {stamps.size} distinct sample(s) "
-                           f"({republished} re-published copies dropped); need at least 2 samples")
+    cols, order, stamps, republished = _drop_republished(path, t_js, cols, order, stamps)
     n = stamps.size
     bad = np.flatnonzero(~np.isfinite(cols["theta"]))
     if bad.size:
@@ -909,19 +948,7 @@ def read_bag(path: str | Path, *, namespace: str = "",
     meta: dict[str, Any] = _stored_meta(path)
     if republished:
         meta["republished_samples_dropped"] = republished
-    v_wire = np.full(n, np.nan)
-    i_a = np.full(n, np.nan)
-    unmatched, orphan = n, 0
-    if arm is not None:
-        a_stamp = arm.columns["stamp"]
-        a_order = np.argsort(a_stamp, kind="stable")
-        a_stamp = a_stamp[a_order]
-        pos = np.clip(np.searchsorted(a_stamp, stamps), 0, a_stamp.size - 1)
-        hit = a_stamp[pos] == stamps
-        v_wire[hit] = arm.columns["v_a"][a_order][pos[hit]]
-        i_a[hit] = arm.columns["i_a"][a_order][pos[hit]]
-        unmatched = int(n - hit.sum())
-        orphan = int(a_stamp.size - np.unique(pos[hit]).size)
+    v_wire, i_a, unmatched, orphan = _pair_armature(arm, stamps)
 
     # duty[k]: the applied effort carried by sample k+1 (wire convention). Where that is NaN (bags
     # whose duty exists only as commands), the last command received before the interval
