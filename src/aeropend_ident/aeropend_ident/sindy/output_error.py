@@ -32,13 +32,15 @@ its polynomial fit v_a(τ) (the stand-in the weak-iv instruments use).
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
 
 from aeropend_ident.errors import IdentificationError, LibraryError
+from aeropend_ident.sindy.libraries import CandidateLibrary
 from aeropend_ident.sindy.model import ZOH_INPUTS, IdentData, SindyModel, input_instruments
 
 #: Forward-difference step on the scaled parameters (coefficient multipliers ~1, states / RMS).
@@ -49,6 +51,101 @@ def _windows(n: int, length: int) -> np.ndarray:
     """Start indices of consecutive windows of ``length`` samples covering [0, n)."""
     n_w = max(1, (n - 1) // length)
     return np.arange(n_w) * length
+
+
+def _checked_request(model: SindyModel, data: IdentData, targets: list[str], window: float,
+                     substeps: int) -> tuple[float, int, list[int], np.ndarray, np.ndarray]:
+    """Check a :func:`refine_output_error` request.
+
+    Returns (dt, window samples, target rows, support, start coefficients).
+    """
+    if model.base is not None:
+        raise IdentificationError("output-error refinement needs a model without a discrepancy base model")
+    bad = [tg for tg in targets if tg not in model.targets]
+    if not targets or bad:
+        raise IdentificationError(
+            f"targets {bad or targets!r} are not equations of the model {model.targets}"
+        )
+    if substeps < 1:
+        raise IdentificationError(f"substeps = {substeps!r} must be >= 1")
+    need = sorted(set(model.library.variables) | set(targets))
+    missing = [v for v in need if v not in data.variables]
+    if missing:
+        raise IdentificationError(f"{data.source}: output-error refinement needs {missing}; "
+                                  f"data has {sorted(data.variables)}")
+    dt = float(np.mean(np.diff(data.t)))
+    length = round(window / dt)
+    if not window > 0 or length < 2 or 2 * length > len(data):
+        raise IdentificationError(
+            f"window = {window!r} s is {length} samples; expected >= 2 samples and at most half the "
+            f"record ({len(data)} samples of {dt:.4g} s)"
+        )
+    rows = [model.targets.index(tg) for tg in targets]
+    support = model.coef[rows] != 0.0
+    empty = [tg for tg, s in zip(targets, support, strict=True) if not s.any()]
+    if empty:
+        raise IdentificationError(f"equation(s) {empty} have no terms to refine")
+    c0 = model.coef[rows][support]
+    return dt, length, rows, support, c0
+
+
+def _window_simulator(lib: CandidateLibrary, targets: list[str], cols: np.ndarray,
+                      exo_k: dict[str, np.ndarray], held: set[str], shape: tuple[int, int, int], dt: float,
+                      substeps: int) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """RK4 simulation of the target equations over all windows at once (refine_output_error)."""
+    n_w, length, n_s = shape
+
+    def exo_at(k: int, frac: float) -> dict[str, np.ndarray]:
+        out = {}
+        for v, a in exo_k.items():
+            out[v] = a[:, k] if (v in held or frac == 0.0) else (1 - frac) * a[:, k] + frac * a[:, k + 1]
+        return out
+
+    def simulate(coef_t: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        """States (n_w, L+1, n_s) from initial states x0 (n_w, n_s) with target rows coef_t."""
+        ct = coef_t[:, cols]
+
+        def f(x: np.ndarray, ex: dict[str, np.ndarray]) -> np.ndarray:
+            vals = dict(ex)
+            vals.update({tg: x[:, i] for i, tg in enumerate(targets)})
+            return lib.evaluate(vals) @ ct.T
+
+        out = np.empty((n_w, length + 1, n_s))
+        out[:, 0] = x = x0
+        h = dt / substeps
+        for k in range(length):
+            for j in range(substeps):
+                a = exo_at(k, j / substeps)
+                m = exo_at(k, (j + 0.5) / substeps)
+                b = exo_at(k, (j + 1) / substeps)
+                k1 = f(x, a)
+                k2 = f(x + 0.5 * h * k1, m)
+                k3 = f(x + 0.5 * h * k2, m)
+                k4 = f(x + h * k3, b)
+                x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+            out[:, k + 1] = x
+        return out
+
+    return simulate
+
+
+def _coef_std(model: SindyModel, coef: np.ndarray, sol: Any, rows: list[int], support: np.ndarray,
+              c0: np.ndarray, dof_raw: int) -> np.ndarray:
+    """Standard errors of the refined coefficients from the Jacobian, s²·(JᵀJ)⁻¹ (others kept)."""
+    n_c = c0.size
+    std = np.full_like(coef, np.nan) if model.coef_std is None else model.coef_std.copy()  # NaN: unknown
+    jac = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+    dof = max(dof_raw, 1)
+    s2 = 2.0 * sol.cost / dof
+    try:
+        cov = np.linalg.inv(jac.T @ jac)[:n_c, :n_c] * s2
+        se = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * np.abs(c0)
+    except np.linalg.LinAlgError:
+        se = np.full(n_c, np.nan)
+    std_t = np.zeros(support.shape)
+    std_t[support] = se
+    std[rows] = std_t
+    return std
 
 
 def refine_output_error(
@@ -108,33 +205,7 @@ def refine_output_error(
     """
     t0 = time.perf_counter()
     targets = list(targets)
-    if model.base is not None:
-        raise IdentificationError("output-error refinement needs a model without a discrepancy base model")
-    bad = [tg for tg in targets if tg not in model.targets]
-    if not targets or bad:
-        raise IdentificationError(
-            f"targets {bad or targets!r} are not equations of the model {model.targets}"
-        )
-    if substeps < 1:
-        raise IdentificationError(f"substeps = {substeps!r} must be >= 1")
-    need = sorted(set(model.library.variables) | set(targets))
-    missing = [v for v in need if v not in data.variables]
-    if missing:
-        raise IdentificationError(f"{data.source}: output-error refinement needs {missing}; "
-                                  f"data has {sorted(data.variables)}")
-    dt = float(np.mean(np.diff(data.t)))
-    length = round(window / dt)
-    if not window > 0 or length < 2 or 2 * length > len(data):
-        raise IdentificationError(
-            f"window = {window!r} s is {length} samples; expected >= 2 samples and at most half the "
-            f"record ({len(data)} samples of {dt:.4g} s)"
-        )
-    rows = [model.targets.index(tg) for tg in targets]
-    support = model.coef[rows] != 0.0
-    empty = [tg for tg, s in zip(targets, support, strict=True) if not s.any()]
-    if empty:
-        raise IdentificationError(f"equation(s) {empty} have no terms to refine")
-    c0 = model.coef[rows][support]
+    dt, length, rows, support, c0 = _checked_request(model, data, targets, window, substeps)
 
     variables = dict(data.variables)
     if clean_inputs:
@@ -151,36 +222,7 @@ def refine_output_error(
     scale = np.where(scale > 0, scale, 1.0)
     exo_k = {v: np.asarray(variables[v])[idx] for v in exo}  # values at the window samples
 
-    def exo_at(k: int, frac: float) -> dict[str, np.ndarray]:
-        out = {}
-        for v, a in exo_k.items():
-            out[v] = a[:, k] if (v in held or frac == 0.0) else (1 - frac) * a[:, k] + frac * a[:, k + 1]
-        return out
-
-    def simulate(coef_t: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """States (n_w, L+1, n_s) from initial states x0 (n_w, n_s) with target rows coef_t."""
-        ct = coef_t[:, cols]
-
-        def f(x: np.ndarray, ex: dict[str, np.ndarray]) -> np.ndarray:
-            vals = dict(ex)
-            vals.update({tg: x[:, i] for i, tg in enumerate(targets)})
-            return lib.evaluate(vals) @ ct.T
-
-        out = np.empty((n_w, length + 1, n_s))
-        out[:, 0] = x = x0
-        h = dt / substeps
-        for k in range(length):
-            for j in range(substeps):
-                a = exo_at(k, j / substeps)
-                m = exo_at(k, (j + 0.5) / substeps)
-                b = exo_at(k, (j + 1) / substeps)
-                k1 = f(x, a)
-                k2 = f(x + 0.5 * h * k1, m)
-                k3 = f(x + 0.5 * h * k2, m)
-                k4 = f(x + h * k3, b)
-                x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-            out[:, k + 1] = x
-        return out
+    simulate = _window_simulator(lib, targets, cols, exo_k, held, (n_w, length, n_s), dt, substeps)
 
     n_c = c0.size
 
@@ -237,17 +279,6 @@ def refine_output_error(
     coef_t, _ = unpack(sol.x)
     coef = model.coef.copy()
     coef[rows] = coef_t
-    std = np.full_like(coef, np.nan) if model.coef_std is None else model.coef_std.copy()  # NaN: unknown
-    jac = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
-    dof = max(n_r - p0.size, 1)
-    s2 = 2.0 * sol.cost / dof
-    try:
-        cov = np.linalg.inv(jac.T @ jac)[:n_c, :n_c] * s2
-        se = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * np.abs(c0)
-    except np.linalg.LinAlgError:
-        se = np.full(n_c, np.nan)
-    std_t = np.zeros(support.shape)
-    std_t[support] = se
-    std[rows] = std_t
+    std = _coef_std(model, coef, sol, rows, support, c0, n_r - p0.size)
     return replace(model, coef=coef, coef_std=std, method=f"{model.method}+oe",
                    fit_time=model.fit_time + time.perf_counter() - t0)
