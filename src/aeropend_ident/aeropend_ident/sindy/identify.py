@@ -328,6 +328,133 @@ def _held_out_runs(model: SindyModel, recs: Sequence[Recording], parts: Sequence
     return scores, held_runs
 
 
+def _identify_full_state(
+    recs: Sequence[Recording], paths: Sequence[str | Path], rig: Rig | None, method: str, library: str,
+    train_fraction: float, threshold: float | None, output_error: bool, refused: dict[str, str],
+    extra: dict[str, Any], say: Progress,
+) -> tuple[SindyModel, list[tuple[IdentData, IdentData]], dict[str, float], list[str]]:
+    """The full-state path of :func:`identify` (θ, i_a, ω₁ recorded): every supported equation.
+
+    Adds the equations the data refuse to ``refused`` and the selection details to ``extra``;
+    returns the model, the (train, held-out) parts, the held-out MSE and the targets.
+    """
+    datas = []
+    for r in recs:
+        d = data_from_recording(r, rig)
+        datas.append(add_derivatives(d, targets=supported_targets(d), method="savgol"))
+    targets = supported_targets(datas[0])
+    parts = [d.split(train_fraction) for d in datas]
+    train = concat_data([p[0] for p in parts])
+    test = concat_data([p[1] for p in parts])
+    lib = _library(library, train, targets)
+    pendulum = None
+    if library == "physics-structured" and "theta_dot" in targets:
+        say("pendulum equation θ̈ from θ alone (second-order weak form; λ by BIC, pruning by the "
+            "validation free run)")
+        pendulum = fit_pendulum(train, lib["theta_dot"])
+        say(f"  {pendulum.model.equations()[0]} (λ = {pendulum.threshold:g})")
+        extra["pendulum"] = {
+            "form": "second-order weak form (θ̈ and θ̇ integrated onto the test functions)",
+            "threshold_selection": "BIC on the weak residual of the last 25 % of the training part",
+            "threshold": pendulum.threshold, "H_xt_s": pendulum.H_xt, "K": pendulum.K,
+            "sweep": pendulum.sweep, "pruning": pendulum.pruning,
+        }
+        targets = [tg for tg in targets if tg != "theta_dot"]
+        lib = {tg: lib[tg] for tg in targets}
+    kw: dict[str, Any] = {"method": method, "exclude_input_steps": 3}
+    if method == "weak":
+        kw.update(K=300, H_xt=min(0.05, 0.2 * (train.t[-1] - train.t[0])))
+    elif method == "weak-iv":
+        kw.update(weak_iv_options(train.t[-1] - train.t[0]))
+    # the λ-independent regression on the whole training part(s), built once: it refuses the
+    # equations the data cannot support (per-equation library) and serves the final refit
+    train_kw = dict(kw)
+    try:
+        problem = regression_problem(train, lib, targets, drop_unidentifiable=isinstance(lib, dict),
+                                     **train_kw)
+        dropped = problem.dropped
+    except NoEquationError as exc:
+        problem, dropped = None, exc.dropped
+    for tg, why in dropped.items():
+        refused[tg] = f"{TARGET_INFO[tg][1]}: {why}"
+        say(f"not identified: {refused[tg]}")
+    if problem is None:
+        raise IdentificationError(f"no equation can be identified from {paths}: {refused}")
+    targets, lib = list(problem.targets), problem.library
+    # λ by BIC on a validation tail of each training part (the held-out parts are only scored),
+    # then the model is refitted with that λ on the whole training parts
+    if threshold is None:
+        fits = [p[0].split(1.0 - VALIDATION_FRACTION) for p in parts]
+        fit_part, val_part = concat_data([f[0] for f in fits]), concat_data([f[1] for f in fits])
+        if method == "weak":
+            kw["H_xt"] = min(kw["H_xt"], 0.2 * (fit_part.t[-1] - fit_part.t[0]))
+        say(f"sweeping λ over {list(LAMBDAS)} ({method}, {library} library, targets {targets})")
+        pts, _models = sweep_threshold(fit_part, val_part, lib, LAMBDAS, targets=targets, **kw)
+        best = select_threshold(pts, "bic")
+        lam = best.threshold
+        say(f"λ = {lam:g} (BIC on the validation tail); refitting on the training part(s)")
+        if kw != train_kw:  # a shorter subdomain half-width for a short record: rebuild
+            problem = regression_problem(train, lib, targets, **kw)
+        extra["threshold_selection"] = (f"BIC on the last {VALIDATION_FRACTION:.0%} of each training "
+                                        "part (held-out parts not used)")
+        extra["sweep"] = [{"threshold": p.threshold, "n_terms": p.n_terms, "bic": p.bic} for p in pts]
+    else:
+        lam = float(threshold)
+        say(f"fitting at the fixed λ = {lam:g} ({method}, {library} library, targets {targets})")
+        extra["threshold_selection"] = "fixed"
+    model = problem.solve(lam)
+    oe = [tg for tg in ("i_a", "omega_rotor") if tg in model.targets]
+    if output_error and oe:
+        say(f"output-error refinement of {oe} (simulation error, multiple shooting)")
+        model = refine_output_error(model, train, targets=oe)
+    elif output_error:
+        say("output-error refinement skipped: neither di_a/dt nor dω₁/dt is identified")
+    if pendulum is not None:
+        extra["electrical_threshold"] = lam
+        model = combine_models([pendulum.model, model], method=f"weak2+{model.method}")
+        targets = list(model.targets)
+    test_mse = model.test_mse(test, exclude_input_steps=kw["exclude_input_steps"])
+    return model, parts, test_mse, targets
+
+
+def _identify_partial_state(
+    recs: Sequence[Recording], paths: Sequence[str | Path], rig: Rig | None, method: str, thrust_map: str,
+    train_fraction: float, threshold: float | None, output_error: bool, extra: dict[str, Any], say: Progress,
+) -> tuple[SindyModel, list[tuple[IdentData, IdentData]], dict[str, float], list[str]]:
+    """The partial-state path of :func:`identify` (θ and τ only): pendulum equation + thrust map.
+
+    Adds the thrust map and notes to ``extra``; returns the model, the (train, held-out) parts,
+    the held-out MSE and the targets.
+    """
+    vmap = PlantModel(rig).armature_voltage if rig is not None else None
+    datas = [angle_only_data(r.t - r.t[0], r.channels["theta"], r.duty, vmap, source=r.source)
+             for r in recs]
+    grid_t, grid_d = ((FIRST_ORDER_T, FIRST_ORDER_DELAYS) if thrust_map == "first_order"
+                      else ((0.0,), (0,)))
+    if method == "weak-iv" or output_error:
+        raise IdentificationError("weak-iv and --output-error need the full state (θ, i_a, ω₁); "
+                                  f"{paths} record only θ and the duty cycle: use weak or sindy")
+    kw = {"K": 300, "H_xt": min(0.5, 0.1 * (datas[0].t[-1] - datas[0].t[0]))} if method == "weak" else {}
+    if threshold is not None:
+        kw["threshold"] = float(threshold)
+    say(f"partial state (θ, τ): pendulum equation with a {thrust_map} thrust map, "
+        f"{len(grid_t) * len(grid_d)} (T, delay) candidates, {method}")
+    sel = select_thrust_map(datas, train_fraction, time_constants=grid_t, delays=grid_d,
+                            method=method, progress=say, **kw)
+    model, parts = sel.model, sel.parts
+    test = concat_data([p[1] for p in parts])
+    test_mse = model.test_mse(test)
+    targets = ["theta_dot"]
+    extra["thrust_map"] = {"kind": thrust_map, "time_constant_s": sel.time_constant,
+                           "delay_samples": sel.delay, "training_free_run_nrmse": sel.train_nrmse,
+                           "input": "v_a [V] from the rig's duty map" if vmap else "duty cycle τ [1]",
+                           "grid": sel.grid}
+    extra["notes"] = sel.notes
+    for n in sel.notes:
+        say(f"note: {n}")
+    return model, parts, test_mse, targets
+
+
 def identify(
     bag: Path | Sequence[Path], out: Path, rig: Rig | None, method: str | None = None,
     library: str = "physics-structured", namespace: str = "", preset: str | None = None,
@@ -401,109 +528,11 @@ def identify(
     out.mkdir(parents=True, exist_ok=True)
     extra: dict[str, Any] = {}
     if full:
-        datas = []
-        for r in recs:
-            d = data_from_recording(r, rig)
-            datas.append(add_derivatives(d, targets=supported_targets(d), method="savgol"))
-        targets = supported_targets(datas[0])
-        parts = [d.split(train_fraction) for d in datas]
-        train = concat_data([p[0] for p in parts])
-        test = concat_data([p[1] for p in parts])
-        lib = _library(library, train, targets)
-        pendulum = None
-        if library == "physics-structured" and "theta_dot" in targets:
-            say("pendulum equation θ̈ from θ alone (second-order weak form; λ by BIC, pruning by the "
-                "validation free run)")
-            pendulum = fit_pendulum(train, lib["theta_dot"])
-            say(f"  {pendulum.model.equations()[0]} (λ = {pendulum.threshold:g})")
-            extra["pendulum"] = {
-                "form": "second-order weak form (θ̈ and θ̇ integrated onto the test functions)",
-                "threshold_selection": "BIC on the weak residual of the last 25 % of the training part",
-                "threshold": pendulum.threshold, "H_xt_s": pendulum.H_xt, "K": pendulum.K,
-                "sweep": pendulum.sweep, "pruning": pendulum.pruning,
-            }
-            targets = [tg for tg in targets if tg != "theta_dot"]
-            lib = {tg: lib[tg] for tg in targets}
-        kw: dict[str, Any] = {"method": method, "exclude_input_steps": 3}
-        if method == "weak":
-            kw.update(K=300, H_xt=min(0.05, 0.2 * (train.t[-1] - train.t[0])))
-        elif method == "weak-iv":
-            kw.update(weak_iv_options(train.t[-1] - train.t[0]))
-        # the λ-independent regression on the whole training part(s), built once: it refuses the
-        # equations the data cannot support (per-equation library) and serves the final refit
-        train_kw = dict(kw)
-        try:
-            problem = regression_problem(train, lib, targets, drop_unidentifiable=isinstance(lib, dict),
-                                         **train_kw)
-            dropped = problem.dropped
-        except NoEquationError as exc:
-            problem, dropped = None, exc.dropped
-        for tg, why in dropped.items():
-            refused[tg] = f"{TARGET_INFO[tg][1]}: {why}"
-            say(f"not identified: {refused[tg]}")
-        if problem is None:
-            raise IdentificationError(f"no equation can be identified from {paths}: {refused}")
-        targets, lib = list(problem.targets), problem.library
-        # λ by BIC on a validation tail of each training part (the held-out parts are only scored),
-        # then the model is refitted with that λ on the whole training parts
-        if threshold is None:
-            fits = [p[0].split(1.0 - VALIDATION_FRACTION) for p in parts]
-            fit_part, val_part = concat_data([f[0] for f in fits]), concat_data([f[1] for f in fits])
-            if method == "weak":
-                kw["H_xt"] = min(kw["H_xt"], 0.2 * (fit_part.t[-1] - fit_part.t[0]))
-            say(f"sweeping λ over {list(LAMBDAS)} ({method}, {library} library, targets {targets})")
-            pts, _models = sweep_threshold(fit_part, val_part, lib, LAMBDAS, targets=targets, **kw)
-            best = select_threshold(pts, "bic")
-            lam = best.threshold
-            say(f"λ = {lam:g} (BIC on the validation tail); refitting on the training part(s)")
-            if kw != train_kw:  # a shorter subdomain half-width for a short record: rebuild
-                problem = regression_problem(train, lib, targets, **kw)
-            extra["threshold_selection"] = (f"BIC on the last {VALIDATION_FRACTION:.0%} of each training "
-                                            "part (held-out parts not used)")
-            extra["sweep"] = [{"threshold": p.threshold, "n_terms": p.n_terms, "bic": p.bic} for p in pts]
-        else:
-            lam = float(threshold)
-            say(f"fitting at the fixed λ = {lam:g} ({method}, {library} library, targets {targets})")
-            extra["threshold_selection"] = "fixed"
-        model = problem.solve(lam)
-        oe = [tg for tg in ("i_a", "omega_rotor") if tg in model.targets]
-        if output_error and oe:
-            say(f"output-error refinement of {oe} (simulation error, multiple shooting)")
-            model = refine_output_error(model, train, targets=oe)
-        elif output_error:
-            say("output-error refinement skipped: neither di_a/dt nor dω₁/dt is identified")
-        if pendulum is not None:
-            extra["electrical_threshold"] = lam
-            model = combine_models([pendulum.model, model], method=f"weak2+{model.method}")
-            targets = list(model.targets)
-        test_mse = model.test_mse(test, exclude_input_steps=kw["exclude_input_steps"])
+        model, parts, test_mse, targets = _identify_full_state(
+            recs, paths, rig, method, library, train_fraction, threshold, output_error, refused, extra, say)
     else:
-        vmap = PlantModel(rig).armature_voltage if rig is not None else None
-        datas = [angle_only_data(r.t - r.t[0], r.channels["theta"], r.duty, vmap, source=r.source)
-                 for r in recs]
-        grid_t, grid_d = ((FIRST_ORDER_T, FIRST_ORDER_DELAYS) if thrust_map == "first_order"
-                          else ((0.0,), (0,)))
-        if method == "weak-iv" or output_error:
-            raise IdentificationError("weak-iv and --output-error need the full state (θ, i_a, ω₁); "
-                                      f"{paths} record only θ and the duty cycle: use weak or sindy")
-        kw = {"K": 300, "H_xt": min(0.5, 0.1 * (datas[0].t[-1] - datas[0].t[0]))} if method == "weak" else {}
-        if threshold is not None:
-            kw["threshold"] = float(threshold)
-        say(f"partial state (θ, τ): pendulum equation with a {thrust_map} thrust map, "
-            f"{len(grid_t) * len(grid_d)} (T, delay) candidates, {method}")
-        sel = select_thrust_map(datas, train_fraction, time_constants=grid_t, delays=grid_d,
-                                method=method, progress=say, **kw)
-        model, parts = sel.model, sel.parts
-        test = concat_data([p[1] for p in parts])
-        test_mse = model.test_mse(test)
-        targets = ["theta_dot"]
-        extra["thrust_map"] = {"kind": thrust_map, "time_constant_s": sel.time_constant,
-                               "delay_samples": sel.delay, "training_free_run_nrmse": sel.train_nrmse,
-                               "input": "v_a [V] from the rig's duty map" if vmap else "duty cycle τ [1]",
-                               "grid": sel.grid}
-        extra["notes"] = sel.notes
-        for n in sel.notes:
-            say(f"note: {n}")
+        model, parts, test_mse, targets = _identify_partial_state(
+            recs, paths, rig, method, thrust_map, train_fraction, threshold, output_error, extra, say)
     child = _start_plot_child(out, model, parts[0][1], parts[0][0]) if plots else None
     try:
         scores, held_runs = _held_out_runs(model, recs, parts, say)
