@@ -69,3 +69,9 @@ def test_too_many_modules_fails(tmp_path: Path) -> None:
     assert f"{pkg / '__init__.py'}:1: package folder has 11 modules (> 10)" in proc.stdout
     (pkg / "m10.py").unlink()
     assert _run("--root", str(tmp_path)).returncode == 0
+
+
+def test_source_tree_passes() -> None:
+    """``src/``: no import cycle, no function over 150 lines, no package folder over 10 modules."""
+    proc = _run()
+    assert proc.returncode == 0, proc.stdout + proc.stderr
