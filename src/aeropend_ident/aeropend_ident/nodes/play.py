@@ -18,13 +18,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -33,6 +33,7 @@ from aeropend_ident.errors import BagError
 from aeropend_ident.io.bags import RawBagReader, qos_for_topic
 from aeropend_ident.nodes.qos import message_class, qos_to_rclpy
 from aeropend_sim.contract import TOPIC_CLOCK
+from aeropend_sim.ros.node_shell import run_node
 from aeropend_sim.ros.ros_contract import CLOCK_QOS, to_time
 
 NODE_NAME = "aeropend_player"
@@ -148,11 +149,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BagError as exc:
         print(f"play: error: {exc}", file=sys.stderr)
         return 1
-    rclpy.init(args=argv)
-    node: PlayerNode | None = None
-    code = 0
-    try:
-        node = PlayerNode(reader, clock=args.clock is not None)
+    def run(node: PlayerNode, executor: Any, stop: threading.Event) -> int:
         if args.wait_for_subscribers > 0 and not node.wait_for_subscribers(args.wait_for_subscribers):
             missing = [t for t, p in node.pubs.items() if p.get_subscription_count() == 0]
             node.get_logger().warning(f"no subscriber on {missing} after {args.wait_for_subscribers:g} s; "
@@ -168,17 +165,15 @@ def main(argv: Sequence[str] | None = None) -> int:
                 break
         if rclpy.ok():
             time.sleep(max(args.linger, 0.0))
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except BagError as exc:
-        print(f"play: error: {exc}", file=sys.stderr)
-        code = 1
+        return 0
+
+    # rclpy's own SIGINT handling: play() stops when rclpy.ok() turns False; the node is not spun
+    try:
+        return run_node(NODE_NAME, argv, lambda: PlayerNode(reader, clock=args.clock is not None), body=run,
+                        make_executor=lambda node: None, fail_errors=(BagError,), rclpy_signals=True,
+                        report_error=lambda exc: print(f"play: error: {exc}", file=sys.stderr))
     finally:
         reader.close()
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
 
 
 if __name__ == "__main__":

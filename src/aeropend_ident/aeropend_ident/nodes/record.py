@@ -45,12 +45,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from typing import Any
 
 import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -72,7 +73,7 @@ from aeropend_sim.contract import (
     namespaced,
 )
 from aeropend_sim.ros import ros_contract
-from aeropend_sim.ros.node_shell import init_with_stop_event
+from aeropend_sim.ros.node_shell import run_node
 
 NODE_NAME = "aeropend_recorder"
 #: On stop: keep writing until no message arrived for this long [s] ...
@@ -259,30 +260,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``record``."""
     argv = list(sys.argv if argv is None else argv)
     args = build_parser().parse_args(remove_ros_args(argv)[1:])
-    stop = init_with_stop_event(argv)
-    node: RecorderNode | None = None
-    code = 0
-    try:
-        node = RecorderNode(parameter_overrides=_overrides(args))
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
+
+    def run(node: RecorderNode, executor: Any, stop: threading.Event) -> int:
         while rclpy.ok() and not node.done and not stop.is_set():
             executor.spin_once(timeout_sec=0.1)
         drain(executor, node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (BagError, ValueError) as exc:
-        print(f"record: error: {exc}", file=sys.stderr)
-        code = 1
-    finally:
-        if node is not None:
-            counts = node.close()
-            reason = node.stop_reason or "interrupted"
-            print(f"record: {reason}; wrote {node.sink.path} ({node.storage}): "
-                  + ", ".join(f"{t} {n}" for t, n in counts.items()), flush=True)
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+        return 0
+
+    def close(node: RecorderNode) -> None:
+        counts = node.close()
+        reason = node.stop_reason or "interrupted"
+        print(f"record: {reason}; wrote {node.sink.path} ({node.storage}): "
+              + ", ".join(f"{t} {n}" for t, n in counts.items()), flush=True)
+
+    return run_node(NODE_NAME, argv, lambda: RecorderNode(parameter_overrides=_overrides(args)),
+                    cleanup=close, body=run, fail_errors=(BagError, ValueError),
+                    report_error=lambda exc: print(f"record: error: {exc}", file=sys.stderr))
 
 
 if __name__ == "__main__":

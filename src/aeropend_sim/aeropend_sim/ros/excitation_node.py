@@ -264,32 +264,18 @@ class LockstepFeeder:
 
 # ---------------------------------------------------------------------------------- ROS part
 def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
-    import signal as signals
-
     import rclpy
     from rcl_interfaces.msg import ParameterDescriptor
-    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-    from rclpy.signals import SignalHandlerOptions
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
     from aeropend_sim.contract import REL_DUTY_CYCLE, REL_JOINT_STATES
-    from aeropend_sim.ros.node_shell import wait_acknowledged
+    from aeropend_sim.ros.node_shell import run_node, wait_acknowledged
     from aeropend_sim.ros.ros_contract import COMMAND_QOS, COMMAND_QOS_LOCKSTEP, SAMPLE_QOS_LOCKSTEP
     from aeropend_sim.sim_core import RealtimeSchedule
 
-    rclpy.init(args=["excitation", *argv], signal_handler_options=SignalHandlerOptions.NO)
-    stop = threading.Event()
-
-    def _on_signal(signum: int, frame: Any) -> None:
-        stop.set()
-
-    signals.signal(signals.SIGINT, _on_signal)
-    signals.signal(signals.SIGTERM, _on_signal)
-    node = rclpy.create_node(NODE_NAME)
-    log = node.get_logger()
-    status = 0
-    try:
+    def run(node: Any, executor: Any, stop: threading.Event) -> int:
+        log = node.get_logger()
         params = {}
         for name in (*OPTIONS, *SIGNAL_ARGS):
             desc = ParameterDescriptor(dynamic_typing=True)
@@ -306,8 +292,6 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
             f"signal {sig.kind} {sig.params}: {len(sig)} samples, {sig.duration:.3f} s, "
             f"duty in [{sig.duty.min():.4g}, {sig.duty.max():.4g}], mode {cfg.mode}"
         )
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
 
         def spin_until(cond: Any, timeout: float) -> bool:
             end = time.monotonic() + timeout
@@ -392,12 +376,10 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
             return 1
         tail = " + duty 0" if cfg.zero_at_end else ""
         log.info(f"sent {n_sent} commands ({sig.duration:.3f} s of signal){tail}")
-    except (KeyboardInterrupt, ExternalShutdownException):
-        status = 1
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return status
+        return 0
+
+    return run_node(NODE_NAME, ["excitation", *argv], lambda: rclpy.create_node(NODE_NAME), body=run,
+                    interrupt_status=1)
 
 
 def main(argv: list[str] | None = None) -> int:

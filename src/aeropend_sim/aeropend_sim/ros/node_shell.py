@@ -1,7 +1,10 @@
-"""Shared rclpy shell pieces of the aeropend nodes (plant, bridge, controller).
+"""Shared rclpy shell of every aeropend node (plant, excitation, bridge, controller, recorder, player).
 
-Each node declares its parameters from a table of ``(name, default, description)`` and runs its
-own spin loop until SIGINT/SIGTERM; these helpers keep that identical across nodes.
+Each node declares its parameters from a table of ``(name, default, description)``; every
+node's ``main`` starts and stops through :func:`run_node` (init with a SIGINT/SIGTERM stop
+event, build, spin or run to completion, clean up, destroy, shut down), so the shutdown path
+(motor off, :func:`wait_acknowledged` before a writer is destroyed, bag closed) is the same
+everywhere.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from typing import Any, TypeVar
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
@@ -99,19 +102,35 @@ def init_with_stop_event(args: list[str] | None) -> threading.Event:
     return stop
 
 
+def _single_threaded(node: Node) -> Executor:
+    return SingleThreadedExecutor()
+
+
 def run_node(
     name: str,
     args: list[str] | None,
     make_node: Callable[[], N],
-    config_errors: tuple[type[Exception], ...],
-    cleanup: Callable[[N], None],
+    config_errors: tuple[type[Exception], ...] = (),
+    cleanup: Callable[[N], None] = lambda node: None,
     *,
     done: Callable[[N], bool] = lambda node: False,
     exit_status: Callable[[N], int] = lambda node: 0,
     period: float = 0.1,
     start_errors: tuple[type[Exception], ...] = (),
+    make_executor: Callable[[N], Executor | None] = _single_threaded,
+    body: Callable[[N, Executor | None, threading.Event], int] | None = None,
+    fail_errors: tuple[type[Exception], ...] = (),
+    report_error: Callable[[Exception], None] | None = None,
+    interrupt_status: int = 0,
+    rclpy_signals: bool = False,
 ) -> int:
-    """Lifecycle shared by the nodes' ``main``: build, spin until stopped, clean up.
+    """The one lifecycle of every node's ``main``: init, build, run until stopped, clean up, shut down.
+
+    ``rclpy.init`` (SIGINT/SIGTERM set a stop event, :func:`init_with_stop_event`), the node from
+    ``make_node``, its executor, then either the standard loop (spin until a signal, rclpy
+    shutdown or ``done(node)``) or the node's own ``body``; finally ``cleanup(node)`` (motor
+    off, acknowledgements awaited, summary logged, bag closed), ``destroy_node`` and
+    ``rclpy.try_shutdown`` whatever happened.
 
     Parameters
     ----------
@@ -126,30 +145,56 @@ def run_node(
     cleanup : callable
         Run on the node before it is destroyed (motor off, summary logged, ...).
     done : callable
-        Stops the spin loop when it returns True (besides SIGINT/SIGTERM and rclpy shutdown).
+        Stops the standard loop when it returns True (besides SIGINT/SIGTERM and rclpy shutdown).
     exit_status : callable
-        Exit status after a normal stop.
+        Exit status after the standard loop stopped.
     period : float
-        Spin timeout [s] between checks of the stop conditions.
+        Spin timeout [s] of the standard loop between checks of the stop conditions.
     start_errors : tuple of exception types
         Raised by ``make_node`` when the node cannot start for another reason than a parameter
         (e.g. no firmware on the serial port); logged as ``cannot start: ...``, exit status 1.
+    make_executor : callable
+        The executor the node is added to (default a ``SingleThreadedExecutor``; None: the node
+        is not spun, e.g. a pure publisher).
+    body : callable, optional
+        ``body(node, executor, stop_event) -> status`` replaces the standard loop (a node that
+        runs to completion: the excitation, the recorder's drain, the player).
+    fail_errors : tuple of exception types
+        Errors of the run itself (a bag that cannot be written or read): passed to
+        ``report_error``, exit status 1.
+    report_error : callable, optional
+        Reports a ``fail_errors`` exception (default: the node logger's error).
+    interrupt_status : int
+        Exit status on ``KeyboardInterrupt`` / external rclpy shutdown.
+    rclpy_signals : bool
+        Keep rclpy's own signal handlers (SIGINT shuts the context down, so ``rclpy.ok()`` turns
+        False) instead of the stop event: for a node whose loop watches ``rclpy.ok()`` only.
 
     Returns
     -------
     int
-        Process exit status: ``exit_status(node)``, 2 on an invalid parameter, 1 on a start error.
+        Process exit status: ``exit_status(node)`` or the ``body``'s, 2 on an invalid parameter,
+        1 on a start or run error, ``interrupt_status`` when interrupted.
     """
-    stop = init_with_stop_event(args)
+    if rclpy_signals:
+        rclpy.init(args=args)
+        stop = threading.Event()
+    else:
+        stop = init_with_stop_event(args)
     node: N | None = None
     status = 0
     try:
         node = make_node()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while not stop.is_set() and rclpy.ok() and not done(node):
-            executor.spin_once(timeout_sec=period)
-        status = exit_status(node)
+        executor = make_executor(node)
+        if executor is not None:
+            executor.add_node(node)
+        if body is not None:
+            status = body(node, executor, stop)
+        else:
+            assert executor is not None
+            while not stop.is_set() and rclpy.ok() and not done(node):
+                executor.spin_once(timeout_sec=period)
+            status = exit_status(node)
     except config_errors as exc:
         rclpy.logging.get_logger(name).error(f"invalid parameter: {exc}")
         status = 2
@@ -157,7 +202,13 @@ def run_node(
         rclpy.logging.get_logger(name).error(f"cannot start: {exc}")
         status = 1
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        status = interrupt_status
+    except fail_errors as exc:
+        if report_error is not None:
+            report_error(exc)
+        else:
+            rclpy.logging.get_logger(name).error(str(exc))
+        status = 1
     finally:
         if node is not None:
             cleanup(node)
