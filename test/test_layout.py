@@ -75,3 +75,36 @@ def test_source_tree_passes() -> None:
     """``src/``: no import cycle, no function over 150 lines, no package folder over 10 modules."""
     proc = _run()
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+#: aeropend_ident's layering (docs/architecture.md): subpackage -> what it may import inside ident.
+IDENT_LAYERS = {
+    "cli": {"gap", "sindy", "greybox", "io", "pipeline", "errors"},
+    "pipeline": {"greybox", "io", "errors"},
+    "gap": {"sindy", "greybox", "io", "errors"},
+    "sindy": {"io", "errors"},
+    "greybox": {"io", "errors"},
+    "nodes": {"io", "errors"},
+    "io": {"errors"},
+    "errors": set(),
+}
+
+
+def test_ident_layering() -> None:
+    """Inside aeropend_ident every import follows the arrows of docs/architecture.md."""
+    sys.path.insert(0, str(TOOL.parent))
+    import check_layout
+
+    modules = check_layout._modules(ROOT / "src")
+    wrong = []
+    for name, path in modules.items():
+        parts = name.split(".")
+        if parts[0] != "aeropend_ident" or len(parts) < 2:
+            continue
+        for target, line in check_layout._imports(name, path, modules).items():
+            tparts = target.split(".")
+            if tparts[0] != "aeropend_ident" or len(tparts) < 2 or tparts[1] == parts[1]:
+                continue
+            if tparts[1] not in IDENT_LAYERS[parts[1]]:
+                wrong.append(f"{path}:{line}: {name} imports {target}")
+    assert not wrong, "\n".join(wrong)
