@@ -88,7 +88,7 @@ def _thesis_sim_reference() -> dict[str, Any]:
     import shutil
     import tempfile
 
-    from aeropend_ident.io.bags import write_bag
+    from aeropend_ident.io.bag_writer import write_bag
     from aeropend_ident.sindy.identify import identify
     from aeropend_sim.excitation import aprbs
     from aeropend_sim.params import load_rig

@@ -32,7 +32,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 from ros_support import isolated_env, node_command, random_domain, stop
 
-from aeropend_ident.io.bags import read_bag, write_bag
+from aeropend_ident.io.bag_writer import write_bag
+from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_JOINT_STATES
 from aeropend_sim.recording import Recording
 

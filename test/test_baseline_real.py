@@ -200,7 +200,7 @@ def test_fitted_rig_file_loads_and_reproduces_held_out_metric(hoja3):
 def test_cli_on_a_bag_recovers_the_simulated_rig(tmp_path):
     """Simulate a rig that differs from the nominal aeroshield_rig, write a contract bag, run the
     CLI on the bag: the fit recovers the simulated pendulum and the held-out error vanishes."""
-    from aeropend_ident.io.bags import write_bag
+    from aeropend_ident.io.bag_writer import write_bag
 
     nominal = load_rig("aeroshield_rig")
     truth = nominal.with_params("pendulum", mgd_over_J=78.0, c_over_J=4.0, L_over_J=1700.0)

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from aeropend_ident.cli.gap import main
-from aeropend_ident.io.bags import write_bag
+from aeropend_ident.io.bag_writer import write_bag
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording

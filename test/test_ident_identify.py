@@ -15,7 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_ident_noise import TRUTH
 
 from aeropend_ident.cli.identify import main
-from aeropend_ident.io.bags import write_bag
+from aeropend_ident.io.bag_writer import write_bag
 from aeropend_sim.excitation import aprbs, density_modulated_prbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording

@@ -173,7 +173,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         rec = replace(rec, stamp0_ns=start_time_ns(args.start_time, args.input, float(rec.t[-1])))
         if args.output is not None:
             from aeropend_ident.errors import BagError
-            from aeropend_ident.io.bags import write_bag
+            from aeropend_ident.io.bag_writer import write_bag
 
             try:
                 write_bag(rec, args.output, storage=args.storage, rig_name=args.rig_name,

@@ -1,4 +1,7 @@
-"""Contract bags <-> :class:`~aeropend_sim.recording.Recording` (pure Python, no rclpy).
+"""Contract bags -> :class:`~aeropend_sim.recording.Recording` (pure Python, no rclpy): the reader.
+
+Writing is :mod:`aeropend_ident.io.bag_writer`, the CDR codec :mod:`aeropend_ident.io.bag_codec`;
+this module also holds the contract QoS of bag topics and the raw reader of the player.
 
 A *contract bag* is a rosbag2 bag (MCAP or SQLite3 storage) holding the topics of
 :mod:`aeropend_sim.contract`:
@@ -13,7 +16,8 @@ Wire convention vs. array convention
 On the wire the applied duty (``joint_states`` motor effort) and the armature voltage of a
 sample describe the interval that *ends* at its stamp: sample ``k + 1`` carries ``duty[k]`` and
 ``v_a[k]`` of the :class:`Recording` (where ``duty[k]`` is held over ``[t_k, t_{k+1})``).
-:func:`write_bag` shifts forward, :func:`read_bag` shifts back. The first sample's effort is the
+:func:`~aeropend_ident.io.bag_writer.write_bag` shifts forward,
+:func:`read_bag` shifts back. The first sample's effort is the
 duty before the recording started (``meta["duty_before_start"]``, NaN when unknown); the duty of
 the last sample comes from the command topic (the last command received at most ten
 sample periods after the last sample), else it is held from ``duty[N-2]``; ``v_a[N-1]`` is not
@@ -38,11 +42,8 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
-import struct
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 from pathlib import Path
 from typing import Any, Literal
 
@@ -56,12 +57,16 @@ from rosbags.interfaces import (
     QosTime,
 )
 from rosbags.rosbag2 import StoragePlugin
-from rosbags.typesys import Stores, get_typestore
 
 from aeropend_ident.errors import BagError
+from aeropend_ident.io.bag_codec import (
+    decode_armature,
+    decode_float64,
+    decode_joint_states,
+    typestore,
+)
 from aeropend_sim.contract import (
     COMMAND_QOS_DEPTH,
-    JOINT_NAMES,
     SAMPLE_QOS_DEPTH,
     TOPIC_ARMATURE,
     TOPIC_DUTY_CYCLE,
@@ -70,32 +75,19 @@ from aeropend_sim.contract import (
     TYPE_DUTY_CYCLE,
     TYPE_JOINT_STATES,
     ContractError,
-    Sample,
 )
-from aeropend_sim.recording import MEASURED_CHANNELS, Recording, RecordingError
-
-from .mcap_jazzy import JazzyWriter
+from aeropend_sim.recording import Recording, RecordingError
 
 __all__ = [
     "COMMAND_QOS",
     "SAMPLE_QOS",
     "SAMPLE_QOS_RELIABLE",
-    "BagError",
-    "BagSink",
     "BagTopic",
     "RawBagReader",
     "bag_metadata",
-    "decode_armature",
-    "decode_float64",
-    "decode_joint_states",
-    "encode_armature",
-    "encode_float64",
-    "encode_joint_states",
     "playback_deadlines",
     "qos_for_topic",
     "read_bag",
-    "typestore",
-    "write_bag",
 ]
 
 Storage = Literal["mcap", "sqlite3"]
@@ -129,13 +121,6 @@ _STORAGE_PLUGINS = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3
 _CUSTOM_META = "aeropend.meta"
 _CUSTOM_RIG = "aeropend.rig_name"
 _CUSTOM_SOURCE = "aeropend.source"
-_NAN = math.nan
-
-
-@lru_cache(maxsize=1)
-def typestore() -> Any:
-    """The ROS 2 Jazzy ``rosbags`` typestore (cached)."""
-    return get_typestore(Stores.ROS2_JAZZY)
 
 
 def qos_for_topic(topic: str, lockstep: bool = False) -> Qos:
@@ -163,563 +148,10 @@ def qos_for_topic(topic: str, lockstep: bool = False) -> Qos:
 # CDR codec (little-endian XCDR1, the encoding rclpy and rosbag2 use)
 # --------------------------------------------------------------------------------------------
 
-_CDR_LE = b"\x00\x01\x00\x00"
-
-
-class _Buf:
-    """Tiny CDR writer that records where each numeric slot lives (offsets include the 4-byte
-    encapsulation header)."""
-
-    def __init__(self) -> None:
-        self.b = bytearray(_CDR_LE)
-        self.pads: list[tuple[int, int]] = []  # (offset, length) of alignment padding
-
-    def align(self, n: int) -> None:
-        pad = (-(len(self.b) - 4)) % n
-        if pad:
-            self.pads.append((len(self.b), pad))
-        self.b.extend(b"\x00" * pad)
-
-    def u32(self, v: int) -> int:
-        self.align(4)
-        off = len(self.b)
-        self.b.extend(struct.pack("<I", v))
-        return off
-
-    def string(self, s: str) -> None:
-        data = s.encode("utf-8") + b"\x00"
-        self.u32(len(data))
-        self.b.extend(data)
-
-    def slot(self, size: int, count: int = 1) -> int:
-        self.align(size)
-        off = len(self.b)
-        self.b.extend(b"\x00" * (size * count))
-        return off
-
-    def f64_seq(self, n: int) -> int:
-        self.u32(n)
-        return self.slot(8, n) if n else len(self.b)
-
-
-@dataclass(frozen=True)
-class _Layout:
-    """Byte layout of one message shape: template bytes and offsets of the variable slots."""
-
-    template: bytes
-    #: name -> (offset, dtype, count); stamp fields are "sec" (<i4) and "nanosec" (<u4).
-    slots: dict[str, tuple[int, str, int]]
-    #: alignment padding (offset, length): zero when we write, arbitrary in rclpy/Fast-CDR output.
-    pads: tuple[tuple[int, int], ...] = ()
-
-    @property
-    def size(self) -> int:
-        return len(self.template)
-
-    def variable_mask(self) -> np.ndarray:
-        mask = np.zeros(self.size, dtype=bool)
-        for off, dtype, count in self.slots.values():
-            mask[off:off + np.dtype(dtype).itemsize * count] = True
-        for off, length in self.pads:
-            mask[off:off + length] = True
-        return mask
-
-
-def _header(buf: _Buf, frame_id: str) -> dict[str, tuple[int, str, int]]:
-    slots = {"sec": (buf.slot(4), "<i4", 1), "nanosec": (buf.slot(4), "<u4", 1)}
-    buf.string(frame_id)
-    return slots
-
-
-@lru_cache(maxsize=64)
-def _joint_state_layout(frame_id: str, names: tuple[str, ...], n_pos: int, n_vel: int, n_eff: int) -> _Layout:
-    buf = _Buf()
-    slots = _header(buf, frame_id)
-    buf.u32(len(names))
-    for name in names:
-        buf.string(name)
-    slots["position"] = (buf.f64_seq(n_pos), "<f8", n_pos)
-    slots["velocity"] = (buf.f64_seq(n_vel), "<f8", n_vel)
-    slots["effort"] = (buf.f64_seq(n_eff), "<f8", n_eff)
-    return _Layout(bytes(buf.b), slots, tuple(buf.pads))
-
-
-_BATTERY_FLOATS = ("voltage", "temperature", "current", "charge", "capacity", "design_capacity", "percentage")
-
-
-@lru_cache(maxsize=64)
-def _armature_layout(frame_id: str, n_cell_v: int, n_cell_t: int, location: str, serial: str) -> _Layout:
-    buf = _Buf()
-    slots = _header(buf, frame_id)
-    for name in _BATTERY_FLOATS:
-        slots[name] = (buf.slot(4), "<f4", 1)
-    slots["status"] = (buf.slot(1, 4), "u1", 4)  # status, health, technology, present
-    buf.u32(n_cell_v)
-    if n_cell_v:
-        slots["cell_voltage"] = (buf.slot(4, n_cell_v), "<f4", n_cell_v)
-    buf.u32(n_cell_t)
-    if n_cell_t:
-        slots["cell_temperature"] = (buf.slot(4, n_cell_t), "<f4", n_cell_t)
-    buf.string(location)
-    buf.string(serial)
-    return _Layout(bytes(buf.b), slots, tuple(buf.pads))
-
-
-_FLOAT64_LAYOUT = _Layout(_CDR_LE + b"\x00" * 8, {"data": (4, "<f8", 1)})
-
-
-def _tile(layout: _Layout, n: int) -> np.ndarray:
-    return np.tile(np.frombuffer(layout.template, dtype=np.uint8), (n, 1))
-
-
-def _put(arr: np.ndarray, layout: _Layout, name: str, values: np.ndarray) -> None:
-    off, dtype, count = layout.slots[name]
-    width = np.dtype(dtype).itemsize * count
-    view = arr[:, off:off + width].view(dtype)
-    view[...] = np.asarray(values).reshape(view.shape)
-
-
-def _get(arr: np.ndarray, layout: _Layout, name: str) -> np.ndarray:
-    off, dtype, count = layout.slots[name]
-    width = np.dtype(dtype).itemsize * count
-    return np.ascontiguousarray(arr[:, off:off + width]).view(dtype).reshape(arr.shape[0], count)
-
-
-def _rows(arr: np.ndarray) -> list[bytes]:
-    data = arr.tobytes()
-    size = arr.shape[1]
-    return [data[i:i + size] for i in range(0, len(data), size)]
-
-
-def _split_stamps(stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    sec, nanosec = np.divmod(np.asarray(stamps_ns, dtype=np.int64), 1_000_000_000)
-    return sec, nanosec
-
-
-def encode_joint_states(stamps_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
-                        effort: np.ndarray, frame_id: str = "aeropend",
-                        names: Sequence[str] = JOINT_NAMES) -> list[bytes]:
-    """CDR-serialise a batch of ``sensor_msgs/msg/JointState`` messages.
-
-    Parameters
-    ----------
-    stamps_ns : ndarray of int, shape (N,)
-        Header stamps [ns].
-    position, velocity, effort : ndarray, shape (N, J)
-        Per-joint values (J = ``len(names)``).
-    frame_id : str
-        ``header.frame_id``.
-    names : sequence of str
-        Joint names (default the contract's ``pendulum, motor, propeller``).
-
-    Returns
-    -------
-    list of bytes
-        N serialised messages, byte-identical to ``typestore.serialize_cdr``.
-    """
-    n, j = len(stamps_ns), len(names)
-    layout = _joint_state_layout(frame_id, tuple(names), j, j, j)
-    arr = _tile(layout, n)
-    sec, nanosec = _split_stamps(stamps_ns)
-    _put(arr, layout, "sec", sec)
-    _put(arr, layout, "nanosec", nanosec)
-    for key, val in (("position", position), ("velocity", velocity), ("effort", effort)):
-        _put(arr, layout, key, np.asarray(val, dtype=float).reshape(n, j))
-    return _rows(arr)
-
-
-def encode_armature(stamps_ns: np.ndarray, voltage: np.ndarray, current: np.ndarray,
-                    frame_id: str = "aeropend") -> list[bytes]:
-    """CDR-serialise a batch of ``sensor_msgs/msg/BatteryState`` armature messages.
-
-    ``voltage`` [V] and ``current`` [A] (shape (N,)) are stored as float32 (the message's field
-    type); every other float is NaN, status/health/technology unknown (0), ``present`` True.
-    """
-    n = len(stamps_ns)
-    layout = _armature_layout(frame_id, 0, 0, "", "")
-    arr = _tile(layout, n)
-    sec, nanosec = _split_stamps(stamps_ns)
-    _put(arr, layout, "sec", sec)
-    _put(arr, layout, "nanosec", nanosec)
-    for name in _BATTERY_FLOATS:
-        _put(arr, layout, name, np.full(n, np.nan, dtype=np.float32))
-    _put(arr, layout, "voltage", np.asarray(voltage, dtype=np.float32))
-    _put(arr, layout, "current", np.asarray(current, dtype=np.float32))
-    _put(arr, layout, "status", np.tile(np.array([0, 0, 0, 1], dtype=np.uint8), (n, 1)))
-    return _rows(arr)
-
-
-def encode_float64(values: np.ndarray) -> list[bytes]:
-    """CDR-serialise a batch of ``std_msgs/msg/Float64`` messages (shape (N,))."""
-    arr = _tile(_FLOAT64_LAYOUT, len(values))
-    _put(arr, _FLOAT64_LAYOUT, "data", np.asarray(values, dtype=float))
-    return _rows(arr)
-
-
-@dataclass
-class _Decoded:
-    """Columns decoded from one topic; row order = message order."""
-
-    columns: dict[str, np.ndarray]
-    fallback: int = 0  # messages decoded by typestore.deserialize_cdr
-
-
-def _stamp_ns(sec: np.ndarray, nanosec: np.ndarray) -> np.ndarray:
-    return sec.astype(np.int64) * 1_000_000_000 + nanosec.astype(np.int64)
-
-
-def _pick_joint(values: np.ndarray, names: list[str], joint: str, what: str) -> np.ndarray:
-    """Column of ``joint`` from (N, J) values; NaN when the array is empty (contract rule)."""
-    if values.shape[1] == 0:
-        return np.full(values.shape[0], np.nan)
-    if values.shape[1] != len(names):
-        raise ContractError(f"joint_states.{what} has {values.shape[1]} entries, expected {len(names)} "
-                            "(one per name)")
-    return values[:, names.index(joint)].astype(float)
-
-
-def _js_columns(stamps: np.ndarray, names: list[str], pos: np.ndarray, vel: np.ndarray,
-                eff: np.ndarray) -> dict[str, np.ndarray]:
-    missing = [j for j in JOINT_NAMES if j not in names]
-    if missing:
-        raise ContractError(f"joint_states lacks joint(s) {missing}; expected names {list(JOINT_NAMES)}, "
-                            f"got {names}")
-    return {
-        "stamp": stamps,
-        "theta": _pick_joint(pos, names, "pendulum", "position"),
-        "theta_dot": _pick_joint(vel, names, "pendulum", "velocity"),
-        "omega_rotor": _pick_joint(vel, names, "motor", "velocity"),
-        "omega_prop": _pick_joint(vel, names, "propeller", "velocity"),
-        "effort": _pick_joint(eff, names, "motor", "effort"),
-    }
-
-
-def _concat(parts: list[tuple[np.ndarray, dict[str, np.ndarray]]], n: int) -> dict[str, np.ndarray]:
-    """Reassemble per-group columns into message order."""
-    out: dict[str, np.ndarray] = {}
-    for idx, cols in parts:
-        for key, val in cols.items():
-            if key not in out:
-                out[key] = np.empty(n, dtype=val.dtype)
-            out[key][idx] = val
-    return out
-
-
-def _group_by_length(raws: Sequence[bytes]) -> dict[int, np.ndarray]:
-    lengths = np.fromiter((len(r) for r in raws), dtype=np.int64, count=len(raws))
-    return {int(L): np.flatnonzero(lengths == L) for L in np.unique(lengths)}
-
-
-def _decode_groups(raws: Sequence[bytes], msgtype: str, layout_of: Any, columns_of: Any,
-                   vectorized: bool) -> _Decoded:
-    """Shared driver: vectorised decoding per (length, layout) group, typestore fallback."""
-    ts = typestore()
-    n = len(raws)
-    parts: list[tuple[np.ndarray, dict[str, np.ndarray]]] = []
-    fallback = 0
-    slow: list[int] = []
-    groups = _group_by_length(raws) if vectorized else {-1: np.arange(n)}
-    for length, idx in groups.items():
-        if length < 0:
-            slow.extend(idx.tolist())
-            continue
-        first = raws[int(idx[0])]
-        layout = layout_of(ts.deserialize_cdr(first, msgtype)) if first[:4] == _CDR_LE else None
-        # DDS pads serialised payloads to a multiple of 4 bytes: up to 3 trailing bytes are ignored
-        if layout is None or not layout.size <= length < layout.size + 4:
-            slow.extend(idx.tolist())
-            continue
-        arr = np.frombuffer(b"".join(raws[int(i)] for i in idx), dtype=np.uint8).reshape(len(idx), length)
-        arr = arr[:, :layout.size]
-        fixed = ~layout.variable_mask()
-        tmpl = np.frombuffer(layout.template, dtype=np.uint8)[fixed]
-        ok = np.all(arr[:, fixed] == tmpl, axis=1)
-        if not ok.all():
-            slow.extend(idx[~ok].tolist())
-            arr, idx = arr[ok], idx[ok]
-        if len(idx):
-            parts.append((idx, columns_of(arr, layout)))
-    if slow:
-        fallback = len(slow)
-        sidx = np.array(sorted(slow), dtype=np.int64)
-        msgs = [ts.deserialize_cdr(raws[int(i)], msgtype) for i in sidx]
-        parts.append((sidx, columns_of(msgs, None)))
-    return _Decoded(_concat(parts, n), fallback)
-
-
-def decode_joint_states(raws: Sequence[bytes], vectorized: bool = True) -> _Decoded:
-    """Decode raw CDR ``JointState`` messages into contract columns.
-
-    Returns
-    -------
-    _Decoded
-        ``columns``: ``stamp`` (int64 ns), ``theta``, ``theta_dot``, ``omega_rotor``,
-        ``omega_prop``, ``effort`` (wire duty), each shape (N,).
-
-    Raises
-    ------
-    ContractError
-        If a message lacks a contract joint or has inconsistent array lengths.
-    """
-
-    def layout_of(msg: Any) -> _Layout:
-        return _joint_state_layout(msg.header.frame_id, tuple(msg.name), len(msg.position),
-                                   len(msg.velocity), len(msg.effort))
-
-    def columns_of(data: Any, layout: _Layout | None) -> dict[str, np.ndarray]:
-        if layout is not None:
-            names = [s.decode() for s in _names_from_template(layout)]
-            stamps = _stamp_ns(_get(data, layout, "sec")[:, 0], _get(data, layout, "nanosec")[:, 0])
-            return _js_columns(stamps, names, _get(data, layout, "position"), _get(data, layout, "velocity"),
-                               _get(data, layout, "effort"))
-        cols = [
-            _js_columns(np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec],
-                                 dtype=np.int64),
-                        list(m.name), np.asarray(m.position, dtype=float).reshape(1, -1),
-                        np.asarray(m.velocity, dtype=float).reshape(1, -1),
-                        np.asarray(m.effort, dtype=float).reshape(1, -1))
-            for m in data
-        ]
-        return {k: np.concatenate([c[k] for c in cols]) for k in cols[0]}
-
-    return _decode_groups(raws, TYPE_JOINT_STATES, layout_of, columns_of, vectorized)
-
-
-def _names_from_template(layout: _Layout) -> list[bytes]:
-    """Joint names stored in a JointState layout's template."""
-    b = layout.template
-    off = 12  # after encapsulation + stamp
-    (flen,) = struct.unpack_from("<I", b, off)
-    off += 4 + flen
-    off += (-(off - 4)) % 4
-    (count,) = struct.unpack_from("<I", b, off)
-    off += 4
-    names = []
-    for _ in range(count):
-        off += (-(off - 4)) % 4
-        (slen,) = struct.unpack_from("<I", b, off)
-        names.append(b[off + 4:off + 4 + slen - 1])
-        off += 4 + slen
-    return names
-
-
-def decode_armature(raws: Sequence[bytes], vectorized: bool = True) -> _Decoded:
-    """Decode raw CDR ``BatteryState`` messages: columns ``stamp`` (int64 ns), ``v_a`` [V],
-    ``i_a`` [A] (float32 on the wire, returned as float64), each shape (N,)."""
-
-    def layout_of(msg: Any) -> _Layout:
-        return _armature_layout(msg.header.frame_id, len(msg.cell_voltage), len(msg.cell_temperature),
-                                msg.location, msg.serial_number)
-
-    def columns_of(data: Any, layout: _Layout | None) -> dict[str, np.ndarray]:
-        if layout is not None:
-            return {
-                "stamp": _stamp_ns(_get(data, layout, "sec")[:, 0], _get(data, layout, "nanosec")[:, 0]),
-                "v_a": _get(data, layout, "voltage")[:, 0].astype(float),
-                "i_a": _get(data, layout, "current")[:, 0].astype(float),
-            }
-        return {
-            "stamp": np.array([m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for m in data],
-                              dtype=np.int64),
-            "v_a": np.array([m.voltage for m in data], dtype=np.float32).astype(float),
-            "i_a": np.array([m.current for m in data], dtype=np.float32).astype(float),
-        }
-
-    return _decode_groups(raws, TYPE_ARMATURE, layout_of, columns_of, vectorized)
-
-
-def decode_float64(raws: Sequence[bytes], vectorized: bool = True) -> _Decoded:
-    """Decode raw CDR ``std_msgs/Float64`` messages: column ``data``, shape (N,)."""
-
-    def columns_of(data: Any, layout: _Layout | None) -> dict[str, np.ndarray]:
-        if layout is not None:
-            return {"data": _get(data, layout, "data")[:, 0].copy()}
-        return {"data": np.array([m.data for m in data], dtype=float)}
-
-    return _decode_groups(raws, TYPE_DUTY_CYCLE, lambda _m: _FLOAT64_LAYOUT, columns_of, vectorized)
-
 
 # --------------------------------------------------------------------------------------------
 # Writing
 # --------------------------------------------------------------------------------------------
-
-
-def _prepare_target(path: Path, overwrite: bool) -> None:
-    if not path.exists():
-        return
-    if not overwrite:
-        raise BagError(f"bag '{path}' already exists; pass overwrite=True (or choose another path)")
-    if path.is_dir() and ((path / "metadata.yaml").exists() or not any(path.iterdir())):
-        shutil.rmtree(path)
-        return
-    raise BagError(f"refusing to overwrite '{path}': it exists and is not a rosbag2 directory "
-                   "(no metadata.yaml)")
-
-
-def _wire_arrays(rec: Recording) -> dict[str, np.ndarray]:
-    """Per-message wire values of a recording (duty and v_a shifted by one sample)."""
-    n = len(rec)
-    nan = np.full(n, np.nan)
-    ch = {name: rec.channels.get(name, nan) for name in MEASURED_CHANNELS}
-    before_meta = rec.meta.get("duty_before_start")
-    before = float(before_meta) if _is_number(before_meta) else np.nan
-    effort = np.concatenate(([before], rec.duty[:-1]))
-    v_wire = np.concatenate(([np.nan], ch["v_a"][:-1]))
-    return {**ch, "effort": effort, "v_wire": v_wire}
-
-
-def _is_number(x: Any) -> bool:
-    return isinstance(x, (int, float, np.floating, np.integer)) and not isinstance(x, bool)
-
-
-def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_name: str | None = None, *,
-              frame_id: str = "aeropend", namespace: str = "", lockstep_qos: bool = False,
-              stamp0_ns: int | None = None, overwrite: bool = False,
-              encoder: Literal["vectorized", "typestore"] = "vectorized") -> Path:
-    """Write a :class:`Recording` as a contract bag.
-
-    Per sample k: a ``JointState`` on ``/aeropend/joint_states`` and a ``BatteryState`` on
-    ``/aeropend/armature`` with the same header stamp ``stamp0_ns + round(t_k · 1e9)``, built
-    like :meth:`aeropend_sim.contract.Sample.joint_state_fields` / ``armature_fields`` (channels
-    the recording lacks are NaN; the duty and v_a shifted to the wire convention, see module
-    doc), and the duty command ``duty[k]`` as ``std_msgs/Float64`` on ``/aeropend/duty_cycle``
-    (NaN duties are not sent: NaN is not a valid command). Log time = header stamp.
-
-    Parameters
-    ----------
-    rec : Recording
-        The recording; ``rec.meta`` is stored as JSON in the bag's ``custom_data``.
-    path : str or Path
-        Bag directory to create.
-    storage : {"mcap", "sqlite3"}
-        rosbag2 storage plugin.
-    rig_name : str, optional
-        Rig name stored in ``custom_data`` (``aeropend.rig_name``).
-    frame_id : str
-        ``header.frame_id`` of the sample messages.
-    namespace : str
-        Prefix for every topic (e.g. ``"/rig1"``).
-    lockstep_qos : bool
-        Offer reliable QoS on the sample topics (what the simulator does in lock-step mode)
-        instead of ``sensor_data`` (best effort).
-    stamp0_ns : int, optional
-        Absolute stamp of ``t = 0`` [ns] (default ``rec.stamp0_ns``).
-    overwrite : bool
-        Replace an existing bag directory at ``path``.
-    encoder : {"vectorized", "typestore"}
-        ``"typestore"`` builds every message from :class:`~aeropend_sim.contract.Sample`
-        (``joint_state_fields()``, ``armature_fields()``) and ``typestore.serialize_cdr`` (the
-        reference path); ``"vectorized"`` encodes all samples at once with NumPy. The bytes are
-        identical.
-
-    Returns
-    -------
-    Path
-        The bag directory.
-
-    Raises
-    ------
-    BagError
-        On an unknown storage, an existing target, or stamps that are not strictly increasing
-        after rounding to nanoseconds.
-    """
-    path = Path(path)
-    if storage not in _STORAGE_PLUGINS:
-        raise BagError(f"bag '{path}': unknown storage {storage!r}; "
-                       f"expected one of {sorted(_STORAGE_PLUGINS)}")
-    _prepare_target(path, overwrite)
-    s0 = rec.stamp0_ns if stamp0_ns is None else int(stamp0_ns)
-    stamps = s0 + np.round(rec.t * 1e9).astype(np.int64)
-    if np.any(np.diff(stamps) <= 0):
-        k = int(np.flatnonzero(np.diff(stamps) <= 0)[0]) + 1
-        raise BagError(f"bag '{path}': stamps not strictly increasing at sample {k} after rounding to ns")
-    w = _wire_arrays(rec)
-    cmd_idx = np.flatnonzero(np.isfinite(rec.duty))
-    if encoder == "vectorized":
-        nan = np.full(len(rec), np.nan)
-        js = encode_joint_states(
-            stamps,
-            position=np.column_stack([w["theta"], nan, nan]),
-            velocity=np.column_stack([w["theta_dot"], w["omega_rotor"], w["omega_prop"]]),
-            effort=np.column_stack([nan, w["effort"], nan]),
-            frame_id=frame_id,
-        )
-        arm = encode_armature(stamps, w["v_wire"], w["i_a"], frame_id=frame_id)
-        cmds = encode_float64(rec.duty[cmd_idx])
-    elif encoder == "typestore":
-        js, arm, cmds = _encode_via_samples(stamps, w, rec.duty[cmd_idx], frame_id)
-    else:
-        raise BagError(f"unknown encoder {encoder!r}; expected 'vectorized' or 'typestore'")
-    ts = typestore()
-    writer = JazzyWriter(path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
-    try:
-        writer.open()
-        sample_qos = qos_for_topic(TOPIC_JOINT_STATES, lockstep_qos)
-        c_js = writer.add_connection(namespace + TOPIC_JOINT_STATES, TYPE_JOINT_STATES, typestore=ts,
-                                     offered_qos_profiles=[sample_qos])
-        c_arm = writer.add_connection(namespace + TOPIC_ARMATURE, TYPE_ARMATURE, typestore=ts,
-                                      offered_qos_profiles=[sample_qos])
-        c_cmd = writer.add_connection(namespace + TOPIC_DUTY_CYCLE, TYPE_DUTY_CYCLE, typestore=ts,
-                                      offered_qos_profiles=[COMMAND_QOS])
-        meta = dict(rec.meta)
-        if rig_name is not None:
-            writer.set_custom_data(_CUSTOM_RIG, str(rig_name))
-            meta["rig_name"] = rig_name
-        writer.set_custom_data(_CUSTOM_SOURCE, str(rec.source))
-        writer.set_custom_data(_CUSTOM_META, json.dumps(meta, default=_json_default))
-        stamp_list = stamps.tolist()
-        cmd_set = set(cmd_idx.tolist())
-        cmd_iter = iter(cmds)
-        for k, stamp in enumerate(stamp_list):
-            writer.write(c_js, stamp, js[k])
-            writer.write(c_arm, stamp, arm[k])
-            if k in cmd_set:
-                writer.write(c_cmd, stamp, next(cmd_iter))
-    finally:
-        if writer.storage is not None:
-            writer.close()
-    return path
-
-
-def _encode_via_samples(stamps: np.ndarray, w: dict[str, np.ndarray], commands: np.ndarray,
-                        frame_id: str) -> tuple[list[bytes], list[bytes], list[bytes]]:
-    """Reference encoder: one :class:`Sample` per wire message, serialised by the typestore."""
-    ts = typestore()
-    T = ts.types["builtin_interfaces/msg/Time"]
-    H = ts.types["std_msgs/msg/Header"]
-    JS = ts.types[TYPE_JOINT_STATES]
-    BS = ts.types[TYPE_ARMATURE]
-    F64 = ts.types[TYPE_DUTY_CYCLE]
-    js_out, arm_out = [], []
-    for k, stamp in enumerate(stamps.tolist()):
-        sample = Sample(stamp_ns=stamp, theta=float(w["theta"][k]), theta_dot=float(w["theta_dot"][k]),
-                        omega_rotor=float(w["omega_rotor"][k]), omega_prop=float(w["omega_prop"][k]),
-                        i_a=float(w["i_a"][k]), v_a=float(w["v_wire"][k]), duty=float(w["effort"][k]))
-        sec, nanosec = divmod(stamp, 1_000_000_000)
-        header = H(stamp=T(sec=sec, nanosec=nanosec), frame_id=frame_id)
-        f = sample.joint_state_fields()
-        js_out.append(bytes(ts.serialize_cdr(
-            JS(header=header, name=list(f["name"]), position=np.array(f["position"], dtype=float),
-               velocity=np.array(f["velocity"], dtype=float), effort=np.array(f["effort"], dtype=float)),
-            TYPE_JOINT_STATES)))
-        a = sample.armature_fields()
-        arm_out.append(bytes(ts.serialize_cdr(
-            BS(header=header, voltage=a["voltage"], temperature=_NAN, current=a["current"], charge=_NAN,
-               capacity=_NAN, design_capacity=_NAN, percentage=_NAN, power_supply_status=0,
-               power_supply_health=0, power_supply_technology=0, present=True,
-               cell_voltage=np.array([], dtype=np.float32), cell_temperature=np.array([], dtype=np.float32),
-               location="", serial_number=""),
-            TYPE_ARMATURE)))
-    cmd_out = [bytes(ts.serialize_cdr(F64(data=float(v)), TYPE_DUTY_CYCLE)) for v in commands]
-    return js_out, arm_out, cmd_out
-
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    return str(obj)
 
 
 # --------------------------------------------------------------------------------------------
@@ -1040,76 +472,6 @@ def _stored_meta(path: Path) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------------
 # Incremental raw writing / reading (ROS-free core of the recorder and player nodes)
 # --------------------------------------------------------------------------------------------
-
-
-class BagSink:
-    """Incremental rosbag2 writer of already-serialised (CDR) messages.
-
-    Topics are registered lazily (:meth:`add_topic`, typically on the first message, once the
-    publishers' offered QoS is known); :meth:`close` writes ``metadata.yaml`` and is idempotent.
-
-    Parameters
-    ----------
-    path : str or Path
-        Bag directory to create (must not exist).
-    storage : {"mcap", "sqlite3"}
-        Storage plugin.
-    custom_data : dict of str, optional
-        ``custom_data`` entries of ``metadata.yaml``.
-
-    Raises
-    ------
-    BagError
-        If the storage is unknown or the bag cannot be created (e.g. ``path`` exists).
-    """
-
-    def __init__(self, path: str | Path, storage: Storage = "mcap",
-                 custom_data: dict[str, str] | None = None) -> None:
-        self.path = Path(path)
-        if storage not in _STORAGE_PLUGINS:
-            raise BagError(f"bag '{self.path}': unknown storage {storage!r}; "
-                           f"expected one of {sorted(_STORAGE_PLUGINS)}")
-        if self.path.exists():
-            raise BagError(f"bag '{self.path}' already exists; choose another output path")
-        self.storage = storage
-        typestore()  # build the typestore now (~0.1 s): doing it on the first message would drop samples
-        self._writer = JazzyWriter(self.path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
-        try:
-            self._writer.open()
-        except Exception as exc:
-            raise BagError(f"bag '{self.path}': cannot create ({type(exc).__name__}: {exc})") from exc
-        for key, value in (custom_data or {}).items():
-            self._writer.set_custom_data(key, str(value))
-        self._conns: dict[str, Any] = {}
-        self.counts: dict[str, int] = {}
-        self.closed = False
-
-    def has_topic(self, topic: str) -> bool:
-        """Whether ``topic`` is registered."""
-        return topic in self._conns
-
-    def add_topic(self, topic: str, msgtype: str, qos: Sequence[Qos] = ()) -> None:
-        """Register ``topic`` of ``msgtype`` (e.g. ``sensor_msgs/msg/JointState``) with its offered QoS."""
-        if topic in self._conns:
-            return
-        try:
-            self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=typestore(),
-                                                             offered_qos_profiles=list(qos))
-        except Exception as exc:
-            raise BagError(f"bag '{self.path}': cannot add topic {topic} of type {msgtype} "
-                           f"({type(exc).__name__}: {exc})") from exc
-        self.counts[topic] = 0
-
-    def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
-        """Append one serialised message with log time ``timestamp_ns``."""
-        self._writer.write(self._conns[topic], int(timestamp_ns), data)
-        self.counts[topic] += 1
-
-    def close(self) -> None:
-        """Finish the bag (writes ``metadata.yaml``); safe to call twice."""
-        if not self.closed:
-            self.closed = True
-            self._writer.close()
 
 
 @dataclass(frozen=True)

@@ -572,8 +572,8 @@ def import_csv_runs(
 
 def csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, storage: str = "mcap",
                rig_name: str | None = None, overwrite: bool = False) -> tuple[Recording, Path]:
-    """:func:`import_csv` then :func:`aeropend_ident.io.bags.write_bag`; returns (recording, bag path)."""
-    from aeropend_ident.io.bags import write_bag
+    """:func:`import_csv` then :func:`~aeropend_ident.io.bag_writer.write_bag`; returns (recording, bag)."""
+    from aeropend_ident.io.bag_writer import write_bag
 
     rec = import_csv(path, spec)
     bag = write_bag(rec, out, storage=storage, rig_name=rig_name,  # type: ignore[arg-type]

@@ -1,7 +1,7 @@
 """``aeropend_recorder``: record the contract topics into a rosbag2 bag (thin rclpy shell).
 
 Subscribes with *raw* (serialised) subscriptions and writes the CDR bytes straight into a
-``rosbags`` writer (:class:`aeropend_ident.io.bags.BagSink`): no deserialisation, so 490 Hz
+``rosbags`` writer (:class:`aeropend_ident.io.bag_writer.BagSink`): no deserialisation, so 490 Hz
 samples cost one callback each. The bag timestamp of a message is its receive time on the node
 clock (ROS time: simulated time when ``use_sim_time`` is true). Each topic is registered with
 the QoS its publishers offer (read from the ROS graph when its first message arrives; the
@@ -59,7 +59,8 @@ from rclpy.utilities import remove_ros_args
 from rosbags.interfaces import Qos
 
 from aeropend_ident.errors import BagError
-from aeropend_ident.io.bags import BagSink, qos_for_topic
+from aeropend_ident.io.bag_writer import BagSink
+from aeropend_ident.io.bags import qos_for_topic
 from aeropend_ident.nodes.qos import (
     message_class,
     qos_from_rclpy,
