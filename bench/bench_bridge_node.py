@@ -22,7 +22,7 @@ from sensor_msgs.msg import JointState
 
 from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_sim.contract import TOPIC_JOINT_STATES
-from aeropend_sim.ros_contract import SAMPLE_SUB_QOS
+from aeropend_sim.ros.ros_contract import SAMPLE_SUB_QOS
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 from ros_support import isolated_env, node_command, private_node, random_domain, stop

@@ -239,7 +239,7 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str, stall_m
                     if monitor_period_ns > 0 else [])
         with sim_log.open("w") as f:
             sim = subprocess.Popen(
-                [*rt, *node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args",
+                [*rt, *node_command("sim_node", "aeropend_sim.ros.sim_node"), "--ros-args",
                  "-p", "mode:=realtime", "-p", f"rt_priority:={rt_priority}",
                  "-p", f"timing_log:={timing_file}",
                  "-p", f"timing_capacity:={int(duration * 600) + 10_000}"],

@@ -52,7 +52,7 @@ def run_ros(rig_file: Path, strategy: str, r: float, trace: Path) -> tuple[np.nd
     """One lock-step run; returns the trace array and the wall time [s]."""
     env = isolated_env(random_domain())
     t0 = time.perf_counter()
-    sim_cmd = [*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", "mode:=lockstep",
+    sim_cmd = [*node_command("sim_node", "aeropend_sim.ros.sim_node"), "--ros-args", "-p", "mode:=lockstep",
                "-p", f"rig:={rig_file}"]
     sim = subprocess.Popen(sim_cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctl = None

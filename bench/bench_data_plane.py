@@ -71,10 +71,10 @@ def listener(out: Path, capacity: int, depth: int) -> int:
     from sensor_msgs.msg import BatteryState, JointState
 
     from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_JOINT_STATES
-    from aeropend_sim.node_shell import init_with_stop_event
+    from aeropend_sim.ros.node_shell import init_with_stop_event
 
     if depth <= 0:
-        from aeropend_sim import ros_contract
+        from aeropend_sim.ros import ros_contract
         qos = ros_contract.SAMPLE_SUB_QOS
     else:  # explicit depth (also runs against a checkout from before SAMPLE_SUB_QOS existed)
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=depth,
@@ -214,8 +214,9 @@ def run_stream(duration: float, rt_priority: int, depth: int, tmp: Path) -> dict
 
 def run_lockstep(tmp: Path, seed: int) -> dict[str, Any]:
     """One attempt of the main job's node graph; published vs recorded samples."""
-    from aeropend_ident.bags import read_bag
-    from aeropend_ident.pipeline import DEFAULT_SIGNAL, PipelineError, plant_sample_count, run_graph
+    from aeropend_ident.errors import PipelineError
+    from aeropend_ident.io.bags import read_bag
+    from aeropend_ident.pipeline import DEFAULT_SIGNAL, plant_sample_count, run_graph
 
     env_domain = str(random_domain(101, 200))
     old = {k: os.environ.get(k) for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}

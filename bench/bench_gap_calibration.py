@@ -67,7 +67,7 @@ DRIFTS = {
 }
 DRIFT_RANGE = (0.05, 0.40)
 SNR_RANGE = (40.0, 60.0)
-#: What the prediction under test draws (aeropend_ident.gap_drift.predict_heldout), for the report.
+#: What the prediction under test draws (aeropend_ident.gap.drift.predict_heldout), for the report.
 PREDICTION = ("300 re-simulated draws; per session an unknown share π ~ U(0, 1) of the drift-prone "
               "parameters changes, each by N(0, 2σ_p²) in log (σ_p: gap_drift.DRIFT_PRIOR), with the "
               "effect-fit spread and a within-session block error.")
@@ -136,7 +136,7 @@ def build(spec: dict[str, Any]) -> dict[str, Any]:
 
 
 def run_case(spec: dict[str, Any], oracle: bool = False) -> dict[str, Any]:
-    from aeropend_ident.gap_report import run_gap
+    from aeropend_ident.gap.run import run_gap
     from aeropend_sim.params import rig_from_dict
 
     case = build(spec)

@@ -6,7 +6,7 @@ effects implemented from their physics, integrated by its own fixed-step Runge-K
 diagnosis gets what a lab has: a rig file of its nominal simulator (the thesis' simulated plant
 with an ideal drive, or a variant with other physical parameters, written as a rig file) and
 the recordings (fit and held-out, θ, i_a, v_a, ω₁ with 40-60 dB noise at 490 Hz). It runs the
-whole ``gap`` pipeline (:func:`aeropend_ident.gap_report.run_gap`: where, which, held-out
+whole ``gap`` pipeline (:func:`aeropend_ident.gap.run.run_gap`: where, which, held-out
 before/after) exactly as the command does with ``--held-out``.
 
 Cases (seeds fixed here):
@@ -314,7 +314,7 @@ def score(spec: dict[str, Any], case: dict[str, Any], result: Any) -> dict[str, 
 
 
 def run_case(spec: dict[str, Any]) -> dict[str, Any]:
-    from aeropend_ident.gap_report import run_gap
+    from aeropend_ident.gap.run import run_gap
     from aeropend_sim.params import rig_from_dict
 
     case = build_case(spec)

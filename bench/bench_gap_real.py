@@ -30,7 +30,7 @@ Cases (real data read from ``../shared/data/real``, never copied into the reposi
   blocks start at block k) or of the four runs (``etchepareborda_all``: leave-one-run-out), so that
   over the folds every block / run is held out once; the markdown pools them (:data:`FOLDS`).
 
-Each case runs :func:`aeropend_ident.gap_report.run_gap` (where + which + after) exactly as the
+Each case runs :func:`aeropend_ident.gap.run.run_gap` (where + which + after) exactly as the
 ``gap`` command does. Results: ``bench/results/gap_real.json`` and ``.md``; figures
 ``docs/results/gap_<case>_overlay.png`` / ``_where.png`` / ``_effects.png``.
 
@@ -51,12 +51,14 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.csv_import import import_csv, import_csv_runs
-from aeropend_ident.gap_cli import resolve_rig
-from aeropend_ident.gap_report import fig_effects, fig_equations, fig_overlay, run_gap, write_report
-from aeropend_ident.gap_split import informative, interleaved_blocks, time_ordered
-from aeropend_ident.jsonutil import jsonable
-from aeropend_ident.recording_input import uniform_recording
+from aeropend_ident.cli.gap import resolve_rig
+from aeropend_ident.gap.figures import fig_effects, fig_equations, fig_overlay
+from aeropend_ident.gap.report import write_report
+from aeropend_ident.gap.run import run_gap
+from aeropend_ident.io.csv_import import import_csv, import_csv_runs
+from aeropend_ident.io.jsonutil import jsonable
+from aeropend_ident.io.recording_input import uniform_recording
+from aeropend_ident.io.split import informative, interleaved_blocks, time_ordered
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
@@ -83,7 +85,7 @@ def _split(rec: Recording, frac: float = 0.7) -> tuple[list[Recording], list[Rec
 def _blocks(
     rec: Recording, block_s: float, every: int = 3, min_range: float = 0.0, offset: int = 1
 ) -> tuple[list[Recording], list[Recording], str]:
-    """Interleaved held-out blocks (:func:`aeropend_ident.gap_split.interleaved_blocks`): fit and
+    """Interleaved held-out blocks (:func:`aeropend_ident.io.split.interleaved_blocks`): fit and
     held-out blocks cover the same operating range (interpolation), unlike the time-ordered split."""
     return interleaved_blocks([rec], block_s, every, min_range, offset)
 

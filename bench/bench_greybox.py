@@ -1,4 +1,4 @@
-"""Benchmark: wall time per grey-box fit (:func:`aeropend_ident.greybox.fit_greybox`).
+"""Benchmark: wall time per grey-box fit (:func:`aeropend_ident.greybox.fit.fit_greybox`).
 
 Cases (training part = first 70 % where a recording is split):
 
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.greybox import GreyBoxResult, default_parameters, fit_greybox, rig_theta_offset
+from aeropend_ident.greybox.fit import GreyBoxResult, default_parameters, fit_greybox, rig_theta_offset
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
@@ -63,7 +63,7 @@ def synthetic(dead_zone: bool) -> dict[str, Any]:
 
 
 def real(path: Path, preset: str, rig_name: str, label: str, **kw: Any) -> dict[str, Any]:
-    from aeropend_ident.csv_import import import_csv
+    from aeropend_ident.io.csv_import import import_csv
 
     rec = import_csv(path, preset)
     train, _ = rec.split(0.7)

@@ -1,6 +1,6 @@
 """Sparse identification on real recordings, validated on held-out data (issue 4, item 10).
 
-Runs :mod:`aeropend_ident.real_ident` on the AeroShield APRBS run, the four BA-Etchepareborda
+Runs :mod:`real_cases` (``bench/real_cases.py``) on the AeroShield APRBS run, the four BA-Etchepareborda
 open-loop runs and the YangZhu Quanser AERO pitch step (data read from ``../shared/data/real``,
 never copied), and the grey-box baseline on AeroShield for comparison. Writes
 ``bench/results/ident_real.json`` and ``.md`` and plots ``docs/results/ident_<case>_{coef,deriv,
@@ -21,9 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.ident_plots import plot_coefficients, plot_derivatives, plot_free_run
-from aeropend_ident.jsonutil import jsonable
-from aeropend_ident.real_ident import (
+from aeropend_ident.io.jsonutil import jsonable
+from aeropend_ident.sindy.plots import plot_coefficients, plot_derivatives, plot_free_run
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from real_cases import (
     ETCHEPAREBORDA_RUNS,
     CaseResult,
     aeroshield_case,
@@ -70,9 +72,10 @@ def _case_entry(res: CaseResult, seconds: float) -> dict[str, Any]:
 
 
 def _baseline_aeroshield(real: Path) -> dict[str, Any]:
-    from aeropend_ident.baseline import run_baseline
-    from aeropend_ident.csv_import import import_csv
-    from aeropend_ident.real_ident import AEROSHIELD
+    from real_cases import AEROSHIELD
+
+    from aeropend_ident.greybox.baseline import run_baseline
+    from aeropend_ident.io.csv_import import import_csv
 
     rec = import_csv(real / AEROSHIELD, "aeroshield_ident")
     rep = run_baseline(rec, "aeroshield_rig")
@@ -85,8 +88,8 @@ def _thesis_sim_reference() -> dict[str, Any]:
     import shutil
     import tempfile
 
-    from aeropend_ident.bags import write_bag
-    from aeropend_ident.identify import identify
+    from aeropend_ident.io.bag_writer import write_bag
+    from aeropend_ident.sindy.identify import identify
     from aeropend_sim.excitation import aprbs
     from aeropend_sim.params import load_rig
     from aeropend_sim.recording import Recording

@@ -50,9 +50,9 @@ sys.path.insert(0, str(ROOT / "test"))
 import truth_plant as tp  # noqa: E402
 from truth_support import lab_rig_doc, write_rig  # noqa: E402
 
-from aeropend_ident import csv_import  # noqa: E402
-from aeropend_ident.csv_import import CsvSpec  # noqa: E402
-from aeropend_ident.identify import identify  # noqa: E402
+from aeropend_ident.io import csv_import  # noqa: E402
+from aeropend_ident.io.csv_import import CsvSpec  # noqa: E402
+from aeropend_ident.sindy.identify import identify  # noqa: E402
 from aeropend_sim.excitation import density_modulated_prbs  # noqa: E402
 from aeropend_sim.params import load_rig  # noqa: E402
 
@@ -126,11 +126,11 @@ def _score(model_yaml: dict[str, Any], truth: dict[str, dict[str, float]]) -> di
 def _removal_effects(out: Path, model_yaml: dict[str, Any], spurious: dict[str, list[str]],
                      base_nrmse: float) -> list[dict[str, Any]]:
     """Held-out free-run NRMSE(range) of θ with each spurious term's coefficient set to zero."""
-    from aeropend_ident.identify import data_from_recording
-    from aeropend_ident.libraries import CandidateLibrary, physics_library, physics_structured_library
-    from aeropend_ident.partial import nrmse_range
-    from aeropend_ident.recording_input import load_recording
-    from aeropend_ident.sindy import SindyModel, free_run
+    from aeropend_ident.io.recording_input import load_recording
+    from aeropend_ident.sindy.identify import data_from_recording
+    from aeropend_ident.sindy.libraries import CandidateLibrary, physics_library, physics_structured_library
+    from aeropend_ident.sindy.model import SindyModel, free_run
+    from aeropend_ident.sindy.partial import nrmse_range
 
     names = model_yaml["library"]
     pool = physics_library(extras=("omega_abs", "sign_theta_dot"))
@@ -162,11 +162,11 @@ def _removal_effects(out: Path, model_yaml: dict[str, Any], spurious: dict[str, 
 
 def run_pendulum(log: Path, preset: str, rig_path: Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """θ̈ alone on a recorded CSV: (model-file-like dict, summary-like dict)."""
-    from aeropend_ident.identify import data_from_recording
-    from aeropend_ident.partial import nrmse_range
-    from aeropend_ident.recording_input import load_recording
-    from aeropend_ident.second_order import fit_pendulum
-    from aeropend_ident.sindy import free_run, model_to_dict
+    from aeropend_ident.io.recording_input import load_recording
+    from aeropend_ident.sindy.identify import data_from_recording
+    from aeropend_ident.sindy.model import free_run, model_to_dict
+    from aeropend_ident.sindy.partial import nrmse_range
+    from aeropend_ident.sindy.second_order import fit_pendulum
 
     rec = load_recording(log, preset, "")
     data = data_from_recording(rec, load_rig(str(rig_path)))

@@ -2,7 +2,7 @@
 
 Bag: ``thesis_sim`` with sensor noise at 50 dB SNR (noise seed 7), APRBS duty cycle 60 s, levels
 0.2-0.9, holds 20-300 ms, seed 1 (the excitation of ``test/test_ident_identify.py``, three times as
-long), written as a contract bag (mcap) with :func:`aeropend_ident.bags.write_bag`.
+long), written as a contract bag (mcap) with :func:`aeropend_ident.io.bag_writer.write_bag`.
 
 The command ``.venv/bin/identify BAG --rig thesis_sim --out DIR [--no-plots]`` (default method:
 weak form, structured library, λ by BIC over 7 values) runs as a subprocess ``--repeats`` times
@@ -44,7 +44,7 @@ NOISE_SEED = 7
 
 def make_bag(path: Path) -> Path:
     """Simulate the 60 s, 490 Hz, 50 dB thesis_sim run and write it as a contract bag."""
-    from aeropend_ident.bags import write_bag
+    from aeropend_ident.io.bag_writer import write_bag
     from aeropend_sim.excitation import aprbs
     from aeropend_sim.params import load_rig
     from aeropend_sim.recording import Recording
@@ -71,7 +71,7 @@ def run_once(exe: Path, bag: Path, out: Path, plots: bool, src: Path | None = No
     if src is None:
         cmd = [str(exe), *args]
     else:  # the same entry point, importing the packages of the older revision
-        code = "import sys; from aeropend_ident.identify import main; sys.exit(main())"
+        code = "import sys; from aeropend_ident.sindy.identify import main; sys.exit(main())"
         cmd = [sys.executable, "-c", code, *args]
         env["PYTHONPATH"] = os.pathsep.join(str(src / "src" / p) for p in ("aeropend_ident", "aeropend_sim"))
     load = os.getloadavg()

@@ -1,9 +1,9 @@
 """Benchmark: CSV import and contract-bag write/read throughput.
 
-* CSV import (:func:`aeropend_ident.csv_import.import_csv`) in rows/s on the real jahoyosr
+* CSV import (:func:`aeropend_ident.io.csv_import.import_csv`) in rows/s on the real jahoyosr
   Hoja3 log (15 555 rows, read from ``../shared/data/real``; skipped when absent) and on a
   synthetic 1e6-row file (3 columns, like a 490 Hz log of 34 min).
-* Bag write (:func:`aeropend_ident.bags.write_bag`) and read (:func:`read_bag`) in samples/s
+* Bag write (:func:`aeropend_ident.io.bag_writer.write_bag`) and read (:func:`read_bag`) in samples/s
   (one sample = joint_states + armature + duty_cycle messages) for MCAP and SQLite3, on a
   600 s thesis-rate recording (292 969 samples) with all channels; the read also with the
   per-message ``typestore`` decoder for comparison.
@@ -26,8 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.bags import read_bag, write_bag
-from aeropend_ident.csv_import import CsvSpec, import_csv
+from aeropend_ident.io.bag_writer import write_bag
+from aeropend_ident.io.bags import read_bag
+from aeropend_ident.io.csv_import import CsvSpec, import_csv
 from aeropend_sim.contract import SAMPLE_PERIOD_S
 from aeropend_sim.recording import Recording
 

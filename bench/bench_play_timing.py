@@ -32,7 +32,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 from ros_support import isolated_env, node_command, random_domain, stop
 
-from aeropend_ident.bags import read_bag, write_bag
+from aeropend_ident.io.bag_writer import write_bag
+from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_JOINT_STATES
 from aeropend_sim.recording import Recording
 
@@ -55,10 +56,10 @@ def one_run(tmp: Path, src: Recording, bag: Path, rate: float, k: int) -> dict:
 
     out = tmp / f"rec_{rate:g}_{k}"
     env = isolated_env(random_domain())
-    rec = subprocess.Popen([*node_command("record", "aeropend_ident.record_node"), "-o", str(out)], env=env,
+    rec = subprocess.Popen([*node_command("record", "aeropend_ident.nodes.record"), "-o", str(out)], env=env,
                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        play = subprocess.run([sys.executable, "-m", "aeropend_ident.play_node", str(bag),
+        play = subprocess.run([sys.executable, "-m", "aeropend_ident.nodes.play", str(bag),
                                "--rate", str(rate), "--wait-for-subscribers", "20"],
                               env=env, capture_output=True, text=True, timeout=60)
         if play.returncode != 0:

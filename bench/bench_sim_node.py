@@ -50,7 +50,7 @@ def run_subscriber(out: Path, duration: float, warmup: float) -> int:
     from sensor_msgs.msg import JointState
 
     from aeropend_sim.contract import TOPIC_JOINT_STATES
-    from aeropend_sim.ros_contract import SAMPLE_SUB_QOS
+    from aeropend_sim.ros.ros_contract import SAMPLE_SUB_QOS
 
     rclpy.init()
     node = rclpy.create_node("bench_subscriber")
@@ -123,7 +123,7 @@ def measure_node(rig: str, rt_priority: int, duration: float, warmup: float) -> 
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "sub.npz"
         node = subprocess.Popen(
-            [*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", f"rig:={rig}",
+            [*node_command("sim_node", "aeropend_sim.ros.sim_node"), "--ros-args", "-p", f"rig:={rig}",
              "-p", "mode:=realtime", "-p", f"rt_priority:={rt_priority}"],
             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
         )

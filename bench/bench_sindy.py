@@ -13,7 +13,7 @@ Split: first 75 % for fitting, last 25 % held out (thesis §5.2.1).
 
 Methods, each with the thesis' 31-term library (``thesis``), the 6-term physics library
 (``physics``: θ̇, sin θ, ω₁², i_a, ω₁, v_a for every equation) and one library per equation
-(``structured``: :func:`aeropend_ident.libraries.structured_library`, 8/5/4 plausible terms):
+(``structured``: :func:`aeropend_ident.sindy.libraries.structured_library`, 8/5/4 plausible terms):
 
 * ``sindy``: strong form; derivatives by Savitzky-Golay with the window chosen by
   cross-validation (noise-free: the exact model derivatives, as in thesis §5.2.1), library on the
@@ -56,28 +56,24 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.libraries import (
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.core import WEAK_IV, fit, select_threshold, sweep_threshold, weak_iv_options
+from aeropend_ident.sindy.libraries import (
     CandidateLibrary,
     collinearity_report,
     physics_library,
     structured_library,
     thesis_library,
 )
-from aeropend_ident.preprocess import add_derivatives
-from aeropend_ident.sindy import (
-    WEAK_IV,
+from aeropend_ident.sindy.model import (
     IdentData,
-    IdentificationError,
     SindyModel,
     data_from_trajectory,
-    fit,
     free_run,
     input_step_mask,
-    select_threshold,
     structure_errors,
-    sweep_threshold,
-    weak_iv_options,
 )
+from aeropend_ident.sindy.preprocess import add_derivatives
 from aeropend_sim.excitation import aprbs, lhs_steps
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulate import simulate
@@ -100,7 +96,7 @@ DISCREPANCY_TRUTH = {"theta_dot": {"sin(θ)": -0.25, "ω₁²": 1.7285 - 1.65}}
 LAMBDAS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
 EXCL = 3
 WEAK = {"K": 300, "H_xt": 0.05}
-#: weak-iv (hold-exact weak form + 2 refinement passes, ridge 1, fixed λ): aeropend_ident.sindy.WEAK_IV
+#: weak-iv (hold-exact weak form + 2 refinement passes, ridge 1, fixed λ): aeropend_ident.sindy.core.WEAK_IV
 IV_LIBS = ("physics", "structured")
 SEEDS = (7, 8, 9)
 

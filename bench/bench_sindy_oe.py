@@ -6,7 +6,7 @@ first 75 % (22.5 s at 490 Hz), measured channels at the given SNR and noise seed
 * ``weak-iv``: ``fit(physics_library(), all four targets, method="weak", refine=2, alpha=1,
   λ=0.1, H_xt=20 ms)``;
 * ``weak-iv + OE``: the same model, then
-  :func:`aeropend_ident.output_error.refine_output_error` on di_a/dt and dω₁/dt (structure kept,
+  :func:`aeropend_ident.sindy.output_error.refine_output_error` on di_a/dt and dω₁/dt (structure kept,
   coefficients re-estimated by simulation-error minimisation, 0.5 s multiple-shooting windows;
   this run drives the simulation with the fitted v_a(τ), ``clean_inputs=True``;
   ``--measured-va`` with the measured v_a, the library default).
@@ -37,8 +37,8 @@ ROOT = Path(__file__).resolve().parent
 sys.path.insert(0, str(ROOT.parent / "test"))
 from test_ident_noise import TRUTH, _data, _fit  # noqa: E402
 
-from aeropend_ident.output_error import refine_output_error  # noqa: E402
-from aeropend_ident.sindy import structure_errors  # noqa: E402
+from aeropend_ident.sindy.model import structure_errors  # noqa: E402
+from aeropend_ident.sindy.output_error import refine_output_error  # noqa: E402
 from aeropend_sim.excitation import aprbs, density_modulated_prbs  # noqa: E402
 
 OUT = ROOT / "results"

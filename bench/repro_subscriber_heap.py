@@ -58,9 +58,9 @@ def run(domain: int, seconds: float, freeze: bool, force: bool) -> dict:
     from sensor_msgs.msg import BatteryState, JointState
 
     from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_JOINT_STATES
-    from aeropend_sim.ros_contract import SAMPLE_SUB_QOS
+    from aeropend_sim.ros.ros_contract import SAMPLE_SUB_QOS
 
-    args = [*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", "rig:=thesis_sim",
+    args = [*node_command("sim_node", "aeropend_sim.ros.sim_node"), "--ros-args", "-p", "rig:=thesis_sim",
             "-p", "mode:=realtime", "-p", "rt_priority:=20"]
     proc = subprocess.Popen(args, env=isolated_env(domain), stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)

@@ -37,7 +37,7 @@ def main() -> int:
     from std_msgs.msg import Float64
 
     from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
-    from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
+    from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
 
     domain = random_domain(101, 200)
     plant = subprocess.Popen([*node_command("sim_node"), "--ros-args", "-p", "mode:=realtime"],

@@ -13,7 +13,7 @@ This script makes the reader's process unschedulable deterministically: a listen
 publishes ``--count`` messages (reliable keep-all) and exits, then the listener is continued and
 counts what arrives. ``--wait none`` exits right after publishing (the old plant),
 ``--wait 2`` waits up to 2 s for acknowledgements (the old excitation), ``--wait node_shell`` uses
-:func:`aeropend_sim.node_shell.wait_acknowledged` (the fix). The listener is stopped for
+:func:`aeropend_sim.ros.node_shell.wait_acknowledged` (the fix). The listener is stopped for
 ``--stall`` seconds in every mode. Results: ``bench/results/repro_writer_exit.json``::
 
     .venv/bin/python bench/repro_writer_exit.py --runs 5
@@ -74,7 +74,7 @@ def writer(count: int, wait: str) -> int:
     from rclpy.duration import Duration
     from std_msgs.msg import Float64
 
-    from aeropend_sim.node_shell import wait_acknowledged
+    from aeropend_sim.ros.node_shell import wait_acknowledged
 
     rclpy.init()
     node = rclpy.create_node("repro_writer")

@@ -34,8 +34,8 @@ def truth_csv_preset(monkeypatch: pytest.MonkeyPatch) -> Callable[..., str]:
     Call it with a preset name and the extra channels to read (default i_a, v_a, ω₁); it returns
     the name (for ``FILE.csv:NAME`` arguments). The preset is removed after the test.
     """
-    from aeropend_ident import csv_import
-    from aeropend_ident.csv_import import CsvSpec
+    from aeropend_ident.io import csv_import
+    from aeropend_ident.io.csv_import import CsvSpec
 
     def register(name: str, channels: Sequence[str] = tuple(TRUTH_CSV_COLUMNS)) -> str:
         spec = CsvSpec(angle_col="theta_rad", angle_unit="rad", time_col="time_s", time_unit="s",

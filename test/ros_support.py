@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING
 
 import pytest
 
-from aeropend_sim.domain import DomainClaim, DomainError, claim_domain
+from aeropend_sim.ros.domain import DomainClaim, DomainError, claim_domain
 
 if TYPE_CHECKING:
     from rclpy.executors import SingleThreadedExecutor
@@ -47,7 +47,7 @@ def random_domain(first: int = 1, last: int = 100) -> int:
     """A ROS_DOMAIN_ID in ``first..last`` claimed for the rest of this process.
 
     The ID is drawn from the OS entropy source among the IDs no other aeropend process on this
-    host holds (:func:`aeropend_sim.domain.claim_domain`: a lock file per ID), so a test and a
+    host holds (:func:`aeropend_sim.ros.domain.claim_domain`: a lock file per ID), so a test and a
     benchmark running at the same time never share a domain (two random draws did once and saw
     each other's commands). The claim is kept until this process exits.
 

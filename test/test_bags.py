@@ -11,8 +11,10 @@ import yaml
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
-from aeropend_ident import bags
-from aeropend_ident.bags import BagError, read_bag, write_bag
+from aeropend_ident.errors import BagError
+from aeropend_ident.io import bag_codec, bags
+from aeropend_ident.io.bag_writer import write_bag
+from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import (
     TOPIC_ARMATURE,
     TOPIC_DUTY_CYCLE,
@@ -52,7 +54,7 @@ def _f32(x: np.ndarray) -> np.ndarray:
 def _messages(path: Path) -> dict[str, list[tuple[int, object]]]:
     """topic -> [(log time, message)] read with rosbags' own deserialiser."""
     out: dict[str, list[tuple[int, object]]] = {}
-    with AnyReader([path], default_typestore=bags.typestore()) as reader:
+    with AnyReader([path], default_typestore=bag_codec.typestore()) as reader:
         for conn, logtime, raw in reader.messages():
             out.setdefault(conn.topic, []).append((logtime, reader.deserialize(raw, conn.msgtype)))
     return out
@@ -170,13 +172,13 @@ def test_rclpy_serialized_messages_decode_vectorized() -> None:
     """Fast-CDR (rclpy) leaves garbage in alignment padding: the vectorised decoder must accept it."""
     serialization = pytest.importorskip("rclpy.serialization")
     from aeropend_sim.contract import Sample
-    from aeropend_sim.ros_contract import sample_to_msgs
+    from aeropend_sim.ros.ros_contract import sample_to_msgs
 
     samples = [Sample(stamp_ns=STAMP0 + k * 2_048_000, theta=0.01 * k, theta_dot=-0.5, omega_rotor=310.0 + k,
                       i_a=0.75, v_a=1.5, duty=0.4) for k in range(50)]
     pairs = [sample_to_msgs(s) for s in samples]
-    js = bags.decode_joint_states([serialization.serialize_message(p[0]) for p in pairs])
-    arm = bags.decode_armature([serialization.serialize_message(p[1]) for p in pairs])
+    js = bag_codec.decode_joint_states([serialization.serialize_message(p[0]) for p in pairs])
+    arm = bag_codec.decode_armature([serialization.serialize_message(p[1]) for p in pairs])
     assert js.fallback == 0 and arm.fallback == 0
     assert np.array_equal(js.columns["theta"], [s.theta for s in samples])
     assert np.array_equal(js.columns["omega_rotor"], [s.omega_rotor for s in samples])
@@ -188,7 +190,7 @@ def test_rclpy_serialized_messages_decode_vectorized() -> None:
 def _raw_bag(path: Path, js: list[tuple[int, bytes]], arm: list[tuple[int, bytes]] = (),
              cmd: list[tuple[int, bytes]] = ()) -> Path:
     """Hand-built bag with arbitrary message lists (log time, raw CDR)."""
-    ts = bags.typestore()
+    ts = bag_codec.typestore()
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
         for topic, typ, items in ((TOPIC_JOINT_STATES, TYPE_JOINT_STATES, js),
                                   (TOPIC_ARMATURE, TYPE_ARMATURE, arm),
@@ -204,7 +206,7 @@ def _raw_bag(path: Path, js: list[tuple[int, bytes]], arm: list[tuple[int, bytes
 def _js(stamps: np.ndarray, theta: np.ndarray, effort: np.ndarray) -> list[bytes]:
     n = len(stamps)
     nan = np.full(n, np.nan)
-    return bags.encode_joint_states(stamps, np.column_stack([theta, nan, nan]),
+    return bag_codec.encode_joint_states(stamps, np.column_stack([theta, nan, nan]),
                                     np.column_stack([nan, nan, nan]), np.column_stack([nan, effort, nan]))
 
 
@@ -216,7 +218,7 @@ def test_unmatched_armature_kept_with_nan_and_counted(tmp_path: Path) -> None:
     keep = [k for k in range(n) if k not in (4, 9, 10)]
     arm_stamps = np.concatenate([stamps[keep], [stamps[-1] + 5]])  # plus one armature with no sample
     volts = np.concatenate([1.0 + 0.1 * np.array(keep), [9.0]])
-    arm = bags.encode_armature(arm_stamps, volts, np.full(len(arm_stamps), 0.5))
+    arm = bag_codec.encode_armature(arm_stamps, volts, np.full(len(arm_stamps), 0.5))
     path = _raw_bag(tmp_path / "gap", list(zip(stamps.tolist(), js, strict=True)),
                     list(zip(arm_stamps.tolist(), arm, strict=True)))
     rec = read_bag(path)
@@ -236,7 +238,7 @@ def test_duty_from_commands_only(tmp_path: Path) -> None:
     stamps = STAMP0 + np.arange(n, dtype=np.int64) * 20_000_000
     js = _js(stamps, np.zeros(n), np.full(n, np.nan))
     cmd_times = [STAMP0 - 1, STAMP0 + 45_000_000, STAMP0 + 100_000_000]  # before s0, between s2/s3, at s5
-    cmds = bags.encode_float64(np.array([0.1, 0.2, 0.3]))
+    cmds = bag_codec.encode_float64(np.array([0.1, 0.2, 0.3]))
     path = _raw_bag(tmp_path / "cmd", list(zip(stamps.tolist(), js, strict=True)),
                     cmd=list(zip(cmd_times, cmds, strict=True)))
     rec = read_bag(path)
@@ -320,8 +322,8 @@ def test_republished_identical_samples_are_dropped(tmp_path: Path) -> None:
 
 def test_missing_joint_states_topic_named(tmp_path: Path) -> None:
     stamps = STAMP0 + np.arange(5, dtype=np.int64)
-    arm = bags.encode_armature(stamps, np.ones(5), np.ones(5))
-    ts = bags.typestore()
+    arm = bag_codec.encode_armature(stamps, np.ones(5), np.ones(5))
+    ts = bag_codec.typestore()
     path = tmp_path / "armonly"
     with Writer(path, version=9, storage_plugin=StoragePlugin.SQLITE3) as w:
         conn = w.add_connection(TOPIC_ARMATURE, TYPE_ARMATURE, typestore=ts)
@@ -402,10 +404,10 @@ def test_write_refuses_to_clobber(tmp_path: Path) -> None:
 def test_dds_padded_payloads_decode_vectorized() -> None:
     """Messages recorded from DDS are padded to a multiple of 4 bytes; the fast path must accept them."""
     stamps = STAMP0 + np.arange(30, dtype=np.int64) * 2_048_000
-    raws = bags.encode_armature(stamps, np.linspace(1.0, 2.0, 30), np.full(30, 0.5))
+    raws = bag_codec.encode_armature(stamps, np.linspace(1.0, 2.0, 30), np.full(30, 0.5))
     assert len(raws[0]) % 4 != 0
     padded = [r + b"\x00" * (-len(r) % 4) for r in raws]
-    dec = bags.decode_armature(padded)
+    dec = bag_codec.decode_armature(padded)
     assert dec.fallback == 0
     assert np.array_equal(dec.columns["v_a"], np.linspace(1.0, 2.0, 30).astype(np.float32).astype(float))
     assert np.array_equal(dec.columns["stamp"], stamps)

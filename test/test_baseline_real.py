@@ -27,10 +27,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeropend_ident.baseline import measured_rate, residual_regions
-from aeropend_ident.baseline_cli import main
-from aeropend_ident.csv_import import import_csv
-from aeropend_ident.greybox import error_metrics, free_run, rig_theta_offset, uniform_data
+from aeropend_ident.cli.baseline import main
+from aeropend_ident.greybox.baseline import measured_rate, residual_regions
+from aeropend_ident.greybox.fit import error_metrics, free_run_theta, rig_theta_offset, uniform_data
+from aeropend_ident.io.csv_import import import_csv
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
@@ -192,7 +192,7 @@ def test_fitted_rig_file_loads_and_reproduces_held_out_metric(hoja3):
     rec = import_csv(HOJA3, "jahoyosr_hoja3")
     _, held = rec.split(0.7)
     data = uniform_data(held, dt=hoja3["provenance"]["recording"]["fit_grid_dt_s"], min_samples=10)
-    nrmse = error_metrics(data.theta, free_run(fitted, data, offset))["nrmse"]
+    nrmse = error_metrics(data.theta, free_run_theta(fitted, data, offset))["nrmse"]
     assert nrmse == pytest.approx(hoja3["metrics"]["heldout"]["fitted"]["nrmse"], rel=1e-9)
 
 
@@ -200,7 +200,7 @@ def test_fitted_rig_file_loads_and_reproduces_held_out_metric(hoja3):
 def test_cli_on_a_bag_recovers_the_simulated_rig(tmp_path):
     """Simulate a rig that differs from the nominal aeroshield_rig, write a contract bag, run the
     CLI on the bag: the fit recovers the simulated pendulum and the held-out error vanishes."""
-    from aeropend_ident.bags import write_bag
+    from aeropend_ident.io.bag_writer import write_bag
 
     nominal = load_rig("aeroshield_rig")
     truth = nominal.with_params("pendulum", mgd_over_J=78.0, c_over_J=4.0, L_over_J=1700.0)

@@ -35,7 +35,7 @@ from std_msgs.msg import Float64
 from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_bridge.protocol import Duty, Enable
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
+from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(90)]
 BRIDGE = node_command("bridge", "aeropend_bridge.bridge_node")

@@ -30,7 +30,7 @@ from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_bridge.protocol import Duty
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.params import load_rig
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS, sample_from_msgs
+from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS, sample_from_msgs
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
 BRIDGE = node_command("bridge", "aeropend_bridge.bridge_node")

@@ -33,7 +33,7 @@ from std_msgs.msg import Float64
 from aeropend_bridge.simavr_harness import read_pty_path
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.params import load_rig
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
+from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
 
 ROOT = Path(__file__).resolve().parents[1]
 FW = ROOT / "firmware"

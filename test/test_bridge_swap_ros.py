@@ -50,7 +50,7 @@ def test_same_controller_against_sim_and_bridge(tmp_path: Path) -> None:
     rig = load_rig("thesis_rig")
     # (a) simulated plant
     env = isolated_env(random_domain(101, 200))
-    sim = subprocess.Popen([*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args",
+    sim = subprocess.Popen([*node_command("sim_node", "aeropend_sim.ros.sim_node"), "--ros-args",
                             "-p", "rig:=thesis_rig"], env=env, stdout=subprocess.DEVNULL,
                            stderr=subprocess.DEVNULL)
     try:

@@ -19,15 +19,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeropend_ident.compare import CompareError, channel_scores, compare, load_model, step_metrics
-from aeropend_ident.compare_cli import main
-from aeropend_ident.csv_import import PRESETS
-from aeropend_ident.recording_input import (
-    RecordingInputError,
-    load_recording,
-    split_preset,
-    uniform_recording,
-)
+from aeropend_ident.cli.compare import main
+from aeropend_ident.errors import CompareError, RecordingInputError
+from aeropend_ident.gap.compare import channel_scores, compare, load_model, step_metrics
+from aeropend_ident.io.csv_import import PRESETS
+from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
 from aeropend_sim.recording import Recording
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,16 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeropend_ident.bags import read_bag
-from aeropend_ident.csv_import import (
-    PRESETS,
-    CsvImportError,
-    CsvSpec,
-    find_preset,
-    import_csv,
-    import_csv_runs,
-    main,
-)
+from aeropend_ident.cli.csv_import import main
+from aeropend_ident.errors import CsvImportError
+from aeropend_ident.io.bags import read_bag
+from aeropend_ident.io.csv_import import PRESETS, CsvSpec, find_preset, import_csv, import_csv_runs
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 HOJA3 = REAL / "jahoyosr__Aeropendulum" / "sheet_Hoja3_pwm_steps_openloop.csv"
@@ -169,6 +163,23 @@ def test_presets_found_by_file_name() -> None:
     for name, spec in PRESETS.items():
         assert spec.name == name
         assert spec.meta["licence"] and spec.meta["provenance"].startswith("https://github.com/")
+
+
+def test_presets_are_yaml_package_data() -> None:
+    """Every preset is one YAML file in ``aeropend_ident/io/presets`` and loads to a valid spec."""
+    from importlib import resources
+
+    from aeropend_ident.io.csv_import import load_presets
+
+    files = sorted(e.name for e in (resources.files("aeropend_ident.io") / "presets").iterdir()
+                   if e.name.endswith(".yaml"))
+    assert files == sorted(f"{name}.yaml" for name in PRESETS)
+    assert load_presets() == PRESETS
+    for name, spec in PRESETS.items():
+        spec.check()
+        assert spec.name == name and spec.meta["files"] and spec.meta["licence"]
+        assert all(isinstance(col, str) and isinstance(scale, float) for col, scale in spec.channels.values())
+    assert PRESETS["yangzhu_pitch_step"].channels["omega_rotor"] == ("tach_pitch_motor", 2 * math.pi / 2048)
 
 
 @real_data

@@ -8,7 +8,7 @@ import sys
 
 import pytest
 
-from aeropend_sim.domain import DomainError, claim_domain
+from aeropend_sim.ros.domain import DomainError, claim_domain
 
 
 @pytest.fixture(autouse=True)
@@ -30,7 +30,7 @@ def test_claims_in_one_range_are_distinct_until_released():
 
 
 def test_a_claim_held_by_another_process_is_skipped_and_freed_when_it_exits():
-    code = ("import sys; from aeropend_sim.domain import claim_domain; c = claim_domain(20, 20); "
+    code = ("import sys; from aeropend_sim.ros.domain import claim_domain; c = claim_domain(20, 20); "
             "print(c.domain_id, flush=True); sys.stdin.read()")
     holder = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                               text=True)

@@ -12,14 +12,14 @@ import pytest
 from ros_support import isolate_process, isolated_env, node_command, private_node, random_domain, reap, stop
 
 from aeropend_sim.excitation import ExcitationError, lhs_steps, make_signal, staircase
-from aeropend_sim.excitation_node import (
+from aeropend_sim.params import shipped_rigs
+from aeropend_sim.ros.excitation_node import (
     LockstepFeeder,
     build_arg_parser,
     resolve_config,
     ros_param_overrides,
     strip_ros_args,
 )
-from aeropend_sim.params import shipped_rigs
 
 RIG = "thesis_rig" if "thesis_rig" in shipped_rigs() else "thesis_sim"
 PERIOD_NS = 2_048_000
@@ -89,7 +89,7 @@ def test_ros_param_overrides_syntax_error():
 # ------------------------------------------------------------------------------------- --print
 def test_print_outputs_csv_without_ros():
     out = subprocess.run(
-        [*node_command("excitation", "aeropend_sim.excitation_node"), "--print", "--ros-args",
+        [*node_command("excitation", "aeropend_sim.ros.excitation_node"), "--print", "--ros-args",
          "-p", "signal:=prbs", "-p", "order:=4", "-p", "clock:=2", "-p", "seed:=3"],
         capture_output=True, text=True, timeout=60, check=True,
     )
@@ -101,7 +101,7 @@ def test_print_outputs_csv_without_ros():
 
 def test_print_bad_signal_exits_2():
     out = subprocess.run(
-        [*node_command("excitation", "aeropend_sim.excitation_node"), "--print", "--signal", "staircase",
+        [*node_command("excitation", "aeropend_sim.ros.excitation_node"), "--print", "--signal", "staircase",
          "--levels", "0.2", "1.4", "--hold", "1"],
         capture_output=True, text=True, timeout=60,
     )
@@ -116,7 +116,7 @@ def test_lockstep_plant_excitation_ping_pong(monkeypatch):
     pytest.importorskip("rclpy")
     from sensor_msgs.msg import JointState
 
-    from aeropend_sim.ros_contract import SAMPLE_QOS_LOCKSTEP
+    from aeropend_sim.ros.ros_contract import SAMPLE_QOS_LOCKSTEP
 
     domain = random_domain()
     isolate_process(monkeypatch, domain)
@@ -132,7 +132,7 @@ def test_lockstep_plant_excitation_ping_pong(monkeypatch):
     with private_node("ping_pong_observer", domain) as (node, ex):
         node.create_subscription(JointState, "/aeropend/joint_states", on_js, SAMPLE_QOS_LOCKSTEP)
         plant = subprocess.Popen(
-            [*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", f"rig:={RIG}",
+            [*node_command("sim_node", "aeropend_sim.ros.sim_node"), "--ros-args", "-p", f"rig:={RIG}",
              "-p", "mode:=lockstep"],
             env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         )
@@ -143,7 +143,7 @@ def test_lockstep_plant_excitation_ping_pong(monkeypatch):
                 ex.spin_once(timeout_sec=0.01)
             assert 0 in seen, "plant sample 0 not received within 20 s"
             exc = subprocess.Popen(
-                [*node_command("excitation", "aeropend_sim.excitation_node"), "--signal", "staircase",
+                [*node_command("excitation", "aeropend_sim.ros.excitation_node"), "--signal", "staircase",
                  "--levels", "0.45", "0.3", "0.55", "--hold", "0.2", "0.1", "0.15", "--mode", "lockstep"],
                 env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
             )

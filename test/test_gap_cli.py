@@ -18,8 +18,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from aeropend_ident.bags import write_bag
-from aeropend_ident.gap_cli import main
+from aeropend_ident.cli.gap import main
+from aeropend_ident.io.bag_writer import write_bag
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
@@ -125,7 +125,7 @@ def test_split_rule_and_ros2_entry_point(bags, tmp_path):
         [
             sys.executable,
             "-m",
-            "aeropend_ident.gap_cli",
+            "aeropend_ident.cli.gap",
             str(bags["fit"]),
             "--rig",
             "thesis_rig",
@@ -150,7 +150,7 @@ def test_split_rule_and_ros2_entry_point(bags, tmp_path):
     assert len(rep["headline"]["effects_chosen"]) == 1
     # console script registered in setup.py (so `ros2 run aeropend_ident gap` finds it)
     setup = (Path(__file__).resolve().parents[1] / "src" / "aeropend_ident" / "setup.py").read_text()
-    assert "'gap = aeropend_ident.gap_cli:main'" in setup
+    assert "'gap = aeropend_ident.cli.gap:main'" in setup
     exe = shutil.which("gap") or str(Path(sys.executable).parent / "gap")
     if Path(exe).exists():
         assert subprocess.run([exe, "--help"], capture_output=True, timeout=60).returncode == 0
@@ -193,14 +193,14 @@ def test_error_exits(bags, tmp_path, capsys):
 
 def test_block_design_and_its_errors(bags, tmp_path, capsys):
     """--blocks: every 3rd block of the fit bag (24 s) held out; bad block options exit 2."""
-    from aeropend_ident.gap_cli import prepare
+    from aeropend_ident.io.recording_input import load_and_split
 
-    fit, held, rule = prepare([bags["fit"]], None, 0.7, None, blocks=4.0)
+    fit, held, rule = load_and_split([bags["fit"]], None, 0.7, None, blocks=4.0)
     assert (len(fit), len(held)) == (4, 2) and all(len(r) == 400 for r in (*fit, *held))
     assert rule.startswith("interleaved blocks of 4 s: every 3rd block")
-    _f, held2, _r = prepare([bags["fit"]], None, 0.7, None, blocks=4.0, block_every=2)
+    _f, held2, _r = load_and_split([bags["fit"]], None, 0.7, None, blocks=4.0, block_every=2)
     assert len(held2) == 3
-    fit0, held0, rule0 = prepare([bags["fit"]], None, 0.7, None, blocks=4.0, block_offset=0)
+    fit0, held0, rule0 = load_and_split([bags["fit"]], None, 0.7, None, blocks=4.0, block_offset=0)
     assert (len(fit0), len(held0)) == (4, 2) and "(from the 1st)" in rule0
     assert not {h.source for h in held0} & {h.source for h in held}  # another fold
     out = str(tmp_path / "o")
@@ -219,8 +219,8 @@ def test_block_design_and_its_errors(bags, tmp_path, capsys):
 
 
 def test_validation_split_rules():
-    from aeropend_ident.gap_report import MIN_PART, validation_split
-    from aeropend_ident.gap_where import GapInputError
+    from aeropend_ident.errors import GapInputError
+    from aeropend_ident.io.split import MIN_PART, validation_split
 
     long = _recording(6, 20.0)  # 2000 samples, APRBS: both parts excited
     core, val = validation_split([long], 0.3)

@@ -18,7 +18,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from aeropend_ident.gap_drift import DRIFT_PRIOR, DRIFT_Z, draw_log_changes, drift_rows, drift_set
+from aeropend_ident.gap.drift import DRIFT_PRIOR, DRIFT_Z, draw_log_changes, drift_rows, drift_set
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
@@ -95,7 +95,7 @@ def _sessions(seed: int) -> dict:
 
 @pytest.mark.slow
 def test_drift_table_names_a_supply_voltage_drop_from_the_recorded_armature_voltage() -> None:
-    from aeropend_ident.gap_drift import drift_table
+    from aeropend_ident.gap.drift import drift_table
     from aeropend_sim.params import rig_from_dict
 
     # a battery 12 % lower on the second day; the rig file knows no friction error, so the drift
@@ -114,7 +114,7 @@ def test_drift_table_names_a_supply_voltage_drop_from_the_recorded_armature_volt
 
 @pytest.mark.slow
 def test_prediction_split_and_drift_table_on_a_drifting_second_session() -> None:
-    from aeropend_ident.gap_report import run_gap
+    from aeropend_ident.gap.run import run_gap
     from aeropend_sim.params import rig_from_dict
 
     s = _sessions(700)
@@ -152,7 +152,7 @@ def test_cli_sessions_leave_one_out_and_drift_table(tmp_path: Path, capsys: pyte
                                                     truth_csv_preset: Callable[..., str]) -> None:
     import yaml
 
-    from aeropend_ident.gap_cli import main
+    from aeropend_ident.cli.gap import main
 
     s = _sessions(800)
     later = tp.record(s["b"], tp.lhs_steps(30.0, seed=810), 50.0, 811)

@@ -1,7 +1,7 @@
 """Catalog of candidate effects for the gap diagnosis: switching, bounds, validation, recovery.
 
 Each catalog effect is recovered by the grey-box output-error fit of
-:func:`aeropend_ident.gap_which.fit_effects` on a short synthetic recording of the nominal rig
+:func:`aeropend_ident.gap.which.fit_effects` on a short synthetic recording of the nominal rig
 with that effect added at a known magnitude.
 """
 
@@ -12,20 +12,20 @@ import math
 import numpy as np
 import pytest
 
-from aeropend_ident.gap_effects import (
+from aeropend_ident.errors import GapError
+from aeropend_ident.gap.effects import (
     CATALOG,
     EFFECTS,
     EffectContext,
-    GapError,
     MeasurementMap,
     apply_effects,
     check_recordings,
     get_effect,
     identifiable,
 )
-from aeropend_ident.gap_synth import record
-from aeropend_ident.gap_which import FIT_CHANNELS, fit_effects, prepare, residuals
-from aeropend_ident.greybox import motor_equilibrium
+from aeropend_ident.gap.synth import record
+from aeropend_ident.gap.which import FIT_CHANNELS, fit_effects, prepare, residuals
+from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig

@@ -17,11 +17,11 @@ from pathlib import Path
 
 import pytest
 
-from aeropend_ident.csv_import import import_csv, import_csv_runs
-from aeropend_ident.gap_cli import main, resolve_rig
-from aeropend_ident.gap_split import informative, interleaved_blocks
-from aeropend_ident.gap_where import locate_gap
-from aeropend_ident.recording_input import uniform_recording
+from aeropend_ident.cli.gap import main, resolve_rig
+from aeropend_ident.gap.where import locate_gap
+from aeropend_ident.io.csv_import import import_csv, import_csv_runs
+from aeropend_ident.io.recording_input import uniform_recording
+from aeropend_ident.io.split import informative, interleaved_blocks
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 AEROSHIELD = REAL / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"
@@ -96,7 +96,7 @@ def test_aeroshield_blocks_three_effects_halve_the_held_out_gap():
     validation block): measured when written (physical catalog, issue 14) viscous friction
     c/J = 2.45 s⁻¹ (nominal 20), a 0.6 % duty dead zone, rotor inertia J_m × 2.95, held-out NRMSE
     0.0829 -> 0.0374 (55.0 %); the held-out blocks choose and fit nothing."""
-    from aeropend_ident.gap_report import run_gap
+    from aeropend_ident.gap.run import run_gap
 
     nominal, _ = resolve_rig("aeroshield_rig")
     rec = uniform_recording(import_csv(AEROSHIELD, "aeroshield_ident"))
@@ -124,7 +124,7 @@ def test_jahoyosr_diagnosis_carries_to_another_session():
     staircases of another session, which no gap case had replayed. Measured when written (physical
     catalog, issue 14): dry friction T_f/J = 10.6 rad/s² alone, held-out NRMSE 1.957 -> 0.738
     (62.3 %) over 10 staircase pieces; the earlier catalog added a narrower dead zone (73.2 %)."""
-    from aeropend_ident.gap_report import run_gap
+    from aeropend_ident.gap.run import run_gap
 
     nominal, offset = resolve_rig("jahoyosr_rig")
     hoja3 = uniform_recording(import_csv(HOJA3, "jahoyosr_hoja3"))

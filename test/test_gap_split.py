@@ -1,4 +1,4 @@
-"""Held-out designs of the gap diagnosis (aeropend_ident.gap_split): block assignment, the
+"""Held-out designs of the gap diagnosis (aeropend_ident.io.split): block assignment, the
 information rule, runs split at a label column, time-ordered split, and their errors."""
 
 from __future__ import annotations
@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.gap_split import informative, interleaved_blocks, split_runs, time_ordered
+from aeropend_ident.io.split import informative, interleaved_blocks, split_runs, time_ordered
 from aeropend_sim.recording import Recording
 
 DT = 0.01

@@ -22,7 +22,7 @@ from bench_gap_independent import rig_dict, to_recording  # noqa: E402
 
 
 def _diagnose(effects: dict[str, float]):
-    from aeropend_ident.gap_which import diagnose_effects
+    from aeropend_ident.gap.which import diagnose_effects
     from aeropend_sim.params import rig_from_dict
 
     p = tp.PlantParams()

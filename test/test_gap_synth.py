@@ -1,12 +1,12 @@
-"""Blind-benchmark generator and scorer of the gap diagnosis (aeropend_ident.gap_synth)."""
+"""Blind-benchmark generator and scorer of the gap diagnosis (aeropend_ident.gap.synth)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from aeropend_ident.gap_effects import GapError
-from aeropend_ident.gap_synth import (
+from aeropend_ident.errors import GapError
+from aeropend_ident.gap.synth import (
     RELATIVE,
     REST,
     TRUTH_RANGES,
@@ -25,7 +25,7 @@ RIG = load_rig("thesis_rig")
 
 def test_truth_ranges_cover_the_catalog_and_draws_stay_inside():
     rng = np.random.default_rng(0)
-    from aeropend_ident.gap_effects import CATALOG, EFFECTS
+    from aeropend_ident.gap.effects import CATALOG, EFFECTS
 
     assert set(TRUTH_RANGES) == {e.name for e in CATALOG}  # the diagnosis' catalog (not drift-only entries)
     for name, params in TRUTH_RANGES.items():

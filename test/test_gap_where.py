@@ -1,4 +1,4 @@
-"""Where-analysis of the sim-to-real gap (aeropend_ident.gap_where) on synthetic recordings.
+"""Where-analysis of the sim-to-real gap (aeropend_ident.gap.where) on synthetic recordings.
 
 A recording is simulated from the thesis rig with one effect changed (the "real" rig); the
 where-analysis of the *nominal* thesis rig must put the gap in the right subsystem, and a
@@ -12,10 +12,10 @@ import math
 import numpy as np
 import pytest
 
-from aeropend_ident.gap_where import (
+from aeropend_ident.errors import GapInputError
+from aeropend_ident.gap.where import (
     ALPHA,
     THETA_ONLY_CHAIN,
-    GapInputError,
     alignment_lag,
     input_cross_correlation,
     ljung_box,

@@ -1,4 +1,4 @@
-"""Gap diagnosis "which effect" and "how far it shrinks" (aeropend_ident.gap_which).
+"""Gap diagnosis "which effect" and "how far it shrinks" (aeropend_ident.gap.which).
 
 Short synthetic recordings of the thesis rig with a hidden effect: the diagnosis, given only the
 nominal rig and the recordings, must rank the hidden effect first, fit its physical magnitude, write a
@@ -16,9 +16,9 @@ import math
 import numpy as np
 import pytest
 
-from aeropend_ident.gap_effects import GapError
-from aeropend_ident.gap_synth import make_case
-from aeropend_ident.gap_which import detect_quantum, diagnose_effects, group_select
+from aeropend_ident.errors import GapError
+from aeropend_ident.gap.synth import make_case
+from aeropend_ident.gap.which import detect_quantum, diagnose_effects, group_select
 from aeropend_sim.params import load_rig, rig_from_dict
 from aeropend_sim.recording import Recording
 

@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from aeropend_ident.greybox import (
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.greybox.fit import (
     THETA_OFFSET,
-    IdentificationError,
     apply_parameters,
     default_parameters,
     fit_greybox,

@@ -21,7 +21,7 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_ident_noise import TRUTH, _data, _fit, _k_q_error
 
-from aeropend_ident.sindy import structure_errors
+from aeropend_ident.sindy.model import structure_errors
 from aeropend_sim.excitation import density_modulated_prbs
 
 OE = ("i_a", "omega_rotor")

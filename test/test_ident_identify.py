@@ -14,8 +14,8 @@ import yaml
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_ident_noise import TRUTH
 
-from aeropend_ident.bags import write_bag
-from aeropend_ident.identify import main
+from aeropend_ident.cli.identify import main
+from aeropend_ident.io.bag_writer import write_bag
 from aeropend_sim.excitation import aprbs, density_modulated_prbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
@@ -172,7 +172,7 @@ def test_identify_plots_in_child_process_equal_in_process(noisy_run, tmp_path, m
 
     import matplotlib.image as mpimg
 
-    from aeropend_ident import identify as ident
+    from aeropend_ident.sindy import identify as ident
 
     n = 3906  # 8 s at 490 Hz
     rec = Recording.from_trajectory(noisy_run)

@@ -14,9 +14,10 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from aeropend_ident.libraries import thesis_library
-from aeropend_ident.preprocess import add_derivatives
-from aeropend_ident.sindy import IdentData, fit, free_run, structure_errors
+from aeropend_ident.sindy.core import fit
+from aeropend_ident.sindy.libraries import thesis_library
+from aeropend_ident.sindy.model import IdentData, free_run, structure_errors
+from aeropend_ident.sindy.preprocess import add_derivatives
 
 SIGMA, RHO, BETA = 10.0, 28.0, 8.0 / 3.0
 TRUTH = {"x": {"x": -SIGMA, "y": SIGMA}, "y": {"x": RHO, "y": -1.0, "x·z": -1.0},

@@ -13,9 +13,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.libraries import physics_library
-from aeropend_ident.preprocess import differentiate
-from aeropend_ident.sindy import WEAK_IV, data_from_trajectory, fit, structure_errors, weak_iv_options
+from aeropend_ident.sindy.core import WEAK_IV, fit, weak_iv_options
+from aeropend_ident.sindy.libraries import physics_library
+from aeropend_ident.sindy.model import data_from_trajectory, structure_errors
+from aeropend_ident.sindy.preprocess import differentiate
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulate import simulate
@@ -112,7 +113,7 @@ def test_tv_derivative_weight_chosen_by_cross_validation() -> None:
 
 def test_20db_thrust_coefficient_strong_form() -> None:
     """20 dB: the strong form on cross-validated Savitzky-Golay derivatives keeps K_q within 10 %."""
-    from aeropend_ident.preprocess import add_derivatives
+    from aeropend_ident.sindy.preprocess import add_derivatives
 
     raw = _data(20.0, seed=7)
     data = add_derivatives(raw, targets=TARGETS, method="savgol", smooth_variables=True)

@@ -2,7 +2,7 @@
 
 The structure comes from weak-iv (``fit(method="weak", refine=2, alpha=1)``); the non-zero
 coefficients of di_a/dt and dω₁/dt are then re-estimated by minimising the simulation error of
-the recorded i_a and ω₁ (:mod:`aeropend_ident.output_error`). Data, truth and estimator options
+the recorded i_a and ω₁ (:mod:`aeropend_ident.sindy.output_error`). Data, truth and estimator options
 are those of ``test_ident_noise.py`` (30 s APRBS, holds 20-300 ms, first 75 %). Per-seed figures
 at none/50/30/20 dB: bench/results/sindy_oe.md.
 """
@@ -17,8 +17,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_ident_noise import TRUTH, _data, _fit
 
-from aeropend_ident.output_error import refine_output_error
-from aeropend_ident.sindy import IdentificationError, structure_errors
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.model import structure_errors
+from aeropend_ident.sindy.output_error import refine_output_error
 
 OE = ("i_a", "omega_rotor")
 

@@ -5,7 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.partial import (
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.core import fit
+from aeropend_ident.sindy.partial import (
     angle_only_data,
     concat_data,
     lagged_input,
@@ -13,7 +15,6 @@ from aeropend_ident.partial import (
     select_thrust_map,
     static_thrust_library,
 )
-from aeropend_ident.sindy import IdentificationError, fit
 from aeropend_sim.excitation import aprbs, lhs_steps
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.preprocess import differentiate, hampel, moving_average
-from aeropend_ident.sindy import IdentificationError
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.preprocess import differentiate, hampel, moving_average
 
 T = np.arange(0.0, 4.0, 2.048e-3)
 Y = np.sin(2.0 * T) + 0.3 * np.sin(5.0 * T)

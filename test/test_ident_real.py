@@ -22,12 +22,17 @@ Etchepareborda random binary (70/30)       0.0885           replayed on steps 0/
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from aeropend_ident.real_ident import (
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.core import fit
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from real_cases import (
     YANGZHU_STATED,
     aeroshield_case,
     etchepareborda_case,
@@ -35,7 +40,6 @@ from aeropend_ident.real_ident import (
     quasi_static_armature,
     yangzhu_case,
 )
-from aeropend_ident.sindy import IdentificationError, fit
 
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 
@@ -123,7 +127,7 @@ def test_etchepareborda_random_binary_heldout_and_other_run() -> None:
 
 def test_angle_only_log_refuses_current_equation() -> None:
     _, data = etchepareborda_data(REAL, "openloop_gaussian_pwm.csv")
-    from aeropend_ident.partial import static_thrust_library
+    from aeropend_ident.sindy.partial import static_thrust_library
 
     with pytest.raises(IdentificationError, match="needs the state i_a"):
         fit(data, static_thrust_library(), targets=["i_a"], method="weak")

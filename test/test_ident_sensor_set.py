@@ -21,10 +21,11 @@ sys.path.insert(0, str(BENCH))
 import truth_plant as tp  # noqa: E402
 from truth_support import lab_rig_doc, write_rig  # noqa: E402
 
-from aeropend_ident.libraries import lagged_square, pendulum_library, physics_structured_library  # noqa: E402
-from aeropend_ident.second_order import fit_pendulum  # noqa: E402
-from aeropend_ident.sindy import IdentData, IdentificationError  # noqa: E402
-from aeropend_ident.weak_quadrature import SecondOrderTestFunctions  # noqa: E402
+from aeropend_ident.errors import IdentificationError  # noqa: E402
+from aeropend_ident.sindy.libraries import lagged_square, pendulum_library, physics_structured_library  # noqa: E402
+from aeropend_ident.sindy.model import IdentData  # noqa: E402
+from aeropend_ident.sindy.second_order import fit_pendulum  # noqa: E402
+from aeropend_ident.sindy.weak_quadrature import SecondOrderTestFunctions  # noqa: E402
 from aeropend_sim.excitation import density_modulated_prbs  # noqa: E402
 
 P = tp.PlantParams()
@@ -113,7 +114,7 @@ def test_identify_csv_of_the_rig_sensor_set_30db(truth_run, tmp_path, truth_csv_
     exceeded the 600 s test timeout on the loaded 2-core machine."""
     import yaml
 
-    from aeropend_ident.identify import main
+    from aeropend_ident.cli.identify import main
 
     rec = tp.record(tp.TruthPlant(), truth_run["duty"], 30.0, seed=1)
     rec.to_csv(tmp_path / "log.csv")

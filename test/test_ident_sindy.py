@@ -14,19 +14,16 @@ import pytest
 import yaml
 from scipy.integrate import solve_ivp
 
-from aeropend_ident.libraries import collinearity_report, physics_library, structured_library, thesis_library
-from aeropend_ident.preprocess import add_derivatives
-from aeropend_ident.sindy import (
-    IdentData,
-    IdentificationError,
-    data_from_trajectory,
-    fit,
-    free_run,
-    save_model,
-    select_threshold,
-    structure_errors,
-    sweep_threshold,
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.core import fit, select_threshold, sweep_threshold
+from aeropend_ident.sindy.libraries import (
+    collinearity_report,
+    physics_library,
+    structured_library,
+    thesis_library,
 )
+from aeropend_ident.sindy.model import IdentData, data_from_trajectory, free_run, save_model, structure_errors
+from aeropend_ident.sindy.preprocess import add_derivatives
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulate import simulate

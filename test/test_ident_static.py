@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.static import (
-    StaticEstimationError,
+from aeropend_ident.errors import StaticEstimationError
+from aeropend_ident.greybox.static import (
     armature_resistance,
     armature_time_constant,
     back_emf_constant,

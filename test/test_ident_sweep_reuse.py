@@ -15,16 +15,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.libraries import physics_library, structured_library
-from aeropend_ident.preprocess import add_derivatives
-from aeropend_ident.sindy import (
-    IdentificationError,
-    NoEquationError,
-    data_from_trajectory,
-    fit,
-    regression_problem,
-    sweep_threshold,
-)
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.core import fit, regression_problem, sweep_threshold
+from aeropend_ident.sindy.libraries import physics_library, structured_library
+from aeropend_ident.sindy.model import NoEquationError, data_from_trajectory
+from aeropend_ident.sindy.preprocess import add_derivatives
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulate import simulate
@@ -140,8 +135,9 @@ def test_drop_unidentifiable_equations(split) -> None:
 def test_free_run_matches_rk4_reference_and_keeps_library_errors(split) -> None:
     """``free_run``'s hot loop (library row without per-column checks) against a plain RK4 of the
     same identified model written out here, and the library's error for a non-finite column."""
-    from aeropend_ident.libraries import Candidate, CandidateLibrary, LibraryError
-    from aeropend_ident.sindy import SindyModel, free_run
+    from aeropend_ident.errors import LibraryError
+    from aeropend_ident.sindy.libraries import Candidate, CandidateLibrary
+    from aeropend_ident.sindy.model import SindyModel, free_run
 
     train, test = split
     model = fit(train, physics_library(VARIABLES), TARGETS, threshold=0.1, method="weak", K=120, H_xt=0.05)

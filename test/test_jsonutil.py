@@ -5,7 +5,7 @@ import json
 import numpy as np
 import yaml
 
-from aeropend_ident.jsonutil import jsonable
+from aeropend_ident.io.jsonutil import jsonable
 
 
 def test_nested_numpy_and_non_finite_values_become_strict_json() -> None:

@@ -10,8 +10,9 @@ import pytest
 from ros_support import isolate_process, random_domain
 from rosbags.highlevel import AnyReader
 
-from aeropend_ident.bags import read_bag, typestore
-from aeropend_ident.pipeline import main
+from aeropend_ident.cli.pipeline import main
+from aeropend_ident.io.bag_codec import typestore
+from aeropend_ident.io.bags import read_bag
 
 pytestmark = pytest.mark.ros
 

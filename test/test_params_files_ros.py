@@ -26,19 +26,19 @@ from ros_support import isolated_env, node_command, private_node, random_domain,
 from sensor_msgs.msg import JointState
 
 from aeropend_sim.contract import TOPIC_JOINT_STATES
-from aeropend_sim.ros_contract import SAMPLE_QOS_LOCKSTEP
+from aeropend_sim.ros.ros_contract import SAMPLE_QOS_LOCKSTEP
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(120)]
 SRC = Path(__file__).resolve().parents[1] / "src"
 
 #: (package, file, node name, console script, module, overrides given with -p after the file)
 CASES = [
-    ("aeropend_sim", "sim.yaml", "aeropend_sim", "sim_node", "aeropend_sim.sim_node", {}),
+    ("aeropend_sim", "sim.yaml", "aeropend_sim", "sim_node", "aeropend_sim.ros.sim_node", {}),
     ("aeropend_control", "controller.yaml", "aeropend_controller", "controller",
      "aeropend_control.controller_node", {}),
     ("aeropend_bridge", "bridge.yaml", "aeropend_bridge", "bridge", "aeropend_bridge.bridge_node",
      {"autostart": False}),  # no serial device here: stay unconfigured
-    ("aeropend_ident", "record.yaml", "aeropend_recorder", "record", "aeropend_ident.record_node", {}),
+    ("aeropend_ident", "record.yaml", "aeropend_recorder", "record", "aeropend_ident.nodes.record", {}),
 ]
 
 
@@ -96,7 +96,7 @@ def test_params_file_values_drive_the_plant_and_p_after_it_wins(tmp_path: Path) 
     custom = tmp_path / "my_sim.yaml"
     custom.write_text(yaml.safe_dump(doc), encoding="utf-8")
     domain = random_domain(101, 200)
-    proc = subprocess.Popen([*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-r",
+    proc = subprocess.Popen([*node_command("sim_node", "aeropend_sim.ros.sim_node"), "--ros-args", "-r",
                              "__ns:=/rig2", "--params-file", str(custom), "-p", "seed:=11"],
                             env=isolated_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)

@@ -18,7 +18,8 @@ import pytest
 import yaml
 from ros_support import isolated_env, node_command, private_node, random_domain, stop
 
-from aeropend_ident.bags import read_bag, write_bag
+from aeropend_ident.io.bag_writer import write_bag
+from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.recording import Recording
 
@@ -27,7 +28,7 @@ pytestmark = pytest.mark.ros
 
 N = 1225  # 2.5 s at the thesis rate
 DT = 2.048e-3
-RECORD = node_command("record", "aeropend_ident.record_node")
+RECORD = node_command("record", "aeropend_ident.nodes.record")
 
 
 def _source(tmp_path: Path) -> tuple[Recording, Path]:
@@ -56,7 +57,7 @@ def _run(tmp_path: Path, record_args: list[str], play_args: list[str], stop_sig:
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     play_proc: subprocess.Popen[str] | None = None
     try:
-        play_proc = subprocess.Popen([sys.executable, "-m", "aeropend_ident.play_node", *play_args,
+        play_proc = subprocess.Popen([sys.executable, "-m", "aeropend_ident.nodes.play", *play_args,
                                       "--wait-for-subscribers", "20"], env=env,
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         play_out, _ = play_proc.communicate(timeout=40)
@@ -189,8 +190,8 @@ def test_play_clock_publishes_the_bag_time(tmp_path: Path) -> None:
     with private_node("test_play_clock", domain) as (node, ex):
         node.create_subscription(Clock, TOPIC_CLOCK,
                                  lambda m: ticks.append(m.clock.sec * 10**9 + m.clock.nanosec), 10)
-        play = subprocess.Popen([sys.executable, "-m", "aeropend_ident.play_node", str(bag), "--clock", "100",
-                                 "--wait-for-subscribers", "20"], env=isolated_env(domain),
+        play = subprocess.Popen([sys.executable, "-m", "aeropend_ident.nodes.play", str(bag),
+                                 "--clock", "100", "--wait-for-subscribers", "20"], env=isolated_env(domain),
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         try:
             deadline = time.monotonic() + 60.0

@@ -41,7 +41,7 @@ from aeropend_sim.contract import (
 )
 from aeropend_sim.excitation import prbs
 from aeropend_sim.params import load_rig, shipped_rigs
-from aeropend_sim.ros_contract import (
+from aeropend_sim.ros.ros_contract import (
     COMMAND_QOS,
     SAMPLE_QOS_LOCKSTEP,
     SAMPLE_SUB_QOS,
@@ -66,7 +66,7 @@ def domain(monkeypatch: pytest.MonkeyPatch) -> int:
 @contextmanager
 def plant(domain: int, *params: str) -> Iterator[subprocess.Popen]:
     """Run ``sim_node --ros-args -p ...`` in a subprocess; kill it on exit."""
-    args = [*node_command("sim_node", "aeropend_sim.sim_node"), "--ros-args", "-p", f"rig:={RIG}"]
+    args = [*node_command("sim_node", "aeropend_sim.ros.sim_node"), "--ros-args", "-p", f"rig:={RIG}"]
     for p in params:
         args += ["-p", p]
     proc = subprocess.Popen(args, env=isolated_env(domain), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -231,7 +231,7 @@ def _set_parameters(c: Client, **values: object) -> list:
     from rcl_interfaces.srv import SetParameters
     from rclpy.parameter import Parameter
 
-    from aeropend_sim.sim_node import NODE_NAME
+    from aeropend_sim.ros.sim_node import NODE_NAME
 
     cli = c.node.create_client(SetParameters, f"/{NODE_NAME}/set_parameters")
     assert cli.wait_for_service(timeout_sec=10.0), "plant's parameter service not found"

@@ -107,7 +107,7 @@ def test_a_lab_path_csv_import_gap_names_the_hidden_drag(tmp_path, truth_csv_pre
     """CSV log of the independent plant -> ``csv_import`` mapping -> ``gap`` with a lab's rig file:
     a propeller drag the rig file omits (K_d = 0) is named and fitted in physical units."""
 
-    from aeropend_ident.gap_cli import main
+    from aeropend_ident.cli.gap import main
 
     kd = 3.0 * tp.PlantParams().J_m  # dω₁/dt gains −3·ω₁|ω₁|
     plant = tp.TruthPlant(effects={"propeller_drag": kd})

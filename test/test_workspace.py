@@ -86,6 +86,10 @@ def test_colcon_build_installs_entry_points(colcon_ws: Path) -> None:
     assert str(install / "aeropend_sim") in out.stdout
     # rig files ship with the package (Python package data) and under share/ as ROS data
     assert list((install / "aeropend_sim").rglob("thesis_rig.yaml"))
+    # the CSV import presets ship as package data of aeropend_ident.io
+    presets = ROOT / "src" / "aeropend_ident" / "aeropend_ident" / "io" / "presets"
+    assert {p.name for p in (install / "aeropend_ident").rglob("io/presets/*.yaml")} == {
+        p.name for p in presets.glob("*.yaml")}
     rigs = install / "aeropend_sim" / "share" / "aeropend_sim" / "rigs"
     assert {p.name for p in rigs.glob("*.yaml")} == {
         p.name for p in (ROOT / "src" / "aeropend_sim" / "aeropend_sim" / "rigs").glob("*.yaml")}
@@ -104,8 +108,8 @@ def test_colcon_build_installs_entry_points(colcon_ws: Path) -> None:
 
 #: Test files of no single package: the workspace, launch files of several packages, the
 #: firmware (C, not a ROS package) and graphs of several packages' nodes.
-CROSS_PACKAGE_TESTS = {"test_workspace.py", "test_launch_files.py", "test_namespaces_ros.py",
-                       "test_params_files_ros.py",
+CROSS_PACKAGE_TESTS = {"test_workspace.py", "test_layout.py", "test_launch_files.py",
+                       "test_namespaces_ros.py", "test_params_files_ros.py",
                        "test_firmware_build.py", "test_firmware_codec.py", "test_firmware_simavr.py",
                        "test_firmware_simavr_io.py", "test_firmware_simavr_registers.py"}
 

@@ -10,7 +10,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
-    package_data={PACKAGE: ["rigs/*.yaml"]},
+    package_data={PACKAGE: ["io/presets/*.yaml"]},
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
         ("share/" + PACKAGE, ["package.xml"]),
@@ -29,14 +29,14 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            'record = aeropend_ident.record_node:main',
-            'play = aeropend_ident.play_node:main',
-            'csv_import = aeropend_ident.csv_import:main',
-            'baseline = aeropend_ident.baseline_cli:main',
-            'pipeline = aeropend_ident.pipeline:main',
-            'identify = aeropend_ident.identify:main',
-            'gap = aeropend_ident.gap_cli:main',
-            'compare = aeropend_ident.compare_cli:main'
+            'record = aeropend_ident.nodes.record:main',
+            'play = aeropend_ident.nodes.play:main',
+            'csv_import = aeropend_ident.cli.csv_import:main',
+            'baseline = aeropend_ident.cli.baseline:main',
+            'pipeline = aeropend_ident.cli.pipeline:main',
+            'identify = aeropend_ident.cli.identify:main',
+            'gap = aeropend_ident.cli.gap:main',
+            'compare = aeropend_ident.cli.compare:main'
         ],
     },
 )

@@ -32,8 +32,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            'sim_node = aeropend_sim.sim_node:main',
-            'excitation = aeropend_sim.excitation_node:main'
+            'sim_node = aeropend_sim.ros.sim_node:main',
+            'excitation = aeropend_sim.ros.excitation_node:main'
         ],
     },
 )

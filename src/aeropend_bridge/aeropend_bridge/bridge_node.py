@@ -1,7 +1,7 @@
 """Hardware bridge node ``aeropend_bridge`` (console script ``bridge``).
 
 Connects to the acquisition firmware over a serial port (``firmware/PROTOCOL.md``) and makes
-the real rig look exactly like the simulated plant (:mod:`aeropend_sim.sim_node`): publishes
+the real rig look exactly like the simulated plant (:mod:`aeropend_sim.ros.sim_node`): publishes
 ``/aeropend/joint_states`` + ``/aeropend/armature`` (same stamp per sample, SI units, sensor
 data QoS) and subscribes ``/aeropend/duty_cycle`` (reliable). Stamps come from the MCU clock
 mapped to ROS time (:class:`~aeropend_bridge.bridge_core.ClockMapper`).
@@ -85,9 +85,9 @@ from aeropend_bridge.bridge_core import (
 from aeropend_bridge.protocol import BAUD, Duty, Enable, Rate, SampleFrame, StatusFrame
 from aeropend_bridge.serial_link import SerialLink
 from aeropend_sim.contract import REL_ARMATURE, REL_DUTY_CYCLE, REL_JOINT_STATES
-from aeropend_sim.node_shell import declare_parameter_table, run_node
 from aeropend_sim.params import RigFileError, load_rig
-from aeropend_sim.ros_contract import COMMAND_QOS, SAMPLE_QOS, sample_to_msgs
+from aeropend_sim.ros.node_shell import declare_parameter_table, run_node
+from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_QOS, sample_to_msgs
 
 NODE_NAME = "aeropend_bridge"
 TOPIC_DIAGNOSTICS = "/diagnostics"

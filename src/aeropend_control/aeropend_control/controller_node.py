@@ -75,9 +75,8 @@ import threading
 import time
 from typing import Any
 
-import rclpy
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import Executor, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -93,8 +92,8 @@ from aeropend_sim.contract import (
     ContractError,
     stamp_to_ns,
 )
-from aeropend_sim.node_shell import declare_parameter_table, init_with_stop_event, wait_acknowledged
-from aeropend_sim.ros_contract import (
+from aeropend_sim.ros.node_shell import declare_parameter_table, run_node, wait_acknowledged
+from aeropend_sim.ros.ros_contract import (
     COMMAND_QOS,
     COMMAND_QOS_LOCKSTEP,
     SAMPLE_QOS_LOCKSTEP,
@@ -330,30 +329,19 @@ def _set_rt_priority(node: ControllerNode) -> None:
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``controller``; returns the exit status (2 = bad parameter).
 
-    Same lifecycle as :func:`aeropend_sim.node_shell.run_node` (SIGINT/SIGTERM stop, duty 0 and
-    trace on exit), with the executor chosen by the ``executor`` parameter.
+    Started and stopped by :func:`aeropend_sim.ros.node_shell.run_node` (SIGINT/SIGTERM stop, duty 0
+    and trace on exit), with the executor chosen by the ``executor`` parameter.
     """
-    stop = init_with_stop_event(args)
-    node: ControllerNode | None = None
-    status = 0
-    try:
+    def make() -> ControllerNode:
         node = ControllerNode()
         _set_rt_priority(node)
-        executor = EventsExecutor() if node.executor_kind == "events" else SingleThreadedExecutor()
-        executor.add_node(node)
-        while not stop.is_set() and rclpy.ok() and not node.finished.is_set():
-            executor.spin_once(timeout_sec=0.1)
-    except ControllerConfigError as exc:
-        rclpy.logging.get_logger(NODE_NAME).error(f"invalid parameter: {exc}")
-        status = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.shutdown()
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return status
+        return node
+
+    def executor(node: ControllerNode) -> Executor:
+        return EventsExecutor() if node.executor_kind == "events" else SingleThreadedExecutor()
+
+    return run_node(NODE_NAME, args, make, (ControllerConfigError,), ControllerNode.shutdown,
+                    done=lambda node: node.finished.is_set(), make_executor=executor)
 
 if __name__ == "__main__":
     sys.exit(main())

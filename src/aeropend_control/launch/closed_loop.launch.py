@@ -18,7 +18,13 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironment
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import DISCOVERY_RANGE, NAMESPACE, PARAMS_FILE, is_true, node_parameters
+from aeropend_sim.ros.launch_arguments import (
+    DISCOVERY_RANGE,
+    NAMESPACE,
+    PARAMS_FILE,
+    is_true,
+    node_parameters,
+)
 
 ARGUMENTS = (
     NAMESPACE,

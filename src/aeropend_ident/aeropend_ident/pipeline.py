@@ -4,12 +4,12 @@ Steps (each node is a separate process, exactly as a lab would run them):
 
 1. ``record`` (rosbags recorder), ``sim_node`` (simulated plant, lock-step or real time) and
    ``excitation`` (thesis §5.1 Latin-hypercube duty-cycle steps by default) on a private
-   ``ROS_DOMAIN_ID`` (claimed in 100..200 unless set; :mod:`aeropend_sim.domain`) with
+   ``ROS_DOMAIN_ID`` (claimed in 100..200 unless set; :mod:`aeropend_sim.ros.domain`) with
    localhost-only discovery unless ``ROS_AUTOMATIC_DISCOVERY_RANGE`` is set;
 2. when the excitation has sent its last command, the recorder and the plant are stopped with
    SIGINT (clean shutdown, valid bag);
-3. the bag is read back (``aeropend_ident.bags.read_bag``) and the grey-box baseline
-   (``aeropend_ident.baseline``) fits the nominal simulator's pendulum + actuator parameters on
+3. the bag is read back (``aeropend_ident.io.bags.read_bag``) and the grey-box baseline
+   (``aeropend_ident.greybox.baseline``) fits the nominal simulator's pendulum + actuator parameters on
    the first part and replays the held-out part: ``report.json`` and ``overlay.png``;
 4. a one-screen summary is printed and ``summary.json`` written.
 
@@ -21,8 +21,6 @@ Usage::
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
 import re
 import shutil
@@ -34,17 +32,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aeropend_ident.bags import BagError, read_bag
+from aeropend_ident.errors import BagError, PipelineError
+from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, namespaced
-from aeropend_sim.domain import claim_domain
+from aeropend_sim.ros.domain import claim_domain
 
 #: Default excitation: thesis §5.1 Latin-hypercube steps (10 steps, τ ∈ [0.3, 0.8], 1-3 s each).
 DEFAULT_SIGNAL = ["signal:=lhs", "n:=10", "tau_min:=0.3", "tau_max:=0.8", "hold_min:=1.0",
                   "hold_max:=3.0"]
-
-
-class PipelineError(RuntimeError):
-    """A stage of the main job failed; the message names the stage and its log file."""
 
 
 @dataclass
@@ -205,7 +200,7 @@ def _ns(namespace: str) -> str:
 def analyse(bag: Path, out: Path, nominal_rig: str, train_fraction: float,
             namespace: str = "") -> dict[str, Any]:
     """Read the bag and run the grey-box baseline; returns the baseline report dictionary."""
-    from aeropend_ident.baseline import run_baseline
+    from aeropend_ident.greybox.baseline import run_baseline
 
     rec = read_bag(bag, namespace=_ns(namespace))
     report = run_baseline(rec, nominal_rig, out / "baseline", train_fraction=train_fraction)
@@ -213,63 +208,3 @@ def analyse(bag: Path, out: Path, nominal_rig: str, train_fraction: float,
                            "first_theta_rad": float(rec.channels["theta"][0]),
                            "gaps": rec.meta.get("gaps", 0)}
     return report
-
-
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="pipeline", description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", type=Path, default=Path("reports/main"), help="report folder")
-    p.add_argument("--plant-rig", default="thesis_rig",
-                   help="rig simulated by the plant node (the 'real' rig)")
-    p.add_argument("--nominal-rig", default="thesis_sim", help="simulator whose parameters are fitted")
-    p.add_argument("--mode", choices=["lockstep", "realtime"], default="lockstep")
-    p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--no-noise", action="store_true", help="switch sensor noise and quantisation off")
-    p.add_argument("--train-fraction", type=float, default=0.7)
-    p.add_argument("--signal", nargs="*", default=DEFAULT_SIGNAL,
-                   help="excitation parameters name:=value (default: thesis LHS steps)")
-    p.add_argument("--namespace", default="",
-                   help="ROS namespace of the node graph (topics <namespace>/aeropend/*; default root)")
-    return p
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    t0 = time.monotonic()
-    try:
-        print(f"[1/2] node graph: record + sim_node ({args.plant_rig}, {args.mode}) + excitation ...",
-              flush=True)
-        bag = run_graph(out, args.plant_rig, args.mode, args.seed, args.signal, not args.no_noise,
-                        namespace=args.namespace)
-        t_graph = time.monotonic() - t0
-        completeness = check_recording(bag, out / "logs" / "sim_node.log", args.mode, args.namespace)
-        if not completeness["complete"]:
-            raise PipelineError(
-                f"incomplete lock-step recording: {completeness['recorded']} of "
-                f"{completeness['published']} published samples and {completeness['commands']} of "
-                f"{(completeness['published'] or 1) - 1} commands in {bag} (see docs/data_plane.md)")
-        print(f"      bag {bag} written in {t_graph:.1f} s", flush=True)
-        print(f"[2/2] grey-box baseline of {args.nominal_rig} on the recording ...", flush=True)
-        report = analyse(bag, out, args.nominal_rig, args.train_fraction, args.namespace)
-    except PipelineError as exc:
-        print(f"pipeline failed: {exc}", file=sys.stderr)
-        return 1
-    summary = {
-        "bag": str(bag),
-        "plant_rig": args.plant_rig,
-        "nominal_rig": args.nominal_rig,
-        "mode": args.mode,
-        "graph_seconds": round(t_graph, 2),
-        "total_seconds": round(time.monotonic() - t0, 2),
-        "recording": {**report["recording"], **completeness},
-        "baseline": report.get("summary", report),
-    }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
-    print(json.dumps(summary, indent=2, default=float))
-    print(f"report folder: {out}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -18,7 +18,7 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, is_true, node_parameters
+from aeropend_sim.ros.launch_arguments import NAMESPACE, PARAMS_FILE, is_true, node_parameters
 
 CONTRACT_TOPICS = ["/aeropend/duty_cycle", "/aeropend/joint_states", "/aeropend/armature"]
 

@@ -3,7 +3,7 @@
 This module is the single source of truth for topic names, message types, channel layout,
 units and QoS of the aeropend node graph. It imports no ROS package, so the offline tools
 (bag reading with ``rosbags``) use the same definitions as the nodes (``rclpy``); the rclpy
-message conversions live in :mod:`aeropend_sim.ros_contract`.
+message conversions live in :mod:`aeropend_sim.ros.ros_contract`.
 
 Topics (all SI units; duty cycle as a fraction in [0, 1]; angles in rad; the names below are in
 the root namespace: a node's namespace prefixes them, see :data:`REL_JOINT_STATES`)

@@ -186,7 +186,7 @@ _SECTIONS: dict[str, type] = {
 }
 
 #: Keys a rig file may have at its top level. ``recording_frame`` (optional) describes how a rig's
-#: recorded angle relates to the model's θ (read by :func:`aeropend_ident.greybox.rig_theta_offset`).
+#: recorded angle relates to the model's θ (read by :func:`aeropend_ident.greybox.fit.rig_theta_offset`).
 TOP_LEVEL_KEYS = frozenset({"name", "description", "sample_period", "effects", "recording_frame", *_SECTIONS})
 
 _UNIT_ALIASES = {"Ω": "ohm", "Ohm": "ohm", "ohms": "ohm", "-": "1", "": "1", "rad/s²": "1/s^2"}

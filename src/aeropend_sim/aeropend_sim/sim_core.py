@@ -1,6 +1,6 @@
 """Pure logic of the simulated plant node (no rclpy): parameter validation and scheduling.
 
-The node :mod:`aeropend_sim.sim_node` is a thin rclpy shell around this module:
+The node :mod:`aeropend_sim.ros.sim_node` is a thin rclpy shell around this module:
 
 * :func:`make_settings` turns the raw node parameters (whatever types ``--ros-args -p`` produced)
   into a validated :class:`SimSettings` (rig with effect overrides applied, initial state, mode,

@@ -19,7 +19,7 @@ from launch_ros.actions import Node
 
 from aeropend_sim.contract import REL_JOINT_STATES
 from aeropend_sim.description import urdf_for_rig
-from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, is_true, node_parameters
+from aeropend_sim.ros.launch_arguments import NAMESPACE, PARAMS_FILE, is_true, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,

@@ -7,7 +7,7 @@ Examples::
     ros2 launch aeropend_sim sim.launch.py effects:=dead_zone=true,armature_inductance=quasi_static
     ros2 launch aeropend_sim sim.launch.py namespace:=rig2 params_file:=my_sim.yaml
 
-Arguments mirror the node parameters (see ``aeropend_sim.sim_node``); ``effects`` is one
+Arguments mirror the node parameters (see ``aeropend_sim.ros.sim_node``); ``effects`` is one
 comma-separated string of ``name=value`` overrides, ``noise`` empty keeps the rig's switches.
 """
 
@@ -16,7 +16,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from aeropend_sim.launch_arguments import NAMESPACE, PARAMS_FILE, is_true, node_parameters
+from aeropend_sim.ros.launch_arguments import NAMESPACE, PARAMS_FILE, is_true, node_parameters
 
 ARGUMENTS = (
     NAMESPACE,

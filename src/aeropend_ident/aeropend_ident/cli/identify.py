@@ -1,0 +1,75 @@
+"""Identify a sparse model from recordings: ``identify BAG_OR_CSV [...] --rig RIG --out DIR``.
+
+Command line of ``identify`` (console script; ``ros2 run aeropend_ident identify``): argument
+parsing and :func:`main` only; what is identified and written is described in
+:mod:`aeropend_ident.sindy.identify`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from aeropend_ident.errors import BagError, CsvImportError, IdentificationError, RecordingInputError
+from aeropend_ident.sindy.identify import LIBRARIES, METHODS, identify
+from aeropend_sim.params import RigFileError, load_rig
+from aeropend_sim.recording import RecordingError
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="identify", description=__doc__.splitlines()[0]
+    )
+    ap.add_argument("inputs", nargs="+", metavar="BAG_OR_CSV",
+                    help="contract bags or CSV logs (FILE.csv[:PRESET])")
+    ap.add_argument("--rig", help="rig name or YAML file (for the duty -> v_a map and K_q)")
+    ap.add_argument("--method", default=None, choices=METHODS,
+                    help="default: weak for one full-state recording, sindy otherwise; weak-iv: weak "
+                         "form refined by instrumental variables (one full-state recording, λ 0.1 unless "
+                         "--threshold)")
+    ap.add_argument("--threshold", type=float, default=None,
+                    help="fixed STLSQ threshold λ (default: chosen by BIC over a sweep)")
+    ap.add_argument("--output-error", action="store_true",
+                    help="refine di_a/dt and dω₁/dt by output-error minimisation (full state)")
+    ap.add_argument("--library", default="physics-structured", choices=LIBRARIES,
+                    help="full-state path only; physics-structured (default): θ̈ from θ alone (second-order "
+                         "weak form) with thrust, gravity, damping and friction terms, di_a/dt from i_a, ω₁, "
+                         "v_a, dω₁/dt from i_a, ω₁, ω₁²; full/thesis: the unrestricted 31-term library")
+    ap.add_argument("--preset", default=None, help="csv_import preset for CSV inputs (default: by file name)")
+    ap.add_argument("--thrust-map", default="first_order", choices=("first_order", "static"),
+                    help="partial-state path (θ and τ only)")
+    ap.add_argument("--train-fraction", type=float, default=0.75)
+    ap.add_argument("--namespace", default="")
+    ap.add_argument("--out", type=Path, default=Path("ident_results"))
+    ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+
+    def say(msg: str) -> None:
+        print(f"[identify {time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
+
+    try:
+        rig = load_rig(args.rig) if args.rig else None
+        summary = identify(args.inputs, args.out, rig, args.method, args.library, args.namespace,
+                           preset=args.preset, train_fraction=args.train_fraction, thrust_map=args.thrust_map,
+                           plots=not args.no_plots, progress=None if args.quiet else say,
+                           threshold=args.threshold, output_error=args.output_error)
+    except (BagError, RecordingError, IdentificationError, RigFileError, CsvImportError,
+            RecordingInputError) as exc:
+        print(f"identify: {exc}", file=sys.stderr)
+        return 2
+    print("\n".join(summary["equations"]))
+    for tg, why in summary["not_identified"].items():
+        print(f"not identified ({tg}): {why}")
+    for sc in summary["heldout"]:
+        print(f"held-out free-run NRMSE(range) of θ: {sc['nrmse_range']:.4g} ({sc['recording']})")
+    print(f"λ = {summary['threshold']:g}; results in {args.out} ({summary['wall_time_s']} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,596 @@
+"""Held-out error prediction, attainable shrink and session drift of a gap correction.
+
+A constant-parameter correction found on one session removes the missing physics it names, but
+not the rig changing between sessions (battery, propeller, load, bearings, sensor mount). This
+module tells them apart, for :func:`aeropend_ident.gap.run.run_gap`:
+
+**Prediction** (:func:`predict_heldout`, computed from the fit data only, before any held-out
+recording is replayed): a Monte-Carlo predictive distribution of the corrected rig's held-out θ
+NRMSE e. Each of :data:`N_DRAWS` draws takes
+
+* e_in: the corrected rig's error within the session, i.e. on the validation part the effects
+  were chosen on, of one random block of :data:`BLOCK_S` seconds (RMS error of the block over the
+  recording's θ range): the within-session variation;
+* the chosen effects' parameters from their standard errors
+  (:func:`aeropend_ident.gap.which.fit_effects`): the effect-fit spread;
+* a session-to-session log change of each drift-prone parameter (:data:`DRIFT_PARAMETERS`:
+  thrust coefficient K_q, gravity term mgd/J, viscous friction c/J, and the supply voltage V_s
+  when v_a is recorded) from :func:`draw_log_changes`: per session an unknown share
+  π ~ Uniform(0, 1) of the parameters changes, each by N(0, 2σ_p²) (σ_p: :data:`DRIFT_PRIOR`, the
+  standard deviation of the log change, kept), or, when the fit data hold several sessions, a
+  normal change with their measured σ_p;
+
+re-simulates the drawn rig on the validation recordings and records
+e² = e_in² + (mean squared change of the replay) / range². The median of the draws is the
+prediction, their 10 % and 90 % quantiles (:data:`INTERVAL`) the 80 % interval.
+
+**Attainable shrink** (:func:`attainable`, after the held-out replay): the chosen effect set,
+the chosen set plus the drift-prone parameters, and separately the best catalog set up to
+``max_effects`` (a diagnosis run on that recording alone), fitted directly on each held-out
+recording: the best a constant-parameter correction could
+do there (an oracle, in-sample on purpose). With N, C, O the nominal, corrected and oracle θ
+NRMSEs and n the θ noise floor (σ_θ / range), the nominal gap N² − n² splits into
+
+* removed by the correction: N² − C²;
+* removable but not removed: C² − O² (the correction's parameters are off for this session:
+  drift, or an effect the fit data did not show);
+* not removable by the catalog: O² − n² (missing physics).
+
+**Session drift** (:func:`drift_table`): the chosen effects plus the drift-prone parameters fitted
+on each session separately, with standard errors; a parameter drifts when its change between
+sessions exceeds :data:`DRIFT_Z` combined standard errors and :data:`DRIFT_MIN` relative.
+
+No rclpy import: this module runs without ROS.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from aeropend_ident.errors import GapError
+from aeropend_ident.gap.effects import EffectContext, MeasurementMap, apply_effects, get_effect, identifiable
+from aeropend_ident.gap.which import (
+    EffectDiagnosis,
+    Prepared,
+    detect_quantum,
+    diagnose_effects,
+    excluded_with,
+    fit_effects,
+    prepare,
+    replay,
+)
+from aeropend_ident.greybox.fit import noise_level
+from aeropend_sim.params import Rig
+from aeropend_sim.recording import Recording
+
+#: Drift-prone parameters: effect -> (rig section, field). The supply voltage (a drift-only entry,
+#: :data:`aeropend_ident.gap.effects.DRIFT_ONLY`) needs the armature voltage v_a recorded: with the
+#: angle alone a supply change is a thrust-gain change (thrust ∝ v_a²), which K_q's prior covers.
+DRIFT_PARAMETERS: dict[str, tuple[str, str]] = {
+    "thrust_coefficient": ("thrust", "K_q"),
+    "gravity": ("pendulum", "mgd_over_J"),
+    "viscous_friction": ("pendulum", "c_over_J"),
+    "supply_voltage": ("actuator", "v_supply"),
+}
+#: Prior standard deviation of the session-to-session log change of each drift-prone parameter
+#: (0.15 ≈ ±15 %); its shape is :func:`draw_log_changes`'. Physical sizes (docs/gap.md, "Drift
+#: prior"): K_q from air density (weather ±2–3 %, temperature ±1.7 %) and a re-mounted or replaced
+#: propeller (a few to ~10 %); mgd/J from re-assembly (counterweight, cable, sensor mount);
+#: c/J from the bearing lubricant's viscosity (≈ −5 %/K at room temperature, drag ∝ ν^(2/3)) and
+#: standstill / run-in; the supply voltage from what lab supplies do (a 3-cell LiPo 12.6 → 10.5 V
+#: over its charge, a USB port 4.75–5.25 V, a bench supply < 1 %); the real rigs in
+#: ``../shared/data/real`` show such changes between sessions (AeroShield's thrust per duty up to
+#: 35 % apart at 29–33 PWM counts, Etchepareborda's rod hanging 0.1–0.2 rad higher). Used only
+#: when the fit data hold one session.
+DRIFT_PRIOR: dict[str, float] = {"thrust_coefficient": 0.15, "gravity": 0.10, "viscous_friction": 0.25,
+                                 "supply_voltage": 0.08}
+#: Monte-Carlo draws of the prediction (one replay of each validation recording per draw).
+N_DRAWS = 300
+#: Block length of the within-session error [s].
+BLOCK_S = 5.0
+#: Quantiles of the predicted interval (80 %).
+INTERVAL = (0.10, 0.90)
+#: A parameter drifts when |change| > DRIFT_Z combined standard errors ...
+DRIFT_Z = 3.0
+#: ... and more than this relative change.
+DRIFT_MIN = 0.03
+#: A change is relative only when the reference value exceeds this share of the largest value
+#: (a dead zone, drop or delay absent in one session has no relative change; its absolute is given).
+RELATIVE_FLOOR = 1e-3
+
+
+def _preps(recs: Sequence[Recording], channels: Sequence[str]) -> list[Prepared]:
+    return prepare(list(recs), frozenset(channels) | {"theta"})
+
+
+def _fit_set(nominal: Rig, effects: Sequence[str], preps: Sequence[Prepared],
+             start: Mapping[str, Mapping[str, float]] | None = None, scan: bool = False) -> Any:
+    """The effect set fitted on prepared recordings, search ranges from those recordings."""
+    ctx = EffectContext.from_data(nominal, np.concatenate([p.y["theta"] for p in preps]),
+                                  np.concatenate([p.duty for p in preps]))
+    return fit_effects(nominal, list(effects), list(preps), ctx, start=start, scan=scan)
+
+
+def theta_nrmse(rig: Rig, meas: MeasurementMap, prep: Prepared) -> float:
+    """Free-run θ NRMSE (RMS error / θ range) of a rig on one prepared recording."""
+    sim = replay(rig, meas, prep)["theta"]
+    return float(np.sqrt(np.mean((sim - prep.y["theta"]) ** 2)) / prep.scale["theta"])
+
+
+def noise_floor(prep: Prepared) -> float:
+    """θ noise floor n = σ̂_θ / range: the robust white-noise estimate
+    (:func:`aeropend_ident.greybox.fit.noise_level`), at least the quantisation noise q/√12 of a
+    quantised angle (:func:`aeropend_ident.gap.which.detect_quantum`), which the first reads as 0."""
+    q = detect_quantum(prep.y["theta"])
+    return max(noise_level(prep.y["theta"]), q / math.sqrt(12.0)) / prep.scale["theta"]
+
+
+def drift_parameters(channels: Sequence[str]) -> list[str]:
+    """The drift-prone parameters (:data:`DRIFT_PARAMETERS`) identifiable from these channels."""
+    have = frozenset(channels) | {"theta"}
+    return [e for e in DRIFT_PARAMETERS if identifiable(get_effect(e), have) is None]
+
+
+def _perturbed(rig: Rig, factors: Mapping[str, float]) -> Rig:
+    new = rig
+    for eff, f in factors.items():
+        section, name = DRIFT_PARAMETERS[eff]
+        v = float(getattr(getattr(new, section), name))
+        if v != 0.0 and f != 1.0:
+            if eff == "supply_voltage":  # the Eq. 4.3 drive map scales with the supply too
+                new = get_effect(eff).apply(new, {name: v * f})
+            else:
+                new = new.with_params(section, **{name: v * f})
+    return new
+
+
+def _chosen_values(diag: EffectDiagnosis) -> tuple[dict[str, dict[str, float]], dict[str, dict[str, float]]]:
+    """(values, standard errors) of the chosen effects' parameters from the diagnosis' ranking."""
+    vals: dict[str, dict[str, float]] = {}
+    std: dict[str, dict[str, float]] = {}
+    by_name = {r["effect"]: r for r in diag.ranking}
+    for name in diag.chosen:
+        params = by_name.get(name, {}).get("parameters", {})
+        vals[name] = {k: float(v["value"]) for k, v in params.items()}
+        std[name] = {k: (float(v["std"]) if v.get("std") is not None else 0.0) for k, v in params.items()}
+    return vals, std
+
+
+def _draw_effects(nominal: Rig, diag: EffectDiagnosis, vals: Mapping[str, Mapping[str, float]],
+                  std: Mapping[str, Mapping[str, float]], rng: np.random.Generator) -> Rig:
+    """The corrected rig with its effect parameters drawn from N(value, standard error), clipped to
+    their search ranges (the effect-fit uncertainty); the corrected rig itself when no standard
+    error is known or the drawn set does not apply."""
+    if not any(s > 0.0 for d in std.values() for s in d.values()):
+        return diag.corrected_rig
+    drawn: dict[str, dict[str, float]] = {}
+    for eff, pv in vals.items():
+        drawn[eff] = {}
+        for par in get_effect(eff).parameters:
+            v, s = pv[par.name], std[eff].get(par.name, 0.0)
+            lo, hi = par.limits
+            drawn[eff][par.name] = float(np.clip(v + s * rng.standard_normal(), lo, hi))
+    try:
+        return apply_effects(nominal, drawn)[0]
+    except GapError:
+        return diag.corrected_rig
+
+
+def _ms_change(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared], base: Sequence[np.ndarray]
+               ) -> float | None:
+    """Mean over recordings of the squared θ change of a replay from the base replay, over range²;
+    None when the replay fails on any recording."""
+    out = []
+    for p, sim in zip(preps, base, strict=True):
+        try:
+            s = replay(rig, meas, p)["theta"]
+        except GapError:
+            return None
+        out.append(float(np.mean((s - sim) ** 2)) / p.scale["theta"] ** 2)
+    return float(np.mean(out))
+
+
+def draw_log_changes(sigma: Mapping[str, float], params: Sequence[str], rng: np.random.Generator, *,
+                     occurrence: bool = True) -> dict[str, float]:
+    """One draw of the session-to-session log change of each drift-prone parameter.
+
+    Parameters
+    ----------
+    sigma : mapping
+        Standard deviation σ_p of the log change of parameter p between two sessions.
+    params : sequence of str
+        The drift-prone parameters drawn (:func:`drift_parameters`).
+    rng : numpy.random.Generator
+    occurrence : bool
+        True (the prior): whether a parameter changes at all is an event of probability π, shared by
+        the rig's parameters and unknown, π ~ Uniform(0, 1) drawn per session (a rig left alone
+        changes nothing, one taken apart or moved changes several things at once); a parameter
+        that changes moves by N(0, 2σ_p²), so that the log change keeps the standard deviation σ_p
+        (E[π] = 1/2) and only its shape changes: mass at zero and heavier tails. The number of
+        changing parameters is uniform on 0..len(params). False (σ measured across sessions, which
+        already holds the sessions in which nothing changed): N(0, σ_p²) for every parameter.
+
+    Returns
+    -------
+    dict
+        Log change per parameter (0.0 for one that does not change).
+    """
+    pi, widen = (float(rng.uniform()), math.sqrt(2.0)) if occurrence else (1.0, 1.0)
+    out = {}
+    for eff in params:
+        changes = bool(rng.uniform() < pi)
+        x = float(widen * sigma.get(eff, 0.0) * rng.standard_normal())
+        out[eff] = x if changes else 0.0
+    return out
+
+
+def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Recording], *,
+                    drift_sigma: Mapping[str, float] | None = None, draws: int = N_DRAWS,
+                    seed: int = 0) -> dict[str, Any]:
+    """Predicted held-out θ NRMSE of the corrected rig, from the fit data only (module docstring).
+
+    A Monte-Carlo predictive distribution: each draw takes one within-session block error e_in,
+    the chosen effects' parameters from their standard errors, and an independent log change of
+    every drift-prone parameter from its Laplace prior (:data:`DRIFT_PRIOR` is its standard
+    deviation), replays the drawn rig on the validation recordings and records
+    e = √(e_in² + mean squared change of the replay); the median and the 10 % / 90 % quantiles of
+    the draws are the prediction and its 80 % interval.
+
+    Parameters
+    ----------
+    nominal : Rig
+        The nominal rig (the chosen effects are re-applied to it for the parameter draws).
+    diag : EffectDiagnosis
+        The diagnosis (corrected rig, measurement map, chosen effects with standard errors).
+    validation : sequence of Recording
+        The diagnosis' validation recordings (model frame), never held-out ones.
+    drift_sigma : mapping, optional
+        Standard deviation of the log change per drift-prone parameter; default
+        :data:`DRIFT_PRIOR`.
+    draws : int
+        Monte-Carlo draws (one replay per validation recording each).
+    seed : int
+        Random seed.
+
+    Returns
+    -------
+    dict
+        ``predicted`` (median), ``interval`` [lo, hi] (80 %), ``level`` 0.8, ``within_session``
+        (RMS of the block errors) and ``blocks`` (their values), ``drift_part`` (median RMS change
+        of the drawn replays: drift and effect-fit spread), ``drift_sigma`` used, ``drift_prior``
+        ("occurrence" or "normal", :func:`draw_log_changes`) and its ``drift_source`` ("prior" /
+        "sessions"), ``sensitivity`` (per
+        drift-prone parameter: the θ NRMSE change of the corrected rig's replay for that parameter
+        alone changed by −σ and +σ), ``noise_floor``, ``draws`` (those whose replays succeeded).
+
+    Raises
+    ------
+    GapError
+        If a replay fails for the corrected rig, or for every draw.
+    """
+    sigma = dict(DRIFT_PRIOR if drift_sigma is None else drift_sigma)
+    preps = _preps(validation, diag.channels or ("theta",))
+    rng = np.random.default_rng(seed)
+    base = [replay(diag.corrected_rig, diag.measurement, p)["theta"] for p in preps]
+    blocks: list[float] = []
+    for p, sim in zip(preps, base, strict=True):
+        e = sim - p.y["theta"]
+        k = max(1, round(p.n * p.dt / BLOCK_S))
+        blocks += [float(np.sqrt(np.mean(b**2)) / p.scale["theta"]) for b in np.array_split(e, k) if b.size]
+    floors = [noise_floor(p) for p in preps]
+    vals, std = _chosen_values(diag)
+    params = drift_parameters(diag.channels or ("theta",))
+    sensitivity = {}
+    for eff in params:
+        s = sigma.get(eff, 0.0)
+        ms = [_ms_change(_perturbed(diag.corrected_rig, {eff: math.exp(sign * s)}), diag.measurement, preps,
+                         base) for sign in (-1.0, 1.0)]
+        sensitivity[eff] = [math.sqrt(m) if m is not None else math.nan for m in ms]
+    samples, changes = [], []
+    for _ in range(draws):
+        rig = _draw_effects(nominal, diag, vals, std, rng)
+        factors = {eff: math.exp(x) for eff, x in
+                   draw_log_changes(sigma, params, rng, occurrence=drift_sigma is None).items()}
+        e_in = float(blocks[int(rng.integers(len(blocks)))])
+        ms = _ms_change(_perturbed(rig, factors), diag.measurement, preps, base)
+        if ms is None:
+            continue
+        changes.append(math.sqrt(ms))
+        samples.append(math.sqrt(e_in**2 + ms))
+    if not samples:
+        raise GapError("prediction: every replay of the corrected rig failed")
+    lo, hi = np.quantile(samples, INTERVAL)
+    return {
+        "predicted": float(np.median(samples)),
+        "interval": [float(lo), float(hi)],
+        "level": INTERVAL[1] - INTERVAL[0],
+        "within_session": float(np.sqrt(np.mean(np.square(blocks)))),
+        "blocks": blocks,
+        "drift_part": float(np.median(changes)),
+        "drift_sigma": sigma,
+        "drift_prior": "occurrence" if drift_sigma is None else "normal",
+        "drift_source": "prior" if drift_sigma is None else "sessions",
+        "sensitivity": sensitivity,
+        "noise_floor": float(np.mean(floors)),
+        "draws": len(samples),
+    }
+
+
+def _oracle(rig: Rig, effects: Sequence[str], prep: Prepared, start: Mapping[str, Mapping[str, float]]
+            ) -> tuple[float, dict[str, Any]]:
+    fr = _fit_set(rig, effects, [prep], start=start, scan=len(effects) == 1)
+    params = {e: {k: {"value": fr.values[e][k], "std": fr.std.get(e, {}).get(k)} for k in fr.values[e]}
+              for e in fr.values}
+    return theta_nrmse(fr.rig, fr.meas, prep), params
+
+
+def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording], *, max_effects: int = 2,
+               seed: int = 0, best_set: bool = True, fit: Sequence[Recording] = (),
+               progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+    """Oracle fits on each held-out recording and the split of its gap (module docstring).
+
+    Parameters
+    ----------
+    nominal : Rig
+    diag : EffectDiagnosis
+        The diagnosis made on the fit data.
+    held_out : sequence of Recording
+        Held-out recordings in the model frame (as the diagnosis saw its recordings).
+    max_effects : int
+        Largest set of the best-catalog oracle.
+    seed : int
+    best_set : bool
+        Also run the best-catalog oracle (a diagnosis on the held-out recording alone).
+    fit : sequence of Recording
+        The fit recordings (model frame): with them, the chosen set plus the drift-prone
+        parameters is fitted there too and each held-out recording gets a drift table (fit
+        session vs that recording, :func:`drift_rows`).
+    progress : callable, optional
+
+    Returns
+    -------
+    list of dict
+        Per recording: ``source``, θ NRMSEs ``nominal``, ``corrected``, ``oracle_same`` (the chosen
+        set refitted there), ``oracle_drift`` (the chosen set plus the drift-prone parameters,
+        :func:`drift_set`), ``oracle_best`` (and ``oracle_best_effects``), ``oracle`` (the
+        smallest), ``noise_floor``; ``split`` shares of N² − n²: ``removed``,
+        ``removable_not_removed``, ``not_removable``; ``parameters``: the correction's and the
+        oracle's values with standard errors side by side.
+    """
+    from aeropend_ident.io.split import validation_split
+
+    say = progress or (lambda _m: None)
+    vals, std = _chosen_values(diag)
+    dset = drift_set(diag.chosen, diag.channels or ("theta",))
+    fit_a = None
+    if fit:
+        say(f"attainable: fitting {', '.join(dset)} on the fit recordings")
+        fit_a = _fit_set(nominal, dset, _preps(fit, diag.channels or ("theta",)), start=vals)
+    out = []
+    for rec in held_out:
+        prep = _preps([rec], diag.channels or ("theta",))[0]
+        n_nom = theta_nrmse(nominal, MeasurementMap(), prep)
+        n_cor = theta_nrmse(diag.corrected_rig, diag.measurement, prep)
+        floor = noise_floor(prep)
+        row: dict[str, Any] = {"source": rec.source, "nominal": n_nom, "corrected": n_cor,
+                               "noise_floor": floor}
+        o_same, p_same = (n_cor, {}) if not diag.chosen else _oracle(nominal, diag.chosen, prep, vals)
+        row["oracle_same"] = min(o_same, n_cor) if diag.chosen else n_nom
+        row["parameters"] = {e: {k: {"correction": vals[e][k], "correction_std": std[e].get(k),
+                                     "oracle": p_same[e][k]["value"], "oracle_std": p_same[e][k]["std"]}
+                                 for k in vals[e]} for e in vals}
+        # the chosen set plus the drift-prone parameters: what a session change of the rig needs
+        try:
+            fit_b = _fit_set(nominal, dset, [prep], start=vals)
+            o_drift = theta_nrmse(fit_b.rig, fit_b.meas, prep)
+            if fit_a is not None:
+                row["drift"] = {"sessions": ["fit", rec.source or "held-out"], "effects": dset,
+                                "rows": drift_rows([fit_a, fit_b], dset)}
+                row["drift"]["drifting"] = [f"{r['effect']}.{r['parameter']}" for r in row["drift"]["rows"]
+                                            if r["drifts"]]
+        except GapError as exc:
+            o_drift = math.inf
+            row["oracle_drift_error"] = str(exc)
+        row["oracle_drift"], row["oracle_drift_effects"] = o_drift, dset
+        o_best, best_eff = row["oracle_same"], list(diag.chosen)
+        if best_set:
+            say(f"attainable: best catalog set on {rec.source or 'a held-out recording'}")
+            try:
+                core, val = validation_split([rec])
+                d2 = diagnose_effects(nominal, core, val, max_effects=max_effects, seed=seed)
+                if d2.chosen:
+                    v2, _ = _chosen_values(d2)
+                    ob, _ = _oracle(nominal, d2.chosen, prep, v2)
+                    if ob < o_best:
+                        o_best, best_eff = ob, list(d2.chosen)
+            except GapError as exc:
+                row["oracle_best_error"] = str(exc)
+        row["oracle_best"], row["oracle_best_effects"] = o_best, best_eff
+        o = min(row["oracle_same"], o_drift, o_best, n_cor, n_nom)
+        row["oracle"] = o
+        total = n_nom**2 - floor**2
+        if total > 0.0:
+            row["split"] = {
+                "removed": (n_nom**2 - n_cor**2) / total,
+                "removable_not_removed": max(n_cor**2 - o**2, 0.0) / total,
+                "not_removable": max(o**2 - floor**2, 0.0) / total,
+            }
+        else:
+            row["split"] = {"removed": 0.0, "removable_not_removed": 0.0, "not_removable": 0.0}
+        out.append(row)
+    return out
+
+
+#: Chosen effects the drift-prone parameters express exactly (the rod inertia scales mgd/J, c/J
+#: and L/J together: gravity, viscous friction and thrust coefficient together are the same
+#: change), left out of :func:`drift_set` so that its joint fit stays identifiable.
+SPANNED_BY_DRIFT = ("inertia",)
+
+
+def drift_set(chosen: Sequence[str], channels: Sequence[str] = ("theta",)) -> list[str]:
+    """The chosen effects plus the drift-prone parameters identifiable from ``channels``
+    (:func:`drift_parameters`) they do not already set (an effect the drift-prone parameters span,
+    :data:`SPANNED_BY_DRIFT`, is replaced by them)."""
+    kept = [n for n in chosen if n not in SPANNED_BY_DRIFT]
+    excluded = excluded_with(kept)
+    return [*kept, *(e for e in drift_parameters(channels) if e not in excluded)]
+
+
+def _session_labels(sessions: Sequence[Sequence[Recording]], labels: Sequence[str] | None,
+                    what: str) -> list[str]:
+    """Names of two or more sessions (default "session k"); GapError for fewer than two."""
+    if len(sessions) < 2:
+        raise GapError(f"{what}: {len(sessions)} session(s) given; need at least 2")
+    return list(labels or [f"session {k + 1}" for k in range(len(sessions))])
+
+
+def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: Sequence[str], *,
+                labels: Sequence[str] | None = None, channels: Sequence[str] = ("theta",),
+                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Fit ``effects`` on each session separately; which parameter changes between sessions.
+
+    Parameters
+    ----------
+    nominal : Rig
+    sessions : sequence of sequences of Recording
+        Two or more sessions (model frame), each one or more recordings.
+    effects : sequence of str
+        Effects fitted jointly on every session (e.g. :func:`drift_set` of the chosen ones).
+    labels : sequence of str, optional
+        Session names.
+    channels : sequence of str
+        Channels compared.
+    progress : callable, optional
+
+    Returns
+    -------
+    dict
+        ``sessions`` (labels), ``effects``, ``rows``: one per parameter, sorted by significance:
+        ``effect``, ``parameter``, ``unit``, ``values`` and ``std`` per session, ``change``
+        (largest relative change from the first session), ``z`` (largest |change| over combined
+        standard errors), ``drifts`` (bool); ``drifting`` (names of the drifting parameters).
+
+    Raises
+    ------
+    GapError
+        Fewer than two sessions, or a fit failing on a session.
+    """
+    labels = _session_labels(sessions, labels, "drift table")
+    say = progress or (lambda _m: None)
+    fits = []
+    for lab, recs in zip(labels, sessions, strict=True):
+        say(f"drift: fitting {', '.join(effects)} on {lab}")
+        fits.append(_fit_set(nominal, effects, _preps(recs, channels)))
+    rows = drift_rows(fits, effects)
+    return {"sessions": labels, "effects": list(effects), "rows": rows,
+            "drifting": [f"{r['effect']}.{r['parameter']}" for r in rows if r["drifts"]]}
+
+
+def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, Any]]:
+    """Rows of a drift table from the same effect set fitted on several sessions (first = reference).
+
+    Each row: ``effect``, ``parameter``, ``unit``, ``values``, ``std``, ``abs_change`` (largest
+    change from the first session, in the unit), ``change`` (the same relative to the first
+    session's value; NaN when that value is ~0, :data:`RELATIVE_FLOOR`), ``z`` (the change over the
+    combined standard errors), ``drifts`` (z > :data:`DRIFT_Z` and, where relative, |change| >
+    :data:`DRIFT_MIN`); drifting rows first, most significant first.
+    """
+    rows = []
+    for eff in effects:
+        for par in get_effect(eff).parameters:
+            v = np.array([f.values[eff][par.name] for f in fits])
+            s = np.array([f.std.get(eff, {}).get(par.name, math.nan) for f in fits])
+            # a relative change only where the reference is a size (not an absent effect at ~0)
+            relative = abs(v[0]) > RELATIVE_FLOOR * float(np.max(np.abs(v)))
+            comb = np.sqrt(s**2 + s[0] ** 2)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                z = np.where(comb > 0.0, np.abs(v - v[0]) / comb, math.inf)
+            k = int(np.argmax(np.abs(v[1:] - v[0]))) + 1
+            change = float((v[k] - v[0]) / abs(v[0])) if relative else math.nan
+            zk = float(z[k]) if np.isfinite(z[k]) else math.inf
+            rows.append({"effect": eff, "parameter": par.name, "unit": par.unit, "values": v.tolist(),
+                         "std": s.tolist(), "change": change, "abs_change": float(v[k] - v[0]), "z": zk,
+                         "drifts": bool(zk > DRIFT_Z and (not relative or abs(change) > DRIFT_MIN))})
+    rows.sort(key=lambda r: (not r["drifts"], -r["z"]))
+    return rows
+
+
+def session_sigma(table: Mapping[str, Any]) -> dict[str, float]:
+    """σ of the log change per drift-prone parameter measured across sessions (for
+    :func:`predict_heldout`): the RMS deviation of log(value) from its session mean, times
+    √(1 + 1/k) for a new session (k sessions)."""
+    out = {}
+    k = len(table["sessions"])
+    for r in table["rows"]:
+        if r["effect"] in DRIFT_PARAMETERS and r["parameter"] == DRIFT_PARAMETERS[r["effect"]][1]:
+            v = np.asarray(r["values"], dtype=float)
+            if np.all(v > 0.0):
+                lv = np.log(v)
+                out[r["effect"]] = float(np.sqrt(np.sum((lv - lv.mean()) ** 2) / max(k - 1, 1))
+                                         * math.sqrt(1.0 + 1.0 / k))
+    return out
+
+
+def session_analysis(nominal: Rig, sessions: Sequence[Sequence[Recording]], chosen: Sequence[str], *,
+                     labels: Sequence[str] | None = None, channels: Sequence[str] = ("theta",),
+                     max_effects: int = 2, seed: int = 0,
+                     progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Leave-one-session-out diagnosis, the effects named per session, and the drift table.
+
+    Parameters
+    ----------
+    nominal : Rig
+    sessions : sequence of sequences of Recording
+        Two or more sessions (model frame).
+    chosen : sequence of str
+        Effects the diagnosis on all sessions chose (the drift table fits them plus the
+        drift-prone parameters, :func:`drift_set`).
+    labels, channels, max_effects, seed, progress
+        As in :func:`drift_table` / :func:`aeropend_ident.gap.which.diagnose_effects`.
+
+    Returns
+    -------
+    dict
+        ``per_session``: effects named by a diagnosis on each session alone; ``leave_one_out``:
+        per session, the effects chosen on the other sessions and the θ NRMSE of the nominal and
+        of that correction on the left-out session (``shrink``); ``drift``: :func:`drift_table`;
+        ``drift_sigma``: :func:`session_sigma` of it.
+
+    Raises
+    ------
+    GapError
+        Fewer than two sessions; unusable recordings.
+    """
+    from aeropend_ident.io.split import validation_split
+
+    labels = _session_labels(sessions, labels, "leave-one-session-out")
+    say = progress or (lambda _m: None)
+    diags = []
+    for lab, recs in zip(labels, sessions, strict=True):
+        say(f"sessions: diagnosis on {lab} alone")
+        core, val = validation_split(list(recs))
+        diags.append(diagnose_effects(nominal, core, val, max_effects=max_effects, seed=seed))
+    per = [{"session": lab, "chosen": list(d.chosen), "significant": bool(d.significant)}
+           for lab, d in zip(labels, diags, strict=True)]
+    loo = []
+    for k, (lab, recs) in enumerate(zip(labels, sessions, strict=True)):
+        others = [r for j, s in enumerate(sessions) if j != k for r in s]
+        if len(sessions) == 2:
+            d = diags[1 - k]
+        else:
+            say(f"sessions: diagnosis without {lab}")
+            core, val = validation_split(others)
+            d = diagnose_effects(nominal, core, val, max_effects=max_effects, seed=seed)
+        preps = _preps(recs, channels)
+        n0 = float(np.mean([theta_nrmse(nominal, MeasurementMap(), p) for p in preps]))
+        n1 = float(np.mean([theta_nrmse(d.corrected_rig, d.measurement, p) for p in preps]))
+        loo.append({"left_out": lab, "chosen_on_others": list(d.chosen), "nrmse_nominal": n0,
+                    "nrmse_corrected": n1, "shrink": 1.0 - n1 / n0 if n0 > 0 else math.nan})
+    table = drift_table(nominal, sessions, drift_set(chosen, channels), labels=labels, channels=channels,
+                        progress=progress)
+    return {"sessions": labels, "per_session": per, "leave_one_out": loo, "drift": table,
+            "drift_sigma": session_sigma(table)}

@@ -1,0 +1,475 @@
+"""Sim-to-real gap, part 4: report a :class:`~aeropend_ident.gap.run.GapResult` (JSON, HTML, terminal).
+
+:func:`write_report` writes ``report.json`` (everything, machine-readable), ``report.html``
+(one self-contained page: the PNGs of :mod:`aeropend_ident.gap.figures` embedded as base64),
+``corrected_rig.yaml`` (loadable by :func:`aeropend_sim.params.load_rig`) and the figures as PNG
+files; :func:`terminal_summary` is the one-screen text summary. The run itself is
+:func:`aeropend_ident.gap.run.run_gap`.
+
+No rclpy import; matplotlib (through :mod:`aeropend_ident.gap.figures`) with the Agg backend.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from aeropend_ident.gap.figures import (
+    figures,
+)
+from aeropend_ident.gap.run import (
+    GapResult,
+    _label,
+    corrected_rig_dict,
+    run_gap,
+)
+from aeropend_ident.gap.where import EQUATIONS
+from aeropend_ident.io.jsonutil import jsonable
+
+
+# --------------------------------------------------------------------------- text
+def _fmt(v: Any, spec: str = ".4g") -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, float):
+        return format(v, spec) if math.isfinite(v) else "–"
+    return str(v)
+
+
+def terminal_summary(result: GapResult) -> str:
+    """One-screen summary: verdict, located subsystem, ranked effects, before/after."""
+    h = result.headline()
+    d = result.diagnosis
+    lines = [
+        f"gap: nominal rig {result.rig.name}; {h['n_fit_recordings']} fit / "
+        f"{h['n_heldout_recordings']} held-out recording(s) ({result.split_rule})",
+        f"  significant gap: {'yes' if h['significant_gap'] else 'no'}",
+        "  WHERE (nominal on fit recordings):",
+    ]
+    for row in result.where.located:
+        mark = "!" if row["flagged"] else " "
+        lines.append(
+            f"   {mark} {row['equation']:9s} ({row['subsystem']:10s}) residual {row['relative']:7.1%} "
+            f"of driving term; top terms: {row['top_group']}"
+        )
+    for nc in result.where.not_checked:
+        lines.append(f"     {nc['equation']:9s} not checked: {nc['reason']}")
+    r0 = result.where.recordings[0]
+    lines.append(
+        f"    free-run NRMSE {r0.free_run['nrmse']:.4f}, {result.where.recordings[0].horizon:g} s-ahead "
+        f"NRMSE {r0.short_horizon['nrmse']:.4f}; Ljung-Box p {r0.whiteness['p_value']:.2g}; "
+        f"alignment lag {r0.alignment['lag_s']:.3f} s"
+    )
+    lines.append("  WHICH (ranked effects; 'validation' = the part of the fit data that chooses them):")
+    for r in list(d.ranking)[:5]:
+        lines.append(
+            f"    {r['effect']:22s} {r.get('subsystem', ''):12s} score {_fmt(r.get('score'), '.3g'):>8s} "
+            f"validation explained {_fmt(r.get('validation_explained'), '.2f'):>5s} "
+            f"confidence {_fmt(r.get('confidence'), '.2f')}"
+        )
+        if r.get("ambiguous_with"):
+            lines.append(f"      not separated by these data from: {', '.join(r['ambiguous_with'])}")
+    for ni in list(d.not_identifiable)[:4]:
+        lines.append(f"    (not identifiable: {ni['effect']}: {ni['reason'][:70]})")
+    lines.append(f"  chosen: {', '.join(d.chosen) or 'none'}")
+    if getattr(d, "explained", None):
+        lines.append(f"  explained: {d.explained['verdict']}")
+    if result.agreement:
+        lines.append(f"  WHERE vs WHICH: {result.agreement['explanation']}")
+    lines.append("  VALIDATION (carved from the fit data; chooses the effects):")
+    for row in d.validation:
+        lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} NRMSE {row['nrmse']:.4f}")
+    if result.sessions:
+        lines.append("  SESSIONS (leave one session out: effects chosen on the others, θ NRMSE on it):")
+        for row in result.sessions["leave_one_out"]:
+            lines.append(f"    {row['left_out'][:30]:30s} {'+'.join(row['chosen_on_others']) or 'none':32s} "
+                         f"{row['nrmse_nominal']:.4f} -> {row['nrmse_corrected']:.4f} ({row['shrink']:.1%})")
+        lines += _drift_lines(result.sessions["drift"])
+    pr = result.prediction
+    if pr:
+        # one line, the screen is full: the NRMSE change of each drift-prone parameter alone at -σ / +σ
+        sens = pr.get("sensitivity") or {}
+        alone = ("; alone at -σ/+σ: " + ", ".join(f"{k} {a:.4f}/{b:.4f}" for k, (a, b) in sens.items())
+                 if sens else "")
+        lines.append(
+            f"  PREDICTED held-out θ NRMSE of the corrected rig (fit data only): {pr['predicted']:.4f}, 80 % "
+            f"interval [{pr['interval'][0]:.4f}, {pr['interval'][1]:.4f}] (within session "
+            f"{pr['within_session']:.4f}, session drift {pr['drift_part']:.4f} from the "
+            f"{pr['drift_source']}{alone})")
+    lines.append("  HELD OUT (never seen by the diagnosis), NRMSE per recorded channel:")
+    for row in result.test:
+        per = "  ".join(f"{c} {v:.4f}" for c, v in row.get("channel_nrmse", {}).items())
+        lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} {per}")
+    lines.append(
+        f"  held-out NRMSE θ {h['heldout_nrmse_nominal']:.4f} -> {h['heldout_nrmse_corrected']:.4f} "
+        f"(shrink {h['heldout_shrink']:.1%})"
+        + "".join(f"; {c} {v:.1%}" for c, v in h["heldout_channel_shrink"].items() if c != "theta")
+    )
+    chk = result.prediction_check
+    if chk:
+        lines.append(f"  prediction check: actual {chk['actual']:.4f} {chk['verdict']}")
+    for a in result.attainable or []:
+        sp = a["split"]
+        lines.append(
+            f"  ATTAINABLE on {_label(a['source'] or 'held-out')[:40]}: nominal {a['nominal']:.4f}, "
+            f"corrected {a['corrected']:.4f}, best constant-parameter fit there {a['oracle']:.4f}, "
+            f"noise floor {a['noise_floor']:.4f}")
+        lines.append(
+            f"    held-out gap: removed {sp['removed']:.0%}, removable but not removed (session drift or "
+            f"off parameters) {sp['removable_not_removed']:.0%}, not removable by the catalog "
+            f"{sp['not_removable']:.0%}")
+        if a.get("drift"):
+            lines += _drift_lines(a["drift"])
+    return "\n".join(lines)
+
+
+def _drift_html(result: GapResult) -> str:
+    """HTML of the prediction, its check, the attainable shrink and the drift tables."""
+    parts = []
+    pr, chk = result.prediction, result.prediction_check
+    if pr:
+        rows = [["predicted (fit data only)", _fmt(pr["predicted"]),
+                 f"[{_fmt(pr['interval'][0])}, {_fmt(pr['interval'][1])}]", _fmt(pr["within_session"]),
+                 f"{_fmt(pr['drift_part'])} ({pr['drift_source']})",
+                 _fmt(chk["actual"]) if chk else "–", chk["verdict"] if chk else "–"]]
+        parts.append("<h3>Predicted vs actual held-out θ NRMSE of the corrected rig</h3>" + _table(
+            rows, ["", "predicted", "80 % interval", "within session", "session drift", "actual", "check"]))
+    if result.attainable:
+        rows = [[_label(a["source"] or "held-out"), _fmt(a["nominal"]), _fmt(a["corrected"]),
+                 _fmt(a["oracle"]), _fmt(a["noise_floor"]), f"{a['split']['removed']:.0%}",
+                 f"{a['split']['removable_not_removed']:.0%}", f"{a['split']['not_removable']:.0%}"]
+                for a in result.attainable]
+        parts.append("<h3>Attainable shrink: the held-out gap split</h3>" + _table(
+            rows, ["recording", "nominal", "corrected", "best constant-parameter fit there", "noise floor",
+                   "removed", "removable, not removed", "not removable"]))
+    tables = [a["drift"] for a in result.attainable or [] if a.get("drift")]
+    if result.sessions:
+        tables.insert(0, result.sessions["drift"])
+    for t in tables:
+        rows = [[f"{r['effect']}.{r['parameter']}", " / ".join(
+            f"{v:.4g} ± {sd:.2g}" for v, sd in zip(r["values"], r["std"], strict=True)), r["unit"],
+            _change(r), _fmt(r["z"], ".1f"), "yes" if r["drifts"] else ""] for r in t["rows"]]
+        parts.append(f"<h3>Parameter drift: {' vs '.join(_label(x) for x in t['sessions'])}</h3>" + _table(
+            rows, ["parameter", "values ± std", "unit", "change", "z", "drifts"]))
+    return "\n".join(parts)
+
+
+def _change(row: dict[str, Any]) -> str:
+    """A drift-table change: relative where the reference is a size, else absolute in the unit."""
+    c = row.get("change")
+    if c is not None and math.isfinite(c):
+        return f"{c:+.1%}"
+    return f"{row['abs_change']:+.4g} {row['unit']}"
+
+
+def _drift_lines(table: dict[str, Any], top: int = 4) -> list[str]:
+    """Terminal lines of a drift table (most significant rows)."""
+    out = [f"    drift table ({' vs '.join(_label(x)[:24] for x in table['sessions'])}):"]
+    for r in table["rows"][:top]:
+        vals = " / ".join(f"{v:.4g}" for v in r["values"])
+        out.append(f"      {'!' if r['drifts'] else ' '} {r['effect']}.{r['parameter']:14s} {vals} "
+                   f"{r['unit']} change {_change(r)} (z {r['z']:.1f})")
+    return out
+
+
+def _step_text(sm: dict[str, Any]) -> str:
+    """'simulated (recorded)' step metrics of the diagnosis' first step, or the flat entries."""
+    sim, rec = sm.get("simulated"), sm.get("recorded")
+    if isinstance(sim, dict) and isinstance(rec, dict):
+        parts = [f"{k.replace('_', ' ')} {_fmt(sim.get(k), '.3g')} ({_fmt(rec.get(k), '.3g')})" for k in sim]
+        t0 = sm.get("t_start")
+        return (
+            (f"step at {t0:.3g} s: " if isinstance(t0, (int, float)) else "")
+            + ", ".join(parts)
+            + " — simulated (recorded)"
+        )
+    return ", ".join(f"{k} {_fmt(v, '.3g')}" for k, v in sm.items() if not isinstance(v, dict))
+
+
+def _table(rows: list[list[Any]], head: list[str]) -> str:
+    th = "".join(f"<th>{html.escape(str(c))}</th>" for c in head)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(_fmt(c))}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{th}</tr>{body}</table>"
+
+
+def _html_rows(result: GapResult) -> dict[str, Any]:
+    """The rows of the HTML report's tables (and the verdict list, channels, explained share)."""
+    d = result.diagnosis
+    w = result.where
+    verdict = "".join(f"<li>{html.escape(v)}</li>" for v in w.verdict())
+    eq_rows = [
+        [
+            r["equation"],
+            r["subsystem"],
+            f"{r['relative']:.2%}",
+            "yes" if r["flagged"] else "no",
+            r["top_group"],
+            r["top_group_subsystem"],
+        ]
+        for r in w.located
+    ]
+    eq_rows += [[nc["equation"], "", "not checked", "", nc["reason"], ""] for nc in w.not_checked]
+    rec_rows = [
+        [
+            _label(r.source),
+            r.free_run["nrmse"],
+            r.short_horizon["nrmse"],
+            r.whiteness["p_value"],
+            r.input_xcorr["p_value"],
+            r.input_xcorr["peak_lag_s"],
+            r.alignment["lag_s"],
+            "yes" if r.significant else "no",
+        ]
+        for r in w.recordings
+    ]
+    rank_rows = [
+        [
+            k + 1,
+            r["effect"],
+            r.get("subsystem"),
+            r.get("score"),
+            r.get("validation_explained"),
+            r.get("bic_delta"),
+            r.get("confidence"),
+            "; ".join(
+                f"{n} = {_fmt(p.get('value'))} ± {_fmt(p.get('std'), '.2g')} {p.get('unit', '')}"
+                for n, p in (r.get("parameters") or {}).items()
+            ),
+        ]
+        for k, r in enumerate(d.ranking)
+    ]
+    ni_rows = [[n["effect"], n["reason"]] for n in d.not_identifiable]
+    shrink_rows = []
+    for part, row in [("held out", r) for r in result.test] + [("validation", r) for r in d.validation]:
+        sm = row.get("step_metrics") or {}
+        shrink_rows.append(
+            [
+                part,
+                "+".join(row["effects"]) or "nominal",
+                row.get("nrmse"),
+                row.get("max_error"),
+                row.get("steady_state_error"),
+                _step_text(sm),
+            ]
+        )
+    after_rows = [
+        [
+            _label(o["source"]),
+            o["metrics"]["nominal"]["nrmse"],
+            o["metrics"]["corrected"]["nrmse"],
+            o["metrics"]["nominal"]["max_abs_error"],
+            o["metrics"]["corrected"]["max_abs_error"],
+        ]
+        for o in result.overlays
+    ]
+    chans = list(result.test[0].get("channel_nrmse", {}))
+    channel_rows = [["+".join(row["effects"]) or "nominal", *[row["channel_nrmse"].get(c) for c in chans]]
+                    for row in result.test]
+    amb_rows = [[r["effect"], ", ".join(r["ambiguous_with"]),
+                 "; ".join(f"{k}: validation explained {_fmt(v.get('validation_explained'), '.3f')}, "
+                           + (f"first in {v['bootstrap_first']:.0%} of resamples" if v.get("bootstrap_first")
+                              is not None else "as good in the joint fit with the other chosen effects")
+                           for k, v in r.get("ambiguity", {}).items())]
+                for r in d.ranking if r.get("ambiguous_with")]
+    explained = getattr(d, "explained", {}) or {}
+    wc = result.where_heldout_corrected
+    wn = result.where_heldout_nominal
+    white_rows = [
+        [
+            _label(a.source),
+            a.whiteness["p_value"],
+            b.whiteness["p_value"],
+            "yes" if a.significant else "no",
+            "yes" if b.significant else "no",
+        ]
+        for a, b in zip(wn.recordings, wc.recordings, strict=True)
+    ]
+    return {"verdict": verdict, "eq_rows": eq_rows, "rec_rows": rec_rows, "rank_rows": rank_rows,
+            "ni_rows": ni_rows, "shrink_rows": shrink_rows, "after_rows": after_rows, "chans": chans,
+            "channel_rows": channel_rows, "amb_rows": amb_rows, "explained": explained,
+            "white_rows": white_rows}
+
+
+def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
+    """The self-contained HTML report (figures embedded as base64 PNG)."""
+    h = result.headline()
+    d = result.diagnosis
+    w = result.where
+
+    def img(key: str, alt: str) -> str:
+        return f'<img alt="{alt}" src="data:image/png;base64,{base64.b64encode(figs[key]).decode()}">'
+
+    t = _html_rows(result)
+    verdict, eq_rows, rec_rows, rank_rows = t["verdict"], t["eq_rows"], t["rec_rows"], t["rank_rows"]
+    ni_rows, shrink_rows, after_rows, chans = t["ni_rows"], t["shrink_rows"], t["after_rows"], t["chans"]
+    channel_rows, amb_rows = t["channel_rows"], t["amb_rows"]
+    explained, white_rows = t["explained"], t["white_rows"]
+    css = (
+        "body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em;color:#222}"
+        "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 7px;"
+        "font-size:13px}th{background:#eee}img{max-width:100%}.big{font-size:1.2em}"
+    )
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>aeropend gap report: {html.escape(result.rig.name)}</title>
+<style>{css}</style></head><body>
+<h1>Sim-to-real gap report: {html.escape(result.rig.name)}</h1>
+<p class="big">Held-out NRMSE <b>{h["heldout_nrmse_nominal"]:.4f}</b> (nominal) &rarr;
+<b>{h["heldout_nrmse_corrected"]:.4f}</b> (corrected with {html.escape(", ".join(d.chosen) or "no effect")}):
+shrink <b>{h["heldout_shrink"]:.1%}</b>. Significant gap: {"yes" if h["significant_gap"] else "no"};
+located in: <b>{html.escape(str(h["where_subsystem"]))}</b>.</p>
+<p>Rig {html.escape(result.rig_ref)}; {len(result.fit)} fit recording(s), {len(result.held_out)} held-out
+recording(s) ({html.escape(result.split_rule)}). The held-out recordings were used neither to locate the gap
+nor to choose or fit the effects: the diagnosis fitted on {len(result.fit_core)} part(s) of the fit recordings
+and chose the effects on {len(result.validation)} validation part(s) carved from them.</p>
+<h2>1. Before / after on held-out recordings</h2>
+{img("overlay", "overlay")}
+{
+        _table(
+            after_rows,
+            [
+                "recording",
+                "NRMSE nominal",
+                "NRMSE corrected",
+                "max |e| nominal [rad]",
+                "max |e| corrected [rad]",
+            ],
+        )
+    }
+{
+        _table(
+            shrink_rows,
+            [
+                "data",
+                "effects added",
+                "NRMSE (mean over recordings)",
+                "max error [rad]",
+                "steady-state error [rad]",
+                "step metrics",
+            ],
+        )
+    }
+<h3>Held-out NRMSE per recorded channel</h3>
+{_table(channel_rows, ["effects added", *[f"NRMSE {c}" for c in chans]])}
+<h3>Residual tests on held-out data, nominal vs corrected</h3>
+{
+        _table(
+            white_rows,
+            ["recording", "Ljung-Box p nominal", "Ljung-Box p corrected", "gap nominal", "gap corrected"],
+        )
+    }
+{_drift_html(result)}
+<h2>2. Where: residual per state equation (fit recordings)</h2>
+<ul>{verdict}</ul>
+<p>Each state equation is evaluated on the measured signals; its residual is shown relative to the equation's
+driving term (v<sub>a</sub> for the armature, K<sub>t</sub>i<sub>a</sub> for the rotor, (L/J)f for the
+pendulum). The "top terms" column is the term group whose regressors explain most of the residual (R²).
+Equations whose channels were not recorded cannot be checked.</p>
+{_table(eq_rows, ["equation", "subsystem", "residual / driving term", "flagged", "top terms", "points to"])}
+{img("equations", "equation residuals")}
+{
+        _table(
+            rec_rows,
+            [
+                "recording",
+                "free-run NRMSE",
+                f"{w.recordings[0].horizon:g} s-ahead NRMSE",
+                "Ljung-Box p",
+                "input xcorr p",
+                "xcorr peak lag [s]",
+                "alignment lag [s]",
+                "significant",
+            ],
+        )
+    }
+<h2>3. Where: residual by operating region, frequency band, residual tests</h2>
+{img("regions", "regions")}
+{img("tests", "residual tests")}
+<h2>4. Which: ranked unmodelled effects</h2>
+{img("effects", "effects")}
+{
+        _table(
+            rank_rows,
+            [
+                "rank",
+                "effect",
+                "subsystem",
+                "score",
+                "validation explained",
+                "ΔBIC",
+                "confidence",
+                "parameters",
+            ],
+        )
+    }
+<p>How completely the chosen effects explain the gap: {html.escape(explained.get("verdict", "–"))}
+(worst channel {html.escape(str(explained.get("worst_channel", "–")))}: share of its above-noise
+validation gap removed {_fmt(explained.get("share_above_noise"), ".3f")},
+validation residual / its noise part: {_fmt(explained.get("residual_over_noise"), ".3g")}).</p>
+<p>Where vs which: {html.escape(result.agreement.get("explanation", "–"))}.</p>
+<h3>Effects these data do not separate</h3>
+{_table(amb_rows, ["effect", "not separated from", "evidence"])}
+<h3>Not identifiable from these recordings</h3>
+{_table(ni_rows, ["effect", "reason"])}
+<h2>5. Definitions</h2>
+<ul>
+<li>NRMSE = RMS(θ<sub>sim</sub> − θ<sub>meas</sub>) / (max θ<sub>meas</sub> − min θ<sub>meas</sub>),
+free run from the recording's first samples, driven by the recorded duty cycle only.</li>
+<li>Significant gap: the free-run residual fails the Ljung-Box whiteness test (p &lt; 0.01), its RMS exceeds
+3&times; the measurement noise and the NRMSE exceeds 0.01.</li>
+<li>Validation: the part of the fit recordings on which the diagnosis chooses and ranks the effects
+("validation explained" = share of the nominal validation error an effect removes). Held out: the
+recordings only replayed here, at the end.</li>
+<li>Confidence: how often the effect comes first (or, for an added effect, passes its threshold) when the
+validation segments are resampled, times the completeness of the chosen set (1 when it leaves the noise
+level, 0 when more than a quarter of the gap above noise remains) (0..1).</li>
+<li>Corrected rig: <code>corrected_rig.yaml</code> next to this page (load with
+<code>aeropend_sim.params.load_rig</code>); the full numbers are in <code>report.json</code>.</li>
+</ul>
+</body></html>
+"""
+
+
+def write_report(result: GapResult, outdir: str | Path) -> dict[str, Path]:
+    """Write ``report.json``, ``report.html``, ``corrected_rig.yaml`` and ``figures/*.png``.
+
+    Returns
+    -------
+    dict
+        Paths keyed ``report``, ``html``, ``corrected_rig`` and ``fig_<name>``.
+    """
+    out = Path(outdir)
+    (out / "figures").mkdir(parents=True, exist_ok=True)
+    figs = figures(result)
+    paths: dict[str, Path] = {}
+    for k, png in figs.items():
+        p = out / "figures" / f"{k}.png"
+        p.write_bytes(png)
+        paths[f"fig_{k}"] = p
+    paths["report"] = out / "report.json"
+    paths["report"].write_text(json.dumps(result.as_dict(), indent=2, allow_nan=False), encoding="utf-8")
+    paths["html"] = out / "report.html"
+    paths["html"].write_text(html_page(result, figs), encoding="utf-8")
+    paths["corrected_rig"] = out / "corrected_rig.yaml"
+    paths["corrected_rig"].write_text(
+        yaml.safe_dump(jsonable(corrected_rig_dict(result)), sort_keys=False, allow_unicode=True),
+        encoding="utf-8",
+    )
+    return paths
+
+
+__all__ = [
+    "EQUATIONS",
+    "GapResult",
+    "corrected_rig_dict",
+    "figures",
+    "html_page",
+    "run_gap",
+    "terminal_summary",
+    "write_report",
+]

@@ -1,0 +1,547 @@
+"""Sim-to-real gap, part 3: run the whole diagnosis (where, which, after).
+
+:func:`run_gap` is the pipeline behind the ``gap`` command:
+
+1. **where** — :func:`aeropend_ident.gap.where.locate_gap` of the nominal rig on the *fit*
+   recordings (equation errors per subsystem, regions, bands, residual tests);
+2. **which** — :func:`aeropend_ident.gap.which.diagnose_effects` screens, fits and ranks the
+   catalog's unmodelled effects (:mod:`aeropend_ident.gap.effects`). It fits on the *fit core*
+   and ranks / chooses on a *validation* part, both carved out of the fit recordings
+   (:func:`aeropend_ident.io.split.validation_split`: train / validation / test), because the
+   ranking itself selects on the data it is given;
+3. **after** — the corrected rig is replayed on the **held-out** recordings, which neither step
+   has seen (overlay and before/after NRMSE, :func:`aeropend_ident.gap.which.gap_metrics`), and
+   :func:`~aeropend_ident.gap.where.locate_gap` is run again there, for the nominal and the
+   corrected rig (does the residual become white, does the flagged equation clear?).
+
+The result (:class:`GapResult`, with its JSON form and :func:`corrected_rig_dict`) is written by
+:mod:`aeropend_ident.gap.report` and drawn by :mod:`aeropend_ident.gap.figures`.
+
+No rclpy import, no matplotlib.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import math
+import platform
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import scipy
+
+from aeropend_ident.errors import GapInputError
+from aeropend_ident.gap.where import WhereReport, locate_gap
+from aeropend_ident.greybox.fit import THETA_OFFSET, error_metrics
+from aeropend_ident.io.jsonutil import jsonable
+from aeropend_ident.io.split import (
+    VALIDATION_FRACTION,
+    validation_split,
+)
+from aeropend_sim.params import Rig, rig_to_dict
+from aeropend_sim.recording import Recording
+
+
+@dataclass
+class GapResult:
+    """Everything :func:`run_gap` computed.
+
+    Attributes
+    ----------
+    rig : Rig
+        Nominal rig.
+    rig_ref : str
+        Rig name or file given (provenance).
+    theta_offset : float
+        θ_model − θ_recorded [rad].
+    fit, held_out : list[Recording]
+        Recordings used to find the effects / to prove them.
+    split_rule : str
+        How the held-out recordings were chosen.
+    where : WhereReport
+        Nominal rig on the fit recordings.
+    where_heldout_nominal, where_heldout_corrected : WhereReport
+        Nominal and corrected rig on the held-out recordings.
+    diagnosis : Any
+        :class:`aeropend_ident.gap.which.EffectDiagnosis`.
+    overlays : list[dict]
+        Per held-out recording: ``source``, ``t``, ``duty``, ``theta``, ``nominal``,
+        ``corrected`` (arrays, recording frame) and their ``metrics``.
+    fit_core, validation : list[Recording]
+        What the effect diagnosis saw: it fits on ``fit_core`` and chooses / ranks the effects on
+        ``validation`` (both carved from ``fit``); the held-out recordings stay unseen.
+    test : list[dict]
+        Held-out gap of the nominal rig (``effects`` = []) and of the corrected rig
+        (:func:`aeropend_ident.gap.which.gap_metrics`: ``nrmse`` = mean over recordings, ...).
+    prediction : dict, optional
+        Predicted held-out θ NRMSE of the corrected rig with its 80 % interval, made from the fit
+        data before the held-out replay (:func:`aeropend_ident.gap.drift.predict_heldout`).
+    prediction_check : dict, optional
+        The prediction against the actual held-out NRMSE (``inside`` the interval or not).
+    attainable : list of dict, optional
+        Per held-out recording: oracle fits and the split of its gap
+        (:func:`aeropend_ident.gap.drift.attainable`).
+    sessions : dict, optional
+        Leave-one-session-out diagnosis and drift table
+        (:func:`aeropend_ident.gap.drift.session_analysis`).
+    """
+
+    rig: Rig
+    rig_ref: str
+    theta_offset: float
+    fit: list[Recording]
+    held_out: list[Recording]
+    split_rule: str
+    where: WhereReport
+    where_heldout_nominal: WhereReport
+    where_heldout_corrected: WhereReport
+    diagnosis: Any
+    overlays: list[dict[str, Any]]
+    fit_core: list[Recording] = field(default_factory=list)
+    validation: list[Recording] = field(default_factory=list)
+    test: list[dict[str, Any]] = field(default_factory=list)
+    agreement: dict[str, Any] = field(default_factory=dict)
+    prediction: dict[str, Any] | None = None
+    prediction_check: dict[str, Any] | None = None
+    attainable: list[dict[str, Any]] | None = None
+    sessions: dict[str, Any] | None = None
+
+    # ------------------------------------------------------------------ headline
+    def headline(self) -> dict[str, Any]:
+        """Held-out (test) NRMSE before/after: mean over held-out recordings of
+        RMS(θ_sim − θ_meas)/range(θ_meas), the nominal and the corrected rig."""
+        before = float(self.test[0]["nrmse"])
+        after = float(self.test[-1]["nrmse"])
+        d = self.diagnosis
+        ch0, ch1 = self.test[0].get("channel_nrmse", {}), self.test[-1].get("channel_nrmse", {})
+        return {
+            "significant_gap": bool(self.where.significant or d.significant),
+            "where_subsystem": self.where.subsystem,
+            "effects_chosen": list(d.chosen),
+            "heldout_nrmse_nominal": before,
+            "heldout_nrmse_corrected": after,
+            "heldout_shrink": (1.0 - after / before) if before > 0 else math.nan,
+            "heldout_channel_nrmse_nominal": dict(ch0),
+            "heldout_channel_nrmse_corrected": dict(ch1),
+            "heldout_channel_shrink": {c: (1.0 - ch1[c] / v) if v > 0 else math.nan
+                                       for c, v in ch0.items() if c in ch1},
+            "explained": getattr(d, "explained", {}).get("verdict", ""),
+            "where_which_agree": self.agreement.get("agree"),
+            "n_fit_recordings": len(self.fit),
+            "n_heldout_recordings": len(self.held_out),
+            "heldout_never_seen_by_diagnosis": bool(self.validation is not self.held_out),
+        }
+
+    def as_dict(self) -> dict[str, Any]:
+        """What ``report.json`` holds."""
+        return jsonable(
+            {
+                "tool": "aeropend_ident gap",
+                "headline": self.headline(),
+                "where": self.where.as_dict(),
+                "which": self.diagnosis.as_dict(),
+                "where_which": self.agreement,
+                "sessions": self.sessions,
+                "prediction": self.prediction,
+                "after": {
+                    "prediction_check": self.prediction_check,
+                    "attainable": self.attainable,
+                    "heldout_nominal": _where_brief(self.where_heldout_nominal),
+                    "heldout_corrected": _where_brief(self.where_heldout_corrected),
+                    "overlay_metrics": [{"source": o["source"], **o["metrics"]} for o in self.overlays],
+                    "test": self.test,
+                },
+                "inputs": {
+                    "rig": {
+                        "ref": self.rig_ref,
+                        "name": self.rig.name,
+                        "description": self.rig.description,
+                        "effects": dict(vars(self.rig.effects)),
+                    },
+                    "theta_offset_rad": self.theta_offset,
+                    "split_rule": self.split_rule,
+                    "fit": [_rec_info(r) for r in self.fit],
+                    "held_out": [_rec_info(r) for r in self.held_out],
+                    "diagnosis_fit": [_rec_info(r) for r in self.fit_core],
+                    "diagnosis_validation": [_rec_info(r) for r in self.validation],
+                },
+                "provenance": {
+                    "created_utc": _dt.datetime.now(_dt.UTC).isoformat(),
+                    "versions": {
+                        "python": platform.python_version(),
+                        "numpy": np.__version__,
+                        "scipy": scipy.__version__,
+                    },
+                },
+            }
+        )
+
+
+def _label(source: str) -> str:
+    """Short label of a recording source: the file name for files (and their slices), else as is."""
+    return Path(source).name if Path(source.split("[")[0]).exists() else source
+
+
+def _rec_info(r: Recording) -> dict[str, Any]:
+    return {
+        "source": r.source,
+        "n_samples": len(r),
+        "duration_s": float(r.t[-1] - r.t[0]),
+        "dt_s": r.dt,
+        "channels": sorted(r.channels),
+    }
+
+
+def _where_brief(w: WhereReport) -> dict[str, Any]:
+    return {
+        "significant": w.significant,
+        "subsystem": w.subsystem,
+        "located": w.located,
+        "verdict": w.verdict(),
+        "recordings": [
+            {
+                "source": r.source,
+                "free_run": r.free_run,
+                "short_horizon": r.short_horizon,
+                "whiteness_p": r.whiteness["p_value"],
+                "input_xcorr_p": r.input_xcorr["p_value"],
+                "significant": r.significant,
+            }
+            for r in w.recordings
+        ],
+    }
+
+
+# --------------------------------------------------------------------------- pipeline
+def _shift(rec: Recording, offset: float) -> Recording:
+    """The recording with θ moved into the model frame (θ_model = θ_recorded + offset)."""
+    if offset == 0.0:
+        return rec
+    ch = {**rec.channels, "theta": rec.channels["theta"] + offset}
+    return Recording(
+        t=rec.t, duty=rec.duty, channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=dict(rec.meta)
+    )
+
+
+def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, Any]:
+    """Held-out replay of the nominal and the corrected rig (the diagnosis' own replay, so the
+    numbers match its shrink table), θ in the recording's frame."""
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.gap.which import prepare as which_prepare
+    from aeropend_ident.gap.which import replay
+
+    shifted = _shift(rec, offset)
+    prep = which_prepare([shifted], frozenset({"theta"}))[0]
+    nom = replay(rig, MeasurementMap(), prep)["theta"] - offset
+    cor = replay(diag.corrected_rig, diag.measurement, prep)["theta"] - offset
+    theta = rec.channels["theta"]
+    return {
+        "source": rec.source,
+        "t": rec.t - rec.t[0],
+        "duty": rec.duty,
+        "theta": theta,
+        "nominal": nom,
+        "corrected": cor,
+        "metrics": {"nominal": error_metrics(theta, nom), "corrected": error_metrics(theta, cor)},
+    }
+
+
+def _sessions_and_prediction(
+    rig: Rig, diag: Any, validation: list[Recording], held_out: list[Recording], *, theta_offset: float,
+    sessions: Sequence[Sequence[Recording]] | None, session_labels: Sequence[str] | None, max_effects: int,
+    seed: int, progress: Callable[[str], None] | None, predict: bool, drift_sigma: Mapping[str, float] | None,
+) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+    """The session analysis (with ``sessions``) and the held-out prediction of :func:`run_gap`."""
+    from aeropend_ident.gap.drift import predict_heldout, session_analysis
+
+    say = progress or (lambda _msg: None)
+    sess = None
+    if sessions is not None:
+        say(f"sessions: {len(sessions)} sessions, leave-one-session-out and drift table")
+        sess = session_analysis(rig, [[_shift(r, theta_offset) for r in g] for g in sessions], diag.chosen,
+                                labels=session_labels, channels=diag.channels or ("theta",),
+                                max_effects=max_effects, seed=seed, progress=progress)
+        if drift_sigma is None and sess["drift_sigma"]:
+            drift_sigma = sess["drift_sigma"]
+    prediction = None
+    if predict:
+        say("predict: held-out NRMSE of the corrected rig from the fit data")
+        prediction = predict_heldout(rig, diag, [_shift(r, theta_offset) for r in validation],
+                                     drift_sigma=drift_sigma, seed=seed)
+        if sess is not None and drift_sigma is sess["drift_sigma"]:
+            prediction["drift_source"] = "sessions"
+        prediction["saw_heldout"] = validation is held_out
+    return sess, prediction
+
+
+def _replay_held_out(
+    rig: Rig, diag: Any, corrected: Rig, held_out: list[Recording], theta_offset: float, horizon: float,
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]], WhereReport, WhereReport]:
+    """The after step of :func:`run_gap`: overlays, before/after metrics and where-analyses."""
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.gap.which import gap_metrics
+    from aeropend_ident.gap.which import prepare as which_prepare
+
+    overlays = [_overlay(rig, diag, r, theta_offset) for r in held_out]
+    preps = which_prepare([_shift(r, theta_offset) for r in held_out], frozenset(diag.channels or ("theta",)))
+    test = [{"effects": [], **gap_metrics(rig, MeasurementMap(), preps)}]
+    if diag.chosen:
+        test.append({"effects": list(diag.chosen), **gap_metrics(corrected, diag.measurement, preps)})
+    w_nom = locate_gap(rig, held_out, horizon=horizon, theta_offset=theta_offset)
+    # the corrected rig's where-analysis in the model frame of the diagnosis (sensor offset included)
+    meas = getattr(diag, "measurement", None)
+    off_c = theta_offset + (float(meas.theta_offset) if meas is not None else 0.0)
+    w_cor = locate_gap(corrected, held_out, horizon=horizon, theta_offset=off_c)
+    return overlays, test, w_nom, w_cor
+
+
+def _prediction_check(prediction: dict[str, Any] | None, test: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The predicted held-out NRMSE against the actual one (None without a prediction)."""
+    check = None
+    if prediction is not None:
+        actual = float(test[-1]["nrmse"])
+        lo, hi = prediction["interval"]
+        check = {"predicted": prediction["predicted"], "interval": [lo, hi], "actual": actual,
+                 "inside": bool(lo <= actual <= hi),
+                 "verdict": ("inside the predicted 80 % interval" if lo <= actual <= hi else
+                             f"OUTSIDE the predicted 80 % interval ({'above' if actual > hi else 'below'})")}
+    return check
+
+
+def run_gap(
+    rig: Rig,
+    fit: Sequence[Recording],
+    held_out: Sequence[Recording],
+    *,
+    rig_ref: str = "",
+    theta_offset: float = 0.0,
+    split_rule: str = "",
+    max_effects: int = 2,
+    horizon: float = 0.2,
+    seed: int = 0,
+    validation_fraction: float = VALIDATION_FRACTION,
+    validation: Sequence[Recording] | None = None,
+    progress: Callable[[str], None] | None = None,
+    sessions: Sequence[Sequence[Recording]] | None = None,
+    session_labels: Sequence[str] | None = None,
+    predict: bool = True,
+    oracle: bool = False,
+    drift_sigma: Mapping[str, float] | None = None,
+) -> GapResult:
+    """Where + which + after (module doc) for a nominal rig and fit / held-out recordings.
+
+    Parameters
+    ----------
+    rig : Rig
+        Nominal simulator.
+    fit, held_out : sequence of Recording
+        Recordings used to find the effects, and recordings used only to check them.
+    rig_ref : str
+        Rig name or path (provenance).
+    theta_offset : float
+        θ_model − θ_recorded [rad] (see :func:`aeropend_ident.greybox.fit.rig_theta_offset`).
+    split_rule : str
+        How the held-out set was chosen (provenance).
+    max_effects : int
+        Most effects added to the corrected rig (1, 2 or 3: each one after the first by the
+        forward-selection step of :func:`aeropend_ident.gap.which.diagnose_effects`).
+    horizon : float
+        Short-horizon prediction length [s] of the where-analysis.
+    seed : int
+        Seed of the effect ranking's resampling.
+    validation_fraction : float
+        Share of the fit data the diagnosis uses to choose and rank the effects
+        (:func:`validation_split`); the held-out recordings are then never seen before the final
+        before/after. 0 hands the held-out recordings to the diagnosis as its validation set
+        (then they also choose the effects: an optimistic before/after).
+    validation : sequence of Recording, optional
+        Explicit validation recordings (a different experiment than the fit recordings); then
+        the whole fit recordings are the fit core and ``validation_fraction`` is ignored.
+    progress : callable, optional
+        Receives one-line progress messages.
+    sessions : sequence of sequences of Recording, optional
+        The fit recordings grouped by session (each recording of ``fit`` in exactly one group):
+        adds the leave-one-session-out diagnosis and the drift table, whose measured drift then
+        replaces the drift prior of the prediction (:mod:`aeropend_ident.gap.drift`).
+    session_labels : sequence of str, optional
+        Names of the sessions.
+    predict : bool
+        Predict the held-out NRMSE from the fit data before the held-out replay.
+    oracle : bool
+        Fit the best catalog set on each held-out recording (attainable shrink; the chosen set is
+        refitted there in any case; the command line does this unless --no-oracle).
+    drift_sigma : mapping, optional
+        σ of the session-to-session log change per drift-prone parameter (default: the measured
+        one with ``sessions``, else :data:`aeropend_ident.gap.drift.DRIFT_PRIOR`).
+
+    Returns
+    -------
+    GapResult
+
+    Raises
+    ------
+    aeropend_ident.gap.effects.GapError, aeropend_ident.gap.where.GapInputError
+        Unusable recordings (no θ, NaNs, too short, constant input) or rig.
+    """
+    from aeropend_ident.gap.where import timing_lag_seen
+    from aeropend_ident.gap.which import TIMING_EFFECTS, diagnose_effects
+
+    say = progress or (lambda _msg: None)
+    fit, held_out = list(fit), list(held_out)
+    if not fit or not held_out:
+        raise GapInputError(
+            f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} held out)"
+        )
+    say(f"where: nominal {rig.name} on {len(fit)} fit recording(s)")
+    where = locate_gap(rig, fit, horizon=horizon, theta_offset=theta_offset)
+    if validation is not None:
+        fit_core, validation = fit, list(validation)
+        if not validation:
+            raise GapInputError("validation recordings given but empty")
+    elif validation_fraction > 0.0:
+        fit_core, validation = validation_split(fit, validation_fraction)
+    else:
+        fit_core, validation = fit, held_out
+    say(
+        f"which: screening and fitting the effect catalog ({len(fit_core)} fit / {len(validation)} "
+        "validation recording(s))"
+    )
+    # the diagnosis works in the model's angle frame: shift θ by the rig's recording-frame offset
+    # a clear lead/lag of the simulated response (alignment lag) asks the diagnosis to confirm
+    # the timing effects even when the θ̈-equation screening does not shortlist them
+    timing = any(timing_lag_seen(r.alignment) for r in where.recordings)
+    diag = diagnose_effects(
+        rig,
+        [_shift(r, theta_offset) for r in fit_core],
+        [_shift(r, theta_offset) for r in validation],
+        max_effects=max_effects,
+        seed=seed,
+        progress=progress,
+        also_confirm=TIMING_EFFECTS if timing else (),
+    )
+    corrected = diag.corrected_rig
+    from aeropend_ident.gap.drift import attainable
+
+    sess, prediction = _sessions_and_prediction(
+        rig, diag, validation, held_out, theta_offset=theta_offset, sessions=sessions,
+        session_labels=session_labels, max_effects=max_effects, seed=seed, progress=progress,
+        predict=predict, drift_sigma=drift_sigma)
+    say("after: replaying the held-out recordings")
+    overlays, test, w_nom, w_cor = _replay_held_out(rig, diag, corrected, held_out, theta_offset, horizon)
+    check = _prediction_check(prediction, test)
+    say("after: attainable shrink (correction and best catalog set fitted on each held-out recording)")
+    attain = attainable(rig, diag, [_shift(r, theta_offset) for r in held_out], max_effects=max_effects,
+                        seed=seed, best_set=oracle, fit=[_shift(r, theta_offset) for r in fit],
+                        progress=progress)
+    return GapResult(
+        rig=rig,
+        rig_ref=rig_ref or rig.name,
+        theta_offset=theta_offset,
+        fit=fit,
+        held_out=held_out,
+        fit_core=fit_core,
+        validation=validation,
+        test=test,
+        split_rule=split_rule,
+        where=where,
+        where_heldout_nominal=w_nom,
+        where_heldout_corrected=w_cor,
+        diagnosis=diag,
+        overlays=overlays,
+        agreement=where_which_agreement(where, diag),
+        prediction=prediction,
+        prediction_check=check,
+        attainable=attain,
+        sessions=sess,
+    )
+
+
+#: Where-analysis equation of each state equation a catalog effect's signature reaches.
+_EQUATION_OF_TERM = {"v_a": "actuator", "i_a": "armature", "omega_rotor": "rotor", "theta_dot": "pendulum"}
+
+
+def where_which_agreement(where: WhereReport, diag: Any) -> dict[str, Any]:
+    """Do the where-analysis (equation errors) and the which-analysis (chosen effects) agree?
+
+    They agree when an equation the where-analysis flags is one whose right-hand side the first
+    chosen effect changes (its catalog term group). Otherwise the returned ``explanation`` says
+    why they may disagree (nothing flagged: a gap below the equation-error floors that the free-run
+    output error still resolves; a sensor effect, which distorts the recorded angle rather than an
+    equation; an upstream effect seen downstream through simulated signals).
+
+    Returns
+    -------
+    dict
+        ``agree`` (bool or None when nothing was chosen), ``where_equations`` (flagged),
+        ``which_effect``, ``which_equations`` (equations its signature reaches), ``explanation``.
+    """
+    from aeropend_ident.gap.effects import get_effect
+
+    flagged = [r["equation"] for r in where.located if r["flagged"]]
+    chosen = [c for c in getattr(diag, "chosen", []) if c != "quantisation"]
+    if not chosen:
+        note = (f"; the where-analysis flags {', '.join(flagged)}: a gap no catalog effect removes "
+                "significantly") if flagged else ""
+        return {"agree": None, "where_equations": flagged, "which_effect": None, "which_equations": [],
+                "explanation": "no effect chosen" + note}
+    eff = get_effect(chosen[0])
+    eqs = [_EQUATION_OF_TERM[k] for k in eff.terms if k in _EQUATION_OF_TERM]
+    agree = any(f in eqs for f in flagged)
+    if agree:
+        why = (f"the where-analysis flags the {', '.join(f for f in flagged if f in eqs)} equation, which "
+               f"{eff.name} changes")
+    elif not flagged:
+        why = ("the where-analysis flags no equation (each residual is within its noise and method floors); "
+               f"{eff.name} was found from the free-run output error, which integrates a small equation "
+               "error")
+    elif eff.kind == "measurement":
+        why = (f"{eff.name} distorts the recorded angle, so every equation evaluated on it shows a residual "
+               f"(flagged: {', '.join(flagged)})")
+    else:
+        why = (f"the where-analysis flags {', '.join(flagged)}, {eff.name} acts on {', '.join(eqs)}: the "
+               "located equation sees the effect only through simulated upstream signals, or the effect "
+               "stands in for one the catalog lacks")
+    return {"agree": agree, "where_equations": flagged, "which_effect": eff.name, "which_equations": eqs,
+            "explanation": why}
+
+
+# --------------------------------------------------------------------------- corrected rig file
+def corrected_rig_dict(result: GapResult) -> dict[str, Any]:
+    """The corrected rig in the rig-file format; the changed numbers' sources name the diagnosis."""
+    rig, nominal = result.diagnosis.corrected_rig, result.rig
+    data = rig_to_dict(rig)
+    base = rig_to_dict(nominal)
+    chosen = ", ".join(result.diagnosis.chosen) or "none"
+    data["name"] = f"{nominal.name}_corrected"
+    data["description"] = (
+        f"{nominal.description} -- corrected by the gap diagnosis (aeropend_ident gap): "
+        f"effects added: {chosen}"
+    )
+    fits = ", ".join(_label(r.source) or "recording" for r in result.fit)
+    for section, fields in data.items():
+        if not isinstance(fields, dict) or section == "effects":
+            continue
+        for key, node in fields.items():
+            old = base.get(section, {}).get(key)
+            if isinstance(node, dict) and isinstance(old, dict) and node.get("value") != old.get("value"):
+                node["source"] = (
+                    f"gap diagnosis ({chosen}) fitted on {fits}; nominal {old.get('value')!r} "
+                    f"({old.get('source', '')})"
+                )
+    # the diagnosis' sensor map acts on θ_recorded + nominal offset: θ_rec + off_n = s·(θ_model − off_d),
+    # i.e. θ_rec = s·(θ_model − (off_d + off_n/s)) in the rig file's convention
+    meas = result.diagnosis.measurement
+    scale = float(meas.theta_scale)
+    offset = float(meas.theta_offset) + result.theta_offset / scale
+    frame: dict[str, Any] = {}
+    if offset != 0.0:
+        frame[THETA_OFFSET] = {"value": offset, "unit": "rad", "source": (
+            "gap diagnosis: fitted sensor offset" if meas.theta_offset != 0.0 else "nominal rig file")}
+    if scale != 1.0:
+        frame["theta_scale"] = {"value": scale, "unit": "1", "source": "gap diagnosis: fitted sensor gain"}
+    if frame:
+        data["recording_frame"] = frame
+    return data

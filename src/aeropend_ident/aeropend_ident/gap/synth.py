@@ -1,0 +1,370 @@
+"""Blind benchmark of the gap diagnosis: a generator of "real" recordings and a scorer.
+
+The generator (:func:`make_case`) builds a hidden "real" plant from a nominal rig by adding one
+or two catalog effects (:mod:`aeropend_ident.gap.effects`) at random magnitudes
+(:data:`TRUTH_RANGES`), simulates it with :func:`aeropend_sim.simulate.simulate` under random
+excitation and sensor noise, and returns fit and held-out recordings made with **different
+excitations and seeds** (fit: amplitude-modulated PRBS; held-out: Latin-hypercube steps). The
+truth stays in the :class:`SynthCase`; the diagnosis sees only the nominal rig and the
+recordings. :func:`score_case` compares afterwards (top-1 / top-3, confusable pairs,
+magnitude error, held-out shrink) and :func:`summarise` aggregates per effect.
+
+Sensor offset and scale are applied as the measurement transform of
+:class:`aeropend_ident.gap.effects.MeasurementMap` (the plant model has no such effect), before
+the noise and quantisation of :func:`aeropend_sim.simulate.measure`.
+
+No rclpy import: this module runs without ROS.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from aeropend_ident.errors import GapError
+from aeropend_ident.gap.effects import EFFECTS, EffectContext, MeasurementMap, apply_effects, get_effect
+from aeropend_ident.greybox.fit import motor_equilibrium
+from aeropend_sim.excitation import aprbs, lhs_steps
+from aeropend_sim.params import Rig
+from aeropend_sim.recording import Recording
+from aeropend_sim.simulate import measure, simulate
+
+#: Truth magnitude ranges per effect: parameter -> list of (low, high) intervals (one is drawn,
+#: then a value uniformly inside it). Numbers in :data:`RELATIVE` parameters are factors of the
+#: nominal rig's value (the physical value is factor × nominal), the others physical values. Sized
+#: so each effect changes the free-run angle clearly above 50 dB sensor noise.
+TRUTH_RANGES: dict[str, dict[str, list[tuple[float, float]]]] = {
+    "hbridge_drop": {"V_drop": [(0.12, 0.25)]},
+    "dead_zone": {"dead_zone": [(0.05, 0.12)]},
+    "back_emf": {"K_omega": [(0.5, 0.7), (1.4, 2.0)]},
+    "armature_resistance": {"R_a": [(0.6, 0.8), (1.25, 1.6)]},
+    "armature_inductance": {"L_a": [(5.0, 15.0)]},
+    "torque_constant": {"K_t": [(0.6, 0.8), (1.25, 1.6)]},
+    "rotor_friction": {"B_m": [(4.0, 10.0)]},
+    "coulomb_friction": {"coulomb_over_J": [(0.6, 1.5)]},
+    "stribeck_friction": {"coulomb_over_J": [(0.6, 1.5)], "stribeck_over_J": [(1.5, 3.0)],
+                          "stribeck_velocity": [(0.1, 0.3)]},
+    "viscous_friction": {"c_over_J": [(0.35, 0.6), (1.7, 2.5)]},
+    "thrust_coefficient": {"K_q": [(0.75, 0.88), (1.12, 1.25)]},
+    "thrust_law": {"exponent": [(1.7, 1.85), (2.15, 2.3)]},
+    "propeller_drag": {"K_d": [(0.4, 0.6), (1.6, 2.5)]},
+    "actuator_lag": {"lag_time_constant": [(0.05, 0.12)]},
+    "input_delay": {"input_delay": [(0.04, 0.1)]},
+    "motor_time_constant": {"J_m": [(0.2, 0.4), (3.0, 6.0)]},
+    "gravity": {"mgd_over_J": [(0.8, 0.9), (1.12, 1.25)]},
+    "inertia": {"J_scale": [(0.7, 0.85), (1.2, 1.45)]},
+    "end_stops": {"theta_max": [(0.6, 0.8)]},
+    "sensor_offset": {"theta_offset": [(-0.1, -0.04), (0.04, 0.1)]},
+    "sensor_scale": {"theta_scale": [(0.86, 0.93), (1.07, 1.14)]},
+    "quantisation": {"theta_quantum": [(0.008, 0.02)]},
+}
+#: Parameters whose :data:`TRUTH_RANGES` are factors of the nominal rig's value.
+RELATIVE = {("back_emf", "K_omega"): "motor.K_omega", ("armature_resistance", "R_a"): "motor.R_a",
+            ("armature_inductance", "L_a"): "motor.L_a", ("torque_constant", "K_t"): "motor.K_t",
+            ("rotor_friction", "B_m"): "motor.B_m", ("viscous_friction", "c_over_J"): "pendulum.c_over_J",
+            ("thrust_coefficient", "K_q"): "thrust.K_q", ("propeller_drag", "K_d"): "motor.K_d",
+            ("motor_time_constant", "J_m"): "motor.J_m", ("gravity", "mgd_over_J"): "pendulum.mgd_over_J"}
+#: Operating angle [rad] at which the thrust-law truth keeps the nominal thrust (only the shape of
+#: the law changes there).
+THRUST_REFERENCE_ANGLE = 0.5
+#: All recorded channels of a fully instrumented synthetic rig.
+FULL_CHANNELS = ("theta", "i_a", "v_a", "omega_rotor")
+#: Duty cycle range of the excitations (θ from about 0 to 1.1 rad on the thesis rig).
+DUTY_RANGE = (0.1, 0.72)
+#: Rest at zero duty before each excitation [s] (the replay starts from rest).
+REST = 0.5
+
+
+@dataclass
+class SynthCase:
+    """One benchmark case.
+
+    Attributes
+    ----------
+    case_id : str
+    truth : dict
+        ``{effect: {parameter: value}}`` ({} for a plant with no added effect).
+    channels : tuple of str
+        Recorded channels.
+    fit, held_out : list of Recording
+    snr_db : float
+        Sensor SNR of every channel [dB].
+    seed : int
+    """
+
+    case_id: str
+    truth: dict[str, dict[str, float]]
+    channels: tuple[str, ...]
+    fit: list[Recording]
+    held_out: list[Recording]
+    snr_db: float
+    seed: int
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def thrust_reference_speed(rig: Rig) -> float:
+    """Propeller speed ω₂ [rad/s] holding the rod at :data:`THRUST_REFERENCE_ANGLE` with α = 2."""
+    p = rig.pendulum
+    f = p.mgd_over_J * math.sin(THRUST_REFERENCE_ANGLE) / p.L_over_J
+    return math.sqrt(f / rig.thrust.K_q)
+
+
+def draw_truth(name: str, rng: np.random.Generator, nominal: Rig) -> dict[str, float]:
+    """Random physical truth of one effect from :data:`TRUTH_RANGES` for a nominal rig.
+
+    Relative ranges (:data:`RELATIVE`) are scaled by the nominal value; a thrust-law truth gets
+    the coefficient that keeps the nominal thrust at :data:`THRUST_REFERENCE_ANGLE`.
+
+    Raises
+    ------
+    GapError
+        For an unknown effect.
+    """
+    get_effect(name)
+    out = {}
+    for p, intervals in TRUTH_RANGES[name].items():
+        lo, hi = intervals[int(rng.integers(len(intervals)))]
+        v = float(rng.uniform(lo, hi))
+        if (name, p) in RELATIVE:
+            section, field_ = RELATIVE[(name, p)].split(".")
+            v *= float(getattr(getattr(nominal, section), field_))
+        out[p] = v
+    if name == "thrust_law":
+        out["K_q"] = nominal.thrust.K_q * thrust_reference_speed(nominal) ** (2.0 - out["exponent"])
+    return out
+
+
+def real_plant(nominal: Rig, truth: Mapping[str, Mapping[str, float]],
+               snr_db: float) -> tuple[Rig, MeasurementMap]:
+    """The hidden plant: nominal + truth effects, sensor noise at ``snr_db`` (quantisation if drawn)."""
+    rig, meas = apply_effects(nominal, truth)
+    rig = rig.with_params("sensors", snr_db=float(snr_db)).with_effects(sensor_noise=True)
+    if "quantisation" not in truth:
+        rig = rig.with_effects(quantisation=False)
+    return rig, meas
+
+
+def record(real: Rig, meas: MeasurementMap, duty: np.ndarray, seed: int, channels: Sequence[str],
+           source: str) -> Recording:
+    """Simulate the hidden plant from rest and return what its acquisition records.
+
+    Parameters
+    ----------
+    real : Rig
+        Hidden plant (noise/quantisation switches honoured).
+    meas : MeasurementMap
+        Angle-sensor transform applied to the true θ before noise and quantisation.
+    duty : ndarray, shape (N,)
+    seed : int
+        Noise seed.
+    channels : sequence of str
+        Channels kept (θ always).
+    """
+    if "theta" not in channels:
+        raise GapError(f"channels {list(channels)} lack 'theta'; every synthetic recording has the angle")
+    i0, w0, tf0 = motor_equilibrium(real.with_effects(sensor_noise=False), float(duty[0]))
+    traj = simulate(real, duty, x0=np.array([0.0, 0.0, i0, w0, tf0]), seed=seed, tau_before=float(duty[0]))
+    true = dict(traj.true)
+    true["theta"] = meas.to_recorded(true["theta"])
+    y = measure(real, true, np.random.default_rng(seed + 7919))
+    return Recording(t=traj.t, duty=traj.duty, channels={c: y[c] for c in channels}, source=source,
+                     meta={"synthetic": True})
+
+
+def _with_rest(duty: np.ndarray, dt: float) -> np.ndarray:
+    return np.concatenate([np.zeros(round(REST / dt)), duty])
+
+
+def fit_excitation(seed: int, duration: float, dt: float) -> np.ndarray:
+    """Fit excitation: APRBS over :data:`DUTY_RANGE`, holds 0.3-2.5 s, after a rest."""
+    s = aprbs(duration, lo=DUTY_RANGE[0], hi=DUTY_RANGE[1], min_hold=0.3, max_hold=2.5, seed=seed, dt=dt)
+    return _with_rest(s.duty, dt)
+
+
+def held_out_excitation(seed: int, n_steps: int, dt: float) -> np.ndarray:
+    """Held-out excitation: Latin-hypercube steps over :data:`DUTY_RANGE`, holds 1-3 s, after a rest."""
+    s = lhs_steps(n_steps, tau_min=DUTY_RANGE[0], tau_max=DUTY_RANGE[1], hold_min=1.0, hold_max=3.0,
+                  seed=seed, dt=dt)
+    return _with_rest(s.duty, dt)
+
+
+def make_case(nominal: Rig, effects: Sequence[str], seed: int, *, channels: Sequence[str] = FULL_CHANNELS,
+              snr_db: float | None = None, fit_duration: float = 24.0, held_out_steps: int = 8,
+              truth: Mapping[str, Mapping[str, float]] | None = None) -> SynthCase:
+    """One blind case: hidden plant, fit recording (APRBS) and held-out recording (LHS steps).
+
+    Parameters
+    ----------
+    nominal : Rig
+        The rig file the diagnosis will be given.
+    effects : sequence of str
+        Catalog effects added to the hidden plant (0, 1 or 2).
+    seed : int
+        Seeds the magnitudes, the excitations and the noise (fit and held-out use different ones).
+    channels : sequence of str
+        Recorded channels (θ always; ``("theta",)`` for an angle-only rig).
+    snr_db : float, optional
+        Sensor SNR [dB]; default drawn in [45, 60].
+    fit_duration : float
+        Fit excitation length [s] (plus the rest).
+    held_out_steps : int
+        Number of held-out LHS steps.
+    truth : mapping, optional
+        Fixed magnitudes instead of random ones.
+
+    Raises
+    ------
+    GapError
+        On an unknown effect.
+    """
+    rng = np.random.default_rng(seed)
+    tr = {e: dict(truth[e]) if truth and e in truth else draw_truth(e, rng, nominal) for e in effects}
+    snr = float(rng.uniform(45.0, 60.0)) if snr_db is None else float(snr_db)
+    real, meas = real_plant(nominal, tr, snr)
+    dt = nominal.sample_period
+    fit = [record(real, meas, fit_excitation(seed + 11, fit_duration, dt), seed + 101, channels,
+                  f"synth-{seed}-fit")]
+    ho = [record(real, meas, held_out_excitation(seed + 5003, held_out_steps, dt), seed + 202, channels,
+                 f"synth-{seed}-held-out")]
+    name = "+".join(effects) or "none"
+    ctx = EffectContext.from_data(nominal, fit[0].channels["theta"], fit[0].duty)
+    off = {e: {k: r.off for k, r in get_effect(e).ranges(ctx).items()} for e in tr}
+    return SynthCase(case_id=f"{name}@{seed}", truth=tr, channels=tuple(channels), fit=fit, held_out=ho,
+                     snr_db=snr, seed=seed, meta={"off": off})
+
+
+def _confusable(names: Sequence[str]) -> set[str]:
+    out = set(names)
+    for n in names:
+        out |= set(EFFECTS[n].confusable_with)
+    return out
+
+
+def score_case(case: SynthCase, diagnosis: Any) -> dict[str, Any]:
+    """Compare a diagnosis (an ``EffectDiagnosis`` or its ``as_dict()``) with the hidden truth.
+
+    Returns
+    -------
+    dict
+        ``truth``, ``ranked`` (effect names, best first), ``top1`` (first ranked effect is a true
+        one; for a plant without effect: "no significant gap" was reported), ``top1_confusable``
+        (first is true or confusable with a true one), ``top3`` (every true effect among the first
+        three), ``magnitude_error`` (per true effect found: the largest over its parameters of
+        |fitted − true|/|true − off|, ``off`` the nominal rig's value),
+        ``nrmse_before``/``nrmse_after``/``shrink`` (held-out, 1 − after/before, on the NRMSE over
+        all compared channels), ``theta_nrmse_before``/``theta_nrmse_after``/``theta_shrink`` (θ
+        only), ``identifiable``
+        (every true effect identifiable from the channels), ``reported_not_identifiable``.
+    """
+    d = diagnosis if isinstance(diagnosis, dict) else diagnosis.as_dict()
+    ranked = [r["effect"] for r in d["ranking"]] if d["significant"] else []
+    truth = list(case.truth)
+    not_id = {x["effect"] for x in d["not_identifiable"]}
+    ident = [t for t in truth if t not in not_id]
+    out: dict[str, Any] = {"case": case.case_id, "truth": case.truth, "channels": list(case.channels),
+                           "snr_db": case.snr_db, "significant": bool(d["significant"]), "ranked": ranked[:5],
+                           "chosen": d["chosen"]}
+    if not truth:
+        out.update(top1=not d["significant"], top3=not d["significant"], top1_confusable=not d["significant"])
+    elif not ident:
+        out.update(top1=None, top3=None, top1_confusable=None)
+    else:
+        out["top1"] = bool(ranked) and ranked[0] in ident
+        out["top1_confusable"] = bool(ranked) and ranked[0] in _confusable(ident)
+        out["top3"] = all(t in ranked[:3] for t in ident)
+    out["identifiable"] = len(ident) == len(truth)
+    out["reported_not_identifiable"] = sorted(set(truth) & not_id)
+    mag: dict[str, float | None] = {}
+    offs = case.meta.get("off", {})
+    for t in ident:
+        row = next((r for r in d["ranking"] if r["effect"] == t), None)
+        errs = []
+        for pname, true_v in case.truth[t].items():
+            if row is None or pname not in row["parameters"]:
+                continue
+            off = offs.get(t, {}).get(pname, 0.0)
+            size = abs(true_v - off) if off else abs(true_v)
+            if size > 0:
+                errs.append(abs(row["parameters"][pname]["value"] - true_v) / size)
+        mag[t] = max(errs) if errs else None
+    out["magnitude_error"] = mag
+    shrink = d.get("validation", d.get("shrink"))
+    for key, tag in (("nrmse", "theta_"), ("nrmse_channels", "")):
+        before = shrink[0].get(key, shrink[0]["nrmse"])
+        after = shrink[-1].get(key, shrink[-1]["nrmse"])
+        out[f"{tag}nrmse_before"], out[f"{tag}nrmse_after"] = before, after
+        out[f"{tag}shrink"] = (1.0 - after / before) if before and len(shrink) > 1 else 0.0
+    out["elapsed_s"] = d.get("elapsed_s")
+    return out
+
+
+def summarise(scores: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Aggregate scored cases: overall and per-effect top-1/top-3, magnitude error, shrink.
+
+    Cases whose truth is not identifiable from the recorded channels count separately
+    (``not_identifiable_reported``: fraction that said so).
+    """
+    def frac(vals: list[bool]) -> float | None:
+        return float(np.mean(vals)) if vals else None
+
+    scored = [s for s in scores if s["top1"] is not None]
+    with_effect = [s for s in scored if s["truth"]]
+    shrinks = [s["shrink"] for s in with_effect if s["significant"]]
+    shrink_all = [s["shrink"] for s in with_effect]
+    shrink_theta = [s.get("theta_shrink", s["shrink"]) for s in with_effect]
+    per: dict[str, dict[str, Any]] = {}
+    for s in scored:
+        keys = list(s["truth"]) or ["none"]
+        for k in keys:
+            per.setdefault(k, {"top1": [], "top3": [], "top1_confusable": [], "mag": [], "shrink": [],
+                               "theta_shrink": []})
+            per[k]["top1"].append(bool(s["top1"]))
+            per[k]["top3"].append(bool(s["top3"]))
+            per[k]["top1_confusable"].append(bool(s["top1_confusable"]))
+            m = s["magnitude_error"].get(k) if k != "none" else None
+            if m is not None:
+                per[k]["mag"].append(m)
+            if k != "none":
+                per[k]["shrink"].append(s["shrink"])
+                per[k]["theta_shrink"].append(s.get("theta_shrink", s["shrink"]))
+    per_out = {
+        k: {"cases": len(v["top1"]), "top1": frac(v["top1"]), "top3": frac(v["top3"]),
+            "top1_confusable": frac(v["top1_confusable"]),
+            "median_magnitude_error": float(np.median(v["mag"])) if v["mag"] else None,
+            "median_shrink": float(np.median(v["shrink"])) if v["shrink"] else None,
+            "median_theta_shrink": float(np.median(v["theta_shrink"])) if v["theta_shrink"] else None}
+        for k, v in per.items()
+    }
+    ni = [s for s in scores if s["top1"] is None]
+    return {
+        "cases": len(scores),
+        "scored_cases": len(scored),
+        "top1": frac([bool(s["top1"]) for s in scored]),
+        "top3": frac([bool(s["top3"]) for s in scored]),
+        "top1_confusable": frac([bool(s["top1_confusable"]) for s in scored]),
+        "median_shrink": float(np.median(shrink_all)) if shrink_all else None,
+        "median_shrink_significant": float(np.median(shrinks)) if shrinks else None,
+        "median_theta_shrink": float(np.median(shrink_theta)) if shrink_theta else None,
+        "median_magnitude_error": (float(np.median(m)) if (m := [v for s in scored for v in
+                                   s["magnitude_error"].values() if v is not None]) else None),
+        "not_identifiable_cases": len(ni),
+        "not_identifiable_reported": frac([bool(s["reported_not_identifiable"]) for s in ni]),
+        "per_effect": per_out,
+    }
+
+
+def confusion(scores: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, int]]:
+    """Single-effect cases: true effect -> {first-ranked effect (or "none"): count}."""
+    out: dict[str, dict[str, int]] = {}
+    for s in scores:
+        if len(s["truth"]) > 1 or s["top1"] is None:
+            continue
+        t = next(iter(s["truth"]), "none")
+        got = s["ranked"][0] if s["ranked"] else "none"
+        out.setdefault(t, {})
+        out[t][got] = out[t].get(got, 0) + 1
+    return out

@@ -1,0 +1,1183 @@
+"""Sim-to-real gap, part 1: **where** does the nominal simulator disagree with the recordings?
+
+:func:`locate_gap` replays the recorded duty cycle through the nominal rig and compares, per
+recording (all on the recording's uniform grid, :func:`aeropend_ident.greybox.fit.uniform_data`):
+
+1. **Free run** — the model driven by the duty cycle alone from the first samples' state
+   (:func:`aeropend_ident.greybox.fit.free_run_theta`); residual e_k = θ_sim − θ_meas [rad], NRMSE as in
+   :func:`aeropend_ident.greybox.fit.error_metrics`. θ(0) and θ̇(0) are refined by least squares over
+   the first :data:`INIT_WINDOW` seconds (a noisy first sample would otherwise start a spurious
+   oscillation that colours the whole residual).
+2. **Short-horizon prediction** — the model restarted every ``horizon`` seconds from the
+   *measured* state (θ, θ̇ measured or Savitzky-Golay estimated; i_a, ω₁ measured when
+   recorded, else taken from the nominal free run, which is exact for the motor because the
+   motor does not depend on the pendulum). A model whose free run drifts but whose
+   short-horizon prediction is good has a slow (steady-state) gap; a bad short-horizon
+   prediction means the fast dynamics are wrong.
+3. **Equation errors** — each state equation of :mod:`aeropend_sim.model` evaluated on the
+   measured signals (one-step, derivative form), so the gap is located in a subsystem:
+
+   ======== ============ ======================================================= ============
+   equation subsystem    residual                                                needs
+   ======== ============ ======================================================= ============
+   actuator actuator     v_a,meas − v_a(τ) (dead zone, Eq. 4.3 map or ideal)     v_a
+   armature electrical   v_a − R_a·i_a − K_ω·ω₁ − L_a·di_a/dt [V]                 i_a, ω₁
+   rotor    motor        K_t·i_a − B_m·ω₁ − T_c·sgn ω₁ − K_d·ω₁|ω₁| − J_m·ω̇₁ [N·m] ω₁
+   pendulum pendulum /   θ̈ − (−(mgd/J)sin θ − (c/J)θ̇ − (T_f/J)sgn θ̇ + (L/J)f) [rad/s²] θ
+            aerodynamic
+   ======== ============ ======================================================= ============
+
+   Derivatives are Savitzky-Golay (cubic, window :data:`SG_WINDOW` s, at least 7 samples);
+   the model side is smoothed by the same window so both sides have the same phase. Each
+   residual is reported relative to the equation's **driving term** (v_a, K_t·i_a, (L/J)·f):
+   the fraction of the input the nominal equation does not account for. The residual is then
+   regressed on the equation's term groups (e.g. gravity/offset, friction, thrust for the
+   pendulum) and the R² of each group alone says which term is mis-modelled. With θ only, the
+   pendulum equation uses the thrust of the *simulated* rotor speed, so a motor or actuator
+   error shows there as a "thrust" term; the report says which equations could not be checked
+   and why.
+4. **Regions** — the free-run residual per bin of measured θ, duty cycle and |θ̇| and transient
+   vs steady state (:func:`aeropend_ident.greybox.baseline.residual_regions`), steady-state error per
+   constant-duty hold, and per frequency band (Welch PSD of the residual vs the measured θ).
+5. **Residual tests** (Ljung & Box 1978; Ljung, *System Identification* §16.6):
+   Ljung-Box portmanteau test of the free-run residual's whiteness; cross-correlation between
+   the prewhitened input and the residual (χ² test and the lag of its peak); the lag that best
+   aligns the simulated with the measured θ̇ (a pure input delay shows up exactly there).
+
+A gap is **significant** when the free-run residual is not white (Ljung-Box p < :data:`ALPHA`)
+and its RMS exceeds both 3× the measurement noise (:func:`aeropend_ident.greybox.fit.noise_level`)
+and :data:`MIN_NRMSE` of the measured range. An equation is flagged when its relative residual
+exceeds :data:`MIN_RELATIVE`, its RMS exceeds the measurement-noise floor by three standard
+errors of an RMS estimate, and the part of its RMS not explained by noise exceeds 1.5× its
+method floor (the same equation error on the nominal model's own simulation of the input).
+
+No rclpy import. Units SI, angles in the recording's frame unless said otherwise.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import signal, stats
+
+from aeropend_ident.errors import GapInputError, IdentificationError
+from aeropend_ident.greybox.baseline import measured_rate, residual_bins, residual_regions
+from aeropend_ident.greybox.fit import UniformData, error_metrics, initial_velocity, noise_level, uniform_data
+from aeropend_ident.io.jsonutil import jsonable
+from aeropend_sim.model import I_A, OMEGA, ROTOR_FRICTION_VELOCITY, TAU_F, ModelError, PlantModel
+from aeropend_sim.params import Rig
+from aeropend_sim.recording import Recording
+from aeropend_sim.simulate import SimulationError, simulate
+
+#: Significance level of the Ljung-Box and cross-correlation tests.
+ALPHA = 0.01
+#: Smallest free-run NRMSE called a gap (below it the model is as good as the range resolution).
+MIN_NRMSE = 0.01
+#: Smallest relative equation residual (residual RMS / driving-term RMS) flagged.
+MIN_RELATIVE = 0.01
+#: Savitzky-Golay window [s] of the equation-error derivatives (at least 7 samples).
+SG_WINDOW = 0.08
+#: Lags of the Ljung-Box test (capped at N/5).
+LB_LAGS = 20
+#: Order of the AR model that prewhitens the input for the cross-correlation test.
+PREWHITEN_ORDER = 10
+#: Largest lag [s] searched for the input cross-correlation peak and the alignment lag.
+MAX_LAG = 1.0
+#: Window [s] over which the free run's initial θ, θ̇ are refined by least squares.
+INIT_WINDOW = 2.0
+#: Fewest samples locate_gap accepts per recording.
+MIN_SAMPLES = 50
+
+EQUATIONS: tuple[str, ...] = ("actuator", "armature", "rotor", "pendulum")
+SUBSYSTEM = {"actuator": "actuator", "armature": "electrical", "rotor": "motor", "pendulum": "pendulum"}
+#: Subsystem each term group points to when it explains the residual.
+GROUP_SUBSYSTEM = {
+    "offset": "actuator",
+    "gain": "actuator",
+    "dead_zone": "actuator",
+    "voltage": "electrical",
+    "resistance": "electrical",
+    "back_emf": "electrical",
+    "inductance": "electrical",
+    "torque": "motor",
+    "viscous": "motor",
+    "coulomb": "motor",
+    "drag": "aerodynamic",
+    "gravity_offset": "pendulum",
+    "friction": "pendulum",
+    "thrust": "aerodynamic",
+}
+
+#: Subsystem label of the pendulum equation's thrust group when the rotor speed is not recorded.
+THETA_ONLY_CHAIN = "actuator chain (actuator, motor or aerodynamic: not separable from θ alone)"
+
+
+# --------------------------------------------------------------------------- data classes
+@dataclass
+class EquationCheck:
+    """Equation error of one state equation on one recording (see module doc, step 3).
+
+    Attributes
+    ----------
+    equation : str
+        One of :data:`EQUATIONS`.
+    subsystem : str
+        Subsystem of the equation.
+    checked : bool
+        False when the recording lacks a channel it needs (then ``note`` says which).
+    note : str
+        What was used (e.g. "ω₁ from the nominal simulation") or why it was not checked.
+    unit : str
+        Unit of the residual.
+    rms : float
+        RMS of the residual.
+    mean : float
+        Mean of the residual.
+    driving_rms : float
+        RMS of the equation's driving term (same unit).
+    relative : float
+        rms / driving_rms.
+    noise_floor : float
+        RMS the residual would have from measurement noise alone (same unit).
+    method_floor : float
+        RMS of the same equation error computed on the nominal model's own simulation of this
+        input (what the derivative filters leave on a perfect model).
+    flagged : bool
+        see :func:`_flag` (above the noise floor and 1.5× the method floor).
+    groups : dict[str, float]
+        R² of the residual on each term group alone (0..1).
+    residual : ndarray, shape (N,)
+        The residual time series (not serialised).
+    """
+
+    equation: str
+    subsystem: str
+    checked: bool
+    note: str
+    unit: str = ""
+    rms: float = math.nan
+    mean: float = math.nan
+    driving_rms: float = math.nan
+    relative: float = math.nan
+    noise_floor: float = math.nan
+    method_floor: float = math.nan
+    flagged: bool = False
+    groups: dict[str, float] = field(default_factory=dict)
+    group_subsystems: dict[str, str] = field(default_factory=dict)
+    residual: np.ndarray | None = None
+
+    @property
+    def top_group(self) -> str | None:
+        """Term group with the largest R² (None when nothing was regressed)."""
+        return max(self.groups, key=self.groups.__getitem__) if self.groups else None
+
+    def as_dict(self) -> dict[str, Any]:
+        d = {
+            k: getattr(self, k)
+            for k in (
+                "equation",
+                "subsystem",
+                "checked",
+                "note",
+                "unit",
+                "rms",
+                "mean",
+                "driving_rms",
+                "relative",
+                "noise_floor",
+                "method_floor",
+                "flagged",
+                "groups",
+            )
+        }
+        d["top_group"] = self.top_group
+        d["top_group_subsystem"] = self.group_subsystems.get(self.top_group or "", None)
+        return d
+
+
+@dataclass
+class RecordingWhere:
+    """Where-analysis of one recording (arrays on its uniform grid; θ in the recording's frame)."""
+
+    source: str
+    dt: float
+    channels: list[str]
+    t: np.ndarray
+    duty: np.ndarray
+    theta: np.ndarray
+    theta_free: np.ndarray
+    theta_short: np.ndarray
+    free_run: dict[str, float]
+    short_horizon: dict[str, float]
+    horizon: float
+    equations: list[EquationCheck]
+    regions: dict[str, Any]
+    holds: list[dict[str, Any]]
+    bands: list[dict[str, Any]]
+    whiteness: dict[str, Any]
+    input_xcorr: dict[str, Any]
+    alignment: dict[str, Any]
+    noise_rms: float
+    significant: bool
+    repeats: list[dict[str, Any]] = field(default_factory=list)
+
+    def equation(self, name: str) -> EquationCheck:
+        """The :class:`EquationCheck` of ``name``."""
+        return next(e for e in self.equations if e.equation == name)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "source": self.source,
+            "dt_s": self.dt,
+            "n_samples": int(self.t.size),
+            "duration_s": float(self.t[-1]) if self.t.size else 0.0,
+            "channels": self.channels,
+            "free_run": self.free_run,
+            "short_horizon": {**self.short_horizon, "horizon_s": self.horizon},
+            "equations": [e.as_dict() for e in self.equations],
+            "regions": self.regions,
+            "holds": self.holds,
+            "repeatability": self.repeats,
+            "bands": self.bands,
+            "whiteness": self.whiteness,
+            "input_xcorr": self.input_xcorr,
+            "alignment": self.alignment,
+            "noise_rms_rad": self.noise_rms,
+            "significant": self.significant,
+        }
+
+
+@dataclass
+class WhereReport:
+    """Result of :func:`locate_gap` over several recordings.
+
+    Attributes
+    ----------
+    rig : str
+        Nominal rig name.
+    theta_offset : float
+        θ_model − θ_recorded [rad] used.
+    recordings : list[RecordingWhere]
+    significant : bool
+        Any recording shows a significant gap.
+    located : list[dict]
+        Checked equations ranked by their sample-weighted relative residual, each
+        ``{equation, subsystem, relative, flagged, top_group, top_group_subsystem, groups}``.
+    not_checked : list[dict]
+        ``{equation, reason}`` for equations no recording could check.
+    """
+
+    rig: str
+    theta_offset: float
+    recordings: list[RecordingWhere]
+    significant: bool
+    located: list[dict[str, Any]]
+    not_checked: list[dict[str, str]]
+
+    @property
+    def subsystem(self) -> str | None:
+        """Most likely subsystem of the gap (None when no equation is flagged).
+
+        The most upstream flagged equation's subsystem (causal order actuator → armature → rotor
+        → pendulum), refined by its dominant term group when that group belongs to another
+        subsystem (e.g. the pendulum equation's "thrust" group points to the aerodynamic /
+        actuator side).
+        """
+        for row in self.located:
+            if row["flagged"]:
+                return row["top_group_subsystem"] or row["subsystem"]
+        return None
+
+    def verdict(self) -> list[str]:
+        """Plain-language findings (a few lines)."""
+        out = []
+        if not self.significant:
+            out.append(
+                "no significant gap: the free-run residual is white or within the noise/resolution floor"
+            )
+        for row in self.located:
+            if row["flagged"]:
+                grp = row["top_group"]
+                out.append(
+                    f"{row['equation']} equation ({row['subsystem']}) misses {row['relative']:.0%} of its "
+                    f"driving term; residual best explained by the '{grp}' terms "
+                    f"(R² {row['groups'].get(grp, math.nan):.2f}, {row['top_group_subsystem']})"
+                )
+        for r in self.recordings:
+            if r.free_run.get("diverged"):
+                out.append(
+                    f"{r.source}: the nominal free run flips over the pivot (leaves the measured angle range "
+                    f"by more than π); its NRMSE is meaningless, the {r.horizon:g} s-ahead NRMSE is "
+                    f"{r.short_horizon['nrmse']:.3f}"
+                )
+            for rp in r.repeats:
+                if rp["measured_spread"] > 3.0 * rp["simulated_spread"] + 0.02:
+                    out.append(
+                        f"{r.source}: at duty {rp['duty']:.3f} the recorded steady angle varies by "
+                        f"{rp['measured_spread']:.3f} rad over {rp['count']} repeats "
+                        f"({rp['measured_drift_per_min']:+.3f} rad/min), the model by "
+                        f"{rp['simulated_spread']:.3f} rad: a time-varying effect (drift) no constant "
+                        "parameter removes"
+                    )
+            a = r.alignment
+            if timing_lag_seen(a):
+                out.append(
+                    f"{r.source}: simulated θ̇ best aligns with the measured one when delayed by "
+                    f"{a['lag_s']:.3f} s ({a['lag_samples']} samples)"
+                )
+        for nc in self.not_checked:
+            out.append(f"not checked: {nc['equation']} equation ({nc['reason']})")
+        return out
+
+    def as_dict(self) -> dict[str, Any]:
+        return jsonable(
+            {
+                "rig": self.rig,
+                "theta_offset_rad": self.theta_offset,
+                "significant": self.significant,
+                "subsystem": self.subsystem,
+                "located": self.located,
+                "not_checked": self.not_checked,
+                "verdict": self.verdict(),
+                "recordings": [r.as_dict() for r in self.recordings],
+                "definitions": {
+                    "residual": "theta_sim - theta_meas [rad] (recording frame)",
+                    "nrmse": "RMS(residual) / (max theta_meas - min theta_meas)",
+                    "relative": "RMS(equation residual) / RMS(equation driving term)",
+                    "significant": f"Ljung-Box p < {ALPHA} on the free-run residual and RMS > 3 x noise and "
+                    f"NRMSE > {MIN_NRMSE}",
+                    "flagged": f"relative > {MIN_RELATIVE}, RMS above the noise floor (3 standard "
+                    "errors) and sqrt(RMS^2 - noise^2) > 1.5 x method floor",
+                },
+            }
+        )
+
+
+# --------------------------------------------------------------------------- helpers
+def _sg_window(n: int, dt: float, seconds: float = SG_WINDOW) -> int:
+    w = max(7, round(seconds / dt) | 1)
+    if w > n:
+        w = n if n % 2 else n - 1
+    return w
+
+
+def _smooth(y: np.ndarray, w: int, deriv: int = 0, dt: float = 1.0) -> np.ndarray:
+    return signal.savgol_filter(y, w, 3, deriv=deriv, delta=dt, mode="interp")
+
+
+def _deriv_gain(w: int, dt: float, deriv: int) -> float:
+    """‖h‖₂ of the Savitzky-Golay derivative filter: noise gain per unit σ of white input noise."""
+    return float(np.linalg.norm(signal.savgol_coeffs(w, 3, deriv=deriv, delta=dt)))
+
+
+def _group_r2(residual: np.ndarray, groups: dict[str, list[np.ndarray]]) -> dict[str, float]:
+    """R² of least squares of ``residual`` on each group's columns alone (uncentred: an offset
+    must be explained by a column)."""
+    ss = float(residual @ residual)
+    out: dict[str, float] = {}
+    if ss <= 0.0:
+        return out
+    for name, cols in groups.items():
+        a = np.column_stack(cols)
+        if not np.all(np.isfinite(a)) or np.allclose(a, 0.0):
+            continue
+        coef, *_ = np.linalg.lstsq(a, residual, rcond=None)
+        fitted = a @ coef
+        out[name] = float(np.clip(1.0 - float((residual - fitted) @ (residual - fitted)) / ss, 0.0, 1.0))
+    return out
+
+
+def _flag(e: EquationCheck, n_eff: float) -> bool:
+    """Flag rule: relative > MIN_RELATIVE; RMS above the noise floor by 3 standard errors of an
+    RMS estimate over ``n_eff`` independent samples; and the part of the RMS not due to noise
+    above 1.5× the method floor."""
+    if not (e.relative > MIN_RELATIVE):
+        return False
+    if e.rms <= e.noise_floor * (1.0 + 3.0 / math.sqrt(2.0 * n_eff)):
+        return False
+    excess = math.sqrt(max(e.rms**2 - e.noise_floor**2, 0.0))
+    return bool(excess > 1.5 * e.method_floor)
+
+
+def _check(
+    eq: str,
+    residual: np.ndarray,
+    driving: np.ndarray,
+    unit: str,
+    noise_floor: float,
+    note: str,
+    groups: dict[str, list[np.ndarray]],
+    trim: int,
+) -> EquationCheck:
+    core = slice(trim, residual.size - trim) if residual.size > 2 * trim + 10 else slice(None)
+    r, d = residual[core], driving[core]
+    rms = float(np.sqrt(np.mean(r**2)))
+    drms = float(np.sqrt(np.mean(d**2)))
+    rel = rms / drms if drms > 0.0 else math.inf
+    flagged = bool(rel > MIN_RELATIVE and rms > 3.0 * noise_floor)
+    return EquationCheck(
+        equation=eq,
+        subsystem=SUBSYSTEM[eq],
+        checked=True,
+        note=note,
+        unit=unit,
+        rms=rms,
+        mean=float(np.mean(r)),
+        driving_rms=drms,
+        relative=rel,
+        noise_floor=noise_floor,
+        flagged=flagged,
+        groups=_group_r2(r, {k: [c[core] for c in v] for k, v in groups.items()}),
+        residual=residual,
+        group_subsystems={g: GROUP_SUBSYSTEM[g] for g in groups},
+    )
+
+
+def ljung_box(residual: np.ndarray, lags: int = LB_LAGS) -> dict[str, Any]:
+    """Ljung-Box portmanteau test of whiteness (Ljung & Box 1978).
+
+    Q = N(N+2)·Σ_{k=1}^{h} ρ_k²/(N−k) ~ χ²(h) under "white".
+
+    Parameters
+    ----------
+    residual : ndarray, shape (N,)
+    lags : int
+        h, capped at N/5.
+
+    Returns
+    -------
+    dict
+        ``q``, ``lags``, ``p_value``, ``white`` (p >= :data:`ALPHA`), ``acf`` (ρ_1..ρ_h),
+        ``max_abs_acf``, ``max_lag`` (lag of the largest |ρ_k|).
+    """
+    e = np.asarray(residual, dtype=float) - float(np.mean(residual))
+    n = e.size
+    h = int(max(1, min(lags, n // 5)))
+    c0 = float(e @ e)
+    if c0 <= 0.0:
+        return {
+            "q": 0.0,
+            "lags": h,
+            "p_value": 1.0,
+            "white": True,
+            "acf": [0.0] * h,
+            "max_abs_acf": 0.0,
+            "max_lag": None,
+        }
+    acf = np.array([float(e[k:] @ e[:-k]) / c0 for k in range(1, h + 1)])
+    q = float(n * (n + 2) * np.sum(acf**2 / (n - np.arange(1, h + 1))))
+    p = float(stats.chi2.sf(q, h))
+    return {
+        "q": q,
+        "lags": h,
+        "p_value": p,
+        "white": p >= ALPHA,
+        "acf": acf.tolist(),
+        "max_abs_acf": float(np.max(np.abs(acf))),
+        "max_lag": int(np.argmax(np.abs(acf)) + 1),
+    }
+
+
+def _ar_prewhiten(u: np.ndarray, order: int) -> np.ndarray:
+    """AR(order) coefficients a (u_k ≈ Σ a_j u_{k−j}) by least squares."""
+    n = u.size
+    if n <= 3 * order:
+        return np.zeros(0)
+    x = np.column_stack([u[order - j - 1 : n - j - 1] for j in range(order)])
+    a, *_ = np.linalg.lstsq(x, u[order:], rcond=None)
+    return a
+
+
+def input_cross_correlation(
+    u: np.ndarray, e: np.ndarray, dt: float, max_lag: float = MAX_LAG, order: int = PREWHITEN_ORDER
+) -> dict[str, Any]:
+    """Cross-correlation test between the input and the residual (Ljung, System Identification §16.6).
+
+    The input is prewhitened by an AR(``order``) model fitted to it and the same filter is applied
+    to the residual; then ρ_ue(k) = corr(u_{t−k}, e_t) for k = −M..M (M = ``max_lag``/dt) and
+    S = N·Σ_{k=0}^{M} ρ_ue(k)² ~ χ²(M+1) under "residual uncorrelated with past inputs".
+
+    Returns
+    -------
+    dict
+        ``max_abs`` (largest |ρ_ue|), ``peak_lag_samples`` (its k; > 0: the residual follows the
+        input by k samples), ``peak_lag_s``, ``bound`` (99 % band 2.58/√N), ``chi2``, ``p_value``,
+        ``correlated`` (p < :data:`ALPHA`), ``lags`` and ``rho`` (for plotting).
+    """
+    u = np.asarray(u, dtype=float) - float(np.mean(u))
+    e = np.asarray(e, dtype=float) - float(np.mean(e))
+    a = _ar_prewhiten(u, order)
+    if a.size:
+        filt = np.concatenate(([1.0], -a))
+        u = signal.lfilter(filt, [1.0], u)[order:]
+        e = signal.lfilter(filt, [1.0], e)[order:]
+    n = u.size
+    su, se = float(np.std(u)), float(np.std(e))
+    m = int(min(round(max_lag / dt), n // 4))
+    if su == 0.0 or se == 0.0 or m < 1:
+        return {
+            "max_abs": 0.0,
+            "peak_lag_samples": None,
+            "peak_lag_s": None,
+            "bound": 2.58 / math.sqrt(max(n, 1)),
+            "chi2": 0.0,
+            "p_value": 1.0,
+            "correlated": False,
+            "lags": [],
+            "rho": [],
+        }
+    lags = np.arange(-m, m + 1)
+    rho = np.empty(lags.size)
+    for j, k in enumerate(lags):
+        if k >= 0:
+            rho[j] = float(u[: n - k] @ e[k:]) / (n * su * se)
+        else:
+            rho[j] = float(u[-k:] @ e[: n + k]) / (n * su * se)
+    pos = rho[m:]
+    s = float(n * np.sum(pos**2))
+    p = float(stats.chi2.sf(s, m + 1))
+    j = int(np.argmax(np.abs(rho)))
+    return {
+        "max_abs": float(abs(rho[j])),
+        "peak_lag_samples": int(lags[j]),
+        "peak_lag_s": float(lags[j] * dt),
+        "bound": 2.58 / math.sqrt(n),
+        "chi2": s,
+        "p_value": p,
+        "correlated": p < ALPHA,
+        "lags": lags.tolist(),
+        "rho": rho.tolist(),
+    }
+
+
+def timing_lag_seen(alignment: dict[str, Any]) -> bool:
+    """True when an :func:`alignment_lag` result shows a clear lead or lag (≥ 1 sample).
+
+    Clear: peak correlation above 0.5 and not on the search limit. The effect diagnosis then also
+    confirms the timing effects (motor time constant, actuator lag, input delay).
+    """
+    return bool(
+        alignment.get("lag_samples")
+        and abs(alignment["lag_samples"]) >= 1
+        and alignment.get("correlation", 0) > 0.5
+        and not alignment.get("at_search_limit")
+    )
+
+
+def alignment_lag(
+    measured: np.ndarray, simulated: np.ndarray, dt: float, max_lag: float = MAX_LAG
+) -> dict[str, Any]:
+    """Lag that best aligns the simulated with the measured signal's rate of change.
+
+    Correlates the Savitzky-Golay derivatives of both (the same filter, so no phase bias);
+    the measured signal lagging the simulated one by d gives a peak at +d. A pure input delay
+    appears here exactly; a dynamic mismatch (slower poles) also shifts it, less sharply.
+
+    Returns
+    -------
+    dict
+        ``lag_samples``, ``lag_s``, ``correlation`` (normalised, at the peak),
+        ``correlation_at_zero``, ``at_search_limit`` (the peak lies on the ±``max_lag`` edge:
+        no meaningful alignment).
+    """
+    n = measured.size
+    w = _sg_window(n, dt)
+    a = _smooth(measured, w, 1, dt)
+    b = _smooth(simulated, w, 1, dt)
+    a, b = a - a.mean(), b - b.mean()
+    m = int(min(round(max_lag / dt), n // 4))
+    na, nb = float(np.linalg.norm(a)), float(np.linalg.norm(b))
+    if na == 0.0 or nb == 0.0 or m < 1:
+        return {
+            "lag_samples": 0,
+            "lag_s": 0.0,
+            "correlation": 0.0,
+            "correlation_at_zero": 0.0,
+            "at_search_limit": False,
+        }
+    best, best_k, c0 = -math.inf, 0, 0.0
+    for k in range(-m, m + 1):
+        c = float(a[k:] @ b[: n - k]) if k >= 0 else float(a[: n + k] @ b[-k:])
+        c /= na * nb
+        if k == 0:
+            c0 = c
+        if c > best:
+            best, best_k = c, k
+    return {
+        "lag_samples": int(best_k),
+        "lag_s": float(best_k * dt),
+        "correlation": float(best),
+        "correlation_at_zero": float(c0),
+        "at_search_limit": bool(abs(best_k) == m),
+    }
+
+
+def frequency_bands(
+    residual: np.ndarray, measured: np.ndarray, dt: float, f_natural: float
+) -> list[dict[str, Any]]:
+    """Residual power per frequency band (Welch PSD), relative to the measured signal's.
+
+    Bands: quasi-static (< 0.1 Hz), slow (0.1 Hz – f_n/2), resonance (f_n/2 – 2 f_n), fast
+    (2 f_n – Nyquist), f_n = the nominal pendulum's natural frequency [Hz] (bands collapse when
+    their edges cross).
+
+    Returns
+    -------
+    list of dict
+        ``{band, f_lo, f_hi (Hz), residual_power_fraction, residual_rms, measured_rms, ratio}``
+        (``ratio`` = residual RMS / measured RMS in that band).
+    """
+    n = residual.size
+    nper = int(min(n, max(64, 2 ** math.ceil(math.log2(max(20.0 / dt, 64))))))
+    f, pe = signal.welch(residual - residual.mean(), fs=1.0 / dt, nperseg=nper)
+    _, pm = signal.welch(measured - measured.mean(), fs=1.0 / dt, nperseg=nper)
+    nyq = 0.5 / dt
+    edges = [
+        ("quasi-static", 0.0, 0.1),
+        ("slow", 0.1, 0.5 * f_natural),
+        ("resonance", 0.5 * f_natural, 2.0 * f_natural),
+        ("fast", 2.0 * f_natural, nyq),
+    ]
+    df = float(f[1] - f[0]) if f.size > 1 else 1.0
+    total = float(np.sum(pe)) * df
+    out = []
+    for name, lo, hi in edges:
+        lo, hi = max(lo, 0.0), min(hi, nyq)
+        if hi <= lo:
+            continue
+        sel = (f >= lo) & (f < hi) if hi < nyq else (f >= lo)
+        p_e = float(np.sum(pe[sel])) * df
+        p_m = float(np.sum(pm[sel])) * df
+        out.append(
+            {
+                "band": name,
+                "f_lo_hz": lo,
+                "f_hi_hz": hi,
+                "residual_power_fraction": p_e / total if total > 0 else 0.0,
+                "residual_rms": math.sqrt(p_e),
+                "measured_rms": math.sqrt(p_m),
+                "ratio": math.sqrt(p_e / p_m) if p_m > 0 else math.inf,
+            }
+        )
+    return out
+
+
+def repeatability(holds: Sequence[dict[str, Any]], min_repeats: int = 3) -> list[dict[str, Any]]:
+    """Spread and drift of the steady angle over repeated holds at the same duty cycle.
+
+    A deterministic model repeats itself; a rig whose steady angle at the same duty wanders from
+    repeat to repeat has a time-varying effect (sensor drift, temperature, battery) that no
+    constant parameter can fix.
+
+    Returns
+    -------
+    list of dict
+        Per duty level with at least ``min_repeats`` holds: ``duty``, ``count``,
+        ``measured_spread`` and ``simulated_spread`` (max − min of the steady angles [rad]),
+        ``measured_drift_per_min`` (least-squares slope against the hold's end time [rad/min]).
+    """
+    levels: dict[float, list[dict[str, Any]]] = {}
+    for h in holds:
+        levels.setdefault(round(h["duty"], 9), []).append(h)
+    out = []
+    for duty, hs in sorted(levels.items()):
+        if len(hs) < min_repeats:
+            continue
+        tm = np.array([h["t_end_s"] for h in hs]) / 60.0
+        ym = np.array([h["theta_meas_ss"] for h in hs])
+        ys = np.array([h["theta_sim_ss"] for h in hs])
+        slope = float(np.polyfit(tm, ym, 1)[0]) if np.ptp(tm) > 0 else 0.0
+        out.append(
+            {
+                "duty": duty,
+                "count": len(hs),
+                "measured_spread": float(np.ptp(ym)),
+                "simulated_spread": float(np.ptp(ys)),
+                "measured_drift_per_min": slope,
+            }
+        )
+    return out
+
+
+def constant_holds(
+    t: np.ndarray,
+    duty: np.ndarray,
+    theta: np.ndarray,
+    sim: np.ndarray,
+    min_hold: float = 1.0,
+    tail: float = 0.25,
+    limit: int = 60,
+) -> list[dict[str, Any]]:
+    """Steady-state error per constant-duty hold (≥ ``min_hold`` s): means over its last ``tail``."""
+    dt = float(t[1] - t[0])
+    change = np.flatnonzero(np.diff(duty) != 0.0) + 1
+    starts = np.concatenate(([0], change))
+    stops = np.concatenate((change, [duty.size]))
+    out = []
+    for a, b in zip(starts, stops, strict=True):
+        if (b - a) * dt < min_hold:
+            continue
+        c = b - max(1, round(tail * (b - a)))
+        out.append(
+            {
+                "duty": float(duty[a]),
+                "t_start_s": float(t[a]),
+                "t_end_s": float(t[b - 1]),
+                "theta_meas_ss": float(np.mean(theta[c:b])),
+                "theta_sim_ss": float(np.mean(sim[c:b])),
+                "error": float(np.mean(sim[c:b] - theta[c:b])),
+            }
+        )
+        if len(out) >= limit:
+            break
+    return out
+
+
+# --------------------------------------------------------------------------- per recording
+def _grid(rec: Recording, data: UniformData) -> dict[str, np.ndarray]:
+    """Every recorded channel on the uniform grid (linear interpolation when resampled)."""
+    t = rec.t - rec.t[0]
+    out = {}
+    for name, y in rec.channels.items():
+        if not np.all(np.isfinite(y)):
+            raise GapInputError(
+                f"{rec.source or '<recording>'}: channel {name} has "
+                f"{int((~np.isfinite(y)).sum())} NaN/inf value(s); expected finite values"
+            )
+        out[name] = y.copy() if (not data.resampled and y.size == data.t.size) else np.interp(data.t, t, y)
+    return out
+
+
+def _simulate(rig: Rig, data: UniformData, x0: np.ndarray) -> Any:
+    try:
+        return simulate(rig, data.duty, x0=x0, dt=data.dt)
+    except (SimulationError, ModelError) as exc:
+        raise GapInputError(f"simulation of {data.source or 'the recording'} failed: {exc}") from exc
+
+
+def _refine_initial_state(
+    rig: Rig, data: UniformData, x0: np.ndarray, offset: float, window: float = INIT_WINDOW
+) -> np.ndarray:
+    """Least-squares correction of θ(0), θ̇(0) over the first ``window`` seconds of free run.
+
+    A noisy first sample starts a spurious free oscillation that colours the whole residual; the
+    correction (Gauss-Newton, finite-difference sensitivities, two iterations) removes it. The
+    motor states are left as they are.
+    """
+    k = int(min(data.t.size, max(10, round(window / data.dt))))
+    part = UniformData(
+        t=data.t[:k],
+        duty=data.duty[:k],
+        theta=data.theta[:k],
+        dt=data.dt,
+        resampled=False,
+        decimate=1,
+        source=data.source,
+    )
+    x = x0.copy()
+    steps = (1e-4, 1e-3)
+    for _ in range(2):
+        base = _simulate(rig, part, x).x[:, 0] - offset
+        r = data.theta[:k] - base
+        jac = np.empty((k, 2))
+        for j, h in enumerate(steps):
+            xp = x.copy()
+            xp[j] += h
+            jac[:, j] = (_simulate(rig, part, xp).x[:, 0] - offset - base) / h
+        delta, *_ = np.linalg.lstsq(jac, r, rcond=None)
+        if not np.all(np.isfinite(delta)):
+            break
+        x[0] += delta[0]
+        x[1] += delta[1]
+    return x
+
+
+def _short_horizon(
+    rig: Rig,
+    data: UniformData,
+    theta_rate: np.ndarray,
+    states: np.ndarray,
+    ch: dict[str, np.ndarray],
+    offset: float,
+    horizon: float,
+    omega: np.ndarray | None,
+) -> np.ndarray:
+    n = data.t.size
+    h = max(2, round(horizon / data.dt))
+    pred = np.empty(n)
+    model = PlantModel(rig)
+    for k in range(0, n, h):
+        stop = min(n, k + h)
+        x0 = states[k].copy()
+        x0[0] = data.theta[k] + offset
+        x0[1] = theta_rate[k]
+        if omega is not None:
+            x0[OMEGA] = omega[k]
+        if "i_a" in ch and model.dynamic_current:
+            x0[I_A] = ch["i_a"][k]
+        if stop - k < 2:
+            pred[k] = x0[0]
+            continue
+        try:
+            x = simulate(
+                rig, data.duty[k:stop], x0=x0, dt=data.dt, tau_before=float(data.duty[k - 1]) if k else 0.0
+            ).x
+        except (SimulationError, ModelError) as exc:
+            raise GapInputError(
+                f"short-horizon simulation of {data.source} at t = {data.t[k]:.3f} s failed: {exc}"
+            ) from exc
+        pred[k:stop] = x[:, 0]
+    return pred - offset
+
+
+def _equations(
+    rig: Rig,
+    theta: np.ndarray,
+    duty: np.ndarray,
+    dt: float,
+    ch: dict[str, np.ndarray],
+    states: np.ndarray,
+    offset: float,
+    theta_rate: np.ndarray,
+) -> list[EquationCheck]:
+    m = PlantModel(rig)
+    n = theta.size
+    w = _sg_window(n, dt)
+    trim = w
+    sm = lambda y: _smooth(y, w)  # noqa: E731
+    d1 = lambda y: _smooth(y, w, 1, dt)  # noqa: E731
+    noise = {k: noise_level(v) for k, v in ch.items()}
+    g1 = _deriv_gain(w, dt, 1)
+    w2 = _sg_window(n, dt, 2.0 * SG_WINDOW)
+    g2 = _deriv_gain(w2, dt, 2)
+    g0 = _deriv_gain(w, dt, 0)
+    tau = states[:, TAU_F] if m.lag else duty
+    v_map = np.array([m.armature_voltage(float(x)) for x in tau])
+    omega = None
+    omega_note = ""
+    if "omega_rotor" in ch:
+        omega, omega_note = ch["omega_rotor"], "measured ω₁"
+    elif "omega_prop" in ch:
+        omega, omega_note = ch["omega_prop"] * m.n, "ω₁ = n·measured ω₂"
+    out: list[EquationCheck] = []
+    # actuator: v_a measured vs map(duty)
+    if "v_a" in ch:
+        r = sm(ch["v_a"] - v_map)
+        te = np.array([m.effective_duty(float(x)) for x in tau])
+        groups = {"offset": [np.ones(n)], "gain": [sm(v_map)], "dead_zone": [sm(np.clip(tau, 0, None) - te)]}
+        out.append(
+            _check(
+                "actuator",
+                r,
+                ch["v_a"],
+                "V",
+                noise["v_a"] * g0,
+                "measured v_a vs the duty→v_a map",
+                groups,
+                trim,
+            )
+        )
+        v_a, v_note = ch["v_a"], "measured v_a"
+    else:
+        out.append(EquationCheck("actuator", SUBSYSTEM["actuator"], False, "needs v_a, not recorded"))
+        v_a, v_note = v_map, "v_a from the duty→v_a map"
+    # armature: voltage balance
+    if "i_a" in ch and (omega is not None or not rig.effects.back_emf):
+        i_a = ch["i_a"]
+        w1 = omega if omega is not None else np.zeros(n)
+        didt = d1(i_a) if m.dynamic_current else np.zeros(n)
+        r = sm(v_a) - m.R * sm(i_a) - m.K_w * sm(w1) - m.L * didt
+        floor = math.hypot(m.R * noise["i_a"] * g0, m.L * noise["i_a"] * g1)
+        groups = {
+            "voltage": [sm(v_a)],
+            "resistance": [sm(i_a)],
+            "back_emf": [sm(w1)],
+            "inductance": [didt],
+            "offset": [np.ones(n)],
+        }
+        out.append(
+            _check(
+                "armature",
+                r,
+                v_a,
+                "V",
+                floor,
+                f"{v_note}, measured i_a, {omega_note or 'no back-EMF'}",
+                groups,
+                trim,
+            )
+        )
+    else:
+        need = [
+            c
+            for c, ok in (
+                ("i_a", "i_a" in ch),
+                ("omega_rotor", omega is not None or not rig.effects.back_emf),
+            )
+            if not ok
+        ]
+        out.append(
+            EquationCheck(
+                "armature", SUBSYSTEM["armature"], False, f"needs {' and '.join(need)}, not recorded"
+            )
+        )
+    # rotor: torque balance
+    if omega is not None:
+        if "i_a" in ch:
+            i_a, i_note = ch["i_a"], "measured i_a"
+        else:
+            i_a = (v_a - m.K_w * omega) / m.R
+            i_note = "i_a = (v_a − K_ω·ω₁)/R_a (quasi-static, i_a not recorded)"
+        coul = np.tanh(omega / ROTOR_FRICTION_VELOCITY)
+        torque = m.K_t * i_a
+        r = sm(torque - m.B_m * omega - m.T_cm * coul - m.K_d * omega * np.abs(omega)) - m.J_m * d1(omega)
+        floor = m.J_m * noise.get("omega_rotor", noise.get("omega_prop", 0.0) * m.n) * g1
+        groups = {
+            "torque": [sm(i_a)],
+            "viscous": [sm(omega)],
+            "coulomb": [sm(coul)],
+            "drag": [sm(omega * np.abs(omega))],
+        }
+        out.append(_check("rotor", r, torque, "N*m", floor, f"{omega_note}, {i_note}", groups, trim))
+    else:
+        out.append(
+            EquationCheck(
+                "rotor", SUBSYSTEM["rotor"], False, "needs omega_rotor (or omega_prop), not recorded"
+            )
+        )
+    # pendulum
+    th = theta + offset
+    w1 = omega if omega is not None else states[:, OMEGA]
+    wp = w1 / m.n
+    thrust = m.K_q * np.sign(wp) * np.abs(wp) ** m.alpha
+    thd = ch["theta_dot"] if "theta_dot" in ch else theta_rate
+    dry = (m.a_f + m.a_s * np.exp(-((thd / m.v_s) ** 2))) * np.tanh(thd / m.v_eps)  # PlantModel.dry_friction
+    rhs = -m.a_g * np.sin(th) - m.a_c * thd - dry + m.b_f * thrust
+    if m.stops:
+        rhs = rhs + np.array([m._stop_accel(a, b) for a, b in zip(th, thd, strict=True)])
+    lhs = d1(thd) if "theta_dot" in ch else _smooth(theta, w2, 2, dt)
+    r = lhs - sm(rhs)
+    floor = noise["theta_dot"] * g1 if "theta_dot" in ch else noise["theta"] * g2
+    groups = {
+        "gravity_offset": [sm(np.sin(th)), sm(np.cos(th)), np.ones(n)],
+        "friction": [sm(thd), sm(np.tanh(thd / m.v_eps))],
+        "thrust": [sm(thrust), sm(wp)],
+    }
+    note = (
+        f"θ̈ from {'measured θ̇' if 'theta_dot' in ch else 'θ (Savitzky-Golay)'}; thrust from "
+        f"{omega_note if omega is not None else 'the simulated ω₁ (motor/actuator errors show as thrust)'}"
+    )
+    pend = _check("pendulum", r, m.b_f * thrust, "rad/s^2", floor, note, groups, trim)
+    if omega is None:
+        pend.group_subsystems["thrust"] = THETA_ONLY_CHAIN
+    out.append(pend)
+    return out
+
+
+def locate_recording(
+    rig: Rig, recording: Recording, *, horizon: float = 0.2, theta_offset: float = 0.0, n_bins: int = 5
+) -> RecordingWhere:
+    """Where-analysis of one recording (module doc, steps 1-5).
+
+    Parameters
+    ----------
+    rig : Rig
+        Nominal model.
+    recording : Recording
+        Needs ``theta`` [rad] and the duty cycle; uses ``theta_dot``, ``i_a``, ``v_a``,
+        ``omega_rotor`` / ``omega_prop`` when present.
+    horizon : float
+        Short-horizon prediction length [s].
+    theta_offset : float
+        θ_model − θ_recorded [rad].
+    n_bins : int
+        Bins per operating-region variable.
+
+    Raises
+    ------
+    GapInputError
+        No θ, NaNs, constant input, fewer than :data:`MIN_SAMPLES` samples, bad horizon, or a
+        failed simulation.
+    """
+    if not (math.isfinite(horizon) and horizon > 0.0):
+        raise GapInputError(f"horizon = {horizon!r}; expected a finite value > 0 s")
+    try:
+        data = uniform_data(recording, min_samples=MIN_SAMPLES)
+    except IdentificationError as exc:
+        raise GapInputError(str(exc)) from exc
+    ch = _grid(recording, data)
+    dt = data.dt
+    rate = measured_rate(data.theta, dt)
+    # free run from the first samples (motor at the steady state of the first duty)
+    from aeropend_ident.greybox.fit import initial_state
+
+    x0 = initial_state(rig, data.theta, data.duty, dt, theta_offset)
+    x0[1] = ch["theta_dot"][0] if "theta_dot" in ch else initial_velocity(data.theta, dt)
+    if "omega_rotor" in ch or "omega_prop" in ch:
+        x0[OMEGA] = (
+            ch["omega_rotor"][0] if "omega_rotor" in ch else ch["omega_prop"][0] * rig.motor.gear_ratio
+        )
+    if "i_a" in ch and rig.effects.armature_inductance == "dynamic":
+        x0[I_A] = ch["i_a"][0]
+    x0 = _refine_initial_state(rig, data, x0, theta_offset)
+    traj = _simulate(rig, data, x0)
+    states = traj.x
+    theta_free = states[:, 0] - theta_offset
+    omega = ch.get("omega_rotor")
+    if omega is None and "omega_prop" in ch:
+        omega = ch["omega_prop"] * rig.motor.gear_ratio
+    theta_rate = ch["theta_dot"] if "theta_dot" in ch else rate
+    theta_short = _short_horizon(rig, data, theta_rate, states, ch, theta_offset, horizon, omega)
+    resid = theta_free - data.theta
+    free = error_metrics(data.theta, theta_free)
+    all_holds = constant_holds(data.t, data.duty, data.theta, theta_free, limit=100_000)
+    # a free run that leaves the measured angle range by more than π has flipped over the pivot:
+    # its NRMSE only says "diverged"
+    free["diverged"] = bool(
+        np.max(np.abs(theta_free - np.clip(theta_free, data.theta.min(), data.theta.max()))) > math.pi
+    )
+    short = error_metrics(data.theta, theta_short)
+    regions = residual_regions(data.theta, data.duty, resid, dt, n_bins)
+    regions["rate_bins"] = residual_bins(np.abs(rate), resid, n_bins, "rad/s")
+    regions["short_horizon"] = residual_regions(data.theta, data.duty, theta_short - data.theta, dt, n_bins)
+    eqs = _equations(rig, data.theta, data.duty, dt, ch, states, theta_offset, theta_rate)
+    # method floor: the same equation errors on the nominal simulation of this input (what the
+    # derivative filters alone leave on a perfect model)
+    sim_theta = theta_free
+    sim_ch = {k: (traj.true[k] - (theta_offset if k == "theta" else 0.0)) for k in ch if k in traj.true}
+    sim_rate = sim_ch["theta_dot"] if "theta_dot" in sim_ch else measured_rate(sim_theta, dt)
+    n_eff = max(data.t.size / _sg_window(data.t.size, dt, 2.0 * SG_WINDOW), 1.0)
+    for e, f in zip(
+        eqs, _equations(rig, sim_theta, data.duty, dt, sim_ch, states, theta_offset, sim_rate), strict=True
+    ):
+        if e.checked:
+            e.method_floor = f.rms
+            e.flagged = _flag(e, n_eff)
+    pend = next(e for e in eqs if e.equation == "pendulum")
+    if pend.residual is not None:
+        regions["pendulum_equation"] = {
+            "theta_bins": residual_bins(data.theta, pend.residual, n_bins, "rad"),
+            "duty_bins": residual_bins(data.duty, pend.residual, n_bins, "1"),
+            "rate_bins": residual_bins(np.abs(rate), pend.residual, n_bins, "rad/s"),
+            "unit": "rad/s^2",
+        }
+    m = PlantModel(rig)
+    th_mean = float(np.mean(data.theta)) + theta_offset
+    k_lin = m.a_g * math.cos(th_mean) if m.a_g * math.cos(th_mean) > 0 else m.a_g
+    f_n = math.sqrt(max(k_lin, 1e-6)) / (2 * math.pi)
+    noise = noise_level(data.theta)
+    wb = ljung_box(resid)
+    rms = free["rms_error"]
+    significant = bool((not wb["white"]) and rms > 3.0 * noise and free["nrmse"] > MIN_NRMSE)
+    return RecordingWhere(
+        source=recording.source or "<recording>",
+        dt=dt,
+        channels=sorted(recording.channels),
+        t=data.t,
+        duty=data.duty,
+        theta=data.theta,
+        theta_free=theta_free,
+        theta_short=theta_short,
+        free_run=free,
+        short_horizon=short,
+        horizon=horizon,
+        equations=eqs,
+        regions=regions,
+        holds=all_holds[:60],
+        repeats=repeatability(all_holds),
+        bands=[*frequency_bands(resid, data.theta, dt, f_n), {"band": "nominal f_n", "f_hz": f_n}],
+        whiteness=wb,
+        input_xcorr=input_cross_correlation(data.duty, resid, dt),
+        alignment=alignment_lag(data.theta, theta_free, dt),
+        noise_rms=noise,
+        significant=significant,
+    )
+
+
+def locate_gap(
+    rig: Rig,
+    recordings: Sequence[Recording],
+    *,
+    horizon: float = 0.2,
+    theta_offset: float = 0.0,
+    n_bins: int = 5,
+) -> WhereReport:
+    """Locate the sim-to-real gap of a nominal rig on recordings (see the module doc).
+
+    Parameters
+    ----------
+    rig : Rig
+        The nominal simulator.
+    recordings : sequence of Recording
+        Recorded runs (duty cycle + θ at least).
+    horizon : float
+        Short-horizon prediction length [s].
+    theta_offset : float
+        θ_model − θ_recorded [rad] (:func:`aeropend_ident.greybox.fit.rig_theta_offset` of a rig file).
+    n_bins : int
+        Bins per operating-region variable.
+
+    Returns
+    -------
+    WhereReport
+
+    Raises
+    ------
+    GapInputError
+        No recordings, or a recording :func:`locate_recording` refuses.
+    """
+    if not recordings:
+        raise GapInputError("no recordings given; expected at least one with theta and duty")
+    per = [
+        locate_recording(rig, r, horizon=horizon, theta_offset=theta_offset, n_bins=n_bins)
+        for r in recordings
+    ]
+    located, not_checked = [], []
+    for eq in EQUATIONS:
+        rows = [(r.equation(eq), r.t.size) for r in per if r.equation(eq).checked]
+        if not rows:
+            not_checked.append({"equation": eq, "reason": per[0].equation(eq).note})
+            continue
+        wsum = sum(nw for _, nw in rows)
+        rel = math.sqrt(sum(e.relative**2 * nw for e, nw in rows) / wsum)
+        groups: dict[str, float] = {}
+        for e, nw in rows:
+            for g, v in e.groups.items():
+                groups[g] = groups.get(g, 0.0) + v * nw / wsum
+        top = max(groups, key=groups.__getitem__) if groups else None
+        gsub = {}
+        for e, _ in rows:
+            gsub.update(e.group_subsystems)
+        located.append(
+            {
+                "equation": eq,
+                "subsystem": SUBSYSTEM[eq],
+                "relative": rel,
+                "flagged": any(e.flagged for e, _ in rows),
+                "top_group": top,
+                "top_group_subsystem": gsub.get(top or "", None),
+                "groups": groups,
+                "n_recordings": len(rows),
+            }
+        )
+    # flagged equations first, in causal order (an upstream error also shows downstream where the
+    # downstream equation uses a simulated, not a measured, upstream signal); then by size
+    located.sort(
+        key=lambda r: (
+            not r["flagged"],
+            EQUATIONS.index(r["equation"]) if r["flagged"] else 0,
+            -r["relative"],
+        )
+    )
+    return WhereReport(
+        rig=rig.name,
+        theta_offset=theta_offset,
+        recordings=per,
+        significant=any(r.significant for r in per),
+        located=located,
+        not_checked=not_checked,
+    )

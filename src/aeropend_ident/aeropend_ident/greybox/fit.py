@@ -1,0 +1,1131 @@
+"""Grey-box output-error identification of a rig's pendulum and actuator parameters.
+
+The plant model of :mod:`aeropend_sim.model` is fitted to a recording by **output error**: the
+model is simulated in free run (no state resets) with the recording's duty-cycle input through
+:func:`aeropend_sim.simulate.simulate`, and the selected parameters minimise
+
+    ½ Σ_k (θ_sim(t_k) − θ_rec(t_k))²          [rad²]
+
+with :func:`scipy.optimize.least_squares` (trust-region reflective, bounds, finite-difference
+Jacobian). Only the angle is compared, because most real logs (see ``shared/data/real``) carry
+nothing else; other channels of the recording are ignored.
+
+Parameters are addressed as ``"section.field"`` of :class:`aeropend_sim.params.Rig` (e.g.
+``"pendulum.c_over_J"``) plus :data:`THETA_OFFSET`, the angle offset between the recording's
+frame and the model's (θ_model = θ_recorded + θ_offset; see :func:`rig_theta_offset`).
+
+Default parameter set for θ-only data (:func:`default_parameters`):
+
+* ``pendulum.mgd_over_J``, ``pendulum.c_over_J``;
+* ``pendulum.L_over_J``: with θ alone, the thrust scale (``thrust.K_q``, motor constants, supply
+  voltage) and the lever arm over inertia appear only as their product, so L/J absorbs the
+  whole actuator gain and the other factors stay at their rig-file values;
+* ``actuator.dead_zone`` when ``effects.dead_zone`` is on;
+* ``actuator.lag_time_constant`` when ``effects.actuator_lag`` is on;
+* ``pendulum.coulomb_over_J`` when ``effects.coulomb_friction`` is on;
+* :data:`THETA_OFFSET` when the rig declares a recording-frame offset (see-saw rigs).
+
+Strictly positive parameters are fitted as log(p) (scale-free steps, positivity for free); the
+others linearly with a parameter scale (:class:`ParameterSpec`). Bounds come from physics
+(:data:`PHYSICAL_BOUNDS`) or, for parameters without an entry, from the sign constraint of the
+rig field.
+
+Time grid: the simulator needs a uniform grid. A recording whose sample intervals deviate from
+their median by more than :data:`UNIFORM_TOLERANCE` (relative) is resampled onto
+t_k = k·dt (dt = the median interval unless given): θ by linear interpolation, the duty cycle by
+zero-order hold (the value commanded at the last recorded instant ≤ t_k, the recording's
+convention). Optional decimation by an integer factor keeps every ``decimate``-th θ sample and
+averages the duty cycle over each block (this preserves the mean input). It saves little time:
+the integrator's cost is set by the dynamics, not by the number of output samples
+(``bench/bench_greybox.py``).
+
+Initial state: θ(0) = first recorded angle (+ offset); θ̇(0) from a local quadratic least-squares
+fit over the first :data:`N_DIFF` samples (a short finite difference); motor current/speed at
+the steady state of the first duty cycle (:func:`motor_equilibrium`); lag state = first duty
+cycle. When θ shows measurement noise, the fit then refines θ(0) and θ̇(0) as bounded nuisance
+parameters (the short-window velocity estimate is poor on noisy data); replays of other
+stretches (held-out data) use the estimates only.
+
+Stages of :func:`fit_greybox`: optional multiple-shooting initialiser (``init_horizon``), the
+free-run fit, and the initial-state polish (noisy data only).
+
+Standard errors come from the Jacobian at the optimum, cov = s²·(JᵀJ)⁻¹ with
+s² = Σr²/(m − n), mapped through the parametrisation by the delta method; parameters pinned at a
+bound have none (NaN). Output-error residuals are autocorrelated, so these are lower bounds of
+the true uncertainty.
+
+No rclpy import: this module runs without ROS.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from scipy.optimize import brentq, least_squares
+
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.io.recording_input import uniform_grid
+from aeropend_sim.model import ROTOR_FRICTION_VELOCITY, ModelError, PlantModel
+from aeropend_sim.params import Rig, RigFileError
+from aeropend_sim.recording import Recording
+from aeropend_sim.recording_frame import FrameError, RecordingFrame, read_recording_frame
+from aeropend_sim.simulate import SimulationError, simulate
+
+#: Name of the angle-offset parameter: θ_model = θ_recorded + θ_offset [rad].
+THETA_OFFSET = "theta_offset"
+#: Fewest samples a fit accepts (after resampling/decimation).
+MIN_SAMPLES = 50
+#: Samples used for the initial angular-velocity estimate (local quadratic fit).
+N_DIFF = 7
+#: ftol/xtol/gtol of the multiple-shooting initialisation stage (see ``init_horizon``).
+INIT_STAGE_TOL = 1e-4
+
+#: Physical bounds (lower, upper, log-parametrised) of the usual grey-box parameters, SI units.
+#: ``None`` bounds are relative to the initial value (factor 1e-3 .. 1e3).
+PHYSICAL_BOUNDS: dict[str, tuple[float | None, float | None, bool]] = {
+    "pendulum.mgd_over_J": (1e-2, 1e4, True),  # ω_n from 0.1 to 100 rad/s
+    "pendulum.c_over_J": (1e-4, 1e3, True),
+    "pendulum.L_over_J": (None, None, True),  # absorbs the unknown thrust scale
+    "pendulum.coulomb_over_J": (0.0, 1e3, False),
+    "actuator.dead_zone": (0.0, 0.95, False),
+    "actuator.lag_time_constant": (1e-4, 10.0, True),
+    "actuator.input_delay": (0.0, 1.0, False),
+    "thrust.exponent": (0.5, 4.0, True),
+}
+
+#: Parameter units per optimiser unit of the usual linear parameters (about a typical change).
+_LINEAR_SCALE: dict[str, float] = {
+    "actuator.dead_zone": 0.05,
+    "pendulum.coulomb_over_J": 1.0,
+    "actuator.input_delay": 0.01,
+}
+
+#: Effect switch a parameter needs to influence the output (a fit of it is refused otherwise).
+_EFFECT_OF: dict[str, tuple[str, Any]] = {
+    "actuator.dead_zone": ("dead_zone", True),
+    "actuator.lag_time_constant": ("actuator_lag", True),
+    "actuator.input_delay": ("input_delay", True),
+    "pendulum.coulomb_over_J": ("coulomb_friction", True),
+    "pendulum.c_over_J": ("viscous_friction", True),
+    "motor.B_m": ("viscous_friction", True),
+    "motor.T_c": ("coulomb_friction", True),
+    "motor.K_d": ("propeller_drag", True),
+    "motor.K_omega": ("back_emf", True),
+    "motor.L_a": ("armature_inductance", "dynamic"),
+    "thrust.exponent": ("thrust_exponent", True),
+    "pendulum.theta_min": ("end_stops", True),
+    "pendulum.theta_max": ("end_stops", True),
+    "pendulum.stop_stiffness": ("end_stops", True),
+    "pendulum.stop_damping": ("end_stops", True),
+    "actuator.hbridge_k0": ("hbridge_map", True),
+    "actuator.hbridge_k1": ("hbridge_map", True),
+    "actuator.hbridge_k2": ("hbridge_map", True),
+    "actuator.hbridge_k3": ("hbridge_map", True),
+    "actuator.v_supply": ("hbridge_map", False),
+}
+
+#: Parameters that never reach θ (sensor model) and cannot be fitted.
+_NOT_FITTABLE_SECTIONS = ("sensors",)
+
+
+# --------------------------------------------------------------------------- rig-frame offset
+def rig_theta_offset(rig_ref: str | Path) -> float:
+    """Nominal angle offset θ_model − θ_recorded [rad] declared by a rig file.
+
+    Rig files may carry an optional top-level block (ignored by
+    :func:`aeropend_sim.params.load_rig`)::
+
+        recording_frame:
+          theta_offset: {value: 1.5707963, unit: rad, source: "..."}
+          theta_scale: {value: 1.0, unit: "1", source: "..."}   # optional sensor gain
+
+    for rigs whose sensor zero is not the model's θ = 0 (centre of mass below the pivot), e.g.
+    a see-saw that measures from the horizontal; θ_recorded = theta_scale·(θ_model − theta_offset)
+    (``theta_scale`` is written by the gap diagnosis when it finds a sensor-gain error, see
+    :func:`rig_theta_scale`).
+
+    Parameters
+    ----------
+    rig_ref : str or Path
+        Shipped rig name (``"jahoyosr_rig"``) or path to a ``.yaml`` rig file.
+
+    Returns
+    -------
+    float
+        The offset [rad]; 0.0 if the file has no ``recording_frame`` block.
+
+    Raises
+    ------
+    IdentificationError
+        If the file cannot be found or read, or the block is malformed (wrong unit, no source,
+        not a number).
+    """
+    return _recording_frame(rig_ref).offset
+
+
+def rig_theta_scale(rig_ref: str | Path) -> float:
+    """Angle-sensor gain s [1] of a rig file's ``recording_frame.theta_scale`` (1.0 if absent).
+
+    See :func:`rig_theta_offset` for the block. Raises :class:`IdentificationError` as it does,
+    and if s is not > 0.
+    """
+    return _recording_frame(rig_ref).scale
+
+
+def _recording_frame(rig_ref: str | Path) -> RecordingFrame:
+    """The rig file's ``recording_frame`` (:mod:`aeropend_sim.recording_frame`), errors as ours."""
+    try:
+        return read_recording_frame(rig_ref)
+    except FrameError as exc:
+        raise IdentificationError(str(exc)) from exc
+
+
+# --------------------------------------------------------------------------- parameter specs
+@dataclass(frozen=True)
+class ParameterSpec:
+    """How one parameter is fitted.
+
+    Attributes
+    ----------
+    name : str
+        ``"section.field"`` or :data:`THETA_OFFSET`.
+    unit : str
+        SI unit (from the rig field metadata).
+    initial : float
+        Starting value (rig file or override).
+    lower, upper : float
+        Bounds in parameter units (``lower < upper``).
+    log : bool
+        Fitted as log(p) (strictly positive parameters).
+    scale : float
+        Parameter units per optimiser unit of a linear parameter (unused for log parameters).
+
+    Notes
+    -----
+    Optimiser coordinates start at 1 at the lower bound: z = 1 + ln(p/lower) (log) or
+    z = 1 + (p − lower)/scale (linear). :func:`scipy.optimize.least_squares` takes relative
+    finite-difference steps (``diff_step``·|z|), which would collapse for a coordinate at or near 0
+    (a dead zone or Coulomb term of 0, a log-parameter of 1); z ≥ 1 keeps every step well above
+    the simulator's integration tolerance.
+    """
+
+    name: str
+    unit: str
+    initial: float
+    lower: float
+    upper: float
+    log: bool
+    scale: float
+
+    def to_z(self, value: float) -> float:
+        """Optimiser coordinate (>= 1 inside the bounds) of a parameter value."""
+        if self.log:
+            return 1.0 + math.log(value / self.lower)
+        return 1.0 + (float(value) - self.lower) / self.scale
+
+    def from_z(self, z: float) -> float:
+        """Parameter value of an optimiser coordinate."""
+        if self.log:
+            return self.lower * math.exp(z - 1.0)
+        return self.lower + (float(z) - 1.0) * self.scale
+
+    def dp_dz(self, value: float) -> float:
+        """Derivative of the parameter with respect to its coordinate at ``value``."""
+        return value if self.log else self.scale
+
+
+def _field_meta(name: str, rig: Rig) -> tuple[str, str, Any]:
+    """(section, field, dataclasses.Field) of a ``"section.field"`` name, or raise."""
+    section, _, fname = name.partition(".")
+    sections = [f.name for f in fields(rig) if dataclasses.is_dataclass(getattr(rig, f.name))
+                and f.name != "effects" and f.name not in _NOT_FITTABLE_SECTIONS]
+    if section not in sections:
+        raise IdentificationError(
+            f"parameter {name!r}: unknown or non-fittable section {section!r}; expected "
+            f"'{THETA_OFFSET}' or 'section.field' with section in {sections}"
+        )
+    for f in fields(getattr(rig, section)):
+        if f.name == fname:
+            return section, fname, f
+    known = sorted(f.name for f in fields(getattr(rig, section)))
+    raise IdentificationError(
+        f"parameter {name!r}: {section} has no field {fname!r}; expected one of {known}"
+    )
+
+
+def parameter_spec(
+    name: str,
+    rig: Rig,
+    theta_offset: float = 0.0,
+    initial: float | None = None,
+    bounds: tuple[float, float] | None = None,
+) -> ParameterSpec:
+    """Fit specification (bounds, parametrisation, scale) of one parameter.
+
+    Parameters
+    ----------
+    name : str
+        ``"section.field"`` (e.g. ``"pendulum.c_over_J"``) or :data:`THETA_OFFSET`.
+    rig : Rig
+        Supplies the initial value and the unit; the parameter's effect must be switched on.
+    theta_offset : float
+        Initial angle offset [rad] (for :data:`THETA_OFFSET`).
+    initial : float, optional
+        Overrides the rig's value as starting point.
+    bounds : (float, float), optional
+        Overrides the physical bounds.
+
+    Raises
+    ------
+    IdentificationError
+        On an unknown name, a parameter whose effect is switched off, a non-positive start for
+        a log parameter, or an initial value outside the bounds.
+    """
+    if name == THETA_OFFSET:
+        x0 = float(theta_offset if initial is None else initial)
+        lo, hi = bounds if bounds is not None else (x0 - math.pi / 2, x0 + math.pi / 2)
+        spec = ParameterSpec(name, "rad", x0, float(lo), float(hi), False, 0.1)
+    else:
+        section, fname, f = _field_meta(name, rig)
+        need = _EFFECT_OF.get(name)
+        if need is not None and getattr(rig.effects, need[0]) != need[1]:
+            raise IdentificationError(
+                f"parameter {name!r} does not affect the output of rig {rig.name!r}: it needs "
+                f"effects.{need[0]} = {need[1]!r} (is {getattr(rig.effects, need[0])!r})"
+            )
+        x0 = float(getattr(getattr(rig, section), fname) if initial is None else initial)
+        lo_b, hi_b, log = PHYSICAL_BOUNDS.get(
+            name, (None, None, bool(f.metadata.get("positive")))
+        )
+        if log and x0 <= 0.0:
+            if name == "actuator.lag_time_constant":
+                x0 = 0.05  # switched on with T_a = 0: start from a typical small-motor lag
+            else:
+                raise IdentificationError(
+                    f"parameter {name!r} starts at {x0!r}; expected > 0 (it is fitted as a logarithm)"
+                )
+        if lo_b is None:
+            lo_b = x0 * 1e-3 if log else (0.0 if f.metadata.get("nonneg") else x0 - 10.0 * abs(x0) - 1.0)
+        if hi_b is None:
+            hi_b = x0 * 1e3 if log else max(10.0 * abs(x0), 1.0) + x0
+        lo, hi = bounds if bounds is not None else (lo_b, hi_b)
+        scale = 1.0 if log else _LINEAR_SCALE.get(name, max(abs(x0), 0.01 * (hi - lo), 1e-3))
+        spec = ParameterSpec(name, f.metadata["unit"], x0, float(lo), float(hi), bool(log), float(scale))
+    if not spec.lower < spec.upper:
+        raise IdentificationError(f"parameter {name!r}: bounds {spec.lower!r} .. {spec.upper!r} are empty")
+    if spec.log and spec.lower <= 0.0:
+        raise IdentificationError(
+            f"parameter {name!r}: lower bound {spec.lower!r} must be > 0 (log parameter)"
+        )
+    if not spec.lower <= spec.initial <= spec.upper:
+        raise IdentificationError(
+            f"parameter {name!r}: initial value {spec.initial!r} {spec.unit} outside the bounds "
+            f"[{spec.lower!r}, {spec.upper!r}]"
+        )
+    return spec
+
+
+def default_parameters(rig: Rig, theta_offset: float = 0.0) -> list[str]:
+    """Default fitted set for θ-only data (see the module docstring).
+
+    Parameters
+    ----------
+    rig : Rig
+    theta_offset : float
+        The rig's recording-frame offset [rad]; a non-zero value adds :data:`THETA_OFFSET`.
+    """
+    names = ["pendulum.mgd_over_J", "pendulum.c_over_J", "pendulum.L_over_J"]
+    e = rig.effects
+    if not e.viscous_friction:
+        names.remove("pendulum.c_over_J")
+    if e.dead_zone:
+        names.append("actuator.dead_zone")
+    if e.actuator_lag:
+        names.append("actuator.lag_time_constant")
+    if e.coulomb_friction:
+        names.append("pendulum.coulomb_over_J")
+    if theta_offset != 0.0:
+        names.append(THETA_OFFSET)
+    return names
+
+
+def apply_parameters(
+    rig: Rig, values: Mapping[str, float], theta_offset: float = 0.0
+) -> tuple[Rig, float]:
+    """Rig and angle offset with some parameters replaced.
+
+    A changed :data:`THETA_OFFSET` moves the end stops (written in the model frame) by the same
+    amount, so they stay at their recorded-frame angles: the stops are fixed to the sensor, the
+    offset only says where gravity's "down" is.
+
+    Parameters
+    ----------
+    rig : Rig
+    values : mapping
+        ``{name: value}`` with names as in :func:`parameter_spec`.
+    theta_offset : float
+        The offset [rad] that ``rig``'s end stops are written for.
+
+    Returns
+    -------
+    (Rig, float)
+        The new rig and the new offset.
+
+    Raises
+    ------
+    IdentificationError
+        On an unknown name or a value the rig format rejects.
+    """
+    per_section: dict[str, dict[str, float]] = {}
+    offset = float(theta_offset)
+    for name, v in values.items():
+        if name == THETA_OFFSET:
+            offset = float(v)
+            continue
+        section, fname, _ = _field_meta(name, rig)
+        per_section.setdefault(section, {})[fname] = float(v)
+    shift = offset - float(theta_offset)
+    if shift != 0.0:
+        p = per_section.setdefault("pendulum", {})
+        p["theta_min"] = p.get("theta_min", rig.pendulum.theta_min) + shift
+        p["theta_max"] = p.get("theta_max", rig.pendulum.theta_max) + shift
+    try:
+        for section, kv in per_section.items():
+            rig = rig.with_params(section, **kv)
+    except RigFileError as exc:
+        raise IdentificationError(f"parameter values rejected by the rig format: {exc}") from exc
+    return rig, offset
+
+
+# --------------------------------------------------------------------------- data preparation
+@dataclass(frozen=True)
+class UniformData:
+    """θ and duty on a uniform time grid (what the simulator and the fit consume).
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        t_k = k·dt [s].
+    duty : ndarray, shape (N,)
+        Duty cycle τ_k ∈ [0, 1] held over [t_k, t_{k+1}).
+    theta : ndarray, shape (N,)
+        Recorded angle [rad] in the recording's frame.
+    dt : float
+        Grid period [s].
+    resampled : bool
+        True if the recording was not uniform and was resampled.
+    decimate : int
+        Decimation factor applied.
+    source : str
+        The recording's source.
+    """
+
+    t: np.ndarray
+    duty: np.ndarray
+    theta: np.ndarray
+    dt: float
+    resampled: bool
+    decimate: int
+    source: str
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+
+def check_recording(recording: Recording, min_samples: int = MIN_SAMPLES) -> None:
+    """Refuse recordings that a θ-only grey-box fit cannot use.
+
+    Raises
+    ------
+    IdentificationError
+        If θ is missing, θ or the duty cycle has NaN/inf, the duty cycle is outside [0, 1] or
+        constant (unexcited), θ is constant, or there are fewer than ``min_samples`` samples.
+    """
+    src = recording.source or "<recording>"
+    if "theta" not in recording.channels:
+        raise IdentificationError(
+            f"{src}: recording has no 'theta' channel (has {sorted(recording.channels)}); "
+            "the grey-box fit compares simulated and recorded angles"
+        )
+    theta, duty = recording.channels["theta"], recording.duty
+    for what, y in (("theta", theta), ("duty", duty)):
+        bad = ~np.isfinite(y)
+        if bad.any():
+            raise IdentificationError(
+                f"{src}: {what} has {int(bad.sum())} NaN/inf value(s), first at sample "
+                f"{int(np.flatnonzero(bad)[0])} (t = {recording.t[np.flatnonzero(bad)[0]]:.4g} s); "
+                "expected finite values (drop or repair those samples first)"
+            )
+    if len(recording) < min_samples:
+        raise IdentificationError(
+            f"{src}: only {len(recording)} samples; a grey-box fit needs at least {min_samples}"
+        )
+    out = (duty < 0.0) | (duty > 1.0)
+    if out.any():
+        k = int(np.flatnonzero(out)[0])
+        raise IdentificationError(f"{src}: duty[{k}] = {float(duty[k])!r} is outside [0, 1] (a fraction)")
+    if np.ptp(duty) == 0.0:
+        raise IdentificationError(
+            f"{src}: the duty cycle is constant ({duty[0]:g}) over all {duty.size} samples: "
+            "the input is unexcited, the parameters are not identifiable"
+        )
+    if np.ptp(theta) == 0.0:
+        raise IdentificationError(f"{src}: θ is constant ({theta[0]:g} rad): the output is unexcited")
+
+
+def uniform_data(
+    recording: Recording, dt: float | None = None, decimate: int = 1, min_samples: int = MIN_SAMPLES
+) -> UniformData:
+    """Validate a recording and put θ and the duty cycle on a uniform grid.
+
+    Parameters
+    ----------
+    recording : Recording
+        Needs ``theta``; t may be non-uniform.
+    dt : float, optional
+        Grid period [s]; default the recording's median interval. A ``dt`` different from the
+        recording's forces resampling.
+    decimate : int
+        Keep every ``decimate``-th sample (duty averaged over each block); 1 = no decimation.
+    min_samples : int
+        Fewest samples accepted, after decimation.
+
+    Returns
+    -------
+    UniformData
+
+    Raises
+    ------
+    IdentificationError
+        See :func:`check_recording`; also on ``dt`` <= 0 or ``decimate`` < 1.
+    """
+    check_recording(recording, min_samples=2)
+    if int(decimate) != decimate or decimate < 1:
+        raise IdentificationError(f"decimate = {decimate!r}; expected an integer >= 1")
+    decimate = int(decimate)
+    t = recording.t - recording.t[0]
+    theta, duty = recording.channels["theta"], recording.duty
+    grid_dt = float(np.median(np.diff(t))) if dt is None else float(dt)
+    if not (math.isfinite(grid_dt) and grid_dt > 0.0):
+        raise IdentificationError(f"grid period dt = {dt!r}; expected a finite value > 0 s")
+    grid = uniform_grid(t, grid_dt)
+    uniform = grid is None
+    if grid is None:
+        tu, th, du = t.copy(), theta.copy(), duty.copy()
+    else:
+        tu, idx = grid
+        th = np.interp(tu, t, theta)
+        du = duty[idx]
+    if decimate > 1:
+        m = tu.size // decimate
+        if m < 1:
+            raise IdentificationError(f"decimate = {decimate} leaves no sample of {tu.size}")
+        du = du[: m * decimate].reshape(m, decimate).mean(axis=1)
+        th = th[: m * decimate : decimate]
+        tu = np.arange(m) * grid_dt * decimate
+    data = UniformData(
+        t=tu, duty=np.clip(du, 0.0, 1.0), theta=th, dt=grid_dt * decimate, resampled=not uniform,
+        decimate=decimate, source=recording.source,
+    )
+    if len(data) < min_samples:
+        raise IdentificationError(
+            f"{recording.source or '<recording>'}: only {len(data)} samples on the fit grid "
+            f"(dt = {data.dt:.4g} s); a grey-box fit needs at least {min_samples}"
+        )
+    if np.ptp(data.duty) == 0.0:
+        raise IdentificationError(
+            f"{recording.source or '<recording>'}: the duty cycle is constant on the fit grid: "
+            "unexcited input"
+        )
+    return data
+
+
+# --------------------------------------------------------------------------- initial state
+def motor_equilibrium(rig: Rig, duty: float) -> tuple[float, float, float]:
+    """Steady motor state for a constant duty cycle.
+
+    Solves K_t·i_a = B_m·ω₁ + T_c·tanh(ω₁/v_ε) + K_d·ω₁|ω₁| with i_a = (v_a − K_ω·ω₁)/R_a
+    (switched-off effects contribute nothing), v_a from the actuator chain (dead zone, map).
+
+    Parameters
+    ----------
+    rig : Rig
+    duty : float
+        Duty cycle τ ∈ [0, 1].
+
+    Returns
+    -------
+    (i_a [A], ω₁ [rad/s], τ_f [1])
+
+    Raises
+    ------
+    IdentificationError
+        If the motor has no finite steady state (no back-EMF, friction or drag).
+    """
+    m = PlantModel(rig)
+    v = m.armature_voltage(float(duty))
+    if v <= 0.0:
+        return 0.0, 0.0, float(duty)
+
+    def torque(w: float) -> float:
+        i = (v - m.K_w * w) / m.R
+        return m.K_t * i - m.B_m * w - m.T_cm * math.tanh(w / ROTOR_FRICTION_VELOCITY) - m.K_d * w * abs(w)
+
+    hi = v / m.K_w if m.K_w > 0.0 else 1.0
+    while torque(hi) > 0.0:
+        hi *= 2.0
+        if hi > 1e9:
+            raise IdentificationError(
+                f"rig {rig.name!r}: the motor has no steady state at duty {duty:g} "
+                "(no back-EMF, friction or propeller drag switched on)"
+            )
+    w = brentq(torque, 0.0, hi, xtol=1e-12, rtol=1e-12)
+    return (v - m.K_w * w) / m.R, w, float(duty)
+
+
+def initial_velocity(theta: np.ndarray, dt: float, n: int = N_DIFF) -> float:
+    """θ̇(t_0) [rad/s] from a local quadratic least-squares fit over the first ``n`` samples.
+
+    Parameters
+    ----------
+    theta : ndarray, shape (N,)
+        Angle [rad].
+    dt : float
+        Sample period [s].
+    n : int
+        Samples used (>= 3; fewer available -> all).
+    """
+    k = min(max(int(n), 3), theta.size)
+    tt = np.arange(k) * dt
+    coef = np.polyfit(tt, theta[:k], 2 if k >= 4 else 1)
+    return float(coef[-2])
+
+
+def noise_level(theta: np.ndarray) -> float:
+    """Robust estimate of white measurement noise σ [rad] on θ.
+
+    σ̂ = 1.4826·MAD(Δ²θ)/√6 (the second difference of white noise has variance 6σ²; smooth motion
+    contributes little at the sample rate). Quantised signals that rarely change give 0.
+    """
+    d2 = np.diff(np.asarray(theta, dtype=float), 2)
+    if d2.size < 3:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
+def _slope_noise_gain(dt: float, n: int = N_DIFF) -> float:
+    """Standard deviation of :func:`initial_velocity` per unit σ of white noise on θ [1/s]."""
+    k = max(int(n), 3)
+    design = np.vander(np.arange(k) * dt, 3 if k >= 4 else 2)
+    return float(np.linalg.norm(np.linalg.pinv(design)[-2]))
+
+
+def initial_state(rig: Rig, theta: np.ndarray, duty: np.ndarray, dt: float, theta_offset: float = 0.0,
+                  theta_dot0: float | None = None, theta0: float | None = None) -> np.ndarray:
+    """Model state (shape (5,)) at the first sample of a recorded stretch.
+
+    θ = θ_rec[0] + offset (or ``theta0`` + offset), θ̇ from :func:`initial_velocity` (unless
+    ``theta_dot0`` is given), motor at the steady state of ``duty[0]``
+    (:func:`motor_equilibrium`).
+    """
+    thd = initial_velocity(theta, dt) if theta_dot0 is None else float(theta_dot0)
+    th0 = float(theta[0]) if theta0 is None else float(theta0)
+    i_a, w, tf = motor_equilibrium(rig, float(duty[0]))
+    return np.array([th0 + theta_offset, thd, i_a, w, tf])
+
+
+def free_run_theta(
+    rig: Rig, data: UniformData, theta_offset: float = 0.0, theta_dot0: float | None = None,
+    theta0: float | None = None,
+) -> np.ndarray:
+    """Free-run simulation of a recorded stretch: θ in the recording's frame, shape (N,) [rad].
+
+    The model starts from :func:`initial_state` of the stretch's first samples (or the given
+    ``theta0`` [rad, recording frame] / ``theta_dot0`` [rad/s]) and is driven by the stretch's
+    duty cycle only (no later correction from the measurements).
+
+    Raises
+    ------
+    IdentificationError
+        If the simulation fails (wrapped :class:`~aeropend_sim.simulate.SimulationError`).
+    """
+    x0 = initial_state(rig, data.theta, data.duty, data.dt, theta_offset, theta_dot0, theta0)
+    try:
+        traj = simulate(rig, data.duty, x0=x0, dt=data.dt)
+    except (SimulationError, ModelError) as exc:
+        raise IdentificationError(f"simulation of {data.source or 'the recording'} failed: {exc}") from exc
+    return traj.theta - theta_offset
+
+
+# --------------------------------------------------------------------------- metrics
+def error_metrics(measured: np.ndarray, simulated: np.ndarray) -> dict[str, float]:
+    """Fit metrics of a simulated angle against the measured one.
+
+    NRMSE = RMS(θ_sim − θ_meas) / (max θ_meas − min θ_meas), dimensionless (0 = perfect; a
+    constant prediction at the mid-range scores about 0.3 on a two-level signal).
+
+    Returns
+    -------
+    dict
+        ``nrmse`` [1], ``rms_error`` [rad], ``max_abs_error`` [rad], ``range`` [rad], ``n``.
+    """
+    measured = np.asarray(measured, dtype=float)
+    e = np.asarray(simulated, dtype=float) - measured
+    rng = float(np.ptp(measured)) if measured.size else 0.0
+    rms = float(np.sqrt(np.mean(e**2))) if e.size else math.nan
+    return {
+        "nrmse": rms / rng if rng > 0.0 else math.inf,
+        "rms_error": rms,
+        "max_abs_error": float(np.max(np.abs(e))) if e.size else math.nan,
+        "range": rng,
+        "n": int(e.size),
+    }
+
+
+# --------------------------------------------------------------------------- result
+@dataclass(frozen=True)
+class ParameterEstimate:
+    """One fitted parameter.
+
+    Attributes
+    ----------
+    name, unit : str
+    value : float
+        Fitted value.
+    std_error : float
+        1-σ standard error from the Jacobian (inf if not identifiable from these data).
+    initial : float
+        Starting value.
+    lower, upper : float
+        Bounds.
+    log : bool
+        Fitted as a logarithm.
+    at_bound : bool
+        The value sits on a bound (the bound, not the data, decided it).
+    """
+
+    name: str
+    unit: str
+    value: float
+    std_error: float
+    initial: float
+    lower: float
+    upper: float
+    log: bool
+    at_bound: bool
+
+    @property
+    def relative_std_error(self) -> float:
+        """std_error / |value| (inf for a zero value)."""
+        return self.std_error / abs(self.value) if self.value != 0.0 else math.inf
+
+
+@dataclass(frozen=True)
+class GreyBoxResult:
+    """Outcome of :func:`fit_greybox`.
+
+    Attributes
+    ----------
+    rig : Rig
+        The rig with the fitted parameters (end stops moved with a fitted offset).
+    theta_offset : float
+        Fitted (or fixed) angle offset θ_model − θ_recorded [rad].
+    initial_rig : Rig
+        The starting rig (with ``initial`` overrides applied).
+    initial_theta_offset : float
+    parameters : tuple of ParameterEstimate
+        In the order requested.
+    cost : float
+        ½ Σ (θ_sim − θ_rec)² at the optimum [rad²].
+    initial_cost : float
+        The same at the starting point.
+    nfev, njev : int
+        Residual evaluations (simulations, excluding those of the finite-difference Jacobians)
+        and Jacobian evaluations, summed over the stages.
+    success : bool
+    status : int
+    message : str
+        From :func:`scipy.optimize.least_squares`.
+    metrics : dict
+        :func:`error_metrics` of the fitted free run on the fit data (``nrmse``, ``rms_error``,
+        ``max_abs_error``, ...).
+    data : UniformData
+        The data the fit used.
+    theta_fit : ndarray, shape (N,)
+        Fitted model's free run on ``data`` (recording frame) [rad].
+    elapsed : float
+        Wall time [s].
+    initial_state : (float, float)
+        θ(0) [rad, recording frame] and θ̇(0) [rad/s] of the fitted free run (fitted when
+        ``fit_initial_state``, else the estimates).
+    """
+
+    rig: Rig
+    theta_offset: float
+    initial_rig: Rig
+    initial_theta_offset: float
+    parameters: tuple[ParameterEstimate, ...]
+    cost: float
+    initial_cost: float
+    nfev: int
+    njev: int
+    success: bool
+    status: int
+    message: str
+    metrics: dict[str, float]
+    data: UniformData
+    theta_fit: np.ndarray
+    elapsed: float
+    initial_state: tuple[float, float] = (math.nan, math.nan)
+
+    @property
+    def nrmse(self) -> float:
+        """NRMSE of the fit on its own (training) data [1]."""
+        return float(self.metrics["nrmse"])
+
+    @property
+    def iterations(self) -> int:
+        """Jacobian evaluations = trust-region iterations of the optimiser."""
+        return self.njev
+
+    def value(self, name: str) -> float:
+        """Fitted value of a parameter by name.
+
+        Raises
+        ------
+        KeyError
+            If ``name`` was not fitted.
+        """
+        for p in self.parameters:
+            if p.name == name:
+                return p.value
+        raise KeyError(f"{name!r} was not fitted; fitted: {[p.name for p in self.parameters]}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (parameters with units and standard errors, cost, metrics).
+
+        Non-finite standard errors (parameter on a bound, or not determined) become None.
+        """
+        return {
+            "parameters": [
+                {k: (v if not isinstance(v, float) or math.isfinite(v) else None)
+                 for k, v in dataclasses.asdict(p).items()}
+                for p in self.parameters
+            ],
+            "theta_offset": self.theta_offset,
+            "initial_state": {"theta0": self.initial_state[0], "theta_dot0": self.initial_state[1],
+                              "units": ["rad", "rad/s"]},
+            "cost": self.cost,
+            "initial_cost": self.initial_cost,
+            "nfev": self.nfev,
+            "iterations": self.njev,
+            "success": self.success,
+            "message": self.message,
+            "metrics": self.metrics,
+            "grid": {"dt": self.data.dt, "n": len(self.data), "resampled": self.data.resampled,
+                     "decimate": self.data.decimate},
+            "elapsed_s": self.elapsed,
+        }
+
+
+# --------------------------------------------------------------------------- the fit
+def _parameter_specs(rig: Rig, params: Sequence[str] | None, theta_offset: float,
+                     initial: Mapping[str, float] | None,
+                     bounds: Mapping[str, tuple[float, float]] | None) -> list[ParameterSpec]:
+    """The checked :class:`ParameterSpec` of every parameter :func:`fit_greybox` fits."""
+    names = list(default_parameters(rig, theta_offset) if params is None else params)
+    if not names:
+        raise IdentificationError("no parameters to fit; expected at least one name")
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise IdentificationError(f"parameter(s) {dup} requested more than once")
+    initial = dict(initial or {})
+    bounds = dict(bounds or {})
+    unknown = sorted((set(initial) | set(bounds)) - set(names))
+    if unknown:
+        raise IdentificationError(f"initial/bounds given for {unknown}, which are not fitted ({names})")
+    specs = [parameter_spec(n, rig, theta_offset, initial.get(n), bounds.get(n)) for n in names]
+    return specs
+
+
+def _initial_state_box(data: UniformData) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Noise level of θ and the bounded coordinates of the initial-state corrections (:func:`fit_greybox`)."""
+    # nuisance coordinates: corrections (δθ₀ [rad], δθ̇₀ [rad/s]) to the estimated initial state,
+    # bounded by 5 σ of the estimates for the measured noise level
+    sigma = noise_level(data.theta)
+    x_bound = np.maximum(5.0 * sigma * np.array([1.0, _slope_noise_gain(data.dt)]), 1e-12)
+    # coordinates w = 1 + (δ + bound)/(bound/5) ∈ [1, 11], δ = 0 at w = 6 (see ParameterSpec)
+    lo_x, hi_x, mid_x = np.array([1.0, 1.0]), np.array([11.0, 11.0]), np.array([6.0, 6.0])
+    return sigma, x_bound, lo_x, hi_x, mid_x
+
+
+def _solve_stages(
+    data: UniformData, make_residual: Callable[[list[tuple[int, int]], bool], Any], solve: Callable[..., Any],
+    x0_correction: Callable[[np.ndarray], tuple[float, float]], z0: np.ndarray, lo: np.ndarray,
+    hi: np.ndarray,
+    box: tuple[np.ndarray, np.ndarray, np.ndarray], *, init_horizon: float | None, tol: float,
+    fit_initial_state: bool, sigma: float, th0_est: float, thd0_est: float,
+) -> tuple[Any, np.ndarray, int, int, float, float]:
+    """The stages of :func:`fit_greybox`: optional multiple shooting, free run, initial-state polish.
+
+    Returns the final ``least_squares`` solution, the start residual, the evaluation counts and
+    the initial state (θ₀, θ̇₀) used.
+    """
+    lo_x, hi_x, mid_x = box
+    full = [(0, len(data))]
+    free_residual = make_residual(full, with_x0=False)
+    r0 = free_residual(z0)
+    nfev = njev = 0
+    z_start = z0
+    if init_horizon is not None:
+        windows = _split_windows(len(data), data.dt, float(init_horizon))
+        if len(windows) > 1:
+            # an initialiser only: a loose tolerance is enough (the free-run stage refines)
+            stage1 = solve(make_residual(windows, with_x0=False), z0, lo, hi, max(tol, INIT_STAGE_TOL))
+            nfev, njev = int(stage1.nfev), int(stage1.njev or 0)
+            z_start = np.clip(stage1.x, lo, hi)
+    sol = solve(free_residual, z_start, lo, hi)
+    nfev += int(sol.nfev)
+    njev += int(sol.njev or 0)
+    th0, thd0 = th0_est, thd0_est
+    if fit_initial_state and sigma > 1e-9:
+        # polish with the initial state free, from the free-run optimum (cheap when the estimate
+        # was already right, e.g. on noise-free data)
+        sol = solve(make_residual(full, with_x0=True), np.concatenate([np.clip(sol.x, lo, hi), mid_x]),
+                    np.concatenate([lo, lo_x]), np.concatenate([hi, hi_x]))
+        nfev += int(sol.nfev)
+        njev += int(sol.njev or 0)
+        d_th, d_thd = x0_correction(sol.x)
+        th0, thd0 = th0_est + d_th, thd0_est + d_thd
+    return sol, r0, nfev, njev, th0, thd0
+
+
+def _parameter_estimates(specs: Sequence[ParameterSpec], sol: Any, lo_z: np.ndarray,
+                         hi_z: np.ndarray) -> list[ParameterEstimate]:
+    """Fitted values with standard errors (and bound flags) of the parameters of :func:`fit_greybox`."""
+    n_p = len(specs)
+    lo_all = lo_z[: sol.x.size]
+    hi_all = hi_z[: sol.x.size]
+    pinned = (np.abs(sol.x - lo_all) <= 1e-6 * lo_all) | (np.abs(sol.x - hi_all) <= 1e-6 * hi_all)
+    std_z = _std_errors(sol.jac, sol.fun, pinned)[:n_p]
+    estimates = []
+    for s, z, sz, at_bound in zip(specs, sol.x[:n_p], std_z, pinned[:n_p], strict=True):
+        v = s.from_z(z)
+        se = s.dp_dz(v) * sz
+        estimates.append(ParameterEstimate(
+            name=s.name, unit=s.unit, value=v, std_error=float(abs(se)), initial=s.initial,
+            lower=s.lower, upper=s.upper, log=s.log, at_bound=bool(at_bound),
+        ))
+    return estimates
+
+
+def fit_greybox(
+    recording: Recording | UniformData,
+    rig: Rig,
+    params: Sequence[str] | None = None,
+    *,
+    theta_offset: float = 0.0,
+    initial: Mapping[str, float] | None = None,
+    bounds: Mapping[str, tuple[float, float]] | None = None,
+    dt: float | None = None,
+    decimate: int = 1,
+    max_nfev: int = 400,
+    tol: float = 1e-10,
+    diff_step: float = 1e-5,
+    init_horizon: float | None = None,
+    fit_initial_state: bool = True,
+    verbose: int = 0,
+) -> GreyBoxResult:
+    """Fit rig parameters to a recording by output error (free-run θ vs recorded θ).
+
+    Parameters
+    ----------
+    recording : Recording or UniformData
+        Training data: ``theta`` [rad] and the duty cycle; a :class:`Recording` goes through
+        :func:`uniform_data` (validation, resampling, decimation).
+    rig : Rig
+        Model structure (effect switches) and starting values.
+    params : sequence of str, optional
+        Parameters to fit (default :func:`default_parameters`).
+    theta_offset : float
+        Angle offset θ_model − θ_recorded [rad] the rig's end stops are written for (start
+        value if :data:`THETA_OFFSET` is fitted, fixed otherwise); see :func:`rig_theta_offset`.
+    initial : mapping, optional
+        Starting values overriding the rig's.
+    bounds : mapping, optional
+        ``{name: (lower, upper)}`` overriding :data:`PHYSICAL_BOUNDS`.
+    dt : float, optional
+        Grid period [s] (default the recording's median interval).
+    decimate : int
+        Decimation factor (see :func:`uniform_data`).
+    max_nfev : int
+        Most residual evaluations per stage (each one simulation; SciPy does not count the
+        ``n_params`` simulations of each finite-difference Jacobian).
+    tol : float
+        ``ftol`` = ``xtol`` = ``gtol`` of the optimiser.
+    diff_step : float
+        Relative finite-difference step of the Jacobian in the optimiser coordinates (z >= 1,
+        see :class:`ParameterSpec`), well above the ODE tolerance 1e-8.
+    init_horizon : float, optional
+        If given [s], the free-run fit starts from a **multiple-shooting** fit: the data are cut
+        into windows of this length, each simulated from its own recorded initial state
+        (:func:`initial_state` of the window's first samples), all windows' errors minimised
+        together. Short horizons keep simulation errors from accumulating, so this stage is far
+        less prone to local minima when the start is poor; it is solved to the loose tolerance
+        :data:`INIT_STAGE_TOL` and the free-run stage then refines it.
+    fit_initial_state : bool
+        Also fit the initial angle and angular velocity of the free run (nuisance parameters:
+        corrections to the estimates of :func:`initial_state`, bounded by five standard
+        deviations of those estimates for the noise level of θ, :func:`noise_level`). On noisy
+        data the short-window velocity estimate alone would leave a start-up transient in the
+        residual and bias the fit; the bounds stop the initial state from absorbing model error.
+        Skipped when θ shows no noise (e.g. quantised, slowly varying logs). The values used are
+        reported in :attr:`GreyBoxResult.initial_state` and counted in the standard errors.
+    verbose : int
+        Passed to :func:`scipy.optimize.least_squares`.
+
+    Returns
+    -------
+    GreyBoxResult
+
+    Raises
+    ------
+    IdentificationError
+        On an unusable recording (:func:`check_recording`), an unknown parameter, a parameter
+        whose effect is switched off, a duplicate, or a start outside the bounds.
+    """
+    t_start = time.perf_counter()
+    if isinstance(recording, Recording):
+        check_recording(recording)
+        data = uniform_data(recording, dt=dt, decimate=decimate)
+    else:
+        data = recording
+    specs = _parameter_specs(rig, params, theta_offset, initial, bounds)
+    start_values = {s.name: s.initial for s in specs}
+    rig0, off0 = apply_parameters(rig, start_values, theta_offset)
+    # the end stops of rig0 are written for off0; offsets are applied relative to it from here on
+    z0 = np.array([s.to_z(s.initial) for s in specs])
+    lo = np.array([s.to_z(s.lower) for s in specs])
+    hi = np.array([s.to_z(s.upper) for s in specs])
+    z0 = np.clip(z0, lo, hi)
+    penalty = 10.0 * max(float(np.ptp(data.theta)), 1e-3)
+    n_p = len(specs)
+    th0_est, thd0_est = float(data.theta[0]), initial_velocity(data.theta, data.dt)
+    sigma, x_bound, lo_x, hi_x, mid_x = _initial_state_box(data)
+
+    def x0_correction(z: np.ndarray) -> tuple[float, float]:
+        d = (z[n_p:] - mid_x) * x_bound / 5.0
+        return float(d[0]), float(d[1])
+
+    def candidate(z: np.ndarray) -> tuple[Rig, float]:
+        values = {s.name: s.from_z(zi) for s, zi in zip(specs, z[:n_p], strict=True)}
+        return apply_parameters(rig0, values, off0)
+
+    def make_residual(windows: list[tuple[int, int]], with_x0: bool) -> Any:
+        parts = [_window(data, a, b) for a, b in windows]
+        velocities = [initial_velocity(p.theta, p.dt) for p in parts]
+        measured = np.concatenate([p.theta for p in parts])
+
+        def residual(z: np.ndarray) -> np.ndarray:
+            try:
+                r_rig, r_off = candidate(z)
+                if with_x0:
+                    d_th, d_thd = x0_correction(z)
+                    th = free_run_theta(r_rig, data, r_off, thd0_est + d_thd, th0_est + d_th)
+                else:
+                    th = np.concatenate(
+                        [free_run_theta(r_rig, p, r_off, v) for p, v in zip(parts, velocities, strict=True)]
+                    )
+            except IdentificationError:
+                return np.full(measured.size, penalty)
+            r = th - measured
+            if not np.all(np.isfinite(r)):
+                return np.full(measured.size, penalty)
+            return r
+
+        return residual
+
+    def solve(residual: Any, z_start: np.ndarray, lo_z: np.ndarray, hi_z: np.ndarray, t: float = tol) -> Any:
+        return least_squares(
+            residual, z_start, bounds=(lo_z, hi_z), x_scale=1.0, method="trf", jac="2-point",
+            diff_step=diff_step, ftol=t, xtol=t, gtol=t, max_nfev=max_nfev, verbose=verbose,
+        )
+
+    sol, r0, nfev, njev, th0, thd0 = _solve_stages(
+        data, make_residual, solve, x0_correction, z0, lo, hi, (lo_x, hi_x, mid_x), init_horizon=init_horizon,
+        tol=tol, fit_initial_state=fit_initial_state, sigma=sigma, th0_est=th0_est, thd0_est=thd0_est)
+    fit_rig, fit_off = candidate(sol.x)
+    theta_fit = free_run_theta(fit_rig, data, fit_off, thd0, th0)
+    estimates = _parameter_estimates(specs, sol, np.concatenate([lo, lo_x]), np.concatenate([hi, hi_x]))
+    return GreyBoxResult(
+        rig=fit_rig, theta_offset=fit_off, initial_rig=rig0, initial_theta_offset=off0,
+        parameters=tuple(estimates), cost=float(sol.cost), initial_cost=float(0.5 * np.sum(r0**2)),
+        nfev=nfev, njev=njev, success=bool(sol.success), status=int(sol.status),
+        message=str(sol.message), metrics=error_metrics(data.theta, theta_fit), data=data,
+        theta_fit=theta_fit, elapsed=time.perf_counter() - t_start, initial_state=(th0, thd0),
+    )
+
+
+def _window(data: UniformData, start: int, stop: int) -> UniformData:
+    """Samples [start, stop) of a uniform data set, time re-based to 0."""
+    return dataclasses.replace(
+        data, t=data.t[start:stop] - data.t[start], duty=data.duty[start:stop], theta=data.theta[start:stop]
+    )
+
+
+def _split_windows(n: int, dt: float, horizon: float) -> list[tuple[int, int]]:
+    """Consecutive windows of about ``horizon`` seconds covering n samples (last one merged if short).
+
+    Raises
+    ------
+    IdentificationError
+        If ``horizon`` is not positive or shorter than :data:`N_DIFF` samples.
+    """
+    w = round(horizon / dt) if math.isfinite(horizon) else 0
+    if w < max(N_DIFF, 2):
+        raise IdentificationError(
+            f"init_horizon = {horizon!r} s is shorter than {max(N_DIFF, 2)} samples of {dt:g} s"
+        )
+    edges = list(range(0, n, w))
+    if n - edges[-1] < w // 2 and len(edges) > 1:
+        edges.pop()
+    edges.append(n)
+    return list(itertools.pairwise(edges))
+
+
+def _std_errors(jac: np.ndarray, res: np.ndarray, pinned: np.ndarray) -> np.ndarray:
+    """1-σ standard errors of the optimiser coordinates: sqrt(diag(s²·(JᵀJ)⁻¹)).
+
+    s² = Σr²/(m − n_free). Coordinates pinned at a bound are held fixed (their columns dropped;
+    their error is NaN: the bound, not the data, set them). Free coordinates with a weight above
+    1 % in a direction the data do not determine (singular value below 1e-10 of the largest)
+    get inf; the others are computed in the determined subspace.
+    """
+    jac = np.asarray(jac, dtype=float)
+    n = jac.shape[1]
+    std = np.full(n, math.nan)
+    free = np.flatnonzero(~np.asarray(pinned, dtype=bool))
+    if free.size == 0:
+        return std
+    dof = max(res.size - free.size, 1)
+    s2 = float(np.sum(res**2)) / dof
+    _, sv, vt = np.linalg.svd(jac[:, free], full_matrices=False)
+    if sv.size == 0 or sv[0] == 0.0:
+        std[free] = math.inf
+        return std
+    keep = sv > 1e-10 * sv[0]
+    cov = (vt[keep].T / sv[keep] ** 2) @ vt[keep] * s2
+    sub = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    if not keep.all():
+        weak = np.abs(vt[~keep]).max(axis=0) > 1e-2
+        sub[weak] = math.inf
+    std[free] = sub
+    return std

@@ -1,0 +1,296 @@
+"""Contract bags from recordings (:func:`write_bag`) and the recorder's incremental writer (:class:`BagSink`).
+
+The wire convention (duty and v_a shifted forward one sample) and the precision notes are in
+:mod:`aeropend_ident.io.bags`, which reads what this module writes.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from rosbags.interfaces import (
+    Qos,
+)
+
+from aeropend_ident.errors import BagError
+from aeropend_ident.io.bag_codec import (
+    _NAN,
+    encode_armature,
+    encode_float64,
+    encode_joint_states,
+    typestore,
+)
+from aeropend_ident.io.bags import (
+    _CUSTOM_META,
+    _CUSTOM_RIG,
+    _CUSTOM_SOURCE,
+    _STORAGE_PLUGINS,
+    COMMAND_QOS,
+    Storage,
+    qos_for_topic,
+)
+from aeropend_sim.contract import (
+    TOPIC_ARMATURE,
+    TOPIC_DUTY_CYCLE,
+    TOPIC_JOINT_STATES,
+    TYPE_ARMATURE,
+    TYPE_DUTY_CYCLE,
+    TYPE_JOINT_STATES,
+    Sample,
+)
+from aeropend_sim.recording import MEASURED_CHANNELS, Recording
+
+from .mcap_jazzy import JazzyWriter
+
+
+def _prepare_target(path: Path, overwrite: bool) -> None:
+    if not path.exists():
+        return
+    if not overwrite:
+        raise BagError(f"bag '{path}' already exists; pass overwrite=True (or choose another path)")
+    if path.is_dir() and ((path / "metadata.yaml").exists() or not any(path.iterdir())):
+        shutil.rmtree(path)
+        return
+    raise BagError(f"refusing to overwrite '{path}': it exists and is not a rosbag2 directory "
+                   "(no metadata.yaml)")
+
+
+def _wire_arrays(rec: Recording) -> dict[str, np.ndarray]:
+    """Per-message wire values of a recording (duty and v_a shifted by one sample)."""
+    n = len(rec)
+    nan = np.full(n, np.nan)
+    ch = {name: rec.channels.get(name, nan) for name in MEASURED_CHANNELS}
+    before_meta = rec.meta.get("duty_before_start")
+    before = float(before_meta) if _is_number(before_meta) else np.nan
+    effort = np.concatenate(([before], rec.duty[:-1]))
+    v_wire = np.concatenate(([np.nan], ch["v_a"][:-1]))
+    return {**ch, "effort": effort, "v_wire": v_wire}
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float, np.floating, np.integer)) and not isinstance(x, bool)
+
+
+def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_name: str | None = None, *,
+              frame_id: str = "aeropend", namespace: str = "", lockstep_qos: bool = False,
+              stamp0_ns: int | None = None, overwrite: bool = False,
+              encoder: Literal["vectorized", "typestore"] = "vectorized") -> Path:
+    """Write a :class:`Recording` as a contract bag.
+
+    Per sample k: a ``JointState`` on ``/aeropend/joint_states`` and a ``BatteryState`` on
+    ``/aeropend/armature`` with the same header stamp ``stamp0_ns + round(t_k · 1e9)``, built
+    like :meth:`aeropend_sim.contract.Sample.joint_state_fields` / ``armature_fields`` (channels
+    the recording lacks are NaN; the duty and v_a shifted to the wire convention, see module
+    doc), and the duty command ``duty[k]`` as ``std_msgs/Float64`` on ``/aeropend/duty_cycle``
+    (NaN duties are not sent: NaN is not a valid command). Log time = header stamp.
+
+    Parameters
+    ----------
+    rec : Recording
+        The recording; ``rec.meta`` is stored as JSON in the bag's ``custom_data``.
+    path : str or Path
+        Bag directory to create.
+    storage : {"mcap", "sqlite3"}
+        rosbag2 storage plugin.
+    rig_name : str, optional
+        Rig name stored in ``custom_data`` (``aeropend.rig_name``).
+    frame_id : str
+        ``header.frame_id`` of the sample messages.
+    namespace : str
+        Prefix for every topic (e.g. ``"/rig1"``).
+    lockstep_qos : bool
+        Offer reliable QoS on the sample topics (what the simulator does in lock-step mode)
+        instead of ``sensor_data`` (best effort).
+    stamp0_ns : int, optional
+        Absolute stamp of ``t = 0`` [ns] (default ``rec.stamp0_ns``).
+    overwrite : bool
+        Replace an existing bag directory at ``path``.
+    encoder : {"vectorized", "typestore"}
+        ``"typestore"`` builds every message from :class:`~aeropend_sim.contract.Sample`
+        (``joint_state_fields()``, ``armature_fields()``) and ``typestore.serialize_cdr`` (the
+        reference path); ``"vectorized"`` encodes all samples at once with NumPy. The bytes are
+        identical.
+
+    Returns
+    -------
+    Path
+        The bag directory.
+
+    Raises
+    ------
+    BagError
+        On an unknown storage, an existing target, or stamps that are not strictly increasing
+        after rounding to nanoseconds.
+    """
+    path = Path(path)
+    if storage not in _STORAGE_PLUGINS:
+        raise BagError(f"bag '{path}': unknown storage {storage!r}; "
+                       f"expected one of {sorted(_STORAGE_PLUGINS)}")
+    _prepare_target(path, overwrite)
+    s0 = rec.stamp0_ns if stamp0_ns is None else int(stamp0_ns)
+    stamps = s0 + np.round(rec.t * 1e9).astype(np.int64)
+    if np.any(np.diff(stamps) <= 0):
+        k = int(np.flatnonzero(np.diff(stamps) <= 0)[0]) + 1
+        raise BagError(f"bag '{path}': stamps not strictly increasing at sample {k} after rounding to ns")
+    w = _wire_arrays(rec)
+    cmd_idx = np.flatnonzero(np.isfinite(rec.duty))
+    if encoder == "vectorized":
+        nan = np.full(len(rec), np.nan)
+        js = encode_joint_states(
+            stamps,
+            position=np.column_stack([w["theta"], nan, nan]),
+            velocity=np.column_stack([w["theta_dot"], w["omega_rotor"], w["omega_prop"]]),
+            effort=np.column_stack([nan, w["effort"], nan]),
+            frame_id=frame_id,
+        )
+        arm = encode_armature(stamps, w["v_wire"], w["i_a"], frame_id=frame_id)
+        cmds = encode_float64(rec.duty[cmd_idx])
+    elif encoder == "typestore":
+        js, arm, cmds = _encode_via_samples(stamps, w, rec.duty[cmd_idx], frame_id)
+    else:
+        raise BagError(f"unknown encoder {encoder!r}; expected 'vectorized' or 'typestore'")
+    ts = typestore()
+    writer = JazzyWriter(path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
+    try:
+        writer.open()
+        sample_qos = qos_for_topic(TOPIC_JOINT_STATES, lockstep_qos)
+        c_js = writer.add_connection(namespace + TOPIC_JOINT_STATES, TYPE_JOINT_STATES, typestore=ts,
+                                     offered_qos_profiles=[sample_qos])
+        c_arm = writer.add_connection(namespace + TOPIC_ARMATURE, TYPE_ARMATURE, typestore=ts,
+                                      offered_qos_profiles=[sample_qos])
+        c_cmd = writer.add_connection(namespace + TOPIC_DUTY_CYCLE, TYPE_DUTY_CYCLE, typestore=ts,
+                                      offered_qos_profiles=[COMMAND_QOS])
+        meta = dict(rec.meta)
+        if rig_name is not None:
+            writer.set_custom_data(_CUSTOM_RIG, str(rig_name))
+            meta["rig_name"] = rig_name
+        writer.set_custom_data(_CUSTOM_SOURCE, str(rec.source))
+        writer.set_custom_data(_CUSTOM_META, json.dumps(meta, default=_json_default))
+        stamp_list = stamps.tolist()
+        cmd_set = set(cmd_idx.tolist())
+        cmd_iter = iter(cmds)
+        for k, stamp in enumerate(stamp_list):
+            writer.write(c_js, stamp, js[k])
+            writer.write(c_arm, stamp, arm[k])
+            if k in cmd_set:
+                writer.write(c_cmd, stamp, next(cmd_iter))
+    finally:
+        if writer.storage is not None:
+            writer.close()
+    return path
+
+
+def _encode_via_samples(stamps: np.ndarray, w: dict[str, np.ndarray], commands: np.ndarray,
+                        frame_id: str) -> tuple[list[bytes], list[bytes], list[bytes]]:
+    """Reference encoder: one :class:`Sample` per wire message, serialised by the typestore."""
+    ts = typestore()
+    T = ts.types["builtin_interfaces/msg/Time"]
+    H = ts.types["std_msgs/msg/Header"]
+    JS = ts.types[TYPE_JOINT_STATES]
+    BS = ts.types[TYPE_ARMATURE]
+    F64 = ts.types[TYPE_DUTY_CYCLE]
+    js_out, arm_out = [], []
+    for k, stamp in enumerate(stamps.tolist()):
+        sample = Sample(stamp_ns=stamp, theta=float(w["theta"][k]), theta_dot=float(w["theta_dot"][k]),
+                        omega_rotor=float(w["omega_rotor"][k]), omega_prop=float(w["omega_prop"][k]),
+                        i_a=float(w["i_a"][k]), v_a=float(w["v_wire"][k]), duty=float(w["effort"][k]))
+        sec, nanosec = divmod(stamp, 1_000_000_000)
+        header = H(stamp=T(sec=sec, nanosec=nanosec), frame_id=frame_id)
+        f = sample.joint_state_fields()
+        js_out.append(bytes(ts.serialize_cdr(
+            JS(header=header, name=list(f["name"]), position=np.array(f["position"], dtype=float),
+               velocity=np.array(f["velocity"], dtype=float), effort=np.array(f["effort"], dtype=float)),
+            TYPE_JOINT_STATES)))
+        a = sample.armature_fields()
+        arm_out.append(bytes(ts.serialize_cdr(
+            BS(header=header, voltage=a["voltage"], temperature=_NAN, current=a["current"], charge=_NAN,
+               capacity=_NAN, design_capacity=_NAN, percentage=_NAN, power_supply_status=0,
+               power_supply_health=0, power_supply_technology=0, present=True,
+               cell_voltage=np.array([], dtype=np.float32), cell_temperature=np.array([], dtype=np.float32),
+               location="", serial_number=""),
+            TYPE_ARMATURE)))
+    cmd_out = [bytes(ts.serialize_cdr(F64(data=float(v)), TYPE_DUTY_CYCLE)) for v in commands]
+    return js_out, arm_out, cmd_out
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    return str(obj)
+
+
+class BagSink:
+    """Incremental rosbag2 writer of already-serialised (CDR) messages.
+
+    Topics are registered lazily (:meth:`add_topic`, typically on the first message, once the
+    publishers' offered QoS is known); :meth:`close` writes ``metadata.yaml`` and is idempotent.
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory to create (must not exist).
+    storage : {"mcap", "sqlite3"}
+        Storage plugin.
+    custom_data : dict of str, optional
+        ``custom_data`` entries of ``metadata.yaml``.
+
+    Raises
+    ------
+    BagError
+        If the storage is unknown or the bag cannot be created (e.g. ``path`` exists).
+    """
+
+    def __init__(self, path: str | Path, storage: Storage = "mcap",
+                 custom_data: dict[str, str] | None = None) -> None:
+        self.path = Path(path)
+        if storage not in _STORAGE_PLUGINS:
+            raise BagError(f"bag '{self.path}': unknown storage {storage!r}; "
+                           f"expected one of {sorted(_STORAGE_PLUGINS)}")
+        if self.path.exists():
+            raise BagError(f"bag '{self.path}' already exists; choose another output path")
+        self.storage = storage
+        typestore()  # build the typestore now (~0.1 s): doing it on the first message would drop samples
+        self._writer = JazzyWriter(self.path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
+        try:
+            self._writer.open()
+        except Exception as exc:
+            raise BagError(f"bag '{self.path}': cannot create ({type(exc).__name__}: {exc})") from exc
+        for key, value in (custom_data or {}).items():
+            self._writer.set_custom_data(key, str(value))
+        self._conns: dict[str, Any] = {}
+        self.counts: dict[str, int] = {}
+        self.closed = False
+
+    def has_topic(self, topic: str) -> bool:
+        """Whether ``topic`` is registered."""
+        return topic in self._conns
+
+    def add_topic(self, topic: str, msgtype: str, qos: Sequence[Qos] = ()) -> None:
+        """Register ``topic`` of ``msgtype`` (e.g. ``sensor_msgs/msg/JointState``) with its offered QoS."""
+        if topic in self._conns:
+            return
+        try:
+            self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=typestore(),
+                                                             offered_qos_profiles=list(qos))
+        except Exception as exc:
+            raise BagError(f"bag '{self.path}': cannot add topic {topic} of type {msgtype} "
+                           f"({type(exc).__name__}: {exc})") from exc
+        self.counts[topic] = 0
+
+    def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
+        """Append one serialised message with log time ``timestamp_ns``."""
+        self._writer.write(self._conns[topic], int(timestamp_ns), data)
+        self.counts[topic] += 1
+
+    def close(self) -> None:
+        """Finish the bag (writes ``metadata.yaml``); safe to call twice."""
+        if not self.closed:
+            self.closed = True
+            self._writer.close()

@@ -1,0 +1,589 @@
+"""Contract bags -> :class:`~aeropend_sim.recording.Recording` (pure Python, no rclpy): the reader.
+
+Writing is :mod:`aeropend_ident.io.bag_writer`, the CDR codec :mod:`aeropend_ident.io.bag_codec`;
+this module also holds the contract QoS of bag topics and the raw reader of the player.
+
+A *contract bag* is a rosbag2 bag (MCAP or SQLite3 storage) holding the topics of
+:mod:`aeropend_sim.contract`:
+
+* ``/aeropend/joint_states`` (``sensor_msgs/msg/JointState``) and ``/aeropend/armature``
+  (``sensor_msgs/msg/BatteryState``): one message each per acquisition sample, both with the
+  **same header stamp** (the sample instant);
+* ``/aeropend/duty_cycle`` (``std_msgs/msg/Float64``): the duty-cycle commands.
+
+Wire convention vs. array convention
+------------------------------------
+On the wire the applied duty (``joint_states`` motor effort) and the armature voltage of a
+sample describe the interval that *ends* at its stamp: sample ``k + 1`` carries ``duty[k]`` and
+``v_a[k]`` of the :class:`Recording` (where ``duty[k]`` is held over ``[t_k, t_{k+1})``).
+:func:`~aeropend_ident.io.bag_writer.write_bag` shifts forward,
+:func:`read_bag` shifts back. The first sample's effort is the
+duty before the recording started (``meta["duty_before_start"]``, NaN when unknown); the duty of
+the last sample comes from the command topic (the last command received at most ten
+sample periods after the last sample), else it is held from ``duty[N-2]``; ``v_a[N-1]`` is not
+on the wire and is held from
+``v_a[N-2]`` (both noted in ``meta["held_tail"]``).
+
+Precision: ``BatteryState.voltage`` / ``current`` are ``float32`` on the wire, so ``v_a`` and
+``i_a`` survive a round trip only to float32 precision (relative 6e-8); every ``JointState``
+channel and the duty are float64 and survive bit-exactly. Stamps are integer nanoseconds:
+``t`` survives to 0.5 ns.
+
+Decoding
+--------
+:func:`read_bag` reads raw CDR bytes with ``rosbags``. The default ``decoder="vectorized"``
+decodes all messages of one layout at once with NumPy (the layout is derived from the first
+message, re-encoded and checked byte for byte; any message that deviates is decoded with
+``typestore.deserialize_cdr``). ``decoder="typestore"`` decodes every message with
+``typestore.deserialize_cdr`` (the reference path; both give identical results).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from rosbags.interfaces import (
+    Qos,
+    QosDurability,
+    QosHistory,
+    QosLiveliness,
+    QosReliability,
+    QosTime,
+)
+from rosbags.rosbag2 import StoragePlugin
+
+from aeropend_ident.errors import BagError
+from aeropend_ident.io.bag_codec import (
+    decode_armature,
+    decode_float64,
+    decode_joint_states,
+    typestore,
+)
+from aeropend_sim.contract import (
+    COMMAND_QOS_DEPTH,
+    SAMPLE_QOS_DEPTH,
+    TOPIC_ARMATURE,
+    TOPIC_DUTY_CYCLE,
+    TOPIC_JOINT_STATES,
+    TYPE_ARMATURE,
+    TYPE_DUTY_CYCLE,
+    TYPE_JOINT_STATES,
+    ContractError,
+)
+from aeropend_sim.recording import Recording, RecordingError
+
+__all__ = [
+    "COMMAND_QOS",
+    "SAMPLE_QOS",
+    "SAMPLE_QOS_RELIABLE",
+    "BagTopic",
+    "RawBagReader",
+    "bag_metadata",
+    "playback_deadlines",
+    "qos_for_topic",
+    "read_bag",
+]
+
+Storage = Literal["mcap", "sqlite3"]
+
+#: rmw "infinite" duration as rosbag2 (Jazzy) writes it into metadata.yaml.
+_INFINITE = QosTime(sec=9223372036, nsec=854775807)
+
+
+def _qos(reliability: QosReliability, depth: int, history: QosHistory = QosHistory.KEEP_LAST) -> Qos:
+    return Qos(
+        history=history,
+        depth=depth,
+        reliability=reliability,
+        durability=QosDurability.VOLATILE,
+        deadline=_INFINITE,
+        lifespan=_INFINITE,
+        liveliness=QosLiveliness.AUTOMATIC,
+        liveliness_lease_duration=_INFINITE,
+        avoid_ros_namespace_conventions=False,
+    )
+
+
+#: Offered QoS of sample topics: ``qos_profile_sensor_data`` (best effort, keep last 5, volatile).
+SAMPLE_QOS: Qos = _qos(QosReliability.BEST_EFFORT, SAMPLE_QOS_DEPTH)
+#: Offered QoS of sample topics published in lock-step mode (reliable, keep all, volatile).
+SAMPLE_QOS_RELIABLE: Qos = _qos(QosReliability.RELIABLE, 0, QosHistory.KEEP_ALL)
+#: Offered QoS of the duty-cycle command topic (reliable, keep last 10, volatile).
+COMMAND_QOS: Qos = _qos(QosReliability.RELIABLE, COMMAND_QOS_DEPTH)
+
+_STORAGE_PLUGINS = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
+_CUSTOM_META = "aeropend.meta"
+_CUSTOM_RIG = "aeropend.rig_name"
+_CUSTOM_SOURCE = "aeropend.source"
+
+
+def qos_for_topic(topic: str, lockstep: bool = False) -> Qos:
+    """Offered QoS the contract prescribes for ``topic``.
+
+    Parameters
+    ----------
+    topic : str
+        Topic name (a namespace prefix is allowed).
+    lockstep : bool
+        True for sample topics published by the simulator in lock-step mode (reliable).
+
+    Returns
+    -------
+    rosbags.interfaces.Qos
+        :data:`COMMAND_QOS` for the duty-cycle topic, else :data:`SAMPLE_QOS` (or
+        :data:`SAMPLE_QOS_RELIABLE` when ``lockstep``).
+    """
+    if topic.endswith(TOPIC_DUTY_CYCLE):
+        return COMMAND_QOS
+    return SAMPLE_QOS_RELIABLE if lockstep else SAMPLE_QOS
+
+
+# --------------------------------------------------------------------------------------------
+# CDR codec (little-endian XCDR1, the encoding rclpy and rosbag2 use)
+# --------------------------------------------------------------------------------------------
+
+
+# --------------------------------------------------------------------------------------------
+# Writing
+# --------------------------------------------------------------------------------------------
+
+
+# --------------------------------------------------------------------------------------------
+# Reading
+# --------------------------------------------------------------------------------------------
+
+
+def bag_metadata(path: str | Path) -> dict[str, Any]:
+    """``rosbag2_bagfile_information`` of a bag directory's ``metadata.yaml``.
+
+    Raises
+    ------
+    BagError
+        If ``path`` has no readable ``metadata.yaml``.
+    """
+    import yaml
+
+    path = Path(path)
+    meta_file = path / "metadata.yaml"
+    try:
+        doc = yaml.safe_load(meta_file.read_text(encoding="utf-8"))
+        return dict(doc["rosbag2_bagfile_information"])
+    except (OSError, yaml.YAMLError, KeyError, TypeError) as exc:
+        raise BagError(f"bag '{path}': cannot read {meta_file.name}: {exc}") from exc
+
+
+def _open_error(path: Path, exc: BaseException) -> BagError:
+    if path.is_dir() or path.suffix in (".mcap", ".db3"):
+        return BagError(f"bag '{path}' is truncated or corrupt: its storage cannot be opened "
+                        f"({type(exc).__name__}: {exc})")
+    return BagError(f"'{path}' is not a readable rosbag2 bag ({type(exc).__name__}: {exc}); expected a bag "
+                    "directory with metadata.yaml and .mcap/.db3 storage, or a .mcap/.db3 file")
+
+
+def _read_raw(path: Path, topics: Sequence[str]) -> tuple[dict[str, list[bytes]], dict[str, list[int]],
+                                                         dict[str, str], dict[str, int], str]:
+    """Raw messages and log times per topic; also the bag's topic->type map and declared counts."""
+    from rosbags.highlevel import AnyReader
+
+    if not path.exists():
+        raise BagError(f"bag '{path}' does not exist")
+    if path.is_dir() and not (path / "metadata.yaml").exists():
+        raise BagError(f"'{path}' is not a rosbag2 bag: directory has no metadata.yaml")
+    raws: dict[str, list[bytes]] = {t: [] for t in topics}
+    logs: dict[str, list[int]] = {t: [] for t in topics}
+    try:
+        reader = AnyReader([path], default_typestore=typestore())
+        reader.open()
+    except Exception as exc:
+        raise _open_error(path, exc) from exc
+    try:
+        types = {c.topic: c.msgtype for c in reader.connections}
+        declared: dict[str, int] = {}
+        for c in reader.connections:
+            declared[c.topic] = declared.get(c.topic, 0) + int(c.msgcount)
+        storage = "mcap" if any(p.suffix == ".mcap" for p in _files(path)) else "sqlite3"
+        conns = [c for c in reader.connections if c.topic in raws]
+        if conns:
+            try:
+                for conn, logtime, raw in reader.messages(connections=conns):
+                    raws[conn.topic].append(bytes(raw))
+                    logs[conn.topic].append(int(logtime))
+            except Exception as exc:
+                read = sum(len(v) for v in raws.values())
+                raise BagError(f"bag '{path}' is truncated or corrupt: reading failed after {read} "
+                               f"message(s) ({type(exc).__name__}: {exc})") from exc
+    finally:
+        try:
+            reader.close()
+        except Exception:
+            pass
+    return raws, logs, types, declared, storage
+
+
+def _files(path: Path) -> list[Path]:
+    return [path] if path.is_file() else sorted(path.iterdir())
+
+
+def _read_contract_topics(
+    path: Path, namespace: str, decoder: str,
+) -> tuple[tuple[str, str, str], dict[str, list[Any]], dict[str, list[int]], str, tuple[Any, Any, Any]]:
+    """The three contract topics of a bag, checked and decoded (:func:`read_bag`, first step).
+
+    Returns the topic names (joint_states, armature, duty_cycle), the raw messages and log times
+    per topic, the storage plugin and the decoded columns (armature and commands None when absent).
+    """
+    t_js, t_arm, t_cmd = (namespace + t for t in (TOPIC_JOINT_STATES, TOPIC_ARMATURE, TOPIC_DUTY_CYCLE))
+    raws, logs, types, declared, storage = _read_raw(path, [t_js, t_arm, t_cmd])
+    expected = {t_js: TYPE_JOINT_STATES, t_arm: TYPE_ARMATURE, t_cmd: TYPE_DUTY_CYCLE}
+    for topic, typ in expected.items():
+        if topic in types and types[topic] != typ:
+            raise BagError(f"bag '{path}': topic {topic} has type {types[topic]}, expected {typ}")
+    if t_js not in types:
+        raise BagError(f"bag '{path}' has no {t_js} topic (topics present: {sorted(types) or 'none'}); "
+                       f"a contract bag needs {TYPE_JOINT_STATES} samples on it")
+    for topic in expected:
+        if topic in declared and declared[topic] != len(raws[topic]):
+            raise BagError(f"bag '{path}' is truncated: its metadata declares {declared[topic]} message(s) "
+                           f"on {topic} but only {len(raws[topic])} could be read")
+    if len(raws[t_js]) < 2:
+        raise BagError(f"bag '{path}': {t_js} has {len(raws[t_js])} message(s); need at least 2 samples")
+    vec = decoder == "vectorized"
+    if decoder not in ("vectorized", "typestore"):
+        raise BagError(f"unknown decoder {decoder!r}; expected 'vectorized' or 'typestore'")
+    try:
+        js = decode_joint_states(raws[t_js], vec)
+        arm = decode_armature(raws[t_arm], vec) if raws[t_arm] else None
+        cmd = decode_float64(raws[t_cmd], vec) if raws[t_cmd] else None
+    except ContractError as exc:
+        raise BagError(f"bag '{path}': {exc}") from exc
+    except Exception as exc:
+        raise BagError(f"bag '{path}' is corrupt: a message cannot be decoded "
+                       f"({type(exc).__name__}: {exc})") from exc
+    return (t_js, t_arm, t_cmd), raws, logs, storage, (js, arm, cmd)
+
+
+def _drop_republished(path: Path, t_js: str, cols: dict[str, np.ndarray], order: np.ndarray,
+                      stamps: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, int]:
+    """Drop identical re-published samples (:func:`read_bag`); refuse two different ones at one stamp."""
+    dup = np.flatnonzero(np.diff(stamps) == 0)
+    republished = 0
+    if dup.size:
+        # A lock-step plant re-publishes its last sample while it waits for a command: identical
+        # copies are dropped; two different samples with one stamp are a contract violation.
+        same = np.ones(dup.size, dtype=bool)
+        for v in cols.values():
+            a, b = v[dup], v[dup + 1]
+            same &= (a == b) | (np.isnan(a) & np.isnan(b)) if v.dtype.kind == "f" else a == b
+        if not same.all():
+            k = int(dup[np.flatnonzero(~same)[0]])
+            raise BagError(f"bag '{path}': two different {t_js} samples share the stamp {int(stamps[k])} ns; "
+                           "expected one sample per sample instant")
+        keep = np.ones(stamps.size, dtype=bool)
+        keep[dup + 1] = False
+        order = order[keep]  # also selects the kept messages' log times below
+        cols = {k: v[keep] for k, v in cols.items()}
+        stamps = cols["stamp"]
+        republished = int(dup.size)
+        if stamps.size < 2:
+            raise BagError(f"bag '{path}': {t_js} has {stamps.size} distinct sample(s) "
+                           f"({republished} re-published copies dropped); need at least 2 samples")
+    return cols, order, stamps, republished
+
+
+def _pair_armature(arm: Any, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Armature v_a / i_a paired with the samples by identical stamp, unmatched and orphan counts."""
+    n = stamps.size
+    v_wire = np.full(n, np.nan)
+    i_a = np.full(n, np.nan)
+    unmatched, orphan = n, 0
+    if arm is not None:
+        a_stamp = arm.columns["stamp"]
+        a_order = np.argsort(a_stamp, kind="stable")
+        a_stamp = a_stamp[a_order]
+        pos = np.clip(np.searchsorted(a_stamp, stamps), 0, a_stamp.size - 1)
+        hit = a_stamp[pos] == stamps
+        v_wire[hit] = arm.columns["v_a"][a_order][pos[hit]]
+        i_a[hit] = arm.columns["i_a"][a_order][pos[hit]]
+        unmatched = int(n - hit.sum())
+        orphan = int(a_stamp.size - np.unique(pos[hit]).size)
+    return v_wire, i_a, unmatched, orphan
+
+
+def read_bag(path: str | Path, *, namespace: str = "",
+             decoder: Literal["vectorized", "typestore"] = "vectorized",
+             require_duty: bool = True) -> Recording:
+    """Read a contract bag into a :class:`Recording`.
+
+    Works on bags written by :func:`write_bag`, by the ``aeropend_recorder`` node or by
+    ``ros2 bag record`` (MCAP or SQLite3; a bag directory or a bare ``.mcap`` / ``.db3`` file).
+
+    Samples are the ``joint_states`` messages ordered by header stamp; ``armature`` messages are
+    paired by identical stamp (unpaired samples keep NaN ``v_a`` / ``i_a`` and are counted in
+    ``meta["unmatched_joint_states"]``; armature messages without a sample in
+    ``meta["orphan_armature"]``). The applied duty ``duty[k]`` is the motor effort of sample
+    ``k + 1`` (wire convention), and ``v_a[k]`` its armature voltage. Where that effort is NaN
+    (bags whose duty exists only as commands) the last ``duty_cycle`` command *received before
+    the interval ended* is used, comparing log (receive) times, which share one clock even when
+    the stamps do not (replayed bags): the bound is the log time of sample ``k + 1`` (of sample
+    ``k`` plus the median log step before a gap). Before a gap (stamp step > 1.5 × median, e.g.
+    samples lost with best-effort QoS) the next received sample's effort is the duty applied at
+    the *end* of the interval, which for lost samples may differ from the duty at its start;
+    ``meta["duty_source"]["effort_after_gap"]`` counts those samples, ``meta["gaps"]`` the gaps.
+    Channels that are NaN everywhere are absent from ``channels``.
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory (or ``.mcap`` / ``.db3`` file).
+    namespace : str
+        Topic prefix used when the bag was recorded (e.g. ``"/rig1"``).
+    decoder : {"vectorized", "typestore"}
+        CDR decoding path (identical results; see module doc).
+    require_duty : bool
+        Raise when no duty information at all is in the bag.
+
+    Returns
+    -------
+    Recording
+        ``t`` [s] from the first sample, ``stamp0_ns`` its absolute stamp, ``source`` the bag
+        path, ``meta`` the metadata stored by :func:`write_bag` (if any) plus read statistics.
+
+    Raises
+    ------
+    BagError
+        If ``path`` is not a bag, the bag is truncated/corrupt, ``joint_states`` is missing or
+        has the wrong type, messages violate the contract, two samples share a stamp, theta
+        has NaNs, or (``require_duty``) there is no duty information.
+    """
+    path = Path(path)
+    (t_js, t_arm, t_cmd), raws, logs, storage, (js, arm, cmd) = _read_contract_topics(
+        path, namespace, decoder)
+
+    cols = js.columns
+    order = np.argsort(cols["stamp"], kind="stable")
+    cols = {k: v[order] for k, v in cols.items()}
+    stamps = cols["stamp"]
+    cols, order, stamps, republished = _drop_republished(path, t_js, cols, order, stamps)
+    n = stamps.size
+    bad = np.flatnonzero(~np.isfinite(cols["theta"]))
+    if bad.size:
+        raise BagError(f"bag '{path}': theta (pendulum position) is NaN/inf in {bad.size} of {n} samples, "
+                       f"first at sample {int(bad[0])} (stamp {int(stamps[bad[0]])} ns); "
+                       "the angle must be measured")
+
+    meta: dict[str, Any] = _stored_meta(path)
+    if republished:
+        meta["republished_samples_dropped"] = republished
+    v_wire, i_a, unmatched, orphan = _pair_armature(arm, stamps)
+
+    # duty[k]: the applied effort carried by sample k+1 (wire convention). Where that is NaN (bags
+    # whose duty exists only as commands), the last command received before the interval
+    # [t_k, t_k+1) ended, judged on the recorder's clock: log times of joint_states and commands are
+    # comparable even when header stamps come from another clock (a replayed bag).
+    js_log = np.asarray(logs[t_js], dtype=np.int64)[order]
+    effort = cols["effort"]
+    d_next = np.concatenate((effort[1:], [np.nan]))
+    dstamp = np.diff(stamps)
+    gap_after = np.concatenate((dstamp > 1.5 * np.median(dstamp), [False]))
+    d_cmd = np.full(n, np.nan)
+    if cmd is not None:
+        c_log = np.asarray(logs[t_cmd], dtype=np.int64)
+        c_val = cmd.columns["data"]
+        c_order = np.argsort(c_log, kind="stable")
+        c_log, c_val = c_log[c_order], c_val[c_order]
+        log_step = int(np.median(np.diff(js_log)))
+        # last sample: its command may trail it (recorder lag, DDS delivery order): allow 10 steps
+        bound = np.concatenate((js_log[1:], [js_log[-1] + 10 * log_step]))
+        bound[gap_after] = js_log[gap_after] + log_step
+        j = np.searchsorted(c_log, bound, side="left") - 1  # last command logged before the bound
+        d_cmd[j >= 0] = c_val[j[j >= 0]]
+    use_eff = np.isfinite(d_next)
+    use_cmd = ~use_eff & np.isfinite(d_cmd)
+    duty = np.where(use_eff, d_next, d_cmd)
+    n_after_gap = int((gap_after & use_eff).sum())
+    held: list[str] = []
+    if not np.isfinite(duty[-1]) and np.isfinite(duty[-2]):
+        duty[-1] = duty[-2]
+        held.append("duty")
+    n_cmd = int(use_cmd.sum())
+    if require_duty and not np.isfinite(duty).any():
+        raise BagError(f"bag '{path}' has no duty information: the motor effort of {t_js} is NaN in every "
+                       f"sample and {t_cmd} has {len(raws[t_cmd])} message(s) before the last sample")
+    v_a = np.concatenate((v_wire[1:], [np.nan]))
+    if np.isfinite(v_a[-2]):
+        v_a[-1] = v_a[-2]
+        held.append("v_a")
+
+    channels_all = {"theta": cols["theta"], "theta_dot": cols["theta_dot"],
+                    "omega_rotor": cols["omega_rotor"], "omega_prop": cols["omega_prop"],
+                    "i_a": i_a, "v_a": v_a}
+    channels = {k: v for k, v in channels_all.items() if np.isfinite(v).any()}
+    if np.isfinite(effort[0]):
+        meta["duty_before_start"] = float(effort[0])
+    meta.update({
+        "bag": str(path),
+        "storage": storage,
+        "message_counts": {t: len(raws[t]) for t in (t_js, t_arm, t_cmd)},
+        "unmatched_joint_states": unmatched if arm is not None else n,
+        "orphan_armature": orphan,
+        "duty_source": {"effort": int(use_eff.sum()) - n_after_gap, "command": n_cmd,
+                        "effort_after_gap": n_after_gap,
+                        "missing": int((~np.isfinite(duty)).sum())},
+        "gaps": int(gap_after.sum()),
+        "held_tail": held,
+        "cdr_fallback_messages": js.fallback + (arm.fallback if arm else 0) + (cmd.fallback if cmd else 0),
+    })
+    try:
+        return Recording(t=(stamps - stamps[0]) / 1e9, duty=duty, channels=channels, source=str(path),
+                         stamp0_ns=int(stamps[0]), meta=meta)
+    except RecordingError as exc:  # pragma: no cover - stamps are checked above
+        raise BagError(f"bag '{path}': {exc}") from exc
+
+
+def _stored_meta(path: Path) -> dict[str, Any]:
+    """Metadata :func:`write_bag` stored in ``custom_data`` (empty for other bags)."""
+    if not path.is_dir():
+        return {}
+    try:
+        custom = bag_metadata(path).get("custom_data") or {}
+    except BagError:
+        return {}
+    meta: dict[str, Any] = {}
+    if _CUSTOM_META in custom:
+        try:
+            loaded = json.loads(custom[_CUSTOM_META])
+            if isinstance(loaded, dict):
+                meta.update(loaded)
+        except json.JSONDecodeError:
+            meta["custom_data_unparsed"] = custom[_CUSTOM_META]
+    if _CUSTOM_RIG in custom:
+        meta["rig_name"] = custom[_CUSTOM_RIG]
+    if _CUSTOM_SOURCE in custom:
+        meta.setdefault("original_source", custom[_CUSTOM_SOURCE])
+    return meta
+
+
+# --------------------------------------------------------------------------------------------
+# Incremental raw writing / reading (ROS-free core of the recorder and player nodes)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class BagTopic:
+    """A topic of a bag: message type, offered QoS profiles and message count."""
+
+    name: str
+    msgtype: str
+    qos: tuple[Qos, ...]
+    count: int
+
+
+class RawBagReader:
+    """Raw (serialised) messages of a bag in log-time order, for replay.
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag directory or ``.mcap`` / ``.db3`` file.
+    topics : sequence of str, optional
+        Topics to read (default all).
+
+    Raises
+    ------
+    BagError
+        If ``path`` is not a readable bag or a requested topic is not in it.
+    """
+
+    def __init__(self, path: str | Path, topics: Sequence[str] | None = None) -> None:
+        from rosbags.highlevel import AnyReader
+
+        self.path = Path(path)
+        if not self.path.exists():
+            raise BagError(f"bag '{self.path}' does not exist")
+        if self.path.is_dir() and not (self.path / "metadata.yaml").exists():
+            raise BagError(f"'{self.path}' is not a rosbag2 bag: directory has no metadata.yaml")
+        try:
+            self._reader = AnyReader([self.path], default_typestore=typestore())
+            self._reader.open()
+        except Exception as exc:
+            raise _open_error(self.path, exc) from exc
+        conns = self._reader.connections
+        present = sorted({c.topic for c in conns})
+        if topics:
+            missing = [t for t in topics if t not in present]
+            if missing:
+                self.close()
+                raise BagError(f"bag '{self.path}' has no topic(s) {missing} (topics present: {present})")
+            conns = [c for c in conns if c.topic in topics]
+        self._conns = conns
+        self.topics: dict[str, BagTopic] = {}
+        for c in conns:
+            qos = tuple(getattr(c.ext, "offered_qos_profiles", ()) or ())
+            old = self.topics.get(c.topic)
+            self.topics[c.topic] = BagTopic(c.topic, c.msgtype, qos if old is None else old.qos + qos,
+                                            int(c.msgcount) + (old.count if old else 0))
+
+    def messages(self) -> Any:
+        """Yield ``(topic, log_time_ns, raw_bytes)`` in log-time order.
+
+        Raises
+        ------
+        BagError
+            If the storage turns out to be truncated or corrupt while reading.
+        """
+        try:
+            for conn, logtime, raw in self._reader.messages(connections=self._conns):
+                yield conn.topic, int(logtime), bytes(raw)
+        except BagError:
+            raise
+        except Exception as exc:
+            raise BagError(f"bag '{self.path}' is truncated or corrupt: reading failed "
+                           f"({type(exc).__name__}: {exc})") from exc
+
+    def close(self) -> None:
+        """Close the underlying reader."""
+        try:
+            self._reader.close()
+        except Exception:
+            pass
+
+    def __enter__(self) -> RawBagReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def playback_deadlines(log_times_ns: Sequence[int] | np.ndarray, rate: float) -> np.ndarray:
+    """Wall-clock offsets [ns] from the start at which each message is due on replay.
+
+    Parameters
+    ----------
+    log_times_ns : array of int, shape (M,)
+        Log times of the messages, in replay order.
+    rate : float
+        Playback speed factor (> 0; 2.0 = twice as fast).
+
+    Returns
+    -------
+    ndarray of int64, shape (M,)
+        ``(log_k − log_0) / rate``, rounded to ns. Sleeping until ``start + offset_k`` (absolute
+        deadlines) keeps timing errors from accumulating.
+
+    Raises
+    ------
+    ValueError
+        If ``rate`` is not a positive finite number.
+    """
+    if not (rate > 0 and math.isfinite(rate)):
+        raise ValueError(f"playback rate {rate!r} must be a positive finite number")
+    t = np.asarray(log_times_ns, dtype=np.int64)
+    if t.size == 0:
+        return t
+    return np.round((t - t[0]) / rate).astype(np.int64)

@@ -1,0 +1,611 @@
+"""Import CSV logs of real rigs into a :class:`~aeropend_sim.recording.Recording` / contract bag.
+
+Most aeropendulum rigs log little more than a time column, the actuator command (PWM counts,
+percent, a duty fraction or a voltage) and the angle. A :class:`CsvSpec` says which column is
+which and how to convert it to SI / the contract (duty fraction in [0, 1], θ in rad, t in s);
+:func:`import_csv` reads the file *faithfully* (no filtering, no outlier removal, irregular
+sampling kept as is and reported in ``meta``) and :func:`csv_to_bag` writes the contract bag.
+
+File handling: separator auto-detection (``,`` ``;`` tab), full-line comments (``#``), header
+row detection, decimal comma, UTF-8 BOM, ``.csv.gz``. A malformed file raises
+:class:`CsvImportError` naming the file, the line (1-based, as an editor shows it) and the
+column, e.g. ``data.csv line 57 column 'angle [deg]': 'abc' is not a number``.
+
+:data:`PRESETS` holds specs for the real recordings in ``shared/data/real`` (provenance and
+licence notes in each preset's ``meta``). The command line (console script ``csv_import``,
+:mod:`aeropend_ident.cli.csv_import`) converts one file to a bag.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import gzip
+import hashlib
+import math
+import warnings
+from dataclasses import asdict, dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import yaml
+
+from aeropend_ident.errors import CsvImportError
+from aeropend_sim.recording import MEASURED_CHANNELS, Recording, RecordingError
+
+__all__ = [
+    "PRESETS",
+    "CsvImportError",
+    "CsvSpec",
+    "csv_to_bag",
+    "find_preset",
+    "import_csv",
+    "import_csv_runs",
+    "summary",
+]
+
+Column = str | int
+InputKind = Literal["duty", "percent", "pwm", "voltage"]
+TimeUnit = Literal["s", "ms", "us", "sample"]
+_TIME_SCALE = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+_DELIMITERS = ("\t", ";", ",")
+
+
+@dataclass(frozen=True)
+class CsvSpec:
+    """How to read one CSV layout.
+
+    Columns are given by header name (exact, case-insensitive, or the name before a unit
+    bracket: ``"pwm"`` matches ``"pwm [0-255 analogWrite]"``) or by 0-based index.
+
+    Attributes
+    ----------
+    angle_col : str or int
+        Angle column.
+    angle_unit : {"rad", "deg"}
+        Unit of the angle column.
+    angle_zero : float
+        Raw angle reading (column unit) at θ = 0; θ = angle_sign · (raw − angle_zero) [rad].
+    angle_sign : float
+        +1 or −1 (direction convention).
+    time_col : str or int, optional
+        Time column; None when the file has none (then ``rate_hz`` gives t = k / rate_hz).
+    time_unit : {"s", "ms", "us", "sample"}
+        Unit of the time column; ``"sample"`` means a sample index k (t = k / ``rate_hz``).
+    rate_hz : float, optional
+        Sample rate [Hz] for files without time column or with a sample-index column.
+    input_col : str or int, optional
+        Actuator column; None when the file has none (then ``input_constant`` is used).
+    input_kind : {"duty", "percent", "pwm", "voltage"}
+        Meaning of the actuator column: duty fraction, percent, PWM counts (of
+        ``pwm_full_scale``) or a voltage [V] (of ``supply_voltage``).
+    pwm_full_scale : float
+        PWM counts at 100 % duty (255 for Arduino ``analogWrite``).
+    supply_voltage : float, optional
+        Voltage [V] at 100 % duty (``input_kind="voltage"``).
+    voltage_law : {"linear", "rms"}
+        duty = V / V_supply (``"linear"``) or (V / V_supply)² (``"rms"``: the firmware treats
+        the value as an RMS voltage, e.g. AutomationShield's ``actuatorWriteVolt``).
+    quantize_counts : int, optional
+        Round the duty *down* to multiples of 1 / quantize_counts, mimicking a firmware that
+        truncates to integer PWM counts (the duty actually applied).
+    input_constant : float, optional
+        Actuator value (in ``input_kind`` units) when the file has no actuator column.
+    channels : dict
+        Extra measured channels: contract channel name -> (column, scale to SI), e.g.
+        ``{"i_a": ("current [mA]", 1e-3)}``.
+    delimiter : str, optional
+        Field separator; None = auto-detect among ``,`` ``;`` and tab.
+    decimal : {".", ","}, optional
+        Decimal mark; None = auto-detect (comma only when the separator is not a comma).
+    comment : str
+        Lines whose first non-blank character starts with this are skipped.
+    header : bool, optional
+        Whether the first non-comment line is a header; None = auto-detect (a line with a
+        non-numeric field).
+    encoding : str
+        Text encoding (a UTF-8 BOM is stripped).
+    name : str
+        Spec/preset name (recorded in ``meta``).
+    meta : dict
+        Provenance / licence notes copied into the recording's ``meta``.
+    """
+
+    angle_col: Column
+    angle_unit: Literal["rad", "deg"] = "rad"
+    angle_zero: float = 0.0
+    angle_sign: float = 1.0
+    time_col: Column | None = None
+    time_unit: TimeUnit = "s"
+    rate_hz: float | None = None
+    input_col: Column | None = None
+    input_kind: InputKind = "duty"
+    pwm_full_scale: float = 255.0
+    supply_voltage: float | None = None
+    voltage_law: Literal["linear", "rms"] = "linear"
+    quantize_counts: int | None = None
+    input_constant: float | None = None
+    channels: dict[str, tuple[Column, float]] = field(default_factory=dict)
+    delimiter: str | None = None
+    decimal: Literal[".", ","] | None = None
+    comment: str = "#"
+    header: bool | None = None
+    encoding: str = "utf-8"
+    name: str = ""
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def check(self) -> None:
+        """Raise :class:`CsvImportError` if the spec is inconsistent (before reading a file)."""
+        where = f"CsvSpec {self.name or '(custom)'}"
+        if self.angle_unit not in ("rad", "deg"):
+            raise CsvImportError(f"{where}: angle_unit {self.angle_unit!r}; expected 'rad' or 'deg'")
+        if self.angle_sign not in (1, -1, 1.0, -1.0):
+            raise CsvImportError(f"{where}: angle_sign {self.angle_sign!r}; expected +1 or -1")
+        if self.time_unit not in ("s", "ms", "us", "sample"):
+            raise CsvImportError(f"{where}: time_unit {self.time_unit!r}; expected s, ms, us or sample")
+        needs_rate = self.time_col is None or self.time_unit == "sample"
+        if needs_rate and not (self.rate_hz and self.rate_hz > 0 and math.isfinite(self.rate_hz)):
+            raise CsvImportError(f"{where}: rate_hz = {self.rate_hz!r}; a positive sample rate [Hz] is "
+                                 "needed when there is no time column or the time column is a sample index")
+        if self.input_kind not in ("duty", "percent", "pwm", "voltage"):
+            raise CsvImportError(f"{where}: input_kind {self.input_kind!r}; "
+                                 "expected duty, percent, pwm or voltage")
+        if self.input_col is None and self.input_constant is None:
+            raise CsvImportError(f"{where}: no input column and no input_constant; "
+                                 "the duty cycle is required")
+        if self.input_kind == "pwm" and not self.pwm_full_scale > 0:
+            raise CsvImportError(f"{where}: pwm_full_scale {self.pwm_full_scale!r} must be > 0")
+        if self.input_kind == "voltage" and not (self.supply_voltage and self.supply_voltage > 0):
+            raise CsvImportError(f"{where}: input_kind 'voltage' needs supply_voltage > 0 [V], "
+                                 f"got {self.supply_voltage!r}")
+        if self.voltage_law not in ("linear", "rms"):
+            raise CsvImportError(f"{where}: voltage_law {self.voltage_law!r}; expected 'linear' or 'rms'")
+        for ch in self.channels:
+            if ch not in MEASURED_CHANNELS or ch == "theta":
+                raise CsvImportError(f"{where}: extra channel {ch!r}; expected one of "
+                                     f"{[c for c in MEASURED_CHANNELS if c != 'theta']}")
+        if self.delimiter is not None and len(self.delimiter) != 1:
+            raise CsvImportError(f"{where}: delimiter {self.delimiter!r} must be one character")
+        if self.decimal not in (None, ".", ","):
+            raise CsvImportError(f"{where}: decimal {self.decimal!r}; expected '.' or ','")
+        if self.decimal == "," and self.delimiter == ",":
+            raise CsvImportError(f"{where}: decimal comma needs a separator other than ','")
+
+
+# --------------------------------------------------------------------------------------------
+# Presets for the real recordings in shared/data/real (see its README.md, sections 4-7)
+# --------------------------------------------------------------------------------------------
+
+
+def load_presets() -> dict[str, CsvSpec]:
+    """The shipped presets: one YAML file per preset in ``aeropend_ident/io/presets/``.
+
+    Each file holds the :class:`CsvSpec` fields that differ from the defaults (``channels`` as
+    ``name: [column, scale]``); read with :mod:`importlib.resources`, so they ship as package data.
+
+    Returns
+    -------
+    dict of str -> CsvSpec
+        Preset name (the file's ``name``) -> spec, in file-name order.
+
+    Raises
+    ------
+    CsvImportError
+        A preset file that is not a mapping or whose ``name`` is not its file name.
+    """
+    folder = resources.files("aeropend_ident.io") / "presets"
+    presets: dict[str, CsvSpec] = {}
+    for entry in sorted(folder.iterdir(), key=lambda e: e.name):
+        if not entry.name.endswith(".yaml"):
+            continue
+        data = yaml.safe_load(entry.read_text(encoding="utf-8"))
+        if not isinstance(data, dict) or data.get("name") != entry.name[: -len(".yaml")]:
+            raise CsvImportError(f"preset file {entry.name}: expected a mapping whose name is the file name")
+        data["channels"] = {ch: (col, float(scale)) for ch, (col, scale) in data.get("channels", {}).items()}
+        presets[data["name"]] = CsvSpec(**data)
+    return presets
+
+
+#: The shipped presets (:func:`load_presets`), by name.
+PRESETS: dict[str, CsvSpec] = load_presets()
+
+
+def find_preset(path: str | Path) -> str | None:
+    """Name of the preset whose ``meta["files"]`` patterns match ``path``'s file name, if any."""
+    name = Path(path).name
+    if name.endswith(".gz"):
+        name = name[:-3]
+    for key, spec in PRESETS.items():
+        if any(fnmatch.fnmatch(name, pat) for pat in spec.meta.get("files", [])):
+            return key
+    return None
+
+
+# --------------------------------------------------------------------------------------------
+# Reading
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Table:
+    path: Path
+    header: list[str] | None
+    rows: list[list[str]]
+    line_no: np.ndarray  # 1-based line number of each row
+    delimiter: str
+    decimal: str
+    comment_lines: int
+    blank_lines: int
+    header_line: int | None
+
+
+def _read_text(path: Path, encoding: str) -> tuple[str, bytes]:
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise CsvImportError(f"{path}: cannot read file ({exc.strerror or exc})") from exc
+    if raw[:2] == b"\x1f\x8b":
+        try:
+            raw = gzip.decompress(raw)
+        except (OSError, EOFError) as exc:
+            raise CsvImportError(f"{path}: corrupt gzip data ({exc})") from exc
+    try:
+        text = raw.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise CsvImportError(f"{path} line {line}: bytes are not valid {encoding} text "
+                             f"({exc.reason})") from exc
+    return text.lstrip("\ufeff"), raw
+
+
+def _is_number(s: str, decimal: str) -> bool:
+    s = s.strip()
+    if decimal == ",":
+        s = s.replace(",", ".")
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+def _detect_delimiter(lines: list[str]) -> str:
+    sample = lines[:50]
+    for d in _DELIMITERS:
+        counts = {ln.count(d) for ln in sample}
+        if len(counts) == 1 and counts.pop() > 0:
+            return d
+    # inconsistent counts (e.g. a header with more commas): take the most frequent candidate
+    best = max(_DELIMITERS, key=lambda d: sum(ln.count(d) for ln in sample))
+    return best if any(best in ln for ln in sample) else ","
+
+
+def _tabulate(path: Path, text: str, spec: CsvSpec) -> _Table:
+    lines = text.splitlines()
+    keep: list[int] = []
+    comment = blank = 0
+    for i, ln in enumerate(lines):
+        s = ln.strip()
+        if not s:
+            blank += 1
+        elif spec.comment and s.startswith(spec.comment):
+            comment += 1
+        else:
+            keep.append(i)
+    if not keep:
+        raise CsvImportError(f"{path}: no data lines (only {comment} comment and {blank} blank line(s))")
+    content = [lines[i] for i in keep]
+    delimiter = spec.delimiter or _detect_delimiter(content)
+    first = content[0].split(delimiter)
+    decimal = spec.decimal
+    if decimal is None:
+        decimal = "."
+        if delimiter != ",":
+            probe = [f for ln in content[1:51] for f in ln.split(delimiter)]
+            if any("," in f for f in probe) and not any("." in f for f in probe):
+                decimal = ","
+    has_header = spec.header
+    if has_header is None:
+        numeric = all(_is_number(f, decimal) for f in first if f.strip())
+        has_header = not numeric or not any(f.strip() for f in first)
+    header = [f.strip().strip('"').strip() for f in first] if has_header else None
+    data_idx = keep[1:] if has_header else keep
+    rows = [lines[i].split(delimiter) for i in data_idx]
+    if not rows:
+        raise CsvImportError(f"{path}: header line {keep[0] + 1} but no data rows")
+    return _Table(path, header, rows, np.asarray(data_idx, dtype=np.int64) + 1, delimiter, decimal, comment,
+                  blank, keep[0] + 1 if has_header else None)
+
+
+def _norm(s: str) -> str:
+    return " ".join(s.lower().split())
+
+
+def _base(s: str) -> str:
+    for mark in ("[", "("):
+        s = s.split(mark, 1)[0]
+    return _norm(s)
+
+
+def _resolve(tab: _Table, col: Column, role: str) -> tuple[int, str]:
+    """Column index and display name; raises naming the file, header line and columns."""
+    ncols = len(tab.header) if tab.header is not None else len(tab.rows[0])
+    if isinstance(col, int) and not isinstance(col, bool):
+        if not 0 <= col < ncols:
+            raise CsvImportError(f"{tab.path}: {role} column index {col} out of range; the file has {ncols} "
+                                 f"column(s) (0-based indices 0..{ncols - 1})")
+        label = tab.header[col] if tab.header is not None else f"#{col}"
+        return col, label
+    if tab.header is None:
+        raise CsvImportError(f"{tab.path}: {role} column {col!r} given by name but the file has no "
+                             "header row; "
+                             "give a 0-based column index")
+    for match in (lambda h: h == col, lambda h: _norm(h) == _norm(col), lambda h: _base(h) == _base(col)):
+        hits = [i for i, h in enumerate(tab.header) if match(h)]
+        if len(hits) == 1:
+            return hits[0], tab.header[hits[0]]
+        if len(hits) > 1:
+            raise CsvImportError(f"{tab.path} line {tab.header_line}: {role} column {col!r} is ambiguous: "
+                                 f"matches {[tab.header[i] for i in hits]}")
+    raise CsvImportError(f"{tab.path} line {tab.header_line}: no {role} column {col!r}; "
+                         f"header has {tab.header}")
+
+
+def _column(tab: _Table, idx: int, label: str, allow_nan: bool) -> np.ndarray:
+    """Column ``idx`` as floats; errors name file, line and column."""
+    try:
+        cells = [r[idx] for r in tab.rows]
+    except IndexError:
+        k = next(k for k, r in enumerate(tab.rows) if len(r) <= idx)
+        raise CsvImportError(f"{tab.path} line {tab.line_no[k]} column '{label}': missing (the line has "
+                             f"{len(tab.rows[k])} field(s), column '{label}' is number {idx + 1})") from None
+    if tab.decimal == ",":
+        cells = [c.replace(",", ".") for c in cells]
+    try:
+        values = np.array(cells, dtype=float)
+    except ValueError:
+        values = None
+    if values is None:
+        for k, c in enumerate(cells):
+            s = c.strip().strip('"')
+            if not s and allow_nan:
+                continue
+            try:
+                float(s)
+            except ValueError:
+                shown = tab.rows[k][idx]
+                what = "is empty" if not s else "is not a number"
+                raise CsvImportError(f"{tab.path} line {tab.line_no[k]} column '{label}': '{shown}' {what}") \
+                    from None
+        values = np.array([float(c.strip().strip('"')) if c.strip().strip('"') else math.nan for c in cells])
+    if not allow_nan:
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            k = int(bad[0])
+            cell = tab.rows[k][idx].strip()
+            raise CsvImportError(f"{tab.path} line {tab.line_no[k]} column '{label}': '{cell}' "
+                                 f"is not a finite number ({bad.size} such value(s) in this column)")
+    return values
+
+
+def _time_stats(t: np.ndarray) -> dict[str, Any]:
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    gaps = np.flatnonzero(dt > 1.5 * med)
+    return {
+        "dt_median_s": med,
+        "dt_min_s": float(dt.min()),
+        "max_gap_s": float(dt.max()),
+        "max_gap_at_s": float(t[int(np.argmax(dt))]),
+        "rate_hz": 1.0 / med,
+        "n_gaps": int(gaps.size),
+        "jitter_std_s": float(np.std(dt)),
+        "uniform": bool(np.allclose(dt, med, rtol=1e-6, atol=1e-9)),
+    }
+
+
+def import_csv(path: str | Path, spec: CsvSpec | str) -> Recording:
+    """Read a CSV log into a :class:`Recording` (faithfully: no filtering or outlier handling).
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.csv`` or ``.csv.gz`` file.
+    spec : CsvSpec or str
+        Column mapping and units, or the name of a preset in :data:`PRESETS`.
+
+    Returns
+    -------
+    Recording
+        ``t`` [s] re-based to 0 (``meta["t0_in_file_s"]`` keeps the file's first time),
+        ``duty`` in [0, 1] (clipped values counted in ``meta["duty_clipped"]``),
+        ``channels["theta"]`` [rad] plus the spec's extra channels (all-NaN ones dropped),
+        ``meta`` with the spec, file hash, separator, sampling statistics (``dt_median_s``,
+        ``max_gap_s``, ``n_gaps``, ...) and the preset's provenance/licence notes.
+
+    Raises
+    ------
+    CsvImportError
+        Unknown preset, inconsistent spec, unreadable file, missing column, a non-numeric or
+        empty cell (named by file, line and column), or time that does not increase.
+    """
+    if isinstance(spec, str):
+        if spec not in PRESETS:
+            raise CsvImportError(f"unknown preset {spec!r}; available: {sorted(PRESETS)}")
+        spec = PRESETS[spec]
+    spec.check()
+    path = Path(path)
+    text, raw = _read_text(path, spec.encoding)
+    tab = _tabulate(path, text, spec)
+    n = len(tab.rows)
+    if n < 2:
+        raise CsvImportError(f"{path}: {n} data row(s); need at least 2 samples")
+    columns: dict[str, str] = {}
+
+    # time
+    if spec.time_col is None:
+        t = np.arange(n) / float(spec.rate_hz)  # type: ignore[arg-type]
+    else:
+        idx, label = _resolve(tab, spec.time_col, "time")
+        columns["time"] = label
+        raw_t = _column(tab, idx, label, allow_nan=False)
+        t = raw_t / float(spec.rate_hz) if spec.time_unit == "sample" else raw_t * _TIME_SCALE[spec.time_unit]
+        bad = np.flatnonzero(np.diff(t) <= 0)
+        if bad.size:
+            k = int(bad[0]) + 1
+            raise CsvImportError(
+                f"{path} line {tab.line_no[k]} column '{label}': time {raw_t[k]:g} {spec.time_unit} "
+                f"is not after the previous row's {raw_t[k - 1]:g} {spec.time_unit} "
+                f"(line {tab.line_no[k - 1]}); "
+                f"time must increase strictly ({bad.size} such row(s))")
+    t0 = float(t[0])
+    t = t - t0
+
+    # input -> duty
+    if spec.input_col is None:
+        u = np.full(n, float(spec.input_constant))  # type: ignore[arg-type]
+        columns["input"] = f"constant {spec.input_constant:g} ({spec.input_kind})"
+    else:
+        idx, label = _resolve(tab, spec.input_col, "input")
+        columns["input"] = label
+        u = _column(tab, idx, label, allow_nan=False)
+    if spec.input_kind == "duty":
+        ratio = u.copy()
+    elif spec.input_kind == "percent":
+        ratio = u / 100.0
+    elif spec.input_kind == "pwm":
+        ratio = u / float(spec.pwm_full_scale)
+    else:
+        ratio = u / float(spec.supply_voltage)  # type: ignore[arg-type]
+    below, above = int((ratio < 0).sum()), int((ratio > 1).sum())
+    if below or above:
+        warnings.warn(f"{path}: {below + above} actuator value(s) outside the [0, 1] duty range clipped "
+                      f"({below} below 0, {above} above full scale)", stacklevel=2)
+    duty = np.clip(ratio, 0.0, 1.0)
+    if spec.input_kind == "voltage" and spec.voltage_law == "rms":
+        duty = duty**2
+    if spec.quantize_counts:
+        q = int(spec.quantize_counts)
+        duty = np.floor(duty * q + 1e-9) / q
+
+    # angle and extra channels
+    idx, label = _resolve(tab, spec.angle_col, "angle")
+    columns["theta"] = label
+    ang = _column(tab, idx, label, allow_nan=False)
+    factor = math.pi / 180.0 if spec.angle_unit == "deg" else 1.0
+    theta = spec.angle_sign * (ang - spec.angle_zero) * factor
+    channels: dict[str, np.ndarray] = {"theta": theta}
+    for ch, (col, scale) in spec.channels.items():
+        idx, label = _resolve(tab, col, ch)
+        columns[ch] = label
+        y = _column(tab, idx, label, allow_nan=True) * float(scale)
+        if np.isfinite(y).any():
+            channels[ch] = y
+
+    meta: dict[str, Any] = dict(spec.meta)
+    meta.update(_time_stats(t))
+    meta.update({
+        "csv_file": str(path),
+        "csv_sha256": hashlib.sha256(raw).hexdigest(),
+        "preset": spec.name or None,
+        "spec": {k: v for k, v in asdict(spec).items() if k != "meta"},
+        "columns": columns,
+        "delimiter": tab.delimiter,
+        "decimal": tab.decimal,
+        "header": tab.header,
+        "rows": n,
+        "comment_lines": tab.comment_lines,
+        "blank_lines": tab.blank_lines,
+        "t0_in_file_s": t0,
+        "duty_clipped": {"below_0": below, "above_1": above},
+        "duration_s": float(t[-1]),
+    })
+    try:
+        return Recording(t=t, duty=duty, channels=channels, source=str(path), meta=meta)
+    except RecordingError as exc:  # pragma: no cover - checked above
+        raise CsvImportError(f"{path}: {exc}") from exc
+
+
+def import_csv_runs(
+    path: str | Path, spec: CsvSpec | str, run_col: Column, min_samples: int = 2
+) -> list[Recording]:
+    """Read a CSV log that stores several runs one after the other, one recording per run.
+
+    A run label column (e.g. the ``block`` column of the jahoyosr ``datosEscalones`` sheet)
+    marks the runs: a new run starts wherever its value changes
+    (:func:`aeropend_ident.io.split.split_runs`).
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.csv`` or ``.csv.gz`` file.
+    spec : CsvSpec or str
+        Column mapping and units, or a preset name (as :func:`import_csv`).
+    run_col : str or int
+        Run label column (header name or 0-based index); numeric labels.
+    min_samples : int
+        Runs with fewer samples are dropped (≥ 2).
+
+    Returns
+    -------
+    list of Recording
+        The runs in file order, each re-based to t = 0 (``source`` names the sample range).
+
+    Raises
+    ------
+    CsvImportError
+        As :func:`import_csv`, plus a missing run label column or a label cell that is empty
+        or not a number (named by file, line and column).
+    ValueError
+        ``min_samples`` < 2.
+    """
+    from aeropend_ident.io.split import split_runs
+
+    rec = import_csv(path, spec)
+    spec = PRESETS[spec] if isinstance(spec, str) else spec
+    path = Path(path)
+    tab = _tabulate(path, _read_text(path, spec.encoding)[0], spec)
+    idx, label = _resolve(tab, run_col, "run label")
+    return split_runs(rec, _column(tab, idx, label, allow_nan=False), min_samples=min_samples)
+
+
+def csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, storage: str = "mcap",
+               rig_name: str | None = None, overwrite: bool = False) -> tuple[Recording, Path]:
+    """:func:`import_csv` then :func:`~aeropend_ident.io.bag_writer.write_bag`; returns (recording, bag)."""
+    from aeropend_ident.io.bag_writer import write_bag
+
+    rec = import_csv(path, spec)
+    bag = write_bag(rec, out, storage=storage, rig_name=rig_name,  # type: ignore[arg-type]
+                    overwrite=overwrite)
+    return rec, bag
+
+
+def summary(rec: Recording) -> str:
+    """One-paragraph human summary of an imported recording."""
+    m = rec.meta
+    th = rec.channels["theta"]
+    parts = [
+        f"{rec.source}: {len(rec)} samples over {rec.t[-1]:.3f} s",
+        f"median dt {m.get('dt_median_s', rec.dt) * 1e3:.3f} ms ({1.0 / rec.dt:.2f} Hz)",
+    ]
+    if m.get("n_gaps"):
+        parts.append(f"{m['n_gaps']} gap(s) > 1.5 dt, largest {m['max_gap_s'] * 1e3:.1f} ms at "
+                     f"t = {m['max_gap_at_s']:.3f} s")
+    elif "uniform" in m:
+        parts.append("uniform sampling" if m["uniform"] else f"jitter std {m['jitter_std_s'] * 1e3:.3f} ms")
+    parts.append(f"duty {rec.duty.min():.4f}..{rec.duty.max():.4f}")
+    clipped = m.get("duty_clipped", {})
+    if clipped and (clipped.get("below_0") or clipped.get("above_1")):
+        parts.append(f"{clipped['below_0'] + clipped['above_1']} duty value(s) clipped")
+    parts.append(f"theta {th.min():.4f}..{th.max():.4f} rad "
+                 f"({math.degrees(th.min()):.2f}..{math.degrees(th.max()):.2f} deg)")
+    parts.append(f"channels {sorted(rec.channels)}")
+    if m.get("licence"):
+        parts.append(f"licence: {m['licence']}")
+    return "; ".join(parts) + "."
+
+
+# --------------------------------------------------------------------------------------------
+# CLI
+# --------------------------------------------------------------------------------------------

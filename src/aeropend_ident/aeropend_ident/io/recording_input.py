@@ -1,0 +1,270 @@
+"""Recording arguments of the command-line tools: a bag or a CSV log, each with its own preset.
+
+Every recording argument of ``compare``, ``gap``, ``baseline`` and ``identify`` is one of
+
+* a rosbag2 directory, ``.mcap`` or ``.db3`` file (read with :func:`aeropend_ident.io.bags.read_bag`);
+* a CSV log (``.csv``, ``.csv.gz``, ``.txt``) read with :func:`aeropend_ident.io.csv_import.import_csv`
+  and a preset: ``FILE.csv:PRESET`` names the preset of this file (e.g.
+  ``Identification_Data2.csv:aeroshield_ident2``), ``FILE.csv`` alone uses the tool's
+  ``--preset`` or, without one (or with ``auto``), the preset whose file patterns match the name.
+
+So recordings of different formats can be mixed in one call. :func:`load_and_split` reads the
+``gap`` tool's recordings and makes its held-out design (:mod:`aeropend_ident.io.split`);
+:func:`uniform_grid` / :func:`uniform_recording` put a recording on a uniform time grid.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from aeropend_ident.errors import GapCliError, RecordingInputError
+from aeropend_ident.io.split import interleaved_blocks, time_ordered
+from aeropend_sim.recording import Recording
+
+#: File suffixes read as CSV logs.
+CSV_SUFFIXES = (".csv", ".gz", ".txt")
+#: Preset value that picks the preset by file name.
+AUTO = "auto"
+
+
+def split_preset(arg: str | Path) -> tuple[Path, str | None]:
+    """Split ``FILE:PRESET`` into (path, preset); a plain path gives (path, None).
+
+    The text after the last ``:`` is taken as a preset only if the whole argument is not an
+    existing path (a file name may contain ``:``).
+
+    Raises
+    ------
+    RecordingInputError
+        If the suffix after ``:`` is not a known preset (nor ``auto``).
+    """
+    from aeropend_ident.io.csv_import import PRESETS
+
+    text = str(arg)
+    if Path(text).exists() or ":" not in text:
+        return Path(text), None
+    head, _, preset = text.rpartition(":")
+    if preset != AUTO and preset not in PRESETS:
+        raise RecordingInputError(
+            f"{text}: unknown preset {preset!r} after ':'; expected FILE:PRESET with a preset of "
+            f"{sorted(PRESETS)} or 'auto'"
+        )
+    return Path(head), preset
+
+
+def load_recording(arg: str | Path, preset: str | None = None, namespace: str = "") -> Recording:
+    """Read one recording argument (see the module docstring).
+
+    Parameters
+    ----------
+    arg : str or Path
+        ``PATH`` or ``PATH:PRESET``.
+    preset : str, optional
+        The tool's default preset for CSV logs without their own (``auto`` or None: by file name).
+    namespace : str
+        Topic namespace of a bag (default: auto-detected by the reader).
+
+    Returns
+    -------
+    Recording
+
+    Raises
+    ------
+    RecordingInputError
+        The path does not exist, its kind is unknown, a preset is given for a bag, or no preset
+        is given and none matches a CSV file's name.
+    BagError, CsvImportError, RecordingError
+        From the readers (unreadable file, missing topics or columns, bad values); all are
+        ValueErrors.
+    """
+    path, own = split_preset(arg)
+    if not path.exists():
+        raise RecordingInputError(f"input {path} does not exist; expected a bag directory, .mcap, .db3 "
+                                  "or a CSV log")
+    if path.is_dir() or path.suffix in (".mcap", ".db3"):
+        if own is not None:
+            raise RecordingInputError(f"{arg}: a preset applies to CSV logs only, {path} is a bag")
+        from aeropend_ident.io.bags import read_bag
+
+        return read_bag(path, namespace=namespace)
+    if path.suffix.lower() not in CSV_SUFFIXES:
+        raise RecordingInputError(f"input {path}: unknown kind (suffix {path.suffix!r}); expected a bag "
+                                  "directory, .mcap, .db3, .csv, .csv.gz or .txt")
+    from aeropend_ident.io.csv_import import PRESETS, find_preset, import_csv
+
+    name = own if own is not None else preset
+    if name is None or name == AUTO:
+        name = find_preset(path)
+        if name is None:
+            raise RecordingInputError(
+                f"{path.name}: no preset matches this file name; write {path.name}:PRESET or pass "
+                f"--preset (one of {sorted(PRESETS)})"
+            )
+    if name not in PRESETS:
+        raise RecordingInputError(f"unknown preset {name!r}; expected one of {sorted(PRESETS)}")
+    return import_csv(path, name)
+
+
+def uniform_recording(rec: Recording) -> Recording:
+    """The recording on a uniform grid (θ, channels linear, duty zero-order hold) if it is not already.
+
+    What the replaying tools (``gap``, ``compare``) need: θ and the duty cycle, finite values, time
+    stamps in order. The grid period is the median interval; a recording already on that grid
+    (:func:`uniform_grid`) is returned unchanged. A constant input is
+    accepted here (a step from rest at t = 0 is a valid recording to compare on); ``gap`` refuses
+    it itself.
+
+    Raises
+    ------
+    RecordingInputError
+        No θ, NaNs, fewer than 2 samples or time stamps out of order (message names the recording).
+    """
+    src = rec.source or "<recording>"
+    if "theta" not in rec.channels:
+        raise RecordingInputError(
+            f"{src}: recording lacks the 'theta' channel (has {sorted(rec.channels)}); replaying "
+            "a rig on it (gap, compare) needs at least the angle and the duty cycle"
+        )
+    for name, y in [("duty", rec.duty), *rec.channels.items()]:
+        bad = ~np.isfinite(y)
+        if bad.any():
+            raise RecordingInputError(
+                f"{src}: {name} has {int(bad.sum())} NaN/inf value(s), first at sample "
+                f"{int(np.flatnonzero(bad)[0])}; repair or cut the recording"
+            )
+    t = rec.t - rec.t[0]
+    if t.size < 2 or not np.all(np.diff(t) > 0.0):
+        raise RecordingInputError(f"{src}: {t.size} sample(s) or non-increasing time stamps; expected at "
+                                  "least 2 samples in time order")
+    dt = float(np.median(np.diff(t)))
+    grid = uniform_grid(t, dt)
+    if grid is None:
+        return rec
+    tu, idx = grid
+    ch = {k: np.interp(tu, t, v) for k, v in rec.channels.items()}
+    meta = {**rec.meta, "resampled_to_uniform_dt_s": dt}
+    return Recording(
+        t=tu, duty=rec.duty[idx], channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta
+    )
+
+
+#: Relative deviation of a sample interval from the median above which a log is resampled.
+UNIFORM_TOLERANCE = 1e-3
+
+
+def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The uniform grid of period ``dt`` over time stamps ``t`` (from 0), or None if ``t`` is on it.
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,)
+        Increasing time stamps [s] starting at 0.
+    dt : float
+        Grid period [s] (> 0).
+
+    Returns
+    -------
+    (t_grid, idx) or None
+        ``t_grid = k·dt`` up to ``t[-1]`` and, per grid point, the index of the last sample at or
+        before it (zero-order hold of an input); None when every interval of ``t`` is within
+        ±UNIFORM_TOLERANCE of ``dt`` (no resampling needed).
+    """
+    if np.all(np.abs(np.diff(t) - dt) <= UNIFORM_TOLERANCE * dt):
+        return None
+    tu = np.arange(math.floor(t[-1] / dt + 1e-9) + 1) * dt
+    idx = np.clip(np.searchsorted(t, tu + 1e-9 * dt, side="right") - 1, 0, t.size - 1)
+    return tu, idx
+
+
+#: Fewest samples per recording part (fit or held out) of the gap tool.
+MIN_PART_SAMPLES = 200
+
+
+def check_length(rec: Recording, what: str) -> None:
+    """Refuse a recording part the gap diagnosis cannot use (too short, constant duty cycle).
+
+    Raises
+    ------
+    GapCliError
+        Fewer than :data:`MIN_PART_SAMPLES` samples, or a constant duty cycle; names ``what``.
+    """
+    if len(rec) < MIN_PART_SAMPLES:
+        raise GapCliError(
+            f"{rec.source or what}: only {len(rec)} samples in the {what}; the gap diagnosis needs "
+            f"at least {MIN_PART_SAMPLES} (record longer or change --split)"
+        )
+    if np.ptp(rec.duty) == 0.0:
+        raise GapCliError(
+            f"{rec.source or what}: the duty cycle is constant ({rec.duty[0]:g}) in the {what}: "
+            "unexcited input, nothing to compare"
+        )
+
+
+def load_and_split(
+    inputs: Sequence[str | Path],
+    held_out: Sequence[str | Path] | None,
+    split: float,
+    preset: str | None,
+    blocks: float | None = None,
+    block_every: int = 3,
+    min_range: float = 0.0,
+    block_offset: int = 1,
+) -> tuple[list[Recording], list[Recording], str]:
+    """Read and split the recordings into (fit, held_out, rule description).
+
+    The held-out design (:mod:`aeropend_ident.io.split`): separate ``held_out`` files, else
+    interleaved blocks of ``blocks`` seconds (every ``block_every``-th held out from block
+    ``block_offset``; blocks whose angle moves less than ``min_range`` [rad] dropped), else the
+    time-ordered ``split``.
+
+    Raises
+    ------
+    GapCliError, RecordingError, ValueError
+        Unreadable file, unknown preset, missing channel, NaNs, too short, bad split or blocks.
+    """
+    if not (isinstance(split, float) and math.isfinite(split) and 0.0 < split < 1.0):
+        raise GapCliError(f"--split {split!r}: expected a fraction in (0, 1)")
+    if not (math.isfinite(min_range) and min_range >= 0.0):
+        raise GapCliError(f"--min-range {min_range!r}: expected an angle range >= 0 [rad]")
+    if blocks is None and (min_range != 0.0 or block_every != 3 or block_offset != 1):
+        raise GapCliError(
+            "--min-range, --block-every and --block-offset apply to interleaved blocks only: "
+            "give --blocks SECONDS"
+        )
+    recs = [uniform_recording(load_recording(p, preset)) for p in inputs]
+    if held_out:
+        held = [uniform_recording(load_recording(p, preset)) for p in held_out]
+        for r in recs:
+            check_length(r, "fit recording")
+        for r in held:
+            check_length(r, "held-out recording")
+        rule = f"separate held-out file(s): {', '.join(split_preset(p)[0].name for p in held_out)}"
+        return recs, held, rule
+    if blocks is not None:
+        if not (math.isfinite(blocks) and blocks > 0.0):
+            raise GapCliError(f"--blocks {blocks!r}: expected a block length > 0 [s]")
+        if block_every < 2:
+            raise GapCliError(f"--block-every {block_every!r}: expected 2 or more")
+        if not 0 <= block_offset < block_every:
+            raise GapCliError(
+                f"--block-offset {block_offset!r}: expected a block index in [0, {block_every}) "
+                "(below --block-every)"
+            )
+        fit, held, rule = interleaved_blocks(recs, blocks, block_every, min_range, block_offset)
+        if not fit or not held:
+            raise GapCliError(
+                f"--blocks {blocks:g}: {len(fit)} fit and {len(held)} held-out block(s) with a changing "
+                "duty cycle; use shorter blocks or --split"
+            )
+        for r in (*fit, *held):
+            check_length(r, "block")
+        return fit, held, rule
+    fit, held, rule = time_ordered(recs, split)
+    for a, b in zip(fit, held, strict=True):
+        check_length(a, "fit part")
+        check_length(b, "held-out part")
+    return fit, held, rule

@@ -1,0 +1,284 @@
+"""Held-out designs of the gap diagnosis: which parts of the recordings find the effects and which check them.
+
+* :func:`time_ordered` — the first fraction of each recording to fit, the rest held out. The held-out
+  part is an *extrapolation* when the run ends in an operating range the fit part never held.
+* :func:`interleaved_blocks` — consecutive blocks of ``block_s`` seconds, every ``every``-th one
+  (from the 2nd, or from block ``offset``) held out: the held-out blocks lie inside the operating
+  range of the fit blocks (*interpolation* within a run). Each block is replayed from its own
+  first samples. ``offset`` = 0 … ``every`` − 1 are the folds of a block cross-validation: over
+  all of them every block is held out exactly once.
+* :func:`informative` — whether a part carries information on any effect: a changing duty cycle
+  and an angle that moves by at least ``min_range`` (a rod resting on an end stop throughout shows
+  only sensor noise). The rule looks at the recording only, never at a model.
+* :func:`validation_split` — the diagnosis' own validation set carved out of the fit recordings
+  (train / validation / test), used by the gap run and the drift analysis.
+* :func:`split_runs` — one recording per run of a log that stores several runs one after the
+  other with a run label column (e.g. the jahoyosr ``datosEscalones`` sheet).
+
+Used by the ``gap`` command (``--split``, ``--blocks``, ``--min-range``), the real-rig bench
+(``bench/bench_gap_real.py``) and the real-data tests.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+from aeropend_ident.errors import GapInputError
+from aeropend_sim.recording import Recording
+
+__all__ = ["informative", "interleaved_blocks", "split_runs", "time_ordered", "validation_split"]
+
+
+def informative(part: Recording, min_range: float = 0.0) -> bool:
+    """Whether a recording part can inform the diagnosis.
+
+    Parameters
+    ----------
+    part : Recording
+        Recording (part) with a ``theta`` channel [rad].
+    min_range : float
+        Smallest peak-to-peak recorded angle [rad] (0: any).
+
+    Returns
+    -------
+    bool
+        False when the duty cycle is constant over the part, or its angle range is below
+        ``min_range``.
+    """
+    if np.ptp(part.duty) == 0.0:
+        return False
+    return not (min_range > 0.0 and np.ptp(part.channels["theta"]) < min_range)
+
+
+def time_ordered(
+    recs: Sequence[Recording], fraction: float
+) -> tuple[list[Recording], list[Recording], str]:
+    """The first ``fraction`` of each recording to fit, the rest held out.
+
+    Returns
+    -------
+    fit, held_out : list of Recording
+        One part of each recording in each list.
+    rule : str
+        The design in words (report provenance).
+
+    Raises
+    ------
+    ValueError
+        ``fraction`` not in (0, 1).
+    """
+    if not (math.isfinite(fraction) and 0.0 < fraction < 1.0):
+        raise ValueError(f"split fraction {fraction!r}: expected a fraction in (0, 1)")
+    parts = [r.split(fraction) for r in recs]
+    rule = f"time-ordered split: first {fraction:.0%} of each recording to fit, the rest held out"
+    return [a for a, _ in parts], [b for _, b in parts], rule
+
+
+def interleaved_blocks(
+    recs: Sequence[Recording],
+    block_s: float,
+    every: int = 3,
+    min_range: float = 0.0,
+    offset: int = 1,
+) -> tuple[list[Recording], list[Recording], str]:
+    """Interleaved held-out blocks of each recording.
+
+    Each recording is cut into consecutive blocks of ``block_s`` seconds (a last block shorter
+    than half of that is dropped); block ``j`` (0-based) is held out when
+    ``j % every == offset``, the others are fit blocks. Blocks that are not :func:`informative`
+    (constant duty, or an angle
+    range below ``min_range``) are dropped from both sides before the assignment is used.
+
+    Parameters
+    ----------
+    recs : sequence of Recording
+        Uniformly sampled recordings with ``theta``.
+    block_s : float
+        Block length [s] (> 0 and at least 2 samples).
+    every : int
+        Every ``every``-th block (from the 2nd) is held out (≥ 2).
+    min_range : float
+        Smallest recorded angle range [rad] of a kept block (0: keep any moving-input block).
+    offset : int
+        Index of the first held-out block, in ``[0, every)`` (default 1: from the 2nd block). The
+        ``every`` offsets are the folds of a cross-validation over blocks.
+
+    Returns
+    -------
+    fit, held_out : list of Recording
+        Blocks, each re-based to t = 0 (``source`` names the sample range).
+    rule : str
+        The design in words, with the number of blocks dropped by ``min_range``.
+
+    Raises
+    ------
+    ValueError
+        Bad ``block_s`` / ``every`` / ``min_range`` / ``offset``.
+    """
+    if not (math.isfinite(block_s) and block_s > 0.0):
+        raise ValueError(f"block length {block_s!r} s: expected a positive number of seconds")
+    if every < 2:
+        raise ValueError(f"every {every!r}: expected every 2nd block or sparser (>= 2)")
+    if not (math.isfinite(min_range) and min_range >= 0.0):
+        raise ValueError(f"min_range {min_range!r} rad: expected >= 0")
+    if not 0 <= offset < every:
+        raise ValueError(f"offset {offset!r}: expected a block index in [0, {every})")
+    fit: list[Recording] = []
+    held: list[Recording] = []
+    dropped = 0
+    for rec in recs:
+        n = len(rec)
+        k = max(2, round(block_s / rec.dt))
+        for j, a in enumerate(range(0, n, k)):
+            b = min(n, a + k)
+            if b - a < k // 2:
+                break
+            part = rec.slice(a, b)
+            if not informative(part):
+                continue
+            if not informative(part, min_range):
+                dropped += 1
+                continue
+            (held if j % every == offset else fit).append(part)
+    rule = (
+        f"interleaved blocks of {block_s:g} s: every {_ordinal(every)} block (from the "
+        f"{_ordinal(offset + 1)}) held out, the others fit"
+    )
+    if min_range > 0.0:
+        rule += (f"; {dropped} block(s) with a recorded angle range below {min_range:g} rad "
+                 "(rod on a stop) dropped")
+    return fit, held, rule
+
+
+def _ordinal(k: int) -> str:
+    """1st, 2nd, 3rd, 4th, ... 11th, 12th, 13th, 21st."""
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"{k}{suffix}"
+
+
+def split_runs(rec: Recording, labels: np.ndarray, min_samples: int = 2) -> list[Recording]:
+    """One recording per run of a log that holds several runs, labelled per sample.
+
+    Parameters
+    ----------
+    rec : Recording
+        The whole log, shape (n,) per channel.
+    labels : ndarray, shape (n,)
+        Run label of each sample; a new run starts wherever the label changes.
+    min_samples : int
+        Runs with fewer samples are dropped (≥ 2: a recording has at least two samples).
+
+    Returns
+    -------
+    list of Recording
+        The runs in file order, each re-based to t = 0.
+
+    Raises
+    ------
+    ValueError
+        ``labels`` does not have one entry per sample, or ``min_samples`` < 2.
+    """
+    if min_samples < 2:
+        raise ValueError(f"min_samples {min_samples!r}: expected >= 2 (a recording has at least 2 samples)")
+    labels = np.asarray(labels)
+    if labels.shape != (len(rec),):
+        raise ValueError(f"{rec.source or 'recording'}: {labels.shape} run labels for {len(rec)} samples; "
+                         "expected one per sample")
+    edges = [0, *(np.flatnonzero(labels[1:] != labels[:-1]) + 1).tolist(), len(rec)]
+    return [rec.slice(a, b) for a, b in itertools.pairwise(edges) if b - a >= min_samples]
+
+
+#: Default share of the fit data used by the diagnosis to choose the effects.
+VALIDATION_FRACTION = 0.3
+
+
+#: Fewest samples of a fit-core or validation part.
+MIN_PART = 200
+
+
+#: A validation part split before a duty step starts this long before it [s].
+SPLIT_LEAD = 1.0
+
+
+def _varying(r: Recording) -> bool:
+    return len(r) >= MIN_PART and float(np.ptp(r.duty)) > 0.0
+
+
+def _split_at_step(r: Recording, fraction: float) -> tuple[Recording, Recording] | None:
+    """Time-ordered split of one recording whose validation tail starts before a duty step.
+
+    Candidate split points lie :data:`SPLIT_LEAD` before each duty change, so the validation part
+    starts settled on the previous level and contains the step; the one whose validation share is
+    closest to ``fraction`` (within [0.1, 0.5]) wins. None when no candidate gives two parts of
+    :data:`MIN_PART` samples with a varying duty cycle.
+    """
+    n = len(r)
+    lead = max(round(SPLIT_LEAD / r.dt), 1)
+    best = None
+    for k in np.flatnonzero(np.diff(r.duty) != 0.0) + 1 - lead:
+        share = 1.0 - k / n
+        if not (0.1 <= share <= 0.5) or k < MIN_PART or n - k < MIN_PART:
+            continue
+        a, b = r.slice(0, int(k)), r.slice(int(k), n)
+        if _varying(a) and _varying(b) and (best is None or abs(share - fraction) < best[0]):
+            best = (abs(share - fraction), a, b)
+    return None if best is None else (best[1], best[2])
+
+
+def validation_split(
+    fit: Sequence[Recording], fraction: float = VALIDATION_FRACTION
+) -> tuple[list[Recording], list[Recording]]:
+    """Carve the diagnosis' validation set out of the fit recordings (train / validation / test).
+
+    In order of preference:
+
+    1. each fit recording split in time order, its last ``fraction`` becoming validation, when
+       both parts keep :data:`MIN_PART` samples and a varying duty cycle;
+    2. a recording whose tail holds one duty level (a long last step) is split instead just
+       before the duty step nearest to that share (:func:`_split_at_step`), so its validation part
+       starts settled and contains a step;
+    3. with several fit recordings, every round(1/fraction)-th whole recording from the second on;
+    4. interleaved blocks of each recording (:func:`aeropend_ident.io.split.interleaved_blocks`,
+       every 3rd block of about ``fraction`` × 3 of the length is validation).
+
+    Raises
+    ------
+    GapInputError
+        ``fraction`` outside (0, 1), or fit data too short or too little excited for any of these.
+    """
+    if not 0.0 < fraction < 1.0:
+        raise GapInputError(f"validation fraction {fraction!r}; expected a number in (0, 1)")
+    fit = list(fit)
+    parts: list[tuple[Recording, Recording]] = []
+    for r in fit:
+        pair = r.split(1.0 - fraction) if len(r) * min(fraction, 1.0 - fraction) >= MIN_PART else None
+        if pair is None or not (_varying(pair[0]) and _varying(pair[1])):
+            pair = _split_at_step(r, fraction)
+        if pair is None:
+            break
+        parts.append(pair)
+    if len(parts) == len(fit):
+        return [a for a, _ in parts], [b for _, b in parts]
+    if len(fit) >= 2:
+        step = max(2, round(1.0 / fraction))
+        pick = set(range(1, len(fit), step))
+        core = [r for i, r in enumerate(fit) if i not in pick]
+        val = [r for i, r in enumerate(fit) if i in pick]
+        if all(_varying(r) for r in core + val):
+            return core, val
+    for n_blocks in (6, 9, 12):
+        block = min(len(r) * r.dt for r in fit) / n_blocks
+        core, val, _ = interleaved_blocks(fit, block, 3, 0.0, 1)
+        if core and val and all(_varying(r) for r in core + val):
+            return core, val
+    raise GapInputError(
+        f"{fit[0].source or 'the fit recording'}: {len(fit[0])} samples cannot give both a fit part and a "
+        f"validation part (about {fraction:.0%}) of at least {MIN_PART} samples with a varying duty cycle, "
+        "neither in time order, split before a duty step, nor as interleaved blocks; record longer or with "
+        "more duty steps, add fit recordings, or pass validation fraction 0 (the held-out data then choose "
+        "the effects)"
+    )

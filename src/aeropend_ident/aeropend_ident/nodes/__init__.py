@@ -1,0 +1,1 @@
+"""The recorder and player ROS 2 nodes."""

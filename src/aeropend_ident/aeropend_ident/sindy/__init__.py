@@ -1,0 +1,1 @@
+"""Sparse identification (SINDy, weak SINDy, output-error refinement) of the plant."""

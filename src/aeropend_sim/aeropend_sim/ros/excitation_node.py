@@ -1,0 +1,402 @@
+"""Excitation node (console script ``excitation``): publish a duty-cycle signal as commands.
+
+Builds a signal with :func:`aeropend_sim.excitation.make_signal` and publishes it on
+``/aeropend/duty_cycle``, then exits.
+
+Modes
+-----
+``realtime``
+    One command per sample period of wall time (dedicated thread, absolute deadlines), after a
+    subscriber (the plant) has appeared. For the real-time simulated plant or the hardware.
+``lockstep``
+    One command per *new* sample received on ``/aeropend/joint_states`` (reliable QoS): the
+    plant ↔ excitation ping-pong of deterministic open-loop lock-step runs
+    (``sim_node --ros-args -p mode:=lockstep``). Sample k (stamp k·T_s) is answered with
+    ``duty[k]``; a re-published sample (same stamp: the plant saw no command for 0.5 s) is
+    answered again with the same command.
+
+Usage::
+
+    excitation --ros-args -p signal:=lhs -p seed:=1 -p mode:=lockstep
+    excitation --signal staircase --levels 0.3 0.5 --hold 2 --mode realtime
+    excitation --print --signal prbs --order 7 --clock 5 > prbs.csv      # no ROS needed
+
+Parameters (``-p name:=value``; the friendly ``--flags`` override them)
+-----------------------------------------------------------------------
+signal : str, default ``lhs``
+    ``step``, ``staircase``, ``prbs``, ``aprbs``, ``density_prbs`` (fast binary holds whose
+    density follows a slow APRBS: the identifiability design) or ``lhs`` (thesis §5.1
+    Latin-hypercube steps).
+signal arguments
+    ``level duration initial step_time levels hold order lo hi clock periods min_hold max_hold
+    n tau_min tau_max hold_min hold_max density_lo density_hi density_min_hold density_max_hold
+    seed dt`` (see :mod:`aeropend_sim.excitation`).
+mode : str, default ``realtime``
+zero_at_end : bool
+    Send duty 0 after the signal and on shutdown (default true in real-time mode, false in
+    lock-step mode, where an extra command would advance the plant one more sample).
+wait_timeout : float [s], default 30
+    Give up (exit status 1) if no plant appears within this time.
+min_subscribers : int, default 1
+    Send the first command only once this many subscriptions (plant, recorder, ...) are matched
+    on ``/aeropend/duty_cycle``, so a recorder started alongside misses nothing.
+
+Exit status: 0 signal sent, 1 no plant / interrupted, 2 invalid signal or parameter.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import yaml
+
+from aeropend_sim.excitation import SIGNALS, ExcitationError, ExcitationSignal, make_signal
+
+NODE_NAME = "aeropend_excitation"
+MODES = ("realtime", "lockstep")
+#: Every argument name of every signal kind (declared as node parameters).
+SIGNAL_ARGS: tuple[str, ...] = (
+    "level", "duration", "initial", "step_time", "levels", "hold", "order", "lo", "hi", "clock", "periods",
+    "min_hold", "max_hold", "n", "tau_min", "tau_max", "hold_min", "hold_max", "density_lo", "density_hi",
+    "density_min_hold", "density_max_hold", "seed", "dt",
+)
+#: Node options besides the signal arguments: name -> default.
+OPTIONS: dict[str, Any] = {
+    "signal": "lhs", "mode": "realtime", "zero_at_end": None, "wait_timeout": 30.0, "min_subscribers": 1,
+}
+
+
+# ---------------------------------------------------------------------------------- pure part
+@dataclass(frozen=True)
+class ExcitationConfig:
+    """Validated configuration: the signal and how to publish it."""
+
+    signal: ExcitationSignal
+    mode: str
+    zero_at_end: bool
+    wait_timeout: float
+    min_subscribers: int = 1
+
+
+def build_arg_parser() -> argparse.ArgumentParser:
+    """Friendly command-line flags (every flag is optional and overrides a ROS parameter)."""
+    ap = argparse.ArgumentParser(
+        prog="excitation", description="Publish a duty-cycle excitation signal on /aeropend/duty_cycle.",
+        epilog="ROS parameters: --ros-args -p signal:=lhs -p seed:=1 ... (flags win over parameters)",
+    )
+    ap.add_argument("--signal", choices=sorted(SIGNALS), help="signal kind (default lhs)")
+    ap.add_argument("--mode", choices=MODES, help="realtime (wall clock) or lockstep (one per sample)")
+    ap.add_argument("--print", action="store_true", help="print the signal as CSV (t,duty) and exit; no ROS")
+    ap.add_argument("--zero-at-end", dest="zero_at_end", action="store_true", default=None,
+                    help="send duty 0 after the signal and on shutdown")
+    ap.add_argument("--no-zero-at-end", dest="zero_at_end", action="store_false")
+    ap.add_argument("--wait-timeout", dest="wait_timeout", type=float, help="seconds to wait for the plant")
+    ap.add_argument("--min-subscribers", dest="min_subscribers", type=int,
+                    help="matched duty-cycle subscribers needed before the first command (default 1)")
+    f = float
+    for name, typ, nargs, text in (
+        ("level", f, None, "step: final duty"), ("duration", f, None, "step/aprbs: length [s]"),
+        ("initial", f, None, "step: duty before the step"), ("step-time", f, None, "step: instant [s]"),
+        ("levels", f, "+", "staircase: duty levels"), ("hold", f, "+", "staircase: hold time(s) [s]"),
+        ("order", int, None, "prbs: register length m"), ("lo", f, None, "prbs/aprbs/density_prbs: low duty"),
+        ("hi", f, None, "prbs/aprbs/density_prbs: high duty"), ("clock", int, None, "prbs: samples per bit"),
+        ("periods", int, None, "prbs: number of periods"),
+        ("min-hold", f, None, "aprbs/density_prbs: min hold [s]"),
+        ("max-hold", f, None, "aprbs/density_prbs: max hold [s]"),
+        ("n", int, None, "lhs: number of steps/intervals"),
+        ("tau-min", f, None, "lhs: min duty"), ("tau-max", f, None, "lhs: max duty"),
+        ("hold-min", f, None, "lhs: min step duration [s]"),
+        ("hold-max", f, None, "lhs: max step duration [s]"),
+        ("density-lo", f, None, "density_prbs: min probability of the high level"),
+        ("density-hi", f, None, "density_prbs: max probability of the high level"),
+        ("density-min-hold", f, None, "density_prbs: min hold of the slow density [s]"),
+        ("density-max-hold", f, None, "density_prbs: max hold of the slow density [s]"),
+        ("seed", int, None, "seed of random signals"),
+        ("dt", f, None, "sample period [s] (default 2.048 ms)"),
+    ):
+        ap.add_argument(f"--{name}", dest=name.replace("-", "_"), type=typ, nargs=nargs, help=text)
+    return ap
+
+
+def ros_param_overrides(argv: list[str]) -> dict[str, Any]:
+    """``-p name:=value`` pairs inside ``--ros-args`` sections (values parsed as YAML).
+
+    Used by ``--print`` so the same parameter syntax works without starting ROS.
+
+    Raises
+    ------
+    ExcitationError
+        On a ``-p`` item without ``:=``.
+    """
+    out: dict[str, Any] = {}
+    in_ros = False
+    it = iter(argv)
+    for tok in it:
+        if tok == "--ros-args":
+            in_ros = True
+        elif tok == "--":
+            in_ros = False
+        elif in_ros and tok in ("-p", "--param"):
+            item = next(it, "")
+            name, sep, value = item.partition(":=")
+            if not sep:
+                raise ExcitationError(f"parameter {item!r} is not of the form name:=value")
+            out[name] = yaml.safe_load(value)
+    return out
+
+
+def strip_ros_args(argv: list[str]) -> list[str]:
+    """``argv`` without its ``--ros-args ... [--]`` sections."""
+    out: list[str] = []
+    in_ros = False
+    for tok in argv:
+        if tok == "--ros-args":
+            in_ros = True
+        elif tok == "--" and in_ros:
+            in_ros = False
+        elif not in_ros:
+            out.append(tok)
+    return out
+
+
+def resolve_config(params: dict[str, Any], flags: argparse.Namespace | None = None) -> ExcitationConfig:
+    """Merge parameters and flags (flags win), build and validate the signal.
+
+    Parameters
+    ----------
+    params : dict
+        Node parameters (``None`` = not set); keys from :data:`OPTIONS` and :data:`SIGNAL_ARGS`.
+    flags : argparse.Namespace, optional
+        Parsed friendly flags (``None`` attributes = not given).
+
+    Raises
+    ------
+    ExcitationError
+        On an unknown mode, a bad ``wait_timeout`` or any signal error (unknown kind, argument
+        that the kind does not take, invalid value).
+    """
+    merged = {k: v for k, v in params.items() if v is not None}
+    if flags is not None:
+        merged.update({k: v for k, v in vars(flags).items() if v is not None and k != "print"})
+    unknown = sorted(set(merged) - set(OPTIONS) - set(SIGNAL_ARGS))
+    if unknown:
+        raise ExcitationError(
+            f"unknown parameter(s) {unknown}; expected some of {sorted(OPTIONS) + list(SIGNAL_ARGS)}"
+        )
+    kind = str(merged.pop("signal", OPTIONS["signal"]))
+    mode = str(merged.pop("mode", OPTIONS["mode"])).strip().lower()
+    if mode not in MODES:
+        raise ExcitationError(f"mode = {mode!r}; expected one of {list(MODES)}")
+    zero = merged.pop("zero_at_end", None)
+    if zero is None:
+        zero = mode == "realtime"
+    elif not isinstance(zero, bool):
+        raise ExcitationError(f"zero_at_end = {zero!r}; expected true or false")
+    wait = merged.pop("wait_timeout", OPTIONS["wait_timeout"])
+    try:
+        wait = float(wait)
+    except (TypeError, ValueError) as exc:
+        raise ExcitationError(f"wait_timeout = {wait!r} is not a number of seconds") from exc
+    if not (math.isfinite(wait) and wait > 0.0):
+        raise ExcitationError(f"wait_timeout = {wait!r} s; expected a duration > 0")
+    min_subs = merged.pop("min_subscribers", OPTIONS["min_subscribers"])
+    if isinstance(min_subs, bool) or not isinstance(min_subs, int) or min_subs < 1:
+        raise ExcitationError(f"min_subscribers = {min_subs!r}; expected an integer >= 1")
+    for key in ("levels", "hold"):  # ROS double arrays arrive as array.array
+        if key in merged and not isinstance(merged[key], int | float | str):
+            merged[key] = [float(v) for v in merged[key]]
+    signal = make_signal(kind, **merged)
+    return ExcitationConfig(signal=signal, mode=mode, zero_at_end=bool(zero), wait_timeout=wait,
+                            min_subscribers=min_subs)
+
+
+class LockstepFeeder:
+    """Which command answers which sample in lock-step mode.
+
+    ``on_sample(stamp)`` returns ``duty[k]`` for the k-th new stamp (strictly increasing), the
+    previous command again for a repeated stamp (the plant re-publishes its last sample while it
+    waits for a command, so that command was lost), and None for an older stamp or once the
+    signal is exhausted.
+
+    Parameters
+    ----------
+    duty : ndarray, shape (N,)
+        The commands in order.
+    """
+
+    def __init__(self, duty: np.ndarray) -> None:
+        self.duty = np.asarray(duty, dtype=float)
+        self.sent = 0
+        self.resent = 0
+        self._last_stamp: int | None = None
+
+    @property
+    def last_stamp(self) -> int | None:
+        """Stamp [ns] of the last sample answered (None before the first)."""
+        return self._last_stamp
+
+    @property
+    def done(self) -> bool:
+        """True once every command has been sent."""
+        return self.sent >= self.duty.size
+
+    def on_sample(self, stamp_ns: int) -> float | None:
+        """Command to publish in reply to the sample stamped ``stamp_ns`` (or None)."""
+        if self._last_stamp is not None and stamp_ns == self._last_stamp:
+            if self.sent == 0:
+                return None
+            self.resent += 1
+            return float(self.duty[self.sent - 1])
+        if (self._last_stamp is not None and stamp_ns < self._last_stamp) or self.done:
+            return None
+        self._last_stamp = stamp_ns
+        value = float(self.duty[self.sent])
+        self.sent += 1
+        return value
+
+
+# ---------------------------------------------------------------------------------- ROS part
+def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
+    import rclpy
+    from rcl_interfaces.msg import ParameterDescriptor
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+
+    from aeropend_sim.contract import REL_DUTY_CYCLE, REL_JOINT_STATES
+    from aeropend_sim.ros.node_shell import run_node, wait_acknowledged
+    from aeropend_sim.ros.ros_contract import COMMAND_QOS, COMMAND_QOS_LOCKSTEP, SAMPLE_QOS_LOCKSTEP
+    from aeropend_sim.sim_core import RealtimeSchedule
+
+    def run(node: Any, executor: Any, stop: threading.Event) -> int:
+        log = node.get_logger()
+        params = {}
+        for name in (*OPTIONS, *SIGNAL_ARGS):
+            desc = ParameterDescriptor(dynamic_typing=True)
+            params[name] = node.declare_parameter(name, None, desc).value
+        try:
+            cfg = resolve_config(params, flags)
+        except ExcitationError as exc:
+            log.error(f"invalid excitation: {exc}")
+            return 2
+        sig = cfg.signal
+        pub = node.create_publisher(Float64, REL_DUTY_CYCLE,
+                                    COMMAND_QOS_LOCKSTEP if cfg.mode == "lockstep" else COMMAND_QOS)
+        log.info(
+            f"signal {sig.kind} {sig.params}: {len(sig)} samples, {sig.duration:.3f} s, "
+            f"duty in [{sig.duty.min():.4g}, {sig.duty.max():.4g}], mode {cfg.mode}"
+        )
+
+        def spin_until(cond: Any, timeout: float) -> bool:
+            end = time.monotonic() + timeout
+            while not stop.is_set() and rclpy.ok() and time.monotonic() < end:
+                if cond():
+                    return True
+                executor.spin_once(timeout_sec=0.01)
+            return bool(cond())
+
+        if cfg.mode == "realtime":
+            if not spin_until(lambda: pub.get_subscription_count() >= cfg.min_subscribers, cfg.wait_timeout):
+                if not stop.is_set():
+                    log.error(
+                        f"{pub.get_subscription_count()} of {cfg.min_subscribers} subscriber(s) on "
+                        f"{pub.topic_name} within {cfg.wait_timeout:g} s; is the plant up?"
+                    )
+                return 1
+            sent = [0]
+
+            def worker() -> None:
+                period_ns = round(sig.dt * 1e9)
+                sched = RealtimeSchedule(period_ns, time.monotonic_ns())
+                for k, u in enumerate(sig.duty):
+                    while (rem := sched.deadline_ns(k) - time.monotonic_ns()) > 0 and not stop.is_set():
+                        time.sleep(min(rem * 1e-9, 0.05))
+                    if stop.is_set():
+                        return
+                    sched.on_wake(k, time.monotonic_ns())
+                    pub.publish(Float64(data=float(u)))
+                    sent[0] += 1
+                if sched.overruns:
+                    log.warn(f"{sched.overruns} overrun(s), {sched.dropped_ns / 1e6:.1f} ms behind schedule")
+
+            thread = threading.Thread(target=worker, name="excitation_sender", daemon=True)
+            thread.start()
+            while thread.is_alive() and not stop.is_set() and rclpy.ok():
+                executor.spin_once(timeout_sec=0.05)
+            stop_requested = stop.is_set()
+            stop.set()
+            thread.join(timeout=1.0)
+            n_sent = sent[0]
+        else:
+            feeder = LockstepFeeder(sig.duty)
+            pending: list[float] = []
+
+            def on_sample(msg: JointState) -> None:
+                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+                if pending and stamp == feeder.last_stamp:
+                    return  # re-published sample whose answer is still waiting to be sent
+                value = feeder.on_sample(stamp)
+                if value is not None:
+                    pending.append(value)
+                    flush()
+
+            def flush() -> None:
+                if pending and pub.get_subscription_count() >= cfg.min_subscribers:
+                    for value in pending:
+                        pub.publish(Float64(data=value))
+                    pending.clear()
+
+            sub = node.create_subscription(JointState, REL_JOINT_STATES, on_sample, SAMPLE_QOS_LOCKSTEP)
+            node.create_timer(0.01, flush)
+            if not spin_until(lambda: feeder.sent > 0, cfg.wait_timeout):
+                if not stop.is_set():
+                    log.error(
+                        f"no sample on {sub.topic_name} within {cfg.wait_timeout:g} s; "
+                        "is the plant up in lockstep mode?"
+                    )
+                return 1
+            while not stop.is_set() and rclpy.ok() and not (feeder.done and not pending):
+                executor.spin_once(timeout_sec=0.05)
+            stop_requested = stop.is_set() and not (feeder.done and not pending)
+            n_sent = feeder.sent
+            if feeder.resent:
+                log.warn(f"re-sent {feeder.resent} command(s) for re-published samples")
+        if cfg.zero_at_end and rclpy.ok():
+            pub.publish(Float64(data=0.0))
+        if rclpy.ok():  # a lagging recorder must get the last commands before the writer is gone
+            wait_acknowledged(node, [pub])
+        if stop_requested:
+            log.warn(f"interrupted after {n_sent} of {len(sig)} commands")
+            return 1
+        tail = " + duty 0" if cfg.zero_at_end else ""
+        log.info(f"sent {n_sent} commands ({sig.duration:.3f} s of signal){tail}")
+        return 0
+
+    return run_node(NODE_NAME, ["excitation", *argv], lambda: rclpy.create_node(NODE_NAME), body=run,
+                    interrupt_status=1)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of ``excitation``; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_arg_parser()
+    flags = parser.parse_args(strip_ros_args(argv))
+    if flags.print:
+        try:
+            cfg = resolve_config(ros_param_overrides(argv), flags)
+        except ExcitationError as exc:
+            print(f"excitation: invalid excitation: {exc}", file=sys.stderr)
+            return 2
+        sys.stdout.write(cfg.signal.to_csv())
+        return 0
+    return _run_ros(argv, flags)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

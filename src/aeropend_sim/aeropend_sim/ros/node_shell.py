@@ -1,0 +1,217 @@
+"""Shared rclpy shell of every aeropend node (plant, excitation, bridge, controller, recorder, player).
+
+Each node declares its parameters from a table of ``(name, default, description)``; every
+node's ``main`` starts and stops through :func:`run_node` (init with a SIGINT/SIGTERM stop
+event, build, spin or run to completion, clean up, destroy, shut down), so the shutdown path
+(motor off, :func:`wait_acknowledged` before a writer is destroyed, bag closed) is the same
+everywhere.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterable
+from typing import Any, TypeVar
+
+import rclpy
+from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.duration import Duration
+from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.publisher import Publisher
+from rclpy.signals import SignalHandlerOptions
+
+N = TypeVar("N", bound=Node)
+
+#: How long a reliable writer waits at shutdown for its readers' acknowledgements [s]. A sample
+#: the middleware lost on the way (a full socket buffer under load) is repaired only after the
+#: writer's next heartbeat (Fast DDS: every 3 s by default), so the wait must outlast one period.
+ACK_TIMEOUT_S = 10.0
+
+
+def declare_parameter_table(node: Node, table: Iterable[tuple[str, Any, str]],
+                            live: Iterable[str] = ()) -> dict[str, Any]:
+    """Declare every ``(name, default, description)`` parameter; return the values.
+
+    Parameters named in ``live`` may be set while the node runs (the node validates and applies
+    them in its ``add_on_set_parameters_callback``); every other one is declared read-only, so
+    ``ros2 param set`` is refused with "parameter is read-only" instead of reporting a success
+    that changes nothing. Values given at start-up (``-p``, a params file, launch) apply to both.
+    Types are dynamic: ``None`` defaults mean "unset" (e.g. a strategy's default pole pattern).
+    """
+    live = set(live)
+    values = {}
+    for name, default, doc in table:
+        what = doc if name in live else f"{doc} (read-only: fixed at start-up)"
+        desc = ParameterDescriptor(description=what, dynamic_typing=True, read_only=name not in live)
+        values[name] = node.declare_parameter(name, default, desc).value
+    return values
+
+
+def wait_acknowledged(node: Node, publishers: Iterable[Publisher],
+                      timeout_s: float = ACK_TIMEOUT_S) -> bool:
+    """Block until every reliable reader acknowledged every sample of ``publishers``.
+
+    A DDS writer that is destroyed drops what its reliable readers have not acknowledged yet:
+    a lock-step publisher that exits right after its last message loses the tail a lagging
+    recorder has not received (docs/data_plane.md). Call this before destroying the node.
+
+    Parameters
+    ----------
+    node : rclpy.node.Node
+        Owner of the publishers (its logger reports what was not acknowledged).
+    publishers : iterable of rclpy.publisher.Publisher
+        Writers to wait for (best-effort ones return at once).
+    timeout_s : float
+        Total time budget [s] for all of them.
+
+    Returns
+    -------
+    bool
+        True if everything was acknowledged in time; otherwise False and a warning naming the
+        topics whose readers may miss samples.
+    """
+    deadline = time.monotonic() + timeout_s
+    late = []
+    for pub in publishers:
+        left = max(deadline - time.monotonic(), 0.0)
+        if not pub.wait_for_all_acked(Duration(nanoseconds=round(left * 1e9))):
+            late.append(pub.topic_name)
+    if late:
+        node.get_logger().warn(f"not acknowledged within {timeout_s:g} s by every reliable reader: "
+                               f"{', '.join(late)} (a reader may miss the last samples)")
+    return not late
+
+
+def init_with_stop_event(args: list[str] | None) -> threading.Event:
+    """``rclpy.init`` without rclpy's signal handlers; SIGINT/SIGTERM set the returned event.
+
+    The node then shuts down in its own loop (motor off, summary logged, bag closed) instead of
+    being interrupted inside a callback.
+    """
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    stop = threading.Event()
+
+    def _on_signal(signum: int, frame: Any) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    return stop
+
+
+def _single_threaded(node: Node) -> Executor:
+    return SingleThreadedExecutor()
+
+
+def run_node(
+    name: str,
+    args: list[str] | None,
+    make_node: Callable[[], N],
+    config_errors: tuple[type[Exception], ...] = (),
+    cleanup: Callable[[N], None] = lambda node: None,
+    *,
+    done: Callable[[N], bool] = lambda node: False,
+    exit_status: Callable[[N], int] = lambda node: 0,
+    period: float = 0.1,
+    start_errors: tuple[type[Exception], ...] = (),
+    make_executor: Callable[[N], Executor | None] = _single_threaded,
+    body: Callable[[N, Executor | None, threading.Event], int] | None = None,
+    fail_errors: tuple[type[Exception], ...] = (),
+    report_error: Callable[[Exception], None] | None = None,
+    interrupt_status: int = 0,
+    rclpy_signals: bool = False,
+) -> int:
+    """The one lifecycle of every node's ``main``: init, build, run until stopped, clean up, shut down.
+
+    ``rclpy.init`` (SIGINT/SIGTERM set a stop event, :func:`init_with_stop_event`), the node from
+    ``make_node``, its executor, then either the standard loop (spin until a signal, rclpy
+    shutdown or ``done(node)``) or the node's own ``body``; finally ``cleanup(node)`` (motor
+    off, acknowledgements awaited, summary logged, bag closed), ``destroy_node`` and
+    ``rclpy.try_shutdown`` whatever happened.
+
+    Parameters
+    ----------
+    name : str
+        Node name, used for the logger of a parameter error (raised before the node exists).
+    args : list of str or None
+        Command-line arguments for ``rclpy.init`` (``--ros-args ...``).
+    make_node : callable
+        Builds (and starts) the node; raises one of ``config_errors`` on a bad parameter.
+    config_errors : tuple of exception types
+        Logged as ``invalid parameter: ...``; the process then exits with status 2.
+    cleanup : callable
+        Run on the node before it is destroyed (motor off, summary logged, ...).
+    done : callable
+        Stops the standard loop when it returns True (besides SIGINT/SIGTERM and rclpy shutdown).
+    exit_status : callable
+        Exit status after the standard loop stopped.
+    period : float
+        Spin timeout [s] of the standard loop between checks of the stop conditions.
+    start_errors : tuple of exception types
+        Raised by ``make_node`` when the node cannot start for another reason than a parameter
+        (e.g. no firmware on the serial port); logged as ``cannot start: ...``, exit status 1.
+    make_executor : callable
+        The executor the node is added to (default a ``SingleThreadedExecutor``; None: the node
+        is not spun, e.g. a pure publisher).
+    body : callable, optional
+        ``body(node, executor, stop_event) -> status`` replaces the standard loop (a node that
+        runs to completion: the excitation, the recorder's drain, the player).
+    fail_errors : tuple of exception types
+        Errors of the run itself (a bag that cannot be written or read): passed to
+        ``report_error``, exit status 1.
+    report_error : callable, optional
+        Reports a ``fail_errors`` exception (default: the node logger's error).
+    interrupt_status : int
+        Exit status on ``KeyboardInterrupt`` / external rclpy shutdown.
+    rclpy_signals : bool
+        Keep rclpy's own signal handlers (SIGINT shuts the context down, so ``rclpy.ok()`` turns
+        False) instead of the stop event: for a node whose loop watches ``rclpy.ok()`` only.
+
+    Returns
+    -------
+    int
+        Process exit status: ``exit_status(node)`` or the ``body``'s, 2 on an invalid parameter,
+        1 on a start or run error, ``interrupt_status`` when interrupted.
+    """
+    if rclpy_signals:
+        rclpy.init(args=args)
+        stop = threading.Event()
+    else:
+        stop = init_with_stop_event(args)
+    node: N | None = None
+    status = 0
+    try:
+        node = make_node()
+        executor = make_executor(node)
+        if executor is not None:
+            executor.add_node(node)
+        if body is not None:
+            status = body(node, executor, stop)
+        else:
+            assert executor is not None
+            while not stop.is_set() and rclpy.ok() and not done(node):
+                executor.spin_once(timeout_sec=period)
+            status = exit_status(node)
+    except config_errors as exc:
+        rclpy.logging.get_logger(name).error(f"invalid parameter: {exc}")
+        status = 2
+    except start_errors as exc:
+        rclpy.logging.get_logger(name).error(f"cannot start: {exc}")
+        status = 1
+    except (KeyboardInterrupt, ExternalShutdownException):
+        status = interrupt_status
+    except fail_errors as exc:
+        if report_error is not None:
+            report_error(exc)
+        else:
+            rclpy.logging.get_logger(name).error(str(exc))
+        status = 1
+    finally:
+        if node is not None:
+            cleanup(node)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return status

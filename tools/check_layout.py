@@ -1,0 +1,193 @@
+#!/usr/bin/env python3
+"""Check the source layout: no import cycle, no over-long function, no over-full package folder.
+
+Usage: ``python tools/check_layout.py [--root SRC] [--max-lines 150] [--max-modules 10]``
+
+Rules (each violation is printed as ``file:line: message``; exit status 1 if any):
+
+* **Import cycles.** Every ``.py`` file under ``--root`` (default: the repository's ``src/``) is
+  a module; its name is its dotted path from the folder that holds the top-level package (the
+  folder without an ``__init__.py`` above it, e.g. ``src/aeropend_sim``). Every ``import`` and
+  ``from ... import`` anywhere in the file counts, including imports inside functions (lazy
+  imports hide a cycle, they do not remove it) and ``if TYPE_CHECKING:`` blocks. ``from P import
+  name`` is an edge to ``P.name`` when that is a module, otherwise to ``P``. Importing ``a.b.c``
+  also imports the packages ``a`` and ``a.b``; those implicit package edges are *not* counted,
+  so a package ``__init__`` may re-export names from its submodules as long as no submodule
+  imports from its own package's ``__init__`` (submodules import their siblings directly). Any
+  strongly connected component with more than one module is reported.
+* **Function length.** A ``def`` (any nesting, docstring included) longer than ``--max-lines``
+  lines, measured from the ``def`` line (decorators excluded) to its last line.
+* **Package width.** More than ``--max-modules`` ``.py`` files directly in one package folder
+  (``__init__.py`` not counted).
+
+Plain Python (``ast``), no dependencies.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import sys
+from pathlib import Path
+
+DEFAULT_ROOT = Path(__file__).resolve().parents[1] / "src"
+
+
+def _module_name(path: Path) -> str:
+    """Dotted module name of ``path``: the parts below the first folder without ``__init__``."""
+    parts = [path.stem] if path.name != "__init__.py" else []
+    folder = path.parent
+    while (folder / "__init__.py").is_file():
+        parts.insert(0, folder.name)
+        folder = folder.parent
+    return ".".join(parts)
+
+
+def _modules(root: Path) -> dict[str, Path]:
+    skip = {".venv", "build", "install", "log", "__pycache__"}
+    out: dict[str, Path] = {}
+    for path in sorted(root.rglob("*.py")):
+        if skip & set(path.relative_to(root).parts):
+            continue
+        if not (path.parent / "__init__.py").is_file():
+            continue  # setup.py, launch files: not importable modules of a package
+        out[_module_name(path)] = path
+    return out
+
+
+def _resolve_from(node: ast.ImportFrom, name: str, is_pkg: bool) -> str:
+    if node.level == 0:
+        return node.module or ""
+    base = name.split(".") if is_pkg else name.split(".")[:-1]
+    base = base[: len(base) - (node.level - 1)] if node.level > 1 else base
+    return ".".join(base + ([node.module] if node.module else []))
+
+
+def _imports(name: str, path: Path, modules: dict[str, Path]) -> dict[str, int]:
+    """Modules of ``modules`` that ``name`` imports, each with the first line that does."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    is_pkg = path.name == "__init__.py"
+    found: dict[str, int] = {}
+    for node in ast.walk(tree):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = _resolve_from(node, name, is_pkg)
+            for alias in node.names:
+                sub = f"{base}.{alias.name}" if base else alias.name
+                targets.append(sub if sub in modules else base)
+        for target in targets:
+            if target in modules and target != name:
+                found.setdefault(target, node.lineno)
+    return found
+
+
+def _cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
+    """Strongly connected components with more than one node (Tarjan, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    out: list[list[str]] = []
+    counter = 0
+    for start in graph:
+        if start in index:
+            continue
+        work = [(start, iter(graph[start]))]
+        index[start] = low[start] = counter
+        counter += 1
+        stack.append(start)
+        on_stack.add(start)
+        while work:
+            node, children = work[-1]
+            advanced = False
+            for child in children:
+                if child not in index:
+                    index[child] = low[child] = counter
+                    counter += 1
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(graph[child])))
+                    advanced = True
+                    break
+                if child in on_stack:
+                    low[node] = min(low[node], index[child])
+            if advanced:
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                comp = []
+                while True:
+                    top = stack.pop()
+                    on_stack.discard(top)
+                    comp.append(top)
+                    if top == node:
+                        break
+                if len(comp) > 1:
+                    out.append(sorted(comp))
+    return out
+
+
+def check(root: Path, max_lines: int = 150, max_modules: int = 10) -> list[str]:
+    """All layout violations under ``root``, one ``file:line: message`` string each.
+
+    Parameters
+    ----------
+    root : Path
+        Folder holding the packages (the repository's ``src/``).
+    max_lines : int
+        Longest allowed function, in lines (docstring included).
+    max_modules : int
+        Most ``.py`` files allowed directly in one package folder (``__init__.py`` excluded).
+
+    Returns
+    -------
+    list of str
+        The violations; empty when the layout is fine.
+    """
+    modules = _modules(root)
+    problems: list[str] = []
+    graph = {name: _imports(name, path, modules) for name, path in modules.items()}
+    for comp in _cycles(graph):
+        members = set(comp)
+        edges = [f"{a} -> {b} ({modules[a]}:{line})" for a in comp
+                 for b, line in sorted(graph[a].items()) if b in members]
+        problems.append(f"{modules[comp[0]]}:1: import cycle between {', '.join(comp)}: "
+                        + "; ".join(edges))
+    for name, path in modules.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                length = (node.end_lineno or node.lineno) - node.lineno + 1
+                if length > max_lines:
+                    problems.append(f"{path}:{node.lineno}: function {name}.{node.name} has "
+                                    f"{length} lines (> {max_lines})")
+    folders = sorted({p.parent for p in modules.values()})
+    for folder in folders:
+        count = sum(1 for p in folder.glob("*.py") if p.name != "__init__.py")
+        if count > max_modules:
+            problems.append(f"{folder / '__init__.py'}:1: package folder has {count} modules "
+                            f"(> {max_modules})")
+    return problems
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Print the violations under ``--root``; exit status 1 if there are any."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--root", type=Path, default=DEFAULT_ROOT)
+    parser.add_argument("--max-lines", type=int, default=150)
+    parser.add_argument("--max-modules", type=int, default=10)
+    args = parser.parse_args(argv)
+    problems = check(args.root, args.max_lines, args.max_modules)
+    for line in problems:
+        print(line)
+    modules = len(_modules(args.root))
+    print(f"check_layout: {modules} modules under {args.root}, {len(problems)} problem(s)")
+    return 1 if problems else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
