@@ -7,7 +7,8 @@ record that every swept model equals an independent ``fit`` call with that λ (s
 coefficients equal to rounding) for the strong and the weak form, per-equation libraries, the
 ensemble, discrepancy SINDy and the refined weak form (whose refinement passes depend on λ),
 and that the shared problem is not altered by solving it. Also: ``free_run``'s faster loop (used
-by ``identify`` and the refinement passes) against a plain RK4 reference.
+by ``identify`` and the refinement passes) against a plain RK4 reference; per-equation libraries
+sharing one weak-form pass over their union, and the refinement operator reusing its subdomains.
 """
 
 from __future__ import annotations
@@ -174,3 +175,44 @@ def test_free_run_matches_rk4_reference_and_keeps_library_errors(split) -> None:
                         coef=np.array([[-1.0, 0.0]]), threshold=0.0, library=bad)
     with pytest.raises(LibraryError, match=r"candidate log\(i_a − 10\) is not finite"):
         free_run(broken, part)
+
+
+def test_per_equation_libraries_share_one_weak_pass_over_their_union(split, monkeypatch) -> None:
+    """The weak-form integrals of per-equation libraries come from one ``weak_matrices`` pass over
+    their union (a column's integral does not depend on the other columns): each equation's
+    regression matrix and left side equal those of the equation set up alone, to rounding, and the
+    terms several equations share (ω₁, ω₁²) are integrated once."""
+    import aeropend_ident.sindy.core as core
+
+    calls = []
+    real = core.weak_matrices
+    monkeypatch.setattr(core, "weak_matrices", lambda *a, **k: calls.append(a[1].shape[1]) or real(*a, **k))
+    train, _ = split
+    lib = structured_library(VARIABLES)
+    kw = dict(method="weak", K=120, H_xt=0.05)
+    together = regression_problem(train, lib, TARGETS, **kw)
+    union = set().union(*(lib[tg].names for tg in TARGETS))
+    assert calls == [len(union)] and len(union) < sum(len(lib[tg]) for tg in TARGETS)
+    for part in together._parts:
+        (tg,) = part.targets
+        alone = regression_problem(train, {tg: lib[tg]}, [tg], **kw)._parts[0]
+        assert alone.library.names == part.library.names
+        scale = np.abs(alone.theta).max()
+        np.testing.assert_allclose(part.theta, alone.theta, rtol=1e-12, atol=1e-12 * scale)
+        np.testing.assert_allclose(part.y, alone.y, rtol=1e-12, atol=0.0)
+        assert part.condition_number == pytest.approx(alone.condition_number, rel=1e-9)
+    assert len(calls) == 1 + len(TARGETS)  # one pass together, one per equation alone
+
+
+def test_the_refinement_operator_reuses_the_weak_setups_subdomains(split) -> None:
+    """``WeakOperator(..., lib=...)`` on the library the weak-form matrices built (same grid, K, p,
+    H_xt, seed) has exactly the test-function integrals of one built from scratch."""
+    from aeropend_ident.sindy.core import _WeakSetup
+    from aeropend_ident.sindy.weak_quadrature import WeakOperator
+
+    train, _ = split
+    fresh = WeakOperator(train.t, K=120, p=4, H_xt=0.05, seed=0)
+    setup = _WeakSetup(train.t, 120, 4, 0.05, 0)
+    shared = WeakOperator(train.t, K=120, p=4, H_xt=0.05, seed=0, lib=setup.lib)
+    assert shared.K == fresh.K == 120
+    assert (shared.phi != fresh.phi).nnz == 0 and (shared.dphi != fresh.dphi).nnz == 0

@@ -579,10 +579,59 @@ class _Regression:
     build_time: float
 
 
+@dataclass(frozen=True)
+class _WeakUnion:
+    """Weak-form integrals of the union of several equations' libraries, computed in one pass.
+
+    Each column's integral against the test functions does not depend on the other columns, so
+    per-equation libraries (the physics-structured default) can slice theirs from one
+    :func:`weak_matrices` call over the union instead of one call each: pysindy's per-subdomain
+    loop, not the column count, is its cost.
+    """
+
+    index: dict[str, int]
+    theta_w: np.ndarray
+    targets: list[str]
+    lhs_w: np.ndarray
+
+    def covers(self, library: CandidateLibrary, targets: Sequence[str]) -> bool:
+        return set(library.names) <= self.index.keys() and set(targets) <= set(self.targets)
+
+    def columns(self, library: CandidateLibrary, targets: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        return (self.theta_w[:, [self.index[n] for n in library.names]],
+                self.lhs_w[:, [self.targets.index(tg) for tg in targets]])
+
+
+def _weak_union(data: IdentData, libraries: Sequence[CandidateLibrary], targets: list[str],
+                build: dict[str, Any]) -> None:
+    """Store the union's weak-form integrals in ``build["cache"]["union"]`` (see :class:`_WeakUnion`).
+
+    Nothing is stored when the union cannot be evaluated on this data (a missing channel, say):
+    the per-equation regressions then compute their own and raise or drop as they would.
+    """
+    union = libraries[0]
+    for lib in libraries[1:]:
+        union = union + lib
+    held = sorted(set(build["zoh_inputs"]) & set(data.variables))
+    try:
+        cols = union.evaluate(data.variables)
+        mask = np.array([bool(set(c.variables) & set(held)) for c in union.candidates])
+        nxt = union.evaluate(_advance_states(data, held).variables) if mask.any() else None
+        _check_half_width(data.t, build["H_xt"])
+    except (LibraryError, IdentificationError, KeyError):
+        return
+    cache = build["cache"]
+    if "weak" not in cache:
+        cache["weak"] = _WeakSetup(data.t, build["K"], build["p"], build["H_xt"], build["seed"])
+    mat, lhs_w = weak_matrices(data, cols, targets, K=build["K"], p=build["p"], H_xt=build["H_xt"],
+                               seed=build["seed"], columns_next=nxt, zoh=mask, _setup=cache["weak"])
+    cache["union"] = _WeakUnion({n: j for j, n in enumerate(union.names)}, mat, list(targets), lhs_w)
+
+
 def _build_regression(
     data: IdentData, library: CandidateLibrary, targets: list[str], method: str, base: Rig | BaseModel | None,
     K: int, p: int, H_xt: float | None, seed: int, exclude_input_steps: int, zoh_inputs: Sequence[str],
-    context: WeakContext | None, cache: dict[str, _WeakSetup],
+    context: WeakContext | None, cache: dict[str, Any],
 ) -> _Regression:
     """Library evaluation, weak-form integrals (or strong-form rows), residual of the base model and
     the rank check of :func:`fit` for one library; ``cache`` shares the weak-form setup."""
@@ -610,8 +659,12 @@ def _build_regression(
         _check_half_width(data.t, H_xt)
         if "weak" not in cache:
             cache["weak"] = _WeakSetup(data.t, K, p, H_xt, seed)
-        mat, lhs_w = weak_matrices(data, np.hstack([theta, extra]), targets, K=K, p=p, H_xt=H_xt, seed=seed,
-                                   columns_next=nxt, zoh=mask, _setup=cache["weak"])
+        union = cache.get("union")
+        if fb is None and union is not None and union.covers(library, targets):
+            mat, lhs_w = union.columns(library, targets)
+        else:
+            mat, lhs_w = weak_matrices(data, np.hstack([theta, extra]), targets, K=K, p=p, H_xt=H_xt,
+                                       seed=seed, columns_next=nxt, zoh=mask, _setup=cache["weak"])
         theta_r, y = mat[:, : theta.shape[1]], lhs_w
         y_ref = lhs_w
         if fb is not None:
@@ -806,6 +859,8 @@ def regression_problem(
             raise IdentificationError(
                 f"no library for target(s) {missing}; libraries given for {sorted(library)}"
             )
+        if method == "weak" and _context is None and base is None and len(targets) > 1:
+            _weak_union(data, [library[tg] for tg in targets], targets, build)
         parts = []
         for tg in targets:
             try:
@@ -823,7 +878,9 @@ def regression_problem(
         lib = library
     op, drive = None, None
     if refine > 0:
-        op = WeakOperator(data.t, K=K, p=p, H_xt=H_xt, seed=seed)
+        shared = build["cache"].get("weak")  # the same grid, K, p, H_xt and seed: reuse its subdomains
+        op = WeakOperator(data.t, K=K, p=p, H_xt=H_xt, seed=seed,
+                          lib=shared.lib if shared is not None else None)
         drive = _instrument_drive(data) if instruments else None
     return RegressionProblem(data=data, library=lib, targets=targets, options=options, dropped=dropped,
                              _parts=parts, _per_target=isinstance(library, Mapping), _operator=op,

@@ -51,6 +51,10 @@ class WeakOperator:
         Subdomain half-width [s] (pysindy default 1/20 of the record).
     seed : int
         Seed of the subdomain placement (pysindy draws from NumPy's global generator).
+    lib : pysindy.WeakPDELibrary, optional
+        A library already built on the same ``t``, ``K``, ``p``, ``H_xt`` and ``seed`` (the one the
+        weak-form matrices of the same fit use): its subdomains are taken instead of building it
+        again (building it is most of this constructor's cost).
 
     Attributes
     ----------
@@ -58,12 +62,14 @@ class WeakOperator:
         Boole weights × φ_k and × dφ_k/dt at the interval nodes.
     """
 
-    def __init__(self, t: np.ndarray, K: int, p: int = 4, H_xt: float | None = None, seed: int = 0) -> None:
+    def __init__(self, t: np.ndarray, K: int, p: int = 4, H_xt: float | None = None, seed: int = 0,
+                 lib: ps.WeakPDELibrary | None = None) -> None:
         self.t = np.asarray(t, dtype=float)
         n = self.t.size
-        np.random.seed(seed)
-        lib = ps.WeakPDELibrary(function_library=ps.IdentityLibrary(), spatiotemporal_grid=self.t, K=K, p=p,
-                                H_xt=H_xt)
+        if lib is None:
+            np.random.seed(seed)
+            lib = ps.WeakPDELibrary(function_library=ps.IdentityLibrary(), spatiotemporal_grid=self.t, K=K,
+                                    p=p, H_xt=H_xt)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             lib.fit([AxesArray(np.zeros((n, 1)), {"ax_time": 0, "ax_coord": 1})])
