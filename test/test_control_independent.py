@@ -117,12 +117,15 @@ def _step_on_truth(rig: str, strategy: str, plant: tp.TruthPlant, r: float = 0.2
     if inner is not None and not detune:
         inner.monitor = None
     st = tp.TruthStepper(plant)
-    s, theta = st.sample(), np.empty(n)
+    s, theta, events = st.sample(), np.empty(n), []
     for k in range(n):
         theta[k] = st.state[0]
         s = st.step(loop.on_sample(k * 2_048_000, s["theta"], s["omega_rotor"], s["i_a"]))
+        if loop.detune_event is not None:  # what the node logs, once per detuning
+            events.append(loop.detune_event)
     if inner is not None and detuned is not None:
         detuned.extend(inner.detuned)
+        assert [after for _, after in events] == inner.detuned
     return theta
 
 

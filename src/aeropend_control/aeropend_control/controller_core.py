@@ -308,6 +308,14 @@ class ControllerLoop:
         self.rows.append(self.last_signals)
         return out.duty
 
+    @property
+    def detune_event(self) -> tuple[float, float] | None:
+        """(speed-loop bandwidth before, after) [rad/s] when the last sample's duty completed a
+        limit cycle of a cascade's motor loops and they were detuned
+        (:class:`~aeropend_control.strategies.MotorCascade`), else None (the node logs it)."""
+        inner = getattr(self.strategy, "inner", None)
+        return inner.detune_event if inner is not None else None
+
     def mark_published(self, pub_ns: int) -> None:
         """Record when the command of the last new sample was published (stamp's clock)."""
         if self.last_stamp is not None and self.rows:

@@ -261,6 +261,12 @@ class ControllerNode(Node):
                 f"reference {req:.4g} rad is outside the rig's reach [0, {self.loop.reach:.4g}] rad (holding "
                 f"it would need a duty cycle above {1.0 - REACH_DUTY_MARGIN:g}): clamped to {used:.4g} rad, "
                 "flagged in the signals (reference_clamped)")
+        if self.loop.detune_event is not None:
+            before, after = self.loop.detune_event
+            self.get_logger().warn(
+                "the duty cycle limit-cycles (a drive lag or delay the rig file does not know?): motor "
+                + (f"speed loop detuned from {before:.3g} to {after:.3g} rad/s" if after < before else
+                   f"speed loop already at its floor of {after:.3g} rad/s, not detuned further"))
         self._pub_duty.publish(duty_msg(duty))
         if realtime and not repeat:
             self.loop.mark_published(self.get_clock().now().nanoseconds)
