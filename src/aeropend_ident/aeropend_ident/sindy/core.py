@@ -645,24 +645,25 @@ def _build_regression(
     if method == "weak" and context is not None:
         theta_r, y, y_ref = context.matrices(data, library, targets, base)
     elif method == "weak":
-        extra = np.column_stack([fb[tg] for tg in targets]) if fb is not None else np.empty((len(data), 0))
-        held = sorted(set(zoh_inputs) & set(data.variables))
-        mask = np.array([bool(set(c.variables) & set(held)) for c in library.candidates]
-                        + [bool(held)] * extra.shape[1])
-        nxt = None
-        if mask.any():
-            shifted = _advance_states(data, held)
-            nxt = library.evaluate(shifted.variables)
-            if base is not None:
-                fb_next = base_derivatives(base, shifted, targets)
-                nxt = np.hstack([nxt, np.column_stack([fb_next[tg] for tg in targets])])
         _check_half_width(data.t, H_xt)
         if "weak" not in cache:
             cache["weak"] = _WeakSetup(data.t, K, p, H_xt, seed)
         union = cache.get("union")
         if fb is None and union is not None and union.covers(library, targets):
-            mat, lhs_w = union.columns(library, targets)
+            mat, lhs_w = union.columns(library, targets)  # no columns to evaluate or integrate here
         else:
+            extra = (np.column_stack([fb[tg] for tg in targets]) if fb is not None
+                     else np.empty((len(data), 0)))
+            held = sorted(set(zoh_inputs) & set(data.variables))
+            mask = np.array([bool(set(c.variables) & set(held)) for c in library.candidates]
+                            + [bool(held)] * extra.shape[1])
+            nxt = None
+            if mask.any():
+                shifted = _advance_states(data, held)
+                nxt = library.evaluate(shifted.variables)
+                if base is not None:
+                    fb_next = base_derivatives(base, shifted, targets)
+                    nxt = np.hstack([nxt, np.column_stack([fb_next[tg] for tg in targets])])
             mat, lhs_w = weak_matrices(data, np.hstack([theta, extra]), targets, K=K, p=p, H_xt=H_xt,
                                        seed=seed, columns_next=nxt, zoh=mask, _setup=cache["weak"])
         theta_r, y = mat[:, : theta.shape[1]], lhs_w
