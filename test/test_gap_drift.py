@@ -18,7 +18,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from aeropend_ident.gap.drift import DRIFT_PRIOR, DRIFT_Z, draw_log_changes, drift_rows, drift_set
+from aeropend_ident.gap.drift import (
+    DRIFT_PRIOR,
+    DRIFT_Z,
+    draw_log_changes,
+    drift_rows,
+    drift_set,
+    within_session_draw,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "bench"))
@@ -59,6 +66,26 @@ def test_drift_prior_changes_any_number_of_parameters_and_keeps_its_spread() -> 
     measured = [draw_log_changes(DRIFT_PRIOR, params, rng, occurrence=False) for _ in range(20000)]
     y = np.array([[d[p] for p in params] for d in measured])
     assert np.count_nonzero(y == 0.0) == 0 and y.std(axis=0) == pytest.approx(sigma, rel=0.04)
+
+
+def test_within_session_error_is_a_bootstrap_of_a_whole_recordings_rms() -> None:
+    # equal blocks: every draw is their RMS exactly
+    rng = np.random.default_rng(0)
+    assert within_session_draw([np.full(6, 0.02)], rng) == pytest.approx(0.02, rel=1e-12)
+    # one quiet and five busy blocks in one recording, one block in another: E[e_in²] is the mean
+    # over recordings of each recording's mean square (unbiased); the 10 % quantile stays far above
+    # the quiet block's error, which one block drawn alone would give in 1 of 7 draws (the error of
+    # one block is not the error of a recording)
+    rec = [np.array([0.001, 0.03, 0.03, 0.03, 0.03, 0.03]), np.array([0.01])]
+    draws = np.array([within_session_draw(rec, rng) for _ in range(20000)])
+    want = 0.5 * (np.mean(rec[0] ** 2) + 0.01**2)
+    assert np.mean(draws**2) == pytest.approx(want, rel=0.01)
+    assert np.quantile(draws, 0.1) > 0.015
+    # the spread of e_in² is that of a mean of k blocks' squares: σ/√k (σ: the squares' spread)
+    busy = np.random.default_rng(1).uniform(0.0, 0.04, 400)
+    for k in (4, 64):
+        sd = np.std([within_session_draw([busy[:k]], rng) ** 2 for _ in range(4000)])
+        assert sd * math.sqrt(k) == pytest.approx(np.std(busy[:k] ** 2), rel=0.06)
 
 
 def test_drift_rows_change_and_significance() -> None:

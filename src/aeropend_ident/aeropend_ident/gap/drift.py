@@ -9,8 +9,9 @@ recording is replayed): a Monte-Carlo predictive distribution of the corrected r
 NRMSE e. Each of :data:`N_DRAWS` draws takes
 
 * e_in: the corrected rig's error within the session, i.e. on the validation part the effects
-  were chosen on, of one random block of :data:`BLOCK_S` seconds (RMS error of the block over the
-  recording's θ range): the within-session variation;
+  were chosen on, as a block bootstrap of its RMS error: per validation recording as many
+  :data:`BLOCK_S` s blocks as it holds, drawn with replacement, RMS over the recording's θ range
+  (a held-out NRMSE is an RMS over a whole recording, not one block's): the within-session variation;
 * the chosen effects' parameters from their standard errors
   (:func:`aeropend_ident.gap.which.fit_effects`): the effect-fit spread;
 * a session-to-session log change of each drift-prone parameter (:data:`DRIFT_PARAMETERS`:
@@ -228,12 +229,37 @@ def draw_log_changes(sigma: Mapping[str, float], params: Sequence[str], rng: np.
     return out
 
 
+def within_session_draw(block_errors: Sequence[np.ndarray], rng: np.random.Generator) -> float:
+    """One block-bootstrap draw of the within-session θ NRMSE of a whole recording.
+
+    A held-out NRMSE is the RMS error over a whole recording, so its within-session part is an RMS
+    over that recording's blocks, not the error of one block: per validation recording, as many
+    5 s blocks as it holds are drawn with replacement from its own block errors and their mean
+    square taken; the mean over the recordings (the statistic :func:`_ms_change` averages the same
+    way) gives e_in² (non-overlapping block bootstrap, Carlstein 1986).
+
+    Parameters
+    ----------
+    block_errors : sequence of numpy.ndarray
+        Per validation recording, the θ NRMSE of each of its blocks (shape (k_j,), k_j ≥ 1).
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    float
+        e_in, θ NRMSE (dimensionless).
+    """
+    ms = [float(np.mean(np.square(rng.choice(b, size=b.size, replace=True)))) for b in block_errors]
+    return math.sqrt(float(np.mean(ms)))
+
+
 def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Recording], *,
                     drift_sigma: Mapping[str, float] | None = None, draws: int = N_DRAWS,
                     seed: int = 0) -> dict[str, Any]:
     """Predicted held-out θ NRMSE of the corrected rig, from the fit data only (module docstring).
 
-    A Monte-Carlo predictive distribution: each draw takes one within-session block error e_in,
+    A Monte-Carlo predictive distribution: each draw takes one within-session error e_in (a block
+    bootstrap of the validation recordings' RMS error, :func:`within_session_draw`),
     the chosen effects' parameters from their standard errors, and an independent log change of
     every drift-prone parameter from its Laplace prior (:data:`DRIFT_PRIOR` is its standard
     deviation), replays the drawn rig on the validation recordings and records
@@ -276,11 +302,13 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     preps = _preps(validation, diag.channels or ("theta",))
     rng = np.random.default_rng(seed)
     base = [replay(diag.corrected_rig, diag.measurement, p)["theta"] for p in preps]
-    blocks: list[float] = []
+    per_rec: list[np.ndarray] = []
     for p, sim in zip(preps, base, strict=True):
         e = sim - p.y["theta"]
         k = max(1, round(p.n * p.dt / BLOCK_S))
-        blocks += [float(np.sqrt(np.mean(b**2)) / p.scale["theta"]) for b in np.array_split(e, k) if b.size]
+        per_rec.append(np.array([np.sqrt(np.mean(b**2)) / p.scale["theta"] for b in np.array_split(e, k)
+                                 if b.size]))
+    blocks = [float(b) for rec in per_rec for b in rec]
     floors = [noise_floor(p) for p in preps]
     vals, std = _chosen_values(diag)
     params = drift_parameters(diag.channels or ("theta",))
@@ -295,7 +323,7 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         rig = _draw_effects(nominal, diag, vals, std, rng)
         factors = {eff: math.exp(x) for eff, x in
                    draw_log_changes(sigma, params, rng, occurrence=drift_sigma is None).items()}
-        e_in = float(blocks[int(rng.integers(len(blocks)))])
+        e_in = within_session_draw(per_rec, rng)
         ms = _ms_change(_perturbed(rig, factors), diag.measurement, preps, base)
         if ms is None:
             continue
