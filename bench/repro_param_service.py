@@ -23,13 +23,14 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))
 
-from ros_support import isolated_env, node_command, private_node, reap, stop  # noqa: E402
+from ros_support import isolated_env, node_command, private_node, reap, stop, wait_for_server  # noqa: E402
 
 from aeropend_sim.ros.domain import claim_domain  # noqa: E402
 
@@ -46,22 +47,29 @@ def _hog(stop_at: float) -> None:
         x += 1
 
 
-def one_run(node: str, timeout: float) -> dict:
-    """One start of the node and one request, as the test does; returns what happened."""
+def one_run(node: str, timeout: float, probe: bool, log: Path) -> dict:
+    """One start of the node and one request, as the test does (``probe``: after
+    :func:`ros_support.wait_for_server`, as the tests do now); returns what happened."""
     from rcl_interfaces.srv import GetParameters
 
     pkg, file, name, script, module, extra = NODES[node]
     path = ROOT / "src" / pkg / "config" / file
     with claim_domain(101, 200) as claim:
         cmd = [*node_command(script, module), "--ros-args", "--params-file", str(path), *extra]
-        proc = subprocess.Popen(cmd, env=isolated_env(claim.domain_id), stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL)
+        with log.open("w") as f:
+            proc = subprocess.Popen(cmd, env=isolated_env(claim.domain_id), stdout=f,
+                                    stderr=subprocess.STDOUT)
         out: dict = {"domain": claim.domain_id}
         try:
             with private_node("repro_client", claim.domain_id) as (n, executor):
                 client = n.create_client(GetParameters, f"/{name}/get_parameters")
                 t0 = time.monotonic()
-                out["available"] = bool(client.wait_for_service(timeout_sec=timeout))
+                if probe:
+                    out["probes_lost"] = wait_for_server(client, executor, GetParameters.Request(names=[]),
+                                                         timeout)
+                    out["available"] = True
+                else:
+                    out["available"] = bool(client.wait_for_service(timeout_sec=timeout))
                 out["wait_s"] = round(time.monotonic() - t0, 3)
                 if out["available"]:
                     for attempt in ("first", "second"):
@@ -77,6 +85,10 @@ def one_run(node: str, timeout: float) -> dict:
         finally:
             stop(proc, signal.SIGINT, timeout=15)
             reap(proc)
+    text = log.read_text(errors="replace")
+    out["server_dropped_response"] = "client will not receive response" in text
+    if out["server_dropped_response"]:
+        out["server_log"] = [ln for ln in text.splitlines() if "response" in ln][:3]
     return out
 
 
@@ -86,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hogs", type=int, default=1, help="CPU-bound processes running meanwhile")
     ap.add_argument("--node", default="bridge", choices=sorted(NODES))
     ap.add_argument("--timeout", type=float, default=20.0)
+    ap.add_argument("--probe", action="store_true",
+                    help="wait for the server both ways first (ros_support.wait_for_server), as the tests do")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "repro_param_service.json"))
     args = ap.parse_args(argv)
     hogs = [multiprocessing.Process(target=_hog, args=(time.monotonic() + 10 * 3600,), daemon=True)
@@ -95,24 +109,27 @@ def main(argv: list[str] | None = None) -> int:
     runs = []
     load0 = os.getloadavg()
     try:
-        for i in range(args.runs):
-            r = one_run(args.node, args.timeout)
-            runs.append(r)
-            if not (r.get("available") and r.get("first_answered")):
-                print(f"run {i}: {r}", flush=True)
-            elif i % 20 == 0:
-                print(f"run {i}: ok ({r['wait_s']} s wait, {r['first_s']} s answer)", flush=True)
+        with tempfile.TemporaryDirectory() as tmp:
+            for i in range(args.runs):
+                r = one_run(args.node, args.timeout, args.probe, Path(tmp) / "node.log")
+                runs.append(r)
+                if not (r.get("available") and r.get("first_answered")) or r.get("probes_lost"):
+                    print(f"run {i}: {r}", flush=True)
+                elif i % 20 == 0:
+                    print(f"run {i}: ok ({r['wait_s']} s wait, {r['first_s']} s answer)", flush=True)
     finally:
         for h in hogs:
             h.terminate()
     unanswered = [r for r in runs if r.get("available") and not r.get("first_answered")]
     answered = [r["first_s"] for r in runs if r.get("first_answered")]
-    doc = {"node": args.node, "runs": len(runs), "hogs": args.hogs, "load_before": load0,
-           "load_after": os.getloadavg(),
+    doc = {"node": args.node, "probe": args.probe, "runs": len(runs), "hogs": args.hogs,
+           "load_before": load0, "load_after": os.getloadavg(),
            "unavailable": sum(not r.get("available") for r in runs),
            "first_request_unanswered": len(unanswered),
            "second_answered_after_a_lost_first": sum(bool(r.get("second_answered")) for r in unanswered),
            "answer_s_max": max(answered, default=None),
+           "server_dropped_response": sum(bool(r.get("server_dropped_response")) for r in runs),
+           "probes_lost": sum(r.get("probes_lost", 0) for r in runs),
            "wait_s_max": max((r.get("wait_s", 0.0) for r in runs), default=None),
            "failures": [r for r in runs if not (r.get("available") and r.get("first_answered"))]}
     Path(args.out).write_text(json.dumps(doc, indent=1), encoding="utf-8")

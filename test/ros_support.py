@@ -29,6 +29,7 @@ import pytest
 from aeropend_sim.ros.domain import DomainClaim, DomainError, claim_domain
 
 if TYPE_CHECKING:
+    from rclpy.client import Client
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
 
@@ -325,3 +326,55 @@ def frozen_gc() -> Iterator[list[float]]:
             yield pauses
     finally:
         gc.unfreeze()
+
+
+def wait_for_server(client: Client, executor: SingleThreadedExecutor, probe: object, timeout: float = 20.0,
+                    resend_s: float = 0.5) -> int:
+    """Wait until ``client``'s service is available **both ways**; returns the probe responses lost.
+
+    ``wait_for_service`` in rmw_fastrtps checks only the client's half of the match (the client
+    has discovered the server's request reader and response writer). When the server has not yet
+    discovered the client's response reader, its ``rmw_send_response`` waits 100 ms for it and
+    then drops the response ("failed to send response ... client will not receive response",
+    ros2/rmw_fastrtps#390/#467): the first request after a client's creation can go unanswered
+    on a loaded machine (``bench/repro_param_service.py``: 1 in 150 under load). So after
+    ``wait_for_service`` an **idempotent, state-free** ``probe`` request (an empty
+    ``GetParameters`` / ``SetParameters``, a ``GetState``) is sent until one is answered — each
+    probe answered or re-sent after ``resend_s`` — which proves the server has matched this
+    client's response reader. The request under test is then sent once and never repeated.
+
+    Parameters
+    ----------
+    client : rclpy.client.Client
+    executor : rclpy.executors.SingleThreadedExecutor
+        Spins the client's node.
+    probe : request message
+        A request the service answers without changing anything.
+    timeout : float
+        Total time for the service and a probe answer [s].
+    resend_s : float
+        Time after which an unanswered probe is sent again [s].
+
+    Returns
+    -------
+    int
+        Probes whose response was lost before one was answered (0 on an unloaded machine).
+
+    Raises
+    ------
+    AssertionError
+        If the service is not available or no probe is answered within ``timeout``.
+    """
+    end = time.monotonic() + timeout
+    assert client.wait_for_service(timeout_sec=timeout), f"no service {client.srv_name}"
+    lost = 0
+    while time.monotonic() < end:
+        future = client.call_async(probe)
+        until = min(time.monotonic() + resend_s, end)
+        while not future.done() and time.monotonic() < until:
+            executor.spin_once(timeout_sec=0.01)
+        if future.done():
+            return lost
+        client.remove_pending_request(future)
+        lost += 1
+    raise AssertionError(f"{client.srv_name}: no probe answered within {timeout} s ({lost} lost)")

@@ -28,7 +28,7 @@ from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
-from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop
+from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop, wait_for_server
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
@@ -67,6 +67,14 @@ class Manager:
         self.change = node.create_client(ChangeState, f"{NODE}/change_state")
         self.get = node.create_client(GetState, f"{NODE}/get_state")
         self.params = node.create_client(SetParameters, f"{NODE}/set_parameters")
+        # every service available both ways before the first request (ros_support.wait_for_server),
+        # probed with requests that change nothing: GetState, an empty SetParameters. ChangeState
+        # has no such request; its client was created first, and the server discovers this node's
+        # readers in creation order (one reliable SEDP stream), so once it has matched the later
+        # clients' response readers it has matched change_state's too
+        wait_for_server(self.get, executor, GetState.Request(), 30.0)
+        wait_for_server(self.params, executor, SetParameters.Request(parameters=[]), 30.0)
+        assert self.change.wait_for_service(timeout_sec=30.0), f"no service {self.change.srv_name}"
 
     def spin(self, seconds: float, duty: float | None = None,
              until: Callable[[], bool] | None = None) -> bool:
@@ -82,7 +90,6 @@ class Manager:
         return until() if until is not None else True
 
     def call(self, client, request, timeout: float = 15.0):
-        assert client.wait_for_service(timeout_sec=timeout), f"no service {client.srv_name}"
         future = client.call_async(request)
         self.spin(timeout, until=future.done)
         assert future.done(), f"{client.srv_name} did not answer within {timeout} s"

@@ -19,7 +19,16 @@ import pytest
 pytest.importorskip("rclpy")
 
 from loop_support import closed_loop
-from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop, summary_count
+from ros_support import (
+    isolated_env,
+    node_command,
+    private_node,
+    random_domain,
+    reap,
+    stop,
+    summary_count,
+    wait_for_server,
+)
 
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
 from aeropend_control.strategies import NEEDS_MOTOR, make_strategy
@@ -161,7 +170,8 @@ def test_live_parameters_change_the_running_controller(tmp_path: Path) -> None:
                 [*node_command("controller"), "--ros-args", "-p", "mode:=lockstep", "-p", "strategy:=fl_pid",
                  "-p", f"steps:={steps}", "-p", "duration:=4.0", "-p", f"trace:={trace}"],
                 env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-            assert client.wait_for_service(timeout_sec=40.0), "controller's parameter service not found"
+            # available both ways; an empty SetParameters changes nothing
+            wait_for_server(client, ex, SetParameters.Request(parameters=[]), 40.0)
 
             def call(**values: object) -> list:
                 req = SetParameters.Request(

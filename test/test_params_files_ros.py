@@ -22,7 +22,7 @@ pytest.importorskip("rclpy")
 
 from rcl_interfaces.srv import GetParameters
 from rclpy.parameter import parameter_value_to_python
-from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop
+from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop, wait_for_server
 from sensor_msgs.msg import JointState
 
 from aeropend_sim.contract import TOPIC_JOINT_STATES
@@ -49,7 +49,8 @@ def _section(path: Path, node: str) -> dict[str, Any]:
 
 def _get(node: Any, executor: Any, target: str, names: list[str], timeout: float = 20.0) -> dict[str, Any]:
     client = node.create_client(GetParameters, f"/{target}/get_parameters")
-    assert client.wait_for_service(timeout_sec=timeout), f"no /{target}/get_parameters"
+    # available both ways (the server has matched this client's response reader), then one request
+    wait_for_server(client, executor, GetParameters.Request(names=[]), timeout)
     future = client.call_async(GetParameters.Request(names=names))
     end = time.monotonic() + timeout
     while not future.done() and time.monotonic() < end:

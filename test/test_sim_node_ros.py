@@ -28,6 +28,7 @@ from ros_support import (
     random_domain,
     reap,
     stop,
+    wait_for_server,
 )
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
@@ -234,7 +235,7 @@ def _set_parameters(c: Client, **values: object) -> list:
     from aeropend_sim.ros.sim_node import NODE_NAME
 
     cli = c.node.create_client(SetParameters, f"/{NODE_NAME}/set_parameters")
-    assert cli.wait_for_service(timeout_sec=10.0), "plant's parameter service not found"
+    wait_for_server(cli, c.executor, SetParameters.Request(parameters=[]), 10.0)  # an empty set: no change
     fut = cli.call_async(SetParameters.Request(
         parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]))
     assert c.spin_until(fut.done, 10.0), f"set_parameters {values} not answered"
