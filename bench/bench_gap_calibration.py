@@ -70,18 +70,21 @@ SNR_RANGE = (40.0, 60.0)
 #: What the prediction under test draws (aeropend_ident.gap.drift.predict_heldout), for the report.
 PREDICTION = ("300 re-simulated draws; per session an unknown share π ~ U(0, 1) of the drift-prone "
               "parameters changes, each by N(0, 2σ_p²) in log (σ_p: gap_drift.DRIFT_PRIOR), with the "
-              "effect-fit spread and a within-session block error.")
-#: The figures of the previous prediction (commit df00959: every drift-prone parameter drawn at
-#: once from a log-normal prior, 40 draws), kept in the report for comparison.
+              "effect-fit spread and a within-session error drawn as a block bootstrap of the validation "
+              "recordings' RMS error.")
+#: The figures of the previous prediction (commit d169094: the same prior, but the within-session
+#: error was the error of one random 5 s block instead of a bootstrap of a whole recording's RMS),
+#: kept in the report for comparison.
+BEFORE_COMMIT = "d169094"
 BEFORE = {
-    "inside_80_interval": 0.594,
+    "inside_80_interval": 0.906,
     "drift_named": 0.984,
     "share_within_10_points": 0.859,
     "per_drift_kind": {
-        "thrust_coefficient": {"inside": 0.875, "named": 0.938, "share_within_10_points": 0.875},
-        "gravity": {"inside": 0.812, "named": 1.0, "share_within_10_points": 0.875},
-        "viscous_friction": {"inside": 0.062, "named": 1.0, "share_within_10_points": 0.812},
-        "supply_voltage": {"inside": 0.625, "named": 1.0, "share_within_10_points": 0.875},
+        "thrust_coefficient": {"inside": 0.938, "named": 0.938, "share_within_10_points": 0.875},
+        "gravity": {"inside": 1.0, "named": 1.0, "share_within_10_points": 0.875},
+        "viscous_friction": {"inside": 1.0, "named": 1.0, "share_within_10_points": 0.812},
+        "supply_voltage": {"inside": 0.688, "named": 1.0, "share_within_10_points": 0.875},
     },
 }
 
@@ -255,7 +258,7 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         f"worker(s); load average {doc['setup'].get('load_start', '?')} at the start, "
         f"{doc['setup'].get('load_end', '?')} at the end. Prediction: {doc['setup'].get('prediction', '')}",
         "",
-        "| measure | result | before (df00959) | bar |",
+        f"| measure | result | before ({BEFORE_COMMIT}) | bar |",
         "|---|---|---|---|",
         f"| actual held-out NRMSE inside the predicted 80 % interval | {pct(s['inside_80_interval'])} "
         f"({s['below']} below, {s['above']} above) | {pct(b['inside_80_interval'])} | 75-90 % |",
