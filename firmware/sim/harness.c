@@ -12,6 +12,13 @@
  * on exit. AVcc = 5 V. The firmware idles in SLEEP_MODE_IDLE between interrupts, so simavr's
  * raw sleep callback paces the simulation to wall-clock time (when the host is fast enough).
  *
+ * UART flow control: simavr's uart_pty part copies the UART's bytes through a 512-byte FIFO that
+ * its own thread writes to the pty, and drops a byte when the FIFO is full (pty not drained, or
+ * its thread starved on a loaded host: 512 bytes are ~45 ms of 490 Hz samples). A real
+ * USB-serial link does not lose bytes because the host's scheduler is busy, so the emulation
+ * here waits (wall-clock time passes, MCU time does not) while the FIFO is more than 3/4 full:
+ * the firmware's stream reaches the pty complete (bench/repro_simavr_pty_overflow.py).
+ *
  * -r prints "REG <name> <value>" for the peripheral configuration registers on exit (data-space
  * values as the firmware wrote them), so a test can decode the production build's Timer1 set-up
  * that simavr does not emulate.
@@ -39,6 +46,7 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <time.h>
 #include <unistd.h>
 
 #include "avr_adc.h"
@@ -47,6 +55,11 @@
 #include "sim_elf.h"
 #include "sim_io.h"
 #include "uart_pty.h"
+
+/* the FIFO accessors (static inline; the struct is declared in uart_pty.h) */
+DEFINE_FIFO(uint8_t, uart_pty_fifo);
+/* UART flow control: wait while more than this many bytes are queued for the pty */
+#define PTY_FIFO_HIGH (3 * uart_pty_fifo_fifo_size / 4)
 
 #define TCCR4B_ADDR 0xA1 /* data-space address on the ATmega2560 */
 #define MAX_EVENTS 20000
@@ -312,9 +325,13 @@ int main(int argc, char **argv)
     fflush(stdout);
 
     int state = cpu_Running;
+    const struct timespec drain = {0, 100000}; /* 0.1 ms */
     while (!stop && state != cpu_Done && state != cpu_Crashed &&
-           (max_cycles == 0 || avr->cycle < max_cycles))
+           (max_cycles == 0 || avr->cycle < max_cycles)) {
         state = avr_run(avr);
+        while (!stop && uart_pty_fifo_get_read_size(&pty.port[0].in) > PTY_FIFO_HIGH)
+            nanosleep(&drain, NULL);
+    }
     printf("CYCLES %llu\n", (unsigned long long)avr->cycle);
     if (dump_regs)
         for (size_t i = 0; i < sizeof REGS / sizeof REGS[0]; i++)
