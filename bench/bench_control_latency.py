@@ -34,6 +34,7 @@ the sample and the command's receipt (a whole-VM stall), ``some_cpus`` if at lea
 
 Options: ``--duration`` [s], ``--rt-priority`` (SCHED_FIFO for the plant's sampler/executor and
 the controller's executor; 0 = normal scheduling), ``--executor events|single`` (controller),
+``--plant-executor events|single`` (plant; baseline: single),
 ``--strategy``, ``--stall-ms``, ``--out`` (JSON path; default
 ``bench/results/control_latency.json``). Run on a quiet machine for the figure that matters:
 ``.venv/bin/python bench/bench_control_latency.py``.
@@ -222,7 +223,7 @@ def attribute(misses: list[dict], stalls: list[np.ndarray], bin_ns: int = 20_000
 
 
 def run(duration: float, rt_priority: int, executor: str, strategy: str, stall_ms: float = 0.5,
-        monitor_period_ns: int = MONITOR_PERIOD_NS) -> dict:
+        monitor_period_ns: int = MONITOR_PERIOD_NS, plant_executor: str = "events") -> dict:
     """One real-time run under the stall monitor; returns the result dict (see module doc)."""
     env = isolated_env(random_domain())
     # SCHED_FIFO for the whole process (chrt) so that the DDS threads created at rclpy.init inherit
@@ -241,7 +242,7 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str, stall_m
             sim = subprocess.Popen(
                 [*rt, *node_command("sim_node", "aeropend_sim.ros.sim_node"), "--ros-args",
                  "-p", "mode:=realtime", "-p", f"rt_priority:={rt_priority}",
-                 "-p", f"timing_log:={timing_file}",
+                 "-p", f"timing_log:={timing_file}", "-p", f"executor:={plant_executor}",
                  "-p", f"timing_capacity:={int(duration * 600) + 10_000}"],
                 env=env, stdout=f, stderr=subprocess.STDOUT, text=True)
         ctl = None
@@ -273,7 +274,8 @@ def run(duration: float, rt_priority: int, executor: str, strategy: str, stall_m
     attributed = attribute(misses, stalls)
     return {
         "setup": {"duration_s": duration, "strategy": strategy, "rt_priority": rt_priority,
-                  "executor": executor, "python": platform.python_version(), "machine": platform.machine(),
+                  "executor": executor, "plant_executor": plant_executor,
+                  "python": platform.python_version(), "machine": platform.machine(),
                   "cpus": os.cpu_count()},
         "load": {"loadavg_1min_before": round(load0[0], 2), "loadavg_1min_after": round(load1[0], 2),
                  "cpu_busy_fraction_during_run": round((cpu1[0] - cpu0[0]) / max(cpu1[1] - cpu0[1], 1), 3),
@@ -388,7 +390,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=60.0, help="seconds of sample time")
     ap.add_argument("--rt-priority", type=int, default=50, help="SCHED_FIFO priority (0 = off)")
-    ap.add_argument("--executor", default="events", choices=("events", "single"))
+    ap.add_argument("--executor", default="events", choices=("events", "single"), help="the controller's")
+    ap.add_argument("--plant-executor", default="events", choices=("events", "single"), help="the plant's")
     ap.add_argument("--strategy", default="fl_pid")
     ap.add_argument("--out", default=str(OUT))
     ap.add_argument("--wakeup-check", type=float, default=20.0, help="platform check [s] (0 = skip)")
@@ -400,11 +403,12 @@ def main(argv: list[str] | None = None) -> dict:
                     help="stall monitors' wake-up period [ms] (0 = no monitor: every miss counts as 'none')")
     args = ap.parse_args(argv)
     period_ns = round(args.monitor_period_ms * 1e6)
-    res = run(args.duration, args.rt_priority, args.executor, args.strategy, args.stall_ms, period_ns)
+    res = run(args.duration, args.rt_priority, args.executor, args.strategy, args.stall_ms, period_ns,
+              args.plant_executor)
     if args.wakeup_check > 0:
         res["platform_wakeup"] = wakeup_check(args.wakeup_check, args.rt_priority + 10)
     if args.baseline:
-        res["baseline"] = run(args.duration, 0, "single", args.strategy, args.stall_ms, period_ns)
+        res["baseline"] = run(args.duration, 0, "single", args.strategy, args.stall_ms, period_ns, "single")
     print(json.dumps(res, indent=1))
     Path(args.out).write_text(json.dumps(res, indent=1) + "\n", encoding="utf-8")
     return res
