@@ -29,6 +29,7 @@ ARGUMENTS = (
     ("initial_theta", "0.0", "initial angle [rad]"),
     ("command_timeout", "0.25", "realtime: duty -> 0 after this long without command [s]"),
     ("rt_priority", "0", "realtime: SCHED_FIFO priority of the sampler thread (0 = off)"),
+    ("executor", "events", "events (C++ EventsExecutor, lower latency) | single (SingleThreadedExecutor)"),
     ("frame_id", "aeropend", "header.frame_id of the sample messages"),
 )
 
@@ -42,6 +43,7 @@ def _plant(context, *args, **kwargs):
         "initial_theta": float(value["initial_theta"]),
         "command_timeout": float(value["command_timeout"]),
         "rt_priority": int(value["rt_priority"]),
+        "executor": value["executor"],
         "frame_id": value["frame_id"],
     }
     if value["noise"]:
