@@ -76,8 +76,6 @@ import time
 from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.executors import Executor, SingleThreadedExecutor
-from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import BatteryState, JointState
@@ -92,7 +90,13 @@ from aeropend_sim.contract import (
     ContractError,
     stamp_to_ns,
 )
-from aeropend_sim.ros.node_shell import declare_parameter_table, run_node, wait_acknowledged
+from aeropend_sim.ros.node_shell import (
+    declare_parameter_table,
+    executor_kind,
+    make_executor,
+    run_node,
+    wait_acknowledged,
+)
 from aeropend_sim.ros.ros_contract import (
     COMMAND_QOS,
     COMMAND_QOS_LOCKSTEP,
@@ -133,7 +137,6 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("rt_priority", 0, "SCHED_FIFO priority 1-99 of the executor thread (0 = normal scheduling)"),
     ("executor", "events", "events (EventsExecutor) | single (SingleThreadedExecutor)"),
 )
-EXECUTORS = ("events", "single")
 #: Parameters that may be set while the controller runs (``ros2 param set``): the pole pattern
 #: (a new design taken over bumpless) and the reference (initial value and step sequence). The
 #: others fix the rig, the structure or the process set-up of a run and are read-only.
@@ -148,9 +151,7 @@ class ControllerNode(Node):
         raw = declare_parameter_table(self, PARAMETERS, live=LIVE_PARAMETERS)
         try:
             self.rt_priority = _rt_priority(raw.pop("rt_priority"))
-            self.executor_kind = str(raw.pop("executor"))
-            if self.executor_kind not in EXECUTORS:
-                raise ControllerConfigError(f"executor = {self.executor_kind!r}; expected one of {EXECUTORS}")
+            self.executor_kind = executor_kind(raw.pop("executor"), ControllerConfigError)
             self.settings = make_settings(**raw)
             self._raw = raw
             self.loop = ControllerLoop(self.settings)
@@ -343,11 +344,9 @@ def main(args: list[str] | None = None) -> int:
         _set_rt_priority(node)
         return node
 
-    def executor(node: ControllerNode) -> Executor:
-        return EventsExecutor() if node.executor_kind == "events" else SingleThreadedExecutor()
-
     return run_node(NODE_NAME, args, make, (ControllerConfigError,), ControllerNode.shutdown,
-                    done=lambda node: node.finished.is_set(), make_executor=executor)
+                    done=lambda node: node.finished.is_set(),
+                    make_executor=lambda node: make_executor(node.executor_kind))
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -19,6 +19,7 @@ import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
@@ -100,6 +101,42 @@ def init_with_stop_event(args: list[str] | None) -> threading.Event:
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
     return stop
+
+
+#: Values of a node's ``executor`` parameter: ``events`` (rclpy's C++ ``EventsExecutor``: waits and
+#: dispatches in C++, holding the GIL only inside callbacks) or ``single`` (``SingleThreadedExecutor``).
+EXECUTORS = ("events", "single")
+
+
+def executor_kind(value: Any, error: type[Exception]) -> str:
+    """Validate an ``executor`` parameter value.
+
+    Parameters
+    ----------
+    value : Any
+        The parameter value.
+    error : type of Exception
+        The node's configuration error, raised for a bad value.
+
+    Returns
+    -------
+    str
+        One of :data:`EXECUTORS`.
+
+    Raises
+    ------
+    error
+        If ``value`` is not one of :data:`EXECUTORS` (the message names the value).
+    """
+    kind = str(value)
+    if kind not in EXECUTORS:
+        raise error(f"executor = {kind!r}; expected one of {list(EXECUTORS)}")
+    return kind
+
+
+def make_executor(kind: str) -> Executor:
+    """A new executor of kind ``kind`` (one of :data:`EXECUTORS`, see :func:`executor_kind`)."""
+    return EventsExecutor() if kind == "events" else SingleThreadedExecutor()
 
 
 def _single_threaded(node: Node) -> Executor:

@@ -84,8 +84,6 @@ from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
-from rclpy.executors import Executor, SingleThreadedExecutor
-from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
@@ -94,7 +92,13 @@ from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
 from aeropend_sim.contract import REL_ARMATURE, REL_DUTY_CYCLE, REL_JOINT_STATES, TOPIC_CLOCK, Sample
-from aeropend_sim.ros.node_shell import declare_parameter_table, run_node, wait_acknowledged
+from aeropend_sim.ros.node_shell import (
+    declare_parameter_table,
+    executor_kind,
+    make_executor,
+    run_node,
+    wait_acknowledged,
+)
 from aeropend_sim.ros.ros_contract import (
     CLOCK_QOS,
     COMMAND_QOS,
@@ -138,8 +142,6 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("timing_capacity", 1 << 18, "realtime: samples and commands the timing log keeps (int >= 1)"),
     ("executor", "events", "events (rclpy's C++ EventsExecutor) | single (SingleThreadedExecutor)"),
 )
-#: Executors the node can be spun by (parameter ``executor``).
-EXECUTORS = ("events", "single")
 #: Parameters that may be set while the plant runs: the effect switches and the sensor noise (the
 #: plant continues from its state with the new rig; an input-delay change is refused: it sizes the
 #: command delay line). The others fix the rig, the run and the process set-up and are read-only.
@@ -169,10 +171,11 @@ class SimPlantNode(Node):
         raw = declare_parameter_table(self, PARAMETERS, live=LIVE_PARAMETERS)
         self.timing_log = str(raw.pop("timing_log") or "")
         timing_capacity = raw.pop("timing_capacity")
-        self.executor_kind = str(raw.pop("executor")).strip().lower()
-        if self.executor_kind not in EXECUTORS:
+        try:
+            self.executor_kind = executor_kind(raw.pop("executor"), SimConfigError)
+        except SimConfigError:
             self.destroy_node()
-            raise SimConfigError(f"executor = {self.executor_kind!r}; expected one of {list(EXECUTORS)}")
+            raise
         try:
             self.settings = make_settings(**raw)
         except SimConfigError:
@@ -454,10 +457,8 @@ def main(args: list[str] | None = None) -> int:
         if node.timing is not None:
             node.timing.write(node.timing_log)
 
-    def executor(node: SimPlantNode) -> Executor:
-        return EventsExecutor() if node.executor_kind == "events" else SingleThreadedExecutor()
-
-    return run_node(NODE_NAME, args, make, (SimConfigError,), cleanup, make_executor=executor,
+    return run_node(NODE_NAME, args, make, (SimConfigError,), cleanup,
+                    make_executor=lambda node: make_executor(node.executor_kind),
                     done=lambda node: node.error is not None,
                     exit_status=lambda node: 1 if node.error is not None else 0)
 
