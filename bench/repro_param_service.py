@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing
 import os
 import signal
 import subprocess
@@ -29,7 +28,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "test"))
+sys.path.insert(0, str(ROOT / "bench"))
 
+from bench_data_plane import HOG  # noqa: E402
 from ros_support import isolated_env, node_command, private_node, reap, stop, wait_for_server  # noqa: E402
 
 from aeropend_sim.ros.domain import claim_domain  # noqa: E402
@@ -39,12 +40,6 @@ NODES = {
                ["-p", "autostart:=false"]),
     "sim": ("aeropend_sim", "sim.yaml", "aeropend_sim", "sim_node", "aeropend_sim.ros.sim_node", []),
 }
-
-
-def _hog(stop_at: float) -> None:
-    x = 0
-    while time.monotonic() < stop_at:
-        x += 1
 
 
 def one_run(node: str, timeout: float, probe: bool, log: Path) -> dict:
@@ -102,10 +97,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="wait for the server both ways first (ros_support.wait_for_server), as the tests do")
     ap.add_argument("--out", default=str(ROOT / "bench" / "results" / "repro_param_service.json"))
     args = ap.parse_args(argv)
-    hogs = [multiprocessing.Process(target=_hog, args=(time.monotonic() + 10 * 3600,), daemon=True)
-            for _ in range(args.hogs)]
-    for h in hogs:
-        h.start()
+    hogs = [subprocess.Popen(HOG) for _ in range(args.hogs)]  # one busy core each, as bench_data_plane
     runs = []
     load0 = os.getloadavg()
     try:
@@ -119,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"run {i}: ok ({r['wait_s']} s wait, {r['first_s']} s answer)", flush=True)
     finally:
         for h in hogs:
-            h.terminate()
+            h.kill()
+            h.wait()
     unanswered = [r for r in runs if r.get("available") and not r.get("first_answered")]
     answered = [r["first_s"] for r in runs if r.get("first_answered")]
     doc = {"node": args.node, "probe": args.probe, "runs": len(runs), "hogs": args.hogs,
