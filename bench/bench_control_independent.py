@@ -227,7 +227,9 @@ def gap_corrected_rig(plant: TruthPlant, nominal_path: str, snr_db: float, seed:
     res = run_gap(load_rig(nominal_path), fit, held, rig_ref=nominal_path, split_rule=rule, seed=0,
                   max_effects=3)
     d = res.diagnosis
+    side = d.plant_side
     summary = {"significant": bool(d.significant), "chosen": list(d.chosen) if d.significant else [],
+               "written_for": {side["replaces"]: side["by"]} if side else {},
                "nrmse_before": float(res.test[0]["nrmse"]), "nrmse_after": float(res.test[-1]["nrmse"]),
                "gap_wall_s": time.perf_counter() - t0}
     return corrected_rig_dict(res), summary
@@ -333,7 +335,9 @@ def summarise(plants: list[dict[str, Any]]) -> dict[str, Any]:
             "gap": {"goal": _frac([b["goal"] and not b["limit_cycle"] for _, b in pairs]),
                     "median_ts": _med([b["settling_time"] for _, b in pairs]),
                     "median_mp": _med([b["overshoot"] for _, b in pairs])},
-            "gap_chosen": {p["index"]: p.get("gap", {}).get("chosen") for p in both}}
+            "gap_chosen": {p["index"]: p.get("gap", {}).get("chosen") for p in both},
+            "gap_written_for": {p["index"]: p["gap"]["written_for"] for p in both
+                                if p.get("gap", {}).get("written_for")}}
     return out
 
 
@@ -404,6 +408,11 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
                   f"{_num(p['gap']['median_mp'], '.2f')} |", "",
                   "Effects gap chose per plant: "
                   + "; ".join(f"{k}: {', '.join(v or []) or 'none'}" for k, v in p["gap_chosen"].items())]
+        if p.get("gap_written_for"):
+            lines += ["", "Sensor-frame effects not separated from a plant-side one (the corrected rig file "
+                      "holds the plant-side one, sensor frame nominal): "
+                      + "; ".join(f"{k}: " + ", ".join(f"{a} → {b}" for a, b in v.items())
+                                  for k, v in p["gap_written_for"].items())]
     lines += ["", "## Runs within reach that miss Table 6.1 or limit-cycle", "",
               "| plant | designed on | strategy | θ_ref | tr | tp | ts | Mp [%] | limit cycle | effects |",
               "|---|---|---|---|---|---|---|---|---|---|"]

@@ -18,7 +18,7 @@ import pytest
 
 from aeropend_ident.errors import GapError
 from aeropend_ident.gap.synth import make_case
-from aeropend_ident.gap.which import detect_quantum, diagnose_effects, group_select
+from aeropend_ident.gap.which import detect_quantum, diagnose_effects, group_select, plant_side_alternative
 from aeropend_sim.params import load_rig, rig_from_dict
 from aeropend_sim.recording import Recording
 
@@ -166,3 +166,18 @@ def test_recordings_lacking_needed_channels_or_broken_raise_gap_error():
         diagnose_effects(RIG, [good], [good], max_effects=4)
     with pytest.raises(GapError, match="unknown effect 'rotor_lag'"):
         diagnose_effects(RIG, [good], [good], also_confirm=("rotor_lag",))
+
+
+def test_an_unseparated_sensor_gain_gives_way_to_its_plant_side_alternative_in_the_rig_file():
+    # sensor gain vs thrust coefficient, not separated: the plant-side effect explaining most is written
+    amb = {"sensor_scale": {"thrust_coefficient": 0.989, "gravity": 0.95, "sensor_offset": 0.99}}
+    assert plant_side_alternative(["sensor_scale", "actuator_lag", "dead_zone"], amb) == (
+        "sensor_scale", "thrust_coefficient")
+    assert plant_side_alternative(["actuator_lag", "sensor_scale"], amb) == (
+        "sensor_scale", "thrust_coefficient")
+    # only measurement-kind effects give way, and only to model-kind ones
+    assert plant_side_alternative(["gravity"], {"gravity": {"sensor_scale": 0.99}}) is None
+    assert plant_side_alternative(["sensor_scale"], {"sensor_scale": {"sensor_offset": 0.99}}) is None
+    # separated (no record) or not chosen: nothing to replace
+    assert plant_side_alternative(["sensor_scale", "dead_zone"], {}) is None
+    assert plant_side_alternative(["dead_zone"], amb) is None

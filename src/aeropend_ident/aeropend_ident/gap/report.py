@@ -78,6 +78,10 @@ def terminal_summary(result: GapResult) -> str:
     for ni in list(d.not_identifiable)[:4]:
         lines.append(f"    (not identifiable: {ni['effect']}: {ni['reason'][:70]})")
     lines.append(f"  chosen: {', '.join(d.chosen) or 'none'}")
+    side = getattr(d, "plant_side", None)
+    if side:
+        lines.append(f"  corrected_rig.yaml holds {side['by']} instead of {side['replaces']} (not separated "
+                     "by these data; sensor frame kept nominal: check the angle sensor's calibration)")
     if getattr(d, "explained", None):
         lines.append(f"  explained: {d.explained['verdict']}")
     if result.agreement:

@@ -510,15 +510,27 @@ def where_which_agreement(where: WhereReport, diag: Any) -> dict[str, Any]:
 
 # --------------------------------------------------------------------------- corrected rig file
 def corrected_rig_dict(result: GapResult) -> dict[str, Any]:
-    """The corrected rig in the rig-file format; the changed numbers' sources name the diagnosis."""
-    rig, nominal = result.diagnosis.corrected_rig, result.rig
+    """The corrected rig in the rig-file format; the changed numbers' sources name the diagnosis.
+
+    When the data do not separate a chosen sensor-frame effect from a plant-side one
+    (``diagnosis.plant_side``, :func:`aeropend_ident.gap.which.plant_side_alternative`), the file
+    holds the plant-side alternative, jointly fitted with the other chosen effects, and the
+    nominal sensor frame: a controller designed on it then holds the angle the nominal rig file
+    would, never one off by an unconfirmed sensor gain. The description says so.
+    """
+    diag, nominal = result.diagnosis, result.rig
+    side = diag.plant_side
+    rig, meas = (side["rig"], side["measurement"]) if side else (diag.corrected_rig, diag.measurement)
     data = rig_to_dict(rig)
     base = rig_to_dict(nominal)
-    chosen = ", ".join(result.diagnosis.chosen) or "none"
+    names = [side["by"] if side and n == side["replaces"] else n for n in diag.chosen]
+    chosen = ", ".join(names) or "none"
     data["name"] = f"{nominal.name}_corrected"
     data["description"] = (
         f"{nominal.description} -- corrected by the gap diagnosis (aeropend_ident gap): "
         f"effects added: {chosen}"
+        + (f" ({side['by']} written for {side['replaces']}, which these data do not separate from it: "
+           f"sensor frame kept nominal; check the angle sensor's calibration)" if side else "")
     )
     fits = ", ".join(_label(r.source) or "recording" for r in result.fit)
     for section, fields in data.items():
@@ -533,7 +545,6 @@ def corrected_rig_dict(result: GapResult) -> dict[str, Any]:
                 )
     # the diagnosis' sensor map acts on θ_recorded + nominal offset: θ_rec + off_n = s·(θ_model − off_d),
     # i.e. θ_rec = s·(θ_model − (off_d + off_n/s)) in the rig file's convention
-    meas = result.diagnosis.measurement
     scale = float(meas.theta_scale)
     offset = float(meas.theta_offset) + result.theta_offset / scale
     frame: dict[str, Any] = {}

@@ -948,6 +948,12 @@ class EffectDiagnosis:
         (SSE_chosen/SSE_noise), ``completeness`` (0..1) and a ``verdict``.
     elapsed : float
         Wall time [s].
+    plant_side : dict or None
+        When a chosen sensor-frame effect is not separated by these data from a plant-side one
+        (:func:`plant_side_alternative`): ``replaces``, ``by``, ``validation_explained``,
+        ``parameters`` (the alternative's fitted values) and the jointly fitted ``rig`` and
+        ``measurement`` with the alternative in its place. The corrected rig *file*
+        (:func:`aeropend_ident.gap.run.corrected_rig_dict`) is written from these.
     """
 
     significant: bool
@@ -962,6 +968,7 @@ class EffectDiagnosis:
     channels: list[str] = field(default_factory=list)
     explained: dict = field(default_factory=dict)
     elapsed: float = 0.0
+    plant_side: dict | None = None
 
     def as_dict(self) -> dict:
         """JSON-able summary; the corrected rig as its YAML dict (with ``recording_frame`` if a
@@ -984,6 +991,8 @@ class EffectDiagnosis:
             "screening": self.screening,
             "channels": self.channels,
             "elapsed_s": self.elapsed,
+            "plant_side": ({k: v for k, v in self.plant_side.items() if k not in ("rig", "measurement")}
+                           if self.plant_side else None),
         })
 
 
@@ -1331,7 +1340,8 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
     return best2
 
 
-_Swapped = tuple[EffectFit, np.ndarray, list[str], dict[str, dict[str, float]]]
+_Swapped = tuple[EffectFit, np.ndarray, list[str], dict[str, dict[str, float]],
+                 dict[tuple[str, str], EffectFit]]
 
 
 def _swap_confusables(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: list[str]) -> _Swapped:
@@ -1344,9 +1354,11 @@ def _swap_confusables(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: 
     noise that the current set leaves; a simpler nested effect (K_q for the thrust law) replaces
     its richer one unless the richer one removes :data:`MIN_EXPLAINED_SECOND` of what it leaves.
     An alternative that neither set beats by :data:`SWAP_GAIN` is returned as not separated from
-    the chosen effect (``{chosen effect: {alternative: its validation explained, jointly fitted}}``).
+    the chosen effect (``{chosen effect: {alternative: its validation explained, jointly fitted}}``),
+    and its joint fit as ``{(chosen effect, alternative): fit}``.
     """
     amb: dict[str, dict[str, float]] = {}
+    alt_fits: dict[tuple[str, str], EffectFit] = {}
     for i in range(len(chosen)):
         name = chosen[i]
         others = [n for n in chosen if n != name]
@@ -1371,16 +1383,54 @@ def _swap_confusables(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: 
             if not better and st.above_noise_share(s_cur, s_alt) < SWAP_GAIN:
                 # neither is better: these data do not separate the two
                 amb.setdefault(name, {})[alt] = 1.0 - s_alt / max(st.sse_val0, 1e-300)
+                alt_fits[(name, alt)] = fr2
             if better:
                 st.say(f"  {alt} replaces {name}")
                 amb.pop(name, None)
+                alt_fits = {k: v for k, v in alt_fits.items() if k[0] != name}
                 chosen = [alt if n == name else n for n in chosen]
                 order = list(chosen)
                 cur = EffectFit(effects=tuple(order), values={n: fr2.values[n] for n in order}, std=fr2.std,
                                 rig=fr2.rig, meas=fr2.meas, sse=fr2.sse, n=fr2.n, nfev=fr2.nfev)
                 cur_segs = segs2
                 break
-    return cur, cur_segs, chosen, amb
+    return cur, cur_segs, chosen, amb, alt_fits
+
+
+def plant_side_alternative(chosen: Sequence[str], ambiguous: Mapping[str, Mapping[str, float]]
+                           ) -> tuple[str, str] | None:
+    """The plant-side effect to write instead of a chosen sensor-frame effect the data do not
+    separate from it, as ``(sensor effect, plant-side effect)``; ``None`` when there is none.
+
+    A sensor gain and a thrust-coefficient (or gravity, inertia) error shape the recorded angle
+    alike at small angles (only sin θ tells them apart), so one recording often cannot separate
+    them. For the rig file a controller is designed on they are not alike: a wrong sensor frame
+    makes the loop hold every set point at the wrong physical angle (by the fitted gain), while a
+    plant-side stand-in for a true sensor error holds the angle the nominal rig file would. The
+    plant-side alternative is therefore the one written (:attr:`EffectDiagnosis.plant_side`); the
+    diagnosis still names what fitted best.
+
+    Parameters
+    ----------
+    chosen : sequence of str
+        Effects chosen, in order.
+    ambiguous : mapping
+        ``{chosen effect: {alternative: validation explained}}`` (the replacement pass' record of
+        alternatives the data do not separate).
+
+    Returns
+    -------
+    tuple of str or None
+        The first chosen ``kind == "measurement"`` effect with a ``kind == "model"`` alternative,
+        and of those alternatives the one explaining most of the validation error.
+    """
+    for name in chosen:
+        if get_effect(name).kind != "measurement":
+            continue
+        alts = {a: v for a, v in ambiguous.get(name, {}).items() if get_effect(a).kind == "model"}
+        if alts:
+            return name, max(alts, key=lambda a: alts[a])
+    return None
 
 
 #: A refinement's own parameter this close to a bound of its search range (a factor for log
@@ -1619,6 +1669,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     sig_first = bool(best and above_floor and best["above_noise_explained"] >= MIN_EXPLAINED
                      and best["bic_delta"] <= -MIN_BIC_GAIN)
     chosen: list[str] = []
+    plant_side: dict[str, Any] | None = None
     corrected, meas = rig, MeasurementMap()
     table = [{"effects": [], **st.base_metrics}]
     reason, explained = "", {}
@@ -1645,9 +1696,14 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
             confidences[o] = added.confidence
             _record_added(ranking, st, added, chosen)
             table.append({"effects": list(chosen), **gap_metrics(corrected, meas, st.pv)})
+        amb: dict[str, dict[str, float]] = {}
+        alt_fits: dict[tuple[str, str], EffectFit] = {}
+        if len(chosen) == 1 and best.get("ambiguity"):  # not separated in the bootstrap of single fits
+            amb = {name: {a: v["validation_explained"] for a, v in best["ambiguity"].items()}}
+            alt_fits = {(name, a): cands.fits[a] for a in amb[name] if a in cands.fits}
         if len(chosen) >= 2:
             before = list(chosen)
-            cur, cur_segs, chosen, amb = _swap_confusables(st, cur, cur_segs, chosen)
+            cur, cur_segs, chosen, amb, alt_fits = _swap_confusables(st, cur, cur_segs, chosen)
             for r in ranking:
                 alts = amb.get(r["effect"], {})
                 if alts:
@@ -1668,6 +1724,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
                 refs = {k: v for k, v in tried.items() if r["effect"] in (k, v["replaces"])}
                 if refs:
                     r["refinements"] = refs
+        plant_side = _plant_side_entry(chosen, amb, alt_fits)
         explained = _completeness(st, channel_sse(corrected, meas, st.pv))
         for r in ranking:
             if r["effect"] in chosen:
@@ -1702,8 +1759,20 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
         significant=sig_first, ranking=ranking, not_identifiable=st.not_ident, chosen=chosen,
         corrected_rig=corrected, validation=table, measurement=meas, screening=scr.as_dict(),
         reason=reason if sig_first or reason else "no significant gap", channels=sorted(st.channels),
-        explained=explained, elapsed=time.perf_counter() - t0,
+        explained=explained, elapsed=time.perf_counter() - t0, plant_side=plant_side,
     )
+
+
+def _plant_side_entry(chosen: Sequence[str], amb: Mapping[str, Mapping[str, float]],
+                      alt_fits: Mapping[tuple[str, str], EffectFit]) -> dict[str, Any] | None:
+    """:attr:`EffectDiagnosis.plant_side` from the record of unseparated alternatives, if its fit
+    belongs to the final chosen set (a later replacement or refinement makes it stale)."""
+    pair = plant_side_alternative(chosen, amb)
+    fit = alt_fits.get(pair) if pair else None
+    if pair is None or fit is None or set(fit.effects) != (set(chosen) - {pair[0]}) | {pair[1]}:
+        return None
+    return {"replaces": pair[0], "by": pair[1], "validation_explained": float(amb[pair[0]][pair[1]]),
+            "parameters": dict(fit.values[pair[1]]), "rig": fit.rig, "measurement": fit.meas}
 
 
 def _take_over(st: _Setup, cur: EffectFit, before: Sequence[str], chosen: Sequence[str],
