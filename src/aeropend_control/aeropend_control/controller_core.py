@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aeropend_control.design import DesignError, PoleSpec, design_fl, reachable_angle
+from aeropend_control.design import DesignError, PoleSpec, design_cascade, reachable_angle
 from aeropend_control.strategies import (
     ALLOCATORS,
     DEFAULT_TF,
@@ -25,6 +25,8 @@ from aeropend_control.strategies import (
     FeedbackLinearizationPID,
     SmallSignalPID,
     default_spec,
+    design_drive,
+    fl_design,
     make_strategy,
 )
 from aeropend_sim.params import Rig, RigFileError, load_rig
@@ -160,7 +162,11 @@ def build_strategy(s: ControllerSettings) -> FeedbackLinearizationPID | SmallSig
     try:
         common: dict[str, Any] = {"allocator": s.allocator, "tf": s.tf, "estimator": s.estimator}
         if s.strategy in ("fl_pid", "fl_cascade"):
-            return make_strategy(s.strategy, s.rig, design=design_fl(s.rig, s.spec), **common)
+            cascade = design_cascade(s.rig) if s.strategy in NEEDS_MOTOR else None
+            design = fl_design(s.rig, s.spec, design_drive(s.rig, s.strategy, cascade))
+            if cascade is not None:
+                common["cascade_design"] = cascade
+            return make_strategy(s.strategy, s.rig, design=design, **common)
         opts: dict[str, Any] = {"spec": s.spec, **common}
         if s.strategy == "small_signal_fixed":
             opts["theta_op"] = s.theta_op

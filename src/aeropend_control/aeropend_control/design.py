@@ -98,6 +98,10 @@ class LoopDesign:
         Equilibrium duty cycle at θ_op (nan for FL).
     predicted : StepMetrics
         Predicted unit-step metrics (python-control ``step_info``) of the linear closed loop.
+    drive : str
+        ``"static"``: poles placed on the pendulum alone (thrust taken as instantaneous);
+        ``"duty"`` / ``"cascade"``: placed on the loop with the drive chain the rig file declares
+        (:mod:`aeropend_control.drive_design`).
     """
 
     kp: float
@@ -110,6 +114,7 @@ class LoopDesign:
     u_op: float
     duty_op: float
     predicted: StepMetrics
+    drive: str = "static"
 
     def pid_gains(self, tf: float = 0.0, method: str = "backward_euler") -> PIDGains:
         """I-PD :class:`PIDGains` (b = c = 0) with derivative filter ``tf`` [s]; no limits."""
@@ -138,7 +143,8 @@ def _closed_loop_2nd(
     return control.tf([g * ki], [1.0, a1 + g * kd, a0 + g * kp, g * ki])
 
 
-def _predict(sys: control.LTI, horizon: float = 5.0, dt: float = 1e-3) -> StepMetrics:
+def predict_step(sys: control.LTI, horizon: float = 5.0, dt: float = 1e-3) -> StepMetrics:
+    """Unit-step metrics (:func:`aeropend_control.metrics.step_metrics`) of a linear loop r → θ."""
     t = np.arange(0.0, horizon + dt / 2, dt)
     _, y = control.step_response(sys, t)
     return step_metrics(t, np.asarray(y).ravel(), 1.0)
@@ -160,7 +166,7 @@ def design_fl(rig: Rig, spec: PoleSpec | None = None, cancel_damping: bool = Tru
     spec = spec or PoleSpec()
     a1 = 0.0 if cancel_damping else PlantModel(rig).a_c
     kp, ki, kd = place_ipd(0.0, a1, 1.0, spec)
-    pred = _predict(_closed_loop_2nd(0.0, a1, 1.0, kp, ki, kd))
+    pred = predict_step(_closed_loop_2nd(0.0, a1, 1.0, kp, ki, kd))
     return LoopDesign(kp, ki, kd, 0.0, a1, 1.0, math.nan, 0.0, math.nan, pred)
 
 
@@ -191,25 +197,25 @@ def design_small_signal(rig: Rig, theta_op: float, spec: PoleSpec | None = None)
     # full loop: states without the (inert, lag-free) duty state; duty = τ_eq + Δf·dτ/df
     keep = [i for i in range(A.shape[0]) if m.lag or i != TAU_F]
     Af, Bf = A[np.ix_(keep, keep)], B[keep, :]
-    dtau_df = _dtau_df(m, f0)
+    k_tau = dtau_df(m, f0)
     n = len(keep)
     it, id_ = keep.index(THETA), keep.index(THETA_DOT)
     K = np.zeros((1, n))
     K[0, it], K[0, id_] = kp, kd
     # closed loop, state [x, z]: Δτ = dτ/df·(ki·z − kp·θ − kd·θ̇); ż = r − θ
     Acl = np.zeros((n + 1, n + 1))
-    Acl[:n, :n] = Af - Bf @ K * dtau_df
-    Acl[:n, n] = Bf[:, 0] * dtau_df * ki
+    Acl[:n, :n] = Af - Bf @ K * k_tau
+    Acl[:n, n] = Bf[:, 0] * k_tau * ki
     Acl[n, it] = -1.0
     Bcl = np.zeros((n + 1, 1))
     Bcl[n, 0] = 1.0
     Ccl = np.zeros((1, n + 1))
     Ccl[0, it] = 1.0
-    pred = _predict(control.ss(Acl, Bcl, Ccl, 0.0))
+    pred = predict_step(control.ss(Acl, Bcl, Ccl, 0.0))
     return LoopDesign(kp, ki, kd, float(a0), float(a1), g, float(theta_op), f0, float(tau_eq), pred)
 
 
-def _dtau_df(m: PlantModel, f0: float, rel: float = 1e-6) -> float:
+def dtau_df(m: PlantModel, f0: float, rel: float = 1e-6) -> float:
     """Slope dτ/df [1/N] of the steady-state allocation at thrust f0 (central difference)."""
     from aeropend_control.allocation import ModelAllocator
 
@@ -298,24 +304,32 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rho", type=float, default=PoleSpec.rho, help="real pole / ω_n")
     ap.add_argument("-o", "--output", help="write the gains to this YAML file")
     args = ap.parse_args(argv)
+    # the strategies' choice of design model (drive chain when the rig file declares a drive lag)
+    from aeropend_control.drive_design import design_small_signal_on_drive
+    from aeropend_control.strategies import design_drive, fl_design
+
     try:
         rig = load_rig(args.rig)
         spec = PoleSpec(args.omega_n, args.zeta, args.rho)
-        fl = design_fl(rig, spec)
+        fl = fl_design(rig, spec, design_drive(rig, "fl_pid"))
         reach = reachable_angle(rig)
-        sched = schedule(rig, list(reachable_grid(rig, DEFAULT_GRID)), spec)
+        grid = list(reachable_grid(rig, DEFAULT_GRID))
+        drive = design_drive(rig, "small_signal")
+        sched = (schedule(rig, grid, spec) if drive is None
+                 else [design_small_signal_on_drive(rig, t, spec, drive) for t in grid])
     except (ValueError, OSError) as exc:
         print(f"design_gains: {exc}", file=sys.stderr)
         return 2
     print(f"rig {rig.name}: poles {np.round(spec.poles(), 3).tolist()} rad/s; reach {reach:.4g} rad "
           f"(set points held with {REACH_DUTY_MARGIN:.0%} duty headroom; the schedule stops there)")
-    print("strategy          θ0     kp        ki        kd        tr[s]  tp[s]  ts[s]  Mp[%]  Table 6.1")
+    print("strategy          θ0     kp        ki        kd        tr[s]  tp[s]  ts[s]  Mp[%]  Table 6.1  "
+          "design model")
     rows = [("fl_pid", fl)] + [("small_signal", d) for d in sched]
     for name, d in rows:
         p = d.predicted
         print(f"{name:16s} {d.theta_op:5.2f} {d.kp:9.4g} {d.ki:9.4g} {d.kd:9.4g} {p.rise_time:6.3f} "
               f"{p.peak_time:6.3f} {p.settling_time:6.3f} {p.overshoot:6.2f}  "
-              f"{'ok' if p.meets(TABLE_6_1) else 'FAIL'}")
+              f"{'ok' if p.meets(TABLE_6_1) else 'FAIL':9s}  {d.drive}")
     if args.output:
         doc = {"rig": rig.name, "pole_spec": asdict(spec), "reach_rad": reach, "fl_pid": _row(fl),
                "small_signal": [_row(d) for d in sched]}
@@ -415,6 +429,6 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
     ])
     B = np.array([[kp_i * kp_w / m.L], [0.0], [kp_w], [1.0]])
     C = np.array([[0.0, 1.0, 0.0, 0.0]])
-    pred = _predict(control.ss(A, B, C, 0.0), horizon=0.5, dt=1e-4)
+    pred = predict_step(control.ss(A, B, C, 0.0), horizon=0.5, dt=1e-4)
     return CascadeDesign(kp_w, ki_w, kp_i, ki_i, i_max, m.armature_voltage(1.0), omega_speed, omega_current,
                          pred)

@@ -44,8 +44,15 @@ from aeropend_control.design import (
     design_cascade,
     design_fl,
     design_small_signal,
+    reachable_angle,
     reachable_grid,
     schedule,
+)
+from aeropend_control.drive_design import (
+    DriveSpec,
+    declares_drive_lag,
+    design_fl_on_drive,
+    design_small_signal_on_drive,
 )
 from aeropend_control.observer import ObserverSpec, PendulumObserver
 from aeropend_control.oscillation import OscillationMonitor
@@ -84,9 +91,29 @@ def default_thrust_gain(rig: Rig) -> float:
     declares a drive lag T_a or input delay T_d (``effects.actuator_lag`` / ``input_delay`` with a
     value > 0, as ``gap``'s corrected rig does when it finds one), else 0 (the static allocation
     alone; the motor of thesis_rig is fast enough, README table)."""
-    e, a = rig.effects, rig.actuator
-    known = (e.actuator_lag and a.lag_time_constant > 0.0) or (e.input_delay and a.input_delay > 0.0)
-    return THRUST_LOOP_GAIN if known else 0.0
+    return THRUST_LOOP_GAIN if declares_drive_lag(rig) else 0.0
+
+
+def design_drive(rig: Rig, name: str, cascade: CascadeDesign | None = None) -> DriveSpec | None:
+    """Drive chain the position loop of strategy ``name`` is designed on
+    (:mod:`aeropend_control.drive_design`): ``None`` (poles placed on the pendulum alone, as the
+    thesis does) unless the rig file declares a drive lag or delay (:func:`declares_drive_lag`:
+    the drive is then known to be slow, e.g. the ``corrected_rig.yaml`` of ``gap``); then the
+    motor cascade (``cascade`` or its default design) for the cascades, the duty drive with the
+    thrust loop (:func:`default_thrust_gain`) for the others."""
+    if not declares_drive_lag(rig):
+        return None
+    if name in NEEDS_MOTOR:
+        return DriveSpec("cascade", cascade=cascade or design_cascade(rig))
+    return DriveSpec("duty", thrust_gain=default_thrust_gain(rig))
+
+
+def fl_design(rig: Rig, spec: PoleSpec, drive: DriveSpec | None) -> LoopDesign:
+    """FL outer-loop design: :func:`design_fl` (``drive`` None) or placed on the drive chain at half
+    the rig's reach (:func:`~aeropend_control.drive_design.design_fl_on_drive`)."""
+    if drive is None:
+        return design_fl(rig, spec)
+    return design_fl_on_drive(rig, spec, drive, 0.5 * reachable_angle(rig))
 
 
 def default_spec(name: str) -> PoleSpec:
@@ -262,7 +289,8 @@ class FeedbackLinearizationPID(_Base):
     rig : Rig
         Model parameters used by the linearising law (mgd/J, c/J, L/J) and the allocation.
     design : LoopDesign, optional
-        Outer-loop gains (default :func:`design_fl` with ``DEFAULT_SPECS["fl_pid"]``).
+        Outer-loop gains (default :func:`fl_design` with ``DEFAULT_SPECS["fl_pid"]`` on the drive
+        :func:`design_drive` names).
     cancel_damping : bool
         Include (c/J)·θ̂̇ in the law (default True).
     allocator : {"model", "thesis"}
@@ -285,7 +313,9 @@ class FeedbackLinearizationPID(_Base):
                  allocator: str = "model", tf: float = DEFAULT_TF, dt: float | None = None,
                  f_init: float = 0.0, estimator: str = "observer",
                  observer_spec: ObserverSpec | None = None) -> None:
-        self.design = design or design_fl(rig, DEFAULT_SPECS["fl_pid"], cancel_damping=cancel_damping)
+        spec = DEFAULT_SPECS["fl_pid"]
+        self.design = design or (fl_design(rig, spec, design_drive(rig, self.name)) if cancel_damping
+                                 else design_fl(rig, spec, cancel_damping=False))
         self.cancel_damping = cancel_damping
         super().__init__(rig, self.design.pid_gains(), allocator, tf, dt, f_init, estimator, observer_spec)
 
@@ -340,6 +370,9 @@ class SmallSignalPID(_Base):
         Default ``DEFAULT_SPECS["small_signal"]``.
     allocator, tf, dt, f_init, estimator, observer_spec
         As for :class:`FeedbackLinearizationPID`.
+    drive : DriveSpec, None or "auto"
+        Drive chain the gains are placed on (None: the pendulum alone; default "auto":
+        :func:`design_drive`).
     """
 
     name = "small_signal"
@@ -347,12 +380,19 @@ class SmallSignalPID(_Base):
     def __init__(self, rig: Rig, theta_op: float | None = None, grid: tuple[float, ...] = DEFAULT_GRID,
                  spec: PoleSpec | None = None, allocator: str = "model", tf: float = DEFAULT_TF,
                  dt: float | None = None, f_init: float = 0.0, estimator: str = "observer",
-                 observer_spec: ObserverSpec | None = None) -> None:
+                 observer_spec: ObserverSpec | None = None, drive: DriveSpec | str | None = "auto") -> None:
         spec = spec or DEFAULT_SPECS["small_signal"]
-        if theta_op is None:  # scheduled over the part of the grid the rig can hold (with headroom)
-            self.table = schedule(rig, list(reachable_grid(rig, grid)), spec)
+        if isinstance(drive, str):
+            if drive != "auto":
+                raise StrategyError(f"drive = {drive!r}; expected a DriveSpec, None or 'auto'")
+            drive = design_drive(rig, self.name)
+        thetas = [float(theta_op)] if theta_op is not None else list(reachable_grid(rig, grid))
+        if drive is not None:
+            self.table = [design_small_signal_on_drive(rig, t, spec, drive) for t in thetas]
+        elif theta_op is None:  # scheduled over the part of the grid the rig can hold (with headroom)
+            self.table = schedule(rig, thetas, spec)
         else:
-            self.table = [design_small_signal(rig, float(theta_op), spec)]
+            self.table = [design_small_signal(rig, thetas[0], spec)]
         self.scheduled = theta_op is None
         self._grid = np.array([d.theta_op for d in self.table])
         first = self.table[0]
@@ -416,11 +456,13 @@ def make_strategy(
         On an unknown name or a missing ``theta_op``.
     """
     if name in NEEDS_MOTOR:
-        cdesign = options.pop("cascade_design", None)
+        cdesign = options.pop("cascade_design", None) or design_cascade(rig)
         if name == "fl_cascade" and options.get("design") is None:
-            options["design"] = design_fl(rig, DEFAULT_SPECS[name])
-        if name == "cascade" and options.get("spec") is None:
-            options["spec"] = DEFAULT_SPECS[name]
+            options["design"] = fl_design(rig, DEFAULT_SPECS[name], design_drive(rig, name, cdesign))
+        if name == "cascade":
+            options.setdefault("drive", design_drive(rig, name, cdesign))
+            if options.get("spec") is None:
+                options["spec"] = DEFAULT_SPECS[name]
         outer = make_strategy("fl_pid" if name == "fl_cascade" else "small_signal", rig, **options)
         return CascadeStrategy(outer, rig, cdesign)  # type: ignore[arg-type]
     if name == "fl_pid":

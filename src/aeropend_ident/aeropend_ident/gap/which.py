@@ -1696,11 +1696,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
             confidences[o] = added.confidence
             _record_added(ranking, st, added, chosen)
             table.append({"effects": list(chosen), **gap_metrics(corrected, meas, st.pv)})
-        amb: dict[str, dict[str, float]] = {}
-        alt_fits: dict[tuple[str, str], EffectFit] = {}
-        if len(chosen) == 1 and best.get("ambiguity"):  # not separated in the bootstrap of single fits
-            amb = {name: {a: v["validation_explained"] for a, v in best["ambiguity"].items()}}
-            alt_fits = {(name, a): cands.fits[a] for a in amb[name] if a in cands.fits}
+        amb, alt_fits = _unseparated_single(best, cands) if len(chosen) == 1 else ({}, {})
         if len(chosen) >= 2:
             before = list(chosen)
             cur, cur_segs, chosen, amb, alt_fits = _swap_confusables(st, cur, cur_segs, chosen)
@@ -1761,6 +1757,15 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
         reason=reason if sig_first or reason else "no significant gap", channels=sorted(st.channels),
         explained=explained, elapsed=time.perf_counter() - t0, plant_side=plant_side,
     )
+
+
+def _unseparated_single(best: dict[str, Any], cands: _Candidates
+                        ) -> tuple[dict[str, dict[str, float]], dict[tuple[str, str], EffectFit]]:
+    """Alternatives the bootstrap of single-effect fits does not separate from the first-ranked
+    effect, and their fits, in the form :func:`_swap_confusables` returns them."""
+    name = best["effect"]
+    amb = {name: {a: v["validation_explained"] for a, v in (best.get("ambiguity") or {}).items()}}
+    return amb, {(name, a): cands.fits[a] for a in amb[name] if a in cands.fits}
 
 
 def _plant_side_entry(chosen: Sequence[str], amb: Mapping[str, Mapping[str, float]],

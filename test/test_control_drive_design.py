@@ -1,0 +1,128 @@
+"""Position-loop design on the drive chain a rig file declares (aeropend_control.drive_design).
+
+Known answers: the drive model's DC gain is 1 and its step is slowed by the declared lag; the
+three design poles are closed-loop poles of the loop with the drive (exactly, by construction of
+the equations, checked on the eigenvalues); static gains on the same loop overshoot more than the
+design. A rig without a declared drive lag keeps the static (thesis) design.
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+
+from aeropend_control.design import PoleSpec, design_cascade, design_small_signal, place_ipd
+from aeropend_control.drive_design import (
+    DriveSpec,
+    closed_loop,
+    declares_drive_lag,
+    design_fl_on_drive,
+    design_small_signal_on_drive,
+    drive_model,
+    place_ipd_on_drive,
+)
+from aeropend_control.strategies import FeedbackLinearizationPID, SmallSignalPID, design_drive, make_strategy
+from aeropend_sim.model import PlantModel
+from aeropend_sim.params import load_rig, rig_from_dict, rig_to_dict
+
+SPEC = PoleSpec(9.5)
+
+
+def _rig(lag: float = 0.0, delay: float = 0.0, name: str = "thesis_rig"):
+    doc = rig_to_dict(load_rig(name))
+    if lag:
+        doc["effects"]["actuator_lag"] = True
+        doc["actuator"]["lag_time_constant"]["value"] = lag
+    if delay:
+        doc["effects"]["input_delay"] = True
+        doc["actuator"]["input_delay"]["value"] = delay
+    return rig_from_dict(doc)
+
+
+def _t63(sys: control.StateSpace) -> float:
+    t = np.linspace(0.0, 1.0, 20001)
+    _, y = control.step_response(sys, t)
+    return float(t[np.argmax(np.asarray(y).ravel() >= 0.632)])
+
+
+def test_drive_model_has_unit_dc_gain_and_is_slowed_by_the_declared_lag():
+    fast, slow = _rig(), _rig(lag=0.04, delay=0.004)
+    assert not declares_drive_lag(fast) and declares_drive_lag(slow)
+    for rig in (fast, slow):
+        for drive in (DriveSpec("duty"), DriveSpec("duty", thrust_gain=3.0),
+                      DriveSpec("cascade", cascade=design_cascade(rig))):
+            assert control.dcgain(drive_model(rig, 0.3, drive)) == pytest.approx(1.0, rel=1e-6)
+    # a 40 ms lag + 4 ms delay add about their sum to the plain duty drive's 63 % time
+    extra = _t63(drive_model(slow, 0.3, DriveSpec("duty"))) - _t63(drive_model(fast, 0.3, DriveSpec("duty")))
+    assert 0.025 < extra < 0.05
+    # the thrust loop makes the slow drive faster (it inverts the motor model the rig file knows)
+    assert _t63(drive_model(slow, 0.3, DriveSpec("duty", thrust_gain=3.0))) < 0.5 * _t63(
+        drive_model(slow, 0.3, DriveSpec("duty")))
+
+
+@pytest.mark.parametrize("linearising", [True, False])
+def test_the_design_poles_are_poles_of_the_loop_with_the_drive(linearising):
+    rig = _rig(lag=0.04, delay=0.004)
+    m = PlantModel(rig)
+    d = drive_model(rig, 0.3, DriveSpec("duty", thrust_gain=3.0))
+    a0, a1, g = m.a_g * np.cos(0.3), m.a_c, m.b_f
+    _, poles = place_ipd_on_drive(a0, a1, g, d, SPEC, linearising)
+    for p in SPEC.poles():
+        assert np.min(np.abs(poles - p)) < 1e-6 * abs(p)
+    assert np.all(poles.real < 0.0)
+    # the static gains (pendulum alone) on the same loop miss them
+    if linearising:
+        kp, ki, kd = place_ipd(0.0, 0.0, 1.0, SPEC)
+    else:
+        base = design_small_signal(rig, 0.3, SPEC)
+        kp, ki, kd = base.kp, base.ki, base.kd
+    static = np.linalg.eigvals(np.asarray(closed_loop(a0, a1, g, d, (kp, ki, kd), linearising).A))
+    assert min(np.min(np.abs(static - p)) for p in SPEC.poles()) > 0.1
+
+
+def test_designed_on_the_drive_the_loop_keeps_the_designed_step_where_static_gains_overshoot():
+    rig = _rig(lag=0.05, delay=0.004, name="thesis_sim")
+    drive = DriveSpec("duty", thrust_gain=3.0)
+    fl = design_fl_on_drive(rig, SPEC, drive, 0.3)
+    ss = design_small_signal_on_drive(rig, 0.3, SPEC, drive)
+    assert fl.drive == ss.drive == "duty"
+    ideal = control.step_info(control.tf([857.375], np.poly(SPEC.poles()).real))["Overshoot"]
+    for d in (fl, ss):
+        assert d.predicted.overshoot == pytest.approx(ideal, abs=0.2)
+    m = PlantModel(rig)
+    static = closed_loop(m.a_g * np.cos(0.3), m.a_c, m.b_f, drive_model(rig, 0.3, drive),
+                         place_ipd(0.0, 0.0, 1.0, SPEC), True)
+    over = control.step_info(static)["Overshoot"]
+    assert over > fl.predicted.overshoot + 1.0
+
+
+def test_a_rig_without_a_declared_drive_lag_keeps_the_static_design():
+    rig = load_rig("thesis_rig")
+    assert design_drive(rig, "fl_pid") is None and design_drive(rig, "cascade") is None
+    fl = FeedbackLinearizationPID(rig)
+    assert fl.design.drive == "static"
+    assert (fl.design.kp, fl.design.ki, fl.design.kd) == pytest.approx(place_ipd(0.0, 0.0, 1.0, SPEC))
+    ss = SmallSignalPID(rig)
+    assert {d.drive for d in ss.table} == {"static"}
+
+
+def test_strategies_on_a_rig_that_declares_its_lag_are_designed_on_the_drive():
+    rig = _rig(lag=0.04, delay=0.004, name="thesis_sim")
+    assert design_drive(rig, "fl_pid") == DriveSpec("duty", thrust_gain=3.0)
+    assert FeedbackLinearizationPID(rig).design.drive == "duty"
+    assert {d.drive for d in SmallSignalPID(rig).table} == {"duty"}
+    casc = make_strategy("cascade", rig)
+    assert design_drive(rig, "cascade").kind == "cascade"
+    # every scheduled design is either placed on the cascade drive or, where the three gains cannot
+    # place it (a slow armature's current-PI zero in the band), the static one: never an error
+    assert {d.drive for d in casc.outer.table} <= {"cascade", "static"}
+
+
+def test_drive_spec_validates_its_values():
+    with pytest.raises(ValueError, match="drive kind"):
+        DriveSpec("voltage")
+    with pytest.raises(ValueError, match="needs the cascade design"):
+        DriveSpec("cascade")
+    with pytest.raises(ValueError, match="thrust_gain"):
+        DriveSpec("duty", thrust_gain=-1.0)
