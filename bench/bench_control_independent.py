@@ -444,12 +444,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(RESULTS / "control_independent"))
     ap.add_argument("--render", action="store_true", help="only re-write the .md from the .json")
     ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
-                    help="combine the plants of these result files (run separately) into --out")
+                    help="combine the plants of these result files (run separately) into --out; a plant in "
+                         "several files is taken from the last")
     args = ap.parse_args(argv)
     out = Path(args.out)
     if args.merge:
         docs = [json.loads(Path(f).read_text(encoding="utf-8")) for f in args.merge]
-        plants = sorted((p for d in docs for p in d["plants"]), key=lambda p: p["index"])
+        # a plant in several files: the later file's wins (e.g. plants re-run after a change of gap)
+        plants = sorted({p["index"]: p for d in docs for p in d["plants"]}.values(), key=lambda p: p["index"])
         meta = {**docs[0]["meta"], "merged_from": [{"file": f, **d["meta"]} for f, d in zip(args.merge, docs,
                                                                                           strict=True)],
                 "wall_s": sum(d["meta"]["wall_s"] for d in docs),

@@ -31,9 +31,15 @@ CONFIGS = {
     "w105_z085": ((10.5, 0.85, 1.0), (10.0, 0.85, 1.0)),
     "w85": ((8.5, 0.7, 1.0), (8.0, 0.7, 1.0)),
     "rho15": ((9.5, 0.7, 1.5), (9.0, 0.7, 1.5)),
+    "zeta060": ((9.5, 0.6, 1.0), (9.0, 0.6, 1.0)),
+    "zeta065": ((9.5, 0.65, 1.0), (9.0, 0.65, 1.0)),
+    "casc_zeta060": ((9.5, 0.7, 1.0), (9.0, 0.6, 1.0)),
+    "casc_zeta050": ((9.5, 0.7, 1.0), (9.0, 0.5, 1.0)),
+    "casc_zeta065": ((9.5, 0.7, 1.0), (9.0, 0.65, 1.0)),
+    "casc_zeta055": ((9.5, 0.7, 1.0), (9.0, 0.55, 1.0)),
 }
 KEYS = ("table_6_1", "late_peak_only", "table_6_1_or_late_peak", "no_limit_cycle", "goal", "median_ts",
-        "p90_ts", "median_mp")
+        "p90_ts", "median_mp", "per_strategy")
 
 
 def run(name: str, tmp: Path) -> dict:
@@ -55,7 +61,10 @@ def main(argv: list[str] | None = None) -> int:
 
     names = (argv if argv is not None else sys.argv[1:]) or list(CONFIGS)
     with tempfile.TemporaryDirectory() as tmp:
-        rows = [run(n, Path(tmp)) for n in names]
+        new = {n: run(n, Path(tmp)) for n in names}
+    path = RESULTS / "control_spec_sweep.json"
+    old = json.loads(path.read_text(encoding="utf-8")) if path.exists() else []
+    rows = [new.pop(r["config"], r) for r in old] + list(new.values())  # re-run configs replace their row
     (RESULTS / "control_spec_sweep.json").write_text(json.dumps(rows, indent=1), encoding="utf-8")
     lines = ["# Pole-spec sweep on the tuning plants 100-139 (bench/sweep_control_specs.py)", "",
              "Within-reach runs, designed on the nominal rig; (ω_n, ζ, ρ) of FL/small-signal and of the "
