@@ -181,3 +181,34 @@ def test_an_unseparated_sensor_gain_gives_way_to_its_plant_side_alternative_in_t
     # separated (no record) or not chosen: nothing to replace
     assert plant_side_alternative(["sensor_scale", "dead_zone"], {}) is None
     assert plant_side_alternative(["dead_zone"], amb) is None
+
+
+def test_corrected_rig_file_holds_the_plant_side_alternative_and_the_nominal_sensor_frame():
+    """``corrected_rig_dict`` on a diagnosis whose chosen sensor gain is not separated from the
+    thrust coefficient: the file has the jointly fitted K_q and no sensor gain in its frame; without
+    that record the fitted sensor gain is written as before."""
+    from types import SimpleNamespace
+
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.gap.run import corrected_rig_dict
+
+    nominal = load_rig("thesis_sim")
+    k_q = nominal.thrust.K_q
+    sensor_fit = nominal.with_params("actuator", dead_zone=0.04)
+    plant_fit = sensor_fit.with_params("thrust", K_q=0.8 * k_q)
+    side = {"replaces": "sensor_scale", "by": "thrust_coefficient", "validation_explained": 0.99,
+            "parameters": {}, "rig": plant_fit, "measurement": MeasurementMap()}
+
+    def result(plant_side):
+        diag = SimpleNamespace(corrected_rig=sensor_fit, measurement=MeasurementMap(theta_scale=0.8),
+                               chosen=["sensor_scale", "dead_zone"], plant_side=plant_side)
+        return SimpleNamespace(diagnosis=diag, rig=nominal, fit=[], theta_offset=0.0)
+
+    written = corrected_rig_dict(result(side))
+    assert written["thrust"]["K_q"]["value"] == pytest.approx(0.8 * k_q)
+    assert "theta_scale" not in written.get("recording_frame", {})
+    assert "thrust_coefficient written for sensor_scale" in written["description"]
+    assert written["actuator"]["dead_zone"]["value"] == pytest.approx(0.04)
+    plain = corrected_rig_dict(result(None))
+    assert plain["thrust"]["K_q"]["value"] == pytest.approx(k_q)
+    assert plain["recording_frame"]["theta_scale"]["value"] == pytest.approx(0.8)
