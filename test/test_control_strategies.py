@@ -25,9 +25,9 @@ from aeropend_control.design import (
     design_cascade,
     design_fl,
     design_small_signal,
-    main,
     place_ipd,
 )
+from aeropend_control.drive_design import main
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
 from aeropend_control.strategies import (
     DEFAULT_SPECS,

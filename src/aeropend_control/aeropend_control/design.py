@@ -30,19 +30,16 @@ at θ₀), so they show what the neglected actuator dynamics cost.
 
 from __future__ import annotations
 
-import argparse
 import math
-import sys
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import control
 import numpy as np
-import yaml
 
-from aeropend_control.metrics import TABLE_6_1, StepMetrics, step_metrics
+from aeropend_control.metrics import StepMetrics, step_metrics
 from aeropend_control.pid import PIDGains
 from aeropend_sim.model import OMEGA, TAU_F, THETA, THETA_DOT, PlantModel
-from aeropend_sim.params import Rig, load_rig
+from aeropend_sim.params import Rig
 
 
 class DesignError(ValueError):
@@ -286,61 +283,6 @@ def reachable_grid(rig: Rig, grid: tuple[float, ...] | list[float] = DEFAULT_GRI
     return tuple(kept)
 
 
-def _row(d: LoopDesign) -> dict[str, float]:
-    out = {k: v for k, v in asdict(d).items() if k != "predicted"}
-    out["predicted"] = d.predicted.as_dict()
-    return out
-
-
-def main(argv: list[str] | None = None) -> int:
-    """CLI ``design_gains``: design the FL and scheduled small-signal gains, print predicted metrics.
-
-    Writes a YAML gains file with ``-o``. Exit status 2 on a bad argument.
-    """
-    ap = argparse.ArgumentParser(prog="design_gains", description=__doc__.splitlines()[0])
-    ap.add_argument("--rig", default="thesis_rig", help="rig name or YAML path")
-    ap.add_argument("--omega-n", type=float, default=PoleSpec.omega_n, help="closed-loop ω_n [rad/s]")
-    ap.add_argument("--zeta", type=float, default=PoleSpec.zeta, help="damping ratio of the pole pair")
-    ap.add_argument("--rho", type=float, default=PoleSpec.rho, help="real pole / ω_n")
-    ap.add_argument("-o", "--output", help="write the gains to this YAML file")
-    args = ap.parse_args(argv)
-    # the strategies' choice of design model (drive chain when the rig file declares a drive lag)
-    from aeropend_control.drive_design import design_small_signal_on_drive
-    from aeropend_control.strategies import design_drive, fl_design
-
-    try:
-        rig = load_rig(args.rig)
-        spec = PoleSpec(args.omega_n, args.zeta, args.rho)
-        fl = fl_design(rig, spec, design_drive(rig, "fl_pid"))
-        reach = reachable_angle(rig)
-        grid = list(reachable_grid(rig, DEFAULT_GRID))
-        drive = design_drive(rig, "small_signal")
-        sched = (schedule(rig, grid, spec) if drive is None
-                 else [design_small_signal_on_drive(rig, t, spec, drive) for t in grid])
-    except (ValueError, OSError) as exc:
-        print(f"design_gains: {exc}", file=sys.stderr)
-        return 2
-    print(f"rig {rig.name}: poles {np.round(spec.poles(), 3).tolist()} rad/s; reach {reach:.4g} rad "
-          f"(set points held with {REACH_DUTY_MARGIN:.0%} duty headroom; the schedule stops there)")
-    print("strategy          θ0     kp        ki        kd        tr[s]  tp[s]  ts[s]  Mp[%]  Table 6.1  "
-          "design model")
-    rows = [("fl_pid", fl)] + [("small_signal", d) for d in sched]
-    for name, d in rows:
-        p = d.predicted
-        print(f"{name:16s} {d.theta_op:5.2f} {d.kp:9.4g} {d.ki:9.4g} {d.kd:9.4g} {p.rise_time:6.3f} "
-              f"{p.peak_time:6.3f} {p.settling_time:6.3f} {p.overshoot:6.2f}  "
-              f"{'ok' if p.meets(TABLE_6_1) else 'FAIL':9s}  {d.drive}")
-    if args.output:
-        doc = {"rig": rig.name, "pole_spec": asdict(spec), "reach_rad": reach, "fl_pid": _row(fl),
-               "small_signal": [_row(d) for d in sched]}
-        with open(args.output, "w", encoding="utf-8") as fh:
-            yaml.safe_dump(doc, fh, sort_keys=False)
-        print(f"wrote {args.output}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
 
 
 # ---------------------------------------------------------------------------------- cascade

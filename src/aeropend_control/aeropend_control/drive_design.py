@@ -28,32 +28,49 @@ Drives (:class:`DriveSpec`):
 * ``cascade``: the cascades' outer loops: thrust command → speed reference (dω₁/df) → speed PI →
   current PI (:class:`~aeropend_control.design.CascadeDesign`) → armature voltage through delay
   and lag → armature and rotor → thrust.
+
+Which drive a strategy is designed on (:func:`design_drive`, :func:`fl_design`) and the
+``design_gains`` CLI (:func:`main`: the FL gains and the scheduled small-signal table as the
+strategies design them, with predicted metrics and the design model) live here too, as the layer
+above :mod:`aeropend_control.design`.
 """
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import math
-from dataclasses import dataclass
+import sys
+from dataclasses import asdict, dataclass
 
 import control
 import numpy as np
+import yaml
 
 from aeropend_control.design import (
+    DEFAULT_GRID,
+    REACH_DUTY_MARGIN,
     CascadeDesign,
     DesignError,
     LoopDesign,
     PoleSpec,
+    design_cascade,
     design_fl,
     design_small_signal,
     dtau_df,
     predict_step,
+    reachable_angle,
+    reachable_grid,
+    schedule,
 )
+from aeropend_control.metrics import TABLE_6_1
 from aeropend_sim.model import I_A, OMEGA, TAU_F, PlantModel
-from aeropend_sim.params import Rig
+from aeropend_sim.params import Rig, load_rig
 
 #: Drive kinds of :class:`DriveSpec`.
 DRIVES = ("duty", "cascade")
+#: Strategies whose position loop commands the motor cascade (they need ω₁ and i_a measured).
+CASCADE_STRATEGIES = ("cascade", "fl_cascade")
 
 
 @dataclass(frozen=True)
@@ -325,3 +342,94 @@ def design_small_signal_on_drive(rig: Rig, theta0: float, spec: PoleSpec, drive:
     """
     base = design_small_signal(rig, theta0, spec)
     return _on_drive(base, base.a0, base.a1, base.g, drive_model(rig, theta0, drive), spec, False, drive.kind)
+
+
+# ------------------------------------------------------------------ the strategies' choice
+#: Gain of the model-based thrust loop when the rig file declares a drive lag or delay
+#: (:func:`default_thrust_gain`; issue 19, docs/control.md).
+THRUST_LOOP_GAIN = 3.0
+
+
+def default_thrust_gain(rig: Rig) -> float:
+    """K of the thrust loop f_cmd = f + K·(f − f̂): :data:`THRUST_LOOP_GAIN` when the rig file
+    declares a drive lag T_a or input delay T_d (``effects.actuator_lag`` / ``input_delay`` with a
+    value > 0, as ``gap``'s corrected rig does when it finds one), else 0 (the static allocation
+    alone; the motor of thesis_rig is fast enough, README table)."""
+    return THRUST_LOOP_GAIN if declares_drive_lag(rig) else 0.0
+
+
+def design_drive(rig: Rig, name: str, cascade: CascadeDesign | None = None) -> DriveSpec | None:
+    """Drive chain the position loop of strategy ``name`` is designed on
+    (:mod:`aeropend_control.drive_design`): ``None`` (poles placed on the pendulum alone, as the
+    thesis does) unless the rig file declares a drive lag or delay (:func:`declares_drive_lag`:
+    the drive is then known to be slow, e.g. the ``corrected_rig.yaml`` of ``gap``); then the
+    motor cascade (``cascade`` or its default design) for the cascades, the duty drive with the
+    thrust loop (:func:`default_thrust_gain`) for the others."""
+    if not declares_drive_lag(rig):
+        return None
+    if name in CASCADE_STRATEGIES:
+        return DriveSpec("cascade", cascade=cascade or design_cascade(rig))
+    return DriveSpec("duty", thrust_gain=default_thrust_gain(rig))
+
+
+def fl_design(rig: Rig, spec: PoleSpec, drive: DriveSpec | None) -> LoopDesign:
+    """FL outer-loop design: :func:`design_fl` (``drive`` None) or placed on the drive chain at half
+    the rig's reach (:func:`~aeropend_control.drive_design.design_fl_on_drive`)."""
+    if drive is None:
+        return design_fl(rig, spec)
+    return design_fl_on_drive(rig, spec, drive, 0.5 * reachable_angle(rig))
+
+
+# ------------------------------------------------------------------ design_gains CLI
+def _row(d: LoopDesign) -> dict[str, float]:
+    out = {k: v for k, v in asdict(d).items() if k != "predicted"}
+    out["predicted"] = d.predicted.as_dict()
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI ``design_gains``: design the FL and scheduled small-signal gains, print predicted metrics.
+
+    Writes a YAML gains file with ``-o``. Exit status 2 on a bad argument.
+    """
+    ap = argparse.ArgumentParser(prog="design_gains",
+                                 description="position-loop gains of a rig file, predicted step metrics")
+    ap.add_argument("--rig", default="thesis_rig", help="rig name or YAML path")
+    ap.add_argument("--omega-n", type=float, default=PoleSpec.omega_n, help="closed-loop ω_n [rad/s]")
+    ap.add_argument("--zeta", type=float, default=PoleSpec.zeta, help="damping ratio of the pole pair")
+    ap.add_argument("--rho", type=float, default=PoleSpec.rho, help="real pole / ω_n")
+    ap.add_argument("-o", "--output", help="write the gains to this YAML file")
+    args = ap.parse_args(argv)
+    try:
+        rig = load_rig(args.rig)
+        spec = PoleSpec(args.omega_n, args.zeta, args.rho)
+        fl = fl_design(rig, spec, design_drive(rig, "fl_pid"))
+        reach = reachable_angle(rig)
+        grid = list(reachable_grid(rig, DEFAULT_GRID))
+        drive = design_drive(rig, "small_signal")
+        sched = (schedule(rig, grid, spec) if drive is None
+                 else [design_small_signal_on_drive(rig, t, spec, drive) for t in grid])
+    except (ValueError, OSError) as exc:
+        print(f"design_gains: {exc}", file=sys.stderr)
+        return 2
+    print(f"rig {rig.name}: poles {np.round(spec.poles(), 3).tolist()} rad/s; reach {reach:.4g} rad "
+          f"(set points held with {REACH_DUTY_MARGIN:.0%} duty headroom; the schedule stops there)")
+    print("strategy          θ0     kp        ki        kd        tr[s]  tp[s]  ts[s]  Mp[%]  Table 6.1  "
+          "design model")
+    rows = [("fl_pid", fl)] + [("small_signal", d) for d in sched]
+    for name, d in rows:
+        p = d.predicted
+        print(f"{name:16s} {d.theta_op:5.2f} {d.kp:9.4g} {d.ki:9.4g} {d.kd:9.4g} {p.rise_time:6.3f} "
+              f"{p.peak_time:6.3f} {p.settling_time:6.3f} {p.overshoot:6.2f}  "
+              f"{'ok' if p.meets(TABLE_6_1) else 'FAIL':9s}  {d.drive}")
+    if args.output:
+        doc = {"rig": rig.name, "pole_spec": asdict(spec), "reach_rad": reach, "fl_pid": _row(fl),
+               "small_signal": [_row(d) for d in sched]}
+        with open(args.output, "w", encoding="utf-8") as fh:
+            yaml.safe_dump(doc, fh, sort_keys=False)
+        print(f"wrote {args.output}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -44,15 +44,16 @@ from aeropend_control.design import (
     design_cascade,
     design_fl,
     design_small_signal,
-    reachable_angle,
     reachable_grid,
     schedule,
 )
 from aeropend_control.drive_design import (
+    CASCADE_STRATEGIES,
     DriveSpec,
-    declares_drive_lag,
-    design_fl_on_drive,
+    default_thrust_gain,
+    design_drive,
     design_small_signal_on_drive,
+    fl_design,
 )
 from aeropend_control.observer import ObserverSpec, PendulumObserver
 from aeropend_control.oscillation import OscillationMonitor
@@ -65,7 +66,7 @@ DEFAULT_TF = 0.01
 #: Strategy names accepted by :func:`make_strategy`.
 STRATEGIES = ("fl_pid", "small_signal", "small_signal_fixed", "cascade", "fl_cascade")
 #: Strategies that need the measured rotor speed ω₁ and armature current i_a.
-NEEDS_MOTOR = ("cascade", "fl_cascade")
+NEEDS_MOTOR = CASCADE_STRATEGIES
 #: Allocation chains accepted by the strategies.
 ALLOCATORS = ("model", "thesis")
 #: θ̇ estimators: filtered difference (:class:`VelocityEstimator`) or Kalman observer
@@ -79,41 +80,6 @@ DEFAULT_SPECS: dict[str, PoleSpec] = {
     "fl_pid": PoleSpec(9.5), "small_signal": PoleSpec(9.5), "small_signal_fixed": PoleSpec(9.5),
     "cascade": PoleSpec(9.0), "fl_cascade": PoleSpec(9.0),
 }
-
-
-#: Gain of the model-based thrust loop when the rig file declares a drive lag or delay
-#: (:func:`default_thrust_gain`; issue 19, docs/control.md).
-THRUST_LOOP_GAIN = 3.0
-
-
-def default_thrust_gain(rig: Rig) -> float:
-    """K of the thrust loop f_cmd = f + K·(f − f̂): :data:`THRUST_LOOP_GAIN` when the rig file
-    declares a drive lag T_a or input delay T_d (``effects.actuator_lag`` / ``input_delay`` with a
-    value > 0, as ``gap``'s corrected rig does when it finds one), else 0 (the static allocation
-    alone; the motor of thesis_rig is fast enough, README table)."""
-    return THRUST_LOOP_GAIN if declares_drive_lag(rig) else 0.0
-
-
-def design_drive(rig: Rig, name: str, cascade: CascadeDesign | None = None) -> DriveSpec | None:
-    """Drive chain the position loop of strategy ``name`` is designed on
-    (:mod:`aeropend_control.drive_design`): ``None`` (poles placed on the pendulum alone, as the
-    thesis does) unless the rig file declares a drive lag or delay (:func:`declares_drive_lag`:
-    the drive is then known to be slow, e.g. the ``corrected_rig.yaml`` of ``gap``); then the
-    motor cascade (``cascade`` or its default design) for the cascades, the duty drive with the
-    thrust loop (:func:`default_thrust_gain`) for the others."""
-    if not declares_drive_lag(rig):
-        return None
-    if name in NEEDS_MOTOR:
-        return DriveSpec("cascade", cascade=cascade or design_cascade(rig))
-    return DriveSpec("duty", thrust_gain=default_thrust_gain(rig))
-
-
-def fl_design(rig: Rig, spec: PoleSpec, drive: DriveSpec | None) -> LoopDesign:
-    """FL outer-loop design: :func:`design_fl` (``drive`` None) or placed on the drive chain at half
-    the rig's reach (:func:`~aeropend_control.drive_design.design_fl_on_drive`)."""
-    if drive is None:
-        return design_fl(rig, spec)
-    return design_fl_on_drive(rig, spec, drive, 0.5 * reachable_angle(rig))
 
 
 def default_spec(name: str) -> PoleSpec:
