@@ -167,6 +167,29 @@ def design_fl(rig: Rig, spec: PoleSpec | None = None, cancel_damping: bool = Tru
     return LoopDesign(kp, ki, kd, 0.0, a1, 1.0, math.nan, 0.0, math.nan, pred)
 
 
+def linearise(rig: Rig, theta: float) -> tuple[PlantModel, np.ndarray, float, np.ndarray, np.ndarray]:
+    """The rig's model linearised at the equilibrium that holds angle θ [rad].
+
+    Returns
+    -------
+    model, x_eq, tau_eq, A, B
+        :class:`PlantModel`, equilibrium state (shape (5,)) and duty cycle, Jacobians (5×5, 5×1)
+        of :meth:`PlantModel.jacobian` there.
+
+    Raises
+    ------
+    DesignError
+        If θ is not a reachable equilibrium.
+    """
+    m = PlantModel(rig)
+    try:
+        x_eq, tau_eq = m.equilibrium(theta)
+    except ValueError as exc:
+        raise DesignError(f"operating point theta_op = {theta!r} rad: {exc}") from exc
+    A, B = m.jacobian(x_eq, tau_eq)
+    return m, x_eq, tau_eq, A, B
+
+
 def design_small_signal(rig: Rig, theta_op: float, spec: PoleSpec | None = None) -> LoopDesign:
     """I-PD on the small-signal model at θ₀ (thesis Eq. 6.3), thrust as the plant input.
 
@@ -181,12 +204,7 @@ def design_small_signal(rig: Rig, theta_op: float, spec: PoleSpec | None = None)
         If θ₀ is not a reachable equilibrium.
     """
     spec = spec or PoleSpec()
-    m = PlantModel(rig)
-    try:
-        x_eq, tau_eq = m.equilibrium(theta_op)
-    except ValueError as exc:
-        raise DesignError(f"operating point theta_op = {theta_op!r} rad: {exc}") from exc
-    A, B = m.jacobian(x_eq, tau_eq)
+    m, _, tau_eq, A, B = linearise(rig, theta_op)
     a0, a1 = -A[THETA_DOT, THETA], -A[THETA_DOT, THETA_DOT]
     g = m.b_f
     kp, ki, kd = place_ipd(a0, a1, g, spec)

@@ -58,6 +58,7 @@ from aeropend_control.design import (
     design_fl,
     design_small_signal,
     dtau_df,
+    linearise,
     predict_step,
     reachable_angle,
     reachable_grid,
@@ -127,12 +128,7 @@ def drive_model(rig: Rig, theta0: float, drive: DriveSpec) -> control.StateSpace
     DesignError
         If θ₀ is not a reachable equilibrium.
     """
-    m = PlantModel(rig)
-    try:
-        x_eq, tau_eq = m.equilibrium(theta0)
-    except ValueError as exc:
-        raise DesignError(f"operating point theta0 = {theta0!r} rad: {exc}") from exc
-    A5, B5 = m.jacobian(x_eq, tau_eq)
+    m, x_eq, tau_eq, A5, B5 = linearise(rig, theta0)
     motor = [i for i in (I_A, OMEGA, TAU_F) if (i != TAU_F or m.lag) and (i != I_A or m.dynamic_current)]
     Am, bm = A5[np.ix_(motor, motor)], B5[motor, 0]  # bm: the duty reaching the drive
     nm, iw = len(motor), motor.index(OMEGA)
