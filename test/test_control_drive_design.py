@@ -126,3 +126,16 @@ def test_drive_spec_validates_its_values():
         DriveSpec("cascade")
     with pytest.raises(ValueError, match="thrust_gain"):
         DriveSpec("duty", thrust_gain=-1.0)
+
+
+def test_a_cascade_on_a_quasi_static_armature_with_a_declared_lag_starts_on_the_static_design():
+    doc = rig_to_dict(_rig(lag=0.04))
+    doc["effects"]["armature_inductance"] = "quasi_static"
+    rig = rig_from_dict(doc)
+    assert not PlantModel(rig).dynamic_current
+    with pytest.raises(ValueError, match="dynamic armature"):
+        drive_model(rig, 0.3, DriveSpec("cascade", cascade=design_cascade(rig)))
+    for name in ("cascade", "fl_cascade"):
+        s = make_strategy(name, rig)
+        designs = s.outer.table if name == "cascade" else [s.outer.design]
+        assert {d.drive for d in designs} == {"static"}

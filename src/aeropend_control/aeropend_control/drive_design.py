@@ -126,7 +126,8 @@ def drive_model(rig: Rig, theta0: float, drive: DriveSpec) -> control.StateSpace
     Raises
     ------
     DesignError
-        If θ₀ is not a reachable equilibrium.
+        If θ₀ is not a reachable equilibrium, or for a cascade drive on a rig whose armature current
+        is quasi-static (the current PI then has no state to act on in this model).
     """
     m, x_eq, tau_eq, A5, B5 = linearise(rig, theta0)
     motor = [i for i in (I_A, OMEGA, TAU_F) if (i != TAU_F or m.lag) and (i != I_A or m.dynamic_current)]
@@ -188,6 +189,8 @@ def dtau_dv(m: PlantModel, tau: float, rel: float = 1e-6) -> float:
     if not (math.isfinite(dv) and dv > 0.0):
         raise DesignError(f"voltage map slope dv/dτ = {dv!r} at τ = {tau!r}; expected > 0")
     return 1.0 / dv
+
+
 def closed_loop(a0: float, a1: float, g: float, drive: control.StateSpace, gains: tuple[float, float, float],
                 linearising: bool) -> control.StateSpace:
     """Linear I-PD loop r → θ around the pendulum θ̈ = −a0·θ − a1·θ̇ + g·f and a drive f = D(s)·f_cmd.
@@ -323,8 +326,11 @@ def design_fl_on_drive(rig: Rig, spec: PoleSpec, drive: DriveSpec, theta0: float
     """
     base = design_fl(rig, spec)
     m = PlantModel(rig)
-    return _on_drive(base, m.a_g * math.cos(theta0), m.a_c, m.b_f, drive_model(rig, theta0, drive), spec,
-                     True, drive.kind)
+    try:
+        d = drive_model(rig, theta0, drive)
+    except DesignError:  # no model of this drive (a cascade on a quasi-static armature): static design
+        return base
+    return _on_drive(base, m.a_g * math.cos(theta0), m.a_c, m.b_f, d, spec, True, drive.kind)
 
 
 def design_small_signal_on_drive(rig: Rig, theta0: float, spec: PoleSpec, drive: DriveSpec) -> LoopDesign:
@@ -337,7 +343,11 @@ def design_small_signal_on_drive(rig: Rig, theta0: float, spec: PoleSpec, drive:
         If θ₀ is not a reachable equilibrium.
     """
     base = design_small_signal(rig, theta0, spec)
-    return _on_drive(base, base.a0, base.a1, base.g, drive_model(rig, theta0, drive), spec, False, drive.kind)
+    try:
+        d = drive_model(rig, theta0, drive)
+    except DesignError:  # no model of this drive (a cascade on a quasi-static armature): static design
+        return base
+    return _on_drive(base, base.a0, base.a1, base.g, d, spec, False, drive.kind)
 
 
 # ------------------------------------------------------------------ the strategies' choice
