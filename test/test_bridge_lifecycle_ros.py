@@ -153,6 +153,8 @@ def test_bridge_lifecycle_transitions(tmp_path: Path) -> None:
             assert "inactive: output off" in m.diag[-1].status[0].message
             m.spin(0.4, duty=0.5)
             assert m.js == [] and mcu.duty_ocr == 0 and mcu.applied_ocr == 0
+            # configured for > 2 s: duty-0 keep-alives keep the firmware's 250 ms watchdog quiet
+            assert mcu.watchdog_trips == 0
             # --- activate: ENABLE 1, samples published, commands forwarded
             assert m.transition(Transition.TRANSITION_ACTIVATE)
             assert m.state() == "active"

@@ -124,7 +124,15 @@ def test_bridge_node_against_fake_mcu(tmp_path: Path) -> None:
         latency = first_zero - silent_from  # both time.monotonic() of this process
         print(f"bridge watchdog: duty 0 on the wire {latency * 1e3:.1f} ms after the last command")
         assert latency <= 0.1  # spec: duty 0 within 100 ms of controller silence
-        assert mcu.watchdog_trips == 0  # keep-alive keeps the firmware watchdog quiet
+        # keep-alive keeps the firmware watchdog quiet; on failure say when the commands stopped
+        arrivals = np.array([t for t, _ in mcu.commands])
+        gaps = np.diff(arrivals)
+        k = int(np.argmax(gaps)) if gaps.size else 0
+        assert mcu.watchdog_trips == 0, (
+            f"firmware watchdog tripped {mcu.watchdog_trips}x; longest gap between commands "
+            f"{gaps[k] * 1e3:.0f} ms, from {arrivals[k] - arrivals[0]:.3f} s after the first command "
+            f"(controller silent from {silent_from - arrivals[0]:.3f} s); commands "
+            f"{[type(f).__name__ for _, f in mcu.commands[max(0, k - 2):k + 3]]}")
         # --- diagnostics (a fresh message, published after the events above)
         client.diag.clear()
         assert client.spin_until(lambda: len(client.diag) >= 1, 3)

@@ -32,7 +32,8 @@ theta_offset : float [rad], default 0.0
 command_timeout : float [s], default 0.1
     Duty 0 is on the wire at most this long after the last valid command.
 keepalive_period : float [s], default 0.02
-    The current duty is re-sent this often (feeds the firmware's 250 ms watchdog); must be
+    The current duty (duty 0 while configured but inactive) is re-sent this often (feeds the
+    firmware's 250 ms watchdog from connect on); must be
     < command_timeout / 2 (the watchdog trips at command_timeout − 2·keepalive_period and is
     checked every keepalive_period).
 rate_divider : int, default 1
@@ -446,7 +447,13 @@ class BridgeNode(LifecycleNode):
             self._last_sent = duty
 
     def _keepalive(self) -> None:
+        """Every keep-alive period: the current duty (active), or duty 0 while configured but
+        inactive, so the firmware's 250 ms command watchdog stays quiet as long as the bridge lives
+        (it tripped between the duty 0 sent on connect and activation when configure → activate
+        took longer than 250 ms: ``bench/repro_firmware_watchdog_trip.py``)."""
         if not self._active:
+            if self.link is not None:
+                self.link.send(Duty(0))
             return
         now = time.monotonic_ns()
         trips = self.watchdog.trips
