@@ -452,8 +452,7 @@ class BridgeNode(LifecycleNode):
         (it tripped between the duty 0 sent on connect and activation when configure → activate
         took longer than 250 ms: ``bench/repro_firmware_watchdog_trip.py``)."""
         if not self._active:
-            if self.link is not None:
-                self.link.send(Duty(0))
+            self._send_duty(0.0)
             return
         now = time.monotonic_ns()
         trips = self.watchdog.trips

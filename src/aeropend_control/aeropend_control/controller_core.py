@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from aeropend_control.design import DesignError, PoleSpec, design_cascade, reachable_angle
+from aeropend_control.design import DesignError, PoleSpec, reachable_angle
 from aeropend_control.strategies import (
     ALLOCATORS,
     DEFAULT_TF,
@@ -25,8 +25,6 @@ from aeropend_control.strategies import (
     FeedbackLinearizationPID,
     SmallSignalPID,
     default_spec,
-    design_drive,
-    fl_design,
     make_strategy,
 )
 from aeropend_sim.params import Rig, RigFileError, load_rig
@@ -160,14 +158,8 @@ def make_settings(**raw: Any) -> ControllerSettings:
 def build_strategy(s: ControllerSettings) -> FeedbackLinearizationPID | SmallSignalPID | CascadeStrategy:
     """The strategy object of the settings (raises :class:`ControllerConfigError` on failure)."""
     try:
-        common: dict[str, Any] = {"allocator": s.allocator, "tf": s.tf, "estimator": s.estimator}
-        if s.strategy in ("fl_pid", "fl_cascade"):
-            cascade = design_cascade(s.rig) if s.strategy in NEEDS_MOTOR else None
-            design = fl_design(s.rig, s.spec, design_drive(s.rig, s.strategy, cascade))
-            if cascade is not None:
-                common["cascade_design"] = cascade
-            return make_strategy(s.strategy, s.rig, design=design, **common)
-        opts: dict[str, Any] = {"spec": s.spec, **common}
+        opts: dict[str, Any] = {"spec": s.spec, "allocator": s.allocator, "tf": s.tf,
+                                "estimator": s.estimator}
         if s.strategy == "small_signal_fixed":
             opts["theta_op"] = s.theta_op
         return make_strategy(s.strategy, s.rig, **opts)

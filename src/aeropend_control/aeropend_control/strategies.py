@@ -414,19 +414,23 @@ def make_strategy(
 
     ``small_signal`` is gain-scheduled; ``small_signal_fixed`` needs ``theta_op``; ``cascade``
     and ``fl_cascade`` take ``cascade_design`` (a :class:`CascadeDesign`) and pass the other
-    options to their outer loop (scheduled small-signal / FL).
+    options to their outer loop (scheduled small-signal / FL). ``spec`` (a :class:`PoleSpec`) is
+    accepted by every strategy: the FL ones turn it into their ``design`` (:func:`fl_design` on
+    the drive :func:`design_drive` names) unless a ``design`` is given.
 
     Raises
     ------
     StrategyError
         On an unknown name or a missing ``theta_op``.
     """
+    cdesign = (options.pop("cascade_design", None) or design_cascade(rig)) if name in NEEDS_MOTOR else None
+    if name in ("fl_pid", "fl_cascade"):
+        spec = options.pop("spec", None) or DEFAULT_SPECS[name]
+        if options.get("design") is None:
+            options["design"] = fl_design(rig, spec, design_drive(rig, name, cdesign))  # type: ignore[arg-type]
     if name in NEEDS_MOTOR:
-        cdesign = options.pop("cascade_design", None) or design_cascade(rig)
-        if name == "fl_cascade" and options.get("design") is None:
-            options["design"] = fl_design(rig, DEFAULT_SPECS[name], design_drive(rig, name, cdesign))
         if name == "cascade":
-            options.setdefault("drive", design_drive(rig, name, cdesign))
+            options.setdefault("drive", design_drive(rig, name, cdesign))  # type: ignore[arg-type]
             if options.get("spec") is None:
                 options["spec"] = DEFAULT_SPECS[name]
         outer = make_strategy("fl_pid" if name == "fl_cascade" else "small_signal", rig, **options)
