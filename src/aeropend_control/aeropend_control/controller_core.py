@@ -125,7 +125,7 @@ def make_settings(**raw: Any) -> ControllerSettings:
     allocator = str(raw.get("allocator", "model"))
     if allocator not in ALLOCATORS:
         raise ControllerConfigError(f"allocator = {allocator!r}; expected one of {ALLOCATORS}")
-    base = default_spec(strategy)  # a pole parameter not given (None) takes the strategy's default
+    base = default_spec(strategy, rig)  # a pole parameter not given (None) takes the strategy's default
 
     def pole(name: str) -> float:
         val = raw.get(name)

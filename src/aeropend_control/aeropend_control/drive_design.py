@@ -64,7 +64,7 @@ from aeropend_control.design import (
     reachable_grid,
     schedule,
 )
-from aeropend_control.metrics import TABLE_6_1
+from aeropend_control.metrics import GOAL, TABLE_6_1
 from aeropend_sim.model import I_A, OMEGA, TAU_F, PlantModel
 from aeropend_sim.params import Rig, load_rig
 
@@ -192,7 +192,7 @@ def dtau_dv(m: PlantModel, tau: float, rel: float = 1e-6) -> float:
 
 
 def closed_loop(a0: float, a1: float, g: float, drive: control.StateSpace, gains: tuple[float, float, float],
-                linearising: bool) -> control.StateSpace:
+                linearising: bool, plant_error: tuple[float, float] = (1.0, 1.0)) -> control.StateSpace:
     """Linear I-PD loop r → θ around the pendulum θ̈ = −a0·θ − a1·θ̇ + g·f and a drive f = D(s)·f_cmd.
 
     Parameters
@@ -206,6 +206,9 @@ def closed_loop(a0: float, a1: float, g: float, drive: control.StateSpace, gains
     linearising : bool
         True: u is the FL law's v and f_cmd = (v + a0·θ + a1·θ̇)/g; False: u is the thrust
         deviation (small-signal), f_cmd = u.
+    plant_error : tuple of float
+        Factors (k_g, k_c) on the plant's thrust gain g and damping a1 that the design (and the FL
+        law) does not know: the plant is θ̈ = −a0·θ − k_c·a1·θ̇ + k_g·g·f (:func:`robust_spec`).
 
     Returns
     -------
@@ -225,8 +228,9 @@ def closed_loop(a0: float, a1: float, g: float, drive: control.StateSpace, gains
         f_cmd[1] += a1 / g
     A = np.zeros((n, n))
     A[0, 1] = 1.0
-    A[1, 0], A[1, 1] = -a0, -a1
-    A[1, 2:2 + nd] = g * Cd[0]
+    k_g, k_c = plant_error
+    A[1, 0], A[1, 1] = -a0, -k_c * a1
+    A[1, 2:2 + nd] = k_g * g * Cd[0]
     A[2:2 + nd, 2:2 + nd] = Ad
     A[2:2 + nd, :] += np.outer(Bd[:, 0], f_cmd)
     A[iz, 0] = -1.0
@@ -376,6 +380,82 @@ def design_drive(rig: Rig, name: str, cascade: CascadeDesign | None = None) -> D
     if name in CASCADE_STRATEGIES:
         return DriveSpec("cascade", cascade=cascade or design_cascade(rig))
     return DriveSpec("duty", thrust_gain=default_thrust_gain(rig))
+
+
+#: Damping ratios :func:`robust_spec` chooses from (ascending: the least damped of equal cost wins).
+ROBUST_ZETAS = (0.7, 0.75, 0.8, 0.85, 0.9)
+#: Plant errors :func:`robust_spec` guards against, as factors on the thrust gain (K_q) and on the
+#: rod's viscous damping c/J, all combinations (issue 19: "±20 % thrust-gain / damping errors").
+THRUST_GAIN_ERRORS = (0.8, 1.0, 1.2)
+DAMPING_ERRORS = (0.8, 1.0, 1.2)
+
+
+def worst_goal_ratio(a0: float, a1: float, g: float, drive: control.StateSpace,
+                     gains: tuple[float, float, float], linearising: bool) -> float:
+    """Worst over the plant errors (:data:`THRUST_GAIN_ERRORS` × :data:`DAMPING_ERRORS`) of
+    max(ts / 1 s, Mp / 5 %) of the linear loop (:func:`closed_loop`): ≤ 1 when the goal (ts ≤ 1 s,
+    Mp ≤ 5 %, :data:`aeropend_control.metrics.GOAL`) holds on every such plant; ``inf`` if one of
+    them is unstable."""
+    worst = 0.0
+    for k_g in THRUST_GAIN_ERRORS:
+        for k_c in DAMPING_ERRORS:
+            cl = closed_loop(a0, a1, g, drive, gains, linearising, (k_g, k_c))
+            if not np.all(np.linalg.eigvals(np.asarray(cl.A)).real < 0.0):
+                return math.inf
+            p = predict_step(cl)
+            worst = max(worst, p.settling_time / GOAL.settling_time, p.overshoot / GOAL.overshoot)
+    return worst if math.isfinite(worst) else math.inf
+
+
+def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | None = None) -> PoleSpec:
+    """``spec`` with the damping ratio that meets the goal with the most margin on the drive chain
+    the rig file declares, under thrust-gain and damping errors (issue 19, docs/control.md).
+
+    On a rig file without a declared drive lag or delay (:func:`design_drive` None) ``spec`` is
+    returned unchanged (the thesis' design, Table 6.1). Otherwise, for each ζ of
+    :data:`ROBUST_ZETAS` (ω_n, ρ of ``spec``), strategy ``name``'s loop is designed as it will run
+    (on the drive, :func:`design_fl_on_drive` / :func:`design_small_signal_on_drive`, at half the
+    reach) and scored by :func:`worst_goal_ratio`; the least score wins (minimax). A rig file that
+    knows its drive is a measured one (``gap``'s ``corrected_rig.yaml``), but at most a few effects
+    of it: the design then aims at the goal on the plants near it, not at the nominal plant alone.
+
+    Parameters
+    ----------
+    rig : Rig
+    name : str
+        Strategy name (:data:`aeropend_control.strategies.STRATEGIES`).
+    spec : PoleSpec
+        The strategy's default pole pattern.
+    cascade : CascadeDesign, optional
+        The cascades' motor loops (default :func:`design_cascade`).
+
+    Returns
+    -------
+    PoleSpec
+    """
+    drive = design_drive(rig, name, cascade)
+    if drive is None:
+        return spec
+    theta0 = 0.5 * reachable_angle(rig)
+    try:
+        d = drive_model(rig, theta0, drive)
+    except DesignError:  # no model of this drive: the static design, at the default spec
+        return spec
+    linearising = name in ("fl_pid", "fl_cascade")
+    best, best_cost = spec, math.inf
+    for zeta in ROBUST_ZETAS:
+        cand = dataclasses.replace(spec, zeta=zeta)
+        if linearising:
+            m = PlantModel(rig)
+            des = design_fl_on_drive(rig, cand, drive, theta0)
+            a0, a1, g = m.a_g * math.cos(theta0), m.a_c, m.b_f
+        else:
+            des = design_small_signal_on_drive(rig, theta0, cand, drive)
+            a0, a1, g = des.a0, des.a1, des.g
+        cost = worst_goal_ratio(a0, a1, g, d, (des.kp, des.ki, des.kd), linearising)
+        if cost < best_cost:
+            best, best_cost = cand, cost
+    return best
 
 
 def fl_design(rig: Rig, spec: PoleSpec, drive: DriveSpec | None) -> LoopDesign:

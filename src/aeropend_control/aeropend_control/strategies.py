@@ -54,6 +54,7 @@ from aeropend_control.drive_design import (
     design_drive,
     design_small_signal_on_drive,
     fl_design,
+    robust_spec,
 )
 from aeropend_control.observer import ObserverSpec, PendulumObserver
 from aeropend_control.oscillation import OscillationMonitor
@@ -82,9 +83,12 @@ DEFAULT_SPECS: dict[str, PoleSpec] = {
 }
 
 
-def default_spec(name: str) -> PoleSpec:
-    """Default :class:`PoleSpec` of strategy ``name`` (:data:`DEFAULT_SPECS`; ``PoleSpec()`` if unknown)."""
-    return DEFAULT_SPECS.get(name, PoleSpec())
+def default_spec(name: str, rig: Rig | None = None, cascade: CascadeDesign | None = None) -> PoleSpec:
+    """Default :class:`PoleSpec` of strategy ``name`` (:data:`DEFAULT_SPECS`; ``PoleSpec()`` if
+    unknown); with ``rig``, its damping ratio chosen for that rig by :func:`robust_spec` (changed
+    only when the rig file declares a drive lag or delay; ``cascade``: the cascades' motor loops)."""
+    spec = DEFAULT_SPECS.get(name, PoleSpec())
+    return spec if rig is None else robust_spec(rig, name, spec, cascade)
 
 
 class StrategyError(ValueError):
@@ -279,9 +283,10 @@ class FeedbackLinearizationPID(_Base):
                  allocator: str = "model", tf: float = DEFAULT_TF, dt: float | None = None,
                  f_init: float = 0.0, estimator: str = "observer",
                  observer_spec: ObserverSpec | None = None) -> None:
-        spec = DEFAULT_SPECS["fl_pid"]
-        self.design = design or (fl_design(rig, spec, design_drive(rig, self.name)) if cancel_damping
-                                 else design_fl(rig, spec, cancel_damping=False))
+        if design is None:
+            design = (fl_design(rig, default_spec(self.name, rig), design_drive(rig, self.name))
+                      if cancel_damping else design_fl(rig, DEFAULT_SPECS[self.name], cancel_damping=False))
+        self.design = design
         self.cancel_damping = cancel_damping
         super().__init__(rig, self.design.pid_gains(), allocator, tf, dt, f_init, estimator, observer_spec)
 
@@ -347,7 +352,7 @@ class SmallSignalPID(_Base):
                  spec: PoleSpec | None = None, allocator: str = "model", tf: float = DEFAULT_TF,
                  dt: float | None = None, f_init: float = 0.0, estimator: str = "observer",
                  observer_spec: ObserverSpec | None = None, drive: DriveSpec | str | None = "auto") -> None:
-        spec = spec or DEFAULT_SPECS["small_signal"]
+        spec = spec or default_spec("small_signal", rig)
         if isinstance(drive, str):
             if drive != "auto":
                 raise StrategyError(f"drive = {drive!r}; expected a DriveSpec, None or 'auto'")
@@ -425,14 +430,14 @@ def make_strategy(
     """
     cdesign = (options.pop("cascade_design", None) or design_cascade(rig)) if name in NEEDS_MOTOR else None
     if name in ("fl_pid", "fl_cascade"):
-        spec = options.pop("spec", None) or DEFAULT_SPECS[name]
+        spec = options.pop("spec", None) or default_spec(name, rig, cdesign)
         if options.get("design") is None:
             options["design"] = fl_design(rig, spec, design_drive(rig, name, cdesign))  # type: ignore[arg-type]
     if name in NEEDS_MOTOR:
         if name == "cascade":
             options.setdefault("drive", design_drive(rig, name, cdesign))  # type: ignore[arg-type]
             if options.get("spec") is None:
-                options["spec"] = DEFAULT_SPECS[name]
+                options["spec"] = default_spec(name, rig, cdesign)
         outer = make_strategy("fl_pid" if name == "fl_cascade" else "small_signal", rig, **options)
         return CascadeStrategy(outer, rig, cdesign)  # type: ignore[arg-type]
     if name == "fl_pid":
