@@ -29,6 +29,10 @@ Drives (:class:`DriveSpec`):
   current PI (:class:`~aeropend_control.design.CascadeDesign`) → armature voltage through delay
   and lag → armature and rotor → thrust.
 
+**Damping ratio robust to the rest** (:func:`robust_spec`): a corrected rig file names a few
+effects and misses others; on a rig file that declares its drive, the default ζ is the minimax
+choice over thrust-gain and damping errors of ±20 % of the linear loop with that drive.
+
 Which drive a strategy is designed on (:func:`design_drive`, :func:`fl_design`) and the
 ``design_gains`` CLI (:func:`main`: the FL gains and the scheduled small-signal table as the
 strategies design them, with predicted metrics and the design model) live here too, as the layer
