@@ -244,3 +244,33 @@ def test_gap_on_one_recording_then_the_controllers_on_the_rig_file_it_wrote(tmp_
             mp[name] = max(0.0, (theta.max() - 0.3) / 0.3 * 100.0)
         assert ts <= 0.85, (strategy, ts)
         assert mp["corrected"] < 3.0 and mp["corrected"] <= 0.25 * mp["nominal"], (strategy, mp)
+
+
+def test_a_rig_file_that_declares_coulomb_friction_designs_on_the_viscous_damping_alone(tmp_path):
+    """The rod's Coulomb friction in a rig file (as ``gap`` writes it when it names the effect) has
+    no small-signal damping: its regularised sign is steep only below v_ε = 0.01 rad/s. Counted as
+    damping (a1 = c/J + (T_f/J)/v_ε ≈ 230 1/s with T_f/J = 2.15 rad/s²) it made the small-signal loop
+    and the cascade above it oscillate (overshoot 218 % and 76 %, no settling, on a tuning plant of
+    the independent benchmark). Designed on c/J alone, both settle on a truth plant with that
+    friction."""
+    from aeropend_control.design import design_small_signal
+    from aeropend_sim.model import PlantModel
+    from aeropend_sim.params import load_rig
+
+    doc = lab_rig_doc()
+    doc["effects"]["coulomb_friction"] = True
+    doc["pendulum"]["coulomb_over_J"] = {"value": 2.15, "unit": "rad/s^2", "source": "test"}
+    path = str(write_rig(doc, tmp_path / "coulomb.yaml"))
+    rig = load_rig(path)
+    m = PlantModel(rig)
+    x_eq, tau_eq = m.equilibrium(0.3)
+    A, _ = m.jacobian(x_eq, tau_eq)
+    assert -A[1, 1] > 200.0  # the simulation's regularised sign at rest
+    assert design_small_signal(rig, 0.3).a1 == pytest.approx(m.a_c)
+    plant = tp.TruthPlant(effects={"coulomb_friction": 2.15})
+    t = np.arange(2500) * tp.DT
+    for strategy in ("small_signal", "cascade"):
+        theta = _step_on_truth(path, strategy, plant, r=0.3, n=t.size)
+        band = np.abs(theta - 0.3) > 0.02 * 0.3
+        assert not band[-500:].any(), strategy  # settled over the last second
+        assert (theta.max() - 0.3) / 0.3 < 0.1, strategy

@@ -170,6 +170,11 @@ def design_fl(rig: Rig, spec: PoleSpec | None = None, cancel_damping: bool = Tru
 def linearise(rig: Rig, theta: float) -> tuple[PlantModel, np.ndarray, float, np.ndarray, np.ndarray]:
     """The rig's model linearised at the equilibrium that holds angle θ [rad].
 
+    The rod's dry (Coulomb, Stribeck) friction is left out (``PlantModel.jacobian(...,
+    dry_friction=False)``): its regularised sign has a slope of (T_f/J)/v_ε at rest, damping the
+    rod does not have once it moves; designed on it, the small-signal loop oscillates on a rig
+    file that declares Coulomb friction (a `gap`-corrected one that names it).
+
     Returns
     -------
     model, x_eq, tau_eq, A, B
@@ -186,7 +191,7 @@ def linearise(rig: Rig, theta: float) -> tuple[PlantModel, np.ndarray, float, np
         x_eq, tau_eq = m.equilibrium(theta)
     except ValueError as exc:
         raise DesignError(f"operating point theta_op = {theta!r} rad: {exc}") from exc
-    A, B = m.jacobian(x_eq, tau_eq)
+    A, B = m.jacobian(x_eq, tau_eq, dry_friction=False)
     return m, x_eq, tau_eq, A, B
 
 

@@ -392,14 +392,17 @@ ROBUST_ZETAS = (0.7, 0.75, 0.8, 0.85, 0.9)
 #: rod's viscous damping c/J, all combinations (issue 19: "±20 % thrust-gain / damping errors").
 THRUST_GAIN_ERRORS = (0.8, 1.0, 1.2)
 DAMPING_ERRORS = (0.8, 1.0, 1.2)
+#: Settling time and overshoot the robust choice scores against (the goal: ts ≤ 1 s, Mp ≤ 5 %).
+ROBUST_GOAL = GOAL
 
 
 def worst_goal_ratio(a0: float, a1: float, g: float, drive: control.StateSpace,
                      gains: tuple[float, float, float], linearising: bool) -> float:
     """Worst over the plant errors (:data:`THRUST_GAIN_ERRORS` × :data:`DAMPING_ERRORS`) of
-    max(ts / 1 s, Mp / 5 %) of the linear loop (:func:`closed_loop`): ≤ 1 when the goal (ts ≤ 1 s,
-    Mp ≤ 5 %, :data:`aeropend_control.metrics.GOAL`) holds on every such plant; ``inf`` if one of
-    them is unstable."""
+    max(ts / ts_goal, Mp / Mp_goal) of the linear loop (:func:`closed_loop`), goal
+    :data:`ROBUST_GOAL` (ts ≤ 1 s, Mp ≤ 5 %): ≤ 1 when the goal holds on every such plant; ``inf``
+    if one of them is unstable."""
+    goal = ROBUST_GOAL
     worst = 0.0
     for k_g in THRUST_GAIN_ERRORS:
         for k_c in DAMPING_ERRORS:
@@ -407,7 +410,7 @@ def worst_goal_ratio(a0: float, a1: float, g: float, drive: control.StateSpace,
             if not np.all(np.linalg.eigvals(np.asarray(cl.A)).real < 0.0):
                 return math.inf
             p = predict_step(cl)
-            worst = max(worst, p.settling_time / GOAL.settling_time, p.overshoot / GOAL.overshoot)
+            worst = max(worst, p.settling_time / goal.settling_time, p.overshoot / goal.overshoot)
     return worst if math.isfinite(worst) else math.inf
 
 

@@ -224,12 +224,19 @@ class PlantModel:
             return max(0.0, -self.k_s * (th - self.th_min) - self.c_s * thd)
         return 0.0
 
-    def jacobian(self, x: np.ndarray | list[float], u: float) -> tuple[np.ndarray, np.ndarray]:
+    def jacobian(self, x: np.ndarray | list[float], u: float,
+                 dry_friction: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Analytic linearisation A = ∂f/∂x (5×5), B = ∂f/∂u (5×1) at (x, u).
 
         Used for small-signal design (thesis Eq. 6.3); checked against finite differences in
         the tests. Non-smooth points (dead-zone edge, map clip at 0 V, stop contact onset) take
         the one-sided derivative of the active branch.
+
+        ``dry_friction=False`` leaves out the slope of the rod's dry friction (:meth:`dry_friction`).
+        Its sign is regularised over v_ε only for simulation, so at rest the slope is
+        (T_f/J)/v_ε, hundreds of 1/s: damping that the rod has only for motions slower than v_ε.
+        A controller designed on it would count on damping that is gone as soon as the rod moves
+        (a Coulomb force has constant size), so controller design omits it.
         """
         A = np.zeros((N_STATES, N_STATES))
         B = np.zeros((N_STATES, 1))
@@ -268,7 +275,7 @@ class PlantModel:
         A[THETA, THETA_DOT] = 1.0
         dth = -self.a_g * math.cos(th)
         dthd = -self.a_c
-        if self.a_f > 0.0 or self.a_s > 0.0:
+        if dry_friction and (self.a_f > 0.0 or self.a_s > 0.0):
             dthd -= self._dry_friction_slope(thd)
         if self.stops:
             for lim, sign in ((self.th_max, 1.0), (self.th_min, -1.0)):

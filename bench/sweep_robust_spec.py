@@ -1,0 +1,80 @@
+"""Exploration (issue 19): the robust damping-ratio choice (``drive_design.robust_spec``) on tuning plants.
+
+Designs on the ``gap``-corrected rig files of tuning plants (default: 100-109, drawn like the
+reported plants 0-39 with other seeds, so nothing is tuned on the reported set; their corrected rigs
+come from a ``bench_control_independent.py --first 100 --plants 10 --gap`` run stored in
+``bench/results/control_tuning_gap_rigs.json``) with the choice's settings replaced by each
+configuration below, and writes one row per configuration to
+``bench/results/control_robust_sweep.{json,md}``. The defaults are not changed by this script.
+
+Usage: ``python bench/sweep_robust_spec.py [CONFIG ...]`` (default: all).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import bench_control_independent as bci
+
+import aeropend_control.drive_design as dd
+from aeropend_control.metrics import GOAL
+
+RESULTS = Path(__file__).resolve().parent / "results"
+RIGS = RESULTS / "control_tuning_gap_rigs.json"
+#: name -> (ζ candidates, overshoot the score divides by [%], damping-error factors)
+CONFIGS: dict[str, tuple[tuple[float, ...], float, tuple[float, ...]]] = {
+    "fixed_zeta070": ((0.7,), 5.0, dd.DAMPING_ERRORS),
+    "current": (dd.ROBUST_ZETAS, 5.0, dd.DAMPING_ERRORS),
+    "mp2": (dd.ROBUST_ZETAS, 2.0, dd.DAMPING_ERRORS),
+    "mp2_upto095": ((*dd.ROBUST_ZETAS, 0.95), 2.0, dd.DAMPING_ERRORS),
+    "mp5_upto095": ((*dd.ROBUST_ZETAS, 0.95), 5.0, dd.DAMPING_ERRORS),
+    "damping05_15": (dd.ROBUST_ZETAS, 5.0, (0.5, 1.0, 1.5)),
+}
+
+
+def run(name: str, tmp: Path, first: int, plants: int) -> dict:
+    zetas, mp, damping = CONFIGS[name]
+    dd.ROBUST_ZETAS, dd.DAMPING_ERRORS = zetas, damping
+    dd.ROBUST_GOAL = dataclasses.replace(GOAL, overshoot=mp)
+    out = tmp / f"sweep_{name}"
+    bci.main(["--first", str(first), "--plants", str(plants), "--workers", "2", "--gap-rigs", str(RIGS),
+              "--out", str(out)])
+    s = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))["summary"]["gap"]
+    return {"config": name, "zetas": list(zetas), "overshoot_target": mp, "damping_errors": list(damping),
+            **{k: s[k] for k in ("goal", "no_limit_cycle", "table_6_1", "median_ts",
+                                 "p90_ts", "median_mp", "per_strategy") if k in s}}
+
+
+def main(argv: list[str] | None = None) -> int:
+    names = (argv if argv is not None else sys.argv[1:]) or list(CONFIGS)
+    plants = json.loads(RIGS.read_text(encoding="utf-8"))["plants"]
+    first, n = min(p["index"] for p in plants), len(plants)
+    with tempfile.TemporaryDirectory() as tmp:
+        new = {nm: run(nm, Path(tmp), first, n) for nm in names}
+    path = RESULTS / "control_robust_sweep.json"
+    old = json.loads(path.read_text(encoding="utf-8")) if path.exists() else []
+    rows = [new.pop(r["config"], r) for r in old] + list(new.values())  # re-run configs replace their row
+    path.write_text(json.dumps(rows, indent=1), encoding="utf-8")
+    lines = [f"# Robust ζ choice on the gap-corrected rigs of tuning plants {first}-{first + n - 1} "
+             "(bench/sweep_robust_spec.py)", "",
+             "Within-reach runs designed on the gap-corrected rig; ζ candidates and the overshoot the "
+             "minimax score divides by (`drive_design.robust_spec`).", "",
+             "| config | ζ candidates | Mp target [%] | damping errors | goal | no limit cycle | Table 6.1 "
+             "| median ts [s] | p90 ts [s] | median Mp [%] |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['config']} | {r['zetas']} | {r['overshoot_target']} | {r['damping_errors']} | "
+                     f"{100 * r['goal']:.1f} % | "
+                     f"{100 * r['no_limit_cycle']:.1f} % | {100 * r['table_6_1']:.1f} % | "
+                     f"{r['median_ts']:.3f} | {r['p90_ts']:.3f} | {r['median_mp']:.2f} |")
+    (RESULTS / "control_robust_sweep.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
