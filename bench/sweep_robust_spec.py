@@ -28,13 +28,15 @@ from aeropend_control.metrics import GOAL
 RESULTS = Path(__file__).resolve().parent / "results"
 RIGS = RESULTS / "control_tuning_gap_rigs.json"
 #: name -> (ζ candidates, overshoot the score divides by [%], damping-error factors)
+Z090 = (0.7, 0.75, 0.8, 0.85, 0.9)
+Z095 = (*Z090, 0.95)
 CONFIGS: dict[str, tuple[tuple[float, ...], float, tuple[float, ...]]] = {
-    "fixed_zeta070": ((0.7,), 5.0, dd.DAMPING_ERRORS),
-    "current": (dd.ROBUST_ZETAS, 5.0, dd.DAMPING_ERRORS),
-    "mp2": (dd.ROBUST_ZETAS, 2.0, dd.DAMPING_ERRORS),
-    "mp2_upto095": ((*dd.ROBUST_ZETAS, 0.95), 2.0, dd.DAMPING_ERRORS),
-    "mp5_upto095": ((*dd.ROBUST_ZETAS, 0.95), 5.0, dd.DAMPING_ERRORS),
-    "damping05_15": (dd.ROBUST_ZETAS, 5.0, (0.5, 1.0, 1.5)),
+    "fixed_zeta070": ((0.7,), 5.0, (0.8, 1.0, 1.2)),
+    "upto090_mp5": (Z090, 5.0, (0.8, 1.0, 1.2)),  # robust_spec as first committed (2b8b5a4)
+    "upto090_mp2": (Z090, 2.0, (0.8, 1.0, 1.2)),
+    "upto095_mp2": (Z095, 2.0, (0.8, 1.0, 1.2)),  # the default now
+    "upto095_mp5": (Z095, 5.0, (0.8, 1.0, 1.2)),
+    "upto090_mp5_damping05_15": (Z090, 5.0, (0.5, 1.0, 1.5)),
 }
 
 

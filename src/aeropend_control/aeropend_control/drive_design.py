@@ -387,21 +387,26 @@ def design_drive(rig: Rig, name: str, cascade: CascadeDesign | None = None) -> D
 
 
 #: Damping ratios :func:`robust_spec` chooses from (ascending: the least damped of equal cost wins).
-ROBUST_ZETAS = (0.7, 0.75, 0.8, 0.85, 0.9)
+ROBUST_ZETAS = (0.7, 0.75, 0.8, 0.85, 0.9, 0.95)
 #: Plant errors :func:`robust_spec` guards against, as factors on the thrust gain (K_q) and on the
 #: rod's viscous damping c/J, all combinations (issue 19: "±20 % thrust-gain / damping errors").
 THRUST_GAIN_ERRORS = (0.8, 1.0, 1.2)
 DAMPING_ERRORS = (0.8, 1.0, 1.2)
-#: Settling time and overshoot the robust choice scores against (the goal: ts ≤ 1 s, Mp ≤ 5 %).
-ROBUST_GOAL = GOAL
+#: Settling time and overshoot the robust choice scores against: the goal's ts ≤ 1 s, and an
+#: overshoot inside the 2 % settling band instead of the goal's 5 %. Physics: where the rod's first
+#: overshoot ends, Coulomb friction (which no rig file of ``gap`` names reliably) holds it while the
+#: integrator unwinds (0.3-0.5 s at 1.5 rad/s²); a first overshoot inside the band is then settled,
+#: one outside it costs the settling time. Chosen on tuning plants 100-109 (``bench/sweep_robust_spec.py``,
+#: ``bench/results/control_robust_sweep.md``), not on the reported plants.
+ROBUST_GOAL = dataclasses.replace(GOAL, overshoot=2.0)
 
 
 def worst_goal_ratio(a0: float, a1: float, g: float, drive: control.StateSpace,
                      gains: tuple[float, float, float], linearising: bool) -> float:
     """Worst over the plant errors (:data:`THRUST_GAIN_ERRORS` × :data:`DAMPING_ERRORS`) of
     max(ts / ts_goal, Mp / Mp_goal) of the linear loop (:func:`closed_loop`), goal
-    :data:`ROBUST_GOAL` (ts ≤ 1 s, Mp ≤ 5 %): ≤ 1 when the goal holds on every such plant; ``inf``
-    if one of them is unstable."""
+    :data:`ROBUST_GOAL` (ts ≤ 1 s, Mp ≤ 2 %): ≤ 1 when it holds on every such plant; ``inf`` if
+    one of them is unstable."""
     goal = ROBUST_GOAL
     worst = 0.0
     for k_g in THRUST_GAIN_ERRORS:
