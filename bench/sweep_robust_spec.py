@@ -37,6 +37,8 @@ CONFIGS: dict[str, tuple[tuple[float, ...], float, tuple[float, ...]]] = {
     "upto095_mp2": (Z095, 2.0, (0.8, 1.0, 1.2)),  # the default now
     "upto095_mp5": (Z095, 5.0, (0.8, 1.0, 1.2)),
     "upto090_mp5_damping05_15": (Z090, 5.0, (0.5, 1.0, 1.5)),
+    "upto099_mp2": ((*Z095, 0.99), 2.0, (0.8, 1.0, 1.2)),
+    "upto095_mp2_damping05_15": (Z095, 2.0, (0.5, 1.0, 1.5)),
 }
 
 
