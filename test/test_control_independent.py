@@ -199,10 +199,18 @@ def test_design_gains_and_every_strategy_take_the_rig_file_gap_wrote(tmp_path, c
     assert rig.effects.actuator_lag and rig.actuator.lag_time_constant > 0.0
     assert main(["--rig", str(GAP_RIG), "-o", str(tmp_path / "gains.yaml")]) == 0
     assert "reach" in capsys.readouterr().out
+    gains = yaml.safe_load((tmp_path / "gains.yaml").read_text(encoding="utf-8"))
     for name in ("small_signal", "fl_pid", "cascade", "fl_cascade"):
         loop = ControllerLoop(make_settings(rig=str(GAP_RIG), strategy=name, mode="lockstep", reference=0.3))
         outer = getattr(loop.strategy, "outer", loop.strategy)
         assert outer.thrust_gain == THRUST_LOOP_GAIN
+        if name in ("small_signal", "fl_pid"):  # design_gains prints the design the node runs
+            spec = loop.settings.spec
+            assert gains["pole_spec"][name] == {"omega_n": spec.omega_n, "zeta": spec.zeta, "rho": spec.rho}
+            assert loop.settings.spec.zeta > 0.7  # the robust choice on a rig that declares its drive
+        if name == "fl_pid":
+            assert (outer.design.kp, outer.design.ki, outer.design.kd) == pytest.approx(
+                (gains["fl_pid"]["kp"], gains["fl_pid"]["ki"], gains["fl_pid"]["kd"]))
         if name in ("cascade", "fl_cascade"):
             assert loop.strategy.inner.design.omega_speed < 45.0
     plant = tp.TruthPlant()  # the nominal plant: a corrected rig must still hold it

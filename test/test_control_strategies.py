@@ -194,7 +194,11 @@ def test_design_cli_writes_gains(tmp_path: pytest.TempPathFactory, capsys: pytes
     out = tmp_path / "gains.yaml"
     assert main(["--rig", "thesis_rig", "-o", str(out)]) == 0
     doc = yaml.safe_load(out.read_text())
-    assert doc["fl_pid"]["kp"] == pytest.approx(194.4) and len(doc["small_signal"]) == 12
+    # unset pole parameters: the strategies' defaults (ω_n 9.5, ζ 0.7, ρ 1: kp = ω_n²(1 + 2ζρ))
+    assert doc["pole_spec"]["fl_pid"] == {"omega_n": 9.5, "zeta": 0.7, "rho": 1.0}
+    assert doc["fl_pid"]["kp"] == pytest.approx(216.6) and len(doc["small_signal"]) == 12
+    assert main(["--rig", "thesis_rig", "--omega-n", "9", "-o", str(out)]) == 0
+    assert yaml.safe_load(out.read_text())["fl_pid"]["kp"] == pytest.approx(194.4)
     assert "fl_pid" in capsys.readouterr().out
     assert main(["--zeta", "2"]) == 2
     assert "zeta = 2.0" in capsys.readouterr().err

@@ -30,7 +30,7 @@ allocator : str, default ``model``
     ``model`` | ``thesis`` (see :mod:`aeropend_control.allocation`).
 omega_n, zeta, rho : float
     Closed-loop pole pattern (:class:`aeropend_control.design.PoleSpec`); unset = the strategy's
-    default (:data:`aeropend_control.strategies.DEFAULT_SPECS`: ω_n 9.5 rad/s for FL and
+    default (:data:`aeropend_control.drive_design.DEFAULT_SPECS`: ω_n 9.5 rad/s for FL and
     small-signal, 9 rad/s for the cascades, ζ 0.7, ρ 1; on a rig file that declares a drive lag or
     delay, ζ from :func:`aeropend_control.drive_design.robust_spec`).
 estimator : str, default ``observer``

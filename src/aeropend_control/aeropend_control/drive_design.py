@@ -474,6 +474,24 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
     return best
 
 
+#: Default closed-loop poles of each strategy's position loop. FL and small-signal PID use
+#: ω_n = 9.5 rad/s (settling within 1.5× the time-optimal bound in all bench scenarios); the
+#: cascades keep ω_n = 9 rad/s because their speed loop (ω_s = 45 rad/s) adds lag and a faster
+#: outer loop overshoots > 5 % at 0.7 rad (docs/control.md).
+DEFAULT_SPECS: dict[str, PoleSpec] = {
+    "fl_pid": PoleSpec(9.5), "small_signal": PoleSpec(9.5), "small_signal_fixed": PoleSpec(9.5),
+    "cascade": PoleSpec(9.0), "fl_cascade": PoleSpec(9.0),
+}
+
+
+def default_spec(name: str, rig: Rig | None = None, cascade: CascadeDesign | None = None) -> PoleSpec:
+    """Default :class:`PoleSpec` of strategy ``name`` (:data:`DEFAULT_SPECS`; ``PoleSpec()`` if
+    unknown); with ``rig``, its damping ratio chosen for that rig by :func:`robust_spec` (changed
+    only when the rig file declares a drive lag or delay; ``cascade``: the cascades' motor loops)."""
+    spec = DEFAULT_SPECS.get(name, PoleSpec())
+    return spec if rig is None else robust_spec(rig, name, spec, cascade)
+
+
 def fl_design(rig: Rig, spec: PoleSpec, drive: DriveSpec | None) -> LoopDesign:
     """FL outer-loop design: :func:`design_fl` (``drive`` None) or placed on the drive chain at half
     the rig's reach (:func:`~aeropend_control.drive_design.design_fl_on_drive`)."""
@@ -492,30 +510,42 @@ def _row(d: LoopDesign) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     """CLI ``design_gains``: design the FL and scheduled small-signal gains, print predicted metrics.
 
-    Writes a YAML gains file with ``-o``. Exit status 2 on a bad argument.
+    Pole parameters not given take the strategy's default for that rig file (:func:`default_spec`,
+    the robust ζ on a rig file that declares its drive), so the gains are those the controller
+    node runs with. Writes a YAML gains file with ``-o``. Exit status 2 on a bad argument.
     """
     ap = argparse.ArgumentParser(prog="design_gains",
                                  description="position-loop gains of a rig file, predicted step metrics")
     ap.add_argument("--rig", default="thesis_rig", help="rig name or YAML path")
-    ap.add_argument("--omega-n", type=float, default=PoleSpec.omega_n, help="closed-loop ω_n [rad/s]")
-    ap.add_argument("--zeta", type=float, default=PoleSpec.zeta, help="damping ratio of the pole pair")
-    ap.add_argument("--rho", type=float, default=PoleSpec.rho, help="real pole / ω_n")
+    unset = "unset: the strategy's default, as the controller node uses it (default_spec)"
+    ap.add_argument("--omega-n", type=float, default=None, help=f"closed-loop ω_n [rad/s] ({unset})")
+    ap.add_argument("--zeta", type=float, default=None, help=f"damping ratio of the pole pair ({unset})")
+    ap.add_argument("--rho", type=float, default=None, help=f"real pole / ω_n ({unset})")
     ap.add_argument("-o", "--output", help="write the gains to this YAML file")
     args = ap.parse_args(argv)
+    given = {k: v for k, v in (("omega_n", args.omega_n), ("zeta", args.zeta), ("rho", args.rho))
+             if v is not None}
     try:
         rig = load_rig(args.rig)
-        spec = PoleSpec(args.omega_n, args.zeta, args.rho)
-        fl = fl_design(rig, spec, design_drive(rig, "fl_pid"))
+        specs = {name: dataclasses.replace(default_spec(name, rig), **given)
+                 for name in ("fl_pid", "small_signal")}
+        for spec in specs.values():
+            spec.poles()  # validates
+        fl = fl_design(rig, specs["fl_pid"], design_drive(rig, "fl_pid"))
         reach = reachable_angle(rig)
         grid = list(reachable_grid(rig, DEFAULT_GRID))
         drive = design_drive(rig, "small_signal")
+        spec = specs["small_signal"]
         sched = (schedule(rig, grid, spec) if drive is None
                  else [design_small_signal_on_drive(rig, t, spec, drive) for t in grid])
     except (ValueError, OSError) as exc:
         print(f"design_gains: {exc}", file=sys.stderr)
         return 2
-    print(f"rig {rig.name}: poles {np.round(spec.poles(), 3).tolist()} rad/s; reach {reach:.4g} rad "
+    print(f"rig {rig.name}: reach {reach:.4g} rad "
           f"(set points held with {REACH_DUTY_MARGIN:.0%} duty headroom; the schedule stops there)")
+    for name, spec in specs.items():
+        print(f"{name}: ω_n {spec.omega_n:g} rad/s, ζ {spec.zeta:g}, ρ {spec.rho:g}; poles "
+              f"{np.round(spec.poles(), 3).tolist()} rad/s")
     print("strategy          θ0     kp        ki        kd        tr[s]  tp[s]  ts[s]  Mp[%]  Table 6.1  "
           "design model")
     rows = [("fl_pid", fl)] + [("small_signal", d) for d in sched]
@@ -525,7 +555,8 @@ def main(argv: list[str] | None = None) -> int:
               f"{p.peak_time:6.3f} {p.settling_time:6.3f} {p.overshoot:6.2f}  "
               f"{'ok' if p.meets(TABLE_6_1) else 'FAIL':9s}  {d.drive}")
     if args.output:
-        doc = {"rig": rig.name, "pole_spec": asdict(spec), "reach_rad": reach, "fl_pid": _row(fl),
+        doc = {"rig": rig.name, "pole_spec": {k: asdict(v) for k, v in specs.items()}, "reach_rad": reach,
+               "fl_pid": _row(fl),
                "small_signal": [_row(d) for d in sched]}
         with open(args.output, "w", encoding="utf-8") as fh:
             yaml.safe_dump(doc, fh, sort_keys=False)

@@ -49,12 +49,13 @@ from aeropend_control.design import (
 )
 from aeropend_control.drive_design import (
     CASCADE_STRATEGIES,
+    DEFAULT_SPECS,
     DriveSpec,
+    default_spec,
     default_thrust_gain,
     design_drive,
     design_small_signal_on_drive,
     fl_design,
-    robust_spec,
 )
 from aeropend_control.observer import ObserverSpec, PendulumObserver
 from aeropend_control.oscillation import OscillationMonitor
@@ -73,24 +74,6 @@ ALLOCATORS = ("model", "thesis")
 #: θ̇ estimators: filtered difference (:class:`VelocityEstimator`) or Kalman observer
 #: (:class:`aeropend_control.observer.PendulumObserver`).
 ESTIMATORS = ("difference", "observer")
-#: Default closed-loop poles of each strategy's position loop. FL and small-signal PID use
-#: ω_n = 9.5 rad/s (settling within 1.5× the time-optimal bound in all bench scenarios); the
-#: cascades keep ω_n = 9 rad/s because their speed loop (ω_s = 45 rad/s) adds lag and a faster
-#: outer loop overshoots > 5 % at 0.7 rad (docs/control.md).
-DEFAULT_SPECS: dict[str, PoleSpec] = {
-    "fl_pid": PoleSpec(9.5), "small_signal": PoleSpec(9.5), "small_signal_fixed": PoleSpec(9.5),
-    "cascade": PoleSpec(9.0), "fl_cascade": PoleSpec(9.0),
-}
-
-
-def default_spec(name: str, rig: Rig | None = None, cascade: CascadeDesign | None = None) -> PoleSpec:
-    """Default :class:`PoleSpec` of strategy ``name`` (:data:`DEFAULT_SPECS`; ``PoleSpec()`` if
-    unknown); with ``rig``, its damping ratio chosen for that rig by :func:`robust_spec` (changed
-    only when the rig file declares a drive lag or delay; ``cascade``: the cascades' motor loops)."""
-    spec = DEFAULT_SPECS.get(name, PoleSpec())
-    return spec if rig is None else robust_spec(rig, name, spec, cascade)
-
-
 class StrategyError(ValueError):
     """Invalid strategy configuration (the message names the value)."""
 
@@ -259,7 +242,7 @@ class FeedbackLinearizationPID(_Base):
     rig : Rig
         Model parameters used by the linearising law (mgd/J, c/J, L/J) and the allocation.
     design : LoopDesign, optional
-        Outer-loop gains (default :func:`fl_design` with ``DEFAULT_SPECS["fl_pid"]`` on the drive
+        Outer-loop gains (default :func:`fl_design` with :func:`default_spec` of ``fl_pid`` on the drive
         :func:`design_drive` names).
     cancel_damping : bool
         Include (c/J)·θ̂̇ in the law (default True).
@@ -338,7 +321,7 @@ class SmallSignalPID(_Base):
         rig's reach (:func:`aeropend_control.design.reachable_grid`): a rig with less thrust
         than the thesis rig is scheduled up to what it can hold.
     spec : PoleSpec, optional
-        Default ``DEFAULT_SPECS["small_signal"]``.
+        Default :func:`default_spec` of ``small_signal`` for ``rig``.
     allocator, tf, dt, f_init, estimator, observer_spec
         As for :class:`FeedbackLinearizationPID`.
     drive : DriveSpec, None or "auto"
