@@ -3,8 +3,8 @@
 Runs ``bench_control_independent.py`` on plants 100-139 (drawn like the reported plants 0-39, other
 seeds, so nothing is tuned on the reported set) with the strategies' default pole specs
 (:data:`aeropend_control.drive_design.DEFAULT_SPECS`, re-exported by ``strategies``) replaced by
-each configuration below, and
-writes one summary row per configuration to ``bench/results/control_spec_sweep.{json,md}``.
+each configuration below, and writes one summary row per configuration to
+``bench/results/control_spec_sweep.{json,md}``.
 The defaults are not changed by this script.
 
 Usage: ``python bench/sweep_control_specs.py [CONFIG ...]`` (default: all).
