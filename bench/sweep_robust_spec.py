@@ -1,8 +1,8 @@
 """Exploration (issue 19): the robust damping-ratio choice (``drive_design.robust_spec``) on tuning plants.
 
-Designs on the ``gap``-corrected rig files of tuning plants (default: 100-109, drawn like the
+Designs on the ``gap``-corrected rig files of tuning plants (100-119, drawn like the
 reported plants 0-39 with other seeds, so nothing is tuned on the reported set; their corrected rigs
-come from a ``bench_control_independent.py --first 100 --plants 10 --gap`` run stored in
+come from ``bench_control_independent.py --gap`` runs on 100-109, then 110-119, merged into
 ``bench/results/control_tuning_gap_rigs.json``) with the choice's settings replaced by each
 configuration below, and writes one row per configuration to
 ``bench/results/control_robust_sweep.{json,md}``. The defaults are not changed by this script.
@@ -50,7 +50,8 @@ def run(name: str, tmp: Path, first: int, plants: int) -> dict:
     bci.main(["--first", str(first), "--plants", str(plants), "--workers", "2", "--gap-rigs", str(RIGS),
               "--out", str(out)])
     s = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))["summary"]["gap"]
-    return {"config": name, "zetas": list(zetas), "overshoot_target": mp, "damping_errors": list(damping),
+    return {"config": name, "plants": f"{first}-{first + plants - 1}", "zetas": list(zetas),
+            "overshoot_target": mp, "damping_errors": list(damping),
             **{k: s[k] for k in ("goal", "no_limit_cycle", "table_6_1", "median_ts",
                                  "p90_ts", "median_mp", "per_strategy") if k in s}}
 
@@ -65,14 +66,14 @@ def main(argv: list[str] | None = None) -> int:
     old = json.loads(path.read_text(encoding="utf-8")) if path.exists() else []
     rows = [new.pop(r["config"], r) for r in old] + list(new.values())  # re-run configs replace their row
     path.write_text(json.dumps(rows, indent=1), encoding="utf-8")
-    lines = [f"# Robust ζ choice on the gap-corrected rigs of tuning plants {first}-{first + n - 1} "
-             "(bench/sweep_robust_spec.py)", "",
+    lines = ["# Robust ζ choice on the gap-corrected rigs of tuning plants (bench/sweep_robust_spec.py)", "",
              "Within-reach runs designed on the gap-corrected rig; ζ candidates and the overshoot the "
              "minimax score divides by (`drive_design.robust_spec`).", "",
-             "| config | ζ candidates | Mp target [%] | damping errors | goal | no limit cycle | Table 6.1 "
-             "| median ts [s] | p90 ts [s] | median Mp [%] |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "| config | plants | ζ candidates | Mp target [%] | damping errors | goal | no limit cycle "
+             "| Table 6.1 | median ts [s] | p90 ts [s] | median Mp [%] |", "|" + "---|" * 11]
     for r in rows:
-        lines.append(f"| {r['config']} | {r['zetas']} | {r['overshoot_target']} | {r['damping_errors']} | "
+        lines.append(f"| {r['config']} | {r.get('plants', '100-109')} | {r['zetas']} | "
+                     f"{r['overshoot_target']} | {r['damping_errors']} | "
                      f"{100 * r['goal']:.1f} % | "
                      f"{100 * r['no_limit_cycle']:.1f} % | {100 * r['table_6_1']:.1f} % | "
                      f"{r['median_ts']:.3f} | {r['p90_ts']:.3f} | {r['median_mp']:.2f} |")
