@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -230,3 +231,35 @@ def test_plain_bridge_without_firmware_exits_1(tmp_path: Path) -> None:
     assert r.returncode == 1, r.stderr
     assert "cannot start: no aeropend protocol-1 firmware on" in r.stderr
 
+
+
+AUTOSTART_WITHOUT_SPIN = """
+import sys, time
+import rclpy
+from aeropend_bridge.bridge_node import BridgeNode
+rclpy.init(args=["--ros-args", "-p", "port:=" + sys.argv[1]])
+node = BridgeNode()
+node.start()      # autostart: configure and activate, as `bridge` does before it spins
+time.sleep(0.8)   # nothing spins: the executor's keep-alive timer cannot run
+node.finish()
+node.destroy_node()
+rclpy.try_shutdown()
+"""
+
+
+def test_autostart_keeps_the_firmware_watchdog_quiet_before_the_executor_spins(tmp_path: Path) -> None:
+    """With ``autostart`` the bridge configures and activates before its executor spins; the duty 0
+    sent on connect arms the firmware's 250 ms watchdog, and only the link thread's duty-0
+    keep-alive can hold it off until the executor's timer runs (the CI failure of stop 29: a 277 ms
+    gap between activation and the first timer keep-alive). Here nothing spins for 0.8 s."""
+    env = isolated_env(random_domain(101, 200))
+    link = tmp_path / "ttyACM_fake"
+    mcu = FakeMcu(link).start()
+    try:
+        done = subprocess.run([sys.executable, "-c", AUTOSTART_WITHOUT_SPIN, str(link)], env=env,
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr[-2000:]
+        assert any(isinstance(f, Duty) for _, f in mcu.commands), "no duty command reached the firmware"
+        assert mcu.watchdog_trips == 0, f"firmware watchdog tripped {mcu.watchdog_trips}x before the spin"
+    finally:
+        mcu.stop()

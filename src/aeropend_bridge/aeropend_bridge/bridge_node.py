@@ -153,6 +153,8 @@ class BridgeNode(LifecycleNode):
                 read_only=True)).value)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._lock = threading.Lock()
+        self._send_lock = threading.Lock()  # duty sends from the executor and the link thread
+        self._last_send_ns = 0
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._active = False
         self._finalized = False
@@ -392,6 +394,7 @@ class BridgeNode(LifecycleNode):
 
     def _on_frame(self, frame: object, host_ns: int) -> None:
         if isinstance(frame, SampleFrame):
+            self._link_keepalive()
             with self._lock:
                 resets = self.seq.resets
                 gap = self.seq.update(frame.seq)
@@ -443,8 +446,24 @@ class BridgeNode(LifecycleNode):
     def _send_duty(self, duty: float) -> None:
         link = self.link
         if link is not None:
-            link.send(Duty.from_fraction(duty))
-            self._last_sent = duty
+            with self._send_lock:
+                link.send(Duty.from_fraction(duty))
+                self._last_sent = duty
+                self._last_send_ns = time.monotonic_ns()
+
+    def _link_keepalive(self) -> None:
+        """Duty 0 from the link thread when the last duty sent was 0 and nothing was sent for two
+        keep-alive periods: the executor's keep-alive timer cannot run before the node spins, and
+        with ``autostart`` configure and activate run before it does (the firmware's 250 ms
+        watchdog tripped between activation and the first timer keep-alive on a loaded machine,
+        CI of stop 29). Never a non-zero duty: keeping the motor running stays the executor's job
+        (bridge watchdog), so a stalled executor still ends in the firmware's duty 0."""
+        with self._send_lock:
+            stale = time.monotonic_ns() - self._last_send_ns > 2 * self.keepalive_s * 1e9
+            link = self.link
+            if stale and self._last_sent == 0.0 and link is not None:
+                link.send(Duty.from_fraction(0.0))
+                self._last_send_ns = time.monotonic_ns()
 
     def _keepalive(self) -> None:
         """Every keep-alive period: the current duty (active), or duty 0 while configured but
