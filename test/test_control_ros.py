@@ -11,6 +11,7 @@ import csv
 import signal
 import subprocess
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -201,3 +202,57 @@ def test_live_parameters_change_the_running_controller(tmp_path: Path) -> None:
         loop = ControllerLoop(make_settings(strategy="fl_pid", steps=steps, mode="lockstep", omega_n=omega_n))
         duty = [d for _, d in closed_loop(loop, len(col["t"]))]
         assert np.allclose(duty, col["duty"], atol=1e-9) == same
+
+
+def test_a_live_pole_change_in_realtime_mode_is_designed_off_the_executor() -> None:
+    """On a rig file that declares its drive (the stored ``gap`` rig) a new small-signal pole pattern
+    takes ≈ 0.5 s to design, longer than the firmware's 250 ms command watchdog. In real-time mode
+    ``set_parameters`` returns with the loop still on its old gains and the new reference already
+    applied; the finished design is then taken over between samples, and the loop's commands equal
+    those of a loop designed with the new poles from the start. A ``reference`` change alone
+    reuses the running design (no robust-ζ search, no redesign)."""
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from aeropend_control import controller_core
+    from aeropend_control.controller_core import ControllerLoop, make_settings
+    from aeropend_control.controller_node import ControllerNode
+
+    rig = str(Path(__file__).resolve().parent / "data" / "gap_corrected_rig.yaml")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random_domain())
+    node = None
+    try:
+        node = ControllerNode(context=ctx, parameter_overrides=[
+            Parameter("rig", value=rig), Parameter("strategy", value="small_signal")])
+        spec0 = node.loop.settings.spec
+        assert spec0.zeta > 0.7  # the robust ζ of a rig that declares its drive
+
+        designs: list[object] = []
+        real_default_spec = controller_core.default_spec
+        controller_core.default_spec = lambda *a, **k: designs.append(a) or real_default_spec(*a, **k)
+        try:
+            ok, = node.set_parameters([Parameter("reference", value=0.2)])
+        finally:
+            controller_core.default_spec = real_default_spec
+        assert ok.successful and designs == [] and node._redesign is None
+        assert node.loop.settings.spec == spec0 and node.loop.reference.initial == 0.2
+
+        ok = node.set_parameters_atomically([Parameter("omega_n", value=10.0),
+                                             Parameter("reference", value=0.3)])
+        assert ok.successful, ok.reason
+        assert node.loop.settings.spec == spec0 and node.loop.reference.initial == 0.3
+        assert node._redesign is not None
+        node._redesign[1].result(timeout=60.0)
+        assert node.take_over_redesign()
+        assert node.loop.settings.spec == replace(spec0, omega_n=10.0)
+
+        fresh = ControllerLoop(make_settings(rig=rig, strategy="small_signal", omega_n=10.0, reference=0.3))
+        for k in range(100):
+            theta = 0.3 * (1.0 - np.exp(-k / 60.0))
+            assert node.loop.on_sample(k * 2_048_000, theta) == pytest.approx(
+                fresh.on_sample(k * 2_048_000, theta), abs=1e-12)
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.shutdown(context=ctx)

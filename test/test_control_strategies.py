@@ -230,3 +230,21 @@ def test_cascade_holds_duty_without_motor_measurements() -> None:
     o1 = ctl.step(0.4, 0.0, 0.0, 0.0)
     o2 = ctl.step(0.4, 0.0, math.nan, 0.0)
     assert o2.nan_input and o2.duty == o1.duty
+
+
+def test_each_strategy_chooses_its_robust_pole_spec_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``default_spec`` runs the robust-ζ search on a rig file that declares its drive (54 linear
+    step responses); building a strategy runs it once, fl_cascade's outer FL loop included (it gets
+    its design, not a second search whose result was thrown away)."""
+    from pathlib import Path
+
+    from aeropend_control import strategies
+
+    rig = load_rig(str(Path(__file__).resolve().parent / "data" / "gap_corrected_rig.yaml"))
+    calls: list[str] = []
+    real = strategies.default_spec
+    monkeypatch.setattr(strategies, "default_spec", lambda name, *a: calls.append(name) or real(name, *a))
+    for name in ("fl_pid", "cascade", "fl_cascade"):
+        calls.clear()
+        strategies.make_strategy(name, rig)
+        assert calls == [name]

@@ -68,6 +68,11 @@ class ControllerSettings:
     options: dict[str, Any] = field(default_factory=dict)
     #: The rig file's ``recording_frame`` (θ_recorded = scale·(θ_model − offset)); the loop runs on θ_model.
     frame: RecordingFrame = field(default_factory=RecordingFrame)
+    #: The ``rig`` parameter as given (name or path) the rig was loaded from.
+    rig_file: str = "thesis_rig"
+    #: The strategy's default pole pattern for this rig (:func:`default_spec`); unset pole
+    #: parameters take their value from it.
+    default_spec: PoleSpec = field(default_factory=PoleSpec)
 
 
 def _float(name: str, value: Any) -> float:
@@ -109,23 +114,40 @@ def parse_steps(value: Any) -> list[tuple[float, float]]:
     return pairs
 
 
-def make_settings(**raw: Any) -> ControllerSettings:
-    """Validate raw node parameters; raise :class:`ControllerConfigError` naming the bad value."""
-    try:
-        rig = load_rig(str(raw.get("rig", "thesis_rig")))
-        frame = read_recording_frame(str(raw.get("rig", "thesis_rig")))
-    except (RigFileError, OSError, ValueError) as exc:
-        raise ControllerConfigError(f"rig = {raw.get('rig')!r}: {exc}") from exc
+def make_settings(*, previous: ControllerSettings | None = None, **raw: Any) -> ControllerSettings:
+    """Validate raw node parameters; raise :class:`ControllerConfigError` naming the bad value.
+
+    Parameters
+    ----------
+    previous : ControllerSettings, optional
+        Settings of the running loop. When ``raw`` names the same rig file and strategy, its rig,
+        recording frame and default pole pattern are reused instead of being read and designed
+        again: :func:`default_spec` runs :func:`~aeropend_control.drive_design.robust_spec` on a
+        rig file that declares its drive (≈ 1 s of linear step responses), which must not happen
+        inside the executor on every live ``reference`` or ``steps`` change.
+    **raw
+        The node's parameters (:data:`aeropend_control.controller_node.PARAMETERS`); missing ones
+        take their defaults.
+    """
+    rig_file = str(raw.get("rig", "thesis_rig"))
     strategy = str(raw.get("strategy", "fl_pid"))
     if strategy not in STRATEGIES:
         raise ControllerConfigError(f"strategy = {strategy!r}; expected one of {STRATEGIES}")
+    if previous is not None and (previous.rig_file, previous.strategy) == (rig_file, strategy):
+        rig, frame, base = previous.rig, previous.frame, previous.default_spec
+    else:
+        try:
+            rig = load_rig(rig_file)
+            frame = read_recording_frame(rig_file)
+        except (RigFileError, OSError, ValueError) as exc:
+            raise ControllerConfigError(f"rig = {raw.get('rig')!r}: {exc}") from exc
+        base = default_spec(strategy, rig)  # a pole parameter not given (None) takes the strategy's default
     mode = str(raw.get("mode", "realtime"))
     if mode not in MODES:
         raise ControllerConfigError(f"mode = {mode!r}; expected one of {MODES}")
     allocator = str(raw.get("allocator", "model"))
     if allocator not in ALLOCATORS:
         raise ControllerConfigError(f"allocator = {allocator!r}; expected one of {ALLOCATORS}")
-    base = default_spec(strategy, rig)  # a pole parameter not given (None) takes the strategy's default
 
     def pole(name: str) -> float:
         val = raw.get(name)
@@ -152,7 +174,8 @@ def make_settings(**raw: Any) -> ControllerSettings:
     if estimator not in ESTIMATORS:
         raise ControllerConfigError(f"estimator = {estimator!r}; expected one of {ESTIMATORS}")
     return ControllerSettings(rig, strategy, mode, parse_steps(raw.get("steps")), ref, allocator, spec, tf,
-                              theta_op, duration, str(raw.get("trace") or ""), estimator, frame=frame)
+                              theta_op, duration, str(raw.get("trace") or ""), estimator, frame=frame,
+                              rig_file=rig_file, default_spec=base)
 
 
 def build_strategy(s: ControllerSettings) -> FeedbackLinearizationPID | SmallSignalPID | CascadeStrategy:
@@ -228,24 +251,37 @@ class ControllerLoop:
         self.stale = 0
         self.rows: list[list[float]] = []
 
-    def retune(self, settings: ControllerSettings) -> None:
+    def check_retune(self, settings: ControllerSettings) -> None:
+        """Raise :class:`ControllerConfigError` if ``settings`` change what is fixed for a run (rig,
+        strategy, mode, allocator, estimator, θ_op, duration, trace, tf)."""
+        fixed = [f for f in ("rig", "strategy", "mode", "allocator", "estimator", "theta_op", "duration",
+                             "trace", "tf")
+                 if getattr(settings, f) != getattr(self.settings, f)]
+        if fixed:
+            raise ControllerConfigError(f"{', '.join(fixed)} cannot change while the loop runs")
+
+    def retune(self, settings: ControllerSettings,
+               designed: FeedbackLinearizationPID | SmallSignalPID | CascadeStrategy | None = None) -> None:
         """Apply new settings while running: the pole pattern (ω_n, ζ, ρ: a new design, taken over
         bumpless, :meth:`FeedbackLinearizationPID.retune` / :meth:`SmallSignalPID.retune`), the
         initial reference and the step sequence (times still from the first sample). Anything else
-        (rig, strategy, mode, allocator, estimator, θ_op, duration, trace) is fixed for a run.
+        (:meth:`check_retune`) is fixed for a run.
+
+        Parameters
+        ----------
+        settings : ControllerSettings
+        designed : strategy, optional
+            ``build_strategy(settings)`` computed beforehand (the node designs a new pole pattern
+            outside its executor); built here when not given and the pole pattern changed.
 
         Raises
         ------
         ControllerConfigError
             If a fixed setting differs or the new design fails; the loop is then unchanged.
         """
-        fixed = [f for f in ("rig", "strategy", "mode", "allocator", "estimator", "theta_op", "duration",
-                             "trace", "tf")
-                 if getattr(settings, f) != getattr(self.settings, f)]
-        if fixed:
-            raise ControllerConfigError(f"{', '.join(fixed)} cannot change while the loop runs")
+        self.check_retune(settings)
         if settings.spec != self.settings.spec:
-            fresh = build_strategy(settings)
+            fresh = designed if designed is not None else build_strategy(settings)
             try:
                 self.strategy.retune(fresh)  # type: ignore[arg-type]
             except ValueError as exc:  # StrategyError, PIDConfigError

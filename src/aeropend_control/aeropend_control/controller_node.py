@@ -56,7 +56,12 @@ executor : str, default ``events``
 
 Live parameters (``ros2 param set /aeropend_controller omega_n 6.0``): ``omega_n``, ``zeta``,
 ``rho`` (a new design, taken over bumpless), ``reference`` and ``steps``; a value the design
-refuses is rejected with the reason. The others are read-only (set them at start-up).
+refuses is rejected with the reason. The others are read-only (set them at start-up). In real-time
+mode a new pole pattern is designed in a background thread (up to ≈ 0.5 s on a rig file that
+declares its drive; the loop keeps running on the old gains meanwhile, so the firmware's command
+watchdog does not trip) and taken over at the next sample after it is ready; a design that fails
+there is logged as an error and the loop keeps its gains. ``reference`` and ``steps`` changes reuse
+the running design and take effect at once.
 
 Publishes ``/aeropend/controller/signals`` (std_msgs/Float64MultiArray, one per sample, labelled
 layout: :data:`~aeropend_control.controller_core.SIGNALS`: t, reference, θ, error, v, thrust, θ̂̇,
@@ -74,6 +79,8 @@ import os
 import sys
 import threading
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import replace
 from typing import Any
 
 from rcl_interfaces.msg import SetParametersResult
@@ -82,7 +89,14 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64, Float64MultiArray, MultiArrayDimension
 
-from aeropend_control.controller_core import SIGNALS, ControllerConfigError, ControllerLoop, make_settings
+from aeropend_control.controller_core import (
+    SIGNALS,
+    ControllerConfigError,
+    ControllerLoop,
+    ControllerSettings,
+    build_strategy,
+    make_settings,
+)
 from aeropend_control.design import REACH_DUTY_MARGIN
 from aeropend_sim.contract import (
     REL_ARMATURE,
@@ -128,7 +142,7 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("reference", 0.0, "reference before the first step [rad]"),
     ("allocator", "model", "model | thesis"),
     ("omega_n", None, "closed-loop natural frequency [rad/s] (default: per strategy)"),
-    ("zeta", None, "closed-loop damping ratio (default 0.7)"),
+    ("zeta", None, "closed-loop damping ratio (default: per strategy and rig file)"),
     ("rho", None, "real closed-loop pole / omega_n (default 1)"),
     ("tf", 0.01, "theta_dot / derivative filter time constant [s]"),
     ("theta_op", None, "operating point of small_signal_fixed [rad]"),
@@ -147,8 +161,9 @@ LIVE_PARAMETERS = ("omega_n", "zeta", "rho", "reference", "steps")
 class ControllerNode(Node):
     """rclpy shell around :class:`~aeropend_control.controller_core.ControllerLoop`."""
 
-    def __init__(self) -> None:
-        super().__init__(NODE_NAME)
+    def __init__(self, **node_options: Any) -> None:
+        """``node_options`` go to :class:`rclpy.node.Node` (e.g. ``context``, ``parameter_overrides``)."""
+        super().__init__(NODE_NAME, **node_options)
         raw = declare_parameter_table(self, PARAMETERS, live=LIVE_PARAMETERS)
         try:
             self.rt_priority = _rt_priority(raw.pop("rt_priority"))
@@ -173,6 +188,10 @@ class ControllerNode(Node):
         if self.loop.needs_motor:
             self.create_subscription(BatteryState, REL_ARMATURE, self._on_armature, qos)
         self.create_subscription(Float64, REL_REFERENCE, self._on_reference, 10)
+        # a new pole pattern in real-time mode is designed here, off the executor (up to ≈ 0.5 s on a
+        # rig file that declares its drive), and taken over at the first sample after it is ready
+        self._designer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="redesign")
+        self._redesign: tuple[ControllerSettings, Future] | None = None
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.finished = threading.Event()
         self._matched_ns: int | None = None
@@ -191,8 +210,8 @@ class ControllerNode(Node):
         reason and the loop keeps its settings. Read-only ones never get here (rclpy refuses them)."""
         changes = {p.name: p.value for p in params}
         try:
-            settings = make_settings(**{**self._raw, **changes})
-            self.loop.retune(settings)
+            settings = make_settings(previous=self.settings, **{**self._raw, **changes})
+            self._apply(settings)
         except ControllerConfigError as exc:
             self.get_logger().warn(f"parameter change {changes} refused: {exc}")
             return SetParametersResult(successful=False, reason=str(exc))
@@ -201,6 +220,42 @@ class ControllerNode(Node):
         self.get_logger().info(f"parameters set {changes}: poles {settings.spec}, reference "
                                f"{settings.reference}, steps {settings.steps}")
         return SetParametersResult(successful=True)
+
+    def _apply(self, settings: ControllerSettings) -> None:
+        """Take validated settings over: at once when the pole pattern is the running one or in
+        lock-step mode (the plant waits for the command); in real-time mode a new pole pattern is
+        designed in the background (:meth:`take_over_redesign` applies it) and the rest at once."""
+        if settings.spec == self.loop.settings.spec or settings.mode == "lockstep":
+            self.loop.retune(settings)
+            self._redesign = None  # a pending design of another pole pattern is superseded
+            return
+        self.loop.retune(replace(settings, spec=self.loop.settings.spec))  # reference and steps at once
+        pending = self._redesign
+        if pending is not None and pending[0].spec == settings.spec:
+            future = pending[1]
+        else:
+            future = self._designer.submit(build_strategy, settings)
+        self._redesign = (settings, future)
+        self.get_logger().info(f"designing for poles {settings.spec} in the background; the loop keeps "
+                               f"poles {self.loop.settings.spec} until the design is ready")
+
+    def take_over_redesign(self) -> bool:
+        """Apply a finished background design (between two samples); True if the loop was retuned.
+
+        A design that failed is logged as an error and the loop keeps its running pole pattern.
+        """
+        if self._redesign is None or not self._redesign[1].done():
+            return False
+        settings, future = self._redesign
+        self._redesign = None
+        try:
+            self.loop.retune(settings, future.result())
+        except ControllerConfigError as exc:
+            self.get_logger().error(f"design for poles {settings.spec} failed, the loop keeps poles "
+                                    f"{self.loop.settings.spec}: {exc}")
+            return False
+        self.get_logger().info(f"poles {settings.spec} taken over")
+        return True
 
     def _on_reference(self, msg: Float64) -> None:
         t = self.loop.time_of(self.loop.last_stamp) if self.loop.last_stamp is not None else 0.0
@@ -253,6 +308,8 @@ class ControllerNode(Node):
         if realtime and time.monotonic_ns() - self._matched_ns < MATCH_GRACE_NS:
             return
         recv = self.get_clock().now().nanoseconds if realtime else None
+        if self._redesign is not None:
+            self.take_over_redesign()
         repeat = stamp == self.loop.last_stamp
         duty = self.loop.on_sample(stamp, theta, omega, i_a, recv)
         if duty is None:
@@ -279,6 +336,7 @@ class ControllerNode(Node):
 
     def shutdown(self) -> None:
         """Publish duty 0 and write the trace (if configured)."""
+        self._designer.shutdown(wait=False, cancel_futures=True)
         try:
             self._pub_duty.publish(duty_msg(0.0))
             wait_acknowledged(self, [self._pub_duty])

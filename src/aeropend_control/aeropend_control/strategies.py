@@ -413,8 +413,9 @@ def make_strategy(
     """
     cdesign = (options.pop("cascade_design", None) or design_cascade(rig)) if name in NEEDS_MOTOR else None
     if name in ("fl_pid", "fl_cascade"):
-        spec = options.pop("spec", None) or default_spec(name, rig, cdesign)
-        if options.get("design") is None:
+        spec = options.pop("spec", None)
+        if options.get("design") is None:  # fl_cascade's outer fl_pid gets its design, not a spec
+            spec = spec or default_spec(name, rig, cdesign)
             options["design"] = fl_design(rig, spec, design_drive(rig, name, cdesign))  # type: ignore[arg-type]
     if name in NEEDS_MOTOR:
         if name == "cascade":
