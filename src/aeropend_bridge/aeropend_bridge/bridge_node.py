@@ -444,12 +444,16 @@ class BridgeNode(LifecycleNode):
         self._send_duty(self.watchdog.duty(time.monotonic_ns()))
 
     def _send_duty(self, duty: float) -> None:
+        with self._send_lock:
+            self._send_locked(duty)
+
+    def _send_locked(self, duty: float) -> None:
+        """Send ``duty`` (fraction) and note it and the time; the caller holds ``_send_lock``."""
         link = self.link
         if link is not None:
-            with self._send_lock:
-                link.send(Duty.from_fraction(duty))
-                self._last_sent = duty
-                self._last_send_ns = time.monotonic_ns()
+            link.send(Duty.from_fraction(duty))
+            self._last_sent = duty
+            self._last_send_ns = time.monotonic_ns()
 
     def _link_keepalive(self) -> None:
         """Duty 0 from the link thread when the last duty sent was 0 and nothing was sent for two
@@ -460,10 +464,8 @@ class BridgeNode(LifecycleNode):
         (bridge watchdog), so a stalled executor still ends in the firmware's duty 0."""
         with self._send_lock:
             stale = time.monotonic_ns() - self._last_send_ns > 2 * self.keepalive_s * 1e9
-            link = self.link
-            if stale and self._last_sent == 0.0 and link is not None:
-                link.send(Duty.from_fraction(0.0))
-                self._last_send_ns = time.monotonic_ns()
+            if stale and self._last_sent == 0.0:
+                self._send_locked(0.0)
 
     def _keepalive(self) -> None:
         """Every keep-alive period: the current duty (active), or duty 0 while configured but
