@@ -40,11 +40,20 @@ CONFIGS: dict[str, tuple[tuple[float, ...], float, tuple[float, ...]]] = {
     "upto099_mp2": ((*Z095, 0.99), 2.0, (0.8, 1.0, 1.2)),
     "upto095_mp2_damping05_15": (Z095, 2.0, (0.5, 1.0, 1.5)),
 }
+#: name -> ω_n factors on the strategy default (the configurations above: (1.0,))
+OMEGA_FACTORS: dict[str, tuple[float, ...]] = {
+    "upto095_mp2_wn110": (1.0, 1.1),
+    "upto095_mp2_wn120": (1.0, 1.1, 1.2),
+    "upto095_mp2_wn130": (1.0, 1.1, 1.2, 1.3),
+    "upto095_mp2_wn150": (1.0, 1.1, 1.2, 1.3, 1.4, 1.5),
+}
+CONFIGS.update({name: CONFIGS["upto095_mp2"] for name in OMEGA_FACTORS})
 
 
 def run(name: str, tmp: Path, first: int, plants: int) -> dict:
     zetas, mp, damping = CONFIGS[name]
     dd.ROBUST_ZETAS, dd.DAMPING_ERRORS = zetas, damping
+    dd.ROBUST_OMEGA_FACTORS = OMEGA_FACTORS.get(name, (1.0,))
     dd.ROBUST_GOAL = dataclasses.replace(GOAL, overshoot=mp)
     out = tmp / f"sweep_{name}"
     bci.main(["--first", str(first), "--plants", str(plants), "--workers", "2", "--gap-rigs", str(RIGS),
@@ -52,6 +61,7 @@ def run(name: str, tmp: Path, first: int, plants: int) -> dict:
     s = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))["summary"]["gap"]
     return {"config": name, "plants": f"{first}-{first + plants - 1}", "zetas": list(zetas),
             "overshoot_target": mp, "damping_errors": list(damping),
+            "omega_factors": list(OMEGA_FACTORS.get(name, (1.0,))),
             **{k: s[k] for k in ("goal", "no_limit_cycle", "table_6_1", "median_ts",
                                  "p90_ts", "median_mp", "per_strategy") if k in s}}
 

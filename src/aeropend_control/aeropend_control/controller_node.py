@@ -32,7 +32,7 @@ omega_n, zeta, rho : float
     Closed-loop pole pattern (:class:`aeropend_control.design.PoleSpec`); unset = the strategy's
     default (:data:`aeropend_control.drive_design.DEFAULT_SPECS`: ω_n 9.5 rad/s for FL and
     small-signal, 9 rad/s for the cascades, ζ 0.7, ρ 1; on a rig file that declares a drive lag or
-    delay, ζ from :func:`aeropend_control.drive_design.robust_spec`).
+    delay, ω_n and ζ from :func:`aeropend_control.drive_design.robust_spec`).
 estimator : str, default ``observer``
     θ̇ estimate: ``observer`` (stationary Kalman filter with the model thrust as known input,
     :mod:`aeropend_control.observer`) | ``difference`` (filtered difference, time constant ``tf``).
@@ -141,7 +141,7 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("steps", None, "reference steps [t0, theta0, t1, theta1, ...] (s, rad)"),
     ("reference", 0.0, "reference before the first step [rad]"),
     ("allocator", "model", "model | thesis"),
-    ("omega_n", None, "closed-loop natural frequency [rad/s] (default: per strategy)"),
+    ("omega_n", None, "closed-loop natural frequency [rad/s] (default: per strategy and rig file)"),
     ("zeta", None, "closed-loop damping ratio (default: per strategy and rig file)"),
     ("rho", None, "real closed-loop pole / omega_n (default 1)"),
     ("tf", 0.01, "theta_dot / derivative filter time constant [s]"),
