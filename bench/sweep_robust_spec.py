@@ -1,4 +1,4 @@
-"""Exploration (issue 19): the robust damping-ratio choice (``drive_design.robust_spec``) on tuning plants.
+"""Exploration (issue 19): the robust pole choice (ω_n, ζ; ``drive_design.robust_spec``) on tuning plants.
 
 Designs on the ``gap``-corrected rig files of tuning plants (100-119, drawn like the
 reported plants 0-39 with other seeds, so nothing is tuned on the reported set; their corrected rigs
@@ -34,7 +34,7 @@ CONFIGS: dict[str, tuple[tuple[float, ...], float, tuple[float, ...]]] = {
     "fixed_zeta070": ((0.7,), 5.0, (0.8, 1.0, 1.2)),
     "upto090_mp5": (Z090, 5.0, (0.8, 1.0, 1.2)),  # robust_spec as first committed (2b8b5a4)
     "upto090_mp2": (Z090, 2.0, (0.8, 1.0, 1.2)),
-    "upto095_mp2": (Z095, 2.0, (0.8, 1.0, 1.2)),  # the default now
+    "upto095_mp2": (Z095, 2.0, (0.8, 1.0, 1.2)),  # the default before ω_n joined the choice
     "upto095_mp5": (Z095, 5.0, (0.8, 1.0, 1.2)),
     "upto090_mp5_damping05_15": (Z090, 5.0, (0.5, 1.0, 1.5)),
     "upto099_mp2": ((*Z095, 0.99), 2.0, (0.8, 1.0, 1.2)),
@@ -44,16 +44,20 @@ CONFIGS: dict[str, tuple[tuple[float, ...], float, tuple[float, ...]]] = {
 OMEGA_FACTORS: dict[str, tuple[float, ...]] = {
     "upto095_mp2_wn110": (1.0, 1.1),
     "upto095_mp2_wn120": (1.0, 1.1, 1.2),
+    "upto095_mp2_wn120_duty": (1.0, 1.1, 1.2),  # the default now
     "upto095_mp2_wn130": (1.0, 1.1, 1.2, 1.3),
     "upto095_mp2_wn150": (1.0, 1.1, 1.2, 1.3, 1.4, 1.5),
 }
+#: name -> ω_n factors of the cascades where they differ from the FL and small-signal ones
+CASCADE_OMEGA_FACTORS: dict[str, tuple[float, ...]] = {"upto095_mp2_wn120_duty": (1.0,)}
 CONFIGS.update({name: CONFIGS["upto095_mp2"] for name in OMEGA_FACTORS})
 
 
 def run(name: str, tmp: Path, first: int, plants: int) -> dict:
     zetas, mp, damping = CONFIGS[name]
     dd.ROBUST_ZETAS, dd.DAMPING_ERRORS = zetas, damping
-    dd.ROBUST_OMEGA_FACTORS = OMEGA_FACTORS.get(name, (1.0,))
+    factors = OMEGA_FACTORS.get(name, (1.0,))
+    dd.ROBUST_OMEGA_FACTORS = {"duty": factors, "cascade": CASCADE_OMEGA_FACTORS.get(name, factors)}
     dd.ROBUST_GOAL = dataclasses.replace(GOAL, overshoot=mp)
     out = tmp / f"sweep_{name}"
     bci.main(["--first", str(first), "--plants", str(plants), "--workers", "2", "--gap-rigs", str(RIGS),
@@ -62,6 +66,7 @@ def run(name: str, tmp: Path, first: int, plants: int) -> dict:
     return {"config": name, "plants": f"{first}-{first + plants - 1}", "zetas": list(zetas),
             "overshoot_target": mp, "damping_errors": list(damping),
             "omega_factors": list(OMEGA_FACTORS.get(name, (1.0,))),
+            "cascade_omega_factors": list(dd.ROBUST_OMEGA_FACTORS["cascade"]),
             **{k: s[k] for k in ("goal", "no_limit_cycle", "table_6_1", "median_ts",
                                  "p90_ts", "median_mp", "per_strategy") if k in s}}
 
@@ -76,19 +81,29 @@ def main(argv: list[str] | None = None) -> int:
     old = json.loads(path.read_text(encoding="utf-8")) if path.exists() else []
     rows = [new.pop(r["config"], r) for r in old] + list(new.values())  # re-run configs replace their row
     path.write_text(json.dumps(rows, indent=1), encoding="utf-8")
-    lines = ["# Robust ζ choice on the gap-corrected rigs of tuning plants (bench/sweep_robust_spec.py)", "",
-             "Within-reach runs designed on the gap-corrected rig; ζ candidates and the overshoot the "
-             "minimax score divides by (`drive_design.robust_spec`).", "",
-             "| config | plants | ζ candidates | Mp target [%] | damping errors | goal | no limit cycle "
-             "| Table 6.1 | median ts [s] | p90 ts [s] | median Mp [%] |", "|" + "---|" * 11]
+    write_md(rows)
+    return 0
+
+
+def write_md(rows: list[dict]) -> None:
+    """``control_robust_sweep.md``: one table row per configuration row of the JSON."""
+    lines = ["# Robust pole choice (ω_n, ζ) on the gap-corrected rigs of tuning plants "
+             "(bench/sweep_robust_spec.py)", "",
+             "Within-reach runs designed on the gap-corrected rig; ω_n factors (on the strategy's default), "
+             "ζ candidates and the overshoot the minimax score divides by (`drive_design.robust_spec`).", "",
+             "| config | plants | ω_n factors | ζ candidates | Mp target [%] | damping errors | goal "
+             "| no limit cycle | Table 6.1 | median ts [s] | p90 ts [s] | median Mp [%] |", "|" + "---|" * 12]
     for r in rows:
-        lines.append(f"| {r['config']} | {r.get('plants', '100-109')} | {r['zetas']} | "
+        factors = r.get("omega_factors", [1.0])
+        cascade = r.get("cascade_omega_factors", factors)
+        shown = f"{factors}" if cascade == factors else f"{factors} (cascades {cascade})"
+        lines.append(f"| {r['config']} | {r.get('plants', '100-109')} | {shown} | "
+                     f"{r['zetas']} | "
                      f"{r['overshoot_target']} | {r['damping_errors']} | "
                      f"{100 * r['goal']:.1f} % | "
                      f"{100 * r['no_limit_cycle']:.1f} % | {100 * r['table_6_1']:.1f} % | "
                      f"{r['median_ts']:.3f} | {r['p90_ts']:.3f} | {r['median_mp']:.2f} |")
     (RESULTS / "control_robust_sweep.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
-    return 0
 
 
 if __name__ == "__main__":

@@ -188,7 +188,7 @@ def test_robust_spec_keeps_the_thesis_spec_without_a_declared_drive_and_is_minim
         d = drive_model(lag, theta0, drive)
         w0 = DEFAULT_SPECS[name].omega_n
         cost = {}
-        for f, z in itertools.product(ROBUST_OMEGA_FACTORS, ROBUST_ZETAS):
+        for f, z in itertools.product(ROBUST_OMEGA_FACTORS[drive.kind], ROBUST_ZETAS):
             des = design_fl_on_drive(lag, PoleSpec(f * w0, z), drive, theta0)
             gains = (des.kp, des.ki, des.kd)
             cost[f * w0, z] = worst_goal_ratio(m.a_g * np.cos(theta0), m.a_c, m.b_f, d, gains, True)

@@ -31,8 +31,8 @@ Drives (:class:`DriveSpec`):
 
 **Pole pattern robust to the rest** (:func:`robust_spec`): a corrected rig file names a few
 effects and misses others; on a rig file that declares its drive, the default ω_n (×1-1.2 of the
-strategy's) and ζ (0.7-0.95) are the minimax choice over thrust-gain and damping errors of ±20 %
-of the linear loop with that drive.
+strategy's, FL and small-signal) and ζ (0.7-0.95) are the minimax choice over thrust-gain and
+damping errors of ±20 % of the linear loop with that drive.
 
 Which drive a strategy is designed on (:func:`design_drive`, :func:`fl_design`) and the
 ``design_gains`` CLI (:func:`main`: the FL gains and the scheduled small-signal table as the
@@ -390,12 +390,15 @@ def design_drive(rig: Rig, name: str, cascade: CascadeDesign | None = None) -> D
 
 #: Damping ratios :func:`robust_spec` chooses from (ascending: the least damped of equal cost wins).
 ROBUST_ZETAS = (0.7, 0.75, 0.8, 0.85, 0.9, 0.95)
-#: Factors on the strategy's default natural frequency ω_n :func:`robust_spec` chooses from
-#: (ascending: the slowest of equal cost wins). A faster position loop takes a larger thrust-gain
-#: error before it settles later than 1 s, where the drive leaves the phase for it. Chosen on tuning
-#: plants 100-119 (``bench/sweep_robust_spec.py``): up to ×1.1 / 1.2 / 1.3 / 1.5 gave goal 82.2 /
-#: 86.1 / 86.1 / 85.0 % (×1 alone 76.7 %), no limit cycle 97.8 / 97.8 / 97.2 / 97.2 %.
-ROBUST_OMEGA_FACTORS: tuple[float, ...] = (1.0, 1.1, 1.2)
+#: Factors on the strategy's default natural frequency ω_n :func:`robust_spec` chooses from, per
+#: drive (:attr:`DriveSpec.kind`; ascending: the slowest of equal cost wins). On the duty drive a
+#: faster position loop takes a larger thrust-gain error before it settles later than 1 s, where
+#: the drive leaves the phase for it; chosen on tuning plants 100-119 (``bench/sweep_robust_spec.py``:
+#: up to ×1.1 / 1.2 / 1.3 / 1.5 for every strategy gave goal 82.2 / 86.1 / 86.1 / 85.0 %, ×1 alone
+#: 76.7 %). The cascades keep ω_n: their position loop sits on a speed loop that detunes itself
+#: (×2/3) when the drive cycles, and a faster outer loop made the motor loops cycle, detune and then
+#: limit-cycle with the outer loop (8 plants of the reported 40; no goal gained on the tuning plants).
+ROBUST_OMEGA_FACTORS: dict[str, tuple[float, ...]] = {"duty": (1.0, 1.1, 1.2), "cascade": (1.0,)}
 #: Plant errors :func:`robust_spec` guards against, as factors on the thrust gain (K_q) and on the
 #: rod's viscous damping c/J, all combinations (issue 19: "±20 % thrust-gain / damping errors").
 THRUST_GAIN_ERRORS = (0.8, 1.0, 1.2)
@@ -441,12 +444,12 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
 
     On a rig file without a declared drive lag or delay (:func:`design_drive` None) ``spec`` is
     returned unchanged (the thesis' design, Table 6.1). Otherwise, for each ω_n = factor·ω_n(spec)
-    of :data:`ROBUST_OMEGA_FACTORS` and each ζ of :data:`ROBUST_ZETAS` (ρ of ``spec``), strategy
-    ``name``'s loop is designed as it will run
-    (on the drive, :func:`design_fl_on_drive` / :func:`design_small_signal_on_drive`, at half the
-    reach) and scored by :func:`worst_goal_ratio`; the least score wins (minimax). A rig file that
-    knows its drive is a measured one (``gap``'s ``corrected_rig.yaml``), but at most a few effects
-    of it: the design then aims at the goal on the plants near it, not at the nominal plant alone.
+    of :data:`ROBUST_OMEGA_FACTORS` (of the strategy's drive) and each ζ of :data:`ROBUST_ZETAS`
+    (ρ of ``spec``), strategy ``name``'s loop is designed as it will run (on the drive,
+    :func:`design_fl_on_drive` / :func:`design_small_signal_on_drive`, at half the reach) and scored
+    by :func:`worst_goal_ratio`; the least score wins (minimax). A rig file that knows its drive is
+    a measured one (``gap``'s ``corrected_rig.yaml``), but at most a few effects of it: the design
+    then aims at the goal on the plants near it, not at the nominal plant alone.
 
     Parameters
     ----------
@@ -473,7 +476,7 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
     linearising = name in ("fl_pid", "fl_cascade")
     m = PlantModel(rig)
     best, best_cost = spec, math.inf
-    for factor, zeta in itertools.product(ROBUST_OMEGA_FACTORS, ROBUST_ZETAS):
+    for factor, zeta in itertools.product(ROBUST_OMEGA_FACTORS[drive.kind], ROBUST_ZETAS):
         cand = dataclasses.replace(spec, omega_n=factor * spec.omega_n, zeta=zeta)
         if linearising:
             des = design_fl_on_drive(rig, cand, drive, theta0)
