@@ -417,9 +417,9 @@ def worst_goal_ratio(a0: float, a1: float, g: float, drive: control.StateSpace,
     """Worst over the plant errors (:data:`THRUST_GAIN_ERRORS` × :data:`DAMPING_ERRORS`) of
     max(ts / ts_goal, Mp / Mp_goal) of the linear loop (:func:`closed_loop`), goal
     :data:`ROBUST_GOAL` (ts ≤ 1 s, Mp ≤ 2 %): ≤ 1 when it holds on every such plant; ``inf`` if
-    one of them is unstable. With ``bound``, returns as soon as one plant scores ≥ ``bound`` (a
-    value ≥ ``bound`` then only says "no better than bound"; :func:`robust_spec` passes the best
-    score so far)."""
+    one of them is unstable. With ``bound``, returns as soon as one plant scores > ``bound`` (a
+    value > ``bound`` then only says "worse than bound"; :func:`robust_spec` passes the best score
+    so far)."""
     goal = ROBUST_GOAL
     worst = 0.0
     for k_g in THRUST_GAIN_ERRORS:
@@ -432,7 +432,7 @@ def worst_goal_ratio(a0: float, a1: float, g: float, drive: control.StateSpace,
             if not all(math.isfinite(x) for x in ratios):  # not settled within the prediction's horizon
                 return math.inf
             worst = max(worst, *ratios)
-            if worst >= bound:
+            if worst > bound:
                 return worst
     return worst
 
@@ -475,18 +475,22 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
         return spec
     linearising = name in ("fl_pid", "fl_cascade")
     m = PlantModel(rig)
-    best, best_cost = spec, math.inf
-    for factor, zeta in itertools.product(ROBUST_OMEGA_FACTORS[drive.kind], ROBUST_ZETAS):
-        cand = dataclasses.replace(spec, omega_n=factor * spec.omega_n, zeta=zeta)
+    candidates = [dataclasses.replace(spec, omega_n=factor * spec.omega_n, zeta=zeta)
+                  for factor, zeta in itertools.product(ROBUST_OMEGA_FACTORS[drive.kind], ROBUST_ZETAS)]
+    best, best_key = spec, (math.inf, len(candidates))
+    # scored from the fastest, best damped candidate down, where the choice usually lands, so that
+    # worst_goal_ratio can stop early on the others; ties go to the earlier candidate as listed
+    for k in reversed(range(len(candidates))):
+        cand = candidates[k]
         if linearising:
             des = design_fl_on_drive(rig, cand, drive, theta0)
             a0, a1, g = m.a_g * math.cos(theta0), m.a_c, m.b_f
         else:
             des = design_small_signal_on_drive(rig, theta0, cand, drive)
             a0, a1, g = des.a0, des.a1, des.g
-        cost = worst_goal_ratio(a0, a1, g, d, (des.kp, des.ki, des.kd), linearising, best_cost)
-        if cost < best_cost:
-            best, best_cost = cand, cost
+        cost = worst_goal_ratio(a0, a1, g, d, (des.kp, des.ki, des.kd), linearising, best_key[0])
+        if (cost, k) < best_key:
+            best, best_key = cand, (cost, k)
     return best
 
 
