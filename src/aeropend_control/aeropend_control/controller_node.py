@@ -221,6 +221,13 @@ class ControllerNode(Node):
                                f"{settings.reference}, steps {settings.steps}")
         return SetParametersResult(successful=True)
 
+    def destroy_node(self) -> None:
+        """Stop the background designer (a pending design is dropped), then destroy the node."""
+        designer = getattr(self, "_designer", None)  # absent when the constructor failed early
+        if designer is not None:
+            designer.shutdown(wait=False, cancel_futures=True)
+        super().destroy_node()
+
     def _apply(self, settings: ControllerSettings) -> None:
         """Take validated settings over: at once when the pole pattern is the running one or in
         lock-step mode (the plant waits for the command); in real-time mode a new pole pattern is
@@ -336,7 +343,6 @@ class ControllerNode(Node):
 
     def shutdown(self) -> None:
         """Publish duty 0 and write the trace (if configured)."""
-        self._designer.shutdown(wait=False, cancel_futures=True)
         try:
             self._pub_duty.publish(duty_msg(0.0))
             wait_acknowledged(self, [self._pub_duty])
