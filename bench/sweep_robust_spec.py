@@ -65,7 +65,7 @@ def run(name: str, tmp: Path, first: int, plants: int) -> dict:
     s = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))["summary"]["gap"]
     return {"config": name, "plants": f"{first}-{first + plants - 1}", "zetas": list(zetas),
             "overshoot_target": mp, "damping_errors": list(damping),
-            "omega_factors": list(OMEGA_FACTORS.get(name, (1.0,))),
+            "omega_factors": list(dd.ROBUST_OMEGA_FACTORS["duty"]),
             "cascade_omega_factors": list(dd.ROBUST_OMEGA_FACTORS["cascade"]),
             **{k: s[k] for k in ("goal", "no_limit_cycle", "table_6_1", "median_ts",
                                  "p90_ts", "median_mp", "per_strategy") if k in s}}

@@ -251,21 +251,12 @@ class ControllerLoop:
         self.stale = 0
         self.rows: list[list[float]] = []
 
-    def check_retune(self, settings: ControllerSettings) -> None:
-        """Raise :class:`ControllerConfigError` if ``settings`` change what is fixed for a run (rig,
-        strategy, mode, allocator, estimator, θ_op, duration, trace, tf)."""
-        fixed = [f for f in ("rig", "strategy", "mode", "allocator", "estimator", "theta_op", "duration",
-                             "trace", "tf")
-                 if getattr(settings, f) != getattr(self.settings, f)]
-        if fixed:
-            raise ControllerConfigError(f"{', '.join(fixed)} cannot change while the loop runs")
-
     def retune(self, settings: ControllerSettings,
                designed: FeedbackLinearizationPID | SmallSignalPID | CascadeStrategy | None = None) -> None:
         """Apply new settings while running: the pole pattern (ω_n, ζ, ρ: a new design, taken over
         bumpless, :meth:`FeedbackLinearizationPID.retune` / :meth:`SmallSignalPID.retune`), the
         initial reference and the step sequence (times still from the first sample). Anything else
-        (:meth:`check_retune`) is fixed for a run.
+        (rig, strategy, mode, allocator, estimator, θ_op, duration, trace, tf) is fixed for a run.
 
         Parameters
         ----------
@@ -279,7 +270,11 @@ class ControllerLoop:
         ControllerConfigError
             If a fixed setting differs or the new design fails; the loop is then unchanged.
         """
-        self.check_retune(settings)
+        fixed = [f for f in ("rig", "strategy", "mode", "allocator", "estimator", "theta_op", "duration",
+                             "trace", "tf")
+                 if getattr(settings, f) != getattr(self.settings, f)]
+        if fixed:
+            raise ControllerConfigError(f"{', '.join(fixed)} cannot change while the loop runs")
         if settings.spec != self.settings.spec:
             fresh = designed if designed is not None else build_strategy(settings)
             try:
