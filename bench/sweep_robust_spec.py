@@ -49,7 +49,15 @@ OMEGA_FACTORS: dict[str, tuple[float, ...]] = {
     "upto095_mp2_wn150": (1.0, 1.1, 1.2, 1.3, 1.4, 1.5),
 }
 #: name -> ω_n factors of the cascades where they differ from the FL and small-signal ones
-CASCADE_OMEGA_FACTORS: dict[str, tuple[float, ...]] = {"upto095_mp2_wn120_duty": (1.0,)}
+CASCADE_OMEGA_FACTORS: dict[str, tuple[float, ...]] = {
+    "upto095_mp2_wn120_duty": (1.0,),
+    # the cascades' drive (speed loop at 25-30 rad/s under a declared lag) slower than their
+    # default 9 rad/s position loop allows: slower ω_n candidates for them
+    "upto095_mp2_wn120_casc090": (0.9, 1.0),
+    "upto095_mp2_wn120_casc080": (0.8, 0.9, 1.0),
+    "upto095_mp2_wn120_casc070": (0.7, 0.8, 0.9, 1.0),
+}
+OMEGA_FACTORS.update({name: OMEGA_FACTORS["upto095_mp2_wn120"] for name in CASCADE_OMEGA_FACTORS})
 CONFIGS.update({name: CONFIGS["upto095_mp2"] for name in OMEGA_FACTORS})
 
 
