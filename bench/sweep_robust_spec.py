@@ -58,6 +58,10 @@ CASCADE_OMEGA_FACTORS: dict[str, tuple[float, ...]] = {
     "upto095_mp2_wn120_casc070": (0.7, 0.8, 0.9, 1.0),
 }
 OMEGA_FACTORS.update({name: OMEGA_FACTORS["upto095_mp2_wn120"] for name in CASCADE_OMEGA_FACTORS})
+#: name -> gravity-stiffness error factors of the box (the configurations above: (1.0,))
+GRAVITY_ERRORS: dict[str, tuple[float, ...]] = {"upto095_mp2_wn120_duty_gravity085_115": (0.85, 1.0, 1.15)}
+OMEGA_FACTORS["upto095_mp2_wn120_duty_gravity085_115"] = OMEGA_FACTORS["upto095_mp2_wn120_duty"]
+CASCADE_OMEGA_FACTORS["upto095_mp2_wn120_duty_gravity085_115"] = (1.0,)
 CONFIGS.update({name: CONFIGS["upto095_mp2"] for name in OMEGA_FACTORS})
 
 
@@ -67,6 +71,7 @@ def run(name: str, tmp: Path, first: int, plants: int) -> dict:
     factors = OMEGA_FACTORS.get(name, (1.0,))
     dd.ROBUST_OMEGA_FACTORS = {"duty": factors, "cascade": CASCADE_OMEGA_FACTORS.get(name, factors)}
     dd.ROBUST_GOAL = dataclasses.replace(GOAL, overshoot=mp)
+    dd.GRAVITY_ERRORS = GRAVITY_ERRORS.get(name, (1.0,))
     out = tmp / f"sweep_{name}"
     bci.main(["--first", str(first), "--plants", str(plants), "--workers", "2", "--gap-rigs", str(RIGS),
               "--out", str(out)])
@@ -75,6 +80,7 @@ def run(name: str, tmp: Path, first: int, plants: int) -> dict:
             "overshoot_target": mp, "damping_errors": list(damping),
             "omega_factors": list(dd.ROBUST_OMEGA_FACTORS["duty"]),
             "cascade_omega_factors": list(dd.ROBUST_OMEGA_FACTORS["cascade"]),
+            "gravity_errors": list(dd.GRAVITY_ERRORS),
             **{k: s[k] for k in ("goal", "no_limit_cycle", "table_6_1", "median_ts",
                                  "p90_ts", "median_mp", "per_strategy") if k in s}}
 

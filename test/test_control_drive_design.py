@@ -158,8 +158,8 @@ def test_a_cascade_on_a_quasi_static_armature_with_a_declared_lag_starts_on_the_
 
 
 def test_the_plant_error_of_the_linear_loop_is_the_known_residual_of_the_fl_law():
-    """FL law with the nominal model on a plant with k_g·g and k_c·a1: θ̈ = k_g·(v + a0·θ + a1·θ̇)
-    − a0·θ − k_c·a1·θ̇, so with an instantaneous drive the loop is the cubic below."""
+    """FL law with the nominal model on a plant with k_g·g, k_c·a1 and k_a·a0: θ̈ = k_g·(v + a0·θ +
+    a1·θ̇) − k_a·a0·θ − k_c·a1·θ̇, so with an instantaneous drive the loop is the cubic below."""
     m = PlantModel(load_rig("thesis_sim"))
     a0, a1, g = m.a_g * np.cos(0.3), m.a_c, m.b_f
     kp, ki, kd = place_ipd(0.0, 0.0, 1.0, SPEC)
@@ -167,12 +167,13 @@ def test_the_plant_error_of_the_linear_loop_is_the_known_residual_of_the_fl_law(
     fast = control.ss([[-1.0 / eps]], [[1.0 / eps]], [[1.0]], [[0.0]])
     assert np.allclose(np.asarray(closed_loop(a0, a1, g, fast, (kp, ki, kd), True).A),
                        np.asarray(closed_loop(a0, a1, g, fast, (kp, ki, kd), True, (1.0, 1.0)).A))
-    for k_g, k_c in ((1.0, 0.8), (1.0, 1.2), (1.2, 1.0), (0.8, 1.2)):
-        cl = closed_loop(a0, a1, g, fast, (kp, ki, kd), True, (k_g, k_c))
+    for k_g, k_c, k_a in ((1.0, 0.8, 1.0), (1.0, 1.2, 1.0), (1.2, 1.0, 1.0), (0.8, 1.2, 1.0),
+                          (1.0, 1.0, 0.85), (1.2, 0.8, 1.15)):
+        cl = closed_loop(a0, a1, g, fast, (kp, ki, kd), True, (k_g, k_c, k_a))
         poles = np.linalg.eigvals(np.asarray(cl.A))
         slow = np.sort_complex(poles[np.abs(poles) < 1e3])
-        # θ̈ = k_g·(v + a0·θ + a1·θ̇) − a0·θ − k_c·a1·θ̇
-        want = np.roots([1.0, k_g * kd - (k_g - k_c) * a1, k_g * kp - (k_g - 1.0) * a0, k_g * ki])
+        # θ̈ = k_g·(v + a0·θ + a1·θ̇) − k_a·a0·θ − k_c·a1·θ̇
+        want = np.roots([1.0, k_g * kd - (k_g - k_c) * a1, k_g * kp - (k_g - k_a) * a0, k_g * ki])
         assert slow == pytest.approx(np.sort_complex(want), rel=1e-3)
 
 
