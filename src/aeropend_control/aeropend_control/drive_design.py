@@ -406,6 +406,12 @@ ROBUST_ZETAS = (0.7, 0.75, 0.8, 0.85, 0.9, 0.95)
 #: ×0.8-0.9 are high (kp 2-3× the static design's) and overshoot 6-17 % where gravity and friction
 #: are off, while they rescue friction-held runs elsewhere.
 ROBUST_OMEGA_FACTORS: dict[str, tuple[float, ...]] = {"duty": (1.0, 1.1, 1.2), "cascade": (1.0,)}
+#: Slower ω_n factors :func:`robust_spec` chooses from (same minimax) when no candidate of
+#: :data:`ROBUST_OMEGA_FACTORS` keeps the linear loop stable and settled on every plant of the box: a
+#: design predicted to be unstable on part of it is not chosen while a slower one is not. Of the 60
+#: stored corrected rigs only plant 34's (58 ms lag) needs it, for the cascades: every ζ at 9 rad/s is
+#: unstable somewhere in the box; they limit-cycled there (docs/control.md).
+STABLE_FALLBACK_FACTORS = (0.6, 0.7, 0.8, 0.9)
 #: Plant errors :func:`robust_spec` guards against, as factors on the thrust gain (K_q) and on the
 #: rod's viscous damping c/J, all combinations (issue 19: "±20 % thrust-gain / damping errors").
 THRUST_GAIN_ERRORS = (0.8, 1.0, 1.2)
@@ -458,7 +464,9 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
     of :data:`ROBUST_OMEGA_FACTORS` (of the strategy's drive) and each ζ of :data:`ROBUST_ZETAS`
     (ρ of ``spec``), strategy ``name``'s loop is designed as it will run (on the drive,
     :func:`design_fl_on_drive` / :func:`design_small_signal_on_drive`, at half the reach) and scored
-    by :func:`worst_goal_ratio`; the least score wins (minimax). A rig file that knows its drive is
+    by :func:`worst_goal_ratio`; the least score wins (minimax). When every candidate is unstable or
+    unsettled on some plant of the box (score ``inf``), the same choice is made over the slower
+    factors :data:`STABLE_FALLBACK_FACTORS`. A rig file that knows its drive is
     a measured one (``gap``'s ``corrected_rig.yaml``), but at most a few effects of it: the design
     then aims at the goal on the plants near it, not at the nominal plant alone.
 
@@ -484,10 +492,21 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
         d = drive_model(rig, theta0, drive)
     except DesignError:  # no model of this drive: the static design, at the default spec
         return spec
+    best, cost = _minimax_spec(rig, name, spec, drive, d, theta0, ROBUST_OMEGA_FACTORS[drive.kind])
+    if math.isfinite(cost):
+        return best
+    slower, cost = _minimax_spec(rig, name, spec, drive, d, theta0, STABLE_FALLBACK_FACTORS)
+    return slower if math.isfinite(cost) else best
+
+
+def _minimax_spec(rig: Rig, name: str, spec: PoleSpec, drive: DriveSpec, d: control.StateSpace, theta0: float,
+                  factors: tuple[float, ...]) -> tuple[PoleSpec, float]:
+    """(candidate of least :func:`worst_goal_ratio`, that score) over ω_n ∈ factors × ω_n(spec) and
+    :data:`ROBUST_ZETAS`; ``spec`` itself and ``inf`` if no candidate can be designed."""
     linearising = name in ("fl_pid", "fl_cascade")
     m = PlantModel(rig)
     candidates = [dataclasses.replace(spec, omega_n=factor * spec.omega_n, zeta=zeta)
-                  for factor, zeta in itertools.product(ROBUST_OMEGA_FACTORS[drive.kind], ROBUST_ZETAS)]
+                  for factor, zeta in itertools.product(factors, ROBUST_ZETAS)]
     best, best_key = spec, (math.inf, len(candidates))
     # scored from the fastest, best damped candidate down, where the choice usually lands, so that
     # worst_goal_ratio can stop early on the others; ties go to the earlier candidate as listed
@@ -502,7 +521,7 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
         cost = worst_goal_ratio(a0, a1, g, d, (des.kp, des.ki, des.kd), linearising, best_key[0])
         if (cost, k) < best_key:
             best, best_key = cand, (cost, k)
-    return best
+    return best, best_key[0]
 
 
 #: Default closed-loop poles of each strategy's position loop. FL and small-signal PID use
