@@ -51,8 +51,8 @@ OMEGA_FACTORS: dict[str, tuple[float, ...]] = {
 #: name -> ω_n factors of the cascades where they differ from the FL and small-signal ones
 CASCADE_OMEGA_FACTORS: dict[str, tuple[float, ...]] = {
     "upto095_mp2_wn120_duty": (1.0,),
-    # the cascades' drive (speed loop at 25-30 rad/s under a declared lag) slower than their
-    # default 9 rad/s position loop allows: slower ω_n candidates for them
+    # the cascades' drive (speed loop at 22-31 rad/s under a declared lag) may not carry their
+    # default 9 rad/s position loop: slower ω_n candidates for them (rejected, docs/control.md)
     "upto095_mp2_wn120_casc090": (0.9, 1.0),
     "upto095_mp2_wn120_casc080": (0.8, 0.9, 1.0),
     "upto095_mp2_wn120_casc070": (0.7, 0.8, 0.9, 1.0),

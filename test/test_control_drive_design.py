@@ -246,4 +246,5 @@ def test_robust_spec_goes_slower_when_no_candidate_keeps_the_whole_box_stable():
     assert np.isfinite(score(chosen))
     ts, mp = _step_on_own_simulator(rig, make_strategy(name, rig))
     _, mp_fast = _step_on_own_simulator(rig, make_strategy(name, rig, spec=PoleSpec(w0, 0.7)))
-    assert ts < 1.5 and mp < 2.0 < 5.0 < mp_fast
+    assert ts < 1.5 and mp < 2.0
+    assert mp_fast > 5.0

@@ -32,7 +32,8 @@ Drives (:class:`DriveSpec`):
 **Pole pattern robust to the rest** (:func:`robust_spec`): a corrected rig file names a few
 effects and misses others; on a rig file that declares its drive, the default ω_n (×1-1.2 of the
 strategy's, FL and small-signal) and ζ (0.7-0.95) are the minimax choice over thrust-gain and
-damping errors of ±20 % of the linear loop with that drive.
+damping errors of ±20 % of the linear loop with that drive (slower ω_n, ×0.6-0.9, where no candidate
+keeps that loop stable on all of them).
 
 Which drive a strategy is designed on (:func:`design_drive`, :func:`fl_design`) and the
 ``design_gains`` CLI (:func:`main`: the FL gains and the scheduled small-signal table as the
@@ -432,8 +433,7 @@ ROBUST_GOAL = dataclasses.replace(GOAL, overshoot=2.0)
 def worst_goal_ratio(a0: float, a1: float, g: float, drive: control.StateSpace,
                      gains: tuple[float, float, float], linearising: bool, bound: float = math.inf) -> float:
     """Worst over the plant errors (:data:`THRUST_GAIN_ERRORS` × :data:`DAMPING_ERRORS` ×
-    :data:`GRAVITY_ERRORS`) of
-    max(ts / ts_goal, Mp / Mp_goal) of the linear loop (:func:`closed_loop`), goal
+    :data:`GRAVITY_ERRORS`) of max(ts / ts_goal, Mp / Mp_goal) of the linear loop (:func:`closed_loop`), goal
     :data:`ROBUST_GOAL` (ts ≤ 1 s, Mp ≤ 2 %): ≤ 1 when it holds on every such plant; ``inf`` if
     one of them is unstable. With ``bound``, returns as soon as one plant scores > ``bound`` (a
     value > ``bound`` then only says "worse than bound"; :func:`robust_spec` passes the best score
@@ -502,7 +502,8 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
 def _minimax_spec(rig: Rig, name: str, spec: PoleSpec, drive: DriveSpec, d: control.StateSpace, theta0: float,
                   factors: tuple[float, ...]) -> tuple[PoleSpec, float]:
     """(candidate of least :func:`worst_goal_ratio`, that score) over ω_n ∈ factors × ω_n(spec) and
-    :data:`ROBUST_ZETAS`; ``spec`` itself and ``inf`` if no candidate can be designed."""
+    :data:`ROBUST_ZETAS`; ties and an all-``inf`` field go to the earliest candidate (slowest, least
+    damped)."""
     linearising = name in ("fl_pid", "fl_cascade")
     m = PlantModel(rig)
     candidates = [dataclasses.replace(spec, omega_n=factor * spec.omega_n, zeta=zeta)
