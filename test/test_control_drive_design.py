@@ -19,6 +19,8 @@ from aeropend_control.drive_design import (
     ROBUST_OMEGA_FACTORS,
     ROBUST_ZETAS,
     STABLE_FALLBACK_FACTORS,
+    THRUST_LOOP_GAIN,
+    THRUST_LOOP_GAIN_MARGIN,
     DriveSpec,
     closed_loop,
     declares_drive_lag,
@@ -27,6 +29,7 @@ from aeropend_control.drive_design import (
     drive_model,
     place_ipd_on_drive,
     robust_spec,
+    thrust_loop_gain_limit,
     worst_goal_ratio,
 )
 from aeropend_control.strategies import (
@@ -34,6 +37,7 @@ from aeropend_control.strategies import (
     FeedbackLinearizationPID,
     SmallSignalPID,
     default_spec,
+    default_thrust_gain,
     design_drive,
     make_strategy,
 )
@@ -248,3 +252,31 @@ def test_robust_spec_goes_slower_when_no_candidate_keeps_the_whole_box_stable():
     _, mp_fast = _step_on_own_simulator(rig, make_strategy(name, rig, spec=PoleSpec(w0, 0.7)))
     assert ts < 1.5 and mp < 2.0
     assert mp_fast > 5.0
+
+
+def test_the_thrust_loop_gain_keeps_its_inner_loop_stable_on_a_rig_with_a_pure_delay():
+    """With a declared pure delay of 2 samples and no lag, the predictor's quasi-static motor follows
+    the duty within a sample (J_m/(B_m + K_t·K_ω/R_a) ≈ 1.4 ms), so the thrust loop's inner loop is
+    ≈ K·z^−3: stable for K < 1 only. The gain is held below its limit there (and stays 3 on a rig with
+    a 40 ms lag); with K = 3 the duty cycles between its limits at steady state."""
+    delay = _rig(delay=2 * 0.002048, name="thesis_sim")
+    lagged = _rig(lag=0.04, name="thesis_sim")
+    limit = thrust_loop_gain_limit(delay)
+    assert 0.8 < limit < 1.6
+    assert default_thrust_gain(delay) == pytest.approx(limit / THRUST_LOOP_GAIN_MARGIN)
+    assert thrust_loop_gain_limit(lagged) >= THRUST_LOOP_GAIN_MARGIN * THRUST_LOOP_GAIN
+    assert default_thrust_gain(lagged) == THRUST_LOOP_GAIN
+
+    def duty_std(strategy, seconds: float = 3.0) -> float:
+        plant = PlantStepper(delay)
+        s, duty = plant.sample(), []
+        for _ in range(round(seconds / delay.sample_period)):
+            out = strategy.step(0.3, s["theta"])
+            duty.append(out.duty)
+            s = plant.step(out.duty)
+        return float(np.std(duty[-round(1.0 / delay.sample_period):]))
+
+    held = FeedbackLinearizationPID(delay)
+    forced = FeedbackLinearizationPID(delay)
+    forced.thrust_gain = THRUST_LOOP_GAIN
+    assert duty_std(held) < 0.05 and duty_std(forced) > 0.3

@@ -44,6 +44,7 @@ above :mod:`aeropend_control.design`.
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import itertools
 import math
@@ -368,12 +369,67 @@ def design_small_signal_on_drive(rig: Rig, theta0: float, spec: PoleSpec, drive:
 THRUST_LOOP_GAIN = 3.0
 
 
+#: Gain margin the thrust loop keeps on its own inner loop (allocation → thrust predictor → f̂).
+THRUST_LOOP_GAIN_MARGIN = 2.0
+#: Length of the predictor's impulse response :func:`thrust_loop_gain_limit` evaluates [s].
+PREDICTOR_RESPONSE_S = 1.0
+
+
 def default_thrust_gain(rig: Rig) -> float:
     """K of the thrust loop f_cmd = f + K·(f − f̂): :data:`THRUST_LOOP_GAIN` when the rig file
     declares a drive lag T_a or input delay T_d (``effects.actuator_lag`` / ``input_delay`` with a
     value > 0, as ``gap``'s corrected rig does when it finds one), else 0 (the static allocation
-    alone; the motor of thesis_rig is fast enough, README table)."""
-    return THRUST_LOOP_GAIN if declares_drive_lag(rig) else 0.0
+    alone; the motor of thesis_rig is fast enough, README table); at most
+    :func:`thrust_loop_gain_limit` / :data:`THRUST_LOOP_GAIN_MARGIN`."""
+    if not declares_drive_lag(rig):
+        return 0.0
+    return min(THRUST_LOOP_GAIN, thrust_loop_gain_limit(rig) / THRUST_LOOP_GAIN_MARGIN)
+
+
+def thrust_loop_gain_limit(rig: Rig) -> float:
+    """Largest K for which the thrust loop's inner loop is stable by the Nyquist criterion with the
+    curve kept right of −1: 1 / max over ω of −Re P(e^{jωh}) (inf if P never has a negative real part).
+
+    The thrust loop closes a loop inside the controller: the allocated thrust f_cmd = (1 + K)·f −
+    K·f̂ sets the duty (allocation slope dτ/df), and f̂ is the thrust the observer's predictor
+    (:class:`~aeropend_control.observer.ThrustPredictor`: delay line, lag, quasi-static armature
+    and rotor) computes from the duties applied up to the previous sample. P(z), from f_cmd to f̂,
+    has unit DC gain; it is the predictor's response to a small duty step at the equilibrium of half
+    the reach, as an impulse response of :data:`PREDICTOR_RESPONSE_S`. On a rig with a declared
+    lag P is a slow low-pass filter and the limit is large. With a pure delay of d samples the
+    predictor's motor follows the duty within one sample (J_m/(B_m + K_t·K_ω/R_a) ≈ 1.4 ms on
+    thesis_sim), so P ≈ z^−(d+1): the limit is ≈ 1. Beyond it the duty cycles between its limits
+    with a period of 2·(d + 1) samples (benchmark plants 13 and 19, K = 3, duty std 0.4-0.5).
+
+    Returns
+    -------
+    float
+        The limit (> 0; ``inf`` when no gain destabilises the inner loop).
+    """
+    from aeropend_control.observer import ThrustPredictor
+
+    m = PlantModel(rig)
+    dt = float(rig.sample_period)
+    x_eq, tau0 = m.equilibrium(0.5 * reachable_angle(rig))
+    f0 = m.thrust(float(x_eq[OMEGA]))
+    df = 1e-4 * max(f0, 1e-3)
+    dtau = dtau_df(m, f0) * df
+    n = max(round(PREDICTOR_RESPONSE_S / dt), 8)
+    held = ThrustPredictor(m, dt)
+    for _ in range(n):  # settle at the equilibrium duty (delay line and lag included)
+        held.advance(tau0)
+    f_hat = np.zeros((2, n))
+    for row, step in enumerate((0.0, dtau)):  # the same predictor without and with the duty step
+        p = copy.deepcopy(held)
+        for k in range(n):
+            p.advance(tau0 + step)
+            f_hat[row, k] = m.thrust(p.omega)  # what the thrust loop reads at the next sample
+    s = (f_hat[1] - f_hat[0]) / df  # step response of f̂ to f_cmd
+    h = np.diff(s, prepend=0.0)  # impulse response: h[j] acts j + 1 samples after the duty
+    w = np.linspace(0.0, math.pi, 2049)
+    resp = np.exp(-1j * np.outer(w, np.arange(1, n + 1))) @ h
+    worst = float(np.max(-resp.real))
+    return 1.0 / worst if worst > 0.0 else math.inf
 
 
 def design_drive(rig: Rig, name: str, cascade: CascadeDesign | None = None) -> DriveSpec | None:
