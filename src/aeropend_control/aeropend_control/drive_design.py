@@ -396,10 +396,11 @@ def thrust_loop_gain_limit(rig: Rig) -> float:
     and rotor) computes from the duties applied up to the previous sample. P(z), from f_cmd to f̂,
     has unit DC gain; it is the predictor's response to a small duty step at the equilibrium of half
     the reach, as an impulse response of :data:`PREDICTOR_RESPONSE_S`. On a rig with a declared
-    lag P is a slow low-pass filter and the limit is large. With a pure delay of d samples the
-    predictor's motor follows the duty within one sample (J_m/(B_m + K_t·K_ω/R_a) ≈ 1.4 ms on
-    thesis_sim), so P ≈ z^−(d+1): the limit is ≈ 1. Beyond it the duty cycles between its limits
-    with a period of 2·(d + 1) samples (benchmark plants 13 and 19, K = 3, duty std 0.4-0.5).
+    lag of tens of ms P is a slow low-pass filter and the limit is large (≥ 6 on the benchmark's
+    rigs). With a pure delay of d samples the predictor's motor follows the duty within one sample
+    (J_m/(B_m + K_t·K_ω/R_a) ≈ 1.4 ms on thesis_sim), so P ≈ z^−(d+1): the limit is ≈ 1. Beyond it
+    the duty cycles between its limits with a period of 2·(d + 1) samples (benchmark plants 13 and
+    19, K = 3, duty std 0.4-0.5).
 
     Returns
     -------
