@@ -387,8 +387,9 @@ def default_thrust_gain(rig: Rig) -> float:
 
 
 def thrust_loop_gain_limit(rig: Rig) -> float:
-    """Largest K for which the thrust loop's inner loop is stable by the Nyquist criterion with the
-    curve kept right of −1: 1 / max over ω of −Re P(e^{jωh}) (inf if P never has a negative real part).
+    """Largest K for which the Nyquist curve of the thrust loop's inner loop, K·P(e^{jωh}), stays
+    right of −1: 1 / max over ω of −Re P (inf if P never has a negative real part). P being stable,
+    that is sufficient for the inner loop's stability (a conservative bound).
 
     The thrust loop closes a loop inside the controller: the allocated thrust f_cmd = (1 + K)·f −
     K·f̂ sets the duty (allocation slope dτ/df), and f̂ is the thrust the observer's predictor
