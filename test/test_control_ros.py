@@ -256,3 +256,55 @@ def test_a_live_pole_change_in_realtime_mode_is_designed_off_the_executor() -> N
         if node is not None:
             node.destroy_node()
         rclpy.shutdown(context=ctx)
+
+
+def test_a_lockstep_repeat_is_answered_again_only_for_a_reader_matched_since() -> None:
+    """The lock-step plant re-publishes its last sample after 0.5 s without a command and advances
+    once per command it receives. When the controller's first answer is slow (start-up under load),
+    the plant's repeat arrives after an answer that is already on its way; answering the repeat too
+    made the plant advance twice on one command, and the whole trajectory lagged one sample (CI
+    failure of ``test_two_rigs_in_namespaces_each_with_its_controller``; reproducer
+    ``bench/repro_lockstep_double_answer.py``). A repeat is answered again only when a duty reader
+    matched after the first answer: that reader (a late plant) may have missed it."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Float64
+
+    from aeropend_control.controller_node import ControllerNode
+    from aeropend_sim.ros.ros_contract import COMMAND_QOS_LOCKSTEP
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx, domain_id=random_domain())
+    node = peer = None
+    try:
+        node = ControllerNode(context=ctx, parameter_overrides=[Parameter("mode", value="lockstep")])
+        peer = rclpy.create_node("duty_reader", context=ctx)
+        ex = SingleThreadedExecutor(context=ctx)
+        ex.add_node(node)
+        ex.add_node(peer)
+        got: list[list[float]] = [[], []]
+        topic = node._pub_duty.topic_name
+
+        def spin_until(cond, timeout: float = 10.0) -> bool:
+            end = time.monotonic() + timeout
+            while not cond() and time.monotonic() < end:
+                ex.spin_once(timeout_sec=0.02)
+            return cond()
+
+        peer.create_subscription(Float64, topic, lambda m: got[0].append(m.data), COMMAND_QOS_LOCKSTEP)
+        assert spin_until(lambda: node._pub_duty.get_subscription_count() == 1)
+        node._control(0, 0.0)  # sample 0
+        node._control(0, 0.0)  # the plant's repeat of sample 0: the reader has the answer already
+        assert not spin_until(lambda: len(got[0]) > 1, timeout=1.0)
+        assert len(got[0]) == 1 and node.loop.repeats == 1
+        peer.create_subscription(Float64, topic, lambda m: got[1].append(m.data), COMMAND_QOS_LOCKSTEP)
+        assert spin_until(lambda: node._pub_duty.get_subscription_count() == 2)
+        node._control(0, 0.0)  # a reader matched since the answer: answered again
+        assert spin_until(lambda: len(got[1]) == 1)
+        assert got[1] == got[0][:1]
+    finally:
+        for n in (node, peer):
+            if n is not None:
+                n.destroy_node()
+        rclpy.shutdown(context=ctx)

@@ -20,7 +20,8 @@ strategy : str, default ``fl_pid``
 mode : str, default ``realtime``
     ``realtime``: samples with ``SAMPLE_SUB_QOS`` (best effort, keep last 100); ``lockstep``: reliable samples
     (``SAMPLE_QOS_LOCKSTEP``), exactly one command per new sample stamp; a re-published sample
-    (same stamp) is answered again with the same command.
+    (same stamp) is answered again with the same command only if a duty subscriber matched after
+    the first answer (one that may have missed it): the plant advances once per command.
 steps : list of float
     Reference step sequence [t0, θ0, t1, θ1, ...] (t in s from the first sample, θ in rad).
 reference : float, default 0
@@ -195,6 +196,8 @@ class ControllerNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.finished = threading.Event()
         self._matched_ns: int | None = None
+        #: Matched duty subscriptions when the last command went out (lock-step repeats, :meth:`_control`).
+        self._answered_matched = 0
         self.published = 0
         self.bad_samples = 0
         self._layout = [MultiArrayDimension(label=",".join(SIGNALS), size=len(SIGNALS), stride=len(SIGNALS))]
@@ -318,9 +321,18 @@ class ControllerNode(Node):
         if self._redesign is not None:
             self.take_over_redesign()
         repeat = stamp == self.loop.last_stamp
+        matched = self._pub_duty.get_subscription_count()
+        if repeat and not realtime and matched <= self._answered_matched:
+            # Lock-step: the plant re-publishes a sample while it waits; every reader matched when we
+            # answered got that answer (reliable, keep-all), so answering again would make the plant
+            # advance twice on one command (the trajectory then lags one sample). Only a reader
+            # matched since then (the plant, late) may have missed it.
+            self.loop.repeats += 1
+            return
         duty = self.loop.on_sample(stamp, theta, omega, i_a, recv)
         if duty is None:
             return
+        self._answered_matched = matched
         if self.loop.clamp_event is not None:
             req, used = self.loop.clamp_event
             self.get_logger().warn(
