@@ -321,18 +321,20 @@ class ControllerNode(Node):
         if self._redesign is not None:
             self.take_over_redesign()
         repeat = stamp == self.loop.last_stamp
-        matched = self._pub_duty.get_subscription_count()
-        if repeat and not realtime and matched <= self._answered_matched:
-            # Lock-step: the plant re-publishes a sample while it waits; every reader matched when we
-            # answered got that answer (reliable, keep-all), so answering again would make the plant
-            # advance twice on one command (the trajectory then lags one sample). Only a reader
-            # matched since then (the plant, late) may have missed it.
-            self.loop.repeats += 1
-            return
+        if not realtime:
+            matched = self._pub_duty.get_subscription_count()
+            if repeat and matched <= self._answered_matched:
+                # The plant re-publishes a sample while it waits; every reader matched when we answered
+                # got that answer (reliable, keep-all), so answering again would make the plant advance
+                # twice on one command (the trajectory then lags one sample). Only a reader matched
+                # since then (the plant, late) may have missed it.
+                self.loop.repeats += 1
+                return
         duty = self.loop.on_sample(stamp, theta, omega, i_a, recv)
         if duty is None:
             return
-        self._answered_matched = matched
+        if not realtime:
+            self._answered_matched = matched
         if self.loop.clamp_event is not None:
             req, used = self.loop.clamp_event
             self.get_logger().warn(
