@@ -321,20 +321,16 @@ class ControllerNode(Node):
         if self._redesign is not None:
             self.take_over_redesign()
         repeat = stamp == self.loop.last_stamp
-        if not realtime:
-            matched = self._pub_duty.get_subscription_count()
-            if repeat and matched <= self._answered_matched:
-                # The plant re-publishes a sample while it waits; every reader matched when we answered
-                # got that answer (reliable, keep-all), so answering again would make the plant advance
-                # twice on one command (the trajectory then lags one sample). Only a reader matched
-                # since then (the plant, late) may have missed it.
-                self.loop.repeats += 1
-                return
+        if repeat and not realtime and self._pub_duty.get_subscription_count() <= self._answered_matched:
+            # Lock-step: the plant re-publishes a sample while it waits; every reader matched when we
+            # answered got that answer (reliable, keep-all), so answering again would make the plant
+            # advance twice on one command (the trajectory then lags one sample). Only a reader
+            # matched since then (the plant, late) may have missed it.
+            self.loop.repeats += 1
+            return
         duty = self.loop.on_sample(stamp, theta, omega, i_a, recv)
         if duty is None:
             return
-        if not realtime:
-            self._answered_matched = matched
         if self.loop.clamp_event is not None:
             req, used = self.loop.clamp_event
             self.get_logger().warn(
@@ -347,6 +343,8 @@ class ControllerNode(Node):
                 "the duty cycle limit-cycles (a drive lag or delay the rig file does not know?): motor "
                 + (f"speed loop detuned from {before:.3g} to {after:.3g} rad/s" if after < before else
                    f"speed loop already at its floor of {after:.3g} rad/s, not detuned further"))
+        if not realtime:  # read before publishing: a reader matched after this read is served again
+            self._answered_matched = self._pub_duty.get_subscription_count()
         self._pub_duty.publish(duty_msg(duty))
         if realtime and not repeat:
             self.loop.mark_published(self.get_clock().now().nanoseconds)
