@@ -20,6 +20,11 @@ prints the commands sent, the sim's samples and the stamps seen::
 With the old policy the sim steps once more than the new samples answered
 (``sim_steps_minus_answered`` 1), so the trajectory lags one sample. With the new policy the two
 counts are equal (0). Measured 2026-11-25: old 1, new 0.
+
+``--commander excitation`` answers with the excitation node's own
+:class:`~aeropend_sim.ros.excitation_node.LockstepFeeder` instead (the same race: it answered every
+repeat with the previous command; ``--policy old`` calls it without the matched-reader count, as
+the node did, ``--policy new`` with it, as the node does now). Measured 2026-11-25: old 1, new 0.
 """
 
 from __future__ import annotations
@@ -41,16 +46,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--policy", choices=("old", "new"), default="old")
     ap.add_argument("--delay", type=float, default=0.7, help="delay of the first answer [s]")
     ap.add_argument("--answers", type=int, default=20, help="new samples to answer")
+    ap.add_argument("--commander", choices=("controller", "excitation"), default="controller",
+                    help="repeat rule: the controller node's, or the excitation node's LockstepFeeder")
     a = ap.parse_args(argv)
 
     import os
 
+    import numpy as np
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
     from aeropend_sim.contract import REL_DUTY_CYCLE, REL_JOINT_STATES
+    from aeropend_sim.ros.excitation_node import LockstepFeeder
     from aeropend_sim.ros.ros_contract import COMMAND_QOS_LOCKSTEP, SAMPLE_QOS_LOCKSTEP
 
     domain = random_domain()
@@ -63,6 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     node = rclpy.create_node("repro_commander")
     pub = node.create_publisher(Float64, REL_DUTY_CYCLE, COMMAND_QOS_LOCKSTEP)
     state = {"last": None, "matched": 0, "commands": 0, "repeats": 0, "answered": 0, "stamps": []}
+    feeder = LockstepFeeder(np.full(a.answers, 0.3))
 
     def answer(duty: float) -> None:
         state["matched"] = pub.get_subscription_count()
@@ -73,6 +83,18 @@ def main(argv: list[str] | None = None) -> int:
         stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
         state["stamps"].append(stamp)
         if pub.get_subscription_count() == 0 or state["answered"] >= a.answers:
+            return
+        if a.commander == "excitation":
+            new = stamp != feeder.last_stamp
+            if new and feeder.sent == 0:
+                time.sleep(a.delay)
+            matched = pub.get_subscription_count()
+            duty = feeder.on_sample(stamp, matched if a.policy == "new" else None)
+            state["repeats"] += int(not new)
+            state["answered"] = feeder.sent
+            if duty is not None:
+                feeder.mark_published(matched)
+                answer(duty)
             return
         if stamp == state["last"]:
             state["repeats"] += 1

@@ -81,6 +81,25 @@ def test_lockstep_feeder_answers_each_new_sample_once():
     assert feeder.on_sample(3 * PERIOD_NS) is None  # signal exhausted
 
 
+def test_lockstep_feeder_answers_a_repeat_again_only_for_a_reader_matched_since():
+    # The plant advances once per command. A repeat of sample k that crossed the answer to k on
+    # the wire must not be answered again (the plant would apply duty[k] for two periods and the
+    # signal would shift by a sample), unless a duty reader matched after the answer went out.
+    feeder = LockstepFeeder(np.array([0.1, 0.2, 0.3]))
+    assert feeder.on_sample(0, matched=1) == 0.1
+    feeder.mark_published(1)  # the answer went out to the one reader (the plant)
+    assert feeder.on_sample(0, matched=1) is None  # it got it: no second command
+    assert (feeder.resent, feeder.skipped) == (0, 1)
+    assert feeder.on_sample(PERIOD_NS, matched=1) == 0.2
+    feeder.mark_published(1)  # this answer reached only a recorder; the plant matches afterwards
+    assert feeder.on_sample(PERIOD_NS, matched=2) == 0.2  # the late plant may have missed it
+    feeder.mark_published(2)
+    assert feeder.on_sample(PERIOD_NS, matched=2) is None
+    assert (feeder.sent, feeder.resent, feeder.skipped) == (2, 1, 2)
+    # the whole signal goes out once per new sample, in order
+    assert feeder.on_sample(2 * PERIOD_NS, matched=2) == 0.3 and feeder.done
+
+
 def test_ros_param_overrides_syntax_error():
     with pytest.raises(ExcitationError, match="name:=value"):
         ros_param_overrides(["--ros-args", "-p", "seed=1"])

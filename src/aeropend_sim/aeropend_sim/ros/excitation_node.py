@@ -220,22 +220,35 @@ def resolve_config(params: dict[str, Any], flags: argparse.Namespace | None = No
 class LockstepFeeder:
     """Which command answers which sample in lock-step mode.
 
-    ``on_sample(stamp)`` returns ``duty[k]`` for the k-th new stamp (strictly increasing), the
-    previous command again for a repeated stamp (the plant re-publishes its last sample while it
-    waits for a command, so that command was lost), and None for an older stamp or once the
-    signal is exhausted.
+    ``on_sample(stamp)`` returns ``duty[k]`` for the k-th new stamp (strictly increasing), None for
+    an older stamp or once the signal is exhausted, and for a repeated stamp (the plant re-publishes
+    its last sample while it waits for a command) the previous command again, unless that command
+    certainly arrived. The plant advances once per command, so a repeat answered although the first
+    answer arrived (the two crossed on the wire, e.g. an answer slower than the plant's re-publish
+    period) would make it apply one duty for two periods and shift the signal by one sample. Every
+    reader matched when the answer went out got it (reliable, keep-all), so with ``matched`` (the
+    duty readers matched now) a repeat is answered again only when more readers are matched than
+    when the last answer was published (:meth:`mark_published`): a plant matched late may have
+    missed it. Without ``matched`` every repeat is answered again.
 
     Parameters
     ----------
     duty : ndarray, shape (N,)
         The commands in order.
+
+    Attributes
+    ----------
+    sent, resent, skipped : int
+        New commands answered, repeats answered again, repeats not answered (the answer arrived).
     """
 
     def __init__(self, duty: np.ndarray) -> None:
         self.duty = np.asarray(duty, dtype=float)
         self.sent = 0
         self.resent = 0
+        self.skipped = 0
         self._last_stamp: int | None = None
+        self._answered_matched = 0
 
     @property
     def last_stamp(self) -> int | None:
@@ -247,10 +260,19 @@ class LockstepFeeder:
         """True once every command has been sent."""
         return self.sent >= self.duty.size
 
-    def on_sample(self, stamp_ns: int) -> float | None:
-        """Command to publish in reply to the sample stamped ``stamp_ns`` (or None)."""
+    def mark_published(self, matched: int) -> None:
+        """Record that the last answer goes out now to ``matched`` duty readers (count read before
+        publishing, so a reader matched afterwards counts as new)."""
+        self._answered_matched = int(matched)
+
+    def on_sample(self, stamp_ns: int, matched: int | None = None) -> float | None:
+        """Command to publish in reply to the sample stamped ``stamp_ns`` (or None); ``matched``:
+        duty readers matched now (see the class doc)."""
         if self._last_stamp is not None and stamp_ns == self._last_stamp:
             if self.sent == 0:
+                return None
+            if matched is not None and matched <= self._answered_matched:
+                self.skipped += 1
                 return None
             self.resent += 1
             return float(self.duty[self.sent - 1])
@@ -341,13 +363,15 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
                 stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
                 if pending and stamp == feeder.last_stamp:
                     return  # re-published sample whose answer is still waiting to be sent
-                value = feeder.on_sample(stamp)
+                value = feeder.on_sample(stamp, pub.get_subscription_count())
                 if value is not None:
                     pending.append(value)
                     flush()
 
             def flush() -> None:
-                if pending and pub.get_subscription_count() >= cfg.min_subscribers:
+                matched = pub.get_subscription_count()
+                if pending and matched >= cfg.min_subscribers:
+                    feeder.mark_published(matched)
                     for value in pending:
                         pub.publish(Float64(data=value))
                     pending.clear()
@@ -366,7 +390,11 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
             stop_requested = stop.is_set() and not (feeder.done and not pending)
             n_sent = feeder.sent
             if feeder.resent:
-                log.warn(f"re-sent {feeder.resent} command(s) for re-published samples")
+                log.warn(f"re-sent {feeder.resent} command(s) for re-published samples "
+                         "(a duty reader matched late)")
+            if feeder.skipped:
+                log.info(f"{feeder.skipped} re-published sample(s) not answered again: their command had "
+                         "reached every matched reader")
         if cfg.zero_at_end and rclpy.ok():
             pub.publish(Float64(data=0.0))
         if rclpy.ok():  # a lagging recorder must get the last commands before the writer is gone
