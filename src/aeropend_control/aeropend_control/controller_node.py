@@ -104,6 +104,7 @@ from aeropend_sim.contract import (
     REL_DUTY_CYCLE,
     REL_JOINT_STATES,
     ContractError,
+    LockstepRepeats,
     stamp_to_ns,
 )
 from aeropend_sim.ros.node_shell import (
@@ -196,8 +197,8 @@ class ControllerNode(Node):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.finished = threading.Event()
         self._matched_ns: int | None = None
-        #: Matched duty subscriptions when the last command went out (lock-step repeats, :meth:`_control`).
-        self._answered_matched = 0
+        #: Which lock-step repeats are answered again (:meth:`_control`).
+        self._repeats = LockstepRepeats()
         self.published = 0
         self.bad_samples = 0
         self._layout = [MultiArrayDimension(label=",".join(SIGNALS), size=len(SIGNALS), stride=len(SIGNALS))]
@@ -321,11 +322,9 @@ class ControllerNode(Node):
         if self._redesign is not None:
             self.take_over_redesign()
         repeat = stamp == self.loop.last_stamp
-        if repeat and not realtime and self._pub_duty.get_subscription_count() <= self._answered_matched:
-            # Lock-step: the plant re-publishes a sample while it waits; every reader matched when we
-            # answered got that answer (reliable, keep-all), so answering again would make the plant
-            # advance twice on one command (the trajectory then lags one sample). Only a reader
-            # matched since then (the plant, late) may have missed it.
+        if (repeat and not realtime
+                and not self._repeats.answer_again(self._pub_duty.get_subscription_count())):
+            # the answer reached every reader matched then; a second one would advance the plant twice
             self.loop.repeats += 1
             return
         duty = self.loop.on_sample(stamp, theta, omega, i_a, recv)
@@ -344,7 +343,7 @@ class ControllerNode(Node):
                 + (f"speed loop detuned from {before:.3g} to {after:.3g} rad/s" if after < before else
                    f"speed loop already at its floor of {after:.3g} rad/s, not detuned further"))
         if not realtime:  # read before publishing: a reader matched after this read is served again
-            self._answered_matched = self._pub_duty.get_subscription_count()
+            self._repeats.published(self._pub_duty.get_subscription_count())
         self._pub_duty.publish(duty_msg(duty))
         if realtime and not repeat:
             self.loop.mark_published(self.get_clock().now().nanoseconds)

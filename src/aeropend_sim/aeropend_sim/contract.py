@@ -245,3 +245,30 @@ def ns_to_stamp(ns: int) -> tuple[int, int]:
     """Convert integer nanoseconds to ``builtin_interfaces/Time`` (sec, nanosec)."""
     sec, nanosec = divmod(int(ns), 1_000_000_000)
     return sec, nanosec
+
+
+class LockstepRepeats:
+    """Whether a lock-step command writer answers a re-published sample again.
+
+    The lock-step plant re-publishes its last sample while it waits for a command
+    (``sim_core.LOCKSTEP_REPUBLISH_S``) and advances once per command it receives; commands carry no
+    stamp. A repeat that crossed a slow answer on the wire, if answered too, makes the plant advance
+    twice on one command (one duty applied for two periods, the trajectory one sample late). Every
+    duty reader matched when the answer went out got it (reliable, keep-all), so a repeat is answered
+    again only when more readers are matched now than then: a plant matched late may have missed it.
+    Used by the controller node and the excitation's ``LockstepFeeder``
+    (``bench/repro_lockstep_double_answer.py``).
+    """
+
+    def __init__(self) -> None:
+        self._matched = 0
+
+    def published(self, matched: int) -> None:
+        """Record that an answer goes out now to ``matched`` duty readers (count read before
+        publishing, so a reader matched afterwards counts as new)."""
+        self._matched = int(matched)
+
+    def answer_again(self, matched: int) -> bool:
+        """True if a repeat of the last answered sample is to be answered again, ``matched`` being
+        the duty readers matched now."""
+        return matched > self._matched

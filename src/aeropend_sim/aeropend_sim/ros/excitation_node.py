@@ -57,6 +57,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from aeropend_sim.contract import LockstepRepeats
 from aeropend_sim.excitation import SIGNALS, ExcitationError, ExcitationSignal, make_signal
 
 NODE_NAME = "aeropend_excitation"
@@ -222,14 +223,11 @@ class LockstepFeeder:
 
     ``on_sample(stamp)`` returns ``duty[k]`` for the k-th new stamp (strictly increasing), None for
     an older stamp or once the signal is exhausted, and for a repeated stamp (the plant re-publishes
-    its last sample while it waits for a command) the previous command again, unless that command
-    certainly arrived. The plant advances once per command, so a repeat answered although the first
-    answer arrived (the two crossed on the wire, e.g. an answer slower than the plant's re-publish
-    period) would make it apply one duty for two periods and shift the signal by one sample. Every
-    reader matched when the answer went out got it (reliable, keep-all), so with ``matched`` (the
-    duty readers matched now) a repeat is answered again only when more readers are matched than
-    when the last answer was published (:meth:`mark_published`): a plant matched late may have
-    missed it. Without ``matched`` every repeat is answered again.
+    its last sample while it waits for a command) the previous command again. With ``matched`` (the
+    duty readers matched now) only when :class:`~aeropend_sim.contract.LockstepRepeats` says so: a
+    reader matched since the last answer was published (:meth:`mark_published`); otherwise that
+    answer arrived, and a second one would make the plant advance twice on one command and shift the
+    signal by one sample. Without ``matched`` every repeat is answered again.
 
     Parameters
     ----------
@@ -248,7 +246,7 @@ class LockstepFeeder:
         self.resent = 0
         self.skipped = 0
         self._last_stamp: int | None = None
-        self._answered_matched = 0
+        self._repeats = LockstepRepeats()
 
     @property
     def last_stamp(self) -> int | None:
@@ -261,9 +259,9 @@ class LockstepFeeder:
         return self.sent >= self.duty.size
 
     def mark_published(self, matched: int) -> None:
-        """Record that the last answer goes out now to ``matched`` duty readers (count read before
-        publishing, so a reader matched afterwards counts as new)."""
-        self._answered_matched = int(matched)
+        """Record that the last answer goes out now to ``matched`` duty readers
+        (:meth:`LockstepRepeats.published <aeropend_sim.contract.LockstepRepeats.published>`)."""
+        self._repeats.published(matched)
 
     def on_sample(self, stamp_ns: int, matched: int | None = None) -> float | None:
         """Command to publish in reply to the sample stamped ``stamp_ns`` (or None); ``matched``:
@@ -271,7 +269,7 @@ class LockstepFeeder:
         if self._last_stamp is not None and stamp_ns == self._last_stamp:
             if self.sent == 0:
                 return None
-            if matched is not None and matched <= self._answered_matched:
+            if matched is not None and not self._repeats.answer_again(matched):
                 self.skipped += 1
                 return None
             self.resent += 1
