@@ -226,23 +226,24 @@ def test_not_a_number_names_file_line_column(tmp_path: Path) -> None:
     path = _write(tmp_path / "data.csv", _rows(80, bad_line=57))
     with pytest.raises(CsvImportError) as err:
         import_csv(path, SPEC)
-    assert str(err.value) == f"{path} line 57 column 'angle [deg]': 'abc' is not a number"
+    expected = f"{path}:57: column 'angle [deg]': 'abc' is not a number; csv_import --drop-bad-rows drops it"
+    assert str(err.value) == expected
 
 
 def test_empty_cell_and_short_line(tmp_path: Path) -> None:
     path = _write(tmp_path / "empty.csv", _rows(20, bad_line=9, bad=""))
-    with pytest.raises(CsvImportError, match=r"empty\.csv line 9 column 'angle \[deg\]': '' is empty"):
+    with pytest.raises(CsvImportError, match=r"empty\.csv:9: column 'angle \[deg\]': '' is empty"):
         import_csv(path, SPEC)
     text = _rows(20).splitlines()
     text[13] = "0.24,101"  # line 14 lacks the angle field
     path = _write(tmp_path / "short.csv", "\n".join(text))
-    with pytest.raises(CsvImportError, match=r"short\.csv line 14 column 'angle \[deg\]': missing"):
+    with pytest.raises(CsvImportError, match=r"short\.csv:14: row has 2 fields, expected 3; "):
         import_csv(path, SPEC)
 
 
 def test_nan_cell_in_required_column(tmp_path: Path) -> None:
     path = _write(tmp_path / "nan.csv", _rows(20, bad_line=5, bad="nan"))
-    expected = r"nan\.csv line 5 column 'angle \[deg\]': 'nan' is not a finite"
+    expected = r"nan\.csv:5: column 'angle \[deg\]': 'nan' is not a finite"
     with pytest.raises(CsvImportError, match=expected):
         import_csv(path, SPEC)
 
@@ -251,7 +252,7 @@ def test_time_must_increase(tmp_path: Path) -> None:
     text = _rows(30).splitlines()
     text[20] = "0.36,100,1.0"  # line 21: t = 0.36 after 0.38 on line 20
     path = _write(tmp_path / "back.csv", "\n".join(text))
-    expected = r"back\.csv line 21 column 't \[s\]': time 0\.36 s is not after"
+    expected = r"back\.csv:21: column 't \[s\]': time 0\.36 s is not after"
     with pytest.raises(CsvImportError, match=expected):
         import_csv(path, SPEC)
 
@@ -259,7 +260,7 @@ def test_time_must_increase(tmp_path: Path) -> None:
 def test_missing_column_lists_header(tmp_path: Path) -> None:
     path = _write(tmp_path / "cols.csv", _rows(5))
     spec = CsvSpec(time_col="time", input_col="PWM [0-255]", input_kind="pwm", angle_col="angle [deg]")
-    with pytest.raises(CsvImportError, match=r"cols\.csv line 1: no time column 'time'; header has"):
+    with pytest.raises(CsvImportError, match=r"cols\.csv:1: no time column 'time'; header has"):
         import_csv(path, spec)
     with pytest.raises(CsvImportError, match="column index 7 out of range; the file has 3 column"):
         import_csv(path, CsvSpec(time_col=0, input_col=1, input_kind="pwm", angle_col=7))
@@ -268,7 +269,7 @@ def test_missing_column_lists_header(tmp_path: Path) -> None:
 def test_not_utf8_and_missing_file(tmp_path: Path) -> None:
     path = tmp_path / "latin.csv"
     path.write_bytes(b"t,u,angle\n0,1,2\n0.1,1,\xb0\n")
-    with pytest.raises(CsvImportError, match=r"latin\.csv line 3: bytes are not valid utf-8"):
+    with pytest.raises(CsvImportError, match=r"latin\.csv:3: bytes are not valid utf-8"):
         import_csv(path, CsvSpec(time_col="t", input_col="u", angle_col="angle"))
     with pytest.raises(CsvImportError, match="cannot read file"):
         import_csv(tmp_path / "absent.csv", SPEC)
@@ -343,7 +344,7 @@ def test_runs_split_at_the_label_column(tmp_path: Path) -> None:
     with pytest.raises(CsvImportError, match="no run label column 'piece'"):
         import_csv_runs(path, spec, "piece")
     bad = _write(tmp_path / "bad.csv", body.replace("\n2,", "\nx,"))
-    with pytest.raises(CsvImportError, match="line 6 column 'run': 'x' is not a number"):
+    with pytest.raises(CsvImportError, match=":6: column 'run': 'x' is not a number"):
         import_csv_runs(bad, spec, "run")
 
 
@@ -375,7 +376,7 @@ def test_cli_custom_columns(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert back.channels["theta"][2] == pytest.approx(math.radians(-9.0))
     bad = _write(tmp_path / "bad.csv", _rows(10, bad_line=4, bad="x1"))
     assert main([str(bad), "--time-col", "0", "--angle-col", "2", "--pwm-col", "1"]) == 1
-    assert "bad.csv line 4 column 'angle [deg]': 'x1' is not a number" in capsys.readouterr().err
+    assert "bad.csv:4: column 'angle [deg]': 'x1' is not a number" in capsys.readouterr().err
 
 
 def test_cli_start_time_gives_the_bag_a_real_clock(tmp_path: Path) -> None:
