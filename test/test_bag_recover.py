@@ -150,6 +150,7 @@ def test_truncated_mcap_recovers_every_message_written_before_the_cut(
         scan = scan_storage(_storage_file(bag))
         assert scan.truncated and scan.file_size == cut
         assert scan.total == len(expected), cut
+        assert max((end for *_, end in records if end <= cut), default=0) <= scan.readable_bytes <= cut
         assert scan.messages == _sorted(expected), cut
         figures.append((cut, scan.total))
         if not expected:

@@ -307,14 +307,9 @@ class _McapState:
             pass
 
     def _channel(self, rec: Any) -> None:
-        from rosbags.rosbag2.metadata import parse_qos
-
         self.channels[rec.id] = rec.topic
         if rec.topic not in self.scan.topics:
-            try:
-                qos = tuple(parse_qos(rec.metadata.get("offered_qos_profiles", "")))
-            except Exception:
-                qos = ()
+            qos = _parse_qos(rec.metadata.get("offered_qos_profiles", ""))
             self.scan.topics[rec.topic] = StorageTopic(
                 rec.topic, self.schemas.get(rec.schema_id, ""), rec.message_encoding, qos,
                 rec.metadata.get("topic_type_hash", ""))
@@ -355,6 +350,17 @@ def _scan_mcap(path: Path, keep: bool) -> StorageScan:
     if state.orphans:
         raise BagError(f"'{path}' is corrupt: {state.orphans} message(s) on a channel without channel record")
     return scan
+
+
+def _parse_qos(text: str) -> tuple[Any, ...]:
+    """Offered QoS profiles stored with a topic (YAML), parsed by rosbags; () when absent or unreadable."""
+    from rosbags.rosbag2 import ReaderError
+    from rosbags.rosbag2.metadata import parse_qos
+
+    try:
+        return tuple(parse_qos(text)) if text else ()
+    except (ReaderError, KeyError, ValueError, TypeError, AttributeError):
+        return ()
 
 
 def _parse_stored_metadata(text: str | None) -> dict[str, Any] | None:
@@ -448,7 +454,6 @@ def _scan_sqlite3(path: Path, keep: bool) -> StorageScan:
 def _read_sqlite3(conn: Any, scan: StorageScan, keep: bool) -> None:
     """Topics, stored metadata and messages (rowid order, up to the first missing page)."""
     import apsw
-    from rosbags.rosbag2.metadata import parse_qos
 
     tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
     if not {"topics", "messages"} <= tables:
@@ -461,11 +466,7 @@ def _read_sqlite3(conn: Any, scan: StorageScan, keep: bool) -> None:
     for tid, name, typ, fmt, qos, digest in conn.execute(
             f"SELECT id, name, type, serialization_format, {qos_col}, {hash_col} FROM topics ORDER BY id"):
         ids[tid] = name
-        try:
-            parsed = tuple(parse_qos(qos)) if qos else ()
-        except Exception:
-            parsed = ()
-        scan.topics.setdefault(name, StorageTopic(name, typ, fmt, parsed, digest or ""))
+        scan.topics.setdefault(name, StorageTopic(name, typ, fmt, _parse_qos(qos), digest or ""))
     if "metadata" in tables:
         try:
             row = conn.execute("SELECT metadata FROM metadata ORDER BY id DESC LIMIT 1").fetchone()
@@ -527,8 +528,9 @@ def rebuild_metadata(bag: str | Path) -> tuple[dict[str, Any], list[StorageScan]
     -------
     (dict, list of StorageScan)
         The metadata (version 9: topics with offered QoS, type hash and message count, per-file
-        counts and times, ``custom_data`` / ``ros_distro`` from the metadata stored in the first
-        storage file when readable) and the scans of the files (``truncated`` says which are cut).
+        counts and times; ``custom_data``, ``ros_distro`` and the compression settings from the
+        metadata stored in a storage file when readable) and the scans of the files
+        (``truncated`` says which are cut).
 
     Raises
     ------
@@ -570,8 +572,8 @@ def rebuild_metadata(bag: str | Path) -> tuple[dict[str, Any], list[StorageScan]
              "message_count": counts[t.name]}
             for t in topics.values()
         ],
-        "compression_format": "",
-        "compression_mode": "",
+        "compression_format": stored.get("compression_format") or "",
+        "compression_mode": stored.get("compression_mode") or "",
         "files": [
             {"path": s.path.name,
              "starting_time": {"nanoseconds_since_epoch": s.first_ns or 0},

@@ -570,7 +570,7 @@ class RawBagReader:
                 old = found.get(c.topic)
                 found[c.topic] = BagTopic(c.topic, c.msgtype, qos if old is None else old.qos + qos,
                                           int(c.msgcount) + (old.count if old else 0))
-        self.custom_data = self._custom_data(files)
+        self.custom_data = self._custom_data()
         present = sorted(found)
         if topics:
             missing = [t for t in topics if t not in found]
@@ -590,7 +590,8 @@ class RawBagReader:
         except (BagError, AttributeError, TypeError):
             return []
 
-    def _custom_data(self, files: list[Path]) -> dict[str, Any]:
+    def _custom_data(self) -> dict[str, Any]:
+        """``custom_data`` of metadata.yaml, or of the metadata stored in a storage file given alone."""
         if self.path.is_dir():
             try:
                 custom = bag_metadata(self.path).get("custom_data")
