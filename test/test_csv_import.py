@@ -4,13 +4,15 @@ from __future__ import annotations
 
 import gzip
 import math
+import re
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from aeropend_ident.cli.csv_import import main
-from aeropend_ident.errors import CsvImportError
+from aeropend_ident.errors import CsvImportError, CsvRowWarning
 from aeropend_ident.io.bags import read_bag
 from aeropend_ident.io.csv_import import PRESETS, CsvSpec, find_preset, import_csv, import_csv_runs
 
@@ -226,23 +228,24 @@ def test_not_a_number_names_file_line_column(tmp_path: Path) -> None:
     path = _write(tmp_path / "data.csv", _rows(80, bad_line=57))
     with pytest.raises(CsvImportError) as err:
         import_csv(path, SPEC)
-    assert str(err.value) == f"{path} line 57 column 'angle [deg]': 'abc' is not a number"
+    expected = f"{path}:57: column 'angle [deg]': 'abc' is not a number; csv_import --drop-bad-rows drops it"
+    assert str(err.value) == expected
 
 
 def test_empty_cell_and_short_line(tmp_path: Path) -> None:
     path = _write(tmp_path / "empty.csv", _rows(20, bad_line=9, bad=""))
-    with pytest.raises(CsvImportError, match=r"empty\.csv line 9 column 'angle \[deg\]': '' is empty"):
+    with pytest.raises(CsvImportError, match=r"empty\.csv:9: column 'angle \[deg\]': '' is empty"):
         import_csv(path, SPEC)
     text = _rows(20).splitlines()
     text[13] = "0.24,101"  # line 14 lacks the angle field
-    path = _write(tmp_path / "short.csv", "\n".join(text))
-    with pytest.raises(CsvImportError, match=r"short\.csv line 14 column 'angle \[deg\]': missing"):
+    path = _write(tmp_path / "short.csv", "\n".join(text) + "\n")
+    with pytest.raises(CsvImportError, match=r"short\.csv:14: row has 2 fields, expected 3; "):
         import_csv(path, SPEC)
 
 
 def test_nan_cell_in_required_column(tmp_path: Path) -> None:
     path = _write(tmp_path / "nan.csv", _rows(20, bad_line=5, bad="nan"))
-    expected = r"nan\.csv line 5 column 'angle \[deg\]': 'nan' is not a finite"
+    expected = r"nan\.csv:5: column 'angle \[deg\]': 'nan' is not a finite"
     with pytest.raises(CsvImportError, match=expected):
         import_csv(path, SPEC)
 
@@ -250,8 +253,8 @@ def test_nan_cell_in_required_column(tmp_path: Path) -> None:
 def test_time_must_increase(tmp_path: Path) -> None:
     text = _rows(30).splitlines()
     text[20] = "0.36,100,1.0"  # line 21: t = 0.36 after 0.38 on line 20
-    path = _write(tmp_path / "back.csv", "\n".join(text))
-    expected = r"back\.csv line 21 column 't \[s\]': time 0\.36 s is not after"
+    path = _write(tmp_path / "back.csv", "\n".join(text) + "\n")
+    expected = r"back\.csv:21: column 't \[s\]': time 0\.36 s is not after"
     with pytest.raises(CsvImportError, match=expected):
         import_csv(path, SPEC)
 
@@ -259,7 +262,7 @@ def test_time_must_increase(tmp_path: Path) -> None:
 def test_missing_column_lists_header(tmp_path: Path) -> None:
     path = _write(tmp_path / "cols.csv", _rows(5))
     spec = CsvSpec(time_col="time", input_col="PWM [0-255]", input_kind="pwm", angle_col="angle [deg]")
-    with pytest.raises(CsvImportError, match=r"cols\.csv line 1: no time column 'time'; header has"):
+    with pytest.raises(CsvImportError, match=r"cols\.csv:1: no time column 'time'; header has"):
         import_csv(path, spec)
     with pytest.raises(CsvImportError, match="column index 7 out of range; the file has 3 column"):
         import_csv(path, CsvSpec(time_col=0, input_col=1, input_kind="pwm", angle_col=7))
@@ -268,7 +271,7 @@ def test_missing_column_lists_header(tmp_path: Path) -> None:
 def test_not_utf8_and_missing_file(tmp_path: Path) -> None:
     path = tmp_path / "latin.csv"
     path.write_bytes(b"t,u,angle\n0,1,2\n0.1,1,\xb0\n")
-    with pytest.raises(CsvImportError, match=r"latin\.csv line 3: bytes are not valid utf-8"):
+    with pytest.raises(CsvImportError, match=r"latin\.csv:3: bytes are not valid utf-8"):
         import_csv(path, CsvSpec(time_col="t", input_col="u", angle_col="angle"))
     with pytest.raises(CsvImportError, match="cannot read file"):
         import_csv(tmp_path / "absent.csv", SPEC)
@@ -343,7 +346,7 @@ def test_runs_split_at_the_label_column(tmp_path: Path) -> None:
     with pytest.raises(CsvImportError, match="no run label column 'piece'"):
         import_csv_runs(path, spec, "piece")
     bad = _write(tmp_path / "bad.csv", body.replace("\n2,", "\nx,"))
-    with pytest.raises(CsvImportError, match="line 6 column 'run': 'x' is not a number"):
+    with pytest.raises(CsvImportError, match=":6: column 'run': 'x' is not a number"):
         import_csv_runs(bad, spec, "run")
 
 
@@ -375,7 +378,7 @@ def test_cli_custom_columns(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert back.channels["theta"][2] == pytest.approx(math.radians(-9.0))
     bad = _write(tmp_path / "bad.csv", _rows(10, bad_line=4, bad="x1"))
     assert main([str(bad), "--time-col", "0", "--angle-col", "2", "--pwm-col", "1"]) == 1
-    assert "bad.csv line 4 column 'angle [deg]': 'x1' is not a number" in capsys.readouterr().err
+    assert "bad.csv:4: column 'angle [deg]': 'x1' is not a number" in capsys.readouterr().err
 
 
 def test_cli_start_time_gives_the_bag_a_real_clock(tmp_path: Path) -> None:
@@ -398,3 +401,173 @@ def test_cli_start_time_gives_the_bag_a_real_clock(tmp_path: Path) -> None:
     assert read_bag(tmp_path / "c").stamp0_ns == 0
     with pytest.raises(SystemExit):
         main([str(path), *cols, "--start-time", "yesterday"])
+
+
+# ------------------------------------------------------------------ bad rows: cut, short, NaN/inf
+
+
+@real_data
+@pytest.mark.real_data
+def test_aeroshield_cut_in_its_last_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """``head -c 60000 Identification_Data.csv``: the last line reads '2176,1.60886,0.5'."""
+    cut = tmp_path / "t.csv"
+    cut.write_bytes(AEROSHIELD.read_bytes()[:60000])
+    with pytest.raises(CsvImportError) as err:
+        import_csv(cut, "aeroshield_ident")
+    assert str(err.value) == (f"{cut}:2178: row has 3 fields, expected 5 (last line cut: the file does not "
+                              "end with a line break); csv_import --drop-bad-rows drops it")
+    assert main([str(cut), "--preset", "aeroshield_ident", "-o", str(tmp_path / "X")]) == 1
+    assert capsys.readouterr().err == f"csv_import: error: {err.value}\n"
+    assert not (tmp_path / "X").exists()
+    # dropped on request: the rows before it are those of the whole file, the last angle the true one
+    dropped = r"t\.csv: dropped 1 bad row of 2177: line 2178 \(row has 3 fields"
+    with pytest.warns(CsvRowWarning, match=dropped):
+        rec = import_csv(cut, "aeroshield_ident", bad_rows="drop")
+    full = import_csv(AEROSHIELD, "aeroshield_ident")
+    assert len(rec) == 2176 and rec.channels["theta"][-1] == 0.561437
+    assert np.array_equal(rec.channels["theta"], full.channels["theta"][:2176])
+    assert np.array_equal(rec.duty, full.duty[:2176])
+    assert rec.meta["dropped_rows"] == {"count": 1, "first": [
+        {"line": 2178, "problem": "row has 3 fields, expected 5 (last line cut: the file does not end with a "
+                                  "line break)"}]}
+    assert main([str(cut), "--preset", "aeroshield_ident", "-o", str(tmp_path / "Y"), "--drop-bad-rows"]) == 0
+    out = capsys.readouterr()
+    assert out.err.startswith("csv_import: warning: ") and "dropped 1 bad row of 2177: line 2178" in out.err
+    assert "2176 samples" in out.out and "1 bad row dropped" in out.out
+    assert np.array_equal(read_bag(tmp_path / "Y").channels["theta"], rec.channels["theta"])
+
+
+def test_every_cut_of_the_last_lines_is_refused_or_flagged(tmp_path: Path) -> None:
+    """Cut a file at every byte of its last three lines: the import never returns a value the full
+    file does not have without saying so. A cut after a line break imports the complete rows; a
+    cut inside a line is an error naming that line, or (the row still has all its fields, e.g. the
+    last number lost digits) a warning that the last row may be cut; --drop-bad-rows gives exactly
+    the complete rows."""
+    text = _rows(40)
+    full = import_csv(_write(tmp_path / "full.csv", text), SPEC)
+    lines = text.splitlines(keepends=True)
+    start = len("".join(lines[:-3]))
+    outcomes = {"complete": 0, "error": 0, "flagged": 0}
+    for cut in range(start, len(text)):
+        path = _write(tmp_path / f"cut{cut}.csv", text[:cut])
+        done = text[:cut].count("\n")  # complete lines, header included
+        n = done - 1
+        if text[cut - 1] == "\n":
+            rec = import_csv(path, SPEC)
+            assert len(rec) == n and np.array_equal(rec.channels["theta"], full.channels["theta"][:n])
+            outcomes["complete"] += 1
+            continue
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                rec = import_csv(path, SPEC)
+            except CsvImportError as exc:
+                assert str(exc).startswith(f"{path}:{done + 1}: "), exc
+                outcomes["error"] += 1
+            else:
+                assert [w.category for w in caught] == [CsvRowWarning]
+                assert str(caught[0].message).startswith(f"{path}:{done + 1}: the file does not end with a "
+                                                         "line break, so its last row")
+                assert rec.meta["last_line_unterminated"] == done + 1
+                outcomes["flagged"] += 1
+        with pytest.warns(CsvRowWarning, match=rf"dropped 1 bad row of {n + 1}: line {done + 1} "):
+            dropped = import_csv(path, SPEC, bad_rows="drop")
+        assert len(dropped) == n and np.array_equal(dropped.channels["theta"], full.channels["theta"][:n])
+    # 3 cuts after a line break; cuts inside the last number keep all fields and are flagged
+    assert outcomes["complete"] == 3 and outcomes["error"] > 0 and outcomes["flagged"] > 0
+
+
+@pytest.mark.parametrize(("row", "problem"), [
+    ("0.10,103,nan", "column 'angle [deg]': 'nan' is not a finite number"),
+    ("0.10,inf,-7.5", "column 'PWM [0-255]': 'inf' is not a finite number"),
+    ("0.10,-Infinity,-7.5", "column 'PWM [0-255]': '-Infinity' is not a finite number"),
+    ("0.10,103,-7.5,9", "row has 4 fields, expected 3"),
+    ("0.10,103", "row has 2 fields, expected 3"),
+    ("0.10,1O3,-7.5", "column 'PWM [0-255]': '1O3' is not a number"),
+])
+def test_bad_row_in_the_middle(tmp_path: Path, row: str, problem: str) -> None:
+    lines = _rows(12).splitlines()
+    lines[6] = row  # line 7
+    path = _write(tmp_path / "mid.csv", "\n".join(lines) + "\n")
+    with pytest.raises(CsvImportError) as err:
+        import_csv(path, SPEC)
+    assert str(err.value) == f"{path}:7: {problem}; csv_import --drop-bad-rows drops it"
+    with pytest.warns(CsvRowWarning, match=rf"dropped 1 bad row of 12: line 7 \({re.escape(problem)}\)$"):
+        rec = import_csv(path, SPEC, bad_rows="drop")
+    assert len(rec) == 11 and rec.meta["rows"] == 11
+    full = import_csv(_write(tmp_path / "ok.csv", _rows(12)), SPEC)
+    keep = np.r_[0:5, 6:12]
+    assert np.array_equal(rec.channels["theta"], full.channels["theta"][keep])
+
+
+def test_many_bad_rows_counted_and_first_lines_listed(tmp_path: Path) -> None:
+    lines = _rows(50).splitlines()
+    for k in (4, 9, 10, 20, 30, 41, 45):
+        lines[k - 1] = lines[k - 1] + ",extra"
+    path = _write(tmp_path / "many.csv", "\n".join(lines) + "\n")
+    with pytest.raises(CsvImportError) as err:
+        import_csv(path, SPEC)
+    assert str(err.value) == (f"{path}:4: row has 4 fields, expected 3; 7 bad rows in all, lines 4, 9, 10, "
+                              "20, 30, ...; csv_import --drop-bad-rows drops them")
+    with pytest.warns(CsvRowWarning, match=r"dropped 7 bad rows of 50: line 4 \(row has 4 fields, expected "
+                                           r"3\); line 9 .*; line 30 \(.*\); \.\.\.$"):
+        rec = import_csv(path, SPEC, bad_rows="drop")
+    assert len(rec) == 43
+    assert rec.meta["dropped_rows"]["count"] == 7
+    assert [r["line"] for r in rec.meta["dropped_rows"]["first"]] == [4, 9, 10, 20, 30]
+
+
+def test_optional_channel_may_be_empty_or_nan_but_not_inf(tmp_path: Path) -> None:
+    spec = CsvSpec(time_col="t", input_col="u", angle_col="a", channels={"i_a": ("i", 1.0)})
+    ok = _write(tmp_path / "ok.csv", "t,u,a,i\n0,0.1,0.0,0.5\n0.1,0.1,0.1,\n0.2,0.1,0.2,nan\n"
+                                     "0.3,0.1,0.3,0.7\n")
+    rec = import_csv(ok, spec)
+    assert np.array_equal(rec.channels["i_a"], [0.5, np.nan, np.nan, 0.7], equal_nan=True)
+    bad = _write(tmp_path / "inf.csv", "t,u,a,i\n0,0.1,0.0,0.5\n0.1,0.1,0.1,inf\n0.2,0.1,0.2,0.6\n")
+    with pytest.raises(CsvImportError, match=r"inf\.csv:3: column 'i': 'inf' is not a finite number"):
+        import_csv(bad, spec)
+
+
+def test_empty_header_only_one_row(tmp_path: Path) -> None:
+    with pytest.raises(CsvImportError) as err:
+        import_csv(_write(tmp_path / "empty.csv", ""), SPEC)
+    assert str(err.value) == f"{tmp_path / 'empty.csv'}: empty file (0 bytes)"
+    with pytest.raises(CsvImportError, match=r"blank\.csv: no data lines \(only 0 comment and 2 blank"):
+        import_csv(_write(tmp_path / "blank.csv", "\n \n"), SPEC)
+    with pytest.raises(CsvImportError) as err:
+        import_csv(_write(tmp_path / "hdr.csv", "t [s],PWM [0-255],angle [deg]\n"), SPEC)
+    assert str(err.value) == f"{tmp_path / 'hdr.csv'}:1: header line but no data rows"
+    with pytest.raises(CsvImportError) as err:
+        import_csv(_write(tmp_path / "one.csv", _rows(1)), SPEC)
+    assert str(err.value) == f"{tmp_path / 'one.csv'}: 1 data row (line 2); need at least 2 samples"
+    # two rows, one of them bad and dropped: one left
+    with pytest.warns(CsvRowWarning), pytest.raises(CsvImportError, match=r"1 data row .*need at least 2"):
+        import_csv(_write(tmp_path / "two.csv", _rows(2, bad_line=3)), SPEC, bad_rows="drop")
+
+
+def test_cut_gzip(tmp_path: Path) -> None:
+    text = _rows(400)
+    packed = gzip.compress(text.encode())
+    path = tmp_path / "log.csv.gz"
+    path.write_bytes(packed[: len(packed) * 2 // 3])
+    with pytest.raises(CsvImportError) as err:
+        import_csv(path, SPEC)
+    assert str(err.value).startswith(f"{path}: the gzip stream is cut: it ends after {len(packed) * 2 // 3} "
+                                     "compressed bytes without its end marker (")
+    assert str(err.value).endswith("bytes of text readable); csv_import --drop-bad-rows imports the "
+                                   "readable part")
+    with pytest.warns(CsvRowWarning, match="dropped 1 bad row"):
+        rec = import_csv(path, SPEC, bad_rows="drop")
+    full = import_csv(_write(tmp_path / "full.csv", text), SPEC)
+    n = len(rec)
+    assert 0 < n < 400 and np.array_equal(rec.channels["theta"], full.channels["theta"][:n])
+    # two gzip members (concatenated files) read whole; a corrupt one is named
+    two = tmp_path / "two.csv.gz"
+    head, tail = text.split("\n", 200)[:200], text.split("\n", 200)[200]
+    two.write_bytes(gzip.compress(("\n".join(head) + "\n").encode()) + gzip.compress(tail.encode()))
+    assert np.array_equal(import_csv(two, SPEC).channels["theta"], full.channels["theta"])
+    bad = bytearray(packed)
+    bad[len(bad) // 2] ^= 0xFF
+    (tmp_path / "bad.csv.gz").write_bytes(bytes(bad))
+    with pytest.raises(CsvImportError, match=r"bad\.csv\.gz: corrupt gzip data"):
+        import_csv(tmp_path / "bad.csv.gz", SPEC)

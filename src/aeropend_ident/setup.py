@@ -36,7 +36,8 @@ setup(
             'pipeline = aeropend_ident.cli.pipeline:main',
             'identify = aeropend_ident.cli.identify:main',
             'gap = aeropend_ident.cli.gap:main',
-            'compare = aeropend_ident.cli.compare:main'
+            'compare = aeropend_ident.cli.compare:main',
+            'reindex = aeropend_ident.cli.reindex:main'
         ],
     },
 )

@@ -57,3 +57,39 @@ class PipelineError(IdentError, RuntimeError):
 
 class GapInputError(IdentificationError):
     """A recording or option the where-analysis cannot use (names the recording and the problem)."""
+
+
+class IdentWarning(UserWarning):
+    """Base of the warnings ``aeropend_ident`` gives on input it could use only in part; the
+    command-line tools print them as one line (:func:`print_warnings_as_lines`)."""
+
+
+class BagTruncatedWarning(IdentWarning):
+    """A bag's storage is cut short and only its readable messages were used (message: how many,
+    where the file ends)."""
+
+
+class CsvRowWarning(IdentWarning):
+    """A CSV row that may be wrong (a last line without its newline) or rows that were dropped."""
+
+
+def print_warnings_as_lines(prog: str) -> None:
+    """Make :class:`IdentWarning` s print as one ``PROG: warning: MESSAGE`` line on stderr.
+
+    For a command line's ``main``: the default Python format adds the source file, line and code of
+    the ``warnings.warn`` call, which mean nothing to the user. Other warnings keep the default
+    format. Python's default filter still applies (a message repeated from one place prints once).
+    """
+    import sys
+    import warnings
+
+    default = warnings.showwarning
+
+    def show(message: Warning | str, category: type[Warning], filename: str, lineno: int,
+             file: object = None, line: str | None = None) -> None:
+        if issubclass(category, IdentWarning):
+            print(f"{prog}: warning: {message}", file=sys.stderr, flush=True)
+        else:
+            default(message, category, filename, lineno, file, line)  # type: ignore[arg-type]
+
+    warnings.showwarning = show

@@ -21,7 +21,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from aeropend_ident.errors import IdentificationError
+from aeropend_ident.errors import IdentificationError, print_warnings_as_lines
 from aeropend_ident.greybox.baseline import INIT_HORIZON, baseline, write_report
 from aeropend_ident.io.recording_input import load_recording
 from aeropend_sim.params import RigFileError
@@ -57,6 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the baseline; print the summary; write the report folder."""
     args = build_parser().parse_args(argv)
+    print_warnings_as_lines("baseline")
     try:
         rec = load_recording(args.input, args.preset)
         result = baseline(

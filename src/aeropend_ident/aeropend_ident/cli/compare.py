@@ -29,7 +29,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from aeropend_ident.errors import CompareError
+from aeropend_ident.errors import CompareError, print_warnings_as_lines
 from aeropend_ident.gap.compare import MIN_HOLD, CompareResult, compare, load_model
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.recording_input import load_recording, uniform_recording
@@ -106,6 +106,7 @@ def write_report(result: CompareResult, out: Path, plots: bool = True) -> dict[s
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``compare``; print the table; write the report folder."""
     args = build_parser().parse_args(argv)
+    print_warnings_as_lines("compare")
     try:
         if args.label is not None and len(args.label) != len(args.rig):
             raise CompareError(

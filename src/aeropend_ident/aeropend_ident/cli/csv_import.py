@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.errors import CsvImportError
+from aeropend_ident.errors import CsvImportError, IdentWarning, print_warnings_as_lines
 from aeropend_ident.io.csv_import import (
     PRESETS,
     Column,
@@ -89,6 +89,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     p.add_argument("--rig-name", help="rig name stored in the bag")
     p.add_argument("--overwrite", action="store_true", help="replace an existing bag directory")
+    p.add_argument("--drop-bad-rows", action="store_true",
+                   help="leave out rows that are short, cut, have an extra field, a non-number or NaN/inf "
+                        "in a used column (and a last line without line break, the unreadable end of a cut "
+                        ".gz) instead of refusing the file; prints the count and the first lines dropped")
     p.add_argument("--start-time", type=_start_time, default="file", metavar="ISO|file|zero",
                    help="wall-clock time of the first sample in the bag: an ISO-8601 instant "
                         "(2024-03-01T14:05:00+01:00, UTC when no offset is given), 'file' (the CSV's "
@@ -164,11 +168,13 @@ def spec_from_args(args: argparse.Namespace) -> CsvSpec:
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``csv_import``: CSV -> contract bag, prints a one-paragraph summary."""
     args = build_parser().parse_args(argv)
+    print_warnings_as_lines("csv_import")
     try:
         spec = spec_from_args(args)
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            rec = import_csv(args.input, spec)
+            warnings.simplefilter("ignore")  # duty clipping: counted in the summary
+            warnings.simplefilter("default", IdentWarning)  # rows dropped or possibly cut: printed
+            rec = import_csv(args.input, spec, "drop" if args.drop_bad_rows else "error")
         # a real start time (Foxglove and rosbag2 tools show 1970 for stamps from 0)
         rec = replace(rec, stamp0_ns=start_time_ns(args.start_time, args.input, float(rec.t[-1])))
         if args.output is not None:

@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_ident.errors import GapCliError
+from aeropend_ident.errors import GapCliError, print_warnings_as_lines
 from aeropend_ident.io.recording_input import (
     check_length,
     load_and_split,
@@ -190,6 +190,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the gap diagnosis; print the summary; write the report folder."""
     args = build_parser().parse_args(argv)
+    print_warnings_as_lines("gap")
     from aeropend_ident.gap.report import terminal_summary, write_report
     from aeropend_ident.gap.run import run_gap
 

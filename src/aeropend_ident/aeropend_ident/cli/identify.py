@@ -13,7 +13,13 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from aeropend_ident.errors import BagError, CsvImportError, IdentificationError, RecordingInputError
+from aeropend_ident.errors import (
+    BagError,
+    CsvImportError,
+    IdentificationError,
+    RecordingInputError,
+    print_warnings_as_lines,
+)
 from aeropend_ident.sindy.identify import LIBRARIES, METHODS, identify
 from aeropend_sim.params import RigFileError, load_rig
 from aeropend_sim.recording import RecordingError
@@ -47,6 +53,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     args = ap.parse_args(argv)
+    print_warnings_as_lines("identify")
     t0 = time.perf_counter()
 
     def say(msg: str) -> None:

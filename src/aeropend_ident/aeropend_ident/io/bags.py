@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,12 +59,19 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import StoragePlugin
 
-from aeropend_ident.errors import BagError
+from aeropend_ident.errors import BagError, BagTruncatedWarning
 from aeropend_ident.io.bag_codec import (
     decode_armature,
     decode_float64,
     decode_joint_states,
     typestore,
+)
+from aeropend_ident.io.bag_recover import (
+    METADATA_FILE,
+    is_truncated,
+    scan_storage,
+    storage_files,
+    stored_metadata,
 )
 from aeropend_sim.contract import (
     COMMAND_QOS_DEPTH,
@@ -170,7 +178,7 @@ def bag_metadata(path: str | Path) -> dict[str, Any]:
     import yaml
 
     path = Path(path)
-    meta_file = path / "metadata.yaml"
+    meta_file = path / METADATA_FILE
     try:
         doc = yaml.safe_load(meta_file.read_text(encoding="utf-8"))
         return dict(doc["rosbag2_bagfile_information"])
@@ -180,54 +188,41 @@ def bag_metadata(path: str | Path) -> dict[str, Any]:
 
 def _open_error(path: Path, exc: BaseException) -> BagError:
     if path.is_dir() or path.suffix in (".mcap", ".db3"):
-        return BagError(f"bag '{path}' is truncated or corrupt: its storage cannot be opened "
+        return BagError(f"bag '{path}' is corrupt: its storage cannot be opened "
                         f"({type(exc).__name__}: {exc})")
     return BagError(f"'{path}' is not a readable rosbag2 bag ({type(exc).__name__}: {exc}); expected a bag "
                     "directory with metadata.yaml and .mcap/.db3 storage, or a .mcap/.db3 file")
 
 
-def _read_raw(path: Path, topics: Sequence[str]) -> tuple[dict[str, list[bytes]], dict[str, list[int]],
-                                                         dict[str, str], dict[str, int], str]:
-    """Raw messages and log times per topic; also the bag's topic->type map and declared counts."""
-    from rosbags.highlevel import AnyReader
+def _missing_metadata_error(path: Path) -> BagError:
+    """What to do with a bag directory without ``metadata.yaml`` (the recorder did not close it)."""
+    files = storage_files(path)
+    if not files:
+        return BagError(f"'{path}' is not a rosbag2 bag: the directory has no {METADATA_FILE} and no "
+                        ".mcap/.db3 storage file")
+    if len(files) == 1:
+        return BagError(f"bag '{path}' has no {METADATA_FILE}: give its storage file instead ({files[0]}) or "
+                        f"rebuild the metadata with 'reindex {path}'")
+    return BagError(f"bag '{path}' has no {METADATA_FILE}: rebuild it with 'reindex {path}' (the bag has "
+                    f"{len(files)} storage files, {files[0].name} ... {files[-1].name}; one given alone "
+                    "reads only its part)")
 
-    if not path.exists():
-        raise BagError(f"bag '{path}' does not exist")
-    if path.is_dir() and not (path / "metadata.yaml").exists():
-        raise BagError(f"'{path}' is not a rosbag2 bag: directory has no metadata.yaml")
+
+def _read_raw(path: Path, topics: Sequence[str]) -> tuple[dict[str, list[bytes]], dict[str, list[int]],
+                                                         dict[str, str], dict[str, int], RawBagReader]:
+    """Raw messages and log times per topic; also the bag's topic->type map, the message counts
+    it declares and the (closed) reader, which tells the storage and any recovery."""
     raws: dict[str, list[bytes]] = {t: [] for t in topics}
     logs: dict[str, list[int]] = {t: [] for t in topics}
-    try:
-        reader = AnyReader([path], default_typestore=typestore())
-        reader.open()
-    except Exception as exc:
-        raise _open_error(path, exc) from exc
-    try:
-        types = {c.topic: c.msgtype for c in reader.connections}
-        declared: dict[str, int] = {}
-        for c in reader.connections:
-            declared[c.topic] = declared.get(c.topic, 0) + int(c.msgcount)
-        storage = "mcap" if any(p.suffix == ".mcap" for p in _files(path)) else "sqlite3"
-        conns = [c for c in reader.connections if c.topic in raws]
-        if conns:
-            try:
-                for conn, logtime, raw in reader.messages(connections=conns):
-                    raws[conn.topic].append(bytes(raw))
-                    logs[conn.topic].append(int(logtime))
-            except Exception as exc:
-                read = sum(len(v) for v in raws.values())
-                raise BagError(f"bag '{path}' is truncated or corrupt: reading failed after {read} "
-                               f"message(s) ({type(exc).__name__}: {exc})") from exc
-    finally:
-        try:
-            reader.close()
-        except Exception:
-            pass
-    return raws, logs, types, declared, storage
-
-
-def _files(path: Path) -> list[Path]:
-    return [path] if path.is_file() else sorted(path.iterdir())
+    with RawBagReader(path) as reader:
+        types = {name: info.msgtype for name, info in reader.topics.items()}
+        declared = {name: info.count for name, info in reader.topics.items()}
+        wanted = [t for t in topics if t in reader.topics]
+        if wanted:
+            for topic, logtime, raw in reader.messages(wanted):
+                raws[topic].append(raw)
+                logs[topic].append(logtime)
+    return raws, logs, types, declared, reader
 
 
 def _read_contract_topics(
@@ -236,10 +231,10 @@ def _read_contract_topics(
     """The three contract topics of a bag, checked and decoded (:func:`read_bag`, first step).
 
     Returns the topic names (joint_states, armature, duty_cycle), the raw messages and log times
-    per topic, the storage plugin and the decoded columns (armature and commands None when absent).
+    per topic, the (closed) reader and the decoded columns (armature and commands None when absent).
     """
     t_js, t_arm, t_cmd = (namespace + t for t in (TOPIC_JOINT_STATES, TOPIC_ARMATURE, TOPIC_DUTY_CYCLE))
-    raws, logs, types, declared, storage = _read_raw(path, [t_js, t_arm, t_cmd])
+    raws, logs, types, declared, reader = _read_raw(path, [t_js, t_arm, t_cmd])
     expected = {t_js: TYPE_JOINT_STATES, t_arm: TYPE_ARMATURE, t_cmd: TYPE_DUTY_CYCLE}
     for topic, typ in expected.items():
         if topic in types and types[topic] != typ:
@@ -265,7 +260,7 @@ def _read_contract_topics(
     except Exception as exc:
         raise BagError(f"bag '{path}' is corrupt: a message cannot be decoded "
                        f"({type(exc).__name__}: {exc})") from exc
-    return (t_js, t_arm, t_cmd), raws, logs, storage, (js, arm, cmd)
+    return (t_js, t_arm, t_cmd), raws, logs, reader, (js, arm, cmd)
 
 
 def _drop_republished(path: Path, t_js: str, cols: dict[str, np.ndarray], order: np.ndarray,
@@ -296,12 +291,14 @@ def _drop_republished(path: Path, t_js: str, cols: dict[str, np.ndarray], order:
     return cols, order, stamps, republished
 
 
-def _pair_armature(arm: Any, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """Armature v_a / i_a paired with the samples by identical stamp, unmatched and orphan counts."""
+def _pair_armature(arm: Any, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Armature v_a / i_a paired with the samples by identical stamp, which samples are paired and
+    the orphan count (armature messages without a sample)."""
     n = stamps.size
     v_wire = np.full(n, np.nan)
     i_a = np.full(n, np.nan)
-    unmatched, orphan = n, 0
+    hit = np.zeros(n, dtype=bool)
+    orphan = 0
     if arm is not None:
         a_stamp = arm.columns["stamp"]
         a_order = np.argsort(a_stamp, kind="stable")
@@ -310,9 +307,16 @@ def _pair_armature(arm: Any, stamps: np.ndarray) -> tuple[np.ndarray, np.ndarray
         hit = a_stamp[pos] == stamps
         v_wire[hit] = arm.columns["v_a"][a_order][pos[hit]]
         i_a[hit] = arm.columns["i_a"][a_order][pos[hit]]
-        unmatched = int(n - hit.sum())
         orphan = int(a_stamp.size - np.unique(pos[hit]).size)
-    return v_wire, i_a, unmatched, orphan
+    return v_wire, i_a, hit, orphan
+
+
+def _cut_tail(paired: np.ndarray, recovered: bool) -> int:
+    """Samples at the end of a truncated bag that lost their armature message to the cut (the bag
+    pairs the samples before them): :func:`read_bag` drops them rather than keep NaN v_a / i_a."""
+    if not recovered or not paired.any():
+        return 0
+    return int(paired.size - 1 - np.flatnonzero(paired)[-1])
 
 
 def read_bag(path: str | Path, *, namespace: str = "",
@@ -337,6 +341,13 @@ def read_bag(path: str | Path, *, namespace: str = "",
     ``meta["duty_source"]["effort_after_gap"]`` counts those samples, ``meta["gaps"]`` the gaps.
     Channels that are NaN everywhere are absent from ``channels``.
 
+    A truncated bag (storage cut short, :class:`RawBagReader`) is read as far as its messages
+    are complete, with a :class:`~aeropend_ident.errors.BagTruncatedWarning`;
+    ``meta["truncated"]`` says what was recovered and where the file ends, and samples at its end
+    that lost their armature message to the cut are dropped (``incomplete_samples_dropped``).
+    A bag directory without ``metadata.yaml`` is refused with a message naming its storage file
+    (which can be given instead) and the ``reindex`` command.
+
     Parameters
     ----------
     path : str or Path
@@ -357,12 +368,13 @@ def read_bag(path: str | Path, *, namespace: str = "",
     Raises
     ------
     BagError
-        If ``path`` is not a bag, the bag is truncated/corrupt, ``joint_states`` is missing or
+        If ``path`` is not a bag, has no ``metadata.yaml``, is corrupt or truncated with fewer
+        than 2 samples recoverable, ``joint_states`` is missing or
         has the wrong type, messages violate the contract, two samples share a stamp, theta
         has NaNs, or (``require_duty``) there is no duty information.
     """
     path = Path(path)
-    (t_js, t_arm, t_cmd), raws, logs, storage, (js, arm, cmd) = _read_contract_topics(
+    (t_js, t_arm, t_cmd), raws, logs, reader, (js, arm, cmd) = _read_contract_topics(
         path, namespace, decoder)
 
     cols = js.columns
@@ -377,10 +389,19 @@ def read_bag(path: str | Path, *, namespace: str = "",
                        f"first at sample {int(bad[0])} (stamp {int(stamps[bad[0]])} ns); "
                        "the angle must be measured")
 
-    meta: dict[str, Any] = _stored_meta(path)
+    meta: dict[str, Any] = _stored_meta(reader.custom_data)
+    if reader.recovery is not None:
+        meta["truncated"] = reader.recovery
     if republished:
         meta["republished_samples_dropped"] = republished
-    v_wire, i_a, unmatched, orphan = _pair_armature(arm, stamps)
+    v_wire, i_a, paired, orphan = _pair_armature(arm, stamps)
+    cut = _cut_tail(paired, reader.recovery is not None)
+    if cut and n - cut >= 2:
+        n -= cut
+        cols = {k: v[:n] for k, v in cols.items()}
+        stamps, order, v_wire, i_a, paired = stamps[:n], order[:n], v_wire[:n], i_a[:n], paired[:n]
+        meta["truncated"]["incomplete_samples_dropped"] = cut
+    unmatched = int(n - paired.sum())
 
     # duty[k]: the applied effort carried by sample k+1 (wire convention). Where that is NaN (bags
     # whose duty exists only as commands), the last command received before the interval
@@ -428,7 +449,7 @@ def read_bag(path: str | Path, *, namespace: str = "",
         meta["duty_before_start"] = float(effort[0])
     meta.update({
         "bag": str(path),
-        "storage": storage,
+        "storage": reader.storage,
         "message_counts": {t: len(raws[t]) for t in (t_js, t_arm, t_cmd)},
         "unmatched_joint_states": unmatched if arm is not None else n,
         "orphan_armature": orphan,
@@ -446,14 +467,8 @@ def read_bag(path: str | Path, *, namespace: str = "",
         raise BagError(f"bag '{path}': {exc}") from exc
 
 
-def _stored_meta(path: Path) -> dict[str, Any]:
+def _stored_meta(custom: dict[str, Any]) -> dict[str, Any]:
     """Metadata :func:`write_bag` stored in ``custom_data`` (empty for other bags)."""
-    if not path.is_dir():
-        return {}
-    try:
-        custom = bag_metadata(path).get("custom_data") or {}
-    except BagError:
-        return {}
     meta: dict[str, Any] = {}
     if _CUSTOM_META in custom:
         try:
@@ -485,19 +500,44 @@ class BagTopic:
 
 
 class RawBagReader:
-    """Raw (serialised) messages of a bag in log-time order, for replay.
+    """Raw (serialised) messages of a bag in log-time order: the one reader of every tool.
+
+    :func:`read_bag` (so ``identify``, ``baseline``, ``gap``, ``compare``) and the player read
+    bags through it. A bag whose storage is complete is read with rosbags' ``AnyReader``
+    (streamed). A storage file cut short (no MCAP footer, an SQLite3 file shorter than its header
+    says) is read with :func:`aeropend_ident.io.bag_recover.scan_storage`: every complete message
+    is kept, :attr:`recovery` describes what was recovered and where the file ends, and a
+    :class:`~aeropend_ident.errors.BagTruncatedWarning` says so.
 
     Parameters
     ----------
     path : str or Path
-        Bag directory or ``.mcap`` / ``.db3`` file.
+        Bag directory (with ``metadata.yaml``) or a ``.mcap`` / ``.db3`` file, read directly.
     topics : sequence of str, optional
         Topics to read (default all).
+
+    Attributes
+    ----------
+    topics : dict of str -> BagTopic
+        The topics read, with type, offered QoS and message count (declared by the bag, or
+        recovered from a truncated one).
+    storage : {"mcap", "sqlite3"}
+        Storage plugin.
+    custom_data : dict
+        ``custom_data`` of the bag's metadata (``metadata.yaml``, or the metadata stored inside a
+        storage file given directly; empty when there is none).
+    recovery : dict or None
+        For a truncated bag: ``files`` (each with ``file``, ``file_size``, ``readable_bytes``,
+        ``declared_bytes``), ``recovered`` (per topic), ``recovered_total``, ``declared_total``
+        (``metadata.yaml``'s count, None without it), ``first_log_ns``, ``last_log_ns``;
+        None for a complete bag.
 
     Raises
     ------
     BagError
-        If ``path`` is not a readable bag or a requested topic is not in it.
+        ``path`` does not exist, is a directory without ``metadata.yaml`` (the message says to
+        give the storage file or run ``reindex``), cannot be opened, has no recoverable message,
+        or lacks a requested topic.
     """
 
     def __init__(self, path: str | Path, topics: Sequence[str] | None = None) -> None:
@@ -506,52 +546,138 @@ class RawBagReader:
         self.path = Path(path)
         if not self.path.exists():
             raise BagError(f"bag '{self.path}' does not exist")
-        if self.path.is_dir() and not (self.path / "metadata.yaml").exists():
-            raise BagError(f"'{self.path}' is not a rosbag2 bag: directory has no metadata.yaml")
-        try:
-            self._reader = AnyReader([self.path], default_typestore=typestore())
-            self._reader.open()
-        except Exception as exc:
-            raise _open_error(self.path, exc) from exc
-        conns = self._reader.connections
-        present = sorted({c.topic for c in conns})
+        if self.path.is_dir() and not (self.path / METADATA_FILE).exists():
+            raise _missing_metadata_error(self.path)
+        self._reader: Any = None
+        self._recovered: list[tuple[str, int, bytes]] | None = None
+        self._stored: dict[str, Any] | None = None
+        self.recovery: dict[str, Any] | None = None
+        files = self._storage_paths()
+        self.storage: Storage = "mcap" if any(p.suffix == ".mcap" for p in files) else "sqlite3"
+        if any(p.is_file() and is_truncated(p) for p in files):
+            # not AnyReader: SQLite would read a page cut in the middle zero-filled
+            found = self._recover(files)
+        else:
+            try:
+                reader = AnyReader([self.path], default_typestore=typestore())
+                reader.open()
+            except Exception as exc:
+                raise _open_error(self.path, exc) from exc
+            self._reader = reader
+            found = {}
+            for c in reader.connections:
+                qos = tuple(getattr(c.ext, "offered_qos_profiles", ()) or ())
+                old = found.get(c.topic)
+                found[c.topic] = BagTopic(c.topic, c.msgtype, qos if old is None else old.qos + qos,
+                                          int(c.msgcount) + (old.count if old else 0))
+        self.custom_data = self._custom_data()
+        present = sorted(found)
         if topics:
-            missing = [t for t in topics if t not in present]
+            missing = [t for t in topics if t not in found]
             if missing:
                 self.close()
                 raise BagError(f"bag '{self.path}' has no topic(s) {missing} (topics present: {present})")
-            conns = [c for c in conns if c.topic in topics]
-        self._conns = conns
-        self.topics: dict[str, BagTopic] = {}
-        for c in conns:
-            qos = tuple(getattr(c.ext, "offered_qos_profiles", ()) or ())
-            old = self.topics.get(c.topic)
-            self.topics[c.topic] = BagTopic(c.topic, c.msgtype, qos if old is None else old.qos + qos,
-                                            int(c.msgcount) + (old.count if old else 0))
+            found = {t: found[t] for t in topics}
+        self.topics: dict[str, BagTopic] = found
 
-    def messages(self) -> Any:
+    def _storage_paths(self) -> list[Path]:
+        """The storage files: the file given, or those metadata.yaml lists."""
+        if not self.path.is_dir():
+            return [self.path]
+        try:
+            names = bag_metadata(self.path).get("relative_file_paths") or []
+            return [self.path / Path(str(n)).name for n in names]
+        except (BagError, AttributeError, TypeError):
+            return []
+
+    def _custom_data(self) -> dict[str, Any]:
+        """``custom_data`` of metadata.yaml, or of the metadata stored in a storage file given alone."""
+        if self.path.is_dir():
+            try:
+                custom = bag_metadata(self.path).get("custom_data")
+            except BagError:
+                custom = None
+        else:
+            stored = self._stored if self._recovered is not None else stored_metadata(self.path)
+            custom = (stored or {}).get("custom_data")
+        return dict(custom) if isinstance(custom, dict) else {}
+
+    def _recover(self, files: list[Path]) -> dict[str, BagTopic]:
+        """Read what is readable of truncated storage files; warn how much and where they end."""
+        scans = [scan_storage(p) for p in files]
+        self._stored = next((s.stored_metadata for s in scans if s.stored_metadata), None)
+        found: dict[str, BagTopic] = {}
+        counts: dict[str, int] = {}
+        for s in scans:
+            for name, t in s.topics.items():
+                counts[name] = counts.get(name, 0) + s.counts.get(name, 0)
+                found.setdefault(name, BagTopic(name, t.msgtype, t.qos, 0))
+        found = {n: BagTopic(n, t.msgtype, t.qos, counts[n]) for n, t in found.items()}
+        self._recovered = sorted((m for s in scans for m in s.messages), key=lambda m: m[1])
+        total = len(self._recovered)
+        declared = None
+        if self.path.is_dir():
+            try:
+                declared = int(bag_metadata(self.path).get("message_count"))
+            except (BagError, TypeError, ValueError):
+                declared = None
+        cut = [s for s in scans if s.truncated]
+        where = "; ".join(s.where_it_ends() for s in cut)
+        if total == 0:
+            raise BagError(f"bag '{self.path}' is truncated: {where}; no complete message could be recovered")
+        first, last = self._recovered[0][1], self._recovered[-1][1]
+        self.recovery = {
+            "files": [{"file": str(s.path), "file_size": s.file_size, "readable_bytes": s.readable_bytes,
+                       "declared_bytes": s.declared_bytes} for s in cut],
+            "recovered": counts, "recovered_total": total, "declared_total": declared,
+            "first_log_ns": first, "last_log_ns": last,
+        }
+        per_topic = ", ".join(f"{n} {c}" for n, c in counts.items())
+        lost = "" if declared is None else f"; {METADATA_FILE} declares {declared}, {declared - total} lost"
+        warnings.warn(f"bag '{self.path}' is truncated: {where}; recovered {total} message(s) ({per_topic}) "
+                      f"up to log time {last} ns ({(last - first) / 1e9:.3f} s after the first){lost}",
+                      BagTruncatedWarning, stacklevel=3)
+        return found
+
+    def messages(self, topics: Sequence[str] | None = None) -> Any:
         """Yield ``(topic, log_time_ns, raw_bytes)`` in log-time order.
+
+        Parameters
+        ----------
+        topics : sequence of str, optional
+            Only these of :attr:`topics` (default all of them).
 
         Raises
         ------
         BagError
-            If the storage turns out to be truncated or corrupt while reading.
+            If the storage turns out to be corrupt while reading.
         """
+        wanted = set(self.topics if topics is None else topics) & set(self.topics)
+        if self._recovered is not None:
+            for topic, logtime, raw in self._recovered:
+                if topic in wanted:
+                    yield topic, logtime, raw
+            return
+        conns = [c for c in self._reader.connections if c.topic in wanted]
+        if not conns:
+            return
         try:
-            for conn, logtime, raw in self._reader.messages(connections=self._conns):
+            for conn, logtime, raw in self._reader.messages(connections=conns):
                 yield conn.topic, int(logtime), bytes(raw)
         except BagError:
             raise
         except Exception as exc:
-            raise BagError(f"bag '{self.path}' is truncated or corrupt: reading failed "
+            raise BagError(f"bag '{self.path}' is corrupt: reading failed "
                            f"({type(exc).__name__}: {exc})") from exc
 
     def close(self) -> None:
-        """Close the underlying reader."""
-        try:
-            self._reader.close()
-        except Exception:
-            pass
+        """Close the underlying reader (the recovered messages stay readable)."""
+        if self._reader is not None:
+            try:
+                self._reader.close()
+            except Exception:
+                pass
+            self._reader = None
 
     def __enter__(self) -> RawBagReader:
         return self

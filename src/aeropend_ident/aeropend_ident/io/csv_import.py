@@ -19,11 +19,12 @@ licence notes in each preset's ``meta``). The command line (console script ``csv
 from __future__ import annotations
 
 import fnmatch
-import gzip
 import hashlib
 import math
 import warnings
-from dataclasses import asdict, dataclass, field
+import zlib
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any, Literal
@@ -31,11 +32,12 @@ from typing import Any, Literal
 import numpy as np
 import yaml
 
-from aeropend_ident.errors import CsvImportError
+from aeropend_ident.errors import CsvImportError, CsvRowWarning
 from aeropend_sim.recording import MEASURED_CHANNELS, Recording, RecordingError
 
 __all__ = [
     "PRESETS",
+    "BadRows",
     "CsvImportError",
     "CsvSpec",
     "csv_to_bag",
@@ -50,6 +52,12 @@ InputKind = Literal["duty", "percent", "pwm", "voltage"]
 TimeUnit = Literal["s", "ms", "us", "sample"]
 _TIME_SCALE = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 _DELIMITERS = ("\t", ";", ",")
+#: What :func:`import_csv` does with a bad row: raise (default) or drop it and report it.
+BadRows = Literal["error", "drop"]
+#: The option that drops bad rows, named in the messages (``bad_rows="drop"`` in Python).
+_DROP_HINT = "csv_import --drop-bad-rows"
+#: Bad rows listed by line in a drop report.
+_SHOWN_ROWS = 5
 
 
 @dataclass(frozen=True)
@@ -238,24 +246,50 @@ class _Table:
     comment_lines: int
     blank_lines: int
     header_line: int | None
+    terminated: bool  # the text ends with a line break (False: its last line may be cut)
 
 
-def _read_text(path: Path, encoding: str) -> tuple[str, bytes]:
+def _gunzip(path: Path, raw: bytes, partial: bool) -> bytes:
+    """Decompress a gzip file (every member, CRCs checked by zlib); the readable part of a cut one
+    when ``partial``, else an error saying it is cut."""
+    out: list[bytes] = []
+    rest = raw
+    try:
+        while rest:
+            d = zlib.decompressobj(wbits=16 + zlib.MAX_WBITS)
+            out.append(d.decompress(rest))
+            if not d.eof:
+                text = b"".join(out)
+                if not partial:
+                    raise CsvImportError(
+                        f"{path}: the gzip stream is cut: it ends after {len(raw)} compressed bytes without "
+                        f"its end marker ({len(text)} bytes of text readable); {_DROP_HINT} imports the "
+                        "readable part")
+                return text
+            rest = d.unused_data.lstrip(b"\x00")  # members follow one another; zero padding is allowed
+    except zlib.error as exc:
+        raise CsvImportError(f"{path}: corrupt gzip data ({exc})") from exc
+    return b"".join(out)
+
+
+def _read_text(path: Path, encoding: str, partial_gzip: bool = False) -> tuple[str, bytes]:
+    """Text of a CSV file (a gzip one decompressed, a UTF-8 BOM removed) and its raw bytes."""
     try:
         raw = path.read_bytes()
     except OSError as exc:
         raise CsvImportError(f"{path}: cannot read file ({exc.strerror or exc})") from exc
-    if raw[:2] == b"\x1f\x8b":
-        try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError) as exc:
-            raise CsvImportError(f"{path}: corrupt gzip data ({exc})") from exc
+    if not raw:
+        raise CsvImportError(f"{path}: empty file (0 bytes)")
+    data = _gunzip(path, raw, partial_gzip) if raw[:2] == b"\x1f\x8b" else raw
     try:
-        text = raw.decode(encoding)
+        text = data.decode(encoding)
     except UnicodeDecodeError as exc:
-        line = raw[:exc.start].count(b"\n") + 1
-        raise CsvImportError(f"{path} line {line}: bytes are not valid {encoding} text "
-                             f"({exc.reason})") from exc
+        if partial_gzip and raw[:2] == b"\x1f\x8b" and exc.start >= len(data) - 3:
+            text = data[:exc.start].decode(encoding)  # a character cut with the gzip stream
+        else:
+            line = data[:exc.start].count(b"\n") + 1
+            raise CsvImportError(f"{path}:{line}: bytes are not valid {encoding} text ({exc.reason})") \
+                from exc
     return text.lstrip("\ufeff"), raw
 
 
@@ -313,9 +347,9 @@ def _tabulate(path: Path, text: str, spec: CsvSpec) -> _Table:
     data_idx = keep[1:] if has_header else keep
     rows = [lines[i].split(delimiter) for i in data_idx]
     if not rows:
-        raise CsvImportError(f"{path}: header line {keep[0] + 1} but no data rows")
+        raise CsvImportError(f"{path}:{keep[0] + 1}: header line but no data rows")
     return _Table(path, header, rows, np.asarray(data_idx, dtype=np.int64) + 1, delimiter, decimal, comment,
-                  blank, keep[0] + 1 if has_header else None)
+                  blank, keep[0] + 1 if has_header else None, terminated=text.endswith(("\n", "\r")))
 
 
 def _norm(s: str) -> str:
@@ -346,46 +380,128 @@ def _resolve(tab: _Table, col: Column, role: str) -> tuple[int, str]:
         if len(hits) == 1:
             return hits[0], tab.header[hits[0]]
         if len(hits) > 1:
-            raise CsvImportError(f"{tab.path} line {tab.header_line}: {role} column {col!r} is ambiguous: "
+            raise CsvImportError(f"{tab.path}:{tab.header_line}: {role} column {col!r} is ambiguous: "
                                  f"matches {[tab.header[i] for i in hits]}")
-    raise CsvImportError(f"{tab.path} line {tab.header_line}: no {role} column {col!r}; "
+    raise CsvImportError(f"{tab.path}:{tab.header_line}: no {role} column {col!r}; "
                          f"header has {tab.header}")
 
 
-def _column(tab: _Table, idx: int, label: str, allow_nan: bool) -> np.ndarray:
-    """Column ``idx`` as floats; errors name file, line and column."""
+def _plural(n: int, word: str) -> str:
+    return f"{n} {word}{'' if n == 1 else 's'}"
+
+
+def _cell_problem(cell: str, decimal: str, required: bool) -> str | None:
+    """What is wrong with one cell of a used column (None if nothing): not a number, empty or NaN in
+    a required column (time, input, angle, run label), ±inf in any."""
+    shown = cell.strip()
+    s = shown.strip('"').strip()
+    if not s:
+        return "'' is empty" if required else None
     try:
-        cells = [r[idx] for r in tab.rows]
-    except IndexError:
-        k = next(k for k, r in enumerate(tab.rows) if len(r) <= idx)
-        raise CsvImportError(f"{tab.path} line {tab.line_no[k]} column '{label}': missing (the line has "
-                             f"{len(tab.rows[k])} field(s), column '{label}' is number {idx + 1})") from None
+        v = float(s.replace(",", ".") if decimal == "," else s)
+    except ValueError:
+        return f"'{shown}' is not a number"
+    if math.isinf(v) or (required and math.isnan(v)):
+        return f"'{shown}' is not a finite number"
+    return None
+
+
+def _row_problems(tab: _Table, used: Sequence[tuple[int, str, bool]]) -> dict[int, str]:
+    """Row index -> what is wrong with it (its first problem) for every bad row.
+
+    A row is bad when its field count differs from the header's (the first row's in a file without
+    header: short, cut or with an extra field) or when a cell of a used column is bad
+    (:func:`_cell_problem`). ``used`` holds (column index, label, required) per used column.
+    """
+    ncols = len(tab.header) if tab.header is not None else len(tab.rows[0])
+    last = len(tab.rows) - 1
+    bad: dict[int, str] = {}
+    for k, r in enumerate(tab.rows):
+        if len(r) != ncols:
+            why = f"row has {_plural(len(r), 'field')}, expected {ncols}"
+            if k == last and len(r) < ncols:
+                why += " (last line cut?)" if tab.terminated else \
+                    " (last line cut: the file does not end with a line break)"
+            bad[k] = why
+    for idx, label, required in used:
+        cells = [r[idx] if idx < len(r) else "" for r in tab.rows]
+        try:  # fast path: a clean numeric column
+            text = [c.replace(",", ".") for c in cells] if tab.decimal == "," else cells
+            values = np.array(text, dtype=float)
+        except ValueError:
+            values = None
+        if values is not None and not np.isinf(values).any() and not (required and np.isnan(values).any()):
+            continue
+        for k, cell in enumerate(cells):
+            if k not in bad and (why := _cell_problem(cell, tab.decimal, required)):
+                bad[k] = f"column '{label}': {why}"
+    return bad
+
+
+def _check_rows(tab: _Table, used: Sequence[tuple[int, str, bool]],
+                mode: BadRows) -> tuple[_Table, dict[str, Any]]:
+    """Refuse (``"error"``) or drop (``"drop"``) the bad rows of a table; flag a last line without
+    line break.
+
+    A last row that parses but lacks its line break may still be cut inside its last number (the
+    typical trace of a logger stopped mid-write): it raises a :class:`CsvRowWarning` (and is
+    dropped in ``"drop"`` mode); files that merely lack the final line break exist (3 of the 47
+    logs in ``shared/data/real``), so it is not an error.
+
+    Returns
+    -------
+    (table, report)
+        The table without dropped rows and what to add to the recording's ``meta``.
+
+    Raises
+    ------
+    CsvImportError
+        ``"error"`` mode and a bad row: ``FILE:LINE: what is wrong`` of the first, with the count.
+    """
+    bad = _row_problems(tab, used)
+    report: dict[str, Any] = {}
+    last = len(tab.rows) - 1
+    if not tab.terminated and last not in bad:
+        text = tab.delimiter.join(tab.rows[last])
+        if mode == "drop":
+            bad[last] = "no line break at the end of the file: the last row may be cut"
+        else:
+            report["last_line_unterminated"] = int(tab.line_no[last])
+            warnings.warn(f"{tab.path}:{tab.line_no[last]}: the file does not end with a line break, so "
+                          f"its last row ({text!r}) may be cut; check it against the source ({_DROP_HINT} "
+                          "drops it)",
+                          CsvRowWarning, stacklevel=5)
+    if not bad:
+        return tab, report
+    order = sorted(bad)
+    shown = [{"line": int(tab.line_no[k]), "problem": bad[k]} for k in order[:_SHOWN_ROWS]]
+    if mode != "drop":
+        k = order[0]
+        more = f"; {len(order)} bad rows in all, lines {', '.join(str(r['line']) for r in shown)}" \
+            + (", ..." if len(order) > _SHOWN_ROWS else "") if len(order) > 1 else ""
+        raise CsvImportError(f"{tab.path}:{tab.line_no[k]}: {bad[k]}{more}; {_DROP_HINT} drops "
+                             f"{'it' if len(order) == 1 else 'them'}")
+    keep = np.ones(len(tab.rows), dtype=bool)
+    keep[order] = False
+    warnings.warn(f"{tab.path}: dropped {_plural(len(order), 'bad row')} of {len(tab.rows)}: "
+                  + "; ".join(f"line {r['line']} ({r['problem']})" for r in shown)
+                  + ("; ..." if len(order) > _SHOWN_ROWS else ""), CsvRowWarning, stacklevel=5)
+    report["dropped_rows"] = {"count": len(order), "first": shown}
+    tab = replace(tab, rows=[r for r, k in zip(tab.rows, keep, strict=True) if k], line_no=tab.line_no[keep])
+    return tab, report
+
+
+def _column(tab: _Table, idx: int, label: str, allow_nan: bool) -> np.ndarray:
+    """Column ``idx`` as floats (rows checked by :func:`_check_rows`; empty cells are NaN)."""
+    cells = [r[idx].strip().strip('"').strip() for r in tab.rows]
     if tab.decimal == ",":
         cells = [c.replace(",", ".") for c in cells]
     try:
         values = np.array(cells, dtype=float)
-    except ValueError:
-        values = None
-    if values is None:
-        for k, c in enumerate(cells):
-            s = c.strip().strip('"')
-            if not s and allow_nan:
-                continue
-            try:
-                float(s)
-            except ValueError:
-                shown = tab.rows[k][idx]
-                what = "is empty" if not s else "is not a number"
-                raise CsvImportError(f"{tab.path} line {tab.line_no[k]} column '{label}': '{shown}' {what}") \
-                    from None
-        values = np.array([float(c.strip().strip('"')) if c.strip().strip('"') else math.nan for c in cells])
-    if not allow_nan:
-        bad = np.flatnonzero(~np.isfinite(values))
-        if bad.size:
-            k = int(bad[0])
-            cell = tab.rows[k][idx].strip()
-            raise CsvImportError(f"{tab.path} line {tab.line_no[k]} column '{label}': '{cell}' "
-                                 f"is not a finite number ({bad.size} such value(s) in this column)")
+    except ValueError:  # empty cells of an optional channel
+        values = np.array([float(c) if c else math.nan for c in cells])
+    if not allow_nan and not np.isfinite(values).all():  # pragma: no cover - _check_rows refused them
+        raise CsvImportError(f"{tab.path}: column '{label}' has non-finite values")
     return values
 
 
@@ -405,8 +521,44 @@ def _time_stats(t: np.ndarray) -> dict[str, Any]:
     }
 
 
-def import_csv(path: str | Path, spec: CsvSpec | str) -> Recording:
+def _load(path: Path, spec: CsvSpec, bad_rows: BadRows,
+          run_col: Column | None = None) -> tuple[_Table, dict[str, tuple[int, str]], dict[str, Any], bytes]:
+    """Read, tabulate, resolve the used columns and check the rows of a CSV log.
+
+    Returns the table (bad rows dropped in ``"drop"`` mode), the used columns by role
+    (``time``, ``input``, ``theta``, extra channel names, ``run``) as (index, label), the row
+    report for ``meta`` and the file's raw bytes.
+    """
+    if bad_rows not in ("error", "drop"):
+        raise CsvImportError(f"bad_rows {bad_rows!r}; expected 'error' or 'drop'")
+    text, raw = _read_text(path, spec.encoding, partial_gzip=bad_rows == "drop")
+    tab = _tabulate(path, text, spec)
+    roles: list[tuple[str, Column | None, bool]] = [
+        ("time", spec.time_col, True), ("input", spec.input_col, True), ("theta", spec.angle_col, True),
+        *((ch, col, False) for ch, (col, _) in spec.channels.items()), ("run", run_col, True)]
+    cols: dict[str, tuple[int, str]] = {}
+    used: list[tuple[int, str, bool]] = []
+    for role, col, required in roles:
+        if col is not None:
+            cols[role] = _resolve(tab, col, {"theta": "angle", "run": "run label"}.get(role, role))
+            used.append((*cols[role], required))
+    tab, report = _check_rows(tab, used, bad_rows)
+    if len(tab.rows) < 2:
+        where = f" (line {tab.line_no[0]})" if len(tab.rows) else ""
+        raise CsvImportError(f"{path}: {_plural(len(tab.rows), 'data row')}{where}; need at least 2 samples")
+    return tab, cols, report, raw
+
+
+def import_csv(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows = "error") -> Recording:
     """Read a CSV log into a :class:`Recording` (faithfully: no filtering or outlier handling).
+
+    Every data row must have the header's number of fields (the first row's in a file without
+    header) and a finite number in each used column (time, input, angle; an extra channel's cell
+    may be empty or NaN, meaning "not measured", but not ±inf). A bad row (short, cut, an extra
+    field, not a number, NaN/inf) is an error naming ``FILE:LINE`` and what is wrong, never a
+    silently wrong number, unless ``bad_rows="drop"``. A last row without line break may have
+    been cut inside its last number: it gives a :class:`~aeropend_ident.errors.CsvRowWarning`
+    (see :func:`_check_rows`).
 
     Parameters
     ----------
@@ -414,6 +566,10 @@ def import_csv(path: str | Path, spec: CsvSpec | str) -> Recording:
         ``.csv`` or ``.csv.gz`` file.
     spec : CsvSpec or str
         Column mapping and units, or the name of a preset in :data:`PRESETS`.
+    bad_rows : {"error", "drop"}
+        ``"drop"``: leave bad rows out (and a last row without line break, and the unreadable
+        end of a cut ``.gz``), count them in ``meta["dropped_rows"]`` and warn
+        (:class:`~aeropend_ident.errors.CsvRowWarning`) with the count and the first lines.
 
     Returns
     -------
@@ -427,27 +583,30 @@ def import_csv(path: str | Path, spec: CsvSpec | str) -> Recording:
     Raises
     ------
     CsvImportError
-        Unknown preset, inconsistent spec, unreadable file, missing column, a non-numeric or
-        empty cell (named by file, line and column), or time that does not increase.
+        Unknown preset, inconsistent spec, unreadable, empty or cut (gzip) file, missing column,
+        a bad row (named by ``FILE:LINE``), fewer than 2 rows, or time that does not increase.
     """
+    return _import(path, spec, bad_rows)[0]
+
+
+def _import(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows,
+            run_col: Column | None = None) -> tuple[Recording, _Table, dict[str, tuple[int, str]]]:
+    """:func:`import_csv`, also returning the checked table and its used columns."""
     if isinstance(spec, str):
         if spec not in PRESETS:
             raise CsvImportError(f"unknown preset {spec!r}; available: {sorted(PRESETS)}")
         spec = PRESETS[spec]
     spec.check()
     path = Path(path)
-    text, raw = _read_text(path, spec.encoding)
-    tab = _tabulate(path, text, spec)
+    tab, cols, report, raw = _load(path, spec, bad_rows, run_col)
     n = len(tab.rows)
-    if n < 2:
-        raise CsvImportError(f"{path}: {n} data row(s); need at least 2 samples")
     columns: dict[str, str] = {}
 
     # time
     if spec.time_col is None:
         t = np.arange(n) / float(spec.rate_hz)  # type: ignore[arg-type]
     else:
-        idx, label = _resolve(tab, spec.time_col, "time")
+        idx, label = cols["time"]
         columns["time"] = label
         raw_t = _column(tab, idx, label, allow_nan=False)
         t = raw_t / float(spec.rate_hz) if spec.time_unit == "sample" else raw_t * _TIME_SCALE[spec.time_unit]
@@ -455,7 +614,7 @@ def import_csv(path: str | Path, spec: CsvSpec | str) -> Recording:
         if bad.size:
             k = int(bad[0]) + 1
             raise CsvImportError(
-                f"{path} line {tab.line_no[k]} column '{label}': time {raw_t[k]:g} {spec.time_unit} "
+                f"{path}:{tab.line_no[k]}: column '{label}': time {raw_t[k]:g} {spec.time_unit} "
                 f"is not after the previous row's {raw_t[k - 1]:g} {spec.time_unit} "
                 f"(line {tab.line_no[k - 1]}); "
                 f"time must increase strictly ({bad.size} such row(s))")
@@ -467,7 +626,7 @@ def import_csv(path: str | Path, spec: CsvSpec | str) -> Recording:
         u = np.full(n, float(spec.input_constant))  # type: ignore[arg-type]
         columns["input"] = f"constant {spec.input_constant:g} ({spec.input_kind})"
     else:
-        idx, label = _resolve(tab, spec.input_col, "input")
+        idx, label = cols["input"]
         columns["input"] = label
         u = _column(tab, idx, label, allow_nan=False)
     if spec.input_kind == "duty":
@@ -481,7 +640,7 @@ def import_csv(path: str | Path, spec: CsvSpec | str) -> Recording:
     below, above = int((ratio < 0).sum()), int((ratio > 1).sum())
     if below or above:
         warnings.warn(f"{path}: {below + above} actuator value(s) outside the [0, 1] duty range clipped "
-                      f"({below} below 0, {above} above full scale)", stacklevel=2)
+                      f"({below} below 0, {above} above full scale)", stacklevel=3)
     duty = np.clip(ratio, 0.0, 1.0)
     if spec.input_kind == "voltage" and spec.voltage_law == "rms":
         duty = duty**2
@@ -490,14 +649,14 @@ def import_csv(path: str | Path, spec: CsvSpec | str) -> Recording:
         duty = np.floor(duty * q + 1e-9) / q
 
     # angle and extra channels
-    idx, label = _resolve(tab, spec.angle_col, "angle")
+    idx, label = cols["theta"]
     columns["theta"] = label
     ang = _column(tab, idx, label, allow_nan=False)
     factor = math.pi / 180.0 if spec.angle_unit == "deg" else 1.0
     theta = spec.angle_sign * (ang - spec.angle_zero) * factor
     channels: dict[str, np.ndarray] = {"theta": theta}
-    for ch, (col, scale) in spec.channels.items():
-        idx, label = _resolve(tab, col, ch)
+    for ch, (_, scale) in spec.channels.items():
+        idx, label = cols[ch]
         columns[ch] = label
         y = _column(tab, idx, label, allow_nan=True) * float(scale)
         if np.isfinite(y).any():
@@ -520,15 +679,16 @@ def import_csv(path: str | Path, spec: CsvSpec | str) -> Recording:
         "t0_in_file_s": t0,
         "duty_clipped": {"below_0": below, "above_1": above},
         "duration_s": float(t[-1]),
+        **report,
     })
     try:
-        return Recording(t=t, duty=duty, channels=channels, source=str(path), meta=meta)
+        return Recording(t=t, duty=duty, channels=channels, source=str(path), meta=meta), tab, cols
     except RecordingError as exc:  # pragma: no cover - checked above
         raise CsvImportError(f"{path}: {exc}") from exc
 
 
 def import_csv_runs(
-    path: str | Path, spec: CsvSpec | str, run_col: Column, min_samples: int = 2
+    path: str | Path, spec: CsvSpec | str, run_col: Column, min_samples: int = 2, bad_rows: BadRows = "error"
 ) -> list[Recording]:
     """Read a CSV log that stores several runs one after the other, one recording per run.
 
@@ -546,6 +706,8 @@ def import_csv_runs(
         Run label column (header name or 0-based index); numeric labels.
     min_samples : int
         Runs with fewer samples are dropped (≥ 2).
+    bad_rows : {"error", "drop"}
+        As :func:`import_csv` (the run label is a required column).
 
     Returns
     -------
@@ -562,20 +724,18 @@ def import_csv_runs(
     """
     from aeropend_ident.io.split import split_runs
 
-    rec = import_csv(path, spec)
-    spec = PRESETS[spec] if isinstance(spec, str) else spec
-    path = Path(path)
-    tab = _tabulate(path, _read_text(path, spec.encoding)[0], spec)
-    idx, label = _resolve(tab, run_col, "run label")
+    rec, tab, cols = _import(path, spec, bad_rows, run_col)
+    idx, label = cols["run"]
     return split_runs(rec, _column(tab, idx, label, allow_nan=False), min_samples=min_samples)
 
 
 def csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, storage: str = "mcap",
-               rig_name: str | None = None, overwrite: bool = False) -> tuple[Recording, Path]:
+               rig_name: str | None = None, overwrite: bool = False,
+               bad_rows: BadRows = "error") -> tuple[Recording, Path]:
     """:func:`import_csv` then :func:`~aeropend_ident.io.bag_writer.write_bag`; returns (recording, bag)."""
     from aeropend_ident.io.bag_writer import write_bag
 
-    rec = import_csv(path, spec)
+    rec = import_csv(path, spec, bad_rows)
     bag = write_bag(rec, out, storage=storage, rig_name=rig_name,  # type: ignore[arg-type]
                     overwrite=overwrite)
     return rec, bag
@@ -598,6 +758,8 @@ def summary(rec: Recording) -> str:
     clipped = m.get("duty_clipped", {})
     if clipped and (clipped.get("below_0") or clipped.get("above_1")):
         parts.append(f"{clipped['below_0'] + clipped['above_1']} duty value(s) clipped")
+    if m.get("dropped_rows"):
+        parts.append(f"{_plural(m['dropped_rows']['count'], 'bad row')} dropped")
     parts.append(f"theta {th.min():.4f}..{th.max():.4f} rad "
                  f"({math.degrees(th.min()):.2f}..{math.degrees(th.max()):.2f} deg)")
     parts.append(f"channels {sorted(rec.channels)}")

@@ -29,7 +29,7 @@ from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock as ClockMsg
 
-from aeropend_ident.errors import BagError
+from aeropend_ident.errors import BagError, print_warnings_as_lines
 from aeropend_ident.io.bags import RawBagReader, qos_for_topic
 from aeropend_ident.nodes.qos import message_class, qos_to_rclpy
 from aeropend_sim.contract import TOPIC_CLOCK
@@ -138,6 +138,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``play``."""
     argv = list(sys.argv if argv is None else argv)
     args = build_parser().parse_args(remove_ros_args(argv)[1:])
+    print_warnings_as_lines("play")
     if not args.rate > 0:
         print(f"play: error: --rate {args.rate} must be > 0", file=sys.stderr)
         return 2

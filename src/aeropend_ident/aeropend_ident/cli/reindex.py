@@ -1,0 +1,57 @@
+"""Rebuild a bag's ``metadata.yaml`` from its storage files: ``reindex BAG_DIR [--overwrite]``.
+
+Command line of ``reindex`` (console script; ``ros2 run aeropend_ident reindex``), the
+counterpart of ``ros2 bag reindex`` for machines without the ``ros2`` CLI: a recorder that was
+killed leaves its bag directory without ``metadata.yaml``, and rosbag2 tools (and every aeropend
+command) need it. The metadata is rebuilt by :func:`aeropend_ident.io.bag_recover.reindex`; a
+storage file cut short is indexed with the messages that can be recovered from it (a warning
+says how many and where the file ends).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+from aeropend_ident.errors import BagError, BagTruncatedWarning, print_warnings_as_lines
+from aeropend_ident.io.bag_recover import reindex
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Argument parser of the ``reindex`` command."""
+    p = argparse.ArgumentParser(
+        prog="reindex",
+        description="Rebuild a rosbag2 bag directory's metadata.yaml from its .mcap/.db3 storage files "
+                    "(like 'ros2 bag reindex').",
+    )
+    p.add_argument("bag", type=Path, metavar="BAG_DIR", help="bag directory holding the storage file(s)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing metadata.yaml")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Console script ``reindex``: writes ``BAG_DIR/metadata.yaml``, prints what it indexed."""
+    args = build_parser().parse_args(argv)
+    print_warnings_as_lines("reindex")
+    try:
+        target, info, scans = reindex(args.bag, overwrite=args.overwrite)
+    except BagError as exc:
+        print(f"reindex: error: {exc}", file=sys.stderr)
+        return 1
+    for s in scans:
+        if s.truncated:
+            warnings.warn(f"{s.path} is truncated: {s.where_it_ends()}; indexed the {s.total} message(s) "
+                          "that can be recovered", BagTruncatedWarning, stacklevel=1)
+    topics = ", ".join(f"{t['topic_metadata']['name']} {t['message_count']}"
+                       for t in info["topics_with_message_count"])
+    print(f"reindex: wrote {target}: {info['message_count']} message(s) in {len(scans)} "
+          f"{info['storage_identifier']} file(s) over {info['duration']['nanoseconds'] / 1e9:.3f} s"
+          f" ({topics or 'no topics'})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

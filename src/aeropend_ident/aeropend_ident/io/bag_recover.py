@@ -1,0 +1,624 @@
+"""What is readable of a rosbag2 storage file, complete or truncated, and ``metadata.yaml`` rebuilt from it.
+
+A recording cut short (the recorder killed, a disk full, a copy interrupted) leaves a storage
+file that rosbags refuses whole: an MCAP file without its summary and footer ("File end magic is
+invalid"), an SQLite3 file shorter than its header says ("database disk image is malformed").
+:func:`scan_storage` reads such a file record by record and keeps every message that is
+complete on disk:
+
+* **MCAP** (``.mcap``): the top-level records are walked by their length prefix (opcode u8 +
+  length u64, MCAP specification) up to the last record that ends inside the file; those are
+  parsed by the ``mcap`` package's :class:`mcap.stream_reader.StreamReader`, which needs no
+  summary section. A chunk cut by the end of the file is decompressed as far as its data goes
+  (none, zstd or lz4; a compressed chunk yields its complete compression blocks) and its
+  complete inner records are parsed the same way. A message is thus recovered exactly when its
+  whole record lies before the cut (for uncompressed chunks, which rosbags and aeropend write).
+* **SQLite3** (``.db3``): the file is opened through an apsw VFS that shows SQLite only the
+  whole pages present (a page cut in the middle would be read zero-filled and could yield a
+  wrong row), with ``PRAGMA writable_schema=ON`` so SQLite accepts a file shorter than its
+  header's page count; the ``messages`` table is read in rowid order up to the first page that
+  is missing. Rows are appended in rowid order and SQLite allocates their leaf pages in that
+  order, so this is the recording up to the cut.
+
+:func:`rebuild_metadata` / :func:`reindex` write a bag directory's ``metadata.yaml`` from its
+storage files (like ``ros2 bag reindex``): topics, offered QoS, type hashes and message counts
+as found in storage, ``custom_data`` from the rosbag2 metadata stored inside the file when it
+is readable (rosbag2 and rosbags both embed it: an MCAP ``rosbag2`` metadata record, the
+SQLite3 ``metadata`` table).
+"""
+
+from __future__ import annotations
+
+import io
+import itertools
+import re
+import struct
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+from aeropend_ident.errors import BagError
+
+__all__ = [
+    "METADATA_FILE",
+    "StorageScan",
+    "StorageTopic",
+    "is_truncated",
+    "rebuild_metadata",
+    "reindex",
+    "scan_storage",
+    "storage_files",
+    "stored_metadata",
+]
+
+#: Name of a rosbag2 bag directory's metadata file.
+METADATA_FILE = "metadata.yaml"
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_OP_CHUNK = 0x06
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+_SUFFIX_STORAGE = {".mcap": "mcap", ".db3": "sqlite3"}
+#: rosbag2 metadata version :func:`rebuild_metadata` writes (Jazzy).
+METADATA_VERSION = 9
+
+
+@dataclass(frozen=True)
+class StorageTopic:
+    """A topic as a storage file declares it.
+
+    Attributes
+    ----------
+    name, msgtype, serialization_format : str
+        Topic name, message type (``sensor_msgs/msg/JointState``) and serialisation (``cdr``).
+    qos : tuple of rosbags.interfaces.Qos
+        Offered QoS profiles stored with the topic (may be empty).
+    type_hash : str
+        RIHS01 type-description hash (empty when the storage has none).
+    """
+
+    name: str
+    msgtype: str
+    serialization_format: str
+    qos: tuple[Any, ...]
+    type_hash: str
+
+
+@dataclass
+class StorageScan:
+    """The readable content of one storage file (:func:`scan_storage`).
+
+    Attributes
+    ----------
+    path : Path
+        The storage file.
+    storage : {"mcap", "sqlite3"}
+        Storage plugin.
+    topics : dict of str -> StorageTopic
+        Topics declared in the readable part, by name.
+    messages : list of (topic, log_time_ns, bytes)
+        Recovered messages in log-time order (empty when scanned with ``keep_messages=False``).
+    counts : dict of str -> int
+        Messages recovered per topic.
+    first_ns, last_ns : int or None
+        Smallest and largest log time recovered [ns since the epoch].
+    truncated : bool
+        The file is cut short (no MCAP footer / fewer bytes than the SQLite header declares).
+    file_size : int
+        Size of the file [bytes].
+    readable_bytes : int
+        MCAP: end of the last complete record read; SQLite3: bytes in the whole pages read.
+    declared_bytes : int or None
+        SQLite3: size the header declares (page count × page size); None for MCAP.
+    stored_metadata : dict or None
+        The ``rosbag2_bagfile_information`` embedded in the storage file, when readable.
+    """
+
+    path: Path
+    storage: Literal["mcap", "sqlite3"]
+    topics: dict[str, StorageTopic] = field(default_factory=dict)
+    messages: list[tuple[str, int, bytes]] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+    first_ns: int | None = None
+    last_ns: int | None = None
+    truncated: bool = False
+    file_size: int = 0
+    readable_bytes: int = 0
+    declared_bytes: int | None = None
+    stored_metadata: dict[str, Any] | None = None
+
+    @property
+    def total(self) -> int:
+        """Messages recovered in all topics."""
+        return sum(self.counts.values())
+
+    def _add(self, topic: str, log_ns: int, data: bytes, keep: bool) -> None:
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        self.first_ns = log_ns if self.first_ns is None else min(self.first_ns, log_ns)
+        self.last_ns = log_ns if self.last_ns is None else max(self.last_ns, log_ns)
+        if keep:
+            self.messages.append((topic, log_ns, data))
+
+    def where_it_ends(self) -> str:
+        """Where the file ends, for a warning: e.g. ``run_0.mcap ends at byte 411011 without its
+        footer (last complete record ends at byte 409876)``."""
+        if self.storage == "mcap":
+            return (f"{self.path.name} ends at byte {self.file_size} without its MCAP footer (complete "
+                    f"records up to byte {self.readable_bytes})")
+        return (f"{self.path.name} has {self.file_size} bytes but its SQLite header declares "
+                f"{self.declared_bytes} (read {self.readable_bytes} bytes of whole pages)")
+
+
+def storage_files(bag: Path) -> list[Path]:
+    """The ``.mcap`` / ``.db3`` files of a bag directory, in split order (``name_0``, ``name_1``, ...)."""
+
+    def order(p: Path) -> tuple[int, str]:
+        m = re.search(r"_(\d+)$", p.stem)
+        return (int(m.group(1)) if m else -1, p.name)
+
+    return sorted((p for p in bag.iterdir() if p.suffix in _SUFFIX_STORAGE and p.is_file()), key=order)
+
+
+def is_truncated(path: Path) -> bool:
+    """Whether a storage file is cut short: an MCAP file not ending in the MCAP magic, an SQLite
+    file shorter than its header's page count × page size. Cheap (reads at most 100 bytes)."""
+    size = path.stat().st_size
+    with path.open("rb") as f:
+        head = f.read(100)
+        if path.suffix == ".mcap":
+            if size < 2 * len(_MCAP_MAGIC) or not head.startswith(_MCAP_MAGIC):
+                return head.startswith(_MCAP_MAGIC[:size]) and size > 0
+            f.seek(-len(_MCAP_MAGIC), io.SEEK_END)
+            return f.read() != _MCAP_MAGIC
+    pages = _sqlite_pages(head)
+    return pages is not None and size < pages[0] * pages[1]
+
+
+def _sqlite_pages(head: bytes) -> tuple[int, int] | None:
+    """(page size [bytes], page count) of an SQLite header; None when it is not an SQLite header."""
+    if len(head) < 32 or not head.startswith(_SQLITE_MAGIC):
+        return None
+    page = struct.unpack(">H", head[16:18])[0]
+    return (65536 if page == 1 else page), struct.unpack(">I", head[28:32])[0]
+
+
+def scan_storage(path: str | Path, keep_messages: bool = True) -> StorageScan:
+    """Read every complete message of an MCAP or SQLite3 storage file, even a truncated one.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.mcap`` or ``.db3`` file.
+    keep_messages : bool
+        Keep the raw messages (False: count them only, e.g. for :func:`rebuild_metadata`).
+
+    Returns
+    -------
+    StorageScan
+        Topics, messages (log-time order), counts, whether and where the file is cut.
+
+    Raises
+    ------
+    BagError
+        The file is not an MCAP / SQLite3 rosbag2 storage file, or its readable part is corrupt.
+    """
+    path = Path(path)
+    if path.suffix not in _SUFFIX_STORAGE:
+        raise BagError(f"'{path}': unknown storage file suffix {path.suffix!r}; expected .mcap or .db3")
+    try:
+        read = _scan_mcap if path.suffix == ".mcap" else _scan_sqlite3
+        scan = read(path, keep_messages)
+    except OSError as exc:
+        raise BagError(f"'{path}': cannot read ({exc.strerror or exc})") from exc
+    scan.messages.sort(key=lambda m: m[1])
+    return scan
+
+
+# --------------------------------------------------------------------------------------------
+# MCAP
+# --------------------------------------------------------------------------------------------
+
+
+class _Prefix(io.RawIOBase):
+    """The first ``end`` bytes of a binary file, as a stream (for the mcap StreamReader)."""
+
+    def __init__(self, f: io.BufferedReader, end: int) -> None:
+        self._f, self._end = f, end
+        f.seek(0)
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b: Any) -> int:
+        n = max(0, min(len(b), self._end - self._f.tell()))
+        data = self._f.read(n)
+        b[: len(data)] = data
+        return len(data)
+
+
+def _complete_records(buf: Any, start: int, size: int) -> tuple[int, tuple[int, int] | None]:
+    """Walk MCAP records (opcode u8, length u64 LE) from ``start``: the end of the last record that
+    lies inside ``size`` bytes, and (opcode, offset) of the record the end cuts, if any.
+
+    ``buf`` is a seekable binary file or bytes.
+    """
+    pos = start
+    while pos + 9 <= size:
+        if isinstance(buf, (bytes, bytearray, memoryview)):
+            head = bytes(buf[pos:pos + 9])
+        else:
+            buf.seek(pos)
+            head = buf.read(9)
+        opcode, length = struct.unpack("<BQ", head)
+        if pos + 9 + length > size:
+            return pos, (opcode, pos)
+        pos += 9 + length
+    return pos, ((-1, pos) if pos < size else None)
+
+
+def _partial_chunk_records(chunk: Any) -> bytes:
+    """The complete records at the start of a chunk whose data the end of the file cut."""
+    data = chunk.data
+    if chunk.compression == "zstd":
+        import zstandard
+
+        data = zstandard.ZstdDecompressor().decompressobj().decompress(data)
+    elif chunk.compression == "lz4":
+        import lz4.frame
+
+        try:
+            data = lz4.frame.LZ4FrameDecompressor().decompress(data)
+        except RuntimeError:
+            data = b""
+    elif chunk.compression:
+        return b""
+    end, _ = _complete_records(data, 0, len(data))
+    return data[:end]
+
+
+class _McapState:
+    """Schemas, channels and messages of an MCAP file as its records are read."""
+
+    def __init__(self, scan: StorageScan, keep: bool) -> None:
+        self.scan, self.keep = scan, keep
+        self.schemas: dict[int, str] = {}
+        self.channels: dict[int, str] = {}
+        self.orphans = 0
+
+    def feed(self, records: Iterator[Any]) -> None:
+        from mcap.exceptions import EndOfFile
+        from mcap.records import Channel, Message, Metadata, Schema
+
+        try:
+            for rec in records:
+                if isinstance(rec, Message):
+                    topic = self.channels.get(rec.channel_id)
+                    if topic is None:
+                        self.orphans += 1
+                    else:
+                        self.scan._add(topic, int(rec.log_time), bytes(rec.data), self.keep)
+                elif isinstance(rec, Schema):
+                    self.schemas[rec.id] = rec.name
+                elif isinstance(rec, Channel):
+                    self._channel(rec)
+                elif isinstance(rec, Metadata) and rec.name == "rosbag2":
+                    text = rec.metadata.get("serialized_metadata")
+                    self.scan.stored_metadata = _parse_stored_metadata(text)
+        except EndOfFile:
+            pass
+
+    def _channel(self, rec: Any) -> None:
+        self.channels[rec.id] = rec.topic
+        if rec.topic not in self.scan.topics:
+            qos = _parse_qos(rec.metadata.get("offered_qos_profiles", ""))
+            self.scan.topics[rec.topic] = StorageTopic(
+                rec.topic, self.schemas.get(rec.schema_id, ""), rec.message_encoding, qos,
+                rec.metadata.get("topic_type_hash", ""))
+
+
+def _scan_mcap(path: Path, keep: bool) -> StorageScan:
+    from mcap.data_stream import ReadDataStream
+    from mcap.exceptions import McapError
+    from mcap.records import Chunk
+    from mcap.stream_reader import StreamReader
+
+    scan = StorageScan(path, "mcap", file_size=path.stat().st_size)
+    state = _McapState(scan, keep)
+    with path.open("rb") as f:
+        if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+            raise BagError(f"'{path}' is not an MCAP file (it does not start with the MCAP magic)")
+        scan.truncated = is_truncated(path)
+        end, cut = _complete_records(f, len(_MCAP_MAGIC), scan.file_size) if scan.truncated \
+            else (scan.file_size, None)
+        scan.readable_bytes = end
+        try:
+            state.feed(StreamReader(_Prefix(f, end), validate_crcs=True).records)
+            if cut is not None and cut[0] == _OP_CHUNK:
+                f.seek(cut[1] + 9)
+                body = io.BytesIO(f.read())
+                try:
+                    chunk = Chunk.read(ReadDataStream(body))
+                except (McapError, struct.error):
+                    chunk = None
+                if chunk is not None:
+                    inner = _partial_chunk_records(chunk)
+                    state.feed(StreamReader(io.BytesIO(inner), skip_magic=True).records)
+                    if not chunk.compression and inner:  # the inner records' place in the file is known
+                        scan.readable_bytes = body.tell() - len(chunk.data) + cut[1] + 9 + len(inner)
+        except (McapError, struct.error, ValueError, UnicodeDecodeError) as exc:
+            raise BagError(f"'{path}' is corrupt: an MCAP record before byte {end} cannot be read "
+                           f"({type(exc).__name__}: {exc})") from exc
+    if state.orphans:
+        raise BagError(f"'{path}' is corrupt: {state.orphans} message(s) on a channel without channel record")
+    return scan
+
+
+def _parse_qos(text: str) -> tuple[Any, ...]:
+    """Offered QoS profiles stored with a topic (YAML), parsed by rosbags; () when absent or unreadable."""
+    from rosbags.rosbag2 import ReaderError
+    from rosbags.rosbag2.metadata import parse_qos
+
+    try:
+        return tuple(parse_qos(text)) if text else ()
+    except (ReaderError, KeyError, ValueError, TypeError, AttributeError):
+        return ()
+
+
+def _parse_stored_metadata(text: str | None) -> dict[str, Any] | None:
+    import yaml
+
+    if not text:
+        return None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return None
+    if isinstance(doc, dict) and "rosbag2_bagfile_information" in doc:
+        doc = doc["rosbag2_bagfile_information"]
+    return doc if isinstance(doc, dict) else None
+
+
+# --------------------------------------------------------------------------------------------
+# SQLite3
+# --------------------------------------------------------------------------------------------
+
+_vfs_ids = itertools.count()
+
+
+def _open_sqlite(path: Path, vfs: str | None = None) -> Any:
+    """Read-only apsw connection (``immutable=1``: no locks, no journal) to an SQLite file."""
+    import apsw
+
+    return apsw.Connection(f"file:{path}?immutable=1", flags=apsw.SQLITE_OPEN_READONLY | apsw.SQLITE_OPEN_URI,
+                           vfs=vfs)
+
+
+def _prefix_vfs(limit: int) -> Any:
+    """An apsw VFS that shows SQLite only the first ``limit`` bytes of a file (whole pages)."""
+    import apsw
+
+    class PrefixFile(apsw.VFSFile):  # type: ignore[misc]
+        def __init__(self, filename: Any, flags: list[int]) -> None:
+            super().__init__("", filename, flags)
+
+        def xFileSize(self) -> int:
+            return min(super().xFileSize(), limit)
+
+        def xRead(self, amount: int, offset: int) -> bytes:
+            # fewer bytes than asked: apsw zero-fills and reports a short read, as SQLite expects
+            return super().xRead(max(0, min(amount, limit - offset)), offset) if offset < limit else b""
+
+    class PrefixVFS(apsw.VFS):  # type: ignore[misc]
+        def __init__(self, name: str) -> None:
+            super().__init__(name, "")
+            self.name = name
+
+        def xOpen(self, name: Any, flags: list[int]) -> Any:
+            return PrefixFile(name, flags)
+
+    return PrefixVFS(f"aeropend-prefix-{next(_vfs_ids)}")
+
+
+def _scan_sqlite3(path: Path, keep: bool) -> StorageScan:
+    import apsw
+
+    scan = StorageScan(path, "sqlite3", file_size=path.stat().st_size)
+    with path.open("rb") as f:
+        head = f.read(100)
+    pages = _sqlite_pages(head)
+    if pages is None:
+        raise BagError(f"'{path}' is not an SQLite3 database (no SQLite header)")
+    scan.declared_bytes = pages[0] * pages[1]
+    scan.truncated = scan.file_size < scan.declared_bytes
+    scan.readable_bytes = scan.file_size // pages[0] * pages[0] if scan.truncated else scan.file_size
+    vfs = _prefix_vfs(scan.readable_bytes) if scan.truncated else None
+    try:
+        conn = _open_sqlite(path, vfs.name if vfs else None)
+        try:
+            if scan.truncated:
+                conn.execute("PRAGMA writable_schema=ON")  # accept a file shorter than its header says
+            _read_sqlite3(conn, scan, keep)
+        finally:
+            conn.close()
+    except apsw.Error as exc:
+        if scan.truncated:
+            raise BagError(f"bag storage '{path}' is truncated: {scan.where_it_ends()}; its tables cannot be "
+                           f"read ({type(exc).__name__}: {exc}), no message could be recovered") from exc
+        raise BagError(f"'{path}' cannot be read as a rosbag2 SQLite3 file ({type(exc).__name__}: {exc})") \
+            from exc
+    finally:
+        if vfs is not None:
+            vfs.unregister()
+    return scan
+
+
+def _read_sqlite3(conn: Any, scan: StorageScan, keep: bool) -> None:
+    """Topics, stored metadata and messages (rowid order, up to the first missing page)."""
+    import apsw
+
+    tables = {r[0] for r in conn.execute("SELECT name FROM sqlite_master WHERE type='table'")}
+    if not {"topics", "messages"} <= tables:
+        raise BagError(f"'{scan.path}': no topics/messages table in the readable part "
+                       f"(tables: {sorted(tables) or 'none'})")
+    cols = [r[1] for r in conn.execute("PRAGMA table_info(topics)")]
+    qos_col = "offered_qos_profiles" if "offered_qos_profiles" in cols else "''"
+    hash_col = "type_description_hash" if "type_description_hash" in cols else "''"
+    ids: dict[int, str] = {}
+    for tid, name, typ, fmt, qos, digest in conn.execute(
+            f"SELECT id, name, type, serialization_format, {qos_col}, {hash_col} FROM topics ORDER BY id"):
+        ids[tid] = name
+        scan.topics.setdefault(name, StorageTopic(name, typ, fmt, _parse_qos(qos), digest or ""))
+    if "metadata" in tables:
+        try:
+            row = conn.execute("SELECT metadata FROM metadata ORDER BY id DESC LIMIT 1").fetchone()
+            scan.stored_metadata = _parse_stored_metadata(row[0]) if row else None
+        except apsw.Error:
+            scan.stored_metadata = None
+    try:
+        for tid, stamp, data in conn.execute("SELECT topic_id, timestamp, data FROM messages ORDER BY id"):
+            if tid in ids:
+                scan._add(ids[tid], int(stamp), bytes(data), keep)
+    except apsw.CorruptError:
+        if not scan.truncated:
+            raise
+
+
+def stored_metadata(path: str | Path) -> dict[str, Any] | None:
+    """The ``rosbag2_bagfile_information`` a complete storage file carries inside, if any.
+
+    rosbag2 (and rosbags) embed the bag's metadata in the storage file: the MCAP metadata record
+    ``rosbag2`` (read through the summary's metadata index by ``mcap``'s reader) and the SQLite3
+    ``metadata`` table. None when the file has none or it cannot be read.
+    """
+    import apsw
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    path = Path(path)
+    try:
+        if path.suffix == ".mcap":
+            with path.open("rb") as f:
+                for rec in make_reader(f).iter_metadata():
+                    if rec.name == "rosbag2":
+                        return _parse_stored_metadata(rec.metadata.get("serialized_metadata"))
+            return None
+        conn = _open_sqlite(path)
+        try:
+            row = conn.execute("SELECT metadata FROM metadata ORDER BY id DESC LIMIT 1").fetchone()
+        finally:
+            conn.close()
+        return _parse_stored_metadata(row[0]) if row else None
+    except (OSError, ValueError, KeyError, struct.error, McapError, apsw.Error):
+        return None
+
+
+# --------------------------------------------------------------------------------------------
+# metadata.yaml from storage (reindex)
+# --------------------------------------------------------------------------------------------
+
+
+def rebuild_metadata(bag: str | Path) -> tuple[dict[str, Any], list[StorageScan]]:
+    """``rosbag2_bagfile_information`` of a bag directory rebuilt from its storage files.
+
+    Parameters
+    ----------
+    bag : str or Path
+        Bag directory holding ``.mcap`` or ``.db3`` files (one storage kind).
+
+    Returns
+    -------
+    (dict, list of StorageScan)
+        The metadata (version 9: topics with offered QoS, type hash and message count, per-file
+        counts and times; ``custom_data``, ``ros_distro`` and the compression settings from the
+        metadata stored in a storage file when readable) and the scans of the files
+        (``truncated`` says which are cut).
+
+    Raises
+    ------
+    BagError
+        No storage file, mixed storage kinds, or an unreadable file.
+    """
+    from rosbags.rosbag2.metadata import dump_qos_v9
+
+    bag = Path(bag)
+    files = storage_files(bag) if bag.is_dir() else []
+    if not files:
+        raise BagError(f"'{bag}' holds no .mcap or .db3 storage file; nothing to index")
+    kinds = {_SUFFIX_STORAGE[p.suffix] for p in files}
+    if len(kinds) > 1:
+        raise BagError(f"'{bag}' mixes storage kinds ({', '.join(p.name for p in files)}); expected one")
+    scans = [scan_storage(p, keep_messages=False) for p in files]
+    topics: dict[str, StorageTopic] = {}
+    counts: dict[str, int] = {}
+    for s in scans:
+        for name, t in s.topics.items():
+            topics.setdefault(name, t)
+            counts[name] = counts.get(name, 0) + s.counts.get(name, 0)
+    firsts = [s.first_ns for s in scans if s.first_ns is not None]
+    lasts = [s.last_ns for s in scans if s.last_ns is not None]
+    start = min(firsts) if firsts else 0
+    stored = next((s.stored_metadata for s in scans if s.stored_metadata), None) or {}
+    info: dict[str, Any] = {
+        "version": METADATA_VERSION,
+        "storage_identifier": kinds.pop(),
+        "relative_file_paths": [p.name for p in files],
+        "duration": {"nanoseconds": (max(lasts) - start) if lasts else 0},
+        "starting_time": {"nanoseconds_since_epoch": start},
+        "message_count": sum(counts.values()),
+        "topics_with_message_count": [
+            {"topic_metadata": {"name": t.name, "type": t.msgtype,
+                                "serialization_format": t.serialization_format,
+                                "offered_qos_profiles": dump_qos_v9(list(t.qos)),
+                                "type_description_hash": t.type_hash},
+             "message_count": counts[t.name]}
+            for t in topics.values()
+        ],
+        "compression_format": stored.get("compression_format") or "",
+        "compression_mode": stored.get("compression_mode") or "",
+        "files": [
+            {"path": s.path.name,
+             "starting_time": {"nanoseconds_since_epoch": s.first_ns or 0},
+             "duration": {"nanoseconds": (s.last_ns - s.first_ns) if s.first_ns is not None else 0},
+             "message_count": s.total}
+            for s in scans
+        ],
+        "custom_data": stored.get("custom_data") or None,
+        "ros_distro": stored.get("ros_distro") or "rosbags",
+    }
+    return info, scans
+
+
+def reindex(bag: str | Path, overwrite: bool = False) -> tuple[Path, dict[str, Any], list[StorageScan]]:
+    """Write ``metadata.yaml`` of a bag directory from its storage files (``ros2 bag reindex``).
+
+    Parameters
+    ----------
+    bag : str or Path
+        Bag directory.
+    overwrite : bool
+        Replace an existing ``metadata.yaml`` (refused otherwise).
+
+    Returns
+    -------
+    (Path, dict, list of StorageScan)
+        The metadata file written, its ``rosbag2_bagfile_information`` and the file scans.
+
+    Raises
+    ------
+    BagError
+        ``bag`` is not a directory, ``metadata.yaml`` exists and ``overwrite`` is False, or
+        :func:`rebuild_metadata` fails.
+    """
+    import yaml
+
+    bag = Path(bag)
+    if not bag.is_dir():
+        raise BagError(f"'{bag}' is not a bag directory" + (" (it does not exist)" if not bag.exists() else
+                       "; reindex takes the directory that holds the .mcap/.db3 file(s)"))
+    target = bag / METADATA_FILE
+    if target.exists() and not overwrite:
+        raise BagError(f"'{target}' already exists; reindex --overwrite replaces it")
+    info, scans = rebuild_metadata(bag)
+    tmp = target.with_name(METADATA_FILE + ".tmp")
+    tmp.write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False), encoding="utf-8")
+    tmp.replace(target)
+    return target, info, scans
