@@ -66,9 +66,11 @@ from aeropend_ident.io.bag_codec import (
     typestore,
 )
 from aeropend_sim.contract import (
+    CLOCK_QOS_DEPTH,
     COMMAND_QOS_DEPTH,
     SAMPLE_QOS_DEPTH,
     TOPIC_ARMATURE,
+    TOPIC_CLOCK,
     TOPIC_DUTY_CYCLE,
     TOPIC_JOINT_STATES,
     TYPE_ARMATURE,
@@ -79,6 +81,7 @@ from aeropend_sim.contract import (
 from aeropend_sim.recording import Recording, RecordingError
 
 __all__ = [
+    "CLOCK_QOS",
     "COMMAND_QOS",
     "SAMPLE_QOS",
     "SAMPLE_QOS_RELIABLE",
@@ -116,6 +119,8 @@ SAMPLE_QOS: Qos = _qos(QosReliability.BEST_EFFORT, SAMPLE_QOS_DEPTH)
 SAMPLE_QOS_RELIABLE: Qos = _qos(QosReliability.RELIABLE, 0, QosHistory.KEEP_ALL)
 #: Offered QoS of the duty-cycle command topic (reliable, keep last 10, volatile).
 COMMAND_QOS: Qos = _qos(QosReliability.RELIABLE, COMMAND_QOS_DEPTH)
+#: Offered QoS of /clock (the simulated plant's and ``play --clock``'s: reliable, keep last 10).
+CLOCK_QOS: Qos = _qos(QosReliability.RELIABLE, CLOCK_QOS_DEPTH)
 
 _STORAGE_PLUGINS = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 _CUSTOM_META = "aeropend.meta"
@@ -136,9 +141,11 @@ def qos_for_topic(topic: str, lockstep: bool = False) -> Qos:
     Returns
     -------
     rosbags.interfaces.Qos
-        :data:`COMMAND_QOS` for the duty-cycle topic, else :data:`SAMPLE_QOS` (or
-        :data:`SAMPLE_QOS_RELIABLE` when ``lockstep``).
+        :data:`CLOCK_QOS` for ``/clock``, :data:`COMMAND_QOS` for the duty-cycle topic, else
+        :data:`SAMPLE_QOS` (or :data:`SAMPLE_QOS_RELIABLE` when ``lockstep``).
     """
+    if topic == TOPIC_CLOCK:
+        return CLOCK_QOS
     if topic.endswith(TOPIC_DUTY_CYCLE):
         return COMMAND_QOS
     return SAMPLE_QOS_RELIABLE if lockstep else SAMPLE_QOS

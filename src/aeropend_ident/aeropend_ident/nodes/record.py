@@ -5,7 +5,11 @@ Subscribes with *raw* (serialised) subscriptions and writes the CDR bytes straig
 samples cost one callback each. The bag timestamp of a message is its receive time on the node
 clock (ROS time: simulated time when ``use_sim_time`` is true). Each topic is registered with
 the QoS its publishers offer (read from the ROS graph when its first message arrives; the
-contract QoS when no publisher is visible), so ``ros2 bag play`` replays with the same QoS.
+contract QoS when no publisher is visible), so ``play`` and ``ros2 bag play`` replay with the same
+QoS. Discovery does not tell a writer's history (rmw reports history ``unknown``, depth 0, which
+rosbag2 stores as is); the recorder writes the history and depth the topic contract prescribes
+instead (keep last 10 for other topics), so every profile in the bag is one rclpy accepts
+(:func:`aeropend_ident.nodes.qos.qos_from_rclpy`).
 
 Parameters
 ----------
@@ -61,10 +65,7 @@ from rosbags.interfaces import Qos
 from aeropend_ident.errors import BagError
 from aeropend_ident.io.bag_writer import BagSink
 from aeropend_ident.io.bags import qos_for_topic
-from aeropend_ident.nodes.qos import (
-    message_class,
-    qos_from_rclpy,
-)
+from aeropend_ident.nodes.qos import contract_qos, message_class, qos_from_rclpy
 from aeropend_sim.contract import (
     CONTRACT_TOPICS,
     TOPIC_CLOCK,
@@ -170,13 +171,20 @@ class RecorderNode(Node):
     # -- recording ------------------------------------------------------------------------
 
     def _offered_qos(self, topic: str) -> list[Qos]:
-        default = qos_for_topic(topic)
+        """The distinct QoS profiles the topic's publishers offer, each with a concrete history.
+
+        Discovery does not carry a writer's history (rmw reports ``UNKNOWN``, depth 0): a contract
+        topic gets the history and depth the contract prescribes for the reliability its
+        publisher offers (a reliable sample writer is the lock-step keep-all one), any other topic
+        keep-last :data:`~aeropend_ident.nodes.qos.DEFAULT_DEPTH` (:func:`qos_from_rclpy`).
+        """
         found: list[Qos] = []
         for info in self.get_publishers_info_by_topic(topic):
-            q = qos_from_rclpy(info.qos_profile, default.depth)
+            reliable = info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+            q = qos_from_rclpy(info.qos_profile, contract_qos(topic, reliable))
             if q not in found:
                 found.append(q)
-        return found or [default]
+        return found or [qos_for_topic(topic)]
 
     def _on_message(self, topic: str, data: bytes) -> None:
         self.last_message_ns = time.monotonic_ns()

@@ -21,6 +21,7 @@ from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
 from aeropend_sim.contract import (
+    CLOCK_QOS_DEPTH,
     COMMAND_QOS_DEPTH,
     SAMPLE_SUB_DEPTH,
     ContractError,
@@ -81,7 +82,7 @@ COMMAND_QOS_LOCKSTEP = QoSProfile(
 #: QoS of /clock (the simulated plant, ``play --clock``): reliable so that lock-step consumers see
 #: every tick; best-effort subscribers (rclpy's time source) match.
 CLOCK_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+    history=HistoryPolicy.KEEP_LAST, depth=CLOCK_QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
 
