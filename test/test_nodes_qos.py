@@ -153,7 +153,8 @@ def test_every_policy_value_is_covered() -> None:
 ])
 def test_durations(node: Any, t: QosTime, ns: int) -> None:
     p = qos_to_rclpy(ROSBAG2_DISCOVERED._replace(deadline=t, lifespan=t, liveliness_lease_duration=t))
-    assert (p.deadline.nanoseconds, p.lifespan.nanoseconds, p.liveliness_lease_duration.nanoseconds) == (ns,) * 3
+    got = (p.deadline.nanoseconds, p.lifespan.nanoseconds, p.liveliness_lease_duration.nanoseconds)
+    assert got == (ns,) * 3
     _publishes(node, p)
 
 
@@ -216,18 +217,17 @@ def _discovered(reliability: ReliabilityPolicy) -> QoSProfile:
 
 
 def test_recorded_profile_has_the_contract_history() -> None:
-    q = qos_from_rclpy(_discovered(ReliabilityPolicy.BEST_EFFORT),
-                       contract_qos("/aeropend/joint_states", reliable=False))
-    assert q == bags.SAMPLE_QOS  # best effort, keep last 5, infinite durations: the contract's offer
-    q = qos_from_rclpy(_discovered(ReliabilityPolicy.RELIABLE), contract_qos("/aeropend/armature", reliable=True))
-    assert q == bags.SAMPLE_QOS_RELIABLE
-    q = qos_from_rclpy(_discovered(ReliabilityPolicy.RELIABLE), contract_qos("/aeropend/duty_cycle", reliable=True))
-    assert q == bags.COMMAND_QOS
-    q = qos_from_rclpy(_discovered(ReliabilityPolicy.RELIABLE), contract_qos("/clock", reliable=True))
-    assert q == bags.CLOCK_QOS
+    reliable = _discovered(ReliabilityPolicy.RELIABLE)
+    best_effort = _discovered(ReliabilityPolicy.BEST_EFFORT)
+    # best effort, keep last 5, infinite durations: the contract's offer of the real-time plant
+    assert qos_from_rclpy(best_effort, contract_qos("/aeropend/joint_states", False)) == bags.SAMPLE_QOS
+    assert qos_from_rclpy(reliable, contract_qos("/aeropend/armature", True)) == bags.SAMPLE_QOS_RELIABLE
+    assert qos_from_rclpy(reliable, contract_qos("/aeropend/duty_cycle", True)) == bags.COMMAND_QOS
+    assert qos_from_rclpy(reliable, contract_qos("/clock", True)) == bags.CLOCK_QOS_RELIABLE  # lock-step
     assert contract_qos("/tf") is None
-    q = qos_from_rclpy(_discovered(ReliabilityPolicy.BEST_EFFORT))
-    assert (q.history, q.depth, q.reliability) == (QosHistory.KEEP_LAST, DEFAULT_DEPTH, QosReliability.BEST_EFFORT)
+    q = qos_from_rclpy(best_effort)
+    assert (q.history, q.depth) == (QosHistory.KEEP_LAST, DEFAULT_DEPTH)
+    assert q.reliability == QosReliability.BEST_EFFORT
 
 
 def test_recorded_profile_keeps_a_history_the_writer_tells() -> None:

@@ -82,6 +82,7 @@ from aeropend_sim.recording import Recording, RecordingError
 
 __all__ = [
     "CLOCK_QOS",
+    "CLOCK_QOS_RELIABLE",
     "COMMAND_QOS",
     "SAMPLE_QOS",
     "SAMPLE_QOS_RELIABLE",
@@ -119,8 +120,10 @@ SAMPLE_QOS: Qos = _qos(QosReliability.BEST_EFFORT, SAMPLE_QOS_DEPTH)
 SAMPLE_QOS_RELIABLE: Qos = _qos(QosReliability.RELIABLE, 0, QosHistory.KEEP_ALL)
 #: Offered QoS of the duty-cycle command topic (reliable, keep last 10, volatile).
 COMMAND_QOS: Qos = _qos(QosReliability.RELIABLE, COMMAND_QOS_DEPTH)
-#: Offered QoS of /clock (the simulated plant's and ``play --clock``'s: reliable, keep last 10).
+#: Offered QoS of /clock published by ``play --clock`` or a real-time plant (reliable, keep last 10).
 CLOCK_QOS: Qos = _qos(QosReliability.RELIABLE, CLOCK_QOS_DEPTH)
+#: Offered QoS of the lock-step plant's /clock (reliable, keep all, volatile).
+CLOCK_QOS_RELIABLE: Qos = _qos(QosReliability.RELIABLE, 0, QosHistory.KEEP_ALL)
 
 _STORAGE_PLUGINS = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 _CUSTOM_META = "aeropend.meta"
@@ -136,16 +139,17 @@ def qos_for_topic(topic: str, lockstep: bool = False) -> Qos:
     topic : str
         Topic name (a namespace prefix is allowed).
     lockstep : bool
-        True for sample topics published by the simulator in lock-step mode (reliable).
+        True for sample topics and /clock published by the simulator in lock-step mode (reliable).
 
     Returns
     -------
     rosbags.interfaces.Qos
-        :data:`CLOCK_QOS` for ``/clock``, :data:`COMMAND_QOS` for the duty-cycle topic, else
-        :data:`SAMPLE_QOS` (or :data:`SAMPLE_QOS_RELIABLE` when ``lockstep``).
+        :data:`CLOCK_QOS` for ``/clock`` (:data:`CLOCK_QOS_RELIABLE` when ``lockstep``),
+        :data:`COMMAND_QOS` for the duty-cycle topic, else :data:`SAMPLE_QOS` (or
+        :data:`SAMPLE_QOS_RELIABLE` when ``lockstep``).
     """
     if topic == TOPIC_CLOCK:
-        return CLOCK_QOS
+        return CLOCK_QOS_RELIABLE if lockstep else CLOCK_QOS
     if topic.endswith(TOPIC_DUTY_CYCLE):
         return COMMAND_QOS
     return SAMPLE_QOS_RELIABLE if lockstep else SAMPLE_QOS

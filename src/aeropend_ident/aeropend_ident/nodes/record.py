@@ -32,10 +32,11 @@ queue_depth : int
     queue: depth does not affect QoS matching, and at 490 Hz the contract's depth 5 would drop
     samples whenever the recorder stalls for 10 ms.
 reliable : bool
-    Subscribe to the sample topics with the lock-step QoS (reliable, keep all; default false: the
-    contract's best effort). Use it for lock-step runs, whose plant publishes samples that way:
-    the recorder then loses nothing, a lagging recorder slows the loop down instead; a reliable
-    subscription does not match a best-effort (real-time) publisher.
+    Subscribe to the sample topics and ``/clock`` with the lock-step QoS (reliable, keep all;
+    default false: best effort). Use it for lock-step runs, whose plant publishes samples and
+    ``/clock`` that way: the recorder then loses nothing, a lagging recorder slows the loop down
+    instead; a reliable subscription does not match a best-effort (real-time) publisher, nor a
+    best-effort ``/clock`` (a simulator's ``rclcpp::ClockQoS``).
 
 On SIGINT / SIGTERM the recorder first writes what is still queued (it spins until no message
 has arrived for ``DRAIN_IDLE_S``, at most ``DRAIN_MAX_S``), then closes the bag.
@@ -139,10 +140,11 @@ class RecorderNode(Node):
         base = ros_contract.COMMAND_QOS if topic.endswith(TOPIC_DUTY_CYCLE) else ros_contract.SAMPLE_SUB_QOS
         if topic == TOPIC_CLOCK:
             base = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-        if self.reliable and topic != TOPIC_CLOCK:
-            # lock-step samples and commands: reliable keep-all like their writers, so nothing the
-            # recorder has not written yet is ever evicted (a lagging recorder slows the loop instead)
-            qos = (ros_contract.COMMAND_QOS_LOCKSTEP if topic.endswith(TOPIC_DUTY_CYCLE)
+        if self.reliable:
+            # lock-step samples, commands and /clock: reliable keep-all like their writers, so nothing
+            # the recorder has not written yet is ever evicted (a lagging recorder slows the loop instead)
+            qos = (ros_contract.CLOCK_QOS_LOCKSTEP if topic == TOPIC_CLOCK
+                   else ros_contract.COMMAND_QOS_LOCKSTEP if topic.endswith(TOPIC_DUTY_CYCLE)
                    else ros_contract.SAMPLE_QOS_LOCKSTEP)
         else:
             # same policies as the contract (so matching is unchanged), deeper queue: the depth is
@@ -230,7 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-samples", type=int, help="stop after N joint_states messages")
     p.add_argument("--use-sim-time", action="store_true", help="use /clock time for stamps and duration")
     p.add_argument("--reliable", action="store_true",
-                   help="reliable sample subscriptions (lock-step runs: no sample lost)")
+                   help="reliable sample and /clock subscriptions (lock-step runs: nothing lost)")
     return p
 
 
