@@ -252,3 +252,24 @@ def test_recorded_then_played_offers_the_same_policies(node: Any, reliability: R
         assert (p.deadline.nanoseconds, p.lifespan.nanoseconds) == (0, 0)  # infinite -> unset
         assert (p.history, p.depth) == (qos_to_rclpy(bag_entry).history, qos_to_rclpy(bag_entry).depth)
         _publishes(node, p)
+
+
+# -- watching a topic (the ``topics`` command) ----------------------------------------------------
+
+
+def test_watch_qos_matches_every_publisher_and_never_slows_one() -> None:
+    from aeropend_ident.nodes.qos import watch_qos
+
+    reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    best_effort = QoSProfile(depth=5, reliability=ReliabilityPolicy.BEST_EFFORT)
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    p = watch_qos([], 100)
+    assert (p.history, p.depth, p.reliability, p.durability) == (
+        HistoryPolicy.KEEP_LAST, 100, ReliabilityPolicy.BEST_EFFORT, DurabilityPolicy.VOLATILE)
+    assert watch_qos([reliable], 100).reliability == ReliabilityPolicy.BEST_EFFORT  # the default
+    assert watch_qos([reliable, latched], 100, reliable=True).reliability == ReliabilityPolicy.RELIABLE
+    assert watch_qos([reliable, best_effort], 100, reliable=True).reliability == ReliabilityPolicy.BEST_EFFORT
+    assert watch_qos([latched], 100).durability == DurabilityPolicy.TRANSIENT_LOCAL  # latched message shown
+    assert watch_qos([latched, reliable], 100).durability == DurabilityPolicy.VOLATILE
+    assert watch_qos([], 0).depth == 1

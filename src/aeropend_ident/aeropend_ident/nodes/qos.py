@@ -29,7 +29,8 @@ What comes out of a bag
     ``manual_by_node`` liveliness (no longer in rclpy) becomes ``manual_by_topic``, the offer that
     still satisfies every request ``manual_by_node`` satisfied.
 
-:func:`message_class` imports a message type by its ROS name.
+:func:`watch_qos` is the subscription QoS of the ``topics`` command; :func:`message_class` imports a
+message type by its ROS name.
 """
 
 from __future__ import annotations
@@ -276,3 +277,39 @@ def playback_qos(topic: str, profiles: Sequence[Qos]) -> tuple[QoSProfile, str |
     return (default,
             f"the {len(profiles)} recorded publishers of {topic} offered different QoS "
             f"({len(keys)} kinds); offering the default (reliable, volatile, keep last {DEFAULT_DEPTH})")
+
+
+# -- watching a topic --------------------------------------------------------------------------
+
+
+def watch_qos(offers: Sequence[QoSProfile], depth: int, reliable: bool = False) -> QoSProfile:
+    """Subscription QoS of a monitoring tool (``topics``) that matches every publisher of a topic.
+
+    Follows rosbag2's recorder (``Rosbag2QoS::adapt_request_to_offers``) for durability:
+    transient-local (latched messages delivered) when every publisher offers it, else volatile.
+    Reliability is best effort unless ``reliable`` (and every publisher offers reliable): a
+    best-effort reader matches every writer and never slows one down (a lock-step plant's
+    keep-all writer waits for its reliable readers).
+
+    Parameters
+    ----------
+    offers : sequence of rclpy.qos.QoSProfile
+        The publishers' offered profiles (``TopicEndpointInfo.qos_profile``); may be empty.
+    depth : int
+        Keep-last depth of the subscription queue (>= 1).
+    reliable : bool
+        Ask for reliable delivery when every publisher offers it.
+
+    Returns
+    -------
+    rclpy.qos.QoSProfile
+    """
+    every = bool(offers)
+    all_reliable = every and all(o.reliability == ReliabilityPolicy.RELIABLE for o in offers)
+    latched = every and all(o.durability == DurabilityPolicy.TRANSIENT_LOCAL for o in offers)
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST, depth=max(int(depth), 1),
+        reliability=(ReliabilityPolicy.RELIABLE if reliable and all_reliable
+                     else ReliabilityPolicy.BEST_EFFORT),
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
