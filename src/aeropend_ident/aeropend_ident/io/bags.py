@@ -84,6 +84,7 @@ __all__ = [
     "CLOCK_QOS",
     "CLOCK_QOS_RELIABLE",
     "COMMAND_QOS",
+    "INFINITE_TIME",
     "SAMPLE_QOS",
     "SAMPLE_QOS_RELIABLE",
     "BagTopic",
@@ -96,8 +97,9 @@ __all__ = [
 
 Storage = Literal["mcap", "sqlite3"]
 
-#: rmw "infinite" duration as rosbag2 (Jazzy) writes it into metadata.yaml.
-_INFINITE = QosTime(sec=9223372036, nsec=854775807)
+#: rmw "infinite" duration (``RMW_DURATION_INFINITE``, 2^63 − 1 ns) as rosbag2 (Jazzy) writes it
+#: into metadata.yaml.
+INFINITE_TIME = QosTime(sec=9223372036, nsec=854775807)
 
 
 def _qos(reliability: QosReliability, depth: int, history: QosHistory = QosHistory.KEEP_LAST) -> Qos:
@@ -106,10 +108,10 @@ def _qos(reliability: QosReliability, depth: int, history: QosHistory = QosHisto
         depth=depth,
         reliability=reliability,
         durability=QosDurability.VOLATILE,
-        deadline=_INFINITE,
-        lifespan=_INFINITE,
+        deadline=INFINITE_TIME,
+        lifespan=INFINITE_TIME,
         liveliness=QosLiveliness.AUTOMATIC,
-        liveliness_lease_duration=_INFINITE,
+        liveliness_lease_duration=INFINITE_TIME,
         avoid_ros_namespace_conventions=False,
     )
 

@@ -25,9 +25,8 @@ What comes out of a bag
     recorder's (a reliable sample topic is the lock-step plant's keep-all, so a lagging reliable
     reader is not overrun), else keep-last (the recorded depth, else :data:`DEFAULT_DEPTH`, the
     depth rosbag2's player uses); an ``unknown`` reliability, durability or liveliness takes
-    rclpy's default; the deprecated
-    ``manual_by_node`` liveliness (no longer in rclpy) becomes ``manual_by_topic``, the offer that
-    still satisfies every request ``manual_by_node`` satisfied.
+    rclpy's default; the deprecated ``manual_by_node`` liveliness (no longer in rclpy) becomes
+    ``manual_by_topic``, the offer that still satisfies every request ``manual_by_node`` satisfied.
 
 :func:`watch_qos` is the subscription QoS of the ``topics`` command; :func:`message_class` imports a
 message type by its ROS name.
@@ -50,19 +49,18 @@ from rclpy.qos import (
 )
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
-from aeropend_ident.io.bags import qos_for_topic
+from aeropend_ident.io.bags import INFINITE_TIME, qos_for_topic
 from aeropend_sim.contract import CONTRACT_TOPICS, TOPIC_CLOCK
 
 #: Keep-last depth for a history the bag does not tell: rmw's default profile depth (10), the one
 #: rosbag2's player offers for every recorded topic (``Rosbag2QoS::default_history``).
 DEFAULT_DEPTH: int = qos_profile_default.depth
 
-#: rmw's "infinite" duration (``RMW_DURATION_INFINITE``, 2^63 − 1 ns) as rosbag2 writes it.
-INFINITE_TIME = QosTime(sec=9223372036, nsec=854775807)
-_INFINITE_NS = 2**63 - 1
-#: "Infinite" durations of Foxy-era bags (rosbag2 ``qos.cpp``: rmw_cyclonedds, rmw_fastrtps and
-#: rmw_connext before ``RMW_DURATION_INFINITE``), read as infinite like rosbag2 does.
-_FOXY_INFINITE = {(0x7FFFFFFF, 0xFFFFFFFF), (0x7FFFFFFF, 0x7FFFFFFF), divmod(_INFINITE_NS, 1_000_000_000)}
+_INFINITE_NS = 2**63 - 1  # RMW_DURATION_INFINITE [ns] (INFINITE_TIME in a bag)
+#: "Infinite" durations of Foxy-era bags (rosbag2 ``qos.cpp``: rmw_fastrtps' and rmw_connext's
+#: before ``RMW_DURATION_INFINITE``; rmw_cyclonedds' was 2^63 − 1 ns already), read as infinite
+#: like rosbag2 does.
+_FOXY_INFINITE = {(0x7FFFFFFF, 0xFFFFFFFF), (0x7FFFFFFF, 0x7FFFFFFF)}
 
 
 def message_class(msgtype: str) -> Any:
