@@ -81,11 +81,15 @@ def test_lockstep_closed_loop_step_to_0_4(tmp_path: Path, strategy: str) -> None
         s = plant.step(d)
 
 
-def test_controller_refuses_bad_configuration() -> None:
-    proc = subprocess.run([*node_command("controller"), "--ros-args", "-p", "strategy:=pd"],
+@pytest.mark.parametrize(("param", "needle"), [
+    ("strategy:=pd", "strategy = 'pd'"),
+    ("min_subscribers:=0", "min_subscribers = 0; expected an integer >= 1"),
+])
+def test_controller_refuses_bad_configuration(param: str, needle: str) -> None:
+    proc = subprocess.run([*node_command("controller"), "--ros-args", "-p", param],
                           env=isolated_env(random_domain()), capture_output=True, text=True, timeout=30)
     assert proc.returncode == 2
-    assert "strategy = 'pd'" in proc.stderr + proc.stdout
+    assert needle in proc.stderr + proc.stdout
 
 
 def test_reference_topic_drives_the_lockstep_loop(tmp_path: Path) -> None:

@@ -31,6 +31,7 @@ setup(
         "console_scripts": [
             'record = aeropend_ident.nodes.record:main',
             'play = aeropend_ident.nodes.play:main',
+            'topics = aeropend_ident.nodes.topics:main',
             'csv_import = aeropend_ident.cli.csv_import:main',
             'baseline = aeropend_ident.cli.baseline:main',
             'pipeline = aeropend_ident.cli.pipeline:main',

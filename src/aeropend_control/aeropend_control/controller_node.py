@@ -54,6 +54,13 @@ rt_priority : int, default 0
 executor : str, default ``events``
     ``events`` (rclpy's C++ ``EventsExecutor``: callbacks dispatched from events, lower latency)
     | ``single`` (``SingleThreadedExecutor``).
+min_subscribers : int, default 1
+    Send the first command only once this many subscriptions are matched on
+    ``/aeropend/duty_cycle`` (the plant, plus a recorder: 2), so a recorder started alongside
+    records every command. DDS matches each writer–reader pair on its own: with 1, a lock-step
+    loop could run to its end before the recorder's command reader was matched (0 of 979
+    commands recorded in one run of ``test_record_play_roundtrip_ros``). The lock-step plant
+    re-publishes its idle sample every 0.5 s, so the loop starts at the next one after the match.
 
 Live parameters (``ros2 param set /aeropend_controller omega_n 6.0``): ``omega_n``, ``zeta``,
 ``rho`` (a new design, taken over bumpless), ``reference`` and ``steps``; a value the design
@@ -153,6 +160,7 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("estimator", "observer", "theta_dot estimate: observer | difference"),
     ("rt_priority", 0, "SCHED_FIFO priority 1-99 of the executor thread (0 = normal scheduling)"),
     ("executor", "events", "events (EventsExecutor) | single (SingleThreadedExecutor)"),
+    ("min_subscribers", 1, "duty_cycle subscriptions (plant, recorder) matched before the first command"),
 )
 #: Parameters that may be set while the controller runs (``ros2 param set``): the pole pattern
 #: (a new design taken over bumpless) and the reference (initial value and step sequence). The
@@ -170,6 +178,7 @@ class ControllerNode(Node):
         try:
             self.rt_priority = _rt_priority(raw.pop("rt_priority"))
             self.executor_kind = executor_kind(raw.pop("executor"), ControllerConfigError)
+            self.min_subscribers = _min_subscribers(raw.pop("min_subscribers"))
             self.settings = make_settings(**raw)
             self._raw = raw
             self.loop = ControllerLoop(self.settings)
@@ -313,8 +322,8 @@ class ControllerNode(Node):
     def _control(self, stamp: int, theta: float, omega: float = math.nan, i_a: float = math.nan) -> None:
         realtime = self.settings.mode == "realtime"
         if self._matched_ns is None:
-            if self._pub_duty.get_subscription_count() == 0:
-                return  # nobody would hear the command; the lock-step plant re-publishes while idle
+            if self._pub_duty.get_subscription_count() < self.min_subscribers:
+                return  # not every reader would hear the command; the lock-step plant re-publishes while idle
             self._matched_ns = time.monotonic_ns()
         if realtime and time.monotonic_ns() - self._matched_ns < MATCH_GRACE_NS:
             return
@@ -382,6 +391,12 @@ def _warm_up(settings: Any, n: int = 200) -> None:
 def _rt_priority(value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 99:
         raise ControllerConfigError(f"rt_priority = {value!r}; expected an integer in 0..99 (0 = off)")
+    return value
+
+
+def _min_subscribers(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ControllerConfigError(f"min_subscribers = {value!r}; expected an integer >= 1")
     return value
 
 

@@ -107,6 +107,8 @@ SAMPLE_QOS_DEPTH = 5
 SAMPLE_SUB_DEPTH = 100
 #: QoS of the command topic: reliable, keep last 10, volatile.
 COMMAND_QOS_DEPTH = 10
+#: QoS of /clock as the simulated plant and ``play --clock`` publish it: reliable, keep last 10.
+CLOCK_QOS_DEPTH = 10
 
 
 class ContractError(ValueError):

@@ -74,9 +74,11 @@ from aeropend_ident.io.bag_recover import (
     stored_metadata,
 )
 from aeropend_sim.contract import (
+    CLOCK_QOS_DEPTH,
     COMMAND_QOS_DEPTH,
     SAMPLE_QOS_DEPTH,
     TOPIC_ARMATURE,
+    TOPIC_CLOCK,
     TOPIC_DUTY_CYCLE,
     TOPIC_JOINT_STATES,
     TYPE_ARMATURE,
@@ -87,7 +89,10 @@ from aeropend_sim.contract import (
 from aeropend_sim.recording import Recording, RecordingError
 
 __all__ = [
+    "CLOCK_QOS",
+    "CLOCK_QOS_RELIABLE",
     "COMMAND_QOS",
+    "INFINITE_TIME",
     "SAMPLE_QOS",
     "SAMPLE_QOS_RELIABLE",
     "BagTopic",
@@ -100,8 +105,9 @@ __all__ = [
 
 Storage = Literal["mcap", "sqlite3"]
 
-#: rmw "infinite" duration as rosbag2 (Jazzy) writes it into metadata.yaml.
-_INFINITE = QosTime(sec=9223372036, nsec=854775807)
+#: rmw "infinite" duration (``RMW_DURATION_INFINITE``, 2^63 − 1 ns) as rosbag2 (Jazzy) writes it
+#: into metadata.yaml.
+INFINITE_TIME = QosTime(sec=9223372036, nsec=854775807)
 
 
 def _qos(reliability: QosReliability, depth: int, history: QosHistory = QosHistory.KEEP_LAST) -> Qos:
@@ -110,10 +116,10 @@ def _qos(reliability: QosReliability, depth: int, history: QosHistory = QosHisto
         depth=depth,
         reliability=reliability,
         durability=QosDurability.VOLATILE,
-        deadline=_INFINITE,
-        lifespan=_INFINITE,
+        deadline=INFINITE_TIME,
+        lifespan=INFINITE_TIME,
         liveliness=QosLiveliness.AUTOMATIC,
-        liveliness_lease_duration=_INFINITE,
+        liveliness_lease_duration=INFINITE_TIME,
         avoid_ros_namespace_conventions=False,
     )
 
@@ -124,6 +130,10 @@ SAMPLE_QOS: Qos = _qos(QosReliability.BEST_EFFORT, SAMPLE_QOS_DEPTH)
 SAMPLE_QOS_RELIABLE: Qos = _qos(QosReliability.RELIABLE, 0, QosHistory.KEEP_ALL)
 #: Offered QoS of the duty-cycle command topic (reliable, keep last 10, volatile).
 COMMAND_QOS: Qos = _qos(QosReliability.RELIABLE, COMMAND_QOS_DEPTH)
+#: Offered QoS of /clock published by ``play --clock`` or a real-time plant (reliable, keep last 10).
+CLOCK_QOS: Qos = _qos(QosReliability.RELIABLE, CLOCK_QOS_DEPTH)
+#: Offered QoS of the lock-step plant's /clock (reliable, keep all, volatile).
+CLOCK_QOS_RELIABLE: Qos = _qos(QosReliability.RELIABLE, 0, QosHistory.KEEP_ALL)
 
 _STORAGE_PLUGINS = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3}
 _CUSTOM_META = "aeropend.meta"
@@ -139,14 +149,17 @@ def qos_for_topic(topic: str, lockstep: bool = False) -> Qos:
     topic : str
         Topic name (a namespace prefix is allowed).
     lockstep : bool
-        True for sample topics published by the simulator in lock-step mode (reliable).
+        True for sample topics and /clock published by the simulator in lock-step mode (reliable).
 
     Returns
     -------
     rosbags.interfaces.Qos
+        :data:`CLOCK_QOS` for ``/clock`` (:data:`CLOCK_QOS_RELIABLE` when ``lockstep``),
         :data:`COMMAND_QOS` for the duty-cycle topic, else :data:`SAMPLE_QOS` (or
         :data:`SAMPLE_QOS_RELIABLE` when ``lockstep``).
     """
+    if topic == TOPIC_CLOCK:
+        return CLOCK_QOS_RELIABLE if lockstep else CLOCK_QOS
     if topic.endswith(TOPIC_DUTY_CYCLE):
         return COMMAND_QOS
     return SAMPLE_QOS_RELIABLE if lockstep else SAMPLE_QOS

@@ -2,11 +2,15 @@
 
 ``play BAG [--rate 1.0] [--loop] [--topics T ...]`` reads the bag with ``rosbags``
 (:class:`aeropend_ident.io.bags.RawBagReader`) and publishes each message's serialised bytes
-unchanged (header stamps included) on its topic, with a publisher per topic using the QoS the
-bag recorded for it (:func:`aeropend_ident.nodes.qos.qos_to_rclpy`; the contract QoS when
-the bag has none). Message k is published at ``start + (log_k − log_0) / rate`` on the
-monotonic clock (absolute deadlines, so sleep overshoot does not accumulate). The command
-exits when the bag is done (after ``--linger`` seconds so reliable messages are delivered).
+unchanged (header stamps included) on its topic, with a publisher per topic offering the QoS the
+bag recorded for it, adapted as rosbag2's player adapts it
+(:func:`aeropend_ident.nodes.qos.playback_qos`: any tool's profile, ``history: unknown``
+included, becomes one rclpy accepts; publishers that offered different QoS -> the default
+profile; the contract QoS when the bag has none). Message k is published at
+``start + (log_k − log_0) / rate`` on the monotonic clock (absolute deadlines, so sleep
+overshoot does not accumulate). The command exits when the bag is done, once every reliable
+subscriber has acknowledged every message (at most ``node_shell.ACK_TIMEOUT_S``) and after
+``--linger`` seconds.
 
 ``--clock [HZ]`` publishes the bag's time on ``/clock`` (``rosgraph_msgs/Clock``, HZ default 40,
 as ``ros2 bag play --clock``): log_0 + (now − start)·rate, so nodes with ``use_sim_time`` run on
@@ -30,10 +34,10 @@ from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from aeropend_ident.errors import BagError, print_warnings_as_lines
-from aeropend_ident.io.bags import RawBagReader, qos_for_topic
-from aeropend_ident.nodes.qos import message_class, qos_to_rclpy
+from aeropend_ident.io.bags import RawBagReader
+from aeropend_ident.nodes.qos import message_class, playback_qos
 from aeropend_sim.contract import TOPIC_CLOCK
-from aeropend_sim.ros.node_shell import run_node
+from aeropend_sim.ros.node_shell import run_node, wait_acknowledged
 from aeropend_sim.ros.ros_contract import CLOCK_QOS, to_time
 
 NODE_NAME = "aeropend_player"
@@ -49,8 +53,10 @@ class PlayerNode(Node):
         for topic, info in reader.topics.items():
             if clock and topic == TOPIC_CLOCK:
                 continue  # the bag's own /clock gives way to the one published from the bag's time
-            qos = info.qos[0] if info.qos else qos_for_topic(topic)
-            self.pubs[topic] = self.create_publisher(message_class(info.msgtype), topic, qos_to_rclpy(qos))
+            qos, warning = playback_qos(topic, info.qos)
+            if warning is not None:
+                self.get_logger().warning(warning)
+            self.pubs[topic] = self.create_publisher(message_class(info.msgtype), topic, qos)
 
     def wait_for_subscribers(self, timeout_s: float, settle_s: float = 0.5) -> bool:
         """Wait until every publisher has at least one matched subscription (or the timeout).
@@ -165,6 +171,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if not args.loop or not rclpy.ok():
                 break
         if rclpy.ok():
+            # a writer destroyed before its reliable readers acknowledged drops what they lack
+            wait_acknowledged(node, [*node.pubs.values(), *([node.clock_pub] if node.clock_pub else [])])
             time.sleep(max(args.linger, 0.0))
         return 0
 

@@ -5,7 +5,11 @@ Subscribes with *raw* (serialised) subscriptions and writes the CDR bytes straig
 samples cost one callback each. The bag timestamp of a message is its receive time on the node
 clock (ROS time: simulated time when ``use_sim_time`` is true). Each topic is registered with
 the QoS its publishers offer (read from the ROS graph when its first message arrives; the
-contract QoS when no publisher is visible), so ``ros2 bag play`` replays with the same QoS.
+contract QoS when no publisher is visible), so ``play`` and ``ros2 bag play`` replay with the same
+QoS. Discovery does not tell a writer's history (rmw reports history ``unknown``, depth 0, which
+rosbag2 stores as is); the recorder writes the history and depth the topic contract prescribes
+instead (keep last 10 for other topics), so every profile in the bag is one rclpy accepts
+(:func:`aeropend_ident.nodes.qos.qos_from_rclpy`).
 
 Parameters
 ----------
@@ -28,10 +32,11 @@ queue_depth : int
     queue: depth does not affect QoS matching, and at 490 Hz the contract's depth 5 would drop
     samples whenever the recorder stalls for 10 ms.
 reliable : bool
-    Subscribe to the sample topics with the lock-step QoS (reliable, keep all; default false: the
-    contract's best effort). Use it for lock-step runs, whose plant publishes samples that way:
-    the recorder then loses nothing, a lagging recorder slows the loop down instead; a reliable
-    subscription does not match a best-effort (real-time) publisher.
+    Subscribe to the sample topics and ``/clock`` with the lock-step QoS (reliable, keep all;
+    default false: best effort). Use it for lock-step runs, whose plant publishes samples and
+    ``/clock`` that way: the recorder then loses nothing, a lagging recorder slows the loop down
+    instead; a reliable subscription does not match a best-effort (real-time) publisher, nor a
+    best-effort ``/clock`` (a simulator's ``rclcpp::ClockQoS``).
 
 On SIGINT / SIGTERM the recorder first writes what is still queued (it spins until no message
 has arrived for ``DRAIN_IDLE_S``, at most ``DRAIN_MAX_S``), then closes the bag.
@@ -61,10 +66,7 @@ from rosbags.interfaces import Qos
 from aeropend_ident.errors import BagError
 from aeropend_ident.io.bag_writer import BagSink
 from aeropend_ident.io.bags import qos_for_topic
-from aeropend_ident.nodes.qos import (
-    message_class,
-    qos_from_rclpy,
-)
+from aeropend_ident.nodes.qos import contract_qos, message_class, qos_from_rclpy
 from aeropend_sim.contract import (
     CONTRACT_TOPICS,
     TOPIC_CLOCK,
@@ -138,10 +140,11 @@ class RecorderNode(Node):
         base = ros_contract.COMMAND_QOS if topic.endswith(TOPIC_DUTY_CYCLE) else ros_contract.SAMPLE_SUB_QOS
         if topic == TOPIC_CLOCK:
             base = QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT)
-        if self.reliable and topic != TOPIC_CLOCK:
-            # lock-step samples and commands: reliable keep-all like their writers, so nothing the
-            # recorder has not written yet is ever evicted (a lagging recorder slows the loop instead)
-            qos = (ros_contract.COMMAND_QOS_LOCKSTEP if topic.endswith(TOPIC_DUTY_CYCLE)
+        if self.reliable:
+            # lock-step samples, commands and /clock: reliable keep-all like their writers, so nothing
+            # the recorder has not written yet is ever evicted (a lagging recorder slows the loop instead)
+            qos = (ros_contract.CLOCK_QOS_LOCKSTEP if topic == TOPIC_CLOCK
+                   else ros_contract.COMMAND_QOS_LOCKSTEP if topic.endswith(TOPIC_DUTY_CYCLE)
                    else ros_contract.SAMPLE_QOS_LOCKSTEP)
         else:
             # same policies as the contract (so matching is unchanged), deeper queue: the depth is
@@ -170,13 +173,20 @@ class RecorderNode(Node):
     # -- recording ------------------------------------------------------------------------
 
     def _offered_qos(self, topic: str) -> list[Qos]:
-        default = qos_for_topic(topic)
+        """The distinct QoS profiles the topic's publishers offer, each with a concrete history.
+
+        Discovery does not carry a writer's history (rmw reports ``UNKNOWN``, depth 0): a contract
+        topic gets the history and depth the contract prescribes for the reliability its
+        publisher offers (a reliable sample writer is the lock-step keep-all one), any other topic
+        keep-last :data:`~aeropend_ident.nodes.qos.DEFAULT_DEPTH` (:func:`qos_from_rclpy`).
+        """
         found: list[Qos] = []
         for info in self.get_publishers_info_by_topic(topic):
-            q = qos_from_rclpy(info.qos_profile, default.depth)
+            reliable = info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+            q = qos_from_rclpy(info.qos_profile, contract_qos(topic, reliable))
             if q not in found:
                 found.append(q)
-        return found or [default]
+        return found or [qos_for_topic(topic)]
 
     def _on_message(self, topic: str, data: bytes) -> None:
         self.last_message_ns = time.monotonic_ns()
@@ -222,7 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-samples", type=int, help="stop after N joint_states messages")
     p.add_argument("--use-sim-time", action="store_true", help="use /clock time for stamps and duration")
     p.add_argument("--reliable", action="store_true",
-                   help="reliable sample subscriptions (lock-step runs: no sample lost)")
+                   help="reliable sample and /clock subscriptions (lock-step runs: nothing lost)")
     return p
 
 

@@ -21,6 +21,7 @@ from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
 from aeropend_sim.contract import (
+    CLOCK_QOS_DEPTH,
     COMMAND_QOS_DEPTH,
     SAMPLE_SUB_DEPTH,
     ContractError,
@@ -81,7 +82,17 @@ COMMAND_QOS_LOCKSTEP = QoSProfile(
 #: QoS of /clock (the simulated plant, ``play --clock``): reliable so that lock-step consumers see
 #: every tick; best-effort subscribers (rclpy's time source) match.
 CLOCK_QOS = QoSProfile(
-    history=HistoryPolicy.KEEP_LAST, depth=10, reliability=ReliabilityPolicy.RELIABLE,
+    history=HistoryPolicy.KEEP_LAST, depth=CLOCK_QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE,
+    durability=DurabilityPolicy.VOLATILE,
+)
+
+#: QoS of the lock-step plant's /clock (one tick per sample): reliable, **keep all**, volatile, for
+#: the reason of :data:`SAMPLE_QOS_LOCKSTEP`: a recorder that falls behind lost ticks from the
+#: keep-last-10 writer of :data:`CLOCK_QOS` (305 of 9901 in one main-job run, in bursts of 15-99).
+#: Best-effort subscribers (rclpy's time source) still match.
+CLOCK_QOS_LOCKSTEP = QoSProfile(
+    history=HistoryPolicy.KEEP_ALL,
+    reliability=ReliabilityPolicy.RELIABLE,
     durability=DurabilityPolicy.VOLATILE,
 )
 

@@ -23,8 +23,8 @@ mode : str, default ``realtime``
     duty -> 0 after ``command_timeout`` without command, samples with ``SAMPLE_QOS``.
     ``lockstep``: sample 0 once ``min_subscribers`` subscriptions are matched on
     ``joint_states`` (re-published every 0.5 s of wall time while idle), then exactly one sample
-    per valid command, stamped with simulated time k·T_s, ``/clock`` published, samples with the
-    reliable keep-all ``SAMPLE_QOS_LOCKSTEP``.
+    per valid command, stamped with simulated time k·T_s, ``/clock`` published, samples and
+    ``/clock`` with the reliable keep-all ``SAMPLE_QOS_LOCKSTEP`` / ``CLOCK_QOS_LOCKSTEP``.
 seed : int, default 0
     Seed of the measurement noise.
 initial_theta : float [rad], initial_state : 5 floats
@@ -101,6 +101,7 @@ from aeropend_sim.ros.node_shell import (
 )
 from aeropend_sim.ros.ros_contract import (
     CLOCK_QOS,
+    CLOCK_QOS_LOCKSTEP,
     COMMAND_QOS,
     SAMPLE_QOS,
     SAMPLE_QOS_LOCKSTEP,
@@ -187,7 +188,8 @@ class SimPlantNode(Node):
         sample_qos = SAMPLE_QOS_LOCKSTEP if lockstep else SAMPLE_QOS
         self._pub_js = self.create_publisher(JointState, REL_JOINT_STATES, sample_qos)
         self._pub_arm = self.create_publisher(BatteryState, REL_ARMATURE, sample_qos)
-        self._pub_clock = self.create_publisher(ClockMsg, TOPIC_CLOCK, CLOCK_QOS) if s.publish_clock else None
+        clock_qos = CLOCK_QOS_LOCKSTEP if lockstep else CLOCK_QOS
+        self._pub_clock = self.create_publisher(ClockMsg, TOPIC_CLOCK, clock_qos) if s.publish_clock else None
         timeout_ns = None if lockstep else round(s.command_timeout * 1e9)
         self.hold = CommandHold(timeout_ns)
         try:
@@ -295,18 +297,22 @@ class SimPlantNode(Node):
     def _start_when_matched(self) -> None:
         """Lock-step: publish sample 0 once the sample topics' subscribers are matched.
 
-        ``joint_states`` needs ``min_subscribers`` matched subscriptions, and each sample topic at
-        least as many as the ROS graph shows (a subscriber discovered but not yet matched would
-        miss sample 0 and what follows until it matches).
+        ``joint_states`` needs ``min_subscribers`` matched subscriptions, and each sample topic and
+        ``/clock`` at least as many as the ROS graph shows (a subscriber discovered but not yet
+        matched would miss sample 0 and what follows until it matches: a recorder's /clock reader
+        matched a moment after its sample reader lost the first ticks).
         """
         matched = self._matched()
         known = (self.count_subscribers(self._pub_js.topic_name),
                  self.count_subscribers(self._pub_arm.topic_name))
         need = (max(self.settings.min_subscribers, known[0]), known[1])
-        if matched[0] < need[0] or matched[1] < need[1]:
+        clock = (0, 0) if self._pub_clock is None else (self._pub_clock.get_subscription_count(),
+                                                         self.count_subscribers(self._pub_clock.topic_name))
+        if matched[0] < need[0] or matched[1] < need[1] or clock[0] < clock[1]:
             self.get_logger().info(
                 f"lock-step: waiting for subscriptions to match (joint_states {matched[0]} of {need[0]}, "
-                f"armature {matched[1]} of {need[1]}; min_subscribers {self.settings.min_subscribers})",
+                f"armature {matched[1]} of {need[1]}, /clock {clock[0]} of {clock[1]}; "
+                f"min_subscribers {self.settings.min_subscribers})",
                 throttle_duration_sec=2.0,
             )
             return
