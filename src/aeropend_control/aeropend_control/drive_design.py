@@ -74,6 +74,7 @@ from aeropend_control.design import (
 )
 from aeropend_control.metrics import GOAL, TABLE_6_1
 from aeropend_sim.model import I_A, OMEGA, TAU_F, PlantModel
+from aeropend_sim.output_folder import check_output_file
 from aeropend_sim.params import Rig, load_rig
 
 #: Drive kinds of :class:`DriveSpec`.
@@ -622,7 +623,8 @@ def main(argv: list[str] | None = None) -> int:
 
     Pole parameters not given take the strategy's default for that rig file (:func:`default_spec`,
     the robust ζ on a rig file that declares its drive), so the gains are those the controller
-    node runs with. Writes a YAML gains file with ``-o``. Exit status 2 on a bad argument.
+    node runs with. Writes a YAML gains file with ``-o`` (an existing file only with ``--overwrite``,
+    checked before the design). Exit status 2 on a bad argument.
     """
     ap = argparse.ArgumentParser(prog="design_gains",
                                  description="position-loop gains of a rig file, predicted step metrics")
@@ -632,10 +634,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--zeta", type=float, default=None, help=f"damping ratio of the pole pair ({unset})")
     ap.add_argument("--rho", type=float, default=None, help=f"real pole / ω_n ({unset})")
     ap.add_argument("-o", "--output", help="write the gains to this YAML file")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing --output file")
     args = ap.parse_args(argv)
     given = {k: v for k, v in (("omega_n", args.omega_n), ("zeta", args.zeta), ("rho", args.rho))
              if v is not None}
     try:
+        if args.output:
+            check_output_file(args.output, args.overwrite)
         rig = load_rig(args.rig)
         specs = {name: dataclasses.replace(default_spec(name, rig), **given)
                  for name in ("fl_pid", "small_signal")}
@@ -649,7 +654,7 @@ def main(argv: list[str] | None = None) -> int:
         sched = (schedule(rig, grid, spec) if drive is None
                  else [design_small_signal_on_drive(rig, t, spec, drive) for t in grid])
     except (ValueError, OSError) as exc:
-        print(f"design_gains: {exc}", file=sys.stderr)
+        print(f"design_gains: error: {exc}", file=sys.stderr)
         return 2
     print(f"rig {rig.name}: reach {reach:.4g} rad "
           f"(set points held with {REACH_DUTY_MARGIN:.0%} duty headroom; the schedule stops there)")

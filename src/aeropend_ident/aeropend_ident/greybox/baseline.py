@@ -454,8 +454,15 @@ def plot_overlay(result: BaselineResult, path: str | Path) -> Path:
     return path
 
 
+#: The files :func:`write_report` writes into a report folder, by key (the ``baseline`` command's
+#: ``--overwrite`` replaces only a folder that holds one of them).
+REPORT_FILES = {"report": "report.json", "overlay": "overlay.png", "fitted_rig": "fitted_rig.yaml"}
+
+
 def write_report(result: BaselineResult, outdir: str | Path) -> dict[str, Path]:
-    """Write ``report.json``, ``overlay.png`` and ``fitted_rig.yaml`` into ``outdir`` (created).
+    """Write ``report.json``, ``overlay.png`` and ``fitted_rig.yaml`` (:data:`REPORT_FILES`) into
+    ``outdir`` (created; files of the same names are replaced, others are left alone: the
+    ``baseline`` command claims an empty folder first).
 
     Returns
     -------
@@ -464,13 +471,12 @@ def write_report(result: BaselineResult, outdir: str | Path) -> dict[str, Path]:
     """
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
-    report = out / "report.json"
-    report.write_text(json.dumps(result.report(), indent=2, allow_nan=False), encoding="utf-8")
-    rig_path = out / "fitted_rig.yaml"
+    paths = {key: out / name for key, name in REPORT_FILES.items()}
+    paths["report"].write_text(json.dumps(result.report(), indent=2, allow_nan=False), encoding="utf-8")
     text = yaml.safe_dump(jsonable(fitted_rig_dict(result)), sort_keys=False, allow_unicode=True)
-    rig_path.write_text(text, encoding="utf-8")
-    overlay = plot_overlay(result, out / "overlay.png")
-    return {"report": report, "overlay": overlay, "fitted_rig": rig_path}
+    paths["fitted_rig"].write_text(text, encoding="utf-8")
+    paths["overlay"] = plot_overlay(result, paths["overlay"])
+    return paths
 
 
 def run_baseline(recording: Recording, rig: Rig | str | Path, outdir: str | Path | None = None,
