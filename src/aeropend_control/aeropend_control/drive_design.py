@@ -50,8 +50,8 @@ import itertools
 import math
 import sys
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 import yaml
 
@@ -76,6 +76,11 @@ from aeropend_control.metrics import GOAL, TABLE_6_1
 from aeropend_sim.model import I_A, OMEGA, TAU_F, PlantModel
 from aeropend_sim.output_folder import check_output_file
 from aeropend_sim.params import Rig, load_rig
+
+# python-control is imported inside the functions that use it: importing it costs ~2 s
+# (scipy.signal, matplotlib.pyplot), which `controller --help` and every importer would pay.
+if TYPE_CHECKING:
+    import control
 
 #: Drive kinds of :class:`DriveSpec`.
 DRIVES = ("duty", "cascade")
@@ -138,6 +143,7 @@ def drive_model(rig: Rig, theta0: float, drive: DriveSpec) -> control.StateSpace
         If θ₀ is not a reachable equilibrium, or for a cascade drive on a rig whose armature current
         is quasi-static (the current PI then has no state to act on in this model).
     """
+    import control
     m, x_eq, tau_eq, A5, B5 = linearise(rig, theta0)
     motor = [i for i in (I_A, OMEGA, TAU_F) if (i != TAU_F or m.lag) and (i != I_A or m.dynamic_current)]
     Am, bm = A5[np.ix_(motor, motor)], B5[motor, 0]  # bm: the duty reaching the drive
@@ -225,6 +231,7 @@ def closed_loop(a0: float, a1: float, g: float, drive: control.StateSpace, gains
     control.StateSpace
         States [θ, θ̇, drive states, z].
     """
+    import control
     kp, ki, kd = gains
     Ad, Bd, Cd = (np.asarray(x, dtype=float) for x in (drive.A, drive.B, drive.C))
     nd = Ad.shape[0]
@@ -309,6 +316,7 @@ def _on_drive(base: LoopDesign, a0: float, a1: float, g: float, drive: control.S
     """``base`` with gains placed on ``drive`` (or on its reduced model, :data:`CANCEL_TOL`), kept
     only when the full linear loop is stable and its predicted step neither settles later nor
     overshoots more than the static gains' on the same loop; else ``base``."""
+    import control
     static = predict_step(closed_loop(a0, a1, g, drive, (base.kp, base.ki, base.kd), linearising))
     for model in (drive, None):
         try:

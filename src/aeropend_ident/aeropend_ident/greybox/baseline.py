@@ -37,7 +37,6 @@ from typing import Any
 import numpy as np
 import scipy
 import yaml
-from scipy.signal import savgol_filter
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.fit import (
@@ -249,6 +248,8 @@ def measured_rate(theta: np.ndarray, dt: float, window: float = 0.2) -> np.ndarr
         w = n if n % 2 else n - 1
     if w < 3:
         return np.gradient(theta, dt) if n > 1 else np.zeros(n)
+    from scipy.signal import savgol_filter  # here: importing scipy.signal costs ~1 s (`baseline --help`)
+
     return savgol_filter(theta, w, min(2, w - 1), deriv=1, delta=dt, mode="interp")
 
 
