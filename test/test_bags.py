@@ -377,15 +377,19 @@ def test_not_a_bag(tmp_path: Path) -> None:
 def test_write_refuses_to_clobber(tmp_path: Path) -> None:
     rec = _recording(10)
     write_bag(rec, tmp_path / "x")
-    with pytest.raises(BagError, match="already exists"):
+    with pytest.raises(BagError, match=r"exists and is not empty \(metadata.yaml, x.mcap\); pass "
+                                       r"overwrite=True to replace it"):
         write_bag(rec, tmp_path / "x")
     write_bag(rec, tmp_path / "x", overwrite=True, storage="sqlite3")
     assert read_bag(tmp_path / "x").meta["storage"] == "sqlite3"
+    assert sorted(p.suffix for p in (tmp_path / "x").iterdir()) == [".db3", ".yaml"]  # no stale .mcap
     (tmp_path / "plain").mkdir()
     (tmp_path / "plain" / "keep.txt").write_text("precious")
-    with pytest.raises(BagError, match="not a rosbag2 directory"):
+    with pytest.raises(BagError, match="does not look like a rosbag2 bag"):
         write_bag(rec, tmp_path / "plain", overwrite=True)
     assert (tmp_path / "plain" / "keep.txt").read_text() == "precious"
+    (tmp_path / "empty").mkdir()  # an empty folder is no result: used without overwrite
+    assert read_bag(write_bag(rec, tmp_path / "empty")).meta["storage"] == "mcap"
 
 
 def test_dds_padded_payloads_decode_vectorized() -> None:

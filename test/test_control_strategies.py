@@ -197,9 +197,13 @@ def test_design_cli_writes_gains(tmp_path: pytest.TempPathFactory, capsys: pytes
     # unset pole parameters: the strategies' defaults (ω_n 9.5, ζ 0.7, ρ 1: kp = ω_n²(1 + 2ζρ))
     assert doc["pole_spec"]["fl_pid"] == {"omega_n": 9.5, "zeta": 0.7, "rho": 1.0}
     assert doc["fl_pid"]["kp"] == pytest.approx(216.6) and len(doc["small_signal"]) == 12
-    assert main(["--rig", "thesis_rig", "--omega-n", "9", "-o", str(out)]) == 0
-    assert yaml.safe_load(out.read_text())["fl_pid"]["kp"] == pytest.approx(194.4)
     assert "fl_pid" in capsys.readouterr().out
+    before = out.read_bytes()
+    assert main(["--rig", "thesis_rig", "--omega-n", "9", "-o", str(out)]) == 2  # never replaced silently
+    assert f"output file {out} exists; pass --overwrite" in capsys.readouterr().err
+    assert out.read_bytes() == before
+    assert main(["--rig", "thesis_rig", "--omega-n", "9", "-o", str(out), "--overwrite"]) == 0
+    assert yaml.safe_load(out.read_text())["fl_pid"]["kp"] == pytest.approx(194.4)
     assert main(["--zeta", "2"]) == 2
     assert "zeta = 2.0" in capsys.readouterr().err
 

@@ -18,33 +18,7 @@ Usage::
     ros2 lifecycle set /aeropend_bridge configure
     ros2 lifecycle set /aeropend_bridge activate
 
-Parameters
-----------
-autostart : bool, default true (read-only)
-    Configure and activate at start-up; false leaves the node *unconfigured*.
-port : str, default ``/dev/ttyACM0``
-    Serial device (a ``/dev/serial/by-id/...`` link survives re-enumeration).
-baud : int, default 500000
-rig : str, default ``thesis_rig``
-    Rig name or YAML path: ADC LSBs from ``sensors``, ``motor.gear_ratio``.
-theta_offset : float [rad], default 0.0
-    Angle read with the rod hanging down (θ = 0 there).
-command_timeout : float [s], default 0.1
-    Duty 0 is on the wire at most this long after the last valid command.
-keepalive_period : float [s], default 0.02
-    The current duty (duty 0 while configured but inactive) is re-sent this often (feeds the
-    firmware's 250 ms watchdog from connect on); must be
-    < command_timeout / 2 (the watchdog trips at command_timeout − 2·keepalive_period and is
-    checked every keepalive_period).
-rate_divider : int, default 1
-    Firmware sends a sample every ``rate_divider`` PWM periods (1 = 490 Hz).
-diagnostics_period : float [s], default 1.0
-backoff_initial, backoff_max : float [s], default 0.05, 2.0
-    Reconnection delays after the port vanished (doubling).
-frame_id : str, default ``aeropend``
-handshake_timeout : float [s], default 3.0
-    ``configure`` fails unless the port opens and the protocol-1 firmware is recognised within
-    this time (opening the port resets a Mega: its boot loader runs first).
+Parameters: :data:`PARAMETERS` (also printed by ``bridge --help``).
 
 Every parameter but ``autostart`` may be set while the node is *unconfigured* and applies at the
 next ``configure``; while configured ``ros2 param set`` is refused with that reason.
@@ -64,7 +38,7 @@ from collections.abc import Callable
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import SetParametersResult
 from rclpy.clock import Clock, ClockType
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.parameter import Parameter
@@ -88,6 +62,7 @@ from aeropend_bridge.serial_link import SerialLink
 from aeropend_sim.contract import REL_ARMATURE, REL_DUTY_CYCLE, REL_JOINT_STATES
 from aeropend_sim.params import RigFileError, load_rig
 from aeropend_sim.ros.node_shell import declare_parameter_table, run_node
+from aeropend_sim.ros.node_usage import NodeParameter, NodeUsage, TopicUse, contract_topic
 from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_QOS, sample_to_msgs
 
 NODE_NAME = "aeropend_bridge"
@@ -96,24 +71,65 @@ LOG_THROTTLE_S = 1.0
 #: Nominal firmware sample rate [Hz]: 16 MHz / 64 / 510.
 NOMINAL_RATE_HZ = 16e6 / 64 / 510
 
-PARAMETERS: tuple[tuple[str, Any, str], ...] = (
-    ("port", "/dev/ttyACM0", "serial device"),
-    ("baud", BAUD, "line rate [bit/s]"),
-    ("rig", "thesis_rig", "rig name or YAML path (ADC LSBs, gear ratio)"),
-    ("theta_offset", 0.0, "angle read with the rod hanging down [rad]"),
-    ("command_timeout", 0.1, "duty 0 at most this long after the last valid command [s]"),
-    ("keepalive_period", 0.02, "re-send period of the current duty [s]"),
-    ("rate_divider", 1, "firmware sample divider (1 = every PWM period)"),
-    ("diagnostics_period", 1.0, "period of /diagnostics [s]"),
-    ("backoff_initial", 0.05, "first reconnection delay [s]"),
-    ("backoff_max", 2.0, "largest reconnection delay [s]"),
-    ("frame_id", "aeropend", "header.frame_id of the sample messages"),
-    ("handshake_timeout", 3.0, "configure: time to open the port and recognise the firmware [s]"),
+#: The node parameters (declared from this table, printed by ``--help``). Every one but
+#: ``autostart`` may be set while the node is *unconfigured* and applies at the next ``configure``
+#: (``live``; while configured, ``ros2 param set`` is refused with that reason).
+PARAMETERS: tuple[NodeParameter, ...] = (
+    NodeParameter("autostart", "bool", True, "",
+                  "configure and activate at start-up (plain command, no lifecycle manager); false leaves "
+                  "the node unconfigured for `ros2 lifecycle set` or a lifecycle manager"),
+    NodeParameter("port", "str", "/dev/ttyACM0", "",
+                  "serial device (a /dev/serial/by-id/... link survives re-enumeration)", live=True),
+    NodeParameter("baud", "int", BAUD, "bit/s", "line rate", live=True),
+    NodeParameter("rig", "str", "thesis_rig", "",
+                  "rig name or YAML path: ADC LSBs from its sensors, motor.gear_ratio", live=True),
+    NodeParameter("theta_offset", "float", 0.0, "rad", "angle read with the rod hanging down (theta = 0 "
+                  "there)", live=True),
+    NodeParameter("command_timeout", "float", 0.1, "s",
+                  "duty 0 is on the wire at most this long after the last valid command", live=True),
+    NodeParameter("keepalive_period", "float", 0.02, "s",
+                  "re-send period of the current duty (duty 0 while configured but inactive; feeds the "
+                  "firmware's 250 ms watchdog); must be < command_timeout / 2", live=True),
+    NodeParameter("rate_divider", "int", 1, "",
+                  "the firmware sends a sample every rate_divider PWM periods (1 = 490 Hz)", live=True),
+    NodeParameter("diagnostics_period", "float", 1.0, "s", "period of /diagnostics", live=True),
+    NodeParameter("backoff_initial", "float", 0.05, "s",
+                  "first reconnection delay after the port vanished (doubling)", live=True),
+    NodeParameter("backoff_max", "float", 2.0, "s", "largest reconnection delay", live=True),
+    NodeParameter("frame_id", "str", "aeropend", "", "header.frame_id of the sample messages", live=True),
+    NodeParameter("handshake_timeout", "float", 3.0, "s",
+                  "configure fails unless the port opens and the protocol-1 firmware is recognised within "
+                  "this time (opening the port resets a Mega: its boot loader runs first)", live=True),
 )
 
-
 #: Parameters read by ``configure`` (settable while unconfigured).
-CONFIGURE_PARAMETERS = frozenset(name for name, _, _ in PARAMETERS)
+CONFIGURE_PARAMETERS = frozenset(p.name for p in PARAMETERS if p.live)
+
+#: ``bridge --help``.
+USAGE = NodeUsage(
+    command="bridge",
+    node_name=NODE_NAME,
+    summary="Hardware bridge: talks to the acquisition firmware over a serial port and makes the real rig "
+            "look exactly like the simulated plant (same topics, types, units, stamps). A managed "
+            "(lifecycle) node: configure opens the port and recognises the firmware, activate enables "
+            "the duty output; with autostart (default) it does both at start-up.",
+    topics=(contract_topic("publishes", REL_JOINT_STATES, "theta, omega_1, omega_2, applied duty; MCU "
+                           "clock mapped to ROS time"),
+            contract_topic("publishes", REL_ARMATURE, "v_a [V], i_a [A], same stamp"),
+            TopicUse("publishes", TOPIC_DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray",
+                     "serial link: rate, lost frames, CRC errors, watchdog trips"),
+            contract_topic("subscribes", REL_DUTY_CYCLE, "duty cycle in [0, 1]; NaN / out of range "
+                           "rejected")),
+    parameters=PARAMETERS,
+    examples=("bridge --ros-args -p port:=/dev/ttyACM0 -p rig:=thesis_rig -p theta_offset:=3.1416",
+              "bridge --ros-args -p port:=/dev/ttyACM0 -p autostart:=false   # then:",
+              "ros2 lifecycle set /aeropend_bridge configure",
+              "ros2 lifecycle set /aeropend_bridge activate"),
+    notes="Parameters marked live may be set while the node is unconfigured and apply at the next "
+          "configure. Exit status: 0 on SIGINT/SIGTERM, 2 on an invalid parameter, 1 when no "
+          "protocol-1 firmware answers on the port. The motor is switched off on deactivate and on "
+          "shutdown before anything else.",
+)
 
 
 def _positive(name: str, value: Any) -> float:
@@ -146,11 +162,7 @@ class BridgeNode(LifecycleNode):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        declare_parameter_table(self, PARAMETERS, live=[name for name, _, _ in PARAMETERS])
-        self.autostart = bool(self.declare_parameter(
-            "autostart", True, ParameterDescriptor(
-                description="configure and activate at start-up (plain command, no lifecycle manager)",
-                read_only=True)).value)
+        self.autostart = bool(declare_parameter_table(self, PARAMETERS)["autostart"])
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self._lock = threading.Lock()
         self._send_lock = threading.Lock()  # duty sends from the executor and the link thread
@@ -210,7 +222,7 @@ class BridgeNode(LifecycleNode):
         return self._transition("configure", self._do_configure)
 
     def _do_configure(self) -> None:
-        p = {name: self.get_parameter(name).value for name, _, _ in PARAMETERS}
+        p = {name: self.get_parameter(name).value for name in CONFIGURE_PARAMETERS}
         self._configure(p)
         self._pub_js = self.create_lifecycle_publisher(JointState, REL_JOINT_STATES, SAMPLE_QOS)
         self._pub_arm = self.create_lifecycle_publisher(BatteryState, REL_ARMATURE, SAMPLE_QOS)
@@ -544,7 +556,7 @@ def main(args: list[str] | None = None) -> int:
         return node
 
     return run_node(NODE_NAME, args, make, (BridgeConfigError,), BridgeNode.finish, period=0.05,
-                    start_errors=(FirmwareError,))
+                    start_errors=(FirmwareError,), usage=USAGE)
 
 
 if __name__ == "__main__":

@@ -260,9 +260,17 @@ class FakeMcu:
 
 def main(argv: list[str] | None = None) -> int:
     """Console script ``fake_mcu``: serve fake firmware frames on a pty link until Ctrl-C."""
-    ap = argparse.ArgumentParser(description="fake aeropend firmware on a pty")
-    ap.add_argument("--link", default="/tmp/aeropend_tty", help="symlink to create for the pty slave")
-    ap.add_argument("--corrupt", type=float, default=0.0, help="byte corruption probability")
+    ap = argparse.ArgumentParser(
+        prog="fake_mcu",
+        description="Fake aeropend firmware (protocol 1) on a pseudo-terminal, for running the bridge "
+                    "without hardware: sample frames at the firmware's rate, duty / ENABLE commands and the "
+                    "250 ms command watchdog applied like the firmware. Runs until Ctrl-C; no ROS.",
+        epilog="Example: fake_mcu --link /tmp/aeropend_tty   then   "
+               "bridge --ros-args -p port:=/tmp/aeropend_tty")
+    ap.add_argument("--link", default="/tmp/aeropend_tty",
+                    help="symlink to create for the pty slave (default /tmp/aeropend_tty)")
+    ap.add_argument("--corrupt", type=float, default=0.0,
+                    help="probability that a byte of a sample frame is corrupted (default 0)")
     a = ap.parse_args(argv)
     mcu = FakeMcu(a.link, corrupt_p=a.corrupt).start()
     print(f"fake MCU on {a.link} -> {os.path.realpath(a.link)}", flush=True)

@@ -9,58 +9,7 @@ Usage::
     controller --ros-args -p strategy:=fl_pid -p "steps:=[0.0, 0.4, 3.0, 0.2]"
     controller --ros-args -p mode:=lockstep -p duration:=3.0 -p trace:=/tmp/run.csv
 
-Parameters
-----------
-rig : str, default ``thesis_rig``
-    Rig whose model the design and the allocation use.
-strategy : str, default ``fl_pid``
-    ``fl_pid`` | ``small_signal`` (gain-scheduled) | ``small_signal_fixed`` (needs ``theta_op``)
-    | ``cascade`` | ``fl_cascade`` (these also use ω₁ from ``joint_states`` and i_a from
-    ``/aeropend/armature``, paired by stamp).
-mode : str, default ``realtime``
-    ``realtime``: samples with ``SAMPLE_SUB_QOS`` (best effort, keep last 100); ``lockstep``: reliable samples
-    (``SAMPLE_QOS_LOCKSTEP``), exactly one command per new sample stamp; a re-published sample
-    (same stamp) is answered again with the same command only if a duty subscriber matched after
-    the first answer (one that may have missed it): the plant advances once per command.
-steps : list of float
-    Reference step sequence [t0, θ0, t1, θ1, ...] (t in s from the first sample, θ in rad).
-reference : float, default 0
-    Reference before the first step [rad]. Messages on ``/aeropend/reference``
-    (std_msgs/Float64, rad) override the sequence from their arrival on (latest event wins).
-allocator : str, default ``model``
-    ``model`` | ``thesis`` (see :mod:`aeropend_control.allocation`).
-omega_n, zeta, rho : float
-    Closed-loop pole pattern (:class:`aeropend_control.design.PoleSpec`); unset = the strategy's
-    default (:data:`aeropend_control.drive_design.DEFAULT_SPECS`: ω_n 9.5 rad/s for FL and
-    small-signal, 9 rad/s for the cascades, ζ 0.7, ρ 1; on a rig file that declares a drive lag or
-    delay, ω_n and ζ from :func:`aeropend_control.drive_design.robust_spec`).
-estimator : str, default ``observer``
-    θ̇ estimate: ``observer`` (stationary Kalman filter with the model thrust as known input,
-    :mod:`aeropend_control.observer`) | ``difference`` (filtered difference, time constant ``tf``).
-tf : float [s], default 0.01
-    θ̇ / derivative filter time constant of the ``difference`` estimator.
-theta_op : float [rad]
-    Operating point of ``small_signal_fixed``.
-duration : float [s], default 0
-    Stop (duty 0, exit 0) after this much sample time; 0 = run until SIGINT/SIGTERM.
-trace : str
-    Write a CSV of the internal signals to this path on exit.
-rt_priority : int, default 0
-    Run the executor thread (sample receipt → command) with SCHED_FIFO at this priority (1-99;
-    needs CAP_SYS_NICE or an ``rtprio`` limit, else a warning) and switch Python's cyclic
-    garbage collector off after start-up (``gc.freeze``; its pauses reach milliseconds; the
-    per-sample path creates no reference cycles) and lock the process memory (``mlockall``, no
-    page faults after memory reclaim); 0 = normal scheduling.
-executor : str, default ``events``
-    ``events`` (rclpy's C++ ``EventsExecutor``: callbacks dispatched from events, lower latency)
-    | ``single`` (``SingleThreadedExecutor``).
-min_subscribers : int, default 1
-    Send the first command only once this many subscriptions are matched on
-    ``/aeropend/duty_cycle`` (the plant, plus a recorder: 2), so a recorder started alongside
-    records every command. DDS matches each writer–reader pair on its own: with 1, a lock-step
-    loop could run to its end before the recorder's command reader was matched (0 of 979
-    commands recorded in one run of ``test_record_play_roundtrip_ros``). The lock-step plant
-    re-publishes its idle sample every 0.5 s, so the loop starts at the next one after the match.
+Parameters: :data:`PARAMETERS` (also printed by ``controller --help``).
 
 Live parameters (``ros2 param set /aeropend_controller omega_n 6.0``): ``omega_n``, ``zeta``,
 ``rho`` (a new design, taken over bumpless), ``reference`` and ``steps``; a value the design
@@ -121,6 +70,7 @@ from aeropend_sim.ros.node_shell import (
     run_node,
     wait_acknowledged,
 )
+from aeropend_sim.ros.node_usage import NodeParameter, NodeUsage, TopicUse, contract_topic
 from aeropend_sim.ros.ros_contract import (
     COMMAND_QOS,
     COMMAND_QOS_LOCKSTEP,
@@ -143,29 +93,77 @@ PAIR_BUFFER = 20
 #: delivered late by the reliable history).
 MATCH_GRACE_NS = 250_000_000
 
-PARAMETERS: tuple[tuple[str, Any, str], ...] = (
-    ("rig", "thesis_rig", "rig name or YAML path"),
-    ("strategy", "fl_pid", "fl_pid | small_signal | small_signal_fixed | cascade | fl_cascade"),
-    ("mode", "realtime", "realtime | lockstep"),
-    ("steps", None, "reference steps [t0, theta0, t1, theta1, ...] (s, rad)"),
-    ("reference", 0.0, "reference before the first step [rad]"),
-    ("allocator", "model", "model | thesis"),
-    ("omega_n", None, "closed-loop natural frequency [rad/s] (default: per strategy and rig file)"),
-    ("zeta", None, "closed-loop damping ratio (default: per strategy and rig file)"),
-    ("rho", None, "real closed-loop pole / omega_n (default 1)"),
-    ("tf", 0.01, "theta_dot / derivative filter time constant [s]"),
-    ("theta_op", None, "operating point of small_signal_fixed [rad]"),
-    ("duration", 0.0, "stop after this much sample time [s] (0 = never)"),
-    ("trace", "", "CSV path for the internal signals (written on exit)"),
-    ("estimator", "observer", "theta_dot estimate: observer | difference"),
-    ("rt_priority", 0, "SCHED_FIFO priority 1-99 of the executor thread (0 = normal scheduling)"),
-    ("executor", "events", "events (EventsExecutor) | single (SingleThreadedExecutor)"),
-    ("min_subscribers", 1, "duty_cycle subscriptions (plant, recorder) matched before the first command"),
-)
-#: Parameters that may be set while the controller runs (``ros2 param set``): the pole pattern
-#: (a new design taken over bumpless) and the reference (initial value and step sequence). The
+#: The node parameters (declared from this table, printed by ``--help``), validated by
+#: :func:`aeropend_control.controller_core.make_settings`. Live (``ros2 param set``): the pole pattern
+#: (a new design taken over bumpless) and the reference (initial value and step sequence); the
 #: others fix the rig, the structure or the process set-up of a run and are read-only.
-LIVE_PARAMETERS = ("omega_n", "zeta", "rho", "reference", "steps")
+PARAMETERS: tuple[NodeParameter, ...] = (
+    NodeParameter("rig", "str", "thesis_rig", "", "rig name or YAML path whose model the design and the "
+                  "allocation use"),
+    NodeParameter("strategy", "str", "fl_pid", "",
+                  "fl_pid | small_signal (gain-scheduled) | small_signal_fixed (needs theta_op) | cascade | "
+                  "fl_cascade (the cascades also use omega_1 from joint_states and i_a from armature, "
+                  "paired by stamp)"),
+    NodeParameter("mode", "str", "realtime", "",
+                  "realtime: best-effort samples (keep last 100); lockstep: reliable samples, exactly one "
+                  "command per new sample stamp (a re-published sample is answered again only if a duty "
+                  "subscriber matched after the first answer)"),
+    NodeParameter("steps", "float[]", None, "",
+                  "reference step sequence [t0, theta0, t1, theta1, ...] (t in s from the first sample, "
+                  "theta in rad)", live=True),
+    NodeParameter("reference", "float", 0.0, "rad",
+                  "reference before the first step; messages on aeropend/reference override the sequence "
+                  "from their arrival on", live=True),
+    NodeParameter("allocator", "str", "model", "", "model | thesis (aeropend_control.allocation)"),
+    NodeParameter("omega_n", "float", None, "rad/s",
+                  "closed-loop natural frequency (unset: the strategy's default, 9.5 for FL and "
+                  "small-signal, 9 for the cascades; on a rig file that declares a drive lag or delay, "
+                  "the robust design)",
+                  live=True),
+    NodeParameter("zeta", "float", None, "", "closed-loop damping ratio (unset: per strategy and rig file, "
+                  "0.7 nominal)", live=True),
+    NodeParameter("rho", "float", None, "", "real closed-loop pole / omega_n (unset: 1)", live=True),
+    NodeParameter("tf", "float", 0.01, "s", "theta_dot / derivative filter time constant of the difference "
+                  "estimator"),
+    NodeParameter("theta_op", "float", None, "rad", "operating point of small_signal_fixed"),
+    NodeParameter("duration", "float", 0.0, "s",
+                  "stop (duty 0, exit 0) after this much sample time; 0 = run until SIGINT/SIGTERM"),
+    NodeParameter("trace", "str", "", "",
+                  "CSV path for the internal signals, written on exit (empty = none)"),
+    NodeParameter("estimator", "str", "observer", "",
+                  "theta_dot estimate: observer (stationary Kalman filter with the model thrust as known "
+                  "input) | difference (filtered difference, time constant tf)"),
+    NodeParameter("rt_priority", "int", 0, "",
+                  "SCHED_FIFO priority 1-99 of the executor thread (needs CAP_SYS_NICE or an rtprio limit, "
+                  "else a warning); also switches the cyclic garbage collector off after start-up and locks "
+                  "memory; 0 = normal scheduling"),
+    NodeParameter("executor", "str", "events", "",
+                  "events (rclpy's C++ EventsExecutor, lower latency) | single (SingleThreadedExecutor)"),
+    NodeParameter("min_subscribers", "int", 1, "",
+                  "send the first command only once this many subscriptions are matched on duty_cycle (the "
+                  "plant, plus a recorder: 2), so a recorder started alongside records every command"),
+)
+
+#: ``controller --help``.
+USAGE = NodeUsage(
+    command="controller",
+    node_name=NODE_NAME,
+    summary="Position controller of the aeropendulum: one duty-cycle command per new sample of the plant "
+            "(simulated or the hardware bridge), so it runs at the plant's sample rate and, in lock-step, "
+            "drives the simulated plant. On shutdown it publishes duty 0.",
+    topics=(contract_topic("subscribes", REL_JOINT_STATES, "theta (omega_1 for the cascades)"),
+            contract_topic("subscribes", REL_ARMATURE, "i_a, cascades only"),
+            TopicUse("subscribes", REL_REFERENCE, "std_msgs/msg/Float64", "reference [rad], latest wins"),
+            contract_topic("publishes", REL_DUTY_CYCLE, "one command per sample"),
+            TopicUse("publishes", REL_SIGNALS, "std_msgs/msg/Float64MultiArray",
+                     "internal signals, one per sample: " + ", ".join(SIGNALS))),
+    parameters=PARAMETERS,
+    examples=('controller --ros-args -p strategy:=fl_pid -p "steps:=[0.0, 0.4, 3.0, 0.2]"',
+              "controller --ros-args -p mode:=lockstep -p duration:=3.0 -p trace:=/tmp/run.csv",
+              "ros2 param set /aeropend_controller omega_n 6.0      # a live parameter"),
+    notes="Exit status: 0 on SIGINT/SIGTERM or after duration, 2 on an invalid parameter (the message "
+          "names the value).",
+)
 
 
 class ControllerNode(Node):
@@ -174,7 +172,7 @@ class ControllerNode(Node):
     def __init__(self, **node_options: Any) -> None:
         """``node_options`` go to :class:`rclpy.node.Node` (e.g. ``context``, ``parameter_overrides``)."""
         super().__init__(NODE_NAME, **node_options)
-        raw = declare_parameter_table(self, PARAMETERS, live=LIVE_PARAMETERS)
+        raw = declare_parameter_table(self, PARAMETERS)
         try:
             self.rt_priority = _rt_priority(raw.pop("rt_priority"))
             self.executor_kind = executor_kind(raw.pop("executor"), ControllerConfigError)
@@ -218,7 +216,7 @@ class ControllerNode(Node):
         )
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        """Validate and apply live parameters (:data:`LIVE_PARAMETERS`) between two samples (the
+        """Validate and apply live parameters (``live`` in :data:`PARAMETERS`) between two samples (the
         executor runs this and the sample callbacks in one thread); a bad value is refused with the
         reason and the loop keeps its settings. Read-only ones never get here (rclpy refuses them)."""
         changes = {p.name: p.value for p in params}
@@ -437,7 +435,7 @@ def main(args: list[str] | None = None) -> int:
 
     return run_node(NODE_NAME, args, make, (ControllerConfigError,), ControllerNode.shutdown,
                     done=lambda node: node.finished.is_set(),
-                    make_executor=lambda node: make_executor(node.executor_kind))
+                    make_executor=lambda node: make_executor(node.executor_kind), usage=USAGE)
 
 if __name__ == "__main__":
     sys.exit(main())

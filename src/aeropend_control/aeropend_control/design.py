@@ -32,14 +32,19 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 
 from aeropend_control.metrics import StepMetrics, step_metrics
 from aeropend_control.pid import PIDGains
 from aeropend_sim.model import OMEGA, TAU_F, THETA, THETA_DOT, PlantModel
 from aeropend_sim.params import Rig
+
+# python-control is imported inside the functions that use it: importing it costs ~2 s
+# (scipy.signal, matplotlib.pyplot), which `controller --help` and every importer would pay.
+if TYPE_CHECKING:
+    import control
 
 
 class DesignError(ValueError):
@@ -125,6 +130,7 @@ def place_ipd(a0: float, a1: float, g: float, spec: PoleSpec) -> tuple[float, fl
     ki = −K₀, kp = K₁, kd = K₂. Analytically: kd = (Σp − a1)/g, kp = (Σpᵢpⱼ − a0)/g, ki = Πp/g
     (with p = −poles).
     """
+    import control
     if not (math.isfinite(g) and g != 0.0):
         raise DesignError(f"input gain g = {g!r} must be finite and non-zero")
     A = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [0.0, -a0, -a1]])
@@ -137,11 +143,13 @@ def _closed_loop_2nd(
     a0: float, a1: float, g: float, kp: float, ki: float, kd: float
 ) -> control.TransferFunction:
     """r → θ of the I-PD loop on the 2nd-order plant: g·ki/(s³ + (a1 + g·kd)s² + (a0 + g·kp)s + g·ki)."""
+    import control
     return control.tf([g * ki], [1.0, a1 + g * kd, a0 + g * kp, g * ki])
 
 
 def predict_step(sys: control.LTI, horizon: float = 5.0, dt: float = 1e-3) -> StepMetrics:
     """Unit-step metrics (:func:`aeropend_control.metrics.step_metrics`) of a linear loop r → θ."""
+    import control
     t = np.arange(0.0, horizon + dt / 2, dt)
     _, y = control.step_response(sys, t)
     return step_metrics(t, np.asarray(y).ravel(), 1.0)
@@ -208,6 +216,7 @@ def design_small_signal(rig: Rig, theta_op: float, spec: PoleSpec | None = None)
     DesignError
         If θ₀ is not a reachable equilibrium.
     """
+    import control
     spec = spec or PoleSpec()
     m, _, tau_eq, A, B = linearise(rig, theta_op)
     a0, a1 = -A[THETA_DOT, THETA], -A[THETA_DOT, THETA_DOT]
@@ -372,6 +381,7 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
     DesignError
         On non-positive bandwidths or a current limit ≤ 0.
     """
+    import control
     for name, val in (("omega_speed", omega_speed), ("omega_current", omega_current), ("i_max", i_max)):
         if not (math.isfinite(val) and val > 0.0):
             raise DesignError(f"cascade {name} = {val!r} must be finite and > 0")

@@ -50,8 +50,8 @@ import itertools
 import math
 import sys
 from dataclasses import asdict, dataclass
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 import yaml
 
@@ -74,7 +74,13 @@ from aeropend_control.design import (
 )
 from aeropend_control.metrics import GOAL, TABLE_6_1
 from aeropend_sim.model import I_A, OMEGA, TAU_F, PlantModel
+from aeropend_sim.output_folder import check_output_file
 from aeropend_sim.params import Rig, load_rig
+
+# python-control is imported inside the functions that use it: importing it costs ~2 s
+# (scipy.signal, matplotlib.pyplot), which `controller --help` and every importer would pay.
+if TYPE_CHECKING:
+    import control
 
 #: Drive kinds of :class:`DriveSpec`.
 DRIVES = ("duty", "cascade")
@@ -137,6 +143,7 @@ def drive_model(rig: Rig, theta0: float, drive: DriveSpec) -> control.StateSpace
         If θ₀ is not a reachable equilibrium, or for a cascade drive on a rig whose armature current
         is quasi-static (the current PI then has no state to act on in this model).
     """
+    import control
     m, x_eq, tau_eq, A5, B5 = linearise(rig, theta0)
     motor = [i for i in (I_A, OMEGA, TAU_F) if (i != TAU_F or m.lag) and (i != I_A or m.dynamic_current)]
     Am, bm = A5[np.ix_(motor, motor)], B5[motor, 0]  # bm: the duty reaching the drive
@@ -224,6 +231,7 @@ def closed_loop(a0: float, a1: float, g: float, drive: control.StateSpace, gains
     control.StateSpace
         States [θ, θ̇, drive states, z].
     """
+    import control
     kp, ki, kd = gains
     Ad, Bd, Cd = (np.asarray(x, dtype=float) for x in (drive.A, drive.B, drive.C))
     nd = Ad.shape[0]
@@ -308,6 +316,7 @@ def _on_drive(base: LoopDesign, a0: float, a1: float, g: float, drive: control.S
     """``base`` with gains placed on ``drive`` (or on its reduced model, :data:`CANCEL_TOL`), kept
     only when the full linear loop is stable and its predicted step neither settles later nor
     overshoots more than the static gains' on the same loop; else ``base``."""
+    import control
     static = predict_step(closed_loop(a0, a1, g, drive, (base.kp, base.ki, base.kd), linearising))
     for model in (drive, None):
         try:
@@ -622,7 +631,8 @@ def main(argv: list[str] | None = None) -> int:
 
     Pole parameters not given take the strategy's default for that rig file (:func:`default_spec`,
     the robust ζ on a rig file that declares its drive), so the gains are those the controller
-    node runs with. Writes a YAML gains file with ``-o``. Exit status 2 on a bad argument.
+    node runs with. Writes a YAML gains file with ``-o`` (an existing file only with ``--overwrite``,
+    checked before the design). Exit status 2 on a bad argument.
     """
     ap = argparse.ArgumentParser(prog="design_gains",
                                  description="position-loop gains of a rig file, predicted step metrics")
@@ -632,10 +642,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--zeta", type=float, default=None, help=f"damping ratio of the pole pair ({unset})")
     ap.add_argument("--rho", type=float, default=None, help=f"real pole / ω_n ({unset})")
     ap.add_argument("-o", "--output", help="write the gains to this YAML file")
+    ap.add_argument("--overwrite", action="store_true", help="replace an existing --output file")
     args = ap.parse_args(argv)
     given = {k: v for k, v in (("omega_n", args.omega_n), ("zeta", args.zeta), ("rho", args.rho))
              if v is not None}
     try:
+        if args.output:
+            check_output_file(args.output, args.overwrite)
         rig = load_rig(args.rig)
         specs = {name: dataclasses.replace(default_spec(name, rig), **given)
                  for name in ("fl_pid", "small_signal")}
@@ -649,7 +662,7 @@ def main(argv: list[str] | None = None) -> int:
         sched = (schedule(rig, grid, spec) if drive is None
                  else [design_small_signal_on_drive(rig, t, spec, drive) for t in grid])
     except (ValueError, OSError) as exc:
-        print(f"design_gains: {exc}", file=sys.stderr)
+        print(f"design_gains: error: {exc}", file=sys.stderr)
         return 2
     print(f"rig {rig.name}: reach {reach:.4g} rad "
           f"(set points held with {REACH_DUTY_MARGIN:.0%} duty headroom; the schedule stops there)")

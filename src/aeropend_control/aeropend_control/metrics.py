@@ -12,8 +12,10 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
-import control
 import numpy as np
+
+# python-control is imported inside the functions that use it: importing it costs ~2 s
+# (scipy.signal, matplotlib.pyplot), which `controller --help` and every importer would pay.
 
 
 class MetricsError(ValueError):
@@ -104,6 +106,7 @@ def step_metrics(
     MetricsError
         If the arrays mismatch, ``t_step`` is outside the record or the step is zero.
     """
+    import control
     t = np.asarray(t, dtype=float)
     y = np.asarray(y, dtype=float)
     if t.ndim != 1 or t.shape != y.shape or t.size < 3:

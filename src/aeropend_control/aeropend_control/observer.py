@@ -33,9 +33,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import control
 import numpy as np
 
+# python-control is imported inside the functions that use it: importing it costs ~2 s
+# (scipy.signal, matplotlib.pyplot), which `controller --help` and every importer would pay.
 from aeropend_sim.model import PlantModel
 
 
@@ -89,6 +90,7 @@ def kalman_gain(a_c: float, dt: float, spec: ObserverSpec) -> tuple[np.ndarray, 
         Correction gain: x̂ₖ = x̂ₖ⁻ + M·(θₖ − θ̂ₖ⁻), M = P·Cᵀ/(C·P·Cᵀ + R) with P the a-priori
         covariance solving the discrete Riccati equation (``control.dlqe``).
     """
+    import control
     spec.validate()
     A = np.array([[0.0, 1.0, 0.0], [0.0, -a_c, 1.0], [0.0, 0.0, 0.0]])
     B = np.array([[0.0], [1.0], [0.0]])

@@ -33,9 +33,15 @@ from pathlib import Path
 from typing import Any
 
 from aeropend_ident.errors import BagError, PipelineError
+from aeropend_ident.io.bag_writer import claim_bag_folder
 from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, namespaced
+from aeropend_sim.output_folder import OutputFolderError
 from aeropend_sim.ros.domain import claim_domain
+
+#: What the main job writes into its report folder: the bag, the node logs, the grey-box baseline
+#: report and the summary (``pipeline --overwrite`` replaces only a folder that holds one of them).
+OUTPUTS = {"bag": "run_bag", "logs": "logs", "baseline": "baseline", "summary": "summary.json"}
 
 #: Default excitation: thesis §5.1 Latin-hypercube steps (10 steps, τ ∈ [0.3, 0.8], 1-3 s each).
 DEFAULT_SIGNAL = ["signal:=lhs", "n:=10", "tau_min:=0.3", "tau_max:=0.8", "hold_min:=1.0",
@@ -100,9 +106,11 @@ def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: li
         If a node fails or the excitation does not finish within ``timeout`` seconds; the
         message names the node and its log file.
     """
-    bag = out / "run_bag"
-    if bag.exists():
-        shutil.rmtree(bag)
+    bag = out / OUTPUTS["bag"]
+    try:  # never a silent replacement: the caller clears an earlier run (pipeline --overwrite)
+        claim_bag_folder(bag, False, option="--out", flag="--overwrite").prepare(create=False)
+    except OutputFolderError as exc:
+        raise PipelineError(str(exc)) from exc
     env = dict(os.environ)
     # a private domain unless the user chose one: claimed, so concurrent aeropend runs never share it
     claim = None if "ROS_DOMAIN_ID" in env else claim_domain(100, 200)
@@ -111,7 +119,7 @@ def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: li
     # the demo's DDS traffic stays on this host unless the user chose otherwise (Jazzy variable)
     env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
-    logs = out / "logs"
+    logs = out / OUTPUTS["logs"]
     remap = ["-r", f"__ns:=/{namespace.strip('/')}"] if namespace.strip("/") else []
     ros = ["--ros-args", *remap, "-p"]
     # lock-step samples are published reliably; the plant's simulated time (/clock, which the header
@@ -203,7 +211,7 @@ def analyse(bag: Path, out: Path, nominal_rig: str, train_fraction: float,
     from aeropend_ident.greybox.baseline import run_baseline
 
     rec = read_bag(bag, namespace=_ns(namespace))
-    report = run_baseline(rec, nominal_rig, out / "baseline", train_fraction=train_fraction)
+    report = run_baseline(rec, nominal_rig, out / OUTPUTS["baseline"], train_fraction=train_fraction)
     report["recording"] = {"samples": len(rec), "duration_s": float(rec.t[-1]),
                            "first_theta_rad": float(rec.channels["theta"][0]),
                            "gaps": rec.meta.get("gaps", 0)}

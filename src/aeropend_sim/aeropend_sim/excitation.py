@@ -39,8 +39,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.signal import max_len_seq
-from scipy.stats import qmc
 
 from aeropend_sim.contract import SAMPLE_PERIOD_S
 
@@ -308,6 +306,8 @@ def prbs(
     if not state.any():
         state[rng.integers(0, order)] = 1
     period = 2**order - 1
+    from scipy.signal import max_len_seq  # here: scipy.signal and .stats cost ~1 s to import
+
     bits, _ = max_len_seq(order, state=state, length=period * periods)
     levels = np.where(bits.astype(bool), hi, lo)
     lv, counts = _merge_equal(levels, np.full(levels.size, clock, dtype=np.int64))
@@ -503,6 +503,8 @@ def lhs_steps(
         raise ExcitationError(f"hold_min = {hold_min:g} s must be < hold_max = {hold_max:g} s")
     params = {"n": n, "tau_min": tau_min, "tau_max": tau_max, "hold_min": hold_min, "hold_max": hold_max,
               "seed": seed, "dt": dt}
+    from scipy.stats import qmc  # here: scipy.signal and .stats cost ~1 s to import
+
     unit = qmc.LatinHypercube(d=2, rng=seed).random(n)
     design = qmc.scale(unit, [tau_min, hold_min], [tau_max, hold_max])
     return _segments_to_signal(design[:, 0], design[:, 1], dt, "lhs", params, design=design)

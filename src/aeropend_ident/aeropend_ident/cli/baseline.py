@@ -10,6 +10,8 @@ Usage::
 :func:`aeropend_ident.io.recording_input.load_recording`. ``RIG`` is a shipped rig name or a rig-file
 path. The report folder gets
 ``report.json``, ``overlay.png`` and ``fitted_rig.yaml`` (see :mod:`aeropend_ident.greybox.baseline`).
+A non-empty report folder is refused at once unless ``--overwrite`` is given; then the earlier
+report is replaced when the new one is written (:mod:`aeropend_sim.output_folder`).
 
 Exit status: 0 on success, 2 on bad input (the message names the problem).
 """
@@ -22,8 +24,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from aeropend_ident.errors import IdentificationError, print_warnings_as_lines
-from aeropend_ident.greybox.baseline import INIT_HORIZON, baseline, write_report
-from aeropend_ident.io.recording_input import load_recording
+from aeropend_ident.greybox.baseline import INIT_HORIZON, REPORT_FILES, baseline, write_report
+from aeropend_ident.io.recording_input import load_recording, split_preset
+from aeropend_sim.output_folder import claim_output_folder
 from aeropend_sim.params import RigFileError
 from aeropend_sim.recording import RecordingError
 
@@ -38,6 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("input", help="bag directory (.mcap/.db3) or CSV log, optionally FILE.csv:PRESET")
     p.add_argument("--rig", required=True, help="shipped rig name (e.g. jahoyosr_rig) or rig-file path")
     p.add_argument("-o", "--out", required=True, type=Path, help="report folder (created)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the earlier baseline report in OUTDIR (only a folder that holds one)")
     p.add_argument("--preset", default=None,
                    help="CSV preset of aeropend_ident.io.csv_import when INPUT has no :PRESET "
                         "('auto' = by file name)")
@@ -59,12 +64,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     print_warnings_as_lines("baseline")
     try:
+        out = claim_output_folder(args.out, args.overwrite, own=REPORT_FILES.values(),
+                                  looks_like="a baseline report", inputs=[split_preset(args.input)[0]])
         rec = load_recording(args.input, args.preset)
         result = baseline(
             rec, args.rig, train_fraction=args.train_fraction, params=args.params,
             theta_offset=args.theta_offset, init_horizon=args.init_horizon or None, decimate=args.decimate,
         )
-        paths = write_report(result, args.out)
+        paths = write_report(result, out.prepare())
     except (IdentificationError, RigFileError, RecordingError, ValueError) as exc:
         print(f"baseline: error: {exc}", file=sys.stderr)
         return 2

@@ -12,8 +12,10 @@ or a CSV log with its own preset, ``FILE.csv:PRESET`` (else ``--preset``, else b
 recordings of different formats mix in one call.
 
 The report folder gets ``compare.json`` (every score, per rig and recording) and
-``overlay_<recording>.png``; a table is printed (θ NRMSE, fit %, max error, steady-state error,
-whiteness per rig and recording).
+``overlay_<recording>.png`` (:data:`REPORT_FILES`); a table is printed (θ NRMSE, fit %, max error,
+steady-state error, whiteness per rig and recording). A non-empty report folder is refused at once
+unless ``--overwrite`` is given; then its earlier contents (an earlier run's overlays included) are
+removed when the new report is written (:mod:`aeropend_sim.output_folder`).
 
 Exit status: 0 on success (also when a rig's replay fails on some recording: that pair reports
 its error, the others are kept), 2 on bad input.
@@ -32,7 +34,8 @@ from pathlib import Path
 from aeropend_ident.errors import CompareError, print_warnings_as_lines
 from aeropend_ident.gap.compare import MIN_HOLD, CompareResult, compare, load_model
 from aeropend_ident.io.jsonutil import jsonable
-from aeropend_ident.io.recording_input import load_recording, uniform_recording
+from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
+from aeropend_sim.output_folder import claim_output_folder
 from aeropend_sim.recording import RecordingError
 
 
@@ -50,6 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--label", nargs="+", default=None, metavar="NAME",
                    help="one label per --rig (default: the rig name or file stem)")
     p.add_argument("-o", "--out", required=True, type=Path, help="report folder (created)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the earlier compare report in OUTDIR (only a folder that holds one)")
     p.add_argument("--preset", default=None,
                    help="CSV preset for logs without their own :PRESET ('auto' = by file name)")
     p.add_argument("--channels", nargs="+", default=None, metavar="CHANNEL",
@@ -87,10 +92,14 @@ def _file_label(label: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", label)
 
 
+#: What :func:`write_report` writes: the scores and one overlay per recording (``{}``: its label).
+REPORT_FILES = {"json": "compare.json", "overlay": "overlay_{}.png"}
+
+
 def write_report(result: CompareResult, out: Path, plots: bool = True) -> dict[str, Path]:
     """Write ``compare.json`` and (``plots``) ``overlay_<recording>.png`` into ``out`` (created)."""
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"json": out / "compare.json"}
+    paths = {"json": out / REPORT_FILES["json"]}
     paths["json"].write_text(json.dumps(jsonable(result.as_dict()), indent=1, allow_nan=False) + "\n",
                              encoding="utf-8")
     if plots:
@@ -98,8 +107,8 @@ def write_report(result: CompareResult, out: Path, plots: bool = True) -> dict[s
 
         for rec in result.recordings:
             if result.traces.get(rec["label"], {}).get("simulated"):
-                key = f"overlay_{_file_label(rec['label'])}"
-                paths[key] = plot_overlay(result, rec["label"], out / f"{key}.png")
+                name = REPORT_FILES["overlay"].format(_file_label(rec["label"]))
+                paths[Path(name).stem] = plot_overlay(result, rec["label"], out / name)
     return paths
 
 
@@ -108,6 +117,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     print_warnings_as_lines("compare")
     try:
+        out = claim_output_folder(args.out, args.overwrite, looks_like="a compare report",
+                                  own=[n.format("*") for n in REPORT_FILES.values()],
+                                  inputs=[split_preset(x)[0] for x in args.inputs])
         if args.label is not None and len(args.label) != len(args.rig):
             raise CompareError(
                 f"--label: {len(args.label)} label(s) for {len(args.rig)} rig(s); give one per rig")
@@ -117,7 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         models = [load_model(r, lab) for r, lab in zip(args.rig, labels, strict=True)]
         recs = [uniform_recording(load_recording(p, args.preset)) for p in args.inputs]
         result = compare(models, recs, args.channels, args.min_hold)
-        paths = write_report(result, args.out, plots=not args.no_plots)
+        paths = write_report(result, out.prepare(), plots=not args.no_plots)
     except (RecordingError, ValueError) as exc:
         print(f"compare: error: {exc}", file=sys.stderr)
         return 2

@@ -2,7 +2,9 @@
 
 Argument parsing and :func:`main` only: one CSV log is read with a preset and/or column options by
 :func:`aeropend_ident.io.csv_import.import_csv`, summarised, and written as a contract bag with
-:func:`aeropend_ident.io.csv_import.csv_to_bag` when ``-o`` is given.
+:func:`aeropend_ident.io.bag_writer.write_bag` when ``-o`` is given. A non-empty bag folder is
+refused before the CSV is read unless ``--overwrite`` is given (and then only one that holds a bag,
+:func:`aeropend_ident.io.bag_writer.claim_bag_folder`).
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.errors import CsvImportError, IdentWarning, print_warnings_as_lines
+from aeropend_ident.errors import BagError, CsvImportError, IdentWarning, print_warnings_as_lines
 from aeropend_ident.io.csv_import import (
     PRESETS,
     Column,
@@ -27,6 +29,7 @@ from aeropend_ident.io.csv_import import (
     import_csv,
     summary,
 )
+from aeropend_sim.output_folder import OutputFolderError
 
 
 def _start_time(text: str) -> str:
@@ -88,7 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", help="named CsvSpec (options below override its fields)")
     p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     p.add_argument("--rig-name", help="rig name stored in the bag")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing bag directory")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing bag at --output (only a folder that holds a bag)")
     p.add_argument("--drop-bad-rows", action="store_true",
                    help="leave out rows that are short, cut, have an extra field, a non-number or NaN/inf "
                         "in a used column (and a last line without line break, the unreadable end of a cut "
@@ -169,7 +173,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``csv_import``: CSV -> contract bag, prints a one-paragraph summary."""
     args = build_parser().parse_args(argv)
     print_warnings_as_lines("csv_import")
+    from aeropend_ident.io.bag_writer import claim_bag_folder, write_bag
+
     try:
+        target = None if args.output is None else claim_bag_folder(
+            args.output, args.overwrite, inputs=[args.input], option="-o", flag="--overwrite")
         spec = spec_from_args(args)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # duty clipping: counted in the summary
@@ -177,17 +185,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             rec = import_csv(args.input, spec, "drop" if args.drop_bad_rows else "error")
         # a real start time (Foxglove and rosbag2 tools show 1970 for stamps from 0)
         rec = replace(rec, stamp0_ns=start_time_ns(args.start_time, args.input, float(rec.t[-1])))
-        if args.output is not None:
-            from aeropend_ident.errors import BagError
-            from aeropend_ident.io.bag_writer import write_bag
-
-            try:
-                write_bag(rec, args.output, storage=args.storage, rig_name=args.rig_name,
-                          overwrite=args.overwrite)
-            except BagError as exc:
-                print(f"csv_import: error: {exc}", file=sys.stderr)
-                return 1
-    except CsvImportError as exc:
+        if target is not None:
+            write_bag(rec, target.prepare(create=False), storage=args.storage, rig_name=args.rig_name)
+    except (CsvImportError, BagError, OutputFolderError) as exc:
         print(f"csv_import: error: {exc}", file=sys.stderr)
         return 1
     text = summary(rec)

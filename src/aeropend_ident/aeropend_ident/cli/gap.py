@@ -33,7 +33,10 @@ across sessions, whose measured drift replaces the prior in the prediction
 (:mod:`aeropend_ident.gap.drift`).
 
 The report folder gets ``report.json``, ``report.html``, ``corrected_rig.yaml`` and
-``figures/*.png`` (:mod:`aeropend_ident.gap.report`); a one-screen summary is printed.
+``figures/*.png`` (:mod:`aeropend_ident.gap.report`); a one-screen summary is printed. A non-empty
+report folder is refused at once (before any computation) unless ``--overwrite`` is given; then
+the earlier report is replaced only when the new one is written, so a failed run keeps it
+(:mod:`aeropend_sim.output_folder`).
 
 Exit status: 0 on success, 2 on bad input (message naming the problem: unknown rig, missing
 channel, too short, NaNs, bad option).
@@ -57,6 +60,7 @@ from aeropend_ident.io.recording_input import (
     split_preset,
     uniform_recording,
 )
+from aeropend_sim.output_folder import claim_output_folder
 from aeropend_sim.params import RigFileError
 from aeropend_sim.recording import RecordingError
 
@@ -113,6 +117,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--rig", required=True, help="nominal rig: shipped name (e.g. thesis_rig) or rig-file path"
     )
     p.add_argument("-o", "--out", required=True, type=Path, help="report folder (created)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the earlier gap report in --out (only a folder that holds one; it is "
+                   "replaced when the new report is written)")
     p.add_argument(
         "--preset", default=None, help="CSV preset of aeropend_ident.io.csv_import for CSV logs "
         "without their own FILE.csv:PRESET ('auto' = by file name)"
@@ -191,7 +198,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the gap diagnosis; print the summary; write the report folder."""
     args = build_parser().parse_args(argv)
     print_warnings_as_lines("gap")
-    from aeropend_ident.gap.report import terminal_summary, write_report
+    from aeropend_ident.gap.report import REPORT_FILES, terminal_summary, write_report
     from aeropend_ident.gap.run import run_gap
 
     def progress(msg: str) -> None:
@@ -199,6 +206,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"gap: {msg}", file=sys.stderr, flush=True)
 
     try:
+        given = [*args.inputs, *(args.held_out or ()), *(args.validation or ()),
+                 *(x for g in args.sessions or () for x in g.split(",") if x)]
+        out = claim_output_folder(args.out, args.overwrite, own=REPORT_FILES.values(),
+                                  looks_like="a gap report", inputs=[split_preset(x)[0] for x in given])
         if not 1 <= args.max_effects <= 3:
             raise GapCliError(f"--max-effects {args.max_effects}: expected 1, 2 or 3")
         rig, offset = resolve_rig(args.rig)
@@ -256,7 +267,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             session_labels=labels,
             oracle=not args.no_oracle,
         )
-        paths = write_report(result, args.out)
+        paths = write_report(result, out.prepare())
     except (RecordingError, RigFileError, ValueError) as exc:
         print(f"gap: error: {exc}", file=sys.stderr)
         return 2

@@ -2,7 +2,9 @@
 
 Command line of ``identify`` (console script; ``ros2 run aeropend_ident identify``): argument
 parsing and :func:`main` only; what is identified and written is described in
-:mod:`aeropend_ident.sindy.identify`.
+:mod:`aeropend_ident.sindy.identify`. A non-empty results folder is refused at once unless
+``--overwrite`` is given (then its earlier contents are removed before the run writes there;
+:mod:`aeropend_sim.output_folder`).
 """
 
 from __future__ import annotations
@@ -20,7 +22,9 @@ from aeropend_ident.errors import (
     RecordingInputError,
     print_warnings_as_lines,
 )
-from aeropend_ident.sindy.identify import LIBRARIES, METHODS, identify
+from aeropend_ident.io.recording_input import split_preset
+from aeropend_ident.sindy.identify import LIBRARIES, METHODS, OUTPUT_FILES, identify
+from aeropend_sim.output_folder import OutputFolderError, claim_output_folder
 from aeropend_sim.params import RigFileError, load_rig
 from aeropend_sim.recording import RecordingError
 
@@ -49,7 +53,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="partial-state path (θ and τ only)")
     ap.add_argument("--train-fraction", type=float, default=0.75)
     ap.add_argument("--namespace", default="")
-    ap.add_argument("--out", type=Path, default=Path("ident_results"))
+    ap.add_argument("--out", type=Path, default=Path("ident_results"), help="results folder (created)")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace the earlier identify results in --out (only a folder that holds them)")
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     args = ap.parse_args(argv)
@@ -60,14 +66,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"[identify {time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
     try:
+        out = claim_output_folder(args.out, args.overwrite, own=OUTPUT_FILES, looks_like="identify results",
+                                  option="--out", inputs=[split_preset(x)[0] for x in args.inputs])
         rig = load_rig(args.rig) if args.rig else None
-        summary = identify(args.inputs, args.out, rig, args.method, args.library, args.namespace,
+        summary = identify(args.inputs, out.prepare(), rig, args.method, args.library, args.namespace,
                            preset=args.preset, train_fraction=args.train_fraction, thrust_map=args.thrust_map,
                            plots=not args.no_plots, progress=None if args.quiet else say,
                            threshold=args.threshold, output_error=args.output_error)
     except (BagError, RecordingError, IdentificationError, RigFileError, CsvImportError,
-            RecordingInputError) as exc:
-        print(f"identify: {exc}", file=sys.stderr)
+            RecordingInputError, OutputFolderError) as exc:
+        print(f"identify: error: {exc}", file=sys.stderr)
         return 2
     print("\n".join(summary["equations"]))
     for tg, why in summary["not_identified"].items():

@@ -1,7 +1,9 @@
 """The main job: run the node graph on the simulated plant, record a bag, identify and report.
 
 Command line of the main job ``pipeline`` (console script; ``scripts/run_main.sh``): argument
-parsing and :func:`main` only; the steps are in :mod:`aeropend_ident.pipeline`.
+parsing and :func:`main` only; the steps are in :mod:`aeropend_ident.pipeline`. A non-empty report
+folder is refused at once unless ``--overwrite`` is given; then the earlier run's bag, logs and
+reports are removed before the node graph starts (:mod:`aeropend_sim.output_folder`).
 """
 
 from __future__ import annotations
@@ -13,12 +15,15 @@ import time
 from pathlib import Path
 
 from aeropend_ident.errors import PipelineError
-from aeropend_ident.pipeline import DEFAULT_SIGNAL, analyse, check_recording, run_graph
+from aeropend_ident.pipeline import DEFAULT_SIGNAL, OUTPUTS, analyse, check_recording, run_graph
+from aeropend_sim.output_folder import OutputFolderError, claim_output_folder
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pipeline", description=__doc__.split("\n\n")[0])
     p.add_argument("--out", type=Path, default=Path("reports/main"), help="report folder")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the earlier main-job run in --out (only a folder that holds one)")
     p.add_argument("--plant-rig", default="thesis_rig",
                    help="rig simulated by the plant node (the 'real' rig)")
     p.add_argument("--nominal-rig", default="thesis_sim", help="simulator whose parameters are fitted")
@@ -35,8 +40,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out = claim_output_folder(args.out, args.overwrite, own=OUTPUTS.values(), looks_like="a main-job run",
+                                  option="--out").prepare()
+    except OutputFolderError as exc:
+        print(f"pipeline: error: {exc}", file=sys.stderr)
+        return 2
     t0 = time.monotonic()
     try:
         print(f"[1/2] node graph: record + sim_node ({args.plant_rig}, {args.mode}) + excitation ...",
@@ -44,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         bag = run_graph(out, args.plant_rig, args.mode, args.seed, args.signal, not args.no_noise,
                         namespace=args.namespace)
         t_graph = time.monotonic() - t0
-        completeness = check_recording(bag, out / "logs" / "sim_node.log", args.mode, args.namespace)
+        completeness = check_recording(bag, out / OUTPUTS["logs"] / "sim_node.log", args.mode, args.namespace)
         if not completeness["complete"]:
             raise PipelineError(
                 f"incomplete lock-step recording: {completeness['recorded']} of "
@@ -66,7 +75,7 @@ def main(argv: list[str] | None = None) -> int:
         "recording": {**report["recording"], **completeness},
         "baseline": report.get("summary", report),
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    (out / OUTPUTS["summary"]).write_text(json.dumps(summary, indent=2, default=float))
     print(json.dumps(summary, indent=2, default=float))
     print(f"report folder: {out}")
     return 0

@@ -35,7 +35,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from aeropend_ident.errors import CompareError, GapError, IdentificationError
 from aeropend_ident.gap.effects import MeasurementMap
@@ -163,6 +162,8 @@ def step_metrics(theta: np.ndarray, sim: np.ndarray, duty: np.ndarray, dt: float
         ``t_start`` [s], ``duty_from``, ``duty_to``, ``recorded`` and ``simulated`` (``rise_time``,
         ``settling_time``, ``peak_time`` [s], ``overshoot`` [%]), ``abs_error`` per metric.
     """
+    from scipy.signal import savgol_filter  # here: importing scipy.signal costs ~1 s (`compare --help`)
+
     w = round(STEP_SMOOTHING / dt) | 1
     smooth = savgol_filter(theta, w, 2) if w >= 5 and theta.size > w else np.asarray(theta, dtype=float)
     out = []

@@ -439,8 +439,16 @@ level, 0 when more than a quarter of the gap above noise remains) (0..1).</li>
 """
 
 
+#: What :func:`write_report` writes at the top of a report folder, by key (the ``gap`` command's
+#: ``--overwrite`` replaces only a folder that holds one of them).
+REPORT_FILES = {"report": "report.json", "html": "report.html", "corrected_rig": "corrected_rig.yaml",
+                "figures": "figures"}
+
+
 def write_report(result: GapResult, outdir: str | Path) -> dict[str, Path]:
-    """Write ``report.json``, ``report.html``, ``corrected_rig.yaml`` and ``figures/*.png``.
+    """Write ``report.json``, ``report.html``, ``corrected_rig.yaml`` and ``figures/*.png``
+    (:data:`REPORT_FILES`; files of the same names are replaced, others are left alone: the ``gap``
+    command claims an empty folder first).
 
     Returns
     -------
@@ -448,18 +456,18 @@ def write_report(result: GapResult, outdir: str | Path) -> dict[str, Path]:
         Paths keyed ``report``, ``html``, ``corrected_rig`` and ``fig_<name>``.
     """
     out = Path(outdir)
-    (out / "figures").mkdir(parents=True, exist_ok=True)
+    (out / REPORT_FILES["figures"]).mkdir(parents=True, exist_ok=True)
     figs = figures(result)
     paths: dict[str, Path] = {}
     for k, png in figs.items():
-        p = out / "figures" / f"{k}.png"
+        p = out / REPORT_FILES["figures"] / f"{k}.png"
         p.write_bytes(png)
         paths[f"fig_{k}"] = p
-    paths["report"] = out / "report.json"
+    paths["report"] = out / REPORT_FILES["report"]
     paths["report"].write_text(json.dumps(result.as_dict(), indent=2, allow_nan=False), encoding="utf-8")
-    paths["html"] = out / "report.html"
+    paths["html"] = out / REPORT_FILES["html"]
     paths["html"].write_text(html_page(result, figs), encoding="utf-8")
-    paths["corrected_rig"] = out / "corrected_rig.yaml"
+    paths["corrected_rig"] = out / REPORT_FILES["corrected_rig"]
     paths["corrected_rig"].write_text(
         yaml.safe_dump(jsonable(corrected_rig_dict(result)), sort_keys=False, allow_unicode=True),
         encoding="utf-8",
@@ -469,6 +477,7 @@ def write_report(result: GapResult, outdir: str | Path) -> dict[str, Path]:
 
 __all__ = [
     "EQUATIONS",
+    "REPORT_FILES",
     "GapResult",
     "corrected_rig_dict",
     "figures",

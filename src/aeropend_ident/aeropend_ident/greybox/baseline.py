@@ -37,7 +37,6 @@ from typing import Any
 import numpy as np
 import scipy
 import yaml
-from scipy.signal import savgol_filter
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.fit import (
@@ -249,6 +248,8 @@ def measured_rate(theta: np.ndarray, dt: float, window: float = 0.2) -> np.ndarr
         w = n if n % 2 else n - 1
     if w < 3:
         return np.gradient(theta, dt) if n > 1 else np.zeros(n)
+    from scipy.signal import savgol_filter  # here: importing scipy.signal costs ~1 s (`baseline --help`)
+
     return savgol_filter(theta, w, min(2, w - 1), deriv=1, delta=dt, mode="interp")
 
 
@@ -454,8 +455,15 @@ def plot_overlay(result: BaselineResult, path: str | Path) -> Path:
     return path
 
 
+#: The files :func:`write_report` writes into a report folder, by key (the ``baseline`` command's
+#: ``--overwrite`` replaces only a folder that holds one of them).
+REPORT_FILES = {"report": "report.json", "overlay": "overlay.png", "fitted_rig": "fitted_rig.yaml"}
+
+
 def write_report(result: BaselineResult, outdir: str | Path) -> dict[str, Path]:
-    """Write ``report.json``, ``overlay.png`` and ``fitted_rig.yaml`` into ``outdir`` (created).
+    """Write ``report.json``, ``overlay.png`` and ``fitted_rig.yaml`` (:data:`REPORT_FILES`) into
+    ``outdir`` (created; files of the same names are replaced, others are left alone: the
+    ``baseline`` command claims an empty folder first).
 
     Returns
     -------
@@ -464,13 +472,12 @@ def write_report(result: BaselineResult, outdir: str | Path) -> dict[str, Path]:
     """
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
-    report = out / "report.json"
-    report.write_text(json.dumps(result.report(), indent=2, allow_nan=False), encoding="utf-8")
-    rig_path = out / "fitted_rig.yaml"
+    paths = {key: out / name for key, name in REPORT_FILES.items()}
+    paths["report"].write_text(json.dumps(result.report(), indent=2, allow_nan=False), encoding="utf-8")
     text = yaml.safe_dump(jsonable(fitted_rig_dict(result)), sort_keys=False, allow_unicode=True)
-    rig_path.write_text(text, encoding="utf-8")
-    overlay = plot_overlay(result, out / "overlay.png")
-    return {"report": report, "overlay": overlay, "fitted_rig": rig_path}
+    paths["fitted_rig"].write_text(text, encoding="utf-8")
+    paths["overlay"] = plot_overlay(result, paths["overlay"])
+    return paths
 
 
 def run_baseline(recording: Recording, rig: Rig | str | Path, outdir: str | Path | None = None,

@@ -7,7 +7,6 @@ The wire convention (duty and v_a shifted forward one sample) and the precision 
 from __future__ import annotations
 
 import json
-import shutil
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -43,21 +42,50 @@ from aeropend_sim.contract import (
     TYPE_JOINT_STATES,
     Sample,
 )
+from aeropend_sim.output_folder import OutputFolder, OutputFolderError, claim_output_folder
 from aeropend_sim.recording import MEASURED_CHANNELS, Recording
 
 from .mcap_jazzy import JazzyWriter
 
+#: What a rosbag2 bag folder holds at its top level (:func:`claim_bag_folder`: an existing folder is
+#: replaced only if it holds one of these).
+BAG_FILES = ("metadata.yaml", "*.mcap", "*.db3")
+
+
+def claim_bag_folder(path: str | Path, overwrite: bool, *, inputs: Sequence[str | Path] = (),
+                     option: str = "path", flag: str = "overwrite=True") -> OutputFolder:
+    """Claim the folder of a new bag (:func:`aeropend_sim.output_folder.claim_output_folder`).
+
+    A missing or empty folder is used; a non-empty one only with ``overwrite`` and only if it looks
+    like a bag (holds one of :data:`BAG_FILES`) and is no protected place. Call
+    ``.prepare(create=False)`` on the result right before writing (the writer creates the folder).
+
+    Parameters
+    ----------
+    path : str or Path
+        Bag folder to create.
+    overwrite : bool
+        Replace an existing bag there.
+    inputs : sequence of str or Path
+        The command's inputs (a folder holding one is never emptied).
+    option, flag : str
+        How messages name the output option and the overwrite switch (a command line passes
+        ``-o`` and ``--overwrite``).
+
+    Raises
+    ------
+    aeropend_sim.output_folder.OutputFolderError
+        If the folder must not be written (the message says why and what to pass).
+    """
+    return claim_output_folder(path, overwrite, own=BAG_FILES, looks_like="a rosbag2 bag", inputs=inputs,
+                               option=option, flag=flag, kind="bag folder")
+
 
 def _prepare_target(path: Path, overwrite: bool) -> None:
-    if not path.exists():
-        return
-    if not overwrite:
-        raise BagError(f"bag '{path}' already exists; pass overwrite=True (or choose another path)")
-    if path.is_dir() and ((path / "metadata.yaml").exists() or not any(path.iterdir())):
-        shutil.rmtree(path)
-        return
-    raise BagError(f"refusing to overwrite '{path}': it exists and is not a rosbag2 directory "
-                   "(no metadata.yaml)")
+    try:
+        claim_bag_folder(path, overwrite).prepare(create=False)
+    except OutputFolderError as exc:
+        raise BagError(str(exc)) from exc
 
 
 def _wire_arrays(rec: Recording) -> dict[str, np.ndarray]:
@@ -109,7 +137,8 @@ def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_n
     stamp0_ns : int, optional
         Absolute stamp of ``t = 0`` [ns] (default ``rec.stamp0_ns``).
     overwrite : bool
-        Replace an existing bag directory at ``path``.
+        Replace an existing bag at ``path`` (a folder holding other files is never emptied, see
+        :func:`claim_bag_folder`); without it an existing non-empty folder is an error.
     encoder : {"vectorized", "typestore"}
         ``"typestore"`` builds every message from :class:`~aeropend_sim.contract.Sample`
         (``joint_state_fields()``, ``armature_fields()``) and ``typestore.serialize_cdr`` (the
@@ -124,8 +153,8 @@ def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_n
     Raises
     ------
     BagError
-        On an unknown storage, an existing target, or stamps that are not strictly increasing
-        after rounding to nanoseconds.
+        On an unknown storage, an existing non-empty target (without ``overwrite``, or one that
+        is not a bag), or stamps that are not strictly increasing after rounding to nanoseconds.
     """
     path = Path(path)
     if storage not in _STORAGE_PLUGINS:

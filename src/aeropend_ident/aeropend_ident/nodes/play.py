@@ -38,9 +38,28 @@ from aeropend_ident.io.bags import RawBagReader
 from aeropend_ident.nodes.qos import message_class, playback_qos
 from aeropend_sim.contract import TOPIC_CLOCK
 from aeropend_sim.ros.node_shell import run_node, wait_acknowledged
+from aeropend_sim.ros.node_usage import NodeUsage, TopicUse, contract_topic
 from aeropend_sim.ros.ros_contract import CLOCK_QOS, to_time
 
 NODE_NAME = "aeropend_player"
+
+#: ``play --help`` (the flags are added by :func:`build_parser`; the player has no ROS parameters).
+USAGE = NodeUsage(
+    command="play",
+    node_name=NODE_NAME,
+    summary="Replay a rosbag2 bag's messages with their original timing: each message's serialised bytes "
+            "unchanged (header stamps included) on its topic, with the QoS the bag recorded for it; exits "
+            "when the bag is done.",
+    topics=(TopicUse("publishes", "every topic of the bag (or --topics)", "its recorded type",
+                     "the QoS the bag recorded (the contract QoS when it has none)"),
+            contract_topic("publishes", TOPIC_CLOCK,
+                           "with --clock: the bag's time, as ros2 bag play --clock")),
+    parameters=(),
+    examples=("play reports/main/run_bag",
+              "play my_run --rate 2 --topics /aeropend/joint_states",
+              "play my_run --clock --wait-for-subscribers 10"),
+    notes="Exit status: 0 when the bag was played, 1 when it cannot be read, 2 on a bad option.",
+)
 
 
 class PlayerNode(Node):
@@ -125,8 +144,7 @@ def play(node: PlayerNode, reader: RawBagReader, rate: float, clock_hz: float = 
 
 def build_parser() -> argparse.ArgumentParser:
     """Command-line flags of ``play``."""
-    p = argparse.ArgumentParser(prog="play",
-                                description="Replay a rosbag2 bag's messages with their original timing.")
+    p = USAGE.parser()
     p.add_argument("bag", type=Path, help="bag directory or .mcap/.db3 file")
     p.add_argument("-r", "--rate", type=float, default=1.0, help="speed factor (default 1.0)")
     p.add_argument("-l", "--loop", action="store_true", help="play again and again until Ctrl-C")

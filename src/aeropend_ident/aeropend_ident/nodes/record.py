@@ -11,32 +11,9 @@ rosbag2 stores as is); the recorder writes the history and depth the topic contr
 instead (keep last 10 for other topics), so every profile in the bag is one rclpy accepts
 (:func:`aeropend_ident.nodes.qos.qos_from_rclpy`).
 
-Parameters
-----------
-output : str
-    Bag directory to create (default ``aeropend_<YYYYmmdd_HHMMSS>``).
-storage : str
-    ``mcap`` (default) or ``sqlite3``.
-topics : string array
-    Topics to record; an empty string stands for the contract topics in the recorder's
-    namespace (the default, ``[""]``: ``/aeropend/*``, or ``/rig2/aeropend/*`` with
-    ``-r __ns:=/rig2``); add ``/clock`` to record simulated time.
-    Types of other topics are discovered from the graph.
-duration : float
-    Stop after this many seconds of node-clock time; 0 = until SIGINT / SIGTERM.
-max_samples : int
-    Stop after this many ``joint_states`` messages; 0 = no limit.
-queue_depth : int
-    Subscription queue depth (default 1000). The subscriptions use the contract QoS policies
-    (``SAMPLE_QOS`` best effort / ``COMMAND_QOS`` reliable, volatile) with this deeper keep-last
-    queue: depth does not affect QoS matching, and at 490 Hz the contract's depth 5 would drop
-    samples whenever the recorder stalls for 10 ms.
-reliable : bool
-    Subscribe to the sample topics and ``/clock`` with the lock-step QoS (reliable, keep all;
-    default false: best effort). Use it for lock-step runs, whose plant publishes samples and
-    ``/clock`` that way: the recorder then loses nothing, a lagging recorder slows the loop down
-    instead; a reliable subscription does not match a best-effort (real-time) publisher, nor a
-    best-effort ``/clock`` (a simulator's ``rclcpp::ClockQoS``).
+Parameters: :data:`PARAMETERS` (also printed by ``record --help``). An existing bag folder is
+never replaced without ``--overwrite`` (``-p overwrite:=true``), and then only if it holds a bag
+(:func:`aeropend_ident.io.bag_writer.claim_bag_folder`).
 
 On SIGINT / SIGTERM the recorder first writes what is still queued (it spins until no message
 has arrived for ``DRAIN_IDLE_S``, at most ``DRAIN_MAX_S``), then closes the bag.
@@ -64,11 +41,14 @@ from rclpy.utilities import remove_ros_args
 from rosbags.interfaces import Qos
 
 from aeropend_ident.errors import BagError
-from aeropend_ident.io.bag_writer import BagSink
+from aeropend_ident.io.bag_writer import BagSink, claim_bag_folder
 from aeropend_ident.io.bags import qos_for_topic
 from aeropend_ident.nodes.qos import contract_qos, message_class, qos_from_rclpy
 from aeropend_sim.contract import (
     CONTRACT_TOPICS,
+    REL_ARMATURE,
+    REL_DUTY_CYCLE,
+    REL_JOINT_STATES,
     TOPIC_CLOCK,
     TOPIC_DUTY_CYCLE,
     TOPIC_JOINT_STATES,
@@ -76,9 +56,53 @@ from aeropend_sim.contract import (
     namespaced,
 )
 from aeropend_sim.ros import ros_contract
-from aeropend_sim.ros.node_shell import run_node
+from aeropend_sim.ros.node_shell import declare_parameter_table, run_node
+from aeropend_sim.ros.node_usage import NodeParameter, NodeUsage, contract_topic
 
 NODE_NAME = "aeropend_recorder"
+#: The recorder's parameters (declared from this table, printed by ``--help``; the friendly flags
+#: of :func:`build_parser` set them). All read-only: they fix the bag at start-up.
+PARAMETERS: tuple[NodeParameter, ...] = (
+    NodeParameter("output", "str", "", "",
+                  "bag folder to create (empty: aeropend_<YYYYmmdd_HHMMSS> in the working folder)"),
+    NodeParameter("overwrite", "bool", False, "",
+                  "replace an existing bag folder (one that holds metadata.yaml, .mcap or .db3; never "
+                  "another folder)"),
+    NodeParameter("storage", "str", "mcap", "", "mcap | sqlite3"),
+    NodeParameter("topics", "str[]", [""], "",
+                  "topics to record; an empty string stands for the contract topics in the recorder's "
+                  "namespace (the default: /aeropend/*, or /rig2/aeropend/* with -r __ns:=/rig2); add "
+                  "/clock to record simulated time; types of other topics are discovered from the graph"),
+    NodeParameter("duration", "float", 0.0, "s",
+                  "stop after this much node-clock time; 0 = until SIGINT / SIGTERM"),
+    NodeParameter("max_samples", "int", 0, "", "stop after this many joint_states messages; 0 = no limit"),
+    NodeParameter("queue_depth", "int", 1000, "",
+                  "subscription queue depth: the contract QoS policies with this deeper keep-last queue "
+                  "(depth does not affect matching; at 490 Hz the contract's 5 would drop samples whenever "
+                  "the recorder stalls for 10 ms)"),
+    NodeParameter("reliable", "bool", False, "",
+                  "subscribe to the sample topics with the lock-step QoS (reliable, keep all) instead of "
+                  "best effort: for lock-step runs, whose plant publishes that way (nothing lost, a lagging "
+                  "recorder slows the loop); does not match a best-effort (real-time) publisher"),
+)
+
+#: ``record --help`` (the flags are added by :func:`build_parser`).
+USAGE = NodeUsage(
+    command="record",
+    node_name=NODE_NAME,
+    summary="Record the aeropend contract topics (or any topics) into a rosbag2 bag, each with the QoS its "
+            "publishers offer, so ros2 bag play and play replay it. Friendly flags or ROS parameters "
+            "(--ros-args -p name:=value); the bag is closed cleanly (valid metadata.yaml) on SIGINT, "
+            "SIGTERM, duration or sample limit.",
+    topics=(*(contract_topic("subscribes", t) for t in (REL_JOINT_STATES, REL_ARMATURE, REL_DUTY_CYCLE)),
+            contract_topic("subscribes", TOPIC_CLOCK, "with --clock (or topics)")),
+    parameters=PARAMETERS,
+    examples=("record -o /tmp/run --duration 2",
+              "record --ros-args -p output:=/tmp/run -p duration:=2.0",
+              "record -o rig2_run --ros-args -r __ns:=/rig2          # records /rig2/aeropend/*"),
+    notes="An existing non-empty output folder is refused unless --overwrite is given. Exit status: 0 "
+          "when the bag is closed, 1 when it cannot be written.",
+)
 #: On stop: keep writing until no message arrived for this long [s] ...
 DRAIN_IDLE_S = 0.3
 #: ... but at most this long [s].
@@ -97,24 +121,19 @@ class RecorderNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        self.declare_parameter("output", "")
-        self.declare_parameter("storage", "mcap")
-        self.declare_parameter("topics", [""])  # [""]: the contract topics in this node's namespace
-        self.declare_parameter("duration", 0.0)
-        self.declare_parameter("max_samples", 0)
-        self.declare_parameter("queue_depth", 1000)
-        self.declare_parameter("reliable", False)
-        output = self.get_parameter("output").value or time.strftime("aeropend_%Y%m%d_%H%M%S")
-        self.storage = str(self.get_parameter("storage").value)
-        raw = [str(t) for t in self.get_parameter("topics").value] or [""]
+        p = declare_parameter_table(self, PARAMETERS)
+        output = p["output"] or time.strftime("aeropend_%Y%m%d_%H%M%S")
+        self.storage = str(p["storage"])
+        raw = [str(t) for t in p["topics"]] or [""]  # [""]: the contract topics in this node's namespace
         here = [namespaced(t, self.get_namespace()) for t in CONTRACT_TOPICS]  # what "" stands for
         self.topics = list(dict.fromkeys(x for t in raw for x in (here if t == "" else [t])))
-        self.duration = float(self.get_parameter("duration").value)
-        self.max_samples = int(self.get_parameter("max_samples").value)
-        self.queue_depth = int(self.get_parameter("queue_depth").value)
-        self.reliable = bool(self.get_parameter("reliable").value)
+        self.duration = float(p["duration"])
+        self.max_samples = int(p["max_samples"])
+        self.queue_depth = int(p["queue_depth"])
+        self.reliable = bool(p["reliable"])
         if self.duration < 0 or self.max_samples < 0:
             raise ValueError(f"duration {self.duration} s and max_samples {self.max_samples} must be >= 0")
+        claim_bag_folder(output, bool(p["overwrite"]), option="-o", flag="--overwrite").prepare(create=False)
         self.sink = BagSink(output, storage=self.storage,  # type: ignore[arg-type]
                             custom_data={"aeropend.recorder": NODE_NAME})
         self.done = False
@@ -221,10 +240,11 @@ class RecorderNode(Node):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Friendly command-line flags (mapped onto the node parameters)."""
-    p = argparse.ArgumentParser(prog="record", description="Record the aeropend contract topics into a bag. "
-                                "ROS-style '--ros-args -p name:=value' parameters work too.")
+    """Friendly command-line flags (mapped onto the node parameters, :data:`PARAMETERS`)."""
+    p = USAGE.parser()
     p.add_argument("-o", "--output", help="bag directory to create")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing bag folder at --output (only a folder that holds a bag)")
     p.add_argument("-s", "--storage", choices=["mcap", "sqlite3"])
     p.add_argument("--topics", nargs="+", help="topics to record (default: the contract topics)")
     p.add_argument("--clock", action="store_true", help="also record /clock")
@@ -240,6 +260,8 @@ def _overrides(args: argparse.Namespace) -> list[Parameter]:
     out = []
     if args.output:
         out.append(Parameter("output", value=args.output))
+    if args.overwrite:
+        out.append(Parameter("overwrite", value=True))
     if args.storage:
         out.append(Parameter("storage", value=args.storage))
     topics = list(args.topics) if args.topics else None

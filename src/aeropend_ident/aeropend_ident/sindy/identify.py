@@ -95,6 +95,9 @@ LAMBDAS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
 #: equation, θ̈ in the second-order weak form from θ alone), ``structured`` (per-equation, every effect's
 #: terms), ``physics`` (one library of named physical terms for every equation), ``thesis`` /
 #: ``full`` (the thesis' unrestricted 31-term library, for discovery and discrepancy SINDy).
+#: The files every ``identify`` run writes into its results folder (the plots come on top; the
+#: command's ``--overwrite`` replaces only a folder that holds one of these).
+OUTPUT_FILES = ("model.yaml", "summary.json")
 LIBRARIES = ("physics-structured", "structured", "physics", "thesis", "full")
 #: Estimators of ``--method``.
 METHODS = ("weak", "weak-iv", "sindy", "ensemble")
@@ -542,9 +545,10 @@ def identify(
                 "samples": [len(r) for r in recs], "train_fraction": train_fraction}
         if "thrust_map" in extra:
             prov["thrust_map"] = {k: v for k, v in extra["thrust_map"].items() if k != "grid"}
-        save_model(out / "model.yaml", model, gear_ratio=gear, L_over_J=l_j, test_mse=test_mse,
+        model_file, summary_file = OUTPUT_FILES
+        save_model(out / model_file, model, gear_ratio=gear, L_over_J=l_j, test_mse=test_mse,
                    free_run_nrmse=scores[0]["free_run_nrmse_std"], provenance=prov)
-        files = ["model.yaml", "summary.json"]
+        files = list(OUTPUT_FILES)
         if plots:
             files += _plots(out, model, parts[0][1], parts[0][0], held_runs[0], say, child)
     finally:
@@ -565,5 +569,5 @@ def identify(
         summary["derived_parameters"]["thrust_delay"] = {"value": tm["delay_samples"] * recs[0].dt,
                                                          "unit": "s"}
     text = json.dumps(summary, indent=1, ensure_ascii=False, default=float) + "\n"
-    (out / "summary.json").write_text(text, encoding="utf-8")
+    (out / summary_file).write_text(text, encoding="utf-8")
     return summary

@@ -21,25 +21,8 @@ Usage::
     excitation --signal staircase --levels 0.3 0.5 --hold 2 --mode realtime
     excitation --print --signal prbs --order 7 --clock 5 > prbs.csv      # no ROS needed
 
-Parameters (``-p name:=value``; the friendly ``--flags`` override them)
------------------------------------------------------------------------
-signal : str, default ``lhs``
-    ``step``, ``staircase``, ``prbs``, ``aprbs``, ``density_prbs`` (fast binary holds whose
-    density follows a slow APRBS: the identifiability design) or ``lhs`` (thesis §5.1
-    Latin-hypercube steps).
-signal arguments
-    ``level duration initial step_time levels hold order lo hi clock periods min_hold max_hold
-    n tau_min tau_max hold_min hold_max density_lo density_hi density_min_hold density_max_hold
-    seed dt`` (see :mod:`aeropend_sim.excitation`).
-mode : str, default ``realtime``
-zero_at_end : bool
-    Send duty 0 after the signal and on shutdown (default true in real-time mode, false in
-    lock-step mode, where an extra command would advance the plant one more sample).
-wait_timeout : float [s], default 30
-    Give up (exit status 1) if no plant appears within this time.
-min_subscribers : int, default 1
-    Send the first command only once this many subscriptions (plant, recorder, ...) are matched
-    on ``/aeropend/duty_cycle``, so a recorder started alongside misses nothing.
+Parameters (``-p name:=value``; the friendly ``--flags`` override them): :data:`OPTION_PARAMETERS`
+and :data:`SIGNAL_PARAMETERS` (also printed by ``excitation --help``).
 
 Exit status: 0 signal sent, 1 no plant / interrupted, 2 invalid signal or parameter.
 """
@@ -57,21 +40,79 @@ from typing import Any
 import numpy as np
 import yaml
 
-from aeropend_sim.contract import LockstepRepeats
+from aeropend_sim.contract import REL_DUTY_CYCLE, REL_JOINT_STATES, LockstepRepeats
 from aeropend_sim.excitation import SIGNALS, ExcitationError, ExcitationSignal, make_signal
+from aeropend_sim.ros.node_usage import NodeParameter, NodeUsage, contract_topic, strip_ros_args
 
 NODE_NAME = "aeropend_excitation"
 MODES = ("realtime", "lockstep")
-#: Every argument name of every signal kind (declared as node parameters).
-SIGNAL_ARGS: tuple[str, ...] = (
-    "level", "duration", "initial", "step_time", "levels", "hold", "order", "lo", "hi", "clock", "periods",
-    "min_hold", "max_hold", "n", "tau_min", "tau_max", "hold_min", "hold_max", "density_lo", "density_hi",
-    "density_min_hold", "density_max_hold", "seed", "dt",
+#: How the signal is published (node parameters; ``--flag`` spellings override them).
+OPTION_PARAMETERS: tuple[NodeParameter, ...] = (
+    NodeParameter("signal", "str", "lhs", "",
+                  "signal kind: " + ", ".join(sorted(SIGNALS)) + " (density_prbs: fast binary holds whose "
+                  "density follows a slow APRBS, the identifiability design; lhs: thesis 5.1 "
+                  "Latin-hypercube steps)"),
+    NodeParameter("mode", "str", "realtime", "",
+                  "realtime: one command per sample period of wall time once a subscriber (the plant) is "
+                  "there; lockstep: one command per new sample on joint_states (reliable), the ping-pong of "
+                  "deterministic lock-step runs with sim_node mode:=lockstep"),
+    NodeParameter("zero_at_end", "bool", None, "",
+                  "send duty 0 after the signal and on shutdown (unset: true in realtime, false in lockstep, "
+                  "where an extra command would advance the plant one more sample)"),
+    NodeParameter("wait_timeout", "float", 30.0, "s", "give up (exit status 1) if no plant appears within "
+                  "this time"),
+    NodeParameter("min_subscribers", "int", 1, "",
+                  "send the first command only once this many subscriptions (plant, recorder, ...) are "
+                  "matched on duty_cycle, so a recorder started alongside misses nothing"),
 )
+#: Arguments of the signal kinds (:func:`aeropend_sim.excitation.make_signal`; unset = the
+#: generator's default, a kind refuses an argument it does not take).
+SIGNAL_PARAMETERS: tuple[NodeParameter, ...] = (
+    NodeParameter("level", "float", None, "", "step: final duty"),
+    NodeParameter("duration", "float", None, "s", "step/aprbs: length"),
+    NodeParameter("initial", "float", None, "", "step: duty before the step"),
+    NodeParameter("step_time", "float", None, "s", "step: instant of the step"),
+    NodeParameter("levels", "float[]", None, "", "staircase: duty levels"),
+    NodeParameter("hold", "float[]", None, "s", "staircase: hold time(s), one or one per level"),
+    NodeParameter("order", "int", None, "", "prbs: register length m"),
+    NodeParameter("lo", "float", None, "", "prbs/aprbs/density_prbs: low duty"),
+    NodeParameter("hi", "float", None, "", "prbs/aprbs/density_prbs: high duty"),
+    NodeParameter("clock", "int", None, "", "prbs: samples per bit"),
+    NodeParameter("periods", "int", None, "", "prbs: number of periods"),
+    NodeParameter("min_hold", "float", None, "s", "aprbs/density_prbs: shortest hold"),
+    NodeParameter("max_hold", "float", None, "s", "aprbs/density_prbs: longest hold"),
+    NodeParameter("n", "int", None, "", "lhs: number of steps"),
+    NodeParameter("tau_min", "float", None, "", "lhs: lowest duty"),
+    NodeParameter("tau_max", "float", None, "", "lhs: highest duty"),
+    NodeParameter("hold_min", "float", None, "s", "lhs: shortest step"),
+    NodeParameter("hold_max", "float", None, "s", "lhs: longest step"),
+    NodeParameter("density_lo", "float", None, "", "density_prbs: lowest probability of the high level"),
+    NodeParameter("density_hi", "float", None, "", "density_prbs: highest probability of the high level"),
+    NodeParameter("density_min_hold", "float", None, "s", "density_prbs: shortest hold of the slow density"),
+    NodeParameter("density_max_hold", "float", None, "s", "density_prbs: longest hold of the slow density"),
+    NodeParameter("seed", "int", None, "", "seed of the random signals"),
+    NodeParameter("dt", "float", None, "s", "sample period (unset: 2.048 ms)"),
+)
+#: Every argument name of every signal kind (declared as node parameters).
+SIGNAL_ARGS: tuple[str, ...] = tuple(p.name for p in SIGNAL_PARAMETERS)
 #: Node options besides the signal arguments: name -> default.
-OPTIONS: dict[str, Any] = {
-    "signal": "lhs", "mode": "realtime", "zero_at_end": None, "wait_timeout": 30.0, "min_subscribers": 1,
-}
+OPTIONS: dict[str, Any] = {p.name: p.default for p in OPTION_PARAMETERS}
+
+#: ``excitation --help`` (the flags are added by :func:`build_arg_parser`).
+USAGE = NodeUsage(
+    command="excitation",
+    node_name=NODE_NAME,
+    summary="Publish a duty-cycle excitation signal (aeropend_sim.excitation) as commands on the "
+            "duty_cycle topic, then exit; --print writes the signal as CSV without ROS.",
+    topics=(contract_topic("publishes", REL_DUTY_CYCLE, "one command per sample period (realtime) or per "
+                           "new sample (lockstep)"),
+            contract_topic("subscribes", REL_JOINT_STATES, "lockstep mode only: the plant's samples")),
+    parameters=OPTION_PARAMETERS + SIGNAL_PARAMETERS,
+    examples=("excitation --ros-args -p signal:=lhs -p seed:=1 -p mode:=lockstep",
+              "excitation --signal staircase --levels 0.3 0.5 --hold 2 --mode realtime",
+              "excitation --print --signal prbs --order 7 --clock 5 > prbs.csv      # no ROS needed"),
+    notes="Exit status: 0 signal sent, 1 no plant / interrupted, 2 invalid signal or parameter.",
+)
 
 
 # ---------------------------------------------------------------------------------- pure part
@@ -87,11 +128,9 @@ class ExcitationConfig:
 
 
 def build_arg_parser() -> argparse.ArgumentParser:
-    """Friendly command-line flags (every flag is optional and overrides a ROS parameter)."""
-    ap = argparse.ArgumentParser(
-        prog="excitation", description="Publish a duty-cycle excitation signal on /aeropend/duty_cycle.",
-        epilog="ROS parameters: --ros-args -p signal:=lhs -p seed:=1 ... (flags win over parameters)",
-    )
+    """Friendly command-line flags (every flag is optional and overrides a ROS parameter of the same
+    name, :data:`OPTION_PARAMETERS` and :data:`SIGNAL_PARAMETERS`)."""
+    ap = USAGE.parser()
     ap.add_argument("--signal", choices=sorted(SIGNALS), help="signal kind (default lhs)")
     ap.add_argument("--mode", choices=MODES, help="realtime (wall clock) or lockstep (one per sample)")
     ap.add_argument("--print", action="store_true", help="print the signal as CSV (t,duty) and exit; no ROS")
@@ -101,28 +140,12 @@ def build_arg_parser() -> argparse.ArgumentParser:
     ap.add_argument("--wait-timeout", dest="wait_timeout", type=float, help="seconds to wait for the plant")
     ap.add_argument("--min-subscribers", dest="min_subscribers", type=int,
                     help="matched duty-cycle subscribers needed before the first command (default 1)")
-    f = float
-    for name, typ, nargs, text in (
-        ("level", f, None, "step: final duty"), ("duration", f, None, "step/aprbs: length [s]"),
-        ("initial", f, None, "step: duty before the step"), ("step-time", f, None, "step: instant [s]"),
-        ("levels", f, "+", "staircase: duty levels"), ("hold", f, "+", "staircase: hold time(s) [s]"),
-        ("order", int, None, "prbs: register length m"), ("lo", f, None, "prbs/aprbs/density_prbs: low duty"),
-        ("hi", f, None, "prbs/aprbs/density_prbs: high duty"), ("clock", int, None, "prbs: samples per bit"),
-        ("periods", int, None, "prbs: number of periods"),
-        ("min-hold", f, None, "aprbs/density_prbs: min hold [s]"),
-        ("max-hold", f, None, "aprbs/density_prbs: max hold [s]"),
-        ("n", int, None, "lhs: number of steps/intervals"),
-        ("tau-min", f, None, "lhs: min duty"), ("tau-max", f, None, "lhs: max duty"),
-        ("hold-min", f, None, "lhs: min step duration [s]"),
-        ("hold-max", f, None, "lhs: max step duration [s]"),
-        ("density-lo", f, None, "density_prbs: min probability of the high level"),
-        ("density-hi", f, None, "density_prbs: max probability of the high level"),
-        ("density-min-hold", f, None, "density_prbs: min hold of the slow density [s]"),
-        ("density-max-hold", f, None, "density_prbs: max hold of the slow density [s]"),
-        ("seed", int, None, "seed of random signals"),
-        ("dt", f, None, "sample period [s] (default 2.048 ms)"),
-    ):
-        ap.add_argument(f"--{name}", dest=name.replace("-", "_"), type=typ, nargs=nargs, help=text)
+    g = ap.add_argument_group("signal arguments (the ROS parameters of the same name, see below)")
+    for p in SIGNAL_PARAMETERS:
+        typ = int if p.type == "int" else float
+        unit = f" [{p.unit}]" if p.unit else ""
+        g.add_argument(f"--{p.name.replace('_', '-')}", dest=p.name, type=typ,
+                       nargs="+" if p.type.endswith("[]") else None, help=p.description + unit)
     return ap
 
 
@@ -150,20 +173,6 @@ def ros_param_overrides(argv: list[str]) -> dict[str, Any]:
             if not sep:
                 raise ExcitationError(f"parameter {item!r} is not of the form name:=value")
             out[name] = yaml.safe_load(value)
-    return out
-
-
-def strip_ros_args(argv: list[str]) -> list[str]:
-    """``argv`` without its ``--ros-args ... [--]`` sections."""
-    out: list[str] = []
-    in_ros = False
-    for tok in argv:
-        if tok == "--ros-args":
-            in_ros = True
-        elif tok == "--" and in_ros:
-            in_ros = False
-        elif not in_ros:
-            out.append(tok)
     return out
 
 
@@ -285,21 +294,16 @@ class LockstepFeeder:
 # ---------------------------------------------------------------------------------- ROS part
 def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
     import rclpy
-    from rcl_interfaces.msg import ParameterDescriptor
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
-    from aeropend_sim.contract import REL_DUTY_CYCLE, REL_JOINT_STATES
-    from aeropend_sim.ros.node_shell import run_node, wait_acknowledged
+    from aeropend_sim.ros.node_shell import declare_parameter_table, run_node, wait_acknowledged
     from aeropend_sim.ros.ros_contract import COMMAND_QOS, COMMAND_QOS_LOCKSTEP, SAMPLE_QOS_LOCKSTEP
     from aeropend_sim.sim_core import RealtimeSchedule
 
     def run(node: Any, executor: Any, stop: threading.Event) -> int:
         log = node.get_logger()
-        params = {}
-        for name in (*OPTIONS, *SIGNAL_ARGS):
-            desc = ParameterDescriptor(dynamic_typing=True)
-            params[name] = node.declare_parameter(name, None, desc).value
+        params = declare_parameter_table(node, USAGE.parameters)
         try:
             cfg = resolve_config(params, flags)
         except ExcitationError as exc:

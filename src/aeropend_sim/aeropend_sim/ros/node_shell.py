@@ -1,15 +1,17 @@
 """Shared rclpy shell of every aeropend node (plant, excitation, bridge, controller, recorder, player).
 
-Each node declares its parameters from a table of ``(name, default, description)``; every
-node's ``main`` starts and stops through :func:`run_node` (init with a SIGINT/SIGTERM stop
-event, build, spin or run to completion, clean up, destroy, shut down), so the shutdown path
-(motor off, :func:`wait_acknowledged` before a writer is destroyed, bag closed) is the same
-everywhere.
+Each node declares its parameters from its table of
+:class:`~aeropend_sim.ros.node_usage.NodeParameter` (the same table its ``--help`` prints); every
+node's ``main`` starts and stops through :func:`run_node` (``-h``/``--help`` answered before ROS
+starts, init with a SIGINT/SIGTERM stop event, build, spin or run to completion, clean up,
+destroy, shut down), so the shutdown path (motor off, :func:`wait_acknowledged` before a writer is
+destroyed, bag closed) is the same everywhere.
 """
 
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -24,6 +26,8 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
 
+from aeropend_sim.ros.node_usage import NodeParameter, NodeUsage, strip_ros_args
+
 N = TypeVar("N", bound=Node)
 
 #: How long a reliable writer waits at shutdown for its readers' acknowledgements [s]. A sample
@@ -32,22 +36,21 @@ N = TypeVar("N", bound=Node)
 ACK_TIMEOUT_S = 10.0
 
 
-def declare_parameter_table(node: Node, table: Iterable[tuple[str, Any, str]],
-                            live: Iterable[str] = ()) -> dict[str, Any]:
-    """Declare every ``(name, default, description)`` parameter; return the values.
+def declare_parameter_table(node: Node, table: Iterable[NodeParameter]) -> dict[str, Any]:
+    """Declare every parameter of ``table``; return the values by name.
 
-    Parameters named in ``live`` may be set while the node runs (the node validates and applies
+    Parameters marked ``live`` may be set while the node runs (the node validates and applies
     them in its ``add_on_set_parameters_callback``); every other one is declared read-only, so
     ``ros2 param set`` is refused with "parameter is read-only" instead of reporting a success
     that changes nothing. Values given at start-up (``-p``, a params file, launch) apply to both.
     Types are dynamic: ``None`` defaults mean "unset" (e.g. a strategy's default pole pattern).
+    The descriptor's description carries the unit and the type (``ros2 param describe``).
     """
-    live = set(live)
     values = {}
-    for name, default, doc in table:
-        what = doc if name in live else f"{doc} (read-only: fixed at start-up)"
-        desc = ParameterDescriptor(description=what, dynamic_typing=True, read_only=name not in live)
-        values[name] = node.declare_parameter(name, default, desc).value
+    for p in table:
+        desc = ParameterDescriptor(description=p.declared_description(), dynamic_typing=True,
+                                   read_only=not p.live)
+        values[p.name] = node.declare_parameter(p.name, p.default, desc).value
     return values
 
 
@@ -160,10 +163,14 @@ def run_node(
     report_error: Callable[[Exception], None] | None = None,
     interrupt_status: int = 0,
     rclpy_signals: bool = False,
+    usage: NodeUsage | None = None,
 ) -> int:
     """The one lifecycle of every node's ``main``: init, build, run until stopped, clean up, shut down.
 
-    ``rclpy.init`` (SIGINT/SIGTERM set a stop event, :func:`init_with_stop_event`), the node from
+    With ``usage``, the arguments before ``--ros-args`` are parsed first: ``-h``/``--help`` prints
+    the node's usage (topics, parameters, example) and returns 0, an unknown argument prints the
+    reason and returns 2, both before ``rclpy.init`` (no participant, no port, no file opened).
+    Then ``rclpy.init`` (SIGINT/SIGTERM set a stop event, :func:`init_with_stop_event`), the node from
     ``make_node``, its executor, then either the standard loop (spin until a signal, rclpy
     shutdown or ``done(node)``) or the node's own ``body``; finally ``cleanup(node)`` (motor
     off, acknowledgements awaited, summary logged, bag closed), ``destroy_node`` and
@@ -206,13 +213,28 @@ def run_node(
     rclpy_signals : bool
         Keep rclpy's own signal handlers (SIGINT shuts the context down, so ``rclpy.ok()`` turns
         False) instead of the stop event: for a node whose loop watches ``rclpy.ok()`` only.
+    usage : NodeUsage, optional
+        The node's usage, for a node without command-line flags of its own (a node with flags
+        parses them with ``usage.parser()`` before calling this, so its ``--help`` is the same).
 
     Returns
     -------
     int
-        Process exit status: ``exit_status(node)`` or the ``body``'s, 2 on an invalid parameter,
-        1 on a start or run error, ``interrupt_status`` when interrupted.
+        Process exit status: ``exit_status(node)`` or the ``body``'s, 2 on an invalid parameter
+        or argument, 1 on a start or run error, ``interrupt_status`` when interrupted, 0 after
+        ``--help``.
     """
+    if usage is not None:
+        argv = list(sys.argv if args is None else args)
+        parser = usage.parser(usage=f"{usage.command} [-h] [--ros-args -p NAME:=VALUE ...]")
+        try:
+            _, unknown = parser.parse_known_args(strip_ros_args(argv)[1:])
+            if unknown:
+                example = usage.parameters[0].name if usage.parameters else "NAME"
+                parser.error(f"unrecognized arguments: {' '.join(unknown)} (node parameters go after "
+                             f"--ros-args, e.g. --ros-args -p {example}:=VALUE; see {usage.command} --help)")
+        except SystemExit as exc:  # --help printed (0) or an unknown argument reported (2)
+            return int(exc.code or 0)
     if rclpy_signals:
         rclpy.init(args=args)
         stop = threading.Event()

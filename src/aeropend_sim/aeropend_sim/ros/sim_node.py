@@ -11,57 +11,7 @@ Usage::
     sim_node --ros-args -p mode:=lockstep -p seed:=3 -p noise:=true \\
         -p "effects:=[dead_zone=true,armature_inductance=quasi_static]"
 
-Parameters
-----------
-rig : str, default ``thesis_rig``
-    Shipped rig name or path to a rig YAML file.
-effects : list of str
-    Effect-switch overrides ``name=value`` (e.g. ``dead_zone=true``).
-mode : str, default ``realtime``
-    ``realtime``: one sample every ``rig.sample_period`` of wall time (dedicated thread with
-    absolute deadlines), stamps = start + k·T_s in ROS time, latest command zero-order held,
-    duty -> 0 after ``command_timeout`` without command, samples with ``SAMPLE_QOS``.
-    ``lockstep``: sample 0 once ``min_subscribers`` subscriptions are matched on
-    ``joint_states`` (re-published every 0.5 s of wall time while idle), then exactly one sample
-    per valid command, stamped with simulated time k·T_s, ``/clock`` published, samples and
-    ``/clock`` with the reliable keep-all ``SAMPLE_QOS_LOCKSTEP`` / ``CLOCK_QOS_LOCKSTEP``.
-seed : int, default 0
-    Seed of the measurement noise.
-initial_theta : float [rad], initial_state : 5 floats
-    Initial state (``initial_state`` = [θ, θ̇, i_a, ω₁, τ_f] wins).
-noise : bool
-    Switch sensor noise and quantisation on/off (default: as in the rig file).
-command_timeout : float [s], default 0.25
-    Real-time mode command timeout.
-publish_clock : bool
-    Publish ``/clock`` (default true in lock-step mode, false in real-time mode).
-frame_id : str, default ``aeropend``
-min_subscribers : int, default 1
-    Lock-step mode: subscriptions that must be matched on ``joint_states`` before sample 0 is
-    published (besides every subscriber of either sample topic the ROS graph already shows). A
-    subscriber that matches later misses the samples before it (volatile QoS), so a lock-step
-    graph names its consumers here (the main job: the excitation and the recorder, 2). A
-    command that arrives earlier starts the run anyway.
-rt_priority : int, default 0
-    Real-time mode: run the sampler thread with SCHED_FIFO at this priority (1-99; needs
-    CAP_SYS_NICE or a suitable ``rtprio`` limit, else a warning and normal scheduling). Cuts
-    overruns on a loaded machine; 0 = normal scheduling. The executor thread (command receipt)
-    then runs with SCHED_FIFO priority ``rt_priority − 1`` (at least 1), Python's cyclic
-    garbage collector is switched off after start-up (its pauses reach milliseconds) and the
-    process memory is locked (``mlockall``).
-timing_log : str, default ``""``
-    Real-time mode: record the monotonic instant every sample is taken and every command is
-    received (:class:`~aeropend_sim.sim_core.CommandTiming`); the summary line then adds the
-    sample → command-receipt latency (p50/p99/max) and the number of unanswered samples, and the
-    arrays are written to this path (.npz) on exit. Empty = off.
-timing_capacity : int, default 2^18
-    Samples (and commands) the timing log keeps (2^18 ≈ 9 min at 488 Hz; later entries are only
-    counted). Raise it for longer timed runs (32 bytes per entry).
-executor : str, default ``events``
-    ``events``: rclpy's C++ ``EventsExecutor`` (waits and dispatches in C++, so the executor thread
-    holds the GIL only inside callbacks: the real-time sampler thread gets it sooner, and commands
-    are received sooner; 60 s closed loop, sample → command receipt p50 0.31 vs 0.38-0.39 ms, p99
-    0.50-0.54 vs 0.68-0.73 ms, docs/data_plane.md); ``single``: ``SingleThreadedExecutor``.
+Parameters: :data:`PARAMETERS` (also printed by ``sim_node --help``).
 
 Live parameters (``ros2 param set /aeropend_sim noise true``): ``effects`` and ``noise``; the
 running plant continues from its state with the new rig (an input-delay change is refused: it
@@ -99,6 +49,7 @@ from aeropend_sim.ros.node_shell import (
     run_node,
     wait_acknowledged,
 )
+from aeropend_sim.ros.node_usage import NodeParameter, NodeUsage, contract_topic
 from aeropend_sim.ros.ros_contract import (
     CLOCK_QOS,
     CLOCK_QOS_LOCKSTEP,
@@ -124,29 +75,79 @@ NODE_NAME = "aeropend_sim"
 #: Minimum interval [s] between two log lines of the same repeated warning.
 LOG_THROTTLE_S = 1.0
 
-#: (name, default, description) of the node parameters; all dynamically typed and validated by
-#: :func:`aeropend_sim.sim_core.make_settings` so errors name the value and what was expected.
-PARAMETERS: tuple[tuple[str, Any, str], ...] = (
-    ("rig", DEFAULT_RIG, "shipped rig name or path to a rig YAML file"),
-    ("effects", None, "effect overrides, list of name=value strings"),
-    ("mode", "realtime", "realtime | lockstep"),
-    ("seed", 0, "measurement-noise seed (int >= 0)"),
-    ("initial_theta", None, "initial angle [rad]"),
-    ("initial_state", None, "initial state [theta rad, theta_dot rad/s, i_a A, omega_rotor rad/s, tau_f]"),
-    ("noise", None, "sensor noise + quantisation on/off (default: rig file)"),
-    ("command_timeout", DEFAULT_COMMAND_TIMEOUT_S, "realtime: duty -> 0 after this long without command [s]"),
-    ("publish_clock", None, "publish /clock (default: true in lockstep, false in realtime)"),
-    ("frame_id", "aeropend", "header.frame_id of the sample messages"),
-    ("min_subscribers", 1, "lockstep: matched joint_states subscriptions needed before sample 0 (int >= 1)"),
-    ("rt_priority", 0, "realtime: SCHED_FIFO priority 1-99 of the sampler thread (0 = normal scheduling)"),
-    ("timing_log", "", "realtime: .npz path for sample instants and command receipts (empty = off)"),
-    ("timing_capacity", 1 << 18, "realtime: samples and commands the timing log keeps (int >= 1)"),
-    ("executor", "events", "events (rclpy's C++ EventsExecutor) | single (SingleThreadedExecutor)"),
+#: The node parameters (declared from this table, printed by ``--help``); all dynamically typed and
+#: validated by :func:`aeropend_sim.sim_core.make_settings` so errors name the value and what was
+#: expected. Live: the effect switches and the sensor noise (the plant continues from its state with
+#: the new rig; an input-delay change is refused: it sizes the command delay line); the others fix
+#: the rig, the run and the process set-up and are read-only.
+PARAMETERS: tuple[NodeParameter, ...] = (
+    NodeParameter("rig", "str", DEFAULT_RIG, "", "shipped rig name or path to a rig YAML file"),
+    NodeParameter("effects", "str[]", None, "",
+                  "effect-switch overrides name=value, e.g. "
+                  "[dead_zone=true,armature_inductance=quasi_static]",
+                  live=True),
+    NodeParameter("mode", "str", "realtime", "",
+                  "realtime: one sample every rig.sample_period of wall time (dedicated thread, absolute "
+                  "deadlines), stamps start + k*T_s in ROS time, latest command zero-order held, duty -> 0 "
+                  "after command_timeout without command, best-effort samples; lockstep: sample 0 once "
+                  "min_subscribers subscriptions are matched on joint_states (re-published every 0.5 s "
+                  "while idle), then exactly one sample per valid command, stamped with simulated time "
+                  "k*T_s, /clock published, reliable keep-all samples"),
+    NodeParameter("seed", "int", 0, "", "seed of the measurement noise (>= 0)"),
+    NodeParameter("initial_theta", "float", None, "rad", "initial angle (unset: hanging down)"),
+    NodeParameter("initial_state", "float[]", None, "",
+                  "initial state [theta rad, theta_dot rad/s, i_a A, omega_rotor rad/s, tau_f]; wins over "
+                  "initial_theta"),
+    NodeParameter("noise", "bool", None, "",
+                  "sensor noise and quantisation on/off (unset: as in the rig file)", live=True),
+    NodeParameter("command_timeout", "float", DEFAULT_COMMAND_TIMEOUT_S, "s",
+                  "realtime: duty -> 0 after this long without command"),
+    NodeParameter("publish_clock", "bool", None, "",
+                  "publish /clock (unset: true in lockstep, false in realtime)"),
+    NodeParameter("frame_id", "str", "aeropend", "", "header.frame_id of the sample messages"),
+    NodeParameter("min_subscribers", "int", 1, "",
+                  "lockstep: subscriptions matched on joint_states before sample 0 is published (besides "
+                  "every subscriber of either sample topic the graph already shows); a subscriber that "
+                  "matches later misses the samples before it, so a lock-step graph names its consumers "
+                  "here (the main job: excitation and recorder, 2); a command that arrives earlier starts "
+                  "the run anyway"),
+    NodeParameter("rt_priority", "int", 0, "",
+                  "realtime: SCHED_FIFO priority 1-99 of the sampler thread (needs CAP_SYS_NICE or an "
+                  "rtprio limit, else a warning); the executor thread then runs at rt_priority - 1, the "
+                  "cyclic garbage collector is switched off after start-up and memory is locked; 0 = "
+                  "normal scheduling"),
+    NodeParameter("timing_log", "str", "", "",
+                  "realtime: .npz path for every sample instant and command receipt (the summary line adds "
+                  "the sample -> command-receipt latency); empty = off"),
+    NodeParameter("timing_capacity", "int", 1 << 18, "",
+                  "realtime: samples (and commands) the timing log keeps (2^18 = 9 min at 488 Hz; 32 bytes "
+                  "per entry)"),
+    NodeParameter("executor", "str", "events", "",
+                  "events: rclpy's C++ EventsExecutor (the executor thread holds the GIL only inside "
+                  "callbacks, commands are received sooner, docs/data_plane.md); single: "
+                  "SingleThreadedExecutor"),
 )
-#: Parameters that may be set while the plant runs: the effect switches and the sensor noise (the
-#: plant continues from its state with the new rig; an input-delay change is refused: it sizes the
-#: command delay line). The others fix the rig, the run and the process set-up and are read-only.
-LIVE_PARAMETERS = ("effects", "noise")
+
+#: ``sim_node --help``.
+USAGE = NodeUsage(
+    command="sim_node",
+    node_name=NODE_NAME,
+    summary="Simulated aeropendulum plant: publishes the contract samples (joint_states + armature, one "
+            "stamp per sample) of a rig file's model and applies the duty-cycle commands it receives; a "
+            "drop-in replacement for the hardware bridge.",
+    topics=(contract_topic("publishes", REL_JOINT_STATES, "theta, theta_dot, omega_1, omega_2, applied duty"),
+            contract_topic("publishes", REL_ARMATURE, "v_a [V], i_a [A], same stamp"),
+            contract_topic("publishes", TOPIC_CLOCK, "simulated time (publish_clock)"),
+            contract_topic("subscribes", REL_DUTY_CYCLE,
+                           "duty cycle in [0, 1]; NaN / out of range rejected")),
+    parameters=PARAMETERS,
+    examples=("sim_node --ros-args -p rig:=thesis_rig -p mode:=realtime",
+              "sim_node --ros-args -p mode:=lockstep -p seed:=3 -p noise:=true "
+              "-p \"effects:=[dead_zone=true]\"",
+              "ros2 param set /aeropend_sim noise false      # a live parameter"),
+    notes="Exit status: 0 on SIGINT/SIGTERM, 2 on an invalid parameter (the message names the value), "
+          "1 if the sampler fails.",
+)
 
 
 def _reduce_timer_slack() -> None:
@@ -169,7 +170,7 @@ class SimPlantNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        raw = declare_parameter_table(self, PARAMETERS, live=LIVE_PARAMETERS)
+        raw = declare_parameter_table(self, PARAMETERS)
         self.timing_log = str(raw.pop("timing_log") or "")
         timing_capacity = raw.pop("timing_capacity")
         try:
@@ -219,7 +220,7 @@ class SimPlantNode(Node):
         )
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        """Apply live parameters (:data:`LIVE_PARAMETERS`): the running plant continues from its
+        """Apply live parameters (``live`` in :data:`PARAMETERS`): the running plant continues from its
         state with the new rig (:meth:`PlantStepper.set_rig`); refused with the reason otherwise."""
         changes = {p.name: p.value for p in params}
         try:
@@ -466,7 +467,7 @@ def main(args: list[str] | None = None) -> int:
     return run_node(NODE_NAME, args, make, (SimConfigError,), cleanup,
                     make_executor=lambda node: make_executor(node.executor_kind),
                     done=lambda node: node.error is not None,
-                    exit_status=lambda node: 1 if node.error is not None else 0)
+                    exit_status=lambda node: 1 if node.error is not None else 0, usage=USAGE)
 
 if __name__ == "__main__":
     sys.exit(main())
