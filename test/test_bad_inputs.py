@@ -105,20 +105,20 @@ CASES: tuple[Case, ...] = (
          f"csv_import: error: unknown preset 'nope'; available: {sorted(PRESETS)}"),
     Case("identify-csv-unknown-preset", ("identify", "{tmp}/one.csv:nope", "--rig", "thesis_sim", "--quiet",
                                          "--out", "{tmp}/o-preset"), 2,
-         f"identify: {{tmp}}/one.csv:nope: unknown preset 'nope' after ':'; expected FILE:PRESET with a "
-         f"preset of {sorted(PRESETS)} or 'auto'"),
+         f"identify: error: {{tmp}}/one.csv:nope: unknown preset 'nope' after ':'; expected FILE:PRESET "
+         f"with a preset of {sorted(PRESETS)} or 'auto'"),
     # --- rigs
     Case("identify-unknown-rig", ("identify", "{tmp}/bag", "--rig", "nope", "--quiet", "--out", "{tmp}/o1"),
-         2, f"identify: no rig named 'nope'; shipped rigs are {shipped_rigs()} (or give a path to a .yaml "
-            "file)"),
+         2, f"identify: error: no rig named 'nope'; shipped rigs are {shipped_rigs()} (or give a path to a "
+            ".yaml file)"),
     Case("gap-unknown-rig", ("gap", "{tmp}/bag", "--rig", "nope", "-o", "{tmp}/o2"), 2,
          f"gap: error: unknown rig 'nope'; expected a rig-file path (.yaml) or one of {shipped_rigs()}"),
     Case("identify-negative-rig-parameter", ("identify", "{tmp}/bag", "--rig", "{tmp}/negative.yaml",
                                              "--quiet", "--out", "{tmp}/o3"), 2,
-         "identify: {tmp}/negative.yaml: motor.R_a = -2.0 must be > 0 (armature resistance)"),
+         "identify: error: {tmp}/negative.yaml: motor.R_a = -2.0 must be > 0 (armature resistance)"),
     Case("identify-missing-rig-parameter", ("identify", "{tmp}/bag", "--rig", "{tmp}/missing.yaml", "--quiet",
                                             "--out", "{tmp}/o4"), 2,
-         "identify: {tmp}/missing.yaml: missing motor.K_t [N*m/A] (torque constant K_t)"),
+         "identify: error: {tmp}/missing.yaml: missing motor.K_t [N*m/A] (torque constant K_t)"),
     Case("gap-negative-rig-parameter", ("gap", "{tmp}/bag", "--rig", "{tmp}/negative.yaml", "-o", "{tmp}/o5"),
          2, "gap: error: rig {tmp}/negative.yaml: {tmp}/negative.yaml: motor.R_a = -2.0 must be > 0 "
             "(armature resistance)"),
@@ -139,17 +139,32 @@ CASES: tuple[Case, ...] = (
          "{db3_recovered} message(s) (..."),
     Case("truncated-mcap-nothing-left", ("identify", "{tmp}/cut_header", "--rig", "thesis_sim", "--quiet",
                                          "--out", "{tmp}/o9"), 2,
-         "identify: bag '{tmp}/cut_header' is truncated: cut_header.mcap ends at byte 100 without its MCAP "
-         "footer (complete records up to byte {header_readable}); no complete message could be recovered"),
+         "identify: error: bag '{tmp}/cut_header' is truncated: cut_header.mcap ends at byte 100 without its "
+         "MCAP footer (complete records up to byte {header_readable}); no complete message could be "
+         "recovered"),
     Case("missing-metadata", ("identify", "{tmp}/nometa", "--rig", "thesis_sim", "--quiet", "--out",
                               "{tmp}/o10"), 2,
-         "identify: bag '{tmp}/nometa' has no metadata.yaml: give its storage file instead "
+         "identify: error: bag '{tmp}/nometa' has no metadata.yaml: give its storage file instead "
          "({tmp}/nometa/nometa.mcap) or rebuild the metadata with 'reindex {tmp}/nometa'"),
     Case("play-missing-metadata", ("play", "{tmp}/nometa"), 1,
          "play: error: bag '{tmp}/nometa' has no metadata.yaml: give its storage file instead "
          "({tmp}/nometa/nometa.mcap) or rebuild the metadata with 'reindex {tmp}/nometa'"),
     Case("reindex-existing-metadata", ("reindex", "{tmp}/bag"), 1,
          "reindex: error: '{tmp}/bag/metadata.yaml' already exists; reindex --overwrite replaces it"),
+    # --- an existing output folder: refused before any work, nothing in it touched
+    *(Case(f"{cmd}-existing-output-folder", (cmd, *args, "-o", "{tmp}/out"), rc,
+           f"{cmd}: error: output folder {{tmp}}/out/ exists and is not empty (notes.txt, report.json); "
+           "pass --overwrite to replace it or choose another -o")
+      for cmd, args, rc in (("gap", ("{tmp}/bag", "--rig", "thesis_sim"), 2),
+                            ("baseline", ("{tmp}/bag", "--rig", "thesis_sim"), 2),
+                            ("compare", ("{tmp}/bag", "--rig", "thesis_sim"), 2),
+                            ("identify", ("{tmp}/bag",), 2))),
+    Case("csv-existing-output-folder", (*_csv("rows.csv"), "-o", "{tmp}/out"), 1,
+         "csv_import: error: bag folder {tmp}/out/ exists and is not empty (notes.txt, report.json); "
+         "pass --overwrite to replace it or choose another -o"),
+    Case("gap-overwrite-a-folder-it-did-not-write", ("gap", "{tmp}/bag", "--rig", "thesis_sim", "-o",
+                                                      "{tmp}/notmine", "--overwrite"), 2,
+         "gap: error: output folder {tmp}/notmine/ ..."),
     Case("reindex-not-a-directory", ("reindex", "{tmp}/nowhere"), 1,
          "reindex: error: '{tmp}/nowhere' is not a bag directory (it does not exist)"),
 )
@@ -191,6 +206,11 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     (tmp / "empty.csv").write_bytes(b"")
     (tmp / "header.csv").write_text("t,u,a\n")
     (tmp / "one.csv").write_text("t,u,a\n0,0.1,0.2\n")
+    (tmp / "rows.csv").write_text(rows)
+    for folder, names in (("out", ("report.json", "notes.txt")), ("notmine", ("notes.txt",))):
+        (tmp / folder).mkdir()
+        for name in names:
+            (tmp / folder / name).write_text("a user's earlier result\n")
     import gzip
 
     long_rows = "t,u,a\n" + "".join(f"{0.01 * k:.2f},{0.1 + 0.01 * (k % 7):.2f},{np.sin(k):.6f}\n"
@@ -246,3 +266,6 @@ def test_bad_input(case: Case, inputs: dict[str, str]) -> None:
     else:
         assert first == expected
     assert done.returncode == case.rc, output
+    for folder in ("out", "notmine"):  # a refused run leaves an existing folder as it was
+        for name in os.listdir(Path(inputs["tmp"]) / folder):
+            assert (Path(inputs["tmp"]) / folder / name).read_text() == "a user's earlier result\n"

@@ -170,7 +170,7 @@ COMMANDS: dict[str, tuple[Callable[[dict[str, Path]], list[str]], str, int, str,
                  "-o", 2, "report.json", {"report.json", "overlay.png", "fitted_rig.yaml"}),
     "compare": (lambda d: [str(d["bag"]), "--rig", "thesis_rig"], "-o", 2, "compare.json",
                 {"compare.json", "overlay_fit.png"}),
-    "identify": (lambda d: [str(d["bag"]), "--rig", "thesis_rig", "--quiet", "--no-plots"], "--out", 2,
+    "identify": (lambda d: [str(d["bag"]), "--rig", "thesis_rig", "--quiet", "--no-plots"], "-o", 2,
                  "model.yaml", {"model.yaml", "summary.json"}),
     "gap": (lambda d: [str(d["bag"]), "--held-out", str(d["held"]), "--rig", "thesis_rig", "-q",
                        "--max-effects", "1", "--no-oracle"], "-o", 2, "report.json",
@@ -239,10 +239,10 @@ def test_pipeline_refuses_before_starting_the_graph(tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "main"
     before = _earlier_run(out, "summary.json")
-    rc, err, elapsed = _call("pipeline", ["--out", str(out)], capsys)
+    rc, err, elapsed = _call("pipeline", ["-o", str(out)], capsys)
     assert rc == 2 and elapsed < REFUSAL_S
     assert err == (f"pipeline: error: output folder {out}/ exists and is not empty ({STALE}, summary.json); "
-                   "pass --overwrite to replace it or choose another --out\n")
+                   "pass --overwrite to replace it or choose another -o\n")
     assert _tree(out) == before
 
 

@@ -53,7 +53,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                     help="partial-state path (θ and τ only)")
     ap.add_argument("--train-fraction", type=float, default=0.75)
     ap.add_argument("--namespace", default="")
-    ap.add_argument("--out", type=Path, default=Path("ident_results"), help="results folder (created)")
+    ap.add_argument("-o", "--out", type=Path, default=Path("ident_results"), help="results folder (created)")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace the earlier identify results in --out (only a folder that holds them)")
     ap.add_argument("--no-plots", action="store_true")
@@ -67,7 +67,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         out = claim_output_folder(args.out, args.overwrite, own=OUTPUT_FILES, looks_like="identify results",
-                                  option="--out", inputs=[split_preset(x)[0] for x in args.inputs])
+                                  option="-o", inputs=[split_preset(x)[0] for x in args.inputs])
         rig = load_rig(args.rig) if args.rig else None
         summary = identify(args.inputs, out.prepare(), rig, args.method, args.library, args.namespace,
                            preset=args.preset, train_fraction=args.train_fraction, thrust_map=args.thrust_map,

@@ -21,7 +21,7 @@ from aeropend_sim.output_folder import OutputFolderError, claim_output_folder
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="pipeline", description=__doc__.split("\n\n")[0])
-    p.add_argument("--out", type=Path, default=Path("reports/main"), help="report folder")
+    p.add_argument("-o", "--out", type=Path, default=Path("reports/main"), help="report folder")
     p.add_argument("--overwrite", action="store_true",
                    help="replace the earlier main-job run in --out (only a folder that holds one)")
     p.add_argument("--plant-rig", default="thesis_rig",
@@ -42,7 +42,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         out = claim_output_folder(args.out, args.overwrite, own=OUTPUTS.values(), looks_like="a main-job run",
-                                  option="--out").prepare()
+                                  option="-o").prepare()
     except OutputFolderError as exc:
         print(f"pipeline: error: {exc}", file=sys.stderr)
         return 2
