@@ -13,10 +13,11 @@ Parameters
 ----------
 rig : str, default ``thesis_rig``
     Rig whose model the design and the allocation use.
-strategy : str, default ``fl_pid``
-    ``fl_pid`` | ``small_signal`` (gain-scheduled) | ``small_signal_fixed`` (needs ``theta_op``)
-    | ``cascade`` | ``fl_cascade`` (these also use ω₁ from ``joint_states`` and i_a from
-    ``/aeropend/armature``, paired by stamp).
+strategy : str, default :data:`~aeropend_control.strategies.registry.DEFAULT_STRATEGY`
+    A registered strategy (:func:`~aeropend_control.strategies.registry.strategy_names`; the
+    parameter's description lists them, ``ros2 param describe /aeropend_controller strategy``).
+    A strategy that needs i_a (:attr:`~aeropend_control.strategies.base.Strategy.needs`: the
+    cascades) also gets ω₁ from ``joint_states`` and i_a from ``/aeropend/armature``, paired by stamp.
 mode : str, default ``realtime``
     ``realtime``: samples with ``SAMPLE_SUB_QOS`` (best effort, keep last 100); ``lockstep``: reliable samples
     (``SAMPLE_QOS_LOCKSTEP``), exactly one command per new sample stamp; a re-published sample
@@ -31,16 +32,17 @@ allocator : str, default ``model``
     ``model`` | ``thesis`` (see :mod:`aeropend_control.allocation`).
 omega_n, zeta, rho : float
     Closed-loop pole pattern (:class:`aeropend_control.design.PoleSpec`); unset = the strategy's
-    default (:data:`aeropend_control.drive_design.DEFAULT_SPECS`: ω_n 9.5 rad/s for FL and
-    small-signal, 9 rad/s for the cascades, ζ 0.7, ρ 1; on a rig file that declares a drive lag or
-    delay, ω_n and ζ from :func:`aeropend_control.drive_design.robust_spec`).
+    default (:attr:`~aeropend_control.strategies.base.Strategy.default_spec`: ω_n 9.5 rad/s for FL
+    and small-signal, 9 rad/s for the cascades, ζ 0.7, ρ 1; on a rig file that declares a drive lag
+    or delay, ω_n and ζ from :func:`aeropend_control.drive_design.robust_spec`).
 estimator : str, default ``observer``
     θ̇ estimate: ``observer`` (stationary Kalman filter with the model thrust as known input,
     :mod:`aeropend_control.observer`) | ``difference`` (filtered difference, time constant ``tf``).
 tf : float [s], default 0.01
     θ̇ / derivative filter time constant of the ``difference`` estimator.
 theta_op : float [rad]
-    Operating point of ``small_signal_fixed``.
+    Operating point of a strategy that requires one
+    (:attr:`~aeropend_control.strategies.base.Strategy.required`).
 duration : float [s], default 0
     Stop (duty 0, exit 0) after this much sample time; 0 = run until SIGINT/SIGTERM.
 trace : str
@@ -99,6 +101,7 @@ from aeropend_control.controller_core import (
     make_settings,
 )
 from aeropend_control.design import REACH_DUTY_MARGIN
+from aeropend_control.strategies.registry import DEFAULT_STRATEGY, strategy_help
 from aeropend_sim.contract import (
     REL_ARMATURE,
     REL_DUTY_CYCLE,
@@ -136,9 +139,9 @@ PAIR_BUFFER = 20
 #: delivered late by the reliable history).
 MATCH_GRACE_NS = 250_000_000
 
-PARAMETERS: tuple[tuple[str, Any, str], ...] = (
-    ("rig", "thesis_rig", "rig name or YAML path"),
-    ("strategy", "fl_pid", "fl_pid | small_signal | small_signal_fixed | cascade | fl_cascade"),
+
+#: The node's parameters after ``rig`` and ``strategy`` (:func:`parameter_table`).
+_PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("mode", "realtime", "realtime | lockstep"),
     ("steps", None, "reference steps [t0, theta0, t1, theta1, ...] (s, rad)"),
     ("reference", 0.0, "reference before the first step [rad]"),
@@ -147,13 +150,22 @@ PARAMETERS: tuple[tuple[str, Any, str], ...] = (
     ("zeta", None, "closed-loop damping ratio (default: per strategy and rig file)"),
     ("rho", None, "real closed-loop pole / omega_n (default 1)"),
     ("tf", 0.01, "theta_dot / derivative filter time constant [s]"),
-    ("theta_op", None, "operating point of small_signal_fixed [rad]"),
+    ("theta_op", None, "operating point of a fixed-point strategy [rad]"),
     ("duration", 0.0, "stop after this much sample time [s] (0 = never)"),
     ("trace", "", "CSV path for the internal signals (written on exit)"),
     ("estimator", "observer", "theta_dot estimate: observer | difference"),
     ("rt_priority", 0, "SCHED_FIFO priority 1-99 of the executor thread (0 = normal scheduling)"),
     ("executor", "events", "events (EventsExecutor) | single (SingleThreadedExecutor)"),
 )
+
+
+def parameter_table() -> tuple[tuple[str, Any, str], ...]:
+    """The node's parameters as ``(name, default, description)``; the ``strategy`` description lists
+    the strategies registered when the node is built (:func:`strategy_help`)."""
+    return (("rig", "thesis_rig", "rig name or YAML path"),
+            ("strategy", DEFAULT_STRATEGY, strategy_help()), *_PARAMETERS)
+
+
 #: Parameters that may be set while the controller runs (``ros2 param set``): the pole pattern
 #: (a new design taken over bumpless) and the reference (initial value and step sequence). The
 #: others fix the rig, the structure or the process set-up of a run and are read-only.
@@ -166,7 +178,7 @@ class ControllerNode(Node):
     def __init__(self, **node_options: Any) -> None:
         """``node_options`` go to :class:`rclpy.node.Node` (e.g. ``context``, ``parameter_overrides``)."""
         super().__init__(NODE_NAME, **node_options)
-        raw = declare_parameter_table(self, PARAMETERS, live=LIVE_PARAMETERS)
+        raw = declare_parameter_table(self, parameter_table(), live=LIVE_PARAMETERS)
         try:
             self.rt_priority = _rt_priority(raw.pop("rt_priority"))
             self.executor_kind = executor_kind(raw.pop("executor"), ControllerConfigError)
@@ -187,7 +199,7 @@ class ControllerNode(Node):
         # cascades also need i_a: pair joint_states and armature by their common stamp
         self._pending_js: dict[int, tuple[float, float]] = {}
         self._pending_arm: dict[int, float] = {}
-        if self.loop.needs_motor:
+        if "i_a" in self.loop.needs:
             self.create_subscription(BatteryState, REL_ARMATURE, self._on_armature, qos)
         self.create_subscription(Float64, REL_REFERENCE, self._on_reference, 10)
         # a new pole pattern in real-time mode is designed here, off the executor (up to ≈ 0.5 s on a
@@ -287,13 +299,16 @@ class ControllerNode(Node):
                                    throttle_duration_sec=1.0)
             return
         stamp = stamp_to_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)
-        if not self.loop.needs_motor:
-            self._control(stamp, theta)
+        needs = self.loop.needs
+        omega = math.nan
+        if "omega" in needs:
+            try:
+                omega = float(msg.velocity[list(msg.name).index("motor")])
+            except (ValueError, IndexError):
+                pass
+        if "i_a" not in needs:
+            self._control(stamp, theta, omega)
             return
-        try:
-            omega = float(msg.velocity[list(msg.name).index("motor")])
-        except (ValueError, IndexError):
-            omega = math.nan
         self._pending_js[stamp] = (theta, omega)
         self._pair(stamp)
 
@@ -364,7 +379,7 @@ class ControllerNode(Node):
         self.get_logger().info(
             f"summary: commands={self.published} samples={len(self.loop.rows)} repeats={self.loop.repeats} "
             f"stale={self.loop.stale} bad_samples={self.bad_samples} "
-            f"nan_inputs={self.loop.strategy.pid.nan_count}"
+            f"nan_inputs={self.loop.strategy.nan_count}"
         )
 
 
