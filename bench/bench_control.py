@@ -1,7 +1,7 @@
 """Benchmark: closed-loop steps of every strategy on the thesis rig (batch, in-process).
 
-Each strategy of :mod:`aeropend_control.strategies` × steps from rest (θ = 0) to 0.2, 0.4 and
-0.7 rad, 4 s, controller at every 2.048 ms sample, plant simulated by
+Each registered strategy (:mod:`aeropend_control.strategies`) that needs no extra setting × steps
+from rest (θ = 0) to 0.2, 0.4 and 0.7 rad, 4 s, controller at every 2.048 ms sample, plant simulated by
 :class:`aeropend_sim.simulate.PlantStepper` (the same stepper the lock-step ``sim_node`` runs;
 ``test/test_control_ros.py`` checks that the ROS loop reproduces this loop sample by sample).
 Scenarios:
@@ -44,7 +44,7 @@ from scipy.optimize import brentq
 
 from aeropend_control.allocation import ModelAllocator
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
-from aeropend_control.strategies import NEEDS_MOTOR, STRATEGIES, make_strategy
+from aeropend_control.strategies import Measurement, make_strategy, strategy_class, strategy_names
 from aeropend_sim.model import THETA, PlantModel
 from aeropend_sim.params import Rig, load_rig
 from aeropend_sim.simulate import PlantStepper
@@ -52,7 +52,8 @@ from aeropend_sim.simulate import PlantStepper
 OUT = Path(__file__).resolve().parent / "results" / "control.json"
 SETPOINTS = (0.2, 0.4, 0.7)
 HORIZON_S = 4.0
-BENCH_STRATEGIES = tuple(s for s in STRATEGIES if s != "small_signal_fixed")
+#: Registered strategies that run without an extra setting (not ``small_signal_fixed``: it needs θ_op).
+BENCH_STRATEGIES = tuple(s for s in strategy_names() if not strategy_class(s).required)
 
 
 def scenarios() -> dict[str, Rig]:
@@ -107,10 +108,7 @@ def run(name: str, rig: Rig, r: float, seed: int = 0, traces: dict | None = None
     t0 = time.perf_counter()
     for k in range(n):
         theta_true[k] = plant.x[THETA]
-        if name in NEEDS_MOTOR:
-            o = ctl.step(r, s["theta"], s["omega_rotor"], s["i_a"])
-        else:
-            o = ctl.step(r, s["theta"])
+        o = ctl.step(r, Measurement(s["theta"], s["omega_rotor"], s["i_a"]))
         duty[k] = o.duty
         sat += o.saturated != 0
         s = plant.step(o.duty)

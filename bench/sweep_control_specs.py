@@ -2,7 +2,7 @@
 
 Runs ``bench_control_independent.py`` on plants 100-139 (drawn like the reported plants 0-39, other
 seeds, so nothing is tuned on the reported set) with the strategies' default pole specs
-(:data:`aeropend_control.drive_design.DEFAULT_SPECS`, re-exported by ``strategies``) replaced by
+(:attr:`aeropend_control.strategies.Strategy.default_spec` of every registered class) replaced by
 each configuration below, and writes one summary row per configuration to
 ``bench/results/control_spec_sweep.{json,md}``.
 The defaults are not changed by this script.
@@ -20,8 +20,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_control_independent as bci
 
-import aeropend_control.strategies as strategies
 from aeropend_control.design import PoleSpec
+from aeropend_control.strategies import strategy_class, strategy_names
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: name -> ((ω_n, ζ, ρ) of fl_pid / small_signal, (ω_n, ζ, ρ) of cascade / fl_cascade)
@@ -45,10 +45,10 @@ KEYS = ("table_6_1", "late_peak_only", "table_6_1_or_late_peak", "no_limit_cycle
 
 def run(name: str, tmp: Path) -> dict:
     (fw, fz, fr), (cw, cz, cr) = CONFIGS[name]
-    for k in ("fl_pid", "small_signal", "small_signal_fixed"):
-        strategies.DEFAULT_SPECS[k] = PoleSpec(fw, zeta=fz, rho=fr)
-    for k in ("cascade", "fl_cascade"):
-        strategies.DEFAULT_SPECS[k] = PoleSpec(cw, zeta=cz, rho=cr)
+    for k in strategy_names():  # the cascades (motor-cascade drive) get the second spec
+        cls = strategy_class(k)
+        cls.default_spec = (PoleSpec(cw, zeta=cz, rho=cr) if cls.drive_kind == "cascade"
+                            else PoleSpec(fw, zeta=fz, rho=fr))
     out = tmp / f"sweep_{name}"
     bci.main(["--first", "100", "--plants", "40", "--workers", "2", "--out", str(out)])
     s = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))["summary"]

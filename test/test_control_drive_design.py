@@ -24,6 +24,8 @@ from aeropend_control.drive_design import (
     DriveSpec,
     closed_loop,
     declares_drive_lag,
+    default_thrust_gain,
+    design_drive,
     design_fl_on_drive,
     design_small_signal_on_drive,
     drive_model,
@@ -33,13 +35,11 @@ from aeropend_control.drive_design import (
     worst_goal_ratio,
 )
 from aeropend_control.strategies import (
-    DEFAULT_SPECS,
     FeedbackLinearizationPID,
+    Measurement,
     SmallSignalPID,
-    default_spec,
-    default_thrust_gain,
-    design_drive,
     make_strategy,
+    strategy_class,
 )
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig, rig_from_dict, rig_to_dict
@@ -120,7 +120,9 @@ def test_designed_on_the_drive_the_loop_keeps_the_designed_step_where_static_gai
 
 def test_a_rig_without_a_declared_drive_lag_keeps_the_static_design():
     rig = load_rig("thesis_rig")
-    assert design_drive(rig, "fl_pid") is None and design_drive(rig, "cascade") is None
+    assert design_drive(rig, "duty") is None and design_drive(rig, "cascade") is None
+    assert FeedbackLinearizationPID.drive_for(rig) is None
+    assert strategy_class("cascade").drive_for(rig) is None
     fl = FeedbackLinearizationPID(rig)
     assert fl.design.drive == "static"
     assert (fl.design.kp, fl.design.ki, fl.design.kd) == pytest.approx(place_ipd(0.0, 0.0, 1.0, SPEC))
@@ -130,14 +132,14 @@ def test_a_rig_without_a_declared_drive_lag_keeps_the_static_design():
 
 def test_strategies_on_a_rig_that_declares_its_lag_are_designed_on_the_drive():
     rig = _rig(lag=0.04, delay=0.004, name="thesis_sim")
-    assert design_drive(rig, "fl_pid") == DriveSpec("duty", thrust_gain=3.0)
+    assert FeedbackLinearizationPID.drive_for(rig) == DriveSpec("duty", thrust_gain=3.0)
     # at the thesis' ζ = 0.7 the drive-chain design beats the static one; the default (robust) ζ
     # may be one where the static gains do as well, and then they stay
     assert make_strategy("fl_pid", rig, spec=SPEC).design.drive == "duty"
     assert {d.drive for d in SmallSignalPID(rig, spec=SPEC).table} == {"duty"}
     assert FeedbackLinearizationPID(rig).design.drive in ("duty", "static")
     casc = make_strategy("cascade", rig)
-    assert design_drive(rig, "cascade").kind == "cascade"
+    assert strategy_class("cascade").drive_for(rig).kind == "cascade"
     # every scheduled design is either placed on the cascade drive or, where the three gains cannot
     # place it (a slow armature's current-PI zero in the band), the static one: never an error
     assert {d.drive for d in casc.outer.table} <= {"cascade", "static"}
@@ -150,6 +152,8 @@ def test_drive_spec_validates_its_values():
         DriveSpec("cascade")
     with pytest.raises(ValueError, match="thrust_gain"):
         DriveSpec("duty", thrust_gain=-1.0)
+    with pytest.raises(ValueError, match="drive kind = 'fl_pid'"):  # kinds, not strategy names
+        design_drive(load_rig("thesis_rig"), "fl_pid")
 
 
 def test_a_cascade_on_a_quasi_static_armature_with_a_declared_lag_starts_on_the_static_design():
@@ -188,14 +192,16 @@ def test_the_plant_error_of_the_linear_loop_is_the_known_residual_of_the_fl_law(
 def test_robust_spec_keeps_the_thesis_spec_without_a_declared_drive_and_is_minimax_with_one():
     rig = load_rig("thesis_rig")
     for name in ("fl_pid", "small_signal", "cascade", "fl_cascade"):
-        assert default_spec(name, rig) == DEFAULT_SPECS[name]
+        cls = strategy_class(name)
+        assert cls.default_spec_for(rig) == cls.default_spec
     lag = _rig(lag=0.05, delay=0.004, name="thesis_sim")
     m = PlantModel(lag)
     theta0 = 0.5 * reachable_angle(lag)
     for name in ("fl_pid", "fl_cascade"):
-        drive = design_drive(lag, name)
+        cls = strategy_class(name)
+        drive = cls.drive_for(lag)
         d = drive_model(lag, theta0, drive)
-        w0 = DEFAULT_SPECS[name].omega_n
+        w0 = cls.default_spec.omega_n
         cost = {}
         for f, z in itertools.product(ROBUST_OMEGA_FACTORS[drive.kind], ROBUST_ZETAS):
             des = design_fl_on_drive(lag, PoleSpec(f * w0, z), drive, theta0)
@@ -203,12 +209,12 @@ def test_robust_spec_keeps_the_thesis_spec_without_a_declared_drive_and_is_minim
             cost[f * w0, z] = worst_goal_ratio(m.a_g * np.cos(theta0), m.a_c, m.b_f, d, gains, True)
             bounded = worst_goal_ratio(m.a_g * np.cos(theta0), m.a_c, m.b_f, d, gains, True, bound=0.5)
             assert bounded == cost[f * w0, z] or cost[f * w0, z] >= bounded > 0.5  # early exit only above
-        chosen = robust_spec(lag, name, DEFAULT_SPECS[name])
-        assert chosen.rho == DEFAULT_SPECS[name].rho
+        chosen = robust_spec(lag, cls.default_spec, cls.drive_kind, cls.linearising)
+        assert chosen.rho == cls.default_spec.rho
         assert cost[chosen.omega_n, chosen.zeta] == min(cost.values())
         # the thesis' ζ = 0.7 overshoots > 5 % on some plant of the ±20 % box; the choice does better
         assert cost[w0, 0.7] > 1.0 and cost[chosen.omega_n, chosen.zeta] < cost[w0, 0.7]
-        assert chosen == default_spec(name, lag)
+        assert chosen == cls.default_spec_for(lag)
 
 
 def _step_on_own_simulator(rig, strategy, r: float = 0.3, seconds: float = 5.0) -> tuple[float, float]:
@@ -216,7 +222,7 @@ def _step_on_own_simulator(rig, strategy, r: float = 0.3, seconds: float = 5.0) 
     plant = PlantStepper(rig)
     s, theta = plant.sample(), []
     for _ in range(round(seconds / rig.sample_period)):
-        out = strategy.step(r, s["theta"], s["omega_rotor"], s["i_a"])
+        out = strategy.step(r, Measurement(s["theta"], s["omega_rotor"], s["i_a"]))
         theta.append(s["theta"])
         s = plant.step(out.duty)
     y = np.asarray(theta)
@@ -232,7 +238,8 @@ def test_robust_spec_goes_slower_when_no_candidate_keeps_the_whole_box_stable():
     design's overshoot."""
     rig = _rig(lag=0.058, name="thesis_sim", c_over_j=6.97)
     name = "cascade"
-    drive = design_drive(rig, name)
+    cls = strategy_class(name)
+    drive = cls.drive_for(rig)
     theta0 = 0.5 * reachable_angle(rig)
     d = drive_model(rig, theta0, drive)
 
@@ -240,10 +247,10 @@ def test_robust_spec_goes_slower_when_no_candidate_keeps_the_whole_box_stable():
         des = design_small_signal_on_drive(rig, theta0, spec, drive)
         return worst_goal_ratio(des.a0, des.a1, des.g, d, (des.kp, des.ki, des.kd), False)
 
-    w0 = DEFAULT_SPECS[name].omega_n
+    w0 = cls.default_spec.omega_n
     default_factors = ROBUST_OMEGA_FACTORS["cascade"]
     assert all(score(PoleSpec(f * w0, z)) == np.inf for f in default_factors for z in ROBUST_ZETAS)
-    chosen = robust_spec(rig, name, DEFAULT_SPECS[name])
+    chosen = robust_spec(rig, cls.default_spec, cls.drive_kind, cls.linearising)
     assert any(chosen.omega_n == pytest.approx(f * w0) for f in STABLE_FALLBACK_FACTORS)
     assert np.isfinite(score(chosen))
     ts, mp = _step_on_own_simulator(rig, make_strategy(name, rig))
@@ -269,7 +276,7 @@ def test_the_thrust_loop_gain_keeps_its_inner_loop_stable_on_a_rig_with_a_pure_d
         plant = PlantStepper(delay)
         s, duty = plant.sample(), []
         for _ in range(round(seconds / delay.sample_period)):
-            out = strategy.step(0.3, s["theta"])
+            out = strategy.step(0.3, Measurement(s["theta"]))
             duty.append(out.duty)
             s = plant.step(out.duty)
         return float(np.std(duty[-round(1.0 / delay.sample_period):]))

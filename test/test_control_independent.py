@@ -81,7 +81,7 @@ def test_a_malformed_recording_frame_is_refused_naming_the_key(tmp_path):
 
 
 def test_design_gains_schedules_a_weak_rig_up_to_its_reach(tmp_path, capsys):
-    from aeropend_control.drive_design import main
+    from aeropend_control.design_gains import main
 
     # the ideal drive: reach ≈ 0.67 rad < the grid's 1.1 rad
     rig = write_rig(lab_rig_doc(), tmp_path / "weak.yaml")
@@ -192,7 +192,8 @@ def test_design_gains_and_every_strategy_take_the_rig_file_gap_wrote(tmp_path, c
     actuator lag, thrust coefficient, dead zone): design_gains designs on it, the four strategies
     start on it through the node's settings, the declared lag switches on the thrust loop and limits
     the cascade's speed loop, and the loop holds the nominal rig's simulator at a set point."""
-    from aeropend_control.drive_design import THRUST_LOOP_GAIN, main
+    from aeropend_control.design_gains import main
+    from aeropend_control.drive_design import THRUST_LOOP_GAIN
     from aeropend_sim.params import load_rig
 
     rig = load_rig(GAP_RIG)

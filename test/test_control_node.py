@@ -92,9 +92,9 @@ def test_latency_columns() -> None:
 
 
 def test_pole_defaults_per_strategy_and_override() -> None:
-    from aeropend_control.strategies import DEFAULT_SPECS
+    from aeropend_control.strategies import FeedbackLinearizationPID
 
-    assert make_settings(strategy="fl_pid").spec == DEFAULT_SPECS["fl_pid"]
+    assert make_settings(strategy="fl_pid").spec == FeedbackLinearizationPID.default_spec
     assert make_settings(strategy="cascade").spec.omega_n == 9.0
     s = make_settings(strategy="fl_pid", omega_n=8.0, zeta=None)
     assert (s.spec.omega_n, s.spec.zeta, s.spec.rho) == (8.0, 0.7, 1.0)

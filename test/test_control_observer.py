@@ -100,7 +100,7 @@ def test_disturbance_state_estimates_an_unmodelled_constant_acceleration() -> No
 
 
 def _closed_loop(rig: Rig, r: float, estimator: str) -> tuple[np.ndarray, np.ndarray]:
-    from aeropend_control.strategies import make_strategy
+    from aeropend_control.strategies import Measurement, make_strategy
 
     ctl = make_strategy("fl_pid", RIG, estimator=estimator)
     plant = PlantStepper(rig, seed=0)
@@ -109,7 +109,7 @@ def _closed_loop(rig: Rig, r: float, estimator: str) -> tuple[np.ndarray, np.nda
     s = plant.sample()
     for k in range(n):
         true[k] = plant.x[THETA]
-        duty[k] = ctl.step(r, s["theta"]).duty
+        duty[k] = ctl.step(r, Measurement(s["theta"])).duty
         s = plant.step(duty[k])
     return true, duty
 

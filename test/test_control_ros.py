@@ -32,7 +32,7 @@ from ros_support import (
 )
 
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
-from aeropend_control.strategies import NEEDS_MOTOR, make_strategy
+from aeropend_control.strategies import Measurement, make_strategy
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulate import PlantStepper
 
@@ -70,13 +70,10 @@ def test_lockstep_closed_loop_step_to_0_4(tmp_path: Path, strategy: str) -> None
     ref_ctl, plant = make_strategy(strategy, rig), PlantStepper(rig)
     s = plant.sample()
     # BatteryState.current is float32 on the wire: the cascade sees i_a rounded to ~1e-8 relative
-    tol = 1e-6 if strategy in NEEDS_MOTOR else 1e-9
+    tol = 1e-6 if "i_a" in ref_ctl.needs else 1e-9
     for k in range(len(t)):
         assert abs(s["theta"] - theta[k]) < tol, f"sample {k}"
-        if strategy in NEEDS_MOTOR:
-            d = ref_ctl.step(0.4, s["theta"], s["omega_rotor"], s["i_a"]).duty
-        else:
-            d = ref_ctl.step(0.4, s["theta"]).duty
+        d = ref_ctl.step(0.4, Measurement(s["theta"], s["omega_rotor"], s["i_a"])).duty
         assert abs(d - duty[k]) < tol, f"sample {k}"
         s = plant.step(d)
 
@@ -218,9 +215,9 @@ def test_a_live_pole_change_in_realtime_mode_is_designed_off_the_executor() -> N
     import rclpy
     from rclpy.parameter import Parameter
 
-    from aeropend_control import controller_core
     from aeropend_control.controller_core import ControllerLoop, make_settings
     from aeropend_control.controller_node import ControllerNode
+    from aeropend_control.strategies import base
 
     rig = str(Path(__file__).resolve().parent / "data" / "gap_corrected_rig.yaml")
     ctx = rclpy.Context()
@@ -233,12 +230,12 @@ def test_a_live_pole_change_in_realtime_mode_is_designed_off_the_executor() -> N
         assert spec0.zeta > 0.7  # the robust ζ of a rig that declares its drive
 
         designs: list[object] = []
-        real_default_spec = controller_core.default_spec
-        controller_core.default_spec = lambda *a, **k: designs.append(a) or real_default_spec(*a, **k)
+        real_robust_spec = base.robust_spec  # the robust-ζ search of Strategy.default_spec_for
+        base.robust_spec = lambda *a, **k: designs.append(a) or real_robust_spec(*a, **k)
         try:
             ok, = node.set_parameters([Parameter("reference", value=0.2)])
         finally:
-            controller_core.default_spec = real_default_spec
+            base.robust_spec = real_robust_spec
         assert ok.successful and designs == [] and node._redesign is None
         assert node.loop.settings.spec == spec0 and node.loop.reference.initial == 0.2
 

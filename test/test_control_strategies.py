@@ -1,4 +1,4 @@
-"""Strategies and gain design (aeropend_control.strategies / design / metrics).
+"""Strategies and gain design (aeropend_control.strategies / design / design_gains / metrics).
 
 * pole placement against the analytic I-PD formulas;
 * feedback linearisation cancels the nonlinearity exactly: the continuous closed loop on the
@@ -27,13 +27,13 @@ from aeropend_control.design import (
     design_small_signal,
     place_ipd,
 )
-from aeropend_control.drive_design import main
+from aeropend_control.design_gains import main
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
 from aeropend_control.strategies import (
-    DEFAULT_SPECS,
-    NEEDS_MOTOR,
     FeedbackLinearizationPID,
+    Measurement,
     MotorCascade,
+    SmallSignalPID,
     StrategyError,
     VelocityEstimator,
     make_strategy,
@@ -118,10 +118,7 @@ def _run(name: str, r: float, horizon: float = 3.0, **opts: object) -> tuple[np.
     s = plant.sample()
     for k in range(n):
         theta[k] = s["theta"]
-        if name in NEEDS_MOTOR:
-            o = ctl.step(r, s["theta"], s["omega_rotor"], s["i_a"])
-        else:
-            o = ctl.step(r, s["theta"])
+        o = ctl.step(r, Measurement(s["theta"], s["omega_rotor"], s["i_a"]))
         duty[k] = o.duty
         outs.append(o)
         s = plant.step(o.duty)
@@ -152,11 +149,11 @@ def test_small_signal_fixed_operating_point_and_scheduling_bumpless() -> None:
     for k in range(1500):
         r = 0.3 if k < 700 else 0.6  # operating point changes at sample 700
         thetas.append(s["theta"])
-        outs.append(ctl.step(r, s["theta"]))
+        outs.append(ctl.step(r, Measurement(s["theta"])))
         s = plant.step(outs[-1].duty)
     # bumpless: the thrust moves only by the I-PD's own increment ki·h·(r − θ) − kp·Δθ − kd·ΔD,
     # not by the jump of f₀ (0.0925 N) between the operating points 0.3 and 0.6 rad
-    d06 = design_small_signal(RIG, 0.6, DEFAULT_SPECS["small_signal"])
+    d06 = design_small_signal(RIG, 0.6, SmallSignalPID.default_spec)
     df = outs[700].thrust - outs[699].thrust
     expected = d06.ki * RIG.sample_period * (0.6 - thetas[700])
     assert abs(thetas[700] - 0.3) < 1e-3
@@ -166,10 +163,10 @@ def test_small_signal_fixed_operating_point_and_scheduling_bumpless() -> None:
 
 def test_nan_measurement_holds_duty_and_flags() -> None:
     ctl = make_strategy("fl_pid", RIG)
-    o1 = ctl.step(0.4, 0.0)
-    o2 = ctl.step(0.4, math.nan)
+    o1 = ctl.step(0.4, Measurement(0.0))
+    o2 = ctl.step(0.4, Measurement(math.nan))
     assert o2.nan_input and o2.duty == o1.duty
-    assert not ctl.step(0.4, 0.001).nan_input
+    assert not ctl.step(0.4, Measurement(0.001)).nan_input
 
 
 def test_velocity_estimator_ramp() -> None:
@@ -231,24 +228,28 @@ def test_cascade_design_gains_and_speed_loop_on_the_plant() -> None:
 
 def test_cascade_holds_duty_without_motor_measurements() -> None:
     ctl = make_strategy("fl_cascade", RIG)
-    o1 = ctl.step(0.4, 0.0, 0.0, 0.0)
-    o2 = ctl.step(0.4, 0.0, math.nan, 0.0)
+    o1 = ctl.step(0.4, Measurement(0.0, 0.0, 0.0))
+    o2 = ctl.step(0.4, Measurement(0.0, math.nan, 0.0))
     assert o2.nan_input and o2.duty == o1.duty
 
 
 def test_each_strategy_chooses_its_robust_pole_spec_once(monkeypatch: pytest.MonkeyPatch) -> None:
-    """``default_spec`` runs the robust-ζ search on a rig file that declares its drive (54 linear
+    """``default_spec_for`` runs the robust-ζ search on a rig file that declares its drive (54 linear
     step responses); building a strategy runs it once, fl_cascade's outer FL loop included (it gets
     its design, not a second search whose result was thrown away)."""
     from pathlib import Path
 
-    from aeropend_control import strategies
+    from aeropend_control.strategies import base, strategy_class
 
     rig = load_rig(str(Path(__file__).resolve().parent / "data" / "gap_corrected_rig.yaml"))
-    calls: list[str] = []
-    real = strategies.default_spec
-    monkeypatch.setattr(strategies, "default_spec", lambda name, *a: calls.append(name) or real(name, *a))
-    for name in ("fl_pid", "cascade", "fl_cascade"):
+    calls: list[tuple[str, bool]] = []
+    real = base.robust_spec
+    monkeypatch.setattr(base, "robust_spec", lambda rig, spec, kind, lin, *a: calls.append((kind, lin))
+                        or real(rig, spec, kind, lin, *a))
+    for name, kind, linearising in (("fl_pid", "duty", True), ("cascade", "cascade", False),
+                                    ("fl_cascade", "cascade", True)):
         calls.clear()
-        strategies.make_strategy(name, rig)
-        assert calls == [name]
+        make_strategy(name, rig)
+        assert calls == [(kind, linearising)]
+        cls = strategy_class(name)
+        assert (cls.drive_kind, cls.linearising) == (kind, linearising)

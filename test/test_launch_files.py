@@ -156,3 +156,18 @@ def test_description_launch_publishes_the_rigs_urdf_from_the_contract_joint_stat
     rsp2, = _nodes(entities, namespace="rig2", rig="thesis_sim", rviz="false")
     assert rsp2.kwargs["parameters"][0]["frame_prefix"] == "rig2/"  # two rigs: rig2/base_link, ...
     assert rsp2.kwargs["parameters"][0]["robot_description"] == urdf_for_rig("thesis_sim")
+
+
+def test_closed_loop_strategy_argument_reads_the_strategy_registry(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Default, choices (launch refuses any other value before a node starts) and help of the
+    ``strategy`` argument come from the registry; the value reaches the controller node."""
+    from aeropend_control.strategies import DEFAULT_STRATEGY, strategy_class, strategy_names
+
+    entities = _load(SRC / "aeropend_control" / "launch" / "closed_loop.launch.py", monkeypatch)
+    arg = next(e for e in entities if type(e).__name__ == "DeclareLaunchArgument" and e.args[0] == "strategy")
+    assert arg.kwargs["default_value"] == DEFAULT_STRATEGY
+    assert arg.kwargs["choices"] == list(strategy_names())
+    assert all(f"{n}: {strategy_class(n).description}" in arg.kwargs["description"] for n in strategy_names())
+    last = strategy_names()[-1]
+    ctrl = [n for n in _nodes(entities, strategy=last) if n.kwargs["executable"] == "controller"]
+    assert [n.kwargs["parameters"][0]["strategy"] for n in ctrl] == [last]

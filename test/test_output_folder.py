@@ -156,7 +156,7 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 
 def _main(name: str) -> Callable[[list[str]], int]:
-    from aeropend_control.drive_design import main as design_gains
+    from aeropend_control.design_gains import main as design_gains
     from aeropend_ident.cli import baseline, compare, csv_import, gap, identify, pipeline
 
     return {"baseline": baseline.main, "compare": compare.main, "identify": identify.main, "gap": gap.main,

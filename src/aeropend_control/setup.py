@@ -29,7 +29,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "design_gains = aeropend_control.drive_design:main",
+            "design_gains = aeropend_control.design_gains:main",
             "controller = aeropend_control.controller_node:main",
         ],
     },

@@ -14,19 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from aeropend_control.design import DesignError, PoleSpec, reachable_angle
-from aeropend_control.strategies import (
-    ALLOCATORS,
-    DEFAULT_TF,
-    ESTIMATORS,
-    NEEDS_MOTOR,
-    STRATEGIES,
-    CascadeStrategy,
-    ControlOutput,
-    FeedbackLinearizationPID,
-    SmallSignalPID,
-    default_spec,
-    make_strategy,
-)
+from aeropend_control.strategies.base import ControlOutput, Measurement, Strategy, StrategyError
+from aeropend_control.strategies.loop import ALLOCATORS, DEFAULT_TF, ESTIMATORS
+from aeropend_control.strategies.registry import DEFAULT_STRATEGY, make_strategy, strategy_class
 from aeropend_sim.params import Rig, RigFileError, load_rig
 from aeropend_sim.recording_frame import RecordingFrame, read_recording_frame
 
@@ -70,8 +60,8 @@ class ControllerSettings:
     frame: RecordingFrame = field(default_factory=RecordingFrame)
     #: The ``rig`` parameter as given (name or path) the rig was loaded from.
     rig_file: str = "thesis_rig"
-    #: The strategy's default pole pattern for this rig (:func:`default_spec`); unset pole
-    #: parameters take their value from it.
+    #: The strategy's default pole pattern for this rig (:meth:`Strategy.default_spec_for`); unset
+    #: pole parameters take their value from it.
     default_spec: PoleSpec = field(default_factory=PoleSpec)
 
 
@@ -122,17 +112,19 @@ def make_settings(*, previous: ControllerSettings | None = None, **raw: Any) -> 
     previous : ControllerSettings, optional
         Settings of the running loop. When ``raw`` names the same rig file and strategy, its rig,
         recording frame and default pole pattern are reused instead of being read and designed
-        again: :func:`default_spec` runs :func:`~aeropend_control.drive_design.robust_spec` on a
+        again: :meth:`Strategy.default_spec_for` runs :func:`~aeropend_control.drive_design.robust_spec` on a
         rig file that declares its drive (≈ 1 s of linear step responses), which must not happen
         inside the executor on every live ``reference`` or ``steps`` change.
     **raw
-        The node's parameters (:data:`aeropend_control.controller_node.PARAMETERS`); missing ones
+        The node's parameters (:func:`aeropend_control.controller_node.parameter_table`); missing ones
         take their defaults.
     """
     rig_file = str(raw.get("rig", "thesis_rig"))
-    strategy = str(raw.get("strategy", "fl_pid"))
-    if strategy not in STRATEGIES:
-        raise ControllerConfigError(f"strategy = {strategy!r}; expected one of {STRATEGIES}")
+    strategy = str(raw.get("strategy", DEFAULT_STRATEGY))
+    try:
+        cls = strategy_class(strategy)
+    except StrategyError as exc:
+        raise ControllerConfigError(str(exc)) from None
     if previous is not None and (previous.rig_file, previous.strategy) == (rig_file, strategy):
         rig, frame, base = previous.rig, previous.frame, previous.default_spec
     else:
@@ -141,7 +133,7 @@ def make_settings(*, previous: ControllerSettings | None = None, **raw: Any) -> 
             frame = read_recording_frame(rig_file)
         except (RigFileError, OSError, ValueError) as exc:
             raise ControllerConfigError(f"rig = {raw.get('rig')!r}: {exc}") from exc
-        base = default_spec(strategy, rig)  # a pole parameter not given (None) takes the strategy's default
+        base = cls.default_spec_for(rig)  # a pole parameter not given (None) takes the strategy's default
     mode = str(raw.get("mode", "realtime"))
     if mode not in MODES:
         raise ControllerConfigError(f"mode = {mode!r}; expected one of {MODES}")
@@ -164,8 +156,6 @@ def make_settings(*, previous: ControllerSettings | None = None, **raw: Any) -> 
     theta_op = raw.get("theta_op")
     theta_op = None if theta_op is None or (isinstance(theta_op, float) and math.isnan(theta_op)) else _float(
         "theta_op", theta_op)
-    if strategy == "small_signal_fixed" and theta_op is None:
-        raise ControllerConfigError("strategy 'small_signal_fixed' needs theta_op [rad]")
     duration = _float("duration", raw.get("duration", 0.0))
     if duration < 0.0:
         raise ControllerConfigError(f"duration = {duration!r} s must be >= 0 (0 = run until stopped)")
@@ -173,18 +163,25 @@ def make_settings(*, previous: ControllerSettings | None = None, **raw: Any) -> 
     estimator = str(raw.get("estimator", "observer"))
     if estimator not in ESTIMATORS:
         raise ControllerConfigError(f"estimator = {estimator!r}; expected one of {ESTIMATORS}")
-    return ControllerSettings(rig, strategy, mode, parse_steps(raw.get("steps")), ref, allocator, spec, tf,
-                              theta_op, duration, str(raw.get("trace") or ""), estimator, frame=frame,
-                              rig_file=rig_file, default_spec=base)
+    settings = ControllerSettings(rig, strategy, mode, parse_steps(raw.get("steps")), ref, allocator, spec,
+                                  tf, theta_op, duration, str(raw.get("trace") or ""), estimator, frame=frame,
+                                  rig_file=rig_file, default_spec=base)
+    missing = [name for name in cls.required if getattr(settings, name, None) is None]
+    if missing:
+        raise ControllerConfigError(f"strategy {strategy!r} needs {', '.join(missing)}")
+    return settings
 
 
-def build_strategy(s: ControllerSettings) -> FeedbackLinearizationPID | SmallSignalPID | CascadeStrategy:
-    """The strategy object of the settings (raises :class:`ControllerConfigError` on failure)."""
+def build_strategy(s: ControllerSettings) -> Strategy:
+    """The strategy object of the settings (raises :class:`ControllerConfigError` on failure).
+
+    Every strategy gets the pole pattern, ``allocator``, ``tf`` and ``estimator``, and the
+    settings its class lists in :attr:`Strategy.required`.
+    """
     try:
         opts: dict[str, Any] = {"spec": s.spec, "allocator": s.allocator, "tf": s.tf,
                                 "estimator": s.estimator}
-        if s.strategy == "small_signal_fixed":
-            opts["theta_op"] = s.theta_op
+        opts.update({name: getattr(s, name) for name in strategy_class(s.strategy).required})
         return make_strategy(s.strategy, s.rig, **opts)
     except ValueError as exc:
         raise ControllerConfigError(f"strategy {s.strategy!r}: {exc}") from exc
@@ -251,10 +248,9 @@ class ControllerLoop:
         self.stale = 0
         self.rows: list[list[float]] = []
 
-    def retune(self, settings: ControllerSettings,
-               designed: FeedbackLinearizationPID | SmallSignalPID | CascadeStrategy | None = None) -> None:
+    def retune(self, settings: ControllerSettings, designed: Strategy | None = None) -> None:
         """Apply new settings while running: the pole pattern (ω_n, ζ, ρ: a new design, taken over
-        bumpless, :meth:`FeedbackLinearizationPID.retune` / :meth:`SmallSignalPID.retune`), the
+        bumpless, :meth:`Strategy.retune`), the
         initial reference and the step sequence (times still from the first sample). Anything else
         (rig, strategy, mode, allocator, estimator, θ_op, duration, trace, tf) is fixed for a run.
 
@@ -278,7 +274,7 @@ class ControllerLoop:
         if settings.spec != self.settings.spec:
             fresh = designed if designed is not None else build_strategy(settings)
             try:
-                self.strategy.retune(fresh)  # type: ignore[arg-type]
+                self.strategy.retune(fresh)
             except ValueError as exc:  # StrategyError, PIDConfigError
                 raise ControllerConfigError(f"retune to {settings.spec}: {exc}") from exc
         self.reference.initial, self.reference.steps = settings.reference, settings.steps
@@ -294,13 +290,14 @@ class ControllerLoop:
         return d > 0.0 and self.last_stamp is not None and self.time_of(self.last_stamp) >= d
 
     @property
-    def needs_motor(self) -> bool:
-        """True if the strategy needs ω₁ and i_a (cascade strategies)."""
-        return self.settings.strategy in NEEDS_MOTOR
+    def needs(self) -> tuple[str, ...]:
+        """Measured channels the strategy reads (:attr:`Strategy.needs`: ``theta``, ``omega``, ``i_a``)."""
+        return self.strategy.needs
 
     def on_sample(self, stamp_ns: int, theta: float, omega: float = math.nan,
                   i_a: float = math.nan, recv_ns: int | None = None) -> float | None:
-        """Duty for a sample (see class doc); ω₁ [rad/s] and i_a [A] are used by cascades only.
+        """Duty for a sample (see class doc); ω₁ [rad/s] and i_a [A] are read by the strategies that
+        need them (:attr:`needs`).
 
         ``recv_ns`` is the receipt time on the stamp's clock (real-time mode), for the latency
         columns of the trace; :meth:`mark_published` fills in the publish latency.
@@ -323,10 +320,7 @@ class ControllerLoop:
         clamped = r != r_req
         self.clamp_event = (r_req, r) if clamped and r_req != self._clamped_from else None
         self._clamped_from = r_req if clamped else None
-        if isinstance(self.strategy, CascadeStrategy):
-            out = self.strategy.step(r, theta, omega, i_a)
-        else:
-            out = self.strategy.step(r, theta)
+        out = self.strategy.step(r, Measurement(theta, omega, i_a))
         self.last_stamp, self.last_out = stamp_ns, out
         recv = (recv_ns - stamp_ns) * 1e-9 if recv_ns is not None else math.nan
         obs = self.strategy.observer
@@ -341,9 +335,8 @@ class ControllerLoop:
     def detune_event(self) -> tuple[float, float] | None:
         """(speed-loop bandwidth before, after) [rad/s] when the last sample's duty completed a
         limit cycle of a cascade's motor loops and they were detuned
-        (:class:`~aeropend_control.strategies.MotorCascade`), else None (the node logs it)."""
-        inner = getattr(self.strategy, "inner", None)
-        return inner.detune_event if inner is not None else None
+        (:attr:`Strategy.detune_event`), else None (the node logs it)."""
+        return self.strategy.detune_event
 
     def mark_published(self, pub_ns: int) -> None:
         """Record when the command of the last new sample was published (stamp's clock)."""

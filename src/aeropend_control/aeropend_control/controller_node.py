@@ -9,7 +9,7 @@ Usage::
     controller --ros-args -p strategy:=fl_pid -p "steps:=[0.0, 0.4, 3.0, 0.2]"
     controller --ros-args -p mode:=lockstep -p duration:=3.0 -p trace:=/tmp/run.csv
 
-Parameters: :data:`PARAMETERS` (also printed by ``controller --help``).
+Parameters: :func:`parameter_table` (also printed by ``controller --help``).
 
 Live parameters (``ros2 param set /aeropend_controller omega_n 6.0``): ``omega_n``, ``zeta``,
 ``rho`` (a new design, taken over bumpless), ``reference`` and ``steps``; a value the design
@@ -55,6 +55,7 @@ from aeropend_control.controller_core import (
     make_settings,
 )
 from aeropend_control.design import REACH_DUTY_MARGIN
+from aeropend_control.strategies.registry import DEFAULT_STRATEGY, strategy_help
 from aeropend_sim.contract import (
     REL_ARMATURE,
     REL_DUTY_CYCLE,
@@ -93,17 +94,12 @@ PAIR_BUFFER = 20
 #: delivered late by the reliable history).
 MATCH_GRACE_NS = 250_000_000
 
-#: The node parameters (declared from this table, printed by ``--help``), validated by
-#: :func:`aeropend_control.controller_core.make_settings`. Live (``ros2 param set``): the pole pattern
-#: (a new design taken over bumpless) and the reference (initial value and step sequence); the
+#: The node parameters after ``strategy`` (declared from this table by :func:`parameter_table`, printed
+#: by ``--help``), validated by :func:`aeropend_control.controller_core.make_settings`. Live
+#: (``ros2 param set``): the pole pattern (a new design taken over bumpless) and the reference (initial
+#: value and step sequence); the
 #: others fix the rig, the structure or the process set-up of a run and are read-only.
-PARAMETERS: tuple[NodeParameter, ...] = (
-    NodeParameter("rig", "str", "thesis_rig", "", "rig name or YAML path whose model the design and the "
-                  "allocation use"),
-    NodeParameter("strategy", "str", "fl_pid", "",
-                  "fl_pid | small_signal (gain-scheduled) | small_signal_fixed (needs theta_op) | cascade | "
-                  "fl_cascade (the cascades also use omega_1 from joint_states and i_a from armature, "
-                  "paired by stamp)"),
+_PARAMETERS: tuple[NodeParameter, ...] = (
     NodeParameter("mode", "str", "realtime", "",
                   "realtime: best-effort samples (keep last 100); lockstep: reliable samples, exactly one "
                   "command per new sample stamp (a re-published sample is answered again only if a duty "
@@ -144,6 +140,15 @@ PARAMETERS: tuple[NodeParameter, ...] = (
                   "plant, plus a recorder: 2), so a recorder started alongside records every command"),
 )
 
+
+def parameter_table() -> tuple[NodeParameter, ...]:
+    """The node's parameters; the ``strategy`` description lists the strategies registered when the
+    node is built (:func:`~aeropend_control.strategies.registry.strategy_help`), so a lab's strategy
+    registered before start-up is listed and accepted."""
+    return (NodeParameter("rig", "str", "thesis_rig", "", "rig name or YAML path whose model the design and "
+                          "the allocation use"),
+            NodeParameter("strategy", "str", DEFAULT_STRATEGY, "", strategy_help()), *_PARAMETERS)
+
 #: ``controller --help``.
 USAGE = NodeUsage(
     command="controller",
@@ -157,7 +162,7 @@ USAGE = NodeUsage(
             contract_topic("publishes", REL_DUTY_CYCLE, "one command per sample"),
             TopicUse("publishes", REL_SIGNALS, "std_msgs/msg/Float64MultiArray",
                      "internal signals, one per sample: " + ", ".join(SIGNALS))),
-    parameters=PARAMETERS,
+    parameters=parameter_table(),
     examples=('controller --ros-args -p strategy:=fl_pid -p "steps:=[0.0, 0.4, 3.0, 0.2]"',
               "controller --ros-args -p mode:=lockstep -p duration:=3.0 -p trace:=/tmp/run.csv",
               "ros2 param set /aeropend_controller omega_n 6.0      # a live parameter"),
@@ -172,7 +177,7 @@ class ControllerNode(Node):
     def __init__(self, **node_options: Any) -> None:
         """``node_options`` go to :class:`rclpy.node.Node` (e.g. ``context``, ``parameter_overrides``)."""
         super().__init__(NODE_NAME, **node_options)
-        raw = declare_parameter_table(self, PARAMETERS)
+        raw = declare_parameter_table(self, parameter_table())
         try:
             self.rt_priority = _rt_priority(raw.pop("rt_priority"))
             self.executor_kind = executor_kind(raw.pop("executor"), ControllerConfigError)
@@ -194,7 +199,7 @@ class ControllerNode(Node):
         # cascades also need i_a: pair joint_states and armature by their common stamp
         self._pending_js: dict[int, tuple[float, float]] = {}
         self._pending_arm: dict[int, float] = {}
-        if self.loop.needs_motor:
+        if "i_a" in self.loop.needs:
             self.create_subscription(BatteryState, REL_ARMATURE, self._on_armature, qos)
         self.create_subscription(Float64, REL_REFERENCE, self._on_reference, 10)
         # a new pole pattern in real-time mode is designed here, off the executor (up to ≈ 0.5 s on a
@@ -216,7 +221,7 @@ class ControllerNode(Node):
         )
 
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
-        """Validate and apply live parameters (``live`` in :data:`PARAMETERS`) between two samples (the
+        """Validate and apply live parameters (``live`` in :func:`parameter_table`) between two samples (the
         executor runs this and the sample callbacks in one thread); a bad value is refused with the
         reason and the loop keeps its settings. Read-only ones never get here (rclpy refuses them)."""
         changes = {p.name: p.value for p in params}
@@ -294,13 +299,16 @@ class ControllerNode(Node):
                                    throttle_duration_sec=1.0)
             return
         stamp = stamp_to_ns(msg.header.stamp.sec, msg.header.stamp.nanosec)
-        if not self.loop.needs_motor:
-            self._control(stamp, theta)
+        needs = self.loop.needs
+        omega = math.nan
+        if "omega" in needs:
+            try:
+                omega = float(msg.velocity[list(msg.name).index("motor")])
+            except (ValueError, IndexError):
+                pass
+        if "i_a" not in needs:
+            self._control(stamp, theta, omega)
             return
-        try:
-            omega = float(msg.velocity[list(msg.name).index("motor")])
-        except (ValueError, IndexError):
-            omega = math.nan
         self._pending_js[stamp] = (theta, omega)
         self._pair(stamp)
 
@@ -371,7 +379,7 @@ class ControllerNode(Node):
         self.get_logger().info(
             f"summary: commands={self.published} samples={len(self.loop.rows)} repeats={self.loop.repeats} "
             f"stale={self.loop.stale} bad_samples={self.bad_samples} "
-            f"nan_inputs={self.loop.strategy.pid.nan_count}"
+            f"nan_inputs={self.loop.strategy.nan_count}"
         )
 
 

@@ -35,29 +35,25 @@ strategy's, FL and small-signal) and ζ (0.7-0.95) are the minimax choice over t
 damping errors of ±20 % of the linear loop with that drive (slower ω_n, ×0.6-0.9, where no candidate
 keeps that loop stable on all of them).
 
-Which drive a strategy is designed on (:func:`design_drive`, :func:`fl_design`) and the
-``design_gains`` CLI (:func:`main`: the FL gains and the scheduled small-signal table as the
-strategies design them, with predicted metrics and the design model) live here too, as the layer
-above :mod:`aeropend_control.design`.
+Which drive a position loop is designed on (:func:`design_drive`, :func:`fl_design`) lives here
+too, as the layer above :mod:`aeropend_control.design`. This module knows drive kinds
+(:data:`DRIVES`) and whether a loop linearises, never strategy names: each strategy declares its
+own (:class:`aeropend_control.strategies.Strategy`: ``drive_kind``, ``linearising``,
+``default_spec``).
 """
 
 from __future__ import annotations
 
-import argparse
 import copy
 import dataclasses
 import itertools
 import math
-import sys
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
-import yaml
 
 from aeropend_control.design import (
-    DEFAULT_GRID,
-    REACH_DUTY_MARGIN,
     CascadeDesign,
     DesignError,
     LoopDesign,
@@ -69,23 +65,18 @@ from aeropend_control.design import (
     linearise,
     predict_step,
     reachable_angle,
-    reachable_grid,
-    schedule,
 )
-from aeropend_control.metrics import GOAL, TABLE_6_1
+from aeropend_control.metrics import GOAL
 from aeropend_sim.model import I_A, OMEGA, TAU_F, PlantModel
-from aeropend_sim.output_folder import check_output_file
-from aeropend_sim.params import Rig, load_rig
+from aeropend_sim.params import Rig
 
 # python-control is imported inside the functions that use it: importing it costs ~2 s
 # (scipy.signal, matplotlib.pyplot), which `controller --help` and every importer would pay.
 if TYPE_CHECKING:
     import control
 
-#: Drive kinds of :class:`DriveSpec`.
+#: Drive kinds of :class:`DriveSpec`: the duty chain (FL, small-signal) or the motor cascade.
 DRIVES = ("duty", "cascade")
-#: Strategies whose position loop commands the motor cascade (they need ω₁ and i_a measured).
-CASCADE_STRATEGIES = ("cascade", "fl_cascade")
 
 
 @dataclass(frozen=True)
@@ -443,16 +434,24 @@ def thrust_loop_gain_limit(rig: Rig) -> float:
     return 1.0 / worst if worst > 0.0 else math.inf
 
 
-def design_drive(rig: Rig, name: str, cascade: CascadeDesign | None = None) -> DriveSpec | None:
-    """Drive chain the position loop of strategy ``name`` is designed on
-    (:mod:`aeropend_control.drive_design`): ``None`` (poles placed on the pendulum alone, as the
-    thesis does) unless the rig file declares a drive lag or delay (:func:`declares_drive_lag`:
-    the drive is then known to be slow, e.g. the ``corrected_rig.yaml`` of ``gap``); then the
-    motor cascade (``cascade`` or its default design) for the cascades, the duty drive with the
-    thrust loop (:func:`default_thrust_gain`) for the others."""
+def design_drive(rig: Rig, kind: str, cascade: CascadeDesign | None = None) -> DriveSpec | None:
+    """Drive chain a position loop commanding drive ``kind`` (:data:`DRIVES`) is designed on:
+    ``None`` (poles placed on the pendulum alone, as the thesis does) unless the rig file declares a
+    drive lag or delay (:func:`declares_drive_lag`: the drive is then known to be slow, e.g. the
+    ``corrected_rig.yaml`` of ``gap``); then the motor cascade (``cascade`` or its default design)
+    for ``"cascade"``, the duty drive with the thrust loop (:func:`default_thrust_gain`) for
+    ``"duty"``.
+
+    Raises
+    ------
+    DesignError
+        On an unknown drive kind.
+    """
+    if kind not in DRIVES:
+        raise DesignError(f"drive kind = {kind!r}; expected one of {DRIVES}")
     if not declares_drive_lag(rig):
         return None
-    if name in CASCADE_STRATEGIES:
+    if kind == "cascade":
         return DriveSpec("cascade", cascade=cascade or design_cascade(rig))
     return DriveSpec("duty", thrust_gain=default_thrust_gain(rig))
 
@@ -521,7 +520,8 @@ def worst_goal_ratio(a0: float, a1: float, g: float, drive: control.StateSpace,
     return worst
 
 
-def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | None = None) -> PoleSpec:
+def robust_spec(rig: Rig, spec: PoleSpec, kind: str, linearising: bool,
+                cascade: CascadeDesign | None = None) -> PoleSpec:
     """``spec`` with the natural frequency and damping ratio that meet :data:`ROBUST_GOAL` (ts ≤ 1 s,
     overshoot inside the 2 % band) with the most margin on the drive chain the rig file declares,
     under thrust-gain and damping errors (issue 19, docs/control.md).
@@ -529,7 +529,7 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
     On a rig file without a declared drive lag or delay (:func:`design_drive` None) ``spec`` is
     returned unchanged (the thesis' design, Table 6.1). Otherwise, for each ω_n = factor·ω_n(spec)
     of :data:`ROBUST_OMEGA_FACTORS` (of the strategy's drive) and each ζ of :data:`ROBUST_ZETAS`
-    (ρ of ``spec``), strategy ``name``'s loop is designed as it will run (on the drive,
+    (ρ of ``spec``), the position loop is designed as it will run (on the drive,
     :func:`design_fl_on_drive` / :func:`design_small_signal_on_drive`, at half the reach) and scored
     by :func:`worst_goal_ratio`; the least score wins (minimax). When every candidate is unstable or
     unsettled on some plant of the box (score ``inf``), the same choice is made over the slower
@@ -540,10 +540,12 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
     Parameters
     ----------
     rig : Rig
-    name : str
-        Strategy name (:data:`aeropend_control.strategies.STRATEGIES`).
     spec : PoleSpec
         The strategy's default pole pattern.
+    kind : str
+        Drive the position loop commands (:data:`DRIVES`; the strategy's ``drive_kind``).
+    linearising : bool
+        True for a feedback-linearising loop (FL law + I-PD), False for the small-signal one.
     cascade : CascadeDesign, optional
         The cascades' motor loops (default :func:`design_cascade`).
 
@@ -551,7 +553,7 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
     -------
     PoleSpec
     """
-    drive = design_drive(rig, name, cascade)
+    drive = design_drive(rig, kind, cascade)
     if drive is None:
         return spec
     theta0 = 0.5 * reachable_angle(rig)
@@ -559,19 +561,18 @@ def robust_spec(rig: Rig, name: str, spec: PoleSpec, cascade: CascadeDesign | No
         d = drive_model(rig, theta0, drive)
     except DesignError:  # no model of this drive: the static design, at the default spec
         return spec
-    best, cost = _minimax_spec(rig, name, spec, drive, d, theta0, ROBUST_OMEGA_FACTORS[drive.kind])
+    best, cost = _minimax_spec(rig, linearising, spec, drive, d, theta0, ROBUST_OMEGA_FACTORS[drive.kind])
     if math.isfinite(cost):
         return best
-    slower, cost = _minimax_spec(rig, name, spec, drive, d, theta0, STABLE_FALLBACK_FACTORS)
+    slower, cost = _minimax_spec(rig, linearising, spec, drive, d, theta0, STABLE_FALLBACK_FACTORS)
     return slower if math.isfinite(cost) else best
 
 
-def _minimax_spec(rig: Rig, name: str, spec: PoleSpec, drive: DriveSpec, d: control.StateSpace, theta0: float,
-                  factors: tuple[float, ...]) -> tuple[PoleSpec, float]:
+def _minimax_spec(rig: Rig, linearising: bool, spec: PoleSpec, drive: DriveSpec, d: control.StateSpace,
+                  theta0: float, factors: tuple[float, ...]) -> tuple[PoleSpec, float]:
     """(candidate of least :func:`worst_goal_ratio`, that score) over ω_n ∈ factors × ω_n(spec) and
     :data:`ROBUST_ZETAS`; ties and an all-``inf`` field go to the earliest candidate (slowest, least
     damped)."""
-    linearising = name in ("fl_pid", "fl_cascade")
     m = PlantModel(rig)
     candidates = [dataclasses.replace(spec, omega_n=factor * spec.omega_n, zeta=zeta)
                   for factor, zeta in itertools.product(factors, ROBUST_ZETAS)]
@@ -592,100 +593,9 @@ def _minimax_spec(rig: Rig, name: str, spec: PoleSpec, drive: DriveSpec, d: cont
     return best, best_key[0]
 
 
-#: Default closed-loop poles of each strategy's position loop. FL and small-signal PID use
-#: ω_n = 9.5 rad/s (settling within 1.5× the time-optimal bound in all bench scenarios); the
-#: cascades keep ω_n = 9 rad/s because their speed loop (ω_s = 45 rad/s) adds lag and a faster
-#: outer loop overshoots > 5 % at 0.7 rad (docs/control.md).
-DEFAULT_SPECS: dict[str, PoleSpec] = {
-    "fl_pid": PoleSpec(9.5), "small_signal": PoleSpec(9.5), "small_signal_fixed": PoleSpec(9.5),
-    "cascade": PoleSpec(9.0), "fl_cascade": PoleSpec(9.0),
-}
-
-
-def default_spec(name: str, rig: Rig | None = None, cascade: CascadeDesign | None = None) -> PoleSpec:
-    """Default :class:`PoleSpec` of strategy ``name`` (:data:`DEFAULT_SPECS`; ``PoleSpec()`` if
-    unknown); with ``rig``, its natural frequency and damping ratio chosen for that rig by
-    :func:`robust_spec` (changed only when the rig file declares a drive lag or delay; ``cascade``:
-    the cascades' motor loops)."""
-    spec = DEFAULT_SPECS.get(name, PoleSpec())
-    return spec if rig is None else robust_spec(rig, name, spec, cascade)
-
-
 def fl_design(rig: Rig, spec: PoleSpec, drive: DriveSpec | None) -> LoopDesign:
     """FL outer-loop design: :func:`design_fl` (``drive`` None) or placed on the drive chain at half
     the rig's reach (:func:`~aeropend_control.drive_design.design_fl_on_drive`)."""
     if drive is None:
         return design_fl(rig, spec)
     return design_fl_on_drive(rig, spec, drive, 0.5 * reachable_angle(rig))
-
-
-# ------------------------------------------------------------------ design_gains CLI
-def _row(d: LoopDesign) -> dict[str, float]:
-    out = {k: v for k, v in asdict(d).items() if k != "predicted"}
-    out["predicted"] = d.predicted.as_dict()
-    return out
-
-
-def main(argv: list[str] | None = None) -> int:
-    """CLI ``design_gains``: design the FL and scheduled small-signal gains, print predicted metrics.
-
-    Pole parameters not given take the strategy's default for that rig file (:func:`default_spec`,
-    the robust ζ on a rig file that declares its drive), so the gains are those the controller
-    node runs with. Writes a YAML gains file with ``-o`` (an existing file only with ``--overwrite``,
-    checked before the design). Exit status 2 on a bad argument.
-    """
-    ap = argparse.ArgumentParser(prog="design_gains",
-                                 description="position-loop gains of a rig file, predicted step metrics")
-    ap.add_argument("--rig", default="thesis_rig", help="rig name or YAML path")
-    unset = "unset: the strategy's default, as the controller node uses it (default_spec)"
-    ap.add_argument("--omega-n", type=float, default=None, help=f"closed-loop ω_n [rad/s] ({unset})")
-    ap.add_argument("--zeta", type=float, default=None, help=f"damping ratio of the pole pair ({unset})")
-    ap.add_argument("--rho", type=float, default=None, help=f"real pole / ω_n ({unset})")
-    ap.add_argument("-o", "--output", help="write the gains to this YAML file")
-    ap.add_argument("--overwrite", action="store_true", help="replace an existing --output file")
-    args = ap.parse_args(argv)
-    given = {k: v for k, v in (("omega_n", args.omega_n), ("zeta", args.zeta), ("rho", args.rho))
-             if v is not None}
-    try:
-        if args.output:
-            check_output_file(args.output, args.overwrite)
-        rig = load_rig(args.rig)
-        specs = {name: dataclasses.replace(default_spec(name, rig), **given)
-                 for name in ("fl_pid", "small_signal")}
-        for spec in specs.values():
-            spec.poles()  # validates
-        fl = fl_design(rig, specs["fl_pid"], design_drive(rig, "fl_pid"))
-        reach = reachable_angle(rig)
-        grid = list(reachable_grid(rig, DEFAULT_GRID))
-        drive = design_drive(rig, "small_signal")
-        spec = specs["small_signal"]
-        sched = (schedule(rig, grid, spec) if drive is None
-                 else [design_small_signal_on_drive(rig, t, spec, drive) for t in grid])
-    except (ValueError, OSError) as exc:
-        print(f"design_gains: error: {exc}", file=sys.stderr)
-        return 2
-    print(f"rig {rig.name}: reach {reach:.4g} rad "
-          f"(set points held with {REACH_DUTY_MARGIN:.0%} duty headroom; the schedule stops there)")
-    for name, spec in specs.items():
-        print(f"{name}: ω_n {spec.omega_n:g} rad/s, ζ {spec.zeta:g}, ρ {spec.rho:g}; poles "
-              f"{np.round(spec.poles(), 3).tolist()} rad/s")
-    print("strategy          θ0     kp        ki        kd        tr[s]  tp[s]  ts[s]  Mp[%]  Table 6.1  "
-          "design model")
-    rows = [("fl_pid", fl)] + [("small_signal", d) for d in sched]
-    for name, d in rows:
-        p = d.predicted
-        print(f"{name:16s} {d.theta_op:5.2f} {d.kp:9.4g} {d.ki:9.4g} {d.kd:9.4g} {p.rise_time:6.3f} "
-              f"{p.peak_time:6.3f} {p.settling_time:6.3f} {p.overshoot:6.2f}  "
-              f"{'ok' if p.meets(TABLE_6_1) else 'FAIL':9s}  {d.drive}")
-    if args.output:
-        doc = {"rig": rig.name, "pole_spec": {k: asdict(v) for k, v in specs.items()}, "reach_rad": reach,
-               "fl_pid": _row(fl),
-               "small_signal": [_row(d) for d in sched]}
-        with open(args.output, "w", encoding="utf-8") as fh:
-            yaml.safe_dump(doc, fh, sort_keys=False)
-        print(f"wrote {args.output}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -9,8 +9,10 @@ is the interface). Examples::
         strategy:=fl_cascade steps:=1.0,0.2,6.0,0.7
 
 ``steps`` is ``t0,θ0,t1,θ1,...`` (s, rad); the set point can also be published on
-``/aeropend/reference`` (std_msgs/Float64). Plain-command equivalent: ``sim_node`` (or
-``bridge``) and ``controller`` with the same ``--ros-args -p name:=value`` parameters.
+``/aeropend/reference`` (std_msgs/Float64). ``strategy`` takes the names of the strategy registry
+(:mod:`aeropend_control.strategies.registry`; ``--show-args`` lists them with a description).
+Plain-command equivalent: ``sim_node`` (or ``bridge``) and ``controller`` with the same
+``--ros-args -p name:=value`` parameters.
 """
 
 from launch import LaunchDescription
@@ -18,6 +20,7 @@ from launch.actions import DeclareLaunchArgument, OpaqueFunction, SetEnvironment
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from aeropend_control.strategies.registry import DEFAULT_STRATEGY, strategy_help, strategy_names
 from aeropend_sim.ros.launch_arguments import (
     DISCOVERY_RANGE,
     NAMESPACE,
@@ -32,7 +35,7 @@ ARGUMENTS = (
     ("plant", "sim", "sim (simulated plant) | bridge (hardware through the serial bridge)"),
     ("rig", "thesis_rig", "rig name or YAML path, used by the plant/bridge and the controller"),
     ("mode", "realtime", "realtime | lockstep (lockstep: sim plant only)"),
-    ("strategy", "fl_pid", "fl_pid | small_signal | small_signal_fixed | cascade | fl_cascade"),
+    ("strategy", DEFAULT_STRATEGY, strategy_help()),
     ("estimator", "observer", "θ̇ estimate: observer | difference"),
     ("steps", "", "reference steps t0,theta0,t1,theta1,... (s, rad); empty: /aeropend/reference only"),
     ("effects", "", "sim plant: comma-separated effect overrides name=value"),
@@ -41,6 +44,8 @@ ARGUMENTS = (
     ("rt_priority", "0", "SCHED_FIFO priority of the plant sampler and controller (0 = off)"),
     DISCOVERY_RANGE,
 )
+#: Arguments whose value launch checks against a list (an unknown strategy fails before any node starts).
+CHOICES = {"strategy": strategy_names()}
 
 
 def _nodes(context, *args, **kwargs):
@@ -75,7 +80,8 @@ def _nodes(context, *args, **kwargs):
 
 def generate_launch_description():
     return LaunchDescription(
-        [DeclareLaunchArgument(name, default_value=default, description=doc)
+        [DeclareLaunchArgument(name, default_value=default, description=doc,
+                               **({"choices": list(CHOICES[name])} if name in CHOICES else {}))
          for name, default, doc in ARGUMENTS]
         + [SetEnvironmentVariable("ROS_AUTOMATIC_DISCOVERY_RANGE", LaunchConfiguration("discovery_range")),
            OpaqueFunction(function=_nodes)]
