@@ -37,6 +37,7 @@ ROWS: dict[str, dict[str, float]] = {
                   "pendulum.stop_damping": 60.0},
     "sensor_noise": {"sensors.snr_db": 30.0},
     "quantisation": {"sensors.theta_quantum": 0.01},
+    "rotor_coulomb_friction": {"motor.T_c": 4e-4},
 }
 
 CASES = [(f.name, e.name) for f in registry.families() for e in registry.family_effects(f.name)]
