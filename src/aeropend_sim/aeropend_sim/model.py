@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 
+from aeropend_sim.components import registry
 from aeropend_sim.components.assembly import (
     I_A,
     N_STATES,
@@ -49,8 +50,8 @@ STATE_NAMES: tuple[str, ...] = ("theta", "theta_dot", "i_a", "omega_rotor", "tau
 STATE_UNITS: tuple[str, ...] = ("rad", "rad/s", "A", "rad/s", "1")
 
 #: Regularisation width [rad/s] of sign(ω₁) in the rotor brush friction: the default of
-#: ``motor.rotor_friction_velocity`` (kept for the hand-written torque sums of aeropend_ident).
-ROTOR_FRICTION_VELOCITY = 1.0
+#: ``motor.rotor_friction_velocity`` (read by the torque sums aeropend_ident still writes by hand).
+ROTOR_FRICTION_VELOCITY: float = registry.param("motor.rotor_friction_velocity").absent  # type: ignore[assignment]
 
 __all__ = [
     "I_A",
