@@ -15,6 +15,7 @@ from aeropend_ident.greybox import fit
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect
 
+
 def _diagnoses():
     return {d.name: (part, d) for part in registry.parts() for d in part.diagnoses}
 
