@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -43,6 +44,15 @@ from aeropend_sim.components.xp import MATH
 
 N_STATES = 5
 THETA, THETA_DOT, I_A, OMEGA, TAU_F = range(N_STATES)
+
+
+@lru_cache(maxsize=256)
+def _compiled(src: str, consts: tuple[tuple[str, Any], ...]) -> Any:
+    """The ``rhs`` function of generated source ``src`` with its namespace (cached: rigs that differ
+    only in the switches of inactive effects, and repeated constructions, share one function)."""
+    namespace = {"_xp": MATH, "_ndarray": np.ndarray, **dict(consts)}
+    exec(compile(src, "<generated rhs (aeropend_sim.components.assembly)>", "exec"), namespace)
+    return namespace["rhs"]
 
 
 class AssemblyError(ValueError):
@@ -163,7 +173,7 @@ class Assembly:
         return expr if expr is not None else "0.0"
 
     def _generate_rhs(self) -> tuple[str, Any]:
-        consts: dict[str, Any] = {"_xp": MATH, "_ndarray": np.ndarray}
+        consts: dict[str, Any] = {}  # term functions and non-finite parameters by their names in the source
         n = [0]
 
         def call(term: Term) -> str:
@@ -197,9 +207,7 @@ class Assembly:
                   f"    dtheta_dot = {self._sum('rod', None, consts, n)}",
                   "    return [theta_dot, dtheta_dot, di_a, domega, dtau_f]"]
         src = "\n".join(lines) + "\n"
-        namespace = dict(consts)
-        exec(compile(src, f"<rhs of {self.family.name} assembly>", "exec"), namespace)
-        return src, namespace["rhs"]
+        return src, _compiled(src, tuple(sorted(consts.items(), key=lambda kv: kv[0])))
 
     # ------------------------------------------------------------------ evaluation on floats or arrays
     def duty_chain(self, xp: Any, tau: Any) -> Any:

@@ -249,11 +249,18 @@ class Term:
     inverse: Callable[..., Any] | None = None
     regularised_sign: bool = False
     contact: bool = False
+    arguments: tuple[str, ...] = field(init=False, compare=False)
+    inputs: tuple[str, ...] = field(init=False, compare=False)
+    param_names: tuple[str, ...] = field(init=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.slot not in SLOTS:
             raise ValueError(f"term {self.label!r}: slot {self.slot!r}; expected one of {list(SLOTS)}")
         args = _signature(self.fn)
+        # the argument names after ``xp``; the inputs (INPUTS) and the parameters (by Param.name) among them
+        object.__setattr__(self, "arguments", args)
+        object.__setattr__(self, "inputs", tuple(a for a in args if a in INPUTS))
+        object.__setattr__(self, "param_names", tuple(a for a in args if a not in INPUTS))
         wrong = [a for a in args if a in INPUTS and a not in SLOT_INPUTS[self.slot]]
         if wrong:
             raise ValueError(f"term {self.label!r} in slot {self.slot!r} reads {wrong}; a {self.slot} term "
@@ -264,21 +271,6 @@ class Term:
             if _signature(d) != args:
                 raise ValueError(f"term {self.label!r}: ∂/∂{name} must take the same arguments as the term")
         object.__setattr__(self, "partials", MappingProxyType(dict(self.partials)))
-
-    @property
-    def arguments(self) -> tuple[str, ...]:
-        """Argument names after ``xp``, in order."""
-        return _signature(self.fn)
-
-    @property
-    def inputs(self) -> tuple[str, ...]:
-        """The arguments that are inputs (:data:`INPUTS`)."""
-        return tuple(a for a in self.arguments if a in INPUTS)
-
-    @property
-    def param_names(self) -> tuple[str, ...]:
-        """The arguments that are parameters (by :attr:`Param.name`)."""
-        return tuple(a for a in self.arguments if a not in INPUTS)
 
     def __call__(self, xp: Any, values: Mapping[str, Any]) -> Any:
         """Evaluate with every argument taken from ``values`` (inputs and parameters by name)."""
