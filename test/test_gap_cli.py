@@ -110,7 +110,7 @@ def test_gap_found_named_and_shrunk_on_held_out(report):
     assert rep["which"]["validation"][0]["effects"] == []  # the diagnosis' own table is on validation data
     # fitted rod Coulomb friction close to the truth, and in the corrected rig file
     corrected = load_rig(out / "corrected_rig.yaml")
-    assert corrected.effects.coulomb_friction
+    assert corrected.effects.rod_coulomb_friction
     assert corrected.pendulum.coulomb_over_J == pytest.approx(0.5, rel=0.2)
     # where: the pendulum equation is the only one checkable with θ alone; the others say why
     where = rep["where"]

@@ -128,13 +128,14 @@ def test_rig_values_name_every_field_an_effect_writes():
 
 def test_switching_an_effect_on_leaves_the_terms_the_nominal_had_off():
     # a rig without viscous friction: adding the rotor's B_m must not switch the rod's c/J on
-    rig = RIG.with_effects(viscous_friction=False)
+    rig = RIG.with_effects(viscous_friction=False)  # the legacy switch: rod and rotor halves off
     r = get_effect("rotor_friction").apply(rig, {"B_m": 1e-5})
-    assert r.effects.viscous_friction and r.motor.B_m == 1e-5 and r.pendulum.c_over_J == 0.0
+    assert r.effects.rotor_viscous_friction and r.motor.B_m == 1e-5 and not r.effects.rod_viscous_friction
     r = get_effect("viscous_friction").apply(rig, {"c_over_J": 2.0})
-    assert r.motor.B_m == 0.0 and r.pendulum.c_over_J == 2.0
+    assert r.effects.rod_viscous_friction and r.pendulum.c_over_J == 2.0
+    assert not r.effects.rotor_viscous_friction
     r = get_effect("coulomb_friction").apply(RIG, {"coulomb_over_J": 1.0})
-    assert r.effects.coulomb_friction and r.motor.T_c == 0.0
+    assert r.effects.rod_coulomb_friction and not r.effects.rotor_coulomb_friction
 
 
 def test_hbridge_drop_on_ideal_map_is_a_clipped_voltage_offset():

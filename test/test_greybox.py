@@ -188,7 +188,8 @@ def test_duty_outside_unit_interval_is_refused():
 
 def test_parameter_requests_are_checked():
     rec = _good()
-    with pytest.raises(IdentificationError, match=r"coulomb_over_J'.*needs effects\.coulomb_friction = True"):
+    with pytest.raises(IdentificationError,
+                       match=r"coulomb_over_J'.*needs effects\.rod_coulomb_friction = True"):
         fit_greybox(rec, RIG, ["pendulum.coulomb_over_J"])
     with pytest.raises(IdentificationError, match=r"pendulum has no field 'mass'"):
         fit_greybox(rec, RIG, ["pendulum.mass"])

@@ -212,7 +212,8 @@ def test_stribeck_friction_exceeds_coulomb_at_low_rate_and_decays_to_it():
     assert PlantModel(rig.with_effects(coulomb_friction=False)).a_s == 0.0
     # thesis_rig.yaml predates the Stribeck keys: it loads with the defaults, and says so
     assert RIG.pendulum.stribeck_over_J == 0.0
-    assert RIG.sources["pendulum.stribeck_over_J"].startswith("default")
+    assert RIG.status("pendulum.stribeck_over_J") == "not modelled"
+    assert RIG.status("pendulum.stribeck_velocity") == "default"  # a setting, not a physical absence
 
 
 def test_sensor_noise_snr_and_quantisation():

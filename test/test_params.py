@@ -42,9 +42,15 @@ def test_missing_source_and_missing_key_are_refused():
     with pytest.raises(RigFileError, match=r"thrust\.K_q has no 'source'"):
         rig_from_dict(d, "x.yaml")
     d = _base()
-    del d["pendulum"]["c_over_J"]
-    with pytest.raises(RigFileError, match=r"missing pendulum\.c_over_J \[1/s\]"):
+    del d["pendulum"]["mgd_over_J"]
+    with pytest.raises(RigFileError, match=r"missing pendulum\.mgd_over_J \[1/s\^2\]"):
         rig_from_dict(d, "x.yaml")
+    # an optional key (an effect's parameter) left out is not modelled, and the load report says so
+    d = _base()
+    del d["pendulum"]["c_over_J"]
+    rig = rig_from_dict(d, "x.yaml")
+    assert rig.pendulum.c_over_J == 0.0 and rig.status("pendulum.c_over_J") == "not modelled"
+    assert any(n.startswith("pendulum.c_over_J: not modelled") for n in rig.load_notes)
 
 
 def test_unphysical_values_and_unknown_effects_are_refused():

@@ -30,11 +30,9 @@ import sys
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 
+from aeropend_sim.components.pendulum.rod import G
 from aeropend_sim.contract import JOINT_NAMES
 from aeropend_sim.params import load_rig
-
-#: Standard gravity [m/s²].
-G = 9.80665
 
 
 class DescriptionError(ValueError):

@@ -1,11 +1,27 @@
-"""Rig parameter sets: dataclasses and the YAML rig-file format.
+"""Rig parameter sets: the :class:`Rig` and the YAML rig-file format, built on the component registry.
 
-A rig file describes one aeropendulum (real or simulated) in SI units. Every number is written
-as ``{value: ..., unit: "...", source: "..."}`` so its provenance travels with it; the loader
-checks each unit against the one the model expects and raises :class:`RigFileError` naming the
-file, the key and what was expected. The ``effects`` section switches the model's optional
-effects on and off (see :class:`Effects` and ``docs/model.md``), so the same code simulates a
-rig with or without a given effect.
+A rig file describes one aeropendulum (real or simulated) in SI units. It names its actuator
+family (``actuator.family``: ``dc_hbridge``, ``voltage_amplifier`` or ``esc``; absent =
+``dc_hbridge``, the format of every rig file before issue 35) and gives **only what the rig has**:
+
+* the family's required parameters (a component parameter without an ``absent`` value, e.g.
+  ``motor.R_a`` of a DC motor, ``actuator.omega_max`` of an ESC) and the rod's ``mgd_over_J`` and
+  ``L_over_J`` or the geometry they follow from (``pendulum.mass``, ``com_distance``,
+  ``thrust_arm`` and optionally ``inertia``, by default a point mass m·d²);
+* any effect parameter it knows. Everything absent is **not modelled**: it takes its
+  :attr:`~aeropend_sim.components.base.Param.absent` value (T_c = 0: no brush friction) and the
+  load report says so (:attr:`Rig.load_notes`, :meth:`Rig.load_report`); never a load error.
+
+Every number given is written ``{value: ..., unit: "...", source: "..."}``: the loader checks each
+unit against the registry's and refuses a number without a source, naming the file and the key.
+
+The ``effects:`` section switches the effects (:class:`Effects`; see ``docs/model.md``). A switch
+the file omits is on when one of its effect's parameters is given with a value other than its
+absent value; in a file of the pre-family format (no ``actuator.family``) it takes the default of
+that format instead. The pre-issue-35 switches ``viscous_friction`` and ``coulomb_friction`` are
+read as both halves they stood for (rod and rotor), with a note in the load report.
+:func:`rig_to_dict` and :func:`save_rig` write the minimal form (what is stated or modelled, the
+family, the switches that differ from what the parameters imply); ``load_rig(save_rig(r)) == r``.
 
 Rig files shipped with the package: ``thesis_rig`` (coherent set derived from the thesis),
 ``thesis_sim`` (the thesis' own simulated plant, equations printed with Figs. 5.3/5.4) and
@@ -15,203 +31,281 @@ third-party rigs from ``shared/data/real`` (``jahoyosr_rig``, ``aeroshield_rig``
 from __future__ import annotations
 
 import dataclasses
-import math
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import dataclass, field, fields, make_dataclass
+from functools import cache
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from aeropend_sim.components import registry
+from aeropend_sim.components.base import SECTIONS, Effect
+
 
 class RigFileError(ValueError):
     """A rig file or parameter set is malformed or physically invalid."""
 
 
-def _p(unit: str, doc: str, positive: bool = False, nonneg: bool = False,
-       default: float | None = None) -> Any:
-    """Dataclass field metadata: unit, meaning, sign constraint; ``default``: an optional key (a
-    later model term whose default leaves the model as it was; rig files may omit it)."""
-    meta = {"unit": unit, "doc": doc, "positive": positive, "nonneg": nonneg}
-    return field(metadata=meta) if default is None else field(default=default, metadata=meta)
+#: Source of a parameter the rig file does not give (its absent value: not modelled).
+NOT_MODELLED = "not modelled (not in the rig file)"
+#: Source of a setting the rig file does not give (its documented default).
+DEFAULT = "default (not in the rig file)"
+#: Source of a value changed in code where the rig file gave none (:meth:`Rig.with_params`).
+SET_IN_CODE = "set in code (not in the rig file)"
+#: Start of the source of a value the loader derived from other values of the file.
+DERIVED = "derived by the rig loader: "
 
-
-@dataclass(frozen=True)
-class ActuatorParams:
-    """Duty cycle τ -> armature voltage v_a chain (PWM, H-bridge)."""
-
-    v_supply: float = _p("V", "H-bridge supply: ideal map v_a = v_supply·τ", positive=True)
-    hbridge_k0: float = _p("V", "Eq. 4.3 k0 in v_a = k0 + k1·sqrt(k2·τ + k3)")
-    hbridge_k1: float = _p("V", "Eq. 4.3 k1", nonneg=True)
-    hbridge_k2: float = _p("1", "Eq. 4.3 k2 (τ as a fraction)", nonneg=True)
-    hbridge_k3: float = _p("1", "Eq. 4.3 k3", nonneg=True)
-    dead_zone: float = _p("1", "duty-cycle dead zone τ_dz", nonneg=True)
-    lag_time_constant: float = _p("s", "first-order actuator lag T_a", nonneg=True)
-    input_delay: float = _p("s", "input (transport) delay T_d", nonneg=True)
-
-
-@dataclass(frozen=True)
-class MotorParams:
-    """Armature RL circuit, rotor mechanics and gearbox (thesis Eqs. 3.4-3.5)."""
-
-    R_a: float = _p("ohm", "armature resistance", positive=True)
-    L_a: float = _p("H", "armature inductance", positive=True)
-    K_omega: float = _p("V*s/rad", "back-EMF constant K_ω", nonneg=True)
-    K_t: float = _p("N*m/A", "torque constant K_t", positive=True)
-    J_m: float = _p("kg*m^2", "rotor-side inertia (rotor + gear + propeller reflected)", positive=True)
-    B_m: float = _p("N*m*s/rad", "rotor viscous friction", nonneg=True)
-    T_c: float = _p("N*m", "rotor Coulomb friction torque", nonneg=True)
-    K_d: float = _p("N*m*s^2/rad^2", "propeller drag torque on the rotor: K_d·ω1·|ω1|", nonneg=True)
-    gear_ratio: float = _p("1", "n = ω1/ω2 (rotor turns n times faster than the propeller)", positive=True)
-
-
-@dataclass(frozen=True)
-class ThrustParams:
-    """Propeller thrust f = K_q·|ω2|^α (thesis Eq. 3.3 with α = 2)."""
-
-    K_q: float = _p("N*s^2/rad^2", "thrust coefficient K_q (for α = 2)", nonneg=True)
-    exponent: float = _p("1", "thrust-law exponent α (used when effects.thrust_exponent)", positive=True)
-
-
-@dataclass(frozen=True)
-class PendulumParams:
-    """Rod dynamics per unit inertia (thesis Eq. 3.2) and end stops."""
-
-    mgd_over_J: float = _p("1/s^2", "gravity term m·g·d/J", nonneg=True)
-    c_over_J: float = _p("1/s", "viscous friction c/J", nonneg=True)
-    L_over_J: float = _p("1/(kg*m)", "thrust lever arm over inertia L/J", positive=True)
-    coulomb_over_J: float = _p("rad/s^2", "Coulomb friction torque over inertia T_f/J", nonneg=True)
-    theta_min: float = _p("rad", "lower end stop")
-    theta_max: float = _p("rad", "upper end stop")
-    stop_stiffness: float = _p("1/s^2", "end-stop contact stiffness over inertia", nonneg=True)
-    stop_damping: float = _p("1/s", "end-stop contact damping over inertia", nonneg=True)
-    friction_velocity: float = _p("rad/s", "tanh regularisation width of sign(θ̇)", positive=True)
-    stribeck_over_J: float = _p("rad/s^2", "Stribeck excess of the static over the Coulomb friction "
-                                "(T_s − T_f)/J (used when effects.coulomb_friction; 0 = none)", nonneg=True,
-                                default=0.0)
-    stribeck_velocity: float = _p("rad/s", "Stribeck velocity v_s: the excess decays as exp(−(θ̇/v_s)²)",
-                                  positive=True, default=0.1)
-
-
-@dataclass(frozen=True)
-class SensorParams:
-    """Measurement noise (SNR) and ADC quantisation of the acquisition channels."""
-
-    snr_db: float = _p("dB", "signal-to-noise ratio of every measured channel")
-    theta_quantum: float = _p("rad", "angle LSB (AS5040 PWM -> RC -> 10-bit ADC: 2π/1024)", nonneg=True)
-    i_a_quantum: float = _p("A", "armature-current LSB", nonneg=True)
-    v_a_quantum: float = _p("V", "armature-voltage LSB", nonneg=True)
-    omega_quantum: float = _p("rad/s", "speed LSB", nonneg=True)
-    theta_rms: float = _p("rad", "reference RMS of θ for the SNR in per-sample stepping", positive=True)
-    i_a_rms: float = _p("A", "reference RMS of i_a for the SNR in per-sample stepping", positive=True)
-    v_a_rms: float = _p("V", "reference RMS of v_a for the SNR in per-sample stepping", positive=True)
-    omega_rms: float = _p("rad/s", "reference RMS of ω for the SNR in per-sample stepping", positive=True)
-
-
-#: Allowed values of ``effects.armature_inductance``.
-INDUCTANCE_MODES = ("dynamic", "quasi_static")
-
-
-@dataclass(frozen=True)
-class Effects:
-    """Switches of the model's optional effects (see ``docs/model.md`` for each equation)."""
-
-    hbridge_map: bool = False
-    armature_inductance: str = "dynamic"
-    back_emf: bool = True
-    dead_zone: bool = False
-    viscous_friction: bool = True
-    coulomb_friction: bool = False
-    propeller_drag: bool = True
-    thrust_exponent: bool = False
-    actuator_lag: bool = False
-    input_delay: bool = False
-    end_stops: bool = False
-    sensor_noise: bool = False
-    quantisation: bool = False
-
-    def __post_init__(self) -> None:
-        if self.armature_inductance not in INDUCTANCE_MODES:
-            raise RigFileError(
-                f"effects.armature_inductance = {self.armature_inductance!r}; expected one of "
-                f"{INDUCTANCE_MODES}"
-            )
-
-
-@dataclass(frozen=True)
-class Rig:
-    """A complete rig: parameters, effect switches and sampling."""
-
-    name: str
-    description: str
-    sample_period: float
-    actuator: ActuatorParams
-    motor: MotorParams
-    thrust: ThrustParams
-    pendulum: PendulumParams
-    sensors: SensorParams
-    effects: Effects
-    sources: dict[str, str] = field(default_factory=dict)
-
-    def with_effects(self, **switches: Any) -> Rig:
-        """Copy of the rig with some effect switches changed (e.g. ``dead_zone=True``)."""
-        return dataclasses.replace(self, effects=dataclasses.replace(self.effects, **switches))
-
-    def with_params(self, section: str, **values: float) -> Rig:
-        """Copy of the rig with some parameters of one section changed.
-
-        Raises
-        ------
-        RigFileError
-            If ``section`` or a parameter name does not exist.
-        """
-        if section not in _SECTIONS:
-            raise RigFileError(f"unknown rig section {section!r}; expected one of {list(_SECTIONS)}")
-        current = getattr(self, section)
-        names = {f.name for f in fields(current)}
-        bad = sorted(set(values) - names)
-        if bad:
-            raise RigFileError(f"{section} has no parameter(s) {bad}; expected some of {sorted(names)}")
-        new = dataclasses.replace(current, **{k: float(v) for k, v in values.items()})
-        _check_section(section, new, "<with_params>")
-        return dataclasses.replace(self, **{section: new})
-
-
-_SECTIONS: dict[str, type] = {
-    "actuator": ActuatorParams,
-    "motor": MotorParams,
-    "thrust": ThrustParams,
-    "pendulum": PendulumParams,
-    "sensors": SensorParams,
-}
-
+#: Allowed values of ``effects.armature_inductance`` (its on and off modes).
+INDUCTANCE_MODES: tuple[str, str] = registry.effect("armature_inductance").modes  # type: ignore[assignment]
 #: Keys a rig file may have at its top level. ``recording_frame`` (optional) describes how a rig's
 #: recorded angle relates to the model's θ (read by :func:`aeropend_ident.greybox.fit.rig_theta_offset`).
-TOP_LEVEL_KEYS = frozenset({"name", "description", "sample_period", "effects", "recording_frame", *_SECTIONS})
+TOP_LEVEL_KEYS = frozenset({"name", "description", "sample_period", "effects", "recording_frame", *SECTIONS})
 
 _UNIT_ALIASES = {"Ω": "ohm", "Ohm": "ohm", "ohms": "ohm", "-": "1", "": "1", "rad/s²": "1/s^2"}
 
 
+# ------------------------------------------------------------------------------ generated dataclasses
+def _camel(name: str) -> str:
+    return "".join(part.capitalize() for part in name.split("_"))
+
+
+def _register(cls: type) -> type:
+    """Make a generated class picklable (reachable as ``aeropend_sim.params.<name>``)."""
+    cls.__module__ = __name__
+    cls.__qualname__ = cls.__name__
+    globals()[cls.__name__] = cls
+    return cls
+
+
+@cache
+def section_class(family: str, section: str) -> type:
+    """Frozen dataclass of one rig section for a family: one float field per parameter the family
+    has in that section (:func:`aeropend_sim.components.registry.family_params`), with the field
+    metadata ``unit``, ``doc``, ``positive``, ``nonneg`` and ``param`` (the :class:`Param`)."""
+    specs = []
+    for p in registry.family_params(family).values():
+        if p.section != section:
+            continue
+        meta = {"unit": p.unit, "doc": p.doc, "positive": p.sign == "positive", "nonneg": p.sign == "nonneg",
+                "param": p}
+        specs.append((p.name, float, field(metadata=meta)))
+    name = f"{_camel(family)}{_camel(section)}Params"
+    return _register(make_dataclass(name, specs, frozen=True))
+
+
+def _effects_post_init(self: Any) -> None:
+    for e in registry.effects():
+        v = getattr(self, e.name)
+        if e.modes:
+            if v not in e.modes:
+                raise RigFileError(f"effects.{e.name} = {v!r}; expected one of {e.modes}")
+        elif not isinstance(v, bool):
+            raise RigFileError(f"effects.{e.name} = {v!r} must be true or false")
+
+
+def _make_effects() -> type:
+    specs = [(e.name, str if e.modes else bool, field(default=e.off)) for e in registry.effects()]
+    cls = make_dataclass("Effects", specs, frozen=True, namespace={"__post_init__": _effects_post_init})
+    cls.__doc__ = ("Switches of the model's optional effects, one field per registered effect "
+                   "(``docs/model.md``); all off by default (generated from "
+                   ":mod:`aeropend_sim.components.registry`).")
+    return _register(cls)
+
+
+Effects = _make_effects()
+
+
+def _status(source: str) -> str:
+    """Provenance class of a parameter source: stated, derived, not modelled, default or set in code."""
+    if source == NOT_MODELLED:
+        return "not modelled"
+    if source == DEFAULT:
+        return "default"
+    if source == SET_IN_CODE:
+        return "set in code"
+    if source.startswith(DERIVED):
+        return "derived"
+    return "stated"
+
+
+def _why_not(key: str, family: str) -> str:
+    """Why a parameter of the registry is not one of the family's (its owner's reason)."""
+    owner = registry.owners()[key]
+    reason = owner.applies_to(registry.family(family)) or owner.why_not
+    fams = " and ".join(registry.families_with(key))
+    return f"{key} is declared by {owner.name}, part of {fams} rigs: {reason}"
+
+
+# ------------------------------------------------------------------------------ the rig
+@dataclass(frozen=True)
+class Rig:
+    """A complete rig: actuator family, parameters per section, effect switches, sampling.
+
+    The sections (``actuator``, ``motor``, ``thrust``, ``pendulum``, ``sensors``) are frozen
+    dataclasses generated per family (:func:`section_class`); ``rig.motor.R_a`` etc. read a value.
+    Construction validates: effects that do not apply to the family are off, every parameter is
+    valid for its owner's state (:meth:`aeropend_sim.components.base.Param.violation`), and the
+    parts' cross-checks hold.
+
+    Attributes
+    ----------
+    sources : dict
+        ``"section.name"`` (and ``"sample_period"``) -> where the number comes from
+        (:data:`NOT_MODELLED`, :data:`DEFAULT`, :data:`SET_IN_CODE`, a :data:`DERIVED` account or
+        the rig file's own source).
+    family : str
+        Actuator family.
+    load_notes : tuple of str
+        What the loader read, derived, assumed or did not model (not part of equality).
+    """
+
+    name: str
+    description: str
+    sample_period: float
+    actuator: Any
+    motor: Any
+    thrust: Any
+    pendulum: Any
+    sensors: Any
+    effects: Any
+    sources: dict[str, str] = field(default_factory=dict)
+    family: str = registry.DEFAULT_FAMILY
+    load_notes: tuple[str, ...] = field(default=(), compare=False)
+
+    def __post_init__(self) -> None:
+        fam = registry.family(self.family)
+        for section in SECTIONS:
+            cls = section_class(self.family, section)
+            if type(getattr(self, section)) is not cls:
+                got = type(getattr(self, section)).__name__
+                raise RigFileError(f"rig {self.name!r}: section {section} is a {got}; expected "
+                                   f"{cls.__name__} (family {self.family})")
+        for eff in registry.effects():
+            if eff.is_on(getattr(self.effects, eff.name)):
+                why = eff.applies_to(fam)
+                if why is not None:
+                    raise RigFileError(f"effect {eff.name} cannot be on for a rig of the {self.family} "
+                                       f"family: {why}")
+        values = self.values()
+        on = {e.name for e in registry.effects() if e.is_on(getattr(self.effects, e.name))}
+        for key, p in registry.family_params(self.family).items():
+            owner = registry.owners()[key]
+            active = not isinstance(owner, Effect) or owner.name in on
+            msg = p.violation(values[key], active)
+            if msg:
+                raise RigFileError(msg)
+        for part in (*registry.family_parts(self.family), *registry.family_effects(self.family)):
+            if part.check is not None and (msg := part.check(values)):
+                raise RigFileError(msg)
+
+    # ------------------------------------------------------------------ reading
+    def value(self, key: str) -> float:
+        """The value of parameter ``"section.name"``.
+
+        Raises
+        ------
+        RigFileError
+            If the rig's family has no such parameter (the message says why).
+        """
+        section, _, name = key.partition(".")
+        if key not in registry.family_params(self.family):
+            if key in registry.params():
+                raise RigFileError(f"rig {self.name!r} ({self.family}) has no {_why_not(key, self.family)}")
+            raise RigFileError(f"no parameter {key!r}")
+        return float(getattr(getattr(self, section), name))
+
+    def values(self) -> dict[str, float]:
+        """Every parameter of the rig, ``{"section.name": value}``."""
+        return {key: float(getattr(getattr(self, p.section), p.name))
+                for key, p in registry.family_params(self.family).items()}
+
+    def status(self, key: str) -> str:
+        """Provenance of a parameter: ``stated``, ``derived``, ``not modelled``, ``default`` or
+        ``set in code``."""
+        return _status(self.sources.get(key, SET_IN_CODE))
+
+    def load_report(self) -> str:
+        """The load report: per parameter stated / derived / not modelled / default, and notes."""
+        lines = [f"rig {self.name!r}, actuator family {self.family}"]
+        for key, p in registry.family_params(self.family).items():
+            v = self.value(key)
+            lines.append(f"  {self.status(key):<13} {key} = {v:g} {p.unit}  ({p.doc})")
+        lines += [f"  note: {n}" for n in self.load_notes]
+        return "\n".join(lines)
+
+    # ------------------------------------------------------------------ copies
+    def with_effects(self, **switches: Any) -> Rig:
+        """Copy of the rig with some effect switches changed (e.g. ``dead_zone=True``).
+
+        The pre-issue-35 switches ``viscous_friction`` and ``coulomb_friction`` set every effect
+        they stood for (:func:`aeropend_sim.components.registry.legacy_switches`).
+
+        Raises
+        ------
+        RigFileError
+            On an unknown switch, an invalid value, or an effect the family cannot have.
+        """
+        expanded = expand_switches(switches, "<with_effects>")
+        return dataclasses.replace(self, effects=dataclasses.replace(self.effects, **expanded))
+
+    def with_params(self, section: str, **values: float) -> Rig:
+        """Copy of the rig with some parameters of one section changed.
+
+        A parameter the rig did not model gets the source :data:`SET_IN_CODE`.
+
+        Raises
+        ------
+        RigFileError
+            If ``section`` or a parameter name does not exist for the rig's family, or a value
+            is invalid.
+        """
+        if section not in SECTIONS:
+            raise RigFileError(f"unknown rig section {section!r}; expected one of {list(SECTIONS)}")
+        current = getattr(self, section)
+        names = {f.name for f in fields(current)}
+        bad = sorted(set(values) - names)
+        if bad:
+            why = [_why_not(f"{section}.{b}", self.family) for b in bad
+                   if f"{section}.{b}" in registry.params()]
+            raise RigFileError(f"{section} has no parameter(s) {bad} on a {self.family} rig; expected some "
+                               f"of {sorted(names)}" + (f" ({'; '.join(why)})" if why else ""))
+        new = dataclasses.replace(current, **{k: float(v) for k, v in values.items()})
+        sources = dict(self.sources)
+        for k, v in values.items():
+            key = f"{section}.{k}"
+            unstated = _status(sources.get(key, SET_IN_CODE)) in ("not modelled", "default")
+            if unstated and float(v) != getattr(current, k):
+                sources[key] = SET_IN_CODE
+        return dataclasses.replace(self, sources=sources, **{section: new})
+
+
+def expand_switches(switches: dict[str, Any], where: str) -> dict[str, Any]:
+    """Switches with the pre-issue-35 names replaced by the effects they stand for.
+
+    Raises
+    ------
+    RigFileError
+        On a name that is neither a switch nor a legacy switch.
+    """
+    legacy = registry.legacy_switches()
+    known = {e.name for e in registry.effects()}
+    out: dict[str, Any] = {}
+    bad = sorted(k for k in switches if k not in known and k not in legacy)
+    if bad:
+        raise RigFileError(f"{where}: unknown effect(s) {bad}; expected some of "
+                           f"{sorted(known | set(legacy))}")
+    for k, v in switches.items():  # a legacy switch first, so an explicit half given with it wins
+        if k in legacy:
+            out.update(dict.fromkeys(legacy[k], v))
+    out.update({k: v for k, v in switches.items() if k in known})
+    return out
+
+
+# ------------------------------------------------------------------------------ reading rig files
 def _norm_unit(unit: str) -> str:
     u = str(unit).strip().replace("·", "*").replace(" ", "")
     return _UNIT_ALIASES.get(u, u)
-
-
-def _check_section(section: str, obj: Any, where: str) -> None:
-    for f in fields(obj):
-        v = getattr(obj, f.name)
-        if not math.isfinite(v):
-            raise RigFileError(f"{where}: {section}.{f.name} = {v!r} is not finite")
-        if f.metadata.get("positive") and v <= 0:
-            raise RigFileError(f"{where}: {section}.{f.name} = {v!r} must be > 0 ({f.metadata['doc']})")
-        if f.metadata.get("nonneg") and v < 0:
-            raise RigFileError(f"{where}: {section}.{f.name} = {v!r} must be >= 0 ({f.metadata['doc']})")
-    if section == "pendulum" and obj.theta_min >= obj.theta_max:
-        raise RigFileError(
-            f"{where}: pendulum.theta_min = {obj.theta_min} must be < theta_max = {obj.theta_max}"
-        )
-    if section == "actuator" and obj.dead_zone >= 1.0:
-        raise RigFileError(f"{where}: actuator.dead_zone = {obj.dead_zone} must be < 1 (a fraction)")
 
 
 def _read_quantity(node: Any, key: str, unit: str, where: str) -> tuple[float, str]:
@@ -231,14 +325,115 @@ def _read_quantity(node: Any, key: str, unit: str, where: str) -> tuple[float, s
     return value, str(node["source"])
 
 
+def _family_of(data: dict[str, Any], where: str) -> tuple[str, bool]:
+    """(family, legacy format) of a parsed rig file."""
+    node = data.get("actuator")
+    if isinstance(node, dict) and "family" in node:
+        fam = node["family"]
+        try:
+            registry.family(str(fam))
+        except registry.RegistryError as exc:
+            raise RigFileError(f"{where}: actuator.family: {exc}") from exc
+        return str(fam), False
+    return registry.DEFAULT_FAMILY, True
+
+
+def _read_sections(data: dict[str, Any], family: str, legacy: bool,
+                   where: str) -> dict[str, tuple[float, str]]:
+    """Every number the file gives, ``{key: (value, source)}``, checked against the family's keys."""
+    named = "no actuator.family, so dc_hbridge" if legacy else f"actuator.family {family}"
+    fam_params = registry.family_params(family)
+    geometry = {p.key: p for c in registry.family_parts(family) for p in getattr(c, "geometry", ())}
+    given: dict[str, tuple[float, str]] = {}
+    for section in SECTIONS:
+        node = data.get(section, {})
+        if node is None:
+            node = {}
+        if not isinstance(node, dict):
+            raise RigFileError(f"{where}: section {section!r} must be a mapping, got {type(node).__name__}")
+        for name, item in node.items():
+            key = f"{section}.{name}"
+            if key == "actuator.family":
+                continue
+            p = fam_params.get(key) or geometry.get(key)
+            if p is None:
+                if key in registry.params():
+                    raise RigFileError(f"{where}: {key} is not a parameter of this rig ({named}): "
+                                       f"{_why_not(key, family)}")
+                known = sorted(k.partition(".")[2] for k in (*fam_params, *geometry)
+                               if k.startswith(section + "."))
+                raise RigFileError(f"{where}: unknown key(s) {[name]} in section {section!r}; expected "
+                                   f"{known}")
+            given[key] = _read_quantity(item, key, p.unit, where)
+    return given
+
+
+def _derive_geometry(given: dict[str, tuple[float, str]], family: str, where: str,
+                     notes: list[str]) -> dict[str, tuple[float, str]]:
+    """Parameters the components derive from the geometry the file gives (the rod's mgd/J, L/J)."""
+    out: dict[str, tuple[float, str]] = {}
+    for comp in registry.family_parts(family):
+        geo = getattr(comp, "geometry", ())
+        stated = {p.key: given[p.key][0] for p in geo if p.key in given}
+        if not stated:
+            continue
+        for p in geo:
+            if p.key in stated and (msg := p.violation(stated[p.key])):
+                raise RigFileError(f"{where}: {msg}")
+        try:
+            derived = comp.derive(stated)  # type: ignore[union-attr]
+        except KeyError as exc:
+            p = next(g for g in geo if g.key == exc.args[0])
+            raise RigFileError(f"{where}: missing {p.key} [{p.unit}] ({p.doc}): the geometry "
+                               f"{sorted(stated)} needs it to derive {comp.name}'s parameters") from None
+        for key, (value, how) in derived.items():
+            if key in given:
+                raise RigFileError(f"{where}: {key} is given and also derived from the geometry "
+                                   f"{sorted(stated)}; give one or the other")
+            srcs = "; ".join(f"{k} = {given[k][0]:g} ({given[k][1]})" for k in sorted(stated))
+            out[key] = (value, f"{DERIVED}{how}; {srcs}")
+            notes.append(f"{key} = {value:.6g} derived: {how}")
+    return out
+
+
+def _read_switches(data: dict[str, Any], where: str, notes: list[str]) -> dict[str, Any]:
+    node = data.get("effects", {}) or {}
+    if not isinstance(node, dict):
+        raise RigFileError(f"{where}: effects must be a mapping of switches, got {type(node).__name__}")
+    for k, v in node.items():
+        eff = next((e for e in registry.effects() if e.name == k), None)
+        if eff is not None and eff.modes:
+            continue  # checked by Effects
+        if not isinstance(v, bool) and (eff is not None or k in registry.legacy_switches()):
+            raise RigFileError(f"{where}: effects.{k} = {v!r} must be true or false")
+    switches = expand_switches(dict(node), where)
+    for k, halves in registry.legacy_switches().items():
+        if k in node:
+            notes.append(f"effects.{k} (the switch before issue 35) read as {' and '.join(halves)} = "
+                         f"{node[k]}")
+    return switches
+
+
+def _default_switch(eff: Effect, given: dict[str, tuple[float, str]], legacy: bool) -> Any:
+    """An omitted switch: on when a parameter of the effect is given with a non-absent value (new
+    format), or the pre-family format's default (legacy format; a mode needs its parameters)."""
+    modelled = any(p.key in given and given[p.key][0] != p.absent for p in eff.params)
+    if not legacy:
+        return eff.on if modelled else eff.off
+    if eff.modes and eff.legacy_default == eff.on:
+        return eff.on if all(p.key in given for p in eff.params) else eff.off
+    return eff.legacy_default
+
+
 def rig_from_dict(data: dict[str, Any], where: str = "<dict>") -> Rig:
-    """Build a :class:`Rig` from the parsed YAML structure of a rig file.
+    """Build a :class:`Rig` from the parsed YAML structure of a rig file (module doc).
 
     Raises
     ------
     RigFileError
-        On a missing section or key, a wrong unit, a missing source, a non-number or a value
-        outside its physical range; the message names ``where`` and the key.
+        On a missing required section or key, a wrong unit, a missing source, a non-number, a key
+        the family does not have, an effect the family cannot have, or a value outside its
+        physical range; the message names ``where`` and the key.
     """
     if not isinstance(data, dict):
         raise RigFileError(f"{where}: top level must be a mapping, got {type(data).__name__}")
@@ -247,77 +442,102 @@ def rig_from_dict(data: dict[str, Any], where: str = "<dict>") -> Rig:
         raise RigFileError(
             f"{where}: unknown top-level key(s) {unknown_top}; expected some of {sorted(TOP_LEVEL_KEYS)}"
         )
+    family, legacy = _family_of(data, where)
+    fam_params = registry.family_params(family)
+    for section in SECTIONS:
+        need = [k for k, p in fam_params.items() if p.section == section and p.required]
+        if need and not isinstance(data.get(section), dict):
+            raise RigFileError(f"{where}: missing section {section!r} (a {family} rig needs {need})")
+    notes: list[str] = []
+    given = _read_sections(data, family, legacy, where)
+    given.update(_derive_geometry(given, family, where, notes))
     sources: dict[str, str] = {}
-    built: dict[str, Any] = {}
-    for section, cls in _SECTIONS.items():
-        node = data.get(section)
-        if not isinstance(node, dict):
-            raise RigFileError(f"{where}: missing section {section!r}")
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(node) - known)
-        if unknown:
-            raise RigFileError(
-                f"{where}: unknown key(s) {unknown} in section {section!r}; expected {sorted(known)}"
-            )
-        kwargs = {}
-        for f in fields(cls):
-            if f.name not in node and f.default is not MISSING:
-                kwargs[f.name] = f.default
-                sources[f"{section}.{f.name}"] = "default (not in the rig file)"
-                continue
-            if f.name not in node:
-                raise RigFileError(
-                    f"{where}: missing {section}.{f.name} [{f.metadata['unit']}] ({f.metadata['doc']})"
-                )
-            kwargs[f.name], sources[f"{section}.{f.name}"] = _read_quantity(
-                node[f.name], f"{section}.{f.name}", f.metadata["unit"], where
-            )
-        obj = cls(**kwargs)
-        _check_section(section, obj, where)
-        built[section] = obj
+    values: dict[str, float] = {}
+    for key, p in fam_params.items():
+        if key in given:
+            values[key], sources[key] = given[key]
+        elif p.required:
+            raise RigFileError(f"{where}: missing {key} [{p.unit}] ({p.doc})")
+        else:
+            values[key] = float(p.absent)  # type: ignore[arg-type]
+            sources[key] = DEFAULT if p.setting else NOT_MODELLED
+            status = "default" if p.setting else "not modelled"
+            notes.append(f"{key}: {status}, {p.absent:g} {p.unit} ({p.doc})")
     period, sources["sample_period"] = _read_quantity(data.get("sample_period"), "sample_period", "s", where)
     if period <= 0:
         raise RigFileError(f"{where}: sample_period = {period} must be > 0")
-    eff_node = data.get("effects", {}) or {}
-    eff_known = {f.name for f in fields(Effects)}
-    bad = sorted(set(eff_node) - eff_known)
-    if bad:
-        raise RigFileError(f"{where}: unknown effect(s) {bad}; expected some of {sorted(eff_known)}")
-    for k, v in eff_node.items():
-        if k != "armature_inductance" and not isinstance(v, bool):
-            raise RigFileError(f"{where}: effects.{k} = {v!r} must be true or false")
-    return Rig(
-        name=str(data.get("name", Path(where).stem)),
-        description=str(data.get("description", "")),
-        sample_period=period,
-        effects=Effects(**eff_node),
-        sources=sources,
-        **built,
-    )
+    switches = _read_switches(data, where, notes)
+    fam = registry.family(family)
+    for eff in registry.effects():
+        if eff.name not in switches:
+            applies = eff.applies_to(fam) is None
+            switches[eff.name] = _default_switch(eff, given, legacy) if applies else eff.off
+    try:
+        return Rig(
+            name=str(data.get("name", Path(where).stem)),
+            description=str(data.get("description", "")),
+            sample_period=period,
+            effects=Effects(**switches),
+            sources=sources,
+            family=family,
+            load_notes=tuple(notes),
+            **_sections(family, values),
+        )
+    except RigFileError as exc:
+        raise RigFileError(f"{where}: {exc}") from None
+
+
+def _sections(family: str, values: dict[str, float]) -> dict[str, Any]:
+    out = {}
+    for section in SECTIONS:
+        cls = section_class(family, section)
+        out[section] = cls(**{f.name: values[f"{section}.{f.name}"] for f in fields(cls)})
+    return out
 
 
 def rig_to_dict(rig: Rig) -> dict[str, Any]:
-    """Inverse of :func:`rig_from_dict` (units and sources included)."""
+    """Inverse of :func:`rig_from_dict`: the minimal form (units and sources included).
+
+    Written: the family; every parameter whose source is not :data:`NOT_MODELLED`/:data:`DEFAULT`
+    or whose value differs from its absent value; the switches that differ from what the written
+    parameters imply.
+    """
     out: dict[str, Any] = {"name": rig.name, "description": rig.description}
     out["sample_period"] = {
-        "value": rig.sample_period, "unit": "s", "source": rig.sources.get("sample_period", "")
+        "value": rig.sample_period, "unit": "s",
+        "source": rig.sources.get("sample_period", "") or "set in code",
     }
-    for section in _SECTIONS:
-        obj = getattr(rig, section)
-        out[section] = {
-            f.name: {
-                "value": getattr(obj, f.name),
-                "unit": f.metadata["unit"],
-                "source": rig.sources.get(f"{section}.{f.name}", "set in code"),
-            }
-            for f in fields(obj)
-        }
-    out["effects"] = dataclasses.asdict(rig.effects)
+    written: dict[str, tuple[float, str]] = {}
+    for section in SECTIONS:
+        node: dict[str, Any] = {"family": rig.family} if section == "actuator" else {}
+        for key, p in registry.family_params(rig.family).items():
+            if p.section != section:
+                continue
+            value, source = rig.value(key), rig.sources.get(key, SET_IN_CODE)
+            if _status(source) in ("not modelled", "default") and value == p.absent:
+                continue
+            if _status(source) in ("not modelled", "default"):
+                source = SET_IN_CODE
+            written[key] = (value, source)
+            node[p.name] = {"value": value, "unit": p.unit, "source": source}
+        if node:
+            out[section] = node
+    fam = registry.family(rig.family)
+    switches = {}
+    for eff in registry.effects():
+        if eff.applies_to(fam) is None:
+            value = getattr(rig.effects, eff.name)
+            if value != _default_switch(eff, written, legacy=False):
+                switches[eff.name] = value
+    out["effects"] = switches
     return out
 
 
 def load_rig(name_or_path: str | Path) -> Rig:
     """Load a rig file by path or by the name of a shipped rig (e.g. ``"thesis_rig"``).
+
+    The rig's :attr:`Rig.load_notes` (and :meth:`Rig.load_report`) say what was stated, derived,
+    not modelled or defaulted.
 
     Raises
     ------
@@ -346,7 +566,7 @@ def load_rig(name_or_path: str | Path) -> Rig:
 
 
 def save_rig(rig: Rig, path: str | Path) -> None:
-    """Write a rig file (YAML) that :func:`load_rig` reads back to an equal :class:`Rig`."""
+    """Write a rig file (YAML, the minimal form) that :func:`load_rig` reads back to an equal :class:`Rig`."""
     text = yaml.safe_dump(rig_to_dict(rig), sort_keys=False, allow_unicode=True)
     Path(path).write_text(text, encoding="utf-8")
 
@@ -355,3 +575,4 @@ def shipped_rigs() -> list[str]:
     """Names of the rig files shipped with ``aeropend_sim``."""
     folder = resources.files("aeropend_sim") / "rigs"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
+

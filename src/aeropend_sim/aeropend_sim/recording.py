@@ -125,10 +125,14 @@ class Recording:
         Parameters
         ----------
         channels : tuple of str, optional
-            Channels to keep (default all measured channels), e.g. ``("theta",)`` to mimic a
-            rig that logs only the angle.
+            Channels to keep (default every measured channel the trajectory has: no armature
+            channels for an ESC rig), e.g. ``("theta",)`` to mimic a rig that logs only the angle.
         """
-        names = MEASURED_CHANNELS if channels is None else channels
         all_ch = traj.channels()
+        names = tuple(n for n in MEASURED_CHANNELS if n in all_ch) if channels is None else channels
+        missing = [n for n in names if n not in all_ch]
+        if missing:
+            raise RecordingError(f"{source}: the trajectory has no channel(s) {missing} "
+                                 f"(has {sorted(all_ch)})")
         return cls(t=traj.t.copy(), duty=traj.duty.copy(), channels={n: all_ch[n].copy() for n in names},
                    source=source, meta=dict(meta or {}))

@@ -20,16 +20,16 @@ stamps), so no floating-point drift accumulates over long runs.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from aeropend_sim.components import registry
 from aeropend_sim.contract import ContractError, Sample, validate_duty
-from aeropend_sim.params import INDUCTANCE_MODES, Effects, Rig, RigFileError, load_rig
+from aeropend_sim.params import Rig, RigFileError, load_rig
 from aeropend_sim.simulate import PlantStepper
 
 #: Node modes.
@@ -77,13 +77,16 @@ def parse_effects(items: Sequence[str] | str | None) -> dict[str, bool | str]:
     ----------
     items : sequence of str, or str, or None
         E.g. ``["dead_zone=true", "armature_inductance=quasi_static"]``; a single string may
-        hold several overrides separated by commas. ``None`` or empty means no override.
+        hold several overrides separated by commas. ``None`` or empty means no override. The
+        switches before issue 35 (``viscous_friction``, ``coulomb_friction``) are accepted and
+        set every effect they stood for (rod and rotor).
 
     Returns
     -------
     dict
-        Effect name -> value (bool, or one of :data:`~aeropend_sim.params.INDUCTANCE_MODES` for
-        ``armature_inductance``), in the order given (a later override of a name wins).
+        Effect name -> value (bool, or one of the effect's modes, e.g.
+        :data:`~aeropend_sim.params.INDUCTANCE_MODES` for ``armature_inductance``), in the order
+        given (a later override of a name wins).
 
     Raises
     ------
@@ -94,7 +97,8 @@ def parse_effects(items: Sequence[str] | str | None) -> dict[str, bool | str]:
         return {}
     if isinstance(items, str):
         items = [items]
-    known = {f.name: f for f in fields(Effects)}
+    known = {e.name: e for e in registry.effects()}
+    legacy = registry.legacy_switches()
     out: dict[str, bool | str] = {}
     for raw in items:
         for item in str(raw).split(","):
@@ -107,16 +111,17 @@ def parse_effects(items: Sequence[str] | str | None) -> dict[str, bool | str]:
                 raise SimConfigError(
                     f"effects item {item!r} is not of the form name=value (e.g. dead_zone=true)"
                 )
-            if name not in known:
-                raise SimConfigError(f"unknown effect {name!r} in effects; expected one of {sorted(known)}")
-            if name == "armature_inductance":
-                if value not in INDUCTANCE_MODES:
-                    raise SimConfigError(
-                        f"effects: armature_inductance = {value!r}; expected one of {list(INDUCTANCE_MODES)}"
-                    )
+            if name not in known and name not in legacy:
+                raise SimConfigError(
+                    f"unknown effect {name!r} in effects; expected one of {sorted({*known, *legacy})}")
+            eff = known.get(name)
+            if eff is not None and eff.modes:
+                if value not in eff.modes:
+                    raise SimConfigError(f"effects: {name} = {value!r}; expected one of {list(eff.modes)}")
                 out[name] = value
             else:
-                out[name] = parse_bool(f"effects: {name}", value)
+                on = parse_bool(f"effects: {name}", value)
+                out.update(dict.fromkeys(legacy.get(name, (name,)), on))
     return out
 
 
@@ -288,8 +293,8 @@ def make_settings(
     overrides.update(parse_effects(effects))
     if overrides:
         try:
-            rig_obj = dataclasses.replace(rig_obj, effects=dataclasses.replace(rig_obj.effects, **overrides))
-        except RigFileError as exc:  # pragma: no cover - parse_effects already validated
+            rig_obj = rig_obj.with_effects(**overrides)
+        except RigFileError as exc:  # an effect the rig's actuator family cannot have
             raise SimConfigError(f"effects: {exc}") from exc
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0:
         raise SimConfigError(f"seed = {seed!r}; expected an integer >= 0")

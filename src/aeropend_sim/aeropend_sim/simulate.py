@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.integrate import odeint
 
-from aeropend_sim.model import I_A, N_STATES, OMEGA, TAU_F, THETA, THETA_DOT, PlantModel
+from aeropend_sim.model import I_A, N_STATES, TAU_F, PlantModel
 from aeropend_sim.params import Rig
 
 #: ODE tolerances (relative, absolute) used by every simulation.
@@ -60,6 +60,7 @@ class Trajectory:
 
     ``x`` holds the true state (N, 5); the channel arrays are what the acquisition measures
     (noise and quantisation applied when switched on); ``true`` holds the noise-free channels.
+    ``i_a`` and ``v_a`` are None for a family without an armature (``esc``): absent, not zeros.
     """
 
     t: np.ndarray
@@ -67,16 +68,16 @@ class Trajectory:
     x: np.ndarray
     theta: np.ndarray
     theta_dot: np.ndarray
-    i_a: np.ndarray
-    v_a: np.ndarray
     omega_rotor: np.ndarray
     omega_prop: np.ndarray
     thrust: np.ndarray
+    i_a: np.ndarray | None = None
+    v_a: np.ndarray | None = None
     true: dict[str, np.ndarray] = field(default_factory=dict)
 
     def channels(self) -> dict[str, np.ndarray]:
-        """Measured channels keyed by the contract channel names."""
-        return {
+        """Measured channels keyed by the contract channel names (only those the family has)."""
+        out = {
             "theta": self.theta,
             "theta_dot": self.theta_dot,
             "omega_rotor": self.omega_rotor,
@@ -85,26 +86,12 @@ class Trajectory:
             "v_a": self.v_a,
             "duty": self.duty,
         }
+        return {k: v for k, v in out.items() if v is not None}
 
 
 def _outputs(model: PlantModel, x: np.ndarray, u_eff: np.ndarray) -> dict[str, np.ndarray]:
     """Noise-free channels for states x (N, 5) and actuator-side inputs u_eff (N,)."""
-    tau = x[:, TAU_F] if model.lag else u_eff
-    v_a = np.array([model.armature_voltage(t) for t in tau])
-    if model.dynamic_current:
-        i_a = x[:, I_A].copy()
-    else:
-        i_a = (v_a - model.K_w * x[:, OMEGA]) / model.R
-    w2 = x[:, OMEGA] / model.n
-    return {
-        "theta": x[:, THETA].copy(),
-        "theta_dot": x[:, THETA_DOT].copy(),
-        "i_a": i_a,
-        "v_a": v_a,
-        "omega_rotor": x[:, OMEGA].copy(),
-        "omega_prop": w2,
-        "thrust": model.K_q * np.sign(w2) * np.abs(w2) ** model.alpha,
-    }
+    return model.outputs(x, u_eff)
 
 
 def _quanta(rig: Rig) -> dict[str, float]:
@@ -132,6 +119,8 @@ def measure(rig: Rig, true: dict[str, np.ndarray], rng: np.random.Generator) -> 
     s, e = rig.sensors, rig.effects
     out = {}
     for name, q in _quanta(rig).items():
+        if name not in true:
+            continue  # a channel the family does not have
         y = true[name].copy()
         if e.sensor_noise:
             rms = float(np.sqrt(np.mean(y**2)))
@@ -308,10 +297,13 @@ class PlantStepper:
         s, e = self.rig.sensors, self.rig.effects
         rms = {
             "theta": s.theta_rms, "theta_dot": s.theta_rms * 5.0, "i_a": s.i_a_rms,
-            "v_a": s.v_a_rms, "omega_rotor": s.omega_rms, "omega_prop": s.omega_rms / self.model.n,
+            "v_a": s.v_a_rms, "omega_rotor": s.omega_rms,
+            "omega_prop": s.omega_rms / self.rig.motor.gear_ratio,
         }
         out = {}
         for name, q in _quanta(self.rig).items():
+            if name not in true:
+                continue  # a channel the family does not have
             y = float(true[name][0])
             if e.sensor_noise:
                 y += float(self.rng.normal(0.0, rms[name] / 10 ** (s.snr_db / 20.0)))

@@ -449,7 +449,7 @@ def _r_halving(nominal: float, on: bool, halving: float, probe: float) -> tuple[
 
 
 def _r_rotor_friction(c: EffectContext) -> tuple[float, float, float, float]:
-    return _r_halving(c.rig.motor.B_m, c.rig.effects.viscous_friction, c.halving_friction(), 0.2)
+    return _r_halving(c.rig.motor.B_m, c.rig.effects.rotor_viscous_friction, c.halving_friction(), 0.2)
 
 
 def _r_drag(c: EffectContext) -> tuple[float, float, float, float]:
@@ -457,7 +457,7 @@ def _r_drag(c: EffectContext) -> tuple[float, float, float, float]:
 
 
 def _r_viscous(c: EffectContext) -> tuple[float, float, float, float]:
-    p, on = c.rig.pendulum, c.rig.effects.viscous_friction
+    p, on = c.rig.pendulum, c.rig.effects.rod_viscous_friction
     crit = 2.0 * math.sqrt(max(p.mgd_over_J, 1e-9))
     if on and p.c_over_J > 0.0:
         c = p.c_over_J
@@ -467,13 +467,13 @@ def _r_viscous(c: EffectContext) -> tuple[float, float, float, float]:
 
 def _r_coulomb(c: EffectContext) -> tuple[float, float, float, float]:
     p = c.rig.pendulum
-    off = p.coulomb_over_J if c.rig.effects.coulomb_friction else 0.0
+    off = p.coulomb_over_J if c.rig.effects.rod_coulomb_friction else 0.0
     return 0.0, off + 0.5 * p.mgd_over_J, off, off + 0.01 * p.mgd_over_J
 
 
 def _r_stribeck(c: EffectContext) -> tuple[float, float, float, float]:
     p = c.rig.pendulum
-    off = p.stribeck_over_J if c.rig.effects.coulomb_friction else 0.0
+    off = p.stribeck_over_J if c.rig.effects.rod_coulomb_friction else 0.0
     return 0.0, off + 0.5 * p.mgd_over_J, off, off + 0.01 * p.mgd_over_J
 
 
@@ -544,16 +544,8 @@ def _torque_constant(rig: Rig, v: Mapping[str, float]) -> Rig:
     return rig.with_params("motor", K_t=v["K_t"])
 
 
-def _viscous_switch(rig: Rig) -> Rig:
-    """The viscous-friction switch on, without changing a term the nominal rig had off."""
-    if rig.effects.viscous_friction:
-        return rig
-    return rig.with_params("motor", B_m=0.0).with_params("pendulum", c_over_J=0.0).with_effects(
-        viscous_friction=True)
-
-
 def _rotor_friction(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return _viscous_switch(rig).with_params("motor", B_m=v["B_m"])
+    return rig.with_params("motor", B_m=v["B_m"]).with_effects(rotor_viscous_friction=True)
 
 
 def _motor_time_constant(rig: Rig, v: Mapping[str, float]) -> Rig:
@@ -573,14 +565,12 @@ def _thrust_law(rig: Rig, v: Mapping[str, float]) -> Rig:
 
 
 def _viscous(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return _viscous_switch(rig).with_params("pendulum", c_over_J=v["c_over_J"])
+    return rig.with_params("pendulum", c_over_J=v["c_over_J"]).with_effects(rod_viscous_friction=True)
 
 
 def _coulomb(rig: Rig, v: Mapping[str, float]) -> Rig:
-    new = rig
-    if not rig.effects.coulomb_friction:
-        new = rig.with_params("motor", T_c=0.0).with_effects(coulomb_friction=True)
-    return new.with_params("pendulum", coulomb_over_J=v["coulomb_over_J"])
+    new = rig.with_params("pendulum", coulomb_over_J=v["coulomb_over_J"])
+    return new.with_effects(rod_coulomb_friction=True)
 
 
 def _supply(rig: Rig, v: Mapping[str, float]) -> Rig:
@@ -715,7 +705,7 @@ CATALOG: tuple[Effect, ...] = (
         (_par("B_m", "N*m*s/rad", _POS, "motor.B_m", "rotor viscous friction B_m", _r_rotor_friction,
               log=True),),
         {_TH: ("L/J·Δf(B_m)",), "omega_rotor": ("−ΔB_m·ω₁/J_m",)},
-        "viscous_friction", tuple(x for x in _MOTOR if x != "rotor_friction"), _apply=_rotor_friction,
+        "rotor_viscous_friction", tuple(x for x in _MOTOR if x != "rotor_friction"), _apply=_rotor_friction,
     ),
     Effect(
         "motor_time_constant", "motor",
@@ -765,7 +755,7 @@ CATALOG: tuple[Effect, ...] = (
         (_par("c_over_J", "1/s", _POS, "pendulum.c_over_J", "viscous friction over inertia c/J", _r_viscous,
               log=True),),
         {_TH: ("−θ̇",)},
-        "viscous_friction", ("coulomb_friction",), _apply=_viscous,
+        "rod_viscous_friction", ("coulomb_friction",), _apply=_viscous,
     ),
     Effect(
         "coulomb_friction", "pendulum",
@@ -774,7 +764,7 @@ CATALOG: tuple[Effect, ...] = (
         (_par("coulomb_over_J", "rad/s^2", (0.0, math.inf), "pendulum.coulomb_over_J",
               "friction torque over inertia T_f/J", _r_coulomb),),
         {_TH: ("−tanh(θ̇/v_ε)",)},
-        "coulomb_friction", ("viscous_friction",), _apply=_coulomb, exclusive_with=("stribeck_friction",),
+        "rod_coulomb_friction", ("viscous_friction",), _apply=_coulomb, exclusive_with=("stribeck_friction",),
     ),
     Effect(
         "stribeck_friction", "pendulum",
@@ -789,7 +779,7 @@ CATALOG: tuple[Effect, ...] = (
          _par("stribeck_velocity", "rad/s", (1e-4, 100.0), "pendulum.stribeck_velocity",
               "Stribeck velocity v_s", _r_stribeck_velocity, log=True)),
         {_TH: ("−tanh(θ̇/v_ε)", "−exp(−(θ̇/v_s)²)·tanh(θ̇/v_ε)")},
-        "coulomb_friction", ("coulomb_friction", "viscous_friction"), _apply=_stribeck, screened=False,
+        "rod_coulomb_friction", ("coulomb_friction", "viscous_friction"), _apply=_stribeck, screened=False,
         exclusive_with=("coulomb_friction",), nests=("coulomb_friction",), refines=("coulomb_friction",),
     ),
     Effect(

@@ -22,7 +22,7 @@ Default parameter set for θ-only data (:func:`default_parameters`):
   whole actuator gain and the other factors stay at their rig-file values;
 * ``actuator.dead_zone`` when ``effects.dead_zone`` is on;
 * ``actuator.lag_time_constant`` when ``effects.actuator_lag`` is on;
-* ``pendulum.coulomb_over_J`` when ``effects.coulomb_friction`` is on;
+* ``pendulum.coulomb_over_J`` when ``effects.rod_coulomb_friction`` is on;
 * :data:`THETA_OFFSET` when the rig declares a recording-frame offset (see-saw rigs).
 
 Strictly positive parameters are fitted as log(p) (scale-free steps, positivity for free); the
@@ -113,10 +113,10 @@ _EFFECT_OF: dict[str, tuple[str, Any]] = {
     "actuator.dead_zone": ("dead_zone", True),
     "actuator.lag_time_constant": ("actuator_lag", True),
     "actuator.input_delay": ("input_delay", True),
-    "pendulum.coulomb_over_J": ("coulomb_friction", True),
-    "pendulum.c_over_J": ("viscous_friction", True),
-    "motor.B_m": ("viscous_friction", True),
-    "motor.T_c": ("coulomb_friction", True),
+    "pendulum.coulomb_over_J": ("rod_coulomb_friction", True),
+    "pendulum.c_over_J": ("rod_viscous_friction", True),
+    "motor.B_m": ("rotor_viscous_friction", True),
+    "motor.T_c": ("rotor_coulomb_friction", True),
     "motor.K_d": ("propeller_drag", True),
     "motor.K_omega": ("back_emf", True),
     "motor.L_a": ("armature_inductance", "dynamic"),
@@ -344,13 +344,13 @@ def default_parameters(rig: Rig, theta_offset: float = 0.0) -> list[str]:
     """
     names = ["pendulum.mgd_over_J", "pendulum.c_over_J", "pendulum.L_over_J"]
     e = rig.effects
-    if not e.viscous_friction:
+    if not e.rod_viscous_friction:
         names.remove("pendulum.c_over_J")
     if e.dead_zone:
         names.append("actuator.dead_zone")
     if e.actuator_lag:
         names.append("actuator.lag_time_constant")
-    if e.coulomb_friction:
+    if e.rod_coulomb_friction:
         names.append("pendulum.coulomb_over_J")
     if theta_offset != 0.0:
         names.append(THETA_OFFSET)

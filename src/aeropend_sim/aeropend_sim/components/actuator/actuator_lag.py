@@ -1,0 +1,46 @@
+"""Effect ``actuator_lag``: a first-order lag T_a of the duty cycle, τ̇_f = (τ − τ_f)/T_a.
+
+The lag state is x[4] = τ_f; the rest of the actuator chain reads τ_f instead of τ. Switched on
+with T_a = 0 it does nothing (the state then follows τ).
+"""
+
+from __future__ import annotations
+
+from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Term
+
+LAG = Param("actuator.lag_time_constant", "s", "first-order actuator lag T_a", sign="nonneg", absent=0.0,
+            fit=FitBounds(1e-4, 10.0, True), symbol="T_a")
+
+
+def rate(xp, u, tau_f, lag_time_constant):
+    """τ̇_f = (u − τ_f)/T_a [1/s]."""
+    return (u - tau_f) / lag_time_constant
+
+
+def d_rate_d_u(xp, u, tau_f, lag_time_constant):
+    """∂τ̇_f/∂u [1/s]."""
+    return 1.0 / lag_time_constant
+
+
+def d_rate_d_tau_f(xp, u, tau_f, lag_time_constant):
+    """∂τ̇_f/∂τ_f [1/s]."""
+    return -1.0 / lag_time_constant
+
+
+EFFECT = Effect(
+    name="actuator_lag",
+    part="actuator",
+    label="actuator lag",
+    description="first-order lag of the duty cycle: τ̇_f = (τ − τ_f)/T_a",
+    order=21,
+    params=(LAG,),
+    terms=(Term("lag", 10, rate, "τ̇_f = (τ − τ_f)/T_a",
+                partials={"u": d_rate_d_u, "tau_f": d_rate_d_tau_f}),),
+    active_when=lambda v: v["actuator.lag_time_constant"] > 0.0,
+    diagnoses=(Diagnosis("actuator_lag", "actuator", "first-order actuator lag T_a: τ̇_f = (τ − τ_f)/T_a",
+                         ("lag_time_constant",), ("theta",),
+                         sindy_terms={"theta_dot": ("L/J·Δf(T_a)",), "i_a": ("Δv_a(T_a)/L_a",),
+                                      "v_a": ("Δv_a(T_a)",)},
+                         confusable_with=("input_delay", "motor_time_constant"),
+                         truth={"lag_time_constant": ((0.05, 0.12),)}),),
+)

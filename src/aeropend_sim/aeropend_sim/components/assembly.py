@@ -1,0 +1,369 @@
+"""Composition of a rig's active components and effects into the plant's equations.
+
+The skeleton is the signal chain, fixed by the physics; the declarations fill its slots
+(:data:`aeropend_sim.components.base.SLOTS`). With the state x = [θ, θ̇, i_a, ω₁, τ_f]:
+
+1. lag: τ̇_f = (lag term) and τ = τ_f when the actuator lag is active, else τ̇_f = 0 and τ = u;
+2. duty: τ_e = the ``duty`` terms applied in order (dead zone);
+3. drive: q = the highest-order active ``drive`` term of τ_e (v_a, or an ESC's set-point ω_ss);
+4. armature (families with one): dynamic L_a·di_a/dt = (q − R_a·i_a) + Σ armature terms(ω₁), or
+   quasi-static i_a = (q + Σ armature terms(ω₁))/R_a (thesis Eqs. 3.5, 3.6);
+5. rotor: J_m·ω̇₁ = Σ rotor-torque terms(i_a, ω₁) (DC motor) or ω̇₁ = rotor-response term(ω_ss, ω₁) (ESC);
+6. gear, thrust: ω₂ = gear term(ω₁), f = thrust term(ω₂);
+7. rod: θ̈ = Σ rod terms(θ, θ̇, f).
+
+Sums run in the terms' ``order`` (the order of floating-point addition), so a rig simulates
+bit for bit as it did before the registry existed.
+
+An :class:`Assembly` holds the active parts, the **effective** parameter values (an inactive
+effect's parameters at their ``absent`` values) and the active terms per slot, and provides
+
+* :attr:`Assembly.rhs`: the scalar right-hand side, generated once per rig as Python source that
+  calls the term functions with the parameters as constants (no branches on switches, no
+  per-call lookups; :attr:`Assembly.rhs_source` shows it). This is the seam for a compiled
+  backend: the same source with a compiled ``xp`` namespace;
+* :meth:`Assembly.point` and :meth:`Assembly.slot_values`: every intermediate signal of the chain
+  and each term's value, on floats (``xp.MATH``) or arrays (``xp.NUMPY``), for outputs,
+  equation-error terms and the Jacobian;
+* :meth:`Assembly.jacobian` (chain rule over the terms' partial derivatives) and
+  :meth:`Assembly.steady_state` (inverse maps of the chain).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from functools import lru_cache
+from typing import Any
+
+import numpy as np
+
+from aeropend_sim.components import registry
+from aeropend_sim.components.base import Effect, Family, Part, Term
+from aeropend_sim.components.xp import MATH
+
+N_STATES = 5
+THETA, THETA_DOT, I_A, OMEGA, TAU_F = range(N_STATES)
+
+
+@lru_cache(maxsize=256)
+def _compiled(src: str, consts: tuple[tuple[str, Any], ...]) -> Any:
+    """The ``rhs`` function of generated source ``src`` with its namespace (cached: rigs that differ
+    only in the switches of inactive effects, and repeated constructions, share one function)."""
+    namespace = {"_xp": MATH, "_ndarray": np.ndarray, **dict(consts)}
+    exec(compile(src, "<generated rhs (aeropend_sim.components.assembly)>", "exec"), namespace)
+    return namespace["rhs"]
+
+
+class AssemblyError(ValueError):
+    """A request the assembled model cannot satisfy (no armature on this family, ...)."""
+
+
+def effect_active(effect: Effect, switch: bool | str, values: Mapping[str, float]) -> bool:
+    """Whether a switched effect acts: its switch is on and its ``active_when`` condition holds."""
+    if not effect.is_on(switch):
+        return False
+    return effect.active_when is None or bool(effect.active_when(values))
+
+
+class Assembly:
+    """The active parts of one rig and the equations they compose (module doc).
+
+    Parameters
+    ----------
+    family : str
+        Actuator family name.
+    values : mapping
+        ``{"section.name": value}`` of every parameter the family has (the rig's values).
+    switches : mapping
+        ``{effect name: switch value}`` of every effect (inapplicable ones must be off).
+
+    Attributes
+    ----------
+    family : Family
+    active : tuple of Part
+        The family's components and the active effects, by order.
+    values : dict
+        Effective parameter values by key (inactive effects' parameters at their absent value).
+    slots : dict
+        Slot -> active terms in order.
+    lag, dynamic_current, armature : bool
+        Actuator lag active; armature current a state; the family has an armature circuit.
+    """
+
+    def __init__(self, family: str, values: Mapping[str, float], switches: Mapping[str, bool | str]) -> None:
+        self.family: Family = registry.family(family)
+        raw = dict(values)
+        active: list[Part] = list(registry.family_parts(family))
+        effective = dict(raw)
+        on_effects: list[Effect] = []
+        for eff in registry.family_effects(family):
+            if effect_active(eff, switches.get(eff.name, eff.off), raw):
+                on_effects.append(eff)
+            else:
+                for p in eff.params:
+                    effective[p.key] = p.absent if p.absent is not None else raw[p.key]
+        self.active: tuple[Part, ...] = tuple(sorted((*active, *on_effects), key=lambda p: (p.order, p.name)))
+        self.values = effective
+        self.by_name = {k.partition(".")[2]: v for k, v in effective.items()}
+        slots: dict[str, list[Term]] = {}
+        for part in self.active:
+            for term in part.terms:
+                slots.setdefault(term.slot, []).append(term)
+        self.slots: dict[str, tuple[Term, ...]] = {
+            k: tuple(sorted(v, key=lambda t: t.order)) for k, v in slots.items()}
+        # each active term's arguments: an input name, or its parameter's effective value (bound once)
+        self._args: dict[int, tuple[tuple[bool, Any], ...]] = {
+            id(t): tuple((a in t.inputs, a if a in t.inputs else self.by_name[a]) for a in t.arguments)
+            for terms in self.slots.values() for t in terms}
+        self.lag = bool(self.slots.get("lag"))
+        self.armature = "armature" not in self.family.lacks
+        names = {p.name for p in self.active}
+        self.dynamic_current = self.armature and "armature_inductance" in names
+        self.drive_name = self.family.drive
+        self._rhs_src, self.rhs = self._generate_rhs()
+
+    # ------------------------------------------------------------------ helpers
+    def has(self, name: str) -> bool:
+        """Whether the part (component or effect) called ``name`` is active."""
+        return any(p.name == name for p in self.active)
+
+    def _one(self, slot: str) -> Term:
+        terms = self.slots.get(slot, ())
+        if not terms:
+            raise AssemblyError(f"the {self.family.name} family has no {slot} term")
+        return terms[-1]  # the highest active order (the drive map an effect replaces)
+
+    def _with(self, values: Mapping[str, Any]) -> dict[str, Any]:
+        out = dict(self.by_name)
+        out.update(values)
+        return out
+
+    def _eval(self, term: Term, xp: Any, inputs: Mapping[str, Any]) -> Any:
+        """The term at ``inputs`` with its parameters' effective values."""
+        return term.fn(xp, *[inputs[v] if is_input else v for is_input, v in self._args[id(term)]])
+
+    # ------------------------------------------------------------------ generated right-hand side
+    @property
+    def rhs_source(self) -> str:
+        """Python source of :attr:`rhs` (for reading and for a compiled backend)."""
+        return self._rhs_src
+
+    def _call(self, term: Term, index: int, consts: dict[str, Any]) -> str:
+        args = []
+        for a in term.arguments:
+            if a in term.inputs:
+                args.append(a)
+            else:
+                v = float(self.by_name[a])
+                if math.isfinite(v):
+                    args.append(repr(v))
+                else:
+                    consts[f"_c{index}_{a}"] = v
+                    args.append(f"_c{index}_{a}")
+        consts[f"_f{index}"] = term.fn
+        return f"_f{index}(_xp, {', '.join(args)})"
+
+    def _sum(self, slot: str, first: str | None, consts: dict[str, Any], counter: list[int]) -> str:
+        expr = first
+        for term in self.slots.get(slot, ()):
+            counter[0] += 1
+            call = self._call(term, counter[0], consts)
+            expr = call if expr is None else f"({expr} + {call})"
+        return expr if expr is not None else "0.0"
+
+    def _generate_rhs(self) -> tuple[str, Any]:
+        consts: dict[str, Any] = {}  # term functions and non-finite parameters by their names in the source
+        n = [0]
+
+        def call(term: Term) -> str:
+            n[0] += 1
+            return self._call(term, n[0], consts)
+
+        lines = ["def rhs(t, x, u):",
+                 "    if type(x) is _ndarray:",
+                 "        x = x.tolist()",
+                 "    theta, theta_dot, i_a, omega, tau_f = x"]
+        if self.lag:
+            lines += [f"    dtau_f = {call(self._one('lag'))}", "    tau = tau_f"]
+        else:
+            lines += ["    dtau_f = 0.0", "    tau = u"]
+        for term in self.slots.get("duty", ()):
+            lines.append(f"    tau = {call(term)}")
+        q = self.drive_name
+        lines.append(f"    {q} = {call(self._one('drive'))}")
+        if self.armature:
+            r, la = repr(float(self.values["motor.R_a"])), repr(float(self.values["motor.L_a"]))
+            if self.dynamic_current:
+                lines.append(f"    di_a = {self._sum('armature', f'({q} - {r} * i_a)', consts, n)} / {la}")
+            else:
+                lines += [f"    i_a = {self._sum('armature', q, consts, n)} / {r}", "    di_a = 0.0"]
+            jm = repr(float(self.values["motor.J_m"]))
+            lines.append(f"    domega = {self._sum('rotor_torque', None, consts, n)} / {jm}")
+        else:
+            lines += ["    di_a = 0.0", f"    domega = {call(self._one('rotor_response'))}"]
+        lines += [f"    omega_prop = {call(self._one('gear'))}",
+                  f"    thrust = {call(self._one('thrust'))}",
+                  f"    dtheta_dot = {self._sum('rod', None, consts, n)}",
+                  "    return [theta_dot, dtheta_dot, di_a, domega, dtau_f]"]
+        src = "\n".join(lines) + "\n"
+        return src, _compiled(src, tuple(sorted(consts.items(), key=lambda kv: kv[0])))
+
+    # ------------------------------------------------------------------ evaluation on floats or arrays
+    def duty_chain(self, xp: Any, tau: Any) -> Any:
+        """τ_e of the duty cycle τ after the lag (the ``duty`` terms in order)."""
+        for term in self.slots.get("duty", ()):
+            tau = self._eval(term, xp, {"tau": tau})
+        return tau
+
+    def drive(self, xp: Any, tau: Any) -> Any:
+        """Drive quantity (v_a [V] or ω_ss [rad/s]) of the duty cycle τ after the lag."""
+        return self._eval(self._one("drive"), xp, {"tau": self.duty_chain(xp, tau)})
+
+    def propeller(self, xp: Any, omega: Any) -> tuple[Any, Any]:
+        """(ω₂, f): propeller speed [rad/s] and thrust [N] of the rotor speed ω₁ [rad/s]."""
+        w2 = self._eval(self._one("gear"), xp, {"omega": omega})
+        return w2, self._eval(self._one("thrust"), xp, {"omega_prop": w2})
+
+    def slot_values(self, slot: str, xp: Any, inputs: Mapping[str, Any]) -> dict[str, Any]:
+        """Each active term of ``slot`` evaluated at ``inputs`` (label -> value), in order.
+
+        Parameters
+        ----------
+        slot : str
+        xp : namespace
+            ``xp.MATH`` for floats, ``xp.NUMPY`` for arrays.
+        inputs : mapping
+            The slot's inputs by name (:data:`aeropend_sim.components.base.SLOT_INPUTS`).
+        """
+        return {t.label: self._eval(t, xp, inputs) for t in self.slots.get(slot, ())}
+
+    def _sum_values(self, slot: str, xp: Any, inputs: Mapping[str, Any], first: Any = None) -> Any:
+        total = first
+        for v in self.slot_values(slot, xp, inputs).values():
+            total = v if total is None else total + v
+        return 0.0 if total is None else total
+
+    def point(self, xp: Any, x: Any, u: Any) -> dict[str, Any]:
+        """Every signal of the chain at state ``x`` (rows of shape (…, 5) or a sequence) and input ``u``.
+
+        Returns ``{"tau", "tau_e", drive name, "i_a", "omega", "omega_prop", "thrust", "theta",
+        "theta_dot", "u", "tau_f"}``; ``i_a`` is the algebraic current when the armature is
+        quasi-static, 0 without an armature.
+        """
+        xs = [x[..., k] for k in range(N_STATES)] if isinstance(x, np.ndarray) else list(x)
+        theta, theta_dot, i_a, omega, tau_f = xs
+        tau = tau_f if self.lag else u
+        tau_e = self.duty_chain(xp, tau)
+        q = self._eval(self._one("drive"), xp, {"tau": tau_e})
+        if not self.armature:
+            i_a = 0.0 * omega
+        elif not self.dynamic_current:
+            i_a = self._sum_values("armature", xp, {"omega": omega}, first=q) / self.values["motor.R_a"]
+        w2, f = self.propeller(xp, omega)
+        return {"u": u, "tau_f": tau_f, "tau": tau, "tau_e": tau_e, self.drive_name: q, "i_a": i_a,
+                "omega": omega, "omega_prop": w2, "thrust": f, "theta": theta, "theta_dot": theta_dot}
+
+    # ------------------------------------------------------------------ linearisation
+    def _d(self, slot: str, name: str, vals: Mapping[str, Any], skip_sign: bool = False) -> float:
+        """Σ ∂term/∂``name`` over the slot's active terms at ``vals`` (scalars)."""
+        return sum((t.partial(MATH, name, vals) for t in self.slots.get(slot, ())
+                    if not (skip_sign and t.regularised_sign)), 0.0)
+
+    def jacobian(self, x: Any, u: float, dry_friction: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """A = ∂f/∂x (5×5), B = ∂f/∂u (5×1) at (x, u), by the chain rule over the terms' partials.
+
+        ``dry_friction=False`` leaves out terms whose slope comes from a regularised sign (see
+        :attr:`aeropend_sim.components.base.Term.regularised_sign`).
+        """
+        A = np.zeros((N_STATES, N_STATES))
+        B = np.zeros((N_STATES, 1))
+        p = self.point(MATH, [float(v) for v in x], float(u))
+        vals = self._with(p)
+        # d(drive)/d(source), source = τ_f (lag) or u
+        dtau = 1.0
+        tau = p["tau"]
+        for term in self.slots.get("duty", ()):
+            v = self._with({"tau": tau})
+            dtau *= term.partial(MATH, "tau", v)
+            tau = term(MATH, v)
+        dq = self._one("drive").partial(MATH, "tau", self._with({"tau": p["tau_e"]})) * dtau
+        b = np.zeros(N_STATES)
+        if self.lag:
+            lag = self._one("lag")
+            A[TAU_F, TAU_F] = lag.partial(MATH, "tau_f", vals)
+            B[TAU_F, 0] = lag.partial(MATH, "u", vals)
+        if self.armature:
+            r, la, jm = self.values["motor.R_a"], self.values["motor.L_a"], self.values["motor.J_m"]
+            da_dw = self._d("armature", "omega", vals)
+            dr_di = self._d("rotor_torque", "i_a", vals)
+            dr_dw = self._d("rotor_torque", "omega", vals)
+            if self.dynamic_current:
+                A[I_A, I_A] = -r / la
+                A[I_A, OMEGA] = da_dw / la
+                b[I_A] = dq / la
+                A[OMEGA, I_A] = dr_di / jm
+                A[OMEGA, OMEGA] = dr_dw / jm
+            else:
+                A[OMEGA, OMEGA] = (dr_dw + dr_di * da_dw / r) / jm
+                b[OMEGA] = dr_di * (dq / r) / jm
+        else:
+            A[OMEGA, OMEGA] = self._d("rotor_response", "omega", vals)
+            b[OMEGA] = self._d("rotor_response", "omega_sp", vals) * dq
+        dw2 = self._one("gear").partial(MATH, "omega", vals)
+        df = self._one("thrust").partial(MATH, "omega_prop", vals)
+        A[THETA, THETA_DOT] = 1.0
+        A[THETA_DOT, THETA] = self._d("rod", "theta", vals)
+        A[THETA_DOT, THETA_DOT] = self._d("rod", "theta_dot", vals, skip_sign=not dry_friction)
+        A[THETA_DOT, OMEGA] = self._d("rod", "thrust", vals) * df * dw2
+        if self.lag:
+            A[:, TAU_F] += b
+        else:
+            B[:, 0] += b
+        return A, B
+
+    # ------------------------------------------------------------------ steady state
+    def duty_for_drive(self, q: float) -> float:
+        """Duty cycle τ (before the lag, at steady state) whose drive quantity is ``q`` (≥ 0).
+
+        Inverts the drive map and the duty terms in reverse order; τ = 0 for q ≤ 0. The result may
+        exceed 1 (the caller checks the range).
+        """
+        tau = float(self._one("drive").inverse(MATH, q, *self._params_of(self._one("drive"))))
+        for term in reversed(self.slots.get("duty", ())):
+            tau = float(term.inverse(MATH, tau, *self._params_of(term)))
+        return tau
+
+    def _params_of(self, term: Term) -> list[float]:
+        return [self.by_name[a] for a in term.param_names]
+
+    def steady_state(self, theta: float) -> tuple[list[float], float]:
+        """State (θ, 0, i_a, ω₁, q) with θ̈ = 0 and ω̇₁ = 0 at angle θ, and the drive quantity q.
+
+        Contact terms (end stops) are left out: the state is the one the thrust holds. The rod's
+        terms are linear in the thrust (the thrust torque), the rotor torques linear in the current:
+        f = −Σ(rod terms without f)/Σ∂/∂f, ω₂ = thrust⁻¹(f), ω₁ = gear⁻¹(ω₂), then
+        i_a = −Σ(torques without i_a)/Σ∂/∂i_a and q = R_a·i_a − Σ armature terms (DC motor), or
+        q = rotor-response⁻¹(ω₁) (ESC). The last state entry is left to the caller (τ).
+        """
+        rod = {"theta": theta, "theta_dot": 0.0, "thrust": 0.0}
+        vals = self._with(rod)
+        held = [t for t in self.slots["rod"] if "thrust" not in t.inputs and not t.contact]
+        rest = sum((t(MATH, vals) for t in held), 0.0)
+        f = -rest / self._d("rod", "thrust", vals)
+        w2 = self._one("thrust").inverse(MATH, f, *self._params_of(self._one("thrust")))
+        w1 = self._one("gear").inverse(MATH, w2, *self._params_of(self._one("gear")))
+        if self.armature:
+            vals = self._with({"omega": w1, "i_a": 0.0})
+            load = None
+            for t in self.slots.get("rotor_torque", ()):
+                if "i_a" not in t.inputs:
+                    v = t(MATH, vals)
+                    load = v if load is None else load + v
+            i = -(load if load is not None else 0.0) / self._d("rotor_torque", "i_a", vals)
+            q = self.values["motor.R_a"] * i - self._sum_values("armature", MATH, {"omega": w1})
+        else:
+            i = 0.0
+            term = self._one("rotor_response")
+            q = term.inverse(MATH, w1, *self._params_of(term))
+        return [theta, 0.0, i, w1, 0.0], q

@@ -1,0 +1,2 @@
+"""pendulum components and effects: one declaration per module, found by
+:mod:`aeropend_sim.components.registry`."""

@@ -1,0 +1,97 @@
+"""Component ``rod``: the pendulum per unit inertia, θ̈ = −(mgd/J)·sin θ + (L/J)·f + Σ (thesis Eqs. 3.1-3.2).
+
+A rig file gives ``mgd_over_J`` and ``L_over_J``, or the geometry they come from (:data:`GEOMETRY`:
+mass m, centre-of-mass distance d, thrust arm L and optionally the inertia J about the pivot, by
+default a point mass J = m·d²): mgd/J = m·g·d/J, L/J = L/J.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+from aeropend_sim.components.base import Component, Diagnosis, FitBounds, Param, Term
+
+#: Standard gravity [m/s²].
+G = 9.80665
+
+MGD = Param("pendulum.mgd_over_J", "1/s^2", "gravity term m·g·d/J", sign="nonneg",
+            fit=FitBounds(1e-2, 1e4, True), relative_truth=((0.8, 0.9), (1.12, 1.25)), symbol="mgd/J")
+LJ = Param("pendulum.L_over_J", "1/(kg*m)", "thrust lever arm over inertia L/J", sign="positive",
+           fit=FitBounds(None, None, True), symbol="L/J")
+
+#: Geometry a rig file may give instead of mgd/J and L/J.
+GEOMETRY = (
+    Param("pendulum.mass", "kg", "mass of the moving part (rod, motor, propeller)", sign="positive",
+          symbol="m"),
+    Param("pendulum.com_distance", "m", "pivot to centre of mass d", sign="positive", symbol="d"),
+    Param("pendulum.thrust_arm", "m", "pivot to the propeller's thrust line L", sign="positive", symbol="L"),
+    Param("pendulum.inertia", "kg*m^2", "inertia J about the pivot (default: point mass m·d²)",
+          sign="positive", absent=0.0, symbol="J"),
+)
+
+
+def derive(given: Mapping[str, float]) -> dict[str, tuple[float, str]]:
+    """mgd/J and L/J of the geometry ``{key: value}`` (mass, com_distance, thrust_arm, inertia?).
+
+    Raises
+    ------
+    KeyError
+        Naming a missing geometry key (the rig loader turns it into its error).
+    """
+    for key in ("pendulum.mass", "pendulum.com_distance", "pendulum.thrust_arm"):
+        if key not in given:
+            raise KeyError(key)
+    m, d, arm = given["pendulum.mass"], given["pendulum.com_distance"], given["pendulum.thrust_arm"]
+    if given.get("pendulum.inertia", 0.0) > 0.0:
+        j, j_how = given["pendulum.inertia"], "pendulum.inertia"
+    else:
+        j, j_how = m * d * d, "a point mass J = m·d² (no pendulum.inertia in the rig file)"
+    return {
+        "pendulum.mgd_over_J": (m * G * d / j, f"m·g·d/J from pendulum.mass, com_distance and {j_how}"),
+        "pendulum.L_over_J": (arm / j, f"L/J from pendulum.thrust_arm and {j_how}"),
+    }
+
+
+def gravity(xp, theta, mgd_over_J):
+    """−(mgd/J)·sin θ [rad/s²]."""
+    return -mgd_over_J * xp.sin(theta)
+
+
+def d_gravity(xp, theta, mgd_over_J):
+    """∂/∂θ [1/s²]."""
+    return -mgd_over_J * xp.cos(theta)
+
+
+def thrust_torque(xp, thrust, L_over_J):
+    """(L/J)·f [rad/s²]."""
+    return L_over_J * thrust
+
+
+def d_thrust_torque(xp, thrust, L_over_J):
+    """∂/∂f [1/(kg·m)]."""
+    return L_over_J + 0.0 * thrust
+
+
+COMPONENT = Component(
+    name="rod",
+    part="pendulum",
+    label="pendulum rod",
+    description="θ̇ = Ω; Ω̇ = −(mgd/J) sin θ + (L/J) f + Σ (Eqs. 3.1–3.2)",
+    order=60,
+    params=(MGD, LJ),
+    terms=(Term("rod", 0, gravity, "−(mgd/J)·sin θ", partials={"theta": d_gravity}),
+           Term("rod", 20, thrust_torque, "(L/J)·f", partials={"thrust": d_thrust_torque})),
+    geometry=GEOMETRY,
+    derive=derive,
+    diagnoses=(
+        Diagnosis("gravity", "pendulum", "gravity torque (mass · lever) wrong: θ̈ = −(mgd/J)·sin θ + …",
+                  ("mgd_over_J",), ("theta",), sindy_terms={"theta_dot": ("−sin θ",)},
+                  confusable_with=("thrust_coefficient", "sensor_scale", "inertia")),
+        Diagnosis("inertia", "pendulum",
+                  "rod inertia J wrong: every /J term (mgd/J, c/J, L/J, T_f/J) divided by J/J_nominal",
+                  ("J_scale",), ("theta",), sindy_terms={"theta_dot": ("θ̈_model",)},
+                  confusable_with=("gravity", "thrust_coefficient", "sensor_scale"),
+                  truth={"J_scale": ((0.7, 0.85), (1.2, 1.45))}),
+    ),
+)
+

@@ -1,0 +1,76 @@
+"""Effect ``rod_coulomb_friction``: dry friction of the rod with an optional Stribeck part.
+
+    θ̈ −= (T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²))·sgn(θ̇)
+
+The static friction T_s exceeds the sliding (Coulomb) friction T_f and falls off over the
+Stribeck velocity v_s (``stribeck_over_J`` = 0: plain Coulomb friction). sgn(θ̇) is regularised
+as tanh(θ̇/v_ε) (v_ε = ``friction_velocity``) so the ODE stays Lipschitz: the rod then creeps at
+about v_ε·atanh(load/T_f) under loads below the breakaway torque instead of sticking exactly.
+Split from the pre-issue-35 ``coulomb_friction`` switch, which also turned on the rotor's brush
+friction; that switch is still read as both.
+"""
+
+from __future__ import annotations
+
+from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Term
+
+T_F = Param("pendulum.coulomb_over_J", "rad/s^2", "Coulomb friction torque over inertia T_f/J", sign="nonneg",
+            absent=0.0, fit=FitBounds(0.0, 1e3, False, 1.0), symbol="T_f/J")
+T_S = Param("pendulum.stribeck_over_J", "rad/s^2",
+            "Stribeck excess of the static over the Coulomb friction (T_s − T_f)/J (0 = none)", sign="nonneg",
+            absent=0.0, symbol="(T_s − T_f)/J")
+V_S = Param("pendulum.stribeck_velocity", "rad/s",
+            "Stribeck velocity v_s: the excess decays as exp(−(θ̇/v_s)²)", sign="positive", absent=0.1,
+            setting=True, symbol="v_s")
+V_EPS = Param("pendulum.friction_velocity", "rad/s", "tanh regularisation width of sign(θ̇)", sign="positive",
+              absent=0.01, setting=True, symbol="v_ε")
+
+
+def accel(xp, theta_dot, coulomb_over_J, stribeck_over_J, stribeck_velocity, friction_velocity):
+    """−(T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²))·tanh(θ̇/v_ε) [rad/s²]."""
+    level = coulomb_over_J + stribeck_over_J * xp.exp(-((theta_dot / stribeck_velocity) ** 2))
+    return -(level * xp.tanh(theta_dot / friction_velocity))
+
+
+def d_accel(xp, theta_dot, coulomb_over_J, stribeck_over_J, stribeck_velocity, friction_velocity):
+    """∂/∂θ̇ [1/s] (written with 1 − tanh², which cannot overflow)."""
+    th = xp.tanh(theta_dot / friction_velocity)
+    sech2 = 1.0 - th * th
+    ex = xp.exp(-((theta_dot / stribeck_velocity) ** 2))
+    slope = (coulomb_over_J / friction_velocity * sech2
+             + stribeck_over_J * ex * (sech2 / friction_velocity
+                                       - 2.0 * theta_dot / stribeck_velocity**2 * th))
+    return -slope
+
+
+EFFECT = Effect(
+    name="rod_coulomb_friction",
+    part="pendulum",
+    label="rod dry friction",
+    description="−(T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²)) sgn(θ̇) on the rod (the Stribeck part is 0 "
+                "unless set)",
+    order=62,
+    params=(T_F, T_S, V_S, V_EPS),
+    terms=(Term("rod", 30, accel, "−(T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²))·tanh(θ̇/v_ε)",
+                partials={"theta_dot": d_accel}, regularised_sign=True),),
+    legacy_switch="coulomb_friction",
+    diagnoses=(
+        Diagnosis("coulomb_friction", "pendulum",
+                  "Coulomb friction on the rod: θ̈ −= (T_f/J)·sgn(θ̇) (tanh-regularised)",
+                  ("coulomb_over_J",), ("theta",), sindy_terms={"theta_dot": ("−tanh(θ̇/v_ε)",)},
+                  confusable_with=("viscous_friction",), truth={"coulomb_over_J": ((0.6, 1.5),)},
+                  exclusive_with=("stribeck_friction",)),
+        Diagnosis("stribeck_friction", "pendulum",
+                  "dry friction of the rod with a Stribeck part: "
+                  "θ̈ −= (T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²))·"
+                  "sgn(θ̇): the friction at rest (stiction) exceeds the sliding friction and falls off over "
+                  "the Stribeck velocity v_s, so the damping depends on the swing's amplitude",
+                  ("coulomb_over_J", "stribeck_over_J", "stribeck_velocity"), ("theta",),
+                  sindy_terms={"theta_dot": ("−tanh(θ̇/v_ε)", "−exp(−(θ̇/v_s)²)·tanh(θ̇/v_ε)")},
+                  confusable_with=("coulomb_friction", "viscous_friction"),
+                  truth={"coulomb_over_J": ((0.6, 1.5),), "stribeck_over_J": ((1.5, 3.0),),
+                         "stribeck_velocity": ((0.1, 0.3),)},
+                  screened=False, exclusive_with=("coulomb_friction",), nests=("coulomb_friction",),
+                  refines=("coulomb_friction",)),
+    ),
+)

@@ -1,0 +1,47 @@
+"""Component ``esc_rotor``: the speed response of a rotor behind an ESC, ω̇₁ = (ω_ss − ω₁)/T_m.
+
+The ESC's static map (:mod:`..actuator.esc`) gives the set-point ω_ss(τ); the motor, propeller
+and ESC together follow it with one time constant T_m (the response a step test shows).
+"""
+
+from __future__ import annotations
+
+from aeropend_sim.components.base import Component, Param, Term
+
+T_M = Param("motor.T_m", "s", "rotor speed response time constant T_m (ESC + motor + propeller)",
+            sign="positive", symbol="T_m")
+
+
+def response(xp, omega_sp, omega, T_m):
+    """ω̇₁ = (ω_ss − ω₁)/T_m [rad/s²]."""
+    return (omega_sp - omega) / T_m
+
+
+def d_response_d_omega_sp(xp, omega_sp, omega, T_m):
+    """∂ω̇₁/∂ω_ss [1/s]."""
+    return 1.0 / T_m
+
+
+def d_response_d_omega(xp, omega_sp, omega, T_m):
+    """∂ω̇₁/∂ω₁ [1/s]."""
+    return -1.0 / T_m
+
+
+def steady_set_point(xp, y, T_m):
+    """The set-point ω_ss that holds the rotor at a steady speed y [rad/s]."""
+    return y + 0.0 * T_m
+
+
+COMPONENT = Component(
+    name="esc_rotor",
+    part="rotor",
+    label="ESC speed response",
+    description="first-order speed response to the ESC's set-point: ω̇₁ = (ω_ss − ω₁)/T_m",
+    order=31,
+    params=(T_M,),
+    terms=(Term("rotor_response", 0, response, "ω̇₁ = (ω_ss − ω₁)/T_m",
+                partials={"omega_sp": d_response_d_omega_sp, "omega": d_response_d_omega},
+                inverse=steady_set_point),),
+    families=("esc",),
+    why_not="a DC motor's speed follows its torque balance (component dc_motor)",
+)

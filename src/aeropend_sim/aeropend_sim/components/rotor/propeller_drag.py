@@ -1,0 +1,36 @@
+"""Effect ``propeller_drag``: the propeller's drag torque on the rotor, J_m·ω̇₁ −= K_d·ω₁|ω₁|."""
+
+from __future__ import annotations
+
+from aeropend_sim.components.base import Diagnosis, Effect, Param, Term
+
+K_D = Param("motor.K_d", "N*m*s^2/rad^2", "propeller drag torque on the rotor: K_d·ω1·|ω1|", sign="nonneg",
+            absent=0.0, relative_truth=((0.4, 0.6), (1.6, 2.5)), symbol="K_d")
+
+
+def torque(xp, omega, K_d):
+    """−K_d·ω₁·|ω₁| [N·m]."""
+    return -K_d * omega * xp.abs(omega)
+
+
+def d_torque_d_omega(xp, omega, K_d):
+    """∂(−K_d·ω₁|ω₁|)/∂ω₁ [N·m·s/rad]."""
+    return -2.0 * K_d * xp.abs(omega)
+
+
+EFFECT = Effect(
+    name="propeller_drag",
+    part="rotor",
+    label="propeller drag",
+    description="−K_d ω₁|ω₁| on the rotor",
+    order=43,
+    params=(K_D,),
+    terms=(Term("rotor_torque", 20, torque, "−K_d·ω₁|ω₁|", partials={"omega": d_torque_d_omega}),),
+    legacy_default=True,
+    diagnoses=(Diagnosis("propeller_drag", "aerodynamic",
+                         "propeller drag torque wrong or omitted: J_m·ω̇₁ = … − K_d·ω₁|ω₁|", ("K_d",),
+                         ("omega_rotor",),
+                         sindy_terms={"theta_dot": ("L/J·Δf(K_d)",), "omega_rotor": ("−ΔK_d·ω₁|ω₁|/J_m",)},
+                         confusable_with=("thrust_law", "back_emf", "armature_resistance", "torque_constant",
+                                          "rotor_friction")),),
+)

@@ -1,0 +1,41 @@
+"""Effect ``rotor_viscous_friction``: viscous friction B_m of the rotor, J_m·ω̇₁ −= B_m·ω₁.
+
+Split from the pre-issue-35 ``viscous_friction`` switch, which also turned on the rod's c/J
+(``rod_viscous_friction``); that switch is still read as both.
+"""
+
+from __future__ import annotations
+
+from aeropend_sim.components.base import Diagnosis, Effect, Param, Term
+
+B_M = Param("motor.B_m", "N*m*s/rad", "rotor viscous friction", sign="nonneg", absent=0.0,
+            relative_truth=((4.0, 10.0),), symbol="B_m")
+
+
+def torque(xp, omega, B_m):
+    """−B_m·ω₁ [N·m]."""
+    return -B_m * omega
+
+
+def d_torque_d_omega(xp, omega, B_m):
+    """∂(−B_m·ω₁)/∂ω₁ [N·m·s/rad]."""
+    return -B_m + 0.0 * omega
+
+
+EFFECT = Effect(
+    name="rotor_viscous_friction",
+    part="rotor",
+    label="rotor viscous friction",
+    description="−B_m ω₁ on the rotor",
+    order=42,
+    params=(B_M,),
+    terms=(Term("rotor_torque", 10, torque, "−B_m·ω₁", partials={"omega": d_torque_d_omega}),),
+    legacy_switch="viscous_friction",
+    legacy_default=True,
+    diagnoses=(Diagnosis("rotor_friction", "motor",
+                         "rotor viscous friction B_m wrong or omitted: J_m·ω̇₁ = … − B_m·ω₁",
+                         ("B_m",), ("omega_rotor",),
+                         sindy_terms={"theta_dot": ("L/J·Δf(B_m)",), "omega_rotor": ("−ΔB_m·ω₁/J_m",)},
+                         confusable_with=("back_emf", "armature_resistance", "torque_constant",
+                                          "propeller_drag")),),
+)

@@ -1,0 +1,29 @@
+"""Effect ``quantisation``: ADC/encoder quantisation of the measured channels, y = LSB·round(y/LSB).
+
+Applied by :func:`aeropend_sim.simulate.measure`; an LSB of 0 leaves the channel as it is. θ̇ is
+estimated, never quantised.
+"""
+
+from __future__ import annotations
+
+from aeropend_sim.components.base import Diagnosis, Effect, Param
+
+
+def _lsb(name: str, unit: str, what: str) -> Param:
+    return Param(f"sensors.{name}_quantum", unit, f"{what} LSB", sign="nonneg", absent=0.0)
+
+
+EFFECT = Effect(
+    name="quantisation",
+    part="sensors",
+    label="quantisation",
+    description="y = LSB·round(y/LSB) per channel",
+    order=72,
+    params=(_lsb("theta", "rad", "angle"), _lsb("i_a", "A", "armature-current"),
+            _lsb("v_a", "V", "armature-voltage"),
+            _lsb("omega", "rad/s", "speed")),
+    diagnoses=(Diagnosis("quantisation", "sensor",
+                         "angle quantisation: θ_recorded = q·round(θ/q) (ADC/encoder LSB q)",
+                         ("theta_quantum",), ("theta",), truth={"theta_quantum": ((0.008, 0.02),)},
+                         kind="direct"),),
+)

@@ -1,0 +1,45 @@
+"""Component ``propeller``: thrust f = K_q·|ω₂|^α·sign(ω₂) (thesis Eq. 3.3 with α = 2).
+
+The exponent α is the ``thrust_exponent`` effect's parameter (2 when that effect is off).
+"""
+
+from __future__ import annotations
+
+from aeropend_sim.components.base import Component, Diagnosis, Param, Term
+
+K_Q = Param("thrust.K_q", "N*s^2/rad^2", "thrust coefficient K_q (for α = 2)", sign="nonneg",
+            relative_truth=((0.75, 0.88), (1.12, 1.25)), symbol="K_q")
+
+
+def thrust(xp, omega_prop, K_q, exponent):
+    """f = K_q·|ω₂|^α·sign(ω₂) [N]."""
+    return K_q * xp.sign(omega_prop) * xp.power(xp.abs(omega_prop), exponent)
+
+
+def d_thrust(xp, omega_prop, K_q, exponent):
+    """∂f/∂ω₂ [N·s/rad] (at ω₂ = 0: K_q for α = 1, else 0)."""
+    zero = omega_prop == 0.0
+    base = xp.abs(omega_prop) + zero  # a safe base at ω₂ = 0
+    return xp.where(zero, (exponent == 1.0) * K_q, K_q * exponent * xp.power(base, exponent - 1.0))
+
+
+def speed_of_thrust(xp, y, K_q, exponent):
+    """ω₂ ≥ 0 giving a thrust y ≥ 0 [rad/s]."""
+    return xp.where(y > 0.0, xp.power(xp.maximum(y, 0.0) / K_q, 1.0 / exponent), 0.0)
+
+
+COMPONENT = Component(
+    name="propeller",
+    part="thrust",
+    label="propeller thrust",
+    description="f = K_q |ω₂|^α sign(ω₂), α = 2 unless `thrust_exponent` (Eq. 3.3)",
+    order=50,
+    params=(K_Q,),
+    terms=(Term("thrust", 10, thrust, "f = K_q·|ω₂|^α·sign(ω₂)", partials={"omega_prop": d_thrust},
+                inverse=speed_of_thrust),),
+    diagnoses=(Diagnosis("thrust_coefficient", "aerodynamic",
+                         "thrust coefficient K_q wrong (a static load-cell fit, thesis Eq. 4.4): f = K_q·ω₂²",
+                         ("K_q",), ("theta",), sindy_terms={"theta_dot": ("ΔK_q·(L/J)·ω₂²",)},
+                         confusable_with=("thrust_law", "gravity", "sensor_scale", "inertia"),
+                         exclusive_with=("thrust_law",)),),
+)
