@@ -45,3 +45,23 @@ def truth_csv_preset(monkeypatch: pytest.MonkeyPatch) -> Callable[..., str]:
         return name
 
     return register
+
+
+@pytest.fixture
+def saved_figures(monkeypatch: pytest.MonkeyPatch) -> list:
+    """Every matplotlib Figure saved during the test, in order (recorded as ``savefig`` is called).
+
+    Figure tests inspect what was drawn (titles, legend entries, axis limits, notes) on these
+    objects instead of only checking that a PNG exists; the figures are still written as usual.
+    """
+    from matplotlib.figure import Figure
+
+    saved: list = []
+    original = Figure.savefig
+
+    def record(self, *args, **kwargs):
+        saved.append(self)
+        return original(self, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", record)
+    return saved

@@ -122,6 +122,8 @@ def test_quantised_angle_detected_directly():
     d = diagnose_effects(RIG, case.fit, case.held_out, max_effects=1)
     assert d.significant and d.ranking[0]["effect"] == "quantisation"
     assert d.ranking[0]["parameters"]["theta_quantum"]["value"] == pytest.approx(0.015, rel=1e-6)
+    # a property of the data, reported as detected; never among the effects later steps refit
+    assert d.chosen == [] and d.detected["quantisation"]["theta_quantum"] == pytest.approx(0.015, rel=1e-6)
     assert d.corrected_rig.effects.quantisation
     assert d.corrected_rig.sensors.theta_quantum == pytest.approx(0.015, rel=1e-6)
 

@@ -76,7 +76,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"baseline: error: {exc}", file=sys.stderr)
         return 2
     print(result.summary())
-    print(f"report: {paths['report']}\noverlay: {paths['overlay']}\nfitted rig: {paths['fitted_rig']}")
+    for section, why in paths["not_computed"].items():
+        print(f"NOT COMPUTED: {section}: {why}")
+    print(f"report: {paths['report']}\noverlay: {paths.get('overlay', 'not drawn')}\n"
+          f"fitted rig: {paths['fitted_rig']}")
     return 0
 
 

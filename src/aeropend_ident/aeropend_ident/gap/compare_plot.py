@@ -5,6 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from aeropend_ident.gap.compare import UNITS, CompareResult
+from aeropend_ident.io.overlay_axes import clip_to_recorded, fit_title
+from aeropend_ident.io.overlay_axes import short_number as num
 
 #: Channel titles.
 TITLES = {"theta": "θ", "i_a": "i_a", "v_a": "v_a", "omega_rotor": "ω₁"}
@@ -13,8 +15,8 @@ TITLES = {"theta": "θ", "i_a": "i_a", "v_a": "v_a", "omega_rotor": "ω₁"}
 def plot_overlay(result: CompareResult, recording: str, path: str | Path) -> Path:
     """One recording: a panel per compared channel (recorded + every rig's free run), duty below.
 
-    The axes span the recorded range ±50 %: a replay that leaves it runs off the panel (its
-    NRMSE in the legend says by how much).
+    The y-limits follow the recorded channel (:func:`aeropend_ident.io.overlay_axes.clip_to_recorded`):
+    a replay that leaves them runs off the panel, with a note saying when and how far.
 
     Parameters
     ----------
@@ -41,25 +43,25 @@ def plot_overlay(result: CompareResult, recording: str, path: str | Path) -> Pat
 
     tr = result.traces[recording]
     chans = list(tr["measured"])
-    fig, axes = plt.subplots(len(chans) + 1, 1, figsize=(10, 2.2 * (len(chans) + 1)), sharex=True)
+    fig, axes = plt.subplots(len(chans) + 1, 1, figsize=(10, 2.2 * (len(chans) + 1)), sharex=True,
+                             constrained_layout=True)
     t = tr["t"]
     for ax, c in zip(axes, chans, strict=False):
         ax.plot(t, tr["measured"][c], color="0.2", lw=0.8, label="recorded")
         for label, sim in tr["simulated"].items():
             sc = result.scores[label][recording]["channels"][c]
             ax.plot(t, sim[c], lw=1.0,
-                    label=f"{label} (NRMSE {sc['nrmse']:.3g}, fit {sc['fit_percent']:.1f} %)")
-        lo, hi = float(min(tr["measured"][c])), float(max(tr["measured"][c]))
-        pad = 0.5 * (hi - lo) or 0.1 * max(abs(hi), 1e-3)
-        ax.set_ylim(lo - pad, hi + pad)  # a diverging replay must not hide the recording
+                    label=f"{label} (NRMSE {num(sc['nrmse'])}, fit {sc['fit_percent']:.1f} %)")
+        # a diverging replay must not hide the recording
+        clip_to_recorded(ax, t, tr["measured"][c], {label: sim[c] for label, sim in tr["simulated"].items()},
+                         symbol=TITLES.get(c, c), unit=UNITS.get(c, ""))
         ax.set_ylabel(f"{TITLES.get(c, c)} [{UNITS.get(c, '')}]")
         ax.legend(loc="upper right", fontsize=7)
     axes[-1].step(t, tr["duty"], where="post", color="k", lw=0.8)
     axes[-1].set_ylabel("duty τ [1]")
     axes[-1].set_xlabel("t [s]")
-    axes[0].set_title(f"compare: {recording}")
-    fig.tight_layout()
+    fit_title(axes[0], f"compare: {recording}", fontsize=10)
     path = Path(path)
-    fig.savefig(path, dpi=100)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
     plt.close(fig)
     return path

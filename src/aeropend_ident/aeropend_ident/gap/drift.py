@@ -53,18 +53,23 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import GapError
-from aeropend_ident.gap.effects import EffectContext, MeasurementMap, apply_effects, get_effect, identifiable
+from aeropend_ident.gap.effects import (
+    EffectContext,
+    MeasurementMap,
+    apply_effects,
+    get_effect,
+    identifiable,
+    measurement_noise,
+)
 from aeropend_ident.gap.which import (
     EffectDiagnosis,
     Prepared,
-    detect_quantum,
     diagnose_effects,
     excluded_with,
     fit_effects,
     prepare,
     replay,
 )
-from aeropend_ident.greybox.fit import noise_level
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
@@ -123,11 +128,9 @@ def theta_nrmse(rig: Rig, meas: MeasurementMap, prep: Prepared) -> float:
 
 
 def noise_floor(prep: Prepared) -> float:
-    """θ noise floor n = σ̂_θ / range: the robust white-noise estimate
-    (:func:`aeropend_ident.greybox.fit.noise_level`), at least the quantisation noise q/√12 of a
-    quantised angle (:func:`aeropend_ident.gap.which.detect_quantum`), which the first reads as 0."""
-    q = detect_quantum(prep.y["theta"])
-    return max(noise_level(prep.y["theta"]), q / math.sqrt(12.0)) / prep.scale["theta"]
+    """θ noise floor n = σ̂_θ / range, σ̂_θ from :func:`aeropend_ident.gap.effects.measurement_noise`
+    (the white-noise estimate, at least the rounding noise q/√12 of a detected angle quantum q)."""
+    return measurement_noise(prep.y["theta"]) / prep.scale["theta"]
 
 
 def drift_parameters(channels: Sequence[str]) -> list[str]:

@@ -872,6 +872,62 @@ def get_effect(name: str) -> Effect:
         raise GapError(f"unknown effect {name!r}; the catalog has {list(EFFECTS)}") from None
 
 
+# ------------------------------------------------------------------------------ detected, not fitted
+def detect_quantum(y: np.ndarray) -> float:
+    """LSB q of a recorded channel if its values lie on a lattice k·q (+ constant), else 0.
+
+    The ``"direct"`` effect of the catalog (``quantisation``): a property of the recording, read
+    from it, never fitted. The lattice step is the smallest gap between distinct values; the
+    channel counts as quantised when every value sits within 1e-3·q of the lattice and there are
+    fewer distinct values than a third of the samples.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n,)
+        Recorded channel (e.g. θ [rad]).
+
+    Returns
+    -------
+    float
+        q in the channel's unit; 0.0 when the values are not on a lattice (or too few).
+    """
+    y = np.asarray(y, dtype=float)
+    u = np.unique(np.round(y, 12))
+    if u.size < 3 or u.size > y.size / 3:
+        return 0.0
+    gaps = np.diff(u)
+    q = float(np.min(gaps[gaps > 1e-12])) if np.any(gaps > 1e-12) else 0.0
+    if q <= 0.0:
+        return 0.0
+    frac = (y - u[0]) / q
+    if np.max(np.abs(frac - np.round(frac))) > 1e-3:
+        return 0.0
+    return q
+
+
+def measurement_noise(y: np.ndarray) -> float:
+    """Standard deviation of the measurement noise of a recorded channel [its unit].
+
+    The robust white-noise estimate (:func:`aeropend_ident.greybox.fit.noise_level`), at least
+    the rounding noise q/√12 of a detected quantum (:func:`detect_quantum`): a quantised channel
+    that rarely changes reads 0 in the first, while its resolution q still bounds what any model
+    can match. The one noise floor of the gap diagnosis (where-analysis, effect ranking,
+    attainable shrink).
+
+    Parameters
+    ----------
+    y : ndarray, shape (n,)
+
+    Returns
+    -------
+    float
+        σ ≥ 0.
+    """
+    from aeropend_ident.greybox.fit import noise_level
+
+    return max(noise_level(y), detect_quantum(y) / math.sqrt(12.0))
+
+
 def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
                   measurement: MeasurementMap | None = None,
                   ctx: EffectContext | None = None) -> tuple[Rig, MeasurementMap]:

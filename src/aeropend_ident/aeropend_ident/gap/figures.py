@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import math
+import textwrap
 from typing import Any
 
 import numpy as np
@@ -17,6 +18,8 @@ from aeropend_ident.gap.run import (
     _label,
 )
 from aeropend_ident.gap.where import WhereReport
+from aeropend_ident.io.overlay_axes import clip_to_recorded, fit_title
+from aeropend_ident.io.overlay_axes import short_number as num
 
 #: Most held-out recordings drawn in the overlay figure.
 MAX_OVERLAYS = 3
@@ -34,7 +37,7 @@ def _plt() -> Any:
 
 def _png(fig: Any) -> bytes:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=100)
+    fig.savefig(buf, format="png", dpi=100, bbox_inches="tight")
     _plt().close(fig)
     return buf.getvalue()
 
@@ -56,12 +59,11 @@ def fig_overlay(result: GapResult) -> bytes:
         ax.plot(o["t"], o["theta"], color="black", lw=1.2, label="recorded (held out)")
         ax.plot(o["t"], o["nominal"], color="tab:orange", lw=1.0, ls="--", label="nominal simulator")
         ax.plot(o["t"], o["corrected"], color="tab:blue", lw=1.0, label="corrected simulator")
+        clip_to_recorded(ax, o["t"], o["theta"], {"nominal simulator": o["nominal"],
+                                                  "corrected simulator": o["corrected"]})
         m = o["metrics"]
-        ax.set_title(
-            f"{_label(o['source'])}: NRMSE nominal {m['nominal']['nrmse']:.4f} -> corrected "
-            f"{m['corrected']['nrmse']:.4f}",
-            fontsize=9,
-        )
+        fit_title(ax, f"{_label(o['source'])}: NRMSE nominal {num(m['nominal']['nrmse'], 4)} -> corrected "
+                      f"{num(m['corrected']['nrmse'], 4)}")
         ax.set_ylabel("θ [rad]")
         ax.legend(loc="best", fontsize=8)
         ax.grid(alpha=0.3)
@@ -88,10 +90,8 @@ def fig_equations(where: WhereReport) -> bytes:
     for k, r in enumerate(where.located):
         ax.text(k, vals[k], f" {vals[k]:.1%}\n top: {r['top_group']}", ha="center", va="bottom", fontsize=8)
     miss = ", ".join(nc["equation"] for nc in where.not_checked)
-    ax.set_title(
-        "equation residual / driving term (red = flagged)" + (f"; not checked: {miss}" if miss else ""),
-        fontsize=9,
-    )
+    fit_title(ax, "equation residual / driving term (red = flagged)"
+              + (f"; not checked: {miss}" if miss else ""))
     ax.set_ylabel("relative residual [1]")
     ax.set_ylim(0, max([*vals, 0.01]) * 1.5)
     for j, e in enumerate(checked, start=1):
@@ -99,11 +99,8 @@ def fig_equations(where: WhereReport) -> bytes:
         a.plot(rec.t, e.residual, lw=0.7, color="tab:red" if e.flagged else "tab:gray")
         a.axhline(0, color="black", lw=0.5)
         a.set_ylabel(f"{e.equation}\n[{e.unit}]")
-        a.set_title(
-            f"{e.equation} equation residual on {_label(rec.source)} (RMS {e.rms:.3g} {e.unit}, "
-            f"method floor {e.method_floor:.3g}, noise floor {e.noise_floor:.3g})",
-            fontsize=8,
-        )
+        fit_title(a, f"{e.equation} equation residual on {_label(rec.source)} (RMS {num(e.rms)} {e.unit}, "
+                     f"method floor {num(e.method_floor)}, noise floor {num(e.noise_floor)})", fontsize=8)
         a.grid(alpha=0.3)
     axes[-1, 0].set_xlabel("time t [s]")
     return _png(fig)
@@ -139,7 +136,7 @@ def fig_regions(where: WhereReport) -> bytes:
         color="tab:orange",
     )
     ax.set_ylabel("RMS residual [rad]")
-    ax.set_title(f"|θ̇| threshold {reg['rate_threshold']} rad/s", fontsize=9)
+    ax.set_title(f"|θ̇| threshold {num(reg['rate_threshold'])} rad/s", fontsize=9)
     ax = axes[1, 1]
     bands = [b for b in rec.bands if "residual_power_fraction" in b]
     ax.bar(
@@ -182,11 +179,8 @@ def fig_tests(where: WhereReport) -> bytes:
     b = 2.58 / math.sqrt(n)
     a1.axhline(b, color="red", ls=":")
     a1.axhline(-b, color="red", ls=":")
-    a1.set_title(
-        f"residual autocorrelation: Ljung-Box Q = {rec.whiteness['q']:.3g}, "
-        f"p = {rec.whiteness['p_value']:.3g}",
-        fontsize=9,
-    )
+    fit_title(a1, f"residual autocorrelation: Ljung-Box Q = {num(rec.whiteness['q'])}, "
+                  f"p = {num(rec.whiteness['p_value'])}")
     a1.set_xlabel("lag [samples]")
     xc = rec.input_xcorr
     if xc["lags"]:
@@ -194,25 +188,41 @@ def fig_tests(where: WhereReport) -> bytes:
         a2.axhline(xc["bound"], color="red", ls=":")
         a2.axhline(-xc["bound"], color="red", ls=":")
         a2.axvline(xc["peak_lag_s"], color="black", lw=0.8)
-    a2.set_title(
-        f"input-residual cross-correlation (prewhitened): peak {xc['max_abs']:.3f} at "
-        f"{xc['peak_lag_s']} s, p = {xc['p_value']:.3g}",
-        fontsize=9,
-    )
+    fit_title(a2, f"input-residual cross-correlation (prewhitened): peak {num(xc['max_abs'])} at "
+                  f"{num(xc['peak_lag_s'])} s, p = {num(xc['p_value'])}")
     a2.set_xlabel("lag [s] (> 0: residual follows input)")
     for a in (a1, a2):
         a.grid(alpha=0.3)
     return _png(fig)
 
 
+#: Characters per line of a bar label in the effects figure (longer effect sets wrap at a "+").
+LABEL_WIDTH = 34
+
+
+def _set_label(part: str, row: dict[str, Any]) -> str:
+    """Bar label of an effect set: ``"held out: nominal"`` or the set (with the pass that made it, a
+    replacement or refinement), wrapped at its ``+`` signs."""
+    effects = list(row["effects"])
+    step = "".join(f" ({k})" for k in ("replacement", "refinement") if row.get(k))
+    text = f"{part}: " + ("nominal" if not effects else " +".join(["", *effects]).strip()) + step
+    return textwrap.fill(text, LABEL_WIDTH, break_long_words=False, break_on_hyphens=False)
+
+
 def fig_effects(result: GapResult) -> bytes:
-    """Ranked effects (score and validation explained) and the before/after NRMSE per effect set."""
+    """Ranked effects (validation explained, confidence) and the NRMSE per effect set, as horizontal
+    bars whose labels sit on the y axis (one row each: no label overlaps another, however many sets
+    and however long their names); the figure grows with the number of rows."""
     plt = _plt()
     d = result.diagnosis
     rank = list(d.ranking)[:8]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 3.8), constrained_layout=True)
+    rows = [("validation", r) for r in d.validation] + [("held out", r) for r in result.test]
+    labels = [_set_label(part, r) for part, r in rows]
+    n_lines = max(len(rank), sum(lab.count("\n") + 1 for lab in labels), 3)
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 1.2 + 0.32 * n_lines), constrained_layout=True)
     if rank:
-        names = [r["effect"] for r in rank][::-1]
+        tag = {**{n: " (chosen)" for n in d.chosen}, **{n: " (detected)" for n in getattr(d, "detected", {})}}
+        names = [r["effect"] + tag.get(r["effect"], "") for r in rank][::-1]
         expl = [float(r.get("validation_explained") or 0.0) for r in rank][::-1]
         conf = [float(r.get("confidence") or 0.0) for r in rank][::-1]
         y = np.arange(len(names))
@@ -220,33 +230,47 @@ def fig_effects(result: GapResult) -> bytes:
         a1.scatter(conf, y, color="black", marker="D", label="confidence", zorder=3)
         a1.set_yticks(y, names, fontsize=8)
         a1.set_xlabel("fraction [1]")
-        a1.legend(fontsize=8)
-    a1.set_title("ranked effects (best on top)", fontsize=9)
-    rows = [("validation", r) for r in d.validation] + [("HELD OUT", r) for r in result.test]
+        a1.legend(fontsize=8, loc="lower right")
+    fit_title(a1, "ranked effects (best on top)")
     if rows:
-        labels = [
-            f"{part}\n" + ("nominal" if not r["effects"] else "+" + "+".join(r["effects"]))
-            for part, r in rows
-        ]
+        y = np.arange(len(rows))[::-1]
         colors = [("tab:orange" if not r["effects"] else "tab:blue") for _, r in rows]
-        alpha = [0.45 if part == "validation" else 1.0 for part, _ in rows]
-        bars = a2.bar(labels, [r["nrmse"] for _, r in rows], color=colors)
-        for b, al in zip(bars, alpha, strict=True):
-            b.set_alpha(al)
-        a2.set_ylabel("NRMSE [1]")
-        a2.tick_params(axis="x", labelsize=7)
-    a2.set_title("NRMSE as effects are added: validation (chooses) and held out (never seen)", fontsize=9)
+        bars = a2.barh(y, [r["nrmse"] for _, r in rows], color=colors)
+        for b, (part, _) in zip(bars, rows, strict=True):
+            b.set_alpha(0.45 if part == "validation" else 1.0)
+        a2.set_yticks(y, labels, fontsize=8)
+        a2.set_xlabel("NRMSE [1]")
+    fit_title(a2, "NRMSE as effects are added: validation (chooses, pale) and held out (never seen)")
     for a in (a1, a2):
-        a.grid(alpha=0.3)
+        a.grid(alpha=0.3, axis="x")
     return _png(fig)
 
 
-def figures(result: GapResult) -> dict[str, bytes]:
-    """All report figures as PNG bytes, keyed by file stem."""
-    return {
-        "overlay": fig_overlay(result),
-        "equations": fig_equations(result.where),
-        "regions": fig_regions(result.where),
-        "tests": fig_tests(result.where),
-        "effects": fig_effects(result),
+def figures(result: GapResult, not_drawn: dict[str, str] | None = None) -> dict[str, bytes]:
+    """All report figures as PNG bytes, keyed by file stem.
+
+    Parameters
+    ----------
+    result : GapResult
+    not_drawn : dict, optional
+        Given: a figure that fails is left out and its reason stored here under its key (the
+        report is written without it); else the failure propagates.
+    """
+    draw = {
+        "overlay": lambda: fig_overlay(result),
+        "equations": lambda: fig_equations(result.where),
+        "regions": lambda: fig_regions(result.where),
+        "tests": lambda: fig_tests(result.where),
+        "effects": lambda: fig_effects(result),
     }
+    out: dict[str, bytes] = {}
+    for key, make in draw.items():
+        if not_drawn is None:
+            out[key] = make()
+            continue
+        try:
+            out[key] = make()
+        except Exception as exc:  # a figure never costs the report
+            not_drawn[key] = f"{type(exc).__name__}: {exc}"
+            _plt().close("all")
+    return out

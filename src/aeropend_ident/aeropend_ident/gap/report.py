@@ -78,6 +78,9 @@ def terminal_summary(result: GapResult) -> str:
     for ni in list(d.not_identifiable)[:4]:
         lines.append(f"    (not identifiable: {ni['effect']}: {ni['reason'][:70]})")
     lines.append(f"  chosen: {', '.join(d.chosen) or 'none'}")
+    det = _detected_text(d)
+    if det:
+        lines.append(f"  detected from the recorded values (not fitted): {det}")
     side = getattr(d, "plant_side", None)
     if side:
         lines.append(f"  corrected_rig.yaml holds {side['by']} instead of {side['replaces']} (not separated "
@@ -130,7 +133,21 @@ def terminal_summary(result: GapResult) -> str:
             f"{sp['not_removable']:.0%}")
         if a.get("drift"):
             lines += _drift_lines(a["drift"])
+    for section, why in result.not_computed.items():
+        lines.append(f"  NOT COMPUTED: {section}: {why}")
     return "\n".join(lines)
+
+
+def _detected_text(diag: Any) -> str:
+    """The diagnosis' detected (not fitted) effects in one phrase, '' without any."""
+    from aeropend_ident.gap.effects import get_effect
+
+    parts = []
+    for name, vals in (getattr(diag, "detected", None) or {}).items():
+        units = {p.name: p.unit for p in get_effect(name).parameters}
+        parts.append(f"{name} (" + ", ".join(f"{k} = {v:.4g} {units.get(k, '')}".rstrip()
+                                              for k, v in vals.items()) + ")")
+    return "; ".join(parts)
 
 
 def _drift_html(result: GapResult) -> str:
@@ -162,6 +179,24 @@ def _drift_html(result: GapResult) -> str:
         parts.append(f"<h3>Parameter drift: {' vs '.join(_label(x) for x in t['sessions'])}</h3>" + _table(
             rows, ["parameter", "values ± std", "unit", "change", "z", "drifts"]))
     return "\n".join(parts)
+
+
+def _detected_html(diag: Any) -> str:
+    """Paragraph on the detected (not fitted) effects, '' without any."""
+    det = _detected_text(diag)
+    if not det:
+        return ""
+    return (f"<p>Detected from the recorded values (a property of the data, not fitted; in "
+            f"<code>corrected_rig.yaml</code> and in the noise floor): {html.escape(det)}.</p>\n")
+
+
+def _not_computed_html(result: GapResult) -> str:
+    """List of the optional sections that could not be computed, with the reason ('' if none)."""
+    if not result.not_computed:
+        return ""
+    items = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
+                    for k, v in result.not_computed.items())
+    return f"<p>Not computed (the rest of the report stands):</p><ul>{items}</ul>\n"
 
 
 def _change(row: dict[str, Any]) -> str:
@@ -307,6 +342,9 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
     w = result.where
 
     def img(key: str, alt: str) -> str:
+        if key not in figs:
+            why = result.not_computed.get(f"figure {key}", "not drawn")
+            return f"<p><i>figure {html.escape(key)} not drawn: {html.escape(why)}</i></p>"
         return f'<img alt="{alt}" src="data:image/png;base64,{base64.b64encode(figs[key]).decode()}">'
 
     t = _html_rows(result)
@@ -327,6 +365,7 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
 <b>{h["heldout_nrmse_corrected"]:.4f}</b> (corrected with {html.escape(", ".join(d.chosen) or "no effect")}):
 shrink <b>{h["heldout_shrink"]:.1%}</b>. Significant gap: {"yes" if h["significant_gap"] else "no"};
 located in: <b>{html.escape(str(h["where_subsystem"]))}</b>.</p>
+{_detected_html(d)}{_not_computed_html(result)}
 <p>Rig {html.escape(result.rig_ref)}; {len(result.fit)} fit recording(s), {len(result.held_out)} held-out
 recording(s) ({html.escape(result.split_rule)}). The held-out recordings were used neither to locate the gap
 nor to choose or fit the effects: the diagnosis fitted on {len(result.fit_core)} part(s) of the fit recordings
@@ -450,6 +489,9 @@ def write_report(result: GapResult, outdir: str | Path) -> dict[str, Path]:
     (:data:`REPORT_FILES`; files of the same names are replaced, others are left alone: the ``gap``
     command claims an empty folder first).
 
+    A figure that cannot be drawn is left out, with its reason in ``result.not_computed``
+    (``"figure <name>"``), which the JSON, the HTML page and :func:`terminal_summary` show.
+
     Returns
     -------
     dict
@@ -457,7 +499,9 @@ def write_report(result: GapResult, outdir: str | Path) -> dict[str, Path]:
     """
     out = Path(outdir)
     (out / REPORT_FILES["figures"]).mkdir(parents=True, exist_ok=True)
-    figs = figures(result)
+    not_drawn: dict[str, str] = {}
+    figs = figures(result, not_drawn=not_drawn)
+    result.not_computed.update({f"figure {k}": why for k, why in not_drawn.items()})
     paths: dict[str, Path] = {}
     for k, png in figs.items():
         p = out / REPORT_FILES["figures"] / f"{k}.png"

@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import scipy
 
-from aeropend_ident.errors import GapInputError
+from aeropend_ident.errors import GapInputError, IdentError
 from aeropend_ident.gap.where import WhereReport, locate_gap
 from aeropend_ident.greybox.fit import THETA_OFFSET, error_metrics
 from aeropend_ident.io.jsonutil import jsonable
@@ -87,6 +87,9 @@ class GapResult:
     sessions : dict, optional
         Leave-one-session-out diagnosis and drift table
         (:func:`aeropend_ident.gap.drift.session_analysis`).
+    not_computed : dict
+        Optional sections (sessions, prediction, attainable shrink) that could not be computed,
+        with the reason; the rest of the result stands.
     """
 
     rig: Rig
@@ -108,6 +111,7 @@ class GapResult:
     prediction_check: dict[str, Any] | None = None
     attainable: list[dict[str, Any]] | None = None
     sessions: dict[str, Any] | None = None
+    not_computed: dict[str, str] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ headline
     def headline(self) -> dict[str, Any]:
@@ -121,6 +125,7 @@ class GapResult:
             "significant_gap": bool(self.where.significant or d.significant),
             "where_subsystem": self.where.subsystem,
             "effects_chosen": list(d.chosen),
+            "detected": dict(getattr(d, "detected", {})),
             "heldout_nrmse_nominal": before,
             "heldout_nrmse_corrected": after,
             "heldout_shrink": (1.0 - after / before) if before > 0 else math.nan,
@@ -146,6 +151,7 @@ class GapResult:
                 "where_which": self.agreement,
                 "sessions": self.sessions,
                 "prediction": self.prediction,
+                "not_computed": self.not_computed,
                 "after": {
                     "prediction_check": self.prediction_check,
                     "attainable": self.attainable,
@@ -227,14 +233,15 @@ def _shift(rec: Recording, offset: float) -> Recording:
 
 
 def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, Any]:
-    """Held-out replay of the nominal and the corrected rig (the diagnosis' own replay, so the
-    numbers match its shrink table), θ in the recording's frame."""
+    """Held-out replay of the nominal and the corrected rig (the diagnosis' own replay, from the same
+    recorded channels, so the numbers match its held-out table), θ in the recording's frame."""
     from aeropend_ident.gap.effects import MeasurementMap
     from aeropend_ident.gap.which import prepare as which_prepare
     from aeropend_ident.gap.which import replay
 
     shifted = _shift(rec, offset)
-    prep = which_prepare([shifted], frozenset({"theta"}))[0]
+    # the replay starts i_a and ω₁ at their recorded values when they are recorded, as in the table
+    prep = which_prepare([shifted], frozenset(diag.channels or ("theta",)))[0]
     nom = replay(rig, MeasurementMap(), prep)["theta"] - offset
     cor = replay(diag.corrected_rig, diag.measurement, prep)["theta"] - offset
     theta = rec.channels["theta"]
@@ -249,31 +256,53 @@ def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, An
     }
 
 
+class _Optional:
+    """Runs the optional sections of :func:`run_gap`: a section that cannot be computed is recorded
+    with its reason (``not_computed``) and announced, and the run goes on; the report is written."""
+
+    def __init__(self, say: Callable[[str], None]) -> None:
+        self.say = say
+        self.not_computed: dict[str, str] = {}
+
+    def run(self, section: str, compute: Callable[[], Any]) -> Any:
+        """``compute()``, or None after recording why it failed."""
+        try:
+            return compute()
+        except Exception as exc:  # an optional section never costs the main result
+            why = str(exc) if isinstance(exc, IdentError) else f"{type(exc).__name__}: {exc}"
+            self.not_computed[section] = why
+            self.say(f"{section}: not computed: {why}")
+            return None
+
+
 def _sessions_and_prediction(
     rig: Rig, diag: Any, validation: list[Recording], held_out: list[Recording], *, theta_offset: float,
     sessions: Sequence[Sequence[Recording]] | None, session_labels: Sequence[str] | None, max_effects: int,
     seed: int, progress: Callable[[str], None] | None, predict: bool, drift_sigma: Mapping[str, float] | None,
+    optional: _Optional,
 ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
-    """The session analysis (with ``sessions``) and the held-out prediction of :func:`run_gap`."""
+    """The session analysis (with ``sessions``) and the held-out prediction of :func:`run_gap`
+    (each optional: a failure is recorded in ``optional``)."""
     from aeropend_ident.gap.drift import predict_heldout, session_analysis
 
     say = progress or (lambda _msg: None)
     sess = None
     if sessions is not None:
         say(f"sessions: {len(sessions)} sessions, leave-one-session-out and drift table")
-        sess = session_analysis(rig, [[_shift(r, theta_offset) for r in g] for g in sessions], diag.chosen,
-                                labels=session_labels, channels=diag.channels or ("theta",),
-                                max_effects=max_effects, seed=seed, progress=progress)
-        if drift_sigma is None and sess["drift_sigma"]:
+        sess = optional.run("sessions", lambda: session_analysis(
+            rig, [[_shift(r, theta_offset) for r in g] for g in sessions], diag.chosen, labels=session_labels,
+            channels=diag.channels or ("theta",), max_effects=max_effects, seed=seed, progress=progress))
+        if drift_sigma is None and sess is not None and sess["drift_sigma"]:
             drift_sigma = sess["drift_sigma"]
     prediction = None
     if predict:
         say("predict: held-out NRMSE of the corrected rig from the fit data")
-        prediction = predict_heldout(rig, diag, [_shift(r, theta_offset) for r in validation],
-                                     drift_sigma=drift_sigma, seed=seed)
-        if sess is not None and drift_sigma is sess["drift_sigma"]:
-            prediction["drift_source"] = "sessions"
-        prediction["saw_heldout"] = validation is held_out
+        prediction = optional.run("prediction", lambda: predict_heldout(
+            rig, diag, [_shift(r, theta_offset) for r in validation], drift_sigma=drift_sigma, seed=seed))
+        if prediction is not None:
+            if sess is not None and drift_sigma is sess["drift_sigma"]:
+                prediction["drift_source"] = "sessions"
+            prediction["saw_heldout"] = validation is held_out
     return sess, prediction
 
 
@@ -380,11 +409,13 @@ def run_gap(
     Returns
     -------
     GapResult
+        The optional sections (session analysis, prediction, attainable shrink) that could not
+        be computed are None, with the reason in ``not_computed``: they never cost the result.
 
     Raises
     ------
     aeropend_ident.gap.effects.GapError, aeropend_ident.gap.where.GapInputError
-        Unusable recordings (no θ, NaNs, too short, constant input) or rig.
+        Unusable recordings (no θ, NaNs, too short, constant input) or rig (before any result).
     """
     from aeropend_ident.gap.where import timing_lag_seen
     from aeropend_ident.gap.which import TIMING_EFFECTS, diagnose_effects
@@ -425,17 +456,18 @@ def run_gap(
     corrected = diag.corrected_rig
     from aeropend_ident.gap.drift import attainable
 
+    optional = _Optional(say)
     sess, prediction = _sessions_and_prediction(
         rig, diag, validation, held_out, theta_offset=theta_offset, sessions=sessions,
         session_labels=session_labels, max_effects=max_effects, seed=seed, progress=progress,
-        predict=predict, drift_sigma=drift_sigma)
+        predict=predict, drift_sigma=drift_sigma, optional=optional)
     say("after: replaying the held-out recordings")
     overlays, test, w_nom, w_cor = _replay_held_out(rig, diag, corrected, held_out, theta_offset, horizon)
     check = _prediction_check(prediction, test)
     say("after: attainable shrink (correction and best catalog set fitted on each held-out recording)")
-    attain = attainable(rig, diag, [_shift(r, theta_offset) for r in held_out], max_effects=max_effects,
-                        seed=seed, best_set=oracle, fit=[_shift(r, theta_offset) for r in fit],
-                        progress=progress)
+    attain = optional.run("attainable shrink", lambda: attainable(
+        rig, diag, [_shift(r, theta_offset) for r in held_out], max_effects=max_effects, seed=seed,
+        best_set=oracle, fit=[_shift(r, theta_offset) for r in fit], progress=progress))
     return GapResult(
         rig=rig,
         rig_ref=rig_ref or rig.name,
@@ -456,6 +488,7 @@ def run_gap(
         prediction_check=check,
         attainable=attain,
         sessions=sess,
+        not_computed=optional.not_computed,
     )
 
 
@@ -481,7 +514,7 @@ def where_which_agreement(where: WhereReport, diag: Any) -> dict[str, Any]:
     from aeropend_ident.gap.effects import get_effect
 
     flagged = [r["equation"] for r in where.located if r["flagged"]]
-    chosen = [c for c in getattr(diag, "chosen", []) if c != "quantisation"]
+    chosen = list(getattr(diag, "chosen", []))
     if not chosen:
         note = (f"; the where-analysis flags {', '.join(flagged)}: a gap no catalog effect removes "
                 "significantly") if flagged else ""
@@ -533,16 +566,24 @@ def corrected_rig_dict(result: GapResult) -> dict[str, Any]:
            f"sensor frame kept nominal; check the angle sensor's calibration)" if side else "")
     )
     fits = ", ".join(_label(r.source) or "recording" for r in result.fit)
+    from aeropend_ident.gap.effects import get_effect
+
+    detected = dict(getattr(diag, "detected", {}))
+    by_detection = {p.rig_field: name for name in detected for p in get_effect(name).parameters}
+    if detected:
+        data["description"] += "; detected from the recorded values (not fitted): " + ", ".join(
+            f"{name} ({', '.join(f'{k} = {v:.6g}' for k, v in vals.items())})"
+            for name, vals in detected.items())
     for section, fields in data.items():
         if not isinstance(fields, dict) or section == "effects":
             continue
         for key, node in fields.items():
             old = base.get(section, {}).get(key)
             if isinstance(node, dict) and isinstance(old, dict) and node.get("value") != old.get("value"):
-                node["source"] = (
-                    f"gap diagnosis ({chosen}) fitted on {fits}; nominal {old.get('value')!r} "
-                    f"({old.get('source', '')})"
-                )
+                field_ = f"{section}.{key}"
+                how = (f"gap diagnosis: {by_detection[field_]} detected from the recorded values of"
+                       if field_ in by_detection else f"gap diagnosis ({chosen}) fitted on")
+                node["source"] = f"{how} {fits}; nominal {old.get('value')!r} ({old.get('source', '')})"
     # the diagnosis' sensor map acts on θ_recorded + nominal offset: θ_rec + off_n = s·(θ_model − off_d),
     # i.e. θ_rec = s·(θ_model − (off_d + off_n/s)) in the rig file's convention
     scale = float(meas.theta_scale)

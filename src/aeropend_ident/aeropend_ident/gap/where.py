@@ -45,7 +45,8 @@ recording (all on the recording's uniform grid, :func:`aeropend_ident.greybox.fi
    aligns the simulated with the measured θ̇ (a pure input delay shows up exactly there).
 
 A gap is **significant** when the free-run residual is not white (Ljung-Box p < :data:`ALPHA`)
-and its RMS exceeds both 3× the measurement noise (:func:`aeropend_ident.greybox.fit.noise_level`)
+and its RMS exceeds both 3× the measurement noise (:func:`aeropend_ident.gap.effects.measurement_noise`:
+white noise, at least the rounding noise of a detected quantum)
 and :data:`MIN_NRMSE` of the measured range. An equation is flagged when its relative residual
 exceeds :data:`MIN_RELATIVE`, its RMS exceeds the measurement-noise floor by three standard
 errors of an RMS estimate, and the part of its RMS not explained by noise exceeds 1.5× its
@@ -65,8 +66,9 @@ import numpy as np
 from scipy import signal, stats
 
 from aeropend_ident.errors import GapInputError, IdentificationError
+from aeropend_ident.gap.effects import measurement_noise
 from aeropend_ident.greybox.baseline import measured_rate, residual_bins, residual_regions
-from aeropend_ident.greybox.fit import UniformData, error_metrics, initial_velocity, noise_level, uniform_data
+from aeropend_ident.greybox.fit import UniformData, error_metrics, initial_velocity, uniform_data
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_sim.model import I_A, OMEGA, ROTOR_FRICTION_VELOCITY, TAU_F, ModelError, PlantModel
 from aeropend_sim.params import Rig
@@ -850,7 +852,7 @@ def _equations(
     trim = w
     sm = lambda y: _smooth(y, w)  # noqa: E731
     d1 = lambda y: _smooth(y, w, 1, dt)  # noqa: E731
-    noise = {k: noise_level(v) for k, v in ch.items()}
+    noise = {k: measurement_noise(v) for k, v in ch.items()}
     g1 = _deriv_gain(w, dt, 1)
     w2 = _sg_window(n, dt, 2.0 * SG_WINDOW)
     g2 = _deriv_gain(w2, dt, 2)
@@ -1069,7 +1071,7 @@ def locate_recording(
     th_mean = float(np.mean(data.theta)) + theta_offset
     k_lin = m.a_g * math.cos(th_mean) if m.a_g * math.cos(th_mean) > 0 else m.a_g
     f_n = math.sqrt(max(k_lin, 1e-6)) / (2 * math.pi)
-    noise = noise_level(data.theta)
+    noise = measurement_noise(data.theta)
     wb = ljung_box(resid)
     rms = free["rms_error"]
     significant = bool((not wb["white"]) and rms > 3.0 * noise and free["nrmse"] > MIN_NRMSE)

@@ -45,7 +45,10 @@ the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-ou
 6. **Validation table** (:func:`gap_metrics`): NRMSE per channel, max error, steady-state map
    error and step metrics before and after, per cumulative effect set.
 
-Quantisation is detected directly from the recorded angle (values on a lattice of step q).
+Quantisation is detected directly from the recorded angle (values on a lattice of step q,
+:func:`aeropend_ident.gap.effects.detect_quantum`): a property of the data, not an effect to fit.
+It is reported in ``detected`` (and ranked, marked ``detected``), sets the corrected rig's angle
+LSB and the noise floor (q²/12), and never enters ``chosen``, whose effects later steps refit.
 
 No rclpy import: this module runs without ROS.
 """
@@ -74,11 +77,13 @@ from aeropend_ident.gap.effects import (
     ParamRange,
     apply_effects,
     check_recordings,
+    detect_quantum,
     get_effect,
     identifiable,
+    measurement_noise,
     nominal_model_check,
 )
-from aeropend_ident.greybox.fit import motor_equilibrium, noise_level
+from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.sindy.core import weak_matrices
 from aeropend_ident.sindy.model import IdentData
@@ -883,28 +888,6 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
     )
 
 
-# ------------------------------------------------------------------------------ quantisation
-def detect_quantum(theta: np.ndarray) -> float:
-    """LSB q [rad] if the recorded angle lies on a lattice k·q (+ constant), else 0.
-
-    The lattice step is the smallest gap between distinct values; the recording counts as
-    quantised when every value sits within 1e-6·q of the lattice and there are fewer distinct
-    values than a third of the samples.
-    """
-    y = np.asarray(theta, dtype=float)
-    u = np.unique(np.round(y, 12))
-    if u.size < 3 or u.size > y.size / 3:
-        return 0.0
-    gaps = np.diff(u)
-    q = float(np.min(gaps[gaps > 1e-12])) if np.any(gaps > 1e-12) else 0.0
-    if q <= 0.0:
-        return 0.0
-    frac = (y - u[0]) / q
-    if np.max(np.abs(frac - np.round(frac))) > 1e-3:
-        return 0.0
-    return q
-
-
 # ------------------------------------------------------------------------------ diagnosis
 @dataclass
 class EffectDiagnosis:
@@ -928,9 +911,10 @@ class EffectDiagnosis:
     not_identifiable : list of dict
         ``{"effect", "reason"}`` for effects the recorded channels cannot reveal.
     chosen : list of str
-        Effects added to the corrected rig (0 to ``max_effects``), in the order chosen.
+        Fitted effects added to the corrected rig (0 to ``max_effects``), in the order chosen.
+        Never a directly detected effect (see ``detected``).
     corrected_rig : Rig
-        Nominal rig + chosen effects, fitted.
+        Nominal rig + chosen effects, fitted, + the detected effects.
     validation : list of dict
         Validation gap per cumulative effect set (:func:`gap_metrics`), first row nominal
         (``effects`` = []).
@@ -948,6 +932,12 @@ class EffectDiagnosis:
         (SSE_chosen/SSE_noise), ``completeness`` (0..1) and a ``verdict``.
     elapsed : float
         Wall time [s].
+    detected : dict
+        Effects read from the recordings themselves, not fitted (catalog kind ``"direct"``):
+        ``{"quantisation": {"theta_quantum": q}}`` [rad] when the recorded angle lies on a lattice
+        the nominal rig does not model. They describe the measurement (the corrected rig's sensor,
+        the noise floor q/√12); they are never refitted (:func:`fit_effects` refuses them). Their
+        ranking entry says ``"detected": True``.
     plant_side : dict or None
         When a chosen sensor-frame effect is not separated by these data from a plant-side one
         (:func:`plant_side_alternative`): ``replaces``, ``by``, ``validation_explained``,
@@ -969,6 +959,7 @@ class EffectDiagnosis:
     explained: dict = field(default_factory=dict)
     elapsed: float = 0.0
     plant_side: dict | None = None
+    detected: dict[str, dict[str, float]] = field(default_factory=dict)
 
     def as_dict(self) -> dict:
         """JSON-able summary; the corrected rig as its YAML dict (with ``recording_frame`` if a
@@ -984,6 +975,7 @@ class EffectDiagnosis:
             "ranking": self.ranking,
             "not_identifiable": self.not_identifiable,
             "chosen": self.chosen,
+            "detected": self.detected,
             "explained": self.explained,
             "corrected_rig": rig,
             "measurement": dataclasses.asdict(self.measurement),
@@ -1005,15 +997,15 @@ def _param_table(fitres: EffectFit, name: str) -> dict[str, dict[str, Any]]:
 def _noise_var(y: np.ndarray) -> float:
     """Variance of the measurement noise of a channel.
 
-    The white-noise estimate of :func:`aeropend_ident.greybox.fit.noise_level` (MAD of second
-    differences), at least the quantisation floor Δ²/12, Δ the median of the non-zero
+    :func:`aeropend_ident.gap.effects.measurement_noise` (white-noise estimate, at least q²/12 of
+    a detected quantum q), at least the quantisation floor Δ²/12, Δ the median of the non-zero
     sample-to-sample changes: on a quantised log that rarely changes (most second differences 0)
-    the MAD estimate is 0 while the changes are one LSB; resampling onto a uniform grid adds
-    off-lattice values, so the smallest gap between values is no measure of the resolution. On
-    white noise the median change is 0.95σ, so the floor (0.27σ) stays below the MAD estimate.
+    the white-noise estimate is 0 while the changes are one LSB; resampling onto a uniform grid
+    adds off-lattice values, so that the lattice is no longer detected. On white noise the median
+    change is 0.95σ, so the floor (0.27σ) stays below the white-noise estimate.
     """
     y = np.asarray(y, dtype=float)
-    sigma = noise_level(y)
+    sigma = measurement_noise(y)
     dy = np.abs(np.diff(y))
     dy = dy[dy > 1e-12 * max(float(np.max(np.abs(y))), 1e-300)]
     q = float(np.median(dy)) if dy.size else 0.0
@@ -1543,17 +1535,44 @@ def _completeness(st: _Setup, sse: Mapping[str, float]) -> dict[str, Any]:
 
 
 def _quantisation_entry(st: _Setup, q_hat: float) -> dict[str, Any]:
+    """Ranking entry of a detected angle quantum q (not fitted): its score is the share of the nominal
+    validation mean square error that the rounding noise q²/12 accounts for."""
     ms0 = float(np.mean([np.mean((replay(st.rig, MeasurementMap(), p)["theta"] - p.y["theta"]) ** 2)
                          for p in st.pv]))
     share = min(1.0, (q_hat**2 / 12.0) / max(ms0, 1e-300))
     return {
         "effect": "quantisation", "subsystem": get_effect("quantisation").subsystem, "score": share,
-        "validation_explained": share, "bic_delta": None, "confidence": 1.0,
+        "validation_explained": share, "bic_delta": None, "confidence": 1.0, "detected": True,
         "parameters": {"theta_quantum": {"value": q_hat, "std": 0.0, "unit": "rad"}},
         "rig_values": {"sensors.theta_quantum": q_hat},
         "screening": {"detected": "lattice of recorded angles"},
         "confusable_with": [], "ambiguous_with": [],
     }
+
+
+def _unmodelled_quantum(rig: Rig, st: _Setup) -> float:
+    """The angle quantum q [rad] every fit and validation recording shows
+    (:func:`aeropend_ident.gap.effects.detect_quantum`, median over them) when the nominal rig does
+    not model it (no quantisation, or an LSB under 2/3 of q); else 0."""
+    quanta = [detect_quantum(p.y["theta"]) for p in (*st.pf, *st.pv)]
+    q_hat = float(np.median(quanta)) if all(q > 0 for q in quanta) else 0.0
+    q_nominal = rig.sensors.theta_quantum if rig.effects.quantisation else 0.0
+    return q_hat if q_hat > 0.0 and q_hat > 1.5 * q_nominal else 0.0
+
+
+def _add_quantum(st: _Setup, q_hat: float, ranking: list[dict[str, Any]], corrected: Rig, sig_first: bool,
+                 reason: str) -> tuple[Rig, str]:
+    """A detected angle quantum into the diagnosis: its ranking entry (first when no dynamic effect is
+    significant or it accounts for more of the validation error), the corrected rig's sensor LSB and
+    the reason; returns (corrected rig, reason)."""
+    entry = _quantisation_entry(st, q_hat)
+    first_ex = ranking[0]["validation_explained"] if ranking else 0.0
+    ranking.insert(0 if (not sig_first or entry["validation_explained"] >= first_ex) else 1, entry)
+    corrected = get_effect("quantisation").apply(corrected, {"theta_quantum": q_hat})
+    note = (f"angle quantised with LSB {q_hat:.4g} rad (detected from the recorded values, not "
+            "fitted), not modelled by the nominal rig")
+    return corrected, (f"{reason}; {note}" if sig_first else
+                       f"{note}; no dynamic effect is significant ({reason})")
 
 
 def _screen_and_confirm(rig: Rig, st: _Setup, also_confirm: Sequence[str], seed: int,
@@ -1600,6 +1619,10 @@ def _no_effect_reason(st: _Setup, best: dict[str, Any] | None, above_floor: bool
         reason = (f"nominal validation error is at the noise floor: every channel's error is within "
                   f"{math.sqrt(ABOVE_NOISE):.2f}× its noise RMS (largest: {worst}, "
                   f"{math.sqrt(st.sse0_c[worst] / st.noise_c[worst]):.2f}×)")
+    elif best["above_noise_explained"] >= MIN_EXPLAINED:
+        reason = (f"best candidate {best['effect']} removes {100 * best['above_noise_explained']:.1f} % of "
+                  "the validation gap above noise, but its BIC on the fit data changes by "
+                  f"{best['bic_delta']:+.1f} (needs -{MIN_BIC_GAIN:g} or less)")
     else:
         reason = (f"best candidate {best['effect']} removes only {100 * best['above_noise_explained']:.1f} % "
                   f"of the validation gap above noise (needs {100 * MIN_EXPLAINED:.0f} % and a BIC gain of "
@@ -1656,11 +1679,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     if not isinstance(rig, Rig):
         raise GapError(f"rig is a {type(rig).__name__}; expected aeropend_sim.params.Rig (load_rig)")
     st = _setup(rig, fit, validation, say)
-    # direct detection: quantisation
-    quanta = [detect_quantum(p.y["theta"]) for p in (*st.pf, *st.pv)]
-    q_hat = float(np.median(quanta)) if all(q > 0 for q in quanta) else 0.0
-    q_nominal = rig.sensors.theta_quantum if rig.effects.quantisation else 0.0
-    quant_found = q_hat > 0.0 and q_hat > 1.5 * q_nominal
+    q_hat = _unmodelled_quantum(rig, st)
     scr, cands, screened, forced = _screen_and_confirm(rig, st, also_confirm, seed, say)
     ranking = _ranking(st, cands, scr, seed + 1)
     best = ranking[0] if ranking else None
@@ -1729,19 +1748,13 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
                   f"noise (BIC change {best['bic_delta']:.1f}); {explained['verdict']}")
     else:
         reason = _no_effect_reason(st, best, above_floor)
-    if quant_found:
-        entry = _quantisation_entry(st, q_hat)
-        first_ex = ranking[0]["validation_explained"] if ranking else 0.0
-        pos = 0 if (not sig_first or entry["validation_explained"] >= first_ex) else 1
-        ranking.insert(pos, entry)
-        corrected = get_effect("quantisation").apply(corrected, {"theta_quantum": q_hat})
-        if not sig_first:
-            chosen = ["quantisation"]
-            reason = (f"angle quantised with LSB {q_hat:.4g} rad, not modelled by the nominal rig; "
-                      "no dynamic effect is significant")
-            table.append({"effects": ["quantisation"], **gap_metrics(corrected, meas, st.pv)})
-        elif len(chosen) < max_effects:
-            chosen.append("quantisation")
+    detected: dict[str, dict[str, float]] = {}
+    if q_hat > 0.0:
+        # a property of the recordings, not an effect to fit: it describes the corrected rig's
+        # sensor (and, through _noise_var, the noise floor), and never enters ``chosen``, whose
+        # effects later steps refit (attainable shrink, drift tables)
+        detected["quantisation"] = {"theta_quantum": q_hat}
+        corrected, reason = _add_quantum(st, q_hat, ranking, corrected, sig_first, reason)
         sig_first = True
     if not sig_first:  # nothing is named: no candidate is "the cause" with any confidence
         for r in ranking:
@@ -1755,7 +1768,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
         significant=sig_first, ranking=ranking, not_identifiable=st.not_ident, chosen=chosen,
         corrected_rig=corrected, validation=table, measurement=meas, screening=scr.as_dict(),
         reason=reason if sig_first or reason else "no significant gap", channels=sorted(st.channels),
-        explained=explained, elapsed=time.perf_counter() - t0, plant_side=plant_side,
+        explained=explained, elapsed=time.perf_counter() - t0, plant_side=plant_side, detected=detected,
     )
 
 

@@ -414,17 +414,23 @@ def fitted_rig_dict(result: BaselineResult) -> dict[str, Any]:
 def plot_overlay(result: BaselineResult, path: str | Path) -> Path:
     """Write ``overlay.png``: recorded vs nominal vs fitted θ, train/held-out boundary, duty below.
 
-    Angles are in the recording's frame [rad]; time [s] from the recording's start.
+    Angles are in the recording's frame [rad]; time [s] from the recording's start. A model that
+    leaves the recorded range is cut at the plotted range with a note
+    (:func:`aeropend_ident.io.overlay_axes.clip_to_recorded`).
     """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from aeropend_ident.io.overlay_axes import clip_to_recorded, fit_title
+    from aeropend_ident.io.overlay_axes import short_number as num
+
     path = Path(path)
     fig, (ax, axu) = plt.subplots(2, 1, sharex=True, figsize=(12, 6.5), height_ratios=(3, 1),
                                   constrained_layout=True)
-    for part, data, t0 in (("train", result.train, 0.0), ("heldout", result.heldout, result.t_split)):
+    parts = (("train", result.train, 0.0), ("heldout", result.heldout, result.t_split))
+    for part, data, t0 in parts:
         t = data.t + t0
         first = part == "train"
         ax.plot(t, data.theta, color="black", lw=1.2, label="recorded" if first else None)
@@ -433,6 +439,10 @@ def plot_overlay(result: BaselineResult, path: str | Path) -> Path:
         ax.plot(t, result.theta[part]["fitted"], color="tab:blue", lw=1.0,
                 label="fitted model" if first else None)
         axu.step(t, data.duty, where="post", color="tab:green", lw=1.0)
+    clip_to_recorded(ax, np.concatenate([d.t + t0 for _, d, t0 in parts]),
+                     np.concatenate([d.theta for _, d, _ in parts]),
+                     {f"{kind} model": np.concatenate([result.theta[p][kind] for p, _, _ in parts])
+                      for kind in ("nominal", "fitted")})
     for a in (ax, axu):
         a.axvline(result.t_split, color="tab:red", lw=1.2, ls=":")
         a.grid(alpha=0.3)
@@ -441,16 +451,17 @@ def plot_overlay(result: BaselineResult, path: str | Path) -> Path:
     ax.text(result.t_split, 0.98, "  held out", transform=ax.get_xaxis_transform(), va="top", ha="left",
             color="tab:red")
     ax.set_ylabel("θ [rad]")
-    ax.set_title(
+    fit_title(
+        ax,
         f"{result.nominal_rig.name} on {Path(result.recording.source).name}: held-out NRMSE nominal "
-        f"{m['heldout']['nominal']['nrmse']:.3f}, fitted {m['heldout']['fitted']['nrmse']:.3f} "
-        f"(train {m['train']['nominal']['nrmse']:.3f} / {m['train']['fitted']['nrmse']:.3f})",
+        f"{num(m['heldout']['nominal']['nrmse'])}, fitted {num(m['heldout']['fitted']['nrmse'])} "
+        f"(train {num(m['train']['nominal']['nrmse'])} / {num(m['train']['fitted']['nrmse'])})",
         fontsize=10,
     )
     ax.legend(loc="lower right")
     axu.set_ylabel("duty τ [1]")
     axu.set_xlabel("time t [s]")
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
 
@@ -460,23 +471,33 @@ def plot_overlay(result: BaselineResult, path: str | Path) -> Path:
 REPORT_FILES = {"report": "report.json", "overlay": "overlay.png", "fitted_rig": "fitted_rig.yaml"}
 
 
-def write_report(result: BaselineResult, outdir: str | Path) -> dict[str, Path]:
+def write_report(result: BaselineResult, outdir: str | Path) -> dict[str, Any]:
     """Write ``report.json``, ``overlay.png`` and ``fitted_rig.yaml`` (:data:`REPORT_FILES`) into
     ``outdir`` (created; files of the same names are replaced, others are left alone: the
     ``baseline`` command claims an empty folder first).
 
+    The figure is optional: if it cannot be drawn, the report and the fitted rig are still
+    written and ``report.json`` says why under ``not_computed`` (the fit is the result).
+
     Returns
     -------
     dict
-        ``{"report": Path, "overlay": Path, "fitted_rig": Path}``.
+        ``{"report": Path, "overlay": Path, "fitted_rig": Path, "not_computed": dict}``
+        (no ``"overlay"`` when it could not be drawn; ``not_computed`` gives the reason).
     """
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
-    paths = {key: out / name for key, name in REPORT_FILES.items()}
-    paths["report"].write_text(json.dumps(result.report(), indent=2, allow_nan=False), encoding="utf-8")
+    rig_path = out / REPORT_FILES["fitted_rig"]
     text = yaml.safe_dump(jsonable(fitted_rig_dict(result)), sort_keys=False, allow_unicode=True)
-    paths["fitted_rig"].write_text(text, encoding="utf-8")
-    paths["overlay"] = plot_overlay(result, paths["overlay"])
+    rig_path.write_text(text, encoding="utf-8")
+    paths: dict[str, Any] = {"fitted_rig": rig_path, "not_computed": {}}
+    try:
+        paths["overlay"] = plot_overlay(result, out / REPORT_FILES["overlay"])
+    except Exception as exc:  # a figure never costs the fitted parameters
+        paths["not_computed"]["figure overlay"] = f"{type(exc).__name__}: {exc}"
+    paths["report"] = out / REPORT_FILES["report"]
+    doc = {**result.report(), "not_computed": paths["not_computed"]}
+    paths["report"].write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
     return paths
 
 

@@ -286,7 +286,7 @@ def _start_plot_child(out: Path, model: SindyModel, held: IdentData, train: Iden
 
 def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, held_run: FreeRun,
            say: Progress, child: _PlotChild | None = None) -> list[str]:
-    from aeropend_ident.sindy.plots import plot_free_run
+    from aeropend_ident.sindy.plots import plot_free_run, source_label
 
     train = _train_tail(train)
     tr = None
@@ -299,11 +299,14 @@ def _plots(out: Path, model: SindyModel, held: IdentData, train: IdentData, held
         tr = free_run(model, train, substeps=1)
     ho = held_run
     states = [s for s in ho.states if s in held.variables and s in ("theta", "i_a", "omega_rotor")]
-    t = np.concatenate([train.t - train.t[0], held.t - train.t[0]])
+    # the recording's own time, as derivatives.png; two free runs: the training tail's and the held-out one
+    t = np.concatenate([train.t, held.t])
     meas = {s: np.concatenate([train.variables[s], held.variables[s]]) for s in states}
     sim = {s: np.concatenate([tr.states[s], ho.states[s]]) for s in states}
-    last = plot_free_run(t, meas, sim, out / "free_run.png", t_split=float(held.t[0] - train.t[0]),
-                         states=states)
+    last = plot_free_run(t, meas, sim, out / "free_run.png", t_split=float(held.t[0]), states=states,
+                         title=f"free run of the identified model on {source_label(held.source)}: last "
+                               f"{PLOT_TRAIN_TAIL_S:g} s of training, then held out (each run from its "
+                               "first measured state)")
     if child is not None:
         child.join()
     if child is None or child.proc.exitcode != 0:  # no child, or it failed: draw here (raises the real error)
@@ -549,8 +552,13 @@ def identify(
         save_model(out / model_file, model, gear_ratio=gear, L_over_J=l_j, test_mse=test_mse,
                    free_run_nrmse=scores[0]["free_run_nrmse_std"], provenance=prov)
         files = list(OUTPUT_FILES)
+        not_computed: dict[str, str] = {}
         if plots:
-            files += _plots(out, model, parts[0][1], parts[0][0], held_runs[0], say, child)
+            try:
+                files += _plots(out, model, parts[0][1], parts[0][0], held_runs[0], say, child)
+            except Exception as exc:  # the figures never cost the identified model
+                not_computed["plots"] = f"{type(exc).__name__}: {exc}"
+                say(f"plots: not drawn: {not_computed['plots']}")
     finally:
         if child is not None:  # also on an error: never leave the plotting child behind
             child.join()
@@ -561,7 +569,8 @@ def identify(
         "derived_parameters": {k: {"value": v, "unit": u} for k, (v, u) in
                                model.derived_parameters(gear, l_j).items()},
         "test_mse": test_mse, "heldout": scores, "free_run_nrmse": scores[0]["free_run_nrmse_std"],
-        **extra, "files": files, "wall_time_s": round(time.perf_counter() - t0, 3),
+        **extra, "files": files, "not_computed": not_computed,
+        "wall_time_s": round(time.perf_counter() - t0, 3),
     }
     if "thrust_map" in extra:
         tm = extra["thrust_map"]

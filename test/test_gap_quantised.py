@@ -1,0 +1,146 @@
+"""A quantised angle is data, not an effect to fit (issue 34, item 7).
+
+The thesis rig's acquisition (and the simulated plant with noise on) records θ through a 10-bit
+ADC: every angle lies on a lattice of step q = 2π/1024. The gap diagnosis detects that quantum
+from the recorded values; it must then *describe* the recording with it (the corrected rig's
+sensor LSB, the noise floor q/√12) and never hand it to a fit: the attainable-shrink step refits
+the chosen effects on each held-out recording, and it used to fail there with
+"effect(s) ['quantisation'] are detected from the data, not fitted", losing the whole report.
+The main job's own bag is checked end to end in ``test_gap_main_bag.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from aeropend_ident.errors import GapError
+from aeropend_ident.gap.drift import attainable, noise_floor
+from aeropend_ident.gap.effects import EffectContext, detect_quantum, measurement_noise
+from aeropend_ident.gap.synth import make_case
+from aeropend_ident.gap.which import diagnose_effects, fit_effects, prepare
+from aeropend_ident.greybox.fit import noise_level
+from aeropend_sim.params import load_rig
+
+RIG = load_rig("thesis_rig")
+Q = 0.015  # rad: a coarse angle LSB, far above the rig file's (quantisation off in it)
+
+
+@pytest.fixture(scope="module")
+def quantised():
+    """A synthetic angle-only recording of the thesis rig quantised to Q, and its diagnosis."""
+    case = make_case(RIG, ["quantisation"], 24, fit_duration=8.0, held_out_steps=3, channels=("theta",),
+                     truth={"quantisation": {"theta_quantum": Q}}, snr_db=60.0)
+    return case, diagnose_effects(RIG, case.fit, case.held_out, max_effects=2)
+
+
+def test_detected_quantum_is_reported_never_chosen(quantised) -> None:
+    _, d = quantised
+    assert d.chosen == []  # nothing to fit: the plant itself is the nominal one
+    assert d.detected == {"quantisation": {"theta_quantum": pytest.approx(Q, rel=1e-6)}}
+    entry = d.ranking[0]
+    assert entry["effect"] == "quantisation" and entry["detected"] is True
+    assert "detected from the recorded values, not fitted" in d.reason
+    # the corrected rig describes the sensor with it
+    assert d.corrected_rig.effects.quantisation
+    assert d.corrected_rig.sensors.theta_quantum == pytest.approx(Q, rel=1e-6)
+    doc = json.loads(json.dumps(d.as_dict()))
+    assert doc["detected"]["quantisation"]["theta_quantum"] == pytest.approx(Q, rel=1e-6)
+    assert doc["chosen"] == []
+
+
+def test_attainable_step_handles_a_detected_quantum(quantised) -> None:
+    case, d = quantised
+    rows = attainable(RIG, d, case.held_out, max_effects=2, best_set=True, fit=case.fit)
+    assert len(rows) == len(case.held_out)
+    for row, rec in zip(rows, case.held_out, strict=True):
+        assert "oracle_drift_error" not in row and "oracle_best_error" not in row
+        # the detected quantum is the noise floor: at least its rounding noise q/√12 over the range
+        floor = Q / math.sqrt(12.0) / float(np.ptp(rec.channels["theta"]))
+        assert row["noise_floor"] >= floor * (1.0 - 1e-9)
+        # no dynamic effect was chosen: the corrected rig replays as the nominal one, and the gap
+        # that is left is at the quantisation floor (the plant is the nominal rig)
+        assert row["corrected"] == pytest.approx(row["nominal"], rel=1e-12)
+        assert row["nominal"] < 1.5 * row["noise_floor"]
+        assert row["oracle_best_effects"] == []  # the held-out diagnosis names no effect to fit either
+
+
+def test_a_direct_effect_is_still_refused_by_the_fit(quantised) -> None:
+    case, _ = quantised
+    preps = prepare(case.fit, frozenset({"theta"}))
+    ctx = EffectContext.from_data(RIG, case.fit[0].channels["theta"], case.fit[0].duty)
+    with pytest.raises(GapError, match=r"\['quantisation'\] are detected from the data, not fitted"):
+        fit_effects(RIG, ["quantisation"], preps, ctx)
+
+
+def test_measurement_noise_is_at_least_the_rounding_noise_of_a_detected_quantum() -> None:
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 20.0, 0.002)
+    slow = 0.4 + 0.3 * np.sin(0.2 * t)  # slow motion: most samples repeat the previous LSB
+    q = 2.0 * math.pi / 1024.0
+    y = np.round(slow / q) * q
+    assert detect_quantum(y) == pytest.approx(q, rel=1e-9)
+    assert noise_level(y) == 0.0  # the white-noise estimate alone reads a quantised log as noiseless
+    assert measurement_noise(y) == pytest.approx(q / math.sqrt(12.0), rel=1e-9)
+    # white noise above the LSB: the white-noise estimate wins
+    noisy = np.round((slow + rng.normal(0.0, 4.0 * q, t.size)) / q) * q
+    assert measurement_noise(noisy) == pytest.approx(noise_level(noisy))
+    assert measurement_noise(noisy) == pytest.approx(4.0 * q, rel=0.1)
+    # not on a lattice: no quantum, plain white-noise estimate
+    z = slow + rng.normal(0.0, 1e-3, t.size)
+    assert detect_quantum(z) == 0.0 and measurement_noise(z) == noise_level(z)
+    # the attainable step's floor uses the same estimate
+    prep = prepare([_rec(t, y)], frozenset({"theta"}))[0]
+    assert noise_floor(prep) == pytest.approx(q / math.sqrt(12.0) / float(np.ptp(y)), rel=1e-9)
+
+
+def _rec(t: np.ndarray, theta: np.ndarray):
+    from aeropend_sim.recording import Recording
+
+    return Recording(t=t, duty=np.full(t.size, 0.5), channels={"theta": theta}, source="lattice")
+
+
+def test_an_optional_section_that_fails_is_reported_and_the_report_is_written(quantised, tmp_path,
+                                                                                monkeypatch) -> None:
+    """No command fails after its main result exists: a failing optional section (here the attainable
+    shrink, and one figure) is reported with its reason in the terminal, report.json and report.html."""
+    from aeropend_ident.gap import drift, figures
+    from aeropend_ident.gap.report import terminal_summary, write_report
+    from aeropend_ident.gap.run import run_gap
+
+    case, _ = quantised
+
+    def broken(*_a, **_k):
+        raise GapError("held-out recording too short for the oracle fit")
+
+    def broken_figure(*_a, **_k):
+        raise ValueError("no residual to draw")
+
+    monkeypatch.setattr(drift, "attainable", broken)
+    monkeypatch.setattr(figures, "fig_tests", broken_figure)
+    res = run_gap(RIG, case.fit, case.held_out, predict=False, max_effects=1)
+    assert res.attainable is None
+    assert res.not_computed == {"attainable shrink": "held-out recording too short for the oracle fit"}
+    assert res.headline()["detected"]["quantisation"]["theta_quantum"] == pytest.approx(Q, rel=1e-6)
+    paths = write_report(res, tmp_path)
+    doc = json.loads(paths["report"].read_text())
+    assert doc["not_computed"] == {"attainable shrink": "held-out recording too short for the oracle fit",
+                                   "figure tests": "ValueError: no residual to draw"}
+    assert doc["after"]["attainable"] is None
+    html = paths["html"].read_text()
+    assert "figure tests not drawn: ValueError: no residual to draw" in html
+    assert "<b>attainable shrink</b>: held-out recording too short" in html
+    assert "Detected from the recorded values" in html and "theta_quantum = 0.015 rad" in html
+    assert not (tmp_path / "figures" / "tests.png").exists() and paths["fig_overlay"].is_file()
+    text = terminal_summary(res)
+    assert "NOT COMPUTED: attainable shrink: held-out recording too short for the oracle fit" in text
+    assert "detected from the recorded values (not fitted): quantisation (theta_quantum = 0.015 rad)" in text
+    # the corrected rig file carries the quantum, with where it came from
+    from aeropend_sim.params import load_rig as load
+
+    rig = load(paths["corrected_rig"])
+    assert rig.effects.quantisation and rig.sensors.theta_quantum == pytest.approx(Q, rel=1e-6)
+    assert "detected from the recorded values" in paths["corrected_rig"].read_text()
