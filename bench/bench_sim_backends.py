@@ -97,7 +97,8 @@ class Case:
         self.duty = inputs(self.dt)
         self.u = {name: comp.delayed_pairs(d, self.whole) for name, d in self.duty.items()}
         self.ref = {name: reference(rig, d) for name, d in self.duty.items()}
-        self.jac_index = tuple(self.built.param_names.index(n) for n in JAC_PARAMS)
+        names = self.built.param_names
+        self.jac_index = tuple(names.index(n) for n in JAC_PARAMS if n in names)
 
     def err(self, name: str, theta: np.ndarray) -> float:
         return float(np.max(np.abs(np.asarray(theta) - self.ref[name][:, 0])))
@@ -282,8 +283,8 @@ def bench_casadi(case: Case, repeats: int, jit: bool) -> dict:
         med, _ = timed(lambda: F["batch"](x0, U["per_sample"], P), 2)
         res["batch64"] = {"cpu_s": med, "per_replay_s": med / BATCH, "how": "Function.map (serial)"}
         q = p[list(case.jac_index)]
-        J = np.array(F["dtheta_dp"](x0, U["per_sample"], p, q))
-        med, _ = timed(lambda: F["dtheta_dp"](x0, U["per_sample"], p, q), 2)
+        J = np.array(F["jac"](x0, U["per_sample"], p, q))
+        med, _ = timed(lambda: F["jac"](x0, U["per_sample"], p, q), 2)
         fd_med, _ = timed(lambda: _fd(lambda pp: np.array(F["replay"](x0, U["per_sample"], pp))[0], p,
                                       case.jac_index), 2)
         fd = _fd(lambda pp: np.array(F["replay"](x0, U["per_sample"], pp))[0], p, case.jac_index)
@@ -306,30 +307,31 @@ def install_sizes() -> dict:
     return out
 
 
-def run(repeats: int) -> dict:
+def run(repeats: int, out: Path) -> dict:
+    """Every measurement; the report is rewritten to ``out`` after each section."""
     report = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(),
               "numpy": np.__version__, "span_s": SPAN, "k_substeps": K, "batch": BATCH,
               "jac_params": JAC_PARAMS,
               "timing": "CPU seconds (process + children), median of repeats", "install": install_sizes()}
-    cache = Path(tempfile.mkdtemp(prefix="aeropend_numba_sweep_"))
     variants = {"all_effects": all_effects_rig(), "no_dry_friction": all_effects_rig(coulomb=False),
                 "end_stop_contact": all_effects_rig(contact=True)}
-    report["accuracy_sweep_numba_rk4"] = accuracy_sweep(variants, cache)
-    print("accuracy sweep done", flush=True)
-    contact = Case(variants["end_stop_contact"])
-    report["diffrax_adaptive_end_stop_contact"] = adaptive_diffrax(contact)
-    print("diffrax done", flush=True)
     case = Case(variants["all_effects"])
     report["samples"] = int(case.duty["per_sample"].size)
-    report["lsoda"] = bench_lsoda(case, max(2, repeats // 2))
-    print("lsoda done", flush=True)
-    report["numba"] = bench_numba(case, repeats)
-    print("numba done", flush=True)
-    report["jax"] = bench_jax(case, repeats)
-    print("jax done", flush=True)
-    report["casadi_vm"] = bench_casadi(case, repeats, jit=False)
-    print("casadi vm done", flush=True)
-    report["casadi_jit"] = bench_casadi(case, repeats, jit=True)
+    sections = {
+        "accuracy_sweep_numba_rk4": lambda: accuracy_sweep(
+            variants, Path(tempfile.mkdtemp(prefix="aeropend_numba_sweep_"))),
+        "diffrax_adaptive_end_stop_contact": lambda: adaptive_diffrax(Case(variants["end_stop_contact"])),
+        "lsoda": lambda: bench_lsoda(case, max(2, repeats // 2)),
+        "numba": lambda: bench_numba(case, repeats),
+        "jax": lambda: bench_jax(case, repeats),
+        "casadi_vm": lambda: bench_casadi(case, repeats, jit=False),
+        "casadi_jit": lambda: bench_casadi(case, repeats, jit=True),
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    for name, section in sections.items():
+        report[name] = section()
+        out.write_text(json.dumps(report, indent=2))
+        print(f"{name} done", flush=True)
     return report
 
 
@@ -364,9 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.replay:
         replay_only(args.replay, args.n)
         return 0
-    report = run(args.repeats)
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps(report, indent=2))
+    run(args.repeats, OUT)
     print(f"written {OUT}")
     return 0
 
