@@ -37,7 +37,14 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 from backends import components as comp  # noqa: E402
-from backends.study import JAC_PARAMS, SPAN, all_effects_rig, inputs, reference  # noqa: E402
+from backends.study import (  # noqa: E402
+    JAC_PARAMS,
+    SPAN,
+    all_effects_rig,
+    inputs,
+    ramped_stops_in_model,
+    reference,
+)
 
 OUT = HERE / "results" / "sim_backends.json"
 #: Sub-steps per sample (at most dt/K each): the smallest K with θ within 1e-6 rad of LSODA on all
@@ -89,10 +96,10 @@ def perturbed(p: np.ndarray, n: int, seed: int = 1) -> np.ndarray:
 class Case:
     """The rig, its composed model, the inputs and the LSODA references."""
 
-    def __init__(self, rig) -> None:
+    def __init__(self, rig, ramped_stops: bool = False) -> None:
         self.rig = rig
         self.dt = rig.sample_period
-        self.built = comp.build(rig)
+        self.built = comp.build(rig, ramped_stops)
         self.whole, self.frac = comp.delay_split(rig, self.dt)
         self.duty = inputs(self.dt)
         self.u = {name: comp.delayed_pairs(d, self.whole) for name, d in self.duty.items()}
@@ -113,12 +120,17 @@ def bench_lsoda(case: Case, repeats: int) -> dict:
 
 
 def accuracy_sweep(label_rigs: dict, cache: Path) -> dict:
-    """max |Δθ| (rad) of numba RK4 against LSODA for each K, per rig variant and input."""
+    """max |Δθ| (rad) of numba RK4 against LSODA for each K, per rig variant and input; a label
+    ending in ``_ramped`` takes the continuous contact law in both (``study.ramped_stops_in_model``)."""
     from backends import nb
 
     out = {}
     for label, rig in label_rigs.items():
-        case = Case(rig)
+        if label.endswith("_ramped"):
+            with ramped_stops_in_model():
+                case = Case(rig, ramped_stops=True)
+        else:
+            case = Case(rig)
         mod = nb.module_for(case.built, cache)
         out[label] = {}
         for name in case.duty:
@@ -167,19 +179,17 @@ def _per_input(case: Case, run, repeats: int) -> dict:
 def bench_numba(case: Case, repeats: int) -> dict:
     from backends import nb
 
-    cold = Path(tempfile.mkdtemp(prefix="aeropend_numba_cold_"))
+    cold = tempfile.mkdtemp(prefix="aeropend_numba_cold_")
+    first = [json.loads(subprocess.run([sys.executable, __file__, "--numba-first", cold], capture_output=True,
+                                       text=True, check=True).stdout)["first_call_s"] for _ in range(2)]
+    res = {"versions": nb.versions(), "compile_first_call_s": first[0],
+           "fresh_process_with_disk_cache_first_call_s": first[1],
+           "note": "first calls in fresh processes: an empty numba cache, then the cache the first one wrote"}
     name = "per_sample"
     ua, ub = case.u[name]
     sub = comp.pieces(case.frac, K, case.dt)
     x0 = np.zeros(5)
-    t0 = cpu()
-    mod = nb.module_for(case.built, cold)
-    mod.sim(x0, ua, ub, case.built.p, *sub)
-    compile_s = cpu() - t0
-    warm = subprocess.run([sys.executable, __file__, "--numba-warm", str(cold)], capture_output=True,
-                          text=True, check=True)
-    res = {"versions": nb.versions(), "compile_first_call_s": compile_s,
-           "fresh_process_with_disk_cache_first_call_s": json.loads(warm.stdout)["first_call_s"]}
+    mod = nb.module_for(case.built, Path(cold))
     res["per_input"] = _per_input(case, lambda a, b: mod.sim(x0, a, b, case.built.p, *sub)[:, 0], repeats)
     P = perturbed(case.built.p, BATCH)
     mod.sim_batch(x0, ua, ub, P[:2], *sub)  # compile the parallel loop
@@ -212,8 +222,9 @@ def _fd(theta, p: np.ndarray, index: tuple[int, ...]) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def _numba_warm(cache: str) -> None:
-    """Child process: first call of the cached generated module in a fresh interpreter."""
+def _numba_first(cache: str) -> None:
+    """Child process: CPU time of the first replay in a fresh interpreter with the numba cache ``cache``
+    (compiles and fills it when empty, loads from it otherwise)."""
     from backends import nb
 
     case_rig = all_effects_rig()
@@ -307,32 +318,87 @@ def install_sizes() -> dict:
     return out
 
 
-def run(repeats: int, out: Path) -> dict:
-    """Every measurement; the report is rewritten to ``out`` after each section."""
+def run(repeats: int, out: Path, only: set[str] | None = None) -> dict:
+    """Every measurement (or the sections in ``only``, updating the report already in ``out``); the
+    report is rewritten to ``out`` after each section."""
     report = {"machine": platform.processor() or platform.machine(), "python": platform.python_version(),
               "numpy": np.__version__, "span_s": SPAN, "k_substeps": K, "batch": BATCH,
               "jac_params": JAC_PARAMS,
               "timing": "CPU seconds (process + children), median of repeats", "install": install_sizes()}
     variants = {"all_effects": all_effects_rig(), "no_dry_friction": all_effects_rig(coulomb=False),
-                "end_stop_contact": all_effects_rig(contact=True)}
+                "end_stop_contact": all_effects_rig(contact=True),
+                "end_stop_contact_ramped": all_effects_rig(contact=True)}
     case = Case(variants["all_effects"])
     report["samples"] = int(case.duty["per_sample"].size)
     sections = {
         "accuracy_sweep_numba_rk4": lambda: accuracy_sweep(
             variants, Path(tempfile.mkdtemp(prefix="aeropend_numba_sweep_"))),
-        "diffrax_adaptive_end_stop_contact": lambda: adaptive_diffrax(Case(variants["end_stop_contact"])),
+        "diffrax_adaptive_end_stop_contact": lambda: adaptive_diffrax(Case(all_effects_rig(contact=True))),
         "lsoda": lambda: bench_lsoda(case, max(2, repeats // 2)),
         "numba": lambda: bench_numba(case, repeats),
         "jax": lambda: bench_jax(case, repeats),
         "casadi_vm": lambda: bench_casadi(case, repeats, jit=False),
         "casadi_jit": lambda: bench_casadi(case, repeats, jit=True),
     }
+    if only:
+        unknown = sorted(only - set(sections))
+        if unknown:
+            raise SystemExit(f"unknown section(s) {unknown}; expected some of {sorted(sections)}")
+        report = {**json.loads(out.read_text()), **{k: v for k, v in report.items() if k not in sections}}
     out.parent.mkdir(parents=True, exist_ok=True)
     for name, section in sections.items():
+        if only and name not in only:
+            continue
         report[name] = section()
         out.write_text(json.dumps(report, indent=2))
         print(f"{name} done", flush=True)
     return report
+
+
+def table(report: dict) -> str:
+    """The findings table (markdown) of a report."""
+    inst = report["install"]
+    size = {"lsoda": "0 (scipy)", "numba": inst["numba"]["installed_mb"], "jax": inst["jax"]["installed_mb"],
+            "casadi_vm": inst["casadi"]["installed_mb"], "casadi_jit": inst["casadi"]["installed_mb"]}
+    head = ("| backend | version | installed MB | compile / first call s | × real time step / APRBS / "
+            "per-sample | batch of 64, s (per replay ms) | Jacobian 5 params: exact / FD s | "
+            "max abs Δθ rad step / APRBS / per-sample |")
+    lines = [head, "|" + "---|" * 8]
+    ls = report["lsoda"]
+    lines.append(f"| LSODA `simulate` (today) | scipy | {size['lsoda']} | 0 | "
+                 + " / ".join(f"{ls[n]['x_realtime']:.0f}" for n in ("step", "aprbs", "per_sample"))
+                 + " | — | — / ≈ 6 replays | reference |")
+    for key in ("numba", "jax", "casadi_vm", "casadi_jit"):
+        r = report[key]
+        ver = ", ".join(f"{k} {v}" for k, v in r["versions"].items())
+        per = r["per_input"]
+        xs = " / ".join(f"{per[n]['x_realtime']:.0f}" for n in ("step", "aprbs", "per_sample"))
+        err = " / ".join(f"{per[n]['max_abs_dtheta']:.1e}" for n in ("step", "aprbs", "per_sample"))
+        b = r["batch64"]
+        j = r["jacobian"]
+        exact = f"{j['cpu_s']:.2f}" if j.get("exact") else "none"
+        name = {"numba": "numba (njit)", "jax": "JAX (jit, lax.scan)", "casadi_vm": "CasADi VM",
+                "casadi_jit": "CasADi C (gcc JIT)"}[key]
+        comp_s = f"{r['compile_first_call_s']:.1f}"
+        if key == "numba":
+            comp_s += f" (disk cache, new process: {r['fresh_process_with_disk_cache_first_call_s']:.2f})"
+        if key == "casadi_jit":
+            comp_s += f" (wall {r['build_wall_s']:.0f})"
+        lines.append(f"| {name} | {ver} | {size[key]} | {comp_s} | {xs} | {b['cpu_s']:.2f} "
+                     f"({1e3 * b['per_replay_s']:.1f}) | {exact} / {j['fd_cpu_s']:.2f} | {err} |")
+    return "\n".join(lines)
+
+
+def sweep_table(report: dict) -> str:
+    """The accuracy sweep (markdown): max |Δθ| per rig variant, input and K."""
+    sweep = report["accuracy_sweep_numba_rk4"]
+    lines = ["| rig variant | input | " + " | ".join(f"K = {k}" for k in K_SWEEP) + " |",
+             "|---|---|" + "---|" * len(K_SWEEP)]
+    for variant, per in sweep.items():
+        for name, errs in per.items():
+            cells = " | ".join(f"{errs[str(k)]:.1e}" for k in K_SWEEP)
+            lines.append(f"| {variant} | {name} | {cells} |")
+    return "\n".join(lines)
 
 
 def replay_only(backend: str, n: int) -> None:
@@ -358,15 +424,21 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=7, help="timed repeats per figure (median quoted)")
     ap.add_argument("--replay", choices=("lsoda", "numba"), help="only replay the per-sample input")
     ap.add_argument("--n", type=int, default=1, help="replays for --replay")
-    ap.add_argument("--numba-warm", metavar="CACHE", help=argparse.SUPPRESS)
+    ap.add_argument("--table", action="store_true", help="print the findings table of the last results")
+    ap.add_argument("--only", help="comma-separated sections to re-measure into the existing results")
+    ap.add_argument("--numba-first", metavar="CACHE", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
-    if args.numba_warm:
-        _numba_warm(args.numba_warm)
+    if args.numba_first:
+        _numba_first(args.numba_first)
         return 0
     if args.replay:
         replay_only(args.replay, args.n)
         return 0
-    run(args.repeats, OUT)
+    if args.table:
+        report = json.loads(OUT.read_text())
+        print(table(report) + "\n\n" + sweep_table(report))
+        return 0
+    run(args.repeats, OUT, set(args.only.split(",")) if args.only else None)
     print(f"written {OUT}")
     return 0
 

@@ -136,6 +136,22 @@ def end_stops(xp, th, thd, theta_min, theta_max, stop_stiffness, stop_damping):
     return xp.where(th > theta_max, upper, 0.0) + xp.where(th < theta_min, lower, 0.0)
 
 
+#: Penetration [rad] over which :func:`end_stops_ramped` phases its damping in (study variant).
+CONTACT_RAMP = 0.01
+
+
+def end_stops_ramped(xp, th, thd, theta_min, theta_max, stop_stiffness, stop_damping):
+    """Study variant of :func:`end_stops` whose force is continuous in the state: the damping
+    grows from 0 to ``stop_damping`` over the first :data:`CONTACT_RAMP` of penetration (the model's
+    law jumps by −c_s·θ̇ at contact onset, which a fixed-step scheme integrates only to first order)."""
+    d_up = xp.maximum(th - theta_max, 0.0)
+    d_lo = xp.maximum(theta_min - th, 0.0)
+    c_up = stop_damping * xp.minimum(d_up / CONTACT_RAMP, 1.0)
+    c_lo = stop_damping * xp.minimum(d_lo / CONTACT_RAMP, 1.0)
+    return (xp.minimum(-stop_stiffness * d_up - c_up * thd, 0.0)
+            + xp.maximum(stop_stiffness * d_lo - c_lo * thd, 0.0))
+
+
 # ---------------------------------------------------------------- build-time composition
 @dataclass(frozen=True)
 class Term:
@@ -149,7 +165,7 @@ class Term:
     out: str
 
 
-def _terms(rig: Rig) -> list[Term]:
+def _terms(rig: Rig, ramped_stops: bool = False) -> list[Term]:
     """The contributions a rig's effect switches select, in evaluation order."""
     e = rig.effects
     if e.armature_inductance != "dynamic":
@@ -191,8 +207,9 @@ def _terms(rig: Rig) -> list[Term]:
                "pendulum.friction_velocity")
         t.append(Term(rod_dry_friction, ("thd",), dry, "+acc"))
     if e.end_stops:
-        t.append(Term(end_stops, ("th", "thd"), ("pendulum.theta_min", "pendulum.theta_max",
-                                                 "pendulum.stop_stiffness", "pendulum.stop_damping"), "+acc"))
+        stops = ("pendulum.theta_min", "pendulum.theta_max", "pendulum.stop_stiffness",
+                 "pendulum.stop_damping")
+        t.append(Term(end_stops_ramped if ramped_stops else end_stops, ("th", "thd"), stops, "+acc"))
     return t
 
 
@@ -217,9 +234,10 @@ class Built:
     rhs: object
 
 
-def build(rig: Rig) -> Built:
-    """Compose the rhs of ``rig`` from its contributions (see module docstring)."""
-    terms = _terms(rig)
+def build(rig: Rig, ramped_stops: bool = False) -> Built:
+    """Compose the rhs of ``rig`` from its contributions (see module docstring);
+    ``ramped_stops`` takes the study's continuous contact law :func:`end_stops_ramped`."""
+    terms = _terms(rig, ramped_stops)
     names: list[str] = []
     for term in terms:
         names += [n for n in term.params if n not in names]

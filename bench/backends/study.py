@@ -3,6 +3,7 @@ backend prototypes and ``bench/bench_sim_backends.py``."""
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import sys
 from pathlib import Path
@@ -64,3 +65,23 @@ def inputs(dt: float, seed: int = 0) -> dict[str, np.ndarray]:
 def reference(rig: Rig, duty: np.ndarray) -> np.ndarray:
     """LSODA states (N, 5) of today's :func:`aeropend_sim.simulate.simulate`."""
     return simulate(rig, duty).x
+
+
+@contextlib.contextmanager
+def ramped_stops_in_model():
+    """Within the block, :class:`aeropend_sim.model.PlantModel` uses the study's continuous contact
+    law :func:`components.end_stops_ramped` (so LSODA gives its reference); restored after."""
+    from aeropend_sim.model import PlantModel
+    from backends import components
+
+    original = PlantModel._stop_accel
+
+    def ramped(self, th, thd):
+        return components.end_stops_ramped(components.MathXP, th, thd, self.th_min, self.th_max,
+                                           self.k_s, self.c_s)
+
+    PlantModel._stop_accel = ramped
+    try:
+        yield
+    finally:
+        PlantModel._stop_accel = original
