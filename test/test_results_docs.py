@@ -78,6 +78,7 @@ results:
     area: sim
     status: history
     command: .venv/bin/python bench/bench_speed.py --runs 3 --out bench/results/speed_before.json
+    note: the code of commit 1234abc
     supports: before the fix the thing ran at half the speed.
     docs: [docs/page.md]
 """
@@ -114,8 +115,8 @@ def test_pages_hold_the_json_values(tmp_path: Path) -> None:
     assert "speed_before" not in page  # history is listed in INDEX.md, not shown with figures
     index = (root / "bench" / "results" / "INDEX.md").read_text(encoding="utf-8")
     assert "| [speed_before.json](speed_before.json) | history | Simulation | " \
-           "`.venv/bin/python bench/bench_speed.py --runs 3 --out bench/results/speed_before.json` | " \
-           "before the fix the thing ran at half the speed. |" in index
+           "`.venv/bin/python bench/bench_speed.py --runs 3 --out bench/results/speed_before.json` " \
+           "(the code of commit 1234abc) | before the fix the thing ran at half the speed. |" in index
     assert "| [speed.md](speed.md) | current | Simulation | " \
            "`.venv/bin/python bench/bench_speed.py --runs 3` | see [speed.json](speed.json) |" in index
     assert _gen("--check", "--root", str(root)).returncode == 0

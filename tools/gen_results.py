@@ -35,7 +35,11 @@ The index (``bench/results/index.yaml``)
     run of the same measurement, replaced by a newer file) or ``history`` (evidence of an
     investigation: a run before a fix, a candidate tried and rejected, a part merged elsewhere).
 ``command``
-    the command that makes the file (scripts named in it must exist).
+    the command that makes the file, run from the repository root (scripts named in it must
+    exist).
+``note``
+    optional: how the command was run when that is not all in it (the code of another commit, a
+    modified tree, runs merged by hand); goes with the command it is given with.
 ``supports``
     the figure or claim it supports (one sentence).
 ``docs``
@@ -81,7 +85,7 @@ INDEX_MD = RESULTS / "INDEX.md"
 RESULTS_MD = Path("docs/results.md")
 GENERATED = (RESULTS / "index.yaml", RESULTS / "INDEX.md")
 STATUSES = ("current", "superseded", "history")
-ENTRY_KEYS = {"file", "of", "area", "status", "command", "supports", "docs", "title", "measures",
+ENTRY_KEYS = {"file", "of", "area", "status", "command", "note", "supports", "docs", "title", "measures",
               "figures", "recorded"}
 FIGURE_KEYS = {"label", "path", "fmt", "unit", "scale", "reduce", "sep", "from"}
 INHERITED = ("area", "status", "command", "supports", "docs")
@@ -290,6 +294,7 @@ class Entry:
     area: str = ""
     status: str = ""
     command: str = ""
+    note: str = ""
     supports: str = ""
     docs: list[str] = field(default_factory=list)
     of: str | None = None
@@ -399,6 +404,8 @@ def _inherit(entries: dict[str, Entry], problems: list[str]) -> None:
                 problems.append(f"{INDEX}: {e.file}: missing '{key}'{hint}")
                 value = [] if key == "docs" else ""
             setattr(e, key, value)
+        source = next((c for c in chain if c.raw.get("command") is not None), None)
+        e.note = " ".join(str(source.raw.get("note") or "").split()) if source is not None else ""
 
 
 def _check_entries(root: Path, areas: dict[str, str], entries: dict[str, Entry],
@@ -549,8 +556,9 @@ def _link(target: str, base: Path, root: Path) -> str:
     return f"[{_cell(text)}]({href})"
 
 
-def _command(text: str) -> str:
-    return "`" + _cell(text).replace("`", "'") + "`"
+def _command(e: Entry) -> str:
+    code = "`" + _cell(e.command).replace("`", "'") + "`"
+    return f"{code} ({_cell(e.note)})" if e.note else code
 
 
 INTRO = """\
@@ -610,7 +618,7 @@ def _result_section(root: Path, e: Entry, base: Path) -> list[str]:
                     if e.parts else ""))
     if e.recorded:
         lines.append("- **Run:** " + "; ".join(f"{label} {text}" for label, text in e.recorded))
-    lines.append(f"- **Re-make:** {_command(e.command)}")
+    lines.append(f"- **Re-make:** {_command(e)}")
     if e.docs:
         lines.append("- **Discussed in:** " + ", ".join(_link(d, base, root) for d in e.docs))
     return [*lines, ""]
@@ -644,7 +652,7 @@ def index_md(root: Path, index: Index) -> str:
             supports += " Holds: " + ", ".join(f"`{h}`" for h in held) + "."
         docs = ", ".join(_link(d, base, root) for d in e.docs) or "—"
         out.append(f"| [{label}]({label}) | {e.status} | {index.areas.get(e.area, e.area)} | "
-                   f"{_command(e.command)} | {supports} | {docs} |")
+                   f"{_command(e)} | {supports} | {docs} |")
     return "\n".join(out) + "\n"
 
 
