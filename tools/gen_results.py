@@ -83,7 +83,7 @@ RESULTS = Path("bench/results")
 INDEX = RESULTS / "index.yaml"
 INDEX_MD = RESULTS / "INDEX.md"
 RESULTS_MD = Path("docs/results.md")
-GENERATED = (RESULTS / "index.yaml", RESULTS / "INDEX.md")
+OWN_FILES = (INDEX, INDEX_MD)  # the index and its page: not results, not listed
 STATUSES = ("current", "superseded", "history")
 ENTRY_KEYS = {"file", "of", "area", "status", "command", "note", "supports", "docs", "title", "measures",
               "figures", "recorded"}
@@ -249,7 +249,7 @@ def render_figure(values: list[Any], many: bool, fig: dict) -> str:
     str
         e.g. ``90.3 %``, ``0.13–0.53 %``, ``292 970``, ``32d69c0``; ``—`` for a JSON null.
     """
-    fmt, scale = str(fig.get("fmt", "g")), fig.get("scale", 1)
+    fmt, scale, sep = str(fig.get("fmt", "g")), fig.get("scale", 1), str(fig.get("sep", " / "))
     unit = f" {fig['unit']}" if fig.get("unit") else ""
     reduce = fig.get("reduce", "range" if many else None)
     nums = [v for v in values if isinstance(v, (int, float)) and not isinstance(v, bool)]
@@ -260,14 +260,14 @@ def render_figure(values: list[Any], many: bool, fig: dict) -> str:
     if not values:
         return "0"
     if (reduce and len(nums) != len(values)) or not nums:
-        return " / ".join(_plain(v) for v in values) + (unit if values and values[0] is not None else "")
+        return sep.join(_plain(v) for v in values) + (unit if values[0] is not None else "")
     nums = [v * scale for v in nums]
     if reduce in ("min", "max", "median", "sum"):
         nums = [{"min": min, "max": max, "median": statistics.median, "sum": sum}[reduce](nums)]
     texts = [_number(v, fmt) for v in nums]
     suffix = texts[0][1] + unit
     if reduce == "list":
-        return str(fig.get("sep", " / ")).join(t for t, _ in texts) + suffix
+        return sep.join(t for t, _ in texts) + suffix
     lo, hi = _number(min(nums), fmt)[0], _number(max(nums), fmt)[0]
     dash = " … " if min(nums) < 0 else "–"
     return (lo if lo == hi else f"{lo}{dash}{hi}") + suffix
@@ -314,7 +314,7 @@ class Index:
 
 def _listed(root: Path) -> list[str]:
     folder = root / RESULTS
-    skip = {p.name for p in GENERATED}
+    skip = {p.name for p in OWN_FILES}
     return sorted(p.name for p in folder.iterdir() if not p.name.startswith(".") and p.name not in skip)
 
 
