@@ -111,7 +111,10 @@ def test_colcon_build_installs_entry_points(colcon_ws: Path) -> None:
 CROSS_PACKAGE_TESTS = {"test_workspace.py", "test_layout.py", "test_launch_files.py",
                        "test_namespaces_ros.py", "test_params_files_ros.py",
                        "test_firmware_build.py", "test_firmware_codec.py", "test_firmware_simavr.py",
-                       "test_firmware_simavr_io.py", "test_firmware_simavr_registers.py"}
+                       "test_firmware_simavr_io.py", "test_firmware_simavr_registers.py",
+                       # every package's console scripts and result folders, the results docs
+                       "test_cli_help.py", "test_output_folder.py", "test_output_folder_ros.py",
+                       "test_results_docs.py"}
 
 
 def _package_test_globs(pkg: str) -> list[str]:

@@ -70,6 +70,8 @@ from aeropend_ident.gap.effects import measurement_noise
 from aeropend_ident.greybox.baseline import measured_rate, residual_bins, residual_regions
 from aeropend_ident.greybox.fit import UniformData, error_metrics, initial_velocity, uniform_data
 from aeropend_ident.io.jsonutil import jsonable
+from aeropend_sim.components.pendulum import end_stops
+from aeropend_sim.components.xp import NUMPY
 from aeropend_sim.model import I_A, OMEGA, ROTOR_FRICTION_VELOCITY, TAU_F, ModelError, PlantModel
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
@@ -960,7 +962,9 @@ def _equations(
     dry = (m.a_f + m.a_s * np.exp(-((thd / m.v_s) ** 2))) * np.tanh(thd / m.v_eps)  # PlantModel.dry_friction
     rhs = -m.a_g * np.sin(th) - m.a_c * thd - dry + m.b_f * thrust
     if m.stops:
-        rhs = rhs + np.array([m._stop_accel(a, b) for a, b in zip(th, thd, strict=True)])
+        p = rig.pendulum
+        rhs = rhs + end_stops.accel(NUMPY, th, thd, p.theta_min, p.theta_max, p.stop_stiffness,
+                                    p.stop_damping)
     lhs = d1(thd) if "theta_dot" in ch else _smooth(theta, w2, 2, dt)
     r = lhs - sm(rhs)
     floor = noise["theta_dot"] * g1 if "theta_dot" in ch else noise["theta"] * g2
