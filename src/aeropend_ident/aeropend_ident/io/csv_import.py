@@ -666,6 +666,8 @@ def summary(rec: Recording) -> str:
     elif "uniform" in m:
         parts.append("uniform sampling" if m["uniform"] else f"jitter std {m['jitter_std_s'] * 1e3:.3f} ms")
     parts.append(f"duty {rec.duty.min():.4f}..{rec.duty.max():.4f}")
+    if m.get("input_map") and not m["input_map"].endswith("(duty)"):
+        parts.append(f"input {m['input_map']}")
     clipped = m.get("duty_clipped", {})
     if clipped and (clipped.get("below_0") or clipped.get("above_1")):
         parts.append(f"{clipped['below_0'] + clipped['above_1']} duty value(s) clipped")
@@ -674,6 +676,8 @@ def summary(rec: Recording) -> str:
     parts.append(f"theta {th.min():.4f}..{th.max():.4f} rad "
                  f"({math.degrees(th.min()):.2f}..{math.degrees(th.max()):.2f} deg)")
     parts.append(f"channels {sorted(rec.channels)}")
+    if rec.extra:
+        parts.append("extra channels " + ", ".join(f"{k} [{rec.extra_units[k]}]" for k in rec.extra))
     if m.get("licence"):
         parts.append(f"licence: {m['licence']}")
     return "; ".join(parts) + "."

@@ -160,6 +160,9 @@ class CsvSpec:
                 raise CsvImportError(f"CsvSpec {self.name or '(custom)'}: {old} = {value!r} and {key} = "
                                      f"{current!r} disagree ({old} is {key} of input_kind {target!r})")
             object.__setattr__(self, key, value)
+        units = {k: (c, s, EXTRA_CHANNELS[k][0] if k in EXTRA_CHANNELS and not u else u)
+                 for k, (c, s, u) in self.extra_channels.items()}
+        object.__setattr__(self, "extra_channels", units)  # an EXTRA_CHANNELS name: its unit
 
     def input_map(self) -> InputMap:
         """The validated input map of this spec (:func:`~aeropend_ident.io.csvspec.input_kinds.input_map`)."""
