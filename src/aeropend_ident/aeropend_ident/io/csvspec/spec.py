@@ -417,7 +417,10 @@ def load_preset_file(path: str | Path) -> CsvSpec:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else ""
-        why = getattr(exc, "problem", None) or exc
+        why = str(getattr(exc, "problem", None) or exc)
+        context, start = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+        if context and start is not None:
+            why += f", {context.replace('while parsing', 'in')} that starts on line {start.line + 1}"
         raise CsvImportError(f"preset file {path}{line}: not valid YAML ({why})") from None
     return spec_from_mapping(data, f"preset file {path}", name=path.stem)
 
