@@ -135,10 +135,10 @@ CASES: tuple[Case, ...] = (
                                         "--angle-col", "theta", "--reference-col", "theta_ref",
                                         "--input-constant", "0", "--input-kind", "pwm"), 1,
          "csv_import: error: {tmp}/imc_reference_only.csv: a constant input (input_constant = 0 counts "
-         "(pwm): duty 0) cannot explain this log: its swing above the final angle θ_f = 0.3476 rad grows "
-         "from 0.0704 rad (turning point at t = 71.340 s) to 0.462 rad (at t = 123.820 s), but under a "
-         "constant input the swing about θ_f never grows (no energy comes in). The reference column "
-         "'theta_ref [rad]' is not an input: ...", needs_shared=True),
+         "(pwm): duty 0) cannot explain this log: θ turns back up at 0.8073 rad (t = 123.640 s), 0.46 rad "
+         "above its final angle θ_f = 0.3476 rad, but under a constant input the rod turns back only beyond "
+         "its equilibrium (at a turning point θ̇ = 0 and only the static torque acts, which points toward the "
+         "equilibrium). The reference column 'theta_ref [rad]' is not an input: ...", needs_shared=True),
     Case("csv-reference-as-input-refused", ("csv_import", "{tmp}/imc_reference_only.csv", "--time-col", "0",
                                             "--angle-col", "theta", "--reference-col", "theta_ref",
                                             "--input-col", "theta_ref", "--input-kind", "duty"), 1,

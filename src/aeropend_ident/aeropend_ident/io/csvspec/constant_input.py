@@ -14,7 +14,12 @@ of that input. Its energy about the final angle θ_f never grows, so
    or a step at t = 0 moves only *before* its first rest;
 2. **its swing never grows**: the turning points of θ on each side of θ_f (where θ̇ = 0 and the
    energy is all potential) shrink or stay; a later turning point farther from θ_f than an
-   earlier one on the same side means energy came in.
+   earlier one on the same side means energy came in;
+3. **it turns back only beyond its equilibrium**: at a turning point θ̇ = 0, so only the static
+   torque acts (gravity, thrust and, if the rod sticks, friction), and it points toward the
+   equilibrium: θ reverses downward only above θ_f and upward only below it (with dry friction
+   the rod may stop short of θ_f, and then it stays: rule 1). A rod that swings about levels
+   below its final angle (a staircase of inputs, a closed loop following reference steps) breaks it.
 
 Margins: the noise band is 6 σ of the white measurement noise (σ from the second difference,
 1.4826·MAD(Δ²θ)/√6), at least 2 resolution steps (smallest change of θ); a departure or growth
@@ -135,8 +140,29 @@ def _swing_grows(t: np.ndarray, th: np.ndarray, band: float, theta_f: float) -> 
         "comes in)")
 
 
+def _turns_short(t: np.ndarray, th: np.ndarray, band: float, theta_f: float) -> tuple[float, str]:
+    """Rule 3: θ turns back before reaching the final angle; (shortfall [rad], text)."""
+    worst = (0.0, 0, 1)
+    for side in (1, -1):  # local maxima must lie above θ_f, local minima below
+        peaks, _ = find_peaks(side * th, prominence=band)
+        if peaks.size == 0:
+            continue
+        short = side * (theta_f - th[peaks])
+        j = int(np.argmax(short))
+        if short[j] > worst[0]:
+            worst = (float(short[j]), int(peaks[j]), side)
+    size, k, side = worst
+    if size <= 0.0:
+        return 0.0, ""
+    return size, (
+        f"θ turns back {'down' if side > 0 else 'up'} at {th[k]:.4g} rad (t = {t[k]:.3f} s), {size:.3g} rad "
+        f"{'below' if side > 0 else 'above'} its final angle θ_f = {theta_f:.4g} rad, but under a constant "
+        "input the rod turns back only beyond its equilibrium (at a turning point θ̇ = 0 and only the static "
+        "torque acts, which points toward the equilibrium)")
+
+
 def check_constant_input(t: np.ndarray, theta: np.ndarray) -> ConstantInputCheck:
-    """Whether a constant input can explain θ(t) (module docstring: the two rules and the margins).
+    """Whether a constant input can explain θ(t) (module docstring: the three rules and the margins).
 
     Parameters
     ----------
@@ -157,7 +183,8 @@ def check_constant_input(t: np.ndarray, theta: np.ndarray) -> ConstantInputCheck
     margin = max(2.0 * band, RANGE_FRACTION * float(np.ptp(th)))
     theta_f = float(np.median(th[-max(th.size // 20, 3):]))
     moves = float(np.max(np.abs(th - th[0]))) > margin
-    rules = (_rest_then_moves(t, th, band, margin), _swing_grows(t, th, band, theta_f))
+    rules = (_rest_then_moves(t, th, band, margin), _swing_grows(t, th, band, theta_f),
+             _turns_short(t, th, band, theta_f))
     size, text = max(rules, key=lambda r: r[0] / margin)
     driven = size > margin
     return ConstantInputCheck(driven, text if driven else "", moves, band, margin, theta_f, size / margin)
