@@ -270,6 +270,22 @@ def test_closed_loop_reference_is_a_channel_not_the_input(tmp_path: Path, name: 
         f"(in {name})")
 
 
+def test_a_reference_published_when_it_changes_holds_in_the_bag(tmp_path: Path) -> None:
+    """A reference logged only where it changes (a live controller's topic): each message belongs to its
+    nearest sample and holds until the next (latest wins); a lab channel's unit travels in the label."""
+    t = np.arange(8) * 0.01
+    ref = np.array([0.2, np.nan, np.nan, 0.4, np.nan, np.nan, 0.3, np.nan])
+    rec = Recording(t=t, duty=np.full(8, 0.3), channels={"theta": t}, source="s",
+                    extra={"theta_ref": ref, "x_acc": np.arange(8.0)}, extra_units={"x_acc": "m/s^2"})
+    back = read_bag(write_bag(rec, tmp_path / "bag"))
+    assert back.extra["theta_ref"].tolist() == [0.2, 0.2, 0.2, 0.4, 0.4, 0.4, 0.3, 0.3]
+    assert back.meta["message_counts"]["/aeropend/reference"] == 3
+    from aeropend_ident.io.bag_codec import decode_float64_array, encode_float64_array
+
+    raw = encode_float64_array(np.array([[1.5, 2.5]]), ["thrust", "x_acc"], ["N", "m/s^2"])
+    assert list(decode_float64_array(raw).columns) == ["thrust [N]", "x_acc [m/s^2]"]
+
+
 def test_extra_channels_travel_with_slices_and_resampling() -> None:
     t = np.array([0.0, 0.01, 0.02, 0.035, 0.04])
     rec = Recording(t=t, duty=np.full(5, 0.3), channels={"theta": t}, source="s",

@@ -126,8 +126,8 @@ CHANNELS: dict[str, tuple[str, str]] = {
 #: a 2-DOF rig's state is one JointState), ``theta_ref`` is published on :data:`TOPIC_REFERENCE` (the
 #: controller's reference topic: ``play`` replays a closed-loop log's reference to a controller) and every
 #: other extra channel goes into one ``std_msgs/Float64MultiArray`` per sample on
-#: :data:`TOPIC_EXTRA_CHANNELS`, its layout's single dimension labelled with the channel names joined by
-#: commas (as ``/aeropend/controller/signals``). Their units are in the bag's metadata.
+#: :data:`TOPIC_EXTRA_CHANNELS`, its layout's single dimension labelled with the channel names and
+#: units joined by commas (``thrust [N],x_acc [m/s^2]``; as ``/aeropend/controller/signals``).
 EXTRA_CHANNELS: dict[str, tuple[str, str]] = {
     "phi": ("rad", "second-axis angle φ of a 2-DOF rig (e.g. a Quanser Aero's yaw)"),
     "phi_dot": ("rad/s", "second-axis angular velocity φ̇"),

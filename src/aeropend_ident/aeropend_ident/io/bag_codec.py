@@ -239,7 +239,8 @@ def _float64_array_layout(dims: tuple[tuple[str, int, int], ...], data_offset: i
     return _Layout(bytes(buf.b), slots, tuple(buf.pads))
 
 
-def encode_float64_array(values: np.ndarray, names: Sequence[str]) -> list[bytes]:
+def encode_float64_array(values: np.ndarray, names: Sequence[str],
+                         units: Sequence[str | None] | None = None) -> list[bytes]:
     """CDR-serialise a batch of labelled ``std_msgs/msg/Float64MultiArray`` messages.
 
     Parameters
@@ -247,8 +248,11 @@ def encode_float64_array(values: np.ndarray, names: Sequence[str]) -> list[bytes
     values : ndarray, shape (N, K)
         One row per message (NaN allowed: a value not measured).
     names : sequence of str
-        The K channel names: the layout's single dimension is labelled ``",".join(names)`` with
-        size = stride = K (the labelling of ``/aeropend/controller/signals``).
+        The K channel names: the layout's single dimension is labelled with the names joined by
+        commas, each followed by its unit in brackets (:func:`label_entry`: ``thrust [N],x_acc
+        [m/s^2]``), size = stride = K (the labelling of ``/aeropend/controller/signals``, with units).
+    units : sequence of str, optional
+        The K units (None: no units in the label).
 
     Returns
     -------
@@ -258,7 +262,8 @@ def encode_float64_array(values: np.ndarray, names: Sequence[str]) -> list[bytes
     values = np.asarray(values, dtype=float)
     k = len(names)
     values = values.reshape(len(values), k)
-    layout = _float64_array_layout(((",".join(names), k, k),), 0, k)
+    label = ",".join(label_entry(n, u) for n, u in zip(names, units or [None] * k, strict=True))
+    layout = _float64_array_layout(((label, k, k),), 0, k)
     arr = _tile(layout, len(values))
     _put(arr, layout, "data", values)
     return _rows(arr)
@@ -463,18 +468,34 @@ def decode_float64(raws: Sequence[bytes], vectorized: bool = True) -> _Decoded:
 _FLOAT64_LAYOUT = _Layout(_CDR_LE + b"\x00" * 8, {"data": (4, "<f8", 1)})
 
 
+def label_entry(name: str, unit: str | None) -> str:
+    """One channel of a Float64MultiArray's label: ``name [unit]`` (``name`` without a unit, or one
+    the label cannot carry: a ``,``, ``[`` or ``]`` in it)."""
+    return f"{name} [{unit}]" if unit and not set(unit) & set(",[]") else name
+
+
+def split_label_entry(entry: str) -> tuple[str, str | None]:
+    """``name [unit]`` -> (name, unit); ``name`` -> (name, None)."""
+    entry = entry.strip()
+    if entry.endswith("]") and " [" in entry:
+        name, _, unit = entry[:-1].partition(" [")
+        return name.strip(), unit.strip() or None
+    return entry, None
+
+
 def _array_names(dims: Sequence[tuple[str, int, int]], n_data: int) -> list[str]:
-    """Channel names of a Float64MultiArray: its single dimension's comma-separated label when that
-    names every value with valid extra-channel names, else ``value_0``, ``value_1``, ..."""
+    """Channel entries (``name [unit]``) of a Float64MultiArray: its single dimension's comma-separated
+    label when that names every value with valid extra-channel names, else ``value_0``, ``value_1``, ..."""
     if len(dims) == 1 and dims[0][1] == n_data:
-        names = [x.strip() for x in dims[0][0].split(",")]
+        entries = [x.strip() for x in dims[0][0].split(",")]
+        names = [split_label_entry(x)[0] for x in entries]
         try:
             for name in names:
                 check_extra_channel(name, None if name in EXTRA_CHANNELS else "?")
         except ContractError:
             names = []
         if len(names) == n_data and len(set(names)) == n_data:
-            return names
+            return entries
     return [f"value_{i}" for i in range(n_data)]
 
 
@@ -484,8 +505,8 @@ def decode_float64_array(raws: Sequence[bytes], vectorized: bool = True) -> _Dec
     Returns
     -------
     _Decoded
-        ``columns``: one float column per channel name (:func:`_array_names`), shape (N,); NaN in
-        the messages that do not carry that name.
+        ``columns``: one float column per label entry (``name [unit]``, :func:`_array_names`,
+        :func:`split_label_entry`), shape (N,); NaN in the messages that do not carry it.
     """
 
     def layout_of(msg: Any) -> _Layout:

@@ -146,8 +146,8 @@ def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_n
     ``phi_dot`` as a fourth ``joint_states`` joint ``phi``; ``theta_ref`` as ``std_msgs/Float64`` on
     ``/aeropend/reference`` (finite values; the topic a controller reads its reference from); every
     other one in a ``std_msgs/Float64MultiArray`` per sample on ``/aeropend/extra_channels``,
-    labelled with the channel names. Log time = the sample's stamp; the units are stored in the
-    bag's metadata (``meta["extra_units"]``).
+    labelled with the channel names and units (``thrust [N],x_acc [m/s^2]``). Log time = the
+    sample's stamp; the units are also stored in the bag's metadata (``meta["extra_units"]``).
 
     Parameters
     ----------
@@ -272,7 +272,8 @@ class _ExtraTopics:
             self.c_ref = writer.add_connection(namespace + TOPIC_REFERENCE, TYPE_REFERENCE, typestore=ts,
                                                offered_qos_profiles=[qos_for_topic(TOPIC_REFERENCE)])
         if rest:
-            self.arrays = encode_float64_array(np.column_stack([rec.extra[n] for n in rest]), rest)
+            self.arrays = encode_float64_array(np.column_stack([rec.extra[n] for n in rest]), rest,
+                                               [rec.extra_units.get(n) for n in rest])
             self.c_arr = writer.add_connection(namespace + TOPIC_EXTRA_CHANNELS, TYPE_EXTRA_CHANNELS,
                                                typestore=ts, offered_qos_profiles=[sample_qos])
 

@@ -65,6 +65,7 @@ from aeropend_ident.io.bag_codec import (
     decode_float64,
     decode_float64_array,
     decode_joint_states,
+    split_label_entry,
     typestore,
 )
 from aeropend_ident.io.bag_recover import (
@@ -291,37 +292,59 @@ def _read_contract_topics(
     return (t_js, t_arm, t_cmd, t_ref, t_ext), raws, logs, reader, (js, arm, cmd, ref, ext)
 
 
+def _sample_of(js_log: np.ndarray, log: np.ndarray) -> np.ndarray:
+    """The sample each message without a header belongs to, from log times (in order).
+
+    One message per sample (what ``write_bag`` writes, replayed and re-recorded or not): the k-th
+    belongs to sample k, whatever the order a recorder received the topics in. Otherwise (a live
+    reference published when it changes, lost messages): the sample logged nearest to it.
+    """
+    if log.size == js_log.size:
+        return np.arange(log.size)
+    k = np.clip(np.searchsorted(js_log, log), 1, max(js_log.size - 1, 1))
+    before = js_log[k - 1]
+    return np.where(np.abs(log - before) <= np.abs(js_log[np.minimum(k, js_log.size - 1)] - log), k - 1, k)
+
+
 def _extra_channels(cols: dict[str, np.ndarray], js_log: np.ndarray, ref: Any, ref_log: Sequence[int],
                     ext: Any, ext_log: Sequence[int], stored_units: Any) -> tuple[dict[str, np.ndarray],
                                                                                dict[str, str]]:
     """A bag's extra channels per sample (:func:`read_bag`) and their units.
 
-    The second joint's φ, φ̇ come with the samples; the reference holds its last value received at
-    or before each sample (latest wins, as a controller reads it; NaN before the first); a
-    labelled array message belongs to the first sample logged at or after it. All-NaN channels
-    are left out. Units: :data:`~aeropend_sim.contract.EXTRA_CHANNELS`, else the bag's stored
-    ``extra_units``, else ``"unknown"``.
+    The second joint's φ, φ̇ come with the samples; a reference or labelled array message (no
+    header stamp) belongs to its sample (:func:`_sample_of`); the
+    reference then holds until the next one (latest wins, as a controller reads it; NaN before the
+    first). All-NaN channels
+    are left out. Units: :data:`~aeropend_sim.contract.EXTRA_CHANNELS`, else the array's label
+    (``name [unit]``), else the bag's stored ``extra_units``, else ``"unknown"``.
     """
     n = js_log.size
     extra = {ch: cols[ch] for ch in SECOND_AXIS_FIELDS}
-    if ref is not None:
+    if ref is not None:  # each message at its sample, then held (latest wins)
         r_log = np.asarray(ref_log, dtype=np.int64)
         r_order = np.argsort(r_log, kind="stable")
-        j = np.searchsorted(r_log[r_order], js_log, side="right") - 1
+        at = _sample_of(js_log, r_log[r_order])
+        last = np.full(n, -1)
+        last[at] = np.arange(at.size)  # the last message per sample (log-time order)
+        last = np.maximum.accumulate(last)
         values = np.full(n, np.nan)
-        values[j >= 0] = ref.columns["data"][r_order][j[j >= 0]]
+        values[last >= 0] = ref.columns["data"][r_order][last[last >= 0]]
         extra[REFERENCE_CHANNEL] = values
+    labelled: dict[str, str] = {}
     if ext is not None:
-        k = np.searchsorted(js_log, np.asarray(ext_log, dtype=np.int64), side="left")
-        ok = k < n
-        for name, col in ext.columns.items():
-            values = np.full(n, np.nan)
-            values[k[ok]] = col[ok]
+        k = _sample_of(js_log, np.asarray(ext_log, dtype=np.int64))
+        ok = np.ones(k.size, dtype=bool)
+        for entry, col in ext.columns.items():
+            name, unit = split_label_entry(entry)
+            values = extra.get(name, np.full(n, np.nan))
+            values[k[ok & np.isfinite(col)]] = col[ok & np.isfinite(col)]
             extra[name] = values
+            if unit:
+                labelled[name] = unit
     extra = {k: v for k, v in extra.items() if np.isfinite(v).any()}
     stored = stored_units if isinstance(stored_units, dict) else {}
-    units = {k: EXTRA_CHANNELS[k][0] if k in EXTRA_CHANNELS else str(stored.get(k) or "unknown")
-             for k in extra}
+    units = {k: EXTRA_CHANNELS[k][0] if k in EXTRA_CHANNELS
+             else str(labelled.get(k) or stored.get(k) or "unknown") for k in extra}
     return extra, units
 
 
