@@ -470,3 +470,47 @@ def test_shipped_presets_import_bit_identically() -> None:
             h.update(np.ascontiguousarray(rec.channels[k]).tobytes())
         found[f"{name}:{path.name}"] = h.hexdigest()
     assert found == SHIPPED
+
+
+def test_cli_input_flags_are_checked(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = _write(tmp_path / "log.csv", "t,u,a\n" + "".join(f"{0.01 * k:.2f},{100 + k},0.{k}\n"
+                                                          for k in range(9)))
+    cases = [
+        (["--input-col", "u"], "--input-col needs --input-kind (one of duty, percent, pwm, voltage, "),
+        (["--pwm-col", "u", "--input-kind", "voltage"], "--pwm-col is --input-kind pwm, not voltage"),
+        (["--input-col", "u", "--input-kind", "voltage", "--pwm-full-scale", "1023"],
+         "--pwm-full-scale applies to --input-kind pwm, not voltage"),
+        (["--pwm-col", "u", "--input-col", "u", "--input-kind", "pwm"], "give one actuator column"),
+        (["--pwm-col", "u", "--channel", "i_a=u:1:A"], "--channel i_a: a contract channel is in SI units"),
+        (["--pwm-col", "u", "--channel", "x_acc=u"], "extra channel 'x_acc': its unit is needed"),
+    ]
+    for flags, message in cases:
+        assert main([str(log), "--time-col", "t", "--angle-col", "a", *flags]) == 1, flags
+        err = capsys.readouterr().err
+        assert err.startswith("csv_import: error: ") and message in err and err.count("\n") == 1, err
+    # the earlier flags still mean what they meant: PWM counts of a 10-bit timer
+    assert main([str(log), "--time-col", "t", "--angle-col", "a", "--pwm-col", "u",
+                 "--pwm-full-scale", "1023"]) == 0
+    assert "duty 0.0978..0.1056" in capsys.readouterr().out  # 100/1023 .. 108/1023
+    # a preset's map belongs to its kind: another kind starts from that kind's defaults
+    from aeropend_ident.cli.csv_import import spec_from_args
+
+    def spec(*flags: str) -> CsvSpec:
+        return spec_from_args(build_parser().parse_args([str(log), "--preset", "dondi01_aero2", *flags]))
+
+    assert spec("--input-col", "u").input_map().span == 24.0  # still the preset's voltage, V_max 24 V
+    pwm = spec("--input-col", "u", "--input-kind", "pwm").input_map()
+    assert (pwm.kind.name, pwm.offset, pwm.span) == ("pwm", 0.0, 255.0)
+
+
+def test_tools_name_the_channels_they_ignore(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from aeropend_ident.cli.compare import main as compare_main
+
+    t = np.arange(1500) * 0.01
+    rec = Recording(t=t, duty=0.3 + 0.1 * (np.floor(t / 1.5) % 3), channels={"theta": 0.4 + 0.2 * np.sin(t)},
+                    source="synthetic", extra={"phi": 0.1 * np.sin(t), "theta_ref": np.full(t.size, 0.4)})
+    bag = write_bag(rec, tmp_path / "bag")
+    assert compare_main([str(bag), "--rig", "thesis_sim", "--no-plots", "-o", str(tmp_path / "cmp")]) == 0
+    out = capsys.readouterr().out
+    assert ("ignored channels (not used by this tool; it uses θ, the duty cycle and the contract channels): "
+            "phi [rad], theta_ref [rad] (in bag)") in out

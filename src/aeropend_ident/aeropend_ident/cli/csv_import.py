@@ -201,7 +201,7 @@ def _input_overrides(args: argparse.Namespace, base: CsvSpec | None) -> dict[str
     if kind is not None:
         over["input_kind"] = kind
         if base is not None and kind != base.input_kind:  # the preset's map is another kind's
-            over.update(input_offset=None, input_span=None, input_law="linear", quantize_counts=None)
+            over.update(input_offset=None, input_span=None, input_law="linear")
     effective = kind or (base.input_kind if base is not None else "duty")
     for flag, key, value, only in (("--pwm-full-scale", "input_span", args.pwm_full_scale, "pwm"),
                                    ("--supply-voltage", "input_span", args.supply_voltage, "voltage"),

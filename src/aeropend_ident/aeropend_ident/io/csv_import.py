@@ -415,7 +415,8 @@ def import_csv(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows = "error
     path : str or Path
         ``.csv`` or ``.csv.gz`` file.
     spec : CsvSpec or str
-        Column mapping and units, or the name of a preset in :data:`PRESETS`.
+        Column mapping and units, the name of a preset in :data:`PRESETS`, or the path of a
+        preset file (``.yaml``, docs/csv_import.md).
     bad_rows : {"error", "drop"}
         ``"drop"``: leave bad rows out (and a last row without line break, and the unreadable
         end of a cut ``.gz``), count them in ``meta["dropped_rows"]`` and warn
@@ -425,16 +426,25 @@ def import_csv(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows = "error
     -------
     Recording
         ``t`` [s] re-based to 0 (``meta["t0_in_file_s"]`` keeps the file's first time),
-        ``duty`` in [0, 1] (clipped values counted in ``meta["duty_clipped"]``),
-        ``channels["theta"]`` [rad] plus the spec's extra channels (all-NaN ones dropped),
-        ``meta`` with the spec, file hash, separator, sampling statistics (``dt_median_s``,
-        ``max_gap_s``, ``n_gaps``, ...) and the preset's provenance/licence notes.
+        ``duty`` in [0, 1] by the spec's input map (``meta["input_map"]``; clipped values
+        counted in ``meta["duty_clipped"]``), ``channels["theta"]`` [rad] plus the spec's
+        contract channels, ``extra`` the reference ``theta_ref`` and the extra channels with
+        their units (all-NaN ones dropped), ``meta`` with the spec, file hash, separator,
+        sampling statistics (``dt_median_s``, ``max_gap_s``, ``n_gaps``, ...), the preset's
+        provenance/licence notes and, for a constant input, ``meta["constant_input"]``.
+
+    Warns
+    -----
+    ConstantInputWarning
+        No actuator column: the duty is taken as constant (a free decay or a step from rest).
 
     Raises
     ------
     CsvImportError
-        Unknown preset, inconsistent spec, unreadable, empty or cut (gzip) file, missing column,
-        a bad row (named by ``FILE:LINE``), fewer than 2 rows, or time that does not increase.
+        Unknown preset or invalid preset file, inconsistent spec, unreadable, empty or cut (gzip)
+        file, missing column, a bad row (named by ``FILE:LINE``), fewer than 2 rows, time that
+        does not increase, or a constant input that cannot explain the log
+        (:func:`~aeropend_ident.io.csvspec.constant_input.check_constant_input`).
     """
     return _import(path, spec, bad_rows)[0]
 
