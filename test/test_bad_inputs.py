@@ -27,6 +27,7 @@ from aeropend_sim.recording import Recording
 
 SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
 AEROSHIELD = SHARED / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"
+IMC = SHARED / "BA-Etchepareborda__adaptive-control-aeropendulum" / "closedloop_IMC_reference_steps.csv"
 BIN = Path(sys.executable).parent
 
 #: Console script -> module run with ``python -m`` when the script is not installed beside python.
@@ -102,11 +103,47 @@ CASES: tuple[Case, ...] = (
          "csv_import: error: {tmp}/cut.csv.gz: the gzip stream is cut: it ends after {gz_size} compressed "
          "bytes without its end marker (..."),
     Case("csv-unknown-preset", ("csv_import", "{tmp}/one.csv", "--preset", "nope"), 1,
-         f"csv_import: error: unknown preset 'nope'; available: {sorted(PRESETS)}"),
+         f"csv_import: error: unknown preset 'nope'; available: {sorted(PRESETS)} (or a preset file: "
+         "my_rig.yaml)"),
     Case("identify-csv-unknown-preset", ("identify", "{tmp}/one.csv:nope", "--rig", "thesis_sim", "--quiet",
                                          "--out", "{tmp}/o-preset"), 2,
          f"identify: error: {{tmp}}/one.csv:nope: unknown preset 'nope' after ':'; expected FILE:PRESET "
-         f"with a preset of {sorted(PRESETS)} or 'auto'"),
+         f"with a preset of {sorted(PRESETS)}, a preset file (my_rig.yaml) or 'auto'"),
+    # --- a lab's preset file (docs/csv_import.md): the message names the file, the key, the expectation
+    Case("csv-user-preset-unknown-key", ("csv_import", "{tmp}/rows.csv", "--preset", "{tmp}/typo.yaml"), 1,
+         "csv_import: error: preset file {tmp}/typo.yaml: unknown key 'input_colum'; did you mean "
+         "'input_col'? the keys are angle_col, angle_unit, ..."),
+    Case("csv-user-preset-wrong-value",
+         ("csv_import", "{tmp}/rows.csv", "--preset", "{tmp}/esc_no_span.yaml"), 1,
+         "csv_import: error: preset file {tmp}/esc_no_span.yaml: input_kind 'pulse_width_ms' needs "
+         "input_span [ms]: the full-throttle minus zero-throttle pulse width of the ESC calibration (e.g. "
+         "1.2 ms for a 1.1-2.3 ms range)"),
+    Case("csv-user-preset-not-yaml", ("csv_import", "{tmp}/rows.csv", "--preset", "{tmp}/broken.yaml"), 1,
+         "csv_import: error: preset file {tmp}/broken.yaml:4: not valid YAML (expected ',' or ']', but got "
+         "'<stream end>', in a flow sequence that starts on line 3)"),
+    Case("csv-user-preset-missing", ("csv_import", "{tmp}/rows.csv", "--preset", "{tmp}/absent.yaml"), 1,
+         "csv_import: error: preset file {tmp}/absent.yaml: cannot read (No such file or directory); "
+         "expected a YAML file with the keys of docs/csv_import.md"),
+    Case("gap-csv-user-preset-bad", ("gap", "{tmp}/rows.csv:{tmp}/typo.yaml", "--rig", "thesis_sim", "-o",
+                                     "{tmp}/o-userpreset"), 2,
+         "gap: error: preset file {tmp}/typo.yaml: unknown key 'input_colum'; did you mean 'input_col'? ..."),
+    Case("csv-write-preset-exists", (*_csv("rows.csv"), "--write-preset", "{tmp}/typo.yaml"), 1,
+         "csv_import: error: --write-preset {tmp}/typo.yaml already exists; choose another name or pass "
+         "--overwrite"),
+    # --- no actuator command logged: a reference is not an input
+    Case("csv-reference-only-refused", ("csv_import", "{tmp}/imc_reference_only.csv", "--time-col", "0",
+                                        "--angle-col", "theta", "--reference-col", "theta_ref",
+                                        "--input-constant", "0", "--input-kind", "pwm"), 1,
+         "csv_import: error: {tmp}/imc_reference_only.csv: a constant input (input_constant = 0 counts "
+         "(pwm): duty 0) cannot explain this log: θ turns back up at 0.8073 rad (t = 123.640 s), 0.46 rad "
+         "above its final angle θ_f = 0.3476 rad, but under a constant input the rod turns back only beyond "
+         "its equilibrium (at a turning point θ̇ = 0 and only the static torque acts, which points toward the "
+         "equilibrium). The reference column 'theta_ref [rad]' is not an input: ...", needs_shared=True),
+    Case("csv-reference-as-input-refused", ("csv_import", "{tmp}/imc_reference_only.csv", "--time-col", "0",
+                                            "--angle-col", "theta", "--reference-col", "theta_ref",
+                                            "--input-col", "theta_ref", "--input-kind", "duty"), 1,
+         "csv_import: error: CsvSpec cli: reference_col and input_col are the same column 'theta_ref'; a "
+         "reference is not an input (log the actuator command)", needs_shared=True),
     # --- rigs
     Case("identify-unknown-rig", ("identify", "{tmp}/bag", "--rig", "nope", "--quiet", "--out", "{tmp}/o1"),
          2, f"identify: error: no rig named 'nope'; shipped rigs are {shipped_rigs()} (or give a path to a "
@@ -219,6 +256,14 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
     (tmp / "cut.csv.gz").write_bytes(packed[: len(packed) // 2])
     if AEROSHIELD.is_file():
         (tmp / "t.csv").write_bytes(AEROSHIELD.read_bytes()[:60000])
+    if IMC.is_file():  # the closed-loop log without its command column: only the reference is left
+        lines = IMC.read_text(encoding="utf-8").splitlines()
+        (tmp / "imc_reference_only.csv").write_text(
+            "".join(",".join(f for i, f in enumerate(ln.split(",")) if i != 1) + "\n" for ln in lines))
+    (tmp / "typo.yaml").write_text("angle_col: a\ntime_col: t\ninput_colum: u\n")
+    (tmp / "esc_no_span.yaml").write_text("angle_col: a\ntime_col: t\ninput_col: u\n"
+                                          "input_kind: pulse_width_ms\ninput_offset: 1.1\n")
+    (tmp / "broken.yaml").write_text("angle_col: a\ntime_col: t\ninput_col: [u\n")
     rig = importlib.resources.files("aeropend_sim") / "rigs" / "thesis_sim.yaml"
     text = rig.read_text(encoding="utf-8")
     (tmp / "negative.yaml").write_text(text.replace("  R_a: {value: 2.0,", "  R_a: {value: -2.0,"))

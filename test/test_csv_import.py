@@ -362,7 +362,7 @@ def test_voltage_input_linear_and_rms(tmp_path: Path) -> None:
     with pytest.warns(UserWarning):
         rec = import_csv(path, rms)
     assert rec.duty.tolist() == [0.0, 63 / 255, 1.0, 1.0]  # floor(255 * 0.25) = 63
-    with pytest.raises(CsvImportError, match="needs supply_voltage > 0"):
+    with pytest.raises(CsvImportError, match=r"input_kind .voltage. needs input_span \[V\]"):
         import_csv(path, CsvSpec(time_col="t", input_col="u", input_kind="voltage", angle_col="y"))
 
 

@@ -60,9 +60,13 @@ from aeropend_sim.contract import (
     REL_ARMATURE,
     REL_DUTY_CYCLE,
     REL_JOINT_STATES,
+    REL_REFERENCE,
     ContractError,
     LockstepRepeats,
     stamp_to_ns,
+)
+from aeropend_sim.contract import (
+    TOPIC_REFERENCE as TOPIC_REFERENCE,  # re-exported: the controller's reference topic
 )
 from aeropend_sim.ros.node_shell import (
     declare_parameter_table,
@@ -81,11 +85,9 @@ from aeropend_sim.ros.ros_contract import (
 )
 
 NODE_NAME = "aeropend_controller"
-#: Reference and internal signals, relative to the node's namespace like the contract topics;
-#: ``TOPIC_*`` are their names in the root namespace.
-REL_REFERENCE = "aeropend/reference"
+#: Internal signals, relative to the node's namespace like the contract topics (the reference topic
+#: ``REL_REFERENCE`` is the contract's); ``TOPIC_*`` are their names in the root namespace.
 REL_SIGNALS = "aeropend/controller/signals"
-TOPIC_REFERENCE = "/" + REL_REFERENCE
 TOPIC_SIGNALS = "/" + REL_SIGNALS
 #: Unpaired joint_states / armature halves kept while waiting for the other half.
 PAIR_BUFFER = 20

@@ -73,6 +73,11 @@ class CsvRowWarning(IdentWarning):
     """A CSV row that may be wrong (a last line without its newline) or rows that were dropped."""
 
 
+class ConstantInputWarning(IdentWarning):
+    """A CSV log without actuator column was imported with a constant input (a free decay or a step
+    from rest); the message says what θ does and that a changing actuator must be logged."""
+
+
 def print_warnings_as_lines(prog: str) -> None:
     """Make :class:`IdentWarning` s print as one ``PROG: warning: MESSAGE`` line on stderr.
 

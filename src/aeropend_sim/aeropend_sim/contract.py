@@ -15,6 +15,12 @@ topic                           type                         dir.   content
 ``/aeropend/joint_states``      ``sensor_msgs/msg/JointState``  out  θ, θ̇, ω₁, ω₂, applied τ
 ``/aeropend/armature``          ``sensor_msgs/msg/BatteryState`` out armature v_a [V], i_a [A]
 ``/clock``                      ``rosgraph_msgs/msg/Clock``  out    simulated time (sim only)
+``/aeropend/reference``         ``std_msgs/msg/Float64``     in     reference θ_ref [rad] of a
+                                                                    controller; a closed-loop
+                                                                    log's θ_ref in a bag
+``/aeropend/extra_channels``    ``std_msgs/msg/``            bag    a recording's extra
+                                ``Float64MultiArray``               channels (see
+                                                                    :data:`EXTRA_CHANNELS`)
 ==============================  ===========================  =====  ==========================
 
 ``joint_states`` carries three joints in this order:
@@ -25,6 +31,9 @@ topic                           type                         dir.   content
   that was applied to the H-bridge over the sample interval that *ends* at this stamp
   (ros2_control convention: a PWM-driven joint's effort command is its duty cycle).
 * ``propeller``: position NaN, velocity ω₂ propeller speed [rad/s] or NaN, effort NaN.
+
+A 2-DOF rig's recording adds a fourth joint ``phi`` (:data:`SECOND_AXIS_JOINT`: position φ, velocity
+φ̇, effort NaN); readers look joints up by name, so the three contract joints are read as always.
 
 ``armature`` uses ``sensor_msgs/BatteryState`` because it is the standard message that carries
 a stamped voltage/current pair: ``voltage`` = armature voltage v_a [V] over the interval that
@@ -42,6 +51,7 @@ instant. A recording therefore aligns exactly at the sample rate (490 Hz on the 
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, fields
 
 #: Nominal sample period of the thesis rig: Timer1 phase-correct 8-bit PWM overflow (thesis §4.3.2).
@@ -72,10 +82,21 @@ def namespaced(topic: str, namespace: str) -> str:
     ns = namespace.strip("/")
     return f"/{ns}/{rel}" if ns else f"/{rel}"
 
+#: Reference θ_ref [rad] of a closed loop (``std_msgs/Float64``, latest wins): what the controller node
+#: subscribes to and where a bag keeps a recording's :data:`REFERENCE_CHANNEL`.
+REL_REFERENCE = "aeropend/reference"
+TOPIC_REFERENCE = "/" + REL_REFERENCE
+#: A recording's other extra channels (:data:`EXTRA_CHANNELS` and lab-named ones), one
+#: ``std_msgs/Float64MultiArray`` per sample (see :data:`EXTRA_CHANNELS`).
+REL_EXTRA_CHANNELS = "aeropend/extra_channels"
+TOPIC_EXTRA_CHANNELS = "/" + REL_EXTRA_CHANNELS
+
 TYPE_DUTY_CYCLE = "std_msgs/msg/Float64"
 TYPE_JOINT_STATES = "sensor_msgs/msg/JointState"
 TYPE_ARMATURE = "sensor_msgs/msg/BatteryState"
 TYPE_CLOCK = "rosgraph_msgs/msg/Clock"
+TYPE_REFERENCE = "std_msgs/msg/Float64"
+TYPE_EXTRA_CHANNELS = "std_msgs/msg/Float64MultiArray"
 
 #: Topic -> message type of every contract topic (what the recorder records by default).
 CONTRACT_TOPICS: dict[str, str] = {
@@ -97,6 +118,70 @@ CHANNELS: dict[str, tuple[str, str]] = {
     "v_a": ("V", "armature voltage v_a"),
     "duty": ("1", "applied duty cycle τ in [0, 1]"),
 }
+
+#: Named channels a recording may carry beyond :data:`CHANNELS` (they are no part of the 1-DOF plant):
+#: name -> (unit, meaning). A lab may add channels under its own names (:func:`check_extra_channel`:
+#: lower-case snake case, with a stated unit). In a bag, ``phi`` / ``phi_dot`` are the position /
+#: velocity of a fourth ``joint_states`` joint :data:`SECOND_AXIS_JOINT` (after the contract's three, so
+#: a 2-DOF rig's state is one JointState), ``theta_ref`` is published on :data:`TOPIC_REFERENCE` (the
+#: controller's reference topic: ``play`` replays a closed-loop log's reference to a controller) and every
+#: other extra channel goes into one ``std_msgs/Float64MultiArray`` per sample on
+#: :data:`TOPIC_EXTRA_CHANNELS`, its layout's single dimension labelled with the channel names and
+#: units joined by commas (``thrust [N],x_acc [m/s^2]``; as ``/aeropend/controller/signals``).
+EXTRA_CHANNELS: dict[str, tuple[str, str]] = {
+    "phi": ("rad", "second-axis angle φ of a 2-DOF rig (e.g. a Quanser Aero's yaw)"),
+    "phi_dot": ("rad/s", "second-axis angular velocity φ̇"),
+    "theta_ref": ("rad", "reference θ_ref of a closed-loop run: the angle the controller was asked to reach "
+                         "(not an input: the duty cycle it applied is)"),
+    "thrust": ("N", "measured thrust f (load cell)"),
+}
+#: The fourth ``joint_states`` joint of a 2-DOF rig and the extra channel of each of its fields.
+SECOND_AXIS_JOINT = "phi"
+SECOND_AXIS_FIELDS: dict[str, str] = {"phi": "position", "phi_dot": "velocity"}
+#: The extra channel kept on :data:`TOPIC_REFERENCE`; a set point: it holds between samples.
+REFERENCE_CHANNEL = "theta_ref"
+_EXTRA_NAME = re.compile(r"[a-z][a-z0-9_]*")
+
+
+def check_extra_channel(name: str, unit: str | None = None) -> str:
+    """Validate an extra channel's name and unit; return its unit.
+
+    Parameters
+    ----------
+    name : str
+        :data:`EXTRA_CHANNELS` name or a lab's own (lower-case letters, digits, ``_``; starting with a
+        letter; not a :data:`CHANNELS` name, which has its own place in the contract).
+    unit : str, optional
+        Its unit (SI, e.g. ``"m/s^2"``); None for an :data:`EXTRA_CHANNELS` name (its unit).
+
+    Returns
+    -------
+    str
+        The unit.
+
+    Raises
+    ------
+    ContractError
+        A contract channel's name, a malformed name, a lab channel without unit, or a unit that
+        differs from an :data:`EXTRA_CHANNELS` name's.
+    """
+    if name in CHANNELS or name in ("t", "time"):
+        raise ContractError(f"extra channel {name!r} is a contract channel; it has its own place "
+                            f"(contract channels: {list(CHANNELS)})")
+    if not isinstance(name, str) or not _EXTRA_NAME.fullmatch(name):
+        raise ContractError(f"extra channel name {name!r}: expected lower-case letters, digits and '_', "
+                            "starting with a letter (e.g. 'phi', 'thrust', 'x_acc')")
+    known = EXTRA_CHANNELS.get(name)
+    if known is not None:
+        if unit not in (None, "", known[0]):
+            raise ContractError(f"extra channel {name!r} is in {known[0]} ({known[1]}), not {unit!r}; "
+                                f"scale the column to {known[0]}")
+        return known[0]
+    if not unit or not isinstance(unit, str):
+        raise ContractError(f"extra channel {name!r}: its unit is needed (e.g. 'N', 'm/s^2', 'rad'); the "
+                            f"channels with a known unit are {list(EXTRA_CHANNELS)}")
+    return unit
+
 
 #: QoS of sample topics: ROS 2 ``qos_profile_sensor_data`` (best effort, keep last 5, volatile).
 SAMPLE_QOS_DEPTH = 5

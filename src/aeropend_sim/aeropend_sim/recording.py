@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_sim.contract import CHANNELS
+from aeropend_sim.contract import CHANNELS, ContractError, check_extra_channel
 
 #: Measured channels a recording may carry (everything in :data:`CHANNELS` except duty).
 MEASURED_CHANNELS: tuple[str, ...] = tuple(c for c in CHANNELS if c != "duty")
@@ -42,6 +42,13 @@ class Recording:
         Absolute time of t = 0 [ns] (ROS time of the first sample; 0 if unknown).
     meta : dict
         Free-form provenance (rig name, column mapping, licence note, ...).
+    extra : dict[str, ndarray]
+        Channels beyond the contract's, each shape (N,), stored under their own names
+        (:data:`aeropend_sim.contract.EXTRA_CHANNELS`, e.g. ``phi`` of a 2-DOF rig, the reference
+        ``theta_ref`` of a closed-loop log, or a lab's own name): kept, written to bags and read
+        back, and ignored by the tools that do not use them. NaN where not measured.
+    extra_units : dict[str, str]
+        Unit of every extra channel (filled from ``EXTRA_CHANNELS`` for its names).
     """
 
     t: np.ndarray
@@ -50,6 +57,8 @@ class Recording:
     source: str = ""
     stamp0_ns: int = 0
     meta: dict[str, Any] = field(default_factory=dict)
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    extra_units: dict[str, str] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.t = np.asarray(self.t, dtype=float)
@@ -74,6 +83,22 @@ class Recording:
             if y.shape != (n,):
                 raise RecordingError(f"{self.source}: channel {name} has shape {y.shape}, expected ({n},)")
             self.channels[name] = y
+        units: dict[str, str] = {}
+        for name, y in list(self.extra.items()):
+            try:
+                units[name] = check_extra_channel(name, self.extra_units.get(name))
+            except ContractError as exc:
+                raise RecordingError(f"{self.source}: {exc}") from None
+            y = np.asarray(y, dtype=float)
+            if y.shape != (n,):
+                raise RecordingError(f"{self.source}: extra channel {name} has shape {y.shape}, "
+                                     f"expected ({n},)")
+            self.extra[name] = y
+        stray = sorted(set(self.extra_units) - set(self.extra))
+        if stray:
+            raise RecordingError(f"{self.source}: units given for channel(s) {stray} that are not in extra "
+                                 f"(has {sorted(self.extra)})")
+        self.extra_units = units
 
     def __len__(self) -> int:
         return int(self.t.size)
@@ -108,6 +133,8 @@ class Recording:
             source=f"{self.source}[{start}:{stop}]",
             stamp0_ns=self.stamp0_ns + round(self.t[start] * 1e9),
             meta=dict(self.meta),
+            extra={k: v[start:stop].copy() for k, v in self.extra.items()},
+            extra_units=dict(self.extra_units),
         )
 
     def split(self, train_fraction: float) -> tuple[Recording, Recording]:

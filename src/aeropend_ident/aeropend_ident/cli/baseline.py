@@ -25,7 +25,7 @@ from pathlib import Path
 
 from aeropend_ident.errors import IdentificationError, print_warnings_as_lines
 from aeropend_ident.greybox.baseline import INIT_HORIZON, REPORT_FILES, baseline, write_report
-from aeropend_ident.io.recording_input import load_recording, split_preset
+from aeropend_ident.io.recording_input import ignored_channels, load_recording, split_preset
 from aeropend_sim.output_folder import claim_output_folder
 from aeropend_sim.params import RigFileError
 from aeropend_sim.recording import RecordingError
@@ -76,6 +76,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"baseline: error: {exc}", file=sys.stderr)
         return 2
     print(result.summary())
+    if note := ignored_channels([rec], "θ and the duty cycle"):
+        print(note)
     for section, why in paths["not_computed"].items():
         print(f"NOT COMPUTED: {section}: {why}")
     print(f"report: {paths['report']}\noverlay: {paths.get('overlay', 'not drawn')}\n"

@@ -34,7 +34,12 @@ from pathlib import Path
 from aeropend_ident.errors import CompareError, print_warnings_as_lines
 from aeropend_ident.gap.compare import MIN_HOLD, CompareResult, compare, load_model
 from aeropend_ident.io.jsonutil import jsonable
-from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
+from aeropend_ident.io.recording_input import (
+    ignored_channels,
+    load_recording,
+    split_preset,
+    uniform_recording,
+)
 from aeropend_sim.output_folder import claim_output_folder
 from aeropend_sim.recording import RecordingError
 
@@ -134,6 +139,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"compare: error: {exc}", file=sys.stderr)
         return 2
     print(summary_table(result))
+    if note := ignored_channels(recs, "θ, the duty cycle and the contract channels"):
+        print(note)
     print(f"report: {paths['json']}")
     return 0
 

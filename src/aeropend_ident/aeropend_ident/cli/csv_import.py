@@ -1,15 +1,20 @@
 """Command line of ``csv_import`` (console script; ``ros2 run aeropend_ident csv_import``).
 
-Argument parsing and :func:`main` only: one CSV log is read with a preset and/or column options by
-:func:`aeropend_ident.io.csv_import.import_csv`, summarised, and written as a contract bag with
-:func:`aeropend_ident.io.bag_writer.write_bag` when ``-o`` is given. A non-empty bag folder is
-refused before the CSV is read unless ``--overwrite`` is given (and then only one that holds a bag,
-:func:`aeropend_ident.io.bag_writer.claim_bag_folder`).
+Argument parsing and :func:`main` only: one CSV log is read with a preset (a shipped name or a
+lab's preset file ``my_rig.yaml``) and/or column options by
+:func:`aeropend_ident.io.csv_import.import_csv`, summarised, written as a contract bag with
+:func:`aeropend_ident.io.bag_writer.write_bag` when ``-o`` is given, and the mapping saved as a
+preset file with ``--write-preset`` (so a lab types its column mapping once). A non-empty bag
+folder is refused before the CSV is read unless ``--overwrite`` is given (and then only one that
+holds a bag, :func:`aeropend_ident.io.bag_writer.claim_bag_folder`). The input kinds, their units
+and the meaning of ``--input-offset`` / ``--input-span`` come from
+:data:`aeropend_ident.io.csvspec.input_kinds.INPUT_KINDS` (``--help`` prints them).
 """
 
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import warnings
 from collections.abc import Sequence
@@ -21,15 +26,15 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import BagError, CsvImportError, IdentWarning, print_warnings_as_lines
-from aeropend_ident.io.csv_import import (
-    PRESETS,
-    Column,
-    CsvSpec,
-    find_preset,
-    import_csv,
-    summary,
-)
+from aeropend_ident.io.csv_import import PRESETS, Column, CsvSpec, find_preset, import_csv, summary
+from aeropend_ident.io.csvspec.input_kinds import INPUT_KINDS, LAWS
+from aeropend_ident.io.csvspec.spec import is_preset_file, resolve_preset, write_preset_file
+from aeropend_sim.contract import EXTRA_CHANNELS
 from aeropend_sim.output_folder import OutputFolderError
+from aeropend_sim.recording import MEASURED_CHANNELS
+
+#: The earlier one-kind column flags: flag stem -> input kind.
+_KIND_COLUMNS = ("duty", "percent", "pwm", "voltage")
 
 
 def _start_time(text: str) -> str:
@@ -61,21 +66,34 @@ def _col_arg(s: str) -> Column:
     return int(s) if s.lstrip("-").isdigit() else s
 
 
-def _parse_channel(s: str) -> tuple[str, tuple[Column, float]]:
-    """``NAME=COLUMN[:SCALE]`` -> (name, (column, scale))."""
+def _parse_channel(s: str) -> tuple[str, tuple[Any, ...]]:
+    """``NAME=COLUMN[:SCALE[:UNIT]]`` -> (name, (column, scale[, unit]))."""
     if "=" not in s:
-        raise argparse.ArgumentTypeError(f"--channel {s!r}: expected NAME=COLUMN[:SCALE], "
-                                         "e.g. i_a='I [mA]':0.001")
-    name, rest = s.split("=", 1)
-    scale = 1.0
-    if ":" in rest:
-        col, sc = rest.rsplit(":", 1)
-        try:
-            scale = float(sc)
-            rest = col
-        except ValueError:
-            pass
-    return name.strip(), (_col_arg(rest), scale)
+        raise argparse.ArgumentTypeError(f"--channel {s!r}: expected NAME=COLUMN[:SCALE[:UNIT]], "
+                                         "e.g. i_a='I [mA]':0.001 or x_acc=ax:9.81:m/s^2")
+    name, rest = (x.strip() for x in s.split("=", 1))
+    parts = rest.rsplit(":", 2)
+    for n in (3, 2):  # the longest split whose SCALE is a number
+        if len(parts) >= n:
+            head = rest.rsplit(":", n - 1)
+            try:
+                scale = float(head[1])
+            except ValueError:
+                continue
+            return name, (_col_arg(head[0]), scale, *head[2:])
+    return name, (_col_arg(rest), 1.0)
+
+
+def _kinds_epilog() -> str:
+    """The input kinds as ``--help`` lists them (from :data:`INPUT_KINDS`)."""
+    lines = ["input kinds (--input-kind): duty = (x - offset) / span, clipped to [0, 1]:"]
+    for k in INPUT_KINDS.values():
+        off = "required" if k.offset is None else f"{k.offset:g}"
+        span = "required" if k.span is None else f"{k.span:g}"
+        lines.append(f"  {k.name} [{k.unit}]: {k.meaning}; offset {off}, span {span}")
+    lines.append("  e.g. an ESC calibrated to 1.1-2.3 ms: --input-kind pulse_width_ms --input-offset 1.1 "
+                 "--input-span 1.2")
+    return "\n".join(lines)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -83,16 +101,23 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="csv_import",
         description="Import a rig CSV log (time, actuator, angle, ...) into a contract rosbag2 bag.",
-        epilog=f"Presets: {', '.join(sorted(PRESETS))} (or 'auto' to pick one by file name).",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=f"Presets: {', '.join(sorted(PRESETS))} (or 'auto' to pick one by file name, or a preset "
+               "file my_rig.yaml; schema in docs/csv_import.md).\n\n" + _kinds_epilog(),
     )
     p.add_argument("input", type=Path, help="CSV file (.csv or .csv.gz)")
     p.add_argument("-o", "--output", type=Path,
                    help="bag directory to write (omit to only print the summary)")
-    p.add_argument("--preset", help="named CsvSpec (options below override its fields)")
+    p.add_argument("--preset", help="a shipped preset's name, 'auto', or a preset file (my_rig.yaml); the "
+                                    "options below override its fields")
+    p.add_argument("--write-preset", type=Path, metavar="FILE.yaml",
+                   help="save the column mapping the preset and options describe as a preset file (after "
+                        "the CSV imported), to reuse as --preset FILE.yaml or LOG.csv:FILE.yaml")
     p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     p.add_argument("--rig-name", help="rig name stored in the bag")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace an existing bag at --output (only a folder that holds a bag)")
+                   help="replace an existing bag at --output (only a folder that holds a bag) and an "
+                        "existing --write-preset file")
     p.add_argument("--drop-bad-rows", action="store_true",
                    help="leave out rows that are short, cut, have an extra field, a non-number or NaN/inf "
                         "in a used column (and a last line without line break, the unreadable end of a cut "
@@ -109,18 +134,30 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--angle-unit", choices=["rad", "deg"])
     g.add_argument("--angle-zero", type=float, help="raw angle at theta = 0 (column unit)")
     g.add_argument("--angle-sign", type=float, choices=[1.0, -1.0])
-    g.add_argument("--duty-col", type=_col_arg, help="duty fraction column")
-    g.add_argument("--percent-col", type=_col_arg, help="duty percent column")
-    g.add_argument("--pwm-col", type=_col_arg, help="PWM counts column")
-    g.add_argument("--pwm-full-scale", type=float)
-    g.add_argument("--voltage-col", type=_col_arg, help="actuator voltage column [V]")
-    g.add_argument("--supply-voltage", type=float, help="voltage at 100 %% duty [V]")
-    g.add_argument("--voltage-law", choices=["linear", "rms"])
-    g.add_argument("--input-constant", type=float, help="constant actuator value when the file has no column")
-    g.add_argument("--input-kind", choices=["duty", "percent", "pwm", "voltage"],
-                   help="unit of --input-constant")
+    g.add_argument("--reference-col", type=_col_arg,
+                   help="reference theta_ref of a closed-loop log (angle column's unit, zero and sign): "
+                        "stored as the channel theta_ref, never as the input")
     g.add_argument("--channel", action="append", type=_parse_channel, default=[],
-                   help="extra channel NAME=COLUMN[:SCALE], e.g. i_a=current:0.001 (repeatable)")
+                   help="extra channel NAME=COLUMN[:SCALE[:UNIT]] (repeatable): a contract channel "
+                        f"({', '.join(c for c in MEASURED_CHANNELS if c != 'theta')}, SI after SCALE) or one "
+                        f"stored under its own name ({', '.join(EXTRA_CHANNELS)} or yours, with its UNIT), "
+                        "e.g. i_a=current:0.001, phi=yaw, x_acc=ax:1:m/s^2")
+    a = p.add_argument_group("actuator command -> duty cycle (see the input kinds below)")
+    a.add_argument("--input-col", type=_col_arg, help="actuator command column")
+    a.add_argument("--input-kind", choices=list(INPUT_KINDS),
+                   help="how the command is logged (also the unit of --input-constant)")
+    a.add_argument("--input-offset", type=float, help="logged value at duty 0 (in the kind's unit)")
+    a.add_argument("--input-span", type=float, help="logged value at full duty minus --input-offset")
+    a.add_argument("--input-law", choices=list(LAWS), help="rms: duty = fraction^2 (voltage only)")
+    a.add_argument("--quantize-counts", type=int, help="round the duty down to multiples of 1/N")
+    a.add_argument("--input-constant", type=float,
+                   help="actuator value of a log without actuator column (a free decay, a step from rest); "
+                        "refused when the angle shows that the actuator changed")
+    for kind in _KIND_COLUMNS:
+        a.add_argument(f"--{kind}-col", type=_col_arg, help=f"= --input-col COL --input-kind {kind}")
+    a.add_argument("--pwm-full-scale", type=float, help="= --input-span for --input-kind pwm")
+    a.add_argument("--supply-voltage", type=float, help="= --input-span for --input-kind voltage")
+    a.add_argument("--voltage-law", choices=list(LAWS), help="= --input-law")
     f = p.add_argument_group("file format (auto-detected by default)")
     f.add_argument("--delimiter", help="field separator (',' ';' or 'tab')")
     f.add_argument("--decimal", choices=[".", ","])
@@ -128,40 +165,88 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def spec_from_args(args: argparse.Namespace) -> CsvSpec:
-    """Build the :class:`CsvSpec` of parsed CLI arguments (preset + overrides)."""
+def _base_spec(args: argparse.Namespace) -> CsvSpec | None:
+    """The preset the options start from (None: none given)."""
     preset = args.preset
     if preset == "auto":
         preset = find_preset(args.input)
         if preset is None:
             raise CsvImportError(f"{args.input}: no preset matches this file name; "
                                  f"available: {sorted(PRESETS)}")
-    if preset is not None and preset not in PRESETS:
-        raise CsvImportError(f"unknown preset {preset!r}; available: {sorted(PRESETS)}")
+    return None if preset is None else resolve_preset(preset)
+
+
+def _input_overrides(args: argparse.Namespace, base: CsvSpec | None) -> dict[str, Any]:
+    """The actuator fields of the options (column, kind, map, constant); earlier flags translated."""
+    over: dict[str, Any] = {}
+    given = [(f"--{k}-col", k, getattr(args, f"{k}_col")) for k in _KIND_COLUMNS
+             if getattr(args, f"{k}_col") is not None]
+    if args.input_col is not None:
+        given.append(("--input-col", args.input_kind, args.input_col))
+    if len(given) > 1:
+        raise CsvImportError(f"give one actuator column, got {[g[0] for g in given]}")
+    kind = args.input_kind
+    if given:
+        flag, kind, over["input_col"] = given[0]
+        if flag != "--input-col" and args.input_kind not in (None, kind):
+            raise CsvImportError(f"{flag} is --input-kind {kind}, not {args.input_kind}")
+        if kind is None:
+            kind = base.input_kind if base is not None else None
+            if kind is None:
+                raise CsvImportError(f"--input-col needs --input-kind (one of {', '.join(INPUT_KINDS)})")
+    elif args.input_constant is not None:
+        over["input_col"] = None
+    if args.input_constant is not None:
+        over["input_constant"] = args.input_constant
+    if kind is not None:
+        over["input_kind"] = kind
+        if base is not None and kind != base.input_kind:  # the preset's map is another kind's
+            over.update(input_offset=None, input_span=None, input_law="linear")
+    effective = kind or (base.input_kind if base is not None else "duty")
+    for flag, key, value, only in (("--pwm-full-scale", "input_span", args.pwm_full_scale, "pwm"),
+                                   ("--supply-voltage", "input_span", args.supply_voltage, "voltage"),
+                                   ("--voltage-law", "input_law", args.voltage_law, "voltage")):
+        if value is None:
+            continue
+        if effective != only:
+            raise CsvImportError(f"{flag} applies to --input-kind {only}, not {effective}")
+        if getattr(args, key) is not None and getattr(args, key) != value:
+            raise CsvImportError(f"{flag} {value} and --{key.replace('_', '-')} {getattr(args, key)} "
+                                 "disagree")
+        over[key] = value
+    for key in ("input_offset", "input_span", "input_law", "quantize_counts"):
+        if getattr(args, key) is not None:
+            over[key] = getattr(args, key)
+    return over
+
+
+def spec_from_args(args: argparse.Namespace) -> CsvSpec:
+    """Build the :class:`CsvSpec` of parsed CLI arguments (preset + overrides)."""
+    base = _base_spec(args)
     over: dict[str, Any] = {}
     for key in ("time_col", "time_unit", "rate_hz", "angle_col", "angle_unit", "angle_zero", "angle_sign",
-                "pwm_full_scale", "supply_voltage", "voltage_law", "input_constant", "decimal"):
+                "reference_col", "decimal"):
         val = getattr(args, key)
         if val is not None:
             over[key] = val
-    inputs = [(k, getattr(args, f"{k}_col")) for k in ("duty", "percent", "pwm", "voltage")
-              if getattr(args, f"{k}_col") is not None]
-    if len(inputs) > 1:
-        raise CsvImportError(f"give one actuator column, got {[f'--{k}-col' for k, _ in inputs]}")
-    if inputs:
-        over["input_kind"], over["input_col"] = inputs[0]
-    elif args.input_kind is not None:
-        over["input_kind"] = args.input_kind
-    if args.input_constant is not None and not inputs:
-        over["input_col"] = None
-    if args.channel:
-        over["channels"] = dict(args.channel)
+    over.update(_input_overrides(args, base))
+    contract = {n: c for n, c in args.channel if n in MEASURED_CHANNELS}
+    bad = [n for n, c in contract.items() if len(c) > 2]
+    if bad:
+        raise CsvImportError(f"--channel {bad[0]}: a contract channel is in SI units; give "
+                             "NAME=COLUMN[:SCALE] without a unit")
+    if contract:
+        over["channels"] = contract
+    extra = {n: (c[0], c[1], c[2] if len(c) > 2 else "") for n, c in args.channel
+             if n not in MEASURED_CHANNELS}
+    if extra:
+        over["extra_channels"] = {**(base.extra_channels if base else {}), **extra}
     if args.delimiter is not None:
         over["delimiter"] = "\t" if args.delimiter in ("tab", "\\t") else args.delimiter
     if args.no_header:
         over["header"] = False
-    if preset is not None:
-        return replace(PRESETS[preset], **over)
+    if base is not None:
+        return replace(base, **over)
     if "angle_col" not in over:
         raise CsvImportError("no --preset and no --angle-col: say which column holds the angle")
     if "time_col" in over and over.get("time_unit") is None:
@@ -169,31 +254,60 @@ def spec_from_args(args: argparse.Namespace) -> CsvSpec:
     return CsvSpec(name="cli", **over)
 
 
+def _bag_note(rec: Any, args: argparse.Namespace) -> str:
+    """What the bag holds, per topic (as ``topics`` and ``play`` will show it)."""
+    parts = [f"{len(rec)} joint_states", f"{len(rec)} armature",
+             f"{int(np.isfinite(rec.duty).sum())} duty_cycle"]
+    if "theta_ref" in rec.extra:
+        parts.append(f"{int(np.isfinite(rec.extra['theta_ref']).sum())} reference")
+    if set(rec.extra) - {"theta_ref", "phi", "phi_dot"}:
+        parts.append(f"{len(rec)} extra_channels")
+    return f" Wrote {args.storage} bag {args.output} ({' + '.join(parts)} messages)."
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Console script ``csv_import``: CSV -> contract bag, prints a one-paragraph summary."""
-    args = build_parser().parse_args(argv)
+    """Console script ``csv_import``: CSV -> contract bag (and preset file); prints a summary."""
+    args = build_parser().parse_args(argv if argv is not None else sys.argv[1:])
     print_warnings_as_lines("csv_import")
     from aeropend_ident.io.bag_writer import claim_bag_folder, write_bag
 
     try:
         target = None if args.output is None else claim_bag_folder(
             args.output, args.overwrite, inputs=[args.input], option="-o", flag="--overwrite")
+        if args.write_preset is not None:
+            if not is_preset_file(args.write_preset):
+                raise CsvImportError(f"--write-preset {args.write_preset}: expected a .yaml or .yml file "
+                                     "name")
+            if args.write_preset.exists() and not args.overwrite:
+                raise CsvImportError(f"--write-preset {args.write_preset} already exists; choose another "
+                                     "name or pass --overwrite")
         spec = spec_from_args(args)
+        if args.write_preset is not None:
+            spec = replace(spec, name=args.write_preset.stem)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # duty clipping: counted in the summary
-            warnings.simplefilter("default", IdentWarning)  # rows dropped or possibly cut: printed
+            warnings.simplefilter("default", IdentWarning)  # rows dropped, cut, constant input: printed
             rec = import_csv(args.input, spec, "drop" if args.drop_bad_rows else "error")
         # a real start time (Foxglove and rosbag2 tools show 1970 for stamps from 0)
         rec = replace(rec, stamp0_ns=start_time_ns(args.start_time, args.input, float(rec.t[-1])))
         if target is not None:
             write_bag(rec, target.prepare(create=False), storage=args.storage, rig_name=args.rig_name)
+        if args.write_preset is not None:
+            command = shlex.join(["csv_import", *(argv if argv is not None else sys.argv[1:])])
+            write_preset_file(spec, args.write_preset, overwrite=args.overwrite, comment=(
+                f"csv_import preset '{args.write_preset.stem}' (schema: docs/csv_import.md), written by\n"
+                f"  {command}\n"
+                f"use: csv_import LOG.csv --preset {args.write_preset.name}, or "
+                f"LOG.csv:{args.write_preset.name} wherever a recording is given"))
     except (CsvImportError, BagError, OutputFolderError) as exc:
         print(f"csv_import: error: {exc}", file=sys.stderr)
         return 1
     text = summary(rec)
     if args.output is not None:
-        text += f" Wrote {args.storage} bag {args.output} ({len(rec)} joint_states + {len(rec)} armature + " \
-                f"{int(np.isfinite(rec.duty).sum())} duty_cycle messages)."
+        text += _bag_note(rec, args)
+    if args.write_preset is not None:
+        text += (f" Wrote preset {args.write_preset} (--preset {args.write_preset} or "
+                 f"LOG.csv:{args.write_preset}).")
     print(text)
     return 0
 

@@ -55,6 +55,7 @@ import numpy as np
 from aeropend_ident.errors import GapCliError, print_warnings_as_lines
 from aeropend_ident.io.recording_input import (
     check_length,
+    ignored_channels,
     load_and_split,
     load_recording,
     split_preset,
@@ -272,6 +273,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"gap: error: {exc}", file=sys.stderr)
         return 2
     print(terminal_summary(result))
+    if note := ignored_channels([*fit, *held, *(val or [])], "θ, the duty cycle and the contract channels"):
+        print(note)
     print(f"report: {paths['report']}\nhtml: {paths['html']}\ncorrected rig: {paths['corrected_rig']}")
     return 0
 

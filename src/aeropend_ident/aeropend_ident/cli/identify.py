@@ -82,6 +82,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"not identified ({tg}): {why}")
     for section, why in summary["not_computed"].items():
         print(f"NOT COMPUTED: {section}: {why}")
+    if summary.get("ignored_channels"):
+        print(summary["ignored_channels"])
     for sc in summary["heldout"]:
         print(f"held-out free-run NRMSE(range) of θ: {sc['nrmse_range']:.4g} ({sc['recording']})")
     print(f"λ = {summary['threshold']:g}; results in {args.out} ({summary['wall_time_s']} s)")

@@ -1,7 +1,8 @@
 """CDR codec of the contract messages (little-endian XCDR1, the encoding rclpy and rosbag2 use).
 
-Batch encoders (:func:`encode_joint_states`, :func:`encode_armature`, :func:`encode_float64`)
-and decoders (:func:`decode_joint_states`, :func:`decode_armature`, :func:`decode_float64`):
+Batch encoders (:func:`encode_joint_states`, :func:`encode_armature`, :func:`encode_float64`,
+:func:`encode_float64_array`) and decoders (:func:`decode_joint_states`, :func:`decode_armature`,
+:func:`decode_float64`, :func:`decode_float64_array`):
 the ``vectorized`` path decodes all messages of one layout at once with NumPy (the layout is
 derived from the first message, re-encoded and checked byte for byte; a deviating message goes
 through ``typestore().deserialize_cdr``, the reference path). Used by the bag reader
@@ -21,11 +22,16 @@ import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
 from aeropend_sim.contract import (
+    EXTRA_CHANNELS,
     JOINT_NAMES,
+    SECOND_AXIS_FIELDS,
+    SECOND_AXIS_JOINT,
     TYPE_ARMATURE,
     TYPE_DUTY_CYCLE,
+    TYPE_EXTRA_CHANNELS,
     TYPE_JOINT_STATES,
     ContractError,
+    check_extra_channel,
 )
 
 _NAN = math.nan
@@ -220,6 +226,49 @@ def encode_armature(stamps_ns: np.ndarray, voltage: np.ndarray, current: np.ndar
     return _rows(arr)
 
 
+@lru_cache(maxsize=64)
+def _float64_array_layout(dims: tuple[tuple[str, int, int], ...], data_offset: int, n_data: int) -> _Layout:
+    buf = _Buf()
+    buf.u32(len(dims))
+    for label, size, stride in dims:
+        buf.string(label)
+        buf.u32(size)
+        buf.u32(stride)
+    buf.u32(data_offset)
+    slots = {"data": (buf.f64_seq(n_data), "<f8", n_data)}
+    return _Layout(bytes(buf.b), slots, tuple(buf.pads))
+
+
+def encode_float64_array(values: np.ndarray, names: Sequence[str],
+                         units: Sequence[str | None] | None = None) -> list[bytes]:
+    """CDR-serialise a batch of labelled ``std_msgs/msg/Float64MultiArray`` messages.
+
+    Parameters
+    ----------
+    values : ndarray, shape (N, K)
+        One row per message (NaN allowed: a value not measured).
+    names : sequence of str
+        The K channel names: the layout's single dimension is labelled with the names joined by
+        commas, each followed by its unit in brackets (:func:`label_entry`: ``thrust [N],x_acc
+        [m/s^2]``), size = stride = K (the labelling of ``/aeropend/controller/signals``, with units).
+    units : sequence of str, optional
+        The K units (None: no units in the label).
+
+    Returns
+    -------
+    list of bytes
+        N serialised messages, byte-identical to ``typestore.serialize_cdr``.
+    """
+    values = np.asarray(values, dtype=float)
+    k = len(names)
+    values = values.reshape(len(values), k)
+    label = ",".join(label_entry(n, u) for n, u in zip(names, units or [None] * k, strict=True))
+    layout = _float64_array_layout(((label, k, k),), 0, k)
+    arr = _tile(layout, len(values))
+    _put(arr, layout, "data", values)
+    return _rows(arr)
+
+
 def encode_float64(values: np.ndarray) -> list[bytes]:
     """CDR-serialise a batch of ``std_msgs/msg/Float64`` messages (shape (N,))."""
     arr = _tile(_FLOAT64_LAYOUT, len(values))
@@ -255,7 +304,7 @@ def _js_columns(stamps: np.ndarray, names: list[str], pos: np.ndarray, vel: np.n
     if missing:
         raise ContractError(f"joint_states lacks joint(s) {missing}; expected names {list(JOINT_NAMES)}, "
                             f"got {names}")
-    return {
+    cols = {
         "stamp": stamps,
         "theta": _pick_joint(pos, names, "pendulum", "position"),
         "theta_dot": _pick_joint(vel, names, "pendulum", "velocity"),
@@ -263,6 +312,11 @@ def _js_columns(stamps: np.ndarray, names: list[str], pos: np.ndarray, vel: np.n
         "omega_prop": _pick_joint(vel, names, "propeller", "velocity"),
         "effort": _pick_joint(eff, names, "motor", "effort"),
     }
+    arrays = {"position": pos, "velocity": vel}
+    for channel, what in SECOND_AXIS_FIELDS.items():  # a 2-DOF rig's second joint, NaN when absent
+        cols[channel] = (_pick_joint(arrays[what], names, SECOND_AXIS_JOINT, what)
+                         if SECOND_AXIS_JOINT in names else np.full(stamps.shape[0], np.nan))
+    return cols
 
 
 def _concat(parts: list[tuple[np.ndarray, dict[str, np.ndarray]]], n: int) -> dict[str, np.ndarray]:
@@ -270,8 +324,8 @@ def _concat(parts: list[tuple[np.ndarray, dict[str, np.ndarray]]], n: int) -> di
     out: dict[str, np.ndarray] = {}
     for idx, cols in parts:
         for key, val in cols.items():
-            if key not in out:
-                out[key] = np.empty(n, dtype=val.dtype)
+            if key not in out:  # a column some groups lack (a labelled channel) is NaN there
+                out[key] = np.full(n, np.nan) if val.dtype.kind == "f" else np.empty(n, dtype=val.dtype)
             out[key][idx] = val
     return out
 
@@ -325,7 +379,8 @@ def decode_joint_states(raws: Sequence[bytes], vectorized: bool = True) -> _Deco
     -------
     _Decoded
         ``columns``: ``stamp`` (int64 ns), ``theta``, ``theta_dot``, ``omega_rotor``,
-        ``omega_prop``, ``effort`` (wire duty), each shape (N,).
+        ``omega_prop``, ``effort`` (wire duty) and the second joint's ``phi``, ``phi_dot`` (NaN
+        without that joint), each shape (N,).
 
     Raises
     ------
@@ -411,3 +466,65 @@ def decode_float64(raws: Sequence[bytes], vectorized: bool = True) -> _Decoded:
 
 
 _FLOAT64_LAYOUT = _Layout(_CDR_LE + b"\x00" * 8, {"data": (4, "<f8", 1)})
+
+
+def label_entry(name: str, unit: str | None) -> str:
+    """One channel of a Float64MultiArray's label: ``name [unit]`` (``name`` without a unit, or one
+    the label cannot carry: a ``,``, ``[`` or ``]`` in it)."""
+    return f"{name} [{unit}]" if unit and not set(unit) & set(",[]") else name
+
+
+def split_label_entry(entry: str) -> tuple[str, str | None]:
+    """``name [unit]`` -> (name, unit); ``name`` -> (name, None)."""
+    entry = entry.strip()
+    if entry.endswith("]") and " [" in entry:
+        name, _, unit = entry[:-1].partition(" [")
+        return name.strip(), unit.strip() or None
+    return entry, None
+
+
+def _array_names(dims: Sequence[tuple[str, int, int]], n_data: int) -> list[str]:
+    """Channel entries (``name [unit]``) of a Float64MultiArray: its single dimension's comma-separated
+    label when that names every value with valid extra-channel names, else ``value_0``, ``value_1``, ..."""
+    if len(dims) == 1 and dims[0][1] == n_data:
+        entries = [x.strip() for x in dims[0][0].split(",")]
+        names = [split_label_entry(x)[0] for x in entries]
+        try:
+            for name in names:
+                check_extra_channel(name, None if name in EXTRA_CHANNELS else "?")
+        except ContractError:
+            names = []
+        if len(names) == n_data and len(set(names)) == n_data:
+            return entries
+    return [f"value_{i}" for i in range(n_data)]
+
+
+def decode_float64_array(raws: Sequence[bytes], vectorized: bool = True) -> _Decoded:
+    """Decode labelled ``std_msgs/Float64MultiArray`` messages (:func:`encode_float64_array`).
+
+    Returns
+    -------
+    _Decoded
+        ``columns``: one float column per label entry (``name [unit]``, :func:`_array_names`,
+        :func:`split_label_entry`), shape (N,); NaN in the messages that do not carry it.
+    """
+
+    def layout_of(msg: Any) -> _Layout:
+        dims = tuple((d.label, int(d.size), int(d.stride)) for d in msg.layout.dim)
+        return _float64_array_layout(dims, int(msg.layout.data_offset), len(msg.data))
+
+    def columns_of(data: Any, layout: _Layout | None) -> dict[str, np.ndarray]:
+        if layout is not None:
+            msg = typestore().deserialize_cdr(layout.template, TYPE_EXTRA_CHANNELS)
+            values = _get(data, layout, "data")
+            dims = [(d.label, int(d.size), int(d.stride)) for d in msg.layout.dim]
+            names = _array_names(dims, values.shape[1])
+            return {name: values[:, i].copy() for i, name in enumerate(names)}
+        out: dict[str, np.ndarray] = {}
+        for k, m in enumerate(data):
+            names = _array_names([(d.label, int(d.size), int(d.stride)) for d in m.layout.dim], len(m.data))
+            for name, v in zip(names, np.asarray(m.data, dtype=float), strict=True):
+                out.setdefault(name, np.full(len(data), np.nan))[k] = v
+        return out
+
+    return _decode_groups(raws, TYPE_EXTRA_CHANNELS, layout_of, columns_of, vectorized)

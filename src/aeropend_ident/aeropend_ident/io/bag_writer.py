@@ -21,6 +21,7 @@ from aeropend_ident.io.bag_codec import (
     _NAN,
     encode_armature,
     encode_float64,
+    encode_float64_array,
     encode_joint_states,
     typestore,
 )
@@ -30,16 +31,25 @@ from aeropend_ident.io.bags import (
     _CUSTOM_SOURCE,
     _STORAGE_PLUGINS,
     COMMAND_QOS,
+    EXTRA_UNITS_META,
     Storage,
     qos_for_topic,
 )
 from aeropend_sim.contract import (
+    JOINT_NAMES,
+    REFERENCE_CHANNEL,
+    SECOND_AXIS_FIELDS,
+    SECOND_AXIS_JOINT,
     TOPIC_ARMATURE,
     TOPIC_DUTY_CYCLE,
+    TOPIC_EXTRA_CHANNELS,
     TOPIC_JOINT_STATES,
+    TOPIC_REFERENCE,
     TYPE_ARMATURE,
     TYPE_DUTY_CYCLE,
+    TYPE_EXTRA_CHANNELS,
     TYPE_JOINT_STATES,
+    TYPE_REFERENCE,
     Sample,
 )
 from aeropend_sim.output_folder import OutputFolder, OutputFolderError, claim_output_folder
@@ -100,6 +110,21 @@ def _wire_arrays(rec: Recording) -> dict[str, np.ndarray]:
     return {**ch, "effort": effort, "v_wire": v_wire}
 
 
+def _extra_messages(rec: Recording) -> tuple[tuple[str, ...], np.ndarray, np.ndarray, list[str]]:
+    """Where a recording's extra channels go in a bag (:data:`aeropend_sim.contract.EXTRA_CHANNELS`).
+
+    Returns the ``joint_states`` joint names (the contract's, plus the second joint when the
+    recording has φ or φ̇), that joint's (position, velocity) columns (NaN where absent) and the
+    names of the channels of the labelled Float64MultiArray (every extra channel but the
+    second axis and the reference).
+    """
+    nan = np.full(len(rec), np.nan)
+    second = {f: rec.extra.get(ch, nan) for ch, f in SECOND_AXIS_FIELDS.items()}
+    names = JOINT_NAMES + ((SECOND_AXIS_JOINT,) if any(ch in rec.extra for ch in SECOND_AXIS_FIELDS) else ())
+    rest = [ch for ch in rec.extra if ch not in SECOND_AXIS_FIELDS and ch != REFERENCE_CHANNEL]
+    return names, second["position"], second["velocity"], rest
+
+
 def _is_number(x: Any) -> bool:
     return isinstance(x, (int, float, np.floating, np.integer)) and not isinstance(x, bool)
 
@@ -116,6 +141,13 @@ def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_n
     the recording lacks are NaN; the duty and v_a shifted to the wire convention, see module
     doc), and the duty command ``duty[k]`` as ``std_msgs/Float64`` on ``/aeropend/duty_cycle``
     (NaN duties are not sent: NaN is not a valid command). Log time = header stamp.
+
+    Extra channels (``rec.extra``, :data:`aeropend_sim.contract.EXTRA_CHANNELS`): ``phi`` /
+    ``phi_dot`` as a fourth ``joint_states`` joint ``phi``; ``theta_ref`` as ``std_msgs/Float64`` on
+    ``/aeropend/reference`` (finite values; the topic a controller reads its reference from); every
+    other one in a ``std_msgs/Float64MultiArray`` per sample on ``/aeropend/extra_channels``,
+    labelled with the channel names and units (``thrust [N],x_acc [m/s^2]``). Log time = the
+    sample's stamp; the units are also stored in the bag's metadata (``meta["extra_units"]``).
 
     Parameters
     ----------
@@ -168,19 +200,23 @@ def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_n
         raise BagError(f"bag '{path}': stamps not strictly increasing at sample {k} after rounding to ns")
     w = _wire_arrays(rec)
     cmd_idx = np.flatnonzero(np.isfinite(rec.duty))
+    joints, phi, phi_dot = _extra_messages(rec)[:3]
     if encoder == "vectorized":
         nan = np.full(len(rec), np.nan)
+        second = len(joints) > len(JOINT_NAMES)
         js = encode_joint_states(
             stamps,
-            position=np.column_stack([w["theta"], nan, nan]),
-            velocity=np.column_stack([w["theta_dot"], w["omega_rotor"], w["omega_prop"]]),
-            effort=np.column_stack([nan, w["effort"], nan]),
+            position=np.column_stack([w["theta"], nan, nan, *([phi] if second else [])]),
+            velocity=np.column_stack([w["theta_dot"], w["omega_rotor"], w["omega_prop"],
+                                      *([phi_dot] if second else [])]),
+            effort=np.column_stack([nan, w["effort"], nan, *([nan] if second else [])]),
             frame_id=frame_id,
+            names=joints,
         )
         arm = encode_armature(stamps, w["v_wire"], w["i_a"], frame_id=frame_id)
         cmds = encode_float64(rec.duty[cmd_idx])
     elif encoder == "typestore":
-        js, arm, cmds = _encode_via_samples(stamps, w, rec.duty[cmd_idx], frame_id)
+        js, arm, cmds = _encode_via_samples(stamps, w, rec.duty[cmd_idx], frame_id, joints, phi, phi_dot)
     else:
         raise BagError(f"unknown encoder {encoder!r}; expected 'vectorized' or 'typestore'")
     ts = typestore()
@@ -194,7 +230,10 @@ def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_n
                                       offered_qos_profiles=[sample_qos])
         c_cmd = writer.add_connection(namespace + TOPIC_DUTY_CYCLE, TYPE_DUTY_CYCLE, typestore=ts,
                                       offered_qos_profiles=[COMMAND_QOS])
+        extra = _ExtraTopics(writer, rec, namespace, sample_qos)
         meta = dict(rec.meta)
+        if rec.extra:
+            meta[EXTRA_UNITS_META] = dict(rec.extra_units)
         if rig_name is not None:
             writer.set_custom_data(_CUSTOM_RIG, str(rig_name))
             meta["rig_name"] = rig_name
@@ -208,15 +247,49 @@ def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_n
             writer.write(c_arm, stamp, arm[k])
             if k in cmd_set:
                 writer.write(c_cmd, stamp, next(cmd_iter))
+            extra.write(k, stamp)
     finally:
         if writer.storage is not None:
             writer.close()
     return path
 
 
-def _encode_via_samples(stamps: np.ndarray, w: dict[str, np.ndarray], commands: np.ndarray,
-                        frame_id: str) -> tuple[list[bytes], list[bytes], list[bytes]]:
-    """Reference encoder: one :class:`Sample` per wire message, serialised by the typestore."""
+class _ExtraTopics:
+    """The extra channels' topics of a bag being written: the reference (``std_msgs/Float64``, its
+    finite values) and the labelled ``Float64MultiArray`` of the other channels, one per sample."""
+
+    def __init__(self, writer: Any, rec: Recording, namespace: str, sample_qos: Qos) -> None:
+        self.writer = writer
+        self.ref: dict[int, bytes] = {}
+        self.arrays: list[bytes] = []
+        self.c_ref = self.c_arr = None
+        rest = _extra_messages(rec)[3]
+        ts = typestore()
+        if REFERENCE_CHANNEL in rec.extra:
+            ref = rec.extra[REFERENCE_CHANNEL]
+            idx = np.flatnonzero(np.isfinite(ref))
+            self.ref = dict(zip(idx.tolist(), encode_float64(ref[idx]), strict=True))
+            self.c_ref = writer.add_connection(namespace + TOPIC_REFERENCE, TYPE_REFERENCE, typestore=ts,
+                                               offered_qos_profiles=[qos_for_topic(TOPIC_REFERENCE)])
+        if rest:
+            self.arrays = encode_float64_array(np.column_stack([rec.extra[n] for n in rest]), rest,
+                                               [rec.extra_units.get(n) for n in rest])
+            self.c_arr = writer.add_connection(namespace + TOPIC_EXTRA_CHANNELS, TYPE_EXTRA_CHANNELS,
+                                               typestore=ts, offered_qos_profiles=[sample_qos])
+
+    def write(self, k: int, stamp: int) -> None:
+        """Write sample ``k``'s extra messages with log time ``stamp``."""
+        if self.c_ref is not None and k in self.ref:
+            self.writer.write(self.c_ref, stamp, self.ref[k])
+        if self.c_arr is not None:
+            self.writer.write(self.c_arr, stamp, self.arrays[k])
+
+
+def _encode_via_samples(stamps: np.ndarray, w: dict[str, np.ndarray], commands: np.ndarray, frame_id: str,
+                        joints: Sequence[str] = JOINT_NAMES, phi: np.ndarray | None = None,
+                        phi_dot: np.ndarray | None = None) -> tuple[list[bytes], list[bytes], list[bytes]]:
+    """Reference encoder: one :class:`Sample` per wire message, serialised by the typestore (a second
+    joint, when ``joints`` has one, appended with position ``phi`` and velocity ``phi_dot``)."""
     ts = typestore()
     T = ts.types["builtin_interfaces/msg/Time"]
     H = ts.types["std_msgs/msg/Header"]
@@ -231,6 +304,9 @@ def _encode_via_samples(stamps: np.ndarray, w: dict[str, np.ndarray], commands: 
         sec, nanosec = divmod(stamp, 1_000_000_000)
         header = H(stamp=T(sec=sec, nanosec=nanosec), frame_id=frame_id)
         f = sample.joint_state_fields()
+        if len(joints) > len(JOINT_NAMES):
+            f = {"name": [*f["name"], SECOND_AXIS_JOINT], "position": [*f["position"], float(phi[k])],
+                 "velocity": [*f["velocity"], float(phi_dot[k])], "effort": [*f["effort"], _NAN]}
         js_out.append(bytes(ts.serialize_cdr(
             JS(header=header, name=list(f["name"]), position=np.array(f["position"], dtype=float),
                velocity=np.array(f["velocity"], dtype=float), effort=np.array(f["effort"], dtype=float)),

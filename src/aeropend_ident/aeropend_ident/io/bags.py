@@ -63,7 +63,9 @@ from aeropend_ident.errors import BagError, BagTruncatedWarning
 from aeropend_ident.io.bag_codec import (
     decode_armature,
     decode_float64,
+    decode_float64_array,
     decode_joint_states,
+    split_label_entry,
     typestore,
 )
 from aeropend_ident.io.bag_recover import (
@@ -76,14 +78,21 @@ from aeropend_ident.io.bag_recover import (
 from aeropend_sim.contract import (
     CLOCK_QOS_DEPTH,
     COMMAND_QOS_DEPTH,
+    EXTRA_CHANNELS,
+    REFERENCE_CHANNEL,
     SAMPLE_QOS_DEPTH,
+    SECOND_AXIS_FIELDS,
     TOPIC_ARMATURE,
     TOPIC_CLOCK,
     TOPIC_DUTY_CYCLE,
+    TOPIC_EXTRA_CHANNELS,
     TOPIC_JOINT_STATES,
+    TOPIC_REFERENCE,
     TYPE_ARMATURE,
     TYPE_DUTY_CYCLE,
+    TYPE_EXTRA_CHANNELS,
     TYPE_JOINT_STATES,
+    TYPE_REFERENCE,
     ContractError,
 )
 from aeropend_sim.recording import Recording, RecordingError
@@ -139,6 +148,8 @@ _STORAGE_PLUGINS = {"mcap": StoragePlugin.MCAP, "sqlite3": StoragePlugin.SQLITE3
 _CUSTOM_META = "aeropend.meta"
 _CUSTOM_RIG = "aeropend.rig_name"
 _CUSTOM_SOURCE = "aeropend.source"
+#: Key of the stored ``meta`` that holds the extra channels' units (written by ``write_bag``).
+EXTRA_UNITS_META = "extra_units"
 
 
 def qos_for_topic(topic: str, lockstep: bool = False) -> Qos:
@@ -155,12 +166,12 @@ def qos_for_topic(topic: str, lockstep: bool = False) -> Qos:
     -------
     rosbags.interfaces.Qos
         :data:`CLOCK_QOS` for ``/clock`` (:data:`CLOCK_QOS_RELIABLE` when ``lockstep``),
-        :data:`COMMAND_QOS` for the duty-cycle topic, else :data:`SAMPLE_QOS` (or
+        :data:`COMMAND_QOS` for the duty-cycle and reference topics, else :data:`SAMPLE_QOS` (or
         :data:`SAMPLE_QOS_RELIABLE` when ``lockstep``).
     """
     if topic == TOPIC_CLOCK:
         return CLOCK_QOS_RELIABLE if lockstep else CLOCK_QOS
-    if topic.endswith(TOPIC_DUTY_CYCLE):
+    if topic.endswith((TOPIC_DUTY_CYCLE, TOPIC_REFERENCE)):
         return COMMAND_QOS
     return SAMPLE_QOS_RELIABLE if lockstep else SAMPLE_QOS
 
@@ -240,15 +251,18 @@ def _read_raw(path: Path, topics: Sequence[str]) -> tuple[dict[str, list[bytes]]
 
 def _read_contract_topics(
     path: Path, namespace: str, decoder: str,
-) -> tuple[tuple[str, str, str], dict[str, list[Any]], dict[str, list[int]], str, tuple[Any, Any, Any]]:
-    """The three contract topics of a bag, checked and decoded (:func:`read_bag`, first step).
+) -> tuple[tuple[str, ...], dict[str, list[Any]], dict[str, list[int]], str, tuple[Any, ...]]:
+    """The contract topics of a bag, checked and decoded (:func:`read_bag`, first step).
 
-    Returns the topic names (joint_states, armature, duty_cycle), the raw messages and log times
-    per topic, the (closed) reader and the decoded columns (armature and commands None when absent).
+    Returns the topic names (joint_states, armature, duty_cycle, reference, extra_channels), the
+    raw messages and log times per topic, the (closed) reader and the decoded columns (None for an
+    absent topic other than joint_states).
     """
-    t_js, t_arm, t_cmd = (namespace + t for t in (TOPIC_JOINT_STATES, TOPIC_ARMATURE, TOPIC_DUTY_CYCLE))
-    raws, logs, types, declared, reader = _read_raw(path, [t_js, t_arm, t_cmd])
-    expected = {t_js: TYPE_JOINT_STATES, t_arm: TYPE_ARMATURE, t_cmd: TYPE_DUTY_CYCLE}
+    t_js, t_arm, t_cmd, t_ref, t_ext = (namespace + t for t in (
+        TOPIC_JOINT_STATES, TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_REFERENCE, TOPIC_EXTRA_CHANNELS))
+    raws, logs, types, declared, reader = _read_raw(path, [t_js, t_arm, t_cmd, t_ref, t_ext])
+    expected = {t_js: TYPE_JOINT_STATES, t_arm: TYPE_ARMATURE, t_cmd: TYPE_DUTY_CYCLE, t_ref: TYPE_REFERENCE,
+                t_ext: TYPE_EXTRA_CHANNELS}
     for topic, typ in expected.items():
         if topic in types and types[topic] != typ:
             raise BagError(f"bag '{path}': topic {topic} has type {types[topic]}, expected {typ}")
@@ -268,12 +282,70 @@ def _read_contract_topics(
         js = decode_joint_states(raws[t_js], vec)
         arm = decode_armature(raws[t_arm], vec) if raws[t_arm] else None
         cmd = decode_float64(raws[t_cmd], vec) if raws[t_cmd] else None
+        ref = decode_float64(raws[t_ref], vec) if raws[t_ref] else None
+        ext = decode_float64_array(raws[t_ext], vec) if raws[t_ext] else None
     except ContractError as exc:
         raise BagError(f"bag '{path}': {exc}") from exc
     except Exception as exc:
         raise BagError(f"bag '{path}' is corrupt: a message cannot be decoded "
                        f"({type(exc).__name__}: {exc})") from exc
-    return (t_js, t_arm, t_cmd), raws, logs, reader, (js, arm, cmd)
+    return (t_js, t_arm, t_cmd, t_ref, t_ext), raws, logs, reader, (js, arm, cmd, ref, ext)
+
+
+def _sample_of(js_log: np.ndarray, log: np.ndarray) -> np.ndarray:
+    """The sample each message without a header belongs to, from log times (in order).
+
+    One message per sample (what ``write_bag`` writes, replayed and re-recorded or not): the k-th
+    belongs to sample k, whatever the order a recorder received the topics in. Otherwise (a live
+    reference published when it changes, lost messages): the sample logged nearest to it.
+    """
+    if log.size == js_log.size:
+        return np.arange(log.size)
+    k = np.clip(np.searchsorted(js_log, log), 1, max(js_log.size - 1, 1))
+    before = js_log[k - 1]
+    return np.where(np.abs(log - before) <= np.abs(js_log[np.minimum(k, js_log.size - 1)] - log), k - 1, k)
+
+
+def _extra_channels(cols: dict[str, np.ndarray], js_log: np.ndarray, ref: Any, ref_log: Sequence[int],
+                    ext: Any, ext_log: Sequence[int], stored_units: Any) -> tuple[dict[str, np.ndarray],
+                                                                               dict[str, str]]:
+    """A bag's extra channels per sample (:func:`read_bag`) and their units.
+
+    The second joint's φ, φ̇ come with the samples; a reference or labelled array message (no
+    header stamp) belongs to its sample (:func:`_sample_of`); the
+    reference then holds until the next one (latest wins, as a controller reads it; NaN before the
+    first). All-NaN channels
+    are left out. Units: :data:`~aeropend_sim.contract.EXTRA_CHANNELS`, else the array's label
+    (``name [unit]``), else the bag's stored ``extra_units``, else ``"unknown"``.
+    """
+    n = js_log.size
+    extra = {ch: cols[ch] for ch in SECOND_AXIS_FIELDS}
+    if ref is not None:  # each message at its sample, then held (latest wins)
+        r_log = np.asarray(ref_log, dtype=np.int64)
+        r_order = np.argsort(r_log, kind="stable")
+        at = _sample_of(js_log, r_log[r_order])
+        last = np.full(n, -1)
+        last[at] = np.arange(at.size)  # the last message per sample (log-time order)
+        last = np.maximum.accumulate(last)
+        values = np.full(n, np.nan)
+        values[last >= 0] = ref.columns["data"][r_order][last[last >= 0]]
+        extra[REFERENCE_CHANNEL] = values
+    labelled: dict[str, str] = {}
+    if ext is not None:
+        k = _sample_of(js_log, np.asarray(ext_log, dtype=np.int64))
+        ok = np.ones(k.size, dtype=bool)
+        for entry, col in ext.columns.items():
+            name, unit = split_label_entry(entry)
+            values = extra.get(name, np.full(n, np.nan))
+            values[k[ok & np.isfinite(col)]] = col[ok & np.isfinite(col)]
+            extra[name] = values
+            if unit:
+                labelled[name] = unit
+    extra = {k: v for k, v in extra.items() if np.isfinite(v).any()}
+    stored = stored_units if isinstance(stored_units, dict) else {}
+    units = {k: EXTRA_CHANNELS[k][0] if k in EXTRA_CHANNELS
+             else str(labelled.get(k) or stored.get(k) or "unknown") for k in extra}
+    return extra, units
 
 
 def _drop_republished(path: Path, t_js: str, cols: dict[str, np.ndarray], order: np.ndarray,
@@ -387,7 +459,7 @@ def read_bag(path: str | Path, *, namespace: str = "",
         has NaNs, or (``require_duty``) there is no duty information.
     """
     path = Path(path)
-    (t_js, t_arm, t_cmd), raws, logs, reader, (js, arm, cmd) = _read_contract_topics(
+    (t_js, t_arm, t_cmd, t_ref, t_ext), raws, logs, reader, (js, arm, cmd, ref, ext) = _read_contract_topics(
         path, namespace, decoder)
 
     cols = js.columns
@@ -458,12 +530,15 @@ def read_bag(path: str | Path, *, namespace: str = "",
                     "omega_rotor": cols["omega_rotor"], "omega_prop": cols["omega_prop"],
                     "i_a": i_a, "v_a": v_a}
     channels = {k: v for k, v in channels_all.items() if np.isfinite(v).any()}
+    extra, units = _extra_channels(cols, js_log, ref, logs[t_ref], ext, logs[t_ext],
+                                   meta.pop(EXTRA_UNITS_META, None))
     if np.isfinite(effort[0]):
         meta["duty_before_start"] = float(effort[0])
     meta.update({
         "bag": str(path),
         "storage": reader.storage,
-        "message_counts": {t: len(raws[t]) for t in (t_js, t_arm, t_cmd)},
+        "message_counts": {t: len(raws[t]) for t in (t_js, t_arm, t_cmd, t_ref, t_ext)
+                           if raws[t] or t in (t_js, t_arm, t_cmd)},
         "unmatched_joint_states": unmatched if arm is not None else n,
         "orphan_armature": orphan,
         "duty_source": {"effort": int(use_eff.sum()) - n_after_gap, "command": n_cmd,
@@ -475,7 +550,7 @@ def read_bag(path: str | Path, *, namespace: str = "",
     })
     try:
         return Recording(t=(stamps - stamps[0]) / 1e9, duty=duty, channels=channels, source=str(path),
-                         stamp0_ns=int(stamps[0]), meta=meta)
+                         stamp0_ns=int(stamps[0]), meta=meta, extra=extra, extra_units=units)
     except RecordingError as exc:  # pragma: no cover - stamps are checked above
         raise BagError(f"bag '{path}': {exc}") from exc
 

@@ -1,10 +1,16 @@
 """Import CSV logs of real rigs into a :class:`~aeropend_sim.recording.Recording` / contract bag.
 
 Most aeropendulum rigs log little more than a time column, the actuator command (PWM counts,
-percent, a duty fraction or a voltage) and the angle. A :class:`CsvSpec` says which column is
-which and how to convert it to SI / the contract (duty fraction in [0, 1], θ in rad, t in s);
-:func:`import_csv` reads the file *faithfully* (no filtering, no outlier removal, irregular
-sampling kept as is and reported in ``meta``) and :func:`csv_to_bag` writes the contract bag.
+percent, a duty fraction, a voltage, an ESC pulse width or a servo angle) and the angle; some add
+a second axis, the reference of a closed loop or a measured thrust. A :class:`CsvSpec`
+(:mod:`aeropend_ident.io.csvspec.spec`) says which column is which and how to convert it to SI /
+the contract (duty fraction in [0, 1] by the input map of
+:mod:`aeropend_ident.io.csvspec.input_kinds`, θ in rad, t in s, extra channels under their own
+names); :func:`import_csv` reads the file *faithfully* (no filtering, no outlier removal,
+irregular sampling kept as is and reported in ``meta``) and :func:`csv_to_bag` writes the
+contract bag. A log without actuator column is imported with a constant input only if a constant
+input can explain it (:func:`~aeropend_ident.io.csvspec.constant_input.check_constant_input`: a
+free decay or a step from rest, not a closed loop whose only input-like column is its reference).
 
 File handling: separator auto-detection (``,`` ``;`` tab), full-line comments (``#``), header
 row detection, decimal comma, UTF-8 BOM, ``.csv.gz``. A malformed file raises
@@ -12,43 +18,53 @@ row detection, decimal comma, UTF-8 BOM, ``.csv.gz``. A malformed file raises
 column, e.g. ``data.csv line 57 column 'angle [deg]': 'abc' is not a number``.
 
 :data:`PRESETS` holds specs for the real recordings in ``shared/data/real`` (provenance and
-licence notes in each preset's ``meta``). The command line (console script ``csv_import``,
+licence notes in each preset's ``meta``); a lab's own preset is a YAML file of the same schema
+(docs/csv_import.md). The command line (console script ``csv_import``,
 :mod:`aeropend_ident.cli.csv_import`) converts one file to a bag.
 """
 
 from __future__ import annotations
 
-import fnmatch
 import hashlib
 import math
 import warnings
 import zlib
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, replace
-from importlib import resources
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-import yaml
 
-from aeropend_ident.errors import CsvImportError, CsvRowWarning
-from aeropend_sim.recording import MEASURED_CHANNELS, Recording, RecordingError
+from aeropend_ident.errors import ConstantInputWarning, CsvImportError, CsvRowWarning
+from aeropend_ident.io.csvspec.constant_input import check_constant_input
+from aeropend_ident.io.csvspec.spec import (
+    PRESETS,
+    Column,
+    CsvSpec,
+    find_preset,
+    load_presets,
+    resolve_preset,
+    spec_summary,
+)
+from aeropend_sim.contract import REFERENCE_CHANNEL
+from aeropend_sim.recording import Recording, RecordingError
 
 __all__ = [
     "PRESETS",
     "BadRows",
+    "Column",
     "CsvImportError",
     "CsvSpec",
     "csv_to_bag",
     "find_preset",
     "import_csv",
     "import_csv_runs",
+    "load_presets",
+    "resolve_preset",
     "summary",
 ]
 
-Column = str | int
-InputKind = Literal["duty", "percent", "pwm", "voltage"]
 TimeUnit = Literal["s", "ms", "us", "sample"]
 _TIME_SCALE = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
 _DELIMITERS = ("\t", ";", ",")
@@ -58,176 +74,6 @@ BadRows = Literal["error", "drop"]
 _DROP_HINT = "csv_import --drop-bad-rows"
 #: Bad rows listed by line in a drop report.
 _SHOWN_ROWS = 5
-
-
-@dataclass(frozen=True)
-class CsvSpec:
-    """How to read one CSV layout.
-
-    Columns are given by header name (exact, case-insensitive, or the name before a unit
-    bracket: ``"pwm"`` matches ``"pwm [0-255 analogWrite]"``) or by 0-based index.
-
-    Attributes
-    ----------
-    angle_col : str or int
-        Angle column.
-    angle_unit : {"rad", "deg"}
-        Unit of the angle column.
-    angle_zero : float
-        Raw angle reading (column unit) at θ = 0; θ = angle_sign · (raw − angle_zero) [rad].
-    angle_sign : float
-        +1 or −1 (direction convention).
-    time_col : str or int, optional
-        Time column; None when the file has none (then ``rate_hz`` gives t = k / rate_hz).
-    time_unit : {"s", "ms", "us", "sample"}
-        Unit of the time column; ``"sample"`` means a sample index k (t = k / ``rate_hz``).
-    rate_hz : float, optional
-        Sample rate [Hz] for files without time column or with a sample-index column.
-    input_col : str or int, optional
-        Actuator column; None when the file has none (then ``input_constant`` is used).
-    input_kind : {"duty", "percent", "pwm", "voltage"}
-        Meaning of the actuator column: duty fraction, percent, PWM counts (of
-        ``pwm_full_scale``) or a voltage [V] (of ``supply_voltage``).
-    pwm_full_scale : float
-        PWM counts at 100 % duty (255 for Arduino ``analogWrite``).
-    supply_voltage : float, optional
-        Voltage [V] at 100 % duty (``input_kind="voltage"``).
-    voltage_law : {"linear", "rms"}
-        duty = V / V_supply (``"linear"``) or (V / V_supply)² (``"rms"``: the firmware treats
-        the value as an RMS voltage, e.g. AutomationShield's ``actuatorWriteVolt``).
-    quantize_counts : int, optional
-        Round the duty *down* to multiples of 1 / quantize_counts, mimicking a firmware that
-        truncates to integer PWM counts (the duty actually applied).
-    input_constant : float, optional
-        Actuator value (in ``input_kind`` units) when the file has no actuator column.
-    channels : dict
-        Extra measured channels: contract channel name -> (column, scale to SI), e.g.
-        ``{"i_a": ("current [mA]", 1e-3)}``.
-    delimiter : str, optional
-        Field separator; None = auto-detect among ``,`` ``;`` and tab.
-    decimal : {".", ","}, optional
-        Decimal mark; None = auto-detect (comma only when the separator is not a comma).
-    comment : str
-        Lines whose first non-blank character starts with this are skipped.
-    header : bool, optional
-        Whether the first non-comment line is a header; None = auto-detect (a line with a
-        non-numeric field).
-    encoding : str
-        Text encoding (a UTF-8 BOM is stripped).
-    name : str
-        Spec/preset name (recorded in ``meta``).
-    meta : dict
-        Provenance / licence notes copied into the recording's ``meta``.
-    """
-
-    angle_col: Column
-    angle_unit: Literal["rad", "deg"] = "rad"
-    angle_zero: float = 0.0
-    angle_sign: float = 1.0
-    time_col: Column | None = None
-    time_unit: TimeUnit = "s"
-    rate_hz: float | None = None
-    input_col: Column | None = None
-    input_kind: InputKind = "duty"
-    pwm_full_scale: float = 255.0
-    supply_voltage: float | None = None
-    voltage_law: Literal["linear", "rms"] = "linear"
-    quantize_counts: int | None = None
-    input_constant: float | None = None
-    channels: dict[str, tuple[Column, float]] = field(default_factory=dict)
-    delimiter: str | None = None
-    decimal: Literal[".", ","] | None = None
-    comment: str = "#"
-    header: bool | None = None
-    encoding: str = "utf-8"
-    name: str = ""
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    def check(self) -> None:
-        """Raise :class:`CsvImportError` if the spec is inconsistent (before reading a file)."""
-        where = f"CsvSpec {self.name or '(custom)'}"
-        if self.angle_unit not in ("rad", "deg"):
-            raise CsvImportError(f"{where}: angle_unit {self.angle_unit!r}; expected 'rad' or 'deg'")
-        if self.angle_sign not in (1, -1, 1.0, -1.0):
-            raise CsvImportError(f"{where}: angle_sign {self.angle_sign!r}; expected +1 or -1")
-        if self.time_unit not in ("s", "ms", "us", "sample"):
-            raise CsvImportError(f"{where}: time_unit {self.time_unit!r}; expected s, ms, us or sample")
-        needs_rate = self.time_col is None or self.time_unit == "sample"
-        if needs_rate and not (self.rate_hz and self.rate_hz > 0 and math.isfinite(self.rate_hz)):
-            raise CsvImportError(f"{where}: rate_hz = {self.rate_hz!r}; a positive sample rate [Hz] is "
-                                 "needed when there is no time column or the time column is a sample index")
-        if self.input_kind not in ("duty", "percent", "pwm", "voltage"):
-            raise CsvImportError(f"{where}: input_kind {self.input_kind!r}; "
-                                 "expected duty, percent, pwm or voltage")
-        if self.input_col is None and self.input_constant is None:
-            raise CsvImportError(f"{where}: no input column and no input_constant; "
-                                 "the duty cycle is required")
-        if self.input_kind == "pwm" and not self.pwm_full_scale > 0:
-            raise CsvImportError(f"{where}: pwm_full_scale {self.pwm_full_scale!r} must be > 0")
-        if self.input_kind == "voltage" and not (self.supply_voltage and self.supply_voltage > 0):
-            raise CsvImportError(f"{where}: input_kind 'voltage' needs supply_voltage > 0 [V], "
-                                 f"got {self.supply_voltage!r}")
-        if self.voltage_law not in ("linear", "rms"):
-            raise CsvImportError(f"{where}: voltage_law {self.voltage_law!r}; expected 'linear' or 'rms'")
-        for ch in self.channels:
-            if ch not in MEASURED_CHANNELS or ch == "theta":
-                raise CsvImportError(f"{where}: extra channel {ch!r}; expected one of "
-                                     f"{[c for c in MEASURED_CHANNELS if c != 'theta']}")
-        if self.delimiter is not None and len(self.delimiter) != 1:
-            raise CsvImportError(f"{where}: delimiter {self.delimiter!r} must be one character")
-        if self.decimal not in (None, ".", ","):
-            raise CsvImportError(f"{where}: decimal {self.decimal!r}; expected '.' or ','")
-        if self.decimal == "," and self.delimiter == ",":
-            raise CsvImportError(f"{where}: decimal comma needs a separator other than ','")
-
-
-# --------------------------------------------------------------------------------------------
-# Presets for the real recordings in shared/data/real (see its README.md, sections 4-7)
-# --------------------------------------------------------------------------------------------
-
-
-def load_presets() -> dict[str, CsvSpec]:
-    """The shipped presets: one YAML file per preset in ``aeropend_ident/io/presets/``.
-
-    Each file holds the :class:`CsvSpec` fields that differ from the defaults (``channels`` as
-    ``name: [column, scale]``); read with :mod:`importlib.resources`, so they ship as package data.
-
-    Returns
-    -------
-    dict of str -> CsvSpec
-        Preset name (the file's ``name``) -> spec, in file-name order.
-
-    Raises
-    ------
-    CsvImportError
-        A preset file that is not a mapping or whose ``name`` is not its file name.
-    """
-    folder = resources.files("aeropend_ident.io") / "presets"
-    presets: dict[str, CsvSpec] = {}
-    for entry in sorted(folder.iterdir(), key=lambda e: e.name):
-        if not entry.name.endswith(".yaml"):
-            continue
-        data = yaml.safe_load(entry.read_text(encoding="utf-8"))
-        if not isinstance(data, dict) or data.get("name") != entry.name[: -len(".yaml")]:
-            raise CsvImportError(f"preset file {entry.name}: expected a mapping whose name is the file name")
-        data["channels"] = {ch: (col, float(scale)) for ch, (col, scale) in data.get("channels", {}).items()}
-        presets[data["name"]] = CsvSpec(**data)
-    return presets
-
-
-#: The shipped presets (:func:`load_presets`), by name.
-PRESETS: dict[str, CsvSpec] = load_presets()
-
-
-def find_preset(path: str | Path) -> str | None:
-    """Name of the preset whose ``meta["files"]`` patterns match ``path``'s file name, if any."""
-    name = Path(path).name
-    if name.endswith(".gz"):
-        name = name[:-3]
-    for key, spec in PRESETS.items():
-        if any(fnmatch.fnmatch(name, pat) for pat in spec.meta.get("files", [])):
-            return key
-    return None
 
 
 # --------------------------------------------------------------------------------------------
@@ -535,12 +381,16 @@ def _load(path: Path, spec: CsvSpec, bad_rows: BadRows,
     tab = _tabulate(path, text, spec)
     roles: list[tuple[str, Column | None, bool]] = [
         ("time", spec.time_col, True), ("input", spec.input_col, True), ("theta", spec.angle_col, True),
-        *((ch, col, False) for ch, (col, _) in spec.channels.items()), ("run", run_col, True)]
+        ("reference", spec.reference_col, False),
+        *((ch, col, False) for ch, (col, _) in spec.channels.items()),
+        *((f"extra:{ch}", col, False) for ch, (col, _, _) in spec.extra_channels.items()),
+        ("run", run_col, True)]
     cols: dict[str, tuple[int, str]] = {}
     used: list[tuple[int, str, bool]] = []
     for role, col, required in roles:
         if col is not None:
-            cols[role] = _resolve(tab, col, {"theta": "angle", "run": "run label"}.get(role, role))
+            shown = {"theta": "angle", "run": "run label"}.get(role, role.replace("extra:", "extra channel "))
+            cols[role] = _resolve(tab, col, shown)
             used.append((*cols[role], required))
     tab, report = _check_rows(tab, used, bad_rows)
     if len(tab.rows) < 2:
@@ -565,7 +415,8 @@ def import_csv(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows = "error
     path : str or Path
         ``.csv`` or ``.csv.gz`` file.
     spec : CsvSpec or str
-        Column mapping and units, or the name of a preset in :data:`PRESETS`.
+        Column mapping and units, the name of a preset in :data:`PRESETS`, or the path of a
+        preset file (``.yaml``, docs/csv_import.md).
     bad_rows : {"error", "drop"}
         ``"drop"``: leave bad rows out (and a last row without line break, and the unreadable
         end of a cut ``.gz``), count them in ``meta["dropped_rows"]`` and warn
@@ -575,34 +426,33 @@ def import_csv(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows = "error
     -------
     Recording
         ``t`` [s] re-based to 0 (``meta["t0_in_file_s"]`` keeps the file's first time),
-        ``duty`` in [0, 1] (clipped values counted in ``meta["duty_clipped"]``),
-        ``channels["theta"]`` [rad] plus the spec's extra channels (all-NaN ones dropped),
-        ``meta`` with the spec, file hash, separator, sampling statistics (``dt_median_s``,
-        ``max_gap_s``, ``n_gaps``, ...) and the preset's provenance/licence notes.
+        ``duty`` in [0, 1] by the spec's input map (``meta["input_map"]``; clipped values
+        counted in ``meta["duty_clipped"]``), ``channels["theta"]`` [rad] plus the spec's
+        contract channels, ``extra`` the reference ``theta_ref`` and the extra channels with
+        their units (all-NaN ones dropped), ``meta`` with the spec, file hash, separator,
+        sampling statistics (``dt_median_s``, ``max_gap_s``, ``n_gaps``, ...), the preset's
+        provenance/licence notes and, for a constant input, ``meta["constant_input"]``.
+
+    Warns
+    -----
+    ConstantInputWarning
+        No actuator column: the duty is taken as constant (a free decay or a step from rest).
 
     Raises
     ------
     CsvImportError
-        Unknown preset, inconsistent spec, unreadable, empty or cut (gzip) file, missing column,
-        a bad row (named by ``FILE:LINE``), fewer than 2 rows, or time that does not increase.
+        Unknown preset or invalid preset file, inconsistent spec, unreadable, empty or cut (gzip)
+        file, missing column, a bad row (named by ``FILE:LINE``), fewer than 2 rows, time that
+        does not increase, or a constant input that cannot explain the log
+        (:func:`~aeropend_ident.io.csvspec.constant_input.check_constant_input`).
     """
     return _import(path, spec, bad_rows)[0]
 
 
-def _import(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows,
-            run_col: Column | None = None) -> tuple[Recording, _Table, dict[str, tuple[int, str]]]:
-    """:func:`import_csv`, also returning the checked table and its used columns."""
-    if isinstance(spec, str):
-        if spec not in PRESETS:
-            raise CsvImportError(f"unknown preset {spec!r}; available: {sorted(PRESETS)}")
-        spec = PRESETS[spec]
-    spec.check()
-    path = Path(path)
-    tab, cols, report, raw = _load(path, spec, bad_rows, run_col)
+def _time(path: Path, spec: CsvSpec, tab: _Table, cols: dict[str, tuple[int, str]],
+          columns: dict[str, str]) -> tuple[np.ndarray, float]:
+    """Sample times [s] from 0 and the file's first time [s]; time must increase strictly."""
     n = len(tab.rows)
-    columns: dict[str, str] = {}
-
-    # time
     if spec.time_col is None:
         t = np.arange(n) / float(spec.rate_hz)  # type: ignore[arg-type]
     else:
@@ -619,9 +469,14 @@ def _import(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows,
                 f"(line {tab.line_no[k - 1]}); "
                 f"time must increase strictly ({bad.size} such row(s))")
     t0 = float(t[0])
-    t = t - t0
+    return t - t0, t0
 
-    # input -> duty
+
+def _duty(path: Path, spec: CsvSpec, tab: _Table, cols: dict[str, tuple[int, str]],
+          columns: dict[str, str]) -> tuple[np.ndarray, int, int]:
+    """Duty cycle by the spec's input map (clipped values counted and warned), quantised if asked."""
+    imap = spec.input_map()
+    n = len(tab.rows)
     if spec.input_col is None:
         u = np.full(n, float(spec.input_constant))  # type: ignore[arg-type]
         columns["input"] = f"constant {spec.input_constant:g} ({spec.input_kind})"
@@ -629,51 +484,115 @@ def _import(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows,
         idx, label = cols["input"]
         columns["input"] = label
         u = _column(tab, idx, label, allow_nan=False)
-    if spec.input_kind == "duty":
-        ratio = u.copy()
-    elif spec.input_kind == "percent":
-        ratio = u / 100.0
-    elif spec.input_kind == "pwm":
-        ratio = u / float(spec.pwm_full_scale)
-    else:
-        ratio = u / float(spec.supply_voltage)  # type: ignore[arg-type]
-    below, above = int((ratio < 0).sum()), int((ratio > 1).sum())
+    duty, below, above = imap.duty(u)
     if below or above:
-        warnings.warn(f"{path}: {below + above} actuator value(s) outside the [0, 1] duty range clipped "
-                      f"({below} below 0, {above} above full scale)", stacklevel=3)
-    duty = np.clip(ratio, 0.0, 1.0)
-    if spec.input_kind == "voltage" and spec.voltage_law == "rms":
-        duty = duty**2
+        unit = "" if imap.kind.unit == "1" else f" {imap.kind.unit}"
+        lo, hi = imap.offset, imap.offset + imap.span
+        warnings.warn(f"{path}: {below + above} actuator value(s) outside the input range "
+                      f"{lo:g}-{hi:g}{unit} clipped ({below} below {lo:g}{unit}: duty 0, {above} above full "
+                      f"scale {hi:g}{unit}: duty 1)", stacklevel=4)
     if spec.quantize_counts:
         q = int(spec.quantize_counts)
         duty = np.floor(duty * q + 1e-9) / q
+    return duty, below, above
 
-    # angle and extra channels
+
+def _angles(spec: CsvSpec, tab: _Table, cols: dict[str, tuple[int, str]], columns: dict[str, str]
+            ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, str]]:
+    """θ and the contract channels; the extra channels (reference in θ's frame) and their units."""
+    factor = math.pi / 180.0 if spec.angle_unit == "deg" else 1.0
+
+    def angle(raw: np.ndarray) -> np.ndarray:
+        return spec.angle_sign * (raw - spec.angle_zero) * factor
+
     idx, label = cols["theta"]
     columns["theta"] = label
-    ang = _column(tab, idx, label, allow_nan=False)
-    factor = math.pi / 180.0 if spec.angle_unit == "deg" else 1.0
-    theta = spec.angle_sign * (ang - spec.angle_zero) * factor
-    channels: dict[str, np.ndarray] = {"theta": theta}
+    channels: dict[str, np.ndarray] = {"theta": angle(_column(tab, idx, label, allow_nan=False))}
     for ch, (_, scale) in spec.channels.items():
         idx, label = cols[ch]
         columns[ch] = label
         y = _column(tab, idx, label, allow_nan=True) * float(scale)
         if np.isfinite(y).any():
             channels[ch] = y
+    extra: dict[str, np.ndarray] = {}
+    units: dict[str, str] = {}
+    if spec.reference_col is not None:
+        idx, label = cols["reference"]
+        columns[REFERENCE_CHANNEL] = label
+        extra[REFERENCE_CHANNEL] = angle(_column(tab, idx, label, allow_nan=True))
+    for ch, (_, scale, unit) in spec.extra_channels.items():
+        idx, label = cols[f"extra:{ch}"]
+        columns[ch] = label
+        extra[ch] = _column(tab, idx, label, allow_nan=True) * float(scale)
+        units[ch] = unit
+    extra = {k: v for k, v in extra.items() if np.isfinite(v).any()}
+    return channels, extra, {k: u for k, u in units.items() if k in extra}
 
+
+def _constant_input(path: Path, spec: CsvSpec, t: np.ndarray, theta: np.ndarray, duty: float,
+                    reference: str | None) -> dict[str, Any]:
+    """Refuse a constant input that cannot explain θ (a driven log); warn that the run is taken as one.
+
+    Returns what goes into ``meta["constant_input"]``.
+
+    Raises
+    ------
+    CsvImportError
+        θ does what no constant input allows (:func:`check_constant_input`); the message states the
+        physics, that a reference is not an input, and what the lab can do.
+    """
+    check = check_constant_input(t, theta)
+    kind = spec.input_map().kind
+    unit = "" if kind.unit == "1" else f" {kind.unit}"
+    given = f"input_constant = {spec.input_constant:g}{unit} ({kind.name}): duty {duty:.4g}"
+    if check.driven:
+        ref = (f" The reference column '{reference}' is not an input: it is the angle the controller was "
+               "asked to reach, not the command it applied, and it is stored as the channel theta_ref."
+               if reference else "")
+        raise CsvImportError(
+            f"{path}: a constant input ({given}) cannot explain this log: {check.reason}.{ref} Log the "
+            "actuator command (duty, PWM, pulse width, voltage) and import it with --input-col and "
+            "--input-kind; give --input-constant only for a run whose input really was constant (a free "
+            "decay, a step from rest at t = 0)")
+    what = (f"θ moves by up to {np.max(np.abs(theta - theta[0])):.3g} rad, which a constant input explains "
+            "only as a free decay or a step from rest at t = 0 (it never rests and then moves again, and "
+            "its swing about the final angle never grows)" if check.moves else
+            f"θ stays within {check.margin:.3g} rad of where it starts: nothing excites it")
+    warnings.warn(f"{path}: no actuator column: the duty cycle is taken as constant over the whole log "
+                  f"({given}); {what}; if the actuator changed during the log, log its command",
+                  ConstantInputWarning, stacklevel=4)
+    return {"moves": check.moves, "margin_rad": check.margin, "excess": check.excess,
+            "theta_final_rad": check.theta_final}
+
+
+def _import(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows,
+            run_col: Column | None = None) -> tuple[Recording, _Table, dict[str, tuple[int, str]]]:
+    """:func:`import_csv`, also returning the checked table and its used columns."""
+    if isinstance(spec, str):
+        spec = resolve_preset(spec)
+    spec.check()
+    path = Path(path)
+    tab, cols, report, raw = _load(path, spec, bad_rows, run_col)
+    columns: dict[str, str] = {}
+    t, t0 = _time(path, spec, tab, cols, columns)
+    duty, below, above = _duty(path, spec, tab, cols, columns)
+    channels, extra, units = _angles(spec, tab, cols, columns)
+    if spec.input_col is None:
+        report["constant_input"] = _constant_input(path, spec, t, channels["theta"], float(duty[0]),
+                                                   columns.get(REFERENCE_CHANNEL))
     meta: dict[str, Any] = dict(spec.meta)
     meta.update(_time_stats(t))
     meta.update({
         "csv_file": str(path),
         "csv_sha256": hashlib.sha256(raw).hexdigest(),
         "preset": spec.name or None,
-        "spec": {k: v for k, v in asdict(spec).items() if k != "meta"},
+        "spec": spec_summary(spec),
+        "input_map": spec.input_map().describe(),
         "columns": columns,
         "delimiter": tab.delimiter,
         "decimal": tab.decimal,
         "header": tab.header,
-        "rows": n,
+        "rows": len(tab.rows),
         "comment_lines": tab.comment_lines,
         "blank_lines": tab.blank_lines,
         "t0_in_file_s": t0,
@@ -682,9 +601,11 @@ def _import(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows,
         **report,
     })
     try:
-        return Recording(t=t, duty=duty, channels=channels, source=str(path), meta=meta), tab, cols
+        rec = Recording(t=t, duty=duty, channels=channels, source=str(path), meta=meta, extra=extra,
+                        extra_units=units)
     except RecordingError as exc:  # pragma: no cover - checked above
         raise CsvImportError(f"{path}: {exc}") from exc
+    return rec, tab, cols
 
 
 def import_csv_runs(
@@ -755,6 +676,8 @@ def summary(rec: Recording) -> str:
     elif "uniform" in m:
         parts.append("uniform sampling" if m["uniform"] else f"jitter std {m['jitter_std_s'] * 1e3:.3f} ms")
     parts.append(f"duty {rec.duty.min():.4f}..{rec.duty.max():.4f}")
+    if m.get("input_map") and not m["input_map"].endswith("(duty)"):
+        parts.append(f"input {m['input_map']}")
     clipped = m.get("duty_clipped", {})
     if clipped and (clipped.get("below_0") or clipped.get("above_1")):
         parts.append(f"{clipped['below_0'] + clipped['above_1']} duty value(s) clipped")
@@ -763,6 +686,8 @@ def summary(rec: Recording) -> str:
     parts.append(f"theta {th.min():.4f}..{th.max():.4f} rad "
                  f"({math.degrees(th.min()):.2f}..{math.degrees(th.max()):.2f} deg)")
     parts.append(f"channels {sorted(rec.channels)}")
+    if rec.extra:
+        parts.append("extra channels " + ", ".join(f"{k} [{rec.extra_units[k]}]" for k in rec.extra))
     if m.get("licence"):
         parts.append(f"licence: {m['licence']}")
     return "; ".join(parts) + "."

@@ -4,11 +4,14 @@ Every recording argument of ``compare``, ``gap``, ``baseline`` and ``identify`` 
 
 * a rosbag2 directory, ``.mcap`` or ``.db3`` file (read with :func:`aeropend_ident.io.bags.read_bag`);
 * a CSV log (``.csv``, ``.csv.gz``, ``.txt``) read with :func:`aeropend_ident.io.csv_import.import_csv`
-  and a preset: ``FILE.csv:PRESET`` names the preset of this file (e.g.
-  ``Identification_Data2.csv:aeroshield_ident2``), ``FILE.csv`` alone uses the tool's
-  ``--preset`` or, without one (or with ``auto``), the preset whose file patterns match the name.
+  and a preset: ``FILE.csv:PRESET`` names the preset of this file, a shipped preset's name (e.g.
+  ``Identification_Data2.csv:aeroshield_ident2``) or a lab's preset file (``log.csv:my_rig.yaml``,
+  docs/csv_import.md); ``FILE.csv`` alone uses the tool's ``--preset`` (a name or a file) or,
+  without one (or with ``auto``), the shipped preset whose file patterns match the name.
 
-So recordings of different formats can be mixed in one call. :func:`load_and_split` reads the
+So recordings of different formats can be mixed in one call. Channels a tool does not use (the
+extra channels: a second axis, a closed loop's reference, ...) are kept in the recording and
+ignored; :func:`ignored_channels` says which, for the tools' summaries. :func:`load_and_split` reads the
 ``gap`` tool's recordings and makes its held-out design (:mod:`aeropend_ident.io.split`);
 :func:`uniform_grid` / :func:`uniform_recording` put a recording on a uniform time grid.
 """
@@ -23,6 +26,7 @@ import numpy as np
 
 from aeropend_ident.errors import GapCliError, RecordingInputError
 from aeropend_ident.io.split import interleaved_blocks, time_ordered
+from aeropend_sim.contract import REFERENCE_CHANNEL
 from aeropend_sim.recording import Recording
 
 #: File suffixes read as CSV logs.
@@ -40,18 +44,19 @@ def split_preset(arg: str | Path) -> tuple[Path, str | None]:
     Raises
     ------
     RecordingInputError
-        If the suffix after ``:`` is not a known preset (nor ``auto``).
+        If the suffix after ``:`` is not a known preset, a preset file (``.yaml`` / ``.yml``) nor
+        ``auto``.
     """
-    from aeropend_ident.io.csv_import import PRESETS
+    from aeropend_ident.io.csvspec.spec import PRESETS, is_preset_file
 
     text = str(arg)
     if Path(text).exists() or ":" not in text:
         return Path(text), None
     head, _, preset = text.rpartition(":")
-    if preset != AUTO and preset not in PRESETS:
+    if preset != AUTO and preset not in PRESETS and not is_preset_file(preset):
         raise RecordingInputError(
             f"{text}: unknown preset {preset!r} after ':'; expected FILE:PRESET with a preset of "
-            f"{sorted(PRESETS)} or 'auto'"
+            f"{sorted(PRESETS)}, a preset file (my_rig.yaml) or 'auto'"
         )
     return Path(head), preset
 
@@ -64,7 +69,8 @@ def load_recording(arg: str | Path, preset: str | None = None, namespace: str = 
     arg : str or Path
         ``PATH`` or ``PATH:PRESET``.
     preset : str, optional
-        The tool's default preset for CSV logs without their own (``auto`` or None: by file name).
+        The tool's default preset for CSV logs without their own: a shipped preset's name, a
+        preset file (``.yaml``), or ``auto`` / None (by file name).
     namespace : str
         Topic namespace of a bag (default: auto-detected by the reader).
 
@@ -94,7 +100,8 @@ def load_recording(arg: str | Path, preset: str | None = None, namespace: str = 
     if path.suffix.lower() not in CSV_SUFFIXES:
         raise RecordingInputError(f"input {path}: unknown kind (suffix {path.suffix!r}); expected a bag "
                                   "directory, .mcap, .db3, .csv, .csv.gz or .txt")
-    from aeropend_ident.io.csv_import import PRESETS, find_preset, import_csv
+    from aeropend_ident.io.csv_import import import_csv
+    from aeropend_ident.io.csvspec.spec import PRESETS, find_preset, is_preset_file
 
     name = own if own is not None else preset
     if name is None or name == AUTO:
@@ -102,15 +109,46 @@ def load_recording(arg: str | Path, preset: str | None = None, namespace: str = 
         if name is None:
             raise RecordingInputError(
                 f"{path.name}: no preset matches this file name; write {path.name}:PRESET or pass "
-                f"--preset (one of {sorted(PRESETS)})"
+                f"--preset (one of {sorted(PRESETS)}, or a preset file my_rig.yaml)"
             )
-    if name not in PRESETS:
-        raise RecordingInputError(f"unknown preset {name!r}; expected one of {sorted(PRESETS)}")
+    if name not in PRESETS and not is_preset_file(name):
+        raise RecordingInputError(f"unknown preset {name!r}; expected one of {sorted(PRESETS)} or a preset "
+                                  "file (my_rig.yaml)")
     return import_csv(path, name)
 
 
+def ignored_channels(recs: Sequence[Recording], used: str = "") -> str:
+    """The line a tool's summary prints for the channels it does not use, "" when there are none.
+
+    Parameters
+    ----------
+    recs : sequence of Recording
+        The recordings the tool read.
+    used : str
+        What the tool uses, for the text (e.g. "θ and the duty cycle").
+
+    Returns
+    -------
+    str
+        E.g. ``ignored channels (not used by this tool): phi [rad], theta_ref [rad] (in
+        closedloop_IMC_reference_steps.csv)``.
+    """
+    seen: dict[str, str] = {}
+    where: list[str] = []
+    for r in recs:
+        if r.extra:
+            seen.update({k: r.extra_units.get(k, "") for k in r.extra})
+            where.append(Path(str(r.meta.get("csv_file") or r.meta.get("bag") or r.source)).name)
+    if not seen:
+        return ""
+    names = ", ".join(f"{k} [{u}]" for k, u in sorted(seen.items()))
+    uses = f"; it uses {used}" if used else ""
+    return f"ignored channels (not used by this tool{uses}): {names} (in {', '.join(dict.fromkeys(where))})"
+
+
 def uniform_recording(rec: Recording) -> Recording:
-    """The recording on a uniform grid (θ, channels linear, duty zero-order hold) if it is not already.
+    """The recording on a uniform grid (θ, channels linear, duty and reference zero-order hold) if it is not
+    already (extra channels kept).
 
     What the replaying tools (``gap``, ``compare``) need: θ and the duty cycle, finite values, time
     stamps in order. The grid period is the median interval; a recording already on that grid
@@ -146,9 +184,12 @@ def uniform_recording(rec: Recording) -> Recording:
         return rec
     tu, idx = grid
     ch = {k: np.interp(tu, t, v) for k, v in rec.channels.items()}
+    # a set point (the reference) holds between samples like the duty; measured channels are interpolated
+    extra = {k: v[idx] if k == REFERENCE_CHANNEL else np.interp(tu, t, v) for k, v in rec.extra.items()}
     meta = {**rec.meta, "resampled_to_uniform_dt_s": dt}
     return Recording(
-        t=tu, duty=rec.duty[idx], channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta
+        t=tu, duty=rec.duty[idx], channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta,
+        extra=extra, extra_units=dict(rec.extra_units),
     )
 
 

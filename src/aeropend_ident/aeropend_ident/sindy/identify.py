@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.io.recording_input import load_recording
+from aeropend_ident.io.recording_input import ignored_channels, load_recording
 from aeropend_ident.sindy.core import (
     WEAK_IV,
     regression_problem,
@@ -570,6 +570,7 @@ def identify(
                                model.derived_parameters(gear, l_j).items()},
         "test_mse": test_mse, "heldout": scores, "free_run_nrmse": scores[0]["free_run_nrmse_std"],
         **extra, "files": files, "not_computed": not_computed,
+        "ignored_channels": ignored_channels(recs, "θ, the duty cycle and the contract channels"),
         "wall_time_s": round(time.perf_counter() - t0, 3),
     }
     if "thrust_map" in extra:
