@@ -112,9 +112,10 @@ CROSS_PACKAGE_TESTS = {"test_workspace.py", "test_layout.py", "test_launch_files
                        "test_namespaces_ros.py", "test_params_files_ros.py",
                        "test_firmware_build.py", "test_firmware_codec.py", "test_firmware_simavr.py",
                        "test_firmware_simavr_io.py", "test_firmware_simavr_registers.py",
-                       # every package's console scripts and result folders, the results docs
+                       # every package's console scripts and result folders, the results docs,
+                       # the README and the docs' links
                        "test_cli_help.py", "test_output_folder.py", "test_output_folder_ros.py",
-                       "test_results_docs.py"}
+                       "test_results_docs.py", "test_readme.py"}
 
 
 def _package_test_globs(pkg: str) -> list[str]:
