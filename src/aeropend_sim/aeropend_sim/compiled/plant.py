@@ -9,8 +9,9 @@ trusts them.
 
 **Sub-steps.** Each sample period is integrated with K classical RK4 sub-steps (K + 1 with a
 fractional input delay, split where the delayed command switches). K is at least
-:data:`SUBSTEPS` (θ within 1e-6 rad of LSODA over 60 s of the thesis rig with every effect on,
-docs/model.md) and large enough that every sub-step keeps |h·λ| ≤ :data:`STEP_BOUND` for the
+:data:`SUBSTEPS` and makes the sub-steps no longer than :data:`MAX_SUBSTEP` (the study's 6 per
+2.048 ms: θ within 1e-6 rad of LSODA over 60 s of the thesis rig with every effect on,
+docs/model.md), and large enough that every sub-step keeps |h·λ| ≤ :data:`STEP_BOUND` for the
 eigenvalues λ of the plant's Jacobian at a few representative states (rest, the equilibria at
 0.25, 0.75 and 1.25 rad, a state in end-stop contact): a stiff rig (a small L_a/R_a, a steep
 friction regularisation) gets more sub-steps instead of an unstable replay. The plan is computed
@@ -34,8 +35,12 @@ from aeropend_sim.components.base import Effect
 from aeropend_sim.model import THETA, THETA_DOT, ModelError, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 
-#: Fewest RK4 sub-steps per sample (issue 37 study: K = 6 keeps θ within 1e-6 rad of LSODA).
+#: Fewest RK4 sub-steps per sample (issue 37 study: K = 6 at the thesis rig's 2.048 ms keeps θ
+#: within 1e-6 rad of LSODA).
 SUBSTEPS = 6
+#: Longest sub-step [s]: the one the study validated (2.048 ms / 6), so a rig sampled more slowly
+#: gets more sub-steps per sample (100 Hz: 30), not longer ones.
+MAX_SUBSTEP = 2.048e-3 / SUBSTEPS
 #: Largest |h·λ| of a sub-step (RK4 is stable to 2.78 on the negative real axis; 0.5 keeps the
 #: fast modes themselves accurate to 4e-4 per sub-step).
 STEP_BOUND = 0.5
@@ -94,8 +99,9 @@ class CompiledPlant:
     rig : Rig
     dt : float, optional
         Sample period [s] (default ``rig.sample_period``).
-    substeps : int
-        Fewest RK4 sub-steps per sample (:data:`SUBSTEPS`).
+    substeps : int, optional
+        Fewest RK4 sub-steps per sample (default: :data:`SUBSTEPS`, or more to keep sub-steps
+        within :data:`MAX_SUBSTEP`); the stiffness bound may add more (module doc).
     model : PlantModel, optional
         The rig's model, if the caller has built it already.
 
@@ -113,12 +119,14 @@ class CompiledPlant:
         Channel names :meth:`outputs` gives for this family.
     """
 
-    def __init__(self, rig: Rig, dt: float | None = None, substeps: int = SUBSTEPS,
+    def __init__(self, rig: Rig, dt: float | None = None, substeps: int | None = None,
                  model: PlantModel | None = None) -> None:
         self.rig = rig
         self.dt = float(rig.sample_period if dt is None else dt)
         if not (self.dt > 0.0 and math.isfinite(self.dt)):
             raise ValueError(f"sample period dt = {self.dt!r} must be a finite number > 0")
+        if substeps is None:
+            substeps = min(max(SUBSTEPS, math.ceil(self.dt / MAX_SUBSTEP - 1e-9)), MAX_SUBSTEPS)
         if not (isinstance(substeps, int | np.integer) and 1 <= substeps <= MAX_SUBSTEPS):
             raise ValueError(f"substeps = {substeps!r}: expected an integer in [1, {MAX_SUBSTEPS}]")
         self.model = PlantModel(rig) if model is None else model
@@ -190,7 +198,7 @@ class CompiledPlant:
                 raise RigFileError(f"{key}: the {owner.name} effect is off in rig {self.rig.name!r}; "
                                    "switch it on (Rig.with_effects) to vary its parameters")
             params.append(registry.param(key))
-        touched = {owners[k] for k in keys}
+        touched = list({owners[k].name: owners[k] for k in keys}.values())  # parts, once each
         conditional = tuple(e for e in touched if isinstance(e, Effect) and e.active_when is not None)
         checked = tuple(p for p in touched if p.check is not None)
         m = _Map(keys, np.array([self.layout.index(k) for k in keys], dtype=int), tuple(params),
