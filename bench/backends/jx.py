@@ -13,8 +13,9 @@ import jax
 jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
-from backends import components as comp  # noqa: E402
 from jax import lax  # noqa: E402
+
+from backends import components as comp  # noqa: E402
 
 
 def make_replay(built: comp.Built, k: int, frac: float, dt: float):
