@@ -25,35 +25,28 @@ from aeropend_sim.compiled.source import family_module, module_source, switched_
 from aeropend_sim.components import registry
 from aeropend_sim.components.thrust.propeller import thrust
 from aeropend_sim.components.xp import MATH, OPERATIONS
-from aeropend_sim.excitation import aprbs, lhs_steps
+from aeropend_sim.excitation import aprbs
 from aeropend_sim.model import I_A, TAU_F, PlantModel
 from aeropend_sim.params import Rig, RigFileError, load_rig
 from aeropend_sim.simulate import PlantStepper, SimulationError, simulate, simulate_batch
 
-ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from backends import study
 
 
 def all_effects(contact: bool = False) -> Rig:
-    """The thesis rig with every dynamic effect on (issue 37's bar; the values of the study,
-    docs/findings/simulator_backends.md): dead zone 3 %, lag 10 ms, input delay 5 ms (2.44
-    samples), rotor brush friction, rod Coulomb + Stribeck friction at v_ε = 0.01 rad/s, thrust
-    exponent 1.9, end stops at ±π/2 (``contact``: the upper one at 0.65 rad, touched 10-30 % of the
-    time by the step and APRBS inputs)."""
-    rig = load_rig("thesis_rig").with_effects(
-        dead_zone=True, coulomb_friction=True, thrust_exponent=True, actuator_lag=True, input_delay=True,
-        end_stops=True)
-    rig = rig.with_params("actuator", dead_zone=0.03, lag_time_constant=0.01, input_delay=0.005)
-    rig = rig.with_params("motor", T_c=2e-5).with_params("thrust", exponent=1.9)
-    rig = rig.with_params("pendulum", coulomb_over_J=0.3, stribeck_over_J=0.2, stribeck_velocity=0.1)
-    return rig.with_params("pendulum", theta_max=0.65) if contact else rig
+    """The thesis rig with every dynamic effect on: the issue-37 study's rig
+    (``bench/backends/study.py``, docs/findings/simulator_backends.md); ``contact`` moves the upper
+    stop to 0.65 rad, touched 10-30 % of the time by the step and APRBS inputs."""
+    return study.all_effects_rig(contact=contact)
 
 
 def inputs(dt: float) -> dict[str, np.ndarray]:
-    """60 s of Latin-hypercube steps and of APRBS, 10 s of a duty changing every sample."""
-    return {"step": np.resize(lhs_steps(20, tau_min=0.3, tau_max=1.0, hold_min=0.5, hold_max=3.0, dt=dt).duty,
-                              round(60.0 / dt)),
-            "aprbs": aprbs(60.0, lo=0.3, hi=1.0, min_hold=0.05, max_hold=0.5, seed=2, dt=dt).duty,
-            "per_sample": np.random.default_rng(3).uniform(0.3, 1.0, round(10.0 / dt))}
+    """The study's 60 s of Latin-hypercube steps and of APRBS, and 10 s of its duty that changes
+    every sample (LSODA needs 5 s for 60 s of that)."""
+    out = study.inputs(dt)
+    out["per_sample"] = out["per_sample"][: round(10.0 / dt)]
+    return out
 
 
 @pytest.mark.parametrize("contact", [False, True], ids=["all_effects", "end_stop_contact"])
