@@ -12,6 +12,7 @@ import math
 import os
 import subprocess
 import sys
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -94,6 +95,20 @@ def test_batch_rows_equal_single_replays_bit_for_bit():
         for ch in single.true:
             assert np.array_equal(batch[ch][b], single.true[ch]), (b, ch)
         assert np.array_equal(batch["tau_f"][b][1:], single.x[1:, TAU_F]) or b == 1  # b = 1: no lag
+
+
+def test_batches_from_two_threads_at_once_equal_sequential_ones():
+    """Callers' threads (a threaded scheduler) may run batches at once; each batch also shares its
+    rows out to threads of its own (the kernel releases the GIL)."""
+    rig = all_effects()
+    duty = aprbs(1.0, lo=0.3, hi=1.0, min_hold=0.05, max_hold=0.3, seed=5, dt=rig.sample_period).duty
+    plant = CompiledPlant(rig)
+    p = plant.vectors(("pendulum.c_over_J",), np.linspace(1.5, 3.0, 8)[:, None])
+    alone = simulate_batch(plant, duty, p, threads=1)["theta"]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        jobs = [pool.submit(simulate_batch, plant, duty, p, threads=3) for _ in range(4)]
+        results = [j.result()["theta"] for j in jobs]
+    assert all(np.array_equal(r, alone) for r in results)
 
 
 def test_vectors_follow_the_rig_and_refuse_bad_values():

@@ -308,7 +308,7 @@ def simulate_batch(
     channels: Sequence[str] = ("theta",),
     threads: int | None = None,
 ) -> dict[str, np.ndarray]:
-    """Replay one duty-cycle sequence with many parameter sets (compiled backend, in parallel).
+    """Replay one duty-cycle sequence with many parameter sets (compiled backend, in threads).
 
     Row b of every result equals ``simulate(rig with the values of set b, duty, x0[b], ...,
     backend="compiled").true[channel]`` bit for bit. Measurement noise and quantisation are not
@@ -336,7 +336,7 @@ def simulate_batch(
         ``thrust``, the drive quantity (``v_a``; ``omega_sp`` on an ESC) and ``i_a`` (families with
         an armature).
     threads : int, optional
-        Threads of the parallel loop over the sets (default: numba's, the number of cores).
+        Threads the sets are shared out to (default: one per available core).
 
     Returns
     -------

@@ -25,7 +25,7 @@ rest, so RK4 keeps its order through contacts.
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 # ---- generated modules include the text below this line ----
 
@@ -143,7 +143,7 @@ def _advance(x0, x1, x2, x3, x4, ua, ub, p, n_a, h_a, n_b, h_b):
     return (x0, x1, x2, x3, x4)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def step(x, ua, ub, p, n_a, h_a, n_b, h_b):
     """One sample from state ``x`` (5,): ``n_a`` sub-steps of ``h_a`` [s] with the command ``ua``
     the actuator still sees, then ``n_b`` of ``h_b`` with ``ub``. Returns the next state (5,)."""
@@ -154,7 +154,7 @@ def step(x, ua, ub, p, n_a, h_a, n_b, h_b):
     return out
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def replay(x0, duty, tau_before, whole, n_a, h_a, n_b, h_b, p, states, u_at):
     """Replay ``duty`` (N,) from ``x0`` (5,) with parameter vector ``p``.
 
@@ -182,7 +182,7 @@ def replay(x0, duty, tau_before, whole, n_a, h_a, n_b, h_b, p, states, u_at):
     return -1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def outputs(states, u_at, p, codes, out):
     """Fill ``out`` (C, N) with the channels ``codes`` (C,) of a replay (see the CODE_* constants)."""
     derived = False
@@ -197,22 +197,23 @@ def outputs(states, u_at, p, codes, out):
             out[k, j] = states[j, c] if c < 5 else sig[c - 4]
 
 
-@njit(cache=True, parallel=True, error_model="numpy")
-def replay_batch(x0, duty, tau_before, whole, n_a, h_a, n_b, h_b, p, codes, out, failed):
-    """:func:`replay` and :func:`outputs` for each row b of ``p`` (B, P) and ``x0`` (B, 5), with its
-    own sub-step plan (``whole``, ``n_a``, ``h_a``, ``n_b``, ``h_b``: (B,)), in parallel over the
-    rows; ``out`` (B, C, N), ``failed`` (B,) as :func:`replay` returns."""
+@njit(cache=True, nogil=True, error_model="numpy")
+def replay_batch(x0, duty, tau_before, whole, n_a, h_a, n_b, h_b, p, codes, out, failed, start, stop):
+    """:func:`replay` and :func:`outputs` for rows ``start`` to ``stop - 1`` of ``p`` (B, P) and
+    ``x0`` (B, 5), each with its own sub-step plan (``whole``, ``n_a``, ``h_a``, ``n_b``, ``h_b``:
+    (B,)); ``out`` (B, C, N), ``failed`` (B,) as :func:`replay` returns. Releases the GIL, so
+    threads can run disjoint row ranges at once (:meth:`CompiledPlant.replay_batch`)."""
     n = duty.size
-    for b in prange(p.shape[0]):
-        states = np.empty((n, 5))
-        u_at = np.empty(n)
+    states = np.empty((n, 5))
+    u_at = np.empty(n)
+    for b in range(start, stop):
         failed[b] = replay(x0[b], duty, tau_before, whole[b], n_a[b], h_a[b], n_b[b], h_b[b], p[b], states,
                            u_at)
         if failed[b] < 0:
             outputs(states, u_at, p[b], codes, out[b])
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def jacobians(x, u, p):
     """Central-difference Jacobians ∂rhs/∂x (B, R, 5, 5) at the states ``x`` (R, 5) and commands
     ``u`` (R,) for each parameter row of ``p`` (B, P) (step 1e-6·max(1, |x|))."""

@@ -20,12 +20,14 @@ for each parameter vector by the same code, so a batch row equals the single rep
 
 from __future__ import annotations
 
+import itertools
 import math
+import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
-import numba
 import numpy as np
 
 from aeropend_sim.compiled.source import Layout, family_module, layout
@@ -288,19 +290,31 @@ class CompiledPlant:
 
     def replay_batch(self, duty: np.ndarray, p: np.ndarray, x0: np.ndarray, tau_before: float,
                      names: Sequence[str], threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Channels (B, C, N) of one replay per row of ``p`` (B, P) from ``x0`` (B, 5), in parallel
-        over ``threads`` threads (default numba's), and the failure index per row (-1: none)."""
+        """Channels (B, C, N) of one replay per row of ``p`` (B, P) from ``x0`` (B, 5), and the
+        failure index per row (-1: none).
+
+        The rows are split into ``threads`` contiguous ranges (default: one per available core, at
+        most one per row), each replayed by the compiled loop in a thread of its own: the kernel
+        releases the GIL, so the ranges run at once. numba's ``parallel=True`` is not used: its
+        default threading layers abort on parallel calls from two Python threads (workqueue) or
+        hang a process forked after them (GNU OpenMP), and the fits run inside such pools.
+        """
         plan = self.plans(p)
+        codes = self.codes(names)
+        p = np.ascontiguousarray(p)
         out = np.empty((p.shape[0], len(names), duty.size))
         failed = np.empty(p.shape[0], dtype=np.int64)
-        previous = numba.get_num_threads()
-        if threads is not None:
-            numba.set_num_threads(int(threads))
-        try:
-            self.module.replay_batch(x0, duty, float(tau_before), plan.whole, plan.n_a, plan.h_a, plan.n_b,
-                                     plan.h_b, np.ascontiguousarray(p), self.codes(names), out, failed)
-        finally:
-            numba.set_num_threads(previous)
+        args = (x0, duty, float(tau_before), plan.whole, plan.n_a, plan.h_a, plan.n_b, plan.h_b, p, codes,
+                out, failed)
+        n = min(p.shape[0], int(threads) if threads is not None else len(os.sched_getaffinity(0)))
+        if n <= 1:
+            self.module.replay_batch(*args, 0, p.shape[0])
+            return out, failed
+        bounds = np.linspace(0, p.shape[0], n + 1).round().astype(int)
+        with ThreadPoolExecutor(max_workers=n, thread_name_prefix="aeropend-replay") as pool:
+            for job in [pool.submit(self.module.replay_batch, *args, int(a), int(b))
+                        for a, b in itertools.pairwise(bounds)]:
+                job.result()
         return out, failed
 
     def step(self, x: np.ndarray, u_old: float, u_new: float) -> np.ndarray:
