@@ -199,6 +199,9 @@ def test_stiff_rig_gets_more_substeps_and_divergence_is_reported(monkeypatch):
     monkeypatch.setattr(plant_mod, "MAX_SUBSTEPS", 6)
     with pytest.raises(SimulationError, match=r"diverged at sample \d+ \(t = .* s\): a state is not finite"):
         simulate(rig, duty)
+    stiff_row = {"motor.L_a": [2.2e-3, 1.08e-5]}  # set 0: the thesis rig's L_a, set 1: the stiff one
+    with pytest.raises(SimulationError, match=r"parameter set 1: the compiled replay diverged .* than 6 RK4"):
+        simulate_batch(load_rig("thesis_rig"), duty, stiff_row)
 
 
 def test_stepper_equals_simulate_bit_for_bit():

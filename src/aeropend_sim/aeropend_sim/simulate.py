@@ -10,11 +10,11 @@ Sampling semantics (the same for the simulated plant node and the hardware):
 Two backends integrate the same equations (the registry's term functions):
 
 * ``"compiled"`` (default): fixed-step classical RK4 compiled by numba
-  (:mod:`aeropend_sim.compiled`), at least 6 sub-steps per sample, the sample split where a
-  fractional input delay switches the command, end-stop contact onsets located inside the
-  sub-step. Its cost does not depend on how often the input changes (≥ 1000× real time on the
-  thesis rig with every effect on, for steps and per-sample inputs alike);
-  :func:`simulate_batch` replays one input with many parameter sets in parallel;
+  (:mod:`aeropend_sim.compiled`), sub-steps of at most 0.34 ms (at least 6 per sample), the
+  sample split where a fractional input delay switches the command, end-stop contact switches
+  located inside the sub-step. Its cost does not depend on how often the input changes (≥ 1000×
+  real time on the thesis rig with every effect on, for steps and per-sample inputs alike);
+  :func:`simulate_batch` replays one input with many parameter sets, shared out to threads;
 * ``"lsoda"``: SciPy's LSODA (``scipy.integrate.odeint``, rtol 1e-8) over each interval on which
   the delayed input is constant; the reference the compiled backend is tested against (agreement
   per effect set in docs/model.md, "Simulation backends").
@@ -247,10 +247,11 @@ def _true_channels(model: PlantModel) -> tuple[str, ...]:
     return (*names, "i_a", "v_a") if model.assembly.armature else names
 
 
-def _check_replay(plant: CompiledPlant, failed: int, row: str = "") -> None:
+def _check_replay(plant: CompiledPlant, failed: int, p: np.ndarray | None = None, row: str = "") -> None:
+    """Raise if a replay (of the rig, or of parameter vector ``p``) diverged at sample ``failed``."""
     if failed < 0:
         return
-    k = int(plant.plan.substeps.max())
+    k = int((plant.plan if p is None else plant.plans(p[None, :])).substeps[0])
     why = (f"the plant needs more than {MAX_SUBSTEPS} RK4 sub-steps per sample" if k >= MAX_SUBSTEPS else
            f"a parameter drives the plant unstable, or it is stiffer than {k} RK4 sub-steps per sample "
            f"resolve (try backend='lsoda')")
@@ -376,7 +377,7 @@ def simulate_batch(
     except ValueError as exc:  # an unknown channel
         raise SimulationError(str(exc)) from exc
     for b in np.flatnonzero(failed >= 0)[:1]:
-        _check_replay(plant, int(failed[b]), f"parameter set {b}: ")
+        _check_replay(plant, int(failed[b]), p[b], f"parameter set {b}: ")
     return {name: out[:, c, :] for c, name in enumerate(channels)}
 
 
