@@ -1,8 +1,10 @@
 """Benchmark: batch simulation speed as a multiple of real time (goal >= 200x).
 
-Runs :func:`aeropend_sim.simulate.simulate` on the thesis rig at 490 Hz for three excitation
-types (thesis Latin-hypercube steps, APRBS with 50 ms minimum hold, per-sample random input)
-and the per-sample :class:`PlantStepper`, and writes ``bench/results/sim.json``.
+Runs :func:`aeropend_sim.simulate.simulate` (its default backend, recorded in the results) on the
+thesis rig at 490 Hz for three excitation types (thesis Latin-hypercube steps, APRBS with 50 ms
+minimum hold, per-sample random input) and the per-sample :class:`PlantStepper`, and writes
+``bench/results/sim.json``. ``bench_sim_backend.py`` measures issue 37's bar (every effect on,
+both backends side by side).
 
 Run: ``.venv/bin/python bench/bench_sim.py``
 """
@@ -17,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import PlantStepper, simulate
+from aeropend_sim.simulate import DEFAULT_BACKEND, PlantStepper, simulate
 
 OUT = Path(__file__).resolve().parent / "results" / "sim.json"
 
@@ -61,7 +63,8 @@ def bench(repeats: int = 3) -> dict:
     c = np.array(costs) * 1e6
     results["stepper"] = {"p50_us": float(np.percentile(c, 50)), "p99_us": float(np.percentile(c, 99)),
                           "x_realtime": dt / (np.mean(c) * 1e-6)}
-    return {"rig": rig.name, "sample_period_s": dt, "machine": platform.processor() or platform.machine(),
+    return {"rig": rig.name, "backend": DEFAULT_BACKEND, "sample_period_s": dt,
+            "machine": platform.processor() or platform.machine(),
             "python": platform.python_version(), "results": results}
 
 

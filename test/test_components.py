@@ -1,4 +1,5 @@
-"""The component registry: every effect acts, is documented, is absent when absent, and linearises.
+"""The component registry: every effect acts, is documented, is absent when absent, linearises, and
+simulates alike on the compiled backend and the LSODA reference.
 
 Adding an effect is one module under ``aeropend_sim/components`` plus ONE row in :data:`ROWS`
 (the parameter values at which the effect clearly acts); every test here then covers it.
@@ -121,6 +122,10 @@ def test_effect_acts_is_absent_when_absent_and_linearises(family, effect):
     got = _run(on, duty)
     change = max(float(np.max(np.abs(got[k] - ref[k]))) for k in ("theta", "omega_rotor"))
     assert change > 1e-3, f"{effect} at {row} changes θ/ω₁ by only {change:g}"
+    # the compiled backend (the default) agrees with the LSODA reference (docs/model.md)
+    lsoda = simulate(on, duty, seed=5, backend="lsoda").x
+    err = np.abs(got["x"] - lsoda).max(axis=0)
+    assert err[0] < 1e-6 and np.all(err[1:4] <= 1e-5 * np.ptp(lsoda[:, 1:4], axis=0)), err
     # the Jacobian (chain rule over the terms' partials) matches finite differences of rhs
     m = PlantModel(on)
     rng = np.random.default_rng(1)

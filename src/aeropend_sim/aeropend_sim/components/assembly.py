@@ -20,8 +20,9 @@ effect's parameters at their ``absent`` values) and the active terms per slot, a
 
 * :attr:`Assembly.rhs`: the scalar right-hand side, generated once per rig as Python source that
   calls the term functions with the parameters as constants (no branches on switches, no
-  per-call lookups; :attr:`Assembly.rhs_source` shows it). This is the seam for a compiled
-  backend: the same source with a compiled ``xp`` namespace;
+  per-call lookups; :attr:`Assembly.rhs_source` shows it). :func:`chain_source` writes it; the
+  compiled backend (:mod:`aeropend_sim.compiled`) has the same function write its family-wide
+  source (parameters as entries of a vector, optional parts behind run-time flags);
 * :meth:`Assembly.point` and :meth:`Assembly.slot_values`: every intermediate signal of the chain
   and each term's value, on floats (``xp.MATH``) or arrays (``xp.NUMPY``), for outputs,
   equation-error terms and the Jacobian;
@@ -32,7 +33,8 @@ effect's parameters at their ``absent`` values) and the active terms per slot, a
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
@@ -57,6 +59,118 @@ def _compiled(src: str, consts: tuple[tuple[str, Any], ...]) -> Any:
 
 class AssemblyError(ValueError):
     """A request the assembled model cannot satisfy (no armature on this family, ...)."""
+
+
+#: A guard of generated source: a constant (the part acts or not) or a source expression.
+Guard = bool | str
+
+
+@dataclass(frozen=True)
+class Wiring:
+    """What :func:`chain_source` needs to write a model's equations as Python source.
+
+    Attributes
+    ----------
+    armature : bool
+        The family has an armature circuit (else its rotor follows a ``rotor_response`` term).
+    drive : str
+        Name of the family's drive quantity (``"v_a"`` or ``"omega_sp"``).
+    slots : mapping
+        Slot -> ``((term, guard), ...)`` in the terms' order. ``None`` as a guard: the term always
+        acts; a source expression: it acts where the expression holds (a summed term then adds
+        0.0, a duty term is skipped, a drive term gives way to the next lower one).
+    lag, dynamic_current : bool or str
+        Whether the actuator-lag state and the dynamic armature act: a constant, or a source
+        expression tested at run time.
+    arg : callable
+        ``arg(name)`` -> source of the value of the parameter called ``name`` (a literal, a
+        constant's name, ``p[3]``).
+    fn : callable
+        ``fn(term)`` -> name of the term's function in the generated namespace.
+    xp : str
+        Name of the ``xp`` namespace in the generated namespace.
+    """
+
+    armature: bool
+    drive: str
+    slots: Mapping[str, Sequence[tuple[Term, str | None]]]
+    lag: Guard
+    dynamic_current: Guard
+    arg: Callable[[str], str]
+    fn: Callable[[Term], str]
+    xp: str = "_xp"
+
+    def call(self, term: Term) -> str:
+        """Source of one call of ``term`` (inputs by their names, parameters by :attr:`arg`)."""
+        args = [a if a in term.inputs else self.arg(a) for a in term.arguments]
+        return f"{self.fn(term)}({self.xp}, {', '.join(args)})"
+
+    def total(self, slot: str, first: str | None = None, contact: bool | None = None) -> str:
+        """Source of the sum of ``first`` and the slot's terms, in order (``contact``: only the
+        terms whose :attr:`Term.contact` equals it)."""
+        expr = first
+        for term, guard in self.slots.get(slot, ()):
+            if contact is not None and term.contact != contact:
+                continue
+            call = self.call(term) if guard is None else f"({self.call(term)} if {guard} else 0.0)"
+            expr = call if expr is None else f"({expr} + {call})"
+        return expr if expr is not None else "0.0"
+
+
+def _branch(guard: Guard, then: list[str], other: list[str]) -> list[str]:
+    if guard is True:
+        return then
+    if guard is False:
+        return other
+    out = [f"if {guard}:", *("    " + line for line in then)]
+    return out + (["else:", *("    " + line for line in other)] if other else [])
+
+
+def _one_of(w: Wiring, slot: str, target: str) -> list[str]:
+    """``target = <term>`` for a single-term slot: the last unguarded term, replaced where a guard
+    of a later (higher-order) term holds."""
+    terms = list(w.slots.get(slot, ()))
+    if not terms:
+        raise AssemblyError(f"no {slot} term")
+    base = max((k for k, (_, g) in enumerate(terms) if g is None), default=None)
+    if base is None:
+        raise AssemblyError(f"the {slot} slot has no term that always acts")
+    lines = [f"{target} = {w.call(terms[base][0])}"]
+    for term, guard in terms[base + 1:]:  # ascending order: a later (higher-order) term wins
+        lines = _branch(guard, [f"{target} = {w.call(term)}"], lines)
+    return lines
+
+
+def chain_source(w: Wiring) -> list[str]:
+    """Body lines of the plant's equations, from the names ``theta, theta_dot, i_a, omega, tau_f``
+    (the state) and ``u`` (the duty cycle reaching the actuator).
+
+    The lines define, in the order of the signal chain (module doc): ``dtau_f``, ``tau`` (after
+    the duty terms: τ_e), the drive quantity (:attr:`Wiring.drive`), ``i_a`` (redefined as the
+    algebraic current when the armature is quasi-static), ``di_a``, ``domega``, ``omega_prop``,
+    ``thrust`` and ``dtheta_dot``. The sums keep the terms' order (the order of floating-point
+    addition).
+    """
+    lines: list[str] = []
+    lag = w.slots.get("lag", ())
+    lag_on = [f"dtau_f = {w.call(lag[-1][0])}", "tau = tau_f"] if lag else []
+    lines += _branch(w.lag if lag else False, lag_on, ["dtau_f = 0.0", "tau = u"])
+    for term, guard in w.slots.get("duty", ()):
+        lines += _branch(True if guard is None else guard, [f"tau = {w.call(term)}"], [])
+    q = w.drive
+    lines += _one_of(w, "drive", q)
+    if w.armature:
+        r, la, jm = w.arg("R_a"), w.arg("L_a"), w.arg("J_m")
+        lines += _branch(w.dynamic_current, [f"di_a = {w.total('armature', f'({q} - {r} * i_a)')} / {la}"],
+                         [f"i_a = {w.total('armature', q)} / {r}", "di_a = 0.0"])
+        lines.append(f"domega = {w.total('rotor_torque')} / {jm}")
+    else:
+        lines.append("di_a = 0.0")
+        lines += _one_of(w, "rotor_response", "domega")
+    lines += _one_of(w, "gear", "omega_prop")
+    lines += _one_of(w, "thrust", "thrust")
+    lines.append(f"dtheta_dot = {w.total('rod')}")
+    return lines
 
 
 def effect_active(effect: Effect, switch: bool | str, values: Mapping[str, float]) -> bool:
@@ -149,63 +263,32 @@ class Assembly:
         """Python source of :attr:`rhs` (for reading and for a compiled backend)."""
         return self._rhs_src
 
-    def _call(self, term: Term, index: int, consts: dict[str, Any]) -> str:
-        args = []
-        for a in term.arguments:
-            if a in term.inputs:
-                args.append(a)
-            else:
-                v = float(self.by_name[a])
-                if math.isfinite(v):
-                    args.append(repr(v))
-                else:
-                    consts[f"_c{index}_{a}"] = v
-                    args.append(f"_c{index}_{a}")
-        consts[f"_f{index}"] = term.fn
-        return f"_f{index}(_xp, {', '.join(args)})"
-
-    def _sum(self, slot: str, first: str | None, consts: dict[str, Any], counter: list[int]) -> str:
-        expr = first
-        for term in self.slots.get(slot, ()):
-            counter[0] += 1
-            call = self._call(term, counter[0], consts)
-            expr = call if expr is None else f"({expr} + {call})"
-        return expr if expr is not None else "0.0"
-
     def _generate_rhs(self) -> tuple[str, Any]:
         consts: dict[str, Any] = {}  # term functions and non-finite parameters by their names in the source
-        n = [0]
+        names: dict[int, str] = {}
 
-        def call(term: Term) -> str:
-            n[0] += 1
-            return self._call(term, n[0], consts)
+        def fn(term: Term) -> str:
+            if id(term) not in names:
+                names[id(term)] = f"_f{len(names) + 1}"
+                consts[names[id(term)]] = term.fn
+            return names[id(term)]
 
+        def arg(name: str) -> str:
+            v = float(self.by_name[name])
+            if math.isfinite(v):
+                return repr(v)
+            consts[f"_c_{name}"] = v
+            return f"_c_{name}"
+
+        wiring = Wiring(armature=self.armature, drive=self.drive_name,
+                        slots={k: tuple((t, None) for t in v) for k, v in self.slots.items()},
+                        lag=self.lag, dynamic_current=self.dynamic_current, arg=arg, fn=fn)
         lines = ["def rhs(t, x, u):",
                  "    if type(x) is _ndarray:",
                  "        x = x.tolist()",
-                 "    theta, theta_dot, i_a, omega, tau_f = x"]
-        if self.lag:
-            lines += [f"    dtau_f = {call(self._one('lag'))}", "    tau = tau_f"]
-        else:
-            lines += ["    dtau_f = 0.0", "    tau = u"]
-        for term in self.slots.get("duty", ()):
-            lines.append(f"    tau = {call(term)}")
-        q = self.drive_name
-        lines.append(f"    {q} = {call(self._one('drive'))}")
-        if self.armature:
-            r, la = repr(float(self.values["motor.R_a"])), repr(float(self.values["motor.L_a"]))
-            if self.dynamic_current:
-                lines.append(f"    di_a = {self._sum('armature', f'({q} - {r} * i_a)', consts, n)} / {la}")
-            else:
-                lines += [f"    i_a = {self._sum('armature', q, consts, n)} / {r}", "    di_a = 0.0"]
-            jm = repr(float(self.values["motor.J_m"]))
-            lines.append(f"    domega = {self._sum('rotor_torque', None, consts, n)} / {jm}")
-        else:
-            lines += ["    di_a = 0.0", f"    domega = {call(self._one('rotor_response'))}"]
-        lines += [f"    omega_prop = {call(self._one('gear'))}",
-                  f"    thrust = {call(self._one('thrust'))}",
-                  f"    dtheta_dot = {self._sum('rod', None, consts, n)}",
-                  "    return [theta_dot, dtheta_dot, di_a, domega, dtau_f]"]
+                 "    theta, theta_dot, i_a, omega, tau_f = x",
+                 *("    " + line for line in chain_source(wiring)),
+                 "    return [theta_dot, dtheta_dot, di_a, domega, dtau_f]"]
         src = "\n".join(lines) + "\n"
         return src, _compiled(src, tuple(sorted(consts.items(), key=lambda kv: kv[0])))
 

@@ -49,6 +49,10 @@ SLOTS: dict[str, str] = {
     "rod": "terms of θ̈ [rad/s²], summed in order",
 }
 
+#: Slots whose terms are summed (an absent term, one whose parameters hold their absent values,
+#: adds an exact 0.0: :mod:`aeropend_sim.compiled` keeps such terms in place instead of recompiling).
+SUM_SLOTS: tuple[str, ...] = ("armature", "rotor_torque", "rod")
+
 #: Inputs a term in each slot may read (its function's arguments besides ``xp`` and parameters).
 SLOT_INPUTS: dict[str, tuple[str, ...]] = {
     "lag": ("u", "tau_f"),

@@ -12,8 +12,16 @@ K_Q = Param("thrust.K_q", "N*s^2/rad^2", "thrust coefficient K_q (for α = 2)", 
 
 
 def thrust(xp, omega_prop, K_q, exponent):
-    """f = K_q·|ω₂|^α·sign(ω₂) [N]."""
-    return K_q * xp.sign(omega_prop) * xp.power(xp.abs(omega_prop), exponent)
+    """f = K_q·|ω₂|^α·sign(ω₂) [N].
+
+    Written with a safe base at rest (ω₂ = 0: f = 0 without evaluating 0^α) so that automatic
+    differentiation gives finite derivatives there: ∂(|ω₂|^α)/∂α = |ω₂|^α·ln|ω₂| is 0·(−∞) = NaN at
+    a zero base, and forward-mode AD multiplies it by a zero seed (NaN) even when α is not
+    differentiated. The values are those of K_q·sign(ω₂)·|ω₂|^α, bit for bit.
+    """
+    zero = omega_prop == 0.0
+    base = xp.abs(omega_prop) + zero  # 1 at rest
+    return xp.where(zero, 0.0 * K_q, K_q * xp.sign(omega_prop) * xp.power(base, exponent))
 
 
 def d_thrust(xp, omega_prop, K_q, exponent):

@@ -1,0 +1,244 @@
+"""The generated module of an actuator family: its equations with every parameter an entry of a
+vector ``p``, compiled by numba and cached on disk.
+
+**One module per family, not per effect selection.** The module calls every term a rig of the
+family can have (the registry's, imported and wrapped by ``numba.njit`` as they are: no second copy
+of an equation). Which of them act is data in ``p``:
+
+* an effect whose terms all sit in a summed slot (:data:`aeropend_sim.components.base.SUM_SLOTS`:
+  frictions, drag, back-EMF, end stops) stays in the sum, and its absent parameter values make it
+  add an exact 0.0 (:func:`switched_by_value`; ``test_compiled.py`` checks each such term);
+* an effect that changes the chain (the lag state, a duty transform, a drive map, the dynamic
+  armature) is switched by a flag entry of ``p`` tested at run time, which selects exactly the
+  code the rig's own :class:`~aeropend_sim.components.assembly.Assembly` would run.
+
+So a rig compiles once per machine whatever its switches (three modules in all: one per family),
+and a new parameter set or effect selection never recompiles. The source is written by the same
+:func:`aeropend_sim.components.assembly.chain_source` as the LSODA right-hand side, followed by
+the integrator text of :mod:`.kernels`.
+
+**Disk cache.** The module is written to :func:`cache_dir` under a name that hashes its text
+(which quotes a hash of every source file it imports from, and the numba version), then
+imported, so numba's ``cache=True`` applies: the first process on a machine compiles (seconds per
+kernel), later processes load the machine code (≈ 0.2 s).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import inspect
+import os
+import sys
+import tempfile
+import warnings
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numba
+import numpy as np
+
+from aeropend_sim.compiled import kernels, xp_numba
+from aeropend_sim.components import registry
+from aeropend_sim.components.assembly import Assembly, AssemblyError, Wiring, chain_source
+from aeropend_sim.components.base import SUM_SLOTS, Effect, Term
+
+#: Environment variable that moves the cache folder (default ``$XDG_CACHE_HOME/aeropend`` or
+#: ``~/.cache/aeropend``).
+CACHE_ENV = "AEROPEND_CACHE_DIR"
+
+#: The line of :mod:`.kernels` after which its text goes into the generated modules.
+KERNELS_MARKER = "# ---- generated modules include the text below this line ----"
+
+#: Names of the state in the generated functions' arguments (the order of the state vector).
+STATE_ARGS = "theta, theta_dot, i_a, omega, tau_f"
+
+
+def switched_by_value(effect: Effect) -> bool:
+    """Whether an effect stays in the compiled model, switched off by its absent parameter values.
+
+    True when every term sits in a summed slot and the effect has no mode: off, its parameters
+    hold their absent values and each term adds an exact 0.0. False for effects that change the
+    chain (a run-time flag switches them, :class:`Layout`); an effect without terms (input delay,
+    thrust exponent, sensors) is data only: True.
+    """
+    return effect.modes is None and all(t.slot in SUM_SLOTS for t in effect.terms)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """The parameter vector ``p`` of a family's compiled model.
+
+    Attributes
+    ----------
+    family : str
+    keys : tuple of str
+        ``p[i]`` is the (effective) value of ``keys[i]``: every parameter of the family, in the
+        registry's order.
+    flags : tuple of str
+        ``p[len(keys) + j]`` is 1.0 where the effect ``flags[j]`` acts, 0.0 where not: the effects
+        that are not :func:`switched_by_value`.
+    """
+
+    family: str
+    keys: tuple[str, ...]
+    flags: tuple[str, ...]
+
+    @property
+    def size(self) -> int:
+        """Length of ``p``."""
+        return len(self.keys) + len(self.flags)
+
+    def index(self, key: str) -> int:
+        """Position of parameter ``key`` in ``p``.
+
+        Raises
+        ------
+        KeyError
+            If the family has no such parameter.
+        """
+        return self.keys.index(key) if key in self.keys else _missing(key, self.family)
+
+    def flag_index(self, effect: str) -> int:
+        """Position of the flag of ``effect`` in ``p``."""
+        return len(self.keys) + self.flags.index(effect)
+
+    def vector(self, assembly: Assembly) -> np.ndarray:
+        """``p`` of an assembled rig: its effective parameter values and which flagged effects act."""
+        flags = [1.0 if assembly.has(name) else 0.0 for name in self.flags]
+        return np.array([float(assembly.values[k]) for k in self.keys] + flags)
+
+
+def _missing(key: str, family: str) -> int:
+    raise KeyError(f"the {family} family has no parameter {key!r}")
+
+
+@cache
+def layout(family: str) -> Layout:
+    """The :class:`Layout` of ``family``'s compiled model."""
+    flags = tuple(e.name for e in registry.family_effects(family) if not switched_by_value(e))
+    return Layout(family, tuple(registry.family_params(family)), flags)
+
+
+def _wiring(family: str, lay: Layout, fn: Any) -> Wiring:
+    """Every term a rig of ``family`` can have, flagged effects behind their flags, parameters as
+    entries of ``p``."""
+    parts = sorted((*registry.family_parts(family), *registry.family_effects(family)),
+                   key=lambda p: (p.order, p.name))
+    slots: dict[str, list[tuple[Term, str | None]]] = {}
+    for part in parts:
+        flagged = isinstance(part, Effect) and not switched_by_value(part)
+        guard = f"p[{lay.flag_index(part.name)}] != 0.0" if flagged else None
+        for term in part.terms:
+            slots.setdefault(term.slot, []).append((term, guard))
+    ordered = {k: tuple(sorted(v, key=lambda tg: tg[0].order)) for k, v in slots.items()}
+    fam = registry.family(family)
+    armature = "armature" not in fam.lacks
+    lag = ordered.get("lag", ())
+    dynamic = (f"p[{lay.flag_index('armature_inductance')}] != 0.0"
+               if armature and "armature_inductance" in lay.flags else False)
+    position = {k.partition(".")[2]: i for i, k in enumerate(lay.keys)}
+    return Wiring(armature=armature, drive=fam.drive, slots=ordered,
+                  lag=(lag[-1][1] or True) if lag else False, dynamic_current=dynamic,
+                  arg=lambda name: f"p[{position[name]}]", fn=fn)
+
+
+def _stamp(module_name: str) -> str:
+    path = inspect.getfile(sys.modules[module_name])
+    return f"# {module_name}: sha256 {hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]}"
+
+
+def _function(name: str, body: list[str], result: str) -> list[str]:
+    return ["", "", '@njit(error_model="numpy")',
+            f"def {name}({STATE_ARGS}, u, p):", *("    " + line for line in body), f"    return {result}"]
+
+
+def module_source(family: str) -> str:
+    """Text of the generated module of ``family`` (module doc).
+
+    Raises
+    ------
+    AssemblyError
+        If a term function is not a module-level function (the module imports it by name).
+    """
+    lay = layout(family)
+    imports: list[str] = []
+    names: dict[int, str] = {}
+
+    def fn(term: Term) -> str:
+        if id(term) not in names:
+            f = term.fn
+            if f.__qualname__ != f.__name__:
+                raise AssemblyError(f"term {term.label!r}: {f.__qualname__} must be a module-level function")
+            names[id(term)] = n = f"_f{len(names) + 1}"
+            imports.append(f"from {f.__module__} import {f.__name__} as _py{n}")
+            imports.append(f'{n} = njit(error_model="numpy")(_py{n})')
+        return names[id(term)]
+
+    w = _wiring(family, lay, fn)
+    body = chain_source(w)
+    contacts = [t for t, _ in w.slots.get("rod", ()) if t.contact]
+    plain = all(set(t.inputs) <= {"theta", "theta_dot"} for t in contacts)
+    code = [*_function("rhs", body, "(theta_dot, dtheta_dot, di_a, domega, dtau_f)"),
+            *_function("contact", [] if plain else body, w.total("rod", contact=True)),
+            *_function("signals", body, f"(tau, {w.drive}, i_a, omega_prop, thrust)")]
+    sources = sorted({t.fn.__module__ for part in (*registry.family_parts(family),
+                                                    *registry.family_effects(family)) for t in part.terms})
+    kernel_text = Path(kernels.__file__).read_text(encoding="utf-8").partition(KERNELS_MARKER)[2]
+    head = [f'"""Generated by aeropend_sim.compiled.source for the {family} family: do not edit.',
+            "", f"p = ({', '.join(lay.keys)}) + flags ({', '.join(lay.flags)})", '"""',
+            f"# numba {numba.__version__}", *(_stamp(m) for m in (*sources, xp_numba.__name__)),
+            "import math", "", "import numpy as np", "from numba import njit", "",
+            "from aeropend_sim.compiled import xp_numba as _xp", *imports, "",
+            f"HAS_CONTACT = {bool(contacts)}"]
+    return "\n".join([*head, *code]) + "\n" + kernel_text
+
+
+def cache_dir() -> Path:
+    """Folder of the generated modules (numba caches their machine code in its ``__pycache__``):
+    ``$AEROPEND_CACHE_DIR/compiled``, else ``$XDG_CACHE_HOME/aeropend/compiled`` or
+    ``~/.cache/aeropend/compiled``."""
+    env = os.environ.get(CACHE_ENV)
+    base = Path(env) if env else Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "aeropend"
+    return base / "compiled"
+
+
+def _write(name: str, text: str) -> Path:
+    """Write the module (once: an unchanged file keeps its time stamp, which numba's cache checks)."""
+    for folder in (cache_dir(), Path(tempfile.gettempdir()) / f"aeropend-{os.getuid()}" / "compiled"):
+        path = folder / f"{name}.py"
+        try:
+            if path.is_file() and path.read_text(encoding="utf-8") == text:
+                return path
+            folder.mkdir(parents=True, exist_ok=True)
+            tmp = folder / f".{name}.{os.getpid()}.tmp"
+            tmp.write_text(text, encoding="utf-8")
+            os.replace(tmp, path)  # atomic: a concurrent process sees the old or the whole new file
+            return path
+        except OSError as exc:
+            warnings.warn(f"cannot write the compiled model to {folder} ({exc}); set {CACHE_ENV} to a "
+                          "writable folder", RuntimeWarning, stacklevel=3)
+    raise OSError(f"no writable folder for the compiled model (set {CACHE_ENV})")
+
+
+@cache
+def family_module(family: str) -> ModuleType:
+    """The imported generated module of ``family`` (written to :func:`cache_dir` if needed).
+
+    Its functions (:mod:`.kernels`) compile on their first call in a machine's first process and
+    load from numba's disk cache afterwards.
+    """
+    text = module_source(family)
+    name = f"aeropend_{family}_{hashlib.sha256(text.encode()).hexdigest()[:16]}"
+    if name in sys.modules:
+        return sys.modules[name]
+    path = _write(name, text)
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
