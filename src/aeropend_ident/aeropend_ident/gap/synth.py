@@ -132,8 +132,8 @@ def draw_truth(name: str, rng: np.random.Generator, nominal: Rig) -> dict[str, f
         v = float(rng.uniform(lo, hi))
         if (key := relative_key(name, p)) is not None:
             if nominal.value(key) == 0.0:
-                raise GapError(f"effect {name!r}: its truth is a factor of {key}, which rig {nominal.name!r} does "
-                               "not model (0)")
+                raise GapError(f"effect {name!r}: its truth is a factor of {key}, which rig {nominal.name!r} "
+                               "does not model (0)")
             v *= nominal.value(key)
         out[p] = v
     if name == "thrust_law":

@@ -46,5 +46,6 @@ EFFECT = Effect(
                          order=70, apply=apply,
                          search=(Search("L_a", "H", POSITIVE, "motor.L_a", "armature inductance L_a",
                                         search_range,
-                                        "0.01 … 100 × nominal (without one: L_a/R_a 10 µs … 0.1 s)", log=True),)),),
+                                        "0.01 … 100 × nominal (without one: L_a/R_a 10 µs … 0.1 s)",
+                                        log=True),)),),
 )
