@@ -88,7 +88,8 @@ def test_ranges_reach_physical_sizes_of_effects_the_nominal_omits():
     # the issue's drag −2.0·ω₁|ω₁| s⁻¹ on the thesis' simulated plant is K_d = 2·J_m: inside the range
     assert r.lower < 2.0 * rig.motor.J_m < r.upper
     # and the rotor's brush friction, which neither rig models
-    t_half = ctx.rotor_torque(w, without="rotor_coulomb_friction") / math.tanh(w / rig.motor.rotor_friction_velocity)
+    t_half = (ctx.rotor_torque(w, without="rotor_coulomb_friction")
+              / math.tanh(w / rig.motor.rotor_friction_velocity))
     braked = get_effect("rotor_brush_friction").apply(rig, {"T_c": t_half})
     assert motor_equilibrium(braked, ctx.duty_max)[1] == pytest.approx(0.5 * w_nom, rel=1e-6)
     assert get_effect("rotor_brush_friction").ranges(ctx)["T_c"].upper >= 2.0 * t_half
