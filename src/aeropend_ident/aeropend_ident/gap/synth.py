@@ -19,7 +19,6 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -30,7 +29,9 @@ from aeropend_ident.errors import GapError
 from aeropend_ident.gap.effects import EFFECTS, EffectContext, MeasurementMap, apply_effects, get_effect
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_sim.components import registry
+from aeropend_sim.components.xp import MATH
 from aeropend_sim.excitation import aprbs, lhs_steps
+from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulate import measure, simulate
@@ -109,10 +110,11 @@ class SynthCase:
 
 
 def thrust_reference_speed(rig: Rig) -> float:
-    """Propeller speed ω₂ [rad/s] holding the rod at :data:`THRUST_REFERENCE_ANGLE` with α = 2."""
-    p = rig.pendulum
-    f = p.mgd_over_J * math.sin(THRUST_REFERENCE_ANGLE) / p.L_over_J
-    return math.sqrt(f / rig.thrust.K_q)
+    """Propeller speed ω₂ [rad/s] holding the rod at :data:`THRUST_REFERENCE_ANGLE` with α = 2 (the
+    rig's steady state, :meth:`aeropend_sim.components.assembly.Assembly.steady_state`)."""
+    a = PlantModel(rig.with_effects(thrust_exponent=False)).assembly
+    x, _ = a.steady_state(THRUST_REFERENCE_ANGLE)
+    return float(a.propeller(MATH, x[3])[0])
 
 
 def draw_truth(name: str, rng: np.random.Generator, nominal: Rig) -> dict[str, float]:
