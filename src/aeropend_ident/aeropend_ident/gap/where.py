@@ -122,7 +122,7 @@ GROUP_SUBSYSTEM = {
     "friction": "pendulum",
     "thrust": "aerodynamic",
     "set_point": "actuator",
-    "speed": "motor",
+    "response": "motor",
 }
 
 #: Subsystem label of the pendulum equation's thrust group when the rotor speed is not recorded.
@@ -982,8 +982,10 @@ def _rotor_check(s: _Signals, v_a: np.ndarray) -> EquationCheck:
     if not a.armature:
         sp = np.broadcast_to(np.asarray(s.chain[a.drive_name], dtype=float), (s.n,))
         inputs = {a.drive_name: sp, "omega": omega}
-        r = s.sm(s.summed("rotor_response", inputs)) - s.d1(omega)
-        groups = {"set_point": [s.sm(sp)], "speed": [s.sm(omega)], "offset": [np.ones(s.n)]}
+        response = s.summed("rotor_response", inputs)
+        r = s.sm(response) - s.d1(omega)
+        # a wrong response time scales the response term itself; a wrong map, the set-point
+        groups = {"response": [s.sm(response)], "set_point": [s.sm(sp)], "offset": [np.ones(s.n)]}
         note = f"{s.omega_note}, set-point {a.drive_name} of the throttle map"
         return _check("rotor", r, s.driving("rotor_response", a.drive_name, inputs), "rad/s^2", noise_w * g1,
                       note,
