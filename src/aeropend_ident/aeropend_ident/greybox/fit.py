@@ -313,6 +313,11 @@ def _switch_needed(name: str, rig: Rig) -> tuple[str, Any] | None:
 def default_parameters(rig: Rig, theta_offset: float = 0.0) -> list[str]:
     """Default fitted set for θ-only data (see the module docstring).
 
+    The same for every actuator family: the rod is common to all of them, L/J absorbs the whole
+    thrust scale of the drive (an H-bridge map, an amplifier's gain or an ESC's throttle map times
+    K_q), and the switched-on effects add their parameters only when the rig has them (an ESC has
+    no dead zone of its own: its idle throttle is part of its map).
+
     Parameters
     ----------
     rig : Rig
