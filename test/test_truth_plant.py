@@ -240,3 +240,36 @@ def test_baseline_fits_each_family_on_its_hidden_plant(family, tmp_path):
     held = rep["metrics"]["heldout"]
     assert held["fitted"]["nrmse"] < 0.3 * held["nominal"]["nrmse"]
     assert (tmp_path / "out" / "fitted_rig.yaml").is_file()
+
+
+@pytest.mark.slow
+def test_a_lab_path_with_an_esc_rig_names_a_slow_speed_response(tmp_path, truth_csv_preset):
+    """An ESC rig's lab path: CSV logs of θ and the ESC's rotor speed -> ``csv_import`` -> ``gap``
+    with the minimal ESC rig file. The rotor follows the throttle 2.5× more slowly than the rig
+    file says (a heavier propeller): named esc_response, T_m fitted, no armature check or
+    hypothesis reported (an ESC has no armature), and a report written like any other."""
+    import gap_families as gf
+    import yaml
+
+    from aeropend_ident.cli.gap import main
+
+    p = tp.EscParams()
+    plant = tp.EscPlant(p, {"esc_response": 2.5})
+    fit = tp.record(plant, tp.lhs_steps(40.0, seed=5, dt=plant.dt), 50.0, seed=6, channels=plant.channels)
+    held = tp.record(plant, tp.aprbs(30.0, seed=7, dt=plant.dt), 50.0, seed=8, channels=plant.channels)
+    fit.to_csv(tmp_path / "fit.csv")
+    held.to_csv(tmp_path / "held.csv")
+    preset = truth_csv_preset("_truth_esc_test", ("omega_rotor",))
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(gf.esc_rig(p, "lab_esc"), allow_unicode=True))
+    out = tmp_path / "report"
+    assert main([str(tmp_path / "fit.csv"), "--held-out", str(tmp_path / "held.csv"), "--preset", preset,
+                 "--rig", str(tmp_path / "rig.yaml"), "-o", str(out), "-q"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["headline"]["effects_chosen"][0] == "esc_response"
+    top = rep["which"]["ranking"][0]
+    assert top["parameters"]["T_m"]["value"] == pytest.approx(2.5 * p.response, rel=0.05)
+    candidates = ({r["effect"] for r in rep["which"]["ranking"]}
+                  | {x["effect"] for x in rep["which"]["not_identifiable"]})
+    assert not candidates & {"back_emf", "armature_resistance", "rotor_friction", "propeller_drag"}
+    assert rep["headline"]["heldout_shrink"] > 0.8
+    assert (out / "report.html").is_file() and (out / "corrected_rig.yaml").is_file()
