@@ -24,9 +24,19 @@ confusable set counts only when the report names it for that effect), held-out �
 after, and the fitted physical magnitude against the truth (error relative to the effect size
 |true − nominal|).
 
-Writes ``bench/results/gap_independent.json`` and ``.md``.
+Actuator families (``--family``, issue 35): ``dc_hbridge`` is the thesis plant above; ``esc`` and
+``voltage_amplifier`` take their hidden plants from :mod:`truth_plant` too (an ESC-driven brushless
+rig at 100 Hz recording θ and the ESC's rotor speed; a Quanser-Aero-style amplifier rig at 500 Hz
+recording θ, i_a and ω₁), with the lab's rig file of that family (:mod:`gap_families`). Which
+truth effects a family's cases contain is the registry's business: a truth effect that is not a
+hypothesis of the family's catalog (``aeropend_ident.gap.effects.catalog``) and not one of the
+out-of-catalog effects is refused, never dropped by a list here.
 
-Usage: ``python bench/bench_gap_independent.py [--workers 2] [--quick] [--only EFFECT ...]``
+Writes ``bench/results/gap_independent.json`` and ``.md`` (``gap_independent_<family>`` for the
+other families).
+
+Usage: ``python bench/bench_gap_independent.py [--family esc] [--workers 2] [--quick] [--only EFFECT ...]
+[--skip-effect NAME ...]``
 """
 
 from __future__ import annotations
@@ -47,7 +57,9 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from gap_families import AMPLIFIER, ESC, FamilyCases
 from truth_plant import (
+    CHANNELS,
     DT,
     GEAR,
     OUT_OF_CATALOG,
@@ -92,7 +104,6 @@ RANGES: dict[str, list[tuple[float, float]]] = {
     "offset_drift": [(-3e-3, -1e-3), (1e-3, 3e-3)],       # rad/s
     "rod_air_drag": [(0.8, 2.5)],                         # 1/rad
 }
-IN_CATALOG = [e for e in RANGES if e not in OUT_OF_CATALOG]
 PAIRS = [
     ("dead_zone", "viscous_friction"), ("input_delay", "gravity"), ("actuator_lag", "coulomb_friction"),
     ("hbridge_drop", "sensor_offset"), ("thrust_coefficient", "viscous_friction"),
@@ -142,20 +153,22 @@ def rig_dict(params: PlantParams, name: str) -> dict[str, Any]:
     return doc
 
 
-def draw(name: str, rng: np.random.Generator) -> float:
-    lo, hi = RANGES[name][int(rng.integers(len(RANGES[name])))]
+def draw(name: str, rng: np.random.Generator, ranges: dict[str, list[tuple[float, float]]] = RANGES) -> float:
+    lo, hi = ranges[name][int(rng.integers(len(ranges[name])))]
     return float(rng.uniform(lo, hi))
 
 
-def truth_effects(names: list[str], rng: np.random.Generator, params: PlantParams,
-                  max_angle: float) -> dict[str, float]:
-    """Truth magnitudes in truth_plant units (delay in whole samples, drag as K_d, stop angle in rad)."""
+def truth_effects(names: list[str], rng: np.random.Generator, params: Any,
+                  max_angle: float, fam: FamilyCases | None = None) -> dict[str, float]:
+    """Truth magnitudes in truth_plant units (delay in whole samples, the thesis plant's drag as K_d,
+    stop angle in rad); ``fam``: another family's ranges and sample period."""
+    ranges, dt = (RANGES, DT) if fam is None else (fam.ranges, fam.dt)
     out = {}
     for n in names:
-        v = draw(n, rng)
+        v = draw(n, rng, ranges)
         if n == "input_delay":
-            v = round(v / DT) * DT
-        elif n == "propeller_drag":
+            v = round(v / dt) * dt
+        elif n == "propeller_drag" and fam is None:
             v = v * params.J_m
         elif n == "end_stops":
             v = v * max_angle
@@ -163,20 +176,49 @@ def truth_effects(names: list[str], rng: np.random.Generator, params: PlantParam
     return out
 
 
+#: The thesis family's cases (the functions above), beside the other families' (gap_families).
+THESIS = FamilyCases(
+    family="dc_hbridge", dt=DT, channels=CHANNELS, ranges=RANGES, pairs=PAIRS, nominal=PlantParams,
+    variant=variant_params, plant=TruthPlant, rig=rig_dict, expected=lambda e, m, p: expected(e, m, p),
+    base_delay=lambda p: 0.0,
+)
+FAMILIES: dict[str, FamilyCases] = {f.family: f for f in (THESIS, ESC, AMPLIFIER)}
+
+
+def catalog_cases(fam: FamilyCases, skip: list[str] | None = None) -> list[str]:
+    """The family's truth effects that are hypotheses of its catalog (the registry's), in the order
+    of its ranges, less ``skip``.
+
+    Raises
+    ------
+    SystemExit
+        If a truth effect is neither in the family's catalog nor out of catalog on purpose.
+    """
+    from aeropend_ident.gap.effects import catalog
+
+    names = {e.name for e in catalog(fam.family)}
+    stray = [e for e in fam.ranges if e not in names and e not in OUT_OF_CATALOG]
+    if stray:
+        raise SystemExit(f"truth effects {stray} are not hypotheses of the {fam.family} catalog")
+    return [e for e in fam.ranges if e in names and e not in (skip or [])]
+
+
 # ------------------------------------------------------------------------------ cases
 def case_list(quick: bool = False, only: list[str] | None = None,
-              groups: list[str] | None = None) -> list[dict[str, Any]]:
+              groups: list[str] | None = None, family: str = "dc_hbridge",
+              skip: list[str] | None = None) -> list[dict[str, Any]]:
     """Every case: effects, seed, excitation design ("steps_fit" or "aprbs_fit"), plant variant."""
+    fam = FAMILIES[family]
     cases: list[dict[str, Any]] = []
     draws = 1 if quick else 2
     seed = 14000
-    for e in IN_CATALOG:
+    for e in catalog_cases(fam, skip):
         for design in ("steps_fit", "aprbs_fit"):
             for _ in range(draws):
                 cases.append({"effects": [e], "seed": seed, "design": design, "group": "single"})
                 seed += 1
     if not quick:
-        for k, pair in enumerate(PAIRS):
+        for k, pair in enumerate(fam.pairs):
             for j, design in enumerate(("steps_fit", "aprbs_fit")):
                 cases.append({"effects": list(pair), "seed": 15000 + 2 * k + j, "design": design,
                               "group": "pair"})
@@ -191,29 +233,32 @@ def case_list(quick: bool = False, only: list[str] | None = None,
         cases = [c for c in cases if set(c["effects"]) & set(only) or (not c["effects"] and "none" in only)]
     if groups:
         cases = [c for c in cases if c["group"] in groups]
+    cases = [c for c in cases if not set(c["effects"]) & set(skip or [])]
     for c in cases:
-        c["variant"] = c["seed"] % 2 == 1  # half the cases on a non-thesis nominal plant
+        c["variant"] = c["seed"] % 2 == 1  # half the cases on a non-default nominal plant
+        c["family"] = family
     return cases
 
 
 def build_case(spec: dict[str, Any]) -> dict[str, Any]:
     """Hidden plant, recordings and rig file of one case (truth stays in the returned dict)."""
+    fam = FAMILIES[spec.get("family", "dc_hbridge")]
     rng = np.random.default_rng(spec["seed"])
-    params = variant_params(rng) if spec["variant"] else PlantParams()
+    params = fam.variant(rng) if spec["variant"] else fam.nominal()
     steps_d = lhs_steps(FIT_DURATION if spec["design"] == "steps_fit" else HELD_DURATION,
-                        seed=spec["seed"] + 1)
+                        seed=spec["seed"] + 1, dt=fam.dt)
     aprbs_d = aprbs(FIT_DURATION if spec["design"] == "aprbs_fit" else HELD_DURATION,
-                    seed=spec["seed"] + 2)
+                    seed=spec["seed"] + 2, dt=fam.dt)
     fit_d, held_d = (steps_d, aprbs_d) if spec["design"] == "steps_fit" else (aprbs_d, steps_d)
-    nominal = TruthPlant(params)
+    nominal = fam.plant(params, {})
     max_angle = float(np.max(nominal.simulate(fit_d)["theta"]))
-    effects = truth_effects(spec["effects"], rng, params, max_angle)
-    plant = TruthPlant(params, effects)
+    effects = truth_effects(spec["effects"], rng, params, max_angle, None if fam is THESIS else fam)
+    plant = fam.plant(params, effects)
     snr = float(rng.uniform(*SNR_RANGE))
-    fit = record(plant, fit_d, snr, spec["seed"] + 3)
-    held = record(plant, held_d, snr, spec["seed"] + 4)
+    fit = record(plant, fit_d, snr, spec["seed"] + 3, fam.channels)
+    held = record(plant, held_d, snr, spec["seed"] + 4, fam.channels)
     return {"params": params, "effects": effects, "snr_db": snr, "fit": fit, "held": held,
-            "rig": rig_dict(params, f"indep_nominal_{spec['seed']}")}
+            "rig": fam.rig(params, f"indep_nominal_{spec['seed']}")}
 
 
 def to_recording(tr: Any, source: str) -> Any:
@@ -298,7 +343,8 @@ def score(spec: dict[str, Any], case: dict[str, Any], result: Any) -> dict[str, 
         out["all_named_or_not_separated"] = all(t in chosen or t in amb_all for t in in_cat)
         mags = {}
         for t in in_cat:
-            field_, true_v, nom_v = expected(t, case["effects"][t], case["params"])
+            fam = FAMILIES[spec.get("family", "dc_hbridge")]
+            field_, true_v, nom_v = fam.expected(t, case["effects"][t], case["params"])
             row = next((r for r in ranking if r["effect"] == t), None)
             est = None
             if row is not None:
@@ -324,7 +370,7 @@ def run_case(spec: dict[str, Any]) -> dict[str, Any]:
     t0, c0 = time.perf_counter(), time.process_time()
     try:
         result = run_gap(rig, fit, held, rig_ref=rig.name, split_rule="separate held-out recording",
-                         seed=0, max_effects=2)
+                         seed=0, max_effects=2, skip=spec.get("skip", []))
     except Exception as exc:  # a refusal is a failure of the case, recorded with its message
         return {"case": f"{'+'.join(spec['effects']) or 'none'}@{spec['seed']}", "group": spec["group"],
                 "design": spec["design"], "variant": spec["variant"], "truth": case["effects"],
@@ -407,6 +453,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     lines = [
         "# Independent blind benchmark of the gap diagnosis (bench/bench_gap_independent.py)",
         "",
+        f"Actuator family `{m.get('family', 'dc_hbridge')}`"
+        + (f", catalog without {', '.join(m['skipped'])}" if m.get("skipped") else "") + ". "
         f"{s['cases']} cases; hidden plants from `bench/truth_plant.py` (no aeropend_sim code); "
         f"{m['workers']} worker(s), {m['wall_s']:.0f} s wall, median {s['median_case_s']:.1f} s wall / "
         f"{s['median_case_cpu_s']:.1f} s CPU per case, load average {m['load_before']} before and "
@@ -470,16 +518,24 @@ def main(argv: list[str] | None = None) -> int:
                     help="only cases containing these effects ('none': effect-free)")
     ap.add_argument("--group", nargs="+", default=None,
                     choices=("single", "pair", "out of catalog", "no effect"), help="only these case groups")
-    ap.add_argument("--out", default=str(RESULTS / "gap_independent"), help="output stem")
+    ap.add_argument("--family", default="dc_hbridge", choices=sorted(FAMILIES),
+                    help="actuator family of the hidden plants and the rig file (default: the thesis')")
+    ap.add_argument("--skip-effect", nargs="+", default=[], metavar="NAME",
+                    help="catalog effects left out of the diagnosis (and of the cases)")
+    ap.add_argument("--out", default=None,
+                    help="output stem (default bench/results/gap_independent[_<family>])")
     ap.add_argument("--render", action="store_true", help="only re-write the .md from the .json")
     ap.add_argument("--merge", action="store_true",
                     help="replace the selected cases in the existing .json (same case ids) and re-summarise")
     args = ap.parse_args(argv)
-    out = Path(args.out)
+    stem = "gap_independent" + ("" if args.family == "dc_hbridge" else f"_{args.family}")
+    out = Path(args.out) if args.out else RESULTS / stem
     if args.render:
         write_md(out.with_suffix(".md"), json.loads(out.with_suffix(".json").read_text(encoding="utf-8")))
         return 0
-    specs = case_list(args.quick, args.only, args.group)
+    specs = case_list(args.quick, args.only, args.group, args.family, args.skip_effect)
+    for spec in specs:
+        spec["skip"] = list(args.skip_effect)
     load_before = os.getloadavg()
     t0 = time.perf_counter()
     scores = []
@@ -495,7 +551,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"workers": args.workers, "wall_s": wall, "load_before": [round(x, 2) for x in load_before],
             "load_after": [round(x, 2) for x in os.getloadavg()], "machine": f"{os.cpu_count()} cores, "
             f"{platform.platform()}", "python": platform.python_version(), "commit": commit,
-            "argv": sys.argv[1:]}
+            "argv": sys.argv[1:], "family": args.family, "skipped": list(args.skip_effect)}
     if args.merge:
         old = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))
         new_ids = {s["case"] for s in scores}

@@ -459,3 +459,418 @@ class TruthStepper:
         self.state = self.dyn.advance(self.state, self._v_cmd, self.h, self.substeps)
         self.k += 1
         return self.sample()
+
+
+# ============================================================================== other actuator families
+# Two more hidden plants for the per-family benchmarks: a brushless motor behind an ESC (hobby rigs)
+# and a DC motor on a voltage amplifier (Quanser-Aero style). Both are written as a lab writes its
+# own simulator, in the quantities it measures (masses and lengths, torques, a motor's K_v in
+# rpm/V, the ESC's pulse widths in µs, propeller coefficients C_T and C_Q), not in aeropend's
+# per-inertia ratios or its throttle-map parameters; the benchmark converts them into the lab's rig
+# file (bench/bench_gap_independent.py). Physics:
+#
+#   rod        J·θ̈ = −m·g·d·sin θ − c·θ̇ + L·f − J·(T_f/J)·sgn θ̇ − ...      (torques about the pivot)
+#   propeller  f = C_T·ρ·n²·D⁴,  Q = C_Q·ρ·n²·D⁵,  n = ω/(2π) [rev/s]     (momentum-theory coefficients)
+#   ESC        pulse p = p_min + τ·(p_max − p_min) [µs]; the ESC sets the motor voltage
+#              V_bat·max(0, (p − p_idle)/(p_max − p_idle)) and the unloaded-K_v speed follows,
+#              ω_ss = K_v·V; ω̇ = (ω_ss − ω)/T_r (the ESC's speed loop, motor and propeller); dead time
+#   amplifier  v_a = K_amp·V_ref·τ + V_os; L_a·i̇_a = v_a − R_a·i_a − k_e·ω;
+#              J_r·ω̇ = k_t·i_a − B·ω − Q − T_c·sgn ω   (direct drive: the propeller on the shaft)
+#
+# The armature's electrical time constant L_a/R_a (0.14 ms on a Quanser Aero) is far below the
+# integration step, so the current is integrated exactly for the speed held over each substep
+# (exponential integrator): i(s) = i_ss(ω(s)) + (i₀ − i_ss(ω₀))·exp(−s·R_a/L_a).
+
+#: Standard gravity [m/s²] (CGPM 1901).
+G_STANDARD = 9.80665
+#: Air density [kg/m³] of the International Standard Atmosphere at sea level, 15 °C.
+RHO_AIR = 1.225
+#: Regularisation speed [rad/s] of sgn ω in the amplifier motor's brush friction.
+BRUSH_VELOCITY = 0.5
+
+
+@dataclass(frozen=True)
+class RodParams:
+    """The rod as a lab measures it (SI): masses, lengths and torques, not per-inertia ratios.
+
+    Attributes
+    ----------
+    mass : kg, moving part (rod, motor, propeller).
+    com : m, pivot to centre of mass.
+    arm : m, pivot to the thrust line.
+    inertia : kg·m², about the pivot.
+    damping : N·m·s/rad, viscous pivot friction.
+    """
+
+    mass: float
+    com: float
+    arm: float
+    inertia: float
+    damping: float
+
+    def scaled(self, **factors: float) -> RodParams:
+        """Copy with some fields multiplied by factors."""
+        return dataclasses.replace(self, **{k: getattr(self, k) * v for k, v in factors.items()})
+
+
+@dataclass(frozen=True)
+class EscParams:
+    """A brushless motor behind an ESC (hobby rig, 100 Hz logger), in a lab's units.
+
+    Attributes
+    ----------
+    kv_rpm : rpm/V, the motor's velocity constant K_v.
+    battery : V, battery voltage under load (2-cell LiPo).
+    pulse_min, pulse_max : µs, the throttle range the ESC is calibrated to (command τ = 0 and 1).
+    pulse_idle : µs, the arming/idle pulse: the ESC holds the motor still below it.
+    response : s, time constant T_r of the speed response (ESC speed loop, motor, propeller).
+    dead_time : s, ESC frame and signal latency (whole samples).
+    diameter : m, propeller diameter D.
+    c_t : 1, propeller thrust coefficient C_T.
+    rod : RodParams
+    """
+
+    kv_rpm: float = 1400.0
+    battery: float = 7.4
+    pulse_min: float = 1000.0
+    pulse_max: float = 2000.0
+    pulse_idle: float = 1080.0
+    response: float = 0.05
+    dead_time: float = 0.02
+    diameter: float = 0.127
+    c_t: float = 0.10
+    rod: RodParams = field(default_factory=lambda: RodParams(mass=0.12, com=0.18, arm=0.15,
+                                                             inertia=0.12 * 0.18**2 * 1.4, damping=4.4e-3))
+
+    def scaled(self, **factors: float) -> EscParams:
+        """Copy with some (non-rod) fields multiplied by factors."""
+        return dataclasses.replace(self, **{k: getattr(self, k) * v for k, v in factors.items()})
+
+
+@dataclass(frozen=True)
+class AmplifierParams:
+    """A DC motor on a voltage amplifier (Quanser-Aero-style rig, 500 Hz), SI.
+
+    Attributes
+    ----------
+    gain : V/V, amplifier gain K_amp.
+    v_ref : V, the command's full scale at the amplifier input (τ = 1).
+    R_a : Ω, L_a : H, k_t : N·m/A, k_e : V·s/rad (k_t = k_e in SI for one motor).
+    J_r : kg·m², rotor and propeller.
+    B : N·m·s/rad, rotor viscous friction.
+    diameter : m; c_t, c_q : 1, propeller thrust and torque coefficients.
+    rod : RodParams
+    """
+
+    gain: float = 2.4
+    v_ref: float = 10.0
+    R_a: float = 8.4
+    L_a: float = 1.16e-3
+    k_t: float = 0.042
+    k_e: float = 0.042
+    J_r: float = 2.0e-5
+    B: float = 2.0e-6
+    diameter: float = 0.127
+    c_t: float = 0.10
+    c_q: float = 0.008
+    rod: RodParams = field(default_factory=lambda: RodParams(mass=0.25, com=0.024, arm=0.16, inertia=2.5e-3,
+                                                             damping=2.0e-3))
+
+    def scaled(self, **factors: float) -> AmplifierParams:
+        """Copy with some (non-rod) fields multiplied by factors."""
+        return dataclasses.replace(self, **{k: getattr(self, k) * v for k, v in factors.items()})
+
+
+def prop_thrust(c_t: float, diameter: float, omega: float, exponent: float = 2.0,
+                n_ref: float = 1.0) -> float:
+    """Thrust f [N] = C_T·ρ·n_ref²·D⁴·(|n|/n_ref)^α·sgn n of a propeller at shaft speed ω [rad/s]
+    (n = ω/2π rev/s; α = 2 is momentum theory and n_ref then drops out)."""
+    n = omega / (2.0 * math.pi)
+    return c_t * RHO_AIR * diameter**4 * n_ref**2 * (abs(n) / n_ref) ** exponent * (1.0 if n >= 0.0 else -1.0)
+
+
+#: Effects of the ESC plant: name -> physics [magnitude, unit].
+ESC_EFFECT_DOCS: dict[str, str] = {
+    "esc_idle": "p_idle ← magnitude  [p_idle, µs]: the ESC's idle/arming pulse (recalibrated throttle range)",
+    "esc_speed_range": "V_bat ← k·V_bat  [k, 1]: battery voltage under load (charge state): ω_ss scales",
+    "esc_response": "T_r ← k·T_r  [k, 1]: speed response of ESC, motor and propeller",
+    "input_delay": "dead time += magnitude (whole samples)  [s]",
+    "actuator_lag": "T_a·τ̇_f = τ − τ_f  [T_a, s]: a first-order filter of the throttle in the ESC",
+    "thrust_coefficient": "C_T ← k·C_T  [k, 1]",
+    "thrust_law": "f = C_T·ρ·n_h²·D⁴·(n/n_h)^α, n_h the speed at half throttle  [α, 1]",
+    "gravity": "m·d ← k·m·d  [k, 1]: a counterweight moved (the inertia unchanged)",
+    "inertia": "J ← k·J  [k, 1]",
+    "viscous_friction": "c ← k·c  [k, 1]",
+    "coulomb_friction": "J·θ̈ −= J·(T_f/J)·sgn θ̇  [T_f/J, rad/s²]",
+    "end_stops": EFFECT_DOCS["end_stops"],
+    "sensor_offset": EFFECT_DOCS["sensor_offset"],
+    "sensor_scale": EFFECT_DOCS["sensor_scale"],
+    "angle_thrust_loss": EFFECT_DOCS["angle_thrust_loss"],
+    "offset_drift": EFFECT_DOCS["offset_drift"],
+    "rod_air_drag": EFFECT_DOCS["rod_air_drag"],
+}
+#: Effects of the amplifier plant: name -> physics [magnitude, unit].
+AMPLIFIER_EFFECT_DOCS: dict[str, str] = {
+    "amplifier_offset": "v_a += V_os  [V_os, V]: the amplifier's output offset",
+    "input_delay": "the command reaches the amplifier whole samples later  [T_d, s]",
+    "actuator_lag": "T_a·v̇_a = v_cmd − v_a  [T_a, s]: amplifier slew/filter",
+    "back_emf": "k_e ← k·k_e  [k, 1]",
+    "armature_resistance": "R_a ← k·R_a  [k, 1]",
+    "torque_constant": "k_t ← k·k_t  [k, 1]",
+    "rotor_friction": "B ← k·B  [k, 1]",
+    "motor_time_constant": "J_r ← k·J_r  [k, 1]",
+    "propeller_drag": "C_Q ← k·C_Q  [k, 1]: the propeller's drag torque",
+    "rotor_brush_friction": "J_r·ω̇ −= T_c·sgn ω  [T_c, N·m]: brush friction",
+    "thrust_coefficient": "C_T ← k·C_T  [k, 1]",
+    "thrust_law": ESC_EFFECT_DOCS["thrust_law"],
+    "gravity": ESC_EFFECT_DOCS["gravity"],
+    "inertia": ESC_EFFECT_DOCS["inertia"],
+    "viscous_friction": ESC_EFFECT_DOCS["viscous_friction"],
+    "coulomb_friction": ESC_EFFECT_DOCS["coulomb_friction"],
+    "end_stops": EFFECT_DOCS["end_stops"],
+    "sensor_offset": EFFECT_DOCS["sensor_offset"],
+    "sensor_scale": EFFECT_DOCS["sensor_scale"],
+    "angle_thrust_loss": EFFECT_DOCS["angle_thrust_loss"],
+    "offset_drift": EFFECT_DOCS["offset_drift"],
+    "rod_air_drag": EFFECT_DOCS["rod_air_drag"],
+}
+#: Factor effects of the two plants: effect -> field (of the plant, or ``rod.<field>``).
+ESC_SCALE = {"esc_speed_range": "battery", "esc_response": "response", "thrust_coefficient": "c_t",
+             "inertia": "rod.inertia", "viscous_friction": "rod.damping"}
+AMPLIFIER_SCALE = {"back_emf": "k_e", "armature_resistance": "R_a", "torque_constant": "k_t",
+                   "rotor_friction": "B",
+                   "motor_time_constant": "J_r", "propeller_drag": "c_q", "thrust_coefficient": "c_t",
+                   "inertia": "rod.inertia", "viscous_friction": "rod.damping"}
+
+
+def _apply_scales(p: Any, effects: Mapping[str, float], table: Mapping[str, str]) -> Any:
+    rod = p.rod
+    for eff, fld in table.items():
+        if eff in effects:
+            if fld.startswith("rod."):
+                rod = rod.scaled(**{fld[4:]: effects[eff]})
+            else:
+                p = p.scaled(**{fld: effects[eff]})
+    if "gravity" in effects:  # m·d scaled, J kept: the mass moved, not added
+        rod = dataclasses.replace(rod, com=rod.com * effects["gravity"])
+    return dataclasses.replace(p, rod=rod)
+
+
+class _RodPlant:
+    """The rod, the sensor and the integration shared by the ESC and amplifier plants.
+
+    Subclasses give :meth:`drive_state` (the actuator and rotor states' derivatives and the
+    propeller speed) and the state layout [θ, θ̇, *actuator states]."""
+
+    dt: float
+    substeps: int
+    effects: dict[str, float]
+    rod: RodParams
+    n_hover: float
+
+    def _rod_accel(self, th: float, thd: float, f: float) -> float:
+        r, e = self.rod, self.effects
+        if "angle_thrust_loss" in e:
+            f *= 1.0 - e["angle_thrust_loss"] * math.sin(th) ** 2
+        torque = -r.mass * G_STANDARD * r.com * math.sin(th) - r.damping * thd + r.arm * f
+        acc = torque / r.inertia
+        if "coulomb_friction" in e:
+            acc -= e["coulomb_friction"] * math.tanh(thd / COULOMB_VELOCITY)
+        if "rod_air_drag" in e:
+            acc -= e["rod_air_drag"] * thd * abs(thd)
+        return acc
+
+    def _thrust(self, omega: float) -> float:
+        alpha = self.effects.get("thrust_law", 2.0)
+        return prop_thrust(self.c_t, self.diameter, omega, alpha, self.n_hover)  # type: ignore[attr-defined]
+
+    def simulate(self, duty: np.ndarray) -> dict[str, np.ndarray]:
+        """Noise-free response to a duty sequence (τ_k held over [k·dt, (k+1)·dt)), from rest.
+
+        Returns ``t``, ``duty``, ``theta``, ``theta_dot``, ``omega_rotor``, ``theta_recorded`` and
+        the family's own channels (``i_a``, ``v_a`` of the amplifier plant).
+
+        Raises
+        ------
+        TruthError
+            On duty values outside [0, 1] or NaN.
+        """
+        duty = np.asarray(duty, dtype=float)
+        if duty.ndim != 1 or not np.all(np.isfinite(duty)) or duty.min() < 0.0 or duty.max() > 1.0:
+            raise TruthError("duty must be a finite 1-D sequence in [0, 1]")
+        n = duty.size
+        lag = round((self.base_dead_time + self.effects.get("input_delay", 0.0)) / self.dt)  # type: ignore[attr-defined]
+        delayed = np.concatenate([np.zeros(lag), duty])[:n] if lag else duty
+        s = self.rest_state()  # type: ignore[attr-defined]
+        h = self.dt / self.substeps
+        rows = []
+        th_max = self.effects.get("end_stops", math.inf)
+        for k in range(n):
+            rows.append(self.outputs(s, float(delayed[k])))  # type: ignore[attr-defined]
+            for _ in range(self.substeps):
+                s = self.step(s, float(delayed[k]), h)  # type: ignore[attr-defined]
+                if s[0] > th_max:  # hard stop: the rod is put back on the stop and rebounds
+                    s[0] = th_max
+                    if s[1] > 0.0:
+                        s[1] = -RESTITUTION * s[1]
+        t = np.arange(n) * self.dt
+        out = {key: np.array([r[key] for r in rows]) for key in rows[0]}
+        out.update(t=t, duty=duty, theta_recorded=_recorded_angle(out["theta"].copy(), t, self.effects))
+        return out
+
+
+def _rk4(f: Any, s: list[float], h: float) -> list[float]:
+    k1 = f(s, 0.0)
+    k2 = f([a + 0.5 * h * b for a, b in zip(s, k1, strict=True)], 0.5 * h)
+    k3 = f([a + 0.5 * h * b for a, b in zip(s, k2, strict=True)], 0.5 * h)
+    k4 = f([a + h * b for a, b in zip(s, k3, strict=True)], h)
+    return [a + h / 6.0 * (b + 2.0 * c + 2.0 * d + g)
+            for a, b, c, d, g in zip(s, k1, k2, k3, k4, strict=True)]
+
+
+class EscPlant(_RodPlant):
+    """The hidden ESC rig: :class:`EscParams` plus effects ``{name: magnitude}``
+    (:data:`ESC_EFFECT_DOCS`). State [θ, θ̇, ω, τ_f] (τ_f: the throttle filter of ``actuator_lag``).
+
+    Raises
+    ------
+    TruthError
+        On an unknown effect or a non-finite magnitude.
+    """
+
+    dt = 0.01
+    substeps = 8
+    channels = ("theta", "omega_rotor")
+
+    def __init__(self, params: EscParams | None = None, effects: Mapping[str, float] | None = None) -> None:
+        self.params = params or EscParams()
+        self.effects = _checked(effects, ESC_EFFECT_DOCS)
+        p = _apply_scales(self.params, self.effects, ESC_SCALE)
+        if "esc_idle" in self.effects:
+            p = dataclasses.replace(p, pulse_idle=self.effects["esc_idle"])
+        self.p, self.rod, self.c_t, self.diameter = p, p.rod, p.c_t, p.diameter
+        self.base_dead_time = p.dead_time
+        self.n_hover = self.omega_ss(0.5) / (2.0 * math.pi)
+
+    def omega_ss(self, tau: float) -> float:
+        """Steady rotor speed [rad/s] the ESC sets for throttle τ: K_v·V_bat·(share of the range
+        above the idle pulse)."""
+        p = self.p
+        pulse = p.pulse_min + tau * (p.pulse_max - p.pulse_min)
+        share = max(0.0, (pulse - p.pulse_idle) / (p.pulse_max - p.pulse_idle))
+        return p.kv_rpm * 2.0 * math.pi / 60.0 * p.battery * share
+
+    def rest_state(self) -> list[float]:
+        return [0.0, 0.0, 0.0, 0.0]
+
+    def step(self, s: list[float], tau: float, h: float) -> list[float]:
+        t_a = self.effects.get("actuator_lag", 0.0)
+
+        def f(x: list[float], _t: float) -> list[float]:
+            th, thd, w, tf = x
+            w_ss = self.omega_ss(min(max(tf, 0.0), 1.0) if t_a > 0.0 else tau)
+            return [thd, self._rod_accel(th, thd, self._thrust(w)), (w_ss - w) / self.p.response,
+                    (tau - tf) / t_a if t_a > 0.0 else 0.0]
+
+        return _rk4(f, s, h)
+
+    def outputs(self, s: list[float], tau: float) -> dict[str, float]:
+        return {"theta": s[0], "theta_dot": s[1], "omega_rotor": s[2]}
+
+
+class AmplifierPlant(_RodPlant):
+    """The hidden amplifier rig: :class:`AmplifierParams` plus effects ``{name: magnitude}``
+    (:data:`AMPLIFIER_EFFECT_DOCS`). State [θ, θ̇, i_a, ω, v_a] (v_a: the lagged amplifier output).
+
+    Raises
+    ------
+    TruthError
+        On an unknown effect or a non-finite magnitude.
+    """
+
+    dt = 2e-3
+    substeps = 4
+    channels = ("theta", "i_a", "omega_rotor")
+    base_dead_time = 0.0
+
+    def __init__(self, params: AmplifierParams | None = None,
+                 effects: Mapping[str, float] | None = None) -> None:
+        self.params = params or AmplifierParams()
+        self.effects = _checked(effects, AMPLIFIER_EFFECT_DOCS)
+        p = _apply_scales(self.params, self.effects, AMPLIFIER_SCALE)
+        self.p, self.rod, self.c_t, self.diameter = p, p.rod, p.c_t, p.diameter
+        self.n_hover = self.steady_speed(self.command(0.5)) / (2.0 * math.pi)
+
+    def command(self, tau: float) -> float:
+        """Amplifier output [V] for command τ: K_amp·(V_ref·τ) + V_os."""
+        return self.p.gain * self.p.v_ref * tau + self.effects.get("amplifier_offset", 0.0)
+
+    def _torque(self, i: float, w: float) -> float:
+        p = self.p
+        n = w / (2.0 * math.pi)
+        drag = p.c_q * RHO_AIR * n * abs(n) * p.diameter**5
+        brush = self.effects.get("rotor_brush_friction", 0.0) * math.tanh(w / BRUSH_VELOCITY)
+        return p.k_t * i - p.B * w - drag - brush
+
+    def steady_speed(self, v: float) -> float:
+        """Rotor speed [rad/s] at which the motor torque of the steady current balances the loads."""
+        p = self.p
+        lo, hi = 0.0, 1.0
+        while self._torque((v - p.k_e * hi) / p.R_a, hi) > 0.0:
+            hi *= 2.0
+        for _ in range(200):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if self._torque((v - p.k_e * mid) / p.R_a, mid) > 0.0 else (lo, mid)
+        return 0.5 * (lo + hi)
+
+    def rest_state(self) -> list[float]:
+        return [0.0, 0.0, 0.0, 0.0, self.command(0.0)]
+
+    def step(self, s: list[float], tau: float, h: float) -> list[float]:
+        """One substep of length h [s] with command τ held.
+
+        The current is split into its slow part, the steady current of the present voltage and
+        speed corrected to first order in τ_e = L_a/R_a for how fast they change (singular
+        perturbation: i = (v_a − k_e·ω)/R_a − τ_e·(v̇_a − k_e·ω̇)/R_a), and a fast transient
+        e(t) = e₀·exp(−t/τ_e) left by a voltage step, whose torque impulse is added exactly; the
+        mechanical states are integrated by RK4 with the slow current.
+        """
+        p, t_a = self.p, self.effects.get("actuator_lag", 0.0)
+        v_cmd = self.command(tau)
+        tau_e = p.L_a / p.R_a
+        c = tau_e * p.k_e / p.R_a  # ∂(slow current)/∂ω̇
+
+        def slow(x: list[float]) -> tuple[float, float, float]:
+            """(ω̇, v̇, slow current) at state x."""
+            _th, _thd, _i, w, v = x
+            v_a = v if t_a > 0.0 else v_cmd
+            dv = (v_cmd - v) / t_a if t_a > 0.0 else 0.0
+            i_ss = (v_a - p.k_e * w) / p.R_a - tau_e * dv / p.R_a
+            dw = self._torque(i_ss, w) / (p.J_r - p.k_t * c)
+            return dw, dv, i_ss + c * dw
+
+        def f(x: list[float], _t: float) -> list[float]:
+            th_, thd_ = x[0], x[1]
+            dw, dv, _ = slow(x)
+            return [thd_, self._rod_accel(th_, thd_, self._thrust(x[3])), 0.0, dw, dv]
+
+        e0 = s[2] - slow(s)[2]
+        x = _rk4(f, s, h)
+        decay = math.exp(-h / tau_e)
+        x[3] += p.k_t * e0 * tau_e * (1.0 - decay) / p.J_r
+        x[2] = slow(x)[2] + e0 * decay
+        return x
+
+    def outputs(self, s: list[float], tau: float) -> dict[str, float]:
+        v = s[4] if self.effects.get("actuator_lag", 0.0) > 0.0 else self.command(tau)
+        return {"theta": s[0], "theta_dot": s[1], "i_a": s[2], "omega_rotor": s[3], "v_a": v}
+
+
+def _checked(effects: Mapping[str, float] | None, docs: Mapping[str, str]) -> dict[str, float]:
+    out = dict(effects or {})
+    for k, v in out.items():
+        if k not in docs:
+            raise TruthError(f"unknown truth effect {k!r}; known: {sorted(docs)}")
+        if not math.isfinite(v):
+            raise TruthError(f"truth effect {k!r} magnitude {v!r} is not finite")
+    return out

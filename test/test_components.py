@@ -188,16 +188,17 @@ def test_esc_map_equilibrium_and_limits():
 
 
 def test_docs_tables_are_generated_from_the_registry():
-    """docs/model.md's families, slots, components, effects and parameters tables are current
-    (rewrite them with ``python tools/gen_model_tables.py``)."""
+    """docs/model.md's families, slots, components, effects and parameters tables and docs/gap.md's
+    catalog table are current (rewrite them with ``python tools/gen_model_tables.py``)."""
     import sys
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
     sys.path.insert(0, str(root / "tools"))
     try:
-        from gen_model_tables import render
+        from gen_model_tables import FILES, render
     finally:
         sys.path.pop(0)
-    _, stale = render((root / "docs" / "model.md").read_text(encoding="utf-8"))
-    assert not stale, f"docs/model.md: stale table(s) {stale}; run tools/gen_model_tables.py"
+    for name, tables in FILES.items():
+        _, stale = render((root / "docs" / name).read_text(encoding="utf-8"), tables)
+        assert not stale, f"docs/{name}: stale table(s) {stale}; run tools/gen_model_tables.py"

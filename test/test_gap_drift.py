@@ -37,15 +37,19 @@ DRIFT = 0.75  # mgd/J × 0.75 in the second session
 
 
 def test_drift_set_keeps_the_joint_fit_identifiable() -> None:
-    assert drift_set([]) == ["thrust_coefficient", "gravity", "viscous_friction"]
-    assert drift_set(["coulomb_friction"]) == ["coulomb_friction", "thrust_coefficient", "gravity",
-                                               "viscous_friction"]
+    # catalog order (the registry's): thrust, then the rod's viscous friction and gravity
+    assert drift_set([]) == ["thrust_coefficient", "viscous_friction", "gravity"]
+    assert drift_set(["coulomb_friction"]) == ["coulomb_friction", "thrust_coefficient", "viscous_friction",
+                                               "gravity"]
     # the thrust law sets K_q itself; the rod inertia is spanned by the three drift-prone parameters
-    assert drift_set(["thrust_law", "inertia"]) == ["thrust_law", "gravity", "viscous_friction"]
+    assert drift_set(["thrust_law", "inertia"]) == ["thrust_law", "viscous_friction", "gravity"]
     # the supply voltage only where v_a is recorded (from θ alone it is a thrust-gain change)
     assert drift_set([], ("theta", "i_a")) == drift_set([])
-    assert drift_set(["dead_zone"], ("theta", "v_a")) == ["dead_zone", "thrust_coefficient", "gravity",
-                                                          "viscous_friction", "supply_voltage"]
+    assert drift_set(["dead_zone"], ("theta", "v_a")) == ["dead_zone", "supply_voltage", "thrust_coefficient",
+                                                          "viscous_friction", "gravity"]
+    # an ESC rig: no supply voltage to drift, its battery moves the full-throttle speed instead
+    assert drift_set([], ("theta", "omega_rotor"), "esc") == ["esc_speed_range", "thrust_coefficient",
+                                                              "viscous_friction", "gravity"]
 
 
 def test_drift_prior_changes_any_number_of_parameters_and_keeps_its_spread() -> None:

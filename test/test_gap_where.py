@@ -195,3 +195,24 @@ def test_drift_between_repeats_is_reported():
     assert rp[0.5]["measured_drift_per_min"] == pytest.approx(0.24, rel=0.1)
     assert rp[0.5]["measured_spread"] == pytest.approx(0.004 * 24.0, rel=0.1)
     assert any("time-varying effect" in v for v in rep.verdict())
+
+
+def test_esc_rig_checks_its_rotor_response_and_says_which_checks_it_has_not(duty):
+    """An ESC rig has no armature voltage or current: those checks are 'not applicable to family
+    esc' (not 'needs i_a'), and the rotor check is its speed response (ω_ss(τ) − ω₁)/T_m − ω̇₁. A
+    speed response 3× slower than the rig file says is located there."""
+    from component_rigs import rig as family_rig
+
+    nominal = family_rig("esc").with_params("sensors", snr_db=55.0)
+    ok = locate_gap(nominal, [_record(nominal, duty, ("theta", "omega_rotor"), noise=True)]).recordings[0]
+    for name in ("actuator", "armature"):
+        e = ok.equation(name)
+        assert not e.checked and e.note.startswith("not applicable to family esc"), e.note
+    rotor = ok.equation("rotor")
+    assert rotor.checked and rotor.unit == "rad/s^2" and not rotor.flagged
+    assert set(rotor.groups) <= {"set_point", "response", "offset"}
+    slow = nominal.with_params("motor", T_m=3.0 * nominal.motor.T_m)
+    rep = locate_gap(nominal, [_record(slow, duty, ("theta", "omega_rotor"), noise=True)])
+    rotor = rep.recordings[0].equation("rotor")
+    assert rep.significant and rotor.flagged and rotor.relative > 0.05 and rep.subsystem == "motor"
+    assert rotor.top_group == "response"

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from aeropend_ident.errors import GapError
+from aeropend_ident.gap.effects import CATALOG
 from aeropend_ident.gap.synth import make_case
 from aeropend_ident.gap.which import detect_quantum, diagnose_effects, group_select, plant_side_alternative
 from aeropend_sim.params import load_rig, rig_from_dict
@@ -46,8 +47,9 @@ def test_hidden_input_delay_is_ranked_first_fitted_and_closes_the_held_out_gap()
     assert after["max_error"] < before["max_error"]
     # angle-only recordings: the electrical effects are reported, not guessed
     ni = {x["effect"]: x["reason"] for x in d.not_identifiable}
-    assert set(ni) == {"back_emf", "armature_resistance", "armature_inductance", "torque_constant",
-                       "rotor_friction", "propeller_drag"}
+    assert set(ni) == {e.name for e in CATALOG if set(e.needs_channels) - {"theta"}}
+    assert {"back_emf", "armature_resistance", "armature_inductance", "torque_constant", "rotor_friction",
+            "propeller_drag", "rotor_brush_friction"} <= set(ni)
     assert "needs i_a" in ni["back_emf"] and "needs omega_rotor" in ni["propeller_drag"]
     # JSON round trip; the corrected rig dict is a valid rig file
     doc = json.loads(json.dumps(d.as_dict()))

@@ -128,3 +128,148 @@ def test_a_lab_path_csv_import_gap_names_the_hidden_drag(tmp_path, truth_csv_pre
     assert rep["headline"]["heldout_shrink"] > 0.9
     assert rep["headline"]["heldout_channel_shrink"]["omega_rotor"] > 0.8
     assert rep["where_which"]["agree"]
+
+
+# ------------------------------------------------------------------ the other actuator families
+def _family_rig(fam, params):
+    from aeropend_sim.params import rig_from_dict
+
+    return rig_from_dict(fam.rig(params, "lab"), "lab.yaml")
+
+
+@pytest.mark.parametrize("family", ["esc", "voltage_amplifier"])
+def test_family_plants_agree_with_aeropend_on_the_labs_rig_file(family):
+    """The lab's rig file of each hidden plant (its own quantities converted as a lab does: K_v and
+    battery to ω_max, pulse widths to τ_0, C_T/C_Q to K_q/K_d, geometry to mgd/J and L/J) simulates
+    the same plant: two implementations agree to 1e-5 of each channel's range."""
+    import gap_families as gf
+
+    from aeropend_sim.simulate import simulate
+
+    fam = {"esc": gf.ESC, "voltage_amplifier": gf.AMPLIFIER}[family]
+    rng = np.random.default_rng(4)
+    for params in (fam.nominal(), fam.variant(rng)):
+        rig = _family_rig(fam, params)
+        assert rig.family == family
+        duty = tp.aprbs(15.0, seed=3, dt=fam.dt)
+        truth = fam.plant(params, {}).simulate(duty)
+        sim = simulate(rig, duty)
+        for c in fam.channels:
+            assert np.max(np.abs(sim.true[c] - truth[c])) < 1e-5 * np.ptp(truth[c]), (family, c)
+    if family == "esc":  # no armature channels: absent, not zeros
+        assert "i_a" not in sim.true and "v_a" not in sim.true
+
+
+def test_esc_plant_follows_its_throttle_map_dead_time_and_response():
+    p = tp.EscParams()
+    plant = tp.EscPlant(p)
+    # ω_ss = K_v·V_bat·(p − p_idle)/(p_max − p_idle): nothing below the idle pulse, linear above
+    w_full = p.kv_rpm * 2 * math.pi / 60 * p.battery
+    assert plant.omega_ss(1.0) == pytest.approx(w_full)
+    assert plant.omega_ss((p.pulse_idle - p.pulse_min) / 1000.0 - 0.01) == 0.0
+    assert plant.omega_ss(0.5) == pytest.approx(w_full * (1500 - p.pulse_idle) / (2000 - p.pulse_idle))
+    n = round(3.0 / plant.dt)
+    duty = np.concatenate([np.zeros(10), np.full(n, 0.6)])
+    out = plant.simulate(duty)
+    # the dead time: nothing moves before 10 + dead-time samples; then a first-order rise with T_r
+    k0 = 10 + round(p.dead_time / plant.dt)
+    assert np.all(out["omega_rotor"][: k0 + 1] == 0.0) and out["omega_rotor"][k0 + 2] > 0.0
+    k = k0 + round(p.response / plant.dt)
+    assert out["omega_rotor"][k] == pytest.approx((1 - math.exp(-1)) * plant.omega_ss(0.6), rel=1e-3)
+    # an extra dead time shifts everything by whole samples; a lower battery scales the speed
+    d = tp.EscPlant(p, {"input_delay": 0.03}).simulate(duty)
+    np.testing.assert_allclose(d["omega_rotor"][3:], out["omega_rotor"][:-3], atol=1e-9)
+    low = tp.EscPlant(p, {"esc_speed_range": 0.9}).simulate(duty)
+    assert low["omega_rotor"][-1] == pytest.approx(0.9 * out["omega_rotor"][-1], rel=1e-6)
+    # the rod at rest: (L·f) = m·g·d·sin θ with f = C_T·ρ·n²·D⁴
+    f = tp.prop_thrust(p.c_t, p.diameter, out["omega_rotor"][-1])
+    r = p.rod
+    long = tp.EscPlant(p).simulate(np.full(round(30.0 / plant.dt), 0.6))
+    held = math.asin(r.arm * f / (r.mass * tp.G_STANDARD * r.com))
+    assert long["theta"][-1] == pytest.approx(held, rel=1e-3)
+    with pytest.raises(tp.TruthError, match="unknown truth effect"):
+        tp.EscPlant(p, {"back_emf": 1.1})
+
+
+def test_amplifier_plant_steady_state_and_its_effects():
+    p = tp.AmplifierParams()
+    plant = tp.AmplifierPlant(p)
+    n = round(6.0 / plant.dt)
+    out = plant.simulate(np.full(n, 0.7))
+    v = p.gain * p.v_ref * 0.7
+    w = plant.steady_speed(v)
+    assert out["v_a"][-1] == pytest.approx(v) and out["omega_rotor"][-1] == pytest.approx(w, rel=1e-6)
+    assert out["i_a"][-1] == pytest.approx((v - p.k_e * w) / p.R_a, rel=1e-6)
+    # at that speed the motor torque balances viscous friction and the propeller's drag C_Q·ρ·n²·D⁵
+    q = p.c_q * tp.RHO_AIR * (w / (2 * math.pi)) ** 2 * p.diameter**5
+    assert p.k_t * out["i_a"][-1] == pytest.approx(p.B * w + q, rel=1e-6)
+    # brush friction slows the rotor; an output offset adds to the commanded voltage
+    slow = tp.AmplifierPlant(p, {"rotor_brush_friction": 2e-3}).simulate(np.full(n, 0.7))
+    ws = slow["omega_rotor"][-1]
+    qs = p.c_q * tp.RHO_AIR * (ws / (2 * math.pi)) ** 2 * p.diameter**5
+    assert ws < w - 5.0
+    assert p.k_t * slow["i_a"][-1] == pytest.approx(p.B * ws + qs + 2e-3, rel=1e-6)
+    off = tp.AmplifierPlant(p, {"amplifier_offset": 0.5}).simulate(np.full(10, 0.7))
+    assert off["v_a"][-1] == pytest.approx(v + 0.5)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("family", ["esc", "voltage_amplifier"])
+def test_baseline_fits_each_family_on_its_hidden_plant(family, tmp_path):
+    """``baseline`` (the grey-box fit of θ-only data) on an ESC and an amplifier rig: a rod whose
+    damping is 1.6× and whose gravity torque is 0.9× what the lab's rig file says; the fit finds
+    both (L/J absorbs the thrust scale) and the held-out error falls."""
+    import gap_families as gf
+
+    from aeropend_ident.greybox.baseline import run_baseline
+    from aeropend_sim.recording import Recording
+
+    fam = {"esc": gf.ESC, "voltage_amplifier": gf.AMPLIFIER}[family]
+    params = fam.nominal()
+    plant = fam.plant(params, {"viscous_friction": 1.6, "gravity": 0.9})
+    duty = tp.aprbs(40.0, seed=11, dt=fam.dt)
+    rec = tp.record(plant, duty, 50.0, seed=12, channels=("theta",))
+    recording = Recording(t=rec.t, duty=rec.duty, channels=dict(rec.channels), source=f"{family}-truth")
+    rig = _family_rig(fam, params)
+    rep = run_baseline(recording, rig, tmp_path / "out", train_fraction=0.7)
+    r = params.rod
+    fitted = {p["name"]: p["value"] for p in rep["parameters"]}
+    mgd = r.mass * tp.G_STANDARD * r.com / r.inertia
+    assert fitted["pendulum.c_over_J"] == pytest.approx(1.6 * r.damping / r.inertia, rel=0.02)
+    assert fitted["pendulum.mgd_over_J"] == pytest.approx(0.9 * mgd, rel=0.02)
+    held = rep["metrics"]["heldout"]
+    assert held["fitted"]["nrmse"] < 0.3 * held["nominal"]["nrmse"]
+    assert (tmp_path / "out" / "fitted_rig.yaml").is_file()
+
+
+@pytest.mark.slow
+def test_a_lab_path_with_an_esc_rig_names_a_slow_speed_response(tmp_path, truth_csv_preset):
+    """An ESC rig's lab path: CSV logs of θ and the ESC's rotor speed -> ``csv_import`` -> ``gap``
+    with the minimal ESC rig file. The rotor follows the throttle 2.5× more slowly than the rig
+    file says (a heavier propeller): named esc_response, T_m fitted, no armature check or
+    hypothesis reported (an ESC has no armature), and a report written like any other."""
+    import gap_families as gf
+    import yaml
+
+    from aeropend_ident.cli.gap import main
+
+    p = tp.EscParams()
+    plant = tp.EscPlant(p, {"esc_response": 2.5})
+    fit = tp.record(plant, tp.lhs_steps(40.0, seed=5, dt=plant.dt), 50.0, seed=6, channels=plant.channels)
+    held = tp.record(plant, tp.aprbs(30.0, seed=7, dt=plant.dt), 50.0, seed=8, channels=plant.channels)
+    fit.to_csv(tmp_path / "fit.csv")
+    held.to_csv(tmp_path / "held.csv")
+    preset = truth_csv_preset("_truth_esc_test", ("omega_rotor",))
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(gf.esc_rig(p, "lab_esc"), allow_unicode=True))
+    out = tmp_path / "report"
+    assert main([str(tmp_path / "fit.csv"), "--held-out", str(tmp_path / "held.csv"), "--preset", preset,
+                 "--rig", str(tmp_path / "rig.yaml"), "-o", str(out), "-q"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["headline"]["effects_chosen"][0] == "esc_response"
+    top = rep["which"]["ranking"][0]
+    assert top["parameters"]["T_m"]["value"] == pytest.approx(2.5 * p.response, rel=0.05)
+    candidates = ({r["effect"] for r in rep["which"]["ranking"]}
+                  | {x["effect"] for x in rep["which"]["not_identifiable"]})
+    assert not candidates & {"back_emf", "armature_resistance", "rotor_friction", "propeller_drag"}
+    assert rep["headline"]["heldout_shrink"] > 0.8
+    assert (out / "report.html").is_file() and (out / "corrected_rig.yaml").is_file()

@@ -1,11 +1,14 @@
 #!/usr/bin/env python3
-"""Write the families, components, effects and parameter tables of ``docs/model.md`` from the registry.
+"""Write the docs' tables of the plant's components and the gap catalog from the registry.
 
-Each table sits between ``<!-- BEGIN generated: NAME -->`` and ``<!-- END generated: NAME -->``
-markers and is rewritten from :mod:`aeropend_sim.components.registry`, so the docs cannot drift
-from the code; ``test/test_components.py`` fails when the file is not current.
+``docs/model.md``: families, slots, components, effects and parameters; ``docs/gap.md``: the gap
+diagnosis' catalog (every hypothesis, the part that declares it, its parameters and search ranges,
+the channels it needs, the families it belongs to). Each table sits between
+``<!-- BEGIN generated: NAME -->`` and ``<!-- END generated: NAME -->`` markers and is rewritten
+from :mod:`aeropend_sim.components.registry`, so the docs cannot drift from the code;
+``test/test_components.py`` fails when a file is not current.
 
-Usage: ``python tools/gen_model_tables.py [--check] [--file docs/model.md]``
+Usage: ``python tools/gen_model_tables.py [--check] [--file docs/model.md ...]``
 (``--check``: exit 1 and name the stale tables instead of writing).
 """
 
@@ -20,7 +23,7 @@ from pathlib import Path
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SLOTS, Effect, Param
 
-DEFAULT_FILE = Path(__file__).resolve().parents[1] / "docs" / "model.md"
+DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
 def _cell(text: str) -> str:
@@ -105,12 +108,37 @@ def slots_table() -> str:
     return "\n".join(rows)
 
 
+def catalog_table() -> str:
+    """The gap diagnosis' hypotheses (``aeropend_ident.gap.effects.catalog`` per family), by catalog order."""
+    fams = [f.name for f in registry.families()]
+    rows = ["| hypothesis | declared by | subsystem | parameter [unit]: search range | needs | "
+            + " | ".join(f"`{f}`" for f in fams) + " |",
+            "|---|---|---|---|---|" + "---|" * len(fams)]
+    for d in registry.diagnoses():
+        owner = registry.diagnosis_owner(d.name)
+        params = "; ".join(f"{s.name} [{s.unit}]: {s.range_doc}" for s in d.search)
+        kinds = {"drift": " (drift only)", "measurement": " (sensor transform)", "direct": " (detected)"}
+        kind = kinds.get(d.kind, "")
+        marks = " | ".join("✓" if owner.applies_to(registry.family(f)) is None else "—" for f in fams)
+        rows.append(f"| `{d.name}`{kind} | `{owner.name}` | {d.subsystem} | {_cell(params)} | "
+                    f"{', '.join(d.reveals)} | {marks} |")
+    return "\n".join(rows)
+
+
 TABLES = {"families": families_table, "components": components_table, "effects": effects_table,
           "parameters": params_table, "slots": slots_table}
+#: Tables of each docs file.
+FILES = {"model.md": TABLES, "gap.md": {"catalog": catalog_table}}
 
 
-def render(text: str) -> tuple[str, list[str]]:
+def render(text: str, tables: dict | None = None) -> tuple[str, list[str]]:
     """``text`` with every generated table rewritten, and the names of the tables that changed.
+
+    Parameters
+    ----------
+    text : str
+    tables : mapping, optional
+        Table name -> function; default the ``docs/model.md`` tables (:data:`FILES`).
 
     Raises
     ------
@@ -118,7 +146,7 @@ def render(text: str) -> tuple[str, list[str]]:
         If a table's markers are missing.
     """
     changed = []
-    for name, make in TABLES.items():
+    for name, make in (TABLES if tables is None else tables).items():
         pat = re.compile(rf"(<!-- BEGIN generated: {name} -->\n)(.*?)(<!-- END generated: {name} -->)", re.S)
         m = pat.search(text)
         if m is None:
@@ -133,21 +161,29 @@ def render(text: str) -> tuple[str, list[str]]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="do not write; exit 1 if a table is stale")
-    ap.add_argument("--file", type=Path, default=DEFAULT_FILE)
+    ap.add_argument("--file", type=Path, nargs="+", default=[DOCS / name for name in FILES],
+                    help=f"docs files (named {sorted(FILES)}; default all of them)")
     args = ap.parse_args()
-    try:
-        text, changed = render(args.file.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        print(f"gen_model_tables: {args.file}: {exc}", file=sys.stderr)
-        return 2
-    if args.check:
-        if changed:
-            print(f"{args.file}: stale table(s) {changed}; run tools/gen_model_tables.py", file=sys.stderr)
-            return 1
-        return 0
-    args.file.write_text(text, encoding="utf-8")
-    print(f"{args.file}: {'rewrote ' + ', '.join(changed) if changed else 'already current'}")
-    return 0
+    status = 0
+    for path in args.file:
+        tables = FILES.get(path.name)
+        if tables is None:
+            print(f"gen_model_tables: {path}: no generated tables for a file of that name; expected one of "
+                  f"{sorted(FILES)}", file=sys.stderr)
+            return 2
+        try:
+            text, changed = render(path.read_text(encoding="utf-8"), tables)
+        except (OSError, ValueError) as exc:
+            print(f"gen_model_tables: {path}: {exc}", file=sys.stderr)
+            return 2
+        if args.check:
+            if changed:
+                print(f"{path}: stale table(s) {changed}; run tools/gen_model_tables.py", file=sys.stderr)
+                status = 1
+            continue
+        path.write_text(text, encoding="utf-8")
+        print(f"{path}: {'rewrote ' + ', '.join(changed) if changed else 'already current'}")
+    return status
 
 
 if __name__ == "__main__":

@@ -6,7 +6,9 @@ Two inverse chains (thesis §6.5.1 and Fig. 6.7, "h⁻¹(f)"):
   (:class:`aeropend_sim.model.PlantModel`): thrust f = K_q·ω₂^α (Eq. 3.3) → ω₂ → ω₁ = n·ω₂
   (Eq. 3.4) → rotor torque balance K_t·i_a = B_m·ω₁ + K_d·ω₁² + T_c (steady state of the rotor
   equation) → v_a = R_a·i_a + K_ω·ω₁ (Eq. 3.5 at di_a/dt = 0) → τ from the inverse of the
-  rig's voltage map (Eq. 4.3 or ideal, :meth:`PlantModel.duty_for_voltage`);
+  rig's voltage map (Eq. 4.3 or ideal, :meth:`PlantModel.duty_for_voltage`). Every step is the
+  rig's own terms (their inverses, and the rotor-torque and armature terms of its components and
+  switched-on effects), so a load the rig models (brush friction, drag) is in the inverse;
 * :class:`ThesisAllocator` uses the thesis' fitted static maps: the inverse of Eq. 4.4
   (f = a₂·v_a² + a₁·v_a + a₀, a₂ = 0.054 N/V², a₁ = 0.0435 N/V, a₀ = 0.0029 N) and the
   inverse of Eq. 4.3 (v_a = k0 + k1·sqrt(k2·τ + k3)).
@@ -21,7 +23,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from aeropend_sim.model import ROTOR_FRICTION_VELOCITY, PlantModel
+from aeropend_sim.components.xp import MATH
+from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig
 
 #: Thesis Eq. 4.4 coefficients (a₂ [N/V²], a₁ [N/V], a₀ [N]) of f = a₂·v_a² + a₁·v_a + a₀.
@@ -80,31 +83,45 @@ class ModelAllocator:
 
     def __init__(self, rig: Rig) -> None:
         self.model = PlantModel(rig)
-        m = self.model
-        if m.K_q <= 0.0 or m.K_t <= 0.0 or m.R <= 0.0:
-            raise AllocationError(f"rig {rig.name!r}: K_q, K_t, R_a must be > 0 for allocation")
-        self.v_max = m.armature_voltage(1.0)
+        a = self.model.assembly
+        if not a.armature:
+            raise AllocationError(f"rig {rig.name!r}: the {rig.family} family has no armature voltage to "
+                                  "allocate (its drive is the ESC's speed set-point)")
+        if a.values["thrust.K_q"] <= 0.0:
+            raise AllocationError(f"rig {rig.name!r}: K_q must be > 0 for allocation")
+        self.v_max = self.model.armature_voltage(1.0)
         self.f_max = self.thrust_for_voltage(self.v_max)
+
+    def _inverse(self, slot: str, y: float) -> float:
+        """The slot's term inverted at output y (thrust → ω₂, gear → ω₁)."""
+        a = self.model.assembly
+        term = a.slots[slot][-1]
+        return float(term.inverse(MATH, y, *(a.by_name[p] for p in term.param_names)))
+
+    def _current(self, v_a: float, w: float) -> float:
+        """Steady armature current i_a [A] at voltage v_a and speed ω₁ (Eq. 3.5 at di_a/dt = 0)."""
+        a = self.model.assembly
+        return (v_a + sum(a.slot_values("armature", MATH, {"omega": w}).values())) / a.values["motor.R_a"]
+
+    def _torque(self, i_a: float, w: float) -> float:
+        """Net rotor torque [N·m]: the rig's rotor-torque terms (K_t·i_a − loads)."""
+        return sum(self.model.assembly.slot_values("rotor_torque", MATH, {"i_a": i_a, "omega": w}).values())
 
     def voltage_for_thrust(self, f: float) -> float:
         """Steady-state armature voltage v_a [V] that produces thrust f ≥ 0 [N]."""
-        m = self.model
-        w2 = (f / m.K_q) ** (1.0 / m.alpha) if f > 0.0 else 0.0
-        w1 = m.n * w2
-        torque = m.B_m * w1 + m.K_d * w1 * w1
-        if m.T_cm > 0.0 and w1 > 0.0:
-            torque += m.T_cm * math.tanh(w1 / ROTOR_FRICTION_VELOCITY)
-        return m.R * torque / m.K_t + m.K_w * w1
+        a = self.model.assembly
+        w1 = self._inverse("gear", self._inverse("thrust", f)) if f > 0.0 else 0.0
+        vals = {**a.by_name, "i_a": 0.0, "omega": w1}
+        # the rotor's torque is linear in i_a: i_a = −(torque at i_a = 0)/(∂torque/∂i_a)
+        gain = sum(t.partial(MATH, "i_a", vals) for t in a.slots["rotor_torque"])
+        i_a = -self._torque(0.0, w1) / gain
+        return a.values["motor.R_a"] * i_a - sum(a.slot_values("armature", MATH, {"omega": w1}).values())
 
     def speed_for_voltage(self, v_a: float) -> float:
         """Steady-state rotor speed ω₁ [rad/s] at armature voltage v_a (bisection on the torque balance)."""
-        m = self.model
 
         def excess(w: float) -> float:  # motor torque − load torque, decreasing in w
-            load = m.B_m * w + m.K_d * w * w
-            if m.T_cm > 0.0:
-                load += m.T_cm * math.tanh(w / ROTOR_FRICTION_VELOCITY)
-            return m.K_t * (v_a - m.K_w * w) / m.R - load
+            return self._torque(self._current(v_a, w), w)
 
         if excess(0.0) <= 0.0:
             return 0.0

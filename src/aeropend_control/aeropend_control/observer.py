@@ -110,11 +110,11 @@ class ThrustPredictor:
     """Rotor speed ω̂₁ and mean thrust over a sample period from the applied duty (see module doc).
 
     The drive chain of the rig file, sample by sample: the input delay (a FIFO of whole samples,
-    when the rig enables it), the first-order actuator lag (when enabled), the dead zone and
-    voltage map (:meth:`PlantModel.armature_voltage`), the armature current quasi-static
-    (i = (v_a − K_ω·ω₁)/R_a) and the rotor J_m·ω̇₁ = K_t·i − B_m·ω₁ − K_d·ω₁|ω₁|; RK4 over one
-    period, the thrust averaged by Simpson's rule on the stages. A rig that knows its lag or delay
-    thus predicts the thrust the plant really produces. (The armature current as a state, for
+    when the rig enables it), then the model's own right-hand side for the actuator lag (when
+    enabled), the dead zone and drive map and the rotor (J_m·ω̇₁ = K_t·i − B_m·ω₁ − K_d·ω₁|ω₁| − …
+    with the armature current quasi-static, i = (v_a − K_ω·ω₁)/R_a; an ESC's speed response);
+    RK4 over one period, the thrust averaged by Simpson's rule on the stages. A rig that knows its
+    lag or delay thus predicts the thrust the plant really produces. (The armature current as a state, for
     thesis_sim's L_a/R_a = 115 ms, was tried: on the independent benchmark the cascades then
     limit-cycled in 24 instead of 18 of 48 runs, FL/small-signal unchanged; docs/control.md.)
 
@@ -128,6 +128,7 @@ class ThrustPredictor:
 
     def __init__(self, model: PlantModel, dt: float) -> None:
         self.m = model
+        self._rotor = PlantModel(model.rig.with_effects(armature_inductance="quasi_static"))
         self.dt = dt
         self.n_delay = round(model.delay / dt) if model.delay > 0.0 else 0
         self.reset()
@@ -140,11 +141,8 @@ class ThrustPredictor:
 
     def _deriv(self, w: float, tf: float, tau: float) -> tuple[float, float]:
         """(dω/dt, dτ_f/dt) at rotor speed w, lagged duty tf and commanded duty τ."""
-        m = self.m
-        v_a = m.armature_voltage(min(max(tf if m.lag else tau, 0.0), 1.0))
-        i = (v_a - m.K_w * w) / m.R
-        dw = (m.K_t * i - m.B_m * w - m.K_d * w * abs(w)) / m.J_m
-        return dw, ((tau - tf) / m.T_a if m.lag else 0.0)
+        f = self._rotor.rhs(0.0, [0.0, 0.0, 0.0, w, min(max(tf, 0.0), 1.0)], tau)
+        return f[3], f[4]
 
     def advance(self, duty: float) -> float:
         """Integrate the motor over one period at duty τ (after the delay line); return the mean

@@ -31,7 +31,6 @@ import math
 
 import numpy as np
 
-from aeropend_sim.components import registry
 from aeropend_sim.components.assembly import (
     I_A,
     N_STATES,
@@ -49,15 +48,10 @@ from aeropend_sim.params import Rig
 STATE_NAMES: tuple[str, ...] = ("theta", "theta_dot", "i_a", "omega_rotor", "tau_f")
 STATE_UNITS: tuple[str, ...] = ("rad", "rad/s", "A", "rad/s", "1")
 
-#: Regularisation width [rad/s] of sign(ω₁) in the rotor brush friction: the default of
-#: ``motor.rotor_friction_velocity`` (read by the torque sums aeropend_ident still writes by hand).
-ROTOR_FRICTION_VELOCITY: float = registry.param("motor.rotor_friction_velocity").absent  # type: ignore[assignment]
-
 __all__ = [
     "I_A",
     "N_STATES",
     "OMEGA",
-    "ROTOR_FRICTION_VELOCITY",
     "STATE_NAMES",
     "STATE_UNITS",
     "TAU_F",
@@ -76,7 +70,7 @@ _LEGACY_ATTRS: dict[str, tuple[str, bool]] = {
     "T_a": ("actuator.lag_time_constant", False), "tau_dz": ("actuator.dead_zone", True),
     "v_supply": ("actuator.v_supply", False), "R": ("motor.R_a", False), "L": ("motor.L_a", False),
     "K_w": ("motor.K_omega", True), "K_t": ("motor.K_t", False), "J_m": ("motor.J_m", False),
-    "B_m": ("motor.B_m", True), "T_cm": ("motor.T_c", True), "K_d": ("motor.K_d", True),
+    "B_m": ("motor.B_m", True), "K_d": ("motor.K_d", True),
     "n": ("motor.gear_ratio", False), "K_q": ("thrust.K_q", False), "alpha": ("thrust.exponent", True),
     "a_g": ("pendulum.mgd_over_J", False), "a_c": ("pendulum.c_over_J", True),
     "a_f": ("pendulum.coulomb_over_J", True), "v_eps": ("pendulum.friction_velocity", False),

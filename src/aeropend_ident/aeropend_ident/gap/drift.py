@@ -70,30 +70,25 @@ from aeropend_ident.gap.which import (
     prepare,
     replay,
 )
+from aeropend_sim.components import registry
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
-#: Drift-prone parameters: effect -> (rig section, field). The supply voltage (a drift-only entry,
-#: :data:`aeropend_ident.gap.effects.DRIFT_ONLY`) needs the armature voltage v_a recorded: with the
-#: angle alone a supply change is a thrust-gain change (thrust ∝ v_a²), which K_q's prior covers.
+#: Drift-prone parameters: effect -> (rig section, field), every hypothesis of the registry that
+#: declares a session-to-session drift (:attr:`aeropend_sim.components.base.Diagnosis.drift_sigma`),
+#: in catalog order. A drift-only entry (the supply voltage, :func:`aeropend_ident.gap.effects.drift_only`)
+#: needs the armature voltage v_a recorded: with the angle alone a supply change is a thrust-gain
+#: change (thrust ∝ v_a²), which K_q's prior covers.
 DRIFT_PARAMETERS: dict[str, tuple[str, str]] = {
-    "thrust_coefficient": ("thrust", "K_q"),
-    "gravity": ("pendulum", "mgd_over_J"),
-    "viscous_friction": ("pendulum", "c_over_J"),
-    "supply_voltage": ("actuator", "v_supply"),
+    d.name: tuple(d.search[0].target.split(".", 1)) for d in registry.diagnoses() if d.drift_sigma > 0.0
 }
 #: Prior standard deviation of the session-to-session log change of each drift-prone parameter
-#: (0.15 ≈ ±15 %); its shape is :func:`draw_log_changes`'. Physical sizes (docs/gap.md, "Drift
-#: prior"): K_q from air density (weather ±2–3 %, temperature ±1.7 %) and a re-mounted or replaced
-#: propeller (a few to ~10 %); mgd/J from re-assembly (counterweight, cable, sensor mount);
-#: c/J from the bearing lubricant's viscosity (≈ −5 %/K at room temperature, drag ∝ ν^(2/3)) and
-#: standstill / run-in; the supply voltage from what lab supplies do (a 3-cell LiPo 12.6 → 10.5 V
-#: over its charge, a USB port 4.75–5.25 V, a bench supply < 1 %); the real rigs in
+#: (0.15 ≈ ±15 %), declared with the hypothesis (its physical size and reason there, and in
+#: docs/gap.md, "Drift prior"); its shape is :func:`draw_log_changes`'. The real rigs in
 #: ``../shared/data/real`` show such changes between sessions (AeroShield's thrust per duty up to
 #: 35 % apart at 29–33 PWM counts, Etchepareborda's rod hanging 0.1–0.2 rad higher). Used only
 #: when the fit data hold one session.
-DRIFT_PRIOR: dict[str, float] = {"thrust_coefficient": 0.15, "gravity": 0.10, "viscous_friction": 0.25,
-                                 "supply_voltage": 0.08}
+DRIFT_PRIOR: dict[str, float] = {d.name: d.drift_sigma for d in registry.diagnoses() if d.drift_sigma > 0.0}
 #: Monte-Carlo draws of the prediction (one replay of each validation recording per draw).
 N_DRAWS = 300
 #: Block length of the within-session error [s].
@@ -133,10 +128,12 @@ def noise_floor(prep: Prepared) -> float:
     return measurement_noise(prep.y["theta"]) / prep.scale["theta"]
 
 
-def drift_parameters(channels: Sequence[str]) -> list[str]:
-    """The drift-prone parameters (:data:`DRIFT_PARAMETERS`) identifiable from these channels."""
+def drift_parameters(channels: Sequence[str], family: str = registry.DEFAULT_FAMILY) -> list[str]:
+    """The drift-prone parameters (:data:`DRIFT_PARAMETERS`) of a rig of ``family`` identifiable
+    from these channels."""
     have = frozenset(channels) | {"theta"}
-    return [e for e in DRIFT_PARAMETERS if identifiable(get_effect(e), have) is None]
+    return [e for e in DRIFT_PARAMETERS
+            if family in get_effect(e).families and identifiable(get_effect(e), have) is None]
 
 
 def _perturbed(rig: Rig, factors: Mapping[str, float]) -> Rig:
@@ -144,11 +141,8 @@ def _perturbed(rig: Rig, factors: Mapping[str, float]) -> Rig:
     for eff, f in factors.items():
         section, name = DRIFT_PARAMETERS[eff]
         v = float(getattr(getattr(new, section), name))
-        if v != 0.0 and f != 1.0:
-            if eff == "supply_voltage":  # the Eq. 4.3 drive map scales with the supply too
-                new = get_effect(eff).apply(new, {name: v * f})
-            else:
-                new = new.with_params(section, **{name: v * f})
+        if v != 0.0 and f != 1.0:  # through the effect: the Eq. 4.3 map scales with the supply too
+            new = get_effect(eff).apply(new, {name: v * f})
     return new
 
 
@@ -314,7 +308,7 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     blocks = [float(b) for rec in per_rec for b in rec]
     floors = [noise_floor(p) for p in preps]
     vals, std = _chosen_values(diag)
-    params = drift_parameters(diag.channels or ("theta",))
+    params = drift_parameters(diag.channels or ("theta",), nominal.family)
     sensitivity = {}
     for eff in params:
         s = sigma.get(eff, 0.0)
@@ -396,7 +390,7 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
 
     say = progress or (lambda _m: None)
     vals, std = _chosen_values(diag)
-    dset = drift_set(diag.chosen, diag.channels or ("theta",))
+    dset = drift_set(diag.chosen, diag.channels or ("theta",), nominal.family)
     fit_a = None
     if fit:
         say(f"attainable: fitting {', '.join(dset)} on the fit recordings")
@@ -462,13 +456,14 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
 SPANNED_BY_DRIFT = ("inertia",)
 
 
-def drift_set(chosen: Sequence[str], channels: Sequence[str] = ("theta",)) -> list[str]:
+def drift_set(chosen: Sequence[str], channels: Sequence[str] = ("theta",),
+              family: str = registry.DEFAULT_FAMILY) -> list[str]:
     """The chosen effects plus the drift-prone parameters identifiable from ``channels``
     (:func:`drift_parameters`) they do not already set (an effect the drift-prone parameters span,
     :data:`SPANNED_BY_DRIFT`, is replaced by them)."""
     kept = [n for n in chosen if n not in SPANNED_BY_DRIFT]
     excluded = excluded_with(kept)
-    return [*kept, *(e for e in drift_parameters(channels) if e not in excluded)]
+    return [*kept, *(e for e in drift_parameters(channels, family) if e not in excluded)]
 
 
 def _session_labels(sessions: Sequence[Sequence[Recording]], labels: Sequence[str] | None,
@@ -621,7 +616,8 @@ def session_analysis(nominal: Rig, sessions: Sequence[Sequence[Recording]], chos
         n1 = float(np.mean([theta_nrmse(d.corrected_rig, d.measurement, p) for p in preps]))
         loo.append({"left_out": lab, "chosen_on_others": list(d.chosen), "nrmse_nominal": n0,
                     "nrmse_corrected": n1, "shrink": 1.0 - n1 / n0 if n0 > 0 else math.nan})
-    table = drift_table(nominal, sessions, drift_set(chosen, channels), labels=labels, channels=channels,
+    table = drift_table(nominal, sessions, drift_set(chosen, channels, nominal.family), labels=labels,
+                        channels=channels,
                         progress=progress)
     return {"sessions": labels, "per_session": per, "leave_one_out": loo, "drift": table,
             "drift_sigma": session_sigma(table)}

@@ -1,40 +1,20 @@
 """Catalog of candidate unmodelled effects for the sim-to-real gap diagnosis ("which").
 
 Each :class:`Effect` is a small group of **physical parameters** that, added to a nominal rig,
-changes the simulated response in one characteristic way. The catalog covers what labs get
-wrong (drive, motor, aerodynamics, pendulum, sensor):
-
-=====================  ===========  ==========================================================
-effect                 subsystem    fitted parameter(s), SI
-=====================  ===========  ==========================================================
-dead_zone              actuator     duty-cycle dead zone τ_dz [1]
-hbridge_drop           electrical   voltage lost across the bridge switches V_d [V]
-actuator_lag           actuator     first-order lag T_a [s]
-input_delay            actuator     transport delay T_d [s]
-back_emf               motor        back-EMF constant K_ω [V·s/rad]
-armature_resistance    electrical   R_a [Ω]
-armature_inductance    electrical   L_a [H]
-torque_constant        motor        K_t [N·m/A]
-rotor_friction         motor        rotor viscous friction B_m [N·m·s/rad]
-motor_time_constant    motor        rotor-side inertia J_m [kg·m²]
-propeller_drag         aerodynamic  drag torque coefficient K_d [N·m·s²] (J_m·ω̇₁ −= K_d·ω₁|ω₁|)
-thrust_coefficient     aerodynamic  K_q [N·s²] of f = K_q·ω₂² (thesis Eq. 3.3/4.4)
-thrust_law             aerodynamic  K_q [N·s^α] and exponent α of f = K_q·|ω₂|^α (level and shape)
-viscous_friction       pendulum     c/J [1/s]
-coulomb_friction       pendulum     T_f/J [rad/s²]
-gravity                pendulum     mgd/J [1/s²]
-inertia                pendulum     J/J_nominal [1] (every /J term divided by it)
-end_stops              pendulum     upper stop angle θ_max [rad]
-sensor_offset          sensor       θ_model − θ_recorded [rad]
-sensor_scale           sensor       sensor gain s [1]
-quantisation           sensor       angle LSB q [rad] (detected from the data)
-=====================  ===========  ==========================================================
+changes the simulated response in one characteristic way. The catalog is not written here: every
+hypothesis is declared once, as plain data, by the component or effect it belongs to
+(:class:`aeropend_sim.components.base.Diagnosis` in its module under ``aeropend_sim.components``:
+description, parameters and their search ranges, how it is applied to a rig, revealing channels,
+confusable hypotheses, discrepancy-SINDy terms), and :func:`catalog` reads them from the registry
+for the rig's actuator family: a hypothesis whose part does not belong on that family (a back-EMF
+error on an ESC rig) is not a candidate. ``docs/gap.md`` lists them (a table generated from the
+registry by ``tools/gen_model_tables.py``).
 
 Every parameter is fitted in its physical unit, and its **search range is derived from the rig
 and the recorded signals** (:class:`EffectContext`), not from the nominal value alone, so an
 effect the nominal rig omits (K_d = 0, no dead zone, no delay, B_m = 0) is found at any
 plausible size: e.g. the propeller drag spans 1e-3 to 3 times the drag that would halve the
-steady rotor speed at the largest recorded duty cycle (:meth:`EffectContext.halving_drag`).
+steady rotor speed at the largest recorded duty cycle (:meth:`EffectContext.rotor_torque`).
 Strictly positive parameters are searched on a log scale.
 
 Every entry also says
@@ -62,20 +42,21 @@ import dataclasses
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from functools import cache
 from typing import Any
 
 import numpy as np
 
 from aeropend_ident.errors import GapError
-from aeropend_sim.model import ROTOR_FRICTION_VELOCITY, PlantModel
-from aeropend_sim.params import Rig, RigFileError
+from aeropend_sim.components import registry
+from aeropend_sim.components.base import SECTIONS, Diagnosis
+from aeropend_sim.components.xp import MATH
+from aeropend_sim.model import PlantModel
+from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
 #: Fewest samples a recording must have for the gap diagnosis.
 MIN_RECORDING_SAMPLES = 200
-#: Contact stiffness of an end stop added to a rig without one, in units of mgd/J [1/rad]
-#: (penetration 5 mrad under the full gravity torque).
-STOP_STIFFNESS_FACTOR = 200.0
 
 
 @dataclass(frozen=True)
@@ -109,7 +90,8 @@ class MeasurementMap:
 
 @dataclass(frozen=True)
 class EffectContext:
-    """Physical scales of a rig and its recordings that set the effects' search ranges.
+    """Physical scales of a rig and its recordings that set the effects' search ranges (the ``ctx``
+    of :attr:`aeropend_sim.components.base.Search.range`).
 
     Attributes
     ----------
@@ -117,8 +99,9 @@ class EffectContext:
         Nominal rig.
     duty_max : float
         Largest recorded duty cycle [1] (0.99 quantile).
-    v_max : float
-        Nominal armature voltage at ``duty_max`` [V].
+    drive_max : float
+        Nominal drive quantity at ``duty_max``: armature voltage v_a [V], or an ESC's rotor-speed
+        set-point ω_ss [rad/s].
     omega_max : float
         Nominal steady rotor speed at ``duty_max`` [rad/s].
     omega_ref : float
@@ -130,7 +113,7 @@ class EffectContext:
 
     rig: Rig
     duty_max: float
-    v_max: float
+    drive_max: float
     omega_max: float
     omega_ref: float
     theta_hi: float
@@ -157,33 +140,31 @@ class EffectContext:
         except IdentificationError as exc:
             raise GapError(f"nominal rig {rig.name!r} is not usable: {exc}") from exc
         th = np.asarray(theta, dtype=float)
-        return cls(rig=rig, duty_max=d_max, v_max=float(model.armature_voltage(d_max)),
+        return cls(rig=rig, duty_max=d_max, drive_max=float(model.drive(d_max)),
                    omega_max=float(abs(w_max)), omega_ref=max(abs(w_med / rig.motor.gear_ratio), 1e-9),
                    theta_hi=float(np.quantile(th, 0.995)) if th.size else 0.5)
 
-    def _motor(self) -> PlantModel:
-        return PlantModel(self.rig)
+    def rotor_torque(self, omega: float, without: str = "") -> float:
+        """Nominal net torque on the rotor [N·m] at speed ω₁ [rad/s] and the drive at ``duty_max``.
 
-    def rotor_torque(self, omega: float) -> float:
-        """Nominal net driving torque K_t·i_a − B_m·ω₁ − T_c·sgn ω₁ [N·m] at ``v_max`` and speed ω₁."""
-        m = self._motor()
-        i = (self.v_max - m.K_w * omega) / m.R
-        return m.K_t * i - m.B_m * omega - m.T_cm * math.tanh(omega / ROTOR_FRICTION_VELOCITY)
+        The rig's ``rotor_torque`` terms (motor torque K_t·i_a and the active loads,
+        :meth:`aeropend_sim.components.assembly.Assembly.slot_values`) at the steady armature
+        current of that drive and speed, leaving out the terms of the effect ``without`` (the torque
+        that effect would have to balance).
 
-    def halving_drag(self) -> float:
-        """Propeller drag K_d [N·m·s²] that would halve the steady rotor speed at ``v_max``.
-
-        From the rotor torque balance at ω₁ = ω_max/2 (thesis Eq. 3.8 with the drag term):
-        K_d = (K_t·i_a − B_m·ω₁ − T_c − K_d,nominal·ω₁²)/ω₁² + K_d,nominal.
+        Raises
+        ------
+        GapError
+            If the rig's family has no rotor torque balance (an ESC).
         """
-        w = 0.5 * max(self.omega_max, 1e-9)
-        return max(self.rotor_torque(w) / w**2, 1e-30)
-
-    def halving_friction(self) -> float:
-        """Rotor viscous friction B_m [N·m·s/rad] that would halve the steady rotor speed at ``v_max``."""
-        w = 0.5 * max(self.omega_max, 1e-9)
-        m = self._motor()
-        return max((self.rotor_torque(w) - m.K_d * w * w) / w + m.B_m, 1e-30)
+        model = PlantModel(self.rig.with_effects(armature_inductance="quasi_static"))
+        a = model.assembly
+        if not a.armature:
+            raise GapError(f"rig {self.rig.name!r} ({self.rig.family}) has no rotor torque balance")
+        point = a.point(MATH, [0.0, 0.0, 0.0, float(omega), self.duty_max], self.duty_max)
+        skip = {t.label for t in registry.effect(without).terms} if without else set()
+        terms = a.slot_values("rotor_torque", MATH, {"i_a": point["i_a"], "omega": float(omega)})
+        return sum((v for k, v in terms.items() if k not in skip), 0.0)
 
 
 @dataclass(frozen=True)
@@ -208,7 +189,7 @@ class ParamRange:
 
 @dataclass(frozen=True)
 class EffectParameter:
-    """One fitted parameter of an effect.
+    """One fitted parameter of an effect (a :class:`aeropend_sim.components.base.Search`).
 
     Attributes
     ----------
@@ -250,7 +231,8 @@ class EffectParameter:
 
 @dataclass(frozen=True)
 class Effect:
-    """One catalog entry (see the module docstring).
+    """One catalog entry: a :class:`aeropend_sim.components.base.Diagnosis` of the registry, with
+    the operations the diagnosis needs (see the module docstring).
 
     Attributes
     ----------
@@ -267,16 +249,14 @@ class Effect:
     terms : dict
         Discrepancy-SINDy term group: equation (``"theta_dot"``, ``"i_a"``, ``"omega_rotor"``,
         ``"v_a"``) -> named candidate columns.
-    model_switch : str
-        The :class:`aeropend_sim.params.Effects` switch it turns on ("" for parameter errors and
-        measurement transforms).
     confusable_with : tuple of str
-        Effects with a similar signature on the channels named in ``needs_channels``.
+        Effects with a similar signature on the channels named in ``needs_channels`` (of any
+        family: a reader keeps the ones in its rig's catalog).
     kind : str
         ``"model"`` (changes the plant), ``"measurement"`` (θ transform), ``"direct"``
         (detected from the data itself, e.g. quantisation) or ``"drift"`` (a rig quantity that
         changes between sessions rather than missing physics: fitted by the session-drift
-        analysis only, never chosen by the diagnosis; :data:`DRIFT_ONLY`).
+        analysis only, never chosen by the diagnosis; :func:`drift_only`).
     screened : bool
         Part of the discrepancy-SINDy screening (default). False: always confirmed by a grey-box
         fit instead (the motor time constant, whose θ̈ column is nearly collinear with the damping
@@ -290,6 +270,10 @@ class Effect:
         An operating-point refinement of these effects (Stribeck friction of Coulomb friction):
         never screened or confirmed on its own, only tried as a richer replacement once one of
         them is chosen, and kept only when it removes clearly more (as ``nests``).
+    families : tuple of str
+        Actuator families whose rigs can have it (its declaring part's).
+    timing : bool
+        Changes when the thrust follows the command (:func:`timing_effects`).
     """
 
     name: str
@@ -298,7 +282,6 @@ class Effect:
     needs_channels: tuple[str, ...]
     parameters: tuple[EffectParameter, ...]
     terms: dict[str, tuple[str, ...]]
-    model_switch: str
     confusable_with: tuple[str, ...] = ()
     kind: str = "model"
     _apply: Callable[[Rig, Mapping[str, float]], Rig] | None = field(default=None, repr=False, compare=False)
@@ -306,6 +289,19 @@ class Effect:
     exclusive_with: tuple[str, ...] = ()
     nests: tuple[str, ...] = ()
     refines: tuple[str, ...] = ()
+    families: tuple[str, ...] = ()
+    timing: bool = False
+
+    @classmethod
+    def of(cls, d: Diagnosis) -> Effect:
+        """The catalog entry of a registry :class:`~aeropend_sim.components.base.Diagnosis`."""
+        owner = registry.diagnosis_owner(d.name)
+        fams = tuple(f.name for f in registry.families() if owner.applies_to(f) is None)
+        params = tuple(EffectParameter(s.name, s.unit, s.limits, s.target, s.doc, s.range, s.log)
+                       for s in d.search)
+        return cls(d.name, d.subsystem, d.description, d.reveals, params, dict(d.sindy_terms),
+                   d.confusable_with,
+                   d.kind, d.apply, d.screened, d.exclusive_with, d.nests, d.refines, fams, d.timing)
 
     @property
     def parameter_names(self) -> tuple[str, ...]:
@@ -354,22 +350,26 @@ class Effect:
     def apply(self, rig: Rig, values: Mapping[str, float]) -> Rig:
         """The rig with this effect switched on at the given physical values.
 
-        Measurement transforms and directly detected effects return the rig unchanged (see
-        :meth:`measurement`, :func:`apply_effects`).
+        Measurement transforms return the rig unchanged (see :meth:`measurement`,
+        :func:`apply_effects`).
 
         Raises
         ------
         GapError
-            On unknown or missing parameters, values outside the physical limits, or values the
-            rig format rejects.
+            On unknown or missing parameters, values outside the physical limits, values the rig
+            format rejects, or a rig of a family this effect does not belong to.
         """
         vals = self.values(values)
         if self._apply is None:
             return rig
+        if rig.family not in self.families:
+            raise GapError(f"effect {self.name!r} is not a hypothesis for rig {rig.name!r} of the "
+                           f"{rig.family} "
+                           f"family (it belongs to {' and '.join(self.families)} rigs)")
         try:
             return self._apply(rig, vals)
-        except RigFileError as exc:
-            raise GapError(f"effect {self.name!r} with {vals}: rejected by the rig format: {exc}") from exc
+        except ValueError as exc:
+            raise GapError(f"effect {self.name!r} with {vals}: rejected: {exc}") from exc
 
     def measurement(self, current: MeasurementMap, values: Mapping[str, float]) -> MeasurementMap:
         """The measurement map with this effect's θ transform composed in (model effects: unchanged)."""
@@ -390,7 +390,7 @@ class Effect:
             out.update({p.rig_field: vals[p.name] for p in self.parameters})
             return out
         new = self.apply(rig, vals)
-        for section in ("actuator", "motor", "thrust", "pendulum", "sensors"):
+        for section in SECTIONS:
             a, b = getattr(rig, section), getattr(new, section)
             for f in dataclasses.fields(a):
                 va, vb = getattr(a, f.name), getattr(b, f.name)
@@ -403,468 +403,59 @@ class Effect:
         return out
 
 
-# ------------------------------------------------------------------------------ search ranges
-def _scale_range(lo: float, hi: float, probe: float) -> Callable[[float], tuple[float, float, float, float]]:
-    """Range of a nominal value v scaled by [lo, hi], probe v·probe, absent at v."""
-    return lambda v: (v * lo, v * hi, v, v * probe)
+#: Every hypothesis of the registry (all families, catalog and drift-only) keyed by name.
+EFFECTS: dict[str, Effect] = {d.name: Effect.of(d) for d in registry.diagnoses()}
 
 
-def _nominal_or(value: float, switch_on: bool, fallback: float) -> float:
-    return value if (switch_on and value > 0.0) else fallback
+@cache
+def catalog(family: str = registry.DEFAULT_FAMILY) -> tuple[Effect, ...]:
+    """The candidate effects of the diagnosis for a rig of actuator family ``family``, in catalog order.
 
-
-def _r_dead_zone(c: EffectContext) -> tuple[float, float, float, float]:
-    off = c.rig.actuator.dead_zone if c.rig.effects.dead_zone else 0.0
-    return 0.0, min(0.6, 0.9 * c.duty_max), off, off + 0.05
-
-
-def _r_drop(c: EffectContext) -> tuple[float, float, float, float]:
-    v = max(c.v_max, 1e-6)
-    return -0.2 * v, 0.6 * v, 0.0, 0.06 * v
-
-
-def _r_lag(c: EffectContext) -> tuple[float, float, float, float]:
-    off = c.rig.actuator.lag_time_constant if c.rig.effects.actuator_lag else 0.0
-    return 1e-3, 1.0, off, max(off * 1.5, 0.05)
-
-
-def _r_delay(c: EffectContext) -> tuple[float, float, float, float]:
-    off = c.rig.actuator.input_delay if c.rig.effects.input_delay else 0.0
-    return 0.0, off + 0.3, off, off + 0.03
-
-
-def _r_back_emf(c: EffectContext) -> tuple[float, float, float, float]:
-    m, on = c.rig.motor, c.rig.effects.back_emf
-    base = _nominal_or(m.K_omega, on, m.K_t)
-    off = m.K_omega if on else 0.0
-    return 0.1 * base, 10.0 * base, off, (1.3 if on else 0.5) * base
-
-
-def _r_halving(nominal: float, on: bool, halving: float, probe: float) -> tuple[float, float, float, float]:
-    """Range of a rotor load coefficient: up to 3× the value that halves the steady rotor speed
-    (``halving``), and 0.05–20× a nominal value the rig has; probe ``probe``·halving if it has none."""
-    if on and nominal > 0.0:
-        return min(0.05 * nominal, 1e-3 * halving), max(20.0 * nominal, 3.0 * halving), nominal, 1.3 * nominal
-    return 1e-3 * halving, 3.0 * halving, 0.0, probe * halving
-
-
-def _r_rotor_friction(c: EffectContext) -> tuple[float, float, float, float]:
-    return _r_halving(c.rig.motor.B_m, c.rig.effects.rotor_viscous_friction, c.halving_friction(), 0.2)
-
-
-def _r_drag(c: EffectContext) -> tuple[float, float, float, float]:
-    return _r_halving(c.rig.motor.K_d, c.rig.effects.propeller_drag, c.halving_drag(), 0.1)
-
-
-def _r_viscous(c: EffectContext) -> tuple[float, float, float, float]:
-    p, on = c.rig.pendulum, c.rig.effects.rod_viscous_friction
-    crit = 2.0 * math.sqrt(max(p.mgd_over_J, 1e-9))
-    if on and p.c_over_J > 0.0:
-        c = p.c_over_J
-        return min(0.05 * c, 1e-3 * crit), max(20.0 * c, 2.0 * crit), c, 1.5 * c
-    return 1e-3 * crit, 2.0 * crit, 0.0, 0.1 * crit
-
-
-def _r_coulomb(c: EffectContext) -> tuple[float, float, float, float]:
-    p = c.rig.pendulum
-    off = p.coulomb_over_J if c.rig.effects.rod_coulomb_friction else 0.0
-    return 0.0, off + 0.5 * p.mgd_over_J, off, off + 0.01 * p.mgd_over_J
-
-
-def _r_stribeck(c: EffectContext) -> tuple[float, float, float, float]:
-    p = c.rig.pendulum
-    off = p.stribeck_over_J if c.rig.effects.rod_coulomb_friction else 0.0
-    return 0.0, off + 0.5 * p.mgd_over_J, off, off + 0.01 * p.mgd_over_J
-
-
-def _r_stribeck_velocity(c: EffectContext) -> tuple[float, float, float, float]:
-    # above 3× the width of the model's smooth sign tanh(θ̇/v_ε): a narrower "Stribeck" bump would
-    # only reshape the regularisation (it then stands in for a sharper sign, not for stiction)
-    lo = 3.0 * c.rig.pendulum.friction_velocity
-    return lo, max(2.0, 10.0 * lo), max(2.0, 10.0 * lo), max(0.1, 3.0 * lo)
-
-
-def _r_thrust_law_k(c: EffectContext) -> tuple[float, float, float, float]:
-    """K_q of f = K_q·|ω₂|^α over every exponent in [1, 3.5], start: thrust kept at ω_ref for α = 2.2."""
-    k, a0 = c.rig.thrust.K_q, (c.rig.thrust.exponent if c.rig.effects.thrust_exponent else 2.0)
-    w = max(c.omega_ref, 1e-9)
-    span = [k * w ** (a0 - a) for a in (1.0, 3.5)]
-    return 0.2 * min(span), 5.0 * max(span), k, k * w ** (a0 - 2.2)
-
-
-def _r_end_stop(c: EffectContext) -> tuple[float, float, float, float]:
-    p = c.rig.pendulum
-    off = p.theta_max if c.rig.effects.end_stops else math.pi / 2
-    return 0.05, math.pi / 2, off, min(c.theta_hi - 0.02, off)
-
-
-# ------------------------------------------------------------------------------ appliers
-def _hbridge_drop(rig: Rig, v: Mapping[str, float]) -> Rig:
-    drop = v["V_drop"]
-    a = rig.actuator
-    if rig.effects.hbridge_map:
-        return rig.with_params("actuator", hbridge_k0=a.hbridge_k0 - drop)
-    # ideal map v_a = v_s·τ: a drop V with the 0 V clip equals a dead zone V/v_s at a supply v_s − V
-    if drop <= 0.0:
-        return rig.with_params("actuator", v_supply=a.v_supply - drop)
-    if drop >= a.v_supply:
-        raise GapError(f"H-bridge drop {drop} V >= supply {a.v_supply} V")
-    base_dz = a.dead_zone if rig.effects.dead_zone else 0.0
-    te0 = drop / a.v_supply
-    dz = base_dz + te0 * (1.0 - base_dz)
-    return rig.with_params("actuator", v_supply=a.v_supply - drop, dead_zone=dz).with_effects(dead_zone=True)
-
-
-def _dead_zone(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("actuator", dead_zone=v["dead_zone"]).with_effects(dead_zone=True)
-
-
-def _lag(rig: Rig, v: Mapping[str, float]) -> Rig:
-    new = rig.with_params("actuator", lag_time_constant=v["lag_time_constant"])
-    return new.with_effects(actuator_lag=True)
-
-
-def _delay(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("actuator", input_delay=v["input_delay"]).with_effects(input_delay=True)
-
-
-def _back_emf(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("motor", K_omega=v["K_omega"]).with_effects(back_emf=True)
-
-
-def _resistance(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("motor", R_a=v["R_a"])
-
-
-def _inductance(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("motor", L_a=v["L_a"]).with_effects(armature_inductance="dynamic")
-
-
-def _torque_constant(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("motor", K_t=v["K_t"])
-
-
-def _rotor_friction(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("motor", B_m=v["B_m"]).with_effects(rotor_viscous_friction=True)
-
-
-def _motor_time_constant(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("motor", J_m=v["J_m"])
-
-
-def _drag(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("motor", K_d=v["K_d"]).with_effects(propeller_drag=True)
-
-
-def _thrust_coefficient(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("thrust", K_q=v["K_q"])
-
-
-def _thrust_law(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("thrust", K_q=v["K_q"], exponent=v["exponent"]).with_effects(thrust_exponent=True)
-
-
-def _viscous(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("pendulum", c_over_J=v["c_over_J"]).with_effects(rod_viscous_friction=True)
-
-
-def _coulomb(rig: Rig, v: Mapping[str, float]) -> Rig:
-    new = rig.with_params("pendulum", coulomb_over_J=v["coulomb_over_J"])
-    return new.with_effects(rod_coulomb_friction=True)
-
-
-def _supply(rig: Rig, v: Mapping[str, float]) -> Rig:
-    """Supply voltage V_s: the ideal map's v_supply; the Eq. 4.3 map's output k0 + k1·√(…)
-    scales with V_s / v_supply (the bridge passes a fixed share of its supply)."""
-    a = rig.actuator
-    new = rig.with_params("actuator", v_supply=v["v_supply"])
-    if rig.effects.hbridge_map:
-        f = v["v_supply"] / a.v_supply
-        new = new.with_params("actuator", hbridge_k0=a.hbridge_k0 * f, hbridge_k1=a.hbridge_k1 * f)
-    return new
-
-
-def _stribeck(rig: Rig, v: Mapping[str, float]) -> Rig:
-    new = _coulomb(rig, {"coulomb_over_J": v["coulomb_over_J"]})
-    return new.with_params("pendulum", stribeck_over_J=v["stribeck_over_J"],
-                           stribeck_velocity=v["stribeck_velocity"])
-
-
-def _gravity(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("pendulum", mgd_over_J=v["mgd_over_J"])
-
-
-def _inertia(rig: Rig, v: Mapping[str, float]) -> Rig:
-    s = v["J_scale"]
-    p = rig.pendulum
-    return rig.with_params("pendulum", mgd_over_J=p.mgd_over_J / s, c_over_J=p.c_over_J / s,
-                           L_over_J=p.L_over_J / s, coulomb_over_J=p.coulomb_over_J / s)
-
-
-def _end_stops(rig: Rig, v: Mapping[str, float]) -> Rig:
-    new = rig.with_params("pendulum", theta_max=v["theta_max"]).with_effects(end_stops=True)
-    p = rig.pendulum
-    if p.stop_stiffness <= 0.0:
-        # the nominal rig has no contact model: a stiff, critically damped contact whose penetration
-        # under the largest gravity torque is about 1/STOP_STIFFNESS_FACTOR rad
-        k = STOP_STIFFNESS_FACTOR * p.mgd_over_J
-        new = new.with_params("pendulum", stop_stiffness=k, stop_damping=2.0 * math.sqrt(k))
-    return new
-
-
-def _quantisation(rig: Rig, v: Mapping[str, float]) -> Rig:
-    return rig.with_params("sensors", theta_quantum=v["theta_quantum"]).with_effects(quantisation=True)
-
-
-def _par(name: str, unit: str, limits: tuple[float, float], rig_field: str, doc: str,
-         search: Callable[[EffectContext], tuple[float, float, float, float]],
-         log: bool = False) -> EffectParameter:
-    return EffectParameter(name, unit, limits, rig_field, doc, search, log)
-
-
-_POS = (1e-300, math.inf)
-_TH = "theta_dot"
-_GAIN = ("gravity", "thrust_coefficient", "sensor_scale", "inertia")
-_MOTOR = ("back_emf", "armature_resistance", "torque_constant", "rotor_friction", "propeller_drag")
-_TIMING = ("actuator_lag", "input_delay", "motor_time_constant")
-CATALOG: tuple[Effect, ...] = (
-    Effect(
-        "dead_zone", "actuator",
-        "duty-cycle dead zone τ_dz: τ_e = max(0, τ − τ_dz)/(1 − τ_dz)",
-        ("theta",),
-        (_par("dead_zone", "1", (0.0, 0.95), "actuator.dead_zone", "dead-zone width τ_dz", _r_dead_zone),),
-        {_TH: ("L/J·Δf(τ_dz)",), "i_a": ("Δv_a(τ_dz)/L_a",), "v_a": ("Δv_a(τ_dz)",)},
-        "dead_zone", ("hbridge_drop",), _apply=_dead_zone,
-    ),
-    Effect(
-        "hbridge_drop", "electrical",
-        "H-bridge voltage drop V_d: v_a = max(0, k0 − V_d + k1·sqrt(k2·τ + k3)) (Eq. 4.3 map) or "
-        "max(0, v_supply·τ − V_d) (ideal map)",
-        ("theta",),
-        (_par("V_drop", "V", (-math.inf, math.inf), "actuator.hbridge_k0",
-              "voltage lost across the bridge switches V_d", _r_drop),),
-        {_TH: ("L/J·Δf(V_d)",), "i_a": ("Δv_a(V_d)/L_a",), "v_a": ("Δv_a(V_d)",)},
-        "hbridge_map", ("dead_zone",), _apply=_hbridge_drop,
-    ),
-    Effect(
-        "actuator_lag", "actuator",
-        "first-order actuator lag T_a: τ̇_f = (τ − τ_f)/T_a",
-        ("theta",),
-        (_par("lag_time_constant", "s", (0.0, 60.0), "actuator.lag_time_constant", "lag time constant T_a",
-              _r_lag, log=True),),
-        {_TH: ("L/J·Δf(T_a)",), "i_a": ("Δv_a(T_a)/L_a",), "v_a": ("Δv_a(T_a)",)},
-        "actuator_lag", ("input_delay", "motor_time_constant"), _apply=_lag,
-    ),
-    Effect(
-        "input_delay", "actuator",
-        "input/transport delay T_d: the actuator sees τ(t − T_d)",
-        ("theta",),
-        (_par("input_delay", "s", (0.0, 5.0), "actuator.input_delay", "delay T_d", _r_delay),),
-        {_TH: ("L/J·Δf(T_d)",), "i_a": ("Δv_a(T_d)/L_a",), "v_a": ("Δv_a(T_d)",)},
-        "input_delay", ("actuator_lag", "motor_time_constant"), _apply=_delay,
-    ),
-    Effect(
-        "back_emf", "motor",
-        "back-EMF constant K_ω wrong or omitted: L_a·di_a/dt = v_a − R_a·i_a − K_ω·ω₁",
-        ("i_a",),
-        (_par("K_omega", "V*s/rad", _POS, "motor.K_omega", "back-EMF constant K_ω", _r_back_emf, log=True),),
-        {_TH: ("L/J·Δf(K_ω)",), "i_a": ("−ΔK_ω·ω₁/L_a",), "omega_rotor": ("K_t·Δi_a(K_ω)/J_m",)},
-        "back_emf", tuple(x for x in _MOTOR if x != "back_emf"), _apply=_back_emf,
-    ),
-    Effect(
-        "armature_resistance", "electrical",
-        "armature resistance R_a wrong: L_a·di_a/dt = v_a − R_a·i_a − K_ω·ω₁",
-        ("i_a",),
-        (_par("R_a", "ohm", _POS, "motor.R_a", "armature resistance R_a",
-              lambda c: _scale_range(0.2, 5.0, 1.2)(c.rig.motor.R_a), log=True),),
-        {_TH: ("L/J·Δf(R_a)",), "i_a": ("−ΔR_a·i_a/L_a",), "omega_rotor": ("K_t·Δi_a(R_a)/J_m",)},
-        "", tuple(x for x in _MOTOR if x != "armature_resistance"), _apply=_resistance,
-    ),
-    Effect(
-        "armature_inductance", "electrical",
-        "armature inductance L_a wrong (electrical time constant L_a/R_a)",
-        ("i_a",),
-        (_par("L_a", "H", _POS, "motor.L_a", "armature inductance L_a",
-              lambda c: _scale_range(0.01, 100.0, 3.0)(c.rig.motor.L_a), log=True),),
-        {_TH: ("L/J·Δf(L_a)",), "i_a": ("(L_a/L_a' − 1)·di_a/dt",), "omega_rotor": ("K_t·Δi_a(L_a)/J_m",)},
-        "armature_inductance", (), _apply=_inductance,
-    ),
-    Effect(
-        "torque_constant", "motor",
-        "motor torque constant K_t wrong: J_m·ω̇₁ = K_t·i_a − B_m·ω₁ − …",
-        ("i_a", "omega_rotor"),
-        (_par("K_t", "N*m/A", _POS, "motor.K_t", "torque constant K_t",
-              lambda c: _scale_range(0.2, 5.0, 1.2)(c.rig.motor.K_t), log=True),),
-        {_TH: ("L/J·Δf(K_t)",), "omega_rotor": ("ΔK_t·i_a/J_m",)},
-        "", tuple(x for x in _MOTOR if x != "torque_constant"), _apply=_torque_constant,
-    ),
-    Effect(
-        "rotor_friction", "motor",
-        "rotor viscous friction B_m wrong or omitted: J_m·ω̇₁ = … − B_m·ω₁",
-        ("omega_rotor",),
-        (_par("B_m", "N*m*s/rad", _POS, "motor.B_m", "rotor viscous friction B_m", _r_rotor_friction,
-              log=True),),
-        {_TH: ("L/J·Δf(B_m)",), "omega_rotor": ("−ΔB_m·ω₁/J_m",)},
-        "rotor_viscous_friction", tuple(x for x in _MOTOR if x != "rotor_friction"), _apply=_rotor_friction,
-    ),
-    Effect(
-        "motor_time_constant", "motor",
-        "rotor-side inertia J_m wrong (rotor + gear + propeller): the motor's mechanical time constant "
-        "J_m/(B_m + 2·K_d·ω₁ + K_t·K_ω/R_a) scales with it, the thrust follows the duty cycle more "
-        "slowly or faster",
-        ("theta",),
-        (_par("J_m", "kg*m^2", _POS, "motor.J_m", "rotor-side inertia J_m",
-              lambda c: _scale_range(0.05, 20.0, 2.0)(c.rig.motor.J_m), log=True),),
-        {_TH: ("L/J·Δf(J_m)",), "omega_rotor": ("−ΔJ_m·ω̇₁/J_m",)},
-        "", ("actuator_lag", "input_delay"), _apply=_motor_time_constant, screened=False,
-    ),
-    Effect(
-        "propeller_drag", "aerodynamic",
-        "propeller drag torque wrong or omitted: J_m·ω̇₁ = … − K_d·ω₁|ω₁|",
-        ("omega_rotor",),
-        (_par("K_d", "N*m*s^2/rad^2", _POS, "motor.K_d", "drag torque coefficient K_d", _r_drag, log=True),),
-        {_TH: ("L/J·Δf(K_d)",), "omega_rotor": ("−ΔK_d·ω₁|ω₁|/J_m",)},
-        "propeller_drag", ("thrust_law", *(x for x in _MOTOR if x != "propeller_drag")), _apply=_drag,
-    ),
-    Effect(
-        "thrust_coefficient", "aerodynamic",
-        "thrust coefficient K_q wrong (a static load-cell fit, thesis Eq. 4.4): f = K_q·ω₂²",
-        ("theta",),
-        (_par("K_q", "N*s^2/rad^2", _POS, "thrust.K_q", "thrust coefficient K_q",
-              lambda c: _scale_range(0.2, 5.0, 1.2)(c.rig.thrust.K_q), log=True),),
-        {_TH: ("ΔK_q·(L/J)·ω₂²",)},
-        "", ("thrust_law", *(x for x in _GAIN if x != "thrust_coefficient")), _apply=_thrust_coefficient,
-        exclusive_with=("thrust_law",),
-    ),
-    Effect(
-        "thrust_law", "aerodynamic",
-        "thrust law f = K_q·|ω₂|^α with its level and exponent both wrong (α ≠ 2)",
-        ("theta",),
-        (_par("K_q", "N*s^a/rad^a", _POS, "thrust.K_q", "thrust-law coefficient K_q (units N·(s/rad)^α)",
-              _r_thrust_law_k, log=True),
-         _par("exponent", "1", (0.5, 4.0), "thrust.exponent", "thrust-law exponent α",
-              lambda c: (1.0, 3.5, c.rig.thrust.exponent if c.rig.effects.thrust_exponent else 2.0, 2.2))),
-        {_TH: ("L/J·Δf(K_q, α)",)},
-        "thrust_exponent", ("thrust_coefficient", "propeller_drag", "gravity"), _apply=_thrust_law,
-        exclusive_with=("thrust_coefficient",), nests=("thrust_coefficient",),
-    ),
-    Effect(
-        "viscous_friction", "pendulum",
-        "viscous friction of the rod wrong or omitted: θ̈ = … − (c/J)·θ̇",
-        ("theta",),
-        (_par("c_over_J", "1/s", _POS, "pendulum.c_over_J", "viscous friction over inertia c/J", _r_viscous,
-              log=True),),
-        {_TH: ("−θ̇",)},
-        "rod_viscous_friction", ("coulomb_friction",), _apply=_viscous,
-    ),
-    Effect(
-        "coulomb_friction", "pendulum",
-        "Coulomb friction on the rod: θ̈ −= (T_f/J)·sgn(θ̇) (tanh-regularised)",
-        ("theta",),
-        (_par("coulomb_over_J", "rad/s^2", (0.0, math.inf), "pendulum.coulomb_over_J",
-              "friction torque over inertia T_f/J", _r_coulomb),),
-        {_TH: ("−tanh(θ̇/v_ε)",)},
-        "rod_coulomb_friction", ("viscous_friction",), _apply=_coulomb, exclusive_with=("stribeck_friction",),
-    ),
-    Effect(
-        "stribeck_friction", "pendulum",
-        "dry friction of the rod with a Stribeck part: θ̈ −= (T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²))·"
-        "sgn(θ̇): the friction at rest (stiction) exceeds the sliding friction and falls off over the "
-        "Stribeck velocity v_s, so the damping depends on the swing's amplitude",
-        ("theta",),
-        (_par("coulomb_over_J", "rad/s^2", (0.0, math.inf), "pendulum.coulomb_over_J",
-              "sliding (Coulomb) friction torque over inertia T_f/J", _r_coulomb),
-         _par("stribeck_over_J", "rad/s^2", (0.0, math.inf), "pendulum.stribeck_over_J",
-              "excess of the static over the sliding friction (T_s − T_f)/J", _r_stribeck),
-         _par("stribeck_velocity", "rad/s", (1e-4, 100.0), "pendulum.stribeck_velocity",
-              "Stribeck velocity v_s", _r_stribeck_velocity, log=True)),
-        {_TH: ("−tanh(θ̇/v_ε)", "−exp(−(θ̇/v_s)²)·tanh(θ̇/v_ε)")},
-        "rod_coulomb_friction", ("coulomb_friction", "viscous_friction"), _apply=_stribeck, screened=False,
-        exclusive_with=("coulomb_friction",), nests=("coulomb_friction",), refines=("coulomb_friction",),
-    ),
-    Effect(
-        "gravity", "pendulum",
-        "gravity torque (mass · lever) wrong: θ̈ = −(mgd/J)·sin θ + …",
-        ("theta",),
-        (_par("mgd_over_J", "1/s^2", _POS, "pendulum.mgd_over_J", "gravity torque over inertia mgd/J",
-              lambda c: _scale_range(0.2, 5.0, 1.2)(c.rig.pendulum.mgd_over_J), log=True),),
-        {_TH: ("−sin θ",)},
-        "", tuple(x for x in _GAIN if x != "gravity"), _apply=_gravity,
-    ),
-    Effect(
-        "inertia", "pendulum",
-        "rod inertia J wrong: every /J term (mgd/J, c/J, L/J, T_f/J) divided by J/J_nominal",
-        ("theta",),
-        (_par("J_scale", "1", _POS, "pendulum.L_over_J", "J true / J nominal",
-              lambda c: (0.2, 5.0, 1.0, 1.2), log=True),),
-        {_TH: ("θ̈_model",)},
-        "", tuple(x for x in _GAIN if x != "inertia"), _apply=_inertia,
-    ),
-    Effect(
-        "end_stops", "pendulum",
-        "mechanical end stop at θ_max: one-sided spring-damper contact beyond it",
-        ("theta",),
-        (_par("theta_max", "rad", (0.0, math.pi), "pendulum.theta_max", "upper stop angle", _r_end_stop),),
-        {_TH: ("contact(θ − θ_max)",)},
-        "end_stops", (), _apply=_end_stops,
-    ),
-    Effect(
-        "sensor_offset", "sensor",
-        "angle-sensor offset: θ_recorded = θ − θ_offset",
-        ("theta",),
-        (_par("theta_offset", "rad", (-math.pi, math.pi), "measurement.theta_offset", "θ_model − θ_recorded",
-              lambda c: (-0.6, 0.6, 0.0, 0.05)),),
-        {_TH: ("−(mgd/J)·cos θ",)},
-        "", (), kind="measurement",
-    ),
-    Effect(
-        "sensor_scale", "sensor",
-        "angle-sensor gain error: θ_recorded = s·θ",
-        ("theta",),
-        (_par("theta_scale", "1", _POS, "measurement.theta_scale", "sensor gain s",
-              lambda c: (0.5, 2.0, 1.0, 1.1), log=True),),
-        {_TH: ("s·θ̈_model(θ/s)",)},
-        "", tuple(x for x in _GAIN if x != "sensor_scale"), kind="measurement",
-    ),
-    Effect(
-        "quantisation", "sensor",
-        "angle quantisation: θ_recorded = q·round(θ/q) (ADC/encoder LSB q)",
-        ("theta",),
-        (_par("theta_quantum", "rad", (0.0, 1.0), "sensors.theta_quantum", "angle LSB q",
-              lambda c: (0.0, 0.2, 0.0, 0.006)),),
-        {},
-        "quantisation", (), kind="direct", _apply=_quantisation,
-    ),
-)
-
-#: Rig quantities that drift between sessions without being missing physics (kind ``"drift"``):
-#: fitted by :mod:`aeropend_ident.gap.drift` only, never candidates of the diagnosis.
-DRIFT_ONLY: tuple[Effect, ...] = (
-    Effect(
-        "supply_voltage", "electrical",
-        "supply voltage V_s of the H-bridge changed (battery charge, another supply): the whole drive "
-        "map scales, v_a = (V_s/V_s,nominal)·v_a,nominal(τ). With the angle alone it acts as a "
-        "thrust-gain change (thrust ∝ ω₁² ∝ v_a²); the recorded v_a separates the two",
-        ("v_a",),
-        (_par("v_supply", "V", _POS, "actuator.v_supply", "supply voltage V_s",
-              lambda c: _scale_range(0.5, 2.0, 1.1)(c.rig.actuator.v_supply), log=True),),
-        {"v_a": ("ΔV_s·τ",)},
-        "", ("thrust_coefficient", "hbridge_drop"), kind="drift", _apply=_supply,
-    ),
-)
-
-#: Catalog and drift-only entries keyed by effect name.
-EFFECTS: dict[str, Effect] = {e.name: e for e in (*CATALOG, *DRIFT_ONLY)}
-
-
-def get_effect(name: str) -> Effect:
-    """Catalog (or drift-only) entry by name.
+    Read from the registry (:func:`aeropend_sim.components.registry.diagnoses`): the hypotheses of
+    every part that belongs on that family, without the drift-only ones (:func:`drift_only`).
 
     Raises
     ------
     GapError
-        If ``name`` is in neither :data:`CATALOG` nor :data:`DRIFT_ONLY` (the message lists the
-        known names).
+        On an unknown family.
+    """
+    return tuple(EFFECTS[d.name] for d in _diagnoses(family) if d.kind != "drift")
+
+
+@cache
+def drift_only(family: str = registry.DEFAULT_FAMILY) -> tuple[Effect, ...]:
+    """Rig quantities of ``family`` that drift between sessions without being missing physics (kind
+    ``"drift"``): fitted by :mod:`aeropend_ident.gap.drift` only, never candidates of the diagnosis."""
+    return tuple(EFFECTS[d.name] for d in _diagnoses(family) if d.kind == "drift")
+
+
+def timing_effects(family: str = registry.DEFAULT_FAMILY) -> tuple[str, ...]:
+    """Names of the catalog effects of ``family`` that change when the thrust follows the command
+    (a lag, a delay, a slow rotor): confirmed by a grey-box fit when the where-analysis sees the
+    simulated response lead or lag the recorded one."""
+    return tuple(e.name for e in catalog(family) if e.timing)
+
+
+def _diagnoses(family: str) -> tuple[Diagnosis, ...]:
+    try:
+        return registry.diagnoses(family)
+    except registry.RegistryError as exc:
+        raise GapError(str(exc)) from None
+
+
+#: The catalog and drift-only entries of the default family (``dc_hbridge``, the thesis rig).
+CATALOG: tuple[Effect, ...] = catalog()
+DRIFT_ONLY: tuple[Effect, ...] = drift_only()
+
+
+def get_effect(name: str) -> Effect:
+    """Catalog (or drift-only) entry by name, of any family.
+
+    Raises
+    ------
+    GapError
+        If no component or effect of the registry declares a hypothesis ``name`` (the message lists
+        the known names).
     """
     try:
         return EFFECTS[name]
@@ -931,7 +522,7 @@ def measurement_noise(y: np.ndarray) -> float:
 def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
                   measurement: MeasurementMap | None = None,
                   ctx: EffectContext | None = None) -> tuple[Rig, MeasurementMap]:
-    """Rig and measurement map with several effects applied in catalog order (drift-only first).
+    """Rig and measurement map with several effects applied in catalog order.
 
     Parameters
     ----------
@@ -957,7 +548,7 @@ def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
     for name in chosen:
         get_effect(name)
     meas = measurement or MeasurementMap()
-    for eff in (*DRIFT_ONLY, *CATALOG):  # a supply voltage is the base a bridge drop acts on
+    for eff in EFFECTS.values():  # catalog order: a supply voltage (order 5) is what a bridge drop acts on
         if eff.name in chosen:
             vals = eff.values(chosen[eff.name], ctx)
             rig = eff.apply(rig, vals)

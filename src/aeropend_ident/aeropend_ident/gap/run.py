@@ -359,6 +359,7 @@ def run_gap(
     predict: bool = True,
     oracle: bool = False,
     drift_sigma: Mapping[str, float] | None = None,
+    skip: Sequence[str] = (),
 ) -> GapResult:
     """Where + which + after (module doc) for a nominal rig and fit / held-out recordings.
 
@@ -405,6 +406,8 @@ def run_gap(
     drift_sigma : mapping, optional
         σ of the session-to-session log change per drift-prone parameter (default: the measured
         one with ``sessions``, else :data:`aeropend_ident.gap.drift.DRIFT_PRIOR`).
+    skip : sequence of str
+        Catalog effects left out of the diagnosis (``diagnose_effects(..., skip=)``).
 
     Returns
     -------
@@ -417,15 +420,15 @@ def run_gap(
     aeropend_ident.gap.effects.GapError, aeropend_ident.gap.where.GapInputError
         Unusable recordings (no θ, NaNs, too short, constant input) or rig (before any result).
     """
+    from aeropend_ident.gap.effects import timing_effects
     from aeropend_ident.gap.where import timing_lag_seen
-    from aeropend_ident.gap.which import TIMING_EFFECTS, diagnose_effects
+    from aeropend_ident.gap.which import diagnose_effects
 
     say = progress or (lambda _msg: None)
     fit, held_out = list(fit), list(held_out)
     if not fit or not held_out:
-        raise GapInputError(
-            f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} held out)"
-        )
+        raise GapInputError(f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} "
+                            "held out)")
     say(f"where: nominal {rig.name} on {len(fit)} fit recording(s)")
     where = locate_gap(rig, fit, horizon=horizon, theta_offset=theta_offset)
     if validation is not None:
@@ -445,14 +448,9 @@ def run_gap(
     # the timing effects even when the θ̈-equation screening does not shortlist them
     timing = any(timing_lag_seen(r.alignment) for r in where.recordings)
     diag = diagnose_effects(
-        rig,
-        [_shift(r, theta_offset) for r in fit_core],
-        [_shift(r, theta_offset) for r in validation],
-        max_effects=max_effects,
-        seed=seed,
-        progress=progress,
-        also_confirm=TIMING_EFFECTS if timing else (),
-    )
+        rig, [_shift(r, theta_offset) for r in fit_core], [_shift(r, theta_offset) for r in validation],
+        max_effects=max_effects, seed=seed, progress=progress,
+        also_confirm=timing_effects(rig.family) if timing else (), skip=skip)
     corrected = diag.corrected_rig
     from aeropend_ident.gap.drift import attainable
 

@@ -2,12 +2,13 @@
 
 The generator (:func:`make_case`) builds a hidden "real" plant from a nominal rig by adding one
 or two catalog effects (:mod:`aeropend_ident.gap.effects`) at random magnitudes
-(:data:`TRUTH_RANGES`), simulates it with :func:`aeropend_sim.simulate.simulate` under random
-excitation and sensor noise, and returns fit and held-out recordings made with **different
-excitations and seeds** (fit: amplitude-modulated PRBS; held-out: Latin-hypercube steps). The
-truth stays in the :class:`SynthCase`; the diagnosis sees only the nominal rig and the
-recordings. :func:`score_case` compares afterwards (top-1 / top-3, confusable pairs,
-magnitude error, held-out shrink) and :func:`summarise` aggregates per effect.
+(:func:`truth_ranges`, declared with each effect in ``aeropend_sim.components``), simulates it
+with :func:`aeropend_sim.simulate.simulate` under random excitation and sensor noise, and returns
+fit and held-out recordings made with **different excitations and seeds** (fit: amplitude-modulated
+PRBS; held-out: Latin-hypercube steps). The truth stays in the :class:`SynthCase`; the diagnosis
+sees only the nominal rig and the recordings. :func:`score_case` compares afterwards (top-1 /
+top-3, confusable pairs, magnitude error, held-out shrink) and :func:`summarise` aggregates per
+effect.
 
 Sensor offset and scale are applied as the measurement transform of
 :class:`aeropend_ident.gap.effects.MeasurementMap` (the plant model has no such effect), before
@@ -18,7 +19,6 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -28,46 +28,49 @@ import numpy as np
 from aeropend_ident.errors import GapError
 from aeropend_ident.gap.effects import EFFECTS, EffectContext, MeasurementMap, apply_effects, get_effect
 from aeropend_ident.greybox.fit import motor_equilibrium
+from aeropend_sim.components import registry
+from aeropend_sim.components.xp import MATH
 from aeropend_sim.excitation import aprbs, lhs_steps
+from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulate import measure, simulate
 
-#: Truth magnitude ranges per effect: parameter -> list of (low, high) intervals (one is drawn,
-#: then a value uniformly inside it). Numbers in :data:`RELATIVE` parameters are factors of the
-#: nominal rig's value (the physical value is factor × nominal), the others physical values. Sized
-#: so each effect changes the free-run angle clearly above 50 dB sensor noise.
-TRUTH_RANGES: dict[str, dict[str, list[tuple[float, float]]]] = {
-    "hbridge_drop": {"V_drop": [(0.12, 0.25)]},
-    "dead_zone": {"dead_zone": [(0.05, 0.12)]},
-    "back_emf": {"K_omega": [(0.5, 0.7), (1.4, 2.0)]},
-    "armature_resistance": {"R_a": [(0.6, 0.8), (1.25, 1.6)]},
-    "armature_inductance": {"L_a": [(5.0, 15.0)]},
-    "torque_constant": {"K_t": [(0.6, 0.8), (1.25, 1.6)]},
-    "rotor_friction": {"B_m": [(4.0, 10.0)]},
-    "coulomb_friction": {"coulomb_over_J": [(0.6, 1.5)]},
-    "stribeck_friction": {"coulomb_over_J": [(0.6, 1.5)], "stribeck_over_J": [(1.5, 3.0)],
-                          "stribeck_velocity": [(0.1, 0.3)]},
-    "viscous_friction": {"c_over_J": [(0.35, 0.6), (1.7, 2.5)]},
-    "thrust_coefficient": {"K_q": [(0.75, 0.88), (1.12, 1.25)]},
-    "thrust_law": {"exponent": [(1.7, 1.85), (2.15, 2.3)]},
-    "propeller_drag": {"K_d": [(0.4, 0.6), (1.6, 2.5)]},
-    "actuator_lag": {"lag_time_constant": [(0.05, 0.12)]},
-    "input_delay": {"input_delay": [(0.04, 0.1)]},
-    "motor_time_constant": {"J_m": [(0.2, 0.4), (3.0, 6.0)]},
-    "gravity": {"mgd_over_J": [(0.8, 0.9), (1.12, 1.25)]},
-    "inertia": {"J_scale": [(0.7, 0.85), (1.2, 1.45)]},
-    "end_stops": {"theta_max": [(0.6, 0.8)]},
-    "sensor_offset": {"theta_offset": [(-0.1, -0.04), (0.04, 0.1)]},
-    "sensor_scale": {"theta_scale": [(0.86, 0.93), (1.07, 1.14)]},
-    "quantisation": {"theta_quantum": [(0.008, 0.02)]},
-}
-#: Parameters whose :data:`TRUTH_RANGES` are factors of the nominal rig's value.
-RELATIVE = {("back_emf", "K_omega"): "motor.K_omega", ("armature_resistance", "R_a"): "motor.R_a",
-            ("armature_inductance", "L_a"): "motor.L_a", ("torque_constant", "K_t"): "motor.K_t",
-            ("rotor_friction", "B_m"): "motor.B_m", ("viscous_friction", "c_over_J"): "pendulum.c_over_J",
-            ("thrust_coefficient", "K_q"): "thrust.K_q", ("propeller_drag", "K_d"): "motor.K_d",
-            ("motor_time_constant", "J_m"): "motor.J_m", ("gravity", "mgd_over_J"): "pendulum.mgd_over_J"}
+
+def truth_ranges(name: str) -> dict[str, tuple[tuple[float, float], ...]]:
+    """Truth magnitude ranges of one catalog effect: parameter -> (low, high) intervals (one is
+    drawn, then a value uniformly inside it), read from the registry where the effect is declared.
+
+    The effect's own absolute ranges (:attr:`aeropend_sim.components.base.Diagnosis.truth`) when it
+    declares any; otherwise the factor intervals of its rig parameters
+    (:attr:`aeropend_sim.components.base.Param.relative_truth`: the physical value is factor ×
+    nominal, see :func:`relative_key`). Sized so each effect changes the free-run angle clearly
+    above 50 dB sensor noise.
+
+    Raises
+    ------
+    GapError
+        For an unknown effect.
+    """
+    get_effect(name)
+    d = next(x for x in registry.diagnoses() if x.name == name)
+    if d.truth:
+        return {k: tuple(v) for k, v in d.truth.items()}
+    return {p: registry.param(key).relative_truth for p in d.params if (key := relative_key(name, p))}
+
+
+def relative_key(name: str, parameter: str) -> str | None:
+    """The rig parameter ``"section.name"`` whose value a relative truth of ``parameter`` of effect
+    ``name`` multiplies, or None when the effect draws absolute values."""
+    d = next(x for x in registry.diagnoses() if x.name == name)
+    if d.truth:
+        return None
+    target = next((s.target for s in d.search if s.name == parameter), "")
+    if target in registry.params() and registry.param(target).relative_truth:
+        return target
+    return None
+
+
 #: Operating angle [rad] at which the thrust-law truth keeps the nominal thrust (only the shape of
 #: the law changes there).
 THRUST_REFERENCE_ANGLE = 0.5
@@ -107,31 +110,33 @@ class SynthCase:
 
 
 def thrust_reference_speed(rig: Rig) -> float:
-    """Propeller speed ω₂ [rad/s] holding the rod at :data:`THRUST_REFERENCE_ANGLE` with α = 2."""
-    p = rig.pendulum
-    f = p.mgd_over_J * math.sin(THRUST_REFERENCE_ANGLE) / p.L_over_J
-    return math.sqrt(f / rig.thrust.K_q)
+    """Propeller speed ω₂ [rad/s] holding the rod at :data:`THRUST_REFERENCE_ANGLE` with α = 2 (the
+    rig's steady state, :meth:`aeropend_sim.components.assembly.Assembly.steady_state`)."""
+    a = PlantModel(rig.with_effects(thrust_exponent=False)).assembly
+    x, _ = a.steady_state(THRUST_REFERENCE_ANGLE)
+    return float(a.propeller(MATH, x[3])[0])
 
 
 def draw_truth(name: str, rng: np.random.Generator, nominal: Rig) -> dict[str, float]:
-    """Random physical truth of one effect from :data:`TRUTH_RANGES` for a nominal rig.
+    """Random physical truth of one effect from :func:`truth_ranges` for a nominal rig.
 
-    Relative ranges (:data:`RELATIVE`) are scaled by the nominal value; a thrust-law truth gets
+    Relative ranges (:func:`relative_key`) are scaled by the nominal value; a thrust-law truth gets
     the coefficient that keeps the nominal thrust at :data:`THRUST_REFERENCE_ANGLE`.
 
     Raises
     ------
     GapError
-        For an unknown effect.
+        For an unknown effect, or a relative truth of a parameter the rig does not model.
     """
-    get_effect(name)
     out = {}
-    for p, intervals in TRUTH_RANGES[name].items():
+    for p, intervals in truth_ranges(name).items():
         lo, hi = intervals[int(rng.integers(len(intervals)))]
         v = float(rng.uniform(lo, hi))
-        if (name, p) in RELATIVE:
-            section, field_ = RELATIVE[(name, p)].split(".")
-            v *= float(getattr(getattr(nominal, section), field_))
+        if (key := relative_key(name, p)) is not None:
+            if nominal.value(key) == 0.0:
+                raise GapError(f"effect {name!r}: its truth is a factor of {key}, which rig {nominal.name!r} "
+                               "does not model (0)")
+            v *= nominal.value(key)
         out[p] = v
     if name == "thrust_law":
         out["K_q"] = nominal.thrust.K_q * thrust_reference_speed(nominal) ** (2.0 - out["exponent"])

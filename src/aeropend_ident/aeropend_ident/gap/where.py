@@ -23,9 +23,16 @@ recording (all on the recording's uniform grid, :func:`aeropend_ident.greybox.fi
    actuator actuator     v_a,meas − v_a(τ) (dead zone, Eq. 4.3 map or ideal)     v_a
    armature electrical   v_a − R_a·i_a − K_ω·ω₁ − L_a·di_a/dt [V]                 i_a, ω₁
    rotor    motor        K_t·i_a − B_m·ω₁ − T_c·sgn ω₁ − K_d·ω₁|ω₁| − J_m·ω̇₁ [N·m] ω₁
+                         (ESC: (ω_ss(τ) − ω₁)/T_m − ω̇₁ [rad/s²])
    pendulum pendulum /   θ̈ − (−(mgd/J)sin θ − (c/J)θ̇ − (T_f/J)sgn θ̇ + (L/J)f) [rad/s²] θ
             aerodynamic
    ======== ============ ======================================================= ============
+
+   The right-hand sides are not written here: each is the sum of the nominal rig's active terms of
+   that slot (:meth:`aeropend_sim.components.assembly.Assembly.slot_values`), the actuator chain
+   from :meth:`~aeropend_sim.components.assembly.Assembly.point`; the table shows them for the
+   thesis rig. A check the rig's family does not have (the actuator and armature checks of an ESC,
+   which has no armature voltage or current) is reported "not applicable to family esc".
 
    Derivatives are Savitzky-Golay (cubic, window :data:`SG_WINDOW` s, at least 7 samples);
    the model side is smoothed by the same window so both sides have the same phase. Each
@@ -70,9 +77,9 @@ from aeropend_ident.gap.effects import measurement_noise
 from aeropend_ident.greybox.baseline import measured_rate, residual_bins, residual_regions
 from aeropend_ident.greybox.fit import UniformData, error_metrics, initial_velocity, uniform_data
 from aeropend_ident.io.jsonutil import jsonable
-from aeropend_sim.components.pendulum import end_stops
+from aeropend_sim.components import registry
 from aeropend_sim.components.xp import NUMPY
-from aeropend_sim.model import I_A, OMEGA, ROTOR_FRICTION_VELOCITY, TAU_F, ModelError, PlantModel
+from aeropend_sim.model import I_A, OMEGA, TAU_F, THETA, THETA_DOT, ModelError, PlantModel
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulate import SimulationError, simulate
@@ -114,6 +121,8 @@ GROUP_SUBSYSTEM = {
     "gravity_offset": "pendulum",
     "friction": "pendulum",
     "thrust": "aerodynamic",
+    "set_point": "actuator",
+    "response": "motor",
 }
 
 #: Subsystem label of the pendulum equation's thrust group when the rotor speed is not recorded.
@@ -838,6 +847,195 @@ def _short_horizon(
     return pred - offset
 
 
+@dataclass
+class _Signals:
+    """What the equation checks of one recording share: the nominal model, its actuator chain on the
+    recorded input, the derivative filters and the noise of every channel."""
+
+    rig: Rig
+    model: PlantModel
+    chain: dict[str, Any]
+    ch: dict[str, np.ndarray]
+    noise: dict[str, float]
+    n: int
+    dt: float
+    w: int
+    trim: int
+    omega: np.ndarray | None
+    omega_note: str
+
+    def sm(self, y: np.ndarray) -> np.ndarray:
+        return _smooth(y, self.w)
+
+    def d1(self, y: np.ndarray) -> np.ndarray:
+        return _smooth(y, self.w, 1, self.dt)
+
+    @property
+    def assembly(self) -> Any:
+        return self.model.assembly
+
+    def value(self, key: str) -> float:
+        """Effective value of parameter ``key`` in the nominal model."""
+        return float(self.assembly.values[key])
+
+    def slot(self, slot: str, inputs: dict[str, Any]) -> dict[str, np.ndarray]:
+        """Each active term of ``slot`` on the recorded signals (label -> array)."""
+        return {k: np.broadcast_to(np.asarray(v, dtype=float), (self.n,))
+                for k, v in self.assembly.slot_values(slot, NUMPY, inputs).items()}
+
+    def summed(self, slot: str, inputs: dict[str, Any]) -> np.ndarray:
+        return np.sum(list(self.slot(slot, inputs).values()) or [np.zeros(self.n)], axis=0)
+
+    def driving(self, slot: str, name: str, inputs: dict[str, Any]) -> np.ndarray:
+        """The part of a slot that its input ``name`` drives: Σ ∂term/∂name · name (the motor torque
+        K_t·i_a, the thrust torque (L/J)·f, the set-point term ω_ss/T_m)."""
+        vals = {**self.assembly.by_name, **inputs}
+        out = np.zeros(self.n)
+        for t in self.assembly.slots.get(slot, ()):
+            if name in t.inputs:
+                out = out + t.partial(NUMPY, name, vals) * inputs[name]
+        return out
+
+    def shape(self, part: str, slot: str, inputs: dict[str, Any], partial: str = "") -> np.ndarray:
+        """The shape of a component's or effect's ``slot`` term on the recorded signals, whether the
+        rig models it or not: the term at its first parameter 1, settings (regularisation widths) at
+        the rig's values, the other parameters absent (``partial``: its derivative by that input).
+        A term-error group regresses the residual on these shapes."""
+        decl = next(p for p in registry.parts() if p.name == part)
+        term = next(t for t in decl.terms if t.slot == slot)
+        raw = self.rig.values()
+        vals: dict[str, Any] = {}
+        for k, p in enumerate(decl.params):
+            if k == 0:
+                vals[p.name] = 1.0
+            elif p.setting or p.absent is None:
+                vals[p.name] = raw.get(p.key, p.absent)
+            else:
+                vals[p.name] = p.absent
+        vals.update(inputs)
+        y = term.partial(NUMPY, partial, vals) if partial else term(NUMPY, vals)
+        return np.broadcast_to(np.asarray(y, dtype=float), (self.n,))
+
+
+def _not_applicable(eq: str, s: _Signals, why: str) -> EquationCheck:
+    return EquationCheck(eq, SUBSYSTEM[eq], False, f"not applicable to family {s.rig.family}: {why}")
+
+
+def _actuator_check(s: _Signals) -> tuple[EquationCheck, np.ndarray, str]:
+    """Measured v_a against the duty → v_a map; returns the check and the v_a the later checks use."""
+    a = s.assembly
+    if a.drive_name != "v_a":
+        why = (f"its drive quantity is {a.drive_name}, a set-point inside the drive, not a measured "
+               "armature voltage")
+        return _not_applicable("actuator", s, why), np.zeros(s.n), ""
+    v_map = np.broadcast_to(np.asarray(s.chain["v_a"], dtype=float), (s.n,))
+    if "v_a" not in s.ch:
+        return (EquationCheck("actuator", SUBSYSTEM["actuator"], False, "needs v_a, not recorded"), v_map,
+                "v_a from the duty→v_a map")
+    tau = np.asarray(s.chain["tau"], dtype=float)
+    te = np.broadcast_to(np.asarray(s.chain["tau_e"], dtype=float), (s.n,))
+    r = s.sm(s.ch["v_a"] - v_map)
+    groups = {"offset": [np.ones(s.n)], "gain": [s.sm(v_map)], "dead_zone": [s.sm(np.clip(tau, 0,
+                                                                                          None) - te)]}
+    g0 = _deriv_gain(s.w, s.dt, 0)
+    check = _check("actuator", r, s.ch["v_a"], "V", s.noise["v_a"] * g0, "measured v_a vs the duty→v_a map",
+                   groups, s.trim)
+    return check, s.ch["v_a"], "measured v_a"
+
+
+def _armature_check(s: _Signals, v_a: np.ndarray, v_note: str) -> EquationCheck:
+    """Voltage balance v_a − R_a·i_a + Σ armature terms(ω₁) − L_a·di_a/dt [V]."""
+    a = s.assembly
+    if not a.armature:
+        return _not_applicable("armature", s, a.family.lacks.get("armature", "no armature circuit"))
+    reads_omega = bool(a.slots.get("armature"))
+    if "i_a" not in s.ch or (s.omega is None and reads_omega):
+        need = [c for c, ok in (("i_a", "i_a" in s.ch), ("omega_rotor",
+                                                         s.omega is not None or not reads_omega))
+                if not ok]
+        return EquationCheck("armature", SUBSYSTEM["armature"], False,
+                             f"needs {' and '.join(need)}, not recorded")
+    i_a = s.ch["i_a"]
+    w1 = s.omega if s.omega is not None else np.zeros(s.n)
+    didt = s.d1(i_a) if a.dynamic_current else np.zeros(s.n)
+    r_a, l_a = s.value("motor.R_a"), float(s.rig.values()["motor.L_a"])
+    r = s.sm(v_a) + s.sm(s.summed("armature", {"omega": w1})) - r_a * s.sm(i_a) - l_a * didt
+    g0, g1 = _deriv_gain(s.w, s.dt, 0), _deriv_gain(s.w, s.dt, 1)
+    floor = math.hypot(r_a * s.noise["i_a"] * g0, l_a * s.noise["i_a"] * g1)
+    groups = {"voltage": [s.sm(v_a)], "resistance": [s.sm(i_a)],
+              "back_emf": [s.sm(s.shape("back_emf", "armature", {"omega": w1}))], "inductance": [didt],
+              "offset": [np.ones(s.n)]}
+    note = f"{v_note}, measured i_a, {s.omega_note or 'no back-EMF'}"
+    return _check("armature", r, v_a, "V", floor, note, groups, s.trim)
+
+
+def _rotor_check(s: _Signals, v_a: np.ndarray) -> EquationCheck:
+    """Rotor torque balance Σ rotor-torque terms − J_m·ω̇₁ [N·m] (DC motor), or the speed response
+    Σ rotor-response terms − ω̇₁ [rad/s²] (ESC)."""
+    a = s.assembly
+    if s.omega is None:
+        return EquationCheck("rotor", SUBSYSTEM["rotor"], False,
+                             "needs omega_rotor (or omega_prop), not recorded")
+    omega = s.omega
+    g1 = _deriv_gain(s.w, s.dt, 1)
+    noise_w = s.noise.get("omega_rotor", s.noise.get("omega_prop", 0.0) * s.value("motor.gear_ratio"))
+    if not a.armature:
+        sp = np.broadcast_to(np.asarray(s.chain[a.drive_name], dtype=float), (s.n,))
+        inputs = {a.drive_name: sp, "omega": omega}
+        response = s.summed("rotor_response", inputs)
+        r = s.sm(response) - s.d1(omega)
+        # a wrong response time scales the response term itself; a wrong map, the set-point
+        groups = {"response": [s.sm(response)], "set_point": [s.sm(sp)], "offset": [np.ones(s.n)]}
+        note = f"{s.omega_note}, set-point {a.drive_name} of the throttle map"
+        return _check("rotor", r, s.driving("rotor_response", a.drive_name, inputs), "rad/s^2", noise_w * g1,
+                      note,
+                      groups, s.trim)
+    if "i_a" in s.ch:
+        i_a, i_note = s.ch["i_a"], "measured i_a"
+    else:
+        i_a = (v_a + s.summed("armature", {"omega": omega})) / s.value("motor.R_a")
+        i_note = "i_a = (v_a − K_ω·ω₁)/R_a (quasi-static, i_a not recorded)"
+    inputs = {"i_a": i_a, "omega": omega}
+    r = s.sm(s.summed("rotor_torque", inputs)) - s.value("motor.J_m") * s.d1(omega)
+    groups = {"torque": [s.sm(i_a)]}
+    for group, effect in (("viscous", "rotor_viscous_friction"), ("coulomb", "rotor_coulomb_friction"),
+                          ("drag", "propeller_drag")):
+        groups[group] = [s.sm(s.shape(effect, "rotor_torque", {"omega": omega}))]
+    return _check("rotor", r, s.driving("rotor_torque", "i_a", inputs), "N*m",
+                  s.value("motor.J_m") * noise_w * g1,
+                  f"{s.omega_note}, {i_note}", groups, s.trim)
+
+
+def _pendulum_check(s: _Signals, theta: np.ndarray, states: np.ndarray, offset: float,
+                    theta_rate: np.ndarray) -> EquationCheck:
+    """θ̈ against the sum of the rod's terms at the recorded θ, θ̇ and the thrust of ω₁ [rad/s²]."""
+    th = theta + offset
+    w1 = s.omega if s.omega is not None else states[:, OMEGA]
+    wp, thrust = s.assembly.propeller(NUMPY, w1)
+    thd = s.ch["theta_dot"] if "theta_dot" in s.ch else theta_rate
+    inputs = {"theta": th, "theta_dot": thd, "thrust": np.asarray(thrust, dtype=float)}
+    w2 = _sg_window(s.n, s.dt, 2.0 * SG_WINDOW)
+    lhs = s.d1(thd) if "theta_dot" in s.ch else _smooth(theta, w2, 2, s.dt)
+    r = lhs - s.sm(s.summed("rod", inputs))
+    floor = (s.noise["theta_dot"] * _deriv_gain(s.w, s.dt, 1) if "theta_dot" in s.ch
+             else s.noise["theta"] * _deriv_gain(w2, s.dt, 2))
+    groups = {
+        "gravity_offset": [s.sm(s.shape("rod", "rod", {"theta": th})),
+                           s.sm(s.shape("rod", "rod", {"theta": th}, partial="theta")), np.ones(s.n)],
+        "friction": [s.sm(s.shape("rod_viscous_friction", "rod", {"theta_dot": thd})),
+                     s.sm(s.shape("rod_coulomb_friction", "rod", {"theta_dot": thd}))],
+        "thrust": [s.sm(np.asarray(thrust, dtype=float)), s.sm(np.asarray(wp, dtype=float))],
+    }
+    note = (
+        f"θ̈ from {'measured θ̇' if 'theta_dot' in s.ch else 'θ (Savitzky-Golay)'}; thrust from "
+        + (s.omega_note if s.omega is not None else "the simulated ω₁ (motor/actuator errors show as thrust)")
+    )
+    pend = _check("pendulum", r, s.driving("rod", "thrust", inputs), "rad/s^2", floor, note, groups, s.trim)
+    if s.omega is None:
+        pend.group_subsystems["thrust"] = THETA_ONLY_CHAIN
+    return pend
+
+
 def _equations(
     rig: Rig,
     theta: np.ndarray,
@@ -848,140 +1046,31 @@ def _equations(
     offset: float,
     theta_rate: np.ndarray,
 ) -> list[EquationCheck]:
-    m = PlantModel(rig)
+    """The equation checks of one recording (module doc, step 3), every term from the nominal rig's
+    components (:meth:`aeropend_sim.components.assembly.Assembly.point` and ``slot_values``): the
+    actuator-side input is the simulation's (``states[:, TAU_F]``: the delayed command, or the lag
+    state), so the chain sees what the nominal simulator's actuator saw."""
+    model = PlantModel(rig)
     n = theta.size
     w = _sg_window(n, dt)
-    trim = w
-    sm = lambda y: _smooth(y, w)  # noqa: E731
-    d1 = lambda y: _smooth(y, w, 1, dt)  # noqa: E731
-    noise = {k: measurement_noise(v) for k, v in ch.items()}
-    g1 = _deriv_gain(w, dt, 1)
-    w2 = _sg_window(n, dt, 2.0 * SG_WINDOW)
-    g2 = _deriv_gain(w2, dt, 2)
-    g0 = _deriv_gain(w, dt, 0)
-    tau = states[:, TAU_F] if m.lag else duty
-    v_map = np.array([m.armature_voltage(float(x)) for x in tau])
-    omega = None
-    omega_note = ""
+    omega, omega_note = None, ""
     if "omega_rotor" in ch:
         omega, omega_note = ch["omega_rotor"], "measured ω₁"
     elif "omega_prop" in ch:
-        omega, omega_note = ch["omega_prop"] * m.n, "ω₁ = n·measured ω₂"
-    out: list[EquationCheck] = []
-    # actuator: v_a measured vs map(duty)
-    if "v_a" in ch:
-        r = sm(ch["v_a"] - v_map)
-        te = np.array([m.effective_duty(float(x)) for x in tau])
-        groups = {"offset": [np.ones(n)], "gain": [sm(v_map)], "dead_zone": [sm(np.clip(tau, 0, None) - te)]}
-        out.append(
-            _check(
-                "actuator",
-                r,
-                ch["v_a"],
-                "V",
-                noise["v_a"] * g0,
-                "measured v_a vs the duty→v_a map",
-                groups,
-                trim,
-            )
-        )
-        v_a, v_note = ch["v_a"], "measured v_a"
-    else:
-        out.append(EquationCheck("actuator", SUBSYSTEM["actuator"], False, "needs v_a, not recorded"))
-        v_a, v_note = v_map, "v_a from the duty→v_a map"
-    # armature: voltage balance
-    if "i_a" in ch and (omega is not None or not rig.effects.back_emf):
-        i_a = ch["i_a"]
-        w1 = omega if omega is not None else np.zeros(n)
-        didt = d1(i_a) if m.dynamic_current else np.zeros(n)
-        r = sm(v_a) - m.R * sm(i_a) - m.K_w * sm(w1) - m.L * didt
-        floor = math.hypot(m.R * noise["i_a"] * g0, m.L * noise["i_a"] * g1)
-        groups = {
-            "voltage": [sm(v_a)],
-            "resistance": [sm(i_a)],
-            "back_emf": [sm(w1)],
-            "inductance": [didt],
-            "offset": [np.ones(n)],
-        }
-        out.append(
-            _check(
-                "armature",
-                r,
-                v_a,
-                "V",
-                floor,
-                f"{v_note}, measured i_a, {omega_note or 'no back-EMF'}",
-                groups,
-                trim,
-            )
-        )
-    else:
-        need = [
-            c
-            for c, ok in (
-                ("i_a", "i_a" in ch),
-                ("omega_rotor", omega is not None or not rig.effects.back_emf),
-            )
-            if not ok
-        ]
-        out.append(
-            EquationCheck(
-                "armature", SUBSYSTEM["armature"], False, f"needs {' and '.join(need)}, not recorded"
-            )
-        )
-    # rotor: torque balance
-    if omega is not None:
-        if "i_a" in ch:
-            i_a, i_note = ch["i_a"], "measured i_a"
-        else:
-            i_a = (v_a - m.K_w * omega) / m.R
-            i_note = "i_a = (v_a − K_ω·ω₁)/R_a (quasi-static, i_a not recorded)"
-        coul = np.tanh(omega / ROTOR_FRICTION_VELOCITY)
-        torque = m.K_t * i_a
-        r = sm(torque - m.B_m * omega - m.T_cm * coul - m.K_d * omega * np.abs(omega)) - m.J_m * d1(omega)
-        floor = m.J_m * noise.get("omega_rotor", noise.get("omega_prop", 0.0) * m.n) * g1
-        groups = {
-            "torque": [sm(i_a)],
-            "viscous": [sm(omega)],
-            "coulomb": [sm(coul)],
-            "drag": [sm(omega * np.abs(omega))],
-        }
-        out.append(_check("rotor", r, torque, "N*m", floor, f"{omega_note}, {i_note}", groups, trim))
-    else:
-        out.append(
-            EquationCheck(
-                "rotor", SUBSYSTEM["rotor"], False, "needs omega_rotor (or omega_prop), not recorded"
-            )
-        )
-    # pendulum
-    th = theta + offset
-    w1 = omega if omega is not None else states[:, OMEGA]
-    wp = w1 / m.n
-    thrust = m.K_q * np.sign(wp) * np.abs(wp) ** m.alpha
-    thd = ch["theta_dot"] if "theta_dot" in ch else theta_rate
-    dry = (m.a_f + m.a_s * np.exp(-((thd / m.v_s) ** 2))) * np.tanh(thd / m.v_eps)  # PlantModel.dry_friction
-    rhs = -m.a_g * np.sin(th) - m.a_c * thd - dry + m.b_f * thrust
-    if m.stops:
-        p = rig.pendulum
-        rhs = rhs + end_stops.accel(NUMPY, th, thd, p.theta_min, p.theta_max, p.stop_stiffness,
-                                    p.stop_damping)
-    lhs = d1(thd) if "theta_dot" in ch else _smooth(theta, w2, 2, dt)
-    r = lhs - sm(rhs)
-    floor = noise["theta_dot"] * g1 if "theta_dot" in ch else noise["theta"] * g2
-    groups = {
-        "gravity_offset": [sm(np.sin(th)), sm(np.cos(th)), np.ones(n)],
-        "friction": [sm(thd), sm(np.tanh(thd / m.v_eps))],
-        "thrust": [sm(thrust), sm(wp)],
-    }
-    note = (
-        f"θ̈ from {'measured θ̇' if 'theta_dot' in ch else 'θ (Savitzky-Golay)'}; thrust from "
-        f"{omega_note if omega is not None else 'the simulated ω₁ (motor/actuator errors show as thrust)'}"
-    )
-    pend = _check("pendulum", r, m.b_f * thrust, "rad/s^2", floor, note, groups, trim)
-    if omega is None:
-        pend.group_subsystems["thrust"] = THETA_ONLY_CHAIN
-    out.append(pend)
-    return out
+        omega, omega_note = ch["omega_prop"] * rig.motor.gear_ratio, "ω₁ = n·measured ω₂"
+    chain = model.assembly.point(NUMPY, states, states[:, TAU_F])
+    s = _Signals(rig=rig, model=model, chain=chain, ch=ch, noise={k: measurement_noise(v) for k,
+                                                                  v in ch.items()},
+                 n=n, dt=dt, w=w, trim=w, omega=omega, omega_note=omega_note)
+    actuator, v_a, v_note = _actuator_check(s)
+    return [actuator, _armature_check(s, v_a, v_note), _rotor_check(s, v_a),
+            _pendulum_check(s, theta, states, offset, theta_rate)]
+
+
+def _stiffness(rig: Rig, theta: float) -> float:
+    """Linearised restoring stiffness −∂θ̈/∂θ [1/s²] of the rod at angle θ, at rest."""
+    a, _ = PlantModel(rig).jacobian([theta, 0.0, 0.0, 0.0, 0.0], 0.0)
+    return float(-a[THETA_DOT, THETA])
 
 
 def locate_recording(
@@ -1071,9 +1160,10 @@ def locate_recording(
             "rate_bins": residual_bins(np.abs(rate), pend.residual, n_bins, "rad/s"),
             "unit": "rad/s^2",
         }
-    m = PlantModel(rig)
     th_mean = float(np.mean(data.theta)) + theta_offset
-    k_lin = m.a_g * math.cos(th_mean) if m.a_g * math.cos(th_mean) > 0 else m.a_g
+    k_lin = _stiffness(rig, th_mean)
+    if k_lin <= 0.0:
+        k_lin = _stiffness(rig, 0.0)
     f_n = math.sqrt(max(k_lin, 1e-6)) / (2 * math.pi)
     noise = measurement_noise(data.theta)
     wb = ljung_box(resid)

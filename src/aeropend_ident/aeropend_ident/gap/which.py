@@ -69,13 +69,13 @@ from scipy.signal import savgol_filter
 
 from aeropend_ident.errors import GapError, IdentificationError
 from aeropend_ident.gap.effects import (
-    CATALOG,
     Effect,
     EffectContext,
     EffectParameter,
     MeasurementMap,
     ParamRange,
     apply_effects,
+    catalog,
     check_recordings,
     detect_quantum,
     get_effect,
@@ -118,8 +118,6 @@ NOISE_FLOOR_FACTOR = 3.0
 ABOVE_NOISE = 1.25
 #: Residual samples per independent sample in the BIC (free-run residuals are autocorrelated).
 BIC_DECIMATION = 20
-#: Effects that change the timing of the response (confirmed on request, see ``also_confirm``).
-TIMING_EFFECTS = ("motor_time_constant", "actuator_lag", "input_delay")
 #: Number of shortlisted effects confirmed by grey-box fits.
 SHORTLIST = 5
 #: Bootstrap resamples for screening inclusion and ranking confidence.
@@ -1052,7 +1050,7 @@ class _Setup:
 
 
 def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
-           say: Callable[[str], None]) -> _Setup:
+           say: Callable[[str], None], skip: Sequence[str] = ()) -> _Setup:
     nominal_model_check(rig)
     ch_fit = check_recordings(fit, "fit recordings")
     ch_val = check_recordings(validation, "validation recordings")
@@ -1061,7 +1059,9 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
     ctx = EffectContext.from_data(rig, np.concatenate([p.y["theta"] for p in pf]),
                                   np.concatenate([p.duty for p in pf]))
     model_effects, refinements, not_ident = [], [], []
-    for e in CATALOG:
+    for e in catalog(rig.family):
+        if e.name in skip:
+            continue
         why = identifiable(e, channels)
         if why is not None:
             not_ident.append({"effect": e.name, "subsystem": e.subsystem, "reason": why})
@@ -1098,6 +1098,12 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
                   n_eff=max(n_fit // BIC_DECIMATION, 10),
                   seg0=seg0, base_metrics=gap_metrics(rig, nominal, pv), floors=floors, noise_sse=noise_sse,
                   noise_c=noise_c, sse0_c=sse0_c, note=note, say=say)
+
+
+def _in_catalog(names: Sequence[str], st: _Setup) -> list[str]:
+    """The names that are candidates for this rig (confusable effects of another family left out)."""
+    have = {*st.model_effects, *st.refinements, *(r["effect"] for r in st.not_ident)}
+    return [n for n in names if n in have]
 
 
 def _noise_parts(preps: Sequence[Prepared]) -> dict[str, float]:
@@ -1204,7 +1210,7 @@ def _ranking(st: _Setup, cands: _Candidates, scr: Screening, seed: int) -> list[
                            "explained_weak": scr.explained_weak[name], "inclusion": scr.inclusion[name],
                            "equation_error_estimate": scr.estimates.get(name)}
                           if name in scr.explained_strong else {"not_screened": True}),
-            "confusable_with": list(e.confusable_with),
+            "confusable_with": _in_catalog(e.confusable_with, st),
             "ambiguous_with": [],
         })
     if ranking:
@@ -1633,7 +1639,7 @@ def _no_effect_reason(st: _Setup, best: dict[str, Any] | None, above_floor: bool
 def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording], *,
                      max_effects: int = 2, seed: int = 0,
                      progress: Callable[[str], None] | None = None,
-                     also_confirm: Sequence[str] = ()) -> EffectDiagnosis:
+                     also_confirm: Sequence[str] = (), skip: Sequence[str] = ()) -> EffectDiagnosis:
     """Find which catalog effect(s) explain the gap between a rig file and recordings.
 
     Parameters
@@ -1655,9 +1661,12 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
         Called with short status messages.
     also_confirm : sequence of str
         Catalog effects confirmed by a grey-box fit in addition to the screening shortlist, e.g.
-        the timing effects (:data:`TIMING_EFFECTS`) when the where-analysis finds the simulated
-        response leading or lagging the recorded one. Effects the channels cannot reveal are
-        skipped.
+        the timing effects (:func:`aeropend_ident.gap.effects.timing_effects`) when the
+        where-analysis finds the simulated response leading or lagging the recorded one. Effects the
+        channels cannot reveal, or that are not candidates for the rig's family, are skipped.
+    skip : sequence of str
+        Catalog effects left out of the diagnosis (hypotheses the lab rules out, or a benchmark
+        measuring what one candidate changes).
 
     Returns
     -------
@@ -1668,17 +1677,17 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     GapError
         Recordings lacking θ or the duty cycle, with NaNs, too short, non-uniform or unexcited;
         an unusable nominal rig; ``max_effects`` outside 1..3; an unknown effect in
-        ``also_confirm``.
+        ``also_confirm`` or ``skip``.
     """
     t0 = time.perf_counter()
-    for name in also_confirm:
+    for name in (*also_confirm, *skip):
         get_effect(name)
     say = progress or (lambda _m: None)
     if max_effects not in (1, 2, 3):
         raise GapError(f"max_effects = {max_effects!r}; expected 1, 2 or 3")
     if not isinstance(rig, Rig):
         raise GapError(f"rig is a {type(rig).__name__}; expected aeropend_sim.params.Rig (load_rig)")
-    st = _setup(rig, fit, validation, say)
+    st = _setup(rig, fit, validation, say, skip)
     q_hat = _unmodelled_quantum(rig, st)
     scr, cands, screened, forced = _screen_and_confirm(rig, st, also_confirm, seed, say)
     ranking = _ranking(st, cands, scr, seed + 1)
@@ -1821,7 +1830,7 @@ def _record_chosen(ranking: list[dict[str, Any]], st: _Setup, fit: EffectFit, ch
                 "screening": ({"explained_strong": scr.explained_strong[name],
                                "explained_weak": scr.explained_weak[name], "inclusion": scr.inclusion[name]}
                               if name in scr.explained_strong else {"not_screened": True}),
-                "confusable_with": list(e.confusable_with), "ambiguous_with": [],
+                "confusable_with": _in_catalog(e.confusable_with, st), "ambiguous_with": [],
             })
     for r in ranking:
         if r["effect"] in chosen:

@@ -26,9 +26,9 @@ Default parameter set for θ-only data (:func:`default_parameters`):
 * :data:`THETA_OFFSET` when the rig declares a recording-frame offset (see-saw rigs).
 
 Strictly positive parameters are fitted as log(p) (scale-free steps, positivity for free); the
-others linearly with a parameter scale (:class:`ParameterSpec`). Bounds come from physics
-(:data:`PHYSICAL_BOUNDS`) or, for parameters without an entry, from the sign constraint of the
-rig field.
+others linearly with a parameter scale (:class:`ParameterSpec`). Bounds, parametrisation and
+scale come from the parameter's declaration (:attr:`aeropend_sim.components.base.Param.fit`, with
+the component or effect that owns it) or, for parameters without fit bounds, from its sign.
 
 Time grid: the simulator needs a uniform grid. A recording whose sample intervals deviate from
 their median by more than :data:`UNIFORM_TOLERANCE` (relative) is resampled onto
@@ -73,7 +73,10 @@ from scipy.optimize import brentq, least_squares
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.io.recording_input import uniform_grid
-from aeropend_sim.model import ROTOR_FRICTION_VELOCITY, ModelError, PlantModel
+from aeropend_sim.components import registry
+from aeropend_sim.components.base import Effect
+from aeropend_sim.components.xp import MATH
+from aeropend_sim.model import ModelError, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.recording import Recording
 from aeropend_sim.recording_frame import FrameError, RecordingFrame, read_recording_frame
@@ -87,50 +90,6 @@ MIN_SAMPLES = 50
 N_DIFF = 7
 #: ftol/xtol/gtol of the multiple-shooting initialisation stage (see ``init_horizon``).
 INIT_STAGE_TOL = 1e-4
-
-#: Physical bounds (lower, upper, log-parametrised) of the usual grey-box parameters, SI units.
-#: ``None`` bounds are relative to the initial value (factor 1e-3 .. 1e3).
-PHYSICAL_BOUNDS: dict[str, tuple[float | None, float | None, bool]] = {
-    "pendulum.mgd_over_J": (1e-2, 1e4, True),  # ω_n from 0.1 to 100 rad/s
-    "pendulum.c_over_J": (1e-4, 1e3, True),
-    "pendulum.L_over_J": (None, None, True),  # absorbs the unknown thrust scale
-    "pendulum.coulomb_over_J": (0.0, 1e3, False),
-    "actuator.dead_zone": (0.0, 0.95, False),
-    "actuator.lag_time_constant": (1e-4, 10.0, True),
-    "actuator.input_delay": (0.0, 1.0, False),
-    "thrust.exponent": (0.5, 4.0, True),
-}
-
-#: Parameter units per optimiser unit of the usual linear parameters (about a typical change).
-_LINEAR_SCALE: dict[str, float] = {
-    "actuator.dead_zone": 0.05,
-    "pendulum.coulomb_over_J": 1.0,
-    "actuator.input_delay": 0.01,
-}
-
-#: Effect switch a parameter needs to influence the output (a fit of it is refused otherwise).
-_EFFECT_OF: dict[str, tuple[str, Any]] = {
-    "actuator.dead_zone": ("dead_zone", True),
-    "actuator.lag_time_constant": ("actuator_lag", True),
-    "actuator.input_delay": ("input_delay", True),
-    "pendulum.coulomb_over_J": ("rod_coulomb_friction", True),
-    "pendulum.c_over_J": ("rod_viscous_friction", True),
-    "motor.B_m": ("rotor_viscous_friction", True),
-    "motor.T_c": ("rotor_coulomb_friction", True),
-    "motor.K_d": ("propeller_drag", True),
-    "motor.K_omega": ("back_emf", True),
-    "motor.L_a": ("armature_inductance", "dynamic"),
-    "thrust.exponent": ("thrust_exponent", True),
-    "pendulum.theta_min": ("end_stops", True),
-    "pendulum.theta_max": ("end_stops", True),
-    "pendulum.stop_stiffness": ("end_stops", True),
-    "pendulum.stop_damping": ("end_stops", True),
-    "actuator.hbridge_k0": ("hbridge_map", True),
-    "actuator.hbridge_k1": ("hbridge_map", True),
-    "actuator.hbridge_k2": ("hbridge_map", True),
-    "actuator.hbridge_k3": ("hbridge_map", True),
-    "actuator.v_supply": ("hbridge_map", False),
-}
 
 #: Parameters that never reach θ (sensor model) and cannot be fitted.
 _NOT_FITTABLE_SECTIONS = ("sensors",)
@@ -295,16 +254,18 @@ def parameter_spec(
         spec = ParameterSpec(name, "rad", x0, float(lo), float(hi), False, 0.1)
     else:
         section, fname, f = _field_meta(name, rig)
-        need = _EFFECT_OF.get(name)
-        if need is not None and getattr(rig.effects, need[0]) != need[1]:
+        need = _switch_needed(name, rig)
+        if need is not None:
             raise IdentificationError(
                 f"parameter {name!r} does not affect the output of rig {rig.name!r}: it needs "
                 f"effects.{need[0]} = {need[1]!r} (is {getattr(rig.effects, need[0])!r})"
             )
         x0 = float(getattr(getattr(rig, section), fname) if initial is None else initial)
-        lo_b, hi_b, log = PHYSICAL_BOUNDS.get(
-            name, (None, None, bool(f.metadata.get("positive")))
-        )
+        declared = f.metadata["param"].fit
+        if declared is not None:
+            lo_b, hi_b, log = declared.lower, declared.upper, declared.log
+        else:
+            lo_b, hi_b, log = None, None, bool(f.metadata.get("positive"))
         if log and x0 <= 0.0:
             if name == "actuator.lag_time_constant":
                 x0 = 0.05  # switched on with T_a = 0: start from a typical small-motor lag
@@ -317,7 +278,8 @@ def parameter_spec(
         if hi_b is None:
             hi_b = x0 * 1e3 if log else max(10.0 * abs(x0), 1.0) + x0
         lo, hi = bounds if bounds is not None else (lo_b, hi_b)
-        scale = 1.0 if log else _LINEAR_SCALE.get(name, max(abs(x0), 0.01 * (hi - lo), 1e-3))
+        typical = declared.scale if declared is not None else None
+        scale = 1.0 if log else (typical or max(abs(x0), 0.01 * (hi - lo), 1e-3))
         spec = ParameterSpec(name, f.metadata["unit"], x0, float(lo), float(hi), bool(log), float(scale))
     if not spec.lower < spec.upper:
         raise IdentificationError(f"parameter {name!r}: bounds {spec.lower!r} .. {spec.upper!r} are empty")
@@ -333,8 +295,28 @@ def parameter_spec(
     return spec
 
 
+def _switch_needed(name: str, rig: Rig) -> tuple[str, Any] | None:
+    """The effect switch (name, value) parameter ``name`` needs to reach the output of ``rig``, or
+    None when it does: its owner effect must be on, and a drive map it belongs to must not be
+    superseded by an effect's map (the ideal map's v_supply while ``hbridge_map`` is on)."""
+    owner = registry.owners()[name]
+    if isinstance(owner, Effect):
+        return None if getattr(rig.effects, owner.name) == owner.on else (owner.name, owner.on)
+    pname = name.partition(".")[2]
+    drive = PlantModel(rig).assembly.slots.get("drive", ())
+    if len(drive) > 1 and any(pname in t.param_names for t in drive[:-1]):
+        top = next(e for e in registry.effects() if any(t is drive[-1] for t in e.terms))
+        return top.name, top.off
+    return None
+
+
 def default_parameters(rig: Rig, theta_offset: float = 0.0) -> list[str]:
     """Default fitted set for θ-only data (see the module docstring).
+
+    The same for every actuator family: the rod is common to all of them, L/J absorbs the whole
+    thrust scale of the drive (an H-bridge map, an amplifier's gain or an ESC's throttle map times
+    K_q), and the switched-on effects add their parameters only when the rig has them (an ESC has
+    no dead zone of its own: its idle throttle is part of its map).
 
     Parameters
     ----------
@@ -552,8 +534,13 @@ def uniform_data(
 def motor_equilibrium(rig: Rig, duty: float) -> tuple[float, float, float]:
     """Steady motor state for a constant duty cycle.
 
-    Solves K_t·i_a = B_m·ω₁ + T_c·tanh(ω₁/v_ε) + K_d·ω₁|ω₁| with i_a = (v_a − K_ω·ω₁)/R_a
-    (switched-off effects contribute nothing), v_a from the actuator chain (dead zone, map).
+    The rotor speed ω₁ at which the rig's rotor is at rest in its own equation: for the DC motor
+    families, the torque balance Σ rotor-torque terms(i_a, ω₁) = 0 (K_t·i_a = B_m·ω₁ + T_c·sgn ω₁ +
+    K_d·ω₁|ω₁| with whichever loads are on) with the steady armature current i_a = (v_a + Σ
+    armature terms(ω₁))/R_a; for an ESC, its speed response ω̇₁ = 0 at the set-point of the
+    throttle map. The drive comes through the actuator chain (dead zone, map) and every term from
+    the rig's components (:meth:`aeropend_sim.components.assembly.Assembly.point`,
+    :meth:`~aeropend_sim.components.assembly.Assembly.slot_values`); nothing is re-written here.
 
     Parameters
     ----------
@@ -563,32 +550,38 @@ def motor_equilibrium(rig: Rig, duty: float) -> tuple[float, float, float]:
 
     Returns
     -------
-    (i_a [A], ω₁ [rad/s], τ_f [1])
+    (i_a [A] (0 without an armature), ω₁ [rad/s], τ_f [1])
 
     Raises
     ------
     IdentificationError
         If the motor has no finite steady state (no back-EMF, friction or drag).
     """
-    m = PlantModel(rig)
-    v = m.armature_voltage(float(duty))
-    if v <= 0.0:
-        return 0.0, 0.0, float(duty)
+    model = PlantModel(rig.with_effects(armature_inductance="quasi_static"))
+    a = model.assembly
+    duty = float(duty)
+    slot = "rotor_torque" if a.armature else "rotor_response"
 
-    def torque(w: float) -> float:
-        i = (v - m.K_w * w) / m.R
-        return m.K_t * i - m.B_m * w - m.T_cm * math.tanh(w / ROTOR_FRICTION_VELOCITY) - m.K_d * w * abs(w)
+    def state(w: float) -> dict[str, Any]:
+        return a.point(MATH, [0.0, 0.0, 0.0, w, duty], duty)
 
-    hi = v / m.K_w if m.K_w > 0.0 else 1.0
-    while torque(hi) > 0.0:
+    def rate(w: float) -> float:  # net torque (or ω̇₁), decreasing in ω₁ through the steady state
+        p = state(w)
+        inputs = {"i_a": p["i_a"], "omega": w, a.drive_name: p[a.drive_name]}
+        return sum(a.slot_values(slot, MATH, inputs).values(), 0.0)
+
+    if state(0.0)[a.drive_name] <= 0.0:
+        return 0.0, 0.0, duty
+    hi = 1.0
+    while rate(hi) > 0.0:
         hi *= 2.0
         if hi > 1e9:
             raise IdentificationError(
                 f"rig {rig.name!r}: the motor has no steady state at duty {duty:g} "
                 "(no back-EMF, friction or propeller drag switched on)"
             )
-    w = brentq(torque, 0.0, hi, xtol=1e-12, rtol=1e-12)
-    return (v - m.K_w * w) / m.R, w, float(duty)
+    w = brentq(rate, 0.0, hi, xtol=1e-12, rtol=1e-12)
+    return float(state(w)["i_a"]), w, duty
 
 
 def initial_velocity(theta: np.ndarray, dt: float, n: int = N_DIFF) -> float:
@@ -961,7 +954,7 @@ def fit_greybox(
     initial : mapping, optional
         Starting values overriding the rig's.
     bounds : mapping, optional
-        ``{name: (lower, upper)}`` overriding :data:`PHYSICAL_BOUNDS`.
+        ``{name: (lower, upper)}`` overriding the declared fit bounds.
     dt : float, optional
         Grid period [s] (default the recording's median interval).
     decimate : int

@@ -295,6 +295,72 @@ class Term:
 
 
 @dataclass(frozen=True)
+class Search:
+    """How the gap diagnosis searches one parameter of a hypothesis on a rig and its recordings.
+
+    The range is physics of the rig: it is derived from the nominal rig and the recording's scales
+    (the largest recorded duty cycle, the drive and rotor speed there, ...), not from the nominal
+    value alone, so an effect the rig omits is found at any plausible size.
+
+    Attributes
+    ----------
+    name : str
+        The diagnosis parameter (an entry of :attr:`Diagnosis.params`).
+    unit : str
+        SI unit.
+    limits : (float, float)
+        Physically valid values (the diagnosis refuses a value outside).
+    target : str
+        Where the value ends up: a rig parameter ``"section.name"`` or ``"measurement.<attr>"``
+        (the angle-sensor transform of the diagnosis).
+    doc : str
+        Meaning (one line).
+    range : callable
+        ``range(ctx) -> (lower, upper, off, probe)``: the search interval, the value at which the
+        hypothesis is absent (the nominal rig's) and a typical magnitude. ``ctx`` is the
+        diagnosis' context of the nominal rig and the data
+        (:class:`aeropend_ident.gap.effects.EffectContext`):
+        ``ctx.rig``, ``ctx.duty_max`` (largest recorded duty), ``ctx.drive_max`` (drive quantity
+        there), ``ctx.omega_max`` (steady rotor speed there), ``ctx.omega_ref`` (steady propeller
+        speed at the median duty), ``ctx.theta_hi`` (0.995 quantile of the recorded angle, model
+        frame) and ``ctx.rotor_torque(omega, without=...)`` (the nominal rig's net rotor torque at
+        ``drive_max`` and speed ω without one effect's terms).
+    range_doc : str
+        The range in words (docs tables).
+    log : bool
+        Searched as log(value) (strictly positive parameters).
+    """
+
+    name: str
+    unit: str
+    limits: tuple[float, float]
+    target: str
+    doc: str
+    range: Callable[[Any], tuple[float, float, float, float]] = field(repr=False, compare=False)
+    range_doc: str = ""
+    log: bool = False
+
+
+#: Limits of a strictly positive searched parameter.
+POSITIVE = (1e-300, math.inf)
+
+
+def scaled(value: float, lo: float, hi: float, probe: float) -> tuple[float, float, float, float]:
+    """A :attr:`Search.range` of a parameter the rig states: ``value`` scaled by [lo, hi], absent at
+    ``value``, probe ``value·probe``."""
+    return value * lo, value * hi, value, value * probe
+
+
+def load_range(nominal: float, on: bool, halving: float, probe: float) -> tuple[float, float, float, float]:
+    """A :attr:`Search.range` of a rotor load coefficient (B_m, K_d, T_c): up to 3× the value that
+    would halve the steady rotor speed at the largest recorded duty (``halving``) and 0.05–20× a
+    nominal value the rig has (``on``); probe ``probe``·halving when it has none."""
+    if on and nominal > 0.0:
+        return min(0.05 * nominal, 1e-3 * halving), max(20.0 * nominal, 3.0 * halving), nominal, 1.3 * nominal
+    return 1e-3 * halving, 3.0 * halving, 0.0, probe * halving
+
+
+@dataclass(frozen=True)
 class Diagnosis:
     """What the gap diagnosis needs to know about one hypothesis (plain data, read by
     :mod:`aeropend_ident.gap`): an effect that may be missing, or a parameter that may be wrong.
@@ -327,6 +393,24 @@ class Diagnosis:
     exclusive_with, nests, refines : tuple of str
         Catalog relations (never together; contains as a special case; an operating-point
         refinement of).
+    order : int
+        Position in the gap catalog (the order the diagnosis lists, screens and applies its
+        hypotheses: along the signal chain, a drive error before the motor's).
+    search : tuple of Search
+        How each parameter in :attr:`params` is searched (same names, same order).
+    apply : callable or None
+        ``apply(rig, values) -> rig``: the nominal rig with the hypothesis in place at the physical
+        ``values`` (``{name: value}``), through the rig's ``with_params``/``with_effects``; raises
+        ``ValueError`` for values the rig cannot take. ``None``: the rig is unchanged (a
+        measurement transform, or a property detected from the data).
+    timing : bool
+        Changes when the thrust follows the command (a lag, a delay, a slow rotor): the diagnosis
+        confirms it by a grey-box fit whenever the recorded response leads or lags the simulated one.
+    drift_sigma : float
+        For a quantity that changes between sessions of one rig (air density, a re-mounted
+        propeller, a battery's charge): the prior standard deviation of its session-to-session log
+        change (0.15 ≈ ±15 %), with the physical reason in the declaring module; 0: not drift-prone.
+        Read by :mod:`aeropend_ident.gap.drift` (the parameter is the hypothesis' first).
     """
 
     name: str
@@ -342,6 +426,20 @@ class Diagnosis:
     exclusive_with: tuple[str, ...] = ()
     nests: tuple[str, ...] = ()
     refines: tuple[str, ...] = ()
+    order: int = 0
+    search: tuple[Search, ...] = ()
+    apply: Callable[[Any, Mapping[str, float]], Any] | None = field(default=None, compare=False)
+    timing: bool = False
+    drift_sigma: float = 0.0
+
+    def __post_init__(self) -> None:
+        names = tuple(s.name for s in self.search)
+        if self.search and names != self.params:
+            raise ValueError(f"diagnosis {self.name!r}: search {names} must name its params {self.params} "
+                             "in order")
+        for p in self.truth:
+            if p not in self.params:
+                raise ValueError(f"diagnosis {self.name!r}: truth range for {p!r}, not one of {self.params}")
 
 
 @dataclass(frozen=True)

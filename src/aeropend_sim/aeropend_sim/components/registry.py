@@ -21,7 +21,7 @@ import pkgutil
 from functools import cache
 from pathlib import Path
 
-from aeropend_sim.components.base import Component, Effect, Family, Param, Part
+from aeropend_sim.components.base import Component, Diagnosis, Effect, Family, Param, Part
 
 #: Family of a rig file that does not name one (every rig file before issue 35).
 DEFAULT_FAMILY = "dc_hbridge"
@@ -175,6 +175,46 @@ def param(key: str) -> Param:
 def family_params(name: str) -> dict[str, Param]:
     """Parameters a rig of family ``name`` has (its parts' and applicable effects'), key -> Param."""
     return {par.key: par for p in (*family_parts(name), *family_effects(name)) for par in p.params}
+
+
+@cache
+def diagnoses(family_name: str | None = None) -> tuple[Diagnosis, ...]:
+    """The gap diagnosis' hypotheses (:class:`Diagnosis`, catalog and drift), by catalog order.
+
+    ``family_name``: only those of the parts that belong on a rig of that family (a back-EMF error on an
+    ESC rig is not a hypothesis: its part says why, :meth:`Part.applies_to`).
+
+    Raises
+    ------
+    RegistryError
+        On an unknown family, or two parts declaring the same diagnosis name.
+    """
+    fam = None if family_name is None else family(family_name)
+    out: dict[str, Diagnosis] = {}
+    for p in parts():
+        if fam is not None and p.applies_to(fam) is not None:
+            continue
+        for d in p.diagnoses:
+            if d.name in out:
+                raise RegistryError(f"diagnosis {d.name!r} declared twice")
+            out[d.name] = d
+    return tuple(sorted(out.values(), key=lambda d: (d.order, d.name)))
+
+
+@cache
+def diagnosis_owner(name: str) -> Part:
+    """The component or effect that declares the diagnosis ``name``.
+
+    Raises
+    ------
+    RegistryError
+        If no part declares it (the message lists the names).
+    """
+    for p in parts():
+        for d in p.diagnoses:
+            if d.name == name:
+                return p
+    raise RegistryError(f"unknown diagnosis {name!r}; expected one of {[d.name for d in diagnoses()]}")
 
 
 def families_with(key: str) -> tuple[str, ...]:

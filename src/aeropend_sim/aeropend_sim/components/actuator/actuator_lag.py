@@ -6,7 +6,7 @@ with T_a = 0 it does nothing (the state then follows τ).
 
 from __future__ import annotations
 
-from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Term
+from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Search, Term
 
 LAG = Param("actuator.lag_time_constant", "s", "first-order actuator lag T_a", sign="nonneg", absent=0.0,
             fit=FitBounds(1e-4, 10.0, True), symbol="T_a")
@@ -27,6 +27,18 @@ def d_rate_d_tau_f(xp, u, tau_f, lag_time_constant):
     return -1.0 / lag_time_constant
 
 
+def search_range(ctx):
+    """1 ms … 1 s; absent at the rig's T_a (0 when off)."""
+    off = ctx.rig.actuator.lag_time_constant if ctx.rig.effects.actuator_lag else 0.0
+    return 1e-3, 1.0, off, max(off * 1.5, 0.05)
+
+
+def apply(rig, v):
+    """The rig with a first-order lag T_a."""
+    return rig.with_params("actuator",
+                           lag_time_constant=v["lag_time_constant"]).with_effects(actuator_lag=True)
+
+
 EFFECT = Effect(
     name="actuator_lag",
     part="actuator",
@@ -41,6 +53,8 @@ EFFECT = Effect(
                          ("lag_time_constant",), ("theta",),
                          sindy_terms={"theta_dot": ("L/J·Δf(T_a)",), "i_a": ("Δv_a(T_a)/L_a",),
                                       "v_a": ("Δv_a(T_a)",)},
-                         confusable_with=("input_delay", "motor_time_constant"),
-                         truth={"lag_time_constant": ((0.05, 0.12),)}),),
+                         confusable_with=("input_delay", "motor_time_constant", "esc_response"),
+                         truth={"lag_time_constant": ((0.05, 0.12),)}, order=30, apply=apply, timing=True,
+                         search=(Search("lag_time_constant", "s", (0.0, 60.0), "actuator.lag_time_constant",
+                                        "lag time constant T_a", search_range, "1 ms … 1 s", log=True),)),),
 )

@@ -6,7 +6,7 @@ the throttle map is the dead zone, and a second one could not be told apart from
 
 from __future__ import annotations
 
-from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Term
+from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Search, Term
 
 DEAD_ZONE = Param("actuator.dead_zone", "1", "duty-cycle dead zone τ_dz", sign="nonneg", below=1.0,
                   absent=0.0, fit=FitBounds(0.0, 0.95, False, 0.05), symbol="τ_dz")
@@ -27,6 +27,17 @@ def duty_of_effective(xp, y, dead_zone):
     return xp.where(y > 0.0, y * (1.0 - dead_zone) + dead_zone, 0.0)
 
 
+def search_range(ctx):
+    """0 … min(0.6, 0.9·largest recorded duty); absent at the rig's τ_dz (0 when off)."""
+    off = ctx.rig.actuator.dead_zone if ctx.rig.effects.dead_zone else 0.0
+    return 0.0, min(0.6, 0.9 * ctx.duty_max), off, off + 0.05
+
+
+def apply(rig, v):
+    """The rig with a dead zone τ_dz."""
+    return rig.with_params("actuator", dead_zone=v["dead_zone"]).with_effects(dead_zone=True)
+
+
 EFFECT = Effect(
     name="dead_zone",
     part="actuator",
@@ -45,5 +56,9 @@ EFFECT = Effect(
                          ("theta",),
                          sindy_terms={"theta_dot": ("L/J·Δf(τ_dz)",), "i_a": ("Δv_a(τ_dz)/L_a",),
                                       "v_a": ("Δv_a(τ_dz)",)},
-                         confusable_with=("hbridge_drop",), truth={"dead_zone": ((0.05, 0.12),)}),),
+                         confusable_with=("hbridge_drop",), truth={"dead_zone": ((0.05, 0.12),)},
+                         order=10, apply=apply,
+                         search=(Search("dead_zone", "1", (0.0, 0.95), "actuator.dead_zone",
+                                        "dead-zone width τ_dz",
+                                        search_range, "0 … min(0.6, 0.9·largest recorded duty)"),)),),
 )

@@ -19,10 +19,10 @@ shared input delay (the ``input_delay`` effect: ESC dead times of 0.2–1 s are 
 
 from __future__ import annotations
 
-from aeropend_sim.components.base import Family, Param, Term
+from aeropend_sim.components.base import POSITIVE, Diagnosis, Family, Param, Search, Term, scaled
 
 OMEGA_MAX = Param("actuator.omega_max", "rad/s", "steady rotor speed at full throttle ω_max", sign="positive",
-                  symbol="ω_max")
+                  relative_truth=((0.75, 0.88), (1.12, 1.25)), symbol="ω_max")
 IDLE_DUTY = Param("actuator.idle_duty", "1", "idle/arming throttle τ_0: the rotor stands still below it",
                   sign="nonneg", below=1.0, absent=0.0, symbol="τ_0")
 CURVE = Param("actuator.curve_exponent", "1", "throttle-curve exponent β (1: linear ESC)", sign="positive",
@@ -49,6 +49,34 @@ def duty_of_speed(xp, y, omega_max, idle_duty, curve_exponent):
     return xp.where(y > 0.0, idle_duty + (1.0 - idle_duty) * frac, 0.0)
 
 
+#: Session-to-session drift of the full-throttle speed ω_max (σ of its log change, 8 %): an ESC
+#: in its usual open-loop mode sets the motor voltage as a share of the battery's, so ω_max follows
+#: the battery (a 3-cell LiPo from 12.6 V to about 10.5 V over its charge), as the supply voltage
+#: of an H-bridge does.
+SPEED_DRIFT_SIGMA = 0.08
+
+
+def idle_range(ctx):
+    """0 … min(0.6, 0.9·largest recorded duty); absent at the rig's τ_0."""
+    off = ctx.rig.actuator.idle_duty
+    return 0.0, min(0.6, 0.9 * ctx.duty_max), off, off + 0.05
+
+
+def apply_idle(rig, v):
+    """The rig with idle throttle τ_0."""
+    return rig.with_params("actuator", idle_duty=v["idle_duty"])
+
+
+def speed_range(ctx):
+    """0.2 … 5 × nominal ω_max."""
+    return scaled(ctx.rig.actuator.omega_max, 0.2, 5.0, 1.2)
+
+
+def apply_speed(rig, v):
+    """The rig with full-throttle speed ω_max."""
+    return rig.with_params("actuator", omega_max=v["omega_max"])
+
+
 FAMILY = Family(
     name="esc",
     part="actuator",
@@ -69,4 +97,27 @@ FAMILY = Family(
                         "drag): only the speed response T_m remains",
     },
     channels=("theta", "theta_dot", "omega_rotor", "omega_prop"),
+    diagnoses=(
+        Diagnosis("esc_idle", "actuator",
+                  "ESC idle/arming throttle τ_0 wrong: ω_ss = ω_max·max(0, (τ − τ_0)/(1 − τ_0))^β (the ESC's "
+                  "dead zone; calibrating the throttle range moves it)",
+                  ("idle_duty",), ("theta",),
+                  sindy_terms={"theta_dot": ("L/J·Δf(τ_0)",), "omega_rotor": ("Δω_ss(τ_0)/T_m",)},
+                  confusable_with=("input_delay",), truth={"idle_duty": ((0.02, 0.06), (0.15, 0.22))},
+                  order=45, apply=apply_idle,
+                  search=(Search("idle_duty", "1", (0.0, 0.95), "actuator.idle_duty", "idle throttle τ_0",
+                                 idle_range, "0 … min(0.6, 0.9·largest recorded duty)"),)),
+        Diagnosis("esc_speed_range", "actuator",
+                  "full-throttle rotor speed ω_max of the ESC's map wrong (battery voltage, motor K_v): the "
+                  "whole map ω_ss(τ) scales. With the angle alone it is a thrust-gain change (f ∝ ω₁²); the "
+                  "recorded "
+                  "rotor speed separates the two",
+                  ("omega_max",), ("omega_rotor",),
+                  sindy_terms={"theta_dot": ("L/J·Δf(ω_max)",), "omega_rotor": ("Δω_max·s(τ)^β/T_m",)},
+                  confusable_with=("thrust_coefficient",), order=105, apply=apply_speed,
+                  drift_sigma=SPEED_DRIFT_SIGMA,
+                  search=(Search("omega_max", "rad/s", POSITIVE, "actuator.omega_max",
+                                 "full-throttle speed ω_max",
+                                 speed_range, "0.2 … 5 × nominal", log=True),)),
+    ),
 )

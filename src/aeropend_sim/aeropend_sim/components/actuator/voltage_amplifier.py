@@ -6,7 +6,9 @@ map. The motor is :mod:`..rotor.dc_motor` (armature electrics R_a, L_a, K_ω, K_
 
 from __future__ import annotations
 
-from aeropend_sim.components.base import DC_ROTOR, Family, Param, Term
+import math
+
+from aeropend_sim.components.base import DC_ROTOR, Diagnosis, Family, Param, Search, Term
 
 V_MAX = Param("actuator.v_max", "V", "amplifier full scale: v_a = v_offset + v_max·τ", sign="positive",
               symbol="V_max")
@@ -29,6 +31,18 @@ def duty_of_voltage(xp, y, v_max, v_offset):
     return (y - v_offset) / v_max
 
 
+def offset_range(ctx):
+    """±0.2 × v_a at the largest recorded duty around the nominal offset."""
+    v = max(abs(ctx.drive_max), 1e-6)
+    off = ctx.rig.actuator.v_offset
+    return off - 0.2 * v, off + 0.2 * v, off, off - 0.03 * v
+
+
+def apply_offset(rig, v):
+    """The rig with amplifier offset v_0."""
+    return rig.with_params("actuator", v_offset=v["v_offset"])
+
+
 FAMILY = Family(
     name="voltage_amplifier",
     part="actuator",
@@ -44,4 +58,14 @@ FAMILY = Family(
             "actuator.family: voltage_amplifier",
     drive="v_a",
     lacks={"rotor_response": DC_ROTOR},
+    diagnoses=(Diagnosis("amplifier_offset", "electrical",
+                         "amplifier output offset v_0 wrong: v_a = v_0 + V_max·τ (a negative offset acts "
+                         "like a drop, a positive one drives the rotor at zero command)", ("v_offset",),
+                         ("theta",),
+                         sindy_terms={"theta_dot": ("L/J·Δf(v_0)",), "i_a": ("Δv_0/L_a",), "v_a": ("Δv_0",)},
+                         confusable_with=("dead_zone",), truth={"v_offset": ((-0.5, -0.2), (0.2, 0.5))},
+                         order=25, apply=apply_offset,
+                         search=(Search("v_offset", "V", (-math.inf, math.inf), "actuator.v_offset",
+                                        "amplifier output offset v_0", offset_range,
+                                        "nominal ± 0.2 × v_a at the largest recorded duty"),)),),
 )

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 
-from aeropend_sim.components.base import Diagnosis, Effect, Param, Term
+from aeropend_sim.components.base import Diagnosis, Effect, Param, Search, Term
 
 THETA_MIN = Param("pendulum.theta_min", "rad", "lower end stop", absent=-math.inf, symbol="θ_min")
 THETA_MAX = Param("pendulum.theta_max", "rad", "upper end stop", absent=math.inf, symbol="θ_max")
@@ -50,6 +50,30 @@ def _ordered(v: Mapping[str, float]) -> str | None:
     return None
 
 
+#: Contact stiffness of an end stop added to a rig without one, in units of mgd/J [1/rad]
+#: (penetration 5 mrad under the full gravity torque).
+STOP_STIFFNESS_FACTOR = 200.0
+
+
+def search_range(ctx):
+    """0.05 … π/2; probe just below the largest recorded angle."""
+    p = ctx.rig.pendulum
+    off = p.theta_max if ctx.rig.effects.end_stops else math.pi / 2
+    return 0.05, math.pi / 2, off, min(ctx.theta_hi - 0.02, off)
+
+
+def apply(rig, v):
+    """The rig with an upper stop at θ_max; a rig without a contact model gets a stiff, critically
+    damped contact whose penetration under the largest gravity torque is about
+    1/:data:`STOP_STIFFNESS_FACTOR` rad."""
+    new = rig.with_params("pendulum", theta_max=v["theta_max"]).with_effects(end_stops=True)
+    p = rig.pendulum
+    if p.stop_stiffness <= 0.0:
+        k = STOP_STIFFNESS_FACTOR * p.mgd_over_J
+        new = new.with_params("pendulum", stop_stiffness=k, stop_damping=2.0 * math.sqrt(k))
+    return new
+
+
 EFFECT = Effect(
     name="end_stops",
     part="pendulum",
@@ -64,5 +88,10 @@ EFFECT = Effect(
     diagnoses=(Diagnosis("end_stops", "pendulum",
                          "mechanical end stop at θ_max: one-sided spring-damper contact beyond it",
                          ("theta_max",), ("theta",), sindy_terms={"theta_dot": ("contact(θ − θ_max)",)},
-                         truth={"theta_max": ((0.6, 0.8),)}),),
+                         truth={"theta_max": ((0.6, 0.8),)}, order=190, apply=apply,
+                         search=(Search("theta_max", "rad", (0.0, math.pi), "pendulum.theta_max",
+                                        "upper stop angle",
+                                        search_range, "0.05 … π/2 (a stiff contact, 200·mgd/J, when the rig "
+                                        "has "
+                                        "none)"),)),),
 )

@@ -9,7 +9,16 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from aeropend_sim.components.base import Component, Diagnosis, FitBounds, Param, Term
+from aeropend_sim.components.base import (
+    POSITIVE,
+    Component,
+    Diagnosis,
+    FitBounds,
+    Param,
+    Search,
+    Term,
+    scaled,
+)
 
 #: Standard gravity [m/s²].
 G = 9.80665
@@ -72,6 +81,31 @@ def d_thrust_torque(xp, thrust, L_over_J):
     return L_over_J + 0.0 * thrust
 
 
+#: Session-to-session drift of mgd/J (σ of its log change, 10 %): mass and geometry are constant
+#: on an untouched rig; they change when the rod is re-assembled, a counterweight, cable or sensor
+#: mount moves, or the motor/propeller at the rod's end is exchanged (docs/gap.md, "Drift prior").
+DRIFT_SIGMA = 0.10
+
+
+def gravity_range(ctx):
+    """0.2 … 5 × nominal mgd/J."""
+    return scaled(ctx.rig.pendulum.mgd_over_J, 0.2, 5.0, 1.2)
+
+
+def apply_gravity(rig, v):
+    """The rig with gravity term mgd/J."""
+    return rig.with_params("pendulum", mgd_over_J=v["mgd_over_J"])
+
+
+def apply_inertia(rig, v):
+    """The rig with the rod inertia J scaled by s = J/J_nominal: every per-inertia parameter of
+    the rod's torques (mgd/J, c/J, L/J, T_f/J) divided by s."""
+    s = v["J_scale"]
+    p = rig.pendulum
+    return rig.with_params("pendulum", mgd_over_J=p.mgd_over_J / s, c_over_J=p.c_over_J / s,
+                           L_over_J=p.L_over_J / s, coulomb_over_J=p.coulomb_over_J / s)
+
+
 COMPONENT = Component(
     name="rod",
     part="pendulum",
@@ -86,12 +120,21 @@ COMPONENT = Component(
     diagnoses=(
         Diagnosis("gravity", "pendulum", "gravity torque (mass · lever) wrong: θ̈ = −(mgd/J)·sin θ + …",
                   ("mgd_over_J",), ("theta",), sindy_terms={"theta_dot": ("−sin θ",)},
-                  confusable_with=("thrust_coefficient", "sensor_scale", "inertia")),
+                  confusable_with=("thrust_coefficient", "sensor_scale", "inertia"), order=170,
+                  drift_sigma=DRIFT_SIGMA,
+                  apply=apply_gravity,
+                  search=(Search("mgd_over_J", "1/s^2", POSITIVE, "pendulum.mgd_over_J",
+                                 "gravity torque over inertia mgd/J", gravity_range, "0.2 … 5 × nominal",
+                                 log=True),)),
         Diagnosis("inertia", "pendulum",
                   "rod inertia J wrong: every /J term (mgd/J, c/J, L/J, T_f/J) divided by J/J_nominal",
                   ("J_scale",), ("theta",), sindy_terms={"theta_dot": ("θ̈_model",)},
                   confusable_with=("gravity", "thrust_coefficient", "sensor_scale"),
-                  truth={"J_scale": ((0.7, 0.85), (1.2, 1.45))}),
+                  truth={"J_scale": ((0.7, 0.85), (1.2, 1.45))}, order=180, apply=apply_inertia,
+                  search=(Search("J_scale", "1", POSITIVE, "pendulum.L_over_J", "J true / J nominal",
+                                 lambda ctx: (0.2, 5.0, 1.0,
+                                              1.2), "0.2 … 5 (the rig stores only per-inertia ratios)",
+                                 log=True),)),
     ),
 )
 

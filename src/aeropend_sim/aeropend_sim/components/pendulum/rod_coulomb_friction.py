@@ -12,7 +12,9 @@ friction; that switch is still read as both.
 
 from __future__ import annotations
 
-from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Term
+import math
+
+from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Search, Term
 
 T_F = Param("pendulum.coulomb_over_J", "rad/s^2", "Coulomb friction torque over inertia T_f/J", sign="nonneg",
             absent=0.0, fit=FitBounds(0.0, 1e3, False, 1.0), symbol="T_f/J")
@@ -43,6 +45,44 @@ def d_accel(xp, theta_dot, coulomb_over_J, stribeck_over_J, stribeck_velocity, f
     return -slope
 
 
+def coulomb_range(ctx):
+    """Nominal … nominal + 0.5·mgd/J."""
+    p = ctx.rig.pendulum
+    off = p.coulomb_over_J if ctx.rig.effects.rod_coulomb_friction else 0.0
+    return 0.0, off + 0.5 * p.mgd_over_J, off, off + 0.01 * p.mgd_over_J
+
+
+def stribeck_range(ctx):
+    """Nominal … nominal + 0.5·mgd/J."""
+    p = ctx.rig.pendulum
+    off = p.stribeck_over_J if ctx.rig.effects.rod_coulomb_friction else 0.0
+    return 0.0, off + 0.5 * p.mgd_over_J, off, off + 0.01 * p.mgd_over_J
+
+
+def stribeck_velocity_range(ctx):
+    """From 3× the width v_ε of the model's smooth sign to max(2, 30·v_ε) rad/s: a narrower
+    "Stribeck" bump would only reshape the regularisation (it would stand in for a sharper sign,
+    not for stiction)."""
+    lo = 3.0 * ctx.rig.pendulum.friction_velocity
+    return lo, max(2.0, 10.0 * lo), max(2.0, 10.0 * lo), max(0.1, 3.0 * lo)
+
+
+def apply_coulomb(rig, v):
+    """The rig with rod Coulomb friction T_f/J."""
+    new = rig.with_params("pendulum", coulomb_over_J=v["coulomb_over_J"])
+    return new.with_effects(rod_coulomb_friction=True)
+
+
+def apply_stribeck(rig, v):
+    """The rig with rod dry friction T_f/J and a Stribeck part ((T_s − T_f)/J, v_s)."""
+    new = apply_coulomb(rig, v)
+    return new.with_params("pendulum", stribeck_over_J=v["stribeck_over_J"],
+                           stribeck_velocity=v["stribeck_velocity"])
+
+
+_COULOMB = Search("coulomb_over_J", "rad/s^2", (0.0, math.inf), "pendulum.coulomb_over_J",
+                  "friction torque over inertia T_f/J", coulomb_range, "nominal … nominal + 0.5·mgd/J")
+
 EFFECT = Effect(
     name="rod_coulomb_friction",
     part="pendulum",
@@ -59,7 +99,7 @@ EFFECT = Effect(
                   "Coulomb friction on the rod: θ̈ −= (T_f/J)·sgn(θ̇) (tanh-regularised)",
                   ("coulomb_over_J",), ("theta",), sindy_terms={"theta_dot": ("−tanh(θ̇/v_ε)",)},
                   confusable_with=("viscous_friction",), truth={"coulomb_over_J": ((0.6, 1.5),)},
-                  exclusive_with=("stribeck_friction",)),
+                  exclusive_with=("stribeck_friction",), order=150, apply=apply_coulomb, search=(_COULOMB,)),
         Diagnosis("stribeck_friction", "pendulum",
                   "dry friction of the rod with a Stribeck part: "
                   "θ̈ −= (T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²))·"
@@ -71,6 +111,16 @@ EFFECT = Effect(
                   truth={"coulomb_over_J": ((0.6, 1.5),), "stribeck_over_J": ((1.5, 3.0),),
                          "stribeck_velocity": ((0.1, 0.3),)},
                   screened=False, exclusive_with=("coulomb_friction",), nests=("coulomb_friction",),
-                  refines=("coulomb_friction",)),
+                  refines=("coulomb_friction",), order=160, apply=apply_stribeck,
+                  search=(Search("coulomb_over_J", "rad/s^2", (0.0, math.inf), "pendulum.coulomb_over_J",
+                                 "sliding (Coulomb) friction torque over inertia T_f/J", coulomb_range,
+                                 "as coulomb_friction"),
+                          Search("stribeck_over_J", "rad/s^2", (0.0, math.inf), "pendulum.stribeck_over_J",
+                                 "excess of the static over the sliding friction (T_s − T_f)/J",
+                                 stribeck_range,
+                                 "as coulomb_friction"),
+                          Search("stribeck_velocity", "rad/s", (1e-4, 100.0), "pendulum.stribeck_velocity",
+                                 "Stribeck velocity v_s", stribeck_velocity_range,
+                                 "3·v_ε … max(2, 30·v_ε) rad/s", log=True))),
     ),
 )

@@ -7,10 +7,24 @@ period. A rig file that gives no L_a is quasi-static. The switch takes a mode, n
 
 from __future__ import annotations
 
-from aeropend_sim.components.base import Diagnosis, Effect, Param
+from aeropend_sim.components.base import POSITIVE, Diagnosis, Effect, Param, Search, scaled
 
 L_A = Param("motor.L_a", "H", "armature inductance", sign="positive", absent=0.0,
             relative_truth=((5.0, 15.0),), symbol="L_a")
+
+def search_range(ctx):
+    """0.01 … 100 × nominal L_a; a rig without one (quasi-static armature): electrical time
+    constants L_a/R_a from 10 µs to 0.1 s, probe one sample period."""
+    m = ctx.rig.motor
+    if m.L_a > 0.0:
+        return scaled(m.L_a, 0.01, 100.0, 3.0)
+    return 1e-5 * m.R_a, 0.1 * m.R_a, 0.0, ctx.rig.sample_period * m.R_a
+
+
+def apply(rig, v):
+    """The rig with the armature current a state of inductance L_a."""
+    return rig.with_params("motor", L_a=v["L_a"]).with_effects(armature_inductance="dynamic")
+
 
 EFFECT = Effect(
     name="armature_inductance",
@@ -28,5 +42,10 @@ EFFECT = Effect(
                          "armature inductance L_a wrong (electrical time constant L_a/R_a)", ("L_a",),
                          ("i_a",),
                          sindy_terms={"theta_dot": ("L/J·Δf(L_a)",), "i_a": ("(L_a/L_a' − 1)·di_a/dt",),
-                                      "omega_rotor": ("K_t·Δi_a(L_a)/J_m",)}),),
+                                      "omega_rotor": ("K_t·Δi_a(L_a)/J_m",)},
+                         order=70, apply=apply,
+                         search=(Search("L_a", "H", POSITIVE, "motor.L_a", "armature inductance L_a",
+                                        search_range,
+                                        "0.01 … 100 × nominal (without one: L_a/R_a 10 µs … 0.1 s)",
+                                        log=True),)),),
 )

@@ -6,10 +6,10 @@ and ESC together follow it with one time constant T_m (the response a step test 
 
 from __future__ import annotations
 
-from aeropend_sim.components.base import Component, Param, Term
+from aeropend_sim.components.base import POSITIVE, Component, Diagnosis, Param, Search, Term, scaled
 
 T_M = Param("motor.T_m", "s", "rotor speed response time constant T_m (ESC + motor + propeller)",
-            sign="positive", symbol="T_m")
+            sign="positive", relative_truth=((0.3, 0.6), (1.7, 3.0)), symbol="T_m")
 
 
 def response(xp, omega_sp, omega, T_m):
@@ -32,6 +32,16 @@ def steady_set_point(xp, y, T_m):
     return y + 0.0 * T_m
 
 
+def response_range(ctx):
+    """0.05 … 20 × nominal T_m."""
+    return scaled(ctx.rig.motor.T_m, 0.05, 20.0, 2.0)
+
+
+def apply_response(rig, v):
+    """The rig with speed-response time constant T_m."""
+    return rig.with_params("motor", T_m=v["T_m"])
+
+
 COMPONENT = Component(
     name="esc_rotor",
     part="rotor",
@@ -44,4 +54,14 @@ COMPONENT = Component(
                 inverse=steady_set_point),),
     families=("esc",),
     why_not="a DC motor's speed follows its torque balance (component dc_motor)",
+    diagnoses=(Diagnosis("esc_response", "motor",
+                         "rotor speed response T_m of the ESC, motor and propeller wrong: "
+                         "ω̇₁ = (ω_ss − ω₁)/T_m; the thrust follows the throttle more slowly or faster",
+                         ("T_m",), ("theta",),
+                         sindy_terms={"theta_dot": ("L/J·Δf(T_m)",), "omega_rotor": ("−ΔT_m·ω̇₁/T_m",)},
+                         confusable_with=("actuator_lag",
+                                          "input_delay"), screened=False, timing=True, order=107,
+                         apply=apply_response,
+                         search=(Search("T_m", "s", POSITIVE, "motor.T_m", "speed-response time constant T_m",
+                                        response_range, "0.05 … 20 × nominal", log=True),)),),
 )

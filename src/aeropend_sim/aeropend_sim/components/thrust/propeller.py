@@ -5,7 +5,7 @@ The exponent α is the ``thrust_exponent`` effect's parameter (2 when that effec
 
 from __future__ import annotations
 
-from aeropend_sim.components.base import Component, Diagnosis, Param, Term
+from aeropend_sim.components.base import POSITIVE, Component, Diagnosis, Param, Search, Term, scaled
 
 K_Q = Param("thrust.K_q", "N*s^2/rad^2", "thrust coefficient K_q (for α = 2)", sign="nonneg",
             relative_truth=((0.75, 0.88), (1.12, 1.25)), symbol="K_q")
@@ -36,6 +36,23 @@ def speed_of_thrust(xp, y, K_q, exponent):
     return xp.where(y > 0.0, xp.power(xp.maximum(y, 0.0) / K_q, 1.0 / exponent), 0.0)
 
 
+#: Session-to-session drift of K_q (σ of its log change, 15 %): thrust ∝ air density ρ = p/(R·T)
+#: (weather ±2–3 %, lab temperature 18–28 °C ±1.7 %) times the propeller's thrust coefficient,
+#: which changes when a moulded propeller is re-mounted, chipped or replaced (pitch and finish
+#: tolerances of a few to ~10 %); docs/gap.md, "Drift prior".
+DRIFT_SIGMA = 0.15
+
+
+def search_range(ctx):
+    """0.2 … 5 × nominal K_q."""
+    return scaled(ctx.rig.thrust.K_q, 0.2, 5.0, 1.2)
+
+
+def apply(rig, v):
+    """The rig with thrust coefficient K_q."""
+    return rig.with_params("thrust", K_q=v["K_q"])
+
+
 COMPONENT = Component(
     name="propeller",
     part="thrust",
@@ -49,5 +66,8 @@ COMPONENT = Component(
                          "thrust coefficient K_q wrong (a static load-cell fit, thesis Eq. 4.4): f = K_q·ω₂²",
                          ("K_q",), ("theta",), sindy_terms={"theta_dot": ("ΔK_q·(L/J)·ω₂²",)},
                          confusable_with=("thrust_law", "gravity", "sensor_scale", "inertia"),
-                         exclusive_with=("thrust_law",)),),
+                         exclusive_with=("thrust_law",), order=120, apply=apply, drift_sigma=DRIFT_SIGMA,
+                         search=(Search("K_q", "N*s^2/rad^2", POSITIVE, "thrust.K_q",
+                                        "thrust coefficient K_q",
+                                        search_range, "0.2 … 5 × nominal", log=True),)),),
 )
