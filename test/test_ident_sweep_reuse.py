@@ -199,7 +199,9 @@ def test_per_equation_libraries_share_one_weak_pass_over_their_union(split, monk
         assert alone.library.names == part.library.names
         scale = np.abs(alone.theta).max()
         np.testing.assert_allclose(part.theta, alone.theta, rtol=1e-12, atol=1e-12 * scale)
-        np.testing.assert_allclose(part.y, alone.y, rtol=1e-12, atol=0.0)
+        # y is a weak-form integral with cancellation: an entry far below the column's scale carries
+        # the rounding of the terms summed (BLAS may sum in another order for another column count)
+        np.testing.assert_allclose(part.y, alone.y, rtol=1e-12, atol=1e-12 * np.abs(alone.y).max())
         assert part.condition_number == pytest.approx(alone.condition_number, rel=1e-9)
     assert len(calls) == 1 + len(TARGETS)  # one pass together, one per equation alone
 
