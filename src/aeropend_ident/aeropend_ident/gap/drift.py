@@ -69,6 +69,7 @@ from aeropend_ident.gap.which import (
     fit_effects,
     prepare,
     replay,
+    replay_many,
 )
 from aeropend_sim.components import registry
 from aeropend_sim.params import Rig
@@ -178,18 +179,19 @@ def _draw_effects(nominal: Rig, diag: EffectDiagnosis, vals: Mapping[str, Mappin
         return diag.corrected_rig
 
 
-def _ms_change(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared], base: Sequence[np.ndarray]
-               ) -> float | None:
-    """Mean over recordings of the squared θ change of a replay from the base replay, over range²;
-    None when the replay fails on any recording."""
-    out = []
+def _ms_changes(rigs: Sequence[Rig], meas: MeasurementMap, preps: Sequence[Prepared],
+                base: Sequence[np.ndarray]) -> list[float | None]:
+    """Per rig: the mean over recordings of the squared θ change of its replay from the base
+    replay, over range²; None when the replay fails on any recording. One batched replay per
+    recording (:func:`aeropend_ident.gap.which.replay_many`)."""
+    out: list[list[float] | None] = [[] for _ in rigs]
     for p, sim in zip(preps, base, strict=True):
-        try:
-            s = replay(rig, meas, p)["theta"]
-        except GapError:
-            return None
-        out.append(float(np.mean((s - sim) ** 2)) / p.scale["theta"] ** 2)
-    return float(np.mean(out))
+        for b, row in enumerate(replay_many([(r, meas) for r in rigs], p, ("theta",))):
+            if row is None or out[b] is None:
+                out[b] = None
+                continue
+            out[b].append(float(np.mean((row["theta"] - sim) ** 2)) / p.scale["theta"] ** 2)
+    return [float(np.mean(v)) if v is not None else None for v in out]
 
 
 def draw_log_changes(sigma: Mapping[str, float], params: Sequence[str], rng: np.random.Generator, *,
@@ -298,7 +300,13 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     sigma = dict(DRIFT_PRIOR if drift_sigma is None else drift_sigma)
     preps = _preps(validation, diag.channels or ("theta",))
     rng = np.random.default_rng(seed)
-    base = [replay(diag.corrected_rig, diag.measurement, p)["theta"] for p in preps]
+    base = []
+    for p in preps:  # on the draws' sub-steps, so that a draw that changes nothing changes nothing
+        row = replay_many([(diag.corrected_rig, diag.measurement)], p, ("theta",))[0]
+        if row is None:
+            raise GapError("prediction: the replay of the corrected rig failed on "
+                           f"{p.rec.source or 'a recording'}")
+        base.append(row["theta"])
     per_rec: list[np.ndarray] = []
     for p, sim in zip(preps, base, strict=True):
         e = sim - p.y["theta"]
@@ -309,19 +317,20 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     floors = [noise_floor(p) for p in preps]
     vals, std = _chosen_values(diag)
     params = drift_parameters(diag.channels or ("theta",), nominal.family)
-    sensitivity = {}
-    for eff in params:
-        s = sigma.get(eff, 0.0)
-        ms = [_ms_change(_perturbed(diag.corrected_rig, {eff: math.exp(sign * s)}), diag.measurement, preps,
-                         base) for sign in (-1.0, 1.0)]
-        sensitivity[eff] = [math.sqrt(m) if m is not None else math.nan for m in ms]
-    samples, changes = [], []
-    for _ in range(draws):
+    one_at_a_time = [_perturbed(diag.corrected_rig, {eff: math.exp(sign * sigma.get(eff, 0.0))})
+                     for eff in params for sign in (-1.0, 1.0)]
+    ms_one = _ms_changes(one_at_a_time, diag.measurement, preps, base)
+    sensitivity = {eff: [math.sqrt(m) if m is not None else math.nan for m in ms_one[2 * i: 2 * i + 2]]
+                   for i, eff in enumerate(params)}
+    drawn, e_ins = [], []
+    for _ in range(draws):  # the random draws first, in the order of one draw after the other
         rig = _draw_effects(nominal, diag, vals, std, rng)
         factors = {eff: math.exp(x) for eff, x in
                    draw_log_changes(sigma, params, rng, occurrence=drift_sigma is None).items()}
-        e_in = within_session_draw(per_rec, rng)
-        ms = _ms_change(_perturbed(rig, factors), diag.measurement, preps, base)
+        e_ins.append(within_session_draw(per_rec, rng))
+        drawn.append(_perturbed(rig, factors))
+    samples, changes = [], []
+    for e_in, ms in zip(e_ins, _ms_changes(drawn, diag.measurement, preps, base), strict=True):
         if ms is None:
             continue
         changes.append(math.sqrt(ms))

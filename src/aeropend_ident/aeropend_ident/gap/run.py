@@ -41,6 +41,7 @@ from aeropend_ident.io.split import (
     VALIDATION_FRACTION,
     validation_split,
 )
+from aeropend_ident.parallel import single_blas
 from aeropend_sim.params import Rig, rig_to_dict
 from aeropend_sim.recording import Recording
 
@@ -340,6 +341,7 @@ def _prediction_check(prediction: dict[str, Any] | None, test: list[dict[str, An
     return check
 
 
+@single_blas
 def run_gap(
     rig: Rig,
     fit: Sequence[Recording],

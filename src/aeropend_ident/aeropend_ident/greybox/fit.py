@@ -73,6 +73,7 @@ from scipy.optimize import brentq, least_squares
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.io.recording_input import uniform_grid
+from aeropend_ident.parallel import single_blas
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect
 from aeropend_sim.components.xp import MATH
@@ -920,6 +921,7 @@ def _parameter_estimates(specs: Sequence[ParameterSpec], sol: Any, lo_z: np.ndar
     return estimates
 
 
+@single_blas
 def fit_greybox(
     recording: Recording | UniformData,
     rig: Rig,
