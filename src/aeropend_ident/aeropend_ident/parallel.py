@@ -143,7 +143,8 @@ def run_cases(func: Callable[[Any], Any], cases: Sequence[Any], *, workers: int 
     cases : sequence
         Picklable case descriptions.
     workers : int, optional
-        Worker processes of the local cluster (default one per core); ignored with ``scheduler``.
+        Worker processes of the local cluster (default one per core); 1 without ``scheduler`` runs
+        the cases in this process, one after the other (no cluster); ignored with ``scheduler``.
     scheduler : str, optional
         Address of a running scheduler (``tcp://host:8786``) instead of a local cluster.
     desc : str
@@ -166,6 +167,13 @@ def run_cases(func: Callable[[Any], Any], cases: Sequence[Any], *, workers: int 
     if n < 1:
         raise ValueError(f"workers = {workers!r}; expected >= 1")
     if not cases:
+        return
+    if scheduler is None and n == 1:  # in this process, one case after the other
+        with bar(len(cases), desc, quiet=quiet, unit="case") as progress:
+            for i, case in enumerate(cases):
+                result = func(case)
+                progress.update(1)
+                yield i, result
         return
     client, cluster = _cluster(n, scheduler)
     progress = bar(len(cases), desc, quiet=quiet, unit="case")

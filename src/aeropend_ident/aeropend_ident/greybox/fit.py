@@ -1,14 +1,18 @@
 """Grey-box output-error identification of a rig's pendulum and actuator parameters.
 
 The plant model of :mod:`aeropend_sim.model` is fitted to a recording by **output error**: the
-model is simulated in free run (no state resets) with the recording's duty-cycle input through
-:func:`aeropend_sim.simulate.simulate`, and the selected parameters minimise
+model is simulated in free run (no state resets) with the recording's duty-cycle input on the
+compiled backend (the fit sub-steps of :func:`aeropend_ident.greybox.batch.fit_substeps`), and the
+selected parameters minimise
 
     ½ Σ_k (θ_sim(t_k) − θ_rec(t_k))²          [rad²]
 
-with :func:`scipy.optimize.least_squares` (trust-region reflective, bounds, finite-difference
-Jacobian). Only the angle is compared, because most real logs (see ``shared/data/real``) carry
-nothing else; other channels of the recording are ignored.
+with :func:`scipy.optimize.least_squares` (trust-region reflective, bounds, forward-difference
+Jacobian). Each residual evaluation replays the compiled plant, and each Jacobian replays its
+1 + n_p parameter sets in one batch (:mod:`aeropend_ident.greybox.batch`, which keeps the compiled
+plant of the recording across evaluations); numba gives no exact Jacobian. Only the angle is
+compared, because most real logs (see ``shared/data/real``) carry nothing else; other channels of
+the recording are ignored.
 
 Parameters are addressed as ``"section.field"`` of :class:`aeropend_sim.params.Rig` (e.g.
 ``"pendulum.c_over_J"``) plus :data:`THETA_OFFSET`, the angle offset between the recording's
@@ -72,6 +76,7 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 
 from aeropend_ident.errors import IdentificationError
+from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.io.recording_input import uniform_grid
 from aeropend_ident.parallel import single_blas
 from aeropend_sim.components import registry
@@ -1028,30 +1033,72 @@ def fit_greybox(
         parts = [_window(data, a, b) for a, b in windows]
         velocities = [initial_velocity(p.theta, p.dt) for p in parts]
         measured = np.concatenate([p.theta for p in parts])
+        replays = [RigReplays(p.duty, p.dt) for p in parts]  # tau_before 0, as free_run_theta
+        cache: dict[bytes, np.ndarray] = {}
+
+        def rows(zs: Sequence[np.ndarray]) -> list[np.ndarray]:
+            """Residuals of many coordinate vectors, the new ones in one batched replay per window."""
+            keys = [np.asarray(z, dtype=float).tobytes() for z in zs]
+            new = [k for k in dict.fromkeys(keys) if k not in cache]
+            if new:
+                if len(cache) > 64:
+                    cache.clear()
+                cache.update(zip(new, _residual_rows([np.frombuffer(k) for k in new]), strict=True))
+            return [cache[k] for k in keys]
+
+        def _residual_rows(zs: list[np.ndarray]) -> list[np.ndarray]:
+            out = [np.full(measured.size, penalty) for _ in zs]
+            cands = []
+            for b, z in enumerate(zs):
+                try:
+                    cands.append((b, *candidate(z), *(x0_correction(z) if with_x0 else (0.0, 0.0))))
+                except IdentificationError:
+                    continue
+            sims = [np.full((len(zs), p.theta.size), np.nan) for p in parts]
+            for i, (p, v, rep) in enumerate(zip(parts, velocities, replays, strict=True)):
+                ok_rows, x0 = [], []
+                for b, r_rig, r_off, d_th, d_thd in cands:
+                    try:
+                        x0.append(initial_state(r_rig, p.theta, p.duty, p.dt, r_off,
+                                                thd0_est + d_thd if with_x0 else v,
+                                                th0_est + d_th if with_x0 else None))
+                    except IdentificationError:
+                        continue
+                    ok_rows.append((b, r_rig, r_off))
+                if ok_rows:
+                    th, _ok = rep.run([r for _, r, _ in ok_rows], np.array(x0), ("theta",))
+                    for j, (b, _r, r_off) in enumerate(ok_rows):
+                        sims[i][b] = th["theta"][j] - r_off
+            for b in range(len(zs)):
+                r = np.concatenate([sim[b] for sim in sims]) - measured
+                if np.all(np.isfinite(r)):
+                    out[b] = r
+            return out
 
         def residual(z: np.ndarray) -> np.ndarray:
-            try:
-                r_rig, r_off = candidate(z)
-                if with_x0:
-                    d_th, d_thd = x0_correction(z)
-                    th = free_run_theta(r_rig, data, r_off, thd0_est + d_thd, th0_est + d_th)
-                else:
-                    th = np.concatenate(
-                        [free_run_theta(r_rig, p, r_off, v) for p, v in zip(parts, velocities, strict=True)]
-                    )
-            except IdentificationError:
-                return np.full(measured.size, penalty)
-            r = th - measured
-            if not np.all(np.isfinite(r)):
-                return np.full(measured.size, penalty)
-            return r
+            return rows([z])[0]
 
+        def jacobian(z: np.ndarray) -> np.ndarray:
+            """scipy's "2-point" forward differences (relative step ``diff_step``, one-sided into the
+            bounds), 1 + n_z residuals in one batched replay."""
+            z = np.asarray(z, dtype=float)
+            lo_z, hi_z = residual.bounds
+            h = diff_step * np.where(z >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(z))
+            h = np.where((z + h > hi_z) & (z - h >= lo_z), -h, h)
+            h = (z + h) - z
+            shifted = [z + np.where(np.arange(z.size) == j, h[j], 0.0) for j in range(z.size)]
+            f0, *fs = rows([z, *shifted])
+            return np.column_stack([(f - f0) / hj for f, hj in zip(fs, h, strict=True)])
+
+        residual.jacobian = jacobian
+        residual.bounds = (lo, hi)
         return residual
 
     def solve(residual: Any, z_start: np.ndarray, lo_z: np.ndarray, hi_z: np.ndarray, t: float = tol) -> Any:
+        residual.bounds = (lo_z, hi_z)
         return least_squares(
-            residual, z_start, bounds=(lo_z, hi_z), x_scale=1.0, method="trf", jac="2-point",
-            diff_step=diff_step, ftol=t, xtol=t, gtol=t, max_nfev=max_nfev, verbose=verbose,
+            residual, z_start, bounds=(lo_z, hi_z), x_scale=1.0, method="trf", jac=residual.jacobian,
+            ftol=t, xtol=t, gtol=t, max_nfev=max_nfev, verbose=verbose,
         )
 
     sol, r0, nfev, njev, th0, thd0 = _solve_stages(
