@@ -56,29 +56,32 @@ def bar(total: int | None, desc: str, *, quiet: bool = False, unit: str = "step"
 
 
 @contextmanager
-def reporter(desc: str, stages: Sequence[str] = (), *,
-             quiet: bool = False) -> Iterator[Callable[[str], None]]:
+def reporter(desc: str, stages: Sequence[str] = (), *, quiet: bool = False,
+             line: Callable[[str], str] | None = None) -> Iterator[Callable[[str], None]]:
     """A progress callback for a pipeline: ``with reporter("gap", ("where", "which")) as say: ...``.
 
-    ``say(message)`` prints ``desc: message`` on stderr (above the bar when there is one; nothing
-    with ``quiet``); a message that starts with ``<stage>:`` for one of ``stages`` moves the bar to
-    that stage. Leaving the block completes and closes the bar.
+    ``say(message)`` prints ``line(message)`` (default ``desc: message``) on stderr, above the bar
+    when there is one, nothing with ``quiet``. With ``stages``, a message that starts with
+    ``<stage>:`` moves the bar to that stage; without, every message counts one step (a counter
+    with the elapsed time). Leaving the block completes and closes the bar.
     """
-    b = bar(len(stages) or None, desc, quiet=quiet, unit="stage")
+    b = bar(len(stages) or None, desc, quiet=quiet, unit="stage" if stages else "step")
     order = {s: i for i, s in enumerate(stages)}
 
     def say(message: str) -> None:
         if quiet:
             return
         stage = message.split(":", 1)[0].strip()
-        if stage in order and order[stage] > b.n:  # the stages before it are done
+        if not stages:
+            b.update(1)
+        elif stage in order and order[stage] > b.n:  # the stages before it are done
             b.update(order[stage] - b.n)
-        b.set_postfix_str(message[:60], refresh=False)
-        line = f"{desc}: {message}"
+        b.set_postfix_str(message.strip()[:60], refresh=False)
+        text = line(message) if line else f"{desc}: {message}"
         if b.disable:
-            print(line, file=sys.stderr, flush=True)
+            print(text, file=sys.stderr, flush=True)
         else:
-            b.write(line, file=sys.stderr)
+            b.write(text, file=sys.stderr)
 
     try:
         yield say

@@ -223,7 +223,7 @@ def _where_brief(w: WhereReport) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------- pipeline
-def _shift(rec: Recording, offset: float) -> Recording:
+def to_model_frame(rec: Recording, offset: float) -> Recording:
     """The recording with θ moved into the model frame (θ_model = θ_recorded + offset)."""
     if offset == 0.0:
         return rec
@@ -231,6 +231,9 @@ def _shift(rec: Recording, offset: float) -> Recording:
     return Recording(
         t=rec.t, duty=rec.duty, channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=dict(rec.meta)
     )
+
+
+_shift = to_model_frame  # the short name of this module's calls
 
 
 def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, Any]:
@@ -280,10 +283,11 @@ def _sessions_and_prediction(
     rig: Rig, diag: Any, validation: list[Recording], held_out: list[Recording], *, theta_offset: float,
     sessions: Sequence[Sequence[Recording]] | None, session_labels: Sequence[str] | None, max_effects: int,
     seed: int, progress: Callable[[str], None] | None, predict: bool, drift_sigma: Mapping[str, float] | None,
-    optional: _Optional,
+    optional: _Optional, engine: tuple[int | None, str | None] = (1, None),
 ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
-    """The session analysis (with ``sessions``) and the held-out prediction of :func:`run_gap`
-    (each optional: a failure is recorded in ``optional``)."""
+    """The session analysis (with ``sessions``, its cases run where ``engine`` = (workers,
+    scheduler) says) and the held-out prediction of :func:`run_gap` (each optional: a failure is
+    recorded in ``optional``)."""
     from aeropend_ident.gap.drift import predict_heldout, session_analysis
 
     say = progress or (lambda _msg: None)
@@ -292,7 +296,8 @@ def _sessions_and_prediction(
         say(f"sessions: {len(sessions)} sessions, leave-one-session-out and drift table")
         sess = optional.run("sessions", lambda: session_analysis(
             rig, [[_shift(r, theta_offset) for r in g] for g in sessions], diag.chosen, labels=session_labels,
-            channels=diag.channels or ("theta",), max_effects=max_effects, seed=seed, progress=progress))
+            channels=diag.channels or ("theta",), max_effects=max_effects, seed=seed, progress=progress,
+            workers=engine[0], scheduler=engine[1]))
         if drift_sigma is None and sess is not None and sess["drift_sigma"]:
             drift_sigma = sess["drift_sigma"]
     prediction = None
@@ -362,6 +367,8 @@ def run_gap(
     oracle: bool = False,
     drift_sigma: Mapping[str, float] | None = None,
     skip: Sequence[str] = (),
+    workers: int | None = 1,
+    scheduler: str | None = None,
 ) -> GapResult:
     """Where + which + after (module doc) for a nominal rig and fit / held-out recordings.
 
@@ -410,6 +417,11 @@ def run_gap(
         one with ``sessions``, else :data:`aeropend_ident.gap.drift.DRIFT_PRIOR`).
     skip : sequence of str
         Catalog effects left out of the diagnosis (``diagnose_effects(..., skip=)``).
+    workers, scheduler : int or None, str or None
+        Where the session analysis' independent diagnoses and fits run
+        (:func:`aeropend_ident.parallel.run_cases`): in this process (``workers`` = 1, the default),
+        on a local Dask cluster of ``workers`` processes (None: one per core), or on the cluster at
+        ``scheduler``.
 
     Returns
     -------
@@ -460,7 +472,7 @@ def run_gap(
     sess, prediction = _sessions_and_prediction(
         rig, diag, validation, held_out, theta_offset=theta_offset, sessions=sessions,
         session_labels=session_labels, max_effects=max_effects, seed=seed, progress=progress,
-        predict=predict, drift_sigma=drift_sigma, optional=optional)
+        predict=predict, drift_sigma=drift_sigma, optional=optional, engine=(workers, scheduler))
     say("after: replaying the held-out recordings")
     overlays, test, w_nom, w_cor = _replay_held_out(rig, diag, corrected, held_out, theta_offset, horizon)
     check = _prediction_check(prediction, test)
