@@ -242,9 +242,26 @@ def replay(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarr
     initial rate; the armature current and rotor speed start at their recorded values when those
     channels are recorded (a stretch cut from a longer run may begin mid-transient), otherwise at
     the steady state of the first duty cycle; the actuator lag state at the first duty cycle. The
-    model is then driven by the recorded duty cycle only. One replay by
-    :func:`aeropend_sim.simulate.simulate` (the reference sub-steps), with the state (``"_x"``);
-    the fits replay many rigs at once with :func:`replay_many`.
+    model is then driven by the recorded duty cycle only. One row of :func:`replay_many` (the
+    diagnosis' sub-steps, so that every figure of a diagnosis comes from the same replays);
+    :func:`replay_reference` replays with :func:`aeropend_sim.simulate.simulate` and gives the
+    state too.
+
+    Raises
+    ------
+    GapError
+        If the simulation fails for this rig.
+    """
+    out = replay_many([(rig, meas)], prep)[0]
+    if out is None:
+        raise GapError(f"replay of {prep.rec.source or 'a recording'} with rig {rig.name!r} failed: the "
+                       "rig's initial state or its replay is not finite")
+    return out
+
+
+def replay_reference(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarray]:
+    """:func:`replay` by :func:`aeropend_sim.simulate.simulate` (the reference sub-steps), with the
+    model state (N, 5) as ``"_x"``.
 
     Raises
     ------
@@ -685,7 +702,7 @@ def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.nda
         ``"omega_rotor"`` [rad/s²], ``"v_a"`` [V].
     """
     model = PlantModel(_sim_rig(rig))
-    sim = replay(rig, meas, prep)
+    sim = replay_reference(rig, meas, prep)
     x = np.array(sim["_x"], dtype=float)
     s = meas.theta_scale
     x[:, 0] = meas.to_model(prep.y["theta"])
