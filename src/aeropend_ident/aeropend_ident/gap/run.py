@@ -34,7 +34,7 @@ import numpy as np
 import scipy
 
 from aeropend_ident.errors import GapInputError, IdentError
-from aeropend_ident.gap.where import WhereReport, locate_gap
+from aeropend_ident.gap.where import WhereReport, locate_gap, timing_lag_seen
 from aeropend_ident.greybox.fit import THETA_OFFSET, error_metrics
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.split import (
@@ -418,10 +418,8 @@ def run_gap(
     skip : sequence of str
         Catalog effects left out of the diagnosis (``diagnose_effects(..., skip=)``).
     workers, scheduler : int or None, str or None
-        Where the session analysis' independent diagnoses and fits run
-        (:func:`aeropend_ident.parallel.run_cases`): in this process (``workers`` = 1, the default),
-        on a local Dask cluster of ``workers`` processes (None: one per core), or on the cluster at
-        ``scheduler``.
+        Where the session analysis' diagnoses run (:func:`aeropend_ident.parallel.run_cases`): this
+        process (``workers`` = 1), a local Dask cluster (None: one worker per core) or ``scheduler``.
 
     Returns
     -------
@@ -434,15 +432,14 @@ def run_gap(
     aeropend_ident.gap.effects.GapError, aeropend_ident.gap.where.GapInputError
         Unusable recordings (no θ, NaNs, too short, constant input) or rig (before any result).
     """
+    from aeropend_ident.gap.drift import attainable
     from aeropend_ident.gap.effects import timing_effects
-    from aeropend_ident.gap.where import timing_lag_seen
     from aeropend_ident.gap.which import diagnose_effects
 
     say = progress or (lambda _msg: None)
     fit, held_out = list(fit), list(held_out)
     if not fit or not held_out:
-        raise GapInputError(f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} "
-                            "held out)")
+        raise GapInputError(f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} held)")
     say(f"where: nominal {rig.name} on {len(fit)} fit recording(s)")
     where = locate_gap(rig, fit, horizon=horizon, theta_offset=theta_offset)
     if validation is not None:
@@ -466,8 +463,6 @@ def run_gap(
         max_effects=max_effects, seed=seed, progress=progress,
         also_confirm=timing_effects(rig.family) if timing else (), skip=skip)
     corrected = diag.corrected_rig
-    from aeropend_ident.gap.drift import attainable
-
     optional = _Optional(say)
     sess, prediction = _sessions_and_prediction(
         rig, diag, validation, held_out, theta_offset=theta_offset, sessions=sessions,

@@ -464,52 +464,8 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
 
     lo = np.array([_to_z(c.range, c.range.lower) for c in coords])
     hi = np.array([_to_z(c.range, c.range.upper) for c in coords])
-    n_res = sum(len(p.y) * p.n for p in preps)
-    penalty = 10.0 / math.sqrt(max(n_res, 1))
-    nfev = 0
-    cache: dict[bytes, np.ndarray] = {}
-
-    def funs(zs: Sequence[np.ndarray]) -> list[np.ndarray]:
-        """Residuals of many coordinate vectors: the new ones in one batched replay."""
-        nonlocal nfev
-        keys = [np.asarray(z, dtype=float).tobytes() for z in zs]
-        got = {k: cache[k] for k in keys if k in cache}
-        new = [k for k in dict.fromkeys(keys) if k not in got]
-        if new:
-            nfev += len(new)
-            rows, where = [], []
-            for k in new:
-                got[k] = np.full(n_res, penalty)
-                try:
-                    r_rig, r_meas, _ = _assemble(rig, coords, np.frombuffer(k))
-                except (GapError, ValueError):
-                    continue
-                rows.append((r_rig, r_meas))
-                where.append(k)
-            for k, r in zip(where, residuals_many(rows, preps) if rows else (), strict=True):
-                if np.all(np.isfinite(r)):
-                    got[k] = r
-            if len(cache) + len(new) > 256:
-                cache.clear()
-            cache.update({k: got[k] for k in new})
-        return [got[k] for k in keys]
-
-    def fun(z: np.ndarray) -> np.ndarray:
-        return funs([z])[0]
-
-    def jac(z: np.ndarray) -> np.ndarray:
-        """Forward differences: 1 + n_p residuals in one batched replay."""
-        steps = [FD_STEP if z[j] + FD_STEP <= hi[j] else -FD_STEP for j in range(z.size)]
-        shifted = []
-        for j, h in enumerate(steps):
-            zz = np.array(z, dtype=float)
-            zz[j] += h
-            shifted.append(zz)
-        f0, *fs = funs([z, *shifted])
-        out = np.empty((f0.size, z.size))
-        for j, (h, f) in enumerate(zip(steps, fs, strict=True)):
-            out[:, j] = (f - f0) / h
-        return out
+    obj = _Objective(rig, coords, preps, hi)
+    funs, fun, jac = obj.rows, obj, obj.jacobian
 
     candidates = [z_of({})] + [z_of(s) for s in starts]
     if scan and len(coords) == 1:
@@ -553,7 +509,66 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
         span = c.range.upper - c.range.lower
         std.setdefault(c.effect.name, {})[c.param.name] = float(abs(v) * sd if c.range.log else sd * span)
     return EffectFit(effects=tuple(effects), values=vals, std=std, rig=new, meas=meas,
-                     sse=float(np.sum(best.fun**2)), n=int(best.fun.size), nfev=nfev)
+                     sse=float(np.sum(best.fun**2)), n=int(best.fun.size), nfev=obj.nfev)
+
+
+class _Objective:
+    """The normalised output error of :func:`fit_effects` and its forward-difference Jacobian.
+
+    Residuals of many coordinate vectors are one batched replay per recording
+    (:func:`residuals_many`); evaluated vectors are cached (the Jacobian's base point is the
+    optimiser's last evaluation). A vector whose effects cannot be applied or whose replay fails
+    gets a constant penalty residual. ``nfev`` counts the vectors replayed.
+    """
+
+    def __init__(self, rig: Rig, coords: Sequence[_Coord], preps: Sequence[Prepared], hi: np.ndarray) -> None:
+        self.rig, self.coords, self.preps, self.hi = rig, list(coords), list(preps), hi
+        self.n_res = sum(len(p.y) * p.n for p in preps)
+        self.penalty = 10.0 / math.sqrt(max(self.n_res, 1))
+        self.nfev = 0
+        self._cache: dict[bytes, np.ndarray] = {}
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        return self.rows([z])[0]
+
+    def rows(self, zs: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Residuals of many coordinate vectors: the new ones in one batched replay."""
+        keys = [np.asarray(z, dtype=float).tobytes() for z in zs]
+        got = {k: self._cache[k] for k in keys if k in self._cache}
+        new = [k for k in dict.fromkeys(keys) if k not in got]
+        if new:
+            self.nfev += len(new)
+            rows, where = [], []
+            for k in new:
+                got[k] = np.full(self.n_res, self.penalty)
+                try:
+                    r_rig, r_meas, _ = _assemble(self.rig, self.coords, np.frombuffer(k))
+                except (GapError, ValueError):
+                    continue
+                rows.append((r_rig, r_meas))
+                where.append(k)
+            for k, r in zip(where, residuals_many(rows, self.preps) if rows else (), strict=True):
+                if np.all(np.isfinite(r)):
+                    got[k] = r
+            if len(self._cache) + len(new) > 256:
+                self._cache.clear()
+            self._cache.update({k: got[k] for k in new})
+        return [got[k] for k in keys]
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        """Forward differences with the absolute step :data:`FD_STEP` (backward at the upper
+        bound): 1 + n_p residuals in one batched replay."""
+        steps = [FD_STEP if z[j] + FD_STEP <= self.hi[j] else -FD_STEP for j in range(z.size)]
+        shifted = []
+        for j, h in enumerate(steps):
+            zz = np.array(z, dtype=float)
+            zz[j] += h
+            shifted.append(zz)
+        f0, *fs = self.rows([z, *shifted])
+        out = np.empty((f0.size, z.size))
+        for j, (h, f) in enumerate(zip(steps, fs, strict=True)):
+            out[:, j] = (f - f0) / h
+        return out
 
 
 # ------------------------------------------------------------------------------ metrics
