@@ -15,10 +15,10 @@
   or a CSV log (its preset from ``--preset`` or by file name, as for ``gap``). Other entries are
   listed as skipped.
 
-**Per session** the ``gap`` command itself runs (:func:`aeropend_ident.cli.gap.main`, same options,
-its report folder ``OUT/<session>/``) as one case of :func:`aeropend_ident.parallel.run_cases` (a
-local Dask cluster or a lab's). A session ``gap`` refuses is recorded with its one-line error; the
-others go on.
+**Per session** the ``gap`` command itself runs (``aeropend_ident.cli.gap_batch.diagnose_session``,
+same options, its report folder ``OUT/<session>/``) as one case of
+:func:`aeropend_ident.parallel.run_cases` (a local Dask cluster or a lab's). A session ``gap``
+refuses is recorded with its one-line error; the others go on.
 
 **Across sessions** (:func:`drift_across`): the effects chosen in any session (less those that set
 the same rig parameter as an earlier one) plus the drift-prone parameters
@@ -31,8 +31,6 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import re
 from collections.abc import Callable, Sequence
@@ -64,7 +62,7 @@ class Session:
 
 @dataclass
 class SessionCase:
-    """What a worker needs to run ``gap`` on one session (:func:`diagnose_session`)."""
+    """What a worker needs to run ``gap`` on one session (``cli.gap_batch.diagnose_session``)."""
 
     session: Session
     rig: str
@@ -156,63 +154,25 @@ def _from_manifest(root: Path, manifest: Path) -> list[Session]:
     return [Session(n, s.recordings, s.held_out) for n, s in zip(names, out, strict=True)]
 
 
-def diagnose_session(case: SessionCase) -> dict[str, Any]:
-    """Run ``gap`` on one session (in a worker); its summary for the batch table.
-
-    Returns
-    -------
-    dict
-        ``session``, ``recordings``, ``report`` (folder), ``exit`` (the command's status), ``error``
-        (its one-line message, when refused), and from ``report.json``: ``significant``, ``chosen``,
-        ``nrmse_before`` / ``nrmse_after`` (held-out θ), ``headline``, ``elapsed_s``.
-    """
-    import time
-
-    from aeropend_ident.cli.gap import main as gap_main
-
-    s = case.session
-    argv = [*s.recordings, "--rig", case.rig, "-o", case.out, "-q", *case.options]
-    if s.held_out:
-        argv += ["--held-out", *s.held_out]
-    err = io.StringIO()
-    t0 = time.perf_counter()
-    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-        status = gap_main(argv)
-    row: dict[str, Any] = {"session": s.name, "recordings": list(s.recordings), "held_out": list(s.held_out),
-                           "report": case.out, "exit": int(status), "elapsed_s": time.perf_counter() - t0}
-    if status != 0:
-        lines = [x for x in err.getvalue().splitlines() if x.strip()]
-        row["error"] = lines[-1] if lines else f"gap exited with status {status}"
-        return row
-    doc = json.loads((Path(case.out) / "report.json").read_text(encoding="utf-8"))
-    test = doc["after"]["test"]
-    row.update(significant=bool(doc["which"]["significant"]), chosen=list(doc["which"]["chosen"]),
-               nrmse_before=float(test[0]["nrmse"]), nrmse_after=float(test[-1]["nrmse"]),
-               headline=doc["headline"])
-    return row
-
-
 def _fit_part(case: tuple) -> Any:
     """One session's drift fit (a worker case of :func:`drift_across`)."""
-    from aeropend_ident.cli.gap import resolve_rig
     from aeropend_ident.gap.drift import session_task
     from aeropend_ident.gap.run import to_model_frame
     from aeropend_ident.io.recording_input import load_and_split
 
-    session, rig_ref, effects, channels, split, preset = case
-    rig, offset = resolve_rig(rig_ref)
+    session, rig, offset, effects, channels, split, preset = case
     fit, _held, _rule = load_and_split(list(session.recordings), list(session.held_out) or None, split,
                                        preset)
     return session_task(("fit", rig, effects, [to_model_frame(r, offset) for r in fit], channels))
 
 
-def drift_across(rows: Sequence[dict[str, Any]], sessions: Sequence[Session], rig_ref: str, *, split: float,
-                 preset: str | None, run: Callable[..., Any]) -> dict[str, Any] | None:
+def drift_across(rows: Sequence[dict[str, Any]], sessions: Sequence[Session], rig: Any, offset: float, *,
+                 split: float, preset: str | None, run: Callable[..., Any]) -> dict[str, Any] | None:
     """The drift table across the diagnosed sessions (module doc), or None with fewer than two.
 
-    ``run`` is :func:`aeropend_ident.parallel.run_cases` with the batch's cluster settings bound.
+    ``rig`` and ``offset`` are the nominal rig and its recording-frame θ offset [rad]; ``run`` is
+    :func:`aeropend_ident.parallel.run_cases` with the batch's cluster settings bound.
     """
-    from aeropend_ident.cli.gap import resolve_rig
     from aeropend_ident.gap.drift import _drift_table, drift_set
     from aeropend_ident.gap.which import excluded_with
 
@@ -224,10 +184,9 @@ def drift_across(rows: Sequence[dict[str, Any]], sessions: Sequence[Session], ri
         for name in r.get("chosen", []):
             if name not in excluded_with(chosen):
                 chosen.append(name)
-    rig, _offset = resolve_rig(rig_ref)
     channels = _channels(good)
     effects = drift_set(chosen, channels, rig.family)
-    cases = [(s, rig_ref, effects, channels, split, preset) for _r, s in good]
+    cases = [(s, rig, offset, effects, channels, split, preset) for _r, s in good]
     done = dict(run(_fit_part, cases, desc="drift fits"))
     table = _drift_table([s.name for _r, s in good], effects, [done[i] for i in range(len(cases))])
     table["chosen_in_sessions"] = chosen

@@ -29,46 +29,20 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
-import functools
 import importlib
 import importlib.util
 import inspect
 import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from aeropend_ident.greybox.batch import THREADS_ENV
+from aeropend_ident.greybox.batch import THREADS_ENV, one_blas_thread
 from aeropend_ident.progress import bar
 
 #: Environment of every worker of a local cluster: one replay thread and one BLAS/OpenMP thread.
 WORKER_ENV = {THREADS_ENV: "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-
-
-@contextmanager
-def one_blas_thread() -> Iterator[None]:
-    """BLAS/OpenMP limited to one thread inside the block (threadpoolctl).
-
-    The fits multiply tall, thin matrices (residuals × parameters); OpenBLAS' threads then spin
-    against other processes on a busy machine, which made such products up to 300× slower here.
-    """
-    from threadpoolctl import threadpool_limits
-
-    with threadpool_limits(limits=1):
-        yield
-
-
-def single_blas(func: Callable[..., Any]) -> Callable[..., Any]:
-    """Decorator: the function runs with :func:`one_blas_thread`."""
-
-    @functools.wraps(func)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        with one_blas_thread():
-            return func(*args, **kwargs)
-
-    return wrapper
 
 
 def default_workers() -> int:

@@ -22,23 +22,60 @@ archive, no recording in it, a malformed manifest, an unknown rig, a non-empty `
 from __future__ import annotations
 
 import argparse
+import contextlib
 import functools
+import io
+import json
 import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 from aeropend_ident.archive import (
     BATCH_FILES,
     SessionCase,
-    diagnose_session,
     drift_across,
     find_sessions,
     write_batch,
 )
+from aeropend_ident.cli.gap import main as gap_main
+from aeropend_ident.cli.gap import resolve_rig
 from aeropend_ident.errors import GapCliError, print_warnings_as_lines
 from aeropend_sim.output_folder import OutputFolderError, claim_output_folder
 from aeropend_sim.params import RigFileError
+
+
+def diagnose_session(case: SessionCase) -> dict[str, Any]:
+    """Run ``gap`` on one session (in a worker); its summary for the batch table.
+
+    Returns
+    -------
+    dict
+        ``session``, ``recordings``, ``report`` (folder), ``exit`` (the command's status), ``error``
+        (its one-line message, when refused), and from ``report.json``: ``significant``, ``chosen``,
+        ``nrmse_before`` / ``nrmse_after`` (held-out θ), ``headline``, ``elapsed_s``.
+    """
+    s = case.session
+    argv = [*s.recordings, "--rig", case.rig, "-o", case.out, "-q", *case.options]
+    if s.held_out:
+        argv += ["--held-out", *s.held_out]
+    err = io.StringIO()
+    t0 = time.perf_counter()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
+        status = gap_main(argv)
+    row: dict[str, Any] = {"session": s.name, "recordings": list(s.recordings), "held_out": list(s.held_out),
+                           "report": case.out, "exit": int(status), "elapsed_s": time.perf_counter() - t0}
+    if status != 0:
+        lines = [x for x in err.getvalue().splitlines() if x.strip()]
+        row["error"] = lines[-1] if lines else f"gap exited with status {status}"
+        return row
+    doc = json.loads((Path(case.out) / "report.json").read_text(encoding="utf-8"))
+    test = doc["after"]["test"]
+    row.update(significant=bool(doc["which"]["significant"]), chosen=list(doc["which"]["chosen"]),
+               nrmse_before=float(test[0]["nrmse"]), nrmse_after=float(test[-1]["nrmse"]),
+               headline=doc["headline"])
+    return row
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -65,7 +102,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Diagnose every session of the archive; write the reports and the drift table."""
     args = build_parser().parse_args(argv)
     print_warnings_as_lines("gap-batch")
-    from aeropend_ident.cli.gap import resolve_rig
     from aeropend_ident.parallel import run_cases
 
     t0 = time.perf_counter()
@@ -77,7 +113,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not 0.0 < args.split < 1.0:
             raise GapCliError(f"--split {args.split!r}: expected a fraction in (0, 1)")
         sessions, skipped = find_sessions(args.archive)
-        resolve_rig(args.rig)  # an unknown rig fails here, not once per session
+        rig, offset = resolve_rig(args.rig)  # an unknown rig fails here, not once per session
         folder = claim_output_folder(args.out, args.overwrite, own=BATCH_FILES,
                                      looks_like="a gap-batch output", inputs=[args.archive])
         out = folder.prepare()
@@ -94,7 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     meta = {"archive": str(args.archive), "rig": args.rig, "engine": args.scheduler or "LocalCluster",
             "workers": args.workers, "argv": list(argv if argv is not None else sys.argv[1:])}
     try:
-        table = drift_across(rows_list, sessions, args.rig, split=args.split, preset=args.preset, run=run)
+        table = drift_across(rows_list, sessions, rig, offset, split=args.split, preset=args.preset, run=run)
     except Exception as exc:  # the per-session reports stand without it
         table = None
         meta["drift_not_computed"] = f"{type(exc).__name__}: {exc}"

@@ -35,13 +35,13 @@ import scipy
 
 from aeropend_ident.errors import GapInputError, IdentError
 from aeropend_ident.gap.where import WhereReport, locate_gap, timing_lag_seen
+from aeropend_ident.greybox.batch import single_blas
 from aeropend_ident.greybox.fit import THETA_OFFSET, error_metrics
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.split import (
     VALIDATION_FRACTION,
     validation_split,
 )
-from aeropend_ident.parallel import single_blas
 from aeropend_sim.params import Rig, rig_to_dict
 from aeropend_sim.recording import Recording
 

@@ -37,9 +37,12 @@ No rclpy import: this module runs without ROS.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
 
 import numpy as np
 
@@ -54,6 +57,30 @@ FIT_MIN_SUBSTEPS = 2
 #: Environment variable: threads one batch is shared out to (default one per available core; a
 #: pool or cluster worker running one case per core sets 1, :mod:`aeropend_ident.parallel`).
 THREADS_ENV = "AEROPEND_REPLAY_THREADS"
+
+
+@contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """BLAS/OpenMP limited to one thread inside the block (threadpoolctl).
+
+    The fits multiply tall, thin matrices (residuals × parameters); OpenBLAS' threads then spin
+    against other processes on a busy machine, which made such products up to 300× slower here.
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        yield
+
+
+def single_blas(func: Callable[..., Any]) -> Callable[..., Any]:
+    """Decorator: the function runs with :func:`one_blas_thread`."""
+
+    @functools.wraps(func)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with one_blas_thread():
+            return func(*args, **kwargs)
+
+    return wrapper
 
 
 def fit_substeps(dt: float) -> int:

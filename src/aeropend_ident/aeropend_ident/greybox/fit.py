@@ -76,9 +76,8 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.greybox.batch import RigReplays
+from aeropend_ident.greybox.batch import RigReplays, single_blas
 from aeropend_ident.io.recording_input import uniform_grid
-from aeropend_ident.parallel import single_blas
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect
 from aeropend_sim.components.xp import MATH
