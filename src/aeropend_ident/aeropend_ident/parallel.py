@@ -4,7 +4,7 @@
 of an archive) on a ``dask.distributed`` cluster and yields the results as they finish, with a
 progress bar (:mod:`aeropend_ident.progress`). By default it starts a
 :class:`distributed.LocalCluster` on this machine (``workers`` processes of one thread each, on
-the loopback interface, no dashboard) and closes it afterwards; with ``scheduler="tcp://HOST:8786"``
+the loopback interface, its status page on a free port) and closes it afterwards; with ``scheduler="tcp://HOST:8786"``
 it uses a lab's running cluster instead (``dask scheduler`` on one machine, ``dask worker
 tcp://HOST:8786`` on each of the others: docs/gap.md, "Batches on a cluster").
 
@@ -101,7 +101,7 @@ def _cluster(workers: int, scheduler: str | None) -> Any:
     if os.environ.get("AEROPEND_CACHE_DIR"):
         env["AEROPEND_CACHE_DIR"] = os.environ["AEROPEND_CACHE_DIR"]
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=None, env=env)
+                           dashboard_address=":0", env=env)
     return Client(cluster), cluster
 
 
