@@ -44,7 +44,6 @@ import platform
 import sys
 import tempfile
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -441,6 +440,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="design on the corrected rigs stored in this earlier result file (its plants only) "
                          "instead of running gap again: isolates a change of the controllers")
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run the plants on a running Dask cluster (tcp://host:8786) instead of a local one")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     ap.add_argument("--out", default=str(RESULTS / "control_independent"))
     ap.add_argument("--render", action="store_true", help="only re-write the .md from the .json")
     ap.add_argument("--merge", nargs="+", default=None, metavar="JSON",
@@ -476,14 +478,17 @@ def main(argv: list[str] | None = None) -> int:
                 for j in jobs if j["index"] in stored]
     load_before = os.getloadavg()
     t0 = time.perf_counter()
-    plants = []
-    with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        for p in pool.map(run_plant, jobs):
-            plants.append(p)
-            bad = [f"{r['design'][0]}:{r['strategy']}@{r['reference']}" for r in p["runs"]
-                   if r["within_reach"] and (not r["t61"] or r["limit_cycle"])]
-            print(f"[{len(plants)}/{len(jobs)}] plant {p['index']} reach {p['true_reach']:.3f} "
-                  f"gap {p.get('gap', {}).get('chosen')} ({p['wall_s']:.0f} s) fails: {bad}", flush=True)
+    from aeropend_ident.parallel import run_cases
+
+    done: dict[int, dict[str, Any]] = {}
+    for i, p in run_cases(run_plant, jobs, workers=args.workers, scheduler=args.scheduler,
+                          desc="control_independent", quiet=args.quiet):
+        done[i] = p
+        bad = [f"{r['design'][0]}:{r['strategy']}@{r['reference']}" for r in p["runs"]
+               if r["within_reach"] and (not r["t61"] or r["limit_cycle"])]
+        print(f"[{len(done)}/{len(jobs)}] plant {p['index']} reach {p['true_reach']:.3f} "
+              f"gap {p.get('gap', {}).get('chosen')} ({p['wall_s']:.0f} s) fails: {bad}", flush=True)
+    plants = [done[i] for i in sorted(done)]
     commit = os.popen(f"git -C {Path(__file__).parent} rev-parse --short HEAD 2>/dev/null").read().strip()
     meta = {"workers": args.workers, "wall_s": time.perf_counter() - t0,
             "load_before": [round(x, 2) for x in load_before],

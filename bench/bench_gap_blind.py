@@ -31,10 +31,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -175,6 +175,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--reps", type=int, default=2, help="seeds per catalog effect (all channels)")
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run the cases on a running Dask cluster (tcp://host:8786) instead of a local one")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     ap.add_argument("--quick", action="store_true", help="one seed per effect, all channels only")
     ap.add_argument("--max-effects", type=int, default=2, choices=(1, 2, 3),
                     help="most effects the diagnosis adds (the gap command's default is 2)")
@@ -193,12 +196,15 @@ def main(argv: list[str] | None = None) -> int:
     specs = [{**c, "max_effects": args.max_effects, "skip": skip}
              for c in case_list(args.reps, args.quick, skip)]
     t0 = time.perf_counter()
-    scores: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        for s in pool.map(run_case, specs):
-            scores.append(s)
-            print(f"[{len(scores)}/{len(specs)}] {s['case']:40s} {s['group']:28s} top1={s['top1']} "
-                  f"ranked={s['ranked'][:3]} shrink={s['shrink']:.3f} ({s['elapsed_s']:.1f} s)", flush=True)
+    from aeropend_ident.parallel import run_cases
+
+    done: dict[int, dict[str, Any]] = {}
+    for i, s in run_cases(run_case, specs, workers=args.workers, scheduler=args.scheduler, desc="gap_blind",
+                          quiet=args.quiet):
+        done[i] = s
+        print(f"[{len(done)}/{len(specs)}] {s['case']:40s} {s['group']:28s} top1={s['top1']} "
+              f"ranked={s['ranked'][:3]} shrink={s['shrink']:.3f} ({s['elapsed_s']:.1f} s)", flush=True)
+    scores = [done[i] for i in sorted(done)]
     wall = time.perf_counter() - t0
     summary = summarise(scores)
     groups = {}
@@ -209,7 +215,9 @@ def main(argv: list[str] | None = None) -> int:
     conf = confusion(scores)
     times = sorted(s["elapsed_s"] for s in scores)
     cpus = sorted(s["cpu_s"] for s in scores)
-    meta = {"rig": RIG, "workers": args.workers, "wall_s": wall, "median_case_s": times[len(times) // 2],
+    meta = {"rig": RIG, "workers": args.workers, "engine": f"dask {args.scheduler or 'LocalCluster'}",
+            "wall_s": wall, "load_after": [round(x, 2) for x in os.getloadavg()],
+            "median_case_s": times[len(times) // 2],
             "median_case_cpu_s": cpus[len(cpus) // 2], "total_cpu_s": sum(cpus),
             "python": sys.version.split()[0], "machine": platform.machine(), "reps": args.reps,
             "quick": args.quick, "max_effects": args.max_effects, "n_cases": len(scores),

@@ -35,7 +35,6 @@ import os
 import platform
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -327,6 +326,9 @@ def merge_results(paths: list[Path], out: Path) -> int:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--workers", type=int, default=1)
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run the cases on a running Dask cluster (tcp://host:8786) instead of a local one")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     ap.add_argument("--cases", type=int, default=64)
     ap.add_argument("--only", default="", help="comma-separated case indices of the --cases list (a subset)")
     ap.add_argument(
@@ -372,16 +374,20 @@ def main(argv: list[str] | None = None) -> int:
         write_results(out, doc)
         return doc
 
-    with ProcessPoolExecutor(max_workers=args.workers) as ex:
-        for r in ex.map(_run, [(s, args.oracle) for s in specs]):
-            rows.append(r)
-            print(
-                f"{r['case']}: inside {r.get('inside')} ({r.get('side')}: {r.get('actual')} in "
-                f"{r.get('interval')}) named {r.get('named')} share_ok {r.get('share_ok')} "
-                f"({r['elapsed_s']:.0f} s)",
-                flush=True,
-            )
-            doc = write()
+    from aeropend_ident.parallel import run_cases
+
+    done: dict[int, dict[str, Any]] = {}
+    for i, r in run_cases(_run, [(s, args.oracle) for s in specs], workers=args.workers,
+                          scheduler=args.scheduler, desc="gap_calibration", quiet=args.quiet):
+        done[i] = r
+        rows[:] = [done[k] for k in sorted(done)]  # in case order, written after every case
+        print(
+            f"{r['case']}: inside {r.get('inside')} ({r.get('side')}: {r.get('actual')} in "
+            f"{r.get('interval')}) named {r.get('named')} share_ok {r.get('share_ok')} "
+            f"({r['elapsed_s']:.0f} s)",
+            flush=True,
+        )
+        doc = write()
     print(json.dumps(doc["summary"], indent=1))
     return 0
 

@@ -48,7 +48,6 @@ import os
 import platform
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -511,7 +510,10 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=2, help="workers of the local Dask cluster")
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run the cases on a running Dask cluster (tcp://host:8786) instead of a local one")
+    ap.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     ap.add_argument("--quick", action="store_true",
                     help="one draw per effect and design, fewer special cases")
     ap.add_argument("--only", nargs="+", default=None,
@@ -538,20 +540,33 @@ def main(argv: list[str] | None = None) -> int:
         spec["skip"] = list(args.skip_effect)
     load_before = os.getloadavg()
     t0 = time.perf_counter()
-    scores = []
-    with ProcessPoolExecutor(max_workers=args.workers) as pool:
-        for s in pool.map(run_case, specs):
-            scores.append(s)
-            print(f"[{len(scores)}/{len(specs)}] {s['case']:42s} {s['group']:15s} pass={s.get('pass')} "
-                  f"chosen={s.get('chosen')} shrink={s.get('shrink', float('nan')):.3f} "
-                  f"({s['elapsed_s']:.1f} s) {s.get('error', '')}", flush=True)
-    wall = time.perf_counter() - t0
+    from aeropend_ident.parallel import run_cases
+
+    done: dict[int, dict[str, Any]] = {}
+    for i, s in run_cases(run_case, specs, workers=args.workers, scheduler=args.scheduler,
+                          desc="gap_independent", quiet=args.quiet):
+        done[i] = s
+        print(f"[{len(done)}/{len(specs)}] {s['case']:42s} {s['group']:15s} pass={s.get('pass')} "
+              f"chosen={s.get('chosen')} shrink={s.get('shrink', float('nan')):.3f} "
+              f"({s['elapsed_s']:.1f} s) {s.get('error', '')}", flush=True)
+        if len(done) < len(specs) and not args.merge:  # a run stopped early keeps what it measured
+            _write(out, args, [done[k] for k in sorted(done)], time.perf_counter() - t0, load_before,
+                   partial=f"{len(done)} of {len(specs)} cases")
+    _write(out, args, [done[i] for i in sorted(done)], time.perf_counter() - t0, load_before)
+    return 0
+
+
+def _write(out: Path, args: argparse.Namespace, scores: list[dict[str, Any]], wall: float,
+           load_before: tuple[float, ...], partial: str = "") -> None:
+    """Write the results (.json and .md), merged into the existing ones with ``--merge``."""
     git = f"git -C {Path(__file__).parent} rev-parse --short HEAD 2>/dev/null"
     commit = os.popen(git).read().strip()
-    meta = {"workers": args.workers, "wall_s": wall, "load_before": [round(x, 2) for x in load_before],
+    meta = {"workers": args.workers, "engine": f"dask {args.scheduler or 'LocalCluster'}",
+            "wall_s": wall, "load_before": [round(x, 2) for x in load_before],
             "load_after": [round(x, 2) for x in os.getloadavg()], "machine": f"{os.cpu_count()} cores, "
             f"{platform.platform()}", "python": platform.python_version(), "commit": commit,
-            "argv": sys.argv[1:], "family": args.family, "skipped": list(args.skip_effect)}
+            "argv": sys.argv[1:], "family": args.family, "skipped": list(args.skip_effect),
+            **({"partial": partial} if partial else {})}
     if args.merge:
         old = json.loads(out.with_suffix(".json").read_text(encoding="utf-8"))
         new_ids = {s["case"] for s in scores}
@@ -561,9 +576,9 @@ def main(argv: list[str] | None = None) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float), encoding="utf-8")
     write_md(out.with_suffix(".md"), doc)
-    brief = {k: v for k, v in doc["summary"].items() if k != "per_effect"}
-    print(json.dumps(brief, indent=1, default=float))
-    return 0
+    if not partial:
+        brief = {k: v for k, v in doc["summary"].items() if k != "per_effect"}
+        print(json.dumps(brief, indent=1, default=float))
 
 
 if __name__ == "__main__":

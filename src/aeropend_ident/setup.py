@@ -37,6 +37,7 @@ setup(
             'pipeline = aeropend_ident.cli.pipeline:main',
             'identify = aeropend_ident.cli.identify:main',
             'gap = aeropend_ident.cli.gap:main',
+            'gap-batch = aeropend_ident.cli.gap_batch:main',
             'compare = aeropend_ident.cli.compare:main',
             'reindex = aeropend_ident.cli.reindex:main'
         ],

@@ -8,6 +8,7 @@ Usage::
         [--block-every 3] [--block-offset 1] [--min-range RAD]
         [--validation RECORDING ... | --validation-fraction 0.3]
         [--max-effects 2 (1-3)] [--horizon 0.2] [--theta-offset RAD] [--seed 0]
+        [--workers N] [--scheduler ADDRESS] [-q]
 
 ``RECORDING`` is a rosbag2 directory (or ``.mcap`` / ``.db3``) or a CSV log with its own preset
 (``FILE.csv:PRESET``; else ``--preset NAME``; else picked by file name), read by
@@ -38,6 +39,12 @@ report folder is refused at once (before any computation) unless ``--overwrite``
 the earlier report is replaced only when the new one is written, so a failed run keeps it
 (:mod:`aeropend_sim.output_folder`).
 
+Progress: one line per step on stderr and, when stderr is a terminal, a bar over the stages
+(where, which, sessions, predict, after; :mod:`aeropend_ident.progress`); ``-q`` hides both. With
+``--sessions`` the per-session diagnoses run as independent cases on a local Dask cluster
+(``--workers``, default one per core) or on a lab's (``--scheduler``;
+:mod:`aeropend_ident.parallel`).
+
 Exit status: 0 on success, 2 on bad input (message naming the problem: unknown rig, missing
 channel, too short, NaNs, bad option).
 """
@@ -47,7 +54,7 @@ from __future__ import annotations
 import argparse
 import itertools
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -61,9 +68,13 @@ from aeropend_ident.io.recording_input import (
     split_preset,
     uniform_recording,
 )
+from aeropend_ident.progress import reporter
 from aeropend_sim.output_folder import claim_output_folder
 from aeropend_sim.params import RigFileError
 from aeropend_sim.recording import RecordingError
+
+#: Stages of the progress bar: the prefixes of :func:`aeropend_ident.gap.run.run_gap`'s messages.
+STAGES = ("where", "which", "sessions", "predict", "after")
 
 
 def resolve_rig(ref: str) -> tuple[object, float]:
@@ -191,7 +202,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="angle offset theta_model - theta_recorded [rad] (default: the rig file's)",
     )
     p.add_argument("--seed", type=int, default=0, help="seed of the effect ranking's resampling")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
+    p.add_argument("--workers", type=int, default=None, metavar="N",
+                   help="with --sessions: worker processes of the local Dask cluster that runs the sessions' "
+                        "diagnoses (default: one per core; 1 runs them in this process)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="with --sessions: run the sessions' diagnoses on a running Dask cluster "
+                        "(tcp://host:8786, docs/gap.md) instead of a local one")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress messages or bar")
     return p
 
 
@@ -199,12 +216,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run the gap diagnosis; print the summary; write the report folder."""
     args = build_parser().parse_args(argv)
     print_warnings_as_lines("gap")
+
+    if args.workers is not None and args.workers < 1:
+        print(f"gap: error: --workers {args.workers}: expected 1 or more", file=sys.stderr)
+        return 2
+    with reporter("gap", STAGES, quiet=args.quiet) as progress:
+        return _run(args, progress)
+
+
+def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
+    """The command after parsing, with the progress callback of :func:`main`."""
     from aeropend_ident.gap.report import REPORT_FILES, terminal_summary, write_report
     from aeropend_ident.gap.run import run_gap
-
-    def progress(msg: str) -> None:
-        if not args.quiet:
-            print(f"gap: {msg}", file=sys.stderr, flush=True)
 
     try:
         given = [*args.inputs, *(args.held_out or ()), *(args.validation or ()),
@@ -267,6 +290,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             sessions=sessions,
             session_labels=labels,
             oracle=not args.no_oracle,
+            workers=args.workers,
+            scheduler=args.scheduler,
         )
         paths = write_report(result, out.prepare())
     except (RecordingError, RigFileError, ValueError) as exc:

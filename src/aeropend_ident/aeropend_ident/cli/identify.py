@@ -4,7 +4,8 @@ Command line of ``identify`` (console script; ``ros2 run aeropend_ident identify
 parsing and :func:`main` only; what is identified and written is described in
 :mod:`aeropend_ident.sindy.identify`. A non-empty results folder is refused at once unless
 ``--overwrite`` is given (then its earlier contents are removed before the run writes there;
-:mod:`aeropend_sim.output_folder`).
+:mod:`aeropend_sim.output_folder`). Progress lines go to stderr, with a bar when stderr is a terminal
+(:mod:`aeropend_ident.progress`); ``-q`` hides both.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from aeropend_ident.errors import (
@@ -23,6 +24,7 @@ from aeropend_ident.errors import (
     print_warnings_as_lines,
 )
 from aeropend_ident.io.recording_input import split_preset
+from aeropend_ident.progress import reporter
 from aeropend_ident.sindy.identify import LIBRARIES, METHODS, OUTPUT_FILES, identify
 from aeropend_sim.output_folder import OutputFolderError, claim_output_folder
 from aeropend_sim.params import RigFileError, load_rig
@@ -57,21 +59,25 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--overwrite", action="store_true",
                     help="replace the earlier identify results in --out (only a folder that holds them)")
     ap.add_argument("--no-plots", action="store_true")
-    ap.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
+    ap.add_argument("-q", "--quiet", action="store_true",
+                    help="no progress messages or bar on stderr (the bar shows only on a terminal)")
     args = ap.parse_args(argv)
     print_warnings_as_lines("identify")
     t0 = time.perf_counter()
+    with reporter("identify", quiet=args.quiet,
+                  line=lambda msg: f"[identify {time.perf_counter() - t0:6.1f} s] {msg}") as say:
+        return _run(args, say)
 
-    def say(msg: str) -> None:
-        print(f"[identify {time.perf_counter() - t0:6.1f} s] {msg}", file=sys.stderr, flush=True)
 
+def _run(args: argparse.Namespace, say: Callable[[str], None]) -> int:
+    """The command after parsing, with the progress callback of :func:`main`."""
     try:
         out = claim_output_folder(args.out, args.overwrite, own=OUTPUT_FILES, looks_like="identify results",
                                   option="-o", inputs=[split_preset(x)[0] for x in args.inputs])
         rig = load_rig(args.rig) if args.rig else None
         summary = identify(args.inputs, out.prepare(), rig, args.method, args.library, args.namespace,
                            preset=args.preset, train_fraction=args.train_fraction, thrust_map=args.thrust_map,
-                           plots=not args.no_plots, progress=None if args.quiet else say,
+                           plots=not args.no_plots, progress=say,
                            threshold=args.threshold, output_error=args.output_error)
     except (BagError, RecordingError, IdentificationError, RigFileError, CsvImportError,
             RecordingInputError, OutputFolderError) as exc:

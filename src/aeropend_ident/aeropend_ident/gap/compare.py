@@ -2,7 +2,7 @@
 
 The System Identification Toolbox's ``compare`` for rig files: each rig (nominal, fitted by
 ``baseline``, corrected by ``gap``) is driven by a recording's duty cycle in a free run (no later
-correction from the measurements, :func:`aeropend_ident.gap.which.replay`) and each recorded
+correction from the measurements, :func:`aeropend_ident.gap.which.replay_reference`) and each recorded
 channel (θ, i_a, v_a, ω₁, whichever the recording has) is compared with the simulated one:
 
 * ``nrmse``: RMS(y_sim − y)/range(y) [1] (the figure ``gap`` and ``baseline`` report);
@@ -39,7 +39,7 @@ import numpy as np
 from aeropend_ident.errors import CompareError, GapError, IdentificationError
 from aeropend_ident.gap.effects import MeasurementMap
 from aeropend_ident.gap.where import input_cross_correlation, ljung_box
-from aeropend_ident.gap.which import FIT_CHANNELS, duty_holds, prepare, replay, step_info
+from aeropend_ident.gap.which import FIT_CHANNELS, duty_holds, prepare, replay_reference, step_info
 from aeropend_ident.greybox.fit import rig_theta_offset, rig_theta_scale
 from aeropend_sim.params import Rig, RigFileError, load_rig, shipped_rigs
 from aeropend_sim.recording import Recording
@@ -276,7 +276,7 @@ def compare(models: Sequence[RigModel], recordings: Sequence[Recording],
                               "simulated": {}}
         for mlabel, m in zip(mlabels, models, strict=True):
             try:
-                sim = replay(m.rig, m.measurement, prep)
+                sim = replay_reference(m.rig, m.measurement, prep)
             except GapError as exc:
                 res.scores.setdefault(mlabel, {})[label] = {"error": str(exc)}
                 continue

@@ -69,6 +69,7 @@ from aeropend_ident.gap.which import (
     fit_effects,
     prepare,
     replay,
+    replay_many,
 )
 from aeropend_sim.components import registry
 from aeropend_sim.params import Rig
@@ -178,18 +179,19 @@ def _draw_effects(nominal: Rig, diag: EffectDiagnosis, vals: Mapping[str, Mappin
         return diag.corrected_rig
 
 
-def _ms_change(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared], base: Sequence[np.ndarray]
-               ) -> float | None:
-    """Mean over recordings of the squared θ change of a replay from the base replay, over range²;
-    None when the replay fails on any recording."""
-    out = []
+def _ms_changes(rigs: Sequence[Rig], meas: MeasurementMap, preps: Sequence[Prepared],
+                base: Sequence[np.ndarray]) -> list[float | None]:
+    """Per rig: the mean over recordings of the squared θ change of its replay from the base
+    replay, over range²; None when the replay fails on any recording. One batched replay per
+    recording (:func:`aeropend_ident.gap.which.replay_many`)."""
+    out: list[list[float] | None] = [[] for _ in rigs]
     for p, sim in zip(preps, base, strict=True):
-        try:
-            s = replay(rig, meas, p)["theta"]
-        except GapError:
-            return None
-        out.append(float(np.mean((s - sim) ** 2)) / p.scale["theta"] ** 2)
-    return float(np.mean(out))
+        for b, row in enumerate(replay_many([(r, meas) for r in rigs], p, ("theta",))):
+            if row is None or out[b] is None:
+                out[b] = None
+                continue
+            out[b].append(float(np.mean((row["theta"] - sim) ** 2)) / p.scale["theta"] ** 2)
+    return [float(np.mean(v)) if v is not None else None for v in out]
 
 
 def draw_log_changes(sigma: Mapping[str, float], params: Sequence[str], rng: np.random.Generator, *,
@@ -298,7 +300,13 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     sigma = dict(DRIFT_PRIOR if drift_sigma is None else drift_sigma)
     preps = _preps(validation, diag.channels or ("theta",))
     rng = np.random.default_rng(seed)
-    base = [replay(diag.corrected_rig, diag.measurement, p)["theta"] for p in preps]
+    base = []
+    for p in preps:  # on the draws' sub-steps, so that a draw that changes nothing changes nothing
+        row = replay_many([(diag.corrected_rig, diag.measurement)], p, ("theta",))[0]
+        if row is None:
+            raise GapError("prediction: the replay of the corrected rig failed on "
+                           f"{p.rec.source or 'a recording'}")
+        base.append(row["theta"])
     per_rec: list[np.ndarray] = []
     for p, sim in zip(preps, base, strict=True):
         e = sim - p.y["theta"]
@@ -309,19 +317,20 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     floors = [noise_floor(p) for p in preps]
     vals, std = _chosen_values(diag)
     params = drift_parameters(diag.channels or ("theta",), nominal.family)
-    sensitivity = {}
-    for eff in params:
-        s = sigma.get(eff, 0.0)
-        ms = [_ms_change(_perturbed(diag.corrected_rig, {eff: math.exp(sign * s)}), diag.measurement, preps,
-                         base) for sign in (-1.0, 1.0)]
-        sensitivity[eff] = [math.sqrt(m) if m is not None else math.nan for m in ms]
-    samples, changes = [], []
-    for _ in range(draws):
+    one_at_a_time = [_perturbed(diag.corrected_rig, {eff: math.exp(sign * sigma.get(eff, 0.0))})
+                     for eff in params for sign in (-1.0, 1.0)]
+    ms_one = _ms_changes(one_at_a_time, diag.measurement, preps, base)
+    sensitivity = {eff: [math.sqrt(m) if m is not None else math.nan for m in ms_one[2 * i: 2 * i + 2]]
+                   for i, eff in enumerate(params)}
+    drawn, e_ins = [], []
+    for _ in range(draws):  # the random draws first, in the order of one draw after the other
         rig = _draw_effects(nominal, diag, vals, std, rng)
         factors = {eff: math.exp(x) for eff, x in
                    draw_log_changes(sigma, params, rng, occurrence=drift_sigma is None).items()}
-        e_in = within_session_draw(per_rec, rng)
-        ms = _ms_change(_perturbed(rig, factors), diag.measurement, preps, base)
+        e_ins.append(within_session_draw(per_rec, rng))
+        drawn.append(_perturbed(rig, factors))
+    samples, changes = [], []
+    for e_in, ms in zip(e_ins, _ms_changes(drawn, diag.measurement, preps, base), strict=True):
         if ms is None:
             continue
         changes.append(math.sqrt(ms))
@@ -511,8 +520,13 @@ def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: 
     for lab, recs in zip(labels, sessions, strict=True):
         say(f"drift: fitting {', '.join(effects)} on {lab}")
         fits.append(_fit_set(nominal, effects, _preps(recs, channels)))
+    return _drift_table(labels, effects, fits)
+
+
+def _drift_table(labels: Sequence[str], effects: Sequence[str], fits: Sequence[Any]) -> dict[str, Any]:
+    """The :func:`drift_table` dictionary of the per-session fits."""
     rows = drift_rows(fits, effects)
-    return {"sessions": labels, "effects": list(effects), "rows": rows,
+    return {"sessions": list(labels), "effects": list(effects), "rows": rows,
             "drifting": [f"{r['effect']}.{r['parameter']}" for r in rows if r["drifts"]]}
 
 
@@ -561,11 +575,29 @@ def session_sigma(table: Mapping[str, Any]) -> dict[str, float]:
     return out
 
 
+def session_task(task: tuple) -> Any:
+    """One independent step of :func:`session_analysis` (run by :func:`aeropend_ident.parallel.run_cases`):
+    ``("diagnose", nominal, core, validation, max_effects, seed)`` -> EffectDiagnosis, or
+    ``("fit", nominal, effects, recordings, channels)`` -> the effect set's fit on one session."""
+    if task[0] == "diagnose":
+        _, nominal, core, val, max_effects, seed = task
+        return diagnose_effects(nominal, core, val, max_effects=max_effects, seed=seed)
+    _, nominal, effects, recs, channels = task
+    return _fit_set(nominal, effects, _preps(recs, channels))
+
+
 def session_analysis(nominal: Rig, sessions: Sequence[Sequence[Recording]], chosen: Sequence[str], *,
                      labels: Sequence[str] | None = None, channels: Sequence[str] = ("theta",),
                      max_effects: int = 2, seed: int = 0,
-                     progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                     progress: Callable[[str], None] | None = None, workers: int | None = 1,
+                     scheduler: str | None = None, quiet: bool = True) -> dict[str, Any]:
     """Leave-one-session-out diagnosis, the effects named per session, and the drift table.
+
+    The per-session diagnoses, the leave-one-out diagnoses (three or more sessions) and the
+    per-session fits of the drift table are independent: they run as one batch of cases through
+    :func:`aeropend_ident.parallel.run_cases` (in this process with ``workers`` = 1 and no
+    ``scheduler``; on a local Dask cluster of ``workers`` processes, or on the cluster at
+    ``scheduler``, otherwise).
 
     Parameters
     ----------
@@ -577,6 +609,8 @@ def session_analysis(nominal: Rig, sessions: Sequence[Sequence[Recording]], chos
         drift-prone parameters, :func:`drift_set`).
     labels, channels, max_effects, seed, progress
         As in :func:`drift_table` / :func:`aeropend_ident.gap.which.diagnose_effects`.
+    workers, scheduler, quiet
+        Where the cases run (above; None workers: one per core) and whether to hide the progress bar.
 
     Returns
     -------
@@ -592,32 +626,34 @@ def session_analysis(nominal: Rig, sessions: Sequence[Sequence[Recording]], chos
         Fewer than two sessions; unusable recordings.
     """
     from aeropend_ident.io.split import validation_split
+    from aeropend_ident.parallel import run_cases
 
     labels = _session_labels(sessions, labels, "leave-one-session-out")
     say = progress or (lambda _m: None)
-    diags = []
-    for lab, recs in zip(labels, sessions, strict=True):
-        say(f"sessions: diagnosis on {lab} alone")
-        core, val = validation_split(list(recs))
-        diags.append(diagnose_effects(nominal, core, val, max_effects=max_effects, seed=seed))
+    effects = drift_set(chosen, channels, nominal.family)
+    tasks: list[tuple] = [("diagnose", nominal, *validation_split(list(recs)), max_effects, seed)
+                          for recs in sessions]
+    if len(sessions) > 2:
+        for k in range(len(sessions)):
+            others = [r for j, s in enumerate(sessions) if j != k for r in s]
+            tasks.append(("diagnose", nominal, *validation_split(others), max_effects, seed))
+    tasks += [("fit", nominal, effects, list(recs), tuple(channels)) for recs in sessions]
+    say(f"sessions: {len(tasks)} independent diagnoses and fits ({len(sessions)} sessions)")
+    done = dict(run_cases(session_task, tasks, workers=workers, scheduler=scheduler, desc="sessions",
+                          quiet=quiet))
+    results = [done[i] for i in range(len(tasks))]
+    k_s = len(sessions)
+    diags = results[:k_s]
     per = [{"session": lab, "chosen": list(d.chosen), "significant": bool(d.significant)}
            for lab, d in zip(labels, diags, strict=True)]
     loo = []
     for k, (lab, recs) in enumerate(zip(labels, sessions, strict=True)):
-        others = [r for j, s in enumerate(sessions) if j != k for r in s]
-        if len(sessions) == 2:
-            d = diags[1 - k]
-        else:
-            say(f"sessions: diagnosis without {lab}")
-            core, val = validation_split(others)
-            d = diagnose_effects(nominal, core, val, max_effects=max_effects, seed=seed)
+        d = diags[1 - k] if k_s == 2 else results[k_s + k]
         preps = _preps(recs, channels)
         n0 = float(np.mean([theta_nrmse(nominal, MeasurementMap(), p) for p in preps]))
         n1 = float(np.mean([theta_nrmse(d.corrected_rig, d.measurement, p) for p in preps]))
         loo.append({"left_out": lab, "chosen_on_others": list(d.chosen), "nrmse_nominal": n0,
                     "nrmse_corrected": n1, "shrink": 1.0 - n1 / n0 if n0 > 0 else math.nan})
-    table = drift_table(nominal, sessions, drift_set(chosen, channels, nominal.family), labels=labels,
-                        channels=channels,
-                        progress=progress)
+    table = _drift_table(labels, effects, results[-k_s:])
     return {"sessions": labels, "per_session": per, "leave_one_out": loo, "drift": table,
             "drift_sigma": session_sigma(table)}

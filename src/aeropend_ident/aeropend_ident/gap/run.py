@@ -34,7 +34,8 @@ import numpy as np
 import scipy
 
 from aeropend_ident.errors import GapInputError, IdentError
-from aeropend_ident.gap.where import WhereReport, locate_gap
+from aeropend_ident.gap.where import WhereReport, locate_gap, timing_lag_seen
+from aeropend_ident.greybox.batch import single_blas
 from aeropend_ident.greybox.fit import THETA_OFFSET, error_metrics
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.split import (
@@ -222,7 +223,7 @@ def _where_brief(w: WhereReport) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------- pipeline
-def _shift(rec: Recording, offset: float) -> Recording:
+def to_model_frame(rec: Recording, offset: float) -> Recording:
     """The recording with θ moved into the model frame (θ_model = θ_recorded + offset)."""
     if offset == 0.0:
         return rec
@@ -230,6 +231,9 @@ def _shift(rec: Recording, offset: float) -> Recording:
     return Recording(
         t=rec.t, duty=rec.duty, channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=dict(rec.meta)
     )
+
+
+_shift = to_model_frame  # the short name of this module's calls
 
 
 def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, Any]:
@@ -279,10 +283,11 @@ def _sessions_and_prediction(
     rig: Rig, diag: Any, validation: list[Recording], held_out: list[Recording], *, theta_offset: float,
     sessions: Sequence[Sequence[Recording]] | None, session_labels: Sequence[str] | None, max_effects: int,
     seed: int, progress: Callable[[str], None] | None, predict: bool, drift_sigma: Mapping[str, float] | None,
-    optional: _Optional,
+    optional: _Optional, engine: tuple[int | None, str | None] = (1, None),
 ) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
-    """The session analysis (with ``sessions``) and the held-out prediction of :func:`run_gap`
-    (each optional: a failure is recorded in ``optional``)."""
+    """The session analysis (with ``sessions``, its cases run where ``engine`` = (workers,
+    scheduler) says) and the held-out prediction of :func:`run_gap` (each optional: a failure is
+    recorded in ``optional``)."""
     from aeropend_ident.gap.drift import predict_heldout, session_analysis
 
     say = progress or (lambda _msg: None)
@@ -291,7 +296,8 @@ def _sessions_and_prediction(
         say(f"sessions: {len(sessions)} sessions, leave-one-session-out and drift table")
         sess = optional.run("sessions", lambda: session_analysis(
             rig, [[_shift(r, theta_offset) for r in g] for g in sessions], diag.chosen, labels=session_labels,
-            channels=diag.channels or ("theta",), max_effects=max_effects, seed=seed, progress=progress))
+            channels=diag.channels or ("theta",), max_effects=max_effects, seed=seed, progress=progress,
+            workers=engine[0], scheduler=engine[1]))
         if drift_sigma is None and sess is not None and sess["drift_sigma"]:
             drift_sigma = sess["drift_sigma"]
     prediction = None
@@ -340,6 +346,7 @@ def _prediction_check(prediction: dict[str, Any] | None, test: list[dict[str, An
     return check
 
 
+@single_blas
 def run_gap(
     rig: Rig,
     fit: Sequence[Recording],
@@ -360,6 +367,8 @@ def run_gap(
     oracle: bool = False,
     drift_sigma: Mapping[str, float] | None = None,
     skip: Sequence[str] = (),
+    workers: int | None = 1,
+    scheduler: str | None = None,
 ) -> GapResult:
     """Where + which + after (module doc) for a nominal rig and fit / held-out recordings.
 
@@ -408,6 +417,9 @@ def run_gap(
         one with ``sessions``, else :data:`aeropend_ident.gap.drift.DRIFT_PRIOR`).
     skip : sequence of str
         Catalog effects left out of the diagnosis (``diagnose_effects(..., skip=)``).
+    workers, scheduler : int or None, str or None
+        Where the session analysis' diagnoses run (:func:`aeropend_ident.parallel.run_cases`): this
+        process (``workers`` = 1), a local Dask cluster (None: one worker per core) or ``scheduler``.
 
     Returns
     -------
@@ -420,15 +432,14 @@ def run_gap(
     aeropend_ident.gap.effects.GapError, aeropend_ident.gap.where.GapInputError
         Unusable recordings (no θ, NaNs, too short, constant input) or rig (before any result).
     """
+    from aeropend_ident.gap.drift import attainable
     from aeropend_ident.gap.effects import timing_effects
-    from aeropend_ident.gap.where import timing_lag_seen
     from aeropend_ident.gap.which import diagnose_effects
 
     say = progress or (lambda _msg: None)
     fit, held_out = list(fit), list(held_out)
     if not fit or not held_out:
-        raise GapInputError(f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} "
-                            "held out)")
+        raise GapInputError(f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} held)")
     say(f"where: nominal {rig.name} on {len(fit)} fit recording(s)")
     where = locate_gap(rig, fit, horizon=horizon, theta_offset=theta_offset)
     if validation is not None:
@@ -452,13 +463,11 @@ def run_gap(
         max_effects=max_effects, seed=seed, progress=progress,
         also_confirm=timing_effects(rig.family) if timing else (), skip=skip)
     corrected = diag.corrected_rig
-    from aeropend_ident.gap.drift import attainable
-
     optional = _Optional(say)
     sess, prediction = _sessions_and_prediction(
         rig, diag, validation, held_out, theta_offset=theta_offset, sessions=sessions,
         session_labels=session_labels, max_effects=max_effects, seed=seed, progress=progress,
-        predict=predict, drift_sigma=drift_sigma, optional=optional)
+        predict=predict, drift_sigma=drift_sigma, optional=optional, engine=(workers, scheduler))
     say("after: replaying the held-out recordings")
     overlays, test, w_nom, w_cor = _replay_held_out(rig, diag, corrected, held_out, theta_offset, horizon)
     check = _prediction_check(prediction, test)

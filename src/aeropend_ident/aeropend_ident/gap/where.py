@@ -77,6 +77,7 @@ from aeropend_ident.gap.effects import measurement_noise
 from aeropend_ident.greybox.baseline import measured_rate, residual_bins, residual_regions
 from aeropend_ident.greybox.fit import UniformData, error_metrics, initial_velocity, uniform_data
 from aeropend_ident.io.jsonutil import jsonable
+from aeropend_sim.compiled.plant import CompiledPlant
 from aeropend_sim.components import registry
 from aeropend_sim.components.xp import NUMPY
 from aeropend_sim.model import I_A, OMEGA, TAU_F, THETA, THETA_DOT, ModelError, PlantModel
@@ -505,6 +506,15 @@ def _ar_prewhiten(u: np.ndarray, order: int) -> np.ndarray:
     return a
 
 
+def lagged_products(x: np.ndarray, y: np.ndarray, m: int) -> np.ndarray:
+    """Σ_t x_t·y_{t+k} for k = −m..m (shape (2m + 1,)) of two signals of one length, by FFT
+    (:func:`scipy.signal.correlate`): the same sums as a loop of dot products over the lags, to
+    rounding, in O(N log N)."""
+    n = x.size
+    full = signal.correlate(y, x, mode="full", method="fft")
+    return full[n - 1 - m: n + m]
+
+
 def input_cross_correlation(
     u: np.ndarray, e: np.ndarray, dt: float, max_lag: float = MAX_LAG, order: int = PREWHITEN_ORDER
 ) -> dict[str, Any]:
@@ -544,12 +554,7 @@ def input_cross_correlation(
             "rho": [],
         }
     lags = np.arange(-m, m + 1)
-    rho = np.empty(lags.size)
-    for j, k in enumerate(lags):
-        if k >= 0:
-            rho[j] = float(u[: n - k] @ e[k:]) / (n * su * se)
-        else:
-            rho[j] = float(u[-k:] @ e[: n + k]) / (n * su * se)
+    rho = lagged_products(u, e, m) / (n * su * se)
     pos = rho[m:]
     s = float(n * np.sum(pos**2))
     p = float(stats.chi2.sf(s, m + 1))
@@ -612,14 +617,9 @@ def alignment_lag(
             "correlation_at_zero": 0.0,
             "at_search_limit": False,
         }
-    best, best_k, c0 = -math.inf, 0, 0.0
-    for k in range(-m, m + 1):
-        c = float(a[k:] @ b[: n - k]) if k >= 0 else float(a[: n + k] @ b[-k:])
-        c /= na * nb
-        if k == 0:
-            c0 = c
-        if c > best:
-            best, best_k = c, k
+    c = lagged_products(b, a, m) / (na * nb)
+    j = int(np.argmax(c))
+    best, best_k, c0 = float(c[j]), j - m, float(c[m])
     return {
         "lag_samples": int(best_k),
         "lag_s": float(best_k * dt),
@@ -823,6 +823,10 @@ def _short_horizon(
     h = max(2, round(horizon / data.dt))
     pred = np.empty(n)
     model = PlantModel(rig)
+    try:  # one compiled plant for every window (a window's replay equals simulate()'s bit for bit)
+        plant = CompiledPlant(rig, data.dt, model=model)
+    except (ValueError, ModelError) as exc:
+        raise GapInputError(f"short-horizon simulation of {data.source} failed: {exc}") from exc
     for k in range(0, n, h):
         stop = min(n, k + h)
         x0 = states[k].copy()
@@ -835,14 +839,12 @@ def _short_horizon(
         if stop - k < 2:
             pred[k] = x0[0]
             continue
-        try:
-            x = simulate(
-                rig, data.duty[k:stop], x0=x0, dt=data.dt, tau_before=float(data.duty[k - 1]) if k else 0.0
-            ).x
-        except (SimulationError, ModelError) as exc:
+        x, _u, failed = plant.replay(np.ascontiguousarray(data.duty[k:stop]), x0,
+                                     float(data.duty[k - 1]) if k else 0.0)
+        if failed >= 0:
             raise GapInputError(
-                f"short-horizon simulation of {data.source} at t = {data.t[k]:.3f} s failed: {exc}"
-            ) from exc
+                f"short-horizon simulation of {data.source} at t = {data.t[k]:.3f} s failed: the replay "
+                f"diverged at sample {failed} of the window (a state is not finite)")
         pred[k:stop] = x[:, 0]
     return pred - offset
 

@@ -83,6 +83,7 @@ from aeropend_ident.gap.effects import (
     measurement_noise,
     nominal_model_check,
 )
+from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.sindy.core import weak_matrices
@@ -160,17 +161,27 @@ RESIDUAL_NOISE_MAX = 2.0
 # ------------------------------------------------------------------------------ data
 @dataclass
 class Prepared:
-    """One validated recording: uniform time base, channels used, normalisation scales."""
+    """One validated recording: uniform time base, channels used, normalisation scales, and the
+    compiled plants its batched replays run on (:class:`aeropend_ident.greybox.batch.RigReplays`,
+    built on first use)."""
 
     rec: Recording
     dt: float
     duty: np.ndarray
     y: dict[str, np.ndarray]
     scale: dict[str, float]
+    _replays: RigReplays | None = field(default=None, repr=False, compare=False)
 
     @property
     def n(self) -> int:
         return int(self.duty.size)
+
+    @property
+    def replays(self) -> RigReplays:
+        """Batched replays of rig variants on this recording (:func:`replay_many`)."""
+        if self._replays is None:
+            self._replays = RigReplays(self.duty, self.dt, tau_before=float(self.duty[0]))
+        return self._replays
 
 
 def prepare(recordings: Sequence[Recording], channels: frozenset[str]) -> list[Prepared]:
@@ -206,6 +217,24 @@ def initial_value(y: np.ndarray, dt: float, window: float = INITIAL_WINDOW) -> f
     return float(coef[-1])
 
 
+def _initial_state(sim_rig: Rig, meas: MeasurementMap, prep: Prepared) -> np.ndarray:
+    """Initial model state (5,) of a free-run replay of ``prep`` (see :func:`replay`)."""
+    th = prep.y["theta"]
+    th0 = float(meas.to_model(th[:1])[0])
+    thd0 = initial_rate(th, prep.dt) / meas.theta_scale
+    i0, w0, tf0 = motor_equilibrium(sim_rig, float(prep.duty[0]))
+    if "i_a" in prep.y and sim_rig.effects.armature_inductance == "dynamic":
+        i0 = initial_value(prep.y["i_a"], prep.dt)
+    if "omega_rotor" in prep.y:
+        w0 = initial_value(prep.y["omega_rotor"], prep.dt)
+    if "v_a" in prep.y and sim_rig.effects.actuator_lag:
+        # the lag state from the recorded drive output (the stretch may start mid-transient)
+        model = PlantModel(sim_rig)
+        v0 = min(max(initial_value(prep.y["v_a"], prep.dt), 0.0), model.armature_voltage(1.0))
+        tf0 = model.duty_for_voltage(v0)
+    return np.array([th0, thd0, i0, w0, tf0])
+
+
 def replay(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarray]:
     """Free-run replay of a recording: simulated channels in the recording's frame.
 
@@ -213,30 +242,36 @@ def replay(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarr
     initial rate; the armature current and rotor speed start at their recorded values when those
     channels are recorded (a stretch cut from a longer run may begin mid-transient), otherwise at
     the steady state of the first duty cycle; the actuator lag state at the first duty cycle. The
-    model is then driven by the recorded duty cycle only.
+    model is then driven by the recorded duty cycle only. One row of :func:`replay_many` (the
+    diagnosis' sub-steps, so that every figure of a diagnosis comes from the same replays);
+    :func:`replay_reference` replays with :func:`aeropend_sim.simulate.simulate` and gives the
+    state too.
 
     Raises
     ------
     GapError
         If the simulation fails for this rig.
     """
-    th = prep.y["theta"]
-    th0 = float(meas.to_model(th[:1])[0])
-    thd0 = initial_rate(th, prep.dt) / meas.theta_scale
+    out = replay_many([(rig, meas)], prep)[0]
+    if out is None:
+        raise GapError(f"replay of {prep.rec.source or 'a recording'} with rig {rig.name!r} failed: the "
+                       "rig's initial state or its replay is not finite")
+    return out
+
+
+def replay_reference(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarray]:
+    """:func:`replay` by :func:`aeropend_sim.simulate.simulate` (the reference sub-steps), with the
+    model state (N, 5) as ``"_x"``.
+
+    Raises
+    ------
+    GapError
+        If the simulation fails for this rig.
+    """
     sim_rig = _sim_rig(rig)
     try:
-        i0, w0, tf0 = motor_equilibrium(sim_rig, float(prep.duty[0]))
-        if "i_a" in prep.y and sim_rig.effects.armature_inductance == "dynamic":
-            i0 = initial_value(prep.y["i_a"], prep.dt)
-        if "omega_rotor" in prep.y:
-            w0 = initial_value(prep.y["omega_rotor"], prep.dt)
-        if "v_a" in prep.y and sim_rig.effects.actuator_lag:
-            # the lag state from the recorded drive output (the stretch may start mid-transient)
-            model = PlantModel(sim_rig)
-            v0 = min(max(initial_value(prep.y["v_a"], prep.dt), 0.0), model.armature_voltage(1.0))
-            tf0 = model.duty_for_voltage(v0)
-        traj = simulate(sim_rig, prep.duty, x0=np.array([th0, thd0, i0, w0, tf0]), dt=prep.dt,
-                        tau_before=float(prep.duty[0]))
+        x0 = _initial_state(sim_rig, meas, prep)
+        traj = simulate(sim_rig, prep.duty, x0=x0, dt=prep.dt, tau_before=float(prep.duty[0]))
     except (SimulationError, ModelError, IdentificationError, ValueError) as exc:
         raise GapError(
             f"replay of {prep.rec.source or 'a recording'} with rig {rig.name!r} failed: {exc}") from exc
@@ -248,18 +283,69 @@ def replay(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarr
     return out
 
 
+def replay_many(rows: Sequence[tuple[Rig, MeasurementMap]], prep: Prepared,
+                channels: Sequence[str] | None = None) -> list[dict[str, np.ndarray] | None]:
+    """Free-run replays of many (rig, measurement map) rows on one recording, in one batch.
+
+    What :func:`replay` gives for each row (without ``"_x"``), computed by
+    :attr:`Prepared.replays` (:mod:`aeropend_ident.greybox.batch`: one compiled plant per model
+    structure, the fit sub-steps); ``channels`` default to the recording's compared channels.
+    A row whose initial state or replay fails is None.
+    """
+    names = tuple(prep.y) if channels is None else tuple(channels)
+    rigs, x0 = [], np.zeros((len(rows), 5))
+    for b, (rig, meas) in enumerate(rows):
+        sim_rig = _sim_rig(rig)
+        rigs.append(sim_rig)
+        try:
+            x0[b] = _initial_state(sim_rig, meas, prep)
+        except (ModelError, IdentificationError, ValueError):
+            x0[b] = np.nan
+    sim, ok = prep.replays.run(rigs, x0, names)
+    out: list[dict[str, np.ndarray] | None] = []
+    for b, (_rig, meas) in enumerate(rows):
+        if not ok[b]:
+            out.append(None)
+            continue
+        row = {c: sim[c][b] for c in names}
+        if "theta" in row:
+            row["theta"] = meas.to_recorded(row["theta"])
+        out.append(row)
+    return out
+
+
 def residuals(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> np.ndarray:
     """Normalised output errors of all recordings and channels, concatenated.
 
     Each channel's error is divided by the channel's range and by sqrt(N) of its recording, so
     every recording/channel pair weighs equally (the sum of squares is a sum of squared NRMSEs).
+
+    Raises
+    ------
+    GapError
+        If the replay fails on a recording.
     """
-    parts = []
+    r = residuals_many([(rig, meas)], preps)[0]
+    if not np.all(np.isfinite(r)):
+        raise GapError(f"replay with rig {rig.name!r} failed on "
+                       f"{', '.join(p.rec.source or 'a recording' for p in preps)}")
+    return r
+
+
+def residuals_many(rows: Sequence[tuple[Rig, MeasurementMap]], preps: Sequence[Prepared]) -> np.ndarray:
+    """:func:`residuals` of many (rig, measurement map) rows, shape (B, M): one batched replay per
+    recording (:func:`replay_many`); a row whose replay fails on some recording is NaN there."""
+    blocks = []
     for p in preps:
-        sim = replay(rig, meas, p)
-        for c, y in p.y.items():
-            parts.append((sim[c] - y) / (p.scale[c] * math.sqrt(p.n)))
-    return np.concatenate(parts)
+        sims = replay_many(rows, p)
+        m = len(p.y) * p.n
+        block = np.full((len(rows), m), np.nan)
+        for b, sim in enumerate(sims):
+            if sim is not None:
+                block[b] = np.concatenate([(sim[c] - y) / (p.scale[c] * math.sqrt(p.n))
+                                           for c, y in p.y.items()])
+        blocks.append(block)
+    return np.concatenate(blocks, axis=1)
 
 
 # ------------------------------------------------------------------------------ fitting
@@ -378,41 +464,8 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
 
     lo = np.array([_to_z(c.range, c.range.lower) for c in coords])
     hi = np.array([_to_z(c.range, c.range.upper) for c in coords])
-    n_res = sum(len(p.y) * p.n for p in preps)
-    penalty = 10.0 / math.sqrt(max(n_res, 1))
-    nfev = 0
-    cache: dict[bytes, np.ndarray] = {}
-
-    def fun(z: np.ndarray) -> np.ndarray:
-        nonlocal nfev
-        key = np.asarray(z, dtype=float).tobytes()
-        if key in cache:
-            return cache[key]
-        nfev += 1
-        try:
-            r_rig, r_meas, _ = _assemble(rig, coords, z)
-            r = residuals(r_rig, r_meas, preps)
-            if not np.all(np.isfinite(r)):
-                r = np.full(n_res, penalty)
-        except (GapError, ValueError):
-            r = np.full(n_res, penalty)
-        if len(cache) > 256:
-            cache.clear()
-        cache[key] = r
-        return r
-
-    def jac(z: np.ndarray) -> np.ndarray:
-        f0 = fun(z)
-        out = np.empty((f0.size, z.size))
-        for j in range(z.size):
-            h = FD_STEP if z[j] + FD_STEP <= hi[j] else -FD_STEP
-            zz = np.array(z, dtype=float)
-            zz[j] += h
-            out[:, j] = (fun(zz) - f0) / h
-        return out
-
-    def cost(z: np.ndarray) -> float:
-        return float(np.sum(fun(z) ** 2))
+    obj = _Objective(rig, coords, preps, hi)
+    funs, fun, jac = obj.rows, obj, obj.jacobian
 
     candidates = [z_of({})] + [z_of(s) for s in starts]
     if scan and len(coords) == 1:
@@ -421,7 +474,7 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
         for s in _thrust_law_starts(ctx, base["thrust_law"]):
             candidates.append(z_of({"thrust_law": s}))
     candidates = [np.clip(c, lo, hi) for c in candidates]
-    costs = [cost(c) for c in candidates]
+    costs = [float(np.sum(r**2)) for r in funs(candidates)]
     order = np.argsort(costs)
     picked: list[np.ndarray] = []
     width = np.maximum(hi - lo, 1e-12)
@@ -456,7 +509,66 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
         span = c.range.upper - c.range.lower
         std.setdefault(c.effect.name, {})[c.param.name] = float(abs(v) * sd if c.range.log else sd * span)
     return EffectFit(effects=tuple(effects), values=vals, std=std, rig=new, meas=meas,
-                     sse=float(np.sum(best.fun**2)), n=int(best.fun.size), nfev=nfev)
+                     sse=float(np.sum(best.fun**2)), n=int(best.fun.size), nfev=obj.nfev)
+
+
+class _Objective:
+    """The normalised output error of :func:`fit_effects` and its forward-difference Jacobian.
+
+    Residuals of many coordinate vectors are one batched replay per recording
+    (:func:`residuals_many`); evaluated vectors are cached (the Jacobian's base point is the
+    optimiser's last evaluation). A vector whose effects cannot be applied or whose replay fails
+    gets a constant penalty residual. ``nfev`` counts the vectors replayed.
+    """
+
+    def __init__(self, rig: Rig, coords: Sequence[_Coord], preps: Sequence[Prepared], hi: np.ndarray) -> None:
+        self.rig, self.coords, self.preps, self.hi = rig, list(coords), list(preps), hi
+        self.n_res = sum(len(p.y) * p.n for p in preps)
+        self.penalty = 10.0 / math.sqrt(max(self.n_res, 1))
+        self.nfev = 0
+        self._cache: dict[bytes, np.ndarray] = {}
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        return self.rows([z])[0]
+
+    def rows(self, zs: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Residuals of many coordinate vectors: the new ones in one batched replay."""
+        keys = [np.asarray(z, dtype=float).tobytes() for z in zs]
+        got = {k: self._cache[k] for k in keys if k in self._cache}
+        new = [k for k in dict.fromkeys(keys) if k not in got]
+        if new:
+            self.nfev += len(new)
+            rows, where = [], []
+            for k in new:
+                got[k] = np.full(self.n_res, self.penalty)
+                try:
+                    r_rig, r_meas, _ = _assemble(self.rig, self.coords, np.frombuffer(k))
+                except (GapError, ValueError):
+                    continue
+                rows.append((r_rig, r_meas))
+                where.append(k)
+            for k, r in zip(where, residuals_many(rows, self.preps) if rows else (), strict=True):
+                if np.all(np.isfinite(r)):
+                    got[k] = r
+            if len(self._cache) + len(new) > 256:
+                self._cache.clear()
+            self._cache.update({k: got[k] for k in new})
+        return [got[k] for k in keys]
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        """Forward differences with the absolute step :data:`FD_STEP` (backward at the upper
+        bound): 1 + n_p residuals in one batched replay."""
+        steps = [FD_STEP if z[j] + FD_STEP <= self.hi[j] else -FD_STEP for j in range(z.size)]
+        shifted = []
+        for j, h in enumerate(steps):
+            zz = np.array(z, dtype=float)
+            zz[j] += h
+            shifted.append(zz)
+        f0, *fs = self.rows([z, *shifted])
+        out = np.empty((f0.size, z.size))
+        for j, (h, f) in enumerate(zip(steps, fs, strict=True)):
+            out[:, j] = (f - f0) / h
+        return out
 
 
 # ------------------------------------------------------------------------------ metrics
@@ -605,7 +717,7 @@ def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.nda
         ``"omega_rotor"`` [rad/s²], ``"v_a"`` [V].
     """
     model = PlantModel(_sim_rig(rig))
-    sim = replay(rig, meas, prep)
+    sim = replay_reference(rig, meas, prep)
     x = np.array(sim["_x"], dtype=float)
     s = meas.theta_scale
     x[:, 0] = meas.to_model(prep.y["theta"])

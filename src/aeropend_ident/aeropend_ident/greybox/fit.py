@@ -1,14 +1,18 @@
 """Grey-box output-error identification of a rig's pendulum and actuator parameters.
 
 The plant model of :mod:`aeropend_sim.model` is fitted to a recording by **output error**: the
-model is simulated in free run (no state resets) with the recording's duty-cycle input through
-:func:`aeropend_sim.simulate.simulate`, and the selected parameters minimise
+model is simulated in free run (no state resets) with the recording's duty-cycle input on the
+compiled backend (the fit sub-steps of :func:`aeropend_ident.greybox.batch.fit_substeps`), and the
+selected parameters minimise
 
     ½ Σ_k (θ_sim(t_k) − θ_rec(t_k))²          [rad²]
 
-with :func:`scipy.optimize.least_squares` (trust-region reflective, bounds, finite-difference
-Jacobian). Only the angle is compared, because most real logs (see ``shared/data/real``) carry
-nothing else; other channels of the recording are ignored.
+with :func:`scipy.optimize.least_squares` (trust-region reflective, bounds, forward-difference
+Jacobian). Each residual evaluation replays the compiled plant, and each Jacobian replays its
+1 + n_p parameter sets in one batch (:mod:`aeropend_ident.greybox.batch`, which keeps the compiled
+plant of the recording across evaluations); numba gives no exact Jacobian. Only the angle is
+compared, because most real logs (see ``shared/data/real``) carry nothing else; other channels of
+the recording are ignored.
 
 Parameters are addressed as ``"section.field"`` of :class:`aeropend_sim.params.Rig` (e.g.
 ``"pendulum.c_over_J"``) plus :data:`THETA_OFFSET`, the angle offset between the recording's
@@ -72,6 +76,7 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 
 from aeropend_ident.errors import IdentificationError
+from aeropend_ident.greybox.batch import RigReplays, single_blas
 from aeropend_ident.io.recording_input import uniform_grid
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect
@@ -920,6 +925,7 @@ def _parameter_estimates(specs: Sequence[ParameterSpec], sol: Any, lo_z: np.ndar
     return estimates
 
 
+@single_blas
 def fit_greybox(
     recording: Recording | UniformData,
     rig: Rig,
@@ -1022,34 +1028,15 @@ def fit_greybox(
         values = {s.name: s.from_z(zi) for s, zi in zip(specs, z[:n_p], strict=True)}
         return apply_parameters(rig0, values, off0)
 
-    def make_residual(windows: list[tuple[int, int]], with_x0: bool) -> Any:
-        parts = [_window(data, a, b) for a, b in windows]
-        velocities = [initial_velocity(p.theta, p.dt) for p in parts]
-        measured = np.concatenate([p.theta for p in parts])
-
-        def residual(z: np.ndarray) -> np.ndarray:
-            try:
-                r_rig, r_off = candidate(z)
-                if with_x0:
-                    d_th, d_thd = x0_correction(z)
-                    th = free_run_theta(r_rig, data, r_off, thd0_est + d_thd, th0_est + d_th)
-                else:
-                    th = np.concatenate(
-                        [free_run_theta(r_rig, p, r_off, v) for p, v in zip(parts, velocities, strict=True)]
-                    )
-            except IdentificationError:
-                return np.full(measured.size, penalty)
-            r = th - measured
-            if not np.all(np.isfinite(r)):
-                return np.full(measured.size, penalty)
-            return r
-
-        return residual
+    def make_residual(windows: list[tuple[int, int]], with_x0: bool) -> _Residuals:
+        return _Residuals(data, windows, with_x0, candidate, x0_correction, (th0_est, thd0_est), penalty,
+                          diff_step, (lo, hi))
 
     def solve(residual: Any, z_start: np.ndarray, lo_z: np.ndarray, hi_z: np.ndarray, t: float = tol) -> Any:
+        residual.bounds = (lo_z, hi_z)
         return least_squares(
-            residual, z_start, bounds=(lo_z, hi_z), x_scale=1.0, method="trf", jac="2-point",
-            diff_step=diff_step, ftol=t, xtol=t, gtol=t, max_nfev=max_nfev, verbose=verbose,
+            residual, z_start, bounds=(lo_z, hi_z), x_scale=1.0, method="trf", jac=residual.jacobian,
+            ftol=t, xtol=t, gtol=t, max_nfev=max_nfev, verbose=verbose,
         )
 
     sol, r0, nfev, njev, th0, thd0 = _solve_stages(
@@ -1065,6 +1052,84 @@ def fit_greybox(
         message=str(sol.message), metrics=error_metrics(data.theta, theta_fit), data=data,
         theta_fit=theta_fit, elapsed=time.perf_counter() - t_start, initial_state=(th0, thd0),
     )
+
+
+class _Residuals:
+    """The output-error residual of :func:`fit_greybox` on a set of windows, and its Jacobian.
+
+    ``candidate(z)`` gives the rig and offset of a coordinate vector, ``x0_correction(z)`` the
+    initial-state correction (with ``with_x0``); each window is replayed by its own
+    :class:`~aeropend_ident.greybox.batch.RigReplays` (``tau_before`` 0, as
+    :func:`free_run_theta`); residuals of many vectors are one batched replay per window. A vector
+    whose rig, initial state or replay fails gets ``penalty`` everywhere.
+    """
+
+    def __init__(self, data: UniformData, windows: list[tuple[int, int]], with_x0: bool,
+                 candidate: Callable[[np.ndarray], tuple[Rig, float]],
+                 x0_correction: Callable[[np.ndarray], tuple[float, float]], estimates: tuple[float, float],
+                 penalty: float, diff_step: float, bounds: tuple[np.ndarray, np.ndarray]) -> None:
+        self.parts = [_window(data, a, b) for a, b in windows]
+        self.velocities = [initial_velocity(p.theta, p.dt) for p in self.parts]
+        self.measured = np.concatenate([p.theta for p in self.parts])
+        self.replays = [RigReplays(p.duty, p.dt) for p in self.parts]
+        self.with_x0, self.candidate, self.x0_correction = with_x0, candidate, x0_correction
+        self.th0, self.thd0 = estimates
+        self.penalty, self.diff_step, self.bounds = penalty, diff_step, bounds
+        self._cache: dict[bytes, np.ndarray] = {}
+
+    def __call__(self, z: np.ndarray) -> np.ndarray:
+        return self.rows([z])[0]
+
+    def rows(self, zs: Sequence[np.ndarray]) -> list[np.ndarray]:
+        """Residuals of many coordinate vectors, the new ones in one batched replay per window."""
+        keys = [np.asarray(z, dtype=float).tobytes() for z in zs]
+        new = [k for k in dict.fromkeys(keys) if k not in self._cache]
+        if new:
+            if len(self._cache) > 64:
+                self._cache.clear()
+            self._cache.update(zip(new, self._compute([np.frombuffer(k) for k in new]), strict=True))
+        return [self._cache[k] for k in keys]
+
+    def _compute(self, zs: list[np.ndarray]) -> list[np.ndarray]:
+        cands = []
+        for b, z in enumerate(zs):
+            try:
+                d_x0 = self.x0_correction(z) if self.with_x0 else (0.0, 0.0)
+                cands.append((b, *self.candidate(z), *d_x0))
+            except IdentificationError:
+                continue
+        sims = [np.full((len(zs), p.theta.size), np.nan) for p in self.parts]
+        for sim, p, v, rep in zip(sims, self.parts, self.velocities, self.replays, strict=True):
+            rows, x0 = [], []
+            for b, r_rig, r_off, d_th, d_thd in cands:
+                try:
+                    x0.append(initial_state(r_rig, p.theta, p.duty, p.dt, r_off,
+                                            self.thd0 + d_thd if self.with_x0 else v,
+                                            self.th0 + d_th if self.with_x0 else None))
+                except IdentificationError:
+                    continue
+                rows.append((b, r_rig, r_off))
+            if rows:
+                th, _ok = rep.run([r for _, r, _ in rows], np.array(x0), ("theta",))
+                for j, (b, _r, r_off) in enumerate(rows):
+                    sim[b] = th["theta"][j] - r_off
+        out = []
+        for b in range(len(zs)):
+            r = np.concatenate([sim[b] for sim in sims]) - self.measured
+            out.append(r if np.all(np.isfinite(r)) else np.full(self.measured.size, self.penalty))
+        return out
+
+    def jacobian(self, z: np.ndarray) -> np.ndarray:
+        """scipy's "2-point" forward differences (relative step ``diff_step``, one-sided into the
+        bounds), the 1 + n_z residuals in one batched replay per window."""
+        z = np.asarray(z, dtype=float)
+        lo_z, hi_z = self.bounds
+        h = self.diff_step * np.where(z >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(z))
+        h = np.where((z + h > hi_z) & (z - h >= lo_z), -h, h)
+        h = (z + h) - z
+        shifted = [z + np.where(np.arange(z.size) == j, h[j], 0.0) for j in range(z.size)]
+        f0, *fs = self.rows([z, *shifted])
+        return np.column_stack([(f - f0) / hj for f, hj in zip(fs, h, strict=True)])
 
 
 def _window(data: UniformData, start: int, stop: int) -> UniformData:

@@ -1,0 +1,165 @@
+"""Independent cases on a Dask cluster: the benches, ``gap --sessions`` and ``gap-batch``.
+
+:func:`run_cases` maps a function over independent cases (benchmark cases, sessions, recordings
+of an archive) on a ``dask.distributed`` cluster and yields the results as they finish, with a
+progress bar (:mod:`aeropend_ident.progress`). By default it starts a
+:class:`distributed.LocalCluster` on this machine (``workers`` processes of one thread each, on
+the loopback interface, its status page on a free port) and closes it afterwards; with ``scheduler="tcp://HOST:8786"``
+it uses a lab's running cluster instead (``dask scheduler`` on one machine, ``dask worker
+tcp://HOST:8786`` on each of the others: docs/gap.md, "Batches on a cluster").
+
+Worker processes:
+
+* are **spawned**, not forked (distributed's default): a numba thread pool or an OpenMP runtime
+  of the parent is never copied into a child, so workers cannot hang on a lock held at fork time;
+* replay on one thread each (:data:`aeropend_ident.greybox.batch.THREADS_ENV` = 1) and keep BLAS to
+  one thread (threadpoolctl): a worker per core, nothing oversubscribed;
+* read the compiled simulator from the same disk cache as this process (``AEROPEND_CACHE_DIR``,
+  :mod:`aeropend_sim.compiled.source`), so a worker's first case loads the compiled plant in a
+  fraction of a second instead of recompiling it (≈ 5 s per actuator family); on a lab cluster
+  point ``AEROPEND_CACHE_DIR`` of the workers at a shared or pre-warmed folder.
+
+A case function is sent by reference: an importable module's function by its module name, a
+function of a script (a bench run as ``python bench/x.py``) by its file, which the worker imports
+with the script's folder on its path (so the script's sibling modules import too). The case
+arguments and results travel by pickle.
+
+No rclpy import: this module runs without ROS.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import inspect
+import os
+import sys
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+from aeropend_ident.greybox.batch import THREADS_ENV, one_blas_thread
+from aeropend_ident.progress import bar
+
+#: Environment of every worker of a local cluster: one replay thread and one BLAS/OpenMP thread.
+WORKER_ENV = {THREADS_ENV: "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def default_workers() -> int:
+    """Workers of a local cluster: one per available core."""
+    return max(1, len(os.sched_getaffinity(0)))
+
+
+def _reference(func: Callable[..., Any]) -> tuple[str, str, str]:
+    """(module name, file, qualified name) that a worker imports ``func`` by."""
+    name = func.__qualname__
+    if "<" in name:
+        raise ValueError(f"{name!r} is not a module-level function; a cluster worker cannot import it")
+    return func.__module__, str(Path(inspect.getfile(func)).resolve()), name
+
+
+def _resolve(module: str, file: str) -> Any:
+    """The case function's module in a worker: by name, or a script by its file."""
+    if module != "__main__":
+        try:
+            return importlib.import_module(module)
+        except ImportError:
+            pass
+    stem = "_aeropend_case_" + Path(file).stem
+    if stem in sys.modules:
+        return sys.modules[stem]
+    folder = str(Path(file).parent)
+    if folder not in sys.path:
+        sys.path.insert(0, folder)
+    spec = importlib.util.spec_from_file_location(stem, file)
+    if spec is None or spec.loader is None:
+        raise ImportError(f"cannot import the case function's script {file}")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[stem] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def call_case(ref: tuple[str, str, str], case: Any) -> Any:
+    """Run one case in a worker: the worker settings of the module doc, then ``func(case)``."""
+    for key, value in WORKER_ENV.items():
+        os.environ.setdefault(key, value)
+    module, file, name = ref
+    func: Any = _resolve(module, file)
+    for part in name.split("."):
+        func = getattr(func, part)
+    with one_blas_thread():
+        return func(case)
+
+
+def _cluster(workers: int, scheduler: str | None) -> Any:
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        return Client(scheduler), None
+    env = dict(WORKER_ENV)
+    if os.environ.get("AEROPEND_CACHE_DIR"):
+        env["AEROPEND_CACHE_DIR"] = os.environ["AEROPEND_CACHE_DIR"]
+    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                           dashboard_address=":0", env=env)
+    return Client(cluster), cluster
+
+
+def run_cases(func: Callable[[Any], Any], cases: Sequence[Any], *, workers: int | None = None,
+              scheduler: str | None = None, desc: str = "cases", quiet: bool = False
+              ) -> Iterator[tuple[int, Any]]:
+    """Run ``func(case)`` for every case on a Dask cluster; yield ``(index, result)`` as they finish.
+
+    Parameters
+    ----------
+    func : callable
+        A module-level function of one argument (module doc: sent by reference).
+    cases : sequence
+        Picklable case descriptions.
+    workers : int, optional
+        Worker processes of the local cluster (default one per core); 1 without ``scheduler`` runs
+        the cases in this process, one after the other (no cluster); ignored with ``scheduler``.
+    scheduler : str, optional
+        Address of a running scheduler (``tcp://host:8786``) instead of a local cluster.
+    desc : str
+        Label of the progress bar.
+    quiet : bool
+        No progress bar.
+
+    Raises
+    ------
+    ValueError
+        If ``func`` cannot be sent by reference, or ``workers`` < 1.
+    Exception
+        A case's own exception, re-raised here (catch inside ``func`` to record failures as
+        results instead).
+    """
+    from distributed import as_completed
+
+    ref = _reference(func)
+    n = default_workers() if workers is None else int(workers)
+    if n < 1:
+        raise ValueError(f"workers = {workers!r}; expected >= 1")
+    if not cases:
+        return
+    if scheduler is None and n == 1:  # in this process, one case after the other
+        with bar(len(cases), desc, quiet=quiet, unit="case") as progress:
+            for i, case in enumerate(cases):
+                result = func(case)
+                progress.update(1)
+                yield i, result
+        return
+    client, cluster = _cluster(n, scheduler)
+    progress = bar(len(cases), desc, quiet=quiet, unit="case")
+    try:
+        futures = {client.submit(call_case, ref, case, pure=False): i for i, case in enumerate(cases)}
+        for fut in as_completed(futures):
+            i = futures[fut]
+            result = fut.result()
+            progress.update(1)
+            yield i, result
+    finally:
+        progress.close()
+        client.close()
+        if cluster is not None:
+            cluster.close()

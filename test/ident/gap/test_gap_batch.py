@@ -1,0 +1,106 @@
+"""``gap-batch``: sessions of an archive, one ``gap`` report each on a local Dask cluster, the drift table.
+
+Three sessions of the thesis rig at 100 Hz (noisy θ only), the third with a 25 % larger thrust
+coefficient K_q (a new propeller between sessions): the batch runs ``gap`` on each session as a
+case of a LocalCluster of two workers, and the drift table across sessions finds the change of the
+thrust-to-weight ratio, with its size.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from aeropend_ident.archive import MANIFEST, find_sessions
+from aeropend_ident.cli.gap_batch import main
+from aeropend_ident.errors import GapCliError
+from aeropend_ident.io.bag_writer import write_bag
+from aeropend_sim.excitation import aprbs
+from aeropend_sim.params import load_rig
+from aeropend_sim.recording import Recording
+from aeropend_sim.simulate import simulate
+
+DT = 0.01
+NOMINAL = load_rig("thesis_rig")
+#: K_q of the third session over the nominal (the drift the table must find).
+K_Q_FACTOR = 1.25
+
+
+def _session(seed: int, k_q: float = 1.0) -> Recording:
+    rig = NOMINAL.with_effects(sensor_noise=True)
+    if k_q != 1.0:
+        rig = rig.with_params("thrust", K_q=NOMINAL.thrust.K_q * k_q)
+    d = aprbs(24.0, lo=0.3, hi=0.8, min_hold=0.3, max_hold=1.5, seed=seed, dt=DT).duty.copy()
+    d[:50] = 0.0
+    return Recording.from_trajectory(simulate(rig, d, dt=DT, seed=seed), channels=("theta",),
+                                     source=f"session seed {seed}")
+
+
+@pytest.fixture(scope="module")
+def archive(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("archive")
+    for name, seed, k_q in (("mon", 11, 1.0), ("tue", 12, 1.0), ("wed", 13, K_Q_FACTOR)):
+        write_bag(_session(seed, k_q), root / name, rig_name="thesis_rig")
+    (root / "notes.txt").write_text("lab notes, not a recording\n")
+    return root
+
+
+def test_sessions_are_the_recordings_of_the_archive_or_its_manifest(archive, tmp_path):
+    sessions, skipped = find_sessions(archive)
+    assert [s.name for s in sessions] == ["mon", "tue", "wed"]
+    assert all(len(s.recordings) == 1 and not s.held_out for s in sessions)
+    assert skipped == ["notes.txt: not a bag folder, .mcap/.db3 file or CSV log"]
+    # a manifest groups recordings into sessions and may name held-out recordings
+    (tmp_path / MANIFEST).write_text(
+        f"sessions:\n  - name: early week\n    recordings: ['{archive}/mon', '{archive}/tue']\n"
+        f"    held_out: ['{archive}/wed']\n")
+    (s,), _ = find_sessions(tmp_path)
+    assert s.name == "early_week" and len(s.recordings) == 2 and s.held_out == (str(archive / "wed"),)
+    (tmp_path / MANIFEST).write_text("sessions:\n  - recordings: [missing.mcap]\n")
+    with pytest.raises(GapCliError, match=r"missing\.mcap.*does not exist"):
+        find_sessions(tmp_path)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(GapCliError, match="holds no recording"):
+        find_sessions(empty)
+
+
+def test_bad_inputs_exit_2_with_one_line(archive, tmp_path, capsys):
+    assert main([str(tmp_path / "nope"), "--rig", "thesis_rig", "-o", str(tmp_path / "o1")]) == 2
+    assert capsys.readouterr().err.strip().startswith("gap-batch: error: archive")
+    assert main([str(archive), "--rig", "no_such_rig", "-o", str(tmp_path / "o2")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("gap-batch: error:") and "no_such_rig" in err and "\n" not in err
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "mine.txt").write_text("x")
+    assert main([str(archive), "--rig", "thesis_rig", "-o", str(busy)]) == 2
+    assert "not empty" in capsys.readouterr().err
+    assert (busy / "mine.txt").read_text() == "x"
+
+
+def test_batch_on_a_local_cluster_reports_each_session_and_the_drift(archive, tmp_path, capsys):
+    out = tmp_path / "batch"
+    assert main([str(archive), "--rig", "thesis_rig", "-o", str(out), "--workers", "2", "-q"]) == 0
+    printed = capsys.readouterr().out
+    doc = json.loads((out / "batch.json").read_text())
+    assert [r["session"] for r in doc["rows"]] == ["mon", "tue", "wed"]
+    for r in doc["rows"]:
+        assert r["exit"] == 0, r
+        report = json.loads((out / r["session"] / "report.json").read_text())
+        assert report["which"]["chosen"] == r["chosen"]
+        assert r["nrmse_after"] <= r["nrmse_before"] + 1e-12
+    assert doc["meta"]["engine"] == "LocalCluster" and doc["meta"]["workers"] == 2
+    # the thrust path drifts between sessions. With θ alone a thrust change is split between K_q and
+    # mgd/J (both set the angle a duty holds); what the data fix is the thrust-to-weight ratio
+    # K_q/(mgd/J): 25 % higher on the third session, the same on the first two
+    drift = doc["drift"]
+    assert drift["sessions"] == ["mon", "tue", "wed"]
+    assert drift["drifting"], drift["rows"]
+    row = {r["effect"]: r["values"] for r in drift["rows"]}
+    ratio = [k / g for k, g in zip(row["thrust_coefficient"], row["gravity"], strict=True)]
+    assert abs(ratio[1] / ratio[0] - 1.0) < 0.03
+    assert abs(ratio[2] / ratio[0] - K_Q_FACTOR) < 0.05 * K_Q_FACTOR
+    assert "| wed |" in printed and "Drift across sessions" in (out / "drift.md").read_text()
