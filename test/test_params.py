@@ -100,3 +100,21 @@ def test_with_params_validates():
         rig.with_params("motor", R=2.0)
     with pytest.raises(RigFileError, match="must be > 0"):
         rig.with_params("motor", L_a=0.0)
+
+
+@pytest.mark.parametrize("family", ["dc_hbridge", "voltage_amplifier", "esc"])
+def test_a_rig_unpickles_in_a_fresh_process(family):
+    """A rig sent to another process (a Dask worker of ``gap-batch``, a process pool) unpickles there:
+    its section classes are generated on first use, so the fresh process must build them by name
+    (reproducer: gap-batch's workers died with ``Can't get attribute 'DcHbridgeActuatorParams'``)."""
+    import pickle
+    import subprocess
+    import sys
+
+    from component_rigs import rig
+
+    r = rig(family)
+    code = ("import pickle, sys; r = pickle.loads(sys.stdin.buffer.read()); "
+            "print(type(r.actuator).__name__, r == pickle.loads(pickle.dumps(r)))")
+    out = subprocess.run([sys.executable, "-c", code], input=pickle.dumps(r), capture_output=True, check=True)
+    assert out.stdout.decode().split() == [type(r.actuator).__name__, "True"]

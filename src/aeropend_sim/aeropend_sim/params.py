@@ -94,6 +94,26 @@ def section_class(family: str, section: str) -> type:
     return _register(make_dataclass(name, specs, frozen=True))
 
 
+def __getattr__(name: str) -> type:
+    """Reach a generated section class by name in a process that has not built it yet (PEP 562).
+
+    A rig unpickled in another process (a Dask worker, a process pool) names its section classes as
+    ``aeropend_sim.params.<Family><Section>Params``; they are made on first use by
+    :func:`section_class`, so a fresh process builds them here.
+
+    Raises
+    ------
+    AttributeError
+        When ``name`` is no family's section class.
+    """
+    if name.endswith("Params") and not name.startswith("_"):
+        for fam in registry.families():
+            for section in SECTIONS:
+                if f"{_camel(fam.name)}{_camel(section)}Params" == name:
+                    return section_class(fam.name, section)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def _effects_post_init(self: Any) -> None:
     for e in registry.effects():
         v = getattr(self, e.name)
