@@ -12,15 +12,25 @@ Every recording argument of ``compare``, ``gap``, ``baseline`` and ``identify`` 
 So recordings of different formats can be mixed in one call. Channels a tool does not use (the
 extra channels: a second axis, a closed loop's reference, ...) are kept in the recording and
 ignored; :func:`ignored_channels` says which, for the tools' summaries. :func:`load_and_split` reads the
-``gap`` tool's recordings and makes its held-out design (:mod:`aeropend_ident.io.split`);
-:func:`uniform_grid` / :func:`uniform_recording` put a recording on a uniform time grid.
+``gap`` tool's recordings and makes its held-out design (:mod:`aeropend_ident.io.split`).
+
+**Timing.** :func:`uniform_recording` is the one resampling of every command (``baseline``,
+``identify``, ``gap``, ``compare``, ``csv_import --resample``) and of the fits (the grey-box
+:func:`aeropend_ident.greybox.fit.uniform_data`, the gap diagnosis' channels): a lab's logger
+jitters, drops rows and pauses, and none of that is refused. The rule (:data:`RESAMPLING_RULE`):
+grid step = the median interval; the command and the reference held (zero-order hold), measured
+channels interpolated linearly, a quantised channel (:func:`detect_quantum`) taken at its nearest
+sample (not smoothed); jitter, dropped rows (intervals up to :data:`GAP_STEPS` steps) and gaps
+(longer intervals) are reported in one line (:class:`Resampling`, :func:`resampling_notes`).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -146,26 +156,161 @@ def ignored_channels(recs: Sequence[Recording], used: str = "") -> str:
     return f"ignored channels (not used by this tool{uses}): {names} (in {', '.join(dict.fromkeys(where))})"
 
 
-def uniform_recording(rec: Recording) -> Recording:
-    """The recording on a uniform grid (θ, channels linear, duty and reference zero-order hold) if it is not
-    already (extra channels kept).
+#: Relative deviation of a sample interval from the grid step within which a log counts as uniform
+#: (no resampling).
+UNIFORM_TOLERANCE = 1e-3
+#: Intervals of up to this many grid steps are dropped rows (their samples are filled on the grid);
+#: longer ones are gaps, reported with where they are and how long.
+GAP_STEPS = 5.0
+#: Intervals shorter than this many grid steps are the logger's jitter about the grid step.
+JITTER_STEPS = 1.5
 
-    What the replaying tools (``gap``, ``compare``) need: θ and the duty cycle, finite values, time
-    stamps in order. The grid period is the median interval; a recording already on that grid
-    (:func:`uniform_grid`) is returned unchanged. A constant input is
-    accepted here (a step from rest at t = 0 is a valid recording to compare on); ``gap`` refuses
-    it itself.
+
+@dataclass(frozen=True)
+class Resampling:
+    """What :func:`uniform_recording` did to a recording's time base (the report line of every command).
+
+    Attributes
+    ----------
+    source : str
+        The recording.
+    dt : float
+        Grid step [s]: the median sample interval (or the one asked for).
+    rows_in, rows_out : int
+        Samples before and after.
+    jitter_rms, jitter_max : float
+        RMS and largest deviation [s] of the regular intervals (shorter than :data:`JITTER_STEPS`·dt)
+        from the grid step.
+    dropped_rows : int
+        Missing samples inside intervals of :data:`JITTER_STEPS` to :data:`GAP_STEPS` grid steps
+        (round(Δ/dt) − 1 each), filled on the grid.
+    gaps : tuple of (float, float)
+        (start [s], length [s]) of every interval longer than :data:`GAP_STEPS`·dt: bridged like the
+        rest (command held, measurements interpolated) and reported.
+    held_channels : tuple of str
+        Quantised measured channels (values on a lattice k·q, :func:`detect_quantum`) taken at the
+        nearest sample instead of interpolated, so they stay on their lattice.
+    """
+
+    source: str
+    dt: float
+    rows_in: int
+    rows_out: int
+    jitter_rms: float
+    jitter_max: float
+    dropped_rows: int
+    gaps: tuple[tuple[float, float], ...]
+    held_channels: tuple[str, ...]
+
+    def note(self) -> str:
+        """One line for a command's summary, e.g. ``resampled jitter100.csv onto a uniform 10 ms grid
+        (the median interval): 5822 rows -> 6000 samples; jitter RMS 0.87 ms (max 1.5 ms); 178 dropped
+        rows filled; command held, θ interpolated``."""
+        name = Path(self.source).name or self.source or "the recording"
+        parts = [f"{self.rows_in} rows -> {self.rows_out} samples",
+                 f"jitter RMS {_ms(self.jitter_rms)} (max {_ms(self.jitter_max)})"]
+        if self.dropped_rows:
+            parts.append(f"{self.dropped_rows} dropped row(s) filled")
+        if self.gaps:
+            start, length = max(self.gaps, key=lambda g: g[1])
+            total = sum(g[1] for g in self.gaps)
+            parts.append(f"{len(self.gaps)} gap(s) longer than {_ms(GAP_STEPS * self.dt)} bridged "
+                         f"({total:.3g} s in all, the longest {length:.3g} s at t = {start:.3f} s)")
+        held = f"; {', '.join(self.held_channels)} quantised: nearest sample, not interpolated" \
+            if self.held_channels else ""
+        return (f"resampled {name} onto a uniform {_ms(self.dt)} grid (the median interval): "
+                f"{'; '.join(parts)}; command zero-order hold, measurements interpolated{held}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready form (``meta["resampling"]`` of the resampled recording)."""
+        return {"rule": RESAMPLING_RULE, "dt_s": self.dt, "rows_in": self.rows_in, "rows_out": self.rows_out,
+                "jitter_rms_s": self.jitter_rms, "jitter_max_s": self.jitter_max,
+                "dropped_rows": self.dropped_rows,
+                "gaps": [{"t_s": a, "length_s": b} for a, b in self.gaps],
+                "held_channels": list(self.held_channels), "note": self.note()}
+
+
+#: The resampling rule in words (docs/csv_import.md "Timing"; ``meta["resampling"]["rule"]``).
+RESAMPLING_RULE = (
+    "grid t_k = k*dt from the first sample, dt = the median interval; the command (duty) and a reference "
+    "by zero-order hold (the value of the last sample at or before t_k); measured channels by linear "
+    "interpolation between the neighbouring samples, a quantised channel by its nearest sample; "
+    f"intervals up to {GAP_STEPS:g} dt are jitter or dropped rows, longer ones gaps (reported, bridged "
+    "the same way)")
+
+
+def _ms(seconds: float) -> str:
+    return f"{seconds * 1e3:.3g} ms"
+
+
+def detect_quantum(y: np.ndarray) -> float:
+    """LSB q of a recorded channel if its values lie on a lattice k·q (+ constant), else 0.
+
+    The lattice step is the smallest gap between distinct values; the channel counts as quantised
+    when every value sits within 1e-3·q of the lattice and there are fewer distinct values than a
+    third of the samples. Read by the resampling (a quantised channel is not interpolated) and by the
+    gap diagnosis (the ``quantisation`` effect: a property of the recording, never fitted).
+
+    Parameters
+    ----------
+    y : ndarray, shape (n,)
+        Recorded channel (e.g. θ [rad]).
+
+    Returns
+    -------
+    float
+        q in the channel's unit; 0.0 when the values are not on a lattice (or too few).
+    """
+    y = np.asarray(y, dtype=float)
+    u = np.unique(np.round(y, 12))
+    if u.size < 3 or u.size > y.size / 3:
+        return 0.0
+    gaps = np.diff(u)
+    q = float(np.min(gaps[gaps > 1e-12])) if np.any(gaps > 1e-12) else 0.0
+    if q <= 0.0:
+        return 0.0
+    frac = (y - u[0]) / q
+    if np.max(np.abs(frac - np.round(frac))) > 1e-3:
+        return 0.0
+    return q
+
+
+def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
+    """The recording on a uniform time grid: the one resampling of every command.
+
+    The rule (:data:`RESAMPLING_RULE`): grid t_k = k·dt from the first sample, dt the median
+    interval unless given; the duty cycle and the reference ``theta_ref`` (set points) by zero-order
+    hold; measured channels (θ, the contract channels, the extra channels) by linear interpolation,
+    except a quantised one (:func:`detect_quantum`), which takes its nearest sample so that it stays
+    on its lattice. Timestamp jitter, dropped rows and gaps are measured and reported
+    (:class:`Resampling` in ``meta["resampling"]``, :func:`resampling_notes`), never refused. A
+    recording whose intervals are all within :data:`UNIFORM_TOLERANCE` of dt is returned unchanged.
+    A constant input is accepted here (a step from rest or a free decay is a valid recording); the
+    fits decide what the data can identify.
+
+    Parameters
+    ----------
+    rec : Recording
+    dt : float, optional
+        Grid step [s] (default: the median interval). A step other than the recording's own forces
+        resampling (e.g. several recordings onto one grid).
+
+    Returns
+    -------
+    Recording
+        ``rec`` itself when it is already on the grid, else a new recording with ``t`` from 0.
 
     Raises
     ------
     RecordingInputError
-        No θ, NaNs, fewer than 2 samples or time stamps out of order (message names the recording).
+        No θ, NaNs in θ, the duty or a contract channel, fewer than 2 samples, time stamps out of
+        order, or a grid step that is not finite and > 0 (the message names the recording).
     """
     src = rec.source or "<recording>"
     if "theta" not in rec.channels:
         raise RecordingInputError(
-            f"{src}: recording lacks the 'theta' channel (has {sorted(rec.channels)}); replaying "
-            "a rig on it (gap, compare) needs at least the angle and the duty cycle"
+            f"{src}: recording lacks the 'theta' channel (has {sorted(rec.channels)}); the tools "
+            "need at least the angle and the duty cycle"
         )
     for name, y in [("duty", rec.duty), *rec.channels.items()]:
         bad = ~np.isfinite(y)
@@ -178,23 +323,29 @@ def uniform_recording(rec: Recording) -> Recording:
     if t.size < 2 or not np.all(np.diff(t) > 0.0):
         raise RecordingInputError(f"{src}: {t.size} sample(s) or non-increasing time stamps; expected at "
                                   "least 2 samples in time order")
-    dt = float(np.median(np.diff(t)))
-    grid = uniform_grid(t, dt)
+    step = float(np.median(np.diff(t))) if dt is None else float(dt)
+    if not (math.isfinite(step) and step > 0.0):
+        raise RecordingInputError(f"{src}: grid step dt = {dt!r}; expected a finite value > 0 s")
+    grid = uniform_grid(t, step)
     if grid is None:
         return rec
     tu, idx = grid
-    ch = {k: np.interp(tu, t, v) for k, v in rec.channels.items()}
+    nearest = np.clip(np.searchsorted(t, tu, side="left"), 1, t.size - 1)
+    nearest -= (tu - t[nearest - 1]) < (t[nearest] - tu)
+    held = tuple(k for k, v in rec.channels.items() if detect_quantum(v) > 0.0)
+
+    def measured(name: str, v: np.ndarray) -> np.ndarray:
+        return v[nearest] if name in held else np.interp(tu, t, v)
+
+    ch = {k: measured(k, v) for k, v in rec.channels.items()}
     # a set point (the reference) holds between samples like the duty; measured channels are interpolated
-    extra = {k: v[idx] if k == REFERENCE_CHANNEL else np.interp(tu, t, v) for k, v in rec.extra.items()}
-    meta = {**rec.meta, "resampled_to_uniform_dt_s": dt}
+    extra = {k: v[idx] if k == REFERENCE_CHANNEL else measured(k, v) for k, v in rec.extra.items()}
+    report = _timing_report(src, t, step, tu.size, held)
+    meta = {**rec.meta, "resampling": report.as_dict()}
     return Recording(
         t=tu, duty=rec.duty[idx], channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta,
         extra=extra, extra_units=dict(rec.extra_units),
     )
-
-
-#: Relative deviation of a sample interval from the median above which a log is resampled.
-UNIFORM_TOLERANCE = 1e-3
 
 
 def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -219,6 +370,32 @@ def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | No
     tu = np.arange(math.floor(t[-1] / dt + 1e-9) + 1) * dt
     idx = np.clip(np.searchsorted(t, tu + 1e-9 * dt, side="right") - 1, 0, t.size - 1)
     return tu, idx
+
+
+def _timing_report(src: str, t: np.ndarray, dt: float, rows_out: int, held: tuple[str, ...]) -> Resampling:
+    """Jitter, dropped rows and gaps of time stamps ``t`` about the grid step ``dt``."""
+    d = np.diff(t)
+    regular = d[d < JITTER_STEPS * dt]
+    dev = np.abs(regular - dt) if regular.size else np.zeros(1)
+    dropped = d[(d >= JITTER_STEPS * dt) & (d <= GAP_STEPS * dt)]
+    long = np.flatnonzero(d > GAP_STEPS * dt)
+    return Resampling(
+        source=src, dt=dt, rows_in=int(t.size), rows_out=int(rows_out),
+        jitter_rms=float(np.sqrt(np.mean(dev**2))), jitter_max=float(np.max(dev)),
+        dropped_rows=int(np.sum(np.round(dropped / dt) - 1.0)),
+        gaps=tuple((float(t[k]), float(d[k])) for k in long), held_channels=held,
+    )
+
+
+def resampling_notes(recs: Sequence[Recording]) -> list[str]:
+    """The report lines of the recordings :func:`uniform_recording` resampled (empty list: none was).
+
+    Parameters
+    ----------
+    recs : sequence of Recording
+        Recordings as the command used them.
+    """
+    return [r.meta["resampling"]["note"] for r in recs if isinstance(r.meta.get("resampling"), dict)]
 
 
 #: Fewest samples per recording part (fit or held out) of the gap tool.
