@@ -26,6 +26,7 @@ sample (not smoothed); jitter, dropped rows (intervals up to :data:`GAP_STEPS` s
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -396,6 +397,129 @@ def resampling_notes(recs: Sequence[Recording]) -> list[str]:
         Recordings as the command used them.
     """
     return [r.meta["resampling"]["note"] for r in recs if isinstance(r.meta.get("resampling"), dict)]
+
+
+# ------------------------------------------------------------------------------ timing search ranges
+#: Dead times and lags up to this long [s] are searched whenever the data can show them.
+MIN_TIMING_REACH_S = 1.0
+#: ... and up to this share of the longest hold of the command (a response must show inside a hold)
+HOLD_SHARE = 0.5
+#: ... but never beyond this share of the longest recording.
+RECORDING_SHARE = 0.25
+#: A step of the command counts for the onset bound when it is at least this share of the command's range.
+STEP_SHARE = 0.2
+#: The dead-time bound is this many times the median onset of the response after such steps.
+ONSET_MARGIN = 1.5
+
+
+@dataclass(frozen=True)
+class TimingRange:
+    """How long a dead time and a first-order lag the recordings can show: the search range of
+    ``identify``'s thrust map and of ``baseline``'s ``actuator.input_delay`` /
+    ``actuator.lag_time_constant`` (:func:`timing_range`).
+
+    Attributes
+    ----------
+    delay_max, lag_max : float
+        Upper ends [s] of the dead-time and lag searches.
+    longest_hold : float
+        Longest stretch [s] of a constant command over the recordings.
+    duration : float
+        Longest recording [s].
+    onset : float or None
+        Median time [s] from a step of the command to the first visible response of θ (None: no
+        step with the rod at rest before it); the response cannot start before the dead time ends,
+        so ONSET_MARGIN·onset bounds it.
+    steps : int
+        Steps the onset was measured on.
+    """
+
+    delay_max: float
+    lag_max: float
+    longest_hold: float
+    duration: float
+    onset: float | None
+    steps: int
+
+    def rule(self) -> str:
+        """How the range follows from the data, in words (for the reports)."""
+        reach = (f"min(max({MIN_TIMING_REACH_S:g} s, {HOLD_SHARE:g} × longest hold "
+                 f"{self.longest_hold:.3g} s), {RECORDING_SHARE:g} × recording {self.duration:.3g} s)")
+        onset = (f"; dead time also ≤ {ONSET_MARGIN:g} × the median response onset {self.onset:.3g} s after "
+                 f"{self.steps} step(s) of the command" if self.onset is not None else
+                 "; no step with the rod at rest before it bounds the dead time")
+        return f"lag ≤ {self.lag_max:.3g} s and dead time ≤ {self.delay_max:.3g} s: {reach}{onset}"
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        return {"delay_max_s": self.delay_max, "lag_max_s": self.lag_max, "longest_hold_s": self.longest_hold,
+                "duration_s": self.duration, "onset_s": self.onset, "onset_steps": self.steps,
+                "rule": self.rule()}
+
+
+def _holds(t: np.ndarray, duty: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) indices of the stretches of a constant command."""
+    edges = [0, *(np.flatnonzero(np.diff(duty) != 0.0) + 1).tolist(), duty.size]
+    return [(a, b) for a, b in itertools.pairwise(edges) if b > a]
+
+
+def _onsets(rec: Recording) -> list[float]:
+    """Times [s] from each large step of the command (the rod at rest before it) to θ's first visible
+    response inside the following hold."""
+    from aeropend_ident.io.csvspec.constant_input import noise_band
+
+    t, duty, theta = rec.t - rec.t[0], rec.duty, rec.channels["theta"]
+    span = float(np.ptp(duty)) or float(duty[0])
+    band = noise_band(theta)
+    threshold = max(band, 0.02 * float(np.ptp(theta)))
+    holds = _holds(t, duty)
+    out = []
+    # a log that starts with a command applied to a rod at rest is a step at t = 0 (a step test)
+    first = [((0, 0), holds[0])] if duty[0] > 0.0 and np.ptp(theta[:5]) <= band else []
+    for (a0, b0), (a1, b1) in [*first, *itertools.pairwise(holds)]:
+        if span == 0.0 or (b0 > a0 and abs(duty[a1] - duty[b0 - 1]) < STEP_SHARE * span):
+            continue
+        pre = theta[max(a0, b0 - max(5, round(0.2 / max(rec.dt, 1e-9)))):b0] if b0 > a0 else theta[:5]
+        if pre.size < 3 or np.ptp(pre) > band:
+            continue  # the rod was moving before the step: its response cannot be told apart
+        moved = np.flatnonzero(np.abs(theta[a1:b1] - np.median(pre)) > threshold)
+        if moved.size:
+            out.append(float(t[a1 + moved[0]] - t[a1]))
+    return out
+
+
+def timing_range(recs: Sequence[Recording]) -> TimingRange:
+    """The dead-time and lag search range the recordings can show (the rule of every tool).
+
+    Up to ``min(max(MIN_TIMING_REACH_S, HOLD_SHARE·longest hold), RECORDING_SHARE·longest
+    recording)`` for both (at least 1 s of dead time whenever the recordings are long enough to
+    show it), and the dead time also at most :data:`ONSET_MARGIN` times the median onset of θ's
+    response after the command's large steps taken with the rod at rest (the response cannot start
+    before the dead time has passed: a data-driven upper bound).
+
+    Parameters
+    ----------
+    recs : sequence of Recording
+        θ and the duty cycle (any timing).
+
+    Returns
+    -------
+    TimingRange
+    """
+    longest_hold = duration = 0.0
+    onsets: list[float] = []
+    for r in recs:
+        t = r.t - r.t[0]
+        duration = max(duration, float(t[-1]))
+        for a, b in _holds(t, r.duty):
+            longest_hold = max(longest_hold, float(t[min(b, t.size - 1)] - t[a]))
+        if "theta" in r.channels:
+            onsets += _onsets(r)
+    reach = min(max(MIN_TIMING_REACH_S, HOLD_SHARE * longest_hold), RECORDING_SHARE * duration)
+    onset = float(np.median(onsets)) if onsets else None
+    delay_max = reach if onset is None else min(reach, ONSET_MARGIN * onset)
+    return TimingRange(delay_max=float(delay_max), lag_max=float(reach), longest_hold=longest_hold,
+                       duration=duration, onset=onset, steps=len(onsets))
 
 
 #: Fewest samples per recording part (fit or held out) of the gap tool.

@@ -89,7 +89,7 @@ class ConstantInputCheck:
     excess: float
 
 
-def _noise_band(theta: np.ndarray) -> float:
+def noise_band(theta: np.ndarray) -> float:
     """6 σ of white noise (second-difference MAD), at least 2 resolution steps [rad]."""
     d2 = np.diff(theta, 2)
     sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0) if d2.size >= 3 else 0.0
@@ -185,7 +185,7 @@ def check_constant_input(t: np.ndarray, theta: np.ndarray) -> ConstantInputCheck
     """
     t = np.asarray(t, dtype=float)
     raw = np.asarray(theta, dtype=float)
-    band = _noise_band(raw)
+    band = noise_band(raw)
     th = median_filter(raw, size=MEDIAN_SAMPLES, mode="nearest")
     margin = max(2.0 * band, RANGE_FRACTION * float(np.ptp(th)))
     theta_f = float(np.median(th[-max(th.size // 20, 3):]))
