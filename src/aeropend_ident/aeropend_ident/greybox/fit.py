@@ -22,6 +22,7 @@ Default parameter set for θ-only data (:func:`default_parameters`):
   whole actuator gain and the other factors stay at their rig-file values;
 * ``actuator.dead_zone`` when ``effects.dead_zone`` is on;
 * ``actuator.lag_time_constant`` when ``effects.actuator_lag`` is on;
+* ``actuator.input_delay`` when ``effects.input_delay`` is on;
 * ``pendulum.coulomb_over_J`` when ``effects.rod_coulomb_friction`` is on;
 * :data:`THETA_OFFSET` when the rig declares a recording-frame offset (see-saw rigs).
 
@@ -332,6 +333,8 @@ def default_parameters(rig: Rig, theta_offset: float = 0.0) -> list[str]:
         names.append("actuator.dead_zone")
     if e.actuator_lag:
         names.append("actuator.lag_time_constant")
+    if e.input_delay:
+        names.append("actuator.input_delay")
     if e.rod_coulomb_friction:
         names.append("pendulum.coulomb_over_J")
     if theta_offset != 0.0:
@@ -897,6 +900,8 @@ class GreyBoxResult:
             "theta_offset": self.theta_offset,
             "initial_state": {"theta0": self.initial_state[0], "theta_dot0": self.initial_state[1],
                               "units": ["rad", "rad/s"]},
+            "initial_states": [{"recording": part.source, "theta0": a, "theta_dot0": b}
+                               for part, (a, b) in zip(self.data.parts(), self.initial_states, strict=False)],
             "cost": self.cost,
             "initial_cost": self.initial_cost,
             "nfev": self.nfev,
