@@ -58,6 +58,7 @@ from aeropend_ident.io.recording_input import (
     ignored_channels,
     load_and_split,
     load_recording,
+    resampling_notes,
     split_preset,
     uniform_recording,
 )
@@ -273,6 +274,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"gap: error: {exc}", file=sys.stderr)
         return 2
     print(terminal_summary(result))
+    for line in dict.fromkeys(resampling_notes([*fit, *held, *(val or [])])):
+        print(line)
     if note := ignored_channels([*fit, *held, *(val or [])], "θ, the duty cycle and the contract channels"):
         print(note)
     print(f"report: {paths['report']}\nhtml: {paths['html']}\ncorrected rig: {paths['corrected_rig']}")

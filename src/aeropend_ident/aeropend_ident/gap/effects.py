@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import GapError
+from aeropend_ident.io.csvspec.constant_input import excitation_problem
 from aeropend_ident.io.recording_input import detect_quantum  # re-exported: the gap tool's name for it
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Diagnosis
@@ -578,6 +579,10 @@ def check_recordings(recordings: Any, what: str = "recordings",
             k_bad = int(np.flatnonzero((r.duty < 0.0) | (r.duty > 1.0))[0])
             raise GapError(f"{src}: duty[{k_bad}] = {r.duty[k_bad]!r} outside [0, 1] (a fraction)")
         if np.ptp(r.duty) == 0.0:
+            why = excitation_problem(r.t, r.duty, r.channels["theta"],
+                                     "channel theta_ref" if "theta_ref" in r.extra else None)
+            if why is not None and why[0] == "driven":  # the csv_import refusal, whichever way the log came
+                raise GapError(f"{src}: {why[1]}")
             raise GapError(f"{src}: constant duty cycle {r.duty[0]:g}: the input is unexcited")
         dt = np.diff(r.t)
         if np.ptp(dt) > 1e-3 * np.median(dt):

@@ -73,7 +73,7 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 
 from aeropend_ident.errors import IdentificationError, RecordingInputError
-from aeropend_ident.io.recording_input import uniform_recording
+from aeropend_ident.io.recording_input import grid_step, uniform_recording
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect
 from aeropend_sim.components.xp import MATH
@@ -571,7 +571,7 @@ def uniform_data(
     decimate = int(decimate)
     t = recording.t - recording.t[0]
     theta, duty = recording.channels["theta"], recording.duty
-    grid_dt = float(np.median(np.diff(t))) if dt is None else float(dt)
+    grid_dt = grid_step(t) if dt is None else float(dt)
     if not (math.isfinite(grid_dt) and grid_dt > 0.0):
         raise IdentificationError(f"grid period dt = {dt!r}; expected a finite value > 0 s")
     # the one resampling of every tool (io/recording_input.py: θ interpolated, or its nearest sample

@@ -18,7 +18,7 @@ ignored; :func:`ignored_channels` says which, for the tools' summaries. :func:`l
 ``identify``, ``gap``, ``compare``, ``csv_import --resample``) and of the fits (the grey-box
 :func:`aeropend_ident.greybox.fit.uniform_data`, the gap diagnosis' channels): a lab's logger
 jitters, drops rows and pauses, and none of that is refused. The rule (:data:`RESAMPLING_RULE`):
-grid step = the median interval; the command and the reference held (zero-order hold), measured
+grid step = the median (regular) interval; the command and the reference held (zero-order hold), measured
 channels interpolated linearly, a quantised channel (:func:`detect_quantum`) taken at its nearest
 sample (not smoothed); jitter, dropped rows (intervals up to :data:`GAP_STEPS` steps) and gaps
 (longer intervals) are reported in one line (:class:`Resampling`, :func:`resampling_notes`).
@@ -205,7 +205,7 @@ class Resampling:
 
     def note(self) -> str:
         """One line for a command's summary, e.g. ``resampled jitter100.csv onto a uniform 10 ms grid
-        (the median interval): 5822 rows -> 6000 samples; jitter RMS 0.87 ms (max 1.5 ms); 178 dropped
+        (the median regular interval): 5822 rows -> 6000 samples; jitter RMS 0.87 ms (max 1.5 ms); 178 dropped
         rows filled; command held, θ interpolated``."""
         name = Path(self.source).name or self.source or "the recording"
         parts = [f"{self.rows_in} rows -> {self.rows_out} samples",
@@ -215,12 +215,14 @@ class Resampling:
         if self.gaps:
             start, length = max(self.gaps, key=lambda g: g[1])
             total = sum(g[1] for g in self.gaps)
+            share = total / max(self.rows_out - 1, 1) / self.dt
             parts.append(f"{len(self.gaps)} gap(s) longer than {_ms(GAP_STEPS * self.dt)} bridged "
-                         f"({total:.3g} s in all, the longest {length:.3g} s at t = {start:.3f} s)")
+                         f"({total:.3g} s in all, {share:.0%} of the log; the longest {length:.3g} s at "
+                         f"t = {start:.3f} s)")
         held = f"; {', '.join(self.held_channels)} quantised: nearest sample, not interpolated" \
             if self.held_channels else ""
-        return (f"resampled {name} onto a uniform {_ms(self.dt)} grid (the median interval): "
-                f"{'; '.join(parts)}; command zero-order hold, measurements interpolated{held}")
+        return (f"resampled {name} onto a uniform {_ms(self.dt)} grid (the median regular "
+                f"interval): {'; '.join(parts)}; command zero-order hold, measurements interpolated{held}")
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form (``meta["resampling"]`` of the resampled recording)."""
@@ -233,9 +235,9 @@ class Resampling:
 
 #: The resampling rule in words (docs/csv_import.md "Timing"; ``meta["resampling"]["rule"]``).
 RESAMPLING_RULE = (
-    "grid t_k = k*dt from the first sample, dt = the median interval; the command (duty) and a reference "
-    "by zero-order hold (the value of the last sample at or before t_k); measured channels by linear "
-    "interpolation between the neighbouring samples, a quantised channel by its nearest sample; "
+    "grid t_k = k*dt from the first sample, dt = the median regular interval; the command (duty) and a "
+    "reference by zero-order hold (the value of the last sample at or before t_k); measured channels by "
+    "linear interpolation between the neighbouring samples, a quantised channel by its nearest sample; "
     f"intervals up to {GAP_STEPS:g} dt are jitter or dropped rows, longer ones gaps (reported, bridged "
     "the same way)")
 
@@ -293,8 +295,8 @@ def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
     ----------
     rec : Recording
     dt : float, optional
-        Grid step [s] (default: the median interval). A step other than the recording's own forces
-        resampling (e.g. several recordings onto one grid).
+        Grid step [s] (default: :func:`grid_step`, the median regular interval). A step other than
+        the recording's own forces resampling (e.g. several recordings onto one grid).
 
     Returns
     -------
@@ -324,7 +326,7 @@ def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
     if t.size < 2 or not np.all(np.diff(t) > 0.0):
         raise RecordingInputError(f"{src}: {t.size} sample(s) or non-increasing time stamps; expected at "
                                   "least 2 samples in time order")
-    step = float(np.median(np.diff(t))) if dt is None else float(dt)
+    step = grid_step(t) if dt is None else float(dt)
     if not (math.isfinite(step) and step > 0.0):
         raise RecordingInputError(f"{src}: grid step dt = {dt!r}; expected a finite value > 0 s")
     grid = uniform_grid(t, step)
@@ -347,6 +349,21 @@ def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
         t=tu, duty=rec.duty[idx], channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta,
         extra=extra, extra_units=dict(rec.extra_units),
     )
+
+
+def grid_step(t: np.ndarray) -> float:
+    """The grid step [s] of time stamps ``t``: the median of the regular intervals (those shorter
+    than :data:`JITTER_STEPS` times the median interval, so that dropped rows do not lengthen it).
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,), N >= 2
+        Increasing time stamps [s].
+    """
+    d = np.diff(np.asarray(t, dtype=float))
+    first = float(np.median(d))
+    regular = d[d < JITTER_STEPS * first]
+    return float(np.median(regular)) if regular.size else first
 
 
 def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -540,6 +557,12 @@ def check_length(rec: Recording, what: str) -> None:
             f"at least {MIN_PART_SAMPLES} (record longer or change --split)"
         )
     if np.ptp(rec.duty) == 0.0:
+        from aeropend_ident.io.csvspec.constant_input import excitation_problem
+
+        why = excitation_problem(rec.t, rec.duty, rec.channels["theta"],
+                                 "channel theta_ref" if "theta_ref" in rec.extra else None)
+        if why is not None and why[0] == "driven":  # the csv_import refusal, whichever way the log came
+            raise GapCliError(f"{rec.source or what}: {why[1]}")
         raise GapCliError(
             f"{rec.source or what}: the duty cycle is constant ({rec.duty[0]:g}) in the {what}: "
             "unexcited input, nothing to compare"
