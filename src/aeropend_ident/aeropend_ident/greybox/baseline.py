@@ -66,6 +66,7 @@ from aeropend_ident.greybox.fit import (
     ParameterEstimate,
     UniformData,
     apply_parameters,
+    check_excited,
     concat_uniform,
     default_parameters,
     error_metrics,
@@ -609,6 +610,8 @@ def baseline(
         raise IdentificationError("no recording given")
     fit_parts, held_parts, grids, t_split = _design(recs, held_recs, train_fraction, decimate)
     train = concat_uniform(fit_parts)
+    # identifiability on what is fitted; a closed loop's reference logged without its command is named
+    check_excited(train, "channel theta_ref" if any("theta_ref" in r.extra for r in recs) else None)
     names = list(default_parameters(nominal, off) if params is None else params)
     timed = [n for n in names if n in TIMING_PARAMS]
     timing, bounds, initial = None, {}, {}

@@ -215,8 +215,9 @@ def driven_message(given: str, reason: str, reference: str | None = None) -> str
     str
         ``"a constant input (...) cannot explain this log: ... Log the actuator command ..."``.
     """
+    stored = "" if "theta_ref" in str(reference) else ", and it is stored as the channel theta_ref"
     ref = (f" The reference {reference} is not an input: it is the angle the controller was asked to reach, "
-           "not the command it applied, and it is stored as the channel theta_ref." if reference else "")
+           f"not the command it applied{stored}." if reference else "")
     return (f"a constant input ({given}) cannot explain this log: {reason}.{ref} Log the actuator command "
             "(duty, PWM, pulse width, voltage) and import it with --input-col and --input-kind; give "
             "--input-constant only for a run whose input really was constant (a free decay, a step from "
