@@ -87,7 +87,10 @@ def _check_common(rep: dict, n_total: int) -> None:
     m = rep["metrics"]
     for part in ("train", "heldout"):
         for model in ("nominal", "fitted"):
-            assert math.isfinite(m[part][model]["nrmse"])
+            # a finite NRMSE, or none for a model that diverges (with the reason in the report)
+            nrmse = m[part][model]["nrmse"]
+            assert (math.isfinite(nrmse) if nrmse is not None
+                    else "diverges" in rep["divergence"][part][model])
             assert m[part][model]["rms_error"] <= m[part][model]["max_abs_error"]
             # every sample is in exactly one θ bin, one duty bin and one motion class
             reg = rep["regions"][part][model]
@@ -161,9 +164,14 @@ def test_hoja3_fitted_beats_nominal_on_held_out(hoja3):
     _check_common(rep, len(import_csv(HOJA3, "jahoyosr_hoja3")))
     m = rep["metrics"]
     assert m["heldout"]["fitted"]["nrmse"] < 0.35
-    assert m["heldout"]["fitted"]["nrmse"] < 0.6 * m["heldout"]["nominal"]["nrmse"]
     assert m["train"]["fitted"]["nrmse"] < 0.07
-    assert m["train"]["fitted"]["nrmse"] < 0.3 * m["train"]["nominal"]["nrmse"]
+    # the nominal rig leaves the recorded range (the one divergence rule): no NRMSE, the reason instead
+    for part in ("train", "heldout"):
+        nominal = m[part]["nominal"]["nrmse"]
+        if nominal is None:
+            assert rep["divergence"][part]["nominal"].startswith("nominal model diverges at t = ")
+        else:
+            assert m[part]["fitted"]["nrmse"] < (0.6 if part == "heldout" else 0.3) * nominal
     # the log is not uniform (one doubled interval): it was resampled onto the 1/70 s grid
     assert rep["provenance"]["recording"]["resampled_to_uniform"] is True
     assert rep["provenance"]["recording"]["fit_grid_dt_s"] == pytest.approx(1 / 70, rel=1e-3)

@@ -85,7 +85,7 @@ def test_a_diverging_model_is_cut_at_the_recorded_range_with_a_note() -> None:
     assert hi <= recorded.max() + REACH * span + 2.0 * PAD * (hi - lo)
     # only the diverging model is named, with when it leaves and how far it goes
     assert [e.label for e in out] == ["nominal model"]
-    assert _texts(ax) == ["nominal model leaves the plotted range at t = 8.48 s: θ → 6.3e3 rad"]
+    assert _texts(ax) == ["nominal model diverges at t = 8.48 s: θ → 6.3e3 rad"]
     # the note sits in a band below every recorded sample (it never covers the recorded curve)
     fig.canvas.draw()
     note = ax.texts[0].get_window_extent()
@@ -200,7 +200,7 @@ def test_gap_overlay_clips_a_simulator_that_spins_away(saved_figures) -> None:
     lo, hi = ax.get_ylim()
     assert lo < theta.min() and theta.max() < hi < theta.max() + np.ptp(theta)
     assert ax.get_title() == "run_bag[6930:9900]: NRMSE nominal 15.34 -> corrected 0.0412"
-    assert _texts(ax) == ["nominal simulator leaves the plotted range at t = 0.01 s: θ → 14 rad"]
+    assert _texts(ax) == ["nominal simulator diverges at t = 0.01 s: θ → 14 rad"]
     assert _legend(ax) == ["recorded (held out)", "nominal simulator", "corrected simulator"]
 
 
@@ -270,9 +270,12 @@ def test_baseline_draws_the_spinning_nominal_model_clipped_with_a_note(tmp_path,
     lo, hi = ax.get_ylim()
     assert lo < np.nanmin(recorded) and hi > np.nanmax(recorded)
     assert np.ptp(recorded) / (hi - lo) > 0.4  # not flattened into a line
-    notes = [t for t in _texts(ax) if "plotted range" in t]
+    notes = [t for t in _texts(ax) if t.startswith("nominal model diverges")]
     assert len(notes) == 1
-    m = re.fullmatch(r"nominal model leaves the plotted range at t = ([\d.]+) s: θ → ([\d.]+)e3 rad",
+    # the overlay's warning says the same for the held-out part, where no NRMSE is given
+    (warning,) = [t for t in _texts(ax) if t.startswith("WARNING")]
+    assert "nominal model diverges" in warning and "no NRMSE is given" in warning
+    m = re.fullmatch(r"nominal model diverges at t = ([\d.]+) s: θ → ([\d.]+)e3 rad",
                      notes[0])
     assert m and 0.0 < float(m.group(1)) < 20.0 and float(m.group(2)) > 1.0
     assert _legend(ax) == ["recorded", "nominal model", "fitted model"]

@@ -156,10 +156,19 @@ def test_missing_theta_is_refused():
         fit_greybox(rec, RIG)
 
 
-def test_constant_duty_is_refused():
+def test_constant_duty_is_refused_when_nothing_moves_or_a_constant_input_cannot_explain_theta():
     rec = _good()
     rec.duty[:] = 0.4
-    with pytest.raises(IdentificationError, match=r"duty cycle is constant \(0\.4\).*unexcited"):
+    rec.channels["theta"][:] = 0.3 + 1e-3 * np.random.default_rng(0).standard_normal(len(rec))
+    unexcited = (r"rec\.csv: the duty cycle is constant \(0\.4\) and θ stays within .* rad of where it "
+                 r"starts: nothing excites the rig")
+    with pytest.raises(IdentificationError, match=unexcited):
+        fit_greybox(rec, RIG)
+    # a staircase response logged without its command: the rod rests, then moves again
+    driven = _theta_recording(RIG, 0.45 + 0.1 * np.floor(np.arange(800) * DT / 2.0))
+    rec = Recording(t=driven.t, duty=np.full(len(driven), 0.4), channels=driven.channels, source="rec.csv")
+    with pytest.raises(IdentificationError, match=r"rec\.csv: a constant input \(the duty cycle is 0\.4 "
+                                                  r"throughout\) cannot explain this log: θ turns back down"):
         fit_greybox(rec, RIG)
 
 

@@ -120,11 +120,19 @@ def test_identify_refuses_bad_recordings(noisy_run, tmp_path, capsys) -> None:
     assert main([str(bag), "--out", str(tmp_path / "b"), "--quiet", "--thrust-map", "static"]) == 2
     err = capsys.readouterr().err
     assert "NaN/inf in 5 of 2000 samples" in err and "theta" in err
-    # unexcited: constant duty -> the thrust term is a constant column, rank-deficient library
+    # unexcited: a constant duty with θ at rest (noise only) -> nothing is identifiable
     flat = simulate(load_rig("thesis_rig"), np.full(1500, 0.5), dt=0.01)
-    bag = write_bag(Recording.from_trajectory(flat, channels=("theta",)), tmp_path / "flat")
+    still = 0.3 + 1e-3 * np.random.default_rng(0).standard_normal(1500)
+    rest = Recording(t=flat.t, duty=flat.duty, channels={"theta": still})
+    bag = write_bag(rest, tmp_path / "rest")
     assert main([str(bag), "--out", str(tmp_path / "c"), "--quiet", "--thrust-map", "static"]) == 2
-    assert "rank deficient" in capsys.readouterr().err
+    assert "nothing excites the rig" in capsys.readouterr().err
+    # a step from rest under that constant duty is a step test: accepted (one level, no thrust terms),
+    # and its held-out part, a hold at the final angle, is scored in the recording's range
+    bag = write_bag(Recording.from_trajectory(flat, channels=("theta",)), tmp_path / "step")
+    assert main([str(bag), "--out", str(tmp_path / "c2"), "--quiet", "--thrust-map", "static"]) == 0
+    (score,) = json.loads((tmp_path / "c2" / "summary.json").read_text())["heldout"]
+    assert score["nrmse_range"] < 0.05 and "diverges" not in score
     # too short for the derivative estimate / library
     short = Recording(t=tr_t[:6], duty=noisy_run.duty[:6],
                       channels={"theta": noisy_run.channels()["theta"][:6]})

@@ -2,13 +2,16 @@
 
 Usage::
 
-    baseline INPUT --rig RIG -o OUTDIR [--preset NAME] [--train-fraction 0.7]
-             [--params NAME [NAME ...]] [--theta-offset RAD] [--init-horizon S] [--decimate K]
+    baseline INPUT [INPUT ...] --rig RIG -o OUTDIR [--held-out REC [REC ...]] [--split 0.7]
+             [--preset NAME] [--params NAME [NAME ...]] [--theta-offset RAD] [--init-horizon S]
+             [--decimate K]
 
-``INPUT`` is a rosbag2 directory (or ``.mcap`` / ``.db3`` file) or a CSV log with its preset
-(``FILE.csv:PRESET``, else ``--preset NAME``, else picked by file name), read by
-:func:`aeropend_ident.io.recording_input.load_recording`. ``RIG`` is a shipped rig name or a rig-file
-path. The report folder gets
+Each ``INPUT`` (and ``REC``) is a rosbag2 directory (or ``.mcap`` / ``.db3`` file) or a CSV log with
+its preset (``FILE.csv:PRESET``, else ``--preset NAME``, else picked by file name), read by
+:func:`aeropend_ident.io.recording_input.load_recording`, any timing (resampled by the one rule of the
+tools, reported). Without ``--held-out`` each input is split in time order (``--split`` fitted);
+with it the inputs are fitted whole and the held-out recordings replayed. ``RIG`` is a shipped rig
+name or a rig-file path. The report folder gets
 ``report.json``, ``overlay.png`` and ``fitted_rig.yaml`` (see :mod:`aeropend_ident.greybox.baseline`).
 A non-empty report folder is refused at once unless ``--overwrite`` is given; then the earlier
 report is replaced when the new one is written (:mod:`aeropend_sim.output_folder`).
@@ -38,7 +41,12 @@ def build_parser() -> argparse.ArgumentParser:
         description="Grey-box baseline: fit a rig's nominal model on the first part of a recording "
                     "(output error, free run), replay the held-out rest, report NRMSE nominal vs fitted.",
     )
-    p.add_argument("input", help="bag directory (.mcap/.db3) or CSV log, optionally FILE.csv:PRESET")
+    p.add_argument("inputs", nargs="+", metavar="INPUT",
+                   help="bag directory (.mcap/.db3) or CSV log, optionally FILE.csv:PRESET; several are "
+                        "fitted together, each from its own initial state")
+    p.add_argument("--held-out", nargs="+", default=None, metavar="REC",
+                   help="recording(s) held out whole: the inputs are fitted whole and these replayed "
+                        "(default: each input split in time order, --split)")
     p.add_argument("--rig", required=True, help="shipped rig name (e.g. jahoyosr_rig) or rig-file path")
     p.add_argument("-o", "--out", required=True, type=Path, help="report folder (created)")
     p.add_argument("--overwrite", action="store_true",
@@ -46,8 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", default=None,
                    help="CSV preset of aeropend_ident.io.csv_import when INPUT has no :PRESET "
                         "('auto' = by file name)")
-    p.add_argument("--train-fraction", type=float, default=0.7,
-                   help="leading fraction used for fitting (0-1)")
+    p.add_argument("--split", "--train-fraction", dest="train_fraction", type=float, default=0.7,
+                   help="leading fraction of each input fitted, the rest held out (0-1; without --held-out)")
     p.add_argument("--params", nargs="+", default=None, metavar="NAME",
                    help="fitted parameters, e.g. pendulum.c_over_J actuator.dead_zone theta_offset "
                         "(default: the θ-only set of aeropend_ident.greybox.fit.default_parameters)")
@@ -64,11 +72,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     print_warnings_as_lines("baseline")
     try:
+        given = [*args.inputs, *(args.held_out or [])]
         out = claim_output_folder(args.out, args.overwrite, own=REPORT_FILES.values(),
-                                  looks_like="a baseline report", inputs=[split_preset(args.input)[0]])
-        rec = load_recording(args.input, args.preset)
+                                  looks_like="a baseline report", inputs=[split_preset(a)[0] for a in given])
+        recs = [load_recording(a, args.preset) for a in args.inputs]
+        held = [load_recording(a, args.preset) for a in args.held_out or []]
         result = baseline(
-            rec, args.rig, train_fraction=args.train_fraction, params=args.params,
+            recs, args.rig, held_out=held, train_fraction=args.train_fraction, params=args.params,
             theta_offset=args.theta_offset, init_horizon=args.init_horizon or None, decimate=args.decimate,
         )
         paths = write_report(result, out.prepare())
@@ -76,7 +86,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"baseline: error: {exc}", file=sys.stderr)
         return 2
     print(result.summary())
-    if note := ignored_channels([rec], "θ and the duty cycle"):
+    for line in result.report()["provenance"]["resampling"]:
+        print(line)
+    if note := ignored_channels([*recs, *held], "θ and the duty cycle"):
         print(note)
     for section, why in paths["not_computed"].items():
         print(f"NOT COMPUTED: {section}: {why}")

@@ -37,6 +37,7 @@ from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.recording_input import (
     ignored_channels,
     load_recording,
+    resampling_notes,
     split_preset,
     uniform_recording,
 )
@@ -139,6 +140,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"compare: error: {exc}", file=sys.stderr)
         return 2
     print(summary_table(result))
+    for line in resampling_notes(recs):
+        print(line)
     if note := ignored_channels(recs, "θ, the duty cycle and the contract channels"):
         print(note)
     print(f"report: {paths['json']}")

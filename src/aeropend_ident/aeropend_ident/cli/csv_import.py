@@ -25,10 +25,17 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.errors import BagError, CsvImportError, IdentWarning, print_warnings_as_lines
+from aeropend_ident.errors import (
+    BagError,
+    CsvImportError,
+    IdentWarning,
+    RecordingInputError,
+    print_warnings_as_lines,
+)
 from aeropend_ident.io.csv_import import PRESETS, Column, CsvSpec, find_preset, import_csv, summary
 from aeropend_ident.io.csvspec.input_kinds import INPUT_KINDS, LAWS
 from aeropend_ident.io.csvspec.spec import is_preset_file, resolve_preset, write_preset_file
+from aeropend_ident.io.recording_input import resampling_notes, uniform_recording
 from aeropend_sim.contract import EXTRA_CHANNELS
 from aeropend_sim.output_folder import OutputFolderError
 from aeropend_sim.recording import MEASURED_CHANNELS
@@ -113,6 +120,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--write-preset", type=Path, metavar="FILE.yaml",
                    help="save the column mapping the preset and options describe as a preset file (after "
                         "the CSV imported), to reuse as --preset FILE.yaml or LOG.csv:FILE.yaml")
+    p.add_argument("--resample", action="store_true",
+                   help="put the log on a uniform grid before writing it (the one resampling of every "
+                        "command: step = the median regular interval, command held, measurements "
+                        "interpolated, quantised ones at their nearest sample; jitter, dropped rows and gaps "
+                        "reported). Without it the bag keeps the logger's own stamps and every command "
+                        "resamples when it reads it")
     p.add_argument("--storage", choices=["mcap", "sqlite3"], default="mcap")
     p.add_argument("--rig-name", help="rig name stored in the bag")
     p.add_argument("--overwrite", action="store_true",
@@ -288,6 +301,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.simplefilter("ignore")  # duty clipping: counted in the summary
             warnings.simplefilter("default", IdentWarning)  # rows dropped, cut, constant input: printed
             rec = import_csv(args.input, spec, "drop" if args.drop_bad_rows else "error")
+        if args.resample:
+            rec = uniform_recording(rec)
         # a real start time (Foxglove and rosbag2 tools show 1970 for stamps from 0)
         rec = replace(rec, stamp0_ns=start_time_ns(args.start_time, args.input, float(rec.t[-1])))
         if target is not None:
@@ -299,10 +314,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f"  {command}\n"
                 f"use: csv_import LOG.csv --preset {args.write_preset.name}, or "
                 f"LOG.csv:{args.write_preset.name} wherever a recording is given"))
-    except (CsvImportError, BagError, OutputFolderError) as exc:
+    except (CsvImportError, BagError, OutputFolderError, RecordingInputError) as exc:
         print(f"csv_import: error: {exc}", file=sys.stderr)
         return 1
     text = summary(rec)
+    for note in resampling_notes([rec]):
+        text += f" {note[0].upper()}{note[1:]}."
     if args.output is not None:
         text += _bag_note(rec, args)
     if args.write_preset is not None:

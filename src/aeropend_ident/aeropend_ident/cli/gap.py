@@ -65,6 +65,7 @@ from aeropend_ident.io.recording_input import (
     ignored_channels,
     load_and_split,
     load_recording,
+    resampling_notes,
     split_preset,
     uniform_recording,
 )
@@ -298,6 +299,8 @@ def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
         print(f"gap: error: {exc}", file=sys.stderr)
         return 2
     print(terminal_summary(result))
+    for line in dict.fromkeys(resampling_notes([*fit, *held, *(val or [])])):
+        print(line)
     if note := ignored_channels([*fit, *held, *(val or [])], "θ, the duty cycle and the contract channels"):
         print(note)
     print(f"report: {paths['report']}\nhtml: {paths['html']}\ncorrected rig: {paths['corrected_rig']}")

@@ -26,6 +26,7 @@ from aeropend_ident.errors import (
 from aeropend_ident.io.recording_input import split_preset
 from aeropend_ident.progress import reporter
 from aeropend_ident.sindy.identify import LIBRARIES, METHODS, OUTPUT_FILES, identify
+from aeropend_sim.model import ModelError
 from aeropend_sim.output_folder import OutputFolderError, claim_output_folder
 from aeropend_sim.params import RigFileError, load_rig
 from aeropend_sim.recording import RecordingError
@@ -80,7 +81,7 @@ def _run(args: argparse.Namespace, say: Callable[[str], None]) -> int:
                            plots=not args.no_plots, progress=say,
                            threshold=args.threshold, output_error=args.output_error)
     except (BagError, RecordingError, IdentificationError, RigFileError, CsvImportError,
-            RecordingInputError, OutputFolderError) as exc:
+            RecordingInputError, OutputFolderError, ModelError) as exc:
         print(f"identify: error: {exc}", file=sys.stderr)
         return 2
     print("\n".join(summary["equations"]))
@@ -90,8 +91,15 @@ def _run(args: argparse.Namespace, say: Callable[[str], None]) -> int:
         print(f"NOT COMPUTED: {section}: {why}")
     if summary.get("ignored_channels"):
         print(summary["ignored_channels"])
+    for line in summary["resampling"]:
+        print(line)
     for sc in summary["heldout"]:
-        print(f"held-out free-run NRMSE(range) of θ: {sc['nrmse_range']:.4g} ({sc['recording']})")
+        if sc.get("diverges"):
+            print(f"held-out {sc['diverges']} ({sc['recording']}): no NRMSE")
+        else:
+            print(f"held-out free-run NRMSE(range) of θ: {sc['nrmse_range']:.4g} ({sc['recording']})")
+    for w in summary["warnings"]:
+        print(f"WARNING: {w}")
     print(f"λ = {summary['threshold']:g}; results in {args.out} ({summary['wall_time_s']} s)")
     return 0
 

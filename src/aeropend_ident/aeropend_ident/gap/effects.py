@@ -48,6 +48,8 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import GapError
+from aeropend_ident.io.csvspec.constant_input import excitation_problem
+from aeropend_ident.io.recording_input import detect_quantum  # re-exported: the gap tool's name for it
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Diagnosis
 from aeropend_sim.components.xp import MATH
@@ -464,36 +466,8 @@ def get_effect(name: str) -> Effect:
 
 
 # ------------------------------------------------------------------------------ detected, not fitted
-def detect_quantum(y: np.ndarray) -> float:
-    """LSB q of a recorded channel if its values lie on a lattice k·q (+ constant), else 0.
-
-    The ``"direct"`` effect of the catalog (``quantisation``): a property of the recording, read
-    from it, never fitted. The lattice step is the smallest gap between distinct values; the
-    channel counts as quantised when every value sits within 1e-3·q of the lattice and there are
-    fewer distinct values than a third of the samples.
-
-    Parameters
-    ----------
-    y : ndarray, shape (n,)
-        Recorded channel (e.g. θ [rad]).
-
-    Returns
-    -------
-    float
-        q in the channel's unit; 0.0 when the values are not on a lattice (or too few).
-    """
-    y = np.asarray(y, dtype=float)
-    u = np.unique(np.round(y, 12))
-    if u.size < 3 or u.size > y.size / 3:
-        return 0.0
-    gaps = np.diff(u)
-    q = float(np.min(gaps[gaps > 1e-12])) if np.any(gaps > 1e-12) else 0.0
-    if q <= 0.0:
-        return 0.0
-    frac = (y - u[0]) / q
-    if np.max(np.abs(frac - np.round(frac))) > 1e-3:
-        return 0.0
-    return q
+# detect_quantum (the ``quantisation`` effect's "direct" reading) lives in io/recording_input.py: the
+# resampling reads it too (a quantised channel is not interpolated).
 
 
 def measurement_noise(y: np.ndarray) -> float:
@@ -605,11 +579,16 @@ def check_recordings(recordings: Any, what: str = "recordings",
             k_bad = int(np.flatnonzero((r.duty < 0.0) | (r.duty > 1.0))[0])
             raise GapError(f"{src}: duty[{k_bad}] = {r.duty[k_bad]!r} outside [0, 1] (a fraction)")
         if np.ptp(r.duty) == 0.0:
+            why = excitation_problem(r.t, r.duty, r.channels["theta"],
+                                     "channel theta_ref" if "theta_ref" in r.extra else None)
+            if why is not None and why[0] == "driven":  # the csv_import refusal, whichever way the log came
+                raise GapError(f"{src}: {why[1]}")
             raise GapError(f"{src}: constant duty cycle {r.duty[0]:g}: the input is unexcited")
         dt = np.diff(r.t)
         if np.ptp(dt) > 1e-3 * np.median(dt):
             raise GapError(f"{src}: non-uniform sampling (dt from {dt.min():.4g} to {dt.max():.4g} s); "
-                           "resample first (aeropend_ident.greybox.fit.uniform_data)")
+                           "resample first (aeropend_ident.io.recording_input.uniform_recording, "
+                           "which every command applies)")
         ch = set(r.channels) & {"theta", "i_a", "v_a", "omega_rotor"}
         common = ch if common is None else common & ch
     return frozenset(common or set())

@@ -77,6 +77,7 @@ from aeropend_ident.gap.effects import measurement_noise
 from aeropend_ident.greybox.baseline import measured_rate, residual_bins, residual_regions
 from aeropend_ident.greybox.fit import UniformData, error_metrics, initial_velocity, uniform_data
 from aeropend_ident.io.jsonutil import jsonable
+from aeropend_ident.io.recording_input import uniform_recording
 from aeropend_sim.compiled.plant import CompiledPlant
 from aeropend_sim.components import registry
 from aeropend_sim.components.xp import NUMPY
@@ -752,17 +753,16 @@ def constant_holds(
 
 # --------------------------------------------------------------------------- per recording
 def _grid(rec: Recording, data: UniformData) -> dict[str, np.ndarray]:
-    """Every recorded channel on the uniform grid (linear interpolation when resampled)."""
-    t = rec.t - rec.t[0]
-    out = {}
+    """Every recorded channel on the uniform grid of ``data`` (the one resampling of the tools,
+    :func:`aeropend_ident.io.recording_input.uniform_recording`)."""
     for name, y in rec.channels.items():
         if not np.all(np.isfinite(y)):
             raise GapInputError(
                 f"{rec.source or '<recording>'}: channel {name} has "
                 f"{int((~np.isfinite(y)).sum())} NaN/inf value(s); expected finite values"
             )
-        out[name] = y.copy() if (not data.resampled and y.size == data.t.size) else np.interp(data.t, t, y)
-    return out
+    grid = uniform_recording(rec, dt=data.dt)
+    return {name: y[: data.t.size].copy() for name, y in grid.channels.items()}
 
 
 def _simulate(rig: Rig, data: UniformData, x0: np.ndarray) -> Any:

@@ -1,36 +1,57 @@
-"""Grey-box baseline: fit a rig's nominal model on the first part of a recording, test on the rest.
+"""Grey-box baseline: fit a rig's nominal model on recordings, test it on data the fit never saw.
 
 Pipeline (:func:`baseline`, :func:`run_baseline`):
 
-1. **Split** the recording in time order (:meth:`aeropend_sim.recording.Recording.split`,
-   default 70 % train / 30 % held out). The held-out part is never seen by the fit.
-2. **Fit** the selected parameters on the training part by output error
-   (:func:`aeropend_ident.greybox.fit.fit_greybox`, default parameter set for θ-only data).
-3. **Replay** the held-out part's recorded duty cycle through the fitted model in free run,
-   starting from the held-out part's own first samples (θ, θ̇ by a short local fit, motor at the
-   steady state of its first duty), and the same for the **nominal** (unfitted) rig.
-4. **Metrics** on train and held-out, for the nominal and the fitted model:
-   NRMSE = RMS(θ_sim − θ_meas) / (max θ_meas − min θ_meas) over that part, RMS error [rad] and
-   max |error| [rad].
-5. **Residual per operating region** (residual = θ_sim − θ_meas): equal-width bins of the
+1. **Held-out design.** One or more recordings: each is split in time order (default 70 % fit /
+   30 % held out, :meth:`aeropend_sim.recording.Recording.split`); or, with ``held_out``, the
+   recordings are fitted whole and the held-out recordings are replayed (split by recordings: fit
+   on some recordings, validate on another). A held-out part may be a constant hold (the end of a
+   step test); identifiability is decided on what is fitted
+   (:func:`aeropend_ident.greybox.fit.check_excited`: the fitted data must excite the rig — a
+   changing command, or a free decay or step from rest under a constant one).
+2. **Grid.** Every recording goes through the one resampling of the tools
+   (:func:`aeropend_ident.io.recording_input.uniform_recording`) onto the grid of the first fit
+   recording; what was done (jitter, dropped rows, gaps) is reported.
+3. **Fit** the selected parameters on the fit data by output error
+   (:func:`aeropend_ident.greybox.fit.fit_greybox`, default parameter set for θ-only data), every
+   fit recording from its own initial state. A fitted dead time or actuator lag is searched over
+   the range the recordings can show (:func:`aeropend_ident.io.recording_input.timing_range`, at
+   least 1 s of dead time when they are long enough), from the best start of a coarse scan.
+4. **Replay** each held-out part's recorded duty cycle through the fitted model in free run,
+   starting from its own first samples (θ, θ̇ by a short local fit, motor at the steady state of
+   its first duty), and the same for the **nominal** (unfitted) rig; a held-out part that
+   continues its fit part starts its replay early enough that a dead time sees the commands
+   before the split.
+5. **Metrics** on fit and held-out data, for the nominal and the fitted model:
+   NRMSE = RMS(θ_sim − θ_meas) / (max θ_meas − min θ_meas) over that part (over the whole
+   recordings when the part barely moves: a hold, :data:`HOLD_RANGE_SHARE`), RMS error [rad] and
+   max |error| [rad]. A model that diverges (:func:`aeropend_ident.io.overlay_axes.diverges`:
+   non-finite, or beyond the recorded range by more than a recorded span) is reported as
+   divergence, not as an NRMSE.
+6. **Warnings**: a fitted model that predicts the held-out data worse than the nominal, with the
+   parameters that are implausible (:func:`implausible`: relative standard error > 100 %, at a
+   bound, outside the physical range the registry declares), a divergence, a parameter at a
+   search bound derived from the data; on the terminal, in ``report.json`` and on the overlay.
+7. **Residual per operating region** (residual = θ_sim − θ_meas): equal-width bins of the
    measured θ and of the duty cycle (count, mean, RMS), and transient vs steady state
    (|θ̇_meas| above/below a threshold, θ̇ from a Savitzky-Golay derivative of the measured θ).
-6. **Report** (:func:`write_report`): ``report.json`` (parameters with units and standard
-   errors, metrics, regions, provenance) and ``overlay.png`` (recorded vs nominal vs fitted θ
-   with the train/held-out boundary, duty cycle below), plus ``fitted_rig.yaml`` (the fitted
-   rig in the rig-file format, loadable by :func:`aeropend_sim.params.load_rig`).
+8. **Report** (:func:`write_report`): ``report.json`` (parameters with units and standard
+   errors, metrics, regions, warnings, provenance) and ``overlay.png`` (recorded vs nominal vs
+   fitted θ with the fit/held-out boundaries, duty cycle below), plus ``fitted_rig.yaml`` (the
+   fitted rig in the rig-file format, loadable by :func:`aeropend_sim.params.load_rig`).
 
 No rclpy import; matplotlib is used with the Agg backend only when writing the plot.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as _dt
 import json
 import math
 import platform
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +63,12 @@ from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.fit import (
     THETA_OFFSET,
     GreyBoxResult,
+    ParameterEstimate,
     UniformData,
+    apply_parameters,
+    check_excited,
+    concat_uniform,
+    default_parameters,
     error_metrics,
     fit_greybox,
     free_run_theta,
@@ -50,146 +76,227 @@ from aeropend_ident.greybox.fit import (
     uniform_data,
 )
 from aeropend_ident.io.jsonutil import jsonable
+from aeropend_ident.io.overlay_axes import HOLD_RANGE_SHARE, diverges, short_number
+from aeropend_ident.io.recording_input import TimingRange, resampling_notes, timing_range
+from aeropend_sim.components import registry
 from aeropend_sim.params import Rig, RigFileError, load_rig, rig_to_dict
 from aeropend_sim.recording import Recording, RecordingError
 
 #: Definition of the NRMSE used throughout the report.
-NRMSE_DEFINITION = "NRMSE = RMS(theta_sim - theta_meas) / (max(theta_meas) - min(theta_meas)) over the part"
+NRMSE_DEFINITION = ("NRMSE = RMS(theta_sim - theta_meas) / (max(theta_meas) - min(theta_meas)) over the part "
+                    "(over all recordings when the part's own range is below HOLD_RANGE_SHARE of theirs); "
+                    "null when the model diverges (see 'divergence')")
 #: Default |θ̇| threshold [rad/s] separating transient from steady-state samples.
 STEADY_RATE = 0.05
 #: Default number of equal-width bins for the θ and duty operating regions.
 N_BINS = 5
 #: Default multiple-shooting horizon [s] that initialises the free-run fit.
 INIT_HORIZON = 2.0
+#: A part whose θ range is below this share of the range over all recordings is a hold: its NRMSE is
+#: normalised by the recordings' range (its own range is its noise).
+#: Relative standard error above which a fitted parameter is implausible.
+MAX_RELATIVE_ERROR = 1.0
+#: Values a coarse scan tries for a fitted dead time or lag before the fit starts.
+TIMING_SCAN = 9
+#: The timing parameters whose search range comes from the data (:func:`timing_range`).
+TIMING_PARAMS = ("actuator.input_delay", "actuator.lag_time_constant")
 
 
 @dataclass(frozen=True)
 class BaselineResult:
-    """Everything the baseline computed (arrays in the recording's angle frame, SI units).
+    """Everything the baseline computed (arrays in the recordings' angle frame, SI units).
 
     Attributes
     ----------
     fit : GreyBoxResult
-        The fit on the training part (fitted rig, parameters, standard errors, cost, ...).
+        The fit on the fit data (fitted rig, parameters, standard errors, cost, ...).
     nominal_rig : Rig
         The rig as loaded (the nominal model).
     nominal_theta_offset : float
         The rig's recording-frame offset [rad] (θ_model = θ_recorded + offset).
     rig_ref : str
         The rig name or path given (provenance).
-    recording : Recording
-        The input recording.
-    train_fraction : float
+    recordings : tuple of Recording
+        The fit recordings as given (whole, before any split).
+    held_out_recordings : tuple of Recording
+        Separate held-out recordings (empty for a time-ordered split).
+    train_fraction : float or None
+        Share of each recording fitted in a time-ordered split; None with held-out recordings.
     train, heldout : UniformData
-        The two parts on their uniform grids (time re-based to 0 in each).
-    t_split : float
-        Start of the held-out part [s] from the recording's start.
+        The fit and held-out data on one grid, one segment per recording (time re-based).
+    t_split : float or None
+        Start of the held-out part [s] of a single recording split in time order, else None.
     theta : dict
-        ``theta[part][model]`` simulated angle [rad], part ∈ {"train", "heldout"},
-        model ∈ {"nominal", "fitted"}.
+        ``theta[part][model]`` simulated angle [rad] (segments concatenated), part ∈ {"train",
+        "heldout"}, model ∈ {"nominal", "fitted"}.
     metrics : dict
-        ``metrics[part][model]`` = :func:`aeropend_ident.greybox.fit.error_metrics`.
+        ``metrics[part][model]``: :func:`aeropend_ident.greybox.fit.error_metrics` over the part
+        (NRMSE as :data:`NRMSE_DEFINITION`, None when the model diverges) plus ``normalised_by``.
+    per_recording : list of dict
+        The same per held-out recording (``recording``, ``nominal``, ``fitted``).
     regions : dict
         ``regions[part][model]`` = :func:`residual_regions`.
+    divergence : dict
+        ``divergence[part][model]``: why the model diverges there (:func:`diverges`), absent if not.
+    implausible : dict
+        Parameter name -> reasons it is implausible (:func:`implausible`).
+    timing : TimingRange or None
+        The search range of a fitted dead time or lag (None when none is fitted).
+    warnings : list of str
+        What the report must not let pass unnoticed (terminal, JSON, overlay).
     """
 
     fit: GreyBoxResult
     nominal_rig: Rig
     nominal_theta_offset: float
     rig_ref: str
-    recording: Recording
-    train_fraction: float
+    recordings: tuple[Recording, ...]
+    held_out_recordings: tuple[Recording, ...]
+    train_fraction: float | None
     train: UniformData
     heldout: UniformData
-    t_split: float
+    t_split: float | None
     theta: dict[str, dict[str, np.ndarray]]
-    metrics: dict[str, dict[str, dict[str, float]]]
+    metrics: dict[str, dict[str, dict[str, Any]]]
     regions: dict[str, dict[str, dict[str, Any]]]
+    per_recording: list[dict[str, Any]] = field(default_factory=list)
+    divergence: dict[str, dict[str, str]] = field(default_factory=dict)
+    implausible: dict[str, list[str]] = field(default_factory=dict)
+    timing: TimingRange | None = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def recording(self) -> Recording:
+        """The first fit recording (the only one in the common case)."""
+        return self.recordings[0]
+
+    def split_rule(self) -> str:
+        """The held-out design in words."""
+        if self.held_out_recordings:
+            return (f"fit on {', '.join(_name(r) for r in self.recordings)} (whole); held out: "
+                    f"{', '.join(_name(r) for r in self.held_out_recordings)} (never used for fitting)")
+        return (f"time-ordered: the first {self.train_fraction:.0%} of each recording fitted, the rest held "
+                "out (never used for fitting)")
 
     def summary(self) -> str:
-        """A few lines for a terminal: parameters and NRMSE nominal vs fitted."""
-        lines = [
-            f"baseline: rig {self.nominal_rig.name} on {self.recording.source or '<recording>'}",
-            f"  split: {self.train_fraction:.0%} train ({len(self.train)} samples), "
-            f"held out from t = {self.t_split:.2f} s ({len(self.heldout)} samples)",
-            f"  fit: {self.fit.nfev} simulations, {self.fit.elapsed:.1f} s, {self.fit.message}",
-        ]
+        """A few lines for a terminal: parameters, NRMSE nominal vs fitted, warnings."""
+        lines = [f"baseline: rig {self.nominal_rig.name} on {', '.join(_name(r) for r in self.recordings)}"]
+        if self.held_out_recordings:
+            lines.append(f"  split: {self.split_rule()} ({len(self.train)} fit, {len(self.heldout)} held-out "
+                         "samples)")
+        elif len(self.recordings) == 1:
+            lines.append(f"  split: {self.train_fraction:.0%} train ({len(self.train)} samples), "
+                         f"held out from t = {self.t_split:.2f} s ({len(self.heldout)} samples)")
+        else:
+            lines.append(f"  split: {self.split_rule()} ({len(self.train)} fit, {len(self.heldout)} held-out "
+                         "samples)")
+        lines.append(f"  fit: {self.fit.nfev} simulations, {self.fit.elapsed:.1f} s, {self.fit.message}")
         for p in self.fit.parameters:
             rel = f" ({p.relative_std_error:.1%})" if math.isfinite(p.relative_std_error) else ""
             flag = "  AT BOUND" if p.at_bound else ""
-            if not flag and p.relative_std_error > 0.5:
+            why = [w for w in self.implausible.get(p.name, []) if not w.startswith("at its")]
+            if why:
+                flag += f"  implausible: {'; '.join(why)}"
+            elif not flag and p.relative_std_error > 0.5:
                 flag = "  poorly determined (std error > 50 %)"
             lines.append(
                 f"  {p.name:28s} {p.value:12.5g} ± {p.std_error:<10.3g}{rel:9s} {p.unit:10s}"
                 f" (nominal {p.initial:.5g}){flag}"
             )
         for part in ("train", "heldout"):
-            m = self.metrics[part]
-            lines.append(
-                f"  NRMSE {part:8s} nominal {m['nominal']['nrmse']:.4f}   fitted {m['fitted']['nrmse']:.4f}"
-                f"   (RMS {m['nominal']['rms_error']:.4f} -> {m['fitted']['rms_error']:.4f} rad)"
-            )
+            m, d = self.metrics[part], self.divergence.get(part, {})
+            figs = ["DIVERGES" if k in d else f"{m[k]['nrmse']:.4f}" for k in ("nominal", "fitted")]
+            rms = (f"   (RMS {m['nominal']['rms_error']:.4f} -> {m['fitted']['rms_error']:.4f} rad)"
+                   if not d else "")
+            lines.append(f"  NRMSE {part:8s} nominal {figs[0]}   fitted {figs[1]}{rms}")
+        lines += [f"  WARNING: {w}" for w in self.warnings]
         return "\n".join(lines)
 
     def report(self) -> dict[str, Any]:
         """JSON-ready report (what ``report.json`` holds)."""
-        rec = self.recording
-        meta_keys = ("preset", "provenance", "licence", "rig", "files", "csv_file", "csv_sha256",
-                     "angle_reference", "input_note", "sample_period_note")
         m = self.metrics
         return jsonable({
             "summary": {
                 "rig": self.nominal_rig.name,
-                "recording": rec.source,
+                "recording": self.recording.source,
+                "recordings": [r.source for r in self.recordings],
+                "held_out_recordings": [r.source for r in self.held_out_recordings],
                 "nrmse_heldout_nominal": m["heldout"]["nominal"]["nrmse"],
                 "nrmse_heldout_fitted": m["heldout"]["fitted"]["nrmse"],
                 "nrmse_train_nominal": m["train"]["nominal"]["nrmse"],
                 "nrmse_train_fitted": m["train"]["fitted"]["nrmse"],
                 "parameters": {p.name: {"value": p.value, "unit": p.unit, "std_error": p.std_error}
                                for p in self.fit.parameters},
+                "warnings": self.warnings,
             },
+            "warnings": self.warnings,
+            "divergence": self.divergence,
             "parameters": [
                 {"name": p.name, "value": p.value, "unit": p.unit, "std_error": p.std_error,
                  "relative_std_error": p.relative_std_error, "nominal": p.initial,
-                 "lower": p.lower, "upper": p.upper, "log_parametrised": p.log, "at_bound": p.at_bound}
+                 "lower": p.lower, "upper": p.upper, "log_parametrised": p.log, "at_bound": p.at_bound,
+                 "implausible": self.implausible.get(p.name, []),
+                 "bounds_from": ("the data (timing_search)"
+                                 if self.timing is not None and p.name in TIMING_PARAMS
+                                 else "the parameter's declaration")}
                 for p in self.fit.parameters
             ],
             "theta_offset": {"nominal": self.nominal_theta_offset, "fitted": self.fit.theta_offset,
                              "unit": "rad", "meaning": "theta_model = theta_recorded + theta_offset"},
             "fit": {k: v for k, v in self.fit.as_dict().items() if k != "parameters"},
+            "timing_search": self.timing.as_dict() if self.timing is not None else None,
             "metrics": {"definition": NRMSE_DEFINITION, "units": {"rms_error": "rad", "max_abs_error": "rad",
                                                                   "range": "rad", "nrmse": "1"},
                         **m},
+            "per_recording": self.per_recording,
             "regions": {
                 "definition": "residual = theta_sim - theta_meas [rad]; theta and duty bins are equal-width "
                               "over the part's measured range; 'steady' = |d theta_meas/dt| < rate_threshold",
                 **self.regions,
             },
             "split": {
+                "rule": self.split_rule(),
                 "train_fraction": self.train_fraction, "t_split_s": self.t_split,
                 "n_train": len(self.train), "n_heldout": len(self.heldout),
-                "order": "time-ordered: train = first part, held out = the rest (never used for fitting)",
-                "heldout_initial_state": "theta and theta_dot from the held-out part's first samples, "
+                "order": ("time-ordered: train = first part, held out = the rest (never used for fitting)"
+                          if not self.held_out_recordings else "by recordings"),
+                "heldout_initial_state": "theta and theta_dot from each held-out part's first samples, "
                                          "motor at the steady state of its first duty",
             },
-            "provenance": {
-                "recording": {
-                    "source": rec.source, "n_samples": len(rec), "duration_s": float(rec.t[-1] - rec.t[0]),
-                    "dt_median_s": rec.dt,
-                    "resampled_to_uniform": self.train.resampled or self.heldout.resampled,
-                    "fit_grid_dt_s": self.train.dt, "decimate": self.train.decimate,
-                    "channels": sorted(rec.channels),
-                    "meta": {k: rec.meta[k] for k in meta_keys if k in rec.meta},
-                },
-                "rig": {"ref": self.rig_ref, "name": self.nominal_rig.name,
-                        "description": self.nominal_rig.description,
-                        "effects": dict(vars(self.nominal_rig.effects))},
-                "tool": "aeropend_ident.greybox.baseline",
-                "created_utc": _dt.datetime.now(_dt.UTC).isoformat(),
-                "versions": {"python": platform.python_version(), "numpy": np.__version__,
-                             "scipy": scipy.__version__},
-            },
+            "provenance": self._provenance(),
         })
+
+    def _provenance(self) -> dict[str, Any]:
+        meta_keys = ("preset", "provenance", "licence", "rig", "files", "csv_file", "csv_sha256",
+                     "angle_reference", "input_note", "sample_period_note")
+        rec = self.recording
+        every = (*self.recordings, *self.held_out_recordings)
+        return {
+            "recording": {
+                "source": rec.source, "n_samples": len(rec), "duration_s": float(rec.t[-1] - rec.t[0]),
+                "dt_median_s": rec.dt,
+                "resampled_to_uniform": self.train.resampled or self.heldout.resampled,
+                "fit_grid_dt_s": self.train.dt, "decimate": self.train.decimate,
+                "channels": sorted(rec.channels),
+                "meta": {k: rec.meta[k] for k in meta_keys if k in rec.meta},
+            },
+            "recordings": [{"source": r.source, "n_samples": len(r), "duration_s": float(r.t[-1] - r.t[0]),
+                            "dt_median_s": r.dt, "channels": sorted(r.channels),
+                            "resampling": r.meta.get("resampling")} for r in every],
+            "resampling": resampling_notes(every),
+            "rig": {"ref": self.rig_ref, "name": self.nominal_rig.name,
+                    "description": self.nominal_rig.description,
+                    "effects": dict(vars(self.nominal_rig.effects))},
+            "tool": "aeropend_ident.greybox.baseline",
+            "created_utc": _dt.datetime.now(_dt.UTC).isoformat(),
+            "versions": {"python": platform.python_version(), "numpy": np.__version__,
+                         "scipy": scipy.__version__},
+        }
+
+
+def _name(rec: Recording) -> str:
+    """A recording's short name for the summaries (file name, or the source)."""
+    return Path(str(rec.source)).name or str(rec.source) or "<recording>"
 
 
 # --------------------------------------------------------------------------- regions
@@ -295,6 +402,46 @@ def residual_regions(theta: np.ndarray, duty: np.ndarray, residual: np.ndarray, 
     }
 
 
+# --------------------------------------------------------------------------- implausible parameters
+def implausible(p: ParameterEstimate, timing: TimingRange | None = None) -> list[str]:
+    """Why a fitted value is implausible (empty list: nothing to say).
+
+    The rules: a relative standard error above :data:`MAX_RELATIVE_ERROR` (or none: the data do not
+    determine it), a value at a bound of its search range (the bound decided it, not the data), a
+    value outside the physical range the registry declares for the parameter (its sign, its strict
+    upper limit, its declared fit bounds: :class:`aeropend_sim.components.base.Param`).
+
+    Parameters
+    ----------
+    p : ParameterEstimate
+    timing : TimingRange, optional
+        The data-derived search range of a timing parameter (named in the reason).
+    """
+    out = []
+    if p.at_bound:
+        lower = abs(p.value - p.lower) <= abs(p.value - p.upper)
+        side, bound = ("lower", p.lower) if lower else ("upper", p.upper)
+        where = (f" (search range derived from the data: {timing.rule()})"
+                 if timing is not None and p.name in TIMING_PARAMS and side == "upper" else "")
+        out.append(f"at its {side} bound {short_number(bound)} {p.unit}{where}")
+    elif math.isinf(p.std_error) or math.isnan(p.std_error):
+        out.append("not determined by these data (no finite standard error)")
+    elif p.relative_std_error > MAX_RELATIVE_ERROR:
+        out.append(f"relative standard error {p.relative_std_error:.0%} > {MAX_RELATIVE_ERROR:.0%}")
+    if p.name != THETA_OFFSET:
+        par = registry.param(p.name)
+        why = par.violation(p.value)
+        declared = par.fit
+        if why is None and declared is not None and (
+                (declared.lower is not None and p.value < declared.lower)
+                or (declared.upper is not None and p.value > declared.upper)):
+            why = (f"outside its physical range [{short_number(declared.lower)}, "
+                   f"{short_number(declared.upper)}] {p.unit} ({par.doc})")
+        if why is not None:
+            out.append(why)
+    return out
+
+
 # --------------------------------------------------------------------------- pipeline
 def _resolve_rig(rig: Rig | str | Path) -> tuple[Rig, str, float]:
     if isinstance(rig, Rig):
@@ -306,10 +453,104 @@ def _resolve_rig(rig: Rig | str | Path) -> tuple[Rig, str, float]:
     return loaded, str(rig), rig_theta_offset(rig)
 
 
+def _on_grid(rec: Recording, dt: float, decimate: int, min_samples: int) -> tuple[UniformData, Recording]:
+    """θ and the duty cycle of ``rec`` on the grid of step ``dt`` (the one resampling), and the resampled
+    θ-only recording (its ``meta["resampling"]`` says what was done)."""
+    from aeropend_ident.io.recording_input import uniform_recording
+
+    if "theta" not in rec.channels:
+        uniform_data(rec)  # raises the grey-box fit's message (no θ)
+    slim = Recording(t=rec.t, duty=rec.duty, channels={"theta": rec.channels["theta"]}, source=rec.source,
+                     meta=dict(rec.meta))
+    try:
+        grid = uniform_recording(slim, dt=dt)
+    except ValueError as exc:
+        raise IdentificationError(str(exc)) from exc
+    data = uniform_data(grid, dt=dt, decimate=decimate, min_samples=min_samples)
+    return dataclasses.replace(data, resampled=data.resampled or grid is not slim), grid
+
+
+def _design(recordings: Sequence[Recording], held_out: Sequence[Recording], train_fraction: float,
+            decimate: int) -> tuple[list[UniformData], list[UniformData], list[Recording], float | None]:
+    """Fit and held-out data (one per recording part) on the first recording's grid, the resampled
+    parts (for the report) and the split time of a single recording split in time order."""
+    if not (isinstance(train_fraction, (int, float)) and 0.0 < train_fraction < 1.0):
+        raise IdentificationError(f"train_fraction = {train_fraction!r}; expected a number in (0, 1)")
+    dt = recordings[0].dt
+    fit_parts, held_parts, t_split = list(recordings), list(held_out), None
+    if not held_out:
+        fit_parts, held_parts = [], []
+        for r in recordings:
+            try:
+                a, b = r.split(train_fraction)
+            except RecordingError as exc:
+                raise IdentificationError(f"cannot split {r.source or 'the recording'}: {exc}") from exc
+            fit_parts.append(a)
+            held_parts.append(b)
+        if len(recordings) == 1:
+            t_split = float(recordings[0].t[len(fit_parts[0])] - recordings[0].t[0])
+    fit = [_on_grid(r, dt, decimate, 2) for r in fit_parts]
+    held = [_on_grid(r, dt, decimate, 10) for r in held_parts]
+    return [f[0] for f in fit], [h[0] for h in held], [x[1] for x in (*fit, *held)], t_split
+
+
+def _timing_start(rig: Rig, off: float, train: UniformData, names: Sequence[str], timing: TimingRange,
+                  ) -> dict[str, float]:
+    """Start values of fitted timing parameters: the best of a coarse scan over their data-derived range
+    (a local fit from the rig file's value would stop at the nearest local minimum of a dead time)."""
+    start: dict[str, float] = {}
+    current = rig
+    for name in names:
+        top = timing.delay_max if name == "actuator.input_delay" else timing.lag_max
+        grid = (np.linspace(0.0, top, TIMING_SCAN) if name == "actuator.input_delay"
+                else np.geomspace(min(1e-3, top), top, TIMING_SCAN))
+        costs = []
+        for v in grid:
+            try:
+                trial, _ = apply_parameters(current, {name: float(v)}, off)
+                costs.append(float(np.sum((free_run_theta(trial, train, off) - train.theta) ** 2)))
+            except IdentificationError:
+                costs.append(math.inf)
+        best = float(grid[int(np.argmin(costs))]) if np.isfinite(costs).any() else float(grid[0])
+        start[name] = best
+        current, _ = apply_parameters(current, {name: best}, off)
+    return start
+
+
+def _replay(rig: Rig, off: float, data: UniformData, history: UniformData | None) -> np.ndarray:
+    """Free run of a held-out part; with ``history`` (the fit part it continues) the run starts early
+    enough that the rig's dead time sees the commands before the split."""
+    delay = rig.actuator.input_delay if rig.effects.input_delay else 0.0
+    k = math.ceil(delay / data.dt) + 1 if delay > 0.0 and history is not None else 0
+    if k == 0 or len(history) < k:
+        return free_run_theta(rig, data, off)
+    tail = dataclasses.replace(history, t=history.t[-k:] - history.t[-k], duty=history.duty[-k:],
+                               theta=history.theta[-k:], segments=(0,))
+    ext = concat_uniform([tail, data])
+    ext = dataclasses.replace(ext, segments=(0,))
+    return free_run_theta(rig, ext, off)[k:]
+
+
+def _scores(measured: np.ndarray, simulated: np.ndarray, span_all: float, t: np.ndarray | None = None,
+            ) -> tuple[dict[str, Any], str | None]:
+    """:func:`error_metrics` with the hold rule of the normalisation, and the divergence (None if none)."""
+    m = dict(error_metrics(measured, simulated))
+    own = m["range"]
+    hold = span_all > 0.0 and own < HOLD_RANGE_SHARE * span_all
+    span = span_all if hold else own
+    m["normalised_by"] = "the recordings' range (this part is a hold)" if hold else "the part's range"
+    m["nrmse"] = m["rms_error"] / span if span > 0.0 else math.inf
+    why = diverges(simulated, measured, t, span=span if hold else None)
+    if why is not None:
+        m["nrmse"] = None
+    return m, why
+
+
 def baseline(
-    recording: Recording,
+    recording: Recording | Sequence[Recording],
     rig: Rig | str | Path,
     *,
+    held_out: Sequence[Recording] | None = None,
     train_fraction: float = 0.7,
     params: Sequence[str] | None = None,
     theta_offset: float | None = None,
@@ -319,19 +560,22 @@ def baseline(
     rate_threshold: float = STEADY_RATE,
     max_nfev: int = 400,
 ) -> BaselineResult:
-    """Split, fit on the training part, replay the held-out part, compute metrics and regions.
+    """Fit on the fit data, replay the held-out data, compute metrics, regions and warnings.
 
     Parameters
     ----------
-    recording : Recording
+    recording : Recording or sequence of Recording
         Needs ``theta`` [rad] and the duty cycle (a bag via :func:`aeropend_ident.io.bags.read_bag`
-        or a CSV via :func:`aeropend_ident.io.csv_import.import_csv`).
+        or a CSV via :func:`aeropend_ident.io.csv_import.import_csv`); any timing (resampled).
     rig : Rig, str or Path
         The nominal model: a :class:`~aeropend_sim.params.Rig`, a shipped rig name or a rig-file
         path (then its ``recording_frame.theta_offset`` is used, see
         :func:`aeropend_ident.greybox.fit.rig_theta_offset`).
+    held_out : sequence of Recording, optional
+        Recordings replayed as held out; the ``recording`` s are then fitted whole (split by
+        recordings). Default: each recording split in time order.
     train_fraction : float
-        Fraction of the samples (from the start) used for fitting, in (0, 1).
+        Fraction of each recording's samples (from its start) fitted in a time-ordered split, in (0, 1).
     params : sequence of str, optional
         Fitted parameters (default :func:`aeropend_ident.greybox.fit.default_parameters`).
     theta_offset : float, optional
@@ -339,7 +583,7 @@ def baseline(
     init_horizon : float or None
         Multiple-shooting horizon [s] that initialises the free-run fit (None: free run only).
     decimate : int
-        Decimation of both parts (runtime; see :func:`aeropend_ident.greybox.fit.uniform_data`).
+        Decimation of every part (runtime; see :func:`aeropend_ident.greybox.fit.uniform_data`).
     n_bins, rate_threshold : int, float
         Operating-region bins and the steady-state |θ̇| threshold [rad/s].
     max_nfev : int
@@ -352,37 +596,101 @@ def baseline(
     Raises
     ------
     IdentificationError
-        On an unusable recording or part (too short, unexcited, NaNs, no θ), a bad split
-        fraction or rig, or a bad parameter request.
+        On an unusable recording or part (too short, not exciting the rig where it is fitted, a
+        constant input that cannot explain θ, NaNs, no θ), a bad split fraction or rig, or a bad
+        parameter request.
     """
     nominal, rig_ref, off = _resolve_rig(rig)
     if theta_offset is not None:
         off = float(theta_offset)
-    if not (isinstance(train_fraction, (int, float)) and 0.0 < train_fraction < 1.0):
-        raise IdentificationError(f"train_fraction = {train_fraction!r}; expected a number in (0, 1)")
-    try:
-        train_rec, held_rec = recording.split(train_fraction)
-    except RecordingError as exc:
-        raise IdentificationError(f"cannot split {recording.source or 'the recording'}: {exc}") from exc
-    t_split = float(recording.t[len(train_rec)] - recording.t[0])
-    train = uniform_data(train_rec, decimate=decimate)
-    held = uniform_data(held_rec, dt=train.dt / train.decimate, decimate=decimate, min_samples=10)
-    fit = fit_greybox(train, nominal, params, theta_offset=off, init_horizon=init_horizon, max_nfev=max_nfev)
-    theta: dict[str, dict[str, np.ndarray]] = {"train": {}, "heldout": {}}
-    metrics: dict[str, dict[str, dict[str, float]]] = {"train": {}, "heldout": {}}
-    regions: dict[str, dict[str, dict[str, Any]]] = {"train": {}, "heldout": {}}
-    for part, data in (("train", train), ("heldout", held)):
-        for model, r, o in (("nominal", nominal, off), ("fitted", fit.rig, fit.theta_offset)):
-            th = fit.theta_fit if (part == "train" and model == "fitted") else free_run_theta(r, data, o)
-            theta[part][model] = th
-            metrics[part][model] = error_metrics(data.theta, th)
-            regions[part][model] = residual_regions(data.theta, data.duty, th - data.theta, data.dt,
-                                                    n_bins, rate_threshold)
+    recs = [recording] if isinstance(recording, Recording) else list(recording)
+    held_recs = list(held_out or [])
+    if not recs:
+        raise IdentificationError("no recording given")
+    fit_parts, held_parts, grids, t_split = _design(recs, held_recs, train_fraction, decimate)
+    train = concat_uniform(fit_parts)
+    # identifiability on what is fitted; a closed loop's reference logged without its command is named
+    check_excited(train, "channel theta_ref" if any("theta_ref" in r.extra for r in recs) else None)
+    names = list(default_parameters(nominal, off) if params is None else params)
+    timed = [n for n in names if n in TIMING_PARAMS]
+    timing, bounds, initial = None, {}, {}
+    if timed:
+        timing = timing_range(grids[:len(fit_parts)])
+        bounds = {n: ((0.0, timing.delay_max) if n == "actuator.input_delay"
+                      else (1e-4, max(timing.lag_max, 2e-4))) for n in timed}
+        initial = _timing_start(nominal, off, train, timed, timing)
+    fit = fit_greybox(fit_parts, nominal, names, theta_offset=off, init_horizon=init_horizon,
+                      max_nfev=max_nfev, bounds=bounds or None, initial=initial or None)
+    held = concat_uniform(held_parts)
+    result = _evaluate(fit, nominal, off, fit_parts, held_parts, held_recs, n_bins, rate_threshold)
     return BaselineResult(
-        fit=fit, nominal_rig=nominal, nominal_theta_offset=off, rig_ref=rig_ref, recording=recording,
-        train_fraction=float(train_fraction), train=train, heldout=held, t_split=t_split, theta=theta,
-        metrics=metrics, regions=regions,
+        fit=fit, nominal_rig=nominal, nominal_theta_offset=off, rig_ref=rig_ref, recordings=tuple(recs),
+        held_out_recordings=tuple(held_recs), train_fraction=None if held_recs else float(train_fraction),
+        train=train, heldout=held, t_split=t_split, timing=timing,
+        implausible={p.name: why for p in fit.parameters if (why := implausible(p, timing))},
+        **result,
     )
+
+
+def _evaluate(fit: GreyBoxResult, nominal: Rig, off: float, fit_parts: Sequence[UniformData],
+              held_parts: Sequence[UniformData], held_recs: Sequence[Recording], n_bins: int,
+              rate_threshold: float) -> dict[str, Any]:
+    """Replays, metrics, divergence, regions and warnings of :func:`baseline`."""
+    span_all = float(np.ptp(np.concatenate([p.theta for p in (*fit_parts, *held_parts)])))
+    theta: dict[str, dict[str, np.ndarray]] = {"train": {}, "heldout": {}}
+    metrics: dict[str, dict[str, dict[str, Any]]] = {"train": {}, "heldout": {}}
+    regions: dict[str, dict[str, dict[str, Any]]] = {"train": {}, "heldout": {}}
+    divergence: dict[str, dict[str, str]] = {}
+    per_recording: list[dict[str, Any]] = [{"recording": p.source} for p in held_parts]
+    models = (("nominal", nominal, off), ("fitted", fit.rig, fit.theta_offset))
+    for model, r, o in models:
+        theta["train"][model] = (fit.theta_fit if model == "fitted"
+                                 else free_run_theta(r, concat_uniform(list(fit_parts)), o))
+        runs = []
+        for k, part in enumerate(held_parts):
+            history = fit_parts[k] if not held_recs else None
+            runs.append(_replay(r, o, part, history))
+            per_recording[k][model], why = _scores(part.theta, runs[-1], span_all, part.t)
+            if why:
+                per_recording[k][model]["diverges"] = why
+        theta["heldout"][model] = np.concatenate(runs)
+    for part, parts in (("train", fit_parts), ("heldout", held_parts)):
+        data = concat_uniform(list(parts))
+        for model, _, _ in models:
+            th = theta[part][model]
+            metrics[part][model], why = _scores(data.theta, th, span_all, data.t)
+            if why is not None:
+                divergence.setdefault(part, {})[model] = f"{model} model {why}"
+            finite = np.where(np.isfinite(th), th, data.theta)
+            regions[part][model] = residual_regions(data.theta, data.duty, finite - data.theta, data.dt,
+                                                    n_bins, rate_threshold)
+    return {"theta": theta, "metrics": metrics, "regions": regions, "per_recording": per_recording,
+            "divergence": divergence, "warnings": _warnings(fit, metrics, divergence)}
+
+
+def _warnings(fit: GreyBoxResult, metrics: dict[str, dict[str, dict[str, Any]]],
+              divergence: dict[str, dict[str, str]]) -> list[str]:
+    """The warnings of a baseline: a fit worse than the nominal on held-out data, divergences."""
+    out = []
+    held, div = metrics["heldout"], divergence.get("heldout", {})
+    nominal, fitted = held["nominal"]["nrmse"], held["fitted"]["nrmse"]
+    worse = ("fitted" in div and "nominal" not in div) or (
+        nominal is not None and fitted is not None and fitted > nominal)
+    if worse:
+        bad = [f"{p.name} = {short_number(p.value)} {p.unit} ({'; '.join(why)})"
+               for p in fit.parameters if (why := implausible(p))]
+        figures = ("the fitted model diverges" if "fitted" in div else
+                   f"held-out NRMSE nominal {nominal:.4g} -> fitted {fitted:.4g} "
+                   f"({fitted / nominal - 1.0:+.0%})")
+        out.append(f"the fitted model predicts the held-out data worse than the nominal: {figures}; "
+                   + (f"implausible parameters: {', '.join(bad)}" if bad else
+                      "no fitted parameter is implausible: the model structure or the held-out design does "
+                      "not carry over to the held-out data"))
+    for part, models in divergence.items():
+        for text in models.values():
+            out.append(f"{text} on the {'held-out' if part == 'heldout' else 'fit'} data: no NRMSE is given "
+                       "for it")
+    return out
 
 
 # --------------------------------------------------------------------------- report writer
@@ -390,20 +698,24 @@ def fitted_rig_dict(result: BaselineResult) -> dict[str, Any]:
     """The fitted rig in the rig-file format, each fitted number's source naming the fit."""
     data = rig_to_dict(result.fit.rig)
     data["name"] = f"{result.nominal_rig.name}_fitted"
+    names = ", ".join(_name(r) for r in result.recordings)
+    what = (f"{names} (whole; held out: {', '.join(_name(r) for r in result.held_out_recordings)})"
+            if result.held_out_recordings else f"the first {result.train_fraction:.0%} of {names}")
     data["description"] = (f"{result.nominal_rig.description} -- grey-box fit "
-                           f"(aeropend_ident.greybox.baseline) on the first {result.train_fraction:.0%} "
-                           f"of {result.recording.source}")
+                           f"(aeropend_ident.greybox.baseline) on {what}")
     moved = result.fit.theta_offset != result.nominal_theta_offset
+    part = "whole" if result.held_out_recordings else "train part"
     for p in result.fit.parameters:
         if p.name == THETA_OFFSET:
             continue
-        section, field = p.name.split(".", 1)
-        name = Path(result.recording.source).name or "recording"
-        data[section][field]["source"] = (f"grey-box fit on {name} (train part), "
-                                          f"std error {p.std_error:.3g} {p.unit}")
+        section, fname = p.name.split(".", 1)
+        why = result.implausible.get(p.name)
+        flag = f"; implausible: {'; '.join(why)}" if why else ""
+        data[section][fname]["source"] = (f"grey-box fit on {names} ({part}), "
+                                          f"std error {p.std_error:.3g} {p.unit}{flag}")
     if moved:
-        for field in ("theta_min", "theta_max"):
-            data["pendulum"][field]["source"] += " (moved with the fitted theta_offset)"
+        for fname in ("theta_min", "theta_max"):
+            data["pendulum"][fname]["source"] += " (moved with the fitted theta_offset)"
     if result.fit.theta_offset != 0.0 or result.nominal_theta_offset != 0.0:
         data["recording_frame"] = {THETA_OFFSET: {
             "value": result.fit.theta_offset, "unit": "rad",
@@ -411,12 +723,29 @@ def fitted_rig_dict(result: BaselineResult) -> dict[str, Any]:
     return data
 
 
-def plot_overlay(result: BaselineResult, path: str | Path) -> Path:
-    """Write ``overlay.png``: recorded vs nominal vs fitted θ, train/held-out boundary, duty below.
+def _plot_segments(result: BaselineResult) -> list[tuple[str, str, UniformData, slice, float]]:
+    """(part, label, data, slice into the part's arrays, time offset [s]) of every plotted stretch:
+    a single recording split in time order on its own time axis, several recordings end to end."""
+    out, t0 = [], 0.0
+    for part, data in (("train", result.train), ("heldout", result.heldout)):
+        for k, (a, b) in enumerate(data.bounds()):
+            seg = data.parts()[k]
+            if result.t_split is not None:
+                t0 = 0.0 if part == "train" else result.t_split
+            out.append((part, _name(seg), seg, slice(a, b), t0))
+            if result.t_split is None:
+                t0 += float(seg.t[-1]) + seg.dt
+    return out
 
-    Angles are in the recording's frame [rad]; time [s] from the recording's start. A model that
-    leaves the recorded range is cut at the plotted range with a note
-    (:func:`aeropend_ident.io.overlay_axes.clip_to_recorded`).
+
+def plot_overlay(result: BaselineResult, path: str | Path) -> Path:
+    """Write ``overlay.png``: recorded vs nominal vs fitted θ, fit/held-out boundaries, duty below.
+
+    Angles are in the recordings' frame [rad]; time [s] from the recording's start (several
+    recordings are drawn end to end, each labelled). A model that leaves the recorded range is cut
+    at the plotted range with a note (:func:`aeropend_ident.io.overlay_axes.clip_to_recorded`); a
+    model that diverges is named so in the title instead of an NRMSE, and the baseline's warnings
+    (a fit worse than the nominal, implausible parameters) are written on the axes.
     """
     import matplotlib
 
@@ -429,41 +758,60 @@ def plot_overlay(result: BaselineResult, path: str | Path) -> Path:
     path = Path(path)
     fig, (ax, axu) = plt.subplots(2, 1, sharex=True, figsize=(12, 6.5), height_ratios=(3, 1),
                                   constrained_layout=True)
-    parts = (("train", result.train, 0.0), ("heldout", result.heldout, result.t_split))
-    for part, data, t0 in parts:
-        t = data.t + t0
-        first = part == "train"
-        ax.plot(t, data.theta, color="black", lw=1.2, label="recorded" if first else None)
-        ax.plot(t, result.theta[part]["nominal"], color="tab:orange", lw=1.0, ls="--",
-                label="nominal model" if first else None)
-        ax.plot(t, result.theta[part]["fitted"], color="tab:blue", lw=1.0,
-                label="fitted model" if first else None)
-        axu.step(t, data.duty, where="post", color="tab:green", lw=1.0)
-    clip_to_recorded(ax, np.concatenate([d.t + t0 for _, d, t0 in parts]),
-                     np.concatenate([d.theta for _, d, _ in parts]),
-                     {f"{kind} model": np.concatenate([result.theta[p][kind] for p, _, _ in parts])
+    segments = _plot_segments(result)
+    for i, (part, label, seg, sl, t0) in enumerate(segments):
+        t = seg.t + t0
+        ax.plot(t, seg.theta, color="black", lw=1.2, label="recorded" if i == 0 else None)
+        ax.plot(t, result.theta[part]["nominal"][sl], color="tab:orange", lw=1.0, ls="--",
+                label="nominal model" if i == 0 else None)
+        ax.plot(t, result.theta[part]["fitted"][sl], color="tab:blue", lw=1.0,
+                label="fitted model" if i == 0 else None)
+        axu.step(t, seg.duty, where="post", color="tab:green", lw=1.0)
+        if result.t_split is None:
+            for a in (ax, axu):
+                a.axvline(t0, color="tab:red" if part == "heldout" else "gray", lw=1.0, ls=":")
+            ax.text(t0, 0.98, f"  {'held out' if part == 'heldout' else 'fit'}: {label}",
+                    transform=ax.get_xaxis_transform(), va="top", ha="left", fontsize=8,
+                    color="tab:red" if part == "heldout" else "gray")
+    clip_to_recorded(ax, np.concatenate([s.t + t0 for _, _, s, _, t0 in segments]),
+                     np.concatenate([s.theta for _, _, s, _, _ in segments]),
+                     {f"{kind} model": np.concatenate([result.theta[p][kind][sl]
+                                                       for p, _, _, sl, _ in segments])
                       for kind in ("nominal", "fitted")})
+    if result.t_split is not None:
+        for a in (ax, axu):
+            a.axvline(result.t_split, color="tab:red", lw=1.2, ls=":")
+        ax.text(0.01, 0.98, "train (fit)", transform=ax.transAxes, va="top", ha="left", color="tab:red")
+        ax.text(result.t_split, 0.98, "  held out", transform=ax.get_xaxis_transform(), va="top", ha="left",
+                color="tab:red")
     for a in (ax, axu):
-        a.axvline(result.t_split, color="tab:red", lw=1.2, ls=":")
         a.grid(alpha=0.3)
-    m = result.metrics
-    ax.text(0.01, 0.98, "train (fit)", transform=ax.transAxes, va="top", ha="left", color="tab:red")
-    ax.text(result.t_split, 0.98, "  held out", transform=ax.get_xaxis_transform(), va="top", ha="left",
-            color="tab:red")
-    ax.set_ylabel("θ [rad]")
-    fit_title(
-        ax,
-        f"{result.nominal_rig.name} on {Path(result.recording.source).name}: held-out NRMSE nominal "
-        f"{num(m['heldout']['nominal']['nrmse'])}, fitted {num(m['heldout']['fitted']['nrmse'])} "
-        f"(train {num(m['train']['nominal']['nrmse'])} / {num(m['train']['fitted']['nrmse'])})",
-        fontsize=10,
-    )
+
+    def fig_of(part: str, model: str) -> str:
+        div = result.divergence.get(part, {})
+        return "diverges" if model in div else num(result.metrics[part][model]["nrmse"])
+
+    names = ", ".join(_name(r) for r in (*result.recordings, *result.held_out_recordings))
+    fit_title(ax, f"{result.nominal_rig.name} on {names}: held-out NRMSE nominal "
+                  f"{fig_of('heldout', 'nominal')}, fitted {fig_of('heldout', 'fitted')} (train "
+                  f"{fig_of('train', 'nominal')} / {fig_of('train', 'fitted')})", fontsize=10)
+    if result.warnings:
+        ax.text(0.99, 0.90, "\n".join(_wrap(f"WARNING: {w}", 110) for w in result.warnings),
+                transform=ax.transAxes, va="top", ha="right", fontsize=7.5, color="tab:red",
+                bbox={"boxstyle": "round", "facecolor": "white", "alpha": 0.9, "edgecolor": "tab:red"})
     ax.legend(loc="lower right")
+    ax.set_ylabel("θ [rad]")
     axu.set_ylabel("duty τ [1]")
-    axu.set_xlabel("time t [s]")
+    axu.set_xlabel("time t [s]" if result.t_split is not None else "time t [s] (recordings end to end)")
     fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
+
+
+def _wrap(text: str, width: int) -> str:
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, width, break_long_words=False))
 
 
 #: The files :func:`write_report` writes into a report folder, by key (the ``baseline`` command's
@@ -501,8 +849,8 @@ def write_report(result: BaselineResult, outdir: str | Path) -> dict[str, Any]:
     return paths
 
 
-def run_baseline(recording: Recording, rig: Rig | str | Path, outdir: str | Path | None = None,
-                 **kwargs: Any) -> dict[str, Any]:
+def run_baseline(recording: Recording | Sequence[Recording], rig: Rig | str | Path,
+                 outdir: str | Path | None = None, **kwargs: Any) -> dict[str, Any]:
     """:func:`baseline` and, if ``outdir`` is given, :func:`write_report`; returns the report dict.
 
     Keyword arguments are passed to :func:`baseline`. The returned dictionary is what

@@ -26,6 +26,7 @@ Default parameter set for θ-only data (:func:`default_parameters`):
   whole actuator gain and the other factors stay at their rig-file values;
 * ``actuator.dead_zone`` when ``effects.dead_zone`` is on;
 * ``actuator.lag_time_constant`` when ``effects.actuator_lag`` is on;
+* ``actuator.input_delay`` when ``effects.input_delay`` is on;
 * ``pendulum.coulomb_over_J`` when ``effects.rod_coulomb_friction`` is on;
 * :data:`THETA_OFFSET` when the rig declares a recording-frame offset (see-saw rigs).
 
@@ -34,13 +35,13 @@ others linearly with a parameter scale (:class:`ParameterSpec`). Bounds, paramet
 scale come from the parameter's declaration (:attr:`aeropend_sim.components.base.Param.fit`, with
 the component or effect that owns it) or, for parameters without fit bounds, from its sign.
 
-Time grid: the simulator needs a uniform grid. A recording whose sample intervals deviate from
-their median by more than :data:`UNIFORM_TOLERANCE` (relative) is resampled onto
-t_k = k·dt (dt = the median interval unless given): θ by linear interpolation, the duty cycle by
-zero-order hold (the value commanded at the last recorded instant ≤ t_k, the recording's
-convention). Optional decimation by an integer factor keeps every ``decimate``-th θ sample and
-averages the duty cycle over each block (this preserves the mean input). It saves little time:
-the integrator's cost is set by the dynamics, not by the number of output samples
+Time grid: the simulator needs a uniform grid. A recording that is not on one goes through the one
+resampling of every tool (:func:`aeropend_ident.io.recording_input.uniform_recording`: grid step
+the median interval unless given, θ interpolated linearly or, when quantised, taken at its nearest
+sample, the duty cycle held: the value commanded at the last recorded instant ≤ t_k, the
+recording's convention). Optional decimation by an integer factor keeps every ``decimate``-th θ
+sample and averages the duty cycle over each block (this preserves the mean input). It saves little
+time: the integrator's cost is set by the dynamics, not by the number of output samples
 (``bench/bench_greybox.py``).
 
 Initial state: θ(0) = first recorded angle (+ offset); θ̇(0) from a local quadratic least-squares
@@ -75,9 +76,9 @@ from typing import Any
 import numpy as np
 from scipy.optimize import brentq, least_squares
 
-from aeropend_ident.errors import IdentificationError
+from aeropend_ident.errors import IdentificationError, RecordingInputError
 from aeropend_ident.greybox.batch import RigReplays, single_blas
-from aeropend_ident.io.recording_input import uniform_grid
+from aeropend_ident.io.recording_input import grid_step, uniform_recording
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect
 from aeropend_sim.components.xp import MATH
@@ -337,6 +338,8 @@ def default_parameters(rig: Rig, theta_offset: float = 0.0) -> list[str]:
         names.append("actuator.dead_zone")
     if e.actuator_lag:
         names.append("actuator.lag_time_constant")
+    if e.input_delay:
+        names.append("actuator.input_delay")
     if e.rod_coulomb_friction:
         names.append("pendulum.coulomb_over_J")
     if theta_offset != 0.0:
@@ -413,6 +416,10 @@ class UniformData:
         Decimation factor applied.
     source : str
         The recording's source.
+    segments : tuple of int
+        Start index of every recording in the data (several recordings fitted together,
+        :func:`concat_uniform`): each starts its own free run from its own initial state; (0,) for
+        one recording.
     """
 
     t: np.ndarray
@@ -422,9 +429,56 @@ class UniformData:
     resampled: bool
     decimate: int
     source: str
+    segments: tuple[int, ...] = (0,)
 
     def __len__(self) -> int:
         return int(self.t.size)
+
+    def bounds(self) -> list[tuple[int, int]]:
+        """(start, stop) sample indices of every segment."""
+        return list(itertools.pairwise([*self.segments, len(self)]))
+
+    def parts(self) -> list[UniformData]:
+        """Every segment as data of its own (time re-based to 0, one segment)."""
+        if len(self.segments) == 1:
+            return [self]
+        names = self.source.split(" + ")
+        out = []
+        for k, (a, b) in enumerate(self.bounds()):
+            part = _window(self, a, b)
+            out.append(dataclasses.replace(part, source=names[k] if len(names) == len(self.segments) else
+                                           f"{self.source}[{a}:{b}]"))
+        return out
+
+
+def concat_uniform(parts: Sequence[UniformData]) -> UniformData:
+    """Several recordings on one grid as one data set with segments (each its own free run).
+
+    Raises
+    ------
+    IdentificationError
+        On an empty list or different grid steps (resample them onto one grid first:
+        :func:`uniform_data` with ``dt``).
+    """
+    if not parts:
+        raise IdentificationError("no recording to fit")
+    if len(parts) == 1:
+        return parts[0]
+    dt = parts[0].dt
+    for p in parts[1:]:
+        if abs(p.dt - dt) > 1e-9 * dt:
+            raise IdentificationError(f"{p.source}: grid step {p.dt:g} s differs from {dt:g} s of "
+                                      f"{parts[0].source}; put the recordings on one grid "
+                                      "(uniform_data(..., dt=...))")
+    starts, n = [], 0
+    for p in parts:
+        starts.extend(n + k for k in p.segments)
+        n += len(p)
+    return UniformData(
+        t=np.arange(n) * dt, duty=np.concatenate([p.duty for p in parts]),
+        theta=np.concatenate([p.theta for p in parts]), dt=dt, resampled=any(p.resampled for p in parts),
+        decimate=parts[0].decimate, source=" + ".join(p.source for p in parts), segments=tuple(starts),
+    )
 
 
 def check_recording(recording: Recording, min_samples: int = MIN_SAMPLES) -> None:
@@ -433,8 +487,10 @@ def check_recording(recording: Recording, min_samples: int = MIN_SAMPLES) -> Non
     Raises
     ------
     IdentificationError
-        If θ is missing, θ or the duty cycle has NaN/inf, the duty cycle is outside [0, 1] or
-        constant (unexcited), θ is constant, or there are fewer than ``min_samples`` samples.
+        If θ is missing, θ or the duty cycle has NaN/inf, the duty cycle is outside [0, 1], or
+        there are fewer than ``min_samples`` samples. Whether the data excite the rig is decided on
+        what is fitted (:func:`fit_greybox`, :func:`check_excited`): a held-out part may be a
+        constant hold.
     """
     src = recording.source or "<recording>"
     if "theta" not in recording.channels:
@@ -459,13 +515,33 @@ def check_recording(recording: Recording, min_samples: int = MIN_SAMPLES) -> Non
     if out.any():
         k = int(np.flatnonzero(out)[0])
         raise IdentificationError(f"{src}: duty[{k}] = {float(duty[k])!r} is outside [0, 1] (a fraction)")
-    if np.ptp(duty) == 0.0:
-        raise IdentificationError(
-            f"{src}: the duty cycle is constant ({duty[0]:g}) over all {duty.size} samples: "
-            "the input is unexcited, the parameters are not identifiable"
-        )
-    if np.ptp(theta) == 0.0:
-        raise IdentificationError(f"{src}: θ is constant ({theta[0]:g} rad): the output is unexcited")
+
+
+def check_excited(data: UniformData, reference: str | None = None) -> None:
+    """Refuse fit data that do not excite the rig (identifiability decided on what is fitted).
+
+    Each segment (recording) is checked by
+    :func:`aeropend_ident.io.csvspec.constant_input.excitation_problem`: a segment whose constant
+    duty cycle cannot explain θ (a driven log without its command, e.g. a closed loop's reference
+    alone) is refused with the ``csv_import`` message; the data are refused as unexcited when no
+    segment excites the rig (constant duty and θ at rest). A free decay or a step from rest under a
+    constant duty is accepted.
+
+    Raises
+    ------
+    IdentificationError
+        Naming the recording and the reason.
+    """
+    from aeropend_ident.io.csvspec.constant_input import excitation_problem
+
+    problems = []
+    for part in data.parts():
+        found = excitation_problem(part.t, part.duty, part.theta, reference)
+        if found is not None and found[0] == "driven":
+            raise IdentificationError(f"{part.source or '<recording>'}: {found[1]}")
+        problems.append(found)
+    if all(p is not None for p in problems):
+        raise IdentificationError(f"{data.source or '<recording>'}: {problems[0][1]}")
 
 
 def uniform_data(
@@ -500,17 +576,18 @@ def uniform_data(
     decimate = int(decimate)
     t = recording.t - recording.t[0]
     theta, duty = recording.channels["theta"], recording.duty
-    grid_dt = float(np.median(np.diff(t))) if dt is None else float(dt)
+    grid_dt = grid_step(t) if dt is None else float(dt)
     if not (math.isfinite(grid_dt) and grid_dt > 0.0):
         raise IdentificationError(f"grid period dt = {dt!r}; expected a finite value > 0 s")
-    grid = uniform_grid(t, grid_dt)
-    uniform = grid is None
-    if grid is None:
-        tu, th, du = t.copy(), theta.copy(), duty.copy()
-    else:
-        tu, idx = grid
-        th = np.interp(tu, t, theta)
-        du = duty[idx]
+    # the one resampling of every tool (io/recording_input.py: θ interpolated, or its nearest sample
+    # when quantised; the duty cycle held), on θ and the duty cycle only
+    try:
+        grid = uniform_recording(
+            Recording(t=t, duty=duty, channels={"theta": theta}, source=recording.source), dt=grid_dt)
+    except RecordingInputError as exc:
+        raise IdentificationError(str(exc)) from exc
+    tu, th, du = grid.t.copy(), grid.channels["theta"].copy(), grid.duty.copy()
+    uniform = "resampling" not in grid.meta
     if decimate > 1:
         m = tu.size // decimate
         if m < 1:
@@ -526,11 +603,6 @@ def uniform_data(
         raise IdentificationError(
             f"{recording.source or '<recording>'}: only {len(data)} samples on the fit grid "
             f"(dt = {data.dt:.4g} s); a grey-box fit needs at least {min_samples}"
-        )
-    if np.ptp(data.duty) == 0.0:
-        raise IdentificationError(
-            f"{recording.source or '<recording>'}: the duty cycle is constant on the fit grid: "
-            "unexcited input"
         )
     return data
 
@@ -641,23 +713,32 @@ def initial_state(rig: Rig, theta: np.ndarray, duty: np.ndarray, dt: float, thet
 
 
 def free_run_theta(
-    rig: Rig, data: UniformData, theta_offset: float = 0.0, theta_dot0: float | None = None,
-    theta0: float | None = None,
+    rig: Rig, data: UniformData, theta_offset: float = 0.0, theta_dot0: Any = None,
+    theta0: Any = None,
 ) -> np.ndarray:
     """Free-run simulation of a recorded stretch: θ in the recording's frame, shape (N,) [rad].
 
     The model starts from :func:`initial_state` of the stretch's first samples (or the given
     ``theta0`` [rad, recording frame] / ``theta_dot0`` [rad/s]) and is driven by the stretch's
-    duty cycle only (no later correction from the measurements).
+    duty cycle only (no later correction from the measurements). The actuator saw the first duty
+    cycle before the stretch began (its delay line holds it, as the motor sits at its steady state).
+    Data with several segments (:func:`concat_uniform`) run each segment from its own initial
+    state; ``theta0`` / ``theta_dot0`` are then sequences with one value (or None) per segment.
 
     Raises
     ------
     IdentificationError
         If the simulation fails (wrapped :class:`~aeropend_sim.simulate.SimulationError`).
     """
+    if len(data.segments) > 1:
+        parts = data.parts()
+        th0s = [None] * len(parts) if theta0 is None else list(theta0)
+        thd0s = [None] * len(parts) if theta_dot0 is None else list(theta_dot0)
+        return np.concatenate([free_run_theta(rig, p, theta_offset, v, a)
+                               for p, v, a in zip(parts, thd0s, th0s, strict=True)])
     x0 = initial_state(rig, data.theta, data.duty, data.dt, theta_offset, theta_dot0, theta0)
     try:
-        traj = simulate(rig, data.duty, x0=x0, dt=data.dt)
+        traj = simulate(rig, data.duty, x0=x0, dt=data.dt, tau_before=float(data.duty[0]))
     except (SimulationError, ModelError) as exc:
         raise IdentificationError(f"simulation of {data.source or 'the recording'} failed: {exc}") from exc
     return traj.theta - theta_offset
@@ -763,7 +844,9 @@ class GreyBoxResult:
         Wall time [s].
     initial_state : (float, float)
         θ(0) [rad, recording frame] and θ̇(0) [rad/s] of the fitted free run (fitted when
-        ``fit_initial_state``, else the estimates).
+        ``fit_initial_state``, else the estimates); of the first recording when several were fitted.
+    initial_states : tuple of (float, float)
+        The same for every recording fitted (one pair each).
     """
 
     rig: Rig
@@ -783,6 +866,7 @@ class GreyBoxResult:
     theta_fit: np.ndarray
     elapsed: float
     initial_state: tuple[float, float] = (math.nan, math.nan)
+    initial_states: tuple[tuple[float, float], ...] = ()
 
     @property
     def nrmse(self) -> float:
@@ -821,6 +905,8 @@ class GreyBoxResult:
             "theta_offset": self.theta_offset,
             "initial_state": {"theta0": self.initial_state[0], "theta_dot0": self.initial_state[1],
                               "units": ["rad", "rad/s"]},
+            "initial_states": [{"recording": part.source, "theta0": a, "theta_dot0": b}
+                               for part, (a, b) in zip(self.data.parts(), self.initial_states, strict=False)],
             "cost": self.cost,
             "initial_cost": self.initial_cost,
             "nfev": self.nfev,
@@ -856,36 +942,38 @@ def _parameter_specs(rig: Rig, params: Sequence[str] | None, theta_offset: float
 
 def _initial_state_box(data: UniformData) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Noise level of θ and the bounded coordinates of the initial-state corrections (:func:`fit_greybox`)."""
-    # nuisance coordinates: corrections (δθ₀ [rad], δθ̇₀ [rad/s]) to the estimated initial state,
-    # bounded by 5 σ of the estimates for the measured noise level
-    sigma = noise_level(data.theta)
-    x_bound = np.maximum(5.0 * sigma * np.array([1.0, _slope_noise_gain(data.dt)]), 1e-12)
+    # nuisance coordinates: corrections (δθ₀ [rad], δθ̇₀ [rad/s]) to the estimated initial state of
+    # every segment, bounded by 5 σ of the estimates for the measured noise level
+    sigma = float(np.median([noise_level(p.theta) for p in data.parts()]))
+    n_seg = len(data.segments)
+    x_bound = np.tile(np.maximum(5.0 * sigma * np.array([1.0, _slope_noise_gain(data.dt)]), 1e-12), n_seg)
     # coordinates w = 1 + (δ + bound)/(bound/5) ∈ [1, 11], δ = 0 at w = 6 (see ParameterSpec)
-    lo_x, hi_x, mid_x = np.array([1.0, 1.0]), np.array([11.0, 11.0]), np.array([6.0, 6.0])
+    lo_x, hi_x, mid_x = np.full(2 * n_seg, 1.0), np.full(2 * n_seg, 11.0), np.full(2 * n_seg, 6.0)
     return sigma, x_bound, lo_x, hi_x, mid_x
 
 
 def _solve_stages(
     data: UniformData, make_residual: Callable[[list[tuple[int, int]], bool], Any], solve: Callable[..., Any],
-    x0_correction: Callable[[np.ndarray], tuple[float, float]], z0: np.ndarray, lo: np.ndarray,
+    x0_correction: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], z0: np.ndarray, lo: np.ndarray,
     hi: np.ndarray,
     box: tuple[np.ndarray, np.ndarray, np.ndarray], *, init_horizon: float | None, tol: float,
-    fit_initial_state: bool, sigma: float, th0_est: float, thd0_est: float,
-) -> tuple[Any, np.ndarray, int, int, float, float]:
+    fit_initial_state: bool, sigma: float, th0_est: np.ndarray, thd0_est: np.ndarray,
+) -> tuple[Any, np.ndarray, int, int, np.ndarray, np.ndarray]:
     """The stages of :func:`fit_greybox`: optional multiple shooting, free run, initial-state polish.
 
     Returns the final ``least_squares`` solution, the start residual, the evaluation counts and
-    the initial state (θ₀, θ̇₀) used.
+    the initial states (θ₀, θ̇₀ per segment) used.
     """
     lo_x, hi_x, mid_x = box
-    full = [(0, len(data))]
+    full = data.bounds()  # one free run per recording, each from its own initial state
     free_residual = make_residual(full, with_x0=False)
     r0 = free_residual(z0)
     nfev = njev = 0
     z_start = z0
     if init_horizon is not None:
-        windows = _split_windows(len(data), data.dt, float(init_horizon))
-        if len(windows) > 1:
+        windows = [(a + wa, a + wb) for a, b in full
+                   for wa, wb in _split_windows(b - a, data.dt, float(init_horizon))]
+        if len(windows) > len(full):
             # an initialiser only: a loose tolerance is enough (the free-run stage refines)
             stage1 = solve(make_residual(windows, with_x0=False), z0, lo, hi, max(tol, INIT_STAGE_TOL))
             nfev, njev = int(stage1.nfev), int(stage1.njev or 0)
@@ -947,9 +1035,11 @@ def fit_greybox(
 
     Parameters
     ----------
-    recording : Recording or UniformData
+    recording : Recording, UniformData, or a sequence of them
         Training data: ``theta`` [rad] and the duty cycle; a :class:`Recording` goes through
-        :func:`uniform_data` (validation, resampling, decimation).
+        :func:`uniform_data` (validation, resampling, decimation). Several recordings are fitted
+        together (:func:`concat_uniform`), each from its own initial state; they must share the
+        grid step. The data must excite the rig (:func:`check_excited`).
     rig : Rig
         Model structure (effect switches) and starting values.
     params : sequence of str, optional
@@ -998,15 +1088,19 @@ def fit_greybox(
     Raises
     ------
     IdentificationError
-        On an unusable recording (:func:`check_recording`), an unknown parameter, a parameter
-        whose effect is switched off, a duplicate, or a start outside the bounds.
+        On an unusable recording (:func:`check_recording`, :func:`check_excited`), an unknown
+        parameter, a parameter whose effect is switched off, a duplicate, or a start outside the
+        bounds.
     """
     t_start = time.perf_counter()
-    if isinstance(recording, Recording):
-        check_recording(recording)
-        data = uniform_data(recording, dt=dt, decimate=decimate)
-    else:
-        data = recording
+    parts = [recording] if isinstance(recording, (Recording, UniformData)) else list(recording)
+    for k, part in enumerate(parts):
+        if isinstance(part, Recording):
+            check_recording(part)
+            parts[k] = uniform_data(part, dt=dt, decimate=decimate)
+            dt = parts[0].dt / parts[0].decimate if dt is None else dt
+    data = concat_uniform(parts)
+    check_excited(data)
     specs = _parameter_specs(rig, params, theta_offset, initial, bounds)
     start_values = {s.name: s.initial for s in specs}
     rig0, off0 = apply_parameters(rig, start_values, theta_offset)
@@ -1017,12 +1111,13 @@ def fit_greybox(
     z0 = np.clip(z0, lo, hi)
     penalty = 10.0 * max(float(np.ptp(data.theta)), 1e-3)
     n_p = len(specs)
-    th0_est, thd0_est = float(data.theta[0]), initial_velocity(data.theta, data.dt)
+    th0_est = np.array([float(p.theta[0]) for p in data.parts()])
+    thd0_est = np.array([initial_velocity(p.theta, p.dt) for p in data.parts()])
     sigma, x_bound, lo_x, hi_x, mid_x = _initial_state_box(data)
 
-    def x0_correction(z: np.ndarray) -> tuple[float, float]:
+    def x0_correction(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         d = (z[n_p:] - mid_x) * x_bound / 5.0
-        return float(d[0]), float(d[1])
+        return d[0::2], d[1::2]
 
     def candidate(z: np.ndarray) -> tuple[Rig, float]:
         values = {s.name: s.from_z(zi) for s, zi in zip(specs, z[:n_p], strict=True)}
@@ -1043,14 +1138,16 @@ def fit_greybox(
         data, make_residual, solve, x0_correction, z0, lo, hi, (lo_x, hi_x, mid_x), init_horizon=init_horizon,
         tol=tol, fit_initial_state=fit_initial_state, sigma=sigma, th0_est=th0_est, thd0_est=thd0_est)
     fit_rig, fit_off = candidate(sol.x)
-    theta_fit = free_run_theta(fit_rig, data, fit_off, thd0, th0)
+    theta_fit = free_run_theta(fit_rig, data, fit_off, _one(thd0), _one(th0))
     estimates = _parameter_estimates(specs, sol, np.concatenate([lo, lo_x]), np.concatenate([hi, hi_x]))
     return GreyBoxResult(
         rig=fit_rig, theta_offset=fit_off, initial_rig=rig0, initial_theta_offset=off0,
         parameters=tuple(estimates), cost=float(sol.cost), initial_cost=float(0.5 * np.sum(r0**2)),
         nfev=nfev, njev=njev, success=bool(sol.success), status=int(sol.status),
         message=str(sol.message), metrics=error_metrics(data.theta, theta_fit), data=data,
-        theta_fit=theta_fit, elapsed=time.perf_counter() - t_start, initial_state=(th0, thd0),
+        theta_fit=theta_fit, elapsed=time.perf_counter() - t_start,
+        initial_state=(float(th0[0]), float(thd0[0])),
+        initial_states=tuple((float(a), float(b)) for a, b in zip(th0, thd0, strict=True)),
     )
 
 
@@ -1058,20 +1155,23 @@ class _Residuals:
     """The output-error residual of :func:`fit_greybox` on a set of windows, and its Jacobian.
 
     ``candidate(z)`` gives the rig and offset of a coordinate vector, ``x0_correction(z)`` the
-    initial-state correction (with ``with_x0``); each window is replayed by its own
-    :class:`~aeropend_ident.greybox.batch.RigReplays` (``tau_before`` 0, as
-    :func:`free_run_theta`); residuals of many vectors are one batched replay per window. A vector
-    whose rig, initial state or replay fails gets ``penalty`` everywhere.
+    initial-state corrections of every segment (with ``with_x0``, whose windows are then the data's
+    segments, one each, and ``estimates`` the per-segment estimates θ₀, θ̇₀); each window is replayed
+    by its own :class:`~aeropend_ident.greybox.batch.RigReplays` with the actuator holding the
+    window's first command before it (as :func:`free_run_theta`); residuals of many vectors are one
+    batched replay per window. A vector whose rig, initial state or replay fails gets ``penalty``
+    everywhere.
     """
 
     def __init__(self, data: UniformData, windows: list[tuple[int, int]], with_x0: bool,
                  candidate: Callable[[np.ndarray], tuple[Rig, float]],
-                 x0_correction: Callable[[np.ndarray], tuple[float, float]], estimates: tuple[float, float],
+                 x0_correction: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                 estimates: tuple[np.ndarray, np.ndarray],
                  penalty: float, diff_step: float, bounds: tuple[np.ndarray, np.ndarray]) -> None:
         self.parts = [_window(data, a, b) for a, b in windows]
         self.velocities = [initial_velocity(p.theta, p.dt) for p in self.parts]
         self.measured = np.concatenate([p.theta for p in self.parts])
-        self.replays = [RigReplays(p.duty, p.dt) for p in self.parts]
+        self.replays = [RigReplays(p.duty, p.dt, tau_before=float(p.duty[0])) for p in self.parts]
         self.with_x0, self.candidate, self.x0_correction = with_x0, candidate, x0_correction
         self.th0, self.thd0 = estimates
         self.penalty, self.diff_step, self.bounds = penalty, diff_step, bounds
@@ -1083,29 +1183,33 @@ class _Residuals:
     def rows(self, zs: Sequence[np.ndarray]) -> list[np.ndarray]:
         """Residuals of many coordinate vectors, the new ones in one batched replay per window."""
         keys = [np.asarray(z, dtype=float).tobytes() for z in zs]
-        new = [k for k in dict.fromkeys(keys) if k not in self._cache]
+        found = {k: self._cache[k] for k in keys if k in self._cache}
+        new = [k for k in dict.fromkeys(keys) if k not in found]
         if new:
-            if len(self._cache) > 64:
+            computed = dict(zip(new, self._compute([np.frombuffer(k) for k in new]), strict=True))
+            found.update(computed)
+            if len(self._cache) + len(computed) > 64:  # bounded memory; this call's rows are kept above
                 self._cache.clear()
-            self._cache.update(zip(new, self._compute([np.frombuffer(k) for k in new]), strict=True))
-        return [self._cache[k] for k in keys]
+            self._cache.update(computed)
+        return [found[k] for k in keys]
 
     def _compute(self, zs: list[np.ndarray]) -> list[np.ndarray]:
         cands = []
         for b, z in enumerate(zs):
             try:
-                d_x0 = self.x0_correction(z) if self.with_x0 else (0.0, 0.0)
+                d_x0 = self.x0_correction(z) if self.with_x0 else (None, None)
                 cands.append((b, *self.candidate(z), *d_x0))
             except IdentificationError:
                 continue
         sims = [np.full((len(zs), p.theta.size), np.nan) for p in self.parts]
-        for sim, p, v, rep in zip(sims, self.parts, self.velocities, self.replays, strict=True):
+        windows = zip(sims, self.parts, self.velocities, self.replays, strict=True)
+        for k, (sim, p, v, rep) in enumerate(windows):
             rows, x0 = [], []
             for b, r_rig, r_off, d_th, d_thd in cands:
                 try:
                     x0.append(initial_state(r_rig, p.theta, p.duty, p.dt, r_off,
-                                            self.thd0 + d_thd if self.with_x0 else v,
-                                            self.th0 + d_th if self.with_x0 else None))
+                                            self.thd0[k] + d_thd[k] if self.with_x0 else v,
+                                            self.th0[k] + d_th[k] if self.with_x0 else None))
                 except IdentificationError:
                     continue
                 rows.append((b, r_rig, r_off))
@@ -1132,10 +1236,16 @@ class _Residuals:
         return np.column_stack([(f - f0) / hj for f, hj in zip(fs, h, strict=True)])
 
 
+def _one(values: np.ndarray) -> Any:
+    """Per-segment initial values as :func:`free_run_theta` takes them (a float for one segment)."""
+    return float(values[0]) if values.size == 1 else list(values)
+
+
 def _window(data: UniformData, start: int, stop: int) -> UniformData:
     """Samples [start, stop) of a uniform data set, time re-based to 0."""
     return dataclasses.replace(
-        data, t=data.t[start:stop] - data.t[start], duty=data.duty[start:stop], theta=data.theta[start:stop]
+        data, t=data.t[start:stop] - data.t[start], duty=data.duty[start:stop], theta=data.theta[start:stop],
+        segments=(0,),
     )
 
 

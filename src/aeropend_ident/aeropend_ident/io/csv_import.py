@@ -37,7 +37,7 @@ from typing import Any, Literal
 import numpy as np
 
 from aeropend_ident.errors import ConstantInputWarning, CsvImportError, CsvRowWarning
-from aeropend_ident.io.csvspec.constant_input import check_constant_input
+from aeropend_ident.io.csvspec.constant_input import check_constant_input, driven_message
 from aeropend_ident.io.csvspec.spec import (
     PRESETS,
     Column,
@@ -546,14 +546,8 @@ def _constant_input(path: Path, spec: CsvSpec, t: np.ndarray, theta: np.ndarray,
     unit = "" if kind.unit == "1" else f" {kind.unit}"
     given = f"input_constant = {spec.input_constant:g}{unit} ({kind.name}): duty {duty:.4g}"
     if check.driven:
-        ref = (f" The reference column '{reference}' is not an input: it is the angle the controller was "
-               "asked to reach, not the command it applied, and it is stored as the channel theta_ref."
-               if reference else "")
-        raise CsvImportError(
-            f"{path}: a constant input ({given}) cannot explain this log: {check.reason}.{ref} Log the "
-            "actuator command (duty, PWM, pulse width, voltage) and import it with --input-col and "
-            "--input-kind; give --input-constant only for a run whose input really was constant (a free "
-            "decay, a step from rest at t = 0)")
+        raise CsvImportError(f"{path}: " + driven_message(given, check.reason,
+                                                          f"column '{reference}'" if reference else None))
     what = (f"θ moves by up to {np.max(np.abs(theta - theta[0])):.3g} rad, which a constant input explains "
             "only as a free decay or a step from rest at t = 0 (it never rests and then moves again, and "
             "its swing about the final angle never grows)" if check.moves else

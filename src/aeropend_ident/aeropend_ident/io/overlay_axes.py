@@ -11,11 +11,18 @@ at the axes' edge and named in a note on the axes ("nominal model leaves the plo
 t = 8.94 s: θ → 6.3e3 rad"). :func:`fit_title` wraps a title to its axes' width so that nothing is
 cut off, and :func:`short_number` writes numbers with a few significant digits.
 
+**Divergence** (:func:`diverges`, the one rule of every tool): a simulated angle that turns
+non-finite or leaves the recorded range by more than :data:`DIVERGENCE_SPANS` recorded spans (a rod
+that spins over the top, a free run that blows up) *diverges*: the tools report that instead of an
+NRMSE or a shrink between such runs (a figure computed on them would only measure how far the run
+went), and the figures' note says "diverges" for it (:func:`clip_to_recorded`).
+
 No matplotlib import at module level: the functions work on the Axes they are given.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import textwrap
 from collections.abc import Mapping
@@ -32,6 +39,13 @@ REACH = 0.5
 PAD = 0.04
 #: Share of the axes' width a title line may take before it is wrapped.
 WRAP_AT = 0.97
+#: A model diverges when it leaves the recorded range [lo, hi] by more than this many recorded spans
+#: hi − lo (or turns non-finite): wider than the plotted window (:data:`REACH`), so a model cut in a
+#: figure for readability is not yet called divergent.
+DIVERGENCE_SPANS = 1.0
+#: A scored part whose own θ range is below this share of the whole recording's is a hold (it barely
+#: moves): its NRMSE and its divergence window use the whole recording's range (baseline, identify).
+HOLD_RANGE_SHARE = 0.1
 
 
 def short_number(v: float, digits: int = 3) -> str:
@@ -58,13 +72,16 @@ class Excursion:
     label: str
     t: float
     extreme: float
+    diverged: bool = False
 
     def note(self, symbol: str, unit: str) -> str:
-        """``"<label> leaves the plotted range at t = … s: <symbol> → <extreme> <unit>"`` (a NaN:
+        """``"<label> leaves the plotted range at t = … s: <symbol> → <extreme> <unit>"``, or
+        ``"<label> diverges at t = … s: …"`` when it went beyond the divergence window (a NaN:
         ``"<label> diverges at t = … s (NaN from there)"``)."""
         if math.isnan(self.extreme):
             return f"{self.label} diverges at t = {short_number(self.t)} s (NaN from there)"
-        return (f"{self.label} leaves the plotted range at t = {short_number(self.t)} s: "
+        what = "diverges" if self.diverged or math.isinf(self.extreme) else "leaves the plotted range"
+        return (f"{self.label} {what} at t = {short_number(self.t)} s: "
                 f"{symbol} → {short_number(self.extreme, 2)} {unit}").rstrip()
 
 
@@ -156,7 +173,8 @@ def clip_to_recorded(ax: Any, t: Any, recorded: Any, models: Mapping[str, Any], 
         The models that leave the plotted range (empty: everything fits).
     """
     lo, hi = plotted_range(recorded, models)
-    out = excursions(t, models, lo, hi)
+    far = {e.label for e in excursions(t, models, *divergence_window(recorded))}
+    out = [dataclasses.replace(e, diverged=e.label in far) for e in excursions(t, models, lo, hi)]
     if out:
         # a band below the plotted range holds the note, so that it never covers the recorded curve
         fig = ax.get_figure()
@@ -168,6 +186,92 @@ def clip_to_recorded(ax: Any, t: Any, recorded: Any, models: Mapping[str, Any], 
                 bbox={"boxstyle": "round", "facecolor": "white", "alpha": 0.85, "edgecolor": "tab:red"})
     ax.set_ylim(lo, hi)
     return out
+
+
+def divergence_window(recorded: Any, span: float | None = None) -> tuple[float, float]:
+    """The range a model must stay in not to diverge: the recorded [lo, hi] widened by
+    :data:`DIVERGENCE_SPANS` spans on each side.
+
+    Parameters
+    ----------
+    recorded : array_like
+        The recorded channel (NaNs ignored).
+    span : float, optional
+        The span to widen by (default hi − lo of ``recorded``; a tool scoring a part that barely
+        moves, e.g. a held-out hold, passes the span of the whole recording).
+    """
+    lo, hi = _finite_range(recorded)
+    width = _span(recorded, span)
+    return lo - DIVERGENCE_SPANS * width, hi + DIVERGENCE_SPANS * width
+
+
+def _span(recorded: Any, span: float | None) -> float:
+    """The span a departure is measured in: ``span``, else hi − lo of ``recorded`` (never 0)."""
+    lo, hi = _finite_range(recorded)
+    width = (hi - lo) if span is None else float(span)
+    return width if width > 0.0 else 0.1 * max(abs(hi), 1e-3)
+
+
+def hold_span(recorded: Any, span_all: float) -> float | None:
+    """The span a part is measured in when it is a hold, else None (its own range is used).
+
+    Parameters
+    ----------
+    recorded : array_like
+        The part's recorded channel (NaNs ignored).
+    span_all : float
+        hi − lo of the whole recording (or of all recordings) the part belongs to.
+
+    Returns
+    -------
+    float or None
+        ``span_all`` when the part's own range is below :data:`HOLD_RANGE_SHARE` of it.
+    """
+    lo, hi = _finite_range(recorded)
+    return float(span_all) if span_all > 0.0 and (hi - lo) < HOLD_RANGE_SHARE * span_all else None
+
+
+def diverges(theta_sim: Any, theta_meas: Any, t: Any = None, span: float | None = None,
+             symbol: str = "θ", unit: str = "rad") -> str | None:
+    """Whether a simulated angle diverges from the recorded one: the reason, or None.
+
+    The one divergence rule of every tool (the module docstring): the simulation turns non-finite,
+    or leaves the recorded range by more than :data:`DIVERGENCE_SPANS` recorded spans
+    (:func:`divergence_window`). Baseline, identify, compare and gap report such a run as
+    divergence instead of an NRMSE or a shrink.
+
+    Parameters
+    ----------
+    theta_sim, theta_meas : array_like, shape (n,)
+        Simulated and recorded angle [rad] on the same samples.
+    t : array_like, shape (n,), optional
+        Time [s] of the samples (for the message; default the sample index).
+    span : float, optional
+        Recorded span to measure the departure in (see :func:`divergence_window`).
+    symbol, unit : str
+        How the message names the quantity.
+
+    Returns
+    -------
+    str or None
+        E.g. ``"diverges at t = 8.48 s: θ → 6.3e3 rad, beyond the recorded range [0.2, 0.8] rad by
+        more than 1 recorded span (0.6 rad)"``; None when it stays within the window.
+    """
+    sim = np.asarray(theta_sim, dtype=float)
+    tt = np.arange(sim.size, dtype=float) if t is None else np.asarray(t, dtype=float)
+    lo, hi = divergence_window(theta_meas, span)
+    found = excursions(tt, {"": sim}, lo, hi)
+    if not found:
+        return None
+    e = found[0]
+    at = f"t = {short_number(e.t)} s" if t is not None else f"sample {int(e.t)}"
+    if not math.isfinite(e.extreme):
+        return f"diverges at {at} ({symbol} is not finite from there)"
+    rlo, rhi = _finite_range(theta_meas)
+    width = short_number(_span(theta_meas, span))
+    return (f"diverges at {at}: {symbol} → {short_number(e.extreme, 2)} {unit}, beyond the recorded range "
+            f"[{short_number(rlo)}, {short_number(rhi)}] {unit} by more than "
+            f"{short_number(DIVERGENCE_SPANS)} recorded span(s) ({width} {unit})")
 
 
 def fit_title(ax: Any, text: str, fontsize: float = 9.0, **kwargs: Any) -> Any:

@@ -12,15 +12,26 @@ Every recording argument of ``compare``, ``gap``, ``baseline`` and ``identify`` 
 So recordings of different formats can be mixed in one call. Channels a tool does not use (the
 extra channels: a second axis, a closed loop's reference, ...) are kept in the recording and
 ignored; :func:`ignored_channels` says which, for the tools' summaries. :func:`load_and_split` reads the
-``gap`` tool's recordings and makes its held-out design (:mod:`aeropend_ident.io.split`);
-:func:`uniform_grid` / :func:`uniform_recording` put a recording on a uniform time grid.
+``gap`` tool's recordings and makes its held-out design (:mod:`aeropend_ident.io.split`).
+
+**Timing.** :func:`uniform_recording` is the one resampling of every command (``baseline``,
+``identify``, ``gap``, ``compare``, ``csv_import --resample``) and of the fits (the grey-box
+:func:`aeropend_ident.greybox.fit.uniform_data`, the gap diagnosis' channels): a lab's logger
+jitters, drops rows and pauses, and none of that is refused. The rule (:data:`RESAMPLING_RULE`):
+grid step = the median (regular) interval; the command and the reference held (zero-order hold), measured
+channels interpolated linearly, a quantised channel (:func:`detect_quantum`) taken at its nearest
+sample (not smoothed); jitter, dropped rows (intervals up to :data:`GAP_STEPS` steps) and gaps
+(longer intervals) are reported in one line (:class:`Resampling`, :func:`resampling_notes`).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -146,26 +157,163 @@ def ignored_channels(recs: Sequence[Recording], used: str = "") -> str:
     return f"ignored channels (not used by this tool{uses}): {names} (in {', '.join(dict.fromkeys(where))})"
 
 
-def uniform_recording(rec: Recording) -> Recording:
-    """The recording on a uniform grid (θ, channels linear, duty and reference zero-order hold) if it is not
-    already (extra channels kept).
+#: Relative deviation of a sample interval from the grid step within which a log counts as uniform
+#: (no resampling).
+UNIFORM_TOLERANCE = 1e-3
+#: Intervals of up to this many grid steps are dropped rows (their samples are filled on the grid);
+#: longer ones are gaps, reported with where they are and how long.
+GAP_STEPS = 5.0
+#: Intervals shorter than this many grid steps are the logger's jitter about the grid step.
+JITTER_STEPS = 1.5
 
-    What the replaying tools (``gap``, ``compare``) need: θ and the duty cycle, finite values, time
-    stamps in order. The grid period is the median interval; a recording already on that grid
-    (:func:`uniform_grid`) is returned unchanged. A constant input is
-    accepted here (a step from rest at t = 0 is a valid recording to compare on); ``gap`` refuses
-    it itself.
+
+@dataclass(frozen=True)
+class Resampling:
+    """What :func:`uniform_recording` did to a recording's time base (the report line of every command).
+
+    Attributes
+    ----------
+    source : str
+        The recording.
+    dt : float
+        Grid step [s]: the median sample interval (or the one asked for).
+    rows_in, rows_out : int
+        Samples before and after.
+    jitter_rms, jitter_max : float
+        RMS and largest deviation [s] of the regular intervals (shorter than :data:`JITTER_STEPS`·dt)
+        from the grid step.
+    dropped_rows : int
+        Missing samples inside intervals of :data:`JITTER_STEPS` to :data:`GAP_STEPS` grid steps
+        (round(Δ/dt) − 1 each), filled on the grid.
+    gaps : tuple of (float, float)
+        (start [s], length [s]) of every interval longer than :data:`GAP_STEPS`·dt: bridged like the
+        rest (command held, measurements interpolated) and reported.
+    held_channels : tuple of str
+        Quantised measured channels (values on a lattice k·q, :func:`detect_quantum`) taken at the
+        nearest sample instead of interpolated, so they stay on their lattice.
+    """
+
+    source: str
+    dt: float
+    rows_in: int
+    rows_out: int
+    jitter_rms: float
+    jitter_max: float
+    dropped_rows: int
+    gaps: tuple[tuple[float, float], ...]
+    held_channels: tuple[str, ...]
+
+    def note(self) -> str:
+        """One line for a command's summary, e.g. ``resampled jitter100.csv onto a uniform 10 ms grid
+        (the median regular interval): 5822 rows -> 6000 samples; jitter RMS 0.87 ms (max 1.5 ms); 178 dropped
+        rows filled; command held, θ interpolated``."""
+        name = Path(self.source).name or self.source or "the recording"
+        parts = [f"{self.rows_in} rows -> {self.rows_out} samples",
+                 f"jitter RMS {_ms(self.jitter_rms)} (max {_ms(self.jitter_max)})"]
+        if self.dropped_rows:
+            parts.append(f"{self.dropped_rows} dropped row(s) filled")
+        if self.gaps:
+            start, length = max(self.gaps, key=lambda g: g[1])
+            total = sum(g[1] for g in self.gaps)
+            share = total / max(self.rows_out - 1, 1) / self.dt
+            parts.append(f"{len(self.gaps)} gap(s) longer than {_ms(GAP_STEPS * self.dt)} bridged "
+                         f"({total:.3g} s in all, {share:.0%} of the log; the longest {length:.3g} s at "
+                         f"t = {start:.3f} s)")
+        held = f"; {', '.join(self.held_channels)} quantised: nearest sample, not interpolated" \
+            if self.held_channels else ""
+        return (f"resampled {name} onto a uniform {_ms(self.dt)} grid (the median regular "
+                f"interval): {'; '.join(parts)}; command zero-order hold, measurements interpolated{held}")
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready form (``meta["resampling"]`` of the resampled recording)."""
+        return {"rule": RESAMPLING_RULE, "dt_s": self.dt, "rows_in": self.rows_in, "rows_out": self.rows_out,
+                "jitter_rms_s": self.jitter_rms, "jitter_max_s": self.jitter_max,
+                "dropped_rows": self.dropped_rows,
+                "gaps": [{"t_s": a, "length_s": b} for a, b in self.gaps],
+                "held_channels": list(self.held_channels), "note": self.note()}
+
+
+#: The resampling rule in words (docs/csv_import.md "Timing"; ``meta["resampling"]["rule"]``).
+RESAMPLING_RULE = (
+    "grid t_k = k*dt from the first sample, dt = the median regular interval; the command (duty) and a "
+    "reference by zero-order hold (the value of the last sample at or before t_k); measured channels by "
+    "linear interpolation between the neighbouring samples, a quantised channel by its nearest sample; "
+    f"intervals up to {GAP_STEPS:g} dt are jitter or dropped rows, longer ones gaps (reported, bridged "
+    "the same way)")
+
+
+def _ms(seconds: float) -> str:
+    return f"{seconds * 1e3:.3g} ms"
+
+
+def detect_quantum(y: np.ndarray) -> float:
+    """LSB q of a recorded channel if its values lie on a lattice k·q (+ constant), else 0.
+
+    The lattice step is the smallest gap between distinct values; the channel counts as quantised
+    when every value sits within 1e-3·q of the lattice and there are fewer distinct values than a
+    third of the samples. Read by the resampling (a quantised channel is not interpolated) and by the
+    gap diagnosis (the ``quantisation`` effect: a property of the recording, never fitted).
+
+    Parameters
+    ----------
+    y : ndarray, shape (n,)
+        Recorded channel (e.g. θ [rad]).
+
+    Returns
+    -------
+    float
+        q in the channel's unit; 0.0 when the values are not on a lattice (or too few).
+    """
+    y = np.asarray(y, dtype=float)
+    u = np.unique(np.round(y, 12))
+    if u.size < 3 or u.size > y.size / 3:
+        return 0.0
+    gaps = np.diff(u)
+    q = float(np.min(gaps[gaps > 1e-12])) if np.any(gaps > 1e-12) else 0.0
+    if q <= 0.0:
+        return 0.0
+    frac = (y - u[0]) / q
+    if np.max(np.abs(frac - np.round(frac))) > 1e-3:
+        return 0.0
+    return q
+
+
+def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
+    """The recording on a uniform time grid: the one resampling of every command.
+
+    The rule (:data:`RESAMPLING_RULE`): grid t_k = k·dt from the first sample, dt the median
+    interval unless given; the duty cycle and the reference ``theta_ref`` (set points) by zero-order
+    hold; measured channels (θ, the contract channels, the extra channels) by linear interpolation,
+    except a quantised one (:func:`detect_quantum`), which takes its nearest sample so that it stays
+    on its lattice. Timestamp jitter, dropped rows and gaps are measured and reported
+    (:class:`Resampling` in ``meta["resampling"]``, :func:`resampling_notes`), never refused. A
+    recording whose intervals are all within :data:`UNIFORM_TOLERANCE` of dt is returned unchanged.
+    A constant input is accepted here (a step from rest or a free decay is a valid recording); the
+    fits decide what the data can identify.
+
+    Parameters
+    ----------
+    rec : Recording
+    dt : float, optional
+        Grid step [s] (default: :func:`grid_step`, the median regular interval). A step other than
+        the recording's own forces resampling (e.g. several recordings onto one grid).
+
+    Returns
+    -------
+    Recording
+        ``rec`` itself when it is already on the grid, else a new recording with ``t`` from 0.
 
     Raises
     ------
     RecordingInputError
-        No θ, NaNs, fewer than 2 samples or time stamps out of order (message names the recording).
+        No θ, NaNs in θ, the duty or a contract channel, fewer than 2 samples, time stamps out of
+        order, or a grid step that is not finite and > 0 (the message names the recording).
     """
     src = rec.source or "<recording>"
     if "theta" not in rec.channels:
         raise RecordingInputError(
-            f"{src}: recording lacks the 'theta' channel (has {sorted(rec.channels)}); replaying "
-            "a rig on it (gap, compare) needs at least the angle and the duty cycle"
+            f"{src}: recording lacks the 'theta' channel (has {sorted(rec.channels)}); the tools "
+            "need at least the angle and the duty cycle"
         )
     for name, y in [("duty", rec.duty), *rec.channels.items()]:
         bad = ~np.isfinite(y)
@@ -178,23 +326,44 @@ def uniform_recording(rec: Recording) -> Recording:
     if t.size < 2 or not np.all(np.diff(t) > 0.0):
         raise RecordingInputError(f"{src}: {t.size} sample(s) or non-increasing time stamps; expected at "
                                   "least 2 samples in time order")
-    dt = float(np.median(np.diff(t)))
-    grid = uniform_grid(t, dt)
+    step = grid_step(t) if dt is None else float(dt)
+    if not (math.isfinite(step) and step > 0.0):
+        raise RecordingInputError(f"{src}: grid step dt = {dt!r}; expected a finite value > 0 s")
+    grid = uniform_grid(t, step)
     if grid is None:
         return rec
     tu, idx = grid
-    ch = {k: np.interp(tu, t, v) for k, v in rec.channels.items()}
+    nearest = np.clip(np.searchsorted(t, tu, side="left"), 1, t.size - 1)
+    nearest -= (tu - t[nearest - 1]) < (t[nearest] - tu)
+    held = tuple(k for k, v in rec.channels.items() if detect_quantum(v) > 0.0)
+
+    def measured(name: str, v: np.ndarray) -> np.ndarray:
+        return v[nearest] if name in held else np.interp(tu, t, v)
+
+    ch = {k: measured(k, v) for k, v in rec.channels.items()}
     # a set point (the reference) holds between samples like the duty; measured channels are interpolated
-    extra = {k: v[idx] if k == REFERENCE_CHANNEL else np.interp(tu, t, v) for k, v in rec.extra.items()}
-    meta = {**rec.meta, "resampled_to_uniform_dt_s": dt}
+    extra = {k: v[idx] if k == REFERENCE_CHANNEL else measured(k, v) for k, v in rec.extra.items()}
+    report = _timing_report(src, t, step, tu.size, held)
+    meta = {**rec.meta, "resampling": report.as_dict()}
     return Recording(
         t=tu, duty=rec.duty[idx], channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta,
         extra=extra, extra_units=dict(rec.extra_units),
     )
 
 
-#: Relative deviation of a sample interval from the median above which a log is resampled.
-UNIFORM_TOLERANCE = 1e-3
+def grid_step(t: np.ndarray) -> float:
+    """The grid step [s] of time stamps ``t``: the median of the regular intervals (those shorter
+    than :data:`JITTER_STEPS` times the median interval, so that dropped rows do not lengthen it).
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,), N >= 2
+        Increasing time stamps [s].
+    """
+    d = np.diff(np.asarray(t, dtype=float))
+    first = float(np.median(d))
+    regular = d[d < JITTER_STEPS * first]
+    return float(np.median(regular)) if regular.size else first
 
 
 def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -221,6 +390,155 @@ def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | No
     return tu, idx
 
 
+def _timing_report(src: str, t: np.ndarray, dt: float, rows_out: int, held: tuple[str, ...]) -> Resampling:
+    """Jitter, dropped rows and gaps of time stamps ``t`` about the grid step ``dt``."""
+    d = np.diff(t)
+    regular = d[d < JITTER_STEPS * dt]
+    dev = np.abs(regular - dt) if regular.size else np.zeros(1)
+    dropped = d[(d >= JITTER_STEPS * dt) & (d <= GAP_STEPS * dt)]
+    long = np.flatnonzero(d > GAP_STEPS * dt)
+    return Resampling(
+        source=src, dt=dt, rows_in=int(t.size), rows_out=int(rows_out),
+        jitter_rms=float(np.sqrt(np.mean(dev**2))), jitter_max=float(np.max(dev)),
+        dropped_rows=int(np.sum(np.round(dropped / dt) - 1.0)),
+        gaps=tuple((float(t[k]), float(d[k])) for k in long), held_channels=held,
+    )
+
+
+def resampling_notes(recs: Sequence[Recording]) -> list[str]:
+    """The report lines of the recordings :func:`uniform_recording` resampled (empty list: none was).
+
+    Parameters
+    ----------
+    recs : sequence of Recording
+        Recordings as the command used them.
+    """
+    return [r.meta["resampling"]["note"] for r in recs if isinstance(r.meta.get("resampling"), dict)]
+
+
+# ------------------------------------------------------------------------------ timing search ranges
+#: Dead times and lags up to this long [s] are searched whenever the data can show them.
+MIN_TIMING_REACH_S = 1.0
+#: ... and up to this share of the longest hold of the command (a response must show inside a hold)
+HOLD_SHARE = 0.5
+#: ... but never beyond this share of the longest recording.
+RECORDING_SHARE = 0.25
+#: A step of the command counts for the onset bound when it is at least this share of the command's range.
+STEP_SHARE = 0.2
+#: The dead-time bound is this many times the median onset of the response after such steps.
+ONSET_MARGIN = 1.5
+
+
+@dataclass(frozen=True)
+class TimingRange:
+    """How long a dead time and a first-order lag the recordings can show: the search range of
+    ``identify``'s thrust map and of ``baseline``'s ``actuator.input_delay`` /
+    ``actuator.lag_time_constant`` (:func:`timing_range`).
+
+    Attributes
+    ----------
+    delay_max, lag_max : float
+        Upper ends [s] of the dead-time and lag searches.
+    longest_hold : float
+        Longest stretch [s] of a constant command over the recordings.
+    duration : float
+        Longest recording [s].
+    onset : float or None
+        Median time [s] from a step of the command to the first visible response of θ (None: no
+        step with the rod at rest before it); the response cannot start before the dead time ends,
+        so ONSET_MARGIN·onset bounds it.
+    steps : int
+        Steps the onset was measured on.
+    """
+
+    delay_max: float
+    lag_max: float
+    longest_hold: float
+    duration: float
+    onset: float | None
+    steps: int
+
+    def rule(self) -> str:
+        """How the range follows from the data, in words (for the reports)."""
+        reach = (f"min(max({MIN_TIMING_REACH_S:g} s, {HOLD_SHARE:g} × longest hold "
+                 f"{self.longest_hold:.3g} s), {RECORDING_SHARE:g} × recording {self.duration:.3g} s)")
+        onset = (f"; dead time also ≤ {ONSET_MARGIN:g} × the median response onset {self.onset:.3g} s after "
+                 f"{self.steps} step(s) of the command" if self.onset is not None else
+                 "; no step with the rod at rest before it bounds the dead time")
+        return f"lag ≤ {self.lag_max:.3g} s and dead time ≤ {self.delay_max:.3g} s: {reach}{onset}"
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        return {"delay_max_s": self.delay_max, "lag_max_s": self.lag_max, "longest_hold_s": self.longest_hold,
+                "duration_s": self.duration, "onset_s": self.onset, "onset_steps": self.steps,
+                "rule": self.rule()}
+
+
+def _holds(t: np.ndarray, duty: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) indices of the stretches of a constant command."""
+    edges = [0, *(np.flatnonzero(np.diff(duty) != 0.0) + 1).tolist(), duty.size]
+    return [(a, b) for a, b in itertools.pairwise(edges) if b > a]
+
+
+def _onsets(rec: Recording) -> list[float]:
+    """Times [s] from each large step of the command (the rod at rest before it) to θ's first visible
+    response inside the following hold."""
+    from aeropend_ident.io.csvspec.constant_input import noise_band
+
+    t, duty, theta = rec.t - rec.t[0], rec.duty, rec.channels["theta"]
+    span = float(np.ptp(duty)) or float(duty[0])
+    band = noise_band(theta)
+    threshold = max(band, 0.02 * float(np.ptp(theta)))
+    holds = _holds(t, duty)
+    out = []
+    # a log that starts with a command applied to a rod at rest is a step at t = 0 (a step test)
+    first = [((0, 0), holds[0])] if duty[0] > 0.0 and np.ptp(theta[:5]) <= band else []
+    for (a0, b0), (a1, b1) in [*first, *itertools.pairwise(holds)]:
+        if span == 0.0 or (b0 > a0 and abs(duty[a1] - duty[b0 - 1]) < STEP_SHARE * span):
+            continue
+        pre = theta[max(a0, b0 - max(5, round(0.2 / max(rec.dt, 1e-9)))):b0] if b0 > a0 else theta[:5]
+        if pre.size < 3 or np.ptp(pre) > band:
+            continue  # the rod was moving before the step: its response cannot be told apart
+        moved = np.flatnonzero(np.abs(theta[a1:b1] - np.median(pre)) > threshold)
+        if moved.size:
+            out.append(float(t[a1 + moved[0]] - t[a1]))
+    return out
+
+
+def timing_range(recs: Sequence[Recording]) -> TimingRange:
+    """The dead-time and lag search range the recordings can show (the rule of every tool).
+
+    Up to ``min(max(MIN_TIMING_REACH_S, HOLD_SHARE·longest hold), RECORDING_SHARE·longest
+    recording)`` for both (at least 1 s of dead time whenever the recordings are long enough to
+    show it), and the dead time also at most :data:`ONSET_MARGIN` times the median onset of θ's
+    response after the command's large steps taken with the rod at rest (the response cannot start
+    before the dead time has passed: a data-driven upper bound).
+
+    Parameters
+    ----------
+    recs : sequence of Recording
+        θ and the duty cycle (any timing).
+
+    Returns
+    -------
+    TimingRange
+    """
+    longest_hold = duration = 0.0
+    onsets: list[float] = []
+    for r in recs:
+        t = r.t - r.t[0]
+        duration = max(duration, float(t[-1]))
+        for a, b in _holds(t, r.duty):
+            longest_hold = max(longest_hold, float(t[min(b, t.size - 1)] - t[a]))
+        if "theta" in r.channels:
+            onsets += _onsets(r)
+    reach = min(max(MIN_TIMING_REACH_S, HOLD_SHARE * longest_hold), RECORDING_SHARE * duration)
+    onset = float(np.median(onsets)) if onsets else None
+    delay_max = reach if onset is None else min(reach, ONSET_MARGIN * onset)
+    return TimingRange(delay_max=float(delay_max), lag_max=float(reach), longest_hold=longest_hold,
+                       duration=duration, onset=onset, steps=len(onsets))
+
+
 #: Fewest samples per recording part (fit or held out) of the gap tool.
 MIN_PART_SAMPLES = 200
 
@@ -239,6 +557,12 @@ def check_length(rec: Recording, what: str) -> None:
             f"at least {MIN_PART_SAMPLES} (record longer or change --split)"
         )
     if np.ptp(rec.duty) == 0.0:
+        from aeropend_ident.io.csvspec.constant_input import excitation_problem
+
+        why = excitation_problem(rec.t, rec.duty, rec.channels["theta"],
+                                 "channel theta_ref" if "theta_ref" in rec.extra else None)
+        if why is not None and why[0] == "driven":  # the csv_import refusal, whichever way the log came
+            raise GapCliError(f"{rec.source or what}: {why[1]}")
         raise GapCliError(
             f"{rec.source or what}: the duty cycle is constant ({rec.duty[0]:g}) in the {what}: "
             "unexcited input, nothing to compare"

@@ -24,15 +24,30 @@ What is identified follows from the recorded channels:
   training part, then refitted on the whole training part (the λ-independent regression is built
   once per data set, :func:`aeropend_ident.sindy.core.regression_problem`).
 * θ and τ only (partial state, most real logs): the pendulum equation with estimated θ̇ and a
-  static or first-order thrust map (:func:`aeropend_ident.sindy.partial.select_thrust_map`: lag time
-  constant and delay chosen by the free-run error on the training part); the current and rotor
-  equations are refused (named in ``summary.json``). With the per-equation (structured) library,
-  an equation whose library the data leaves rank deficient (e.g. di_a/dt under a constant v_a)
-  is refused with that reason and the others are still identified.
+  static or first-order thrust map of the rig's drive quantity (v_a of the voltage families, the
+  rotor-speed set-point of an ESC; :func:`aeropend_ident.sindy.partial.search_thrust_map`: lag time
+  constant and dead time chosen by the free-run error on the training part, over the range the
+  recordings can show, :func:`aeropend_ident.io.recording_input.timing_range`: up to 1 s of dead
+  time and more when the holds are long; an optimum at the end of that range is a warning); a
+  command with one level (a step test, a free decay) fits the pendulum about that level without
+  thrust terms; the current and rotor equations are refused (named in ``summary.json``). With the
+  per-equation (structured) library, an equation whose library the data leaves rank deficient
+  (e.g. di_a/dt under a constant v_a) is refused with that reason and the others are still
+  identified.
 
 Split: each recording in time order, first ``--train-fraction`` (default 75 %) to fit, the rest
-held out; free-run NRMSE of θ on every held-out part. Several recordings: the training parts are
-stacked (strong form: ``--method sindy`` or ``ensemble``), each held-out part is scored alone.
+held out; free-run NRMSE of θ on every held-out part (a free run that diverges,
+:func:`aeropend_ident.io.overlay_axes.diverges`, is reported as such instead). Several recordings:
+the training parts are stacked (strong form: ``--method sindy`` or ``ensemble``), each held-out part
+is scored alone.
+
+Timing: every recording goes through the one resampling of the tools
+(:func:`aeropend_ident.io.recording_input.uniform_recording`, onto the first recording's grid);
+jitter, dropped rows and gaps are reported in the summary, never refused. Closed-loop logs are
+accepted as they are (the commanded duty is the input; see docs/identification.md on what closed
+loop means for the estimators). A recording whose constant duty cycle cannot explain θ (a closed
+loop's reference without its command) is refused with the ``csv_import`` message
+(:func:`aeropend_ident.io.csvspec.constant_input.excitation_problem`).
 
 Errors (unreadable input, a bag without the needed topics, NaNs, too short or unexcited data,
 i.e. a rank-deficient library) are printed with the message of the failing step; exit status 2.
@@ -53,7 +68,16 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.io.recording_input import ignored_channels, load_recording
+from aeropend_ident.io.csvspec.constant_input import excitation_problem
+from aeropend_ident.io.overlay_axes import diverges, hold_span
+from aeropend_ident.io.recording_input import (
+    TimingRange,
+    ignored_channels,
+    load_recording,
+    resampling_notes,
+    timing_range,
+    uniform_recording,
+)
 from aeropend_ident.sindy.core import (
     WEAK_IV,
     regression_problem,
@@ -81,7 +105,7 @@ from aeropend_ident.sindy.output_error import refine_output_error
 from aeropend_ident.sindy.partial import (
     angle_only_data,
     concat_data,
-    select_thrust_map,
+    search_thrust_map,
     theta_scores,
 )
 from aeropend_ident.sindy.preprocess import add_derivatives, differentiate
@@ -107,9 +131,14 @@ WEAK_IV_THRESHOLD = WEAK_IV["threshold"]
 MIN_SAMPLES = 50
 #: Share of each training part used as the validation tail for λ selection (full-state path).
 VALIDATION_FRACTION = 0.25
-#: Thrust-map grids of the partial-state path: T [s] and delay [samples].
-FIRST_ORDER_T = (0.0, 0.02, 0.05, 0.1, 0.2)
-FIRST_ORDER_DELAYS = (0, 1, 2)
+#: Smallest non-zero lag T [s] of the thrust-map search, and the ratio between successive ones
+#: (the grid runs to the data-derived TimingRange.lag_max).
+FIRST_ORDER_T_MIN = 0.02
+FIRST_ORDER_T_RATIO = 2.2
+#: Whole-sample delays always tried, then about this many more, geometrically spaced up to the
+#: data-derived TimingRange.delay_max.
+FIRST_ORDER_DELAYS = (0, 1, 2, 3)
+DELAY_STEPS = 10
 
 Progress = Callable[[str], None]
 
@@ -192,6 +221,20 @@ def _library(
             f"structured library has no equation for {missing} with variables {variables}"
         )
     return {tg: libs[tg] for tg in targets}
+
+
+def _check_excitation(recs: Sequence[Recording], train_fraction: float) -> None:
+    """Refuse recordings whose training parts cannot be identified from (the rule of every fit)."""
+    found = []
+    for r in recs:
+        k = max(round(train_fraction * len(r)), 3)
+        ref = "channel theta_ref" if "theta_ref" in r.extra else None
+        why = excitation_problem(r.t[:k], r.duty[:k], r.channels["theta"][:k], ref)
+        if why is not None and why[0] == "driven":
+            raise IdentificationError(f"{r.source}: {why[1]}")
+        found.append(why)
+    if all(f is not None for f in found):
+        raise IdentificationError(f"{recs[0].source}: training part: {found[0][1]}")
 
 
 def _check_theta(rec: Recording) -> None:
@@ -323,14 +366,24 @@ def _held_out_runs(model: SindyModel, recs: Sequence[Recording], parts: Sequence
     """Free run of the model on each held-out part: θ scores per recording and the runs."""
     say("free runs on the held-out part(s)")
     scores, held_runs = [], []
-    for r, (_tr, ho) in zip(recs, parts, strict=True):
+    for r, (tr, ho) in zip(recs, parts, strict=True):
         fr = free_run(model, ho, substeps=1)
         held_runs.append(fr)
         sc = theta_scores(ho.variables["theta"], fr.states["theta"])
         del sc["max_abs_rad"]  # not part of identify's report
         sc.update({"recording": r.source, "heldout_samples": len(ho), "free_run_nrmse_std": fr.nrmse})
+        # a held-out hold (it barely moves) is measured in the recording's range, as baseline does
+        whole = np.concatenate([tr.variables["theta"], ho.variables["theta"]])
+        span = hold_span(ho.variables["theta"], float(np.nanmax(whole) - np.nanmin(whole)))
+        if span is not None:
+            sc.update({"nrmse_range": sc["rms_rad"] / span,
+                       "normalised_by": "the recording's range (a hold)"})
+        why = diverges(fr.states["theta"], ho.variables["theta"], ho.t - ho.t[0], span=span)
+        if why is not None:  # the one divergence rule: no NRMSE for a run that left the recorded range
+            sc.update({"diverges": f"free run {why}", "nrmse_range": None, "nrmse_std": None})
         scores.append(sc)
-        say(f"  {r.source}: held-out free-run NRMSE(range) of θ {sc['nrmse_range']:.4g}")
+        say(f"  {r.source}: held-out free run of θ: "
+            + (sc["diverges"] if why else f"NRMSE(range) {sc['nrmse_range']:.4g}"))
     return scores, held_runs
 
 
@@ -423,39 +476,84 @@ def _identify_full_state(
     return model, parts, test_mse, targets
 
 
+def thrust_map_grids(timing: TimingRange, dt: float) -> tuple[tuple[float, ...], tuple[int, ...]]:
+    """The (T [s], delay [samples]) search of the first-order thrust map over the range the data show.
+
+    T: 0 (static), then from :data:`FIRST_ORDER_T_MIN` by factors of about
+    :data:`FIRST_ORDER_T_RATIO` up to ``timing.lag_max``; delays: :data:`FIRST_ORDER_DELAYS`, then
+    about :data:`DELAY_STEPS` whole-sample values geometrically spaced up to ``timing.delay_max``.
+    """
+    n_t = max(2, math.ceil(math.log(max(timing.lag_max, 2 * FIRST_ORDER_T_MIN) / FIRST_ORDER_T_MIN)
+                         / math.log(FIRST_ORDER_T_RATIO)) + 1)
+    grid_t = (0.0, *np.geomspace(FIRST_ORDER_T_MIN, max(timing.lag_max, FIRST_ORDER_T_MIN), n_t).tolist())
+    n_max = math.floor(timing.delay_max / dt + 1e-9)
+    first = FIRST_ORDER_DELAYS[-1] + 1
+    more = np.rint(np.geomspace(first, n_max, DELAY_STEPS)) if n_max >= first else np.array([])
+    grid_d = sorted({d for d in FIRST_ORDER_DELAYS if d <= n_max} | {int(v) for v in more})
+    return tuple(sorted(set(grid_t))), tuple(grid_d)
+
+
+def _bound_warnings(sel: Any, grid_t: Sequence[float], grid_d: Sequence[int], dt: float,
+                    timing: TimingRange) -> list[str]:
+    """Warnings for a thrust-map optimum at the upper end of its search range."""
+    out = []
+    if len(grid_d) > 1 and sel.delay == max(grid_d):
+        out.append(f"the thrust-map dead time {sel.delay * dt:.3g} s ({sel.delay} samples) sits at the upper "
+                   f"end of its search range 0-{max(grid_d) * dt:.3g} s ({timing.rule()}): the data may hide "
+                   "a longer dead time; record longer holds, or a step from rest, to show it")
+    if len(grid_t) > 1 and sel.time_constant == max(grid_t):
+        out.append(f"the thrust-map lag T = {sel.time_constant:.3g} s sits at the upper end of its search "
+                   f"range 0-{max(grid_t):.3g} s ({timing.rule()}): the data may hide a slower response")
+    return out
+
+
+def _drive(rig: Rig | None) -> tuple[Any, str, str]:
+    """(τ -> drive quantity map or None, its symbol, its description) of the partial-state path."""
+    if rig is None:
+        return None, "v_a", "duty cycle τ [1]"
+    model = PlantModel(rig)
+    if model.assembly.drive_name == "v_a":
+        return model.drive, "v_a", "v_a [V] from the rig's duty map"
+    return model.drive, "ω_sp", "the ESC's rotor-speed set-point ω_sp [rad/s] from the rig's throttle map"
+
+
 def _identify_partial_state(
     recs: Sequence[Recording], paths: Sequence[str | Path], rig: Rig | None, method: str, thrust_map: str,
     train_fraction: float, threshold: float | None, output_error: bool, extra: dict[str, Any], say: Progress,
 ) -> tuple[SindyModel, list[tuple[IdentData, IdentData]], dict[str, float], list[str]]:
     """The partial-state path of :func:`identify` (θ and τ only): pendulum equation + thrust map.
 
-    Adds the thrust map and notes to ``extra``; returns the model, the (train, held-out) parts,
-    the held-out MSE and the targets.
+    Adds the thrust map, notes and warnings to ``extra``; returns the model, the (train, held-out)
+    parts, the held-out MSE and the targets.
     """
-    vmap = PlantModel(rig).armature_voltage if rig is not None else None
+    vmap, symbol, described = _drive(rig)
     datas = [angle_only_data(r.t - r.t[0], r.channels["theta"], r.duty, vmap, source=r.source)
              for r in recs]
-    grid_t, grid_d = ((FIRST_ORDER_T, FIRST_ORDER_DELAYS) if thrust_map == "first_order"
-                      else ((0.0,), (0,)))
+    dt = recs[0].dt
+    timing = timing_range([r.slice(0, max(round(train_fraction * len(r)), 2)) for r in recs])
+    grid_t, grid_d = thrust_map_grids(timing, dt) if thrust_map == "first_order" else ((0.0,), (0,))
     if method == "weak-iv" or output_error:
         raise IdentificationError("weak-iv and --output-error need the full state (θ, i_a, ω₁); "
                                   f"{paths} record only θ and the duty cycle: use weak or sindy")
     kw = {"K": 300, "H_xt": min(0.5, 0.1 * (datas[0].t[-1] - datas[0].t[0]))} if method == "weak" else {}
     if threshold is not None:
         kw["threshold"] = float(threshold)
-    say(f"partial state (θ, τ): pendulum equation with a {thrust_map} thrust map, "
-        f"{len(grid_t) * len(grid_d)} (T, delay) candidates, {method}")
-    sel = select_thrust_map(datas, train_fraction, time_constants=grid_t, delays=grid_d,
-                            method=method, progress=say, **kw)
+    say(f"partial state (θ, τ): pendulum equation with a {thrust_map} thrust map of {described}, T up to "
+        f"{max(grid_t):.3g} s and dead time up to {max(grid_d) * dt:.3g} s ({timing.rule()}), {method}")
+    sel = search_thrust_map(datas, train_fraction, grid_t, grid_d, method=method, progress=say, symbol=symbol,
+                            **kw)
     model, parts = sel.model, sel.parts
     test = concat_data([p[1] for p in parts])
     test_mse = model.test_mse(test)
     targets = ["theta_dot"]
     extra["thrust_map"] = {"kind": thrust_map, "time_constant_s": sel.time_constant,
-                           "delay_samples": sel.delay, "training_free_run_nrmse": sel.train_nrmse,
-                           "input": "v_a [V] from the rig's duty map" if vmap else "duty cycle τ [1]",
+                           "delay_samples": sel.delay, "delay_s": sel.delay * dt,
+                           "training_free_run_nrmse": sel.train_nrmse, "input": described,
+                           "search": {**timing.as_dict(), "time_constants_s": list(grid_t),
+                                      "delays_samples": list(grid_d)},
                            "grid": sel.grid}
     extra["notes"] = sel.notes
+    extra.setdefault("warnings", []).extend(_bound_warnings(sel, grid_t, grid_d, dt, timing))
     for n in sel.notes:
         say(f"note: {n}")
     return model, parts, test_mse, targets
@@ -514,8 +612,12 @@ def identify(
         say(f"reading {p}")
         rec = load_recording(p, preset, namespace)
         _check_theta(rec)
+        rec = uniform_recording(rec, dt=recs[0].dt if recs else None)  # the one resampling of the tools
         say(f"  {len(rec)} samples at {1.0 / rec.dt:.4g} Hz, channels {sorted(rec.channels)}")
+        for note in resampling_notes([rec]):
+            say(f"  {note}")
         recs.append(rec)
+    _check_excitation(recs, train_fraction)
     full = all({"i_a", "omega_rotor"} <= set(r.channels) for r in recs)
     if method is None:
         method = "weak" if (full and len(recs) == 1) else "sindy"
@@ -571,13 +673,13 @@ def identify(
         "test_mse": test_mse, "heldout": scores, "free_run_nrmse": scores[0]["free_run_nrmse_std"],
         **extra, "files": files, "not_computed": not_computed,
         "ignored_channels": ignored_channels(recs, "θ, the duty cycle and the contract channels"),
+        "resampling": resampling_notes(recs), "warnings": extra.pop("warnings", []),
         "wall_time_s": round(time.perf_counter() - t0, 3),
     }
     if "thrust_map" in extra:
         tm = extra["thrust_map"]
         summary["derived_parameters"]["thrust_time_constant"] = {"value": tm["time_constant_s"], "unit": "s"}
-        summary["derived_parameters"]["thrust_delay"] = {"value": tm["delay_samples"] * recs[0].dt,
-                                                         "unit": "s"}
+        summary["derived_parameters"]["thrust_delay"] = {"value": tm["delay_s"], "unit": "s"}
     text = json.dumps(summary, indent=1, ensure_ascii=False, default=float) + "\n"
     (out / summary_file).write_text(text, encoding="utf-8")
     return summary

@@ -26,6 +26,7 @@ training part only, by the free-run simulation error of θ; T = 0, d = 0 is the 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -178,11 +179,14 @@ def with_thrust_map(data: IdentData, time_constant: float, delay: int = 0, input
     return IdentData(t=data.t, variables=v, derivatives=dict(data.derivatives), source=data.source)
 
 
-def thrust_map_library(quadratic: bool = True, bias: bool = True, coulomb: bool = False) -> CandidateLibrary:
+def thrust_map_library(quadratic: bool = True, bias: bool = True, coulomb: bool = False,
+                       thrust: bool = True, symbol: str = "v_a") -> CandidateLibrary:
     """{1, θ̇, sin θ, [sgn θ̇], F(v_a), [F(v_a²)]}: pendulum terms plus the lagged Eq. 4.4 thrust law.
 
     Needs the variables of :func:`with_thrust_map`. sgn θ̇ is tanh(θ̇ / 0.01 rad/s) (the
-    model's regularised Coulomb friction).
+    model's regularised Coulomb friction). ``thrust=False`` leaves the thrust terms out (an input
+    with one level: the constant term holds the thrust at that level). ``symbol`` names the input
+    in the equations (``v_a`` [V] of the voltage families, ``ω_sp`` [rad/s] of an ESC's set-point).
     """
     c: list[Candidate] = [constant()] if bias else []
     c += [
@@ -192,9 +196,10 @@ def thrust_map_library(quadratic: bool = True, bias: bool = True, coulomb: bool 
     if coulomb:
         c.append(Candidate("sgn(θ̇)", ("theta_dot",),
                            lambda d: np.tanh(np.asarray(d["theta_dot"], dtype=float) / 0.01)))
-    c.append(Candidate("F(v_a)", ("v_f",), lambda d: np.asarray(d["v_f"], dtype=float)))
-    if quadratic:
-        c.append(Candidate("F(v_a²)", ("v_f2",), lambda d: np.asarray(d["v_f2"], dtype=float)))
+    if thrust:
+        c.append(Candidate(f"F({symbol})", ("v_f",), lambda d: np.asarray(d["v_f"], dtype=float)))
+    if thrust and quadratic:
+        c.append(Candidate(f"F({symbol}²)", ("v_f2",), lambda d: np.asarray(d["v_f2"], dtype=float)))
     return CandidateLibrary(tuple(c))
 
 
@@ -310,7 +315,7 @@ def select_thrust_map(
     time_constants: Sequence[float] = (0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3),
     delays: Sequence[int] = (0, 1, 2, 3), threshold: float = 0.02, method: str = "sindy",
     bias: bool = True, coulomb: bool = False, quadratic: bool | None = None,
-    progress: Callable[[str], None] | None = None, **fit_kw: Any,
+    progress: Callable[[str], None] | None = None, symbol: str = "v_a", **fit_kw: Any,
 ) -> ThrustMapFit:
     """Identify θ̈ with a static or first-order thrust map; (T, d) by free-run error on training data.
 
@@ -333,8 +338,12 @@ def select_thrust_map(
         Grid of T [s] and d [samples]; ``(0,), (0,)`` is the static map.
     quadratic : bool, optional
         Offer F(v_a²); None = automatic (dropped when v_a has <= 2 distinct levels in training).
+        With one level (a step test, a free decay) the thrust terms are left out altogether and the
+        grid is the static map only: the constant term holds the thrust at that level.
     progress : callable, optional
         Called with a one-line message per grid point.
+    symbol : str
+        Name of the input in the equations (:func:`thrust_map_library`).
 
     Raises
     ------
@@ -351,15 +360,22 @@ def select_thrust_map(
         raise IdentificationError("the weak form would integrate across the joins of several records; "
                                   "use method 'sindy' or 'ensemble' for more than one record")
     notes: list[str] = []
+    levels = np.unique(np.concatenate([
+        r.variables["v_a"][: round(train_fraction * len(r))] for r in records if "v_a" in r.variables
+    ] or [np.array([])]))
+    thrust = levels.size != 1
+    if not thrust:
+        notes.append(f"the input has one level ({levels[0]:.4g}) in the training part (a step test or a free "
+                     f"decay): its gain is not identifiable, so the thrust terms were left out (the constant "
+                     "term holds the thrust at that level) and only the static map was tried")
+        time_constants, delays = (0.0,), (0,)
     if quadratic is None:
-        levels = np.unique(np.concatenate([
-            r.variables["v_a"][: round(train_fraction * len(r))] for r in records if "v_a" in r.variables
-        ] or [np.array([])]))
         quadratic = levels.size > 2
-        if not quadratic:
-            notes.append(f"input has {levels.size} level(s) in the training part: v_a² is affine in v_a, "
-                         "so the quadratic thrust term F(v_a²) is not identifiable and was left out")
-    lib = thrust_map_library(quadratic=quadratic, bias=bias, coulomb=coulomb)
+        if not quadratic and thrust:
+            notes.append(f"input has {levels.size} level(s) in the training part: {symbol}² is affine in "
+                         f"{symbol}, so the quadratic thrust term F({symbol}²) is not identifiable and was "
+                         "left out")
+    lib = thrust_map_library(quadratic=quadratic, bias=bias, coulomb=coulomb, thrust=thrust, symbol=symbol)
     best: ThrustMapFit | None = None
     grid: list[dict[str, Any]] = []
     last_error: Exception | None = None
@@ -395,3 +411,54 @@ def select_thrust_map(
     best.grid = grid
     best.notes = notes
     return best
+
+
+def search_thrust_map(
+    data: IdentData | Sequence[IdentData], train_fraction: float, time_constants: Sequence[float],
+    delays: Sequence[int], progress: Callable[[str], None] | None = None, **kw: Any,
+) -> ThrustMapFit:
+    """:func:`select_thrust_map` over a long (T, d) range by a coordinate search instead of the full grid.
+
+    Three passes, each a :func:`select_thrust_map` over one coordinate: the delay d over ``delays``
+    with the static map (T = ``time_constants[0]``), the lag T over ``time_constants`` at that d,
+    then d again at that T over the whole samples between the neighbours of the first pass' d (a lag
+    absorbs part of a dead time). The best of the three passes by training free-run NRMSE wins; its
+    ``grid`` lists every (T, d) tried. A grid of a few points is searched whole.
+
+    Parameters
+    ----------
+    data, train_fraction
+        As :func:`select_thrust_map`.
+    time_constants : sequence of float
+        Increasing T [s], the first one (0: static map) used in the first pass.
+    delays : sequence of int
+        Increasing delays [samples].
+    progress : callable, optional
+    **kw
+        Passed to :func:`select_thrust_map` (method, threshold, symbol, fit options).
+
+    Raises
+    ------
+    IdentificationError
+        As :func:`select_thrust_map`.
+    """
+    if len(time_constants) * len(delays) <= 16:
+        return select_thrust_map(data, train_fraction, time_constants, delays, progress=progress, **kw)
+    first = select_thrust_map(data, train_fraction, tuple(time_constants[:1]), tuple(delays),
+                              progress=progress, **kw)
+    second = select_thrust_map(data, train_fraction, tuple(time_constants), (first.delay,), progress=progress,
+                               **kw)
+    k = list(delays).index(first.delay)
+    lo, hi = delays[max(k - 1, 0)], delays[min(k + 1, len(delays) - 1)]
+    near = sorted({int(v) for v in np.rint(np.linspace(lo, hi, 9))} - {first.delay})
+    passes = [first, second]
+    if near:
+        passes.append(select_thrust_map(data, train_fraction, (second.time_constant,), tuple(near),
+                                        progress=progress, **kw))
+    best = min(passes, key=lambda f: f.train_nrmse)
+    seen: dict[tuple[float, int], dict[str, Any]] = {}
+    for f in passes:
+        for g in f.grid:
+            seen.setdefault((g["time_constant"], g["delay"]), g)
+    return dataclasses.replace(best, grid=[seen[k] for k in sorted(seen)],
+                               notes=list(dict.fromkeys(n for f in passes for n in f.notes)))

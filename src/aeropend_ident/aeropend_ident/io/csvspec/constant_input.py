@@ -28,6 +28,12 @@ and the rig's own unsteadiness stay below it). θ is median-filtered over :data:
 samples first (single-sample glitches are no motion). On the recordings in ``shared/data/real`` the
 free decays and steps from rest reach at most 0.5 of that margin, the driven logs (the actuator
 column dropped) at least 1.65 of it (docs/csv_import.md).
+
+The same check guards every fit (:func:`excitation_problem`): a recording that reaches ``baseline``,
+``identify`` or ``gap`` with a constant duty cycle some other way (a bag, a preset) is refused with
+the message ``csv_import`` gives (:func:`driven_message`) when the constant input cannot explain θ,
+and as unexcited when θ does not move; a free decay or a step from rest is accepted (the rod's
+dynamics are excited; the input's gain is seen at one level only).
 """
 
 from __future__ import annotations
@@ -40,7 +46,8 @@ from numpy.lib.stride_tricks import sliding_window_view
 from scipy.ndimage import median_filter
 from scipy.signal import find_peaks
 
-__all__ = ["MEDIAN_SAMPLES", "RANGE_FRACTION", "REST_TIME_S", "ConstantInputCheck", "check_constant_input"]
+__all__ = ["MEDIAN_SAMPLES", "RANGE_FRACTION", "REST_TIME_S", "ConstantInputCheck", "check_constant_input",
+           "driven_message", "excitation_problem"]
 
 #: Shortest stretch [s] within the noise band that counts as a rest (longer than a swinging rod
 #: lingers at a turning point).
@@ -82,7 +89,7 @@ class ConstantInputCheck:
     excess: float
 
 
-def _noise_band(theta: np.ndarray) -> float:
+def noise_band(theta: np.ndarray) -> float:
     """6 σ of white noise (second-difference MAD), at least 2 resolution steps [rad]."""
     d2 = np.diff(theta, 2)
     sigma = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / math.sqrt(6.0) if d2.size >= 3 else 0.0
@@ -99,7 +106,7 @@ def _rest_then_moves(t: np.ndarray, th: np.ndarray, band: float, margin: float) 
     if n < 2 * w:
         return 0.0, ""
     first = np.flatnonzero(np.abs(th - np.median(th[:w])) > margin)
-    if first.size == 0:
+    if first.size == 0 or n - first[0] < w:  # no motion, or too little left after it for a rest
         return 0.0, ""
     rest = np.flatnonzero(np.ptp(sliding_window_view(th[first[0]:], w), axis=1) <= band)
     if rest.size == 0:
@@ -178,7 +185,7 @@ def check_constant_input(t: np.ndarray, theta: np.ndarray) -> ConstantInputCheck
     """
     t = np.asarray(t, dtype=float)
     raw = np.asarray(theta, dtype=float)
-    band = _noise_band(raw)
+    band = noise_band(raw)
     th = median_filter(raw, size=MEDIAN_SAMPLES, mode="nearest")
     margin = max(2.0 * band, RANGE_FRACTION * float(np.ptp(th)))
     theta_f = float(np.median(th[-max(th.size // 20, 3):]))
@@ -188,3 +195,77 @@ def check_constant_input(t: np.ndarray, theta: np.ndarray) -> ConstantInputCheck
     size, text = max(rules, key=lambda r: r[0] / margin)
     driven = size > margin
     return ConstantInputCheck(driven, text if driven else "", moves, band, margin, theta_f, size / margin)
+
+
+def driven_message(given: str, reason: str, reference: str | None = None) -> str:
+    """The refusal of a log that a constant input cannot explain (``csv_import`` and every fit).
+
+    Parameters
+    ----------
+    given : str
+        What the constant input is, e.g. ``"input_constant = 0 counts (pwm): duty 0"``.
+    reason : str
+        The violated rule (:attr:`ConstantInputCheck.reason`).
+    reference : str, optional
+        How the log's reference is named (``"column 'theta_ref [rad]'"``, ``"channel theta_ref"``):
+        the message says it is not an input.
+
+    Returns
+    -------
+    str
+        ``"a constant input (...) cannot explain this log: ... Log the actuator command ..."``.
+    """
+    stored = "" if "theta_ref" in str(reference) else ", and it is stored as the channel theta_ref"
+    ref = (f" The reference {reference} is not an input: it is the angle the controller was asked to reach, "
+           f"not the command it applied{stored}." if reference else "")
+    return (f"a constant input ({given}) cannot explain this log: {reason}.{ref} Log the actuator command "
+            "(duty, PWM, pulse width, voltage) and import it with --input-col and --input-kind; give "
+            "--input-constant only for a run whose input really was constant (a free decay, a step from "
+            "rest at t = 0)")
+
+
+def excitation_problem(t: np.ndarray, duty: np.ndarray, theta: np.ndarray,
+                       reference: str | None = None) -> tuple[str, str] | None:
+    """Why a fit of the rig from θ and the duty cycle cannot use these data, or None when it can.
+
+    Identifiability is decided on what is fitted: a changing duty cycle excites the rig (unless θ
+    never changes at all); under a constant one, θ must move as a constant input allows (a free
+    decay, a step from rest at t = 0: the rod's dynamics are excited, the input's gain is seen at
+    one level only); a constant input that cannot explain θ is a driven log whose command was not
+    logged (:func:`driven_message`, the ``csv_import`` refusal), and a θ that stays within its noise
+    band is unexcited.
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,)
+        Sample times [s].
+    duty : ndarray, shape (N,)
+        Duty cycle τ [1].
+    theta : ndarray, shape (N,)
+        Angle [rad], finite.
+    reference : str, optional
+        How the recording's reference is named, for the message (e.g. ``"channel theta_ref"``).
+
+    Returns
+    -------
+    (str, str) or None
+        ``("driven", why)`` or ``("unexcited", why)`` (``why`` without the recording's name); None
+        for usable data.
+    """
+    duty = np.asarray(duty, dtype=float)
+    theta = np.asarray(theta, dtype=float)
+    if np.ptp(theta) == 0.0:
+        return "unexcited", (f"θ is constant ({theta[0]:g} rad) over all {theta.size} samples: the output is "
+                             "unexcited")
+    if np.ptp(duty) > 0.0:
+        return None
+    check = check_constant_input(t, theta)
+    given = f"the duty cycle is {duty[0]:.4g} throughout"
+    if check.driven:
+        return "driven", driven_message(given, check.reason, reference)
+    if not check.moves:
+        return "unexcited", (
+            f"the duty cycle is constant ({duty[0]:.4g}) and θ stays within {check.margin:.3g} rad of where "
+            "it starts: nothing excites the rig, so no parameter is identifiable from it (a step, a free "
+            "decay from a held angle or a PRBS would be)")
+    return None
