@@ -22,8 +22,20 @@ if str(BENCH) not in sys.path:
 
 import truth_plant as tp  # noqa: E402
 
-#: Columns of the recordings' CSV logs (a preset registered by the tests reads them).
+#: Columns of the recordings' CSV logs.
 CSV_HEADER = "time_s,duty,theta_rad"
+#: The lab's csv_import preset file for them (docs/csv_import.md): the recordings are passed as
+#: ``decay.csv:lab_log.yaml``.
+PRESET = """\
+# csv_import preset of the lab's logs (time in s, duty as a fraction, angle in rad, 0 = hanging)
+name: lab_log
+angle_col: theta_rad
+angle_unit: rad
+time_col: time_s
+time_unit: s
+input_col: duty
+input_kind: duty
+"""
 
 
 @dataclass
@@ -60,9 +72,11 @@ def experiments(plant, dt: float, levels, hold: float = 20.0, avg: float = 2.0, 
 
 
 def noisy(ex: Experiments, folder: Path, seed: int, sigma: float) -> dict[str, Path]:
-    """One lab's files (balance.csv, decay.csv, prbs.csv) with white angle noise σ [rad]."""
+    """One lab's files (balance.csv, decay.csv, prbs.csv, the preset lab_log.yaml) with white angle
+    noise σ [rad]; ``args`` lists them as ``rig fit`` takes them."""
     rng = np.random.default_rng(seed)
     folder.mkdir(parents=True, exist_ok=True)
+    (folder / "lab_log.yaml").write_text(PRESET, encoding="utf-8")
     se = sigma / math.sqrt(ex.balance_samples)
     table = folder / "balance.csv"
     rows = ["command,angle_rad,angle_std_rad"]
@@ -78,3 +92,9 @@ def noisy(ex: Experiments, folder: Path, seed: int, sigma: float) -> dict[str, P
                    fmt="%.9g")
         out[name] = path
     return out
+
+
+def args(files: dict[str, Path]) -> list[str]:
+    """The ``rig fit`` arguments of :func:`noisy`'s files (recordings with the lab's preset file)."""
+    preset = files["balance"].parent / "lab_log.yaml"
+    return [str(files["balance"]), f"{files['decay']}:{preset}", f"{files['prbs']}:{preset}"]

@@ -214,7 +214,7 @@ def _spec(key: str, unit: str, start: float, stated: Mapping[str, float], top_de
     return ParameterSpec(key, unit, float(start), float(lo), float(hi), log, float(scale))
 
 
-def _blocks(tables: Sequence[StaticTable], series: Sequence[TimeSeries]) -> list[Block]:
+def blocks_of(tables: Sequence[StaticTable], series: Sequence[TimeSeries]) -> list[Block]:
     out: list[Block] = []
     for t in tables:
         known = t.std is not None
@@ -293,7 +293,7 @@ def _delay_start(problem: Problem, start: dict[str, float], top: float) -> dict[
     if key not in start or not dyn:
         return start
     dt = min(problem.blocks[i].data.dt for i in dyn)  # type: ignore[union-attr]
-    grid = np.linspace(0.0, top, max(2, min(60, round(top / dt) + 1)))
+    grid = np.linspace(0.0, top, max(2, min(31, round(top / dt) + 1)))
     sub = Problem(problem.base, problem.geometry, [], [problem.blocks[i] for i in dyn], fixed=dict(start))
     z0, _, _ = sub.z_bounds()
     costs = []
@@ -412,6 +412,7 @@ def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = No
     sample_period = None
     if sample_todo and series:
         dt = min(s.data.dt for s in series)
+        dt = float(f"{dt:.9g}")
         sample_period = (dt, f"median sample interval of {series[0].source} (rig fit)")
         rig = replace(rig, sample_period=dt)
     stated = stated_values(doc, todo)
@@ -430,7 +431,7 @@ def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = No
         rig = rig.with_effects(rod_coulomb_friction=True)
     specs = [_spec(k, units[k], start[k], stated, top_delay) for k in units]
     start = {s.name: s.initial for s in specs}
-    problem = Problem(rig, geometry, specs, _blocks(tables, series), timing=timing_keys())
+    problem = Problem(rig, geometry, specs, blocks_of(tables, series), timing=timing_keys())
     static_idx = [i for i, b in enumerate(problem.blocks) if b.static]
     if static_idx:
         say(f"[2/5] static tables: {', '.join(problem.blocks[i].source for i in static_idx)}")
@@ -466,10 +467,11 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
     z = np.zeros(0)
     if problem.specs:
         z0, lo, hi = problem.z_bounds()
-        z, _, _ = problem.solve(z0, max_nfev=80)
-        problem.reweight(z)
-        say("[5/5] second pass with each input weighted by its residual noise")
-        z, J, _ = problem.solve(z, max_nfev=40)
+        z, J, _ = problem.solve(z0, max_nfev=80)
+        say("[5/5] uncertainties: each input weighted by its residual noise")
+        factors = problem.reweight(z)
+        rows = np.repeat(factors, [b.size() for b in problem.blocks])
+        J = J * rows[:, None]
         _, lo, hi = problem.z_bounds()
         pinned = (np.abs(z - lo) <= 1e-4) | (np.abs(z - hi) <= 1e-4)
         cov = covariance(J, pinned)

@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.optimize import brentq, least_squares
@@ -115,25 +116,26 @@ class BalanceBlock(Block):
             except (ModelError, ValueError, ZeroDivisionError, OverflowError):
                 return math.inf
 
-        lo, hi = tau(0.0), tau(THETA_CAP)
+        top = THETA_CAP if math.isfinite(tau(THETA_CAP)) else _last_finite(tau)
+        lo, hi = tau(0.0), tau(top)
         out = np.empty(self.command.size)
         for i, (c, a) in enumerate(zip(self.command, self.angle, strict=True)):
-            if c <= lo:
+            if c <= lo or not math.isfinite(lo):
                 th = 0.0
-            elif c >= hi or not math.isfinite(hi):
-                th = _bisect_finite(tau, c) if not math.isfinite(hi) else THETA_CAP
+            elif c >= hi:
+                th = top
             else:
-                th = brentq(lambda x, c=c: tau(x) - c, 0.0, THETA_CAP, xtol=1e-10)
+                th = brentq(lambda x, c=c: tau(x) - c, 0.0, top, xtol=1e-10)
             out[i] = th - a
         return out / (self.std if self.std is not None else 1.0)
 
 
-def _bisect_finite(tau: Callable[[float], float], c: float) -> float:
-    """Angle with τ(θ) = c when τ is infinite (unreachable) beyond some angle."""
+def _last_finite(tau: Callable[[float], float]) -> float:
+    """The largest angle whose holding command τ(θ) is finite (the actuator's reach), by bisection."""
     lo, hi = 0.0, THETA_CAP
-    for _ in range(60):
+    for _ in range(40):
         mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if tau(mid) < c else (lo, mid)
+        lo, hi = (mid, hi) if math.isfinite(tau(mid)) else (lo, mid)
     return lo
 
 
@@ -278,7 +280,7 @@ class Problem:
                 J[offsets[i]:offsets[i + 1], j] = (parts[i] - base[i]) / h
         return J
 
-    def solve(self, z0: np.ndarray, max_nfev: int = 60, tol: float = 1e-8) -> tuple[np.ndarray, np.ndarray, Any]:
+    def solve(self, z0: np.ndarray, max_nfev: int = 60, tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, Any]:
         """Least squares from ``z0``; returns (z, J at z, the SciPy result)."""
         _, lo, hi = self.z_bounds()
         z0 = np.clip(z0, lo, hi)
@@ -286,13 +288,16 @@ class Problem:
                             x_scale=1.0, ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
         return sol.x, self.jac(sol.x, lo, hi), sol
 
-    def reweight(self, z: np.ndarray) -> None:
+    def reweight(self, z: np.ndarray) -> list[float]:
         """Each block's σ from its residual at ``z`` (tables with stated errors: scaled only up by
-        their χ²), time series inflated by their residual's autocorrelation."""
+        their χ²), time series inflated by their residual's autocorrelation. Returns the factors
+        σ_old/σ_new that rescale the blocks' rows of a Jacobian."""
         parts = self.block_residuals(z)
+        factors = []
         n_main = max(len(self.specs), 1)
         total = sum(p.size for p in parts)
         for b, r in zip(self.blocks, parts, strict=True):
+            old = b.sigma
             raw = r * b.sigma
             k = len(b.nuisance) + n_main * r.size / total
             dof = max(r.size - k, 1.0)
@@ -303,6 +308,9 @@ class Problem:
                 b.sigma = max(rms, 1e-12)
             if isinstance(b, TimeBlock):
                 b.sigma *= math.sqrt(autocorrelation_factor(raw))
+            factors.append(old / b.sigma)
+        self._cache = None
+        return factors
 
 
 def autocorrelation_factor(r: np.ndarray) -> float:
