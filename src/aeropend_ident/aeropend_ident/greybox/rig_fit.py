@@ -337,7 +337,8 @@ def _timing_hint(key: str, value: float, hold: float, dt: float) -> str:
 
 
 def _hint(key: str, value: float, timing: frozenset[str], hold: float, dt: float) -> str:
-    if key in timing:
+    p = registry.params().get(key)
+    if key in timing and p is not None and p.unit == "s":
         return _timing_hint(key, value, hold, dt)
     return _measure(key)
 

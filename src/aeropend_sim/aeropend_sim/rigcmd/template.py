@@ -292,9 +292,10 @@ def new_rig_text(family: str, stated: Mapping[str, float], *, name: str = "my_ri
         if body:
             lines.append(f"{section}:")
             lines += body
-    on = [e.name for e in registry.family_effects(family)
+    on = [e for e in registry.family_effects(family)
           if any(role.get(p.key) in ("to be fitted", "stated") for p in e.params if not p.setting)]
-    lines += ["effects:", *(f"  {e}: true" for e in on)] if on else ["effects: {}"]
+    switches = [f"  {e.name}: {json.dumps(e.on)}" for e in on]
+    lines += ["effects:", *switches] if switches else ["effects: {}"]
     text = "\n".join(lines) + "\n"
     try:
         import yaml
