@@ -84,7 +84,8 @@ def noisy(ex: Experiments, folder: Path, seed: int, sigma: float) -> dict[str, P
                                                                                        strict=True)]
     table.write_text("\n".join(rows) + "\n", encoding="utf-8")
     out = {"balance": table}
-    for name, duty, theta in (("decay", ex.decay_duty, ex.decay_theta), ("prbs", ex.prbs_duty, ex.prbs_theta)):
+    runs = (("decay", ex.decay_duty, ex.decay_theta), ("prbs", ex.prbs_duty, ex.prbs_theta))
+    for name, duty, theta in runs:
         y = theta + sigma * rng.standard_normal(theta.size)
         t = np.arange(theta.size) * ex.dt
         path = folder / f"{name}.csv"

@@ -36,7 +36,8 @@ def _new(tmp_path: Path, family: str, stated: list[str], name: str = "my_rig.yam
 @pytest.mark.parametrize(("text", "unit", "value"), [
     ("0.12kg", "kg", 0.12), ("120 g", "kg", 0.12), ("80ms", "s", 0.08), ("18cm", "m", 0.18),
     ("1000rpm", "rad/s", 1000 * 2 * math.pi / 60), ("2.5 kg*cm^2", "kg*m^2", 2.5e-4), ("15mH", "H", 0.015),
-    ("3e-6 N*s^2/rad^2", "N*s^2/rad^2", 3e-6), ("5%", "1", 0.05), ("30deg", "rad", math.pi / 6), ("7", "V", 7.0),
+    ("3e-6 N*s^2/rad^2", "N*s^2/rad^2", 3e-6), ("5%", "1", 0.05), ("30deg", "rad", math.pi / 6),
+    ("7", "V", 7.0),
 ])
 def test_stated_values_are_converted_to_the_registry_unit(text, unit, value):
     assert convert(text, unit) == pytest.approx(value, rel=1e-12)
@@ -58,7 +59,8 @@ def test_rig_new_writes_every_family_parameter_marked_and_it_loads(tmp_path, fam
     statuses = {k: rig.status(k) for k in registry.family_params(family)}
     # the family's base parameters (except the gear, stated or 1) are to be fitted, from the registry
     base = {p.key for part in registry.family_parts(family) for p in part.params if not p.setting}
-    assert {k for k in base if k != "motor.gear_ratio"} <= {k for k, s in statuses.items() if s == "to be fitted"}
+    todo = {k for k, s in statuses.items() if s == "to be fitted"}
+    assert {k for k in base if k != "motor.gear_ratio"} <= todo
     assert "to be fitted" in rig.load_report() and "rig fit" in rig.load_report()
     for key, p in registry.family_params(family).items():
         if statuses[key] == "to be fitted":
@@ -78,7 +80,8 @@ def test_rig_new_states_converted_values_and_fits_the_inertia_from_the_geometry(
     assert rig.status("motor.T_m") == "stated"
     assert rig.status("pendulum.mgd_over_J") == "to be fitted"  # derived from a to-be-fitted inertia
     # plausible inertia range from the geometry: J ≥ m·d² about the pivot
-    assert f"plausible {0.12 * 0.18**2:.4g} … {100 * 0.12 * 0.18**2:.4g} kg*m^2" in path.read_text(encoding="utf-8")
+    j0 = 0.12 * 0.18**2
+    assert f"plausible {j0:.4g} … {100 * j0:.4g} kg*m^2" in path.read_text(encoding="utf-8")
 
 
 @pytest.mark.parametrize(("stated", "message"), [
@@ -109,8 +112,8 @@ def _balance(tmp_path: Path, rig_path: Path, values: dict[str, float], levels, n
     from aeropend_ident.greybox.rig_problem import BalanceBlock, apply_values
 
     doc = yaml.safe_load(rig_path.read_text(encoding="utf-8"))
-    geo = {f"pendulum.{k}": float(v["value"]) for k, v in doc["pendulum"].items() if k in ("mass", "com_distance",
-                                                                                            "thrust_arm")}
+    geo = {f"pendulum.{k}": float(v["value"]) for k, v in doc["pendulum"].items()
+           if k in ("mass", "com_distance", "thrust_arm")}
     rig = apply_values(load_rig(rig_path), geo, values)
     levels = np.asarray(levels, dtype=float)
     block = BalanceBlock(source="t", label="", command=levels, angle=np.zeros(levels.size))
@@ -145,7 +148,8 @@ def test_only_the_product_is_determined_names_both_and_how_to_state_one(tmp_path
     rig_path = _new(tmp_path, "esc", ["motor.gear_ratio=1", "actuator.omega_max=1085rad/s",
                                        "pendulum.mgd_over_J=40"])
     table = _balance(tmp_path, rig_path, {"actuator.idle_duty": 0.08, "actuator.curve_exponent": 1.0,
-                                          "thrust.K_q": 8e-7, "pendulum.L_over_J": 25.0}, np.linspace(0.15, 0.9, 10))
+                                          "thrust.K_q": 8e-7, "pendulum.L_over_J": 25.0},
+                     np.linspace(0.15, 0.9, 10))
     res = fit_rig(rig_path, [str(table)])
     kq, lj = res.outcome("thrust.K_q"), res.outcome("pendulum.L_over_J")
     assert kq.status == lj.status == "to be fitted"

@@ -59,8 +59,9 @@ def dc_case() -> Case:
     p = tp.PlantParams()
     return Case("dc_hbridge", tp.TruthPlant(), tp.DT,
                 [f"actuator.v_supply={p.v_supply}V", f"motor.R_a={p.R_a}ohm", f"motor.L_a={p.L_a * 1e3}mH",
-                 f"motor.K_t={p.K_t}N*m/A", f"motor.K_omega={p.K_omega}V*s/rad", f"motor.B_m={p.B_m}N*m*s/rad",
-                 f"motor.J_m={p.J_m}kg*m^2", f"motor.gear_ratio={1.0 / tp.GEAR}", f"thrust.K_q={p.K_q}N*s^2/rad^2"],
+                 f"motor.K_t={p.K_t}N*m/A", f"motor.K_omega={p.K_omega}V*s/rad",
+                 f"motor.B_m={p.B_m}N*m*s/rad", f"motor.J_m={p.J_m}kg*m^2",
+                 f"motor.gear_ratio={1.0 / tp.GEAR}", f"thrust.K_q={p.K_q}N*s^2/rad^2"],
                 {"pendulum.mgd_over_J": p.mgd_over_J, "pendulum.L_over_J": p.L_over_J,
                  "pendulum.c_over_J": p.c_over_J},
                 {"levels": [0.3, 0.45, 0.6, 0.75, 0.9, 1.0], "hold": 4.0, "avg": 1.0, "lift": 0.8,
@@ -74,12 +75,12 @@ def amplifier_case() -> Case:
                 [f"actuator.v_max={p.gain * p.v_ref}V", f"motor.R_a={p.R_a}ohm", f"motor.K_t={p.k_t}N*m/A",
                  f"motor.K_omega={p.k_e}V*s/rad", f"motor.B_m={p.B}N*m*s/rad",
                  f"motor.K_d={p.c_q * tp.RHO_AIR * p.diameter**5 / (2 * math.pi) ** 2}N*m*s^2/rad^2",
-                 "motor.gear_ratio=1", f"pendulum.mass={rod.mass * 1e3}g", f"pendulum.com_distance={rod.com}m",
-                 f"pendulum.thrust_arm={rod.arm}m"],
+                 "motor.gear_ratio=1", f"pendulum.mass={rod.mass * 1e3}g",
+                 f"pendulum.com_distance={rod.com}m", f"pendulum.thrust_arm={rod.arm}m"],
                 {"actuator.v_offset": 0.0, "motor.J_m": p.J_r, "thrust.K_q": _kq(p.c_t, p.diameter),
                  "pendulum.c_over_J": rod.damping / rod.inertia, "pendulum.inertia": rod.inertia},
-                {"levels": [0.3, 0.45, 0.6, 0.7, 0.8, 0.9], "lift": 0.7, "prbs_seconds": 10.0, "prbs_lo": 0.35,
-                 "prbs_hi": 0.85, "decay_seconds": 10.0})
+                {"levels": [0.3, 0.45, 0.6, 0.7, 0.8, 0.9], "lift": 0.7, "prbs_seconds": 10.0,
+                 "prbs_lo": 0.35, "prbs_hi": 0.85, "decay_seconds": 10.0})
 
 
 CASES = {"esc": esc_case, "dc_hbridge": dc_case, "voltage_amplifier": amplifier_case}

@@ -97,9 +97,9 @@ def sensitivity_lines(rig: Rig, problem: Problem) -> list[str]:
     seen = fisher > 1e-12 * max(float(fisher.max()), 1e-300)
     pinned = np.concatenate([~seen, np.zeros(J.shape[1] - n, dtype=bool)])
     cov = covariance(J, pinned)[:n, :n]
-    lines = ["sensitivity of the inputs to each parameter (Fisher information of the noise-weighted residuals "
-             "per ln p; 'alone': the relative 1σ it would allow if every other parameter were known; 'joint': "
-             "with all of them fitted together):"]
+    lines = ["sensitivity of the inputs to each parameter (Fisher information of the noise-weighted "
+             "residuals per ln p; 'alone': the relative 1σ it would allow if every other parameter were "
+             "known; 'joint': with all of them fitted together):"]
     for rank, j in enumerate(np.argsort(-fisher), start=1):
         if not seen[j]:
             lines.append(f"  {rank:>2}. {names[j]:<28} not sensitive: these inputs do not depend on it")
@@ -108,8 +108,8 @@ def sensitivity_lines(rig: Rig, problem: Problem) -> list[str]:
         joint = math.sqrt(cov[j, j]) if math.isfinite(cov[j, j]) else math.inf
         unit = "%" if problem.specs[j].log else problem.specs[j].unit
         f = 100.0 if problem.specs[j].log else problem.specs[j].scale
-        lines.append(f"  {rank:>2}. {names[j]:<28} information {fisher[j]:10.3g}   alone ±{alone * f:.3g} {unit}"
-                     f"   joint ±{joint * f:.3g} {unit}")
+        lines.append(f"  {rank:>2}. {names[j]:<28} information {fisher[j]:10.3g}   "
+                     f"alone ±{alone * f:.3g} {unit}   joint ±{joint * f:.3g} {unit}")
     d = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
     corr = cov / np.outer(d, d)
     pairs = [(names[i], names[j], corr[i, j]) for i in range(n) for j in range(i + 1, n)
@@ -136,7 +136,8 @@ def check_rig(rig_path: str | Path, inputs: Sequence[str] = (), preset: str | No
     counts = {s: 0 for s in ("stated", "derived", "fitted", "to be fitted", "not modelled", "default")}
     for key in registry.family_params(rig.family):
         counts[rig.status(key)] = counts.get(rig.status(key), 0) + 1
-    lines = [f"rig check: {path.name} ({rig.family}): " + ", ".join(f"{v} {k}" for k, v in counts.items() if v)]
+    tally = ", ".join(f"{v} {k}" for k, v in counts.items() if v)
+    lines = [f"rig check: {path.name} ({rig.family}): {tally}"]
     lines += status_table(rig, doc)
     lines += reach_lines(rig)
     if not inputs:

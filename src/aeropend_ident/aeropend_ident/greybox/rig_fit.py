@@ -118,8 +118,8 @@ class Outcome:
         err = f" ± {self.std:.2g}" if math.isfinite(self.std) else ""
         text = f"{FITTED}: {self.value:.6g}{err} {self.unit} (1σ, Jacobian) from {self.provenance}"
         if self.bound is not None:
-            text += (f"; AT SEARCH BOUND {self.bound:.4g} (searched {self.lower:.4g} … {self.upper:.4g}): the "
-                     "bound, not the data, set it")
+            text += (f"; AT SEARCH BOUND {self.bound:.4g} (searched {self.lower:.4g} … {self.upper:.4g}): "
+                     "the bound, not the data, set it")
         return text
 
 
@@ -153,9 +153,11 @@ class RigFitResult:
             if o.status == "fitted":
                 err = f" ± {o.std:.2g}" if math.isfinite(o.std) else ""
                 flag = "   AT SEARCH BOUND" if o.bound is not None else ""
-                lines.append(f"  fitted        {o.key} = {o.value:.5g}{err} {o.unit}   [{o.provenance}]{flag}")
+                lines.append(f"  fitted        {o.key} = {o.value:.5g}{err} {o.unit}   "
+                             f"[{o.provenance}]{flag}")
             else:
-                lines.append(f"  REFUSED       {o.key} (still to be fitted; best value {o.value:.4g} {o.unit})")
+                lines.append(f"  REFUSED       {o.key} (still to be fitted; best value "
+                             f"{o.value:.4g} {o.unit})")
         refused = [o for o in self.outcomes if o.status != "fitted"]
         if refused:
             lines.append("not determined by these inputs (left to be fitted):")
@@ -163,7 +165,8 @@ class RigFitResult:
         flagged = [o for o in self.outcomes if o.bound is not None and o.status == "fitted"]
         if flagged:
             lines.append("AT A SEARCH BOUND (the bound, not the data, set these):")
-            lines += [f"  {o.key} = {o.value:.4g} {o.unit} (searched {o.lower:.4g} … {o.upper:.4g})" for o in flagged]
+            lines += [f"  {o.key} = {o.value:.4g} {o.unit} (searched {o.lower:.4g} … {o.upper:.4g})"
+                      for o in flagged]
         if self.nrmse:
             lines.append("free-run θ NRMSE of the fitted rig:")
             lines += [f"  {k}: {v:.3f}" for k, v in self.nrmse.items()]
@@ -270,8 +273,8 @@ def _decay_starts(series: Sequence[TimeSeries], todo: Mapping[str, Any], start: 
             notes.append(f"{s.source}: free-decay envelope not analysed ({exc})")
             continue
         notes.append(f"{s.source}: free decay, period {env.period:.3g} s, {env.envelope} envelope "
-                     f"(c/J ≈ {env.c_over_J:.3g} 1/s, T_f/J ≈ {env.coulomb_over_J:.3g} ± {env.coulomb_std:.2g} "
-                     f"rad/s², mgd/J ≈ {env.mgd_over_J:.4g} 1/s²)")
+                     f"(c/J ≈ {env.c_over_J:.3g} 1/s, T_f/J ≈ {env.coulomb_over_J:.3g} ± "
+                     f"{env.coulomb_std:.2g} rad/s², mgd/J ≈ {env.mgd_over_J:.4g} 1/s²)")
         if "pendulum.c_over_J" in todo and env.c_over_J > 0.0:
             start["pendulum.c_over_J"] = env.c_over_J
         if "pendulum.mgd_over_J" in todo and float(s.data.duty[0]) == 0.0:
@@ -279,10 +282,12 @@ def _decay_starts(series: Sequence[TimeSeries], todo: Mapping[str, Any], start: 
         if INERTIA in todo and float(s.data.duty[0]) == 0.0 and all(k in stated for k in GEOMETRY_NEEDED):
             m, d = stated["pendulum.mass"], stated["pendulum.com_distance"]
             start[INERTIA] = m * 9.80665 * d / env.mgd_over_J
-        if env.dry_friction and "pendulum.coulomb_over_J" not in todo and "pendulum.coulomb_over_J" not in stated:
-            add = "pendulum.coulomb_over_J"
+        dry = "pendulum.coulomb_over_J"
+        if env.dry_friction and dry not in todo and dry not in stated:
+            add = dry
             start[add] = env.coulomb_over_J
-            notes.append(f"{s.source}: the envelope decays linearly: dry friction T_f/J switched on and fitted")
+            notes.append(f"{s.source}: the envelope decays linearly: dry friction T_f/J switched on and "
+                         "fitted")
     return start, add
 
 
@@ -343,20 +348,22 @@ def _hint(key: str, value: float, timing: frozenset[str], hold: float, dt: float
     return _measure(key)
 
 
-def _refusals(weak: Sequence[tuple[str, list[str], np.ndarray]], names_inputs: str, start: Mapping[str, float],
-              timing: frozenset[str], hold: float, dt: float) -> dict[str, str]:
+def _refusals(weak: Sequence[tuple[str, list[str], np.ndarray]], names_inputs: str,
+              start: Mapping[str, float], timing: frozenset[str], hold: float, dt: float) -> dict[str, str]:
     """Reason per refused key (module docstring)."""
     out: dict[str, str] = {}
     for fixed, group, exps in weak:
         if len(group) == 1:
-            out[fixed] = (f"{fixed}: {names_inputs} are not sensitive to it (a factor e changes no fit by more "
-                          f"than its noise); {_hint(fixed, start.get(fixed, math.nan), timing, hold, dt)}")
+            hint = _hint(fixed, start.get(fixed, math.nan), timing, hold, dt)
+            out[fixed] = (f"{fixed}: {names_inputs} are not sensitive to it (a factor e changes no fit by "
+                          f"more than its noise); {hint}")
             continue
         combo = _combination(group, exps)
         states = "; ".join(f"{k} — {_hint(k, start.get(k, math.nan), timing, hold, dt)}" for k in group)
         text = (f"{' and '.join(group)}: only {combo} is determined by {names_inputs}; state one: {states}")
         for k in group:
-            extra = "" if k == fixed else f" (its value holds {combo} with the others at their starting values)"
+            extra = "" if k == fixed else (f" (its value holds {combo} with the others at their starting "
+                                           "values)")
             out.setdefault(k, text + extra)
     return out
 
@@ -364,7 +371,8 @@ def _refusals(weak: Sequence[tuple[str, list[str], np.ndarray]], names_inputs: s
 def _provenance(J: np.ndarray, sizes: Sequence[int], blocks: Sequence[Block], j: int) -> str:
     """The inputs holding ≥ PROVENANCE_SHARE of column j's Fisher information, with their method."""
     edges = np.concatenate([[0], np.cumsum(sizes)])
-    info = np.array([float(J[edges[b]:edges[b + 1], j] @ J[edges[b]:edges[b + 1], j]) for b in range(len(blocks))])
+    cols = [J[edges[b]:edges[b + 1], j] for b in range(len(blocks))]
+    info = np.array([float(c @ c) for c in cols])
     total = info.sum()
     if total <= 0.0:
         return "no input"
@@ -481,9 +489,10 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
             v = s.from_z(z[j])
             std = abs(s.dp_dz(v)) * math.sqrt(cov[j, j]) if math.isfinite(cov[j, j]) else math.nan
             bound = (s.lower if abs(z[j] - lo[j]) <= 1e-4 else s.upper) if pinned[j] else None
-            o = Outcome(s.name, s.unit, v, std, provenance=_provenance(J, sizes, problem.blocks, j), bound=bound,
-                        lower=s.lower, upper=s.upper)
-            loose = (std > MAX_RELATIVE_STD * abs(v)) if s.log else (std > MAX_RANGE_STD * (s.upper - s.lower))
+            o = Outcome(s.name, s.unit, v, std, provenance=_provenance(J, sizes, problem.blocks, j),
+                        bound=bound, lower=s.lower, upper=s.upper)
+            limit = MAX_RELATIVE_STD * abs(v) if s.log else MAX_RANGE_STD * (s.upper - s.lower)
+            loose = std > limit
             if s.name in refused:
                 o.status, o.reason = "to be fitted", refused[s.name]
             elif math.isfinite(std) and loose:
@@ -493,8 +502,8 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
             outcomes[s.name] = o
     for s in all_specs:
         if s.name in held:
-            outcomes[s.name] = Outcome(s.name, s.unit, s.initial, status="to be fitted", reason=refused[s.name],
-                                       lower=s.lower, upper=s.upper)
+            outcomes[s.name] = Outcome(s.name, s.unit, s.initial, status="to be fitted",
+                                       reason=refused[s.name], lower=s.lower, upper=s.upper)
     fitted = problem.rig(z)
     nrmse = {}
     nuis = problem._nuis(z) if problem.specs else [[b_.nuisance[0].initial, b_.nuisance[1].initial]
@@ -582,7 +591,8 @@ def write_fitted(result: RigFitResult, path: str | Path) -> Path:
     try:
         rig_from_dict(yaml.safe_load(text), str(path))
     except ValueError as exc:
-        raise IdentificationError(f"rig fit: the fitted rig file would not load ({exc}); not written") from exc
+        raise IdentificationError(f"rig fit: the fitted rig file would not load ({exc}); not "
+                                  "written") from exc
     p = Path(path)
     p.write_text(text, encoding="utf-8")
     return p

@@ -160,18 +160,20 @@ def read_table(path: str | Path) -> StaticTable:
             try:
                 v = float(cell)
             except ValueError:
-                raise RecordingInputError(f"{path.name}: row {k}, column {name}: {cell!r} is not a number") from None
+                raise RecordingInputError(f"{path.name}: row {k}, column {name}: {cell!r} is not a "
+                                          "number") from None
             if not math.isfinite(v):
                 raise RecordingInputError(f"{path.name}: row {k}, column {name}: {cell!r} is not finite")
             data[name].append(v)
     command = np.array(data[cmd])
     if command.size < MIN_ROWS:
-        raise RecordingInputError(f"{path.name}: {command.size} row(s); a static table needs at least {MIN_ROWS}")
+        raise RecordingInputError(f"{path.name}: {command.size} row(s); a static table needs at least "
+                                  f"{MIN_ROWS}")
     bad = (command < 0.0) | (command > 1.0)
     if bad.any():
         k = int(np.flatnonzero(bad)[0])
-        raise RecordingInputError(f"{path.name}: {cmd} = {command[k]!r} in data row {k + 1} is outside [0, 1] "
-                                  "(a fraction of the command range)")
+        raise RecordingInputError(f"{path.name}: {cmd} = {command[k]!r} in data row {k + 1} is outside "
+                                  "[0, 1] (a fraction of the command range)")
     kind, factor = VALUE_COLUMNS[col]
     std = None
     if std_col:

@@ -280,7 +280,8 @@ class Problem:
                 J[offsets[i]:offsets[i + 1], j] = (parts[i] - base[i]) / h
         return J
 
-    def solve(self, z0: np.ndarray, max_nfev: int = 60, tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, Any]:
+    def solve(self, z0: np.ndarray, max_nfev: int = 60,
+              tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, Any]:
         """Least squares from ``z0``; returns (z, J at z, the SciPy result)."""
         _, lo, hi = self.z_bounds()
         z0 = np.clip(z0, lo, hi)

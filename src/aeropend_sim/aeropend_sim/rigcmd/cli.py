@@ -33,8 +33,8 @@ from aeropend_sim.rigcmd.template import new_rig_text, parse_stated
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``rig``."""
-    p = argparse.ArgumentParser(prog="rig", description="Make a rig file for your own aeropendulum (new), fit "
-                                "what it leaves to be fitted from your tables and recordings (fit), and "
+    p = argparse.ArgumentParser(prog="rig", description="Make a rig file for your own aeropendulum (new), "
+                                "fit what it leaves to be fitted from your tables and recordings (fit), and "
                                 "check what it states, fits and can reach (check).")
     sub = p.add_subparsers(dest="command", required=True, metavar="{new,fit,check}")
     families = [f.name for f in registry.families()]
@@ -53,8 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--preset", default=None, help="CSV preset for recordings without :PRESET")
     f.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     f.add_argument("-q", "--quiet", action="store_true", help="no progress lines")
-    c = sub.add_parser("check", help="what the rig file states, fits and defaults; sensitivity of recordings; "
-                       "reach")
+    c = sub.add_parser("check", help="what the rig file states, fits and defaults; sensitivity of "
+                       "recordings; reach")
     c.add_argument("rig", help="rig file or shipped rig name")
     c.add_argument("inputs", nargs="*", metavar="INPUT", help="static table CSV, bag or FILE.csv:PRESET")
     c.add_argument("--preset", default=None, help="CSV preset for recordings without :PRESET")
@@ -70,7 +70,8 @@ def _new(args: argparse.Namespace) -> int:
     out.write_text(text, encoding="utf-8")
     rig = load_rig(out)
     todo = sum(rig.status(k) == "to be fitted" for k in registry.family_params(rig.family))
-    print(f"wrote {out}: {args.actuator} rig, {len(stated)} stated value(s), {todo} parameter(s) to be fitted")
+    print(f"wrote {out}: {args.actuator} rig, {len(stated)} stated value(s), {todo} parameter(s) to be "
+          "fitted")
     print(f"next: rig fit {out} TABLES_AND_RECORDINGS... -o fitted.yaml")
     return 0
 
