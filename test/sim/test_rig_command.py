@@ -268,3 +268,58 @@ def test_the_template_thrust_map_matches_the_model(tmp_path):
 
     block = BalanceBlock(source="t", label="", command=np.array([tau]), angle=np.array([th]))
     assert abs(block.residual(rig, [])[0]) < 1e-8
+
+
+def test_thrust_table_gives_K_q_and_the_map(tmp_path):
+    """A load cell's thrust vs command: K_q and the ESC's map (ω_max stated) from the model's own
+    steady thrust; the rod's parameters are not in it and are refused."""
+    from aeropend_ident.greybox.fit import motor_equilibrium
+    from aeropend_ident.greybox.rig_problem import apply_values
+
+    rig_path = _new(tmp_path, "esc", ESC_STATED)
+    truth = {"actuator.idle_duty": 0.07, "actuator.curve_exponent": 0.9, "thrust.K_q": 9e-7}
+    rig = apply_values(load_rig(rig_path), {}, truth)
+    model = PlantModel(rig)
+    levels = np.linspace(0.1, 1.0, 10)
+    f = [model.thrust(motor_equilibrium(rig, c)[1]) for c in levels]
+    table = tmp_path / "thrust.csv"
+    table.write_text("command,thrust_N\n" + "".join(f"{c},{v}\n" for c, v in zip(levels, f, strict=True)),
+                     encoding="utf-8")
+    res = fit_rig(rig_path, [str(table)])
+    for key, true in truth.items():
+        o = res.outcome(key)
+        assert o.status == "fitted" and o.value == pytest.approx(true, rel=1e-4)
+        assert "thrust.csv (thrust table (load cell" in o.provenance
+    assert res.outcome("pendulum.inertia").status == "to be fitted"
+
+
+def test_free_decay_recording_gives_the_inertia_and_damping(tmp_path):
+    """A free decay simulated by the model itself (motor off): the fitted inertia and c/J are the
+    truth within 2σ, and the envelope note says exponential."""
+    from aeropend_ident.greybox.rig_problem import apply_values
+    from aeropend_sim.simulate import simulate
+
+    rig_path = _new(tmp_path, "esc", ESC_STATED)
+    truth = {"pendulum.inertia": 0.0052, "pendulum.c_over_J": 0.6}
+    doc = yaml.safe_load(rig_path.read_text(encoding="utf-8"))
+    geo = {f"pendulum.{k}": float(doc["pendulum"][k]["value"])
+           for k in ("mass", "com_distance", "thrust_arm")}
+    rig = apply_values(load_rig(rig_path), geo, truth)
+    n, dt, sigma = 800, 0.01, 0.003
+    theta = simulate(rig, np.zeros(n), x0=np.array([0.5, 0.0, 0.0, 0.0, 0.0]), dt=dt).theta
+    theta = theta + np.random.default_rng(3).normal(0.0, sigma, n)
+    log = tmp_path / "decay.csv"
+    log.write_text("time_s,duty,theta_rad\n" + "".join(f"{k * dt},0,{v}\n" for k, v in enumerate(theta)),
+                   encoding="utf-8")
+    preset = tmp_path / "lab_log.yaml"
+    from rig_lab import PRESET
+
+    preset.write_text(PRESET, encoding="utf-8")
+    res = fit_rig(rig_path, [f"{log}:{preset}"])
+    assert any("exponential envelope" in n for n in res.notes)
+    for key, true in truth.items():
+        o = res.outcome(key)
+        assert o.status == "fitted", o.reason
+        assert abs(o.value - true) <= 2.0 * o.std, (key, o.value, o.std)
+    # the swing does not depend on the throttle map: refused, with the experiment that would determine it
+    assert "a balance table" in res.outcome("actuator.idle_duty").reason

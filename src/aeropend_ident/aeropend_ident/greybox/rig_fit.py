@@ -161,7 +161,7 @@ class RigFitResult:
         refused = [o for o in self.outcomes if o.status != "fitted"]
         if refused:
             lines.append("not determined by these inputs (left to be fitted):")
-            lines += [f"  {o.key}: {o.reason}" for o in refused]
+            lines += [f"  {o.reason}" for o in refused]
         flagged = [o for o in self.outcomes if o.bound is not None and o.status == "fitted"]
         if flagged:
             lines.append("AT A SEARCH BOUND (the bound, not the data, set these):")
@@ -234,7 +234,8 @@ def blocks_of(tables: Sequence[StaticTable], series: Sequence[TimeSeries]) -> li
 def _stage(problem: Problem, blocks: Sequence[int], names: Sequence[str], start: dict[str, float],
            max_nfev: int = 40) -> dict[str, float]:
     """Fit ``names`` on the ``blocks`` alone (the rest held at ``start``); what these blocks cannot
-    determine stays where it is. Returns the updated starting values."""
+    determine stays where it is, and the blocks' σ are re-estimated from their residuals. Returns the
+    updated starting values."""
     specs = [replace(s, initial=start[s.name]) for s in problem.specs if s.name in names]
     if not specs or not blocks:
         return start
@@ -250,6 +251,7 @@ def _stage(problem: Problem, blocks: Sequence[int], names: Sequence[str], start:
         return start
     z0 = np.concatenate([[s.to_z(s.initial) for s in sub.specs], z0[len(specs):]])
     z, _, _ = sub.solve(z0, max_nfev=max_nfev, tol=1e-6)
+    sub.reweight(z)  # the blocks' σ from their residuals: what the joint fit's refusals weigh
     return {**start, **{s.name: s.from_z(zi) for s, zi in zip(sub.specs, z, strict=False)}}
 
 
@@ -355,8 +357,8 @@ def _refusals(weak: Sequence[tuple[str, list[str], np.ndarray]], names_inputs: s
     for fixed, group, exps in weak:
         if len(group) == 1:
             hint = _hint(fixed, start.get(fixed, math.nan), timing, hold, dt)
-            out[fixed] = (f"{fixed}: {names_inputs} are not sensitive to it (a factor e changes no fit by "
-                          f"more than its noise); {hint}")
+            out[fixed] = (f"{fixed}: the inputs ({names_inputs}) are not sensitive to it (a factor e "
+                          f"changes no fit by more than its noise); {hint}")
             continue
         combo = _combination(group, exps)
         states = "; ".join(f"{k} — {_hint(k, start.get(k, math.nan), timing, hold, dt)}" for k in group)
@@ -506,8 +508,7 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
                                        reason=refused[s.name], lower=s.lower, upper=s.upper)
     fitted = problem.rig(z)
     nrmse = {}
-    nuis = problem._nuis(z) if problem.specs else [[b_.nuisance[0].initial, b_.nuisance[1].initial]
-                                                   if b_.nuisance else [] for b_ in problem.blocks]
+    nuis = problem.nuisance_values(z if problem.specs else problem.z_bounds()[0])
     for b, nv in zip(problem.blocks, nuis, strict=True):
         if isinstance(b, TimeBlock):
             try:

@@ -168,7 +168,8 @@ class TimeBlock(Block):
 
     def __post_init__(self) -> None:
         d = self.data
-        assert d is not None
+        if d is None:
+            raise ValueError(f"{self.source}: a time block needs its recording")
         noise = max(noise_level(d.theta), 1e-4)
         th0, thd0 = float(d.theta[0]), initial_velocity(d.theta, d.dt)
         self.nuisance = [
@@ -219,7 +220,8 @@ class Problem:
     def rig(self, z: np.ndarray) -> Rig:
         return apply_values(self.base, self.geometry, self.values(z))
 
-    def _nuis(self, z: np.ndarray) -> list[list[float]]:
+    def nuisance_values(self, z: np.ndarray) -> list[list[float]]:
+        """Each block's nuisance values (initial angle, velocity) at coordinates ``z``."""
         out, k = [], len(self.specs)
         for b in self.blocks:
             out.append([s.from_z(z[k + j]) for j, s in enumerate(b.nuisance)])
@@ -235,7 +237,7 @@ class Problem:
             rig = self.rig(z)
         except IdentificationError:
             rig = None
-        nuis = self._nuis(z)
+        nuis = self.nuisance_values(z)
         out = []
         for i, b in enumerate(self.blocks):
             if only is not None and i not in only:
