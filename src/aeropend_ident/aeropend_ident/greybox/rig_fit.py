@@ -251,7 +251,7 @@ def _stage(problem: Problem, blocks: Sequence[int], names: Sequence[str], start:
         return start
     z0 = np.concatenate([[s.to_z(s.initial) for s in sub.specs], z0[len(specs):]])
     z, _, _ = sub.solve(z0, max_nfev=max_nfev, tol=1e-6)
-    sub.reweight(z)  # the blocks' σ from their residuals: what the joint fit's refusals weigh
+    sub.reweight(z, known=False)  # the blocks' σ from their residuals: what the refusals weigh
     return {**start, **{s.name: s.from_z(zi) for s, zi in zip(sub.specs, z, strict=False)}}
 
 
@@ -541,6 +541,7 @@ def fitted_text(result: RigFitResult) -> str:
     out: list[str] = []
     ends: dict[str, int] = {}
     done = set()
+    head: int | None = None
     for line in lines:
         if line and not line[0].isspace() and not line.startswith("#"):
             section = line.split(":")[0].strip()
@@ -550,9 +551,16 @@ def fitted_text(result: RigFitResult) -> str:
                 continue
         m = _LINE.match(line)
         key = f"{section}.{m.group('name')}" if m else None
+        if line.lstrip().startswith("#") and line.rstrip().endswith("— TO BE FITTED"):
+            head = len(out)
+        elif m is not None and key not in todo:
+            head = None
         if key in todo:
             o = todo[key]
             ind = m.group("indent")  # type: ignore[union-attr]
+            if head is not None:  # rig new's header of this entry: say what rig fit made of it
+                mark = "FITTED (rig fit)" if o.status == "fitted" else "STILL TO BE FITTED (rig fit)"
+                out[head] = out[head].replace("— TO BE FITTED", f"— {mark}")
             out += _comments(o, ind)
             out.append(f"{ind}{m.group('name')}: {_quantity(o.value, o.unit, o.source)}")  # type: ignore[union-attr]
             done.add(key)

@@ -291,10 +291,11 @@ class Problem:
                             x_scale=1.0, ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
         return sol.x, self.jac(sol.x, lo, hi), sol
 
-    def reweight(self, z: np.ndarray) -> list[float]:
+    def reweight(self, z: np.ndarray, known: bool = True) -> list[float]:
         """Each block's σ from its residual at ``z`` (tables with stated errors: scaled only up by
-        their χ²), time series inflated by their residual's autocorrelation. Returns the factors
-        σ_old/σ_new that rescale the blocks' rows of a Jacobian."""
+        their χ², and only when ``known``), time series inflated by their residual's
+        autocorrelation. Returns the factors σ_old/σ_new that rescale the blocks' rows of a
+        Jacobian."""
         parts = self.block_residuals(z)
         factors = []
         n_main = max(len(self.specs), 1)
@@ -306,7 +307,7 @@ class Problem:
             dof = max(r.size - k, 1.0)
             rms = math.sqrt(float(raw @ raw) / dof)
             if b.sigma_known:
-                b.sigma = max(1.0, rms)
+                b.sigma = max(1.0, rms) if known else old
             else:
                 b.sigma = max(rms, 1e-12)
             if isinstance(b, TimeBlock):
