@@ -323,3 +323,31 @@ def test_free_decay_recording_gives_the_inertia_and_damping(tmp_path):
         assert abs(o.value - true) <= 2.0 * o.std, (key, o.value, o.std)
     # the swing does not depend on the throttle map: refused, with the experiment that would determine it
     assert "a balance table" in res.outcome("actuator.idle_duty").reason
+
+
+def test_a_time_constant_refusal_quotes_the_holds_and_what_would_determine_it():
+    from aeropend_ident.greybox.rig_fit import _timing_hint
+
+    assert _timing_hint("motor.T_m", 0.05, 2.0, 0.01) == (
+        "the recordings never change the command faster than 2 s; a step or PRBS with holds shorter than "
+        "0.1 s would")
+
+
+def test_rig_check_of_a_shipped_rig_without_inputs(capsys):
+    assert main(["check", "thesis_rig"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("rig check: thesis_rig (dc_hbridge): ")
+    assert "stated        motor.R_a" in out and "reach at full command (τ = 1):" in out
+    assert "sensitivity" not in out
+
+
+def test_rig_fit_shows_a_line_per_stage_unless_quiet(tmp_path, capsys):
+    rig_path = _new(tmp_path, "esc", ESC_STATED)
+    table = _balance(tmp_path, rig_path, {"actuator.idle_duty": 0.08, "actuator.curve_exponent": 1.0,
+                                          "thrust.K_q": 8e-7}, np.linspace(0.15, 0.9, 8))
+    capsys.readouterr()
+    assert main(["fit", str(rig_path), str(table), "-o", str(tmp_path / "a.yaml")]) == 0
+    loud = capsys.readouterr().out
+    assert "rig fit: [1/5] reading 1 input(s)" in loud and "rig fit: [2/5] static tables: balance.csv" in loud
+    assert main(["fit", str(rig_path), str(table), "-o", str(tmp_path / "b.yaml"), "-q"]) == 0
+    assert "[1/5]" not in capsys.readouterr().out
