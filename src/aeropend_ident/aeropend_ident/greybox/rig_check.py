@@ -140,6 +140,9 @@ def check_rig(rig_path: str | Path, inputs: Sequence[str] = (), preset: str | No
     lines = [f"rig check: {path.name} ({rig.family}): {tally}"]
     lines += status_table(rig, doc)
     lines += reach_lines(rig)
+    if counts.get("to be fitted"):
+        lines.append(f"note: {counts['to be fitted']} parameter(s) still hold rig new's starting values: the "
+                     "reach and the figures below use them (rig fit first)")
     if not inputs:
         return "\n".join(lines)
     tables, series = read_inputs(list(inputs), preset)
