@@ -12,7 +12,7 @@ from aeropend_sim.components.base import DC_ROTOR, POSITIVE, Diagnosis, Family, 
 
 V_SUPPLY = Param("actuator.v_supply", "V", "H-bridge supply: ideal map v_a = v_supply·τ", sign="positive",
                  relative_truth=(), symbol="V_s", typical=12.0,
-            measure='the H-bridge supply voltage (a voltmeter)')
+                 measure='the H-bridge supply voltage (a voltmeter)')
 
 
 def voltage(xp, tau, v_supply):

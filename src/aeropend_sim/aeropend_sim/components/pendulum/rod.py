@@ -29,7 +29,7 @@ MGD = Param("pendulum.mgd_over_J", "1/s^2", "gravity term m·g·d/J", sign="nonn
             measure='a free decay (its swing frequency)')
 LJ = Param("pendulum.L_over_J", "1/(kg*m)", "thrust lever arm over inertia L/J", sign="positive",
            fit=FitBounds(None, None, True), symbol="L/J", typical=20.0,
-            measure='the geometry: pendulum.mass, com_distance and thrust_arm (the inertia from a free '
+           measure='the geometry: pendulum.mass, com_distance and thrust_arm (the inertia from a free '
                    'decay)')
 
 #: Geometry a rig file may give instead of mgd/J and L/J.
