@@ -55,6 +55,12 @@ DEFAULT = "default (not in the rig file)"
 SET_IN_CODE = "set in code (not in the rig file)"
 #: Start of the source of a value the loader derived from other values of the file.
 DERIVED = "derived by the rig loader: "
+#: Start of the source of a parameter ``rig new`` left for ``rig fit``: its value is a clearly
+#: marked starting value, not a measurement (``rig fit`` keeps it when the recordings cannot
+#: determine it, with the reason after this marker).
+TO_BE_FITTED = "to be fitted (rig fit)"
+#: Start of the source of a value ``rig fit`` determined (its uncertainty and provenance follow).
+FITTED = "fitted (rig fit)"
 
 #: Allowed values of ``effects.armature_inductance`` (its on and off modes).
 INDUCTANCE_MODES: tuple[str, str] = registry.effect("armature_inductance").modes  # type: ignore[assignment]
@@ -137,7 +143,12 @@ Effects = _make_effects()
 
 
 def _status(source: str) -> str:
-    """Provenance class of a parameter source: stated, derived, not modelled, default or set in code."""
+    """Provenance class of a parameter source: stated, derived, not modelled, default, set in code,
+    to be fitted or fitted (a value derived from a to-be-fitted input is itself to be fitted)."""
+    if source.startswith(TO_BE_FITTED):
+        return "to be fitted"
+    if source.startswith(FITTED):
+        return "fitted"
     if source == NOT_MODELLED:
         return "not modelled"
     if source == DEFAULT:
@@ -145,7 +156,7 @@ def _status(source: str) -> str:
     if source == SET_IN_CODE:
         return "set in code"
     if source.startswith(DERIVED):
-        return "derived"
+        return "to be fitted" if TO_BE_FITTED in source else "derived"
     return "stated"
 
 
@@ -241,8 +252,9 @@ class Rig:
                 for key, p in registry.family_params(self.family).items()}
 
     def status(self, key: str) -> str:
-        """Provenance of a parameter: ``stated``, ``derived``, ``not modelled``, ``default`` or
-        ``set in code``."""
+        """Provenance of a parameter: ``stated``, ``derived``, ``not modelled``, ``default``,
+        ``set in code``, ``to be fitted`` (a starting value ``rig new`` wrote) or ``fitted``
+        (``rig fit``)."""
         return _status(self.sources.get(key, SET_IN_CODE))
 
     def load_report(self) -> str:
@@ -252,6 +264,10 @@ class Rig:
             v = self.value(key)
             lines.append(f"  {self.status(key):<13} {key} = {v:g} {p.unit}  ({p.doc})")
         lines += [f"  note: {n}" for n in self.load_notes]
+        todo = [k for k in registry.family_params(self.family) if self.status(k) == "to be fitted"]
+        if todo:
+            lines.append(f"  note: {len(todo)} parameter(s) hold starting values, not measurements "
+                         f"({', '.join(todo)}): fit them with `rig fit` before trusting the model")
         return "\n".join(lines)
 
     # ------------------------------------------------------------------ copies

@@ -143,6 +143,12 @@ class Param:
         parameter from (one interval is drawn, then a factor uniformly inside it); ``()``: none.
     symbol : str
         Symbol for tables (default: the name).
+    typical : float or None
+        A value typical of a lab's rig: the clearly marked starting value ``rig new`` writes for a
+        parameter to be fitted (``None``: the absent value, or none).
+    measure : str
+        How a lab states or measures it (one line): what ``rig fit`` says to do when recordings
+        cannot determine it.
     """
 
     key: str
@@ -155,6 +161,8 @@ class Param:
     fit: FitBounds | None = None
     relative_truth: tuple[tuple[float, float], ...] = ()
     symbol: str = ""
+    typical: float | None = None
+    measure: str = ""
 
     def __post_init__(self) -> None:
         section, dot, name = self.key.partition(".")

@@ -9,7 +9,8 @@ from __future__ import annotations
 from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Search, Term
 
 LAG = Param("actuator.lag_time_constant", "s", "first-order actuator lag T_a", sign="nonneg", absent=0.0,
-            fit=FitBounds(1e-4, 10.0, True), symbol="T_a")
+            fit=FitBounds(1e-4, 10.0, True), symbol="T_a", typical=0.05,
+            measure='steps or PRBS with holds near the lag')
 
 
 def rate(xp, u, tau_f, lag_time_constant):

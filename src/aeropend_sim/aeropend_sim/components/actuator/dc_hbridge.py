@@ -11,7 +11,8 @@ import math
 from aeropend_sim.components.base import DC_ROTOR, POSITIVE, Diagnosis, Family, Param, Search, Term, scaled
 
 V_SUPPLY = Param("actuator.v_supply", "V", "H-bridge supply: ideal map v_a = v_supply·τ", sign="positive",
-                 relative_truth=(), symbol="V_s")
+                 relative_truth=(), symbol="V_s", typical=12.0,
+                 measure='the H-bridge supply voltage (a voltmeter)')
 
 
 def voltage(xp, tau, v_supply):

@@ -9,7 +9,8 @@ from __future__ import annotations
 from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Search, Term
 
 DEAD_ZONE = Param("actuator.dead_zone", "1", "duty-cycle dead zone τ_dz", sign="nonneg", below=1.0,
-                  absent=0.0, fit=FitBounds(0.0, 0.95, False, 0.05), symbol="τ_dz")
+                  absent=0.0, fit=FitBounds(0.0, 0.95, False, 0.05), symbol="τ_dz", typical=0.05,
+                  measure='a balance table (command vs angle) down to the command where the rod lifts')
 
 
 def effective_duty(xp, tau, dead_zone):

@@ -22,11 +22,15 @@ from __future__ import annotations
 from aeropend_sim.components.base import POSITIVE, Diagnosis, Family, Param, Search, Term, scaled
 
 OMEGA_MAX = Param("actuator.omega_max", "rad/s", "steady rotor speed at full throttle ω_max", sign="positive",
-                  relative_truth=((0.75, 0.88), (1.12, 1.25)), symbol="ω_max")
+                  relative_truth=((0.75, 0.88), (1.12, 1.25)), symbol="ω_max", typical=1000.0,
+                  measure='K_v [rpm/V] × battery voltage × 2π/60, or the rotor speed recorded at full '
+                          'throttle')
 IDLE_DUTY = Param("actuator.idle_duty", "1", "idle/arming throttle τ_0: the rotor stands still below it",
-                  sign="nonneg", below=1.0, absent=0.0, symbol="τ_0")
+                  sign="nonneg", below=1.0, absent=0.0, symbol="τ_0", typical=0.05,
+                  measure='a balance table (command vs angle) down to the command where the rod lifts')
 CURVE = Param("actuator.curve_exponent", "1", "throttle-curve exponent β (1: linear ESC)", sign="positive",
-              absent=1.0, symbol="β")
+              absent=1.0, symbol="β", typical=1.0,
+              measure='a balance or thrust table over the whole command range')
 
 
 def speed(xp, tau, omega_max, idle_duty, curve_exponent):

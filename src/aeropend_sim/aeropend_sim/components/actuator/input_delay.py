@@ -9,7 +9,9 @@ from __future__ import annotations
 from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Search
 
 INPUT_DELAY = Param("actuator.input_delay", "s", "input (transport) delay T_d", sign="nonneg", absent=0.0,
-                    fit=FitBounds(0.0, 1.0, False, 0.01), symbol="T_d")
+                    fit=FitBounds(0.0, 1.0, False, 0.01), symbol="T_d", typical=0.05,
+                    measure="steps or PRBS recorded at 50 Hz or more (the response's first move after a "
+                            "command change)")
 
 def search_range(ctx):
     """Nominal … nominal + 0.3 s; absent at the rig's T_d (0 when off)."""

@@ -11,9 +11,11 @@ import math
 from aeropend_sim.components.base import DC_ROTOR, Diagnosis, Family, Param, Search, Term
 
 V_MAX = Param("actuator.v_max", "V", "amplifier full scale: v_a = v_offset + v_max·τ", sign="positive",
-              symbol="V_max")
+              symbol="V_max", typical=10.0,
+              measure="the amplifier gain × the command's full scale (data sheet)")
 V_OFFSET = Param("actuator.v_offset", "V", "amplifier output at zero command (offset)", absent=0.0,
-                 symbol="v_0")
+                 symbol="v_0", typical=0.0,
+                 measure='the amplifier output at zero command (a voltmeter), or a balance table')
 
 
 def voltage(xp, tau, v_max, v_offset):

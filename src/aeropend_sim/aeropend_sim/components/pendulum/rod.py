@@ -24,9 +24,13 @@ from aeropend_sim.components.base import (
 G = 9.80665
 
 MGD = Param("pendulum.mgd_over_J", "1/s^2", "gravity term m·g·d/J", sign="nonneg",
-            fit=FitBounds(1e-2, 1e4, True), relative_truth=((0.8, 0.9), (1.12, 1.25)), symbol="mgd/J")
+            fit=FitBounds(1e-2, 1e4, True), relative_truth=((0.8, 0.9), (1.12, 1.25)), symbol="mgd/J",
+            typical=20.0,
+            measure='a free decay (its swing frequency)')
 LJ = Param("pendulum.L_over_J", "1/(kg*m)", "thrust lever arm over inertia L/J", sign="positive",
-           fit=FitBounds(None, None, True), symbol="L/J")
+           fit=FitBounds(None, None, True), symbol="L/J", typical=20.0,
+           measure='the geometry: pendulum.mass, com_distance and thrust_arm (the inertia from a free '
+                   'decay)')
 
 #: Geometry a rig file may give instead of mgd/J and L/J.
 GEOMETRY = (

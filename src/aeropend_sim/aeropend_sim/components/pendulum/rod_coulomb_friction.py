@@ -17,7 +17,8 @@ import math
 from aeropend_sim.components.base import Diagnosis, Effect, FitBounds, Param, Search, Term
 
 T_F = Param("pendulum.coulomb_over_J", "rad/s^2", "Coulomb friction torque over inertia T_f/J", sign="nonneg",
-            absent=0.0, fit=FitBounds(0.0, 1e3, False, 1.0), symbol="T_f/J")
+            absent=0.0, fit=FitBounds(0.0, 1e3, False, 1.0), symbol="T_f/J", typical=0.5,
+            measure='a free decay (its linear envelope)')
 T_S = Param("pendulum.stribeck_over_J", "rad/s^2",
             "Stribeck excess of the static over the Coulomb friction (T_s − T_f)/J (0 = none)", sign="nonneg",
             absent=0.0, symbol="(T_s − T_f)/J")

@@ -11,7 +11,9 @@ import math
 from aeropend_sim.components.base import POSITIVE, Diagnosis, Effect, FitBounds, Param, Search, Term
 
 C_OVER_J = Param("pendulum.c_over_J", "1/s", "viscous friction c/J", sign="nonneg", absent=0.0,
-                 fit=FitBounds(1e-4, 1e3, True), relative_truth=((0.35, 0.6), (1.7, 2.5)), symbol="c/J")
+                 fit=FitBounds(1e-4, 1e3, True), relative_truth=((0.35, 0.6), (1.7, 2.5)), symbol="c/J",
+                 typical=1.0,
+            measure='a free decay (its exponential envelope)')
 
 
 def accel(xp, theta_dot, c_over_J):

@@ -10,7 +10,8 @@ from __future__ import annotations
 from aeropend_sim.components.base import POSITIVE, Diagnosis, Effect, Param, Search, scaled
 
 L_A = Param("motor.L_a", "H", "armature inductance", sign="positive", absent=0.0,
-            relative_truth=((5.0, 15.0),), symbol="L_a")
+            relative_truth=((5.0, 15.0),), symbol="L_a", typical=0.001,
+            measure='a current step at stall (thesis §4.4.2)')
 
 def search_range(ctx):
     """0.01 … 100 × nominal L_a; a rig without one (quasi-static armature): electrical time

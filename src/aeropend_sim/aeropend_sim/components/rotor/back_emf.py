@@ -5,7 +5,9 @@ from __future__ import annotations
 from aeropend_sim.components.base import POSITIVE, Diagnosis, Effect, Param, Search, Term
 
 K_OMEGA = Param("motor.K_omega", "V*s/rad", "back-EMF constant K_ω", sign="nonneg", absent=0.0,
-                relative_truth=((0.5, 0.7), (1.4, 2.0)), symbol="K_ω")
+                relative_truth=((0.5, 0.7), (1.4, 2.0)), symbol="K_ω", typical=0.01,
+                measure='the armature voltage, current and speed at steady state (thesis §4.4.3), '
+                        'or the data sheet')
 
 
 def voltage(xp, omega, K_omega):

@@ -14,11 +14,15 @@ from __future__ import annotations
 from aeropend_sim.components.base import POSITIVE, Component, Diagnosis, Param, Search, Term, scaled
 
 R_A = Param("motor.R_a", "ohm", "armature resistance", sign="positive",
-            relative_truth=((0.6, 0.8), (1.25, 1.6)), symbol="R_a")
+            relative_truth=((0.6, 0.8), (1.25, 1.6)), symbol="R_a", typical=2.0,
+            measure='the armature voltage over the current at stall (thesis §4.4.1), or an ohmmeter')
 K_T = Param("motor.K_t", "N*m/A", "torque constant K_t", sign="positive",
-            relative_truth=((0.6, 0.8), (1.25, 1.6)), symbol="K_t")
+            relative_truth=((0.6, 0.8), (1.25, 1.6)), symbol="K_t", typical=0.01,
+            measure="the motor's data sheet (K_t = K_ω in SI units)")
 J_M = Param("motor.J_m", "kg*m^2", "rotor-side inertia (rotor + gear + propeller reflected)", sign="positive",
-            relative_truth=((0.2, 0.4), (3.0, 6.0)), symbol="J_m")
+            relative_truth=((0.2, 0.4), (3.0, 6.0)), symbol="J_m", typical=1e-05,
+            measure="steps or PRBS with holds near the motor's time constant, "
+                    "or the data sheet's rotor inertia")
 
 
 def torque(xp, i_a, K_t):

@@ -9,7 +9,8 @@ from __future__ import annotations
 from aeropend_sim.components.base import POSITIVE, Component, Diagnosis, Param, Search, Term, scaled
 
 T_M = Param("motor.T_m", "s", "rotor speed response time constant T_m (ESC + motor + propeller)",
-            sign="positive", relative_truth=((0.3, 0.6), (1.7, 3.0)), symbol="T_m")
+            sign="positive", relative_truth=((0.3, 0.6), (1.7, 3.0)), symbol="T_m", typical=0.1,
+            measure='steps or PRBS with holds near T_m (or a step with the rotor speed recorded)')
 
 
 def response(xp, omega_sp, omega, T_m):

@@ -9,7 +9,8 @@ from __future__ import annotations
 from aeropend_sim.components.base import Component, Param, Term
 
 GEAR = Param("motor.gear_ratio", "1", "n = ω1/ω2 (rotor turns n times faster than the propeller)",
-             sign="positive", absent=1.0, symbol="n")
+             sign="positive", absent=1.0, symbol="n",
+             measure='count the teeth (1: direct drive); θ and thrust cannot tell it from K_q')
 
 
 def propeller_speed(xp, omega, gear_ratio):

@@ -5,7 +5,9 @@ from __future__ import annotations
 from aeropend_sim.components.base import POSITIVE, Diagnosis, Effect, Param, Search, Term, load_range
 
 K_D = Param("motor.K_d", "N*m*s^2/rad^2", "propeller drag torque on the rotor: K_d·ω1·|ω1|", sign="nonneg",
-            absent=0.0, relative_truth=((0.4, 0.6), (1.6, 2.5)), symbol="K_d")
+            absent=0.0, relative_truth=((0.4, 0.6), (1.6, 2.5)), symbol="K_d", typical=1e-07,
+            measure="the propeller's torque coefficient C_Q·ρ·D⁵/(2π)² (data sheet), "
+                    "or the rotor speed recorded")
 
 
 def torque(xp, omega, K_d):

@@ -9,7 +9,8 @@ from __future__ import annotations
 from aeropend_sim.components.base import POSITIVE, Diagnosis, Effect, Param, Search, Term, load_range
 
 B_M = Param("motor.B_m", "N*m*s/rad", "rotor viscous friction", sign="nonneg", absent=0.0,
-            relative_truth=((4.0, 10.0),), symbol="B_m")
+            relative_truth=((4.0, 10.0),), symbol="B_m", typical=1e-06,
+            measure="the data sheet's no-load current × K_t over the no-load speed")
 
 
 def torque(xp, omega, B_m):

@@ -8,7 +8,8 @@ from __future__ import annotations
 from aeropend_sim.components.base import POSITIVE, Component, Diagnosis, Param, Search, Term, scaled
 
 K_Q = Param("thrust.K_q", "N*s^2/rad^2", "thrust coefficient K_q (for α = 2)", sign="nonneg",
-            relative_truth=((0.75, 0.88), (1.12, 1.25)), symbol="K_q")
+            relative_truth=((0.75, 0.88), (1.12, 1.25)), symbol="K_q", typical=1e-05,
+            measure='thrust vs command from a load cell (a thrust table: rig fit RIG ... thrust.csv)')
 
 
 def thrust(xp, omega_prop, K_q, exponent):

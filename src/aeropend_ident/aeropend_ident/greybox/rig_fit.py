@@ -1,0 +1,607 @@
+"""``rig fit``: every "to be fitted" parameter of a rig file from what the lab has.
+
+Inputs (:mod:`aeropend_ident.greybox.rig_inputs`) are told apart and each gets its method, a block
+of the joint problem (:mod:`aeropend_ident.greybox.rig_problem`):
+
+1. **static tables** first: a balance table (command vs angle) fits the static map up to a scale
+   and the dead zone / idle throttle, a thrust table (load cell) K_q and the map; only the
+   parameters the steady state depends on move;
+2. **free decays**: the envelope (:func:`aeropend_ident.greybox.decay.analyse_decay`) gives the
+   starting mgd/J (or the inertia, when the geometry is stated) and c/J, and decides whether the
+   rod has dry friction (a linear envelope switches ``rod_coulomb_friction`` on, fitted too);
+   then the output-error fit of the swing;
+3. **steps, PRBS/APRBS and closed-loop logs**: the dead time's start from a grid over
+   [0, min(1 s, ¼ of the shortest recording)] (ESC dead times reach 1 s), then
+4. the **joint fit** of every block (output error, free run, each block weighted by its noise),
+   twice: the second pass with each block's σ re-estimated from its residual (time series
+   inflated by the residual's autocorrelation).
+
+What the inputs cannot determine is **refused by name** before the joint fit: the weak directions
+of the Jacobian (:func:`~aeropend_ident.greybox.rig_problem.weak_directions`) — a product only
+determined as a whole (K_q·L/J from θ) or a parameter nothing is sensitive to — and, after it, any
+parameter whose standard error exceeds half its value (a tenth of its range for a linear one). A
+refused parameter stays "to be fitted" with the reason and the experiment that would determine it
+(its declaration's :attr:`~aeropend_sim.components.base.Param.measure`, or for a timing parameter
+the hold length the recordings would need); members of a product hold the determined combination
+(the others at their starting values), so the rig still predicts. A value on its search bound is
+flagged (terminal and file).
+
+Uncertainty: 1σ standard errors from the Jacobian of the joint weighted fit (not a bootstrap: with
+one recording per kind there is nothing to resample, and the autocorrelation inflation covers the
+correlated residuals a bootstrap over recordings would show). Provenance: the inputs that hold at
+least 10 % of a parameter's Fisher information, with their method.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.greybox.decay import analyse_decay
+from aeropend_ident.greybox.fit import ParameterSpec, error_metrics, free_run_theta, noise_level
+from aeropend_ident.greybox.rig_inputs import StaticTable, TimeSeries, read_inputs, shortest_hold
+from aeropend_ident.greybox.rig_problem import (
+    INERTIA,
+    BalanceBlock,
+    Block,
+    Problem,
+    ThrustBlock,
+    TimeBlock,
+    covariance,
+    weak_directions,
+)
+from aeropend_sim.components import registry
+from aeropend_sim.components.base import SECTIONS, Effect
+from aeropend_sim.params import FITTED, TO_BE_FITTED, Rig, load_rig, rig_from_dict
+from aeropend_sim.rigcmd.template import GEOMETRY_NEEDED, plausible_range
+
+#: A fitted parameter is refused when its standard error exceeds this fraction of its value (log
+#: parameters) ...
+MAX_RELATIVE_STD = 0.5
+#: ... or this fraction of its search range (linear parameters).
+MAX_RANGE_STD = 0.1
+#: Largest dead time searched [s].
+MAX_DEAD_TIME = 1.0
+#: Share of a parameter's Fisher information that makes an input part of its provenance.
+PROVENANCE_SHARE = 0.1
+SE_METHOD = ("1σ standard errors from the Jacobian of the joint weighted fit (each input weighted by its "
+             "residual noise; time series inflated by their residual's autocorrelation)")
+
+
+@dataclass
+class Outcome:
+    """One to-be-fitted parameter after ``rig fit``.
+
+    Attributes
+    ----------
+    key, unit : str
+    value : float
+        Fitted value (or, refused, the best value found: the next fit's start).
+    std : float
+        1σ standard error (NaN when refused or on a bound).
+    status : str
+        ``"fitted"`` or ``"to be fitted"`` (refused).
+    reason : str
+        Why it was refused (empty when fitted).
+    provenance : str
+        The inputs and methods that determined it.
+    bound : float or None
+        The search bound it sits on (flagged), else None.
+    lower, upper : float
+        The search range.
+    """
+
+    key: str
+    unit: str
+    value: float
+    std: float = math.nan
+    status: str = "fitted"
+    reason: str = ""
+    provenance: str = ""
+    bound: float | None = None
+    lower: float = math.nan
+    upper: float = math.nan
+
+    @property
+    def source(self) -> str:
+        """The rig-file source written for it."""
+        if self.status != "fitted":
+            return f"{TO_BE_FITTED}: {self.reason}"
+        err = f" ± {self.std:.2g}" if math.isfinite(self.std) else ""
+        text = f"{FITTED}: {self.value:.6g}{err} {self.unit} (1σ, Jacobian) from {self.provenance}"
+        if self.bound is not None:
+            text += (f"; AT SEARCH BOUND {self.bound:.4g} (searched {self.lower:.4g} … {self.upper:.4g}): "
+                     "the bound, not the data, set it")
+        return text
+
+
+@dataclass
+class RigFitResult:
+    """Outcome of :func:`fit_rig`: per parameter, the fitted rig, the inputs and the notes."""
+
+    rig_path: Path
+    text: str
+    family: str
+    outcomes: list[Outcome]
+    rig: Rig
+    inputs: list[tuple[str, str]]
+    nrmse: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    sample_period: tuple[float, str] | None = None
+
+    def outcome(self, key: str) -> Outcome:
+        """The outcome of one key (KeyError if it was not to be fitted)."""
+        for o in self.outcomes:
+            if o.key == key:
+                return o
+        raise KeyError(key)
+
+    def summary(self) -> str:
+        """The terminal summary: inputs, a line per parameter, refusals, bound flags, NRMSE."""
+        lines = [f"rig fit: {self.rig_path.name} ({self.family}), {len(self.inputs)} input(s):"]
+        lines += [f"  {src}: {kind}" for src, kind in self.inputs]
+        lines.append("parameters:")
+        for o in self.outcomes:
+            if o.status == "fitted":
+                err = f" ± {o.std:.2g}" if math.isfinite(o.std) else ""
+                flag = "   AT SEARCH BOUND" if o.bound is not None else ""
+                lines.append(f"  fitted        {o.key} = {o.value:.5g}{err} {o.unit}   "
+                             f"[{o.provenance}]{flag}")
+            else:
+                lines.append(f"  REFUSED       {o.key} (still to be fitted; best value "
+                             f"{o.value:.4g} {o.unit})")
+        refused = [o for o in self.outcomes if o.status != "fitted"]
+        if refused:
+            lines.append("not determined by these inputs (left to be fitted):")
+            lines += [f"  {o.reason}" for o in refused]
+        flagged = [o for o in self.outcomes if o.bound is not None and o.status == "fitted"]
+        if flagged:
+            lines.append("AT A SEARCH BOUND (the bound, not the data, set these):")
+            lines += [f"  {o.key} = {o.value:.4g} {o.unit} (searched {o.lower:.4g} … {o.upper:.4g})"
+                      for o in flagged]
+        if self.nrmse:
+            lines.append("free-run θ NRMSE of the fitted rig:")
+            lines += [f"  {k}: {v:.3f}" for k, v in self.nrmse.items()]
+        lines += [f"note: {n}" for n in self.notes]
+        lines.append(f"uncertainty: {SE_METHOD}")
+        return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------ reading the rig file
+def to_be_fitted(doc: Mapping[str, Any]) -> dict[str, tuple[float, str]]:
+    """Keys of a parsed rig file whose source marks them to be fitted -> (starting value, unit)."""
+    out = {}
+    for section in SECTIONS:
+        for name, node in (doc.get(section) or {}).items():
+            if isinstance(node, dict) and str(node.get("source", "")).startswith(TO_BE_FITTED):
+                out[f"{section}.{name}"] = (float(node["value"]), str(node.get("unit", "")))
+    return out
+
+
+def stated_values(doc: Mapping[str, Any], todo: Mapping[str, Any]) -> dict[str, float]:
+    """Every number the file gives that is not to be fitted (the geometry included)."""
+    out = {}
+    for section in SECTIONS:
+        for name, node in (doc.get(section) or {}).items():
+            key = f"{section}.{name}"
+            if isinstance(node, dict) and "value" in node and key not in todo:
+                out[key] = float(node["value"])
+    return out
+
+
+def timing_keys() -> frozenset[str]:
+    """Rig keys of the timing hypotheses (a lag, a delay, a slow rotor: they act in transients only)."""
+    return frozenset(s.target for d in registry.diagnoses() if d.timing for s in d.search)
+
+
+def _spec(key: str, unit: str, start: float, stated: Mapping[str, float], top_delay: float) -> ParameterSpec:
+    lo, hi, _ = plausible_range(key, stated)
+    if key == "actuator.input_delay":
+        hi = top_delay
+    p = registry.params().get(key)
+    declared = p.fit if p is not None else None
+    log = lo > 0.0
+    scale = 1.0 if log else ((declared.scale if declared is not None and declared.scale else None)
+                             or (hi - lo) / 20.0)
+    start = min(max(start, lo), hi)
+    if log and start <= 0.0:
+        start = math.sqrt(lo * hi)
+    return ParameterSpec(key, unit, float(start), float(lo), float(hi), log, float(scale))
+
+
+def blocks_of(tables: Sequence[StaticTable], series: Sequence[TimeSeries]) -> list[Block]:
+    out: list[Block] = []
+    for t in tables:
+        known = t.std is not None
+        cls = BalanceBlock if t.kind == "balance" else ThrustBlock
+        guess = 0.01 if t.kind == "balance" else 0.02 * float(np.max(np.abs(t.value)))
+        kw = {"angle": t.value} if t.kind == "balance" else {"thrust": t.value}
+        out.append(cls(source=t.source, label=t.label, sigma=1.0 if known else guess, static=True,
+                       sigma_known=known, command=t.command, std=t.std, **kw))
+    out += [TimeBlock(source=s.source, label=s.label, data=s.data, kind=s.kind) for s in series]
+    return out
+
+
+# ------------------------------------------------------------------------------ stages
+def _stage(problem: Problem, blocks: Sequence[int], names: Sequence[str], start: dict[str, float],
+           max_nfev: int = 40) -> dict[str, float]:
+    """Fit ``names`` on the ``blocks`` alone (the rest held at ``start``); what these blocks cannot
+    determine stays where it is, and the blocks' σ are re-estimated from their residuals. Returns the
+    updated starting values."""
+    specs = [replace(s, initial=start[s.name]) for s in problem.specs if s.name in names]
+    if not specs or not blocks:
+        return start
+    sub = Problem(problem.base, problem.geometry, specs, [problem.blocks[i] for i in blocks],
+                  fixed={k: v for k, v in start.items() if k not in names}, timing=problem.timing)
+    z0, lo, hi = sub.z_bounds()
+    J = sub.jac(z0, lo, hi)[:, : len(specs)]
+    order = [_chain_order(s.name) for s in specs]
+    weak = {f for f, _, _ in weak_directions(J, [s.name for s in specs], order)}
+    sub.specs = [s for s in specs if s.name not in weak]
+    sub.fixed.update({s.name: s.initial for s in specs if s.name in weak})
+    if not sub.specs:
+        return start
+    z0 = np.concatenate([[s.to_z(s.initial) for s in sub.specs], z0[len(specs):]])
+    z, _, _ = sub.solve(z0, max_nfev=max_nfev, tol=1e-6)
+    sub.reweight(z, known=False)  # the blocks' σ from their residuals: what the refusals weigh
+    return {**start, **{s.name: s.from_z(zi) for s, zi in zip(sub.specs, z, strict=False)}}
+
+
+def _chain_order(key: str) -> float:
+    """Position of a parameter's owner along the signal chain (ties of weak_directions: fix upstream)."""
+    if key == INERTIA:
+        return 1e6
+    return float(registry.owners()[key].order)
+
+
+def _decay_starts(series: Sequence[TimeSeries], todo: Mapping[str, Any], start: dict[str, float],
+                  stated: Mapping[str, float], notes: list[str]) -> tuple[dict[str, float], str | None]:
+    """Starting values from the free decays' envelopes; the dry-friction key to add, if any."""
+    add = None
+    for s in series:
+        if s.kind != "free decay":
+            continue
+        try:
+            env = analyse_decay(s.data.t, s.data.theta, noise_level(s.data.theta))
+        except (ValueError, ArithmeticError) as exc:
+            notes.append(f"{s.source}: free-decay envelope not analysed ({exc})")
+            continue
+        notes.append(f"{s.source}: free decay, period {env.period:.3g} s, {env.envelope} envelope "
+                     f"(c/J ≈ {env.c_over_J:.3g} 1/s, T_f/J ≈ {env.coulomb_over_J:.3g} ± "
+                     f"{env.coulomb_std:.2g} rad/s², mgd/J ≈ {env.mgd_over_J:.4g} 1/s²)")
+        if "pendulum.c_over_J" in todo and env.c_over_J > 0.0:
+            start["pendulum.c_over_J"] = env.c_over_J
+        if "pendulum.mgd_over_J" in todo and float(s.data.duty[0]) == 0.0:
+            start["pendulum.mgd_over_J"] = env.mgd_over_J
+        if INERTIA in todo and float(s.data.duty[0]) == 0.0 and all(k in stated for k in GEOMETRY_NEEDED):
+            m, d = stated["pendulum.mass"], stated["pendulum.com_distance"]
+            start[INERTIA] = m * 9.80665 * d / env.mgd_over_J
+        dry = "pendulum.coulomb_over_J"
+        if env.dry_friction and dry not in todo and dry not in stated:
+            add = dry
+            start[add] = env.coulomb_over_J
+            notes.append(f"{s.source}: the envelope decays linearly: dry friction T_f/J switched on and "
+                         "fitted")
+    return start, add
+
+
+def _delay_start(problem: Problem, start: dict[str, float], top: float) -> dict[str, float]:
+    """The dead time's start: the best of a grid over [0, top] on the dynamic recordings."""
+    key = "actuator.input_delay"
+    dyn = [i for i, b in enumerate(problem.blocks) if isinstance(b, TimeBlock) and b.kind != "free decay"]
+    if key not in start or not dyn:
+        return start
+    dt = min(problem.blocks[i].data.dt for i in dyn)  # type: ignore[union-attr]
+    grid = np.linspace(0.0, top, max(2, min(31, round(top / dt) + 1)))
+    sub = Problem(problem.base, problem.geometry, [], [problem.blocks[i] for i in dyn], fixed=dict(start))
+    z0, _, _ = sub.z_bounds()
+    costs = []
+    for d in grid:
+        sub.fixed[key] = float(d)
+        r = np.concatenate(sub.block_residuals(z0))
+        costs.append(float(r @ r))
+    return {**start, key: float(grid[int(np.argmin(costs))])}
+
+
+# ------------------------------------------------------------------------------ refusals
+def _symbol(key: str) -> str:
+    p = registry.params().get(key)
+    return (p.symbol or p.name) if p is not None else key.partition(".")[2]
+
+
+def _measure(key: str) -> str:
+    p = registry.params().get(key)
+    if key == INERTIA:
+        return "a free decay with the motor off (its swing frequency)"
+    return (p.measure if p is not None and p.measure else "state it")
+
+
+def _combination(group: Sequence[str], exps: np.ndarray) -> str:
+    """``K_q·L/J`` (a product) or ``A/B`` (a ratio) of a pair, from the exponents of its invariant."""
+    if len(group) != 2 or not np.all(np.isfinite(exps)) or np.any(exps == 0):
+        return "a combination of " + ", ".join(_symbol(k) for k in group)
+    a, b = (round(abs(float(e)) * 2.0) / 2.0 for e in exps)
+    pa = _symbol(group[0]) + ("" if a == 1 else f"^{a:g}")
+    pb = _symbol(group[1]) + ("" if b == 1 else f"^{b:g}")
+    return f"{pa}·{pb}" if exps[0] * exps[1] > 0 else f"{pa}/{pb}"
+
+
+def _timing_hint(key: str, value: float, hold: float, dt: float) -> str:
+    need = max(2.0 * value, 3.0 * dt) if math.isfinite(value) and value > 0 else 3.0 * dt
+    if not math.isfinite(hold):
+        return (f"no recording changes the command (tables and free decays only); a step or PRBS with holds "
+                f"shorter than {need:.2g} s would")
+    return (f"the recordings never change the command faster than {hold:.3g} s; a step or PRBS with holds "
+            f"shorter than {need:.2g} s would")
+
+
+def _hint(key: str, value: float, timing: frozenset[str], hold: float, dt: float) -> str:
+    p = registry.params().get(key)
+    if key in timing and p is not None and p.unit == "s":
+        return _timing_hint(key, value, hold, dt)
+    return _measure(key)
+
+
+def _refusals(weak: Sequence[tuple[str, list[str], np.ndarray]], names_inputs: str,
+              start: Mapping[str, float], timing: frozenset[str], hold: float, dt: float) -> dict[str, str]:
+    """Reason per refused key (module docstring)."""
+    out: dict[str, str] = {}
+    for fixed, group, exps in weak:
+        if len(group) == 1:
+            hint = _hint(fixed, start.get(fixed, math.nan), timing, hold, dt)
+            out[fixed] = (f"{fixed}: the inputs ({names_inputs}) are not sensitive to it (a factor e "
+                          f"changes no fit by more than its noise); {hint}")
+            continue
+        combo = _combination(group, exps)
+        states = "; ".join(f"{k} — {_hint(k, start.get(k, math.nan), timing, hold, dt)}" for k in group)
+        text = (f"{' and '.join(group)}: only {combo} is determined by {names_inputs}; state one: {states}")
+        for k in group:
+            extra = "" if k == fixed else (f" (its value holds {combo} with the others at their starting "
+                                           "values)")
+            out.setdefault(k, text + extra)
+    return out
+
+
+def _provenance(J: np.ndarray, sizes: Sequence[int], blocks: Sequence[Block], j: int) -> str:
+    """The inputs holding ≥ PROVENANCE_SHARE of column j's Fisher information, with their method."""
+    edges = np.concatenate([[0], np.cumsum(sizes)])
+    cols = [J[edges[b]:edges[b + 1], j] for b in range(len(blocks))]
+    info = np.array([float(c @ c) for c in cols])
+    total = info.sum()
+    if total <= 0.0:
+        return "no input"
+    keep = [b for b in np.argsort(-info) if info[b] >= PROVENANCE_SHARE * total]
+    return ", ".join(f"{blocks[b].source} ({blocks[b].label}, {100 * info[b] / total:.0f} %)" for b in keep)
+
+
+# ------------------------------------------------------------------------------ the command
+def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = None,
+            progress: Callable[[str], None] | None = None) -> RigFitResult:
+    """Fit every "to be fitted" parameter of a rig file (module docstring).
+
+    Parameters
+    ----------
+    rig_path : str or Path
+        A rig file (``rig new``'s, or any with ``source: "to be fitted (rig fit)"`` entries).
+    inputs : sequence of str
+        Static tables (CSV, :mod:`~aeropend_ident.greybox.rig_inputs`) and recordings (bags,
+        ``FILE.csv:PRESET``).
+    preset : str, optional
+        CSV preset for recordings without their own.
+    progress : callable, optional
+        Called with one line per stage.
+
+    Raises
+    ------
+    IdentificationError
+        Nothing to be fitted, no inputs, or an unusable input; RigFileError and the readers' errors
+        (ValueErrors) pass through.
+    """
+    say = progress or (lambda _m: None)
+    path = Path(rig_path)
+    text = path.read_text(encoding="utf-8")
+    doc = yaml.safe_load(text)
+    rig = load_rig(path)
+    todo = to_be_fitted(doc)
+    sample_todo = str((doc.get("sample_period") or {}).get("source", "")).startswith(TO_BE_FITTED)
+    if not todo:
+        raise IdentificationError(f"{path}: no parameter is marked to be fitted (source \"{TO_BE_FITTED}\"); "
+                                  "nothing to do (rig check shows what the file states)")
+    if not inputs:
+        raise IdentificationError("rig fit needs at least one input (a static table or a recording)")
+    say(f"[1/5] reading {len(inputs)} input(s)")
+    tables, series = read_inputs(list(inputs), preset)
+    notes: list[str] = []
+    sample_period = None
+    if sample_todo and series:
+        dt = min(s.data.dt for s in series)
+        dt = float(f"{dt:.9g}")
+        sample_period = (dt, f"median sample interval of {series[0].source} (rig fit)")
+        rig = replace(rig, sample_period=dt)
+    stated = stated_values(doc, todo)
+    geometry = {k: v for k, v in stated.items() if k in (*GEOMETRY_NEEDED, INERTIA)}
+    for key in todo:
+        owner = registry.owners().get(key)
+        if isinstance(owner, Effect) and not owner.is_on(getattr(rig.effects, owner.name)):
+            rig = rig.with_effects(**{owner.name: owner.on})
+    dyn = [s for s in series if s.kind != "free decay"]
+    top_delay = min([MAX_DEAD_TIME, *(0.25 * s.data.t[-1] for s in dyn)]) if dyn else MAX_DEAD_TIME
+    start = {k: v for k, (v, _) in todo.items()}
+    start, add = _decay_starts(series, todo, start, stated, notes)
+    units = {k: u for k, (_, u) in todo.items()}
+    if add is not None:
+        units[add] = registry.param(add).unit
+        rig = rig.with_effects(rod_coulomb_friction=True)
+    specs = [_spec(k, units[k], start[k], stated, top_delay) for k in units]
+    start = {s.name: s.initial for s in specs}
+    problem = Problem(rig, geometry, specs, blocks_of(tables, series), timing=timing_keys())
+    static_idx = [i for i, b in enumerate(problem.blocks) if b.static]
+    if static_idx:
+        say(f"[2/5] static tables: {', '.join(problem.blocks[i].source for i in static_idx)}")
+        start = _stage(problem, static_idx, [k for k in start if k not in problem.timing], start)
+    decays = [i for i, b in enumerate(problem.blocks) if isinstance(b, TimeBlock) and b.kind == "free decay"]
+    if decays:
+        say(f"[3/5] free decays: {', '.join(problem.blocks[i].source for i in decays)}")
+        start = _stage(problem, decays, list(start), start)
+    start = _delay_start(problem, start, top_delay)
+    say(f"[4/5] joint fit of {len(start)} parameter(s) on {len(problem.blocks)} input(s)")
+    return _joint(problem, start, path, text, doc, rig, notes, sample_period, series, say)
+
+
+def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc: Mapping[str, Any], rig: Rig,
+           notes: list[str], sample_period: tuple[float, str] | None, series: Sequence[TimeSeries],
+           say: Callable[[str], None]) -> RigFitResult:
+    """The joint fit, its refusals and the result (:func:`fit_rig`)."""
+    all_specs = [replace(s, initial=start[s.name]) for s in problem.specs]
+    problem.specs = all_specs
+    names = [s.name for s in all_specs]
+    z0, lo, hi = problem.z_bounds()
+    J0 = problem.jac(z0, lo, hi)[:, : len(names)]
+    weak = weak_directions(J0, names, [_chain_order(n) for n in names])
+    sources = ", ".join(b.source for b in problem.blocks)
+    dyn = [s for s in series if s.kind != "free decay"]
+    hold = shortest_hold(dyn)
+    dt = min((s.data.dt for s in series), default=0.01)
+    refused = _refusals(weak, sources, start, problem.timing, hold, dt)
+    held = {f for f, _, _ in weak}
+    problem.specs = [s for s in all_specs if s.name not in held]
+    problem.fixed = {s.name: s.initial for s in all_specs if s.name in held}
+    outcomes: dict[str, Outcome] = {}
+    z = np.zeros(0)
+    if problem.specs:
+        z0, lo, hi = problem.z_bounds()
+        z, J, _ = problem.solve(z0, max_nfev=80)
+        say("[5/5] uncertainties: each input weighted by its residual noise")
+        factors = problem.reweight(z)
+        rows = np.repeat(factors, [b.size() for b in problem.blocks])
+        J = J * rows[:, None]
+        _, lo, hi = problem.z_bounds()
+        pinned = (np.abs(z - lo) <= 1e-4) | (np.abs(z - hi) <= 1e-4)
+        cov = covariance(J, pinned)
+        sizes = [b.size() for b in problem.blocks]
+        for j, s in enumerate(problem.specs):
+            v = s.from_z(z[j])
+            std = abs(s.dp_dz(v)) * math.sqrt(cov[j, j]) if math.isfinite(cov[j, j]) else math.nan
+            bound = (s.lower if abs(z[j] - lo[j]) <= 1e-4 else s.upper) if pinned[j] else None
+            o = Outcome(s.name, s.unit, v, std, provenance=_provenance(J, sizes, problem.blocks, j),
+                        bound=bound, lower=s.lower, upper=s.upper)
+            limit = MAX_RELATIVE_STD * abs(v) if s.log else MAX_RANGE_STD * (s.upper - s.lower)
+            loose = std > limit
+            if s.name in refused:
+                o.status, o.reason = "to be fitted", refused[s.name]
+            elif math.isfinite(std) and loose:
+                o.status = "to be fitted"
+                o.reason = (f"{s.name}: not determined by {sources} ({v:.3g} ± {std:.2g} {s.unit}); "
+                            f"{_hint(s.name, v, problem.timing, hold, dt)}")
+            outcomes[s.name] = o
+    for s in all_specs:
+        if s.name in held:
+            outcomes[s.name] = Outcome(s.name, s.unit, s.initial, status="to be fitted",
+                                       reason=refused[s.name], lower=s.lower, upper=s.upper)
+    fitted = problem.rig(z)
+    nrmse = {}
+    nuis = problem.nuisance_values(z if problem.specs else problem.z_bounds()[0])
+    for b, nv in zip(problem.blocks, nuis, strict=True):
+        if isinstance(b, TimeBlock):
+            try:
+                th = free_run_theta(fitted, b.data, 0.0, nv[1], nv[0])  # type: ignore[arg-type]
+                nrmse[b.source] = error_metrics(b.data.theta, th)["nrmse"]  # type: ignore[union-attr]
+            except IdentificationError as exc:
+                notes.append(f"{b.source}: free run of the fitted rig failed ({exc})")
+    ordered = [outcomes[s.name] for s in all_specs]
+    inputs = [(b.source, b.label) for b in problem.blocks]
+    return RigFitResult(path, text, rig.family, ordered, fitted, inputs, nrmse, notes, sample_period)
+
+
+# ------------------------------------------------------------------------------ the fitted file
+_LINE = re.compile(r"^(?P<indent>\s+)(?P<name>[A-Za-z_][A-Za-z0-9_]*):\s*\{.*\}\s*$")
+
+
+def _quantity(value: float, unit: str, source: str) -> str:
+    import json
+
+    return f"{{value: {value!r}, unit: {json.dumps(unit)}, source: {json.dumps(source, ensure_ascii=False)}}}"
+
+
+def fitted_text(result: RigFitResult) -> str:
+    """The rig file with every to-be-fitted line replaced by its outcome (value, source) and a
+    comment above it (FITTED ± σ, STILL TO BE FITTED with the reason, AT SEARCH BOUND); lines of
+    parameters ``rig fit`` added (dry friction) are appended to their section."""
+    lines = result.text.splitlines()
+    todo = {o.key: o for o in result.outcomes}
+    section = None
+    out: list[str] = []
+    ends: dict[str, int] = {}
+    done = set()
+    head: int | None = None
+    for line in lines:
+        if line and not line[0].isspace() and not line.startswith("#"):
+            section = line.split(":")[0].strip()
+            if section == "sample_period" and result.sample_period is not None:
+                v, src = result.sample_period
+                out.append(f"sample_period: {_quantity(v, 's', src)}")
+                continue
+        m = _LINE.match(line)
+        key = f"{section}.{m.group('name')}" if m else None
+        if line.lstrip().startswith("#") and line.rstrip().endswith("— TO BE FITTED"):
+            head = len(out)
+        elif m is not None and key not in todo:
+            head = None
+        if key in todo:
+            o = todo[key]
+            ind = m.group("indent")  # type: ignore[union-attr]
+            if head is not None:  # rig new's header of this entry: say what rig fit made of it
+                mark = "FITTED (rig fit)" if o.status == "fitted" else "STILL TO BE FITTED (rig fit)"
+                out[head] = out[head].replace("— TO BE FITTED", f"— {mark}")
+            out += _comments(o, ind)
+            out.append(f"{ind}{m.group('name')}: {_quantity(o.value, o.unit, o.source)}")  # type: ignore[union-attr]
+            done.add(key)
+        else:
+            out.append(line)
+        if section in SECTIONS and line.strip():
+            ends[section] = len(out)
+    for key in [k for k in todo if k not in done][::-1]:
+        sec, _, name = key.partition(".")
+        o = todo[key]
+        block = [*_comments(o, "  "), f"  {name}: {_quantity(o.value, o.unit, o.source)}"]
+        at = ends.get(sec)
+        out = out[:at] + block + out[at:] if at is not None else [*out, f"{sec}:", *block]
+    return "\n".join(out) + "\n"
+
+
+def _comments(o: Outcome, ind: str) -> list[str]:
+    if o.status != "fitted":
+        return [f"{ind}# rig fit: STILL TO BE FITTED — {o.reason}"]
+    err = f" ± {o.std:.2g}" if math.isfinite(o.std) else ""
+    out = [f"{ind}# rig fit: FITTED {o.value:.5g}{err} {o.unit} from {o.provenance}"]
+    if o.bound is not None:
+        out.append(f"{ind}# rig fit: AT SEARCH BOUND {o.bound:.4g} {o.unit} (searched {o.lower:.4g} … "
+                   f"{o.upper:.4g}): the bound, not the data, set it")
+    return out
+
+
+def write_fitted(result: RigFitResult, path: str | Path) -> Path:
+    """Write the fitted rig file (:func:`fitted_text`) and check that it loads.
+
+    Raises
+    ------
+    IdentificationError
+        If the written text does not load (the file is not written then).
+    """
+    text = fitted_text(result)
+    try:
+        rig_from_dict(yaml.safe_load(text), str(path))
+    except ValueError as exc:
+        raise IdentificationError(f"rig fit: the fitted rig file would not load ({exc}); not "
+                                  "written") from exc
+    p = Path(path)
+    p.write_text(text, encoding="utf-8")
+    return p

@@ -1,0 +1,376 @@
+"""The joint weighted least-squares problem of ``rig fit``: one residual block per input.
+
+Each input contributes a block of residuals in its own unit, divided by that block's noise σ_b:
+
+* :class:`BalanceBlock` — a balance table: θ_model(τ_i) − θ_i, θ_model the angle the model holds
+  at command τ_i (:meth:`aeropend_sim.model.PlantModel.equilibrium`, inverted by Brent's method);
+* :class:`ThrustBlock` — a thrust table: f_model(τ_i) − f_i, the steady thrust of the model at τ_i
+  (:func:`aeropend_ident.greybox.fit.motor_equilibrium`, :meth:`~aeropend_sim.model.PlantModel.thrust`);
+* :class:`TimeBlock` — a recording (free decay, steps, PRBS, closed loop): the free-run θ of the
+  model driven by the recorded command (:func:`aeropend_ident.greybox.fit.free_run_theta`) minus
+  the recorded θ, with the initial angle and velocity as the block's own nuisance parameters.
+
+The physics is the model's (one home); this module only stacks the blocks. Parameters are rig keys
+(``"section.name"``) or the rod's inertia ``pendulum.inertia`` when the rig file gives the rod's
+geometry (mgd/J and L/J then follow from it through the rod's own derivation). Coordinates are
+those of :class:`aeropend_ident.greybox.fit.ParameterSpec` (log for positive parameters).
+
+Standard errors: cov = (JᵀJ)⁻¹ of the weighted residuals at the optimum (σ_b re-estimated from each
+block's residual, or the table's stated standard errors, and for time series inflated by the
+residual's autocorrelation, :func:`autocorrelation_factor`), mapped to parameter units by the delta
+method. :func:`weak_directions` finds what the blocks cannot determine (the right singular vectors
+of J whose standard error exceeds one coordinate unit, a factor e of a log parameter).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import brentq, least_squares
+
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.greybox.fit import (
+    ParameterSpec,
+    UniformData,
+    apply_parameters,
+    free_run_theta,
+    initial_velocity,
+    motor_equilibrium,
+    noise_level,
+)
+from aeropend_sim.components import registry
+from aeropend_sim.model import ModelError, PlantModel
+from aeropend_sim.params import Rig
+
+#: The rod's inertia, fitted instead of mgd/J and L/J when the rig file gives the geometry.
+INERTIA = "pendulum.inertia"
+#: Largest angle of a balance [rad] (the thrust only lifts the rod to the horizontal).
+THETA_CAP = math.pi / 2 - 1e-6
+
+
+def _rod():
+    return next(c for c in registry.components() if getattr(c, "geometry", ()))
+
+
+def apply_values(base: Rig, geometry: Mapping[str, float], values: Mapping[str, float]) -> Rig:
+    """``base`` with parameter values (rig keys, and the inertia through the rod's derivation).
+
+    Raises
+    ------
+    IdentificationError
+        On a value the rig format refuses.
+    """
+    vals = dict(values)
+    if INERTIA in vals:
+        given = {**geometry, INERTIA: vals.pop(INERTIA)}
+        vals.update({k: v for k, (v, _) in _rod().derive(given).items()})
+    return apply_parameters(base, vals)[0]
+
+
+# ------------------------------------------------------------------------------ blocks
+@dataclass
+class Block:
+    """A residual block (subclasses): its name, method label, noise σ and nuisance coordinates."""
+
+    source: str
+    label: str
+    sigma: float = 1.0
+    nuisance: list[ParameterSpec] = field(default_factory=list)
+    static: bool = False   # a steady-state table: timing parameters do not act on it
+    sigma_known: bool = False
+
+    def residual(self, rig: Rig, nuis: Sequence[float]) -> np.ndarray:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def size(self) -> int:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def scale(self) -> float:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+@dataclass
+class BalanceBlock(Block):
+    """Balance table: the angle the model holds at each command [rad]."""
+
+    command: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    angle: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    std: np.ndarray | None = None
+
+    def size(self) -> int:
+        return int(self.command.size)
+
+    def scale(self) -> float:
+        return max(float(np.ptp(self.angle)), 1e-3)
+
+    def residual(self, rig: Rig, nuis: Sequence[float]) -> np.ndarray:
+        model = PlantModel(rig)
+
+        def tau(theta: float) -> float:
+            try:
+                return float(model.equilibrium(theta)[1])
+            except (ModelError, ValueError, ZeroDivisionError, OverflowError):
+                return math.inf
+
+        top = THETA_CAP if math.isfinite(tau(THETA_CAP)) else _last_finite(tau)
+        lo, hi = tau(0.0), tau(top)
+        out = np.empty(self.command.size)
+        for i, (c, a) in enumerate(zip(self.command, self.angle, strict=True)):
+            if c <= lo or not math.isfinite(lo):
+                th = 0.0
+            elif c >= hi:
+                th = top
+            else:
+                th = brentq(lambda x, c=c: tau(x) - c, 0.0, top, xtol=1e-10)
+            out[i] = th - a
+        return out / (self.std if self.std is not None else 1.0)
+
+
+def _last_finite(tau: Callable[[float], float]) -> float:
+    """The largest angle whose holding command τ(θ) is finite (the actuator's reach), by bisection."""
+    lo, hi = 0.0, THETA_CAP
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if math.isfinite(tau(mid)) else (lo, mid)
+    return lo
+
+
+@dataclass
+class ThrustBlock(Block):
+    """Thrust table: the model's steady thrust at each command [N]."""
+
+    command: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    thrust: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    std: np.ndarray | None = None
+
+    def size(self) -> int:
+        return int(self.command.size)
+
+    def scale(self) -> float:
+        return max(float(np.max(np.abs(self.thrust))), 1e-6)
+
+    def residual(self, rig: Rig, nuis: Sequence[float]) -> np.ndarray:
+        model = PlantModel(rig)
+        f = np.array([model.thrust(motor_equilibrium(rig, float(c))[1]) for c in self.command])
+        return (f - self.thrust) / (self.std if self.std is not None else 1.0)
+
+
+@dataclass
+class TimeBlock(Block):
+    """A recording: free-run θ minus recorded θ [rad], initial angle and velocity as nuisance."""
+
+    data: UniformData | None = None
+    kind: str = ""
+
+    def __post_init__(self) -> None:
+        d = self.data
+        if d is None:
+            raise ValueError(f"{self.source}: a time block needs its recording")
+        noise = max(noise_level(d.theta), 1e-4)
+        th0, thd0 = float(d.theta[0]), initial_velocity(d.theta, d.dt)
+        self.nuisance = [
+            ParameterSpec(f"{self.source}: θ(0)", "rad", th0, th0 - 0.5, th0 + 0.5, False, max(noise, 1e-3)),
+            ParameterSpec(f"{self.source}: θ̇(0)", "rad/s", thd0, thd0 - 5.0, thd0 + 5.0, False, 0.05),
+        ]
+        self.sigma = noise
+
+    def size(self) -> int:
+        return len(self.data)  # type: ignore[arg-type]
+
+    def scale(self) -> float:
+        return max(float(np.ptp(self.data.theta)), 1e-3)  # type: ignore[union-attr]
+
+    def residual(self, rig: Rig, nuis: Sequence[float]) -> np.ndarray:
+        d = self.data
+        th = free_run_theta(rig, d, 0.0, float(nuis[1]), float(nuis[0]))  # type: ignore[arg-type]
+        return th - d.theta  # type: ignore[union-attr]
+
+
+# ------------------------------------------------------------------------------ the problem
+@dataclass
+class Problem:
+    """Parameters (``specs``), fixed values (``fixed``), blocks, and the rig they apply to."""
+
+    base: Rig
+    geometry: dict[str, float]
+    specs: list[ParameterSpec]
+    blocks: list[Block]
+    fixed: dict[str, float] = field(default_factory=dict)
+    timing: frozenset[str] = frozenset()
+
+    def __post_init__(self) -> None:
+        self._cache: tuple[bytes, list[np.ndarray]] | None = None
+
+    # coordinates: main parameters, then each block's nuisance
+    def z_bounds(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        specs = self.all_specs()
+        return (np.array([s.to_z(s.initial) for s in specs]), np.array([s.to_z(s.lower) for s in specs]),
+                np.array([s.to_z(s.upper) for s in specs]))
+
+    def all_specs(self) -> list[ParameterSpec]:
+        return [*self.specs, *(s for b in self.blocks for s in b.nuisance)]
+
+    def values(self, z: np.ndarray) -> dict[str, float]:
+        return {**self.fixed, **{s.name: s.from_z(zi) for s, zi in zip(self.specs, z, strict=False)}}
+
+    def rig(self, z: np.ndarray) -> Rig:
+        return apply_values(self.base, self.geometry, self.values(z))
+
+    def nuisance_values(self, z: np.ndarray) -> list[list[float]]:
+        """Each block's nuisance values (initial angle, velocity) at coordinates ``z``."""
+        out, k = [], len(self.specs)
+        for b in self.blocks:
+            out.append([s.from_z(z[k + j]) for j, s in enumerate(b.nuisance)])
+            k += len(b.nuisance)
+        return out
+
+    def _penalty(self, b: Block) -> np.ndarray:
+        return np.full(b.size(), 10.0 * b.scale() / b.sigma + 10.0)
+
+    def block_residuals(self, z: np.ndarray, only: Sequence[int] | None = None) -> list[np.ndarray]:
+        """Weighted residual of each block (``only``: those indices; the others are empty)."""
+        try:
+            rig = self.rig(z)
+        except IdentificationError:
+            rig = None
+        nuis = self.nuisance_values(z)
+        out = []
+        for i, b in enumerate(self.blocks):
+            if only is not None and i not in only:
+                out.append(np.zeros(0))
+                continue
+            try:
+                r = b.residual(rig, nuis[i]) / b.sigma if rig is not None else self._penalty(b)
+            except (IdentificationError, ModelError, ValueError, ZeroDivisionError, OverflowError):
+                r = self._penalty(b)
+            out.append(r if np.all(np.isfinite(r)) else self._penalty(b))
+        return out
+
+    def fun(self, z: np.ndarray) -> np.ndarray:
+        parts = self.block_residuals(z)
+        self._cache = (z.tobytes(), parts)
+        return np.concatenate(parts)
+
+    def jac(self, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, step: float = 1e-5) -> np.ndarray:
+        """Forward differences, block by block: a nuisance coordinate moves its own block only, a
+        timing parameter no steady-state table."""
+        if self._cache is None or self._cache[0] != z.tobytes():
+            self.fun(z)
+        base = self._cache[1]  # type: ignore[index]
+        sizes = [p.size for p in base]
+        offsets = np.concatenate([[0], np.cumsum(sizes)])
+        n_main = len(self.specs)
+        J = np.zeros((int(offsets[-1]), z.size))
+        owner = [None] * n_main + [i for i, b in enumerate(self.blocks) for _ in b.nuisance]
+        for j in range(z.size):
+            h = step * max(1.0, abs(z[j]))
+            if z[j] + h > hi[j]:
+                h = -h
+            zz = z.copy()
+            zz[j] += h
+            if owner[j] is not None:
+                only = [owner[j]]
+            else:
+                timing = self.specs[j].name in self.timing
+                only = [i for i, b in enumerate(self.blocks) if not (timing and b.static)]
+            parts = self.block_residuals(zz, only)
+            for i in only:
+                J[offsets[i]:offsets[i + 1], j] = (parts[i] - base[i]) / h
+        return J
+
+    def solve(self, z0: np.ndarray, max_nfev: int = 60,
+              tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, Any]:
+        """Least squares from ``z0``; returns (z, J at z, the SciPy result)."""
+        _, lo, hi = self.z_bounds()
+        z0 = np.clip(z0, lo, hi)
+        sol = least_squares(self.fun, z0, jac=lambda z: self.jac(z, lo, hi), bounds=(lo, hi), method="trf",
+                            x_scale=1.0, ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
+        return sol.x, self.jac(sol.x, lo, hi), sol
+
+    def reweight(self, z: np.ndarray, known: bool = True) -> list[float]:
+        """Each block's σ from its residual at ``z`` (tables with stated errors: scaled only up by
+        their χ², and only when ``known``), time series inflated by their residual's
+        autocorrelation. Returns the factors σ_old/σ_new that rescale the blocks' rows of a
+        Jacobian."""
+        parts = self.block_residuals(z)
+        factors = []
+        n_main = max(len(self.specs), 1)
+        total = sum(p.size for p in parts)
+        for b, r in zip(self.blocks, parts, strict=True):
+            old = b.sigma
+            raw = r * b.sigma
+            k = len(b.nuisance) + n_main * r.size / total
+            dof = max(r.size - k, 1.0)
+            rms = math.sqrt(float(raw @ raw) / dof)
+            if b.sigma_known:
+                b.sigma = max(1.0, rms) if known else old
+            else:
+                b.sigma = max(rms, 1e-12)
+            if isinstance(b, TimeBlock):
+                b.sigma *= math.sqrt(autocorrelation_factor(raw))
+            factors.append(old / b.sigma)
+        self._cache = None
+        return factors
+
+
+def autocorrelation_factor(r: np.ndarray) -> float:
+    """Variance inflation of a correlated residual's mean-like statistics: 1 + 2 Σ (1 − k/(K+1))·ρ_k
+    over K = ⌊4·(m/100)^(2/9)⌋ lags (Bartlett window, Newey-West's rule), at least 1."""
+    r = np.asarray(r, dtype=float) - float(np.mean(r))
+    m = r.size
+    den = float(r @ r)
+    if m < 10 or den == 0.0:
+        return 1.0
+    lags = max(1, int(4.0 * (m / 100.0) ** (2.0 / 9.0)))
+    s = sum((1.0 - k / (lags + 1.0)) * float(r[:-k] @ r[k:]) / den for k in range(1, min(lags, m - 1) + 1))
+    return max(1.0, 1.0 + 2.0 * s)
+
+
+def covariance(J: np.ndarray, pinned: np.ndarray) -> np.ndarray:
+    """(JᵀJ)⁻¹ of the free coordinates (pinned ones: NaN rows and columns)."""
+    n = J.shape[1]
+    cov = np.full((n, n), math.nan)
+    free = np.flatnonzero(~pinned)
+    if free.size:
+        cov[np.ix_(free, free)] = np.linalg.pinv(J[:, free].T @ J[:, free])
+    return cov
+
+
+def weak_directions(J: np.ndarray, names: Sequence[str], order: Sequence[float],
+                    threshold: float = 1.0) -> list[tuple[str, list[str], np.ndarray]]:
+    """What the blocks cannot determine: greedily, the right singular vector v of the (weighted,
+    z-coordinate) Jacobian with the smallest singular value s while 1/s > ``threshold`` (its
+    standard error); the parameters with |v_i| ≥ 0.2 form a group and the one with the largest
+    weight (on a tie within 10 %: the earliest in the signal chain, ``order``) is held fixed.
+
+    Returns
+    -------
+    list of (fixed name, group names, exponents)
+        ``exponents``: the group's determined combination ∏ p_i^{e_i} (for a pair, from v).
+    """
+    keep = list(range(len(names)))
+    out = []
+    while keep:
+        sub = J[:, keep]
+        _, s, vt = np.linalg.svd(sub, full_matrices=False)
+        if s.size == 0 or s[-1] * threshold >= 1.0:
+            break
+        v = vt[-1]
+        weights = np.abs(v)
+        group = [keep[i] for i in np.flatnonzero(weights >= 0.2)] or [keep[int(np.argmax(weights))]]
+        top = float(weights.max())
+        ties = [keep[i] for i in np.flatnonzero(weights >= 0.9 * top)]
+        fixed = min(ties, key=lambda g: order[g])
+        vg = np.array([v[keep.index(g)] for g in group])
+        if len(group) == 2:
+            exps = np.array([-vg[1], vg[0]])
+            exps = exps / np.min(np.abs(exps)) if np.min(np.abs(exps)) > 0 else exps
+        else:
+            exps = np.zeros(len(group))
+        out.append((names[fixed], [names[g] for g in group], exps))
+        keep.remove(fixed)
+    return out
