@@ -3,7 +3,7 @@
 Each registered strategy (:mod:`aeropend_control.strategies`) that needs no extra setting × steps
 from rest (θ = 0) to 0.2, 0.4 and 0.7 rad, 4 s, controller at every 2.048 ms sample, plant simulated by
 :class:`aeropend_sim.simulate.PlantStepper` (the same stepper the lock-step ``sim_node`` runs;
-``test/test_control_ros.py`` checks that the ROS loop reproduces this loop sample by sample).
+``test/ros/control/test_controller.py`` checks that the ROS loop reproduces this loop sample by sample).
 Scenarios:
 
 * ``nominal``: the nominal ``thesis_rig``;
@@ -26,7 +26,7 @@ The same cells over ROS: ``bench/bench_control_ros.py``. Plots of θ and τ per 
 ``bench/results/control_<scenario>.png``.
 
 Writes ``bench/results/control.json`` and prints a table. Run:
-``.venv/bin/python bench/bench_control.py``
+``.venv/bin/python -m bench.bench_control``
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ the thesis' Latin-hypercube steps, and :func:`aeropend_sim.excitation.density_mo
 (binary 0/1 holds of 5-30 ms whose density follows a slow APRBS) at 30, 60 and 120 s; the first
 75 % of each record counts (the training part).
 
-Run: ``.venv/bin/python bench/bench_design_crb.py`` -> ``bench/results/design_crb.{json,md}``
+Run: ``.venv/bin/python -m bench.bench_design_crb`` -> ``bench/results/design_crb.{json,md}``
 (seconds).
 """
 

@@ -6,7 +6,7 @@ minimum hold, per-sample random input) and the per-sample :class:`PlantStepper`,
 ``bench/results/sim.json``. ``bench_sim_backend.py`` measures issue 37's bar (every effect on,
 both backends side by side).
 
-Run: ``.venv/bin/python bench/bench_sim.py``
+Run: ``.venv/bin/python -m bench.bench_sim``
 """
 
 from __future__ import annotations

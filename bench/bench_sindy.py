@@ -40,7 +40,7 @@ false negative terms, max relative coefficient error over the true terms, K_q er
 MSE; free-run NRMSE on the held-out part (RMS error / std of the measured state, from the
 first held-out sample, v_a from the measurement; states the model lacks are taken from the
 data); plus fit time. Writes ``bench/results/sindy.json``.
-Run: ``.venv/bin/python bench/bench_sindy.py [--quick]``.
+Run: ``.venv/bin/python -m bench.bench_sindy [--quick]``.
 """
 
 from __future__ import annotations

@@ -92,8 +92,7 @@ IDENT_LAYERS = {
 
 def test_ident_layering() -> None:
     """Inside aeropend_ident every import follows the arrows of docs/architecture.md."""
-    sys.path.insert(0, str(TOOL.parent))
-    import check_layout
+    from tools import check_layout
 
     modules = check_layout._modules(ROOT / "src")
     wrong = []

@@ -15,7 +15,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 from jax import lax  # noqa: E402
 
-from backends import components as comp  # noqa: E402
+from bench.backends import components as comp  # noqa: E402
 
 
 def make_replay(built: comp.Built, k: int, frac: float, dt: float):

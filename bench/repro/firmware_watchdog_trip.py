@@ -13,7 +13,7 @@ This script runs the original test repeatedly, optionally under the CPU hog of
 gap between commands the fake MCU received and when it happened). Before the fix: 0 of 12 runs
 failed under two hogs (the race needs a configure slower than 250 ms; it is rare).
 
-Usage: ``python bench/repro_firmware_watchdog_trip.py [--runs 20] [--hog]``
+Usage: ``python -m bench.repro.firmware_watchdog_trip [--runs 20] [--hog]``
 """
 
 from __future__ import annotations
@@ -24,11 +24,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench.bench_data_plane import HOG
 
-from bench_data_plane import HOG
-
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         for i in range(a.runs):
             r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider",
-                                "test/test_bridge_node_ros.py::test_bridge_node_against_fake_mcu"],
+                                "test/ros/bridge/test_bridge_node.py::test_bridge_node_against_fake_mcu"],
                                cwd=ROOT, capture_output=True, text=True)
             msg = [ln for ln in r.stdout.splitlines() if "AssertionError" in ln or re.match(r"^E\s", ln)]
             print(f"run {i + 1}: rc {r.returncode} {msg[:3]}", flush=True)

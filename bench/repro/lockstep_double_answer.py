@@ -14,8 +14,8 @@ it also answers repeats (the controller before the fix). With ``--policy new`` i
 only if a duty reader matched since its first answer (the fix in ``controller_node._control``). It
 prints the commands sent, the sim's samples and the stamps seen::
 
-    .venv/bin/python bench/repro_lockstep_double_answer.py --policy old   # sim_steps = commands, 1 ahead
-    .venv/bin/python bench/repro_lockstep_double_answer.py --policy new   # sim_steps = commands
+    .venv/bin/python -m bench.repro.lockstep_double_answer --policy old   # sim_steps = commands, 1 ahead
+    .venv/bin/python -m bench.repro.lockstep_double_answer --policy new   # sim_steps = commands
 
 With the old policy the sim steps once more than the new samples answered
 (``sim_steps_minus_answered`` 1), so the trajectory lags one sample. With the new policy the two
@@ -34,11 +34,8 @@ import json
 import subprocess
 import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-
-from ros_support import isolated_env, node_command, random_domain, reap
+from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap
 
 
 def main(argv: list[str] | None = None) -> int:

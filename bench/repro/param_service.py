@@ -10,7 +10,7 @@ domain, optionally under ``--hogs`` CPU-bound processes, and counts per run: ser
 answered, time to the answer, and, when unanswered, whether a second request on the same client
 is answered (a lost response vs a server that does not serve at all).
 
-Usage: ``python bench/repro_param_service.py [--runs 200] [--hogs 1] [--node bridge]``;
+Usage: ``python -m bench.repro.param_service [--runs 200] [--hogs 1] [--node bridge]``;
 writes ``bench/results/repro_param_service.json``.
 """
 
@@ -26,14 +26,11 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "test"))
-sys.path.insert(0, str(ROOT / "bench"))
+from aeropend_sim.ros.domain import claim_domain
+from aeropend_sim.ros.harness import isolated_env, node_command, private_node, reap, stop, wait_for_server
+from bench.bench_data_plane import HOG
 
-from bench_data_plane import HOG  # noqa: E402
-from ros_support import isolated_env, node_command, private_node, reap, stop, wait_for_server  # noqa: E402
-
-from aeropend_sim.ros.domain import claim_domain  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
 
 NODES = {
     "bridge": ("aeropend_bridge", "bridge.yaml", "aeropend_bridge", "bridge", "aeropend_bridge.bridge_node",

@@ -15,7 +15,7 @@ again, and counts the sequence gaps and malformed frames with the bridge's decod
 harness' flow control (``firmware/sim/harness.c``: the emulation waits while the FIFO is more
 than 3/4 full) the count must be 0.
 
-Usage: ``python bench/repro_simavr_pty_overflow.py [--pause 8] [--read 2]``; writes
+Usage: ``python -m bench.repro.simavr_pty_overflow [--pause 8] [--read 2]``; writes
 ``bench/results/repro_simavr_pty_overflow.json``.
 """
 
@@ -35,7 +35,7 @@ from aeropend_bridge.bridge_core import SequenceTracker
 from aeropend_bridge.protocol import FrameDecoder, SampleFrame
 from aeropend_bridge.simavr_harness import read_pty_path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware"
 
 

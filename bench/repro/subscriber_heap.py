@@ -22,7 +22,7 @@ test requires 95 %); after ``gc.freeze()`` it took 2.9 and 2.6 ms, 100 % receive
 forced collection no generation-2 collection fell in a 3.5 s window (100 % received either way):
 the loss needs the threshold to be reached during the window, hence an intermittent failure.
 
-Usage: ``.venv/bin/python bench/repro_subscriber_heap.py [--objects 3000000] [--seconds 3.5]``
+Usage: ``.venv/bin/python -m bench.repro.subscriber_heap [--objects 3000000] [--seconds 3.5]``
 """
 
 from __future__ import annotations
@@ -35,12 +35,10 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-from ros_support import (
+from aeropend_sim.ros.harness import (
     frozen_gc,
     gc_pauses,
     isolated_env,

@@ -11,7 +11,7 @@ samples in each 5 s window; they stop once the pipe is full (measured: 1887, 240
 from 15-20 s on). The cure is on the parent's side: read the node's output or send it to a file,
 as ``ros2 launch``, the main job and the benchmarks do. Exits 1 when the samples stopped::
 
-    .venv/bin/python bench/repro_unread_stderr.py --seconds 40
+    .venv/bin/python -m bench.repro.unread_stderr --seconds 40
 """
 
 from __future__ import annotations
@@ -21,10 +21,8 @@ import fcntl
 import subprocess
 import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-from ros_support import isolated_env, node_command, private_node, random_domain, reap
+from aeropend_sim.ros.harness import isolated_env, node_command, private_node, random_domain, reap
 
 F_SETPIPE_SZ = 1031  # Linux fcntl: set a pipe's capacity
 

@@ -16,7 +16,7 @@ counts what arrives. ``--wait none`` exits right after publishing (the old plant
 :func:`aeropend_sim.ros.node_shell.wait_acknowledged` (the fix). The listener is stopped for
 ``--stall`` seconds in every mode. Results: ``bench/results/repro_writer_exit.json``::
 
-    .venv/bin/python bench/repro_writer_exit.py --runs 5
+    .venv/bin/python -m bench.repro.writer_exit --runs 5
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "test"))
-from ros_support import isolated_env, random_domain  # noqa: E402
+from aeropend_sim.ros.harness import isolated_env, random_domain
+
+ROOT = Path(__file__).resolve().parents[2]
 
 TOPIC = "/repro/commands"
 

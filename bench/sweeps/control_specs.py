@@ -7,7 +7,7 @@ each configuration below, and writes one summary row per configuration to
 ``bench/results/control_spec_sweep.{json,md}``.
 The defaults are not changed by this script.
 
-Usage: ``python bench/sweep_control_specs.py [CONFIG ...]`` (default: all).
+Usage: ``python -m bench.sweeps.control_specs [CONFIG ...]`` (default: all).
 """
 
 from __future__ import annotations
@@ -16,14 +16,11 @@ import json
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import bench_control_independent as bci
-
 from aeropend_control.design import PoleSpec
 from aeropend_control.strategies import strategy_class, strategy_names
+from bench import bench_control_independent as bci
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results"
 #: name -> ((ω_n, ζ, ρ) of fl_pid / small_signal, (ω_n, ζ, ρ) of cascade / fl_cascade)
 CONFIGS = {
     "current": ((9.5, 0.7, 1.0), (9.0, 0.7, 1.0)),
@@ -67,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     old = json.loads(path.read_text(encoding="utf-8")) if path.exists() else []
     rows = [new.pop(r["config"], r) for r in old] + list(new.values())  # re-run configs replace their row
     (RESULTS / "control_spec_sweep.json").write_text(json.dumps(rows, indent=1), encoding="utf-8")
-    lines = ["# Pole-spec sweep on the tuning plants 100-139 (bench/sweep_control_specs.py)", "",
+    lines = ["# Pole-spec sweep on the tuning plants 100-139 (bench/sweeps/control_specs.py)", "",
              "Within-reach runs, designed on the nominal rig; (ω_n, ζ, ρ) of FL/small-signal and of the "
              "cascades.", "",
              "| config | FL/SS | cascades | Table 6.1 | late peak only | T6.1 or late peak | no limit cycle "

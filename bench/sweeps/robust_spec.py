@@ -7,7 +7,7 @@ come from ``bench_control_independent.py --gap`` runs on 100-109, then 110-119, 
 configuration below, and writes one row per configuration to
 ``bench/results/control_robust_sweep.{json,md}``. The defaults are not changed by this script.
 
-Usage: ``python bench/sweep_robust_spec.py [CONFIG ...]`` (default: all).
+Usage: ``python -m bench.sweeps.robust_spec [CONFIG ...]`` (default: all).
 """
 
 from __future__ import annotations
@@ -18,14 +18,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import bench_control_independent as bci
-
 import aeropend_control.drive_design as dd
 from aeropend_control.metrics import GOAL
+from bench import bench_control_independent as bci
 
-RESULTS = Path(__file__).resolve().parent / "results"
+RESULTS = Path(__file__).resolve().parents[1] / "results"
 RIGS = RESULTS / "control_tuning_gap_rigs.json"
 #: name -> (ζ candidates, overshoot the score divides by [%], damping-error factors)
 Z090 = (0.7, 0.75, 0.8, 0.85, 0.9)
@@ -104,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
 def write_md(rows: list[dict]) -> None:
     """``control_robust_sweep.md``: one table row per configuration row of the JSON."""
     lines = ["# Robust pole choice (ω_n, ζ) on the gap-corrected rigs of tuning plants "
-             "(bench/sweep_robust_spec.py)", "",
+             "(bench/sweeps/robust_spec.py)", "",
              "Within-reach runs designed on the gap-corrected rig; ω_n factors (on the strategy's default), "
              "ζ candidates and the overshoot the minimax score divides by (`drive_design.robust_spec`).", "",
              "| config | plants | ω_n factors | ζ candidates | Mp target [%] | damping errors | goal "

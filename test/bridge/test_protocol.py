@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 from aeropend_bridge import protocol as proto
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VECTORS = json.loads((ROOT / "firmware" / "test_vectors.json").read_text())
 FUZZ_EXAMPLES = int(os.environ.get("AEROPEND_FUZZ_EXAMPLES", "100000"))
 CLASSES = {c.__name__: c for c in (proto.SampleFrame, proto.StatusFrame, proto.Duty, proto.Enable,

@@ -5,7 +5,7 @@ this one runs ``AEROPEND_FUZZ_EXAMPLES // 2`` examples (default 50 000, ≈ 25 s
 random streams, ``test_protocol_fuzz_spliced.py`` the other half on corrupted streams with
 valid frames spliced in — 100 000 hypothesis examples in total. For 1e6:
 ``AEROPEND_FUZZ_EXAMPLES=1000000 pytest test/test_protocol_fuzz*.py`` (≈ 8 min), or
-``python bench/bench_bridge_decode.py --fuzz 1000000`` (plain random inputs, no hypothesis
+``python -m bench.bench_bridge_decode --fuzz 1000000`` (plain random inputs, no hypothesis
 overhead, ≈ 5 s).
 """
 

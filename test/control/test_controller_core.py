@@ -7,7 +7,6 @@ import math
 from pathlib import Path
 
 import pytest
-from loop_support import closed_loop
 
 from aeropend_control.controller_core import (
     SIGNALS,
@@ -17,6 +16,7 @@ from aeropend_control.controller_core import (
     make_settings,
     parse_steps,
 )
+from bench.fixtures.closed_loop import closed_loop
 
 
 def test_parse_steps_forms_and_errors() -> None:

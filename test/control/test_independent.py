@@ -4,7 +4,6 @@ rig file's recording frame, and the loop from a ``gap``-corrected rig file back 
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,14 +12,10 @@ import yaml
 
 from aeropend_control.controller_core import ControllerConfigError, ControllerLoop, make_settings
 from aeropend_sim.recording_frame import RecordingFrame, read_recording_frame
+from bench.fixtures import truth_plant as tp
+from bench.fixtures.truth_rig import lab_rig_doc, write_rig
 
-BENCH = Path(__file__).resolve().parents[1] / "bench"
-sys.path.insert(0, str(BENCH))
-
-import truth_plant as tp  # noqa: E402
-from truth_support import lab_rig_doc, write_rig  # noqa: E402
-
-RIGS = Path(__file__).resolve().parents[1] / "src/aeropend_sim/aeropend_sim/rigs"
+RIGS = Path(__file__).resolve().parents[2] / "src/aeropend_sim/aeropend_sim/rigs"
 
 
 def test_truth_stepper_reproduces_the_batch_simulation_bit_for_bit():
@@ -183,7 +178,7 @@ def test_the_cascade_detunes_itself_out_of_a_limit_cycle_an_unknown_drive_lag_ca
         assert clean == [] and abs(theta[tail].mean() - 0.2) < 0.004
 
 
-GAP_RIG = Path(__file__).resolve().parent / "data" / "gap_corrected_rig.yaml"
+GAP_RIG = Path(__file__).resolve().parents[1] / "data" / "gap_corrected_rig.yaml"
 
 
 def test_design_gains_and_every_strategy_take_the_rig_file_gap_wrote(tmp_path, capsys):

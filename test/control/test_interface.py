@@ -24,7 +24,6 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from loop_support import closed_loop
 
 import aeropend_control
 from aeropend_control.controller_core import SIGNALS, ControllerConfigError, ControllerLoop, make_settings
@@ -43,8 +42,9 @@ from aeropend_control.strategies import (
 )
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig, load_rig
+from bench.fixtures.closed_loop import closed_loop
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SRC = ROOT / "src"
 PERIOD = 2.048e-3
 RIG = load_rig("thesis_rig")
@@ -191,10 +191,10 @@ def test_the_node_accepts_a_registered_strategy_and_subscribes_what_it_needs(fif
     validation; the node subscribes to the armature topic only for a strategy that needs i_a."""
     rclpy = pytest.importorskip("rclpy")
     from rclpy.parameter import Parameter
-    from ros_support import random_domain
 
     from aeropend_control.controller_node import ControllerNode
     from aeropend_sim.contract import REL_ARMATURE
+    from aeropend_sim.ros.harness import random_domain
 
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=random_domain())

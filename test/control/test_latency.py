@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,9 +9,7 @@ import pytest
 
 from aeropend_control.controller_core import SIGNALS
 from aeropend_sim.sim_core import CommandTiming, SimConfigError
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from bench_control_latency import analyse, match_commands
+from bench.bench_control_latency import analyse, match_commands
 
 T = 2_048_000  # ns
 
@@ -78,7 +75,7 @@ def test_analyse_latency_and_missed_samples() -> None:
 
 
 def test_misses_are_attributed_to_stalls_of_all_or_some_cpus() -> None:
-    from bench_control_latency import attribute, stall_intervals
+    from bench.bench_control_latency import attribute, stall_intervals
 
     ms = 1_000_000
     misses = [{"window_ns": [a * ms, (a + 3) * ms]} for a in (0, 10, 20)]

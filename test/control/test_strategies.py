@@ -241,7 +241,7 @@ def test_each_strategy_chooses_its_robust_pole_spec_once(monkeypatch: pytest.Mon
 
     from aeropend_control.strategies import base, strategy_class
 
-    rig = load_rig(str(Path(__file__).resolve().parent / "data" / "gap_corrected_rig.yaml"))
+    rig = load_rig(str(Path(__file__).resolve().parents[1] / "data" / "gap_corrected_rig.yaml"))
     calls: list[tuple[str, bool]] = []
     real = base.robust_spec
     monkeypatch.setattr(base, "robust_spec", lambda rig, spec, kind, lin, *a: calls.append((kind, lin))

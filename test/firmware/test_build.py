@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FLASH_BYTES = 256 * 1024
 SRAM_BYTES = 8 * 1024
 VECTORS = {20: "TIMER1_OVF", 25: "USART0_RX", 26: "USART0_UDRE", 29: "ADC", 41: "TIMER4_CAPT",

@@ -21,7 +21,7 @@ import pytest
 
 from aeropend_bridge import protocol as proto
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware"
 ERROR_CODES = {"cobs": -1, "crc": -2, "length": -3, "type": -4}
 CMD_TYPES = {"Duty": proto.T_DUTY, "Enable": proto.T_ENABLE, "Rate": proto.T_RATE,

@@ -34,7 +34,7 @@ from aeropend_bridge.protocol import (
 )
 from aeropend_bridge.simavr_harness import harness_link
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware"
 F_CPU = 16_000_000
 SIM_SECONDS = 3.0

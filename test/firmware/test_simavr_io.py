@@ -46,7 +46,7 @@ from aeropend_bridge.protocol import (
 )
 from aeropend_bridge.simavr_harness import harness_link
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware"
 F_CPU = 16_000_000
 CYCLE_US = 1e6 / F_CPU

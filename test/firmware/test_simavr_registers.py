@@ -22,7 +22,7 @@ import pytest
 
 from aeropend_bridge.protocol import BAUD, TIMER4_TICK_S
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware"
 F_CPU = 16_000_000
 PRESCALER = {0: 0, 1: 1, 2: 8, 3: 64, 4: 256, 5: 1024}  # CSn2:0 of Timer1/3/4/5

@@ -29,7 +29,7 @@ import pytest
 from aeropend_ident.io.overlay_axes import PAD, REACH, clip_to_recorded, fit_title, short_number
 from aeropend_ident.sindy.plots import plot_free_run
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real"
 ETCHEPAREBORDA = REAL / "BA-Etchepareborda__adaptive-control-aeropendulum" / "openloop_steps_0_100_180.csv"
 AEROSHIELD = REAL / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"
 needs_real = pytest.mark.skipif(not REAL.is_dir(), reason=f"real data folder {REAL} is missing")

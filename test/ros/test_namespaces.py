@@ -18,12 +18,11 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from loop_support import closed_loop
-from ros_support import isolated_env, node_command, private_node, random_domain, reap
-
 from aeropend_control.controller_core import SIGNALS, ControllerLoop, make_settings
 from aeropend_sim.contract import TOPIC_JOINT_STATES, namespaced
 from aeropend_sim.params import load_rig
+from aeropend_sim.ros.harness import isolated_env, node_command, private_node, random_domain, reap
+from bench.fixtures.closed_loop import closed_loop
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(120)]
 

@@ -14,11 +14,11 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from ros_support import isolate_process, isolated_env, node_command, random_domain
 from rosbags.highlevel import AnyReader
 
 from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import CONTRACT_TOPICS
+from aeropend_sim.ros.harness import isolate_process, isolated_env, node_command, random_domain
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(180)]
 RECORD = node_command("record", "aeropend_ident.nodes.record")

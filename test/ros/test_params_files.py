@@ -22,14 +22,22 @@ pytest.importorskip("rclpy")
 
 from rcl_interfaces.srv import GetParameters
 from rclpy.parameter import parameter_value_to_python
-from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop, wait_for_server
 from sensor_msgs.msg import JointState
 
 from aeropend_sim.contract import TOPIC_JOINT_STATES
+from aeropend_sim.ros.harness import (
+    isolated_env,
+    node_command,
+    private_node,
+    random_domain,
+    reap,
+    stop,
+    wait_for_server,
+)
 from aeropend_sim.ros.ros_contract import SAMPLE_QOS_LOCKSTEP
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(120)]
-SRC = Path(__file__).resolve().parents[1] / "src"
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 #: (package, file, node name, console script, module, overrides given with -p after the file)
 CASES = [

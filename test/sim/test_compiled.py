@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from component_rigs import rig as family_rig
 
 from aeropend_sim.compiled import plant as plant_mod
 from aeropend_sim.compiled import xp_numba
@@ -30,9 +29,8 @@ from aeropend_sim.excitation import aprbs
 from aeropend_sim.model import I_A, TAU_F, PlantModel
 from aeropend_sim.params import Rig, RigFileError, load_rig
 from aeropend_sim.simulate import PlantStepper, SimulationError, simulate, simulate_batch
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from backends import study
+from bench.backends import study
+from bench.fixtures.component_rigs import rig as family_rig
 
 
 def all_effects(contact: bool = False) -> Rig:
@@ -170,16 +168,16 @@ def test_disk_cache_serves_a_new_process():
     code = ("import json, time; t0 = time.process_time(); import numpy as np\n"
             "from aeropend_sim.simulate import simulate\n"
             "from aeropend_sim.compiled.source import family_module\n"
-            "from test_compiled import all_effects\n"
-            "simulate(all_effects(), np.full(50, 0.5))\n"
+            "from bench.backends.study import all_effects_rig\n"
+            "simulate(all_effects_rig(), np.full(50, 0.5))\n"
             "m = family_module('dc_hbridge')\n"
             "count = lambda c: sum(c.values())\n"
             "stats = {k: [count(getattr(m, k).stats.cache_hits), count(getattr(m, k).stats.cache_misses)]"
             " for k in ('replay', 'outputs', 'jacobians')}\n"
             "print(json.dumps({'module': m.__name__, 'stats': stats, 'cpu_s': time.process_time() - t0}))\n")
-    here = Path(__file__).parent
-    out = subprocess.run([sys.executable, "-c", code], cwd=here, capture_output=True, text=True, timeout=300,
-                         env={**os.environ, "PYTHONPATH": str(here)})
+    root = Path(__file__).resolve().parents[2]  # the repository: bench.backends imports from there
+    out = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "PYTHONPATH": str(root)})
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout.strip().splitlines()[-1])
     assert report["module"] == module

@@ -17,7 +17,7 @@ from aeropend_sim.contract import JOINT_NAMES, Sample
 from aeropend_sim.description import DescriptionError, G, Geometry, urdf, urdf_for_rig
 from aeropend_sim.params import load_rig
 
-SHIPPED = Path(__file__).resolve().parents[1] / "src" / "aeropend_sim" / "urdf" / "aeropend.urdf"
+SHIPPED = Path(__file__).resolve().parents[2] / "src" / "aeropend_sim" / "urdf" / "aeropend.urdf"
 
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:

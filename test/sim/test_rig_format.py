@@ -8,21 +8,20 @@ switches still load and simulate as before (``test/data/legacy_sim_reference.npz
 from __future__ import annotations
 
 import copy
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from component_rigs import ESC, doc, q
-from component_rigs import rig as family_rig
 
 from aeropend_sim.components import registry
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import RigFileError, load_rig, rig_from_dict, rig_to_dict, save_rig, shipped_rigs
 from aeropend_sim.simulate import simulate
+from bench.fixtures.component_rigs import ESC, doc, q
+from bench.fixtures.component_rigs import rig as family_rig
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = ROOT / "test" / "data" / "legacy_sim_reference.npz"
 
 
@@ -162,11 +161,8 @@ def test_shipped_rigs_simulate_as_before_the_registry():
     state's i_a column is the algebraic current at each sample since issue 37 (it held the current
     at the start of each stretch of constant input), so there it is checked against the i_a
     channel, which is compared with the reference."""
-    sys.path.insert(0, str(ROOT / "tools"))
-    try:
-        from legacy_sim_reference import all_on, reference
-    finally:
-        sys.path.pop(0)
+    from tools.legacy_sim_reference import all_on, reference
+
     ref = np.load(REFERENCE)
     got = reference()
     assert set(got) == set(ref.files)

@@ -25,7 +25,7 @@ from aeropend_ident.io.csv_import import PRESETS
 from aeropend_sim.params import shipped_rigs
 from aeropend_sim.recording import Recording
 
-SHARED = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+SHARED = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
 AEROSHIELD = SHARED / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"
 IMC = SHARED / "BA-Etchepareborda__adaptive-control-aeropendulum" / "closedloop_IMC_reference_steps.csv"
 BIN = Path(sys.executable).parent

@@ -149,7 +149,7 @@ def test_split_rule_and_ros2_entry_point(bags, tmp_path):
     assert n_fit == 1440 and n_held == 960
     assert len(rep["headline"]["effects_chosen"]) == 1
     # console script registered in setup.py (so `ros2 run aeropend_ident gap` finds it)
-    setup = (Path(__file__).resolve().parents[1] / "src" / "aeropend_ident" / "setup.py").read_text()
+    setup = (Path(__file__).resolve().parents[3] / "src" / "aeropend_ident" / "setup.py").read_text()
     assert "'gap = aeropend_ident.cli.gap:main'" in setup
     exe = shutil.which("gap") or str(Path(sys.executable).parent / "gap")
     if Path(exe).exists():

@@ -1,6 +1,6 @@
 """``compare``: rig files replayed on recordings; per-file CSV presets for every recording argument.
 
-Truth for the replay is the independent plant of ``bench/truth_plant.py`` (no aeropend code), so a
+Truth for the replay is the independent plant of ``bench/fixtures/truth_plant.py`` (no aeropend code), so a
 rig file equal to its nominal physics must reproduce its recordings and a rig with a wrong
 thrust coefficient must not; the scores are checked against closed forms; ``compare`` runs on
 every real recording of ``../shared/data/real`` that has an input and an angle, with per-file
@@ -12,7 +12,6 @@ from __future__ import annotations
 import fnmatch
 import json
 import math
-import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -25,11 +24,10 @@ from aeropend_ident.gap.compare import channel_scores, compare, load_model, step
 from aeropend_ident.io.csv_import import PRESETS
 from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
 from aeropend_sim.recording import Recording
+from bench.fixtures import truth_plant as tp
+from bench.fixtures.truth_rig import lab_rig_doc, write_rig
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
-import truth_plant as tp  # noqa: E402
-from truth_support import lab_rig_doc, write_rig  # noqa: E402
+ROOT = Path(__file__).resolve().parents[3]
 
 REAL = ROOT.parent / "shared" / "data" / "real"
 DT = tp.DT

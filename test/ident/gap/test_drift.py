@@ -1,6 +1,6 @@
 """Held-out prediction, attainable shrink, drift tables and sessions of the gap tool (issue 16).
 
-Truth comes from the independent plant ``bench/truth_plant.py`` (no aeropend code): a hidden
+Truth comes from the independent plant ``bench/fixtures/truth_plant.py`` (no aeropend code): a hidden
 Coulomb friction in every session, and in a second session the rod's gravity term mgd/J 25 %
 lower (a heavier counterweight). The truth's drift share of the held-out gap is computed from
 the truth plant alone.
@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
@@ -26,11 +25,10 @@ from aeropend_ident.gap.drift import (
     drift_set,
     within_session_draw,
 )
+from bench.bench_gap_independent import rig_dict, to_recording
+from bench.fixtures import truth_plant as tp
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
-import truth_plant as tp  # noqa: E402
-from bench_gap_independent import rig_dict, to_recording  # noqa: E402
+ROOT = Path(__file__).resolve().parents[3]
 
 EFFECT = {"coulomb_friction": 1.5}
 DRIFT = 0.75  # mgd/J × 0.75 in the second session

@@ -23,7 +23,7 @@ from aeropend_ident.io.csv_import import import_csv, import_csv_runs
 from aeropend_ident.io.recording_input import uniform_recording
 from aeropend_ident.io.split import informative, interleaved_blocks
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
 AEROSHIELD = REAL / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"
 HOJA3 = REAL / "jahoyosr__Aeropendulum" / "sheet_Hoja3_pwm_steps_openloop.csv"
 ETCH = REAL / "BA-Etchepareborda__adaptive-control-aeropendulum"

@@ -1,6 +1,6 @@
 """Stribeck friction as an operating-point refinement of Coulomb friction (issue 16, item 5).
 
-Truth from the independent plant ``bench/truth_plant.py`` (no aeropend code): the rod's dry
+Truth from the independent plant ``bench/fixtures/truth_plant.py`` (no aeropend code): the rod's dry
 friction with a Gaussian Stribeck curve (static friction 3.5 rad/s² per inertia, sliding 1.0,
 Stribeck velocity 0.15 rad/s), or plain Coulomb friction. Only θ is recorded (50 dB). The lab's
 rig file has no dry friction; its smooth sign tanh(θ̇/v_ε) is given the truth's sharpness
@@ -10,15 +10,14 @@ bound, docs/gap.md).
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
-import truth_plant as tp  # noqa: E402
-from bench_gap_independent import rig_dict, to_recording  # noqa: E402
+from bench.bench_gap_independent import rig_dict, to_recording
+from bench.fixtures import truth_plant as tp
+
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _diagnose(effects: dict[str, float]):

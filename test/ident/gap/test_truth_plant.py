@@ -1,4 +1,4 @@
-"""The independent truth plant of the blind benchmarks (bench/truth_plant.py).
+"""The independent truth plant of the blind benchmarks (bench/fixtures/truth_plant.py).
 
 It must not share code with what it checks (no aeropend import at all), must agree with
 aeropend's nominal simulator where both model the same plant (two independent implementations of
@@ -11,21 +11,17 @@ from __future__ import annotations
 import ast
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-BENCH = Path(__file__).resolve().parents[1] / "bench"
-sys.path.insert(0, str(BENCH))
-
-import truth_plant as tp  # noqa: E402
-from truth_support import lab_rig_doc, write_rig  # noqa: E402
+from bench.fixtures import truth_plant as tp
+from bench.fixtures.truth_rig import lab_rig_doc, write_rig
 
 
 def test_truth_plant_imports_nothing_from_aeropend():
-    tree = ast.parse((BENCH / "truth_plant.py").read_text(encoding="utf-8"))
+    tree = ast.parse(Path(tp.__file__).read_text(encoding="utf-8"))
     modules = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -142,9 +138,8 @@ def test_family_plants_agree_with_aeropend_on_the_labs_rig_file(family):
     """The lab's rig file of each hidden plant (its own quantities converted as a lab does: K_v and
     battery to ω_max, pulse widths to τ_0, C_T/C_Q to K_q/K_d, geometry to mgd/J and L/J) simulates
     the same plant: two implementations agree to 1e-5 of each channel's range."""
-    import gap_families as gf
-
     from aeropend_sim.simulate import simulate
+    from bench.fixtures import gap_families as gf
 
     fam = {"esc": gf.ESC, "voltage_amplifier": gf.AMPLIFIER}[family]
     rng = np.random.default_rng(4)
@@ -219,10 +214,9 @@ def test_baseline_fits_each_family_on_its_hidden_plant(family, tmp_path):
     """``baseline`` (the grey-box fit of θ-only data) on an ESC and an amplifier rig: a rod whose
     damping is 1.6× and whose gravity torque is 0.9× what the lab's rig file says; the fit finds
     both (L/J absorbs the thrust scale) and the held-out error falls."""
-    import gap_families as gf
-
     from aeropend_ident.greybox.baseline import run_baseline
     from aeropend_sim.recording import Recording
+    from bench.fixtures import gap_families as gf
 
     fam = {"esc": gf.ESC, "voltage_amplifier": gf.AMPLIFIER}[family]
     params = fam.nominal()
@@ -248,10 +242,10 @@ def test_a_lab_path_with_an_esc_rig_names_a_slow_speed_response(tmp_path, truth_
     with the minimal ESC rig file. The rotor follows the throttle 2.5× more slowly than the rig
     file says (a heavier propeller): named esc_response, T_m fitted, no armature check or
     hypothesis reported (an ESC has no armature), and a report written like any other."""
-    import gap_families as gf
     import yaml
 
     from aeropend_ident.cli.gap import main
+    from bench.fixtures import gap_families as gf
 
     p = tp.EscParams()
     plant = tp.EscPlant(p, {"esc_response": 2.5})

@@ -201,7 +201,7 @@ def test_esc_rig_checks_its_rotor_response_and_says_which_checks_it_has_not(duty
     """An ESC rig has no armature voltage or current: those checks are 'not applicable to family
     esc' (not 'needs i_a'), and the rotor check is its speed response (ω_ss(τ) − ω₁)/T_m − ω̇₁. A
     speed response 3× slower than the rig file says is located there."""
-    from component_rigs import rig as family_rig
+    from bench.fixtures.component_rigs import rig as family_rig
 
     nominal = family_rig("esc").with_params("sensors", snr_db=55.0)
     ok = locate_gap(nominal, [_record(nominal, duty, ("theta", "omega_rotor"), noise=True)]).recordings[0]

@@ -16,7 +16,7 @@ from aeropend_ident.errors import CsvImportError, CsvRowWarning
 from aeropend_ident.io.bags import read_bag
 from aeropend_ident.io.csv_import import PRESETS, CsvSpec, find_preset, import_csv, import_csv_runs
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
 HOJA3 = REAL / "jahoyosr__Aeropendulum" / "sheet_Hoja3_pwm_steps_openloop.csv"
 AEROSHIELD = REAL / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"
 ESCALONES = REAL / "jahoyosr__Aeropendulum"

@@ -26,7 +26,7 @@ from aeropend_ident.io.recording_input import ignored_channels, load_recording, 
 from aeropend_sim.contract import EXTRA_CHANNELS
 from aeropend_sim.recording import Recording, RecordingError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 REAL = ROOT.parent / "shared" / "data" / "real"
 ETCHE = REAL / "BA-Etchepareborda__adaptive-control-aeropendulum"
 DONDI = REAL / "dondi01__quanser_aero2_project"

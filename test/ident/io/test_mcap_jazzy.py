@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 import yaml
 from mcap.reader import make_reader
-from ros_support import isolate_process, private_node, random_domain
 
 from aeropend_ident.io.bag_writer import write_bag
 from aeropend_ident.io.mcap_jazzy import OFFERED_QOS_KEY, TOPIC_TYPE_HASH_KEY
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.recording import Recording
+from aeropend_sim.ros.harness import isolate_process, private_node, random_domain
 
 
 def _bag(tmp_path: Path, storage: str) -> Path:

@@ -17,7 +17,6 @@ pytest.importorskip("rclpy")
 
 from rclpy.duration import Duration
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, LivelinessPolicy, QoSProfile, ReliabilityPolicy
-from ros_support import private_node, random_domain
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
 from aeropend_ident.io import bags
@@ -30,6 +29,7 @@ from aeropend_ident.nodes.qos import (
     qos_to_rclpy,
 )
 from aeropend_sim.contract import COMMAND_QOS_DEPTH, SAMPLE_QOS_DEPTH
+from aeropend_sim.ros.harness import private_node, random_domain
 
 #: What rosbag2 Jazzy writes for a publisher found by discovery (rmw_fastrtps): history unknown,
 #: depth 0, infinite durations (ros2/rosbag2#1237 shows the Humble form: ``history: 3, depth: 0``).

@@ -13,16 +13,11 @@ Cramér-Rao bounds of the designs: bench/results/design_crb.md.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_ident_noise import TRUTH, _data, _fit, _k_q_error
 
 from aeropend_ident.sindy.model import structure_errors
 from aeropend_sim.excitation import density_modulated_prbs
+from bench.fixtures.sindy_case import TRUTH, case_data, k_q_error, weak_iv_fit
 
 OE = ("i_a", "omega_rotor")
 R_OVER_L = 8.6957
@@ -31,8 +26,8 @@ DESIGN = density_modulated_prbs(120.0, seed=1).duty
 
 @pytest.fixture(scope="module")
 def designed50():
-    data = _data(50.0, seed=7, duty=DESIGN)
-    return data, _fit(data, output_error=OE)
+    data = case_data(50.0, seed=7, duty=DESIGN)
+    return data, weak_iv_fit(data, output_error=OE)
 
 
 def test_50db_bar_exact_structure_and_all_coefficients_within_one_percent(designed50) -> None:
@@ -40,7 +35,7 @@ def test_50db_bar_exact_structure_and_all_coefficients_within_one_percent(design
     for tg, e in structure_errors(m, TRUTH).items():
         assert e["false_positive"] == [] and e["false_negative"] == [], (tg, m.equations())
         assert e["max_rel_error"] < 0.01, (tg, e, m.equations())
-    assert _k_q_error(m) < 0.01
+    assert k_q_error(m) < 0.01
 
 
 def test_design_cuts_the_standard_error_of_r_over_l(designed50) -> None:
@@ -58,9 +53,9 @@ def test_design_cuts_the_standard_error_of_r_over_l(designed50) -> None:
 def test_20db_all_four_structures_and_thrust_coefficient() -> None:
     """20 dB on every channel, weak-iv alone: the design keeps all four supports exact
     (bench, seeds 7-9: θ̈ 0.52-0.75 %, di_a/dt 11-12 %); bar: K_q within 10 %."""
-    m = _fit(_data(20.0, seed=7, duty=DESIGN))
+    m = weak_iv_fit(case_data(20.0, seed=7, duty=DESIGN))
     errs = structure_errors(m, TRUTH)
     for tg, e in errs.items():
         assert e["false_positive"] == [] and e["false_negative"] == [], (tg, m.equations())
     assert errs["theta_dot"]["max_rel_error"] < 0.02
-    assert _k_q_error(m) < 0.02
+    assert k_q_error(m) < 0.02

@@ -3,16 +3,11 @@
 from __future__ import annotations
 
 import json
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_ident_noise import TRUTH
 
 from aeropend_ident.cli.identify import main
 from aeropend_ident.io.bag_writer import write_bag
@@ -20,6 +15,7 @@ from aeropend_sim.excitation import aprbs, density_modulated_prbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulate import simulate
+from bench.fixtures.sindy_case import TRUTH
 
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -9,31 +9,26 @@ at none/50/30/20 dB: bench/results/sindy_oe.md.
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import pytest
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_ident_noise import TRUTH, _data, _fit
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.sindy.model import structure_errors
 from aeropend_ident.sindy.output_error import refine_output_error
+from bench.fixtures.sindy_case import TRUTH, case_data, weak_iv_fit
 
 OE = ("i_a", "omega_rotor")
 
 
 @pytest.fixture(scope="module")
 def clean():
-    data = _data(None)
-    return data, _fit(data)
+    data = case_data(None)
+    return data, weak_iv_fit(data)
 
 
 @pytest.fixture(scope="module")
 def noisy50():
-    data = _data(50.0, seed=7)
-    return data, _fit(data, output_error=OE)
+    data = case_data(50.0, seed=7)
+    return data, weak_iv_fit(data, output_error=OE)
 
 
 def test_noise_free_not_degraded(clean) -> None:

@@ -22,7 +22,6 @@ Etchepareborda random binary (70/30)       0.0885           replayed on steps 0/
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -30,9 +29,7 @@ import pytest
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.sindy.core import fit
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from real_cases import (
+from bench.fixtures.real_cases import (
     YANGZHU_STATED,
     aeroshield_case,
     etchepareborda_case,
@@ -41,7 +38,7 @@ from real_cases import (
     yangzhu_case,
 )
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
 
 pytestmark = [
     pytest.mark.skipif(not REAL.is_dir(), reason=f"real data folder {REAL} is missing"),

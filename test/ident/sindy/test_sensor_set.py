@@ -2,31 +2,25 @@
 
 The pendulum equation is fitted in the second-order weak form (θ̈ and θ̇ integrated onto the test
 functions) from the recorded angle alone, with the physics-structured library (no direct i_a or
-v_a in θ̈). Truth: the independent plant ``bench/truth_plant.py`` (no aeropend code) driven by
+v_a in θ̈). Truth: the independent plant ``bench/fixtures/truth_plant.py`` (no aeropend code) driven by
 ``density_prbs`` (120 s, seed 5), noise σ = RMS/10^(SNR/20) on θ, i_a, v_a, ω₁; no θ̇ channel.
 """
 
 from __future__ import annotations
 
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-BENCH = Path(__file__).resolve().parents[1] / "bench"
-sys.path.insert(0, str(BENCH))
-
-import truth_plant as tp  # noqa: E402
-from truth_support import lab_rig_doc, write_rig  # noqa: E402
-
-from aeropend_ident.errors import IdentificationError  # noqa: E402
-from aeropend_ident.sindy.libraries import lagged_square, pendulum_library, physics_structured_library  # noqa: E402
-from aeropend_ident.sindy.model import IdentData  # noqa: E402
-from aeropend_ident.sindy.second_order import fit_pendulum  # noqa: E402
-from aeropend_ident.sindy.weak_quadrature import SecondOrderTestFunctions  # noqa: E402
-from aeropend_sim.excitation import density_modulated_prbs  # noqa: E402
+from aeropend_ident.errors import IdentificationError
+from aeropend_ident.sindy.libraries import lagged_square, pendulum_library, physics_structured_library
+from aeropend_ident.sindy.model import IdentData
+from aeropend_ident.sindy.second_order import fit_pendulum
+from aeropend_ident.sindy.weak_quadrature import SecondOrderTestFunctions
+from aeropend_sim.excitation import density_modulated_prbs
+from bench.fixtures import truth_plant as tp
+from bench.fixtures.truth_rig import lab_rig_doc, write_rig
 
 P = tp.PlantParams()
 #: The true pendulum equation from the truth plant's physical parameters.

@@ -29,13 +29,21 @@ from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState, GetState
 from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
-from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop, wait_for_server
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_bridge.protocol import Duty, Enable
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
+from aeropend_sim.ros.harness import (
+    isolated_env,
+    node_command,
+    private_node,
+    random_domain,
+    reap,
+    stop,
+    wait_for_server,
+)
 from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(90)]

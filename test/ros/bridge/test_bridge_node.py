@@ -21,7 +21,6 @@ import pytest
 pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray
-from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
@@ -30,6 +29,7 @@ from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_bridge.protocol import Duty
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.params import load_rig
+from aeropend_sim.ros.harness import isolated_env, node_command, private_node, random_domain, reap, stop
 from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS, sample_from_msgs
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]

@@ -26,16 +26,16 @@ import pytest
 pytest.importorskip("rclpy")
 
 from diagnostic_msgs.msg import DiagnosticArray
-from ros_support import isolated_env, node_command, private_node, random_domain, reap, stop
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from aeropend_bridge.simavr_harness import read_pty_path
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.params import load_rig
+from aeropend_sim.ros.harness import isolated_env, node_command, private_node, random_domain, reap, stop
 from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[3]
 FW = ROOT / "firmware"
 
 pytestmark = [

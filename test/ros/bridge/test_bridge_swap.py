@@ -19,11 +19,10 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from ros_support import isolated_env, node_command, random_domain, stop
-
 from aeropend_bridge.bridge_core import Calibration
 from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_sim.params import load_rig
+from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, stop
 from aeropend_sim.simulate import PlantStepper
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]

@@ -19,8 +19,10 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from loop_support import closed_loop
-from ros_support import (
+from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
+from aeropend_control.strategies import Measurement, make_strategy
+from aeropend_sim.params import load_rig
+from aeropend_sim.ros.harness import (
     isolated_env,
     node_command,
     private_node,
@@ -30,11 +32,8 @@ from ros_support import (
     summary_count,
     wait_for_server,
 )
-
-from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
-from aeropend_control.strategies import Measurement, make_strategy
-from aeropend_sim.params import load_rig
 from aeropend_sim.simulate import PlantStepper
+from bench.fixtures.closed_loop import closed_loop
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(90)]
 
@@ -219,7 +218,7 @@ def test_a_live_pole_change_in_realtime_mode_is_designed_off_the_executor() -> N
     from aeropend_control.controller_node import ControllerNode
     from aeropend_control.strategies import base
 
-    rig = str(Path(__file__).resolve().parent / "data" / "gap_corrected_rig.yaml")
+    rig = str(Path(__file__).resolve().parents[2] / "data" / "gap_corrected_rig.yaml")
     ctx = rclpy.Context()
     rclpy.init(context=ctx, domain_id=random_domain())
     node = None
@@ -265,7 +264,7 @@ def test_a_lockstep_repeat_is_answered_again_only_for_a_reader_matched_since() -
     the plant's repeat arrives after an answer that is already on its way; answering the repeat too
     made the plant advance twice on one command, and the whole trajectory lagged one sample (CI
     failure of ``test_two_rigs_in_namespaces_each_with_its_controller``; reproducer
-    ``bench/repro_lockstep_double_answer.py``). A repeat is answered again only when a duty reader
+    ``bench/repro/lockstep_double_answer.py``). A repeat is answered again only when a duty reader
     matched after the first answer: that reader (a late plant) may have missed it."""
     import rclpy
     from rclpy.executors import SingleThreadedExecutor

@@ -17,11 +17,11 @@ import math
 import time
 
 import pytest
-from ros_support import isolate_process, random_domain
 
 from aeropend_ident.cli.gap import main as gap_main
 from aeropend_ident.pipeline import DEFAULT_SIGNAL, run_graph
 from aeropend_sim.params import load_rig
+from aeropend_sim.ros.harness import isolate_process, random_domain
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 

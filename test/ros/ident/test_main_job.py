@@ -7,12 +7,12 @@ import os
 
 import numpy as np
 import pytest
-from ros_support import isolate_process, random_domain
 from rosbags.highlevel import AnyReader
 
 from aeropend_ident.cli.pipeline import main
 from aeropend_ident.io.bag_codec import typestore
 from aeropend_ident.io.bags import read_bag
+from aeropend_sim.ros.harness import isolate_process, random_domain
 
 pytestmark = pytest.mark.ros
 

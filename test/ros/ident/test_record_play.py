@@ -16,12 +16,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from ros_support import isolated_env, node_command, private_node, random_domain, stop
 
 from aeropend_ident.io.bag_writer import write_bag
 from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.recording import Recording
+from aeropend_sim.ros.harness import isolated_env, node_command, private_node, random_domain, stop
 
 pytest.importorskip("rclpy")
 pytestmark = pytest.mark.ros

@@ -24,7 +24,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from ros_support import isolate_process, isolated_env, node_command, random_domain, reap, stop, summary_count
+
+from aeropend_sim.ros.harness import (
+    isolate_process,
+    isolated_env,
+    node_command,
+    random_domain,
+    reap,
+    stop,
+    summary_count,
+)
 
 pytest.importorskip("rclpy")
 

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pytest
 import yaml
-from ros_support import isolated_env, node_command, random_domain, reap, stop
+
+from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap, stop
 
 pytest.importorskip("rclpy")
 

@@ -19,17 +19,6 @@ import pytest
 
 pytest.importorskip("rclpy")
 
-from ros_support import (
-    frozen_gc,
-    isolate_process,
-    isolated_env,
-    node_command,
-    private_node,
-    random_domain,
-    reap,
-    stop,
-    wait_for_server,
-)
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
@@ -42,6 +31,17 @@ from aeropend_sim.contract import (
 )
 from aeropend_sim.excitation import prbs
 from aeropend_sim.params import load_rig, shipped_rigs
+from aeropend_sim.ros.harness import (
+    frozen_gc,
+    isolate_process,
+    isolated_env,
+    node_command,
+    private_node,
+    random_domain,
+    reap,
+    stop,
+    wait_for_server,
+)
 from aeropend_sim.ros.ros_contract import (
     COMMAND_QOS,
     SAMPLE_QOS_LOCKSTEP,
@@ -134,7 +134,7 @@ def test_realtime_rate_and_stamps(domain):
     # permitted): on a loaded 2-CPU machine normal scheduling loses 1-4 % of the wall-clock
     # samples to overruns (see bench/bench_sim_node.py), which this ±2 % check would catch.
     # the subscriber runs in the pytest process: its garbage collector must not stall it
-    # (bench/repro_subscriber_heap.py; failed twice on fresh clones before, 1249 of ~1709 received)
+    # (bench/repro/subscriber_heap.py; failed twice on fresh clones before, 1249 of ~1709 received)
     with plant(domain, "mode:=realtime", "rt_priority:=20") as proc, client(domain, lockstep=False) as c:
         assert c.spin_until(lambda: len(c.js) > 0, 20.0), "no sample within 20 s"
         with frozen_gc() as gc_pauses:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from component_rigs import rig as family_rig
 
 from aeropend_ident.errors import GapError, IdentificationError
 from aeropend_ident.gap import drift, synth
@@ -20,6 +19,7 @@ from aeropend_ident.gap.effects import EFFECTS, EffectContext, catalog, drift_on
 from aeropend_ident.greybox.fit import parameter_spec
 from aeropend_sim.components import registry
 from aeropend_sim.params import load_rig
+from bench.fixtures.component_rigs import rig as family_rig
 
 FAMILIES = [f.name for f in registry.families()]
 

@@ -11,7 +11,6 @@ import math
 
 import numpy as np
 import pytest
-from component_rigs import rig as family_rig
 
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import INPUTS, SECTIONS, SLOT_INPUTS, SLOTS, Effect
@@ -19,6 +18,7 @@ from aeropend_sim.components.xp import MATH, NUMPY, OPERATIONS
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.simulate import simulate
+from bench.fixtures.component_rigs import rig as family_rig
 
 #: One row per effect: parameter values at which switching it on clearly changes the response.
 ROWS: dict[str, dict[str, float]] = {
@@ -190,15 +190,11 @@ def test_esc_map_equilibrium_and_limits():
 def test_docs_tables_are_generated_from_the_registry():
     """docs/model.md's families, slots, components, effects and parameters tables and docs/gap.md's
     catalog table are current (rewrite them with ``python tools/gen_model_tables.py``)."""
-    import sys
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
-    sys.path.insert(0, str(root / "tools"))
-    try:
-        from gen_model_tables import FILES, render
-    finally:
-        sys.path.pop(0)
+    from tools.gen_model_tables import FILES, render
+
+    root = Path(__file__).resolve().parents[3]
     for name, tables in FILES.items():
         _, stale = render((root / "docs" / name).read_text(encoding="utf-8"), tables)
         assert not stale, f"docs/{name}: stale table(s) {stale}; run tools/gen_model_tables.py"

@@ -9,7 +9,6 @@ import time
 
 import numpy as np
 import pytest
-from ros_support import isolate_process, isolated_env, node_command, private_node, random_domain, reap, stop
 
 from aeropend_sim.excitation import ExcitationError, lhs_steps, make_signal, staircase
 from aeropend_sim.params import shipped_rigs
@@ -19,6 +18,15 @@ from aeropend_sim.ros.excitation_node import (
     resolve_config,
     ros_param_overrides,
     strip_ros_args,
+)
+from aeropend_sim.ros.harness import (
+    isolate_process,
+    isolated_env,
+    node_command,
+    private_node,
+    random_domain,
+    reap,
+    stop,
 )
 
 RIG = "thesis_rig" if "thesis_rig" in shipped_rigs() else "thesis_sim"

@@ -1,13 +1,24 @@
-"""Shared scaffolding of the multi-process ROS 2 tests and benchmarks (no test in here).
+"""Run ROS 2 nodes as processes on a private domain and read what they report (no rclpy at import).
 
-One place for what every real multi-process test repeats: a private ROS domain with
-localhost-only discovery, the command line of a node's console script, stopping a node with a
-signal and collecting its output, killing whatever is still running in a ``finally`` block,
-parsing a node's shutdown ``summary: key=value ...`` line, and an rclpy node on its own context
-in the test process.
+The process harness of aeropend's multi-process tests, its benchmarks and the main job
+(:mod:`aeropend_ident.pipeline`), and of a lab's own integration tests of its node graph: a
+private ROS domain with localhost-only discovery (claimed, so concurrent runs on one host never
+share it: :mod:`aeropend_sim.ros.domain`), the command line of a node's console script, stopping a
+node with a signal and collecting its output, killing whatever is still running in a ``finally``
+block, parsing a node's shutdown ``summary: key=value ...`` line, an rclpy node on its own context
+in the calling process, and waiting until a service answers both ways.
 
-rclpy is imported only inside :func:`private_node`, so test files that skip without rclpy can
-import this module. Benchmarks import it after ``sys.path.insert(0, str(ROOT / "test"))``.
+rclpy is imported only inside :func:`private_node`, so a process without ROS can import this
+module (the main job's analysis half, tests that skip without rclpy). Example::
+
+    from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, stop, summary_fields
+
+    env = isolated_env(random_domain())
+    plant = subprocess.Popen([*node_command("sim_node"), "--ros-args", "-p", "rig:=thesis_rig"],
+                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    ...
+    done = stop(plant)                     # SIGTERM, wait, collect the output
+    summary_fields(done.stdout)["samples"]  # e.g. "2448"
 """
 
 from __future__ import annotations
@@ -22,9 +33,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING
-
-import pytest
+from typing import TYPE_CHECKING, Protocol
 
 from aeropend_sim.ros.domain import DomainClaim, DomainError, claim_domain
 
@@ -32,6 +41,12 @@ if TYPE_CHECKING:
     from rclpy.client import Client
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.node import Node
+
+class SetEnv(Protocol):
+    """Anything that sets an environment variable (pytest's ``monkeypatch``)."""
+
+    def setenv(self, name: str, value: str) -> None: ...
+
 
 #: Folder of the running interpreter: the venv's ``bin`` holding the console scripts.
 BIN = Path(sys.executable).parent
@@ -92,11 +107,16 @@ def isolated_env(domain: int) -> dict[str, str]:
     return dict(os.environ, ROS_DOMAIN_ID=str(domain), PYTHONUNBUFFERED="1", **DISCOVERY)
 
 
-def isolate_process(monkeypatch: pytest.MonkeyPatch, domain: int) -> None:
-    """Put the test process itself (and children started with ``os.environ``) on ``domain``.
+def isolate_process(monkeypatch: SetEnv, domain: int) -> None:
+    """Put the calling process itself (and children started with ``os.environ``) on ``domain``.
 
-    Sets ``ROS_DOMAIN_ID`` and localhost-only discovery through ``monkeypatch``, so both are
-    undone after the test.
+    Parameters
+    ----------
+    monkeypatch : object with ``setenv(name, value)``
+        Where the variables are set: pytest's ``monkeypatch`` fixture, so both are undone after
+        the test.
+    domain : int
+        ROS_DOMAIN_ID, e.g. from :func:`random_domain`.
     """
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     for key, value in DISCOVERY.items():
@@ -104,32 +124,40 @@ def isolate_process(monkeypatch: pytest.MonkeyPatch, domain: int) -> None:
 
 
 def node_command(name: str, module: str | None = None) -> list[str]:
-    """Command line that starts the console script ``name`` of the running venv.
+    """Command line that starts the console script ``name``.
+
+    Looked up next to the running interpreter first (the venv's ``bin``, where
+    ``scripts/setup_env.sh`` installs the packages), then as ``python -m module`` when ``module``
+    is given, then on ``PATH`` (a sourced colcon ``install/setup.bash``).
 
     Parameters
     ----------
     name : str
-        Console script (``sim_node``, ``controller``, ``bridge``, ``excitation``, ``record``).
+        Console script (``sim_node``, ``controller``, ``bridge``, ``excitation``, ``record``, ...).
     module : str, optional
         Module to run with ``python -m`` when the script is not installed next to
-        ``sys.executable``. Without it the calling test is skipped instead.
+        ``sys.executable``.
 
     Returns
     -------
     list[str]
-        ``[<bin>/name]`` or ``[sys.executable, "-m", module]``.
+        ``[<bin>/name]``, ``[sys.executable, "-m", module]`` or ``[<PATH entry>/name]``.
 
     Raises
     ------
-    pytest.skip.Exception
-        If the script is missing and no ``module`` is given.
+    FileNotFoundError
+        If the script is found nowhere and no ``module`` is given.
     """
     exe = shutil.which(name, path=str(BIN))
     if exe is not None:
         return [exe]
     if module is not None:
         return [sys.executable, "-m", module]
-    pytest.skip(f"console script {name!r} not installed in {BIN}")
+    exe = shutil.which(name)
+    if exe is not None:
+        return [exe]
+    raise FileNotFoundError(f"console script {name!r} is neither in {BIN} nor on PATH: run "
+                            "scripts/setup_env.sh or source install/setup.bash")
 
 
 def stop(proc: subprocess.Popen, sig: int = signal.SIGTERM, timeout: float = 10.0, *,
@@ -232,12 +260,13 @@ def summary_count(text: str, key: str) -> int:
 
     Raises
     ------
-    AssertionError
+    ValueError
         If there is no summary line or it has no integer ``key=`` field (message shows the
         end of ``text``).
     """
     value = summary_fields(text).get(key)
-    assert value is not None and value.isdigit(), f"no '{key}=' in summary of:\n{text[-2000:]}"
+    if value is None or not value.isdigit():
+        raise ValueError(f"no integer '{key}=' in the summary line of:\n{text[-2000:]}")
     return int(value)
 
 
@@ -307,7 +336,7 @@ def frozen_gc() -> Iterator[list[float]]:
 
     Late in a full test run the pytest process holds millions of objects; a generation-2
     collection scans them all for hundreds of milliseconds, during which an in-process subscriber
-    takes no samples and its best-effort queue overflows (``bench/repro_subscriber_heap.py``:
+    takes no samples and its best-effort queue overflows (``bench/repro/subscriber_heap.py``:
     543-653 ms and 10-12 % of the samples lost with 8 million objects). ``gc.freeze()`` moves the
     existing heap to the permanent generation, as ``sim_node`` and the controller do for their
     real-time threads; the collector still runs on new objects.
@@ -337,7 +366,7 @@ def wait_for_server(client: Client, executor: SingleThreadedExecutor, probe: obj
     discovered the client's response reader, its ``rmw_send_response`` waits 100 ms for it and
     then drops the response ("failed to send response ... client will not receive response",
     ros2/rmw_fastrtps#390/#467): the first request after a client's creation can go unanswered
-    on a loaded machine (``bench/repro_param_service.py``: 1 in 150 under load). So after
+    on a loaded machine (``bench/repro/param_service.py``: 1 in 150 under load). So after
     ``wait_for_service`` an **idempotent, state-free** ``probe`` request (an empty
     ``GetParameters`` / ``SetParameters``, a ``GetState``) is sent until one is answered — each
     probe answered or re-sent after ``resend_s`` — which proves the server has matched this
@@ -362,11 +391,12 @@ def wait_for_server(client: Client, executor: SingleThreadedExecutor, probe: obj
 
     Raises
     ------
-    AssertionError
+    TimeoutError
         If the service is not available or no probe is answered within ``timeout``.
     """
     end = time.monotonic() + timeout
-    assert client.wait_for_service(timeout_sec=timeout), f"no service {client.srv_name}"
+    if not client.wait_for_service(timeout_sec=timeout):
+        raise TimeoutError(f"no service {client.srv_name} within {timeout} s")
     lost = 0
     while time.monotonic() < end:
         future = client.call_async(probe)
@@ -377,4 +407,4 @@ def wait_for_server(client: Client, executor: SingleThreadedExecutor, probe: obj
             return lost
         client.remove_pending_request(future)
         lost += 1
-    raise AssertionError(f"{client.srv_name}: no probe answered within {timeout} s ({lost} lost)")
+    raise TimeoutError(f"{client.srv_name}: no probe answered within {timeout} s ({lost} lost)")

@@ -271,7 +271,7 @@ class SimPlantNode(Node):
         Runs on the executor thread, so the sampler's loop holds no logging code. It does not make
         the plant immune to a console nobody reads: rclpy's log call keeps the GIL while it writes,
         so a full stderr pipe freezes every thread of the process (docs/data_plane.md,
-        ``bench/repro_unread_stderr.py``). Whoever starts the node must read its output (launch,
+        ``bench/repro/unread_stderr.py``). Whoever starts the node must read its output (launch,
         a terminal, the main job's log files).
         """
         sched = self.schedule
