@@ -362,8 +362,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     lines = [
         "# Independent closed-loop benchmark (bench/bench_control_independent.py)", "",
         f"{s['plants']} plants × {len(STRATEGIES)} strategies × {len(REFERENCES)} references, "
-        f"{HORIZON_S:g} s steps from rest; truth plant `bench/fixtures/truth_plant.py` stepped sample by sample "
-        f"(no aeropend_sim code), controller `ControllerLoop` in lock-step; metrics on the true θ "
+        f"{HORIZON_S:g} s steps from rest; truth plant `bench/fixtures/truth_plant.py` stepped sample by "
+        f"sample (no aeropend_sim code), controller `ControllerLoop` in lock-step; metrics on the true θ "
         f"(2 % band). {m['workers']} worker(s), {m['wall_s']:.0f} s wall, load average "
         f"{m['load_before']} before / {m['load_after']} after, {m['machine']}. Commit {m['commit']}.", "",
         "Effects of every plant, all at once, uniform over: "

@@ -250,7 +250,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     lines = [
         "# Gap calibration benchmark (issue 16)",
         "",
-        f"{s['cases']} two-session cases (of {doc['setup']['cases']} listed) from `bench/fixtures/truth_plant.py`; "
+        f"{s['cases']} two-session cases (of {doc['setup']['cases']} listed) from "
+        "`bench/fixtures/truth_plant.py`; "
         f"{s['errors']} refused; median "
         f"{s['median_elapsed_s']:.0f} s per case; {doc['setup']['cpus']} CPUs, {doc['setup']['workers']} "
         f"worker(s); load average {doc['setup'].get('load_start', '?')} at the start, "

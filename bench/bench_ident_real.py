@@ -1,7 +1,7 @@
 """Sparse identification on real recordings, validated on held-out data (issue 4, item 10).
 
-Runs :mod:`real_cases` (``bench/fixtures/real_cases.py``) on the AeroShield APRBS run, the four BA-Etchepareborda
-open-loop runs and the YangZhu Quanser AERO pitch step (data read from ``../shared/data/real``,
+Runs :mod:`bench.fixtures.real_cases` on the AeroShield APRBS run, the four BA-Etchepareborda open-loop
+runs and the YangZhu Quanser AERO pitch step (data read from ``../shared/data/real``,
 never copied), and the grey-box baseline on AeroShield for comparison. Writes
 ``bench/results/ident_real.json`` and ``.md`` and plots ``docs/results/ident_<case>_{coef,deriv,
 freerun}.png``. About 3-4 minutes on two cores.

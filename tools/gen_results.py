@@ -67,6 +67,7 @@ own, the values of all of them together.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import re
@@ -414,7 +415,7 @@ def _scripts(command: str) -> list[str]:
     ``scripts/x.sh``) and modules run with ``-m`` (``-m bench.repro.x`` -> ``bench/repro/x.py``)."""
     tokens = command.split()
     out = [t for t in tokens if SCRIPT.match(t)]
-    for flag, module in zip(tokens, tokens[1:], strict=False):
+    for flag, module in itertools.pairwise(tokens):
         if flag == "-m" and MODULE.match(module):
             out.append(module.replace(".", "/") + ".py")
     return out
