@@ -19,6 +19,16 @@ Rules (each violation is printed as ``file:line: message``; exit status 1 if any
   lines, measured from the ``def`` line (decorators excluded) to its last line.
 * **Package width.** More than ``--max-modules`` ``.py`` files directly in one package folder
   (``__init__.py`` not counted).
+* **Own package ``__init__``.** A module imports a name from the ``__init__`` of a package it
+  belongs to (``from aeropend_sim import load_rig`` inside ``aeropend_sim``): the ``__init__`` files
+  re-export the public API, so such an import is a cycle waiting to happen and loads the whole
+  API; submodules import their siblings directly.
+* **Layering** (docs/architecture.md): inside a package of :data:`LAYERS`, a module of one part
+  (the first name below the package: ``aeropend_ident.gap``, ``aeropend_sim.params``) imports
+  only the parts its row allows; across packages, :data:`SIMULATOR` modules are imported by their
+  own package only; ``rclpy`` and ``aeropend_sim.ros`` are imported only by the ROS shell
+  (:data:`ROS_SHELL`: the nodes) and ``aeropend_sim.ros`` also by :data:`PROCESS_RUNNERS` (modules
+  that run nodes as processes). The rows apply to the packages present under ``--root``.
 
 Plain Python (``ast``), no dependencies.
 """
@@ -27,10 +37,53 @@ from __future__ import annotations
 
 import argparse
 import ast
+import re
 import sys
 from pathlib import Path
 
 DEFAULT_ROOT = Path(__file__).resolve().parents[1] / "src"
+
+#: Any part of the package (the ROS shell of aeropend_sim may import all of its library).
+ANY = "*"
+#: Layering inside a package: part -> the other parts of the same package it may import
+#: (docs/architecture.md, "Layering"). Every part of a listed package needs a row.
+LAYERS: dict[str, dict[str, set[str] | str]] = {
+    "aeropend_ident": {
+        "cli": {"gap", "sindy", "greybox", "io", "pipeline", "errors"},
+        "pipeline": {"greybox", "io", "errors"},
+        "gap": {"sindy", "greybox", "io", "errors"},
+        "sindy": {"io", "errors"},
+        "greybox": {"io", "errors"},
+        "nodes": {"io", "errors"},
+        "io": {"errors"},
+        "errors": set(),
+    },
+    "aeropend_sim": {
+        # the ROS shell: sim_node, excitation_node, node lifecycle, usage, QoS, domains, harness
+        "ros": ANY,
+        # the simulator: the plant node's functional core, the robot description
+        "sim_core": {"simulate", "params", "components", "contract"},
+        "description": {"params", "components", "contract"},
+        # the shared core: plant library, rig files, topic contract, recordings, result folders
+        "excitation": {"contract"},
+        "simulate": {"compiled", "model", "params", "components"},
+        "compiled": {"model", "params", "components"},
+        "model": {"params", "components"},
+        "params": {"components"},
+        "recording": {"contract"},
+        "recording_frame": set(),
+        "output_folder": set(),
+        "contract": set(),
+        "components": set(),
+    },
+}
+#: Modules of the simulator that only their own package imports (the other packages use the core).
+SIMULATOR = ("aeropend_sim.sim_core", "aeropend_sim.description", "aeropend_sim.ros.sim_node",
+             "aeropend_sim.ros.excitation_node")
+#: The ROS shell: the only modules that import rclpy (functional core, ROS shell).
+ROS_SHELL = re.compile(r"^aeropend_sim\.ros(\.|$)|^aeropend_\w+\.nodes(\.|$)|^aeropend_\w+\.\w+_node$")
+#: Modules that run nodes as processes (no rclpy): they may import aeropend_sim.ros (domain, harness).
+PROCESS_RUNNERS = ("aeropend_ident.pipeline",)
 
 
 def _module_name(path: Path) -> str:
@@ -131,6 +184,57 @@ def _cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
     return out
 
 
+def _external(path: Path) -> dict[str, int]:
+    """Top-level names of every module ``path`` imports (absolute imports), each with its first line."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    found: dict[str, int] = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                found.setdefault(alias.name.split(".")[0], node.lineno)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.setdefault(node.module.split(".")[0], node.lineno)
+    return found
+
+
+def _own_init(name: str, targets: dict[str, int], modules: dict[str, Path]) -> list[str]:
+    """Imports of ``name`` from the ``__init__`` of a package ``name`` belongs to."""
+    parts = name.split(".")
+    own = {".".join(parts[:i]) for i in range(1, len(parts))}
+    return [f"{modules[name]}:{line}: {name} imports from its own package's __init__ ({target}): "
+            "import the submodule that defines the name" for target, line in sorted(targets.items())
+            if target in own and modules[target].name == "__init__.py"]
+
+
+def _layering(name: str, targets: dict[str, int], modules: dict[str, Path]) -> list[str]:
+    """Violations of :data:`LAYERS`, :data:`SIMULATOR`, :data:`ROS_SHELL` by module ``name``."""
+    path = modules[name]
+    parts = name.split(".")
+    out = []
+    rows = LAYERS.get(parts[0])
+    for target, line in sorted(targets.items()):
+        tparts = target.split(".")
+        where = f"{path}:{line}: {name} imports {target}"
+        if rows is not None and len(parts) > 1 and tparts[0] == parts[0] and len(tparts) > 1 \
+                and tparts[1] != parts[1]:
+            allowed = rows.get(parts[1])
+            if allowed is None:
+                out.append(f"{where}: {parts[0]}.{parts[1]} has no row in check_layout.LAYERS: "
+                           "add it (and to docs/architecture.md)")
+            elif allowed != ANY and tparts[1] not in allowed:
+                out.append(f"{where}: {parts[0]}.{parts[1]} may import only "
+                           f"{', '.join(sorted(allowed)) or 'nothing'} of {parts[0]} (docs/architecture.md)")
+        if tparts[0] != parts[0] and any(target == m or target.startswith(m + ".") for m in SIMULATOR):
+            out.append(f"{where}: a module of the simulator, for aeropend_sim only (use the core)")
+        if target.startswith("aeropend_sim.ros") and not parts[0] == "aeropend_sim" \
+                and not ROS_SHELL.search(name) and name not in PROCESS_RUNNERS:
+            out.append(f"{where}: aeropend_sim.ros is for the ROS shell (nodes) only")
+    line = _external(path).get("rclpy")
+    if line is not None and not ROS_SHELL.search(name):
+        out.append(f"{path}:{line}: {name} imports rclpy outside the ROS shell (functional core, ROS shell)")
+    return out
+
+
 def check(root: Path, max_lines: int = 150, max_modules: int = 10) -> list[str]:
     """All layout violations under ``root``, one ``file:line: message`` string each.
 
@@ -157,6 +261,9 @@ def check(root: Path, max_lines: int = 150, max_modules: int = 10) -> list[str]:
                  for b, line in sorted(graph[a].items()) if b in members]
         problems.append(f"{modules[comp[0]]}:1: import cycle between {', '.join(comp)}: "
                         + "; ".join(edges))
+    for name in modules:
+        problems += _own_init(name, graph[name], modules)
+        problems += _layering(name, graph[name], modules)
     for name, path in modules.items():
         tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
         for node in ast.walk(tree):
