@@ -7,7 +7,7 @@ variants are written to temporary rig files), strategy and set point (0.2, 0.4, 
 private ROS domain and computes the step metrics of each run on three signals:
 
 * ``true``: the physical angle of the ROS run, recovered by replaying the duty sequence of the
-  controller's trace through :class:`~aeropend_sim.simulate.PlantStepper` (same rig file, seed 0
+  controller's trace through :class:`~aeropend_sim.simulation.PlantStepper` (same rig file, seed 0
   as the node; the replay's measured θ must equal the trace's θ sample by sample, checked and
   reported as ``replay_max_dev``). Table 6.1 and the goal are judged on this signal;
 * ``estimate``: the observer's θ̂ the controller published (``theta_hat``);
@@ -37,7 +37,7 @@ from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
 from aeropend_sim.model import THETA
 from aeropend_sim.params import Rig, save_rig
 from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 from bench.bench_control import BENCH_STRATEGIES, HORIZON_S, SETPOINTS, scenarios, time_optimal_bound
 
 OUT = Path(__file__).resolve().parent / "results" / "control_ros.json"

@@ -6,7 +6,7 @@ linear in the states with the input v_a = v_a(τ) (thesis Eq. 4.3). For a duty s
 script integrates the model and its output sensitivities ∂(i_a, ω₁)/∂p exactly over each
 zero-order-hold sample (matrix exponential of the augmented system), forms the Fisher
 information for white measurement noise on i_a and ω₁ with σ = RMS(signal)/10^(SNR/20) (the SNR
-definition of :func:`aeropend_sim.simulate.measure`) and reports the Cramér-Rao bound (1σ,
+definition of :func:`aeropend_sim.simulation.measure`) and reports the Cramér-Rao bound (1σ,
 relative) of every coefficient: the smallest standard error any unbiased estimator can reach
 on that record. The output-error refinement reaches it (its own standard errors in
 bench/results/sindy_oe*.md agree with these bounds to ~10 %).

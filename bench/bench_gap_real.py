@@ -62,7 +62,7 @@ from aeropend_ident.io.split import informative, interleaved_blocks, time_ordere
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real"

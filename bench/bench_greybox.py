@@ -29,7 +29,7 @@ from aeropend_ident.greybox.fit import GreyBoxResult, default_parameters, fit_gr
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 ROOT = Path(__file__).resolve().parent
 OUT = ROOT / "results" / "greybox.json"

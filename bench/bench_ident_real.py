@@ -90,7 +90,7 @@ def _thesis_sim_reference() -> dict[str, Any]:
     from aeropend_sim.excitation import aprbs
     from aeropend_sim.params import load_rig
     from aeropend_sim.recording import Recording
-    from aeropend_sim.simulate import simulate
+    from aeropend_sim.simulation import simulate
 
     rig = load_rig("thesis_sim")
     noisy = rig.with_effects(sensor_noise=True).with_params("sensors", snr_db=50)

@@ -48,7 +48,7 @@ def make_bag(path: Path) -> Path:
     from aeropend_sim.excitation import aprbs
     from aeropend_sim.params import load_rig
     from aeropend_sim.recording import Recording
-    from aeropend_sim.simulate import simulate
+    from aeropend_sim.simulation import simulate
 
     rig = load_rig("thesis_sim").with_effects(sensor_noise=True).with_params("sensors", snr_db=SNR_DB)
     traj = simulate(rig, aprbs(DURATION_S, **EXCITATION).duty, seed=NOISE_SEED)

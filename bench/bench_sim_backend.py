@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_sim.compiled.plant import CompiledPlant
-from aeropend_sim.simulate import PlantStepper, simulate, simulate_batch
+from aeropend_sim.simulation import PlantStepper, simulate, simulate_batch
 from bench.backends import study
 
 OUT = Path(__file__).resolve().parent / "results" / "sim_backend.json"

@@ -36,7 +36,7 @@ import numpy as np
 from aeropend_sim.contract import SAMPLE_PERIOD_S
 from aeropend_sim.params import load_rig, shipped_rigs
 from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap, stop, summary_fields
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 
 HERE = Path(__file__).resolve().parent
 

@@ -76,7 +76,7 @@ from aeropend_ident.sindy.model import (
 from aeropend_ident.sindy.preprocess import add_derivatives
 from aeropend_sim.excitation import aprbs, lhs_steps
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 ROOT = Path(__file__).resolve().parent
 OUT = ROOT / "results" / "sindy.json"

@@ -71,6 +71,18 @@ def test_too_many_modules_fails(tmp_path: Path) -> None:
     assert _run("--root", str(tmp_path)).returncode == 0
 
 
+def test_a_deprecated_reexport_does_not_count_but_code_in_it_does(tmp_path: Path) -> None:
+    """A module kept only for an old import path (docstring "Deprecated...", imports, ``__all__``,
+    the warning) is not one of the folder's modules; one with code of its own is."""
+    shim = '"""Deprecated: use fake.m0."""\nimport warnings\n\nfrom fake.m0 import X\n\n__all__ = ["X"]\n' \
+           'warnings.warn("old path", DeprecationWarning, stacklevel=2)\n'
+    pkg = _package(tmp_path, "fake", {**{f"m{i}": "X = 1\n" for i in range(10)}, "old": shim})
+    assert _run("--root", str(tmp_path)).returncode == 0
+    (pkg / "old.py").write_text(shim + "\n\ndef helper():\n    return 1\n", encoding="utf-8")
+    proc = _run("--root", str(tmp_path))
+    assert proc.returncode == 1 and "package folder has 11 modules (> 10)" in proc.stdout
+
+
 def test_source_tree_passes() -> None:
     """``src/``: no import cycle, no function over 150 lines, no package folder over 10 modules."""
     proc = _run()

@@ -18,7 +18,9 @@ Rules (each violation is printed as ``file:line: message``; exit status 1 if any
 * **Function length.** A ``def`` (any nesting, docstring included) longer than ``--max-lines``
   lines, measured from the ``def`` line (decorators excluded) to its last line.
 * **Package width.** More than ``--max-modules`` ``.py`` files directly in one package folder
-  (``__init__.py`` not counted).
+  (``__init__.py`` not counted, nor a deprecated re-export module kept for an old import path:
+  its docstring starts with "Deprecated" and it holds only imports, ``__all__`` and the
+  ``warnings.warn`` call).
 * **Own package ``__init__``.** A module imports a name from the ``__init__`` of a package it
   belongs to (``from aeropend_sim import load_rig`` inside ``aeropend_sim``): the ``__init__`` files
   re-export the public API, so such an import is a cycle waiting to happen and loads the whole
@@ -62,11 +64,12 @@ LAYERS: dict[str, dict[str, set[str] | str]] = {
         # the ROS shell: sim_node, excitation_node, node lifecycle, usage, QoS, domains, harness
         "ros": ANY,
         # the simulator: the plant node's functional core, the robot description
-        "sim_core": {"simulate", "params", "components", "contract"},
+        "sim_core": {"simulation", "params", "components", "contract"},
         "description": {"params", "components", "contract"},
         # the shared core: plant library, rig files, topic contract, recordings, result folders
         "excitation": {"contract"},
-        "simulate": {"compiled", "model", "params", "components"},
+        "simulation": {"compiled", "model", "params", "components"},
+        "simulate": {"simulation"},  # deprecated re-export of simulation (its old name)
         "compiled": {"model", "params", "components"},
         "model": {"params", "components"},
         "params": {"components"},
@@ -184,6 +187,24 @@ def _cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
     return out
 
 
+def is_deprecated_reexport(path: Path) -> bool:
+    """Whether ``path`` is a thin re-export module kept for an old import path (see the width rule)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    doc = ast.get_docstring(tree) or ""
+    if not doc.startswith("Deprecated"):
+        return False
+    for node in tree.body[1:]:
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            continue
+        if isinstance(node, ast.Assign) and [getattr(t, "id", None) for t in node.targets] == ["__all__"]:
+            continue
+        call = node.value if isinstance(node, ast.Expr) else None
+        if isinstance(call, ast.Call) and ast.unparse(call.func) == "warnings.warn":
+            continue
+        return False
+    return True
+
+
 def _external(path: Path) -> dict[str, int]:
     """Top-level names of every module ``path`` imports (absolute imports), each with its first line."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
@@ -274,7 +295,8 @@ def check(root: Path, max_lines: int = 150, max_modules: int = 10) -> list[str]:
                                     f"{length} lines (> {max_lines})")
     folders = sorted({p.parent for p in modules.values()})
     for folder in folders:
-        count = sum(1 for p in folder.glob("*.py") if p.name != "__init__.py")
+        count = sum(1 for p in folder.glob("*.py")
+                    if p.name != "__init__.py" and not is_deprecated_reexport(p))
         if count > max_modules:
             problems.append(f"{folder / '__init__.py'}:1: package folder has {count} modules "
                             f"(> {max_modules})")

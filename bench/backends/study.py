@@ -8,7 +8,7 @@ import contextlib
 import numpy as np
 
 from aeropend_sim.params import Rig, load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 #: Simulated span of one replay [s] (issue 37's bar: 60 s at 490 Hz).
 SPAN = 60.0
@@ -50,7 +50,7 @@ def inputs(dt: float, seed: int = 0) -> dict[str, np.ndarray]:
 
 
 def reference(rig: Rig, duty: np.ndarray) -> np.ndarray:
-    """LSODA states (N, 5) of today's :func:`aeropend_sim.simulate.simulate`."""
+    """LSODA states (N, 5) of today's :func:`aeropend_sim.simulation.simulate`."""
     return simulate(rig, duty).x
 
 

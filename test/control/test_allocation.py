@@ -10,7 +10,7 @@ import pytest
 from aeropend_control.allocation import EQ44, AllocationError, ModelAllocator, ThesisAllocator
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 RIG = load_rig("thesis_rig")
 

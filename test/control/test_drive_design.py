@@ -43,7 +43,7 @@ from aeropend_control.strategies import (
 )
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig, rig_from_dict, rig_to_dict
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 
 SPEC = PoleSpec(9.5)
 

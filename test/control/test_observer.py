@@ -12,7 +12,7 @@ from aeropend_control.observer import ObserverError, ObserverSpec, PendulumObser
 from aeropend_control.strategies import VelocityEstimator
 from aeropend_sim.model import THETA, THETA_DOT, PlantModel
 from aeropend_sim.params import Rig, load_rig
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 
 RIG = load_rig("thesis_rig")
 H = RIG.sample_period

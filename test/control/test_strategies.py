@@ -40,7 +40,7 @@ from aeropend_control.strategies import (
 )
 from aeropend_sim.model import OMEGA, THETA_DOT, PlantModel
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 
 RIG = load_rig("thesis_rig")
 SPEC = PoleSpec()  # ω_n 9 rad/s, ζ 0.7, ρ 1: poles −6.3 ± 6.427j, −9

@@ -284,7 +284,7 @@ def _simulated(rig_name: str, seconds: float, channels=("theta",)):
     from aeropend_sim.excitation import aprbs
     from aeropend_sim.params import load_rig
     from aeropend_sim.recording import Recording
-    from aeropend_sim.simulate import simulate
+    from aeropend_sim.simulation import simulate
 
     rig = load_rig(rig_name)
     sig = aprbs(seconds, lo=0.03, hi=0.3, min_hold=1.0, max_hold=3.0, seed=5, dt=rig.sample_period)

@@ -28,7 +28,7 @@ from aeropend_sim.components.xp import MATH, OPERATIONS
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.model import I_A, TAU_F, PlantModel
 from aeropend_sim.params import Rig, RigFileError, load_rig
-from aeropend_sim.simulate import PlantStepper, SimulationError, simulate, simulate_batch
+from aeropend_sim.simulation import PlantStepper, SimulationError, simulate, simulate_batch
 from bench.backends import study
 from bench.fixtures.component_rigs import rig as family_rig
 
@@ -166,7 +166,7 @@ def test_disk_cache_serves_a_new_process():
     simulate(rig, np.full(50, 0.5))  # compiled (or loaded) here: the cache files exist
     module = family_module(rig.family).__name__
     code = ("import json, time; t0 = time.process_time(); import numpy as np\n"
-            "from aeropend_sim.simulate import simulate\n"
+            "from aeropend_sim.simulation import simulate\n"
             "from aeropend_sim.compiled.source import family_module\n"
             "from bench.backends.study import all_effects_rig\n"
             "simulate(all_effects_rig(), np.full(50, 0.5))\n"

@@ -9,7 +9,7 @@ import pytest
 
 from aeropend_sim.model import I_A, OMEGA, TAU_F, THETA, THETA_DOT, ModelError, PlantModel
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import PlantStepper, SimulationError, simulate
+from aeropend_sim.simulation import PlantStepper, SimulationError, simulate
 
 RIG = load_rig("thesis_rig")
 SIM = load_rig("thesis_sim")

@@ -17,7 +17,7 @@ import yaml
 from aeropend_sim.components import registry
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import RigFileError, load_rig, rig_from_dict, rig_to_dict, save_rig, shipped_rigs
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 from bench.fixtures.component_rigs import ESC, doc, q
 from bench.fixtures.component_rigs import rig as family_rig
 

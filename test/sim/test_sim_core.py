@@ -20,7 +20,7 @@ from aeropend_sim.sim_core import (
     parse_initial_state,
     sample_stamp_ns,
 )
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 
 RIG = "thesis_rig" if "thesis_rig" in shipped_rigs() else "thesis_sim"
 

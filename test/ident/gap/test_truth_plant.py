@@ -52,7 +52,7 @@ def test_steady_state_matches_the_analytic_equilibrium():
 def test_agrees_with_aeropends_nominal_simulator():
     """Two implementations of the same equations (RK4 here, LSODA there) agree to 1e-5 rad."""
     from aeropend_sim.params import load_rig
-    from aeropend_sim.simulate import simulate
+    from aeropend_sim.simulation import simulate
 
     rig = load_rig("thesis_sim").with_effects(hbridge_map=False).with_params("actuator", v_supply=2.32)
     duty = tp.aprbs(10.0, seed=2)
@@ -138,7 +138,7 @@ def test_family_plants_agree_with_aeropend_on_the_labs_rig_file(family):
     """The lab's rig file of each hidden plant (its own quantities converted as a lab does: K_v and
     battery to ω_max, pulse widths to τ_0, C_T/C_Q to K_q/K_d, geometry to mgd/J and L/J) simulates
     the same plant: two implementations agree to 1e-5 of each channel's range."""
-    from aeropend_sim.simulate import simulate
+    from aeropend_sim.simulation import simulate
     from bench.fixtures import gap_families as gf
 
     fam = {"esc": gf.ESC, "voltage_amplifier": gf.AMPLIFIER}[family]

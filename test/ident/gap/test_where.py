@@ -25,7 +25,7 @@ from aeropend_ident.gap.where import (
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 DT = 0.01
 RIG = load_rig("thesis_rig")

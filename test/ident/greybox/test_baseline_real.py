@@ -34,7 +34,7 @@ from aeropend_ident.io.csv_import import import_csv
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
 AEROSHIELD = REAL / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"

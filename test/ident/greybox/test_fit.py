@@ -22,7 +22,7 @@ from aeropend_sim.excitation import aprbs
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 DT = 0.01
 #: Quasi-static armature: the thesis rig at 100 Hz (the fit only sees θ).

@@ -16,7 +16,7 @@ from aeropend_ident.greybox.static import (
     v_per_rpm_to_si,
 )
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 # Thesis Table 4.1: stall armature voltage [V] and current [A] (21 rows, as printed).
 TABLE_41_VA = [0.48, 0.60, 0.29, 1.42, 1.47, 0.35, 0.89, 0.74, 1.31, 1.54, 0.78, 1.58, 0.79, 0.99, 1.76,

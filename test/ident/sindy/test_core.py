@@ -26,7 +26,7 @@ from aeropend_ident.sindy.model import IdentData, data_from_trajectory, free_run
 from aeropend_ident.sindy.preprocess import add_derivatives
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 RIG = load_rig("thesis_sim")
 KT_JM = RIG.motor.K_t / RIG.motor.J_m

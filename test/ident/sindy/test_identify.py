@@ -14,7 +14,7 @@ from aeropend_ident.io.bag_writer import write_bag
 from aeropend_sim.excitation import aprbs, density_modulated_prbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 from bench.fixtures.sindy_case import TRUTH
 
 PNG = b"\x89PNG\r\n\x1a\n"

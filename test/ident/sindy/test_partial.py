@@ -18,7 +18,7 @@ from aeropend_ident.sindy.partial import (
 from aeropend_sim.excitation import aprbs, lhs_steps
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 
 def test_thesis_rig_pendulum_from_angle_only_at_50db() -> None:

@@ -23,7 +23,7 @@ from aeropend_ident.sindy.model import NoEquationError, data_from_trajectory
 from aeropend_ident.sindy.preprocess import add_derivatives
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 VARIABLES = ["theta", "theta_dot", "i_a", "omega_rotor", "v_a"]
 TARGETS = ["theta_dot", "i_a", "omega_rotor"]

@@ -23,7 +23,7 @@ from aeropend_bridge.bridge_core import Calibration
 from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_sim.params import load_rig
 from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, stop
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
 REF = 0.4

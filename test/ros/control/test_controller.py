@@ -32,7 +32,7 @@ from aeropend_sim.ros.harness import (
     summary_count,
     wait_for_server,
 )
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 from bench.fixtures.closed_loop import closed_loop
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(90)]

@@ -49,7 +49,7 @@ from aeropend_sim.ros.ros_contract import (
     sample_from_msgs,
 )
 from aeropend_sim.sim_core import to_sample
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 
 pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
 

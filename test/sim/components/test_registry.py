@@ -17,7 +17,7 @@ from aeropend_sim.components.base import INPUTS, SECTIONS, SLOT_INPUTS, SLOTS, E
 from aeropend_sim.components.xp import MATH, NUMPY, OPERATIONS
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig, RigFileError
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 from bench.fixtures.component_rigs import rig as family_rig
 
 #: One row per effect: parameter values at which switching it on clearly changes the response.

@@ -90,7 +90,7 @@ from aeropend_ident.sindy.model import IdentData
 from aeropend_sim.model import ModelError, PlantModel
 from aeropend_sim.params import Rig, rig_to_dict
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import SimulationError, simulate
+from aeropend_sim.simulation import SimulationError, simulate
 
 #: Channels compared in the output-error fits (when recorded).
 FIT_CHANNELS = ("theta", "i_a", "v_a", "omega_rotor")

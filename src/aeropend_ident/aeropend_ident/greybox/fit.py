@@ -2,7 +2,7 @@
 
 The plant model of :mod:`aeropend_sim.model` is fitted to a recording by **output error**: the
 model is simulated in free run (no state resets) with the recording's duty-cycle input through
-:func:`aeropend_sim.simulate.simulate`, and the selected parameters minimise
+:func:`aeropend_sim.simulation.simulate`, and the selected parameters minimise
 
     ½ Σ_k (θ_sim(t_k) − θ_rec(t_k))²          [rad²]
 
@@ -80,7 +80,7 @@ from aeropend_sim.model import ModelError, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.recording import Recording
 from aeropend_sim.recording_frame import FrameError, RecordingFrame, read_recording_frame
-from aeropend_sim.simulate import SimulationError, simulate
+from aeropend_sim.simulation import SimulationError, simulate
 
 #: Name of the angle-offset parameter: θ_model = θ_recorded + θ_offset [rad].
 THETA_OFFSET = "theta_offset"
@@ -648,7 +648,7 @@ def free_run_theta(
     Raises
     ------
     IdentificationError
-        If the simulation fails (wrapped :class:`~aeropend_sim.simulate.SimulationError`).
+        If the simulation fails (wrapped :class:`~aeropend_sim.simulation.SimulationError`).
     """
     x0 = initial_state(rig, data.theta, data.duty, data.dt, theta_offset, theta_dot0, theta0)
     try:

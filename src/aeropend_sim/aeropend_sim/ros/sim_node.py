@@ -1,7 +1,7 @@
 """Simulated aeropendulum plant node ``aeropend_sim`` (console script ``sim_node``).
 
 Publishes the contract sample topics (``/aeropend/joint_states`` + ``/aeropend/armature``, same
-stamp, see :mod:`aeropend_sim.contract`) from a :class:`~aeropend_sim.simulate.PlantStepper`
+stamp, see :mod:`aeropend_sim.contract`) from a :class:`~aeropend_sim.simulation.PlantStepper`
 and subscribes the duty-cycle command ``/aeropend/duty_cycle``. A drop-in replacement for the
 hardware bridge.
 
