@@ -2,8 +2,8 @@
 
 Usage::
 
-    python bench/bench_bridge_decode.py                # decode throughput of valid sample frames
-    python bench/bench_bridge_decode.py --fuzz 1000000 # 1e6 random inputs: no exception escapes
+    python -m bench.bench_bridge_decode                # decode throughput of valid sample frames
+    python -m bench.bench_bridge_decode --fuzz 1000000 # 1e6 random inputs: no exception escapes
 
 Writes ``bench/results/bridge_decode.json`` with ``--save``.
 """

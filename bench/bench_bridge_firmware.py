@@ -8,7 +8,7 @@ measured by the harness (CSn low -> first CLK fall, shortest CLK half period, re
 undisturbed / with nested UART interrupts), the emulated sample rate and the wall-clock speed
 of the emulation.
 
-    python bench/bench_bridge_firmware.py [--seconds 3] [--save]
+    python -m bench.bench_bridge_firmware [--seconds 3] [--save]
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Runs the pty fake MCU (490.2 frames/s) and the bridge node in a subprocess for ``--seconds``,
 subscribes to ``/aeropend/joint_states`` and reads the bridge's CPU time from /proc.
 
-    python bench/bench_bridge_node.py --seconds 10 [--save]
+    python -m bench.bench_bridge_node --seconds 10 [--save]
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -22,10 +21,8 @@ from sensor_msgs.msg import JointState
 
 from aeropend_bridge.fake_mcu import FakeMcu
 from aeropend_sim.contract import TOPIC_JOINT_STATES
+from aeropend_sim.ros.harness import isolated_env, node_command, private_node, random_domain, stop
 from aeropend_sim.ros.ros_contract import SAMPLE_SUB_QOS
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-from ros_support import isolated_env, node_command, private_node, random_domain, stop
 
 
 def _cpu_s(pid: int) -> float:

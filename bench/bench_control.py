@@ -2,8 +2,8 @@
 
 Each registered strategy (:mod:`aeropend_control.strategies`) that needs no extra setting × steps
 from rest (θ = 0) to 0.2, 0.4 and 0.7 rad, 4 s, controller at every 2.048 ms sample, plant simulated by
-:class:`aeropend_sim.simulate.PlantStepper` (the same stepper the lock-step ``sim_node`` runs;
-``test/test_control_ros.py`` checks that the ROS loop reproduces this loop sample by sample).
+:class:`aeropend_sim.simulation.PlantStepper` (the same stepper the lock-step ``sim_node`` runs;
+``test/ros/control/test_controller.py`` checks that the ROS loop reproduces this loop sample by sample).
 Scenarios:
 
 * ``nominal``: the nominal ``thesis_rig``;
@@ -26,7 +26,7 @@ The same cells over ROS: ``bench/bench_control_ros.py``. Plots of θ and τ per 
 ``bench/results/control_<scenario>.png``.
 
 Writes ``bench/results/control.json`` and prints a table. Run:
-``.venv/bin/python bench/bench_control.py``
+``.venv/bin/python -m bench.bench_control``
 """
 
 from __future__ import annotations
@@ -47,7 +47,7 @@ from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
 from aeropend_control.strategies import Measurement, make_strategy, strategy_class, strategy_names
 from aeropend_sim.model import THETA, PlantModel
 from aeropend_sim.params import Rig, load_rig
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 
 OUT = Path(__file__).resolve().parent / "results" / "control.json"
 SETPOINTS = (0.2, 0.4, 0.7)

@@ -1,6 +1,6 @@
 """Independent closed-loop benchmark of the controllers (issue 19, items 2-4).
 
-The plant is :class:`truth_plant.TruthStepper` (``bench/truth_plant.py``: the thesis' simulated
+The plant is :class:`truth_plant.TruthStepper` (``bench/fixtures/truth_plant.py``: the thesis' simulated
 equations written outside aeropend, no shared code), stepped one 2.048 ms sample at a time with
 the project's :class:`~aeropend_control.controller_core.ControllerLoop` in lock-step between
 samples (θ, ω₁, i_a measured with noise; the loop answers each sample with a duty cycle).
@@ -30,7 +30,7 @@ designed on that file, same runs; metrics side by side with the nominal-designed
 
 Writes ``bench/results/control_independent.{json,md}``.
 
-Usage: ``python bench/bench_control_independent.py [--plants 40] [--gap [N] | --gap-rigs JSON] [--workers 1]``
+Usage: ``python -m bench.bench_control_independent [--plants 40] [--gap [N] | --gap-rigs JSON] [--workers 1]``
 """
 
 from __future__ import annotations
@@ -50,10 +50,18 @@ from typing import Any
 import numpy as np
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_gap_independent import rig_dict
-from truth_plant import CHANNELS, DT, GEAR, PlantParams, TruthPlant, TruthStepper, aprbs, lhs_steps, record
+from bench.bench_gap_independent import rig_dict
+from bench.fixtures.truth_plant import (
+    CHANNELS,
+    DT,
+    GEAR,
+    PlantParams,
+    TruthPlant,
+    TruthStepper,
+    aprbs,
+    lhs_steps,
+    record,
+)
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STRATEGIES = ("small_signal", "fl_pid", "cascade", "fl_cascade")
@@ -353,8 +361,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     lines = [
         "# Independent closed-loop benchmark (bench/bench_control_independent.py)", "",
         f"{s['plants']} plants × {len(STRATEGIES)} strategies × {len(REFERENCES)} references, "
-        f"{HORIZON_S:g} s steps from rest; truth plant `bench/truth_plant.py` stepped sample by sample "
-        f"(no aeropend_sim code), controller `ControllerLoop` in lock-step; metrics on the true θ "
+        f"{HORIZON_S:g} s steps from rest; truth plant `bench/fixtures/truth_plant.py` stepped sample by "
+        f"sample (no aeropend_sim code), controller `ControllerLoop` in lock-step; metrics on the true θ "
         f"(2 % band). {m['workers']} worker(s), {m['wall_s']:.0f} s wall, load average "
         f"{m['load_before']} before / {m['load_after']} after, {m['machine']}. Commit {m['commit']}.", "",
         "Effects of every plant, all at once, uniform over: "

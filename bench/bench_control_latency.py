@@ -37,7 +37,7 @@ the controller's executor; 0 = normal scheduling), ``--executor events|single`` 
 ``--plant-executor events|single`` (plant; baseline: single),
 ``--strategy``, ``--stall-ms``, ``--out`` (JSON path; default
 ``bench/results/control_latency.json``). Run on a quiet machine for the figure that matters:
-``.venv/bin/python bench/bench_control_latency.py``.
+``.venv/bin/python -m bench.bench_control_latency``.
 """
 
 from __future__ import annotations
@@ -60,9 +60,15 @@ from scipy.ndimage import minimum_filter1d
 
 from aeropend_control.controller_core import SIGNALS
 from aeropend_control.metrics import step_metrics
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-from ros_support import isolated_env, node_command, random_domain, reap, stop, summary_fields, summary_line
+from aeropend_sim.ros.harness import (
+    isolated_env,
+    node_command,
+    random_domain,
+    reap,
+    stop,
+    summary_fields,
+    summary_line,
+)
 
 OUT = Path(__file__).resolve().parent / "results" / "control_latency.json"
 PERIOD_S = 2.048e-3

@@ -7,7 +7,7 @@ variants are written to temporary rig files), strategy and set point (0.2, 0.4, 
 private ROS domain and computes the step metrics of each run on three signals:
 
 * ``true``: the physical angle of the ROS run, recovered by replaying the duty sequence of the
-  controller's trace through :class:`~aeropend_sim.simulate.PlantStepper` (same rig file, seed 0
+  controller's trace through :class:`~aeropend_sim.simulation.PlantStepper` (same rig file, seed 0
   as the node; the replay's measured θ must equal the trace's θ sample by sample, checked and
   reported as ``replay_max_dev``). Table 6.1 and the goal are judged on this signal;
 * ``estimate``: the observer's θ̂ the controller published (``theta_hat``);
@@ -17,7 +17,7 @@ private ROS domain and computes the step metrics of each run on three signals:
 
 The batch settling time of :mod:`bench_control` (same stepper) is listed for comparison.
 
-Writes ``bench/results/control_ros.json``. Run: ``.venv/bin/python bench/bench_control_ros.py``
+Writes ``bench/results/control_ros.json``. Run: ``.venv/bin/python -m bench.bench_control_ros``
 """
 
 from __future__ import annotations
@@ -26,24 +26,19 @@ import csv
 import json
 import math
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-
-from bench_control import BENCH_STRATEGIES, HORIZON_S, SETPOINTS, scenarios, time_optimal_bound
-from ros_support import isolated_env, node_command, random_domain, reap
-
 from aeropend_control.controller_core import SIGNALS
 from aeropend_control.metrics import GOAL, TABLE_6_1, step_metrics
 from aeropend_sim.model import THETA
 from aeropend_sim.params import Rig, save_rig
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap
+from aeropend_sim.simulation import PlantStepper
+from bench.bench_control import BENCH_STRATEGIES, HORIZON_S, SETPOINTS, scenarios, time_optimal_bound
 
 OUT = Path(__file__).resolve().parent / "results" / "control_ros.json"
 

@@ -20,9 +20,9 @@ process, ``stress --cpu 1``-like):
 
 Results: ``bench/results/data_plane[_<tag>].json`` and ``.md`` (per run and totals). Examples::
 
-    .venv/bin/python bench/bench_data_plane.py --scenario lockstep --runs 50 --hog on
-    .venv/bin/python bench/bench_data_plane.py --scenario stream --duration 1800 --hog off
-    .venv/bin/python bench/bench_data_plane.py --runs 10 --hog both --tag before
+    .venv/bin/python -m bench.bench_data_plane --scenario lockstep --runs 50 --hog on
+    .venv/bin/python -m bench.bench_data_plane --scenario stream --duration 1800 --hog off
+    .venv/bin/python -m bench.bench_data_plane --runs 10 --hog both --tag before
 
 The environment of the nodes is this process's (``FASTRTPS_DEFAULT_PROFILES_FILE``,
 ``RMW_FASTRTPS_PUBLICATION_MODE``, ... apply), each run on a private ``ROS_DOMAIN_ID`` with
@@ -45,11 +45,10 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "test"))
-from ros_support import isolated_env, node_command, random_domain, stop, summary_fields  # noqa: E402
+from aeropend_sim.contract import TOPIC_DUTY_CYCLE
+from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, stop, summary_fields
 
-from aeropend_sim.contract import TOPIC_DUTY_CYCLE  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 RESULTS = ROOT / "bench" / "results"
 PERIOD_NS = 2_048_000

@@ -6,7 +6,7 @@ linear in the states with the input v_a = v_a(τ) (thesis Eq. 4.3). For a duty s
 script integrates the model and its output sensitivities ∂(i_a, ω₁)/∂p exactly over each
 zero-order-hold sample (matrix exponential of the augmented system), forms the Fisher
 information for white measurement noise on i_a and ω₁ with σ = RMS(signal)/10^(SNR/20) (the SNR
-definition of :func:`aeropend_sim.simulate.measure`) and reports the Cramér-Rao bound (1σ,
+definition of :func:`aeropend_sim.simulation.measure`) and reports the Cramér-Rao bound (1σ,
 relative) of every coefficient: the smallest standard error any unbiased estimator can reach
 on that record. The output-error refinement reaches it (its own standard errors in
 bench/results/sindy_oe*.md agree with these bounds to ~10 %).
@@ -16,7 +16,7 @@ the thesis' Latin-hypercube steps, and :func:`aeropend_sim.excitation.density_mo
 (binary 0/1 holds of 5-30 ms whose density follows a slow APRBS) at 30, 60 and 120 s; the first
 75 % of each record counts (the training part).
 
-Run: ``.venv/bin/python bench/bench_design_crb.py`` -> ``bench/results/design_crb.{json,md}``
+Run: ``.venv/bin/python -m bench.bench_design_crb`` -> ``bench/results/design_crb.{json,md}``
 (seconds).
 """
 

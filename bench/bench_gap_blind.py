@@ -21,7 +21,7 @@ registry); ``--skip-effect NAME`` leaves a hypothesis out of both the cases and 
 case seeds follow the catalog order, so this reproduces a run made before that hypothesis
 existed).
 
-Usage: ``python bench/bench_gap_blind.py [--reps 2] [--workers 2] [--quick] [--max-effects 2]
+Usage: ``python -m bench.bench_gap_blind [--reps 2] [--workers 2] [--quick] [--max-effects 2]
 [--skip-effect NAME ...]``
 (``--max-effects 3`` writes ``bench/results/gap_blind_3eff.*``: the diagnosis may add a third
 effect by the same forward-selection step as the second.)

@@ -21,7 +21,7 @@ reports:
 
 Writes ``bench/results/gap_calibration.json`` and ``.md``.
 
-Usage: ``python bench/bench_gap_calibration.py [--workers 1] [--cases 64] [--only 2,6,10] [--oracle]``
+Usage: ``python -m bench.bench_gap_calibration [--workers 1] [--cases 64] [--only 2,6,10] [--oracle]``
 (``--only`` runs a subset of the ``--cases`` list by index, for development; ``--oracle`` adds the
 best-catalog oracle: a diagnosis on each held-out recording, ~2x time).
 """
@@ -40,10 +40,8 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_gap_independent import RANGES, rig_dict, to_recording, truth_effects
-from truth_plant import PlantParams, TruthPlant, aprbs, lhs_steps, record
+from bench.bench_gap_independent import RANGES, rig_dict, to_recording, truth_effects
+from bench.fixtures.truth_plant import PlantParams, TruthPlant, aprbs, lhs_steps, record
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: Hidden effects present in both sessions (in the catalog; magnitudes from the independent bench).
@@ -251,7 +249,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     lines = [
         "# Gap calibration benchmark (issue 16)",
         "",
-        f"{s['cases']} two-session cases (of {doc['setup']['cases']} listed) from `bench/truth_plant.py`; "
+        f"{s['cases']} two-session cases (of {doc['setup']['cases']} listed) from "
+        "`bench/fixtures/truth_plant.py`; "
         f"{s['errors']} refused; median "
         f"{s['median_elapsed_s']:.0f} s per case; {doc['setup']['cpus']} CPUs, {doc['setup']['workers']} "
         f"worker(s); load average {doc['setup'].get('load_start', '?')} at the start, "

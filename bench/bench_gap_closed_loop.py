@@ -1,7 +1,7 @@
 """Gap diagnosis on closed-loop recordings: the duty changes every sample, only θ and τ are logged.
 
 What labs record most: the rod held at set-points by a feedback loop, the log holding the angle and
-the controller's duty. Each case is a hidden plant of :mod:`truth_plant` (``bench/truth_plant.py``:
+the controller's duty. Each case is a hidden plant of :mod:`truth_plant` (``bench/fixtures/truth_plant.py``:
 the thesis' simulated equations written outside aeropend, no shared code) stepped one 2.048 ms
 sample at a time (:class:`truth_plant.TruthStepper`, θ measured with noise) under a PD loop with
 gravity feed-forward, written here from the nominal rig file's equilibrium:
@@ -22,7 +22,7 @@ The cases run as independent cases of a Dask cluster (:func:`aeropend_ident.para
 
 Writes ``bench/results/gap_closed_loop.json`` and ``.md``.
 
-Usage: ``python bench/bench_gap_closed_loop.py [--workers 2] [--scheduler ADDRESS] [-q]``
+Usage: ``python -m bench.bench_gap_closed_loop [--workers 2] [--scheduler ADDRESS] [-q]``
 """
 
 from __future__ import annotations
@@ -38,10 +38,8 @@ from typing import Any
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from bench_gap_independent import THESIS, rig_dict, score, to_recording, truth_effects
-from truth_plant import DT, PlantParams, TruthPlant, TruthStepper
+from bench.bench_gap_independent import THESIS, rig_dict, score, to_recording, truth_effects
+from bench.fixtures.truth_plant import DT, PlantParams, TruthPlant, TruthStepper
 
 RESULTS = Path(__file__).resolve().parent / "results"
 FIT_DURATION = 40.0
@@ -155,9 +153,9 @@ def run_case(spec: dict[str, Any]) -> dict[str, Any]:
 def write_md(path: Path, doc: dict[str, Any]) -> None:
     m, s = doc["meta"], doc["summary"]
     lines = ["# Gap diagnosis on closed-loop recordings (bench/bench_gap_closed_loop.py)", "",
-             f"{s['cases']} cases, PD loop on `bench/truth_plant.py` at 490 Hz, θ and τ only, 40 s fit "
-             f"+ 30 s held out; {m['workers']} Dask worker(s), {m['wall_s']:.0f} s wall; load average "
-             f"{m['load_before']} before, {m['load_after']} after; commit {m['commit']}.", "",
+             f"{s['cases']} cases, PD loop on `bench/fixtures/truth_plant.py` at 490 Hz, θ and τ only, "
+             f"40 s fit + 30 s held out; {m['workers']} Dask worker(s), {m['wall_s']:.0f} s wall; "
+             f"load average {m['load_before']} before, {m['load_after']} after; commit {m['commit']}.", "",
              f"Median per case: **{s['median_case_s']:.1f} s wall**, {s['median_case_cpu_s']:.1f} s CPU "
              f"(max {s['max_case_s']:.1f} s wall); bar ≤ 10 s. Duty changes at "
              f"{100 * s['duty_changes_per_sample']:.1f} % of the samples.", "",

@@ -1,6 +1,6 @@
 """Independent blind benchmark of the gap diagnosis (issue 14) on a plant aeropend did not write.
 
-The hidden plants come from :mod:`truth_plant` (``bench/truth_plant.py``), which shares no code
+The hidden plants come from :mod:`truth_plant` (``bench/fixtures/truth_plant.py``), which shares no code
 with ``aeropend_sim`` or the gap catalog: the thesis' simulated equations written out by hand,
 effects implemented from their physics, integrated by its own fixed-step Runge-Kutta scheme. The
 diagnosis gets what a lab has: a rig file of its nominal simulator (the thesis' simulated plant
@@ -35,7 +35,7 @@ out-of-catalog effects is refused, never dropped by a list here.
 Writes ``bench/results/gap_independent.json`` and ``.md`` (``gap_independent_<family>`` for the
 other families).
 
-Usage: ``python bench/bench_gap_independent.py [--family esc] [--workers 2] [--quick] [--only EFFECT ...]
+Usage: ``python -m bench.bench_gap_independent [--family esc] [--workers 2] [--quick] [--only EFFECT ...]
 [--skip-effect NAME ...]``
 """
 
@@ -54,10 +54,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from gap_families import AMPLIFIER, ESC, FamilyCases
-from truth_plant import (
+from bench.fixtures.gap_families import AMPLIFIER, ESC, FamilyCases
+from bench.fixtures.truth_plant import (
     CHANNELS,
     DT,
     GEAR,
@@ -132,7 +130,7 @@ def variant_params(rng: np.random.Generator) -> PlantParams:
 def rig_dict(params: PlantParams, name: str) -> dict[str, Any]:
     """The lab's rig file for a nominal plant: the shipped thesis_sim format, values replaced."""
     doc = yaml.safe_load(BASE_RIG.read_text(encoding="utf-8"))
-    src = "independent benchmark nominal plant (bench/truth_plant.py parameters)"
+    src = "independent benchmark nominal plant (bench/fixtures/truth_plant.py parameters)"
 
     def put(section: str, key: str, value: float) -> None:
         doc[section][key]["value"] = float(value)
@@ -454,7 +452,7 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         "",
         f"Actuator family `{m.get('family', 'dc_hbridge')}`"
         + (f", catalog without {', '.join(m['skipped'])}" if m.get("skipped") else "") + ". "
-        f"{s['cases']} cases; hidden plants from `bench/truth_plant.py` (no aeropend_sim code); "
+        f"{s['cases']} cases; hidden plants from `bench/fixtures/truth_plant.py` (no aeropend_sim code); "
         f"{m['workers']} worker(s), {m['wall_s']:.0f} s wall, median {s['median_case_s']:.1f} s wall / "
         f"{s['median_case_cpu_s']:.1f} s CPU per case, load average {m['load_before']} before and "
         f"{m['load_after']} after, on {m['machine']}. Commit {m.get('commit', '?')}."

@@ -6,7 +6,7 @@ Cases (real data read from ``../shared/data/real``, never copied into the reposi
   Hoja3 open-loop PWM staircase; time-ordered split 70 % / 30 %.
 * ``aeroshield`` — AeroShield identification run, nominal ``aeroshield_rig`` (the repository's
   grey-box initial guesses); time-ordered split 70 % / 30 % (the split of the grey-box
-  baseline, ``test/test_baseline_real.py``).
+  baseline, ``test/ident/greybox/test_baseline_real.py``).
 * ``etchepareborda`` — BA-Etchepareborda rig, nominal ``etchepareborda_rig`` (stated m and Ts,
   assumed arm and motor, one-point static calibration); fit on the PWM 0/100/180 step cycle,
   held out: the separate PWM 0/100/130 step-cycle recording.
@@ -34,7 +34,7 @@ Each case runs :func:`aeropend_ident.gap.run.run_gap` (where + which + after) ex
 ``gap`` command does. Results: ``bench/results/gap_real.json`` and ``.md``; figures
 ``docs/results/gap_<case>_overlay.png`` / ``_where.png`` / ``_effects.png``.
 
-Run: ``python bench/bench_gap_real.py [--max-effects 3] [case ...]`` (≈ 1–3 min per case on two
+Run: ``python -m bench.bench_gap_real [--max-effects 3] [case ...]`` (≈ 1–3 min per case on two
 cores); ``--markdown`` only rewrites ``gap_real.md`` from the stored JSON. ``--max-effects 3``
 lets the diagnosis add a third effect by the same forward-selection step as the second (results
 under ``<case>_3eff``); the default is 2, as the ``gap`` command.
@@ -62,7 +62,7 @@ from aeropend_ident.io.split import informative, interleaved_blocks, time_ordere
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real"

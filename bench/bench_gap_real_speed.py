@@ -11,7 +11,7 @@ chosen and held-out θ NRMSE before and after.
 Writes ``bench/results/gap_real_speed.json``. Needs ``../shared/data/real`` beside the checkout
 (the recordings are not in the repository).
 
-Usage: ``python bench/bench_gap_real_speed.py [--repeat 1]``
+Usage: ``python -m bench.bench_gap_real_speed [--repeat 1]``
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ the best constant-parameter fit there and the drift table.
 Writes ``bench/results/gap_sessions_real.json`` and ``.md``; report folders under
 ``bench/results/gap_sessions_real/``.
 
-Usage: ``python bench/bench_gap_sessions_real.py [--only CASE ...] [--md-only]`` (``--only`` replaces
+Usage: ``python -m bench.bench_gap_sessions_real [--only CASE ...] [--md-only]`` (``--only`` replaces
 those cases' rows in the stored results and keeps the others)
 """
 

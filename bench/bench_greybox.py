@@ -12,7 +12,7 @@ Cases (training part = first 70 % where a recording is split):
 Real logs are read from ``../shared/data/real`` (skipped when absent). Reports wall time,
 simulations (residual evaluations incl. finite-difference Jacobians are counted as
 ``nfev + njev·n_params``) and time per simulation. Writes ``bench/results/greybox.json``.
-Run: ``/tmp/venv/bin/python bench/bench_greybox.py`` (``--quick`` skips Hoja3).
+Run: ``/tmp/venv/bin/python -m bench.bench_greybox`` (``--quick`` skips Hoja3).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from aeropend_ident.greybox.fit import GreyBoxResult, default_parameters, fit_gr
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 ROOT = Path(__file__).resolve().parent
 OUT = ROOT / "results" / "greybox.json"

@@ -1,12 +1,12 @@
 """Sparse identification on real recordings, validated on held-out data (issue 4, item 10).
 
-Runs :mod:`real_cases` (``bench/real_cases.py``) on the AeroShield APRBS run, the four BA-Etchepareborda
-open-loop runs and the YangZhu Quanser AERO pitch step (data read from ``../shared/data/real``,
+Runs :mod:`bench.fixtures.real_cases` on the AeroShield APRBS run, the four BA-Etchepareborda open-loop
+runs and the YangZhu Quanser AERO pitch step (data read from ``../shared/data/real``,
 never copied), and the grey-box baseline on AeroShield for comparison. Writes
 ``bench/results/ident_real.json`` and ``.md`` and plots ``docs/results/ident_<case>_{coef,deriv,
 freerun}.png``. About 3-4 minutes on two cores.
 
-Usage: ``python bench/bench_ident_real.py [--real DIR] [--quick]``.
+Usage: ``python -m bench.bench_ident_real [--real DIR] [--quick]``.
 """
 
 from __future__ import annotations
@@ -23,9 +23,7 @@ import numpy as np
 
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.sindy.plots import plot_coefficients, plot_derivatives, plot_free_run
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from real_cases import (
+from bench.fixtures.real_cases import (
     ETCHEPAREBORDA_RUNS,
     CaseResult,
     aeroshield_case,
@@ -72,10 +70,9 @@ def _case_entry(res: CaseResult, seconds: float) -> dict[str, Any]:
 
 
 def _baseline_aeroshield(real: Path) -> dict[str, Any]:
-    from real_cases import AEROSHIELD
-
     from aeropend_ident.greybox.baseline import run_baseline
     from aeropend_ident.io.csv_import import import_csv
+    from bench.fixtures.real_cases import AEROSHIELD
 
     rec = import_csv(real / AEROSHIELD, "aeroshield_ident")
     rep = run_baseline(rec, "aeroshield_rig")
@@ -93,7 +90,7 @@ def _thesis_sim_reference() -> dict[str, Any]:
     from aeropend_sim.excitation import aprbs
     from aeropend_sim.params import load_rig
     from aeropend_sim.recording import Recording
-    from aeropend_sim.simulate import simulate
+    from aeropend_sim.simulation import simulate
 
     rig = load_rig("thesis_sim")
     noisy = rig.with_effects(sensor_noise=True).with_params("sensors", snr_db=50)

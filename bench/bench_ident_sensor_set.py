@@ -1,6 +1,6 @@
 """Chapter-5 identification on the rig's real sensor set, three protocols side by side (issue 18).
 
-Truth: the independent plant ``bench/truth_plant.py`` (no aeropend code; thesis equations, own
+Truth: the independent plant ``bench/fixtures/truth_plant.py`` (no aeropend code; thesis equations, own
 RK4, ideal drive v_a = 2.32 V·τ), driven by the project's identifiability excitation
 ``density_prbs`` (120 s, seed 5: ``excitation --signal density_prbs --duration 120 --seed 5``),
 white noise σ = RMS/10^(SNR/20) on every recorded channel, written as a lab's CSV log and read
@@ -23,8 +23,8 @@ wall time; for every spurious term the held-out free-run NRMSE of θ with the te
 
 Usage::
 
-    .venv/bin/python bench/bench_ident_sensor_set.py --snr 50 30 20 --seeds 1 2 3 4 5 --protocols a b c
-    .venv/bin/python bench/bench_ident_sensor_set.py --md-only       # table from the stored JSON
+    .venv/bin/python -m bench.bench_ident_sensor_set --snr 50 30 20 --seeds 1 2 3 4 5 --protocols a b c
+    .venv/bin/python -m bench.bench_ident_sensor_set --md-only       # table from the stored JSON
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ import argparse
 import json
 import os
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -42,19 +41,16 @@ from typing import Any
 import numpy as np
 import yaml
 
+from aeropend_ident.io import csv_import
+from aeropend_ident.io.csv_import import CsvSpec
+from aeropend_ident.sindy.identify import identify
+from aeropend_sim.excitation import density_modulated_prbs
+from aeropend_sim.params import load_rig
+from bench.fixtures import truth_plant as tp
+from bench.fixtures.truth_rig import lab_rig_doc, write_rig
+
 BENCH = Path(__file__).resolve().parent
 ROOT = BENCH.parent
-sys.path.insert(0, str(BENCH))
-sys.path.insert(0, str(ROOT / "test"))
-
-import truth_plant as tp  # noqa: E402
-from truth_support import lab_rig_doc, write_rig  # noqa: E402
-
-from aeropend_ident.io import csv_import  # noqa: E402
-from aeropend_ident.io.csv_import import CsvSpec  # noqa: E402
-from aeropend_ident.sindy.identify import identify  # noqa: E402
-from aeropend_sim.excitation import density_modulated_prbs  # noqa: E402
-from aeropend_sim.params import load_rig  # noqa: E402
 
 RESULTS = BENCH / "results"
 DURATION = 120.0
@@ -270,7 +266,7 @@ def summary_table(rows: list[dict[str, Any]]) -> str:
 
 def markdown(rows: list[dict[str, Any]], meta: dict[str, Any]) -> str:
     lines = ["# Identification with the rig's sensor set (issue 18)", "",
-             f"Truth: independent plant `bench/truth_plant.py`, `density_prbs` {DURATION:g} s (seed "
+             f"Truth: independent plant `bench/fixtures/truth_plant.py`, `density_prbs` {DURATION:g} s (seed "
              f"{EXCITATION_SEED}), 75 % fitted, 25 % held out; CSV -> `csv_import` -> `identify` with "
              "thesis_sim (ideal 2.32 V drive). Max relative coefficient error per equation; "
              "FP = spurious terms, FN = missed terms. Command: `bench/bench_ident_sensor_set.py` "

@@ -1,7 +1,7 @@
 """Wall time of the ``identify`` command on a 60 s, 490 Hz bag (issue 4 bar: < 10 s on this machine).
 
 Bag: ``thesis_sim`` with sensor noise at 50 dB SNR (noise seed 7), APRBS duty cycle 60 s, levels
-0.2-0.9, holds 20-300 ms, seed 1 (the excitation of ``test/test_ident_identify.py``, three times as
+0.2-0.9, holds 20-300 ms, seed 1 (the excitation of ``test/ident/sindy/test_identify.py``, three times as
 long), written as a contract bag (mcap) with :func:`aeropend_ident.io.bag_writer.write_bag`.
 
 The command ``.venv/bin/identify BAG --rig thesis_sim --out DIR [--no-plots]`` (default method:
@@ -15,7 +15,7 @@ identified λ and held-out free-run NRMSE (so a faster run with a worse result w
 and ``src/aeropend_sim`` into a temporary folder, put first on ``PYTHONPATH``), interleaved run by run
 with the current code, so both see the same machine load (other jobs share this 2-core machine).
 
-Run: ``.venv/bin/python bench/bench_identify.py [--repeats 3] [--tag after] [--baseline a5d6ba2]`` ->
+Run: ``.venv/bin/python -m bench.bench_identify [--repeats 3] [--tag after] [--baseline a5d6ba2]`` ->
 ``bench/results/identify.{json,md}`` (about 1-2 min). ``--keep DIR`` keeps the bag and results.
 """
 
@@ -48,7 +48,7 @@ def make_bag(path: Path) -> Path:
     from aeropend_sim.excitation import aprbs
     from aeropend_sim.params import load_rig
     from aeropend_sim.recording import Recording
-    from aeropend_sim.simulate import simulate
+    from aeropend_sim.simulation import simulate
 
     rig = load_rig("thesis_sim").with_effects(sensor_noise=True).with_params("sensors", snr_db=SNR_DB)
     traj = simulate(rig, aprbs(DURATION_S, **EXCITATION).duty, seed=NOISE_SEED)

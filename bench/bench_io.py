@@ -9,7 +9,7 @@
   per-message ``typestore`` decoder for comparison.
 
 Writes ``bench/results/io.json`` and prints a table.
-Run: ``/tmp/venv/bin/python bench/bench_io.py`` (``--quick`` for a smaller run).
+Run: ``/tmp/venv/bin/python -m bench.bench_io`` (``--quick`` for a smaller run).
 """
 
 from __future__ import annotations

@@ -8,11 +8,11 @@ recorded span over the expected one, and the median error of the last quarter (a
 sleep error would grow there). Results with the load average before and after in
 ``bench/results/play_timing.json`` / ``.md``.
 
-This was an assertion of ``test/test_record_play_ros.py`` (p95 < 10 ms, span within 1 %) that
+This was an assertion of ``test/ros/ident/test_record_play.py`` (p95 < 10 ms, span within 1 %) that
 failed whenever the machine was loaded (p95 27 ms, span −1.3 % at load 5 on 2 cores): a timing
 target, so it belongs here; the test keeps the pacing check (span within 10 %).
 
-Usage: ``.venv/bin/python bench/bench_play_timing.py [--runs 5] [--rates 1 2]``
+Usage: ``.venv/bin/python -m bench.bench_play_timing [--runs 5] [--rates 1 2]``
 """
 
 from __future__ import annotations
@@ -29,13 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-from ros_support import isolated_env, node_command, random_domain, stop
-
 from aeropend_ident.io.bag_writer import write_bag
 from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_JOINT_STATES
 from aeropend_sim.recording import Recording
+from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, stop
 
 OUT = Path(__file__).resolve().parent / "results" / "play_timing"
 N, DT = 1225, 2.048e-3

@@ -1,12 +1,12 @@
 """Benchmark: batch simulation speed as a multiple of real time (goal >= 200x).
 
-Runs :func:`aeropend_sim.simulate.simulate` (its default backend, recorded in the results) on the
+Runs :func:`aeropend_sim.simulation.simulate` (its default backend, recorded in the results) on the
 thesis rig at 490 Hz for three excitation types (thesis Latin-hypercube steps, APRBS with 50 ms
 minimum hold, per-sample random input) and the per-sample :class:`PlantStepper`, and writes
 ``bench/results/sim.json``. ``bench_sim_backend.py`` measures issue 37's bar (every effect on,
 both backends side by side).
 
-Run: ``.venv/bin/python bench/bench_sim.py``
+Run: ``.venv/bin/python -m bench.bench_sim``
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import DEFAULT_BACKEND, PlantStepper, simulate
+from aeropend_sim.simulation import DEFAULT_BACKEND, PlantStepper, simulate
 
 OUT = Path(__file__).resolve().parent / "results" / "sim.json"
 

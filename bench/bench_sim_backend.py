@@ -15,7 +15,7 @@ at 490 Hz of Latin-hypercube steps, APRBS and a duty that changes every sample (
 
 Writes ``bench/results/sim_backend.json``; ``--table`` prints the tables of docs/model.md from it.
 
-Run: ``.venv/bin/python bench/bench_sim_backend.py`` (≈ 2 min here), then ``--table``.
+Run: ``.venv/bin/python -m bench.bench_sim_backend`` (≈ 2 min here), then ``--table``.
 """
 
 from __future__ import annotations
@@ -31,10 +31,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from backends import study
 
 from aeropend_sim.compiled.plant import CompiledPlant
-from aeropend_sim.simulate import PlantStepper, simulate, simulate_batch
+from aeropend_sim.simulation import PlantStepper, simulate, simulate_batch
+from bench.backends import study
 
 OUT = Path(__file__).resolve().parent / "results" / "sim_backend.json"
 #: Parameters the batch varies (the study's Jacobian parameters).
@@ -125,8 +125,9 @@ def stepper(n: int = 3000) -> dict:
 def compile_probe() -> dict:
     """CPU seconds to compile (or load) each family's kernels in this process (run in a subprocess)."""
     c00 = time.process_time()
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
-    from component_rigs import rig as family_rig  # the minimal rigs of each family (their one home)
+    from bench.fixtures.component_rigs import (
+        rig as family_rig,  # the minimal rigs of each family (their one home)
+    )
 
     out: dict = {}
     for family in ("dc_hbridge", "voltage_amplifier", "esc"):

@@ -12,7 +12,7 @@ the LSODA reference, installed size. Writes ``bench/results/sim_backends.json``.
 Needs the study's libraries in the venv (not in requirements.txt):
 ``.venv/bin/pip install numba jax jaxlib casadi diffrax``.
 
-Run: ``.venv/bin/python bench/bench_sim_backends.py`` (≈ 6 min on 2 shared cores);
+Run: ``.venv/bin/python -m bench.bench_sim_backends`` (≈ 6 min on 2 shared cores);
 ``--replay {lsoda,numba} --n N`` only replays the per-sample input N times (for timing the whole
 process from outside, e.g. with ``/usr/bin/time -v``).
 """
@@ -33,11 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-
-from backends import components as comp  # noqa: E402
-from backends.study import (  # noqa: E402
+from bench.backends import components as comp
+from bench.backends.study import (
     JAC_PARAMS,
     SPAN,
     all_effects_rig,
@@ -45,6 +42,8 @@ from backends.study import (  # noqa: E402
     ramped_stops_in_model,
     reference,
 )
+
+HERE = Path(__file__).resolve().parent
 
 OUT = HERE / "results" / "sim_backends.json"
 #: Sub-steps per sample (at most dt/K each): the smallest K with θ within 1e-6 rad of LSODA on all
@@ -122,7 +121,7 @@ def bench_lsoda(case: Case, repeats: int) -> dict:
 def accuracy_sweep(label_rigs: dict, cache: Path) -> dict:
     """max |Δθ| (rad) of numba RK4 against LSODA for each K, per rig variant and input; a label
     ending in ``_ramped`` takes the continuous contact law in both (``study.ramped_stops_in_model``)."""
-    from backends import nb
+    from bench.backends import nb
 
     out = {}
     for label, rig in label_rigs.items():
@@ -143,7 +142,8 @@ def accuracy_sweep(label_rigs: dict, cache: Path) -> dict:
 def adaptive_diffrax(case: Case) -> dict:
     """diffrax's adaptive explicit Tsit5 and implicit Kvaerno5 (rtol 1e-8) restarted per piece."""
     import jax.numpy as jnp
-    from backends import jx
+
+    from bench.backends import jx
 
     out = {}
     for solver, names in (("Tsit5", tuple(case.duty)), ("Kvaerno5", ("aprbs",))):
@@ -177,7 +177,7 @@ def _per_input(case: Case, run, repeats: int) -> dict:
 
 
 def bench_numba(case: Case, repeats: int) -> dict:
-    from backends import nb
+    from bench.backends import nb
 
     cold = tempfile.mkdtemp(prefix="aeropend_numba_cold_")
     first = [json.loads(subprocess.run([sys.executable, __file__, "--numba-first", cold], capture_output=True,
@@ -225,7 +225,7 @@ def _fd(theta, p: np.ndarray, index: tuple[int, ...]) -> np.ndarray:
 def _numba_first(cache: str) -> None:
     """Child process: CPU time of the first replay in a fresh interpreter with the numba cache ``cache``
     (compiles and fills it when empty, loads from it otherwise)."""
-    from backends import nb
+    from bench.backends import nb
 
     case_rig = all_effects_rig()
     built = comp.build(case_rig)
@@ -240,7 +240,8 @@ def _numba_first(cache: str) -> None:
 
 def bench_jax(case: Case, repeats: int) -> dict:
     import jax.numpy as jnp
-    from backends import jx
+
+    from bench.backends import jx
 
     single, batch, jac = jx.make_jitted(case.built, K, case.frac, case.dt, case.jac_index)
     x0, p = jnp.zeros(5), jnp.asarray(case.built.p)
@@ -268,7 +269,7 @@ def bench_jax(case: Case, repeats: int) -> dict:
 
 
 def bench_casadi(case: Case, repeats: int, jit: bool) -> dict:
-    from backends import cas
+    from bench.backends import cas
 
     n = case.duty["per_sample"].size
     workdir = Path(tempfile.mkdtemp(prefix="aeropend_casadi_"))
@@ -409,7 +410,7 @@ def replay_only(backend: str, n: int) -> None:
         for _ in range(n):
             reference(rig, duty)
         return
-    from backends import nb
+    from bench.backends import nb
 
     built = comp.build(rig)
     whole, frac = comp.delay_split(rig, rig.sample_period)

@@ -11,7 +11,7 @@ measurement, and reports
 
 Writes ``bench/results/sim_node.json`` and prints a table::
 
-    /tmp/venv/bin/python bench/bench_sim_node.py [--duration 20] [--rig thesis_rig]
+    /tmp/venv/bin/python -m bench.bench_sim_node [--duration 20] [--rig thesis_rig]
         [--rt-priority 0 20] [--out bench/results/sim_node.json]
 
 Each ``--rt-priority`` value is one run (0 = normal scheduling, the node's default; > 0 =
@@ -35,11 +35,10 @@ import numpy as np
 
 from aeropend_sim.contract import SAMPLE_PERIOD_S
 from aeropend_sim.params import load_rig, shipped_rigs
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap, stop, summary_fields
+from aeropend_sim.simulation import PlantStepper
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "test"))
-from ros_support import isolated_env, node_command, random_domain, reap, stop, summary_fields  # noqa: E402
 
 
 # ------------------------------------------------------------------------------------- subscriber

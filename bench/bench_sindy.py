@@ -40,7 +40,7 @@ false negative terms, max relative coefficient error over the true terms, K_q er
 MSE; free-run NRMSE on the held-out part (RMS error / std of the measured state, from the
 first held-out sample, v_a from the measurement; states the model lacks are taken from the
 data); plus fit time. Writes ``bench/results/sindy.json``.
-Run: ``.venv/bin/python bench/bench_sindy.py [--quick]``.
+Run: ``.venv/bin/python -m bench.bench_sindy [--quick]``.
 """
 
 from __future__ import annotations
@@ -76,7 +76,7 @@ from aeropend_ident.sindy.model import (
 from aeropend_ident.sindy.preprocess import add_derivatives
 from aeropend_sim.excitation import aprbs, lhs_steps
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 ROOT = Path(__file__).resolve().parent
 OUT = ROOT / "results" / "sindy.json"

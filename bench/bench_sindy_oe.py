@@ -1,6 +1,6 @@
 """Output-error refinement after weak-iv on thesis_sim (issue 4 bar: 50 dB, exact structure, < 1 %).
 
-Data as in ``test/test_ident_noise.py``: 30 s APRBS (levels 0.2-0.9, holds 20-300 ms, seed 1),
+Data as in ``test/ident/sindy/test_noise.py``: 30 s APRBS (levels 0.2-0.9, holds 20-300 ms, seed 1),
 first 75 % (22.5 s at 490 Hz), measured channels at the given SNR and noise seed. Estimators:
 
 * ``weak-iv``: ``fit(physics_library(), all four targets, method="weak", refine=2, alpha=1,
@@ -17,7 +17,7 @@ identifiability, :func:`aeropend_sim.excitation.density_modulated_prbs` (binary 
 5-30 ms whose density follows a slow APRBS in [0.3, 0.7]), 120 s, first 75 % (90 s), all four
 equations, at 50 dB (6 seeds), 30 and 20 dB (3 seeds).
 
-Run: ``.venv/bin/python bench/bench_sindy_oe.py`` -> ``bench/results/sindy_oe.{json,md}``
+Run: ``.venv/bin/python -m bench.bench_sindy_oe`` -> ``bench/results/sindy_oe.{json,md}``
 (about 10 min on 2 loaded cores); ``--designed``: only the ``designed`` rows ->
 ``sindy_oe_designed.{json,md}`` (about 15 min); ``--measured-va``: the OE simulation driven by the measured
 v_a instead of its noise-free fit v_a(τ), 50 dB only -> ``sindy_oe_measured_va.{json,md}``.
@@ -33,13 +33,12 @@ from typing import Any
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent
-sys.path.insert(0, str(ROOT.parent / "test"))
-from test_ident_noise import TRUTH, _data, _fit  # noqa: E402
+from aeropend_ident.sindy.model import structure_errors
+from aeropend_ident.sindy.output_error import refine_output_error
+from aeropend_sim.excitation import aprbs, density_modulated_prbs
+from bench.fixtures.sindy_case import TRUTH, case_data, weak_iv_fit
 
-from aeropend_ident.sindy.model import structure_errors  # noqa: E402
-from aeropend_ident.sindy.output_error import refine_output_error  # noqa: E402
-from aeropend_sim.excitation import aprbs, density_modulated_prbs  # noqa: E402
+ROOT = Path(__file__).resolve().parent
 
 OUT = ROOT / "results"
 SHORT = {"theta": "dθ/dt", "theta_dot": "θ̈", "i_a": "di_a/dt", "omega_rotor": "dω₁/dt"}
@@ -61,15 +60,16 @@ def _score(model: Any, truth: dict[str, dict[str, float]]) -> dict[str, Any]:
 
 def run(kind: str, snr: float | None, seed: int, clean_inputs: bool = True) -> dict[str, Any]:
     if kind == "aprbs":
-        data, targets = _data(snr, seed=seed), list(TRUTH)
+        data, targets = case_data(snr, seed=seed), list(TRUTH)
     elif kind == "designed":
-        data, targets = _data(snr, seed=seed, duty=density_modulated_prbs(120.0, seed=1).duty), list(TRUTH)
+        duty = density_modulated_prbs(120.0, seed=1).duty
+        data, targets = case_data(snr, seed=seed, duty=duty), list(TRUTH)
     else:
         duty = aprbs(30.0, lo=0.2, hi=0.9, min_hold=0.002, max_hold=0.01, seed=1).duty
-        data, targets = _data(snr, seed=seed, duty=duty), list(OE)
+        data, targets = case_data(snr, seed=seed, duty=duty), list(OE)
     truth = {tg: TRUTH[tg] for tg in targets}
     t0 = time.perf_counter()
-    m = _fit(data, targets=targets)
+    m = weak_iv_fit(data, targets=targets)
     t1 = time.perf_counter()
     res: dict[str, Any] = {"excitation": kind, "snr_db": snr, "seed": seed, "weak_iv": _score(m, truth),
                            "weak_iv_time_s": t1 - t0}

@@ -1,6 +1,6 @@
 """Markdown table of ``bench/results/sindy.json`` (written by ``bench/bench_sindy.py``).
 
-Run: ``.venv/bin/python bench/bench_sindy_table.py`` -> ``bench/results/sindy.md``.
+Run: ``.venv/bin/python -m bench.bench_sindy_table`` -> ``bench/results/sindy.md``.
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ what changed. A difference is listed when the first named effect, the pass / top
 the effects chosen change, when the held-out shrink moves by more than ``--shrink-tol``
 (absolute) or a magnitude error by more than ``--magnitude-tol`` (absolute, of the effect size).
 
-Usage: ``python bench/compare_gap_runs.py REFERENCE.json NEW.json [--out FILE.md]``
+Usage: ``python -m bench.compare_gap_runs REFERENCE.json NEW.json [--out FILE.md]``
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ from collections.abc import Callable, Sequence
 
 import pytest
 
-#: Columns of a CSV log written by ``bench/truth_plant.py`` (``TruthRecording.to_csv``).
+#: Columns of a CSV log written by ``bench/fixtures/truth_plant.py`` (``TruthRecording.to_csv``).
 TRUTH_CSV_COLUMNS = {"i_a": "i_a_A", "v_a": "v_a_V", "omega_rotor": "omega_rad_s"}
 
 MARKERS = (

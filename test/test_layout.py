@@ -71,43 +71,75 @@ def test_too_many_modules_fails(tmp_path: Path) -> None:
     assert _run("--root", str(tmp_path)).returncode == 0
 
 
+def test_a_deprecated_reexport_does_not_count_but_code_in_it_does(tmp_path: Path) -> None:
+    """A module kept only for an old import path (docstring "Deprecated...", imports, ``__all__``,
+    the warning) is not one of the folder's modules; one with code of its own is."""
+    shim = '"""Deprecated: use fake.m0."""\nimport warnings\n\nfrom fake.m0 import X\n\n__all__ = ["X"]\n' \
+           'warnings.warn("old path", DeprecationWarning, stacklevel=2)\n'
+    pkg = _package(tmp_path, "fake", {**{f"m{i}": "X = 1\n" for i in range(10)}, "old": shim})
+    assert _run("--root", str(tmp_path)).returncode == 0
+    (pkg / "old.py").write_text(shim + "\n\ndef helper():\n    return 1\n", encoding="utf-8")
+    proc = _run("--root", str(tmp_path))
+    assert proc.returncode == 1 and "package folder has 11 modules (> 10)" in proc.stdout
+
+
 def test_source_tree_passes() -> None:
     """``src/``: no import cycle, no function over 150 lines, no package folder over 10 modules."""
     proc = _run()
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
-#: aeropend_ident's layering (docs/architecture.md): subpackage -> what it may import inside ident.
-IDENT_LAYERS = {
-    "cli": {"gap", "sindy", "greybox", "io", "pipeline", "archive", "parallel", "progress", "errors"},
-    "pipeline": {"greybox", "io", "errors"},
-    "archive": {"gap", "greybox", "io", "errors"},
-    "gap": {"sindy", "greybox", "io", "parallel", "errors"},
-    "parallel": {"greybox", "progress", "errors"},
-    "progress": set(),
-    "sindy": {"io", "errors"},
-    "greybox": {"io", "errors"},
-    "nodes": {"io", "errors"},
-    "io": {"errors"},
-    "errors": set(),
-}
+def test_own_package_init_import_fails(tmp_path: Path) -> None:
+    """A submodule importing a name from its own package's __init__ (which re-exports the API)."""
+    pkg = _package(tmp_path, "fake", {"a": "X = 1\n", "sub/b": "from fake import X\n",
+                                      "sub/c": "from fake.sub import Y\n", "d": "from fake import a\n"})
+    (pkg / "__init__.py").write_text('"""API."""\nfrom fake.a import X\n', encoding="utf-8")
+    (pkg / "sub" / "__init__.py").write_text("Y = 2\n", encoding="utf-8")
+    proc = _run("--root", str(tmp_path))
+    assert proc.returncode == 1
+    assert "b.py:1: fake.sub.b imports from its own package's __init__ (fake)" in proc.stdout
+    assert "c.py:1: fake.sub.c imports from its own package's __init__ (fake.sub)" in proc.stdout
+    assert "fake.d" not in proc.stdout  # ``from fake import a`` imports the submodule a
+    assert "2 problem(s)" in proc.stdout
 
 
-def test_ident_layering() -> None:
-    """Inside aeropend_ident every import follows the arrows of docs/architecture.md."""
-    sys.path.insert(0, str(TOOL.parent))
-    import check_layout
+def test_ident_layering(tmp_path: Path) -> None:
+    """Inside aeropend_ident every import follows the arrows of docs/architecture.md
+    (check_layout.LAYERS): sindy and greybox do not import each other, io imports no stage."""
+    _package(tmp_path, "aeropend_ident", {
+        "errors": "", "io/bags": "from aeropend_ident.errors import X\n",
+        "sindy/core": "from aeropend_ident.io import bags\n",
+        "greybox/fit": "from aeropend_ident.sindy.core import fit\n",
+        "io/split": "from aeropend_ident.gap.run import run_gap\n", "gap/run": ""})
+    proc = _run("--root", str(tmp_path))
+    assert proc.returncode == 1
+    assert ("fit.py:1: aeropend_ident.greybox.fit imports aeropend_ident.sindy.core: aeropend_ident.greybox "
+            "may import only errors, io of aeropend_ident") in proc.stdout
+    assert ("aeropend_ident.io.split imports aeropend_ident.gap.run: aeropend_ident.io may import only "
+            "errors") in proc.stdout
+    assert "2 problem(s)" in proc.stdout
 
-    modules = check_layout._modules(ROOT / "src")
-    wrong = []
-    for name, path in modules.items():
-        parts = name.split(".")
-        if parts[0] != "aeropend_ident" or len(parts) < 2:
-            continue
-        for target, line in check_layout._imports(name, path, modules).items():
-            tparts = target.split(".")
-            if tparts[0] != "aeropend_ident" or len(tparts) < 2 or tparts[1] == parts[1]:
-                continue
-            if tparts[1] not in IDENT_LAYERS[parts[1]]:
-                wrong.append(f"{path}:{line}: {name} imports {target}")
-    assert not wrong, "\n".join(wrong)
+
+def test_sim_layering_and_the_ros_shell(tmp_path: Path) -> None:
+    """aeropend_sim's core never imports the simulator or its ROS shell; other packages import the
+    simulator's own modules never, and rclpy / aeropend_sim.ros only from their nodes."""
+    _package(tmp_path, "aeropend_sim", {
+        "contract": "", "sim_core": "from aeropend_sim import contract\n",
+        "params": "from aeropend_sim.sim_core import X\n", "ros/node_shell": "import rclpy\n"})
+    _package(tmp_path, "aeropend_control", {
+        "pid": "from aeropend_sim import contract\n", "controller_node": "import rclpy\n"
+        "from aeropend_sim.ros.node_shell import run_node\n",
+        "design": "import rclpy.node\nfrom aeropend_sim.ros import node_shell\n",
+        "tuning": "from aeropend_sim.sim_core import X\n"})
+    proc = _run("--root", str(tmp_path))
+    out = proc.stdout
+    assert proc.returncode == 1
+    assert "aeropend_sim.params imports aeropend_sim.sim_core: aeropend_sim.params may import only " \
+           "components of aeropend_sim" in out
+    assert "design.py:1: aeropend_control.design imports rclpy outside the ROS shell" in out
+    assert "design.py:2: aeropend_control.design imports aeropend_sim.ros.node_shell: aeropend_sim.ros is " \
+           "for the ROS shell (nodes) only" in out
+    assert "tuning.py:1: aeropend_control.tuning imports aeropend_sim.sim_core: a module of the simulator" \
+        in out
+    assert "controller_node" not in out and "aeropend_control.pid" not in out
+    assert "4 problem(s)" in out

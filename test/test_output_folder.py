@@ -23,7 +23,7 @@ from aeropend_sim.excitation import aprbs
 from aeropend_sim.output_folder import OutputFolderError, check_output_file, claim_output_folder
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 DT = 0.01
 #: The refusal comes before any computation: well under this [s] (imports already done).

@@ -62,7 +62,7 @@ results:
     status: current
     title: Speed
     measures: How fast the thing runs.
-    command: .venv/bin/python bench/bench_speed.py --runs 3
+    command: .venv/bin/python -m bench.bench_speed --runs 3
     supports: the thing runs at 90.3 % of the bound.
     docs: [docs/page.md#the-speed-section]
     figures:
@@ -77,7 +77,7 @@ results:
   - file: speed_before.json
     area: sim
     status: history
-    command: .venv/bin/python bench/bench_speed.py --runs 3 --out bench/results/speed_before.json
+    command: .venv/bin/python -m bench.bench_speed --runs 3 --out bench/results/speed_before.json
     note: the code of commit 1234abc
     supports: before the fix the thing ran at half the speed.
     docs: [docs/page.md]
@@ -109,16 +109,16 @@ def test_pages_hold_the_json_values(tmp_path: Path) -> None:
     assert "| runs ok | 1 of 2 |" in page
     assert "| fast run | 1.25 s |" in page
     assert "- **Run:** commit abc1234" in page
-    assert "- **Re-make:** `.venv/bin/python bench/bench_speed.py --runs 3`" in page
+    assert "- **Re-make:** `.venv/bin/python -m bench.bench_speed --runs 3`" in page
     assert "[docs/page.md § The speed section](page.md#the-speed-section)" in page
     assert "[bench/results/speed.md](../bench/results/speed.md)" in page
     assert "speed_before" not in page  # history is listed in INDEX.md, not shown with figures
     index = (root / "bench" / "results" / "INDEX.md").read_text(encoding="utf-8")
     assert "| [speed_before.json](speed_before.json) | history | Simulation | " \
-           "`.venv/bin/python bench/bench_speed.py --runs 3 --out bench/results/speed_before.json` " \
+           "`.venv/bin/python -m bench.bench_speed --runs 3 --out bench/results/speed_before.json` " \
            "(the code of commit 1234abc) | before the fix the thing ran at half the speed. |" in index
     assert "| [speed.md](speed.md) | current | Simulation | " \
-           "`.venv/bin/python bench/bench_speed.py --runs 3` | see [speed.json](speed.json) |" in index
+           "`.venv/bin/python -m bench.bench_speed --runs 3` | see [speed.json](speed.json) |" in index
     assert _gen("--check", "--root", str(root)).returncode == 0
 
 

@@ -106,41 +106,42 @@ def test_colcon_build_installs_entry_points(colcon_ws: Path) -> None:
         assert {p.name for p in (install / pkg / "share" / pkg / "config").glob("*.yaml")} == shipped
 
 
-#: Test files of no single package: the workspace, launch files of several packages, the
-#: firmware (C, not a ROS package) and graphs of several packages' nodes.
-CROSS_PACKAGE_TESTS = {"test_workspace.py", "test_layout.py", "test_launch_files.py",
-                       "test_namespaces_ros.py", "test_params_files_ros.py",
-                       "test_firmware_build.py", "test_firmware_codec.py", "test_firmware_simavr.py",
-                       "test_firmware_simavr_io.py", "test_firmware_simavr_registers.py",
-                       # every package's console scripts and result folders, the results docs,
-                       # the README and the docs' links
-                       "test_cli_help.py", "test_output_folder.py", "test_output_folder_ros.py",
-                       "test_results_docs.py", "test_readme.py"}
+#: Test folders of no single package (their files, not their subfolders): the workspace-level
+#: tests at the top of test/ (the workspace, the layout, launch files of several packages, every
+#: package's console scripts and result folders, the results docs, the README and the docs' links,
+#: the public API), the firmware (C, not a ROS package) and graphs of several packages' nodes.
+WORKSPACE_TEST_DIRS = ("test", "test/firmware", "test/ros")
 
 
-def _package_test_globs(pkg: str) -> list[str]:
+def _package_test_dirs(pkg: str) -> list[Path]:
+    """The test folders ``colcon test`` of ``pkg`` runs (its ``setup.cfg`` ``testpaths``)."""
     cfg = configparser.ConfigParser()
     cfg.read(ROOT / "src" / pkg / "setup.cfg")
     section = cfg["tool:pytest"]
-    assert section["testpaths"].strip() == "../../test"
-    return section["python_files"].split()
+    assert "python_files" not in section, f"{pkg}: select test folders (testpaths), not file patterns"
+    dirs = [(ROOT / "src" / pkg / d).resolve() for d in section["testpaths"].split()]
+    for d in dirs:
+        assert d.is_dir() and d.is_relative_to(ROOT / "test"), f"{pkg}: testpaths {d} is no folder of test/"
+    return dirs
 
 
 def test_every_test_file_belongs_to_one_package_or_the_workspace() -> None:
     """``colcon test`` (per package) and ``./scripts/test.sh`` (all of test/) lose no test file."""
-    owners: dict[str, list[str]] = {}
+    owners: dict[Path, list[str]] = {}
     for pkg in PACKAGES:
-        for pattern in _package_test_globs(pkg):
-            matched = sorted(p.name for p in (ROOT / "test").glob(pattern))
-            assert matched, f"{pkg}: python_files pattern {pattern!r} matches no test file"
-            for name in matched:
-                owners.setdefault(name, []).append(pkg)
-    files = {p.name for p in (ROOT / "test").glob("test_*.py")}
-    doubles = {name: pkgs for name, pkgs in owners.items() if len(pkgs) > 1}
+        for folder in _package_test_dirs(pkg):
+            matched = sorted(folder.rglob("test_*.py"))
+            assert matched, f"{pkg}: test folder {folder} holds no test file"
+            for path in matched:
+                owners.setdefault(path, []).append(pkg)
+    files = set((ROOT / "test").rglob("test_*.py"))
+    workspace = {p for d in WORKSPACE_TEST_DIRS for p in (ROOT / d).glob("test_*.py")}
+    doubles = {str(p.relative_to(ROOT)): pkgs for p, pkgs in owners.items() if len(pkgs) > 1}
     assert not doubles, f"test files run by more than one package: {doubles}"
-    unowned = files - set(owners) - CROSS_PACKAGE_TESTS
-    assert not unowned, f"test files no package runs (assign in a setup.cfg or list here): {unowned}"
-    assert not CROSS_PACKAGE_TESTS & set(owners)
+    unowned = sorted(str(p.relative_to(ROOT)) for p in files - set(owners) - workspace)
+    assert not unowned, ("test files no package runs (put them in a package's test folder, "
+                         f"test/<package>/ or test/ros/<package>/, or a workspace folder): {unowned}")
+    assert not workspace & set(owners)
 
 
 _RESULT = re.compile(r"(\d+) tests, (\d+) errors, (\d+) failures, (\d+) skipped")
@@ -170,8 +171,7 @@ def test_colcon_test_runs_each_packages_tests(colcon_ws: Path) -> None:
     assert set(per_package) == set(selected), res.stdout
     for pkg, (tests, errors, failures, _) in per_package.items():
         # exactly the tests the root suite has in this package's files, with the same selection
-        files = sorted({str(p) for pattern in _package_test_globs(pkg)
-                        for p in (ROOT / "test").glob(pattern)})
+        files = [str(d) for d in _package_test_dirs(pkg)]
         collected = subprocess.run([sys.executable, "-m", "pytest", "--collect-only", "-q", "-m",
                                     "not ros and not slow", *files], cwd=ROOT, capture_output=True,
                                    text=True, timeout=120)

@@ -18,7 +18,19 @@ Rules (each violation is printed as ``file:line: message``; exit status 1 if any
 * **Function length.** A ``def`` (any nesting, docstring included) longer than ``--max-lines``
   lines, measured from the ``def`` line (decorators excluded) to its last line.
 * **Package width.** More than ``--max-modules`` ``.py`` files directly in one package folder
-  (``__init__.py`` not counted).
+  (``__init__.py`` not counted, nor a deprecated re-export module kept for an old import path:
+  its docstring starts with "Deprecated" and it holds only imports, ``__all__`` and the
+  ``warnings.warn`` call).
+* **Own package ``__init__``.** A module imports a name from the ``__init__`` of a package it
+  belongs to (``from aeropend_sim import load_rig`` inside ``aeropend_sim``): the ``__init__`` files
+  re-export the public API, so such an import is a cycle waiting to happen and loads the whole
+  API; submodules import their siblings directly.
+* **Layering** (docs/architecture.md): inside a package of :data:`LAYERS`, a module of one part
+  (the first name below the package: ``aeropend_ident.gap``, ``aeropend_sim.params``) imports
+  only the parts its row allows; across packages, :data:`SIMULATOR` modules are imported by their
+  own package only; ``rclpy`` and ``aeropend_sim.ros`` are imported only by the ROS shell
+  (:data:`ROS_SHELL`: the nodes) and ``aeropend_sim.ros`` also by :data:`PROCESS_RUNNERS` (modules
+  that run nodes as processes). The rows apply to the packages present under ``--root``.
 
 Plain Python (``ast``), no dependencies.
 """
@@ -27,10 +39,60 @@ from __future__ import annotations
 
 import argparse
 import ast
+import re
 import sys
 from pathlib import Path
 
 DEFAULT_ROOT = Path(__file__).resolve().parents[1] / "src"
+
+#: Any part of the package (the ROS shell of aeropend_sim may import all of its library).
+ANY = "*"
+#: Layering inside a package: part -> the other parts of the same package it may import
+#: (docs/architecture.md, "Layering"). Every part of a listed package needs a row.
+LAYERS: dict[str, dict[str, set[str] | str]] = {
+    "aeropend_ident": {
+        "cli": {"gap", "sindy", "greybox", "io", "pipeline", "archive", "parallel", "progress", "errors"},
+        "pipeline": {"greybox", "io", "errors"},
+        "archive": {"gap", "greybox", "io", "errors"},
+        "gap": {"sindy", "greybox", "io", "parallel", "errors"},
+        # Dask cases with progress bars (benches, gap --sessions, gap-batch)
+        "parallel": {"greybox", "progress", "errors"},
+        "progress": set(),
+        "sindy": {"io", "errors"},
+        "greybox": {"io", "errors"},
+        "nodes": {"io", "errors"},
+        "io": {"errors"},
+        "errors": set(),
+    },
+    "aeropend_sim": {
+        # the ROS shell: sim_node, excitation_node, node lifecycle, usage, QoS, domains, harness
+        "ros": ANY,
+        # the simulator: the plant node's functional core, the robot description
+        "sim_core": {"simulation", "params", "components", "contract"},
+        "description": {"params", "components", "contract"},
+        # the `rig` command (rig new/fit/check; fit and check import aeropend_ident when they run)
+        "rigcmd": {"params", "components", "output_folder"},
+        # the shared core: plant library, rig files, topic contract, recordings, result folders
+        "excitation": {"contract"},
+        "simulation": {"compiled", "model", "params", "components"},
+        "simulate": {"simulation"},  # deprecated re-export of simulation (its old name)
+        "compiled": {"model", "params", "components"},
+        "model": {"params", "components"},
+        "params": {"components"},
+        "recording": {"contract"},
+        "recording_frame": set(),
+        "output_folder": set(),
+        "contract": set(),
+        "components": set(),
+    },
+}
+#: Modules of the simulator that only their own package imports (the other packages use the core).
+SIMULATOR = ("aeropend_sim.sim_core", "aeropend_sim.description", "aeropend_sim.ros.sim_node",
+             "aeropend_sim.ros.excitation_node")
+#: The ROS shell: the only modules that import rclpy (functional core, ROS shell).
+ROS_SHELL = re.compile(r"^aeropend_sim\.ros(\.|$)|^aeropend_\w+\.nodes(\.|$)|^aeropend_\w+\.\w+_node$")
+#: Modules that run nodes as processes (no rclpy): they may import aeropend_sim.ros (domain, harness).
+PROCESS_RUNNERS = ("aeropend_ident.pipeline",)
 
 
 def _module_name(path: Path) -> str:
@@ -131,6 +193,75 @@ def _cycles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
     return out
 
 
+def is_deprecated_reexport(path: Path) -> bool:
+    """Whether ``path`` is a thin re-export module kept for an old import path (see the width rule)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    doc = ast.get_docstring(tree) or ""
+    if not doc.startswith("Deprecated"):
+        return False
+    for node in tree.body[1:]:
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            continue
+        if isinstance(node, ast.Assign) and [getattr(t, "id", None) for t in node.targets] == ["__all__"]:
+            continue
+        call = node.value if isinstance(node, ast.Expr) else None
+        if isinstance(call, ast.Call) and ast.unparse(call.func) == "warnings.warn":
+            continue
+        return False
+    return True
+
+
+def _external(path: Path) -> dict[str, int]:
+    """Top-level names of every module ``path`` imports (absolute imports), each with its first line."""
+    tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+    found: dict[str, int] = {}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                found.setdefault(alias.name.split(".")[0], node.lineno)
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.setdefault(node.module.split(".")[0], node.lineno)
+    return found
+
+
+def _own_init(name: str, targets: dict[str, int], modules: dict[str, Path]) -> list[str]:
+    """Imports of ``name`` from the ``__init__`` of a package ``name`` belongs to."""
+    parts = name.split(".")
+    own = {".".join(parts[:i]) for i in range(1, len(parts))}
+    return [f"{modules[name]}:{line}: {name} imports from its own package's __init__ ({target}): "
+            "import the submodule that defines the name" for target, line in sorted(targets.items())
+            if target in own and modules[target].name == "__init__.py"]
+
+
+def _layering(name: str, targets: dict[str, int], modules: dict[str, Path]) -> list[str]:
+    """Violations of :data:`LAYERS`, :data:`SIMULATOR`, :data:`ROS_SHELL` by module ``name``."""
+    path = modules[name]
+    parts = name.split(".")
+    out = []
+    rows = LAYERS.get(parts[0])
+    for target, line in sorted(targets.items()):
+        tparts = target.split(".")
+        where = f"{path}:{line}: {name} imports {target}"
+        if rows is not None and len(parts) > 1 and tparts[0] == parts[0] and len(tparts) > 1 \
+                and tparts[1] != parts[1]:
+            allowed = rows.get(parts[1])
+            if allowed is None:
+                out.append(f"{where}: {parts[0]}.{parts[1]} has no row in check_layout.LAYERS: "
+                           "add it (and to docs/architecture.md)")
+            elif allowed != ANY and tparts[1] not in allowed:
+                out.append(f"{where}: {parts[0]}.{parts[1]} may import only "
+                           f"{', '.join(sorted(allowed)) or 'nothing'} of {parts[0]} (docs/architecture.md)")
+        if tparts[0] != parts[0] and any(target == m or target.startswith(m + ".") for m in SIMULATOR):
+            out.append(f"{where}: a module of the simulator, for aeropend_sim only (use the core)")
+        if target.startswith("aeropend_sim.ros") and not parts[0] == "aeropend_sim" \
+                and not ROS_SHELL.search(name) and name not in PROCESS_RUNNERS:
+            out.append(f"{where}: aeropend_sim.ros is for the ROS shell (nodes) only")
+    line = _external(path).get("rclpy")
+    if line is not None and not ROS_SHELL.search(name):
+        out.append(f"{path}:{line}: {name} imports rclpy outside the ROS shell (functional core, ROS shell)")
+    return out
+
+
 def check(root: Path, max_lines: int = 150, max_modules: int = 10) -> list[str]:
     """All layout violations under ``root``, one ``file:line: message`` string each.
 
@@ -157,6 +288,9 @@ def check(root: Path, max_lines: int = 150, max_modules: int = 10) -> list[str]:
                  for b, line in sorted(graph[a].items()) if b in members]
         problems.append(f"{modules[comp[0]]}:1: import cycle between {', '.join(comp)}: "
                         + "; ".join(edges))
+    for name in modules:
+        problems += _own_init(name, graph[name], modules)
+        problems += _layering(name, graph[name], modules)
     for name, path in modules.items():
         tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
         for node in ast.walk(tree):
@@ -167,7 +301,8 @@ def check(root: Path, max_lines: int = 150, max_modules: int = 10) -> list[str]:
                                     f"{length} lines (> {max_lines})")
     folders = sorted({p.parent for p in modules.values()})
     for folder in folders:
-        count = sum(1 for p in folder.glob("*.py") if p.name != "__init__.py")
+        count = sum(1 for p in folder.glob("*.py")
+                    if p.name != "__init__.py" and not is_deprecated_reexport(p))
         if count > max_modules:
             problems.append(f"{folder / '__init__.py'}:1: package folder has {count} modules "
                             f"(> {max_modules})")

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 # thesis Table 4.2: v_a [V], i_a [A], rotor speed [RPM] (strobe on the propeller × gear ratio)
 TABLE_4_2 = np.array([

@@ -6,7 +6,7 @@ diagnosis' catalog (every hypothesis, the part that declares it, its parameters 
 the channels it needs, the families it belongs to). Each table sits between
 ``<!-- BEGIN generated: NAME -->`` and ``<!-- END generated: NAME -->`` markers and is rewritten
 from :mod:`aeropend_sim.components.registry`, so the docs cannot drift from the code;
-``test/test_components.py`` fails when a file is not current.
+``test/sim/components/test_registry.py`` fails when a file is not current.
 
 Usage: ``python tools/gen_model_tables.py [--check] [--file docs/model.md ...]``
 (``--check``: exit 1 and name the stale tables instead of writing).

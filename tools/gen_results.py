@@ -35,8 +35,8 @@ The index (``bench/results/index.yaml``)
     run of the same measurement, replaced by a newer file) or ``history`` (evidence of an
     investigation: a run before a fix, a candidate tried and rejected, a part merged elsewhere).
 ``command``
-    the command that makes the file, run from the repository root (scripts named in it must
-    exist).
+    the command that makes the file, run from the repository root (scripts named in it, and the
+    modules it runs with ``python -m bench.x``, must exist).
 ``note``
     optional: how the command was run when that is not all in it (the code of another commit, a
     modified tree, runs merged by hand); goes with the command it is given with.
@@ -67,6 +67,7 @@ own, the values of all of them together.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import re
@@ -91,6 +92,7 @@ FIGURE_KEYS = {"label", "path", "fmt", "unit", "scale", "reduce", "sep", "from"}
 INHERITED = ("area", "status", "command", "supports", "docs")
 REDUCERS = ("range", "list", "min", "max", "median", "sum", "count", "count_true")
 SCRIPT = re.compile(r"^(?:bench|tools|scripts)/\S+\.(?:py|sh)$")
+MODULE = re.compile(r"^(?:bench|tools)(?:\.\w+)+$")
 REGENERATE = "python tools/gen_results.py"
 
 
@@ -408,6 +410,17 @@ def _inherit(entries: dict[str, Entry], problems: list[str]) -> None:
         e.note = " ".join(str(source.raw.get("note") or "").split()) if source is not None else ""
 
 
+def _scripts(command: str) -> list[str]:
+    """Repository files a command runs: script paths (``bench/x.py``, ``tools/x.py``,
+    ``scripts/x.sh``) and modules run with ``-m`` (``-m bench.repro.x`` -> ``bench/repro/x.py``)."""
+    tokens = command.split()
+    out = [t for t in tokens if SCRIPT.match(t)]
+    for flag, module in itertools.pairwise(tokens):
+        if flag == "-m" and MODULE.match(module):
+            out.append(module.replace(".", "/") + ".py")
+    return out
+
+
 def _check_entries(root: Path, areas: dict[str, str], entries: dict[str, Entry],
                    problems: list[str]) -> None:
     for e in entries.values():
@@ -426,9 +439,9 @@ def _check_entries(root: Path, areas: dict[str, str], entries: dict[str, Entry],
             elif anchor and path.endswith(".md") and anchor not in headings(root / path):
                 problems.append(f"{where}: docs names {doc}, but {path} has no heading with that "
                                 "anchor: fix the link")
-        for token in str(e.command).split():
-            if SCRIPT.match(token) and not (root / token).exists():
-                problems.append(f"{where}: the command names {token}, which does not exist: "
+        for script in _scripts(str(e.command)):
+            if not (root / script).exists():
+                problems.append(f"{where}: the command names {script}, which does not exist: "
                                 "update the command")
         standalone = e.of is None and e.status == "current"
         if standalone:

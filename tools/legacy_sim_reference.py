@@ -29,7 +29,7 @@ import numpy as np
 
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig, load_rig, shipped_rigs
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 DEFAULT = Path(__file__).resolve().parents[1] / "test" / "data" / "legacy_sim_reference.npz"
 N_SAMPLES = 600

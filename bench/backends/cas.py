@@ -14,7 +14,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from backends import components as comp
+from bench.backends import components as comp
 
 
 class CasadiXP:

@@ -287,7 +287,7 @@ def delayed_pairs(duty: np.ndarray, whole: int, tau_before: float = 0.0) -> tupl
     With a delay of ``whole + frac`` samples the actuator sees ``u_a[k] = duty[k − whole − 1]`` on
     the first ``frac·dt`` of interval k and ``u_b[k] = duty[k − whole]`` on the rest
     (``tau_before`` before the first command), the same shifted zero-order hold as
-    :func:`aeropend_sim.simulate.simulate`.
+    :func:`aeropend_sim.simulation.simulate`.
     """
     padded = np.concatenate((np.full(whole + 1, tau_before), duty))
     n = duty.size

@@ -15,7 +15,7 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 from jax import lax  # noqa: E402
 
-from backends import components as comp  # noqa: E402
+from bench.backends import components as comp  # noqa: E402
 
 
 def make_replay(built: comp.Built, k: int, frac: float, dt: float):
@@ -54,7 +54,7 @@ def make_adaptive_replay(built: comp.Built, frac: float, dt: float, rtol: float 
                          solver: str = "Tsit5", max_steps: int = 4096):
     """Jitted ``replay(x0, u_a, u_b, p) -> (states (N, 5), steps (N,))`` with diffrax's adaptive
     ``solver`` (PID step-size control at the given tolerances) restarted on each piece of each
-    sample, like LSODA in :func:`aeropend_sim.simulate.simulate` but compiled; ``steps`` counts
+    sample, like LSODA in :func:`aeropend_sim.simulation.simulate` but compiled; ``steps`` counts
     the accepted steps per sample."""
     import diffrax as dfx
 

@@ -4,14 +4,11 @@ backend prototypes and ``bench/bench_sim_backends.py``."""
 from __future__ import annotations
 
 import contextlib
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 
 from aeropend_sim.params import Rig, load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 #: Simulated span of one replay [s] (issue 37's bar: 60 s at 490 Hz).
 SPAN = 60.0
@@ -23,7 +20,7 @@ JAC_PARAMS = ("pendulum.mgd_over_J", "pendulum.c_over_J", "pendulum.L_over_J",
 def all_effects_rig(coulomb: bool = True, contact: bool = False) -> Rig:
     """thesis_rig with every dynamic effect on (sensor noise and quantisation stay off: they act on
     the measured channels, not on the ODE). Values of the effects the thesis rig does not measure
-    follow ``bench/bench_control.py``'s perturbed plant and ``test/test_model.py``: dead zone 3 %,
+    follow ``bench/bench_control.py``'s perturbed plant and ``test/sim/test_model.py``: dead zone 3 %,
     lag 10 ms, input delay 5 ms (2.44 samples: a fractional delay), rotor brush friction
     2e-5 N·m, rod Coulomb 0.3 rad/s² with a Stribeck excess of 0.2 rad/s² over 0.1 rad/s (v_ε stays
     the stiff 0.01 rad/s), thrust exponent 1.9, end stops on at the thesis rig's ±π/2 (not reached by
@@ -41,21 +38,11 @@ def all_effects_rig(coulomb: bool = True, contact: bool = False) -> Rig:
     return rig.with_params("pendulum", theta_max=0.65) if contact else rig
 
 
-def _bench_sim():
-    """``bench/bench_sim.py`` as a module (its input generators are the one home of the bench
-    inputs)."""
-    path = Path(__file__).resolve().parent.parent / "bench_sim.py"
-    spec = importlib.util.spec_from_file_location("bench_sim", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault("bench_sim", mod)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def inputs(dt: float, seed: int = 0) -> dict[str, np.ndarray]:
     """The three input types over :data:`SPAN`: thesis Latin-hypercube steps, APRBS (50-500 ms
     holds) and a per-sample random duty (closed-loop-like: it changes every sample)."""
-    b = _bench_sim()
+    from bench import bench_sim as b  # its input generators are the one home of the bench inputs
+
     rng = np.random.default_rng(seed)
     n = round(SPAN / dt)
     return {"step": b._lhs_steps(rng, n, dt), "aprbs": b._aprbs(rng, n, dt),
@@ -63,7 +50,7 @@ def inputs(dt: float, seed: int = 0) -> dict[str, np.ndarray]:
 
 
 def reference(rig: Rig, duty: np.ndarray) -> np.ndarray:
-    """LSODA states (N, 5) of today's :func:`aeropend_sim.simulate.simulate`."""
+    """LSODA states (N, 5) of today's :func:`aeropend_sim.simulation.simulate`."""
     return simulate(rig, duty).x
 
 
@@ -72,7 +59,7 @@ def ramped_stops_in_model():
     """Within the block, :class:`aeropend_sim.model.PlantModel` uses the study's continuous contact
     law :func:`components.end_stops_ramped` (so LSODA gives its reference); restored after."""
     from aeropend_sim.model import PlantModel
-    from backends import components
+    from bench.backends import components
 
     original = PlantModel._stop_accel
 

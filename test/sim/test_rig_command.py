@@ -297,7 +297,7 @@ def test_free_decay_recording_gives_the_inertia_and_damping(tmp_path):
     """A free decay simulated by the model itself (motor off): the fitted inertia and c/J are the
     truth within 2σ, and the envelope note says exponential."""
     from aeropend_ident.greybox.rig_problem import apply_values
-    from aeropend_sim.simulate import simulate
+    from aeropend_sim.simulation import simulate
 
     rig_path = _new(tmp_path, "esc", ESC_STATED)
     truth = {"pendulum.inertia": 0.0052, "pendulum.c_over_J": 0.6}
@@ -312,7 +312,7 @@ def test_free_decay_recording_gives_the_inertia_and_damping(tmp_path):
     log.write_text("time_s,duty,theta_rad\n" + "".join(f"{k * dt},0,{v}\n" for k, v in enumerate(theta)),
                    encoding="utf-8")
     preset = tmp_path / "lab_log.yaml"
-    from rig_lab import PRESET
+    from bench.fixtures.rig_lab import PRESET
 
     preset.write_text(PRESET, encoding="utf-8")
     res = fit_rig(rig_path, [f"{log}:{preset}"])

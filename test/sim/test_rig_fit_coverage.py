@@ -1,5 +1,5 @@
 """The bar of issue 36: per actuator family, ``rig new`` → ``rig fit`` on a lab's simulated data of a
-truth plant outside aeropend_sim (bench/truth_plant.py) recovers the parameters within their
+truth plant outside aeropend_sim (bench/fixtures/truth_plant.py) recovers the parameters within their
 reported uncertainty, with the coverage checked over 20 noise seeds.
 
 Each family's lab states what a lab knows (geometry, data-sheet motor constants, ...) and leaves the
@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import rig_lab
-from rig_lab import tp
 
 from aeropend_ident.greybox.rig_fit import fit_rig
 from aeropend_sim.rigcmd.cli import main as rig_main
+from bench.fixtures import rig_lab
+from bench.fixtures.rig_lab import tp
 
 SEEDS = 20
 SIGMA = 0.005  # rad, angle noise of the labs' sensors

@@ -483,7 +483,7 @@ class BridgeNode(LifecycleNode):
         """Every keep-alive period: the current duty (active), or duty 0 while configured but
         inactive, so the firmware's 250 ms command watchdog stays quiet as long as the bridge lives
         (it tripped between the duty 0 sent on connect and activation when configure → activate
-        took longer than 250 ms: ``bench/repro_firmware_watchdog_trip.py``)."""
+        took longer than 250 ms: ``bench/repro/firmware_watchdog_trip.py``)."""
         if not self._active:
             self._send_duty(0.0)
             return

@@ -58,7 +58,7 @@ class FakeMcu:
     paused : bool
         Write nothing until :meth:`resume` (so a soak test starts after the reader connected;
         the bridge flushes stale input when it opens the port).
-    plant : aeropend_sim.simulate.PlantStepper, optional
+    plant : aeropend_sim.simulation.PlantStepper, optional
         Plant in the loop: each period applies the current duty (OCR/255) to the plant and sends
         its outputs as ADC counts / Timer4 ticks (inverse of ``calibration``).
     calibration : aeropend_bridge.bridge_core.Calibration, optional

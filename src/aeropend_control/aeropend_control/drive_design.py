@@ -461,7 +461,7 @@ ROBUST_ZETAS = (0.7, 0.75, 0.8, 0.85, 0.9, 0.95)
 #: Factors on the strategy's default natural frequency ω_n :func:`robust_spec` chooses from, per
 #: drive (:attr:`DriveSpec.kind`; ascending: the slowest of equal cost wins). On the duty drive a
 #: faster position loop takes a larger thrust-gain error before it settles later than 1 s, where
-#: the drive leaves the phase for it; chosen on tuning plants 100-119 (``bench/sweep_robust_spec.py``:
+#: the drive leaves the phase for it; chosen on tuning plants 100-119 (``bench/sweeps/robust_spec.py``:
 #: up to ×1.1 / 1.2 / 1.3 / 1.5 for every strategy gave goal 82.2 / 86.1 / 86.1 / 85.0 %, ×1 alone
 #: 76.7 %). The cascades keep ω_n: their position loop sits on a speed loop that detunes itself
 #: (×2/3) when the drive cycles, and a faster outer loop made the motor loops cycle, detune and then
@@ -485,13 +485,13 @@ THRUST_GAIN_ERRORS = (0.8, 1.0, 1.2)
 DAMPING_ERRORS = (0.8, 1.0, 1.2)
 #: Factors on the gravity stiffness mgd/J (a0) :func:`robust_spec` guards against (1.0: none). A
 #: ±15 % box, the gravity errors of the independent benchmark, was measured on tuning plants 100-119
-#: (``bench/sweep_robust_spec.py``): goal 83.9 % against 84.4 % without, so it is not used.
+#: (``bench/sweeps/robust_spec.py``): goal 83.9 % against 84.4 % without, so it is not used.
 GRAVITY_ERRORS: tuple[float, ...] = (1.0,)
 #: Settling time and overshoot the robust choice scores against: the goal's ts ≤ 1 s, and an
 #: overshoot inside the 2 % settling band instead of the goal's 5 %. Physics: where the rod's first
 #: overshoot ends, Coulomb friction (which no rig file of ``gap`` names reliably) holds it while the
 #: integrator unwinds (0.3-0.5 s at 1.5 rad/s²); a first overshoot inside the band is then settled,
-#: one outside it costs the settling time. Chosen on tuning plants 100-109 (``bench/sweep_robust_spec.py``,
+#: one outside it costs the settling time. Chosen on tuning plants 100-109 (``bench/sweeps/robust_spec.py``,
 #: ``bench/results/control_robust_sweep.md``), not on the reported plants.
 ROBUST_GOAL = dataclasses.replace(GOAL, overshoot=2.0)
 

@@ -22,11 +22,8 @@ Usage::
 from __future__ import annotations
 
 import os
-import re
-import shutil
 import signal
 import subprocess
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +35,7 @@ from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, namespaced
 from aeropend_sim.output_folder import OutputFolderError
 from aeropend_sim.ros.domain import claim_domain
+from aeropend_sim.ros.harness import DISCOVERY, node_command, stop, summary_fields
 
 #: What the main job writes into its report folder: the bag, the node logs, the grey-box baseline
 #: report and the summary (``pipeline --overwrite`` replaces only a folder that holds one of them).
@@ -66,31 +64,19 @@ class Stage:
         fh.close()
 
     def stop(self, timeout: float = 15.0) -> int:
-        """SIGINT, then SIGTERM/SIGKILL if it does not exit; returns the exit status."""
+        """SIGINT (the node's clean shutdown), SIGKILL if it has not exited within ``timeout``
+        seconds; returns the exit status."""
         if self.proc is None:
             return 0
-        for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 5.0), (signal.SIGKILL, 5.0)):
-            if self.proc.poll() is not None:
-                break
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(wait)
-            except subprocess.TimeoutExpired:
-                continue
-        return int(self.proc.returncode if self.proc.returncode is not None else -9)
+        return int(stop(self.proc, signal.SIGINT, timeout, kill_on_timeout=True).returncode)
 
 
 def _exe(name: str) -> list[str]:
-    """Console script of the current environment (falls back to PATH)."""
-    local = Path(sys.executable).parent / name
-    if local.exists():
-        return [str(local)]
-    found = shutil.which(name)
-    if found is None:
-        raise PipelineError(
-            f"executable {name!r} not found: run scripts/setup_env.sh or source install/setup.bash"
-        )
-    return [found]
+    """Console script of the current environment (:func:`aeropend_sim.ros.harness.node_command`)."""
+    try:
+        return node_command(name)
+    except FileNotFoundError as exc:
+        raise PipelineError(str(exc)) from exc
 
 
 def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: list[str],
@@ -117,7 +103,8 @@ def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: li
     if claim is not None:
         env["ROS_DOMAIN_ID"] = str(claim.domain_id)
     # the demo's DDS traffic stays on this host unless the user chose otherwise (Jazzy variable)
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    for key, value in DISCOVERY.items():
+        env.setdefault(key, value)
     env.setdefault("RCUTILS_COLORIZED_OUTPUT", "0")
     logs = out / OUTPUTS["logs"]
     remap = ["-r", f"__ns:=/{namespace.strip('/')}"] if namespace.strip("/") else []
@@ -168,8 +155,8 @@ def plant_sample_count(log: Path) -> int | None:
     """Number of samples the plant node says it published (its shutdown ``summary:`` line)."""
     if not log.is_file():
         return None
-    m = re.search(r"summary: mode=\w+ samples=(\d+)", log.read_text(errors="replace"))
-    return int(m.group(1)) if m else None
+    samples = summary_fields(log.read_text(errors="replace")).get("samples", "")
+    return int(samples) if samples.isdigit() else None
 
 
 def check_recording(bag: Path, log: Path, mode: str, namespace: str = "") -> dict[str, Any]:

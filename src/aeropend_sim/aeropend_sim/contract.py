@@ -344,7 +344,7 @@ class LockstepRepeats:
     duty reader matched when the answer went out got it (reliable, keep-all), so a repeat is answered
     again only when more readers are matched now than then: a plant matched late may have missed it.
     Used by the controller node and the excitation's ``LockstepFeeder``
-    (``bench/repro_lockstep_double_answer.py``).
+    (``bench/repro/lockstep_double_answer.py``).
     """
 
     def __init__(self) -> None:

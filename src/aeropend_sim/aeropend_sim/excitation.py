@@ -2,7 +2,7 @@
 
 Every generator returns an :class:`ExcitationSignal`: the duty cycle τ_k ∈ [0, 1] at the sample
 instants t_k = k·dt, held (zero-order hold) over [t_k, t_{k+1}), i.e. the batch convention of
-:func:`aeropend_sim.simulate.simulate`. Piecewise-constant signals also carry their segments
+:func:`aeropend_sim.simulation.simulate`. Piecewise-constant signals also carry their segments
 (``levels``, ``holds``) so tests and plots need not re-detect them.
 
 Generators

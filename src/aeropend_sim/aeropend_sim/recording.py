@@ -1,6 +1,6 @@
 """In-memory recording of a plant run: the array form of a contract bag or an imported CSV.
 
-Alignment convention (the batch convention of :func:`aeropend_sim.simulate.simulate`):
+Alignment convention (the batch convention of :func:`aeropend_sim.simulation.simulate`):
 ``duty[k]`` is the duty cycle held over [t_k, t_{k+1}) and every channel ``y[k]`` is the value at
 t_k. On the wire (contract topics) the applied duty of a sample describes the interval that
 *ends* at its stamp; the bag reader shifts it by one sample into this convention.
@@ -147,7 +147,7 @@ class Recording:
     @classmethod
     def from_trajectory(cls, traj: Any, source: str = "simulation", channels: tuple[str, ...] | None = None,
                         meta: dict[str, Any] | None = None) -> Recording:
-        """Recording of a :class:`aeropend_sim.simulate.Trajectory` (measured channels).
+        """Recording of a :class:`aeropend_sim.simulation.Trajectory` (measured channels).
 
         Parameters
         ----------

@@ -11,7 +11,7 @@ The node :mod:`aeropend_sim.ros.sim_node` is a thin rclpy shell around this modu
 * :class:`RealtimeSchedule` is the absolute-deadline arithmetic of the real-time sampler
   (deadline of sample k, overrun detection and re-anchoring);
 * :func:`sample_stamp_ns` maps a sample index to its header stamp;
-* :class:`PlantClock` advances a :class:`~aeropend_sim.simulate.PlantStepper` one sample at a
+* :class:`PlantClock` advances a :class:`~aeropend_sim.simulation.PlantStepper` one sample at a
   time and builds the stamped contract :class:`~aeropend_sim.contract.Sample` (both modes).
 
 Time is integer nanoseconds throughout (``time.monotonic_ns`` for wall deadlines, ROS time for
@@ -30,7 +30,7 @@ import numpy as np
 from aeropend_sim.components import registry
 from aeropend_sim.contract import ContractError, Sample, validate_duty
 from aeropend_sim.params import Rig, RigFileError, load_rig
-from aeropend_sim.simulate import PlantStepper
+from aeropend_sim.simulation import PlantStepper
 
 #: Node modes.
 MODES: tuple[str, ...] = ("realtime", "lockstep")

@@ -20,7 +20,7 @@ from aeropend_ident.io.bag_writer import write_bag
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 DT = 0.01
 NOMINAL = load_rig("thesis_rig")

@@ -3,7 +3,7 @@
 The generator (:func:`make_case`) builds a hidden "real" plant from a nominal rig by adding one
 or two catalog effects (:mod:`aeropend_ident.gap.effects`) at random magnitudes
 (:func:`truth_ranges`, declared with each effect in ``aeropend_sim.components``), simulates it
-with :func:`aeropend_sim.simulate.simulate` under random excitation and sensor noise, and returns
+with :func:`aeropend_sim.simulation.simulate` under random excitation and sensor noise, and returns
 fit and held-out recordings made with **different excitations and seeds** (fit: amplitude-modulated
 PRBS; held-out: Latin-hypercube steps). The truth stays in the :class:`SynthCase`; the diagnosis
 sees only the nominal rig and the recordings. :func:`score_case` compares afterwards (top-1 /
@@ -12,7 +12,7 @@ effect.
 
 Sensor offset and scale are applied as the measurement transform of
 :class:`aeropend_ident.gap.effects.MeasurementMap` (the plant model has no such effect), before
-the noise and quantisation of :func:`aeropend_sim.simulate.measure`.
+the noise and quantisation of :func:`aeropend_sim.simulation.measure`.
 
 No rclpy import: this module runs without ROS.
 """
@@ -34,7 +34,7 @@ from aeropend_sim.excitation import aprbs, lhs_steps
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import measure, simulate
+from aeropend_sim.simulation import measure, simulate
 
 
 def truth_ranges(name: str) -> dict[str, tuple[tuple[float, float], ...]]:

@@ -84,7 +84,7 @@ from aeropend_sim.components.xp import NUMPY
 from aeropend_sim.model import I_A, OMEGA, TAU_F, THETA, THETA_DOT, ModelError, PlantModel
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import SimulationError, simulate
+from aeropend_sim.simulation import SimulationError, simulate
 
 #: Significance level of the Ljung-Box and cross-correlation tests.
 ALPHA = 0.01

@@ -91,7 +91,7 @@ from aeropend_ident.sindy.model import IdentData
 from aeropend_sim.model import ModelError, PlantModel
 from aeropend_sim.params import Rig, rig_to_dict
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulate import SimulationError, simulate
+from aeropend_sim.simulation import SimulationError, simulate
 
 #: Channels compared in the output-error fits (when recorded).
 FIT_CHANNELS = ("theta", "i_a", "v_a", "omega_rotor")
@@ -244,7 +244,7 @@ def replay(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarr
     the steady state of the first duty cycle; the actuator lag state at the first duty cycle. The
     model is then driven by the recorded duty cycle only. One row of :func:`replay_many` (the
     diagnosis' sub-steps, so that every figure of a diagnosis comes from the same replays);
-    :func:`replay_reference` replays with :func:`aeropend_sim.simulate.simulate` and gives the
+    :func:`replay_reference` replays with :func:`aeropend_sim.simulation.simulate` and gives the
     state too.
 
     Raises
@@ -260,7 +260,7 @@ def replay(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarr
 
 
 def replay_reference(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarray]:
-    """:func:`replay` by :func:`aeropend_sim.simulate.simulate` (the reference sub-steps), with the
+    """:func:`replay` by :func:`aeropend_sim.simulation.simulate` (the reference sub-steps), with the
     model state (N, 5) as ``"_x"``.
 
     Raises

@@ -1,1 +1,38 @@
-"""Grey-box fitting of the physical model parameters, the baseline report, static estimators."""
+"""Grey-box fitting of the physical model parameters, the baseline report, static estimators.
+
+The baseline report is :func:`aeropend_ident.baseline` (here the module of that name) or
+:func:`run_baseline`. Names are imported on first use (PEP 562). Reference: docs/api.md.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+
+#: The public API: defining module -> its names (the one list: ``__all__``, the lazy lookup and
+#: docs/api.md's check read it).
+_API: dict[str, tuple[str, ...]] = {
+    "aeropend_ident.greybox.fit": (
+        "fit_greybox", "GreyBoxResult", "ParameterEstimate", "free_run_theta", "error_metrics",
+    ),
+    "aeropend_ident.greybox.baseline": ("run_baseline", "BaselineResult", "fitted_rig_dict"),
+    "aeropend_ident.greybox.static": (
+        "armature_resistance", "armature_time_constant", "back_emf_constant", "fit_hbridge_map",
+        "fit_thrust_law",
+    ),
+}
+_WHERE = {name: module for module, names in _API.items() for name in names}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> object:
+    """Import the module that defines ``name`` on first use (PEP 562) and keep the value."""
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -26,7 +26,7 @@ stiffness needs them (the compiled plant's |h·λ| ≤ 0.5 bound), instead of th
 simulator's 6 per sample. On the thesis rig with every effect on this keeps θ within 4e-6 rad of
 the LSODA reference over 60 s (docs/findings/simulator_backends.md, K = 2 column), two orders of
 magnitude below the noise of any recorded angle, at a third of the cost; reports replay the
-fitted rig with :func:`aeropend_sim.simulate.simulate` (docs/model.md, "Simulation backends").
+fitted rig with :func:`aeropend_sim.simulation.simulate` (docs/model.md, "Simulation backends").
 
 Exact Jacobians are not available: numba compiles the replay, it does not differentiate it;
 the fits use finite differences through the batch.
@@ -160,7 +160,7 @@ class RigReplays:
         x0 : ndarray, shape (B, 5)
             Initial states.
         channels : sequence of str
-            Channel names (:func:`aeropend_sim.simulate.simulate_batch`).
+            Channel names (:func:`aeropend_sim.simulation.simulate_batch`).
 
         Returns
         -------

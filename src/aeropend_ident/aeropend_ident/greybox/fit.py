@@ -86,7 +86,7 @@ from aeropend_sim.model import ModelError, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.recording import Recording
 from aeropend_sim.recording_frame import FrameError, RecordingFrame, read_recording_frame
-from aeropend_sim.simulate import SimulationError, simulate
+from aeropend_sim.simulation import SimulationError, simulate
 
 #: Name of the angle-offset parameter: θ_model = θ_recorded + θ_offset [rad].
 THETA_OFFSET = "theta_offset"
@@ -728,7 +728,7 @@ def free_run_theta(
     Raises
     ------
     IdentificationError
-        If the simulation fails (wrapped :class:`~aeropend_sim.simulate.SimulationError`).
+        If the simulation fails (wrapped :class:`~aeropend_sim.simulation.SimulationError`).
     """
     if len(data.segments) > 1:
         parts = data.parts()

@@ -1,1 +1,39 @@
-"""Recording I/O: rosbag2 reader/writer, CSV import and its presets, one ``load_recording``."""
+"""Recording I/O: rosbag2 reader/writer, CSV import and its presets, one ``load_recording``.
+
+Names are imported on first use (PEP 562): the recorder node imports :mod:`.bags` without the CSV
+import's dependencies. Reference: docs/api.md.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+
+#: The public API: defining module -> its names (the one list: ``__all__``, the lazy lookup and
+#: docs/api.md's check read it).
+_API: dict[str, tuple[str, ...]] = {
+    "aeropend_ident.io.recording_input": ("load_recording", "load_and_split", "uniform_recording"),
+    "aeropend_ident.io.bags": ("read_bag", "RawBagReader", "bag_metadata"),
+    "aeropend_ident.io.bag_writer": ("write_bag", "BagSink"),
+    "aeropend_ident.io.bag_recover": ("reindex", "is_truncated"),
+    "aeropend_ident.io.csv_import": ("import_csv", "import_csv_runs", "csv_to_bag"),
+    "aeropend_ident.io.csvspec.spec": ("CsvSpec", "load_preset_file", "write_preset_file", "find_preset"),
+    "aeropend_ident.io.csvspec.input_kinds": ("InputKind", "input_map"),
+    "aeropend_ident.io.split": ("validation_split", "time_ordered", "interleaved_blocks", "split_runs"),
+    "aeropend_ident.io.jsonutil": ("jsonable",),
+}
+_WHERE = {name: module for module, names in _API.items() for name in names}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> object:
+    """Import the module that defines ``name`` on first use (PEP 562) and keep the value."""
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -1,1 +1,39 @@
-"""Sparse identification (SINDy, weak SINDy, output-error refinement) of the plant."""
+"""Sparse identification (SINDy, weak SINDy, output-error refinement) of the plant.
+
+The ``identify`` pipeline is :func:`aeropend_ident.identify` (here the module of that name).
+Names are imported on first use (PEP 562): pysindy loads when a fit is first called.
+Reference: docs/api.md.
+"""
+
+from __future__ import annotations
+
+from importlib import import_module
+
+#: The public API: defining module -> its names (the one list: ``__all__``, the lazy lookup and
+#: docs/api.md's check read it).
+_API: dict[str, tuple[str, ...]] = {
+    "aeropend_ident.sindy.core": ("fit", "sweep_threshold", "select_threshold"),
+    "aeropend_ident.sindy.model": (
+        "IdentData", "SindyModel", "NoEquationError", "data_from_trajectory", "free_run",
+        "structure_errors", "save_model",
+    ),
+    "aeropend_ident.sindy.libraries": ("physics_library", "thesis_library", "CandidateLibrary"),
+    "aeropend_ident.sindy.preprocess": ("differentiate", "add_derivatives"),
+    "aeropend_ident.sindy.output_error": ("refine_output_error",),
+}
+_WHERE = {name: module for module, names in _API.items() for name in names}
+__all__ = sorted(_WHERE)
+
+
+def __getattr__(name: str) -> object:
+    """Import the module that defines ``name`` on first use (PEP 562) and keep the value."""
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *__all__})

@@ -144,7 +144,7 @@ class IdentData:
 
 def data_from_trajectory(traj: Any, rig: Rig | None = None, measured: bool = False,
                          exact_derivatives: bool = False, source: str = "simulation") -> IdentData:
-    """Identification data from a :class:`aeropend_sim.simulate.Trajectory`.
+    """Identification data from a :class:`aeropend_sim.simulation.Trajectory`.
 
     Parameters
     ----------

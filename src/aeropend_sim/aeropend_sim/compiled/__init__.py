@@ -5,6 +5,6 @@ into a fixed-step RK4 replay whose cost does not depend on how often the input c
 is the integrator text those modules end with, ``xp_numba`` the ``xp`` namespace numba compiles
 the terms against, and ``plant`` the object the simulator and the fits use
 (:class:`.plant.CompiledPlant`). The public entry points are
-:func:`aeropend_sim.simulate.simulate` (``backend="compiled"``) and
-:func:`aeropend_sim.simulate.simulate_batch`.
+:func:`aeropend_sim.simulation.simulate` (``backend="compiled"``) and
+:func:`aeropend_sim.simulation.simulate_batch`.
 """

@@ -9,7 +9,7 @@ generated module's name hashes this text, so a change here recompiles.
 
 Scheme: classical RK4 with ``n`` equal sub-steps per constant-input piece of a sample. A sample
 with a fractional input delay is two pieces, split where the delayed command switches (the
-shifted zero-order hold of :func:`aeropend_sim.simulate.simulate`). A contact term (an end stop,
+shifted zero-order hold of :func:`aeropend_sim.simulation.simulate`). A contact term (an end stop,
 ``Term.contact``) switches on with a jump of the right-hand side (its damping acts at full
 strength from zero penetration) and off with a kink (the rebound brings the push to zero); a
 fixed step across either is first or second order. A sub-step in which any RK4 stage point

@@ -1,10 +1,10 @@
 """A rig's compiled model at a sample period: parameter vectors, the sub-step plan, replays.
 
-:class:`CompiledPlant` is what :func:`aeropend_sim.simulate.simulate` (``backend="compiled"``),
-:func:`aeropend_sim.simulate.simulate_batch` and :class:`aeropend_sim.simulate.PlantStepper` run
+:class:`CompiledPlant` is what :func:`aeropend_sim.simulation.simulate` (``backend="compiled"``),
+:func:`aeropend_sim.simulation.simulate_batch` and :class:`aeropend_sim.simulation.PlantStepper` run
 on; a fit that replays one recording many times keeps one and calls :meth:`CompiledPlant.vectors`
 (rig with these parameter values -> parameter vectors, no Python objects rebuilt) and
-:func:`~aeropend_sim.simulate.simulate_batch`. Inputs are validated by those callers; this module
+:func:`~aeropend_sim.simulation.simulate_batch`. Inputs are validated by those callers; this module
 trusts them.
 
 **Sub-steps.** Each sample period is integrated with K classical RK4 sub-steps (K + 1 with a

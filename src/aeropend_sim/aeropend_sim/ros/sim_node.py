@@ -1,7 +1,7 @@
 """Simulated aeropendulum plant node ``aeropend_sim`` (console script ``sim_node``).
 
 Publishes the contract sample topics (``/aeropend/joint_states`` + ``/aeropend/armature``, same
-stamp, see :mod:`aeropend_sim.contract`) from a :class:`~aeropend_sim.simulate.PlantStepper`
+stamp, see :mod:`aeropend_sim.contract`) from a :class:`~aeropend_sim.simulation.PlantStepper`
 and subscribes the duty-cycle command ``/aeropend/duty_cycle``. A drop-in replacement for the
 hardware bridge.
 
@@ -271,7 +271,7 @@ class SimPlantNode(Node):
         Runs on the executor thread, so the sampler's loop holds no logging code. It does not make
         the plant immune to a console nobody reads: rclpy's log call keeps the GIL while it writes,
         so a full stderr pipe freezes every thread of the process (docs/data_plane.md,
-        ``bench/repro_unread_stderr.py``). Whoever starts the node must read its output (launch,
+        ``bench/repro/unread_stderr.py``). Whoever starts the node must read its output (launch,
         a terminal, the main job's log files).
         """
         sched = self.schedule

@@ -1,7 +1,7 @@
 """Effect ``input_delay``: a transport delay (dead time) T_d between the command and the actuator.
 
 The actuator sees τ(t − T_d). It has no term in the right-hand side: the simulator shifts the
-zero-order-hold input in time (:mod:`aeropend_sim.simulate`), for any T_d, not only whole samples.
+zero-order-hold input in time (:mod:`aeropend_sim.simulation`), for any T_d, not only whole samples.
 """
 
 from __future__ import annotations

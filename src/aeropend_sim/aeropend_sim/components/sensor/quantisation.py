@@ -1,6 +1,6 @@
 """Effect ``quantisation``: ADC/encoder quantisation of the measured channels, y = LSB·round(y/LSB).
 
-Applied by :func:`aeropend_sim.simulate.measure`; an LSB of 0 leaves the channel as it is. θ̇ is
+Applied by :func:`aeropend_sim.simulation.measure`; an LSB of 0 leaves the channel as it is. θ̇ is
 estimated, never quantised.
 """
 

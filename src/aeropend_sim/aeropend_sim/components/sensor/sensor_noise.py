@@ -2,7 +2,7 @@
 
 y = y_true + N(0, σ²), σ = RMS(y_true)/10^(SNR/20) per channel (batch simulation), or
 σ = (reference RMS)/10^(SNR/20) in per-sample stepping, where the RMS is not known in advance.
-Applied by :func:`aeropend_sim.simulate.measure`; no term in the right-hand side.
+Applied by :func:`aeropend_sim.simulation.measure`; no term in the right-hand side.
 """
 
 from __future__ import annotations

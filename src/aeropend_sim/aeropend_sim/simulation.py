@@ -1,0 +1,512 @@
+"""Sampled simulation of the plant model: batch API and per-sample stepper.
+
+Sampling semantics (the same for the simulated plant node and the hardware):
+
+* sample k is taken at t_k = k·T_s from the state x(t_k);
+* the duty cycle τ_k commanded for sample k is held (zero-order hold) over [t_k, t_{k+1});
+* with the input delay T_d switched on, the actuator sees τ(t − T_d): the held input is shifted
+  in time, with τ = ``tau_before`` before the first command arrives.
+
+Two backends integrate the same equations (the registry's term functions):
+
+* ``"compiled"`` (default): fixed-step classical RK4 compiled by numba
+  (:mod:`aeropend_sim.compiled`), sub-steps of at most 0.34 ms (at least 6 per sample), the
+  sample split where a fractional input delay switches the command, end-stop contact switches
+  located inside the sub-step. Its cost does not depend on how often the input changes (≥ 1000×
+  real time on the thesis rig with every effect on, for steps and per-sample inputs alike);
+  :func:`simulate_batch` replays one input with many parameter sets, shared out to threads;
+* ``"lsoda"``: SciPy's LSODA (``scipy.integrate.odeint``, rtol 1e-8) over each interval on which
+  the delayed input is constant; the reference the compiled backend is tested against (agreement
+  per effect set in docs/model.md, "Simulation backends").
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.integrate import odeint
+
+from aeropend_sim.compiled.plant import MAX_SUBSTEPS, CompiledPlant
+from aeropend_sim.model import I_A, N_STATES, TAU_F, PlantModel
+from aeropend_sim.params import Rig
+
+#: ODE tolerances (relative, absolute) of the LSODA backend.
+RTOL, ATOL = 1e-8, 1e-10
+
+#: Simulation backends (module doc); the first is the default.
+BACKENDS: tuple[str, ...] = ("compiled", "lsoda")
+DEFAULT_BACKEND = BACKENDS[0]
+
+
+class SimulationError(ValueError):
+    """Invalid simulation input (NaN or out-of-range duty cycle, bad initial state, ...)."""
+
+
+def _check_duty(duty: np.ndarray) -> np.ndarray:
+    duty = np.asarray(duty, dtype=float)
+    if duty.ndim != 1:
+        raise SimulationError(f"duty must be a 1-D array of duty cycles, got shape {duty.shape}")
+    bad = ~np.isfinite(duty) | (duty < 0.0) | (duty > 1.0)
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        raise SimulationError(
+            f"duty[{k}] = {duty[k]!r} is not a finite fraction in [0, 1] "
+            f"({int(bad.sum())} bad sample(s))"
+        )
+    return duty
+
+
+def _check_backend(backend: str) -> str:
+    if backend not in BACKENDS:
+        raise SimulationError(f"backend {backend!r}: expected one of {list(BACKENDS)}")
+    return backend
+
+
+def _check_state(x0: np.ndarray | None) -> np.ndarray:
+    if x0 is None:
+        return np.zeros(N_STATES)
+    x = np.asarray(x0, dtype=float).copy()
+    if x.shape != (N_STATES,) or not np.isfinite(x).all():
+        raise SimulationError(f"initial state must be 5 finite numbers, got {x0!r}")
+    return x
+
+
+@dataclass
+class Trajectory:
+    """Result of :func:`simulate`; arrays of shape (N,) at the sample instants t_k.
+
+    ``x`` holds the true state (N, 5); the channel arrays are what the acquisition measures
+    (noise and quantisation applied when switched on); ``true`` holds the noise-free channels.
+    ``i_a`` and ``v_a`` are None for a family without an armature (``esc``): absent, not zeros.
+    """
+
+    t: np.ndarray
+    duty: np.ndarray
+    x: np.ndarray
+    theta: np.ndarray
+    theta_dot: np.ndarray
+    omega_rotor: np.ndarray
+    omega_prop: np.ndarray
+    thrust: np.ndarray
+    i_a: np.ndarray | None = None
+    v_a: np.ndarray | None = None
+    true: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def channels(self) -> dict[str, np.ndarray]:
+        """Measured channels keyed by the contract channel names (only those the family has)."""
+        out = {
+            "theta": self.theta,
+            "theta_dot": self.theta_dot,
+            "omega_rotor": self.omega_rotor,
+            "omega_prop": self.omega_prop,
+            "i_a": self.i_a,
+            "v_a": self.v_a,
+            "duty": self.duty,
+        }
+        return {k: v for k, v in out.items() if v is not None}
+
+
+def _outputs(model: PlantModel, x: np.ndarray, u_eff: np.ndarray) -> dict[str, np.ndarray]:
+    """Noise-free channels for states x (N, 5) and actuator-side inputs u_eff (N,)."""
+    return model.outputs(x, u_eff)
+
+
+def _quanta(rig: Rig) -> dict[str, float]:
+    """LSB of each measured channel (0 = not quantised); θ̇ is estimated, never quantised."""
+    s = rig.sensors
+    return {"theta": s.theta_quantum, "theta_dot": 0.0, "i_a": s.i_a_quantum, "v_a": s.v_a_quantum,
+            "omega_rotor": s.omega_quantum, "omega_prop": s.omega_quantum}
+
+
+def measure(rig: Rig, true: dict[str, np.ndarray], rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Apply sensor noise (at ``rig.sensors.snr_db``) and ADC quantisation to channels.
+
+    Noise is white Gaussian with standard deviation σ = RMS(signal)/10^(SNR/20) per channel
+    (the SNR definition of thesis §5.3); quantisation rounds to the channel's LSB.
+
+    Parameters
+    ----------
+    rig : Rig
+    true : dict of ndarray
+        Noise-free channels (``theta``, ``theta_dot``, ``i_a``, ``v_a``, ``omega_rotor``,
+        ``omega_prop``).
+    rng : numpy.random.Generator
+        Source of the noise (seeded by the caller for reproducibility).
+    """
+    s, e = rig.sensors, rig.effects
+    out = {}
+    for name, q in _quanta(rig).items():
+        if name not in true:
+            continue  # a channel the family does not have
+        y = true[name].copy()
+        if e.sensor_noise:
+            rms = float(np.sqrt(np.mean(y**2)))
+            y = y + rng.normal(0.0, rms / 10 ** (s.snr_db / 20.0), size=y.shape)
+        if e.quantisation and q > 0.0:
+            y = np.round(y / q) * q
+        out[name] = y
+    return out
+
+
+def _delayed_segments(
+    duty: np.ndarray, dt: float, delay: float, tau_before: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Breakpoints and constant actuator inputs of the delayed zero-order-hold signal.
+
+    Returns ``edges`` (M+1,) and ``values`` (M,): the actuator sees ``values[j]`` on
+    [edges[j], edges[j+1]). Samples t_k are always among the edges.
+    """
+    n = duty.size
+    t_end = n * dt
+    k = np.arange(n + 1) * dt
+    if delay <= 0.0:
+        edges, values = k, duty
+    else:
+        shifted = np.arange(n) * dt + delay
+        edges = np.sort(np.concatenate((k, shifted[shifted < t_end])))
+        # merge breakpoints that coincide up to rounding (delay a whole number of samples)
+        keep = np.concatenate(([True], np.diff(edges) > 1e-9 * dt))
+        edges = edges[keep]
+        mids = 0.5 * (edges[:-1] + edges[1:])
+        idx = np.floor((mids - delay) / dt + 1e-9).astype(int)
+        values = np.where(idx < 0, tau_before, duty[np.clip(idx, 0, n - 1)])
+    return edges, values
+
+
+def simulate(
+    rig: Rig,
+    duty: np.ndarray,
+    x0: np.ndarray | None = None,
+    dt: float | None = None,
+    seed: int | None = 0,
+    tau_before: float = 0.0,
+    backend: str = DEFAULT_BACKEND,
+) -> Trajectory:
+    """Simulate a whole duty-cycle sequence with zero-order hold at the sample rate.
+
+    Parameters
+    ----------
+    rig : Rig
+        Parameters and effects.
+    duty : ndarray, shape (N,)
+        Duty cycle τ_k ∈ [0, 1] held over [k·dt, (k+1)·dt).
+    x0 : ndarray, shape (5,), optional
+        Initial state (default: at rest, hanging down, motor off).
+    dt : float, optional
+        Sample period [s] (default ``rig.sample_period``).
+    seed : int or None
+        Seed of the measurement-noise generator (reproducible runs).
+    tau_before : float
+        Duty cycle the actuator sees before the first delayed command arrives.
+    backend : str
+        ``"compiled"`` (numba RK4, default) or ``"lsoda"`` (the reference), see the module doc.
+
+    Returns
+    -------
+    Trajectory
+        N samples at t_k = k·dt; sample k is the state before τ_k acts. Without an actuator lag
+        the state's τ_f is the command the actuator sees at t_k; with a quasi-static armature its
+        i_a is the algebraic current there.
+
+    Raises
+    ------
+    SimulationError
+        On NaN/out-of-range duty, a bad initial state, a non-positive ``dt``, an unknown backend, or
+        a compiled replay that diverges (naming the sample).
+    """
+    duty = _check_duty(duty)
+    x = _check_state(x0)
+    dt = float(rig.sample_period if dt is None else dt)
+    if not dt > 0.0:
+        raise SimulationError(f"sample period dt = {dt!r} must be > 0")
+    model = PlantModel(rig)
+    if _check_backend(backend) == "compiled":
+        plant = CompiledPlant(rig, dt, model=model)
+        states, u_at_sample, failed = plant.replay(duty, x, tau_before)
+        _check_replay(plant, failed)
+        true = plant.outputs(states, u_at_sample, _true_channels(model))
+    else:
+        states, u_at_sample = _replay_lsoda(model, duty, x, dt, tau_before)
+        true = _outputs(model, states, u_at_sample)
+    if not model.lag:
+        states[:, TAU_F] = u_at_sample
+    if model.assembly.armature and not model.dynamic_current:
+        states[:, I_A] = true["i_a"]
+    meas = measure(rig, true, np.random.default_rng(seed))
+    return Trajectory(t=np.arange(duty.size) * dt, duty=duty, x=states, thrust=true["thrust"], true=true,
+                      **meas)
+
+
+def _true_channels(model: PlantModel) -> tuple[str, ...]:
+    """Noise-free channels of :class:`Trajectory` (those of :meth:`PlantModel.outputs`)."""
+    names = ("theta", "theta_dot", "omega_rotor", "omega_prop", "thrust")
+    return (*names, "i_a", "v_a") if model.assembly.armature else names
+
+
+def _check_replay(plant: CompiledPlant, failed: int, p: np.ndarray | None = None, row: str = "") -> None:
+    """Raise if a replay (of the rig, or of parameter vector ``p``) diverged at sample ``failed``."""
+    if failed < 0:
+        return
+    k = int((plant.plan if p is None else plant.plans(p[None, :])).substeps[0])
+    why = (f"the plant needs more than {MAX_SUBSTEPS} RK4 sub-steps per sample" if k >= MAX_SUBSTEPS else
+           f"a parameter drives the plant unstable, or it is stiffer than {k} RK4 sub-steps per sample "
+           f"resolve (try backend='lsoda')")
+    raise SimulationError(f"{row}the compiled replay diverged at sample {failed} "
+                          f"(t = {failed * plant.dt:.6g} s): a state is not finite; {why}")
+
+
+def _replay_lsoda(model: PlantModel, duty: np.ndarray, x: np.ndarray, dt: float,
+                  tau_before: float) -> tuple[np.ndarray, np.ndarray]:
+    """States (N, 5) and actuator-side commands (N,) at the samples, LSODA over each stretch of
+    constant delayed input."""
+    n = duty.size
+    edges, values = _delayed_segments(duty, dt, model.delay, tau_before)
+    states = np.empty((n, N_STATES))
+    u_at_sample = np.empty(n)
+    sample_t = np.arange(n) * dt
+    # group consecutive equal inputs into one ODE call
+    change = np.flatnonzero(np.diff(values) != 0.0) + 1
+    starts = np.concatenate(([0], change))
+    stops = np.concatenate((change, [values.size]))
+    k = 0
+    for a, b in zip(starts, stops, strict=True):
+        t_grid = edges[a : b + 1]
+        u = float(values[a])
+        if not model.dynamic_current:
+            x[I_A] = model.current(x, u)
+        if not model.lag:
+            x[TAU_F] = u
+        # sample instants inside [t_grid[0], t_grid[-1])
+        k_hi = int(np.searchsorted(sample_t, t_grid[-1] - 1e-12 * dt, side="left"))
+        if k < k_hi and abs(sample_t[k] - t_grid[0]) < 1e-9 * max(dt, 1.0):
+            states[k] = x
+            u_at_sample[k] = u
+            k += 1
+        sol = odeint(model.rhs, x, t_grid, args=(u,), tfirst=True, rtol=RTOL, atol=ATOL, mxstep=50000)
+        # record samples that fall on interior grid points
+        for j in range(1, t_grid.size - 1):
+            if k < n and abs(t_grid[j] - sample_t[k]) < 1e-9 * max(dt, 1.0):
+                states[k] = sol[j]
+                u_at_sample[k] = u
+                k += 1
+        x = sol[-1].copy()
+    if k != n:  # pragma: no cover - guards the segment bookkeeping
+        raise SimulationError(f"internal error: recorded {k} of {n} samples")
+    return states, u_at_sample
+
+
+def simulate_batch(
+    rig: Rig | CompiledPlant,
+    duty: np.ndarray,
+    params: Mapping[str, Any] | np.ndarray,
+    x0: np.ndarray | None = None,
+    dt: float | None = None,
+    tau_before: float = 0.0,
+    channels: Sequence[str] = ("theta",),
+    threads: int | None = None,
+) -> dict[str, np.ndarray]:
+    """Replay one duty-cycle sequence with many parameter sets (compiled backend, in threads).
+
+    Row b of every result equals ``simulate(rig with the values of set b, duty, x0[b], ...,
+    backend="compiled").true[channel]`` bit for bit. Measurement noise and quantisation are not
+    applied (a fit compares the model's noise-free output with the data).
+
+    Parameters
+    ----------
+    rig : Rig or CompiledPlant
+        The rig (its values are the defaults of every parameter not varied), or a
+        :class:`~aeropend_sim.compiled.plant.CompiledPlant` of it kept across calls (a fit that
+        calls this hundreds of times builds it once).
+    duty : ndarray, shape (N,)
+        Duty cycles τ_k ∈ [0, 1].
+    params : mapping or ndarray
+        ``{"section.name": values (B,)}`` (an effect's parameter only when the effect is on in the
+        rig), or parameter vectors (B, P) from :meth:`CompiledPlant.vectors`.
+    x0 : ndarray, shape (5,) or (B, 5), optional
+        Initial state(s) (default at rest).
+    dt : float, optional
+        Sample period [s] (default: the rig's, or the plant's).
+    tau_before : float
+        Duty cycle the actuator sees before the first delayed command.
+    channels : sequence of str
+        Channels to return: ``theta``, ``theta_dot``, ``omega_rotor``, ``tau_f``, ``omega_prop``,
+        ``thrust``, the drive quantity (``v_a``; ``omega_sp`` on an ESC) and ``i_a`` (families with
+        an armature).
+    threads : int, optional
+        Threads the sets are shared out to (default: one per available core).
+
+    Returns
+    -------
+    dict
+        Channel -> ndarray (B, N).
+
+    Raises
+    ------
+    SimulationError
+        On a bad duty, initial state, shape or channel, or a set whose replay diverges (naming it).
+    aeropend_sim.params.RigFileError
+        On an unknown or switched-off parameter, or an invalid value (naming the set).
+    """
+    duty = _check_duty(duty)
+    if isinstance(rig, CompiledPlant):
+        plant = rig
+        if dt is not None and float(dt) != plant.dt:
+            raise SimulationError(f"dt = {dt!r} differs from the compiled plant's sample period {plant.dt}")
+    else:
+        plant = CompiledPlant(rig, dt)
+    if isinstance(params, Mapping):
+        keys = tuple(params)
+        p = plant.vectors(keys, np.column_stack([np.asarray(params[k], dtype=float) for k in keys])
+                          if keys else np.empty((1, 0)))
+    else:
+        p = np.asarray(params, dtype=float)
+        if p.ndim != 2 or p.shape[1] != plant.layout.size:
+            raise SimulationError(f"parameter vectors of shape {p.shape}: expected (B, {plant.layout.size})")
+    xs = np.zeros((p.shape[0], N_STATES)) if x0 is None else np.asarray(x0, dtype=float)
+    xs = np.repeat(xs[None, :], p.shape[0], axis=0) if xs.shape == (N_STATES,) else xs
+    if xs.shape != (p.shape[0], N_STATES) or not np.isfinite(xs).all():
+        raise SimulationError(f"initial states of shape {np.shape(x0)}: expected 5 or ({p.shape[0]}, 5) "
+                              "finite numbers")
+    try:
+        out, failed = plant.replay_batch(duty, p, np.ascontiguousarray(xs), tau_before, tuple(channels),
+                                         threads)
+    except ValueError as exc:  # an unknown channel
+        raise SimulationError(str(exc)) from exc
+    for b in np.flatnonzero(failed >= 0)[:1]:
+        _check_replay(plant, int(failed[b]), p[b], f"parameter set {b}: ")
+    return {name: out[:, c, :] for c, name in enumerate(channels)}
+
+
+class PlantStepper:
+    """Advance the plant one sample at a time (for the simulated plant node).
+
+    Holds the state, the delay line of commands and the noise generator; ``step(τ)`` applies
+    τ over one sample period and returns the next sample's channels. Two steppers built with
+    the same rig, initial state and seed produce identical samples for identical commands.
+
+    Parameters
+    ----------
+    rig : Rig
+    x0 : ndarray, shape (5,), optional
+        Initial state (default at rest).
+    seed : int or None
+        Seed of the measurement noise.
+    backend : str
+        ``"compiled"`` (default: the compiled RK4 step of :func:`simulate`, so a stepper and a batch
+        simulation of the same commands give the same states bit for bit) or ``"lsoda"``.
+    """
+
+    def __init__(self, rig: Rig, x0: np.ndarray | None = None, seed: int | None = 0,
+                 backend: str = DEFAULT_BACKEND) -> None:
+        model = PlantModel(rig)
+        self.dt = rig.sample_period
+        self.backend = _check_backend(backend)
+        plant = CompiledPlant(rig, self.dt, model=model) if backend == "compiled" else None
+        self._now: tuple[CompiledPlant | None, PlantModel, Rig] = (plant, model, rig)
+        self.x = _check_state(x0)
+        self.k = 0
+        self.rng = np.random.default_rng(seed)
+        n_delay = self.model.delay / self.dt
+        self._delay_whole = math.floor(n_delay + 1e-9)
+        self._delay_frac = (n_delay - self._delay_whole) * self.dt
+        self._queue: list[float] = [0.0] * (self._delay_whole + 1)
+        self._u_now = 0.0
+
+    @property
+    def rig(self) -> Rig:
+        """The rig being simulated."""
+        return self._now[2]
+
+    @property
+    def model(self) -> PlantModel:
+        """Its model."""
+        return self._now[1]
+
+    def set_rig(self, rig: Rig) -> None:
+        """Continue with another rig (other effect switches, noise) from the current state, noise
+        generator and pending commands: what a live parameter change of the simulated plant does.
+
+        Raises
+        ------
+        ValueError
+            If the sample period or the input delay differ (they size the command delay line,
+            which cannot change under a running plant).
+        """
+        model = PlantModel(rig)
+        if rig.sample_period != self.dt:
+            raise ValueError(f"sample period {rig.sample_period} s differs from the running {self.dt} s")
+        if model.delay != self.model.delay:
+            raise ValueError(f"input delay {model.delay} s differs from the running {self.model.delay} s "
+                             "(it sizes the command delay line)")
+        plant = CompiledPlant(rig, self.dt, model=model) if self.backend == "compiled" else None
+        # one assignment: a concurrent step reads the old or the new (plant, model, rig), never a mix
+        self._now = (plant, model, rig)
+
+    def sample(self) -> dict[str, float]:
+        """Measured channels at the current sample instant (noise/quantisation applied)."""
+        _, model, rig = self._now
+        true = _outputs(model, self.x[None, :], np.array([self._u_now]))
+        s, e = rig.sensors, rig.effects
+        rms = {
+            "theta": s.theta_rms, "theta_dot": s.theta_rms * 5.0, "i_a": s.i_a_rms,
+            "v_a": s.v_a_rms, "omega_rotor": s.omega_rms,
+            "omega_prop": s.omega_rms / rig.motor.gear_ratio,
+        }
+        out = {}
+        for name, q in _quanta(rig).items():
+            if name not in true:
+                continue  # a channel the family does not have
+            y = float(true[name][0])
+            if e.sensor_noise:
+                y += float(self.rng.normal(0.0, rms[name] / 10 ** (s.snr_db / 20.0)))
+            if e.quantisation and q > 0.0:
+                y = round(y / q) * q
+            out[name] = y
+        return out
+
+    def step(self, duty: float) -> dict[str, float]:
+        """Hold ``duty`` for one sample period and return the next sample's channels.
+
+        Raises
+        ------
+        SimulationError
+            If ``duty`` is NaN or outside [0, 1] (the state is left unchanged).
+        """
+        _check_duty(np.array([duty]))
+        self._queue.append(float(duty))
+        u_old = self._queue.pop(0)  # command that was active delay_whole samples ago
+        u_new = self._queue[0]
+        pieces = [(self._delay_frac, u_old), (self.dt - self._delay_frac, u_new)]
+        if self._delay_whole == 0 and self._delay_frac == 0.0:
+            pieces = [(self.dt, float(duty))]
+        plant, model, _ = self._now
+        x = self.x
+        if plant is not None:
+            x = plant.step(x, u_old, u_new)
+            if not np.isfinite(x).all():
+                self._queue.insert(0, u_old)
+                self._queue.pop()
+                raise SimulationError(f"the compiled step {self.k} diverged (a state is not finite): the "
+                                      "plant is stiffer than its sub-steps resolve; use backend='lsoda'")
+            self._u_now = u_new
+            if not model.lag:
+                x[TAU_F] = u_new
+            if model.assembly.armature and not model.dynamic_current:
+                x[I_A] = plant.outputs(x[None, :], np.array([u_new]), ("i_a",))["i_a"][0]
+        for length, u in pieces if plant is None else ():
+            if length <= 0.0:
+                continue
+            if not model.lag:
+                x[TAU_F] = u
+            if not model.dynamic_current:
+                x[I_A] = model.current(x, u)
+            x = odeint(model.rhs, x, [0.0, length], args=(u,), tfirst=True, rtol=RTOL, atol=ATOL,
+                       mxstep=50000)[-1].copy()
+            self._u_now = u
+        self.x = x
+        self.k += 1
+        return self.sample()

@@ -1,0 +1,210 @@
+"""Held-out prediction, attainable shrink, drift tables and sessions of the gap tool (issue 16).
+
+Truth comes from the independent plant ``bench/fixtures/truth_plant.py`` (no aeropend code): a hidden
+Coulomb friction in every session, and in a second session the rod's gravity term mgd/J 25 %
+lower (a heavier counterweight). The truth's drift share of the held-out gap is computed from
+the truth plant alone.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from aeropend_ident.gap.drift import (
+    DRIFT_PRIOR,
+    DRIFT_Z,
+    draw_log_changes,
+    drift_rows,
+    drift_set,
+    within_session_draw,
+)
+from bench.bench_gap_independent import rig_dict, to_recording
+from bench.fixtures import truth_plant as tp
+
+ROOT = Path(__file__).resolve().parents[3]
+
+EFFECT = {"coulomb_friction": 1.5}
+DRIFT = 0.75  # mgd/J × 0.75 in the second session
+
+
+def test_drift_set_keeps_the_joint_fit_identifiable() -> None:
+    # catalog order (the registry's): thrust, then the rod's viscous friction and gravity
+    assert drift_set([]) == ["thrust_coefficient", "viscous_friction", "gravity"]
+    assert drift_set(["coulomb_friction"]) == ["coulomb_friction", "thrust_coefficient", "viscous_friction",
+                                               "gravity"]
+    # the thrust law sets K_q itself; the rod inertia is spanned by the three drift-prone parameters
+    assert drift_set(["thrust_law", "inertia"]) == ["thrust_law", "viscous_friction", "gravity"]
+    # the supply voltage only where v_a is recorded (from θ alone it is a thrust-gain change)
+    assert drift_set([], ("theta", "i_a")) == drift_set([])
+    assert drift_set(["dead_zone"], ("theta", "v_a")) == ["dead_zone", "supply_voltage", "thrust_coefficient",
+                                                          "viscous_friction", "gravity"]
+    # an ESC rig: no supply voltage to drift, its battery moves the full-throttle speed instead
+    assert drift_set([], ("theta", "omega_rotor"), "esc") == ["esc_speed_range", "thrust_coefficient",
+                                                              "viscous_friction", "gravity"]
+
+
+def test_drift_prior_changes_any_number_of_parameters_and_keeps_its_spread() -> None:
+    params = list(DRIFT_PRIOR)
+    rng = np.random.default_rng(3)
+    draws = [draw_log_changes(DRIFT_PRIOR, params, rng) for _ in range(20000)]
+    x = np.array([[d[p] for p in params] for d in draws])
+    # per session an unknown share of the parameters changes: 0, 1, ..., 4 changing parameters
+    # equally likely (not "exactly one"), half of the single log changes exactly zero
+    counts = np.bincount(np.count_nonzero(x, axis=1), minlength=len(params) + 1) / len(draws)
+    assert counts == pytest.approx(np.full(len(params) + 1, 1.0 / (len(params) + 1)), abs=0.015)
+    assert np.mean(x == 0.0) == pytest.approx(0.5, abs=0.01)
+    # the prior's standard deviation per parameter is kept; the shape has heavier tails than normal
+    sigma = np.array([DRIFT_PRIOR[p] for p in params])
+    assert x.std(axis=0) == pytest.approx(sigma, rel=0.04)
+    assert np.mean(np.abs(x) > 3.0 * sigma, axis=0) == pytest.approx(np.full(len(params), 0.0169), abs=0.004)
+    # σ measured across sessions: normal log changes, none exactly zero
+    measured = [draw_log_changes(DRIFT_PRIOR, params, rng, occurrence=False) for _ in range(20000)]
+    y = np.array([[d[p] for p in params] for d in measured])
+    assert np.count_nonzero(y == 0.0) == 0 and y.std(axis=0) == pytest.approx(sigma, rel=0.04)
+
+
+def test_within_session_error_is_a_bootstrap_of_a_whole_recordings_rms() -> None:
+    # equal blocks: every draw is their RMS exactly
+    rng = np.random.default_rng(0)
+    assert within_session_draw([np.full(6, 0.02)], rng) == pytest.approx(0.02, rel=1e-12)
+    # one quiet and five busy blocks in one recording, one block in another: E[e_in²] is the mean
+    # over recordings of each recording's mean square (unbiased); the 10 % quantile stays far above
+    # the quiet block's error, which one block drawn alone would give in 1 of 7 draws (the error of
+    # one block is not the error of a recording)
+    rec = [np.array([0.001, 0.03, 0.03, 0.03, 0.03, 0.03]), np.array([0.01])]
+    draws = np.array([within_session_draw(rec, rng) for _ in range(20000)])
+    want = 0.5 * (np.mean(rec[0] ** 2) + 0.01**2)
+    assert np.mean(draws**2) == pytest.approx(want, rel=0.01)
+    assert np.quantile(draws, 0.1) > 0.015
+    # the spread of e_in² is that of a mean of k blocks' squares: σ/√k (σ: the squares' spread)
+    busy = np.random.default_rng(1).uniform(0.0, 0.04, 400)
+    for k in (4, 64):
+        sd = np.std([within_session_draw([busy[:k]], rng) ** 2 for _ in range(4000)])
+        assert sd * math.sqrt(k) == pytest.approx(np.std(busy[:k] ** 2), rel=0.06)
+
+
+def test_drift_rows_change_and_significance() -> None:
+    a = SimpleNamespace(values={"gravity": {"mgd_over_J": 100.0}, "viscous_friction": {"c_over_J": 10.0}},
+                        std={"gravity": {"mgd_over_J": 1.0}, "viscous_friction": {"c_over_J": 1.0}})
+    b = SimpleNamespace(values={"gravity": {"mgd_over_J": 80.0}, "viscous_friction": {"c_over_J": 11.0}},
+                        std={"gravity": {"mgd_over_J": 1.0}, "viscous_friction": {"c_over_J": 1.0}})
+    rows = drift_rows([a, b], ["viscous_friction", "gravity"])
+    assert [r["effect"] for r in rows] == ["gravity", "viscous_friction"]
+    g, v = rows
+    assert g["change"] == pytest.approx(-0.2) and g["z"] == pytest.approx(20.0 / math.sqrt(2.0))
+    assert g["drifts"] and g["z"] > DRIFT_Z
+    assert v["change"] == pytest.approx(0.1) and not v["drifts"]  # 1/√2 standard errors: noise
+    # an effect absent in the first session (a dead zone at 0) has no relative change: absolute
+    a.values["dead_zone"], a.std["dead_zone"] = {"dead_zone": 0.0}, {"dead_zone": 0.001}
+    b.values["dead_zone"], b.std["dead_zone"] = {"dead_zone": 0.02}, {"dead_zone": 0.001}
+    dz = next(r for r in drift_rows([a, b], ["dead_zone"]) if r["effect"] == "dead_zone")
+    assert math.isnan(dz["change"]) and dz["abs_change"] == pytest.approx(0.02) and dz["drifts"]
+
+
+def _sessions(seed: int) -> dict:
+    p = tp.PlantParams()
+    a = tp.TruthPlant(p, EFFECT)
+    b = tp.TruthPlant(p.scaled(mgd_over_J=DRIFT), EFFECT)
+    fit = tp.record(a, tp.lhs_steps(40.0, seed=seed), 50.0, seed + 1)
+    held = tp.record(b, tp.aprbs(30.0, seed=seed + 2), 50.0, seed + 3)
+    y = held.channels["theta"]
+    r = float(np.ptp(y))
+    n = float(np.std(y - held.true["theta"])) / r
+    e_d = float(np.sqrt(np.mean((a.simulate(held.duty)["theta"] - y) ** 2))) / r
+    big = float(np.sqrt(np.mean((tp.TruthPlant(p).simulate(held.duty)["theta"] - y) ** 2))) / r
+    return {"params": p, "fit": fit, "held": held, "b": b, "truth_share": (e_d**2 - n**2) / (big**2 - n**2)}
+
+
+@pytest.mark.slow
+def test_drift_table_names_a_supply_voltage_drop_from_the_recorded_armature_voltage() -> None:
+    from aeropend_ident.gap.drift import drift_table
+    from aeropend_sim.params import rig_from_dict
+
+    # a battery 12 % lower on the second day; the rig file knows no friction error, so the drift
+    # table fits only the drift-prone parameters, and v_a tells a supply change from a K_q change
+    p = tp.PlantParams()
+    day1 = tp.record(tp.TruthPlant(p), tp.lhs_steps(30.0, seed=41), 50.0, 42)
+    day2 = tp.record(tp.TruthPlant(p.scaled(v_supply=0.88)), tp.lhs_steps(30.0, seed=43), 50.0, 44)
+    rig = rig_from_dict(rig_dict(p, "lab_nominal"), where="test")
+    channels = ("theta", "v_a")
+    table = drift_table(rig, [[to_recording(day1, "day1")], [to_recording(day2, "day2")]],
+                        drift_set([], channels), channels=channels)
+    top = next(r for r in table["rows"] if r["drifts"])
+    assert top["effect"] == "supply_voltage" and top["change"] == pytest.approx(-0.12, abs=0.01)
+    assert table["drifting"] == ["supply_voltage.v_supply"]
+
+
+@pytest.mark.slow
+def test_prediction_split_and_drift_table_on_a_drifting_second_session() -> None:
+    from aeropend_ident.gap.run import run_gap
+    from aeropend_sim.params import rig_from_dict
+
+    s = _sessions(700)
+    rig = rig_from_dict(rig_dict(s["params"], "lab_nominal"), where="test")
+    fit = [to_recording(s["fit"], "session1")]
+    held = [to_recording(s["held"], "session2")]
+    res = run_gap(rig, fit, held, seed=0, max_effects=2, oracle=False)
+    assert "coulomb_friction" in res.diagnosis.chosen
+    pr = res.prediction
+    assert pr["drift_source"] == "prior" and not pr["saw_heldout"]
+    assert pr["interval"][0] < pr["predicted"] < pr["interval"][1]
+    att = res.attainable[0]
+    # the correction (session 1) barely helps on session 2; a constant-parameter fit there would
+    assert att["corrected"] > 5 * att["oracle"]
+    assert att["split"]["removable_not_removed"] == pytest.approx(s["truth_share"], abs=0.10)
+    top = next(r for r in att["drift"]["rows"] if r["drifts"])
+    assert top["effect"] == "gravity"
+    assert top["change"] == pytest.approx(DRIFT - 1.0, abs=0.08)
+    # the held-out data never reach the diagnosis or the prediction: change them, and everything
+    # before the "after" section of the report stays bit-identical
+    noisy = s["held"].channels["theta"] + np.random.default_rng(1).normal(0.0, 0.05, s["held"].t.size)
+    held2 = [to_recording(s["held"], "session2")]
+    held2[0].channels["theta"] = noisy
+    res2 = run_gap(rig, fit, held2, seed=0, max_effects=2, oracle=False)
+    d1, d2 = res.as_dict(), res2.as_dict()
+    for d in (d1, d2):
+        d["which"].pop("elapsed_s")  # wall time, the one field that may differ
+    for key in ("where", "which", "where_which", "sessions", "prediction"):
+        assert json.dumps(d1[key], sort_keys=True) == json.dumps(d2[key], sort_keys=True), key
+    assert d1["after"]["test"] != d2["after"]["test"]
+
+
+@pytest.mark.slow
+def test_cli_sessions_leave_one_out_and_drift_table(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                    truth_csv_preset: Callable[..., str]) -> None:
+    import yaml
+
+    from aeropend_ident.cli.gap import main
+
+    s = _sessions(800)
+    later = tp.record(s["b"], tp.lhs_steps(30.0, seed=810), 50.0, 811)
+    s["fit"].to_csv(tmp_path / "monday.csv")
+    s["held"].to_csv(tmp_path / "tuesday.csv")
+    later.to_csv(tmp_path / "wednesday.csv")
+    (tmp_path / "rig.yaml").write_text(yaml.safe_dump(rig_dict(s["params"], "lab_nominal")), encoding="utf-8")
+    preset = truth_csv_preset("_drift_test")
+    arg = {k: f"{tmp_path / k}.csv:{preset}" for k in ("monday", "tuesday", "wednesday")}
+    rc = main(["--sessions", arg["monday"], arg["tuesday"], "--held-out", arg["wednesday"],
+               "--rig", str(tmp_path / "rig.yaml"), "-o", str(tmp_path / "out"), "--no-oracle", "-q"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "SESSIONS" in text and "PREDICTED" in text and "ATTAINABLE" in text
+    rep = json.loads((tmp_path / "out" / "report.json").read_text(encoding="utf-8"))
+    sess = rep["sessions"]
+    assert sess["sessions"] == ["monday.csv", "tuesday.csv"]
+    assert len(sess["leave_one_out"]) == 2
+    top = next(r for r in sess["drift"]["rows"] if r["drifts"])
+    assert top["effect"] == "gravity" and top["change"] == pytest.approx(DRIFT - 1.0, abs=0.08)
+    assert rep["prediction"]["drift_source"] == "sessions"
+    assert "gravity" in rep["prediction"]["drift_sigma"]
+    check = rep["after"]["prediction_check"]
+    assert check["actual"] == pytest.approx(rep["headline"]["heldout_nrmse_corrected"])
+    html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
+    assert "Parameter drift" in html and "Attainable shrink" in html
