@@ -182,7 +182,7 @@ class RigReplays:
                 p = self._vectors(plant, base, [rigs[b] for b in rows])
             except (RigFileError, ModelError, ValueError):
                 for b in rows:  # one by one: only the rows the format or the model refuses fail
-                    self._single(rigs[b], x0[b], channels, out, ok, b)
+                    self._single(rigs[b], x0, channels, out, ok, b)
                 continue
             self._replay(plant, p, rows, x0, channels, out, ok)
         self.rows += n_rows
@@ -190,6 +190,7 @@ class RigReplays:
 
     def _single(self, rig: Rig, x0: np.ndarray, channels: Sequence[str], out: dict[str, np.ndarray],
                 ok: np.ndarray, b: int) -> None:
+        """Replay row ``b`` alone (``x0``: the whole (B, 5) array of initial states, as in :meth:`run`)."""
         try:
             plant, base = self.plant(rig)
             p = self._vectors(plant, base, [rig])
