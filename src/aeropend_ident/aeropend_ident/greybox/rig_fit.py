@@ -46,7 +46,7 @@ import yaml
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.decay import analyse_decay
-from aeropend_ident.greybox.fit import ParameterSpec, error_metrics, free_run_theta, noise_level
+from aeropend_ident.greybox.fit import ParameterSpec, error_metrics, free_run_theta
 from aeropend_ident.greybox.rig_inputs import StaticTable, TimeSeries, read_inputs, shortest_hold
 from aeropend_ident.greybox.rig_problem import (
     INERTIA,
@@ -270,7 +270,7 @@ def _decay_starts(series: Sequence[TimeSeries], todo: Mapping[str, Any], start: 
         if s.kind != "free decay":
             continue
         try:
-            env = analyse_decay(s.data.t, s.data.theta, noise_level(s.data.theta))
+            env = analyse_decay(s.data.t, s.data.theta, s.noise)
         except (ValueError, ArithmeticError) as exc:
             notes.append(f"{s.source}: free-decay envelope not analysed ({exc})")
             continue
