@@ -157,6 +157,33 @@ def test_recording_frame_of_the_rig_file_is_applied(tmp_path: Path) -> None:
     assert res.scores["plain"]["scaled"]["channels"]["theta"]["nrmse"] > 0.02
 
 
+def test_a_diverging_replay_is_reported_as_divergence_not_a_figure(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], truth_csv_preset: Callable[..., str]) -> None:
+    """A rig with 30× the thrust spins the rod over the top (θ leaves the recorded range): no NRMSE.
+
+    Before the fix compare printed and stored an NRMSE of such a run (matheusbucater's sawtooth
+    under a rig fitted on it alone: 21.3 with θ → 93 rad), as if it were a figure of fit.
+    """
+    doc = lab_rig_doc()
+    doc["thrust"]["K_q"]["value"] *= 30.0
+    strong = write_rig(doc, tmp_path / "strong.yaml")
+    tr = tp.record(tp.TruthPlant(), tp.lhs_steps(16.0, seed=7), 30.0, seed=8)
+    tr.to_csv(tmp_path / "log.csv")
+    res = compare([load_model(str(_lab_rig(tmp_path)), "lab"), load_model(str(strong), "strong")],
+                  [_recording(tr, "log.csv")])
+    bad = res.scores["strong"]["log.csv"]["channels"]["theta"]
+    assert bad["nrmse"] is None and bad["diverges"].startswith("diverges at t = ")
+    good = res.scores["lab"]["log.csv"]["channels"]["theta"]
+    assert "diverges" not in good and good["nrmse"] < 0.05
+    preset = truth_csv_preset("_compare_div", ())
+    assert main([f"{tmp_path / 'log.csv'}:{preset}", "--rig", str(strong), "--label", "strong",
+                 "-o", str(tmp_path / "out")]) == 0
+    row = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("log.csv"))
+    assert "DIVERGES: diverges at t = " in row
+    doc = json.loads((tmp_path / "out" / "compare.json").read_text(encoding="utf-8"))
+    assert doc["scores"]["strong"]["log.csv"]["channels"]["theta"]["nrmse"] is None
+
+
 def test_compare_refuses_unusable_input(tmp_path: Path) -> None:
     with pytest.raises(CompareError, match="unknown rig"):
         load_model("no_such_rig")

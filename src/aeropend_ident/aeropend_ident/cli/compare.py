@@ -86,6 +86,9 @@ def summary_table(result: CompareResult) -> str:
             other = ", ".join(f"{c} {v['nrmse']:.3g}" for c, v in sc["channels"].items()
                               if c != "theta" and math.isfinite(v["nrmse"]))
             w = th["whiteness"]
+            if th.get("diverges"):
+                rows.append(f"{rec['label'][:28]:<28} {m[:24]:<24} DIVERGES: {th['diverges']}")
+                continue
             rows.append(
                 f"{rec['label'][:28]:<28} {m[:24]:<24} {th['nrmse']:8.4f} {th['fit_percent']:7.1f} "
                 f"{th['max_abs_error']:8.4f} {th['steady_state_error']['rms']:8.4f} "

@@ -41,6 +41,7 @@ from aeropend_ident.gap.effects import MeasurementMap
 from aeropend_ident.gap.where import input_cross_correlation, ljung_box
 from aeropend_ident.gap.which import FIT_CHANNELS, duty_holds, prepare, replay_reference, step_info
 from aeropend_ident.greybox.fit import rig_theta_offset, rig_theta_scale
+from aeropend_ident.io.overlay_axes import diverges
 from aeropend_sim.params import Rig, RigFileError, load_rig, shipped_rigs
 from aeropend_sim.recording import Recording
 
@@ -282,6 +283,9 @@ def compare(models: Sequence[RigModel], recordings: Sequence[Recording],
                 continue
             tr["simulated"][mlabel] = {c: sim[c] for c in prep.y}
             ch = {c: channel_scores(y, sim[c], prep.duty, prep.dt, min_hold) for c, y in prep.y.items()}
+            why = diverges(sim["theta"], prep.y["theta"], tr["t"])
+            if why is not None:  # the one divergence rule: reported as divergence, not as a figure
+                ch["theta"].update(nrmse=None, fit_percent=None, diverges=why)
             steps = step_metrics(prep.y["theta"], sim["theta"], prep.duty, prep.dt, min_hold)
             summ = {k: float(np.median([s["abs_error"][k] for s in steps])) for k in steps[0]["abs_error"]} \
                 if steps else {}

@@ -51,7 +51,8 @@ def plot_overlay(result: CompareResult, recording: str, path: str | Path) -> Pat
         for label, sim in tr["simulated"].items():
             sc = result.scores[label][recording]["channels"][c]
             ax.plot(t, sim[c], lw=1.0,
-                    label=f"{label} (NRMSE {num(sc['nrmse'])}, fit {sc['fit_percent']:.1f} %)")
+                    label=f"{label} (diverges)" if sc.get("diverges") else
+                    f"{label} (NRMSE {num(sc['nrmse'])}, fit {sc['fit_percent']:.1f} %)")
         # a diverging replay must not hide the recording
         clip_to_recorded(ax, t, tr["measured"][c], {label: sim[c] for label, sim in tr["simulated"].items()},
                          symbol=TITLES.get(c, c), unit=UNITS.get(c, ""))

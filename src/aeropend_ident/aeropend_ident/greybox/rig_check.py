@@ -27,6 +27,7 @@ from aeropend_ident.greybox.fit import ParameterSpec, error_metrics, free_run_th
 from aeropend_ident.greybox.rig_fit import blocks_of
 from aeropend_ident.greybox.rig_inputs import read_inputs
 from aeropend_ident.greybox.rig_problem import Problem, TimeBlock, covariance
+from aeropend_ident.io.overlay_axes import diverges
 from aeropend_sim.components import registry
 from aeropend_sim.params import Rig, load_rig
 from aeropend_sim.rigcmd.template import GEOMETRY_NEEDED, INERTIA, fittable
@@ -152,7 +153,9 @@ def check_rig(rig_path: str | Path, inputs: Sequence[str] = (), preset: str | No
             try:
                 th = free_run_theta(rig, b.data, 0.0, b.nuisance[1].initial, b.nuisance[0].initial)  # type: ignore[arg-type]
                 m = error_metrics(b.data.theta, th)  # type: ignore[union-attr]
-                lines.append(f"free-run θ NRMSE on {b.source} ({b.kind}): {m['nrmse']:.3f}")
+                why = diverges(th, b.data.theta, b.data.t)  # type: ignore[union-attr]
+                lines.append(f"free-run θ on {b.source} ({b.kind}): DIVERGES: {why}" if why is not None
+                             else f"free-run θ NRMSE on {b.source} ({b.kind}): {m['nrmse']:.3f}")
             except IdentificationError as exc:
                 lines.append(f"free-run θ NRMSE on {b.source} ({b.kind}): not computed ({exc})")
     specs = _sensitivity_specs(rig)

@@ -46,7 +46,7 @@ import yaml
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.decay import analyse_decay
-from aeropend_ident.greybox.fit import ParameterSpec, error_metrics, free_run_theta, noise_level
+from aeropend_ident.greybox.fit import ParameterSpec, error_metrics, free_run_theta
 from aeropend_ident.greybox.rig_inputs import StaticTable, TimeSeries, read_inputs, shortest_hold
 from aeropend_ident.greybox.rig_problem import (
     INERTIA,
@@ -58,6 +58,7 @@ from aeropend_ident.greybox.rig_problem import (
     covariance,
     weak_directions,
 )
+from aeropend_ident.io.overlay_axes import diverges
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect
 from aeropend_sim.params import FITTED, TO_BE_FITTED, Rig, load_rig, rig_from_dict
@@ -136,6 +137,9 @@ class RigFitResult:
     nrmse: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     sample_period: tuple[float, str] | None = None
+    #: Recordings on which the fitted rig's free run diverges (io.overlay_axes.diverges): the reason,
+    #: reported instead of an NRMSE (their entry in ``nrmse`` is None).
+    divergence: dict[str, str] = field(default_factory=dict)
 
     def outcome(self, key: str) -> Outcome:
         """The outcome of one key (KeyError if it was not to be fitted)."""
@@ -169,7 +173,8 @@ class RigFitResult:
                       for o in flagged]
         if self.nrmse:
             lines.append("free-run θ NRMSE of the fitted rig:")
-            lines += [f"  {k}: {v:.3f}" for k, v in self.nrmse.items()]
+            lines += [f"  {k}: DIVERGES: {self.divergence[k]}" if k in self.divergence else f"  {k}: {v:.3f}"
+                      for k, v in self.nrmse.items()]
         lines += [f"note: {n}" for n in self.notes]
         lines.append(f"uncertainty: {SE_METHOD}")
         return "\n".join(lines)
@@ -270,7 +275,7 @@ def _decay_starts(series: Sequence[TimeSeries], todo: Mapping[str, Any], start: 
         if s.kind != "free decay":
             continue
         try:
-            env = analyse_decay(s.data.t, s.data.theta, noise_level(s.data.theta))
+            env = analyse_decay(s.data.t, s.data.theta, s.noise)
         except (ValueError, ArithmeticError) as exc:
             notes.append(f"{s.source}: free-decay envelope not analysed ({exc})")
             continue
@@ -507,18 +512,23 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
             outcomes[s.name] = Outcome(s.name, s.unit, s.initial, status="to be fitted",
                                        reason=refused[s.name], lower=s.lower, upper=s.upper)
     fitted = problem.rig(z)
-    nrmse = {}
+    nrmse: dict[str, float | None] = {}
+    divergence: dict[str, str] = {}
     nuis = problem.nuisance_values(z if problem.specs else problem.z_bounds()[0])
     for b, nv in zip(problem.blocks, nuis, strict=True):
         if isinstance(b, TimeBlock):
             try:
                 th = free_run_theta(fitted, b.data, 0.0, nv[1], nv[0])  # type: ignore[arg-type]
                 nrmse[b.source] = error_metrics(b.data.theta, th)["nrmse"]  # type: ignore[union-attr]
+                why = diverges(th, b.data.theta, b.data.t)  # type: ignore[union-attr]
+                if why is not None:  # a divergence, not a figure
+                    nrmse[b.source], divergence[b.source] = None, why
             except IdentificationError as exc:
                 notes.append(f"{b.source}: free run of the fitted rig failed ({exc})")
     ordered = [outcomes[s.name] for s in all_specs]
     inputs = [(b.source, b.label) for b in problem.blocks]
-    return RigFitResult(path, text, rig.family, ordered, fitted, inputs, nrmse, notes, sample_period)
+    return RigFitResult(path, text, rig.family, ordered, fitted, inputs, nrmse, notes,  # type: ignore[arg-type]
+                        sample_period, divergence)
 
 
 # ------------------------------------------------------------------------------ the fitted file

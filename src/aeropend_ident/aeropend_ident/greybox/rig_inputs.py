@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_ident.errors import RecordingInputError
-from aeropend_ident.greybox.fit import UniformData
+from aeropend_ident.greybox.fit import UniformData, noise_level
 from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
 from aeropend_sim.contract import REFERENCE_CHANNEL
 from aeropend_sim.recording import Recording
@@ -102,6 +102,10 @@ class TimeSeries:
     kind: str
     data: UniformData
     source: str
+    #: White measurement noise σ of θ [rad], estimated on the recorded samples (before the
+    #: resampling: a stretch it interpolates across a gap is a straight line without noise, and
+    #: would pull the estimate on the uniform grid towards 0).
+    noise: float = 0.0
 
     @property
     def label(self) -> str:
@@ -213,6 +217,26 @@ def classify(rec: Recording) -> str:
     return "steps" if n <= MAX_STEP_HOLDS else "PRBS"
 
 
+def recorded_noise(t: np.ndarray, theta: np.ndarray) -> float:
+    """White noise σ of θ [rad] on the recorded samples (:func:`~aeropend_ident.greybox.fit.noise_level`).
+
+    Only second differences over three samples at the recording's regular interval count: one
+    across a gap (a logger that writes in bursts) holds the motion of the whole gap, not noise.
+    """
+    t = np.asarray(t, dtype=float)
+    theta = np.asarray(theta, dtype=float)
+    if t.size < 5:
+        return noise_level(theta)
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    regular = np.abs(dt - med) <= 0.25 * med
+    keep = regular[:-1] & regular[1:]
+    d2 = np.diff(theta, 2)[keep]
+    if d2.size < 3:
+        return noise_level(theta)
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+
+
 def time_series(rec: Recording) -> TimeSeries:
     """A recording on its uniform grid (the one resampling of every command) with its kind.
 
@@ -229,7 +253,8 @@ def time_series(rec: Recording) -> TimeSeries:
     dt = float(np.median(np.diff(t)))
     data = UniformData(t=t, duty=np.clip(u.duty, 0.0, 1.0), theta=u.channels["theta"].copy(), dt=dt,
                        resampled=u is not rec, decimate=1, source=rec.source)
-    return TimeSeries(kind=classify(u), data=data, source=Path(str(rec.source)).name or str(rec.source))
+    return TimeSeries(kind=classify(u), data=data, source=Path(str(rec.source)).name or str(rec.source),
+                      noise=recorded_noise(rec.t, rec.channels["theta"]))
 
 
 def read_inputs(args: list[str], preset: str | None = None) -> tuple[list[StaticTable], list[TimeSeries]]:

@@ -331,12 +331,21 @@ def autocorrelation_factor(r: np.ndarray) -> float:
 
 
 def covariance(J: np.ndarray, pinned: np.ndarray) -> np.ndarray:
-    """(JᵀJ)⁻¹ of the free coordinates (pinned ones: NaN rows and columns)."""
+    """(JᵀJ)⁻¹ of the free coordinates (pinned ones: NaN rows and columns).
+
+    From the SVD of J (V·diag(1/s²)·Vᵀ over the singular values with s² > 1e-15·s_max², the cut of
+    ``pinv(JᵀJ)``), not by inverting JᵀJ: forming JᵀJ squares J's condition number, and on an
+    ill-conditioned J (YangZhu's step: rig check's joint σ) its pseudo-inverse came out with negative
+    variances.
+    """
     n = J.shape[1]
     cov = np.full((n, n), math.nan)
     free = np.flatnonzero(~pinned)
     if free.size:
-        cov[np.ix_(free, free)] = np.linalg.pinv(J[:, free].T @ J[:, free])
+        _, s, vt = np.linalg.svd(J[:, free], full_matrices=False)
+        keep = s**2 > 1e-15 * (float(s[0]) ** 2 if s.size else 0.0)
+        v = vt[keep].T / s[keep]
+        cov[np.ix_(free, free)] = v @ v.T
     return cov
 
 
