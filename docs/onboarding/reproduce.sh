@@ -28,7 +28,7 @@ rig fit $O/matheusbucater/stated.yaml $D/aeropendulum.csv:matheusbucater_sawtoot
 compare $D/aeropendulum.csv:matheusbucater_sawtooth --rig $O/matheusbucater/fitted_step_fall.yaml $W/mb_oracle_saw.yaml \
     $O/matheusbucater/fitted.yaml --label fitted_step_fall oracle fitted_saw_fall -o $W/mb_cmp_saw --overwrite --no-plots
 rig check $O/matheusbucater/fitted.yaml $D/aeropendulum.csv:matheusbucater_sawtooth $D/aeropendulum_step.csv:matheusbucater_step
-# gap refuses a held-out recording with a constant command (the step): shown, then split the sawtooth
+# gap: the step (a constant command from rest) held out; then the sawtooth split in time
 gap $D/aeropendulum.csv:matheusbucater_sawtooth --held-out $D/aeropendulum_step.csv:matheusbucater_step \
     --rig $O/matheusbucater/fitted.yaml -o $W/mb_gap_step --overwrite -q
 gap $D/aeropendulum.csv:matheusbucater_sawtooth --split 0.6 --rig $O/matheusbucater/fitted.yaml -o $W/mb_gap --overwrite -q

@@ -543,13 +543,26 @@ def timing_range(recs: Sequence[Recording]) -> TimingRange:
 MIN_PART_SAMPLES = 200
 
 
-def check_length(rec: Recording, what: str) -> None:
+def check_length(rec: Recording, what: str, constant_ok: bool = False) -> None:
     """Refuse a recording part the gap diagnosis cannot use (too short, constant duty cycle).
+
+    Parameters
+    ----------
+    rec : Recording
+        The part.
+    what : str
+        What the part is ("fit recording", "held-out part", ...), for the message.
+    constant_ok : bool
+        Accept a constant duty cycle (a hold, a free decay, a step logged from its first sample):
+        held-out and validation parts, and fit parts beside an excited one
+        (:func:`check_excited`). A log whose only input is a set-point reference is refused all
+        the same.
 
     Raises
     ------
     GapCliError
-        Fewer than :data:`MIN_PART_SAMPLES` samples, or a constant duty cycle; names ``what``.
+        Fewer than :data:`MIN_PART_SAMPLES` samples, a reference logged instead of the actuator
+        command, or (without ``constant_ok``) a constant duty cycle; names ``what``.
     """
     if len(rec) < MIN_PART_SAMPLES:
         raise GapCliError(
@@ -563,9 +576,32 @@ def check_length(rec: Recording, what: str) -> None:
                                  "channel theta_ref" if "theta_ref" in rec.extra else None)
         if why is not None and why[0] == "driven":  # the csv_import refusal, whichever way the log came
             raise GapCliError(f"{rec.source or what}: {why[1]}")
+        if constant_ok:
+            return
         raise GapCliError(
             f"{rec.source or what}: the duty cycle is constant ({rec.duty[0]:g}) in the {what}: "
             "unexcited input, nothing to compare"
+        )
+
+
+def check_excited(parts: Sequence[Recording], what: str) -> None:
+    """Refuse fit parts none of whose duty cycles changes (each part passed :func:`check_length`).
+
+    Holds, free decays and steps logged from their first sample are accepted beside one part whose
+    command changes: the pendulum's swing constrains the rod's parameters, the changing command
+    the actuator's. With none, no effect on the input side can be told from the nominal.
+
+    Raises
+    ------
+    GapCliError
+        Every part has a constant duty cycle; the message says which recordings would do.
+    """
+    if parts and all(np.ptp(r.duty) == 0.0 for r in parts):
+        levels = ", ".join(sorted({f"{r.duty[0]:g}" for r in parts}))
+        raise GapCliError(
+            f"the duty cycle is constant in every {what} (τ = {levels}): the diagnosis needs at least "
+            "one whose command changes (a step logged with samples before it, a staircase, PRBS); "
+            "holds and free decays are accepted beside it and as held-out recordings"
         )
 
 
@@ -604,9 +640,10 @@ def load_and_split(
     if held_out:
         held = [uniform_recording(load_recording(p, preset)) for p in held_out]
         for r in recs:
-            check_length(r, "fit recording")
+            check_length(r, "fit recording", constant_ok=True)
+        check_excited(recs, "fit recording")
         for r in held:
-            check_length(r, "held-out recording")
+            check_length(r, "held-out recording", constant_ok=True)
         rule = f"separate held-out file(s): {', '.join(split_preset(p)[0].name for p in held_out)}"
         return recs, held, rule
     if blocks is not None:
@@ -630,6 +667,7 @@ def load_and_split(
         return fit, held, rule
     fit, held, rule = time_ordered(recs, split)
     for a, b in zip(fit, held, strict=True):
-        check_length(a, "fit part")
-        check_length(b, "held-out part")
+        check_length(a, "fit part", constant_ok=True)
+        check_length(b, "held-out part", constant_ok=True)
+    check_excited(fit, "fit part")
     return fit, held, rule
