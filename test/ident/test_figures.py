@@ -334,3 +334,23 @@ def test_identify_writes_its_model_and_summary_when_a_plot_fails(tmp_path, monke
     assert summary["not_computed"] == {"plots": "ValueError: free run has no finite sample"}
     assert (tmp_path / "out" / "model.yaml").is_file() and summary["equations"]
     assert "NOT COMPUTED: plots: ValueError: free run has no finite sample" in capsys.readouterr().out
+
+
+def test_a_model_off_by_tenths_of_a_radian_is_an_error_not_a_divergence() -> None:
+    """The main job's held-out step moves 0.59 → 0.80 rad (span 0.21) and the nominal rig settles near
+    0.32 rad: more than one span away, yet a finite error to score (an NRMSE), not a divergence. A
+    rod that goes over the top (a quarter turn beyond the recorded range) diverges."""
+    from aeropend_ident.io.overlay_axes import MIN_DIVERGENCE_RAD, divergence_window, diverges
+
+    t = np.linspace(0.0, 3.0, 301)
+    recorded = 0.59 + 0.21 * (1.0 - np.exp(-3.0 * t))
+    assert diverges(np.full_like(t, 0.32), recorded, t) is None
+    lo, hi = divergence_window(recorded)
+    assert lo == pytest.approx(0.59 - MIN_DIVERGENCE_RAD)
+    assert hi == pytest.approx(0.80 + MIN_DIVERGENCE_RAD, abs=1e-3)
+    over = np.where(t < 1.0, 0.6, 0.6 + 3.0 * (t - 1.0))  # spins past π from t = 1 s
+    why = diverges(over, recorded, t)
+    assert why is not None and "beyond the recorded range" in why and "quarter turn" in why
+    # a wide recording keeps the span rule: one recorded span beyond [-0.2, 2.0] rad
+    wide = np.linspace(-0.2, 2.0, 301)
+    assert divergence_window(wide) == pytest.approx((-2.4, 4.2))

@@ -26,7 +26,7 @@ Pipeline (:func:`baseline`, :func:`run_baseline`):
    NRMSE = RMS(θ_sim − θ_meas) / (max θ_meas − min θ_meas) over that part (over the whole
    recordings when the part barely moves: a hold, :data:`HOLD_RANGE_SHARE`), RMS error [rad] and
    max |error| [rad]. A model that diverges (:func:`aeropend_ident.io.overlay_axes.diverges`:
-   non-finite, or beyond the recorded range by more than a recorded span) is reported as
+   non-finite, or beyond the recorded range by more than a recorded span and a quarter turn) is reported as
    divergence, not as an NRMSE.
 6. **Warnings**: a fitted model that predicts the held-out data worse than the nominal, with the
    parameters that are implausible (:func:`implausible`: relative standard error > 100 %, at a

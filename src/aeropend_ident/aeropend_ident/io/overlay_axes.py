@@ -12,8 +12,9 @@ t = 8.94 s: θ → 6.3e3 rad"). :func:`fit_title` wraps a title to its axes' wid
 cut off, and :func:`short_number` writes numbers with a few significant digits.
 
 **Divergence** (:func:`diverges`, the one rule of every tool): a simulated angle that turns
-non-finite or leaves the recorded range by more than :data:`DIVERGENCE_SPANS` recorded spans (a rod
-that spins over the top, a free run that blows up) *diverges*: the tools report that instead of an
+non-finite or leaves the recorded range by more than :data:`DIVERGENCE_SPANS` recorded spans, and by
+at least :data:`MIN_DIVERGENCE_RAD` (a quarter turn), (a rod that spins over the top, a free run that
+blows up) *diverges*: the tools report that instead of an
 NRMSE or a shrink between such runs (a figure computed on them would only measure how far the run
 went), and the figures' note says "diverges" for it (:func:`clip_to_recorded`).
 
@@ -43,6 +44,11 @@ WRAP_AT = 0.97
 #: hi − lo (or turns non-finite): wider than the plotted window (:data:`REACH`), so a model cut in a
 #: figure for readability is not yet called divergent.
 DIVERGENCE_SPANS = 1.0
+#: Least departure [rad] beyond the recorded range that counts as divergence, whatever the span: a
+#: quarter turn. A held-out step that moves 0.2 rad and a nominal rig that settles 0.3 rad lower are
+#: a large error, scored as one (an NRMSE), not a run that left the recorded regime; a rod that swings
+#: a quarter turn past everything the recorded one did (over the top from hanging) has.
+MIN_DIVERGENCE_RAD = math.pi / 2
 #: A scored part whose own θ range is below this share of the whole recording's is a hold (it barely
 #: moves): its NRMSE and its divergence window use the whole recording's range (baseline, identify).
 HOLD_RANGE_SHARE = 0.1
@@ -189,8 +195,8 @@ def clip_to_recorded(ax: Any, t: Any, recorded: Any, models: Mapping[str, Any], 
 
 
 def divergence_window(recorded: Any, span: float | None = None) -> tuple[float, float]:
-    """The range a model must stay in not to diverge: the recorded [lo, hi] widened by
-    :data:`DIVERGENCE_SPANS` spans on each side.
+    """The range a model must stay in not to diverge: the recorded [lo, hi] widened on each side by
+    :data:`DIVERGENCE_SPANS` spans, and by at least :data:`MIN_DIVERGENCE_RAD`.
 
     Parameters
     ----------
@@ -201,8 +207,8 @@ def divergence_window(recorded: Any, span: float | None = None) -> tuple[float, 
         moves, e.g. a held-out hold, passes the span of the whole recording).
     """
     lo, hi = _finite_range(recorded)
-    width = _span(recorded, span)
-    return lo - DIVERGENCE_SPANS * width, hi + DIVERGENCE_SPANS * width
+    widen = max(DIVERGENCE_SPANS * _span(recorded, span), MIN_DIVERGENCE_RAD)
+    return lo - widen, hi + widen
 
 
 def _span(recorded: Any, span: float | None) -> float:
@@ -255,7 +261,7 @@ def diverges(theta_sim: Any, theta_meas: Any, t: Any = None, span: float | None 
     -------
     str or None
         E.g. ``"diverges at t = 8.48 s: θ → 6.3e3 rad, beyond the recorded range [0.2, 0.8] rad by
-        more than 1 recorded span (0.6 rad)"``; None when it stays within the window.
+        more than a quarter turn"``; None when it stays within the window.
     """
     sim = np.asarray(theta_sim, dtype=float)
     tt = np.arange(sim.size, dtype=float) if t is None else np.asarray(t, dtype=float)
@@ -269,9 +275,11 @@ def diverges(theta_sim: Any, theta_meas: Any, t: Any = None, span: float | None 
         return f"diverges at {at} ({symbol} is not finite from there)"
     rlo, rhi = _finite_range(theta_meas)
     width = short_number(_span(theta_meas, span))
+    quarter = MIN_DIVERGENCE_RAD >= DIVERGENCE_SPANS * _span(theta_meas, span)
+    margin = ("a quarter turn" if quarter
+              else f"{short_number(DIVERGENCE_SPANS)} recorded span(s) ({width} {unit})")
     return (f"diverges at {at}: {symbol} → {short_number(e.extreme, 2)} {unit}, beyond the recorded range "
-            f"[{short_number(rlo)}, {short_number(rhi)}] {unit} by more than "
-            f"{short_number(DIVERGENCE_SPANS)} recorded span(s) ({width} {unit})")
+            f"[{short_number(rlo)}, {short_number(rhi)}] {unit} by more than {margin}")
 
 
 def fit_title(ax: Any, text: str, fontsize: float = 9.0, **kwargs: Any) -> Any:
