@@ -436,7 +436,8 @@ def run_case(name: str, max_effects: int = 2) -> dict[str, Any]:
         "test": res.test,
         "headline": h,
         "meets_bar_50pct": bool(
-            h["heldout_shrink"] >= 0.5 and d.chosen and h["heldout_never_seen_by_diagnosis"]
+            h["heldout_shrink"] is not None and h["heldout_shrink"] >= 0.5 and d.chosen
+            and h["heldout_never_seen_by_diagnosis"]
         ),
         "where": {
             "significant": res.where.significant,
@@ -528,7 +529,8 @@ def markdown(results: dict[str, Any]) -> str:
         lines.append(
             f"| {name} | {r['rig']} | {r['where']['subsystem']} | {', '.join(h['effects_chosen']) or '–'} | "
             f"{h['heldout_nrmse_nominal']:.4f} | {h['heldout_nrmse_corrected']:.4f} | "
-            f"{100 * h['heldout_shrink']:.1f} % | {'yes' if r['meets_bar_50pct'] else 'no'} |"
+            + ("diverges" if h["heldout_shrink"] is None else f"{100 * h['heldout_shrink']:.1f} %")
+            + f" | {'yes' if r['meets_bar_50pct'] else 'no'} |"
         )
     cv_rows = [
         (name, cv)

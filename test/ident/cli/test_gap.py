@@ -273,3 +273,30 @@ def test_step_tests_and_holds_beside_an_excited_recording(bags, tmp_path, capsys
     msg = _err(capsys, [str(step_fit), "--held-out", str(step_held), "--rig", "thesis_rig",
                         "-o", str(tmp_path / "g2")])
     assert "constant in every fit recording (τ = 0.5)" in msg and "\n" not in msg.strip()
+
+
+def test_a_nominal_rig_that_spins_over_the_top_gets_no_shrink_figure(bags, tmp_path):
+    """A shrink between a run that left the recorded range and one that did not only measures how far
+    the first went: the headline gives none and names the divergence (terminal, JSON, HTML)."""
+    import yaml
+
+    from aeropend_sim.params import rig_to_dict
+
+    doc = rig_to_dict(NOMINAL)
+    doc["name"] = "strong_propeller"
+    doc["thrust"]["K_q"]["value"] *= 4.0  # thrust beyond the rod's weight at the recorded duty cycles
+    rig_file = tmp_path / "strong.yaml"
+    rig_file.write_text(yaml.safe_dump(doc, sort_keys=False))
+    out = tmp_path / "g"
+    import contextlib
+    import io
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        assert main([str(bags["fit"]), "--held-out", str(bags["held"]), "--rig", str(rig_file),
+                     "-o", str(out), "-q", "--no-oracle"]) == 0
+    h = json.loads((out / "report.json").read_text())["headline"]
+    assert h["heldout_shrink"] is None and "nominal" in h["heldout_divergence"]
+    assert "beyond the recorded range" in h["heldout_divergence"]["nominal"][0]
+    assert "no NRMSE or shrink figure" in buf.getvalue()
+    assert "no NRMSE or shrink figure" in (out / "report.html").read_text()

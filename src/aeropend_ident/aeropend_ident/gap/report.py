@@ -113,11 +113,16 @@ def terminal_summary(result: GapResult) -> str:
     for row in result.test:
         per = "  ".join(f"{c} {v:.4f}" for c, v in row.get("channel_nrmse", {}).items())
         lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} {per}")
-    lines.append(
-        f"  held-out NRMSE θ {h['heldout_nrmse_nominal']:.4f} -> {h['heldout_nrmse_corrected']:.4f} "
-        f"(shrink {h['heldout_shrink']:.1%})"
-        + "".join(f"; {c} {v:.1%}" for c, v in h["heldout_channel_shrink"].items() if c != "theta")
-    )
+    if h["heldout_divergence"]:  # no shrink between runs that left the recorded range
+        lines.append("  held-out θ: no NRMSE or shrink figure: the "
+                     + " and the ".join(h["heldout_divergence"]) + " model diverges")
+        lines += [f"    {label}: {why}" for label, whys in h["heldout_divergence"].items() for why in whys]
+    else:
+        lines.append(
+            f"  held-out NRMSE θ {h['heldout_nrmse_nominal']:.4f} -> {h['heldout_nrmse_corrected']:.4f} "
+            f"(shrink {h['heldout_shrink']:.1%})"
+            + "".join(f"; {c} {v:.1%}" for c, v in h["heldout_channel_shrink"].items() if c != "theta")
+        )
     chk = result.prediction_check
     if chk:
         lines.append(f"  prediction check: actual {chk['actual']:.4f} {chk['verdict']}")
@@ -179,6 +184,18 @@ def _drift_html(result: GapResult) -> str:
         parts.append(f"<h3>Parameter drift: {' vs '.join(_label(x) for x in t['sessions'])}</h3>" + _table(
             rows, ["parameter", "values ± std", "unit", "change", "z", "drifts"]))
     return "\n".join(parts)
+
+
+def _headline_html(h: dict[str, Any], d: Any) -> str:
+    """The report's first line: held-out NRMSE before → after and the shrink, or the divergence."""
+    with_ = html.escape(", ".join(d.chosen) or "no effect")
+    if h["heldout_divergence"]:
+        whys = "; ".join(f"{k}: {w}" for k, ws in h["heldout_divergence"].items() for w in ws)
+        return (f"Held-out θ: <b>no NRMSE or shrink figure</b> (corrected with {with_}): the "
+                f"{' and the '.join(h['heldout_divergence'])} model diverges ({html.escape(whys)}).")
+    return (f"Held-out NRMSE <b>{h['heldout_nrmse_nominal']:.4f}</b> (nominal) &rarr; "
+            f"<b>{h['heldout_nrmse_corrected']:.4f}</b> (corrected with {with_}): "
+            f"shrink <b>{h['heldout_shrink']:.1%}</b>.")
 
 
 def _detected_html(diag: Any) -> str:
@@ -361,9 +378,7 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
 <html lang="en"><head><meta charset="utf-8"><title>aeropend gap report: {html.escape(result.rig.name)}</title>
 <style>{css}</style></head><body>
 <h1>Sim-to-real gap report: {html.escape(result.rig.name)}</h1>
-<p class="big">Held-out NRMSE <b>{h["heldout_nrmse_nominal"]:.4f}</b> (nominal) &rarr;
-<b>{h["heldout_nrmse_corrected"]:.4f}</b> (corrected with {html.escape(", ".join(d.chosen) or "no effect")}):
-shrink <b>{h["heldout_shrink"]:.1%}</b>. Significant gap: {"yes" if h["significant_gap"] else "no"};
+<p class="big">{_headline_html(h, d)} Significant gap: {"yes" if h["significant_gap"] else "no"};
 located in: <b>{html.escape(str(h["where_subsystem"]))}</b>.</p>
 {_detected_html(d)}{_not_computed_html(result)}
 <p>Rig {html.escape(result.rig_ref)}; {len(result.fit)} fit recording(s), {len(result.held_out)} held-out

@@ -120,6 +120,9 @@ class GapResult:
         RMS(θ_sim − θ_meas)/range(θ_meas), the nominal and the corrected rig."""
         before = float(self.test[0]["nrmse"])
         after = float(self.test[-1]["nrmse"])
+        # a run that diverges on held-out data: its NRMSE measures how far it went, so no shrink
+        rows = (("nominal", self.test[0]), ("corrected", self.test[-1]))
+        gone = {label: row.get("diverges") for label, row in rows if row.get("diverges")}
         d = self.diagnosis
         ch0, ch1 = self.test[0].get("channel_nrmse", {}), self.test[-1].get("channel_nrmse", {})
         return {
@@ -129,7 +132,8 @@ class GapResult:
             "detected": dict(getattr(d, "detected", {})),
             "heldout_nrmse_nominal": before,
             "heldout_nrmse_corrected": after,
-            "heldout_shrink": (1.0 - after / before) if before > 0 else math.nan,
+            "heldout_shrink": None if gone else ((1.0 - after / before) if before > 0 else math.nan),
+            "heldout_divergence": gone,
             "heldout_channel_nrmse_nominal": dict(ch0),
             "heldout_channel_nrmse_corrected": dict(ch1),
             "heldout_channel_shrink": {c: (1.0 - ch1[c] / v) if v > 0 else math.nan

@@ -601,9 +601,13 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
         recorded and simulated response to the largest duty step of the first recording with one),
         ``per_recording`` θ NRMSEs, ``channel_nrmse`` (mean NRMSE of every compared channel),
         ``nrmse_channels`` (RMS over the compared channels of their NRMSEs: the gauge of a gap
-        that lies in i_a, v_a or ω₁ rather than in θ).
+        that lies in i_a, v_a or ω₁ rather than in θ), ``diverges`` (per recording whose free run
+        diverges, :func:`aeropend_ident.io.overlay_axes.diverges`: its source and the reason; then
+        the NRMSE only measures how far the run went, and the report gives no shrink).
     """
-    nrmse, maxe, ss = [], 0.0, []
+    from aeropend_ident.io.overlay_axes import diverges
+
+    nrmse, maxe, ss, gone = [], 0.0, [], []
     per_channel: dict[str, list[float]] = {}
     step: dict[str, Any] = {}
     for p in preps:
@@ -615,6 +619,9 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
         e = th - y
         nrmse.append(float(np.sqrt(np.mean(e**2)) / p.scale["theta"]))
         maxe = max(maxe, float(np.max(np.abs(e))))
+        why = diverges(th, y, np.arange(y.size) * p.dt)
+        if why is not None:
+            gone.append(f"{p.rec.source or 'recording'}: {why}")
         holds = duty_holds(p.duty, p.dt)
         for a, b in holds:
             q = a + 3 * (b - a) // 4
@@ -645,6 +652,7 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
         "step_metrics": step,
         "per_recording": nrmse,
         "channel_nrmse": ch_nrmse,
+        "diverges": gone,
     }
 
 
