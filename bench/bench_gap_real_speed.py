@@ -4,9 +4,13 @@ The ``gap`` command on the four BA-Etchepareborda open-loop runs (fit: the 0/100
 and the 80/120 random-binary run; validation: the Gaussian-PWM run; held out: the 0/100/130 step
 cycle; ``etchepareborda_rig``; the command's defaults, the oracle of the attainable shrink
 included), run as a child process: wall time, and the CPU time of the process and its children
-(the operating system's accounting). Its diagnosis is compared with the stored one of
-``bench/results/gap_real.json`` (case ``etchepareborda_all``, LSODA, before issue 37): effects
-chosen and held-out θ NRMSE before and after.
+(the operating system's accounting). Its diagnosis is compared with the same command run on commit
+8559cc8 (LSODA, before the component registry and the compiled backend;
+``bench/results/gap_real_speed_reference_8559cc8.json``): effects chosen, held-out θ NRMSE before
+and after, and every ranked effect's validation share. The older stored case of
+``bench/results/gap_real.json`` (``etchepareborda_all``, 2026-11-22) is listed too: the diagnosis
+changed between that run and 8559cc8 (the effects are chosen on a validation part since), not with
+the simulator.
 
 Writes ``bench/results/gap_real_speed.json``. Needs ``../shared/data/real`` beside the checkout
 (the recordings are not in the repository).
@@ -31,6 +35,17 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT.parent / "shared" / "data" / "real" / "BA-Etchepareborda__adaptive-control-aeropendulum"
 RESULTS = ROOT / "bench" / "results"
 STORED = ("gap_real.json", "etchepareborda_all")
+#: The same command's diagnosis on commit 8559cc8 (module doc).
+REFERENCE = "gap_real_speed_reference_8559cc8.json"
+
+
+def _ranking_change(now: list[dict], ref: list[dict]) -> float | None:
+    """Largest |Δ validation share| over the effects ranked in both runs (None if one is missing)."""
+    a = {r["effect"]: r["validation_explained"] for r in now}
+    b = {r["effect"]: r["validation_explained"] for r in ref}
+    if set(a) != set(b):
+        return None
+    return max((abs(a[k] - b[k]) for k in a), default=0.0)
 
 
 def command(out: Path) -> list[str]:
@@ -57,7 +72,9 @@ def run_once(out: Path) -> dict:
     return {"wall_s": wall, "cpu_s": cpu,
             "load_before": [round(x, 2) for x in load], "load_after": [round(x, 2) for x in os.getloadavg()],
             "chosen": doc["which"]["chosen"], "nrmse_before": test[0]["nrmse"],
-            "nrmse_after": test[-1]["nrmse"]}
+            "nrmse_after": test[-1]["nrmse"],
+            "ranking": [{"effect": r["effect"], "validation_explained": r["validation_explained"]}
+                        for r in doc["which"]["ranking"]]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -72,20 +89,27 @@ def main(argv: list[str] | None = None) -> int:
         with tempfile.TemporaryDirectory() as tmp:
             runs.append(run_once(Path(tmp) / "gap"))
             print(json.dumps(runs[-1]), flush=True)
+    reference = json.loads((RESULTS / REFERENCE).read_text(encoding="utf-8"))
     stored = json.loads((RESULTS / STORED[0]).read_text(encoding="utf-8"))["cases"][STORED[1]]
     ref = {"elapsed_s": stored["elapsed_s"], "chosen": stored["test"][-1]["effects"],
            "nrmse_before": stored["test"][0]["nrmse"], "nrmse_after": stored["test"][-1]["nrmse"]}
     best = min(runs, key=lambda r: r["wall_s"])
     doc = {"command": " ".join(command(Path("OUT"))[1:]).replace(str(ROOT.parent), ".."),
            "runs": runs, "best": best, "stored": {"file": STORED[0], "case": STORED[1], **ref},
-           "same_effects": sorted(best["chosen"]) == sorted(ref["chosen"]),
-           "nrmse_after_change": best["nrmse_after"] - ref["nrmse_after"],
+           "same_effects_as_stored": sorted(best["chosen"]) == sorted(ref["chosen"]),
+           "reference": {"file": REFERENCE, "commit": reference["commit"], "chosen": reference["chosen"],
+                         "nrmse_before": reference["nrmse_before"], "nrmse_after": reference["nrmse_after"],
+                         "wall_s_approx": reference["wall_s_approx"]},
+           "same_effects": sorted(best["chosen"]) == sorted(reference["chosen"]),
+           "nrmse_after_change": best["nrmse_after"] - reference["nrmse_after"],
+           "ranking_max_abs_change": _ranking_change(best["ranking"], reference["ranking"]),
            "meta": {"machine": f"{os.cpu_count()} cores, {platform.platform()}",
                     "python": platform.python_version(),
                     "commit": subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
                                              capture_output=True, text=True, check=False).stdout.strip()}}
     Path(args.out).write_text(json.dumps(doc, indent=1), encoding="utf-8")
-    print(json.dumps({k: doc[k] for k in ("best", "stored", "same_effects", "nrmse_after_change")}, indent=1))
+    print(json.dumps({k: doc[k] for k in ("best", "reference", "same_effects", "nrmse_after_change",
+                                          "ranking_max_abs_change")}, indent=1))
     return 0
 
 
