@@ -31,26 +31,11 @@ import numpy as np
 
 from aeropend_ident.cli.gap_batch import main as gap_batch
 from aeropend_ident.io.bag_writer import write_bag
-from aeropend_sim.excitation import aprbs
-from aeropend_sim.params import load_rig
-from aeropend_sim.recording import Recording
-from aeropend_sim.simulation import simulate
+from bench.fixtures.sessions import thesis_session
 
 RESULTS = Path(__file__).resolve().parent / "results"
-DT = 0.01
 #: K_q of the sessions after the propeller change, over the nominal.
 K_Q_FACTOR = 1.2
-
-
-def _session(seed: int, k_q: float) -> Recording:
-    nominal = load_rig("thesis_rig")
-    rig = nominal.with_effects(sensor_noise=True)
-    if k_q != 1.0:
-        rig = rig.with_params("thrust", K_q=nominal.thrust.K_q * k_q)
-    d = aprbs(24.0, lo=0.3, hi=0.8, min_hold=0.3, max_hold=1.5, seed=seed, dt=DT).duty.copy()
-    d[:50] = 0.0
-    return Recording.from_trajectory(simulate(rig, d, dt=DT, seed=seed), channels=("theta",),
-                                     source=f"session seed {seed}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,7 +52,7 @@ def main(argv: list[str] | None = None) -> int:
         t0 = time.perf_counter()
         for i in range(args.sessions):
             k_q = K_Q_FACTOR if i >= args.change_at else 1.0
-            write_bag(_session(1000 + i, k_q), root / f"s{i:03d}", rig_name="thesis_rig")
+            write_bag(thesis_session(1000 + i, k_q), root / f"s{i:03d}", rig_name="thesis_rig")
         t_write = time.perf_counter() - t0
         out = Path(tmp) / "batch"
         t0 = time.perf_counter()

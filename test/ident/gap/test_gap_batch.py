@@ -17,32 +17,17 @@ from aeropend_ident.archive import MANIFEST, find_sessions
 from aeropend_ident.cli.gap_batch import main
 from aeropend_ident.errors import GapCliError
 from aeropend_ident.io.bag_writer import write_bag
-from aeropend_sim.excitation import aprbs
-from aeropend_sim.params import load_rig
-from aeropend_sim.recording import Recording
-from aeropend_sim.simulation import simulate
+from bench.fixtures.sessions import thesis_session
 
-DT = 0.01
-NOMINAL = load_rig("thesis_rig")
 #: K_q of the third session over the nominal (the drift the table must find).
 K_Q_FACTOR = 1.25
-
-
-def _session(seed: int, k_q: float = 1.0) -> Recording:
-    rig = NOMINAL.with_effects(sensor_noise=True)
-    if k_q != 1.0:
-        rig = rig.with_params("thrust", K_q=NOMINAL.thrust.K_q * k_q)
-    d = aprbs(24.0, lo=0.3, hi=0.8, min_hold=0.3, max_hold=1.5, seed=seed, dt=DT).duty.copy()
-    d[:50] = 0.0
-    return Recording.from_trajectory(simulate(rig, d, dt=DT, seed=seed), channels=("theta",),
-                                     source=f"session seed {seed}")
 
 
 @pytest.fixture(scope="module")
 def archive(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("archive")
     for name, seed, k_q in (("mon", 11, 1.0), ("tue", 12, 1.0), ("wed", 13, K_Q_FACTOR)):
-        write_bag(_session(seed, k_q), root / name, rig_name="thesis_rig")
+        write_bag(thesis_session(seed, k_q), root / name, rig_name="thesis_rig")
     (root / "notes.txt").write_text("lab notes, not a recording\n")
     return root
 
