@@ -110,7 +110,9 @@ def build_parser() -> argparse.ArgumentParser:
         "which unmodelled effect causes it, and how far the disagreement shrinks on held-out recordings.",
     )
     p.add_argument(
-        "inputs", nargs="*", help="recordings: bag directories (.mcap/.db3) or CSV logs (FILE.csv[:PRESET])"
+        "inputs", nargs="*",
+        help="fit recordings: bag directories (.mcap/.db3) or CSV logs (FILE.csv[:PRESET]); at least one "
+             "whose command changes (steps, PRBS, closed loop), holds and free decays beside it"
     )
     p.add_argument(
         "--sessions",
