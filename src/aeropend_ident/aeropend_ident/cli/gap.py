@@ -269,7 +269,7 @@ def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
         if args.validation:
             val = [uniform_recording(load_recording(p, args.preset)) for p in args.validation]
             for r in val:
-                check_length(r, "validation recording", constant_ok=True)
+                check_length(r, "validation recording")
             rule += f"; validation file(s): {', '.join(split_preset(p)[0].name for p in args.validation)}"
         sessions, labels = None, None
         if groups is not None:

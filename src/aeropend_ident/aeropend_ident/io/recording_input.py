@@ -543,8 +543,12 @@ def timing_range(recs: Sequence[Recording]) -> TimingRange:
 MIN_PART_SAMPLES = 200
 
 
-def check_length(rec: Recording, what: str, constant_ok: bool = False) -> None:
-    """Refuse a recording part the gap diagnosis cannot use (too short, constant duty cycle).
+def check_length(rec: Recording, what: str) -> None:
+    """Refuse a recording part the gap diagnosis cannot use: too short, or no actuator command.
+
+    A constant duty cycle alone is no reason (a hold, a free decay, a step logged from its first
+    sample): such parts are accepted as held-out and validation parts and beside a fit part whose
+    command changes (:func:`check_excited` refuses fit data that never changes it).
 
     Parameters
     ----------
@@ -552,17 +556,12 @@ def check_length(rec: Recording, what: str, constant_ok: bool = False) -> None:
         The part.
     what : str
         What the part is ("fit recording", "held-out part", ...), for the message.
-    constant_ok : bool
-        Accept a constant duty cycle (a hold, a free decay, a step logged from its first sample):
-        held-out and validation parts, and fit parts beside an excited one
-        (:func:`check_excited`). A log whose only input is a set-point reference is refused all
-        the same.
 
     Raises
     ------
     GapCliError
-        Fewer than :data:`MIN_PART_SAMPLES` samples, a reference logged instead of the actuator
-        command, or (without ``constant_ok``) a constant duty cycle; names ``what``.
+        Fewer than :data:`MIN_PART_SAMPLES` samples, or a set-point reference logged instead of the
+        actuator command (the csv_import refusal); names ``what``.
     """
     if len(rec) < MIN_PART_SAMPLES:
         raise GapCliError(
@@ -576,12 +575,6 @@ def check_length(rec: Recording, what: str, constant_ok: bool = False) -> None:
                                  "channel theta_ref" if "theta_ref" in rec.extra else None)
         if why is not None and why[0] == "driven":  # the csv_import refusal, whichever way the log came
             raise GapCliError(f"{rec.source or what}: {why[1]}")
-        if constant_ok:
-            return
-        raise GapCliError(
-            f"{rec.source or what}: the duty cycle is constant ({rec.duty[0]:g}) in the {what}: "
-            "unexcited input, nothing to compare"
-        )
 
 
 def check_excited(parts: Sequence[Recording], what: str) -> None:
@@ -640,10 +633,10 @@ def load_and_split(
     if held_out:
         held = [uniform_recording(load_recording(p, preset)) for p in held_out]
         for r in recs:
-            check_length(r, "fit recording", constant_ok=True)
+            check_length(r, "fit recording")
         check_excited(recs, "fit recording")
         for r in held:
-            check_length(r, "held-out recording", constant_ok=True)
+            check_length(r, "held-out recording")
         rule = f"separate held-out file(s): {', '.join(split_preset(p)[0].name for p in held_out)}"
         return recs, held, rule
     if blocks is not None:
@@ -667,7 +660,7 @@ def load_and_split(
         return fit, held, rule
     fit, held, rule = time_ordered(recs, split)
     for a, b in zip(fit, held, strict=True):
-        check_length(a, "fit part", constant_ok=True)
-        check_length(b, "held-out part", constant_ok=True)
+        check_length(a, "fit part")
+        check_length(b, "held-out part")
     check_excited(fit, "fit part")
     return fit, held, rule
