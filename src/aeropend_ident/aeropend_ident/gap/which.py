@@ -86,6 +86,7 @@ from aeropend_ident.gap.effects import (
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_ident.io.jsonutil import jsonable
+from aeropend_ident.io.overlay_axes import diverges
 from aeropend_ident.sindy.core import weak_matrices
 from aeropend_ident.sindy.model import IdentData
 from aeropend_sim.model import ModelError, PlantModel
@@ -605,8 +606,6 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
         diverges, :func:`aeropend_ident.io.overlay_axes.diverges`: its source and the reason; then
         the NRMSE only measures how far the run went, and the report gives no shrink).
     """
-    from aeropend_ident.io.overlay_axes import diverges
-
     nrmse, maxe, ss, gone = [], 0.0, [], []
     per_channel: dict[str, list[float]] = {}
     step: dict[str, Any] = {}
