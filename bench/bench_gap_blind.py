@@ -90,8 +90,8 @@ def run_case(spec: dict[str, Any]) -> dict[str, Any]:
     s["cpu_s"] = cpu
     keys = ("effects", "nrmse", "nrmse_channels", "channel_nrmse", "max_error", "steady_state_error")
     s["shrink_table"] = [{k: r[k] for k in keys} for r in d.validation]
-    s["ranking"] = [{k: r.get(k) for k in ("effect", "validation_explained", "bic_delta", "confidence",
-                                          "parameters")} for r in d.ranking[:4]]
+    s["ranking"] = [{k: r.get(k) for k in ("effect", "validation_explained", "bic_delta", "presence",
+                                          "status", "parameters")} for r in d.ranking[:4]]
     s["reason"] = d.reason
     return s
 

@@ -16,7 +16,8 @@ Cases (seeds fixed here):
   the reverse), two draws each;
 * two-effect cases (effects of different subsystems);
 * effects outside aeropend's catalog (angle-dependent thrust loss, drifting sensor offset,
-  quadratic rod drag): must be reported as unexplained (no named effect with confidence >= 0.5);
+  quadratic rod drag): must be reported as unexplained (no effect with status "named" and
+  presence >= 0.5);
 * effect-free plants: must give "no significant gap".
 
 Scoring happens after the diagnosis, from its report only: names (first chosen effect; a
@@ -307,14 +308,16 @@ def score(spec: dict[str, Any], case: dict[str, Any], result: Any) -> dict[str, 
     ranking = dd["ranking"]
     truth = list(case["effects"])
     first = ranking[0] if (ranking and d.significant) else None
-    named_conf = ([r["effect"] for r in ranking if (r.get("confidence") or 0.0) >= 0.5]
+    named_conf = ([r["effect"] for r in ranking
+                   if r.get("status") == "named" and (r.get("presence") or 0.0) >= 0.5]
                   if d.significant else [])
     out: dict[str, Any] = {
         "case": f"{'+'.join(truth) or 'none'}@{spec['seed']}", "group": spec["group"],
         "design": spec["design"],
         "variant": spec["variant"], "truth": case["effects"], "snr_db": case["snr_db"],
         "significant": bool(d.significant), "chosen": chosen, "ranked": [r["effect"] for r in ranking[:5]],
-        "confidence": {r["effect"]: r.get("confidence") for r in ranking[:5]},
+        "presence": {r["effect"]: r.get("presence") for r in ranking[:5]},
+        "status": {r["effect"]: r.get("status") for r in ranking[:5]},
         "ambiguous_with": (first or {}).get("ambiguous_with", []), "reason": d.reason,
         "explained": {k: dd.get("explained", {}).get(k) for k in ("completeness", "worst_channel",
                                                                   "residual_over_noise")},
@@ -329,7 +332,7 @@ def score(spec: dict[str, Any], case: dict[str, Any], result: Any) -> dict[str, 
         out["pass"] = not d.significant
     elif spec["group"] == "out of catalog":
         out["pass"] = not named_conf
-        out["named_with_confidence"] = named_conf
+        out["named_with_presence"] = named_conf
     else:
         in_cat = [t for t in truth if t not in OUT_OF_CATALOG]
         out["top1"] = bool(chosen) and chosen[0] in in_cat
@@ -497,7 +500,7 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     lines += ["", "## Cases not passed", ""]
     for c in doc["cases"]:
         if not c.get("pass"):
-            why = c.get("error") or (f"chose {c.get('chosen')} (confidence {c.get('confidence')}); "
+            why = c.get("error") or (f"chose {c.get('chosen')} (presence {c.get('presence')}); "
                                      f"{c.get('reason', '')[:160]}")
             lines.append(f"- `{c['case']}` ({c['group']}, {c['design']}, "
                          f"{'variant' if c['variant'] else 'thesis'} plant, {c['snr_db']:.0f} dB): {why}")

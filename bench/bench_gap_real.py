@@ -470,7 +470,8 @@ def run_case(name: str, max_effects: int = 2) -> dict[str, Any]:
                         "subsystem",
                         "validation_explained",
                         "bic_delta",
-                        "confidence",
+                        "presence",
+                        "status",
                         "parameters",
                     )
                 }
@@ -572,7 +573,7 @@ def markdown(results: dict[str, Any]) -> str:
             f"{len(r.get('diagnosis_validation', []))} part(s); the held-out data were never seen"
         )
         lines.append("")
-        lines.append("| rank | effect | subsystem | validation explained | ΔBIC | confidence | parameters |")
+        lines.append("| rank | effect | subsystem | validation explained | ΔBIC | presence | parameters |")
         lines.append("|---|---|---|---|---|---|---|")
         for k, e in enumerate(r["which"]["ranking"], start=1):
             pars = "; ".join(
@@ -584,7 +585,8 @@ def markdown(results: dict[str, Any]) -> str:
             bic = e.get("bic_delta")
             lines.append(
                 f"| {k} | {e['effect']} | {e['subsystem']} | {'–' if hx is None else f'{hx:.3f}'} | "
-                f"{'–' if bic is None else f'{bic:.1f}'} | {e.get('confidence') or 0:.2f} | {pars} |"
+                f"{'–' if bic is None else f'{bic:.1f}'} | {e.get('presence') or 0:.2f} "
+                f"{e.get('status') or ''} | {pars} |"
             )
         lines.append("")
         lines.append("| data | effects | NRMSE |")

@@ -148,7 +148,7 @@ def test_gap_tests_figure_title_has_short_numbers_and_fits(saved_figures) -> Non
 
 
 def _ranking(name: str, expl: float, conf: float) -> dict:
-    return {"effect": name, "validation_explained": expl, "confidence": conf}
+    return {"effect": name, "validation_explained": expl, "presence": conf}
 
 
 def test_gap_effects_bars_are_horizontal_and_their_labels_do_not_overlap(saved_figures) -> None:

@@ -210,7 +210,7 @@ def _set_label(part: str, row: dict[str, Any]) -> str:
 
 
 def fig_effects(result: GapResult) -> bytes:
-    """Ranked effects (validation explained, confidence) and the NRMSE per effect set, as horizontal
+    """Ranked effects (validation explained, presence) and the NRMSE per effect set, as horizontal
     bars whose labels sit on the y axis (one row each: no label overlaps another, however many sets
     and however long their names); the figure grows with the number of rows."""
     plt = _plt()
@@ -224,10 +224,10 @@ def fig_effects(result: GapResult) -> bytes:
         tag = {**{n: " (chosen)" for n in d.chosen}, **{n: " (detected)" for n in getattr(d, "detected", {})}}
         names = [r["effect"] + tag.get(r["effect"], "") for r in rank][::-1]
         expl = [float(r.get("validation_explained") or 0.0) for r in rank][::-1]
-        conf = [float(r.get("confidence") or 0.0) for r in rank][::-1]
+        conf = [float(r.get("presence") or 0.0) for r in rank][::-1]
         y = np.arange(len(names))
         a1.barh(y, expl, color="tab:blue", label="validation explained")
-        a1.scatter(conf, y, color="black", marker="D", label="confidence", zorder=3)
+        a1.scatter(conf, y, color="black", marker="D", label="presence", zorder=3)
         a1.set_yticks(y, names, fontsize=8)
         a1.set_xlabel("fraction [1]")
         a1.legend(fontsize=8, loc="lower right")

@@ -30,6 +30,7 @@ from aeropend_ident.gap.run import (
     run_gap,
 )
 from aeropend_ident.gap.where import EQUATIONS
+from aeropend_ident.gap.which import CANDIDATE_PRESENCE, NAMED_COMPLETENESS, NAMED_PRESENCE
 from aeropend_ident.io.jsonutil import jsonable
 
 
@@ -71,7 +72,7 @@ def terminal_summary(result: GapResult) -> str:
         lines.append(
             f"    {r['effect']:22s} {r.get('subsystem', ''):12s} score {_fmt(r.get('score'), '.3g'):>8s} "
             f"validation explained {_fmt(r.get('validation_explained'), '.2f'):>5s} "
-            f"confidence {_fmt(r.get('confidence'), '.2f')}"
+            f"presence {_fmt(r.get('presence'), '.2f')} {r.get('status', '')}"
         )
         if r.get("ambiguous_with"):
             lines.append(f"      not separated by these data from: {', '.join(r['ambiguous_with'])}")
@@ -86,7 +87,10 @@ def terminal_summary(result: GapResult) -> str:
         lines.append(f"  corrected_rig.yaml holds {side['by']} instead of {side['replaces']} (not separated "
                      "by these data; sensor frame kept nominal: check the angle sensor's calibration)")
     if getattr(d, "explained", None):
-        lines.append(f"  explained: {d.explained['verdict']}")
+        lines.append(f"  explained: completeness {d.explained['completeness']:.2f}, {d.explained['verdict']}")
+    lines.append(f"  (presence: evidence an effect is present, a validation sample-split test at a "
+                 f"controlled false-discovery rate; named = chosen, presence ≥ {NAMED_PRESENCE:g} and "
+                 f"completeness ≥ {NAMED_COMPLETENESS:g})")
     if result.agreement:
         lines.append(f"  WHERE vs WHICH: {result.agreement['explanation']}")
     lines.append("  VALIDATION (carved from the fit data; chooses the effects):")
@@ -292,7 +296,9 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
             r.get("score"),
             r.get("validation_explained"),
             r.get("bic_delta"),
-            r.get("confidence"),
+            r.get("presence"),
+            r.get("q_value"),
+            r.get("status"),
             "; ".join(
                 f"{n} = {_fmt(p.get('value'))} ± {_fmt(p.get('std'), '.2g')} {p.get('unit', '')}"
                 for n, p in (r.get("parameters") or {}).items()
@@ -460,12 +466,22 @@ Equations whose channels were not recorded cannot be checked.</p>
                 "score",
                 "validation explained",
                 "ΔBIC",
-                "confidence",
+                "presence",
+                "q (FDR)",
+                "status",
                 "parameters",
             ],
         )
     }
-<p>How completely the chosen effects explain the gap: {html.escape(explained.get("verdict", "–"))}
+<p>Presence is the evidence that an effect is in the plant: its fit (on the fit part) tested on the
+validation part against the model without it (one-sided t test of the validation error it removes per
+second), the p-values of every candidate tried adjusted for the false-discovery rate (q,
+Benjamini-Hochberg), times how often it wins its rivals' bootstrap resamples. A chosen effect is
+<b>named</b> with presence ≥ {NAMED_PRESENCE:g} and a completeness of the chosen set ≥
+{NAMED_COMPLETENESS:g}, else a <b>candidate</b>; an unchosen one is a candidate with presence ≥
+{CANDIDATE_PRESENCE:g}.</p>
+<p>Completeness {_fmt(explained.get("completeness"), ".2f")}: how completely the chosen effects explain
+the gap: {html.escape(explained.get("verdict", "–"))}
 (worst channel {html.escape(str(explained.get("worst_channel", "–")))}: share of its above-noise
 validation gap removed {_fmt(explained.get("share_above_noise"), ".3f")},
 validation residual / its noise part: {_fmt(explained.get("residual_over_noise"), ".3g")}).</p>

@@ -36,12 +36,24 @@ the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-ou
    :data:`MIN_EXPLAINED` of the validation gap above noise with a BIC gain of :data:`MIN_BIC_GAIN`
    on the fit data. Further effects are added by forward selection (:func:`_add_effect`) while
    the chosen set leaves a gap above the noise, up to ``max_effects``.
-5. **Confidence and completeness**: an effect's confidence is the bootstrap frequency (over
-   validation segments) with which it comes first (or stays significant), times how completely
-   it explains the gap (:func:`_completeness`: channel by channel, the validation error left over
-   the noise part). A cause outside the catalog leaves a residual far above the noise and is
-   reported as unexplained, whichever effect approximates it best; runner-ups that win a share
-   of the resamples are reported as not separated from the first (``ambiguous_with``).
+5. **Two numbers: presence and completeness** (:func:`_evidence`). An effect's **presence**
+   (0..1) is the evidence that it is in the plant: a sample-split test of its fit (made on the
+   fit part) on the validation part (:func:`split_test`: one-sided t test of the per-second
+   validation SSE it removes, the sample size corrected for the correlation of neighbouring
+   seconds), against the nominal rig for a single effect and against the set before it for an
+   effect added by forward selection; the p-values of every candidate tried are adjusted for
+   the false-discovery rate (Benjamini-Hochberg), and presence = (1 − q) × the bootstrap
+   frequency (over validation segments) with which the effect wins against the candidates that
+   explain the same error (first among the single effects; the added gain passing). So presence
+   ≥ 0.9 reads "at a false-discovery rate of 10 %, and not a rival's stand-in". **Completeness**
+   (:func:`_completeness`: channel by channel, the validation error left over the noise part)
+   says how fully the chosen set explains the gap. The words follow from the two by stated
+   thresholds (:func:`status_of`): a chosen effect is ``named`` with presence ≥
+   :data:`NAMED_PRESENCE` and a set completeness ≥ :data:`NAMED_COMPLETENESS`, otherwise a
+   ``candidate`` (a cause outside the catalog leaves a residual far above the noise, whichever
+   effect approximates it best); runner-ups that win a share of the resamples are ``not
+   separated`` from the first (``ambiguous_with``); others are a ``candidate`` with presence ≥
+   :data:`CANDIDATE_PRESENCE`, else ``not significant``.
 6. **Validation table** (:func:`gap_metrics`): NRMSE per channel, max error, steady-state map
    error and step metrics before and after, per cumulative effect set.
 
@@ -66,6 +78,8 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.signal import savgol_filter
+from scipy.stats import false_discovery_control
+from scipy.stats import t as student_t
 
 from aeropend_ident.errors import GapError, IdentificationError
 from aeropend_ident.gap.effects import (
@@ -122,7 +136,7 @@ ABOVE_NOISE = 1.25
 BIC_DECIMATION = 20
 #: Number of shortlisted effects confirmed by grey-box fits.
 SHORTLIST = 5
-#: Bootstrap resamples for screening inclusion and ranking confidence.
+#: Bootstrap resamples for screening inclusion and the ranking's bootstrap frequencies.
 N_BOOTSTRAP = 30
 #: Savitzky-Golay window [s] of the derivative estimates (strong form) and initial rates.
 SAVGOL_WINDOW = 0.06
@@ -148,7 +162,7 @@ THRUST_LAW_EXPONENTS = (1.5, 1.8, 2.2, 2.6)
 #: reported as not separated from the first-ranked effect (``ambiguous_with``).
 AMBIGUOUS_FIRST = 0.2
 #: Validation error over its noise part (per channel, squared) up to which an effect (set) counts
-#: as a complete explanation, and from which it counts as none; the confidence is scaled
+#: as a complete explanation, and from which it counts as none; the completeness is scaled
 #: log-linearly between. Ratio − 1 is the unexplained variance over the noise variance: complete
 #: while the systematic error is below 30 % of the noise variance, no explanation once it is as
 #: large as the noise itself. A model with the right structure and fitted parameters leaves
@@ -157,6 +171,13 @@ AMBIGUOUS_FIRST = 0.2
 #: (bench/results/gap_independent.md).
 RESIDUAL_NOISE_OK = 1.3
 RESIDUAL_NOISE_MAX = 2.0
+#: A chosen effect is "named" with presence at least this (its false-discovery-rate adjusted
+#: p-value ≤ 0.1, and winning its rivals' resamples) and a chosen set that explains at least
+#: NAMED_COMPLETENESS of the gap ("mostly explained"); a chosen effect short of either is a
+#: "candidate", as is an unchosen effect with presence ≥ CANDIDATE_PRESENCE (as likely present as not).
+NAMED_PRESENCE = 0.9
+NAMED_COMPLETENESS = 0.5
+CANDIDATE_PRESENCE = 0.5
 
 
 # ------------------------------------------------------------------------------ data
@@ -1019,8 +1040,10 @@ class EffectDiagnosis:
         False => "no significant gap".
     ranking : list of dict
         Best first: ``effect``, ``subsystem``, ``score``, ``validation_explained`` (share of the
-        nominal validation SSE the effect removes), ``bic_delta``, ``confidence`` (0..1: bootstrap
-        frequency times the completeness of the chosen set, see ``explained``), ``parameters``
+        nominal validation SSE the effect removes), ``bic_delta``, ``p_value`` (its sample-split
+        test), ``q_value`` (false-discovery-rate adjusted), ``presence`` (0..1, the evidence the
+        effect is present: :func:`_evidence`), ``status`` ("named", "candidate", "not separated",
+        "not significant", "detected": :func:`status_of`), ``parameters``
         ``{name: {value, std, unit}}`` (physical units), ``rig_values``, ``screening`` (strong/weak
         explained, inclusion, equation-error estimate), ``confusable_with`` (physics),
         ``ambiguous_with`` (effects these data do not separate from it, with the evidence in
@@ -1294,7 +1317,8 @@ def _bootstrap_first(st: _Setup, cands: _Candidates, order: Sequence[str],
 
 
 def _ranking(st: _Setup, cands: _Candidates, scr: Screening, seed: int) -> list[dict[str, Any]]:
-    """Candidates best first by validation explained, with bootstrap confidence and ambiguity."""
+    """Candidates best first by validation explained, with their bootstrap frequencies, split-test
+    p-value and ambiguity."""
     order = sorted(cands.stats, key=lambda n: -cands.stats[n]["validation_explained"])
     # parsimony: an effect that nests a simpler one (the thrust law with α = 2 is a thrust-coefficient
     # error) ranks above it only when it removes at least MIN_EXPLAINED_SECOND of the validation gap
@@ -1308,7 +1332,7 @@ def _ranking(st: _Setup, cands: _Candidates, scr: Screening, seed: int) -> list[
                     order.insert(order.index(name), simple)
     first, signif = _bootstrap_first(st, cands, order, seed)
     ranking: list[dict[str, Any]] = []
-    for i, name in enumerate(order):
+    for name in order:
         e = get_effect(name)
         c = cands.stats[name]
         ranking.append({
@@ -1316,11 +1340,8 @@ def _ranking(st: _Setup, cands: _Candidates, scr: Screening, seed: int) -> list[
             "validation_explained": c["validation_explained"],
             "above_noise_explained": c["above_noise_explained"], "bic_delta": c["bic_delta"],
             "bootstrap_first": first[name], "bootstrap_significant": signif[name],
-            # how often it ranks first (or stays significant), times how completely it explains
-            # the gap on its own: an effect that leaves a residual far above the noise is not the
-            # cause, whatever its rank
-            "confidence": (first[name] if i == 0 else signif[name])
-            * cands.completeness[name]["completeness"],
+            # the sample-split test of the single effect against the nominal (presence: _evidence)
+            "p_value": split_test(st.seg0, cands.segs[name]),
             "explained": {k: cands.completeness[name][k] for k in ("completeness", "worst_channel",
                                                                   "residual_over_noise", "verdict")},
             "parameters": _param_table(cands.fits[name], name),
@@ -1354,7 +1375,8 @@ class _Added(NamedTuple):
     screening: Screening  # of the residual the chosen set left
     sse: float  # validation SSE of chosen + effect (segment_sse summed)
     segs: np.ndarray  # validation SSE per segment of chosen + effect
-    confidence: float  # bootstrap frequency of the gain passing the threshold
+    share: float  # bootstrap frequency of the gain passing the threshold
+    p_value: float  # sample-split test of chosen + effect against chosen (split_test)
 
 
 def excluded_with(chosen: Sequence[str]) -> set[str]:
@@ -1438,7 +1460,8 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
                 pick = rng.integers(0, segs2.size, segs2.size)
                 hits += st.above_noise_share(float(segs2[pick].sum()),
                                              float(cur_segs[pick].sum())) >= MIN_EXPLAINED_SECOND
-            best2 = _Added(gain, o, fr2, bic_gain, scr2, sse2, segs2, hits / N_BOOTSTRAP)
+            best2 = _Added(gain, o, fr2, bic_gain, scr2, sse2, segs2, hits / N_BOOTSTRAP,
+                           split_test(cur_segs, segs2))
 
     for o in cands:
         consider(o)
@@ -1623,6 +1646,105 @@ def _refine(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: list[str]
     return cur, cur_segs, chosen, tried
 
 
+def split_test(base: np.ndarray, new: np.ndarray) -> float:
+    """One-sided p-value that a model removes validation error: the sample-split test of presence.
+
+    ``base`` and ``new`` are the validation SSE per segment (:func:`segment_sse`, 1 s segments) of
+    the model without and with the effect, whose parameters were fitted on the fit part only, so
+    that under "the effect is absent" the removed error d_j = base_j − new_j has mean ≤ 0. A t
+    test of mean(d) > 0 whose sample size is the number of segments reduced for the correlation of
+    neighbouring ones (a free-run error persists from one second to the next):
+    n_eff = n·(1 − ρ₁)/(1 + ρ₁), ρ₁ the lag-1 autocorrelation of d clipped to [0, 0.9]
+    (Wilks, *Statistical methods in the atmospheric sciences*, §5.2.4).
+
+    Parameters
+    ----------
+    base, new : numpy.ndarray
+        Shape (n,), validation SSE per segment without / with the effect (same segments).
+
+    Returns
+    -------
+    float
+        p in [0, 1]; 1.0 when the effect removes nothing on average.
+    """
+    d = np.asarray(base, dtype=float) - np.asarray(new, dtype=float)
+    n = d.size
+    mean = float(np.mean(d)) if n else 0.0
+    if n == 0 or mean <= 0.0:
+        return 1.0
+    sd = float(np.std(d, ddof=1)) if n > 1 else 0.0
+    if sd <= 1e-12 * abs(mean):
+        return 0.0
+    rho = float(np.corrcoef(d[:-1], d[1:])[0, 1]) if n > 3 else 0.0
+    rho = float(np.clip(rho if np.isfinite(rho) else 0.0, 0.0, 0.9))
+    n_eff = max(n * (1.0 - rho) / (1.0 + rho), 2.0)
+    return float(student_t.sf(mean / (sd / math.sqrt(n_eff)), df=n_eff - 1.0))
+
+
+def status_of(presence: float | None, chosen: bool, completeness: float | None,
+              not_separated: bool = False) -> str:
+    """The word the report uses for an effect, from its presence and the chosen set's completeness.
+
+    Parameters
+    ----------
+    presence : float or None
+        Evidence the effect is present (0..1, :func:`_evidence`).
+    chosen : bool
+        In the corrected rig.
+    completeness : float or None
+        How completely the chosen set explains the validation gap (0..1, :func:`_completeness`).
+    not_separated : bool
+        The data do not separate it from a chosen effect (``ambiguous_with`` of one).
+
+    Returns
+    -------
+    str
+        ``"named"`` (chosen, presence ≥ :data:`NAMED_PRESENCE`, completeness ≥
+        :data:`NAMED_COMPLETENESS`), ``"candidate"`` (chosen but short of either, or presence ≥
+        :data:`CANDIDATE_PRESENCE`), ``"not separated"`` or ``"not significant"``.
+    """
+    p = presence or 0.0
+    if chosen:
+        return "named" if p >= NAMED_PRESENCE and (completeness or 0.0) >= NAMED_COMPLETENESS else "candidate"
+    if not_separated:
+        return "not separated"
+    return "candidate" if p >= CANDIDATE_PRESENCE else "not significant"
+
+
+def _evidence(ranking: list[dict[str, Any]], chosen: Sequence[str], shares: Mapping[str, float],
+              pvals: Mapping[str, float], explained: Mapping[str, Any], *, in_sample: bool) -> None:
+    """Presence, q-value and status of every ranked effect (module doc, step 5), in place; the
+    chosen effects first (in the order chosen), the others by presence.
+
+    The p-values of every test made (each single candidate against the nominal, each added effect
+    against the set before it: ``pvals`` overrides an entry's own) are adjusted together by
+    Benjamini-Hochberg (:func:`scipy.stats.false_discovery_control`); presence = (1 − q) × the
+    effect's bootstrap share (``shares`` for a chosen effect, else its ``bootstrap_first``).
+    ``in_sample``: the validation part was the fit part (see :func:`_setup`), said on each entry.
+    """
+    tested = [r for r in ranking if not r.get("detected")]
+    ps = [pvals.get(r["effect"], r.get("p_value")) for r in tested]
+    have = [i for i, p in enumerate(ps) if p is not None]
+    qs = false_discovery_control([ps[i] for i in have], method="bh") if have else []
+    q_of = {tested[i]["effect"]: float(q) for i, q in zip(have, qs, strict=True)}
+    ambiguous = {a for r in ranking if r["effect"] in chosen for a in r.get("ambiguous_with", [])}
+    for r in tested:
+        name = r["effect"]
+        if name in pvals:
+            r["p_value"] = pvals[name]
+        q = q_of.get(name)
+        share = shares.get(name, r.get("bootstrap_first"))
+        r["q_value"] = q
+        r["presence"] = None if q is None or share is None else float((1.0 - q) * share)
+        r["status"] = status_of(r["presence"], name in chosen, explained.get("completeness"),
+                                name in ambiguous)
+        if in_sample:
+            r["presence_in_sample"] = True
+    rank = {n: i for i, n in enumerate(chosen)}
+    ranking.sort(key=lambda r: (rank.get(r["effect"], len(rank)), not r.get("detected"),
+                                -(r.get("presence") or 0.0)))
+
+
 def _completeness(st: _Setup, sse: Mapping[str, float]) -> dict[str, Any]:
     """How completely a corrected model explains the validation gap, judged channel by channel.
 
@@ -1667,7 +1789,8 @@ def _quantisation_entry(st: _Setup, q_hat: float) -> dict[str, Any]:
     share = min(1.0, (q_hat**2 / 12.0) / max(ms0, 1e-300))
     return {
         "effect": "quantisation", "subsystem": get_effect("quantisation").subsystem, "score": share,
-        "validation_explained": share, "bic_delta": None, "confidence": 1.0, "detected": True,
+        "validation_explained": share, "bic_delta": None, "presence": 1.0, "status": "detected",
+        "detected": True,
         "parameters": {"theta_quantum": {"value": q_hat, "std": 0.0, "unit": "rad"}},
         "rig_values": {"sensors.theta_quantum": q_hat},
         "screening": {"detected": "lattice of recorded angles"},
@@ -1820,6 +1943,8 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     corrected, meas = rig, MeasurementMap()
     table = [{"effects": [], **st.base_metrics}]
     reason, explained = "", {}
+    shares: dict[str, float] = {}  # chosen effect -> bootstrap share of its presence
+    pvals: dict[str, float] = {}  # chosen effect -> its split-test p-value
     if sig_first:
         name = best["effect"]
         chosen.append(name)
@@ -1827,7 +1952,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
         corrected, meas = cur.rig, cur.meas
         table.append({"effects": list(chosen), **gap_metrics(corrected, meas, st.pv)})
         say(f"{name} leaves a validation SSE of {st.noise_ratio(float(cur_segs.sum()))}")
-        confidences = {name: best["bootstrap_first"]}
+        shares[name], pvals[name] = best["bootstrap_first"], best["p_value"]
         # forward selection: while the chosen set leaves some channel's residual above its noise
         # (completeness < 1), screen its residual and confirm the best candidates by a joint fit with
         # the effects already chosen
@@ -1840,7 +1965,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
             chosen.append(o)
             cur, cur_segs = added.fit, added.segs
             corrected, meas = cur.rig, cur.meas
-            confidences[o] = added.confidence
+            shares[o], pvals[o] = added.share, added.p_value
             _record_added(ranking, st, added, chosen)
             table.append({"effects": list(chosen), **gap_metrics(corrected, meas, st.pv)})
         amb, alt_fits = _unseparated_single(best, cands) if len(chosen) == 1 else ({}, {})
@@ -1855,13 +1980,13 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
                         {a: {"validation_explained": v, "bootstrap_first": None, "joint_fit": True}
                          for a, v in alts.items()})
             if chosen != before:
-                corrected, meas = _take_over(st, cur, before, chosen, confidences, ranking, scr, table,
+                corrected, meas = _take_over(st, cur, before, chosen, (shares, pvals), ranking, scr, table,
                                              "replacement")
         if st.refinements:
             before = list(chosen)
             cur, cur_segs, chosen, tried = _refine(st, cur, cur_segs, chosen)
             if chosen != before:
-                corrected, meas = _take_over(st, cur, before, chosen, confidences, ranking, scr, table,
+                corrected, meas = _take_over(st, cur, before, chosen, (shares, pvals), ranking, scr, table,
                                              "refinement")
             for r in ranking:  # the figures of each tried refinement, on the refined and the refining entry
                 refs = {k: v for k, v in tried.items() if r["effect"] in (k, v["replaces"])}
@@ -1869,9 +1994,6 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
                     r["refinements"] = refs
         plant_side = _plant_side_entry(chosen, amb, alt_fits)
         explained = _completeness(st, channel_sse(corrected, meas, st.pv))
-        for r in ranking:
-            if r["effect"] in chosen:
-                r["confidence"] = confidences[r["effect"]] * explained["completeness"]
         reason = (f"{name} removes {100 * best['above_noise_explained']:.1f} % of the validation gap above "
                   f"noise (BIC change {best['bic_delta']:.1f}); {explained['verdict']}")
     else:
@@ -1884,9 +2006,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
         detected["quantisation"] = {"theta_quantum": q_hat}
         corrected, reason = _add_quantum(st, q_hat, ranking, corrected, sig_first, reason)
         sig_first = True
-    if not sig_first:  # nothing is named: no candidate is "the cause" with any confidence
-        for r in ranking:
-            r["confidence"] = 0.0
+    _evidence(ranking, chosen, shares, pvals, explained, in_sample=st.pv is st.pf)
     if st.note:
         reason += f"; {st.note}"
     if st.not_ident and sig_first:
@@ -1922,14 +2042,16 @@ def _plant_side_entry(chosen: Sequence[str], amb: Mapping[str, Mapping[str, floa
 
 
 def _take_over(st: _Setup, cur: EffectFit, before: Sequence[str], chosen: Sequence[str],
-               confidences: dict[str, float], ranking: list[dict[str, Any]], scr: Screening,
-               table: list[dict[str, Any]], step: str) -> tuple[Rig, MeasurementMap]:
+               evidence: tuple[dict[str, float], dict[str, float]], ranking: list[dict[str, Any]],
+               scr: Screening, table: list[dict[str, Any]], step: str) -> tuple[Rig, MeasurementMap]:
     """A chosen set changed by a replacement or refinement pass (``step``): each new effect takes
-    over its predecessor's confidence, the ranking gets the joint values, the validation table a
-    row ``{step: True}``; returns the corrected rig and measurement map."""
+    over its predecessor's evidence (bootstrap share and split-test p-value; the replacement beat
+    it on the validation part), the ranking gets the joint values, the validation table a row
+    ``{step: True}``; returns the corrected rig and measurement map."""
     for old_name, new_name in zip(before, chosen, strict=True):
         if old_name != new_name:
-            confidences[new_name] = confidences.pop(old_name)
+            for d in evidence:
+                d[new_name] = d.pop(old_name)
     _record_chosen(ranking, st, cur, chosen, scr)
     table.append({"effects": list(chosen), step: True, **gap_metrics(cur.rig, cur.meas, st.pv)})
     return cur.rig, cur.meas
@@ -1945,7 +2067,7 @@ def _record_chosen(ranking: list[dict[str, Any]], st: _Setup, fit: EffectFit, ch
             e = get_effect(name)
             ranking.append({
                 "effect": name, "subsystem": e.subsystem, "score": None, "validation_explained": None,
-                "bic_delta": None, "confidence": None, "parameters": {}, "rig_values": {},
+                "bic_delta": None, "p_value": None, "parameters": {}, "rig_values": {},
                 "screening": ({"explained_strong": scr.explained_strong[name],
                                "explained_weak": scr.explained_weak[name], "inclusion": scr.inclusion[name]}
                               if name in scr.explained_strong else {"not_screened": True}),
