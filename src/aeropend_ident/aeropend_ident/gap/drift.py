@@ -46,6 +46,7 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
@@ -100,6 +101,10 @@ INTERVAL = (0.10, 0.90)
 DRIFT_Z = 3.0
 #: ... and more than this relative change.
 DRIFT_MIN = 0.03
+#: |correlation| of two parameters' log estimates from which the drift table reports their ratio
+#: instead of each (:func:`combination_rows`): at 0.9 the ratio's standard error is under a third of
+#: the single ones' (√(2(1 − r)) for equal errors).
+CONFOUNDED_CORR = 0.9
 #: A change is relative only when the reference value exceeds this share of the largest value
 #: (a dead zone, drop or delay absent in one session has no relative change; its absolute is given).
 RELATIVE_FLOOR = 1e-3
@@ -354,6 +359,61 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     }
 
 
+def refit_comparison(nominal: Rig, diag: EffectDiagnosis, fit: Sequence[Recording],
+                     held_out: Sequence[Recording], corrected_nrmse: float) -> dict[str, Any]:
+    """The corrected rig against a plain refit of the nominal parameters, on the held-out recordings.
+
+    A diagnosis adds physics; a lab's first alternative is to refit the rig's own numbers, as
+    ``baseline`` does by default (the rod's gravity term mgd/J, its viscous friction c/J and the
+    thrust scale, here the thrust coefficient K_q, plus the supply voltage V_s when v_a is
+    recorded: the drift-prone parameters, :func:`drift_parameters`). They are fitted on every fit
+    recording (output error, :func:`aeropend_ident.gap.which.fit_effects`) and replayed on the
+    held-out ones with the same metric as the corrected rig. When the corrected rig predicts the
+    held-out recordings worse than that refit, the report says so and shows both.
+
+    Parameters
+    ----------
+    nominal : Rig
+    diag : EffectDiagnosis
+    fit, held_out : sequence of Recording
+        All fit recordings and the held-out ones, model frame.
+    corrected_nrmse : float
+        Held-out θ NRMSE of the corrected rig (mean over the held-out recordings).
+
+    Returns
+    -------
+    dict
+        ``parameters`` refitted, ``values`` and ``std`` (physical units), ``refit_nrmse`` (held-out
+        θ NRMSE, mean over recordings; NaN when its replay diverges), ``corrected_nrmse``,
+        ``worse_than_refit`` (bool) and a one-line ``verdict``.
+
+    Raises
+    ------
+    GapError
+        If the refit fails.
+    """
+    from aeropend_ident.gap.which import gap_metrics
+
+    channels = diag.channels or ("theta",)
+    params = drift_parameters(channels, nominal.family)
+    fr = _fit_set(nominal, params, _preps(fit, channels))
+    m = gap_metrics(fr.rig, fr.meas, _preps(held_out, channels))
+    refit = math.nan if m.get("diverges") else float(m["nrmse"])
+    worse = bool(math.isfinite(refit) and corrected_nrmse > refit)
+    names = ", ".join(f"{e}" for e in params)
+    if not math.isfinite(refit):
+        verdict = f"the refit of the nominal parameters ({names}) diverges on the held-out data"
+    elif worse:
+        verdict = (f"the corrected rig predicts the held-out data WORSE than a plain refit of the nominal "
+                   f"parameters ({names}): θ NRMSE {corrected_nrmse:.4f} vs {refit:.4f}; the named effects "
+                   "do not carry over to these recordings better than the rig's own numbers refitted")
+    else:
+        verdict = (f"the corrected rig predicts the held-out data better than a plain refit of the nominal "
+                   f"parameters ({names}): θ NRMSE {corrected_nrmse:.4f} vs {refit:.4f}")
+    return {"parameters": params, "values": fr.values, "std": fr.std, "refit_nrmse": refit,
+            "corrected_nrmse": float(corrected_nrmse), "worse_than_refit": worse, "verdict": verdict}
+
+
 def _oracle(rig: Rig, effects: Sequence[str], prep: Prepared, start: Mapping[str, Mapping[str, float]]
             ) -> tuple[float, dict[str, Any]]:
     fr = _fit_set(rig, effects, [prep], start=start, scan=len(effects) == 1)
@@ -552,11 +612,70 @@ def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, An
             k = int(np.argmax(np.abs(v[1:] - v[0]))) + 1
             change = float((v[k] - v[0]) / abs(v[0])) if relative else math.nan
             zk = float(z[k]) if np.isfinite(z[k]) else math.inf
-            rows.append({"effect": eff, "parameter": par.name, "unit": par.unit, "values": v.tolist(),
+            rows.append({"effect": eff, "parameter": par.name, "kind": "parameter", "unit": par.unit,
+                         "values": v.tolist(),
                          "std": s.tolist(), "change": change, "abs_change": float(v[k] - v[0]), "z": zk,
                          "drifts": bool(zk > DRIFT_Z and (not relative or abs(change) > DRIFT_MIN))})
+    rows += combination_rows(fits, rows)
     rows.sort(key=lambda r: (not r["drifts"], -r["z"]))
     return rows
+
+
+def _log_coords(fit: Any) -> dict[tuple[str, str], int]:
+    """Index of each log-scaled coordinate of a fit's covariance."""
+    return {lab: i for i, (lab, lg) in enumerate(zip(fit.labels, fit.log, strict=True)) if lg}
+
+
+def combination_rows(fits: Sequence[Any], rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Drift rows of the ratios the data identify where the single parameters are confounded.
+
+    Two strictly positive parameters whose estimates correlate by at least
+    :data:`CONFOUNDED_CORR` (in |r| of their logs, in any session's covariance,
+    :attr:`aeropend_ident.gap.which.EffectFit.cov`) are not separately identifiable from these
+    recordings: with the angle alone in closed loop, the thrust coefficient K_q (through L/J) and the
+    gravity term mgd/J move together and only their ratio, the duty needed per unit of sin θ, is
+    pinned. Their ratio a/b is a row of its own (``kind`` "combination", ``effect`` "A/B",
+    ``parameter`` "p_a/p_b"): values, standard error from var(log a) + var(log b) − 2 cov, change
+    and z as for a parameter. The single rows of a confounded pair are kept with
+    ``confounded_with`` and are not flagged (``drifts`` False, ``flag_suppressed``), so that a change
+    along the unidentified direction, which the fit cannot tell from a rig change, raises no alarm;
+    the ratio row is flagged instead when it changes.
+    """
+    out = []
+    if any(getattr(f, "cov", None) is None for f in fits) or not fits:
+        return out
+    idx = [_log_coords(f) for f in fits]
+    common = [lab for lab in idx[0] if all(lab in ix for ix in idx[1:])]
+    by_label = {(r["effect"], r["parameter"]): r for r in rows}
+    for a, b in itertools.combinations(common, 2):
+        corr = []
+        for f, ix in zip(fits, idx, strict=True):
+            c = f.cov
+            va, vb = c[ix[a], ix[a]], c[ix[b], ix[b]]
+            corr.append(abs(c[ix[a], ix[b]]) / math.sqrt(va * vb) if va > 0 and vb > 0 else 0.0)
+        if max(corr) < CONFOUNDED_CORR:
+            continue
+        lr = np.array([math.log(f.values[a[0]][a[1]]) - math.log(f.values[b[0]][b[1]]) for f in fits])
+        var = np.array([f.cov[ix[a], ix[a]] + f.cov[ix[b], ix[b]] - 2.0 * f.cov[ix[a], ix[b]]
+                        for f, ix in zip(fits, idx, strict=True)])
+        sd = np.sqrt(np.clip(var, 0.0, None))
+        k = int(np.argmax(np.abs(lr[1:] - lr[0]))) + 1
+        comb = math.sqrt(sd[k] ** 2 + sd[0] ** 2)
+        z = abs(lr[k] - lr[0]) / comb if comb > 0 else math.inf
+        change = math.expm1(lr[k] - lr[0])
+        ratio = np.exp(lr)
+        out.append({"effect": f"{a[0]}/{b[0]}", "parameter": f"{a[1]}/{b[1]}", "unit": "1",
+                    "kind": "combination", "values": ratio.tolist(), "std": (ratio * sd).tolist(),
+                    "change": change, "abs_change": float(ratio[k] - ratio[0]), "z": z,
+                    "correlation": max(corr),
+                    "drifts": bool(z > DRIFT_Z and abs(change) > DRIFT_MIN)})
+        for lab, other in ((a, b), (b, a)):
+            r = by_label.get(lab)
+            if r is not None:
+                r.setdefault("confounded_with", []).append(f"{other[0]}.{other[1]}")
+                if r["drifts"]:
+                    r["drifts"], r["flag_suppressed"] = False, True
+    return out
 
 
 def session_sigma(table: Mapping[str, Any]) -> dict[str, float]:

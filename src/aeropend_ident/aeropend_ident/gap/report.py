@@ -142,6 +142,9 @@ def terminal_summary(result: GapResult) -> str:
             f"{sp['not_removable']:.0%}")
         if a.get("drift"):
             lines += _drift_lines(a["drift"])
+    if result.refit:
+        lines.append(f"  {'WORSE THAN A REFIT' if result.refit['worse_than_refit'] else 'REFIT'}: "
+                     f"{result.refit['verdict']}")
     for section, why in result.not_computed.items():
         lines.append(f"  NOT COMPUTED: {section}: {why}")
     return "\n".join(lines)
@@ -228,13 +231,29 @@ def _change(row: dict[str, Any]) -> str:
     return f"{row['abs_change']:+.4g} {row['unit']}"
 
 
+def _refit_html(result: GapResult) -> str:
+    """The comparison with a plain refit of the nominal parameters ('' when not computed)."""
+    r = result.refit
+    if not r:
+        return ""
+    tag = "<b>Worse than a refit:</b> " if r["worse_than_refit"] else ""
+    pars = "; ".join(f"{e}.{k} = {_fmt(v)}" for e, d in r["values"].items() for k, v in d.items())
+    return (f"<p>{tag}{html.escape(r['verdict'])} (held-out θ NRMSE: corrected "
+            f"{_fmt(r['corrected_nrmse'], '.4f')}, refit {_fmt(r['refit_nrmse'], '.4f')}; "
+            f"refitted {html.escape(pars)}).</p>")
+
+
 def _drift_lines(table: dict[str, Any], top: int = 4) -> list[str]:
     """Terminal lines of a drift table (most significant rows)."""
     out = [f"    drift table ({' vs '.join(_label(x)[:24] for x in table['sessions'])}):"]
     for r in table["rows"][:top]:
         vals = " / ".join(f"{v:.4g}" for v in r["values"])
+        note = (f" ratio: the single parameters are confounded (|r| {r['correlation']:.2f})"
+                if r.get("kind") == "combination" else
+                f" not flagged alone: confounded with {', '.join(r['confounded_with'])}"
+                if r.get("flag_suppressed") else "")
         out.append(f"      {'!' if r['drifts'] else ' '} {r['effect']}.{r['parameter']:14s} {vals} "
-                   f"{r['unit']} change {_change(r)} (z {r['z']:.1f})")
+                   f"{r['unit']} change {_change(r)} (z {r['z']:.1f}){note}")
     return out
 
 
@@ -418,6 +437,7 @@ and chose the effects on {len(result.validation)} validation part(s) carved from
             ],
         )
     }
+{_refit_html(result)}
 <h3>Held-out NRMSE per recorded channel</h3>
 {_table(channel_rows, ["effects added", *[f"NRMSE {c}" for c in chans]])}
 <h3>Residual tests on held-out data, nominal vs corrected</h3>
@@ -474,9 +494,9 @@ Equations whose channels were not recorded cannot be checked.</p>
         )
     }
 <p>Presence is the evidence that an effect is in the plant: its fit (on the fit part) tested on the
-validation part against the model without it (one-sided t test of the validation error it removes per
-second), the p-values of every candidate tried adjusted for the false-discovery rate (q,
-Benjamini-Hochberg), times how often it wins its rivals' bootstrap resamples. A chosen effect is
+validation part against the model without it (one-sided t test that it shrinks each second's error,
+weighted by that second's gap above noise, by more than the share the decision asks for), the
+p-values of every candidate tried adjusted for the false-discovery rate (q, Benjamini-Hochberg), times how often it wins its rivals' bootstrap resamples. A chosen effect is
 <b>named</b> with presence ≥ {NAMED_PRESENCE:g} and a completeness of the chosen set ≥
 {NAMED_COMPLETENESS:g}, else a <b>candidate</b>; an unchosen one is a candidate with presence ≥
 {CANDIDATE_PRESENCE:g}.</p>

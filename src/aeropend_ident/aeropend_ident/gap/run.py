@@ -88,6 +88,9 @@ class GapResult:
     sessions : dict, optional
         Leave-one-session-out diagnosis and drift table
         (:func:`aeropend_ident.gap.drift.session_analysis`).
+    refit : dict, optional
+        The corrected rig against a plain refit of the nominal parameters on the held-out
+        recordings (:func:`aeropend_ident.gap.drift.refit_comparison`).
     not_computed : dict
         Optional sections (sessions, prediction, attainable shrink) that could not be computed,
         with the reason; the rest of the result stands.
@@ -112,6 +115,7 @@ class GapResult:
     prediction_check: dict[str, Any] | None = None
     attainable: list[dict[str, Any]] | None = None
     sessions: dict[str, Any] | None = None
+    refit: dict[str, Any] | None = None
     not_computed: dict[str, str] = field(default_factory=dict)
 
     # ------------------------------------------------------------------ headline
@@ -139,6 +143,9 @@ class GapResult:
             "heldout_channel_shrink": {c: (1.0 - ch1[c] / v) if v > 0 else math.nan
                                        for c, v in ch0.items() if c in ch1},
             "explained": getattr(d, "explained", {}).get("verdict", ""),
+            "completeness": getattr(d, "explained", {}).get("completeness"),
+            "refit": ({k: self.refit[k] for k in ("refit_nrmse", "corrected_nrmse", "worse_than_refit")}
+                      if self.refit else None),
             "where_which_agree": self.agreement.get("agree"),
             "n_fit_recordings": len(self.fit),
             "n_heldout_recordings": len(self.held_out),
@@ -158,6 +165,7 @@ class GapResult:
                 "prediction": self.prediction,
                 "not_computed": self.not_computed,
                 "after": {
+                    "refit": self.refit,
                     "prediction_check": self.prediction_check,
                     "attainable": self.attainable,
                     "heldout_nominal": _where_brief(self.where_heldout_nominal),
@@ -436,7 +444,7 @@ def run_gap(
     aeropend_ident.gap.effects.GapError, aeropend_ident.gap.where.GapInputError
         Unusable recordings (no θ, NaNs, too short, constant input) or rig (before any result).
     """
-    from aeropend_ident.gap.drift import attainable
+    from aeropend_ident.gap.drift import attainable, refit_comparison
     from aeropend_ident.gap.effects import timing_effects
     from aeropend_ident.gap.which import diagnose_effects
 
@@ -475,6 +483,10 @@ def run_gap(
     say("after: replaying the held-out recordings")
     overlays, test, w_nom, w_cor = _replay_held_out(rig, diag, corrected, held_out, theta_offset, horizon)
     check = _prediction_check(prediction, test)
+    say("after: a plain refit of the nominal parameters on the fit data, for comparison")
+    refit = optional.run("refit comparison", lambda: refit_comparison(
+        rig, diag, [_shift(r, theta_offset) for r in fit], [_shift(r, theta_offset) for r in held_out],
+        float(test[-1]["nrmse"])))
     say("after: attainable shrink (correction and best catalog set fitted on each held-out recording)")
     attain = optional.run("attainable shrink", lambda: attainable(
         rig, diag, [_shift(r, theta_offset) for r in held_out], max_effects=max_effects, seed=seed,
@@ -499,6 +511,7 @@ def run_gap(
         prediction_check=check,
         attainable=attain,
         sessions=sess,
+        refit=refit,
         not_computed=optional.not_computed,
     )
 

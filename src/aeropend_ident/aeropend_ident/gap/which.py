@@ -38,10 +38,11 @@ the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-ou
    the chosen set leaves a gap above the noise, up to ``max_effects``.
 5. **Two numbers: presence and completeness** (:func:`_evidence`). An effect's **presence**
    (0..1) is the evidence that it is in the plant: a sample-split test of its fit (made on the
-   fit part) on the validation part (:func:`split_test`: one-sided t test of the per-second
-   validation SSE it removes, the sample size corrected for the correlation of neighbouring
-   seconds), against the nominal rig for a single effect and against the set before it for an
-   effect added by forward selection; the p-values of every candidate tried are adjusted for
+   fit part) on the validation part (:func:`split_test`: one-sided t test that it shrinks each
+   second's validation error, weighted by that second's gap above noise, by more than the share
+   the decision asks for, the sample size corrected for the correlation of neighbouring seconds),
+   against the nominal rig for a single effect and against the set before it for an effect added
+   by forward selection; the p-values of every candidate tried are adjusted for
    the false-discovery rate (Benjamini-Hochberg), and presence = (1 − q) × the bootstrap
    frequency (over validation segments) with which the effect wins against the candidates that
    explain the same error (first among the single effects; the added gain passing). So presence
@@ -136,6 +137,10 @@ ABOVE_NOISE = 1.25
 BIC_DECIMATION = 20
 #: Number of shortlisted effects confirmed by grey-box fits.
 SHORTLIST = 5
+#: Time block [s] of the block-sandwich parameter covariance (:func:`parameter_covariance`): longer
+#: than the few tenths of a second a rod's free-run error stays correlated by its own dynamics, short
+#: enough that a 40 s recording holds 20 blocks.
+COVARIANCE_BLOCK_S = 2.0
 #: Bootstrap resamples for screening inclusion and the ranking's bootstrap frequencies.
 N_BOOTSTRAP = 30
 #: Savitzky-Golay window [s] of the derivative estimates (strong form) and initial rates.
@@ -383,6 +388,12 @@ class EffectFit:
     sse: float
     n: int
     nfev: int
+    #: Covariance of the optimiser coordinates (log value for a log parameter, share of the range
+    #: otherwise), shape (k, k), in the order of ``labels`` ((effect, parameter) pairs); None when
+    #: not computed.
+    cov: np.ndarray | None = None
+    labels: tuple[tuple[str, str], ...] = ()
+    log: tuple[bool, ...] = ()
 
 
 class _Coord(NamedTuple):
@@ -518,11 +529,9 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
     assert best is not None
     new, meas, vals = _assemble(rig, coords, best.x)
     std: dict[str, dict[str, float]] = {}
+    cov_z: np.ndarray | None = None
     try:
-        jm = jac(best.x)
-        dof = max(best.fun.size // BIC_DECIMATION - len(coords), 1)
-        s2 = float(np.sum(best.fun**2)) / dof / BIC_DECIMATION
-        cov_z = np.linalg.pinv(jm.T @ jm) * s2 * BIC_DECIMATION
+        cov_z = parameter_covariance(jac(best.x), best.fun, block_ids(preps))
         sz = np.sqrt(np.clip(np.diag(cov_z), 0.0, None))
     except (np.linalg.LinAlgError, ValueError):
         sz = np.full(len(coords), math.nan)
@@ -531,7 +540,65 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
         span = c.range.upper - c.range.lower
         std.setdefault(c.effect.name, {})[c.param.name] = float(abs(v) * sd if c.range.log else sd * span)
     return EffectFit(effects=tuple(effects), values=vals, std=std, rig=new, meas=meas,
-                     sse=float(np.sum(best.fun**2)), n=int(best.fun.size), nfev=obj.nfev)
+                     sse=float(np.sum(best.fun**2)), n=int(best.fun.size), nfev=obj.nfev, cov=cov_z,
+                     labels=tuple((c.effect.name, c.param.name) for c in coords),
+                     log=tuple(bool(c.range.log) for c in coords))
+
+
+def block_ids(preps: Sequence[Prepared], block_s: float = COVARIANCE_BLOCK_S) -> np.ndarray:
+    """Time block of every element of the :func:`residuals` vector, shape (M,): the recordings'
+    :data:`COVARIANCE_BLOCK_S` s stretches, every channel of a stretch in the same block."""
+    out, base = [], 0
+    for p in preps:
+        k = np.floor(np.arange(p.n) * p.dt / block_s).astype(int)
+        out.extend([base + k] * len(p.y))
+        base += int(k[-1]) + 1 if p.n else 0
+    return np.concatenate(out) if out else np.zeros(0, dtype=int)
+
+
+def parameter_covariance(jac: np.ndarray, res: np.ndarray, blocks: np.ndarray) -> np.ndarray:
+    """Covariance of least-squares parameters whose residuals are correlated in time.
+
+    The classical estimate (JᵀJ)⁻¹·s², s² the residual variance with the effective sample size
+    M/:data:`BIC_DECIMATION`, assumes independent residuals; a free-run output error is correlated
+    over seconds, and where the model misses something its error depends on the stretch of data.
+    The block sandwich (cluster-robust) estimate
+    (JᵀJ)⁻¹ (Σ_b J_bᵀ r_b r_bᵀ J_b) (JᵀJ)⁻¹ · B/(B − 1) over time blocks b (the linearised block
+    bootstrap of the fit: how far the estimate moves when whole stretches are resampled) measures
+    that within-session variation. Returned: the sandwich, its diagonal raised to the classical one
+    where that is larger (a few blocks can underestimate), correlations kept; the classical estimate
+    alone with fewer than 2k + 2 blocks.
+
+    Parameters
+    ----------
+    jac : numpy.ndarray
+        Shape (M, k), Jacobian of the residuals at the optimum.
+    res : numpy.ndarray
+        Shape (M,), residuals at the optimum.
+    blocks : numpy.ndarray
+        Shape (M,), block id of each residual (:func:`block_ids`).
+
+    Returns
+    -------
+    numpy.ndarray
+        Shape (k, k), covariance of the optimiser coordinates.
+    """
+    k = jac.shape[1]
+    a_inv = np.linalg.pinv(jac.T @ jac)
+    dof = max(res.size // BIC_DECIMATION - k, 1)
+    classical = a_inv * float(np.sum(res**2)) / dof
+    ids, inv = np.unique(blocks, return_inverse=True)
+    if ids.size < 2 * k + 2:
+        return classical
+    g = np.zeros((ids.size, k))
+    np.add.at(g, inv, jac * res[:, None])
+    sandwich = a_inv @ (g.T @ g) @ a_inv * ids.size / (ids.size - 1)
+    sd_s = np.sqrt(np.clip(np.diag(sandwich), 0.0, None))
+    sd = np.maximum(sd_s, np.sqrt(np.clip(np.diag(classical), 0.0, None)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        corr = np.where(np.outer(sd_s, sd_s) > 0.0, sandwich / np.outer(sd_s, sd_s), 0.0)
+    np.fill_diagonal(corr, 1.0)
+    return corr * np.outer(sd, sd)
 
 
 class _Objective:
@@ -1341,7 +1408,7 @@ def _ranking(st: _Setup, cands: _Candidates, scr: Screening, seed: int) -> list[
             "above_noise_explained": c["above_noise_explained"], "bic_delta": c["bic_delta"],
             "bootstrap_first": first[name], "bootstrap_significant": signif[name],
             # the sample-split test of the single effect against the nominal (presence: _evidence)
-            "p_value": split_test(st.seg0, cands.segs[name]),
+            "p_value": split_test(st.seg0, cands.segs[name], st.noise_sse / st.seg0.size, MIN_EXPLAINED),
             "explained": {k: cands.completeness[name][k] for k in ("completeness", "worst_channel",
                                                                   "residual_over_noise", "verdict")},
             "parameters": _param_table(cands.fits[name], name),
@@ -1461,7 +1528,7 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
                 hits += st.above_noise_share(float(segs2[pick].sum()),
                                              float(cur_segs[pick].sum())) >= MIN_EXPLAINED_SECOND
             best2 = _Added(gain, o, fr2, bic_gain, scr2, sse2, segs2, hits / N_BOOTSTRAP,
-                           split_test(cur_segs, segs2))
+                           split_test(cur_segs, segs2, st.noise_sse / cur_segs.size, MIN_EXPLAINED_SECOND))
 
     for o in cands:
         consider(o)
@@ -1646,39 +1713,56 @@ def _refine(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: list[str]
     return cur, cur_segs, chosen, tried
 
 
-def split_test(base: np.ndarray, new: np.ndarray) -> float:
-    """One-sided p-value that a model removes validation error: the sample-split test of presence.
+def split_test(base: np.ndarray, new: np.ndarray, noise: float, min_share: float) -> float:
+    """One-sided p-value that a model removes a relevant share of the validation gap: the
+    sample-split test of presence.
 
     ``base`` and ``new`` are the validation SSE per segment (:func:`segment_sse`, 1 s segments) of
-    the model without and with the effect, whose parameters were fitted on the fit part only, so
-    that under "the effect is absent" the removed error d_j = base_j − new_j has mean ≤ 0. A t
-    test of mean(d) > 0 whose sample size is the number of segments reduced for the correlation of
-    neighbouring ones (a free-run error persists from one second to the next):
-    n_eff = n·(1 − ρ₁)/(1 + ρ₁), ρ₁ the lag-1 autocorrelation of d clipped to [0, 0.9]
-    (Wilks, *Statistical methods in the atmospheric sciences*, §5.2.4).
+    the model without and with the effect, whose parameters were fitted on the fit part only. Per
+    segment, l_j = log(base_j / new_j) is the factor by which the effect shrinks that second's
+    error (scale-free: a second with a large gap and one with a small gap weigh as evidence by how
+    much of their own error goes, not by their size); the segments are weighted by their gap above
+    the noise, w_j = max(base_j − noise, 0) (a second at the noise floor holds no evidence either
+    way). H0: the weighted mean of l is at most −log(1 − ``min_share``), i.e. the effect removes less
+    than the share of the gap the decision asks for (:data:`MIN_EXPLAINED`; under "absent", a
+    model fitted on other data removes nothing on average: l ≤ 0). A t test whose sample size is
+    the weights' effective number (Σw)²/Σw² reduced for the correlation of neighbouring seconds
+    (a free-run error persists): n_eff·(1 − ρ₁)/(1 + ρ₁), ρ₁ the lag-1 autocorrelation of l
+    clipped to [0, 0.9] (Wilks, *Statistical methods in the atmospheric sciences*, §5.2.4).
 
     Parameters
     ----------
     base, new : numpy.ndarray
         Shape (n,), validation SSE per segment without / with the effect (same segments).
+    noise : float
+        Noise part of one segment's SSE (same normalisation).
+    min_share : float
+        Share of the gap the effect must remove, in [0, 1).
 
     Returns
     -------
     float
-        p in [0, 1]; 1.0 when the effect removes nothing on average.
+        p in [0, 1]; 1.0 when no segment carries a gap above noise.
     """
-    d = np.asarray(base, dtype=float) - np.asarray(new, dtype=float)
-    n = d.size
-    mean = float(np.mean(d)) if n else 0.0
-    if n == 0 or mean <= 0.0:
+    base = np.asarray(base, dtype=float)
+    tiny = 1e-300
+    lr = np.log(np.maximum(base, tiny) / np.maximum(np.asarray(new, dtype=float), tiny))
+    w = np.maximum(base - noise, 0.0)
+    if w.sum() <= 0.0:
         return 1.0
-    sd = float(np.std(d, ddof=1)) if n > 1 else 0.0
-    if sd <= 1e-12 * abs(mean):
-        return 0.0
-    rho = float(np.corrcoef(d[:-1], d[1:])[0, 1]) if n > 3 else 0.0
+    w = w / w.sum()
+    mean = float(np.sum(w * lr))
+    h0 = -math.log(1.0 - min_share)
+    var = float(np.sum(w * (lr - mean) ** 2))
+    n_w = 1.0 / float(np.sum(w**2))
+    keep = w > 0.0
+    rho = float(np.corrcoef(lr[:-1], lr[1:])[0, 1]) if keep.sum() > 3 and np.ptp(lr) > 0 else 0.0
     rho = float(np.clip(rho if np.isfinite(rho) else 0.0, 0.0, 0.9))
-    n_eff = max(n * (1.0 - rho) / (1.0 + rho), 2.0)
-    return float(student_t.sf(mean / (sd / math.sqrt(n_eff)), df=n_eff - 1.0))
+    n_eff = max(n_w * (1.0 - rho) / (1.0 + rho), 2.0)
+    if var <= 1e-24:
+        return 0.0 if mean > h0 else 1.0
+    se = math.sqrt(var * n_w / max(n_w - 1.0, 1.0) / n_eff)
+    return float(student_t.sf((mean - h0) / se, df=n_eff - 1.0))
 
 
 def status_of(presence: float | None, chosen: bool, completeness: float | None,
