@@ -259,7 +259,7 @@ def within_session_draw(block_errors: Sequence[np.ndarray], rng: np.random.Gener
 
 def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Recording], *,
                     drift_sigma: Mapping[str, float] | None = None, draws: int = N_DRAWS,
-                    seed: int = 0) -> dict[str, Any]:
+                    seed: int = 0, heldout_range: float | None = None) -> dict[str, Any]:
     """Predicted held-out θ NRMSE of the corrected rig, from the fit data only (module docstring).
 
     A Monte-Carlo predictive distribution: each draw takes one within-session error e_in (a block
@@ -285,6 +285,12 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         Monte-Carlo draws (one replay per validation recording each).
     seed : int
         Random seed.
+    heldout_range : float, optional
+        Mean θ range [rad] of the held-out recordings (their spread only, no replay). An NRMSE is
+        an RMS error over a recording's range: the validation part is a shorter stretch whose range
+        is often smaller, so the same RMS error reads as a larger NRMSE there. With it, every draw
+        is the validation RMS error converted to the held-out range (× mean validation range /
+        ``heldout_range``, reported as ``range_factor``); without it, the validation ranges are used.
 
     Returns
     -------
@@ -342,6 +348,10 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         samples.append(math.sqrt(e_in**2 + ms))
     if not samples:
         raise GapError("prediction: every replay of the corrected rig failed")
+    factor = 1.0
+    if heldout_range is not None and heldout_range > 0.0:
+        factor = float(np.mean([p.scale["theta"] for p in preps])) / float(heldout_range)
+        samples = [x * factor for x in samples]
     lo, hi = np.quantile(samples, INTERVAL)
     return {
         "predicted": float(np.median(samples)),
@@ -354,7 +364,8 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         "drift_prior": "occurrence" if drift_sigma is None else "normal",
         "drift_source": "prior" if drift_sigma is None else "sessions",
         "sensitivity": sensitivity,
-        "noise_floor": float(np.mean(floors)),
+        "noise_floor": float(np.mean(floors)) * factor,
+        "range_factor": factor,
         "draws": len(samples),
     }
 

@@ -315,8 +315,11 @@ def _sessions_and_prediction(
     prediction = None
     if predict:
         say("predict: held-out NRMSE of the corrected rig from the fit data")
+        span = (float(np.mean([max(float(np.ptp(np.asarray(r.channels["theta"], dtype=float))), 1e-6)
+                               for r in held_out])) if held_out else None)
         prediction = optional.run("prediction", lambda: predict_heldout(
-            rig, diag, [_shift(r, theta_offset) for r in validation], drift_sigma=drift_sigma, seed=seed))
+            rig, diag, [_shift(r, theta_offset) for r in validation], drift_sigma=drift_sigma, seed=seed,
+            heldout_range=span if validation is not held_out else None))
         if prediction is not None:
             if sess is not None and drift_sigma is sess["drift_sigma"]:
                 prediction["drift_source"] = "sessions"
