@@ -97,6 +97,8 @@ N_DRAWS = 300
 BLOCK_S = 5.0
 #: Quantiles of the predicted interval (80 %).
 INTERVAL = (0.10, 0.90)
+#: An interval whose upper end exceeds this many times its lower end says why (``why_wide``).
+WIDE_RATIO = 10.0
 #: A parameter drifts when |change| > DRIFT_Z combined standard errors ...
 DRIFT_Z = 3.0
 #: ... and more than this relative change.
@@ -257,6 +259,26 @@ def within_session_draw(block_errors: Sequence[np.ndarray], rng: np.random.Gener
     return math.sqrt(float(np.mean(ms)))
 
 
+def _why_wide(lo: float, hi: float, within: float, sensitivity: Mapping[str, Sequence[float]],
+              factor: float, sigma: Mapping[str, float]) -> str:
+    """Why a predicted interval spans more than :data:`WIDE_RATIO` (its upper end over its lower end),
+    '' when it does not: the lower end is the rig unchanged (the within-session error), the upper
+    end a session change of the drift-prone parameter the replay is most sensitive to."""
+    if lo <= 0.0 or hi <= WIDE_RATIO * lo:
+        return ""
+    size = {k: float(np.nanmax(v)) for k, v in sensitivity.items() if np.any(np.isfinite(v))}
+    worst = max(size, key=size.get, default=None)
+    tail = ""
+    if worst is not None:
+        tail = (f"; {worst} alone changed by ±{100 * sigma.get(worst, 0.0):.0f} % (its prior σ) "
+                f"already moves the replay by {factor * size[worst]:.3g} NRMSE")
+    return (f"the 80 % interval spans {hi / lo:.0f}×: its lower end is the rig unchanged since the fit "
+            f"session (within-session error {within:.3g}), its upper end a session change of the rig's "
+            f"drift-prone parameters{tail}. The replay of a recorded command is that sensitive (in closed "
+            "loop the controller hid the change; replayed open loop it does not), so the held-out error "
+            "tells which of the two happened, and the drift table which parameter moved")
+
+
 def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Recording], *,
                     drift_sigma: Mapping[str, float] | None = None, draws: int = N_DRAWS,
                     seed: int = 0, heldout_range: float | None = None) -> dict[str, Any]:
@@ -296,7 +318,8 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     -------
     dict
         ``predicted`` (median), ``interval`` [lo, hi] (80 %), ``level`` 0.8, ``within_session``
-        (RMS of the block errors) and ``blocks`` (their values), ``drift_part`` (median RMS change
+        (RMS of the block errors) and ``blocks`` (their values), ``why_wide`` (why an interval
+        spans more than :data:`WIDE_RATIO`, else ''), ``drift_part`` (median RMS change
         of the drawn replays: drift and effect-fit spread), ``drift_sigma`` used, ``drift_prior``
         ("occurrence" or "normal", :func:`draw_log_changes`) and its ``drift_source`` ("prior" /
         "sessions"), ``sensitivity`` (per
@@ -353,11 +376,13 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         factor = float(np.mean([p.scale["theta"] for p in preps])) / float(heldout_range)
         samples = [x * factor for x in samples]
     lo, hi = np.quantile(samples, INTERVAL)
+    within = float(np.sqrt(np.mean(np.square(blocks)))) * factor
     return {
+        "why_wide": _why_wide(float(lo), float(hi), within, sensitivity, factor, sigma),
         "predicted": float(np.median(samples)),
         "interval": [float(lo), float(hi)],
         "level": INTERVAL[1] - INTERVAL[0],
-        "within_session": float(np.sqrt(np.mean(np.square(blocks)))),
+        "within_session": within,
         "blocks": blocks,
         "drift_part": float(np.median(changes)),
         "drift_sigma": sigma,

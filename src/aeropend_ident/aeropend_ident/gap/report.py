@@ -113,6 +113,8 @@ def terminal_summary(result: GapResult) -> str:
             f"interval [{pr['interval'][0]:.4f}, {pr['interval'][1]:.4f}] (within session "
             f"{pr['within_session']:.4f}, session drift {pr['drift_part']:.4f} from the "
             f"{pr['drift_source']}{alone})")
+        if pr.get("why_wide"):
+            lines.append(f"    ({pr['why_wide']})")
     lines.append("  HELD OUT (never seen by the diagnosis), NRMSE per recorded channel:")
     for row in result.test:
         per = "  ".join(f"{c} {v:.4f}" for c, v in row.get("channel_nrmse", {}).items())
@@ -172,7 +174,8 @@ def _drift_html(result: GapResult) -> str:
                  f"{_fmt(pr['drift_part'])} ({pr['drift_source']})",
                  _fmt(chk["actual"]) if chk else "–", chk["verdict"] if chk else "–"]]
         parts.append("<h3>Predicted vs actual held-out θ NRMSE of the corrected rig</h3>" + _table(
-            rows, ["", "predicted", "80 % interval", "within session", "session drift", "actual", "check"]))
+            rows, ["", "predicted", "80 % interval", "within session", "session drift", "actual", "check"])
+            + (f"<p>{html.escape(pr['why_wide'])}.</p>" if pr.get("why_wide") else ""))
     if result.attainable:
         rows = [[_label(a["source"] or "held-out"), _fmt(a["nominal"]), _fmt(a["corrected"]),
                  _fmt(a["oracle"]), _fmt(a["noise_floor"]), f"{a['split']['removed']:.0%}",
