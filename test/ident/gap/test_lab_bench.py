@@ -3,8 +3,10 @@
 
 from __future__ import annotations
 
+import ast
 import math
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -84,6 +86,13 @@ def test_case_truths_fit_the_catalog_and_the_channels(cases):
     assert len(quick) == 12
     assert {(cases[i]["kind"], cases[i]["mode"]) for i in quick} == {(k, m) for k in lab.KINDS
                                                                       for m in lab.MODES}
+
+
+def test_lab_logging_imports_nothing_from_aeropend():
+    tree = ast.parse(Path(ll.__file__).read_text(encoding="utf-8"))
+    modules = {a.name.split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    modules |= {(n.module or "").split(".")[0] for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    assert modules <= {"__future__", "math", "collections", "numpy"}
 
 
 def test_decimation_holds_the_command_over_the_logged_period():
