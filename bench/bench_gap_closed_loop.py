@@ -56,9 +56,38 @@ CASES = [([], 37000), (["viscous_friction"], 37001), (["gravity"], 37002),
          (["coulomb_friction"], 37006), (["sensor_offset"], 37007)]
 
 
-def closed_loop(plant: TruthPlant, nominal: Any, seed: int, duration: float) -> dict[str, np.ndarray]:
-    """The PD loop (module doc) on the truth plant: sample times, duty and measured θ (N,)."""
+def closed_loop(plant: TruthPlant, nominal: Any, seed: int, duration: float, *, every: int = 1,
+                dither: float = 0.0, sigma: dict[str, float] | None = None,
+                quantum: float = 0.0) -> dict[str, np.ndarray]:
+    """The PD loop (module doc) on the truth plant: sample times, duty and measured channels (M,).
+
+    Parameters
+    ----------
+    plant : TruthPlant
+    nominal : Rig
+        The lab's rig file (feed-forward and the set-point range).
+    seed : int
+    duration : float
+        Length [s] of the run.
+    every : int
+        The controller (and the logger) runs every ``every``-th truth sample (a lower rate); its
+        duty is held over the whole period (zero-order hold). 1: every 2.048 ms sample.
+    dither : float
+        Largest random duty added to the controller output (uniform in ±dither, held 0.05-0.3 s,
+        from its own generator); 0: none.
+    sigma : dict, optional
+        Noise σ per measured channel (:class:`TruthStepper`); default θ only, :data:`SIGMA_THETA`.
+    quantum : float
+        Angle lattice q [rad] of the sensor: the loop sees and logs q·round(θ/q) (0: none).
+
+    Returns
+    -------
+    dict
+        ``t``, ``duty``, ``theta`` (what the loop saw) and ``i_a``, ``v_a``, ``omega_rotor`` (noise
+        only where ``sigma`` gives it) at the controller instants, M = round(duration/DT) // every.
+    """
     from aeropend_sim.model import PlantModel
+    from bench.fixtures.lab_logging import quantise
 
     rng = np.random.default_rng(seed)
     model = PlantModel(nominal)
@@ -71,20 +100,33 @@ def closed_loop(plant: TruthPlant, nominal: Any, seed: int, duration: float) -> 
         ref[k:k + hold] = rng.uniform(SETPOINTS[0], top)
         k += hold
     ff = {float(r): float(model.equilibrium(float(r))[1]) for r in np.unique(ref)}
-    st = TruthStepper(plant, sigma={"theta": SIGMA_THETA}, seed=seed + 1)
-    duty, theta = np.empty(n), np.empty(n)
+    st = TruthStepper(plant, sigma={"theta": SIGMA_THETA} if sigma is None else sigma, seed=seed + 1)
+    m = n // every
+    out = {c: np.empty(m) for c in ("duty", "theta", "i_a", "v_a", "omega_rotor")}
     s = st.sample()
-    rate, prev = 0.0, s["theta"]
-    a = DT / (RATE_SMOOTHING + DT)
-    for k in range(n):
-        th = s["theta"]
-        rate += a * ((th - prev) / DT - rate)
+    rate, prev = 0.0, quantise(s["theta"], quantum)
+    dt_c = every * DT
+    a = dt_c / (RATE_SMOOTHING + dt_c)
+    d_rng = np.random.default_rng(seed + 2) if dither > 0.0 else None
+    dith, left = 0.0, 0
+    for j in range(m):
+        th = quantise(s["theta"], quantum)
+        rate += a * ((th - prev) / dt_c - rate)
         prev = th
-        d = ff[float(ref[k])] + KP * (ref[k] - th) - KD * rate
-        theta[k] = th
-        duty[k] = min(max(d, 0.0), 1.0)
-        s = st.step(duty[k])
-    return {"t": np.arange(n) * DT, "duty": duty, "theta": theta}
+        r = ref[j * every]
+        d = ff[float(r)] + KP * (r - th) - KD * rate
+        if d_rng is not None:
+            if left <= 0:
+                dith, left = d_rng.uniform(-dither, dither), round(d_rng.uniform(0.05, 0.3) / dt_c)
+            d += dith
+            left -= 1
+        d = min(max(d, 0.0), 1.0)
+        out["theta"][j], out["duty"][j] = th, d
+        for c in ("i_a", "v_a", "omega_rotor"):
+            out[c][j] = s[c]
+        for _ in range(every):
+            s = st.step(d)
+    return {"t": np.arange(m) * dt_c, **out}
 
 
 def _reach(model: Any, headroom: float = 0.9) -> float:
