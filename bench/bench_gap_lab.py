@@ -429,8 +429,8 @@ def score_case(spec: dict[str, Any], case: dict[str, Any], res: Any) -> dict[str
     refit = head.get("refit")
     seen["headline.refit"] = refit is not None
     if refit:
-        b, c = _num(refit.get("baseline_nrmse")), _num(refit.get("corrected_nrmse"))
-        out["refit"] = {"baseline_nrmse": b, "corrected_nrmse": c, "said": refit.get("worse_than_refit"),
+        b, c = _num(refit.get("refit_nrmse")), _num(refit.get("corrected_nrmse"))
+        out["refit"] = {"refit_nrmse": b, "corrected_nrmse": c, "said": refit.get("worse_than_refit"),
                         "worse": (c > b) if b is not None and c is not None else None}
     else:
         out["refit"] = None

@@ -308,10 +308,11 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     seed : int
         Random seed.
     heldout_range : float, optional
-        Mean θ range [rad] of the held-out recordings (their spread only, no replay). An NRMSE is
-        an RMS error over a recording's range: the validation part is a shorter stretch whose range
-        is often smaller, so the same RMS error reads as a larger NRMSE there. With it, every draw
-        is the validation RMS error converted to the held-out range (× mean validation range /
+        θ range [rad] a held-out recording is expected to span: the mean range of the whole fit
+        recordings (:func:`aeropend_ident.gap.run.run_gap` passes it; fit data only). An NRMSE is an
+        RMS error over a recording's range: the validation part is a shorter stretch whose range is
+        often smaller, so the same RMS error reads as a larger NRMSE there. With it, every draw is
+        the validation RMS error converted to that range (× mean validation range /
         ``heldout_range``, reported as ``range_factor``); without it, the validation ranges are used.
 
     Returns

@@ -315,8 +315,10 @@ def _sessions_and_prediction(
     prediction = None
     if predict:
         say("predict: held-out NRMSE of the corrected rig from the fit data")
-        span = (float(np.mean([max(float(np.ptp(np.asarray(r.channels["theta"], dtype=float))), 1e-6)
-                               for r in held_out])) if held_out else None)
+        # a held-out recording is a whole recording: its NRMSE is over a whole recording's θ range,
+        # which the fit recordings show (the validation part is a narrower stretch of them)
+        span = float(np.mean([max(float(np.ptp(np.asarray(r.channels["theta"], dtype=float))), 1e-6)
+                              for r in fit]))
         prediction = optional.run("prediction", lambda: predict_heldout(
             rig, diag, [_shift(r, theta_offset) for r in validation], drift_sigma=drift_sigma, seed=seed,
             heldout_range=span if validation is not held_out else None))
