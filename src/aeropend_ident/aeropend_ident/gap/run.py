@@ -292,7 +292,8 @@ class _Optional:
 
 
 def _sessions_and_prediction(
-    rig: Rig, diag: Any, validation: list[Recording], held_out: list[Recording], *, theta_offset: float,
+    rig: Rig, diag: Any, validation: list[Recording], held_out: list[Recording], fit: list[Recording], *,
+    theta_offset: float,
     sessions: Sequence[Sequence[Recording]] | None, session_labels: Sequence[str] | None, max_effects: int,
     seed: int, progress: Callable[[str], None] | None, predict: bool, drift_sigma: Mapping[str, float] | None,
     optional: _Optional, engine: tuple[int | None, str | None] = (1, None),
@@ -482,7 +483,7 @@ def run_gap(
     corrected = diag.corrected_rig
     optional = _Optional(say)
     sess, prediction = _sessions_and_prediction(
-        rig, diag, validation, held_out, theta_offset=theta_offset, sessions=sessions,
+        rig, diag, validation, held_out, fit, theta_offset=theta_offset, sessions=sessions,
         session_labels=session_labels, max_effects=max_effects, seed=seed, progress=progress,
         predict=predict, drift_sigma=drift_sigma, optional=optional, engine=(workers, scheduler))
     say("after: replaying the held-out recordings")
