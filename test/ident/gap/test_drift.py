@@ -208,3 +208,28 @@ def test_cli_sessions_leave_one_out_and_drift_table(tmp_path: Path, capsys: pyte
     assert check["actual"] == pytest.approx(rep["headline"]["heldout_nrmse_corrected"])
     html = (tmp_path / "out" / "report.html").read_text(encoding="utf-8")
     assert "Parameter drift" in html and "Attainable shrink" in html
+
+
+def test_confounded_parameters_drift_as_their_ratio() -> None:
+    # angle only, closed loop: K_q and mgd/J estimated with a 0.98 correlation; both 15 % higher in
+    # the second session (the common scale the data cannot pin), their ratio unchanged: no alarm
+    labels = (("thrust_coefficient", "K_q"), ("gravity", "mgd_over_J"))
+    sd = np.array([0.05, 0.05])
+    cov = np.outer(sd, sd) * np.array([[1.0, 0.98], [0.98, 1.0]])
+
+    def fit(kq: float, g: float) -> SimpleNamespace:
+        return SimpleNamespace(values={"thrust_coefficient": {"K_q": kq}, "gravity": {"mgd_over_J": g}},
+                               std={"thrust_coefficient": {"K_q": 0.005 * kq},
+                                    "gravity": {"mgd_over_J": 0.005 * g}},
+                               cov=cov, labels=labels, log=(True, True))
+
+    rows = drift_rows([fit(1e-4, 130.0), fit(1.15e-4, 149.5)], ["thrust_coefficient", "gravity"])
+    ratio = next(r for r in rows if r["kind"] == "combination")
+    assert ratio["effect"] == "thrust_coefficient/gravity" and ratio["change"] == pytest.approx(0.0, abs=1e-9)
+    assert not any(r["drifts"] for r in rows)
+    singles = [r for r in rows if r["kind"] == "parameter"]
+    assert all(r["flag_suppressed"] and r["confounded_with"] for r in singles)
+    # a real change of the ratio (K_q alone 20 % lower) is flagged, on the ratio row
+    rows = drift_rows([fit(1e-4, 130.0), fit(0.8e-4, 130.0)], ["thrust_coefficient", "gravity"])
+    top = rows[0]
+    assert top["kind"] == "combination" and top["drifts"] and top["change"] == pytest.approx(-0.2)

@@ -216,3 +216,59 @@ def test_corrected_rig_file_holds_the_plant_side_alternative_and_the_nominal_sen
     plain = corrected_rig_dict(result(None))
     assert plain["thrust"]["K_q"]["value"] == pytest.approx(k_q)
     assert plain["recording_frame"]["theta_scale"]["value"] == pytest.approx(0.8)
+
+
+# ------------------------------------------------------------------ presence and its words (issue 38)
+def test_split_test_reads_a_consistent_shrink_as_evidence_and_noise_as_none() -> None:
+    from aeropend_ident.gap.which import MIN_EXPLAINED, split_test
+
+    rng = np.random.default_rng(3)
+    noise = 1.0
+    # a gap of very different size per second (a step transient, then holds), each second's
+    # error cut ~10×: strong evidence, though a t test on the raw differences would be weak
+    base = noise + np.array([400.0, 50.0, 5.0, 2.0, 120.0, 8.0, 3.0, 60.0, 4.0, 1.5, 30.0, 2.5])
+    new = noise + (base - noise) / rng.uniform(8.0, 12.0, base.size)
+    assert split_test(base, new, noise, MIN_EXPLAINED) < 1e-3
+    # the same model: no evidence; a model that removes 10 % (below the 25 % asked for): none
+    assert split_test(base, base, noise, MIN_EXPLAINED) == 1.0
+    assert split_test(base, noise + 0.9 * (base - noise), noise, MIN_EXPLAINED) > 0.5
+    # a model fitted on other data where nothing is to find: the errors of validation seconds
+    # at the noise floor scatter both ways; p is not small
+    flat = noise * rng.chisquare(20, 30) / 20
+    other = noise * rng.chisquare(20, 30) / 20
+    assert split_test(flat, other, noise, MIN_EXPLAINED) > 0.2
+    assert split_test(np.full(5, 0.5), np.full(5, 0.1), noise, MIN_EXPLAINED) == 1.0  # no gap above noise
+
+
+def test_status_words_follow_presence_and_completeness() -> None:
+    from aeropend_ident.gap.which import NAMED_COMPLETENESS, NAMED_PRESENCE, status_of
+
+    assert status_of(0.95, True, 1.0) == "named"
+    assert status_of(0.95, True, NAMED_COMPLETENESS - 0.01) == "candidate"  # partly explains
+    assert status_of(NAMED_PRESENCE - 0.01, True, 1.0) == "candidate"
+    assert status_of(0.7, False, 1.0) == "candidate"
+    assert status_of(0.3, False, 1.0, not_separated=True) == "not separated"
+    assert status_of(0.3, False, 1.0) == "not significant"
+    assert status_of(None, False, None) == "not significant"
+
+
+def test_block_sandwich_covariance_widens_for_correlated_residuals() -> None:
+    from aeropend_ident.gap.which import BIC_DECIMATION, parameter_covariance
+
+    rng = np.random.default_rng(0)
+    n = 20_000
+    t = np.arange(n) / 500.0
+    jac = np.column_stack([np.sin(2 * np.pi * 0.3 * t), np.ones(n)])
+    blocks = np.floor(t / 2.0).astype(int)
+    white = rng.normal(0.0, 1.0, n)
+    # white residuals: the sandwich agrees with the classical estimate within its sampling error,
+    # and never goes below it
+    cov_w = parameter_covariance(jac, white, blocks)
+    classical = np.linalg.inv(jac.T @ jac) * np.sum(white**2) / (n // BIC_DECIMATION - 2)
+    assert np.allclose(np.diag(cov_w), np.diag(classical), rtol=1.0)
+    assert np.all(np.diag(cov_w) >= np.diag(classical) * (1 - 1e-12))
+    # a slowly wandering residual (what a missed effect leaves): the mean's standard error grows
+    wander = np.repeat(rng.normal(0.0, 1.0, n // 1000), 1000) + 0.1 * white
+    cov_c = parameter_covariance(jac, wander, blocks)
+    classical_c = np.linalg.inv(jac.T @ jac) * np.sum(wander**2) / (n // BIC_DECIMATION - 2)
+    assert cov_c[1, 1] > 2.0 * classical_c[1, 1]

@@ -39,8 +39,9 @@ the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-ou
 5. **Two numbers: presence and completeness** (:func:`_evidence`). An effect's **presence**
    (0..1) is the evidence that it is in the plant: a sample-split test of its fit (made on the
    fit part) on the validation part (:func:`split_test`: one-sided t test that it shrinks each
-   second's validation error, weighted by that second's gap above noise, by more than the share
-   the decision asks for, the sample size corrected for the correlation of neighbouring seconds),
+   second's validation error, weighted by the share of that second's error above noise, by more
+   than the share the decision asks for, the sample size corrected for the correlation of
+   neighbouring seconds),
    against the nominal rig for a single effect and against the set before it for an effect added
    by forward selection; the p-values of every candidate tried are adjusted for
    the false-discovery rate (Benjamini-Hochberg), and presence = (1 − q) × the bootstrap
@@ -1721,10 +1722,11 @@ def split_test(base: np.ndarray, new: np.ndarray, noise: float, min_share: float
     the model without and with the effect, whose parameters were fitted on the fit part only. Per
     segment, l_j = log(base_j / new_j) is the factor by which the effect shrinks that second's
     error (scale-free: a second with a large gap and one with a small gap weigh as evidence by how
-    much of their own error goes, not by their size); the segments are weighted by their gap above
-    the noise, w_j = max(base_j − noise, 0) (a second at the noise floor holds no evidence either
-    way). H0: the weighted mean of l is at most −log(1 − ``min_share``), i.e. the effect removes less
-    than the share of the gap the decision asks for (:data:`MIN_EXPLAINED`; under "absent", a
+    much of their own error goes, not by their size); the segments are weighted by the share of
+    their error above the noise, w_j = max(base_j − noise, 0)/base_j (a second at the noise floor
+    holds no evidence either way, one whose error is all gap counts fully). H0: the weighted mean
+    of l is at most −log(1 − ``min_share``), i.e. the effect removes less than the share of the
+    gap the decision asks for (:data:`MIN_EXPLAINED`; under "absent", a
     model fitted on other data removes nothing on average: l ≤ 0). A t test whose sample size is
     the weights' effective number (Σw)²/Σw² reduced for the correlation of neighbouring seconds
     (a free-run error persists): n_eff·(1 − ρ₁)/(1 + ρ₁), ρ₁ the lag-1 autocorrelation of l
@@ -1747,7 +1749,7 @@ def split_test(base: np.ndarray, new: np.ndarray, noise: float, min_share: float
     base = np.asarray(base, dtype=float)
     tiny = 1e-300
     lr = np.log(np.maximum(base, tiny) / np.maximum(np.asarray(new, dtype=float), tiny))
-    w = np.maximum(base - noise, 0.0)
+    w = np.maximum(base - noise, 0.0) / np.maximum(base, tiny)
     if w.sum() <= 0.0:
         return 1.0
     w = w / w.sum()
