@@ -499,8 +499,8 @@ Equations whose channels were not recorded cannot be checked.</p>
 <p>Presence is the evidence that an effect is in the plant: its fit (on the fit part) tested on the
 validation part against the model without it (one-sided t test that it shrinks each second's error,
 weighted by the share of that second's error above noise, by more than the share the decision
-asks for), the p-values of every candidate tried adjusted for the false-discovery rate (q, Benjamini-Hochberg),
-times how often it wins its rivals' bootstrap resamples. A chosen effect is
+asks for), the p-values of every candidate tried adjusted for the false-discovery rate (q,
+Benjamini-Hochberg), times how often it wins its rivals' bootstrap resamples. A chosen effect is
 <b>named</b> with presence ≥ {NAMED_PRESENCE:g} and a completeness of the chosen set ≥
 {NAMED_COMPLETENESS:g}, else a <b>candidate</b>; an unchosen one is a candidate with presence ≥
 {CANDIDATE_PRESENCE:g}.</p>
