@@ -634,7 +634,9 @@ def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, An
     change from the first session, in the unit), ``change`` (the same relative to the first
     session's value; NaN when that value is ~0, :data:`RELATIVE_FLOOR`), ``z`` (the change over the
     combined standard errors), ``drifts`` (z > :data:`DRIFT_Z` and, where relative, |change| >
-    :data:`DRIFT_MIN`); drifting rows first, most significant first.
+    :data:`DRIFT_MIN`), ``kind`` ("parameter"), plus the ratio rows of confounded parameters
+    (:func:`combination_rows`, ``kind`` "combination"); drifting rows first (single parameters
+    before ratios), most significant first.
     """
     rows = []
     for eff in effects:
@@ -654,7 +656,8 @@ def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, An
                          "std": s.tolist(), "change": change, "abs_change": float(v[k] - v[0]), "z": zk,
                          "drifts": bool(zk > DRIFT_Z and (not relative or abs(change) > DRIFT_MIN))})
     rows += combination_rows(fits, rows)
-    rows.sort(key=lambda r: (not r["drifts"], -r["z"]))
+    # flagged rows first: a parameter identified on its own before a ratio, then by significance
+    rows.sort(key=lambda r: (not r["drifts"], r["kind"] == "combination", -r["z"]))
     return rows
 
 
@@ -674,9 +677,10 @@ def combination_rows(fits: Sequence[Any], rows: list[dict[str, Any]]) -> list[di
     pinned. Their ratio a/b is a row of its own (``kind`` "combination", ``effect`` "A/B",
     ``parameter`` "p_a/p_b"): values, standard error from var(log a) + var(log b) − 2 cov, change
     and z as for a parameter. The single rows of a confounded pair are kept with
-    ``confounded_with`` and are not flagged (``drifts`` False, ``flag_suppressed``), so that a change
-    along the unidentified direction, which the fit cannot tell from a rig change, raises no alarm;
-    the ratio row is flagged instead when it changes.
+    ``confounded_with``; while their ratio does not change they are not flagged (``drifts`` False,
+    ``flag_suppressed``): both moved along the direction the data do not pin, which the fit cannot
+    tell from a rig change, and that raises no alarm. When the ratio changes, it is flagged, and so
+    are the single rows whose own change is significant (the most significant row comes first).
     """
     out = []
     if any(getattr(f, "cov", None) is None for f in fits) or not fits:
@@ -710,7 +714,7 @@ def combination_rows(fits: Sequence[Any], rows: list[dict[str, Any]]) -> list[di
             r = by_label.get(lab)
             if r is not None:
                 r.setdefault("confounded_with", []).append(f"{other[0]}.{other[1]}")
-                if r["drifts"]:
+                if r["drifts"] and not out[-1]["drifts"]:  # moved along the unidentified direction
                     r["drifts"], r["flag_suppressed"] = False, True
     return out
 

@@ -500,7 +500,9 @@ Equations whose channels were not recorded cannot be checked.</p>
 validation part against the model without it (one-sided t test that it shrinks each second's error,
 weighted by the share of that second's error above noise, by more than the share the decision
 asks for), the p-values of every candidate tried adjusted for the false-discovery rate (q,
-Benjamini-Hochberg), times how often it wins its rivals' bootstrap resamples. A chosen effect is
+Benjamini-Hochberg), times how often it wins its rivals' bootstrap resamples, times 0.5 + 0.5 ×
+completeness (a residual far above the noise shows something outside the catalog, for which a
+passing effect may stand in: presence at most ½). A chosen effect is
 <b>named</b> with presence ≥ {NAMED_PRESENCE:g} and a completeness of the chosen set ≥
 {NAMED_COMPLETENESS:g}, else a <b>candidate</b>; an unchosen one is a candidate with presence ≥
 {CANDIDATE_PRESENCE:g}.</p>

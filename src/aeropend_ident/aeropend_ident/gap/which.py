@@ -46,8 +46,11 @@ the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-ou
    by forward selection; the p-values of every candidate tried are adjusted for
    the false-discovery rate (Benjamini-Hochberg), and presence = (1 − q) × the bootstrap
    frequency (over validation segments) with which the effect wins against the candidates that
-   explain the same error (first among the single effects; the added gain passing). So presence
-   ≥ 0.9 reads "at a false-discovery rate of 10 %, and not a rival's stand-in". **Completeness**
+   explain the same error (first among the single effects; the added gain passing), times
+   0.5 + 0.5·completeness (:func:`misspecification_factor`: a residual left far above the noise
+   shows something outside the catalog, for which a passing effect may stand in). So presence
+   ≥ 0.9 reads "at a false-discovery rate of 10 %, not a rival's stand-in, and the model leaves
+   (nearly) the noise level". **Completeness**
    (:func:`_completeness`: channel by channel, the validation error left over the noise part)
    says how fully the chosen set explains the gap. The words follow from the two by stated
    thresholds (:func:`status_of`): a chosen effect is ``named`` with presence ≥
@@ -1797,6 +1800,25 @@ def status_of(presence: float | None, chosen: bool, completeness: float | None,
     return "candidate" if p >= CANDIDATE_PRESENCE else "not significant"
 
 
+def misspecification_factor(completeness: float | None) -> float:
+    """The bound a residual far above the noise puts on any catalog effect's presence.
+
+    The sample-split test compares two models of one family; it tells "this effect" from "no
+    effect" only when the family holds the plant. When the best model (the chosen set for a chosen
+    effect, the effect alone otherwise) still leaves a residual far above the noise (completeness
+    0, :func:`_completeness`), the data show something the catalog does not hold, and an effect that
+    passes the test is as likely a stand-in for it as present itself: its presence is at most ½.
+    Linear between: 0.5 + 0.5·completeness (1 for a model that leaves the noise level).
+
+    Parameters
+    ----------
+    completeness : float or None
+        0..1; None (not computed) counts as 1.
+    """
+    c = 1.0 if completeness is None else float(np.clip(completeness, 0.0, 1.0))
+    return 0.5 + 0.5 * c
+
+
 def _evidence(ranking: list[dict[str, Any]], chosen: Sequence[str], shares: Mapping[str, float],
               pvals: Mapping[str, float], explained: Mapping[str, Any], *, in_sample: bool) -> None:
     """Presence, q-value and status of every ranked effect (module doc, step 5), in place; the
@@ -1805,7 +1827,9 @@ def _evidence(ranking: list[dict[str, Any]], chosen: Sequence[str], shares: Mapp
     The p-values of every test made (each single candidate against the nominal, each added effect
     against the set before it: ``pvals`` overrides an entry's own) are adjusted together by
     Benjamini-Hochberg (:func:`scipy.stats.false_discovery_control`); presence = (1 − q) × the
-    effect's bootstrap share (``shares`` for a chosen effect, else its ``bootstrap_first``).
+    effect's bootstrap share (``shares`` for a chosen effect, else its ``bootstrap_first``) ×
+    :func:`misspecification_factor` of the completeness (the chosen set's for a chosen effect,
+    its own otherwise).
     ``in_sample``: the validation part was the fit part (see :func:`_setup`), said on each entry.
     """
     tested = [r for r in ranking if not r.get("detected")]
@@ -1820,8 +1844,11 @@ def _evidence(ranking: list[dict[str, Any]], chosen: Sequence[str], shares: Mapp
             r["p_value"] = pvals[name]
         q = q_of.get(name)
         share = shares.get(name, r.get("bootstrap_first"))
+        comp = (explained.get("completeness") if name in chosen
+                else (r.get("explained") or {}).get("completeness"))
         r["q_value"] = q
-        r["presence"] = None if q is None or share is None else float((1.0 - q) * share)
+        r["presence"] = (None if q is None or share is None
+                         else float((1.0 - q) * share * misspecification_factor(comp)))
         r["status"] = status_of(r["presence"], name in chosen, explained.get("completeness"),
                                 name in ambiguous)
         if in_sample:
@@ -1900,7 +1927,10 @@ def _add_quantum(st: _Setup, q_hat: float, ranking: list[dict[str, Any]], correc
     significant or it accounts for more of the validation error), the corrected rig's sensor LSB and
     the reason; returns (corrected rig, reason)."""
     entry = _quantisation_entry(st, q_hat)
-    first_ex = ranking[0]["validation_explained"] if ranking else 0.0
+    # the first entry may be a chosen effect a replacement pass brought in, never fitted alone (no
+    # figure of its own): compare with the best single effect's
+    first_ex = max((r["validation_explained"] for r in ranking if r.get("validation_explained") is not None),
+                   default=0.0)
     ranking.insert(0 if (not sig_first or entry["validation_explained"] >= first_ex) else 1, entry)
     corrected = get_effect("quantisation").apply(corrected, {"theta_quantum": q_hat})
     note = (f"angle quantised with LSB {q_hat:.4g} rad (detected from the recorded values, not "
