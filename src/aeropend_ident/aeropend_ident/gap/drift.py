@@ -270,13 +270,11 @@ def _why_wide(lo: float, hi: float, within: float, sensitivity: Mapping[str, Seq
     worst = max(size, key=size.get, default=None)
     tail = ""
     if worst is not None:
-        tail = (f"; {worst} alone changed by ±{100 * sigma.get(worst, 0.0):.0f} % (its prior σ) "
-                f"already moves the replay by {factor * size[worst]:.3g} NRMSE")
-    return (f"the 80 % interval spans {hi / lo:.0f}×: its lower end is the rig unchanged since the fit "
-            f"session (within-session error {within:.3g}), its upper end a session change of the rig's "
-            f"drift-prone parameters{tail}. The replay of a recorded command is that sensitive (in closed "
-            "loop the controller hid the change; replayed open loop it does not), so the held-out error "
-            "tells which of the two happened, and the drift table which parameter moved")
+        tail = (f" ({worst} alone at ±{100 * sigma.get(worst, 0.0):.0f} %, its prior σ, moves the replay by "
+                f"{factor * size[worst]:.3g})")
+    return (f"the interval spans {hi / lo:.0f}×: its lower end is the rig unchanged (within-session error "
+            f"{within:.3g}), its upper end a session change of the drift-prone parameters{tail}; the "
+            "held-out error tells which happened, the drift table what moved")
 
 
 def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Recording], *,

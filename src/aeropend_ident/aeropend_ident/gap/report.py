@@ -87,10 +87,8 @@ def terminal_summary(result: GapResult) -> str:
         lines.append(f"  corrected_rig.yaml holds {side['by']} instead of {side['replaces']} (not separated "
                      "by these data; sensor frame kept nominal: check the angle sensor's calibration)")
     if getattr(d, "explained", None):
-        lines.append(f"  explained: completeness {d.explained['completeness']:.2f}, {d.explained['verdict']}")
-    lines.append(f"  (presence: evidence an effect is present, a validation sample-split test at a "
-                 f"controlled false-discovery rate; named = chosen, presence ≥ {NAMED_PRESENCE:g} and "
-                 f"completeness ≥ {NAMED_COMPLETENESS:g})")
+        lines.append(f"  explained: completeness {d.explained['completeness']:.2f}, "
+                     f"{d.explained['verdict']} (named = chosen, presence ≥ {NAMED_PRESENCE:g}, completeness ≥ {NAMED_COMPLETENESS:g})")
     if result.agreement:
         lines.append(f"  WHERE vs WHICH: {result.agreement['explanation']}")
     lines.append("  VALIDATION (carved from the fit data; chooses the effects):")
@@ -112,9 +110,7 @@ def terminal_summary(result: GapResult) -> str:
             f"  PREDICTED held-out θ NRMSE of the corrected rig (fit data only): {pr['predicted']:.4f}, 80 % "
             f"interval [{pr['interval'][0]:.4f}, {pr['interval'][1]:.4f}] (within session "
             f"{pr['within_session']:.4f}, session drift {pr['drift_part']:.4f} from the "
-            f"{pr['drift_source']}{alone})")
-        if pr.get("why_wide"):
-            lines.append(f"    ({pr['why_wide']})")
+            f"{pr['drift_source']}{alone})" + (f"; {pr['why_wide']}" if pr.get("why_wide") else ""))
     lines.append("  HELD OUT (never seen by the diagnosis), NRMSE per recorded channel:")
     for row in result.test:
         per = "  ".join(f"{c} {v:.4f}" for c, v in row.get("channel_nrmse", {}).items())
@@ -130,8 +126,8 @@ def terminal_summary(result: GapResult) -> str:
             + "".join(f"; {c} {v:.1%}" for c, v in h["heldout_channel_shrink"].items() if c != "theta")
         )
     chk = result.prediction_check
-    if chk:
-        lines.append(f"  prediction check: actual {chk['actual']:.4f} {chk['verdict']}")
+    if chk:  # on the held-out line: the screen is full
+        lines[-1] += f"; prediction check: actual {chk['actual']:.4f} {chk['verdict']}"
     for a in result.attainable or []:
         sp = a["split"]
         lines.append(
