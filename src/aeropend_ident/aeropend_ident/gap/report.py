@@ -88,7 +88,8 @@ def terminal_summary(result: GapResult) -> str:
                      "by these data; sensor frame kept nominal: check the angle sensor's calibration)")
     if getattr(d, "explained", None):
         lines.append(f"  explained: completeness {d.explained['completeness']:.2f}, "
-                     f"{d.explained['verdict']} (named = chosen, presence ≥ {NAMED_PRESENCE:g}, completeness ≥ {NAMED_COMPLETENESS:g})")
+                     f"{d.explained['verdict']} (named = chosen, presence ≥ {NAMED_PRESENCE:g}, "
+                     f"completeness ≥ {NAMED_COMPLETENESS:g})")
     if result.agreement:
         lines.append(f"  WHERE vs WHICH: {result.agreement['explanation']}")
     lines.append("  VALIDATION (carved from the fit data; chooses the effects):")
