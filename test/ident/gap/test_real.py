@@ -87,6 +87,13 @@ def test_gap_cli_etchepareborda_held_out_shrink(tmp_path):
     assert h["heldout_shrink"] >= 0.5
     # a real rig is never explained down to its sensor noise by catalog effects: said, not hidden
     assert rep["which"]["explained"]["completeness"] < 1.0
+    # the evidence is graded, not all 0 or 1 (issue 38): the named law is a candidate whose presence
+    # says how strong the evidence is, bounded by what the model leaves unexplained
+    law_presence = law["presence"]
+    assert 0.0 < law_presence <= 0.5 + 0.5 * rep["which"]["explained"]["completeness"]
+    assert law["status"] in ("named", "candidate")
+    # and the corrected rig is compared with a plain refit of the nominal parameters
+    assert h["refit"]["refit_nrmse"] > 0.0 and isinstance(h["refit"]["worse_than_refit"], bool)
     assert rep["where"]["located"][0]["top_group"] == "thrust"
 
 
