@@ -92,8 +92,8 @@ class GapResult:
         The corrected rig against a plain refit of the nominal parameters on the held-out
         recordings (:func:`aeropend_ident.gap.drift.refit_comparison`).
     not_computed : dict
-        Optional sections (sessions, prediction, attainable shrink) that could not be computed,
-        with the reason; the rest of the result stands.
+        Optional sections (sessions, prediction, refit comparison, attainable shrink) that could
+        not be computed, with the reason; the rest of the result stands.
     """
 
     rig: Rig
