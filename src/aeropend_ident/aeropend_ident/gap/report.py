@@ -377,6 +377,19 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
             "white_rows": white_rows}
 
 
+#: What presence, completeness and the status words mean (the HTML report, section 4).
+_PRESENCE_HTML = f"""<p>Presence is the evidence that an effect is in the plant: its fit (on the fit
+part) tested on the validation part against the model without it (one-sided t test that it shrinks
+each second's error, weighted by the share of that second's error above noise, by more than the share the decision
+asks for), the p-values of every candidate tried adjusted for the false-discovery rate (q,
+Benjamini-Hochberg), times how often it wins its rivals' bootstrap resamples, times 0.5 + 0.5 ×
+completeness (a residual far above the noise shows something outside the catalog, for which a
+passing effect may stand in: presence at most ½). A chosen effect is
+<b>named</b> with presence ≥ {NAMED_PRESENCE:g} and a completeness of the chosen set ≥
+{NAMED_COMPLETENESS:g}, else a <b>candidate</b>; an unchosen one is a candidate with presence ≥
+{CANDIDATE_PRESENCE:g}.</p>"""
+
+
 def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
     """The self-contained HTML report (figures embedded as base64 PNG)."""
     h = result.headline()
@@ -493,16 +506,7 @@ Equations whose channels were not recorded cannot be checked.</p>
             ],
         )
     }
-<p>Presence is the evidence that an effect is in the plant: its fit (on the fit part) tested on the
-validation part against the model without it (one-sided t test that it shrinks each second's error,
-weighted by the share of that second's error above noise, by more than the share the decision
-asks for), the p-values of every candidate tried adjusted for the false-discovery rate (q,
-Benjamini-Hochberg), times how often it wins its rivals' bootstrap resamples, times 0.5 + 0.5 ×
-completeness (a residual far above the noise shows something outside the catalog, for which a
-passing effect may stand in: presence at most ½). A chosen effect is
-<b>named</b> with presence ≥ {NAMED_PRESENCE:g} and a completeness of the chosen set ≥
-{NAMED_COMPLETENESS:g}, else a <b>candidate</b>; an unchosen one is a candidate with presence ≥
-{CANDIDATE_PRESENCE:g}.</p>
+{_PRESENCE_HTML}
 <p>Completeness {_fmt(explained.get("completeness"), ".2f")}: how completely the chosen effects explain
 the gap: {html.escape(explained.get("verdict", "–"))}
 (worst channel {html.escape(str(explained.get("worst_channel", "–")))}: share of its above-noise

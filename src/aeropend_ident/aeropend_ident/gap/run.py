@@ -468,35 +468,30 @@ def run_gap(
         fit_core, validation = validation_split(fit, validation_fraction)
     else:
         fit_core, validation = fit, held_out
-    say(
-        f"which: screening and fitting the effect catalog ({len(fit_core)} fit / {len(validation)} "
-        "validation recording(s))"
-    )
-    # the diagnosis works in the model's angle frame: shift θ by the rig's recording-frame offset
-    # a clear lead/lag of the simulated response (alignment lag) asks the diagnosis to confirm
-    # the timing effects even when the θ̈-equation screening does not shortlist them
+    say(f"which: screening and fitting the effect catalog ({len(fit_core)} fit / {len(validation)} "
+        "validation recording(s))")
+    # the diagnosis works in the model's angle frame (θ shifted by the rig's recording-frame offset); a
+    # clear lead/lag (alignment lag) asks it to confirm the timing effects the screening may not shortlist
     timing = any(timing_lag_seen(r.alignment) for r in where.recordings)
     diag = diagnose_effects(
         rig, [_shift(r, theta_offset) for r in fit_core], [_shift(r, theta_offset) for r in validation],
         max_effects=max_effects, seed=seed, progress=progress,
         also_confirm=timing_effects(rig.family) if timing else (), skip=skip)
-    corrected = diag.corrected_rig
     optional = _Optional(say)
+    fit_m, held_m = ([_shift(r, theta_offset) for r in recs] for recs in (fit, held_out))
     sess, prediction = _sessions_and_prediction(
         rig, diag, validation, held_out, fit, theta_offset=theta_offset, sessions=sessions,
         session_labels=session_labels, max_effects=max_effects, seed=seed, progress=progress,
         predict=predict, drift_sigma=drift_sigma, optional=optional, engine=(workers, scheduler))
-    say("after: replaying the held-out recordings")
-    overlays, test, w_nom, w_cor = _replay_held_out(rig, diag, corrected, held_out, theta_offset, horizon)
+    say("after: replaying the held-out recordings; a plain refit of the nominal parameters to compare")
+    overlays, test, w_nom, w_cor = _replay_held_out(rig, diag, diag.corrected_rig, held_out, theta_offset,
+                                                    horizon)
     check = _prediction_check(prediction, test)
-    say("after: a plain refit of the nominal parameters on the fit data, for comparison")
-    refit = optional.run("refit comparison", lambda: refit_comparison(
-        rig, diag, [_shift(r, theta_offset) for r in fit], [_shift(r, theta_offset) for r in held_out],
-        float(test[-1]["nrmse"])))
+    refit = optional.run("refit comparison", lambda: refit_comparison(rig, diag, fit_m, held_m,
+                                                                      float(test[-1]["nrmse"])))
     say("after: attainable shrink (correction and best catalog set fitted on each held-out recording)")
     attain = optional.run("attainable shrink", lambda: attainable(
-        rig, diag, [_shift(r, theta_offset) for r in held_out], max_effects=max_effects, seed=seed,
-        best_set=oracle, fit=[_shift(r, theta_offset) for r in fit], progress=progress))
+        rig, diag, held_m, max_effects=max_effects, seed=seed, best_set=oracle, fit=fit_m, progress=progress))
     return GapResult(
         rig=rig,
         rig_ref=rig_ref or rig.name,
