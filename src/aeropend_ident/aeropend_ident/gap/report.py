@@ -378,16 +378,15 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
 
 
 #: What presence, completeness and the status words mean (the HTML report, section 4).
-_PRESENCE_HTML = f"""<p>Presence is the evidence that an effect is in the plant: its fit (on the fit
-part) tested on the validation part against the model without it (one-sided t test that it shrinks
-each second's error, weighted by the share of that second's error above noise, by more than the share the decision
-asks for), the p-values of every candidate tried adjusted for the false-discovery rate (q,
+_PRESENCE_HTML = f"""<p>Presence is the evidence that an effect is in the plant: its fit (on the fit part) tested on the
+validation part against the model without it (one-sided t test that it shrinks each second's error,
+weighted by the share of that second's error above noise, by more than the share the decision asks
+for), the p-values of every candidate tried adjusted for the false-discovery rate (q,
 Benjamini-Hochberg), times how often it wins its rivals' bootstrap resamples, times 0.5 + 0.5 ×
 completeness (a residual far above the noise shows something outside the catalog, for which a
-passing effect may stand in: presence at most ½). A chosen effect is
-<b>named</b> with presence ≥ {NAMED_PRESENCE:g} and a completeness of the chosen set ≥
-{NAMED_COMPLETENESS:g}, else a <b>candidate</b>; an unchosen one is a candidate with presence ≥
-{CANDIDATE_PRESENCE:g}.</p>"""
+passing effect may stand in: presence at most ½). A chosen effect is <b>named</b> with presence ≥
+{NAMED_PRESENCE:g} and a completeness of the chosen set ≥ {NAMED_COMPLETENESS:g}, else a
+<b>candidate</b>; an unchosen one is a candidate with presence ≥ {CANDIDATE_PRESENCE:g}.</p>"""
 
 
 def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
