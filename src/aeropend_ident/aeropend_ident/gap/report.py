@@ -378,7 +378,8 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
 
 
 #: What presence, completeness and the status words mean (the HTML report, section 4).
-_PRESENCE_HTML = f"""<p>Presence is the evidence that an effect is in the plant: its fit (on the fit part) tested on the
+_PRESENCE_HTML = f"""
+<p>Presence is the evidence that an effect is in the plant: its fit (on the fit part) tested on the
 validation part against the model without it (one-sided t test that it shrinks each second's error,
 weighted by the share of that second's error above noise, by more than the share the decision asks
 for), the p-values of every candidate tried adjusted for the false-discovery rate (q,
