@@ -7,7 +7,7 @@ Usage::
         [--held-out RECORDING [RECORDING ...] | --split FRACTION | --blocks SECONDS]
         [--block-every 3] [--block-offset 1] [--min-range RAD]
         [--validation RECORDING ... | --validation-fraction 0.3]
-        [--max-effects 3 (cap, 1-3)] [--horizon 0.2] [--theta-offset RAD] [--seed 0]
+        [--max-effects 2 (cap, 1-3)] [--horizon 0.2] [--theta-offset RAD] [--seed 0]
         [--workers N] [--scheduler ADDRESS] [-q]
 
 ``RECORDING`` is a rosbag2 directory (or ``.mcap`` / ``.db3``) or a CSV log with its own preset
@@ -180,9 +180,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --blocks: drop blocks whose recorded angle moves less than this (rod resting on a stop)",
     )
     p.add_argument(
-        "--max-effects", type=int, default=3,
-        help="cap on the effects added to the corrected rig (1, 2 or 3); the data choose how many: "
-             "forward selection stops at the first effect that does not pass (default 3)"
+        "--max-effects", type=int, default=2,
+        help="cap on the effects added to the corrected rig (1, 2 or 3; default 2); the data choose how "
+             "many below it: forward selection stops at the first effect that does not pass"
     )
     p.add_argument("--horizon", type=float, default=0.2, help="short-horizon prediction length [s]")
     p.add_argument(

@@ -3,7 +3,7 @@
 Usage::
 
     gap-batch ARCHIVE/ --rig RIG -o OUT [--scheduler ADDRESS | --workers N]
-        [--preset NAME] [--split 0.7] [--max-effects 3] [--seed 0] [--no-oracle] [--overwrite] [-q]
+        [--preset NAME] [--split 0.7] [--max-effects 2] [--seed 0] [--no-oracle] [--overwrite] [-q]
 
 Runs ``gap`` on every session of ``ARCHIVE`` (a manifest ``sessions.yaml``, or one session per bag
 folder / ``.mcap`` / ``.db3`` / CSV log directly in it: :mod:`aeropend_ident.archive`), each as one
@@ -91,8 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", default=None, help="csv_import preset of CSV logs (default: by file name)")
     p.add_argument("--split", type=float, default=0.7,
                    help="fit share of each recording without held-out files (time-ordered, as gap --split)")
-    p.add_argument("--max-effects", type=int, default=3,
-                   help="cap on the effects per session (1-3); the data choose how many (default 3)")
+    p.add_argument("--max-effects", type=int, default=2,
+                   help="cap on the effects per session (1-3, default 2); the data choose how many below it")
     p.add_argument("--seed", type=int, default=0, help="seed of the effect ranking's resampling")
     p.add_argument("--no-oracle", action="store_true", help="skip the best-catalog-set fit on held-out data")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")

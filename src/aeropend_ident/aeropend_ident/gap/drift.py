@@ -395,7 +395,7 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
 
 
 def refit_comparison(nominal: Rig, diag: EffectDiagnosis, fit: Sequence[Recording],
-                     held_out: Sequence[Recording], corrected_nrmse: float) -> dict[str, Any]:
+                     held_out: Sequence[Recording], corrected_nrmse: float) -> tuple[dict[str, Any], Any]:
     """The corrected rig against a plain refit of the nominal parameters, on the held-out recordings.
 
     A diagnosis adds physics; a lab's first alternative is to refit the rig's own numbers, as
@@ -421,6 +421,9 @@ def refit_comparison(nominal: Rig, diag: EffectDiagnosis, fit: Sequence[Recordin
         ``parameters`` refitted, ``values`` and ``std`` (physical units), ``refit_nrmse`` (held-out
         θ NRMSE, mean over recordings; NaN when its replay diverges), ``corrected_nrmse``,
         ``worse_than_refit`` (bool) and a one-line ``verdict``.
+    EffectFit
+        The refit itself (:func:`attainable` reuses it as its fit-session drift fit when nothing is
+        chosen).
 
     Raises
     ------
@@ -446,7 +449,7 @@ def refit_comparison(nominal: Rig, diag: EffectDiagnosis, fit: Sequence[Recordin
         verdict = (f"the corrected rig predicts the held-out data better than a plain refit of the nominal "
                    f"parameters ({names}): θ NRMSE {corrected_nrmse:.4f} vs {refit:.4f}")
     return {"parameters": params, "values": fr.values, "std": fr.std, "refit_nrmse": refit,
-            "corrected_nrmse": float(corrected_nrmse), "worse_than_refit": worse, "verdict": verdict}
+            "corrected_nrmse": float(corrected_nrmse), "worse_than_refit": worse, "verdict": verdict}, fr
 
 
 def _oracle(rig: Rig, effects: Sequence[str], prep: Prepared, start: Mapping[str, Mapping[str, float]]
@@ -459,7 +462,7 @@ def _oracle(rig: Rig, effects: Sequence[str], prep: Prepared, start: Mapping[str
 
 def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording], *, max_effects: int = 2,
                seed: int = 0, best_set: bool = True, fit: Sequence[Recording] = (),
-               progress: Callable[[str], None] | None = None) -> list[dict[str, Any]]:
+               progress: Callable[[str], None] | None = None, fitted: Any = None) -> list[dict[str, Any]]:
     """Oracle fits on each held-out recording and the split of its gap (module docstring).
 
     Parameters
@@ -479,6 +482,9 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
         parameters is fitted there too and each held-out recording gets a drift table (fit
         session vs that recording, :func:`drift_rows`).
     progress : callable, optional
+    fitted : EffectFit, optional
+        An effect set already fitted on ``fit`` (the plain refit of :func:`refit_comparison`): used
+        as the fit-session drift fit when it is the same set, not fitted again.
 
     Returns
     -------
@@ -496,7 +502,9 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
     vals, std = _chosen_values(diag)
     dset = drift_set(diag.chosen, diag.channels or ("theta",), nominal.family)
     fit_a = None
-    if fit:
+    if fit and fitted is not None and tuple(fitted.effects) == tuple(dset):
+        fit_a = fitted
+    elif fit:
         say(f"attainable: fitting {', '.join(dset)} on the fit recordings")
         fit_a = _fit_set(nominal, dset, _preps(fit, diag.channels or ("theta",)), start=vals)
     out = []

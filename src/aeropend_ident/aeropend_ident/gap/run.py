@@ -351,6 +351,26 @@ def _replay_held_out(
     return overlays, test, w_nom, w_cor
 
 
+def _refit_and_attainable(
+    rig: Rig, diag: Any, fit: list[Recording], held_out: list[Recording], corrected_nrmse: float,
+    optional: _Optional, *, max_effects: int, seed: int, oracle: bool, progress: Callable[[str], None] | None,
+) -> tuple[dict[str, Any] | None, list[dict[str, Any]] | None]:
+    """The refit comparison and the attainable shrink of :func:`run_gap` (model-frame recordings; each
+    optional). The plain refit is the attainable shrink's fit-session drift fit when nothing is chosen
+    (the same effect set on the same recordings): fitted once."""
+    from aeropend_ident.gap.drift import attainable, refit_comparison
+
+    say = progress or (lambda _msg: None)
+    out = optional.run("refit comparison",
+                       lambda: refit_comparison(rig, diag, fit, held_out, corrected_nrmse))
+    refit, fitted = out if out is not None else (None, None)
+    say("after: attainable shrink (correction and best catalog set fitted on each held-out recording)")
+    attain = optional.run("attainable shrink", lambda: attainable(
+        rig, diag, held_out, max_effects=max_effects, seed=seed, best_set=oracle, fit=fit, progress=progress,
+        fitted=fitted))
+    return refit, attain
+
+
 def _prediction_check(prediction: dict[str, Any] | None, test: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The predicted held-out NRMSE against the actual one (None without a prediction)."""
     check = None
@@ -450,7 +470,6 @@ def run_gap(
     aeropend_ident.gap.effects.GapError, aeropend_ident.gap.where.GapInputError
         Unusable recordings (no θ, NaNs, too short, constant input) or rig (before any result).
     """
-    from aeropend_ident.gap.drift import attainable, refit_comparison
     from aeropend_ident.gap.effects import timing_effects
     from aeropend_ident.gap.which import diagnose_effects
 
@@ -487,11 +506,9 @@ def run_gap(
     overlays, test, w_nom, w_cor = _replay_held_out(rig, diag, diag.corrected_rig, held_out, theta_offset,
                                                     horizon)
     check = _prediction_check(prediction, test)
-    refit = optional.run("refit comparison", lambda: refit_comparison(rig, diag, fit_m, held_m,
-                                                                      float(test[-1]["nrmse"])))
-    say("after: attainable shrink (correction and best catalog set fitted on each held-out recording)")
-    attain = optional.run("attainable shrink", lambda: attainable(
-        rig, diag, held_m, max_effects=max_effects, seed=seed, best_set=oracle, fit=fit_m, progress=progress))
+    refit, attain = _refit_and_attainable(
+        rig, diag, fit_m, held_m, float(test[-1]["nrmse"]), optional, max_effects=max_effects, seed=seed,
+        oracle=oracle, progress=progress)
     return GapResult(
         rig=rig,
         rig_ref=rig_ref or rig.name,
