@@ -160,8 +160,6 @@ def test_prediction_split_and_drift_table_on_a_drifting_second_session() -> None
     assert bool(pr["why_wide"]) == (hi > 10 * lo)
     if pr["why_wide"]:
         assert "rig unchanged" in pr["why_wide"] and "session change" in pr["why_wide"]
-    # the validation stretch's error converted to a whole fit recording's range
-    assert 0.0 < pr["range_factor"] <= 1.0 + 1e-12
     att = res.attainable[0]
     # the correction (session 1) barely helps on session 2; a constant-parameter fit there would
     assert att["corrected"] > 5 * att["oracle"]

@@ -260,7 +260,7 @@ def within_session_draw(block_errors: Sequence[np.ndarray], rng: np.random.Gener
 
 
 def _why_wide(lo: float, hi: float, within: float, sensitivity: Mapping[str, Sequence[float]],
-              factor: float, sigma: Mapping[str, float]) -> str:
+              sigma: Mapping[str, float]) -> str:
     """Why a predicted interval spans more than :data:`WIDE_RATIO` (its upper end over its lower end),
     '' when it does not: the lower end is the rig unchanged (the within-session error), the upper
     end a session change of the drift-prone parameter the replay is most sensitive to."""
@@ -271,7 +271,7 @@ def _why_wide(lo: float, hi: float, within: float, sensitivity: Mapping[str, Seq
     tail = ""
     if worst is not None:
         tail = (f" ({worst} alone at ±{100 * sigma.get(worst, 0.0):.0f} %, its prior σ, moves the replay by "
-                f"{factor * size[worst]:.3g})")
+                f"{size[worst]:.3g})")
     return (f"the interval spans {hi / lo:.0f}×: its lower end is the rig unchanged (within-session error "
             f"{within:.3g}), its upper end a session change of the drift-prone parameters{tail}; the "
             "held-out error tells which happened, the drift table what moved")
@@ -279,7 +279,7 @@ def _why_wide(lo: float, hi: float, within: float, sensitivity: Mapping[str, Seq
 
 def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Recording], *,
                     drift_sigma: Mapping[str, float] | None = None, draws: int = N_DRAWS,
-                    seed: int = 0, heldout_range: float | None = None) -> dict[str, Any]:
+                    seed: int = 0) -> dict[str, Any]:
     """Predicted held-out θ NRMSE of the corrected rig, from the fit data only (module docstring).
 
     A Monte-Carlo predictive distribution: each draw takes one within-session error e_in (a block
@@ -305,14 +305,6 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         Monte-Carlo draws (one replay per validation recording each).
     seed : int
         Random seed.
-    heldout_range : float, optional
-        θ range [rad] a held-out recording is expected to span: the mean range of the whole fit
-        recordings (:func:`aeropend_ident.gap.run.run_gap` passes it; fit data only). An NRMSE is an
-        RMS error over a recording's range: the validation part is a shorter stretch whose range is
-        often smaller, so the same RMS error reads as a larger NRMSE there. With it, every draw is
-        the validation RMS error converted to that range (× mean validation range /
-        ``heldout_range``, reported as ``range_factor``); without it, the validation ranges are used.
-
     Returns
     -------
     dict
@@ -370,14 +362,10 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         samples.append(math.sqrt(e_in**2 + ms))
     if not samples:
         raise GapError("prediction: every replay of the corrected rig failed")
-    factor = 1.0
-    if heldout_range is not None and heldout_range > 0.0:
-        factor = float(np.mean([p.scale["theta"] for p in preps])) / float(heldout_range)
-        samples = [x * factor for x in samples]
     lo, hi = np.quantile(samples, INTERVAL)
-    within = float(np.sqrt(np.mean(np.square(blocks)))) * factor
+    within = float(np.sqrt(np.mean(np.square(blocks))))
     return {
-        "why_wide": _why_wide(float(lo), float(hi), within, sensitivity, factor, sigma),
+        "why_wide": _why_wide(float(lo), float(hi), within, sensitivity, sigma),
         "predicted": float(np.median(samples)),
         "interval": [float(lo), float(hi)],
         "level": INTERVAL[1] - INTERVAL[0],
@@ -388,8 +376,7 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         "drift_prior": "occurrence" if drift_sigma is None else "normal",
         "drift_source": "prior" if drift_sigma is None else "sessions",
         "sensitivity": sensitivity,
-        "noise_floor": float(np.mean(floors)) * factor,
-        "range_factor": factor,
+        "noise_floor": float(np.mean(floors)),
         "draws": len(samples),
     }
 

@@ -292,8 +292,7 @@ class _Optional:
 
 
 def _sessions_and_prediction(
-    rig: Rig, diag: Any, validation: list[Recording], held_out: list[Recording], fit: list[Recording], *,
-    theta_offset: float,
+    rig: Rig, diag: Any, validation: list[Recording], held_out: list[Recording], *, theta_offset: float,
     sessions: Sequence[Sequence[Recording]] | None, session_labels: Sequence[str] | None, max_effects: int,
     seed: int, progress: Callable[[str], None] | None, predict: bool, drift_sigma: Mapping[str, float] | None,
     optional: _Optional, engine: tuple[int | None, str | None] = (1, None),
@@ -316,13 +315,8 @@ def _sessions_and_prediction(
     prediction = None
     if predict:
         say("predict: held-out NRMSE of the corrected rig from the fit data")
-        # a held-out recording is a whole recording: its NRMSE is over a whole recording's θ range,
-        # which the fit recordings show (the validation part is a narrower stretch of them)
-        span = float(np.mean([max(float(np.ptp(np.asarray(r.channels["theta"], dtype=float))), 1e-6)
-                              for r in fit]))
         prediction = optional.run("prediction", lambda: predict_heldout(
-            rig, diag, [_shift(r, theta_offset) for r in validation], drift_sigma=drift_sigma, seed=seed,
-            heldout_range=span if validation is not held_out else None))
+            rig, diag, [_shift(r, theta_offset) for r in validation], drift_sigma=drift_sigma, seed=seed))
         if prediction is not None:
             if sess is not None and drift_sigma is sess["drift_sigma"]:
                 prediction["drift_source"] = "sessions"
@@ -499,7 +493,7 @@ def run_gap(
     optional = _Optional(say)
     fit_m, held_m = ([_shift(r, theta_offset) for r in recs] for recs in (fit, held_out))
     sess, prediction = _sessions_and_prediction(
-        rig, diag, validation, held_out, fit, theta_offset=theta_offset, sessions=sessions,
+        rig, diag, validation, held_out, theta_offset=theta_offset, sessions=sessions,
         session_labels=session_labels, max_effects=max_effects, seed=seed, progress=progress,
         predict=predict, drift_sigma=drift_sigma, optional=optional, engine=(workers, scheduler))
     say("after: replaying the held-out recordings; a plain refit of the nominal parameters to compare")
