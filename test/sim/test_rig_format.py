@@ -177,3 +177,25 @@ def test_shipped_rigs_simulate_as_before_the_registry():
             want, have = np.delete(want, 2, axis=1), np.delete(have, 2, axis=1)
         scale = max(float(np.max(np.abs(want))), 1.0)
         np.testing.assert_allclose(have, want, rtol=1e-9, atol=1e-9 * scale, err_msg=k)
+
+
+@pytest.mark.parametrize("L_a, switch, mode", [
+    (1.16e-3, None, "quasi_static"),     # Quanser-Aero motor: L_a/R_a = 0.14 ms at a 2 ms sample period
+    (1.16e-3, "dynamic", "dynamic"),     # an explicit switch is obeyed
+    (0.2, None, "dynamic"),              # L_a/R_a = 24 ms: the current is a state
+])
+def test_an_armature_too_fast_for_the_sample_period_loads_quasi_static(L_a, switch, mode, tmp_path):
+    d = doc("voltage_amplifier")
+    d["sample_period"] = {"value": 0.002, "unit": "s", "source": "test"}
+    d["motor"]["L_a"] = {"value": L_a, "unit": "H", "source": "test"}
+    if switch:
+        d["effects"] = {"armature_inductance": switch}
+    rig = rig_from_dict(d, "amp.yaml")
+    assert rig.effects.armature_inductance == mode and rig.motor.L_a == L_a
+    said = [n for n in rig.load_notes if n.startswith("effects.armature_inductance")]
+    assert bool(said) == (mode == "quasi_static")
+    if said:
+        assert "0.138 ms" in said[0] and "2 ms" in said[0]
+    path = tmp_path / "r.yaml"
+    save_rig(rig, path)
+    assert load_rig(path) == rig

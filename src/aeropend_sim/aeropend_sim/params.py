@@ -31,6 +31,7 @@ third-party rigs from ``shared/data/real`` (``jahoyosr_rig``, ``aeroshield_rig``
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, make_dataclass
 from functools import cache
 from importlib import resources
@@ -450,15 +451,21 @@ def _read_switches(data: dict[str, Any], where: str, notes: list[str]) -> dict[s
     return switches
 
 
-def _default_switch(eff: Effect, given: dict[str, tuple[float, str]], legacy: bool) -> Any:
-    """An omitted switch: on when a parameter of the effect is given with a non-absent value (new
-    format), or the pre-family format's default (legacy format; a mode needs its parameters)."""
+def _default_switch(eff: Effect, given: dict[str, tuple[float, str]], legacy: bool,
+                    values: Mapping[str, float], period: float) -> tuple[Any, str | None]:
+    """An omitted switch and the load note it needs: on when a parameter of the effect is given with
+    a non-absent value (new format), or the pre-family format's default (legacy format; a mode needs
+    its parameters); off, with the reason, when the effect is too fast for the sample period
+    (:attr:`Effect.negligible`)."""
     modelled = any(p.key in given and given[p.key][0] != p.absent for p in eff.params)
     if not legacy:
-        return eff.on if modelled else eff.off
-    if eff.modes and eff.legacy_default == eff.on:
-        return eff.on if all(p.key in given for p in eff.params) else eff.off
-    return eff.legacy_default
+        switch = eff.on if modelled else eff.off
+    elif eff.modes and eff.legacy_default == eff.on:
+        switch = eff.on if all(p.key in given for p in eff.params) else eff.off
+    else:
+        switch = eff.legacy_default
+    why = eff.negligible(values, period) if eff.negligible and eff.is_on(switch) else None
+    return (eff.off, f"effects.{eff.name} = {eff.off}: {why}") if why else (switch, None)
 
 
 def rig_from_dict(data: dict[str, Any], where: str = "<dict>") -> Rig:
@@ -507,7 +514,9 @@ def rig_from_dict(data: dict[str, Any], where: str = "<dict>") -> Rig:
     for eff in registry.effects():
         if eff.name not in switches:
             applies = eff.applies_to(fam) is None
-            switches[eff.name] = _default_switch(eff, given, legacy) if applies else eff.off
+            switches[eff.name], note = (_default_switch(eff, given, legacy, values, period) if applies
+                                        else (eff.off, None))
+            notes += [note] if note else []
     try:
         return Rig(
             name=str(data.get("name", Path(where).stem)),
@@ -563,7 +572,8 @@ def rig_to_dict(rig: Rig) -> dict[str, Any]:
     for eff in registry.effects():
         if eff.applies_to(fam) is None:
             value = getattr(rig.effects, eff.name)
-            if value != _default_switch(eff, written, legacy=False):
+            implied, _ = _default_switch(eff, written, False, rig.values(), rig.sample_period)
+            if value != implied:
                 switches[eff.name] = value
     out["effects"] = switches
     return out

@@ -569,12 +569,17 @@ class Effect(Part):
     active_when : callable or None
         ``active_when(values) -> bool``: an extra condition on the parameters for the switched-on
         effect to act (the lag needs T_a > 0).
+    negligible : callable or None
+        ``negligible(values, sample_period) -> str or None``: for an effect a rig file parameterises
+        without naming its switch, the reason it is too fast to show at the rig's sample period
+        (the loader then leaves it at its off switch and says so; an explicit switch is obeyed).
     """
 
     modes: tuple[str, str] | None = None
     legacy_switch: str | None = None
     legacy_default: bool | str = False
     active_when: Callable[[Mapping[str, float]], bool] | None = field(default=None, compare=False)
+    negligible: Callable[[Mapping[str, float], float], str | None] | None = field(default=None, compare=False)
 
     @property
     def switch(self) -> str:
