@@ -183,6 +183,18 @@ def test_quasi_static_inductance_has_same_steady_state():
     assert dyn.i_a[1] < 0.7 * qs.i_a[1]
 
 
+@pytest.mark.parametrize("backend", ["compiled", "lsoda"])
+def test_quasi_static_current_is_the_fast_dynamic_current_at_the_sample_instants(backend):
+    """Sample k is the state before τ_k acts: a quasi-static current there is the algebraic current
+    of the command held until then, the limit of a dynamic one as L_a/R_a → 0 (not a sample early)."""
+    dt = RIG.sample_period
+    duty = np.repeat(np.random.default_rng(5).uniform(0.3, 0.9, 40), 10)
+    fast = RIG.with_params("motor", L_a=RIG.motor.R_a * dt / 200.0)
+    dyn = simulate(fast, duty, backend=backend)
+    qs = simulate(fast.with_effects(armature_inductance="quasi_static"), duty, backend=backend)
+    assert np.max(np.abs(qs.i_a - dyn.i_a)) < 0.02 * np.ptp(dyn.i_a)
+
+
 def test_end_stops_hold_the_rod():
     rig = RIG.with_effects(end_stops=True).with_params("pendulum", theta_max=0.3)
     traj = simulate(rig, np.full(3000, 1.0))

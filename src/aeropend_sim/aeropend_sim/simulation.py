@@ -110,9 +110,15 @@ class Trajectory:
         return {k: v for k, v in out.items() if v is not None}
 
 
-def _outputs(model: PlantModel, x: np.ndarray, u_eff: np.ndarray) -> dict[str, np.ndarray]:
-    """Noise-free channels for states x (N, 5) and actuator-side inputs u_eff (N,)."""
-    return model.outputs(x, u_eff)
+def _outputs(model: PlantModel, x: np.ndarray, u_eff: np.ndarray, u_before: np.ndarray
+             ) -> dict[str, np.ndarray]:
+    """Noise-free channels for states x (N, 5) and actuator-side inputs u_eff (N,) at the samples;
+    a quasi-static armature current is the one of the input held just before (``u_before``, as
+    :func:`aeropend_sim.compiled.kernels.outputs`)."""
+    out = model.outputs(x, u_eff)
+    if model.assembly.armature and not model.dynamic_current:
+        out["i_a"] = model.outputs(x, u_before)["i_a"]
+    return out
 
 
 def _quanta(rig: Rig) -> dict[str, float]:
@@ -226,12 +232,13 @@ def simulate(
     model = PlantModel(rig)
     if _check_backend(backend) == "compiled":
         plant = CompiledPlant(rig, dt, model=model)
-        states, u_at_sample, failed = plant.replay(duty, x, tau_before)
+        states, u, failed = plant.replay(duty, x, tau_before)
         _check_replay(plant, failed)
-        true = plant.outputs(states, u_at_sample, _true_channels(model))
+        true = plant.outputs(states, u, _true_channels(model))
+        u_at_sample = u[0]
     else:
-        states, u_at_sample = _replay_lsoda(model, duty, x, dt, tau_before)
-        true = _outputs(model, states, u_at_sample)
+        states, u_at_sample, u_before = _replay_lsoda(model, duty, x, dt, tau_before)
+        true = _outputs(model, states, u_at_sample, u_before)
     if not model.lag:
         states[:, TAU_F] = u_at_sample
     if model.assembly.armature and not model.dynamic_current:
@@ -260,13 +267,15 @@ def _check_replay(plant: CompiledPlant, failed: int, p: np.ndarray | None = None
 
 
 def _replay_lsoda(model: PlantModel, duty: np.ndarray, x: np.ndarray, dt: float,
-                  tau_before: float) -> tuple[np.ndarray, np.ndarray]:
-    """States (N, 5) and actuator-side commands (N,) at the samples, LSODA over each stretch of
-    constant delayed input."""
+                  tau_before: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """States (N, 5), actuator-side commands (N,) at the samples and those just before them, LSODA
+    over each stretch of constant delayed input."""
     n = duty.size
     edges, values = _delayed_segments(duty, dt, model.delay, tau_before)
     states = np.empty((n, N_STATES))
     u_at_sample = np.empty(n)
+    u_before = np.empty(n)
+    u_prev = float(tau_before)
     sample_t = np.arange(n) * dt
     # group consecutive equal inputs into one ODE call
     change = np.flatnonzero(np.diff(values) != 0.0) + 1
@@ -285,18 +294,20 @@ def _replay_lsoda(model: PlantModel, duty: np.ndarray, x: np.ndarray, dt: float,
         if k < k_hi and abs(sample_t[k] - t_grid[0]) < 1e-9 * max(dt, 1.0):
             states[k] = x
             u_at_sample[k] = u
+            u_before[k] = u_prev
             k += 1
         sol = odeint(model.rhs, x, t_grid, args=(u,), tfirst=True, rtol=RTOL, atol=ATOL, mxstep=50000)
         # record samples that fall on interior grid points
         for j in range(1, t_grid.size - 1):
             if k < n and abs(t_grid[j] - sample_t[k]) < 1e-9 * max(dt, 1.0):
                 states[k] = sol[j]
-                u_at_sample[k] = u
+                u_at_sample[k] = u_before[k] = u
                 k += 1
         x = sol[-1].copy()
+        u_prev = u
     if k != n:  # pragma: no cover - guards the segment bookkeeping
         raise SimulationError(f"internal error: recorded {k} of {n} samples")
-    return states, u_at_sample
+    return states, u_at_sample, u_before
 
 
 def simulate_batch(
@@ -449,7 +460,8 @@ class PlantStepper:
     def sample(self) -> dict[str, float]:
         """Measured channels at the current sample instant (noise/quantisation applied)."""
         _, model, rig = self._now
-        true = _outputs(model, self.x[None, :], np.array([self._u_now]))
+        u = np.array([self._u_now])  # held over the last sample: both at and just before the instant
+        true = _outputs(model, self.x[None, :], u, u)
         s, e = rig.sensors, rig.effects
         rms = {
             "theta": s.theta_rms, "theta_dot": s.theta_rms * 5.0, "i_a": s.i_a_rms,

@@ -137,7 +137,10 @@ def _family_rig(fam, params):
 def test_family_plants_agree_with_aeropend_on_the_labs_rig_file(family):
     """The lab's rig file of each hidden plant (its own quantities converted as a lab does: K_v and
     battery to ω_max, pulse widths to τ_0, C_T/C_Q to K_q/K_d, geometry to mgd/J and L/J) simulates
-    the same plant: two implementations agree to 1e-5 of each channel's range."""
+    the same plant: two implementations agree to 1e-5 of each channel's range. The amplifier's
+    armature (L_a/R_a = 0.14 ms at 2 ms) loads quasi-static; integrated as the truth does (the switch
+    named), the two agree to 1e-5; the loader's quasi-static armature stays within 3e-3 (measured
+    when written: θ 1.5e-4, i_a 1.7e-3, ω₁ 9e-4 of the range; each current step lags by L_a/R_a)."""
     from aeropend_sim.simulation import simulate
     from bench.fixtures import gap_families as gf
 
@@ -148,6 +151,12 @@ def test_family_plants_agree_with_aeropend_on_the_labs_rig_file(family):
         assert rig.family == family
         duty = tp.aprbs(15.0, seed=3, dt=fam.dt)
         truth = fam.plant(params, {}).simulate(duty)
+        if family == "voltage_amplifier":
+            assert rig.effects.armature_inductance == "quasi_static"
+            sim = simulate(rig, duty)
+            for c in fam.channels:
+                assert np.max(np.abs(sim.true[c] - truth[c])) < 3e-3 * np.ptp(truth[c]), (family, c)
+            rig = rig.with_effects(armature_inductance="dynamic")
         sim = simulate(rig, duty)
         for c in fam.channels:
             assert np.max(np.abs(sim.true[c] - truth[c])) < 1e-5 * np.ptp(truth[c]), (family, c)

@@ -155,13 +155,15 @@ def step(x, ua, ub, p, n_a, h_a, n_b, h_b):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def replay(x0, duty, tau_before, whole, n_a, h_a, n_b, h_b, p, states, u_at):
+def replay(x0, duty, tau_before, whole, n_a, h_a, n_b, h_b, p, states, u_at, u_before):
     """Replay ``duty`` (N,) from ``x0`` (5,) with parameter vector ``p``.
 
     The actuator sees ``duty[j - whole - 1]`` on the first ``n_a`` sub-steps of sample j and
     ``duty[j - whole]`` on the other ``n_b`` (``tau_before`` before the first command). Fills
-    ``states`` (N, 5), the state at each sample instant, and ``u_at`` (N,), the command the actuator
-    sees there. Returns -1, or the first sample whose state is not finite (the rest is unset).
+    ``states`` (N, 5), the state at each sample instant, ``u_at`` (N,), the command the actuator
+    sees there, and ``u_before`` (N,), the one it saw just before (they differ where a command
+    arrives at the instant). Returns -1, or the first sample whose state is not finite (the rest is
+    unset).
     """
     n = duty.size
     x0_, x1, x2, x3, x4 = x0[0], x0[1], x0[2], x0[3], x0[4]
@@ -178,23 +180,36 @@ def replay(x0, duty, tau_before, whole, n_a, h_a, n_b, h_b, p, states, u_at):
         states[j, 3] = x3
         states[j, 4] = x4
         u_at[j] = ua if n_a > 0 else ub
+        u_before[j] = ua
         x0_, x1, x2, x3, x4 = _advance(x0_, x1, x2, x3, x4, ua, ub, p, n_a, h_a, n_b, h_b)
     return -1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def outputs(states, u_at, p, codes, out):
-    """Fill ``out`` (C, N) with the channels ``codes`` (C,) of a replay (see the CODE_* constants)."""
+def outputs(states, u_at, u_before, p, codes, out):
+    """Fill ``out`` (C, N) with the channels ``codes`` (C,) of a replay (see the CODE_* constants).
+
+    The armature current is the one at the instant, before a command arriving there acts
+    (``u_before``): the state when dynamic, and when quasi-static the algebraic current of the
+    command held until then (the limit of the dynamic current as L_a → 0); the other derived
+    channels follow ``u_at``."""
     derived = False
+    current = False
     for c in codes:
         derived = derived or c >= 5
+        current = current or c == CODE_I_A
     sig = (0.0, 0.0, 0.0, 0.0, 0.0)
+    i_a = 0.0
     for j in range(u_at.size):
         if derived:
             sig = signals(states[j, 0], states[j, 1], states[j, 2], states[j, 3], states[j, 4], u_at[j], p)
+            i_a = sig[CODE_I_A - 4]
+        if current and u_before[j] != u_at[j]:
+            i_a = signals(states[j, 0], states[j, 1], states[j, 2], states[j, 3], states[j, 4], u_before[j],
+                          p)[CODE_I_A - 4]
         for k in range(codes.size):
             c = codes[k]
-            out[k, j] = states[j, c] if c < 5 else sig[c - 4]
+            out[k, j] = states[j, c] if c < 5 else (i_a if c == CODE_I_A else sig[c - 4])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -206,11 +221,12 @@ def replay_batch(x0, duty, tau_before, whole, n_a, h_a, n_b, h_b, p, codes, out,
     n = duty.size
     states = np.empty((n, 5))
     u_at = np.empty(n)
+    u_before = np.empty(n)
     for b in range(start, stop):
         failed[b] = replay(x0[b], duty, tau_before, whole[b], n_a[b], h_a[b], n_b[b], h_b[b], p[b], states,
-                           u_at)
+                           u_at, u_before)
         if failed[b] < 0:
-            outputs(states, u_at, p[b], codes, out[b])
+            outputs(states, u_at, u_before, p[b], codes, out[b])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

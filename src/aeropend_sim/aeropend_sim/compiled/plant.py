@@ -246,8 +246,9 @@ class CompiledPlant:
     # ------------------------------------------------------------------ replays
     def replay(self, duty: np.ndarray, x0: np.ndarray, tau_before: float = 0.0,
                p: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int]:
-        """States (N, 5) at the sample instants, the command the actuator sees there (N,), and -1 or
-        the first sample whose state is not finite.
+        """States (N, 5) at the sample instants, the commands (2, N) the actuator sees there and
+        just before (:meth:`outputs` takes them), and -1 or the first sample whose state is not
+        finite.
 
         Parameters
         ----------
@@ -263,15 +264,23 @@ class CompiledPlant:
         p = self.p if p is None else p
         states = np.empty((duty.size, 5))
         u_at = np.empty(duty.size)
-        failed = self.module.replay(x0, duty, float(tau_before), *plan.row(0), p, states, u_at)
-        return states, u_at, int(failed)
+        u_before = np.empty(duty.size)
+        failed = self.module.replay(x0, duty, float(tau_before), *plan.row(0), p, states, u_at, u_before)
+        return states, np.stack([u_at, u_before]), int(failed)
 
-    def outputs(self, states: np.ndarray, u_at: np.ndarray, names: Sequence[str] | None = None,
+    def outputs(self, states: np.ndarray, u: np.ndarray, names: Sequence[str] | None = None,
                 p: np.ndarray | None = None) -> dict[str, np.ndarray]:
-        """Noise-free channels (N,) of a replay, by name (default :attr:`channels`)."""
+        """Noise-free channels (N,) of a replay, by name (default :attr:`channels`).
+
+        ``u`` is what :meth:`replay` returns, shape (2, N): the command the actuator sees at each
+        instant and the one it saw just before (the quasi-static armature current follows the
+        latter, :func:`aeropend_sim.compiled.kernels.outputs`); a shape (N,) array is both."""
         names = self.channels if names is None else tuple(names)
+        u = np.asarray(u, dtype=float)
+        u_at, u_before = (u[0], u[1]) if u.ndim == 2 else (u, u)
         out = np.empty((len(names), u_at.size))
-        self.module.outputs(states, u_at, self.p if p is None else p, self.codes(names), out)
+        self.module.outputs(states, np.ascontiguousarray(u_at), np.ascontiguousarray(u_before),
+                            self.p if p is None else p, self.codes(names), out)
         return dict(zip(names, out, strict=True))
 
     def codes(self, names: Sequence[str]) -> np.ndarray:
