@@ -130,7 +130,9 @@ def test_jahoyosr_diagnosis_carries_to_another_session():
     (20 s blocks, blocks with the rod resting on a stop dropped) is checked on the datosEscalones
     staircases of another session, which no gap case had replayed. Measured when written (physical
     catalog, issue 14): dry friction T_f/J = 10.6 rad/s² alone, held-out NRMSE 1.957 -> 0.738
-    (62.3 %) over 10 staircase pieces; the earlier catalog added a narrower dead zone (73.2 %)."""
+    (62.3 %) over 10 staircase pieces; the earlier catalog added a narrower dead zone (73.2 %).
+    Since every replay estimates its start on the first second (issue 35, gap/which.py): 1.972 ->
+    0.735 (62.7 %)."""
     from aeropend_ident.gap.run import run_gap
 
     nominal, offset = resolve_rig("jahoyosr_rig")
@@ -146,5 +148,5 @@ def test_jahoyosr_diagnosis_carries_to_another_session():
     assert res.diagnosis.chosen[0] == "coulomb_friction"
     h = res.headline()
     assert h["heldout_never_seen_by_diagnosis"]
-    assert h["heldout_nrmse_nominal"] == pytest.approx(1.957, abs=0.005)
+    assert h["heldout_nrmse_nominal"] == pytest.approx(1.972, abs=0.005)
     assert h["heldout_shrink"] >= 0.5

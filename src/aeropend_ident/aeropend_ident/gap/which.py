@@ -73,6 +73,7 @@ No rclpy import: this module runs without ROS.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 import math
 import time
@@ -155,6 +156,17 @@ SCREEN_DT = 0.016
 SEGMENT = 1.0
 #: Window [s] of the fit that takes a recorded motor channel's value at a replay's first sample.
 INITIAL_WINDOW = 0.02
+#: Window [s] at the start of a recording over which each replay's initial θ and θ̇ are estimated by
+#: least squares (one bootstrap segment). A rate from a few noisy or quantised samples (10 at 100 Hz)
+#: is off by a few 0.01 rad/s, which starts a free oscillation that the rod's light damping carries
+#: for seconds: a validation "gap" several times the noise on an effect-free plant.
+INITIAL_STATE_WINDOW = 1.0
+#: Fewest samples of that window for the estimate; a shorter recording keeps the smoothed start.
+INITIAL_STATE_MIN_SAMPLES = 20
+#: Largest correction of the smoothed start, in its standard deviations under the θ noise.
+INITIAL_STATE_BOUND = 3.0
+#: Perturbations of θ [rad] and θ̇ [rad/s] of the finite-difference sensitivities of that estimate.
+INITIAL_STATE_STEPS = (1e-4, 1e-3)
 #: Absolute finite-difference step of the fits' Jacobian, in optimiser units (log parameters:
 #: 0.1 % of the value; linear ones: 0.1 % of the search range).
 FD_STEP = 1e-3
@@ -202,6 +214,7 @@ class Prepared:
     y: dict[str, np.ndarray]
     scale: dict[str, float]
     _replays: RigReplays | None = field(default=None, repr=False, compare=False)
+    _head: RigReplays | None = field(default=None, repr=False, compare=False)
 
     @property
     def n(self) -> int:
@@ -213,6 +226,25 @@ class Prepared:
         if self._replays is None:
             self._replays = RigReplays(self.duty, self.dt, tau_before=float(self.duty[0]))
         return self._replays
+
+    @functools.cached_property
+    def initial_sd(self) -> np.ndarray:
+        """Standard deviations (2,) of the smoothed start's θ [rad] (one sample) and θ̇ [rad/s]
+        (:func:`initial_rate`'s polynomial slope) under the θ channel's noise (:func:`_noise_var`)."""
+        sigma = math.sqrt(_noise_var(self.y["theta"]))
+        return sigma * np.array([1.0, math.sqrt(rate_variance_factor(self.dt, self.n))])
+
+    @property
+    def head(self) -> RigReplays | None:
+        """Batched replays of the first :data:`INITIAL_STATE_WINDOW` seconds, on which a replay's
+        initial θ, θ̇ are estimated (:func:`_refine_initial_states`); None for a recording too short
+        for it."""
+        k = min(self.n, round(INITIAL_STATE_WINDOW / self.dt))
+        if k < INITIAL_STATE_MIN_SAMPLES:
+            return None
+        if self._head is None:
+            self._head = RigReplays(self.duty[:k], self.dt, tau_before=float(self.duty[0]))
+        return self._head
 
 
 def prepare(recordings: Sequence[Recording], channels: frozenset[str]) -> list[Prepared]:
@@ -232,12 +264,23 @@ def _sim_rig(rig: Rig) -> Rig:
     return rig
 
 
+def _rate_design(dt: float, n: int, window: float) -> np.ndarray:
+    """Design matrix (k, order + 1) of :func:`initial_rate`'s polynomial (highest power first)."""
+    k = int(min(max(round(window / dt), 8), n))
+    return np.vander(np.arange(k) * dt, 4 if k >= 8 else 2)
+
+
 def initial_rate(theta: np.ndarray, dt: float, window: float = 0.1) -> float:
     """θ̇ at the first sample [rad/s] from a cubic least-squares fit over ``window`` seconds."""
-    k = int(min(max(round(window / dt), 8), theta.size))
-    tt = np.arange(k) * dt
-    coef = np.polyfit(tt, theta[:k], 3 if k >= 8 else 1)
+    x = _rate_design(dt, theta.size, window)
+    coef, *_ = np.linalg.lstsq(x, theta[: x.shape[0]], rcond=None)
     return float(coef[-2])
+
+
+def rate_variance_factor(dt: float, n: int, window: float = 0.1) -> float:
+    """Variance [1/s²] of :func:`initial_rate` per unit variance of white noise on θ."""
+    x = _rate_design(dt, n, window)
+    return float(np.linalg.inv(x.T @ x)[-2, -2])
 
 
 def initial_value(y: np.ndarray, dt: float, window: float = INITIAL_WINDOW) -> float:
@@ -269,9 +312,11 @@ def _initial_state(sim_rig: Rig, meas: MeasurementMap, prep: Prepared) -> np.nda
 def replay(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarray]:
     """Free-run replay of a recording: simulated channels in the recording's frame.
 
-    The model starts at the recorded angle (through the inverse measurement map) and a smoothed
-    initial rate; the armature current and rotor speed start at their recorded values when those
-    channels are recorded (a stretch cut from a longer run may begin mid-transient), otherwise at
+    The model starts at the angle and rate that best replay the recording's first
+    :data:`INITIAL_STATE_WINDOW` (:func:`_refine_initial_states`, from the recorded angle through the
+    inverse measurement map and a smoothed rate); the armature current and rotor speed start at
+    their recorded values when those channels are recorded (a stretch cut from a longer run may
+    begin mid-transient), otherwise at
     the steady state of the first duty cycle; the actuator lag state at the first duty cycle. The
     model is then driven by the recorded duty cycle only. One row of :func:`replay_many` (the
     diagnosis' sub-steps, so that every figure of a diagnosis comes from the same replays);
@@ -299,10 +344,9 @@ def replay_reference(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str
     GapError
         If the simulation fails for this rig.
     """
-    sim_rig = _sim_rig(rig)
     try:
-        x0 = _initial_state(sim_rig, meas, prep)
-        traj = simulate(sim_rig, prep.duty, x0=x0, dt=prep.dt, tau_before=float(prep.duty[0]))
+        (sim_rig,), x0 = _initial_states([(rig, meas)], prep)
+        traj = simulate(sim_rig, prep.duty, x0=x0[0], dt=prep.dt, tau_before=float(prep.duty[0]))
     except (SimulationError, ModelError, IdentificationError, ValueError) as exc:
         raise GapError(
             f"replay of {prep.rec.source or 'a recording'} with rig {rig.name!r} failed: {exc}") from exc
@@ -311,6 +355,72 @@ def replay_reference(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str
         if c in prep.y:
             out[c] = traj.true[c]
     out["_x"] = traj.x
+    return out
+
+
+def _initial_states(rows: Sequence[tuple[Rig, MeasurementMap]], prep: Prepared
+                    ) -> tuple[list[Rig], np.ndarray]:
+    """The replay rigs (noise-free) and initial states (B, 5) of ``rows`` on ``prep``: the start of
+    :func:`_initial_state`, its θ and θ̇ then estimated by :func:`_refine_initial_states`; a row whose
+    start fails is NaN."""
+    rigs, x0 = [], np.zeros((len(rows), 5))
+    for b, (rig, meas) in enumerate(rows):
+        sim_rig = _sim_rig(rig)
+        rigs.append(sim_rig)
+        try:
+            x0[b] = _initial_state(sim_rig, meas, prep)
+        except (ModelError, IdentificationError, ValueError):
+            x0[b] = np.nan
+    return rigs, _refine_initial_states(rigs, [m for _, m in rows], x0, prep)
+
+
+def _refine_initial_states(rigs: Sequence[Rig], metas: Sequence[MeasurementMap], x0: np.ndarray,
+                           prep: Prepared) -> np.ndarray:
+    """Initial θ, θ̇ of each row estimated on the recording's first :data:`INITIAL_STATE_WINDOW`.
+
+    One Gauss-Newton step of the recorded angle's least squares over that window from the smoothed
+    start (finite-difference sensitivities, :data:`INITIAL_STATE_STEPS`), all rows in one batched
+    replay of the window: the output-error comparison with estimated initial conditions (Ljung,
+    *System Identification*, 2nd ed., §7.3). The correction stays within
+    :data:`INITIAL_STATE_BOUND` standard deviations of the smoothed start (:attr:`Prepared.initial_sd`):
+    it removes what the noise put into the start, never a model error the window would otherwise
+    show (a far-off model would take any start that shortens its first second's error). The motor
+    states keep their recorded or steady values. A row whose window replay fails keeps its start.
+
+    Parameters
+    ----------
+    rigs : sequence of Rig
+        Noise-free replay rigs, B of them.
+    metas : sequence of MeasurementMap
+        Their measurement maps (recorded θ = map of model θ).
+    x0 : ndarray, shape (B, 5)
+        Starting states (NaN rows are left alone).
+    prep : Prepared
+        The recording.
+
+    Returns
+    -------
+    ndarray, shape (B, 5)
+    """
+    head = prep.head
+    if head is None or not len(rigs):
+        return x0
+    y = prep.y["theta"][: head.duty.size]
+    bound = INITIAL_STATE_BOUND * prep.initial_sd
+    trial = np.repeat(x0, 3, axis=0)
+    trial[1::3, 0] += INITIAL_STATE_STEPS[0]
+    trial[2::3, 1] += INITIAL_STATE_STEPS[1]
+    sim, ok = head.run([r for r in rigs for _ in range(3)], trial, ("theta",))
+    out = x0.copy()
+    for b, meas in enumerate(metas):
+        if not ok[3 * b: 3 * b + 3].all():
+            continue
+        th = meas.to_recorded(sim["theta"][3 * b: 3 * b + 3])
+        jac = np.stack([(th[1] - th[0]) / INITIAL_STATE_STEPS[0], (th[2] - th[0]) / INITIAL_STATE_STEPS[1]],
+                       axis=1)
+        delta, *_ = np.linalg.lstsq(jac, y - th[0], rcond=None)
+        if np.all(np.isfinite(delta)):
+            out[b, :2] += np.clip(delta, -bound, bound)
     return out
 
 
@@ -324,14 +434,7 @@ def replay_many(rows: Sequence[tuple[Rig, MeasurementMap]], prep: Prepared,
     A row whose initial state or replay fails is None.
     """
     names = tuple(prep.y) if channels is None else tuple(channels)
-    rigs, x0 = [], np.zeros((len(rows), 5))
-    for b, (rig, meas) in enumerate(rows):
-        sim_rig = _sim_rig(rig)
-        rigs.append(sim_rig)
-        try:
-            x0[b] = _initial_state(sim_rig, meas, prep)
-        except (ModelError, IdentificationError, ValueError):
-            x0[b] = np.nan
+    rigs, x0 = _initial_states(rows, prep)
     sim, ok = prep.replays.run(rigs, x0, names)
     out: list[dict[str, np.ndarray] | None] = []
     for b, (_rig, meas) in enumerate(rows):
