@@ -10,8 +10,8 @@ the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-ou
    which catalog effects are identifiable (:func:`aeropend_ident.gap.effects.identifiable`).
    Noise part of every channel (:func:`_noise_var`: white-noise estimate, at least the
    quantisation floor). When the validation part shows no gap above noise but the fit part does
-   (the validation stretch never reaches, say, an end stop), the effects are ranked on the fit
-   part and the report says so.
+   after each recording's first second (the stretch never reaches, say, an end stop), the
+   effects are ranked on the fit part and the report says so.
 2. **Screening by discrepancy SINDy under group sparsity** (:func:`screen`): for each state
    equation that the recorded channels support (θ̈ always; di_a/dt, dω₁/dt and the algebraic
    v_a map when i_a, ω₁, v_a are recorded) the residual of the nominal model,
