@@ -160,10 +160,10 @@ def test_shipped_rigs_simulate_as_before_the_registry():
     LSODA backend (the reference's); one deliberate change: with a quasi-static armature the
     state's i_a column is the algebraic current at each sample since issue 37 (it held the current
     at the start of each stretch of constant input), so there it is checked against the i_a
-    channel. A second one (issue 35, the amplifier family): a quasi-static current channel is the current at the
-    instant, before a command arriving there acts (the limit of the dynamic current,
-    test_model.py); so on those rigs the i_a channel and column are left out and everything else
-    is compared with the reference."""
+    channel. A second one (issue 35, the amplifier family): a quasi-static current channel is the
+    current at the instant, before a command arriving there acts (the limit of the dynamic
+    current, test_model.py); so on those rigs the i_a channel and column are left out and
+    everything else is compared with the reference."""
     from tools.legacy_sim_reference import all_on, reference
 
     ref = np.load(REFERENCE)
