@@ -216,7 +216,7 @@ def simulate(
     Trajectory
         N samples at t_k = k·dt; sample k is the state before τ_k acts. Without an actuator lag
         the state's τ_f is the command the actuator sees at t_k; with a quasi-static armature its
-        i_a is the algebraic current there.
+        i_a is the algebraic current of the command held until t_k (before τ_k acts).
 
     Raises
     ------
