@@ -174,7 +174,8 @@ def test_shipped_rigs_simulate_as_before_the_registry():
         name, variant, what = k.split("/")
         rig = load_rig(name) if variant == "as_shipped" else all_on(load_rig(name))
         want, have = ref[k], got[k]
-        quasi_static = PlantModel(rig).assembly.armature and not PlantModel(rig).dynamic_current
+        model = PlantModel(rig)
+        quasi_static = model.assembly.armature and not model.dynamic_current
         if what == "i_a" and quasi_static:
             continue
         if what == "x" and quasi_static:

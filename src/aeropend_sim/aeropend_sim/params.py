@@ -569,10 +569,11 @@ def rig_to_dict(rig: Rig) -> dict[str, Any]:
             out[section] = node
     fam = registry.family(rig.family)
     switches = {}
+    values = rig.values()
     for eff in registry.effects():
         if eff.applies_to(fam) is None:
             value = getattr(rig.effects, eff.name)
-            implied, _ = _default_switch(eff, written, False, rig.values(), rig.sample_period)
+            implied, _ = _default_switch(eff, written, False, values, rig.sample_period)
             if value != implied:
                 switches[eff.name] = value
     out["effects"] = switches

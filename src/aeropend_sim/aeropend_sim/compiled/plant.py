@@ -34,7 +34,7 @@ from aeropend_sim.compiled.source import Layout, family_module, layout
 from aeropend_sim.components import registry
 from aeropend_sim.components.assembly import effect_active
 from aeropend_sim.components.base import Effect
-from aeropend_sim.model import THETA, THETA_DOT, ModelError, PlantModel
+from aeropend_sim.model import I_A, THETA, THETA_DOT, ModelError, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 
 #: Fewest RK4 sub-steps per sample (issue 37 study: K = 6 at the thesis rig's 2.048 ms keeps θ
@@ -334,11 +334,13 @@ class CompiledPlant:
 
 
 def _codes(model: PlantModel) -> dict[str, int]:
-    """Channel name -> output code of the family (kernels' CODE_* constants)."""
+    """Channel name -> output code of the family (kernels' CODE_* constants). A dynamic armature
+    current is its state, read directly; only a quasi-static one is the derived CODE_I_A (computed
+    from the command held before the instant, :func:`aeropend_sim.compiled.kernels.outputs`)."""
     codes = {"theta": 0, "theta_dot": 1, "omega_rotor": 3, "tau_f": 4, "omega_prop": 7, "thrust": 8,
              model.assembly.drive_name: 5}
     if model.assembly.armature:
-        codes["i_a"] = 6
+        codes["i_a"] = I_A if model.dynamic_current else 6
     return codes
 
 
