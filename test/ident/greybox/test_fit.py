@@ -102,6 +102,27 @@ def test_motor_equilibrium_is_a_steady_state():
                 assert w > 0.0
 
 
+def test_motor_equilibrium_reads_no_rod_or_sensor_parameter():
+    """The cache key of motor_equilibrium leaves out ROD_SECTIONS: no term of the motor chain it
+    evaluates may read a parameter there, in any family, and a cached result equals a fresh one."""
+    from aeropend_ident.greybox import fit as fit_module
+    from aeropend_sim.components import registry
+
+    slots = {"duty", "drive", "armature", "rotor_torque", "rotor_response"}
+    for fam in registry.families():
+        keys = {k.partition(".")[2]: k for k in registry.family_params(fam.name)}
+        for part in (*registry.family_parts(fam.name), *registry.family_effects(fam.name)):
+            for term in part.terms:
+                if term.slot in slots:
+                    rod = [keys[n] for n in term.param_names if keys[n].startswith(fit_module.ROD_SECTIONS)]
+                    assert not rod, (fam.name, part.name, rod)
+    heavier = RIG.with_params("pendulum", mgd_over_J=2.0 * RIG.pendulum.mgd_over_J)
+    first = motor_equilibrium(RIG, 0.6)
+    fit_module._equilibria.clear()
+    assert motor_equilibrium(heavier, 0.6) == first  # computed afresh for the other rod
+    assert motor_equilibrium(RIG.with_params("motor", R_a=2.0 * RIG.motor.R_a), 0.6)[0] != first[0]
+
+
 def test_initial_velocity_of_a_parabola_is_exact():
     t = np.arange(10) * 0.02
     theta = 0.3 + 1.7 * t - 4.0 * t**2

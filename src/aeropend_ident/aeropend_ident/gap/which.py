@@ -109,6 +109,7 @@ from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.overlay_axes import diverges
 from aeropend_ident.sindy.core import weak_matrices
 from aeropend_ident.sindy.model import IdentData
+from aeropend_sim.components import registry
 from aeropend_sim.model import ModelError, PlantModel
 from aeropend_sim.params import Rig, rig_to_dict
 from aeropend_sim.recording import Recording
@@ -902,8 +903,16 @@ def _savgol(y: np.ndarray, dt: float, deriv: int) -> np.ndarray:
     return savgol_filter(y, w, 3, deriv=deriv, delta=dt, mode="interp")
 
 
+def motor_channels(rig: Rig) -> tuple[str, ...]:
+    """Channels of a replay that give the motor chain's states (i_a when the family has an
+    armature, ω₁, τ_f): what :func:`hybrid_rhs` takes from a simulation."""
+    armature = "armature" not in registry.family(rig.family).lacks
+    return (*(("i_a",) if armature else ()), "omega_rotor", "tau_f")
+
+
 def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.ndarray,
-               equations: Sequence[str], step: int = 1) -> dict[str, np.ndarray]:
+               equations: Sequence[str], step: int = 1,
+               sim: Mapping[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
     """Model right-hand side on the recorded states, in the recording's frame.
 
     θ and θ̇ come from the recording (through the inverse measurement map); i_a and ω₁ from the
@@ -911,19 +920,33 @@ def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.nda
     (the motor chain does not depend on θ); τ_f and the delayed input from that simulation.
 
     ``step`` evaluates every ``step``-th sample only (the simulation still runs at full rate).
+    ``sim`` is that simulation when the caller has replayed it already (the :func:`motor_channels`
+    of a :func:`replay_many` row, so that many rigs are simulated in one batch); by default the
+    rig is replayed here the same way.
 
     Returns
     -------
     dict
         ``equation -> (ceil(N/step),)``: ``"theta_dot"`` θ̈_recorded [rad/s²], ``"i_a"`` [A/s],
         ``"omega_rotor"`` [rad/s²], ``"v_a"`` [V].
+
+    Raises
+    ------
+    GapError
+        If the replay fails.
     """
     model = PlantModel(_sim_rig(rig))
-    sim = replay_reference(rig, meas, prep)
-    x = np.array(sim["_x"], dtype=float)
+    if sim is None:
+        sim = replay_many([(rig, meas)], prep, motor_channels(rig))[0]
+        if sim is None:
+            raise GapError(f"replay of {prep.rec.source or 'a recording'} with rig {rig.name!r} failed")
+    x = np.zeros((prep.n, 5))
     s = meas.theta_scale
     x[:, 0] = meas.to_model(prep.y["theta"])
     x[:, 1] = theta_dot / s
+    x[:, 2] = sim.get("i_a", 0.0)
+    x[:, 3] = sim["omega_rotor"]
+    x[:, 4] = sim["tau_f"]
     if "i_a" in prep.y and model.dynamic_current:
         x[:, 2] = prep.y["i_a"]
     if "omega_rotor" in prep.y:
@@ -942,6 +965,21 @@ def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.nda
     if "v_a" in need:
         tau = x[:, 4] if model.lag else u
         out["v_a"] = np.array([model.armature_voltage(float(tk)) for tk in tau])
+    return out
+
+
+def _probe_rigs(rig: Rig, meas: MeasurementMap, effs: Sequence[Effect],
+                ranges: Mapping[str, Mapping[str, Any]]) -> list[tuple[Rig, MeasurementMap] | None]:
+    """The screening's probe of each effect parameter, in order: the rig with that parameter at its
+    probe value and the effect's others off, or None where the effect cannot be applied so."""
+    out: list[tuple[Rig, MeasurementMap] | None] = []
+    for e in effs:
+        for prm in e.parameters:
+            vals = {k: (r.probe if k == prm.name else r.off) for k, r in ranges[e.name].items()}
+            try:
+                out.append(apply_effects(rig, {e.name: vals}, meas))
+            except GapError:
+                out.append(None)
     return out
 
 
@@ -1103,14 +1141,16 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
         nominal = hybrid_rhs(rig, base_meas, p, thd, eqs, dec)
         cols: dict[str, list[np.ndarray]] = {q: [] for q in eqs}
         grp: list[int] = []
+        probes = _probe_rigs(rig, base_meas, effs, ranges)
+        sims = iter(replay_many([r for r in probes if r is not None], p, motor_channels(rig)))
+        probe_of = iter(probes)
         for gi, e in enumerate(effs):
             for prm in e.parameters:
-                vals = {k: (r.probe if k == prm.name else r.off) for k, r in ranges[e.name].items()}
-                try:
-                    r2, m2 = apply_effects(rig, {e.name: vals}, base_meas)
-                    alt = hybrid_rhs(r2, m2, p, thd, eqs, dec)
-                except GapError:
-                    alt = {q: nominal[q] for q in eqs}
+                probe = next(probe_of)
+                sim = next(sims) if probe is not None else None
+                alt = {q: nominal[q] for q in eqs}
+                if sim is not None:
+                    alt = hybrid_rhs(*probe, p, thd, eqs, dec, sim=sim)
                 for q in eqs:
                     cols[q].append(alt[q] - nominal[q])
                 grp.append(gi)

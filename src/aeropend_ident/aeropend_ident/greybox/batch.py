@@ -21,12 +21,18 @@ refuses is replayed on a plant of its own. Row b equals ``simulate(rigs[b], duty
 backend="compiled")`` at the same sub-step count bit for bit.
 
 **Sub-steps of fit replays.** :func:`fit_substeps`: RK4 sub-steps no longer than
-:data:`FIT_MAX_SUBSTEP` (2 per 2.048 ms sample; a 100 Hz log gets 10), and more where the plant's
-stiffness needs them (the compiled plant's |h·λ| ≤ 0.5 bound), instead of the reference
-simulator's 6 per sample. On the thesis rig with every effect on this keeps θ within 4e-6 rad of
-the LSODA reference over 60 s (docs/findings/simulator_backends.md, K = 2 column), two orders of
-magnitude below the noise of any recorded angle, at a third of the cost; reports replay the
-fitted rig with :func:`aeropend_sim.simulation.simulate` (docs/model.md, "Simulation backends").
+:data:`FIT_MAX_SUBSTEP` (1 per 2.048 ms sample; a 100 Hz log gets 5), and more where the plant's
+stiffness needs them, |h·λ| ≤ :data:`FIT_STEP_BOUND` = 2 for the eigenvalues λ of the plant's
+Jacobian at its representative states (the compiled plant's bound; RK4 is stable to 2.785 on the
+negative real axis), instead of the reference simulator's 6 per sample and |h·λ| ≤ 0.5. A mode
+that fast (an armature with L_a/R_a of a few tenths of a sample, a regularised dry friction's
+slope at rest) settles within a sample; a fit sees its slow manifold, which the stable sub-steps
+keep, not its transient. On the thesis rig with every effect on this keeps θ within 2e-5 rad of
+the LSODA reference over 60 s (docs/findings/simulator_backends.md, K = 1 column), and within
+1e-5 rad with a dry friction up to (T_c/J)/v_ε = 6000 s⁻¹ that holds the rod most of the time
+(test_batch.py), over an order of magnitude below the noise of any recorded angle, with a sixth of
+the reference's sub-steps; reports replay the fitted rig with
+:func:`aeropend_sim.simulation.simulate` (docs/model.md, "Simulation backends").
 
 Exact Jacobians are not available: numba compiles the replay, it does not differentiate it;
 the fits use finite differences through the batch.
@@ -50,10 +56,12 @@ from aeropend_sim.compiled.plant import MAX_SUBSTEPS, CompiledPlant
 from aeropend_sim.model import ModelError
 from aeropend_sim.params import Rig, RigFileError
 
-#: Longest RK4 sub-step [s] of a fit replay (module doc): 2 sub-steps per 2.048 ms sample.
-FIT_MAX_SUBSTEP = 2.048e-3 / 2
+#: Longest RK4 sub-step [s] of a fit replay (module doc): 1 sub-step per 2.048 ms sample.
+FIT_MAX_SUBSTEP = 2.048e-3
 #: Fewest RK4 sub-steps per sample of a fit replay.
-FIT_MIN_SUBSTEPS = 2
+FIT_MIN_SUBSTEPS = 1
+#: Largest |h·λ| of a fit replay's sub-step (module doc).
+FIT_STEP_BOUND = 2.0
 #: Environment variable: threads one batch is shared out to (default one per available core; a
 #: pool or cluster worker running one case per core sets 1, :mod:`aeropend_ident.parallel`).
 THREADS_ENV = "AEROPEND_REPLAY_THREADS"
@@ -138,7 +146,7 @@ class RigReplays:
         """The compiled plant of ``rig``'s structure (built on first use) and its base values."""
         key = structure(rig)
         if key not in self._plants:
-            plant = CompiledPlant(rig, self.dt, substeps=self.substeps)
+            plant = CompiledPlant(rig, self.dt, substeps=self.substeps, step_bound=FIT_STEP_BOUND)
             self._plants[key] = (plant, rig.values())
         return self._plants[key]
 
@@ -196,7 +204,7 @@ class RigReplays:
             p = self._vectors(plant, base, [rig])
         except (RigFileError, ModelError, ValueError):
             try:
-                plant = CompiledPlant(rig, self.dt, substeps=self.substeps)
+                plant = CompiledPlant(rig, self.dt, substeps=self.substeps, step_bound=FIT_STEP_BOUND)
             except (RigFileError, ModelError, ValueError):
                 return
             p = plant.p[None, :]

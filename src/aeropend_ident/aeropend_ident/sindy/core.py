@@ -40,6 +40,7 @@ a message naming it (e.g. the current equation when i_a was not recorded).
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 import warnings
@@ -236,7 +237,9 @@ def weak_matrices(data: IdentData, columns: np.ndarray, targets: Sequence[str], 
             f"zero-order-hold columns need columns_next of shape {cols_a.shape}, "
             f"got {None if columns_next is None else np.shape(columns_next)}"
         )
-    setup = _setup if _setup is not None else _WeakSetup(t, K, p, H_xt, seed)
+    if _setup is None:
+        _setup = _weak_setup(np.asarray(t, dtype=float).tobytes(), K, p, H_xt, seed)
+    setup = _setup
     lib = setup.lib
     cols = AxesArray(cols_a, {"ax_time": 0, "ax_coord": 1})
     x = np.column_stack([data.variables[tg] for tg in targets])
@@ -283,6 +286,14 @@ class _WeakSetup:
                 out.append((idx, *_zoh_weights(self.lib, self.t[idx], self.p)))
             self._zoh = out
         return self._zoh
+
+
+@functools.lru_cache(maxsize=8)
+def _weak_setup(t_bytes: bytes, K: int, p: int, H_xt: float | None, seed: int) -> _WeakSetup:
+    """The :class:`_WeakSetup` of a time grid (given as its float64 bytes), kept for the next call on
+    the same grid: the gap's screening builds the weak form of every equation of a recording on one
+    grid, and its second-effect screening again."""
+    return _WeakSetup(np.frombuffer(t_bytes, dtype=float).copy(), K, p, H_xt, seed)
 
 
 def _zoh_weights(lib: ps.WeakPDELibrary, tk: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:

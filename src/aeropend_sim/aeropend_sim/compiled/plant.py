@@ -46,6 +46,8 @@ MAX_SUBSTEP = 2.048e-3 / SUBSTEPS
 #: Largest |h·λ| of a sub-step (RK4 is stable to 2.78 on the negative real axis; 0.5 keeps the
 #: fast modes themselves accurate to 4e-4 per sub-step).
 STEP_BOUND = 0.5
+#: RK4's stability bound on the negative real axis (|R(z)| = 1 at z ≈ −2.785).
+RK4_STABILITY = 2.785
 #: Most sub-steps per sample; a plant that would need more is refused by the replay's caller.
 MAX_SUBSTEPS = 4096
 #: Angles [rad] of the equilibria among the representative states of the stiffness estimate.
@@ -106,6 +108,15 @@ class CompiledPlant:
         within :data:`MAX_SUBSTEP`); the stiffness bound may add more (module doc).
     model : PlantModel, optional
         The rig's model, if the caller has built it already.
+    step_bound : float
+        Largest |h·λ| of a sub-step (default :data:`STEP_BOUND`; a fit that needs only the slow
+        manifold of modes faster than a sample may loosen it up to :data:`RK4_STABILITY`).
+
+    Raises
+    ------
+    ValueError
+        A sample period that is not a finite number > 0, a sub-step count outside
+        [1, :data:`MAX_SUBSTEPS`] or a step bound outside (0, :data:`RK4_STABILITY`].
 
     Attributes
     ----------
@@ -122,7 +133,7 @@ class CompiledPlant:
     """
 
     def __init__(self, rig: Rig, dt: float | None = None, substeps: int | None = None,
-                 model: PlantModel | None = None) -> None:
+                 model: PlantModel | None = None, step_bound: float = STEP_BOUND) -> None:
         self.rig = rig
         self.dt = float(rig.sample_period if dt is None else dt)
         if not (self.dt > 0.0 and math.isfinite(self.dt)):
@@ -133,6 +144,10 @@ class CompiledPlant:
             raise ValueError(f"substeps = {substeps!r}: expected an integer in [1, {MAX_SUBSTEPS}]")
         self.model = PlantModel(rig) if model is None else model
         self.min_substeps = int(substeps)
+        if not 0.0 < step_bound <= RK4_STABILITY:
+            raise ValueError(f"step_bound = {step_bound!r}: expected a number in (0, {RK4_STABILITY}] "
+                             "(RK4's stability bound on the negative real axis)")
+        self.step_bound = float(step_bound)
         self.layout: Layout = layout(rig.family)
         self.module = family_module(rig.family)
         self.p = self.layout.vector(self.model.assembly)
@@ -233,7 +248,8 @@ class CompiledPlant:
         jac = self.module.jacobians(self._probe_x, self._probe_u, np.ascontiguousarray(p))
         rho = np.abs(np.linalg.eigvals(jac)).max(axis=(1, 2))
         rho = np.where(np.isfinite(rho), rho, 0.0)  # a non-finite plant fails in the replay, by name
-        k = np.clip(np.ceil(self.dt * rho / STEP_BOUND), self.min_substeps, MAX_SUBSTEPS).astype(np.int64)
+        k = np.clip(np.ceil(self.dt * rho / self.step_bound), self.min_substeps, MAX_SUBSTEPS)
+        k = k.astype(np.int64)
         n = p[:, self._delay] / self.dt
         whole = np.floor(n + 1e-9)
         frac = n - whole
