@@ -219,7 +219,9 @@ class Rig:
                 if why is not None:
                     raise RigFileError(f"effect {eff.name} cannot be on for a rig of the {self.family} "
                                        f"family: {why}")
-        values = self.values()
+        values = {key: float(getattr(getattr(self, p.section), p.name))
+                  for key, p in registry.family_params(self.family).items()}
+        object.__setattr__(self, "_values", values)  # the rig is immutable: read once, copied out
         on = {e.name for e in registry.effects() if e.is_on(getattr(self.effects, e.name))}
         for key, p in registry.family_params(self.family).items():
             owner = registry.owners()[key]
@@ -248,9 +250,8 @@ class Rig:
         return float(getattr(getattr(self, section), name))
 
     def values(self) -> dict[str, float]:
-        """Every parameter of the rig, ``{"section.name": value}``."""
-        return {key: float(getattr(getattr(self, p.section), p.name))
-                for key, p in registry.family_params(self.family).items()}
+        """Every parameter of the rig, ``{"section.name": value}`` (a new dict on every call)."""
+        return dict(self._values)
 
     def status(self, key: str) -> str:
         """Provenance of a parameter: ``stated``, ``derived``, ``not modelled``, ``default``,

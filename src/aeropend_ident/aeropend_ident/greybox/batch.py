@@ -110,7 +110,8 @@ def replay_threads() -> int | None:
 
 def structure(rig: Rig) -> tuple:
     """What a compiled plant is built for: the actuator family and every effect switch."""
-    return (rig.family, dataclasses.astuple(rig.effects))
+    eff = rig.effects
+    return (rig.family, tuple(getattr(eff, f.name) for f in dataclasses.fields(eff)))
 
 
 def _same(a: float, b: float) -> bool:

@@ -77,7 +77,7 @@ import numpy as np
 from scipy.optimize import brentq, least_squares
 
 from aeropend_ident.errors import IdentificationError, RecordingInputError
-from aeropend_ident.greybox.batch import RigReplays, single_blas
+from aeropend_ident.greybox.batch import RigReplays, single_blas, structure
 from aeropend_ident.io.recording_input import grid_step, uniform_recording
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect
@@ -649,7 +649,7 @@ def motor_equilibrium(rig: Rig, duty: float) -> tuple[float, float, float]:
     state, so results are cached on the family, the effect switches, the duty cycle and the values
     outside :data:`ROD_SECTIONS` (a value that is NaN never matches: it is recomputed).
     """
-    key = (rig.family, dataclasses.astuple(rig.effects), float(duty),
+    key = (*structure(rig), float(duty),
            tuple((k, v) for k, v in rig.values().items() if not k.startswith(ROD_SECTIONS)))
     hit = _equilibria.get(key)
     if hit is None:
