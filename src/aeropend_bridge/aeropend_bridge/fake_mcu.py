@@ -82,6 +82,9 @@ class FakeMcu:
         self.duty_ocr = 0
         self.enabled = True  # the firmware's output is enabled at reset
         self.watchdog_trips = 0
+        #: time.monotonic() of each watchdog trip (a trip after the host's last command is the
+        #: firmware doing its job once the host has gone)
+        self.trip_times: list[float] = []
         self.done = threading.Event()
         self._master: int | None = None
         self._slave: int | None = None
@@ -219,6 +222,7 @@ class FakeMcu:
         if time.monotonic() - self._last_cmd > FIRMWARE_WATCHDOG_S and not self._wd:
             self._wd = True
             self.watchdog_trips += 1
+            self.trip_times.append(time.monotonic())
             self.duty_ocr = 0
 
     def _run(self) -> None:

@@ -284,8 +284,13 @@ def test_live_effects_and_noise_continue_the_running_plant(domain):
 def test_lockstep_sample_zero_waits_for_every_named_subscriber(domain):
     # a subscriber matched after sample 0 would miss the samples before it (volatile QoS): the
     # main job names both consumers (excitation, recorder) and the run starts only once both match
+    # the 2 s with one subscriber start once the plant is up (its sample publisher discovered): on
+    # a slow machine the node took over 2 s to start, the second subscriber was there before it
+    # waited at all, and the log this test reads was never written
     with plant(domain, "mode:=lockstep", "min_subscribers:=2") as proc, \
             client(domain, lockstep=True) as first:
+        assert first.spin_until(lambda: first.node.count_publishers(TOPIC_JOINT_STATES) > 0, 60.0), \
+            "the plant never came up"
         first.spin_for(2.0)
         assert first.js == [], "sample 0 published with 1 of 2 subscribers matched"
         with client(domain, lockstep=True) as second:
