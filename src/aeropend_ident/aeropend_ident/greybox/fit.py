@@ -609,8 +609,8 @@ def uniform_data(
 
 # --------------------------------------------------------------------------- initial state
 #: Sections of a rig's values that cannot enter the steady motor state: the rod's equation and
-#: the measurement (the motor chain's terms read none of them; test_motor_equilibrium checks this
-#: for every family). :func:`motor_equilibrium` results are cached on the other values.
+#: the measurement (the motor chain's terms read none of them, which test_fit.py checks for every
+#: family). :func:`motor_equilibrium` results are cached on the other values.
 ROD_SECTIONS = ("pendulum.", "sensors.")
 #: Entries of that cache (it is emptied when full).
 EQUILIBRIUM_CACHE_SIZE = 4096
