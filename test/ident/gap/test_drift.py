@@ -25,6 +25,7 @@ from aeropend_ident.gap.drift import (
     drift_set,
     within_session_draw,
 )
+from aeropend_ident.gap.which import INITIAL_STATE_WINDOW
 from bench.bench_gap_independent import rig_dict, to_recording
 from bench.fixtures import truth_plant as tp
 
@@ -167,9 +168,13 @@ def test_prediction_split_and_drift_table_on_a_drifting_second_session() -> None
     top = next(r for r in att["drift"]["rows"] if r["drifts"])
     assert top["effect"] == "gravity"
     assert top["change"] == pytest.approx(DRIFT - 1.0, abs=0.08)
-    # the held-out data never reach the diagnosis or the prediction: change them, and everything
-    # before the "after" section of the report stays bit-identical
-    noisy = s["held"].channels["theta"] + np.random.default_rng(1).normal(0.0, 0.05, s["held"].t.size)
+    # the held-out errors never reach the diagnosis or the prediction: change the held-out angle
+    # after its first second (the prediction replays the held-out duty from the recorded start,
+    # estimated on that second), and everything before the "after" section of the report stays
+    # bit-identical
+    start = int(np.searchsorted(s["held"].t, s["held"].t[0] + INITIAL_STATE_WINDOW))
+    noisy = s["held"].channels["theta"].copy()
+    noisy[start:] += np.random.default_rng(1).normal(0.0, 0.05, noisy.size - start)
     held2 = [to_recording(s["held"], "session2")]
     held2[0].channels["theta"] = noisy
     res2 = run_gap(rig, fit, held2, seed=0, max_effects=2, oracle=False)
@@ -239,3 +244,48 @@ def test_confounded_parameters_drift_as_their_ratio() -> None:
     ratio = next(r for r in rows if r["kind"] == "combination")
     assert ratio["drifts"] and ratio["change"] == pytest.approx(-0.2)
     assert [r["effect"] for r in rows if r["drifts"] and r["kind"] == "parameter"] == ["thrust_coefficient"]
+
+
+def test_prediction_is_over_the_held_out_recordings_range_not_the_validation_parts() -> None:
+    # An unchanged, effect-free plant. The validation part holds the rod near one angle (a range of
+    # a few hundredths of a rad); the held-out recording swings it over half a radian. The same
+    # sensor noise (σ 0.5 mrad) is an NRMSE ten times larger over the validation part's range than
+    # over the held-out's: the prediction replays the held-out duty and takes its NRMSE over that
+    # range, so "nothing moved" (the actual error here) is at the interval's lower end.
+    from aeropend_ident.gap.drift import predict_heldout
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.gap.which import gap_metrics, prepare
+    from aeropend_sim.params import rig_from_dict
+    from aeropend_sim.recording import Recording
+
+    p = tp.PlantParams()
+    plant = tp.TruthPlant(p)
+    rig = rig_from_dict(rig_dict(p, "lab_nominal"), where="test")
+    rng = np.random.default_rng(5)
+
+    def rec(duty: np.ndarray, source: str, keep: int = 0) -> Recording:
+        true = plant.simulate(duty)
+        theta = true["theta_recorded"] + 5e-4 * rng.standard_normal(duty.size)
+        return Recording(t=true["t"][keep:] - true["t"][keep], duty=true["duty"][keep:],
+                         channels={"theta": theta[keep:]}, source=source)
+
+    settle, n_val = int(10.0 / tp.DT), int(12.0 / tp.DT)
+    hold = 0.6 + 0.01 * np.sign(np.sin(np.arange(n_val) * tp.DT * 2.0 * np.pi / 3.0))  # ±0.01 around 0.6
+    val = rec(np.concatenate([np.full(settle, 0.6), hold]), "validation", keep=settle)
+    held = rec(tp.aprbs(30.0, seed=9), "held-out")
+    diag = SimpleNamespace(corrected_rig=rig, measurement=MeasurementMap(), chosen=[], ranking=[],
+                           channels=["theta"])
+    actual = gap_metrics(rig, MeasurementMap(), prepare([held], frozenset({"theta"})))["nrmse"]
+    val_scale = float(np.ptp(val.channels["theta"]))
+    held_scale = float(np.ptp(held.channels["theta"]))
+    assert held_scale > 5.0 * val_scale
+    assert actual == pytest.approx(5e-4 / held_scale, rel=0.1)  # the noise: nothing moved
+    pr = predict_heldout(rig, diag, [val], targets=[held], draws=200, seed=0)
+    lo, hi = pr["interval"]
+    # "nothing moved" is the interval's lower end (the within-session error of the validation part,
+    # over the held-out range): the actual is another recording's noise, inside or a hair below
+    assert lo == pytest.approx(actual, rel=0.03) and hi > 10.0 * actual
+    assert pr["target_scale"][0] == pytest.approx(held_scale, rel=0.05)
+    # over the validation part's own range, the same noise would have put the whole interval above
+    old = predict_heldout(rig, diag, [val], draws=200, seed=0)
+    assert old["interval"][0] > 3.0 * actual

@@ -4,14 +4,14 @@ A constant-parameter correction found on one session removes the missing physics
 not the rig changing between sessions (battery, propeller, load, bearings, sensor mount). This
 module tells them apart, for :func:`aeropend_ident.gap.run.run_gap`:
 
-**Prediction** (:func:`predict_heldout`, computed from the fit data only, before any held-out
-recording is replayed): a Monte-Carlo predictive distribution of the corrected rig's held-out θ
-NRMSE e. Each of :data:`N_DRAWS` draws takes
+**Prediction** (:func:`predict_heldout`, computed from the fit data and the held-out recordings'
+duty and start only, before any held-out error is computed): a Monte-Carlo predictive
+distribution of the corrected rig's held-out θ NRMSE e. Each of :data:`N_DRAWS` draws takes
 
 * e_in: the corrected rig's error within the session, i.e. on the validation part the effects
-  were chosen on, as a block bootstrap of its RMS error: per validation recording as many
-  :data:`BLOCK_S` s blocks as it holds, drawn with replacement, RMS over the recording's θ range
-  (a held-out NRMSE is an RMS over a whole recording, not one block's): the within-session variation;
+  were chosen on, as a block bootstrap of its RMS error in rad: per validation recording as many
+  :data:`BLOCK_S` s blocks as it holds, drawn with replacement (a held-out NRMSE is an RMS over a
+  whole recording, not one block's): the within-session variation;
 * the chosen effects' parameters from their standard errors
   (:func:`aeropend_ident.gap.which.fit_effects`): the effect-fit spread;
 * a session-to-session log change of each drift-prone parameter (:data:`DRIFT_PARAMETERS`:
@@ -21,9 +21,12 @@ NRMSE e. Each of :data:`N_DRAWS` draws takes
   standard deviation of the log change, kept), or, when the fit data hold several sessions, a
   normal change with their measured σ_p;
 
-re-simulates the drawn rig on the validation recordings and records
-e² = e_in² + (mean squared change of the replay) / range². The median of the draws is the
-prediction, their 10 % and 90 % quantiles (:data:`INTERVAL`) the 80 % interval.
+re-simulates the drawn rig on each held-out recording's duty and records
+e² = (e_in² + mean squared change of the replay) / s², s the θ range of the corrected rig's replay
+on that recording (the NRMSE is over the held-out recording's range, and a drift moves θ by what
+the duty asks of the rod, not by the validation part's range). The median of the draws is the
+prediction; the shortest interval in log e holding 80 % of them (:func:`shortest_interval`) is the
+80 % interval: it keeps the atom "nothing moved" at the distribution's lower end inside.
 
 **Attainable shrink** (:func:`attainable`, after the held-out replay): the chosen effect set,
 the chosen set plus the drift-prone parameters, and separately the best catalog set up to
@@ -63,6 +66,7 @@ from aeropend_ident.gap.effects import (
     measurement_noise,
 )
 from aeropend_ident.gap.which import (
+    INITIAL_STATE_WINDOW,
     EffectDiagnosis,
     Prepared,
     diagnose_effects,
@@ -95,8 +99,9 @@ DRIFT_PRIOR: dict[str, float] = {d.name: d.drift_sigma for d in registry.diagnos
 N_DRAWS = 300
 #: Block length of the within-session error [s].
 BLOCK_S = 5.0
-#: Quantiles of the predicted interval (80 %).
-INTERVAL = (0.10, 0.90)
+#: Probability of the predicted interval (80 %): the shortest interval in log NRMSE holding this
+#: share of the draws (:func:`shortest_interval`).
+LEVEL = 0.80
 #: An interval whose upper end exceeds this many times its lower end says why (``why_wide``).
 WIDE_RATIO = 10.0
 #: A parameter drifts when |change| > DRIFT_Z combined standard errors ...
@@ -114,6 +119,15 @@ RELATIVE_FLOOR = 1e-3
 
 def _preps(recs: Sequence[Recording], channels: Sequence[str]) -> list[Prepared]:
     return prepare(list(recs), frozenset(channels) | {"theta"})
+
+
+def _start_only(prep: Prepared) -> Prepared:
+    """A target recording as the prediction may read it: the whole duty, the measured channels
+    over the first :data:`aeropend_ident.gap.which.INITIAL_STATE_WINDOW` only (where a replay's
+    start is estimated, its noise level included); the rest of the angle, its error, stays unread."""
+    k = min(prep.n, max(round(INITIAL_STATE_WINDOW / prep.dt), 1))
+    return Prepared(rec=prep.rec, dt=prep.dt, duty=prep.duty, y={c: v[:k] for c, v in prep.y.items()},
+                    scale=prep.scale)
 
 
 def _fit_set(nominal: Rig, effects: Sequence[str], preps: Sequence[Prepared],
@@ -187,18 +201,25 @@ def _draw_effects(nominal: Rig, diag: EffectDiagnosis, vals: Mapping[str, Mappin
 
 
 def _ms_changes(rigs: Sequence[Rig], meas: MeasurementMap, preps: Sequence[Prepared],
-                base: Sequence[np.ndarray]) -> list[float | None]:
-    """Per rig: the mean over recordings of the squared θ change of its replay from the base
-    replay, over range²; None when the replay fails on any recording. One batched replay per
+                base: Sequence[np.ndarray], scales: Sequence[float]) -> list[list[float] | None]:
+    """Per rig and recording: the mean squared θ change of its replay from the base replay, over
+    that recording's scale²; None when the replay fails on any recording. One batched replay per
     recording (:func:`aeropend_ident.gap.which.replay_many`)."""
     out: list[list[float] | None] = [[] for _ in rigs]
-    for p, sim in zip(preps, base, strict=True):
+    for p, sim, s in zip(preps, base, scales, strict=True):
         for b, row in enumerate(replay_many([(r, meas) for r in rigs], p, ("theta",))):
             if row is None or out[b] is None:
                 out[b] = None
                 continue
-            out[b].append(float(np.mean((row["theta"] - sim) ** 2)) / p.scale["theta"] ** 2)
-    return [float(np.mean(v)) if v is not None else None for v in out]
+            out[b].append(float(np.mean((row["theta"] - sim) ** 2)) / s**2)
+    return out
+
+
+def _nrmse_of(e_in: float, ms: Sequence[float], scales: Sequence[float]) -> float:
+    """The held-out θ NRMSE of one draw: per target recording √(e_in²/s² + ms), e_in the
+    within-session RMS error [rad], s the recording's θ scale [rad] and ms its replay's mean squared
+    change over s²; the mean over the recordings (as the held-out NRMSE is)."""
+    return float(np.mean([math.sqrt(e_in**2 / s**2 + m) for m, s in zip(ms, scales, strict=True)]))
 
 
 def draw_log_changes(sigma: Mapping[str, float], params: Sequence[str], rng: np.random.Generator, *,
@@ -247,16 +268,46 @@ def within_session_draw(block_errors: Sequence[np.ndarray], rng: np.random.Gener
     Parameters
     ----------
     block_errors : sequence of numpy.ndarray
-        Per validation recording, the θ NRMSE of each of its blocks (shape (k_j,), k_j ≥ 1).
+        Per validation recording, the θ RMS error of each of its blocks (shape (k_j,), k_j ≥ 1;
+        in rad, or normalised: the draw has their unit).
     rng : numpy.random.Generator
 
     Returns
     -------
     float
-        e_in, θ NRMSE (dimensionless).
+        e_in, in the blocks' unit.
     """
     ms = [float(np.mean(np.square(rng.choice(b, size=b.size, replace=True)))) for b in block_errors]
     return math.sqrt(float(np.mean(ms)))
+
+
+def shortest_interval(samples: Sequence[float], level: float = LEVEL) -> tuple[float, float]:
+    """The shortest interval in log scale holding ``level`` of the draws (a highest-density interval
+    of log e).
+
+    The predictive distribution of a held-out error has an atom at "nothing moved" (the
+    within-session error, drawn whenever no drift-prone parameter changes) at its lower end and a
+    long tail of session changes above it. An equal-tailed interval (10 % / 90 % quantiles) would
+    cut its lower 10 % out of that atom and leave "nothing moved" a tail beyond the interval; the
+    shortest interval keeps the dense atom inside and gives the tail what is left. Log scale,
+    because an error is a size: 0.001 to 0.002 is as far as 0.1 to 0.2.
+
+    Parameters
+    ----------
+    samples : sequence of float
+        Draws (> 0), shape (n,), n ≥ 1.
+    level : float
+        Share of the draws the interval holds, in (0, 1].
+
+    Returns
+    -------
+    (float, float)
+        Lower and upper end (draws themselves).
+    """
+    x = np.sort(np.log(np.maximum(np.asarray(samples, dtype=float), 1e-300)))
+    k = max(1, math.ceil(level * x.size))
+    i = int(np.argmin(x[k - 1:] - x[: x.size - k + 1]))
+    return float(math.exp(x[i])), float(math.exp(x[i + k - 1]))
 
 
 def _why_wide(lo: float, hi: float, within: float, sensitivity: Mapping[str, Sequence[float]],
@@ -278,17 +329,29 @@ def _why_wide(lo: float, hi: float, within: float, sensitivity: Mapping[str, Seq
 
 
 def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Recording], *,
+                    targets: Sequence[Recording] | None = None,
                     drift_sigma: Mapping[str, float] | None = None, draws: int = N_DRAWS,
                     seed: int = 0) -> dict[str, Any]:
-    """Predicted held-out θ NRMSE of the corrected rig, from the fit data only (module docstring).
+    """Predicted held-out θ NRMSE of the corrected rig, from the fit data and the held-out duty
+    (module docstring).
 
-    A Monte-Carlo predictive distribution: each draw takes one within-session error e_in (a block
-    bootstrap of the validation recordings' RMS error, :func:`within_session_draw`),
-    the chosen effects' parameters from their standard errors, and an independent log change of
-    every drift-prone parameter from its Laplace prior (:data:`DRIFT_PRIOR` is its standard
-    deviation), replays the drawn rig on the validation recordings and records
-    e = √(e_in² + mean squared change of the replay); the median and the 10 % / 90 % quantiles of
-    the draws are the prediction and its 80 % interval.
+    A Monte-Carlo predictive distribution: each draw takes one within-session error e_in [rad] (a
+    block bootstrap of the corrected rig's RMS error on the validation recordings,
+    :func:`within_session_draw`), the chosen effects' parameters from their standard errors, and a
+    log change of every drift-prone parameter from the drift prior (:func:`draw_log_changes`;
+    :data:`DRIFT_PRIOR` is its standard deviation), replays the drawn rig on each target recording's
+    duty and records, per target, e = √(e_in²/s² + mean squared change of the replay / s²), s the
+    θ range of the corrected rig's replay there; the mean over the targets is the draw's NRMSE. The
+    median of the draws is the prediction, the shortest interval in log NRMSE that holds 80 % of
+    them (:func:`shortest_interval`) its 80 % interval.
+
+    Why the target's duty and not the validation's: the held-out NRMSE is over the held-out
+    recording's own range, and what a drift does to θ depends on where the recording takes the rod,
+    not on its range (a K_q change moves the hanging angle at each duty by a fixed amount). A
+    validation part that holds a set point spans a tenth of the held-out range, and its NRMSEs,
+    noise included, would be ten times a held-out one. From a target only its duty and its start
+    are read: its channels over the first :data:`aeropend_ident.gap.which.INITIAL_STATE_WINDOW`
+    (1 s), where every free-run replay's start is estimated (:func:`_start_only`), never its error.
 
     Parameters
     ----------
@@ -297,25 +360,31 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     diag : EffectDiagnosis
         The diagnosis (corrected rig, measurement map, chosen effects with standard errors).
     validation : sequence of Recording
-        The diagnosis' validation recordings (model frame), never held-out ones.
+        The diagnosis' validation recordings (model frame): the within-session error.
+    targets : sequence of Recording, optional
+        The recordings whose θ NRMSE is predicted (model frame; the held-out ones); default
+        ``validation``.
     drift_sigma : mapping, optional
         Standard deviation of the log change per drift-prone parameter; default
         :data:`DRIFT_PRIOR`.
     draws : int
-        Monte-Carlo draws (one replay per validation recording each).
+        Monte-Carlo draws (one replay per target recording each).
     seed : int
         Random seed.
+
     Returns
     -------
     dict
         ``predicted`` (median), ``interval`` [lo, hi] (80 %), ``level`` 0.8, ``within_session``
-        (RMS of the block errors) and ``blocks`` (their values), ``why_wide`` (why an interval
-        spans more than :data:`WIDE_RATIO`, else ''), ``drift_part`` (median RMS change
-        of the drawn replays: drift and effect-fit spread), ``drift_sigma`` used, ``drift_prior``
-        ("occurrence" or "normal", :func:`draw_log_changes`) and its ``drift_source`` ("prior" /
-        "sessions"), ``sensitivity`` (per
-        drift-prone parameter: the θ NRMSE change of the corrected rig's replay for that parameter
-        alone changed by −σ and +σ), ``noise_floor``, ``draws`` (those whose replays succeeded).
+        (RMS of the validation blocks' errors over the targets' θ scale) and ``blocks`` (each
+        block's RMS error [rad]), ``target_scale`` (per target, the θ range of the corrected rig's
+        replay [rad]), ``why_wide`` (why an interval spans more than :data:`WIDE_RATIO`, else ''),
+        ``drift_part`` (median RMS change of the drawn replays: drift and effect-fit spread),
+        ``drift_sigma`` used, ``drift_prior`` ("occurrence" or "normal", :func:`draw_log_changes`)
+        and its ``drift_source`` ("prior" / "sessions"), ``sensitivity`` (per drift-prone parameter:
+        the θ NRMSE change of the corrected rig's replay for that parameter alone changed by −σ and
+        +σ), ``noise_floor`` (θ noise σ̂ of the validation recordings over the targets' scale),
+        ``draws`` (those whose replays succeeded).
 
     Raises
     ------
@@ -323,30 +392,36 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         If a replay fails for the corrected rig, or for every draw.
     """
     sigma = dict(DRIFT_PRIOR if drift_sigma is None else drift_sigma)
-    preps = _preps(validation, diag.channels or ("theta",))
+    channels = diag.channels or ("theta",)
+    preps = _preps(validation, channels)
+    tpreps = preps if targets is None else [_start_only(p) for p in _preps(targets, channels)]
     rng = np.random.default_rng(seed)
-    base = []
-    for p in preps:  # on the draws' sub-steps, so that a draw that changes nothing changes nothing
-        row = replay_many([(diag.corrected_rig, diag.measurement)], p, ("theta",))[0]
-        if row is None:
-            raise GapError("prediction: the replay of the corrected rig failed on "
-                           f"{p.rec.source or 'a recording'}")
-        base.append(row["theta"])
-    per_rec: list[np.ndarray] = []
-    for p, sim in zip(preps, base, strict=True):
+
+    def corrected(ps: Sequence[Prepared]) -> list[np.ndarray]:
+        out = []
+        for p in ps:  # on the draws' sub-steps, so that a draw that changes nothing changes nothing
+            row = replay_many([(diag.corrected_rig, diag.measurement)], p, ("theta",))[0]
+            if row is None:
+                raise GapError("prediction: the replay of the corrected rig failed on "
+                               f"{p.rec.source or 'a recording'}")
+            out.append(row["theta"])
+        return out
+
+    per_rec: list[np.ndarray] = []  # the within-session error [rad], per validation recording's blocks
+    for p, sim in zip(preps, corrected(preps), strict=True):
         e = sim - p.y["theta"]
         k = max(1, round(p.n * p.dt / BLOCK_S))
-        per_rec.append(np.array([np.sqrt(np.mean(b**2)) / p.scale["theta"] for b in np.array_split(e, k)
-                                 if b.size]))
+        per_rec.append(np.array([np.sqrt(np.mean(b**2)) for b in np.array_split(e, k) if b.size]))
+    base = corrected(tpreps)
+    scales = [max(float(np.ptp(b)), 1e-6) for b in base]
     blocks = [float(b) for rec in per_rec for b in rec]
-    floors = [noise_floor(p) for p in preps]
     vals, std = _chosen_values(diag)
-    params = drift_parameters(diag.channels or ("theta",), nominal.family)
+    params = drift_parameters(channels, nominal.family)
     one_at_a_time = [_perturbed(diag.corrected_rig, {eff: math.exp(sign * sigma.get(eff, 0.0))})
                      for eff in params for sign in (-1.0, 1.0)]
-    ms_one = _ms_changes(one_at_a_time, diag.measurement, preps, base)
-    sensitivity = {eff: [math.sqrt(m) if m is not None else math.nan for m in ms_one[2 * i: 2 * i + 2]]
-                   for i, eff in enumerate(params)}
+    ms_one = _ms_changes(one_at_a_time, diag.measurement, tpreps, base, scales)
+    sensitivity = {eff: [math.sqrt(float(np.mean(m))) if m is not None else math.nan
+                         for m in ms_one[2 * i: 2 * i + 2]] for i, eff in enumerate(params)}
     drawn, e_ins = [], []
     for _ in range(draws):  # the random draws first, in the order of one draw after the other
         rig = _draw_effects(nominal, diag, vals, std, rng)
@@ -355,28 +430,31 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         e_ins.append(within_session_draw(per_rec, rng))
         drawn.append(_perturbed(rig, factors))
     samples, changes = [], []
-    for e_in, ms in zip(e_ins, _ms_changes(drawn, diag.measurement, preps, base), strict=True):
+    for e_in, ms in zip(e_ins, _ms_changes(drawn, diag.measurement, tpreps, base, scales), strict=True):
         if ms is None:
             continue
-        changes.append(math.sqrt(ms))
-        samples.append(math.sqrt(e_in**2 + ms))
+        changes.append(math.sqrt(float(np.mean(ms))))
+        samples.append(_nrmse_of(e_in, ms, scales))
     if not samples:
         raise GapError("prediction: every replay of the corrected rig failed")
-    lo, hi = np.quantile(samples, INTERVAL)
-    within = float(np.sqrt(np.mean(np.square(blocks))))
+    lo, hi = shortest_interval(samples, LEVEL)
+    within_rad = float(np.sqrt(np.mean(np.square(blocks))))
+    within = float(np.mean([within_rad / s for s in scales]))
+    sigma_theta = float(np.mean([measurement_noise(p.y["theta"]) for p in preps]))
     return {
         "why_wide": _why_wide(float(lo), float(hi), within, sensitivity, sigma),
         "predicted": float(np.median(samples)),
         "interval": [float(lo), float(hi)],
-        "level": INTERVAL[1] - INTERVAL[0],
+        "level": LEVEL,
         "within_session": within,
         "blocks": blocks,
+        "target_scale": scales,
         "drift_part": float(np.median(changes)),
         "drift_sigma": sigma,
         "drift_prior": "occurrence" if drift_sigma is None else "normal",
         "drift_source": "prior" if drift_sigma is None else "sessions",
         "sensitivity": sensitivity,
-        "noise_floor": float(np.mean(floors)),
+        "noise_floor": float(np.mean([sigma_theta / s for s in scales])),
         "draws": len(samples),
     }
 

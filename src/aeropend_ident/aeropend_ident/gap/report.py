@@ -108,9 +108,9 @@ def terminal_summary(result: GapResult) -> str:
         alone = ("; alone at -σ/+σ: " + ", ".join(f"{k} {a:.4f}/{b:.4f}" for k, (a, b) in sens.items())
                  if sens else "")
         lines.append(
-            f"  PREDICTED held-out θ NRMSE of the corrected rig (fit data only): {pr['predicted']:.4f}, 80 % "
-            f"interval [{pr['interval'][0]:.4f}, {pr['interval'][1]:.4f}] (within session "
-            f"{pr['within_session']:.4f}, session drift {pr['drift_part']:.4f} from the "
+            f"  PREDICTED held-out θ NRMSE of the corrected rig (fit data and held-out duty): "
+            f"{pr['predicted']:.4f}, 80 % interval [{pr['interval'][0]:.4f}, {pr['interval'][1]:.4f}] "
+            f"(within session {pr['within_session']:.4f}, session drift {pr['drift_part']:.4f} from the "
             f"{pr['drift_source']}{alone})" + (f"; {pr['why_wide']}" if pr.get("why_wide") else ""))
     lines.append("  HELD OUT (never seen by the diagnosis), NRMSE per recorded channel:")
     for row in result.test:
@@ -166,7 +166,7 @@ def _drift_html(result: GapResult) -> str:
     parts = []
     pr, chk = result.prediction, result.prediction_check
     if pr:
-        rows = [["predicted (fit data only)", _fmt(pr["predicted"]),
+        rows = [["predicted (fit data, held-out duty)", _fmt(pr["predicted"]),
                  f"[{_fmt(pr['interval'][0])}, {_fmt(pr['interval'][1])}]", _fmt(pr["within_session"]),
                  f"{_fmt(pr['drift_part'])} ({pr['drift_source']})",
                  _fmt(chk["actual"]) if chk else "–", chk["verdict"] if chk else "–"]]

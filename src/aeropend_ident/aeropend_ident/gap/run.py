@@ -79,7 +79,8 @@ class GapResult:
         (:func:`aeropend_ident.gap.which.gap_metrics`: ``nrmse`` = mean over recordings, ...).
     prediction : dict, optional
         Predicted held-out θ NRMSE of the corrected rig with its 80 % interval, made from the fit
-        data before the held-out replay (:func:`aeropend_ident.gap.drift.predict_heldout`).
+        data and the held-out duty (and its first second, where a replay's start is estimated)
+        before the held-out replay (:func:`aeropend_ident.gap.drift.predict_heldout`).
     prediction_check : dict, optional
         The prediction against the actual held-out NRMSE (``inside`` the interval or not).
     attainable : list of dict, optional
@@ -314,9 +315,10 @@ def _sessions_and_prediction(
             drift_sigma = sess["drift_sigma"]
     prediction = None
     if predict:
-        say("predict: held-out NRMSE of the corrected rig from the fit data")
+        say("predict: held-out NRMSE of the corrected rig from the fit data and the held-out duty")
         prediction = optional.run("prediction", lambda: predict_heldout(
-            rig, diag, [_shift(r, theta_offset) for r in validation], drift_sigma=drift_sigma, seed=seed))
+            rig, diag, [_shift(r, theta_offset) for r in validation],
+            targets=[_shift(r, theta_offset) for r in held_out], drift_sigma=drift_sigma, seed=seed))
         if prediction is not None:
             if sess is not None and drift_sigma is sess["drift_sigma"]:
                 prediction["drift_source"] = "sessions"
@@ -440,7 +442,8 @@ def run_gap(
     session_labels : sequence of str, optional
         Names of the sessions.
     predict : bool
-        Predict the held-out NRMSE from the fit data before the held-out replay.
+        Predict the held-out NRMSE from the fit data and the held-out duty before the held-out
+        replay.
     oracle : bool
         Fit the best catalog set on each held-out recording (attainable shrink; the chosen set is
         refitted there in any case; the command line does this unless --no-oracle).
