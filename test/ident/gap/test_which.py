@@ -272,3 +272,45 @@ def test_block_sandwich_covariance_widens_for_correlated_residuals() -> None:
     cov_c = parameter_covariance(jac, wander, blocks)
     classical_c = np.linalg.inv(jac.T @ jac) * np.sum(wander**2) / (n // BIC_DECIMATION - 2)
     assert cov_c[1, 1] > 2.0 * classical_c[1, 1]
+
+
+def test_a_timing_fit_shorter_than_half_a_sample_is_not_resolved() -> None:
+    from aeropend_ident.gap.which import unresolved_times
+
+    # an input delay fitted at ~0 and a lag at 1 ms on 20.5 ms / 4.1 ms samples: not the plant's
+    why = unresolved_times("input_delay", {"input_delay": 2e-9}, 0.02048)
+    assert "half the 20.5 ms sample period" in why and "stamps" in why
+    assert unresolved_times("actuator_lag", {"lag_time_constant": 1e-3}, 4.096e-3)
+    # at least half a sample: resolved (the benchmarks' truths: delays ≥ 12 ms, lags ≥ 30 ms)
+    assert unresolved_times("input_delay", {"input_delay": 0.012}, 0.02048) == ""
+    assert unresolved_times("actuator_lag", {"lag_time_constant": 0.03}, 0.02048) == ""
+    # an effect without a time parameter is never "not resolved"
+    assert unresolved_times("viscous_friction", {"c_over_J": 1e-6}, 0.02) == ""
+
+
+@pytest.mark.slow
+def test_closed_loop_log_with_the_drive_voltage_stamped_a_period_late_names_no_timing_effect() -> None:
+    # An effect-free plant in a PD loop at 244 Hz, every channel logged; the logger reads v_a after
+    # the period's command acted (the previous period's drive output), as bench_gap_closed_loop does.
+    # Before, an actuator lag at its range's floor (1 ms) was named at presence 0.93 for it.
+    from bench.bench_gap_closed_loop import closed_loop
+    from bench.bench_gap_independent import rig_dict, to_recording
+    from bench.fixtures import truth_plant as tp
+
+    p = tp.PlantParams()
+    rig = rig_from_dict(rig_dict(p, "lab_nominal"), where="test")
+    plant = tp.TruthPlant(p)
+    probe = closed_loop(plant, rig, 3, 10.0, every=2, sigma={})
+    sigma = {c: float(np.sqrt(np.mean(probe[c] ** 2))) / 10.0 ** (50.0 / 20.0)
+             for c in ("theta", "i_a", "v_a", "omega_rotor")}
+    run = closed_loop(plant, rig, 21, 40.0, every=2, sigma=sigma)
+    v, u = run["v_a"], run["duty"]
+    # the stamp: v_a follows the previous sample's command
+    assert np.corrcoef(v[1:], u[:-1])[0, 1] > np.corrcoef(v, u)[0, 1]
+    rec = to_recording(tp.TruthRecording(t=run["t"], duty=u, channels={c: run[c] for c in sigma},
+                                         true={}, meta={}), "closed-loop")
+    fit, val = rec.split(0.7)
+    d = diagnose_effects(rig, [fit], [val], max_effects=2, seed=0)
+    timing = {"input_delay", "actuator_lag"}
+    assert not (set(d.chosen) & timing)
+    assert all((r.get("presence") or 0.0) < 0.5 for r in d.ranking if r["effect"] in timing)

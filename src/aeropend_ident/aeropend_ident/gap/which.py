@@ -1683,6 +1683,10 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
         st.say(f"  {o}: removes {100 * gain:.1f} % of the remaining validation gap above noise, "
                f"BIC change {bic_gain:.1f}")
         passes = gain >= MIN_EXPLAINED_SECOND and bic_gain <= -MIN_BIC_GAIN
+        why = unresolved_times(o, fr2.values[o], max(p.dt for p in st.pf))
+        if passes and why:
+            st.say(f"  {why}")
+            passes = False
         if passes and (best2 is None or gain > best2.gain):
             hits = 0
             for _ in range(N_BOOTSTRAP):
@@ -1742,6 +1746,8 @@ def _swap_confusables(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: 
             if res is None:
                 continue
             fr2, segs2 = res
+            if unresolved_times(alt, fr2.values[alt], max(p.dt for p in st.pf)):
+                continue  # not resolved at this rate: neither a replacement nor an alternative
             s_cur, s_alt = float(cur_segs.sum()), float(segs2.sum())
             if alt in get_effect(name).nests:  # simpler alternative: the richer one must earn it
                 better = st.above_noise_share(s_cur, s_alt) < MIN_EXPLAINED_SECOND
@@ -1928,6 +1934,47 @@ def split_test(base: np.ndarray, new: np.ndarray, noise: float, min_share: float
     return float(student_t.sf((mean - h0) / se, df=n_eff - 1.0))
 
 
+#: A fitted time (a dead time, a lag or a response time constant: a parameter in s) shorter than this
+#: share of the recordings' sample period is not resolved by them (:func:`unresolved_times`).
+RESOLVED_SHARE = 0.5
+
+
+def unresolved_times(effect: str, values: Mapping[str, float], dt: float) -> str:
+    """Why a fitted timing effect is not resolved by recordings sampled every ``dt``, '' when it is.
+
+    A dead time or a first-order lag shorter than half the sample period settles between two
+    samples: the angle cannot show it, and what such a fit improves is *when the logger stamps* a
+    channel. A drive output (the armature voltage v_a) logged as the previous period's value, after
+    the command of that period, is matched by the smallest lag or an input delay → 0 that moves the
+    model's drive output by one sample. That is a logging convention, not the plant's physics
+    (found on closed-loop logs whose v_a is stamped one period late: an actuator lag at its range's
+    lower bound, 1 ms at 4.1 ms per sample, and an input delay of 2e-9 s at 20.5 ms, each named at
+    presence ≥ 0.9 on plants without them; docs/findings/gap.md).
+
+    Parameters
+    ----------
+    effect : str
+        Catalog name.
+    values : mapping
+        Its fitted parameter values (physical units).
+    dt : float
+        The recordings' (longest) sample period [s].
+
+    Returns
+    -------
+    str
+        The reason (every time parameter of the effect below :data:`RESOLVED_SHARE` × dt), or ''
+        (the effect has no time parameter, or one at least that long).
+    """
+    times = [p for p in get_effect(effect).parameters if p.unit == "s"]
+    if not times or any(float(values.get(p.name, math.inf)) >= RESOLVED_SHARE * dt for p in times):
+        return ""
+    fitted = ", ".join(f"{p.name} {1e3 * float(values[p.name]):.2g} ms" for p in times)
+    return (f"{effect} fitted shorter than half the {1e3 * dt:.3g} ms sample period ({fitted}): not resolved "
+            "at this rate; what it fits is when the logger stamps a channel (e.g. v_a read as the previous "
+            "period's drive output), not the plant")
+
+
 def status_of(presence: float | None, chosen: bool, completeness: float | None,
               not_separated: bool = False) -> str:
     """The word the report uses for an effect, from its presence and the chosen set's completeness.
@@ -2007,6 +2054,8 @@ def _evidence(ranking: list[dict[str, Any]], chosen: Sequence[str], shares: Mapp
         r["q_value"] = q
         r["presence"] = (None if q is None or share is None
                          else float((1.0 - q) * share * misspecification_factor(comp)))
+        if r.get("unresolved") and name not in chosen:  # not the plant's: no evidence of a present effect
+            r["presence"] = 0.0 if r["presence"] is not None else None
         r["status"] = status_of(r["presence"], name in chosen, explained.get("completeness"),
                                 name in ambiguous)
         if in_sample:
@@ -2207,7 +2256,13 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     q_hat = _unmodelled_quantum(rig, st)
     scr, cands, screened, forced = _screen_and_confirm(rig, st, also_confirm, seed, say)
     ranking = _ranking(st, cands, scr, seed + 1)
-    best = ranking[0] if ranking else None
+    dt = max(p.dt for p in st.pf)
+    for r in ranking:
+        fr = cands.fits.get(r["effect"])
+        why = unresolved_times(r["effect"], fr.values[r["effect"]], dt) if fr is not None else ""
+        if why:
+            r["unresolved"] = why
+    best = next((r for r in ranking if not r.get("unresolved")), None)
     # a gap above the noise floor: some channel's nominal validation error exceeds its noise part
     above_floor = _above_noise(st.sse0_c, st.noise_c)
     sig_first = bool(best and above_floor and best["above_noise_explained"] >= MIN_EXPLAINED
@@ -2283,6 +2338,11 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     _evidence(ranking, chosen, shares, pvals, explained, in_sample=st.pv is st.pf)
     if st.note:
         reason += f"; {st.note}"
+    for r in ranking:  # a timing fit that passed the bar but is not resolved at this rate: say so
+        passed = (r.get("bic_delta") is not None and r["bic_delta"] <= -MIN_BIC_GAIN
+                  and (r.get("above_noise_explained") or 0.0) >= MIN_EXPLAINED)
+        if r.get("unresolved") and r["effect"] not in chosen and passed:
+            reason += f"; {r['unresolved']}"
     if st.not_ident and sig_first:
         reason += ("; not identifiable from the recorded channels (their θ signature may be what the "
                    f"ranked effect stands in for): {', '.join(x['effect'] for x in st.not_ident)}")
