@@ -67,6 +67,10 @@ Quantisation is detected directly from the recorded angle (values on a lattice o
 It is reported in ``detected`` (and ranked, marked ``detected``), sets the corrected rig's angle
 LSB and the noise floor (q²/12), and never enters ``chosen``, whose effects later steps refit.
 
+A timing effect fitted shorter than half the sample period (:func:`unresolved_times`) is not
+resolved at that rate: never chosen (first, added or as a replacement), presence 0, entry field
+``unresolved`` with the reason; what such a fit matches is when the logger stamps a channel.
+
 No rclpy import: this module runs without ROS.
 """
 
