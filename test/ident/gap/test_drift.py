@@ -289,3 +289,26 @@ def test_prediction_is_over_the_held_out_recordings_range_not_the_validation_par
     # over the validation part's own range, the same noise would have put the whole interval above
     old = predict_heldout(rig, diag, [val], draws=200, seed=0)
     assert old["interval"][0] > 3.0 * actual
+
+
+def test_a_draw_outside_a_parameters_limits_is_a_failed_draw_not_a_failed_prediction() -> None:
+    # jahoyosr's real sessions: gravity chosen with a standard error far above its value, so some
+    # drawn mgd/J sit at the floor of its limits and a drift factor below 1 takes them under it;
+    # those draws fail, the prediction is made from the others (it was refused whole before)
+    from aeropend_ident.gap.drift import predict_heldout
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_sim.params import rig_from_dict
+
+    p = tp.PlantParams()
+    rig = rig_from_dict(rig_dict(p, "lab_nominal"), where="test")
+    rec = [to_recording(tp.record(tp.TruthPlant(p), tp.aprbs(12.0, seed=s), 50.0, s + 1), f"r{s}")
+           for s in (3, 5)]
+    v = float(p.mgd_over_J)
+    diag = SimpleNamespace(corrected_rig=rig, measurement=MeasurementMap(), chosen=["gravity"],
+                           ranking=[{"effect": "gravity", "parameters": {"mgd_over_J": {"value": v,
+                                                                                         "std": 1e3 * v}}}],
+                           channels=["theta"])
+    pr = predict_heldout(rig, diag, [rec[0]], targets=[rec[1]], draws=60, seed=0)
+    assert 0 < pr["draws"] < 60
+    lo, hi = pr["interval"]
+    assert 0.0 < lo <= pr["predicted"] <= hi

@@ -158,6 +158,14 @@ def drift_parameters(channels: Sequence[str], family: str = registry.DEFAULT_FAM
             if family in get_effect(e).families and identifiable(get_effect(e), have) is None]
 
 
+def _perturbed_or_none(rig: Rig, factors: Mapping[str, float]) -> Rig | None:
+    """:func:`_perturbed`, None when a factor takes a value outside its limits (a failed draw)."""
+    try:
+        return _perturbed(rig, factors)
+    except GapError:
+        return None
+
+
 def _perturbed(rig: Rig, factors: Mapping[str, float]) -> Rig:
     new = rig
     for eff, f in factors.items():
@@ -200,14 +208,16 @@ def _draw_effects(nominal: Rig, diag: EffectDiagnosis, vals: Mapping[str, Mappin
         return diag.corrected_rig
 
 
-def _ms_changes(rigs: Sequence[Rig], meas: MeasurementMap, preps: Sequence[Prepared],
+def _ms_changes(rigs: Sequence[Rig | None], meas: MeasurementMap, preps: Sequence[Prepared],
                 base: Sequence[np.ndarray], scales: Sequence[float]) -> list[list[float] | None]:
     """Per rig and recording: the mean squared θ change of its replay from the base replay, over
-    that recording's scale²; None when the replay fails on any recording. One batched replay per
-    recording (:func:`aeropend_ident.gap.which.replay_many`)."""
-    out: list[list[float] | None] = [[] for _ in rigs]
+    that recording's scale²; None for a rig that is None or whose replay fails on any recording.
+    One batched replay per recording (:func:`aeropend_ident.gap.which.replay_many`)."""
+    out: list[list[float] | None] = [[] if r is not None else None for r in rigs]
+    live = [b for b, r in enumerate(rigs) if r is not None]
     for p, sim, s in zip(preps, base, scales, strict=True):
-        for b, row in enumerate(replay_many([(r, meas) for r in rigs], p, ("theta",))):
+        rows = replay_many([(rigs[b], meas) for b in live], p, ("theta",)) if live else []
+        for b, row in zip(live, rows, strict=True):
             if row is None or out[b] is None:
                 out[b] = None
                 continue
@@ -417,18 +427,19 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     blocks = [float(b) for rec in per_rec for b in rec]
     vals, std = _chosen_values(diag)
     params = drift_parameters(channels, nominal.family)
-    one_at_a_time = [_perturbed(diag.corrected_rig, {eff: math.exp(sign * sigma.get(eff, 0.0))})
+    one_at_a_time = [_perturbed_or_none(diag.corrected_rig, {eff: math.exp(sign * sigma.get(eff, 0.0))})
                      for eff in params for sign in (-1.0, 1.0)]
     ms_one = _ms_changes(one_at_a_time, diag.measurement, tpreps, base, scales)
     sensitivity = {eff: [math.sqrt(float(np.mean(m))) if m is not None else math.nan
                          for m in ms_one[2 * i: 2 * i + 2]] for i, eff in enumerate(params)}
-    drawn, e_ins = [], []
+    drawn: list[Rig | None] = []
+    e_ins: list[float] = []
     for _ in range(draws):  # the random draws first, in the order of one draw after the other
         rig = _draw_effects(nominal, diag, vals, std, rng)
         factors = {eff: math.exp(x) for eff, x in
                    draw_log_changes(sigma, params, rng, occurrence=drift_sigma is None).items()}
         e_ins.append(within_session_draw(per_rec, rng))
-        drawn.append(_perturbed(rig, factors))
+        drawn.append(_perturbed_or_none(rig, factors))
     samples, changes = [], []
     for e_in, ms in zip(e_ins, _ms_changes(drawn, diag.measurement, tpreps, base, scales), strict=True):
         if ms is None:
