@@ -77,6 +77,7 @@ def from_report(name: str, out: Path, rc: int = 0, elapsed_s: float | None = Non
     row.update(
         chosen=rep["headline"]["effects_chosen"],
         prediction=rep["prediction"],
+        not_computed=rep.get("not_computed") or {},
         check=rep["after"]["prediction_check"],
         heldout=[
             {
@@ -131,10 +132,13 @@ def write_md(path: Path, rows: list[dict[str, Any]]) -> None:
         for h, d in zip(r["heldout"], r["drift"], strict=True):
             sp = h["split"]
             drifting = ", ".join(_change(x) for x in (d or {}).get("rows", []) if x["drifts"]) or "none"
+            # a prediction the report could not make (not_computed) is a row, not a crash
+            pred = (f"{p['predicted']:.4f} [{p['interval'][0]:.4f}, {p['interval'][1]:.4f}] | "
+                    f"{c['actual']:.4f} | {'yes' if c['inside'] else 'no'}" if p and c else
+                    f"not computed: {(r.get('not_computed') or {}).get('prediction', '?')} | | ")
             lines.append(
-                f"| {r['case']} | {'+'.join(r['chosen']) or 'none'} | {p['predicted']:.4f} "
-                f"[{p['interval'][0]:.4f}, {p['interval'][1]:.4f}] | {c['actual']:.4f} | "
-                f"{'yes' if c['inside'] else 'no'} | {h['nominal']:.4f} → {h['corrected']:.4f} | "
+                f"| {r['case']} | {'+'.join(r['chosen']) or 'none'} | {pred} | "
+                f"{h['nominal']:.4f} → {h['corrected']:.4f} | "
                 f"{h['oracle_same']:.4f} / {h['oracle_drift']:.4f} / {h['oracle_best']:.4f} "
                 f"({'+'.join(h['oracle_best_effects'])}) | {sp['removed']:.0%} / "
                 f"{sp['removable_not_removed']:.0%} / {sp['not_removable']:.0%} | {drifting} |"
