@@ -26,7 +26,8 @@ fit data the diagnosis fits on the first part and chooses the effects on the las
 recordings, so the held-out data stay unseen until the final before/after.
 
 Before the held-out recordings are replayed, the corrected rig's held-out θ NRMSE is predicted with
-an 80 % interval from the fit data alone; after it, the prediction is checked, the correction and
+an 80 % interval from the fit data and the held-out duty (never the held-out angle after its first
+second); after it, the prediction is checked, the correction and
 the best catalog set are fitted on each held-out recording (attainable shrink) and the held-out gap
 is split into removed / removable but not removed / not removable, with a drift table of fit vs
 held-out parameters; ``--sessions`` adds the leave-one-session-out diagnosis and the drift table
