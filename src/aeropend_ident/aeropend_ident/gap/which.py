@@ -1979,6 +1979,27 @@ def unresolved_times(effect: str, values: Mapping[str, float], dt: float) -> str
             "period's drive output), not the plant")
 
 
+def _mark_unresolved(ranking: list[dict[str, Any]], cands: Any, dt: float) -> None:
+    """Mark, in place, the ranked single-effect fits not resolved at the sample period ``dt``
+    (:func:`unresolved_times`, entry field ``unresolved``)."""
+    for r in ranking:
+        fr = cands.fits.get(r["effect"])
+        why = unresolved_times(r["effect"], fr.values[r["effect"]], dt) if fr is not None else ""
+        if why:
+            r["unresolved"] = why
+
+
+def _unresolved_reason(ranking: Sequence[Mapping[str, Any]], chosen: Sequence[str]) -> str:
+    """'; why' for each unchosen timing fit that passed the bar but is not resolved at this rate."""
+    out = ""
+    for r in ranking:
+        passed = (r.get("bic_delta") is not None and r["bic_delta"] <= -MIN_BIC_GAIN
+                  and (r.get("above_noise_explained") or 0.0) >= MIN_EXPLAINED)
+        if r.get("unresolved") and r["effect"] not in chosen and passed:
+            out += f"; {r['unresolved']}"
+    return out
+
+
 def status_of(presence: float | None, chosen: bool, completeness: float | None,
               not_separated: bool = False) -> str:
     """The word the report uses for an effect, from its presence and the chosen set's completeness.
@@ -2260,12 +2281,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     q_hat = _unmodelled_quantum(rig, st)
     scr, cands, screened, forced = _screen_and_confirm(rig, st, also_confirm, seed, say)
     ranking = _ranking(st, cands, scr, seed + 1)
-    dt = max(p.dt for p in st.pf)
-    for r in ranking:
-        fr = cands.fits.get(r["effect"])
-        why = unresolved_times(r["effect"], fr.values[r["effect"]], dt) if fr is not None else ""
-        if why:
-            r["unresolved"] = why
+    _mark_unresolved(ranking, cands, max(p.dt for p in st.pf))
     best = next((r for r in ranking if not r.get("unresolved")), None)
     # a gap above the noise floor: some channel's nominal validation error exceeds its noise part
     above_floor = _above_noise(st.sse0_c, st.noise_c)
@@ -2342,11 +2358,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     _evidence(ranking, chosen, shares, pvals, explained, in_sample=st.pv is st.pf)
     if st.note:
         reason += f"; {st.note}"
-    for r in ranking:  # a timing fit that passed the bar but is not resolved at this rate: say so
-        passed = (r.get("bic_delta") is not None and r["bic_delta"] <= -MIN_BIC_GAIN
-                  and (r.get("above_noise_explained") or 0.0) >= MIN_EXPLAINED)
-        if r.get("unresolved") and r["effect"] not in chosen and passed:
-            reason += f"; {r['unresolved']}"
+    reason += _unresolved_reason(ranking, chosen)
     if st.not_ident and sig_first:
         reason += ("; not identifiable from the recorded channels (their θ signature may be what the "
                    f"ranked effect stands in for): {', '.join(x['effect'] for x in st.not_ident)}")
