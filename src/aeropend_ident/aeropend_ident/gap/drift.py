@@ -418,11 +418,12 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         return out
 
     per_rec: list[np.ndarray] = []  # the within-session error [rad], per validation recording's blocks
-    for p, sim in zip(preps, corrected(preps), strict=True):
+    val_sims = corrected(preps)
+    for p, sim in zip(preps, val_sims, strict=True):
         e = sim - p.y["theta"]
         k = max(1, round(p.n * p.dt / BLOCK_S))
         per_rec.append(np.array([np.sqrt(np.mean(b**2)) for b in np.array_split(e, k) if b.size]))
-    base = corrected(tpreps)
+    base = val_sims if targets is None else corrected(tpreps)  # the default targets: replayed once
     scales = [max(float(np.ptp(b)), 1e-6) for b in base]
     blocks = [float(b) for rec in per_rec for b in rec]
     vals, std = _chosen_values(diag)
