@@ -189,6 +189,12 @@ class ParamRange:
         return min(max(float(v), self.lower), self.upper)
 
 
+@cache
+def _setting_keys() -> frozenset[str]:
+    """Keys ``"section.name"`` of the registry's numerical settings (``Param.setting``)."""
+    return frozenset(k for k, p in registry.params().items() if p.setting)
+
+
 @dataclass(frozen=True)
 class EffectParameter:
     """One fitted parameter of an effect (a :class:`aeropend_sim.components.base.Search`).
@@ -349,11 +355,22 @@ class Effect:
                 raise GapError(f"effect {self.name!r}: {p.name} = {v!r} {p.unit} outside [{lo:g}, {hi:g}]")
         return out
 
+    def setting_values(self, rig: Rig) -> dict[str, float]:
+        """This effect's parameters that set a numerical setting of the rig, at the rig's values."""
+        out = {}
+        for p in self.parameters:
+            if p.rig_field in _setting_keys():
+                section, _, name = p.rig_field.partition(".")
+                out[p.name] = float(getattr(getattr(rig, section), name))
+        return out
+
     def apply(self, rig: Rig, values: Mapping[str, float]) -> Rig:
         """The rig with this effect switched on at the given physical values.
 
         Measurement transforms return the rig unchanged (see :meth:`measurement`,
-        :func:`apply_effects`).
+        :func:`apply_effects`). A parameter that sets a numerical setting of the rig (a
+        ``setting`` of :mod:`aeropend_sim.components`, e.g. the dry friction's onset width v_ε)
+        keeps the rig's value when ``values`` does not give it.
 
         Raises
         ------
@@ -361,7 +378,7 @@ class Effect:
             On unknown or missing parameters, values outside the physical limits, values the rig
             format rejects, or a rig of a family this effect does not belong to.
         """
-        vals = self.values(values)
+        vals = self.values({**self.setting_values(rig), **dict(values)})
         if self._apply is None:
             return rig
         if rig.family not in self.families:
@@ -507,7 +524,8 @@ def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
     measurement : MeasurementMap, optional
         Starting measurement map (default identity).
     ctx : EffectContext, optional
-        Where missing parameter values take their probe values from.
+        Where missing parameter values take their probe values from (a numerical setting's,
+        e.g. v_ε, keeps the rig's value, :meth:`Effect.setting_values`).
 
     Returns
     -------
@@ -524,7 +542,7 @@ def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
     meas = measurement or MeasurementMap()
     for eff in EFFECTS.values():  # catalog order: a supply voltage (order 5) is what a bridge drop acts on
         if eff.name in chosen:
-            vals = eff.values(chosen[eff.name], ctx)
+            vals = eff.values({**eff.setting_values(rig), **dict(chosen[eff.name])}, ctx)
             rig = eff.apply(rig, vals)
             meas = eff.measurement(meas, vals)
     return rig, meas

@@ -8,6 +8,16 @@ as tanh(θ̇/v_ε) (v_ε = ``friction_velocity``) so the ODE stays Lipschitz: th
 about v_ε·atanh(load/T_f) under loads below the breakaway torque instead of sticking exactly.
 Split from the pre-issue-35 ``coulomb_friction`` switch, which also turned on the rotor's brush
 friction; that switch is still read as both.
+
+The gap diagnosis fits v_ε with the friction level (``coulomb_friction``, ``stribeck_friction``):
+how fast the rod creeps under a load below breakaway, the width of the sliding onset (the
+presliding regime that Dahl- and LuGre-type friction models describe) is a property of the rod's
+bearing, not a numerical constant. Held at the rig file's 10 mrad/s where a rod creeps at, e.g.,
+2 mrad/s, the model creeps 5× too fast through every hold, and the fitted T_f/J grows to slow it
+by an amount set by how long the recording holds the rod still: a step test and an APRBS of the
+same unchanged rod gave T_f/J 26 % apart (z 6 over the within-session spread), an alarm of drift
+that no plant change caused (bench/results/gap_lab.md, docs/findings/gap.md). Its search range
+is :data:`WIDTH_RANGE`.
 """
 
 from __future__ import annotations
@@ -68,9 +78,26 @@ def stribeck_velocity_range(ctx):
     return lo, max(2.0, 10.0 * lo), max(2.0, 10.0 * lo), max(0.1, 3.0 * lo)
 
 
+#: Search range [rad/s] of the sign's width v_ε (sliding onset): from 0.5 mrad/s, a rod that
+#: creeps less than an encoder count (1.5 mrad at 12 bits) over a 3 s hold, which a replay still
+#: integrates with a few RK4 sub-steps per sample at T_f/J of a few rad/s², to 50 mrad/s
+#: (3 °/s), where the "onset" spans the slow motions of a swing and the law is a viscous one.
+WIDTH_RANGE = (5e-4, 5e-2)
+
+
+def width_range(ctx):
+    """:data:`WIDTH_RANGE`; off at the rig's v_ε, probe a third of it (a sharper onset than the
+    rig file's regularisation, as a rod that sticks has; three times it where that leaves the range)."""
+    v = ctx.rig.pendulum.friction_velocity
+    probe = v / 3.0 if v / 3.0 >= WIDTH_RANGE[0] else min(3.0 * v, WIDTH_RANGE[1])
+    return WIDTH_RANGE[0], WIDTH_RANGE[1], v, probe
+
+
 def apply_coulomb(rig, v):
-    """The rig with rod Coulomb friction T_f/J."""
+    """The rig with rod Coulomb friction T_f/J (and the sign's width v_ε where given)."""
     new = rig.with_params("pendulum", coulomb_over_J=v["coulomb_over_J"])
+    if "friction_velocity" in v:
+        new = new.with_params("pendulum", friction_velocity=v["friction_velocity"])
     return new.with_effects(rod_coulomb_friction=True)
 
 
@@ -83,6 +110,9 @@ def apply_stribeck(rig, v):
 
 _COULOMB = Search("coulomb_over_J", "rad/s^2", (0.0, math.inf), "pendulum.coulomb_over_J",
                   "friction torque over inertia T_f/J", coulomb_range, "nominal … nominal + 0.5·mgd/J")
+_WIDTH = Search("friction_velocity", "rad/s", (1e-6, 10.0), "pendulum.friction_velocity",
+                "width v_ε of the sliding onset tanh(θ̇/v_ε)", width_range,
+                f"{WIDTH_RANGE[0]:g} … {WIDTH_RANGE[1]:g} rad/s", log=True)
 
 EFFECT = Effect(
     name="rod_coulomb_friction",
@@ -98,15 +128,17 @@ EFFECT = Effect(
     diagnoses=(
         Diagnosis("coulomb_friction", "pendulum",
                   "Coulomb friction on the rod: θ̈ −= (T_f/J)·sgn(θ̇) (tanh-regularised)",
-                  ("coulomb_over_J",), ("theta",), sindy_terms={"theta_dot": ("−tanh(θ̇/v_ε)",)},
+                  ("coulomb_over_J", "friction_velocity"), ("theta",),
+                  sindy_terms={"theta_dot": ("−tanh(θ̇/v_ε)",)},
                   confusable_with=("viscous_friction",), truth={"coulomb_over_J": ((0.6, 1.5),)},
-                  exclusive_with=("stribeck_friction",), order=150, apply=apply_coulomb, search=(_COULOMB,)),
+                  exclusive_with=("stribeck_friction",), order=150, apply=apply_coulomb,
+                  search=(_COULOMB, _WIDTH)),
         Diagnosis("stribeck_friction", "pendulum",
                   "dry friction of the rod with a Stribeck part: "
                   "θ̈ −= (T_f/J + ((T_s − T_f)/J)·exp(−(θ̇/v_s)²))·"
                   "sgn(θ̇): the friction at rest (stiction) exceeds the sliding friction and falls off over "
                   "the Stribeck velocity v_s, so the damping depends on the swing's amplitude",
-                  ("coulomb_over_J", "stribeck_over_J", "stribeck_velocity"), ("theta",),
+                  ("coulomb_over_J", "stribeck_over_J", "stribeck_velocity", "friction_velocity"), ("theta",),
                   sindy_terms={"theta_dot": ("−tanh(θ̇/v_ε)", "−exp(−(θ̇/v_s)²)·tanh(θ̇/v_ε)")},
                   confusable_with=("coulomb_friction", "viscous_friction"),
                   truth={"coulomb_over_J": ((0.6, 1.5),), "stribeck_over_J": ((1.5, 3.0),),
@@ -122,6 +154,7 @@ EFFECT = Effect(
                                  "as coulomb_friction"),
                           Search("stribeck_velocity", "rad/s", (1e-4, 100.0), "pendulum.stribeck_velocity",
                                  "Stribeck velocity v_s", stribeck_velocity_range,
-                                 "3·v_ε … max(2, 30·v_ε) rad/s", log=True))),
+                                 "3·v_ε … max(2, 30·v_ε) rad/s", log=True),
+                          _WIDTH)),
     ),
 )
