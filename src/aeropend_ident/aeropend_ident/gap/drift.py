@@ -49,6 +49,7 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -131,10 +132,13 @@ def _start_only(prep: Prepared) -> Prepared:
 
 
 def _fit_set(nominal: Rig, effects: Sequence[str], preps: Sequence[Prepared],
-             start: Mapping[str, Mapping[str, float]] | None = None, scan: bool = False) -> Any:
-    """The effect set fitted on prepared recordings, search ranges from those recordings."""
+             start: Mapping[str, Mapping[str, float]] | None = None, scan: bool = False,
+             free_settings: Sequence[str] = ()) -> Any:
+    """The effect set fitted on prepared recordings, search ranges from those recordings; the
+    numerical settings of ``free_settings`` (a diagnosis' ``free_settings``) fitted too."""
     ctx = EffectContext.from_data(nominal, np.concatenate([p.y["theta"] for p in preps]),
                                   np.concatenate([p.duty for p in preps]))
+    ctx = dataclasses.replace(ctx, free_settings=frozenset(free_settings))
     return fit_effects(nominal, list(effects), list(preps), ctx, start=start, scan=scan)
 
 
@@ -529,9 +533,9 @@ def refit_comparison(nominal: Rig, diag: EffectDiagnosis, fit: Sequence[Recordin
             "corrected_nrmse": float(corrected_nrmse), "worse_than_refit": worse, "verdict": verdict}, fr
 
 
-def _oracle(rig: Rig, effects: Sequence[str], prep: Prepared, start: Mapping[str, Mapping[str, float]]
-            ) -> tuple[float, dict[str, Any]]:
-    fr = _fit_set(rig, effects, [prep], start=start, scan=len(effects) == 1)
+def _oracle(rig: Rig, effects: Sequence[str], prep: Prepared, start: Mapping[str, Mapping[str, float]],
+            free_settings: Sequence[str] = ()) -> tuple[float, dict[str, Any]]:
+    fr = _fit_set(rig, effects, [prep], start=start, scan=len(effects) == 1, free_settings=free_settings)
     params = {e: {k: {"value": fr.values[e][k], "std": fr.std.get(e, {}).get(k)} for k in fr.values[e]}
               for e in fr.values}
     return theta_nrmse(fr.rig, fr.meas, prep), params
@@ -583,7 +587,8 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
         fit_a = fitted
     elif fit:
         say(f"attainable: fitting {', '.join(dset)} on the fit recordings")
-        fit_a = _fit_set(nominal, dset, _preps(fit, diag.channels or ("theta",)), start=vals)
+        fit_a = _fit_set(nominal, dset, _preps(fit, diag.channels or ("theta",)), start=vals,
+                         free_settings=diag.free_settings)
     out = []
     for rec in held_out:
         prep = _preps([rec], diag.channels or ("theta",))[0]
@@ -592,14 +597,15 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
         floor = noise_floor(prep)
         row: dict[str, Any] = {"source": rec.source, "nominal": n_nom, "corrected": n_cor,
                                "noise_floor": floor}
-        o_same, p_same = (n_cor, {}) if not diag.chosen else _oracle(nominal, diag.chosen, prep, vals)
+        o_same, p_same = (n_cor, {}) if not diag.chosen else _oracle(nominal, diag.chosen, prep, vals,
+                                                                                diag.free_settings)
         row["oracle_same"] = min(o_same, n_cor) if diag.chosen else n_nom
         row["parameters"] = {e: {k: {"correction": vals[e][k], "correction_std": std[e].get(k),
                                      "oracle": p_same[e][k]["value"], "oracle_std": p_same[e][k]["std"]}
                                  for k in vals[e]} for e in vals}
         # the chosen set plus the drift-prone parameters: what a session change of the rig needs
         try:
-            fit_b = _fit_set(nominal, dset, [prep], start=vals)
+            fit_b = _fit_set(nominal, dset, [prep], start=vals, free_settings=diag.free_settings)
             o_drift = theta_nrmse(fit_b.rig, fit_b.meas, prep)
             if fit_a is not None:
                 row["drift"] = {"sessions": ["fit", rec.source or "held-out"], "effects": dset,
@@ -618,7 +624,7 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
                 d2 = diagnose_effects(nominal, core, val, max_effects=max_effects, seed=seed)
                 if d2.chosen:
                     v2, _ = _chosen_values(d2)
-                    ob, _ = _oracle(nominal, d2.chosen, prep, v2)
+                    ob, _ = _oracle(nominal, d2.chosen, prep, v2, d2.free_settings)
                     if ob < o_best:
                         o_best, best_eff = ob, list(d2.chosen)
             except GapError as exc:
@@ -665,7 +671,8 @@ def _session_labels(sessions: Sequence[Sequence[Recording]], labels: Sequence[st
 
 def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: Sequence[str], *,
                 labels: Sequence[str] | None = None, channels: Sequence[str] = ("theta",),
-                progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+                progress: Callable[[str], None] | None = None, free_settings: Sequence[str] = ()
+                ) -> dict[str, Any]:
     """Fit ``effects`` on each session separately; which parameter changes between sessions.
 
     Parameters
@@ -680,6 +687,9 @@ def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: 
     channels : sequence of str
         Channels compared.
     progress : callable, optional
+    free_settings : sequence of str
+        Effects whose numerical settings are fitted too (a diagnosis' ``free_settings``, e.g.
+        the dry friction's onset width); others hold them at the rig's values (no row).
 
     Returns
     -------
@@ -699,7 +709,7 @@ def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: 
     fits = []
     for lab, recs in zip(labels, sessions, strict=True):
         say(f"drift: fitting {', '.join(effects)} on {lab}")
-        fits.append(_fit_set(nominal, effects, _preps(recs, channels)))
+        fits.append(_fit_set(nominal, effects, _preps(recs, channels), free_settings=free_settings))
     return _drift_table(labels, effects, fits)
 
 
@@ -724,6 +734,8 @@ def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, An
     rows = []
     for eff in effects:
         for par in get_effect(eff).parameters:
+            if par.setting and all(par.name not in f.std.get(eff, {}) for f in fits):
+                continue  # a numerical setting held at the rig's value: not fitted, nothing to compare
             v = np.array([f.values[eff][par.name] for f in fits])
             s = np.array([f.std.get(eff, {}).get(par.name, math.nan) for f in fits])
             # a relative change only where the reference is a size (not an absent effect at ~0)

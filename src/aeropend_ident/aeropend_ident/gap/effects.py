@@ -111,6 +111,11 @@ class EffectContext:
         the thrust law's level).
     theta_hi : float
         0.995 quantile of the recorded angle in the model frame [rad] (end-stop probe).
+    free_settings : frozenset of str
+        Effects whose numerical-setting parameters (:attr:`EffectParameter.setting`, e.g. the dry
+        friction's onset width v_ε) are fitted; every other effect holds them at the rig's values
+        (:func:`aeropend_ident.gap.which.fit_effects`). The diagnosis frees them where its
+        validation data ask for it.
     """
 
     rig: Rig
@@ -119,6 +124,7 @@ class EffectContext:
     omega_max: float
     omega_ref: float
     theta_hi: float
+    free_settings: frozenset[str] = frozenset()
 
     @classmethod
     def from_data(cls, rig: Rig, theta: np.ndarray, duty: np.ndarray) -> EffectContext:
@@ -224,6 +230,12 @@ class EffectParameter:
     doc: str
     search: Callable[[EffectContext], tuple[float, float, float, float]] = field(repr=False, compare=False)
     log: bool = False
+
+    @property
+    def setting(self) -> bool:
+        """Sets a numerical setting of the rig (a ``setting`` of :mod:`aeropend_sim.components`,
+        e.g. the dry friction's onset width v_ε) rather than a physical size."""
+        return self.rig_field in _setting_keys()
 
     def bind(self, ctx: EffectContext) -> ParamRange:
         """The numeric search range for a context (clipped to the physical limits)."""
@@ -359,7 +371,7 @@ class Effect:
         """This effect's parameters that set a numerical setting of the rig, at the rig's values."""
         out = {}
         for p in self.parameters:
-            if p.rig_field in _setting_keys():
+            if p.setting:
                 section, _, name = p.rig_field.partition(".")
                 out[p.name] = float(getattr(getattr(rig, section), name))
         return out

@@ -517,7 +517,10 @@ class _Coord(NamedTuple):
 
 
 def _coords(effects: Sequence[Effect], ctx: EffectContext) -> list[_Coord]:
-    return [_Coord(e, p, p.bind(ctx)) for e in effects for p in e.parameters]
+    """The optimiser's coordinates: every parameter, but a numerical setting only where ``ctx``
+    frees it (:attr:`aeropend_ident.gap.effects.EffectContext.free_settings`)."""
+    return [_Coord(e, p, p.bind(ctx)) for e in effects for p in e.parameters
+            if not p.setting or e.name in ctx.free_settings]
 
 
 def _to_z(r: ParamRange, v: float) -> float:
@@ -554,12 +557,14 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
     """Fit the physical parameters of one or more catalog effects by free-run output error.
 
     Each parameter is searched over its physical range (:meth:`Effect.ranges` of ``ctx``), log(value)
-    for strictly positive ones. The objective is the normalised output error of every compared
-    channel (:func:`residuals`). Output error in a delay, dead zone, stop angle or friction level
-    has local minima, so the fit is **multi-start**: the given start (default: the probe values),
-    the extra ``starts`` (e.g. the equation-error estimates of the screening), and, for a
-    one-parameter effect with ``scan``, :data:`N_SCAN` values spread over the whole range (for the
-    thrust law: exponents over [1.4, 3] at a kept thrust level); the best :data:`MAX_STARTS`
+    for strictly positive ones; a numerical setting (the dry friction's onset width v_ε) only where
+    ``ctx.free_settings`` frees it, else it keeps ``rig``'s value. The objective is the normalised
+    output error of every compared channel (:func:`residuals`). Output error in a delay, dead
+    zone, stop angle or friction level has local minima, so the fit is **multi-start**: the given
+    start (default: the probe values), the extra ``starts`` (e.g. the equation-error estimates of
+    the screening), and, for a one-parameter effect with ``scan``, :data:`N_SCAN` values spread
+    over the whole range (:func:`_scan_starts`; for the thrust law: exponents over [1.4, 3] at a
+    kept thrust level); the best :data:`MAX_STARTS`
     distinct starts are refined by :func:`scipy.optimize.least_squares` (trust-region reflective)
     and the best result is kept.
 
@@ -613,8 +618,7 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
     funs, fun, jac = obj.rows, obj, obj.jacobian
 
     candidates = [z_of({})] + [z_of(s) for s in starts]
-    if scan and len(coords) == 1:
-        candidates += [np.array([g]) for g in np.linspace(lo[0], hi[0], N_SCAN)]
+    candidates += _scan_starts(coords, z_of, lo, hi) if scan else []
     if scan and "thrust_law" in effects:
         for s in _thrust_law_starts(ctx, base["thrust_law"]):
             candidates.append(z_of({"thrust_law": s}))
@@ -640,6 +644,9 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
             best = sol
     assert best is not None
     new, meas, vals = _assemble(rig, coords, best.x)
+    for e in effs:  # a held setting keeps the rig's value (no standard error: not fitted)
+        for k, v in e.setting_values(rig).items():
+            vals.setdefault(e.name, {}).setdefault(k, v)
     std: dict[str, dict[str, float]] = {}
     cov_z: np.ndarray | None = None
     try:
@@ -655,6 +662,30 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
                      sse=float(np.sum(best.fun**2)), n=int(best.fun.size), nfev=obj.nfev, cov=cov_z,
                      labels=tuple((c.effect.name, c.param.name) for c in coords),
                      log=tuple(bool(c.range.log) for c in coords))
+
+
+def _scan_starts(coords: Sequence[_Coord], z_of: Callable[[Mapping[str, Mapping[str, float]]], np.ndarray],
+                 lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
+    """Starts of :func:`fit_effects` from a scan: where one coordinate is a physical size and the
+    others numerical settings (a dry friction's level and its onset width v_ε), :data:`N_SCAN`
+    values over the size's range, with the settings at the main start and at the rig's own
+    values (the fit as it was with the setting held)."""
+    sizes = [i for i, c in enumerate(coords) if not c.param.setting]
+    if len(sizes) != 1:
+        return []
+    k = sizes[0]
+    held = {}
+    for c in coords:
+        if c.param.setting:
+            held.setdefault(c.effect.name, {})[c.param.name] = c.range.off
+    out = []
+    for fixed in ([{}, held] if held else [{}]):
+        z0 = z_of(fixed)
+        for g in np.linspace(lo[k], hi[k], N_SCAN):
+            z = z0.copy()
+            z[k] = g
+            out.append(z)
+    return out
 
 
 def block_ids(preps: Sequence[Prepared], block_s: float = COVARIANCE_BLOCK_S) -> np.ndarray:
@@ -1318,6 +1349,7 @@ class EffectDiagnosis:
     elapsed: float = 0.0
     plant_side: dict | None = None
     detected: dict[str, dict[str, float]] = field(default_factory=dict)
+    free_settings: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
         """JSON-able summary; the corrected rig as its YAML dict (with ``recording_frame`` if a
@@ -1340,6 +1372,7 @@ class EffectDiagnosis:
             "validation": self.validation,
             "screening": self.screening,
             "channels": self.channels,
+            "free_settings": self.free_settings,
             "elapsed_s": self.elapsed,
             "plant_side": ({k: v for k, v in self.plant_side.items() if k not in ("rig", "measurement")}
                            if self.plant_side else None),
@@ -1509,8 +1542,10 @@ class _Candidates:
             st.say(f"grey-box fit of {name}")
             est = scr.estimates.get(name)
             fr = fit_effects(st.rig, [name], st.pf, st.ctx, starts=[{name: est}] if est else ())
-            self.fits[name] = fr
             sg, per_channel = validation_errors(fr.rig, fr.meas, st.pv)
+            if any(p.setting for p in get_effect(name).parameters) and name not in st.ctx.free_settings:
+                fr, sg, per_channel = _free_settings_if_validated(st, name, est, (fr, sg, per_channel))
+            self.fits[name] = fr
             self.segs[name] = sg
             self.completeness[name] = _completeness(st, per_channel)
             k = len(get_effect(name).parameters)
@@ -1524,6 +1559,32 @@ class _Candidates:
     def best_above_noise(self) -> float:
         """Largest share of the validation gap above noise that one candidate removes."""
         return max((c["above_noise_explained"] for c in self.stats.values()), default=0.0)
+
+
+def _free_settings_if_validated(st: _Setup, name: str, est: Mapping[str, float] | None,
+                                held: tuple[EffectFit, np.ndarray, dict]
+                                ) -> tuple[EffectFit, np.ndarray, dict]:
+    """The single-effect fit of ``name`` with its numerical settings (the dry friction's onset
+    width v_ε) fitted too, kept when it predicts the validation recordings better than the fit
+    with the rig's settings (``held``: fit, validation SSE per segment, per channel); the diagnosis
+    then fits them wherever the effect enters (``st.ctx.free_settings``). A sample-split choice
+    between two nested models: on a rod that creeps slower than the rig file's regularisation
+    allows, the free width wins by far; where the fit data alone favour a width the validation
+    data do not bear out (a real rig with more than dry friction), the rig's width stays."""
+    # its refinements (a Stribeck law of the dry friction) take the same settings over
+    refined = {r for r in st.refinements if name in get_effect(r).refines}
+    ctx = dataclasses.replace(st.ctx, free_settings=st.ctx.free_settings | {name} | refined)
+    fr = fit_effects(st.rig, [name], st.pf, ctx, starts=[{name: est}] if est else ())
+    sg, per_channel = validation_errors(fr.rig, fr.meas, st.pv)
+    freed = ", ".join(p.name for p in get_effect(name).parameters if p.setting)
+    if float(sg.sum()) < float(held[1].sum()):
+        st.ctx = ctx
+        st.say(f"  {name}: {freed} fitted (validation SSE {st.noise_ratio(float(sg.sum()))} against "
+               f"{st.noise_ratio(float(held[1].sum()))} at the rig's value)")
+        return fr, sg, per_channel
+    st.say(f"  {name}: {freed} kept at the rig's value (fitted, the validation SSE is "
+           f"{st.noise_ratio(float(sg.sum()))}, not below {st.noise_ratio(float(held[1].sum()))})")
+    return held
 
 
 def _bootstrap_first(st: _Setup, cands: _Candidates, order: Sequence[str],
@@ -2367,6 +2428,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
         corrected_rig=corrected, validation=table, measurement=meas, screening=scr.as_dict(),
         reason=reason if sig_first or reason else "no significant gap", channels=sorted(st.channels),
         explained=explained, elapsed=time.perf_counter() - t0, plant_side=plant_side, detected=detected,
+        free_settings=sorted(st.ctx.free_settings),
     )
 
 
