@@ -523,6 +523,12 @@ def _coords(effects: Sequence[Effect], ctx: EffectContext) -> list[_Coord]:
             if not p.setting or e.name in ctx.free_settings]
 
 
+def _n_fitted(name: str, ctx: EffectContext) -> int:
+    """Parameters of effect ``name`` its fits search (BIC's k): a numerical setting counts only
+    where ``ctx`` frees it (:func:`_coords`)."""
+    return sum(1 for p in get_effect(name).parameters if not p.setting or name in ctx.free_settings)
+
+
 def _to_z(r: ParamRange, v: float) -> float:
     """Optimiser coordinate of a physical value: log(v), or (v − lower)/(upper − lower)."""
     v = r.clip(v)
@@ -1548,7 +1554,7 @@ class _Candidates:
             self.fits[name] = fr
             self.segs[name] = sg
             self.completeness[name] = _completeness(st, per_channel)
-            k = len(get_effect(name).parameters)
+            k = _n_fitted(name, st.ctx)
             self.stats[name] = {
                 "validation_explained": 1.0 - float(sg.sum()) / max(st.sse_val0, 1e-300),
                 "above_noise_explained": st.above_noise_share(float(sg.sum())),
@@ -1730,7 +1736,7 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
     # timing effects requested by the caller are also tried: a lead or lag often shows only once
     # the dominant (e.g. damping) error is removed
     cands = others + [f for f in forced if f not in others and f not in skip]
-    k1 = sum(len(get_effect(n).parameters) for n in chosen)
+    k1 = sum(_n_fitted(n, st.ctx) for n in chosen)
     rng = np.random.default_rng(seed)
     best2 = None
 
@@ -1742,7 +1748,7 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
         fr2, segs2 = res
         sse2 = float(segs2.sum())
         gain = st.above_noise_share(sse2, cur_sse)
-        k2 = k1 + len(get_effect(o).parameters)
+        k2 = k1 + _n_fitted(o, st.ctx)
         bic_gain = (_bic(fr2.sse * st.n_eff / st.n_fit, st.n_eff, k2)
                     - _bic(cur.sse * st.n_eff / st.n_fit, st.n_eff, k1))
         st.say(f"  {o}: removes {100 * gain:.1f} % of the remaining validation gap above noise, "
@@ -1925,7 +1931,7 @@ def _refine(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: list[str]
             if res is None:
                 continue
             fr2, segs2 = res
-            k1 = sum(len(get_effect(n).parameters) for n in chosen)
+            k1 = sum(_n_fitted(n, st.ctx) for n in chosen)
             k2 = k1 - len(get_effect(name).parameters) + len(get_effect(ref).parameters)
             bic = (_bic(fr2.sse * st.n_eff / st.n_fit, st.n_eff, k2)
                    - _bic(cur.sse * st.n_eff / st.n_fit, st.n_eff, k1))
