@@ -9,15 +9,16 @@ about v_ε·atanh(load/T_f) under loads below the breakaway torque instead of st
 Split from the pre-issue-35 ``coulomb_friction`` switch, which also turned on the rotor's brush
 friction; that switch is still read as both.
 
-The gap diagnosis fits v_ε with the friction level (``coulomb_friction``, ``stribeck_friction``):
-how fast the rod creeps under a load below breakaway, the width of the sliding onset (the
-presliding regime that Dahl- and LuGre-type friction models describe) is a property of the rod's
-bearing, not a numerical constant. Held at the rig file's 10 mrad/s where a rod creeps at, e.g.,
-2 mrad/s, the model creeps 5× too fast through every hold, and the fitted T_f/J grows to slow it
-by an amount set by how long the recording holds the rod still: a step test and an APRBS of the
-same unchanged rod gave T_f/J 26 % apart (z 6 over the within-session spread), an alarm of drift
-that no plant change caused (bench/results/gap_lab.md, docs/findings/gap.md). Its search range
-is :data:`WIDTH_RANGE`.
+The gap diagnosis can fit v_ε with the friction level (``coulomb_friction``,
+``stribeck_friction``): how fast the rod creeps under a load below breakaway, the width of the
+sliding onset (a static stand-in for the presliding creep that Dahl- and LuGre-type friction
+models describe dynamically), is a property of the rod's bearing, not a numerical constant. It is
+fitted only where the validation recordings say the free width predicts better
+(``aeropend_ident.gap.which._free_settings_if_validated``), over :data:`WIDTH_RANGE`. Held at the
+rig file's 10 mrad/s where a rod creeps at 2 mrad/s, the model creeps 5× too fast through every
+hold, and the fitted T_f/J grows to slow it by an amount set by how long the recording holds the
+rod still: a step test and an APRBS of the same unchanged rod gave T_f/J 26 % apart (z 6 over the
+within-session spread), an alarm of drift that no plant change caused (docs/findings/gap.md).
 """
 
 from __future__ import annotations
