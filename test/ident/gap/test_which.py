@@ -314,3 +314,25 @@ def test_closed_loop_log_with_the_drive_voltage_stamped_a_period_late_names_no_t
     timing = {"input_delay", "actuator_lag"}
     assert not (set(d.chosen) & timing)
     assert all((r.get("presence") or 0.0) < 0.5 for r in d.ranking if r["effect"] in timing)
+
+
+def test_a_numerical_setting_is_fitted_only_where_freed_and_a_held_one_says_so() -> None:
+    from dataclasses import replace
+
+    from aeropend_ident.gap.effects import EffectContext, MeasurementMap, get_effect
+    from aeropend_ident.gap.which import EffectFit, _coords, _n_fitted, _param_table
+
+    ctx = EffectContext(rig=RIG, duty_max=0.7, drive_max=8.0, omega_max=300.0, omega_ref=50.0, theta_hi=1.0)
+    e = get_effect("coulomb_friction")
+    assert [c.param.name for c in _coords([e], ctx)] == ["coulomb_over_J"] and _n_fitted(e.name, ctx) == 1
+    free = replace(ctx, free_settings=frozenset({e.name}))
+    assert [c.param.name for c in _coords([e], free)] == ["coulomb_over_J", "friction_velocity"]
+    assert _n_fitted(e.name, free) == 2
+    # a held width keeps the rig's value, also when applied without it
+    assert e.apply(RIG, {"coulomb_over_J": 1.0}).pendulum.friction_velocity == RIG.pendulum.friction_velocity
+    fit = EffectFit(effects=(e.name,), values={e.name: {"coulomb_over_J": 1.0, "friction_velocity": 0.01}},
+                    std={e.name: {"coulomb_over_J": 0.1}}, rig=RIG, meas=MeasurementMap(), sse=0.0, n=1,
+                    nfev=0)
+    table = _param_table(fit, e.name)
+    assert table["friction_velocity"] == {"value": 0.01, "std": None, "unit": "rad/s", "held": True}
+    assert "held" not in table["coulomb_over_J"]

@@ -319,7 +319,8 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
             r.get("q_value"),
             r.get("status"),
             "; ".join(
-                f"{n} = {_fmt(p.get('value'))} ± {_fmt(p.get('std'), '.2g')} {p.get('unit', '')}"
+                f"{n} = {_fmt(p.get('value'))} {p.get('unit', '')} (the rig's, not fitted)" if p.get("held")
+                else f"{n} = {_fmt(p.get('value'))} ± {_fmt(p.get('std'), '.2g')} {p.get('unit', '')}"
                 for n, p in (r.get("parameters") or {}).items()
             ),
         ]

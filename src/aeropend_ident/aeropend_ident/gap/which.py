@@ -1386,9 +1386,16 @@ class EffectDiagnosis:
 
 
 def _param_table(fitres: EffectFit, name: str) -> dict[str, dict[str, Any]]:
+    """``{parameter: {value, std, unit}}`` of one effect's fit; a numerical setting the fit held at
+    the rig's value (no standard error) also says ``"held": True``."""
     e = get_effect(name)
-    return {p.name: {"value": fitres.values[name][p.name], "std": fitres.std.get(name, {}).get(p.name),
-                     "unit": p.unit} for p in e.parameters}
+    out = {}
+    for p in e.parameters:
+        std = fitres.std.get(name, {}).get(p.name)
+        out[p.name] = {"value": fitres.values[name][p.name], "std": std, "unit": p.unit}
+        if p.setting and p.name not in fitres.std.get(name, {}):
+            out[p.name]["held"] = True
+    return out
 
 
 def _noise_var(y: np.ndarray) -> float:
