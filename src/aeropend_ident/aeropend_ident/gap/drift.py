@@ -135,7 +135,7 @@ def _fit_set(nominal: Rig, effects: Sequence[str], preps: Sequence[Prepared],
              start: Mapping[str, Mapping[str, float]] | None = None, scan: bool = False,
              free_settings: Sequence[str] = ()) -> Any:
     """The effect set fitted on prepared recordings, search ranges from those recordings; the
-    numerical settings of ``free_settings`` (a diagnosis' ``free_settings``) fitted too."""
+    held parameters of ``free_settings`` (a diagnosis' ``free_settings``) fitted too."""
     ctx = EffectContext.from_data(nominal, np.concatenate([p.y["theta"] for p in preps]),
                                   np.concatenate([p.duty for p in preps]))
     ctx = dataclasses.replace(ctx, free_settings=frozenset(free_settings))
@@ -688,7 +688,7 @@ def drift_table(nominal: Rig, sessions: Sequence[Sequence[Recording]], effects: 
         Channels compared.
     progress : callable, optional
     free_settings : sequence of str
-        Effects whose numerical settings are fitted too (a diagnosis' ``free_settings``, e.g.
+        Effects whose held parameters are fitted too (a diagnosis' ``free_settings``, e.g.
         the dry friction's onset width); others hold them at the rig's values (no row).
 
     Returns
@@ -734,8 +734,8 @@ def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, An
     rows = []
     for eff in effects:
         for par in get_effect(eff).parameters:
-            if par.setting and all(par.name not in f.std.get(eff, {}) for f in fits):
-                continue  # a numerical setting held at the rig's value: not fitted, nothing to compare
+            if par.held and all(par.name not in f.std.get(eff, {}) for f in fits):
+                continue  # a held parameter at the rig's value: not fitted, nothing to compare
             v = np.array([f.values[eff][par.name] for f in fits])
             s = np.array([f.std.get(eff, {}).get(par.name, math.nan) for f in fits])
             # a relative change only where the reference is a size (not an absent effect at ~0)

@@ -112,8 +112,8 @@ class EffectContext:
     theta_hi : float
         0.995 quantile of the recorded angle in the model frame [rad] (end-stop probe).
     free_settings : frozenset of str
-        Effects whose numerical-setting parameters (:attr:`EffectParameter.setting`, e.g. the dry
-        friction's onset width v_ε) are fitted; every other effect holds them at the rig's values
+        Effects whose held parameters (:attr:`EffectParameter.held`, e.g. the dry friction's onset
+        width v_ε) are fitted; every other effect holds them at the rig's values
         (:func:`aeropend_ident.gap.which.fit_effects`). The diagnosis frees them where its
         validation data ask for it.
     """
@@ -195,12 +195,6 @@ class ParamRange:
         return min(max(float(v), self.lower), self.upper)
 
 
-@cache
-def _setting_keys() -> frozenset[str]:
-    """Keys ``"section.name"`` of the registry's numerical settings (``Param.setting``)."""
-    return frozenset(k for k, p in registry.params().items() if p.setting)
-
-
 @dataclass(frozen=True)
 class EffectParameter:
     """One fitted parameter of an effect (a :class:`aeropend_sim.components.base.Search`).
@@ -230,12 +224,9 @@ class EffectParameter:
     doc: str
     search: Callable[[EffectContext], tuple[float, float, float, float]] = field(repr=False, compare=False)
     log: bool = False
-
-    @property
-    def setting(self) -> bool:
-        """Sets a numerical setting of the rig (a ``setting`` of :mod:`aeropend_sim.components`,
-        e.g. the dry friction's onset width v_ε) rather than a physical size."""
-        return self.rig_field in _setting_keys()
+    #: Held at the rig's value unless the diagnosis frees it (:attr:`EffectContext.free_settings`;
+    #: the dry friction's onset width v_ε): :attr:`aeropend_sim.components.base.Search.held`.
+    held: bool = False
 
     def bind(self, ctx: EffectContext) -> ParamRange:
         """The numeric search range for a context (clipped to the physical limits)."""
@@ -317,7 +308,7 @@ class Effect:
         """The catalog entry of a registry :class:`~aeropend_sim.components.base.Diagnosis`."""
         owner = registry.diagnosis_owner(d.name)
         fams = tuple(f.name for f in registry.families() if owner.applies_to(f) is None)
-        params = tuple(EffectParameter(s.name, s.unit, s.limits, s.target, s.doc, s.range, s.log)
+        params = tuple(EffectParameter(s.name, s.unit, s.limits, s.target, s.doc, s.range, s.log, s.held)
                        for s in d.search)
         return cls(d.name, d.subsystem, d.description, d.reveals, params, dict(d.sindy_terms),
                    d.confusable_with,
@@ -368,10 +359,11 @@ class Effect:
         return out
 
     def setting_values(self, rig: Rig) -> dict[str, float]:
-        """This effect's parameters that set a numerical setting of the rig, at the rig's values."""
+        """This effect's held parameters (:attr:`EffectParameter.held`, e.g. the dry friction's
+        onset width v_ε) at the rig's values."""
         out = {}
         for p in self.parameters:
-            if p.setting:
+            if p.held:
                 section, _, name = p.rig_field.partition(".")
                 out[p.name] = float(getattr(getattr(rig, section), name))
         return out
@@ -380,9 +372,8 @@ class Effect:
         """The rig with this effect switched on at the given physical values.
 
         Measurement transforms return the rig unchanged (see :meth:`measurement`,
-        :func:`apply_effects`). A parameter that sets a numerical setting of the rig (a
-        ``setting`` of :mod:`aeropend_sim.components`, e.g. the dry friction's onset width v_ε)
-        keeps the rig's value when ``values`` does not give it.
+        :func:`apply_effects`). A held parameter (:attr:`EffectParameter.held`, e.g. the dry
+        friction's onset width v_ε) keeps the rig's value when ``values`` does not give it.
 
         Raises
         ------
@@ -536,7 +527,7 @@ def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
     measurement : MeasurementMap, optional
         Starting measurement map (default identity).
     ctx : EffectContext, optional
-        Where missing parameter values take their probe values from (a numerical setting's,
+        Where missing parameter values take their probe values from (a held parameter,
         e.g. v_ε, keeps the rig's value, :meth:`Effect.setting_values`).
 
     Returns

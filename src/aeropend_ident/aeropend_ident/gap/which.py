@@ -517,16 +517,16 @@ class _Coord(NamedTuple):
 
 
 def _coords(effects: Sequence[Effect], ctx: EffectContext) -> list[_Coord]:
-    """The optimiser's coordinates: every parameter, but a numerical setting only where ``ctx``
-    frees it (:attr:`aeropend_ident.gap.effects.EffectContext.free_settings`)."""
+    """The optimiser's coordinates: every parameter, but a held one (the onset width v_ε) only where
+    ``ctx`` frees it (:attr:`aeropend_ident.gap.effects.EffectContext.free_settings`)."""
     return [_Coord(e, p, p.bind(ctx)) for e in effects for p in e.parameters
-            if not p.setting or e.name in ctx.free_settings]
+            if not p.held or e.name in ctx.free_settings]
 
 
 def _n_fitted(name: str, ctx: EffectContext) -> int:
-    """Parameters of effect ``name`` its fits search (BIC's k): a numerical setting counts only
+    """Parameters of effect ``name`` its fits search (BIC's k): a held parameter counts only
     where ``ctx`` frees it (:func:`_coords`)."""
-    return sum(1 for p in get_effect(name).parameters if not p.setting or name in ctx.free_settings)
+    return sum(1 for p in get_effect(name).parameters if not p.held or name in ctx.free_settings)
 
 
 def _to_z(r: ParamRange, v: float) -> float:
@@ -563,7 +563,7 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
     """Fit the physical parameters of one or more catalog effects by free-run output error.
 
     Each parameter is searched over its physical range (:meth:`Effect.ranges` of ``ctx``), log(value)
-    for strictly positive ones; a numerical setting (the dry friction's onset width v_ε) only where
+    for strictly positive ones; a held parameter (the dry friction's onset width v_ε) only where
     ``ctx.free_settings`` frees it, else it keeps ``rig``'s value. The objective is the normalised
     output error of every compared channel (:func:`residuals`). Output error in a delay, dead
     zone, stop angle or friction level has local minima, so the fit is **multi-start**: the given
@@ -673,16 +673,16 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
 def _scan_starts(coords: Sequence[_Coord], z_of: Callable[[Mapping[str, Mapping[str, float]]], np.ndarray],
                  lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
     """Starts of :func:`fit_effects` from a scan: where one coordinate is a physical size and the
-    others numerical settings (a dry friction's level and its onset width v_ε), :data:`N_SCAN`
+    others held parameters (a dry friction's level and its onset width v_ε), :data:`N_SCAN`
     values over the size's range, with the settings at the main start and at the rig's own
     values (the fit as it was with the setting held)."""
-    sizes = [i for i, c in enumerate(coords) if not c.param.setting]
+    sizes = [i for i, c in enumerate(coords) if not c.param.held]
     if len(sizes) != 1:
         return []
     k = sizes[0]
     held = {}
     for c in coords:
-        if c.param.setting:
+        if c.param.held:
             held.setdefault(c.effect.name, {})[c.param.name] = c.range.off
     out = []
     for fixed in ([{}, held] if held else [{}]):
@@ -1386,14 +1386,14 @@ class EffectDiagnosis:
 
 
 def _param_table(fitres: EffectFit, name: str) -> dict[str, dict[str, Any]]:
-    """``{parameter: {value, std, unit}}`` of one effect's fit; a numerical setting the fit held at
+    """``{parameter: {value, std, unit}}`` of one effect's fit; a held parameter the fit kept at
     the rig's value (no standard error) also says ``"held": True``."""
     e = get_effect(name)
     out = {}
     for p in e.parameters:
         std = fitres.std.get(name, {}).get(p.name)
         out[p.name] = {"value": fitres.values[name][p.name], "std": std, "unit": p.unit}
-        if p.setting and p.name not in fitres.std.get(name, {}):
+        if p.held and p.name not in fitres.std.get(name, {}):
             out[p.name]["held"] = True
     return out
 
@@ -1556,7 +1556,7 @@ class _Candidates:
             est = scr.estimates.get(name)
             fr = fit_effects(st.rig, [name], st.pf, st.ctx, starts=[{name: est}] if est else ())
             sg, per_channel = validation_errors(fr.rig, fr.meas, st.pv)
-            if any(p.setting for p in get_effect(name).parameters) and name not in st.ctx.free_settings:
+            if any(p.held for p in get_effect(name).parameters) and name not in st.ctx.free_settings:
                 fr, sg, per_channel = _free_settings_if_validated(st, name, est, (fr, sg, per_channel))
             self.fits[name] = fr
             self.segs[name] = sg
@@ -1577,7 +1577,7 @@ class _Candidates:
 def _free_settings_if_validated(st: _Setup, name: str, est: Mapping[str, float] | None,
                                 held: tuple[EffectFit, np.ndarray, dict]
                                 ) -> tuple[EffectFit, np.ndarray, dict]:
-    """The single-effect fit of ``name`` with its numerical settings (the dry friction's onset
+    """The single-effect fit of ``name`` with its held parameters (the dry friction's onset
     width v_ε) fitted too, kept when it predicts the validation recordings better than the fit
     with the rig's settings (``held``: fit, validation SSE per segment, per channel); the diagnosis
     then fits them wherever the effect enters (``st.ctx.free_settings``). A sample-split choice
@@ -1589,7 +1589,7 @@ def _free_settings_if_validated(st: _Setup, name: str, est: Mapping[str, float] 
     ctx = dataclasses.replace(st.ctx, free_settings=st.ctx.free_settings | {name} | refined)
     fr = fit_effects(st.rig, [name], st.pf, ctx, starts=[{name: est}] if est else ())
     sg, per_channel = validation_errors(fr.rig, fr.meas, st.pv)
-    freed = ", ".join(p.name for p in get_effect(name).parameters if p.setting)
+    freed = ", ".join(p.name for p in get_effect(name).parameters if p.held)
     if float(sg.sum()) < float(held[1].sum()):
         st.ctx = ctx
         st.say(f"  {name}: {freed} fitted (validation SSE {st.noise_ratio(float(sg.sum()))} against "

@@ -337,6 +337,10 @@ class Search:
         The range in words (docs tables).
     log : bool
         Searched as log(value) (strictly positive parameters).
+    held : bool
+        Held at the rig's value unless the diagnosis frees it, where its validation data say the
+        free value predicts better (the dry friction's onset width v_ε,
+        :func:`aeropend_ident.gap.which.fit_effects`); a value not given keeps the rig's.
     """
 
     name: str
@@ -347,6 +351,7 @@ class Search:
     range: Callable[[Any], tuple[float, float, float, float]] = field(repr=False, compare=False)
     range_doc: str = ""
     log: bool = False
+    held: bool = False
 
 
 #: Limits of a strictly positive searched parameter.

@@ -113,7 +113,7 @@ _COULOMB = Search("coulomb_over_J", "rad/s^2", (0.0, math.inf), "pendulum.coulom
                   "friction torque over inertia T_f/J", coulomb_range, "nominal … nominal + 0.5·mgd/J")
 _WIDTH = Search("friction_velocity", "rad/s", (1e-6, 10.0), "pendulum.friction_velocity",
                 "width v_ε of the sliding onset tanh(θ̇/v_ε)", width_range,
-                f"{WIDTH_RANGE[0]:g} … {WIDTH_RANGE[1]:g} rad/s", log=True)
+                f"{WIDTH_RANGE[0]:g} … {WIDTH_RANGE[1]:g} rad/s", log=True, held=True)
 
 EFFECT = Effect(
     name="rod_coulomb_friction",
