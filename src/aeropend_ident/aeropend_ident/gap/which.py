@@ -1939,7 +1939,7 @@ def _refine(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: list[str]
                 continue
             fr2, segs2 = res
             k1 = sum(_n_fitted(n, st.ctx) for n in chosen)
-            k2 = k1 - len(get_effect(name).parameters) + len(get_effect(ref).parameters)
+            k2 = k1 - _n_fitted(name, st.ctx) + _n_fitted(ref, st.ctx)
             bic = (_bic(fr2.sse * st.n_eff / st.n_fit, st.n_eff, k2)
                    - _bic(cur.sse * st.n_eff / st.n_fit, st.n_eff, k1))
             gain = st.above_noise_share(float(segs2.sum()), float(cur_segs.sum()))
