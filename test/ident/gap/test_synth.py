@@ -37,7 +37,7 @@ def test_truth_ranges_cover_the_catalog_and_draws_stay_inside():
                 scale = RIG.value(key) if key else 1.0
                 assert any(lo * scale <= v[p] <= hi * scale for lo, hi in intervals), (name, p, v)
             # every drawn value is a valid physical value of the catalog effect
-            EFFECTS[name].values({**EFFECTS[name].setting_values(RIG), **v})  # a held width: the rig's
+            EFFECTS[name].values({**EFFECTS[name].held_values(RIG), **v})  # a held width: the rig's
     # the thrust-law truth keeps the nominal thrust at the reference speed
     v = draw_truth("thrust_law", rng, RIG)
     w = thrust_reference_speed(RIG)

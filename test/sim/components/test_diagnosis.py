@@ -105,7 +105,7 @@ def test_every_candidate_has_truth_ranges_for_the_blind_benchmark(family):
         # a held parameter (the dry friction's onset width) keeps the rig's value: no truth range
         sized = {p.name for p in e.parameters if not p.held}
         assert set(truth) == sized or e.name == "thrust_law", e.name
-        e.values({**e.setting_values(rig), **truth})  # inside the physical limits
+        e.values({**e.held_values(rig), **truth})  # inside the physical limits
 
 
 def test_relative_truths_multiply_the_nominal_value():

@@ -358,15 +358,10 @@ class Effect:
                 raise GapError(f"effect {self.name!r}: {p.name} = {v!r} {p.unit} outside [{lo:g}, {hi:g}]")
         return out
 
-    def setting_values(self, rig: Rig) -> dict[str, float]:
+    def held_values(self, rig: Rig) -> dict[str, float]:
         """This effect's held parameters (:attr:`EffectParameter.held`, e.g. the dry friction's
         onset width v_ε) at the rig's values."""
-        out = {}
-        for p in self.parameters:
-            if p.held:
-                section, _, name = p.rig_field.partition(".")
-                out[p.name] = float(getattr(getattr(rig, section), name))
-        return out
+        return {p.name: float(rig.value(p.rig_field)) for p in self.parameters if p.held}
 
     def apply(self, rig: Rig, values: Mapping[str, float]) -> Rig:
         """The rig with this effect switched on at the given physical values.
@@ -381,7 +376,7 @@ class Effect:
             On unknown or missing parameters, values outside the physical limits, values the rig
             format rejects, or a rig of a family this effect does not belong to.
         """
-        vals = self.values({**self.setting_values(rig), **dict(values)})
+        vals = self.values({**self.held_values(rig), **dict(values)})
         if self._apply is None:
             return rig
         if rig.family not in self.families:
@@ -528,7 +523,7 @@ def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
         Starting measurement map (default identity).
     ctx : EffectContext, optional
         Where missing parameter values take their probe values from (a held parameter,
-        e.g. v_ε, keeps the rig's value, :meth:`Effect.setting_values`).
+        e.g. v_ε, keeps the rig's value, :meth:`Effect.held_values`).
 
     Returns
     -------
@@ -545,7 +540,7 @@ def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
     meas = measurement or MeasurementMap()
     for eff in EFFECTS.values():  # catalog order: a supply voltage (order 5) is what a bridge drop acts on
         if eff.name in chosen:
-            vals = eff.values({**eff.setting_values(rig), **dict(chosen[eff.name])}, ctx)
+            vals = eff.values({**eff.held_values(rig), **dict(chosen[eff.name])}, ctx)
             rig = eff.apply(rig, vals)
             meas = eff.measurement(meas, vals)
     return rig, meas

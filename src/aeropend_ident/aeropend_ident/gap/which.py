@@ -651,7 +651,7 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
     assert best is not None
     new, meas, vals = _assemble(rig, coords, best.x)
     for e in effs:  # a held setting keeps the rig's value (no standard error: not fitted)
-        for k, v in e.setting_values(rig).items():
+        for k, v in e.held_values(rig).items():
             vals.setdefault(e.name, {}).setdefault(k, v)
     std: dict[str, dict[str, float]] = {}
     cov_z: np.ndarray | None = None
@@ -1393,7 +1393,7 @@ def _param_table(fitres: EffectFit, name: str) -> dict[str, dict[str, Any]]:
     for p in e.parameters:
         std = fitres.std.get(name, {}).get(p.name)
         out[p.name] = {"value": fitres.values[name][p.name], "std": std, "unit": p.unit}
-        if p.held and p.name not in fitres.std.get(name, {}):
+        if p.held and std is None:
             out[p.name]["held"] = True
     return out
 
