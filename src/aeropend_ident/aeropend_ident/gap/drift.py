@@ -188,7 +188,9 @@ def _chosen_values(diag: EffectDiagnosis) -> tuple[dict[str, dict[str, float]], 
     for name in diag.chosen:
         params = by_name.get(name, {}).get("parameters", {})
         vals[name] = {k: float(v["value"]) for k, v in params.items()}
-        std[name] = {k: (float(v["std"]) if v.get("std") is not None else 0.0) for k, v in params.items()}
+        # a standard error the data do not give (None, or infinite: not determined) draws no spread
+        std[name] = {k: (float(v["std"]) if v.get("std") is not None and math.isfinite(v["std"]) else 0.0)
+                     for k, v in params.items()}
     return vals, std
 
 

@@ -186,7 +186,7 @@ def _drift_html(result: GapResult) -> str:
         tables.insert(0, result.sessions["drift"])
     for t in tables:
         rows = [[f"{r['effect']}.{r['parameter']}", " / ".join(
-            f"{v:.4g} ± {sd:.2g}" for v, sd in zip(r["values"], r["std"], strict=True)), r["unit"],
+            f"{v:.4g} ± {_fmt(sd, '.2g')}" for v, sd in zip(r["values"], r["std"], strict=True)), r["unit"],
             _change(r), _fmt(r["z"], ".1f"), "yes" if r["drifts"] else ""] for r in t["rows"]]
         parts.append(f"<h3>Parameter drift: {' vs '.join(_label(x) for x in t['sessions'])}</h3>" + _table(
             rows, ["parameter", "values ± std", "unit", "change", "z", "drifts"]))
