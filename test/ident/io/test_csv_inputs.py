@@ -303,6 +303,36 @@ def test_extra_channels_travel_with_slices_and_resampling() -> None:
     assert set(EXTRA_CHANNELS) == {"phi", "phi_dot", "theta_ref", "thrust"}
 
 
+def test_host_stamp_jitter_keeps_each_command_on_its_own_sample() -> None:
+    """A timer-driven rig at 50 Hz whose host stamps each row when it arrives (σ 4 % of the period,
+    the first stamp late like any other): row k is the command of sample k. Holding the last row at
+    or before each grid instant gave about half the rows to the next instant (a command one whole
+    sample, 20 ms, late: an input delay the fits read); the nearest row within half a period keeps
+    every command on its sample, and the grid sits where the stamps scatter about."""
+    rng = np.random.default_rng(3)
+    T, n = 0.02048, 1500
+    k = np.arange(n)
+    stamps = k * T + rng.normal(0.0, 0.04 * T, n)
+    stamps[0] = 0.1 * T  # the first row arrives 2 ms late
+    duty = rng.uniform(0.3, 0.7, n)  # a closed loop's command: a new value every sample
+    theta = np.sin(0.5 * k * T)  # sampled by the rig's timer at k*T
+    keep = np.ones(n, bool)
+    keep[[200, 700, 701]] = False  # dropped rows: their slots hold the command before them
+    rec = Recording(t=stamps[keep], duty=duty[keep], channels={"theta": theta[keep]}, source="host")
+    uni = uniform_recording(rec)
+    assert uni.t.size == n and np.allclose(np.diff(uni.t), uni.t[1])
+    assert uni.t[1] == pytest.approx(T, rel=2e-3)
+    expect = duty.copy()
+    expect[200], expect[700], expect[701] = duty[199], duty[699], duty[699]
+    assert np.array_equal(uni.duty, expect)
+    # the measurements sit on the rig's sample instants, not shifted by the first stamp's lateness:
+    # the least-squares time shift of the resampled θ against the true one (a grid through the first
+    # stamp: 0.1 T)
+    rate = 0.5 * np.cos(0.5 * k * T)
+    shift = float(np.sum((uni.channels["theta"] - theta) * rate) / np.sum(rate**2))
+    assert abs(shift) < 0.01 * T
+
+
 # ------------------------------------------------------------------ no actuator command logged
 
 

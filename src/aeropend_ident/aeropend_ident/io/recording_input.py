@@ -206,7 +206,7 @@ class Resampling:
     def note(self) -> str:
         """One line for a command's summary, e.g. ``resampled jitter100.csv onto a uniform 10 ms grid
         (the median regular interval): 5822 rows -> 6000 samples; jitter RMS 0.87 ms (max 1.5 ms); 178 dropped
-        rows filled; command held, θ interpolated``."""
+        rows filled; command of the nearest row (held over dropped rows), measurements interpolated``."""
         name = Path(self.source).name or self.source or "the recording"
         parts = [f"{self.rows_in} rows -> {self.rows_out} samples",
                  f"jitter RMS {_ms(self.jitter_rms)} (max {_ms(self.jitter_max)})"]
@@ -222,7 +222,8 @@ class Resampling:
         held = f"; {', '.join(self.held_channels)} quantised: nearest sample, not interpolated" \
             if self.held_channels else ""
         return (f"resampled {name} onto a uniform {_ms(self.dt)} grid (the median regular "
-                f"interval): {'; '.join(parts)}; command zero-order hold, measurements interpolated{held}")
+                f"interval): {'; '.join(parts)}; command of the nearest row (held over dropped rows), "
+                f"measurements interpolated{held}")
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form (``meta["resampling"]`` of the resampled recording)."""
@@ -235,8 +236,10 @@ class Resampling:
 
 #: The resampling rule in words (docs/csv_import.md "Timing"; ``meta["resampling"]["rule"]``).
 RESAMPLING_RULE = (
-    "grid t_k = k*dt from the first sample, dt = the median regular interval; the command (duty) and a "
-    "reference by zero-order hold (the value of the last sample at or before t_k); measured channels by "
+    "grid t_k = t_0 + phi + k*dt, dt = the median regular interval, phi the median offset of the stamps "
+    "from the grid through the first sample (within +-dt/2; 0 when dt is imposed from another recording); "
+    "the command (duty) and a reference: the sample stamped within dt/2 of t_k (the nearest), else the "
+    "last sample at or before t_k (zero-order hold over dropped rows and gaps); measured channels by "
     "linear interpolation between the neighbouring samples, a quantised channel by its nearest sample; "
     f"intervals up to {GAP_STEPS:g} dt are jitter or dropped rows, longer ones gaps (reported, bridged "
     "the same way)")
@@ -281,12 +284,15 @@ def detect_quantum(y: np.ndarray) -> float:
 def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
     """The recording on a uniform time grid: the one resampling of every command.
 
-    The rule (:data:`RESAMPLING_RULE`): grid t_k = k·dt from the first sample, dt the median
-    interval unless given; the duty cycle and the reference ``theta_ref`` (set points) by zero-order
-    hold; measured channels (θ, the contract channels, the extra channels) by linear interpolation,
-    except a quantised one (:func:`detect_quantum`), which takes its nearest sample so that it stays
-    on its lattice. Timestamp jitter, dropped rows and gaps are measured and reported
-    (:class:`Resampling` in ``meta["resampling"]``, :func:`resampling_notes`), never refused. A
+    The rule (:data:`RESAMPLING_RULE`): grid t_k = φ + k·dt, dt the median interval unless given, φ
+    where the stamps scatter about (:func:`grid_phase`; through the first sample when dt is given
+    and differs from the recording's own); the duty cycle and the reference ``theta_ref`` (set
+    points) of the row stamped within dt/2 of t_k, else held from the last row before it
+    (:func:`uniform_grid`); measured channels (θ, the contract channels, the extra channels) by
+    linear interpolation at t_k, except a quantised one (:func:`detect_quantum`), which takes its
+    nearest sample so that it stays on its lattice. The result's time starts at 0. Timestamp
+    jitter, dropped rows and gaps are measured and reported (:class:`Resampling` in
+    ``meta["resampling"]``, :func:`resampling_notes`), never refused. A
     recording whose intervals are all within :data:`UNIFORM_TOLERANCE` of dt is returned unchanged.
     A constant input is accepted here (a step from rest or a free decay is a valid recording); the
     fits decide what the data can identify.
@@ -329,7 +335,8 @@ def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
     step = grid_step(t) if dt is None else float(dt)
     if not (math.isfinite(step) and step > 0.0):
         raise RecordingInputError(f"{src}: grid step dt = {dt!r}; expected a finite value > 0 s")
-    grid = uniform_grid(t, step)
+    own = dt is None or abs(step - grid_step(t)) <= UNIFORM_TOLERANCE * step
+    grid = uniform_grid(t, step, align=own)
     if grid is None:
         return rec
     tu, idx = grid
@@ -346,7 +353,7 @@ def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
     report = _timing_report(src, t, step, tu.size, held)
     meta = {**rec.meta, "resampling": report.as_dict()}
     return Recording(
-        t=tu, duty=rec.duty[idx], channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta,
+        t=tu - tu[0], duty=rec.duty[idx], channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta,
         extra=extra, extra_units=dict(rec.extra_units),
     )
 
@@ -366,8 +373,15 @@ def grid_step(t: np.ndarray) -> float:
     return float(np.median(regular)) if regular.size else first
 
 
-def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """The uniform grid of period ``dt`` over time stamps ``t`` (from 0), or None if ``t`` is on it.
+def grid_phase(t: np.ndarray, dt: float) -> float:
+    """Offset [s] of a uniform grid of period ``dt`` from the grid through the first stamp: the median
+    of each stamp's offset from its nearest grid point, in [−dt/2, dt/2].
+
+    A logger whose host stamps each row when it arrives scatters the stamps about the instants the
+    rig sampled at; the first stamp is as late or early as any other, so a grid through it is off by
+    its own jitter (a constant shift of the measurements against the commands). The median offset of
+    all stamps puts the grid where they scatter about (dropped rows keep their place: offsets are
+    taken from the nearest grid point).
 
     Parameters
     ----------
@@ -375,18 +389,43 @@ def uniform_grid(t: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray] | No
         Increasing time stamps [s] starting at 0.
     dt : float
         Grid period [s] (> 0).
+    """
+    t = np.asarray(t, dtype=float)
+    return float(np.median(t - dt * np.round(t / dt)))
+
+
+def uniform_grid(t: np.ndarray, dt: float, align: bool = True) -> tuple[np.ndarray, np.ndarray] | None:
+    """The uniform grid of period ``dt`` over time stamps ``t``, or None if ``t`` is on it.
+
+    Parameters
+    ----------
+    t : ndarray, shape (N,)
+        Increasing time stamps [s] starting at 0.
+    dt : float
+        Grid period [s] (> 0).
+    align : bool
+        Place the grid where the stamps scatter about (:func:`grid_phase`); False: through the first
+        stamp (a grid period imposed from another recording, about which these stamps do not scatter).
 
     Returns
     -------
     (t_grid, idx) or None
-        ``t_grid = k·dt`` up to ``t[-1]`` and, per grid point, the index of the last sample at or
-        before it (zero-order hold of an input); None when every interval of ``t`` is within
+        The grid instants ``t_grid = φ + k·dt`` (φ the phase, 0 unaligned) up to ``t[-1]`` on the
+        stamps' clock and, per grid instant, the row of the command there: the row stamped within
+        dt/2 of it (the nearest; with stamp jitter of a few % of dt, row k for instant k), else the
+        last row at or before it (zero-order hold over a dropped row or a gap). Holding the last row
+        at or before each instant instead would give about half the rows of a jittered log to the
+        next instant, a command one whole sample late; None when every interval of ``t`` is within
         ±UNIFORM_TOLERANCE of ``dt`` (no resampling needed).
     """
     if np.all(np.abs(np.diff(t) - dt) <= UNIFORM_TOLERANCE * dt):
         return None
-    tu = np.arange(math.floor(t[-1] / dt + 1e-9) + 1) * dt
-    idx = np.clip(np.searchsorted(t, tu + 1e-9 * dt, side="right") - 1, 0, t.size - 1)
+    phase = grid_phase(t, dt) if align else 0.0
+    tu = phase + np.arange(math.floor((t[-1] - phase) / dt + 1e-9) + 1) * dt
+    hold = np.clip(np.searchsorted(t, tu + 1e-9 * dt, side="right") - 1, 0, t.size - 1)
+    after = np.clip(hold + 1, 0, t.size - 1)
+    near = np.where(np.abs(t[after] - tu) < np.abs(t[hold] - tu), after, hold)
+    idx = np.where(np.abs(t[near] - tu) <= 0.5 * dt * (1 + 1e-9), near, hold)
     return tu, idx
 
 
