@@ -291,10 +291,13 @@ def test_prediction_is_over_the_held_out_recordings_range_not_the_validation_par
     assert old["interval"][0] > 3.0 * actual
 
 
-def test_a_draw_outside_a_parameters_limits_is_a_failed_draw_not_a_failed_prediction() -> None:
+def test_a_draw_outside_a_parameters_limits_is_a_failed_draw_not_a_failed_prediction(monkeypatch) -> None:
     # jahoyosr's real sessions: gravity chosen with a standard error far above its value, so some
     # drawn mgd/J sit at the floor of its limits and a drift factor below 1 takes them under it;
-    # those draws fail, the prediction is made from the others (it was refused whole before)
+    # those draws fail, the prediction is made from the others (it was refused whole before).
+    # Draws are clipped to the search range now (below), which keeps mgd/J above the floor; clipped
+    # to the physical limits alone (a context that cannot be built), they still reach it
+    from aeropend_ident.gap import drift
     from aeropend_ident.gap.drift import predict_heldout
     from aeropend_ident.gap.effects import MeasurementMap
     from aeropend_sim.params import rig_from_dict
@@ -309,6 +312,10 @@ def test_a_draw_outside_a_parameters_limits_is_a_failed_draw_not_a_failed_predic
                                                                                          "std": 1e3 * v}}}],
                            channels=["theta"])
     pr = predict_heldout(rig, diag, [rec[0]], targets=[rec[1]], draws=60, seed=0)
+    assert pr["draws"] == 60  # every draw inside the search range: none fails
+    with monkeypatch.context() as m:
+        m.setattr(drift, "_search_bounds", lambda *a: {})
+        pr = predict_heldout(rig, diag, [rec[0]], targets=[rec[1]], draws=60, seed=0)
     assert 0 < pr["draws"] < 60
     lo, hi = pr["interval"]
     assert 0.0 < lo <= pr["predicted"] <= hi
