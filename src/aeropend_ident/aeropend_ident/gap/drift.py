@@ -218,9 +218,9 @@ def _draw_effects(nominal: Rig, diag: EffectDiagnosis, vals: Mapping[str, Mappin
     """The corrected rig with its effect parameters drawn from N(value, standard error), clipped to
     their search ranges ``bounds`` (:func:`_search_bounds`; default the physical limits) (the
     effect-fit uncertainty); the corrected rig itself when no standard error is known or the drawn
-    set does not apply. Clipped to the physical limits alone, a dry friction's onset width drawn
-    two standard errors below a fit of a few mrad/s came out at 1e-12 rad/s: a replay at the
-    sub-step limit for every sample, 700 s for one prediction."""
+    set does not apply. Clipped to the physical limits alone, a dry friction's draws could reach
+    an onset width of 1e-6 rad/s or an unbounded level: a slope at rest that put every replay at
+    thousands of sub-steps per sample (one prediction of the lab benchmark took most of 700 s)."""
     if not any(s > 0.0 for d in std.values() for s in d.values()):
         return diag.corrected_rig
     drawn: dict[str, dict[str, float]] = {}
