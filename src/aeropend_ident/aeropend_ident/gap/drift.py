@@ -197,18 +197,18 @@ def _chosen_values(diag: EffectDiagnosis) -> tuple[dict[str, dict[str, float]], 
 def _search_bounds(nominal: Rig, diag: EffectDiagnosis,
                    preps: Sequence[Prepared]) -> dict[str, dict[str, tuple[float, float]]]:
     """(lower, upper) of each chosen effect parameter's search range for the nominal rig and the
-    recordings ``preps`` (:meth:`EffectParameter.bind`); the physical limits where the context
-    cannot be built."""
+    recordings ``preps`` (:meth:`EffectParameter.bind`); empty where the context cannot be built
+    (:func:`_draw_effects` then clips to the physical limits)."""
     try:
         ctx = EffectContext.from_data(nominal, np.concatenate([p.y["theta"] for p in preps]),
                                       np.concatenate([p.duty for p in preps]))
     except GapError:
-        ctx = None
+        return {}
     out: dict[str, dict[str, tuple[float, float]]] = {}
     for eff in diag.chosen:
         for par in get_effect(eff).parameters:
-            r = par.bind(ctx) if ctx is not None else None
-            out.setdefault(eff, {})[par.name] = (r.lower, r.upper) if r is not None else par.limits
+            r = par.bind(ctx)
+            out.setdefault(eff, {})[par.name] = (r.lower, r.upper)
     return out
 
 

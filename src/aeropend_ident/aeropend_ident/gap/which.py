@@ -743,7 +743,7 @@ def parameter_covariance(jac: np.ndarray, res: np.ndarray, blocks: np.ndarray) -
     if np.any(dead):
         live = np.flatnonzero(~dead)
         out = np.zeros((jac.shape[1],) * 2)
-        out[np.flatnonzero(dead), np.flatnonzero(dead)] = math.inf
+        out[dead, dead] = math.inf
         if live.size:
             out[np.ix_(live, live)] = parameter_covariance(jac[:, live], res, blocks)
         return out
