@@ -34,7 +34,9 @@ the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-ou
    of what the simpler one leaves). "No significant gap" when no channel's nominal validation
    error exceeds :data:`ABOVE_NOISE` times its noise part, or when no effect removes
    :data:`MIN_EXPLAINED` of the validation gap above noise with a BIC gain of :data:`MIN_BIC_GAIN`
-   on the fit data. Further effects are added by forward selection (:func:`_add_effect`) while
+   on the fit data (and, when the effects are ranked on the fit part because the validation part
+   shows no gap, with an in-sample split-test p-value of at most :data:`IN_SAMPLE_MAX_P`).
+   Further effects are added by forward selection (:func:`_add_effect`) while
    the chosen set leaves a gap above the noise, up to ``max_effects``.
 5. **Two numbers: presence and completeness** (:func:`_evidence`). An effect's **presence**
    (0..1) is the evidence that it is in the plant: a sample-split test of its fit (made on the
