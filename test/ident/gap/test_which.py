@@ -376,3 +376,54 @@ def test_an_in_sample_gain_carried_by_a_few_seconds_names_no_effect() -> None:
     inertia = next(r for r in d.ranking if r["effect"] == "inertia")
     assert inertia["above_noise_explained"] > 0.25 and inertia["bic_delta"] < -10.0
     assert inertia["p_value"] > 0.5 and inertia.get("presence_in_sample")
+
+
+def test_single_effect_fits_in_threads_give_the_figures_of_fits_one_after_the_other(monkeypatch) -> None:
+    # _Candidates.confirm runs the independent single-effect fits in threads (one per core); a held
+    # setting one of them frees (here the dry friction's onset width: a rod whose friction sets in
+    # over 2 mrad/s, the rig file's 10 mrad/s) is merged after it. One thread and two: the same
+    # chosen set, freed settings and ranked figures.
+    from aeropend_ident.gap import which
+    from bench.bench_gap_independent import rig_dict, to_recording
+    from bench.fixtures import truth_plant as tp
+
+    p = tp.PlantParams()
+    plant = tp.TruthPlant(p, {"coulomb_friction": 1.0})
+    steps = tp.record(plant, tp.lhs_steps(30.0, seed=51), 50.0, 52, channels=("theta",))
+    sweep = tp.record(plant, tp.aprbs(30.0, seed=53), 50.0, 54, channels=("theta",))
+    fit, val = [to_recording(steps, "steps")], [to_recording(sweep, "aprbs")]
+    rig = rig_from_dict(rig_dict(p, "lab_nominal"), where="test")
+    runs = {}
+    for n in (1, 2):
+        monkeypatch.setattr(which, "fit_threads", lambda n=n: n)
+        runs[n] = diagnose_effects(rig, fit, val, max_effects=1, seed=0)
+    one, two = runs[1], runs[2]
+    assert one.chosen == two.chosen == ["coulomb_friction"]
+    assert one.free_settings == two.free_settings == ["coulomb_friction", "stribeck_friction"]
+    keys = ("effect", "validation_explained", "bic_delta", "p_value", "presence")
+    figures = {n: [{k: r.get(k) for k in keys} for r in d.ranking] for n, d in runs.items()}
+    assert figures[1] == figures[2]
+    assert len(one.ranking) >= 5
+
+
+def test_forward_selection_in_threads_gives_the_figures_of_fits_one_after_the_other(monkeypatch) -> None:
+    # the joint fits of a forward-selection step (_add_effect) run at once; the step takes their
+    # figures in order (its bootstrap draws from one generator), so one thread and two give the
+    # same chosen set, validation table and ranked figures
+    from aeropend_ident.gap import which
+
+    p, m = RIG.pendulum, RIG.motor
+    truth = {"viscous_friction": {"c_over_J": 0.4 * p.c_over_J}, "motor_time_constant": {"J_m": 4.0 * m.J_m},
+             "gravity": {"mgd_over_J": 1.3 * p.mgd_over_J}}
+    case = make_case(RIG, list(truth), 31, fit_duration=10.0, held_out_steps=4, truth=truth, snr_db=50.0,
+                     channels=("theta",))
+    runs = {}
+    for n in (1, 2):
+        monkeypatch.setattr(which, "fit_threads", lambda n=n: n)
+        runs[n] = diagnose_effects(RIG, case.fit, case.held_out, max_effects=3,
+                                   also_confirm=("motor_time_constant", "actuator_lag", "input_delay"))
+    assert runs[1].chosen == runs[2].chosen and len(runs[1].chosen) == 3
+    assert runs[1].validation == runs[2].validation
+    keys = ("effect", "validation_explained", "bic_delta", "p_value", "presence", "added")
+    figures = {n: [{k: r.get(k) for k in keys} for r in d.ranking] for n, d in runs.items()}
+    assert figures[1] == figures[2]

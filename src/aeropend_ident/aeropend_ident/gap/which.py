@@ -82,8 +82,10 @@ import dataclasses
 import functools
 import itertools
 import math
+import os
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -109,7 +111,7 @@ from aeropend_ident.gap.effects import (
     measurement_noise,
     nominal_model_check,
 )
-from aeropend_ident.greybox.batch import RigReplays
+from aeropend_ident.greybox.batch import RigReplays, replay_threads
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.overlay_axes import diverges
@@ -1572,56 +1574,119 @@ class _Candidates:
 
     def confirm(self, st: _Setup, names: Sequence[str], scr: Screening) -> None:
         """Fit each effect alone (multi-start, from its equation-error estimate too) and score it
-        on the validation recordings."""
-        for name in names:
-            if name in self.fits:
-                continue
-            st.say(f"grey-box fit of {name}")
-            est = scr.estimates.get(name)
-            fr = fit_effects(st.rig, [name], st.pf, st.ctx, starts=[{name: est}] if est else ())
-            sg, per_channel = validation_errors(fr.rig, fr.meas, st.pv)
-            if any(p.held for p in get_effect(name).parameters) and name not in st.ctx.free_settings:
-                fr, sg, per_channel = _free_settings_if_validated(st, name, est, (fr, sg, per_channel))
-            self.fits[name] = fr
-            self.segs[name] = sg
-            self.completeness[name] = _completeness(st, per_channel)
-            k = _n_fitted(name, st.ctx)
-            self.stats[name] = {
-                "validation_explained": 1.0 - float(sg.sum()) / max(st.sse_val0, 1e-300),
-                "above_noise_explained": st.above_noise_share(float(sg.sum())),
-                "bic_delta": (_bic(fr.sse * st.n_eff / st.n_fit, st.n_eff, k)
-                              - _bic(st.sse_fit0 * st.n_eff / st.n_fit, st.n_eff, 0)),
-            }
+        on the validation recordings.
+
+        The fits are independent and run at once (:func:`_each`); the figures are those of
+        fitting one after the other. A held setting freed by one fit
+        (:func:`_free_settings_if_validated`) concerns that effect's parameters only, so it is
+        merged into ``st.ctx`` after the fit."""
+        todo = [n for n in dict.fromkeys(names) if n not in self.fits]
+        if fit_threads() <= 1:  # each fit sees the settings the ones before it freed (it ignores them)
+            for name in todo:
+                self._take(st, name, _confirm_one(st, st.ctx, name, scr.estimates.get(name), st.say))
+            return
+        ctx = st.ctx
+        work = functools.partial(_confirm_one, st, ctx)
+        for name, result in _each(st, todo, lambda n, say: work(n, scr.estimates.get(n), say)):
+            self._take(st, name, result)
+
+    def _take(self, st: _Setup, name: str,
+              result: tuple[EffectFit, np.ndarray, dict, frozenset[str]]) -> None:
+        """Record one single-effect fit (:func:`_confirm_one`) and its validation figures."""
+        fr, sg, per_channel, freed = result
+        if freed:
+            st.ctx = dataclasses.replace(st.ctx, free_settings=st.ctx.free_settings | freed)
+        self.fits[name] = fr
+        self.segs[name] = sg
+        self.completeness[name] = _completeness(st, per_channel)
+        k = _n_fitted(name, st.ctx)
+        self.stats[name] = {
+            "validation_explained": 1.0 - float(sg.sum()) / max(st.sse_val0, 1e-300),
+            "above_noise_explained": st.above_noise_share(float(sg.sum())),
+            "bic_delta": (_bic(fr.sse * st.n_eff / st.n_fit, st.n_eff, k)
+                          - _bic(st.sse_fit0 * st.n_eff / st.n_fit, st.n_eff, 0)),
+        }
 
     def best_above_noise(self) -> float:
         """Largest share of the validation gap above noise that one candidate removes."""
         return max((c["above_noise_explained"] for c in self.stats.values()), default=0.0)
 
 
-def _free_settings_if_validated(st: _Setup, name: str, est: Mapping[str, float] | None,
-                                held: tuple[EffectFit, np.ndarray, dict]
-                                ) -> tuple[EffectFit, np.ndarray, dict]:
+def fit_threads() -> int:
+    """Threads the independent single-effect fits of one diagnosis run in
+    (:meth:`_Candidates.confirm`): :func:`aeropend_ident.greybox.batch.replay_threads` if set (a
+    pool or cluster worker running one case per core sets 1), else one per available core."""
+    n = replay_threads()
+    return n if n is not None else max(1, len(os.sched_getaffinity(0)))
+
+
+def _each(st: _Setup, items: Sequence[str], work: Callable[[str, Callable[[str], None]], Any]
+          ) -> Iterator[tuple[str, Any]]:
+    """``(item, work(item, say))`` for every item, in order, the independent fits of one step run
+    in :func:`fit_threads` threads at once (the compiled replays release the GIL).
+
+    ``work`` reports progress through the ``say`` it is given; in threads its lines are kept and
+    passed on to ``st.say`` in the order of ``items``, each before its result is yielded, so the
+    progress reads as when the fits run one after the other (which they do with one thread).
+    ``work`` must not change ``st``; an exception in one item is raised when its turn comes.
+    """
+    n = min(fit_threads(), len(items))
+    if n <= 1:
+        for item in items:
+            yield item, work(item, st.say)
+        return
+    for prep in (*st.pf, *st.pv):  # their compiled replays are built here, not raced for by the threads
+        _ = prep.replays, prep.head
+    with ThreadPoolExecutor(max_workers=n, thread_name_prefix="aeropend-fit") as pool:
+        jobs = []
+        for item in items:
+            lines: list[str] = []
+            jobs.append((item, lines, pool.submit(work, item, lines.append)))
+        for item, lines, job in jobs:
+            result = job.result()
+            for line in lines:
+                st.say(line)
+            yield item, result
+
+
+def _confirm_one(st: _Setup, ctx: EffectContext, name: str, est: Mapping[str, float] | None,
+                 say: Callable[[str], None]) -> tuple[EffectFit, np.ndarray, dict, frozenset[str]]:
+    """The single-effect fit of ``name`` on the fit recordings (starting from its equation-error
+    estimate ``est`` too), its validation SSE per segment and per channel, and the effects whose
+    held settings it freed (:func:`_free_settings_if_validated`; empty when none). Reads ``st``
+    and ``ctx`` only: the fits of several effects may run at once."""
+    say(f"grey-box fit of {name}")
+    fr = fit_effects(st.rig, [name], st.pf, ctx, starts=[{name: est}] if est else ())
+    sg, per_channel = validation_errors(fr.rig, fr.meas, st.pv)
+    if any(p.held for p in get_effect(name).parameters) and name not in ctx.free_settings:
+        return _free_settings_if_validated(st, ctx, name, est, (fr, sg, per_channel), say)
+    return fr, sg, per_channel, frozenset()
+
+
+def _free_settings_if_validated(st: _Setup, ctx: EffectContext, name: str, est: Mapping[str, float] | None,
+                                held: tuple[EffectFit, np.ndarray, dict], say: Callable[[str], None]
+                                ) -> tuple[EffectFit, np.ndarray, dict, frozenset[str]]:
     """The single-effect fit of ``name`` with its held parameters (the dry friction's onset
     width v_ε) fitted too, kept when it predicts the validation recordings better than the fit
     with the rig's settings (``held``: fit, validation SSE per segment, per channel); the diagnosis
-    then fits them wherever the effect enters (``st.ctx.free_settings``). A sample-split choice
+    then fits them wherever the effect enters (the returned names join ``st.ctx.free_settings``:
+    ``name`` and its refinements, a Stribeck law of the dry friction; empty when the rig's
+    settings stay). A sample-split choice
     between two nested models: on a rod that creeps slower than the rig file's regularisation
     allows, the free width wins by far; where the fit data alone favour a width the validation
     data do not bear out (a real rig with more than dry friction), the rig's width stays."""
-    # its refinements (a Stribeck law of the dry friction) take the same settings over
-    refined = {r for r in st.refinements if name in get_effect(r).refines}
-    ctx = dataclasses.replace(st.ctx, free_settings=st.ctx.free_settings | {name} | refined)
-    fr = fit_effects(st.rig, [name], st.pf, ctx, starts=[{name: est}] if est else ())
+    freed = frozenset({name} | {r for r in st.refinements if name in get_effect(r).refines})
+    fr = fit_effects(st.rig, [name], st.pf, dataclasses.replace(ctx, free_settings=ctx.free_settings | freed),
+                     starts=[{name: est}] if est else ())
     sg, per_channel = validation_errors(fr.rig, fr.meas, st.pv)
-    freed = ", ".join(p.name for p in get_effect(name).parameters if p.held)
+    what = ", ".join(p.name for p in get_effect(name).parameters if p.held)
     if float(sg.sum()) < float(held[1].sum()):
-        st.ctx = ctx
-        st.say(f"  {name}: {freed} fitted (validation SSE {st.noise_ratio(float(sg.sum()))} against "
-               f"{st.noise_ratio(float(held[1].sum()))} at the rig's value)")
-        return fr, sg, per_channel
-    st.say(f"  {name}: {freed} kept at the rig's value (fitted, the validation SSE is "
-           f"{st.noise_ratio(float(sg.sum()))}, not below {st.noise_ratio(float(held[1].sum()))})")
-    return held
+        say(f"  {name}: {what} fitted (validation SSE {st.noise_ratio(float(sg.sum()))} against "
+            f"{st.noise_ratio(float(held[1].sum()))} at the rig's value)")
+        return fr, sg, per_channel, freed
+    say(f"  {name}: {what} kept at the rig's value (fitted, the validation SSE is "
+        f"{st.noise_ratio(float(sg.sum()))}, not below {st.noise_ratio(float(held[1].sum()))})")
+    return (*held, frozenset())
 
 
 def _bootstrap_first(st: _Setup, cands: _Candidates, order: Sequence[str],
@@ -1721,11 +1786,12 @@ def excluded_with(chosen: Sequence[str]) -> set[str]:
 
 def _joint(st: _Setup, cur: EffectFit, chosen: Sequence[str], o: str,
            alone: EffectFit | None = None,
-           o_start: Mapping[str, float] | None = None) -> tuple[EffectFit, np.ndarray] | None:
+           o_start: Mapping[str, float] | None = None,
+           say: Callable[[str], None] | None = None) -> tuple[EffectFit, np.ndarray] | None:
     """``chosen`` + ``o`` fitted jointly from the chosen values and ``o``'s fit on the corrected
     model (fitted here unless given, from ``o_start`` where given); its validation SSE per segment.
-    None when a fit fails."""
-    st.say(f"joint fit of {' + '.join(chosen)} + {o}")
+    None when a fit fails. Progress goes to ``say`` (default ``st.say``)."""
+    (say or st.say)(f"joint fit of {' + '.join(chosen)} + {o}")
     try:
         alone = alone or fit_effects(cur.rig, [o], st.pf, st.ctx, start={o: dict(o_start or {})})
         start = {**{n: cur.values[n] for n in chosen}, o: alone.values[o]}
@@ -1771,9 +1837,8 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
     rng = np.random.default_rng(seed)
     best2 = None
 
-    def consider(o: str, alone: EffectFit | None = None) -> None:
+    def consider(o: str, res: tuple[EffectFit, np.ndarray] | None) -> None:
         nonlocal best2
-        res = _joint(st, cur, chosen, o, alone)
         if res is None:
             return
         fr2, segs2 = res
@@ -1802,20 +1867,24 @@ def _add_effect(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: Sequen
                                              float(cur_segs[pick].sum())) >= MIN_EXPLAINED_SECOND
             best2 = _Added(gain, o, fr2, bic_gain, scr2, sse2, segs2, hits / N_BOOTSTRAP, p_value)
 
-    for o in cands:
-        consider(o)
+    # the joint fits are independent (run at once, _each); their figures are taken in order
+    for o, res in _each(st, cands, lambda o, say: _joint(st, cur, chosen, o, say=say)):
+        consider(o, res)
     if best2 is None:
         more = [n for n in st.model_effects if n not in skip and n not in cands]
         st.say(f"no proposed effect passes; fitting the rest of the catalog on the corrected model: {more}")
-        alone: dict[str, tuple[float, EffectFit]] = {}
-        for o in more:
+
+        def alone_fit(o: str, _say: Callable[[str], None]) -> tuple[float, EffectFit] | None:
             try:
                 fr = fit_effects(cur.rig, [o], st.pf, st.ctx)
             except GapError:
-                continue
-            alone[o] = (float(segment_sse(fr.rig, fr.meas, st.pv).sum()), fr)
-        for o in sorted(alone, key=lambda n: alone[n][0])[:FORWARD_CANDIDATES]:
-            consider(o, alone[o][1])
+                return None
+            return float(segment_sse(fr.rig, fr.meas, st.pv).sum()), fr
+
+        alone = {o: r for o, r in _each(st, more, alone_fit) if r is not None}
+        best = sorted(alone, key=lambda n: alone[n][0])[:FORWARD_CANDIDATES]
+        for o, res in _each(st, best, lambda o, say: _joint(st, cur, chosen, o, alone[o][1], say=say)):
+            consider(o, res)
     return best2
 
 
