@@ -1613,9 +1613,9 @@ class _Candidates:
 
 
 def fit_threads() -> int:
-    """Threads the independent single-effect fits of one diagnosis run in
-    (:meth:`_Candidates.confirm`): :func:`aeropend_ident.greybox.batch.replay_threads` if set (a
-    pool or cluster worker running one case per core sets 1), else one per available core."""
+    """Threads the independent fits of one diagnosis step run in (:func:`_each`):
+    :func:`aeropend_ident.greybox.batch.replay_threads` if set (a pool or cluster worker running
+    one case per core sets 1), else one per available core."""
     n = replay_threads()
     return n if n is not None else max(1, len(os.sched_getaffinity(0)))
 
@@ -2356,12 +2356,11 @@ def _screen_and_confirm(rig: Rig, st: _Setup, also_confirm: Sequence[str], seed:
     short = scr.shortlist(SHORTLIST)
     say(f"shortlist: {short}")
     cands = _Candidates()
-    cands.confirm(st, short, scr)
     forced = list(dict.fromkeys(n for n in (*unscreened, *also_confirm) if n in st.model_effects))
     if forced:
-        say(f"also confirming {[f for f in forced if f not in cands.fits]} (not screened, or requested: "
+        say(f"also confirming {[f for f in forced if f not in short]} (not screened, or requested: "
             "timing lead/lag seen by the where-analysis)")
-        cands.confirm(st, forced, scr)
+    cands.confirm(st, [*short, *forced], scr)  # one step: the fits run at once (_each)
     if 1.0 - cands.best_above_noise() > EXTEND_BELOW_GAP:
         # the best candidate leaves much of the gap above noise: confirm the next screened effects
         extra = [n for n in scr.shortlist(SHORTLIST + EXTEND_SHORTLIST) if n not in cands.fits]

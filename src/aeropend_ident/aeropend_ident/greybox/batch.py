@@ -46,6 +46,7 @@ import dataclasses
 import functools
 import math
 import os
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -142,14 +143,25 @@ class RigReplays:
         self._plants: dict[tuple, tuple[CompiledPlant, dict[str, float]]] = {}
         #: Replayed rows, for the record (benchmarks count them).
         self.rows = 0
+        # the fits of one diagnosis step may replay on one recording from several threads at once
+        self._lock = threading.Lock()
+
+    def __getstate__(self) -> dict[str, Any]:  # a lock does not pickle: a copy gets its own
+        return {k: v for k, v in self.__dict__.items() if k != "_lock"}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._lock = threading.Lock()
 
     def plant(self, rig: Rig) -> tuple[CompiledPlant, dict[str, float]]:
-        """The compiled plant of ``rig``'s structure (built on first use) and its base values."""
+        """The compiled plant of ``rig``'s structure (built on first use, once also when several
+        threads ask for it) and its base values."""
         key = structure(rig)
-        if key not in self._plants:
-            plant = CompiledPlant(rig, self.dt, substeps=self.substeps, step_bound=FIT_STEP_BOUND)
-            self._plants[key] = (plant, rig.values())
-        return self._plants[key]
+        with self._lock:
+            if key not in self._plants:
+                plant = CompiledPlant(rig, self.dt, substeps=self.substeps, step_bound=FIT_STEP_BOUND)
+                self._plants[key] = (plant, rig.values())
+            return self._plants[key]
 
     def _vectors(self, plant: CompiledPlant, base: dict[str, float], rigs: Sequence[Rig]) -> np.ndarray:
         values = [r.values() for r in rigs]
@@ -194,7 +206,8 @@ class RigReplays:
                     self._single(rigs[b], x0, channels, out, ok, b)
                 continue
             self._replay(plant, p, rows, x0, channels, out, ok)
-        self.rows += n_rows
+        with self._lock:
+            self.rows += n_rows
         return out, ok
 
     def _single(self, rig: Rig, x0: np.ndarray, channels: Sequence[str], out: dict[str, np.ndarray],
