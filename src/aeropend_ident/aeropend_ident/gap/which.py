@@ -1579,15 +1579,14 @@ class _Candidates:
         The fits are independent and run at once (:func:`_each`); the figures are those of
         fitting one after the other. A held setting freed by one fit
         (:func:`_free_settings_if_validated`) concerns that effect's parameters only, so it is
-        merged into ``st.ctx`` after the fit."""
+        merged into ``st.ctx`` after the fit: one after the other, each fit reads the context the
+        ones before it left; at once, the context of the step's start (the same for its own
+        parameters)."""
         todo = [n for n in dict.fromkeys(names) if n not in self.fits]
-        if fit_threads() <= 1:  # each fit sees the settings the ones before it freed (it ignores them)
-            for name in todo:
-                self._take(st, name, _confirm_one(st, st.ctx, name, scr.estimates.get(name), st.say))
-            return
-        ctx = st.ctx
-        work = functools.partial(_confirm_one, st, ctx)
-        for name, result in _each(st, todo, lambda n, say: work(n, scr.estimates.get(n), say)):
+        def work(name: str, say: Callable[[str], None]) -> tuple[EffectFit, np.ndarray, dict, frozenset[str]]:
+            return _confirm_one(st, st.ctx, name, scr.estimates.get(name), say)
+
+        for name, result in _each(st, todo, work):
             self._take(st, name, result)
 
     def _take(self, st: _Setup, name: str,
