@@ -30,7 +30,7 @@ from aeropend_ident.gap.run import (
     run_gap,
 )
 from aeropend_ident.gap.where import EQUATIONS
-from aeropend_ident.gap.which import CANDIDATE_PRESENCE, NAMED_COMPLETENESS, NAMED_PRESENCE
+from aeropend_ident.gap.which import CANDIDATE_PRESENCE, NAMED_COMPLETENESS, NAMED_PRESENCE, SWAP_GAIN
 from aeropend_ident.io.jsonutil import jsonable
 
 
@@ -356,7 +356,9 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
     amb_rows = [[r["effect"], ", ".join(r["ambiguous_with"]),
                  "; ".join(f"{k}: validation explained {_fmt(v.get('validation_explained'), '.3f')}, "
                            + (f"first in {v['bootstrap_first']:.0%} of resamples" if v.get("bootstrap_first")
-                              is not None else "as good in the joint fit with the other chosen effects")
+                              is not None else "as good in the joint fit with the other chosen effects"
+                              if v.get("joint_fit") else "fitted alone, neither removes "
+                              f"{SWAP_GAIN:.0%} of the gap above noise the other leaves")
                            for k, v in r.get("ambiguity", {}).items())]
                 for r in d.ranking if r.get("ambiguous_with")]
     explained = getattr(d, "explained", {}) or {}
