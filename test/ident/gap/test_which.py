@@ -449,3 +449,7 @@ def test_a_confusable_rival_a_hair_behind_is_reported_as_not_separated():
     rival = next(r for r in d.ranking if r["effect"] == other)
     assert rival["status"] == "not separated"
     assert abs(rival["validation_explained"] - top["validation_explained"]) < 0.01
+    # the data give no reason to prefer either: the bootstrap share (all resamples to the one a hair
+    # ahead) is split between the two, and neither states a presence above one half
+    assert top["presence"] == pytest.approx(rival["presence"], rel=0.5)
+    assert 0.0 < rival["presence"] <= 0.5 and top["presence"] <= 0.5

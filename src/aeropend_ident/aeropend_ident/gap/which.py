@@ -2238,9 +2238,22 @@ def _evidence(ranking: list[dict[str, Any]], chosen: Sequence[str], shares: Mapp
     Benjamini-Hochberg (:func:`scipy.stats.false_discovery_control`); presence = (1 − q) × the
     effect's bootstrap share (``shares`` for a chosen effect, else its ``bootstrap_first``) ×
     :func:`misspecification_factor` of the completeness (the chosen set's for a chosen effect,
-    its own otherwise).
+    its own otherwise). A chosen effect with k alternatives the validation figures do not separate
+    from it (``ambiguity`` entries without a bootstrap share: :func:`_not_separated`, alone or in the
+    joint fit) shares its bootstrap share equally with them, each 1/(k + 1) of it: the bootstrap
+    gives every resample to the one a hair ahead, and the data give no reason to prefer it.
     ``in_sample``: the validation part was the fit part (see :func:`_setup`), said on each entry.
     """
+    shares = dict(shares)
+    first = {r["effect"]: r.get("bootstrap_first") or 0.0 for r in ranking}
+    for r in ranking:
+        tied = [a for a, v in (r.get("ambiguity") or {}).items() if v.get("bootstrap_first") is None]
+        own = shares.get(r["effect"], r.get("bootstrap_first"))
+        if r["effect"] in chosen and tied and own is not None:
+            shares[r["effect"]] = own / (len(tied) + 1)
+            for a in tied:
+                if a not in chosen:
+                    shares[a] = max(shares.get(a, first.get(a, 0.0)), own / (len(tied) + 1))
     tested = [r for r in ranking if not r.get("detected")]
     ps = [pvals.get(r["effect"], r.get("p_value")) for r in tested]
     have = [i for i, p in enumerate(ps) if p is not None]
