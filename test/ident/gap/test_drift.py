@@ -372,3 +372,41 @@ def test_dry_friction_on_a_step_test_and_an_aprbs_of_an_unchanged_rod_raises_no_
     assert abs(level["change"]) < 0.03
     width = rows[("coulomb_friction", "friction_velocity")]
     assert width["values"] == pytest.approx([tp.COULOMB_VELOCITY] * 2, rel=0.3)
+
+
+def test_a_thrust_law_drifts_as_its_thrust_at_the_rotor_speed_not_as_its_coefficient() -> None:
+    # f = K_q·ω^α at ω_ref = 400 rad/s. Session 2: the thrust at ω_ref is 20 % higher (a propeller
+    # re-mounted), reached with another α (1.9 against 2.1), so K_q alone moves by 400^0.2 × 1.2 = 3.3×
+    # in a unit that changed with α. The data pin the thrust at ω_ref (±2 %) and not K_q (its log
+    # correlated −0.999 with α): the table compares the thrust coefficient there, f(ω_ref)/ω_ref², and
+    # flags its +20 %; the exponent keeps its own row
+    from aeropend_ident.gap.drift import power_law_levels
+
+    w0, span = 400.0, 3.0  # the exponent's coordinate: (α − 1)/3
+    lw = math.log(w0)
+    # coordinates (log K_q, z_α): log K = log K_q + (α − 2)·ln ω is pinned to 0.02, α to 0.05
+    sd_a = 0.05
+    c = -lw * sd_a**2 / span
+    cov_k = np.array([[0.02**2 + (lw * sd_a) ** 2, c], [c, (sd_a / span) ** 2]])
+
+    def fit(k_at_ref: float, alpha: float) -> SimpleNamespace:
+        kq = k_at_ref * w0 ** (2.0 - alpha)
+        return SimpleNamespace(values={"thrust_law": {"K_q": kq, "exponent": alpha}},
+                               std={"thrust_law": {"K_q": kq * math.sqrt(cov_k[0, 0]), "exponent": sd_a}},
+                               cov=cov_k, labels=(("thrust_law", "K_q"), ("thrust_law", "exponent")),
+                               log=(True, False), spans=(1.0, span), omega_ref=w0)
+
+    fits = [fit(1e-7, 2.1), fit(1.2e-7, 1.9)]
+    views, effects, _ = power_law_levels(fits, ["thrust_law"])
+    assert effects == ["thrust_law", "thrust_coefficient"]
+    assert views[1].values["thrust_coefficient"]["K_q"] == pytest.approx(1.2e-7)
+    assert views[0].std["thrust_coefficient"]["K_q"] == pytest.approx(0.02 * 1e-7, rel=1e-6)
+    rows = drift_rows(fits, ["thrust_law"])
+    assert [(r["effect"], r["parameter"]) for r in rows if r["kind"] == "parameter"] == [
+        ("thrust_coefficient", "K_q"), ("thrust_law", "exponent")]
+    top = rows[0]
+    assert top["drifts"] and top["change"] == pytest.approx(0.2) and top["z"] > 5.0
+    assert top["derived_from"] == "thrust_law" and top["reference_speed"] == w0
+    # without the reference speed (an older fit) the raw K_q is compared, as before
+    raw = [SimpleNamespace(**{**vars(f), "omega_ref": None}) for f in fits]
+    assert {r["parameter"] for r in drift_rows(raw, ["thrust_law"])} == {"K_q", "exponent"}

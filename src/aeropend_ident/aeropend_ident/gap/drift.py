@@ -53,6 +53,7 @@ import dataclasses
 import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -756,11 +757,14 @@ def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, An
     (:func:`combination_rows`, ``kind`` "combination"); drifting rows first (single parameters
     before ratios), most significant first.
     """
+    fits, effects, derived = power_law_levels(fits, effects)
     rows = []
     for eff in effects:
         for par in get_effect(eff).parameters:
             if par.held and all(par.name not in f.std.get(eff, {}) for f in fits):
                 continue  # a held parameter at the rig's value: not fitted, nothing to compare
+            if any(par.name not in f.values.get(eff, {}) for f in fits):
+                continue  # a power law's level, compared as its nested effect's (power_law_levels)
             v = np.array([f.values[eff][par.name] for f in fits])
             s = np.array([f.std.get(eff, {}).get(par.name, math.nan) for f in fits])
             # a relative change only where the reference is a size (not an absent effect at ~0)
@@ -775,10 +779,77 @@ def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, An
                          "values": v.tolist(),
                          "std": s.tolist(), "change": change, "abs_change": float(v[k] - v[0]), "z": zk,
                          "drifts": bool(zk > DRIFT_Z and (not relative or abs(change) > DRIFT_MIN))})
+            rows[-1].update(derived.get((eff, par.name), {}))
     rows += combination_rows(fits, rows)
     # flagged rows first: a parameter identified on its own before a ratio, then by significance
     rows.sort(key=lambda r: (not r["drifts"], r["kind"] == "combination", -r["z"]))
     return rows
+
+
+def power_law_levels(fits: Sequence[Any], effects: Sequence[str]
+                     ) -> tuple[list[Any], list[str], dict[tuple[str, str], dict[str, Any]]]:
+    """Per-session fits with each power law's level (:attr:`aeropend_sim.components.base.Diagnosis.power_law`)
+    taken at one reference speed, as the effect it nests: what a drift table compares.
+
+    The thrust law f = K_q·|ω|^α has K_q in N·(s/rad)^α: a fit that moves α by δ moves log K_q by
+    about −δ·ln ω to keep the thrust where the rotor runs, so K_q alone is pinned to ±100 % where
+    the thrust at the operating speed is pinned to a few %, and two sessions' K_q are in two
+    units when their α differ. The level compared is K = K_q·ω_ref^(α − α₀) (α₀ = 2: the thrust
+    coefficient, f(ω_ref)/ω_ref²), ω_ref the first session's reference rotor speed
+    (:attr:`aeropend_ident.gap.which.EffectFit.omega_ref`): its ratio between two sessions is the
+    ratio of their thrusts at ω_ref. Its log is log K_q + (α − α₀)·ln ω_ref, a linear change of
+    the fit's coordinates, so its covariance with every other coordinate follows exactly (T·C·Tᵀ)
+    and it takes part in the ratio rows (:func:`combination_rows`). The exponent keeps its row.
+
+    Parameters
+    ----------
+    fits : sequence
+        The same effect set fitted on each session (:class:`aeropend_ident.gap.which.EffectFit`:
+        ``values``, ``std``, ``cov``, ``labels``, ``log``, ``spans``, ``omega_ref``).
+    effects : sequence of str
+        The effect set.
+
+    Returns
+    -------
+    (list, list of str, dict)
+        The fits (views with the level as the nested effect's parameter; the inputs themselves
+        where no power law is fitted or a fit lacks its covariance or reference speed), the effect
+        set with each nested effect after its law, and per derived ``(effect, parameter)`` the
+        fields its row gets (``derived_from``: the law, ``reference_speed``: ω_ref [rad/s]).
+    """
+    laws = [e for e in effects if get_effect(e).power_law]
+    w0 = getattr(fits[0], "omega_ref", None) if fits else None
+    if not laws or w0 is None or w0 <= 0.0 or any(getattr(f, "cov", None) is None for f in fits):
+        return list(fits), list(effects), {}
+    out_effects = list(effects)
+    views = []
+    for f in fits:
+        values = {k: dict(v) for k, v in f.values.items()}
+        std = {k: dict(v) for k, v in f.std.items()}
+        labels, cov = list(f.labels), np.array(f.cov, dtype=float)
+        derived = {}
+        for law in laws:
+            level, expo, expo0 = get_effect(law).power_law
+            nested = get_effect(law).nests[0]
+            if (law, level) not in labels or (law, expo) not in labels:
+                return list(fits), list(effects), {}
+            i, j = labels.index((law, level)), labels.index((law, expo))
+            t = np.eye(len(labels))
+            # d log K / dz_α = ln ω_ref · dα/dz_α (the range's span for a linear coordinate)
+            t[i, j] = math.log(w0) * (values[law][expo] if f.log[j] else f.spans[j])
+            cov = t @ cov @ t.T
+            k = values[law].pop(level) * w0 ** (values[law][expo] - expo0)
+            std[law].pop(level, None)
+            values[nested] = {level: k}
+            std[nested] = {level: k * math.sqrt(max(cov[i, i], 0.0))}
+            labels[i] = (nested, level)
+            derived[(nested, level)] = {"derived_from": law, "reference_speed": w0}
+            if nested not in out_effects:
+                out_effects.insert(out_effects.index(law) + 1, nested)
+        changed = {"values": values, "std": std, "cov": cov, "labels": tuple(labels)}
+        views.append(dataclasses.replace(f, **changed) if dataclasses.is_dataclass(f)
+                     else SimpleNamespace(**{**vars(f), **changed}))
+    return views, out_effects, derived
 
 
 def _log_coords(fit: Any) -> dict[tuple[str, str], int]:

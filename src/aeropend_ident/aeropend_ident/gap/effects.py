@@ -285,6 +285,9 @@ class Effect:
         Actuator families whose rigs can have it (its declaring part's).
     timing : bool
         Changes when the thrust follows the command (:func:`timing_effects`).
+    power_law : tuple
+        ``(level, exponent, exponent₀)``: a level compared between sessions at a reference speed
+        (:attr:`aeropend_sim.components.base.Diagnosis.power_law`); empty: none.
     """
 
     name: str
@@ -302,6 +305,7 @@ class Effect:
     refines: tuple[str, ...] = ()
     families: tuple[str, ...] = ()
     timing: bool = False
+    power_law: tuple[str, str, float] | tuple[()] = ()
 
     @classmethod
     def of(cls, d: Diagnosis) -> Effect:
@@ -312,7 +316,8 @@ class Effect:
                        for s in d.search)
         return cls(d.name, d.subsystem, d.description, d.reveals, params, dict(d.sindy_terms),
                    d.confusable_with,
-                   d.kind, d.apply, d.screened, d.exclusive_with, d.nests, d.refines, fams, d.timing)
+                   d.kind, d.apply, d.screened, d.exclusive_with, d.nests, d.refines, fams, d.timing,
+                   d.power_law)
 
     @property
     def parameter_names(self) -> tuple[str, ...]:

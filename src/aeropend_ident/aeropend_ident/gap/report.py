@@ -185,7 +185,7 @@ def _drift_html(result: GapResult) -> str:
     if result.sessions:
         tables.insert(0, result.sessions["drift"])
     for t in tables:
-        rows = [[f"{r['effect']}.{r['parameter']}", " / ".join(
+        rows = [[f"{r['effect']}.{r['parameter']}{_derived_note(r)}", " / ".join(
             f"{v:.4g} ± {_fmt(sd, '.2g')}" for v, sd in zip(r["values"], r["std"], strict=True)), r["unit"],
             _change(r), _fmt(r["z"], ".1f"), "yes" if r["drifts"] else ""] for r in t["rows"]]
         parts.append(f"<h3>Parameter drift: {' vs '.join(_label(x) for x in t['sessions'])}</h3>" + _table(
@@ -243,6 +243,14 @@ def _refit_html(result: GapResult) -> str:
             f"refitted {html.escape(pars)}).</p>")
 
 
+def _derived_note(row: dict[str, Any]) -> str:
+    """What a drift row derived from a power law compares
+    (:func:`aeropend_ident.gap.drift.power_law_levels`)."""
+    if not row.get("derived_from"):
+        return ""
+    return f" (the {row['derived_from']}'s level at ω_ref {row['reference_speed']:.0f} rad/s)"
+
+
 def _drift_lines(table: dict[str, Any], top: int = 4) -> list[str]:
     """Terminal lines of a drift table (most significant rows)."""
     out = [f"    drift table ({' vs '.join(_label(x)[:24] for x in table['sessions'])}):"]
@@ -251,7 +259,7 @@ def _drift_lines(table: dict[str, Any], top: int = 4) -> list[str]:
         note = (f" ratio: the single parameters are confounded (|r| {r['correlation']:.2f})"
                 if r.get("kind") == "combination" else
                 f" not flagged alone: confounded with {', '.join(r['confounded_with'])}"
-                if r.get("flag_suppressed") else "")
+                if r.get("flag_suppressed") else "") + _derived_note(r)
         out.append(f"      {'!' if r['drifts'] else ' '} {r['effect']}.{r['parameter']:14s} {vals} "
                    f"{r['unit']} change {_change(r)} (z {r['z']:.1f}){note}")
     return out

@@ -521,6 +521,11 @@ class EffectFit:
     cov: np.ndarray | None = None
     labels: tuple[tuple[str, str], ...] = ()
     log: tuple[bool, ...] = ()
+    #: Per coordinate, the change of its parameter (log value for a log one, the value otherwise) per
+    #: unit of the coordinate: 1 for a log parameter, the search range's span for a linear one.
+    spans: tuple[float, ...] = ()
+    #: Reference rotor speed ω_ref [rad/s] of the search ranges (:attr:`EffectContext.omega_ref`).
+    omega_ref: float | None = None
 
 
 class _Coord(NamedTuple):
@@ -682,7 +687,9 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
     return EffectFit(effects=tuple(effects), values=vals, std=std, rig=new, meas=meas,
                      sse=float(np.sum(best.fun**2)), n=int(best.fun.size), nfev=obj.nfev, cov=cov_z,
                      labels=tuple((c.effect.name, c.param.name) for c in coords),
-                     log=tuple(bool(c.range.log) for c in coords))
+                     log=tuple(bool(c.range.log) for c in coords),
+                     spans=tuple(1.0 if c.range.log else c.range.upper - c.range.lower for c in coords),
+                     omega_ref=float(ctx.omega_ref))
 
 
 def _scan_starts(coords: Sequence[_Coord], z_of: Callable[[Mapping[str, Mapping[str, float]]], np.ndarray],

@@ -424,6 +424,13 @@ class Diagnosis:
         propeller, a battery's charge): the prior standard deviation of its session-to-session log
         change (0.15 ≈ ±15 %), with the physical reason in the declaring module; 0: not drift-prone.
         Read by :mod:`aeropend_ident.gap.drift` (the parameter is the hypothesis' first).
+    power_law : tuple
+        ``(level, exponent, exponent₀)`` for a law level·|ω|^exponent whose two parameters the data
+        confound (the thrust law, K_q in N·(s/rad)^α: log K_q moves by −ln ω per unit of α). Its level
+        is compared between sessions as the hypothesis it nests (``nests[0]``, whose law has the
+        exponent exponent₀) at the recordings' reference speed ω_ref, level·ω_ref^(exponent −
+        exponent₀): the level the data pin, in one unit whatever the fitted exponents. Read by
+        :func:`aeropend_ident.gap.drift.drift_rows`; empty: none.
     """
 
     name: str
@@ -444,6 +451,7 @@ class Diagnosis:
     apply: Callable[[Any, Mapping[str, float]], Any] | None = field(default=None, compare=False)
     timing: bool = False
     drift_sigma: float = 0.0
+    power_law: tuple[str, str, float] | tuple[()] = ()
 
     def __post_init__(self) -> None:
         names = tuple(s.name for s in self.search)
@@ -453,6 +461,9 @@ class Diagnosis:
         for p in self.truth:
             if p not in self.params:
                 raise ValueError(f"diagnosis {self.name!r}: truth range for {p!r}, not one of {self.params}")
+        if self.power_law and (not self.nests or any(p not in self.params for p in self.power_law[:2])):
+            raise ValueError(f"diagnosis {self.name!r}: power_law {self.power_law} needs two of its params "
+                             f"{self.params} and a nested hypothesis")
 
 
 @dataclass(frozen=True)
