@@ -246,28 +246,6 @@ def test_confounded_parameters_drift_as_their_ratio() -> None:
     assert [r["effect"] for r in rows if r["drifts"] and r["kind"] == "parameter"] == ["thrust_coefficient"]
 
 
-def test_a_change_is_not_hidden_behind_a_partner_the_data_do_not_pin() -> None:
-    # lab case 096: angle only, the thrust law's level K_q pinned to ±100 % (its exponent takes the
-    # rest), mgd/J to ±3 %, their logs correlated 0.95. mgd/J moves 16.5 % (z 3.9): the ratio's
-    # error (±97 %) is K_q's, not a common scale the data cannot pin, so mgd/J's own change is flagged
-    labels = (("thrust_law", "K_q"), ("gravity", "mgd_over_J"))
-    sd = np.array([1.0, 0.03])
-    cov = np.outer(sd, sd) * np.array([[1.0, 0.95], [0.95, 1.0]])
-
-    def fit(kq: float, g: float) -> SimpleNamespace:
-        return SimpleNamespace(values={"thrust_law": {"K_q": kq, "exponent": 2.0},
-                                       "gravity": {"mgd_over_J": g}},
-                               std={"thrust_law": {"K_q": 1.0 * kq, "exponent": 0.05},
-                                    "gravity": {"mgd_over_J": 0.03 * g}},
-                               cov=cov, labels=labels, log=(True, True))
-
-    rows = drift_rows([fit(1e-4, 130.0), fit(0.9e-4, 151.45)], ["thrust_law", "gravity"])
-    assert not any(r["kind"] == "combination" for r in rows)
-    top = rows[0]
-    assert top["effect"] == "gravity" and top["drifts"] and top["change"] == pytest.approx(0.165)
-    assert not top.get("flag_suppressed")
-
-
 def test_prediction_is_over_the_held_out_recordings_range_not_the_validation_parts() -> None:
     # An unchanged, effect-free plant. The validation part holds the rod near one angle (a range of
     # a few hundredths of a rad); the held-out recording swings it over half a radian. The same

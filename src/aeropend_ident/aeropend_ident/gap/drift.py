@@ -865,10 +865,7 @@ def combination_rows(fits: Sequence[Any], rows: list[dict[str, Any]]) -> list[di
     :attr:`aeropend_ident.gap.which.EffectFit.cov`) are not separately identifiable from these
     recordings: with the angle alone in closed loop, the thrust coefficient K_q (through L/J) and the
     gravity term mgd/J move together and only their ratio, the duty needed per unit of sin θ, is
-    pinned. Only where the ratio is pinned better than each of the two (its log standard error
-    between the sessions compared below both of theirs: a correlation with one parameter that the
-    data hardly pin, the thrust law's level beside its exponent say, says nothing of a common scale)
-    is their ratio a/b a row of its own (``kind`` "combination", ``effect`` "A/B",
+    pinned. Their ratio a/b is a row of its own (``kind`` "combination", ``effect`` "A/B",
     ``parameter`` "p_a/p_b"): values, standard error from var(log a) + var(log b) − 2 cov, change
     and z as for a parameter. The single rows of a confounded pair are kept with
     ``confounded_with``; while their ratio does not change they are not flagged (``drifts`` False,
@@ -896,12 +893,6 @@ def combination_rows(fits: Sequence[Any], rows: list[dict[str, Any]]) -> list[di
         sd = np.sqrt(np.clip(var, 0.0, None))
         k = int(np.argmax(np.abs(lr[1:] - lr[0]))) + 1
         comb = math.sqrt(sd[k] ** 2 + sd[0] ** 2)
-        singles = [math.sqrt(max(sum(fits[j].cov[idx[j][lab], idx[j][lab]] for j in (0, k)), 0.0))
-                   for lab in (a, b)]
-        if comb >= min(singles):
-            # the ratio is pinned no better than one of the two: that one is merely ill-determined
-            # (its error, not a common scale, makes the correlation), and the other's change is its own
-            continue
         z = abs(lr[k] - lr[0]) / comb if comb > 0 else math.inf
         change = math.expm1(lr[k] - lr[0])
         ratio = np.exp(lr)
