@@ -1938,8 +1938,8 @@ def _swap_confusables(st: _Setup, cur: EffectFit, cur_segs: np.ndarray, chosen: 
             else:
                 better = st.above_noise_share(s_alt, s_cur) >= SWAP_GAIN
             if not better and st.above_noise_share(s_cur, s_alt) < SWAP_GAIN:
-                # neither is better (for a confusable one, :func:`_not_separated`): these data do not
-                # separate the two
+                # neither is better: these data do not separate the two (for a confusable one, the
+                # rule of :func:`_not_separated`)
                 amb.setdefault(name, {})[alt] = 1.0 - s_alt / max(st.sse_val0, 1e-300)
                 alt_fits[(name, alt)] = fr2
             if better:
