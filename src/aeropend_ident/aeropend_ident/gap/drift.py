@@ -817,22 +817,25 @@ def power_law_levels(fits: Sequence[Any], effects: Sequence[str]
         set with each nested effect after its law, and per derived ``(effect, parameter)`` the
         fields its row gets (``derived_from``: the law, ``reference_speed``: ω_ref [rad/s]).
     """
-    laws = [e for e in effects if get_effect(e).power_law]
+    laws = [(law, *get_effect(law).power_law, get_effect(law).nests[0])
+            for law in effects if get_effect(law).power_law]
     w0 = getattr(fits[0], "omega_ref", None) if fits else None
-    if not laws or w0 is None or w0 <= 0.0 or any(getattr(f, "cov", None) is None for f in fits):
+    if (not laws or w0 is None or w0 <= 0.0 or any(getattr(f, "cov", None) is None for f in fits)
+            or any((law, p) not in f.labels for f in fits for law, level, expo, _, _ in laws
+                   for p in (level, expo))):
         return list(fits), list(effects), {}
     out_effects = list(effects)
+    for law, _, _, _, nested in laws:
+        if nested not in out_effects:
+            out_effects.insert(out_effects.index(law) + 1, nested)
+    derived = {(nested, level): {"derived_from": law, "reference_speed": w0}
+               for law, level, _, _, nested in laws}
     views = []
     for f in fits:
         values = {k: dict(v) for k, v in f.values.items()}
         std = {k: dict(v) for k, v in f.std.items()}
         labels, cov = list(f.labels), np.array(f.cov, dtype=float)
-        derived = {}
-        for law in laws:
-            level, expo, expo0 = get_effect(law).power_law
-            nested = get_effect(law).nests[0]
-            if (law, level) not in labels or (law, expo) not in labels:
-                return list(fits), list(effects), {}
+        for law, level, expo, expo0, nested in laws:
             i, j = labels.index((law, level)), labels.index((law, expo))
             t = np.eye(len(labels))
             # d log K / dz_α = ln ω_ref · dα/dz_α (the range's span for a linear coordinate)
@@ -843,9 +846,6 @@ def power_law_levels(fits: Sequence[Any], effects: Sequence[str]
             values[nested] = {level: k}
             std[nested] = {level: k * math.sqrt(max(cov[i, i], 0.0))}
             labels[i] = (nested, level)
-            derived[(nested, level)] = {"derived_from": law, "reference_speed": w0}
-            if nested not in out_effects:
-                out_effects.insert(out_effects.index(law) + 1, nested)
         changed = {"values": values, "std": std, "cov": cov, "labels": tuple(labels)}
         views.append(dataclasses.replace(f, **changed) if dataclasses.is_dataclass(f)
                      else SimpleNamespace(**{**vars(f), **changed}))

@@ -2528,7 +2528,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
             shares[o], pvals[o] = added.share, added.p_value
             _record_added(ranking, st, added, chosen)
             table.append({"effects": list(chosen), **gap_metrics(corrected, meas, st.pv)})
-        amb, alt_fits = _unseparated_single(st, best, cands) if len(chosen) == 1 else ({}, {})
+        amb, alt_fits = _unseparated_single(st, best, cands, ranking) if len(chosen) == 1 else ({}, {})
         if len(chosen) >= 2:
             before = list(chosen)
             cur, cur_segs, chosen, amb, alt_fits = _swap_confusables(st, cur, cur_segs, chosen)
@@ -2582,7 +2582,8 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     )
 
 
-def _unseparated_single(st: _Setup, best: dict[str, Any], cands: _Candidates
+def _unseparated_single(st: _Setup, best: dict[str, Any], cands: _Candidates,
+                        ranking: Sequence[Mapping[str, Any]]
                         ) -> tuple[dict[str, dict[str, float]], dict[tuple[str, str], EffectFit]]:
     """Alternatives the single-effect fits do not separate from the first-ranked effect, and their
     fits, in the form :func:`_swap_confusables` returns them; ``best``'s ``ambiguous_with`` and
@@ -2590,20 +2591,21 @@ def _unseparated_single(st: _Setup, best: dict[str, Any], cands: _Candidates
 
     Two kinds: a runner-up first in a share of the bootstrap resamples (:data:`AMBIGUOUS_FIRST`,
     :func:`_ranking`), and a physics-confusable alternative (``confusable_with``, fitted alone,
-    resolved at this rate) that the figures do not separate by the rule of the replacement pass
-    (:func:`_not_separated`). The second catches a rival that loses every resample by a margin
-    too small to matter (an armature-resistance error and a back-EMF error each explain 97.4 % of
-    a motor's gap, one consistently 0.04 % more). A nested alternative (the thrust law for K_q)
-    is left to the parsimony rule of :func:`_ranking`: at its nesting value it is the same model.
+    resolved at this rate: not marked ``unresolved`` in ``ranking``, :func:`_mark_unresolved`)
+    that the figures do not separate by the rule of the replacement pass (:func:`_not_separated`).
+    The second catches a rival that loses every resample by a margin too small to matter (an
+    armature-resistance error and a back-EMF error each explain 97.4 % of a motor's gap, one
+    consistently 0.04 % more). A nested alternative (the thrust law for K_q) is left to the
+    parsimony rule of :func:`_ranking`: at its nesting value it is the same model.
     """
     name = best["effect"]
     amb = {name: {a: v["validation_explained"] for a, v in (best.get("ambiguity") or {}).items()}}
     e = get_effect(name)
     s_best = float(cands.segs[name].sum())
-    dt = max(p.dt for p in st.pf)
+    unresolved = {r["effect"] for r in ranking if r.get("unresolved")}
     for alt in _in_catalog(e.confusable_with, st):
         if (alt in amb[name] or alt not in cands.segs or alt in e.nests or name in get_effect(alt).nests
-                or unresolved_times(alt, cands.fits[alt].values[alt], dt)):
+                or alt in unresolved):
             continue
         if _not_separated(st, s_best, float(cands.segs[alt].sum())):
             amb[name][alt] = cands.stats[alt]["validation_explained"]
