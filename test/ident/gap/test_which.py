@@ -293,6 +293,27 @@ def test_a_parameter_the_residuals_do_not_depend_on_has_infinite_variance() -> N
     assert np.allclose(cov3[np.ix_([0, 2], [0, 2])], cov2, rtol=1e-12)
 
 
+def test_the_confirmation_bic_counts_independent_samples_per_second_not_per_sample() -> None:
+    from aeropend_ident.gap.which import BIC_DECIMATION, bic_samples
+
+    class P:  # the two attributes bic_samples reads of a Prepared recording
+        def __init__(self, rate: float, seconds: float, channels: int) -> None:
+            self.dt, self.n, self.y = 1.0 / rate, int(rate * seconds), dict.fromkeys(range(channels))
+
+    # 30 s of θ: the same evidence at 50, 100 and 490 Hz (a free-run error's correlation time is
+    # the rod's, not the logger's), 1 in BIC_DECIMATION samples at 490 Hz. Counted per sample, a
+    # 50 Hz log was asked for ten times the evidence per second: an actuator lag logged in closed
+    # loop at 100 Hz (lab case 44) removed 88 % of its validation gap above noise and missed the BIC
+    # gain of 10 (−3.4).
+    at490 = bic_samples([P(490.0, 30.0, 1)])
+    assert at490 == 490 * 30 // BIC_DECIMATION
+    for rate in (48.828125, 97.65625, 244.140625):
+        assert abs(bic_samples([P(rate, 30.0, 1)]) - at490) <= 0.03 * at490
+    # four channels count four times; a log slower than 1/BIC_RESIDUAL_TIME counts every sample
+    assert bic_samples([P(490.0, 30.0, 4)]) == 4 * at490
+    assert bic_samples([P(10.0, 30.0, 1)]) == 300
+
+
 def test_a_timing_fit_shorter_than_half_a_sample_is_not_resolved() -> None:
     from aeropend_ident.gap.which import unresolved_times
 

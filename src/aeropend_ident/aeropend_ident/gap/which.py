@@ -155,11 +155,39 @@ NOISE_FLOOR_FACTOR = 3.0
 #: part by this factor (squared errors: RMS 1.12× the noise; the noise estimates of
 #: :func:`_noise_var` are good to about 5 % on white noise).
 ABOVE_NOISE = 1.25
-#: Residual samples per independent sample in the BIC (free-run residuals are autocorrelated).
-#: Counted in samples, not seconds: tried per second (20 samples at 490 Hz, 2 at 50 Hz) on the lab
-#: benchmark, it named one more single effect at 100 Hz and a motor time constant on an effect-free
-#: 100 Hz log with timestamp jitter (docs/findings/gap.md, 2026-11-26).
+#: Residual samples per independent sample in the BIC (free-run residuals are autocorrelated), at
+#: the thesis rig's 490 Hz; see :data:`BIC_RESIDUAL_TIME` for other rates.
 BIC_DECIMATION = 20
+#: Recording time [s] per independent residual sample in the confirmation BIC: the
+#: :data:`BIC_DECIMATION` samples at 490 Hz. A free-run error stays correlated over a time set by
+#: the rod's dynamics, not by the logger, so a 40 s log carries the same evidence at 50 Hz as at
+#: 490 Hz (counting 1 in 20 samples at 50 Hz asked a slow logger for 10× the evidence per second).
+#: Tried once before the resampling of jittered logs put each command on its own sample, it named
+#: a motor time constant on an effect-free jittered 100 Hz log; with that fixed, it no longer does
+#: (docs/findings/gap.md, "The BIC's effective sample count").
+BIC_RESIDUAL_TIME = BIC_DECIMATION / 490.0
+
+
+def bic_samples(preps: Sequence[Prepared]) -> int:
+    """Independent residual samples the confirmation BIC counts in ``preps`` (all channels).
+
+    Each recording contributes its residual samples (channels × samples) divided by the number of
+    its samples in :data:`BIC_RESIDUAL_TIME` (at least 1: a log slower than that counts every
+    sample); at least 10 in all.
+
+    Parameters
+    ----------
+    preps : sequence of Prepared
+        The recordings the BIC is computed on.
+
+    Returns
+    -------
+    int
+        The effective sample count n_eff of ``n_eff·ln(SSE/n_eff) + k·ln(n_eff)``.
+    """
+    return max(sum(len(p.y) * p.n // max(round(BIC_RESIDUAL_TIME / p.dt), 1) for p in preps), 10)
+
+
 #: Number of shortlisted effects confirmed by grey-box fits.
 SHORTLIST = 5
 #: Time block [s] of the block-sandwich parameter covariance (:func:`parameter_covariance`): longer
@@ -1536,7 +1564,7 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
     noise_sse = max(sum(noise_c.values()), 1e-12 * float(seg0.sum()), 1e-300)
     return _Setup(rig=rig, pf=pf, pv=pv, ctx=ctx, channels=channels, model_effects=model_effects,
                   refinements=refinements, not_ident=not_ident, sse_fit0=sse_fit0, n_fit=n_fit,
-                  n_eff=max(n_fit // BIC_DECIMATION, 10),
+                  n_eff=bic_samples(pf),
                   seg0=seg0, base_metrics=gap_metrics(rig, nominal, pv), floors=floors, noise_sse=noise_sse,
                   noise_c=noise_c, sse0_c=sse0_c, note=note, say=say)
 
