@@ -246,6 +246,37 @@ def test_confounded_parameters_drift_as_their_ratio() -> None:
     assert [r["effect"] for r in rows if r["drifts"] and r["kind"] == "parameter"] == ["thrust_coefficient"]
 
 
+def test_the_most_significant_flagged_row_comes_first_ratio_or_single() -> None:
+    # As lab case 94 (closed loop, angle only): the thrust coefficient K_q 19 % lower in the second
+    # session. K_q and mgd/J correlate 0.98, so K_q alone is pinned to ±5 % (z 2.9, not flagged) and
+    # their ratio to ±1.4 % (flagged at z 14.9); a sensor offset of 0.025 rad (±4 mrad) is flagged
+    # at z 4.4 beside it. The ratio is the surest change and comes first; sorted singles-first, the
+    # table had led with the sensor offset.
+    labels = (("thrust_coefficient", "K_q"), ("gravity", "mgd_over_J"))
+    sd = np.array([0.05, 0.05])
+    cov = np.outer(sd, sd) * np.array([[1.0, 0.98], [0.98, 1.0]])
+
+    def fit(kq: float, offset: float) -> SimpleNamespace:
+        return SimpleNamespace(values={"thrust_coefficient": {"K_q": kq}, "gravity": {"mgd_over_J": 130.0},
+                                       "sensor_offset": {"theta_offset": offset}},
+                               std={"thrust_coefficient": {"K_q": 0.05 * kq}, "gravity": {"mgd_over_J": 6.5},
+                                    "sensor_offset": {"theta_offset": 0.004}},
+                               cov=cov, labels=labels, log=(True, True))
+
+    def flagged(kq: float) -> list[tuple[str, float]]:
+        rows = drift_rows([fit(1e-4, 0.0), fit(kq, 0.025)],
+                          ["thrust_coefficient", "gravity", "sensor_offset"])
+        return [(r["effect"], round(r["z"], 1)) for r in rows if r["drifts"]]
+
+    assert flagged(0.81e-4) == [("thrust_coefficient/gravity", pytest.approx(14.9, abs=0.1)),
+                                ("sensor_offset", pytest.approx(4.4, abs=0.1))]
+    # K_q 22 % lower: its own row is flagged too (z 3.5) and comes right before the ratio (z 17.6)
+    # it is part of: it says which of the two moved
+    assert flagged(0.78e-4) == [("thrust_coefficient", pytest.approx(3.5, abs=0.1)),
+                                ("thrust_coefficient/gravity", pytest.approx(17.6, abs=0.1)),
+                                ("sensor_offset", pytest.approx(4.4, abs=0.1))]
+
+
 def test_prediction_is_over_the_held_out_recordings_range_not_the_validation_parts() -> None:
     # An unchanged, effect-free plant. The validation part holds the rod near one angle (a range of
     # a few hundredths of a rad); the held-out recording swings it over half a radian. The same
@@ -285,10 +316,30 @@ def test_prediction_is_over_the_held_out_recordings_range_not_the_validation_par
     # "nothing moved" is the interval's lower end (the within-session error of the validation part,
     # over the held-out range): the actual is another recording's noise, inside or a hair below
     assert lo == pytest.approx(actual, rel=0.03) and hi > 10.0 * actual
-    assert pr["target_scale"][0] == pytest.approx(held_scale, rel=0.05)
+    # the recorded range the actual divides by, noise included: the replay's own range is 0.3 % short
+    assert pr["target_scale"][0] == pytest.approx(held_scale, rel=0.002)
     # over the validation part's own range, the same noise would have put the whole interval above
     old = predict_heldout(rig, diag, [val], draws=200, seed=0)
     assert old["interval"][0] > 3.0 * actual
+
+
+def test_the_predicted_scale_is_the_recorded_range_noise_included() -> None:
+    # The actual held-out NRMSE divides by the range of the recorded angle. White noise widens it at
+    # both ends where the angle dwells at its extremes: a 30 s, 490 Hz step test at 40 dB (σ 0.5 % of
+    # the range) records a range 3.7 % wider than its noise-free angle's. Dividing by the noise-free
+    # range put every "nothing moved" prediction that much above the actual.
+    from aeropend_ident.gap.drift import recorded_range
+
+    n = 14_700
+    t = np.arange(n) / 490.0
+    clean = 0.3 * (np.sin(2.0 * np.pi * t / 10.0) > 0.0)
+    sigma = 0.005 * 0.3
+    recorded = [float(np.ptp(clean + sigma * np.random.default_rng(k).standard_normal(n))) for k in range(40)]
+    expected = recorded_range(clean, sigma, np.random.default_rng(99))
+    assert np.mean(recorded) / 0.3 == pytest.approx(1.037, abs=0.003)  # the widening itself
+    assert expected == pytest.approx(np.mean(recorded), rel=0.002)
+    assert abs(expected - np.mean(recorded)) < 0.1 * (np.mean(recorded) - 0.3)
+    assert recorded_range(clean, 0.0, np.random.default_rng(0)) == pytest.approx(0.3)  # no noise, no widening
 
 
 def test_a_draw_outside_a_parameters_limits_is_a_failed_draw_not_a_failed_prediction(monkeypatch) -> None:

@@ -22,9 +22,10 @@ distribution of the corrected rig's held-out θ NRMSE e. Each of :data:`N_DRAWS`
   normal change with their measured σ_p;
 
 re-simulates the drawn rig on each held-out recording's duty and records
-e² = (e_in² + mean squared change of the replay) / s², s the θ range of the corrected rig's replay
-on that recording (the NRMSE is over the held-out recording's range, and a drift moves θ by what
-the duty asks of the rod, not by the validation part's range). The median of the draws is the
+e² = (e_in² + mean squared change of the replay) / s², s the expected range of the recorded angle
+on that recording: the corrected rig's replay plus the measurement noise (:func:`recorded_range`;
+the NRMSE is over the held-out recording's recorded range, and a drift moves θ by what the duty
+asks of the rod, not by the validation part's range). The median of the draws is the
 prediction; the shortest interval in log e holding 80 % of them (:func:`shortest_interval`) is the
 80 % interval: it keeps the atom "nothing moved" at the distribution's lower end inside.
 
@@ -104,6 +105,8 @@ BLOCK_S = 5.0
 #: Probability of the predicted interval (80 %): the shortest interval in log NRMSE holding this
 #: share of the draws (:func:`shortest_interval`).
 LEVEL = 0.80
+#: Noise draws of :func:`recorded_range` (the expected range of a recorded angle).
+RANGE_DRAWS = 16
 #: An interval whose upper end exceeds this many times its lower end says why (``why_wide``).
 WIDE_RATIO = 10.0
 #: A parameter drifts when |change| > DRIFT_Z combined standard errors ...
@@ -349,6 +352,39 @@ def shortest_interval(samples: Sequence[float], level: float = LEVEL) -> tuple[f
     return float(math.exp(x[i])), float(math.exp(x[i + k - 1]))
 
 
+def recorded_range(replay: np.ndarray, sigma: float, rng: np.random.Generator,
+                   draws: int = RANGE_DRAWS) -> float:
+    """Expected θ range of a recording whose noise-free angle is ``replay``: the mean peak-to-peak of
+    ``replay`` plus white measurement noise of standard deviation ``sigma``.
+
+    A held-out NRMSE divides by the range of the *recorded* angle, whose noise widens it at both
+    ends (by about 3.7σ each side where the angle dwells at its extremes for thousands of samples).
+    A prediction that divided by the noise-free replay's range would sit above every actual by as
+    much: 3.7 % on a 30 s, 490 Hz step test at 40 dB (σ 0.5 % of the range).
+
+    Parameters
+    ----------
+    replay : numpy.ndarray
+        Noise-free θ of the corrected rig on the target, shape (n,) [rad].
+    sigma : float
+        θ measurement noise σ̂ [rad] (:func:`aeropend_ident.gap.effects.measurement_noise`, at
+        least the rounding noise of a detected quantum).
+    rng : numpy.random.Generator
+    draws : int
+        Noise draws averaged.
+
+    Returns
+    -------
+    float
+        The expected range [rad], at least 1e-6.
+    """
+    x = np.asarray(replay, dtype=float)
+    if sigma <= 0.0 or x.size < 2:
+        return max(float(np.ptp(x)), 1e-6)
+    noisy = x[None, :] + sigma * rng.standard_normal((draws, x.size))
+    return max(float(np.mean(np.ptp(noisy, axis=1))), 1e-6)
+
+
 def _why_wide(lo: float, hi: float, within: float, sensitivity: Mapping[str, Sequence[float]],
               sigma: Mapping[str, float]) -> str:
     """Why a predicted interval spans more than :data:`WIDE_RATIO` (its upper end over its lower end),
@@ -380,9 +416,11 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     log change of every drift-prone parameter from the drift prior (:func:`draw_log_changes`;
     :data:`DRIFT_PRIOR` is its standard deviation), replays the drawn rig on each target recording's
     duty and records, per target, e = √(e_in²/s² + mean squared change of the replay / s²), s the
-    θ range of the corrected rig's replay there; the mean over the targets is the draw's NRMSE. The
-    median of the draws is the prediction, the shortest interval in log NRMSE that holds 80 % of
-    them (:func:`shortest_interval`) its 80 % interval.
+    expected range of the recorded angle there (the corrected rig's replay plus the validation
+    recordings' θ noise, :func:`recorded_range`, as the actual NRMSE divides by the recorded
+    range); the mean over the targets is the draw's NRMSE. The median of the draws is the
+    prediction, the shortest interval in log NRMSE that holds 80 % of them
+    (:func:`shortest_interval`) its 80 % interval.
 
     Why the target's duty and not the validation's: the held-out NRMSE is over the held-out
     recording's own range, and what a drift does to θ depends on where the recording takes the rod,
@@ -416,8 +454,9 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     dict
         ``predicted`` (median), ``interval`` [lo, hi] (80 %), ``level`` 0.8, ``within_session``
         (RMS of the validation blocks' errors over the targets' θ scale) and ``blocks`` (each
-        block's RMS error [rad]), ``target_scale`` (per target, the θ range of the corrected rig's
-        replay [rad]), ``why_wide`` (why an interval spans more than :data:`WIDE_RATIO`, else ''),
+        block's RMS error [rad]), ``target_scale`` (per target, the expected recorded θ range
+        [rad], :func:`recorded_range`), ``why_wide`` (why an interval spans more than
+        :data:`WIDE_RATIO`, else ''),
         ``drift_part`` (median RMS change of the drawn replays: drift and effect-fit spread),
         ``drift_sigma`` used, ``drift_prior`` ("occurrence" or "normal", :func:`draw_log_changes`)
         and its ``drift_source`` ("prior" / "sessions"), ``sensitivity`` (per drift-prone parameter:
@@ -453,7 +492,9 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         k = max(1, round(p.n * p.dt / BLOCK_S))
         per_rec.append(np.array([np.sqrt(np.mean(b**2)) for b in np.array_split(e, k) if b.size]))
     base = val_sims if targets is None else corrected(tpreps)  # the default targets: replayed once
-    scales = [max(float(np.ptp(b)), 1e-6) for b in base]
+    sigma_theta = float(np.mean([measurement_noise(p.y["theta"]) for p in preps]))
+    noise_rng = np.random.default_rng([seed, 1])  # its own stream: the draws below stay as they were
+    scales = [recorded_range(b, sigma_theta, noise_rng) for b in base]
     blocks = [float(b) for rec in per_rec for b in rec]
     vals, std = _chosen_values(diag)
     params = drift_parameters(channels, nominal.family)
@@ -482,7 +523,6 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     lo, hi = shortest_interval(samples, LEVEL)
     within_rad = float(np.sqrt(np.mean(np.square(blocks))))
     within = float(np.mean([within_rad / s for s in scales]))
-    sigma_theta = float(np.mean([measurement_noise(p.y["theta"]) for p in preps]))
     return {
         "why_wide": _why_wide(float(lo), float(hi), within, sensitivity, sigma),
         "predicted": float(np.median(samples)),
@@ -754,8 +794,8 @@ def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, An
     session's value; NaN when that value is ~0, :data:`RELATIVE_FLOOR`), ``z`` (the change over the
     combined standard errors), ``drifts`` (z > :data:`DRIFT_Z` and, where relative, |change| >
     :data:`DRIFT_MIN`), ``kind`` ("parameter"), plus the ratio rows of confounded parameters
-    (:func:`combination_rows`, ``kind`` "combination"); drifting rows first (single parameters
-    before ratios), most significant first.
+    (:func:`combination_rows`, ``kind`` "combination"); drifting rows first, each group by
+    significance, a ratio ranked among the single parameters (:func:`_in_table_order`).
     """
     fits, effects, derived = power_law_levels(fits, effects)
     rows = []
@@ -781,9 +821,26 @@ def drift_rows(fits: Sequence[Any], effects: Sequence[str]) -> list[dict[str, An
                          "drifts": bool(zk > DRIFT_Z and (not relative or abs(change) > DRIFT_MIN))})
             rows[-1].update(derived.get((eff, par.name), {}))
     rows += combination_rows(fits, rows)
-    # flagged rows first: a parameter identified on its own before a ratio, then by significance
-    rows.sort(key=lambda r: (not r["drifts"], r["kind"] == "combination", -r["z"]))
-    return rows
+    return _in_table_order(rows)
+
+
+def _in_table_order(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Drift rows in table order: flagged rows first, then by significance (largest z first), a
+    ratio ranked among the single parameters (a ratio pinned at z 16 is surer evidence of a change
+    than a single parameter at z 4). A flagged single parameter takes the z of a flagged ratio it
+    is part of when that is larger, and comes right before it: it says which of the two moved."""
+    ratio_z: dict[tuple[str, str], float] = {}
+    for r in rows:
+        if r["kind"] == "combination" and r["drifts"]:
+            for member in zip(r["effect"].split("/"), r["parameter"].split("/"), strict=True):
+                ratio_z[member] = max(ratio_z.get(member, 0.0), r["z"])
+
+    def rank(r: dict[str, Any]) -> float:
+        if r["kind"] == "parameter" and r["drifts"]:
+            return max(r["z"], ratio_z.get((r["effect"], r["parameter"]), 0.0))
+        return r["z"]
+
+    return sorted(rows, key=lambda r: (not r["drifts"], -rank(r), r["kind"] == "combination", -r["z"]))
 
 
 def power_law_levels(fits: Sequence[Any], effects: Sequence[str]
