@@ -225,7 +225,31 @@ class FakeMcu:
             self.trip_times.append(time.monotonic())
             self.duty_ocr = 0
 
+    def _due(self, k: int, t0: float) -> tuple[int, float]:
+        """Frames due now: (index one past the last due frame, schedule anchor ``t0``).
+
+        At least frame ``k`` is due; ``n_frames`` caps the index. A backlog longer than 0.5 s
+        (a stalled process) is dropped by re-anchoring the schedule, not sent in one burst.
+        """
+        due = k + 1
+        if self.period_s > 0:
+            now = time.monotonic()
+            if now - t0 - k * self.period_s > 0.5:
+                t0 = now - k * self.period_s  # re-anchor after a long stall
+            due = max(due, int((now - t0) / self.period_s) + 1)
+        if self.n_frames is not None:
+            due = min(due, self.n_frames)
+        return due, t0
+
     def _run(self) -> None:
+        """Writer loop: every frame due since the last wake-up goes out in one write.
+
+        A wake-up that comes late (the thread waited for the GIL behind a busy thread of the
+        same process, or the process was descheduled) catches up in one ``os.write``, as a USB
+        CDC link delivers whatever the firmware queued since the last host poll. Writing frame
+        by frame instead released and re-took the GIL two or three times per frame, so a busy
+        Python thread beside it cut the rate to ~180 Hz (``bench/repro/fake_mcu_gil_convoy.py``).
+        """
         k = 0
         t0 = time.monotonic()
         while not self._stop.is_set():
@@ -237,29 +261,34 @@ class FakeMcu:
             if not self._plugged.wait(0.05) or not self._go.wait(0.05):
                 continue
             self._read_commands()
-            frame = self._frame(k)
-            last_clean = self.n_frames is not None and k >= self.n_frames - self.clean_tail
-            wire = encode(frame)
-            n_sample = len(wire)
-            if k % 256 == 255:
-                wire += encode(StatusFrame(len(self.commands) & 0xFFFF, 0, 0, self.watchdog_trips, 0))
-            wire, hit, delim_hit = self._corrupt(wire, last_clean, n_sample)
+            due, t0 = self._due(k, t0)
+            wire = bytearray()
+            frames: list[tuple[int, SampleFrame, bool, bool]] = []
+            for j in range(k, due):
+                frame = self._frame(j)
+                last_clean = self.n_frames is not None and j >= self.n_frames - self.clean_tail
+                one = encode(frame)
+                n_sample = len(one)
+                if j % 256 == 255:
+                    one += encode(StatusFrame(len(self.commands) & 0xFFFF, 0, 0, self.watchdog_trips, 0))
+                one, hit, delim_hit = self._corrupt(one, last_clean, n_sample)
+                wire += one
+                frames.append((j, frame, hit, delim_hit))
             try:
                 os.write(self._master, wire)  # type: ignore[arg-type]
             except (OSError, TypeError):
-                continue  # unplugged between wait and write: frame k is re-sent after replug
-            self.sent[k] = frame
-            if hit:
-                self.corrupted.add(k)
-            if delim_hit:
-                self.corrupted.add(k + 1)  # the next frame merges with this one
-            k += 1
+                continue  # unplugged between wait and write: frames k.. are re-sent after replug
+            for j, frame, hit, delim_hit in frames:
+                self.sent[j] = frame
+                if hit:
+                    self.corrupted.add(j)
+                if delim_hit:
+                    self.corrupted.add(j + 1)  # the next frame merges with this one
+            k = due
             if self.period_s > 0:
                 delay = t0 + k * self.period_s - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
-                elif delay < -0.5:
-                    t0 = time.monotonic() - k * self.period_s  # re-anchor after a long stall
 
 
 def main(argv: list[str] | None = None) -> int:
