@@ -378,11 +378,14 @@ def test_a_numerical_setting_is_fitted_only_where_freed_and_a_held_one_says_so()
     assert "held" not in table["coulomb_over_J"]
 
 
-def test_an_in_sample_gain_carried_by_a_few_seconds_names_no_effect() -> None:
+def test_an_effect_free_closed_loop_log_that_starts_the_motor_names_no_effect() -> None:
     # Lab benchmark case 0: an effect-free plant in closed loop, 50 Hz, a 10-bit encoder, 2.4 % stamp
-    # jitter. Its validation part shows no gap while its fit part does, so the effects are ranked on
-    # the fit part. Before, an inertia scale of 1.24 that removed 26 % of that part's gap in all was
-    # chosen there although second by second it removed less than the share asked (split-test p 0.98).
+    # jitter; the loop switches the motor on at the first sample. Its validation part shows no gap
+    # while its fit part does (θ 1.4× its noise RMS), so the effects are ranked on the fit part.
+    # While the replay assumed the rotor at speed from the first sample, the spin-up put most of
+    # the fit part's error into its first second, an inertia scale of 1.24 removed 26 % of it and
+    # was chosen until the in-sample split test (p 0.98) was asked for. With the motor started at
+    # rest no candidate removes a quarter of the gap in the first place.
     from aeropend_ident.gap.run import run_gap
     from bench import bench_gap_lab as lab
 
@@ -393,10 +396,47 @@ def test_an_in_sample_gain_carried_by_a_few_seconds_names_no_effect() -> None:
     d = run_gap(case["nominal"], fit, held, rig_ref=case["nominal"].name, seed=0,
                 max_effects=lab.MAX_EFFECTS, split_rule="separate held-out recording").diagnosis
     assert d.chosen == []
-    assert "not second by second" in d.reason and "in-sample split-test p 0.98" in d.reason
-    inertia = next(r for r in d.ranking if r["effect"] == "inertia")
-    assert inertia["above_noise_explained"] > 0.25 and inertia["bic_delta"] < -10.0
-    assert inertia["p_value"] > 0.5 and inertia.get("presence_in_sample")
+    assert "no dynamic effect is significant" in d.reason
+    shares = [r["above_noise_explained"] for r in d.ranking if r.get("above_noise_explained") is not None]
+    assert shares and max(shares) < 0.25
+
+
+def test_an_in_sample_choice_needs_a_split_test_p_of_at_most_one_half() -> None:
+    from types import SimpleNamespace
+
+    from aeropend_ident.gap.which import IN_SAMPLE_MAX_P, _holds_in_sample
+
+    part = object()
+    in_sample = SimpleNamespace(pf=part, pv=part)  # ranked on the fit part itself
+    own = SimpleNamespace(pf=part, pv=object())  # a validation part of its own
+    assert IN_SAMPLE_MAX_P == 0.5
+    assert not _holds_in_sample(in_sample, 0.98) and not _holds_in_sample(in_sample, None)
+    assert _holds_in_sample(in_sample, 0.3)
+    assert _holds_in_sample(own, 0.98) and _holds_in_sample(own, None)
+
+
+@pytest.mark.parametrize("before", [0.0, 0.6])
+def test_the_replay_starts_the_motor_at_rest_or_running_as_the_log_began(before: float) -> None:
+    # The thesis rig, θ only, duty 0.6 from the first sample: a log that begins as the motor is
+    # switched on (before = 0: rotor at rest) or a stretch cut from a running session (before =
+    # 0.6: rotor at speed). The rotor speed is not recorded; the replay of the true rig must
+    # follow the recording from its first second either way (noise-free: to 1e-4 rad), where a
+    # rotor assumed at speed on the first kind put 0.1 rad of error into the first second.
+    from aeropend_ident.gap.which import MeasurementMap, prepare, replay
+    from aeropend_ident.greybox.fit import motor_equilibrium
+    from aeropend_sim.simulation import simulate
+
+    rig = RIG.with_effects(sensor_noise=False, quantisation=False)
+    dt, n = 1.0 / 490.0, 490 * 6
+    duty = np.full(n, 0.6)
+    duty[n // 2:] = 0.45
+    i0, w0, tf0 = motor_equilibrium(rig, before)
+    traj = simulate(rig, duty, x0=np.array([0.0, 0.0, i0, w0, tf0]), dt=dt, tau_before=before)
+    rec = Recording(t=np.arange(n) * dt, duty=duty, channels={"theta": traj.true["theta"]}, source="start")
+    prep = prepare([rec], frozenset({"theta"}))[0]
+    err = replay(rig, MeasurementMap(), prep)["theta"] - rec.channels["theta"]
+    assert float(np.max(np.abs(err[:490]))) < 1e-4
+    assert float(np.sqrt(np.mean(err**2))) < 1e-4
 
 
 def test_single_effect_fits_in_threads_give_the_figures_of_fits_one_after_the_other(monkeypatch) -> None:
