@@ -263,6 +263,9 @@ class Prepared:
     scale: dict[str, float]
     _replays: RigReplays | None = field(default=None, repr=False, compare=False)
     _head: RigReplays | None = field(default=None, repr=False, compare=False)
+    #: How the log began, decided once by its first replay (:func:`_initial_states`): True when
+    #: the motor and the rod were at rest, False when the motor ran at the first duty cycle.
+    _at_rest: bool | None = field(default=None, repr=False, compare=False)
 
     @property
     def n(self) -> int:
@@ -419,33 +422,42 @@ def _initial_states(rows: Sequence[tuple[Rig, MeasurementMap]], prep: Prepared
     start fails is NaN.
 
     The motor states a recording does not hold are not observed at its first sample. Two starts
-    are tried when the first duty cycle is not 0: the motor steady at it and the rod's rate
+    are possible when the first duty cycle is not 0: the motor steady at it and the rod's rate
     smoothed from the recording (a stretch cut from a running session), and everything at rest,
     the motor steady at duty 0 and the rod still (a log that begins as the controller or the test
-    switches the motor on: a closed-loop run from the hanging rod). Each row keeps
-    the one whose refined start replays the first :data:`INITIAL_STATE_WINDOW` better (the
-    output-error comparison with estimated initial conditions, Ljung, *System Identification*,
-    2nd ed., §7.3). A spinning rotor assumed at the start of a log that begins at rest put
-    60-99 % of a closed-loop replay's squared error into its first second and biased the fits
-    that weigh it (an inertia 1.23× fitted as 1.43×).
+    switches the motor on: a closed-loop run from the hanging rod). How a log began is a fact of the
+    log, not of the rig replaying it: it is decided once, by the recording's first replay (the
+    first row of the first call: the nominal rig in a diagnosis), as the start whose refined θ(0),
+    θ̇(0) replay the first :data:`INITIAL_STATE_WINDOW` better (the output-error comparison with
+    estimated initial conditions, Ljung, *System Identification*, 2nd ed., §7.3), and every later
+    replay of that recording starts the same way. Decided per rig, the start could absorb a
+    candidate's model error and switch where two starts' errors cross (a real rod held on its
+    lower stop, where the window cannot tell the rotor's speed, lost a third of its held-out
+    shrink). A spinning rotor assumed at the start of a log that begins at rest put 60-99 % of a
+    closed-loop replay's squared error into its first second and biased the fits that weigh it
+    (an inertia 1.23× fitted as 1.43×).
     """
-    rigs, starts = [], {"run": np.zeros((len(rows), 5)), "rest": np.zeros((len(rows), 5))}
-    for b, (rig, meas) in enumerate(rows):
-        sim_rig = _sim_rig(rig)
-        rigs.append(sim_rig)
-        for name in ("run", "rest"):
-            try:
-                starts[name][b] = _initial_state(sim_rig, meas, prep, at_rest=name == "rest")
-            except (ModelError, IdentificationError, ValueError):
-                starts[name][b] = np.nan
+    rigs = [_sim_rig(rig) for rig, _ in rows]
     metas = [m for _, m in rows]
-    run, run_err = _refine_initial_states(rigs, metas, starts["run"], prep)
-    if float(prep.duty[0]) <= 0.0 or np.allclose(starts["rest"], starts["run"], equal_nan=True):
-        return rigs, run
-    rest, rest_err = _refine_initial_states(rigs, metas, starts["rest"], prep)
-    better = rest_err < run_err
-    run[better] = rest[better]
-    return rigs, run
+    two = float(prep.duty[0]) > 0.0
+
+    def starts(at_rest: bool) -> np.ndarray:
+        x0 = np.zeros((len(rows), 5))
+        for b, sim_rig in enumerate(rigs):
+            try:
+                x0[b] = _initial_state(sim_rig, metas[b], prep, at_rest=at_rest)
+            except (ModelError, IdentificationError, ValueError):
+                x0[b] = np.nan
+        return x0
+
+    if not two or not rows or prep._at_rest is False:
+        return rigs, _refine_initial_states(rigs, metas, starts(False), prep)[0]
+    if prep._at_rest:
+        return rigs, _refine_initial_states(rigs, metas, starts(True), prep)[0]
+    run, run_err = _refine_initial_states(rigs, metas, starts(False), prep)
+    rest, rest_err = _refine_initial_states(rigs, metas, starts(True), prep)
+    prep._at_rest = bool(rest_err[0] < run_err[0])
+    return rigs, rest if prep._at_rest else run
 
 
 def _refine_initial_states(rigs: Sequence[Rig], metas: Sequence[MeasurementMap], x0: np.ndarray,
