@@ -432,9 +432,10 @@ def _initial_states(rows: Sequence[tuple[Rig, MeasurementMap]], prep: Prepared
     estimated initial conditions, Ljung, *System Identification*, 2nd ed., §7.3), and every later
     replay of that recording starts the same way. Decided per rig, the start could absorb a
     candidate's model error and switch where two starts' errors cross (on jahoyosr's held-out
-    staircase pieces, five of them on the lower stop, the held-out shrink fell to 0.36). A spinning rotor assumed at the start of a log that begins at rest put 60-99 % of a
-    closed-loop replay's squared error into its first second and biased the fits that weigh it
-    (an inertia 1.23× fitted as 1.43×).
+    staircase pieces, five of them on the lower stop, the held-out shrink fell to 0.36). A
+    spinning rotor assumed at the start of a log that begins at rest put 60-99 % of a closed-loop
+    replay's squared error into its first second and biased the fits that weigh it (an inertia
+    1.23× fitted as 1.43×).
     """
     rigs = [_sim_rig(rig) for rig, _ in rows]
     metas = [m for _, m in rows]
