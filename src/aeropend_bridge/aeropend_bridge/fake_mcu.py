@@ -248,7 +248,7 @@ class FakeMcu:
         same process, or the process was descheduled) catches up in one ``os.write``, as a USB
         CDC link delivers whatever the firmware queued since the last host poll. Writing frame
         by frame instead released and re-took the GIL two or three times per frame, so a busy
-        Python thread beside it cut the rate to ~180 Hz (``bench/repro/fake_mcu_gil_convoy.py``).
+        Python thread beside it cut the rate to 124-177 Hz (``bench/repro/fake_mcu_gil_convoy.py``).
         """
         k = 0
         t0 = time.monotonic()
