@@ -493,11 +493,12 @@ def get_effect(name: str) -> Effect:
 def measurement_noise(y: np.ndarray) -> float:
     """Standard deviation of the measurement noise of a recorded channel [its unit].
 
-    The robust white-noise estimate (:func:`aeropend_ident.greybox.fit.noise_level`), at least
-    the rounding noise q/√12 of a detected quantum (:func:`detect_quantum`): a quantised channel
-    that rarely changes reads 0 in the first, while its resolution q still bounds what any model
-    can match. The one noise floor of the gap diagnosis (where-analysis, effect ranking,
-    attainable shrink).
+    The robust white-noise estimate (:func:`aeropend_ident.greybox.fit.noise_level`) given the
+    channel's detected quantum (:func:`detect_quantum`): on a lattice the root mean square of the
+    second differences (the MAD snaps to lattice steps there), at least the rounding noise q/√12 (a
+    quantised channel that rarely changes still has its resolution q bound what any model can
+    match). The one noise floor of the gap diagnosis (where-analysis, effect ranking, attainable
+    shrink).
 
     Parameters
     ----------
@@ -510,7 +511,7 @@ def measurement_noise(y: np.ndarray) -> float:
     """
     from aeropend_ident.greybox.fit import noise_level
 
-    return max(noise_level(y), detect_quantum(y) / math.sqrt(12.0))
+    return noise_level(y, detect_quantum(y))
 
 
 def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],
