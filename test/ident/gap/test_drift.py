@@ -51,20 +51,27 @@ def test_drift_set_keeps_the_joint_fit_identifiable() -> None:
                                                               "viscous_friction", "gravity"]
 
 
-def test_drift_prior_changes_any_number_of_parameters_and_keeps_its_spread() -> None:
+def test_drift_prior_leaves_the_rig_alone_half_the_time_and_else_changes_any_number_of_parameters() -> None:
+    from aeropend_ident.gap.drift import P_UNCHANGED
+
     params = list(DRIFT_PRIOR)
     rng = np.random.default_rng(3)
     draws = [draw_log_changes(DRIFT_PRIOR, params, rng) for _ in range(20000)]
     x = np.array([[d[p] for p in params] for d in draws])
-    # per session an unknown share of the parameters changes: 0, 1, ..., 4 changing parameters
-    # equally likely (not "exactly one"), half of the single log changes exactly zero
-    counts = np.bincount(np.count_nonzero(x, axis=1), minlength=len(params) + 1) / len(draws)
-    assert counts == pytest.approx(np.full(len(params) + 1, 1.0 / (len(params) + 1)), abs=0.015)
-    assert np.mean(x == 0.0) == pytest.approx(0.5, abs=0.01)
-    # the prior's standard deviation per parameter is kept; the shape has heavier tails than normal
+    # half the sessions change nothing, whatever the number of drift-prone parameters; in the others
+    # an unknown share of them changes: 0, 1, ..., 4 changing parameters equally likely
+    k = len(params)
+    counts = np.bincount(np.count_nonzero(x, axis=1), minlength=k + 1) / len(draws)
+    slab = (1.0 - P_UNCHANGED) / (k + 1)
+    assert P_UNCHANGED == 0.5
+    assert counts == pytest.approx([P_UNCHANGED + slab] + [slab] * k, abs=0.015)
+    assert np.mean(x == 0.0) == pytest.approx(P_UNCHANGED + 0.5 * (1.0 - P_UNCHANGED), abs=0.01)
+    # over the sessions in which the rig changed the log change has the prior's standard deviation
+    # (so √(1/2) of it over all sessions); heavier tails than normal
     sigma = np.array([DRIFT_PRIOR[p] for p in params])
-    assert x.std(axis=0) == pytest.approx(sigma, rel=0.04)
-    assert np.mean(np.abs(x) > 3.0 * sigma, axis=0) == pytest.approx(np.full(len(params), 0.0169), abs=0.004)
+    assert x.std(axis=0) == pytest.approx(sigma * math.sqrt(1.0 - P_UNCHANGED), rel=0.04)
+    tail = np.mean(np.abs(x) > 3.0 * sigma, axis=0)
+    assert tail == pytest.approx(np.full(k, 0.0169 * (1.0 - P_UNCHANGED)), abs=0.003)
     # σ measured across sessions: normal log changes, none exactly zero
     measured = [draw_log_changes(DRIFT_PRIOR, params, rng, occurrence=False) for _ in range(20000)]
     y = np.array([[d[p] for p in params] for d in measured])
@@ -343,11 +350,9 @@ def test_the_predicted_scale_is_the_recorded_range_noise_included() -> None:
 
 
 def test_a_draw_outside_a_parameters_limits_is_a_failed_draw_not_a_failed_prediction(monkeypatch) -> None:
-    # jahoyosr's real sessions: gravity chosen with a standard error far above its value, so some
-    # drawn mgd/J sit at the floor of its limits and a drift factor below 1 takes them under it;
-    # those draws fail, the prediction is made from the others (it was refused whole before).
-    # Draws are clipped to the search range now (below), which keeps mgd/J above the floor; clipped
-    # to the physical limits alone (a context that cannot be built), they still reach it
+    # a drawn drift factor that takes a parameter outside its limits is a failed draw
+    # (``_perturbed_or_none`` gives None); the prediction is made from the others (jahoyosr's real
+    # sessions were refused whole once for such draws)
     from aeropend_ident.gap import drift
     from aeropend_ident.gap.drift import predict_heldout
     from aeropend_ident.gap.effects import MeasurementMap
@@ -357,19 +362,43 @@ def test_a_draw_outside_a_parameters_limits_is_a_failed_draw_not_a_failed_predic
     rig = rig_from_dict(rig_dict(p, "lab_nominal"), where="test")
     rec = [to_recording(tp.record(tp.TruthPlant(p), tp.aprbs(12.0, seed=s), 50.0, s + 1), f"r{s}")
            for s in (3, 5)]
-    v = float(p.mgd_over_J)
-    diag = SimpleNamespace(corrected_rig=rig, measurement=MeasurementMap(), chosen=["gravity"],
-                           ranking=[{"effect": "gravity", "parameters": {"mgd_over_J": {"value": v,
-                                                                                         "std": 1e3 * v}}}],
+    diag = SimpleNamespace(corrected_rig=rig, measurement=MeasurementMap(), chosen=[], ranking=[],
                            channels=["theta"])
     pr = predict_heldout(rig, diag, [rec[0]], targets=[rec[1]], draws=60, seed=0)
-    assert pr["draws"] == 60  # every draw inside the search range: none fails
-    with monkeypatch.context() as m:
-        m.setattr(drift, "_search_bounds", lambda *a: {})
-        pr = predict_heldout(rig, diag, [rec[0]], targets=[rec[1]], draws=60, seed=0)
+    assert pr["draws"] == 60  # the prior's changes stay inside the limits: none fails
+    real = drift._perturbed_or_none
+    # every factor below 0.9 leaves the limits (a stand-in for a floor the draw crosses)
+    monkeypatch.setattr(drift, "_perturbed_or_none",
+                        lambda r, f: None if any(v < 0.9 for v in f.values()) else real(r, f))
+    pr = predict_heldout(rig, diag, [rec[0]], targets=[rec[1]], draws=60, seed=0)
     assert 0 < pr["draws"] < 60
     lo, hi = pr["interval"]
     assert 0.0 < lo <= pr["predicted"] <= hi
+
+
+def test_the_prediction_keeps_the_fitted_effects_and_an_unchanged_rig_inside() -> None:
+    # Three effects stand in together for a cause outside the catalog, each with a standard error
+    # far above its value: drawn one by one from them the replays moved by orders of magnitude more
+    # than the joint fit allows. The prediction replays the fitted effects; an unchanged rig (half
+    # the prior's sessions) has the within-session error, inside the 80 % interval.
+    from aeropend_ident.gap.drift import predict_heldout
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_sim.params import rig_from_dict
+
+    p = tp.PlantParams()
+    rig = rig_from_dict(rig_dict(p, "lab_nominal"), where="test")
+    rec = [to_recording(tp.record(tp.TruthPlant(p), tp.aprbs(12.0, seed=s), 50.0, s + 1), f"r{s}")
+           for s in (3, 5)]
+    v = float(p.mgd_over_J)
+    loose = {"gravity": {"mgd_over_J": {"value": v, "std": 10.0 * v}}}
+    diag = SimpleNamespace(corrected_rig=rig, measurement=MeasurementMap(), chosen=["gravity"],
+                           ranking=[{"effect": k, "parameters": t} for k, t in loose.items()],
+                           channels=["theta"])
+    pr = predict_heldout(rig, diag, [rec[0]], targets=[rec[1]], draws=200, seed=0)
+    lo, hi = pr["interval"]
+    assert pr["draws"] == 200
+    assert lo <= 1.05 * pr["within_session"] < hi  # "nothing moved" is inside, not a tail below it
+    assert pr["predicted"] < 3.0 * pr["within_session"]  # half the draws are the unchanged rig
 
 
 @pytest.mark.slow
