@@ -41,7 +41,8 @@ from fixed seeds (:func:`case_list`, balanced per kind of truth):
   θ NRMSE of the session-1 plant against the session-2 plant on session 2's duty
   (``truth_drift_nrmse``, noise-free);
 * fit session 40 s, held-out session 30 s; sensor noise 40-60 dB SNR (σ from the RMS of each
-  channel; in closed loop from a noise-free probe run of the nominal plant).
+  channel on the fit session, in closed loop on a noise-free probe run of the nominal plant; the
+  held-out session has the same σ: one lab's sensors, not a fixed SNR per recording).
 
 The recordings go through the command's input steps (``uniform_recording``, ``check_length``,
 ``check_excited`` of :mod:`aeropend_ident.io.recording_input`: the resampling of jittered and
@@ -111,6 +112,7 @@ from bench.fixtures.truth_plant import (
     TruthPlant,
     aprbs,
     lhs_steps,
+    noise_sigma,
     record,
 )
 
@@ -277,8 +279,10 @@ def _open_loop(spec: dict[str, Any], rng: np.random.Generator, params: PlantPara
     max_angle = float(np.max(TruthPlant(params).simulate(fit_d)["theta"]))
     effects = truth_effects(spec["effects"], rng, params, max_angle)
     out: dict[str, Any] = {"effects": effects, "held_duty_fast": held_d}
+    sigma = None  # the lab's sensors: σ set by the SNR on the fit session, the same on the held-out one
     for name, plant_p, duty, salt in (("fit", params, fit_d, 0), ("held", p2, held_d, 1)):
-        rec = record(TruthPlant(plant_p, effects), duty, snr, seed + 3 + salt, chans)
+        rec = record(TruthPlant(plant_p, effects), duty, snr, seed + 3 + salt, chans, sigma)
+        sigma = sigma or noise_sigma(rec.true, snr, chans)
         kept = keep_every({"duty": rec.duty, **rec.channels}, k)
         kept["theta"] = quantise(kept["theta"], q)
         t = np.arange(kept["duty"].size) * k * DT

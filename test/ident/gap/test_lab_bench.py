@@ -194,3 +194,25 @@ def test_a_built_case_is_the_log_it_claims(cases):
     assert np.allclose(step, step[0]) and step[0] == pytest.approx(5 * tp.DT, rel=1e-3)
     assert abs(len(rec_fit[0]) - rows) <= 4
     assert len(rec_held[0]) > 0.99 * round(lab.HELD_DURATION / (5 * tp.DT))
+
+
+def test_both_sessions_of_an_open_loop_case_have_the_lab_sensors_noise(cases):
+    """One lab's sensors: the held-out session's θ noise σ is the fit session's (set by the case's
+    SNR there), not a fixed SNR on each recording's own RMS, which gave a session that swings the
+    rod less a quieter sensor (and its held-out error fell below any prediction made from the fit
+    session)."""
+    from aeropend_ident.greybox.fit import noise_level
+
+    spec = dict(next(c for c in cases if c["mode"] == "open" and c["channels"] == "theta"))
+    spec.update(rate_hz=490, every=1, quantiser=None, jitter=0.0, drop=0.0, drift=None, drift_size=0.0)
+    case = lab.build_case(spec)
+    s_fit, s_held = (noise_level(case[k].channels["theta"]) for k in ("fit", "held"))
+    assert s_held == pytest.approx(s_fit, rel=0.05)
+    # the fixture: a stated σ is the noise added, whatever the run's RMS
+    plant = tp.TruthPlant(tp.PlantParams())
+    first = tp.record(plant, tp.aprbs(10.0, seed=1), 45.0, 2, channels=("theta",))
+    sigma = tp.noise_sigma(first.true, 45.0, ("theta",))
+    quiet = tp.record(plant, np.full(first.duty.size, 0.3), 45.0, 3, channels=("theta",), sigma=sigma)
+    noise = quiet.channels["theta"] - quiet.true["theta_recorded"]
+    assert np.std(noise) == pytest.approx(sigma["theta"], rel=0.03)
+    assert tp.noise_sigma(quiet.true, 45.0, ("theta",))["theta"] < 0.9 * sigma["theta"]
