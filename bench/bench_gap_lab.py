@@ -358,6 +358,8 @@ def _num(x: Any) -> float | None:
 
 def score_case(spec: dict[str, Any], case: dict[str, Any], res: Any) -> dict[str, Any]:
     """The issue-38 scores of one diagnosis (module doc)."""
+    from aeropend_ident.gap.drift import combination_members
+
     group = {"single": "single", "triple": "pair", "ooc": "out of catalog", "none": "no effect"}[spec["kind"]]
     base = score({**spec, "group": group}, case, res)
     d = res.diagnosis
@@ -408,7 +410,7 @@ def score_case(spec: dict[str, Any], case: dict[str, Any], res: Any) -> dict[str
         out["drift_note"] = ((res.not_computed or {}).get("attainable shrink")
                              or att.get("oracle_drift_error") or "no drift table in the report")
     else:
-        seen["drift.combination_rows"] = any("/" in str(r.get("effect", "")) for r in rows)
+        seen["drift.combination_rows"] = any(r.get("kind") == "combination" for r in rows)
         out["drift_table"] = [{"effect": r.get("effect"), "parameter": r.get("parameter"),
                                "change": _num(r.get("change")), "z": _num(r.get("z")),
                                "drifts": bool(r.get("drifts")), "kind": r.get("kind")} for r in rows]
@@ -416,7 +418,7 @@ def score_case(spec: dict[str, Any], case: dict[str, Any], res: Any) -> dict[str
         out["drift_first"] = flagged[0].get("effect") if flagged else None
         if spec["drift"]:
             first = str(flagged[0].get("effect", "")) if flagged else ""
-            out["drift_pass"] = spec["drift"] in first.split("/")
+            out["drift_pass"] = spec["drift"] in combination_members(first)
         else:
             out["drift_pass"] = not flagged
     chk = res.prediction_check

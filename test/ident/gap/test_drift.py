@@ -20,6 +20,7 @@ import pytest
 from aeropend_ident.gap.drift import (
     DRIFT_PRIOR,
     DRIFT_Z,
+    combination_members,
     draw_log_changes,
     drift_rows,
     drift_set,
@@ -251,6 +252,36 @@ def test_confounded_parameters_drift_as_their_ratio() -> None:
     ratio = next(r for r in rows if r["kind"] == "combination")
     assert ratio["drifts"] and ratio["change"] == pytest.approx(-0.2)
     assert [r["effect"] for r in rows if r["drifts"] and r["kind"] == "parameter"] == ["thrust_coefficient"]
+
+
+def test_negatively_correlated_parameters_drift_as_their_product() -> None:
+    # Two log parameters whose estimates correlate by −0.98: the data pin their product, and their
+    # ratio is the least determined combination. Both moved along the unpinned direction (a up 15 %,
+    # b down as much): their product is unchanged, no alarm. With the ratio as the combination (as
+    # for every confounded pair before), the change along the pinned direction was read against the
+    # ratio's large error: a lab case's gravity drift of +19 % came out at z 0.1 and unflagged.
+    labels = (("thrust_coefficient", "K_q"), ("sensor_scale", "theta_scale"))
+    sd = np.array([0.05, 0.05])
+    cov = np.outer(sd, sd) * np.array([[1.0, -0.98], [-0.98, 1.0]])
+
+    def fit(kq: float, s: float) -> SimpleNamespace:
+        return SimpleNamespace(values={"thrust_coefficient": {"K_q": kq}, "sensor_scale": {"theta_scale": s}},
+                               std={"thrust_coefficient": {"K_q": 0.05 * kq},
+                                    "sensor_scale": {"theta_scale": 0.05 * s}},
+                               cov=cov, labels=labels, log=(True, True))
+
+    rows = drift_rows([fit(1e-4, 1.0), fit(1.15e-4, 1.0 / 1.15)], ["thrust_coefficient", "sensor_scale"])
+    prod = next(r for r in rows if r["kind"] == "combination")
+    assert prod["combination"] == "product" and prod["effect"] == "thrust_coefficient·sensor_scale"
+    assert prod["change"] == pytest.approx(0.0, abs=1e-9)
+    assert prod["signed_correlation"] == pytest.approx(-0.98)
+    assert not any(r["drifts"] for r in rows)
+    # the product's standard error is √(2(1 − 0.98))·5 % = 1 %: a 10 % change of K_q alone is z 6.7
+    rows = drift_rows([fit(1e-4, 1.0), fit(1.1e-4, 1.0)], ["thrust_coefficient", "sensor_scale"])
+    prod = next(r for r in rows if r["kind"] == "combination")
+    assert prod["drifts"] and prod["change"] == pytest.approx(0.1)
+    assert prod["z"] == pytest.approx(6.7, rel=0.02)
+    assert combination_members(prod["effect"]) == ["thrust_coefficient", "sensor_scale"]
 
 
 def test_the_most_significant_flagged_row_comes_first_ratio_or_single() -> None:

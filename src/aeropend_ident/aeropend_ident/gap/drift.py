@@ -803,7 +803,8 @@ def _in_table_order(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     ratio_z: dict[tuple[str, str], float] = {}
     for r in rows:
         if r["kind"] == "combination" and r["drifts"]:
-            for member in zip(r["effect"].split("/"), r["parameter"].split("/"), strict=True):
+            for member in zip(combination_members(r["effect"]), combination_members(r["parameter"]),
+                              strict=True):
                 ratio_z[member] = max(ratio_z.get(member, 0.0), r["z"])
 
     def rank(r: dict[str, Any]) -> float:
@@ -885,21 +886,39 @@ def _log_coords(fit: Any) -> dict[tuple[str, str], int]:
     return {lab: i for i, (lab, lg) in enumerate(zip(fit.labels, fit.log, strict=True)) if lg}
 
 
+#: How a combination row joins its two members' names: a ratio a/b, a product a·b.
+COMBINE = {"ratio": "/", "product": "·"}
+
+
+def combination_members(name: str) -> list[str]:
+    """The members of a combination row's ``effect`` or ``parameter`` ("A/B" or "A·B"), or
+    ``[name]`` for a single parameter's row."""
+    for sep in COMBINE.values():
+        if sep in name:
+            return name.split(sep)
+    return [name]
+
+
 def combination_rows(fits: Sequence[Any], rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Drift rows of the ratios the data identify where the single parameters are confounded.
+    """Drift rows of the combinations the data identify where the single parameters are confounded.
 
     Two strictly positive parameters whose estimates correlate by at least
     :data:`CONFOUNDED_CORR` (in |r| of their logs, in any session's covariance,
     :attr:`aeropend_ident.gap.which.EffectFit.cov`) are not separately identifiable from these
-    recordings: with the angle alone in closed loop, the thrust coefficient K_q (through L/J) and the
-    gravity term mgd/J move together and only their ratio, the duty needed per unit of sin θ, is
-    pinned. Their ratio a/b is a row of its own (``kind`` "combination", ``effect`` "A/B",
-    ``parameter`` "p_a/p_b"): values, standard error from var(log a) + var(log b) − 2 cov, change
-    and z as for a parameter. The single rows of a confounded pair are kept with
-    ``confounded_with``; while their ratio does not change they are not flagged (``drifts`` False,
-    ``flag_suppressed``): both moved along the direction the data do not pin, which the fit cannot
-    tell from a rig change, and that raises no alarm. When the ratio changes, it is flagged, and so
-    are the single rows whose own change is significant (the most significant row comes first).
+    recordings; what the data pin is the direction across the correlation. Positively correlated
+    (r > 0, both move together) it is their ratio: with the angle alone in closed loop, the thrust
+    coefficient K_q (through L/J) and the gravity term mgd/J, whose ratio is the duty needed per
+    unit of sin θ. Negatively correlated (r < 0, one up as the other goes down) it is their
+    product: the ratio is then the least determined combination (its variance va + vb + 2|cov| is
+    larger than either's). The sign is that of the session with the largest |r|. The combination
+    is a row of its own (``kind`` "combination", ``combination`` "ratio" or "product", ``effect``
+    "A/B" or "A·B", ``parameter`` "p_a/p_b" or "p_a·p_b"): values, standard error from
+    var(log a) + var(log b) ∓ 2 cov, change and z as for a parameter. The single rows of a
+    confounded pair are kept with ``confounded_with``; while their combination does not change
+    they are not flagged (``drifts`` False, ``flag_suppressed``): both moved along the direction
+    the data do not pin, which the fit cannot tell from a rig change, and that raises no alarm.
+    When the combination changes, it is flagged, and so are the single rows whose own change is
+    significant (the most significant row comes first).
     """
     out = []
     if any(getattr(f, "cov", None) is None for f in fits) or not fits:
@@ -912,22 +931,26 @@ def combination_rows(fits: Sequence[Any], rows: list[dict[str, Any]]) -> list[di
         for f, ix in zip(fits, idx, strict=True):
             c = f.cov
             va, vb = c[ix[a], ix[a]], c[ix[b], ix[b]]
-            corr.append(abs(c[ix[a], ix[b]]) / math.sqrt(va * vb) if va > 0 and vb > 0 else 0.0)
-        if max(corr) < CONFOUNDED_CORR:
+            corr.append(c[ix[a], ix[b]] / math.sqrt(va * vb) if va > 0 and vb > 0 else 0.0)
+        strongest = max(corr, key=abs)
+        if abs(strongest) < CONFOUNDED_CORR:
             continue
-        lr = np.array([math.log(f.values[a[0]][a[1]]) - math.log(f.values[b[0]][b[1]]) for f in fits])
-        var = np.array([f.cov[ix[a], ix[a]] + f.cov[ix[b], ix[b]] - 2.0 * f.cov[ix[a], ix[b]]
+        sign = 1.0 if strongest > 0 else -1.0  # ratio: log a − log b; product: log a + log b
+        kind = "ratio" if sign > 0 else "product"
+        lr = np.array([math.log(f.values[a[0]][a[1]]) - sign * math.log(f.values[b[0]][b[1]]) for f in fits])
+        var = np.array([f.cov[ix[a], ix[a]] + f.cov[ix[b], ix[b]] - 2.0 * sign * f.cov[ix[a], ix[b]]
                         for f, ix in zip(fits, idx, strict=True)])
         sd = np.sqrt(np.clip(var, 0.0, None))
         k = int(np.argmax(np.abs(lr[1:] - lr[0]))) + 1
         comb = math.sqrt(sd[k] ** 2 + sd[0] ** 2)
         z = abs(lr[k] - lr[0]) / comb if comb > 0 else math.inf
         change = math.expm1(lr[k] - lr[0])
-        ratio = np.exp(lr)
-        out.append({"effect": f"{a[0]}/{b[0]}", "parameter": f"{a[1]}/{b[1]}", "unit": "1",
-                    "kind": "combination", "values": ratio.tolist(), "std": (ratio * sd).tolist(),
-                    "change": change, "abs_change": float(ratio[k] - ratio[0]), "z": z,
-                    "correlation": max(corr),
+        value = np.exp(lr)
+        sep = COMBINE[kind]
+        out.append({"effect": f"{a[0]}{sep}{b[0]}", "parameter": f"{a[1]}{sep}{b[1]}", "unit": "1",
+                    "kind": "combination", "combination": kind, "values": value.tolist(),
+                    "std": (value * sd).tolist(), "change": change, "abs_change": float(value[k] - value[0]),
+                    "z": z, "correlation": abs(strongest), "signed_correlation": strongest,
                     "drifts": bool(z > DRIFT_Z and abs(change) > DRIFT_MIN)})
         for lab, other in ((a, b), (b, a)):
             r = by_label.get(lab)

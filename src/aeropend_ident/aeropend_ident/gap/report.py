@@ -256,7 +256,8 @@ def _drift_lines(table: dict[str, Any], top: int = 4) -> list[str]:
     out = [f"    drift table ({' vs '.join(_label(x)[:24] for x in table['sessions'])}):"]
     for r in table["rows"][:top]:
         vals = " / ".join(f"{v:.4g}" for v in r["values"])
-        note = (f" ratio: the single parameters are confounded (|r| {r['correlation']:.2f})"
+        note = (f" {r.get('combination', 'ratio')}: the single parameters are confounded "
+                f"(r {r.get('signed_correlation', r['correlation']):+.2f})"
                 if r.get("kind") == "combination" else
                 f" not flagged alone: confounded with {', '.join(r['confounded_with'])}"
                 if r.get("flag_suppressed") else "") + _derived_note(r)
