@@ -65,11 +65,10 @@ DRIFTS = {
 DRIFT_RANGE = (0.05, 0.40)
 SNR_RANGE = (40.0, 60.0)
 #: What the prediction under test draws (aeropend_ident.gap.drift.predict_heldout), for the report.
-PREDICTION = ("300 draws re-simulated on the held-out duty; per session nothing changes with probability "
-              "gap_drift.P_UNCHANGED (1/2), otherwise an unknown share π ~ U(0, 1) of the drift-prone "
-              "parameters changes, each by N(0, 2σ_p²) in log (σ_p: gap_drift.DRIFT_PRIOR), the chosen "
-              "effects at their fitted values, and a within-session error [rad] drawn as a block bootstrap "
-              "of the validation recordings' RMS error; NRMSE over the held-out replay's range; the 80 % "
+PREDICTION = ("300 draws re-simulated on the held-out duty; per session an unknown share π ~ U(0, 1) of "
+              "the drift-prone parameters changes, each by N(0, 2σ_p²) in log (σ_p: gap_drift.DRIFT_PRIOR), "
+              "the chosen effects at their fitted values, and a within-session error [rad] drawn as a block "
+              "bootstrap of the validation recordings' RMS error; NRMSE over the held-out replay's range; the 80 % "
               "interval is the shortest in log NRMSE.")
 #: The figures of the previous prediction (commit d169094: the same prior, but the within-session
 #: error was the error of one random 5 s block instead of a bootstrap of a whole recording's RMS),

@@ -14,11 +14,10 @@ distribution of the corrected rig's held-out θ NRMSE e. Each of :data:`N_DRAWS`
   whole recording, not one block's): the within-session variation;
 * a session-to-session log change of each drift-prone parameter (:data:`DRIFT_PARAMETERS`:
   thrust coefficient K_q, gravity term mgd/J, viscous friction c/J, and the supply voltage V_s
-  when v_a is recorded) from :func:`draw_log_changes`: with probability :data:`P_UNCHANGED` the
-  rig is the one of the fit session (nothing moved); otherwise an unknown share π ~ Uniform(0, 1)
-  of the parameters changes, each by N(0, 2σ_p²) (σ_p: :data:`DRIFT_PRIOR`, the standard
-  deviation of the log change over sessions in which the rig changed), or, when the fit data hold
-  several sessions, a normal change with their measured σ_p;
+  when v_a is recorded) from :func:`draw_log_changes`: per session an unknown share
+  π ~ Uniform(0, 1) of the parameters changes, each by N(0, 2σ_p²) (σ_p: :data:`DRIFT_PRIOR`, the
+  standard deviation of the log change, kept), or, when the fit data hold several sessions, a
+  normal change with their measured σ_p;
 
 re-simulates the drawn rig on each held-out recording's duty and records
 e² = (e_in² + mean squared change of the replay) / s², s the expected range of the recorded angle
@@ -98,12 +97,6 @@ DRIFT_PARAMETERS: dict[str, tuple[str, str]] = {
 #: 35 % apart at 29–33 PWM counts, Etchepareborda's rod hanging 0.1–0.2 rad higher). Used only
 #: when the fit data hold one session.
 DRIFT_PRIOR: dict[str, float] = {d.name: d.drift_sigma for d in registry.diagnoses() if d.drift_sigma > 0.0}
-#: Prior probability that nothing drift-prone changed between the fit session and a held-out one
-#: (:func:`draw_log_changes`): whether the rig was touched is not known either way. Under the share
-#: π ~ Uniform(0, 1) alone, "nothing moved" had probability 1/(P + 1) for P drift-prone
-#: parameters (17-25 % for 3-5), so it depended on the channels a lab logs, and a shortest 80 %
-#: interval could leave an unchanged rig's error out (docs/findings/gap.md).
-P_UNCHANGED = 0.5
 #: Monte-Carlo draws of the prediction (one replay of each validation recording per draw).
 N_DRAWS = 300
 #: Block length of the within-session error [s].
@@ -240,23 +233,19 @@ def draw_log_changes(sigma: Mapping[str, float], params: Sequence[str], rng: np.
         The drift-prone parameters drawn (:func:`drift_parameters`).
     rng : numpy.random.Generator
     occurrence : bool
-        True (the prior): with probability :data:`P_UNCHANGED` nothing changes (the rig was left
-        alone); otherwise whether a parameter changes is an event of probability π, shared by the
-        rig's parameters and unknown, π ~ Uniform(0, 1) drawn per session (a rig taken apart or
-        moved changes several things at once), and a parameter that changes moves by
-        N(0, 2σ_p²), so that over the sessions in which the rig changed the log change has the
-        standard deviation σ_p (E[π] = 1/2): mass at zero and heavier tails than a normal. Given
-        a change, the number of changing parameters is uniform on 0..len(params). False (σ
-        measured across sessions, which already holds the sessions in which nothing changed):
-        N(0, σ_p²) for every parameter.
+        True (the prior): whether a parameter changes at all is an event of probability π, shared by
+        the rig's parameters and unknown, π ~ Uniform(0, 1) drawn per session (a rig left alone
+        changes nothing, one taken apart or moved changes several things at once); a parameter
+        that changes moves by N(0, 2σ_p²), so that the log change keeps the standard deviation σ_p
+        (E[π] = 1/2) and only its shape changes: mass at zero and heavier tails. The number of
+        changing parameters is uniform on 0..len(params). False (σ measured across sessions, which
+        already holds the sessions in which nothing changed): N(0, σ_p²) for every parameter.
 
     Returns
     -------
     dict
         Log change per parameter (0.0 for one that does not change).
     """
-    if occurrence and rng.uniform() < P_UNCHANGED:
-        return {eff: 0.0 for eff in params}
     pi, widen = (float(rng.uniform()), math.sqrt(2.0)) if occurrence else (1.0, 1.0)
     out = {}
     for eff in params:
