@@ -68,8 +68,8 @@ SNR_RANGE = (40.0, 60.0)
 PREDICTION = ("300 draws re-simulated on the held-out duty; per session an unknown share π ~ U(0, 1) of "
               "the drift-prone parameters changes, each by N(0, 2σ_p²) in log (σ_p: gap_drift.DRIFT_PRIOR), "
               "the chosen effects at their fitted values, and a within-session error [rad] drawn as a block "
-              "bootstrap of the validation recordings' RMS error; NRMSE over the held-out replay's range; the 80 % "
-              "interval is the shortest in log NRMSE.")
+              "bootstrap of the validation recordings' RMS error; NRMSE over the held-out replay's range; "
+              "the 80 % interval is the shortest in log NRMSE.")
 #: The figures of the previous prediction (commit d169094: the same prior, but the within-session
 #: error was the error of one random 5 s block instead of a bootstrap of a whole recording's RMS),
 #: kept in the report for comparison.
