@@ -27,7 +27,8 @@ asks of the rod, not by the validation part's range). The median of the draws is
 prediction; the shortest interval in log e holding 80 % of them (:func:`shortest_interval`) is the
 80 % interval: it keeps the atom "nothing moved" at the distribution's lower end inside. The
 chosen effects' parameters are the fitted ones in every draw: their error is already in e_in,
-which is measured with them (docs/findings/gap.md, "The prediction's unchanged rig").
+which is measured with them (docs/findings/gap.md, "The noise on a lattice, a product in the
+drift table").
 
 **Attainable shrink** (:func:`attainable`, after the held-out replay): the chosen effect set,
 the chosen set plus the drift-prone parameters, and separately the best catalog set up to

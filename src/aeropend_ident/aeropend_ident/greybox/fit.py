@@ -720,8 +720,8 @@ def noise_level(theta: np.ndarray, quantum: float = 0.0) -> float:
     the differences within 4 robust widths w = max(1.4826·MAD, q) of it (motion and outliers left
     out), over √6, at least the rounding noise q/√12: within 9 % of the true noise RMS (white
     noise and rounding together) for white σ from q/12 to 2q at 50, 100 and 490 Hz, where the MAD
-    estimate reads 0.86-2.0× it
-    (test/ident/gap/test_quantised.py; docs/findings/gap.md, "The noise estimate on a lattice").
+    estimate reads 0.86-2.0× it (test/ident/gap/test_quantised.py; docs/findings/gap.md, "The noise
+    on a lattice, a product in the drift table").
 
     Parameters
     ----------
