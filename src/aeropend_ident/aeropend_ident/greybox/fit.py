@@ -715,13 +715,14 @@ def noise_level(theta: np.ndarray, quantum: float = 0.0) -> float:
 
     On a quantised channel (``quantum`` q > 0, :func:`aeropend_ident.io.recording_input.detect_quantum`)
     Δ²θ takes lattice values k·q only, so the MAD snaps to 0, q or 2q and the estimate above reads
-    one of three values whatever the noise (2q/√6·1.4826 = 0.0074 rad for q = 0.0061 at any σ
-    between 0.5 and 4 mrad). There the estimate is the root mean square of Δ²θ about its median over
-    the differences within 4 robust widths w = max(1.4826·MAD, q) of it (motion and outliers left
-    out), over √6, at least the rounding noise q/√12: within 9 % of the true noise RMS (white
-    noise and rounding together) for white σ from q/12 to 2q at 50, 100 and 490 Hz, where the MAD
-    estimate reads 0.86-2.0× it (test/ident/gap/test_quantised.py; docs/findings/gap.md, "The noise
-    on a lattice, a product in the drift table").
+    one of three values whatever the noise (1.4826·q/√6 = 3.7 mrad for q = 6.1 mrad at 50 Hz for
+    any white σ from 0.5 to 3.7 mrad, whose true noise RMS is 1.9-4.1 mrad). There the estimate
+    is the root mean square of Δ²θ about its median over the differences within 4 robust widths
+    w = max(1.4826·MAD, q) of it (motion and outliers left out), over √6, at least the rounding
+    noise q/√12: within 9 % of the true noise RMS (white noise and rounding together) for white σ
+    from q/12 to 2q at 50, 100 and 490 Hz, where the MAD estimate reads 0.86-2.0× it
+    (test/ident/gap/test_quantised.py; docs/findings/gap.md, "The noise on a lattice, a product in
+    the drift table").
 
     Parameters
     ----------
