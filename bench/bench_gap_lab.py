@@ -295,7 +295,7 @@ def _closed_loop(spec: dict[str, Any], rng: np.random.Generator, params: PlantPa
     k, seed = spec["every"], spec["seed"]
     probe = closed_loop(TruthPlant(params), nominal, seed, 10.0, every=k, sigma={})
     effects = truth_effects(spec["effects"], rng, params, float(np.max(probe["theta"])))
-    sigma = {c: float(np.sqrt(np.mean(probe[c] ** 2))) / 10.0 ** (snr / 20.0) for c in chans}
+    sigma = noise_sigma(probe, snr, chans)
     out: dict[str, Any] = {"effects": effects}
     for name, plant_p, dur, salt in (("fit", params, FIT_DURATION, 0), ("held", p2, HELD_DURATION, 1)):
         run = closed_loop(TruthPlant(plant_p, effects), nominal, seed + 10 + 10 * salt, dur, every=k,
