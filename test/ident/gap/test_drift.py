@@ -252,7 +252,8 @@ def test_negatively_correlated_parameters_drift_as_their_product() -> None:
     # ratio is the least determined combination. Both moved along the unpinned direction (a up 15 %,
     # b down as much): their product is unchanged, no alarm. With the ratio as the combination (as
     # for every confounded pair before), the change along the pinned direction was read against the
-    # ratio's large error: a lab case's gravity drift of +19 % came out at z 0.1 and unflagged.
+    # ratio's large error: lab pairs 111 and 117 (K_q −18 % and +29 %, angle only, K_q confounded
+    # with a sensor scale) flagged nothing.
     labels = (("thrust_coefficient", "K_q"), ("sensor_scale", "theta_scale"))
     sd = np.array([0.05, 0.05])
     cov = np.outer(sd, sd) * np.array([[1.0, -0.98], [-0.98, 1.0]])
