@@ -24,6 +24,7 @@ from aeropend_ident.gap.drift import (
     draw_log_changes,
     drift_rows,
     drift_set,
+    shortest_interval,
     within_session_draw,
 )
 from aeropend_ident.gap.which import INITIAL_STATE_WINDOW
@@ -90,6 +91,53 @@ def test_within_session_error_is_a_bootstrap_of_a_whole_recordings_rms() -> None
     for k in (4, 64):
         sd = np.std([within_session_draw([busy[:k]], rng) ** 2 for _ in range(4000)])
         assert sd * math.sqrt(k) == pytest.approx(np.std(busy[:k] ** 2), rel=0.06)
+
+
+def test_the_within_session_draw_predicts_a_target_recordings_own_error() -> None:
+    # two-stage: the validation blocks resampled (the estimate's uncertainty, s²/k), then each
+    # target's m blocks drawn from that resample (its own sampling, about s²/m): the spread of a
+    # target's mean square is s²(1/k + (k-1)/(k·m)), wider than the estimate's alone
+    rng = np.random.default_rng(2)
+    busy = np.random.default_rng(4).uniform(0.0, 0.04, 10)
+    s2 = np.var(busy**2)
+    for m in (3, 30):
+        ms = np.array([[e**2 for e in within_session_draw([busy], rng, target_blocks=[m, 1])]
+                       for _ in range(8000)])
+        assert np.var(ms[:, 0]) == pytest.approx(s2 / 10 + s2 * 9 / (10 * m), rel=0.06)
+        assert np.mean(ms[:, 0]) == pytest.approx(np.mean(busy**2), rel=0.01)
+    # equal blocks: every target's draw is their RMS exactly
+    assert within_session_draw([np.full(5, 0.02)], rng, target_blocks=[15, 4]) == pytest.approx([0.02, 0.02])
+
+
+def test_the_interval_holds_the_nothing_moved_atom_whatever_its_share() -> None:
+    # lognormal draws, no atom: the shortest interval holds 80 % of them, about ±1.28 σ
+    rng = np.random.default_rng(3)
+    x = np.exp(rng.normal(np.log(0.05), 0.5, 4000))
+    lo, hi = shortest_interval(x)
+    assert np.mean((x >= lo) & (x <= hi)) == pytest.approx(0.80, abs=0.002)
+    assert math.log(hi / lo) == pytest.approx(2 * 1.2816 * 0.5, rel=0.05)
+    # lab case 56's shape: an atom of 18 % of the draws at the unchanged rig's error (0.0014, a
+    # spread of 1 %) under a long tail of session changes (log-uniform 0.01-0.7). Over the draws
+    # alone the shortest interval leaves the atom out, "nothing moved" a tail beyond it;
+    # holding 80 % of the atom's own draws too, it starts at the atom and still holds 80 %
+    atom = 0.0014 * np.exp(rng.normal(0.0, 0.01, 54))
+    tail = np.exp(rng.uniform(np.log(0.01), np.log(0.7), 246))
+    both = np.concatenate([atom, tail])
+    lo0, _ = shortest_interval(both)
+    assert lo0 > 0.009
+    lo, hi = shortest_interval(both, atom=atom)
+    assert np.mean((atom >= lo) & (atom <= hi)) >= 0.80
+    assert np.mean((both >= lo) & (both <= hi)) >= 0.80
+    assert lo <= np.quantile(atom, 0.2) and hi < 0.7
+    # it is the shortest such: every other interval holding both shares is as long or longer
+    xs = np.sort(both)
+    best = math.log(hi / lo)
+    for i in range(xs.size):
+        for j in range(i, xs.size):
+            held = (both >= xs[i]) & (both <= xs[j])
+            if np.mean(held) >= 0.8 and np.mean(held[: atom.size]) >= 0.8:
+                assert math.log(xs[j] / xs[i]) >= best - 1e-12
+                break
 
 
 def test_drift_rows_change_and_significance() -> None:

@@ -9,9 +9,11 @@ duty and start only, before any held-out error is computed): a Monte-Carlo predi
 distribution of the corrected rig's held-out θ NRMSE e. Each of :data:`N_DRAWS` draws takes
 
 * e_in: the corrected rig's error within the session, i.e. on the validation part the effects
-  were chosen on, as a block bootstrap of its RMS error in rad: per validation recording as many
-  :data:`BLOCK_S` s blocks as it holds, drawn with replacement (a held-out NRMSE is an RMS over a
-  whole recording, not one block's): the within-session variation;
+  were chosen on, as a two-stage block bootstrap of its RMS error in rad: the validation
+  recordings' :data:`BLOCK_S` s blocks drawn with replacement (the uncertainty of that estimate),
+  then per held-out recording as many blocks as it holds drawn from them (its own sampling; a
+  held-out NRMSE is an RMS over a whole recording, not one block's): the within-session
+  variation;
 * a session-to-session log change of each drift-prone parameter (:data:`DRIFT_PARAMETERS`:
   thrust coefficient K_q, gravity term mgd/J, viscous friction c/J, and the supply voltage V_s
   when v_a is recorded) from :func:`draw_log_changes`: per session an unknown share
@@ -24,8 +26,9 @@ e² = (e_in² + mean squared change of the replay) / s², s the expected range o
 on that recording: the corrected rig's replay plus the measurement noise (:func:`recorded_range`;
 the NRMSE is over the held-out recording's recorded range, and a drift moves θ by what the duty
 asks of the rod, not by the validation part's range). The median of the draws is the
-prediction; the shortest interval in log e holding 80 % of them (:func:`shortest_interval`) is the
-80 % interval: it keeps the atom "nothing moved" at the distribution's lower end inside. The
+prediction; the shortest interval in log e holding 80 % of them and 80 % of the draws in which
+nothing moved (:func:`shortest_interval`) is the 80 % interval: the atom "nothing moved" at the
+distribution's lower end is a possible outcome, inside, not a tail beyond it. The
 chosen effects' parameters are the fitted ones in every draw: their error is already in e_in,
 which is measured with them (docs/findings/gap.md, "The noise on a lattice, a product in the
 drift table").
@@ -69,6 +72,7 @@ from aeropend_ident.gap.effects import (
     measurement_noise,
 )
 from aeropend_ident.gap.which import (
+    COVARIANCE_BLOCK_S,
     INITIAL_STATE_WINDOW,
     EffectDiagnosis,
     Prepared,
@@ -100,8 +104,12 @@ DRIFT_PARAMETERS: dict[str, tuple[str, str]] = {
 DRIFT_PRIOR: dict[str, float] = {d.name: d.drift_sigma for d in registry.diagnoses() if d.drift_sigma > 0.0}
 #: Monte-Carlo draws of the prediction (one replay of each validation recording per draw).
 N_DRAWS = 300
-#: Block length of the within-session error [s].
-BLOCK_S = 5.0
+#: Block length of the within-session error [s]: the block sandwich's
+#: (:data:`aeropend_ident.gap.which.COVARIANCE_BLOCK_S`), longer than a replay's error stays
+#: correlated by the rod's own dynamics; a 10 s validation part holds five. With 5 s blocks it held
+#: two, too few to estimate a spread from: the unchanged rig's actual fell just under the
+#: within-session atom (docs/findings/gap.md, "The atom inside the interval").
+BLOCK_S = COVARIANCE_BLOCK_S
 #: Probability of the predicted interval (80 %): the shortest interval in log NRMSE holding this
 #: share of the draws (:func:`shortest_interval`).
 LEVEL = 0.80
@@ -215,11 +223,13 @@ def _ms_changes(rigs: Sequence[Rig | None], meas: MeasurementMap, preps: Sequenc
     return out
 
 
-def _nrmse_of(e_in: float, ms: Sequence[float], scales: Sequence[float]) -> float:
+def _nrmse_of(e_in: float | Sequence[float], ms: Sequence[float], scales: Sequence[float]) -> float:
     """The held-out θ NRMSE of one draw: per target recording √(e_in²/s² + ms), e_in the
-    within-session RMS error [rad], s the recording's θ scale [rad] and ms its replay's mean squared
-    change over s²; the mean over the recordings (as the held-out NRMSE is)."""
-    return float(np.mean([math.sqrt(e_in**2 / s**2 + m) for m, s in zip(ms, scales, strict=True)]))
+    within-session RMS error [rad] (one, or one per target), s the recording's θ scale [rad] and ms
+    its replay's mean squared change over s²; the mean over the recordings (as the held-out NRMSE
+    is)."""
+    e = [float(e_in)] * len(ms) if np.ndim(e_in) == 0 else [float(x) for x in e_in]
+    return float(np.mean([math.sqrt(x**2 / s**2 + m) for x, m, s in zip(e, ms, scales, strict=True)]))
 
 
 def draw_log_changes(sigma: Mapping[str, float], params: Sequence[str], rng: np.random.Generator, *,
@@ -256,14 +266,21 @@ def draw_log_changes(sigma: Mapping[str, float], params: Sequence[str], rng: np.
     return out
 
 
-def within_session_draw(block_errors: Sequence[np.ndarray], rng: np.random.Generator) -> float:
+def within_session_draw(block_errors: Sequence[np.ndarray], rng: np.random.Generator,
+                        target_blocks: Sequence[int] | None = None) -> float | list[float]:
     """One block-bootstrap draw of the within-session θ NRMSE of a whole recording.
 
     A held-out NRMSE is the RMS error over a whole recording, so its within-session part is an RMS
     over that recording's blocks, not the error of one block: per validation recording, as many
-    5 s blocks as it holds are drawn with replacement from its own block errors and their mean
+    blocks as it holds are drawn with replacement from its own block errors and their mean
     square taken; the mean over the recordings (the statistic :func:`_ms_change` averages the same
     way) gives e_in² (non-overlapping block bootstrap, Carlstein 1986).
+
+    With ``target_blocks`` the draw is a prediction of each target recording's own error: the
+    validation blocks resampled as above (the uncertainty of the estimate), then per target as many
+    blocks as it holds drawn from that resample (the target's own sampling), so that the spread
+    is that of e_in² plus that of the target's mean square, σ²(1/k + 1/m) for k validation and m
+    target blocks (a two-stage predictive bootstrap).
 
     Parameters
     ----------
@@ -271,26 +288,38 @@ def within_session_draw(block_errors: Sequence[np.ndarray], rng: np.random.Gener
         Per validation recording, the θ RMS error of each of its blocks (shape (k_j,), k_j ≥ 1;
         in rad, or normalised: the draw has their unit).
     rng : numpy.random.Generator
+    target_blocks : sequence of int, optional
+        Per target recording, its number of blocks (≥ 1).
 
     Returns
     -------
-    float
-        e_in, in the blocks' unit.
+    float or list of float
+        e_in, in the blocks' unit; with ``target_blocks`` one per target.
     """
-    ms = [float(np.mean(np.square(rng.choice(b, size=b.size, replace=True)))) for b in block_errors]
-    return math.sqrt(float(np.mean(ms)))
+    resampled = [rng.choice(b, size=b.size, replace=True) for b in block_errors]
+    if target_blocks is None:
+        return math.sqrt(float(np.mean([np.mean(np.square(r)) for r in resampled])))
+    pool = np.concatenate(resampled)
+    return [math.sqrt(float(np.mean(np.square(rng.choice(pool, size=max(1, int(m)), replace=True)))))
+            for m in target_blocks]
 
 
-def shortest_interval(samples: Sequence[float], level: float = LEVEL) -> tuple[float, float]:
+def shortest_interval(samples: Sequence[float], level: float = LEVEL,
+                      atom: Sequence[float] | None = None) -> tuple[float, float]:
     """The shortest interval in log scale holding ``level`` of the draws (a highest-density interval
-    of log e).
+    of log e), and ``level`` of the ``atom`` draws when they are given.
 
     The predictive distribution of a held-out error has an atom at "nothing moved" (the
     within-session error, drawn whenever no drift-prone parameter changes) at its lower end and a
     long tail of session changes above it. An equal-tailed interval (10 % / 90 % quantiles) would
-    cut its lower 10 % out of that atom and leave "nothing moved" a tail beyond the interval; the
-    shortest interval keeps the dense atom inside and gives the tail what is left. Log scale,
-    because an error is a size: 0.001 to 0.002 is as far as 0.1 to 0.2.
+    cut its lower 10 % out of that atom and leave "nothing moved" a tail beyond the interval. A
+    shortest interval over the draws alone keeps the atom only while it holds more than
+    1 − ``level`` of them: with four drift-prone parameters the prior gives it 1/5, and a long
+    upper tail then wins the comparison (lab benchmark case 56: the atom at 0.0014, the interval
+    [0.0092, 0.48], the unchanged rig's actual 0.0014). A point mass is where the density is
+    highest, so a highest-density region holds it first: with ``atom`` the interval must hold
+    ``level`` of the atom's own draws too (its spread is the within-session error's), and is the
+    shortest such. Log scale, because an error is a size: 0.001 to 0.002 is as far as 0.1 to 0.2.
 
     Parameters
     ----------
@@ -298,16 +327,31 @@ def shortest_interval(samples: Sequence[float], level: float = LEVEL) -> tuple[f
         Draws (> 0), shape (n,), n ≥ 1.
     level : float
         Share of the draws the interval holds, in (0, 1].
+    atom : sequence of float, optional
+        The draws of the atom (a subset of ``samples``, shape (m,)); none or empty: no constraint.
 
     Returns
     -------
     (float, float)
         Lower and upper end (draws themselves).
     """
-    x = np.sort(np.log(np.maximum(np.asarray(samples, dtype=float), 1e-300)))
+    raw = np.sort(np.maximum(np.asarray(samples, dtype=float), 1e-300))
+    x = np.log(raw)  # the ends returned are draws themselves, not exp(log(draw))
     k = max(1, math.ceil(level * x.size))
-    i = int(np.argmin(x[k - 1:] - x[: x.size - k + 1]))
-    return float(math.exp(x[i])), float(math.exp(x[i + k - 1]))
+    a = np.log(np.sort(np.maximum(np.asarray(atom if atom is not None else [], dtype=float), 1e-300)))
+    if a.size == 0:
+        i = int(np.argmin(x[k - 1:] - x[: x.size - k + 1]))
+        return float(raw[i]), float(raw[i + k - 1])
+    ka = max(1, math.ceil(level * a.size))
+    starts = np.arange(x.size - k + 1)
+    below = np.searchsorted(a, x[starts], side="left")  # atom draws left out below each start
+    ok = below + ka <= a.size
+    starts, below = starts[ok], below[ok]
+    # the end: k draws from the start, and far enough to hold ka of the atom's draws
+    need = np.searchsorted(x, a[below + ka - 1], side="left")
+    ends = np.maximum(starts + k - 1, need)
+    i = int(np.argmin(x[ends] - x[starts]))
+    return float(raw[starts[i]]), float(raw[ends[i]])
 
 
 def recorded_range(replay: np.ndarray, sigma: float, rng: np.random.Generator,
@@ -368,17 +412,18 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     """Predicted held-out θ NRMSE of the corrected rig, from the fit data and the held-out duty
     (module docstring).
 
-    A Monte-Carlo predictive distribution: each draw takes one within-session error e_in [rad] (a
-    block bootstrap of the corrected rig's RMS error on the validation recordings,
-    :func:`within_session_draw`) and a
+    A Monte-Carlo predictive distribution: each draw takes per target a within-session error e_in
+    [rad] (a two-stage block bootstrap of the corrected rig's RMS error on the validation
+    recordings, as many blocks as the target holds, :func:`within_session_draw`) and a
     log change of every drift-prone parameter from the drift prior (:func:`draw_log_changes`;
     :data:`DRIFT_PRIOR` is its standard deviation), replays the drawn rig on each target recording's
     duty and records, per target, e = √(e_in²/s² + mean squared change of the replay / s²), s the
     expected range of the recorded angle there (the corrected rig's replay plus the validation
     recordings' θ noise, :func:`recorded_range`, as the actual NRMSE divides by the recorded
     range); the mean over the targets is the draw's NRMSE. The median of the draws is the
-    prediction, the shortest interval in log NRMSE that holds 80 % of them
-    (:func:`shortest_interval`) its 80 % interval.
+    prediction, the shortest interval in log NRMSE that holds 80 % of them and 80 % of those in
+    which no drift-prone parameter changed (the atom "nothing moved", :func:`shortest_interval`)
+    its 80 % interval.
 
     The chosen effects keep their fitted values in every draw. Their fit error is in e_in already
     (the validation error is measured with them), and a draw of each from its marginal standard
@@ -453,7 +498,7 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     val_sims = corrected(preps)
     for p, sim in zip(preps, val_sims, strict=True):
         e = sim - p.y["theta"]
-        k = max(1, round(p.n * p.dt / BLOCK_S))
+        k = max(1, round(e.size * p.dt / BLOCK_S))
         per_rec.append(np.array([np.sqrt(np.mean(b**2)) for b in np.array_split(e, k) if b.size]))
     base = val_sims if targets is None else corrected(tpreps)  # the default targets: replayed once
     sigma_theta = float(np.mean([measurement_noise(p.y["theta"]) for p in preps]))
@@ -466,22 +511,27 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     ms_one = _ms_changes(one_at_a_time, diag.measurement, tpreps, base, scales)
     sensitivity = {eff: [math.sqrt(float(np.mean(m))) if m is not None else math.nan
                          for m in ms_one[2 * i: 2 * i + 2]] for i, eff in enumerate(params)}
+    target_blocks = [max(1, round(p.duty.size * p.dt / BLOCK_S)) for p in tpreps]  # the targets' own lengths
     drawn: list[Rig | None] = []
-    e_ins: list[float] = []
+    e_ins: list[Any] = []
+    still: list[bool] = []  # the draws in which no drift-prone parameter changes: the atom
     for _ in range(draws):  # the random draws first, in the order of one draw after the other
-        factors = {eff: math.exp(x) for eff, x in
-                   draw_log_changes(sigma, params, rng, occurrence=drift_sigma is None).items()}
-        e_ins.append(within_session_draw(per_rec, rng))
-        drawn.append(_perturbed_or_none(diag.corrected_rig, factors))
-    samples, changes = [], []
-    for e_in, ms in zip(e_ins, _ms_changes(drawn, diag.measurement, tpreps, base, scales), strict=True):
+        logs = draw_log_changes(sigma, params, rng, occurrence=drift_sigma is None)
+        still.append(all(x == 0.0 for x in logs.values()))
+        e_ins.append(within_session_draw(per_rec, rng, target_blocks=target_blocks))
+        drawn.append(_perturbed_or_none(diag.corrected_rig, {eff: math.exp(x) for eff, x in logs.items()}))
+    samples, changes, atom = [], [], []
+    for e_in, ms, none_moved in zip(e_ins, _ms_changes(drawn, diag.measurement, tpreps, base, scales), still,
+                                    strict=True):
         if ms is None:
             continue
         changes.append(math.sqrt(float(np.mean(ms))))
         samples.append(_nrmse_of(e_in, ms, scales))
+        if none_moved:
+            atom.append(samples[-1])
     if not samples:
         raise GapError("prediction: every replay of the corrected rig failed")
-    lo, hi = shortest_interval(samples, LEVEL)
+    lo, hi = shortest_interval(samples, LEVEL, atom=atom)
     within_rad = float(np.sqrt(np.mean(np.square(blocks))))
     within = float(np.mean([within_rad / s for s in scales]))
     return {
