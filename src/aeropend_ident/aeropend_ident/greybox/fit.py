@@ -707,7 +707,7 @@ def initial_velocity(theta: np.ndarray, dt: float, n: int = N_DIFF) -> float:
     return float(coef[-2])
 
 
-def noise_level(theta: np.ndarray, quantum: float = 0.0) -> float:
+def noise_level(theta: np.ndarray, quantum: float = 0.0, keep: np.ndarray | None = None) -> float:
     """Robust estimate of white measurement noise σ on a recorded channel [its unit, e.g. rad].
 
     σ̂ = 1.4826·MAD(Δ²θ)/√6: the second difference of white noise has variance 6σ², and smooth
@@ -730,13 +730,18 @@ def noise_level(theta: np.ndarray, quantum: float = 0.0) -> float:
         Recorded channel.
     quantum : float, optional
         Its detected lattice step q (0: not quantised).
+    keep : ndarray of bool, shape (n - 2,), optional
+        The second differences that count (default all): e.g. only those over three samples at a
+        logger's regular interval (:func:`aeropend_ident.greybox.rig_inputs.recorded_noise`).
 
     Returns
     -------
     float
-        σ̂ ≥ 0; 0 when fewer than 5 samples (or q/√12 on a quantised channel).
+        σ̂ ≥ 0; 0 when fewer than 3 second differences count (or q/√12 on a quantised channel).
     """
     d2 = np.diff(np.asarray(theta, dtype=float), 2)
+    if keep is not None:
+        d2 = d2[np.asarray(keep, dtype=bool)]
     q = float(quantum)
     floor = q / math.sqrt(12.0) if q > 0.0 else 0.0
     if d2.size < 3:

@@ -231,10 +231,9 @@ def recorded_noise(t: np.ndarray, theta: np.ndarray) -> float:
     med = float(np.median(dt))
     regular = np.abs(dt - med) <= 0.25 * med
     keep = regular[:-1] & regular[1:]
-    d2 = np.diff(theta, 2)[keep]
-    if d2.size < 3:
+    if np.count_nonzero(keep) < 3:
         return noise_level(theta)
-    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / math.sqrt(6.0))
+    return noise_level(theta, keep=keep)
 
 
 def time_series(rec: Recording) -> TimeSeries:
