@@ -96,6 +96,27 @@ def test_measurement_noise_is_at_least_the_rounding_noise_of_a_detected_quantum(
     assert noise_floor(prep) == pytest.approx(q / math.sqrt(12.0) / float(np.ptp(y)), rel=1e-9)
 
 
+def test_a_lattice_printed_with_a_few_decimals_is_still_a_lattice() -> None:
+    # AeroShield's logs: a 1.534 mrad step written to 1e-6 rad, so that one-step gaps read 1.533 or
+    # 1.534 mrad and the smallest gap's lattice drifts off the values within a few hundred steps
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 20.0, 0.004)
+    q = 1.5339808e-3
+    slow = 0.6 + 0.5 * np.sin(0.3 * t) + rng.normal(0.0, 0.3 * q, t.size)
+    for decimals in (6, 5):
+        y = np.round(np.round(slow / q) * q + 0.0123, decimals)
+        assert detect_quantum(y) == pytest.approx(q, rel=2e-4)
+        # the noise floor is the lattice's (q/√12 at least), where the MAD of Δ²θ read almost 0
+        assert measurement_noise(y) >= q / math.sqrt(12.0) * (1 - 2e-4)
+    # not lattices: a continuous channel held for five samples (fewer distinct values than a third),
+    # and values on two steps at once (0.09° and 0.1°, a log that mixes two scalings)
+    held = np.repeat(np.cumsum(rng.normal(0.0, 0.01, 2000)), 5)
+    assert detect_quantum(held) == 0.0
+    k = np.cumsum(rng.integers(1, 3, 600))
+    mixed = np.where(np.arange(600) % 3 == 0, k * 0.0017453, k * 0.0015708)
+    assert detect_quantum(np.repeat(np.round(mixed, 7), 4)) == 0.0
+
+
 @pytest.mark.parametrize("rate", [50.0, 100.0, 490.0])
 def test_the_noise_estimate_on_a_lattice_follows_the_noise_not_the_lattice(rate: float) -> None:
     # On a 10-bit lattice the second differences take the values k·q only, so their MAD snaps to

@@ -249,13 +249,26 @@ def _ms(seconds: float) -> str:
     return f"{seconds * 1e3:.3g} ms"
 
 
+#: Largest deviation of a printed value from the fitted lattice, in steps q, for a channel whose
+#: values were written with a few decimals (:func:`detect_quantum`): a 1.534 mrad step printed to
+#: 1e-6 rad deviates by 3e-4 q; a continuous channel held for several samples fills the interval
+#: between its distinct values and deviates by up to q/2.
+PRINTED_LATTICE_TOL = 0.02
+
+
 def detect_quantum(y: np.ndarray) -> float:
     """LSB q of a recorded channel if its values lie on a lattice k·q (+ constant), else 0.
 
     The lattice step is the smallest gap between distinct values; the channel counts as quantised
     when every value sits within 1e-3·q of the lattice and there are fewer distinct values than a
-    third of the samples. Read by the resampling (a quantised channel is not interpolated) and by the
-    gap diagnosis (the ``quantisation`` effect: a property of the recording, never fitted).
+    third of the samples. A log written with a few decimals moves each value off the lattice by its
+    printing's rounding (AeroShield's 1.534 mrad step printed to 1e-6 rad: one-step gaps of 1.533 and
+    1.534 mrad), so that the smallest gap is not q and the lattice drifts away from the values over
+    hundreds of steps; then q is the least-squares slope of the distinct values on their step
+    indices (each gap counted in median one-step gaps), and the channel counts as quantised when
+    every distinct value sits within :data:`PRINTED_LATTICE_TOL`·q of that lattice. Read by the
+    resampling (a quantised channel is not interpolated) and by the gap diagnosis (the
+    ``quantisation`` effect: a property of the recording, never fitted; its noise floor q/√12).
 
     Parameters
     ----------
@@ -276,7 +289,24 @@ def detect_quantum(y: np.ndarray) -> float:
     if q <= 0.0:
         return 0.0
     frac = (y - u[0]) / q
-    if np.max(np.abs(frac - np.round(frac))) > 1e-3:
+    if np.max(np.abs(frac - np.round(frac))) <= 1e-3:
+        return q
+    return _printed_lattice(u, gaps, q)
+
+
+def _printed_lattice(u: np.ndarray, gaps: np.ndarray, smallest: float) -> float:
+    """The step of a lattice whose distinct values ``u`` (sorted) were printed with a few decimals,
+    0.0 when they do not lie on one (:func:`detect_quantum`)."""
+    one = gaps[(gaps > 1e-12) & (gaps <= 1.5 * smallest)]  # one-step gaps, scattered by the rounding
+    if one.size < 2:
+        return 0.0
+    steps = np.round(gaps / float(np.median(one)))  # each gap in steps: its rounding error stays in it
+    if np.any(steps < 1):  # two distinct values on one lattice point: no lattice
+        return 0.0
+    k = np.concatenate([[0.0], np.cumsum(steps)])
+    slope, intercept = np.polyfit(k, u, 1)
+    q = float(slope)
+    if q <= 0.0 or np.max(np.abs(u - (intercept + q * k))) > PRINTED_LATTICE_TOL * q:
         return 0.0
     return q
 
