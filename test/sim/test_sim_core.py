@@ -104,6 +104,8 @@ def test_make_settings_applies_overrides():
         ({"rt_priority": 120}, "rt_priority = 120; expected an integer in [0, 99]"),
         ({"min_subscribers": 0}, "min_subscribers = 0; expected an integer >= 1"),
         ({"min_subscribers": True}, "min_subscribers = True"),
+        ({"min_clock_subscribers": -1}, "min_clock_subscribers = -1; expected an integer >= 0"),
+        ({"min_clock_subscribers": 1.0}, "min_clock_subscribers = 1.0; expected an integer >= 0"),
     ],
 )
 def test_make_settings_errors(kwargs, needle):

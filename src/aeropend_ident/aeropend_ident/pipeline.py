@@ -114,10 +114,12 @@ def run_graph(out: Path, plant_rig: str, mode: str, seed: int, signal_params: li
     reliable = ["--reliable", "--clock"] if mode == "lockstep" else []
     recorder = Stage("record", [*_exe("record"), "-o", str(bag), *reliable, *(["--ros-args", *remap] if remap
                                                                               else [])], logs / "record.log")
-    # lock-step: sample 0 (and so the run) waits until both sample consumers are matched
+    # lock-step: sample 0 (and so the run) waits until both sample consumers and the recorder's
+    # /clock reader are matched
+    clock_reader = ["-p", "min_clock_subscribers:=1"] if mode == "lockstep" else []
     plant = Stage("sim_node", _exe("sim_node") + ros + [f"rig:={plant_rig}", "-p", f"mode:={mode}", "-p",
                   f"seed:={seed}", "-p", f"noise:={'true' if noise else 'false'}", "-p",
-                  "min_subscribers:=2"], logs / "sim_node.log")
+                  "min_subscribers:=2", *clock_reader], logs / "sim_node.log")
     exc_args: list[str] = []
     # wait for both listeners of the command topic (plant and recorder) so the bag starts at sample 0
     for p in [*signal_params, f"seed:={seed}", f"mode:={mode}", "min_subscribers:=2"]:

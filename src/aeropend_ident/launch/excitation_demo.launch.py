@@ -58,8 +58,8 @@ def _nodes(context, *args, **kwargs):
     lockstep = value["mode"] == "lockstep"
     seed = int(value["seed"])
     plant_params = {"rig": value["rig"], "mode": value["mode"], "seed": seed}
-    if lockstep:  # sample 0 waits for both sample consumers (excitation, recorder)
-        plant_params["min_subscribers"] = 2
+    if lockstep:  # sample 0 waits for both sample consumers (excitation, recorder) and the recorder's /clock
+        plant_params.update(min_subscribers=2, min_clock_subscribers=1)
     if value["noise"]:
         plant_params["noise"] = is_true(value["noise"])
     # wait for plant + recorder on the duty topic so the bag starts at sample 0

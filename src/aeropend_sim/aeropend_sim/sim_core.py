@@ -207,6 +207,8 @@ class SimSettings:
     min_subscribers : int
         Lock-step mode: sample 0 is published (and the run can start) only once ``joint_states``
         has at least this many matched subscriptions (>= 1).
+    min_clock_subscribers : int
+        Lock-step mode with ``publish_clock``: and ``/clock`` at least this many (>= 0).
     """
 
     rig: Rig
@@ -219,6 +221,7 @@ class SimSettings:
     effect_overrides: dict[str, bool | str]
     rt_priority: int = 0
     min_subscribers: int = 1
+    min_clock_subscribers: int = 0
 
     @property
     def period_s(self) -> float:
@@ -239,6 +242,7 @@ def make_settings(
     frame_id: Any = "aeropend",
     rt_priority: Any = 0,
     min_subscribers: Any = 1,
+    min_clock_subscribers: Any = 0,
     rig_loader: Callable[[str], Rig] = load_rig,
 ) -> SimSettings:
     """Validate the node parameters and build the simulation settings.
@@ -268,6 +272,9 @@ def make_settings(
         0 (normal scheduling) or a SCHED_FIFO priority 1-99 for the real-time sampler thread.
     min_subscribers : int
         Lock-step mode: matched ``joint_states`` subscriptions needed before sample 0 (>= 1).
+    min_clock_subscribers : int
+        Lock-step mode: matched ``/clock`` subscriptions needed before sample 0 (>= 0; ignored
+        when ``/clock`` is not published).
     rig_loader : callable
         Loads a rig by name/path (injectable for tests).
 
@@ -311,15 +318,19 @@ def make_settings(
         0 <= rt_priority <= 99
     ):
         raise SimConfigError(f"rt_priority = {rt_priority!r}; expected an integer in [0, 99] (0 = off)")
-    if isinstance(min_subscribers, bool) or not isinstance(min_subscribers, int | np.integer) or (
-        min_subscribers < 1
-    ):
-        raise SimConfigError(f"min_subscribers = {min_subscribers!r}; expected an integer >= 1")
+    _check_count("min_subscribers", min_subscribers, 1)
+    _check_count("min_clock_subscribers", min_clock_subscribers, 0)
     return SimSettings(
         rig=rig_obj, mode=mode_s, seed=int(seed), x0=x0, command_timeout=timeout, publish_clock=clock,
         frame_id=frame_id.strip(), effect_overrides=overrides, rt_priority=int(rt_priority),
-        min_subscribers=int(min_subscribers),
+        min_subscribers=int(min_subscribers), min_clock_subscribers=int(min_clock_subscribers),
     )
+
+
+def _check_count(name: str, value: Any, least: int) -> None:
+    """Raise :class:`SimConfigError` unless ``value`` is an integer (not a bool) >= ``least``."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < least:
+        raise SimConfigError(f"{name} = {value!r}; expected an integer >= {least}")
 
 
 # ---------------------------------------------------------------------------------- timing

@@ -144,10 +144,12 @@ def test_sim_node_and_controller_recorded_replayed_rerecorded(tmp_path: Path) ->
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     sim = ctl = None
     try:
-        # sample 0 waits for both sample consumers (controller and recorder), the controller's first
-        # command for both command readers (plant and recorder): the recording starts at sample 0
+        # sample 0 waits for both sample consumers (controller and recorder) and the recorder's /clock
+        # reader, the controller's first command for both command readers (plant and recorder): the
+        # recording starts at sample 0
         sim = subprocess.Popen([*node_command("sim_node"), "--ros-args", "-p", "mode:=lockstep",
-                                "-p", "rig:=thesis_rig", "-p", "min_subscribers:=2"],
+                                "-p", "rig:=thesis_rig", "-p", "min_subscribers:=2",
+                                "-p", "min_clock_subscribers:=1"],
                                env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         ctl = subprocess.Popen([*node_command("controller"), "--ros-args", "-p", "mode:=lockstep",
                                 "-p", "strategy:=fl_pid", "-p", "steps:=[0.0, 0.4]", "-p", "duration:=2.0",

@@ -19,12 +19,14 @@ import pytest
 
 pytest.importorskip("rclpy")
 
+from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
 from aeropend_sim.contract import (
     SAMPLE_RATE_HZ,
     TOPIC_ARMATURE,
+    TOPIC_CLOCK,
     TOPIC_DUTY_CYCLE,
     TOPIC_JOINT_STATES,
     Sample,
@@ -43,6 +45,7 @@ from aeropend_sim.ros.harness import (
     wait_for_server,
 )
 from aeropend_sim.ros.ros_contract import (
+    CLOCK_QOS_LOCKSTEP,
     COMMAND_QOS,
     SAMPLE_QOS_LOCKSTEP,
     SAMPLE_SUB_QOS,
@@ -307,6 +310,34 @@ def test_lockstep_sample_zero_waits_for_every_named_subscriber(domain):
         done = stop(proc, signal.SIGINT)
     assert done.returncode == 0
     assert "lock-step: waiting for subscriptions to match (joint_states " in done.stderr
+
+
+def test_lockstep_sample_zero_waits_for_the_clock_readers_it_is_told_of(domain):
+    # the main job's recorder creates its /clock reader after its sample readers; on a loaded CI
+    # machine the plant matched the sample readers before it had discovered the /clock reader, so
+    # the graph showed no /clock subscriber to wait for, the run started, and the bag lacked the
+    # first ticks (test_main_job's /clock check failed once). Here the /clock reader comes 2 s late:
+    # with min_clock_subscribers 1 sample 0 waits for it, and it gets one tick per sample from 0 on.
+    with plant(domain, "mode:=lockstep", "min_clock_subscribers:=1") as proc, \
+            client(domain, lockstep=True) as c:
+        assert c.spin_until(lambda: c.node.count_publishers(TOPIC_JOINT_STATES) > 0, 60.0), \
+            "the plant never came up"
+        c.spin_for(2.0)
+        assert c.js == [], "sample 0 published with no /clock reader matched"
+        ticks: list[int] = []
+        c.node.create_subscription(ClockMsg, TOPIC_CLOCK,
+                                   lambda m: ticks.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),
+                                   CLOCK_QOS_LOCKSTEP)
+        assert c.spin_until(lambda: any(s == 0 for s, _, _ in c.js), 20.0), "sample 0 not received"
+        assert c.spin_until(lambda: c.pub.get_subscription_count() > 0, 10.0)
+        for k in range(20):
+            c.pub.publish(Float64(data=0.4))
+            assert c.spin_until(lambda w=(k + 1) * PERIOD_NS: w in ticks and any(s == w for s, _, _ in c.js),
+                                10.0), f"sample {k + 1} or its tick not received"
+        assert sorted(set(ticks)) == [k * PERIOD_NS for k in range(21)]
+        done = stop(proc, signal.SIGINT)
+    assert done.returncode == 0
+    assert "/clock 0 of 1; min_subscribers 1, min_clock_subscribers 1" in done.stderr
 
 
 # ------------------------------------------------------------------------------------- (c) bad commands

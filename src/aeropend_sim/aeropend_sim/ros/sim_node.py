@@ -111,6 +111,11 @@ PARAMETERS: tuple[NodeParameter, ...] = (
                   "matches later misses the samples before it, so a lock-step graph names its consumers "
                   "here (the main job: excitation and recorder, 2); a command that arrives earlier starts "
                   "the run anyway"),
+    NodeParameter("min_clock_subscribers", "int", 0, "",
+                  "lockstep: subscriptions matched on /clock before sample 0 is published (besides every "
+                  "/clock subscriber the graph already shows); a recorder of /clock whose reader is "
+                  "announced after its sample readers would otherwise miss the first ticks (the main "
+                  "job: 1)"),
     NodeParameter("rt_priority", "int", 0, "",
                   "realtime: SCHED_FIFO priority 1-99 of the sampler thread (needs CAP_SYS_NICE or an "
                   "rtprio limit, else a warning); the executor thread then runs at rt_priority - 1, the "
@@ -301,29 +306,41 @@ class SimPlantNode(Node):
         ``joint_states`` needs ``min_subscribers`` matched subscriptions, and each sample topic and
         ``/clock`` at least as many as the ROS graph shows (a subscriber discovered but not yet
         matched would miss sample 0 and what follows until it matches: a recorder's /clock reader
-        matched a moment after its sample reader lost the first ticks).
+        matched a moment after its sample reader lost the first ticks), ``/clock`` also
+        ``min_clock_subscribers`` (a reader the graph does not show yet is not waited for: the main
+        job's recorder announces its /clock reader after its sample readers, and on a loaded CI
+        machine the plant started with the /clock reader unknown and the bag lost the first ticks).
         """
         matched = self._matched()
         known = (self.count_subscribers(self._pub_js.topic_name),
                  self.count_subscribers(self._pub_arm.topic_name))
         need = (max(self.settings.min_subscribers, known[0]), known[1])
-        clock = (0, 0) if self._pub_clock is None else (self._pub_clock.get_subscription_count(),
-                                                         self.count_subscribers(self._pub_clock.topic_name))
+        clock = self._clock_matched()
         if matched[0] < need[0] or matched[1] < need[1] or clock[0] < clock[1]:
             self.get_logger().info(
                 f"lock-step: waiting for subscriptions to match (joint_states {matched[0]} of {need[0]}, "
                 f"armature {matched[1]} of {need[1]}, /clock {clock[0]} of {clock[1]}; "
-                f"min_subscribers {self.settings.min_subscribers})",
+                f"min_subscribers {self.settings.min_subscribers}, "
+                f"min_clock_subscribers {self.settings.min_clock_subscribers})",
                 throttle_duration_sec=2.0,
             )
             return
         self._publish_first_sample()
 
+    def _clock_matched(self) -> tuple[int, int]:
+        """(matched, needed) ``/clock`` subscriptions: at least ``min_clock_subscribers`` and every
+        one the graph shows; (0, 0) when ``/clock`` is not published."""
+        if self._pub_clock is None:
+            return 0, 0
+        return (self._pub_clock.get_subscription_count(),
+                max(self.settings.min_clock_subscribers, self.count_subscribers(self._pub_clock.topic_name)))
+
     def _publish_first_sample(self) -> None:
         assert self.plant is not None
         self._wait_timer.cancel()
         self._wait_timer = None
-        self.get_logger().info(f"lock-step: sample 0 published (matched subscriptions {self._matched()})")
+        self.get_logger().info("lock-step: sample 0 published (matched subscriptions: joint_states, "
+                               f"armature {self._matched()}, /clock {self._clock_matched()[0]})")
         self._publish(self._last_msgs, self.plant.last.stamp_ns)
         self.published += 1
         self._last_activity_ns = time.monotonic_ns()
