@@ -48,8 +48,9 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import GapError
+from aeropend_ident.greybox.fit import measurement_noise  # noqa: F401  (re-exported: the gap tool's noise floor)
 from aeropend_ident.io.csvspec.constant_input import excitation_problem
-from aeropend_ident.io.recording_input import detect_quantum  # re-exported: the gap tool's name for it
+from aeropend_ident.io.recording_input import detect_quantum  # noqa: F401  (re-exported: the gap tool's name for it)
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Diagnosis
 from aeropend_sim.components.xp import MATH
@@ -487,31 +488,9 @@ def get_effect(name: str) -> Effect:
 
 # ------------------------------------------------------------------------------ detected, not fitted
 # detect_quantum (the ``quantisation`` effect's "direct" reading) lives in io/recording_input.py: the
-# resampling reads it too (a quantised channel is not interpolated).
+# resampling reads it too (a quantised channel is not interpolated). measurement_noise, the noise
+# floor it sets, lives in greybox/fit.py: the grey-box fits read it too.
 
-
-def measurement_noise(y: np.ndarray) -> float:
-    """Standard deviation of the measurement noise of a recorded channel [its unit].
-
-    The robust white-noise estimate (:func:`aeropend_ident.greybox.fit.noise_level`) given the
-    channel's detected quantum (:func:`detect_quantum`): on a lattice the root mean square of the
-    second differences (the MAD snaps to lattice steps there), at least the rounding noise q/√12 (a
-    quantised channel that rarely changes still has its resolution q bound what any model can
-    match). The one noise floor of the gap diagnosis (where-analysis, effect ranking, attainable
-    shrink).
-
-    Parameters
-    ----------
-    y : ndarray, shape (n,)
-
-    Returns
-    -------
-    float
-        σ ≥ 0.
-    """
-    from aeropend_ident.greybox.fit import noise_level
-
-    return noise_level(y, detect_quantum(y))
 
 
 def apply_effects(rig: Rig, chosen: Mapping[str, Mapping[str, float]],

@@ -78,7 +78,7 @@ from scipy.optimize import brentq, least_squares
 
 from aeropend_ident.errors import IdentificationError, RecordingInputError
 from aeropend_ident.greybox.batch import RigReplays, single_blas, structure
-from aeropend_ident.io.recording_input import grid_step, uniform_recording
+from aeropend_ident.io.recording_input import detect_quantum, grid_step, uniform_recording
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect
 from aeropend_sim.components.xp import MATH
@@ -755,6 +755,32 @@ def noise_level(theta: np.ndarray, quantum: float = 0.0, keep: np.ndarray | None
     return max(float(np.sqrt(np.mean(inner**2))) / math.sqrt(6.0), floor)
 
 
+def measurement_noise(y: np.ndarray, keep: np.ndarray | None = None) -> float:
+    """Standard deviation of the measurement noise of a recorded channel [its unit, e.g. rad].
+
+    :func:`noise_level` given the channel's detected quantum
+    (:func:`aeropend_ident.io.recording_input.detect_quantum`): on a lattice the root mean square
+    of the second differences (the MAD snaps to lattice steps there), at least the rounding noise
+    q/√12 (a quantised channel that rarely changes still has its resolution q bound what any model
+    can match; the MAD alone reads such a log as noiseless). The one noise floor of a recording:
+    the gap diagnosis (where-analysis, effect ranking, attainable shrink) and the grey-box fits
+    (initial-state bounds, ``rig fit``'s weights) read it.
+
+    Parameters
+    ----------
+    y : ndarray, shape (n,)
+        Recorded channel.
+    keep : ndarray of bool, shape (n - 2,), optional
+        The second differences that count (:func:`noise_level`).
+
+    Returns
+    -------
+    float
+        σ ≥ 0.
+    """
+    return noise_level(y, detect_quantum(y), keep=keep)
+
+
 def _slope_noise_gain(dt: float, n: int = N_DIFF) -> float:
     """Standard deviation of :func:`initial_velocity` per unit σ of white noise on θ [1/s]."""
     k = max(int(n), 3)
@@ -1008,7 +1034,7 @@ def _initial_state_box(data: UniformData) -> tuple[float, np.ndarray, np.ndarray
     """Noise level of θ and the bounded coordinates of the initial-state corrections (:func:`fit_greybox`)."""
     # nuisance coordinates: corrections (δθ₀ [rad], δθ̇₀ [rad/s]) to the estimated initial state of
     # every segment, bounded by 5 σ of the estimates for the measured noise level
-    sigma = float(np.median([noise_level(p.theta) for p in data.parts()]))
+    sigma = float(np.median([measurement_noise(p.theta) for p in data.parts()]))
     n_seg = len(data.segments)
     x_bound = np.tile(np.maximum(5.0 * sigma * np.array([1.0, _slope_noise_gain(data.dt)]), 1e-12), n_seg)
     # coordinates w = 1 + (δ + bound)/(bound/5) ∈ [1, 11], δ = 0 at w = 6 (see ParameterSpec)
@@ -1137,10 +1163,11 @@ def fit_greybox(
     fit_initial_state : bool
         Also fit the initial angle and angular velocity of the free run (nuisance parameters:
         corrections to the estimates of :func:`initial_state`, bounded by five standard
-        deviations of those estimates for the noise level of θ, :func:`noise_level`). On noisy
-        data the short-window velocity estimate alone would leave a start-up transient in the
-        residual and bias the fit; the bounds stop the initial state from absorbing model error.
-        Skipped when θ shows no noise (e.g. quantised, slowly varying logs). The values used are
+        deviations of those estimates for the noise level of θ, :func:`measurement_noise`, at
+        least the rounding noise of a detected angle quantum). On noisy data the short-window
+        velocity estimate alone would leave a start-up transient in the residual and bias the fit;
+        the bounds stop the initial state from absorbing model error. Held when θ shows neither
+        noise nor a lattice (e.g. a noise-free simulation). The values used are
         reported in :attr:`GreyBoxResult.initial_state` and counted in the standard errors.
     verbose : int
         Passed to :func:`scipy.optimize.least_squares`.

@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_ident.errors import RecordingInputError
-from aeropend_ident.greybox.fit import UniformData, noise_level
+from aeropend_ident.greybox.fit import UniformData, measurement_noise
 from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
 from aeropend_sim.contract import REFERENCE_CHANNEL
 from aeropend_sim.recording import Recording
@@ -218,7 +218,7 @@ def classify(rec: Recording) -> str:
 
 
 def recorded_noise(t: np.ndarray, theta: np.ndarray) -> float:
-    """White noise σ of θ [rad] on the recorded samples (:func:`~aeropend_ident.greybox.fit.noise_level`).
+    """Noise σ of θ [rad] on the recorded samples (:func:`~aeropend_ident.greybox.fit.measurement_noise`).
 
     Only second differences over three samples at the recording's regular interval count: one
     across a gap (a logger that writes in bursts) holds the motion of the whole gap, not noise.
@@ -226,14 +226,14 @@ def recorded_noise(t: np.ndarray, theta: np.ndarray) -> float:
     t = np.asarray(t, dtype=float)
     theta = np.asarray(theta, dtype=float)
     if t.size < 5:
-        return noise_level(theta)
+        return measurement_noise(theta)
     dt = np.diff(t)
     med = float(np.median(dt))
     regular = np.abs(dt - med) <= 0.25 * med
     keep = regular[:-1] & regular[1:]
     if np.count_nonzero(keep) < 3:
-        return noise_level(theta)
-    return noise_level(theta, keep=keep)
+        return measurement_noise(theta)
+    return measurement_noise(theta, keep=keep)
 
 
 def time_series(rec: Recording) -> TimeSeries:

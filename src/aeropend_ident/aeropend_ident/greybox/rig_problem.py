@@ -39,8 +39,8 @@ from aeropend_ident.greybox.fit import (
     apply_parameters,
     free_run_theta,
     initial_velocity,
+    measurement_noise,
     motor_equilibrium,
-    noise_level,
 )
 from aeropend_sim.components import registry
 from aeropend_sim.model import ModelError, PlantModel
@@ -170,7 +170,7 @@ class TimeBlock(Block):
         d = self.data
         if d is None:
             raise ValueError(f"{self.source}: a time block needs its recording")
-        noise = max(noise_level(d.theta), 1e-4)
+        noise = max(measurement_noise(d.theta), 1e-4)
         th0, thd0 = float(d.theta[0]), initial_velocity(d.theta, d.dt)
         self.nuisance = [
             ParameterSpec(f"{self.source}: θ(0)", "rad", th0, th0 - 0.5, th0 + 0.5, False, max(noise, 1e-3)),
