@@ -184,3 +184,47 @@ def test_an_optional_section_that_fails_is_reported_and_the_report_is_written(qu
     rig = load(paths["corrected_rig"])
     assert rig.effects.quantisation and rig.sensors.theta_quantum == pytest.approx(Q, rel=1e-6)
     assert "detected from the recorded values" in paths["corrected_rig"].read_text()
+
+
+def test_the_above_noise_margin_counts_the_holds_of_a_rounding_error() -> None:
+    # white noise far below a lattice step: a rod holding still keeps one rounding error per hold,
+    # so the mean square of the rounding error over k holds scatters by 0.894/√k of q²/12
+    from types import SimpleNamespace
+
+    from aeropend_ident.gap.which import ROUNDING_CHANCE_Z, _noise_var, _rounding_chance
+
+    rng = np.random.default_rng(4)
+    q = 6.0e-3
+    theta = rng.uniform(0.0, 1.0, (40_000, 4))
+    e2 = np.mean((q * np.round(theta / q) - theta) ** 2, axis=1)
+    assert np.std(e2) / np.mean(e2) == pytest.approx(0.894 / 2.0, rel=0.03)
+    # four holds of equal length on neighbouring lattice values: four independent errors
+    held = SimpleNamespace(y={"theta": np.repeat(np.arange(4) * q, 500)}, scale={"theta": 1.0})
+    assert _noise_var(held.y["theta"]) == pytest.approx(q * q / 12.0, rel=1e-9)
+    margin = _rounding_chance([held])["theta"]
+    assert margin == pytest.approx(ROUNDING_CHANCE_Z * 0.894 / 2.0 * q * q / 12.0, rel=1e-3)
+    # two such recordings: twice the noise part, its spread √2 as large
+    assert _rounding_chance([held, held])["theta"] == pytest.approx(math.sqrt(2.0) * margin, rel=1e-9)
+    # white noise changes at every sample: no margin to speak of
+    white = SimpleNamespace(y={"theta": rng.normal(0.0, 1e-3, 2000)}, scale={"theta": 1.0})
+    assert _rounding_chance([white])["theta"] < 0.01 * _noise_var(white.y["theta"])
+
+
+def test_an_effect_free_closed_loop_holding_on_a_coarse_encoder_shows_no_gap() -> None:
+    # Lab benchmark case 21: effect-free, closed loop without dither at 50 Hz, a 10-bit encoder
+    # (q 6.1 mrad) over white noise of 0.4 mrad. Its nominal validation error was 1.43× its noise
+    # part, over the 1.25 of a gap, and a voltage drop of -0.0016 V fitted to the holds' rounding
+    # errors was chosen (presence 0.00). Its runs of one recorded value count 17 effective holds:
+    # the rounding part's spread is 0.22 of it, and the error is at the noise floor.
+    from aeropend_ident.gap.run import run_gap
+    from bench import bench_gap_lab as lab
+
+    spec = lab.case_list()[21]
+    assert spec["kind"] == "none" and spec["rate_hz"] == 50 and spec["quantiser"] == "encoder_10bit"
+    case = lab.build_case(spec)
+    fit, held = lab.prepared(case, spec)
+    d = run_gap(case["nominal"], fit, held, rig_ref=case["nominal"].name, seed=0,
+                max_effects=lab.MAX_EFFECTS, split_rule="separate held-out recording").diagnosis
+    assert d.chosen == [] and not any(r.get("status") == "named" for r in d.ranking)
+    assert "nominal validation error is at the noise floor" in d.reason
+    assert "(closest: theta, 1.20× against 1.30×)" in d.reason

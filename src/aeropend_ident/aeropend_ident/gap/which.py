@@ -32,7 +32,8 @@ the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-ou
 4. **Ranking and decision**: candidates are ranked by the share of the nominal validation error
    they remove (an effect that nests a simpler one must beat it by :data:`MIN_EXPLAINED_SECOND`
    of what the simpler one leaves). "No significant gap" when no channel's nominal validation
-   error exceeds :data:`ABOVE_NOISE` times its noise part, or when no effect removes
+   error exceeds :data:`ABOVE_NOISE` times its noise part plus the chance margin of its held
+   rounding errors (:func:`_rounding_chance`), or when no effect removes
    :data:`MIN_EXPLAINED` of the validation gap above noise with a BIC gain of :data:`MIN_BIC_GAIN`
    on the fit data (and, when the effects are ranked on the fit part because the validation part
    shows no gap, with an in-sample split-test p-value of at most :data:`IN_SAMPLE_MAX_P`).
@@ -153,8 +154,19 @@ IN_SAMPLE_MAX_P = 0.5
 NOISE_FLOOR_FACTOR = 3.0
 #: A gap is above the noise floor when some channel's nominal validation error exceeds its noise
 #: part by this factor (squared errors: RMS 1.12× the noise; the noise estimates of
-#: :func:`_noise_var` are good to about 5 % on white noise).
+#: :func:`_noise_var` are good to about 5 % on white noise), plus the chance margin of a held
+#: rounding error (:data:`ROUNDING_CHANCE_Z`).
 ABOVE_NOISE = 1.25
+#: Standard deviations of the rounding part of the noise added to the above-noise threshold
+#: (:func:`_rounding_chance`). With white noise far below a lattice step (a 10-bit encoder holding
+#: a set point), the rounding error e = Q(θ) − θ is one draw of U(−q/2, q/2) per hold, not one per
+#: sample: its mean square q²/12 is then an average over a few holds, with a relative standard
+#: deviation 0.894/√(holds). An effect-free closed loop at 50 Hz read 1.43× its noise part
+#: (effective holds 17, one standard deviation 0.22 of it) and had a voltage drop of −0.0016 V
+#: fitted to its holds' rounding errors (docs/findings/gap.md).
+ROUNDING_CHANCE_Z = 2.0
+#: sqrt(Var(u²))/E(u²) for u uniform on (−q/2, q/2): E(u²) = q²/12, Var(u²) = q⁴(1/80 − 1/144).
+_ROUNDING_SQUARE_REL_SD = 12.0 * math.sqrt(1.0 / 80.0 - 1.0 / 144.0)
 #: Residual samples per independent sample in the BIC (free-run residuals are autocorrelated), at
 #: the thesis rig's 490 Hz; see :data:`BIC_RESIDUAL_TIME` for other rates.
 BIC_DECIMATION = 20
@@ -1542,6 +1554,7 @@ class _Setup:
     floors: dict[str, float]
     noise_sse: float
     noise_c: dict[str, float]
+    chance_c: dict[str, float]
     sse0_c: dict[str, float]
     note: str
     say: Callable[[str], None]
@@ -1587,11 +1600,11 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
     n_fit = sum(len(p.y) * p.n for p in pf)
     note = ""
     seg0, sse0_c = validation_errors(rig, nominal, pv)
-    noise_c = _noise_parts(pv)
-    if not _above_noise(sse0_c, noise_c):
+    noise_c, chance_c = _noise_parts(pv), _rounding_chance(pv)
+    if not _above_noise(sse0_c, noise_c, chance_c):
         fit_c = _errors_after_start(rig, nominal, pf)
-        fit_noise = _noise_parts(pf)
-        if _above_noise(fit_c, fit_noise):
+        fit_noise, fit_chance = _noise_parts(pf), _rounding_chance(pf)
+        if _above_noise(fit_c, fit_noise, fit_chance):
             # the validation part does not reach the operating region of the gap (e.g. an end stop
             # touched only in the fit part), judged after each fit recording's start: rank on the
             # fit data instead, and say so
@@ -1600,7 +1613,8 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
                     f"{math.sqrt(fit_c[worst] / fit_noise[worst]):.1f}× its noise RMS): the effects were "
                     "ranked and chosen on the fit part (in-sample); only the held-out check is independent")
             say(note)
-            pv, seg0, sse0_c, noise_c = pf, *validation_errors(rig, nominal, pf), fit_noise
+            pv, noise_c, chance_c = pf, fit_noise, fit_chance
+            seg0, sse0_c = validation_errors(rig, nominal, pf)
     # noise floor of every compared channel (relative to its range), and the noise part of the
     # validation SSE (normalised like segment_sse): what no effect can remove
     floors = {c: NOISE_FLOOR_FACTOR * float(np.mean([math.sqrt(_noise_var(p.y[c])) / p.scale[c] for p in pv]))
@@ -1610,7 +1624,7 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
                   refinements=refinements, not_ident=not_ident, sse_fit0=sse_fit0, n_fit=n_fit,
                   n_eff=bic_samples(pf),
                   seg0=seg0, base_metrics=gap_metrics(rig, nominal, pv), floors=floors, noise_sse=noise_sse,
-                  noise_c=noise_c, sse0_c=sse0_c, note=note, say=say)
+                  noise_c=noise_c, chance_c=chance_c, sse0_c=sse0_c, note=note, say=say)
 
 
 def _in_catalog(names: Sequence[str], st: _Setup) -> list[str]:
@@ -1638,9 +1652,42 @@ def _errors_after_start(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared
     return out
 
 
-def _above_noise(sse_c: Mapping[str, float], noise_c: Mapping[str, float]) -> bool:
-    """Some channel's error exceeds :data:`ABOVE_NOISE` times its noise part (a gap to explain)."""
-    return any(sse_c[c] > ABOVE_NOISE * noise_c[c] and sse_c[c] > 1e-8 for c in sse_c)
+def _rounding_chance(preps: Sequence[Prepared]) -> dict[str, float]:
+    """Chance margin of each channel's noise part (normalised as :func:`_noise_parts`):
+    :data:`ROUNDING_CHANCE_Z` standard deviations of its rounding part.
+
+    The rounding part of a recording's noise variance is Δ²/12 (Δ as in :func:`_noise_var`, the
+    median non-zero sample-to-sample change), at most the noise variance. Its rounding errors are
+    independent between runs of one recorded value, not between samples: while the value holds,
+    the error does not change. A recording's runs of durations d_i give an effective number of
+    independent errors (Σd_i)²/Σd_i², and the rounding part a relative standard deviation of
+    :data:`_ROUNDING_SQUARE_REL_SD` over its square root. A channel that changes at every sample
+    (white noise, an unquantised signal) has a margin of nearly 0; a coarse lattice holding a set
+    point, a margin that counts its few holds.
+    """
+    out: dict[str, float] = {}
+    for c in preps[0].y:
+        var = 0.0
+        for p in preps:
+            y = np.asarray(p.y[c], dtype=float)
+            dy = np.abs(np.diff(y))
+            moved = dy > 1e-12 * max(float(np.max(np.abs(y))), 1e-300)
+            if not moved.any():
+                continue
+            q = float(np.median(dy[moved]))
+            part = min(q * q / 12.0, _noise_var(y)) / p.scale[c] ** 2
+            runs = np.diff(np.concatenate([[0], np.flatnonzero(moved) + 1, [y.size]])).astype(float)
+            holds = float(runs.sum() ** 2 / np.sum(runs**2))
+            var += (part * _ROUNDING_SQUARE_REL_SD) ** 2 / holds
+        out[c] = ROUNDING_CHANCE_Z * math.sqrt(var)
+    return out
+
+
+def _above_noise(sse_c: Mapping[str, float], noise_c: Mapping[str, float],
+                 chance_c: Mapping[str, float]) -> bool:
+    """Some channel's error exceeds :data:`ABOVE_NOISE` times its noise part plus the chance margin
+    of its rounding errors (:func:`_rounding_chance`): a gap to explain."""
+    return any(sse_c[c] > ABOVE_NOISE * noise_c[c] + chance_c[c] and sse_c[c] > 1e-8 for c in sse_c)
 
 
 @dataclass
@@ -2467,7 +2514,7 @@ def _screen_and_confirm(rig: Rig, st: _Setup, also_confirm: Sequence[str], seed:
         say(f"best candidate leaves {100 * (1 - cands.best_above_noise()):.0f} % of the gap above noise; "
             f"also confirming {extra}")
         cands.confirm(st, extra, scr)
-    if cands.best_above_noise() < MIN_EXPLAINED and _above_noise(st.sse0_c, st.noise_c):
+    if cands.best_above_noise() < MIN_EXPLAINED and _above_noise(st.sse0_c, st.noise_c, st.chance_c):
         # a gap, but nothing the screening proposed explains it (small gaps at low SNR blur the
         # derivative-based screening): confirm every remaining identifiable effect
         rest = [n for n in st.model_effects if n not in cands.fits]
@@ -2488,10 +2535,13 @@ def _no_effect_reason(st: _Setup, best: dict[str, Any] | None, above_floor: bool
     if best is None:
         reason = "no identifiable candidate effect"
     elif not above_floor:
-        worst = max(st.sse0_c, key=lambda c: st.sse0_c[c] / st.noise_c[c])
+        noise = {c: max(st.noise_c[c], 1e-300) for c in st.noise_c}
+        worst = max(st.sse0_c, key=lambda c: st.sse0_c[c] / (ABOVE_NOISE * noise[c] + st.chance_c[c]))
+        bound = math.sqrt(ABOVE_NOISE + st.chance_c[worst] / noise[worst])
         reason = (f"nominal validation error is at the noise floor: every channel's error is within "
-                  f"{math.sqrt(ABOVE_NOISE):.2f}× its noise RMS (largest: {worst}, "
-                  f"{math.sqrt(st.sse0_c[worst] / st.noise_c[worst]):.2f}×)")
+                  f"{math.sqrt(ABOVE_NOISE):.2f}× its noise RMS, more by the chance of a few held rounding "
+                  f"errors (closest: {worst}, {math.sqrt(st.sse0_c[worst] / noise[worst]):.2f}× "
+                  f"against {bound:.2f}×)")
     elif (best["above_noise_explained"] >= MIN_EXPLAINED and best["bic_delta"] <= -MIN_BIC_GAIN
           and not _holds_in_sample(st, best["p_value"])):
         reason = (f"best candidate {best['effect']} removes {100 * best['above_noise_explained']:.1f} % of "
@@ -2567,7 +2617,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     _mark_unresolved(ranking, cands, max(p.dt for p in st.pf))
     best = next((r for r in ranking if not r.get("unresolved")), None)
     # a gap above the noise floor: some channel's nominal validation error exceeds its noise part
-    above_floor = _above_noise(st.sse0_c, st.noise_c)
+    above_floor = _above_noise(st.sse0_c, st.noise_c, st.chance_c)
     sig_first = bool(best and above_floor and best["above_noise_explained"] >= MIN_EXPLAINED
                      and best["bic_delta"] <= -MIN_BIC_GAIN and _holds_in_sample(st, best["p_value"]))
     chosen: list[str] = []
