@@ -1661,9 +1661,10 @@ def _rounding_chance(preps: Sequence[Prepared]) -> dict[str, float]:
     independent between runs of one recorded value, not between samples: while the value holds,
     the error does not change. A recording's runs of durations d_i give an effective number of
     independent errors (Σd_i)²/Σd_i², and the rounding part a relative standard deviation of
-    :data:`_ROUNDING_SQUARE_REL_SD` over its square root. A channel that changes at every sample
-    (white noise, an unquantised signal) has a margin of nearly 0; a coarse lattice holding a set
-    point, a margin that counts its few holds.
+    :data:`_ROUNDING_SQUARE_REL_SD` over its square root. A recording whose value changes at every
+    sample (white noise, an unquantised signal: no rounding error is held, and the Δ of a moving
+    rod is its motion, not a step) adds no margin; a coarse lattice holding a set point, a margin
+    that counts its few holds.
     """
     out: dict[str, float] = {}
     for c in preps[0].y:
@@ -1672,8 +1673,8 @@ def _rounding_chance(preps: Sequence[Prepared]) -> dict[str, float]:
             y = np.asarray(p.y[c], dtype=float)
             dy = np.abs(np.diff(y))
             moved = dy > 1e-12 * max(float(np.max(np.abs(y))), 1e-300)
-            if not moved.any():
-                continue
+            if moved.all() or not moved.any():
+                continue  # no value held (white noise, an unquantised signal), or nothing to count
             q = float(np.median(dy[moved]))
             part = min(q * q / 12.0, _noise_var(y)) / p.scale[c] ** 2
             runs = np.diff(np.concatenate([[0], np.flatnonzero(moved) + 1, [y.size]])).astype(float)
