@@ -455,10 +455,25 @@ def _conditions(spec: dict[str, Any], case: dict[str, Any] | None = None) -> dic
     return row
 
 
-def run_case(spec: dict[str, Any]) -> dict[str, Any]:
-    """Build, prepare, run ``gap`` on and score one case; a refusal keeps its stage and message."""
+def lab_gap(case: dict[str, Any], fit: list[Any], held: list[Any]) -> Any:
+    """``run_gap`` as the bench runs it: the lab's rig file, seed 0, :data:`MAX_EFFECTS`, session 2
+    held out (:class:`aeropend_ident.gap.run.GapResult`)."""
     from aeropend_ident.gap.run import run_gap
 
+    return run_gap(case["nominal"], fit, held, rig_ref=case["nominal"].name, seed=0,
+                   max_effects=MAX_EFFECTS, split_rule="separate held-out recording")
+
+
+def diagnosed(index: int) -> tuple[dict[str, Any], Any]:
+    """Case ``index`` of :func:`case_list` built, prepared and diagnosed (:func:`lab_gap`): its spec
+    and the ``run_gap`` result (for tests that pin one case)."""
+    spec = case_list()[index]
+    case = build_case(spec)
+    return spec, lab_gap(case, *prepared(case, spec))
+
+
+def run_case(spec: dict[str, Any]) -> dict[str, Any]:
+    """Build, prepare, run ``gap`` on and score one case; a refusal keeps its stage and message."""
     tb = time.perf_counter()
     case = build_case(spec)
     row = _conditions(spec, case)
@@ -471,8 +486,7 @@ def run_case(spec: dict[str, Any]) -> dict[str, Any]:
         row["resampling"] = [r.meta.get("resampling", {}).get("note") for r in (*fit, *held)
                              if isinstance(r.meta.get("resampling"), dict)]
         stage = "run_gap"
-        res = run_gap(case["nominal"], fit, held, rig_ref=case["nominal"].name, seed=0,
-                      max_effects=MAX_EFFECTS, split_rule="separate held-out recording")
+        res = lab_gap(case, fit, held)
         stage = "scoring"
         row.update(score_case(spec, case, res))
     except Exception as exc:  # a refusal of a valid recording: kept with its message, never hidden

@@ -216,15 +216,11 @@ def test_an_effect_free_closed_loop_holding_on_a_coarse_encoder_shows_no_gap() -
     # part, over the 1.25 of a gap, and a voltage drop of -0.0016 V fitted to the holds' rounding
     # errors was chosen (presence 0.00). Its runs of one recorded value count 17 effective holds:
     # the rounding part's spread is 0.22 of it, and the error is at the noise floor.
-    from aeropend_ident.gap.run import run_gap
     from bench import bench_gap_lab as lab
 
-    spec = lab.case_list()[21]
+    spec, res = lab.diagnosed(21)
     assert spec["kind"] == "none" and spec["rate_hz"] == 50 and spec["quantiser"] == "encoder_10bit"
-    case = lab.build_case(spec)
-    fit, held = lab.prepared(case, spec)
-    d = run_gap(case["nominal"], fit, held, rig_ref=case["nominal"].name, seed=0,
-                max_effects=lab.MAX_EFFECTS, split_rule="separate held-out recording").diagnosis
+    d = res.diagnosis
     assert d.chosen == [] and not any(r.get("status") == "named" for r in d.ranking)
     assert "nominal validation error is at the noise floor" in d.reason
     assert "(closest: theta, 1.20× against 1.30×)" in d.reason

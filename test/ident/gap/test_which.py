@@ -386,15 +386,11 @@ def test_an_effect_free_closed_loop_log_that_starts_the_motor_names_no_effect() 
     # the fit part's error into its first second, an inertia scale of 1.24 removed 26 % of it and
     # was chosen until the in-sample split test (p 0.98) was asked for. With the motor started at
     # rest no candidate removes a quarter of the gap in the first place.
-    from aeropend_ident.gap.run import run_gap
     from bench import bench_gap_lab as lab
 
-    spec = lab.case_list()[0]
+    spec, res = lab.diagnosed(0)
     assert spec["kind"] == "none" and spec["rate_hz"] == 50 and spec["mode"] == "closed"
-    case = lab.build_case(spec)
-    fit, held = lab.prepared(case, spec)
-    d = run_gap(case["nominal"], fit, held, rig_ref=case["nominal"].name, seed=0,
-                max_effects=lab.MAX_EFFECTS, split_rule="separate held-out recording").diagnosis
+    d = res.diagnosis
     assert d.chosen == []
     assert "no dynamic effect is significant" in d.reason
     shares = [r["above_noise_explained"] for r in d.ranking if r.get("above_noise_explained") is not None]
