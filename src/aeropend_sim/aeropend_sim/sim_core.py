@@ -208,7 +208,8 @@ class SimSettings:
         Lock-step mode: sample 0 is published (and the run can start) only once ``joint_states``
         has at least this many matched subscriptions (>= 1).
     min_clock_subscribers : int
-        Lock-step mode with ``publish_clock``: and ``/clock`` at least this many (>= 0).
+        Lock-step mode with ``publish_clock``: sample 0 also waits for this many matched
+        ``/clock`` subscriptions (>= 0).
     """
 
     rig: Rig

@@ -308,8 +308,9 @@ class SimPlantNode(Node):
         matched would miss sample 0 and what follows until it matches: a recorder's /clock reader
         matched a moment after its sample reader lost the first ticks), ``/clock`` also
         ``min_clock_subscribers`` (a reader the graph does not show yet is not waited for: the main
-        job's recorder announces its /clock reader after its sample readers, and on a loaded CI
-        machine the plant started with the /clock reader unknown and the bag lost the first ticks).
+        job's recorder announces its /clock reader after its sample readers, so a plant that matched
+        the sample readers first would start without it and its bag would lose the first ticks; the
+        one path found for a CI failure of the main job's /clock check, docs/findings/data_plane.md).
         """
         matched = self._matched()
         known = (self.count_subscribers(self._pub_js.topic_name),
