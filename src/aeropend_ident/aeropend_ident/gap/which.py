@@ -1528,10 +1528,16 @@ def _noise_var(y: np.ndarray) -> float:
     """
     y = np.asarray(y, dtype=float)
     sigma = measurement_noise(y)
-    dy = np.abs(np.diff(y))
-    dy = dy[dy > 1e-12 * max(float(np.max(np.abs(y))), 1e-300)]
-    q = float(np.median(dy)) if dy.size else 0.0
+    _, q = _changes(y)
     return max(sigma**2, q * q / 12.0)
+
+
+def _changes(y: np.ndarray) -> tuple[np.ndarray, float]:
+    """Which sample-to-sample changes of ``y`` are non-zero (bool, shape (n - 1,)), and Δ, the
+    median of those (0 when the channel never changes): :func:`_noise_var`'s quantisation step."""
+    dy = np.abs(np.diff(y))
+    moved = dy > 1e-12 * max(float(np.max(np.abs(y))), 1e-300)
+    return moved, float(np.median(dy[moved])) if moved.any() else 0.0
 
 
 @dataclass
@@ -1671,11 +1677,9 @@ def _rounding_chance(preps: Sequence[Prepared]) -> dict[str, float]:
         var = 0.0
         for p in preps:
             y = np.asarray(p.y[c], dtype=float)
-            dy = np.abs(np.diff(y))
-            moved = dy > 1e-12 * max(float(np.max(np.abs(y))), 1e-300)
+            moved, q = _changes(y)
             if moved.all() or not moved.any():
                 continue  # no value held (white noise, an unquantised signal), or nothing to count
-            q = float(np.median(dy[moved]))
             part = min(q * q / 12.0, _noise_var(y)) / p.scale[c] ** 2
             runs = np.diff(np.concatenate([[0], np.flatnonzero(moved) + 1, [y.size]])).astype(float)
             holds = float(runs.sum() ** 2 / np.sum(runs**2))
