@@ -28,13 +28,14 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bench.fixtures.provenance import git_commit
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -87,14 +88,6 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).resolve().parents[1], check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def main(argv: list[str] | None = None) -> int:
     from aeropend_ident.parallel import run_cases
 
@@ -123,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
                "truth_leaves_at_least_chosen": sum(x >= 1.0 for x in ratios),
                "median_truth_over_chosen_failed": float(np.median(ratios)) if ratios else None}
     meta = {"lab_file": args.lab.name, "lab_commit": lab.get("setup", {}).get("commit"),
-            "commit": _git_commit(), "python": platform.python_version(), "wall_s": time.perf_counter() - t0}
+            "commit": git_commit(), "python": platform.python_version(), "wall_s": time.perf_counter() - t0}
     args.out.with_suffix(".json").write_text(json.dumps({"meta": meta, "summary": summary, "cases": rows},
                                                         indent=1) + "\n")
     s = summary

@@ -35,7 +35,6 @@ from __future__ import annotations
 import argparse
 import json
 import platform
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -44,13 +43,14 @@ import numpy as np
 
 from aeropend_ident.gap.drift import LEVEL, shortest_interval
 from bench.bench_gap_lab import BARS, DRIFT_RANGE
+from bench.fixtures.provenance import git_commit
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: Draws of the oracle's outcome law per pair.
 DRAWS = 20000
 #: Log standard deviation of the within-session error around a (the block bootstrap's spread is of
 #: this order on the lab benchmark's 10 s validation parts); the figures are insensitive to it
-#: within 0.05-0.3 (the md lists the sweep).
+#: within 0.05-0.3 only in part (the md gives the width at 0.05 and 0.3).
 ATOM_SD = 0.15
 #: Share of pairs whose plant drifts (the lab benchmark's design: half).
 DRIFT_SHARE = 0.5
@@ -118,14 +118,6 @@ def pairs(lab: dict[str, Any], atom_sd: float = ATOM_SD) -> list[dict[str, Any]]
     return out
 
 
-def _git_commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).resolve().parents[1], check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     ap.add_argument("--lab", type=Path, default=RESULTS / "gap_lab.json", help="lab benchmark JSON read")
@@ -150,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
                "drift_at_15pct_over_a_quartiles": np.quantile(ratio, [0.25, 0.5, 0.75]).tolist(),
                "atom_sd_sweep": sweep, "bar": BARS["relative_width"]}
     meta = {"lab_file": str(args.lab.name), "lab_commit": lab.get("setup", {}).get("commit"),
-            "commit": _git_commit(), "python": platform.python_version(), "draws": DRAWS, "atom_sd": ATOM_SD,
+            "commit": git_commit(), "python": platform.python_version(), "draws": DRAWS, "atom_sd": ATOM_SD,
             "drift_range": list(DRIFT_RANGE), "drift_share": DRIFT_SHARE}
     args.out.with_suffix(".json").write_text(json.dumps({"meta": meta, "summary": summary, "pairs": rows},
                                                         indent=1) + "\n")

@@ -216,3 +216,29 @@ def test_both_sessions_of_an_open_loop_case_have_the_lab_sensors_noise(cases):
     noise = quiet.channels["theta"] - quiet.true["theta_recorded"]
     assert np.std(noise) == pytest.approx(sigma["theta"], rel=0.03)
     assert tp.noise_sigma(quiet.true, 45.0, ("theta",))["theta"] < 0.9 * sigma["theta"]
+
+
+def test_width_oracle_narrowest_interval_and_its_two_limits():
+    """bench_gap_width_oracle: the narrowest interval of a known law has its textbook width, and the
+    oracle's width over its median follows the mixture: with no drift effect the interval is the
+    within-session spread alone; with a drift far above it the upper end is the drift tail's."""
+    from bench import bench_gap_width_oracle as wo
+
+    u = np.linspace(0.0, 1.0, 10001)
+    lo, hi = wo.narrowest(u, 0.8)
+    assert hi - lo == pytest.approx(0.8, abs=1e-3)
+    # the narrowest 80 % of a right-skewed law starts at its lower end
+    e = np.random.default_rng(0).exponential(1.0, 20000)
+    lo, hi = wo.narrowest(e, 0.8)
+    assert lo < 0.01 and hi == pytest.approx(-math.log(0.2), rel=0.03)
+    rng = np.random.default_rng(1)
+    still = wo.oracle_interval(0.01, 0.0, rng, atom_sd=0.15)
+    # lognormal(σ 0.15): the shortest log interval holding 80 % spans 2·1.2816σ around the median
+    assert still["hi"] / still["lo"] == pytest.approx(math.exp(2 * 1.2816 * 0.15), rel=0.02)
+    assert still["relative_width"] == pytest.approx(2 * math.sinh(1.2816 * 0.15), rel=0.03)
+    far = wo.oracle_interval(0.001, 10.0, rng, atom_sd=0.15)  # drift effect 1.5 at 15 %: 1500× a
+    # it holds 80 % to 100 % of the atom (half the draws), so the drift tail's 60 % to 80 % quantile
+    # (|d| ~ U(0.08, 0.30), effect 10·|d|): its upper end lies between those two, its lower in the atom
+    assert far["lo"] < 0.0012
+    assert 10 * (0.08 + 0.22 * 0.6) < far["hi"] < 10 * (0.08 + 0.22 * 0.8)
+    assert far["relative_width"] > 1.0
