@@ -89,14 +89,18 @@ class Client:
         self.node, self.executor = self._stack.enter_context(private_node("test_client", domain))
         qos = SAMPLE_QOS_LOCKSTEP if lockstep else SAMPLE_SUB_QOS
         self.js: list[tuple[int, int, JointState]] = []  # (stamp ns, arrival ns, msg)
+        # stamp ns -> the middleware's source timestamp [ns, the plant's system clock at publication]
+        self.sent: dict[int, int] = {}
         self.arm: dict[int, BatteryState] = {}
         self.node.create_subscription(JointState, TOPIC_JOINT_STATES, self._on_js, qos)
         self.node.create_subscription(BatteryState, TOPIC_ARMATURE, self._on_arm, qos)
         self.pub = self.node.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
 
-    def _on_js(self, msg: JointState) -> None:
+    def _on_js(self, msg: JointState, info: dict) -> None:
         now = time.monotonic_ns()
-        self.js.append((msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec, now, msg))
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.js.append((stamp, now, msg))
+        self.sent[stamp] = int(info["source_timestamp"])
 
     def _on_arm(self, msg: BatteryState) -> None:
         self.arm[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = msg
@@ -132,6 +136,30 @@ def client(domain: int, lockstep: bool) -> Iterator[Client]:
 
 
 # ------------------------------------------------------------------------------------- (a) realtime
+def _production_rate(c: Client) -> tuple[float, float, str]:
+    """The plant's production rate [Hz] over the samples ``c`` received, the rate its arrivals at
+    this subscriber suggest [Hz], and a description of both for a failure message.
+
+    Sample slots k covered by the stamps (stamps are start + k·T_s; an overrun re-anchors the plant's
+    wall schedule, so lost wall time shows up here) per second of the plant's own publication times
+    (the middleware's source timestamps). Not per second of arrival at this subscriber: the
+    subscriber's callback time includes its own backlog, up to its queue's 0.2 s, and a subscriber
+    behind at the last sample reads a plant on time as slow
+    (``test_a_subscriber_behind_at_the_end_reads_the_plants_rate_from_its_publication_times``; one
+    CI run of 2026-11-27 read 468 Hz from the arrivals)."""
+    stamps = np.array([s for s, _, _ in c.js], dtype=np.int64)
+    arrivals = np.array([a for _, a, _ in c.js], dtype=np.int64)
+    sources = np.array([c.sent[s] for s in stamps], dtype=np.int64)
+    slots = int((stamps[-1] - stamps[0]) // PERIOD_NS)
+    span_source = (sources[-1] - sources[0]) * 1e-9
+    span_arrival = (arrivals[-1] - arrivals[0]) * 1e-9
+    lag_ms = (arrivals - stamps) * 1e-6 - float(np.median((arrivals - stamps) * 1e-6))
+    text = (f"{slots} slots over {span_source:.3f} s of publication times ({slots / span_source:.1f} Hz) "
+            f"and {span_arrival:.3f} s of arrivals here ({slots / span_arrival:.1f} Hz); first / last "
+            f"arrival lag {lag_ms[0]:+.2f} / {lag_ms[-1]:+.2f} ms against the median")
+    return slots / span_source, slots / span_arrival, text
+
+
 def test_realtime_rate_and_stamps(domain):
     # SCHED_FIFO for the sampler thread (falls back to normal scheduling with a warning where not
     # permitted): on a loaded 2-CPU machine normal scheduling loses 1-4 % of the wall-clock
@@ -149,24 +177,13 @@ def test_realtime_rate_and_stamps(domain):
         done = stop(proc, signal.SIGTERM)
     status, err = done.returncode, done.stderr
     stamps = np.array([s for s, _, _ in c.js], dtype=np.int64)
-    arrivals = np.array([a for _, a, _ in c.js], dtype=np.int64)
     assert stamps.size > 1500, f"{stamps.size} samples received; full GC pauses in the window: {gc_pauses}"
     span_stamp = (stamps[-1] - stamps[0]) * 1e-9
-    span_arrival = (arrivals[-1] - arrivals[0]) * 1e-9
-    assert span_stamp >= 3.0 and span_arrival >= 3.0
-    # The plant's production rate: sample slots k covered by the stamps per second of wall time
-    # (stamps are start + k·T_s; an overrun re-anchors the wall schedule, so lost wall time shows
-    # up here). Measured independently of how many samples this best-effort subscriber received.
-    slots = (stamps[-1] - stamps[0]) // PERIOD_NS
-    rate_plant = slots / span_arrival
-    # on a failure, say whether the plant fell behind (its own overrun summary) or this subscriber
-    # took the first or last sample late (arrival minus stamp against its median, in ms): one CI run
-    # of 2026-11-27 read 468 Hz here with nothing to tell the two apart
-    lag_ms = (arrivals - stamps) * 1e-6 - float(np.median((arrivals - stamps) * 1e-6))
+    assert span_stamp >= 3.0
+    rate_plant, _, how = _production_rate(c)
     summary = [line for line in err.splitlines() if "summary: mode=realtime" in line]
-    assert rate_plant == pytest.approx(SAMPLE_RATE_HZ, rel=0.02), (
-        f"plant rate {rate_plant:.1f} Hz: {slots} slots over {span_arrival:.3f} s of arrivals; first / last "
-        f"arrival lag {lag_ms[0]:+.2f} / {lag_ms[-1]:+.2f} ms against the median; plant: {summary}")
+    assert rate_plant == pytest.approx(SAMPLE_RATE_HZ, rel=0.02), f"plant rate: {how}; plant: {summary}"
+    slots = (stamps[-1] - stamps[0]) // PERIOD_NS
     assert slots * PERIOD_NS * 1e-9 == pytest.approx(span_stamp)
     # delivery to a Python subscriber over best-effort QoS: at most 5 % lost on a loaded machine
     received = (stamps.size - 1) / slots
@@ -182,6 +199,27 @@ def test_realtime_rate_and_stamps(domain):
     assert status == 0, err
     assert "Traceback" not in err
     assert "summary: mode=realtime" in err
+
+
+def test_a_subscriber_behind_at_the_end_reads_the_plants_rate_from_its_publication_times(domain):
+    """A subscriber that is not scheduled for 150 ms just before its window ends takes its last
+    samples from its queue, 150 ms old: their arrivals read the plant 4 % slow (what the rate check
+    measured until 2026-11-27), their publication times read it on time."""
+    with plant(domain, "mode:=realtime", "rt_priority:=20") as proc, client(domain, lockstep=False) as c:
+        assert c.spin_until(lambda: len(c.js) > 0, 20.0), "no sample within 20 s"
+        with frozen_gc():
+            c.spin_for(0.3)
+            c.js.clear()
+            c.arm.clear()
+            c.spin_for(3.2)
+            time.sleep(0.15)  # the subscriber's process is not scheduled: 73 samples queue (depth 100)
+            for _ in range(4):  # the oldest few of them, each taken at once
+                c.executor.spin_once(timeout_sec=0.0)
+        assert proc.poll() is None
+        stop(proc, signal.SIGTERM)
+    rate_plant, rate_arrivals, how = _production_rate(c)
+    assert rate_plant == pytest.approx(SAMPLE_RATE_HZ, rel=0.02), how
+    assert rate_arrivals < 0.975 * SAMPLE_RATE_HZ, how
 
 
 # ------------------------------------------------------------------------------------- (b) lockstep
