@@ -11,14 +11,14 @@ stops it: for each triple case of a lab run, on the same fit / validation split 
 * the truth set (the case's three effects),
 
 each from the nominal rig by the diagnosis' own fit (:func:`aeropend_ident.gap.which.fit_effects`,
-its scan of starting values included), and compares their validation errors
+its multi-start included), and compares their validation errors
 (:func:`aeropend_ident.gap.which.segment_sse`, summed). If the truth set left much less than the
 chosen one, a better search would find it; if it leaves as much or more, no selection rule of
 this kind can name it from these recordings.
 
 Reads ``bench/results/gap_lab.json`` (or ``--lab FILE``); writes
 ``bench/results/gap_triple_truth.json`` and ``.md``. The cases are rebuilt from their seeds (the
-lab benchmark's :func:`bench.bench_gap_lab.build_case`); about 5 min with 2 workers.
+lab benchmark's :func:`bench.bench_gap_lab.build_case`); about a minute with 2 workers.
 
 Usage: ``python -m bench.bench_gap_triple_truth [--lab FILE] [--workers 2] [--scheduler ADDRESS] [-q]``
 """

@@ -21,8 +21,9 @@ from which :data:`DRAWS` draws are taken; the oracle's interval is the one the d
 (:func:`aeropend_ident.gap.drift.shortest_interval`: shortest in log e holding 80 % of the draws and
 80 % of the atom's), its prediction the draws' median. Reported: the oracle's median relative width
 (hi − lo) / median over the pairs, against the bar (3) and the diagnosis' own figure on the same
-pairs. A bimodal law has its median between its modes, where a sample median is ill-conditioned:
-one per cent of mass moved from one mode to the other moves the median across the gap.
+pairs (the drifting ones: the unchanged pairs carry no g). A two-mode law has its median between
+its modes, where the median is ill-conditioned: near an even split, a small share of mass moved
+from one mode to the other moves it across the gap.
 
 Reads ``bench/results/gap_lab.json`` (or ``--lab FILE``); writes
 ``bench/results/gap_width_oracle.json`` and ``.md``. No diagnosis is run (seconds).
@@ -49,8 +50,8 @@ RESULTS = Path(__file__).resolve().parent / "results"
 #: Draws of the oracle's outcome law per pair.
 DRAWS = 20000
 #: Log standard deviation of the within-session error around a (the block bootstrap's spread is of
-#: this order on the lab benchmark's 10 s validation parts); the figures are insensitive to it
-#: within 0.05-0.3 only in part (the md gives the width at 0.05 and 0.3).
+#: this order on the lab benchmark's 10 s validation parts); the oracle's width depends on it (the
+#: md gives it at 0.05 and 0.3 too).
 ATOM_SD = 0.15
 #: Share of pairs whose plant drifts (the lab benchmark's design: half).
 DRIFT_SHARE = 0.5
