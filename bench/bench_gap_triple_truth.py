@@ -72,8 +72,7 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     channels = check_recordings(fit_core, "fit") & check_recordings(validation, "validation")
     pf, pv = prepare(fit_core, channels), prepare(validation, channels)
     rig = case["nominal"]
-    ctx = EffectContext.from_data(rig, np.concatenate([p.y["theta"] for p in pf]),
-                                  np.concatenate([p.duty for p in pf]))
+    ctx = EffectContext.from_prepared(rig, pf)
     truth = list(spec["effects"])
     clash = [e for e in truth if e in excluded_with([x for x in truth if x != e])]
     out = {"index": job["index"], "mode": spec["mode"], "rate_hz": spec["rate_hz"],

@@ -148,8 +148,7 @@ def _fit_set(nominal: Rig, effects: Sequence[str], preps: Sequence[Prepared],
              free_settings: Sequence[str] = ()) -> Any:
     """The effect set fitted on prepared recordings, search ranges from those recordings; the
     held parameters of ``free_settings`` (a diagnosis' ``free_settings``) fitted too."""
-    ctx = EffectContext.from_data(nominal, np.concatenate([p.y["theta"] for p in preps]),
-                                  np.concatenate([p.duty for p in preps]))
+    ctx = EffectContext.from_prepared(nominal, preps)
     ctx = dataclasses.replace(ctx, free_settings=frozenset(free_settings))
     return fit_effects(nominal, list(effects), list(preps), ctx, start=start, scan=scan)
 

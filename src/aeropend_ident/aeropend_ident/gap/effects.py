@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from typing import Any
@@ -152,6 +152,20 @@ class EffectContext:
         return cls(rig=rig, duty_max=d_max, drive_max=float(model.drive(d_max)),
                    omega_max=float(abs(w_max)), omega_ref=max(abs(w_med / rig.motor.gear_ratio), 1e-9),
                    theta_hi=float(np.quantile(th, 0.995)) if th.size else 0.5)
+
+    @classmethod
+    def from_prepared(cls, rig: Rig, preps: Sequence[Any]) -> EffectContext:
+        """:meth:`from_data` over fit recordings as the fits take them
+        (:class:`aeropend_ident.gap.which.Prepared`: ``y["theta"]`` [rad, model frame] and ``duty``),
+        concatenated: the search ranges of every fit of the gap diagnosis.
+
+        Raises
+        ------
+        GapError
+            As :meth:`from_data`.
+        """
+        return cls.from_data(rig, np.concatenate([p.y["theta"] for p in preps]),
+                             np.concatenate([p.duty for p in preps]))
 
     def rotor_torque(self, omega: float, without: str = "") -> float:
         """Nominal net torque on the rotor [N·m] at speed ω₁ [rad/s] and the drive at ``duty_max``.

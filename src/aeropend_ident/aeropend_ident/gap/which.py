@@ -1587,8 +1587,7 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
     ch_val = check_recordings(validation, "validation recordings")
     channels = ch_fit & ch_val
     pf, pv = prepare(fit, channels), prepare(validation, channels)
-    ctx = EffectContext.from_data(rig, np.concatenate([p.y["theta"] for p in pf]),
-                                  np.concatenate([p.duty for p in pf]))
+    ctx = EffectContext.from_prepared(rig, pf)
     model_effects, refinements, not_ident = [], [], []
     for e in catalog(rig.family):
         if e.name in skip:
