@@ -449,6 +449,42 @@ def test_a_draw_outside_a_parameters_limits_is_a_failed_draw_not_a_failed_predic
     assert 0.0 < lo <= pr["predicted"] <= hi
 
 
+def test_a_draw_that_moves_nothing_costs_no_replay_and_changes_nothing(monkeypatch) -> None:
+    # About one draw in five of the occurrence prior moves no drift-prone parameter (its atom):
+    # such a draw is the corrected rig itself, whose replay is the base replay bit for bit. Its
+    # change is 0.0 without a replay, a rig object drawn twice is replayed once, and every other
+    # row's change is the one a replay of that rig alone gives.
+    from aeropend_ident.gap import drift
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.gap.which import prepare, replay_many
+    from aeropend_sim.params import rig_from_dict
+
+    p = tp.PlantParams()
+    rig = rig_from_dict(rig_dict(p, "lab_nominal"), where="test")
+    rec = to_recording(tp.record(tp.TruthPlant(p), tp.aprbs(8.0, seed=4), 50.0, 5), "r")
+    preps = prepare([rec], frozenset({"theta"}))
+    meas = MeasurementMap()
+    base = [replay_many([(rig, meas)], preps[0], ("theta",))[0]["theta"]]
+    scales = [float(np.ptp(base[0]))]
+    heavier = drift._perturbed(rig, {"gravity": 1.1})
+    rigs = [rig, heavier, None, rig, heavier, drift._perturbed(rig, {"gravity": 1.0})]
+    assert rigs[5] is rig  # a factor of 1 returns the rig itself: the atom
+
+    # without skipping, the atom's replay equals the base replay bit for bit
+    assert drift._ms_changes([rig], meas, preps, base, scales) == [[0.0]]
+    replayed: list[int] = []
+    real = drift.replay_many
+    monkeypatch.setattr(drift, "replay_many", lambda rows, *a: replayed.append(len(rows)) or real(rows, *a))
+    out = drift._ms_changes(rigs, meas, preps, base, scales, base_rig=rig)
+    assert replayed == [1]  # one replay: the heavier rod, once
+    own = real([(heavier, meas)], preps[0], ("theta",))[0]["theta"]
+    alone = float(np.mean((own - base[0]) ** 2)) / scales[0] ** 2
+    assert alone > 1e-4
+    assert out == [[0.0], [alone], None, [0.0], [alone], [0.0]]
+    out[1].append(1.0)  # rows of the same rig are copies, not one list
+    assert out[4] == [alone]
+
+
 def test_the_prediction_keeps_the_fitted_effects_whatever_their_standard_errors() -> None:
     # Three effects stand in together for a cause outside the catalog, each with a standard error
     # far above its value: drawn one by one from them the replays moved by orders of magnitude more

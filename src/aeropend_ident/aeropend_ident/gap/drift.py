@@ -206,12 +206,21 @@ def _chosen_values(diag: EffectDiagnosis) -> tuple[dict[str, dict[str, float]], 
 
 
 def _ms_changes(rigs: Sequence[Rig | None], meas: MeasurementMap, preps: Sequence[Prepared],
-                base: Sequence[np.ndarray], scales: Sequence[float]) -> list[list[float] | None]:
+                base: Sequence[np.ndarray], scales: Sequence[float], *,
+                base_rig: Rig | None = None) -> list[list[float] | None]:
     """Per rig and recording: the mean squared θ change of its replay from the base replay, over
     that recording's scale²; None for a rig that is None or whose replay fails on any recording.
-    One batched replay per recording (:func:`aeropend_ident.gap.which.replay_many`)."""
+    One batched replay per recording (:func:`aeropend_ident.gap.which.replay_many`) of each distinct
+    rig object: a rig given twice is replayed once, and ``base_rig`` (the rig of the base replays,
+    replayed the same way) not at all: its change is 0.0 exactly, as its replay is the base replay
+    bit for bit (a draw in which no drift-prone parameter changes returns that very rig,
+    :func:`_perturbed`)."""
     out: list[list[float] | None] = [[] if r is not None else None for r in rigs]
-    live = [b for b, r in enumerate(rigs) if r is not None]
+    first: dict[int, int] = {}  # id of a rig object -> the first row holding it
+    for b, r in enumerate(rigs):
+        if r is not None and r is not base_rig:
+            first.setdefault(id(r), b)
+    live = list(first.values())
     for p, sim, s in zip(preps, base, scales, strict=True):
         rows = replay_many([(rigs[b], meas) for b in live], p, ("theta",)) if live else []
         for b, row in zip(live, rows, strict=True):
@@ -219,6 +228,14 @@ def _ms_changes(rigs: Sequence[Rig | None], meas: MeasurementMap, preps: Sequenc
                 out[b] = None
                 continue
             out[b].append(float(np.mean((row["theta"] - sim) ** 2)) / s**2)
+    for b, r in enumerate(rigs):
+        if r is None:
+            continue
+        if r is base_rig:
+            out[b] = [0.0] * len(preps)
+        elif first[id(r)] != b:
+            src = out[first[id(r)]]
+            out[b] = None if src is None else list(src)
     return out
 
 
@@ -520,8 +537,8 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
         e_ins.append(within_session_draw(per_rec, rng, target_blocks=target_blocks))
         drawn.append(_perturbed_or_none(diag.corrected_rig, {eff: math.exp(x) for eff, x in logs.items()}))
     samples, changes, atom = [], [], []
-    for e_in, ms, none_moved in zip(e_ins, _ms_changes(drawn, diag.measurement, tpreps, base, scales), still,
-                                    strict=True):
+    ms_drawn = _ms_changes(drawn, diag.measurement, tpreps, base, scales, base_rig=diag.corrected_rig)
+    for e_in, ms, none_moved in zip(e_ins, ms_drawn, still, strict=True):
         if ms is None:
             continue
         changes.append(math.sqrt(float(np.mean(ms))))
