@@ -152,6 +152,31 @@ def test_absent_values_switch_terms_off_exactly(family):
                 assert term(MATH, values) == 0.0, (eff.name, term.label, values)
 
 
+def test_a_switched_off_coulomb_friction_is_skipped_and_changes_nothing():
+    """The two Coulomb frictions (tanh, Stribeck exp) have a flag that skips their terms where they
+    are off; the cheap summed terms keep being switched by their absent values. Skipped or
+    evaluated at their absent values, the replay is the same bit for bit (θ and every channel)."""
+    flagged = {e.name for e in registry.family_effects("dc_hbridge") if skipped_when_off(e)}
+    assert flagged == {"rotor_coulomb_friction", "rod_coulomb_friction"}
+    rig = load_rig("thesis_rig")
+    assert not rig.effects.rod_coulomb_friction and not rig.effects.rotor_coulomb_friction
+    plant = CompiledPlant(rig)
+    dt = rig.sample_period
+    duty = aprbs(3.0, lo=0.3, hi=1.0, min_hold=0.05, max_hold=0.3, seed=7, dt=dt).duty
+    p = plant.p[None, :].copy()
+    evaluated = p.copy()
+    for name in flagged:
+        assert p[0, plant.layout.flag_index(name)] == 0.0
+        evaluated[0, plant.layout.flag_index(name)] = 1.0  # the terms run, at their absent values
+    x0 = np.array([[0.2, -0.1, 0.0, 30.0, 0.0]])
+    names = plant.channels
+    skipped, fail_s = plant.replay_batch(duty, p, x0, 0.4, names, threads=1)
+    run, fail_r = plant.replay_batch(duty, evaluated, x0, 0.4, names, threads=1)
+    assert fail_s[0] == fail_r[0] == -1
+    assert np.array_equal(skipped, run)
+    assert np.ptp(skipped[0, list(names).index("theta")]) > 0.1  # the rod moves
+
+
 def test_generated_module_calls_the_registry_terms():
     """No second copy of an equation: the module imports each term function of the family."""
     for fam in registry.families():
