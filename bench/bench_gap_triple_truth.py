@@ -80,7 +80,7 @@ def _better(row: dict[str, Any]) -> bool:
 def run_case(job: dict[str, Any]) -> dict[str, Any]:
     """One triple case: nominal, chosen-set and truth-set validation errors (module doc)."""
     from aeropend_ident.gap.effects import EffectContext, check_recordings
-    from aeropend_ident.gap.which import _noise_parts, excluded_with, prepare, split_test
+    from aeropend_ident.gap.which import _noise_parts, excluded_with, noise_part, prepare, split_test
     from aeropend_ident.io.split import validation_split
     from bench import bench_gap_lab as lab
 
@@ -104,8 +104,9 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     c, t = out["chosen_fit"].get("validation_sse"), out["truth_fit"].get("validation_sse")
     out["truth_over_chosen"] = t / c if c and t is not None else None
     out["truth_better_p"] = None
-    if c is not None and t is not None:  # the diagnosis' split test, noise part as in which._setup
-        noise = max(sum(_noise_parts(pv).values()), 1e-300) / len(out["chosen_fit"]["segments"])
+    if c is not None and t is not None:  # the diagnosis' split test, with its noise part
+        seg0 = np.array(out["nominal"]["segments"])
+        noise = noise_part(_noise_parts(pv), seg0) / seg0.size
         out["truth_better_p"] = split_test(np.array(out["chosen_fit"]["segments"]),
                                            np.array(out["truth_fit"]["segments"]), noise, 0.0)
     out["elapsed_s"] = time.perf_counter() - t0

@@ -1624,7 +1624,7 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
     # validation SSE (normalised like segment_sse): what no effect can remove
     floors = {c: NOISE_FLOOR_FACTOR * float(np.mean([math.sqrt(_noise_var(p.y[c])) / p.scale[c] for p in pv]))
               for c in pv[0].y}
-    noise_sse = max(sum(noise_c.values()), 1e-12 * float(seg0.sum()), 1e-300)
+    noise_sse = noise_part(noise_c, seg0)
     return _Setup(rig=rig, pf=pf, pv=pv, ctx=ctx, channels=channels, model_effects=model_effects,
                   refinements=refinements, not_ident=not_ident, sse_fit0=sse_fit0, n_fit=n_fit,
                   n_eff=bic_samples(pf),
@@ -1641,6 +1641,13 @@ def _in_catalog(names: Sequence[str], st: _Setup) -> list[str]:
 def _noise_parts(preps: Sequence[Prepared]) -> dict[str, float]:
     """Noise part of each channel's normalised squared error (as :func:`validation_errors`)."""
     return {c: float(sum(_noise_var(p.y[c]) / p.scale[c] ** 2 for p in preps)) for c in preps[0].y}
+
+
+def noise_part(noise_c: Mapping[str, float], seg0: np.ndarray) -> float:
+    """The noise part of the validation SSE (normalised as :func:`segment_sse`): what no effect can
+    remove, the sum over channels of ``noise_c`` (:func:`_noise_parts`), kept above 1e-12 of the
+    nominal segments' SSE ``seg0`` (n_segments,) and above 0."""
+    return max(sum(noise_c.values()), 1e-12 * float(np.sum(seg0)), 1e-300)
 
 
 def _errors_after_start(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> dict[str, float]:
