@@ -42,5 +42,6 @@ def minimum(a, b):
 
 @njit(inline="always")
 def power(a, b):
-    """a**b."""
-    return a**b
+    """a**b; the correctly rounded square a·a when b is exactly 2 (as ``MATH.power``: the
+    :mod:`aeropend_sim.components.xp` doc, "Squares")."""
+    return a * a if b == 2.0 else a**b

@@ -21,14 +21,21 @@ sign       −1, 0 or 1
 maximum    element-wise larger of two values
 minimum    element-wise smaller of two values
 where      ``where(c, a, b)``: a where c holds, else b (both are evaluated)
-power      ``power(a, b)`` = a**b (a ≥ 0)
+power      ``power(a, b)`` = a**b (a ≥ 0); a·a when b is exactly 2 (below)
 =========  ====================================================================
+
+**Squares.** ``power(a, 2.0)`` is the correctly rounded square a·a in every namespace, not libm's
+``pow``: glibc's ``pow`` is faithful, not correctly rounded, and differs from a·a by one ulp for
+about 1 base in 1,200 (NumPy's ``power`` with a scalar exponent of 2 already squares, so the
+namespaces disagreed there), and it costs about a third of a compiled RK4 sub-step of a rig whose
+thrust exponent α is 2 (docs/findings/simulator_backends.md, "Squares instead of pow").
 """
 
 from __future__ import annotations
 
 import math
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
@@ -45,14 +52,24 @@ def _where(cond: bool, a: float, b: float) -> float:
     return a if cond else b
 
 
+def _power(a: float, b: float) -> float:
+    return a * a if b == 2.0 else a**b
+
+
+def _np_power(a: Any, b: Any) -> Any:
+    if np.ndim(b) == 0:
+        return np.multiply(a, a) if b == 2.0 else np.power(a, b)
+    return np.where(np.equal(b, 2.0), np.multiply(a, a), np.power(a, b))
+
+
 #: Scalar namespace (Python floats, :mod:`math`).
 MATH = SimpleNamespace(
     name="math", sin=math.sin, cos=math.cos, tanh=math.tanh, exp=math.exp, sqrt=math.sqrt, abs=abs,
-    sign=_sign, maximum=max, minimum=min, where=_where, power=pow,
+    sign=_sign, maximum=max, minimum=min, where=_where, power=_power,
 )
 
 #: Array namespace (NumPy, any shape, broadcasting).
 NUMPY = SimpleNamespace(
     name="numpy", sin=np.sin, cos=np.cos, tanh=np.tanh, exp=np.exp, sqrt=np.sqrt, abs=np.abs,
-    sign=np.sign, maximum=np.maximum, minimum=np.minimum, where=np.where, power=np.power,
+    sign=np.sign, maximum=np.maximum, minimum=np.minimum, where=np.where, power=_np_power,
 )
