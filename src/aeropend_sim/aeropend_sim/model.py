@@ -28,6 +28,8 @@ switched on.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from functools import cached_property
 
 import numpy as np
 
@@ -124,7 +126,6 @@ class PlantModel:
                 setattr(self, attr, 0.0)
         if "actuator.hbridge_k0" in raw:
             self.k = tuple(raw[f"actuator.hbridge_k{j}"] for j in range(4))
-        self.rhs = a.rhs
 
     def __reduce__(self) -> tuple[type, tuple[Rig]]:
         """Pickle and deep-copy as the rig (the generated right-hand side is rebuilt from it)."""
@@ -227,19 +228,17 @@ class PlantModel:
         return out
 
     # ------------------------------------------------------------------ dynamics
-    def rhs(self, t: float, x: np.ndarray | list[float], u: float) -> list[float]:  # replaced per instance
-        """State derivative dx/dt (shape (5,)) for a duty-cycle input u (see module doc).
+    @cached_property
+    def rhs(self) -> Callable[[float, np.ndarray | list[float], float], list[float]]:
+        """The state derivative function ``rhs(t, x, u)`` -> dx/dt (list of 5 floats; see module doc),
+        generated for this rig on first use (:attr:`Assembly.rhs`) and then an attribute of the
+        instance (no property call per evaluation: ODE solvers call it directly).
 
-        Parameters
-        ----------
-        t : float
-            Time [s] (unused: the model is time invariant; kept for ODE solvers).
-        x : array_like, shape (5,)
-            State.
-        u : float
-            Duty cycle τ in [0, 1] reaching the actuator (after the input delay).
+        Its arguments: ``t`` [s], the time (unused: the model is time invariant; kept for ODE
+        solvers); ``x``, array_like of shape (5,), the state; ``u``, the duty cycle τ in [0, 1]
+        reaching the actuator (after the input delay).
         """
-        return self.assembly.rhs(t, x, u)  # pragma: no cover - the instance attribute is used
+        return self.assembly.rhs
 
     def dry_friction(self, thd: float) -> float:
         """Rod dry friction over inertia [rad/s²] at rate θ̇ [rad/s] (0 when off): Coulomb plus

@@ -169,6 +169,29 @@ def _why_not(key: str, family: str) -> str:
     return f"{key} is declared by {owner.name}, part of {fams} rigs: {reason}"
 
 
+@cache
+def _validation_plan(family: str) -> tuple[tuple, tuple, tuple, tuple]:
+    """What :meth:`Rig.__post_init__` checks for a rig of ``family``, worked out once per family
+    (a fit builds thousands of rigs): the section classes, the effects the family cannot have (with
+    why), ``(key, section, name, Param, owning effect's name or None)`` per parameter, and the
+    parts' cross-checks.
+
+    Raises
+    ------
+    RegistryError
+        On an unknown family (:func:`aeropend_sim.components.registry.family`).
+    """
+    fam = registry.family(family)
+    classes = tuple((section, section_class(family, section)) for section in SECTIONS)
+    inapplicable = tuple((eff, why) for eff in registry.effects() if (why := eff.applies_to(fam)) is not None)
+    owners = registry.owners()
+    params = tuple((key, p.section, p.name, p, owners[key].name if isinstance(owners[key], Effect) else None)
+                   for key, p in registry.family_params(family).items())
+    checks = tuple(part.check for part in (*registry.family_parts(family), *registry.family_effects(family))
+                   if part.check is not None)
+    return classes, inapplicable, params, checks
+
+
 # ------------------------------------------------------------------------------ the rig
 @dataclass(frozen=True)
 class Rig:
@@ -206,31 +229,26 @@ class Rig:
     load_notes: tuple[str, ...] = field(default=(), compare=False)
 
     def __post_init__(self) -> None:
-        fam = registry.family(self.family)
-        for section in SECTIONS:
-            cls = section_class(self.family, section)
+        classes, inapplicable, params, checks = _validation_plan(self.family)
+        for section, cls in classes:
             if type(getattr(self, section)) is not cls:
                 got = type(getattr(self, section)).__name__
                 raise RigFileError(f"rig {self.name!r}: section {section} is a {got}; expected "
                                    f"{cls.__name__} (family {self.family})")
-        for eff in registry.effects():
+        for eff, why in inapplicable:
             if eff.is_on(getattr(self.effects, eff.name)):
-                why = eff.applies_to(fam)
-                if why is not None:
-                    raise RigFileError(f"effect {eff.name} cannot be on for a rig of the {self.family} "
-                                       f"family: {why}")
-        values = {key: float(getattr(getattr(self, p.section), p.name))
-                  for key, p in registry.family_params(self.family).items()}
+                raise RigFileError(f"effect {eff.name} cannot be on for a rig of the {self.family} "
+                                   f"family: {why}")
+        sections = {section: getattr(self, section) for section, _ in classes}
+        values = {key: float(getattr(sections[section], name)) for key, section, name, _, _ in params}
         object.__setattr__(self, "_values", values)  # the rig is immutable: read once, copied out
         on = {e.name for e in registry.effects() if e.is_on(getattr(self.effects, e.name))}
-        for key, p in registry.family_params(self.family).items():
-            owner = registry.owners()[key]
-            active = not isinstance(owner, Effect) or owner.name in on
-            msg = p.violation(values[key], active)
+        for key, _, _, p, owner in params:
+            msg = p.violation(values[key], owner is None or owner in on)
             if msg:
                 raise RigFileError(msg)
-        for part in (*registry.family_parts(self.family), *registry.family_effects(self.family)):
-            if part.check is not None and (msg := part.check(values)):
+        for check in checks:
+            if msg := check(values):
                 raise RigFileError(msg)
 
     # ------------------------------------------------------------------ reading

@@ -18,9 +18,9 @@ bit for bit as it did before the registry existed.
 An :class:`Assembly` holds the active parts, the **effective** parameter values (an inactive
 effect's parameters at their ``absent`` values) and the active terms per slot, and provides
 
-* :attr:`Assembly.rhs`: the scalar right-hand side, generated once per rig as Python source that
-  calls the term functions with the parameters as constants (no branches on switches, no
-  per-call lookups; :attr:`Assembly.rhs_source` shows it). :func:`chain_source` writes it; the
+* :attr:`Assembly.rhs`: the scalar right-hand side, generated once per rig (on first use) as
+  Python source that calls the term functions with the parameters as constants (no branches on
+  switches, no per-call lookups; :attr:`Assembly.rhs_source` shows it). :func:`chain_source` writes it; the
   compiled backend (:mod:`aeropend_sim.compiled`) has the same function write its family-wide
   source (parameters as entries of a vector, optional parts behind run-time flags);
 * :meth:`Assembly.point` and :meth:`Assembly.slot_values`: every intermediate signal of the chain
@@ -35,7 +35,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from typing import Any
 
 import numpy as np
@@ -235,7 +235,18 @@ class Assembly:
         names = {p.name for p in self.active}
         self.dynamic_current = self.armature and "armature_inductance" in names
         self.drive_name = self.family.drive
-        self._rhs_src, self.rhs = self._generate_rhs()
+
+    @cached_property
+    def _generated(self) -> tuple[str, Any]:
+        # written and compiled on first use: many assemblies (a fit's candidate rigs, the motor
+        # steady state of a replay's start) never call the scalar right-hand side
+        return self._generate_rhs()
+
+    @cached_property
+    def rhs(self) -> Callable[[float, Any, float], list[float]]:
+        """The scalar right-hand side ``rhs(t, x, u)`` -> dx/dt (list of 5 floats), generated on first
+        use (module doc)."""
+        return self._generated[1]
 
     # ------------------------------------------------------------------ helpers
     def has(self, name: str) -> bool:
@@ -261,7 +272,7 @@ class Assembly:
     @property
     def rhs_source(self) -> str:
         """Python source of :attr:`rhs` (for reading and for a compiled backend)."""
-        return self._rhs_src
+        return self._generated[0]
 
     def _generate_rhs(self) -> tuple[str, Any]:
         consts: dict[str, Any] = {}  # term functions and non-finite parameters by their names in the source
