@@ -24,7 +24,7 @@ from aeropend_sim.compiled.plant import CompiledPlant
 from aeropend_sim.compiled.source import family_module, module_source, skipped_when_off, switched_by_value
 from aeropend_sim.components import registry
 from aeropend_sim.components.thrust.propeller import thrust
-from aeropend_sim.components.xp import MATH, OPERATIONS
+from aeropend_sim.components.xp import MATH, NUMPY, OPERATIONS
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.model import I_A, TAU_F, PlantModel
 from aeropend_sim.params import Rig, RigFileError, load_rig
@@ -130,6 +130,38 @@ def test_vectors_follow_the_rig_and_refuse_bad_values():
         plant.vectors(("motor.T_m",), [[0.1]])
     with pytest.raises(RigFileError, match=r"expected \(B, 2\)"):
         plant.vectors(("motor.K_d", "motor.B_m"), [[1e-7, 1e-6, 0.0]])
+
+
+@pytest.mark.parametrize("rig", [*(family_rig(f.name) for f in registry.families()), all_effects(contact=True)],
+                         ids=[*(f.name for f in registry.families()), "all_effects"])
+def test_derivatives_equal_the_model_rhs_row_by_row(rig):
+    """The compiled loop of many states (a recording's equation-error terms) gives what the
+    model's scalar right-hand side gives per row, bit for bit, and the drive quantity of the
+    command past the lag; the end stops are crossed (|θ| up to 3 rad)."""
+    rng = np.random.default_rng(7)
+    n = 4000
+    x = np.column_stack([rng.uniform(-3.0, 3.0, n), rng.normal(0.0, 5.0, n), rng.uniform(-1.0, 4.0, n),
+                         rng.uniform(-50.0, 900.0, n), rng.uniform(0.0, 1.0, n)])
+    x[:50, 1] = 0.0  # the dry frictions' regularised kink at rest
+    u = rng.uniform(0.0, 1.0, n)
+    model = PlantModel(rig)
+    f, drive = plant_mod.derivatives(model, x, u)
+    assert np.array_equal(f, np.array([model.rhs(0.0, xk, uk) for xk, uk in zip(x, u, strict=True)]))
+    tau = x[:, TAU_F] if model.lag else u
+    assert np.array_equal(drive, [model.drive(float(t)) for t in tau])
+    with pytest.raises(ValueError, match=r"states of shape \(4000, 4\) and commands of shape \(4000,\)"):
+        plant_mod.derivatives(model, x[:, :4], u)
+
+
+def test_the_scalar_rhs_is_generated_on_first_use_and_then_called_directly():
+    """A model (a fit builds hundreds) writes and compiles its scalar right-hand side only when it
+    is first used; from then on ``model.rhs`` is the generated function itself (an ODE solver calls
+    it without a property or method in between)."""
+    model = PlantModel(load_rig("thesis_rig"))
+    assert "rhs" not in vars(model) and "rhs" not in vars(model.assembly)
+    f = model.rhs
+    assert vars(model)["rhs"] is f is model.assembly.rhs and f.__name__ == "rhs"
+    assert f(0.0, [0.3, 0.0, 0.5, 200.0, 0.4], 0.4)[0] == 0.0  # dθ/dt = θ̇
 
 
 @pytest.mark.parametrize("family", [f.name for f in registry.families()])
@@ -260,6 +292,25 @@ def test_numba_namespace_gives_the_values_of_math():
         for b in special:
             for op in ("maximum", "minimum"):
                 assert repr(getattr(xp_numba, op)(a, b)) == repr(getattr(MATH, op)(a, b)), (op, a, b)
+
+
+#: Bases whose libm ``pow(a, 2.0)`` is one ulp off the correctly rounded square a·a (glibc).
+_POW_OFF_BY_ONE_ULP = (2846.831024813296, 1400.1116057980619, 790.7557591791938)
+
+
+def test_an_exponent_of_two_is_the_square_in_every_namespace():
+    """power(a, 2) = a·a exactly, the same in the math, NumPy and numba namespaces (the xp module
+    doc, "Squares"); any other exponent is still a**b."""
+    bases = np.array([0.0, 1e-300, 0.5, 3.0, 217.25, *_POW_OFF_BY_ONE_ULP])
+    assert any(pow(float(a), 2.0) != a * a for a in bases)  # the cases the change is about
+    for a in bases.tolist():
+        assert MATH.power(a, 2.0) == a * a
+        assert xp_numba.power(a, 2.0) == a * a
+        assert MATH.power(a, 1.9) == xp_numba.power(a, 1.9) == a**1.9
+    assert np.array_equal(NUMPY.power(bases, 2.0), bases * bases)
+    alphas = np.where(np.arange(bases.size) % 2 == 0, 2.0, 1.9)
+    assert np.array_equal(NUMPY.power(bases, alphas), np.where(alphas == 2.0, bases * bases, bases**1.9))
+    assert NUMPY.power(3.0, 1.5) == 3.0**1.5
 
 
 class _SpyXP:

@@ -119,6 +119,7 @@ from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.overlay_axes import diverges
 from aeropend_ident.sindy.core import weak_matrices
 from aeropend_ident.sindy.model import IdentData
+from aeropend_sim.compiled.plant import derivatives
 from aeropend_sim.components import registry
 from aeropend_sim.model import ModelError, PlantModel
 from aeropend_sim.params import Rig, rig_to_dict
@@ -1113,7 +1114,7 @@ def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.nda
     u = _delayed(prep.duty, prep.dt, model.delay)
     x, u = x[::step], u[::step]
     need = set(equations)
-    f = np.array([model.rhs(0.0, xk, uk) for xk, uk in zip(x, u, strict=True)])
+    f, drive = derivatives(model, x, u)  # = model.rhs per sample, bit for bit, in one compiled loop
     out: dict[str, np.ndarray] = {}
     if "theta_dot" in need:
         out["theta_dot"] = s * f[:, 1]
@@ -1122,8 +1123,8 @@ def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.nda
     if "omega_rotor" in need:
         out["omega_rotor"] = f[:, 3]
     if "v_a" in need:
-        tau = x[:, 4] if model.lag else u
-        out["v_a"] = np.array([model.armature_voltage(float(tk)) for tk in tau])
+        model.armature_voltage(0.0)  # a family without an armature voltage (ESC) raises here
+        out["v_a"] = drive  # v_a of τ_f (lag on) or of u: the drive quantity
     return out
 
 

@@ -230,6 +230,19 @@ def replay_batch(x0, duty, tau_before, whole, n_a, h_a, n_b, h_b, p, codes, out,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def derivatives(x, u, p, out, drive):
+    """Fill ``out`` (N, 5) with the right-hand side dx/dt at the states ``x`` (N, 5) and commands
+    ``u`` (N,) (the command reaching the actuator), and ``drive`` (N,) with the drive quantity there
+    (v_a or the ESC's set-point, of the command past the lag and the duty transforms: the second
+    value of :func:`signals`)."""
+    for j in range(x.shape[0]):
+        d = rhs(x[j, 0], x[j, 1], x[j, 2], x[j, 3], x[j, 4], u[j], p)
+        drive[j] = signals(x[j, 0], x[j, 1], x[j, 2], x[j, 3], x[j, 4], u[j], p)[1]
+        for c in range(5):
+            out[j, c] = d[c]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def jacobians(x, u, p):
     """Central-difference Jacobians ∂rhs/∂x (B, R, 5, 5) at the states ``x`` (R, 5) and commands
     ``u`` (R,) for each parameter row of ``p`` (B, P) (step 1e-6·max(1, |x|))."""

@@ -349,6 +349,44 @@ class CompiledPlant:
         return self.module.step(x, float(u_old), float(u_new), self.p, n_a, h_a, n_b, h_b)
 
 
+def derivatives(model: PlantModel, x: Any, u: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The right-hand side of ``model`` at many states, by the compiled loop.
+
+    Row j equals ``model.rhs(0.0, x[j], u[j])`` bit for bit (test_compiled.py), without a Python
+    call per row; a recording's equation-error terms evaluate it at every sample.
+
+    Parameters
+    ----------
+    model : PlantModel
+    x : array_like, shape (N, 5)
+        States.
+    u : array_like, shape (N,)
+        Duty cycles τ reaching the actuator (after the input delay).
+
+    Returns
+    -------
+    f : ndarray, shape (N, 5)
+        dx/dt in the state's units per second.
+    drive : ndarray, shape (N,)
+        The drive quantity at each row: v_a [V] of the voltage families, the ESC's rotor-speed
+        set-point ω_ss [rad/s] (:meth:`PlantModel.drive` of the command past the lag).
+
+    Raises
+    ------
+    ValueError
+        On shapes other than (N, 5) and (N,).
+    """
+    x = np.ascontiguousarray(x, dtype=float)
+    u = np.ascontiguousarray(u, dtype=float)
+    if x.ndim != 2 or x.shape[1] != 5 or u.shape != (x.shape[0],):
+        raise ValueError(f"states of shape {x.shape} and commands of shape {u.shape}: expected (N, 5) and "
+                         "(N,)")
+    f = np.empty((x.shape[0], 5))
+    drive = np.empty(x.shape[0])
+    family_module(model.family).derivatives(x, u, layout(model.family).vector(model.assembly), f, drive)
+    return f, drive
+
+
 def _codes(model: PlantModel) -> dict[str, int]:
     """Channel name -> output code of the family (kernels' CODE_* constants). A dynamic armature
     current is its state, read directly; only a quasi-static one is the derived CODE_I_A (computed
