@@ -132,7 +132,8 @@ def test_vectors_follow_the_rig_and_refuse_bad_values():
         plant.vectors(("motor.K_d", "motor.B_m"), [[1e-7, 1e-6, 0.0]])
 
 
-@pytest.mark.parametrize("rig", [*(family_rig(f.name) for f in registry.families()), all_effects(contact=True)],
+@pytest.mark.parametrize("rig", [*(family_rig(f.name) for f in registry.families()),
+                                 all_effects(contact=True)],
                          ids=[*(f.name for f in registry.families()), "all_effects"])
 def test_derivatives_equal_the_model_rhs_row_by_row(rig):
     """The compiled loop of many states (a recording's equation-error terms) gives what the

@@ -12,8 +12,9 @@ The skeleton is the signal chain, fixed by the physics; the declarations fill it
 6. gear, thrust: ω₂ = gear term(ω₁), f = thrust term(ω₂);
 7. rod: θ̈ = Σ rod terms(θ, θ̇, f).
 
-Sums run in the terms' ``order`` (the order of floating-point addition), so a rig simulates
-bit for bit as it did before the registry existed.
+Sums run in the terms' ``order`` (the order of floating-point addition), so a rig simulated
+bit for bit as it did before the registry existed (the one change since: ``xp.power(a, 2.0)`` is
+the correctly rounded square, :mod:`aeropend_sim.components.xp`).
 
 An :class:`Assembly` holds the active parts, the **effective** parameter values (an inactive
 effect's parameters at their ``absent`` values) and the active terms per slot, and provides
