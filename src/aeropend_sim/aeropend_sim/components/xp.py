@@ -28,7 +28,7 @@ power      ``power(a, b)`` = a**b (a ≥ 0); a·a when b is exactly 2 (below)
 ``pow``: glibc's ``pow`` is faithful, not correctly rounded, and differs from a·a by one ulp for
 about 1 base in 1,200 (NumPy's ``power`` with a scalar exponent of 2 already squares, so the
 namespaces disagreed there), and it costs about a third of a compiled RK4 sub-step of a rig whose
-thrust exponent α is 2 (docs/findings/simulator_backends.md, "Squares instead of pow").
+thrust exponent α is 2 (docs/findings/simulator_backends.md, "Squares, and the Python around the replays").
 """
 
 from __future__ import annotations
