@@ -463,6 +463,32 @@ def test_single_effect_fits_in_threads_give_the_figures_of_fits_one_after_the_ot
     assert len(one.ranking) >= 5
 
 
+def test_fits_in_threads_replay_on_their_own_thread(monkeypatch) -> None:
+    # _each shares the fits of one step out to one thread per core; each fit's batch replays then
+    # stay on its thread (two fits each splitting their replays over both cores ran no faster than
+    # one after the other), while a replay outside the fits keeps the default split
+    import threading
+    import types
+
+    from aeropend_ident.gap import which
+    from aeropend_ident.greybox.batch import THREADS_ENV, replay_threads
+
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    monkeypatch.setattr(which, "fit_threads", lambda: 2)
+    said = []
+    st = types.SimpleNamespace(pf=(), pv=(), say=said.append)
+
+    def work(item, say):
+        say(f"fit {item}")
+        return replay_threads(), threading.current_thread().name
+
+    got = dict(which._each(st, ["a", "b", "c"], work))
+    assert {n for n, _ in got.values()} == {1}
+    assert all(name.startswith("aeropend-fit") for _, name in got.values())
+    assert said == ["fit a", "fit b", "fit c"]
+    assert replay_threads() is None
+
+
 def test_forward_selection_in_threads_gives_the_figures_of_fits_one_after_the_other(monkeypatch) -> None:
     # the joint fits of a forward-selection step (_add_effect) run at once; the step takes their
     # figures in order (its bootstrap draws from one generator), so one thread and two give the
@@ -511,3 +537,28 @@ def test_a_confusable_rival_a_hair_behind_is_reported_as_not_separated():
     # ahead) is split between the two, and neither states a presence above one half
     assert top["presence"] == pytest.approx(rival["presence"], rel=0.5)
     assert 0.0 < rival["presence"] <= 0.5 and top["presence"] <= 0.5
+
+
+def test_a_recordings_smoothed_start_is_worked_out_once_for_all_its_replays(monkeypatch) -> None:
+    # θ̇(0) and the recorded motor states at t = 0 are facts of the recording, not of the rig
+    # replaying it: every replay starts from the same values, fitted once per recording
+    from aeropend_ident.gap import which
+    from aeropend_ident.gap.effects import MeasurementMap
+
+    case = make_case(RIG, [], 7, fit_duration=4.0, held_out_steps=1, snr_db=50.0,
+                     channels=("theta", "i_a", "omega_rotor"))
+    prep = which.prepare(case.fit, frozenset({"theta", "i_a", "omega_rotor"}))[0]
+    calls = {"rate": 0, "value": 0}
+    rate, value = which.initial_rate, which.initial_value
+    monkeypatch.setattr(which, "initial_rate", lambda *a, **k: calls.__setitem__("rate", calls["rate"] + 1)
+                        or rate(*a, **k))
+    monkeypatch.setattr(which, "initial_value", lambda *a, **k: calls.__setitem__("value", calls["value"] + 1)
+                        or value(*a, **k))
+    rigs = [RIG.with_params("pendulum", c_over_J=RIG.pendulum.c_over_J * f) for f in (0.8, 1.0, 1.25)]
+    for _ in range(2):
+        outs = which.replay_many([(r, MeasurementMap()) for r in rigs], prep)
+    assert all(o is not None for o in outs)
+    assert calls == {"rate": 1, "value": 2}
+    assert prep.start == {"theta_dot": rate(prep.y["theta"], prep.dt),
+                          "i_a": value(prep.y["i_a"], prep.dt),
+                          "omega_rotor": value(prep.y["omega_rotor"], prep.dt)}

@@ -7,10 +7,18 @@ seen), the reference simulator 6 sub-steps and |h·λ| ≤ 0.5: the agreement th
 
 from __future__ import annotations
 
+import threading
+
 import numpy as np
 import pytest
 
-from aeropend_ident.greybox.batch import FIT_STEP_BOUND, RigReplays
+from aeropend_ident.greybox.batch import (
+    FIT_STEP_BOUND,
+    THREADS_ENV,
+    RigReplays,
+    one_replay_thread,
+    replay_threads,
+)
 from aeropend_sim.compiled.plant import STEP_BOUND, CompiledPlant
 from aeropend_sim.simulation import simulate
 from bench.backends import study
@@ -56,3 +64,50 @@ def test_a_stiff_dry_friction_needs_fewer_fit_sub_steps_and_stays_accurate(coulo
 def test_a_step_bound_beyond_rk4_stability_is_refused():
     with pytest.raises(ValueError, match="step_bound"):
         CompiledPlant(study.all_effects_rig(), step_bound=3.0)
+
+
+def test_one_replay_thread_holds_for_the_calling_thread_only(monkeypatch):
+    """Inside the block this thread's batch replays run on it alone; another thread keeps the
+    default (one per core), and the block restores what was before, nested or not."""
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    assert replay_threads() is None
+    seen = {}
+    with one_replay_thread():
+        seen["inside"] = replay_threads()
+        other = threading.Thread(target=lambda: seen.setdefault("other thread", replay_threads()))
+        other.start()
+        other.join()
+        with one_replay_thread():
+            pass
+        seen["after a nested block"] = replay_threads()
+    assert seen == {"inside": 1, "other thread": None, "after a nested block": 1}
+    assert replay_threads() is None
+    monkeypatch.setenv(THREADS_ENV, "3")
+    assert replay_threads() == 3
+    with one_replay_thread():
+        assert replay_threads() == 1
+    assert replay_threads() == 3
+
+
+def test_a_batch_inside_one_replay_thread_is_not_split_and_gives_the_same_replays(monkeypatch):
+    monkeypatch.delenv(THREADS_ENV, raising=False)
+    rig = study.all_effects_rig()
+    duty = study.inputs(rig.sample_period)["aprbs"][:500]
+    rigs = [rig.with_params("pendulum", c_over_J=rig.pendulum.c_over_J * f) for f in (0.5, 1.0, 1.5, 2.0)]
+    x0 = np.zeros((4, 5))
+    asked = []
+    split = CompiledPlant.replay_batch
+
+    def spy(self, *args, **kwargs):
+        asked.append(args[5] if len(args) > 5 else kwargs.get("threads"))
+        return split(self, *args, **kwargs)
+
+    monkeypatch.setattr(CompiledPlant, "replay_batch", spy)
+    rr = RigReplays(duty, rig.sample_period, tau_before=0.0)
+    shared, ok_shared = rr.run(rigs, x0, ("theta",))
+    with one_replay_thread():
+        alone, ok_alone = rr.run(rigs, x0, ("theta",))
+    assert asked == [None, 1]
+    assert ok_shared.all() and ok_alone.all()
+    assert np.array_equal(shared["theta"], alone["theta"])
+    assert len({float(th[-1]) for th in alone["theta"]}) == 4

@@ -113,7 +113,7 @@ from aeropend_ident.gap.effects import (
     measurement_noise,
     nominal_model_check,
 )
-from aeropend_ident.greybox.batch import RigReplays, replay_threads
+from aeropend_ident.greybox.batch import RigReplays, one_replay_thread, replay_threads
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.overlay_axes import diverges
@@ -292,6 +292,18 @@ class Prepared:
         return self._replays
 
     @functools.cached_property
+    def start(self) -> dict[str, float]:
+        """The recording's smoothed start, the same for every rig replaying it
+        (:func:`_initial_state`): the recorded θ's rate [rad/s] at the first sample as
+        ``"theta_dot"`` (:func:`initial_rate`) and each recorded motor channel's value at it
+        (:func:`initial_value`: ``"i_a"`` [A], ``"omega_rotor"`` [rad/s], ``"v_a"`` [V])."""
+        out = {"theta_dot": initial_rate(self.y["theta"], self.dt)}
+        for c in ("i_a", "omega_rotor", "v_a"):
+            if c in self.y:
+                out[c] = initial_value(self.y[c], self.dt)
+        return out
+
+    @functools.cached_property
     def initial_sd(self) -> np.ndarray:
         """Standard deviations (2,) of the smoothed start's θ [rad] (one sample) and θ̇ [rad/s]
         (:func:`initial_rate`'s polynomial slope) under the θ channel's noise (:func:`_noise_var`)."""
@@ -365,16 +377,17 @@ def _initial_state(sim_rig: Rig, meas: MeasurementMap, prep: Prepared, at_rest: 
     """
     th = prep.y["theta"]
     th0 = float(meas.to_model(th[:1])[0])
-    thd0 = 0.0 if at_rest else initial_rate(th, prep.dt) / meas.theta_scale
+    start = prep.start
+    thd0 = 0.0 if at_rest else start["theta_dot"] / meas.theta_scale
     i0, w0, tf0 = motor_equilibrium(sim_rig, 0.0 if at_rest else float(prep.duty[0]))
-    if "i_a" in prep.y and sim_rig.effects.armature_inductance == "dynamic":
-        i0 = initial_value(prep.y["i_a"], prep.dt)
-    if "omega_rotor" in prep.y:
-        w0 = initial_value(prep.y["omega_rotor"], prep.dt)
-    if "v_a" in prep.y and sim_rig.effects.actuator_lag:
+    if "i_a" in start and sim_rig.effects.armature_inductance == "dynamic":
+        i0 = start["i_a"]
+    if "omega_rotor" in start:
+        w0 = start["omega_rotor"]
+    if "v_a" in start and sim_rig.effects.actuator_lag:
         # the lag state from the recorded drive output (the stretch may start mid-transient)
         model = PlantModel(sim_rig)
-        v0 = min(max(initial_value(prep.y["v_a"], prep.dt), 0.0), model.armature_voltage(1.0))
+        v0 = min(max(start["v_a"], 0.0), model.armature_voltage(1.0))
         tf0 = model.duty_for_voltage(v0)
     return np.array([th0, thd0, i0, w0, tf0])
 
@@ -1779,12 +1792,19 @@ def _each(st: _Setup, items: Sequence[str], work: Callable[[str, Callable[[str],
         jobs = []
         for item in items:
             lines: list[str] = []
-            jobs.append((item, lines, pool.submit(work, item, lines.append)))
+            jobs.append((item, lines, pool.submit(_on_one_replay_thread, work, item, lines.append)))
         for item, lines, job in jobs:
             result = job.result()
             for line in lines:
                 st.say(line)
             yield item, result
+
+
+def _on_one_replay_thread(work: Callable[[str, Callable[[str], None]], Any], item: str,
+                          say: Callable[[str], None]) -> Any:
+    """``work(item, say)`` with its batch replays on the calling thread (one of :func:`_each`'s)."""
+    with one_replay_thread():
+        return work(item, say)
 
 
 def _confirm_one(st: _Setup, ctx: EffectContext, name: str, est: Mapping[str, float] | None,

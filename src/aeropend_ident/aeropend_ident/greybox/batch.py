@@ -97,8 +97,34 @@ def fit_substeps(dt: float) -> int:
     return min(max(FIT_MIN_SUBSTEPS, math.ceil(float(dt) / FIT_MAX_SUBSTEP - 1e-9)), MAX_SUBSTEPS)
 
 
+#: Per-thread limit of :func:`replay_threads` (:func:`one_replay_thread`).
+_thread_limit = threading.local()
+
+
+@contextmanager
+def one_replay_thread() -> Iterator[None]:
+    """Batch replays started by this thread inside the block run on this thread alone.
+
+    For work that is itself shared out to one thread per core (the diagnosis' independent fits,
+    :func:`aeropend_ident.gap.which._each`): splitting each of its replays over the cores again
+    would run twice as many compute threads as cores, and every replay thread that finished would
+    wait for the GIL held by the other fit's Python (measured on the independent benchmark's
+    median cases: the threaded fits took no less wall time than one fit after the other).
+    """
+    before = getattr(_thread_limit, "n", None)
+    _thread_limit.n = 1
+    try:
+        yield
+    finally:
+        _thread_limit.n = before
+
+
 def replay_threads() -> int | None:
-    """Threads of a batch replay: :data:`THREADS_ENV` if set (>= 1), else None (one per core)."""
+    """Threads of a batch replay: 1 inside :func:`one_replay_thread`, else :data:`THREADS_ENV` if set
+    (>= 1), else None (one per core)."""
+    limit = getattr(_thread_limit, "n", None)
+    if limit is not None:
+        return limit
     raw = os.environ.get(THREADS_ENV, "").strip()
     if not raw:
         return None
