@@ -196,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     specs = [{**c, "max_effects": args.max_effects, "skip": skip}
              for c in case_list(args.reps, args.quick, skip)]
     t0 = time.perf_counter()
-    from aeropend_ident.parallel import run_cases
+    from aeropend_ident.parallel import engine_label, run_cases
 
     done: dict[int, dict[str, Any]] = {}
     for i, s in run_cases(run_case, specs, workers=args.workers, scheduler=args.scheduler, desc="gap_blind",
@@ -215,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
     conf = confusion(scores)
     times = sorted(s["elapsed_s"] for s in scores)
     cpus = sorted(s["cpu_s"] for s in scores)
-    meta = {"rig": RIG, "workers": args.workers, "engine": f"dask {args.scheduler or 'LocalCluster'}",
+    meta = {"rig": RIG, "workers": args.workers, "engine": engine_label(args.workers, args.scheduler),
             "wall_s": wall, "load_after": [round(x, 2) for x in os.getloadavg()],
             "median_case_s": times[len(times) // 2],
             "median_case_cpu_s": cpus[len(cpus) // 2], "total_cpu_s": sum(cpus),

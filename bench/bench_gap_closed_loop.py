@@ -221,7 +221,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(RESULTS / "gap_closed_loop"), help="output stem")
     ap.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     args = ap.parse_args(argv)
-    from aeropend_ident.parallel import run_cases
+    from aeropend_ident.parallel import engine_label, run_cases
 
     specs = [{"effects": e, "seed": seed, "variant": seed % 2 == 1, "design": "closed_loop",
               "group": "single" if e else "no effect", "family": "dc_hbridge"} for e, seed in CASES]
@@ -241,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
                "median_case_cpu_s": float(np.median([c["cpu_s"] for c in cases])),
                "duty_changes_per_sample": float(np.median([c.get("duty_changes_per_sample", 0.0)
                                                            for c in cases]))}
-    meta = {"workers": args.workers, "engine": f"dask {args.scheduler or 'LocalCluster'}", "wall_s": wall,
+    meta = {"workers": args.workers, "engine": engine_label(args.workers, args.scheduler), "wall_s": wall,
             "load_before": [round(x, 2) for x in load_before],
             "load_after": [round(x, 2) for x in os.getloadavg()],
             "machine": f"{os.cpu_count()} cores, {platform.platform()}", "python": platform.python_version(),

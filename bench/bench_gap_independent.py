@@ -560,9 +560,11 @@ def main(argv: list[str] | None = None) -> int:
 def _write(out: Path, args: argparse.Namespace, scores: list[dict[str, Any]], wall: float,
            load_before: tuple[float, ...], partial: str = "") -> None:
     """Write the results (.json and .md), merged into the existing ones with ``--merge``."""
+    from aeropend_ident.parallel import engine_label
+
     git = f"git -C {Path(__file__).parent} rev-parse --short HEAD 2>/dev/null"
     commit = os.popen(git).read().strip()
-    meta = {"workers": args.workers, "engine": f"dask {args.scheduler or 'LocalCluster'}",
+    meta = {"workers": args.workers, "engine": engine_label(args.workers, args.scheduler),
             "wall_s": wall, "load_before": [round(x, 2) for x in load_before],
             "load_after": [round(x, 2) for x in os.getloadavg()], "machine": f"{os.cpu_count()} cores, "
             f"{platform.platform()}", "python": platform.python_version(), "commit": commit,

@@ -812,9 +812,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def _write(out: Path, args: argparse.Namespace, rows: list[dict[str, Any]], wall: float,
            load_before: tuple[float, ...], listed: int, subset: str, partial: str) -> None:
+    from aeropend_ident.parallel import engine_label
+
     setup = {
         "cases_listed": listed, "subset": subset, "workers": args.workers,
-        "engine": f"dask {args.scheduler or 'LocalCluster'}", "wall_s": wall,
+        "engine": engine_label(args.workers, args.scheduler), "wall_s": wall,
         "load_before": [round(x, 2) for x in load_before],
         "load_after": [round(x, 2) for x in os.getloadavg()],
         "machine": f"{os.cpu_count()} cores, {platform.platform()}", "python": platform.python_version(),

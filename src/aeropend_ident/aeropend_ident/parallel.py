@@ -50,6 +50,16 @@ def default_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)))
 
 
+def engine_label(workers: int | None, scheduler: str | None) -> str:
+    """Where :func:`run_cases` runs its cases, for a result file's meta: ``"dask ADDRESS"`` (a
+    running scheduler), ``"dask LocalCluster"`` or ``"this process, one case at a time"``
+    (``workers`` = 1 without a scheduler)."""
+    if scheduler is not None:
+        return f"dask {scheduler}"
+    n = default_workers() if workers is None else int(workers)
+    return "this process, one case at a time" if n == 1 else "dask LocalCluster"
+
+
 def _reference(func: Callable[..., Any]) -> tuple[str, str, str]:
     """(module name, file, qualified name) that a worker imports ``func`` by."""
     name = func.__qualname__

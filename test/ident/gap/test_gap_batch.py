@@ -77,7 +77,7 @@ def test_batch_on_a_local_cluster_reports_each_session_and_the_drift(archive, tm
         report = json.loads((out / r["session"] / "report.json").read_text())
         assert report["which"]["chosen"] == r["chosen"]
         assert r["nrmse_after"] <= r["nrmse_before"] + 1e-12
-    assert doc["meta"]["engine"] == "LocalCluster" and doc["meta"]["workers"] == 2
+    assert doc["meta"]["engine"] == "dask LocalCluster" and doc["meta"]["workers"] == 2
     # the thrust path drifts between sessions. With θ alone a thrust change is split between K_q and
     # mgd/J (both set the angle a duty holds); what the data fix is the thrust-to-weight ratio
     # K_q/(mgd/J): 25 % higher on the third session, the same on the first two
@@ -89,3 +89,15 @@ def test_batch_on_a_local_cluster_reports_each_session_and_the_drift(archive, tm
     assert abs(ratio[1] / ratio[0] - 1.0) < 0.03
     assert abs(ratio[2] / ratio[0] - K_Q_FACTOR) < 0.05 * K_Q_FACTOR
     assert "| wed |" in printed and "Drift across sessions" in (out / "drift.md").read_text()
+
+
+def test_a_result_files_engine_names_where_its_cases_ran(monkeypatch):
+    # one worker without a scheduler runs the cases in the calling process, not on a cluster
+    from aeropend_ident import parallel
+
+    monkeypatch.setattr(parallel, "default_workers", lambda: 2)
+    assert parallel.engine_label(1, None) == "this process, one case at a time"
+    assert parallel.engine_label(2, None) == parallel.engine_label(None, None) == "dask LocalCluster"
+    assert parallel.engine_label(1, "tcp://10.0.0.5:8786") == "dask tcp://10.0.0.5:8786"
+    monkeypatch.setattr(parallel, "default_workers", lambda: 1)
+    assert parallel.engine_label(None, None) == "this process, one case at a time"

@@ -103,7 +103,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Diagnose every session of the archive; write the reports and the drift table."""
     args = build_parser().parse_args(argv)
     print_warnings_as_lines("gap-batch")
-    from aeropend_ident.parallel import run_cases
+    from aeropend_ident.parallel import engine_label, run_cases
 
     t0 = time.perf_counter()
     try:
@@ -128,8 +128,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     run = functools.partial(run_cases, workers=args.workers, scheduler=args.scheduler, quiet=args.quiet)
     rows = dict(run(diagnose_session, cases, desc="gap-batch"))
     rows_list = [rows[i] for i in range(len(cases))]
-    meta = {"archive": str(args.archive), "rig": args.rig, "engine": args.scheduler or "LocalCluster",
-            "workers": args.workers, "argv": list(argv if argv is not None else sys.argv[1:])}
+    meta = {"archive": str(args.archive), "rig": args.rig,
+            "engine": engine_label(args.workers, args.scheduler), "workers": args.workers,
+            "argv": list(argv if argv is not None else sys.argv[1:])}
     try:
         table = drift_across(rows_list, sessions, rig, offset, split=args.split, preset=args.preset, run=run)
     except Exception as exc:  # the per-session reports stand without it
