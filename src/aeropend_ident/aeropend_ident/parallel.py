@@ -50,14 +50,23 @@ def default_workers() -> int:
     return max(1, len(os.sched_getaffinity(0)))
 
 
+def _local_workers(workers: int | None) -> int:
+    """Worker processes of a local cluster for ``workers`` (None: one per core)."""
+    return default_workers() if workers is None else int(workers)
+
+
+def _in_this_process(n: int, scheduler: str | None) -> bool:
+    """Whether :func:`run_cases` runs its cases in the calling process: one local worker."""
+    return scheduler is None and n == 1
+
+
 def engine_label(workers: int | None, scheduler: str | None) -> str:
     """Where :func:`run_cases` runs its cases, for a result file's meta: ``"dask ADDRESS"`` (a
     running scheduler), ``"dask LocalCluster"`` or ``"this process, one case at a time"``
     (``workers`` = 1 without a scheduler)."""
-    if scheduler is not None:
-        return f"dask {scheduler}"
-    n = default_workers() if workers is None else int(workers)
-    return "this process, one case at a time" if n == 1 else "dask LocalCluster"
+    if _in_this_process(_local_workers(workers), scheduler):
+        return "this process, one case at a time"
+    return f"dask {scheduler or 'LocalCluster'}"
 
 
 def _reference(func: Callable[..., Any]) -> tuple[str, str, str]:
@@ -147,12 +156,12 @@ def run_cases(func: Callable[[Any], Any], cases: Sequence[Any], *, workers: int 
     from distributed import as_completed
 
     ref = _reference(func)
-    n = default_workers() if workers is None else int(workers)
+    n = _local_workers(workers)
     if n < 1:
         raise ValueError(f"workers = {workers!r}; expected >= 1")
     if not cases:
         return
-    if scheduler is None and n == 1:  # in this process, one case after the other
+    if _in_this_process(n, scheduler):  # one case after the other
         with bar(len(cases), desc, quiet=quiet, unit="case") as progress:
             for i, case in enumerate(cases):
                 result = func(case)
