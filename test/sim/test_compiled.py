@@ -295,6 +295,19 @@ def test_numba_namespace_gives_the_values_of_math():
                 assert repr(getattr(xp_numba, op)(a, b)) == repr(getattr(MATH, op)(a, b)), (op, a, b)
 
 
+
+def test_numba_tanh_is_libms_bit_for_bit_across_its_saturation():
+    """xp_numba.tanh skips the libm call where tanh is ±1.0; it must give math.tanh's values there
+    and on both sides of the cut-off, signed zeros, infinities and NaN included."""
+    cut = xp_numba.TANH_SATURATED
+    near = [np.nextafter(cut, 0.0), cut, np.nextafter(cut, 50.0), 18.0, 19.0615, 19.07, 20.0, 21.5, 30.0,
+            1e300, 0.005, 1e-310, 0.0, -0.0, math.inf, math.nan]
+    grid = np.linspace(-40.0, 40.0, 16001).tolist()
+    for a in (*near, *(-x for x in near), *grid):
+        assert repr(xp_numba.tanh(a)) == repr(math.tanh(a)), a
+    assert math.tanh(np.nextafter(cut, 0.0)) == 1.0  # libm is already 1.0 just below: the cut is safe
+
+
 #: Bases whose libm ``pow(a, 2.0)`` is one ulp off the correctly rounded square a·a (glibc).
 _POW_OFF_BY_ONE_ULP = (2846.831024813296, 1400.1116057980619, 790.7557591791938)
 
