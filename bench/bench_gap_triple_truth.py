@@ -80,7 +80,7 @@ def _better(row: dict[str, Any]) -> bool:
 def run_case(job: dict[str, Any]) -> dict[str, Any]:
     """One triple case: nominal, chosen-set and truth-set validation errors (module doc)."""
     from aeropend_ident.gap.effects import EffectContext, check_recordings
-    from aeropend_ident.gap.which import _noise_parts, excluded_with, noise_part, prepare, split_test
+    from aeropend_ident.gap.which import excluded_with, noise_part, noise_parts, prepare, split_test
     from aeropend_ident.io.split import validation_split
     from bench import bench_gap_lab as lab
 
@@ -106,7 +106,7 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     out["truth_better_p"] = None
     if c is not None and t is not None:  # the diagnosis' split test, with its noise part
         seg0 = np.array(out["nominal"]["segments"])
-        noise = noise_part(_noise_parts(pv), seg0) / seg0.size
+        noise = noise_part(noise_parts(pv), seg0) / seg0.size
         out["truth_better_p"] = split_test(np.array(out["chosen_fit"]["segments"]),
                                            np.array(out["truth_fit"]["segments"]), noise, 0.0)
     out["elapsed_s"] = time.perf_counter() - t0

@@ -1619,10 +1619,10 @@ def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
     n_fit = sum(len(p.y) * p.n for p in pf)
     note = ""
     seg0, sse0_c = validation_errors(rig, nominal, pv)
-    noise_c, chance_c = _noise_parts(pv), _rounding_chance(pv)
+    noise_c, chance_c = noise_parts(pv), _rounding_chance(pv)
     if not _above_noise(sse0_c, noise_c, chance_c):
         fit_c = _errors_after_start(rig, nominal, pf)
-        fit_noise, fit_chance = _noise_parts(pf), _rounding_chance(pf)
+        fit_noise, fit_chance = noise_parts(pf), _rounding_chance(pf)
         if _above_noise(fit_c, fit_noise, fit_chance):
             # the validation part does not reach the operating region of the gap (e.g. an end stop
             # touched only in the fit part), judged after each fit recording's start: rank on the
@@ -1652,14 +1652,16 @@ def _in_catalog(names: Sequence[str], st: _Setup) -> list[str]:
     return [n for n in names if n in have]
 
 
-def _noise_parts(preps: Sequence[Prepared]) -> dict[str, float]:
-    """Noise part of each channel's normalised squared error (as :func:`validation_errors`)."""
+def noise_parts(preps: Sequence[Prepared]) -> dict[str, float]:
+    """Noise part of each channel's normalised squared error (as :func:`validation_errors`), summed
+    over the recordings ``preps``: channel name -> the part no effect can remove (:func:`noise_part`
+    adds them up)."""
     return {c: float(sum(_noise_var(p.y[c]) / p.scale[c] ** 2 for p in preps)) for c in preps[0].y}
 
 
 def noise_part(noise_c: Mapping[str, float], seg0: np.ndarray) -> float:
     """The noise part of the validation SSE (normalised as :func:`segment_sse`): what no effect can
-    remove, the sum over channels of ``noise_c`` (:func:`_noise_parts`), kept above 1e-12 of the
+    remove, the sum over channels of ``noise_c`` (:func:`noise_parts`), kept above 1e-12 of the
     nominal segments' SSE ``seg0`` (n_segments,) and above 0."""
     return max(sum(noise_c.values()), 1e-12 * float(np.sum(seg0)), 1e-300)
 
@@ -1679,7 +1681,7 @@ def _errors_after_start(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared
 
 
 def _rounding_chance(preps: Sequence[Prepared]) -> dict[str, float]:
-    """Chance margin of each channel's noise part (normalised as :func:`_noise_parts`):
+    """Chance margin of each channel's noise part (normalised as :func:`noise_parts`):
     :data:`ROUNDING_CHANCE_Z` standard deviations of its rounding part.
 
     The rounding part of a recording's noise variance is Δ²/12 (Δ as in :func:`_noise_var`, the
