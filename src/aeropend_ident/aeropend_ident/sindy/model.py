@@ -22,6 +22,7 @@ import yaml
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.sindy.libraries import CandidateLibrary, symbol
+from aeropend_sim.compiled.plant import derivatives as model_rhs_at
 from aeropend_sim.model import N_STATES, PlantModel
 from aeropend_sim.params import Rig
 
@@ -167,7 +168,7 @@ def data_from_trajectory(traj: Any, rig: Rig | None = None, measured: bool = Fal
             raise IdentificationError("exact_derivatives needs the rig that produced the trajectory")
         model = PlantModel(rig)
         u = traj.x[:, 4] if not model.lag else traj.duty
-        f = np.array([model.rhs(0.0, xk, uk) for xk, uk in zip(traj.x, u, strict=True)])
+        f = model_rhs_at(model, traj.x, u)[0]  # model.rhs at each sample, bit for bit, compiled
         derivatives = {k: f[:, i].copy() for i, k in enumerate(_MODEL_STATES)}
     return IdentData(t=np.asarray(traj.t, dtype=float).copy(), variables=variables,
                      derivatives=derivatives, source=source)
@@ -203,7 +204,7 @@ def model_derivatives(rig: Rig, data: IdentData, targets: Sequence[str]) -> dict
     if model.dynamic_current:
         x[:, 2] = v["i_a"]
     x[:, 4] = v["duty"]
-    f = np.array([model.rhs(0.0, xk, uk) for xk, uk in zip(x, v["duty"], strict=True)])
+    f = model_rhs_at(model, x, v["duty"])[0]  # model.rhs at each sample, bit for bit, compiled
     return {k: f[:, _MODEL_STATES.index(k)] for k in targets}
 
 
