@@ -295,7 +295,6 @@ def test_numba_namespace_gives_the_values_of_math():
                 assert repr(getattr(xp_numba, op)(a, b)) == repr(getattr(MATH, op)(a, b)), (op, a, b)
 
 
-
 def test_numba_tanh_is_libms_bit_for_bit_across_its_saturation():
     """xp_numba.tanh skips the libm call where tanh is ±1.0; it must give math.tanh's values there
     and on both sides of the cut-off, signed zeros, infinities and NaN included."""
