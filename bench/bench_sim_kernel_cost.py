@@ -32,7 +32,6 @@ import json
 import math
 import os
 import re
-import time
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -42,6 +41,7 @@ from numba import njit
 from aeropend_sim.compiled.plant import CompiledPlant
 from aeropend_sim.simulation import simulate
 from bench.backends import study
+from bench.bench_sim_backend import _times
 
 OUT = Path(__file__).resolve().parent / "results" / "sim_kernel_cost.json"
 #: Scale of each state in the adaptive prototype's error norm (θ, θ̇, i_a, ω₁, τ_f).
@@ -89,15 +89,9 @@ def libm_ns() -> dict[str, float]:
     for name, (op, a) in LIBM_LOOPS.items():
         fn = _summed(op)
         fn(x, a)
-        best = min(_timed(lambda f=fn, a_=a: f(x, a_)) for _ in range(7))
+        best = min(_times(lambda f=fn, a_=a: f(x, a_), 7)[0])
         out[name] = 1e9 * best / x.size
     return out
-
-
-def _timed(fn) -> float:
-    c = time.process_time()
-    fn()
-    return time.process_time() - c
 
 
 # ------------------------------------------------------------------ the right-hand side's code
@@ -208,8 +202,8 @@ def accuracy(repeats: int) -> dict:
         for name, duty in inputs.items():
             theta = plant.replay(duty, x0)[0][:, 0]
             row[f"{name}_max_abs_dtheta_rad"] = float(np.abs(theta - ref[name]).max())
-            row[f"{name}_cpu_ms"] = 1e3 * float(np.median([_timed(lambda d=duty, pl=plant: pl.replay(d, x0))
-                                                           for _ in range(repeats)]))
+            cpu, _ = _times(lambda d=duty, pl=plant: pl.replay(d, x0), repeats)
+            row[f"{name}_cpu_ms"] = 1e3 * float(np.median(cpu))
         rk4[str(k)] = row
         print("rk4", k, row, flush=True)
     plant = CompiledPlant(rig)
