@@ -1,12 +1,14 @@
-"""Control allocation: desired thrust f [N] → armature voltage v_a [V] → duty cycle τ (no rclpy).
+"""Control allocation: desired thrust f [N] → drive quantity → duty cycle τ (no rclpy).
 
 Two inverse chains (thesis §6.5.1 and Fig. 6.7, "h⁻¹(f)"):
 
 * :class:`ModelAllocator` inverts the plant model's steady-state actuator chain
-  (:class:`aeropend_sim.model.PlantModel`): thrust f = K_q·ω₂^α (Eq. 3.3) → ω₂ → ω₁ = n·ω₂
+  (:class:`aeropend_sim.model.PlantModel`) for every actuator family: thrust f = K_q·ω₂^α (Eq. 3.3) → ω₂ → ω₁ = n·ω₂
   (Eq. 3.4) → rotor torque balance K_t·i_a = B_m·ω₁ + K_d·ω₁² + T_c (steady state of the rotor
   equation) → v_a = R_a·i_a + K_ω·ω₁ (Eq. 3.5 at di_a/dt = 0) → τ from the inverse of the
-  rig's voltage map (Eq. 4.3 or ideal, :meth:`PlantModel.duty_for_voltage`). Every step is the
+  rig's voltage map (Eq. 4.3, ideal or an amplifier's, :meth:`PlantModel.duty_for_drive`); on an
+  ESC rig ω₁ is the ESC's steady speed set-point ω_ss and τ comes from the inverse of its throttle
+  map ω_ss = ω_max·((τ − τ_0)/(1 − τ_0))^β. Every step is the
   rig's own terms (their inverses, and the rotor-torque and armature terms of its components and
   switched-on effects), so a load the rig models (brush friction, drag) is in the inverse;
 * :class:`ThesisAllocator` uses the thesis' fitted static maps: the inverse of Eq. 4.4
@@ -46,11 +48,14 @@ class Allocation:
     achieved : float
         Steady-state thrust [N] the returned duty cycle produces (= requested unless saturated).
     v_a : float
-        Armature voltage [V] for ``duty``.
+        Armature voltage [V] for ``duty`` (NaN on a family without one: ``esc``).
     duty : float
         Duty cycle τ in [0, 1].
     saturated : int
         0 = not saturated, +1 = request above the maximum (τ = 1), −1 = below the minimum.
+    drive : float
+        The family's drive quantity for ``duty``: v_a [V] or the ESC's rotor-speed set-point
+        ω_ss [rad/s] (NaN where the allocator does not model it).
     """
 
     requested: float
@@ -58,6 +63,7 @@ class Allocation:
     v_a: float
     duty: float
     saturated: int
+    drive: float = math.nan
 
     @property
     def is_saturated(self) -> bool:
@@ -73,71 +79,83 @@ def _check(f: float) -> float:
 
 
 class ModelAllocator:
-    """Steady-state inverse of the plant model's actuator chain (see module doc).
+    """Steady-state inverse of the plant model's actuator chain, for every actuator family.
+
+    Thrust f → the rig's steady chain (:meth:`Assembly.drive_for_thrust`: thrust law⁻¹, gear⁻¹,
+    then the DC motor's torque balance and armature, or the ESC's speed response) → the family's
+    drive quantity q (armature voltage v_a [V] of ``dc_hbridge`` / ``voltage_amplifier``, rotor-speed
+    set-point ω_ss [rad/s] of ``esc``) → duty τ through the inverse of the drive map and the duty
+    terms (:meth:`PlantModel.duty_for_drive`: Eq. 4.3 or ideal H-bridge, the amplifier's
+    v_offset + v_max·τ, the ESC's throttle map ω_max·((τ − τ_0)/(1 − τ_0))^β, a dead zone).
 
     Parameters
     ----------
     rig : Rig
         Rig whose model (with its effect switches) is inverted.
+
+    Attributes
+    ----------
+    q_max : float
+        Drive quantity at τ = 1 [V or rad/s].
+    f_max : float
+        Steady thrust at τ = 1 [N].
+    v_max : float
+        Armature voltage at τ = 1 [V]; NaN on a family without one (``esc``).
+
+    Raises
+    ------
+    AllocationError
+        If K_q ≤ 0 or the drive at full command delivers no thrust.
     """
 
     def __init__(self, rig: Rig) -> None:
         self.model = PlantModel(rig)
         a = self.model.assembly
-        if not a.armature:
-            raise AllocationError(f"rig {rig.name!r}: the {rig.family} family has no armature voltage to "
-                                  "allocate (its drive is the ESC's speed set-point)")
         if a.values["thrust.K_q"] <= 0.0:
             raise AllocationError(f"rig {rig.name!r}: K_q must be > 0 for allocation")
-        self.v_max = self.model.armature_voltage(1.0)
-        self.f_max = self.thrust_for_voltage(self.v_max)
+        self.voltage_drive = a.drive_name == "v_a"
+        self.q_max = float(self.model.drive(1.0))
+        self.v_max = self.q_max if self.voltage_drive else math.nan
+        self.f_max = self.thrust_for_drive(self.q_max)
+        if not self.f_max > 0.0:
+            raise AllocationError(f"rig {rig.name!r}: full command (τ = 1, {a.drive_name} = {self.q_max:.4g}) "
+                                  "delivers no thrust")
 
-    def _inverse(self, slot: str, y: float) -> float:
-        """The slot's term inverted at output y (thrust → ω₂, gear → ω₁)."""
-        a = self.model.assembly
-        term = a.slots[slot][-1]
-        return float(term.inverse(MATH, y, *(a.by_name[p] for p in term.param_names)))
+    def drive_for_thrust(self, f: float) -> float:
+        """Steady drive quantity q (v_a [V] or ω_ss [rad/s]) that produces thrust f ≥ 0 [N]."""
+        return self.model.assembly.drive_for_thrust(max(float(f), 0.0))[2]
 
-    def _current(self, v_a: float, w: float) -> float:
-        """Steady armature current i_a [A] at voltage v_a and speed ω₁ (Eq. 3.5 at di_a/dt = 0)."""
-        a = self.model.assembly
-        return (v_a + sum(a.slot_values("armature", MATH, {"omega": w}).values())) / a.values["motor.R_a"]
-
-    def _torque(self, i_a: float, w: float) -> float:
-        """Net rotor torque [N·m]: the rig's rotor-torque terms (K_t·i_a − loads)."""
-        return sum(self.model.assembly.slot_values("rotor_torque", MATH, {"i_a": i_a, "omega": w}).values())
-
-    def voltage_for_thrust(self, f: float) -> float:
-        """Steady-state armature voltage v_a [V] that produces thrust f ≥ 0 [N]."""
-        a = self.model.assembly
-        w1 = self._inverse("gear", self._inverse("thrust", f)) if f > 0.0 else 0.0
-        vals = {**a.by_name, "i_a": 0.0, "omega": w1}
-        # the rotor's torque is linear in i_a: i_a = −(torque at i_a = 0)/(∂torque/∂i_a)
-        gain = sum(t.partial(MATH, "i_a", vals) for t in a.slots["rotor_torque"])
-        i_a = -self._torque(0.0, w1) / gain
-        return a.values["motor.R_a"] * i_a - sum(a.slot_values("armature", MATH, {"omega": w1}).values())
-
-    def speed_for_voltage(self, v_a: float) -> float:
-        """Steady-state rotor speed ω₁ [rad/s] at armature voltage v_a (bisection on the torque balance)."""
-
-        def excess(w: float) -> float:  # motor torque − load torque, decreasing in w
-            return self._torque(self._current(v_a, w), w)
-
-        if excess(0.0) <= 0.0:
+    def thrust_for_drive(self, q: float) -> float:
+        """Forward steady-state chain: thrust f [N] at drive quantity q (bisection on the monotone
+        inverse :meth:`drive_for_thrust`; 0 where q does not exceed the drive that holds zero thrust)."""
+        if q <= self.drive_for_thrust(0.0):
             return 0.0
-        lo, hi = 0.0, 1.0
-        while excess(hi) > 0.0:
-            hi *= 2.0
+        lo, hi = 0.0, 1e-3
+        while self.drive_for_thrust(hi) < q:
+            lo, hi = hi, 2.0 * hi
+            if hi > 1e9:
+                raise AllocationError(f"no finite thrust reaches drive {q:.4g} {self.model.assembly.drive_name}")
         for _ in range(200):
             mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if excess(mid) > 0.0 else (lo, mid)
+            lo, hi = (mid, hi) if self.drive_for_thrust(mid) < q else (lo, mid)
             if hi - lo <= 1e-13 * hi:
                 break
         return 0.5 * (lo + hi)
 
+    def _voltage_only(self, what: str) -> None:
+        if not self.voltage_drive:
+            raise AllocationError(f"{what}: the {self.model.family} family has no armature voltage (its drive "
+                                  f"is {self.model.assembly.drive_name})")
+
+    def voltage_for_thrust(self, f: float) -> float:
+        """Steady-state armature voltage v_a [V] that produces thrust f ≥ 0 [N] (voltage families)."""
+        self._voltage_only("voltage_for_thrust")
+        return self.drive_for_thrust(f)
+
     def thrust_for_voltage(self, v_a: float) -> float:
-        """Forward steady-state chain: thrust f [N] at armature voltage v_a [V]."""
-        return self.model.thrust(self.speed_for_voltage(v_a))
+        """Forward steady-state chain: thrust f [N] at armature voltage v_a [V] (voltage families)."""
+        self._voltage_only("thrust_for_voltage")
+        return self.thrust_for_drive(v_a)
 
     def allocate(self, f: float) -> Allocation:
         """Duty cycle for a requested thrust f [N], saturated to τ ∈ [0, 1].
@@ -149,12 +167,13 @@ class ModelAllocator:
         """
         f = _check(f)
         if f <= 0.0:
-            return Allocation(f, 0.0, 0.0, 0.0, -1 if f < 0.0 else 0)
+            return Allocation(f, 0.0, 0.0 if self.voltage_drive else math.nan, 0.0, -1 if f < 0.0 else 0, 0.0)
         if f >= self.f_max:
             sat = 1 if f > self.f_max else 0
-            return Allocation(f, self.f_max, self.v_max, 1.0, sat)
-        v = self.voltage_for_thrust(f)
-        return Allocation(f, f, v, self.model.duty_for_voltage(v), 0)
+            return Allocation(f, self.f_max, self.v_max, 1.0, sat, self.q_max)
+        q = self.drive_for_thrust(f)
+        v = q if self.voltage_drive else math.nan
+        return Allocation(f, f, v, self.model.duty_for_drive(min(q, self.q_max)), 0, q)
 
 
 class ThesisAllocator:

@@ -361,7 +361,9 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
     """PI gains of the speed and current loops by pole-zero cancellation (IMC / technical optimum).
 
     Current loop, plant 1/(L_a·s + R_a) (back-EMF treated as a disturbance; Eq. 3.5):
-    kp_i = L_a·ω_c, ki_i = R_a·ω_c, closed loop ω_c/(s + ω_c).
+    kp_i = L_a·ω_c, ki_i = R_a·ω_c, closed loop ω_c/(s + ω_c); on a rig whose armature is
+    quasi-static (L_a not modelled, e.g. a fitted voltage-amplifier rig) the plant is 1/R_a and the
+    loop is integral only (kp_i = 0, ki_i = R_a·ω_c), with the same closed loop.
     Speed loop, plant K_t/(J_m·s + B_eff) (the back-EMF acts inside the current loop) with
     B_eff = B_m + 2·K_d·ω₁₀ linearised at the rotor speed ω₁₀ of the equilibrium θ_op:
     kp_w = J_m·ω_s/K_t, ki_w = B_eff·ω_s/K_t. ω_s < ω_c keeps the loops separated.
@@ -379,13 +381,19 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
     Raises
     ------
     DesignError
-        On non-positive bandwidths or a current limit ≤ 0.
+        On non-positive bandwidths or a current limit ≤ 0, or a rig without an armature (``esc``:
+        the message names the strategies that need θ only).
     """
     import control
     for name, val in (("omega_speed", omega_speed), ("omega_current", omega_current), ("i_max", i_max)):
         if not (math.isfinite(val) and val > 0.0):
             raise DesignError(f"cascade {name} = {val!r} must be finite and > 0")
     m = PlantModel(rig)
+    if not m.assembly.armature:
+        raise DesignError(f"rig {rig.name!r}: a motor cascade (cascade, fl_cascade) closes loops on the armature "
+                          f"current i_a and the rotor speed ω₁ of a DC motor; the {rig.family} family has no "
+                          "armature (its ESC runs its own speed loop): use fl_pid or small_signal, which "
+                          "need the angle θ only")
     lag = (m.T_a if m.lag else 0.0) + m.delay
     if lag > 0.0:  # the rig file knows a drive lag/delay: keep the speed loop's phase margin
         omega_speed = min(omega_speed, math.tan(math.radians(90.0 - LAG_PHASE_MARGIN_DEG)) / lag)
@@ -393,17 +401,33 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
     x_eq, _ = m.equilibrium(min(theta_op, reachable_angle(rig)))
     w0 = float(x_eq[OMEGA])
     b_eff = m.B_m + 2.0 * m.K_d * w0
-    kp_i, ki_i = m.L * omega_current, m.R * omega_current
     kp_w, ki_w = m.J_m * omega_speed / m.K_t, b_eff * omega_speed / m.K_t
-    # full linear loop with back-EMF: states (i_a, ω₁, z_i, z_w)
-    A = np.array([
-        [-(m.R + kp_i) / m.L, -(m.K_w + kp_i * kp_w) / m.L, ki_i / m.L, kp_i * ki_w / m.L],
-        [m.K_t / m.J_m, -b_eff / m.J_m, 0.0, 0.0],
-        [-1.0, -kp_w, 0.0, ki_w],
-        [0.0, -1.0, 0.0, 0.0],
-    ])
-    B = np.array([[kp_i * kp_w / m.L], [0.0], [kp_w], [1.0]])
-    C = np.array([[0.0, 1.0, 0.0, 0.0]])
+    ki_i = m.R * omega_current
+    if m.dynamic_current:
+        kp_i = m.L * omega_current
+        # full linear loop with back-EMF: states (i_a, ω₁, z_i, z_w)
+        A = np.array([
+            [-(m.R + kp_i) / m.L, -(m.K_w + kp_i * kp_w) / m.L, ki_i / m.L, kp_i * ki_w / m.L],
+            [m.K_t / m.J_m, -b_eff / m.J_m, 0.0, 0.0],
+            [-1.0, -kp_w, 0.0, ki_w],
+            [0.0, -1.0, 0.0, 0.0],
+        ])
+        B = np.array([[kp_i * kp_w / m.L], [0.0], [kp_w], [1.0]])
+        C = np.array([[0.0, 1.0, 0.0, 0.0]])
+    else:
+        # quasi-static armature (L_a not modelled: i_a = (v_a − K_ω·ω₁)/R_a): the current plant is
+        # the gain 1/R_a, so an integral current loop v_a = ki_i·∫(i_ref − i_a) with ki_i = R_a·ω_c
+        # gives i_a/i_ref = ω_c/(s + ω_c) (kp_i = 0). Linear loop with back-EMF: states (ω₁, z_i, z_w),
+        # i_a = (ki_i·z_i − K_ω·ω₁)/R_a.
+        kp_i = 0.0
+        i_z, i_w = ki_i / m.R, -m.K_w / m.R  # ∂i_a/∂z_i, ∂i_a/∂ω₁
+        A = np.array([
+            [m.K_t * i_w / m.J_m - b_eff / m.J_m, m.K_t * i_z / m.J_m, 0.0],
+            [-kp_w - i_w, -i_z, ki_w],
+            [-1.0, 0.0, 0.0],
+        ])
+        B = np.array([[0.0], [kp_w], [1.0]])
+        C = np.array([[1.0, 0.0, 0.0]])
     pred = predict_step(control.ss(A, B, C, 0.0), horizon=0.5, dt=1e-4)
     return CascadeDesign(kp_w, ki_w, kp_i, ki_i, i_max, m.armature_voltage(1.0), omega_speed, omega_current,
                          pred)

@@ -112,6 +112,36 @@ def declares_drive_lag(rig: Rig) -> bool:
     return bool((e.actuator_lag and a.lag_time_constant > 0.0) or (e.input_delay and a.input_delay > 0.0))
 
 
+#: A rotor whose slowest speed mode is slower than this [rad/s] (time constant > 50 ms: an ESC's
+#: speed response of 40-120 ms, a DC motor with a heavy propeller) is a slow drive even when the rig
+#: file declares no lag or delay: a position loop at ω_n ≈ 9.5 rad/s placed on the pendulum alone
+#: limit-cycles on it at saturated duty (issue 59). The thesis rigs' rotors (38-50 rad/s) stay fast.
+SLOW_ROTOR_RATE = 20.0
+
+
+def rotor_rate(rig: Rig) -> float:
+    """Rate [rad/s] of the slowest mode of the rig's drive (rotor, dynamic armature, declared lag),
+    linearised at the equilibrium of half the reach (|eigenvalue| of the motor block of
+    :meth:`PlantModel.jacobian`); ``inf`` when the rig has no motor state that moves."""
+    m, _, _, A5, _ = linearise(rig, 0.5 * reachable_angle(rig))
+    motor = [i for i in (I_A, OMEGA, TAU_F) if (i != TAU_F or m.lag) and (i != I_A or m.dynamic_current)]
+    ev = np.linalg.eigvals(A5[np.ix_(motor, motor)])
+    rates = np.abs(ev.real[ev.real < 0.0])
+    return float(rates.min()) if rates.size else math.inf
+
+
+def slow_drive(rig: Rig) -> bool:
+    """True when the drive is too slow to be left out of the position loop's design: the rig file
+    declares a drive lag or input delay (:func:`declares_drive_lag`), or its rotor's slowest mode is
+    slower than :data:`SLOW_ROTOR_RATE` (:func:`rotor_rate`)."""
+    if declares_drive_lag(rig):
+        return True
+    try:
+        return rotor_rate(rig) < SLOW_ROTOR_RATE
+    except ValueError:  # no reachable equilibrium: nothing to design on
+        return False
+
+
 def drive_model(rig: Rig, theta0: float, drive: DriveSpec) -> control.StateSpace:
     """Linearised drive chain commanded thrust → delivered thrust [N → N] at the equilibrium θ₀.
 
@@ -378,10 +408,11 @@ PREDICTOR_RESPONSE_S = 1.0
 def default_thrust_gain(rig: Rig) -> float:
     """K of the thrust loop f_cmd = f + K·(f − f̂): :data:`THRUST_LOOP_GAIN` when the rig file
     declares a drive lag T_a or input delay T_d (``effects.actuator_lag`` / ``input_delay`` with a
-    value > 0, as ``gap``'s corrected rig does when it finds one), else 0 (the static allocation
+    value > 0, as ``gap``'s corrected rig does when it finds one) or its rotor is slow
+    (:func:`slow_drive`), else 0 (the static allocation
     alone; the motor of thesis_rig is fast enough, README table); at most
     :func:`thrust_loop_gain_limit` / :data:`THRUST_LOOP_GAIN_MARGIN`."""
-    if not declares_drive_lag(rig):
+    if not slow_drive(rig):
         return 0.0
     return min(THRUST_LOOP_GAIN, thrust_loop_gain_limit(rig) / THRUST_LOOP_GAIN_MARGIN)
 
@@ -436,11 +467,12 @@ def thrust_loop_gain_limit(rig: Rig) -> float:
 
 def design_drive(rig: Rig, kind: str, cascade: CascadeDesign | None = None) -> DriveSpec | None:
     """Drive chain a position loop commanding drive ``kind`` (:data:`DRIVES`) is designed on:
-    ``None`` (poles placed on the pendulum alone, as the thesis does) unless the rig file declares a
-    drive lag or delay (:func:`declares_drive_lag`: the drive is then known to be slow, e.g. the
+    ``None`` (poles placed on the pendulum alone, as the thesis does) unless the drive is slow
+    (:func:`slow_drive`: the rig file declares a drive lag or delay, e.g. the
     ``corrected_rig.yaml`` of ``gap``); then the motor cascade (``cascade`` or its default design)
     for ``"cascade"``, the duty drive with the thrust loop (:func:`default_thrust_gain`) for
-    ``"duty"``.
+    ``"duty"``. A cascade on a rig whose armature is quasi-static (L_a not modelled) is designed
+    statically (None): :func:`drive_model` has no current state for its current PI.
 
     Raises
     ------
@@ -449,9 +481,11 @@ def design_drive(rig: Rig, kind: str, cascade: CascadeDesign | None = None) -> D
     """
     if kind not in DRIVES:
         raise DesignError(f"drive kind = {kind!r}; expected one of {DRIVES}")
-    if not declares_drive_lag(rig):
+    if not slow_drive(rig):
         return None
     if kind == "cascade":
+        if not PlantModel(rig).dynamic_current:
+            return None  # quasi-static armature: drive_model has no current state for the PI (static design)
         return DriveSpec("cascade", cascade=cascade or design_cascade(rig))
     return DriveSpec("duty", thrust_gain=default_thrust_gain(rig))
 

@@ -432,20 +432,25 @@ class Assembly:
     def _params_of(self, term: Term) -> list[float]:
         return [self.by_name[a] for a in term.param_names]
 
-    def steady_state(self, theta: float) -> tuple[list[float], float]:
-        """State (θ, 0, i_a, ω₁, q) with θ̈ = 0 and ω̇₁ = 0 at angle θ, and the drive quantity q.
+    def thrust_to_hold(self, theta: float) -> float:
+        """Thrust f [N] that holds the rod at rest at angle θ [rad] (contact terms left out).
 
-        Contact terms (end stops) are left out: the state is the one the thrust holds. The rod's
-        terms are linear in the thrust (the thrust torque), the rotor torques linear in the current:
-        f = −Σ(rod terms without f)/Σ∂/∂f, ω₂ = thrust⁻¹(f), ω₁ = gear⁻¹(ω₂), then
-        i_a = −Σ(torques without i_a)/Σ∂/∂i_a and q = R_a·i_a − Σ armature terms (DC motor), or
-        q = rotor-response⁻¹(ω₁) (ESC). The last state entry is left to the caller (τ).
+        The rod's terms are linear in the thrust (the thrust torque):
+        f = −Σ(rod terms without f)/Σ∂/∂f at (θ, θ̇ = 0).
         """
-        rod = {"theta": theta, "theta_dot": 0.0, "thrust": 0.0}
-        vals = self._with(rod)
+        vals = self._with({"theta": theta, "theta_dot": 0.0, "thrust": 0.0})
         held = [t for t in self.slots["rod"] if "thrust" not in t.inputs and not t.contact]
         rest = sum((t(MATH, vals) for t in held), 0.0)
-        f = -rest / self._d("rod", "thrust", vals)
+        return -rest / self._d("rod", "thrust", vals)
+
+    def drive_for_thrust(self, f: float) -> tuple[float, float, float]:
+        """Steady current i_a [A], rotor speed ω₁ [rad/s] and drive quantity q that deliver thrust f ≥ 0 [N].
+
+        ω₂ = thrust⁻¹(f), ω₁ = gear⁻¹(ω₂), then (DC motor) i_a = −Σ(torques without i_a)/Σ∂/∂i_a
+        (the rotor torques are linear in the current) and q = v_a = R_a·i_a − Σ armature terms, or
+        (ESC) i_a = 0 and q = ω_ss = rotor-response⁻¹(ω₁). The drive quantity is the family's:
+        armature voltage [V] or the ESC's rotor-speed set-point [rad/s] (:attr:`drive_name`).
+        """
         w2 = self._one("thrust").inverse(MATH, f, *self._params_of(self._one("thrust")))
         w1 = self._one("gear").inverse(MATH, w2, *self._params_of(self._one("gear")))
         if self.armature:
@@ -461,4 +466,14 @@ class Assembly:
             i = 0.0
             term = self._one("rotor_response")
             q = term.inverse(MATH, w1, *self._params_of(term))
+        return float(i), float(w1), float(q)
+
+    def steady_state(self, theta: float) -> tuple[list[float], float]:
+        """State (θ, 0, i_a, ω₁, q) with θ̈ = 0 and ω̇₁ = 0 at angle θ, and the drive quantity q.
+
+        Contact terms (end stops) are left out: the state is the one the thrust holds
+        (:meth:`thrust_to_hold`, then :meth:`drive_for_thrust`). The last state entry is left to the
+        caller (τ).
+        """
+        i, w1, q = self.drive_for_thrust(self.thrust_to_hold(theta))
         return [theta, 0.0, i, w1, 0.0], q
