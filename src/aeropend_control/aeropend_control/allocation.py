@@ -3,10 +3,10 @@
 Two inverse chains (thesis §6.5.1 and Fig. 6.7, "h⁻¹(f)"):
 
 * :class:`ModelAllocator` inverts the plant model's steady-state actuator chain
-  (:class:`aeropend_sim.model.PlantModel`) for every actuator family: thrust f = K_q·ω₂^α (Eq. 3.3) → ω₂ → ω₁ = n·ω₂
-  (Eq. 3.4) → rotor torque balance K_t·i_a = B_m·ω₁ + K_d·ω₁² + T_c (steady state of the rotor
-  equation) → v_a = R_a·i_a + K_ω·ω₁ (Eq. 3.5 at di_a/dt = 0) → τ from the inverse of the
-  rig's voltage map (Eq. 4.3, ideal or an amplifier's, :meth:`PlantModel.duty_for_drive`); on an
+  (:class:`aeropend_sim.model.PlantModel`) for every actuator family: thrust f = K_q·ω₂^α
+  (Eq. 3.3) → ω₂ → ω₁ = n·ω₂ (Eq. 3.4) → rotor torque balance K_t·i_a = B_m·ω₁ + K_d·ω₁² + T_c
+  (steady state of the rotor equation) → v_a = R_a·i_a + K_ω·ω₁ (Eq. 3.5 at di_a/dt = 0) → τ from
+  the inverse of the rig's voltage map (Eq. 4.3, ideal or an amplifier's, :meth:`PlantModel.duty_for_drive`); on an
   ESC rig ω₁ is the ESC's steady speed set-point ω_ss and τ comes from the inverse of its throttle
   map ω_ss = ω_max·((τ − τ_0)/(1 − τ_0))^β. Every step is the
   rig's own terms (their inverses, and the rotor-torque and armature terms of its components and
@@ -25,7 +25,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from aeropend_sim.components.xp import MATH
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig
 
@@ -118,8 +117,8 @@ class ModelAllocator:
         self.v_max = self.q_max if self.voltage_drive else math.nan
         self.f_max = self.thrust_for_drive(self.q_max)
         if not self.f_max > 0.0:
-            raise AllocationError(f"rig {rig.name!r}: full command (τ = 1, {a.drive_name} = {self.q_max:.4g}) "
-                                  "delivers no thrust")
+            raise AllocationError(f"rig {rig.name!r}: full command (τ = 1, {a.drive_name} = "
+                                  f"{self.q_max:.4g}) delivers no thrust")
 
     def drive_for_thrust(self, f: float) -> float:
         """Steady drive quantity q (v_a [V] or ω_ss [rad/s]) that produces thrust f ≥ 0 [N]."""
@@ -134,7 +133,8 @@ class ModelAllocator:
         while self.drive_for_thrust(hi) < q:
             lo, hi = hi, 2.0 * hi
             if hi > 1e9:
-                raise AllocationError(f"no finite thrust reaches drive {q:.4g} {self.model.assembly.drive_name}")
+                raise AllocationError(f"no finite thrust reaches drive {q:.4g} "
+                                      f"{self.model.assembly.drive_name}")
         for _ in range(200):
             mid = 0.5 * (lo + hi)
             lo, hi = (mid, hi) if self.drive_for_thrust(mid) < q else (lo, mid)
@@ -144,8 +144,8 @@ class ModelAllocator:
 
     def _voltage_only(self, what: str) -> None:
         if not self.voltage_drive:
-            raise AllocationError(f"{what}: the {self.model.family} family has no armature voltage (its drive "
-                                  f"is {self.model.assembly.drive_name})")
+            raise AllocationError(f"{what}: the {self.model.family} family has no armature voltage "
+                                  f"(its drive is {self.model.assembly.drive_name})")
 
     def voltage_for_thrust(self, f: float) -> float:
         """Steady-state armature voltage v_a [V] that produces thrust f ≥ 0 [N] (voltage families)."""

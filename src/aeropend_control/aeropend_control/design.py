@@ -390,10 +390,10 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
             raise DesignError(f"cascade {name} = {val!r} must be finite and > 0")
     m = PlantModel(rig)
     if not m.assembly.armature:
-        raise DesignError(f"rig {rig.name!r}: a motor cascade (cascade, fl_cascade) closes loops on the armature "
-                          f"current i_a and the rotor speed ω₁ of a DC motor; the {rig.family} family has no "
-                          "armature (its ESC runs its own speed loop): use fl_pid or small_signal, which "
-                          "need the angle θ only")
+        raise DesignError(f"rig {rig.name!r}: a motor cascade (cascade, fl_cascade) closes loops "
+                          "on the armature current i_a and the rotor speed ω₁ of a DC motor; the "
+                          f"{rig.family} family has no armature (its ESC runs its own speed loop): use "
+                          "fl_pid or small_signal, which need the angle θ only")
     lag = (m.T_a if m.lag else 0.0) + m.delay
     if lag > 0.0:  # the rig file knows a drive lag/delay: keep the speed loop's phase margin
         omega_speed = min(omega_speed, math.tan(math.radians(90.0 - LAG_PHASE_MARGIN_DEG)) / lag)

@@ -82,7 +82,7 @@ def _fmt(v: float, width: int = 6, digits: int = 3) -> str:
     return f"{v:{width}.{digits}f}" if math.isfinite(v) else f"{'—':>{width}s}"
 
 
-def _print_verdict(label: str, v) -> None:  # noqa: ANN001 (Verdict)
+def _print_verdict(label: str, v) -> None:
     for r in v.runs:
         m = r.metrics
         ts, mp, tr = (m.settling_time, m.overshoot, m.rise_time) if m is not None else (math.nan,) * 3
@@ -98,8 +98,8 @@ def check(rig: Rig, specs: dict[str, PoleSpec], steps: tuple[float, ...], tune_s
     (:func:`~aeropend_control.verify.closed_loop.tune`), the others at their default pattern or
     refused with the reason. Prints as it goes (progress on stderr)."""
     from aeropend_control.controller_core import ControllerConfigError
-    from aeropend_control.verify.closed_loop import verify
     from aeropend_control.verify.closed_loop import tune as tune_fn
+    from aeropend_control.verify.closed_loop import verify
 
     def progress(text: str) -> None:
         print(f"design_gains: checking {text} ...", file=sys.stderr, flush=True)
@@ -151,21 +151,23 @@ def _report(rig: Rig, result: dict, rig_arg: str) -> dict:
         print(f"recommended: {pick.strategy} with ω_n {pick.spec.omega_n:.4g} rad/s, ζ {pick.spec.zeta:g}: "
               f"worst step ts {ts:.3g} s, M_p {mp:.3g} % (goal met)")
     elif pick.settles:
-        print(f"goal not attainable on this rig ({limits_of(rig)}): the fastest pattern with M_p ≤ 5 % settles "
-              f"in {ts:.3g} s (M_p {mp:.3g} %): {pick.strategy} with ω_n {pick.spec.omega_n:.4g} rad/s, "
-              f"ζ {pick.spec.zeta:g}")
+        print(f"goal not attainable on this rig ({limits_of(rig)}): the fastest pattern with M_p ≤ 5 % "
+              f"settles in {ts:.3g} s (M_p {mp:.3g} %): {pick.strategy} with ω_n "
+              f"{pick.spec.omega_n:.4g} rad/s, ζ {pick.spec.zeta:g}")
     else:
         why = "; ".join(f for r in pick.runs for f in r.failures())
         print(f"goal not attainable on this rig ({limits_of(rig)}): no pattern tried settles with M_p ≤ 5 %; "
-              f"least bad: {pick.strategy} with ω_n {pick.spec.omega_n:.4g} rad/s, ζ {pick.spec.zeta:g} ({why})")
+              f"least bad: {pick.strategy} with ω_n {pick.spec.omega_n:.4g} rad/s, ζ {pick.spec.zeta:g} "
+              f"({why})")
     cmd = (f"controller --ros-args -p rig:={rig_arg} -p strategy:={pick.strategy} "
            f"-p omega_n:={pick.spec.omega_n:.6g} -p zeta:={pick.spec.zeta:.6g} -p rho:={pick.spec.rho:.6g}")
     print(f"run it: {cmd}")
-    return {"recommended": {"strategy": pick.strategy, "pole_spec": asdict(pick.spec), "goal_met": bool(pick.meets),
+    return {"recommended": {"strategy": pick.strategy, "pole_spec": asdict(pick.spec),
+                            "goal_met": bool(pick.meets),
                             "worst_settling_time_s": ts, "worst_overshoot_pct": mp, "command": cmd}}
 
 
-def _verdict_doc(v) -> dict:  # noqa: ANN001 (Verdict)
+def _verdict_doc(v) -> dict:
     return {"pole_spec": asdict(v.spec), "goal_met": bool(v.meets),
             "steps": [{"reference_rad": r.reference, "status": r.status, "detail": r.detail,
                        "metrics": r.metrics.as_dict() if r.metrics is not None else None} for r in v.runs]}
@@ -190,8 +192,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--zeta", type=float, default=None, help=f"damping ratio of the pole pair ({unset})")
     ap.add_argument("--rho", type=float, default=None, help=f"real pole / ω_n ({unset})")
     ap.add_argument("--steps", type=_steps, default=(0.2, 0.4, 0.6),
-                    help="step references [rad] of the closed-loop check, comma-separated (default 0.2,0.4,0.6; "
-                         "cut to the rig's reach)")
+                    help="step references [rad] of the closed-loop check, comma-separated "
+                         "(default 0.2,0.4,0.6; cut to the rig's reach)")
     ap.add_argument("--no-tune", action="store_true",
                     help="check the given (or default) pole pattern only; do not search slower patterns")
     ap.add_argument("-o", "--output", help="write the gains and the closed-loop figures to this YAML file")

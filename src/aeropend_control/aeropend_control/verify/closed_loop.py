@@ -5,9 +5,10 @@ A design model (the pendulum alone, or the linearised drive chain of
 actuator's saturation, its dead time and lag, the rotor's response, dry friction, the sensor's
 quantum, noise and sample rate. Every figure ``design_gains`` prints is therefore measured here, on
 :class:`aeropend_sim.simulation.PlantStepper` of the rig file with every switched-on effect,
-driven by the controller node's own per-sample loop (:class:`~aeropend_control.controller_core.ControllerLoop`:
-the same strategy object, observer, allocation and reference clamping the node runs), at the rig's
-sample period, from rest hanging down (θ = 0) to a step of the reference at t = 0.
+driven by the controller node's own per-sample loop
+(:class:`~aeropend_control.controller_core.ControllerLoop`: the same strategy object, observer,
+allocation and reference clamping the node runs), at the rig's sample period, from rest hanging
+down (θ = 0) to a step of the reference at t = 0.
 
 A run is judged on the true angle (the plant's state, not the quantised measurement) with the
 step metrics of :func:`aeropend_control.metrics.step_metrics`, and it is flagged
@@ -83,7 +84,8 @@ class StepRun:
         return not self.failures(goal)
 
 
-def _settings(rig: Rig, strategy: str, spec: PoleSpec, reference: float, duration: float) -> ControllerSettings:
+def _settings(rig: Rig, strategy: str, spec: PoleSpec, reference: float,
+              duration: float) -> ControllerSettings:
     return ControllerSettings(rig=rig, strategy=strategy, mode="lockstep", steps=[(0.0, float(reference))],
                               reference=0.0, allocator="model", spec=spec, tf=DEFAULT_TF, theta_op=None,
                               duration=duration, trace="", estimator="observer", rig_file=rig.name,
@@ -152,13 +154,13 @@ def run_step(rig: Rig, strategy: str, reference: float, spec: PoleSpec, *, plant
     loop.reference.steps = [(0.0, float(reference))]
     sim = PlantStepper(plant or rig, seed=seed)
     dt = (plant or rig).sample_period
-    n = int(round(duration / dt)) + 1
+    n = round(duration / dt) + 1
     t, theta, duty = np.arange(n) * dt, np.full(n, math.nan), np.full(n, math.nan)
     s = sim.sample()
     status, detail = "ok", ""
     for k in range(n):
         theta[k] = sim.x[THETA]
-        d = loop.on_sample(int(round(k * dt * 1e9)), s["theta"], s.get("omega_rotor", math.nan),
+        d = loop.on_sample(round(k * dt * 1e9), s["theta"], s.get("omega_rotor", math.nan),
                            s.get("i_a", math.nan))
         duty[k] = d
         if not (abs(theta[k]) < math.pi):
