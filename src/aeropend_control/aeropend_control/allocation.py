@@ -5,12 +5,13 @@ Two inverse chains (thesis §6.5.1 and Fig. 6.7, "h⁻¹(f)"):
 * :class:`ModelAllocator` inverts the plant model's steady-state actuator chain
   (:class:`aeropend_sim.model.PlantModel`) for every actuator family: thrust f = K_q·ω₂^α
   (Eq. 3.3) → ω₂ → ω₁ = n·ω₂ (Eq. 3.4) → rotor torque balance K_t·i_a = B_m·ω₁ + K_d·ω₁² + T_c
-  (steady state of the rotor equation) → v_a = R_a·i_a + K_ω·ω₁ (Eq. 3.5 at di_a/dt = 0) → τ from
-  the inverse of the rig's voltage map (Eq. 4.3, ideal or an amplifier's,
-  :meth:`PlantModel.duty_for_drive`); on an ESC rig ω₁ is the ESC's steady speed set-point ω_ss and τ comes from the inverse of its throttle
-  map ω_ss = ω_max·((τ − τ_0)/(1 − τ_0))^β. Every step is the
-  rig's own terms (their inverses, and the rotor-torque and armature terms of its components and
-  switched-on effects), so a load the rig models (brush friction, drag) is in the inverse;
+  (steady state of the rotor equation) → v_a = R_a·i_a + K_ω·ω₁ (Eq. 3.5 at di_a/dt = 0) → τ
+  from the inverse of the rig's voltage map (Eq. 4.3, ideal or an amplifier's,
+  :meth:`PlantModel.duty_for_drive`); on an ESC rig ω₁ is the ESC's steady speed set-point ω_ss
+  and τ comes from the inverse of its throttle map ω_ss = ω_max·((τ − τ_0)/(1 − τ_0))^β. Every
+  step is the rig's own terms (their inverses, and the rotor-torque and armature terms of its
+  components and switched-on effects), so a load the rig models (brush friction, drag) is in the
+  inverse;
 * :class:`ThesisAllocator` uses the thesis' fitted static maps: the inverse of Eq. 4.4
   (f = a₂·v_a² + a₁·v_a + a₀, a₂ = 0.054 N/V², a₁ = 0.0435 N/V, a₀ = 0.0029 N) and the
   inverse of Eq. 4.3 (v_a = k0 + k1·sqrt(k2·τ + k3)).
