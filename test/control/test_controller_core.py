@@ -154,7 +154,14 @@ def _weak_rig():
 
 
 def test_reachable_angle_is_the_equilibrium_with_duty_headroom() -> None:
-    from aeropend_control.design import REACH_ANGLE_CAP, REACH_DUTY_MARGIN, reachable_angle, reachable_grid
+    from aeropend_control.allocation import ModelAllocator
+    from aeropend_control.design import (
+        REACH_ANGLE_MAX,
+        REACH_DUTY_MARGIN,
+        REACH_LEAN_FLOOR,
+        reachable_angle,
+        reachable_grid,
+    )
     from aeropend_sim.model import PlantModel
     from aeropend_sim.params import load_rig
 
@@ -164,8 +171,15 @@ def test_reachable_angle_is_the_equilibrium_with_duty_headroom() -> None:
     assert tau == pytest.approx(1.0 - REACH_DUTY_MARGIN, abs=1e-3) and 0.5 < reach < 0.8
     grid = reachable_grid(rig)
     assert grid[-1] == reach and all(g < reach for g in grid[:-1])
-    # the thesis rig (Eq. 4.3 drive) holds the rod up to the cap: the default grid is kept whole
-    assert reachable_angle(load_rig("thesis_rig")) == REACH_ANGLE_CAP
+    # the thesis rig (Eq. 4.3 drive) holds π/2 with headroom, so it can lean past it: its reach is where
+    # the holding thrust, falling again with sin θ, is REACH_LEAN_FLOOR of the full-command thrust
+    thesis = load_rig("thesis_rig")
+    m, f_max = PlantModel(thesis), ModelAllocator(thesis).f_max
+    assert m.equilibrium(math.pi / 2)[1] < 1.0 - REACH_DUTY_MARGIN
+    lean = reachable_angle(thesis)
+    assert math.pi / 2 < lean < REACH_ANGLE_MAX
+    assert m.a_g * math.sin(lean) / m.b_f == pytest.approx(REACH_LEAN_FLOOR * f_max, rel=1e-3)
+    assert reachable_grid(thesis)[-1] == lean
 
 
 @pytest.mark.parametrize("strategy", ["fl_pid", "small_signal", "cascade", "fl_cascade"])

@@ -31,11 +31,13 @@ at θ₀), so they show what the neglected actuator dynamics cost.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from aeropend_control.allocation import ModelAllocator
 from aeropend_control.metrics import StepMetrics, step_metrics
 from aeropend_control.pid import PIDGains
 from aeropend_sim.model import OMEGA, TAU_F, THETA, THETA_DOT, PlantModel
@@ -267,14 +269,28 @@ DEFAULT_GRID = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 1.0, 1.1)
 #: Duty-cycle headroom kept above an equilibrium for control authority: a set point is reachable
 #: when holding it needs τ ≤ 1 − REACH_DUTY_MARGIN (the loop can still push up by this much).
 REACH_DUTY_MARGIN = 0.05
-#: Largest angle considered [rad]: the rod horizontal (π/2) less a margin (the thrust only lifts).
-REACH_ANGLE_CAP = math.pi / 2 - 0.05
+#: Largest angle considered [rad] without end stops: past π/2 the rod leans over its pivot, the thrust
+#: that holds it falls with sin θ and only gravity pulls it back; near π that pull vanishes.
+REACH_ANGLE_MAX = math.pi - 0.05
+#: Margin [rad] kept below an upper end stop the rig file declares.
+REACH_STOP_MARGIN = 0.05
+#: Past π/2 a set point is held while gravity pulls the rod back (thrust off) with at least this share of
+#: the full-command thrust's torque: below it the loop can push the rod over faster than it can bring it
+#: back (a choice, not a measurement: 0.2 keeps a rig with twice the thrust it needs for π/2 below 2.94
+#: rad and one with three times below 2.5 rad).
+REACH_LEAN_FLOOR = 0.2
 
 
 def reachable_angle(rig: Rig, duty_margin: float = REACH_DUTY_MARGIN, tol: float = 1e-4) -> float:
-    """Largest set point θ [rad] the rig holds with τ_eq ≤ 1 − ``duty_margin`` (equilibrium of
-    :meth:`PlantModel.equilibrium`, monotone in θ on [0, π/2]: the gravity torque grows); at most
-    :data:`REACH_ANGLE_CAP`. Bisection to ``tol`` rad.
+    """Largest set point θ [rad] the rig holds with control authority both ways, from its thrust,
+    gravity and command range.
+
+    Up to π/2 the holding thrust L·f = m·g·d·sin θ grows with θ: a set point is held when its
+    equilibrium duty (:meth:`PlantModel.equilibrium`) is τ_eq ≤ 1 − ``duty_margin`` (bisection to
+    ``tol``). When the rig holds π/2 that way it can lean past it, where the holding thrust falls
+    again with sin θ and gravity is the only pull back: a set point past π/2 is held while the
+    holding thrust is at least :data:`REACH_LEAN_FLOOR` × the full-command thrust f_max. At most :data:`REACH_ANGLE_MAX`, and
+    :data:`REACH_STOP_MARGIN` below an upper end stop the rig file declares.
 
     Raises
     ------
@@ -283,6 +299,9 @@ def reachable_angle(rig: Rig, duty_margin: float = REACH_DUTY_MARGIN, tol: float
     """
     m = PlantModel(rig)
     top = 1.0 - duty_margin
+    cap = REACH_ANGLE_MAX
+    if m.stops:
+        cap = min(cap, float(m.assembly.values["pendulum.theta_max"]) - REACH_STOP_MARGIN)
 
     def ok(theta: float) -> bool:
         try:
@@ -290,27 +309,46 @@ def reachable_angle(rig: Rig, duty_margin: float = REACH_DUTY_MARGIN, tol: float
         except ValueError:
             return False
 
-    if ok(REACH_ANGLE_CAP):
-        return REACH_ANGLE_CAP
-    lo, hi = 0.0, REACH_ANGLE_CAP
+    def bisect(lo: float, hi: float, good: Callable[[float], bool]) -> float:
+        while hi - lo > tol:
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if good(mid) else (lo, mid)
+        return lo
+
+    half = min(math.pi / 2, cap)
     if not ok(0.01):
         raise DesignError(f"rig {rig.name!r}: holding even 0.01 rad needs a duty cycle above {top:g}: "
                           "the actuator cannot lift the rod")
-    lo = 0.01
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if ok(mid) else (lo, mid)
-    return lo
+    if not ok(half):
+        return bisect(0.01, half, ok)
+    if cap <= half:
+        return half
+    f_floor = REACH_LEAN_FLOOR * ModelAllocator(rig).f_max
+
+    def leans(theta: float) -> bool:  # past π/2: the holding thrust falls with θ
+        return m.assembly.thrust_to_hold(theta) >= f_floor
+
+    return cap if leans(cap) else bisect(half, cap, leans)
+
+
+#: Spacing [rad] of the scheduling points added past the default grid up to a larger reach.
+GRID_EXTENSION_STEP = 0.2
 
 
 def reachable_grid(rig: Rig, grid: tuple[float, ...] | list[float] = DEFAULT_GRID,
                    duty_margin: float = REACH_DUTY_MARGIN) -> tuple[float, ...]:
-    """The scheduling grid cut to the rig's reach (:func:`reachable_angle`), with the reach itself
-    as the last point when the grid went beyond it: every design point is an equilibrium the
-    actuator holds with headroom, whatever the rig."""
+    """The scheduling grid fitted to the rig's reach (:func:`reachable_angle`): cut there, with the
+    reach itself as the last point, when the grid goes beyond it; extended by points every
+    :data:`GRID_EXTENSION_STEP` rad up to the reach (the last point) when the rig holds more, e.g.
+    past π/2. Every design point is an equilibrium the actuator holds with headroom, whatever the rig."""
     reach = reachable_angle(rig, duty_margin)
     kept = [float(t) for t in grid if t < reach - 1e-3]
-    if not kept or max(grid) > reach:
+    if kept and max(grid) < reach:
+        t = kept[-1] + GRID_EXTENSION_STEP
+        while t < reach - 0.5 * GRID_EXTENSION_STEP:
+            kept.append(round(t, 6))
+            t += GRID_EXTENSION_STEP
+    if not kept or abs(kept[-1] - reach) > 1e-3:
         kept.append(reach)
     return tuple(kept)
 

@@ -278,7 +278,8 @@ class PlantModel:
         Parameters
         ----------
         theta : float
-            Angle [rad], in [0, π/2] (thrust can only lift).
+            Angle [rad], in [0, π): past π/2 the thrust that holds the rod falls again with sin θ
+            (the rod leans over its pivot and gravity pulls it back, as on rigs that hold 1-2.2 rad).
 
         Returns
         -------
@@ -288,10 +289,10 @@ class PlantModel:
         Raises
         ------
         ModelError
-            If θ is outside [0, π/2] or needs a duty cycle above 1.
+            If θ is outside [0, π) or needs a duty cycle above 1.
         """
-        if not (0.0 <= theta <= math.pi / 2):
-            raise ModelError(f"equilibrium angle {theta!r} rad outside [0, π/2]")
+        if not (0.0 <= theta < math.pi):
+            raise ModelError(f"equilibrium angle {theta!r} rad outside [0, π) (the thrust can only lift the rod)")
         try:
             x, q = self.assembly.steady_state(theta)
         except (AssemblyError, ZeroDivisionError) as exc:
