@@ -289,7 +289,8 @@ def reachable_angle(rig: Rig, duty_margin: float = REACH_DUTY_MARGIN, tol: float
     equilibrium duty (:meth:`PlantModel.equilibrium`) is τ_eq ≤ 1 − ``duty_margin`` (bisection to
     ``tol``). When the rig holds π/2 that way it can lean past it, where the holding thrust falls
     again with sin θ and gravity is the only pull back: a set point past π/2 is held while the
-    holding thrust is at least :data:`REACH_LEAN_FLOOR` × the full-command thrust f_max. At most :data:`REACH_ANGLE_MAX`, and
+    holding thrust is at least :data:`REACH_LEAN_FLOOR` × the full-command thrust f_max. At most
+    :data:`REACH_ANGLE_MAX`, and
     :data:`REACH_STOP_MARGIN` below an upper end stop the rig file declares.
 
     Raises

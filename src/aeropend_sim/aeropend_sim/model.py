@@ -292,7 +292,8 @@ class PlantModel:
             If θ is outside [0, π) or needs a duty cycle above 1.
         """
         if not (0.0 <= theta < math.pi):
-            raise ModelError(f"equilibrium angle {theta!r} rad outside [0, π) (the thrust can only lift the rod)")
+            raise ModelError(f"equilibrium angle {theta!r} rad outside [0, π) "
+                             "(the thrust can only lift the rod)")
         try:
             x, q = self.assembly.steady_state(theta)
         except (AssemblyError, ZeroDivisionError) as exc:
