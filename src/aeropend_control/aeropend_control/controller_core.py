@@ -133,7 +133,10 @@ def make_settings(*, previous: ControllerSettings | None = None, **raw: Any) -> 
             frame = read_recording_frame(rig_file)
         except (RigFileError, OSError, ValueError) as exc:
             raise ControllerConfigError(f"rig = {raw.get('rig')!r}: {exc}") from exc
-        base = cls.default_spec_for(rig)  # a pole parameter not given (None) takes the strategy's default
+        try:
+            base = cls.default_spec_for(rig)  # a pole parameter not given (None) takes the strategy's default
+        except ValueError as exc:  # DesignError: e.g. a rig whose actuator cannot lift the rod
+            raise ControllerConfigError(f"rig = {raw.get('rig')!r}: {exc}") from exc
     mode = str(raw.get("mode", "realtime"))
     if mode not in MODES:
         raise ControllerConfigError(f"mode = {mode!r}; expected one of {MODES}")
