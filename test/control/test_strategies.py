@@ -60,8 +60,10 @@ def test_place_ipd_matches_analytic_formulas() -> None:
     assert d.u_op == pytest.approx(m.a_g * math.sin(0.4) / m.b_f, rel=1e-12)
     with pytest.raises(DesignError, match=r"zeta = 1\.5"):
         PoleSpec(9.0, 1.5).poles()
-    with pytest.raises(DesignError, match=r"theta_op = 2\.0"):
-        design_small_signal(RIG, 2.0)
+    with pytest.raises(DesignError, match=r"theta_op = 3\.2"):
+        design_small_signal(RIG, 3.2)  # past π: no equilibrium (the thrust only lifts)
+    leaning = design_small_signal(RIG, 2.0)  # past π/2 gravity destabilises: a0 = (mgd/J)·cos θ₀ < 0
+    assert leaning.a0 == pytest.approx(m.a_g * math.cos(2.0), rel=1e-9) and leaning.a0 < 0.0 < leaning.kp
 
 
 def test_predicted_metrics_are_python_control_step_info() -> None:

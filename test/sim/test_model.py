@@ -39,7 +39,13 @@ def test_equilibrium_balances_thrust_and_gravity(rig, theta):
 def test_equilibrium_out_of_range_is_refused():
     m = PlantModel(RIG)
     with pytest.raises(ModelError, match="outside"):
-        m.equilibrium(2.0)
+        m.equilibrium(3.2)  # past π the thrust would have to pull
+    with pytest.raises(ModelError, match="outside"):
+        m.equilibrium(-0.1)
+    # past π/2 the rod leans over its pivot: the holding thrust falls again with sin θ
+    x, tau = m.equilibrium(2.0)
+    assert m.thrust(x[OMEGA]) == pytest.approx(m.a_g * math.sin(2.0) / m.b_f, rel=1e-9)
+    assert tau < m.equilibrium(math.pi / 2)[1]
     with pytest.raises(ModelError, match="duty cycle"):
         PlantModel(SIM).equilibrium(1.2)  # needs more than τ = 1 on the thesis simulation
 
