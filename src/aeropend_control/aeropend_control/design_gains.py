@@ -28,7 +28,7 @@ from dataclasses import asdict
 import numpy as np
 import yaml
 
-from aeropend_control.design import REACH_DUTY_MARGIN, DesignError, LoopDesign, PoleSpec, reachable_angle
+from aeropend_control.design import REACH_DUTY_MARGIN, LoopDesign, PoleSpec, reachable_angle
 from aeropend_control.strategies.fl_pid import FeedbackLinearizationPID
 from aeropend_control.strategies.registry import strategy_class, strategy_names
 from aeropend_control.strategies.small_signal import SmallSignalPID
@@ -97,7 +97,6 @@ def check(rig: Rig, specs: dict[str, PoleSpec], steps: tuple[float, ...], tune_s
     """Closed-loop verdicts of every strategy on ``rig``: θ-only strategies tuned
     (:func:`~aeropend_control.verify.closed_loop.tune`), the others at their default pattern or
     refused with the reason. Prints as it goes (progress on stderr)."""
-    from aeropend_control.controller_core import ControllerConfigError
     from aeropend_control.verify.closed_loop import tune as tune_fn
     from aeropend_control.verify.closed_loop import verify
 
@@ -120,14 +119,15 @@ def check(rig: Rig, specs: dict[str, PoleSpec], steps: tuple[float, ...], tune_s
                 out["tuned"][name] = (v, v)
             else:
                 out["others"][name] = verify(rig, name, spec, steps)
-        except (ControllerConfigError, DesignError, ValueError) as exc:
+        except ValueError as exc:  # ControllerConfigError, DesignError: refused with the reason
             out["others"][name] = str(exc)
     return out
 
 
 def _report(rig: Rig, result: dict, rig_arg: str) -> dict:
     """Print the closed-loop table and the recommendation; return it for the YAML file."""
-    print(f"closed loop on the whole rig file ({limits_of(rig)}), steps from rest; goal ts ≤ 1 s (2 % band), "
+    limits = limits_of(rig)
+    print(f"closed loop on the whole rig file ({limits}), steps from rest; goal ts ≤ 1 s (2 % band), "
           "M_p ≤ 5 %:")
     print(f"  {'strategy, ω_n, ζ':24s} {'θ_ref':>5s} {'tr[s]':>6s} {'ts[s]':>6s} {'Mp[%]':>7s}  verdict")
     for name, (first, best) in result["tuned"].items():
@@ -151,12 +151,12 @@ def _report(rig: Rig, result: dict, rig_arg: str) -> dict:
         print(f"recommended: {pick.strategy} with ω_n {pick.spec.omega_n:.4g} rad/s, ζ {pick.spec.zeta:g}: "
               f"worst step ts {ts:.3g} s, M_p {mp:.3g} % (goal met)")
     elif pick.settles:
-        print(f"goal not attainable on this rig ({limits_of(rig)}): the fastest pattern with M_p ≤ 5 % "
+        print(f"goal not attainable on this rig ({limits}): the fastest pattern with M_p ≤ 5 % "
               f"settles in {ts:.3g} s (M_p {mp:.3g} %): {pick.strategy} with ω_n "
               f"{pick.spec.omega_n:.4g} rad/s, ζ {pick.spec.zeta:g}")
     else:
         why = "; ".join(f for r in pick.runs for f in r.failures())
-        print(f"goal not attainable on this rig ({limits_of(rig)}): no pattern tried settles with M_p ≤ 5 %; "
+        print(f"goal not attainable on this rig ({limits}): no pattern tried settles with M_p ≤ 5 %; "
               f"least bad: {pick.strategy} with ω_n {pick.spec.omega_n:.4g} rad/s, ζ {pick.spec.zeta:g} "
               f"({why})")
     cmd = (f"controller --ros-args -p rig:={rig_arg} -p strategy:={pick.strategy} "

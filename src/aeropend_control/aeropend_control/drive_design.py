@@ -119,12 +119,18 @@ def declares_drive_lag(rig: Rig) -> bool:
 SLOW_ROTOR_RATE = 20.0
 
 
+def motor_states(m: PlantModel) -> list[int]:
+    """Indices of the drive's states in the model's state vector: i_a when the armature is dynamic,
+    ω₁, and the lag state τ_f when the rig declares a lag."""
+    return [i for i in (I_A, OMEGA, TAU_F) if (i != TAU_F or m.lag) and (i != I_A or m.dynamic_current)]
+
+
 def rotor_rate(rig: Rig) -> float:
     """Rate [rad/s] of the slowest mode of the rig's drive (rotor, dynamic armature, declared lag),
     linearised at the equilibrium of half the reach (|eigenvalue| of the motor block of
     :meth:`PlantModel.jacobian`); ``inf`` when the rig has no motor state that moves."""
     m, _, _, A5, _ = linearise(rig, 0.5 * reachable_angle(rig))
-    motor = [i for i in (I_A, OMEGA, TAU_F) if (i != TAU_F or m.lag) and (i != I_A or m.dynamic_current)]
+    motor = motor_states(m)
     ev = np.linalg.eigvals(A5[np.ix_(motor, motor)])
     rates = np.abs(ev.real[ev.real < 0.0])
     return float(rates.min()) if rates.size else math.inf
@@ -166,7 +172,7 @@ def drive_model(rig: Rig, theta0: float, drive: DriveSpec) -> control.StateSpace
     """
     import control
     m, x_eq, tau_eq, A5, B5 = linearise(rig, theta0)
-    motor = [i for i in (I_A, OMEGA, TAU_F) if (i != TAU_F or m.lag) and (i != I_A or m.dynamic_current)]
+    motor = motor_states(m)
     Am, bm = A5[np.ix_(motor, motor)], B5[motor, 0]  # bm: the duty reaching the drive
     nm, iw = len(motor), motor.index(OMEGA)
     w2 = float(x_eq[OMEGA]) / m.n

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from aeropend_control.controller_core import ControllerLoop, ControllerSettings
+from aeropend_control.controller_core import SIGNALS, ControllerLoop, ControllerSettings
 from aeropend_control.design import PoleSpec
 from aeropend_control.metrics import MetricsError, Requirements, StepMetrics, step_metrics
 from aeropend_control.strategies.loop import DEFAULT_TF
@@ -37,6 +37,8 @@ from aeropend_sim.simulation import PlantStepper, SimulationError
 
 #: What a lab's step is checked against (issue 59): settling time ≤ 1 s (2 % band), overshoot M_p ≤ 5 %.
 LAB_GOAL = Requirements(settling_time=1.0, overshoot=5.0)
+#: A step that settles (no limit cycle, no divergence, inside the 2 % band) within the goal's overshoot.
+SETTLES = Requirements(overshoot=LAB_GOAL.overshoot)
 #: Default step references [rad] of a check (cut to the rig's reach).
 STEPS = (0.2, 0.4, 0.6)
 #: Length of a checked step [s]: the goal's 1 s settling, plus time to see a limit cycle.
@@ -84,14 +86,6 @@ class StepRun:
         return not self.failures(goal)
 
 
-def _settings(rig: Rig, strategy: str, spec: PoleSpec, reference: float,
-              duration: float) -> ControllerSettings:
-    return ControllerSettings(rig=rig, strategy=strategy, mode="lockstep", steps=[(0.0, float(reference))],
-                              reference=0.0, allocator="model", spec=spec, tf=DEFAULT_TF, theta_op=None,
-                              duration=duration, trace="", estimator="observer", rig_file=rig.name,
-                              default_spec=spec)
-
-
 def _judge(t: np.ndarray, theta: np.ndarray, r: float, quantum: float) -> tuple[str, str]:
     tail = theta[t >= t[-1] - 1.0]
     swing = float(np.ptp(tail))
@@ -112,7 +106,10 @@ def controller(rig: Rig, strategy: str, spec: PoleSpec, duration: float = DURATI
     ControllerConfigError
         If the strategy cannot be built on ``rig`` (the message says why).
     """
-    return ControllerLoop(_settings(rig, strategy, spec, 0.0, duration))
+    return ControllerLoop(ControllerSettings(
+        rig=rig, strategy=strategy, mode="lockstep", steps=[], reference=0.0, allocator="model", spec=spec,
+        tf=DEFAULT_TF, theta_op=None, duration=duration, trace="", estimator="observer", rig_file=rig.name,
+        default_spec=spec))
 
 
 def run_step(rig: Rig, strategy: str, reference: float, spec: PoleSpec, *, plant: Rig | None = None,
@@ -171,7 +168,7 @@ def run_step(rig: Rig, strategy: str, reference: float, spec: PoleSpec, *, plant
         except SimulationError as exc:
             status, detail = "diverged", str(exc)
             break
-    r = min(max(float(reference), 0.0), loop.reach)
+    r = loop.last_signals[SIGNALS.index("reference")]  # as the loop used it (clamped to the reach)
     if status != "ok":
         return StepRun(strategy, float(reference), r, t, theta, duty, None, status, detail)
     quantum = _quantum(rig)
@@ -228,9 +225,7 @@ class Verdict:
     @property
     def settles(self) -> bool:
         """Every step settles (no limit cycle, no divergence) with M_p ≤ 5 %."""
-        return self.complete and all(r.status == "ok" and r.metrics is not None
-                                     and r.metrics.overshoot <= LAB_GOAL.overshoot
-                                     and math.isfinite(r.metrics.settling_time) for r in self.runs)
+        return self.complete and all(r.meets(SETTLES) for r in self.runs)
 
     def worst(self, name: str) -> float:
         """Largest ``settling_time`` / ``overshoot`` / ``rise_time`` over the runs (inf if a run has none)."""
@@ -248,19 +243,17 @@ def verify(rig: Rig, strategy: str, spec: PoleSpec, steps: tuple[float, ...] = S
     """The pattern ``spec`` of ``strategy`` at every step of ``steps`` (:func:`run_step`; a reference
     beyond the rig's reach is replaced by the reach, once);
     ``stop_early`` stops at the first step that does not settle with M_p ≤ 5 %."""
-    from aeropend_control.design import reachable_angle
-    reach = reachable_angle(rig)
+    template = controller(rig, strategy, spec)
     refs: list[float] = []
     for r in steps:
-        r = min(float(r), reach)
+        r = min(float(r), template.reach)
         if all(abs(r - q) > 1e-6 for q in refs):
             refs.append(r)
     runs: list[StepRun] = []
-    template = controller(rig, strategy, spec)
     for r in refs:
         run = run_step(rig, strategy, r, spec, plant=plant, loop=template)
         runs.append(run)
-        if stop_early and not Verdict(strategy, spec, [run]).settles:
+        if stop_early and not run.meets(SETTLES):
             return Verdict(strategy, spec, runs, complete=len(runs) == len(refs))
     return Verdict(strategy, spec, runs)
 
