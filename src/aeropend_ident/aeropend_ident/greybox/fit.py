@@ -438,6 +438,10 @@ class UniformData:
         """(start, stop) sample indices of every segment."""
         return list(itertools.pairwise([*self.segments, len(self)]))
 
+    def window(self, start: int, stop: int) -> UniformData:
+        """Samples [start, stop) as data of their own (time re-based to 0, one segment)."""
+        return _window(self, start, stop)
+
     def parts(self) -> list[UniformData]:
         """Every segment as data of its own (time re-based to 0, one segment)."""
         if len(self.segments) == 1:

@@ -34,6 +34,7 @@ least 10 % of a parameter's Fisher information, with their method.
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
@@ -43,13 +44,15 @@ from typing import Any
 
 import numpy as np
 import yaml
+from scipy.optimize import minimize
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.decay import analyse_decay
-from aeropend_ident.greybox.fit import ParameterSpec, error_metrics, free_run_theta
+from aeropend_ident.greybox.fit import ParameterSpec, UniformData, error_metrics, free_run_theta
 from aeropend_ident.greybox.rig_inputs import StaticTable, TimeSeries, read_inputs, shortest_hold
 from aeropend_ident.greybox.rig_problem import (
     INERTIA,
+    SCREEN_STARTS,
     BalanceBlock,
     Block,
     Problem,
@@ -71,6 +74,10 @@ MAX_RELATIVE_STD = 0.5
 MAX_RANGE_STD = 0.1
 #: Largest dead time searched [s].
 MAX_DEAD_TIME = 1.0
+#: Length [s] of the fit's free-run windows of a long recording (:func:`fit_windows`).
+FIT_WINDOW_S = 5.0
+#: A window starts where the command has been constant this long [s].
+WINDOW_SETTLE_S = 0.3
 #: Share of a parameter's Fisher information that makes an input part of its provenance.
 PROVENANCE_SHARE = 0.1
 SE_METHOD = ("1σ standard errors from the Jacobian of the joint weighted fit (each input weighted by its "
@@ -222,7 +229,45 @@ def _spec(key: str, unit: str, start: float, stated: Mapping[str, float], top_de
     return ParameterSpec(key, unit, float(start), float(lo), float(hi), log, float(scale))
 
 
-def blocks_of(tables: Sequence[StaticTable], series: Sequence[TimeSeries]) -> list[Block]:
+def fit_windows(data: UniformData, length: float = FIT_WINDOW_S, settle: float = WINDOW_SETTLE_S
+                ) -> list[tuple[int, int]]:
+    """(start, stop) sample windows of a recording for the fit's free runs: about ``length`` s each,
+    each starting where the command has been constant for ``settle`` s (the motor then sits near the
+    steady state a free run starts it in), the last window merged when shorter than half ``length``.
+    One window when the recording is shorter than two.
+
+    Why windows: a lightly damped rod driven near π/2 is marginal; over a whole recording a free run
+    of slightly wrong parameters goes over the top and the cost surface turns into plateaus (every
+    diverged run scores the same penalty) with narrow valleys between them. Windows of a few
+    seconds, each from its own measured initial angle and velocity (multiple shooting), keep the
+    surface smooth; the reported figures are still the whole recordings' free runs.
+    """
+    n, dt = len(data), data.dt
+    if n * dt < 2.0 * length:
+        return [(0, n)]
+    m = max(1, round(settle / dt))
+    steady = np.zeros(n, dtype=bool)
+    same = np.concatenate([[False], np.diff(data.duty) == 0.0])
+    run = 0
+    for k in range(n):
+        run = run + 1 if same[k] else 0
+        steady[k] = run >= m
+    cuts, target = [0], round(length / dt)
+    while True:
+        k = cuts[-1] + target
+        if k >= n - target // 2:
+            break
+        later = np.flatnonzero(steady[k:])
+        if not later.size or k + later[0] >= n - target // 2:
+            break
+        cuts.append(int(k + later[0]))
+    return list(itertools.pairwise([*cuts, n]))
+
+
+def blocks_of(tables: Sequence[StaticTable], series: Sequence[TimeSeries], windows: bool = False
+              ) -> list[Block]:
+    """The fit's blocks: one per table, one per recording (``windows``: one per
+    :func:`fit_windows` window of each recording other than a free decay)."""
     out: list[Block] = []
     for t in tables:
         known = t.std is not None
@@ -231,7 +276,11 @@ def blocks_of(tables: Sequence[StaticTable], series: Sequence[TimeSeries]) -> li
         kw = {"angle": t.value} if t.kind == "balance" else {"thrust": t.value}
         out.append(cls(source=t.source, label=t.label, sigma=1.0 if known else guess, static=True,
                        sigma_known=known, command=t.command, std=t.std, **kw))
-    out += [TimeBlock(source=s.source, label=s.label, data=s.data, kind=s.kind) for s in series]
+    for s in series:
+        cut = fit_windows(s.data) if windows and s.kind != "free decay" else [(0, len(s.data))]
+        for a, b in cut:
+            data = s.data if (a, b) == (0, len(s.data)) else s.data.window(a, b)
+            out.append(TimeBlock(source=s.source, label=s.label, data=data, kind=s.kind))
     return out
 
 
@@ -247,15 +296,23 @@ def _stage(problem: Problem, blocks: Sequence[int], names: Sequence[str], start:
     sub = Problem(problem.base, problem.geometry, specs, [problem.blocks[i] for i in blocks],
                   fixed={k: v for k, v in start.items() if k not in names}, timing=problem.timing)
     z0, lo, hi = sub.z_bounds()
-    J = sub.jac(z0, lo, hi)[:, : len(specs)]
+    # global screen first: at rig new's start a table is often flat (the model holds none of the
+    # recorded angles), which would make every parameter look undetermined
+    ranked = [z for _, z in sub.screen(z0, [s.name for s in specs])[:SCREEN_STARTS]]
+    J = sub.jac(ranked[0], lo, hi)[:, : len(specs)]
     order = [_chain_order(s.name) for s in specs]
     weak = {f for f, _, _ in weak_directions(J, [s.name for s in specs], order)}
-    sub.specs = [s for s in specs if s.name not in weak]
+    keep = [j for j, s in enumerate(specs) if s.name not in weak]
+    sub.specs = [specs[j] for j in keep]
     sub.fixed.update({s.name: s.initial for s in specs if s.name in weak})
     if not sub.specs:
         return start
-    z0 = np.concatenate([[s.to_z(s.initial) for s in sub.specs], z0[len(specs):]])
-    z, _, _ = sub.solve(z0, max_nfev=max_nfev, tol=1e-6)
+    best = None
+    for zs in ranked:
+        got = sub.solve(np.concatenate([zs[keep], zs[len(specs):]]), max_nfev=max_nfev, tol=1e-6)
+        if best is None or got[2].cost < best[2].cost:
+            best = got
+    z = best[0]  # type: ignore[index]
     sub.reweight(z, known=False)  # the blocks' σ from their residuals: what the refusals weigh
     return {**start, **{s.name: s.from_z(zi) for s, zi in zip(sub.specs, z, strict=False)}}
 
@@ -298,22 +355,39 @@ def _decay_starts(series: Sequence[TimeSeries], todo: Mapping[str, Any], start: 
     return start, add
 
 
-def _delay_start(problem: Problem, start: dict[str, float], top: float) -> dict[str, float]:
-    """The dead time's start: the best of a grid over [0, top] on the dynamic recordings."""
-    key = "actuator.input_delay"
-    dyn = [i for i, b in enumerate(problem.blocks) if isinstance(b, TimeBlock) and b.kind != "free decay"]
-    if key not in start or not dyn:
+#: Local searches of the timing parameters alone (Nelder-Mead, the windows' initial states held at
+#: their measured values), from the best points of their global screen: a dead time and a lag trade
+#: off along a curved valley that a Gauss-Newton step with 50 initial-state coordinates crawls along.
+TIMING_STARTS = 3
+#: Cost evaluations of each of those searches.
+TIMING_NFEV = 60
+
+
+def _timing_start(problem: Problem, start: dict[str, float]) -> dict[str, float]:
+    """Starts of the timing parameters (dead time, lags, the rotor's time constant): the best point
+    of a global screen over their searched ranges on the dynamic recordings (the static tables and
+    the decays cannot see them), every other parameter at its start."""
+    keys = [k for k in start if k in problem.timing]
+    dyn = [b for b in problem.blocks if isinstance(b, TimeBlock) and b.kind != "free decay"]
+    if not keys or not dyn:
         return start
-    dt = min(problem.blocks[i].data.dt for i in dyn)  # type: ignore[union-attr]
-    grid = np.linspace(0.0, top, max(2, min(31, round(top / dt) + 1)))
-    sub = Problem(problem.base, problem.geometry, [], [problem.blocks[i] for i in dyn], fixed=dict(start))
-    z0, _, _ = sub.z_bounds()
-    costs = []
-    for d in grid:
-        sub.fixed[key] = float(d)
-        r = np.concatenate(sub.block_residuals(z0))
-        costs.append(float(r @ r))
-    return {**start, key: float(grid[int(np.argmin(costs))])}
+    specs = [replace(s, initial=start[s.name]) for s in problem.specs if s.name in keys]
+    sub = Problem(problem.base, problem.geometry, specs, dyn,
+                  fixed={k: v for k, v in start.items() if k not in keys}, timing=problem.timing)
+    z0, lo, hi = sub.z_bounds()
+    k = len(specs)
+
+    def cost(x: np.ndarray) -> float:
+        r = sub.fun(np.concatenate([x, z0[k:]]))
+        return 0.5 * float(r @ r)
+
+    best = None
+    for _, z in sub.screen(z0, keys)[:TIMING_STARTS]:
+        got = minimize(cost, z[:k], method="Nelder-Mead", bounds=list(zip(lo[:k], hi[:k], strict=True)),
+                       options={"maxfev": TIMING_NFEV, "xatol": 1e-3, "fatol": 1e-6})
+        if best is None or got.fun < best.fun:
+            best = got
+    return {**start, **{s.name: s.from_z(best.x[j]) for j, s in enumerate(specs)}}  # type: ignore[union-attr]
 
 
 # ------------------------------------------------------------------------------ refusals
@@ -379,12 +453,14 @@ def _provenance(J: np.ndarray, sizes: Sequence[int], blocks: Sequence[Block], j:
     """The inputs holding ≥ PROVENANCE_SHARE of column j's Fisher information, with their method."""
     edges = np.concatenate([[0], np.cumsum(sizes)])
     cols = [J[edges[b]:edges[b + 1], j] for b in range(len(blocks))]
-    info = np.array([float(c @ c) for c in cols])
-    total = info.sum()
+    per: dict[tuple[str, str], float] = {}
+    for b, c in zip(blocks, cols, strict=True):  # a recording's windows count as the recording
+        per[(b.source, b.label)] = per.get((b.source, b.label), 0.0) + float(c @ c)
+    total = sum(per.values())
     if total <= 0.0:
         return "no input"
-    keep = [b for b in np.argsort(-info) if info[b] >= PROVENANCE_SHARE * total]
-    return ", ".join(f"{blocks[b].source} ({blocks[b].label}, {100 * info[b] / total:.0f} %)" for b in keep)
+    keep = sorted((k for k, v in per.items() if v >= PROVENANCE_SHARE * total), key=lambda k: -per[k])
+    return ", ".join(f"{src} ({label}, {100 * per[(src, label)] / total:.0f} %)" for src, label in keep)
 
 
 # ------------------------------------------------------------------------------ the command
@@ -447,7 +523,7 @@ def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = No
         rig = rig.with_effects(rod_coulomb_friction=True)
     specs = [_spec(k, units[k], start[k], stated, top_delay) for k in units]
     start = {s.name: s.initial for s in specs}
-    problem = Problem(rig, geometry, specs, blocks_of(tables, series), timing=timing_keys())
+    problem = Problem(rig, geometry, specs, blocks_of(tables, series, windows=True), timing=timing_keys())
     static_idx = [i for i, b in enumerate(problem.blocks) if b.static]
     if static_idx:
         say(f"[2/5] static tables: {', '.join(problem.blocks[i].source for i in static_idx)}")
@@ -456,7 +532,7 @@ def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = No
     if decays:
         say(f"[3/5] free decays: {', '.join(problem.blocks[i].source for i in decays)}")
         start = _stage(problem, decays, list(start), start)
-    start = _delay_start(problem, start, top_delay)
+    start = _timing_start(problem, start)
     say(f"[4/5] joint fit of {len(start)} parameter(s) on {len(problem.blocks)} input(s)")
     return _joint(problem, start, path, text, doc, rig, notes, sample_period, series, say)
 
@@ -515,18 +591,22 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
     nrmse: dict[str, float | None] = {}
     divergence: dict[str, str] = {}
     nuis = problem.nuisance_values(z if problem.specs else problem.z_bounds()[0])
+    first: dict[str, list[float]] = {}  # each recording's initial angle and velocity: its first window's
     for b, nv in zip(problem.blocks, nuis, strict=True):
         if isinstance(b, TimeBlock):
-            try:
-                th = free_run_theta(fitted, b.data, 0.0, nv[1], nv[0])  # type: ignore[arg-type]
-                nrmse[b.source] = error_metrics(b.data.theta, th)["nrmse"]  # type: ignore[union-attr]
-                why = diverges(th, b.data.theta, b.data.t)  # type: ignore[union-attr]
-                if why is not None:  # a divergence, not a figure
-                    nrmse[b.source], divergence[b.source] = None, why
-            except IdentificationError as exc:
-                notes.append(f"{b.source}: free run of the fitted rig failed ({exc})")
+            first.setdefault(b.source, nv)
+    for s in series:
+        nv = first[s.source]
+        try:
+            th = free_run_theta(fitted, s.data, 0.0, nv[1], nv[0])
+            nrmse[s.source] = error_metrics(s.data.theta, th)["nrmse"]
+            why = diverges(th, s.data.theta, s.data.t)
+            if why is not None:  # a divergence, not a figure
+                nrmse[s.source], divergence[s.source] = None, why
+        except IdentificationError as exc:
+            notes.append(f"{s.source}: free run of the fitted rig failed ({exc})")
     ordered = [outcomes[s.name] for s in all_specs]
-    inputs = [(b.source, b.label) for b in problem.blocks]
+    inputs = list(dict.fromkeys((b.source, b.label) for b in problem.blocks))
     return RigFitResult(path, text, rig.family, ordered, fitted, inputs, nrmse, notes,  # type: ignore[arg-type]
                         sample_period, divergence)
 

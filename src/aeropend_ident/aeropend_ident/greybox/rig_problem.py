@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import brentq, least_squares
+from scipy.stats import qmc
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.fit import (
@@ -51,6 +52,12 @@ INERTIA = "pendulum.inertia"
 #: Largest angle of a balance [rad] (the thrust only lifts the rod to the horizontal).
 THETA_CAP = math.pi / 2 - 1e-6
 
+
+#: Points of the global screen before a local solve (:meth:`Problem.screen`; a power of 2 keeps the
+#: Sobol sequence balanced).
+SCREEN_POINTS = 64
+#: Local solves started from the best screened points.
+SCREEN_STARTS = 2
 
 def _rod():
     return next(c for c in registry.components() if getattr(c, "geometry", ()))
@@ -290,6 +297,50 @@ class Problem:
         sol = least_squares(self.fun, z0, jac=lambda z: self.jac(z, lo, hi), bounds=(lo, hi), method="trf",
                             x_scale=1.0, ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
         return sol.x, self.jac(sol.x, lo, hi), sol
+
+    def screen(self, z0: np.ndarray, names: Sequence[str], n: int = SCREEN_POINTS,
+               seed: int = 0) -> list[tuple[float, np.ndarray]]:
+        """Global search before the local refinement: the cost ½‖r‖² at ``z0`` and at ``n``
+        scrambled-Sobol points spread over the bounds of the main parameters ``names`` (every
+        other coordinate at ``z0``), best first.
+
+        A free-run output error of a lightly damped rod is many-valleyed (the phase of its swing),
+        and a steady-state table is flat wherever the model cannot hold the recorded angles: a
+        local least-squares solve from ``rig new``'s starting values stops in whichever valley it
+        starts in. Screening the searched range first puts the local solve in the right one.
+
+        Returns
+        -------
+        list of (cost, z), ``n + 1`` entries sorted by cost (non-finite costs last).
+        """
+        _, lo, hi = self.z_bounds()
+        idx = [j for j, s in enumerate(self.specs) if s.name in set(names)]
+        pts = [np.asarray(z0, dtype=float)]
+        if idx and n > 0:
+            u = qmc.Sobol(len(idx), scramble=True, seed=seed).random(n)
+            for row in u:
+                z = pts[0].copy()
+                z[idx] = lo[idx] + row * (hi[idx] - lo[idx])
+                pts.append(z)
+        out = []
+        for z in pts:
+            r = self.fun(z)
+            c = 0.5 * float(r @ r)
+            out.append((c if math.isfinite(c) else math.inf, z))
+        out.sort(key=lambda cz: cz[0])
+        return out
+
+    def solve_from_best(self, z0: np.ndarray, names: Sequence[str], max_nfev: int = 60, tol: float = 1e-7,
+                        n: int = SCREEN_POINTS, starts: int = SCREEN_STARTS
+                        ) -> tuple[np.ndarray, np.ndarray, Any]:
+        """:meth:`screen` over ``names``, then :meth:`solve` from the ``starts`` best points (the
+        given ``z0`` always among the candidates); the lowest final cost wins."""
+        best = None
+        for _, z in self.screen(z0, names, n)[:starts]:
+            got = self.solve(z, max_nfev=max_nfev, tol=tol)
+            if best is None or got[2].cost < best[2].cost:
+                best = got
+        return best  # type: ignore[return-value]
 
     def reweight(self, z: np.ndarray, known: bool = True) -> list[float]:
         """Each block's σ from its residual at ``z`` (tables with stated errors: scaled only up by
