@@ -46,7 +46,8 @@ import yaml
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.decay import analyse_decay
-from aeropend_ident.greybox.fit import ParameterSpec, error_metrics, free_run_theta
+from aeropend_ident.greybox.fit import ParameterSpec
+from aeropend_ident.greybox.replay import NRMSE_RULE, START_RULE, FreeRun, free_run
 from aeropend_ident.greybox.rig_inputs import StaticTable, TimeSeries, read_inputs, shortest_hold
 from aeropend_ident.greybox.rig_problem import (
     INERTIA,
@@ -58,7 +59,6 @@ from aeropend_ident.greybox.rig_problem import (
     covariance,
     weak_directions,
 )
-from aeropend_ident.io.overlay_axes import diverges
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect
 from aeropend_sim.params import FITTED, TO_BE_FITTED, Rig, load_rig, rig_from_dict
@@ -140,6 +140,10 @@ class RigFitResult:
     #: Recordings on which the fitted rig's free run diverges (io.overlay_axes.diverges): the reason,
     #: reported instead of an NRMSE (their entry in ``nrmse`` is None).
     divergence: dict[str, str] = field(default_factory=dict)
+    #: The fitted rig's free run on each recording (:func:`aeropend_ident.greybox.replay.free_run`,
+    #: the one replay of every command: its start, divergence and NRMSE); ``nrmse`` and ``divergence``
+    #: are read from it.
+    runs: dict[str, FreeRun] = field(default_factory=dict)
 
     def outcome(self, key: str) -> Outcome:
         """The outcome of one key (KeyError if it was not to be fitted)."""
@@ -171,10 +175,9 @@ class RigFitResult:
             lines.append("AT A SEARCH BOUND (the bound, not the data, set these):")
             lines += [f"  {o.key} = {o.value:.4g} {o.unit} (searched {o.lower:.4g} … {o.upper:.4g})"
                       for o in flagged]
-        if self.nrmse:
-            lines.append("free-run θ NRMSE of the fitted rig:")
-            lines += [f"  {k}: DIVERGES: {self.divergence[k]}" if k in self.divergence else f"  {k}: {v:.3f}"
-                      for k, v in self.nrmse.items()]
+        if self.runs:
+            lines.append(f"free-run θ of the fitted rig ({START_RULE}; NRMSE = {NRMSE_RULE}):")
+            lines += [f"  {run.line(k)}" for k, run in self.runs.items()]
         lines += [f"note: {n}" for n in self.notes]
         lines.append(f"uncertainty: {SE_METHOD}")
         return "\n".join(lines)
@@ -512,23 +515,21 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
             outcomes[s.name] = Outcome(s.name, s.unit, s.initial, status="to be fitted",
                                        reason=refused[s.name], lower=s.lower, upper=s.upper)
     fitted = problem.rig(z)
-    nrmse: dict[str, float | None] = {}
-    divergence: dict[str, str] = {}
-    nuis = problem.nuisance_values(z if problem.specs else problem.z_bounds()[0])
-    for b, nv in zip(problem.blocks, nuis, strict=True):
+    # the figure of the fitted rig is the one replay of every command (not the fit's own start values)
+    runs: dict[str, FreeRun] = {}
+    for b in problem.blocks:
         if isinstance(b, TimeBlock):
+            d = b.data
             try:
-                th = free_run_theta(fitted, b.data, 0.0, nv[1], nv[0])  # type: ignore[arg-type]
-                nrmse[b.source] = error_metrics(b.data.theta, th)["nrmse"]  # type: ignore[union-attr]
-                why = diverges(th, b.data.theta, b.data.t)  # type: ignore[union-attr]
-                if why is not None:  # a divergence, not a figure
-                    nrmse[b.source], divergence[b.source] = None, why
+                runs[b.source] = free_run(fitted, d.t, d.duty, d.theta, source=d.source)  # type: ignore[union-attr]
             except IdentificationError as exc:
                 notes.append(f"{b.source}: free run of the fitted rig failed ({exc})")
+    nrmse = {k: r.nrmse for k, r in runs.items()}
+    divergence = {k: r.divergence for k, r in runs.items() if r.divergence is not None}
     ordered = [outcomes[s.name] for s in all_specs]
     inputs = [(b.source, b.label) for b in problem.blocks]
     return RigFitResult(path, text, rig.family, ordered, fitted, inputs, nrmse, notes,  # type: ignore[arg-type]
-                        sample_period, divergence)
+                        sample_period, divergence, runs)
 
 
 # ------------------------------------------------------------------------------ the fitted file
