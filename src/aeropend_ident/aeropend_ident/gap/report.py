@@ -31,6 +31,7 @@ from aeropend_ident.gap.run import (
 )
 from aeropend_ident.gap.where import EQUATIONS
 from aeropend_ident.gap.which import CANDIDATE_PRESENCE, NAMED_COMPLETENESS, NAMED_PRESENCE, SWAP_GAIN
+from aeropend_ident.greybox.replay import START_RULE, start_text
 from aeropend_ident.io.jsonutil import jsonable
 
 
@@ -116,6 +117,10 @@ def terminal_summary(result: GapResult) -> str:
     for row in result.test:
         per = "  ".join(f"{c} {v:.4f}" for c, v in row.get("channel_nrmse", {}).items())
         lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} {per}")
+    starts = [f"{_label(r['recording'] or 'held-out')[:40]}: {start_text(r['initial_state'])}"
+              for r in h.get("heldout_free_run", {}).get("nominal", [])]
+    if starts:  # the one free run's start (greybox.replay), stated with every held-out figure
+        lines.append(f"  free-run start ({START_RULE}): " + "; ".join(starts))
     if h["heldout_divergence"]:  # no shrink between runs that left the recorded range
         lines.append("  held-out θ: no NRMSE or shrink figure: the "
                      + " and the ".join(h["heldout_divergence"]) + " model diverges")

@@ -269,7 +269,8 @@ def _simulate(rig: Rig, duty: np.ndarray, x0: np.ndarray, dt: float,
 
 
 def free_run(rig: Rig, t: np.ndarray, duty: np.ndarray, theta: np.ndarray, *, theta_offset: float = 0.0,
-             theta_scale: float = 1.0, span: float | None = None, source: str = "") -> FreeRun:
+             theta_scale: float = 1.0, span: float | None = None, source: str = "", lead: int = 0,
+             ) -> FreeRun:
     """Replay ``rig`` on a recorded stretch in free run and score its θ (module docstring).
 
     Parameters
@@ -288,6 +289,12 @@ def free_run(rig: Rig, t: np.ndarray, duty: np.ndarray, theta: np.ndarray, *, th
         barely moves (default: the recorded range).
     source : str
         Name of the recording, for error messages.
+    lead : int
+        Samples at the head of the arrays that the run starts at but that are not scored (≥ 0): a
+        held-out part that continues its fit part starts ``lead`` samples early, so that a dead
+        time sees the commands before the split. The result (trace, NRMSE, divergence time from
+        the scored part's first sample) covers the samples from ``lead`` on; the start is estimated
+        at sample 0.
 
     Returns
     -------
@@ -312,8 +319,14 @@ def free_run(rig: Rig, t: np.ndarray, duty: np.ndarray, theta: np.ndarray, *, th
         sim, failed = _simulate(rig, u, start.x, dt)
     except (SimulationError, ModelError) as exc:
         raise IdentificationError(f"free run of rig {rig.name!r} on {name} failed: {exc}") from exc
+    if not 0 <= lead < tt.size:
+        raise IdentificationError(f"free run on {name}: lead = {lead} samples must be in [0, {tt.size})")
+    tt, y = tt[lead:], y[lead:]
     rel = tt - tt[0]
+    if failed is not None and failed < lead:
+        failed = lead
     if failed is None:
+        sim = {c: v[lead:] for c, v in sim.items()}
         th = theta_scale * (sim["theta"] - theta_offset)
         channels = {**{c: v for c, v in sim.items() if c in ("i_a", "v_a", "omega_rotor")}, "theta": th}
         why = diverges(th, y, rel, span=span)
@@ -321,7 +334,7 @@ def free_run(rig: Rig, t: np.ndarray, duty: np.ndarray, theta: np.ndarray, *, th
         at = found[0].t if found else None
     else:  # the compiled step turned a state non-finite at sample `failed`: the trace ends there
         th, channels = np.full(y.size, np.nan), {}
-        at = float(rel[min(failed, rel.size - 1)])
+        at = float(rel[min(failed - lead, rel.size - 1)])
         why = f"diverges at t = {short_number(at)} s (θ is not finite from there)"
     value, rms, rng = nrmse(y, th, span)
     return FreeRun(theta=th, nrmse=None if why is not None else value, rms_error=rms, range=rng,
