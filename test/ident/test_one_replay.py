@@ -128,7 +128,7 @@ def test_one_rig_on_one_recording_gives_one_figure_in_every_command(case) -> Non
                   head["heldout_free_run"]["nominal"][0]["initial_state"]):
         assert other["rule"] == s["rule"] and other["samples"] == s["samples"] == 10
         assert all(other[k] == pytest.approx(s[k], abs=1e-12) for k in ("theta0", "theta_dot0", "duty0"))
-    assert f"{s['theta0']:.3g}"[:4] in line and "free-run start" in text
+    assert f"{s['theta0']:.3g}"[:4] in line and "; free-run start " in text
     assert f"{ref:.4g}" in drift_markdown([row], None)
 
 
