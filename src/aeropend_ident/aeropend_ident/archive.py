@@ -209,8 +209,9 @@ def drift_markdown(rows: Sequence[dict[str, Any]], table: dict[str, Any] | None)
              "|---|---|---|---|"]
     for r in rows:
         if r.get("exit") == 0:
-            lines.append(f"| {r['session']} | {', '.join(r['chosen']) or 'none'} | "
-                         f"{r['nrmse_before']:.4g} → {r['nrmse_after']:.4g} | ok |")
+            figs = " → ".join("diverges" if v is None else f"{v:.4g}"
+                              for v in (r["nrmse_before"], r["nrmse_after"]))
+            lines.append(f"| {r['session']} | {', '.join(r['chosen']) or 'none'} | {figs} | ok |")
         else:
             lines.append(f"| {r['session']} | — | — | refused: {r.get('error', '')} |")
     lines += ["", "## Drift across sessions", ""]

@@ -43,7 +43,12 @@ DEFAULT_BACKEND = BACKENDS[0]
 
 
 class SimulationError(ValueError):
-    """Invalid simulation input (NaN or out-of-range duty cycle, bad initial state, ...)."""
+    """Invalid simulation input (NaN or out-of-range duty cycle, bad initial state, ...).
+
+    ``sample``: the sample at which a compiled replay's state turned non-finite (None otherwise).
+    """
+
+    sample: int | None = None
 
 
 def _check_duty(duty: np.ndarray) -> np.ndarray:
@@ -262,8 +267,10 @@ def _check_replay(plant: CompiledPlant, failed: int, p: np.ndarray | None = None
     why = (f"the plant needs more than {MAX_SUBSTEPS} RK4 sub-steps per sample" if k >= MAX_SUBSTEPS else
            f"a parameter drives the plant unstable, or it is stiffer than {k} RK4 sub-steps per sample "
            f"resolve (try backend='lsoda')")
-    raise SimulationError(f"{row}the compiled replay diverged at sample {failed} "
+    err = SimulationError(f"{row}the compiled replay diverged at sample {failed} "
                           f"(t = {failed * plant.dt:.6g} s): a state is not finite; {why}")
+    err.sample = int(failed)  # where the replay diverged (aeropend_ident.greybox.replay reads it)
+    raise err
 
 
 def _replay_lsoda(model: PlantModel, duty: np.ndarray, x: np.ndarray, dt: float,

@@ -56,4 +56,4 @@ def test_rig_fit_reports_a_diverging_free_run_as_divergence(tmp_path: Path) -> N
     assert main(["new", "--actuator", "esc", "--stated", *STRONG, "-o", str(rig)]) == 0  # c/J left to fit
     res = fit_rig(rig, [_log(tmp_path)])
     assert res.nrmse["steps.csv"] is None and res.divergence["steps.csv"].startswith("diverges at t = ")
-    assert "  steps.csv: DIVERGES: diverges at t = " in res.summary()
+    assert "  free-run θ on steps.csv: DIVERGES: diverges at t = " in res.summary()

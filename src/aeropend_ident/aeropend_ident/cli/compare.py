@@ -33,6 +33,7 @@ from pathlib import Path
 
 from aeropend_ident.errors import CompareError, print_warnings_as_lines
 from aeropend_ident.gap.compare import MIN_HOLD, CompareResult, compare, load_model
+from aeropend_ident.greybox.replay import NRMSE_RULE, START_RULE, start_text
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.recording_input import (
     ignored_channels,
@@ -85,15 +86,23 @@ def summary_table(result: CompareResult) -> str:
             th = sc["channels"]["theta"]
             other = ", ".join(f"{c} {v['nrmse']:.3g}" for c, v in sc["channels"].items()
                               if c != "theta" and math.isfinite(v["nrmse"]))
-            w = th["whiteness"]
             if th.get("diverges"):
                 rows.append(f"{rec['label'][:28]:<28} {m[:24]:<24} DIVERGES: {th['diverges']}")
                 continue
+            w = th["whiteness"]
             rows.append(
                 f"{rec['label'][:28]:<28} {m[:24]:<24} {th['nrmse']:8.4f} {th['fit_percent']:7.1f} "
                 f"{th['max_abs_error']:8.4f} {th['steady_state_error']['rms']:8.4f} "
                 f"{'yes' if w['white'] else 'no':>5} {'yes' if w['input_correlated'] else 'no':>6}  {other}"
             )
+    starts = []
+    for rec in result.recordings:  # the one replay's start, stated for every free run
+        for m in result.scores:
+            run = result.scores[m].get(rec["label"], {}).get("free_run")
+            if run:
+                starts.append(f"  {rec['label']} ({m}): {start_text(run['initial_state'])}")
+    if starts:
+        rows += [f"free-run start ({START_RULE}); θ NRMSE = {NRMSE_RULE}:", *starts]
     return "\n".join(rows)
 
 

@@ -54,7 +54,9 @@ def diagnose_session(case: SessionCase) -> dict[str, Any]:
     dict
         ``session``, ``recordings``, ``report`` (folder), ``exit`` (the command's status), ``error``
         (its one-line message, when refused), and from ``report.json``: ``significant``, ``chosen``,
-        ``nrmse_before`` / ``nrmse_after`` (held-out θ), ``headline``, ``elapsed_s``.
+        ``nrmse_before`` / ``nrmse_after`` (held-out θ of the nominal / corrected rig, the one free
+        run's figures; None when that run diverges), ``divergence`` (run -> reasons), ``headline``,
+        ``elapsed_s``.
     """
     s = case.session
     argv = [*s.recordings, "--rig", case.rig, "-o", case.out, "-q", *case.options]
@@ -71,10 +73,10 @@ def diagnose_session(case: SessionCase) -> dict[str, Any]:
         row["error"] = lines[-1] if lines else f"gap exited with status {status}"
         return row
     doc = json.loads((Path(case.out) / "report.json").read_text(encoding="utf-8"))
-    test = doc["after"]["test"]
+    h = doc["headline"]  # the one free run's figures: None for a run that diverges (the reason: divergence)
     row.update(significant=bool(doc["which"]["significant"]), chosen=list(doc["which"]["chosen"]),
-               nrmse_before=float(test[0]["nrmse"]), nrmse_after=float(test[-1]["nrmse"]),
-               headline=doc["headline"])
+               nrmse_before=h["heldout_nrmse_nominal"], nrmse_after=h["heldout_nrmse_corrected"],
+               divergence=h["heldout_divergence"], headline=h)
     return row
 
 

@@ -2,10 +2,13 @@
 
 The System Identification Toolbox's ``compare`` for rig files: each rig (nominal, fitted by
 ``baseline``, corrected by ``gap``) is driven by a recording's duty cycle in a free run (no later
-correction from the measurements, :func:`aeropend_ident.gap.which.replay_reference`) and each recorded
-channel (θ, i_a, v_a, ω₁, whichever the recording has) is compared with the simulated one:
+correction from the measurements): the one replay of every command,
+:func:`aeropend_ident.greybox.replay.free_run` (its start, divergence rule and θ NRMSE; each score
+carries it as ``free_run``), and each recorded channel (θ, i_a, v_a, ω₁, whichever the recording
+has) is compared with the simulated one:
 
-* ``nrmse``: RMS(y_sim − y)/range(y) [1] (the figure ``gap`` and ``baseline`` report);
+* ``nrmse``: RMS(y_sim − y)/range(y) [1] (θ's: the figure every command reports; None when the
+  free run diverges);
 * ``fit_percent``: 100·(1 − ‖y_sim − y‖/‖y − mean y‖) [%] (the toolbox's NRMSE fit);
 * ``rms_error``, ``max_abs_error`` (channel units);
 * ``steady_state_error``: over every constant-duty hold of at least ``min_hold`` seconds, the
@@ -39,9 +42,9 @@ import numpy as np
 from aeropend_ident.errors import CompareError, GapError, IdentificationError
 from aeropend_ident.gap.effects import MeasurementMap
 from aeropend_ident.gap.where import input_cross_correlation, ljung_box
-from aeropend_ident.gap.which import FIT_CHANNELS, duty_holds, prepare, replay_reference, step_info
+from aeropend_ident.gap.which import FIT_CHANNELS, duty_holds, prepare, step_info
 from aeropend_ident.greybox.fit import rig_theta_offset, rig_theta_scale
-from aeropend_ident.io.overlay_axes import diverges
+from aeropend_ident.greybox.replay import FreeRun, free_run
 from aeropend_sim.params import Rig, RigFileError, load_rig, shipped_rigs
 from aeropend_sim.recording import Recording
 
@@ -231,6 +234,22 @@ def _unique_labels(labels: Sequence[str]) -> list[str]:
     return out
 
 
+def _scores(run: FreeRun, prep: Any, min_hold: float) -> dict[str, Any]:
+    """The scores of one rig's free run on one recording: every channel's, θ's figure from ``run``."""
+    if not run.channels:  # the replay blew up (a state turned non-finite): nothing to score but that
+        theta = {"nrmse": None, "fit_percent": None, "diverges": run.divergence}
+        return {"channels": {"theta": theta}, "steps": [], "step_summary": {}, "free_run": run.as_dict()}
+    sim = run.channels
+    ch = {c: channel_scores(y, sim[c], prep.duty, prep.dt, min_hold) for c, y in prep.y.items() if c in sim}
+    ch["theta"]["nrmse"] = run.nrmse  # the one NRMSE (None when diverged)
+    if run.diverged:  # the one divergence rule: reported as divergence, not as a figure
+        ch["theta"].update(fit_percent=None, diverges=run.divergence)
+    steps = step_metrics(prep.y["theta"], sim["theta"], prep.duty, prep.dt, min_hold)
+    summ = {k: float(np.median([s["abs_error"][k] for s in steps])) for k in steps[0]["abs_error"]} \
+        if steps else {}
+    return {"channels": ch, "steps": steps, "step_summary": summ, "free_run": run.as_dict()}
+
+
 def compare(models: Sequence[RigModel], recordings: Sequence[Recording],
             channels: Sequence[str] | None = None, min_hold: float = MIN_HOLD) -> CompareResult:
     """Replay every rig on every recording and score the channels (module docstring).
@@ -276,19 +295,16 @@ def compare(models: Sequence[RigModel], recordings: Sequence[Recording],
         tr: dict[str, Any] = {"t": np.arange(prep.n) * prep.dt, "duty": prep.duty, "measured": prep.y,
                               "simulated": {}}
         for mlabel, m in zip(mlabels, models, strict=True):
-            try:
-                sim = replay_reference(m.rig, m.measurement, prep)
-            except GapError as exc:
+            try:  # the one free-run replay of every command (start, divergence, NRMSE)
+                meas = m.measurement
+                run = free_run(m.rig, tr["t"], prep.duty, prep.y["theta"], theta_offset=meas.theta_offset,
+                               theta_scale=meas.theta_scale, source=rec.source or label)
+            except (GapError, IdentificationError) as exc:
                 res.scores.setdefault(mlabel, {})[label] = {"error": str(exc)}
                 continue
-            tr["simulated"][mlabel] = {c: sim[c] for c in prep.y}
-            ch = {c: channel_scores(y, sim[c], prep.duty, prep.dt, min_hold) for c, y in prep.y.items()}
-            why = diverges(sim["theta"], prep.y["theta"], tr["t"])
-            if why is not None:  # the one divergence rule: reported as divergence, not as a figure
-                ch["theta"].update(nrmse=None, fit_percent=None, diverges=why)
-            steps = step_metrics(prep.y["theta"], sim["theta"], prep.duty, prep.dt, min_hold)
-            summ = {k: float(np.median([s["abs_error"][k] for s in steps])) for k in steps[0]["abs_error"]} \
-                if steps else {}
-            res.scores.setdefault(mlabel, {})[label] = {"channels": ch, "steps": steps, "step_summary": summ}
+            res.scores.setdefault(mlabel, {})[label] = _scores(run, prep, min_hold)
+            gone = np.full(prep.n, np.nan)  # a channel the rig does not give, or a blown-up replay
+            tr["simulated"][mlabel] = {c: run.channels.get(c, run.theta if c == "theta" else gone)
+                                       for c in prep.y}
         res.traces[label] = tr
     return res

@@ -49,10 +49,10 @@ def plot_overlay(result: CompareResult, recording: str, path: str | Path) -> Pat
     for ax, c in zip(axes, chans, strict=False):
         ax.plot(t, tr["measured"][c], color="0.2", lw=0.8, label="recorded")
         for label, sim in tr["simulated"].items():
-            sc = result.scores[label][recording]["channels"][c]
-            ax.plot(t, sim[c], lw=1.0,
-                    label=f"{label} (diverges)" if sc.get("diverges") else
-                    f"{label} (NRMSE {num(sc['nrmse'])}, fit {sc['fit_percent']:.1f} %)")
+            sc = result.scores[label][recording].get("channels", {}).get(c)
+            what = ("not simulated" if sc is None else "diverges" if sc.get("diverges")
+                    else f"NRMSE {num(sc['nrmse'])}, fit {sc['fit_percent']:.1f} %")
+            ax.plot(t, sim[c], lw=1.0, label=f"{label} ({what})")
         # a diverging replay must not hide the recording
         clip_to_recorded(ax, t, tr["measured"][c], {label: sim[c] for label, sim in tr["simulated"].items()},
                          symbol=TITLES.get(c, c), unit=UNITS.get(c, ""))

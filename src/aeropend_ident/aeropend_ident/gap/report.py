@@ -31,6 +31,7 @@ from aeropend_ident.gap.run import (
 )
 from aeropend_ident.gap.where import EQUATIONS
 from aeropend_ident.gap.which import CANDIDATE_PRESENCE, NAMED_COMPLETENESS, NAMED_PRESENCE, SWAP_GAIN
+from aeropend_ident.greybox.replay import start_text
 from aeropend_ident.io.jsonutil import jsonable
 
 
@@ -112,7 +113,11 @@ def terminal_summary(result: GapResult) -> str:
             f"{pr['predicted']:.4f}, 80 % interval [{pr['interval'][0]:.4f}, {pr['interval'][1]:.4f}] "
             f"(within session {pr['within_session']:.4f}, session drift {pr['drift_part']:.4f} from the "
             f"{pr['drift_source']}{alone})" + (f"; {pr['why_wide']}" if pr.get("why_wide") else ""))
-    lines.append("  HELD OUT (never seen by the diagnosis), NRMSE per recorded channel:")
+    # the one free run's start (greybox.replay, its rule in report.json), stated with the held-out figures
+    starts = [f"{_label(r['recording'] or 'held-out')[:40]}: {start_text(r['initial_state'])}"
+              for r in h.get("heldout_free_run", {}).get("nominal", [])]
+    lines.append("  HELD OUT (never seen by the diagnosis), NRMSE per recorded channel"
+                 + (f"; free-run start {'; '.join(starts)}:" if starts else ":"))
     for row in result.test:
         per = "  ".join(f"{c} {v:.4f}" for c, v in row.get("channel_nrmse", {}).items())
         lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} {per}")

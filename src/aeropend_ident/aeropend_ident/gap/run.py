@@ -135,14 +135,16 @@ class GapResult:
             "where_subsystem": self.where.subsystem,
             "effects_chosen": list(d.chosen),
             "detected": dict(getattr(d, "detected", {})),
-            "heldout_nrmse_nominal": before,
-            "heldout_nrmse_corrected": after,
+            # the one free run's figures (greybox.replay.free_run): none for a run that diverges
+            "heldout_nrmse_nominal": None if "nominal" in gone else before,
+            "heldout_nrmse_corrected": None if "corrected" in gone else after,
             "heldout_shrink": None if gone else ((1.0 - after / before) if before > 0 else math.nan),
             "heldout_divergence": gone,
+            "heldout_free_run": {label: row.get("free_run", []) for label, row in rows},
             "heldout_channel_nrmse_nominal": dict(ch0),
             "heldout_channel_nrmse_corrected": dict(ch1),
-            "heldout_channel_shrink": {c: (1.0 - ch1[c] / v) if v > 0 else math.nan
-                                       for c, v in ch0.items() if c in ch1},
+            "heldout_channel_shrink": {} if gone else {c: (1.0 - ch1[c] / v) if v > 0 else math.nan
+                                                       for c, v in ch0.items() if c in ch1},
             "explained": getattr(d, "explained", {}).get("verdict", ""),
             "completeness": getattr(d, "explained", {}).get("completeness"),
             "refit": ({k: self.refit[k] for k in ("refit_nrmse", "corrected_nrmse", "worse_than_refit")}
@@ -250,17 +252,16 @@ _shift = to_model_frame  # the short name of this module's calls
 
 
 def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, Any]:
-    """Held-out replay of the nominal and the corrected rig (the diagnosis' own replay, from the same
-    recorded channels, so the numbers match its held-out table), θ in the recording's frame."""
+    """Held-out replay of the nominal and the corrected rig (the one free run of every command,
+    :func:`aeropend_ident.greybox.replay.free_run`, as in the held-out table), θ in the recording's frame."""
     from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.gap.which import one_free_run
     from aeropend_ident.gap.which import prepare as which_prepare
-    from aeropend_ident.gap.which import replay
 
     shifted = _shift(rec, offset)
-    # the replay starts i_a and ω₁ at their recorded values when they are recorded, as in the table
     prep = which_prepare([shifted], frozenset(diag.channels or ("theta",)))[0]
-    nom = replay(rig, MeasurementMap(), prep)["theta"] - offset
-    cor = replay(diag.corrected_rig, diag.measurement, prep)["theta"] - offset
+    nom = one_free_run(rig, MeasurementMap(), prep).theta - offset
+    cor = one_free_run(diag.corrected_rig, diag.measurement, prep).theta - offset
     theta = rec.channels["theta"]
     return {
         "source": rec.source,

@@ -115,8 +115,8 @@ from aeropend_ident.gap.effects import (
 )
 from aeropend_ident.greybox.batch import RigReplays, one_replay_thread, replay_threads
 from aeropend_ident.greybox.fit import motor_equilibrium
+from aeropend_ident.greybox.replay import FreeRun, free_run
 from aeropend_ident.io.jsonutil import jsonable
-from aeropend_ident.io.overlay_axes import diverges
 from aeropend_ident.sindy.core import weak_matrices
 from aeropend_ident.sindy.model import IdentData
 from aeropend_sim.compiled.plant import derivatives
@@ -965,6 +965,9 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
     Returns
     -------
     dict
+        Every θ figure comes from the one free run of every command
+        (:func:`aeropend_ident.greybox.replay.free_run`: its start, divergence rule and NRMSE; one
+        ``free_run`` summary per recording), so ``gap``'s held-out figures equal ``compare``'s.
         ``nrmse`` (mean over recordings of RMS(θ_sim − θ_rec)/range(θ_rec)), ``max_error`` [rad],
         ``steady_state_error`` (RMS over holds ≥ 0.5 s of the difference of the mean angles over
         each hold's last quarter [rad]), ``step_metrics`` (python-control ``step_info`` of the
@@ -975,21 +978,22 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
         diverges, :func:`aeropend_ident.io.overlay_axes.diverges`: its source and the reason; then
         the NRMSE only measures how far the run went, and the report gives no shrink).
     """
-    nrmse, maxe, ss, gone = [], 0.0, [], []
+    nrmse, maxe, ss, gone, runs = [], 0.0, [], [], []
     per_channel: dict[str, list[float]] = {}
     step: dict[str, Any] = {}
     for p in preps:
-        sim_all = replay(rig, meas, p)
-        for c, yc in p.y.items():
-            per_channel.setdefault(c, []).append(float(np.sqrt(np.mean((sim_all[c] - yc) ** 2)) / p.scale[c]))
-        th = sim_all["theta"]
+        run = one_free_run(rig, meas, p)
+        runs.append({"recording": p.rec.source, **run.as_dict()})
+        th = run.theta
         y = p.y["theta"]
+        for c, yc in p.y.items():
+            sc = th if c == "theta" else run.channels.get(c, np.full(p.n, np.nan))
+            per_channel.setdefault(c, []).append(float(np.sqrt(np.mean((sc - yc) ** 2)) / p.scale[c]))
         e = th - y
         nrmse.append(float(np.sqrt(np.mean(e**2)) / p.scale["theta"]))
         maxe = max(maxe, float(np.max(np.abs(e))))
-        why = diverges(th, y, np.arange(y.size) * p.dt)
-        if why is not None:
-            gone.append(f"{p.rec.source or 'recording'}: {why}")
+        if run.divergence is not None:
+            gone.append(f"{p.rec.source or 'recording'}: {run.divergence}")
         holds = duty_holds(p.duty, p.dt)
         for a, b in holds:
             q = a + 3 * (b - a) // 4
@@ -1021,7 +1025,24 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
         "per_recording": nrmse,
         "channel_nrmse": ch_nrmse,
         "diverges": gone,
+        "free_run": runs,
     }
+
+
+def one_free_run(rig: Rig, meas: MeasurementMap, p: Prepared) -> FreeRun:
+    """The one free run of every command (:func:`aeropend_ident.greybox.replay.free_run`) of ``rig``
+    seen through ``meas`` on the recording ``p``: the figures a diagnosis reports come from it.
+
+    Raises
+    ------
+    GapError
+        If the replay fails for this rig (naming the recording and the rig).
+    """
+    try:
+        return free_run(rig, np.arange(p.n) * p.dt, p.duty, p.y["theta"], theta_offset=meas.theta_offset,
+                        theta_scale=meas.theta_scale, source=p.rec.source or "a recording")
+    except IdentificationError as exc:
+        raise GapError(str(exc)) from exc
 
 
 def validation_errors(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared],

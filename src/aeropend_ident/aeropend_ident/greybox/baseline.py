@@ -18,8 +18,9 @@ Pipeline (:func:`baseline`, :func:`run_baseline`):
    the range the recordings can show (:func:`aeropend_ident.io.recording_input.timing_range`, at
    least 1 s of dead time when they are long enough), from the best start of a coarse scan.
 4. **Replay** each held-out part's recorded duty cycle through the fitted model in free run,
-   starting from its own first samples (θ, θ̇ by a short local fit, motor at the steady state of
-   its first duty), and the same for the **nominal** (unfitted) rig; a held-out part that
+   the one replay of every command (:func:`aeropend_ident.greybox.replay.free_run`: θ₀, θ̇₀ from a
+   quadratic fit over the part's first 0.1 s, motor at the steady state of its first duty; its
+   divergence rule and NRMSE), and the same for the **nominal** (unfitted) rig; a held-out part that
    continues its fit part starts its replay early enough that a dead time sees the commands
    before the split.
 5. **Metrics** on fit and held-out data, for the nominal and the fitted model:
@@ -75,6 +76,7 @@ from aeropend_ident.greybox.fit import (
     rig_theta_offset,
     uniform_data,
 )
+from aeropend_ident.greybox.replay import START_RULE, FreeRun, free_run
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.overlay_axes import HOLD_RANGE_SHARE, diverges, short_number
 from aeropend_ident.io.recording_input import TimingRange, resampling_notes, timing_range
@@ -260,8 +262,8 @@ class BaselineResult:
                 "n_train": len(self.train), "n_heldout": len(self.heldout),
                 "order": ("time-ordered: train = first part, held out = the rest (never used for fitting)"
                           if not self.held_out_recordings else "by recordings"),
-                "heldout_initial_state": "theta and theta_dot from each held-out part's first samples, "
-                                         "motor at the steady state of its first duty",
+                "heldout_initial_state": f"the one free run of every command: {START_RULE} of each "
+                                         "held-out part (values per part in per_recording)",
             },
             "provenance": self._provenance(),
         })
@@ -517,18 +519,38 @@ def _timing_start(rig: Rig, off: float, train: UniformData, names: Sequence[str]
     return start
 
 
-def _replay(rig: Rig, off: float, data: UniformData, history: UniformData | None) -> np.ndarray:
-    """Free run of a held-out part; with ``history`` (the fit part it continues) the run starts early
-    enough that the rig's dead time sees the commands before the split."""
+def _replay(rig: Rig, off: float, data: UniformData, history: UniformData | None, span: float | None,
+            ) -> FreeRun:
+    """The one free run (:func:`aeropend_ident.greybox.replay.free_run`) of a held-out part; with
+    ``history`` (the fit part it continues) the run starts early enough that the rig's dead time
+    sees the commands before the split; ``span`` normalises a hold (:func:`_hold_span`)."""
     delay = rig.actuator.input_delay if rig.effects.input_delay else 0.0
     k = math.ceil(delay / data.dt) + 1 if delay > 0.0 and history is not None else 0
-    if k == 0 or len(history) < k:
-        return free_run_theta(rig, data, off)
-    tail = dataclasses.replace(history, t=history.t[-k:] - history.t[-k], duty=history.duty[-k:],
-                               theta=history.theta[-k:], segments=(0,))
-    ext = concat_uniform([tail, data])
-    ext = dataclasses.replace(ext, segments=(0,))
-    return free_run_theta(rig, ext, off)[k:]
+    if k == 0 or history is None or len(history) < k:
+        return free_run(rig, data.t, data.duty, data.theta, theta_offset=off, span=span, source=data.source)
+    t = np.concatenate([data.t[0] - data.dt * np.arange(k, 0, -1), data.t])
+    return free_run(rig, t, np.concatenate([history.duty[-k:], data.duty]),
+                    np.concatenate([history.theta[-k:], data.theta]), theta_offset=off, span=span,
+                    source=data.source, lead=k)
+
+
+def _hold_span(measured: np.ndarray, span_all: float) -> float | None:
+    """The span a part is scored in: the recordings' when the part is a hold, else None (its own)."""
+    own = float(np.ptp(measured)) if np.size(measured) else 0.0
+    return span_all if span_all > 0.0 and own < HOLD_RANGE_SHARE * span_all else None
+
+
+def _run_scores(run: FreeRun, measured: np.ndarray) -> tuple[dict[str, Any], str | None]:
+    """:func:`_scores`' dict of a held-out part from its one free run (the same figure as every
+    command's), with the start it used."""
+    m = dict(error_metrics(measured, run.theta))
+    m["normalised_by"] = ("the recordings' range (this part is a hold)" if run.range != m["range"]
+                          else "the part's range")
+    m["nrmse"] = run.nrmse
+    m["initial_state"] = run.initial.as_dict()
+    if run.diverged_at is not None:
+        m["diverged_at_s"] = run.diverged_at
+    return m, run.divergence
 
 
 def _scores(measured: np.ndarray, simulated: np.ndarray, span_all: float, t: np.ndarray | None = None,
@@ -643,22 +665,28 @@ def _evaluate(fit: GreyBoxResult, nominal: Rig, off: float, fit_parts: Sequence[
     divergence: dict[str, dict[str, str]] = {}
     per_recording: list[dict[str, Any]] = [{"recording": p.source} for p in held_parts]
     models = (("nominal", nominal, off), ("fitted", fit.rig, fit.theta_offset))
+    held_runs: dict[str, FreeRun] = {}
     for model, r, o in models:
         theta["train"][model] = (fit.theta_fit if model == "fitted"
                                  else free_run_theta(r, concat_uniform(list(fit_parts)), o))
         runs = []
         for k, part in enumerate(held_parts):
             history = fit_parts[k] if not held_recs else None
-            runs.append(_replay(r, o, part, history))
-            per_recording[k][model], why = _scores(part.theta, runs[-1], span_all, part.t)
+            runs.append(_replay(r, o, part, history, _hold_span(part.theta, span_all)))
+            per_recording[k][model], why = _run_scores(runs[-1], part.theta)
             if why:
                 per_recording[k][model]["diverges"] = why
-        theta["heldout"][model] = np.concatenate(runs)
+        theta["heldout"][model] = np.concatenate([run.theta for run in runs])
+        if len(runs) == 1:  # one held-out part: its figure is the one free run's
+            held_runs[model] = runs[0]
     for part, parts in (("train", fit_parts), ("heldout", held_parts)):
         data = concat_uniform(list(parts))
         for model, _, _ in models:
             th = theta[part][model]
-            metrics[part][model], why = _scores(data.theta, th, span_all, data.t)
+            if part == "heldout" and model in held_runs:
+                metrics[part][model], why = _run_scores(held_runs[model], data.theta)
+            else:
+                metrics[part][model], why = _scores(data.theta, th, span_all, data.t)
             if why is not None:
                 divergence.setdefault(part, {})[model] = f"{model} model {why}"
             finite = np.where(np.isfinite(th), th, data.theta)

@@ -6,7 +6,8 @@
 * **Reach** (always): the largest angle the rig holds at full command (τ = 1) and with the
   control headroom of :data:`aeropend_control.design.REACH_DUTY_MARGIN`, from
   :func:`aeropend_control.design.reachable_angle` (the model's equilibrium; one home).
-* **With recordings** (and static tables): the free-run θ NRMSE of the rig on each recording,
+* **With recordings** (and static tables): the free-run θ NRMSE of the rig on each recording
+  (the one replay, :func:`aeropend_ident.greybox.replay.free_run`, with its start and divergence),
   the normalised sensitivity of the inputs to each modelled parameter — the Fisher information
   ‖∂r/∂ln p‖² of the noise-weighted residuals (:mod:`aeropend_ident.greybox.rig_problem`), shown as
   the relative 1σ it would allow alone and its rank — and the pairs the inputs cannot separate
@@ -23,11 +24,11 @@ import numpy as np
 import yaml
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.greybox.fit import ParameterSpec, error_metrics, free_run_theta
+from aeropend_ident.greybox.fit import ParameterSpec
+from aeropend_ident.greybox.replay import free_run
 from aeropend_ident.greybox.rig_fit import blocks_of
 from aeropend_ident.greybox.rig_inputs import read_inputs
 from aeropend_ident.greybox.rig_problem import Problem, TimeBlock, covariance
-from aeropend_ident.io.overlay_axes import diverges
 from aeropend_sim.components import registry
 from aeropend_sim.params import Rig, load_rig
 from aeropend_sim.rigcmd.template import GEOMETRY_NEEDED, INERTIA, fittable
@@ -151,13 +152,11 @@ def check_rig(rig_path: str | Path, inputs: Sequence[str] = (), preset: str | No
     for b in blocks:
         if isinstance(b, TimeBlock):
             try:
-                th = free_run_theta(rig, b.data, 0.0, b.nuisance[1].initial, b.nuisance[0].initial)  # type: ignore[arg-type]
-                m = error_metrics(b.data.theta, th)  # type: ignore[union-attr]
-                why = diverges(th, b.data.theta, b.data.t)  # type: ignore[union-attr]
-                lines.append(f"free-run θ on {b.source} ({b.kind}): DIVERGES: {why}" if why is not None
-                             else f"free-run θ NRMSE on {b.source} ({b.kind}): {m['nrmse']:.3f}")
+                d = b.data
+                run = free_run(rig, d.t, d.duty, d.theta, source=d.source)  # type: ignore[union-attr]
+                lines.append(run.line(f"{b.source} ({b.kind})"))
             except IdentificationError as exc:
-                lines.append(f"free-run θ NRMSE on {b.source} ({b.kind}): not computed ({exc})")
+                lines.append(f"free-run θ on {b.source} ({b.kind}): not computed ({exc})")
     specs = _sensitivity_specs(rig)
     if specs:
         problem = Problem(rig, {}, specs, blocks)

@@ -48,7 +48,8 @@ from scipy.optimize import minimize
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.decay import analyse_decay
-from aeropend_ident.greybox.fit import ParameterSpec, UniformData, error_metrics, free_run_theta
+from aeropend_ident.greybox.fit import ParameterSpec, UniformData
+from aeropend_ident.greybox.replay import NRMSE_RULE, START_RULE, FreeRun, free_run
 from aeropend_ident.greybox.rig_inputs import StaticTable, TimeSeries, read_inputs, shortest_hold
 from aeropend_ident.greybox.rig_problem import (
     INERTIA,
@@ -61,7 +62,6 @@ from aeropend_ident.greybox.rig_problem import (
     covariance,
     weak_directions,
 )
-from aeropend_ident.io.overlay_axes import diverges
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect
 from aeropend_sim.params import FITTED, TO_BE_FITTED, Rig, load_rig, rig_from_dict
@@ -147,6 +147,10 @@ class RigFitResult:
     #: Recordings on which the fitted rig's free run diverges (io.overlay_axes.diverges): the reason,
     #: reported instead of an NRMSE (their entry in ``nrmse`` is None).
     divergence: dict[str, str] = field(default_factory=dict)
+    #: The fitted rig's free run on each recording (:func:`aeropend_ident.greybox.replay.free_run`,
+    #: the one replay of every command: its start, divergence and NRMSE); ``nrmse`` and ``divergence``
+    #: are read from it.
+    runs: dict[str, FreeRun] = field(default_factory=dict)
 
     def outcome(self, key: str) -> Outcome:
         """The outcome of one key (KeyError if it was not to be fitted)."""
@@ -178,10 +182,9 @@ class RigFitResult:
             lines.append("AT A SEARCH BOUND (the bound, not the data, set these):")
             lines += [f"  {o.key} = {o.value:.4g} {o.unit} (searched {o.lower:.4g} … {o.upper:.4g})"
                       for o in flagged]
-        if self.nrmse:
-            lines.append("free-run θ NRMSE of the fitted rig:")
-            lines += [f"  {k}: DIVERGES: {self.divergence[k]}" if k in self.divergence else f"  {k}: {v:.3f}"
-                      for k, v in self.nrmse.items()]
+        if self.runs:
+            lines.append(f"free-run θ of the fitted rig ({START_RULE}; NRMSE = {NRMSE_RULE}):")
+            lines += [f"  {run.line(k)}" for k, run in self.runs.items()]
         lines += [f"note: {n}" for n in self.notes]
         lines.append(f"uncertainty: {SE_METHOD}")
         return "\n".join(lines)
@@ -588,27 +591,21 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
             outcomes[s.name] = Outcome(s.name, s.unit, s.initial, status="to be fitted",
                                        reason=refused[s.name], lower=s.lower, upper=s.upper)
     fitted = problem.rig(z)
-    nrmse: dict[str, float | None] = {}
-    divergence: dict[str, str] = {}
-    nuis = problem.nuisance_values(z if problem.specs else problem.z_bounds()[0])
-    first: dict[str, list[float]] = {}  # each recording's initial angle and velocity: its first window's
-    for b, nv in zip(problem.blocks, nuis, strict=True):
-        if isinstance(b, TimeBlock):
-            first.setdefault(b.source, nv)
-    for s in series:
-        nv = first[s.source]
+    # the figure of the fitted rig is the one replay of every command (not the fit's own start values),
+    # on each whole recording (the fit's windows are its own business)
+    runs: dict[str, FreeRun] = {}
+    for ser in series:
+        d = ser.data
         try:
-            th = free_run_theta(fitted, s.data, 0.0, nv[1], nv[0])
-            nrmse[s.source] = error_metrics(s.data.theta, th)["nrmse"]
-            why = diverges(th, s.data.theta, s.data.t)
-            if why is not None:  # a divergence, not a figure
-                nrmse[s.source], divergence[s.source] = None, why
+            runs[ser.source] = free_run(fitted, d.t, d.duty, d.theta, source=d.source)
         except IdentificationError as exc:
-            notes.append(f"{s.source}: free run of the fitted rig failed ({exc})")
+            notes.append(f"{ser.source}: free run of the fitted rig failed ({exc})")
+    nrmse = {k: r.nrmse for k, r in runs.items()}
+    divergence = {k: r.divergence for k, r in runs.items() if r.divergence is not None}
     ordered = [outcomes[s.name] for s in all_specs]
     inputs = list(dict.fromkeys((b.source, b.label) for b in problem.blocks))
     return RigFitResult(path, text, rig.family, ordered, fitted, inputs, nrmse, notes,  # type: ignore[arg-type]
-                        sample_period, divergence)
+                        sample_period, divergence, runs)
 
 
 # ------------------------------------------------------------------------------ the fitted file

@@ -179,8 +179,11 @@ def clip_to_recorded(ax: Any, t: Any, recorded: Any, models: Mapping[str, Any], 
         The models that leave the plotted range (empty: everything fits).
     """
     lo, hi = plotted_range(recorded, models)
-    far = {e.label for e in excursions(t, models, *divergence_window(recorded))}
-    out = [dataclasses.replace(e, diverged=e.label in far) for e in excursions(t, models, lo, hi)]
+    # a diverging model's note gives its divergence time (the one rule, :func:`diverges`), not the
+    # earlier time it left the plotted range: the figure and the tables name one time
+    far = {e.label: e for e in excursions(t, models, *divergence_window(recorded))}
+    out = [dataclasses.replace(far.get(e.label, e), diverged=e.label in far)
+           for e in excursions(t, models, lo, hi)]
     if out:
         # a band below the plotted range holds the note, so that it never covers the recorded curve
         fig = ax.get_figure()
