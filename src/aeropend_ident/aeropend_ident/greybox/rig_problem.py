@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import brentq, least_squares
+from scipy.optimize import brentq, least_squares, minimize
 from scipy.stats import qmc
 
 from aeropend_ident.errors import IdentificationError
@@ -58,6 +58,8 @@ THETA_CAP = math.pi / 2 - 1e-6
 SCREEN_POINTS = 64
 #: Local solves started from the best screened points.
 SCREEN_STARTS = 2
+#: Cost evaluations of each derivative-free search along the open directions (:meth:`Problem.screen_open`).
+OPEN_NFEV = 40
 
 def _rod():
     return next(c for c in registry.components() if getattr(c, "geometry", ()))
@@ -329,6 +331,54 @@ class Problem:
             out.append((c if math.isfinite(c) else math.inf, z))
         out.sort(key=lambda cz: cz[0])
         return out
+
+    def screen_open(self, z0: np.ndarray, blocks: Sequence[int], n: int = SCREEN_POINTS,
+                    seed: int = 0) -> np.ndarray:
+        """The best of ``z0`` and ``n`` scrambled-Sobol points spread along the directions of the
+        main parameters that ``blocks`` (the tables, the decays) leave open, over the whole box.
+
+        The steady-state tables fix some combinations tightly (the command-to-angle map fixes
+        mgd/J against L/J·K_q) and say nothing of others (the rod's time scale, the damping): a
+        screen of the whole box would hardly ever land on the narrow ridge the tables allow, a local
+        solve from ``rig new``'s value along the open directions stops in the nearest valley.
+        Open: right singular vectors of the blocks' Jacobian (main parameters, z coordinates) whose
+        singular value is below 1 % of the largest (or all when no block is given).
+        """
+        _, lo, hi = self.z_bounds()
+        k = len(self.specs)
+        if k == 0:
+            return z0
+        if blocks:
+            J = self.jac(z0, lo, hi)
+            sizes = [b.size() for b in self.blocks]
+            edges = np.concatenate([[0], np.cumsum(sizes)])
+            rows = np.concatenate([np.arange(edges[i], edges[i + 1]) for i in blocks])
+            _, sv, vt = np.linalg.svd(J[rows, :k], full_matrices=True)
+            sv = np.concatenate([sv, np.zeros(k - sv.size)])
+            open_ = vt[sv < 0.01 * max(float(sv[0]), 1e-300)] if sv.size else np.eye(k)
+        else:
+            open_ = np.eye(k)
+        if open_.shape[0] == 0:
+            return z0
+        span = float(np.max(hi[:k] - lo[:k]))
+
+        def point(u: np.ndarray) -> np.ndarray:
+            z = z0.copy()
+            z[:k] = np.clip(z0[:k] + u @ open_ * span, lo[:k], hi[:k])
+            return z
+
+        def cost(u: np.ndarray) -> float:
+            r = self.fun(point(u))
+            c = 0.5 * float(r @ r)
+            return c if math.isfinite(c) else math.inf
+
+        m = open_.shape[0]
+        us = [np.zeros(m), *(qmc.Sobol(m, scramble=True, seed=seed).random(n) - 0.5)]
+        ranked = sorted(us, key=cost)[:SCREEN_STARTS + 1]
+        best = min((minimize(cost, u, method="Nelder-Mead", bounds=[(-0.5, 0.5)] * m,
+                             options={"maxfev": OPEN_NFEV, "xatol": 1e-3, "fatol": 1e-9}) for u in ranked),
+                   key=lambda r: r.fun)
+        return point(best.x)
 
     def solve_from_best(self, z0: np.ndarray, names: Sequence[str], max_nfev: int = 60, tol: float = 1e-7,
                         n: int = SCREEN_POINTS, starts: int = SCREEN_STARTS
