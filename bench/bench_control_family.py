@@ -84,7 +84,8 @@ def lab_path(rig: fl.LabRig, folder: Path, with_gap: bool = True) -> dict[str, A
     out: dict[str, Any] = {"times_s": {}}
     t0 = time.perf_counter()
     new, fitted, gains = folder / "new.yaml", folder / "fitted.yaml", folder / "gains.yaml"
-    rc, text = _quiet(rig_main, ["new", "--actuator", rig.family, "--stated", *fl.stated(rig), "-o", str(new)])
+    rc, text = _quiet(rig_main, ["new", "--actuator", rig.family, "--stated", *fl.stated(rig),
+                                 "-o", str(new)])
     out["times_s"]["rig_new"] = time.perf_counter() - t0
     if rc != 0:
         return {**out, "failed": f"rig new: {text.strip()[-400:]}"}
@@ -113,8 +114,9 @@ def lab_path(rig: fl.LabRig, folder: Path, with_gap: bool = True) -> dict[str, A
     chosen = doc["closed_loop"][rec["strategy"]]["chosen"]
     out["recommended"] = {k: rec[k] for k in ("strategy", "pole_spec", "goal_met", "worst_settling_time_s",
                                               "worst_overshoot_pct", "command")}
+    keys = ("settling_time", "overshoot")
     out["predicted"] = [{"reference": s["reference_rad"], "status": s["status"],
-                         **({k: s["metrics"][k] for k in ("settling_time", "overshoot")} if s["metrics"] else {})}
+                         **({k: s["metrics"][k] for k in keys} if s["metrics"] else {})}
                         for s in chosen["steps"]]
     out["fitted_rig"] = str(fitted)
     return out
@@ -201,23 +203,27 @@ def _f(x: Any, fmt: str = ".3g") -> str:
 def write_md(path: Path, doc: dict[str, Any]) -> None:
     m = doc["meta"]
     lines = ["# Every actuator family end to end (bench/bench_control_family.py)", "",
-             f"{len(doc['rigs'])} independent rigs (bench/fixtures/family_lab.py on bench/fixtures/truth_plant.py, "
-             "no aeropend code), angle only at 100 Hz (12-bit encoder or 10-bit potentiometer ADC), five minutes "
-             "of a lab's logs each → `rig new` (stated constants only) → `rig fit` → `gap` → `design_gains` → "
-             "the recommended controller (node settings, lock-step) on the independent plant, steps from rest "
+             f"{len(doc['rigs'])} independent rigs (bench/fixtures/family_lab.py on "
+             "bench/fixtures/truth_plant.py, no aeropend code), angle only at 100 Hz (12-bit encoder or "
+             "10-bit potentiometer ADC), five minutes of a lab's logs each → `rig new` (stated constants "
+             "only) → `rig fit` → `gap` → `design_gains` → the recommended controller (node settings, "
+             "lock-step) on the independent plant, steps from rest "
              f"to {', '.join(map(str, STEPS))} rad, metrics on the true angle. Commit {m['commit']}, "
              f"{m['machine']}, {m['workers']} worker(s), {m['wall_s']:.0f} s wall, load "
              f"{m['load_before']} before.", "",
-             "| family | rigs | (plant, step) pairs meeting ts ≤ 1 s, M_p ≤ 5 % | misses announced by design_gains "
-             "and held within 20 % | bar | path median / slowest [s] | failed paths |",
+             "| family | rigs | (plant, step) pairs meeting ts ≤ 1 s, M_p ≤ 5 % | misses announced by "
+             "design_gains and held within 20 % | bar | path median / slowest [s] | failed paths |",
              "|---|---|---|---|---|---|---|"]
     for fam, s in doc["summary"].items():
+        bar = "met" if s["bar_met"] else "NOT met"
         lines.append(f"| {fam} | {s['rigs']} | {s['goal_met']}/{s['pairs']} ({s['goal_met_share']:.0%}) | "
-                     f"{s['misses_announced_and_held']}/{s['misses']} | {'met' if s['bar_met'] else 'NOT met'} | "
-                     f"{_f(s['path_median_s'], '.0f')} / {_f(s['path_max_s'], '.0f')} | {s['failed_paths']} |")
+                     f"{s['misses_announced_and_held']}/{s['misses']} | {bar} | "
+                     f"{_f(s['path_median_s'], '.0f')} / {_f(s['path_max_s'], '.0f')} | "
+                     f"{s['failed_paths']} |")
     lines += ["", "## Per rig", "",
-              "| rig | sensor | drawn physics | rig fit [s] | gap [s] (exit) | design_gains [s] | recommended | "
-              "design_gains said | steps on the plant: ts [s] / M_p [%] (predicted) |", "|---|---|---|---|---|---|---|---|---|"]
+              "| rig | sensor | drawn physics | rig fit [s] | gap [s] (exit) | design_gains [s] | "
+              "recommended | design_gains said | steps on the plant: ts [s] / M_p [%] (predicted) |",
+              "|---|---|---|---|---|---|---|---|---|"]
     for r in doc["rigs"]:
         tr = ", ".join(f"{k} {_f(v)}" for k, v in r["truth"].items())
         ts = r.get("times_s", {})
@@ -233,10 +239,13 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
             + f" ({_f(x['predicted'].get('settling_time'))} / {_f(x['predicted'].get('overshoot'), '.1f')})"
             for x in r["runs"])
         g = r.get("gap", {})
+        spec = rec["pole_spec"]
+        said = "goal met" if rec["goal_met"] else "not attainable"
         lines.append(f"| {r['rig']} | {r['sensor']} | {tr} | {_f(ts.get('rig_fit'), '.0f')} | "
-                     f"{_f(ts.get('gap'), '.0f')} ({g.get('exit', '—')}) | {_f(ts.get('design_gains'), '.0f')} | "
-                     f"{rec['strategy']} ω_n {rec['pole_spec']['omega_n']:.3g} ζ {rec['pole_spec']['zeta']:g} | "
-                     f"{'goal met' if rec['goal_met'] else 'not attainable'}: ts {_f(rec['worst_settling_time_s'])} s,"
+                     f"{_f(ts.get('gap'), '.0f')} ({g.get('exit', '—')}) | "
+                     f"{_f(ts.get('design_gains'), '.0f')} | "
+                     f"{rec['strategy']} ω_n {spec['omega_n']:.3g} ζ {spec['zeta']:g} | "
+                     f"{said}: ts {_f(rec['worst_settling_time_s'])} s,"
                      f" M_p {_f(rec['worst_overshoot_pct'], '.1f')} % | {steps} |")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
@@ -273,7 +282,8 @@ def main(argv: list[str] | None = None) -> int:
               flush=True)
     rigs.sort(key=lambda r: (fl.FAMILIES.index(r["family"]), r["rig"]))
     meta = {"workers": args.workers, "wall_s": time.perf_counter() - t0,
-            "load_before": [round(x, 2) for x in load_before], "load_after": [round(x, 2) for x in os.getloadavg()],
+            "load_before": [round(x, 2) for x in load_before],
+            "load_after": [round(x, 2) for x in os.getloadavg()],
             "machine": f"{os.cpu_count()} cores, {platform.platform()}", "python": platform.python_version(),
             "commit": git_commit(), "argv": sys.argv[1:] if argv is None else argv}
     doc = {"summary": summarise(rigs), "meta": meta, "rigs": rigs}
