@@ -60,6 +60,9 @@ SCREEN_POINTS = 64
 SCREEN_STARTS = 2
 #: Cost evaluations of each derivative-free search along the open directions (:meth:`Problem.screen_open`).
 OPEN_NFEV = 40
+#: The screen along the open directions replaces the staged start only when its cost is below this
+#: share of the start's (a different valley, not a refinement of the same one).
+OPEN_GAIN = 0.5
 
 def _rod():
     return next(c for c in registry.components() if getattr(c, "geometry", ()))
@@ -374,11 +377,13 @@ class Problem:
 
         m = open_.shape[0]
         us = [np.zeros(m), *(qmc.Sobol(m, scramble=True, seed=seed).random(n) - 0.5)]
+        c0 = cost(us[0])
         ranked = sorted(us, key=cost)[:SCREEN_STARTS + 1]
         best = min((minimize(cost, u, method="Nelder-Mead", bounds=[(-0.5, 0.5)] * m,
                              options={"maxfev": OPEN_NFEV, "xatol": 1e-3, "fatol": 1e-9}) for u in ranked),
                    key=lambda r: r.fun)
-        return point(best.x)
+        # the staged start carries the decays' values: leave it only for a clearly better valley
+        return point(best.x) if best.fun < OPEN_GAIN * c0 else z0
 
     def solve_from_best(self, z0: np.ndarray, names: Sequence[str], max_nfev: int = 60, tol: float = 1e-7,
                         n: int = SCREEN_POINTS, starts: int = SCREEN_STARTS
