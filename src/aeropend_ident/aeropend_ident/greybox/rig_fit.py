@@ -44,7 +44,6 @@ from typing import Any
 
 import numpy as np
 import yaml
-from scipy.optimize import minimize
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.decay import analyse_decay
@@ -60,6 +59,7 @@ from aeropend_ident.greybox.rig_problem import (
     ThrustBlock,
     TimeBlock,
     covariance,
+    nelder_mead_best,
     weak_directions,
 )
 from aeropend_sim.components import registry
@@ -379,18 +379,10 @@ def _timing_start(problem: Problem, start: dict[str, float]) -> dict[str, float]
                   fixed={k: v for k, v in start.items() if k not in keys}, timing=problem.timing)
     z0, lo, hi = sub.z_bounds()
     k = len(specs)
-
-    def cost(x: np.ndarray) -> float:
-        r = sub.fun(np.concatenate([x, z0[k:]]))
-        return 0.5 * float(r @ r)
-
-    best = None
-    for _, z in sub.screen(z0, keys)[:TIMING_STARTS]:
-        got = minimize(cost, z[:k], method="Nelder-Mead", bounds=list(zip(lo[:k], hi[:k], strict=True)),
-                       options={"maxfev": TIMING_NFEV, "xatol": 1e-3, "fatol": 1e-6})
-        if best is None or got.fun < best.fun:
-            best = got
-    return {**start, **{s.name: s.from_z(best.x[j]) for j, s in enumerate(specs)}}  # type: ignore[union-attr]
+    best = nelder_mead_best(lambda x: sub.cost(np.concatenate([x, z0[k:]])),
+                            [z[:k] for _, z in sub.screen(z0, keys)[:TIMING_STARTS]],
+                            list(zip(lo[:k], hi[:k], strict=True)), TIMING_NFEV)
+    return {**start, **{s.name: s.from_z(best.x[j]) for j, s in enumerate(specs)}}
 
 
 # ------------------------------------------------------------------------------ refusals

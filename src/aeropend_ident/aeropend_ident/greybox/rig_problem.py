@@ -267,9 +267,11 @@ class Problem:
         self._cache = (z.tobytes(), parts)
         return np.concatenate(parts)
 
-    def jac(self, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, step: float = 1e-5) -> np.ndarray:
+    def jac(self, z: np.ndarray, lo: np.ndarray, hi: np.ndarray, step: float = 1e-5,
+            blocks: Sequence[int] | None = None) -> np.ndarray:
         """Forward differences, block by block: a nuisance coordinate moves its own block only, a
-        timing parameter no steady-state table."""
+        timing parameter no steady-state table; ``blocks``: only these blocks' rows (the others
+        stay zero and are not simulated)."""
         if self._cache is None or self._cache[0] != z.tobytes():
             self.fun(z)
         base = self._cache[1]  # type: ignore[index]
@@ -289,6 +291,10 @@ class Problem:
             else:
                 timing = self.specs[j].name in self.timing
                 only = [i for i, b in enumerate(self.blocks) if not (timing and b.static)]
+            if blocks is not None:
+                only = [i for i in only if i in blocks]
+                if not only:
+                    continue
             parts = self.block_residuals(zz, only)
             for i in only:
                 J[offsets[i]:offsets[i + 1], j] = (parts[i] - base[i]) / h
@@ -302,6 +308,12 @@ class Problem:
         sol = least_squares(self.fun, z0, jac=lambda z: self.jac(z, lo, hi), bounds=(lo, hi), method="trf",
                             x_scale=1.0, ftol=tol, xtol=tol, gtol=tol, max_nfev=max_nfev)
         return sol.x, self.jac(sol.x, lo, hi), sol
+
+    def cost(self, z: np.ndarray) -> float:
+        """½‖r‖² of the weighted residuals at ``z`` (inf when not finite)."""
+        r = self.fun(z)
+        c = 0.5 * float(r @ r)
+        return c if math.isfinite(c) else math.inf
 
     def screen(self, z0: np.ndarray, names: Sequence[str], n: int = SCREEN_POINTS,
                seed: int = 0) -> list[tuple[float, np.ndarray]]:
@@ -327,38 +339,34 @@ class Problem:
                 z = pts[0].copy()
                 z[idx] = lo[idx] + row * (hi[idx] - lo[idx])
                 pts.append(z)
-        out = []
-        for z in pts:
-            r = self.fun(z)
-            c = 0.5 * float(r @ r)
-            out.append((c if math.isfinite(c) else math.inf, z))
-        out.sort(key=lambda cz: cz[0])
-        return out
+        return sorted(((self.cost(z), z) for z in pts), key=lambda cz: cz[0])
 
     def screen_open(self, z0: np.ndarray, blocks: Sequence[int], n: int = SCREEN_POINTS,
                     seed: int = 0) -> np.ndarray:
-        """The best of ``z0`` and ``n`` scrambled-Sobol points spread along the directions of the
-        main parameters that ``blocks`` (the tables, the decays) leave open, over the whole box.
+        """A better start than ``z0`` along the directions of the main parameters that ``blocks``
+        (the tables) leave open, or ``z0`` itself.
 
         The steady-state tables fix some combinations tightly (the command-to-angle map fixes
         mgd/J against L/J·K_q) and say nothing of others (the rod's time scale, the damping): a
         screen of the whole box would hardly ever land on the narrow ridge the tables allow, a local
         solve from ``rig new``'s value along the open directions stops in the nearest valley.
         Open: right singular vectors of the blocks' Jacobian (main parameters, z coordinates) whose
-        singular value is below 1 % of the largest (or all when no block is given).
+        singular value is below 1 % of the largest (all when no block is given). ``n``
+        scrambled-Sobol points along them over the whole box, then :func:`nelder_mead_best` from the
+        best; the result replaces ``z0`` only when its cost is below :data:`OPEN_GAIN` of ``z0``'s.
         """
         _, lo, hi = self.z_bounds()
         k = len(self.specs)
         if k == 0:
             return z0
         if blocks:
-            J = self.jac(z0, lo, hi)
+            J = self.jac(z0, lo, hi, blocks=blocks)
             sizes = [b.size() for b in self.blocks]
             edges = np.concatenate([[0], np.cumsum(sizes)])
             rows = np.concatenate([np.arange(edges[i], edges[i + 1]) for i in blocks])
             _, sv, vt = np.linalg.svd(J[rows, :k], full_matrices=True)
             sv = np.concatenate([sv, np.zeros(k - sv.size)])
-            open_ = vt[sv < 0.01 * max(float(sv[0]), 1e-300)] if sv.size else np.eye(k)
+            open_ = vt[sv < 0.01 * max(float(sv[0]), 1e-300)]
         else:
             open_ = np.eye(k)
         if open_.shape[0] == 0:
@@ -371,31 +379,15 @@ class Problem:
             return z
 
         def cost(u: np.ndarray) -> float:
-            r = self.fun(point(u))
-            c = 0.5 * float(r @ r)
-            return c if math.isfinite(c) else math.inf
+            return self.cost(point(u))
 
         m = open_.shape[0]
         us = [np.zeros(m), *(qmc.Sobol(m, scramble=True, seed=seed).random(n) - 0.5)]
-        c0 = cost(us[0])
-        ranked = sorted(us, key=cost)[:SCREEN_STARTS + 1]
-        best = min((minimize(cost, u, method="Nelder-Mead", bounds=[(-0.5, 0.5)] * m,
-                             options={"maxfev": OPEN_NFEV, "xatol": 1e-3, "fatol": 1e-9}) for u in ranked),
-                   key=lambda r: r.fun)
+        costs = [cost(u) for u in us]
+        ranked = [us[i] for i in np.argsort(costs, kind="stable")[:SCREEN_STARTS + 1]]
+        best = nelder_mead_best(cost, ranked, [(-0.5, 0.5)] * m, OPEN_NFEV, fatol=1e-9)
         # the staged start carries the decays' values: leave it only for a clearly better valley
-        return point(best.x) if best.fun < OPEN_GAIN * c0 else z0
-
-    def solve_from_best(self, z0: np.ndarray, names: Sequence[str], max_nfev: int = 60, tol: float = 1e-7,
-                        n: int = SCREEN_POINTS, starts: int = SCREEN_STARTS
-                        ) -> tuple[np.ndarray, np.ndarray, Any]:
-        """:meth:`screen` over ``names``, then :meth:`solve` from the ``starts`` best points (the
-        given ``z0`` always among the candidates); the lowest final cost wins."""
-        best = None
-        for _, z in self.screen(z0, names, n)[:starts]:
-            got = self.solve(z, max_nfev=max_nfev, tol=tol)
-            if best is None or got[2].cost < best[2].cost:
-                best = got
-        return best  # type: ignore[return-value]
+        return point(best.x) if best.fun < OPEN_GAIN * costs[0] else z0
 
     def reweight(self, z: np.ndarray, known: bool = True) -> list[float]:
         """Each block's σ from its residual at ``z`` (tables with stated errors: scaled only up by
@@ -421,6 +413,17 @@ class Problem:
             factors.append(old / b.sigma)
         self._cache = None
         return factors
+
+
+def nelder_mead_best(cost: Callable[[np.ndarray], float], starts: Sequence[np.ndarray],
+                     bounds: Sequence[tuple[float, float]], maxfev: int, fatol: float = 1e-6) -> Any:
+    """Bounded Nelder-Mead (SciPy) from each of ``starts``; the result with the lowest cost.
+
+    Derivative-free: used where a few parameters trade off along a curved valley that a
+    Gauss-Newton step crawls along (a dead time against a lag; the rod's time scale)."""
+    runs = [minimize(cost, x, method="Nelder-Mead", bounds=list(bounds),
+                     options={"maxfev": maxfev, "xatol": 1e-3, "fatol": fatol}) for x in starts]
+    return min(runs, key=lambda r: r.fun)
 
 
 def autocorrelation_factor(r: np.ndarray) -> float:
