@@ -839,20 +839,26 @@ def free_run_theta(
 
 
 # --------------------------------------------------------------------------- metrics
-def error_metrics(measured: np.ndarray, simulated: np.ndarray) -> dict[str, float]:
+def error_metrics(measured: np.ndarray, simulated: np.ndarray, span: float | None = None) -> dict[str, float]:
     """Fit metrics of a simulated angle against the measured one.
 
     NRMSE = RMS(θ_sim − θ_meas) / (max θ_meas − min θ_meas), dimensionless (0 = perfect; a
-    constant prediction at the mid-range scores about 0.3 on a two-level signal).
+    constant prediction at the mid-range scores about 0.3 on a two-level signal); inf when the
+    span is 0. ``span``: normalise by this span [rad] instead of the recorded range (a hold scored
+    in a longer recording).
 
     Returns
     -------
     dict
-        ``nrmse`` [1], ``rms_error`` [rad], ``max_abs_error`` [rad], ``range`` [rad], ``n``.
+        ``nrmse`` [1], ``rms_error`` [rad], ``max_abs_error`` [rad], ``range`` [rad] (the span
+        used), ``n``.
     """
     measured = np.asarray(measured, dtype=float)
     e = np.asarray(simulated, dtype=float) - measured
-    rng = float(np.ptp(measured)) if measured.size else 0.0
+    if span is not None:
+        rng = float(span or 0.0)
+    else:
+        rng = float(np.ptp(measured)) if measured.size else 0.0
     rms = float(np.sqrt(np.mean(e**2))) if e.size else math.nan
     return {
         "nrmse": rms / rng if rng > 0.0 else math.inf,

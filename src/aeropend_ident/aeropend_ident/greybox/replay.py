@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.greybox.fit import measurement_noise, motor_equilibrium
+from aeropend_ident.greybox.fit import error_metrics, measurement_noise, motor_equilibrium
 from aeropend_ident.io.overlay_axes import divergence_window, diverges, excursions, short_number
 from aeropend_sim.model import ModelError
 from aeropend_sim.params import Rig
@@ -246,11 +246,8 @@ def nrmse(measured: np.ndarray, simulated: np.ndarray, span: float | None = None
     (float, float, float)
         NRMSE (inf for a flat record: no span), RMS error, the span used.
     """
-    y = np.asarray(measured, dtype=float)
-    e = np.asarray(simulated, dtype=float) - y
-    rms = float(np.sqrt(np.mean(e**2))) if e.size else math.nan
-    rng = float(np.ptp(y)) if span is None and y.size else float(span or 0.0)
-    return (rms / rng if rng > 0.0 else math.inf), rms, rng
+    m = error_metrics(measured, simulated, span)  # the one formula
+    return m["nrmse"], m["rms_error"], m["range"]
 
 
 def _simulate(rig: Rig, duty: np.ndarray, x0: np.ndarray, dt: float,
