@@ -557,9 +557,9 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
         # global screen first along what the tables leave open (the rod's time scale, its damping;
         # the decays' values are the screen's centre, not a constraint: a decay recorded after the
         # rod came to rest carries no swing): a local solve from rig new's value there settles in the
-        # nearest valley
+        # nearest valley. A lower start is not a lower optimum: both are solved, the lower end wins.
         tables = [i for i, b in enumerate(problem.blocks) if b.static]
-        z, J, _ = problem.solve(problem.screen_open(z0, tables), max_nfev=80)
+        z, J, _ = problem.solve_best_of([z0, problem.screen_open(z0, tables)], max_nfev=80)
         say("[5/5] uncertainties: each input weighted by its residual noise")
         factors = problem.reweight(z)
         rows = np.repeat(factors, [b.size() for b in problem.blocks])

@@ -60,9 +60,6 @@ SCREEN_POINTS = 64
 SCREEN_STARTS = 2
 #: Cost evaluations of each derivative-free search along the open directions (:meth:`Problem.screen_open`).
 OPEN_NFEV = 40
-#: The screen along the open directions replaces the staged start only when its cost is below this
-#: share of the start's (a different valley, not a refinement of the same one).
-OPEN_GAIN = 0.5
 
 def _rod():
     return next(c for c in registry.components() if getattr(c, "geometry", ()))
@@ -353,7 +350,8 @@ class Problem:
         Open: right singular vectors of the blocks' Jacobian (main parameters, z coordinates) whose
         singular value is below 1 % of the largest (all when no block is given). ``n``
         scrambled-Sobol points along them over the whole box, then :func:`nelder_mead_best` from the
-        best; the result replaces ``z0`` only when its cost is below :data:`OPEN_GAIN` of ``z0``'s.
+        best; ``z0`` when none is lower. A lower start is not a lower optimum: solve from both
+        (:meth:`solve_best_of`).
         """
         _, lo, hi = self.z_bounds()
         k = len(self.specs)
@@ -386,8 +384,22 @@ class Problem:
         costs = [cost(u) for u in us]
         ranked = [us[i] for i in np.argsort(costs, kind="stable")[:SCREEN_STARTS + 1]]
         best = nelder_mead_best(cost, ranked, [(-0.5, 0.5)] * m, OPEN_NFEV, fatol=1e-9)
-        # the staged start carries the decays' values: leave it only for a clearly better valley
-        return point(best.x) if best.fun < OPEN_GAIN * costs[0] else z0
+        return point(best.x) if best.fun < costs[0] else z0
+
+    def solve_best_of(self, starts: Sequence[np.ndarray], max_nfev: int = 60,
+                      tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, Any]:
+        """:meth:`solve` from each distinct start; the result with the lowest final cost (the
+        first on a tie)."""
+        best = None
+        seen: list[np.ndarray] = []
+        for z in starts:
+            if any(np.array_equal(z, w) for w in seen):
+                continue
+            seen.append(z)
+            got = self.solve(z, max_nfev=max_nfev, tol=tol)
+            if best is None or got[2].cost < best[2].cost:
+                best = got
+        return best  # type: ignore[return-value]
 
     def reweight(self, z: np.ndarray, known: bool = True) -> list[float]:
         """Each block's σ from its residual at ``z`` (tables with stated errors: scaled only up by
