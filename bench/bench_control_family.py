@@ -16,7 +16,8 @@ the lab's path, as docs/onboarding.md tells it, is timed whole:
 Then the recommended controller — built from the node's own parameters (``make_settings`` with the
 printed ``omega_n``, ``zeta``, ``rho``; the node's per-sample loop in lock-step) — drives the
 **independent plant** through steps from rest to 0.2 / 0.4 / 0.6 rad (clamped to the fitted rig's
-reach as the node clamps them), 4 s each, the measured angle quantised as the lab's sensor gives it.
+reach as the node clamps them), max(4 s, 16/ω_n) each as ``design_gains`` runs them, the
+measured angle quantised as the lab's sensor gives it.
 Metrics on the true angle with this bench's own code
 (:func:`bench.bench_control_independent.metrics`: 2 % band, last exit; limit cycle).
 
@@ -125,17 +126,20 @@ def lab_path(rig: fl.LabRig, folder: Path, with_gap: bool = True) -> dict[str, A
 def drive_plant(rig: fl.LabRig, path: dict[str, Any], seed: int) -> list[dict[str, Any]]:
     """The recommended controller (the node's settings from its printed parameters) on the plant."""
     from aeropend_control.controller_core import SIGNALS, ControllerLoop, make_settings
+    from aeropend_control.verify.closed_loop import SETTLE_RAD
 
     cmd = path["recommended"]["command"]
     par = {k: float(re.search(rf"{k}:=(\S+)", cmd).group(1)) for k in ("omega_n", "zeta", "rho")}
     base = ControllerLoop(make_settings(rig=path["fitted_rig"], strategy=path["recommended"]["strategy"],
                                         mode="lockstep", **par))
+    # as long as design_gains ran the pattern (a slow one needs longer than 4 s to show it settled)
+    duration = max(DURATION, SETTLE_RAD / par["omega_n"])
     runs = []
     for j, r in enumerate(STEPS):
         loop = copy.deepcopy(base)
         loop.reference.steps = [(0.0, r)]
         t, th, _ = fl.closed_loop(rig, lambda ns, y, lp=loop: lp.on_sample(ns, y, math.nan, math.nan),
-                                  DURATION, seed + j)
+                                  duration, seed + j)
         used = float(loop.last_signals[SIGNALS.index("reference")])
         if not np.all(np.isfinite(th)) or np.max(np.abs(th)) >= math.pi:
             runs.append({"reference": used, "requested": r, "diverged": True, "meets": False})

@@ -154,6 +154,10 @@ def _report(rig: Rig, result: dict, rig_arg: str) -> dict:
         print(f"goal not attainable on this rig ({limits}): the fastest pattern with M_p ≤ 5 % "
               f"settles in {ts:.3g} s (M_p {mp:.3g} %): {pick.strategy} with ω_n "
               f"{pick.spec.omega_n:.4g} rad/s, ζ {pick.spec.zeta:g}")
+    elif pick.ends_in_band:
+        print(f"goal not attainable on this rig ({limits}): no pattern tried settles with M_p ≤ 5 %; the "
+              f"fastest whose every step ends in the 2 % band settles in {ts:.3g} s with M_p {mp:.3g} %: "
+              f"{pick.strategy} with ω_n {pick.spec.omega_n:.4g} rad/s, ζ {pick.spec.zeta:g}")
     else:
         why = "; ".join(f for r in pick.runs for f in r.failures())
         print(f"goal not attainable on this rig ({limits}): no pattern tried settles with M_p ≤ 5 %; "

@@ -14,7 +14,8 @@ A run is judged on the true angle (the plant's state, not the quantised measurem
 step metrics of :func:`aeropend_control.metrics.step_metrics`, and it is flagged
 
 * ``limit cycle`` when the angle still swings over the last second by more than the 2 % band
-  (peak to peak, at least 4·quantum) — a loop the actuator's limits keep oscillating;
+  (peak to peak, at least 4·quantum) and crosses its mean there at least twice — a loop the
+  actuator's limits keep oscillating (a slow creep is ``not settled``);
 * ``diverged`` when the plant left a finite state or the angle went past π (over the top).
 """
 
@@ -41,8 +42,12 @@ LAB_GOAL = Requirements(settling_time=1.0, overshoot=5.0)
 SETTLES = Requirements(overshoot=LAB_GOAL.overshoot)
 #: Default step references [rad] of a check (cut to the rig's reach).
 STEPS = (0.2, 0.4, 0.6)
-#: Length of a checked step [s]: the goal's 1 s settling, plus time to see a limit cycle.
+#: Shortest length of a checked step [s]: the goal's 1 s settling, plus time to see a limit cycle.
 DURATION = 4.0
+#: A pole pattern of natural frequency ω_n shows that it settled after about this many radians of
+#: ω_n·t (four time constants 1/(ζ·ω_n) and the band's hold): a step of a slow pattern runs
+#: SETTLE_RAD/ω_n seconds (:func:`duration_for`), so its settling time is measured, not cut off.
+SETTLE_RAD = 16.0
 
 
 @dataclass(frozen=True)
@@ -86,12 +91,17 @@ class StepRun:
         return not self.failures(goal)
 
 
+def duration_for(spec: PoleSpec) -> float:
+    """Length [s] of a checked step of pattern ``spec``: max(:data:`DURATION`, :data:`SETTLE_RAD`/ω_n)."""
+    return max(DURATION, SETTLE_RAD / spec.omega_n)
+
+
 def _judge(t: np.ndarray, theta: np.ndarray, r: float, quantum: float) -> tuple[str, str]:
     tail = theta[t >= t[-1] - 1.0]
     swing = float(np.ptp(tail))
     band = max(0.04 * abs(r), 4.0 * quantum)
-    if swing > band:
-        crossings = int(np.count_nonzero(np.diff(np.sign(tail - tail.mean())) != 0))
+    crossings = int(np.count_nonzero(np.diff(np.sign(tail - tail.mean())) != 0))
+    if swing > band and crossings >= 2:  # a swing, not a slow creep (that one is "not settled")
         return "limit cycle", (f"θ swings {swing:.3g} rad peak to peak over the last second "
                                f"(≈ {crossings / 2.0:.0f} Hz), more than the 2 % band")
     return "ok", ""
@@ -113,7 +123,7 @@ def controller(rig: Rig, strategy: str, spec: PoleSpec, duration: float = DURATI
 
 
 def run_step(rig: Rig, strategy: str, reference: float, spec: PoleSpec, *, plant: Rig | None = None,
-             duration: float = DURATION, seed: int = 0, loop: ControllerLoop | None = None) -> StepRun:
+             duration: float | None = None, seed: int = 0, loop: ControllerLoop | None = None) -> StepRun:
     """Drive ``strategy`` designed for ``rig`` with pole pattern ``spec`` through one step.
 
     Parameters
@@ -128,8 +138,8 @@ def run_step(rig: Rig, strategy: str, reference: float, spec: PoleSpec, *, plant
         The position loop's pole pattern.
     plant : Rig, optional
         The rig simulated in the loop (default ``rig``: the design checked on its own rig file).
-    duration : float
-        Length of the run [s].
+    duration : float, optional
+        Length of the run [s] (default :func:`duration_for` the pattern).
     seed : int
         Seed of the simulated sensor noise.
     loop : ControllerLoop, optional
@@ -144,6 +154,8 @@ def run_step(rig: Rig, strategy: str, reference: float, spec: PoleSpec, *, plant
     ControllerConfigError
         If the strategy cannot be built on ``rig`` (the message says why).
     """
+    if duration is None:
+        duration = duration_for(spec)
     if loop is None:
         loop = controller(rig, strategy, spec, duration)
     else:
@@ -192,8 +204,9 @@ def _quantum(rig: Rig) -> float:
 
 # ---------------------------------------------------------------------------------- tuning
 #: Factors on the strategy's default ω_n tried when its default pattern misses the goal on the rig
-#: (descending: the fastest pattern that meets the goal wins).
-OMEGA_FACTORS = (1.0, 0.85, 0.7, 0.6, 0.5, 0.4, 0.3, 0.22)
+#: (descending: the fastest pattern that meets the goal wins; the slowest ones give the attainable
+#: figures of a rig whose dead time and lag no faster pattern survives).
+OMEGA_FACTORS = (1.0, 0.85, 0.7, 0.6, 0.5, 0.4, 0.3, 0.22, 0.16, 0.12)
 #: Damping ratios tried at each ω_n.
 ZETAS = (0.8, 0.9, 0.97)
 
@@ -227,6 +240,11 @@ class Verdict:
         """Every step settles (no limit cycle, no divergence) with M_p ≤ 5 %."""
         return self.complete and all(r.meets(SETTLES) for r in self.runs)
 
+    @property
+    def ends_in_band(self) -> bool:
+        """Every step ends inside the 2 % band (status ``ok``), whatever its overshoot."""
+        return self.complete and all(r.status == "ok" for r in self.runs)
+
     def worst(self, name: str) -> float:
         """Largest ``settling_time`` / ``overshoot`` / ``rise_time`` over the runs (inf if a run has none)."""
         vals = [getattr(r.metrics, name) if r.metrics is not None else math.inf for r in self.runs]
@@ -234,15 +252,18 @@ class Verdict:
         return max(vals) if vals else math.inf
 
     def cost(self) -> tuple[int, float]:
-        """Ranking key: settling patterns first, then the worst settling time."""
-        return (0 if self.settles else 1, self.worst("settling_time"))
+        """Ranking key: patterns that settle with M_p ≤ 5 % first, then those whose every step
+        ends in the band (the attainable figures of a rig no pattern settles on without
+        overshoot), then the worst settling time."""
+        return (0 if self.settles else 1 if self.ends_in_band else 2, self.worst("settling_time"))
 
 
 def verify(rig: Rig, strategy: str, spec: PoleSpec, steps: tuple[float, ...] = STEPS, *,
            plant: Rig | None = None, stop_early: bool = False) -> Verdict:
     """The pattern ``spec`` of ``strategy`` at every step of ``steps`` (:func:`run_step`; a reference
     beyond the rig's reach is replaced by the reach, once);
-    ``stop_early`` stops at the first step that does not settle with M_p ≤ 5 %."""
+    ``stop_early`` stops at the first step that does not end in the 2 % band (a limit cycle, a
+    divergence, not settled): such a pattern can be neither chosen nor the attainable figures."""
     template = controller(rig, strategy, spec)
     refs: list[float] = []
     for r in steps:
@@ -253,7 +274,7 @@ def verify(rig: Rig, strategy: str, spec: PoleSpec, steps: tuple[float, ...] = S
     for r in refs:
         run = run_step(rig, strategy, r, spec, plant=plant, loop=template)
         runs.append(run)
-        if stop_early and not run.meets(SETTLES):
+        if stop_early and run.status != "ok":
             return Verdict(strategy, spec, runs, complete=len(runs) == len(refs))
     return Verdict(strategy, spec, runs)
 
