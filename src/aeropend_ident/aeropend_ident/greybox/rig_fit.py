@@ -49,7 +49,7 @@ from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.decay import analyse_decay
 from aeropend_ident.greybox.fit import ParameterSpec, UniformData
 from aeropend_ident.greybox.replay import NRMSE_RULE, START_RULE, FreeRun, free_run
-from aeropend_ident.greybox.rig_inputs import StaticTable, TimeSeries, read_inputs, shortest_hold
+from aeropend_ident.greybox.rig_inputs import StaticTable, TimeSeries, fit_grid, read_inputs, shortest_hold
 from aeropend_ident.greybox.rig_problem import (
     INERTIA,
     SCREEN_STARTS,
@@ -102,7 +102,7 @@ class Outcome:
     provenance : str
         The inputs and methods that determined it.
     bound : float or None
-        The search bound it sits on (flagged), else None.
+        The search bound it lies within :data:`BOUND_SHARE` of (flagged), else None.
     lower, upper : float
         The search range.
     """
@@ -126,8 +126,8 @@ class Outcome:
         err = f" ± {self.std:.2g}" if math.isfinite(self.std) else ""
         text = f"{FITTED}: {self.value:.6g}{err} {self.unit} (1σ, Jacobian) from {self.provenance}"
         if self.bound is not None:
-            text += (f"; AT SEARCH BOUND {self.bound:.4g} (searched {self.lower:.4g} … {self.upper:.4g}): "
-                     "the bound, not the data, set it")
+            text += (f"; {BOUND_FLAG} {self.bound:.4g} (within {BOUND_SHARE:.0%} of it; searched "
+                     f"{self.lower:.4g} … {self.upper:.4g}): the bound, not the data, may have set it")
         return text
 
 
@@ -167,7 +167,7 @@ class RigFitResult:
         for o in self.outcomes:
             if o.status == "fitted":
                 err = f" ± {o.std:.2g}" if math.isfinite(o.std) else ""
-                flag = "   AT SEARCH BOUND" if o.bound is not None else ""
+                flag = f"   {BOUND_FLAG}" if o.bound is not None else ""
                 lines.append(f"  fitted        {o.key} = {o.value:.5g}{err} {o.unit}   "
                              f"[{o.provenance}]{flag}")
             else:
@@ -179,9 +179,10 @@ class RigFitResult:
             lines += [f"  {o.reason}" for o in refused]
         flagged = [o for o in self.outcomes if o.bound is not None and o.status == "fitted"]
         if flagged:
-            lines.append("AT A SEARCH BOUND (the bound, not the data, set these):")
-            lines += [f"  {o.key} = {o.value:.4g} {o.unit} (searched {o.lower:.4g} … {o.upper:.4g})"
-                      for o in flagged]
+            lines.append(f"AT A SEARCH BOUND (within {BOUND_SHARE:.0%} of the searched range from it: the "
+                         "bound, not the data, may have set these; gap screens the effects they can absorb):")
+            lines += [f"  {o.key} = {o.value:.4g} {o.unit} (bound {o.bound:.4g}; searched {o.lower:.4g} … "
+                      f"{o.upper:.4g})" for o in flagged]
         if self.runs:
             lines.append(f"free-run θ of the fitted rig ({START_RULE}; NRMSE = {NRMSE_RULE}):")
             lines += [f"  {run.line(k)}" for k, run in self.runs.items()]
@@ -494,11 +495,14 @@ def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = No
     if not inputs:
         raise IdentificationError("rig fit needs at least one input (a static table or a recording)")
     say(f"[1/5] reading {len(inputs)} input(s)")
-    tables, series = read_inputs(list(inputs), preset)
-    notes: list[str] = []
+    tables, series = read_inputs(list(inputs), preset, grid=fit_grid(rig))
+    notes: list[str] = [
+        f"{s.source}: fitted on a {s.data.dt * 1e3:.3g} ms grid (1 sample in {s.data.decimate} of its "
+        f"{s.replayed.dt * 1e3:.3g} ms uniform grid: the rod's dynamics need no finer; the figures replay "
+        "the whole grid)" for s in series if s.full is not None]
     sample_period = None
     if sample_todo and series:
-        dt = min(s.data.dt for s in series)
+        dt = min(s.replayed.dt for s in series)
         dt = float(f"{dt:.9g}")
         sample_period = (dt, f"median sample interval of {series[0].source} (rig fit)")
         rig = replace(rig, sample_period=dt)
@@ -571,7 +575,7 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
         for j, s in enumerate(problem.specs):
             v = s.from_z(z[j])
             std = abs(s.dp_dz(v)) * math.sqrt(cov[j, j]) if math.isfinite(cov[j, j]) else math.nan
-            bound = (s.lower if abs(z[j] - lo[j]) <= 1e-4 else s.upper) if pinned[j] else None
+            bound = near_bound(z[j], lo[j], hi[j], s.lower, s.upper)
             o = Outcome(s.name, s.unit, v, std, provenance=_provenance(J, sizes, problem.blocks, j),
                         bound=bound, lower=s.lower, upper=s.upper)
             limit = MAX_RELATIVE_STD * abs(v) if s.log else MAX_RANGE_STD * (s.upper - s.lower)
@@ -592,7 +596,7 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
     # on each whole recording (the fit's windows are its own business)
     runs: dict[str, FreeRun] = {}
     for ser in series:
-        d = ser.data
+        d = ser.replayed
         try:
             runs[ser.source] = free_run(fitted, d.t, d.duty, d.theta, source=d.source)
         except IdentificationError as exc:
@@ -661,14 +665,41 @@ def fitted_text(result: RigFitResult) -> str:
     return "\n".join(out) + "\n"
 
 
+#: A fitted value within this share of its search range (in the search coordinate: logarithmic for a
+#: scale parameter) of a bound is flagged: the bound, not the data, may have set it.
+BOUND_SHARE = 0.02
+#: The flag written in the rig file's source and comments (``gap`` reads it back: :func:`bound_flags`).
+BOUND_FLAG = "AT SEARCH BOUND"
+
+
+def near_bound(z: float, lo: float, hi: float, lower: float, upper: float) -> float | None:
+    """The search bound (``lower`` or ``upper``, in the parameter's unit) a fitted value lies within
+    :data:`BOUND_SHARE` of, in the search coordinate ``z`` with bounds ``lo``, ``hi``; else None."""
+    width = hi - lo
+    if not (math.isfinite(width) and width > 0.0):
+        return None
+    if z - lo <= BOUND_SHARE * width:
+        return lower
+    if hi - z <= BOUND_SHARE * width:
+        return upper
+    return None
+
+
+def bound_flags(sources: Mapping[str, str]) -> dict[str, str]:
+    """``section.name`` -> source text of every parameter a fitted rig flags at a search bound
+    (:data:`BOUND_FLAG` in its source; ``sources`` is :attr:`aeropend_sim.params.Rig.sources`), e.g. to
+    have ``gap`` screen the effect the parameter may have absorbed."""
+    return {k: str(v) for k, v in sources.items() if BOUND_FLAG in str(v)}
+
+
 def _comments(o: Outcome, ind: str) -> list[str]:
     if o.status != "fitted":
         return [f"{ind}# rig fit: STILL TO BE FITTED — {o.reason}"]
     err = f" ± {o.std:.2g}" if math.isfinite(o.std) else ""
     out = [f"{ind}# rig fit: FITTED {o.value:.5g}{err} {o.unit} from {o.provenance}"]
     if o.bound is not None:
-        out.append(f"{ind}# rig fit: AT SEARCH BOUND {o.bound:.4g} {o.unit} (searched {o.lower:.4g} … "
-                   f"{o.upper:.4g}): the bound, not the data, set it")
+        out.append(f"{ind}# rig fit: {BOUND_FLAG} {o.bound:.4g} {o.unit} (within {BOUND_SHARE:.0%} of it; "
+                   f"searched {o.lower:.4g} … {o.upper:.4g}): the bound, not the data, may have set it")
     return out
 
 
