@@ -202,9 +202,6 @@ class SampleFrame:
         Bit 0 enabled, bit 1 watchdog tripped, bit 2 spike rejected, bit 3 speed stale,
         bit 4 angle read-out invalid (SSI word rejected, or an impossible encoder transition),
         bit 5 AS5040 linearity alarm, bit 6 angle from SSI, bit 7 ESC arming.
-    pulse : int or None
-        ESC build (frame type 0x04): the servo pulse applied over the interval ending at this
-        sample, in 0.5 µs units; ``None`` in an H-bridge frame (type 0x01).
 
     A channel the build does not measure carries :data:`ABSENT_I16` (``i_a``, ``v_a``) or
     :data:`ABSENT_U32` (``period``).
@@ -218,16 +215,38 @@ class SampleFrame:
     period: int
     duty: int
     flags: int = 0
-    pulse: int | None = None
+
+    #: Applied ESC pulse [0.5 µs]; ``None`` for an H-bridge frame (see :class:`PulseSampleFrame`).
+    pulse = None
 
     def payload(self) -> bytes:
         """Unstuffed payload (without CRC)."""
         try:
-            if self.pulse is not None:
-                return _SAMPLE_PULSE.pack(T_SAMPLE_PULSE, self.seq, self.t_us, self.i_a, self.v_a,
-                                          self.theta, self.period, self.pulse, self.flags)
             return _SAMPLE.pack(T_SAMPLE, self.seq, self.t_us, self.i_a & 0xFFFF, self.v_a,
                                 self.theta, self.period, self.duty, self.flags)
+        except struct.error as exc:
+            raise ProtocolError(f"sample field out of range in {self}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class PulseSampleFrame(SampleFrame):
+    """MCU -> host: the sample of an ESC build (frame type 0x04, 20 bytes).
+
+    The :class:`SampleFrame` fields (``duty`` is 0: the build has no PWM duty) and
+
+    Attributes
+    ----------
+    pulse : int
+        Servo pulse applied over the interval ending at this sample [0.5 µs units].
+    """
+
+    pulse: int = 0  # type: ignore[assignment]
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        try:
+            return _SAMPLE_PULSE.pack(T_SAMPLE_PULSE, self.seq, self.t_us, self.i_a, self.v_a,
+                                      self.theta, self.period, self.pulse, self.flags)
         except struct.error as exc:
             raise ProtocolError(f"sample field out of range in {self}: {exc}") from None
 
@@ -415,7 +434,8 @@ class HelloRequest:
         return bytes([T_HELLO_REQ])
 
 
-Frame = SampleFrame | StatusFrame | HelloFrame | Duty | Pulse | HelloRequest | Enable | Rate | Calibrate
+Frame = (SampleFrame | PulseSampleFrame | StatusFrame | HelloFrame | Duty | Pulse | HelloRequest | Enable
+         | Rate | Calibrate)
 
 
 def parse_payload(payload: bytes) -> Frame:
@@ -444,7 +464,7 @@ def parse_payload(payload: bytes) -> Frame:
     if t == T_SAMPLE_PULSE:
         need(_SAMPLE_PULSE.size, "pulse sample")
         _, seq, t_us, i_a, v_a, theta, period, pulse, flags = _SAMPLE_PULSE.unpack(payload)
-        return SampleFrame(seq, t_us, i_a, v_a, theta, period, 0, flags, pulse=pulse)
+        return PulseSampleFrame(seq, t_us, i_a, v_a, theta, period, 0, flags, pulse=pulse)
     if t == T_HELLO:
         need(_HELLO.size, "hello")
         return HelloFrame(*_HELLO.unpack(payload)[1:])
