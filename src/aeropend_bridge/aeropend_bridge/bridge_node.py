@@ -260,7 +260,7 @@ class BridgeNode(LifecycleNode):
                 "(wrong baud rate, another sketch, or the board still booting?)")
         self._check_family()
         self.get_logger().info(
-            f"configured: port {self.port} at {self.baud} baud, protocol-1 firmware recognised "
+            f"configured: port {self.port} at {self.baud} baud, aeropend firmware recognised "
             f"({self.handshake.longest} consistent sample frames), rig {self.rig_name!r}, theta_offset "
             f"{self.cal.theta_offset:g} rad, command_timeout {self.command_timeout_s:g} s; output off")
 
