@@ -152,9 +152,11 @@ class BridgeNode(LifecycleNode):
 
     Transitions (``ros2 lifecycle set /aeropend_bridge <transition>``):
 
-    * ``configure``: validate the parameters, open the port and recognise the protocol-1
-      firmware from its sample stream (:class:`~aeropend_bridge.bridge_core.FirmwareHandshake`)
-      within ``handshake_timeout``; the H-bridge output is switched off (ENABLE 0, duty 0).
+    * ``configure``: validate the parameters, open the port and recognise the firmware from its
+      sample stream (:class:`~aeropend_bridge.bridge_core.FirmwareHandshake`) within
+      ``handshake_timeout``, read its HELLO and refuse a firmware of another family or sensor
+      than the rig file's (:func:`~aeropend_bridge.family.check_firmware`); the output is switched
+      off (ENABLE 0, duty 0 or the ESC's zero-throttle pulse).
       ``/diagnostics`` runs from here on. Fails (state stays *unconfigured*, port closed) with
       the reason logged.
     * ``activate``: ENABLE 1, duty commands are forwarded (duty 0 until the first command after
