@@ -12,8 +12,8 @@ frames it receives), so the schedule holds on a loaded machine:
   ``ESC_ARM_MS`` = 2 s after reset, flag bit 7);
 * 2.3 … 3.5 s: a sweep across the range (1000, 1000.5, 1001, 1123.5, 1250, 1500, 1749.5, 1877,
   1999.5, 2000 µs) and two values outside it (2600, 900 µs: clamped to 2000 / 1000 µs);
-* 3.5 … 3.8 s: 1700 µs, then silence: the minimum (disarm) pulse must start within 100 ms of
-  the last command frame the MCU received.
+* 3.5 … 3.8 s: 1700 µs, then silence: after the last command frame the MCU received has put
+  1700 µs on the pin, the minimum (disarm) pulse must start within 100 ms of that frame.
 
 Asserted, per build: every pulse on the pin is the pulse the firmware reports as applied at that
 instant within ±2 µs, and the reported values are exactly the commanded ones (0.5 µs units,
@@ -268,7 +268,8 @@ def test_arming_sequence(run: tuple) -> None:
     first = next(r for r, w in pulses if abs(w - 1000.0) > PULSE_TOL_US)
     frame_us = 1e6 / build.esc_hz
     print(f"{build.name}: first commanded pulse {first / 1000:.2f} ms after reset (arming {ARM_MS} ms)")
-    assert ARM_MS * 1000 <= first <= ARM_MS * 1000 + 2 * 2040 + frame_us + 20_000  # + command latency
+    # never before the arming ends; a stalled host (command watchdog) may delay the first one
+    assert ARM_MS * 1000 <= first <= ARM_MS * 1000 + 2 * 2040 + frame_us + 200_000
     arm_end_us = math.ceil(ARM_MS * 1000 / 2040) * 2040  # the tick that ends the arming
     for f in _samples(res):
         assert bool(f.flags & FLAG_ARMING) == (f.t_us < arm_end_us), (f.t_us, f.flags)
@@ -280,10 +281,14 @@ def test_disarm_within_100ms_of_pc_silence(run: tuple) -> None:
         pytest.skip("H-bridge build: its 250 ms duty-0 watchdog is tested in test_simavr.py")
     last_rx = res["rx"][-1] / CYC_PER_US
     pulses = _pulses(res)
-    before = [w for r, w in pulses if last_rx - 50_000 < r < last_rx]
-    assert before and all(abs(w - 1700.0) <= PULSE_TOL_US for w in before), before
+    # the last command (1700 µs) reaches the pin within a tick and a frame; then, with the PC
+    # silent, the minimum pulse must start within 100 ms of that last command frame. (On a loaded
+    # host a stall of the command loop may already trip the watchdog earlier: that is the
+    # firmware doing its job, and the last command re-applies 1700 µs.)
     after = [(r, w) for r, w in pulses if r > last_rx]
-    first_min = next(r for r, w in after if abs(w - 1000.0) <= PULSE_TOL_US)
+    i_cmd = next(i for i, (_, w) in enumerate(after) if abs(w - 1700.0) <= PULSE_TOL_US)
+    assert after[i_cmd][0] - last_rx <= 2040 + 1e6 / build.esc_hz + 100, "last command not applied"
+    first_min = next(r for r, w in after[i_cmd:] if abs(w - 1000.0) <= PULSE_TOL_US)
     latency_ms = (first_min - last_rx) / 1000
     print(f"{build.name}: disarm pulse {latency_ms:.2f} ms after the last command frame")
     assert latency_ms <= 100.0
