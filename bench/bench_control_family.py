@@ -231,7 +231,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
                      f"{s['failed_paths']} |")
     lines += ["", "## Per rig", "",
               "| rig | sensor | drawn physics | rig fit [s] | gap [s] (exit; effects named) | "
-              "design_gains [s] | recommended | design_gains said | steps on the plant: ts [s] / M_p [%] (predicted) |",
+              "design_gains [s] | recommended | design_gains said | "
+              "steps on the plant: ts [s] / M_p [%] (predicted) |",
               "|---|---|---|---|---|---|---|---|---|"]
     for r in doc["rigs"]:
         tr = ", ".join(f"{k} {_f(v)}" for k, v in r["truth"].items())
