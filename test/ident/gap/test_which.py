@@ -562,3 +562,27 @@ def test_a_recordings_smoothed_start_is_worked_out_once_for_all_its_replays(monk
     assert prep.start == {"theta_dot": rate(prep.y["theta"], prep.dt),
                           "i_a": value(prep.y["i_a"], prep.dt),
                           "omega_rotor": value(prep.y["omega_rotor"], prep.dt)}
+
+
+def test_a_residual_no_candidate_changes_does_not_zero_the_completeness():
+    """Issue 60 item 4: with every channel logged, a correction removed the θ gap (θ at its noise) while
+    v_a's residual stayed 6.8× its noise RMS, the same before and after and under every candidate (a
+    v_a mismatch no catalog effect reaches): completeness read 0.00. The channel is reported, not counted;
+    one a candidate did change still counts."""
+    from types import SimpleNamespace
+
+    from aeropend_ident.gap.which import _completeness, unreachable_channels
+
+    st = SimpleNamespace(sse0_c={"theta": 40.0, "v_a": 46.0}, noise_c={"theta": 1.0, "v_a": 1.0})
+    cand = {"per_channel": {"theta": {"residual_over_noise": 1.1}, "v_a": {"residual_over_noise": 46.2}}}
+    cands = SimpleNamespace(completeness={"inertia": cand, "thrust_coefficient": cand})
+    floor = unreachable_channels(st, cands)
+    assert floor == {"v_a"}
+    sse = {"theta": 1.1, "v_a": 46.2}
+    assert _completeness(st, sse)["completeness"] == 0.0  # before: the unchanged v_a zeroed it
+    got = _completeness(st, sse, floor)
+    assert got["completeness"] == 1.0 and got["per_channel"]["v_a"]["unreachable"]
+    assert "not counted: the v_a residual (6.8× its noise RMS)" in got["verdict"]
+    # a v_a residual one candidate halves is within the catalog's reach: it counts
+    cands.completeness["back_emf"] = {"per_channel": {"v_a": {"residual_over_noise": 23.0}}}
+    assert unreachable_channels(st, cands) == frozenset()

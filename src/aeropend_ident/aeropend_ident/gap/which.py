@@ -2463,7 +2463,32 @@ def _evidence(ranking: list[dict[str, Any]], chosen: Sequence[str], shares: Mapp
                                 -(r.get("presence") or 0.0)))
 
 
-def _completeness(st: _Setup, sse: Mapping[str, float]) -> dict[str, Any]:
+#: A channel's nominal validation excess over its noise part (ratio − 1) that no single candidate
+#: reduces by at least this share is a floor the catalog cannot reach (:func:`unreachable_channels`).
+REACH_SHARE = 0.1
+
+
+def unreachable_channels(st: _Setup, cands: _Candidates) -> frozenset[str]:
+    """Recorded channels other than θ whose validation residual stands above its noise and which no
+    candidate effect changed (each one's ratio stayed within :data:`REACH_SHARE` of the nominal
+    excess): a residual the catalog cannot reach, e.g. a v_a mismatch of 0.5 % of its range that every
+    correction leaves as it was. :func:`_completeness` reports such a channel without letting it zero
+    the completeness of a correction that removed the gap where the catalog can act."""
+    out = set()
+    for c, s0 in st.sse0_c.items():
+        n_c = max(st.noise_c[c], 1e-300)
+        r0 = s0 / n_c
+        if c == "theta" or r0 <= RESIDUAL_NOISE_OK:
+            continue
+        best = min((v["per_channel"][c]["residual_over_noise"] for v in cands.completeness.values()
+                    if c in v.get("per_channel", {})), default=r0)
+        if best >= r0 - REACH_SHARE * (r0 - 1.0):
+            out.add(c)
+    return frozenset(out)
+
+
+def _completeness(st: _Setup, sse: Mapping[str, float], unreachable: frozenset[str] = frozenset()
+                  ) -> dict[str, Any]:
     """How completely a corrected model explains the validation gap, judged channel by channel.
 
     ``sse`` is the corrected model's validation error per channel (:func:`validation_errors`).
@@ -2471,7 +2496,9 @@ def _completeness(st: _Setup, sse: Mapping[str, float]) -> dict[str, Any]:
     captures the plant leaves only noise (ratio near 1). ``completeness`` is 1 while every channel's
     ratio is at most :data:`RESIDUAL_NOISE_OK` (RMS within 2× the noise), 0 from
     :data:`RESIDUAL_NOISE_MAX` on (RMS 5×), log-linear between; the worst channel counts. Pooling the
-    channels would let the noise of well-modelled channels hide a residual left in another.
+    channels would let the noise of well-modelled channels hide a residual left in another. A channel
+    in ``unreachable`` (:func:`unreachable_channels`) is reported (``per_channel[c]["unreachable"]``,
+    the verdict) but does not count.
     """
     per: dict[str, dict[str, float]] = {}
     comp = 1.0
@@ -2483,9 +2510,11 @@ def _completeness(st: _Setup, sse: Mapping[str, float]) -> dict[str, Any]:
         c_c = float(np.clip(math.log(RESIDUAL_NOISE_MAX / max(ratio, 1e-300))
                             / math.log(RESIDUAL_NOISE_MAX / RESIDUAL_NOISE_OK), 0.0, 1.0))
         per[c] = {"residual_over_noise": ratio, "nominal_over_noise": s0 / n_c, "share_above_noise": share,
-                  "completeness": c_c}
-        comp = min(comp, c_c)
-    worst = max(per, key=lambda k: per[k]["residual_over_noise"])
+                  "completeness": c_c, "unreachable": c in unreachable}
+        if c not in unreachable:
+            comp = min(comp, c_c)
+    counted = [k for k in per if k not in unreachable] or list(per)
+    worst = max(counted, key=lambda k: per[k]["residual_over_noise"])
     w = per[worst]
     times = f"{math.sqrt(w['residual_over_noise']):.1f}× its noise RMS"
     if comp >= 1.0:
@@ -2495,6 +2524,11 @@ def _completeness(st: _Setup, sse: Mapping[str, float]) -> dict[str, Any]:
     else:
         verdict = (f"partly explained: the {worst} residual stays {times}, which no chosen effect accounts "
                    "for (an effect outside the catalog, several at once, or a time-varying rig)")
+    floors = [k for k in per if k in unreachable]
+    if floors:
+        verdict += "; not counted: " + ", ".join(
+            f"the {k} residual ({math.sqrt(per[k]['residual_over_noise']):.1f}× its noise RMS), which no "
+            "candidate effect changes" for k in floors)
     return {"completeness": comp, "worst_channel": worst, "residual_over_noise": w["residual_over_noise"],
             "share_above_noise": w["share_above_noise"], "per_channel": per, "verdict": verdict}
 
@@ -2693,8 +2727,9 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
         # forward selection: while the chosen set leaves some channel's residual above its noise
         # (completeness < 1), screen its residual and confirm the best candidates by a joint fit with
         # the effects already chosen
+        floor = unreachable_channels(st, cands)
         while (len(chosen) < max_effects
-               and _completeness(st, channel_sse(corrected, meas, st.pv))["completeness"] < 1.0):
+               and _completeness(st, channel_sse(corrected, meas, st.pv), floor)["completeness"] < 1.0):
             added = _add_effect(st, cur, cur_segs, chosen, ranking, screened, forced, seed + 2 * len(chosen))
             if added is None:
                 break
@@ -2730,7 +2765,7 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
                 if refs:
                     r["refinements"] = refs
         plant_side = _plant_side_entry(chosen, amb, alt_fits)
-        explained = _completeness(st, channel_sse(corrected, meas, st.pv))
+        explained = _completeness(st, channel_sse(corrected, meas, st.pv), unreachable_channels(st, cands))
         reason = (f"{name} removes {100 * best['above_noise_explained']:.1f} % of the validation gap above "
                   f"noise (BIC change {best['bic_delta']:.1f}); {explained['verdict']}")
     else:
