@@ -41,6 +41,7 @@ from typing import Any
 import yaml
 
 from aeropend_ident.errors import GapCliError
+from aeropend_sim.files.safe_yaml import YamlRefusedError, load_yaml
 
 #: Manifest file name at an archive's top level.
 MANIFEST = "sessions.yaml"
@@ -126,8 +127,10 @@ def find_sessions(archive: str | Path) -> tuple[list[Session], list[str]]:
 
 def _from_manifest(root: Path, manifest: Path) -> list[Session]:
     try:
-        doc = yaml.safe_load(manifest.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
+        doc = load_yaml(manifest, "a gap-batch manifest (sessions.yaml)")
+    except YamlRefusedError as exc:
+        raise GapCliError(str(exc)) from None
+    except (OSError, ValueError, yaml.YAMLError) as exc:
         raise GapCliError(f"{manifest}: cannot be read as YAML: {exc}") from exc
     items = doc.get("sessions") if isinstance(doc, dict) else None
     if not isinstance(items, list) or not items:

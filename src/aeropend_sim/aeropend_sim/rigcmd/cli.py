@@ -80,6 +80,7 @@ def _fit(args: argparse.Namespace) -> int:
     out = check_output_file(args.out, args.overwrite)
     if out.resolve() == Path(args.rig).resolve() and not args.overwrite:
         raise RigFileError(f"-o {out} is the input rig file; choose another name")
+    load_rig(args.rig)  # a bad rig file fails at once, before the identification modules load
     from aeropend_ident.greybox.rig_fit import fit_rig, write_fitted
 
     say = None if args.quiet else (lambda m: print(f"rig fit: {m}", flush=True))
@@ -91,6 +92,7 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
+    load_rig(args.rig)  # a bad rig file fails at once, before the identification modules load
     from aeropend_ident.greybox.rig_check import check_rig
 
     print(check_rig(args.rig, args.inputs, preset=args.preset))
