@@ -71,7 +71,7 @@ from aeropend_ident.io.recording_input import (
     uniform_recording,
 )
 from aeropend_ident.progress import reporter
-from aeropend_sim.output_folder import claim_output_folder
+from aeropend_sim.output_folder import claim_output_folder, exits_cleanly_on_faults
 from aeropend_sim.params import RigFileError
 from aeropend_sim.recording import RecordingError
 
@@ -218,6 +218,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@exits_cleanly_on_faults("gap")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the gap diagnosis; print the summary; write the report folder."""
     args = build_parser().parse_args(argv)
@@ -299,7 +300,7 @@ def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
             workers=args.workers,
             scheduler=args.scheduler,
         )
-        paths = write_report(result, out.prepare())
+        paths = out.write(lambda folder: write_report(result, folder))
     except (RecordingError, RigFileError, ValueError) as exc:
         print(f"gap: error: {exc}", file=sys.stderr)
         return 2

@@ -64,6 +64,7 @@ from aeropend_ident.greybox.rig_problem import (
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect
 from aeropend_sim.files.safe_yaml import parse_yaml
+from aeropend_sim.output_folder import write_file_atomically
 from aeropend_sim.params import FITTED, TO_BE_FITTED, Rig, load_rig, rig_from_dict
 from aeropend_sim.rigcmd.template import GEOMETRY_NEEDED, plausible_range
 
@@ -686,6 +687,4 @@ def write_fitted(result: RigFitResult, path: str | Path) -> Path:
     except ValueError as exc:
         raise IdentificationError(f"rig fit: the fitted rig file would not load ({exc}); not "
                                   "written") from exc
-    p = Path(path)
-    p.write_text(text, encoding="utf-8")
-    return p
+    return write_file_atomically(path, text)

@@ -111,6 +111,7 @@ from aeropend_ident.sindy.partial import (
 from aeropend_ident.sindy.preprocess import add_derivatives, differentiate
 from aeropend_ident.sindy.second_order import combine_models, fit_pendulum
 from aeropend_sim.model import PlantModel
+from aeropend_sim.output_folder import is_fault
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
@@ -658,7 +659,9 @@ def identify(
         if plots:
             try:
                 files += _plots(out, model, parts[0][1], parts[0][0], held_runs[0], say, child)
-            except Exception as exc:  # the figures never cost the identified model
+            except Exception as exc:  # the figures never cost the identified model (a full disk does)
+                if is_fault(exc):
+                    raise
                 not_computed["plots"] = f"{type(exc).__name__}: {exc}"
                 say(f"plots: not drawn: {not_computed['plots']}")
     finally:

@@ -26,7 +26,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from aeropend_sim.components import registry
-from aeropend_sim.output_folder import OutputFolderError, check_output_file
+from aeropend_sim.output_folder import (
+    OutputFolderError,
+    check_output_file,
+    exits_cleanly_on_faults,
+    is_fault,
+    write_file_atomically,
+)
 from aeropend_sim.params import RigFileError, load_rig
 from aeropend_sim.rigcmd.template import new_rig_text, parse_stated
 
@@ -67,7 +73,7 @@ def _new(args: argparse.Namespace) -> int:
         raise RigFileError(f"-o {out}: a rig file ends in .yaml")
     stated = parse_stated(args.actuator, args.stated)
     text = new_rig_text(args.actuator, stated, name=args.name or out.stem, file=out.name)
-    out.write_text(text, encoding="utf-8")
+    write_file_atomically(out, text)
     rig = load_rig(out)
     todo = sum(rig.status(k) == "to be fitted" for k in registry.family_params(rig.family))
     print(f"wrote {out}: {args.actuator} rig, {len(stated)} stated value(s), {todo} parameter(s) to be "
@@ -99,6 +105,7 @@ def _check(args: argparse.Namespace) -> int:
     return 0
 
 
+@exits_cleanly_on_faults("rig")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``rig``; return the exit status."""
     args = build_parser().parse_args(argv)
@@ -109,6 +116,8 @@ def main(argv: Sequence[str] | None = None) -> int:
               "colcon build, or scripts/setup_env.sh)", file=sys.stderr)
         return 2
     except (ValueError, OutputFolderError, OSError) as exc:
+        if is_fault(exc):
+            raise
         print(f"rig {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

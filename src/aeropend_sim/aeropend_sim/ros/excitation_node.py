@@ -42,6 +42,7 @@ import numpy as np
 from aeropend_sim.contract import REL_DUTY_CYCLE, REL_JOINT_STATES, LockstepRepeats
 from aeropend_sim.excitation import SIGNALS, ExcitationError, ExcitationSignal, make_signal
 from aeropend_sim.files.safe_yaml import YamlRefusedError, parse_yaml
+from aeropend_sim.output_folder import exits_cleanly_on_faults
 from aeropend_sim.ros.node_usage import NodeParameter, NodeUsage, contract_topic, strip_ros_args
 
 NODE_NAME = "aeropend_excitation"
@@ -416,6 +417,7 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
                     interrupt_status=1)
 
 
+@exits_cleanly_on_faults("excitation")
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``excitation``; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)

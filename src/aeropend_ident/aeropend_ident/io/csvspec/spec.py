@@ -26,6 +26,7 @@ from aeropend_ident.errors import CsvImportError
 from aeropend_ident.io.csvspec.input_kinds import INPUT_KINDS, LAWS, InputMap, input_map
 from aeropend_sim.contract import EXTRA_CHANNELS, REFERENCE_CHANNEL, ContractError, check_extra_channel
 from aeropend_sim.files.safe_yaml import YamlRefusedError, load_yaml, parse_yaml
+from aeropend_sim.output_folder import is_fault, write_file_atomically
 from aeropend_sim.recording import MEASURED_CHANNELS
 
 __all__ = [
@@ -457,8 +458,10 @@ def write_preset_file(spec: CsvSpec, path: str | Path, overwrite: bool = False,
     head = "".join(f"# {line}\n" for line in comment.splitlines())
     text = head + yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=100)
     try:
-        path.write_text(text, encoding="utf-8")
+        write_file_atomically(path, text)
     except OSError as exc:
+        if is_fault(exc):  # a full disk, a read-only folder: the command's one-line fault report
+            raise
         raise CsvImportError(f"preset file {path}: cannot write ({exc.strerror or exc})") from None
     return path
 
