@@ -46,7 +46,8 @@ STALE = "stale_from_an_earlier_run.png"
 FAULT_CASES: dict[str, tuple[Callable[[str], BaseException], str, int]] = {
     "ENOSPC": (lambda f: OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), f),
                "no space left on the device (ENOSPC)", 1),
-    "EROFS": (lambda f: OSError(errno.EROFS, os.strerror(errno.EROFS), f), "read-only file system (EROFS)", 1),
+    "EROFS": (lambda f: OSError(errno.EROFS, os.strerror(errno.EROFS), f),
+              "read-only file system (EROFS)", 1),
     "EACCES": (lambda f: PermissionError(errno.EACCES, os.strerror(errno.EACCES), f),
                "permission denied (EACCES)", 1),
     "Ctrl-C": (lambda f: KeyboardInterrupt(), "interrupted (Ctrl-C)", 130),
@@ -158,8 +159,8 @@ COMMANDS: dict[str, tuple[Callable[[dict[str, Path]], list[str]], str, str, bool
     "baseline": (lambda d: [str(d["bag"]), "--rig", "thesis_rig", "--decimate", "4", "--init-horizon", "0"],
                  "-o", "report.json", True),
     "compare": (lambda d: [str(d["bag"]), "--rig", "thesis_rig"], "-o", "compare.json", True),
-    "identify": (lambda d: [str(d["bag"]), "--rig", "thesis_rig", "--quiet", "--no-plots"], "-o", "model.yaml",
-                 True),
+    "identify": (lambda d: [str(d["bag"]), "--rig", "thesis_rig", "--quiet", "--no-plots"], "-o",
+                 "model.yaml", True),
     "gap": (lambda d: [str(d["bag"]), "--held-out", str(d["held"]), "--rig", "thesis_rig", "-q",
                        "--max-effects", "1", "--no-oracle"], "-o", "report.json", True),
     "csv_import": (lambda d: [str(d["csv"]), "--time-col", "t", "--duty-col", "duty", "--angle-col", "angle"],
@@ -238,13 +239,14 @@ def test_csv_import_on_a_real_full_or_read_only_tmpfs(fault, tmp_path):
     mnt.mkdir()
     csv = tmp_path / "log.csv"
     t = np.arange(60000) * 0.002
-    csv.write_text("t,duty,angle\n" + "".join(f"{a:.3f},{0.3 + 0.2 * (k // 500 % 2):.3f},{0.1 * np.sin(a):.6f}\n"
-                                              for k, a in enumerate(t)))
+    rows = (f"{a:.3f},{0.3 + 0.2 * (k // 500 % 2):.3f},{0.1 * np.sin(a):.6f}\n" for k, a in enumerate(t))
+    csv.write_text("t,duty,angle\n" + "".join(rows))
+    fill = f"head -c 1800000 /dev/zero > {mnt}/filler" if fault == "ENOSPC" else f"mount -o remount,ro {mnt}"
     script = f"""
 set -e
 mount -t tmpfs -o size=2m tmpfs {mnt}
 mkdir {mnt}/out && printf 'earlier run\\n' > {mnt}/out/metadata.yaml
-{"head -c 1800000 /dev/zero > " + str(mnt) + "/filler" if fault == "ENOSPC" else "mount -o remount,ro " + str(mnt)}
+{fill}
 set +e
 {sys.executable} -m aeropend_ident.cli.csv_import {csv} --time-col t --duty-col duty --angle-col angle \
   -o {mnt}/out --overwrite

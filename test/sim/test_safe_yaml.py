@@ -129,7 +129,8 @@ def test_oversized_and_binary_files_are_refused_from_their_size_at_once(tmp_path
     with open(big, "wb") as fh:  # sparse: 2 GB on paper, nothing on disk
         fh.truncate(2 << 30)
     t0 = time.perf_counter()
-    with pytest.raises(RigFileError, match=r"big_rig.yaml: refused: 2048.0 MB, above the 1.0 MB limit for a rig file"):
+    refusal = r"big_rig.yaml: refused: 2048.0 MB, above the 1.0 MB limit for a rig file"
+    with pytest.raises(RigFileError, match=refusal):
         load_rig(big)
     assert time.perf_counter() - t0 < 0.1
     nul = tmp_path / "nul.yaml"
