@@ -29,9 +29,11 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.util
 import inspect
+import logging
 import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -111,11 +113,41 @@ def call_case(ref: tuple[str, str, str], case: Any) -> Any:
         return func(case)
 
 
+def _silence_cluster_logs() -> None:
+    """Run on each worker (and here) when a run is interrupted: its shutdown chatter is no news."""
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+
+
+def _quiet_shutdown(client: Any) -> None:
+    """Before the cluster of an interrupted run closes: no "task cancelled" or "worker killed"
+    warnings around the command's one-line message (issue 62)."""
+    _silence_cluster_logs()
+    with contextlib.suppress(Exception):
+        client.run(_silence_cluster_logs)
+
+
+def _close_half_started() -> None:
+    """Close a local cluster whose start was interrupted (Ctrl-C while its workers start).
+
+    Its constructor never returned, so only distributed's own list of clusters knows it; left
+    there, distributed's exit handler prints a traceback closing it.
+    """
+    _silence_cluster_logs()
+    from distributed.deploy.spec import SpecCluster
+
+    for cluster in list(getattr(SpecCluster, "_instances", ())):
+        with contextlib.suppress(BaseException):
+            cluster.close(timeout=10)
+        cluster.shutdown_on_close = False  # nothing left for the exit handler to report
+
+
 def _cluster(workers: int, scheduler: str | None) -> Any:
     from distributed import Client, LocalCluster
 
     if scheduler:
         return Client(scheduler), None
+    # a worker killed at Ctrl-C leaves its semaphores to the resource tracker, which would warn at exit
+    os.environ.setdefault("PYTHONWARNINGS", "ignore:resource_tracker:UserWarning")
     env = dict(WORKER_ENV)
     if os.environ.get("AEROPEND_CACHE_DIR"):
         env["AEROPEND_CACHE_DIR"] = os.environ["AEROPEND_CACHE_DIR"]
@@ -168,7 +200,12 @@ def run_cases(func: Callable[[Any], Any], cases: Sequence[Any], *, workers: int 
                 progress.update(1)
                 yield i, result
         return
-    client, cluster = _cluster(n, scheduler)
+    try:
+        client, cluster = _cluster(n, scheduler)
+    except BaseException:
+        if scheduler is None:
+            _close_half_started()
+        raise
     progress = bar(len(cases), desc, quiet=quiet, unit="case")
     try:
         futures = {client.submit(call_case, ref, case, pure=False): i for i, case in enumerate(cases)}
@@ -177,6 +214,9 @@ def run_cases(func: Callable[[Any], Any], cases: Sequence[Any], *, workers: int 
             result = fut.result()
             progress.update(1)
             yield i, result
+    except BaseException:  # Ctrl-C, a full disk, a case's error: the command says it in one line
+        _quiet_shutdown(client)
+        raise
     finally:
         progress.close()
         client.close()
