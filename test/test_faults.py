@@ -113,6 +113,20 @@ def test_staged_folder_replaces_the_earlier_one_only_when_complete(tmp_path):
     assert fault_message(OSError(errno.ENOENT, "missing")) is None
 
 
+def test_the_working_folder_is_written_into_never_renamed(tmp_path, monkeypatch):
+    """``-o .`` in an empty working folder: the entries move in; the folder itself stays."""
+    from aeropend_sim.output_folder import claim_output_folder
+
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    inode = work.stat().st_ino
+    out = claim_output_folder(".", False, own=["report.json"], looks_like="a report")
+    written = out.write(lambda d: [(d / "report.json").write_text("{}"), d / "report.json"][1])
+    assert written == Path("report.json") and work.stat().st_ino == inode
+    assert _tree(work) == {"report.json": b"{}"} and _partials(tmp_path) == []
+
+
 def test_one_file_is_replaced_in_one_rename(tmp_path):
     f = tmp_path / "gains.yaml"
     write_file_atomically(f, "kp: 1\n")

@@ -343,7 +343,10 @@ def staged_path(final: str | Path, *, folder: bool, create: bool = True, stage: 
     Parameters
     ----------
     final : str or Path
-        The result's path (a file or a folder; a symbolic link to a folder is followed).
+        The result's path (a file or a folder; a symbolic link to a folder is followed). A folder
+        that must never be renamed away (the working folder or one above it, the home folder, a
+        git repository, a mount point; :class:`OutputFolder` writes one only when it is empty)
+        gets the new entries moved into it one by one instead.
     folder : bool
         Whether the result is a folder.
     create : bool
@@ -365,10 +368,13 @@ def staged_path(final: str | Path, *, folder: bool, create: bool = True, stage: 
     OSError, KeyboardInterrupt
         Whatever the block or the renames raise, marked with ``final`` for :func:`fault_message`.
     """
-    final = Path(final)
+    final = Path(os.path.abspath(final))  # "." and ".." get their real names
     if final.is_symlink() and final.is_dir():
         final = final.resolve()
     existed = final.exists()
+    # the working folder, one above it, the home folder, a mount point ...: never renamed away;
+    # the new entries are moved into it instead (such a folder is written only when empty)
+    in_place = folder and final.is_dir() and (_protected(final) is not None or os.path.ismount(final))
     try:
         parent = final.absolute().parent
         parent.mkdir(parents=True, exist_ok=True)
@@ -385,7 +391,10 @@ def staged_path(final: str | Path, *, folder: bool, create: bool = True, stage: 
         if folder and create:
             target.mkdir(exist_ok=True)
         yield target
-        if folder and final.exists():
+        if in_place:
+            for entry in sorted(target.iterdir()):
+                os.rename(entry, final / entry.name)
+        elif folder and final.exists():
             earlier = stage / f"{final.name}.earlier"
             os.rename(final, earlier)
             try:
