@@ -80,14 +80,38 @@ def parse_yaml(text: str, where: str, expected: str = "a YAML file", *,
         line = text.count("\n", 0, text.index("\0")) + 1
         raise YamlRefusedError(f"{where}: refused: a NUL byte on line {line} (a binary file?); expected "
                                f"{expected} (YAML text)")
-    for event in yaml.parse(text, Loader=_Loader):
-        if isinstance(event, yaml.AliasEvent):
-            mark = event.start_mark
-            raise YamlRefusedError(
-                f"{where}:{mark.line + 1}:{mark.column + 1}: refused: YAML alias *{event.anchor}; "
-                f"{expected} is read without anchors and aliases (&name / *name): write the value out "
-                "where it is used")
-    return yaml.load(text, Loader=_Loader)  # a safe loader: CSafeLoader or SafeLoader
+    try:
+        for event in yaml.parse(text, Loader=_Loader):
+            if isinstance(event, yaml.AliasEvent):
+                raise _alias_refused(event, where, expected)
+        return yaml.load(text, Loader=_Loader)  # a safe loader: CSafeLoader or SafeLoader
+    except yaml.YAMLError:
+        # invalid YAML: parsed again in Python for PyYAML's own message (libyaml words it otherwise)
+        loader = _NoAliasLoader(text)
+        loader.where, loader.expected = where, expected
+        try:
+            return loader.get_single_data()
+        finally:
+            loader.dispose()
+
+
+def _alias_refused(event: yaml.AliasEvent, where: str, expected: str) -> YamlRefusedError:
+    mark = event.start_mark
+    return YamlRefusedError(
+        f"{where}:{mark.line + 1}:{mark.column + 1}: refused: YAML alias *{event.anchor}; {expected} is "
+        "read without anchors and aliases (&name / *name): write the value out where it is used")
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    """PyYAML's pure-Python safe loader, refusing the first alias (for invalid YAML's messages)."""
+
+    where = "YAML text"
+    expected = "a YAML file"
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.AliasEvent):
+            raise _alias_refused(self.peek_event(), self.where, self.expected)
+        return super().compose_node(parent, index)
 
 
 def load_yaml(path: str | Path, expected: str = "a YAML file", *, max_bytes: int = MAX_YAML_BYTES) -> Any:
