@@ -156,7 +156,27 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     rows = [f"{a:.2f},{0.3 + 0.2 * (k // 50 % 2):.3f},{0.1 * np.sin(a):.5f}" for k, a in enumerate(t)]
     csv.write_text("t,duty,angle\n" + "\n".join(rows) + "\n")
     return {"bag": write_bag(_recording(1, 12.0), root / "fit"),
-            "held": write_bag(_recording(2, 8.0), root / "held"), "csv": csv}
+            "held": write_bag(_recording(2, 8.0), root / "held"), "csv": csv, **_rig_fit_inputs(root)}
+
+
+def _rig_fit_inputs(root: Path) -> dict[str, Path]:
+    """An ESC rig file from ``rig new`` and a balance table of its own equilibrium (``rig fit``)."""
+    from aeropend_ident.greybox.rig_problem import BalanceBlock, apply_values
+    from aeropend_sim.rigcmd.cli import main as rig
+
+    template = root / "esc_rig.yaml"
+    assert rig(["new", "--actuator", "esc", "--stated", "pendulum.mass=120g", "pendulum.com_distance=18cm",
+                "pendulum.thrust_arm=0.15m", "motor.gear_ratio=1", "actuator.omega_max=1085rad/s", "-o",
+                str(template)]) == 0
+    geo = {"pendulum.mass": 0.12, "pendulum.com_distance": 0.18, "pendulum.thrust_arm": 0.15}
+    truth = {"actuator.idle_duty": 0.08, "actuator.curve_exponent": 1.0, "thrust.K_q": 8e-7}
+    levels = np.linspace(0.15, 0.9, 8)
+    block = BalanceBlock(source="t", label="", command=levels, angle=np.zeros(levels.size))
+    theta = block.residual(apply_values(load_rig(template), geo, truth), [])
+    table = root / "balance.csv"
+    rows = (f"{c},{a},0.0001\n" for c, a in zip(levels, theta, strict=True))
+    table.write_text("command,angle_rad,angle_std_rad\n" + "".join(rows))
+    return {"rig_template": template, "balance": table}
 
 
 def _main(name: str) -> Callable[[list[str]], int]:
@@ -165,7 +185,7 @@ def _main(name: str) -> Callable[[list[str]], int]:
     from aeropend_sim.rigcmd.cli import main as rig
 
     return {"baseline": baseline.main, "compare": compare.main, "identify": identify.main, "gap": gap.main,
-            "csv_import": csv_import.main, "design_gains": design_gains, "rig new": rig}[name]
+            "csv_import": csv_import.main, "design_gains": design_gains, "rig new": rig, "rig fit": rig}[name]
 
 
 #: command -> (its arguments before the output, output option, its own file, result is a folder)
@@ -180,6 +200,7 @@ COMMANDS: dict[str, tuple[Callable[[dict[str, Path]], list[str]], str, str, bool
     "csv_import": (lambda d: [str(d["csv"]), "--time-col", "t", "--duty-col", "duty", "--angle-col", "angle"],
                    "-o", "metadata.yaml", True),
     "rig new": (lambda d: ["new", "--actuator", "esc"], "-o", "", False),
+    "rig fit": (lambda d: ["fit", str(d["rig_template"]), str(d["balance"]), "-q"], "-o", "", False),
     "design_gains": (lambda d: ["--rig", "thesis_rig", "--no-tune", "--steps", "0.4"], "-o", "", False),
 }
 #: (command, fault) cases: every command under a full disk, a read-only folder and Ctrl-C; EACCES
