@@ -160,7 +160,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     options = _options(args)
     if args.preset and Path(args.preset).is_file():  # a lab's preset file: its contents count
         options.append(hashlib.sha256(Path(args.preset).read_bytes()).hexdigest())
-    keys = [session_key(s, rig_doc, options) for s in sessions]
+    keys = [_key(s, rig_doc, options) for s in sessions]
     batch = _Batch(args, argv, sessions, skipped, keys, rig, offset, t0)
     paths = folder.write(batch.write, stage=stage, keep=True)
     print(paths["md"].read_text(encoding="utf-8"), end="")
@@ -249,6 +249,15 @@ class _Batch:
         self.rows = [{**r, "report": str(final / s.name)}
                      for r, s in zip(self.rows, self.sessions, strict=True)]
         return write_batch(tmp, self.rows, self.sessions, table, self.skipped, meta)
+
+
+def _key(session: Session, rig_doc: str, options: list[str]) -> str:
+    """The session's key, or "" when an input cannot be read: ``gap`` then says why in the session's
+    row, and such a session is never taken as it was."""
+    try:
+        return session_key(session, rig_doc, options)
+    except OSError:
+        return ""
 
 
 def _options(args: argparse.Namespace) -> list[str]:
