@@ -378,8 +378,9 @@ def staged_path(final: str | Path, *, folder: bool, create: bool = True, stage: 
     try:
         parent = final.absolute().parent
         parent.mkdir(parents=True, exist_ok=True)
-        if stage is None:
-            stage = Path(tempfile.mkdtemp(prefix=f".{final.name}{PARTIAL}", dir=parent))
+        if stage is None:  # in place: inside the folder itself (a mount point is its own file system)
+            where = final if in_place else parent
+            stage = Path(tempfile.mkdtemp(prefix=f".{final.name}{PARTIAL}", dir=where))
         else:
             stage.mkdir(exist_ok=True)
     except BaseException as exc:
