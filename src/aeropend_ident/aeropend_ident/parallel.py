@@ -115,7 +115,48 @@ def call_case(ref: tuple[str, str, str], case: Any) -> Any:
 
 def _silence_cluster_logs() -> None:
     """Run on each worker (and here) when a run is interrupted: its shutdown chatter is no news."""
-    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    for name in ("distributed", "asyncio", "tornado"):  # "task exception never retrieved" of a
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)  # cluster stopped while it started
+
+
+def _sigint_ignoring_python() -> str | None:
+    """Path of a launcher of this Python with SIGINT ignored (None where it cannot be made).
+
+    A two-line shell script (``trap "" INT``, then ``exec`` of ``sys.executable``) kept in
+    ``$TMPDIR/aeropend-UID/`` (one per interpreter); None on a system without ``/bin/sh``, a folder
+    that cannot be written or one mounted ``noexec`` (the workers then start as before).
+    """
+    if os.name != "posix" or not os.path.exists("/bin/sh"):
+        return None
+    import hashlib
+    import shlex
+    import tempfile
+
+    folder = Path(tempfile.gettempdir()) / f"aeropend-{os.getuid()}"
+    # one launcher per interpreter (two environments on one machine do not share it)
+    path = folder / f"python-sigint-ignored-{hashlib.sha256(sys.executable.encode()).hexdigest()[:12]}"
+    text = ("#!/bin/sh\n# aeropend: Python with SIGINT ignored (local Dask workers: the command handles "
+            f"Ctrl-C)\ntrap '' INT\nexec {shlex.quote(sys.executable)} \"$@\"\n")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        if os.statvfs(folder).f_flag & os.ST_NOEXEC:
+            return None
+        if not (path.is_file() and path.read_text(encoding="utf-8") == text and os.access(path, os.X_OK)):
+            tmp = folder / f".{path.name}.{os.getpid()}"
+            tmp.write_text(text, encoding="utf-8")
+            tmp.chmod(0o755)
+            os.replace(tmp, path)
+    except OSError:
+        return None
+    return str(path)
+
+
+def _ignore_sigint() -> None:
+    """Run on each local worker's main thread: Ctrl-C at a terminal reaches the whole process group,
+    but only the command handles it (it closes the cluster and says so in one line)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _quiet_shutdown(client: Any) -> None:
@@ -151,9 +192,23 @@ def _cluster(workers: int, scheduler: str | None) -> Any:
     env = dict(WORKER_ENV)
     if os.environ.get("AEROPEND_CACHE_DIR"):
         env["AEROPEND_CACHE_DIR"] = os.environ["AEROPEND_CACHE_DIR"]
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=":0", env=env)
-    return Client(cluster), cluster
+    # Ctrl-C at a terminal reaches the whole process group: the workers start through a launcher
+    # that ignores SIGINT (a disposition a new process keeps; Python then installs no handler), so
+    # only this command handles it, closes the cluster and says so in one line
+    from multiprocessing import spawn
+
+    python = spawn.get_executable()
+    launcher = _sigint_ignoring_python()
+    if launcher is not None:
+        spawn.set_executable(launcher)
+    try:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=":0", env=env)
+    finally:
+        spawn.set_executable(python)
+    client = Client(cluster)
+    client.run(_ignore_sigint)
+    return client, cluster
 
 
 def run_cases(func: Callable[[Any], Any], cases: Sequence[Any], *, workers: int | None = None,

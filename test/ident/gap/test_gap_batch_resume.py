@@ -9,6 +9,7 @@ cannot).
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -143,7 +144,8 @@ def test_ctrl_c_and_a_full_disk_keep_the_earlier_batch_and_finished_sessions(tmp
 
 
 def test_a_real_sigint_on_a_local_cluster_is_one_line(tmp_path):
-    """Ctrl-C (a real SIGINT) while two Dask workers diagnose: one line, the earlier batch intact."""
+    """Ctrl-C (a real SIGINT to the process group, as a terminal sends it) while two Dask workers
+    diagnose: one line, the earlier batch intact."""
     archive = _archive(tmp_path / "archive")
     out = tmp_path / "batch"
     out.mkdir()
@@ -153,12 +155,13 @@ def test_a_real_sigint_on_a_local_cluster_is_one_line(tmp_path):
     argv = [sys.executable, "-m", "aeropend_ident.cli.gap_batch", str(archive), "-o", str(out), "--overwrite",
             *OPTIONS]
     argv[argv.index("--workers") + 1] = "2"
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
     t0 = time.perf_counter()
     while not stage.exists() and proc.poll() is None and time.perf_counter() - t0 < 60:
         time.sleep(0.05)
     time.sleep(2.0)  # the cluster starts or its sessions run: either way one line
-    proc.send_signal(signal.SIGINT)
+    os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130
     assert err == (f"gap-batch: error: interrupted (Ctrl-C); {out} unchanged (the earlier result is kept), "
