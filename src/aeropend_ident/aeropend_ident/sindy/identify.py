@@ -282,7 +282,13 @@ def _train_tail(train: IdentData) -> IdentData:
 
 
 def _plot_child_work(out: Path, model: SindyModel, held: IdentData, tail: IdentData, conn: Any) -> None:
-    """In the plotting child: the free run over the training tail (sent back first), then the model plots."""
+    """In the plotting child: the free run over the training tail (sent back first), then the model plots.
+
+    Ctrl-C at a terminal reaches the child too: it ignores it (the command stops it and says so).
+    """
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     conn.send(free_run(model, tail, substeps=1))
     conn.close()
     _model_plots(out, model, held)
