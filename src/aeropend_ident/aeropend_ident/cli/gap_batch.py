@@ -61,6 +61,7 @@ from aeropend_sim.output_folder import (
     OutputFolderError,
     claim_output_folder,
     exits_cleanly_on_faults,
+    is_fault,
     partial_folder,
     write_file_atomically,
 )
@@ -240,7 +241,9 @@ class _Batch:
             try:
                 table = drift_across(self.rows, self.sessions, self.rig, self.offset, split=args.split,
                                      preset=args.preset, run=run)
-            except Exception as exc:  # the per-session reports stand without it
+            except Exception as exc:  # the per-session reports stand without it (not so a full disk)
+                if is_fault(exc):
+                    raise
                 table = None
                 meta["drift_not_computed"] = f"{type(exc).__name__}: {exc}"
                 print(f"gap-batch: drift table not computed: {meta['drift_not_computed']}", file=sys.stderr)
