@@ -298,3 +298,13 @@ ls -a {mnt}
     assert f"{mnt}/out unchanged (the earlier result is kept)" in proc.stderr
     assert "status=1\nearlier run\n" in proc.stdout, proc.stdout
     assert PARTIAL not in proc.stdout  # nothing partial left on the full / read-only disk
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="no /dev/full (a device that is always full)")
+def test_a_full_standard_output_is_one_line():
+    """``excitation --print > /dev/full``: a real ENOSPC on standard output, one line, exit 1."""
+    argv = [sys.executable, "-m", "aeropend_sim.ros.excitation_node", "--print", "--signal", "lhs"]
+    with open("/dev/full", "w") as full:
+        proc = subprocess.run(argv, stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+    assert proc.returncode == 1
+    assert proc.stderr == "excitation: error: no space left on the device (ENOSPC)\n"
