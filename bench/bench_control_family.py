@@ -98,9 +98,14 @@ def lab_path(rig: fl.LabRig, folder: Path, with_gap: bool = True) -> dict[str, A
         return {**out, "failed": f"rig fit: {text.strip()[-400:]}"}
     if with_gap:
         t = time.perf_counter()
-        rc, text = _quiet(gap_main, ["--rig", str(fitted), "-o", str(folder / "gap"), "-q", *inputs[1:]])
+        # the same inputs as rig fit (the balance table too), as they are: no flags (issue 60 item 5)
+        rc, text = _quiet(gap_main, ["--rig", str(fitted), "-o", str(folder / "gap"), "-q", *inputs])
         out["times_s"]["gap"] = time.perf_counter() - t
         out["gap"] = {"exit": rc, "tail": text.strip()[-300:]}
+        if rc == 0:
+            h = json.loads((folder / "gap" / "report.json").read_text(encoding="utf-8"))["headline"]
+            out["gap"].update({k: h[k] for k in ("effects_chosen", "heldout_nrmse_nominal",
+                                                 "heldout_nrmse_corrected", "significant_gap")})
     t = time.perf_counter()
     rc, text = _quiet(design_gains, ["--rig", str(fitted), "-o", str(gains)])
     out["times_s"]["design_gains"] = time.perf_counter() - t
@@ -225,8 +230,9 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
                      f"{_f(s['path_median_s'], '.0f')} / {_f(s['path_max_s'], '.0f')} | "
                      f"{s['failed_paths']} |")
     lines += ["", "## Per rig", "",
-              "| rig | sensor | drawn physics | rig fit [s] | gap [s] (exit) | design_gains [s] | "
-              "recommended | design_gains said | steps on the plant: ts [s] / M_p [%] (predicted) |",
+              "| rig | sensor | drawn physics | rig fit [s] | gap [s] (exit; effects named) | "
+              "design_gains [s] | recommended | design_gains said | "
+              "steps on the plant: ts [s] / M_p [%] (predicted) |",
               "|---|---|---|---|---|---|---|---|---|"]
     for r in doc["rigs"]:
         tr = ", ".join(f"{k} {_f(v)}" for k, v in r["truth"].items())
@@ -246,7 +252,9 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         spec = rec["pole_spec"]
         said = "goal met" if rec["goal_met"] else "not attainable"
         lines.append(f"| {r['rig']} | {r['sensor']} | {tr} | {_f(ts.get('rig_fit'), '.0f')} | "
-                     f"{_f(ts.get('gap'), '.0f')} ({g.get('exit', '—')}) | "
+                     f"{_f(ts.get('gap'), '.0f')} ({g.get('exit', '—')}"
+                     + (f"; {', '.join(g['effects_chosen']) or 'no effect'}" if "effects_chosen" in g else "")
+                     + ") | "
                      f"{_f(ts.get('design_gains'), '.0f')} | "
                      f"{rec['strategy']} ω_n {spec['omega_n']:.3g} ζ {spec['zeta']:g} | "
                      f"{said}: ts {_f(rec['worst_settling_time_s'])} s,"

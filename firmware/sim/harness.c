@@ -40,8 +40,22 @@
  * read as 1 (pull-up). The pin timing is measured (SSITIMING) for the test to check against the
  * datasheet: t_CLKFE (CSn low to first CLK fall) >= 500 ns, CLK half period >= 500 ns (1 MHz).
  *
- * Not emulated: PWM output waveform checking, the analogue front end, the motor shield.
+ * ESC output and encoder input (issue 61):
+ *   -p pulses.txt   logs every level change of the ESC signal pin OC3A = PE3 (Mega D5) as
+ *                   "P <cycle> <level>" and every frame delimiter (0x00) the UART receives from
+ *                   the host as "RX <cycle>", in CPU cycles from reset (16 per us); also
+ *                   "T1START <cycle>" (the firmware's Timer1 start: sample t_us is counted from it)
+ *   enccpr <cpr>                        (event file) counts per revolution of the emulated encoder
+ *   enc <t0_us> <t1_us> <th0> <A> <W>   (event file) from t0 to t1 (us after the Timer1 start) the
+ *                        rod angle is th0 + A*sin(W*(t - t0)) [rad, rad/s]; it holds its last value
+ *                        between segments. Every 1 us the harness moves the quadrature lines A =
+ *                        PD2 (INT2, D19) and B = PD3 (INT3, D18) one x4 step towards
+ *                        floor(theta * cpr / 2pi) (A leads B for a rising count), and prints
+ *                        "ENC <steps> <final count> <max lag counts>" on exit.
+ *
+ * Not emulated: the analogue front end, the motor shield, the ESC itself.
  */
+#include <math.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -51,6 +65,7 @@
 
 #include "avr_adc.h"
 #include "avr_ioport.h"
+#include "avr_uart.h"
 #include "sim_avr.h"
 #include "sim_elf.h"
 #include "sim_io.h"
@@ -62,6 +77,8 @@ DEFINE_FIFO(uint8_t, uart_pty_fifo);
 #define PTY_FIFO_HIGH (3 * uart_pty_fifo_fifo_size / 4)
 
 #define TCCR4B_ADDR 0xA1 /* data-space address on the ATmega2560 */
+#define TCCR1B_ADDR 0x81
+#define MAX_SEGMENTS 64
 #define MAX_EVENTS 20000
 
 typedef struct {
@@ -82,6 +99,13 @@ typedef struct {
     /* SSI timing seen on the pins [cycles]: CSn fall, last CLK edge, extremes */
     avr_cycle_count_t cs_fall, clk_edge, min_clkfe, min_half, min_read, max_read;
     unsigned rises, min_rises, max_rises;
+    /* ESC pulse log and encoder emulation */
+    FILE *plog;
+    avr_cycle_count_t t1_start;
+    struct { double t0, t1, th0, a, w; } seg[MAX_SEGMENTS];
+    int n_seg;
+    long cpr, enc_count, enc_steps, enc_max_lag;
+    avr_irq_t *enc_a, *enc_b;
 } sim_t;
 
 /* ATmega2560 data-space addresses (avr-libc iomxx0_1.h). */
@@ -211,6 +235,74 @@ static void on_clk(struct avr_irq_t *irq, uint32_t value, void *param)
     }
 }
 
+static void on_pulse_pin(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    sim_t *s = param;
+    if (s->plog)
+        fprintf(s->plog, "P %llu %u\n", (unsigned long long)s->avr->cycle, value ? 1u : 0u);
+}
+
+static void on_uart_in(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    sim_t *s = param;
+    if (s->plog && (value & 0xFF) == 0)
+        fprintf(s->plog, "RX %llu\n", (unsigned long long)s->avr->cycle);
+}
+
+static double enc_theta(const sim_t *s, double t_us)
+{
+    double th = 0.0;
+    for (int k = 0; k < s->n_seg; k++) {
+        if (t_us < s->seg[k].t0)
+            break;
+        double t = (t_us < s->seg[k].t1 ? t_us : s->seg[k].t1) - s->seg[k].t0;
+        th = s->seg[k].th0 + s->seg[k].a * sin(s->seg[k].w * t * 1e-6);
+    }
+    return th;
+}
+
+static void enc_set_lines(sim_t *s)
+{
+    static const unsigned gray[4] = {0, 1, 3, 2}; /* bit0 = A, bit1 = B */
+    unsigned st = gray[((s->enc_count % 4) + 4) % 4];
+    avr_ioport_external_t ext = {.name = 'D', .mask = 0x0C, .value = (st & 3u) << 2};
+    avr_ioctl(s->avr, AVR_IOCTL_IOPORT_SET_EXTERNAL('D'), &ext);
+    avr_raise_irq(s->enc_a, st & 1u);
+    avr_raise_irq(s->enc_b, (st >> 1) & 1u);
+}
+
+static avr_cycle_count_t enc_timer(avr_t *avr, avr_cycle_count_t when, void *param)
+{
+    (void)avr;
+    sim_t *s = param;
+    double t_us = (double)(when - s->t1_start) / 16.0;
+    long target = (long)floor(enc_theta(s, t_us) * (double)s->cpr / (2.0 * M_PI));
+    long lag = labs(target - s->enc_count);
+    if (lag > s->enc_max_lag)
+        s->enc_max_lag = lag;
+    if (target != s->enc_count) {
+        s->enc_count += target > s->enc_count ? 1 : -1;
+        s->enc_steps++;
+        enc_set_lines(s);
+    }
+    return when + 16; /* every microsecond */
+}
+
+static void on_tccr1b(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    sim_t *s = param;
+    if (s->t1_start || (value & 0x07) == 0)
+        return;
+    s->t1_start = s->avr->cycle;
+    if (s->plog)
+        fprintf(s->plog, "T1START %llu\n", (unsigned long long)s->t1_start);
+    if (s->n_seg)
+        avr_cycle_timer_register(s->avr, 16, enc_timer, s);
+}
+
 static int read_events(const char *path, sim_t *s)
 {
     FILE *f = fopen(path, "r");
@@ -227,6 +319,17 @@ static int read_events(const char *path, sim_t *s)
         char *hash = strchr(line, '#');
         if (hash)
             *hash = 0;
+        if (sscanf(line, "%15s", kind) == 1 && strcmp(kind, "enccpr") == 0) {
+            s->cpr = strtol(line + 6, NULL, 0);
+            continue;
+        }
+        if (strcmp(kind, "enc") == 0 && s->n_seg < MAX_SEGMENTS) {
+            double *g = &s->seg[s->n_seg].t0;
+            if (sscanf(line, "%*s %lf %lf %lf %lf %lf", g, g + 1, g + 2, g + 3, g + 4) == 5) {
+                s->n_seg++;
+                continue;
+            }
+        }
         if (sscanf(line, "%15s %lf %31s", kind, &t, val) != 3)
             continue;
         if (t < 0) {
@@ -259,11 +362,13 @@ int main(int argc, char **argv)
 {
     const char *pos[6] = {0};
     int npos = 0;
-    const char *events = NULL;
+    const char *events = NULL, *pulses = NULL;
     int dump_regs = 0;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "-e") == 0 && i + 1 < argc)
             events = argv[++i];
+        else if (strcmp(argv[i], "-p") == 0 && i + 1 < argc)
+            pulses = argv[++i];
         else if (strcmp(argv[i], "-r") == 0)
             dump_regs = 1;
         else if (npos < 6)
@@ -298,8 +403,22 @@ int main(int argc, char **argv)
     s.clk = 1;
     s.min_clkfe = s.min_half = s.min_read = ~(avr_cycle_count_t)0;
     s.min_rises = ~0u;
+    s.cpr = 4000;
     if (events && read_events(events, &s) != 0)
         return 2;
+    if (pulses && !(s.plog = fopen(pulses, "w"))) {
+        fprintf(stderr, "cannot write pulse log %s\n", pulses);
+        return 2;
+    }
+    if (s.plog) {
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('E'), 3), on_pulse_pin, &s);
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), on_uart_in, &s);
+    }
+    s.enc_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2);
+    s.enc_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 3);
+    if (s.n_seg)
+        enc_set_lines(&s);
+    avr_irq_register_notify(avr_iomem_getirq(avr, TCCR1B_ADDR, NULL, AVR_IOMEM_IRQ_ALL), on_tccr1b, &s);
     s.icp = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('L'), 0);
     s.dout = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A'), 2);
     avr_irq_register_notify(avr_iomem_getirq(avr, TCCR4B_ADDR, NULL, AVR_IOMEM_IRQ_ALL), on_tccr4b, &s);
@@ -338,6 +457,10 @@ int main(int argc, char **argv)
             printf("REG %s %u\n", REGS[i].name, avr->data[REGS[i].addr]);
     if (events)
         printf("IREDGES %lu\nSSIREADS %u %u\n", s.ir_edges, s.reads, s.bad_reads);
+    if (s.n_seg)
+        printf("ENC %ld %ld %ld\n", s.enc_steps, s.enc_count, s.enc_max_lag);
+    if (s.plog)
+        fclose(s.plog);
     if (s.reads) /* ns; CLK rising edges per read-out (min max) */
         printf("SSITIMING clkfe_min %llu half_min %llu read_min %llu read_max %llu rises %u %u\n",
                (unsigned long long)(s.min_clkfe * 1000000000ull / avr->frequency),

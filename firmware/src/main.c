@@ -20,8 +20,20 @@
  *         TOV1 ISR at the sample instant: CSn = PA0 (D22), CLK = PA1 (D23), DO = PA2 (D24,
  *         pull-up); 16-bit word checked for parity and status (ap_as5040_decode); no theta ADC
  *         conversion. The frame layout is the same (flags bit4..6, STATUS angle_errors).
- * Safety  command watchdog: no valid command for 250 ms -> duty 0 (flag bit1) until the next
- *         DUTY command; AVR hardware watchdog (120 ms) resets a hung main loop.
+ *         ANGLE=encoder (-DANGLE_ENCODER): a quadrature encoder, A on INT2 = PD2 (D19), B on
+ *         INT3 = PD3 (D18), pull-ups on, any-edge interrupts decoded x4 (ap_quad_step); theta =
+ *         position mod ENC_CPR counts (0 at reset: the rod hangs down at power-up).
+ * Actuator default: H-bridge PWM (above). ACTUATOR=esc (-DACT_ESC): a hobby ESC's servo pulse on
+ *         OC3A = PE3 = Mega D5, Timer3 fast PWM (WGM3 = 14, TOP = ICR3), prescaler 8 (0.5 us):
+ *         frame ESC_HZ (50..490 Hz), pulse ESC_MIN_US..ESC_MAX_US; after reset the minimum pulse
+ *         for ESC_ARM_MS (arming, flag bit7), then the PULSE commands; no valid command for
+ *         ESC_SILENCE_MS -> minimum (disarm) pulse. Timer1 keeps the 2.040 ms sample tick with OC1A
+ *         disconnected; no armature channels (i_a, v_a sent as AP_ABSENT_I16).
+ * Safety  command watchdog: no valid command for 250 ms (ESC: ESC_SILENCE_MS) -> duty 0 / minimum
+ *         pulse (flag bit1) until the next DUTY / PULSE command; AVR hardware watchdog (120 ms)
+ *         resets a hung main loop.
+ * Hello   HELLO frame (actuator, sensor, channels, ESC timing, counts per revolution) after reset,
+ *         on HELLO_REQ and after every STATUS frame.
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -45,6 +57,57 @@
 #define WATCHDOG_TICKS 121u      /* trips at tick 122 after the last command: <= 248.9 ms, + <= 1 ms until
                                     the new OCR latches at TOP: duty 0 within 250 ms */
 #define STATUS_EVERY 256u
+
+#if defined(ANGLE_SSI) && defined(ANGLE_ENCODER)
+#error "choose one angle interface: ANGLE_SSI or ANGLE_ENCODER"
+#endif
+#if !defined(ANGLE_SSI) && !defined(ANGLE_ENCODER)
+#define ANGLE_ADC 1 /* theta from an ADC conversion (AS5040 PWM -> RC, or a potentiometer) */
+#endif
+#ifdef ACT_ESC
+/* ESC servo pulse. All build-time; the HELLO frame announces them. */
+#ifndef ESC_HZ
+#define ESC_HZ 50
+#endif
+#ifndef ESC_MIN_US
+#define ESC_MIN_US 1000
+#endif
+#ifndef ESC_MAX_US
+#define ESC_MAX_US 2000
+#endif
+#ifndef ESC_ARM_MS
+#define ESC_ARM_MS 2000
+#endif
+#ifndef ESC_SILENCE_MS
+#define ESC_SILENCE_MS 60
+#endif
+#if ESC_HZ < 50 || ESC_HZ > 490
+#error "ESC_HZ must be 50..490 (servo frame rate)"
+#endif
+#if ESC_MIN_US < 100 || ESC_MAX_US <= ESC_MIN_US || ESC_MAX_US * ESC_HZ >= 1000000L
+#error "ESC pulse range must satisfy 100 <= ESC_MIN_US < ESC_MAX_US < frame period"
+#endif
+#define ESC_TOP ((F_CPU / 8UL + ESC_HZ / 2) / ESC_HZ - 1UL) /* ICR3: frame = (TOP + 1) * 0.5 us */
+#define ESC_FRAME_US ((ESC_TOP + 1UL) / 2UL)
+/* The disarm pulse must start within 100 ms of the last command: the watchdog trips at most
+ * (ESC_WD_TICKS + 1) ticks after it, and the new OCR3A reaches the pin at the next frame start. */
+#define ESC_WD_TICKS ((ESC_SILENCE_MS * 1000UL) / TOV1_US)
+#if (ESC_WD_TICKS + 1UL) * TOV1_US + ESC_FRAME_US > 100000UL
+#error "ESC_SILENCE_MS + one frame must stay below 100 ms (disarm within 100 ms of PC silence)"
+#endif
+#define ESC_ARM_TICKS ((ESC_ARM_MS * 1000UL + TOV1_US - 1UL) / TOV1_US)
+#define WD_LIMIT ESC_WD_TICKS
+#else
+#define WD_LIMIT WATCHDOG_TICKS
+#endif
+#ifdef ANGLE_ENCODER
+#ifndef ENC_CPR
+#define ENC_CPR 4000 /* counts per revolution: lines x 4 (a 1000-line encoder) */
+#endif
+#if ENC_CPR < 4 || ENC_CPR > 65535
+#error "ENC_CPR must be 4..65535 counts per revolution"
+#endif
+#endif
 
 #ifdef ANGLE_SSI
 /* AS5040 SSI pins on PORTA (Mega D22..D24, free of the motor shield). */
@@ -84,10 +147,25 @@ static volatile uint8_t rate_div = 1, rate_cnt;
 static volatile int16_t i_a_offset, theta_offset;
 static volatile uint16_t seq, rx_frames, rx_errors, tx_overflows, wd_trips;
 static volatile uint16_t t4_ovf;        /* Timer4 overflow count (upper 16 bits) */
+static volatile uint8_t hello_due = 1;  /* send a HELLO frame from the main loop */
+#ifdef ACT_ESC
+static volatile uint16_t pulse_target = 2u * ESC_MIN_US;  /* commanded pulse [0.5 us] */
+static volatile uint16_t pulse_written = 2u * ESC_MIN_US; /* pulse set at the last tick, next frame's */
+static volatile uint16_t arm_ticks = ESC_ARM_TICKS;       /* ticks of arming left */
+#endif
+#ifdef ANGLE_ENCODER
+static volatile uint16_t enc_pos;       /* position in [0, ENC_CPR) */
+static volatile uint8_t enc_lines;      /* last line state, bit0 = A, bit1 = B */
+static volatile uint8_t enc_bad;        /* invalid transition since the last sample */
+static volatile uint16_t angle_errors;  /* invalid transitions (wrapping) */
+#endif
 static ap_speed_t speed;                /* touched only with interrupts disabled */
 static volatile uint8_t adc_step;       /* 0 idle, 1 i_a, 2 theta, 3 v_a dummy, 4 v_a */
 static ap_sample_t cur;                 /* sample being built by the ADC chain */
 static ap_sample_t done;                /* last complete sample, handed to the main loop */
+#ifdef ACT_ESC
+static uint16_t cur_pulse, done_pulse;  /* applied pulse [0.5 us] of cur / done */
+#endif
 static volatile uint8_t sample_ready;
 static uint8_t status_cnt;
 #ifdef ANGLE_SSI
@@ -171,6 +249,31 @@ ISR(TIMER4_CAPT_vect)
     ap_speed_edge(&speed, ap_capture_extend(icr, t4_ovf, pending));
 }
 
+#if defined(ACT_ESC) && defined(SIMAVR_TIMER1)
+/* Emulator build only: simavr 1.6 writes OCR3A through (no double buffer), and a changed OCR
+ * above the count re-raises the pin: a write at the tick would cut or stretch the running pulse
+ * or add a spurious one. Writing at the frame start (TOV3, a few us after BOTTOM) does in
+ * software what the hardware's double buffer does at BOTTOM. */
+ISR(TIMER3_OVF_vect) { OCR3A = pulse_written - 1u; }
+#endif
+
+#ifdef ANGLE_ENCODER
+/* ------------------------------------------------------------------ quadrature encoder */
+ISR(INT2_vect)
+{
+    uint8_t now = (uint8_t)((PIND >> PD2) & 3u); /* PD2 = A, PD3 = B */
+    int8_t step = ap_quad_step(enc_lines, now);
+    enc_lines = now;
+    if (step == AP_QUAD_INVALID) {
+        enc_bad = 1;
+        angle_errors++;
+    } else {
+        enc_pos = ap_quad_wrap(enc_pos, step, ENC_CPR);
+    }
+}
+ISR(INT3_vect, ISR_ALIASOF(INT2_vect));
+#endif
+
 /* ------------------------------------------------------------------ sampling */
 static void adc_start(uint8_t ref, uint8_t mux)
 {
@@ -188,26 +291,78 @@ ISR(TIMER1_OVF_vect)
     /* Command watchdog. */
     if (ticks_since_cmd < 255)
         ticks_since_cmd++;
-    if (ticks_since_cmd > WATCHDOG_TICKS && !wd_tripped) {
+    if (ticks_since_cmd > WD_LIMIT && !wd_tripped) {
         wd_tripped = 1;
         wd_trips++;
         duty_target = 0;
+#ifdef ACT_ESC
+        pulse_target = 2u * ESC_MIN_US;
+#endif
     }
+#ifdef ACT_ESC
+    uint16_t applied = pulse_written; /* reached the pin at the frame start after the last tick */
+    if (arm_ticks)
+        arm_ticks--;
+    uint16_t next = (enabled && !arm_ticks) ? pulse_target : 2u * ESC_MIN_US;
+    pulse_written = next;
+#ifndef SIMAVR_TIMER1
+    /* High for OCR3A + 1 ticks of 0.5 us. OCR3A is double-buffered in fast PWM: the new width
+     * starts with the next frame (at BOTTOM), never inside the running pulse. */
+    OCR3A = next - 1u;
+#endif
+#else
     uint8_t applied = duty_written; /* latched at the TOP inside the interval now ending */
     uint8_t next = enabled ? duty_target : 0;
     OCR1A = next;
     duty_written = next;
+#endif
     if (++rate_cnt < rate_div || adc_step != 0)
         return;
     rate_cnt = 0;
     cur.t_us = t_us;
+#ifdef ACT_ESC
+    cur_pulse = applied;
+    cur.duty = 0;
+#else
     cur.duty = applied;
+#endif
     uint8_t stale;
     cur.period = ap_speed_period(&speed, t4_now(), &stale);
     cur.flags = (uint8_t)((enabled ? AP_FLAG_ENABLED : 0) | (wd_tripped ? AP_FLAG_WATCHDOG : 0) |
                           (speed.spike ? AP_FLAG_SPIKE : 0) | (stale ? AP_FLAG_SPEED_STALE : 0));
+#ifdef NO_SPEED
+    cur.period = AP_ABSENT_U32;
+    cur.flags &= (uint8_t)~(AP_FLAG_SPIKE | AP_FLAG_SPEED_STALE);
+#endif
+#ifdef ANGLE_ENCODER
+    /* Interrupts are off in this ISR: the position is the one at the sample instant. */
+    int32_t pos = (int32_t)enc_pos - theta_offset; /* no division: this ISR holds off the encoder */
+    while (pos < 0)
+        pos += ENC_CPR;
+    while (pos >= (int32_t)ENC_CPR)
+        pos -= ENC_CPR;
+    cur.theta = (uint16_t)pos;
+    if (enc_bad)
+        cur.flags |= AP_FLAG_ANGLE_INVALID;
+    enc_bad = 0;
+#endif
+#ifdef ACT_ESC
+    if (arm_ticks)
+        cur.flags |= AP_FLAG_ARMING;
+    cur.i_a = AP_ABSENT_I16;
+    cur.v_a = AP_ABSENT_I16;
+#ifdef ANGLE_ADC
+    adc_step = 2;
+    adc_start(REF_AVCC, THETA_CHANNEL);
+#else
+    done = cur; /* nothing to convert: the sample is complete */
+    done_pulse = cur_pulse;
+    sample_ready = 1;
+#endif
+#else
     adc_step = 1;
     adc_start(REF_AVCC, I_A_CHANNEL);
+#endif
 #ifdef ANGLE_SSI
     /* Read while the i_a conversion runs (104 us): the angle at the sample instant. Interrupts
      * are re-enabled for the ~34 us bit-bang so the UART RX/UDRE and Timer4 interrupts are not
@@ -237,8 +392,8 @@ ISR(ADC_vect)
     switch (adc_step) {
     case 1:
         cur.i_a = (int16_t)((int16_t)raw - i_a_offset);
-#ifdef ANGLE_SSI
-        adc_step = 3; /* theta came over SSI: go straight to v_a */
+#ifndef ANGLE_ADC
+        adc_step = 3; /* theta came over SSI / from the encoder: go straight to v_a */
         adc_start(REF_2V56, MUX_V_A);
 #else
         adc_step = 2;
@@ -247,8 +402,15 @@ ISR(ADC_vect)
         break;
     case 2:
         cur.theta = (uint16_t)(((int16_t)raw - theta_offset) & 0x3FF);
+#ifdef ACT_ESC
+        adc_step = 0; /* no armature channels: the sample is complete */
+        done = cur;
+        done_pulse = cur_pulse;
+        sample_ready = 1;
+#else
         adc_step = 3;
         adc_start(REF_2V56, MUX_V_A); /* first conversion after a reference switch: discard */
+#endif
         break;
     case 3:
         adc_step = 4;
@@ -269,11 +431,22 @@ ISR(ADC_vect)
 static void apply_command(const ap_command_t *c)
 {
     switch (c->type) {
+#ifdef ACT_ESC
+    case AP_T_PULSE: {
+        uint16_t v = c->value; /* clamped to the build's pulse range */
+        if (v < 2u * ESC_MIN_US) v = 2u * ESC_MIN_US;
+        if (v > 2u * ESC_MAX_US) v = 2u * ESC_MAX_US;
+        ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { pulse_target = v; wd_tripped = 0; }
+        break;
+    }
+#else
     case AP_T_DUTY: {
         uint8_t ocr = (uint8_t)(((uint32_t)c->value * 255u + 32767u) / 65535u);
         ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { duty_target = ocr; wd_tripped = 0; }
         break;
     }
+#endif
+    case AP_T_HELLO_REQ: hello_due = 1; break;
     case AP_T_ENABLE: enabled = (uint8_t)c->value; break;
     case AP_T_RATE: rate_div = (uint8_t)c->value; break;
     case AP_T_CALIBRATE:
@@ -286,23 +459,51 @@ static void apply_command(const ap_command_t *c)
     }
 }
 
+#ifdef ACT_ESC
+#define COM1A_BITS 0 /* OC1A disconnected: Timer1 is only the sample tick */
+#else
+#define COM1A_BITS (1 << COM1A1)
+#endif
+
 static void hw_init(void)
 {
+#ifdef ACT_ESC
+    /* ESC signal on OC3A = PE3 = D5: Timer3 fast PWM, TOP = ICR3, prescaler 8 (0.5 us ticks),
+     * non-inverting; starts with the minimum pulse (arming). */
+    DDRE |= (1 << PE3);
+    ICR3 = (uint16_t)ESC_TOP;
+    OCR3A = 2u * ESC_MIN_US - 1u;
+    TCCR3A = (1 << COM3A1) | (1 << WGM31);
+    TCCR3B = (1 << WGM33) | (1 << WGM32) | (1 << CS31);
+#ifdef SIMAVR_TIMER1
+    TIMSK3 = (1 << TOIE3);
+#endif
+#else
     /* Motor shield channel B: PWM D11 = PB5 (OC1A), DIR D13 = PB7 high, BRAKE D8 = PH5 low. */
     DDRB |= (1 << PB5) | (1 << PB7);
     PORTB |= (1 << PB7);
     DDRH |= (1 << PH5);
     PORTH &= (uint8_t)~(1 << PH5);
+#endif
     OCR1A = 0;
+#ifdef ANGLE_ENCODER
+    /* Encoder A = PD2 (INT2, D19), B = PD3 (INT3, D18): inputs with pull-ups, any edge. */
+    DDRD &= (uint8_t)~((1 << PD2) | (1 << PD3));
+    PORTD |= (1 << PD2) | (1 << PD3);
+    enc_lines = (uint8_t)((PIND >> PD2) & 3u);
+    EICRA = (EICRA & 0x0F) | (1 << ISC20) | (1 << ISC30);
+    EIFR = (1 << INTF2) | (1 << INTF3);
+    EIMSK |= (1 << INT2) | (1 << INT3);
+#endif
 #ifdef SIMAVR_TIMER1
     /* Emulator build only: simavr 1.6 does not implement Timer1 phase-correct PWM on the
      * ATmega2560 (writes to OCR1A are "UNSUPPORTED", TOV1 comes every 65536 ticks). Fast PWM
      * with TOP = ICR1 = 509 gives the same 510-tick (2.040 ms) TOV1 period. */
     ICR1 = 509;
-    TCCR1A = (1 << COM1A1) | (1 << WGM11);
+    TCCR1A = COM1A_BITS | (1 << WGM11);
     TCCR1B = (1 << WGM13) | (1 << WGM12) | (1 << CS11) | (1 << CS10);
 #else
-    TCCR1A = (1 << COM1A1) | (1 << WGM10);  /* non-inverting, phase-correct 8-bit */
+    TCCR1A = COM1A_BITS | (1 << WGM10);     /* non-inverting, phase-correct 8-bit */
     TCCR1B = (1 << CS11) | (1 << CS10);     /* prescaler 64 */
 #endif
     TIMSK1 = (1 << TOIE1);
@@ -325,6 +526,43 @@ static void hw_init(void)
     UCSR0A = (1 << U2X0);
     UCSR0C = (1 << UCSZ01) | (1 << UCSZ00);
     UCSR0B = (1 << RXEN0) | (1 << TXEN0) | (1 << RXCIE0);
+}
+
+static void send_hello(void)
+{
+    ap_hello_t h;
+#ifdef ACT_ESC
+    h.actuator = AP_ACT_ESC;
+    h.frame_hz = (uint16_t)((2000000UL + (ESC_TOP + 1UL) / 2UL) / (ESC_TOP + 1UL));
+    h.pulse_min_us = ESC_MIN_US;
+    h.pulse_max_us = ESC_MAX_US;
+    h.arm_ms = ESC_ARM_MS;
+    h.silence_ms = (uint16_t)(((ESC_WD_TICKS + 1UL) * TOV1_US + 500UL) / 1000UL);
+    h.channels = AP_CH_THETA;
+#else
+    h.actuator = AP_ACT_HBRIDGE;
+    h.frame_hz = 490;
+    h.pulse_min_us = h.pulse_max_us = h.arm_ms = 0;
+    h.silence_ms = (uint16_t)(((WATCHDOG_TICKS + 1UL) * TOV1_US + 500UL) / 1000UL);
+    h.channels = AP_CH_I_A | AP_CH_V_A | AP_CH_THETA;
+#endif
+#ifndef NO_SPEED
+    h.channels |= AP_CH_SPEED;
+#endif
+#if defined(ANGLE_ENCODER)
+    h.sensor = AP_SENSOR_ENCODER;
+    h.counts_per_rev = ENC_CPR;
+#elif defined(ANGLE_SSI)
+    h.sensor = AP_SENSOR_SSI;
+    h.counts_per_rev = 1024;
+#else
+    h.sensor = AP_SENSOR_POT;
+    h.counts_per_rev = 1024;
+#endif
+    uint8_t payload[AP_HELLO_LEN], wire[AP_MAX_WIRE];
+    ap_hello_pack(&h, payload);
+    uint8_t n = (uint8_t)ap_frame_encode(payload, AP_HELLO_LEN, wire);
+    ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { tx_push_frame(wire, n, 0); }
 }
 
 int main(void)
@@ -368,11 +606,20 @@ int main(void)
         }
         if (sample_ready) {
             ap_sample_t smp;
+#ifdef ACT_ESC
+            uint16_t pulse;
+            ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { smp = done; pulse = done_pulse; sample_ready = 0; }
+            smp.seq = seq;
+            uint8_t payload[AP_SAMPLE_PULSE_LEN], wire[AP_MAX_WIRE];
+            ap_sample_pulse_pack(&smp, pulse, payload);
+            uint8_t n = (uint8_t)ap_frame_encode(payload, AP_SAMPLE_PULSE_LEN, wire);
+#else
             ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { smp = done; sample_ready = 0; }
             smp.seq = seq;
             uint8_t payload[AP_SAMPLE_LEN], wire[AP_MAX_WIRE];
             ap_sample_pack(&smp, payload);
             uint8_t n = (uint8_t)ap_frame_encode(payload, AP_SAMPLE_LEN, wire);
+#endif
             ATOMIC_BLOCK(ATOMIC_RESTORESTATE) {
                 uint16_t before = tx_overflows;
                 tx_push_frame(wire, n, 1);
@@ -386,7 +633,7 @@ int main(void)
                     st.rx_frames = rx_frames; st.rx_errors = rx_errors;
                     st.tx_overflows = tx_overflows; st.watchdog_trips = wd_trips;
                     st.spikes = speed.spikes;
-#ifdef ANGLE_SSI
+#if defined(ANGLE_SSI) || defined(ANGLE_ENCODER)
                     st.angle_errors = angle_errors;
 #else
                     st.angle_errors = 0;
@@ -395,7 +642,12 @@ int main(void)
                 ap_status_pack(&st, payload);
                 uint8_t n = (uint8_t)ap_frame_encode(payload, AP_STATUS_LEN, wire);
                 ATOMIC_BLOCK(ATOMIC_RESTORESTATE) { tx_push_frame(wire, n, 0); }
+                hello_due = 1;
             }
+        }
+        if (hello_due) {
+            hello_due = 0;
+            send_hello();
         }
     }
 }

@@ -92,6 +92,29 @@ void ap_sample_pack(const ap_sample_t *s, uint8_t out[AP_SAMPLE_LEN])
     out[18] = s->flags;
 }
 
+void ap_sample_pulse_pack(const ap_sample_t *s, uint16_t pulse, uint8_t out[AP_SAMPLE_PULSE_LEN])
+{
+    ap_sample_pack(s, out); /* same fields up to flags; duty (byte 17) becomes a u16 */
+    out[0] = AP_T_SAMPLE_PULSE;
+    put16(out + 17, pulse);
+    out[19] = s->flags;
+}
+
+void ap_hello_pack(const ap_hello_t *h, uint8_t out[AP_HELLO_LEN])
+{
+    out[0] = AP_T_HELLO;
+    out[1] = AP_PROTOCOL_VERSION;
+    out[2] = h->actuator;
+    out[3] = h->sensor;
+    out[4] = h->channels;
+    put16(out + 5, h->frame_hz);
+    put16(out + 7, h->pulse_min_us);
+    put16(out + 9, h->pulse_max_us);
+    put16(out + 11, h->arm_ms);
+    put16(out + 13, h->silence_ms);
+    put32(out + 15, h->counts_per_rev);
+}
+
 void ap_status_pack(const ap_status_t *s, uint8_t out[AP_STATUS_LEN])
 {
     out[0] = AP_T_STATUS;
@@ -129,6 +152,15 @@ int ap_command_parse(const uint8_t *p, size_t n, ap_command_t *cmd)
             return AP_E_VALUE;
         cmd->value = p[1];
         return AP_OK;
+    case AP_T_PULSE:
+        if (n != 3)
+            return AP_E_LENGTH;
+        cmd->value = get16(p + 1);
+        return AP_OK;
+    case AP_T_HELLO_REQ:
+        if (n != 1)
+            return AP_E_LENGTH;
+        return AP_OK;
     case AP_T_CALIBRATE:
         if (n != 4)
             return AP_E_LENGTH;
@@ -151,6 +183,7 @@ size_t ap_command_pack(const ap_command_t *cmd, uint8_t *out)
     case AP_T_ENABLE: out[1] = (uint8_t)cmd->value; return 2;
     case AP_T_RATE: out[1] = (uint8_t)cmd->value; return 2;
     case AP_T_CALIBRATE: out[1] = cmd->item; put16(out + 2, (uint16_t)cmd->offset); return 4;
+    case AP_T_PULSE: put16(out + 1, cmd->value); return 3;
     default: return 1;
     }
 }
@@ -270,4 +303,21 @@ uint8_t ap_as5040_decode(uint16_t word, uint16_t *angle)
         r |= AP_SSI_W_LIN;
     *angle = (uint16_t)(word >> 6);
     return r;
+}
+
+int8_t ap_quad_step(uint8_t prev, uint8_t now)
+{
+    /* index prev << 2 | now; forward (A leads B): 00 -> 01 -> 11 -> 10 -> 00 in (B, A) bits */
+    static const int8_t table[16] = {0, 1, -1, AP_QUAD_INVALID, -1, 0, AP_QUAD_INVALID, 1,
+                                     1, AP_QUAD_INVALID, 0, -1, AP_QUAD_INVALID, -1, 1, 0};
+    return table[((prev & 3u) << 2) | (now & 3u)];
+}
+
+uint16_t ap_quad_wrap(uint16_t count, int8_t step, uint16_t cpr)
+{
+    if (step > 0)
+        return (uint16_t)(count + 1u >= cpr ? 0u : count + 1u);
+    if (step < 0)
+        return (uint16_t)(count == 0u ? cpr - 1u : count - 1u);
+    return count;
 }

@@ -22,9 +22,30 @@
 #define AP_T_ENABLE 0x11u
 #define AP_T_RATE 0x12u
 #define AP_T_CALIBRATE 0x13u
+#define AP_T_HELLO 0x03u       /* MCU -> host: build announcement (actuator, sensor, channels) */
+#define AP_T_SAMPLE_PULSE 0x04u /* MCU -> host: SAMPLE of an ESC build (applied pulse, u16) */
+#define AP_T_PULSE 0x14u       /* host -> MCU: ESC pulse width [0.5 us] (ESC build only) */
+#define AP_T_HELLO_REQ 0x15u   /* host -> MCU: send a HELLO now */
 
 #define AP_SAMPLE_LEN 19u
 #define AP_STATUS_LEN 13u
+#define AP_SAMPLE_PULSE_LEN 20u
+#define AP_HELLO_LEN 19u
+#define AP_PROTOCOL_VERSION 2u
+
+/* HELLO actuator and sensor codes, channel bits. */
+#define AP_ACT_HBRIDGE 1u
+#define AP_ACT_ESC 2u
+#define AP_SENSOR_POT 1u      /* angle on the ADC (AS5040 PWM -> RC, or a potentiometer) */
+#define AP_SENSOR_SSI 2u      /* AS5040 SSI read-out */
+#define AP_SENSOR_ENCODER 3u  /* quadrature encoder on INT2/INT3, decoded x4 */
+#define AP_CH_I_A 0x01u
+#define AP_CH_V_A 0x02u
+#define AP_CH_THETA 0x04u
+#define AP_CH_SPEED 0x08u
+/* Wire value of a channel the build does not measure (the host publishes NaN, never 0). */
+#define AP_ABSENT_I16 (-32768)
+#define AP_ABSENT_U32 0xFFFFFFFFul
 
 #define AP_CAL_I_A_OFFSET 1u
 #define AP_CAL_THETA_OFFSET 2u
@@ -36,6 +57,9 @@
 #define AP_FLAG_ANGLE_INVALID 0x10u  /* SSI build: read-out rejected, theta repeats the last valid angle */
 #define AP_FLAG_ANGLE_LIN 0x20u      /* SSI build: AS5040 linearity alarm (angle used, may be inaccurate) */
 #define AP_FLAG_ANGLE_SSI 0x40u      /* theta comes from the AS5040 SSI read-out (else RC-filtered PWM) */
+/* Encoder build: bit4 (AP_FLAG_ANGLE_INVALID) = an impossible quadrature transition (both lines
+ * changed between two interrupts) since the previous sample. */
+#define AP_FLAG_ARMING 0x80u         /* ESC build: arming sequence running (minimum pulse, commands held) */
 
 typedef struct {
     uint16_t seq;
@@ -47,6 +71,18 @@ typedef struct {
     uint8_t duty;
     uint8_t flags;
 } ap_sample_t;
+
+typedef struct {
+    uint8_t actuator;        /* AP_ACT_* */
+    uint8_t sensor;          /* AP_SENSOR_* */
+    uint8_t channels;        /* AP_CH_* bits of the measured channels */
+    uint16_t frame_hz;       /* actuator output frame rate [Hz] (H-bridge PWM 490, ESC 50..490) */
+    uint16_t pulse_min_us;   /* ESC: minimum (disarm) pulse [us]; 0 for the H-bridge */
+    uint16_t pulse_max_us;   /* ESC: maximum pulse [us]; 0 for the H-bridge */
+    uint16_t arm_ms;         /* ESC: minimum pulse held after reset [ms]; 0 for the H-bridge */
+    uint16_t silence_ms;     /* command watchdog: output off / minimum pulse after this silence [ms] */
+    uint32_t counts_per_rev; /* theta counts per revolution (1024 ADC/SSI, encoder lines x 4) */
+} ap_hello_t;
 
 typedef struct {
     uint16_t rx_frames, rx_errors, tx_overflows, watchdog_trips, spikes;
@@ -74,6 +110,10 @@ int ap_cobs_decode(const uint8_t *in, size_t n, uint8_t *out, size_t cap);
 size_t ap_frame_encode(const uint8_t *payload, size_t n, uint8_t *out);
 
 void ap_sample_pack(const ap_sample_t *s, uint8_t out[AP_SAMPLE_LEN]);
+/* ESC build's sample: the SAMPLE layout with the applied pulse [0.5 us] as u16 in place of the
+ * u8 duty (type AP_T_SAMPLE_PULSE, 20 bytes). */
+void ap_sample_pulse_pack(const ap_sample_t *s, uint16_t pulse, uint8_t out[AP_SAMPLE_PULSE_LEN]);
+void ap_hello_pack(const ap_hello_t *h, uint8_t out[AP_HELLO_LEN]);
 void ap_status_pack(const ap_status_t *s, uint8_t out[AP_STATUS_LEN]);
 /* Parse a CRC-checked command payload; AP_OK or AP_E_LENGTH / AP_E_TYPE / AP_E_VALUE. */
 int ap_command_parse(const uint8_t *payload, size_t n, ap_command_t *cmd);
@@ -138,5 +178,13 @@ uint32_t ap_speed_period(const ap_speed_t *s, uint32_t now, uint8_t *stale);
 /* Check an SSI word; *angle gets D9..D0 (0..1023, 1024 counts per revolution). Returns a mask
  * of AP_SSI_* bits: 0 = valid; any AP_SSI_INVALID bit = reject the angle. */
 uint8_t ap_as5040_decode(uint16_t word, uint16_t *angle);
+
+/* ------------------------------------------------------------------ quadrature decoder
+ * One x4 decoding step: prev and now are the line states (bit0 = A, bit1 = B). Returns +1 (A
+ * leads B), -1, 0 (no change) or AP_QUAD_INVALID (both lines changed: direction unknown). */
+#define AP_QUAD_INVALID 2
+int8_t ap_quad_step(uint8_t prev, uint8_t now);
+/* Advance a position kept in [0, cpr) by step (+1 / -1), wrapping. */
+uint16_t ap_quad_wrap(uint16_t count, int8_t step, uint16_t cpr);
 
 #endif

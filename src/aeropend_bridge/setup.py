@@ -31,6 +31,7 @@ setup(
         "console_scripts": [
             "bridge = aeropend_bridge.bridge_node:main",
             "fake_mcu = aeropend_bridge.fake_mcu:main",
+            "bridge_check = aeropend_bridge.bridge_check_node:main",
         ],
     },
 )

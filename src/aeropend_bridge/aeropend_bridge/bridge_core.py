@@ -19,7 +19,7 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from aeropend_bridge.protocol import FLAG_ANGLE_INVALID, TIMER4_TICK_S, SampleFrame
+from aeropend_bridge.protocol import ABSENT_I16, ABSENT_U32, FLAG_ANGLE_INVALID, TIMER4_TICK_S, SampleFrame
 from aeropend_sim.contract import Sample, validate_duty
 
 TWO_PI = 2.0 * math.pi
@@ -40,9 +40,10 @@ class Calibration:
     Attributes
     ----------
     i_a_lsb : float
-        Armature current per ADC count [A] (rig ``sensors.i_a_quantum``).
+        Armature current per ADC count [A] (rig ``sensors.i_a_quantum``); 0: not measured (NaN).
     v_a_lsb : float
-        Armature voltage per differential ADC count [V] (rig ``sensors.v_a_quantum``).
+        Armature voltage per differential ADC count [V] (rig ``sensors.v_a_quantum``); 0: not
+        measured (NaN).
     theta_lsb : float
         Angle per ADC count [rad] (rig ``sensors.theta_quantum``, 2π/1024).
     theta_offset : float
@@ -66,7 +67,8 @@ class Calibration:
     def __post_init__(self) -> None:
         for name in ("i_a_lsb", "v_a_lsb", "theta_lsb", "gear_ratio", "tick_s"):
             v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
+            zero_ok = name in ("i_a_lsb", "v_a_lsb") and v == 0  # a channel the rig does not measure
+            if not (math.isfinite(v) and v > 0) and not zero_ok:
                 raise BridgeConfigError(f"calibration {name} = {v!r} must be a finite positive number")
         if not math.isfinite(self.theta_offset):
             raise BridgeConfigError(f"calibration theta_offset = {self.theta_offset!r} is not finite")
@@ -81,20 +83,30 @@ class Calibration:
                    theta_lsb=float(s.theta_quantum), theta_offset=float(theta_offset),
                    gear_ratio=float(rig.motor.gear_ratio))  # type: ignore[attr-defined]
 
-    def to_sample(self, f: SampleFrame, stamp_ns: int) -> Sample:
-        """Convert a sample frame to SI units (θ̇ is not measured: NaN)."""
+    def to_sample(self, f: SampleFrame, stamp_ns: int, duty: float | None = None) -> Sample:
+        """Convert a sample frame to SI units.
+
+        θ̇ is not measured (NaN); so are the channels the frame marks absent
+        (:data:`~aeropend_bridge.protocol.ABSENT_I16`, :data:`~aeropend_bridge.protocol.ABSENT_U32`)
+        and those the rig does not measure (LSB 0): NaN, never 0. ``duty`` is the applied τ
+        (:meth:`aeropend_bridge.family.CommandMap.applied`); default the H-bridge's ``duty / 255``.
+        """
         theta = f.theta * self.theta_lsb - self.theta_offset
         theta = math.remainder(theta, TWO_PI)
         if theta == -math.pi:
             theta = math.pi
-        if f.period > 0:
+        if f.period == ABSENT_U32:
+            omega_prop = math.nan
+        elif f.period > 0:
             omega_prop = TWO_PI / (f.period * self.tick_s * self.pulses_per_rev)
         else:
             omega_prop = 0.0
+        i_a = math.nan if f.i_a == ABSENT_I16 or self.i_a_lsb == 0 else f.i_a * self.i_a_lsb
+        v_a = math.nan if f.v_a == ABSENT_I16 or self.v_a_lsb == 0 else f.v_a * self.v_a_lsb
         return Sample(
             stamp_ns=int(stamp_ns), theta=theta, theta_dot=math.nan,
             omega_rotor=omega_prop * self.gear_ratio, omega_prop=omega_prop,
-            i_a=f.i_a * self.i_a_lsb, v_a=f.v_a * self.v_a_lsb, duty=f.duty / 255.0,
+            i_a=i_a, v_a=v_a, duty=f.duty / 255.0 if duty is None else duty,
         )
 
 

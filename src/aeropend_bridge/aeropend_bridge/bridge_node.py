@@ -30,6 +30,7 @@ is switched off (duty 0 sent, output disabled) before anything else.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 import threading
@@ -57,7 +58,8 @@ from aeropend_bridge.bridge_core import (
     RateMeter,
     SequenceTracker,
 )
-from aeropend_bridge.protocol import BAUD, Duty, Enable, Rate, SampleFrame, StatusFrame
+from aeropend_bridge.family import CommandMap, check_firmware, legacy_hello, read_rig_hardware
+from aeropend_bridge.protocol import BAUD, Enable, HelloFrame, HelloRequest, Rate, SampleFrame, StatusFrame
 from aeropend_bridge.serial_link import SerialLink
 from aeropend_sim.contract import REL_ARMATURE, REL_DUTY_CYCLE, REL_JOINT_STATES
 from aeropend_sim.params import RigFileError, load_rig
@@ -70,6 +72,9 @@ TOPIC_DIAGNOSTICS = "/diagnostics"
 LOG_THROTTLE_S = 1.0
 #: Nominal firmware sample rate [Hz]: 16 MHz / 64 / 510.
 NOMINAL_RATE_HZ = 16e6 / 64 / 510
+#: How long configure waits for the firmware's HELLO after recognising its samples [s]: more than
+#: the 0.52 s between the HELLO frames the firmware sends unasked (after every STATUS frame).
+HELLO_WAIT_S = 0.6
 
 #: The node parameters (declared from this table, printed by ``--help``). Every one but
 #: ``autostart`` may be set while the node is *unconfigured* and applies at the next ``configure``
@@ -147,9 +152,11 @@ class BridgeNode(LifecycleNode):
 
     Transitions (``ros2 lifecycle set /aeropend_bridge <transition>``):
 
-    * ``configure``: validate the parameters, open the port and recognise the protocol-1
-      firmware from its sample stream (:class:`~aeropend_bridge.bridge_core.FirmwareHandshake`)
-      within ``handshake_timeout``; the H-bridge output is switched off (ENABLE 0, duty 0).
+    * ``configure``: validate the parameters, open the port and recognise the firmware from its
+      sample stream (:class:`~aeropend_bridge.bridge_core.FirmwareHandshake`) within
+      ``handshake_timeout``, read its HELLO and refuse a firmware of another family or sensor
+      than the rig file's (:func:`~aeropend_bridge.family.check_firmware`); the output is switched
+      off (ENABLE 0, duty 0 or the ESC's zero-throttle pulse).
       ``/diagnostics`` runs from here on. Fails (state stays *unconfigured*, port closed) with
       the reason logged.
     * ``activate``: ENABLE 1, duty commands are forwarded (duty 0 until the first command after
@@ -177,6 +184,9 @@ class BridgeNode(LifecycleNode):
         self._entities: list[Any] = []
         self._transition_error: Exception | None = None
         self._recognised = threading.Event()
+        self._hello_seen = threading.Event()
+        self.hello: HelloFrame | None = None
+        self._last_sample: SampleFrame | None = None
 
     # ------------------------------------------------------------------ parameters
     def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
@@ -250,10 +260,38 @@ class BridgeNode(LifecycleNode):
                 f"{h.frames} sample frames, longest consistent run {h.longest} of {h.needed}; "
                 f"{s.bytes} bytes read, {s.crc_errors} CRC errors, {s.errors} framing errors "
                 "(wrong baud rate, another sketch, or the board still booting?)")
+        self._check_family()
         self.get_logger().info(
-            f"configured: port {self.port} at {self.baud} baud, protocol-1 firmware recognised "
+            f"configured: port {self.port} at {self.baud} baud, aeropend firmware recognised "
             f"({self.handshake.longest} consistent sample frames), rig {self.rig_name!r}, theta_offset "
             f"{self.cal.theta_offset:g} rad, command_timeout {self.command_timeout_s:g} s; output off")
+
+    def _check_family(self) -> None:
+        """Wait for the firmware's HELLO (a protocol-1 firmware has none: H-bridge, ADC or SSI angle)
+        and refuse a firmware that does not drive or measure what the rig file says; nothing has
+        been armed yet (output off since the connection)."""
+        if self._hello_seen.wait(HELLO_WAIT_S):
+            hello, how = self.hello, "announced"
+        else:
+            hello, how = legacy_hello(self._last_sample), "protocol 1, no HELLO"  # type: ignore[arg-type]
+        assert hello is not None
+        check_firmware(self.hw, hello, self.theta_quantum or None)
+        if not self.theta_quantum:
+            if hello.sensor_name == "pot":
+                raise BridgeConfigError(f"rig {self.rig_name!r} states no sensors.theta_quantum: the "
+                                        "potentiometer's angle per ADC count must be stated [rad]")
+            self.cal = dataclasses.replace(self.cal, theta_lsb=2 * math.pi / hello.counts_per_rev)
+        if 2 * self.keepalive_s * 1e3 >= hello.silence_ms:
+            raise BridgeConfigError(
+                f"keepalive_period {self.keepalive_s:g} s is too slow for the firmware's "
+                f"{hello.silence_ms} ms command watchdog (must be below half of it)")
+        self.firmware = hello
+        esc = (f", ESC {hello.frame_hz} Hz {hello.pulse_min_us}-{hello.pulse_max_us} µs, arming "
+               f"{hello.arm_ms} ms" if hello.actuator_name == "esc" else "")
+        self.get_logger().info(
+            f"firmware ({how}): actuator {hello.actuator_name}, angle {hello.sensor_name} "
+            f"({hello.counts_per_rev} counts/rev), channels 0x{hello.channels:02x}, watchdog "
+            f"{hello.silence_ms} ms{esc}")
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Enable the H-bridge output and forward duty commands (0 until the first one)."""
@@ -296,7 +334,7 @@ class BridgeNode(LifecycleNode):
         if self.link is None:
             return
         for _ in range(3):
-            self.link.send(Duty(0))
+            self.link.send(self.cmap.off())
             time.sleep(0.005)
         self.link.send(Enable(False))
 
@@ -346,7 +384,14 @@ class BridgeNode(LifecycleNode):
         offset = p["theta_offset"]
         if not isinstance(offset, (int, float)) or not math.isfinite(float(offset)):
             raise BridgeConfigError(f"parameter theta_offset = {offset!r} must be a finite angle [rad]")
+        self.theta_quantum = float(rig.sensors.theta_quantum)
+        if self.theta_quantum == 0:  # not stated: 2π / the firmware's counts (checked at configure)
+            rig = rig.with_params("sensors", theta_quantum=2 * math.pi / 1024)
         self.cal = Calibration.from_rig(rig, theta_offset=float(offset))
+        self.hw = read_rig_hardware(self.rig_name, rig.family, rig.name)
+        self.cmap = CommandMap.for_rig(self.hw)  # the one τ -> DUTY / PULSE map; no firmware: refused
+        self._hello_seen.clear()
+        self.hello = None
         self.command_timeout_s = _positive("command_timeout", p["command_timeout"])
         self.keepalive_s = _positive("keepalive_period", p["keepalive_period"])
         if 2 * self.keepalive_s >= self.command_timeout_s:
@@ -384,13 +429,14 @@ class BridgeNode(LifecycleNode):
         link = self.link
         if link is None:
             return
+        link.send(HelloRequest())
         link.send(Rate(self.rate_divider))
         if self._active:
             link.send(Enable(True))
-            link.send(Duty.from_fraction(self.watchdog.duty(time.monotonic_ns())))
+            self._send_duty(self.watchdog.duty(time.monotonic_ns()))
         else:  # the firmware starts with its output enabled: off until activated
             link.send(Enable(False))
-            link.send(Duty(0))
+            self._send_duty(0.0)  # noted as sent: the link thread keeps it alive during configure
 
     def _on_link_event(self, msg: str) -> None:
         self._last_link_event = msg
@@ -405,7 +451,12 @@ class BridgeNode(LifecycleNode):
             self.get_logger().info(msg)
 
     def _on_frame(self, frame: object, host_ns: int) -> None:
+        if isinstance(frame, HelloFrame):
+            self.hello = frame
+            self._hello_seen.set()
+            return
         if isinstance(frame, SampleFrame):
+            self._last_sample = frame
             self._link_keepalive()
             with self._lock:
                 resets = self.seq.resets
@@ -424,7 +475,8 @@ class BridgeNode(LifecycleNode):
             pub_js, pub_arm = self._pub_js, self._pub_arm
             if not self._active or pub_js is None or pub_arm is None:
                 return  # inactive: no samples published (lifecycle convention)
-            js, arm = sample_to_msgs(self.cal.to_sample(frame, stamp), self.frame_id)
+            sample = self.cal.to_sample(frame, stamp, self.cmap.applied(frame))
+            js, arm = sample_to_msgs(sample, self.frame_id)
             try:
                 pub_js.publish(js)
                 pub_arm.publish(arm)
@@ -463,7 +515,7 @@ class BridgeNode(LifecycleNode):
         """Send ``duty`` (fraction) and note it and the time; the caller holds ``_send_lock``."""
         link = self.link
         if link is not None:
-            link.send(Duty.from_fraction(duty))
+            link.send(self.cmap.command(duty))
             self._last_sent = duty
             self._last_send_ns = time.monotonic_ns()
 

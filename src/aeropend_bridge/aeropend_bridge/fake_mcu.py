@@ -23,11 +23,18 @@ import tty
 from pathlib import Path
 
 from aeropend_bridge.protocol import (
+    CH_I_A,
+    CH_SPEED,
+    CH_THETA,
+    CH_V_A,
     FLAG_ENABLED,
     FLAG_WATCHDOG,
+    PROTOCOL_VERSION,
     Duty,
     Enable,
     FrameDecoder,
+    HelloFrame,
+    HelloRequest,
     SampleFrame,
     StatusFrame,
     encode,
@@ -35,6 +42,9 @@ from aeropend_bridge.protocol import (
 
 #: Firmware sample period [s]: Timer1 phase-correct 8-bit PWM, 510 ticks of 4 µs.
 FIRMWARE_PERIOD_S = 2.040e-3
+#: HELLO of the H-bridge firmware with the ADC angle (the build FakeMcu stands in for).
+HBRIDGE_HELLO = HelloFrame(PROTOCOL_VERSION, 1, 1, CH_I_A | CH_V_A | CH_THETA | CH_SPEED, 490, 0, 0, 0, 249,
+                           1024)
 FIRMWARE_WATCHDOG_S = 0.25
 
 
@@ -63,12 +73,15 @@ class FakeMcu:
         its outputs as ADC counts / Timer4 ticks (inverse of ``calibration``).
     calibration : aeropend_bridge.bridge_core.Calibration, optional
         Count conversion for ``plant`` (required with it).
+    hello : HelloFrame or None
+        Answer to a HELLO request (default: the H-bridge / ADC-angle firmware, :data:`HBRIDGE_HELLO`);
+        None behaves like protocol-1 firmware, which has no HELLO.
     """
 
     def __init__(self, link: str | Path, period_s: float = FIRMWARE_PERIOD_S, corrupt_p: float = 0.0,
                  seed: int = 0, n_frames: int | None = None, clean_tail: int = 5,
                  paused: bool = False, plant: object | None = None,
-                 calibration: object | None = None) -> None:
+                 calibration: object | None = None, hello: HelloFrame | None = HBRIDGE_HELLO) -> None:
         self.link = Path(link)
         self.period_s = period_s
         self.corrupt_p = corrupt_p
@@ -98,6 +111,8 @@ class FakeMcu:
             raise ValueError("FakeMcu(plant=...) needs calibration= to convert outputs to counts")
         self.plant = plant
         self.cal = calibration
+        self.hello = hello
+        self._hello_due = False
         self._go = threading.Event()
         if not paused:
             self._go.set()
@@ -217,6 +232,8 @@ class FakeMcu:
                         self._wd = False
                     elif isinstance(f, Enable):
                         self.enabled = f.on
+                    elif isinstance(f, HelloRequest) and self.hello is not None:
+                        self._hello_due = True
         except OSError:
             pass
         if time.monotonic() - self._last_cmd > FIRMWARE_WATCHDOG_S and not self._wd:
@@ -263,6 +280,9 @@ class FakeMcu:
             self._read_commands()
             due, t0 = self._due(k, t0)
             wire = bytearray()
+            if self._hello_due:
+                self._hello_due = False
+                wire += encode(self.hello)  # type: ignore[arg-type]
             frames: list[tuple[int, SampleFrame, bool, bool]] = []
             for j in range(k, due):
                 frame = self._frame(j)

@@ -37,6 +37,28 @@ T_DUTY = 0x10
 T_ENABLE = 0x11
 T_RATE = 0x12
 T_CALIBRATE = 0x13
+T_HELLO = 0x03
+T_SAMPLE_PULSE = 0x04
+T_PULSE = 0x14
+T_HELLO_REQ = 0x15
+
+#: Protocol version announced in HELLO frames (version 1 had no HELLO).
+PROTOCOL_VERSION = 2
+#: HELLO actuator codes -> names (the rig file's ``actuator.family`` they drive).
+ACTUATORS = {1: "hbridge", 2: "esc"}
+#: HELLO angle-sensor codes -> names.
+SENSORS = {1: "pot", 2: "ssi", 3: "encoder"}
+#: HELLO channel bits.
+CH_I_A = 0x01
+CH_V_A = 0x02
+CH_THETA = 0x04
+CH_SPEED = 0x08
+#: Wire value of an i16 channel the build does not measure (published as NaN, never 0).
+ABSENT_I16 = -32768
+#: Wire value of the propeller period when the build has no speed sensor.
+ABSENT_U32 = 0xFFFFFFFF
+#: ESC pulse-width unit on the wire [s] (Timer3 at 16 MHz / 8).
+PULSE_TICK_S = 0.5e-6
 
 #: Timer4 input-capture tick [s] (16 MHz / prescaler 64 = 4 µs).
 TIMER4_TICK_S = 4e-6
@@ -56,6 +78,8 @@ FLAG_ANGLE_INVALID = 0x10
 FLAG_ANGLE_LIN = 0x20
 #: θ comes from the AS5040 SSI read-out (firmware built with ``ANGLE=ssi``), else PWM -> RC -> ADC.
 FLAG_ANGLE_SSI = 0x40
+#: ESC build: the arming sequence is running (minimum pulse; commands are not applied yet).
+FLAG_ARMING = 0x80
 
 
 class ProtocolError(ValueError):
@@ -145,6 +169,9 @@ def encode_frame(payload: bytes) -> bytes:
 # --------------------------------------------------------------------------- frame types
 _SAMPLE = struct.Struct("<BHIHhHIBB")  # type seq t_us i_a v_a theta period duty flags
 _STATUS = struct.Struct("<BHHHHHH")    # type rx_frames rx_errors tx_overflows wd_trips spikes angle_errors
+_SAMPLE_PULSE = struct.Struct("<BHIhhHIHB")  # as _SAMPLE with a u16 applied pulse [0.5 µs] for duty
+# type version actuator sensor channels frame_hz pulse_min pulse_max arm_ms silence_ms counts_per_rev
+_HELLO = struct.Struct("<BBBBBHHHHHI")
 
 
 @dataclass(frozen=True)
@@ -169,10 +196,15 @@ class SampleFrame:
     period : int
         Propeller period in Timer4 ticks (4 µs), uint32; 0 = no valid edge pair recently.
     duty : int
-        Applied OCR1 value 0..255 over the interval ending at this sample (τ = duty/255).
+        Applied OCR1 value 0..255 over the interval ending at this sample (τ = duty/255); 0 in
+        an ESC build's frame (see ``pulse``).
     flags : int
         Bit 0 enabled, bit 1 watchdog tripped, bit 2 spike rejected, bit 3 speed stale,
-        bit 4 angle read-out invalid, bit 5 AS5040 linearity alarm, bit 6 angle from SSI.
+        bit 4 angle read-out invalid (SSI word rejected, or an impossible encoder transition),
+        bit 5 AS5040 linearity alarm, bit 6 angle from SSI, bit 7 ESC arming.
+
+    A channel the build does not measure carries :data:`ABSENT_I16` (``i_a``, ``v_a``) or
+    :data:`ABSENT_U32` (``period``).
     """
 
     seq: int
@@ -184,11 +216,37 @@ class SampleFrame:
     duty: int
     flags: int = 0
 
+    #: Applied ESC pulse [0.5 µs]; ``None`` for an H-bridge frame (see :class:`PulseSampleFrame`).
+    pulse = None
+
     def payload(self) -> bytes:
         """Unstuffed payload (without CRC)."""
         try:
             return _SAMPLE.pack(T_SAMPLE, self.seq, self.t_us, self.i_a & 0xFFFF, self.v_a,
                                 self.theta, self.period, self.duty, self.flags)
+        except struct.error as exc:
+            raise ProtocolError(f"sample field out of range in {self}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class PulseSampleFrame(SampleFrame):
+    """MCU -> host: the sample of an ESC build (frame type 0x04, 20 bytes).
+
+    The :class:`SampleFrame` fields (``duty`` is 0: the build has no PWM duty) and
+
+    Attributes
+    ----------
+    pulse : int
+        Servo pulse applied over the interval ending at this sample [0.5 µs units].
+    """
+
+    pulse: int = 0  # type: ignore[assignment]
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        try:
+            return _SAMPLE_PULSE.pack(T_SAMPLE_PULSE, self.seq, self.t_us, self.i_a, self.v_a,
+                                      self.theta, self.period, self.pulse, self.flags)
         except struct.error as exc:
             raise ProtocolError(f"sample field out of range in {self}: {exc}") from None
 
@@ -279,7 +337,105 @@ class Calibrate:
         return struct.pack("<BBh", T_CALIBRATE, self.item, self.value)
 
 
-Frame = SampleFrame | StatusFrame | Duty | Enable | Rate | Calibrate
+@dataclass(frozen=True)
+class HelloFrame:
+    """MCU -> host: what the firmware build drives and measures (after reset, on request, and
+    after every STATUS frame).
+
+    Attributes
+    ----------
+    version : int
+        Protocol version (2).
+    actuator : int
+        1 H-bridge PWM, 2 ESC servo pulse (:data:`ACTUATORS`).
+    sensor : int
+        1 ADC (AS5040 PWM -> RC, potentiometer), 2 AS5040 SSI, 3 quadrature encoder (:data:`SENSORS`).
+    channels : int
+        Measured channels, bits :data:`CH_I_A`, :data:`CH_V_A`, :data:`CH_THETA`, :data:`CH_SPEED`.
+    frame_hz : int
+        Actuator output frame rate [Hz] (H-bridge PWM 490; ESC 50..490).
+    pulse_min_us, pulse_max_us : int
+        ESC pulse range [µs]; the minimum is the arming / disarm pulse (0 for the H-bridge).
+    arm_ms : int
+        ESC: minimum pulse held after reset [ms] (0 for the H-bridge).
+    silence_ms : int
+        Firmware command watchdog: output off / minimum pulse this long after the last command [ms].
+    counts_per_rev : int
+        θ counts per revolution (1024 for ADC and SSI, lines × 4 for an encoder).
+    """
+
+    version: int
+    actuator: int
+    sensor: int
+    channels: int
+    frame_hz: int
+    pulse_min_us: int
+    pulse_max_us: int
+    arm_ms: int
+    silence_ms: int
+    counts_per_rev: int
+
+    @property
+    def actuator_name(self) -> str:
+        """``hbridge``, ``esc`` or ``unknown actuator <code>``."""
+        return ACTUATORS.get(self.actuator, f"unknown actuator {self.actuator}")
+
+    @property
+    def sensor_name(self) -> str:
+        """``pot``, ``ssi``, ``encoder`` or ``unknown sensor <code>``."""
+        return SENSORS.get(self.sensor, f"unknown sensor {self.sensor}")
+
+    def has(self, channel_bit: int) -> bool:
+        """Whether the build measures the channel (a ``CH_*`` bit)."""
+        return bool(self.channels & channel_bit)
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        return _HELLO.pack(T_HELLO, self.version, self.actuator, self.sensor, self.channels, self.frame_hz,
+                           self.pulse_min_us, self.pulse_max_us, self.arm_ms, self.silence_ms,
+                           self.counts_per_rev)
+
+
+@dataclass(frozen=True)
+class Pulse:
+    """Host -> MCU (ESC build): servo pulse width command in 0.5 µs units; feeds the watchdog.
+
+    The firmware clamps it to its announced range (:class:`HelloFrame` ``pulse_min_us`` ..
+    ``pulse_max_us``); the H-bridge build ignores it (counted as an RX error).
+    """
+
+    half_us: int
+
+    @classmethod
+    def from_seconds(cls, width_s: float) -> Pulse:
+        """Command for a pulse of ``width_s`` seconds (rounded to 0.5 µs).
+
+        Raises
+        ------
+        ProtocolError
+            If the width is not finite or outside 0 … 32.7675 ms.
+        """
+        w = float(width_s)
+        if not math.isfinite(w) or not 0.0 <= w <= 0xFFFF * PULSE_TICK_S:
+            raise ProtocolError(f"pulse width {width_s!r} s is not a finite value in [0, 32.7675 ms]")
+        return cls(round(w / PULSE_TICK_S))
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        return struct.pack("<BH", T_PULSE, self.half_us)
+
+
+@dataclass(frozen=True)
+class HelloRequest:
+    """Host -> MCU: ask for a :class:`HelloFrame` now (protocol-1 firmware counts it as an RX error)."""
+
+    def payload(self) -> bytes:
+        """Unstuffed payload (without CRC)."""
+        return bytes([T_HELLO_REQ])
+
+
+Frame = (SampleFrame | PulseSampleFrame | StatusFrame | HelloFrame | Duty | Pulse | HelloRequest | Enable
+         | Rate | Calibrate)
 
 
 def parse_payload(payload: bytes) -> Frame:
@@ -305,6 +461,19 @@ def parse_payload(payload: bytes) -> Frame:
         if i_a >= 0x8000:
             i_a -= 0x10000
         return SampleFrame(seq, t_us, i_a, v_a, theta, period, duty, flags)
+    if t == T_SAMPLE_PULSE:
+        need(_SAMPLE_PULSE.size, "pulse sample")
+        _, seq, t_us, i_a, v_a, theta, period, pulse, flags = _SAMPLE_PULSE.unpack(payload)
+        return PulseSampleFrame(seq, t_us, i_a, v_a, theta, period, 0, flags, pulse=pulse)
+    if t == T_HELLO:
+        need(_HELLO.size, "hello")
+        return HelloFrame(*_HELLO.unpack(payload)[1:])
+    if t == T_PULSE:
+        need(3, "pulse")
+        return Pulse(struct.unpack_from("<H", payload, 1)[0])
+    if t == T_HELLO_REQ:
+        need(1, "hello request")
+        return HelloRequest()
     if t == T_STATUS:
         need(_STATUS.size, "status")
         return StatusFrame(*_STATUS.unpack(payload)[1:])

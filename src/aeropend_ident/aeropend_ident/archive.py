@@ -216,6 +216,22 @@ def _channels(good: Sequence[tuple[dict[str, Any], Session]]) -> tuple[str, ...]
     return tuple(sorted(have or {"theta"}))
 
 
+#: The statuses of a gap-batch session (:func:`session_status`).
+STATUSES = ("ok", "corrected rig worse", "diverged", "failed")
+
+
+def session_status(row: dict[str, Any]) -> str:
+    """One session's status (one of :data:`STATUSES`): ``failed`` (gap refused or crashed), ``diverged``
+    (the nominal or the corrected held-out free run left the recorded range: no NRMSE to compare),
+    ``corrected rig worse`` (its held-out θ NRMSE above the nominal's) or ``ok``."""
+    if row.get("exit") != 0:
+        return "failed"
+    before, after = row.get("nrmse_before"), row.get("nrmse_after")
+    if before is None or after is None:
+        return "diverged"
+    return "corrected rig worse" if after > before else "ok"
+
+
 def drift_markdown(rows: Sequence[dict[str, Any]], table: dict[str, Any] | None) -> str:
     """``drift.md``: the per-session table and the drift table across sessions."""
     lines = ["# gap-batch", "", "| session | chosen | held-out θ NRMSE before → after | status |",
@@ -224,9 +240,10 @@ def drift_markdown(rows: Sequence[dict[str, Any]], table: dict[str, Any] | None)
         if r.get("exit") == 0:
             figs = " → ".join("diverges" if v is None else f"{v:.4g}"
                               for v in (r["nrmse_before"], r["nrmse_after"]))
-            lines.append(f"| {r['session']} | {', '.join(r['chosen']) or 'none'} | {figs} | ok |")
+            lines.append(f"| {r['session']} | {', '.join(r['chosen']) or 'none'} | {figs} | "
+                         f"{session_status(r)} |")
         else:
-            lines.append(f"| {r['session']} | — | — | refused: {r.get('error', '')} |")
+            lines.append(f"| {r['session']} | — | — | {session_status(r)}: {r.get('error', '')} |")
     lines += ["", "## Drift across sessions", ""]
     if table is None:
         lines.append("Not computed: fewer than two sessions were diagnosed.")
@@ -249,7 +266,8 @@ def write_batch(out: Path, rows: Sequence[dict[str, Any]], sessions: Sequence[Se
     and ``drift.md``; return their paths."""
     from aeropend_ident.io.jsonutil import jsonable
 
-    doc = {"tool": "aeropend_ident gap-batch", "sessions": [asdict(s) for s in sessions], "rows": list(rows),
+    doc = {"tool": "aeropend_ident gap-batch", "sessions": [asdict(s) for s in sessions],
+           "rows": [{**r, "status": session_status(r)} for r in rows],
            "drift": table, "skipped": list(skipped), "meta": meta}
     paths = {"json": out / "batch.json", "md": out / "drift.md"}
     paths["json"].write_text(json.dumps(jsonable(doc), indent=1), encoding="utf-8")

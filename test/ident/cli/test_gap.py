@@ -220,21 +220,40 @@ def test_block_design_and_its_errors(bags, tmp_path, capsys):
 
 def test_validation_split_rules():
     from aeropend_ident.errors import GapInputError
-    from aeropend_ident.io.split import MIN_PART, validation_split
+    from aeropend_ident.io.split import MIN_PART, carve_validation, validation_split
 
     long = _recording(6, 20.0)  # 2000 samples, APRBS: both parts excited
     core, val = validation_split([long], 0.3)
     assert [len(r) for r in core] == [1400] and [len(r) for r in val] == [600]
     # a recording whose last 30 % has a constant duty cannot give a validation part of its own:
-    # with several fit recordings every third whole one (from the second on) is the validation set
     step = Recording(
         t=long.t, duty=np.where(long.t < 5.0, 0.0, 0.5), channels=dict(long.channels), source="step"
     )
+    # with several fit recordings every third whole one (from the second on) is the validation set
     recs = [step, long, step, step, long]
-    core, val = validation_split(recs, 0.3)
+    core, val, rule = carve_validation(recs, 0.3)
     assert val == [recs[1], recs[4]] and core == [recs[0], recs[2], recs[3]]
-    with pytest.raises(GapInputError, match="validation"):
-        validation_split([step], 0.3)
+    assert "every 3rd recording whose command changes" in rule
+    # none splittable, two with a changing command: one is left out whole, and the rule says so
+    short = [Recording(t=long.t[:300], duty=long.duty[k:k + 300].copy(),
+                       channels={"theta": long.channels["theta"][k:k + 300].copy()}, source=f"short {k}")
+             for k in (0, 500)]
+    core, val, rule = carve_validation(short, 0.3)
+    assert [r.source for r in core] == ["short 0"] and [r.source for r in val] == ["short 500"]
+    assert "with two: leave one recording out" not in rule and "short 500 whole" in rule
+    # a free decay (constant command, the rod swings) is fitted whole beside an excited recording
+    decay = Recording(t=long.t[:800], duty=np.zeros(800),
+                      channels={"theta": 0.3 * np.exp(-0.3 * long.t[:800]) * np.cos(6.0 * long.t[:800])},
+                      source="decay")
+    core, val, rule = carve_validation([long, decay], 0.3)
+    assert any(r is decay for r in core) and len(val) == 1
+    assert "constant-command recording(s) fitted whole: decay" in rule
+    # a lone step: its last 30 % is a hold, the last resort (said), and a lone recording too short for
+    # two parts is refused naming it
+    core, val, rule = carve_validation([step], 0.3)
+    assert len(val[0]) == 600 and "a hold after the recording's last command change" in rule
+    with pytest.raises(GapInputError, match=r"short 0: 300 samples, duty changing"):
+        validation_split([short[0], decay], 0.3)
     # a valid recording whose last 40 % holds one duty level (a long last step) is not refused: its
     # validation part starts 1 s before the last duty step, settled on the previous level
     flat = Recording(t=long.t, duty=np.where(long.t < 12.0, long.duty, long.duty[1199]),
@@ -300,3 +319,41 @@ def test_a_nominal_rig_that_spins_over_the_top_gets_no_shrink_figure(bags, tmp_p
     assert "beyond the recorded range" in h["heldout_divergence"]["nominal"][0]
     assert "no NRMSE or shrink figure" in buf.getvalue()
     assert "no NRMSE or shrink figure" in (out / "report.html").read_text()
+    # nor anywhere else (issue 60 item 4): the overlay's figures, the attainable split, the terminal
+    doc = json.loads((out / "report.json").read_text())
+    (ov,) = doc["after"]["overlay_metrics"]
+    assert ov["nominal"]["nrmse"] is None and "recorded range" in ov["nominal"]["diverges"]
+    (att,) = doc["after"]["attainable"]
+    assert att["split"] is None and att["nominal"] is None and "nominal" in att["diverges"]
+    assert "removed" not in buf.getvalue() and "ATTAINABLE on" in buf.getvalue()
+
+
+def test_the_log_set_rig_fit_takes_is_accepted_as_it_is(bags, tmp_path):
+    """Issue 60 item 5: a lab's ordinary set (a balance table, a recording whose command changes, a
+    step logged from rest, a free decay) runs as it is, without flags: the table is checked against
+    both rigs, the constant-command recordings are fitted whole beside the excited one, and the
+    report says how the data were divided."""
+    from aeropend_sim.model import PlantModel
+
+    model = PlantModel(REAL)
+    angles = np.linspace(0.2, 1.0, 6)
+    table = tmp_path / "balance.csv"
+    rows = "".join(f"{model.equilibrium(a)[1]:.6f},{a:.6f}\n" for a in angles)
+    table.write_text("command,angle_rad\n" + rows)
+    lift = np.concatenate([np.full(500, 0.6), np.zeros(900)])
+    decay = Recording.from_trajectory(simulate(REAL, lift, dt=DT, seed=5), channels=("theta",),
+                                      source="decay").slice(600, 1400)
+    step = write_bag(_step_from_rest(8, 0.55), tmp_path / "step", rig_name="thesis_rig")
+    dec = write_bag(decay, tmp_path / "decay", rig_name="thesis_rig")
+    out = tmp_path / "g"
+    assert main([str(table), str(bags["fit"]), str(step), str(dec), "--rig", "thesis_rig", "-o", str(out),
+                 "-q", "--no-oracle"]) == 0
+    doc = json.loads((out / "report.json").read_text())
+    rule = doc["inputs"]["split_rule"]
+    assert rule.startswith("time-ordered split") and "constant-command recording(s) fitted whole" in rule
+    (row,) = doc["static_tables"]
+    assert row["rows"] == 6 and row["kind"] == "balance" and row["unit"] == "rad"
+    # the nominal rig lacks only the rod's dry friction, which moves no balance angle of the table
+    # (it was computed from the real rig's equilibrium): both rigs hold the table within 5 mrad
+    assert 0.0 <= row["nominal"] < 5e-3 and 0.0 <= row["corrected"] < 5e-3
+    assert "STATIC TABLE balance.csv" in (out / "report.html").read_text()

@@ -236,8 +236,12 @@ def test_check_recordings_errors_name_the_problem():
         check_recordings([_rec(theta=th)])
     r = _rec()
     r.duty[:] = 0.4
-    with pytest.raises(GapError, match="constant duty"):
-        check_recordings([r])
+    with pytest.raises(GapError, match="duty cycle is constant in every one of the fit recordings"):
+        check_recordings([r], "fit recordings", need_changing_input=True)
+    still = _rec(theta=np.full(400, 0.2))
+    still.duty[:] = 0.4
+    with pytest.raises(GapError, match="θ is constant"):  # a hold under which nothing moves
+        check_recordings([_rec(), still])
     with pytest.raises(GapError, match=r"expected aeropend_sim\.recording\.Recording"):
         check_recordings([{"theta": [0.0]}])
 
@@ -305,3 +309,19 @@ def test_fit_leaves_a_log_parameter_started_at_its_nominal_value():
     res = fit_effects(RIG, ["gravity"], preps, ctx, start={"gravity": {"mgd_over_J": _P.mgd_over_J}},
                       scan=False)
     assert res.values["gravity"]["mgd_over_J"] == pytest.approx(0.8 * _P.mgd_over_J, rel=0.01)
+
+
+def test_a_parameter_rig_fit_left_at_a_bound_has_its_effects_confirmed():
+    """Issue 60 item 5: a rig fit value at its search bound may have absorbed an effect; gap confirms
+    the catalog effects that set that parameter (and those confusable with them), and says so."""
+    from aeropend_ident.gap.run import bound_effects
+    from aeropend_ident.greybox.rig_fit import BOUND_FLAG
+    from aeropend_sim.params import load_rig, rig_from_dict, rig_to_dict
+
+    doc = rig_to_dict(load_rig("thesis_rig"))
+    assert bound_effects(rig_from_dict(doc)) == ([], [])
+    flag = f"fitted (rig fit): 0.12 ± 0.001 1; {BOUND_FLAG} 0.12 (searched 0 … 0.12)"
+    doc["actuator"]["dead_zone"]["source"] = flag
+    notes, effects = bound_effects(rig_from_dict(doc))
+    assert effects == ["dead_zone", "hbridge_drop"]
+    assert len(notes) == 1 and notes[0].startswith("rig fit left actuator.dead_zone at a search bound")

@@ -101,3 +101,14 @@ def test_a_result_files_engine_names_where_its_cases_ran(monkeypatch):
     assert parallel.engine_label(1, "tcp://10.0.0.5:8786") == "dask tcp://10.0.0.5:8786"
     monkeypatch.setattr(parallel, "default_workers", lambda: 1)
     assert parallel.engine_label(None, None) == "this process, one case at a time"
+
+
+def test_a_session_status_tells_ok_worse_diverged_and_failed_apart():
+    """Issue 60 item 4: a corrected rig worse than the nominal is not 'ok' (0.085 -> 0.1015 was)."""
+    from aeropend_ident.archive import STATUSES, session_status
+
+    assert session_status({"exit": 0, "nrmse_before": 0.085, "nrmse_after": 0.0612}) == "ok"
+    assert session_status({"exit": 0, "nrmse_before": 0.085, "nrmse_after": 0.1015}) == "corrected rig worse"
+    assert session_status({"exit": 0, "nrmse_before": None, "nrmse_after": 0.1}) == "diverged"
+    assert session_status({"exit": 2, "error": "too short"}) == "failed"
+    assert set(STATUSES) == {"ok", "corrected rig worse", "diverged", "failed"}

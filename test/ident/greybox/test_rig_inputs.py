@@ -48,3 +48,26 @@ def test_recorded_noise_of_a_uniform_recording_is_noise_level():
     t = np.arange(2000) * 0.01
     theta = 0.3 * np.sin(2.0 * t) + rng.normal(0.0, SIGMA, t.size)
     assert recorded_noise(t, theta) == noise_level(theta)
+
+
+def test_a_fast_log_is_fitted_on_the_grid_the_rod_needs_and_replayed_on_its_own():
+    """Issue 60 item 3: a 500 Hz log is fitted on every 2nd sample (the rod's dynamics need no finer
+    than FIT_GRID_MAX, 5 ms), the duty cycle averaged over each pair; its own 2 ms grid is kept for the
+    reported figures; a 100 Hz log keeps its grid."""
+    from aeropend_ident.greybox.rig_inputs import FIT_GRID_MAX, fit_grid
+    from aeropend_sim.params import load_rig
+
+    grid = fit_grid(load_rig("thesis_rig"))
+    assert 0.0 < grid <= FIT_GRID_MAX == 0.005
+    t = np.arange(5000) * 0.002
+    duty = np.where(t < 3.0, 0.2, 0.5)
+    duty[1501] = 0.9  # one sample, averaged with its neighbour on the fit grid
+    rec = Recording(t=t, duty=duty, channels={"theta": np.sin(t)}, source="fast.csv")
+    ts = time_series(rec, grid)
+    k = int(grid // 0.002)
+    assert k == 2 and ts.data.decimate == 2 and ts.data.dt == pytest.approx(0.004)
+    assert len(ts.data) == 2500 and ts.replayed is ts.full and len(ts.full) == 5000
+    assert ts.data.duty[750] == pytest.approx(0.7) and ts.data.theta[750] == pytest.approx(np.sin(3.0))
+    slow = Recording(t=t[::5], duty=duty[::5], channels={"theta": np.sin(t[::5])}, source="slow.csv")
+    ts = time_series(slow, grid)
+    assert ts.full is None and ts.data.dt == pytest.approx(0.01) and ts.replayed is ts.data

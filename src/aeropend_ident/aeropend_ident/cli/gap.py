@@ -14,16 +14,23 @@ Usage::
 (``FILE.csv:PRESET``; else ``--preset NAME``; else picked by file name), read by
 :func:`aeropend_ident.io.recording_input.load_recording`, so formats can be mixed in one call.
 ``RIG`` is a shipped rig name (``thesis_rig``, ``jahoyosr_rig``, ...) or a rig-file path.
+The inputs ``rig fit`` takes are accepted as they are: a static table (balance or thrust table,
+:mod:`aeropend_ident.greybox.rig_inputs`) among them is checked against the nominal and the
+corrected rig (steady-state RMS error); free decays and holds are fitted beside the recordings
+whose command changes.
 
 Held-out rule: ``--held-out FILES`` keeps those recordings for the check only (the positional
 recordings are used to find the effects); otherwise every recording is split in time order and
-its last ``1 − FRACTION`` is held out (``--split``, default 0.7); ``--blocks SECONDS`` holds out
+its last ``1 − FRACTION`` is held out (``--split``, default 0.7; a recording too short for two
+parts is fitted whole, and when no usable split remains one whole recording is held out: leave
+one recording out, said in the report); ``--blocks SECONDS`` holds out
 every ``--block-every``-th block of that length instead, from block ``--block-offset`` (0-based,
 default 1; the offsets 0 … N−1 are the folds of a cross-validation over blocks), optionally
 dropping blocks whose angle moves less than ``--min-range`` (:mod:`aeropend_ident.io.split`). Inside the
 fit data the diagnosis fits on the first part and chooses the effects on the last
-``--validation-fraction`` (default 0.3) of each fit recording, or on explicit ``--validation``
-recordings, so the held-out data stay unseen until the final before/after.
+``--validation-fraction`` (default 0.3) of each fit recording that can be split (else on one
+whole fit recording: :func:`aeropend_ident.io.split.carve_validation`), or on explicit
+``--validation`` recordings, so the held-out data stay unseen until the final before/after.
 
 Before the held-out recordings are replayed, the corrected rig's held-out θ NRMSE is predicted with
 an 80 % interval from the fit data and the held-out duty (never the held-out angle after its first
@@ -113,7 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "inputs", nargs="*",
         help="fit recordings: bag directories (.mcap/.db3) or CSV logs (FILE.csv[:PRESET]); at least one "
-             "whose command changes (steps, PRBS, closed loop), holds and free decays beside it"
+             "whose command changes (steps, PRBS, closed loop), holds and free decays beside it; static "
+             "tables (balance / thrust, as rig fit takes them) are checked against both rigs"
     )
     p.add_argument(
         "--sessions",
@@ -235,6 +243,7 @@ def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
     """The command after parsing, with the progress callback of :func:`main`."""
     from aeropend_ident.gap.report import REPORT_FILES, terminal_summary, write_report
     from aeropend_ident.gap.run import run_gap
+    from aeropend_ident.greybox.rig_inputs import is_table, read_table
 
     try:
         given = [*args.inputs, *(args.held_out or ()), *(args.validation or ()),
@@ -257,8 +266,13 @@ def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
                 raise GapCliError(f"--sessions {args.sessions}: expected two or more sessions, each one or "
                                   "more recordings joined by commas")
             inputs = [x for g in groups for x in g]
+        # the inputs rig fit takes are accepted as they are: static tables (balance / thrust) are read
+        # and checked against the nominal and corrected rigs; the diagnosis works on the recordings
+        tables = [read_table(x) for x in inputs if is_table(x)]
+        inputs = [x for x in inputs if not is_table(x)]
         if not inputs:
-            raise GapCliError("no fit recording given (positional RECORDING ... or --sessions)")
+            raise GapCliError("no fit recording given (positional RECORDING ... or --sessions)"
+                              + (": static tables alone cannot show a dynamic gap" if tables else ""))
         fit, held, rule = load_and_split(
             inputs,
             args.held_out,
@@ -299,6 +313,7 @@ def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
             oracle=not args.no_oracle,
             workers=args.workers,
             scheduler=args.scheduler,
+            tables=tables,
         )
         paths = out.write(lambda folder: write_report(result, folder))
     except (RecordingError, RigFileError, ValueError) as exc:

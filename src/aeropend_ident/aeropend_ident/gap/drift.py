@@ -63,7 +63,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.errors import GapError
+from aeropend_ident.errors import GapError, GapInputError
 from aeropend_ident.gap.effects import (
     EffectContext,
     MeasurementMap,
@@ -157,6 +157,14 @@ def theta_nrmse(rig: Rig, meas: MeasurementMap, prep: Prepared) -> float:
     """Free-run θ NRMSE (RMS error / θ range) of a rig on one prepared recording."""
     sim = replay(rig, meas, prep)["theta"]
     return float(np.sqrt(np.mean((sim - prep.y["theta"]) ** 2)) / prep.scale["theta"])
+
+
+def theta_divergence(rig: Rig, meas: MeasurementMap, prep: Prepared) -> str | None:
+    """Whether a rig's free run on one prepared recording diverges (the one rule of every tool,
+    :func:`aeropend_ident.io.overlay_axes.diverges`): the reason, or None."""
+    from aeropend_ident.io.overlay_axes import diverges
+
+    return diverges(replay(rig, meas, prep)["theta"], prep.y["theta"])
 
 
 def noise_floor(prep: Prepared) -> float:
@@ -720,13 +728,21 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
                     ob, _ = _oracle(nominal, d2.chosen, prep, v2, d2.free_settings)
                     if ob < o_best:
                         o_best, best_eff = ob, list(d2.chosen)
-            except GapError as exc:
+            except (GapError, GapInputError) as exc:  # e.g. a free decay: no changing command to choose on
                 row["oracle_best_error"] = str(exc)
         row["oracle_best"], row["oracle_best_effects"] = o_best, best_eff
         o = min(row["oracle_same"], o_drift, o_best, n_cor, n_nom)
         row["oracle"] = o
+        gone = {label: why for label, (r_, m_) in (("nominal", (nominal, MeasurementMap())),
+                                                  ("corrected", (diag.corrected_rig, diag.measurement)))
+                if (why := theta_divergence(r_, m_, prep))}
         total = n_nom**2 - floor**2
-        if total > 0.0:
+        if gone:  # an NRMSE of a run that left the recorded range measures how far it went: no split
+            row["diverges"] = gone
+            row["split"] = None
+            for key in ("nominal", "corrected") if len(gone) == 2 else tuple(gone):
+                row[key] = None
+        elif total > 0.0:
             row["split"] = {
                 "removed": (n_nom**2 - n_cor**2) / total,
                 "removable_not_removed": max(n_cor**2 - o**2, 0.0) / total,

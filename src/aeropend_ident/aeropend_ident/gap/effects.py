@@ -555,7 +555,8 @@ def identifiable(effect: Effect, channels: set[str] | frozenset[str]) -> str | N
 
 
 def check_recordings(recordings: Any, what: str = "recordings",
-                     min_samples: int = MIN_RECORDING_SAMPLES) -> frozenset[str]:
+                     min_samples: int = MIN_RECORDING_SAMPLES,
+                     need_changing_input: bool = False) -> frozenset[str]:
     """Validate recordings for the gap diagnosis; return the channels every one of them has.
 
     Parameters
@@ -565,12 +566,16 @@ def check_recordings(recordings: Any, what: str = "recordings",
         Name used in messages (``"fit recordings"``, ``"held-out recordings"``).
     min_samples : int
         Fewest samples per recording.
+    need_changing_input : bool
+        Refuse a set in which no recording's duty cycle changes (the fit recordings).
 
     Raises
     ------
     GapError
         Empty sequence; an item that is not a Recording; no ``theta`` channel; NaN/inf in θ, the
-        duty cycle or another channel; duty outside [0, 1]; too few samples; a constant duty cycle.
+        duty cycle or another channel; duty outside [0, 1]; too few samples; a constant duty cycle
+        that cannot explain θ (a driven log without its command) or under which θ does not move;
+        with ``need_changing_input``, a constant duty cycle in every recording.
     """
     recs = list(recordings) if recordings is not None else []
     if not recs:
@@ -594,11 +599,12 @@ def check_recordings(recordings: Any, what: str = "recordings",
             k_bad = int(np.flatnonzero((r.duty < 0.0) | (r.duty > 1.0))[0])
             raise GapError(f"{src}: duty[{k_bad}] = {r.duty[k_bad]!r} outside [0, 1] (a fraction)")
         if np.ptp(r.duty) == 0.0:
+            # a free decay or a step from rest is accepted (the rod's dynamics); a driven log without
+            # its command, or a rod that does not move, is refused with the csv_import message
             why = excitation_problem(r.t, r.duty, r.channels["theta"],
                                      "channel theta_ref" if "theta_ref" in r.extra else None)
-            if why is not None and why[0] == "driven":  # the csv_import refusal, whichever way the log came
+            if why is not None:
                 raise GapError(f"{src}: {why[1]}")
-            raise GapError(f"{src}: constant duty cycle {r.duty[0]:g}: the input is unexcited")
         dt = np.diff(r.t)
         if np.ptp(dt) > 1e-3 * np.median(dt):
             raise GapError(f"{src}: non-uniform sampling (dt from {dt.min():.4g} to {dt.max():.4g} s); "
@@ -606,6 +612,12 @@ def check_recordings(recordings: Any, what: str = "recordings",
                            "which every command applies)")
         ch = set(r.channels) & {"theta", "i_a", "v_a", "omega_rotor"}
         common = ch if common is None else common & ch
+    if need_changing_input and all(np.ptp(r.duty) == 0.0 for r in recs):
+        raise GapError(
+            f"the duty cycle is constant in every one of the {what} "
+            f"({', '.join(r.source or '?' for r in recs)}): the diagnosis needs at least one whose command "
+            "changes (a step logged with samples before it, a staircase, PRBS); free decays and holds are "
+            "accepted beside it")
     return frozenset(common or set())
 
 

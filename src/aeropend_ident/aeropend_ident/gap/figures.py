@@ -63,8 +63,12 @@ def fig_overlay(result: GapResult) -> bytes:
         clip_to_recorded(ax, o["t"], o["theta"], {"nominal simulator": o["nominal"],
                                                   "corrected simulator": o["corrected"]})
         m = o["metrics"]
-        fit_title(ax, f"{_label(o['source'])}: NRMSE nominal {num(m['nominal']['nrmse'], 4)} -> corrected "
-                      f"{num(m['corrected']['nrmse'], 4)}")
+
+        def figure(label: str, m: dict = m) -> str:
+            return "diverges" if m[label].get("diverges") else f"NRMSE {num(m[label]['nrmse'], 4)}"
+
+        fit_title(ax, f"{_label(o['source'])}: nominal {figure('nominal')} -> "
+                      f"corrected {figure('corrected')}")
         ax.set_ylabel("θ [rad]")
         ax.legend(loc="best", fontsize=8)
         ax.grid(alpha=0.3)
@@ -85,11 +89,12 @@ def fig_equations(where: WhereReport) -> bytes:
     )
     ax = axes[0, 0]
     names = [f"{r['equation']}\n({r['subsystem']})" for r in where.located]
-    vals = [r["relative"] for r in where.located]
+    vals = [r["relative"] if math.isfinite(r["relative"]) else 0.0 for r in where.located]
     colors = ["tab:red" if r["flagged"] else "tab:gray" for r in where.located]
     ax.bar(names, vals, color=colors)
     for k, r in enumerate(where.located):
-        ax.text(k, vals[k], f" {vals[k]:.1%}\n top: {r['top_group']}", ha="center", va="bottom", fontsize=8)
+        size = f"{vals[k]:.1%}" if math.isfinite(r["relative"]) else "no driving term"
+        ax.text(k, vals[k], f" {size}\n top: {r['top_group']}", ha="center", va="bottom", fontsize=8)
     miss = ", ".join(nc["equation"] for nc in where.not_checked)
     fit_title(ax, "equation residual / driving term (red = flagged)"
               + (f"; not checked: {miss}" if miss else ""))

@@ -44,6 +44,18 @@ def _fmt(v: Any, spec: str = ".4g") -> str:
     return str(v)
 
 
+def table_line(row: dict[str, Any]) -> str:
+    """One static table's check in words (``GapResult.tables`` row)."""
+    unit, scale = ("mrad", 1e3) if row["unit"] == "rad" else ("mN", 1e3)
+
+    def fig(v: float | None) -> str:
+        return "no steady state" if v is None else f"{v * scale:.3g} {unit}"
+
+    std = f"; the table's own standard error {fig(row['std'])}" if row.get("std") else ""
+    return (f"STATIC TABLE {row['source']} ({row['kind']}, {row['rows']} rows, not used by the diagnosis): "
+            f"RMS steady-state error nominal {fig(row['nominal'])} -> corrected {fig(row['corrected'])}{std}")
+
+
 def terminal_summary(result: GapResult) -> str:
     """One-screen summary: verdict, located subsystem, ranked effects, before/after."""
     h = result.headline()
@@ -57,8 +69,10 @@ def terminal_summary(result: GapResult) -> str:
     for row in result.where.located:
         mark = "!" if row["flagged"] else " "
         lines.append(
-            f"   {mark} {row['equation']:9s} ({row['subsystem']:10s}) residual {row['relative']:7.1%} "
-            f"of driving term; top terms: {row['top_group']}"
+            f"   {mark} {row['equation']:9s} ({row['subsystem']:10s}) residual "
+            + (f"{row['relative']:7.1%} of driving term" if math.isfinite(row["relative"])
+               else "(no driving term in these recordings)")
+            + f"; top terms: {row['top_group']}"
         )
     for nc in result.where.not_checked:
         lines.append(f"     {nc['equation']:9s} not checked: {nc['reason']}")
@@ -103,7 +117,9 @@ def terminal_summary(result: GapResult) -> str:
                          f"{row['nrmse_nominal']:.4f} -> {row['nrmse_corrected']:.4f} ({row['shrink']:.1%})")
         lines += _drift_lines(result.sessions["drift"])
     pr = result.prediction
-    if pr:
+    if pr and pr.get("useful") is False:
+        lines.append(f"  PREDICTED held-out θ NRMSE of the corrected rig: {pr['why_not_useful']}")
+    elif pr:
         # one line, the screen is full: the NRMSE change of each drift-prone parameter alone at -σ / +σ
         sens = pr.get("sensitivity") or {}
         alone = ("; alone at -σ/+σ: " + ", ".join(f"{k} {a:.4f}/{b:.4f}" for k, (a, b) in sens.items())
@@ -136,6 +152,11 @@ def terminal_summary(result: GapResult) -> str:
         lines[-1] += f"; prediction check: actual {chk['actual']:.4f} {chk['verdict']}"
     for a in result.attainable or []:
         sp = a["split"]
+        if a.get("diverges"):  # no NRMSE, no split of a gap between runs that left the recorded range
+            lines.append(f"  ATTAINABLE on {_label(a['source'] or 'held-out')[:40]}: no figure: the "
+                         + "; the ".join(f"{k} run {why}" for k, why in a["diverges"].items())
+                         + f" (best constant-parameter fit there {a['oracle']:.4f})")
+            continue
         lines.append(
             f"  ATTAINABLE on {_label(a['source'] or 'held-out')[:40]}: nominal {a['nominal']:.4f}, "
             f"corrected {a['corrected']:.4f}, best constant-parameter fit there {a['oracle']:.4f}, "
@@ -149,6 +170,9 @@ def terminal_summary(result: GapResult) -> str:
     if result.refit:
         lines.append(f"  {'WORSE THAN A REFIT' if result.refit['worse_than_refit'] else 'REFIT'}: "
                      f"{result.refit['verdict']}")
+    for row in result.tables:
+        lines.append("  " + table_line(row))
+    lines += [f"  BOUND: {n}" for n in result.bound_notes]
     for section, why in result.not_computed.items():
         lines.append(f"  NOT COMPUTED: {section}: {why}")
     return "\n".join(lines)
@@ -170,7 +194,10 @@ def _drift_html(result: GapResult) -> str:
     """HTML of the prediction, its check, the attainable shrink and the drift tables."""
     parts = []
     pr, chk = result.prediction, result.prediction_check
-    if pr:
+    if pr and pr.get("useful") is False:
+        parts.append("<h3>Predicted vs actual held-out θ NRMSE of the corrected rig</h3>"
+                     f"<p>{html.escape(pr['why_not_useful'])}.</p>")
+    elif pr:
         rows = [["predicted (fit data, held-out duty)", _fmt(pr["predicted"]),
                  f"[{_fmt(pr['interval'][0])}, {_fmt(pr['interval'][1])}]", _fmt(pr["within_session"]),
                  f"{_fmt(pr['drift_part'])} ({pr['drift_source']})",
@@ -180,8 +207,9 @@ def _drift_html(result: GapResult) -> str:
             + (f"<p>{html.escape(pr['why_wide'])}.</p>" if pr.get("why_wide") else ""))
     if result.attainable:
         rows = [[_label(a["source"] or "held-out"), _fmt(a["nominal"]), _fmt(a["corrected"]),
-                 _fmt(a["oracle"]), _fmt(a["noise_floor"]), f"{a['split']['removed']:.0%}",
-                 f"{a['split']['removable_not_removed']:.0%}", f"{a['split']['not_removable']:.0%}"]
+                 _fmt(a["oracle"]), _fmt(a["noise_floor"]),
+                 *([f"{a['split'][k]:.0%}" for k in ("removed", "removable_not_removed", "not_removable")]
+                   if a["split"] else ["diverges: no split"] * 3)]
                 for a in result.attainable]
         parts.append("<h3>Attainable shrink: the held-out gap split</h3>" + _table(
             rows, ["recording", "nominal", "corrected", "best constant-parameter fit there", "noise floor",
@@ -220,12 +248,15 @@ def _detected_html(diag: Any) -> str:
 
 
 def _not_computed_html(result: GapResult) -> str:
-    """List of the optional sections that could not be computed, with the reason ('' if none)."""
+    """The static tables' check, and the optional sections that could not be computed with the reason
+    ('' if neither)."""
+    tables = "".join(f"<p>{html.escape(line)}</p>\n" for line in
+                     [*map(table_line, result.tables), *result.bound_notes])
     if not result.not_computed:
-        return ""
+        return tables
     items = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v)}</li>"
                     for k, v in result.not_computed.items())
-    return f"<p>Not computed (the rest of the report stands):</p><ul>{items}</ul>\n"
+    return f"{tables}<p>Not computed (the rest of the report stands):</p><ul>{items}</ul>\n"
 
 
 def _change(row: dict[str, Any]) -> str:
@@ -300,7 +331,7 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
         [
             r["equation"],
             r["subsystem"],
-            f"{r['relative']:.2%}",
+            f"{r['relative']:.2%}" if math.isfinite(r["relative"]) else "no driving term",
             "yes" if r["flagged"] else "no",
             r["top_group"],
             r["top_group_subsystem"],

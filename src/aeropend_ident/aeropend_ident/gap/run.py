@@ -7,7 +7,7 @@
 2. **which** — :func:`aeropend_ident.gap.which.diagnose_effects` screens, fits and ranks the
    catalog's unmodelled effects (:mod:`aeropend_ident.gap.effects`). It fits on the *fit core*
    and ranks / chooses on a *validation* part, both carved out of the fit recordings
-   (:func:`aeropend_ident.io.split.validation_split`: train / validation / test), because the
+   (:func:`aeropend_ident.io.split.carve_validation`: train / validation / test), because the
    ranking itself selects on the data it is given;
 3. **after** — the corrected rig is replayed on the **held-out** recordings, which neither step
    has seen (overlay and before/after NRMSE, :func:`aeropend_ident.gap.which.gap_metrics`), and
@@ -40,7 +40,7 @@ from aeropend_ident.greybox.fit import THETA_OFFSET, error_metrics
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.split import (
     VALIDATION_FRACTION,
-    validation_split,
+    carve_validation,
 )
 from aeropend_sim.params import Rig, rig_to_dict
 from aeropend_sim.recording import Recording
@@ -95,6 +95,12 @@ class GapResult:
     not_computed : dict
         Optional sections (sessions, prediction, refit comparison, attainable shrink) that could
         not be computed, with the reason; the rest of the result stands.
+    bound_notes : list of str
+        Parameters ``rig fit`` left at a search bound and the effects confirmed for them
+        (:func:`bound_effects`).
+    tables : list of dict
+        Static tables given beside the recordings (balance / thrust tables, as ``rig fit`` takes
+        them), each checked against the nominal and the corrected rig (:func:`static_table_check`).
     """
 
     rig: Rig
@@ -118,6 +124,8 @@ class GapResult:
     sessions: dict[str, Any] | None = None
     refit: dict[str, Any] | None = None
     not_computed: dict[str, str] = field(default_factory=dict)
+    tables: list[dict[str, Any]] = field(default_factory=list)
+    bound_notes: list[str] = field(default_factory=list)
 
     # ------------------------------------------------------------------ headline
     def headline(self) -> dict[str, Any]:
@@ -167,6 +175,8 @@ class GapResult:
                 "sessions": self.sessions,
                 "prediction": self.prediction,
                 "not_computed": self.not_computed,
+                "static_tables": self.tables,
+                "rig_fit_bound_flags": self.bound_notes,
                 "after": {
                     "refit": self.refit,
                     "prediction_check": self.prediction_check,
@@ -260,17 +270,23 @@ def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, An
 
     shifted = _shift(rec, offset)
     prep = which_prepare([shifted], frozenset(diag.channels or ("theta",)))[0]
-    nom = one_free_run(rig, MeasurementMap(), prep).theta - offset
-    cor = one_free_run(diag.corrected_rig, diag.measurement, prep).theta - offset
+    runs = {"nominal": one_free_run(rig, MeasurementMap(), prep),
+            "corrected": one_free_run(diag.corrected_rig, diag.measurement, prep)}
     theta = rec.channels["theta"]
+    metrics: dict[str, Any] = {}
+    for label, run in runs.items():
+        m = error_metrics(theta, run.theta - offset)
+        if run.diverged:  # a run that left the recorded range has no error figure: only its reason
+            m = {**{k: None for k in m}, "diverges": run.divergence}
+        metrics[label] = m
     return {
         "source": rec.source,
         "t": rec.t - rec.t[0],
         "duty": rec.duty,
         "theta": theta,
-        "nominal": nom,
-        "corrected": cor,
-        "metrics": {"nominal": error_metrics(theta, nom), "corrected": error_metrics(theta, cor)},
+        "nominal": runs["nominal"].theta - offset,
+        "corrected": runs["corrected"].theta - offset,
+        "metrics": metrics,
     }
 
 
@@ -368,10 +384,73 @@ def _refit_and_attainable(
     return refit, attain
 
 
-def _prediction_check(prediction: dict[str, Any] | None, test: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The predicted held-out NRMSE against the actual one (None without a prediction)."""
-    check = None
+def static_table_check(rig: Rig, corrected: Rig, measurement: Any, tables: Sequence[Any],
+                       theta_offset: float = 0.0) -> list[dict[str, Any]]:
+    """The nominal and the corrected rig against each static table (a held-out check of the steady state).
+
+    Parameters
+    ----------
+    rig, corrected : Rig
+        Nominal and corrected rig.
+    measurement : MeasurementMap
+        The corrected rig's sensor map (recorded angle from the model's).
+    tables : sequence of StaticTable
+        :func:`aeropend_ident.greybox.rig_inputs.read_table` results.
+    theta_offset : float
+        θ_model − θ_recorded [rad].
+
+    Returns
+    -------
+    list of dict
+        Per table: ``source``, ``kind`` (balance / thrust), ``rows``, ``unit`` (rad or N), RMS of the
+        model's steady value minus the table's for the ``nominal`` and the ``corrected`` rig, and
+        ``std`` (RMS of the table's standard errors; None when it gives none).
+    """
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.greybox.rig_problem import BalanceBlock, ThrustBlock
+
+    out = []
+    for t in tables:
+        row: dict[str, Any] = {"source": t.source, "kind": t.kind, "rows": int(t.command.size),
+                               "unit": "rad" if t.kind == "balance" else "N",
+                               "std": None if t.std is None else float(np.sqrt(np.mean(t.std**2)))}
+        for label, model, meas in (("nominal", rig, MeasurementMap()), ("corrected", corrected, measurement)):
+            if t.kind == "balance":
+                block: Any = BalanceBlock(source=t.source, label=t.label, command=t.command,
+                                          angle=meas.to_model(t.value) + theta_offset)
+            else:
+                block = ThrustBlock(source=t.source, label=t.label, command=t.command, thrust=t.value)
+            r = block.residual(model, [])
+            row[label] = float(np.sqrt(np.mean(r**2))) if np.all(np.isfinite(r)) else None
+        out.append(row)
+    return out
+
+
+#: A predicted 80 % interval wider than this (in NRMSE, i.e. in units of the recording's own θ range) is
+#: no useful prediction: it allows every error from a perfect replay to one as large as the motion.
+USEFUL_WIDTH = 1.0
+
+
+def judge_prediction(prediction: dict[str, Any] | None) -> dict[str, Any] | None:
+    """Mark a prediction ``useful`` or not (``why_not_useful``): its 80 % interval must be narrower
+    than the held-out recordings' own θ range (:data:`USEFUL_WIDTH` in NRMSE). Returns it (updated)."""
     if prediction is not None:
+        lo, hi = prediction["interval"]
+        prediction["useful"] = bool(math.isfinite(hi - lo) and hi - lo <= USEFUL_WIDTH)
+        if not prediction["useful"]:
+            prediction["why_not_useful"] = (
+                f"no useful prediction: the 80 % interval of the held-out θ NRMSE, [{lo:.3g}, {hi:.3g}], is "
+                "wider than the recordings' own θ range (NRMSE 1): the fit data do not pin down the "
+                "drift-prone parameters well enough to say how the corrected rig will do on the held-out "
+                "recordings")
+    return prediction
+
+
+def _prediction_check(prediction: dict[str, Any] | None, test: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The predicted held-out NRMSE against the actual one (None without a prediction, or without a
+    useful one: :func:`judge_prediction`)."""
+    check = None
+    if prediction is not None and judge_prediction(prediction)["useful"]:
         actual = float(test[-1]["nrmse"])
         lo, hi = prediction["interval"]
         check = {"predicted": prediction["predicted"], "interval": [lo, hi], "actual": actual,
@@ -379,6 +458,68 @@ def _prediction_check(prediction: dict[str, Any] | None, test: list[dict[str, An
                  "verdict": ("inside the predicted 80 % interval" if lo <= actual <= hi else
                              f"OUTSIDE the predicted 80 % interval ({'above' if actual > hi else 'below'})")}
     return check
+
+
+def bound_effects(rig: Rig) -> tuple[list[str], list[str]]:
+    """Effects ``gap`` confirms because ``rig fit`` left a parameter at a search bound.
+
+    A parameter fitted at its bound (:func:`aeropend_ident.greybox.rig_fit.bound_flags`) may have
+    absorbed an unmodelled effect's signature (an amplifier input offset standing in for a sensor
+    offset): the catalog effects that set that parameter, and those confusable with them, are
+    fitted and ranked whether or not the screening shortlists them.
+
+    Returns
+    -------
+    notes : list of str
+        One line per flagged parameter, naming the effects confirmed for it.
+    effects : list of str
+        The effects to confirm (``diagnose_effects(..., also_confirm=)``).
+    """
+    from aeropend_ident.gap.effects import catalog
+    from aeropend_ident.greybox.rig_fit import bound_flags
+
+    flags = bound_flags(rig.sources)
+    effects = {e.name: e for e in catalog(rig.family)}
+    notes, out = [], []
+    for key in flags:
+        own = [n for n, e in effects.items() if any(p.rig_field == key for p in e.parameters)]
+        near = [c for n in own for c in effects[n].confusable_with if c in effects]
+        names = list(dict.fromkeys([*own, *near]))
+        out += names
+        notes.append(f"rig fit left {key} at a search bound (the bound, not the data, may have set it): "
+                     + (f"confirming {', '.join(names)}, which it may have absorbed" if names else
+                        "no catalog effect sets it"))
+    return notes, list(dict.fromkeys(out))
+
+
+def _to_confirm(rig: Rig, where: WhereReport, skip: Sequence[str], say: Callable[[str], None]
+                ) -> tuple[list[str], list[str]]:
+    """(bound notes, effects the diagnosis confirms whether or not screened): the timing effects when
+    the where-analysis sees a clear lead/lag (alignment lag), and :func:`bound_effects`."""
+    from aeropend_ident.gap.effects import timing_effects
+
+    timing = any(timing_lag_seen(r.alignment) for r in where.recordings)
+    notes, at_bound = bound_effects(rig)
+    for line in notes:
+        say(line)
+    confirm = [*(timing_effects(rig.family) if timing else ()), *at_bound]
+    return notes, [n for n in dict.fromkeys(confirm) if n not in skip]
+
+
+def _validation_set(fit: list[Recording], held_out: list[Recording], validation: Sequence[Recording] | None,
+                    fraction: float, split_rule: str, say: Callable[[str], None]
+                    ) -> tuple[list[Recording], list[Recording], str]:
+    """(fit core, validation, split rule) of :func:`run_gap`: explicit validation recordings, else
+    :func:`carve_validation` (its rule appended and said), else (fraction 0) the held-out ones."""
+    if validation is not None:
+        if not validation:
+            raise GapInputError("validation recordings given but empty")
+        return fit, list(validation), split_rule
+    if fraction > 0.0:
+        core, val, carved = carve_validation(fit, fraction)
+        say(carved)
+        return core, val, f"{split_rule}; {carved}" if split_rule else carved
+    return fit, held_out, split_rule
 
 
 @single_blas
@@ -404,6 +545,7 @@ def run_gap(
     skip: Sequence[str] = (),
     workers: int | None = 1,
     scheduler: str | None = None,
+    tables: Sequence[Any] = (),
 ) -> GapResult:
     """Where + which + after (module doc) for a nominal rig and fit / held-out recordings.
 
@@ -428,7 +570,7 @@ def run_gap(
         Seed of the effect ranking's resampling.
     validation_fraction : float
         Share of the fit data the diagnosis uses to choose and rank the effects
-        (:func:`validation_split`); the held-out recordings are then never seen before the final
+        (:func:`carve_validation`); the held-out recordings are then never seen before the final
         before/after. 0 hands the held-out recordings to the diagnosis as its validation set
         (then they also choose the effects: an optimistic before/after).
     validation : sequence of Recording, optional
@@ -456,6 +598,9 @@ def run_gap(
     workers, scheduler : int or None, str or None
         Where the session analysis' diagnoses run (:func:`aeropend_ident.parallel.run_cases`): this
         process (``workers`` = 1), a local Dask cluster (None: one worker per core) or ``scheduler``.
+    tables : sequence of StaticTable
+        Balance / thrust tables (as ``rig fit`` takes them): checked against the nominal and the
+        corrected rig (:func:`static_table_check`); the diagnosis itself works on the recordings.
 
     Returns
     -------
@@ -468,7 +613,6 @@ def run_gap(
     aeropend_ident.gap.effects.GapError, aeropend_ident.gap.where.GapInputError
         Unusable recordings (no θ, NaNs, too short, constant input) or rig (before any result).
     """
-    from aeropend_ident.gap.effects import timing_effects
     from aeropend_ident.gap.which import diagnose_effects
 
     say = progress or (lambda _msg: None)
@@ -477,23 +621,15 @@ def run_gap(
         raise GapInputError(f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} held)")
     say(f"where: nominal {rig.name} on {len(fit)} fit recording(s)")
     where = locate_gap(rig, fit, horizon=horizon, theta_offset=theta_offset)
-    if validation is not None:
-        fit_core, validation = fit, list(validation)
-        if not validation:
-            raise GapInputError("validation recordings given but empty")
-    elif validation_fraction > 0.0:
-        fit_core, validation = validation_split(fit, validation_fraction)
-    else:
-        fit_core, validation = fit, held_out
+    fit_core, validation, split_rule = _validation_set(fit, held_out, validation, validation_fraction,
+                                                       split_rule, say)
     say(f"which: screening and fitting the effect catalog ({len(fit_core)} fit / {len(validation)} "
         "validation recording(s))")
-    # the diagnosis works in the model's angle frame (θ shifted by the rig's recording-frame offset); a
-    # clear lead/lag (alignment lag) asks it to confirm the timing effects the screening may not shortlist
-    timing = any(timing_lag_seen(r.alignment) for r in where.recordings)
+    # the diagnosis works in the model's angle frame (θ shifted by the rig's recording-frame offset)
+    bound_notes, confirm = _to_confirm(rig, where, skip, say)
     diag = diagnose_effects(
         rig, [_shift(r, theta_offset) for r in fit_core], [_shift(r, theta_offset) for r in validation],
-        max_effects=max_effects, seed=seed, progress=progress,
-        also_confirm=timing_effects(rig.family) if timing else (), skip=skip)
+        max_effects=max_effects, seed=seed, progress=progress, also_confirm=confirm, skip=skip)
     optional = _Optional(say)
     fit_m, held_m = ([_shift(r, theta_offset) for r in recs] for recs in (fit, held_out))
     sess, prediction = _sessions_and_prediction(
@@ -529,6 +665,9 @@ def run_gap(
         sessions=sess,
         refit=refit,
         not_computed=optional.not_computed,
+        bound_notes=bound_notes,
+        tables=(optional.run("static tables", lambda: static_table_check(
+            rig, diag.corrected_rig, diag.measurement, tables, theta_offset)) or []) if tables else [],
     )
 
 

@@ -280,7 +280,8 @@ class WhereReport:
     significant : bool
         Any recording shows a significant gap.
     located : list[dict]
-        Checked equations ranked by their sample-weighted relative residual, each
+        Checked equations ranked by their pooled relative residual (the residual's mean square
+        over the driving term's, sample-weighted over the recordings), each
         ``{equation, subsystem, relative, flagged, top_group, top_group_subsystem, groups}``.
     not_checked : list[dict]
         ``{equation, reason}`` for equations no recording could check.
@@ -432,7 +433,7 @@ def _check(
     r, d = residual[core], driving[core]
     rms = float(np.sqrt(np.mean(r**2)))
     drms = float(np.sqrt(np.mean(d**2)))
-    rel = rms / drms if drms > 0.0 else math.inf
+    rel = rms / drms if drms > 0.0 else math.nan  # no driving term (a free decay): no relative size
     flagged = bool(rel > MIN_RELATIVE and rms > 3.0 * noise_floor)
     return EquationCheck(
         equation=eq,
@@ -1241,7 +1242,10 @@ def locate_gap(
             not_checked.append({"equation": eq, "reason": per[0].equation(eq).note})
             continue
         wsum = sum(nw for _, nw in rows)
-        rel = math.sqrt(sum(e.relative**2 * nw for e, nw in rows) / wsum)
+        # pooled: the residual's mean square over the driving term's, both sample-weighted (a free
+        # decay's near-zero driving term does not blow the ratio up)
+        pooled = sum(e.driving_rms**2 * nw for e, nw in rows)
+        rel = math.sqrt(sum(e.rms**2 * nw for e, nw in rows) / pooled) if pooled > 0.0 else math.nan
         groups: dict[str, float] = {}
         for e, nw in rows:
             for g, v in e.groups.items():
@@ -1268,7 +1272,7 @@ def locate_gap(
         key=lambda r: (
             not r["flagged"],
             EQUATIONS.index(r["equation"]) if r["flagged"] else 0,
-            -r["relative"],
+            -r["relative"] if math.isfinite(r["relative"]) else 0.0,
         )
     )
     return WhereReport(

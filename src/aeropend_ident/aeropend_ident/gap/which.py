@@ -1618,7 +1618,7 @@ class _Setup:
 def _setup(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording],
            say: Callable[[str], None], skip: Sequence[str] = ()) -> _Setup:
     nominal_model_check(rig)
-    ch_fit = check_recordings(fit, "fit recordings")
+    ch_fit = check_recordings(fit, "fit recordings", need_changing_input=True)
     ch_val = check_recordings(validation, "validation recordings")
     channels = ch_fit & ch_val
     pf, pv = prepare(fit, channels), prepare(validation, channels)

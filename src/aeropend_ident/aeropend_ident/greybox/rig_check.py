@@ -99,6 +99,7 @@ def sensitivity_lines(rig: Rig, problem: Problem) -> list[str]:
     seen = fisher > 1e-12 * max(float(fisher.max()), 1e-300)
     pinned = np.concatenate([~seen, np.zeros(J.shape[1] - n, dtype=bool)])
     cov = covariance(J, pinned)[:n, :n]
+    pseudo = covariance(J, pinned, blind=False)[:n, :n]  # its correlations name the confounded pairs
     lines = ["sensitivity of the inputs to each parameter (Fisher information of the noise-weighted "
              "residuals per ln p; 'alone': the relative 1σ it would allow if every other parameter were "
              "known; 'joint': with all of them fitted together):"]
@@ -112,8 +113,8 @@ def sensitivity_lines(rig: Rig, problem: Problem) -> list[str]:
         f = 100.0 if problem.specs[j].log else problem.specs[j].scale
         lines.append(f"  {rank:>2}. {names[j]:<28} information {fisher[j]:10.3g}   "
                      f"alone ±{alone * f:.3g} {unit}   joint ±{joint * f:.3g} {unit}")
-    d = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
-    corr = cov / np.outer(d, d)
+    d = np.sqrt(np.clip(np.diag(pseudo), 1e-300, None))
+    corr = pseudo / np.outer(d, d)
     pairs = [(names[i], names[j], corr[i, j]) for i in range(n) for j in range(i + 1, n)
              if seen[i] and seen[j] and math.isfinite(corr[i, j]) and abs(corr[i, j]) > CORRELATED]
     if pairs:
@@ -142,23 +143,35 @@ def check_rig(rig_path: str | Path, inputs: Sequence[str] = (), preset: str | No
     lines = [f"rig check: {path.name} ({rig.family}): {tally}"]
     lines += status_table(rig, doc)
     lines += reach_lines(rig)
-    if counts.get("to be fitted"):
+    if counts.get("to be fitted") and counts.get("fitted"):
+        lines.append(f"note: {counts['to be fitted']} parameter(s) rig fit could not determine from its "
+                     "inputs still hold their starting values (STILL TO BE FITTED above, with the input "
+                     "that would determine each): the reach and the figures below use them")
+    elif counts.get("to be fitted"):
         lines.append(f"note: {counts['to be fitted']} parameter(s) still hold rig new's starting values: the "
                      "reach and the figures below use them (rig fit first)")
     if not inputs:
         return "\n".join(lines)
     tables, series = read_inputs(list(inputs), preset)
     blocks = blocks_of(tables, series)
+    diverged = []
     for b in blocks:
         if isinstance(b, TimeBlock):
             try:
                 d = b.data
                 run = free_run(rig, d.t, d.duty, d.theta, source=d.source)  # type: ignore[union-attr]
                 lines.append(run.line(f"{b.source} ({b.kind})"))
+                if run.diverged:
+                    diverged.append(b.source)
             except IdentificationError as exc:
                 lines.append(f"free-run θ on {b.source} ({b.kind}): not computed ({exc})")
+                diverged.append(b.source)
     specs = _sensitivity_specs(rig)
-    if specs:
+    if specs and diverged:
+        lines.append(f"sensitivity: not computed: the free run diverges on {', '.join(diverged)} (the "
+                     "derivatives of a run that left the recorded range say nothing of the parameters; "
+                     "fit the rig first, or check it on recordings it follows)")
+    elif specs:
         problem = Problem(rig, {}, specs, blocks)
         lines += sensitivity_lines(rig, problem)
     return "\n".join(lines)

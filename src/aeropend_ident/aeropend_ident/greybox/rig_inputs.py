@@ -34,6 +34,7 @@ import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -106,6 +107,14 @@ class TimeSeries:
     #: resampling: a stretch it interpolates across a gap is a straight line without noise, and
     #: would pull the estimate on the uniform grid towards 0).
     noise: float = 0.0
+    #: The recording on its own uniform grid when ``data`` is the coarser fit grid
+    #: (:func:`fit_grid`); the reported figures replay this one (the one replay of every command).
+    full: UniformData | None = None
+
+    @property
+    def replayed(self) -> UniformData:
+        """The data every reported figure replays: the recording on its own uniform grid."""
+        return self.full if self.full is not None else self.data
 
     @property
     def label(self) -> str:
@@ -236,8 +245,43 @@ def recorded_noise(t: np.ndarray, theta: np.ndarray) -> float:
     return measurement_noise(theta, keep=keep)
 
 
-def time_series(rec: Recording) -> TimeSeries:
+#: Samples per small-signal swing period of the rod on the fit grid (:func:`fit_grid`).
+FIT_SAMPLES_PER_SWING = 50
+#: The fit grid is never coarser than this [s] (timing parameters of tens of ms stay resolved).
+FIT_GRID_MAX = 0.005
+
+
+def fit_grid(rig: Any) -> float:
+    """The fit grid step [s] the rig's dynamics ask for: :data:`FIT_SAMPLES_PER_SWING` per period of
+    the rod's small-signal swing about the hanging rest, at most :data:`FIT_GRID_MAX`.
+
+    θ is the rod's response, a double integral of the thrust: a logger's faster samples add no
+    information a grid this fine loses, only simulation steps (a 600 Hz log is 6× the work of 100 Hz).
+    A recording logged on a coarser grid keeps its own. The rod's stiffness comes from the rig's
+    starting values (``rig new``'s values are within a factor of a few: the rule has a margin).
+    """
+    from aeropend_sim.model import THETA, THETA_DOT, PlantModel
+
+    try:
+        a, _ = PlantModel(rig).jacobian([0.0, 0.0, 0.0, 0.0, 0.0], 0.0)
+        k = float(-a[THETA_DOT, THETA])
+    except Exception:  # a rig the model cannot linearise: the cap
+        return FIT_GRID_MAX
+    if not (math.isfinite(k) and k > 0.0):
+        return FIT_GRID_MAX
+    return min(FIT_GRID_MAX, 2.0 * math.pi / math.sqrt(k) / FIT_SAMPLES_PER_SWING)
+
+
+def time_series(rec: Recording, grid: float | None = None) -> TimeSeries:
     """A recording on its uniform grid (the one resampling of every command) with its kind.
+
+    Parameters
+    ----------
+    rec : Recording
+    grid : float, optional
+        Fit grid step [s] (:func:`fit_grid`): a recording logged more than 1.5× finer is fitted on
+        every k-th sample of its uniform grid (k = ⌊grid / dt⌋; θ at the block starts, the duty cycle
+        averaged over each block), its own grid kept in ``full`` for the reported figures.
 
     Raises
     ------
@@ -252,12 +296,22 @@ def time_series(rec: Recording) -> TimeSeries:
     dt = float(np.median(np.diff(t)))
     data = UniformData(t=t, duty=np.clip(u.duty, 0.0, 1.0), theta=u.channels["theta"].copy(), dt=dt,
                        resampled=u is not rec, decimate=1, source=rec.source)
+    full = None
+    k = int(grid // dt) if grid is not None and grid > 1.5 * dt else 1
+    if k > 1 and len(data) // k >= 20:
+        m = len(data) // k
+        full, data = data, UniformData(
+            t=np.arange(m) * dt * k, duty=data.duty[: m * k].reshape(m, k).mean(axis=1),
+            theta=data.theta[: m * k: k].copy(), dt=dt * k, resampled=data.resampled, decimate=k,
+            source=rec.source)
     return TimeSeries(kind=classify(u), data=data, source=Path(str(rec.source)).name or str(rec.source),
-                      noise=recorded_noise(rec.t, rec.channels["theta"]))
+                      noise=recorded_noise(rec.t, rec.channels["theta"]), full=full)
 
 
-def read_inputs(args: list[str], preset: str | None = None) -> tuple[list[StaticTable], list[TimeSeries]]:
-    """Tables and recordings of ``rig fit``'s / ``rig check``'s arguments, each told apart.
+def read_inputs(args: list[str], preset: str | None = None, grid: float | None = None
+                ) -> tuple[list[StaticTable], list[TimeSeries]]:
+    """Tables and recordings of ``rig fit``'s / ``rig check``'s arguments, each told apart
+    (``grid``: the fit grid step [s] of :func:`time_series`).
 
     Raises
     ------
@@ -269,5 +323,5 @@ def read_inputs(args: list[str], preset: str | None = None) -> tuple[list[Static
         if is_table(a):
             tables.append(read_table(split_preset(a)[0]))
         else:
-            series.append(time_series(load_recording(a, preset)))
+            series.append(time_series(load_recording(a, preset), grid))
     return tables, series

@@ -24,6 +24,7 @@ of J whose standard error exceeds one coordinate unit, a factor e of a log param
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -451,8 +452,10 @@ def autocorrelation_factor(r: np.ndarray) -> float:
     return max(1.0, 1.0 + 2.0 * s)
 
 
-def covariance(J: np.ndarray, pinned: np.ndarray) -> np.ndarray:
-    """(JᵀJ)⁻¹ of the free coordinates (pinned ones: NaN rows and columns).
+def covariance(J: np.ndarray, pinned: np.ndarray, blind: bool = True) -> np.ndarray:
+    """(JᵀJ)⁻¹ of the free coordinates (pinned ones: NaN rows and columns; with ``blind``, a coordinate
+    with a share in a direction the data do not inform has an infinite variance; without, the
+    pseudo-inverse's, whose correlations still show which coordinates only a combination fixes).
 
     From the SVD of J (V·diag(1/s²)·Vᵀ over the singular values with s² > 1e-15·s_max², the cut of
     ``pinv(JᵀJ)``), not by inverting JᵀJ: forming JᵀJ squares J's condition number, and on an
@@ -463,11 +466,53 @@ def covariance(J: np.ndarray, pinned: np.ndarray) -> np.ndarray:
     cov = np.full((n, n), math.nan)
     free = np.flatnonzero(~pinned)
     if free.size:
-        _, s, vt = np.linalg.svd(J[:, free], full_matrices=False)
+        _, s, vt = np.linalg.svd(J[:, free], full_matrices=True)
+        s = np.concatenate([s, np.zeros(free.size - s.size)])
         keep = s**2 > 1e-15 * (float(s[0]) ** 2 if s.size else 0.0)
         v = vt[keep].T / s[keep]
         cov[np.ix_(free, free)] = v @ v.T
+        # a direction the data do not inform (cut above) has no finite variance: every coordinate
+        # with a share in it is undetermined (inf), not "known exactly" as the pseudo-inverse says
+        if blind:
+            for j in free[np.any(np.abs(vt[~keep]) > 1e-6, axis=0)]:
+                cov[j, j] = math.inf
     return cov
+
+
+def robust_covariance(J: np.ndarray, r: np.ndarray, sizes: Sequence[int], cov: np.ndarray) -> np.ndarray:
+    """Cluster-robust (sandwich) covariance of the coordinates, the blocks as clusters.
+
+    ``cov`` (:func:`covariance`) is the bread B = (JᵀJ)⁻¹; the meat is Σ_b g_b g_bᵀ over the blocks'
+    scores g_b = J_bᵀ r_b (a table, a fit window); the estimate B·meat·B·G/(G − 1) (CR1, G blocks)
+    holds when the residuals are correlated within a block or the model misses something the noise
+    weights do not know of, where (JᵀJ)⁻¹ alone gave ± 0.001 % on a fit at NRMSE 0.2.
+
+    Parameters
+    ----------
+    J : ndarray, shape (N, P)
+        Weighted Jacobian (rows in block order).
+    r : ndarray, shape (N,)
+        Weighted residuals at the solution.
+    sizes : sequence of int
+        Rows of each block (sum N).
+    cov : ndarray, shape (P, P)
+        :func:`covariance` of ``J`` (NaN pinned, inf undetermined coordinates: those stay so).
+
+    Returns
+    -------
+    ndarray, shape (P, P)
+    """
+    bread = np.where(np.isfinite(cov), cov, 0.0)
+    edges = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+    meat = np.zeros_like(bread)
+    for a, b in itertools.pairwise(edges):
+        g = J[a:b].T @ r[a:b]
+        meat += np.outer(g, g)
+    g_n = len(sizes)
+    out = bread @ meat @ bread * (g_n / (g_n - 1) if g_n > 1 else 1.0)
+    bad = ~np.isfinite(np.diag(cov))
+    out[bad, bad] = np.diag(cov)[bad]
+    return out
 
 
 def weak_directions(J: np.ndarray, names: Sequence[str], order: Sequence[float],

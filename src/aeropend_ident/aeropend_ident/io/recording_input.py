@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import GapCliError, RecordingInputError
-from aeropend_ident.io.split import interleaved_blocks, time_ordered
+from aeropend_ident.io.split import interleaved_blocks, leave_one_out
 from aeropend_sim.contract import REFERENCE_CHANNEL
 from aeropend_sim.recording import Recording
 
@@ -682,7 +682,8 @@ def load_and_split(
     The held-out design (:mod:`aeropend_ident.io.split`): separate ``held_out`` files, else
     interleaved blocks of ``blocks`` seconds (every ``block_every``-th held out from block
     ``block_offset``; blocks whose angle moves less than ``min_range`` [rad] dropped), else the
-    time-ordered ``split``.
+    time-ordered ``split`` of each recording long enough (the others fitted whole), and when that
+    leaves no usable fit or held-out part, one whole recording held out (leave one recording out).
 
     Raises
     ------
@@ -727,9 +728,39 @@ def load_and_split(
         for r in (*fit, *held):
             check_length(r, "block")
         return fit, held, rule
-    fit, held, rule = time_ordered(recs, split)
-    for a, b in zip(fit, held, strict=True):
-        check_length(a, "fit part")
-        check_length(b, "held-out part")
-    check_excited(fit, "fit part")
-    return fit, held, rule
+    return _default_held_out(recs, split)
+
+
+def _default_held_out(recs: list[Recording], split: float) -> tuple[list[Recording], list[Recording], str]:
+    """The time-ordered split of each recording long enough for two parts (the others fitted whole);
+    when none is, or the fit parts never change the command, one whole recording held out (leave one
+    recording out, :func:`aeropend_ident.io.split.leave_one_out`), said in the rule."""
+    for r in recs:
+        check_length(r, "recording")
+    fit, held, whole = [], [], []
+    for r in recs:
+        a, b = r.split(split)
+        if min(len(a), len(b)) >= MIN_PART_SAMPLES:
+            fit.append(a)
+            held.append(b)
+        else:
+            whole.append(r)
+    try:
+        if not held:
+            raise GapCliError(f"no recording is long enough for a fit part and a held-out part of "
+                              f"{MIN_PART_SAMPLES} samples each at --split {split:g}")
+        for part in (*fit, *held):
+            check_length(part, "part")
+        check_excited(fit + whole, "fit part")
+    except GapCliError as exc:
+        k = leave_one_out(recs)
+        if k is None:
+            raise
+        left = recs[k]
+        return ([r for j, r in enumerate(recs) if j != k], [left],
+                f"leave one recording out: {left.source or 'recording ' + str(k + 1)} held out whole, the "
+                f"others fit (the time-ordered split at {split:g} does not work: {exc})")
+    rule = f"time-ordered split: first {split:.0%} of each recording to fit, the rest held out"
+    if whole:
+        rule += f"; too short to split, fitted whole: {', '.join(r.source or '?' for r in whole)}"
+    return fit + whole, held, rule

@@ -28,9 +28,11 @@ from collections.abc import Sequence
 import numpy as np
 
 from aeropend_ident.errors import GapInputError
+from aeropend_ident.io.csvspec.constant_input import excitation_problem
 from aeropend_sim.recording import Recording
 
-__all__ = ["informative", "interleaved_blocks", "split_runs", "time_ordered", "validation_split"]
+__all__ = ["carve_validation", "informative", "interleaved_blocks", "leave_one_out", "split_runs",
+           "time_ordered", "validation_split"]
 
 
 def informative(part: Recording, min_range: float = 0.0) -> bool:
@@ -208,6 +210,35 @@ def _varying(r: Recording) -> bool:
     return len(r) >= MIN_PART and float(np.ptp(r.duty)) > 0.0
 
 
+def _swings(r: Recording) -> bool:
+    """A constant-command recording whose rod moves (a free decay, a step from rest at t = 0):
+    accepted beside a recording whose command changes (the rod's dynamics, not the input's gain)."""
+    return (len(r) >= MIN_PART and float(np.ptp(r.duty)) == 0.0
+            and excitation_problem(r.t, r.duty, r.channels["theta"]) is None)
+
+
+def _inside_share(r: Recording, others: Sequence[Recording]) -> float:
+    """Share of ``r``'s samples whose duty cycle lies within the range the ``others`` cover."""
+    lo = min(float(np.min(o.duty)) for o in others)
+    hi = max(float(np.max(o.duty)) for o in others)
+    return float(np.mean((r.duty >= lo) & (r.duty <= hi)))
+
+
+def leave_one_out(recs: Sequence[Recording]) -> int | None:
+    """Index of the recording to leave out (validation or held-out) of ``recs``, or None.
+
+    Candidates are recordings with a changing command whose removal leaves at least one other
+    with a changing command; of those, the one most inside the operating range (duty cycles) of
+    the rest is left out (an interpolation, not an extrapolation), the later one on a tie.
+    """
+    excited = [k for k, r in enumerate(recs) if _varying(r)]
+    if len(excited) < 2:
+        return None
+    best = max(excited, key=lambda k: (round(_inside_share(recs[k], [r for j, r in enumerate(recs)
+                                                                      if j != k and _varying(r)]), 6), k))
+    return best
+
+
 def _split_at_step(r: Recording, fraction: float) -> tuple[Recording, Recording] | None:
     """Time-ordered split of one recording whose validation tail starts before a duty step.
 
@@ -232,53 +263,114 @@ def _split_at_step(r: Recording, fraction: float) -> tuple[Recording, Recording]
 def validation_split(
     fit: Sequence[Recording], fraction: float = VALIDATION_FRACTION
 ) -> tuple[list[Recording], list[Recording]]:
+    """The fit core and validation parts of :func:`carve_validation` (without its rule)."""
+    core, val, _ = carve_validation(fit, fraction)
+    return core, val
+
+
+def carve_validation(
+    fit: Sequence[Recording], fraction: float = VALIDATION_FRACTION
+) -> tuple[list[Recording], list[Recording], str]:
     """Carve the diagnosis' validation set out of the fit recordings (train / validation / test).
 
+    Recordings whose command changes are *excited*; a constant-command recording whose rod moves
+    (a free decay, a step logged from its first sample: :func:`_swings`) is fitted whole beside them.
     In order of preference:
 
-    1. each fit recording split in time order, its last ``fraction`` becoming validation, when
-       both parts keep :data:`MIN_PART` samples and a varying duty cycle;
-    2. a recording whose tail holds one duty level (a long last step) is split instead just
-       before the duty step nearest to that share (:func:`_split_at_step`), so its validation part
-       starts settled and contains a step;
-    3. with several fit recordings, every round(1/fraction)-th whole recording from the second on;
-    4. interleaved blocks of each recording (:func:`aeropend_ident.io.split.interleaved_blocks`,
-       every 3rd block of about ``fraction`` × 3 of the length is validation).
+    1. each excited recording split in time order, its last ``fraction`` becoming validation,
+       when both parts keep :data:`MIN_PART` samples and a varying duty cycle; a recording whose
+       tail holds one duty level (a long last step) is split instead just before the duty step
+       nearest to that share (:func:`_split_at_step`), so its validation part starts settled and
+       contains a step;
+    2. when some excited recording allows neither and there are two or more, every
+       round(1/``fraction``)-th whole excited recording (from the second on) is the validation set
+       (with two: leave one recording out);
+    3. interleaved blocks of the excited recordings (:func:`interleaved_blocks`, every 3rd block
+       of about ``fraction`` × 3 of the length is validation);
+    4. the longest excited recording split in time order although its last ``fraction`` holds one
+       command (a hold after the last step: it checks the static level and the settling).
+
+    Parameters
+    ----------
+    fit : sequence of Recording
+        Uniformly sampled fit recordings with ``theta``.
+    fraction : float
+        Share of the fit data to validate on, in (0, 1).
+
+    Returns
+    -------
+    core, validation : list of Recording
+        Fit core (excited parts and the whole constant-command recordings) and validation parts.
+    rule : str
+        The carving in words (report provenance), naming the recordings.
 
     Raises
     ------
     GapInputError
-        ``fraction`` outside (0, 1), or fit data too short or too little excited for any of these.
+        ``fraction`` outside (0, 1), no recording with a changing command, or fit data too short or
+        too little excited for any of these (the message names every recording and its length).
     """
     if not 0.0 < fraction < 1.0:
         raise GapInputError(f"validation fraction {fraction!r}; expected a number in (0, 1)")
     fit = list(fit)
-    parts: list[tuple[Recording, Recording]] = []
-    for r in fit:
+    excited = [r for r in fit if _varying(r)]
+    whole = [r for r in fit if not _varying(r) and _swings(r)]
+    if not excited:
+        raise GapInputError(_too_little(fit, fraction, "none has a changing duty cycle over "
+                                        f"{MIN_PART} samples or more"))
+    core, val, kept = [], [], []
+    for r in excited:
         pair = r.split(1.0 - fraction) if len(r) * min(fraction, 1.0 - fraction) >= MIN_PART else None
         if pair is None or not (_varying(pair[0]) and _varying(pair[1])):
             pair = _split_at_step(r, fraction)
         if pair is None:
-            break
-        parts.append(pair)
-    if len(parts) == len(fit):
-        return [a for a, _ in parts], [b for _, b in parts]
-    if len(fit) >= 2:
+            kept.append(r)
+        else:
+            core.append(pair[0])
+            val.append(pair[1])
+    if kept and len(excited) >= 2:
+        # not every one splits: every round(1/fraction)-th whole excited recording, from the 2nd on, is
+        # the validation set (with two: leave one recording out)
         step = max(2, round(1.0 / fraction))
-        pick = set(range(1, len(fit), step))
-        core = [r for i, r in enumerate(fit) if i not in pick]
-        val = [r for i, r in enumerate(fit) if i in pick]
-        if all(_varying(r) for r in core + val):
-            return core, val
+        pick = set(range(1, len(excited), step))
+        core_w = [r for i, r in enumerate(excited) if i not in pick]
+        val_w = [r for i, r in enumerate(excited) if i in pick]
+        why = f"{_names(kept)} cannot be split with a changing command in both parts"
+        return (core_w + whole, val_w, f"validation: {_names(val_w)} whole (every {_ordinal(step)} recording "
+                f"whose command changes, from the 2nd; {why})" + _whole_note(whole))
+    if val:
+        return core + whole, val, f"validation: the last ~{fraction:.0%} of {_names(val)}{_whole_note(whole)}"
     for n_blocks in (6, 9, 12):
-        block = min(len(r) * r.dt for r in fit) / n_blocks
-        core, val, _ = interleaved_blocks(fit, block, 3, 0.0, 1)
+        block = min(len(r) * r.dt for r in excited) / n_blocks
+        core, val, _ = interleaved_blocks(excited, block, 3, 0.0, 1)
         if core and val and all(_varying(r) for r in core + val):
-            return core, val
-    raise GapInputError(
-        f"{fit[0].source or 'the fit recording'}: {len(fit[0])} samples cannot give both a fit part and a "
-        f"validation part (about {fraction:.0%}) of at least {MIN_PART} samples with a varying duty cycle, "
-        "neither in time order, split before a duty step, nor as interleaved blocks; record longer or with "
-        "more duty steps, add fit recordings, or pass validation fraction 0 (the held-out data then choose "
-        "the effects)"
-    )
+            return (core + whole, val, f"validation: every 3rd block of {block:.3g} s of {_names(excited)}"
+                    + _whole_note(whole))
+    for r in sorted(excited, key=len, reverse=True):
+        if len(r) * min(fraction, 1.0 - fraction) >= MIN_PART:
+            a, b = r.split(1.0 - fraction)
+            if _varying(a) and np.ptp(b.channels["theta"]) > 0.0:
+                return ([a, *(x for x in excited if x is not r), *whole], [b],
+                        f"validation: the last ~{fraction:.0%} of {_names([r])}, a hold after the "
+                        "recording's last command change (it checks the static level and the settling, "
+                        "not a step)" + _whole_note(whole))
+    raise GapInputError(_too_little(fit, fraction, "none can be split in time order, before a duty step "
+                                    "or into interleaved blocks, and there is no second recording with a "
+                                    "changing command to leave out"))
+
+
+def _names(recs: Sequence[Recording]) -> str:
+    return ", ".join(r.source or "a recording" for r in recs)
+
+
+def _whole_note(whole: Sequence[Recording]) -> str:
+    return f"; constant-command recording(s) fitted whole: {_names(whole)}" if whole else ""
+
+
+def _too_little(fit: Sequence[Recording], fraction: float, why: str) -> str:
+    listing = "; ".join(f"{r.source or 'recording'}: {len(r)} samples, duty "
+                        f"{'changing' if np.ptp(r.duty) > 0 else 'constant'}" for r in fit)
+    return (f"the fit recordings cannot give both a fit part and a validation part (about {fraction:.0%}) "
+            f"of at least {MIN_PART} samples with a varying duty cycle: {why} ({listing}); record longer "
+            "or with more duty steps, add a recording whose command changes, or pass validation "
+            "fraction 0 (the held-out data then choose the effects)")

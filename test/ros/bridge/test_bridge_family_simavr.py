@@ -1,0 +1,160 @@
+"""The ``bridge`` node on the ESC + encoder firmware in simavr, and its refusal of a mismatch (issue 61).
+
+The emulator build ``ACTUATOR=esc ESC_HZ=50 ANGLE=encoder ENC_CPR=4000 SPEED=none`` runs in
+``firmware/sim/harness.c``; the harness's encoder raises the rod to 0.5 rad (count 318) in 0.8 s
+and holds it there. An ESC rig file from ``rig new`` with a ``hardware`` block (encoder, 4000
+counts, ESC 1.0–2.0 ms) drives it through the bridge:
+
+* configure reads the firmware's HELLO and accepts it; ``joint_states`` carries θ = 318·2π/4000,
+  the applied τ computed back from the firmware's applied pulse (0 while the ESC arms, then 0.5
+  for a τ = 0.5 command), ω₁ = ω₂ = NaN (no speed sensor in the build) and ``armature`` NaN
+  (an ESC has no armature channels) — never 0;
+* controller silence: τ 0 (the zero-throttle pulse) on the topic within the bridge's timeout;
+* the thesis rig (H-bridge) against the same firmware: the bridge exits with status 1 and a
+  message naming both actuators, before activating anything.
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+import signal
+import subprocess
+import time
+from contextlib import ExitStack
+from pathlib import Path
+
+import pytest
+import yaml
+
+pytest.importorskip("rclpy")
+
+from sensor_msgs.msg import BatteryState, JointState
+from std_msgs.msg import Float64
+
+from aeropend_bridge.simavr_harness import read_pty_path
+from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
+from aeropend_sim.rigcmd.cli import main as rig_main
+from aeropend_sim.ros.harness import isolated_env, node_command, private_node, random_domain, reap, stop
+from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
+
+ROOT = Path(__file__).resolve().parents[3]
+FW = ROOT / "firmware"
+CPR = 4000
+THETA_HOLD = 0.5
+
+pytestmark = [
+    pytest.mark.ros,
+    pytest.mark.timeout(120),
+    pytest.mark.skipif(
+        shutil.which("avr-gcc") is None or not Path("/usr/include/simavr/sim_avr.h").is_file(),
+        reason="needs avr-gcc + libsimavr-dev/libsimavrparts1 (scripts/setup_env.sh installs them as root)"),
+]
+BRIDGE = node_command("bridge", "aeropend_bridge.bridge_node")
+
+
+@pytest.fixture(scope="module")
+def firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    build = tmp_path_factory.mktemp("escfw")
+    for extra in (["all", "ACTUATOR=esc", "ESC_HZ=50", "ANGLE=encoder", f"ENC_CPR={CPR}", "SPEED=none",
+                   "EXTRA_CFLAGS=-DSIMAVR_TIMER1"], ["harness"]):
+        r = subprocess.run(["make", "-C", str(FW), f"BUILD={build}", *extra], capture_output=True, text=True,
+                           timeout=120)
+        assert r.returncode == 0, r.stdout + r.stderr
+    # the rod rises smoothly (peak 1 rad/s) to THETA_HOLD at t = 0.1 s + π/4 s and stays there
+    t1_us = 100_000 + math.pi / 4 * 1e6
+    (build / "events.txt").write_text(f"enccpr {CPR}\nenc 100000 {t1_us:.3f} 0 {THETA_HOLD} 2\n")
+    return build
+
+
+def _esc_rig(path: Path) -> Path:
+    assert rig_main(["new", "--actuator", "esc", "-o", str(path)]) == 0
+    data = yaml.safe_load(path.read_text())
+    q = {"unit": "s", "source": "ESC calibrated to 1.0-2.0 ms (test)"}
+    data["hardware"] = {"angle_sensor": "encoder",
+                        "counts_per_rev": {"value": CPR, "unit": "1", "source": "1000 lines x 4 (test)"},
+                        "pulse_offset": {"value": 1.0e-3, **q}, "pulse_span": {"value": 1.0e-3, **q}}
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _harness(build: Path) -> subprocess.Popen:
+    return subprocess.Popen([str(build / "harness"), str(build / "aeropend.elf"), "0", "-e",
+                             str(build / "events.txt")], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+
+
+def test_bridge_drives_the_esc_encoder_firmware(firmware: Path, tmp_path: Path) -> None:
+    rig = _esc_rig(tmp_path / "esc_encoder_rig.yaml")
+    sim = _harness(firmware)
+    env = isolated_env(random_domain(201, 215))
+    bridge = None
+    client = ExitStack()
+    try:
+        node, ex = client.enter_context(private_node("esc_client", int(env["ROS_DOMAIN_ID"])))
+        js: list[JointState] = []
+        arm: list[BatteryState] = []
+        node.create_subscription(JointState, TOPIC_JOINT_STATES, js.append, SAMPLE_SUB_QOS)
+        node.create_subscription(BatteryState, TOPIC_ARMATURE, arm.append, SAMPLE_SUB_QOS)
+        pub = node.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
+
+        def spin(seconds: float, duty: float | None = None) -> None:
+            end, nxt = time.monotonic() + seconds, 0.0
+            while time.monotonic() < end:
+                if duty is not None and time.monotonic() >= nxt:
+                    pub.publish(Float64(data=duty))
+                    nxt = time.monotonic() + 0.02
+                ex.spin_once(timeout_sec=0.005)
+
+        bridge = subprocess.Popen([*BRIDGE, "--ros-args", "-p", f"port:={read_pty_path(sim)}", "-p",
+                                   f"rig:={rig}"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  text=True)
+        end = time.monotonic() + 30
+        while len(js) < 200 and time.monotonic() < end and bridge.poll() is None:
+            ex.spin_once(timeout_sec=0.01)
+        assert len(js) >= 200, f"no samples from the bridge (exit status {bridge.poll()})"
+        # commands flow while the ESC arms (2 s after reset): τ stays 0 until arming ends
+        end = time.monotonic() + 30
+        while time.monotonic() < end and not any(abs(m.effort[1] - 0.5) < 1e-9 for m in js[-20:]):
+            spin(0.2, duty=0.5)
+        on = [m.effort[1] for m in js[-20:]]
+        assert all(abs(t - 0.5) < 1e-9 for t in on[-5:]), on  # 1500 µs applied = τ 0.5 exactly
+        assert js[0].effort[1] == 0.0  # arming: the zero-throttle pulse
+        m, b = js[-1], arm[-1]
+        count = math.floor(THETA_HOLD * CPR / (2 * math.pi))  # 318
+        assert m.position[0] == pytest.approx(count * 2 * math.pi / CPR, abs=1e-12)
+        assert math.isnan(m.velocity[1]) and math.isnan(m.velocity[2]), list(m.velocity)
+        assert math.isnan(b.voltage) and math.isnan(b.current), (b.voltage, b.current)
+        n_on = len(js)
+        spin(1.0)  # controller silent: the bridge sends the zero-throttle pulse
+        off = [x.effort[1] for x in js[n_on:]]
+        assert off and off[-1] == 0.0, off[-10:]
+        first0 = next(i for i, t in enumerate(off) if t == 0.0)
+        assert all(t == 0.0 for t in off[first0:])
+        dt = (js[n_on + first0].header.stamp.sec + js[n_on + first0].header.stamp.nanosec * 1e-9
+              - (js[n_on - 1].header.stamp.sec + js[n_on - 1].header.stamp.nanosec * 1e-9))
+        print(f"ESC bridge: tau 0 on the topic {dt * 1e3:.1f} ms (stamps) after the last τ 0.5 sample")
+        err = stop(bridge, signal.SIGINT, timeout=10).stderr
+        assert bridge.returncode == 0, err
+        assert "firmware (announced): actuator esc, angle encoder (4000 counts/rev)" in err, err
+    finally:
+        reap(bridge)
+        client.close()
+        sim.kill()
+        sim.communicate()
+
+
+def test_bridge_refuses_a_rig_of_another_family(firmware: Path) -> None:
+    sim = _harness(firmware)
+    env = isolated_env(random_domain(216, 230))
+    try:
+        r = subprocess.run([*BRIDGE, "--ros-args", "-p", f"port:={read_pty_path(sim)}", "-p",
+                            "rig:=thesis_rig"], env=env, capture_output=True, text=True, timeout=60)
+    finally:
+        sim.kill()
+        sim.communicate()
+    print(r.stderr[-600:])
+    assert r.returncode == 1, r.stderr
+    assert ("rig 'thesis_rig' is a dc_hbridge rig (firmware actuator 'hbridge') but the firmware on the port "
+            "drives 'esc' and reads 'encoder'") in r.stderr
+    assert "active: duty output enabled" not in r.stderr  # refused at configure, nothing armed
