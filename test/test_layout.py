@@ -135,7 +135,7 @@ def test_sim_layering_and_the_ros_shell(tmp_path: Path) -> None:
     out = proc.stdout
     assert proc.returncode == 1
     assert "aeropend_sim.params imports aeropend_sim.sim_core: aeropend_sim.params may import only " \
-           "components of aeropend_sim" in out
+           "components, files of aeropend_sim" in out
     assert "design.py:1: aeropend_control.design imports rclpy outside the ROS shell" in out
     assert "design.py:2: aeropend_control.design imports aeropend_sim.ros.node_shell: aeropend_sim.ros is " \
            "for the ROS shell (nodes) only" in out

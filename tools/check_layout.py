@@ -71,17 +71,19 @@ LAYERS: dict[str, dict[str, set[str] | str]] = {
         "sim_core": {"simulation", "params", "components", "contract"},
         "description": {"params", "components", "contract"},
         # the `rig` command (rig new/fit/check; fit and check import aeropend_ident when they run)
-        "rigcmd": {"params", "components", "output_folder"},
+        "rigcmd": {"params", "components", "output_folder", "files"},
         # the shared core: plant library, rig files, topic contract, recordings, result folders
         "excitation": {"contract"},
         "simulation": {"compiled", "model", "params", "components"},
         "simulate": {"simulation"},  # deprecated re-export of simulation (its old name)
         "compiled": {"model", "params", "components"},
         "model": {"params", "components"},
-        "params": {"components"},
+        "params": {"components", "files"},
         "recording": {"contract"},
-        "recording_frame": set(),
+        "recording_frame": {"files"},
         "output_folder": set(),
+        # the one YAML loader (aliases and oversized files refused)
+        "files": set(),
         "contract": set(),
         "components": set(),
     },

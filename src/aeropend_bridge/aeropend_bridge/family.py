@@ -41,6 +41,7 @@ from aeropend_bridge.protocol import (
     Pulse,
     SampleFrame,
 )
+from aeropend_sim.files.safe_yaml import YamlRefusedError, load_yaml, parse_yaml
 
 #: Rig family -> the firmware actuator that drives it (None: no aeropend firmware does).
 FIRMWARE_ACTUATOR = {"dc_hbridge": "hbridge", "esc": "esc", "voltage_amplifier": None}
@@ -136,10 +137,12 @@ def read_rig_hardware(rig_ref: str | Path, family: str, name: str | None = None)
     where = str(rig_ref)
     try:
         if path.suffix in (".yaml", ".yml"):
-            text = path.read_text(encoding="utf-8")
+            data = load_yaml(path, "a rig file") or {}
         else:
             text = (resources.files("aeropend_sim") / "rigs" / f"{rig_ref}.yaml").read_text(encoding="utf-8")
-        data = yaml.safe_load(text) or {}
+            data = parse_yaml(text, f"{rig_ref}.yaml", "a rig file") or {}
+    except YamlRefusedError as exc:
+        raise HardwareError(str(exc)) from None
     except (OSError, yaml.YAMLError) as exc:
         raise HardwareError(f"cannot read rig file {rig_ref!s}: {exc}") from exc
     block = data.get("hardware") or {}

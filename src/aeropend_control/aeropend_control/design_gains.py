@@ -32,7 +32,12 @@ from aeropend_control.design import REACH_DUTY_MARGIN, LoopDesign, PoleSpec, rea
 from aeropend_control.strategies.fl_pid import FeedbackLinearizationPID
 from aeropend_control.strategies.registry import strategy_class, strategy_names
 from aeropend_control.strategies.small_signal import SmallSignalPID
-from aeropend_sim.output_folder import check_output_file
+from aeropend_sim.output_folder import (
+    check_output_file,
+    exits_cleanly_on_faults,
+    is_fault,
+    write_file_atomically,
+)
 from aeropend_sim.params import Rig, load_rig
 
 #: The strategies whose position-loop gains the CLI designs, prints and tunes (θ only).
@@ -177,6 +182,7 @@ def _verdict_doc(v) -> dict:
                        "metrics": r.metrics.as_dict() if r.metrics is not None else None} for r in v.runs]}
 
 
+@exits_cleanly_on_faults("design_gains")
 def main(argv: list[str] | None = None) -> int:
     """CLI ``design_gains``: design the gains, check every strategy in closed loop on the rig file.
 
@@ -217,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
         fl = fl_cls.build(rig, spec=specs[fl_cls.name]).design
         sched = ss_cls.build(rig, spec=specs[ss_cls.name]).table
     except (ValueError, OSError) as exc:
+        if is_fault(exc):
+            raise
         print(f"design_gains: error: {exc}", file=sys.stderr)
         return 2
     print(f"rig {rig.name} ({rig.family}): reach {reach:.4g} rad "
@@ -239,8 +247,7 @@ def main(argv: list[str] | None = None) -> int:
                "others": {name: (v if isinstance(v, str) else _verdict_doc(v))
                           for name, v in result["others"].items()},
                **rec}
-        with open(args.output, "w", encoding="utf-8") as fh:
-            yaml.safe_dump(doc, fh, sort_keys=False, allow_unicode=True)
+        write_file_atomically(args.output, yaml.safe_dump(doc, sort_keys=False, allow_unicode=True))
         print(f"wrote {args.output}")
     return 0
 

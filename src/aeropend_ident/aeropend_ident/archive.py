@@ -26,6 +26,12 @@ the same rig parameter as an earlier one) plus the drift-prone parameters
 of the cluster, and :func:`aeropend_ident.gap.drift.drift_rows` says which parameter changes
 between sessions beyond its standard errors, as ``gap --sessions`` does.
 
+**Resuming** (``gap-batch --resume``): each session's folder holds :data:`SESSION_FILE`, written
+when its ``gap`` run has ended (diagnosed or refused), with the session's row and its key
+(:func:`session_key`: a SHA-256 of the contents of every input file, the preset files, the nominal
+rig's numbers and the options). A session whose folder holds a finished row with the key of its
+current inputs is taken as it is (:func:`finished_row`); any other one is computed again.
+
 No rclpy import: this module runs without ROS.
 """
 
@@ -41,6 +47,7 @@ from typing import Any
 import yaml
 
 from aeropend_ident.errors import GapCliError
+from aeropend_sim.files.safe_yaml import YamlRefusedError, load_yaml
 
 #: Manifest file name at an archive's top level.
 MANIFEST = "sessions.yaml"
@@ -48,6 +55,8 @@ MANIFEST = "sessions.yaml"
 RECORDING_SUFFIXES = (".mcap", ".db3", ".csv")
 #: Top-level files ``gap-batch`` writes in its output folder (beside one folder per session).
 BATCH_FILES = ("batch.json", "drift.md")
+#: File in each session's folder: the key of its inputs and options and its row (module doc).
+SESSION_FILE = "batch_session.json"
 
 
 @dataclass(frozen=True)
@@ -68,6 +77,8 @@ class SessionCase:
     rig: str
     out: str
     options: list[str] = field(default_factory=list)
+    #: :func:`session_key` of the session's inputs (written with its row; "" = not written).
+    key: str = ""
 
 
 def _is_bag_folder(path: Path) -> bool:
@@ -126,8 +137,10 @@ def find_sessions(archive: str | Path) -> tuple[list[Session], list[str]]:
 
 def _from_manifest(root: Path, manifest: Path) -> list[Session]:
     try:
-        doc = yaml.safe_load(manifest.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
+        doc = load_yaml(manifest, "a gap-batch manifest (sessions.yaml)")
+    except YamlRefusedError as exc:
+        raise GapCliError(str(exc)) from None
+    except (OSError, ValueError, yaml.YAMLError) as exc:
         raise GapCliError(f"{manifest}: cannot be read as YAML: {exc}") from exc
     items = doc.get("sessions") if isinstance(doc, dict) else None
     if not isinstance(items, list) or not items:
@@ -260,3 +273,71 @@ def write_batch(out: Path, rows: Sequence[dict[str, Any]], sessions: Sequence[Se
     paths["json"].write_text(json.dumps(jsonable(doc), indent=1), encoding="utf-8")
     paths["md"].write_text(drift_markdown(rows, table), encoding="utf-8")
     return paths
+
+
+def _input_files(arg: str) -> list[tuple[str, Path]]:
+    """(name in the key, file) of one recording argument: its file(s) and an existing preset file."""
+    path, _, preset = str(arg).partition(":")
+    root = Path(path)
+    files = sorted(p for p in root.rglob("*") if p.is_file()) if root.is_dir() else [root]
+    out = [(str(p.relative_to(root)) if root.is_dir() else root.name, p) for p in files]
+    if preset and Path(preset).is_file():
+        out.append((f"preset {Path(preset).name}", Path(preset)))
+    return out
+
+
+def session_key(session: Session, rig_doc: str, options: Sequence[str]) -> str:
+    """SHA-256 (hex) of what one session's ``gap`` result depends on.
+
+    Parameters
+    ----------
+    session : Session
+        Its recordings and held-out recordings: every file's contents (every file of a bag
+        folder) and name, and a ``:PRESET`` suffix with its preset file's contents.
+    rig_doc : str
+        The nominal rig as text (its numbers, e.g. JSON of ``rig_to_dict``).
+    options : sequence of str
+        The ``gap`` options of the batch (``--split`` ..., ``--preset`` ...).
+
+    Returns
+    -------
+    str
+        64 hex digits; a moved archive with the same contents keeps its keys.
+
+    Raises
+    ------
+    OSError
+        An input that cannot be read.
+    """
+    import hashlib
+
+    h = hashlib.sha256()
+    h.update(json.dumps({"rig": rig_doc, "options": list(options)}, sort_keys=True).encode())
+    for group, args in (("recordings", session.recordings), ("held_out", session.held_out)):
+        for arg in args:
+            h.update(f"\n{group} {str(arg).partition(':')[2]}\n".encode())
+            for name, path in _input_files(arg):
+                h.update(f"{name}\n".encode())
+                with open(path, "rb") as fh:
+                    for block in iter(lambda fh=fh: fh.read(1 << 20), b""):
+                        h.update(block)
+    return h.hexdigest()
+
+
+def finished_row(folder: Path, key: str) -> dict[str, Any] | None:
+    """The row of a session already diagnosed in ``folder`` with inputs of ``key`` (None: none).
+
+    A row counts when :data:`SESSION_FILE` holds ``key`` and, for a diagnosed session (exit 0
+    or 1), the report's ``report.json`` is there; a refused session (its one-line error) counts
+    as it is. The row's ``report`` is set to ``folder``.
+    """
+    try:
+        doc = json.loads((folder / SESSION_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    row = doc.get("row") if isinstance(doc, dict) and doc.get("key") == key else None
+    if not isinstance(row, dict) or "exit" not in row:
+        return None
+    if row.get("error") is None and not (folder / "report.json").is_file():
+        return None
+    return {**row, "report": str(folder.absolute())}

@@ -29,9 +29,11 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.util
 import inspect
+import logging
 import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
@@ -111,17 +113,102 @@ def call_case(ref: tuple[str, str, str], case: Any) -> Any:
         return func(case)
 
 
+def _silence_cluster_logs() -> None:
+    """Run on each worker (and here) when a run is interrupted: its shutdown chatter is no news."""
+    for name in ("distributed", "asyncio", "tornado"):  # "task exception never retrieved" of a
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)  # cluster stopped while it started
+
+
+def _sigint_ignoring_python() -> str | None:
+    """Path of a launcher of this Python with SIGINT ignored (None where it cannot be made).
+
+    A two-line shell script (``trap "" INT``, then ``exec`` of ``sys.executable``) kept in
+    ``$TMPDIR/aeropend-UID/`` (one per interpreter); None on a system without ``/bin/sh``, a folder
+    that cannot be written or one mounted ``noexec`` (the workers then start as before).
+    """
+    if os.name != "posix" or not os.path.exists("/bin/sh"):
+        return None
+    import hashlib
+    import shlex
+    import tempfile
+
+    folder = Path(tempfile.gettempdir()) / f"aeropend-{os.getuid()}"
+    # one launcher per interpreter (two environments on one machine do not share it)
+    path = folder / f"python-sigint-ignored-{hashlib.sha256(sys.executable.encode()).hexdigest()[:12]}"
+    text = ("#!/bin/sh\n# aeropend: Python with SIGINT ignored (local Dask workers: the command handles "
+            f"Ctrl-C)\ntrap '' INT\nexec {shlex.quote(sys.executable)} \"$@\"\n")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        if os.statvfs(folder).f_flag & os.ST_NOEXEC:
+            return None
+        if not (path.is_file() and path.read_text(encoding="utf-8") == text and os.access(path, os.X_OK)):
+            tmp = folder / f".{path.name}.{os.getpid()}"
+            tmp.write_text(text, encoding="utf-8")
+            tmp.chmod(0o755)
+            os.replace(tmp, path)
+    except OSError:
+        return None
+    return str(path)
+
+
+def _ignore_sigint() -> None:
+    """Run on each local worker's main thread: Ctrl-C at a terminal reaches the whole process group,
+    but only the command handles it (it closes the cluster and says so in one line)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _quiet_shutdown(client: Any) -> None:
+    """Before the cluster of an interrupted run closes: no "task cancelled" or "worker killed"
+    warnings around the command's one-line message (issue 62)."""
+    _silence_cluster_logs()
+    with contextlib.suppress(Exception):
+        client.run(_silence_cluster_logs)
+
+
+def _close_half_started() -> None:
+    """Close a local cluster whose start was interrupted (Ctrl-C while its workers start).
+
+    Its constructor never returned, so only distributed's own list of clusters knows it; left
+    there, distributed's exit handler prints a traceback closing it.
+    """
+    _silence_cluster_logs()
+    from distributed.deploy.spec import SpecCluster
+
+    for cluster in list(getattr(SpecCluster, "_instances", ())):
+        with contextlib.suppress(BaseException):
+            cluster.close(timeout=10)
+        cluster.shutdown_on_close = False  # nothing left for the exit handler to report
+
+
 def _cluster(workers: int, scheduler: str | None) -> Any:
     from distributed import Client, LocalCluster
 
     if scheduler:
         return Client(scheduler), None
+    # a worker killed at Ctrl-C leaves its semaphores to the resource tracker, which would warn at exit
+    os.environ.setdefault("PYTHONWARNINGS", "ignore:resource_tracker:UserWarning")
     env = dict(WORKER_ENV)
     if os.environ.get("AEROPEND_CACHE_DIR"):
         env["AEROPEND_CACHE_DIR"] = os.environ["AEROPEND_CACHE_DIR"]
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address=":0", env=env)
-    return Client(cluster), cluster
+    # Ctrl-C at a terminal reaches the whole process group: the workers start through a launcher
+    # that ignores SIGINT (a disposition a new process keeps; Python then installs no handler), so
+    # only this command handles it, closes the cluster and says so in one line
+    from multiprocessing import spawn
+
+    python = spawn.get_executable()
+    launcher = _sigint_ignoring_python()
+    if launcher is not None:
+        spawn.set_executable(launcher)
+    try:
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=":0", env=env)
+    finally:
+        spawn.set_executable(python)
+    client = Client(cluster)
+    client.run(_ignore_sigint)
+    return client, cluster
 
 
 def run_cases(func: Callable[[Any], Any], cases: Sequence[Any], *, workers: int | None = None,
@@ -168,7 +255,12 @@ def run_cases(func: Callable[[Any], Any], cases: Sequence[Any], *, workers: int 
                 progress.update(1)
                 yield i, result
         return
-    client, cluster = _cluster(n, scheduler)
+    try:
+        client, cluster = _cluster(n, scheduler)
+    except BaseException:
+        if scheduler is None:
+            _close_half_started()
+        raise
     progress = bar(len(cases), desc, quiet=quiet, unit="case")
     try:
         futures = {client.submit(call_case, ref, case, pure=False): i for i, case in enumerate(cases)}
@@ -177,6 +269,9 @@ def run_cases(func: Callable[[Any], Any], cases: Sequence[Any], *, workers: int 
             result = fut.result()
             progress.update(1)
             yield i, result
+    except BaseException:  # Ctrl-C, a full disk, a case's error: the command says it in one line
+        _quiet_shutdown(client)
+        raise
     finally:
         progress.close()
         client.close()

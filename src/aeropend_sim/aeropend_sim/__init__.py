@@ -56,7 +56,9 @@ _API: dict[str, tuple[str, ...]] = {
     ),
     "aeropend_sim.output_folder": (
         "claim_output_folder", "check_output_file", "OutputFolder", "OutputFolderError",
+        "write_file_atomically", "exits_cleanly_on_faults",
     ),
+    "aeropend_sim.files.safe_yaml": ("load_yaml", "parse_yaml", "YamlRefusedError"),
     # excitation signals (the simulator's experiments)
     "aeropend_sim.excitation": (
         "ExcitationSignal", "ExcitationError", "make_signal", "step", "staircase", "prbs", "aprbs",

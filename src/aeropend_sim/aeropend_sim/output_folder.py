@@ -21,18 +21,36 @@ What ``--overwrite`` may delete (a lab's folders hold recordings that exist nowh
   of other files (a typo naming the recordings folder) is refused with a message even with
   ``--overwrite``: empty it yourself if that is really meant.
 
-The check (:func:`claim_output_folder`) and the removal (:meth:`OutputFolder.prepare`) are two
-steps, so a command that computes for minutes checks at once and replaces the earlier result only
-when the new one is ready to be written: a run that fails keeps the earlier result.
+The check (:func:`claim_output_folder`) and the replacement are two steps, so a command that
+computes for minutes checks at once and replaces the earlier result only when the new one is
+complete: a run that fails keeps the earlier result.
+
+Atomic results (issue 62): the new result is written under a temporary name in the same folder
+(``.NAME.partial-XXXX/NAME``: the result keeps its own name inside, so a bag's ``NAME_0.mcap``
+is named right) and renamed into place only when complete (:meth:`OutputFolder.write`,
+:func:`write_file_atomically`). A full disk (ENOSPC), a read-only folder (EROFS), a missing
+permission (EACCES, EPERM), a quota (EDQUOT) or Ctrl-C (KeyboardInterrupt) while it is written
+removes the partial result and leaves the earlier one byte for byte; the command's ``main``
+(decorated with :func:`exits_cleanly_on_faults`) then prints one line naming the cause, no
+traceback, and exits with status 1 (130 on Ctrl-C).
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import fnmatch
+import functools
+import os
 import shutil
-from collections.abc import Iterable, Sequence
+import sys
+import tempfile
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 
 class OutputFolderError(ValueError):
@@ -176,6 +194,44 @@ class OutputFolder:
             self.path.rmdir()
         return self.path
 
+    def write(self, writer: Callable[[Path], T], *, create: bool = True, stage: Path | None = None,
+              keep: bool = False) -> T:
+        """Write the new result atomically: ``writer`` fills a temporary folder that replaces ``path``.
+
+        Checks again first (:meth:`check`). ``writer`` gets ``.NAME.partial-XXXX/NAME`` beside the
+        folder (same file system, same last name); when it returns, the earlier folder (if any) is
+        replaced by the new one and removed. If ``writer`` raises (a full disk, a read-only
+        folder, Ctrl-C, any error), the partial folder is removed and the earlier one is left as
+        it was; the exception passes on, marked for :func:`fault_message`.
+
+        Parameters
+        ----------
+        writer : callable
+            ``writer(folder) -> value``: writes the whole result into ``folder``.
+        create : bool
+            Create the (empty) temporary folder first; False for a writer that must create it
+            itself (rosbag2 writers refuse an existing bag folder).
+        stage, keep : Path, bool
+            As :func:`staged_path` (a resumable result: ``gap-batch``).
+
+        Returns
+        -------
+        object
+            ``writer``'s value, with every :class:`~pathlib.Path` inside the temporary folder (also
+            inside dicts, lists and tuples) moved to the same place in ``path``.
+
+        Raises
+        ------
+        OutputFolderError
+            As :meth:`check`.
+        OSError, KeyboardInterrupt
+            From ``writer`` or the renames (earlier result untouched, partial one removed).
+        """
+        self.check()
+        with staged_path(self.path, folder=True, create=create, stage=stage, keep=keep) as tmp:
+            value = writer(tmp)
+        return _rebased(value, tmp, self.path)
+
 
 def claim_output_folder(path: str | Path, overwrite: bool, *, own: Iterable[str], looks_like: str,
                         inputs: Iterable[str | Path] = (), option: str = "-o", flag: str = "--overwrite",
@@ -234,3 +290,243 @@ def check_output_file(path: str | Path, overwrite: bool, *, option: str = "-o",
         raise OutputFolderError(f"output file {p} exists; pass {flag} to replace it or choose another "
                                 f"{option}")
     return p
+
+
+# ------------------------------------------------------------------------- atomic results
+#: errno of the faults a command reports in one line (no traceback) -> the cause as named.
+FAULTS = {
+    errno.ENOSPC: "no space left on the device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EROFS: "read-only file system",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+}
+#: Infix of a temporary result's name: ``.NAME.partial-XXXX`` beside ``NAME``.
+PARTIAL = ".partial-"
+#: Attribute set on an exception raised while a result was written: (final path, existed before,
+#: the partial folder kept or None).
+_MARK = "aeropend_output"
+
+
+def _mark(exc: BaseException, final: Path, existed: bool, kept: Path | None = None) -> None:
+    with contextlib.suppress(AttributeError, TypeError):  # the outermost result is the one named
+        setattr(exc, _MARK, (final, existed, kept))
+
+
+def _rebased(value: Any, tmp: Path, final: Path) -> Any:
+    if isinstance(value, Path):
+        return final / value.relative_to(tmp) if value == tmp or tmp in value.parents else value
+    if isinstance(value, dict):
+        return {k: _rebased(v, tmp, final) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(_rebased(v, tmp, final) for v in value)
+    return value
+
+
+def partial_folder(final: str | Path, label: str) -> Path:
+    """The fixed temporary folder of a resumable result: ``.NAME.partial-LABEL`` beside ``final``."""
+    final = Path(final)
+    return final.absolute().parent / f".{final.name}{PARTIAL}{label}"
+
+
+@contextlib.contextmanager
+def staged_path(final: str | Path, *, folder: bool, create: bool = True, stage: Path | None = None,
+                keep: bool = False) -> Iterator[Path]:
+    """A temporary path beside ``final`` that is renamed onto ``final`` when the block succeeds.
+
+    The one mechanism of atomic results (module docstring): the block writes ``.NAME.partial-XXXX/
+    NAME`` in ``final``'s folder; on success a file replaces ``final`` in one ``os.replace`` and a
+    folder is swapped in by two renames (the earlier folder moved aside, the new one into place,
+    the earlier one removed; a failure between them puts the earlier one back). On any exception
+    the temporary folder is removed and ``final`` is as it was.
+
+    Parameters
+    ----------
+    final : str or Path
+        The result's path (a file or a folder; a symbolic link to a folder is followed). A folder
+        that must never be renamed away (the working folder or one above it, the home folder, a
+        git repository, a mount point; :class:`OutputFolder` writes one only when it is empty)
+        gets the new entries moved into it one by one instead.
+    folder : bool
+        Whether the result is a folder.
+    create : bool
+        For a folder: create it empty before the block.
+    stage : Path, optional
+        A fixed temporary folder (:func:`partial_folder`) instead of a new one, reused as it is:
+        what an interrupted run left in ``stage / NAME`` is there for the block to resume from.
+    keep : bool
+        On an exception, keep ``stage`` (the finished part of the result, clearly named as
+        partial) instead of removing it; the message says where it is.
+
+    Yields
+    ------
+    Path
+        Where the block writes the result.
+
+    Raises
+    ------
+    OSError, KeyboardInterrupt
+        Whatever the block or the renames raise, marked with ``final`` for :func:`fault_message`.
+    """
+    final = Path(os.path.abspath(final))  # "." and ".." get their real names
+    if final.is_symlink() and final.is_dir():
+        final = final.resolve()
+    existed = final.exists()
+    # the working folder, one above it, the home folder, a mount point ...: never renamed away;
+    # the new entries are moved into it instead (such a folder is written only when empty)
+    in_place = folder and final.is_dir() and (_protected(final) is not None or os.path.ismount(final))
+    try:
+        parent = final.absolute().parent
+        parent.mkdir(parents=True, exist_ok=True)
+        if stage is None:  # in place: inside the folder itself (a mount point is its own file system)
+            where = final if in_place else parent
+            stage = Path(tempfile.mkdtemp(prefix=f".{final.name}{PARTIAL}", dir=where))
+        else:
+            stage.mkdir(exist_ok=True)
+    except BaseException as exc:
+        _mark(exc, final, existed)
+        raise
+    target = stage / final.name
+    done = False
+    try:
+        if folder and create:
+            target.mkdir(exist_ok=True)
+        yield target
+        if in_place:
+            for entry in sorted(target.iterdir()):
+                os.rename(entry, final / entry.name)
+        elif folder and final.exists():
+            earlier = stage / f"{final.name}.earlier"
+            os.rename(final, earlier)
+            try:
+                os.rename(target, final)
+            except BaseException:
+                os.rename(earlier, final)
+                raise
+        else:
+            os.replace(target, final)
+        done = True
+    except BaseException as exc:
+        _mark(exc, final, existed, stage if keep else None)
+        raise
+    finally:
+        if done or not keep:
+            shutil.rmtree(stage, ignore_errors=True)
+
+
+def write_file_atomically(path: str | Path, content: str | bytes | Callable[[Path], Any]) -> Path:
+    """Write a result file under a temporary name beside it and rename it into place.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    content : str, bytes or callable
+        UTF-8 text, bytes, or ``content(tmp_path)`` that writes the file itself.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    OSError, KeyboardInterrupt
+        As :func:`staged_path` (an earlier file is untouched, no partial file is left).
+    """
+    with staged_path(path, folder=False) as tmp:
+        if callable(content):
+            content(tmp)
+        elif isinstance(content, bytes):
+            tmp.write_bytes(content)
+        else:
+            tmp.write_text(content, encoding="utf-8")
+    return Path(path)
+
+
+def is_fault(exc: BaseException) -> bool:
+    """Whether ``exc`` is a fault reported in one line: Ctrl-C or an OSError of :data:`FAULTS`."""
+    return isinstance(exc, KeyboardInterrupt) or (isinstance(exc, OSError) and exc.errno in FAULTS)
+
+
+def _final_name(name: str) -> str:
+    """A path as the user knows it: ``a/.b.partial-x1/b/c`` -> ``a/b/c``, ``a/.b.partial-x1`` -> ``a/b``."""
+    parts = list(Path(name).parts)
+    keep = []
+    for k, p in enumerate(parts):
+        if p.startswith(".") and PARTIAL in p:
+            own = p[1:p.index(PARTIAL)]
+            if k + 1 < len(parts) and parts[k + 1] == own:
+                continue
+            if k + 1 == len(parts):
+                p = own
+        keep.append(p)
+    return str(Path(*keep)) if keep else name
+
+
+def fault_message(exc: BaseException) -> str | None:
+    """The one line that names a fault and what became of the result (None: not a fault).
+
+    Parameters
+    ----------
+    exc : BaseException
+        The exception that ended a command.
+
+    Returns
+    -------
+    str or None
+        E.g. ``"no space left on the device (ENOSPC) writing gap_report/report.json; gap_report
+        unchanged (the earlier result is kept), the partial result removed"``; None when ``exc``
+        is not a fault (:func:`is_fault`).
+    """
+    if not is_fault(exc):
+        return None
+    if isinstance(exc, KeyboardInterrupt):
+        cause = "interrupted (Ctrl-C)"
+    else:
+        assert isinstance(exc, OSError)
+        cause = f"{FAULTS[exc.errno]} ({errno.errorcode[exc.errno]})"
+        if exc.filename:
+            cause += f" on {_final_name(str(exc.filename))}"
+    mark = getattr(exc, _MARK, None)
+    if mark is not None:
+        final, existed, partial = mark
+        kept = f"{final} unchanged (the earlier result is kept)" if existed else f"{final} not written"
+        cause += f"; {kept}, " + ("the partial result removed" if partial is None else
+                                  f"the finished part kept in {partial} (--resume continues from it)")
+    return cause
+
+
+def exits_cleanly_on_faults(command: str) -> Callable[[Callable[..., int]], Callable[..., int]]:
+    """Decorate a command's ``main``: a fault ends it with one line on stderr, no traceback.
+
+    A fault is Ctrl-C or an OSError of :data:`FAULTS` (:func:`is_fault`); the line is
+    ``"<command>: error: <fault_message>"``; the exit status is 130 after Ctrl-C, 1 otherwise.
+    Other exceptions pass on unchanged. Standard output is flushed inside, so a full disk under
+    ``command > file`` is caught too.
+
+    Parameters
+    ----------
+    command : str
+        The command's name as the user types it.
+
+    Returns
+    -------
+    callable
+        The decorator.
+    """
+    def decorate(main: Callable[..., int]) -> Callable[..., int]:
+        @functools.wraps(main)
+        def guarded(*args: Any, **kwargs: Any) -> int:
+            try:
+                status = main(*args, **kwargs)
+                sys.stdout.flush()
+                return status
+            except (KeyboardInterrupt, OSError) as exc:
+                message = fault_message(exc)
+                if message is None:
+                    raise
+                print(f"{command}: error: {message}", file=sys.stderr, flush=True)
+                return 130 if isinstance(exc, KeyboardInterrupt) else 1
+        return guarded
+    return decorate

@@ -42,6 +42,7 @@ import yaml
 
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect
+from aeropend_sim.files.safe_yaml import YamlRefusedError, load_yaml, parse_yaml
 
 
 class RigFileError(ValueError):
@@ -611,7 +612,8 @@ def load_rig(name_or_path: str | Path) -> Rig:
     Raises
     ------
     RigFileError
-        If the file does not exist, is not valid YAML or violates the format.
+        If the file does not exist, is not valid YAML, holds a YAML alias or is above the size limit
+        (:mod:`aeropend_sim.files.safe_yaml`) or violates the format.
     """
     path = Path(name_or_path)
     if path.suffix not in (".yaml", ".yml"):
@@ -626,9 +628,11 @@ def load_rig(name_or_path: str | Path) -> Rig:
     else:
         if not path.is_file():
             raise RigFileError(f"rig file {path} does not exist")
-        text, where = path.read_text(encoding="utf-8"), str(path)
+        text, where = None, str(path)
     try:
-        data = yaml.safe_load(text)
+        data = parse_yaml(text, where, "a rig file") if text is not None else load_yaml(path, "a rig file")
+    except YamlRefusedError as exc:
+        raise RigFileError(str(exc)) from None
     except yaml.YAMLError as exc:
         raise RigFileError(f"{where}: not valid YAML: {exc}") from exc
     return rig_from_dict(data, where)

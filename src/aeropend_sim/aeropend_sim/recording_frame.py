@@ -24,6 +24,8 @@ from pathlib import Path
 
 import yaml
 
+from aeropend_sim.files.safe_yaml import YamlRefusedError, load_yaml, parse_yaml
+
 
 class FrameError(ValueError):
     """A malformed ``recording_frame`` block (the message names the key)."""
@@ -72,10 +74,12 @@ def read_recording_frame(rig_ref: str | Path) -> RecordingFrame:
     path = Path(rig_ref)
     try:
         if path.suffix in (".yaml", ".yml"):
-            text = path.read_text(encoding="utf-8")
+            data = load_yaml(path, "a rig file")
         else:
             text = (resources.files("aeropend_sim") / "rigs" / f"{rig_ref}.yaml").read_text(encoding="utf-8")
-        data = yaml.safe_load(text)
+            data = parse_yaml(text, f"{rig_ref}.yaml", "a rig file")
+    except YamlRefusedError as exc:
+        raise FrameError(str(exc)) from None
     except (OSError, yaml.YAMLError) as exc:
         raise FrameError(f"cannot read rig file {rig_ref!s}: {exc}") from exc
     block = data.get("recording_frame") if isinstance(data, dict) else None

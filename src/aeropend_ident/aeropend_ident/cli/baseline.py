@@ -29,7 +29,7 @@ from pathlib import Path
 from aeropend_ident.errors import IdentificationError, print_warnings_as_lines
 from aeropend_ident.greybox.baseline import INIT_HORIZON, REPORT_FILES, baseline, write_report
 from aeropend_ident.io.recording_input import ignored_channels, load_recording, split_preset
-from aeropend_sim.output_folder import claim_output_folder
+from aeropend_sim.output_folder import claim_output_folder, exits_cleanly_on_faults
 from aeropend_sim.params import RigFileError
 from aeropend_sim.recording import RecordingError
 
@@ -67,6 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@exits_cleanly_on_faults("baseline")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the baseline; print the summary; write the report folder."""
     args = build_parser().parse_args(argv)
@@ -81,7 +82,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             recs, args.rig, held_out=held, train_fraction=args.train_fraction, params=args.params,
             theta_offset=args.theta_offset, init_horizon=args.init_horizon or None, decimate=args.decimate,
         )
-        paths = write_report(result, out.prepare())
+        paths = out.write(lambda folder: write_report(result, folder))
     except (IdentificationError, RigFileError, RecordingError, ValueError) as exc:
         print(f"baseline: error: {exc}", file=sys.stderr)
         return 2

@@ -42,7 +42,7 @@ from aeropend_ident.io.recording_input import (
     split_preset,
     uniform_recording,
 )
-from aeropend_sim.output_folder import claim_output_folder
+from aeropend_sim.output_folder import claim_output_folder, exits_cleanly_on_faults
 from aeropend_sim.recording import RecordingError
 
 
@@ -130,6 +130,7 @@ def write_report(result: CompareResult, out: Path, plots: bool = True) -> dict[s
     return paths
 
 
+@exits_cleanly_on_faults("compare")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``compare``; print the table; write the report folder."""
     args = build_parser().parse_args(argv)
@@ -147,7 +148,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         models = [load_model(r, lab) for r, lab in zip(args.rig, labels, strict=True)]
         recs = [uniform_recording(load_recording(p, args.preset)) for p in args.inputs]
         result = compare(models, recs, args.channels, args.min_hold)
-        paths = write_report(result, out.prepare(), plots=not args.no_plots)
+        paths = out.write(lambda folder: write_report(result, folder, plots=not args.no_plots))
     except (RecordingError, ValueError) as exc:
         print(f"compare: error: {exc}", file=sys.stderr)
         return 2

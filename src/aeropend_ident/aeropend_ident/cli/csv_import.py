@@ -37,7 +37,7 @@ from aeropend_ident.io.csvspec.input_kinds import INPUT_KINDS, LAWS
 from aeropend_ident.io.csvspec.spec import is_preset_file, resolve_preset, write_preset_file
 from aeropend_ident.io.recording_input import resampling_notes, uniform_recording
 from aeropend_sim.contract import EXTRA_CHANNELS
-from aeropend_sim.output_folder import OutputFolderError
+from aeropend_sim.output_folder import OutputFolderError, exits_cleanly_on_faults
 from aeropend_sim.recording import MEASURED_CHANNELS
 
 #: The earlier one-kind column flags: flag stem -> input kind.
@@ -278,6 +278,7 @@ def _bag_note(rec: Any, args: argparse.Namespace) -> str:
     return f" Wrote {args.storage} bag {args.output} ({' + '.join(parts)} messages)."
 
 
+@exits_cleanly_on_faults("csv_import")
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``csv_import``: CSV -> contract bag (and preset file); prints a summary."""
     args = build_parser().parse_args(argv if argv is not None else sys.argv[1:])
@@ -306,7 +307,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         # a real start time (Foxglove and rosbag2 tools show 1970 for stamps from 0)
         rec = replace(rec, stamp0_ns=start_time_ns(args.start_time, args.input, float(rec.t[-1])))
         if target is not None:
-            write_bag(rec, target.prepare(create=False), storage=args.storage, rig_name=args.rig_name)
+            target.write(lambda folder: write_bag(rec, folder, storage=args.storage, rig_name=args.rig_name),
+                         create=False)
         if args.write_preset is not None:
             command = shlex.join(["csv_import", *(argv if argv is not None else sys.argv[1:])])
             write_preset_file(spec, args.write_preset, overwrite=args.overwrite, comment=(

@@ -78,7 +78,7 @@ from aeropend_ident.io.recording_input import (
     uniform_recording,
 )
 from aeropend_ident.progress import reporter
-from aeropend_sim.output_folder import claim_output_folder
+from aeropend_sim.output_folder import claim_output_folder, exits_cleanly_on_faults
 from aeropend_sim.params import RigFileError
 from aeropend_sim.recording import RecordingError
 
@@ -226,6 +226,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@exits_cleanly_on_faults("gap")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the gap diagnosis; print the summary; write the report folder."""
     args = build_parser().parse_args(argv)
@@ -314,7 +315,7 @@ def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
             scheduler=args.scheduler,
             tables=tables,
         )
-        paths = write_report(result, out.prepare())
+        paths = out.write(lambda folder: write_report(result, folder))
     except (RecordingError, RigFileError, ValueError) as exc:
         print(f"gap: error: {exc}", file=sys.stderr)
         return 2

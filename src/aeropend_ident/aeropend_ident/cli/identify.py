@@ -27,11 +27,12 @@ from aeropend_ident.io.recording_input import split_preset
 from aeropend_ident.progress import reporter
 from aeropend_ident.sindy.identify import LIBRARIES, METHODS, OUTPUT_FILES, identify
 from aeropend_sim.model import ModelError
-from aeropend_sim.output_folder import OutputFolderError, claim_output_folder
+from aeropend_sim.output_folder import OutputFolderError, claim_output_folder, exits_cleanly_on_faults
 from aeropend_sim.params import RigFileError, load_rig
 from aeropend_sim.recording import RecordingError
 
 
+@exits_cleanly_on_faults("identify")
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         prog="identify", description=__doc__.splitlines()[0]
@@ -76,10 +77,10 @@ def _run(args: argparse.Namespace, say: Callable[[str], None]) -> int:
         out = claim_output_folder(args.out, args.overwrite, own=OUTPUT_FILES, looks_like="identify results",
                                   option="-o", inputs=[split_preset(x)[0] for x in args.inputs])
         rig = load_rig(args.rig) if args.rig else None
-        summary = identify(args.inputs, out.prepare(), rig, args.method, args.library, args.namespace,
-                           preset=args.preset, train_fraction=args.train_fraction, thrust_map=args.thrust_map,
-                           plots=not args.no_plots, progress=say,
-                           threshold=args.threshold, output_error=args.output_error)
+        summary = out.write(lambda folder: identify(
+            args.inputs, folder, rig, args.method, args.library, args.namespace, preset=args.preset,
+            train_fraction=args.train_fraction, thrust_map=args.thrust_map, plots=not args.no_plots,
+            progress=say, threshold=args.threshold, output_error=args.output_error))
     except (BagError, RecordingError, IdentificationError, RigFileError, CsvImportError,
             RecordingInputError, OutputFolderError, ModelError) as exc:
         print(f"identify: error: {exc}", file=sys.stderr)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from aeropend_ident.errors import PipelineError
 from aeropend_ident.pipeline import DEFAULT_SIGNAL, OUTPUTS, analyse, check_recording, run_graph
-from aeropend_sim.output_folder import OutputFolderError, claim_output_folder
+from aeropend_sim.output_folder import OutputFolderError, claim_output_folder, exits_cleanly_on_faults
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+@exits_cleanly_on_faults("pipeline")
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:

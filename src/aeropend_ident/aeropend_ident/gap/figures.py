@@ -20,6 +20,7 @@ from aeropend_ident.gap.run import (
 from aeropend_ident.gap.where import WhereReport
 from aeropend_ident.io.overlay_axes import clip_to_recorded, fit_title
 from aeropend_ident.io.overlay_axes import short_number as num
+from aeropend_sim.output_folder import is_fault
 
 #: Most held-out recordings drawn in the overlay figure.
 MAX_OVERLAYS = 3
@@ -275,7 +276,9 @@ def figures(result: GapResult, not_drawn: dict[str, str] | None = None) -> dict[
             continue
         try:
             out[key] = make()
-        except Exception as exc:  # a figure never costs the report
+        except Exception as exc:  # a figure never costs the report (a full disk does)
+            if is_fault(exc):
+                raise
             not_drawn[key] = f"{type(exc).__name__}: {exc}"
             _plt().close("all")
     return out

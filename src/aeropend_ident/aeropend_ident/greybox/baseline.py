@@ -81,6 +81,7 @@ from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.overlay_axes import HOLD_RANGE_SHARE, diverges, short_number
 from aeropend_ident.io.recording_input import TimingRange, resampling_notes, timing_range
 from aeropend_sim.components import registry
+from aeropend_sim.output_folder import is_fault
 from aeropend_sim.params import Rig, RigFileError, load_rig, rig_to_dict
 from aeropend_sim.recording import Recording, RecordingError
 
@@ -869,7 +870,9 @@ def write_report(result: BaselineResult, outdir: str | Path) -> dict[str, Any]:
     paths: dict[str, Any] = {"fitted_rig": rig_path, "not_computed": {}}
     try:
         paths["overlay"] = plot_overlay(result, out / REPORT_FILES["overlay"])
-    except Exception as exc:  # a figure never costs the fitted parameters
+    except Exception as exc:  # a figure never costs the fitted parameters (a full disk does)
+        if is_fault(exc):
+            raise
         paths["not_computed"]["figure overlay"] = f"{type(exc).__name__}: {exc}"
     paths["report"] = out / REPORT_FILES["report"]
     doc = {**result.report(), "not_computed": paths["not_computed"]}

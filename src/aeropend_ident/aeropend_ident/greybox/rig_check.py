@@ -21,7 +21,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.fit import ParameterSpec
@@ -30,6 +29,7 @@ from aeropend_ident.greybox.rig_fit import blocks_of
 from aeropend_ident.greybox.rig_inputs import read_inputs
 from aeropend_ident.greybox.rig_problem import Problem, TimeBlock, covariance
 from aeropend_sim.components import registry
+from aeropend_sim.files.safe_yaml import load_yaml
 from aeropend_sim.params import Rig, load_rig
 from aeropend_sim.rigcmd.template import GEOMETRY_NEEDED, INERTIA, fittable
 
@@ -135,7 +135,7 @@ def check_rig(rig_path: str | Path, inputs: Sequence[str] = (), preset: str | No
     """
     path = Path(rig_path)
     rig = load_rig(path)
-    doc = yaml.safe_load(path.read_text(encoding="utf-8")) if path.suffix in (".yaml", ".yml") else {}
+    doc = load_yaml(path, "a rig file") if path.suffix in (".yaml", ".yml") else {}
     counts = {s: 0 for s in ("stated", "derived", "fitted", "to be fitted", "not modelled", "default")}
     for key in registry.family_params(rig.family):
         counts[rig.status(key)] = counts.get(rig.status(key), 0) + 1

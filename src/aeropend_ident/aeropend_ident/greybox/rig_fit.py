@@ -43,7 +43,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.decay import analyse_decay
@@ -65,6 +64,8 @@ from aeropend_ident.greybox.rig_problem import (
 )
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect
+from aeropend_sim.files.safe_yaml import parse_yaml
+from aeropend_sim.output_folder import write_file_atomically
 from aeropend_sim.params import FITTED, TO_BE_FITTED, Rig, load_rig, rig_from_dict
 from aeropend_sim.rigcmd.template import GEOMETRY_NEEDED, plausible_range
 
@@ -539,9 +540,9 @@ def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = No
     """
     say = progress or (lambda _m: None)
     path = Path(rig_path)
+    rig = load_rig(path)  # refuses an alias or an oversized file with the file's name
     text = path.read_text(encoding="utf-8")
-    doc = yaml.safe_load(text)
-    rig = load_rig(path)
+    doc = parse_yaml(text, str(path), "a rig file")
     todo = to_be_fitted(doc)
     sample_todo = str((doc.get("sample_period") or {}).get("source", "")).startswith(TO_BE_FITTED)
     if not todo:
@@ -779,10 +780,8 @@ def write_fitted(result: RigFitResult, path: str | Path) -> Path:
     """
     text = fitted_text(result)
     try:
-        rig_from_dict(yaml.safe_load(text), str(path))
+        rig_from_dict(parse_yaml(text, str(path), "a rig file"), str(path))
     except ValueError as exc:
         raise IdentificationError(f"rig fit: the fitted rig file would not load ({exc}); not "
                                   "written") from exc
-    p = Path(path)
-    p.write_text(text, encoding="utf-8")
-    return p
+    return write_file_atomically(path, text)

@@ -366,11 +366,13 @@ def _parse_qos(text: str) -> tuple[Any, ...]:
 def _parse_stored_metadata(text: str | None) -> dict[str, Any] | None:
     import yaml
 
+    from aeropend_sim.files.safe_yaml import parse_yaml
+
     if not text:
         return None
     try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError:
+        doc = parse_yaml(text, "the metadata stored in the bag", "a rosbag2 metadata record")
+    except (yaml.YAMLError, ValueError):  # unreadable stored metadata: recovered from the messages
         return None
     if isinstance(doc, dict) and "rosbag2_bagfile_information" in doc:
         doc = doc["rosbag2_bagfile_information"]

@@ -52,7 +52,7 @@ from aeropend_sim.contract import (
     TYPE_REFERENCE,
     Sample,
 )
-from aeropend_sim.output_folder import OutputFolder, OutputFolderError, claim_output_folder
+from aeropend_sim.output_folder import OutputFolder, OutputFolderError, claim_output_folder, is_fault
 from aeropend_sim.recording import MEASURED_CHANNELS, Recording
 
 from .mcap_jazzy import JazzyWriter
@@ -366,6 +366,8 @@ class BagSink:
         try:
             self._writer.open()
         except Exception as exc:
+            if is_fault(exc):  # a full disk, a read-only folder: the command's one-line fault report
+                raise
             raise BagError(f"bag '{self.path}': cannot create ({type(exc).__name__}: {exc})") from exc
         for key, value in (custom_data or {}).items():
             self._writer.set_custom_data(key, str(value))
@@ -385,6 +387,8 @@ class BagSink:
             self._conns[topic] = self._writer.add_connection(topic, msgtype, typestore=typestore(),
                                                              offered_qos_profiles=list(qos))
         except Exception as exc:
+            if is_fault(exc):
+                raise
             raise BagError(f"bag '{self.path}': cannot add topic {topic} of type {msgtype} "
                            f"({type(exc).__name__}: {exc})") from exc
         self.counts[topic] = 0

@@ -201,12 +201,14 @@ def bag_metadata(path: str | Path) -> dict[str, Any]:
     """
     import yaml
 
+    from aeropend_sim.files.safe_yaml import load_yaml
+
     path = Path(path)
     meta_file = path / METADATA_FILE
     try:
-        doc = yaml.safe_load(meta_file.read_text(encoding="utf-8"))
+        doc = load_yaml(meta_file, "a rosbag2 metadata.yaml")
         return dict(doc["rosbag2_bagfile_information"])
-    except (OSError, yaml.YAMLError, KeyError, TypeError) as exc:
+    except (OSError, ValueError, yaml.YAMLError, KeyError, TypeError) as exc:
         raise BagError(f"bag '{path}': cannot read {meta_file.name}: {exc}") from exc
 
 

@@ -111,6 +111,7 @@ from aeropend_ident.sindy.partial import (
 from aeropend_ident.sindy.preprocess import add_derivatives, differentiate
 from aeropend_ident.sindy.second_order import combine_models, fit_pendulum
 from aeropend_sim.model import PlantModel
+from aeropend_sim.output_folder import is_fault
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
@@ -281,7 +282,13 @@ def _train_tail(train: IdentData) -> IdentData:
 
 
 def _plot_child_work(out: Path, model: SindyModel, held: IdentData, tail: IdentData, conn: Any) -> None:
-    """In the plotting child: the free run over the training tail (sent back first), then the model plots."""
+    """In the plotting child: the free run over the training tail (sent back first), then the model plots.
+
+    Ctrl-C at a terminal reaches the child too: it ignores it (the command stops it and says so).
+    """
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     conn.send(free_run(model, tail, substeps=1))
     conn.close()
     _model_plots(out, model, held)
@@ -658,7 +665,9 @@ def identify(
         if plots:
             try:
                 files += _plots(out, model, parts[0][1], parts[0][0], held_runs[0], say, child)
-            except Exception as exc:  # the figures never cost the identified model
+            except Exception as exc:  # the figures never cost the identified model (a full disk does)
+                if is_fault(exc):
+                    raise
                 not_computed["plots"] = f"{type(exc).__name__}: {exc}"
                 say(f"plots: not drawn: {not_computed['plots']}")
     finally:

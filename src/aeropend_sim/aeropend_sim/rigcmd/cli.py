@@ -26,7 +26,13 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from aeropend_sim.components import registry
-from aeropend_sim.output_folder import OutputFolderError, check_output_file
+from aeropend_sim.output_folder import (
+    OutputFolderError,
+    check_output_file,
+    exits_cleanly_on_faults,
+    is_fault,
+    write_file_atomically,
+)
 from aeropend_sim.params import RigFileError, load_rig
 from aeropend_sim.rigcmd.template import new_rig_text, parse_stated
 
@@ -67,7 +73,7 @@ def _new(args: argparse.Namespace) -> int:
         raise RigFileError(f"-o {out}: a rig file ends in .yaml")
     stated = parse_stated(args.actuator, args.stated)
     text = new_rig_text(args.actuator, stated, name=args.name or out.stem, file=out.name)
-    out.write_text(text, encoding="utf-8")
+    write_file_atomically(out, text)
     rig = load_rig(out)
     todo = sum(rig.status(k) == "to be fitted" for k in registry.family_params(rig.family))
     print(f"wrote {out}: {args.actuator} rig, {len(stated)} stated value(s), {todo} parameter(s) to be "
@@ -80,6 +86,7 @@ def _fit(args: argparse.Namespace) -> int:
     out = check_output_file(args.out, args.overwrite)
     if out.resolve() == Path(args.rig).resolve() and not args.overwrite:
         raise RigFileError(f"-o {out} is the input rig file; choose another name")
+    load_rig(args.rig)  # a bad rig file fails at once, before the identification modules load
     from aeropend_ident.greybox.rig_fit import fit_rig, write_fitted
 
     say = None if args.quiet else (lambda m: print(f"rig fit: {m}", flush=True))
@@ -91,12 +98,14 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _check(args: argparse.Namespace) -> int:
+    load_rig(args.rig)  # a bad rig file fails at once, before the identification modules load
     from aeropend_ident.greybox.rig_check import check_rig
 
     print(check_rig(args.rig, args.inputs, preset=args.preset))
     return 0
 
 
+@exits_cleanly_on_faults("rig")
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``rig``; return the exit status."""
     args = build_parser().parse_args(argv)
@@ -107,6 +116,8 @@ def main(argv: Sequence[str] | None = None) -> int:
               "colcon build, or scripts/setup_env.sh)", file=sys.stderr)
         return 2
     except (ValueError, OutputFolderError, OSError) as exc:
+        if is_fault(exc):
+            raise
         print(f"rig {args.command}: error: {exc}", file=sys.stderr)
         return 2
 

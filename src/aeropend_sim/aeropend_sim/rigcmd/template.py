@@ -32,6 +32,7 @@ from collections.abc import Mapping, Sequence
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect, Param
 from aeropend_sim.components.pendulum.rod import G
+from aeropend_sim.files.safe_yaml import parse_yaml
 from aeropend_sim.params import TO_BE_FITTED, RigFileError, rig_from_dict
 from aeropend_sim.rigcmd.units import UnitError, convert
 
@@ -298,9 +299,7 @@ def new_rig_text(family: str, stated: Mapping[str, float], *, name: str = "my_ri
     lines += ["effects:", *switches] if switches else ["effects: {}"]
     text = "\n".join(lines) + "\n"
     try:
-        import yaml
-
-        rig_from_dict(yaml.safe_load(text), file)
+        rig_from_dict(parse_yaml(text, file, "a rig file"), file)
     except RigFileError as exc:  # pragma: no cover - a template that does not load is a bug here
         raise RigFileError(f"rig new wrote a file that does not load: {exc}") from exc
     return text

@@ -38,10 +38,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import yaml
 
 from aeropend_sim.contract import REL_DUTY_CYCLE, REL_JOINT_STATES, LockstepRepeats
 from aeropend_sim.excitation import SIGNALS, ExcitationError, ExcitationSignal, make_signal
+from aeropend_sim.files.safe_yaml import YamlRefusedError, parse_yaml
+from aeropend_sim.output_folder import exits_cleanly_on_faults
 from aeropend_sim.ros.node_usage import NodeParameter, NodeUsage, contract_topic, strip_ros_args
 
 NODE_NAME = "aeropend_excitation"
@@ -157,7 +158,8 @@ def ros_param_overrides(argv: list[str]) -> dict[str, Any]:
     Raises
     ------
     ExcitationError
-        On a ``-p`` item without ``:=``.
+        On a ``-p`` item without ``:=``, or a value holding a YAML alias
+        (:mod:`aeropend_sim.files.safe_yaml`).
     """
     out: dict[str, Any] = {}
     in_ros = False
@@ -172,7 +174,10 @@ def ros_param_overrides(argv: list[str]) -> dict[str, Any]:
             name, sep, value = item.partition(":=")
             if not sep:
                 raise ExcitationError(f"parameter {item!r} is not of the form name:=value")
-            out[name] = yaml.safe_load(value)
+            try:
+                out[name] = parse_yaml(value, f"parameter {name}", "a parameter value")
+            except YamlRefusedError as exc:
+                raise ExcitationError(str(exc)) from None
     return out
 
 
@@ -412,6 +417,7 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
                     interrupt_status=1)
 
 
+@exits_cleanly_on_faults("excitation")
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``excitation``; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)

@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterable
 from typing import Any, TypeVar
 
 import rclpy
+import yaml
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
@@ -26,6 +27,7 @@ from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.signals import SignalHandlerOptions
 
+from aeropend_sim.files.safe_yaml import YamlRefusedError, load_yaml
 from aeropend_sim.ros.node_usage import NodeParameter, NodeUsage, strip_ros_args
 
 N = TypeVar("N", bound=Node)
@@ -146,6 +148,36 @@ def _single_threaded(node: Node) -> Executor:
     return SingleThreadedExecutor()
 
 
+def refused_params_file(argv: Iterable[str]) -> str | None:
+    """Why a ``--params-file`` of ``argv`` must not reach rclpy (None: every one may).
+
+    Each parameters file named after ``--params-file`` goes through the project's YAML loader
+    (:mod:`aeropend_sim.files.safe_yaml`) before ``rclpy.init``: an alias (a "billion laughs"
+    file) or a file above the size limit is refused at once, with the file's name. A file that is
+    missing or not valid YAML is left to rclpy, which reports it as before.
+
+    Parameters
+    ----------
+    argv : iterable of str
+        The process arguments (ROS arguments included).
+
+    Returns
+    -------
+    str or None
+        The refusal (names the file, the line of the alias and what was expected).
+    """
+    tokens = list(argv)
+    for k, tok in enumerate(tokens[:-1]):
+        if tok == "--params-file":
+            try:
+                load_yaml(tokens[k + 1], "a ROS 2 parameters file")
+            except YamlRefusedError as exc:
+                return str(exc)
+            except (OSError, ValueError, yaml.YAMLError):  # rclpy's own message follows
+                continue
+    return None
+
+
 def run_node(
     name: str,
     args: list[str] | None,
@@ -221,8 +253,8 @@ def run_node(
     -------
     int
         Process exit status: ``exit_status(node)`` or the ``body``'s, 2 on an invalid parameter
-        or argument, 1 on a start or run error, ``interrupt_status`` when interrupted, 0 after
-        ``--help``.
+        or argument or a refused parameters file (:func:`refused_params_file`), 1 on a start or run
+        error, ``interrupt_status`` when interrupted, 0 after ``--help``.
     """
     if usage is not None:
         argv = list(sys.argv if args is None else args)
@@ -235,6 +267,9 @@ def run_node(
                              f"--ros-args, e.g. --ros-args -p {example}:=VALUE; see {usage.command} --help)")
         except SystemExit as exc:  # --help printed (0) or an unknown argument reported (2)
             return int(exc.code or 0)
+    if (refused := refused_params_file(sys.argv if args is None else args)) is not None:
+        print(f"{name}: error: {refused}", file=sys.stderr)
+        return 2
     if rclpy_signals:
         rclpy.init(args=args)
         stop = threading.Event()

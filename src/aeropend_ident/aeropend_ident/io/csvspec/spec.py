@@ -25,6 +25,8 @@ import yaml
 from aeropend_ident.errors import CsvImportError
 from aeropend_ident.io.csvspec.input_kinds import INPUT_KINDS, LAWS, InputMap, input_map
 from aeropend_sim.contract import EXTRA_CHANNELS, REFERENCE_CHANNEL, ContractError, check_extra_channel
+from aeropend_sim.files.safe_yaml import YamlRefusedError, load_yaml, parse_yaml
+from aeropend_sim.output_folder import is_fault, write_file_atomically
 from aeropend_sim.recording import MEASURED_CHANNELS
 
 __all__ = [
@@ -403,17 +405,19 @@ def load_preset_file(path: str | Path) -> CsvSpec:
     Raises
     ------
     CsvImportError
-        Missing or unreadable file, invalid YAML (with its line) or an invalid preset
-        (:func:`spec_from_mapping`).
+        Missing or unreadable file, invalid YAML (with its line), a YAML alias or a file above the
+        size limit (:mod:`aeropend_sim.files.safe_yaml`) or an invalid preset (:func:`spec_from_mapping`).
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        data = load_yaml(path, "a CSV preset")
     except OSError as exc:
         raise CsvImportError(f"preset file {path}: cannot read ({exc.strerror or exc}); expected a YAML "
                              "file with the keys of docs/csv_import.md") from None
-    try:
-        data = yaml.safe_load(text)
+    except (YamlRefusedError, UnicodeDecodeError) as exc:
+        raise CsvImportError(f"preset file {exc}" if isinstance(exc, YamlRefusedError) else
+                             f"preset file {path}: not UTF-8 text ({exc.reason}); expected a YAML file with "
+                             "the keys of docs/csv_import.md") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else ""
@@ -454,8 +458,10 @@ def write_preset_file(spec: CsvSpec, path: str | Path, overwrite: bool = False,
     head = "".join(f"# {line}\n" for line in comment.splitlines())
     text = head + yaml.safe_dump(data, sort_keys=False, allow_unicode=True, width=100)
     try:
-        path.write_text(text, encoding="utf-8")
+        write_file_atomically(path, text)
     except OSError as exc:
+        if is_fault(exc):  # a full disk, a read-only folder: the command's one-line fault report
+            raise
         raise CsvImportError(f"preset file {path}: cannot write ({exc.strerror or exc})") from None
     return path
 
@@ -485,7 +491,7 @@ def load_presets() -> dict[str, CsvSpec]:
     for entry in sorted(folder.iterdir(), key=lambda e: e.name):
         if not entry.name.endswith(".yaml"):
             continue
-        data = yaml.safe_load(entry.read_text(encoding="utf-8"))
+        data = parse_yaml(entry.read_text(encoding="utf-8"), f"preset file {entry.name}", "a CSV preset")
         stem = entry.name[: -len(".yaml")]
         if not isinstance(data, dict) or data.get("name") != stem:
             raise CsvImportError(f"preset file {entry.name}: expected a mapping whose name is the file name")
