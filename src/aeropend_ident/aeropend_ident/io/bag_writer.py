@@ -254,6 +254,115 @@ def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_n
     return path
 
 
+class BagStream:
+    """A contract bag written block by block (memory: one block), as :func:`write_bag` writes it.
+
+    Each :meth:`write` takes the next samples (time from the first, duty, contract channels);
+    the wire convention (duty and v_a shifted forward one sample) runs across the blocks. Extra
+    channels are not written (:func:`write_bag` takes those). MCAP storage gets whole chunks
+    built with NumPy (:meth:`~aeropend_ident.io.mcap_jazzy.JazzyWriter.write_rows`).
+
+    Parameters
+    ----------
+    path : Path
+        Bag folder to create (absent or empty).
+    storage : {"mcap", "sqlite3"}
+        rosbag2 storage plugin.
+    stamp0_ns : int
+        Absolute stamp of ``t = 0`` [ns].
+    frame_id : str
+        ``header.frame_id`` of the sample messages.
+
+    Raises
+    ------
+    BagError
+        Unknown storage; the bag cannot be created.
+    """
+
+    def __init__(self, path: Path, storage: Storage = "mcap", stamp0_ns: int = 0,
+                 frame_id: str = "aeropend") -> None:
+        if storage not in _STORAGE_PLUGINS:
+            raise BagError(f"bag '{path}': unknown storage {storage!r}; "
+                           f"expected one of {sorted(_STORAGE_PLUGINS)}")
+        self.path, self.stamp0_ns, self.frame_id = Path(path), int(stamp0_ns), frame_id
+        self._writer = JazzyWriter(self.path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
+        self._writer.open()
+        ts = typestore()
+        qos = qos_for_topic(TOPIC_JOINT_STATES, False)
+        self._conns = [self._writer.add_connection(TOPIC_JOINT_STATES, TYPE_JOINT_STATES, typestore=ts,
+                                                   offered_qos_profiles=[qos]),
+                       self._writer.add_connection(TOPIC_ARMATURE, TYPE_ARMATURE, typestore=ts,
+                                                   offered_qos_profiles=[qos]),
+                       self._writer.add_connection(TOPIC_DUTY_CYCLE, TYPE_DUTY_CYCLE, typestore=ts,
+                                                   offered_qos_profiles=[COMMAND_QOS])]
+        self._last = (np.nan, np.nan, -1)  # duty, v_a, stamp of the previous sample
+        self.samples = self.commands = 0
+
+    def write(self, t: np.ndarray, duty: np.ndarray, channels: dict[str, np.ndarray]) -> None:
+        """Append samples: ``t`` [s] from the bag's ``t = 0``, shape (n,); ``duty`` in [0, 1]
+        (NaN: no command sent); ``channels`` the contract channels present (SI).
+
+        Raises
+        ------
+        BagError
+            Stamps not strictly increasing after rounding to nanoseconds.
+        """
+        n = len(t)
+        if not n:
+            return
+        stamps = self.stamp0_ns + np.round(np.asarray(t) * 1e9).astype(np.int64)
+        d = np.diff(np.concatenate(([self._last[2]], stamps)))
+        if np.any(d <= 0):
+            k = int(np.flatnonzero(d <= 0)[0])
+            raise BagError(f"bag '{self.path}': stamps not strictly increasing at sample {self.samples + k} "
+                           "after rounding to ns")
+        nan = np.full(n, np.nan)
+        ch = {name: channels.get(name, nan) for name in MEASURED_CHANNELS}
+        effort = np.concatenate(([self._last[0]], duty[:-1]))
+        v_wire = np.concatenate(([self._last[1]], ch["v_a"][:-1]))
+        self._last = (float(duty[-1]), float(ch["v_a"][-1]), int(stamps[-1]))
+        velocity = np.column_stack([ch["theta_dot"], ch["omega_rotor"], ch["omega_prop"]])
+        js = encode_joint_states(stamps, position=np.column_stack([ch["theta"], nan, nan]), velocity=velocity,
+                                 effort=np.column_stack([nan, effort, nan]), frame_id=self.frame_id,
+                                 array=True)
+        arm = encode_armature(stamps, v_wire, ch["i_a"], frame_id=self.frame_id, array=True)
+        sent = np.isfinite(duty)
+        if sent.all():
+            self._writer.write_rows(self._conns, stamps, [js, arm, encode_float64(duty, array=True)])
+        else:
+            self._writer.write_rows(self._conns[:2], stamps, [js, arm])
+            self._writer.write_rows(self._conns[2:], stamps[sent], [encode_float64(duty[sent], array=True)])
+        self.samples += n
+        self.commands += int(sent.sum())
+
+    def close(self, meta: dict[str, Any], source: str, rig_name: str | None = None) -> Path:
+        """Store ``meta`` (JSON in ``custom_data``), the source and rig name; finish the bag."""
+        meta = dict(meta)
+        if rig_name is not None:
+            self._writer.set_custom_data(_CUSTOM_RIG, str(rig_name))
+            meta["rig_name"] = rig_name
+        self._writer.set_custom_data(_CUSTOM_SOURCE, str(source))
+        self._writer.set_custom_data(_CUSTOM_META, json.dumps(meta, default=_json_default))
+        self._writer.close()
+        return self.path
+
+    def abort(self) -> None:
+        """Close the file and remove the bag folder (nothing partial is left)."""
+        import shutil
+
+        storage = getattr(self._writer, "storage", None)
+        try:
+            if storage is not None:
+                bio = getattr(storage, "bio", None)
+                if bio is not None:
+                    bio.close()
+                db = getattr(storage, "conn", None)
+                if db is not None:
+                    db.close()
+        finally:
+            shutil.rmtree(self.path, ignore_errors=True)
+
+
 class _ExtraTopics:
     """The extra channels' topics of a bag being written: the reference (``std_msgs/Float64``, its
     finite values) and the labelled ``Float64MultiArray`` of the other channels, one per sample."""
