@@ -23,7 +23,7 @@ from aeropend_ident.io.csvread.table import Format, Table, column, row_problems
 
 #: (column index, label, required) of each used column.
 Used = Sequence[tuple[int, str, bool]]
-_BLANK = re.compile(rb"(?:^|\n)[ \t\r]*(?:\n|$)")
+_BLANK = re.compile(rb"(?:\A|\n)[ \t\r]*\n")
 
 
 @dataclass
@@ -146,8 +146,9 @@ def read_block(block: Block, fmt: Format, used: Used, comment: str | None, skip:
         last_text = body.rsplit(b"\n", 1)[-1].decode("utf-8").rstrip("\r")
     if n_lines <= 0 or not body:
         return Part({i: np.empty(0) for i, _, _ in used}, np.empty(0, dtype=np.int64), {}, comments, blanks)
-    clean = not block.odd_breaks and _BLANK.search(body) is None and \
-        not (comment and re.search(rb"(?:^|\n)[ \t]*" + re.escape(comment.encode()), body))
+    # a blank line is a row of one field to pyarrow (refused) unless the log has one column
+    clean = not block.odd_breaks and (fmt.ncols > 1 or _BLANK.search(body) is None) and \
+        not (comment and comment.encode() in body)
     if clean:
         values = _arrow_values(body, n_lines, fmt, used)
         if values is not None:
