@@ -26,6 +26,7 @@ licence notes in each preset's ``meta``); a lab's own preset is a YAML file of t
 from __future__ import annotations
 
 import math
+import shutil
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -421,6 +422,7 @@ def stream_csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, st
         raise CsvImportError(f"{path}: a spec with a reference or extra channels is imported whole "
                              "(csv_to_bag), not streamed")
     path, out = Path(path), Path(out)
+    existed = out.exists()
     reader = CsvReader(path, spec, bad_rows, progress=progress)
     conv = Converter(reader)
     bag: BagStream | None = None
@@ -457,6 +459,8 @@ def stream_csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, st
     except BaseException:
         if bag is not None:
             bag.abort()
+        elif not existed and out.exists():  # interrupted while the bag was being created
+            shutil.rmtree(out, ignore_errors=True)
         raise
     channels = {k: np.asarray(v) for k, v in ranges.items() if k != "duty"}
     return CsvBag(str(path), np.array([0.0, float(t[-1])]), float(meta["dt_median_s"]),
