@@ -7,6 +7,7 @@ The wire convention (duty and v_a shifted forward one sample) and the precision 
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -55,7 +56,7 @@ from aeropend_sim.contract import (
 from aeropend_sim.output_folder import OutputFolder, OutputFolderError, claim_output_folder
 from aeropend_sim.recording import MEASURED_CHANNELS, Recording
 
-from .mcap_jazzy import JazzyWriter
+from .mcap_jazzy import JazzyMcapWriter, JazzyWriter
 
 #: What a rosbag2 bag folder holds at its top level (:func:`claim_bag_folder`: an existing folder is
 #: replaced only if it holds one of these).
@@ -454,6 +455,11 @@ class BagSink:
         Storage plugin.
     custom_data : dict of str, optional
         ``custom_data`` entries of ``metadata.yaml``.
+    flush_interval_s : float
+        Longest time [s] a written message stays only in memory: :meth:`write` and
+        :meth:`flush_if_due` then close the MCAP chunk (commit the SQLite transaction) and
+        ``fsync`` the file, so a recorder killed (or a power cut) loses at most this much.
+        0: only on :meth:`close`.
 
     Raises
     ------
@@ -462,7 +468,7 @@ class BagSink:
     """
 
     def __init__(self, path: str | Path, storage: Storage = "mcap",
-                 custom_data: dict[str, str] | None = None) -> None:
+                 custom_data: dict[str, str] | None = None, flush_interval_s: float = 0.0) -> None:
         self.path = Path(path)
         if storage not in _STORAGE_PLUGINS:
             raise BagError(f"bag '{self.path}': unknown storage {storage!r}; "
@@ -481,6 +487,10 @@ class BagSink:
         self._conns: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
         self.closed = False
+        self.flush_interval_ns = round(float(flush_interval_s) * 1e9)
+        self._flushed_ns = time.monotonic_ns()
+        self.flushes = 0
+        self._dirty = False  # messages written since the last flush
 
     def has_topic(self, topic: str) -> bool:
         """Whether ``topic`` is registered."""
@@ -499,9 +509,31 @@ class BagSink:
         self.counts[topic] = 0
 
     def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
-        """Append one serialised message with log time ``timestamp_ns``."""
+        """Append one serialised message with log time ``timestamp_ns`` (then :meth:`flush_if_due`)."""
         self._writer.write(self._conns[topic], int(timestamp_ns), data)
         self.counts[topic] += 1
+        self._dirty = True
+        self.flush_if_due()
+
+    def flush_if_due(self) -> None:
+        """:meth:`flush` when ``flush_interval_s`` has passed since the last one."""
+        if self.flush_interval_ns and not self.closed and \
+                time.monotonic_ns() - self._flushed_ns >= self.flush_interval_ns:
+            self.flush()
+
+    def flush(self) -> None:
+        """Put everything written so far on disk: the MCAP chunk closed (the SQLite transaction
+        committed) and the file ``fsync``-ed."""
+        storage = self._writer.storage
+        self._flushed_ns = time.monotonic_ns()
+        if storage is None or self.closed or not self._dirty:
+            return
+        self._dirty = False
+        if isinstance(storage, JazzyMcapWriter):
+            storage.flush()
+        else:
+            storage.conn.commit()
+        self.flushes += 1
 
     def close(self) -> None:
         """Finish the bag (writes ``metadata.yaml``); safe to call twice."""

@@ -12,6 +12,8 @@ the channel and ``metadata.yaml`` always agree.
 
 from __future__ import annotations
 
+import os
+import zlib
 from collections import defaultdict
 from collections.abc import Sequence
 from io import BytesIO
@@ -120,14 +122,32 @@ class JazzyMcapWriter(McapWriter):
 
     def _write_chunk(self, pre: bytes, body: bytes, ids: Sequence[int], ts: np.ndarray, row_size: int,
                      rec_offsets: Sequence[int]) -> None:
-        """One chunk of :meth:`write_rows` with its message indexes and chunk index."""
-        data = pre + body
-        start, end = int(ts[0]), int(ts[-1])
+        """One chunk of :meth:`write_rows` (records after ``pre``, ``row_size`` bytes per sample)."""
+        base = len(pre) + np.arange(len(ts), dtype=np.uint64) * np.uint64(row_size)
+        index = {}
+        for cid, off in zip(ids, rec_offsets, strict=True):
+            pairs = np.empty((len(ts), 2), dtype="<u8")
+            pairs[:, 0] = ts
+            pairs[:, 1] = base + np.uint64(off)
+            index[cid] = pairs
+        self._emit_chunk(pre + body, int(ts[0]), int(ts[-1]), index)
+
+    def close_chunk(self) -> None:
+        """Write the pending chunk (as rosbags does, plus the CRC-32 of its records)."""
+        index = {cid: np.asarray(msgs, dtype="<u8").reshape(-1, 2) for cid, msgs in self.chunk.msgs.items()}
+        self._emit_chunk(self.chunk.bio.getvalue(), self.chunk.message_start_time,
+                         self.chunk.message_end_time, index)
+        self.chunk = PendingChunk(2**63 - 1, 0, BytesIO(), defaultdict(list))
+
+    def _emit_chunk(self, data: bytes, start: int, end: int, index: dict[int, np.ndarray]) -> None:
+        """A chunk record holding ``data`` (its records; CRC-32 stored so a reader can tell a
+        corrupt chunk), its message index records (``index``: channel -> (log time, offset) rows)
+        and its chunk index for the summary."""
         rec = BytesIO()
         write_uint64(rec, start)
         write_uint64(rec, end)
         write_uint64(rec, len(data))
-        write_uint32(rec, 0)
+        write_uint32(rec, zlib.crc32(data))
         compressed = self.compressor(data)
         write_string(rec, self.compression)
         write_uint64(rec, len(compressed))
@@ -136,12 +156,8 @@ class JazzyMcapWriter(McapWriter):
         write_record(self.bio, 0x06, rec)
         chunk_end = self.bio.tell()
         offsets: list[tuple[int, int]] = []
-        base = len(pre) + np.arange(len(ts), dtype=np.uint64) * np.uint64(row_size)
-        for cid, off in zip(ids, rec_offsets, strict=True):
+        for cid, pairs in index.items():
             offsets.append((cid, self.bio.tell()))
-            pairs = np.empty((len(ts), 2), dtype="<u8")
-            pairs[:, 0] = ts
-            pairs[:, 1] = base + np.uint64(off)
             rec = BytesIO()
             write_uint16(rec, cid)
             write_uint32(rec, pairs.nbytes)
@@ -161,6 +177,14 @@ class JazzyMcapWriter(McapWriter):
         write_uint64(rec, len(compressed))
         write_uint64(rec, len(data))
         self.chunks.append(rec)
+
+    def flush(self) -> None:
+        """Close the pending chunk if it holds messages and push the file to disk (``fsync``): what
+        was written so far survives the process being killed or the power going."""
+        if self.chunk.msgs:
+            self.close_chunk()
+        self.bio.flush()
+        os.fsync(self.bio.fileno())
 
 
 class JazzyWriter(Writer):

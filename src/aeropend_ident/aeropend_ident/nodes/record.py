@@ -80,6 +80,9 @@ PARAMETERS: tuple[NodeParameter, ...] = (
                   "subscription queue depth: the contract QoS policies with this deeper keep-last queue "
                   "(depth does not affect matching; at 490 Hz the contract's 5 would drop samples whenever "
                   "the recorder stalls for 10 ms)"),
+    NodeParameter("flush_interval", "float", 0.5, "s",
+                  "longest time a received message stays only in memory: the chunk is then closed and the "
+                  "file fsync-ed, so a recorder killed (or a power cut) loses at most this much; > 0"),
     NodeParameter("reliable", "bool", False, "",
                   "subscribe to the sample topics with the lock-step QoS (reliable, keep all) instead of "
                   "best effort: for lock-step runs, whose plant publishes that way (nothing lost, a lagging "
@@ -131,11 +134,17 @@ class RecorderNode(Node):
         self.max_samples = int(p["max_samples"])
         self.queue_depth = int(p["queue_depth"])
         self.reliable = bool(p["reliable"])
+        self.flush_interval = float(p["flush_interval"])
         if self.duration < 0 or self.max_samples < 0:
             raise ValueError(f"duration {self.duration} s and max_samples {self.max_samples} must be >= 0")
+        if not self.flush_interval > 0:
+            raise ValueError(f"flush_interval {self.flush_interval} s must be > 0")
         claim_bag_folder(output, bool(p["overwrite"]), option="-o", flag="--overwrite").prepare(create=False)
         self.sink = BagSink(output, storage=self.storage,  # type: ignore[arg-type]
-                            custom_data={"aeropend.recorder": NODE_NAME})
+                            custom_data={"aeropend.recorder": NODE_NAME},
+                            flush_interval_s=self.flush_interval)
+        # messages may stop arriving: the timer flushes what the last ones left in memory
+        self.create_timer(min(0.1, self.flush_interval / 4), self.sink.flush_if_due)
         self.done = False
         self.stop_reason = ""
         self.samples = 0
@@ -251,6 +260,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="seconds to record (0 = until Ctrl-C)")
     p.add_argument("--max-samples", type=int, help="stop after N joint_states messages")
     p.add_argument("--use-sim-time", action="store_true", help="use /clock time for stamps and duration")
+    p.add_argument("--flush-interval", type=float, metavar="S",
+                   help="put what was received on disk at least every S seconds (default 0.5): a killed "
+                        "recorder loses at most that much")
     p.add_argument("--reliable", action="store_true",
                    help="reliable sample and /clock subscriptions (lock-step runs: nothing lost)")
     return p
@@ -277,6 +289,8 @@ def _overrides(args: argparse.Namespace) -> list[Parameter]:
         out.append(Parameter("use_sim_time", value=True))
     if args.reliable:
         out.append(Parameter("reliable", value=True))
+    if args.flush_interval is not None:
+        out.append(Parameter("flush_interval", value=float(args.flush_interval)))
     return out
 
 
