@@ -492,6 +492,10 @@ class BagSink:
         self.flushes = 0
         self._dirty = False  # messages written since the last flush
 
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Set a ``custom_data`` entry of ``metadata.yaml`` (written on :meth:`close`)."""
+        self._writer.set_custom_data(key, str(value))
+
     def has_topic(self, topic: str) -> bool:
         """Whether ``topic`` is registered."""
         return topic in self._conns

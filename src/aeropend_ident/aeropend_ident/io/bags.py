@@ -59,7 +59,7 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import StoragePlugin
 
-from aeropend_ident.errors import BagError, BagTruncatedWarning
+from aeropend_ident.errors import BagError, BagLossWarning, BagTruncatedWarning
 from aeropend_ident.io.bag_codec import (
     decode_armature,
     decode_float64,
@@ -76,6 +76,7 @@ from aeropend_ident.io.bag_recover import (
     storage_files,
     stored_metadata,
 )
+from aeropend_ident.io.integrity.loss import loss_warning, stored_loss
 from aeropend_sim.contract import (
     CLOCK_QOS_DEPTH,
     COMMAND_QOS_DEPTH,
@@ -596,11 +597,40 @@ def read_bag(path: str | Path, *, namespace: str = "",
         "held_tail": held,
         "cdr_fallback_messages": js.fallback + (arm.fallback if arm else 0) + (cmd.fallback if cmd else 0),
     })
+    _check_loss(path, reader.custom_data, stamps, js_log, t_js, meta)
     try:
         return Recording(t=(stamps - stamps[0]) / 1e9, duty=duty, channels=channels, source=str(path),
                          stamp0_ns=int(stamps[0]), meta=meta, extra=extra, extra_units=units)
     except RecordingError as exc:  # pragma: no cover - stamps are checked above
         raise BagError(f"bag '{path}': {exc}") from exc
+
+
+def _check_loss(path: Path, custom: dict[str, Any], stamps: np.ndarray, js_log: np.ndarray, t_js: str,
+                meta: dict[str, Any]) -> None:
+    """``meta["loss"]``: the loss ``record`` counted (:mod:`aeropend_ident.io.integrity.loss`), or for a
+    recorded bag without that count (killed then reindexed, another recorder; not a bag written
+    from a recording or a CSV log) the samples missing between the joint_states stamps; a
+    :class:`~aeropend_ident.errors.BagLossWarning` above the threshold."""
+    loss = stored_loss(custom)
+    if loss is None and _CUSTOM_META not in custom and len(stamps) > 2:  # a recording, not an import
+        step = np.diff(stamps)
+        period = float(np.median(step))
+        n_lost = np.where(step > 1.5 * period, np.round(step / period) - 1, 0).astype(np.int64)
+        at = np.flatnonzero(n_lost)
+        lost = int(n_lost.sum())
+        base = int(js_log[0])
+        loss = {t_js: {"received": len(stamps), "lost": lost, "expected": len(stamps) + lost,
+                       "fraction": lost / (len(stamps) + lost), "method": "stamps", "period_s": period / 1e9,
+                       "gaps": int(at.size),
+                       "first_gaps": [[round((int(js_log[k]) - base) / 1e9, 4),
+                                       round((int(js_log[k + 1]) - base) / 1e9, 4), int(n_lost[k])]
+                                      for k in at[:20]]}}
+    if loss is None:
+        return
+    meta["loss"] = loss
+    text = loss_warning(f"bag '{path}'", loss)
+    if text is not None:
+        warnings.warn(text, BagLossWarning, stacklevel=3)
 
 
 def _stored_meta(custom: dict[str, Any]) -> dict[str, Any]:

@@ -26,6 +26,7 @@ SIGINT, SIGTERM, duration or sample limit.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import threading
 import time
@@ -43,6 +44,7 @@ from rosbags.interfaces import Qos
 from aeropend_ident.errors import BagError
 from aeropend_ident.io.bag_writer import BagSink, claim_bag_folder
 from aeropend_ident.io.bags import qos_for_topic
+from aeropend_ident.io.integrity.loss import LOSS_KEY, LossCounter, loss_text
 from aeropend_ident.nodes.qos import contract_qos, message_class, qos_from_rclpy
 from aeropend_sim.contract import (
     CONTRACT_TOPICS,
@@ -52,7 +54,9 @@ from aeropend_sim.contract import (
     TOPIC_CLOCK,
     TOPIC_DUTY_CYCLE,
     TOPIC_JOINT_STATES,
+    TYPE_ARMATURE,
     TYPE_CLOCK,
+    TYPE_JOINT_STATES,
     namespaced,
 )
 from aeropend_sim.ros import ros_contract
@@ -151,6 +155,8 @@ class RecorderNode(Node):
         self.last_message_ns = time.monotonic_ns()
         self._types: dict[str, str] = {}
         self._subs: dict[str, Any] = {}
+        # what each topic should have carried: publisher sequence numbers, header stamps
+        self.loss = LossCounter(stamped=lambda t: self._types.get(t) in (TYPE_JOINT_STATES, TYPE_ARMATURE))
         self._subscribe_known()
         self._discovery = None
         if len(self._subs) < len(self.topics):
@@ -181,7 +187,8 @@ class RecorderNode(Node):
                              reliability=base.reliability, durability=base.durability)
         self._types[topic] = msgtype
         self._subs[topic] = self.create_subscription(
-            message_class(msgtype), topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+            message_class(msgtype), topic, lambda data, info, t=topic: self._on_message(t, data, info), qos,
+            raw=True)
 
     def _subscribe_known(self) -> None:
         for topic in self.topics:
@@ -216,7 +223,7 @@ class RecorderNode(Node):
                 found.append(q)
         return found or [qos_for_topic(topic)]
 
-    def _on_message(self, topic: str, data: bytes) -> None:
+    def _on_message(self, topic: str, data: bytes, info: Any = None) -> None:
         self.last_message_ns = time.monotonic_ns()
         if self.done:
             return
@@ -224,6 +231,10 @@ class RecorderNode(Node):
         if not self.sink.has_topic(topic):
             self.sink.add_topic(topic, self._types[topic], self._offered_qos(topic))
         self.sink.write(topic, stamp, data)
+        info = info or {}
+        gid = info.get("publisher_gid")
+        gid = bytes(gid.get("data", b"")) if isinstance(gid, dict) else bytes(gid or b"")
+        self.loss.add(topic, stamp, data, info.get("publication_sequence_number"), gid)
         if topic.endswith(TOPIC_JOINT_STATES):
             self.samples += 1
             if self.max_samples and self.samples >= self.max_samples:
@@ -244,6 +255,7 @@ class RecorderNode(Node):
             for topic, msgtype in self._types.items():
                 if not self.sink.has_topic(topic):
                     self.sink.add_topic(topic, msgtype, [qos_for_topic(topic)])
+            self.sink.set_custom_data(LOSS_KEY, json.dumps(self.loss.report()))
             self.sink.close()
         return dict(self.sink.counts)
 
@@ -319,6 +331,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         reason = node.stop_reason or "interrupted"
         print(f"record: {reason}; wrote {node.sink.path} ({node.storage}): "
               + ", ".join(f"{t} {n}" for t, n in counts.items()), flush=True)
+        report = node.loss.report()
+        if report:
+            print(f"record: loss: {loss_text(report)}", flush=True)
 
     return run_node(NODE_NAME, argv, lambda: RecorderNode(parameter_overrides=_overrides(args)),
                     cleanup=close, body=run, fail_errors=(BagError, ValueError),
