@@ -47,7 +47,8 @@ class _Topic:
     seq_lost: int = 0
     seq_seen: bool = False
     last_seq: dict[bytes, int] = field(default_factory=dict)
-    stamps_head: list[int] = field(default_factory=list)
+    # (step, log before, log, a gap already listed) until the period is known
+    stamps_head: list[tuple[int, int, int, bool]] = field(default_factory=list)
     period_ns: float | None = None
     last_stamp: int | None = None
     stamp_lost: int = 0
@@ -91,7 +92,7 @@ class LossCounter:
         if self._stamped(topic):
             stamp = header_stamp_ns(data)
             if stamp is not None:
-                lost = max(lost, self._stamp(t, stamp))
+                lost = max(lost, self._stamp(t, stamp, log_ns, lost > 0))
         if lost and t.last_log is not None:
             t.n_gaps += 1
             if len(t.gaps) < SHOWN_GAPS:
@@ -99,15 +100,24 @@ class LossCounter:
         t.last_log = log_ns
 
     @staticmethod
-    def _stamp(t: _Topic, stamp: int) -> int:
+    def _stamp(t: _Topic, stamp: int, log_ns: int, seq_gap: bool) -> int:
         lost = 0
         if t.last_stamp is not None and stamp > t.last_stamp:
             step = stamp - t.last_stamp
             if t.period_ns is None:
-                t.stamps_head.append(step)
+                t.stamps_head.append((step, t.last_log or log_ns, log_ns, seq_gap))
                 if len(t.stamps_head) >= PERIOD_SAMPLES:  # the period known: count the first steps too
-                    t.period_ns = p = float(sorted(t.stamps_head)[len(t.stamps_head) // 2])
-                    t.stamp_lost += sum(round(s / p) - 1 for s in t.stamps_head if s > 1.5 * p)
+                    p = float(sorted(h[0] for h in t.stamps_head)[len(t.stamps_head) // 2])
+                    t.period_ns = p
+                    for s, a, b, listed in t.stamps_head:
+                        if s > 1.5 * p:
+                            t.stamp_lost += round(s / p) - 1
+                            if not listed:  # a gap the sequence numbers did not show
+                                t.n_gaps += 1
+                                if len(t.gaps) < SHOWN_GAPS:
+                                    t.gaps.append((a, b, round(s / p) - 1))
+                    t.gaps.sort()
+                    t.stamps_head = []
             elif step > 1.5 * t.period_ns:
                 lost = round(step / t.period_ns) - 1
                 t.stamp_lost += lost

@@ -1,4 +1,5 @@
-"""Crash-safe recording (issue 62 item 1): ``record`` SIGKILLed at 20 points loses at most 1 s.
+"""Recording under faults (issue 62 items 1-2): ``record`` SIGKILLed at 20 points loses at most 1 s;
+the loss ``record`` counts equals the loss found in the bag.
 
 One publisher process sends ``joint_states`` at 50 Hz (stamped with the wall clock) on a private
 ROS domain; 20 recorders start together and each is killed with SIGKILL at its own time, 0.4 to
@@ -10,6 +11,7 @@ no gap inside. One more recorder uses SQLite3 storage (its transaction committed
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -20,7 +22,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from aeropend_ident.errors import BagLossWarning
 from aeropend_ident.io.bag_recover import reindex, scan_storage
+from aeropend_ident.io.bags import bag_metadata, read_bag
+from aeropend_ident.io.integrity.loss import LOSS_KEY
 from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap
 
 pytest.importorskip("rclpy")
@@ -30,25 +35,34 @@ RECORD = node_command("record", "aeropend_ident.nodes.record")
 #: SIGKILL times after each recorder's first flush [s]: 20 MCAP kill points, then one SQLite3.
 KILL_AFTER = [0.4 + 0.4 * k for k in range(20)]
 RATE_HZ = 50.0
-PUBLISHER = f"""
-import rclpy, time
+PUBLISHER = """
+import rclpy, sys, time
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
+skip = int(sys.argv[1]) if len(sys.argv) > 1 else 0  # every 50 samples, this many not published
 rclpy.init()
-node = rclpy.create_node("kill_test_publisher")
+node = rclpy.create_node("fault_test_publisher")
 pub = node.create_publisher(JointState, "/aeropend/joint_states", qos_profile_sensor_data)
+k = [0]
+t0 = node.get_clock().now().nanoseconds
 def tick():
+    k[0] += 1
+    if k[0] % 50 < skip:
+        return
     msg = JointState()
-    msg.header.stamp = node.get_clock().now().to_msg()
+    stamp = t0 + k[0] * PERIOD_NS
+    msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
     msg.name = ["pendulum", "motor", "propeller"]
     msg.position = [0.1, float("nan"), float("nan")]
+    msg.velocity = [float("nan")] * 3
+    msg.effort = [float("nan"), 0.3, float("nan")]
     pub.publish(msg)
-node.create_timer({1 / RATE_HZ}, tick)
+node.create_timer(PERIOD_NS / 1e9, tick)
 try:
     rclpy.spin(node)
 except BaseException:
     pass
-"""
+""".replace("PERIOD_NS", str(round(1e9 / RATE_HZ)))
 
 
 def _storage(bag: Path) -> Path | None:
@@ -105,3 +119,29 @@ def test_sigkill_at_20_points_loses_at_most_one_second(tmp_path: Path) -> None:
         assert info["duration"]["nanoseconds"] == logs[-1] - logs[0]
     print("losses [s]:", " ".join(f"{x:.2f}" for x in losses))
     assert max(losses) <= 1.0 and min(losses) >= 0.0, losses
+
+
+def test_loss_counted_by_record_equals_the_loss_in_the_bag(tmp_path: Path) -> None:
+    """A publisher that skips 5 of every 50 samples (10 %, as a plant that overruns): ``record`` prints
+    and stores the loss; it equals the samples missing between the bag's stamps; readers warn."""
+    env = isolated_env(random_domain())
+    bag = tmp_path / "lossy"
+    pub = subprocess.Popen([sys.executable, "-c", PUBLISHER, "5"], env=env, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL)
+    rec = subprocess.Popen([*RECORD, "-o", str(bag), "--max-samples", "400"], env=env,
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        out, _ = rec.communicate(timeout=60)
+    finally:
+        reap(rec, pub)
+    assert rec.returncode == 0, out
+    stored = json.loads(bag_metadata(bag)["custom_data"][LOSS_KEY])["/aeropend/joint_states"]
+    with pytest.warns(BagLossWarning, match=r"/aeropend/joint_states lost \d+ of \d+ \(\d+\.\d %, counted by "
+                                            r"stamps\) in \d+ gap\(s\) at "):
+        got = read_bag(bag)
+    stamps = np.round(got.t / 0.02).astype(int)  # sample numbers from the first received
+    missing = int(np.sum(np.diff(stamps) - 1))
+    assert stored["received"] == len(got) == 400 and stored["lost"] == missing
+    assert 35 <= missing <= 45 and stored["method"] == "stamps"
+    assert stored["gaps"] == np.sum(np.diff(stamps) > 1)
+    assert f"record: loss: /aeropend/joint_states {missing} of {400 + missing} lost" in out
