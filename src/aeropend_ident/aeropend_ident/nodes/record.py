@@ -15,6 +15,14 @@ Parameters: :data:`PARAMETERS` (also printed by ``record --help``). An existing 
 never replaced without ``--overwrite`` (``-p overwrite:=true``), and then only if it holds a bag
 (:func:`aeropend_ident.io.bag_writer.claim_bag_folder`).
 
+Crash safety: what was received is on disk at least every ``flush_interval`` seconds (the MCAP
+chunk closed, the SQLite3 transaction committed, the file ``fsync``-ed; :class:`BagSink`), so a
+recorder killed with SIGKILL, or a power cut, loses at most that much; ``reindex`` rebuilds the
+``metadata.yaml`` it could not write. Loss: every message is counted by
+:class:`aeropend_ident.io.integrity.loss.LossCounter` (publisher sequence numbers from the message
+info, header stamps against the sample period); the per-topic loss is printed on exit and stored in
+the bag's ``custom_data`` (``aeropend.loss``), where every reader finds it.
+
 On SIGINT / SIGTERM the recorder first writes what is still queued (it spins until no message
 has arrived for ``DRAIN_IDLE_S``, at most ``DRAIN_MAX_S``), then closes the bag.
 
