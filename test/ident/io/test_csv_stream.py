@@ -95,12 +95,17 @@ def test_streamed_bag_equals_the_whole_file_bag(tmp_path: Path, small_blocks: No
         assert a.meta[key] == b.meta[key], key
 
 
-def test_failed_stream_leaves_no_bag(tmp_path: Path, small_blocks: None) -> None:
-    path = _log(tmp_path / "d.csv", 3000, insert={2500: "5.1,12,x"})
+def test_failed_stream_leaves_no_bag_and_the_earlier_one_intact(tmp_path: Path, small_blocks: None) -> None:
+    flags = ["--time-col", "t [s]", "--input-col", "PWM", "--input-kind", "pwm", "--angle-col", "angle [deg]",
+             "--angle-unit", "deg"]
+    bad = _log(tmp_path / "d.csv", 3000, insert={2500: "5.1,12,x"})  # a bad row in the 30th block
     out = tmp_path / "bag"
-    assert main([str(path), "--time-col", "t [s]", "--input-col", "PWM", "--input-kind", "pwm",
-                 "--angle-col", "angle [deg]", "--angle-unit", "deg", "-o", str(out)]) == 1
+    assert main([str(bad), *flags, "-o", str(out)]) == 1
     assert not out.exists()
+    assert main([str(_log(tmp_path / "good.csv", 700)), *flags, "-o", str(out)]) == 0
+    assert main([str(bad), *flags, "-o", str(out), "--overwrite"]) == 1
+    assert len(read_bag(out)) == 700  # the earlier bag, untouched
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag", "d.csv", "good.csv"]  # no partial folder
 
 
 @pytest.mark.parametrize("kind", ["nul_file", "sparse_2gb", "nul_after_header"])
@@ -137,7 +142,9 @@ def test_ctrl_c_ends_cleanly_with_nothing_written(tmp_path: Path) -> None:
                              "--input-kind", "pwm", "--angle-col", "angle [deg]", "-o", str(out)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 30
-    while not list(out.glob("*.mcap")) and time.monotonic() < deadline and proc.poll() is None:
+    # the bag is written in a hidden sibling folder, moved to -o once complete
+    while not list(tmp_path.glob(".bag.csv_import-*/bag/*.mcap")) and time.monotonic() < deadline \
+            and proc.poll() is None:
         time.sleep(0.02)
     assert proc.poll() is None, "the import ended before it could be interrupted"
     os.kill(proc.pid, signal.SIGINT)
@@ -146,4 +153,4 @@ def test_ctrl_c_ends_cleanly_with_nothing_written(tmp_path: Path) -> None:
     assert stderr.strip() == \
         f"csv_import: interrupted (Ctrl-C) while importing {path}; no bag written at {out}"
     assert "Traceback" not in stderr and stdout == ""
-    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.csv"]  # no bag, no partial folder

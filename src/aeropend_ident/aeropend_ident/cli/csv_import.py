@@ -17,6 +17,7 @@ import argparse
 import shlex
 import shutil
 import sys
+import tempfile
 import warnings
 from collections.abc import Sequence
 from dataclasses import replace
@@ -297,13 +298,25 @@ def _import(args: argparse.Namespace, spec: CsvSpec, target: Any) -> Any:
     if target is not None and not args.resample and streamable(spec):
         from aeropend_ident.progress import bar
 
-        path = target.prepare(create=False)
-        with bar(max(1, args.input.stat().st_size), "csv_import", unit="B", unit_scale=True, delay=2.0) as b:
-            def progress(done: int, total: int) -> None:
-                b.update(done - b.n)
+        # streamed into a hidden sibling folder, moved into place once complete: an error or Ctrl-C
+        # late in the file leaves no partial bag and an earlier bag (--overwrite) untouched
+        final = Path(target.path)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.csv_import-", dir=final.parent))
+        try:
+            with bar(max(1, args.input.stat().st_size), "csv_import", unit="B", unit_scale=True,
+                     delay=2.0) as b:
+                def progress(done: int, total: int) -> None:
+                    b.update(done - b.n)
 
-            return stream_csv_to_bag(args.input, path, spec, args.storage, args.rig_name, bad_rows,
-                                     lambda d: start_time_ns(args.start_time, args.input, d), progress)
+                res = stream_csv_to_bag(args.input, tmp / final.name, spec, args.storage, args.rig_name,
+                                        bad_rows, lambda d: start_time_ns(args.start_time, args.input, d),
+                                        progress)
+            (tmp / final.name).rename(target.prepare(create=False))
+            res.bag = final
+            return res
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
     rec = import_csv(args.input, spec, bad_rows)
     if args.resample:
         rec = uniform_recording(rec)
