@@ -145,3 +145,8 @@ def test_loss_counted_by_record_equals_the_loss_in_the_bag(tmp_path: Path) -> No
     assert 35 <= missing <= 45 and stored["method"] == "stamps"
     assert stored["gaps"] == np.sum(np.diff(stamps) > 1)
     assert f"record: loss: /aeropend/joint_states {missing} of {400 + missing} lost" in out
+    played = subprocess.run([*node_command("play", "aeropend_ident.nodes.play"), str(bag), "--rate", "20"],
+                            env=env, capture_output=True, text=True, timeout=60)
+    assert played.returncode == 0, played.stderr
+    assert (f"play: warning: bag '{bag}': message loss above 1 %: /aeropend/joint_states lost {missing} of "
+            f"{400 + missing}") in played.stderr
