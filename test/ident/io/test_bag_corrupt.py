@@ -117,3 +117,16 @@ def test_corrupt_sqlite3_rows_skipped_and_reported(tmp_path: Path, where: str,
     assert N - n_rows <= len(got) < N
     idx = np.round(got.t / 0.002).astype(int)
     assert np.array_equal(got.channels["theta"], rec.channels["theta"][idx])
+
+
+def test_corrupt_first_chunk_channels_from_the_summary(tmp_path: Path) -> None:
+    """The first chunk declares the channels; corrupt, the summary section still names them, so every
+    later chunk's messages keep their topic."""
+    f = _bag(tmp_path, "mcap")[2]
+    whole = scan_storage(f, keep_messages=False)
+    start, end = whole.chunks[0][:2]
+    _flip(f, (start + end) // 2)
+    scan = scan_storage(f, keep_messages=False)
+    assert len(scan.skipped) == 1 and (scan.skipped[0].start, scan.skipped[0].end) == (start, end)
+    assert scan.total + scan.skipped[0].total == 3 * N
+    assert set(scan.counts) == set(whole.counts)

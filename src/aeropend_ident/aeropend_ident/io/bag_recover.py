@@ -408,21 +408,23 @@ def _chunk_content(body: bytes) -> tuple[Any, list[Any]]:
         raise ValueError(f"unreadable record inside ({type(exc).__name__}: {exc})") from exc
 
 
-def _summary_chunk_starts(f: Any, size: int) -> list[int]:
-    """Chunk start offsets from the summary's chunk indexes of a complete file ([] if unreadable)."""
-    from mcap.records import ChunkIndex, Footer
+def _summary(f: Any, size: int) -> tuple[list[int], list[Any]]:
+    """Chunk start offsets and the schema and channel records of a complete file's summary section
+    (a channel declared only inside a corrupt chunk is still known); ([], []) if unreadable."""
+    from mcap.records import Channel, ChunkIndex, Footer, Schema
 
     try:
         f.seek(size - len(_MCAP_MAGIC) - 29)
         recs = _records(f.read(29))
         footer = recs[0] if recs and isinstance(recs[0], Footer) else None
         if footer is None or not footer.summary_start:
-            return []
+            return [], []
         f.seek(footer.summary_start)
-        summary = f.read(size - len(_MCAP_MAGIC) - 29 - footer.summary_start)
-        return sorted(r.chunk_start_offset for r in _records(summary) if isinstance(r, ChunkIndex))
+        summary = _records(f.read(size - len(_MCAP_MAGIC) - 29 - footer.summary_start))
+        starts = sorted(r.chunk_start_offset for r in summary if isinstance(r, ChunkIndex))
+        return starts, [r for r in summary if isinstance(r, (Schema, Channel))]
     except Exception:  # a damaged summary: resynchronise by searching instead
-        return []
+        return [], []
 
 
 def _next_chunk(f: Any, pos: int, size: int, starts: list[int]) -> int | None:
@@ -480,7 +482,8 @@ def _scan_mcap(path: Path, keep: bool) -> StorageScan:
                                "magic)")
             raise BagError(f"'{path}' is not an MCAP file (it does not start with the MCAP magic)")
         scan.truncated = is_truncated(path)
-        starts = [] if scan.truncated else _summary_chunk_starts(f, size)
+        starts, defs = ([], []) if scan.truncated else _summary(f, size)
+        state.feed(iter(defs))
         pos, skip = len(_MCAP_MAGIC), None
         while pos + 9 <= size:
             f.seek(pos)
@@ -533,8 +536,11 @@ def _scan_mcap(path: Path, keep: bool) -> StorageScan:
                     state.feed(iter(recs))
             pos = end
         scan.readable_bytes = min(pos, size)
-    if state.orphans:
+    if state.orphans and not scan.skipped:
         raise BagError(f"'{path}' is corrupt: {state.orphans} message(s) on a channel without channel record")
+    if state.orphans:  # their channel was declared in a corrupt part only
+        scan.skipped.append(SkippedChunk(0, 0, "intact messages on channels declared only in a corrupt "
+                                         "part", {"topic unknown": state.orphans}))
     return scan
 
 
