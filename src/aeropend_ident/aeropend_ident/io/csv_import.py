@@ -13,7 +13,10 @@ input can explain it (:func:`~aeropend_ident.io.csvspec.constant_input.check_con
 free decay or a step from rest, not a closed loop whose only input-like column is its reference).
 
 File handling: separator auto-detection (``,`` ``;`` tab), full-line comments (``#``), header
-row detection, decimal comma, UTF-8 BOM, ``.csv.gz``. A malformed file raises
+row detection, decimal comma, UTF-8 BOM, ``.csv.gz``. The file is read as a stream of blocks
+(:mod:`aeropend_ident.io.csvread`: pyarrow's CSV parser, row by row where a block needs a
+message), so :func:`stream_csv_to_bag` writes a bag of any length in bounded memory; a binary file
+(a NUL byte) is refused from its first 64 KiB. A malformed file raises
 :class:`CsvImportError` naming the file, the line (1-based, as an editor shows it) and the
 column, e.g. ``data.csv line 57 column 'angle [deg]': 'abc' is not a number``.
 
