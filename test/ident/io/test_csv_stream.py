@@ -154,3 +154,19 @@ def test_ctrl_c_ends_cleanly_with_nothing_written(tmp_path: Path) -> None:
         f"csv_import: interrupted (Ctrl-C) while importing {path}; no bag written at {out}"
     assert "Traceback" not in stderr and stdout == ""
     assert sorted(p.name for p in tmp_path.iterdir()) == ["big.csv"]  # no bag, no partial folder
+
+
+@pytest.mark.parametrize("encoding", ["utf-16", "latin-1"])
+def test_other_encodings_streamed(tmp_path: Path, small_blocks: None, encoding: str) -> None:
+    """UTF-16 (NUL bytes in every character: transcoded before the NUL check) and Latin-1 (a
+    degree sign in the header) give the numbers of the UTF-8 file."""
+    utf8 = _log(tmp_path / "a.csv", 1500)
+    text = utf8.read_text(encoding="utf-8").replace("angle [deg]", "angle [°]")
+    other = tmp_path / "b.csv"
+    other.write_bytes(text.encode(encoding))
+    spec = CsvSpec(name="t", time_col="t [s]", time_unit="s", input_col="PWM", input_kind="pwm",
+                   angle_col="angle [°]", angle_unit="deg", encoding=encoding)
+    a, b = import_csv(utf8, SPEC), import_csv(other, spec)
+    assert len(b) == 1500 and np.array_equal(a.t, b.t)
+    assert np.array_equal(a.channels["theta"], b.channels["theta"])
+    assert b.meta["columns"]["theta"] == "angle [°]"

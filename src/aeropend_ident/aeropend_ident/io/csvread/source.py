@@ -105,7 +105,9 @@ class CsvSource:
             raise CsvImportError(f"{path}: empty file (0 bytes)")
         self._gzip = self.gzip = head[:2] == b"\x1f\x8b"
         self._head = head
-        if not self._gzip:
+        # UTF-16/32 text holds NUL bytes and other line-end bytes: transcoded to UTF-8 before anything
+        self._wide = encoding.lower().replace("-", "").replace("_", "").startswith(("utf16", "utf32"))
+        if not self._gzip and not self._wide:
             self._refuse_nul(head, 0, 1)
 
     def close(self) -> None:
@@ -168,14 +170,28 @@ class CsvSource:
                 "the readable part")
 
     def blocks(self) -> Iterator[Block]:
-        """The file's lines in :class:`Block` s, in order."""
-        decoder = None if self.encoding.lower().replace(" ", "") in _UTF8 else \
+        """The file's lines in :class:`Block` s, in order (the last one marked, never empty unless
+        the whole text is)."""
+        prev: Block | None = None
+        for block in self._blocks():
+            if prev is not None:
+                if block.last and not block.data:  # the file ended at a block's end
+                    prev.last = True
+                    yield prev
+                    return
+                yield prev
+            prev = block
+        if prev is not None:
+            yield prev
+
+    def _blocks(self) -> Iterator[Block]:
+        decoder = None if self.encoding.lower().replace(" ", "") in _UTF8 or self._wide else \
             codecs.getincrementaldecoder(self.encoding)()
         buf = bytearray()
         line = 1
         first = True
         try:
-            pieces = self._pieces()
+            pieces = _transcode(self._pieces(), self.encoding, self.path) if self._wide else self._pieces()
             done = False
             while not done:
                 piece = next(pieces, None)
@@ -222,6 +238,17 @@ class CsvSource:
             at = line + data.count(b"\n", 0, exc.start)
             raise CsvImportError(
                 f"{self.path}:{at}: bytes are not valid {self.encoding} text ({exc.reason})") from exc
+
+
+def _transcode(pieces: Iterator[bytes], encoding: str, path: Path) -> Iterator[bytes]:
+    """Pieces of UTF-16/32 text as UTF-8 (a BOM left as U+FEFF, removed with the UTF-8 one)."""
+    dec = codecs.getincrementaldecoder(encoding)()
+    try:
+        for piece in pieces:
+            yield dec.decode(piece).encode("utf-8")
+        yield dec.decode(b"", final=True).encode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise CsvImportError(f"{path}: bytes are not valid {encoding} text ({exc.reason})") from exc
 
 
 def _odd_breaks(data: bytes) -> bool:
