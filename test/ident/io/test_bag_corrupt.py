@@ -128,5 +128,6 @@ def test_corrupt_first_chunk_channels_from_the_summary(tmp_path: Path) -> None:
     _flip(f, (start + end) // 2)
     scan = scan_storage(f, keep_messages=False)
     assert len(scan.skipped) == 1 and (scan.skipped[0].start, scan.skipped[0].end) == (start, end)
+    assert scan.skipped[0].describe(scan.t0_ns).startswith(f"bytes {start}-{end} (log time 0.000-")
     assert scan.total + scan.skipped[0].total == 3 * N
     assert set(scan.counts) == set(whole.counts)

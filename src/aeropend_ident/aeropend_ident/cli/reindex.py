@@ -48,7 +48,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.warn(f"{s.path} is truncated: {s.where_it_ends()}; indexed the {s.total} message(s) "
                           "that can be recovered", BagTruncatedWarning, stacklevel=1)
         for k in s.skipped:
-            warnings.warn(f"{s.path}: left out a corrupt part, {k.describe(s.first_ns)}; the {s.total} "
+            warnings.warn(f"{s.path}: left out a corrupt part, {k.describe(s.t0_ns)}; the {s.total} "
                           "intact message(s) around it are indexed", BagTruncatedWarning, stacklevel=1)
     topics = ", ".join(f"{t['topic_metadata']['name']} {t['message_count']}"
                        for t in info["topics_with_message_count"])

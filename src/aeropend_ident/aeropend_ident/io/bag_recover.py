@@ -181,6 +181,13 @@ class StorageScan:
     chunks: list[tuple[int, int, int, int]] = field(default_factory=list)
 
     @property
+    def t0_ns(self) -> int | None:
+        """Earliest log time in the file [ns]: recovered or left out (the base of the log times
+        :meth:`SkippedChunk.describe` gives)."""
+        times = [t for t in (self.first_ns, *(k.first_ns for k in self.skipped)) if t is not None]
+        return min(times) if times else None
+
+    @property
     def total(self) -> int:
         """Messages recovered in all topics."""
         return sum(self.counts.values())

@@ -234,7 +234,7 @@ def corruption_error(path: Path, what: str, log_ns: int | None = None) -> BagErr
     except BagError as exc:
         return BagError(f"bag '{path}' is corrupt: {what}; {exc}")
     for s in scans:
-        parts += [f"{s.path.name} {k.describe(s.first_ns)}" for k in s.skipped]
+        parts += [f"{s.path.name} {k.describe(s.t0_ns)}" for k in s.skipped]
     if parts:
         return BagError(f"bag '{path}' is corrupt: {what}; {'; '.join(parts)}; {fix}")
     held = [f"bytes {a}-{b} of {s.path.name}" for s in scans for a, b, t0, t1 in s.chunks
@@ -799,7 +799,7 @@ class RawBagReader:
                 declared = None
         cut = [s for s in scans if s.truncated]
         where = "; ".join([s.where_it_ends() for s in cut]
-                          + [f"{s.path.name} {k.describe(s.first_ns)}" for s in scans for k in s.skipped])
+                          + [f"{s.path.name} {k.describe(s.t0_ns)}" for s in scans for k in s.skipped])
         state = "is truncated" if cut else "has corrupt parts, left out"
         if total == 0:
             raise BagError(f"bag '{self.path}' {state}: {where}; no complete message could be recovered")
@@ -812,7 +812,7 @@ class RawBagReader:
         }
         per_topic = ", ".join(f"{n} {c}" for n, c in counts.items())
         lost = "" if declared is None else f"; {METADATA_FILE} declares {declared}, {declared - total} lost"
-        self.recovery["skipped"] = [f"{s.path.name} {k.describe(first)}" for s in scans for k in s.skipped]
+        self.recovery["skipped"] = [f"{s.path.name} {k.describe(s.t0_ns)}" for s in scans for k in s.skipped]
         warnings.warn(f"bag '{self.path}' {state}: {where}; recovered {total} message(s) ({per_topic}) "
                       f"up to log time {last} ns ({(last - first) / 1e9:.3f} s after the first){lost}",
                       BagTruncatedWarning, stacklevel=3)
