@@ -91,8 +91,10 @@ def test_streamed_bag_equals_the_whole_file_bag(tmp_path: Path, small_blocks: No
         assert np.array_equal(x, y, equal_nan=True)
     assert b.duty[3] == pytest.approx(21 / 255) and b.t[-1] == pytest.approx(4999 / 490)
     assert b.meta["decimal"] == "," and b.meta["delimiter"] == ";"
-    for key in ("rows", "dt_median_s", "n_gaps", "csv_sha256", "duty_clipped", "duration_s", "columns"):
+    for key in ("rows", "n_gaps", "csv_sha256", "duty_clipped", "duration_s", "columns", "uniform"):
         assert a.meta[key] == b.meta[key], key
+    for key in ("dt_median_s", "dt_min_s", "max_gap_s", "max_gap_at_s", "jitter_std_s"):  # block by block
+        assert b.meta[key] == pytest.approx(a.meta[key], abs=1e-9), key
 
 
 def test_failed_stream_leaves_no_bag_and_the_earlier_one_intact(tmp_path: Path, small_blocks: None) -> None:

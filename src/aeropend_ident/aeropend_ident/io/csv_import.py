@@ -39,7 +39,7 @@ from typing import Any, Literal
 import numpy as np
 
 from aeropend_ident.errors import ConstantInputWarning, CsvImportError
-from aeropend_ident.io.csvread.stream import Converted, Converter, CsvReader, Progress
+from aeropend_ident.io.csvread.stream import Converted, Converter, CsvReader, Progress, TimeStats
 from aeropend_ident.io.csvread.table import plural as _plural
 from aeropend_ident.io.csvspec.constant_input import check_constant_input, driven_message
 from aeropend_ident.io.csvspec.spec import (
@@ -212,7 +212,7 @@ def _import(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows,
     if spec.input_col is None:
         report["constant_input"] = _constant_input(path, spec, t, channels["theta"], float(duty[0]),
                                                    conv.columns.get(REFERENCE_CHANNEL))
-    meta = _meta(spec, reader, conv, report, t)
+    meta = _meta(spec, reader, conv, report, _time_stats(t), float(t[-1]))
     try:
         rec = Recording(t=t, duty=duty, channels=channels, source=str(path), meta=meta, extra=extra,
                         extra_units=units)
@@ -221,11 +221,12 @@ def _import(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows,
     return rec, runs
 
 
-def _meta(spec: CsvSpec, reader: CsvReader, conv: Converter, report: dict[str, Any],
-          t: np.ndarray) -> dict[str, Any]:
-    """The recording's ``meta`` of an imported log (``t``: its sample times [s] from 0)."""
+def _meta(spec: CsvSpec, reader: CsvReader, conv: Converter, report: dict[str, Any], stats: dict[str, Any],
+          duration: float) -> dict[str, Any]:
+    """The recording's ``meta`` of an imported log (``stats``: its sampling statistics,
+    ``duration`` its last sample time [s] from 0)."""
     meta: dict[str, Any] = dict(spec.meta)
-    meta.update(_time_stats(t))
+    meta.update(stats)
     meta.update({
         "csv_file": str(reader.path),
         "csv_sha256": reader.source.sha256,
@@ -241,7 +242,7 @@ def _meta(spec: CsvSpec, reader: CsvReader, conv: Converter, report: dict[str, A
         "blank_lines": reader.blank_lines,
         "t0_in_file_s": conv.t0,
         "duty_clipped": {"below_0": conv.below, "above_1": conv.above},
-        "duration_s": float(t[-1]),
+        "duration_s": duration,
         **report,
     })
     return meta
@@ -378,10 +379,10 @@ def stream_csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, st
     """Import a CSV log into a contract bag block by block, in bounded memory.
 
     The bag holds what :func:`csv_to_bag` writes for the same spec (same stamps, wire convention
-    and ``meta``); memory is one block of text (4 MiB) and its messages plus the sample times
-    (8 bytes a row, for the sampling statistics) and, for a log without actuator column, θ (for
-    the constant-input check). A failure (bad row, time that does not increase, Ctrl-C) removes
-    the bag folder: nothing partial is left.
+    and ``meta``, the sampling statistics gathered block by block: :class:`TimeStats`); memory is
+    one block of text (4 MiB) and its messages, whatever the log's length (a log without actuator
+    column also keeps t and θ, 16 bytes a row, for the constant-input check). A failure (bad row,
+    time that does not increase, Ctrl-C) removes the bag folder: nothing partial is left.
 
     Parameters
     ----------
@@ -429,7 +430,8 @@ def stream_csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, st
     reader = CsvReader(path, spec, bad_rows, progress=progress)
     conv = Converter(reader)
     bag: BagStream | None = None
-    times: list[np.ndarray] = []
+    stats = TimeStats()
+    times: list[np.ndarray] = []  # kept only for the constant-input check (no actuator column)
     thetas: list[np.ndarray] = []
     ranges: dict[str, list[float]] = {}
     try:
@@ -441,8 +443,9 @@ def stream_csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, st
                 s0 = _stamp0(stamp0_ns, reader, conv, path, spec, bad_rows)
                 bag = BagStream(out, storage, s0)  # type: ignore[arg-type]
             bag.write(c.t, c.duty, c.channels)
-            times.append(c.t.astype(np.float64))
+            stats.add(c.t)
             if spec.input_col is None:
+                times.append(c.t)
                 thetas.append(c.channels["theta"])
             for k, v in (("duty", c.duty), *c.channels.items()):
                 if np.isfinite(v).any():
@@ -451,12 +454,11 @@ def stream_csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, st
                     ranges[k] = [min(old[0], lo), max(old[1], hi)]
         report = reader.finish()
         conv.finish()
-        t = np.concatenate(times)
-        del times
         if spec.input_col is None:
-            report["constant_input"] = _constant_input(path, spec, t, np.concatenate(thetas),
-                                                       ranges["duty"][0], None)
-        meta = _meta(spec, reader, conv, report, t)
+            report["constant_input"] = _constant_input(path, spec, np.concatenate(times),
+                                                       np.concatenate(thetas), ranges["duty"][0], None)
+        t_last = float(stats.last or 0.0)
+        meta = _meta(spec, reader, conv, report, stats.result(), t_last)
         assert bag is not None
         bag.close(meta, str(path), rig_name)
     except BaseException:
@@ -466,7 +468,7 @@ def stream_csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, st
             shutil.rmtree(out, ignore_errors=True)
         raise
     channels = {k: np.asarray(v) for k, v in ranges.items() if k != "duty"}
-    return CsvBag(str(path), np.array([0.0, float(t[-1])]), float(meta["dt_median_s"]),
+    return CsvBag(str(path), np.array([0.0, t_last]), float(meta["dt_median_s"]),
                   np.asarray(ranges["duty"]), channels, meta, bag.samples, bag.commands, out)
 
 
