@@ -69,6 +69,11 @@ class BagTruncatedWarning(IdentWarning):
     where the file ends)."""
 
 
+class BagLossWarning(IdentWarning):
+    """A bag lost more messages than the stated threshold while it was recorded (message: how many
+    per topic, counted how, and where the gaps are)."""
+
+
 class CsvRowWarning(IdentWarning):
     """A CSV row that may be wrong (a last line without its newline) or rows that were dropped."""
 

@@ -204,6 +204,20 @@ CASES: tuple[Case, ...] = (
          "gap: error: output folder {tmp}/notmine/ ..."),
     Case("reindex-not-a-directory", ("reindex", "{tmp}/nowhere"), 1,
          "reindex: error: '{tmp}/nowhere' is not a bag directory (it does not exist)"),
+    # --- issue 62: corrupt chunks, an empty storage file, binary "CSV" files
+    Case("corrupt-mcap-chunk", ("identify", "{tmp}/flipped_mcap", "--rig", "thesis_sim", "--quiet", "--out",
+                                "{tmp}/o11"), 2,
+         "identify: error: bag '{tmp}/flipped_mcap' is corrupt: reading failed (ReaderError: Chunk checksum "
+         "mismatch.); flipped_mcap.mcap bytes {flipped_start}-{flipped_end} (log time ..."),
+    Case("corrupt-db3-page", ("compare", "{tmp}/flipped_db3", "--rig", "thesis_sim", "--no-plots", "-o",
+                              "{tmp}/o12"), 2,
+         "compare: error: bag '{tmp}/flipped_db3' is corrupt: ..."),
+    Case("reindex-empty-storage", ("reindex", "{tmp}/empty_bag"), 1,
+         "reindex: error: '{tmp}/empty_bag/empty_bag.mcap' is empty: nothing was written (0 bytes: the "
+         "recorder stopped or was killed before its first flush)"),
+    Case("csv-nul-file", (*_csv("zeros.csv"), "-o", "{tmp}/o13"), 1,
+         "csv_import: error: {tmp}/zeros.csv:1: a NUL byte at byte 0 of the text: this is a binary file, not "
+         "a CSV text log (a UTF-16 export? save it as UTF-8 CSV)"),
 )
 
 
@@ -282,6 +296,23 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
                        f"{name}_readable": str(scan.readable_bytes), f"{name}_recovered": str(scan.total)})
     _cut_bag(bag, tmp / "cut_header", 100)
     values["header_readable"] = str(scan_storage(tmp / "cut_header" / "cut_header.mcap").readable_bytes)
+    from aeropend_ident.io.bag_recover import scan_storage as scan_file
+
+    flipped = write_bag(_recording(12000), tmp / "flipped_mcap") / "flipped_mcap.mcap"
+    start, end = scan_file(flipped, keep_messages=False).chunks[2][:2]
+    data = bytearray(flipped.read_bytes())
+    data[(start + end) // 2:(start + end) // 2 + 64] = b"\xa5" * 64
+    flipped.write_bytes(bytes(data))
+    values.update({"flipped_start": str(start), "flipped_end": str(end)})
+    db3 = write_bag(_recording(6000), tmp / "flipped_db3", storage="sqlite3") / "flipped_db3.db3"
+    data = bytearray(db3.read_bytes())
+    page = int.from_bytes(data[16:18], "big")
+    at = len(data) // page // 2 * page
+    data[at:at + 12] = b"\xff" * 12  # a b-tree page header
+    db3.write_bytes(bytes(data))
+    (tmp / "empty_bag").mkdir()
+    (tmp / "empty_bag" / "empty_bag.mcap").write_bytes(b"")
+    (tmp / "zeros.csv").write_bytes(b"\x00" * 65536)
     nometa = tmp / "nometa"
     shutil.copytree(bag, nometa)
     (nometa / "metadata.yaml").unlink()

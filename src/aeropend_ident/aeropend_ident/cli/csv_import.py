@@ -32,7 +32,17 @@ from aeropend_ident.errors import (
     RecordingInputError,
     print_warnings_as_lines,
 )
-from aeropend_ident.io.csv_import import PRESETS, Column, CsvSpec, find_preset, import_csv, summary
+from aeropend_ident.io.csv_import import (
+    PRESETS,
+    Column,
+    CsvBag,
+    CsvSpec,
+    find_preset,
+    import_csv,
+    stream_csv_to_bag,
+    streamable,
+    summary,
+)
 from aeropend_ident.io.csvspec.input_kinds import INPUT_KINDS, LAWS
 from aeropend_ident.io.csvspec.spec import is_preset_file, resolve_preset, write_preset_file
 from aeropend_ident.io.recording_input import resampling_notes, uniform_recording
@@ -269,8 +279,8 @@ def spec_from_args(args: argparse.Namespace) -> CsvSpec:
 
 def _bag_note(rec: Any, args: argparse.Namespace) -> str:
     """What the bag holds, per topic (as ``topics`` and ``play`` will show it)."""
-    parts = [f"{len(rec)} joint_states", f"{len(rec)} armature",
-             f"{int(np.isfinite(rec.duty).sum())} duty_cycle"]
+    commands = rec.commands if isinstance(rec, CsvBag) else int(np.isfinite(rec.duty).sum())
+    parts = [f"{len(rec)} joint_states", f"{len(rec)} armature", f"{commands} duty_cycle"]
     if "theta_ref" in rec.extra:
         parts.append(f"{int(np.isfinite(rec.extra['theta_ref']).sum())} reference")
     if set(rec.extra) - {"theta_ref", "phi", "phi_dot"}:
@@ -278,12 +288,44 @@ def _bag_note(rec: Any, args: argparse.Namespace) -> str:
     return f" Wrote {args.storage} bag {args.output} ({' + '.join(parts)} messages)."
 
 
+def _import(args: argparse.Namespace, spec: CsvSpec, target: Any) -> Any:
+    """Import the CSV: streamed into the bag when it goes straight to one (no ``--resample``, no
+    extra channels), else read whole, resampled if asked and written. Either bag is written beside
+    its final place and renamed into it once complete (:meth:`OutputFolder.write`): an error, a full
+    disk or Ctrl-C late in the file leaves no partial bag and an earlier bag (--overwrite) untouched."""
+    bad_rows = "drop" if args.drop_bad_rows else "error"
+    if target is not None and not args.resample and streamable(spec):
+        from aeropend_ident.progress import bar
+
+        with bar(max(1, args.input.stat().st_size), "csv_import", unit="B", unit_scale=True,
+                 delay=2.0) as b:
+            def progress(done: int, total: int) -> None:
+                b.update(done - b.n)
+
+            res = target.write(lambda folder: stream_csv_to_bag(
+                args.input, folder, spec, args.storage, args.rig_name, bad_rows,
+                lambda d: start_time_ns(args.start_time, args.input, d), progress), create=False)
+        res.bag = Path(target.path)
+        return res
+    rec = import_csv(args.input, spec, bad_rows)
+    if args.resample:
+        rec = uniform_recording(rec)
+    # a real start time (Foxglove and rosbag2 tools show 1970 for stamps from 0)
+    rec = replace(rec, stamp0_ns=start_time_ns(args.start_time, args.input, float(rec.t[-1])))
+    if target is not None:
+        from aeropend_ident.io.bag_writer import write_bag
+
+        target.write(lambda folder: write_bag(rec, folder, storage=args.storage, rig_name=args.rig_name),
+                     create=False)
+    return rec
+
+
 @exits_cleanly_on_faults("csv_import")
 def main(argv: Sequence[str] | None = None) -> int:
     """Console script ``csv_import``: CSV -> contract bag (and preset file); prints a summary."""
     args = build_parser().parse_args(argv if argv is not None else sys.argv[1:])
     print_warnings_as_lines("csv_import")
-    from aeropend_ident.io.bag_writer import claim_bag_folder, write_bag
+    from aeropend_ident.io.bag_writer import claim_bag_folder
 
     try:
         target = None if args.output is None else claim_bag_folder(
@@ -301,14 +343,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # duty clipping: counted in the summary
             warnings.simplefilter("default", IdentWarning)  # rows dropped, cut, constant input: printed
-            rec = import_csv(args.input, spec, "drop" if args.drop_bad_rows else "error")
-        if args.resample:
-            rec = uniform_recording(rec)
-        # a real start time (Foxglove and rosbag2 tools show 1970 for stamps from 0)
-        rec = replace(rec, stamp0_ns=start_time_ns(args.start_time, args.input, float(rec.t[-1])))
-        if target is not None:
-            target.write(lambda folder: write_bag(rec, folder, storage=args.storage, rig_name=args.rig_name),
-                         create=False)
+            rec = _import(args, spec, target)
         if args.write_preset is not None:
             command = shlex.join(["csv_import", *(argv if argv is not None else sys.argv[1:])])
             write_preset_file(spec, args.write_preset, overwrite=args.overwrite, comment=(
@@ -319,6 +354,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (CsvImportError, BagError, OutputFolderError, RecordingInputError) as exc:
         print(f"csv_import: error: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        out = "" if args.output is None else f"; no bag written at {args.output}"
+        print(f"csv_import: interrupted (Ctrl-C) while importing {args.input}{out}", file=sys.stderr)
+        return 130
     text = summary(rec)
     for note in resampling_notes([rec]):
         text += f" {note[0].upper()}{note[1:]}."

@@ -5,7 +5,9 @@ counterpart of ``ros2 bag reindex`` for machines without the ``ros2`` CLI: a rec
 killed leaves its bag directory without ``metadata.yaml``, and rosbag2 tools (and every aeropend
 command) need it. The metadata is rebuilt by :func:`aeropend_ident.io.bag_recover.reindex`; a
 storage file cut short is indexed with the messages that can be recovered from it (a warning
-says how many and where the file ends).
+says how many and where the file ends); a corrupt chunk (CRC mismatch, unreadable record) is left
+out and every intact one around it kept (a warning per part: its byte range, log times and the
+messages it held); an empty storage file is reported as "empty: nothing was written".
 """
 
 from __future__ import annotations
@@ -45,6 +47,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if s.truncated:
             warnings.warn(f"{s.path} is truncated: {s.where_it_ends()}; indexed the {s.total} message(s) "
                           "that can be recovered", BagTruncatedWarning, stacklevel=1)
+        for k in s.skipped:
+            warnings.warn(f"{s.path}: left out a corrupt part, {k.describe(s.t0_ns)}; the {s.total} "
+                          "intact message(s) around it are indexed", BagTruncatedWarning, stacklevel=1)
     topics = ", ".join(f"{t['topic_metadata']['name']} {t['message_count']}"
                        for t in info["topics_with_message_count"])
     print(f"reindex: wrote {target}: {info['message_count']} message(s) in {len(scans)} "

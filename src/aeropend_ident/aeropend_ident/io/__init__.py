@@ -15,7 +15,7 @@ _API: dict[str, tuple[str, ...]] = {
     "aeropend_ident.io.bags": ("read_bag", "RawBagReader", "bag_metadata"),
     "aeropend_ident.io.bag_writer": ("write_bag", "BagSink"),
     "aeropend_ident.io.bag_recover": ("reindex", "is_truncated"),
-    "aeropend_ident.io.csv_import": ("import_csv", "import_csv_runs", "csv_to_bag"),
+    "aeropend_ident.io.csv_import": ("import_csv", "import_csv_runs", "csv_to_bag", "stream_csv_to_bag"),
     "aeropend_ident.io.csvspec.spec": ("CsvSpec", "load_preset_file", "write_preset_file", "find_preset"),
     "aeropend_ident.io.csvspec.input_kinds": ("InputKind", "input_map"),
     "aeropend_ident.io.split": ("validation_split", "time_ordered", "interleaved_blocks", "split_runs"),

@@ -175,7 +175,7 @@ def _split_stamps(stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def encode_joint_states(stamps_ns: np.ndarray, position: np.ndarray, velocity: np.ndarray,
                         effort: np.ndarray, frame_id: str = "aeropend",
-                        names: Sequence[str] = JOINT_NAMES) -> list[bytes]:
+                        names: Sequence[str] = JOINT_NAMES, *, array: bool = False) -> Any:
     """CDR-serialise a batch of ``sensor_msgs/msg/JointState`` messages.
 
     Parameters
@@ -188,10 +188,12 @@ def encode_joint_states(stamps_ns: np.ndarray, position: np.ndarray, velocity: n
         ``header.frame_id``.
     names : sequence of str
         Joint names (default the contract's ``pendulum, motor, propeller``).
+    array : bool
+        Return the messages as one ``uint8`` array of shape (N, size) (all have one size).
 
     Returns
     -------
-    list of bytes
+    list of bytes or ndarray of uint8, shape (N, size)
         N serialised messages, byte-identical to ``typestore.serialize_cdr``.
     """
     n, j = len(stamps_ns), len(names)
@@ -202,15 +204,16 @@ def encode_joint_states(stamps_ns: np.ndarray, position: np.ndarray, velocity: n
     _put(arr, layout, "nanosec", nanosec)
     for key, val in (("position", position), ("velocity", velocity), ("effort", effort)):
         _put(arr, layout, key, np.asarray(val, dtype=float).reshape(n, j))
-    return _rows(arr)
+    return arr if array else _rows(arr)
 
 
 def encode_armature(stamps_ns: np.ndarray, voltage: np.ndarray, current: np.ndarray,
-                    frame_id: str = "aeropend") -> list[bytes]:
+                    frame_id: str = "aeropend", *, array: bool = False) -> Any:
     """CDR-serialise a batch of ``sensor_msgs/msg/BatteryState`` armature messages.
 
     ``voltage`` [V] and ``current`` [A] (shape (N,)) are stored as float32 (the message's field
     type); every other float is NaN, status/health/technology unknown (0), ``present`` True.
+    Returns a list of N ``bytes``, or with ``array`` one ``uint8`` array of shape (N, size).
     """
     n = len(stamps_ns)
     layout = _armature_layout(frame_id, 0, 0, "", "")
@@ -223,7 +226,7 @@ def encode_armature(stamps_ns: np.ndarray, voltage: np.ndarray, current: np.ndar
     _put(arr, layout, "voltage", np.asarray(voltage, dtype=np.float32))
     _put(arr, layout, "current", np.asarray(current, dtype=np.float32))
     _put(arr, layout, "status", np.tile(np.array([0, 0, 0, 1], dtype=np.uint8), (n, 1)))
-    return _rows(arr)
+    return arr if array else _rows(arr)
 
 
 @lru_cache(maxsize=64)
@@ -269,11 +272,12 @@ def encode_float64_array(values: np.ndarray, names: Sequence[str],
     return _rows(arr)
 
 
-def encode_float64(values: np.ndarray) -> list[bytes]:
-    """CDR-serialise a batch of ``std_msgs/msg/Float64`` messages (shape (N,))."""
+def encode_float64(values: np.ndarray, *, array: bool = False) -> Any:
+    """CDR-serialise a batch of ``std_msgs/msg/Float64`` messages (shape (N,)): a list of N
+    ``bytes``, or with ``array`` one ``uint8`` array of shape (N, 16)."""
     arr = _tile(_FLOAT64_LAYOUT, len(values))
     _put(arr, _FLOAT64_LAYOUT, "data", np.asarray(values, dtype=float))
-    return _rows(arr)
+    return arr if array else _rows(arr)
 
 
 @dataclass

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import io
 import itertools
+import json
 import re
 import struct
 from collections.abc import Iterator
@@ -42,6 +43,8 @@ from aeropend_ident.errors import BagError
 
 __all__ = [
     "METADATA_FILE",
+    "SKIPPED_KEY",
+    "SkippedChunk",
     "StorageScan",
     "StorageTopic",
     "is_truncated",
@@ -58,6 +61,8 @@ _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _OP_CHUNK = 0x06
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 _SUFFIX_STORAGE = {".mcap": "mcap", ".db3": "sqlite3"}
+#: ``custom_data`` key of ``metadata.yaml`` listing the corrupt parts :func:`reindex` left out (JSON).
+SKIPPED_KEY = "aeropend.skipped"
 #: rosbag2 metadata version :func:`rebuild_metadata` writes (Jazzy).
 METADATA_VERSION = 9
 
@@ -81,6 +86,49 @@ class StorageTopic:
     serialization_format: str
     qos: tuple[Any, ...]
     type_hash: str
+
+
+@dataclass
+class SkippedChunk:
+    """A part of a storage file that cannot be read and was left out (:func:`scan_storage`).
+
+    Attributes
+    ----------
+    start, end : int
+        Byte range in the file (MCAP: the chunk record; SQLite3: the rows' page range is unknown,
+        both 0).
+    reason : str
+        Why it cannot be read (CRC mismatch, unreadable record, ...).
+    counts : dict of str -> int
+        Messages it held per topic, as far as the file tells (MCAP message indexes; SQLite3 the
+        missing row ids); empty when unknown.
+    first_ns, last_ns : int or None
+        Log time range of those messages [ns], when known.
+    """
+
+    start: int
+    end: int
+    reason: str
+    counts: dict[str, int] = field(default_factory=dict)
+    first_ns: int | None = None
+    last_ns: int | None = None
+
+    @property
+    def total(self) -> int:
+        """Messages it held (0: unknown or none)."""
+        return sum(self.counts.values())
+
+    def describe(self, t0_ns: int | None = None) -> str:
+        """One line: where, what it held and why, e.g. ``bytes 4096-1052672 (log time 2.000-3.000 s
+        after the first message): 1470 message(s) (/aeropend/joint_states 490, ...): CRC mismatch``."""
+        where = f"bytes {self.start}-{self.end}" if self.end else self.reason
+        if self.first_ns is not None and self.last_ns is not None:
+            base = self.first_ns if t0_ns is None else t0_ns
+            where += (f" (log time {(self.first_ns - base) / 1e9:.3f}-{(self.last_ns - base) / 1e9:.3f} s "
+                      "after the first message)")
+        held = (f"{self.total} message(s) ({', '.join(f'{t} {n}' for t, n in self.counts.items())})"
+                if self.counts else "an unknown number of messages")
+        return f"{where}: {held}" + (f": {self.reason}" if self.end else "")
 
 
 @dataclass
@@ -111,6 +159,10 @@ class StorageScan:
         SQLite3: size the header declares (page count × page size); None for MCAP.
     stored_metadata : dict or None
         The ``rosbag2_bagfile_information`` embedded in the storage file, when readable.
+    skipped : list of SkippedChunk
+        Corrupt parts left out (the messages around them are recovered).
+    chunks : list of (int, int, int, int)
+        MCAP: (start byte, end byte, first log time, last log time) of each chunk read.
     """
 
     path: Path
@@ -125,6 +177,15 @@ class StorageScan:
     readable_bytes: int = 0
     declared_bytes: int | None = None
     stored_metadata: dict[str, Any] | None = None
+    skipped: list[SkippedChunk] = field(default_factory=list)
+    chunks: list[tuple[int, int, int, int]] = field(default_factory=list)
+
+    @property
+    def t0_ns(self) -> int | None:
+        """Earliest log time in the file [ns]: recovered or left out (the base of the log times
+        :meth:`SkippedChunk.describe` gives)."""
+        times = [t for t in (self.first_ns, *(k.first_ns for k in self.skipped)) if t is not None]
+        return min(times) if times else None
 
     @property
     def total(self) -> int:
@@ -181,7 +242,7 @@ def _sqlite_pages(head: bytes) -> tuple[int, int] | None:
     return (65536 if page == 1 else page), struct.unpack(">I", head[28:32])[0]
 
 
-def scan_storage(path: str | Path, keep_messages: bool = True) -> StorageScan:
+def scan_storage(path: str | Path, keep_messages: bool = True, validate: bool = False) -> StorageScan:
     """Read every complete message of an MCAP or SQLite3 storage file, even a truncated one.
 
     Parameters
@@ -190,6 +251,9 @@ def scan_storage(path: str | Path, keep_messages: bool = True) -> StorageScan:
         ``.mcap`` or ``.db3`` file.
     keep_messages : bool
         Keep the raw messages (False: count them only, e.g. for :func:`rebuild_metadata`).
+    validate : bool
+        SQLite3 (no checksums): deserialise every message and leave out (as a :class:`SkippedChunk`)
+        the rows whose bytes are not a message of their topic's type.
 
     Returns
     -------
@@ -205,8 +269,8 @@ def scan_storage(path: str | Path, keep_messages: bool = True) -> StorageScan:
     if path.suffix not in _SUFFIX_STORAGE:
         raise BagError(f"'{path}': unknown storage file suffix {path.suffix!r}; expected .mcap or .db3")
     try:
-        read = _scan_mcap if path.suffix == ".mcap" else _scan_sqlite3
-        scan = read(path, keep_messages)
+        scan = _scan_mcap(path, keep_messages) if path.suffix == ".mcap" else \
+            _scan_sqlite3(path, keep_messages, validate)
     except OSError as exc:
         raise BagError(f"'{path}': cannot read ({exc.strerror or exc})") from exc
     scan.messages.sort(key=lambda m: m[1])
@@ -216,23 +280,6 @@ def scan_storage(path: str | Path, keep_messages: bool = True) -> StorageScan:
 # --------------------------------------------------------------------------------------------
 # MCAP
 # --------------------------------------------------------------------------------------------
-
-
-class _Prefix(io.RawIOBase):
-    """The first ``end`` bytes of a binary file, as a stream (for the mcap StreamReader)."""
-
-    def __init__(self, f: io.BufferedReader, end: int) -> None:
-        self._f, self._end = f, end
-        f.seek(0)
-
-    def readable(self) -> bool:
-        return True
-
-    def readinto(self, b: Any) -> int:
-        n = max(0, min(len(b), self._end - self._f.tell()))
-        data = self._f.read(n)
-        b[: len(data)] = data
-        return len(data)
 
 
 def _complete_records(buf: Any, start: int, size: int) -> tuple[int, tuple[int, int] | None]:
@@ -315,41 +362,203 @@ class _McapState:
                 rec.metadata.get("topic_type_hash", ""))
 
 
-def _scan_mcap(path: Path, keep: bool) -> StorageScan:
+_OP_FOOTER, _OP_MESSAGE_INDEX, _OP_CHUNK_INDEX = 0x02, 0x07, 0x08
+
+
+def _records(data: bytes) -> list[Any]:
+    """The MCAP records in ``data`` (no magic), all of them or an exception."""
+    from mcap.exceptions import EndOfFile
+    from mcap.stream_reader import StreamReader
+
+    out: list[Any] = []
+    try:
+        for rec in StreamReader(io.BytesIO(data), skip_magic=True).records:
+            out.append(rec)
+    except EndOfFile:
+        pass
+    return out
+
+
+def _chunk_content(body: bytes) -> tuple[Any, list[Any]]:
+    """A chunk record's header and inner records; raises ValueError saying why it is unreadable."""
+    import zlib
+
     from mcap.data_stream import ReadDataStream
     from mcap.exceptions import McapError
     from mcap.records import Chunk
-    from mcap.stream_reader import StreamReader
 
-    scan = StorageScan(path, "mcap", file_size=path.stat().st_size)
+    try:
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
+    except (McapError, struct.error, UnicodeDecodeError, ValueError) as exc:
+        raise ValueError(f"unreadable chunk header ({type(exc).__name__})") from exc
+    data = chunk.data
+    try:
+        if chunk.compression == "zstd":
+            import zstandard
+
+            data = zstandard.ZstdDecompressor().decompress(data, max_output_size=chunk.uncompressed_size)
+        elif chunk.compression == "lz4":
+            import lz4.frame
+
+            data = lz4.frame.decompress(data)
+        elif chunk.compression:
+            raise ValueError(f"unknown compression {chunk.compression!r}")
+    except ValueError:
+        raise
+    except Exception as exc:
+        raise ValueError(f"cannot decompress ({type(exc).__name__})") from exc
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise ValueError("CRC mismatch: its bytes changed after it was written")
+    try:
+        return chunk, _records(bytes(data))
+    except (McapError, struct.error, UnicodeDecodeError, ValueError) as exc:
+        raise ValueError(f"unreadable record inside ({type(exc).__name__}: {exc})") from exc
+
+
+def _summary(f: Any, size: int) -> tuple[list[int], list[Any]]:
+    """Chunk start offsets and the schema and channel records of a complete file's summary section
+    (a channel declared only inside a corrupt chunk is still known); ([], []) if unreadable."""
+    from mcap.records import Channel, ChunkIndex, Footer, Schema
+
+    try:
+        f.seek(size - len(_MCAP_MAGIC) - 29)
+        recs = _records(f.read(29))
+        footer = recs[0] if recs and isinstance(recs[0], Footer) else None
+        if footer is None or not footer.summary_start:
+            return [], []
+        f.seek(footer.summary_start)
+        summary = _records(f.read(size - len(_MCAP_MAGIC) - 29 - footer.summary_start))
+        starts = sorted(r.chunk_start_offset for r in summary if isinstance(r, ChunkIndex))
+        return starts, [r for r in summary if isinstance(r, (Schema, Channel))]
+    except Exception:  # a damaged summary: resynchronise by searching instead
+        return [], []
+
+
+def _next_chunk(f: Any, pos: int, size: int, starts: list[int]) -> int | None:
+    """Start of the first readable chunk record after byte ``pos`` (summary index, else a search for a
+    chunk opcode whose length fits and whose content checks)."""
+    known = [p for p in starts if p > pos]
+    if known:
+        return known[0]
+    f.seek(pos)
+    data = f.read()
+    i = data.find(bytes([_OP_CHUNK]), 1)
+    while i >= 0:
+        if i + 9 <= len(data):
+            length = struct.unpack("<Q", data[i + 1:i + 9])[0]
+            if i + 9 + length <= len(data):
+                try:
+                    _chunk_content(data[i + 9:i + 9 + length])
+                    return pos + i
+                except ValueError:
+                    pass
+        i = data.find(bytes([_OP_CHUNK]), i + 1)
+    return None
+
+
+def _skipped_index(skip: SkippedChunk, rec: Any, channels: dict[int, str]) -> None:
+    """Count a skipped chunk's messages from its message index record ``rec``."""
+    if not rec.records:
+        return
+    topic = channels.get(rec.channel_id, f"channel {rec.channel_id}")
+    skip.counts[topic] = skip.counts.get(topic, 0) + len(rec.records)
+    times = [t for t, _ in rec.records]
+    skip.first_ns = min(times) if skip.first_ns is None else min(skip.first_ns, min(times))
+    skip.last_ns = max(times) if skip.last_ns is None else max(skip.last_ns, max(times))
+
+
+def _scan_mcap(path: Path, keep: bool) -> StorageScan:
+    """Walk an MCAP file record by record (see :func:`scan_storage`): a chunk that cannot be read
+    (CRC mismatch, unreadable header or content) is skipped and reported, the walk goes on after it
+    (a damaged record length: at the next chunk the summary or a search finds)."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.exceptions import McapError
+    from mcap.records import Chunk, MessageIndex
+
+    size = path.stat().st_size
+    scan = StorageScan(path, "mcap", file_size=size)
+    if size == 0:
+        raise BagError(f"'{path}' is empty: nothing was written (0 bytes: the recorder stopped or was killed "
+                       "before its first flush)")
     state = _McapState(scan, keep)
     with path.open("rb") as f:
-        if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+        head = f.read(len(_MCAP_MAGIC))
+        if head != _MCAP_MAGIC:
+            if _MCAP_MAGIC.startswith(head):
+                raise BagError(f"'{path}' is empty: nothing was written ({size} byte(s), part of the MCAP "
+                               "magic)")
             raise BagError(f"'{path}' is not an MCAP file (it does not start with the MCAP magic)")
         scan.truncated = is_truncated(path)
-        end, cut = _complete_records(f, len(_MCAP_MAGIC), scan.file_size) if scan.truncated \
-            else (scan.file_size, None)
-        scan.readable_bytes = end
-        try:
-            state.feed(StreamReader(_Prefix(f, end), validate_crcs=True).records)
-            if cut is not None and cut[0] == _OP_CHUNK:
-                f.seek(cut[1] + 9)
-                body = io.BytesIO(f.read())
+        starts, defs = ([], []) if scan.truncated else _summary(f, size)
+        state.feed(iter(defs))
+        pos, skip = len(_MCAP_MAGIC), None
+        while pos + 9 <= size:
+            f.seek(pos)
+            opcode, length = struct.unpack("<BQ", f.read(9))
+            end = pos + 9 + length
+            if end > size and scan.truncated:
+                if opcode == _OP_CHUNK:  # the chunk the end of the file cut: its complete records
+                    f.seek(pos + 9)
+                    body = io.BytesIO(f.read())
+                    try:
+                        chunk = Chunk.read(ReadDataStream(body))
+                        inner = _partial_chunk_records(chunk)
+                        state.feed(iter(_records(inner)))
+                        if not chunk.compression and inner:
+                            pos = body.tell() - len(chunk.data) + pos + 9 + len(inner)
+                    except (McapError, struct.error, ValueError, UnicodeDecodeError):
+                        pass
+                break
+            if opcode == _OP_FOOTER:
+                pos = end
+                break
+            if end > size or opcode == 0:
+                nxt = _next_chunk(f, pos, size, starts)
+                scan.skipped.append(SkippedChunk(pos, nxt or size, "unreadable record (its length runs past "
+                                                 "the end of the file)"))
+                if nxt is None:
+                    break
+                pos, skip = nxt, None
+                continue
+            body = f.read(length)
+            if opcode == _OP_CHUNK:
+                skip = None
                 try:
-                    chunk = Chunk.read(ReadDataStream(body))
-                except (McapError, struct.error):
-                    chunk = None
-                if chunk is not None:
-                    inner = _partial_chunk_records(chunk)
-                    state.feed(StreamReader(io.BytesIO(inner), skip_magic=True).records)
-                    if not chunk.compression and inner:  # the inner records' place in the file is known
-                        scan.readable_bytes = body.tell() - len(chunk.data) + cut[1] + 9 + len(inner)
-        except (McapError, struct.error, ValueError, UnicodeDecodeError) as exc:
-            raise BagError(f"'{path}' is corrupt: an MCAP record before byte {end} cannot be read "
-                           f"({type(exc).__name__}: {exc})") from exc
-    if state.orphans:
+                    chunk, inner = _chunk_content(body)
+                    state.feed(iter(inner))
+                    scan.chunks.append((pos, end, int(chunk.message_start_time), int(chunk.message_end_time)))
+                except ValueError as exc:
+                    skip = SkippedChunk(pos, end, f"corrupt chunk: {exc}")
+                    scan.skipped.append(skip)
+            elif opcode == _OP_MESSAGE_INDEX and skip is not None:
+                recs = _safe_records(bytes([opcode]) + struct.pack("<Q", length) + body)
+                for r in recs or []:
+                    if isinstance(r, MessageIndex):
+                        _skipped_index(skip, r, state.channels)
+            else:
+                recs = _safe_records(bytes([opcode]) + struct.pack("<Q", length) + body)
+                if recs is None:
+                    scan.skipped.append(SkippedChunk(pos, end, f"unreadable record (opcode {opcode:#04x})"))
+                else:
+                    state.feed(iter(recs))
+            pos = end
+        scan.readable_bytes = min(pos, size)
+    if state.orphans and not scan.skipped:
         raise BagError(f"'{path}' is corrupt: {state.orphans} message(s) on a channel without channel record")
+    if state.orphans:  # their channel was declared in a corrupt part only
+        scan.skipped.append(SkippedChunk(0, 0, "intact messages on channels declared only in a corrupt "
+                                         "part", {"topic unknown": state.orphans}))
     return scan
+
+
+def _safe_records(data: bytes) -> list[Any] | None:
+    """:func:`_records`, or None when they cannot be read."""
+    from mcap.exceptions import McapError
+
+    try:
+        return _records(data)
+    except (McapError, struct.error, UnicodeDecodeError, ValueError):
+        return None
 
 
 def _parse_qos(text: str) -> tuple[Any, ...]:
@@ -420,7 +629,7 @@ def _prefix_vfs(limit: int) -> Any:
     return PrefixVFS(f"aeropend-prefix-{next(_vfs_ids)}")
 
 
-def _scan_sqlite3(path: Path, keep: bool) -> StorageScan:
+def _scan_sqlite3(path: Path, keep: bool, validate: bool = False) -> StorageScan:
     import apsw
 
     scan = StorageScan(path, "sqlite3", file_size=path.stat().st_size)
@@ -438,7 +647,7 @@ def _scan_sqlite3(path: Path, keep: bool) -> StorageScan:
         try:
             if scan.truncated:
                 conn.execute("PRAGMA writable_schema=ON")  # accept a file shorter than its header says
-            _read_sqlite3(conn, scan, keep)
+            _read_sqlite3(conn, scan, keep, validate)
         finally:
             conn.close()
     except apsw.Error as exc:
@@ -453,7 +662,7 @@ def _scan_sqlite3(path: Path, keep: bool) -> StorageScan:
     return scan
 
 
-def _read_sqlite3(conn: Any, scan: StorageScan, keep: bool) -> None:
+def _read_sqlite3(conn: Any, scan: StorageScan, keep: bool, validate: bool = False) -> None:
     """Topics, stored metadata and messages (rowid order, up to the first missing page)."""
     import apsw
 
@@ -475,13 +684,113 @@ def _read_sqlite3(conn: Any, scan: StorageScan, keep: bool) -> None:
             scan.stored_metadata = _parse_stored_metadata(row[0]) if row else None
         except apsw.Error:
             scan.stored_metadata = None
+    last_id = 0
+    check = _Validator(scan, ids) if validate else None
     try:
-        for tid, stamp, data in conn.execute("SELECT topic_id, timestamp, data FROM messages ORDER BY id"):
-            if tid in ids:
+        query = "SELECT id, topic_id, timestamp, data FROM messages ORDER BY id"
+        for rid, tid, stamp, data in conn.execute(query):
+            if tid in ids and (check is None or check(rid, tid, int(stamp), data)):
                 scan._add(ids[tid], int(stamp), bytes(data), keep)
+            last_id = rid
     except apsw.CorruptError:
         if not scan.truncated:
-            raise
+            _read_sqlite3_around(conn, scan, keep, ids, last_id)
+    if check is not None:
+        check.report()
+
+
+class _Validator:
+    """Rows of an SQLite3 bag whose bytes do not deserialise as their topic's type (the file has no
+    checksum): called per row, True for a good one; :meth:`report` adds the bad ones, run by run,
+    to ``scan.skipped``."""
+
+    def __init__(self, scan: StorageScan, ids: dict[int, str]) -> None:
+        from aeropend_ident.io.bag_codec import typestore
+
+        self.scan, self.ids, self.ts = scan, ids, typestore()
+        self.types = {tid: scan.topics[name].msgtype for tid, name in ids.items()}
+        self.bad: list[tuple[int, int, int, str]] = []  # row id, topic id, stamp, error
+
+    def __call__(self, rid: int, tid: int, stamp: int, data: bytes) -> bool:
+        typ = self.types[tid]
+        if typ not in self.ts.types:
+            return True
+        try:
+            self.ts.deserialize_cdr(bytes(data), typ)
+        except Exception as exc:
+            self.bad.append((rid, tid, stamp, f"{type(exc).__name__}: {exc}"))
+            return False
+        return True
+
+    def report(self) -> None:
+        by_id = {b[0]: b for b in self.bad}
+        for run in _runs(list(by_id)):
+            rows = [by_id[r] for r in run]
+            counts: dict[str, int] = {}
+            for _, tid, _, _ in rows:
+                counts[self.ids[tid]] = counts.get(self.ids[tid], 0) + 1
+            self.scan.skipped.append(SkippedChunk(
+                0, 0, f"rows {run[0]}-{run[-1]} of the messages table hold bytes that are not a message "
+                f"of their topic's type ({rows[0][3]})", counts, min(r[2] for r in rows),
+                max(r[2] for r in rows)))
+
+
+#: Rows read at a time around a corrupt page of an SQLite3 file.
+_ROW_BATCH = 4096
+
+
+def _read_sqlite3_around(conn: Any, scan: StorageScan, keep: bool, ids: dict[int, str], done: int) -> None:
+    """The rows after id ``done`` of a file with a corrupt page: read by id ranges, a range that fails
+    bisected down to single rows; the unreadable rows are reported as :class:`SkippedChunk` s."""
+    import apsw
+
+    try:
+        top = conn.execute("SELECT max(id) FROM messages").fetchone()[0] or done
+    except apsw.Error:
+        top = done
+    bad: list[int] = []
+    stamps: dict[int, int] = {}
+    prev = scan.last_ns  # the last row read before the corrupt page
+
+    def read(a: int, b: int) -> None:
+        try:
+            rows = list(conn.execute("SELECT id, topic_id, timestamp, data FROM messages "
+                                     "WHERE id >= ? AND id < ? ORDER BY id", (a, b)))
+        except apsw.Error:
+            if b - a <= 1:
+                bad.append(a)
+                return
+            m = (a + b) // 2
+            read(a, m)
+            read(m, b)
+            return
+        for rid, tid, stamp, data in rows:
+            stamps[rid] = int(stamp)
+            if tid in ids:
+                scan._add(ids[tid], int(stamp), bytes(data), keep)
+
+    for a in range(done + 1, top + 1, _ROW_BATCH):
+        read(a, min(top + 1, a + _ROW_BATCH))
+    if top == done:
+        scan.skipped.append(SkippedChunk(0, 0, f"the rows after id {done} of the messages table are "
+                                         "unreadable (corrupt page)"))
+    for run in _runs(bad):
+        before = max((stamps[i] for i in stamps if i < run[0]), default=prev)
+        after = min((stamps[i] for i in stamps if i > run[-1]), default=None)
+        scan.skipped.append(SkippedChunk(0, 0, f"rows {run[0]}-{run[-1]} of the messages table are on a "
+                                         "corrupt page", {"topic unknown": len(run)}, before,
+                                         after))
+
+
+def _runs(values: list[int]) -> list[list[int]]:
+    """Consecutive runs of sorted integers."""
+    out: list[list[int]] = []
+    for v in sorted(values):
+        if out and v == out[-1][-1] + 1:
+            out[-1].append(v)
+        else:
+            out.append([v])
+    return out
 
 
 def stored_metadata(path: str | Path) -> dict[str, Any] | None:
@@ -548,7 +857,7 @@ def rebuild_metadata(bag: str | Path) -> tuple[dict[str, Any], list[StorageScan]
     kinds = {_SUFFIX_STORAGE[p.suffix] for p in files}
     if len(kinds) > 1:
         raise BagError(f"'{bag}' mixes storage kinds ({', '.join(p.name for p in files)}); expected one")
-    scans = [scan_storage(p, keep_messages=False) for p in files]
+    scans = [scan_storage(p, keep_messages=False, validate=True) for p in files]
     topics: dict[str, StorageTopic] = {}
     counts: dict[str, int] = {}
     for s in scans:
@@ -586,6 +895,10 @@ def rebuild_metadata(bag: str | Path) -> tuple[dict[str, Any], list[StorageScan]
         "custom_data": stored.get("custom_data") or None,
         "ros_distro": stored.get("ros_distro") or "rosbags",
     }
+    skipped = [{"file": s.path.name, "start": k.start, "end": k.end, "reason": k.reason, "counts": k.counts,
+                "first_ns": k.first_ns, "last_ns": k.last_ns} for s in scans for k in s.skipped]
+    if skipped:  # readers then read the recovered messages (and say what was left out)
+        info["custom_data"] = {**(info["custom_data"] or {}), SKIPPED_KEY: json.dumps(skipped)}
     return info, scans
 
 

@@ -7,6 +7,7 @@ The wire convention (duty and v_a shifted forward one sample) and the precision 
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -55,7 +56,7 @@ from aeropend_sim.contract import (
 from aeropend_sim.output_folder import OutputFolder, OutputFolderError, claim_output_folder, is_fault
 from aeropend_sim.recording import MEASURED_CHANNELS, Recording
 
-from .mcap_jazzy import JazzyWriter
+from .mcap_jazzy import JazzyMcapWriter, JazzyWriter
 
 #: What a rosbag2 bag folder holds at its top level (:func:`claim_bag_folder`: an existing folder is
 #: replaced only if it holds one of these).
@@ -254,6 +255,115 @@ def write_bag(rec: Recording, path: str | Path, storage: Storage = "mcap", rig_n
     return path
 
 
+class BagStream:
+    """A contract bag written block by block (memory: one block), as :func:`write_bag` writes it.
+
+    Each :meth:`write` takes the next samples (time from the first, duty, contract channels);
+    the wire convention (duty and v_a shifted forward one sample) runs across the blocks. Extra
+    channels are not written (:func:`write_bag` takes those). MCAP storage gets whole chunks
+    built with NumPy (:meth:`~aeropend_ident.io.mcap_jazzy.JazzyWriter.write_rows`).
+
+    Parameters
+    ----------
+    path : Path
+        Bag folder to create (absent or empty).
+    storage : {"mcap", "sqlite3"}
+        rosbag2 storage plugin.
+    stamp0_ns : int
+        Absolute stamp of ``t = 0`` [ns].
+    frame_id : str
+        ``header.frame_id`` of the sample messages.
+
+    Raises
+    ------
+    BagError
+        Unknown storage; the bag cannot be created.
+    """
+
+    def __init__(self, path: Path, storage: Storage = "mcap", stamp0_ns: int = 0,
+                 frame_id: str = "aeropend") -> None:
+        if storage not in _STORAGE_PLUGINS:
+            raise BagError(f"bag '{path}': unknown storage {storage!r}; "
+                           f"expected one of {sorted(_STORAGE_PLUGINS)}")
+        self.path, self.stamp0_ns, self.frame_id = Path(path), int(stamp0_ns), frame_id
+        self._writer = JazzyWriter(self.path, version=9, storage_plugin=_STORAGE_PLUGINS[storage])
+        self._writer.open()
+        ts = typestore()
+        qos = qos_for_topic(TOPIC_JOINT_STATES, False)
+        self._conns = [self._writer.add_connection(TOPIC_JOINT_STATES, TYPE_JOINT_STATES, typestore=ts,
+                                                   offered_qos_profiles=[qos]),
+                       self._writer.add_connection(TOPIC_ARMATURE, TYPE_ARMATURE, typestore=ts,
+                                                   offered_qos_profiles=[qos]),
+                       self._writer.add_connection(TOPIC_DUTY_CYCLE, TYPE_DUTY_CYCLE, typestore=ts,
+                                                   offered_qos_profiles=[COMMAND_QOS])]
+        self._last = (np.nan, np.nan, -1)  # duty, v_a, stamp of the previous sample
+        self.samples = self.commands = 0
+
+    def write(self, t: np.ndarray, duty: np.ndarray, channels: dict[str, np.ndarray]) -> None:
+        """Append samples: ``t`` [s] from the bag's ``t = 0``, shape (n,); ``duty`` in [0, 1]
+        (NaN: no command sent); ``channels`` the contract channels present (SI).
+
+        Raises
+        ------
+        BagError
+            Stamps not strictly increasing after rounding to nanoseconds.
+        """
+        n = len(t)
+        if not n:
+            return
+        stamps = self.stamp0_ns + np.round(np.asarray(t) * 1e9).astype(np.int64)
+        d = np.diff(np.concatenate(([self._last[2]], stamps)))
+        if np.any(d <= 0):
+            k = int(np.flatnonzero(d <= 0)[0])
+            raise BagError(f"bag '{self.path}': stamps not strictly increasing at sample {self.samples + k} "
+                           "after rounding to ns")
+        nan = np.full(n, np.nan)
+        ch = {name: channels.get(name, nan) for name in MEASURED_CHANNELS}
+        effort = np.concatenate(([self._last[0]], duty[:-1]))
+        v_wire = np.concatenate(([self._last[1]], ch["v_a"][:-1]))
+        self._last = (float(duty[-1]), float(ch["v_a"][-1]), int(stamps[-1]))
+        velocity = np.column_stack([ch["theta_dot"], ch["omega_rotor"], ch["omega_prop"]])
+        js = encode_joint_states(stamps, position=np.column_stack([ch["theta"], nan, nan]), velocity=velocity,
+                                 effort=np.column_stack([nan, effort, nan]), frame_id=self.frame_id,
+                                 array=True)
+        arm = encode_armature(stamps, v_wire, ch["i_a"], frame_id=self.frame_id, array=True)
+        sent = np.isfinite(duty)
+        if sent.all():
+            self._writer.write_rows(self._conns, stamps, [js, arm, encode_float64(duty, array=True)])
+        else:
+            self._writer.write_rows(self._conns[:2], stamps, [js, arm])
+            self._writer.write_rows(self._conns[2:], stamps[sent], [encode_float64(duty[sent], array=True)])
+        self.samples += n
+        self.commands += int(sent.sum())
+
+    def close(self, meta: dict[str, Any], source: str, rig_name: str | None = None) -> Path:
+        """Store ``meta`` (JSON in ``custom_data``), the source and rig name; finish the bag."""
+        meta = dict(meta)
+        if rig_name is not None:
+            self._writer.set_custom_data(_CUSTOM_RIG, str(rig_name))
+            meta["rig_name"] = rig_name
+        self._writer.set_custom_data(_CUSTOM_SOURCE, str(source))
+        self._writer.set_custom_data(_CUSTOM_META, json.dumps(meta, default=_json_default))
+        self._writer.close()
+        return self.path
+
+    def abort(self) -> None:
+        """Close the file and remove the bag folder (nothing partial is left)."""
+        import shutil
+
+        storage = getattr(self._writer, "storage", None)
+        try:
+            if storage is not None:
+                bio = getattr(storage, "bio", None)
+                if bio is not None:
+                    bio.close()
+                db = getattr(storage, "conn", None)
+                if db is not None:
+                    db.close()
+        finally:
+            shutil.rmtree(self.path, ignore_errors=True)
+
+
 class _ExtraTopics:
     """The extra channels' topics of a bag being written: the reference (``std_msgs/Float64``, its
     finite values) and the labelled ``Float64MultiArray`` of the other channels, one per sample."""
@@ -345,6 +455,11 @@ class BagSink:
         Storage plugin.
     custom_data : dict of str, optional
         ``custom_data`` entries of ``metadata.yaml``.
+    flush_interval_s : float
+        Longest time [s] a written message stays only in memory: :meth:`write` and
+        :meth:`flush_if_due` then close the MCAP chunk (commit the SQLite transaction) and
+        ``fsync`` the file, so a recorder killed (or a power cut) loses at most this much.
+        0: only on :meth:`close`.
 
     Raises
     ------
@@ -353,7 +468,7 @@ class BagSink:
     """
 
     def __init__(self, path: str | Path, storage: Storage = "mcap",
-                 custom_data: dict[str, str] | None = None) -> None:
+                 custom_data: dict[str, str] | None = None, flush_interval_s: float = 0.0) -> None:
         self.path = Path(path)
         if storage not in _STORAGE_PLUGINS:
             raise BagError(f"bag '{self.path}': unknown storage {storage!r}; "
@@ -374,6 +489,14 @@ class BagSink:
         self._conns: dict[str, Any] = {}
         self.counts: dict[str, int] = {}
         self.closed = False
+        self.flush_interval_ns = round(float(flush_interval_s) * 1e9)
+        self._flushed_ns = time.monotonic_ns()
+        self.flushes = 0
+        self._dirty = False  # messages written since the last flush
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        """Set a ``custom_data`` entry of ``metadata.yaml`` (written on :meth:`close`)."""
+        self._writer.set_custom_data(key, str(value))
 
     def has_topic(self, topic: str) -> bool:
         """Whether ``topic`` is registered."""
@@ -394,9 +517,31 @@ class BagSink:
         self.counts[topic] = 0
 
     def write(self, topic: str, timestamp_ns: int, data: bytes) -> None:
-        """Append one serialised message with log time ``timestamp_ns``."""
+        """Append one serialised message with log time ``timestamp_ns`` (then :meth:`flush_if_due`)."""
         self._writer.write(self._conns[topic], int(timestamp_ns), data)
         self.counts[topic] += 1
+        self._dirty = True
+        self.flush_if_due()
+
+    def flush_if_due(self) -> None:
+        """:meth:`flush` when ``flush_interval_s`` has passed since the last one."""
+        if self.flush_interval_ns and not self.closed and \
+                time.monotonic_ns() - self._flushed_ns >= self.flush_interval_ns:
+            self.flush()
+
+    def flush(self) -> None:
+        """Put everything written so far on disk: the MCAP chunk closed (the SQLite transaction
+        committed) and the file ``fsync``-ed."""
+        storage = self._writer.storage
+        self._flushed_ns = time.monotonic_ns()
+        if storage is None or self.closed or not self._dirty:
+            return
+        self._dirty = False
+        if isinstance(storage, JazzyMcapWriter):
+            storage.flush()
+        else:
+            storage.conn.commit()
+        self.flushes += 1
 
     def close(self) -> None:
         """Finish the bag (writes ``metadata.yaml``); safe to call twice."""

@@ -59,7 +59,7 @@ from rosbags.interfaces import (
 )
 from rosbags.rosbag2 import StoragePlugin
 
-from aeropend_ident.errors import BagError, BagTruncatedWarning
+from aeropend_ident.errors import BagError, BagLossWarning, BagTruncatedWarning
 from aeropend_ident.io.bag_codec import (
     decode_armature,
     decode_float64,
@@ -70,11 +70,13 @@ from aeropend_ident.io.bag_codec import (
 )
 from aeropend_ident.io.bag_recover import (
     METADATA_FILE,
+    SKIPPED_KEY,
     is_truncated,
     scan_storage,
     storage_files,
     stored_metadata,
 )
+from aeropend_ident.io.integrity.loss import loss_warning, stored_loss
 from aeropend_sim.contract import (
     CLOCK_QOS_DEPTH,
     COMMAND_QOS_DEPTH,
@@ -212,10 +214,41 @@ def bag_metadata(path: str | Path) -> dict[str, Any]:
         raise BagError(f"bag '{path}': cannot read {meta_file.name}: {exc}") from exc
 
 
+def corruption_error(path: Path, what: str, log_ns: int | None = None) -> BagError:
+    """A bag that cannot be read: where its storage is corrupt (byte ranges, log times, messages, from
+    :func:`~aeropend_ident.io.bag_recover.scan_storage`) and that ``reindex`` recovers the rest.
+
+    Parameters
+    ----------
+    path : Path
+        Bag directory or storage file.
+    what : str
+        What failed (``a message of /aeropend/joint_states cannot be decoded (...)``).
+    log_ns : int, optional
+        Log time [ns] of the message that failed: the chunk holding it is named.
+    """
+    bag = path if path.is_dir() else path.parent
+    fix = f"'reindex --overwrite {bag}' leaves the corrupt part(s) out and keeps every intact message"
+    parts: list[str] = []
+    try:
+        files = storage_files(path) if path.is_dir() else [path]
+        scans = [scan_storage(p, keep_messages=False, validate=True) for p in files]
+    except BagError as exc:
+        return BagError(f"bag '{path}' is corrupt: {what}; {exc}")
+    for s in scans:
+        parts += [f"{s.path.name} {k.describe(s.t0_ns)}" for k in s.skipped]
+    if parts:
+        return BagError(f"bag '{path}' is corrupt: {what}; {'; '.join(parts)}; {fix}")
+    held = [f"bytes {a}-{b} of {s.path.name}" for s in scans for a, b, t0, t1 in s.chunks
+            if log_ns is not None and t0 <= log_ns <= t1]
+    place = f"; the message lies in {' or '.join(held)}" if held else ""
+    return BagError(f"bag '{path}' is corrupt: {what}{place}; its chunks carry no CRC (an older writer), so "
+                    "reindex cannot tell which is damaged: cut the bag before that point or record again")
+
+
 def _open_error(path: Path, exc: BaseException) -> BagError:
     if path.is_dir() or path.suffix in (".mcap", ".db3"):
-        return BagError(f"bag '{path}' is corrupt: its storage cannot be opened "
-                        f"({type(exc).__name__}: {exc})")
+        return corruption_error(path, f"its storage cannot be opened ({type(exc).__name__}: {exc})")
     return BagError(f"'{path}' is not a readable rosbag2 bag ({type(exc).__name__}: {exc}); expected a bag "
                     "directory with metadata.yaml and .mcap/.db3 storage, or a .mcap/.db3 file")
 
@@ -289,9 +322,25 @@ def _read_contract_topics(
     except ContractError as exc:
         raise BagError(f"bag '{path}': {exc}") from exc
     except Exception as exc:
-        raise BagError(f"bag '{path}' is corrupt: a message cannot be decoded "
-                       f"({type(exc).__name__}: {exc})") from exc
+        topic, k = _first_undecodable(raws, (t_js, t_arm, t_cmd, t_ref, t_ext))
+        log = logs[topic][k] if topic is not None else None
+        which = f"message {k} of {topic}" if topic is not None else "a message"
+        raise corruption_error(path, f"{which} cannot be decoded ({type(exc).__name__}: {exc})", log) from exc
     return (t_js, t_arm, t_cmd, t_ref, t_ext), raws, logs, reader, (js, arm, cmd, ref, ext)
+
+
+def _first_undecodable(raws: dict[str, list[Any]], topics: Sequence[str]) -> tuple[str | None, int]:
+    """The first message the typestore cannot deserialise: (topic, index), or (None, -1)."""
+    ts = typestore()
+    types = dict(zip(topics, (TYPE_JOINT_STATES, TYPE_ARMATURE, TYPE_DUTY_CYCLE, TYPE_REFERENCE,
+                              TYPE_EXTRA_CHANNELS), strict=True))
+    for topic in topics:
+        for k, raw in enumerate(raws.get(topic, [])):
+            try:
+                ts.deserialize_cdr(raw, types[topic])
+            except Exception:
+                return topic, k
+    return None, -1
 
 
 def _sample_of(js_log: np.ndarray, log: np.ndarray) -> np.ndarray:
@@ -550,11 +599,40 @@ def read_bag(path: str | Path, *, namespace: str = "",
         "held_tail": held,
         "cdr_fallback_messages": js.fallback + (arm.fallback if arm else 0) + (cmd.fallback if cmd else 0),
     })
+    _check_loss(path, reader.custom_data, stamps, js_log, t_js, meta)
     try:
         return Recording(t=(stamps - stamps[0]) / 1e9, duty=duty, channels=channels, source=str(path),
                          stamp0_ns=int(stamps[0]), meta=meta, extra=extra, extra_units=units)
     except RecordingError as exc:  # pragma: no cover - stamps are checked above
         raise BagError(f"bag '{path}': {exc}") from exc
+
+
+def _check_loss(path: Path, custom: dict[str, Any], stamps: np.ndarray, js_log: np.ndarray, t_js: str,
+                meta: dict[str, Any]) -> None:
+    """``meta["loss"]``: the loss ``record`` counted (:mod:`aeropend_ident.io.integrity.loss`), or for a
+    recorded bag without that count (killed then reindexed, another recorder; not a bag written
+    from a recording or a CSV log) the samples missing between the joint_states stamps; a
+    :class:`~aeropend_ident.errors.BagLossWarning` above the threshold."""
+    loss = stored_loss(custom)
+    if loss is None and _CUSTOM_META not in custom and len(stamps) > 2:  # a recording, not an import
+        step = np.diff(stamps)
+        period = float(np.median(step))
+        n_lost = np.where(step > 1.5 * period, np.round(step / period) - 1, 0).astype(np.int64)
+        at = np.flatnonzero(n_lost)
+        lost = int(n_lost.sum())
+        base = int(js_log[0])
+        loss = {t_js: {"received": len(stamps), "lost": lost, "expected": len(stamps) + lost,
+                       "fraction": lost / (len(stamps) + lost), "method": "stamps", "period_s": period / 1e9,
+                       "gaps": int(at.size),
+                       "first_gaps": [[round((int(js_log[k]) - base) / 1e9, 4),
+                                       round((int(js_log[k + 1]) - base) / 1e9, 4), int(n_lost[k])]
+                                      for k in at[:20]]}}
+    if loss is None:
+        return
+    meta["loss"] = loss
+    text = loss_warning(f"bag '{path}'", loss)
+    if text is not None:
+        warnings.warn(text, BagLossWarning, stacklevel=3)
 
 
 def _stored_meta(custom: dict[str, Any]) -> dict[str, Any]:
@@ -644,7 +722,7 @@ class RawBagReader:
         self.recovery: dict[str, Any] | None = None
         files = self._storage_paths()
         self.storage: Storage = "mcap" if any(p.suffix == ".mcap" for p in files) else "sqlite3"
-        if any(p.is_file() and is_truncated(p) for p in files):
+        if any(p.is_file() and is_truncated(p) for p in files) or self._reindexed_skipping():
             # not AnyReader: SQLite would read a page cut in the middle zero-filled
             found = self._recover(files)
         else:
@@ -670,6 +748,16 @@ class RawBagReader:
             found = {t: found[t] for t in topics}
         self.topics: dict[str, BagTopic] = found
 
+    def _reindexed_skipping(self) -> bool:
+        """``reindex`` left corrupt parts of this bag out (``metadata.yaml`` lists them)."""
+        if not self.path.is_dir():
+            return False
+        try:
+            custom = bag_metadata(self.path).get("custom_data") or {}
+        except BagError:
+            return False
+        return isinstance(custom, dict) and SKIPPED_KEY in custom
+
     def _storage_paths(self) -> list[Path]:
         """The storage files: the file given, or those metadata.yaml lists."""
         if not self.path.is_dir():
@@ -694,7 +782,7 @@ class RawBagReader:
 
     def _recover(self, files: list[Path]) -> dict[str, BagTopic]:
         """Read what is readable of truncated storage files; warn how much and where they end."""
-        scans = [scan_storage(p) for p in files]
+        scans = [scan_storage(p, validate=self._reindexed_skipping()) for p in files]
         self._stored = next((s.stored_metadata for s in scans if s.stored_metadata), None)
         found: dict[str, BagTopic] = {}
         counts: dict[str, int] = {}
@@ -712,9 +800,11 @@ class RawBagReader:
             except (BagError, TypeError, ValueError):
                 declared = None
         cut = [s for s in scans if s.truncated]
-        where = "; ".join(s.where_it_ends() for s in cut)
+        where = "; ".join([s.where_it_ends() for s in cut]
+                          + [f"{s.path.name} {k.describe(s.t0_ns)}" for s in scans for k in s.skipped])
+        state = "is truncated" if cut else "has corrupt parts, left out"
         if total == 0:
-            raise BagError(f"bag '{self.path}' is truncated: {where}; no complete message could be recovered")
+            raise BagError(f"bag '{self.path}' {state}: {where}; no complete message could be recovered")
         first, last = self._recovered[0][1], self._recovered[-1][1]
         self.recovery = {
             "files": [{"file": str(s.path), "file_size": s.file_size, "readable_bytes": s.readable_bytes,
@@ -724,7 +814,8 @@ class RawBagReader:
         }
         per_topic = ", ".join(f"{n} {c}" for n, c in counts.items())
         lost = "" if declared is None else f"; {METADATA_FILE} declares {declared}, {declared - total} lost"
-        warnings.warn(f"bag '{self.path}' is truncated: {where}; recovered {total} message(s) ({per_topic}) "
+        self.recovery["skipped"] = [f"{s.path.name} {k.describe(s.t0_ns)}" for s in scans for k in s.skipped]
+        warnings.warn(f"bag '{self.path}' {state}: {where}; recovered {total} message(s) ({per_topic}) "
                       f"up to log time {last} ns ({(last - first) / 1e9:.3f} s after the first){lost}",
                       BagTruncatedWarning, stacklevel=3)
         return found
@@ -757,8 +848,7 @@ class RawBagReader:
         except BagError:
             raise
         except Exception as exc:
-            raise BagError(f"bag '{self.path}' is corrupt: reading failed "
-                           f"({type(exc).__name__}: {exc})") from exc
+            raise corruption_error(self.path, f"reading failed ({type(exc).__name__}: {exc})") from exc
 
     def close(self) -> None:
         """Close the underlying reader (the recovered messages stay readable)."""

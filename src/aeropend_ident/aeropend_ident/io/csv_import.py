@@ -13,7 +13,10 @@ input can explain it (:func:`~aeropend_ident.io.csvspec.constant_input.check_con
 free decay or a step from rest, not a closed loop whose only input-like column is its reference).
 
 File handling: separator auto-detection (``,`` ``;`` tab), full-line comments (``#``), header
-row detection, decimal comma, UTF-8 BOM, ``.csv.gz``. A malformed file raises
+row detection, decimal comma, UTF-8 BOM, ``.csv.gz``. The file is read as a stream of blocks
+(:mod:`aeropend_ident.io.csvread`: pyarrow's CSV parser, row by row where a block needs a
+message), so :func:`stream_csv_to_bag` writes a bag of any length in bounded memory; a binary file
+(a NUL byte) is refused from its first 64 KiB. A malformed file raises
 :class:`CsvImportError` naming the file, the line (1-based, as an editor shows it) and the
 column, e.g. ``data.csv line 57 column 'angle [deg]': 'abc' is not a number``.
 
@@ -25,18 +28,19 @@ licence notes in each preset's ``meta``); a lab's own preset is a YAML file of t
 
 from __future__ import annotations
 
-import hashlib
 import math
+import shutil
 import warnings
-import zlib
-from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
-from aeropend_ident.errors import ConstantInputWarning, CsvImportError, CsvRowWarning
+from aeropend_ident.errors import ConstantInputWarning, CsvImportError
+from aeropend_ident.io.csvread.stream import Converted, Converter, CsvReader, Progress, TimeStats
+from aeropend_ident.io.csvread.table import plural as _plural
 from aeropend_ident.io.csvspec.constant_input import check_constant_input, driven_message
 from aeropend_ident.io.csvspec.spec import (
     PRESETS,
@@ -54,6 +58,7 @@ __all__ = [
     "PRESETS",
     "BadRows",
     "Column",
+    "CsvBag",
     "CsvImportError",
     "CsvSpec",
     "csv_to_bag",
@@ -62,293 +67,22 @@ __all__ = [
     "import_csv_runs",
     "load_presets",
     "resolve_preset",
+    "stream_csv_to_bag",
+    "streamable",
     "summary",
 ]
 
 TimeUnit = Literal["s", "ms", "us", "sample"]
 _TIME_SCALE = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
-_DELIMITERS = ("\t", ";", ",")
 #: What :func:`import_csv` does with a bad row: raise (default) or drop it and report it.
 BadRows = Literal["error", "drop"]
 #: The option that drops bad rows, named in the messages (``bad_rows="drop"`` in Python).
 _DROP_HINT = "csv_import --drop-bad-rows"
-#: Bad rows listed by line in a drop report.
-_SHOWN_ROWS = 5
 
 
 # --------------------------------------------------------------------------------------------
 # Reading
 # --------------------------------------------------------------------------------------------
-
-
-@dataclass
-class _Table:
-    path: Path
-    header: list[str] | None
-    rows: list[list[str]]
-    line_no: np.ndarray  # 1-based line number of each row
-    delimiter: str
-    decimal: str
-    comment_lines: int
-    blank_lines: int
-    header_line: int | None
-    terminated: bool  # the text ends with a line break (False: its last line may be cut)
-
-
-def _gunzip(path: Path, raw: bytes, partial: bool) -> bytes:
-    """Decompress a gzip file (every member, CRCs checked by zlib); the readable part of a cut one
-    when ``partial``, else an error saying it is cut."""
-    out: list[bytes] = []
-    rest = raw
-    try:
-        while rest:
-            d = zlib.decompressobj(wbits=16 + zlib.MAX_WBITS)
-            out.append(d.decompress(rest))
-            if not d.eof:
-                text = b"".join(out)
-                if not partial:
-                    raise CsvImportError(
-                        f"{path}: the gzip stream is cut: it ends after {len(raw)} compressed bytes without "
-                        f"its end marker ({len(text)} bytes of text readable); {_DROP_HINT} imports the "
-                        "readable part")
-                return text
-            rest = d.unused_data.lstrip(b"\x00")  # members follow one another; zero padding is allowed
-    except zlib.error as exc:
-        raise CsvImportError(f"{path}: corrupt gzip data ({exc})") from exc
-    return b"".join(out)
-
-
-def _read_text(path: Path, encoding: str, partial_gzip: bool = False) -> tuple[str, bytes]:
-    """Text of a CSV file (a gzip one decompressed, a UTF-8 BOM removed) and its raw bytes."""
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise CsvImportError(f"{path}: cannot read file ({exc.strerror or exc})") from exc
-    if not raw:
-        raise CsvImportError(f"{path}: empty file (0 bytes)")
-    data = _gunzip(path, raw, partial_gzip) if raw[:2] == b"\x1f\x8b" else raw
-    try:
-        text = data.decode(encoding)
-    except UnicodeDecodeError as exc:
-        if partial_gzip and raw[:2] == b"\x1f\x8b" and exc.start >= len(data) - 3:
-            text = data[:exc.start].decode(encoding)  # a character cut with the gzip stream
-        else:
-            line = data[:exc.start].count(b"\n") + 1
-            raise CsvImportError(f"{path}:{line}: bytes are not valid {encoding} text ({exc.reason})") \
-                from exc
-    return text.lstrip("\ufeff"), raw
-
-
-def _is_number(s: str, decimal: str) -> bool:
-    s = s.strip()
-    if decimal == ",":
-        s = s.replace(",", ".")
-    try:
-        float(s)
-    except ValueError:
-        return False
-    return True
-
-
-def _detect_delimiter(lines: list[str]) -> str:
-    sample = lines[:50]
-    for d in _DELIMITERS:
-        counts = {ln.count(d) for ln in sample}
-        if len(counts) == 1 and counts.pop() > 0:
-            return d
-    # inconsistent counts (e.g. a header with more commas): take the most frequent candidate
-    best = max(_DELIMITERS, key=lambda d: sum(ln.count(d) for ln in sample))
-    return best if any(best in ln for ln in sample) else ","
-
-
-def _tabulate(path: Path, text: str, spec: CsvSpec) -> _Table:
-    lines = text.splitlines()
-    keep: list[int] = []
-    comment = blank = 0
-    for i, ln in enumerate(lines):
-        s = ln.strip()
-        if not s:
-            blank += 1
-        elif spec.comment and s.startswith(spec.comment):
-            comment += 1
-        else:
-            keep.append(i)
-    if not keep:
-        raise CsvImportError(f"{path}: no data lines (only {comment} comment and {blank} blank line(s))")
-    content = [lines[i] for i in keep]
-    delimiter = spec.delimiter or _detect_delimiter(content)
-    first = content[0].split(delimiter)
-    decimal = spec.decimal
-    if decimal is None:
-        decimal = "."
-        if delimiter != ",":
-            probe = [f for ln in content[1:51] for f in ln.split(delimiter)]
-            if any("," in f for f in probe) and not any("." in f for f in probe):
-                decimal = ","
-    has_header = spec.header
-    if has_header is None:
-        numeric = all(_is_number(f, decimal) for f in first if f.strip())
-        has_header = not numeric or not any(f.strip() for f in first)
-    header = [f.strip().strip('"').strip() for f in first] if has_header else None
-    data_idx = keep[1:] if has_header else keep
-    rows = [lines[i].split(delimiter) for i in data_idx]
-    if not rows:
-        raise CsvImportError(f"{path}:{keep[0] + 1}: header line but no data rows")
-    return _Table(path, header, rows, np.asarray(data_idx, dtype=np.int64) + 1, delimiter, decimal, comment,
-                  blank, keep[0] + 1 if has_header else None, terminated=text.endswith(("\n", "\r")))
-
-
-def _norm(s: str) -> str:
-    return " ".join(s.lower().split())
-
-
-def _base(s: str) -> str:
-    for mark in ("[", "("):
-        s = s.split(mark, 1)[0]
-    return _norm(s)
-
-
-def _resolve(tab: _Table, col: Column, role: str) -> tuple[int, str]:
-    """Column index and display name; raises naming the file, header line and columns."""
-    ncols = len(tab.header) if tab.header is not None else len(tab.rows[0])
-    if isinstance(col, int) and not isinstance(col, bool):
-        if not 0 <= col < ncols:
-            raise CsvImportError(f"{tab.path}: {role} column index {col} out of range; the file has {ncols} "
-                                 f"column(s) (0-based indices 0..{ncols - 1})")
-        label = tab.header[col] if tab.header is not None else f"#{col}"
-        return col, label
-    if tab.header is None:
-        raise CsvImportError(f"{tab.path}: {role} column {col!r} given by name but the file has no "
-                             "header row; "
-                             "give a 0-based column index")
-    for match in (lambda h: h == col, lambda h: _norm(h) == _norm(col), lambda h: _base(h) == _base(col)):
-        hits = [i for i, h in enumerate(tab.header) if match(h)]
-        if len(hits) == 1:
-            return hits[0], tab.header[hits[0]]
-        if len(hits) > 1:
-            raise CsvImportError(f"{tab.path}:{tab.header_line}: {role} column {col!r} is ambiguous: "
-                                 f"matches {[tab.header[i] for i in hits]}")
-    raise CsvImportError(f"{tab.path}:{tab.header_line}: no {role} column {col!r}; "
-                         f"header has {tab.header}")
-
-
-def _plural(n: int, word: str) -> str:
-    return f"{n} {word}{'' if n == 1 else 's'}"
-
-
-def _cell_problem(cell: str, decimal: str, required: bool) -> str | None:
-    """What is wrong with one cell of a used column (None if nothing): not a number, empty or NaN in
-    a required column (time, input, angle, run label), ±inf in any."""
-    shown = cell.strip()
-    s = shown.strip('"').strip()
-    if not s:
-        return "'' is empty" if required else None
-    try:
-        v = float(s.replace(",", ".") if decimal == "," else s)
-    except ValueError:
-        return f"'{shown}' is not a number"
-    if math.isinf(v) or (required and math.isnan(v)):
-        return f"'{shown}' is not a finite number"
-    return None
-
-
-def _row_problems(tab: _Table, used: Sequence[tuple[int, str, bool]]) -> dict[int, str]:
-    """Row index -> what is wrong with it (its first problem) for every bad row.
-
-    A row is bad when its field count differs from the header's (the first row's in a file without
-    header: short, cut or with an extra field) or when a cell of a used column is bad
-    (:func:`_cell_problem`). ``used`` holds (column index, label, required) per used column.
-    """
-    ncols = len(tab.header) if tab.header is not None else len(tab.rows[0])
-    last = len(tab.rows) - 1
-    bad: dict[int, str] = {}
-    for k, r in enumerate(tab.rows):
-        if len(r) != ncols:
-            why = f"row has {_plural(len(r), 'field')}, expected {ncols}"
-            if k == last and len(r) < ncols:
-                why += " (last line cut?)" if tab.terminated else \
-                    " (last line cut: the file does not end with a line break)"
-            bad[k] = why
-    for idx, label, required in used:
-        cells = [r[idx] if idx < len(r) else "" for r in tab.rows]
-        try:  # fast path: a clean numeric column
-            text = [c.replace(",", ".") for c in cells] if tab.decimal == "," else cells
-            values = np.array(text, dtype=float)
-        except ValueError:
-            values = None
-        if values is not None and not np.isinf(values).any() and not (required and np.isnan(values).any()):
-            continue
-        for k, cell in enumerate(cells):
-            if k not in bad and (why := _cell_problem(cell, tab.decimal, required)):
-                bad[k] = f"column '{label}': {why}"
-    return bad
-
-
-def _check_rows(tab: _Table, used: Sequence[tuple[int, str, bool]],
-                mode: BadRows) -> tuple[_Table, dict[str, Any]]:
-    """Refuse (``"error"``) or drop (``"drop"``) the bad rows of a table; flag a last line without
-    line break.
-
-    A last row that parses but lacks its line break may still be cut inside its last number (the
-    typical trace of a logger stopped mid-write): it raises a :class:`CsvRowWarning` (and is
-    dropped in ``"drop"`` mode); files that merely lack the final line break exist (3 of the 47
-    logs in ``shared/data/real``), so it is not an error.
-
-    Returns
-    -------
-    (table, report)
-        The table without dropped rows and what to add to the recording's ``meta``.
-
-    Raises
-    ------
-    CsvImportError
-        ``"error"`` mode and a bad row: ``FILE:LINE: what is wrong`` of the first, with the count.
-    """
-    bad = _row_problems(tab, used)
-    report: dict[str, Any] = {}
-    last = len(tab.rows) - 1
-    if not tab.terminated and last not in bad:
-        text = tab.delimiter.join(tab.rows[last])
-        if mode == "drop":
-            bad[last] = "no line break at the end of the file: the last row may be cut"
-        else:
-            report["last_line_unterminated"] = int(tab.line_no[last])
-            warnings.warn(f"{tab.path}:{tab.line_no[last]}: the file does not end with a line break, so "
-                          f"its last row ({text!r}) may be cut; check it against the source ({_DROP_HINT} "
-                          "drops it)",
-                          CsvRowWarning, stacklevel=5)
-    if not bad:
-        return tab, report
-    order = sorted(bad)
-    shown = [{"line": int(tab.line_no[k]), "problem": bad[k]} for k in order[:_SHOWN_ROWS]]
-    if mode != "drop":
-        k = order[0]
-        more = f"; {len(order)} bad rows in all, lines {', '.join(str(r['line']) for r in shown)}" \
-            + (", ..." if len(order) > _SHOWN_ROWS else "") if len(order) > 1 else ""
-        raise CsvImportError(f"{tab.path}:{tab.line_no[k]}: {bad[k]}{more}; {_DROP_HINT} drops "
-                             f"{'it' if len(order) == 1 else 'them'}")
-    keep = np.ones(len(tab.rows), dtype=bool)
-    keep[order] = False
-    warnings.warn(f"{tab.path}: dropped {_plural(len(order), 'bad row')} of {len(tab.rows)}: "
-                  + "; ".join(f"line {r['line']} ({r['problem']})" for r in shown)
-                  + ("; ..." if len(order) > _SHOWN_ROWS else ""), CsvRowWarning, stacklevel=5)
-    report["dropped_rows"] = {"count": len(order), "first": shown}
-    tab = replace(tab, rows=[r for r, k in zip(tab.rows, keep, strict=True) if k], line_no=tab.line_no[keep])
-    return tab, report
-
-
-def _column(tab: _Table, idx: int, label: str, allow_nan: bool) -> np.ndarray:
-    """Column ``idx`` as floats (rows checked by :func:`_check_rows`; empty cells are NaN)."""
-    cells = [r[idx].strip().strip('"').strip() for r in tab.rows]
-    if tab.decimal == ",":
-        cells = [c.replace(",", ".") for c in cells]
-    try:
-        values = np.array(cells, dtype=float)
-    except ValueError:  # empty cells of an optional channel
-        values = np.array([float(c) if c else math.nan for c in cells])
-    if not allow_nan and not np.isfinite(values).all():  # pragma: no cover - _check_rows refused them
-        raise CsvImportError(f"{tab.path}: column '{label}' has non-finite values")
-    return values
 
 
 def _time_stats(t: np.ndarray) -> dict[str, Any]:
@@ -365,38 +99,6 @@ def _time_stats(t: np.ndarray) -> dict[str, Any]:
         "jitter_std_s": float(np.std(dt)),
         "uniform": bool(np.allclose(dt, med, rtol=1e-6, atol=1e-9)),
     }
-
-
-def _load(path: Path, spec: CsvSpec, bad_rows: BadRows,
-          run_col: Column | None = None) -> tuple[_Table, dict[str, tuple[int, str]], dict[str, Any], bytes]:
-    """Read, tabulate, resolve the used columns and check the rows of a CSV log.
-
-    Returns the table (bad rows dropped in ``"drop"`` mode), the used columns by role
-    (``time``, ``input``, ``theta``, extra channel names, ``run``) as (index, label), the row
-    report for ``meta`` and the file's raw bytes.
-    """
-    if bad_rows not in ("error", "drop"):
-        raise CsvImportError(f"bad_rows {bad_rows!r}; expected 'error' or 'drop'")
-    text, raw = _read_text(path, spec.encoding, partial_gzip=bad_rows == "drop")
-    tab = _tabulate(path, text, spec)
-    roles: list[tuple[str, Column | None, bool]] = [
-        ("time", spec.time_col, True), ("input", spec.input_col, True), ("theta", spec.angle_col, True),
-        ("reference", spec.reference_col, False),
-        *((ch, col, False) for ch, (col, _) in spec.channels.items()),
-        *((f"extra:{ch}", col, False) for ch, (col, _, _) in spec.extra_channels.items()),
-        ("run", run_col, True)]
-    cols: dict[str, tuple[int, str]] = {}
-    used: list[tuple[int, str, bool]] = []
-    for role, col, required in roles:
-        if col is not None:
-            shown = {"theta": "angle", "run": "run label"}.get(role, role.replace("extra:", "extra channel "))
-            cols[role] = _resolve(tab, col, shown)
-            used.append((*cols[role], required))
-    tab, report = _check_rows(tab, used, bad_rows)
-    if len(tab.rows) < 2:
-        where = f" (line {tab.line_no[0]})" if len(tab.rows) else ""
-        raise CsvImportError(f"{path}: {_plural(len(tab.rows), 'data row')}{where}; need at least 2 samples")
-    return tab, cols, report, raw
 
 
 def import_csv(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows = "error") -> Recording:
@@ -449,86 +151,6 @@ def import_csv(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows = "error
     return _import(path, spec, bad_rows)[0]
 
 
-def _time(path: Path, spec: CsvSpec, tab: _Table, cols: dict[str, tuple[int, str]],
-          columns: dict[str, str]) -> tuple[np.ndarray, float]:
-    """Sample times [s] from 0 and the file's first time [s]; time must increase strictly."""
-    n = len(tab.rows)
-    if spec.time_col is None:
-        t = np.arange(n) / float(spec.rate_hz)  # type: ignore[arg-type]
-    else:
-        idx, label = cols["time"]
-        columns["time"] = label
-        raw_t = _column(tab, idx, label, allow_nan=False)
-        t = raw_t / float(spec.rate_hz) if spec.time_unit == "sample" else raw_t * _TIME_SCALE[spec.time_unit]
-        bad = np.flatnonzero(np.diff(t) <= 0)
-        if bad.size:
-            k = int(bad[0]) + 1
-            raise CsvImportError(
-                f"{path}:{tab.line_no[k]}: column '{label}': time {raw_t[k]:g} {spec.time_unit} "
-                f"is not after the previous row's {raw_t[k - 1]:g} {spec.time_unit} "
-                f"(line {tab.line_no[k - 1]}); "
-                f"time must increase strictly ({bad.size} such row(s))")
-    t0 = float(t[0])
-    return t - t0, t0
-
-
-def _duty(path: Path, spec: CsvSpec, tab: _Table, cols: dict[str, tuple[int, str]],
-          columns: dict[str, str]) -> tuple[np.ndarray, int, int]:
-    """Duty cycle by the spec's input map (clipped values counted and warned), quantised if asked."""
-    imap = spec.input_map()
-    n = len(tab.rows)
-    if spec.input_col is None:
-        u = np.full(n, float(spec.input_constant))  # type: ignore[arg-type]
-        columns["input"] = f"constant {spec.input_constant:g} ({spec.input_kind})"
-    else:
-        idx, label = cols["input"]
-        columns["input"] = label
-        u = _column(tab, idx, label, allow_nan=False)
-    duty, below, above = imap.duty(u)
-    if below or above:
-        unit = "" if imap.kind.unit == "1" else f" {imap.kind.unit}"
-        lo, hi = imap.offset, imap.offset + imap.span
-        warnings.warn(f"{path}: {below + above} actuator value(s) outside the input range "
-                      f"{lo:g}-{hi:g}{unit} clipped ({below} below {lo:g}{unit}: duty 0, {above} above full "
-                      f"scale {hi:g}{unit}: duty 1)", stacklevel=4)
-    if spec.quantize_counts:
-        q = int(spec.quantize_counts)
-        duty = np.floor(duty * q + 1e-9) / q
-    return duty, below, above
-
-
-def _angles(spec: CsvSpec, tab: _Table, cols: dict[str, tuple[int, str]], columns: dict[str, str]
-            ) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray], dict[str, str]]:
-    """θ and the contract channels; the extra channels (reference in θ's frame) and their units."""
-    factor = math.pi / 180.0 if spec.angle_unit == "deg" else 1.0
-
-    def angle(raw: np.ndarray) -> np.ndarray:
-        return spec.angle_sign * (raw - spec.angle_zero) * factor
-
-    idx, label = cols["theta"]
-    columns["theta"] = label
-    channels: dict[str, np.ndarray] = {"theta": angle(_column(tab, idx, label, allow_nan=False))}
-    for ch, (_, scale) in spec.channels.items():
-        idx, label = cols[ch]
-        columns[ch] = label
-        y = _column(tab, idx, label, allow_nan=True) * float(scale)
-        if np.isfinite(y).any():
-            channels[ch] = y
-    extra: dict[str, np.ndarray] = {}
-    units: dict[str, str] = {}
-    if spec.reference_col is not None:
-        idx, label = cols["reference"]
-        columns[REFERENCE_CHANNEL] = label
-        extra[REFERENCE_CHANNEL] = angle(_column(tab, idx, label, allow_nan=True))
-    for ch, (_, scale, unit) in spec.extra_channels.items():
-        idx, label = cols[f"extra:{ch}"]
-        columns[ch] = label
-        extra[ch] = _column(tab, idx, label, allow_nan=True) * float(scale)
-        units[ch] = unit
-    extra = {k: v for k, v in extra.items() if np.isfinite(v).any()}
-    return channels, extra, {k: u for k, u in units.items() if k in extra}
-
-
 def _constant_input(path: Path, spec: CsvSpec, t: np.ndarray, theta: np.ndarray, duty: float,
                     reference: str | None) -> dict[str, Any]:
     """Refuse a constant input that cannot explain θ (a driven log); warn that the run is taken as one.
@@ -559,47 +181,71 @@ def _constant_input(path: Path, spec: CsvSpec, t: np.ndarray, theta: np.ndarray,
             "theta_final_rad": check.theta_final}
 
 
+def _collect(path: Path, spec: CsvSpec, bad_rows: BadRows, run_col: Column | None
+             ) -> tuple[Any, Any, dict[str, Any], list[Converted]]:
+    """Read a whole log block by block (:class:`CsvReader`, :class:`Converter`), keeping every block."""
+    reader = CsvReader(path, spec, bad_rows, run_col)
+    conv = Converter(reader)
+    parts = [conv(part) for part in reader.parts()]
+    report = reader.finish()
+    conv.finish()
+    return reader, conv, report, parts
+
+
 def _import(path: str | Path, spec: CsvSpec | str, bad_rows: BadRows,
-            run_col: Column | None = None) -> tuple[Recording, _Table, dict[str, tuple[int, str]]]:
-    """:func:`import_csv`, also returning the checked table and its used columns."""
+            run_col: Column | None = None) -> tuple[Recording, np.ndarray | None]:
+    """:func:`import_csv`, also returning the run label column when ``run_col`` is given."""
     if isinstance(spec, str):
         spec = resolve_preset(spec)
     spec.check()
     path = Path(path)
-    tab, cols, report, raw = _load(path, spec, bad_rows, run_col)
-    columns: dict[str, str] = {}
-    t, t0 = _time(path, spec, tab, cols, columns)
-    duty, below, above = _duty(path, spec, tab, cols, columns)
-    channels, extra, units = _angles(spec, tab, cols, columns)
+    reader, conv, report, parts = _collect(path, spec, bad_rows, run_col)
+    t = np.concatenate([p.t for p in parts])
+    duty = np.concatenate([p.duty for p in parts])
+    channels = {k: np.concatenate([p.channels[k] for p in parts]) for k in parts[0].channels}
+    channels = {k: v for k, v in channels.items() if k == "theta" or np.isfinite(v).any()}
+    extra = {k: np.concatenate([p.extra[k] for p in parts]) for k in parts[0].extra}
+    extra = {k: v for k, v in extra.items() if np.isfinite(v).any()}
+    units = {ch: unit for ch, (_, _, unit) in spec.extra_channels.items() if ch in extra}
+    runs = np.concatenate([p.raw["run"] for p in parts]) if run_col is not None else None
+    del parts
     if spec.input_col is None:
         report["constant_input"] = _constant_input(path, spec, t, channels["theta"], float(duty[0]),
-                                                   columns.get(REFERENCE_CHANNEL))
-    meta: dict[str, Any] = dict(spec.meta)
-    meta.update(_time_stats(t))
-    meta.update({
-        "csv_file": str(path),
-        "csv_sha256": hashlib.sha256(raw).hexdigest(),
-        "preset": spec.name or None,
-        "spec": spec_summary(spec),
-        "input_map": spec.input_map().describe(),
-        "columns": columns,
-        "delimiter": tab.delimiter,
-        "decimal": tab.decimal,
-        "header": tab.header,
-        "rows": len(tab.rows),
-        "comment_lines": tab.comment_lines,
-        "blank_lines": tab.blank_lines,
-        "t0_in_file_s": t0,
-        "duty_clipped": {"below_0": below, "above_1": above},
-        "duration_s": float(t[-1]),
-        **report,
-    })
+                                                   conv.columns.get(REFERENCE_CHANNEL))
+    meta = _meta(spec, reader, conv, report, _time_stats(t), float(t[-1]))
     try:
         rec = Recording(t=t, duty=duty, channels=channels, source=str(path), meta=meta, extra=extra,
                         extra_units=units)
     except RecordingError as exc:  # pragma: no cover - checked above
         raise CsvImportError(f"{path}: {exc}") from exc
-    return rec, tab, cols
+    return rec, runs
+
+
+def _meta(spec: CsvSpec, reader: CsvReader, conv: Converter, report: dict[str, Any], stats: dict[str, Any],
+          duration: float) -> dict[str, Any]:
+    """The recording's ``meta`` of an imported log (``stats``: its sampling statistics,
+    ``duration`` its last sample time [s] from 0)."""
+    meta: dict[str, Any] = dict(spec.meta)
+    meta.update(stats)
+    meta.update({
+        "csv_file": str(reader.path),
+        "csv_sha256": reader.source.sha256,
+        "preset": spec.name or None,
+        "spec": spec_summary(spec),
+        "input_map": spec.input_map().describe(),
+        "columns": dict(conv.columns),
+        "delimiter": reader.fmt.delimiter,
+        "decimal": reader.fmt.decimal,
+        "header": reader.fmt.header,
+        "rows": conv.n,
+        "comment_lines": reader.comment_lines,
+        "blank_lines": reader.blank_lines,
+        "t0_in_file_s": conv.t0,
+        "duty_clipped": {"below_0": conv.below, "above_1": conv.above},
+        "duration_s": duration,
+        **report,
+    })
+    return meta
 
 
 def import_csv_runs(
@@ -639,9 +285,8 @@ def import_csv_runs(
     """
     from aeropend_ident.io.split import split_runs
 
-    rec, tab, cols = _import(path, spec, bad_rows, run_col)
-    idx, label = cols["run"]
-    return split_runs(rec, _column(tab, idx, label, allow_nan=False), min_samples=min_samples)
+    rec, runs = _import(path, spec, bad_rows, run_col)
+    return split_runs(rec, runs, min_samples=min_samples)
 
 
 def csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, storage: str = "mcap",
@@ -654,6 +299,198 @@ def csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, storage: 
     bag = write_bag(rec, out, storage=storage, rig_name=rig_name,  # type: ignore[arg-type]
                     overwrite=overwrite)
     return rec, bag
+
+
+@dataclass
+class CsvBag:
+    """What :func:`stream_csv_to_bag` wrote, shaped for :func:`summary` (the ranges as 2-arrays).
+
+    Attributes
+    ----------
+    source : str
+        The CSV file.
+    t : ndarray, shape (2,)
+        First and last sample time [s].
+    dt : float
+        Median sample interval [s].
+    duty : ndarray, shape (2,)
+        Smallest and largest duty cycle.
+    channels : dict of str to ndarray, shape (2,)
+        Range of θ [rad] and of each contract channel present.
+    meta : dict
+        The bag's ``meta`` (as :func:`import_csv` makes it).
+    samples, commands : int
+        Samples and duty commands written.
+    bag : Path
+        The bag folder.
+    """
+
+    source: str
+    t: np.ndarray
+    dt: float
+    duty: np.ndarray
+    channels: dict[str, np.ndarray]
+    meta: dict[str, Any]
+    samples: int
+    commands: int
+    bag: Path
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+    extra_units: dict[str, str] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return self.samples
+
+
+def streamable(spec: CsvSpec) -> bool:
+    """Whether :func:`stream_csv_to_bag` takes this spec (no reference and no extra channel: those are
+    written by :func:`write_bag` from the whole recording)."""
+    return spec.reference_col is None and not spec.extra_channels
+
+
+def _last_time(reader: CsvReader) -> float | None:
+    """The time cell of the file's last data line, from its last 64 KiB (None: not found, a
+    ``.gz`` file, or no time column)."""
+    spec, fmt = reader.spec, reader.fmt
+    if spec.time_col is None or reader.source.gzip:
+        return None
+    with open(reader.path, "rb") as f:
+        f.seek(max(0, reader.source.size - (64 << 10)))
+        tail = f.read().decode("utf-8", errors="replace").splitlines()
+    idx = reader.cols["time"][0]
+    for ln in reversed(tail[1:] if len(tail) > 1 else tail):
+        s = ln.strip()
+        if not s or (spec.comment and s.startswith(spec.comment)):
+            continue
+        cells = ln.split(fmt.delimiter)
+        if len(cells) != fmt.ncols:
+            return None
+        cell = cells[idx].strip().strip('"').strip()
+        try:
+            return float(cell.replace(",", ".") if fmt.decimal == "," else cell)
+        except ValueError:
+            return None
+    return None
+
+
+def stream_csv_to_bag(path: str | Path, out: str | Path, spec: CsvSpec | str, storage: str = "mcap",
+                      rig_name: str | None = None, bad_rows: BadRows = "error",
+                      stamp0_ns: int | Callable[[float], int] = 0,
+                      progress: Progress | None = None) -> CsvBag:
+    """Import a CSV log into a contract bag block by block, in bounded memory.
+
+    The bag holds what :func:`csv_to_bag` writes for the same spec (same stamps, wire convention
+    and ``meta``, the sampling statistics gathered block by block: :class:`TimeStats`); memory is
+    one block of text (4 MiB) and its messages, whatever the log's length (a log without actuator
+    column also keeps t and θ, 16 bytes a row, for the constant-input check). A failure (bad row,
+    time that does not increase, Ctrl-C) removes the bag folder: nothing partial is left.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``.csv`` or ``.csv.gz`` file.
+    out : str or Path
+        Bag folder to create (absent or empty).
+    spec : CsvSpec or str
+        Column mapping, preset name or preset file; must be :func:`streamable`.
+    storage : {"mcap", "sqlite3"}
+        rosbag2 storage plugin.
+    rig_name : str, optional
+        Rig name stored in the bag.
+    bad_rows : {"error", "drop"}
+        As :func:`import_csv`.
+    stamp0_ns : int or callable
+        Absolute stamp of the first sample [ns], or a function of the log's duration [s] giving it
+        (the duration then comes from the file's last line, or from a first pass over a ``.gz``
+        file or a log without time column).
+    progress : callable, optional
+        Called after each block with (file bytes read, file size).
+
+    Returns
+    -------
+    CsvBag
+        Ranges, counts, ``meta`` and the bag folder.
+
+    Raises
+    ------
+    CsvImportError
+        As :func:`import_csv`; also a spec that is not :func:`streamable`.
+    BagError
+        The bag cannot be written.
+    """
+    from aeropend_ident.io.bag_writer import BagStream
+
+    if isinstance(spec, str):
+        spec = resolve_preset(spec)
+    spec.check()
+    if not streamable(spec):
+        raise CsvImportError(f"{path}: a spec with a reference or extra channels is imported whole "
+                             "(csv_to_bag), not streamed")
+    path, out = Path(path), Path(out)
+    existed = out.exists()
+    reader = CsvReader(path, spec, bad_rows, progress=progress)
+    conv = Converter(reader)
+    bag: BagStream | None = None
+    stats = TimeStats()
+    times: list[np.ndarray] = []  # kept only for the constant-input check (no actuator column)
+    thetas: list[np.ndarray] = []
+    ranges: dict[str, list[float]] = {}
+    try:
+        for part in reader.parts():
+            c = conv(part)
+            if not len(c.t):
+                continue
+            if bag is None:
+                s0 = _stamp0(stamp0_ns, reader, conv, path, spec, bad_rows)
+                bag = BagStream(out, storage, s0)  # type: ignore[arg-type]
+            bag.write(c.t, c.duty, c.channels)
+            stats.add(c.t)
+            if spec.input_col is None:
+                times.append(c.t)
+                thetas.append(c.channels["theta"])
+            for k, v in (("duty", c.duty), *c.channels.items()):
+                if np.isfinite(v).any():
+                    lo, hi = float(np.nanmin(v)), float(np.nanmax(v))
+                    old = ranges.get(k, [lo, hi])
+                    ranges[k] = [min(old[0], lo), max(old[1], hi)]
+        report = reader.finish()
+        conv.finish()
+        if spec.input_col is None:
+            report["constant_input"] = _constant_input(path, spec, np.concatenate(times),
+                                                       np.concatenate(thetas), ranges["duty"][0], None)
+        t_last = float(stats.last or 0.0)
+        meta = _meta(spec, reader, conv, report, stats.result(), t_last)
+        assert bag is not None
+        bag.close(meta, str(path), rig_name)
+    except BaseException:
+        if bag is not None:
+            bag.abort()
+        elif not existed and out.exists():  # interrupted while the bag was being created
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    channels = {k: np.asarray(v) for k, v in ranges.items() if k != "duty"}
+    return CsvBag(str(path), np.array([0.0, t_last]), float(meta["dt_median_s"]),
+                  np.asarray(ranges["duty"]), channels, meta, bag.samples, bag.commands, out)
+
+
+def _stamp0(stamp0_ns: int | Callable[[float], int], reader: CsvReader, conv: Converter, path: Path,
+            spec: CsvSpec, bad_rows: BadRows) -> int:
+    """The first sample's absolute stamp [ns] (see :func:`stream_csv_to_bag`)."""
+    if not callable(stamp0_ns):
+        return int(stamp0_ns)
+    last = _last_time(reader)
+    if last is not None:
+        unit = spec.time_unit
+        scale = 1.0 / float(spec.rate_hz) if unit == "sample" else _TIME_SCALE[unit]  # type: ignore[arg-type,index]
+        t_last = last * scale
+        return stamp0_ns(max(0.0, t_last - (conv.t0 or 0.0)))
+    first = CsvReader(path, spec, bad_rows)  # a first pass for the duration
+    c2 = Converter(first)
+    end = 0.0
+    for part in first.parts():
+        c = c2(part)
+        if len(c.t):
+            end = float(c.t[-1])
+    return stamp0_ns(end)
 
 
 def summary(rec: Recording) -> str:

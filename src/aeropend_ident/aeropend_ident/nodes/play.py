@@ -24,6 +24,7 @@ import argparse
 import sys
 import threading
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -33,8 +34,9 @@ from rclpy.node import Node
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock as ClockMsg
 
-from aeropend_ident.errors import BagError, print_warnings_as_lines
+from aeropend_ident.errors import BagError, BagLossWarning, print_warnings_as_lines
 from aeropend_ident.io.bags import RawBagReader
+from aeropend_ident.io.integrity.loss import loss_warning, stored_loss
 from aeropend_ident.nodes.qos import message_class, playback_qos
 from aeropend_sim.contract import TOPIC_CLOCK
 from aeropend_sim.ros.node_shell import run_node, wait_acknowledged
@@ -174,6 +176,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BagError as exc:
         print(f"play: error: {exc}", file=sys.stderr)
         return 1
+    loss = stored_loss(reader.custom_data)  # what record counted as lost (replayed as recorded)
+    text = loss_warning(f"bag '{args.bag}'", loss) if loss else None
+    if text is not None:
+        warnings.warn(text, BagLossWarning, stacklevel=1)
     def run(node: PlayerNode, executor: Any, stop: threading.Event) -> int:
         if args.wait_for_subscribers > 0 and not node.wait_for_subscribers(args.wait_for_subscribers):
             missing = [t for t, p in node.pubs.items() if p.get_subscription_count() == 0]

@@ -15,6 +15,14 @@ Parameters: :data:`PARAMETERS` (also printed by ``record --help``). An existing 
 never replaced without ``--overwrite`` (``-p overwrite:=true``), and then only if it holds a bag
 (:func:`aeropend_ident.io.bag_writer.claim_bag_folder`).
 
+Crash safety: what was received is on disk at least every ``flush_interval`` seconds (the MCAP
+chunk closed, the SQLite3 transaction committed, the file ``fsync``-ed; :class:`BagSink`), so a
+recorder killed with SIGKILL, or a power cut, loses at most that much; ``reindex`` rebuilds the
+``metadata.yaml`` it could not write. Loss: every message is counted by
+:class:`aeropend_ident.io.integrity.loss.LossCounter` (publisher sequence numbers from the message
+info, header stamps against the sample period); the per-topic loss is printed on exit and stored in
+the bag's ``custom_data`` (``aeropend.loss``), where every reader finds it.
+
 On SIGINT / SIGTERM the recorder first writes what is still queued (it spins until no message
 has arrived for ``DRAIN_IDLE_S``, at most ``DRAIN_MAX_S``), then closes the bag.
 
@@ -26,6 +34,7 @@ SIGINT, SIGTERM, duration or sample limit.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import threading
 import time
@@ -43,6 +52,7 @@ from rosbags.interfaces import Qos
 from aeropend_ident.errors import BagError
 from aeropend_ident.io.bag_writer import BagSink, claim_bag_folder
 from aeropend_ident.io.bags import qos_for_topic
+from aeropend_ident.io.integrity.loss import LOSS_KEY, LossCounter, loss_text
 from aeropend_ident.nodes.qos import contract_qos, message_class, qos_from_rclpy
 from aeropend_sim.contract import (
     CONTRACT_TOPICS,
@@ -52,7 +62,9 @@ from aeropend_sim.contract import (
     TOPIC_CLOCK,
     TOPIC_DUTY_CYCLE,
     TOPIC_JOINT_STATES,
+    TYPE_ARMATURE,
     TYPE_CLOCK,
+    TYPE_JOINT_STATES,
     namespaced,
 )
 from aeropend_sim.ros import ros_contract
@@ -80,6 +92,9 @@ PARAMETERS: tuple[NodeParameter, ...] = (
                   "subscription queue depth: the contract QoS policies with this deeper keep-last queue "
                   "(depth does not affect matching; at 490 Hz the contract's 5 would drop samples whenever "
                   "the recorder stalls for 10 ms)"),
+    NodeParameter("flush_interval", "float", 0.5, "s",
+                  "longest time a received message stays only in memory: the chunk is then closed and the "
+                  "file fsync-ed, so a recorder killed (or a power cut) loses at most this much; > 0"),
     NodeParameter("reliable", "bool", False, "",
                   "subscribe to the sample topics with the lock-step QoS (reliable, keep all) instead of "
                   "best effort: for lock-step runs, whose plant publishes that way (nothing lost, a lagging "
@@ -131,17 +146,25 @@ class RecorderNode(Node):
         self.max_samples = int(p["max_samples"])
         self.queue_depth = int(p["queue_depth"])
         self.reliable = bool(p["reliable"])
+        self.flush_interval = float(p["flush_interval"])
         if self.duration < 0 or self.max_samples < 0:
             raise ValueError(f"duration {self.duration} s and max_samples {self.max_samples} must be >= 0")
+        if not self.flush_interval > 0:
+            raise ValueError(f"flush_interval {self.flush_interval} s must be > 0")
         claim_bag_folder(output, bool(p["overwrite"]), option="-o", flag="--overwrite").prepare(create=False)
         self.sink = BagSink(output, storage=self.storage,  # type: ignore[arg-type]
-                            custom_data={"aeropend.recorder": NODE_NAME})
+                            custom_data={"aeropend.recorder": NODE_NAME},
+                            flush_interval_s=self.flush_interval)
+        # messages may stop arriving: the timer flushes what the last ones left in memory
+        self.create_timer(min(0.1, self.flush_interval / 4), self.sink.flush_if_due)
         self.done = False
         self.stop_reason = ""
         self.samples = 0
         self.last_message_ns = time.monotonic_ns()
         self._types: dict[str, str] = {}
         self._subs: dict[str, Any] = {}
+        # what each topic should have carried: publisher sequence numbers, header stamps
+        self.loss = LossCounter(stamped=lambda t: self._types.get(t) in (TYPE_JOINT_STATES, TYPE_ARMATURE))
         self._subscribe_known()
         self._discovery = None
         if len(self._subs) < len(self.topics):
@@ -172,7 +195,8 @@ class RecorderNode(Node):
                              reliability=base.reliability, durability=base.durability)
         self._types[topic] = msgtype
         self._subs[topic] = self.create_subscription(
-            message_class(msgtype), topic, lambda data, t=topic: self._on_message(t, data), qos, raw=True)
+            message_class(msgtype), topic, lambda data, info, t=topic: self._on_message(t, data, info), qos,
+            raw=True)
 
     def _subscribe_known(self) -> None:
         for topic in self.topics:
@@ -207,7 +231,7 @@ class RecorderNode(Node):
                 found.append(q)
         return found or [qos_for_topic(topic)]
 
-    def _on_message(self, topic: str, data: bytes) -> None:
+    def _on_message(self, topic: str, data: bytes, info: Any = None) -> None:
         self.last_message_ns = time.monotonic_ns()
         if self.done:
             return
@@ -215,6 +239,10 @@ class RecorderNode(Node):
         if not self.sink.has_topic(topic):
             self.sink.add_topic(topic, self._types[topic], self._offered_qos(topic))
         self.sink.write(topic, stamp, data)
+        info = info or {}
+        gid = info.get("publisher_gid")
+        gid = bytes(gid.get("data", b"")) if isinstance(gid, dict) else bytes(gid or b"")
+        self.loss.add(topic, stamp, data, info.get("publication_sequence_number"), gid)
         if topic.endswith(TOPIC_JOINT_STATES):
             self.samples += 1
             if self.max_samples and self.samples >= self.max_samples:
@@ -235,6 +263,7 @@ class RecorderNode(Node):
             for topic, msgtype in self._types.items():
                 if not self.sink.has_topic(topic):
                     self.sink.add_topic(topic, msgtype, [qos_for_topic(topic)])
+            self.sink.set_custom_data(LOSS_KEY, json.dumps(self.loss.report()))
             self.sink.close()
         return dict(self.sink.counts)
 
@@ -251,6 +280,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help="seconds to record (0 = until Ctrl-C)")
     p.add_argument("--max-samples", type=int, help="stop after N joint_states messages")
     p.add_argument("--use-sim-time", action="store_true", help="use /clock time for stamps and duration")
+    p.add_argument("--flush-interval", type=float, metavar="S",
+                   help="put what was received on disk at least every S seconds (default 0.5): a killed "
+                        "recorder loses at most that much")
     p.add_argument("--reliable", action="store_true",
                    help="reliable sample and /clock subscriptions (lock-step runs: nothing lost)")
     return p
@@ -277,6 +309,8 @@ def _overrides(args: argparse.Namespace) -> list[Parameter]:
         out.append(Parameter("use_sim_time", value=True))
     if args.reliable:
         out.append(Parameter("reliable", value=True))
+    if args.flush_interval is not None:
+        out.append(Parameter("flush_interval", value=float(args.flush_interval)))
     return out
 
 
@@ -305,6 +339,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         reason = node.stop_reason or "interrupted"
         print(f"record: {reason}; wrote {node.sink.path} ({node.storage}): "
               + ", ".join(f"{t} {n}" for t, n in counts.items()), flush=True)
+        report = node.loss.report()
+        if report:
+            print(f"record: loss: {loss_text(report)}", flush=True)
 
     return run_node(NODE_NAME, argv, lambda: RecorderNode(parameter_overrides=_overrides(args)),
                     cleanup=close, body=run, fail_errors=(BagError, ValueError),
