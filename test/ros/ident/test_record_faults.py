@@ -110,12 +110,16 @@ def test_sigkill_at_20_points_loses_at_most_one_second(tmp_path: Path) -> None:
         info = reindex(bag)[1]
         scan = scan_storage(_storage(bag))  # type: ignore[arg-type]
         logs = np.array([m[1] for m in scan.messages], dtype=np.int64)
-        assert info["message_count"] == len(logs) >= 3, (k, storages[k], len(logs))
+        # a kill 0.4 s after the first flush (flush interval 0.5 s) may find only that flush's messages
+        # on disk (on a loaded machine one): the bar is the recovered duration, checked below
+        assert info["message_count"] == len(logs) >= 1, (k, storages[k], len(logs))
         recorded_s = (killed_ns[k] - logs[0]) / 1e9  # from its first message to the kill
         recovered_s = (logs[-1] - logs[0]) / 1e9
         losses.append(recorded_s - recovered_s)
         assert recovered_s >= recorded_s - 1.0, (k, storages[k], recorded_s, recovered_s)
-        assert np.diff(logs).max() < 0.5e9, "a gap inside the recovered part"  # 20 ms apart; stalls allowed
+        # nothing inside was left out: a killed recorder's file is only cut at its end (a gap in the log
+        # times can be the publisher stalled on a loaded machine; a dropped part would be listed here)
+        assert not scan.skipped, (k, storages[k], scan.skipped)
         assert info["duration"]["nanoseconds"] == logs[-1] - logs[0]
     print("losses [s]:", " ".join(f"{x:.2f}" for x in losses))
     assert max(losses) <= 1.0 and min(losses) >= 0.0, losses

@@ -354,10 +354,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (CsvImportError, BagError, OutputFolderError, RecordingInputError) as exc:
         print(f"csv_import: error: {exc}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        out = "" if args.output is None else f"; no bag written at {args.output}"
-        print(f"csv_import: interrupted (Ctrl-C) while importing {args.input}{out}", file=sys.stderr)
-        return 130
     text = summary(rec)
     for note in resampling_notes([rec]):
         text += f" {note[0].upper()}{note[1:]}."
