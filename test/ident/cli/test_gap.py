@@ -248,6 +248,11 @@ def test_validation_split_rules():
     core, val, rule = carve_validation([long, decay], 0.3)
     assert any(r is decay for r in core) and len(val) == 1
     assert "constant-command recording(s) fitted whole: decay" in rule
+    # a hold under which nothing moves is left out, and said
+    still = Recording(t=long.t[:400], duty=np.full(400, 0.5), channels={"theta": np.full(400, 0.3)},
+                      source="still")
+    core, val, rule = carve_validation([long, still], 0.3)
+    assert not any(r is still for r in core + val) and "left out of the diagnosis" in rule and "still" in rule
     # a lone step: its last 30 % is a hold, the last resort (said), and a lone recording too short for
     # two parts is refused naming it
     core, val, rule = carve_validation([step], 0.3)

@@ -315,6 +315,7 @@ def carve_validation(
     fit = list(fit)
     excited = [r for r in fit if _varying(r)]
     whole = [r for r in fit if not _varying(r) and _swings(r)]
+    left = [r for r in fit if not _varying(r) and not _swings(r)]
     if not excited:
         raise GapInputError(_too_little(fit, fraction, "none has a changing duty cycle over "
                                         f"{MIN_PART} samples or more"))
@@ -337,15 +338,16 @@ def carve_validation(
         val_w = [r for i, r in enumerate(excited) if i in pick]
         why = f"{_names(kept)} cannot be split with a changing command in both parts"
         return (core_w + whole, val_w, f"validation: {_names(val_w)} whole (every {_ordinal(step)} recording "
-                f"whose command changes, from the 2nd; {why})" + _whole_note(whole))
+                f"whose command changes, from the 2nd; {why})" + _whole_note(whole, left))
     if val:
-        return core + whole, val, f"validation: the last ~{fraction:.0%} of {_names(val)}{_whole_note(whole)}"
+        return core + whole, val, (f"validation: the last ~{fraction:.0%} of {_names(val)}"
+                                   + _whole_note(whole, left))
     for n_blocks in (6, 9, 12):
         block = min(len(r) * r.dt for r in excited) / n_blocks
         core, val, _ = interleaved_blocks(excited, block, 3, 0.0, 1)
         if core and val and all(_varying(r) for r in core + val):
             return (core + whole, val, f"validation: every 3rd block of {block:.3g} s of {_names(excited)}"
-                    + _whole_note(whole))
+                    + _whole_note(whole, left))
     for r in sorted(excited, key=len, reverse=True):
         if len(r) * min(fraction, 1.0 - fraction) >= MIN_PART:
             a, b = r.split(1.0 - fraction)
@@ -353,7 +355,7 @@ def carve_validation(
                 return ([a, *(x for x in excited if x is not r), *whole], [b],
                         f"validation: the last ~{fraction:.0%} of {_names([r])}, a hold after the "
                         "recording's last command change (it checks the static level and the settling, "
-                        "not a step)" + _whole_note(whole))
+                        "not a step)" + _whole_note(whole, left))
     raise GapInputError(_too_little(fit, fraction, "none can be split in time order, before a duty step "
                                     "or into interleaved blocks, and there is no second recording with a "
                                     "changing command to leave out"))
@@ -363,8 +365,12 @@ def _names(recs: Sequence[Recording]) -> str:
     return ", ".join(r.source or "a recording" for r in recs)
 
 
-def _whole_note(whole: Sequence[Recording]) -> str:
-    return f"; constant-command recording(s) fitted whole: {_names(whole)}" if whole else ""
+def _whole_note(whole: Sequence[Recording], left: Sequence[Recording] = ()) -> str:
+    note = f"; constant-command recording(s) fitted whole: {_names(whole)}" if whole else ""
+    if left:
+        note += (f"; left out of the diagnosis (under {MIN_PART} samples, or a constant command under which "
+                 f"θ does not move): {_names(left)}")
+    return note
 
 
 def _too_little(fit: Sequence[Recording], fraction: float, why: str) -> str:
