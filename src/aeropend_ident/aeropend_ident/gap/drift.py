@@ -155,16 +155,18 @@ def _fit_set(nominal: Rig, effects: Sequence[str], preps: Sequence[Prepared],
 
 def theta_nrmse(rig: Rig, meas: MeasurementMap, prep: Prepared) -> float:
     """Free-run θ NRMSE (RMS error / θ range) of a rig on one prepared recording."""
-    sim = replay(rig, meas, prep)["theta"]
-    return float(np.sqrt(np.mean((sim - prep.y["theta"]) ** 2)) / prep.scale["theta"])
+    return theta_run(rig, meas, prep)[0]
 
 
-def theta_divergence(rig: Rig, meas: MeasurementMap, prep: Prepared) -> str | None:
-    """Whether a rig's free run on one prepared recording diverges (the one rule of every tool,
-    :func:`aeropend_ident.io.overlay_axes.diverges`): the reason, or None."""
+def theta_run(rig: Rig, meas: MeasurementMap, prep: Prepared) -> tuple[float, str | None]:
+    """One free run of a rig on one prepared recording: its θ NRMSE (RMS error / θ range) and whether
+    it diverges (the one rule of every tool, :func:`aeropend_ident.io.overlay_axes.diverges`: the
+    reason, or None)."""
     from aeropend_ident.io.overlay_axes import diverges
 
-    return diverges(replay(rig, meas, prep)["theta"], prep.y["theta"])
+    sim = replay(rig, meas, prep)["theta"]
+    nrmse = float(np.sqrt(np.mean((sim - prep.y["theta"]) ** 2)) / prep.scale["theta"])
+    return nrmse, diverges(sim, prep.y["theta"])
 
 
 def noise_floor(prep: Prepared) -> float:
@@ -693,8 +695,8 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
     out = []
     for rec in held_out:
         prep = _preps([rec], diag.channels or ("theta",))[0]
-        n_nom = theta_nrmse(nominal, MeasurementMap(), prep)
-        n_cor = theta_nrmse(diag.corrected_rig, diag.measurement, prep)
+        (n_nom, why_nom), (n_cor, why_cor) = (theta_run(nominal, MeasurementMap(), prep),
+                                              theta_run(diag.corrected_rig, diag.measurement, prep))
         floor = noise_floor(prep)
         row: dict[str, Any] = {"source": rec.source, "nominal": n_nom, "corrected": n_cor,
                                "noise_floor": floor}
@@ -733,9 +735,7 @@ def attainable(nominal: Rig, diag: EffectDiagnosis, held_out: Sequence[Recording
         row["oracle_best"], row["oracle_best_effects"] = o_best, best_eff
         o = min(row["oracle_same"], o_drift, o_best, n_cor, n_nom)
         row["oracle"] = o
-        gone = {label: why for label, (r_, m_) in (("nominal", (nominal, MeasurementMap())),
-                                                  ("corrected", (diag.corrected_rig, diag.measurement)))
-                if (why := theta_divergence(r_, m_, prep))}
+        gone = {label: why for label, why in (("nominal", why_nom), ("corrected", why_cor)) if why}
         total = n_nom**2 - floor**2
         if gone:  # an NRMSE of a run that left the recorded range measures how far it went: no split
             row["diverges"] = gone

@@ -75,13 +75,19 @@ from scipy import signal, stats
 from aeropend_ident.errors import GapInputError, IdentificationError
 from aeropend_ident.gap.effects import measurement_noise
 from aeropend_ident.greybox.baseline import measured_rate, residual_bins, residual_regions
-from aeropend_ident.greybox.fit import UniformData, error_metrics, initial_velocity, uniform_data
+from aeropend_ident.greybox.fit import (
+    UniformData,
+    error_metrics,
+    initial_velocity,
+    rod_stiffness,
+    uniform_data,
+)
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.recording_input import uniform_recording
 from aeropend_sim.compiled.plant import CompiledPlant
 from aeropend_sim.components import registry
 from aeropend_sim.components.xp import NUMPY
-from aeropend_sim.model import I_A, OMEGA, TAU_F, THETA, THETA_DOT, ModelError, PlantModel
+from aeropend_sim.model import I_A, OMEGA, TAU_F, ModelError, PlantModel
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulation import SimulationError, simulate
@@ -1070,12 +1076,6 @@ def _equations(
             _pendulum_check(s, theta, states, offset, theta_rate)]
 
 
-def _stiffness(rig: Rig, theta: float) -> float:
-    """Linearised restoring stiffness −∂θ̈/∂θ [1/s²] of the rod at angle θ, at rest."""
-    a, _ = PlantModel(rig).jacobian([theta, 0.0, 0.0, 0.0, 0.0], 0.0)
-    return float(-a[THETA_DOT, THETA])
-
-
 def locate_recording(
     rig: Rig, recording: Recording, *, horizon: float = 0.2, theta_offset: float = 0.0, n_bins: int = 5
 ) -> RecordingWhere:
@@ -1164,9 +1164,9 @@ def locate_recording(
             "unit": "rad/s^2",
         }
     th_mean = float(np.mean(data.theta)) + theta_offset
-    k_lin = _stiffness(rig, th_mean)
+    k_lin = rod_stiffness(rig, th_mean)
     if k_lin <= 0.0:
-        k_lin = _stiffness(rig, 0.0)
+        k_lin = rod_stiffness(rig, 0.0)
     f_n = math.sqrt(max(k_lin, 1e-6)) / (2 * math.pi)
     noise = measurement_noise(data.theta)
     wb = ljung_box(resid)

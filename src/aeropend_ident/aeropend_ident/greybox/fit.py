@@ -82,7 +82,7 @@ from aeropend_ident.io.recording_input import detect_quantum, grid_step, uniform
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect
 from aeropend_sim.components.xp import MATH
-from aeropend_sim.model import ModelError, PlantModel
+from aeropend_sim.model import THETA, THETA_DOT, ModelError, PlantModel
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.recording import Recording
 from aeropend_sim.recording_frame import FrameError, RecordingFrame, read_recording_frame
@@ -548,6 +548,20 @@ def check_excited(data: UniformData, reference: str | None = None) -> None:
         raise IdentificationError(f"{data.source or '<recording>'}: {problems[0][1]}")
 
 
+def decimated(duty: np.ndarray, theta: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every ``k``-th sample of a uniform grid: θ at each block's start, the duty cycle averaged over
+    the block (an incomplete last block dropped); arrays of shape (N // k,)."""
+    m = theta.size // k
+    return duty[: m * k].reshape(m, k).mean(axis=1), theta[: m * k: k].copy()
+
+
+def rod_stiffness(rig: Rig, theta: float = 0.0) -> float:
+    """Linearised restoring stiffness −∂θ̈/∂θ [1/s²] of the rod at angle θ [rad], at rest: the square
+    of its small-signal swing frequency (:meth:`aeropend_sim.model.PlantModel.jacobian`)."""
+    a, _ = PlantModel(rig).jacobian([theta, 0.0, 0.0, 0.0, 0.0], 0.0)
+    return float(-a[THETA_DOT, THETA])
+
+
 def uniform_data(
     recording: Recording, dt: float | None = None, decimate: int = 1, min_samples: int = MIN_SAMPLES
 ) -> UniformData:
@@ -593,12 +607,10 @@ def uniform_data(
     tu, th, du = grid.t.copy(), grid.channels["theta"].copy(), grid.duty.copy()
     uniform = "resampling" not in grid.meta
     if decimate > 1:
-        m = tu.size // decimate
-        if m < 1:
+        if tu.size // decimate < 1:
             raise IdentificationError(f"decimate = {decimate} leaves no sample of {tu.size}")
-        du = du[: m * decimate].reshape(m, decimate).mean(axis=1)
-        th = th[: m * decimate : decimate]
-        tu = np.arange(m) * grid_dt * decimate
+        du, th = decimated(du, th, decimate)
+        tu = np.arange(th.size) * grid_dt * decimate
     data = UniformData(
         t=tu, duty=np.clip(du, 0.0, 1.0), theta=th, dt=grid_dt * decimate, resampled=not uniform,
         decimate=decimate, source=recording.source,

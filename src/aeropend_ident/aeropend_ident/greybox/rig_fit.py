@@ -64,6 +64,7 @@ from aeropend_ident.greybox.rig_problem import (
 )
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect
+from aeropend_sim.components.pendulum.rod import G
 from aeropend_sim.files.safe_yaml import parse_yaml
 from aeropend_sim.output_folder import write_file_atomically
 from aeropend_sim.params import FITTED, TO_BE_FITTED, Rig, load_rig, rig_from_dict
@@ -347,21 +348,14 @@ def _decay_starts(series: Sequence[TimeSeries], todo: Mapping[str, Any], start: 
         notes.append(f"{s.source}: free decay, period {env.period:.3g} s, {env.envelope} envelope "
                      f"(c/J ≈ {env.c_over_J:.3g} 1/s, T_f/J ≈ {env.coulomb_over_J:.3g} ± "
                      f"{env.coulomb_std:.2g} rad/s², mgd/J ≈ {env.mgd_over_J:.4g} 1/s²)")
-        if "pendulum.c_over_J" in todo and env.c_over_J > 0.0:
-            start["pendulum.c_over_J"] = env.c_over_J
-        if "pendulum.mgd_over_J" in todo and float(s.data.duty[0]) == 0.0:
-            start["pendulum.mgd_over_J"] = env.mgd_over_J
-        if INERTIA in todo and float(s.data.duty[0]) == 0.0 and all(k in stated for k in GEOMETRY_NEEDED):
-            m, d = stated["pendulum.mass"], stated["pendulum.com_distance"]
-            start[INERTIA] = m * 9.80665 * d / env.mgd_over_J
+        _rod_starts(todo, start, stated, env.c_over_J,
+                    env.mgd_over_J if float(s.data.duty[0]) == 0.0 else None)
         dry = "pendulum.coulomb_over_J"
         if env.dry_friction and dry not in todo and dry not in stated:
             add = dry
             start[add] = env.coulomb_over_J
             notes.append(f"{s.source}: the envelope decays linearly: dry friction T_f/J switched on and "
                          "fitted")
-    if not any(s.kind == "free decay" for s in series):
-        _hold_starts(series, todo, start, stated, notes)
     return start, add
 
 
@@ -369,13 +363,12 @@ def _decay_starts(series: Sequence[TimeSeries], todo: Mapping[str, Any], start: 
 #: lag and dead time are over); holds shorter than :data:`HOLD_MIN_S` are not analysed.
 HOLD_SETTLE_S = 0.3
 HOLD_MIN_S = 3.0
-HOLD_NOTE = "hold(s) ring with period"
 
 
 def _hold_starts(series: Sequence[TimeSeries], todo: Mapping[str, Any], start: dict[str, float],
-                 stated: Mapping[str, float], notes: list[str]) -> None:
+                 stated: Mapping[str, float], notes: list[str]) -> bool:
     """Starting values of the rod's damping and time scale from the ringing of the step logs' holds,
-    when no free decay is given (``start`` updated in place).
+    when no free decay is given (``start`` updated in place); whether any hold rang.
 
     Under a held command the thrust is constant and the rod swings about its new level as in a
     free decay (:func:`aeropend_ident.greybox.decay.analyse_decay`: ω_n² = (mgd/J)·cos θ_eq, c/J from
@@ -400,19 +393,29 @@ def _hold_starts(series: Sequence[TimeSeries], todo: Mapping[str, Any], start: d
             if env.mgd_over_J > 0.0 and math.isfinite(env.mgd_over_J) and env.c_over_J >= 0.0:
                 found.append((s.source, env))
     if not found:
-        return
+        return False
     mgd = float(np.median([e.mgd_over_J for _, e in found]))
     cj = float(np.median([e.c_over_J for _, e in found]))
     period = float(np.median([e.period for _, e in found]))
     names = ", ".join(dict.fromkeys(src for src, _ in found))
-    notes.append(f"{names}: {len(found)} {HOLD_NOTE} {period:.3g} s (median): "
+    notes.append(f"{names}: {len(found)} hold(s) ring with period {period:.3g} s (median): "
                  f"c/J ≈ {cj:.3g} 1/s, mgd/J ≈ {mgd:.4g} 1/s² (starting values)")
-    if "pendulum.c_over_J" in todo and cj > 0.0:
-        start["pendulum.c_over_J"] = cj
+    _rod_starts(todo, start, stated, cj, mgd)
+    return True
+
+
+def _rod_starts(todo: Mapping[str, Any], start: dict[str, float], stated: Mapping[str, float],
+                c_over_J: float, mgd_over_J: float | None) -> None:
+    """Starting values of the rod's damping c/J [1/s] (when > 0) and, given its gravity term mgd/J
+    [1/s²], of mgd/J or the inertia J = m·g·d/(mgd/J) from the stated geometry (``start`` updated)."""
+    if "pendulum.c_over_J" in todo and c_over_J > 0.0:
+        start["pendulum.c_over_J"] = c_over_J
+    if mgd_over_J is None:
+        return
     if "pendulum.mgd_over_J" in todo:
-        start["pendulum.mgd_over_J"] = mgd
+        start["pendulum.mgd_over_J"] = mgd_over_J
     if INERTIA in todo and all(k in stated for k in GEOMETRY_NEEDED):
-        start[INERTIA] = stated["pendulum.mass"] * 9.80665 * stated["pendulum.com_distance"] / mgd
+        start[INERTIA] = stated["pendulum.mass"] * G * stated["pendulum.com_distance"] / mgd_over_J
 
 
 #: Local searches of the timing parameters alone (Nelder-Mead, the windows' initial states held at
@@ -572,6 +575,8 @@ def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = No
     top_delay = min([MAX_DEAD_TIME, *(0.25 * s.data.t[-1] for s in dyn)]) if dyn else MAX_DEAD_TIME
     start = {k: v for k, (v, _) in todo.items()}
     start, add = _decay_starts(series, todo, start, stated, notes)
+    decay_given = any(s.kind == "free decay" for s in series)
+    rang = not decay_given and _hold_starts(series, todo, start, stated, notes)
     units = {k: u for k, (_, u) in todo.items()}
     if add is not None:
         units[add] = registry.param(add).unit
@@ -587,7 +592,7 @@ def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = No
     if decays:
         say(f"[3/5] free decays: {', '.join(problem.blocks[i].source for i in decays)}")
         start = _stage(problem, decays, list(start), start)
-    elif not static_idx and any(HOLD_NOTE in n for n in notes):
+    elif not static_idx and rang:
         # the rod's time scale and damping from the holds' ringing: the gain-side parameters first with
         # them held, or the joint solve trades a wrong static gain against a heavy, damped rod
         rod = {"pendulum.c_over_J", "pendulum.mgd_over_J", INERTIA}

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import RecordingInputError
-from aeropend_ident.greybox.fit import UniformData, measurement_noise
+from aeropend_ident.greybox.fit import UniformData, decimated, measurement_noise, rod_stiffness
 from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
 from aeropend_sim.contract import REFERENCE_CHANNEL
 from aeropend_sim.recording import Recording
@@ -260,11 +260,8 @@ def fit_grid(rig: Any) -> float:
     A recording logged on a coarser grid keeps its own. The rod's stiffness comes from the rig's
     starting values (``rig new``'s values are within a factor of a few: the rule has a margin).
     """
-    from aeropend_sim.model import THETA, THETA_DOT, PlantModel
-
     try:
-        a, _ = PlantModel(rig).jacobian([0.0, 0.0, 0.0, 0.0, 0.0], 0.0)
-        k = float(-a[THETA_DOT, THETA])
+        k = rod_stiffness(rig)
     except Exception:  # a rig the model cannot linearise: the cap
         return FIT_GRID_MAX
     if not (math.isfinite(k) and k > 0.0):
@@ -299,11 +296,9 @@ def time_series(rec: Recording, grid: float | None = None) -> TimeSeries:
     full = None
     k = int(grid // dt) if grid is not None and grid > 1.5 * dt else 1
     if k > 1 and len(data) // k >= 20:
-        m = len(data) // k
-        full, data = data, UniformData(
-            t=np.arange(m) * dt * k, duty=data.duty[: m * k].reshape(m, k).mean(axis=1),
-            theta=data.theta[: m * k: k].copy(), dt=dt * k, resampled=data.resampled, decimate=k,
-            source=rec.source)
+        duty, theta = decimated(data.duty, data.theta, k)
+        full, data = data, UniformData(t=np.arange(theta.size) * dt * k, duty=duty, theta=theta, dt=dt * k,
+                                       resampled=data.resampled, decimate=k, source=rec.source)
     return TimeSeries(kind=classify(u), data=data, source=Path(str(rec.source)).name or str(rec.source),
                       noise=recorded_noise(rec.t, rec.channels["theta"]), full=full)
 
