@@ -79,7 +79,7 @@ def lab_path(rig: fl.LabRig, folder: Path, with_gap: bool = True) -> dict[str, A
     """rig new → rig fit → gap → design_gains on the lab's logs; times and outcomes."""
     from aeropend_control.design_gains import main as design_gains
     from aeropend_ident.cli.gap import main as gap_main
-    from aeropend_sim.rigcmd.cli import main as rig_main
+    from aeropend_ident.cli.rig import main as rig_main
 
     inputs = fl.lab_logs(rig, folder / "logs")
     out: dict[str, Any] = {"times_s": {}}

@@ -161,8 +161,8 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 
 def _rig_fit_inputs(root: Path) -> dict[str, Path]:
     """An ESC rig file from ``rig new`` and a balance table of its own equilibrium (``rig fit``)."""
+    from aeropend_ident.cli.rig import main as rig
     from aeropend_ident.greybox.rig_problem import BalanceBlock, apply_values
-    from aeropend_sim.rigcmd.cli import main as rig
 
     template = root / "esc_rig.yaml"
     assert rig(["new", "--actuator", "esc", "--stated", "pendulum.mass=120g", "pendulum.com_distance=18cm",
@@ -182,7 +182,7 @@ def _rig_fit_inputs(root: Path) -> dict[str, Path]:
 def _main(name: str) -> Callable[[list[str]], int]:
     from aeropend_control.design_gains import main as design_gains
     from aeropend_ident.cli import baseline, compare, csv_import, gap, identify
-    from aeropend_sim.rigcmd.cli import main as rig
+    from aeropend_ident.cli.rig import main as rig
 
     return {"baseline": baseline.main, "compare": compare.main, "identify": identify.main, "gap": gap.main,
             "csv_import": csv_import.main, "design_gains": design_gains, "rig new": rig, "rig fit": rig}[name]

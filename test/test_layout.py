@@ -143,3 +143,23 @@ def test_sim_layering_and_the_ros_shell(tmp_path: Path) -> None:
         in out
     assert "controller_node" not in out and "aeropend_control.pid" not in out
     assert "4 problem(s)" in out
+
+
+def test_an_arrow_back_up_between_packages_fails(tmp_path: Path) -> None:
+    """aeropend_sim is the ground floor: a module of it importing aeropend_ident (the top floor) is
+    refused, as is aeropend_bridge importing aeropend_control (same floor); ident importing control
+    is an arrow down and passes."""
+    _package(tmp_path, "aeropend_sim", {
+        "contract": "", "params": "def f():\n    from aeropend_ident.greybox import rig_fit\n"})
+    _package(tmp_path, "aeropend_control", {"design": "from aeropend_sim import contract\n"})
+    _package(tmp_path, "aeropend_bridge", {"bridge": "from aeropend_control import design\n"})
+    _package(tmp_path, "aeropend_ident", {
+        "greybox/rig_fit": "from aeropend_control import design\nfrom aeropend_sim import contract\n"})
+    proc = _run("--root", str(tmp_path))
+    out = proc.stdout
+    assert proc.returncode == 1
+    assert "params.py:2: aeropend_sim.params imports aeropend_ident.greybox.rig_fit: aeropend_sim may " \
+           "import only packages on a lower floor than its own (none;" in out
+    assert "bridge.py:1: aeropend_bridge.bridge imports aeropend_control.design: aeropend_bridge may " \
+           "import only packages on a lower floor than its own (aeropend_sim;" in out
+    assert "2 problem(s)" in out

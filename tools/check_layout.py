@@ -25,6 +25,8 @@ Rules (each violation is printed as ``file:line: message``; exit status 1 if any
   belongs to (``from aeropend_sim import load_rig`` inside ``aeropend_sim``): the ``__init__`` files
   re-export the public API, so such an import is a cycle waiting to happen and loads the whole
   API; submodules import their siblings directly.
+* **Package floors**: a module imports only its own package and the packages on a lower floor
+  of :data:`PACKAGE_FLOORS` (no arrow points back up between packages).
 * **Layering** (docs/architecture.md): inside a package of :data:`LAYERS`, a module of one part
   (the first name below the package: ``aeropend_ident.gap``, ``aeropend_sim.params``) imports
   only the parts its row allows; across packages, :data:`SIMULATOR` modules are imported by their
@@ -70,8 +72,8 @@ LAYERS: dict[str, dict[str, set[str] | str]] = {
         # the simulator: the plant node's functional core, the robot description
         "sim_core": {"simulation", "params", "components", "contract"},
         "description": {"params", "components", "contract"},
-        # the `rig` command (rig new/fit/check; fit and check import aeropend_ident when they run)
-        "rigcmd": {"params", "components", "output_folder", "files"},
+        # what a lab states about its rig: the `rig new` template, stated units (the command: ident cli)
+        "rigfile": {"params", "components", "files"},
         # the shared core: plant library, rig files, topic contract, recordings, result folders
         "excitation": {"contract"},
         "simulation": {"compiled", "model", "params", "components"},
@@ -88,6 +90,9 @@ LAYERS: dict[str, dict[str, set[str] | str]] = {
         "components": set(),
     },
 }
+#: The packages' floors: a module imports only its own package and packages on lower floors, so
+#: every arrow between packages points down (aeropend_sim is the shared base of the other three).
+PACKAGE_FLOORS = {"aeropend_sim": 0, "aeropend_control": 1, "aeropend_bridge": 1, "aeropend_ident": 2}
 #: Modules of the simulator that only their own package imports (the other packages use the core).
 SIMULATOR = ("aeropend_sim.sim_core", "aeropend_sim.description", "aeropend_sim.ros.sim_node",
              "aeropend_sim.ros.excitation_node")
@@ -253,6 +258,11 @@ def _layering(name: str, targets: dict[str, int], modules: dict[str, Path]) -> l
             elif allowed != ANY and tparts[1] not in allowed:
                 out.append(f"{where}: {parts[0]}.{parts[1]} may import only "
                            f"{', '.join(sorted(allowed)) or 'nothing'} of {parts[0]} (docs/architecture.md)")
+        floor, tfloor = PACKAGE_FLOORS.get(parts[0]), PACKAGE_FLOORS.get(tparts[0])
+        if tparts[0] != parts[0] and floor is not None and tfloor is not None and tfloor >= floor:
+            out.append(f"{where}: {parts[0]} may import only packages on a lower floor than its own "
+                       f"({', '.join(p for p, f in PACKAGE_FLOORS.items() if f < floor) or 'none'}; "
+                       "check_layout.PACKAGE_FLOORS)")
         if tparts[0] != parts[0] and any(target == m or target.startswith(m + ".") for m in SIMULATOR):
             out.append(f"{where}: a module of the simulator, for aeropend_sim only (use the core)")
         if target.startswith("aeropend_sim.ros") and not parts[0] == "aeropend_sim" \

@@ -39,7 +39,8 @@ setup(
             'gap = aeropend_ident.cli.gap:main',
             'gap-batch = aeropend_ident.cli.gap_batch:main',
             'compare = aeropend_ident.cli.compare:main',
-            'reindex = aeropend_ident.cli.reindex:main'
+            'reindex = aeropend_ident.cli.reindex:main',
+            'rig = aeropend_ident.cli.rig:main'
         ],
     },
 )

@@ -33,8 +33,7 @@ setup(
     entry_points={
         "console_scripts": [
             'sim_node = aeropend_sim.ros.sim_node:main',
-            'excitation = aeropend_sim.ros.excitation_node:main',
-            'rig = aeropend_sim.rigcmd.cli:main'
+            'excitation = aeropend_sim.ros.excitation_node:main'
         ],
     },
 )

@@ -34,8 +34,8 @@ from aeropend_bridge.protocol import (
     PulseSampleFrame,
     SampleFrame,
 )
+from aeropend_ident.cli.rig import main as rig_main
 from aeropend_sim.params import load_rig
-from aeropend_sim.rigcmd.cli import main as rig_main
 
 ESC_HELLO = HelloFrame(2, 2, 3, CH_THETA | CH_SPEED, 50, 1000, 2000, 2000, 61, 4000)
 HB_HELLO = HelloFrame(2, 1, 1, 0x0F, 490, 0, 0, 0, 249, 1024)

@@ -30,11 +30,11 @@ from aeropend_control.controller_core import ControllerConfigError, ControllerLo
 from aeropend_control.design_gains import main as design_gains
 from aeropend_control.strategies.registry import strategy_class, strategy_names
 from aeropend_control.verify.closed_loop import LAB_GOAL, run_step, tune, verify
+from aeropend_ident.cli.rig import main as rig_main
 from aeropend_sim.components import registry
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
-from aeropend_sim.rigcmd.cli import main as rig_main
-from aeropend_sim.rigcmd.template import new_rig_text, roles, start_value
+from aeropend_sim.rigfile.template import new_rig_text, roles, start_value
 from aeropend_sim.simulation import simulate
 
 FAMILIES = ("dc_hbridge", "voltage_amplifier", "esc")

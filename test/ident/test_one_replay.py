@@ -30,6 +30,7 @@ from aeropend_ident.cli.baseline import main as baseline_main
 from aeropend_ident.cli.compare import main as compare_main
 from aeropend_ident.cli.gap import main as gap_main
 from aeropend_ident.cli.gap_batch import diagnose_session
+from aeropend_ident.cli.rig import main as rig_main
 from aeropend_ident.greybox.replay import START_WINDOW, free_run, initial_state
 from aeropend_ident.greybox.rig_check import check_rig
 from aeropend_ident.greybox.rig_fit import fit_rig
@@ -37,7 +38,6 @@ from aeropend_ident.io.bag_writer import write_bag
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import TO_BE_FITTED, load_rig, rig_to_dict
 from aeropend_sim.recording import Recording
-from aeropend_sim.rigcmd.cli import main as rig_main
 from aeropend_sim.simulation import simulate
 
 DT = 0.01

@@ -12,14 +12,14 @@ import pytest
 import yaml
 from scipy.integrate import solve_ivp
 
+from aeropend_ident.cli.rig import main
 from aeropend_ident.greybox.decay import analyse_decay
 from aeropend_ident.greybox.rig_fit import fit_rig, write_fitted
 from aeropend_ident.greybox.rig_inputs import is_table, read_table
 from aeropend_sim.components import registry
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
-from aeropend_sim.rigcmd.cli import main
-from aeropend_sim.rigcmd.units import UnitError, convert
+from aeropend_sim.rigfile.units import UnitError, convert
 
 ESC_STATED = ["pendulum.mass=120g", "pendulum.com_distance=18cm", "pendulum.thrust_arm=0.15m",
               "motor.gear_ratio=1", "actuator.omega_max=1085rad/s"]

@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from aeropend_ident.cli.rig import main as rig_main
 from aeropend_ident.greybox.rig_fit import fit_rig
-from aeropend_sim.rigcmd.cli import main as rig_main
 from bench.fixtures import rig_lab
 from bench.fixtures.rig_lab import tp
 

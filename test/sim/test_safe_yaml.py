@@ -69,7 +69,7 @@ def test_shipped_rig_still_loads():
 
 
 def test_alias_bomb_in_a_rig_description_is_refused_by_rig_check(tmp_path, capsys):
-    from aeropend_sim.rigcmd.cli import main
+    from aeropend_ident.cli.rig import main
 
     path = rig_with_bomb(tmp_path)
     t0 = time.perf_counter()

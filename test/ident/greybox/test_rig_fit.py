@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
+from aeropend_ident.cli.rig import main
 from aeropend_ident.greybox.rig_check import check_rig
 from aeropend_ident.greybox.rig_fit import fit_rig
-from aeropend_sim.rigcmd.cli import main
 
 # an ESC rig whose thrust is ~100× too strong: any command above idle spins the rod over the top
 STRONG = ["pendulum.mass=120g", "pendulum.com_distance=18cm", "pendulum.thrust_arm=0.15m",

@@ -33,8 +33,8 @@ from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
 from aeropend_bridge.simavr_harness import read_pty_path
+from aeropend_ident.cli.rig import main as rig_main
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
-from aeropend_sim.rigcmd.cli import main as rig_main
 from aeropend_sim.ros.harness import isolated_env, node_command, private_node, random_domain, reap, stop
 from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_SUB_QOS
 

@@ -31,7 +31,7 @@ from aeropend_ident.greybox.rig_problem import Problem, TimeBlock, covariance
 from aeropend_sim.components import registry
 from aeropend_sim.files.safe_yaml import load_yaml
 from aeropend_sim.params import Rig, load_rig
-from aeropend_sim.rigcmd.template import GEOMETRY_NEEDED, INERTIA, fittable
+from aeropend_sim.rigfile.template import GEOMETRY_NEEDED, INERTIA, fittable
 
 #: Pairs with |correlation| above this are reported as not separable.
 CORRELATED = 0.95

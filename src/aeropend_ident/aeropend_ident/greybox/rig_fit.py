@@ -68,7 +68,7 @@ from aeropend_sim.components.pendulum.rod import G
 from aeropend_sim.files.safe_yaml import parse_yaml
 from aeropend_sim.output_folder import write_file_atomically
 from aeropend_sim.params import FITTED, TO_BE_FITTED, Rig, load_rig, rig_from_dict
-from aeropend_sim.rigcmd.template import GEOMETRY_NEEDED, plausible_range
+from aeropend_sim.rigfile.template import GEOMETRY_NEEDED, plausible_range
 
 #: A fitted parameter is refused when its standard error exceeds this fraction of its value (log
 #: parameters) ...

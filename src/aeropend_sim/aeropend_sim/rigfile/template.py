@@ -34,7 +34,7 @@ from aeropend_sim.components.base import SECTIONS, Effect, Param
 from aeropend_sim.components.pendulum.rod import G
 from aeropend_sim.files.safe_yaml import parse_yaml
 from aeropend_sim.params import TO_BE_FITTED, RigFileError, rig_from_dict
-from aeropend_sim.rigcmd.units import UnitError, convert
+from aeropend_sim.rigfile.units import UnitError, convert
 
 #: Effects a lab's rig of each family usually has: ``rig new`` marks their parameters to be fitted
 #: (the others are written commented out, not modelled). A DC motor has back-EMF and rotor

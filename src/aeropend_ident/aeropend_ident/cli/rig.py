@@ -1,4 +1,4 @@
-"""Console script ``rig`` (``ros2 run aeropend_sim rig``): make, fit and check a lab's rig file.
+"""Console script ``rig`` (``ros2 run aeropend_ident rig``): make, fit and check a lab's rig file.
 
 Usage::
 
@@ -9,10 +9,10 @@ Usage::
 
 ``INPUT`` is a static table (a CSV with a header ``command,angle_rad[,angle_std_rad]`` or
 ``command,thrust_N[,thrust_std_N]``) or a recording (a bag, ``FILE.csv:PRESET``); see
-docs/rig_command.md. ``rig new`` needs only this package (the rig format and the component
-registry); ``rig fit`` and ``rig check`` run the identification of ``aeropend_ident`` (and the
-reach of ``aeropend_control``), imported when they are called, so a machine with the simulator alone
-can still write rig files. An existing output file is never replaced without ``--overwrite``
+docs/rig_command.md. The command lives in ``aeropend_ident`` beside what it runs (``rig fit`` is
+:mod:`aeropend_ident.greybox.rig_fit`, ``rig check`` :mod:`aeropend_ident.greybox.rig_check`);
+those modules are imported when their subcommand runs, so ``rig new`` and ``--help`` stay quick.
+An existing output file is never replaced without ``--overwrite``
 (:mod:`aeropend_sim.output_folder`).
 
 Exit status: 0 on success, 2 on bad input (one line on stderr naming the problem).
@@ -34,7 +34,7 @@ from aeropend_sim.output_folder import (
     write_file_atomically,
 )
 from aeropend_sim.params import RigFileError, load_rig
-from aeropend_sim.rigcmd.template import new_rig_text, parse_stated
+from aeropend_sim.rigfile.template import new_rig_text, parse_stated
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -111,10 +111,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return {"new": _new, "fit": _fit, "check": _check}[args.command](args)
-    except ModuleNotFoundError as exc:
-        print(f"rig {args.command}: error: needs {exc.name} (install aeropend_ident and aeropend_control: "
-              "colcon build, or scripts/setup_env.sh)", file=sys.stderr)
-        return 2
     except (ValueError, OutputFolderError, OSError) as exc:
         if is_fault(exc):
             raise
