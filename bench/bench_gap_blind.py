@@ -2,7 +2,7 @@
 
 A generator (:mod:`aeropend_ident.gap.synth`) makes "real" recordings from the plant model with
 one or two catalog effects at random magnitudes, noise (45-60 dB SNR) and excitation; the
-diagnosis (:func:`aeropend_ident.gap.which.diagnose_effects`) sees only the nominal rig file
+diagnosis (:func:`aeropend_ident.gap.which.diagnosis.diagnose_effects`) sees only the nominal rig file
 (``thesis_rig``) and the recordings, never the truth; the scorer compares afterwards. Fit
 recordings are APRBS, held-out recordings Latin-hypercube steps, with other seeds.
 
@@ -40,7 +40,7 @@ from typing import Any
 
 from aeropend_ident.gap.effects import catalog, identifiable
 from aeropend_ident.gap.synth import confusion, make_case, score_case, summarise
-from aeropend_ident.gap.which import diagnose_effects
+from aeropend_ident.gap.which.diagnosis import diagnose_effects
 from aeropend_sim.params import load_rig
 
 RESULTS = Path(__file__).resolve().parent / "results"

@@ -2,7 +2,7 @@
 
 The lab benchmark (:mod:`bench.bench_gap_lab`) names all three effects of a three-effect plant in a
 fifth of its triple cases (issue 38's bar: 70 %). Forward selection adds an effect when its joint
-fit with the chosen ones removes :data:`aeropend_ident.gap.which.MIN_EXPLAINED_SECOND` (30 %) of the
+fit with the chosen ones removes :data:`aeropend_ident.gap.which.ranking.MIN_EXPLAINED_SECOND` (30 %) of the
 validation gap above noise they leave. This script asks whether the search or the data is what
 stops it: for each triple case of a lab run, on the same fit / validation split the diagnosis used
 (:func:`aeropend_ident.io.split.validation_split` of the fit session), it fits
@@ -10,14 +10,14 @@ stops it: for each triple case of a lab run, on the same fit / validation split 
 * the set the diagnosis chose (from the lab run's JSON), and
 * the truth set (the case's three effects),
 
-each from the nominal rig by the diagnosis' own fit (:func:`aeropend_ident.gap.which.fit_effects`,
+each from the nominal rig by the diagnosis' own fit (:func:`aeropend_ident.gap.which.fitting.fit_effects`,
 its multi-start included), and compares their validation errors
-(:func:`aeropend_ident.gap.which.segment_sse`, summed). If the truth set left much less than the
+(:func:`aeropend_ident.gap.which.metrics.segment_sse`, summed). If the truth set left much less than the
 chosen one, a better search would find it; if it leaves as much or more, no selection rule of
 this kind can name it from these recordings.
 
 Whether "less" is evidence: the diagnosis' own sample-split test
-(:func:`aeropend_ident.gap.which.split_test`) of the truth set against the chosen set on the 1 s
+(:func:`aeropend_ident.gap.which.evidence.split_test`) of the truth set against the chosen set on the 1 s
 validation segments, with no share asked for (H0: the truth set removes nothing of what the chosen
 set leaves), the segments' noise part as the diagnosis takes it. The test is scale-free per
 second (the mean log ratio of the segments' errors), so a set can pass it and still leave more
@@ -56,7 +56,8 @@ def _validation_sse(rig: Any, effects: list[str], pf: list[Any], pv: list[Any], 
     """The diagnosis' fit of ``effects`` on ``pf`` and its summed validation error on ``pv``."""
     from aeropend_ident.errors import GapError
     from aeropend_ident.gap.effects import MeasurementMap
-    from aeropend_ident.gap.which import fit_effects, segment_sse
+    from aeropend_ident.gap.which.fitting import fit_effects
+    from aeropend_ident.gap.which.metrics import segment_sse
 
     if not effects:
         segs = segment_sse(rig, MeasurementMap(), pv)
@@ -80,7 +81,10 @@ def _better(row: dict[str, Any]) -> bool:
 def run_case(job: dict[str, Any]) -> dict[str, Any]:
     """One triple case: nominal, chosen-set and truth-set validation errors (module doc)."""
     from aeropend_ident.gap.effects import EffectContext, check_recordings
-    from aeropend_ident.gap.which import excluded_with, noise_part, noise_parts, prepare, split_test
+    from aeropend_ident.gap.which.context import noise_part, noise_parts
+    from aeropend_ident.gap.which.data import prepare
+    from aeropend_ident.gap.which.evidence import split_test
+    from aeropend_ident.gap.which.ranking import excluded_with
     from aeropend_ident.io.split import validation_split
     from bench import bench_gap_lab as lab
 

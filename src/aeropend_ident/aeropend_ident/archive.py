@@ -187,7 +187,7 @@ def drift_across(rows: Sequence[dict[str, Any]], sessions: Sequence[Session], ri
     :func:`aeropend_ident.parallel.run_cases` with the batch's cluster settings bound.
     """
     from aeropend_ident.gap.drift import _drift_table, drift_set
-    from aeropend_ident.gap.which import excluded_with
+    from aeropend_ident.gap.which.ranking import excluded_with
 
     good = [(r, s) for r, s in zip(rows, sessions, strict=True) if r.get("exit") == 0]
     if len(good) < 2:

@@ -27,7 +27,7 @@ from aeropend_ident.gap.drift import (
     shortest_interval,
     within_session_draw,
 )
-from aeropend_ident.gap.which import INITIAL_STATE_WINDOW
+from aeropend_ident.gap.which.data import INITIAL_STATE_WINDOW
 from bench.bench_gap_independent import rig_dict, to_recording
 from bench.fixtures import truth_plant as tp
 
@@ -365,7 +365,8 @@ def test_prediction_is_over_the_held_out_recordings_range_not_the_validation_par
     # range, so "nothing moved" (the actual error here) is at the interval's lower end.
     from aeropend_ident.gap.drift import predict_heldout
     from aeropend_ident.gap.effects import MeasurementMap
-    from aeropend_ident.gap.which import gap_metrics, prepare
+    from aeropend_ident.gap.which.data import prepare
+    from aeropend_ident.gap.which.metrics import gap_metrics
     from aeropend_sim.params import rig_from_dict
     from aeropend_sim.recording import Recording
 
@@ -456,7 +457,7 @@ def test_a_draw_that_moves_nothing_costs_no_replay_and_changes_nothing(monkeypat
     # row's change is the one a replay of that rig alone gives.
     from aeropend_ident.gap import drift
     from aeropend_ident.gap.effects import MeasurementMap
-    from aeropend_ident.gap.which import prepare, replay_many
+    from aeropend_ident.gap.which.data import prepare, replay_many
     from aeropend_sim.params import rig_from_dict
 
     p = tp.PlantParams()
@@ -515,7 +516,7 @@ def test_the_prediction_keeps_the_fitted_effects_whatever_their_standard_errors(
 @pytest.mark.slow
 def test_dry_friction_on_a_step_test_and_an_aprbs_of_an_unchanged_rod_raises_no_drift() -> None:
     from aeropend_ident.gap.drift import drift_table
-    from aeropend_ident.gap.which import diagnose_effects
+    from aeropend_ident.gap.which.diagnosis import diagnose_effects
     from aeropend_sim.params import rig_from_dict
 
     # the same rod, whose dry friction sets in over 2 mrad/s, recorded once as a step test (long

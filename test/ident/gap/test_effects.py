@@ -1,7 +1,7 @@
 """Catalog of candidate effects for the gap diagnosis: switching, bounds, validation, recovery.
 
 Each catalog effect is recovered by the grey-box output-error fit of
-:func:`aeropend_ident.gap.which.fit_effects` on a short synthetic recording of the nominal rig
+:func:`aeropend_ident.gap.which.fitting.fit_effects` on a short synthetic recording of the nominal rig
 with that effect added at a known magnitude.
 """
 
@@ -24,7 +24,8 @@ from aeropend_ident.gap.effects import (
     identifiable,
 )
 from aeropend_ident.gap.synth import draw_truth, record
-from aeropend_ident.gap.which import FIT_CHANNELS, fit_effects, prepare, residuals
+from aeropend_ident.gap.which.data import FIT_CHANNELS, prepare, residuals
+from aeropend_ident.gap.which.fitting import fit_effects
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_sim.components import registry
 from aeropend_sim.excitation import aprbs

@@ -21,7 +21,9 @@ from aeropend_ident.errors import GapError
 from aeropend_ident.gap.drift import attainable, noise_floor
 from aeropend_ident.gap.effects import EffectContext, detect_quantum, measurement_noise
 from aeropend_ident.gap.synth import make_case
-from aeropend_ident.gap.which import diagnose_effects, fit_effects, prepare
+from aeropend_ident.gap.which.data import prepare
+from aeropend_ident.gap.which.diagnosis import diagnose_effects
+from aeropend_ident.gap.which.fitting import fit_effects
 from aeropend_ident.greybox.fit import noise_level
 from aeropend_sim.params import load_rig
 
@@ -191,7 +193,8 @@ def test_the_above_noise_margin_counts_the_holds_of_a_rounding_error() -> None:
     # so the mean square of the rounding error over k holds scatters by 0.894/√k of q²/12
     from types import SimpleNamespace
 
-    from aeropend_ident.gap.which import ROUNDING_CHANCE_Z, _noise_var, _rounding_chance
+    from aeropend_ident.gap.which.context import ROUNDING_CHANCE_Z, _rounding_chance
+    from aeropend_ident.gap.which.data import _noise_var
 
     rng = np.random.default_rng(4)
     q = 6.0e-3

@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[3]
 
 
 def _diagnose(effects: dict[str, float]):
-    from aeropend_ident.gap.which import diagnose_effects
+    from aeropend_ident.gap.which.diagnosis import diagnose_effects
     from aeropend_sim.params import rig_from_dict
 
     p = tp.PlantParams()

@@ -17,9 +17,11 @@ import numpy as np
 import pytest
 
 from aeropend_ident.errors import GapError
-from aeropend_ident.gap.effects import CATALOG
+from aeropend_ident.gap.effects import CATALOG, detect_quantum
 from aeropend_ident.gap.synth import make_case
-from aeropend_ident.gap.which import detect_quantum, diagnose_effects, group_select, plant_side_alternative
+from aeropend_ident.gap.which.diagnosis import diagnose_effects
+from aeropend_ident.gap.which.ranking import plant_side_alternative
+from aeropend_ident.gap.which.screening import group_select
 from aeropend_sim.params import load_rig, rig_from_dict
 from aeropend_sim.recording import Recording
 
@@ -220,7 +222,7 @@ def test_corrected_rig_file_holds_the_plant_side_alternative_and_the_nominal_sen
 
 # ------------------------------------------------------------------ presence and its words (issue 38)
 def test_split_test_reads_a_consistent_shrink_as_evidence_and_noise_as_none() -> None:
-    from aeropend_ident.gap.which import MIN_EXPLAINED, split_test
+    from aeropend_ident.gap.which.evidence import MIN_EXPLAINED, split_test
 
     rng = np.random.default_rng(3)
     noise = 1.0
@@ -241,7 +243,7 @@ def test_split_test_reads_a_consistent_shrink_as_evidence_and_noise_as_none() ->
 
 
 def test_status_words_follow_presence_and_completeness() -> None:
-    from aeropend_ident.gap.which import NAMED_COMPLETENESS, NAMED_PRESENCE, status_of
+    from aeropend_ident.gap.which.evidence import NAMED_COMPLETENESS, NAMED_PRESENCE, status_of
 
     assert status_of(0.95, True, 1.0) == "named"
     assert status_of(0.95, True, NAMED_COMPLETENESS - 0.01) == "candidate"  # partly explains
@@ -253,7 +255,7 @@ def test_status_words_follow_presence_and_completeness() -> None:
 
 
 def test_block_sandwich_covariance_widens_for_correlated_residuals() -> None:
-    from aeropend_ident.gap.which import BIC_DECIMATION, parameter_covariance
+    from aeropend_ident.gap.which.fitting import BIC_DECIMATION, parameter_covariance
 
     rng = np.random.default_rng(0)
     n = 20_000
@@ -275,7 +277,7 @@ def test_block_sandwich_covariance_widens_for_correlated_residuals() -> None:
 
 
 def test_a_parameter_the_residuals_do_not_depend_on_has_infinite_variance() -> None:
-    from aeropend_ident.gap.which import parameter_covariance
+    from aeropend_ident.gap.which.fitting import parameter_covariance
 
     # an end stop the recording never reaches: its Jacobian column is zero. The pseudo-inverse
     # alone gives it variance 0 (an exactly known value, z ~ 1e10 in a drift table); it must be
@@ -294,7 +296,8 @@ def test_a_parameter_the_residuals_do_not_depend_on_has_infinite_variance() -> N
 
 
 def test_the_confirmation_bic_counts_independent_samples_per_second_not_per_sample() -> None:
-    from aeropend_ident.gap.which import BIC_DECIMATION, bic_samples
+    from aeropend_ident.gap.which.context import bic_samples
+    from aeropend_ident.gap.which.fitting import BIC_DECIMATION
 
     class P:  # the two attributes bic_samples reads of a Prepared recording
         def __init__(self, rate: float, seconds: float, channels: int) -> None:
@@ -315,7 +318,7 @@ def test_the_confirmation_bic_counts_independent_samples_per_second_not_per_samp
 
 
 def test_a_timing_fit_shorter_than_half_a_sample_is_not_resolved() -> None:
-    from aeropend_ident.gap.which import unresolved_times
+    from aeropend_ident.gap.which.evidence import unresolved_times
 
     # an input delay fitted at ~0 and a lag at 1 ms on 20.5 ms / 4.1 ms samples: not the plant's
     why = unresolved_times("input_delay", {"input_delay": 2e-9}, 0.02048)
@@ -360,7 +363,8 @@ def test_a_numerical_setting_is_fitted_only_where_freed_and_a_held_one_says_so()
     from dataclasses import replace
 
     from aeropend_ident.gap.effects import EffectContext, MeasurementMap, get_effect
-    from aeropend_ident.gap.which import EffectFit, _coords, _n_fitted, _param_table
+    from aeropend_ident.gap.which.context import _param_table
+    from aeropend_ident.gap.which.fitting import EffectFit, _coords, _n_fitted
 
     ctx = EffectContext(rig=RIG, duty_max=0.7, drive_max=8.0, omega_max=300.0, omega_ref=50.0, theta_hi=1.0)
     e = get_effect("coulomb_friction")
@@ -400,7 +404,7 @@ def test_an_effect_free_closed_loop_log_that_starts_the_motor_names_no_effect() 
 def test_an_in_sample_choice_needs_a_split_test_p_of_at_most_one_half() -> None:
     from types import SimpleNamespace
 
-    from aeropend_ident.gap.which import IN_SAMPLE_MAX_P, _holds_in_sample
+    from aeropend_ident.gap.which.context import IN_SAMPLE_MAX_P, _holds_in_sample
 
     part = object()
     in_sample = SimpleNamespace(pf=part, pv=part)  # ranked on the fit part itself
@@ -418,7 +422,8 @@ def test_the_replay_starts_the_motor_at_rest_or_running_as_the_log_began(before:
     # 0.6: rotor at speed). The rotor speed is not recorded; the replay of the true rig must
     # follow the recording from its first second either way (noise-free: to 1e-4 rad), where a
     # rotor assumed at speed on the first kind put 0.1 rad of error into the first second.
-    from aeropend_ident.gap.which import MeasurementMap, prepare, replay
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.gap.which.data import prepare, replay
     from aeropend_ident.greybox.fit import motor_equilibrium
     from aeropend_sim.simulation import simulate
 
@@ -440,7 +445,7 @@ def test_single_effect_fits_in_threads_give_the_figures_of_fits_one_after_the_ot
     # setting one of them frees (here the dry friction's onset width: a rod whose friction sets in
     # over 2 mrad/s, the rig file's 10 mrad/s) is merged after it. One thread and two: the same
     # chosen set, freed settings and ranked figures.
-    from aeropend_ident.gap import which
+    from aeropend_ident.gap.which import context
     from bench.bench_gap_independent import rig_dict, to_recording
     from bench.fixtures import truth_plant as tp
 
@@ -452,7 +457,7 @@ def test_single_effect_fits_in_threads_give_the_figures_of_fits_one_after_the_ot
     rig = rig_from_dict(rig_dict(p, "lab_nominal"), where="test")
     runs = {}
     for n in (1, 2):
-        monkeypatch.setattr(which, "fit_threads", lambda n=n: n)
+        monkeypatch.setattr(context, "fit_threads", lambda n=n: n)
         runs[n] = diagnose_effects(rig, fit, val, max_effects=1, seed=0)
     one, two = runs[1], runs[2]
     assert one.chosen == two.chosen == ["coulomb_friction"]
@@ -470,11 +475,11 @@ def test_fits_in_threads_replay_on_their_own_thread(monkeypatch) -> None:
     import threading
     import types
 
-    from aeropend_ident.gap import which
+    from aeropend_ident.gap.which import context
     from aeropend_ident.greybox.batch import THREADS_ENV, replay_threads
 
     monkeypatch.delenv(THREADS_ENV, raising=False)
-    monkeypatch.setattr(which, "fit_threads", lambda: 2)
+    monkeypatch.setattr(context, "fit_threads", lambda: 2)
     said = []
     st = types.SimpleNamespace(pf=(), pv=(), say=said.append)
 
@@ -482,7 +487,7 @@ def test_fits_in_threads_replay_on_their_own_thread(monkeypatch) -> None:
         say(f"fit {item}")
         return replay_threads(), threading.current_thread().name
 
-    got = dict(which._each(st, ["a", "b", "c"], work))
+    got = dict(context._each(st, ["a", "b", "c"], work))
     assert {n for n, _ in got.values()} == {1}
     assert all(name.startswith("aeropend-fit") for _, name in got.values())
     assert said == ["fit a", "fit b", "fit c"]
@@ -493,7 +498,7 @@ def test_forward_selection_in_threads_gives_the_figures_of_fits_one_after_the_ot
     # the joint fits of a forward-selection step (_add_effect) run at once; the step takes their
     # figures in order (its bootstrap draws from one generator), so one thread and two give the
     # same chosen set, validation table and ranked figures
-    from aeropend_ident.gap import which
+    from aeropend_ident.gap.which import context
 
     p, m = RIG.pendulum, RIG.motor
     truth = {"viscous_friction": {"c_over_J": 0.4 * p.c_over_J}, "motor_time_constant": {"J_m": 4.0 * m.J_m},
@@ -502,7 +507,7 @@ def test_forward_selection_in_threads_gives_the_figures_of_fits_one_after_the_ot
                      channels=("theta",))
     runs = {}
     for n in (1, 2):
-        monkeypatch.setattr(which, "fit_threads", lambda n=n: n)
+        monkeypatch.setattr(context, "fit_threads", lambda n=n: n)
         runs[n] = diagnose_effects(RIG, case.fit, case.held_out, max_effects=3,
                                    also_confirm=("motor_time_constant", "actuator_lag", "input_delay"))
     assert runs[1].chosen == runs[2].chosen and len(runs[1].chosen) == 3
@@ -542,8 +547,8 @@ def test_a_confusable_rival_a_hair_behind_is_reported_as_not_separated():
 def test_a_recordings_smoothed_start_is_worked_out_once_for_all_its_replays(monkeypatch) -> None:
     # θ̇(0) and the recorded motor states at t = 0 are facts of the recording, not of the rig
     # replaying it: every replay starts from the same values, fitted once per recording
-    from aeropend_ident.gap import which
     from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.gap.which import data as which
 
     case = make_case(RIG, [], 7, fit_duration=4.0, held_out_steps=1, snr_db=50.0,
                      channels=("theta", "i_a", "omega_rotor"))
@@ -571,7 +576,7 @@ def test_a_residual_no_candidate_changes_does_not_zero_the_completeness():
     one a candidate did change still counts."""
     from types import SimpleNamespace
 
-    from aeropend_ident.gap.which import _completeness, unreachable_channels
+    from aeropend_ident.gap.which.candidates import _completeness, unreachable_channels
 
     st = SimpleNamespace(sse0_c={"theta": 40.0, "v_a": 46.0}, noise_c={"theta": 1.0, "v_a": 1.0})
     cand = {"per_channel": {"theta": {"residual_over_noise": 1.1}, "v_a": {"residual_over_noise": 46.2}}}

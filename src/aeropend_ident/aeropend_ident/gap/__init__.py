@@ -14,7 +14,7 @@ _API: dict[str, tuple[str, ...]] = {
     "aeropend_ident.gap.run": ("run_gap", "GapResult", "corrected_rig_dict"),
     "aeropend_ident.gap.report": ("write_report", "terminal_summary"),
     "aeropend_ident.gap.where": ("locate_gap", "WhereReport"),
-    "aeropend_ident.gap.which": ("diagnose_effects", "EffectDiagnosis"),
+    "aeropend_ident.gap.which.diagnosis": ("diagnose_effects", "EffectDiagnosis"),
     "aeropend_ident.gap.effects": ("catalog", "get_effect"),
     "aeropend_ident.gap.compare": ("CompareResult",),
     "aeropend_ident.gap.synth": ("make_case", "score_case"),

@@ -42,7 +42,8 @@ import numpy as np
 from aeropend_ident.errors import CompareError, GapError, IdentificationError
 from aeropend_ident.gap.effects import MeasurementMap
 from aeropend_ident.gap.where import input_cross_correlation, ljung_box
-from aeropend_ident.gap.which import FIT_CHANNELS, duty_holds, prepare, step_info
+from aeropend_ident.gap.which.data import FIT_CHANNELS, prepare
+from aeropend_ident.gap.which.metrics import duty_holds, step_info
 from aeropend_ident.greybox.fit import rig_theta_offset, rig_theta_scale
 from aeropend_ident.greybox.replay import FreeRun, free_run
 from aeropend_sim.params import Rig, RigFileError, load_rig, shipped_rigs

@@ -71,18 +71,10 @@ from aeropend_ident.gap.effects import (
     identifiable,
     measurement_noise,
 )
-from aeropend_ident.gap.which import (
-    COVARIANCE_BLOCK_S,
-    INITIAL_STATE_WINDOW,
-    EffectDiagnosis,
-    Prepared,
-    diagnose_effects,
-    excluded_with,
-    fit_effects,
-    prepare,
-    replay,
-    replay_many,
-)
+from aeropend_ident.gap.which.data import INITIAL_STATE_WINDOW, Prepared, prepare, replay, replay_many
+from aeropend_ident.gap.which.diagnosis import EffectDiagnosis, diagnose_effects
+from aeropend_ident.gap.which.fitting import COVARIANCE_BLOCK_S, fit_effects
+from aeropend_ident.gap.which.ranking import excluded_with
 from aeropend_sim.components import registry
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
@@ -105,7 +97,7 @@ DRIFT_PRIOR: dict[str, float] = {d.name: d.drift_sigma for d in registry.diagnos
 #: Monte-Carlo draws of the prediction (one replay of each validation recording per draw).
 N_DRAWS = 300
 #: Block length of the within-session error [s]: the block sandwich's
-#: (:data:`aeropend_ident.gap.which.COVARIANCE_BLOCK_S`), longer than a replay's error stays
+#: (:data:`aeropend_ident.gap.which.fitting.COVARIANCE_BLOCK_S`), longer than a replay's error stays
 #: correlated by the rod's own dynamics; a 10 s validation part holds five. With 5 s blocks it held
 #: two, too few to estimate a spread from: the unchanged rig's actual fell just under the
 #: within-session atom (docs/findings/gap.md, "The atom inside the interval").
@@ -136,7 +128,7 @@ def _preps(recs: Sequence[Recording], channels: Sequence[str]) -> list[Prepared]
 
 def _start_only(prep: Prepared) -> Prepared:
     """A target recording as the prediction may read it: the whole duty, the measured channels
-    over the first :data:`aeropend_ident.gap.which.INITIAL_STATE_WINDOW` only (where a replay's
+    over the first :data:`aeropend_ident.gap.which.data.INITIAL_STATE_WINDOW` only (where a replay's
     start is estimated, its noise level included); the rest of the angle, its error, stays unread."""
     k = min(prep.n, max(round(INITIAL_STATE_WINDOW / prep.dt), 1))
     return Prepared(rec=prep.rec, dt=prep.dt, duty=prep.duty, y={c: v[:k] for c, v in prep.y.items()},
@@ -220,7 +212,7 @@ def _ms_changes(rigs: Sequence[Rig | None], meas: MeasurementMap, preps: Sequenc
                 base_rig: Rig | None = None) -> list[list[float] | None]:
     """Per rig and recording: the mean squared θ change of its replay from the base replay, over
     that recording's scale²; None for a rig that is None or whose replay fails on any recording.
-    One batched replay per recording (:func:`aeropend_ident.gap.which.replay_many`) of each distinct
+    One batched replay per recording (:func:`aeropend_ident.gap.which.data.replay_many`) of each distinct
     rig object: a rig given twice is replayed once, and ``base_rig`` (the rig of the base replays,
     replayed the same way) not at all: its change is 0.0 exactly, as its replay is the base replay
     bit for bit (a draw in which no drift-prone parameter changes returns that very rig,
@@ -462,7 +454,7 @@ def predict_heldout(nominal: Rig, diag: EffectDiagnosis, validation: Sequence[Re
     not on its range (a K_q change moves the hanging angle at each duty by a fixed amount). A
     validation part that holds a set point spans a tenth of the held-out range, and its NRMSEs,
     noise included, would be ten times a held-out one. From a target only its duty and its start
-    are read: its channels over the first :data:`aeropend_ident.gap.which.INITIAL_STATE_WINDOW`
+    are read: its channels over the first :data:`aeropend_ident.gap.which.data.INITIAL_STATE_WINDOW`
     (1 s), where every free-run replay's start is estimated (:func:`_start_only`), never its error.
 
     Parameters
@@ -586,7 +578,7 @@ def refit_comparison(nominal: Rig, diag: EffectDiagnosis, fit: Sequence[Recordin
     ``baseline`` does by default (the rod's gravity term mgd/J, its viscous friction c/J and the
     thrust scale, here the thrust coefficient K_q, plus the supply voltage V_s when v_a is
     recorded: the drift-prone parameters, :func:`drift_parameters`). They are fitted on every fit
-    recording (output error, :func:`aeropend_ident.gap.which.fit_effects`) and replayed on the
+    recording (output error, :func:`aeropend_ident.gap.which.fitting.fit_effects`) and replayed on the
     held-out ones with the same metric as the corrected rig. When the corrected rig predicts the
     held-out recordings worse than that refit, the report says so and shows both.
 
@@ -614,7 +606,7 @@ def refit_comparison(nominal: Rig, diag: EffectDiagnosis, fit: Sequence[Recordin
     GapError
         If the refit fails.
     """
-    from aeropend_ident.gap.which import gap_metrics
+    from aeropend_ident.gap.which.metrics import gap_metrics
 
     channels = diag.channels or ("theta",)
     params = drift_parameters(channels, nominal.family)
@@ -897,7 +889,7 @@ def power_law_levels(fits: Sequence[Any], effects: Sequence[str]
     the thrust at the operating speed is pinned to a few %, and two sessions' K_q are in two
     units when their α differ. The level compared is K = K_q·ω_ref^(α − α₀) (α₀ = 2: the thrust
     coefficient, f(ω_ref)/ω_ref²), ω_ref the first session's reference rotor speed
-    (:attr:`aeropend_ident.gap.which.EffectFit.omega_ref`): its ratio between two sessions is the
+    (:attr:`aeropend_ident.gap.which.fitting.EffectFit.omega_ref`): its ratio between two sessions is the
     ratio of their thrusts at ω_ref. Its log is log K_q + (α − α₀)·ln ω_ref, a linear change of
     the fit's coordinates, so its covariance with every other coordinate follows exactly (T·C·Tᵀ)
     and it takes part in the ratio rows (:func:`combination_rows`). The exponent keeps its row.
@@ -905,7 +897,7 @@ def power_law_levels(fits: Sequence[Any], effects: Sequence[str]
     Parameters
     ----------
     fits : sequence
-        The same effect set fitted on each session (:class:`aeropend_ident.gap.which.EffectFit`:
+        The same effect set fitted on each session (:class:`aeropend_ident.gap.which.fitting.EffectFit`:
         ``values``, ``std``, ``cov``, ``labels``, ``log``, ``spans``, ``omega_ref``).
     effects : sequence of str
         The effect set.
@@ -976,7 +968,7 @@ def combination_rows(fits: Sequence[Any], rows: list[dict[str, Any]]) -> list[di
 
     Two strictly positive parameters whose estimates correlate by at least
     :data:`CONFOUNDED_CORR` (in |r| of their logs, in any session's covariance,
-    :attr:`aeropend_ident.gap.which.EffectFit.cov`) are not separately identifiable from these
+    :attr:`aeropend_ident.gap.which.fitting.EffectFit.cov`) are not separately identifiable from these
     recordings; what the data pin is the direction across the correlation. Positively correlated
     (r > 0, both move together) it is their ratio: with the angle alone in closed loop, the thrust
     coefficient K_q (through L/J) and the gravity term mgd/J, whose ratio is the duty needed per
@@ -1082,7 +1074,7 @@ def session_analysis(nominal: Rig, sessions: Sequence[Sequence[Recording]], chos
         Effects the diagnosis on all sessions chose (the drift table fits them plus the
         drift-prone parameters, :func:`drift_set`).
     labels, channels, max_effects, seed, progress
-        As in :func:`drift_table` / :func:`aeropend_ident.gap.which.diagnose_effects`.
+        As in :func:`drift_table` / :func:`aeropend_ident.gap.which.diagnosis.diagnose_effects`.
     workers, scheduler, quiet
         Where the cases run (above; None workers: one per core) and whether to hide the progress bar.
 

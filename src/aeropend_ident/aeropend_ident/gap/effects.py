@@ -115,7 +115,7 @@ class EffectContext:
     free_settings : frozenset of str
         Effects whose held parameters (:attr:`EffectParameter.held`, e.g. the dry friction's onset
         width v_ε) are fitted; every other effect holds them at the rig's values
-        (:func:`aeropend_ident.gap.which.fit_effects`). The diagnosis frees them where its
+        (:func:`aeropend_ident.gap.which.fitting.fit_effects`). The diagnosis frees them where its
         validation data ask for it.
     """
 
@@ -156,7 +156,7 @@ class EffectContext:
     @classmethod
     def from_prepared(cls, rig: Rig, preps: Sequence[Any]) -> EffectContext:
         """:meth:`from_data` over fit recordings as the fits take them
-        (:class:`aeropend_ident.gap.which.Prepared`: ``y["theta"]`` [rad, model frame] and ``duty``),
+        (:class:`aeropend_ident.gap.which.data.Prepared`: ``y["theta"]`` [rad, model frame] and ``duty``),
         concatenated: the search ranges of every fit of the gap diagnosis.
 
         Raises

@@ -30,7 +30,8 @@ from aeropend_ident.gap.run import (
     run_gap,
 )
 from aeropend_ident.gap.where import EQUATIONS
-from aeropend_ident.gap.which import CANDIDATE_PRESENCE, NAMED_COMPLETENESS, NAMED_PRESENCE, SWAP_GAIN
+from aeropend_ident.gap.which.evidence import CANDIDATE_PRESENCE, NAMED_COMPLETENESS, NAMED_PRESENCE
+from aeropend_ident.gap.which.ranking import SWAP_GAIN
 from aeropend_ident.greybox.replay import start_text
 from aeropend_ident.io.jsonutil import jsonable
 

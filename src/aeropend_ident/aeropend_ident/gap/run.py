@@ -4,13 +4,13 @@
 
 1. **where** — :func:`aeropend_ident.gap.where.locate_gap` of the nominal rig on the *fit*
    recordings (equation errors per subsystem, regions, bands, residual tests);
-2. **which** — :func:`aeropend_ident.gap.which.diagnose_effects` screens, fits and ranks the
+2. **which** — :func:`aeropend_ident.gap.which.diagnosis.diagnose_effects` screens, fits and ranks the
    catalog's unmodelled effects (:mod:`aeropend_ident.gap.effects`). It fits on the *fit core*
    and ranks / chooses on a *validation* part, both carved out of the fit recordings
    (:func:`aeropend_ident.io.split.carve_validation`: train / validation / test), because the
    ranking itself selects on the data it is given;
 3. **after** — the corrected rig is replayed on the **held-out** recordings, which neither step
-   has seen (overlay and before/after NRMSE, :func:`aeropend_ident.gap.which.gap_metrics`), and
+   has seen (overlay and before/after NRMSE, :func:`aeropend_ident.gap.which.metrics.gap_metrics`), and
    :func:`~aeropend_ident.gap.where.locate_gap` is run again there, for the nominal and the
    corrected rig (does the residual become white, does the flagged equation clear?).
 
@@ -67,7 +67,7 @@ class GapResult:
     where_heldout_nominal, where_heldout_corrected : WhereReport
         Nominal and corrected rig on the held-out recordings.
     diagnosis : Any
-        :class:`aeropend_ident.gap.which.EffectDiagnosis`.
+        :class:`aeropend_ident.gap.which.diagnosis.EffectDiagnosis`.
     overlays : list[dict]
         Per held-out recording: ``source``, ``t``, ``duty``, ``theta``, ``nominal``,
         ``corrected`` (arrays, recording frame) and their ``metrics``.
@@ -76,7 +76,7 @@ class GapResult:
         ``validation`` (both carved from ``fit``); the held-out recordings stay unseen.
     test : list[dict]
         Held-out gap of the nominal rig (``effects`` = []) and of the corrected rig
-        (:func:`aeropend_ident.gap.which.gap_metrics`: ``nrmse`` = mean over recordings, ...).
+        (:func:`aeropend_ident.gap.which.metrics.gap_metrics`: ``nrmse`` = mean over recordings, ...).
     prediction : dict, optional
         Predicted held-out θ NRMSE of the corrected rig with its 80 % interval, made from the fit
         data and the held-out duty (and its first second, where a replay's start is estimated)
@@ -265,8 +265,8 @@ def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, An
     """Held-out replay of the nominal and the corrected rig (the one free run of every command,
     :func:`aeropend_ident.greybox.replay.free_run`, as in the held-out table), θ in the recording's frame."""
     from aeropend_ident.gap.effects import MeasurementMap
-    from aeropend_ident.gap.which import one_free_run
-    from aeropend_ident.gap.which import prepare as which_prepare
+    from aeropend_ident.gap.which.data import prepare as which_prepare
+    from aeropend_ident.gap.which.metrics import one_free_run
 
     shifted = _shift(rec, offset)
     prep = which_prepare([shifted], frozenset(diag.channels or ("theta",)))[0]
@@ -348,8 +348,8 @@ def _replay_held_out(
 ) -> tuple[list[dict[str, Any]], list[dict[str, Any]], WhereReport, WhereReport]:
     """The after step of :func:`run_gap`: overlays, before/after metrics and where-analyses."""
     from aeropend_ident.gap.effects import MeasurementMap
-    from aeropend_ident.gap.which import gap_metrics
-    from aeropend_ident.gap.which import prepare as which_prepare
+    from aeropend_ident.gap.which.data import prepare as which_prepare
+    from aeropend_ident.gap.which.metrics import gap_metrics
 
     overlays = [_overlay(rig, diag, r, theta_offset) for r in held_out]
     preps = which_prepare([_shift(r, theta_offset) for r in held_out], frozenset(diag.channels or ("theta",)))
@@ -563,7 +563,7 @@ def run_gap(
         How the held-out set was chosen (provenance).
     max_effects : int
         Most effects added to the corrected rig (1, 2 or 3: each one after the first by the
-        forward-selection step of :func:`aeropend_ident.gap.which.diagnose_effects`).
+        forward-selection step of :func:`aeropend_ident.gap.which.diagnosis.diagnose_effects`).
     horizon : float
         Short-horizon prediction length [s] of the where-analysis.
     seed : int
@@ -613,7 +613,7 @@ def run_gap(
     aeropend_ident.gap.effects.GapError, aeropend_ident.gap.where.GapInputError
         Unusable recordings (no θ, NaNs, too short, constant input) or rig (before any result).
     """
-    from aeropend_ident.gap.which import diagnose_effects
+    from aeropend_ident.gap.which.diagnosis import diagnose_effects
 
     say = progress or (lambda _msg: None)
     fit, held_out = list(fit), list(held_out)
@@ -725,7 +725,7 @@ def corrected_rig_dict(result: GapResult) -> dict[str, Any]:
     """The corrected rig in the rig-file format; the changed numbers' sources name the diagnosis.
 
     When the data do not separate a chosen sensor-frame effect from a plant-side one
-    (``diagnosis.plant_side``, :func:`aeropend_ident.gap.which.plant_side_alternative`), the file
+    (``diagnosis.plant_side``, :func:`aeropend_ident.gap.which.ranking.plant_side_alternative`), the file
     holds the plant-side alternative, jointly fitted with the other chosen effects, and the
     nominal sensor frame: a controller designed on it then holds the angle the nominal rig file
     would, never one off by an unconfirmed sensor gain. The description says so.

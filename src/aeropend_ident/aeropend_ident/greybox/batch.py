@@ -106,7 +106,7 @@ def one_replay_thread() -> Iterator[None]:
     """Batch replays started by this thread inside the block run on this thread alone.
 
     For work that is itself shared out to one thread per core (the diagnosis' independent fits,
-    :func:`aeropend_ident.gap.which._each`): splitting each of its replays over the cores again
+    :func:`aeropend_ident.gap.which.context._each`): splitting each of its replays over the cores again
     would run twice as many compute threads as cores, and every replay thread that finished would
     wait for the GIL held by the other fit's Python (measured on the independent benchmark's
     median cases: the threaded fits took no less wall time than one fit after the other).

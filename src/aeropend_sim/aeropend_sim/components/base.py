@@ -340,7 +340,7 @@ class Search:
     held : bool
         Held at the rig's value unless the diagnosis frees it, where its validation data say the
         free value predicts better (the dry friction's onset width v_ε,
-        :func:`aeropend_ident.gap.which.fit_effects`); a value not given keeps the rig's.
+        :func:`aeropend_ident.gap.which.fitting.fit_effects`); a value not given keeps the rig's.
     """
 
     name: str

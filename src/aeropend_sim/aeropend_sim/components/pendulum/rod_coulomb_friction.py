@@ -14,7 +14,7 @@ The gap diagnosis can fit v_ε with the friction level (``coulomb_friction``,
 sliding onset (a static stand-in for the presliding creep that Dahl- and LuGre-type friction
 models describe dynamically), is a property of the rod's bearing, not a numerical constant. It is
 fitted only where the validation recordings say the free width predicts better
-(``aeropend_ident.gap.which._free_settings_if_validated``), over :data:`WIDTH_RANGE`. Held at the
+(``aeropend_ident.gap.which.candidates._free_settings_if_validated``), over :data:`WIDTH_RANGE`. Held at the
 rig file's 10 mrad/s where a rod creeps at 2 mrad/s, the model creeps 5× too fast through every
 hold, and the fitted T_f/J grows to slow it by an amount set by how long the recording holds the
 rod still: a step test and an APRBS of the same unchanged rod gave T_f/J 26 % apart (z 6 over the
