@@ -358,7 +358,7 @@ def _num(x: Any) -> float | None:
 
 def score_case(spec: dict[str, Any], case: dict[str, Any], res: Any) -> dict[str, Any]:
     """The issue-38 scores of one diagnosis (module doc)."""
-    from aeropend_ident.gap.drift import combination_members
+    from aeropend_ident.gap.sessions import combination_members
 
     group = {"single": "single", "triple": "pair", "ooc": "out of catalog", "none": "no effect"}[spec["kind"]]
     base = score({**spec, "group": group}, case, res)

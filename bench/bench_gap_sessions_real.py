@@ -104,8 +104,8 @@ def from_report(name: str, out: Path, rc: int = 0, elapsed_s: float | None = Non
 
 def _change(x: dict[str, Any]) -> str:
     """Effect and its change: relative, or absolute where the reference value is ~0 (the rule of
-    :func:`aeropend_ident.gap.drift.drift_rows`, also applied to rows written before it)."""
-    from aeropend_ident.gap.drift import RELATIVE_FLOOR
+    :func:`aeropend_ident.gap.sessions.drift_rows`, also applied to rows written before it)."""
+    from aeropend_ident.gap.sessions import RELATIVE_FLOOR
 
     v0, v1 = x["values"][0], x["values"][1]
     if abs(v0) > RELATIVE_FLOOR * max(abs(v0), abs(v1)):

@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.greybox.fit import GreyBoxResult, default_parameters, fit_greybox, rig_theta_offset
+from aeropend_ident.greybox.fit import GreyBoxResult, fit_greybox
+from aeropend_ident.greybox.parameters import default_parameters, rig_theta_offset
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording

@@ -21,8 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aeropend_sim.model import ROTOR_FRICTION_VELOCITY
+from aeropend_sim.components.rotor.rotor_coulomb_friction import OMEGA_EPS
 from aeropend_sim.params import Rig
+
+#: tanh width of the rotor brush friction [rad/s]: the effect's declared value when the rig is silent
+ROTOR_FRICTION_VELOCITY = OMEGA_EPS.absent
 
 
 # ---------------------------------------------------------------- xp namespaces

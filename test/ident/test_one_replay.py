@@ -25,12 +25,12 @@ import numpy as np
 import pytest
 import yaml
 
-from aeropend_ident.archive import Session, SessionCase, drift_markdown
 from aeropend_ident.cli.baseline import main as baseline_main
 from aeropend_ident.cli.compare import main as compare_main
 from aeropend_ident.cli.gap import main as gap_main
 from aeropend_ident.cli.gap_batch import diagnose_session
 from aeropend_ident.cli.rig import main as rig_main
+from aeropend_ident.gap.batch import Session, SessionCase, drift_markdown
 from aeropend_ident.greybox.replay import START_WINDOW, free_run, initial_state
 from aeropend_ident.greybox.rig_check import check_rig
 from aeropend_ident.greybox.rig_fit import fit_rig

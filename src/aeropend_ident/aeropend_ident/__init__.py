@@ -16,7 +16,7 @@ The recorder and player nodes (:mod:`aeropend_ident.nodes`) and the command-line
 
 from __future__ import annotations
 
-from importlib import import_module
+from aeropend_sim.lazy_api import lazy_api
 
 #: The public API: defining module -> its names (the one list: ``__all__``, the lazy lookup and
 #: docs/api.md's check read it).
@@ -43,19 +43,4 @@ _API: dict[str, tuple[str, ...]] = {
     "aeropend_ident.gap.run": ("run_gap", "GapResult"),
     "aeropend_ident.gap.compare": ("compare", "CompareResult"),
 }
-_WHERE = {name: module for module, names in _API.items() for name in names}
-__all__ = sorted(_WHERE)
-
-
-def __getattr__(name: str) -> object:
-    """Import the module that defines ``name`` on first use (PEP 562) and keep the value."""
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__all__, __getattr__, __dir__ = lazy_api(__name__, globals(), _API)

@@ -28,7 +28,7 @@ their siblings directly, never this file (``tools/check_layout.py``). Reference:
 
 from __future__ import annotations
 
-from importlib import import_module
+from aeropend_sim.lazy_api import lazy_api
 
 #: The public API: defining module -> its names (the one list: ``__all__``, the lazy lookup and
 #: docs/api.md's check read it).
@@ -65,19 +65,4 @@ _API: dict[str, tuple[str, ...]] = {
         "density_modulated_prbs", "lhs_steps",
     ),
 }
-_WHERE = {name: module for module, names in _API.items() for name in names}
-__all__ = sorted(_WHERE)
-
-
-def __getattr__(name: str) -> object:
-    """Import the module that defines ``name`` on first use (PEP 562) and keep the value."""
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__all__, __getattr__, __dir__ = lazy_api(__name__, globals(), _API)

@@ -67,7 +67,8 @@ FITTED = "fitted (rig fit)"
 #: Allowed values of ``effects.armature_inductance`` (its on and off modes).
 INDUCTANCE_MODES: tuple[str, str] = registry.effect("armature_inductance").modes  # type: ignore[assignment]
 #: Keys a rig file may have at its top level. ``recording_frame`` (optional) describes how a rig's
-#: recorded angle relates to the model's θ (read by :func:`aeropend_ident.greybox.fit.rig_theta_offset`);
+#: recorded angle relates to the model's θ (read by
+#: :func:`aeropend_ident.greybox.parameters.rig_theta_offset`);
 #: ``hardware`` (optional) the angle sensor and ESC pulse map the bridge checks against the firmware
 #: (read by :func:`aeropend_bridge.family.read_rig_hardware`).
 TOP_LEVEL_KEYS = frozenset({"name", "description", "sample_period", "effects", "recording_frame", "hardware",

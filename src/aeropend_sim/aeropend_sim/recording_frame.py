@@ -10,7 +10,7 @@ zero carry)::
 
 with θ_recorded = theta_scale·(θ_model − theta_offset). :func:`aeropend_sim.params.load_rig`
 ignores the block; this module is its one reader: the identification replays the model in the
-recording's frame (``aeropend_ident.greybox.fit.rig_theta_offset``), the controller closes its loop
+recording's frame (``aeropend_ident.greybox.parameters.rig_theta_offset``), the controller closes its loop
 on θ_model = θ_recorded/s + offset, so the reference is the physical angle of the model,
 whatever the sensor's zero and gain.
 """

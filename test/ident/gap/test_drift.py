@@ -17,16 +17,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from aeropend_ident.gap.drift import (
-    DRIFT_PRIOR,
-    DRIFT_Z,
-    combination_members,
-    draw_log_changes,
-    drift_rows,
-    drift_set,
-    shortest_interval,
-    within_session_draw,
-)
+from aeropend_ident.gap.drift import DRIFT_PRIOR, draw_log_changes, shortest_interval, within_session_draw
+from aeropend_ident.gap.sessions import DRIFT_Z, combination_members, drift_rows, drift_set
 from aeropend_ident.gap.which.data import INITIAL_STATE_WINDOW
 from bench.bench_gap_independent import rig_dict, to_recording
 from bench.fixtures import truth_plant as tp
@@ -174,7 +166,7 @@ def _sessions(seed: int) -> dict:
 
 @pytest.mark.slow
 def test_drift_table_names_a_supply_voltage_drop_from_the_recorded_armature_voltage() -> None:
-    from aeropend_ident.gap.drift import drift_table
+    from aeropend_ident.gap.sessions import drift_table
     from aeropend_sim.params import rig_from_dict
 
     # a battery 12 % lower on the second day; the rig file knows no friction error, so the drift
@@ -515,7 +507,7 @@ def test_the_prediction_keeps_the_fitted_effects_whatever_their_standard_errors(
 
 @pytest.mark.slow
 def test_dry_friction_on_a_step_test_and_an_aprbs_of_an_unchanged_rod_raises_no_drift() -> None:
-    from aeropend_ident.gap.drift import drift_table
+    from aeropend_ident.gap.sessions import drift_table
     from aeropend_ident.gap.which.diagnosis import diagnose_effects
     from aeropend_sim.params import rig_from_dict
 
@@ -550,7 +542,7 @@ def test_a_thrust_law_drifts_as_its_thrust_at_the_rotor_speed_not_as_its_coeffic
     # in a unit that changed with α. The data pin the thrust at ω_ref (±2 %) and not K_q (its log
     # correlated −0.999 with α): the table compares the thrust coefficient there, f(ω_ref)/ω_ref², and
     # flags its +20 %; the exponent keeps its own row
-    from aeropend_ident.gap.drift import power_law_levels
+    from aeropend_ident.gap.sessions import power_law_levels
 
     w0, span = 400.0, 3.0  # the exponent's coordinate: (α − 1)/3
     lw = math.log(w0)

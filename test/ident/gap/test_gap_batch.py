@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from aeropend_ident.archive import MANIFEST, find_sessions
 from aeropend_ident.cli.gap_batch import main
 from aeropend_ident.errors import GapCliError
+from aeropend_ident.gap.batch import MANIFEST, find_sessions
 from aeropend_ident.io.bag_writer import write_bag
 from bench.fixtures.sessions import thesis_session
 
@@ -105,7 +105,7 @@ def test_a_result_files_engine_names_where_its_cases_ran(monkeypatch):
 
 def test_a_session_status_tells_ok_worse_diverged_and_failed_apart():
     """Issue 60 item 4: a corrected rig worse than the nominal is not 'ok' (0.085 -> 0.1015 was)."""
-    from aeropend_ident.archive import STATUSES, session_status
+    from aeropend_ident.gap.batch import STATUSES, session_status
 
     assert session_status({"exit": 0, "nrmse_before": 0.085, "nrmse_after": 0.0612}) == "ok"
     assert session_status({"exit": 0, "nrmse_before": 0.085, "nrmse_after": 0.1015}) == "corrected rig worse"

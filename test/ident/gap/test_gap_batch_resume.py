@@ -20,8 +20,8 @@ from typing import Any
 
 import pytest
 
-from aeropend_ident.archive import SESSION_FILE, write_batch
 from aeropend_ident.cli import gap_batch
+from aeropend_ident.gap.batch import SESSION_FILE, write_batch
 from aeropend_ident.io.bag_writer import write_bag
 from aeropend_sim.output_folder import PARTIAL
 from bench.fixtures.sessions import thesis_session

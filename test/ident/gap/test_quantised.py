@@ -18,8 +18,9 @@ import numpy as np
 import pytest
 
 from aeropend_ident.errors import GapError
-from aeropend_ident.gap.drift import attainable, noise_floor
+from aeropend_ident.gap.drift import noise_floor
 from aeropend_ident.gap.effects import EffectContext, detect_quantum, measurement_noise
+from aeropend_ident.gap.sessions import attainable
 from aeropend_ident.gap.synth import make_case
 from aeropend_ident.gap.which.data import prepare
 from aeropend_ident.gap.which.diagnosis import diagnose_effects
@@ -149,7 +150,7 @@ def test_an_optional_section_that_fails_is_reported_and_the_report_is_written(qu
                                                                                 monkeypatch) -> None:
     """No command fails after its main result exists: a failing optional section (here the attainable
     shrink, and one figure) is reported with its reason in the terminal, report.json and report.html."""
-    from aeropend_ident.gap import drift, figures
+    from aeropend_ident.gap import figures, sessions
     from aeropend_ident.gap.report import terminal_summary, write_report
     from aeropend_ident.gap.run import run_gap
 
@@ -161,7 +162,7 @@ def test_an_optional_section_that_fails_is_reported_and_the_report_is_written(qu
     def broken_figure(*_a, **_k):
         raise ValueError("no residual to draw")
 
-    monkeypatch.setattr(drift, "attainable", broken)
+    monkeypatch.setattr(sessions, "attainable", broken)
     monkeypatch.setattr(figures, "fig_tests", broken_figure)
     res = run_gap(RIG, case.fit, case.held_out, predict=False, max_effects=1)
     assert res.attainable is None

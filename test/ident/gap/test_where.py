@@ -13,15 +13,14 @@ import numpy as np
 import pytest
 
 from aeropend_ident.errors import GapInputError
-from aeropend_ident.gap.where import (
+from aeropend_ident.gap.residual_tests import (
     ALPHA,
-    THETA_ONLY_CHAIN,
     alignment_lag,
     input_cross_correlation,
     ljung_box,
-    locate_gap,
     timing_lag_seen,
 )
+from aeropend_ident.gap.where import THETA_ONLY_CHAIN, locate_gap
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording

@@ -29,7 +29,9 @@ import pytest
 
 from aeropend_ident.cli.baseline import main
 from aeropend_ident.greybox.baseline import measured_rate, residual_regions
-from aeropend_ident.greybox.fit import error_metrics, free_run_theta, rig_theta_offset, uniform_data
+from aeropend_ident.greybox.fit import error_metrics, free_run_theta
+from aeropend_ident.greybox.parameters import rig_theta_offset
+from aeropend_ident.greybox.uniform import uniform_data
 from aeropend_ident.io.csv_import import import_csv
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig

@@ -8,16 +8,14 @@ import numpy as np
 import pytest
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.greybox.fit import (
+from aeropend_ident.greybox.fit import fit_greybox, initial_velocity, motor_equilibrium
+from aeropend_ident.greybox.parameters import (
     THETA_OFFSET,
     apply_parameters,
     default_parameters,
-    fit_greybox,
-    initial_velocity,
-    motor_equilibrium,
     rig_theta_offset,
-    uniform_data,
 )
+from aeropend_ident.greybox.uniform import uniform_data
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig

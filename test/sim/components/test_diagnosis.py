@@ -16,7 +16,7 @@ import pytest
 from aeropend_ident.errors import GapError, IdentificationError
 from aeropend_ident.gap import drift, synth
 from aeropend_ident.gap.effects import EFFECTS, EffectContext, catalog, drift_only, get_effect, timing_effects
-from aeropend_ident.greybox.fit import parameter_spec
+from aeropend_ident.greybox.parameters import parameter_spec
 from aeropend_sim.components import registry
 from aeropend_sim.params import load_rig
 from bench.fixtures.component_rigs import rig as family_rig

@@ -58,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="leading fraction of each input fitted, the rest held out (0-1; without --held-out)")
     p.add_argument("--params", nargs="+", default=None, metavar="NAME",
                    help="fitted parameters, e.g. pendulum.c_over_J actuator.dead_zone theta_offset "
-                        "(default: the θ-only set of aeropend_ident.greybox.fit.default_parameters)")
+                        "(default: the θ-only set of aeropend_ident.greybox.parameters.default_parameters)")
     p.add_argument("--theta-offset", type=float, default=None,
                    help="angle offset theta_model - theta_recorded [rad] (default: the rig file's)")
     p.add_argument("--init-horizon", type=float, default=INIT_HORIZON,

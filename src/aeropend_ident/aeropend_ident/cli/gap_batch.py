@@ -6,7 +6,7 @@ Usage::
         [--preset NAME] [--split 0.7] [--max-effects 2] [--seed 0] [--no-oracle] [--overwrite] [--resume] [-q]
 
 Runs ``gap`` on every session of ``ARCHIVE`` (a manifest ``sessions.yaml``, or one session per bag
-folder / ``.mcap`` / ``.db3`` / CSV log directly in it: :mod:`aeropend_ident.archive`), each as one
+folder / ``.mcap`` / ``.db3`` / CSV log directly in it: :mod:`aeropend_ident.gap.batch`), each as one
 case of a Dask cluster: a local one of ``--workers`` processes (default one per core), or a lab's
 running cluster with ``--scheduler tcp://HOST:8786`` (docs/gap.md, "Batches on a cluster"; the
 workers must reach the archive and ``OUT`` under the same paths). Writes ``OUT/<session>/`` (the
@@ -17,7 +17,7 @@ the others go on. A progress bar counts the sessions on a terminal; ``-q`` hides
 
 The batch is written in ``.OUT.partial-batch/OUT/`` beside ``OUT`` and replaces ``OUT`` only when
 complete: an earlier batch in ``OUT`` (``--overwrite``) stays as it was until then. Each finished
-session is kept there with its key (:mod:`aeropend_ident.archive`, "Resuming"); after Ctrl-C or a
+session is kept there with its key (:mod:`aeropend_ident.gap.batch`, "Resuming"); after Ctrl-C or a
 full disk, ``--resume`` computes only the sessions not finished or whose inputs changed (it also
 takes unchanged sessions from an earlier complete ``OUT``). A run without ``--resume`` discards an
 unfinished batch and starts again.
@@ -42,7 +42,10 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from aeropend_ident.archive import (
+from aeropend_ident.cli.gap import main as gap_main
+from aeropend_ident.cli.gap import resolve_rig
+from aeropend_ident.errors import GapCliError, print_warnings_as_lines
+from aeropend_ident.gap.batch import (
     BATCH_FILES,
     SESSION_FILE,
     Session,
@@ -53,9 +56,6 @@ from aeropend_ident.archive import (
     session_key,
     write_batch,
 )
-from aeropend_ident.cli.gap import main as gap_main
-from aeropend_ident.cli.gap import resolve_rig
-from aeropend_ident.errors import GapCliError, print_warnings_as_lines
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_sim.output_folder import (
     OutputFolderError,

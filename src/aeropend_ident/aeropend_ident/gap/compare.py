@@ -13,9 +13,10 @@ has) is compared with the simulated one:
 * ``rms_error``, ``max_abs_error`` (channel units);
 * ``steady_state_error``: over every constant-duty hold of at least ``min_hold`` seconds, the
   mean of y_sim − y over the hold's last quarter; reported as its RMS and mean (bias) over holds;
-* ``whiteness``: Ljung-Box test of the residual y − y_sim (:func:`aeropend_ident.gap.where.ljung_box`)
+* ``whiteness``: Ljung-Box test of the residual y − y_sim
+  (:func:`aeropend_ident.gap.residual_tests.ljung_box`)
   and the prewhitened input-residual cross-correlation
-  (:func:`aeropend_ident.gap.where.input_cross_correlation`; "correlated" = the residual still
+  (:func:`aeropend_ident.gap.residual_tests.input_cross_correlation`; "correlated" = the residual still
   follows the input: an unmodelled dynamic, not noise).
 
 Step metrics of θ (python-control ``step_info``: rise time 10-90 %, settling time 2 %, overshoot
@@ -24,7 +25,7 @@ holds of at least ``min_hold`` seconds; the recorded response is smoothed by a S
 filter of 50 ms first (measurement noise would otherwise set the settling time).
 
 The rig's angle frame: ``recording_frame`` of the rig file (θ_recorded = theta_scale·(θ_model −
-theta_offset), :func:`aeropend_ident.greybox.fit.rig_theta_offset`), so corrected rigs with a fitted
+theta_offset), :func:`aeropend_ident.greybox.parameters.rig_theta_offset`), so corrected rigs with a fitted
 sensor offset or gain are replayed as ``gap`` replayed them.
 """
 
@@ -41,10 +42,10 @@ import numpy as np
 
 from aeropend_ident.errors import CompareError, GapError, IdentificationError
 from aeropend_ident.gap.effects import MeasurementMap
-from aeropend_ident.gap.where import input_cross_correlation, ljung_box
+from aeropend_ident.gap.residual_tests import input_cross_correlation, ljung_box
 from aeropend_ident.gap.which.data import FIT_CHANNELS, prepare
 from aeropend_ident.gap.which.metrics import duty_holds, step_info
-from aeropend_ident.greybox.fit import rig_theta_offset, rig_theta_scale
+from aeropend_ident.greybox.parameters import rig_theta_offset, rig_theta_scale
 from aeropend_ident.greybox.replay import FreeRun, free_run
 from aeropend_sim.params import Rig, RigFileError, load_rig, shipped_rigs
 from aeropend_sim.recording import Recording

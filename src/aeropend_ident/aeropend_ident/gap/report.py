@@ -282,7 +282,7 @@ def _refit_html(result: GapResult) -> str:
 
 def _derived_note(row: dict[str, Any]) -> str:
     """What a drift row derived from a power law compares
-    (:func:`aeropend_ident.gap.drift.power_law_levels`)."""
+    (:func:`aeropend_ident.gap.sessions.power_law_levels`)."""
     if not row.get("derived_from"):
         return ""
     return f" (the {row['derived_from']}'s level at ω_ref {row['reference_speed']:.0f} rad/s)"

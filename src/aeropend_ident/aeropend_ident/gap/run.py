@@ -34,9 +34,11 @@ import numpy as np
 import scipy
 
 from aeropend_ident.errors import GapInputError, IdentError
-from aeropend_ident.gap.where import WhereReport, locate_gap, timing_lag_seen
+from aeropend_ident.gap.residual_tests import timing_lag_seen
+from aeropend_ident.gap.where import WhereReport, locate_gap
 from aeropend_ident.greybox.batch import single_blas
-from aeropend_ident.greybox.fit import THETA_OFFSET, error_metrics
+from aeropend_ident.greybox.fit import error_metrics
+from aeropend_ident.greybox.parameters import THETA_OFFSET
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.split import (
     VALIDATION_FRACTION,
@@ -85,10 +87,10 @@ class GapResult:
         The prediction against the actual held-out NRMSE (``inside`` the interval or not).
     attainable : list of dict, optional
         Per held-out recording: oracle fits and the split of its gap
-        (:func:`aeropend_ident.gap.drift.attainable`).
+        (:func:`aeropend_ident.gap.sessions.attainable`).
     sessions : dict, optional
         Leave-one-session-out diagnosis and drift table
-        (:func:`aeropend_ident.gap.drift.session_analysis`).
+        (:func:`aeropend_ident.gap.sessions.session_analysis`).
     refit : dict, optional
         The corrected rig against a plain refit of the nominal parameters on the held-out
         recordings (:func:`aeropend_ident.gap.drift.refit_comparison`).
@@ -318,7 +320,8 @@ def _sessions_and_prediction(
     """The session analysis (with ``sessions``, its cases run where ``engine`` = (workers,
     scheduler) says) and the held-out prediction of :func:`run_gap` (each optional: a failure is
     recorded in ``optional``)."""
-    from aeropend_ident.gap.drift import predict_heldout, session_analysis
+    from aeropend_ident.gap.drift import predict_heldout
+    from aeropend_ident.gap.sessions import session_analysis
 
     say = progress or (lambda _msg: None)
     sess = None
@@ -371,7 +374,8 @@ def _refit_and_attainable(
     """The refit comparison and the attainable shrink of :func:`run_gap` (model-frame recordings; each
     optional). The plain refit is the attainable shrink's fit-session drift fit when nothing is chosen
     (the same effect set on the same recordings): fitted once."""
-    from aeropend_ident.gap.drift import attainable, refit_comparison
+    from aeropend_ident.gap.drift import refit_comparison
+    from aeropend_ident.gap.sessions import attainable
 
     say = progress or (lambda _msg: None)
     out = optional.run("refit comparison",
@@ -558,7 +562,7 @@ def run_gap(
     rig_ref : str
         Rig name or path (provenance).
     theta_offset : float
-        θ_model − θ_recorded [rad] (see :func:`aeropend_ident.greybox.fit.rig_theta_offset`).
+        θ_model − θ_recorded [rad] (see :func:`aeropend_ident.greybox.parameters.rig_theta_offset`).
     split_rule : str
         How the held-out set was chosen (provenance).
     max_effects : int

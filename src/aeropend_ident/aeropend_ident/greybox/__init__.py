@@ -6,7 +6,7 @@ The baseline report is :func:`aeropend_ident.baseline` (here the module of that 
 
 from __future__ import annotations
 
-from importlib import import_module
+from aeropend_sim.lazy_api import lazy_api
 
 #: The public API: defining module -> its names (the one list: ``__all__``, the lazy lookup and
 #: docs/api.md's check read it).
@@ -20,19 +20,4 @@ _API: dict[str, tuple[str, ...]] = {
         "fit_thrust_law",
     ),
 }
-_WHERE = {name: module for module, names in _API.items() for name in names}
-__all__ = sorted(_WHERE)
-
-
-def __getattr__(name: str) -> object:
-    """Import the module that defines ``name`` on first use (PEP 562) and keep the value."""
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__all__, __getattr__, __dir__ = lazy_api(__name__, globals(), _API)

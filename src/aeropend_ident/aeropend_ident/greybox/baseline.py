@@ -7,7 +7,7 @@ Pipeline (:func:`baseline`, :func:`run_baseline`):
    recordings are fitted whole and the held-out recordings are replayed (split by recordings: fit
    on some recordings, validate on another). A held-out part may be a constant hold (the end of a
    step test); identifiability is decided on what is fitted
-   (:func:`aeropend_ident.greybox.fit.check_excited`: the fitted data must excite the rig — a
+   (:func:`aeropend_ident.greybox.uniform.check_excited`: the fitted data must excite the rig — a
    changing command, or a free decay or step from rest under a constant one).
 2. **Grid.** Every recording goes through the one resampling of the tools
    (:func:`aeropend_ident.io.recording_input.uniform_recording`) onto the grid of the first fit
@@ -62,21 +62,20 @@ import yaml
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.fit import (
-    THETA_OFFSET,
     GreyBoxResult,
     ParameterEstimate,
-    UniformData,
-    apply_parameters,
-    check_excited,
-    concat_uniform,
-    default_parameters,
     error_metrics,
     fit_greybox,
     free_run_theta,
+)
+from aeropend_ident.greybox.parameters import (
+    THETA_OFFSET,
+    apply_parameters,
+    default_parameters,
     rig_theta_offset,
-    uniform_data,
 )
 from aeropend_ident.greybox.replay import START_RULE, FreeRun, free_run
+from aeropend_ident.greybox.uniform import UniformData, check_excited, concat_uniform, uniform_data
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.overlay_axes import HOLD_RANGE_SHARE, diverges, short_number
 from aeropend_ident.io.recording_input import TimingRange, resampling_notes, timing_range
@@ -593,20 +592,20 @@ def baseline(
     rig : Rig, str or Path
         The nominal model: a :class:`~aeropend_sim.params.Rig`, a shipped rig name or a rig-file
         path (then its ``recording_frame.theta_offset`` is used, see
-        :func:`aeropend_ident.greybox.fit.rig_theta_offset`).
+        :func:`aeropend_ident.greybox.parameters.rig_theta_offset`).
     held_out : sequence of Recording, optional
         Recordings replayed as held out; the ``recording`` s are then fitted whole (split by
         recordings). Default: each recording split in time order.
     train_fraction : float
         Fraction of each recording's samples (from its start) fitted in a time-ordered split, in (0, 1).
     params : sequence of str, optional
-        Fitted parameters (default :func:`aeropend_ident.greybox.fit.default_parameters`).
+        Fitted parameters (default :func:`aeropend_ident.greybox.parameters.default_parameters`).
     theta_offset : float, optional
         Override of the nominal angle offset [rad].
     init_horizon : float or None
         Multiple-shooting horizon [s] that initialises the free-run fit (None: free run only).
     decimate : int
-        Decimation of every part (runtime; see :func:`aeropend_ident.greybox.fit.uniform_data`).
+        Decimation of every part (runtime; see :func:`aeropend_ident.greybox.uniform.uniform_data`).
     n_bins, rate_threshold : int, float
         Operating-region bins and the steady-state |θ̇| threshold [rad/s].
     max_nfev : int

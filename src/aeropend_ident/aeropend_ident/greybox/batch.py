@@ -12,7 +12,7 @@ call each.
 
 **Rows are rigs.** A row is given as a :class:`~aeropend_sim.params.Rig` built by the code that
 owns the mapping from fitted quantities to rig parameters (an effect's ``apply``, the grey-box
-fit's :func:`~aeropend_ident.greybox.fit.apply_parameters`: quantities that are no rig key, such as
+fit's :func:`~aeropend_ident.greybox.parameters.apply_parameters`: quantities that are no rig key, such as
 the gap's J_scale, V_drop, θ offset and scale, are mapped there, once). Building such a rig costs
 ≈ 0.1 ms, a replay of 40 s at 490 Hz 10-40 ms. The row's parameter vector is the structure's
 vector with the values that differ from the structure's first rig set through

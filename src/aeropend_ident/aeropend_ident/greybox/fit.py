@@ -15,10 +15,12 @@ compared, because most real logs (see ``shared/data/real``) carry nothing else; 
 the recording are ignored.
 
 Parameters are addressed as ``"section.field"`` of :class:`aeropend_sim.params.Rig` (e.g.
-``"pendulum.c_over_J"``) plus :data:`THETA_OFFSET`, the angle offset between the recording's
-frame and the model's (θ_model = θ_recorded + θ_offset; see :func:`rig_theta_offset`).
+``"pendulum.c_over_J"``) plus :data:`aeropend_ident.greybox.parameters.THETA_OFFSET`, the angle offset
+between the recording's
+frame and the model's (θ_model = θ_recorded + θ_offset; see
+:func:`aeropend_ident.greybox.parameters.rig_theta_offset`).
 
-Default parameter set for θ-only data (:func:`default_parameters`):
+Default parameter set for θ-only data (:func:`aeropend_ident.greybox.parameters.default_parameters`):
 
 * ``pendulum.mgd_over_J``, ``pendulum.c_over_J``;
 * ``pendulum.L_over_J``: with θ alone, the thrust scale (``thrust.K_q``, motor constants, supply
@@ -28,10 +30,12 @@ Default parameter set for θ-only data (:func:`default_parameters`):
 * ``actuator.lag_time_constant`` when ``effects.actuator_lag`` is on;
 * ``actuator.input_delay`` when ``effects.input_delay`` is on;
 * ``pendulum.coulomb_over_J`` when ``effects.rod_coulomb_friction`` is on;
-* :data:`THETA_OFFSET` when the rig declares a recording-frame offset (see-saw rigs).
+* :data:`aeropend_ident.greybox.parameters.THETA_OFFSET` when the rig declares a recording-frame offset
+(see-saw rigs).
 
 Strictly positive parameters are fitted as log(p) (scale-free steps, positivity for free); the
-others linearly with a parameter scale (:class:`ParameterSpec`). Bounds, parametrisation and
+others linearly with a parameter scale (:class:`aeropend_ident.greybox.parameters.ParameterSpec`). Bounds,
+parametrisation and
 scale come from the parameter's declaration (:attr:`aeropend_sim.components.base.Param.fit`, with
 the component or effect that owns it) or, for parameters without fit bounds, from its sign.
 
@@ -62,6 +66,7 @@ the true uncertainty.
 No rclpy import: this module runs without ROS.
 """
 
+
 from __future__ import annotations
 
 import dataclasses
@@ -69,567 +74,53 @@ import itertools
 import math
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, fields
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy.optimize import brentq, least_squares
 
-from aeropend_ident.errors import IdentificationError, RecordingInputError
+from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.batch import RigReplays, single_blas, structure
-from aeropend_ident.io.recording_input import detect_quantum, grid_step, uniform_recording
-from aeropend_sim.components import registry
-from aeropend_sim.components.base import Effect
+from aeropend_ident.greybox.parameters import (
+    ParameterSpec,
+    apply_parameters,
+    default_parameters,
+    parameter_spec,
+)
+from aeropend_ident.greybox.uniform import (
+    UniformData,
+    _window,
+    check_excited,
+    check_recording,
+    concat_uniform,
+    uniform_data,
+)
+from aeropend_ident.io.recording_input import detect_quantum
 from aeropend_sim.components.xp import MATH
-from aeropend_sim.model import THETA, THETA_DOT, ModelError, PlantModel
-from aeropend_sim.params import Rig, RigFileError
+from aeropend_sim.model import ModelError, PlantModel
+from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.recording_frame import FrameError, RecordingFrame, read_recording_frame
 from aeropend_sim.simulation import SimulationError, simulate
 
-#: Name of the angle-offset parameter: θ_model = θ_recorded + θ_offset [rad].
-THETA_OFFSET = "theta_offset"
-#: Fewest samples a fit accepts (after resampling/decimation).
-MIN_SAMPLES = 50
 #: Samples used for the initial angular-velocity estimate (local quadratic fit).
 N_DIFF = 7
+
+
 #: ftol/xtol/gtol of the multiple-shooting initialisation stage (see ``init_horizon``).
 INIT_STAGE_TOL = 1e-4
 
-#: Parameters that never reach θ (sensor model) and cannot be fitted.
-_NOT_FITTABLE_SECTIONS = ("sensors",)
 
-
-# --------------------------------------------------------------------------- rig-frame offset
-def rig_theta_offset(rig_ref: str | Path) -> float:
-    """Nominal angle offset θ_model − θ_recorded [rad] declared by a rig file.
-
-    Rig files may carry an optional top-level block (ignored by
-    :func:`aeropend_sim.params.load_rig`)::
-
-        recording_frame:
-          theta_offset: {value: 1.5707963, unit: rad, source: "..."}
-          theta_scale: {value: 1.0, unit: "1", source: "..."}   # optional sensor gain
-
-    for rigs whose sensor zero is not the model's θ = 0 (centre of mass below the pivot), e.g.
-    a see-saw that measures from the horizontal; θ_recorded = theta_scale·(θ_model − theta_offset)
-    (``theta_scale`` is written by the gap diagnosis when it finds a sensor-gain error, see
-    :func:`rig_theta_scale`).
-
-    Parameters
-    ----------
-    rig_ref : str or Path
-        Shipped rig name (``"jahoyosr_rig"``) or path to a ``.yaml`` rig file.
-
-    Returns
-    -------
-    float
-        The offset [rad]; 0.0 if the file has no ``recording_frame`` block.
-
-    Raises
-    ------
-    IdentificationError
-        If the file cannot be found or read, or the block is malformed (wrong unit, no source,
-        not a number).
-    """
-    return _recording_frame(rig_ref).offset
-
-
-def rig_theta_scale(rig_ref: str | Path) -> float:
-    """Angle-sensor gain s [1] of a rig file's ``recording_frame.theta_scale`` (1.0 if absent).
-
-    See :func:`rig_theta_offset` for the block. Raises :class:`IdentificationError` as it does,
-    and if s is not > 0.
-    """
-    return _recording_frame(rig_ref).scale
-
-
-def _recording_frame(rig_ref: str | Path) -> RecordingFrame:
-    """The rig file's ``recording_frame`` (:mod:`aeropend_sim.recording_frame`), errors as ours."""
-    try:
-        return read_recording_frame(rig_ref)
-    except FrameError as exc:
-        raise IdentificationError(str(exc)) from exc
-
-
-# --------------------------------------------------------------------------- parameter specs
-@dataclass(frozen=True)
-class ParameterSpec:
-    """How one parameter is fitted.
-
-    Attributes
-    ----------
-    name : str
-        ``"section.field"`` or :data:`THETA_OFFSET`.
-    unit : str
-        SI unit (from the rig field metadata).
-    initial : float
-        Starting value (rig file or override).
-    lower, upper : float
-        Bounds in parameter units (``lower < upper``).
-    log : bool
-        Fitted as log(p) (strictly positive parameters).
-    scale : float
-        Parameter units per optimiser unit of a linear parameter (unused for log parameters).
-
-    Notes
-    -----
-    Optimiser coordinates start at 1 at the lower bound: z = 1 + ln(p/lower) (log) or
-    z = 1 + (p − lower)/scale (linear). :func:`scipy.optimize.least_squares` takes relative
-    finite-difference steps (``diff_step``·|z|), which would collapse for a coordinate at or near 0
-    (a dead zone or Coulomb term of 0, a log-parameter of 1); z ≥ 1 keeps every step well above
-    the simulator's integration tolerance.
-    """
-
-    name: str
-    unit: str
-    initial: float
-    lower: float
-    upper: float
-    log: bool
-    scale: float
-
-    def to_z(self, value: float) -> float:
-        """Optimiser coordinate (>= 1 inside the bounds) of a parameter value."""
-        if self.log:
-            return 1.0 + math.log(value / self.lower)
-        return 1.0 + (float(value) - self.lower) / self.scale
-
-    def from_z(self, z: float) -> float:
-        """Parameter value of an optimiser coordinate."""
-        if self.log:
-            return self.lower * math.exp(z - 1.0)
-        return self.lower + (float(z) - 1.0) * self.scale
-
-    def dp_dz(self, value: float) -> float:
-        """Derivative of the parameter with respect to its coordinate at ``value``."""
-        return value if self.log else self.scale
-
-
-def _field_meta(name: str, rig: Rig) -> tuple[str, str, Any]:
-    """(section, field, dataclasses.Field) of a ``"section.field"`` name, or raise."""
-    section, _, fname = name.partition(".")
-    sections = [f.name for f in fields(rig) if dataclasses.is_dataclass(getattr(rig, f.name))
-                and f.name != "effects" and f.name not in _NOT_FITTABLE_SECTIONS]
-    if section not in sections:
-        raise IdentificationError(
-            f"parameter {name!r}: unknown or non-fittable section {section!r}; expected "
-            f"'{THETA_OFFSET}' or 'section.field' with section in {sections}"
-        )
-    for f in fields(getattr(rig, section)):
-        if f.name == fname:
-            return section, fname, f
-    known = sorted(f.name for f in fields(getattr(rig, section)))
-    raise IdentificationError(
-        f"parameter {name!r}: {section} has no field {fname!r}; expected one of {known}"
-    )
-
-
-def parameter_spec(
-    name: str,
-    rig: Rig,
-    theta_offset: float = 0.0,
-    initial: float | None = None,
-    bounds: tuple[float, float] | None = None,
-) -> ParameterSpec:
-    """Fit specification (bounds, parametrisation, scale) of one parameter.
-
-    Parameters
-    ----------
-    name : str
-        ``"section.field"`` (e.g. ``"pendulum.c_over_J"``) or :data:`THETA_OFFSET`.
-    rig : Rig
-        Supplies the initial value and the unit; the parameter's effect must be switched on.
-    theta_offset : float
-        Initial angle offset [rad] (for :data:`THETA_OFFSET`).
-    initial : float, optional
-        Overrides the rig's value as starting point.
-    bounds : (float, float), optional
-        Overrides the physical bounds.
-
-    Raises
-    ------
-    IdentificationError
-        On an unknown name, a parameter whose effect is switched off, a non-positive start for
-        a log parameter, or an initial value outside the bounds.
-    """
-    if name == THETA_OFFSET:
-        x0 = float(theta_offset if initial is None else initial)
-        lo, hi = bounds if bounds is not None else (x0 - math.pi / 2, x0 + math.pi / 2)
-        spec = ParameterSpec(name, "rad", x0, float(lo), float(hi), False, 0.1)
-    else:
-        section, fname, f = _field_meta(name, rig)
-        need = _switch_needed(name, rig)
-        if need is not None:
-            raise IdentificationError(
-                f"parameter {name!r} does not affect the output of rig {rig.name!r}: it needs "
-                f"effects.{need[0]} = {need[1]!r} (is {getattr(rig.effects, need[0])!r})"
-            )
-        x0 = float(getattr(getattr(rig, section), fname) if initial is None else initial)
-        declared = f.metadata["param"].fit
-        if declared is not None:
-            lo_b, hi_b, log = declared.lower, declared.upper, declared.log
-        else:
-            lo_b, hi_b, log = None, None, bool(f.metadata.get("positive"))
-        if log and x0 <= 0.0:
-            if name == "actuator.lag_time_constant":
-                x0 = 0.05  # switched on with T_a = 0: start from a typical small-motor lag
-            else:
-                raise IdentificationError(
-                    f"parameter {name!r} starts at {x0!r}; expected > 0 (it is fitted as a logarithm)"
-                )
-        if lo_b is None:
-            lo_b = x0 * 1e-3 if log else (0.0 if f.metadata.get("nonneg") else x0 - 10.0 * abs(x0) - 1.0)
-        if hi_b is None:
-            hi_b = x0 * 1e3 if log else max(10.0 * abs(x0), 1.0) + x0
-        lo, hi = bounds if bounds is not None else (lo_b, hi_b)
-        typical = declared.scale if declared is not None else None
-        scale = 1.0 if log else (typical or max(abs(x0), 0.01 * (hi - lo), 1e-3))
-        spec = ParameterSpec(name, f.metadata["unit"], x0, float(lo), float(hi), bool(log), float(scale))
-    if not spec.lower < spec.upper:
-        raise IdentificationError(f"parameter {name!r}: bounds {spec.lower!r} .. {spec.upper!r} are empty")
-    if spec.log and spec.lower <= 0.0:
-        raise IdentificationError(
-            f"parameter {name!r}: lower bound {spec.lower!r} must be > 0 (log parameter)"
-        )
-    if not spec.lower <= spec.initial <= spec.upper:
-        raise IdentificationError(
-            f"parameter {name!r}: initial value {spec.initial!r} {spec.unit} outside the bounds "
-            f"[{spec.lower!r}, {spec.upper!r}]"
-        )
-    return spec
-
-
-def _switch_needed(name: str, rig: Rig) -> tuple[str, Any] | None:
-    """The effect switch (name, value) parameter ``name`` needs to reach the output of ``rig``, or
-    None when it does: its owner effect must be on, and a drive map it belongs to must not be
-    superseded by an effect's map (the ideal map's v_supply while ``hbridge_map`` is on)."""
-    owner = registry.owners()[name]
-    if isinstance(owner, Effect):
-        return None if getattr(rig.effects, owner.name) == owner.on else (owner.name, owner.on)
-    pname = name.partition(".")[2]
-    drive = PlantModel(rig).assembly.slots.get("drive", ())
-    if len(drive) > 1 and any(pname in t.param_names for t in drive[:-1]):
-        top = next(e for e in registry.effects() if any(t is drive[-1] for t in e.terms))
-        return top.name, top.off
-    return None
-
-
-def default_parameters(rig: Rig, theta_offset: float = 0.0) -> list[str]:
-    """Default fitted set for θ-only data (see the module docstring).
-
-    The same for every actuator family: the rod is common to all of them, L/J absorbs the whole
-    thrust scale of the drive (an H-bridge map, an amplifier's gain or an ESC's throttle map times
-    K_q), and the switched-on effects add their parameters only when the rig has them (an ESC has
-    no dead zone of its own: its idle throttle is part of its map).
-
-    Parameters
-    ----------
-    rig : Rig
-    theta_offset : float
-        The rig's recording-frame offset [rad]; a non-zero value adds :data:`THETA_OFFSET`.
-    """
-    names = ["pendulum.mgd_over_J", "pendulum.c_over_J", "pendulum.L_over_J"]
-    e = rig.effects
-    if not e.rod_viscous_friction:
-        names.remove("pendulum.c_over_J")
-    if e.dead_zone:
-        names.append("actuator.dead_zone")
-    if e.actuator_lag:
-        names.append("actuator.lag_time_constant")
-    if e.input_delay:
-        names.append("actuator.input_delay")
-    if e.rod_coulomb_friction:
-        names.append("pendulum.coulomb_over_J")
-    if theta_offset != 0.0:
-        names.append(THETA_OFFSET)
-    return names
-
-
-def apply_parameters(
-    rig: Rig, values: Mapping[str, float], theta_offset: float = 0.0
-) -> tuple[Rig, float]:
-    """Rig and angle offset with some parameters replaced.
-
-    A changed :data:`THETA_OFFSET` moves the end stops (written in the model frame) by the same
-    amount, so they stay at their recorded-frame angles: the stops are fixed to the sensor, the
-    offset only says where gravity's "down" is.
-
-    Parameters
-    ----------
-    rig : Rig
-    values : mapping
-        ``{name: value}`` with names as in :func:`parameter_spec`.
-    theta_offset : float
-        The offset [rad] that ``rig``'s end stops are written for.
-
-    Returns
-    -------
-    (Rig, float)
-        The new rig and the new offset.
-
-    Raises
-    ------
-    IdentificationError
-        On an unknown name or a value the rig format rejects.
-    """
-    per_section: dict[str, dict[str, float]] = {}
-    offset = float(theta_offset)
-    for name, v in values.items():
-        if name == THETA_OFFSET:
-            offset = float(v)
-            continue
-        section, fname, _ = _field_meta(name, rig)
-        per_section.setdefault(section, {})[fname] = float(v)
-    shift = offset - float(theta_offset)
-    if shift != 0.0:
-        p = per_section.setdefault("pendulum", {})
-        p["theta_min"] = p.get("theta_min", rig.pendulum.theta_min) + shift
-        p["theta_max"] = p.get("theta_max", rig.pendulum.theta_max) + shift
-    try:
-        for section, kv in per_section.items():
-            rig = rig.with_params(section, **kv)
-    except RigFileError as exc:
-        raise IdentificationError(f"parameter values rejected by the rig format: {exc}") from exc
-    return rig, offset
-
-
-# --------------------------------------------------------------------------- data preparation
-@dataclass(frozen=True)
-class UniformData:
-    """θ and duty on a uniform time grid (what the simulator and the fit consume).
-
-    Attributes
-    ----------
-    t : ndarray, shape (N,)
-        t_k = k·dt [s].
-    duty : ndarray, shape (N,)
-        Duty cycle τ_k ∈ [0, 1] held over [t_k, t_{k+1}).
-    theta : ndarray, shape (N,)
-        Recorded angle [rad] in the recording's frame.
-    dt : float
-        Grid period [s].
-    resampled : bool
-        True if the recording was not uniform and was resampled.
-    decimate : int
-        Decimation factor applied.
-    source : str
-        The recording's source.
-    segments : tuple of int
-        Start index of every recording in the data (several recordings fitted together,
-        :func:`concat_uniform`): each starts its own free run from its own initial state; (0,) for
-        one recording.
-    """
-
-    t: np.ndarray
-    duty: np.ndarray
-    theta: np.ndarray
-    dt: float
-    resampled: bool
-    decimate: int
-    source: str
-    segments: tuple[int, ...] = (0,)
-
-    def __len__(self) -> int:
-        return int(self.t.size)
-
-    def bounds(self) -> list[tuple[int, int]]:
-        """(start, stop) sample indices of every segment."""
-        return list(itertools.pairwise([*self.segments, len(self)]))
-
-    def window(self, start: int, stop: int) -> UniformData:
-        """Samples [start, stop) as data of their own (time re-based to 0, one segment)."""
-        return _window(self, start, stop)
-
-    def parts(self) -> list[UniformData]:
-        """Every segment as data of its own (time re-based to 0, one segment)."""
-        if len(self.segments) == 1:
-            return [self]
-        names = self.source.split(" + ")
-        out = []
-        for k, (a, b) in enumerate(self.bounds()):
-            part = _window(self, a, b)
-            out.append(dataclasses.replace(part, source=names[k] if len(names) == len(self.segments) else
-                                           f"{self.source}[{a}:{b}]"))
-        return out
-
-
-def concat_uniform(parts: Sequence[UniformData]) -> UniformData:
-    """Several recordings on one grid as one data set with segments (each its own free run).
-
-    Raises
-    ------
-    IdentificationError
-        On an empty list or different grid steps (resample them onto one grid first:
-        :func:`uniform_data` with ``dt``).
-    """
-    if not parts:
-        raise IdentificationError("no recording to fit")
-    if len(parts) == 1:
-        return parts[0]
-    dt = parts[0].dt
-    for p in parts[1:]:
-        if abs(p.dt - dt) > 1e-9 * dt:
-            raise IdentificationError(f"{p.source}: grid step {p.dt:g} s differs from {dt:g} s of "
-                                      f"{parts[0].source}; put the recordings on one grid "
-                                      "(uniform_data(..., dt=...))")
-    starts, n = [], 0
-    for p in parts:
-        starts.extend(n + k for k in p.segments)
-        n += len(p)
-    return UniformData(
-        t=np.arange(n) * dt, duty=np.concatenate([p.duty for p in parts]),
-        theta=np.concatenate([p.theta for p in parts]), dt=dt, resampled=any(p.resampled for p in parts),
-        decimate=parts[0].decimate, source=" + ".join(p.source for p in parts), segments=tuple(starts),
-    )
-
-
-def check_recording(recording: Recording, min_samples: int = MIN_SAMPLES) -> None:
-    """Refuse recordings that a θ-only grey-box fit cannot use.
-
-    Raises
-    ------
-    IdentificationError
-        If θ is missing, θ or the duty cycle has NaN/inf, the duty cycle is outside [0, 1], or
-        there are fewer than ``min_samples`` samples. Whether the data excite the rig is decided on
-        what is fitted (:func:`fit_greybox`, :func:`check_excited`): a held-out part may be a
-        constant hold.
-    """
-    src = recording.source or "<recording>"
-    if "theta" not in recording.channels:
-        raise IdentificationError(
-            f"{src}: recording has no 'theta' channel (has {sorted(recording.channels)}); "
-            "the grey-box fit compares simulated and recorded angles"
-        )
-    theta, duty = recording.channels["theta"], recording.duty
-    for what, y in (("theta", theta), ("duty", duty)):
-        bad = ~np.isfinite(y)
-        if bad.any():
-            raise IdentificationError(
-                f"{src}: {what} has {int(bad.sum())} NaN/inf value(s), first at sample "
-                f"{int(np.flatnonzero(bad)[0])} (t = {recording.t[np.flatnonzero(bad)[0]]:.4g} s); "
-                "expected finite values (drop or repair those samples first)"
-            )
-    if len(recording) < min_samples:
-        raise IdentificationError(
-            f"{src}: only {len(recording)} samples; a grey-box fit needs at least {min_samples}"
-        )
-    out = (duty < 0.0) | (duty > 1.0)
-    if out.any():
-        k = int(np.flatnonzero(out)[0])
-        raise IdentificationError(f"{src}: duty[{k}] = {float(duty[k])!r} is outside [0, 1] (a fraction)")
-
-
-def check_excited(data: UniformData, reference: str | None = None) -> None:
-    """Refuse fit data that do not excite the rig (identifiability decided on what is fitted).
-
-    Each segment (recording) is checked by
-    :func:`aeropend_ident.io.csvspec.constant_input.excitation_problem`: a segment whose constant
-    duty cycle cannot explain θ (a driven log without its command, e.g. a closed loop's reference
-    alone) is refused with the ``csv_import`` message; the data are refused as unexcited when no
-    segment excites the rig (constant duty and θ at rest). A free decay or a step from rest under a
-    constant duty is accepted.
-
-    Raises
-    ------
-    IdentificationError
-        Naming the recording and the reason.
-    """
-    from aeropend_ident.io.csvspec.constant_input import excitation_problem
-
-    problems = []
-    for part in data.parts():
-        found = excitation_problem(part.t, part.duty, part.theta, reference)
-        if found is not None and found[0] == "driven":
-            raise IdentificationError(f"{part.source or '<recording>'}: {found[1]}")
-        problems.append(found)
-    if all(p is not None for p in problems):
-        raise IdentificationError(f"{data.source or '<recording>'}: {problems[0][1]}")
-
-
-def decimated(duty: np.ndarray, theta: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """Every ``k``-th sample of a uniform grid: θ at each block's start, the duty cycle averaged over
-    the block (an incomplete last block dropped); arrays of shape (N // k,)."""
-    m = theta.size // k
-    return duty[: m * k].reshape(m, k).mean(axis=1), theta[: m * k: k].copy()
-
-
-def rod_stiffness(rig: Rig, theta: float = 0.0) -> float:
-    """Linearised restoring stiffness −∂θ̈/∂θ [1/s²] of the rod at angle θ [rad], at rest: the square
-    of its small-signal swing frequency (:meth:`aeropend_sim.model.PlantModel.jacobian`)."""
-    a, _ = PlantModel(rig).jacobian([theta, 0.0, 0.0, 0.0, 0.0], 0.0)
-    return float(-a[THETA_DOT, THETA])
-
-
-def uniform_data(
-    recording: Recording, dt: float | None = None, decimate: int = 1, min_samples: int = MIN_SAMPLES
-) -> UniformData:
-    """Validate a recording and put θ and the duty cycle on a uniform grid.
-
-    Parameters
-    ----------
-    recording : Recording
-        Needs ``theta``; t may be non-uniform.
-    dt : float, optional
-        Grid period [s]; default the recording's median interval. A ``dt`` different from the
-        recording's forces resampling.
-    decimate : int
-        Keep every ``decimate``-th sample (duty averaged over each block); 1 = no decimation.
-    min_samples : int
-        Fewest samples accepted, after decimation.
-
-    Returns
-    -------
-    UniformData
-
-    Raises
-    ------
-    IdentificationError
-        See :func:`check_recording`; also on ``dt`` <= 0 or ``decimate`` < 1.
-    """
-    check_recording(recording, min_samples=2)
-    if int(decimate) != decimate or decimate < 1:
-        raise IdentificationError(f"decimate = {decimate!r}; expected an integer >= 1")
-    decimate = int(decimate)
-    t = recording.t - recording.t[0]
-    theta, duty = recording.channels["theta"], recording.duty
-    grid_dt = grid_step(t) if dt is None else float(dt)
-    if not (math.isfinite(grid_dt) and grid_dt > 0.0):
-        raise IdentificationError(f"grid period dt = {dt!r}; expected a finite value > 0 s")
-    # the one resampling of every tool (io/recording_input.py: θ interpolated, or its nearest sample
-    # when quantised; the duty cycle held), on θ and the duty cycle only
-    try:
-        grid = uniform_recording(
-            Recording(t=t, duty=duty, channels={"theta": theta}, source=recording.source), dt=grid_dt)
-    except RecordingInputError as exc:
-        raise IdentificationError(str(exc)) from exc
-    tu, th, du = grid.t.copy(), grid.channels["theta"].copy(), grid.duty.copy()
-    uniform = "resampling" not in grid.meta
-    if decimate > 1:
-        if tu.size // decimate < 1:
-            raise IdentificationError(f"decimate = {decimate} leaves no sample of {tu.size}")
-        du, th = decimated(du, th, decimate)
-        tu = np.arange(th.size) * grid_dt * decimate
-    data = UniformData(
-        t=tu, duty=np.clip(du, 0.0, 1.0), theta=th, dt=grid_dt * decimate, resampled=not uniform,
-        decimate=decimate, source=recording.source,
-    )
-    if len(data) < min_samples:
-        raise IdentificationError(
-            f"{recording.source or '<recording>'}: only {len(data)} samples on the fit grid "
-            f"(dt = {data.dt:.4g} s); a grey-box fit needs at least {min_samples}"
-        )
-    return data
-
-
-# --------------------------------------------------------------------------- initial state
 #: Sections of a rig's values that cannot enter the steady motor state: the rod's equation and
 #: the measurement (the motor chain's terms read none of them, which test_fit.py checks for every
 #: family). :func:`motor_equilibrium` results are cached on the other values.
 ROD_SECTIONS = ("pendulum.", "sensors.")
+
+
 #: Entries of that cache (it is emptied when full).
 EQUILIBRIUM_CACHE_SIZE = 4096
+
+
 _equilibria: dict[tuple, tuple[float, float, float]] = {}
 
 
@@ -828,7 +319,8 @@ def free_run_theta(
     ``theta0`` [rad, recording frame] / ``theta_dot0`` [rad/s]) and is driven by the stretch's
     duty cycle only (no later correction from the measurements). The actuator saw the first duty
     cycle before the stretch began (its delay line holds it, as the motor sits at its steady state).
-    Data with several segments (:func:`concat_uniform`) run each segment from its own initial
+    Data with several segments (:func:`aeropend_ident.greybox.uniform.concat_uniform`) run each segment from
+    its own initial
     state; ``theta0`` / ``theta_dot0`` are then sequences with one value (or None) per segment.
 
     Raises
@@ -850,7 +342,6 @@ def free_run_theta(
     return traj.theta - theta_offset
 
 
-# --------------------------------------------------------------------------- metrics
 def error_metrics(measured: np.ndarray, simulated: np.ndarray, span: float | None = None) -> dict[str, float]:
     """Fit metrics of a simulated angle against the measured one.
 
@@ -881,7 +372,6 @@ def error_metrics(measured: np.ndarray, simulated: np.ndarray, span: float | Non
     }
 
 
-# --------------------------------------------------------------------------- result
 @dataclass(frozen=True)
 class ParameterEstimate:
     """One fitted parameter.
@@ -1032,11 +522,11 @@ class GreyBoxResult:
         }
 
 
-# --------------------------------------------------------------------------- the fit
 def _parameter_specs(rig: Rig, params: Sequence[str] | None, theta_offset: float,
                      initial: Mapping[str, float] | None,
                      bounds: Mapping[str, tuple[float, float]] | None) -> list[ParameterSpec]:
-    """The checked :class:`ParameterSpec` of every parameter :func:`fit_greybox` fits."""
+    """The checked :class:`aeropend_ident.greybox.parameters.ParameterSpec` of every parameter
+    :func:`fit_greybox` fits."""
     names = list(default_parameters(rig, theta_offset) if params is None else params)
     if not names:
         raise IdentificationError("no parameters to fit; expected at least one name")
@@ -1149,16 +639,19 @@ def fit_greybox(
     ----------
     recording : Recording, UniformData, or a sequence of them
         Training data: ``theta`` [rad] and the duty cycle; a :class:`Recording` goes through
-        :func:`uniform_data` (validation, resampling, decimation). Several recordings are fitted
-        together (:func:`concat_uniform`), each from its own initial state; they must share the
-        grid step. The data must excite the rig (:func:`check_excited`).
+        :func:`aeropend_ident.greybox.uniform.uniform_data` (validation, resampling, decimation). Several
+        recordings are fitted
+        together (:func:`aeropend_ident.greybox.uniform.concat_uniform`), each from its own initial state;
+        they must share the
+        grid step. The data must excite the rig (:func:`aeropend_ident.greybox.uniform.check_excited`).
     rig : Rig
         Model structure (effect switches) and starting values.
     params : sequence of str, optional
-        Parameters to fit (default :func:`default_parameters`).
+        Parameters to fit (default :func:`aeropend_ident.greybox.parameters.default_parameters`).
     theta_offset : float
         Angle offset θ_model − θ_recorded [rad] the rig's end stops are written for (start
-        value if :data:`THETA_OFFSET` is fitted, fixed otherwise); see :func:`rig_theta_offset`.
+        value if :data:`aeropend_ident.greybox.parameters.THETA_OFFSET` is fitted, fixed otherwise); see
+        :func:`aeropend_ident.greybox.parameters.rig_theta_offset`.
     initial : mapping, optional
         Starting values overriding the rig's.
     bounds : mapping, optional
@@ -1166,7 +659,7 @@ def fit_greybox(
     dt : float, optional
         Grid period [s] (default the recording's median interval).
     decimate : int
-        Decimation factor (see :func:`uniform_data`).
+        Decimation factor (see :func:`aeropend_ident.greybox.uniform.uniform_data`).
     max_nfev : int
         Most residual evaluations per stage (each one simulation; SciPy does not count the
         ``n_params`` simulations of each finite-difference Jacobian).
@@ -1174,7 +667,7 @@ def fit_greybox(
         ``ftol`` = ``xtol`` = ``gtol`` of the optimiser.
     diff_step : float
         Relative finite-difference step of the Jacobian in the optimiser coordinates (z >= 1,
-        see :class:`ParameterSpec`), well above the ODE tolerance 1e-8.
+        see :class:`aeropend_ident.greybox.parameters.ParameterSpec`), well above the ODE tolerance 1e-8.
     init_horizon : float, optional
         If given [s], the free-run fit starts from a **multiple-shooting** fit: the data are cut
         into windows of this length, each simulated from its own recorded initial state
@@ -1201,7 +694,8 @@ def fit_greybox(
     Raises
     ------
     IdentificationError
-        On an unusable recording (:func:`check_recording`, :func:`check_excited`), an unknown
+        On an unusable recording (:func:`aeropend_ident.greybox.uniform.check_recording`,
+        :func:`aeropend_ident.greybox.uniform.check_excited`), an unknown
         parameter, a parameter whose effect is switched off, a duplicate, or a start outside the
         bounds.
     """
@@ -1354,14 +848,6 @@ def _one(values: np.ndarray) -> Any:
     return float(values[0]) if values.size == 1 else list(values)
 
 
-def _window(data: UniformData, start: int, stop: int) -> UniformData:
-    """Samples [start, stop) of a uniform data set, time re-based to 0."""
-    return dataclasses.replace(
-        data, t=data.t[start:stop] - data.t[start], duty=data.duty[start:stop], theta=data.theta[start:stop],
-        segments=(0,),
-    )
-
-
 def _split_windows(n: int, dt: float, horizon: float) -> list[tuple[int, int]]:
     """Consecutive windows of about ``horizon`` seconds covering n samples (last one merged if short).
 
@@ -1410,3 +896,4 @@ def _std_errors(jac: np.ndarray, res: np.ndarray, pinned: np.ndarray) -> np.ndar
         sub[weak] = math.inf
     std[free] = sub
     return std
+

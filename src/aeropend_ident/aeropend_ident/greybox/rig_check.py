@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.greybox.fit import ParameterSpec
+from aeropend_ident.greybox.parameters import ParameterSpec
 from aeropend_ident.greybox.replay import free_run
 from aeropend_ident.greybox.rig_fit import blocks_of
 from aeropend_ident.greybox.rig_inputs import read_inputs

@@ -46,7 +46,7 @@ import numpy as np
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.decay import analyse_decay
-from aeropend_ident.greybox.fit import ParameterSpec, UniformData
+from aeropend_ident.greybox.parameters import ParameterSpec
 from aeropend_ident.greybox.replay import NRMSE_RULE, START_RULE, FreeRun, free_run
 from aeropend_ident.greybox.rig_inputs import StaticTable, TimeSeries, fit_grid, read_inputs, shortest_hold
 from aeropend_ident.greybox.rig_problem import (
@@ -62,6 +62,7 @@ from aeropend_ident.greybox.rig_problem import (
     robust_covariance,
     weak_directions,
 )
+from aeropend_ident.greybox.uniform import UniformData
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect
 from aeropend_sim.components.pendulum.rod import G

@@ -39,7 +39,8 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import RecordingInputError
-from aeropend_ident.greybox.fit import UniformData, decimated, measurement_noise, rod_stiffness
+from aeropend_ident.greybox.fit import measurement_noise
+from aeropend_ident.greybox.uniform import UniformData, decimated, rod_stiffness
 from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
 from aeropend_sim.contract import REFERENCE_CHANNEL
 from aeropend_sim.recording import Recording

@@ -13,7 +13,7 @@ Each input contributes a block of residuals in its own unit, divided by that blo
 The physics is the model's (one home); this module only stacks the blocks. Parameters are rig keys
 (``"section.name"``) or the rod's inertia ``pendulum.inertia`` when the rig file gives the rod's
 geometry (mgd/J and L/J then follow from it through the rod's own derivation). Coordinates are
-those of :class:`aeropend_ident.greybox.fit.ParameterSpec` (log for positive parameters).
+those of :class:`aeropend_ident.greybox.parameters.ParameterSpec` (log for positive parameters).
 
 Standard errors: cov = (JᵀJ)⁻¹ of the weighted residuals at the optimum (σ_b re-estimated from each
 block's residual, or the table's stated standard errors, and for time series inflated by the
@@ -35,15 +35,9 @@ from scipy.optimize import brentq, least_squares, minimize
 from scipy.stats import qmc
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.greybox.fit import (
-    ParameterSpec,
-    UniformData,
-    apply_parameters,
-    free_run_theta,
-    initial_velocity,
-    measurement_noise,
-    motor_equilibrium,
-)
+from aeropend_ident.greybox.fit import free_run_theta, initial_velocity, measurement_noise, motor_equilibrium
+from aeropend_ident.greybox.parameters import ParameterSpec, apply_parameters
+from aeropend_ident.greybox.uniform import UniformData
 from aeropend_sim.components import registry
 from aeropend_sim.model import ModelError, PlantModel
 from aeropend_sim.params import Rig

@@ -16,7 +16,7 @@ ignored; :func:`ignored_channels` says which, for the tools' summaries. :func:`l
 
 **Timing.** :func:`uniform_recording` is the one resampling of every command (``baseline``,
 ``identify``, ``gap``, ``compare``, ``csv_import --resample``) and of the fits (the grey-box
-:func:`aeropend_ident.greybox.fit.uniform_data`, the gap diagnosis' channels): a lab's logger
+:func:`aeropend_ident.greybox.uniform.uniform_data`, the gap diagnosis' channels): a lab's logger
 jitters, drops rows and pauses, and none of that is refused. The rule (:data:`RESAMPLING_RULE`):
 grid step = the median (regular) interval; the command and the reference held (zero-order hold), measured
 channels interpolated linearly, a quantised channel (:func:`detect_quantum`) taken at its nearest

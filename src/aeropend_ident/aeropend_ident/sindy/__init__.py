@@ -7,7 +7,7 @@ Reference: docs/api.md.
 
 from __future__ import annotations
 
-from importlib import import_module
+from aeropend_sim.lazy_api import lazy_api
 
 #: The public API: defining module -> its names (the one list: ``__all__``, the lazy lookup and
 #: docs/api.md's check read it).
@@ -21,19 +21,4 @@ _API: dict[str, tuple[str, ...]] = {
     "aeropend_ident.sindy.preprocess": ("differentiate", "add_derivatives"),
     "aeropend_ident.sindy.output_error": ("refine_output_error",),
 }
-_WHERE = {name: module for module, names in _API.items() for name in names}
-__all__ = sorted(_WHERE)
-
-
-def __getattr__(name: str) -> object:
-    """Import the module that defines ``name`` on first use (PEP 562) and keep the value."""
-    module = _WHERE.get(name)
-    if module is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    value = getattr(import_module(module), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *__all__})
+__all__, __getattr__, __dir__ = lazy_api(__name__, globals(), _API)

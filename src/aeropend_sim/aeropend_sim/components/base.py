@@ -430,7 +430,7 @@ class Diagnosis:
         is compared between sessions as the hypothesis it nests (``nests[0]``, whose law has the
         exponent exponent₀) at the recordings' reference speed ω_ref, level·ω_ref^(exponent −
         exponent₀): the level the data pin, in one unit whatever the fitted exponents. Read by
-        :func:`aeropend_ident.gap.drift.drift_rows`; empty: none.
+        :func:`aeropend_ident.gap.sessions.drift_rows`; empty: none.
     """
 
     name: str

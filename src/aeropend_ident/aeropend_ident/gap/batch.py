@@ -22,8 +22,8 @@ refuses is recorded with its one-line error; the others go on.
 
 **Across sessions** (:func:`drift_across`): the effects chosen in any session (less those that set
 the same rig parameter as an earlier one) plus the drift-prone parameters
-(:func:`aeropend_ident.gap.drift.drift_set`) are fitted on each session's fit part, again as cases
-of the cluster, and :func:`aeropend_ident.gap.drift.drift_rows` says which parameter changes
+(:func:`aeropend_ident.gap.sessions.drift_set`) are fitted on each session's fit part, again as cases
+of the cluster, and :func:`aeropend_ident.gap.sessions.drift_rows` says which parameter changes
 between sessions beyond its standard errors, as ``gap --sessions`` does.
 
 **Resuming** (``gap-batch --resume``): each session's folder holds :data:`SESSION_FILE`, written
@@ -169,8 +169,8 @@ def _from_manifest(root: Path, manifest: Path) -> list[Session]:
 
 def _fit_part(case: tuple) -> Any:
     """One session's drift fit (a worker case of :func:`drift_across`)."""
-    from aeropend_ident.gap.drift import session_task
     from aeropend_ident.gap.run import to_model_frame
+    from aeropend_ident.gap.sessions import session_task
     from aeropend_ident.io.recording_input import load_and_split
 
     session, rig, offset, effects, channels, split, preset = case
@@ -186,7 +186,7 @@ def drift_across(rows: Sequence[dict[str, Any]], sessions: Sequence[Session], ri
     ``rig`` and ``offset`` are the nominal rig and its recording-frame θ offset [rad]; ``run`` is
     :func:`aeropend_ident.parallel.run_cases` with the batch's cluster settings bound.
     """
-    from aeropend_ident.gap.drift import _drift_table, drift_set
+    from aeropend_ident.gap.sessions import _drift_table, drift_set
     from aeropend_ident.gap.which.ranking import excluded_with
 
     good = [(r, s) for r, s in zip(rows, sessions, strict=True) if r.get("exit") == 0]
