@@ -115,9 +115,35 @@ def test_unknown_names_and_invalid_classes_are_refused_with_the_value() -> None:
         register(type("BadName", (_EquilibriumHold,), {"name": "Bad Name"}))
     with pytest.raises(StrategyError, match=r"needs = \('theta', 'v_a'\)"):
         register(type("BadNeeds", (_EquilibriumHold,), {"needs": ("theta", "v_a")}))
+    with pytest.raises(StrategyError, match=r"default = True, but 'fl_pid' is already the default"):
+        register(type("SecondDefault", (_EquilibriumHold,), {"name": "second_default", "default": True}))
+    with pytest.raises(StrategyError, match=r"listed = 'first'; expected a number"):
+        register(type("BadListed", (_EquilibriumHold,), {"name": "bad_listed", "listed": "first"}))
     with pytest.raises(StrategyError, match="is not a Strategy subclass"):
         register(dict)  # type: ignore[arg-type]
     assert "equilibrium_hold" not in strategy_names()
+
+
+def test_shipped_strategies_are_discovered_from_their_modules_not_listed() -> None:
+    """Every concrete strategy class declared in a module of aeropend_control/strategies is
+    registered, found by importing the package's modules (no list of shipped strategies exists)."""
+    import importlib
+    import inspect
+    import pkgutil
+
+    import aeropend_control.strategies as package
+    from aeropend_control.strategies import registry
+
+    assert not hasattr(registry, "BUILTIN")
+    declared = set()
+    for info in pkgutil.iter_modules(package.__path__, prefix=package.__name__ + "."):
+        module = importlib.import_module(info.name)
+        for _, cls in inspect.getmembers(module, inspect.isclass):
+            if issubclass(cls, Strategy) and cls.__module__ == info.name and not inspect.isabstract(cls) \
+                    and "name" in vars(cls):
+                declared.add(cls.name)
+    assert declared == set(strategy_names()) - {"equilibrium_hold"}
+    assert len(declared) == 5
 
 
 # --------------------------------------------------------------------- a fifth strategy

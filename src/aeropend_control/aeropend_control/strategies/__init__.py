@@ -15,7 +15,8 @@ module                    content
 ``cascade``               :class:`MotorCascade`, :class:`CascadeStrategy`,
                           :class:`SmallSignalCascade` (§6.7)
 ``fl_cascade``            :class:`FLCascade` (§6.8)
-``registry``              :func:`register`, :func:`strategy_class`, :func:`make_strategy`, ...
+``registry``              :func:`register` (the one way to declare a strategy), :func:`strategy_class`,
+                          :func:`make_strategy`, ... (the package's modules are discovered)
 ========================  =====================================================================
 
 Usage::
@@ -44,7 +45,6 @@ from aeropend_control.strategies.loop import (
     VelocityEstimator,
 )
 from aeropend_control.strategies.registry import (
-    BUILTIN,
     DEFAULT_STRATEGY,
     make_strategy,
     register,
@@ -57,7 +57,6 @@ from aeropend_control.strategies.small_signal import SmallSignalFixedPID, SmallS
 
 __all__ = [
     "ALLOCATORS",
-    "BUILTIN",
     "CHANNELS",
     "DEFAULT_STRATEGY",
     "DEFAULT_TF",

@@ -108,6 +108,12 @@ class Strategy(ABC):
         Settings of :class:`~aeropend_control.controller_core.ControllerSettings` the strategy cannot
         run without (e.g. ``theta_op``); the node refuses to start without them and passes them
         to :meth:`build`.
+    default : bool
+        True for the one strategy the controller node runs when its ``strategy`` parameter is not
+        set (``fl_pid``).
+    listed : float
+        Place in the registry's listing (the node's help, :func:`~.registry.strategy_names`): the
+        shipped strategies 0-4; a lab's own (default ``inf``) follow in registration order.
 
     Instance interface: :meth:`step` once per sample, :meth:`reset`, :meth:`retune` (bumpless
     take-over of another instance's design), and the read-only :attr:`observer`,
@@ -121,6 +127,8 @@ class Strategy(ABC):
     drive_kind: ClassVar[str | None] = None
     linearising: ClassVar[bool] = False
     required: ClassVar[tuple[str, ...]] = ()
+    listed: ClassVar[float] = math.inf
+    default: ClassVar[bool] = False
 
     #: θ̂ / disturbance observer whose estimates the node publishes (None: no observer).
     observer: PendulumObserver | None = None

@@ -19,6 +19,7 @@ from aeropend_control.oscillation import OscillationMonitor
 from aeropend_control.pid import PID, PIDGains
 from aeropend_control.strategies.base import ControlOutput, Measurement, Strategy, StrategyError
 from aeropend_control.strategies.loop import PositionLoop
+from aeropend_control.strategies.registry import register
 from aeropend_control.strategies.small_signal import SmallSignalPID
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import Rig
@@ -209,11 +210,13 @@ class CascadeStrategy(Strategy):
         return out
 
 
+@register
 class SmallSignalCascade(CascadeStrategy):
     """Scheduled small-signal I-PD (:class:`~aeropend_control.strategies.small_signal.SmallSignalPID`)
     commanding the motor cascade (thesis §6.7)."""
 
     name = "cascade"
+    listed = 3
     description = "gain-scheduled small-signal I-PD over the motor speed/current PI cascade (§6.7)"
 
     @classmethod

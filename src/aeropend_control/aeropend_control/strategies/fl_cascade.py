@@ -10,14 +10,17 @@ from aeropend_control.design import CascadeDesign, LoopDesign, PoleSpec
 from aeropend_control.drive_design import fl_design
 from aeropend_control.strategies.cascade import CascadeStrategy
 from aeropend_control.strategies.fl_pid import FeedbackLinearizationPID
+from aeropend_control.strategies.registry import register
 from aeropend_sim.params import Rig
 
 
+@register
 class FLCascade(CascadeStrategy):
     """:class:`~aeropend_control.strategies.fl_pid.FeedbackLinearizationPID` commanding the motor
     cascade (thesis §6.8)."""
 
     name = "fl_cascade"
+    listed = 4
     description = "feedback linearisation + I-PD over the motor speed/current PI cascade (§6.8)"
     linearising = True
 

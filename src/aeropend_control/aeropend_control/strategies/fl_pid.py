@@ -17,9 +17,11 @@ from aeropend_control.drive_design import fl_design
 from aeropend_control.observer import ObserverSpec
 from aeropend_control.strategies.base import ControlOutput, Measurement, Strategy, StrategyError
 from aeropend_control.strategies.loop import DEFAULT_TF, PositionLoop
+from aeropend_control.strategies.registry import register
 from aeropend_sim.params import Rig
 
 
+@register
 class FeedbackLinearizationPID(PositionLoop):
     """Input-output feedback linearisation + I-PD (thesis §6.6; see module doc).
 
@@ -37,6 +39,8 @@ class FeedbackLinearizationPID(PositionLoop):
     """
 
     name = "fl_pid"
+    listed = 0
+    default = True
     description = "feedback linearisation + I-PD on θ (thesis §6.6)"
     #: ω_n = 9.5 rad/s: within 1.5× the time-optimal bound in every bench scenario (docs/control.md).
     default_spec = PoleSpec(9.5)

@@ -20,9 +20,11 @@ from aeropend_control.observer import ObserverSpec
 from aeropend_control.pid import PIDGains
 from aeropend_control.strategies.base import ControlOutput, Measurement, Strategy, StrategyError
 from aeropend_control.strategies.loop import DEFAULT_TF, PositionLoop
+from aeropend_control.strategies.registry import register
 from aeropend_sim.params import Rig
 
 
+@register
 class SmallSignalPID(PositionLoop):
     """Small-signal I-PD on thrust, gain-scheduled on the reference unless ``theta_op`` is given
     (thesis §6.5; see module doc).
@@ -47,6 +49,7 @@ class SmallSignalPID(PositionLoop):
     """
 
     name = "small_signal"
+    listed = 1
     description = "gain-scheduled small-signal I-PD on thrust (thesis §6.5)"
     #: ω_n = 9.5 rad/s: within 1.5× the time-optimal bound in every bench scenario (docs/control.md).
     default_spec = PoleSpec(9.5)
@@ -122,6 +125,7 @@ class SmallSignalPID(PositionLoop):
         return self._finish(r, theta, thd, df, self.f0 + df)
 
 
+@register
 class SmallSignalFixedPID(SmallSignalPID):
     """:class:`SmallSignalPID` at one operating point ``theta_op`` [rad] (no scheduling; thesis §6.5).
 
@@ -132,6 +136,7 @@ class SmallSignalFixedPID(SmallSignalPID):
     """
 
     name = "small_signal_fixed"
+    listed = 2
     description = "small-signal I-PD on thrust at the fixed operating point theta_op"
     required = ("theta_op",)
 
