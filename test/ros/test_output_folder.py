@@ -66,3 +66,25 @@ def test_pipeline_overwrite_replaces_its_earlier_run(tmp_path: Path, monkeypatch
         assert main(["--out", str(out), "--overwrite", "--signal", *signal]) == 0
     assert {p.name for p in out.iterdir()} == set(OUTPUTS.values())
     assert len(read_bag(out / OUTPUTS["bag"])) > 100
+
+
+def test_a_failing_pipeline_run_keeps_the_earlier_run_whole(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """``pipeline --overwrite`` writes into a partial folder that replaces the earlier run only at the
+    end (issue 62): a run that fails (here the plant node, on a rig that does not exist) leaves the
+    earlier run as it was, byte for byte, and its own logs in the partial folder it names."""
+    from aeropend_ident.cli.pipeline import main
+
+    isolate_process(monkeypatch, random_domain(101, 200))
+    out = tmp_path / "main"
+    (out / "run_bag").mkdir(parents=True)
+    (out / "run_bag" / "metadata.yaml").write_text("an earlier run's bag\n")
+    (out / "summary.json").write_text('{"earlier": true}\n')
+    before = _tree(out)
+    rc = main(["--out", str(out), "--overwrite", "--plant-rig", "no_such_rig"])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert _tree(out) == before
+    partial = tmp_path / ".main.partial-run" / "main"
+    assert f"pipeline: {out} is as it was; this run's bag and logs are in {partial}" in err
+    assert (partial / "logs").is_dir() and any((partial / "logs").iterdir())

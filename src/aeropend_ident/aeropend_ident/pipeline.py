@@ -21,6 +21,7 @@ Usage::
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import subprocess
@@ -195,11 +196,17 @@ def _ns(namespace: str) -> str:
 
 
 def analyse(bag: Path, out: Path, nominal_rig: str, train_fraction: float,
-            namespace: str = "") -> dict[str, Any]:
-    """Read the bag and run the grey-box baseline; returns the baseline report dictionary."""
+            namespace: str = "", source: str | None = None) -> dict[str, Any]:
+    """Read the bag and run the grey-box baseline; returns the baseline report dictionary.
+
+    ``source`` names the recording in the report (default: ``bag``; the command passes the bag's
+    final place when it runs in a partial folder that replaces the report folder at the end).
+    """
     from aeropend_ident.greybox.baseline import run_baseline
 
     rec = read_bag(bag, namespace=_ns(namespace))
+    if source is not None:
+        rec = dataclasses.replace(rec, source=source)
     report = run_baseline(rec, nominal_rig, out / OUTPUTS["baseline"], train_fraction=train_fraction)
     report["recording"] = {"samples": len(rec), "duration_s": float(rec.t[-1]),
                            "first_theta_rad": float(rec.channels["theta"][0]),

@@ -2,21 +2,30 @@
 
 Command line of the main job ``pipeline`` (console script; ``scripts/run_main.sh``): argument
 parsing and :func:`main` only; the steps are in :mod:`aeropend_ident.pipeline`. A non-empty report
-folder is refused at once unless ``--overwrite`` is given; then the earlier run's bag, logs and
-reports are removed before the node graph starts (:mod:`aeropend_sim.output_folder`).
+folder is refused at once unless ``--overwrite`` is given. The run writes into a partial folder
+beside the report folder (``.NAME.partial-run``) that replaces it only when the run has finished
+(:meth:`aeropend_sim.output_folder.OutputFolder.write`): an earlier run stays whole until then, and
+a run that fails or is interrupted leaves the earlier run as it was and its own bag and logs in the
+partial folder, named on stderr, for the diagnosis.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import sys
 import time
 from pathlib import Path
 
 from aeropend_ident.errors import PipelineError
 from aeropend_ident.pipeline import DEFAULT_SIGNAL, OUTPUTS, analyse, check_recording, run_graph
-from aeropend_sim.output_folder import OutputFolderError, claim_output_folder, exits_cleanly_on_faults
+from aeropend_sim.output_folder import (
+    OutputFolderError,
+    claim_output_folder,
+    exits_cleanly_on_faults,
+    partial_folder,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,36 +47,32 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-@exits_cleanly_on_faults("pipeline")
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        out = claim_output_folder(args.out, args.overwrite, own=OUTPUTS.values(), looks_like="a main-job run",
-                                  option="-o").prepare()
-    except OutputFolderError as exc:
-        print(f"pipeline: error: {exc}", file=sys.stderr)
-        return 2
+def _run(out: Path, final: Path, args: argparse.Namespace) -> dict:
+    """The whole main job into the (partial) folder ``out`` that becomes ``final``; returns the
+    summary it wrote (paths in it and in the reports are those under ``final``).
+
+    Raises
+    ------
+    PipelineError
+        A node failed, the recording is incomplete or the analysis failed.
+    """
     t0 = time.monotonic()
-    try:
-        print(f"[1/2] node graph: record + sim_node ({args.plant_rig}, {args.mode}) + excitation ...",
-              flush=True)
-        bag = run_graph(out, args.plant_rig, args.mode, args.seed, args.signal, not args.no_noise,
-                        namespace=args.namespace)
-        t_graph = time.monotonic() - t0
-        completeness = check_recording(bag, out / OUTPUTS["logs"] / "sim_node.log", args.mode, args.namespace)
-        if not completeness["complete"]:
-            raise PipelineError(
-                f"incomplete lock-step recording: {completeness['recorded']} of "
-                f"{completeness['published']} published samples and {completeness['commands']} of "
-                f"{(completeness['published'] or 1) - 1} commands in {bag} (see docs/data_plane.md)")
-        print(f"      bag {bag} written in {t_graph:.1f} s", flush=True)
-        print(f"[2/2] grey-box baseline of {args.nominal_rig} on the recording ...", flush=True)
-        report = analyse(bag, out, args.nominal_rig, args.train_fraction, args.namespace)
-    except PipelineError as exc:
-        print(f"pipeline failed: {exc}", file=sys.stderr)
-        return 1
+    print(f"[1/2] node graph: record + sim_node ({args.plant_rig}, {args.mode}) + excitation ...", flush=True)
+    bag = run_graph(out, args.plant_rig, args.mode, args.seed, args.signal, not args.no_noise,
+                    namespace=args.namespace)
+    t_graph = time.monotonic() - t0
+    completeness = check_recording(bag, out / OUTPUTS["logs"] / "sim_node.log", args.mode, args.namespace)
+    if not completeness["complete"]:
+        raise PipelineError(
+            f"incomplete lock-step recording: {completeness['recorded']} of "
+            f"{completeness['published']} published samples and {completeness['commands']} of "
+            f"{(completeness['published'] or 1) - 1} commands in {bag} (see docs/data_plane.md)")
+    print(f"      bag {bag} written in {t_graph:.1f} s", flush=True)
+    print(f"[2/2] grey-box baseline of {args.nominal_rig} on the recording ...", flush=True)
+    report = analyse(bag, out, args.nominal_rig, args.train_fraction, args.namespace,
+                     source=str(final / OUTPUTS["bag"]))
     summary = {
-        "bag": str(bag),
+        "bag": str(final / OUTPUTS["bag"]),
         "plant_rig": args.plant_rig,
         "nominal_rig": args.nominal_rig,
         "mode": args.mode,
@@ -77,8 +82,33 @@ def main(argv: list[str] | None = None) -> int:
         "baseline": report.get("summary", report),
     }
     (out / OUTPUTS["summary"]).write_text(json.dumps(summary, indent=2, default=float))
+    return summary
+
+
+@exits_cleanly_on_faults("pipeline")
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        folder = claim_output_folder(args.out, args.overwrite, own=OUTPUTS.values(),
+                                     looks_like="a main-job run", option="-o")
+    except OutputFolderError as exc:
+        print(f"pipeline: error: {exc}", file=sys.stderr)
+        return 2
+    stage = partial_folder(args.out, "run")
+    if stage.exists():  # what an earlier failed run left: this run starts afresh
+        shutil.rmtree(stage)
+    try:
+        summary = folder.write(lambda out: _run(out, folder.path, args), stage=stage, keep=True)
+    except OutputFolderError as exc:
+        print(f"pipeline: error: {exc}", file=sys.stderr)
+        return 2
+    except PipelineError as exc:
+        print(f"pipeline failed: {exc}", file=sys.stderr)
+        print(f"pipeline: {args.out} is as it was; this run's bag and logs are in "
+              f"{stage / folder.path.name}", file=sys.stderr)
+        return 1
     print(json.dumps(summary, indent=2, default=float))
-    print(f"report folder: {out}")
+    print(f"report folder: {folder.path}")
     return 0
 
 
