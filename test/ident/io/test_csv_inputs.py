@@ -303,6 +303,33 @@ def test_extra_channels_travel_with_slices_and_resampling() -> None:
     assert set(EXTRA_CHANNELS) == {"phi", "phi_dot", "theta_ref", "thrust"}
 
 
+def test_a_loggers_uneven_timing_is_not_called_dropped_rows() -> None:
+    """A ~600 Hz logger that writes every 1 ms or every 3 ms (issue 60: a lab's step tests) has no
+    dropped rows: a third of its intervals are 3 ms. The note says uneven timing and counts the
+    grid samples filled between them; a log that lost 3 of 1500 rows still says dropped rows."""
+    from aeropend_ident.io.recording_input import UNEVEN_SHARE
+
+    rng = np.random.default_rng(5)
+    steps = rng.choice([1e-3, 3e-3], size=6000, p=[2 / 3, 1 / 3])
+    t = np.concatenate([[0.0], np.cumsum(steps)])
+    rec = Recording(t=t, duty=np.full(t.size, 0.5), channels={"theta": np.sin(t)}, source="logger600.csv")
+    res = uniform_recording(rec).meta["resampling"]
+    assert res["dt_s"] == pytest.approx(1e-3) and res["uneven_timing"] is True
+    assert res["long_interval_share"] == pytest.approx(1 / 3, abs=0.03)
+    assert res["long_interval_share"] > UNEVEN_SHARE
+    assert res["dropped_rows"] == int(np.sum(steps > 2e-3)) * 2
+    assert "dropped row" not in res["note"].replace("not dropped rows", "")
+    assert f"uneven timing: {res['long_interval_share']:.0%} of the intervals are 1.5-5 grid steps long" \
+        in res["note"]
+    k = np.arange(1500) * 0.02
+    keep = np.ones(k.size, bool)
+    keep[[200, 700, 701]] = False
+    lost = Recording(t=k[keep], duty=np.full(keep.sum(), 0.5), channels={"theta": np.sin(k[keep])},
+                     source="lost.csv")
+    res = uniform_recording(lost).meta["resampling"]
+    assert res["uneven_timing"] is False and "3 dropped row(s) filled" in res["note"]
+
+
 def test_host_stamp_jitter_keeps_each_command_on_its_own_sample() -> None:
     """A timer-driven rig at 50 Hz whose host stamps each row when it arrives (σ 4 % of the period,
     the first stamp late like any other): row k is the command of sample k. Holding the last row at

@@ -165,6 +165,10 @@ UNIFORM_TOLERANCE = 1e-3
 GAP_STEPS = 5.0
 #: Intervals shorter than this many grid steps are the logger's jitter about the grid step.
 JITTER_STEPS = 1.5
+#: Share of the intervals from which those of :data:`JITTER_STEPS` to :data:`GAP_STEPS` grid steps
+#: are the logger's own uneven timing (a 600 Hz logger that writes every 1 or 3 ms), not dropped
+#: rows: a dropped row is a rare event (a full buffer, a missed interrupt), not one interval in twenty.
+UNEVEN_SHARE = 0.05
 
 
 @dataclass(frozen=True)
@@ -191,6 +195,10 @@ class Resampling:
     held_channels : tuple of str
         Quantised measured channels (values on a lattice k·q, :func:`detect_quantum`) taken at the
         nearest sample instead of interpolated, so they stay on their lattice.
+    long_share : float
+        Share of the intervals that are :data:`JITTER_STEPS` to :data:`GAP_STEPS` grid steps long;
+        above :data:`UNEVEN_SHARE` the log's timing is uneven (:attr:`uneven`) and the samples filled
+        between such intervals are not called dropped rows.
     """
 
     source: str
@@ -202,6 +210,13 @@ class Resampling:
     dropped_rows: int
     gaps: tuple[tuple[float, float], ...]
     held_channels: tuple[str, ...]
+    long_share: float = 0.0
+
+    @property
+    def uneven(self) -> bool:
+        """Whether the log's own timing is uneven (:data:`UNEVEN_SHARE`): its longer intervals are
+        how the logger writes, not rows it lost."""
+        return self.long_share > UNEVEN_SHARE
 
     def note(self) -> str:
         """One line for a command's summary, e.g. ``resampled jitter100.csv onto a uniform 10 ms grid
@@ -210,7 +225,11 @@ class Resampling:
         name = Path(self.source).name or self.source or "the recording"
         parts = [f"{self.rows_in} rows -> {self.rows_out} samples",
                  f"jitter RMS {_ms(self.jitter_rms)} (max {_ms(self.jitter_max)})"]
-        if self.dropped_rows:
+        if self.dropped_rows and self.uneven:
+            parts.append(f"uneven timing: {self.long_share:.0%} of the intervals are "
+                         f"{JITTER_STEPS:g}-{GAP_STEPS:g} grid steps long (how the logger writes, not "
+                         f"dropped rows); {self.dropped_rows} grid sample(s) filled between them")
+        elif self.dropped_rows:
             parts.append(f"{self.dropped_rows} dropped row(s) filled")
         if self.gaps:
             start, length = max(self.gaps, key=lambda g: g[1])
@@ -221,15 +240,17 @@ class Resampling:
                          f"t = {start:.3f} s)")
         held = f"; {', '.join(self.held_channels)} quantised: nearest sample, not interpolated" \
             if self.held_channels else ""
+        over = "the longer intervals" if self.uneven else "dropped rows"
         return (f"resampled {name} onto a uniform {_ms(self.dt)} grid (the median regular "
-                f"interval): {'; '.join(parts)}; command of the nearest row (held over dropped rows), "
+                f"interval): {'; '.join(parts)}; command of the nearest row (held over {over}), "
                 f"measurements interpolated{held}")
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready form (``meta["resampling"]`` of the resampled recording)."""
         return {"rule": RESAMPLING_RULE, "dt_s": self.dt, "rows_in": self.rows_in, "rows_out": self.rows_out,
                 "jitter_rms_s": self.jitter_rms, "jitter_max_s": self.jitter_max,
-                "dropped_rows": self.dropped_rows,
+                "dropped_rows": self.dropped_rows, "long_interval_share": self.long_share,
+                "uneven_timing": self.uneven,
                 "gaps": [{"t_s": a, "length_s": b} for a, b in self.gaps],
                 "held_channels": list(self.held_channels), "note": self.note()}
 
@@ -471,6 +492,7 @@ def _timing_report(src: str, t: np.ndarray, dt: float, rows_out: int, held: tupl
         jitter_rms=float(np.sqrt(np.mean(dev**2))), jitter_max=float(np.max(dev)),
         dropped_rows=int(np.sum(np.round(dropped / dt) - 1.0)),
         gaps=tuple((float(t[k]), float(d[k])) for k in long), held_channels=held,
+        long_share=float(dropped.size / max(d.size, 1)),
     )
 
 
