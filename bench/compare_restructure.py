@@ -40,7 +40,8 @@ REAL = ROOT.parent / "shared" / "data" / "real" / "matheusbucater__aeropendulo"
 OB = "docs/onboarding/matheusbucater"
 #: Keys whose values are not results (times, command lines, paths, dates).
 VOLATILE = re.compile(r"^(seconds|.*_seconds|elapsed.*|wall.*|cpu.*|timing|timings|command|command_line|argv|"
-                      r"created|created_utc|date|written|host|versions?|output_folder|folder|path|paths)$", re.I)
+                      r"created|created_utc|date|written|host|versions?|output_folder|folder|path|paths)$",
+                      re.I)
 
 
 def _entry_points(checkout: Path) -> dict[str, str]:

@@ -10,6 +10,7 @@ the leaf pages that lie whole before the cut, in b-tree order up to the first pa
 
 from __future__ import annotations
 
+import json
 import shutil
 import sqlite3
 import struct
@@ -339,9 +340,42 @@ def test_reindex_of_a_cut_bag_counts_what_is_recovered(written: dict[str, Path],
     counts = {t["topic_metadata"]["name"]: t["message_count"] for t in info["topics_with_message_count"]}
     assert counts == {t: sum(1 for m in expected if m[0] == t)
                       for t in (TOPIC_JOINT_STATES, TOPIC_ARMATURE, TOPIC_DUTY_CYCLE)}
-    assert info["custom_data"] is None  # the metadata record is written at close: cut away
+    # the metadata record is written at close: cut away; reindex counted the loss from the stamps
+    # (none inside the recovered stretch; the duty commands carry no header: not countable)
+    assert set(info["custom_data"]) == {"aeropend.loss"}
+    loss = json.loads(info["custom_data"]["aeropend.loss"])
+    assert {t: (r["lost"], r["method"]) for t, r in loss.items()} == {
+        TOPIC_JOINT_STATES: (0, "stamps"), TOPIC_ARMATURE: (0, "stamps"), TOPIC_DUTY_CYCLE: (0, "none")}
+    assert "reindex: loss: /aeropend/joint_states 0 of" in cap.out
     with pytest.warns(BagTruncatedWarning, match=rf"declares {len(expected)}, 0 lost$"):
         read_bag(bag)
+
+
+def test_reindex_counts_the_loss_a_killed_recorder_never_stored(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """A bag whose storage file was never closed (a killed recorder) has no loss count; reindex counts
+    it from the header stamps: 300 samples missing in the middle of the log are 300 lost on each
+    stamped topic, stored in the metadata, printed, and warned about by the reader."""
+    full = _recording()
+    keep = np.ones(N_SAMPLES, bool)
+    keep[2000:2300] = False
+    rec = Recording(t=full.t[keep], duty=full.duty[keep],
+                    channels={k: v[keep] for k, v in full.channels.items()}, source="gappy", stamp0_ns=STAMP0,
+                    meta={"rig": "test"})
+    bag = write_bag(rec, tmp_path / "written", storage="mcap", rig_name="bench_rig")
+    src = _storage_file(bag)
+    cut = _cut_copy(bag, tmp_path / "killed", int(src.stat().st_size * 0.97))
+    (cut / "metadata.yaml").unlink()
+    assert reindex_cli.main([str(cut)]) == 0
+    out = capsys.readouterr().out
+    info = yaml.safe_load((cut / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    loss = json.loads(info["custom_data"]["aeropend.loss"])
+    for topic in (TOPIC_JOINT_STATES, TOPIC_ARMATURE):
+        assert loss[topic]["lost"] == 300 and loss[topic]["method"] == "stamps" and loss[topic]["gaps"] == 1
+        assert loss[topic]["note"].startswith("counted by reindex from the header stamps")
+    assert f"{TOPIC_JOINT_STATES} 300 of" in out
+    with pytest.warns(UserWarning, match=r"joint_states lost 300 of .* counted by stamps\) in 1 gap"):
+        read_bag(cut)
 
 
 def test_reindex_refuses_what_is_not_a_bag_directory(tmp_path: Path) -> None:

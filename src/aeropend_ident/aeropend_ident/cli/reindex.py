@@ -7,7 +7,9 @@ command) need it. The metadata is rebuilt by :func:`aeropend_ident.io.bag_recove
 storage file cut short is indexed with the messages that can be recovered from it (a warning
 says how many and where the file ends); a corrupt chunk (CRC mismatch, unreadable record) is left
 out and every intact one around it kept (a warning per part: its byte range, log times and the
-messages it held); an empty storage file is reported as "empty: nothing was written".
+messages it held); an empty storage file is reported as "empty: nothing was written". When the
+recorder stored no loss count (it was killed before it closed the bag), the loss per topic is
+counted from the header stamps, printed and stored in the metadata, where every reader finds it.
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from aeropend_ident.errors import BagError, BagTruncatedWarning, print_warnings_as_lines
-from aeropend_ident.io.bag_recover import reindex
+from aeropend_ident.io.bag_recover import REINDEX_LOSS_NOTE, reindex
+from aeropend_ident.io.integrity.loss import loss_text, stored_loss
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -55,6 +58,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"reindex: wrote {target}: {info['message_count']} message(s) in {len(scans)} "
           f"{info['storage_identifier']} file(s) over {info['duration']['nanoseconds'] / 1e9:.3f} s"
           f" ({topics or 'no topics'})")
+    loss = stored_loss(info.get("custom_data") or {})
+    if loss and any(r.get("note") == REINDEX_LOSS_NOTE for r in loss.values()):
+        print(f"reindex: loss: {loss_text(loss)} ({REINDEX_LOSS_NOTE})")
     return 0
 
 

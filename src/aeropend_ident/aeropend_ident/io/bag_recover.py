@@ -40,6 +40,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 from aeropend_ident.errors import BagError
+from aeropend_ident.io.integrity.loss import LOSS_KEY, RECORDER_KEY, LossCounter
+from aeropend_sim.contract import TYPE_ARMATURE, TYPE_JOINT_STATES
 
 __all__ = [
     "METADATA_FILE",
@@ -895,11 +897,35 @@ def rebuild_metadata(bag: str | Path) -> tuple[dict[str, Any], list[StorageScan]
         "custom_data": stored.get("custom_data") or None,
         "ros_distro": stored.get("ros_distro") or "rosbags",
     }
+    custom = info["custom_data"] or {}
+    # a storage file never closed (its metadata record missing: a killed recorder) or a recorder's
+    # file without its count: the loss is counted here, from the stamps
+    if LOSS_KEY not in custom and (not stored or RECORDER_KEY in custom):
+        info["custom_data"] = {**custom, LOSS_KEY: json.dumps(_loss_from_stamps(files, topics))}
     skipped = [{"file": s.path.name, "start": k.start, "end": k.end, "reason": k.reason, "counts": k.counts,
                 "first_ns": k.first_ns, "last_ns": k.last_ns} for s in scans for k in s.skipped]
     if skipped:  # readers then read the recovered messages (and say what was left out)
         info["custom_data"] = {**(info["custom_data"] or {}), SKIPPED_KEY: json.dumps(skipped)}
     return info, scans
+
+
+#: ``note`` of a loss count made by ``reindex`` (the recorder stored none: it was killed).
+REINDEX_LOSS_NOTE = ("counted by reindex from the header stamps (the recorder stored no count, e.g. it was "
+                     "killed); topics without a header are not countable, and messages of a corrupt part "
+                     "left out count as lost")
+
+
+def _loss_from_stamps(files: list[Path], topics: dict[str, StorageTopic]) -> dict[str, dict[str, Any]]:
+    """Per-topic loss of the recovered messages, from the header stamps against the sample period
+    (:class:`aeropend_ident.io.integrity.loss.LossCounter` without sequence numbers: a storage file
+    does not keep them), each topic's entry marked with :data:`REINDEX_LOSS_NOTE`."""
+    stamped = {n for n, t in topics.items() if t.msgtype in (TYPE_JOINT_STATES, TYPE_ARMATURE)}
+    counter = LossCounter(stamped=lambda topic: topic in stamped)
+    for path in files:
+        for topic, log_ns, data in sorted(scan_storage(path, keep_messages=True).messages,
+                                          key=lambda m: m[1]):
+            counter.add(topic, log_ns, data)
+    return {name: {**r, "note": REINDEX_LOSS_NOTE} for name, r in counter.report().items()}
 
 
 def reindex(bag: str | Path, overwrite: bool = False) -> tuple[Path, dict[str, Any], list[StorageScan]]:

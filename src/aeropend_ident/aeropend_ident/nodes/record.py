@@ -52,7 +52,7 @@ from rosbags.interfaces import Qos
 from aeropend_ident.errors import BagError
 from aeropend_ident.io.bag_writer import BagSink, claim_bag_folder
 from aeropend_ident.io.bags import qos_for_topic
-from aeropend_ident.io.integrity.loss import LOSS_KEY, LossCounter, loss_text
+from aeropend_ident.io.integrity.loss import LOSS_KEY, RECORDER_KEY, LossCounter, loss_text
 from aeropend_ident.nodes.qos import contract_qos, message_class, qos_from_rclpy
 from aeropend_sim.contract import (
     CONTRACT_TOPICS,
@@ -153,7 +153,7 @@ class RecorderNode(Node):
             raise ValueError(f"flush_interval {self.flush_interval} s must be > 0")
         claim_bag_folder(output, bool(p["overwrite"]), option="-o", flag="--overwrite").prepare(create=False)
         self.sink = BagSink(output, storage=self.storage,  # type: ignore[arg-type]
-                            custom_data={"aeropend.recorder": NODE_NAME},
+                            custom_data={RECORDER_KEY: NODE_NAME},
                             flush_interval_s=self.flush_interval)
         # messages may stop arriving: the timer flushes what the last ones left in memory
         self.create_timer(min(0.1, self.flush_interval / 4), self.sink.flush_if_due)

@@ -25,6 +25,8 @@ from typing import Any
 
 #: ``custom_data`` key of ``metadata.yaml`` holding the recorder's loss count (JSON, per topic).
 LOSS_KEY = "aeropend.loss"
+#: ``custom_data`` key naming the recorder node in every bag ``record`` makes.
+RECORDER_KEY = "aeropend.recorder"
 #: Readers warn when a topic lost more than this fraction of what it should have carried.
 LOSS_THRESHOLD = 0.01
 #: Stamp steps whose median is taken as the sample period.
