@@ -22,7 +22,14 @@ from aeropend_ident.design.discriminate import (
 )
 from aeropend_ident.design.parameters import design_parameters, weak_keys
 from aeropend_ident.design.report import compare_outcome, csv_text
-from aeropend_ident.design.sequence import AprbsShape, DesignError, Limits, check_limits, sequence, slew_limited
+from aeropend_ident.design.sequence import (
+    AprbsShape,
+    DesignError,
+    Limits,
+    check_limits,
+    sequence,
+    slew_limited,
+)
 from aeropend_ident.gap.effects import apply_effects
 from aeropend_sim.excitation import ExcitationError, aprbs, make_signal
 from aeropend_sim.params import load_rig
@@ -118,7 +125,7 @@ def test_csv_plays_through_the_excitation_file_kind(tmp_path, designed):
     bad.write_text("t,duty\n0,0.1\n0.01,0.2\n0.05,0.3\n")
     with pytest.raises(ExcitationError, match="uniform"):
         make_signal("file", file=str(bad))
-    with pytest.raises(ExcitationError, match="missing|No such"):
+    with pytest.raises(ExcitationError, match=r"missing|No such"):
         make_signal("file", file=str(tmp_path / "missing.csv"))
 
 
@@ -153,8 +160,10 @@ def test_weak_keys_of_a_rig_fit_result():
 
 
 def test_compare_outcome_names_the_matching_candidate():
-    design = {"candidates": [{"name": "a", "effects": ["inertia"]}, {"name": "b", "effects": ["inertia", "lag"]}],
+    design = {"candidates": [{"name": "a", "effects": ["inertia"]},
+                             {"name": "b", "effects": ["inertia", "lag"]}],
               "predicted": {"per_candidate": {"a": 0.9, "b": 0.8}}, "chosen_before": ["inertia"]}
-    out = compare_outcome(design, {"which": {"significant": True, "chosen": ["lag", "inertia"], "ranking": []}})
+    report = {"which": {"significant": True, "chosen": ["lag", "inertia"], "ranking": []}}
+    out = compare_outcome(design, report)
     assert out["matching_candidate"] == "b" and out["predicted_first"] == 0.8 and out["changed"]
     assert out["separated"] == ["a"]
