@@ -8,7 +8,9 @@ much) the truth may be another set. The candidates are:
 * the chosen set plus each of the best-ranked other effects (while the set is below
   ``max_effects``), and
 * the chosen set with one of its members swapped for an effect confusable or ambiguous with it
-  (or from the same subsystem),
+  (or from the same subsystem), and
+* every compatible set of up to ``max_effects`` effects from a pool of the chosen effects and the
+  best-ranked others (:data:`POOL` in all),
 
 each fitted on the earlier recordings by the diagnosis' own fit
 (:func:`aeropend_ident.gap.which.fit_effects`, started from the ranking's single-effect values),
@@ -21,6 +23,7 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -40,6 +43,8 @@ from aeropend_sim.recording import Recording
 KEEP_SSE_FACTOR = 1.25
 #: Ranked effects (besides the chosen ones) turned into candidates, best-ranked first.
 N_ALTERNATIVES = 6
+#: Effects (the chosen ones first) whose compatible subsets are candidates (:func:`candidate_sets`).
+POOL = 6
 #: An effect whose fitted parameters all lie within this share of their search span (or this
 #: log-distance) of their "off" value is fitted absent (:func:`absent_effects`).
 ABSENT_TOL = 0.01
@@ -98,8 +103,13 @@ def channel_noise(recordings: Sequence[Recording], channels: Sequence[str]) -> d
 
 
 def candidate_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]], max_effects: int = 3,
-                   n_alternatives: int = N_ALTERNATIVES) -> list[tuple[str, ...]]:
+                   n_alternatives: int = N_ALTERNATIVES, pool: int = POOL) -> list[tuple[str, ...]]:
     """The effect sets to fit (module doc), the chosen set first, no duplicates.
+
+    Besides the chosen set with one effect added or swapped, every compatible set of at most
+    ``max_effects`` effects drawn from a pool of ``pool`` effects (the chosen ones, then the
+    others in the order below) is a candidate: a diagnosis that chose a wrong effect (a sensor
+    gain standing in for a thrust law and a dry friction) has its truth among those.
 
     Parameters
     ----------
@@ -113,7 +123,7 @@ def candidate_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]], 
     n_alternatives : int
         Ranked effects outside the chosen set used.
     """
-    chosen = tuple(chosen)
+    chosen = tuple(sorted(chosen))
     amb = {a for r in ranking for a in (r.get("ambiguous_with") or [])}
     others = [r for r in ranking if r.get("effect") not in chosen and not r.get("detected")
               and r.get("effect") != "quantisation"]
@@ -133,6 +143,12 @@ def candidate_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]], 
                 rest = tuple(x for x in chosen if x != c)
                 if e not in excluded_with(rest):
                     sets.append(tuple(sorted((*rest, e))))
+    names = list(chosen) + [str(r["effect"]) for r in others if r["effect"] not in chosen]
+    names = names[:max(pool, len(chosen))]
+    for k in range(1, max_effects + 1):
+        for combo in itertools.combinations(names, k):
+            if all(e not in excluded_with([x for x in combo if x != e]) for e in combo):
+                sets.append(tuple(sorted(combo)))
     out: list[tuple[str, ...]] = []
     for s in sets:
         if s not in out:
@@ -234,7 +250,8 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
     if not fitted:
         raise GapError("no candidate effect set could be fitted on the earlier recordings")
     best = min(c.fit_sse for c in fitted)
-    kept = sorted((c for c in fitted if c.fit_sse <= keep_factor * best), key=lambda c: c.fit_sse)
+    kept = sorted((c for c in fitted if c.fit_sse <= keep_factor * best),
+                  key=lambda c: (c.fit_sse, len(c.effects)))
     kept = kept[:max_candidates]
     names = {c.name for c in kept}
     for row in rows:

@@ -127,7 +127,7 @@ def discrimination(args: argparse.Namespace) -> dict[str, Any]:
     if len(cands) < 2:
         raise DesignCliError("the earlier recordings leave one candidate standing "
                              f"({cands[0].name}): nothing to discriminate; candidate fits: {rows}")
-    shape = AprbsShape(duration=args.duration)
+    shape = AprbsShape.for_duration(args.duration)
     d = design_discrimination(cands, sigma, limits, shape, seed=args.seed, budget_s=args.budget)
     from aeropend_ident.design.discriminate import Predictor
 
@@ -165,7 +165,7 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
     limits = _limits(args, recs)
     channels = _channels(recs)
     sigma = channel_noise(recs, channels)
-    shape = AprbsShape(duration=args.duration)
+    shape = AprbsShape.for_duration(args.duration)
     d = design_parameters(rig, keys, sigma, limits, shape, earlier=[(r.duty, r.dt) for r in recs],
                           seed=args.seed, budget_s=args.budget)
     th = fisher(rig, keys, d.duty, limits.dt, sigma)[1]

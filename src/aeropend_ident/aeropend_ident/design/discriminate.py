@@ -164,7 +164,7 @@ def _min_div(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float]) -> f
 
 def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, float], limits: Limits,
                           shape: AprbsShape | None = None, *, seed: int = 0, budget_s: float = 45.0,
-                          max_evaluations: int = 400) -> Discrimination:
+                          max_evaluations: int = 5000) -> Discrimination:
     """Search the APRBS parametrisation for the sequence that best separates ``candidates``.
 
     Parameters
