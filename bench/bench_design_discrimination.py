@@ -24,6 +24,10 @@ from its seed and:
    diagnosis chooses its effects (``gap FIT --validation DESIGNED --held-out HELD``): the effects
    are fitted on the earlier data and chosen where the design makes the candidates differ.
 
+Control: the seeded APRBS the search started from (same length, limits, levels and hold range), recorded
+on the truth plant the same way and given to ``gap`` the same two ways: what a new recording without
+the design buys.
+
 Scored: "all truth effects named" before / after (the lab benchmark's rule: each truth effect
 chosen or in a chosen effect's ``ambiguous_with``), effect-free plants clean before / after, the
 design time, the design's predicted probability that each candidate ranks first when it is the
@@ -57,7 +61,7 @@ BUDGET_S = 50.0
 MIN_SEARCH_S = 10.0
 #: Default cases: unresolved triples of the lab benchmark (open and closed loop, 50-490 Hz, with
 #: and without every channel) and two effect-free plants.
-DEFAULT_CASES = (73, 81, 87, 90, 93, 95, 76, 86, 0, 2)
+DEFAULT_CASES = (73, 80, 81, 84, 87, 90, 93, 95, 76, 86, 0, 2)
 
 
 def _sigma(case: dict[str, Any], spec: dict[str, Any]) -> dict[str, float]:
@@ -143,10 +147,11 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
                                     quantum=case["quantum"])
     row["limits"] = limits.as_dict()
     shape = AprbsShape.for_duration(DURATION)
+    baseline = None
     if len(cands) >= 2:
         search = max(MIN_SEARCH_S, BUDGET_S - (time.perf_counter() - td))
         d = design_discrimination(cands, sigma, limits, shape, seed=0, budget_s=search)
-        duty = d.duty
+        duty, baseline = d.duty, d.baseline
         row["design"] = {"evaluations": d.evaluations, "search_s": d.elapsed_s, "value": d.value,
                          "baseline_value": d.baseline_value, "min_divergence": d.min_divergence,
                          "baseline_min_divergence": d.baseline_min_divergence}
@@ -179,6 +184,13 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
                       max_effects=lab.MAX_EFFECTS, split_rule="separate held-out recording", validation=[rec])
     row["gap_after_validation_s"] = time.perf_counter() - t2
     row["after_validation"] = _named(spec, case, after_v)
+    # the control: the seeded APRBS the search started from, recorded and used the same two ways
+    if baseline is not None:
+        rec_b, _ = designed_recording(case, spec, baseline)
+        row["aprbs_after"] = _named(spec, case, lab.lab_gap(case, [*fit, rec_b], held))
+        row["aprbs_after_validation"] = _named(spec, case, run_gap(
+            case["nominal"], fit, held, rig_ref=case["nominal"].name, seed=0, max_effects=lab.MAX_EFFECTS,
+            split_rule="separate held-out recording", validation=[rec_b]))
     return row
 
 
@@ -191,6 +203,12 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "triples_all_named_after": sum(r["after"]["pass"] for r in tri),
         "triples_all_named_after_validation": sum(r["after_validation"]["pass"] for r in tri),
         "effect_free_clean_after_validation": sum(r["after_validation"]["pass"] for r in clean),
+        "aprbs_control_cases": sum("aprbs_after" in r for r in tri),
+        "aprbs_all_named_after": sum(r["aprbs_after"]["pass"] for r in tri if "aprbs_after" in r),
+        "aprbs_all_named_after_validation": sum(r["aprbs_after_validation"]["pass"] for r in tri
+                                                if "aprbs_after" in r),
+        "design_all_named_after_validation_where_control": sum(r["after_validation"]["pass"] for r in tri
+                                                               if "aprbs_after" in r),
         "truth_among_candidates": sum(r["truth_among_candidates"] for r in tri),
         "effect_free": len(clean),
         "effect_free_clean_before": sum(r["before"]["pass"] for r in clean),
@@ -222,6 +240,10 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         f"with the designed recording as the validation recording (`gap FIT --validation DESIGNED`) "
         f"{s['triples_all_named_after_validation']}/{s['triples']}; "
         f"the truth set was among the design's candidates in {s['truth_among_candidates']}/{s['triples']}",
+        f"- control: where the design had candidates to separate ({s['aprbs_control_cases']} triples), the "
+        f"seeded APRBS it started from, recorded the same way: all named {s['aprbs_all_named_after']} "
+        f"as a fit recording, {s['aprbs_all_named_after_validation']} as the validation recording "
+        f"(the design there: {s['design_all_named_after_validation_where_control']} as validation)",
         f"- on the designed recording itself (candidates replayed, no refit) the truth set ranks first in "
         f"{s['truth_first_on_designed']}/{s['truth_among_candidates']} of the triples where it was a "
         "candidate",
@@ -234,10 +256,10 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         f"max {s['design_s_max']:.1f} s",
         "",
         "| case | kind | mode | Hz | channels | truth | chosen before | chosen after | named before → after "
-        "| chosen with it as validation (named) "
+        "| chosen with it as validation (named) | APRBS control: named as fit / as validation "
         "| candidates | truth a candidate | predicted P(first) design / APRBS "
         "| min divergence design / APRBS | first on designed recording | limits on truth | design s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in doc["cases"]:
         pr, pb = r.get("predicted") or {}, r.get("predicted_baseline_aprbs") or {}
@@ -253,6 +275,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
                  f"{'yes' if r['before']['pass'] else 'no'} → {'yes' if r['after']['pass'] else 'no'}",
                  f"{', '.join(r['after_validation']['chosen']) or '—'} "
                  f"({'yes' if r['after_validation']['pass'] else 'no'})",
+                 (f"{'yes' if r['aprbs_after']['pass'] else 'no'} / "
+                  f"{'yes' if r['aprbs_after_validation']['pass'] else 'no'}" if "aprbs_after" in r else "—"),
                  str(len(r["candidates"])), "yes" if r["truth_among_candidates"] else "no",
                  f"{_p(pr.get('mean'))} / {_p(pb.get('mean'))}", md,
                  (r.get("outcome") or {}).get("first") or "—", lim_s, f"{r['design_s']:.1f}"]
