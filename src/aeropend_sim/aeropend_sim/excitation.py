@@ -513,7 +513,7 @@ def lhs_steps(
     return _segments_to_signal(design[:, 0], design[:, 1], dt, "lhs", params, design=design)
 
 
-def from_file(file: str) -> ExcitationSignal:
+def from_file(file: str, dt: float | None = None) -> ExcitationSignal:
     """A duty-cycle sequence read from a CSV of time [s] and duty [1] (``kind="file"``).
 
     Two numeric columns ``t,duty`` (one optional header line; ``#`` comment lines skipped), ``t``
@@ -525,6 +525,8 @@ def from_file(file: str) -> ExcitationSignal:
     ----------
     file : str
         Path of the CSV file.
+    dt : float, optional
+        The period the player expects [s]; the file's must agree within 1 % (unset: the file's).
 
     Returns
     -------
@@ -534,7 +536,7 @@ def from_file(file: str) -> ExcitationSignal:
     ------
     ExcitationError
         On a missing or unreadable file, fewer than two rows, a non-numeric cell, a non-uniform or
-        non-increasing time column, or a duty outside [0, 1].
+        non-increasing time column, a duty outside [0, 1], or a period other than ``dt``.
     """
     try:
         with open(file, encoding="utf-8-sig") as fh:
@@ -563,10 +565,13 @@ def from_file(file: str) -> ExcitationSignal:
     arr = np.asarray(rows, dtype=float)
     t, duty = arr[:, 0], arr[:, 1]
     steps = np.diff(t)
-    dt = float(np.median(steps))
-    if not (np.all(np.isfinite(arr)) and dt > 0.0 and np.all(np.abs(steps - dt) <= 0.01 * dt)):
+    step = float(np.median(steps))
+    if not (np.all(np.isfinite(arr)) and step > 0.0 and np.all(np.abs(steps - step) <= 0.01 * step)):
         raise ExcitationError(f"file {file!r}: the time column must increase on a uniform grid (median step "
-                              f"{dt:g} s, steps from {steps.min():g} to {steps.max():g} s)")
+                              f"{step:g} s, steps from {steps.min():g} to {steps.max():g} s)")
+    if dt is not None and abs(_check_dt(dt) - step) > 0.01 * dt:
+        raise ExcitationError(f"file {file!r}: its period {step:g} s is not dt = {dt:g} s")
+    dt = step
     bad = np.flatnonzero((duty < 0.0) | (duty > 1.0))
     if bad.size:
         raise ExcitationError(

@@ -167,3 +167,11 @@ def test_compare_outcome_names_the_matching_candidate():
     out = compare_outcome(design, report)
     assert out["matching_candidate"] == "b" and out["predicted_first"] == 0.8 and out["changed"]
     assert out["separated"] == ["a"]
+
+
+def test_file_kind_checks_the_expected_period(tmp_path):
+    path = tmp_path / "d.csv"
+    path.write_text(csv_text(np.full(10, 0.3), 0.01))
+    assert make_signal("file", file=str(path), dt=0.01).dt == pytest.approx(0.01)
+    with pytest.raises(ExcitationError, match="is not dt"):
+        make_signal("file", file=str(path), dt=0.02)
