@@ -53,6 +53,9 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
     ap.add_argument("--rate", type=float, help="logging rate [Hz] (default: the recordings')")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--budget", type=float, default=45.0, help="search wall-time budget [s]")
+    ap.add_argument("--max-evaluations", dest="max_evaluations", type=int, default=5000,
+                    help="most sequences simulated: with a budget that is not reached, the same seed gives "
+                         "the same design on any machine")
     ap.add_argument("--max-effects", dest="max_effects", type=int, default=3)
     ap.add_argument("--parameters", nargs="+", help="rig keys section.name to determine (rig fit results)")
     ap.add_argument("--preset", help="CSV preset of the recordings")
@@ -128,7 +131,8 @@ def discrimination(args: argparse.Namespace) -> dict[str, Any]:
         raise DesignCliError("the earlier recordings leave one candidate standing "
                              f"({cands[0].name}): nothing to discriminate; candidate fits: {rows}")
     shape = AprbsShape.for_duration(args.duration)
-    d = design_discrimination(cands, sigma, limits, shape, seed=args.seed, budget_s=args.budget)
+    d = design_discrimination(cands, sigma, limits, shape, seed=args.seed, budget_s=args.budget,
+                              max_evaluations=args.max_evaluations)
     from aeropend_ident.design.discriminate import Predictor
 
     th = Predictor(cands, ("theta",), limits.dt, d.duty.size)(d.duty)["theta"]
@@ -167,7 +171,7 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
     sigma = channel_noise(recs, channels)
     shape = AprbsShape.for_duration(args.duration)
     d = design_parameters(rig, keys, sigma, limits, shape, earlier=[(r.duty, r.dt) for r in recs],
-                          seed=args.seed, budget_s=args.budget)
+                          seed=args.seed, budget_s=args.budget, max_evaluations=args.max_evaluations)
     th = fisher(rig, keys, d.duty, limits.dt, sigma)[1]
     doc = {"kind": "parameters", "design_for": str(path), "mode": args.mode, "seed": args.seed,
            "duration_s": shape.duration, "shape": vars(shape), "limits": limits.as_dict(),

@@ -213,11 +213,16 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
     es = cma.CMAEvolutionStrategy(z0, 0.25, opts)
     while not es.stop() and time.perf_counter() - t0 < budget_s:
         zs = es.ask()
-        vals = [value(np.asarray(z)) for z in zs]
+        vals = []
+        for z in zs:  # the budget holds inside a generation too (an unfinished one is not told)
+            if time.perf_counter() - t0 >= budget_s:
+                break
+            vals.append(value(np.asarray(z)))
+            if vals[-1] > best_v:
+                best_z, best_v = np.asarray(z).copy(), vals[-1]
+        if len(vals) < len(zs):
+            break
         es.tell(zs, [-v for v in vals])
-        k = int(np.argmax(vals))
-        if vals[k] > best_v:
-            best_z, best_v = np.asarray(zs[k]).copy(), vals[k]
     duty, base = sequence(best_z, shape, limits), sequence(z0, shape, limits)
     return Discrimination(duty=duty, baseline=base, value=best_v, baseline_value=v0,
                           min_divergence=_min_div(pred(duty), sigma),

@@ -174,11 +174,17 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
                                              "maxfevals": max_evaluations, "popsize": 8 + shape.size // 6})
     while not es.stop() and time.perf_counter() - t0 < budget_s:
         zs = es.ask()
-        res = [score(sequence(np.asarray(z), shape, limits)) for z in zs]
-        es.tell(zs, [-v for v, _ in res])
-        k = int(np.argmax([v for v, _ in res]))
-        if res[k][0] > best_v:
-            best_z, best_v, best_f = np.asarray(zs[k]).copy(), res[k][0], res[k][1]
+        vals = []
+        for z in zs:  # the budget holds inside a generation too (an unfinished one is not told)
+            if time.perf_counter() - t0 >= budget_s:
+                break
+            v, f = score(sequence(np.asarray(z), shape, limits))
+            vals.append(v)
+            if v > best_v:
+                best_z, best_v, best_f = np.asarray(z).copy(), v, f
+        if len(vals) < len(zs):
+            break
+        es.tell(zs, [-v for v in vals])
 
     def sd(f: np.ndarray) -> dict[str, float]:
         return dict(zip(keys, map(float, relative_sd(f0 + f)), strict=True))
