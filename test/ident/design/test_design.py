@@ -20,7 +20,7 @@ from aeropend_ident.design.discriminate import (
     pair_divergences,
     rank_first_probability,
 )
-from aeropend_ident.design.parameters import design_parameters, weak_keys
+from aeropend_ident.design.parameters import design_parameters, fitted_keys, weak_keys
 from aeropend_ident.design.report import compare_outcome, csv_text
 from aeropend_ident.design.sequence import (
     AprbsShape,
@@ -157,6 +157,7 @@ def test_weak_keys_of_a_rig_fit_result():
             "  # rig fit: STILL TO BE FITTED — only the ratio\n  J: {value: 0.01}\nrotor:\n"
             "  # rig fit: AT SEARCH BOUND 3 (...)\n  K_q: {value: 3}\n")
     assert weak_keys(text) == ["pendulum.J", "rotor.K_q"]
+    assert fitted_keys(text) == ["pendulum.mgd_over_J"]
 
 
 def test_compare_outcome_names_the_matching_candidate():

@@ -154,14 +154,17 @@ def discrimination(args: argparse.Namespace) -> dict[str, Any]:
 def parameters(args: argparse.Namespace) -> dict[str, Any]:
     """The D-optimal design of a rig fit result (module doc); writes the folder, returns design.json."""
     from aeropend_ident.design.candidates import channel_noise
-    from aeropend_ident.design.parameters import design_parameters, fisher, weak_keys
+    from aeropend_ident.design.parameters import design_parameters, fisher, fitted_keys, weak_keys
     from aeropend_ident.design.report import write_design
     from aeropend_ident.design.sequence import AprbsShape, check_limits
     from aeropend_sim.params import load_rig
 
     path = Path(args.design_for)
     rig = load_rig(str(path))
-    keys = list(args.parameters or weak_keys(path.read_text(encoding="utf-8")))
+    text = path.read_text(encoding="utf-8")
+    keys = list(args.parameters or weak_keys(text))
+    values = rig.values()
+    nuisance = [k for k in fitted_keys(text) if k not in keys and values.get(k, 0.0) > 0.0]
     if not keys:
         raise DesignCliError(f"{path}: no parameter left undetermined (no STILL TO BE FITTED or AT SEARCH "
                              "BOUND line); name some with --parameters")
@@ -171,12 +174,14 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
     sigma = channel_noise(recs, channels)
     shape = AprbsShape.for_duration(args.duration)
     d = design_parameters(rig, keys, sigma, limits, shape, earlier=[(r.duty, r.dt) for r in recs],
+                          nuisance=nuisance,
                           seed=args.seed, budget_s=args.budget, max_evaluations=args.max_evaluations)
     th = fisher(rig, keys, d.duty, limits.dt, sigma)[1]
     doc = {"kind": "parameters", "design_for": str(path), "mode": args.mode, "seed": args.seed,
            "duration_s": shape.duration, "shape": vars(shape), "limits": limits.as_dict(),
            "channels": channels,
-           "sigma": sigma, "parameters": list(keys), "sd_before": d.sd_before, "sd_after": d.sd_after,
+           "sigma": sigma, "parameters": list(keys), "nuisance": nuisance, "sd_before": d.sd_before,
+           "sd_after": d.sd_after,
            "sd_after_baseline": d.sd_after_baseline, "logdet": d.logdet, "baseline_logdet": d.baseline_logdet,
            "limits_check": check_limits(d.duty, limits, th), "evaluations": d.evaluations,
            "elapsed_s": d.elapsed_s}

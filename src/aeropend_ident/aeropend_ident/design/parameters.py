@@ -6,8 +6,12 @@ inverse gives relative variances) for white measurement noise of σ_c per channe
     F = Σ_c S_cᵀ S_c / σ_c²,   S_c[k, j] = ∂y_c[k] / ∂ln p_j,
 
 the sensitivities from forward differences (relative step :data:`REL_STEP`) of the rig's compiled
-replays from rest at the logging period (no new integrator). The design maximises
-log det(F_before + F_design + F_prior): F_before is the information of the earlier recordings'
+replays from rest at the logging period (no new integrator). The parameters are the ones to
+determine and the **nuisance** parameters fitted beside them (a ``rig fit`` result's FITTED
+lines): left out, a parameter confounded with a nuisance one would read better than it is. The
+design is Ds-optimal: it maximises −log det of the block of the parameters to determine in
+(F_before + F_design + F_prior)⁻¹ (log det of the whole when there is no nuisance parameter:
+D-optimal). F_before is the information of the earlier recordings'
 commands replayed the same way (from rest, open loop; for closed-loop logs an approximation),
 F_prior = I (a relative prior σ of 1 per parameter, one e-fold: a parameter no recording
 determines reads ≈ 100 %). Each parameter's predicted relative 1σ is
@@ -85,6 +89,14 @@ def relative_sd(f: np.ndarray) -> np.ndarray:
     return np.sqrt(np.diag(np.linalg.inv(f + np.eye(f.shape[0]))))
 
 
+def ds_criterion(f: np.ndarray, n_interest: int) -> float:
+    """−log det of the first ``n_interest`` parameters' block of (F + I)⁻¹ (Ds-optimality; with no
+    nuisance parameter, log det(F + I))."""
+    cov = np.linalg.inv(f + np.eye(f.shape[0]))
+    sign, ld = np.linalg.slogdet(cov[:n_interest, :n_interest])
+    return float(-ld) if sign > 0 else -ANGLE_PENALTY
+
+
 @dataclass
 class ParameterDesign:
     """A D-optimal design.
@@ -95,7 +107,7 @@ class ParameterDesign:
         Designed sequence and the seeded APRBS of the same shape.
     keys : tuple of str
     logdet, baseline_logdet : float
-        log det(F_before + F + I) of each.
+        The design criterion of each (:func:`ds_criterion`).
     sd_before, sd_after, sd_after_baseline : dict
         Predicted relative 1σ per key: earlier recordings only, with the design, with the APRBS.
     evaluations : int
@@ -116,7 +128,8 @@ class ParameterDesign:
 
 def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float], limits: Limits,
                       shape: AprbsShape | None = None, *, earlier: Sequence[tuple[np.ndarray, float]] = (),
-                      seed: int = 0, budget_s: float = 45.0, max_evaluations: int = 300) -> ParameterDesign:
+                      nuisance: Sequence[str] = (), seed: int = 0, budget_s: float = 45.0,
+                      max_evaluations: int = 300) -> ParameterDesign:
     """Search the APRBS parametrisation for the D-optimal sequence (module doc).
 
     Parameters
@@ -131,6 +144,9 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     shape : AprbsShape, optional
     earlier : sequence of (ndarray, float)
         Earlier recordings' commands and periods (their information is F_before).
+    nuisance : sequence of str
+        Parameters fitted beside ``keys`` (their information is counted, their uncertainty not
+        optimised).
     seed : int
     budget_s : float
         Wall-time budget [s].
@@ -152,16 +168,16 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     shape = shape or AprbsShape()
     t0 = time.perf_counter()
     keys = tuple(keys)
-    f0 = sum((fisher(rig, keys, d, dt, sigma)[0] for d, dt in earlier), np.zeros((len(keys), len(keys))))
-    prior = np.eye(len(keys))
+    n_i = len(keys)
+    every = keys + tuple(k for k in nuisance if k not in keys)
+    f0 = sum((fisher(rig, every, d, dt, sigma)[0] for d, dt in earlier), np.zeros((len(every), len(every))))
     calls = 0
 
     def score(duty: np.ndarray) -> tuple[float, np.ndarray]:
         nonlocal calls
         calls += 1
-        f, th = fisher(rig, keys, duty, limits.dt, sigma)
-        sign, ld = np.linalg.slogdet(f0 + f + prior)
-        value = float(ld) if sign > 0 else -ANGLE_PENALTY
+        f, th = fisher(rig, every, duty, limits.dt, sigma)
+        value = ds_criterion(f0 + f, n_i)
         if not np.all(np.isfinite(th)) or th.max() > limits.theta_max or th.min() < limits.theta_min:
             value -= ANGLE_PENALTY
         return value, f
@@ -187,7 +203,7 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
         es.tell(zs, [-v for v in vals])
 
     def sd(f: np.ndarray) -> dict[str, float]:
-        return dict(zip(keys, map(float, relative_sd(f0 + f)), strict=True))
+        return dict(zip(keys, map(float, relative_sd(f0 + f)[:n_i]), strict=True))
 
     return ParameterDesign(duty=sequence(best_z, shape, limits), baseline=base, keys=keys, logdet=best_v,
                            baseline_logdet=v0, sd_before=sd(np.zeros_like(f0)), sd_after=sd(best_f),
@@ -195,11 +211,22 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
                            elapsed_s=time.perf_counter() - t0)
 
 
+def fitted_keys(fitted_text: str) -> list[str]:
+    """Keys a ``rig fit`` result fitted (under a ``# rig fit: FITTED`` comment): the nuisance
+    parameters of a design for its undetermined ones."""
+    return _keys_under(fitted_text, ("rig fit: FITTED",))
+
+
 def weak_keys(fitted_text: str) -> list[str]:
     """Keys a ``rig fit`` result left undetermined: the parameter lines under a
     ``# rig fit: STILL TO BE FITTED`` or ``AT SEARCH BOUND`` comment
     (:func:`aeropend_ident.greybox.rig_fit.fitted_text`).
     """
+    return _keys_under(fitted_text, ("STILL TO BE FITTED", "AT SEARCH BOUND"))
+
+
+def _keys_under(fitted_text: str, marks: Sequence[str]) -> list[str]:
+    """Keys whose line follows a ``# rig fit:`` comment holding one of ``marks``."""
     out: list[str] = []
     section = None
     flagged = False
@@ -210,7 +237,7 @@ def weak_keys(fitted_text: str) -> list[str]:
             continue
         s = line.strip()
         if s.startswith("# rig fit:"):
-            flagged |= "STILL TO BE FITTED" in s or "AT SEARCH BOUND" in s
+            flagged |= any(m in s for m in marks)
             continue
         if section and ":" in s and not s.startswith("#"):
             if flagged:
