@@ -98,6 +98,13 @@ def test_evidence_ranks_the_truth_first_on_its_own_recording(pair, designed):
     assert ev["chi2"]["nominal"] > ev["chi2"]["actuator_lag"] + 10.0
 
 
+def test_reference_mode_is_refused_until_implemented(pair):
+    with pytest.raises(DesignError, match="not implemented"):
+        design_discrimination(pair, SIGMA, LIMITS, SHAPE, mode="reference")
+    with pytest.raises(DesignError, match="expected one of"):
+        design_parameters(pair[0].rig, ("pendulum.c_over_J",), SIGMA, LIMITS, SHAPE, mode="dither")
+
+
 def test_sequence_respects_range_and_slew_by_construction():
     lim = Limits(duty_min=0.2, duty_max=0.6, max_slew=2.0, dt=0.01)
     for seed in range(5):

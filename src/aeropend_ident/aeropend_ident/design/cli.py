@@ -33,9 +33,8 @@ from typing import Any
 
 import numpy as np
 
+from aeropend_ident.design.sequence import MODES, DesignError, check_mode
 from aeropend_ident.errors import IdentError
-
-MODES = ("open_loop", "reference")
 
 
 class DesignCliError(IdentError):
@@ -221,14 +220,12 @@ def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> 
             return 0
         if not args.design_for or args.out is None:
             raise DesignCliError("give --design-for REPORT and -o OUT (or --outcome REPORT --design FOLDER)")
-        if args.mode != "open_loop":
-            raise DesignCliError("--mode reference is not implemented yet: the design is an open-loop "
-                                 "command sequence (docs/design.md, 'Closed loop')")
+        check_mode(args.mode)
         if not 1.0 < args.duration <= 60.0:
             raise DesignCliError(f"--duration {args.duration}: expected more than 1 s and at most 60 s")
         target = Path(args.design_for)
         doc = discrimination(args) if target.is_dir() else parameters(args)
-    except (IdentError, ValueError, OSError, KeyError) as exc:
+    except (IdentError, DesignError, ValueError, OSError, KeyError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     print((args.out / "design.md").read_text(encoding="utf-8"))

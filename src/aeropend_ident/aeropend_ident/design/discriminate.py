@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.design.candidates import Candidate
-from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, sequence
+from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, check_mode, sequence
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
 
@@ -164,7 +164,7 @@ def _min_div(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float]) -> f
 
 def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, float], limits: Limits,
                           shape: AprbsShape | None = None, *, seed: int = 0, budget_s: float = 45.0,
-                          max_evaluations: int = 5000) -> Discrimination:
+                          max_evaluations: int = 5000, mode: str = "open_loop") -> Discrimination:
     """Search the APRBS parametrisation for the sequence that best separates ``candidates``.
 
     Parameters
@@ -183,6 +183,9 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
         Wall-time budget of the search [s] (checked between CMA-ES generations).
     max_evaluations : int
         Most sequences simulated.
+    mode : str
+        ``"open_loop"`` (a command sequence); ``"reference"`` (set points for the lab's
+        controller) is refused until implemented (:func:`~aeropend_ident.design.sequence.check_mode`).
 
     Returns
     -------
@@ -191,10 +194,12 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
     Raises
     ------
     ValueError
-        With fewer than two candidates.
+        With fewer than two candidates; :class:`~aeropend_ident.design.sequence.DesignError` for a
+        mode other than ``open_loop``.
     """
     import cma
 
+    check_mode(mode)
     if len(candidates) < 2:
         raise ValueError("a discrimination design needs at least two candidates")
     shape = shape or AprbsShape()

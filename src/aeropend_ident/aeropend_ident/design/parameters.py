@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, sequence
+from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, check_mode, sequence
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_sim.params import Rig
@@ -129,7 +129,7 @@ class ParameterDesign:
 def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float], limits: Limits,
                       shape: AprbsShape | None = None, *, earlier: Sequence[tuple[np.ndarray, float]] = (),
                       nuisance: Sequence[str] = (), seed: int = 0, budget_s: float = 45.0,
-                      max_evaluations: int = 300) -> ParameterDesign:
+                      max_evaluations: int = 300, mode: str = "open_loop") -> ParameterDesign:
     """Search the APRBS parametrisation for the D-optimal sequence (module doc).
 
     Parameters
@@ -151,6 +151,9 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     budget_s : float
         Wall-time budget [s].
     max_evaluations : int
+    mode : str
+        ``"open_loop"``; ``"reference"`` is refused until implemented
+        (:func:`~aeropend_ident.design.sequence.check_mode`).
 
     Returns
     -------
@@ -159,10 +162,12 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     Raises
     ------
     ValueError
-        Without keys.
+        Without keys; :class:`~aeropend_ident.design.sequence.DesignError` for a mode other than
+        ``open_loop``.
     """
     import cma
 
+    check_mode(mode)
     if not keys:
         raise ValueError("no parameter to design for")
     shape = shape or AprbsShape()

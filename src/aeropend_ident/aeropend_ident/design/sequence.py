@@ -36,6 +36,28 @@ class DesignError(ValueError):
     """Invalid design settings (a limit outside its range, a duration over the cap, ...)."""
 
 
+#: What a design is: an open-loop command sequence, or (not implemented yet) a reference sequence
+#: for the lab's controller (docs/design.md, "Closed loop").
+MODES = ("open_loop", "reference")
+
+
+def check_mode(mode: str) -> None:
+    """Refuse a mode other than ``open_loop``.
+
+    Raises
+    ------
+    DesignError
+        For ``reference`` (not implemented: its predictions need the lab's closed loop on every
+        candidate) and for an unknown mode.
+    """
+    if mode == "open_loop":
+        return
+    if mode == "reference":
+        raise DesignError("mode 'reference' is not implemented yet: the design is an open-loop command "
+                          "sequence (docs/design.md, 'Closed loop')")
+    raise DesignError(f"mode {mode!r}; expected one of {list(MODES)}")
+
+
 @dataclass(frozen=True)
 class Limits:
     """What a designed sequence must respect.
