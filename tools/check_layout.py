@@ -54,6 +54,8 @@ LAYERS: dict[str, dict[str, set[str] | str]] = {
     "aeropend_ident": {
         "cli": {"gap", "sindy", "greybox", "io", "pipeline", "parallel", "progress", "errors"},
         "pipeline": {"greybox", "io", "errors"},
+        # experiment design (issue 63): candidates from a gap diagnosis, sequences, its CLI
+        "design": {"gap", "greybox", "io", "errors"},
         "gap": {"sindy", "greybox", "io", "parallel", "errors"},
         # Dask cases with progress bars (benches, gap --sessions, gap-batch)
         "parallel": {"greybox", "progress", "errors"},

@@ -39,6 +39,7 @@ setup(
             'gap = aeropend_ident.cli.gap:main',
             'gap-batch = aeropend_ident.cli.gap_batch:main',
             'compare = aeropend_ident.cli.compare:main',
+            'excitation_design = aeropend_ident.design.cli:main',
             'reindex = aeropend_ident.cli.reindex:main',
             'rig = aeropend_ident.cli.rig:main'
         ],

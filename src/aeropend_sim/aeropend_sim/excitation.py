@@ -18,6 +18,9 @@ Generators
 :func:`density_modulated_prbs`
     Random binary signal (fast holds) whose local density of high holds follows a slow APRBS:
     excites the electrical and rotor dynamics and moves the pendulum in one record.
+:func:`from_file`
+    A sequence read from a ``t,duty`` CSV (what ``excitation --print`` and ``excitation_design``
+    write): plays a designed or hand-made sequence.
 :func:`lhs_steps`
     The thesis' Latin-hypercube step design (§5.1): the input space τ × T (step amplitude ×
     step duration) is partitioned into ``n`` intervals along each axis and ``n`` points are drawn
@@ -510,6 +513,74 @@ def lhs_steps(
     return _segments_to_signal(design[:, 0], design[:, 1], dt, "lhs", params, design=design)
 
 
+def from_file(file: str, dt: float | None = None) -> ExcitationSignal:
+    """A duty-cycle sequence read from a CSV of time [s] and duty [1] (``kind="file"``).
+
+    Two numeric columns ``t,duty`` (one optional header line; ``#`` comment lines skipped), ``t``
+    strictly increasing on a uniform grid (within 1 % of the median step, which becomes ``dt``),
+    every duty finite and in [0, 1]. The format of :meth:`ExcitationSignal.to_csv` and of
+    ``excitation_design``'s ``design.csv``.
+
+    Parameters
+    ----------
+    file : str
+        Path of the CSV file.
+    dt : float, optional
+        The period the player expects [s]; the file's must agree within 1 % (unset: the file's).
+
+    Returns
+    -------
+    ExcitationSignal
+
+    Raises
+    ------
+    ExcitationError
+        On a missing or unreadable file, fewer than two rows, a non-numeric cell, a non-uniform or
+        non-increasing time column, a duty outside [0, 1], or a period other than ``dt``.
+    """
+    try:
+        with open(file, encoding="utf-8-sig") as fh:
+            text = fh.read()
+    except OSError as exc:
+        raise ExcitationError(f"file {file!r}: {exc.strerror or exc}") from None
+    rows: list[tuple[float, float]] = []
+    first = True
+    for i, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        cells = [c.strip() for c in line.split(",")]
+        try:
+            t, d = float(cells[0]), float(cells[1])
+        except (ValueError, IndexError):
+            if first:
+                first = False
+                continue  # the header line
+            raise ExcitationError(
+                f"file {file!r} line {i}: expected two numbers t,duty, got {line!r}") from None
+        first = False
+        rows.append((t, d))
+    if len(rows) < 2:
+        raise ExcitationError(f"file {file!r}: fewer than two rows of t,duty")
+    arr = np.asarray(rows, dtype=float)
+    t, duty = arr[:, 0], arr[:, 1]
+    steps = np.diff(t)
+    step = float(np.median(steps))
+    if not (np.all(np.isfinite(arr)) and step > 0.0 and np.all(np.abs(steps - step) <= 0.01 * step)):
+        raise ExcitationError(f"file {file!r}: the time column must increase on a uniform grid (median step "
+                              f"{step:g} s, steps from {steps.min():g} to {steps.max():g} s)")
+    if dt is not None and abs(_check_dt(dt) - step) > 0.01 * dt:
+        raise ExcitationError(f"file {file!r}: its period {step:g} s is not dt = {dt:g} s")
+    dt = step
+    bad = np.flatnonzero((duty < 0.0) | (duty > 1.0))
+    if bad.size:
+        raise ExcitationError(
+            f"file {file!r}: duty {duty[bad[0]]:g} at t = {t[bad[0]]:g} s is outside [0, 1]")
+    levels, counts = _merge_equal(duty, np.ones(duty.size, dtype=np.int64))
+    return ExcitationSignal(t=np.arange(duty.size) * dt, duty=duty.copy(), dt=dt, kind="file",
+                            params={"file": str(file), "dt": dt}, levels=levels, holds=counts * dt)
+
+
 def _int(name: str, value: Any, lo: int, hi: int | None = None) -> int:
     try:
         f = float(value)
@@ -533,6 +604,7 @@ SIGNALS: dict[str, Callable[..., ExcitationSignal]] = {
     "aprbs": aprbs,
     "density_prbs": density_modulated_prbs,
     "lhs": lhs_steps,
+    "file": from_file,
 }
 
 

@@ -20,6 +20,12 @@ Usage::
     excitation --ros-args -p signal:=lhs -p seed:=1 -p mode:=lockstep
     excitation --signal staircase --levels 0.3 0.5 --hold 2 --mode realtime
     excitation --print --signal prbs --order 7 --clock 5 > prbs.csv      # no ROS needed
+    excitation --signal file --file design/design.csv --mode realtime    # play a CSV of t,duty
+    excitation --design-for gap_report run1 --rig my_rig.yaml -o design  # design the next experiment
+
+``--design-for`` (no ROS) hands over to the installed ``excitation_design`` command (experiment
+design, :mod:`aeropend_ident.design.cli`), found by its console-script entry point: aeropend_sim
+imports no package above it, and a machine with the simulator alone keeps every other mode.
 
 Parameters (``-p name:=value``; the friendly ``--flags`` override them): :data:`OPTION_PARAMETERS`
 and :data:`SIGNAL_PARAMETERS` (also printed by ``excitation --help``).
@@ -91,6 +97,8 @@ SIGNAL_PARAMETERS: tuple[NodeParameter, ...] = (
     NodeParameter("density_hi", "float", None, "", "density_prbs: highest probability of the high level"),
     NodeParameter("density_min_hold", "float", None, "s", "density_prbs: shortest hold of the slow density"),
     NodeParameter("density_max_hold", "float", None, "s", "density_prbs: longest hold of the slow density"),
+    NodeParameter("file", "str", None, "", "file: CSV of t [s], duty [1] to play (excitation_design's "
+                  "design.csv, excitation --print's output; uniform t)"),
     NodeParameter("seed", "int", None, "", "seed of the random signals"),
     NodeParameter("dt", "float", None, "s", "sample period (unset: 2.048 ms)"),
 )
@@ -111,7 +119,9 @@ USAGE = NodeUsage(
     parameters=OPTION_PARAMETERS + SIGNAL_PARAMETERS,
     examples=("excitation --ros-args -p signal:=lhs -p seed:=1 -p mode:=lockstep",
               "excitation --signal staircase --levels 0.3 0.5 --hold 2 --mode realtime",
-              "excitation --print --signal prbs --order 7 --clock 5 > prbs.csv      # no ROS needed"),
+              "excitation --print --signal prbs --order 7 --clock 5 > prbs.csv      # no ROS needed",
+              "excitation --signal file --file design/design.csv --mode realtime",
+              "excitation --design-for gap_report run1 --rig my_rig.yaml -o design   # excitation_design"),
     notes="Exit status: 0 signal sent, 1 no plant / interrupted, 2 invalid signal or parameter.",
 )
 
@@ -143,7 +153,7 @@ def build_arg_parser() -> argparse.ArgumentParser:
                     help="matched duty-cycle subscribers needed before the first command (default 1)")
     g = ap.add_argument_group("signal arguments (the ROS parameters of the same name, see below)")
     for p in SIGNAL_PARAMETERS:
-        typ = int if p.type == "int" else float
+        typ = {"int": int, "str": str}.get(p.type, float)
         unit = f" [{p.unit}]" if p.unit else ""
         g.add_argument(f"--{p.name.replace('_', '-')}", dest=p.name, type=typ,
                        nargs="+" if p.type.endswith("[]") else None, help=p.description + unit)
@@ -417,10 +427,27 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
                     interrupt_status=1)
 
 
+def _design(argv: list[str]) -> int:
+    """``excitation --design-for ...``: the installed ``excitation_design`` command (experiment design,
+    in aeropend_ident), found by its console-script entry point and called with the arguments; no
+    import of a package above this one (module doc)."""
+    from importlib.metadata import entry_points
+
+    found = entry_points(group="console_scripts", name="excitation_design")
+    if not found:
+        print("excitation: --design-for needs the excitation_design command of aeropend_ident (colcon build, "
+              "or scripts/setup_env.sh)", file=sys.stderr)
+        return 2
+    design_main = next(iter(found)).load()
+    return design_main(argv, prog="excitation")
+
+
 @exits_cleanly_on_faults("excitation")
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``excitation``; returns the exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
+    if any(a == "--design-for" or a.startswith("--design-for=") for a in argv):
+        return _design(argv)
     parser = build_arg_parser()
     flags = parser.parse_args(strip_ros_args(argv))
     if flags.print:

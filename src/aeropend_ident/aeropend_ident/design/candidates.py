@@ -1,0 +1,273 @@
+"""The candidate models a discrimination design separates, from a gap diagnosis.
+
+A gap diagnosis leaves a chosen set of effects and a ranking of the others; where the data did
+not separate them (``ambiguous_with``, ``confusable_with``, a ranked effect that explains almost as
+much) the truth may be another set. The candidates are:
+
+* the chosen set (the corrected rig; the nominal rig when nothing was chosen),
+* the chosen set plus each of the best-ranked other effects (while the set is below
+  ``max_effects``), and
+* the chosen set with one of its members swapped for an effect confusable or ambiguous with it
+  (or from the same subsystem), and
+* every compatible set of up to ``max_effects`` effects from a pool of the chosen effects and the
+  best-ranked others (:data:`POOL` in all),
+
+each fitted on the earlier recordings by the diagnosis' own fit
+(:func:`aeropend_ident.gap.which.fit_effects`, started from the ranking's single-effect values),
+so every candidate explains the earlier data as well as it can. Candidates whose fit leaves more
+than :data:`KEEP_SSE_FACTOR` times the best candidate's error are already refuted by those data
+and dropped; at most ``max_candidates`` are kept, best fit first.
+
+No rclpy import: this module runs without ROS.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from aeropend_ident.errors import GapError
+from aeropend_ident.gap.effects import EffectContext, MeasurementMap, check_recordings, get_effect
+from aeropend_ident.gap.which.data import Prepared, prepare
+from aeropend_ident.gap.which.fitting import fit_effects
+from aeropend_ident.gap.which.ranking import excluded_with
+from aeropend_ident.greybox.fit import measurement_noise
+from aeropend_ident.io.recording_input import detect_quantum
+from aeropend_sim.params import Rig
+from aeropend_sim.recording import Recording
+
+#: A candidate whose fit error exceeds this multiple of the best one is refuted by the earlier data.
+KEEP_SSE_FACTOR = 1.25
+#: Ranked effects (besides the chosen ones) turned into candidates, best-ranked first.
+N_ALTERNATIVES = 6
+#: Effects (the chosen ones first) whose compatible subsets are candidates (:func:`candidate_sets`).
+POOL = 6
+#: An effect whose fitted parameters all lie within this share of their search span (or this
+#: log-distance) of their "off" value is fitted absent (:func:`absent_effects`).
+ABSENT_TOL = 0.01
+
+
+@dataclass
+class Candidate:
+    """One explanation of the earlier recordings: an effect set fitted on them.
+
+    Attributes
+    ----------
+    name : str
+        Readable label (``"+".join(effects)`` or ``"nominal"``).
+    effects : tuple of str
+        Catalog effect names.
+    rig : Rig
+        Nominal rig with the fitted effects.
+    meas : MeasurementMap
+        Recorded-angle map of the fitted sensor effects.
+    fit_sse : float
+        Normalised output error of the fit on the earlier recordings (NaN when not fitted here).
+    values : dict
+        Fitted values ``{effect: {parameter: value}}``.
+    """
+
+    name: str
+    effects: tuple[str, ...]
+    rig: Rig
+    meas: MeasurementMap = field(default_factory=MeasurementMap)
+    fit_sse: float = math.nan
+    values: dict[str, dict[str, float]] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"name": self.name, "effects": list(self.effects), "fit_sse": self.fit_sse,
+                "values": self.values, "theta_offset": self.meas.theta_offset,
+                "theta_scale": self.meas.theta_scale}
+
+
+def label(effects: Sequence[str]) -> str:
+    """``"a+b"`` of an effect set, ``"nominal"`` when empty."""
+    return "+".join(effects) if effects else "nominal"
+
+
+def channel_noise(recordings: Sequence[Recording], channels: Sequence[str]) -> dict[str, float]:
+    """Measurement-noise σ per channel [its unit], the median over the recordings of
+    :func:`aeropend_ident.greybox.fit.measurement_noise`, at least q/√12 of a detected quantum."""
+    out = {}
+    for c in channels:
+        vals = []
+        for r in recordings:
+            y = np.asarray(r.channels[c], dtype=float)
+            q = detect_quantum(y)
+            vals.append(max(measurement_noise(y), q / math.sqrt(12.0)))
+        out[c] = float(max(np.median(vals), 1e-9))
+    return out
+
+
+def candidate_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]], max_effects: int = 3,
+                   n_alternatives: int = N_ALTERNATIVES, pool: int = POOL) -> list[tuple[str, ...]]:
+    """The effect sets to fit (module doc), the chosen set first, no duplicates.
+
+    Besides the chosen set with one effect added or swapped, every compatible set of at most
+    ``max_effects`` effects drawn from a pool of ``pool`` effects (the chosen ones, then the
+    others in the order below) is a candidate: a diagnosis that chose a wrong effect (a sensor
+    gain standing in for a thrust law and a dry friction) has its truth among those.
+
+    Parameters
+    ----------
+    chosen : sequence of str
+        The diagnosis' chosen effects (empty: nothing chosen).
+    ranking : sequence of dict
+        The diagnosis' ranking entries (``effect``, optional ``detected``, ``confusable_with``,
+        ``ambiguous_with``, ``subsystem``), best first.
+    max_effects : int
+        Largest set size.
+    n_alternatives : int
+        Ranked effects outside the chosen set used.
+    """
+    chosen = tuple(sorted(chosen))
+    amb = {a for r in ranking for a in (r.get("ambiguous_with") or [])}
+    others = [r for r in ranking if r.get("effect") not in chosen and not r.get("detected")
+              and r.get("effect") != "quantisation"]
+    # effects the diagnosis could not separate come first, then the ranking order
+    order = {id(r): i for i, r in enumerate(others)}
+    others.sort(key=lambda r: (r.get("effect") not in amb, order[id(r)]))
+    sets: list[tuple[str, ...]] = [chosen]
+    conf = {c: set(get_effect(c).confusable_with) for c in chosen}
+    sub = {c: get_effect(c).subsystem for c in chosen}
+    for r in others[:n_alternatives]:
+        e = str(r["effect"])
+        e_conf = set(get_effect(e).confusable_with) | set(r.get("confusable_with") or [])
+        if len(chosen) < max_effects and e not in excluded_with(chosen):
+            sets.append(tuple(sorted((*chosen, e))))
+        for c in chosen:
+            if e in conf[c] or c in e_conf or e in amb or sub[c] == get_effect(e).subsystem:
+                rest = tuple(x for x in chosen if x != c)
+                if e not in excluded_with(rest):
+                    sets.append(tuple(sorted((*rest, e))))
+    names = list(chosen) + [str(r["effect"]) for r in others if r["effect"] not in chosen]
+    names = names[:max(pool, len(chosen))]
+    for k in range(1, max_effects + 1):
+        for combo in itertools.combinations(names, k):
+            if all(e not in excluded_with([x for x in combo if x != e]) for e in combo):
+                sets.append(tuple(sorted(combo)))
+    out: list[tuple[str, ...]] = []
+    for s in sets:
+        if s not in out:
+            out.append(s)
+    return out
+
+
+def _starts(ranking: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, float]]:
+    """The ranking's single-effect fitted values ``{effect: {parameter: value}}``."""
+    out: dict[str, dict[str, float]] = {}
+    for r in ranking:
+        vals = {p: float(v["value"]) for p, v in (r.get("parameters") or {}).items()
+                if isinstance(v, Mapping) and v.get("value") is not None}
+        if vals:
+            out[str(r["effect"])] = vals
+    return out
+
+
+def absent_effects(values: Mapping[str, Mapping[str, float]], ctx: EffectContext,
+                   tol: float = ABSENT_TOL) -> list[str]:
+    """Effects of a fit whose every searched parameter ended at its "off" value (within ``tol`` of
+    the search span, or ``tol`` in log for a log parameter): fitted absent, so the set is the same
+    model as the set without them."""
+    out = []
+    for name, vals in values.items():
+        e = get_effect(name)
+        off = True
+        for p in e.parameters:
+            if p.held or p.name not in vals:
+                continue
+            r = p.bind(ctx)
+            v = float(vals[p.name])
+            if r.log and r.off > 0.0 and v > 0.0:
+                off &= abs(math.log(v / r.off)) <= tol
+            else:
+                off &= abs(v - r.off) <= tol * max(r.upper - r.lower, 1e-12)
+        if off:
+            out.append(name)
+    return out
+
+
+def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Sequence[str]], *,
+                   ranking: Sequence[Mapping[str, Any]] = (), max_candidates: int = 6,
+                   keep_factor: float = KEEP_SSE_FACTOR) -> tuple[list[Candidate], list[dict[str, Any]]]:
+    """Fit each effect set on the earlier recordings and keep the ones the data do not refute.
+
+    Parameters
+    ----------
+    rig : Rig
+        Nominal rig.
+    recordings : sequence of Recording
+        Earlier recordings (the gap diagnosis' fit recordings), recording frame.
+    sets : sequence of sequences of str
+        Effect sets (:func:`candidate_sets`).
+    ranking : sequence of dict
+        Ranking entries whose ``parameters`` start the fits.
+    max_candidates : int
+        Most candidates kept (best fit first).
+    keep_factor : float
+        Candidates whose fit error exceeds ``keep_factor`` × the best are dropped.
+
+    Returns
+    -------
+    (list of Candidate, list of dict)
+        The kept candidates, best fit first, and one row per set (fit error, kept or why not).
+
+    Raises
+    ------
+    GapError
+        When no set could be fitted.
+    """
+    channels = check_recordings(list(recordings), "earlier")
+    preps: list[Prepared] = prepare(list(recordings), channels)
+    ctx = EffectContext.from_prepared(rig, preps)
+    starts = _starts(ranking)
+    fitted: list[Candidate] = []
+    rows: list[dict[str, Any]] = []
+    for s in sets:
+        s = tuple(s)
+        try:
+            if s:
+                fr = fit_effects(rig, s, preps, ctx, start={e: starts[e] for e in s if e in starts})
+                cand = Candidate(label(s), s, fr.rig, fr.meas, float(fr.sse), fr.values)
+            else:
+                from aeropend_ident.gap.which.data import residuals
+
+                r = residuals(rig, MeasurementMap(), preps)
+                cand = Candidate("nominal", (), rig, MeasurementMap(), float(np.sum(r * r)))
+        except (GapError, ValueError) as exc:
+            rows.append({"effects": list(s), "error": str(exc), "kept": False})
+            continue
+        gone = absent_effects(cand.values, ctx) if len(s) > 1 else []
+        if gone and {x for x in s if x not in gone} in [set(c.effects) for c in fitted]:
+            rows.append({"effects": list(s), "fit_sse": cand.fit_sse, "kept": False,
+                         "why_not": f"{', '.join(gone)} fitted absent: the same model as a smaller set"})
+            continue
+        fitted.append(cand)
+        rows.append({"effects": list(s), "fit_sse": cand.fit_sse})
+    if not fitted:
+        raise GapError("no candidate effect set could be fitted on the earlier recordings")
+    best = min(c.fit_sse for c in fitted)
+    kept = sorted((c for c in fitted if c.fit_sse <= keep_factor * best),
+                  key=lambda c: (c.fit_sse, len(c.effects)))
+    kept = kept[:max_candidates]
+    names = {c.name for c in kept}
+    for row in rows:
+        if "fit_sse" in row and "why_not" not in row:
+            row["kept"] = label(row["effects"]) in names
+            if not row["kept"]:
+                row["why_not"] = (f"fit error {row['fit_sse'] / best:.2f}× the best: refuted by the earlier "
+                                  "data" if row["fit_sse"] > keep_factor * best else "over max_candidates")
+    return kept, rows
+
+
+def diagnosis_view(report: Mapping[str, Any]) -> tuple[list[str], list[dict[str, Any]]]:
+    """``(chosen, ranking)`` of a gap ``report.json`` (its ``which`` section) or of
+    ``EffectDiagnosis.as_dict()``; nothing chosen when the gap was not significant."""
+    which = report.get("which", report)
+    chosen = list(which.get("chosen") or []) if which.get("significant", True) else []
+    return chosen, list(which.get("ranking") or [])

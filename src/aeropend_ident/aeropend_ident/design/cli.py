@@ -1,0 +1,237 @@
+"""``excitation_design`` (and ``excitation --design-for``): design the next experiment.
+
+::
+
+    excitation_design --design-for GAP_REPORT RECORDING ... --rig RIG -o OUT
+        [--duration 40] [--rate HZ] [--seed 0] [--budget 45] [--max-effects 3] [--preset NAME]
+        [--duty-min X] [--duty-max X] [--max-slew PER_S] [--theta-min RAD] [--theta-max RAD]
+    excitation_design --design-for FITTED_RIG.yaml RECORDING ... -o OUT [--parameters KEY ...] [...]
+    excitation_design --outcome NEW_GAP_REPORT --design OUT [DESIGNED_RECORDING]
+
+``GAP_REPORT`` is a ``gap`` output folder (its ``report.json``): a **discrimination** design between
+the candidates built from its diagnosis (:mod:`aeropend_ident.design.candidates`), fitted on the
+RECORDINGs (the earlier fit recordings, as ``gap`` took them) against ``--rig`` (the nominal rig
+``gap`` was given). ``FITTED_RIG.yaml`` is a ``rig fit`` result: a **D-optimal** design for the
+parameters it left undetermined (``STILL TO BE FITTED`` or ``AT SEARCH BOUND``, or
+``--parameters``). The RECORDINGs give the noise σ per logged channel, the angle quantum, the
+logging rate (unless ``--rate``) and the default limits (angle range ± 0.15 rad, commands from 0 to
+their largest). ``--outcome`` compares a design's prediction with a ``gap`` report made with the
+designed recording among its fit recordings (and, given the designed recording, ranks the
+candidates on it).
+
+Exit status: 0 written, 2 bad input (message on stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from aeropend_ident.design.sequence import MODES, DesignError, check_mode
+from aeropend_ident.errors import IdentError
+
+
+class DesignCliError(IdentError):
+    """Bad input to ``excitation_design``."""
+
+
+def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n", 1)[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("recordings", nargs="*", help="earlier recordings (bag, .mcap, .db3, FILE.csv[:PRESET])")
+    ap.add_argument("--design-for", dest="design_for", help="gap report folder or rig fit result (.yaml)")
+    ap.add_argument("--rig", help="nominal rig (name or file) the gap report was made against")
+    ap.add_argument("-o", "--out", type=Path, help="output folder")
+    ap.add_argument("--duration", type=float, default=40.0, help="length of the design [s] (≤ 60)")
+    ap.add_argument("--rate", type=float, help="logging rate [Hz] (default: the recordings')")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--budget", type=float, default=45.0, help="search wall-time budget [s]")
+    ap.add_argument("--max-evaluations", dest="max_evaluations", type=int, default=5000,
+                    help="most sequences simulated: with a budget that is not reached, the same seed gives "
+                         "the same design on any machine")
+    ap.add_argument("--max-effects", dest="max_effects", type=int, default=3)
+    ap.add_argument("--parameters", nargs="+", help="rig keys section.name to determine (rig fit results)")
+    ap.add_argument("--preset", help="CSV preset of the recordings")
+    ap.add_argument("--mode", choices=MODES, default="open_loop",
+                    help="open_loop: a duty sequence (implemented); reference: a set-point sequence for the "
+                         "lab's controller (not implemented yet: docs/design.md)")
+    for name, help_ in (("duty-min", "lowest command"), ("duty-max", "highest command"),
+                        ("max-slew", "largest command change per second [1/s]"),
+                        ("theta-min", "lowest angle [rad]"), ("theta-max", "highest angle [rad]")):
+        ap.add_argument(f"--{name}", dest=name.replace("-", "_"), type=float, help=help_)
+    ap.add_argument("--outcome", help="gap report made with the designed recording (compare prediction)")
+    ap.add_argument("--design", type=Path, help="design folder (with --outcome)")
+    return ap
+
+
+def _recordings(args: argparse.Namespace, offset: float) -> list[Any]:
+    from aeropend_ident.gap.run import to_model_frame
+    from aeropend_ident.io.recording_input import check_length, load_recording, uniform_recording
+
+    if not args.recordings:
+        raise DesignCliError("give the earlier recordings (the ones the report or the fit used)")
+    recs = []
+    for p in args.recordings:
+        r = uniform_recording(load_recording(p, args.preset))
+        check_length(r, "earlier recording")
+        recs.append(to_model_frame(r, offset) if offset else r)
+    return recs
+
+
+def _limits(args: argparse.Namespace, recs: Sequence[Any]) -> Any:
+    from aeropend_ident.design.sequence import Limits
+    from aeropend_ident.io.recording_input import detect_quantum
+
+    dt = 1.0 / args.rate if args.rate else float(np.median([r.dt for r in recs]))
+    stated = {k: getattr(args, k) for k in ("duty_min", "duty_max", "max_slew", "theta_min", "theta_max")
+              if getattr(args, k) is not None}
+    q = max(detect_quantum(np.asarray(r.channels["theta"])) for r in recs)
+    return Limits.from_recordings([r.channels["theta"] for r in recs], [r.duty for r in recs], dt,
+                                  quantum=q, stated=stated)
+
+
+def _channels(recs: Sequence[Any]) -> list[str]:
+    common = set.intersection(*(set(r.channels) for r in recs))
+    return sorted(common & {"theta", "i_a", "v_a", "omega_rotor"})
+
+
+def discrimination(args: argparse.Namespace) -> dict[str, Any]:
+    """The discrimination design of a gap report (module doc); writes the folder, returns design.json."""
+    from aeropend_ident.design.candidates import (
+        candidate_sets,
+        channel_noise,
+        diagnosis_view,
+        fit_candidates,
+    )
+    from aeropend_ident.design.discriminate import design_discrimination, rank_first_probability
+    from aeropend_ident.design.report import write_design
+    from aeropend_ident.design.sequence import AprbsShape, check_limits
+    from aeropend_ident.gap.compare import load_model
+
+    report = json.loads((Path(args.design_for) / "report.json").read_text(encoding="utf-8"))
+    if report.get("tool") != "aeropend_ident gap":
+        raise DesignCliError(f"{args.design_for}/report.json is not a gap report")
+    rig_ref = args.rig or report["inputs"]["rig"]["ref"]
+    model = load_model(rig_ref)
+    recs = _recordings(args, model.measurement.theta_offset)
+    limits = _limits(args, recs)
+    channels = _channels(recs)
+    sigma = channel_noise(recs, channels)
+    chosen, ranking = diagnosis_view(report)
+    sets = candidate_sets(chosen, ranking, max_effects=args.max_effects)
+    cands, rows = fit_candidates(model.rig, recs, sets, ranking=ranking)
+    if len(cands) < 2:
+        raise DesignCliError("the earlier recordings leave one candidate standing "
+                             f"({cands[0].name}): nothing to discriminate; candidate fits: {rows}")
+    shape = AprbsShape.for_duration(args.duration)
+    d = design_discrimination(cands, sigma, limits, shape, seed=args.seed, budget_s=args.budget,
+                              max_evaluations=args.max_evaluations)
+    from aeropend_ident.design.discriminate import Predictor
+
+    th = Predictor(cands, ("theta",), limits.dt, d.duty.size)(d.duty)["theta"]
+    doc = {"kind": "discrimination", "design_for": str(args.design_for), "rig": rig_ref, "mode": args.mode,
+           "seed": args.seed, "duration_s": shape.duration, "shape": vars(shape), "limits": limits.as_dict(),
+           "channels": channels, "sigma": sigma, "chosen_before": chosen,
+           "candidates": [c.as_dict() for c in cands], "candidate_fits": rows,
+           "predicted": rank_first_probability(cands, d.duty, sigma, limits, seed=args.seed),
+           "predicted_baseline_aprbs": rank_first_probability(cands, d.baseline, sigma, limits,
+                                                              seed=args.seed),
+           "min_divergence": d.min_divergence, "baseline_min_divergence": d.baseline_min_divergence,
+           "criterion": d.value, "baseline_criterion": d.baseline_value,
+           "limits_check": check_limits(d.duty, limits, th.ravel()),
+           "evaluations": d.evaluations, "elapsed_s": d.elapsed_s}
+    write_design(args.out, doc, d.duty, limits.dt, cands)
+    return doc
+
+
+def parameters(args: argparse.Namespace) -> dict[str, Any]:
+    """The D-optimal design of a rig fit result (module doc); writes the folder, returns design.json."""
+    from aeropend_ident.design.candidates import channel_noise
+    from aeropend_ident.design.parameters import design_parameters, fisher, fitted_keys, weak_keys
+    from aeropend_ident.design.report import write_design
+    from aeropend_ident.design.sequence import AprbsShape, check_limits
+    from aeropend_sim.params import load_rig
+
+    path = Path(args.design_for)
+    rig = load_rig(str(path))
+    text = path.read_text(encoding="utf-8")
+    keys = list(args.parameters or weak_keys(text))
+    values = rig.values()
+    nuisance = [k for k in fitted_keys(text) if k not in keys and values.get(k, 0.0) > 0.0]
+    if not keys:
+        raise DesignCliError(f"{path}: no parameter left undetermined (no STILL TO BE FITTED or AT SEARCH "
+                             "BOUND line); name some with --parameters")
+    recs = _recordings(args, 0.0)
+    limits = _limits(args, recs)
+    channels = _channels(recs)
+    sigma = channel_noise(recs, channels)
+    shape = AprbsShape.for_duration(args.duration)
+    d = design_parameters(rig, keys, sigma, limits, shape, earlier=[(r.duty, r.dt) for r in recs],
+                          nuisance=nuisance,
+                          seed=args.seed, budget_s=args.budget, max_evaluations=args.max_evaluations)
+    th = fisher(rig, keys, d.duty, limits.dt, sigma)[1]
+    doc = {"kind": "parameters", "design_for": str(path), "mode": args.mode, "seed": args.seed,
+           "duration_s": shape.duration, "shape": vars(shape), "limits": limits.as_dict(),
+           "channels": channels,
+           "sigma": sigma, "parameters": list(keys), "nuisance": nuisance, "sd_before": d.sd_before,
+           "sd_after": d.sd_after,
+           "sd_after_baseline": d.sd_after_baseline, "logdet": d.logdet, "baseline_logdet": d.baseline_logdet,
+           "limits_check": check_limits(d.duty, limits, th), "evaluations": d.evaluations,
+           "elapsed_s": d.elapsed_s}
+    write_design(args.out, doc, d.duty, limits.dt)
+    return doc
+
+
+def outcome(args: argparse.Namespace) -> dict[str, Any]:
+    """``--outcome``: the prediction of ``--design`` against a new gap report (module doc)."""
+    from aeropend_ident.design.discriminate import evidence
+    from aeropend_ident.design.report import compare_outcome, load_candidates
+
+    if args.design is None:
+        raise DesignCliError("--outcome needs --design DESIGN_FOLDER")
+    design = json.loads((args.design / "design.json").read_text(encoding="utf-8"))
+    if design.get("kind") != "discrimination":
+        raise DesignCliError("--outcome compares discrimination designs (a parameter design's outcome is the "
+                             "new rig fit's standard errors)")
+    report = json.loads((Path(args.outcome) / "report.json").read_text(encoding="utf-8"))
+    ev = None
+    if args.recordings:
+        from aeropend_ident.gap.compare import load_model
+
+        offset = load_model(design["rig"]).measurement.theta_offset
+        rec = _recordings(args, offset)[0]
+        ev = evidence(load_candidates(args.design), rec.duty, rec.channels, design["sigma"], rec.dt)
+    return compare_outcome(design, report, ev)
+
+
+def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> int:
+    """Entry point; returns the exit status."""
+    args = build_parser(prog).parse_args(argv)
+    try:
+        if args.outcome:
+            res = outcome(args)
+            print(json.dumps(res, indent=1, default=float))
+            return 0
+        if not args.design_for or args.out is None:
+            raise DesignCliError("give --design-for REPORT and -o OUT (or --outcome REPORT --design FOLDER)")
+        check_mode(args.mode)
+        if not 1.0 < args.duration <= 60.0:
+            raise DesignCliError(f"--duration {args.duration}: expected more than 1 s and at most 60 s")
+        target = Path(args.design_for)
+        doc = discrimination(args) if target.is_dir() else parameters(args)
+    except (IdentError, DesignError, ValueError, OSError, KeyError) as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    print((args.out / "design.md").read_text(encoding="utf-8"))
+    print(f"{prog}: wrote {args.out}/design.csv, design.json, design.md ({doc['elapsed_s']:.1f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

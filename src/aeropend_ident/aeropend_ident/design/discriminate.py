@@ -1,0 +1,317 @@
+"""Model-discrimination design: the command sequence whose outputs tell the candidates apart.
+
+Divergence of a candidate pair: each logged channel's squared difference of their predicted
+outputs divided by its measured noise variance,
+
+    D_ij(u) = Σ_c Σ_k (y_i,c[k] − y_j,c[k])² / σ_c²,
+
+twice the expected log-likelihood ratio of the pair under Gaussian noise (a Kullback-Leibler
+divergence, Box & Hill's discrimination idea in its simplest form), on the channels the rig logs,
+at its logging rate. Criterion (maximised): the mean over pairs of log10(1 + D_ij). The issue's
+first suggestion, the smallest D_ij, is reported too but not optimised: two candidates that
+predict alike under every command (a nested set whose extra effect is nearly absent) pin it at
+zero and leave the search without a gradient; the mean of logs still rewards separating every
+pair and gives diminishing returns on pairs already far apart.
+
+Each candidate's output is its free run from rest (rod hanging, motor at duty 0) on the
+compiled replays the gap fits use (:class:`aeropend_ident.greybox.batch.RigReplays`: no new
+integrator), its angle through its measurement map (sensor gain and offset).
+
+The angle range is a penalty: a sequence under which any candidate leaves
+[theta_min, theta_max] scores below every sequence that stays inside. The command range and slew
+hold by construction (:mod:`aeropend_ident.design.sequence`).
+
+Optimiser: CMA-ES (the ``cma`` package, seeded, bounded to the unit cube) over the APRBS
+parametrisation, started from the seeded APRBS of the same shape; the best point seen is
+returned, so the design never scores below that APRBS.
+
+Predicted value (:func:`rank_first_probability`): each candidate is the truth in turn; its output
+plus Gaussian noise of the measured σ (the angle then rounded to the logger's quantum) is ranked
+against every candidate's noise-free prediction by the sum of squared normalised residuals; the
+share of draws in which the truth ranks first. It does not refit the candidates on the new
+recording (the diagnosis does), so it is an upper bound when a refit can bend a wrong candidate
+toward the data.
+
+No rclpy import: this module runs without ROS.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from aeropend_ident.design.candidates import Candidate
+from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, check_mode, sequence
+from aeropend_ident.greybox.batch import RigReplays
+from aeropend_ident.greybox.fit import motor_equilibrium
+
+#: Penalty offset of a sequence that takes a candidate outside the angle range (log scale).
+ANGLE_PENALTY = 1e3
+
+
+class Predictor:
+    """Noise-free logged outputs of the candidates under any command sequence of one length.
+
+    Parameters
+    ----------
+    candidates : sequence of Candidate
+    channels : sequence of str
+        Logged channels (``theta`` and any of ``i_a``, ``v_a``, ``omega_rotor``).
+    dt : float
+        Logging period [s].
+    n : int
+        Samples per sequence.
+    """
+
+    def __init__(self, candidates: Sequence[Candidate], channels: Sequence[str], dt: float, n: int) -> None:
+        self.candidates = list(candidates)
+        self.channels = tuple(channels)
+        self.rigs = [c.rig.with_effects(sensor_noise=False, quantisation=False) for c in self.candidates]
+        self.replays = RigReplays(np.zeros(n), dt, tau_before=0.0)
+        self.x0 = np.array([[0.0, 0.0, *motor_equilibrium(r, 0.0)] for r in self.rigs])
+        self.calls = 0
+
+    def __call__(self, duty: np.ndarray) -> dict[str, np.ndarray]:
+        """Channel -> (B, N) predicted outputs (NaN rows where a replay failed)."""
+        self.replays.duty = np.ascontiguousarray(duty, dtype=float)
+        sim, _ok = self.replays.run(self.rigs, self.x0, self.channels)
+        self.calls += 1
+        if "theta" in sim:
+            sim["theta"] = np.stack([c.meas.to_recorded(sim["theta"][b])
+                                     for b, c in enumerate(self.candidates)])
+        return sim
+
+
+def pair_divergences(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float]) -> np.ndarray:
+    """Divergence of every candidate pair (module doc): (B, B) symmetric, zero diagonal, ∞ where a
+    prediction failed."""
+    b = next(iter(outputs.values())).shape[0]
+    d = np.zeros((b, b))
+    for i, j in itertools.combinations(range(b), 2):
+        s = 0.0
+        for c, y in outputs.items():
+            s += float(np.sum((y[i] - y[j]) ** 2)) / sigma[c] ** 2
+        d[i, j] = d[j, i] = s if math.isfinite(s) else math.inf
+    return d
+
+
+def angle_excess(outputs: Mapping[str, np.ndarray], limits: Limits) -> float:
+    """How far [rad] the worst candidate's predicted angle leaves the angle range (0 inside; ∞ for
+    a failed replay)."""
+    th = outputs["theta"]
+    if not np.all(np.isfinite(th)):
+        return math.inf
+    return float(max(0.0, th.max() - limits.theta_max, limits.theta_min - th.min()))
+
+
+def criterion(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float], limits: Limits) -> float:
+    """Mean over candidate pairs of log10(1 + D_ij), minus :data:`ANGLE_PENALTY` (and the excess)
+    when a candidate leaves the angle range or a replay fails (module doc)."""
+    d = pair_divergences(outputs, sigma)
+    iu = np.triu_indices(d.shape[0], 1)
+    vals = d[iu]
+    value = float(np.mean(np.log10(1.0 + vals))) if np.all(np.isfinite(vals)) else -ANGLE_PENALTY
+    excess = angle_excess(outputs, limits)
+    if excess > 0.0:
+        value -= ANGLE_PENALTY + (excess if math.isfinite(excess) else ANGLE_PENALTY)
+    return value
+
+
+@dataclass
+class Discrimination:
+    """A discrimination design.
+
+    Attributes
+    ----------
+    duty : ndarray, shape (N,)
+        Designed commands on the logging grid.
+    baseline : ndarray, shape (N,)
+        The seeded APRBS of the same shape (the search's start).
+    value, baseline_value : float
+        :func:`criterion` of each.
+    min_divergence, baseline_min_divergence : float
+        Smallest pairwise divergence of each (expected log-likelihood ratio units).
+    evaluations : int
+        Sequences simulated.
+    elapsed_s : float
+        Wall time of the search [s].
+    z : ndarray, shape (2M,)
+        The design vector.
+    """
+
+    duty: np.ndarray
+    baseline: np.ndarray
+    value: float
+    baseline_value: float
+    min_divergence: float
+    baseline_min_divergence: float
+    evaluations: int
+    elapsed_s: float
+    z: np.ndarray
+
+
+def _min_div(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float]) -> float:
+    d = pair_divergences(outputs, sigma)
+    iu = np.triu_indices(d.shape[0], 1)
+    return float(np.min(d[iu])) if iu[0].size else math.inf
+
+
+def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, float], limits: Limits,
+                          shape: AprbsShape | None = None, *, seed: int = 0, budget_s: float = 45.0,
+                          max_evaluations: int = 5000, mode: str = "open_loop") -> Discrimination:
+    """Search the APRBS parametrisation for the sequence that best separates ``candidates``.
+
+    Parameters
+    ----------
+    candidates : sequence of Candidate
+        At least two.
+    sigma : mapping
+        Noise σ per logged channel [its unit]; its keys are the channels compared.
+    limits : Limits
+        Command range, slew, angle range, logging period.
+    shape : AprbsShape
+        Length and parametrisation.
+    seed : int
+        Seed of the starting APRBS and of CMA-ES (the design is reproducible).
+    budget_s : float
+        Wall-time budget of the search [s] (checked between CMA-ES generations).
+    max_evaluations : int
+        Most sequences simulated.
+    mode : str
+        ``"open_loop"`` (a command sequence); ``"reference"`` (set points for the lab's
+        controller) is refused until implemented (:func:`~aeropend_ident.design.sequence.check_mode`).
+
+    Returns
+    -------
+    Discrimination
+
+    Raises
+    ------
+    ValueError
+        With fewer than two candidates; :class:`~aeropend_ident.design.sequence.DesignError` for a
+        mode other than ``open_loop``.
+    """
+    import cma
+
+    check_mode(mode)
+    if len(candidates) < 2:
+        raise ValueError("a discrimination design needs at least two candidates")
+    shape = shape or AprbsShape()
+    t0 = time.perf_counter()
+    n = round(shape.duration / limits.dt)
+    pred = Predictor(candidates, tuple(sigma), limits.dt, n)
+
+    def value(z: np.ndarray) -> float:
+        return criterion(pred(sequence(z, shape, limits)), sigma, limits)
+
+    z0 = aprbs_vector(shape, seed)
+    v0 = value(z0)
+    best_z, best_v = z0.copy(), v0
+    opts = {"bounds": [0.0, 1.0], "seed": seed + 1, "verbose": -9, "maxfevals": max_evaluations,
+            "popsize": 8 + shape.size // 6, "tolfun": 1e-4}
+    es = cma.CMAEvolutionStrategy(z0, 0.25, opts)
+    while not es.stop() and time.perf_counter() - t0 < budget_s:
+        zs = es.ask()
+        vals = []
+        for z in zs:  # the budget holds inside a generation too (an unfinished one is not told)
+            if time.perf_counter() - t0 >= budget_s:
+                break
+            vals.append(value(np.asarray(z)))
+            if vals[-1] > best_v:
+                best_z, best_v = np.asarray(z).copy(), vals[-1]
+        if len(vals) < len(zs):
+            break
+        es.tell(zs, [-v for v in vals])
+    duty, base = sequence(best_z, shape, limits), sequence(z0, shape, limits)
+    return Discrimination(duty=duty, baseline=base, value=best_v, baseline_value=v0,
+                          min_divergence=_min_div(pred(duty), sigma),
+                          baseline_min_divergence=_min_div(pred(base), sigma),
+                          evaluations=pred.calls, elapsed_s=time.perf_counter() - t0, z=best_z)
+
+
+def rank_first_probability(candidates: Sequence[Candidate], duty: np.ndarray, sigma: Mapping[str, float],
+                           limits: Limits, *, draws: int = 200, seed: int = 0) -> dict[str, Any]:
+    """Monte-Carlo probability that each candidate, when it is the truth, ranks first (module doc).
+
+    Parameters
+    ----------
+    candidates : sequence of Candidate
+    duty : ndarray, shape (N,)
+        The sequence on the logging grid.
+    sigma : mapping
+        Noise σ per logged channel.
+    limits : Limits
+        Its ``quantum`` rounds the simulated angle.
+    draws : int
+        Noise draws per candidate.
+    seed : int
+
+    Returns
+    -------
+    dict
+        ``per_candidate`` {name: probability}, ``mean`` over candidates, ``draws``.
+    """
+    pred = Predictor(candidates, tuple(sigma), limits.dt, np.asarray(duty).size)
+    out = pred(duty)
+    rng = np.random.default_rng(seed)
+    q = limits.quantum
+    names = [c.name for c in candidates]
+    probs: dict[str, float] = {}
+    for t, name in enumerate(names):
+        if not all(np.all(np.isfinite(y[t])) for y in out.values()):
+            probs[name] = math.nan
+            continue
+        wins = 0
+        for _ in range(draws):
+            sse = np.zeros(len(names))
+            for c, y in out.items():
+                obs = y[t] + rng.normal(0.0, sigma[c], y.shape[1])
+                if c == "theta" and q > 0.0:
+                    obs = np.round(obs / q) * q
+                sse += np.nansum((y - obs) ** 2, axis=1) / sigma[c] ** 2 + np.where(
+                    np.all(np.isfinite(y), axis=1), 0.0, np.inf)
+            wins += int(np.argmin(sse) == t)
+        probs[name] = wins / draws
+    finite = [p for p in probs.values() if math.isfinite(p)]
+    return {"per_candidate": probs, "mean": float(np.mean(finite)) if finite else math.nan, "draws": draws}
+
+
+def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mapping[str, np.ndarray],
+             sigma: Mapping[str, float], dt: float) -> dict[str, Any]:
+    """Each candidate's free run from rest on a recorded sequence against the recording: the sum of
+    squared residuals over σ² per candidate (the outcome the prediction is compared with).
+
+    Parameters
+    ----------
+    candidates : sequence of Candidate
+    duty : ndarray, shape (N,)
+        The recorded commands (the designed sequence as played).
+    recorded : mapping
+        Channel -> (N,) recorded values; the channels of ``sigma`` are compared.
+    sigma : mapping
+        Noise σ per channel.
+    dt : float
+        Sample period [s].
+
+    Returns
+    -------
+    dict
+        ``chi2`` {name: Σ residual²/σ²}, ``first`` (the candidate with the least), ``order`` (best
+        first), ``samples``.
+    """
+    n = min(np.asarray(duty).size, *(np.asarray(recorded[c]).size for c in sigma))
+    pred = Predictor(candidates, tuple(sigma), dt, n)
+    out = pred(np.asarray(duty, dtype=float)[:n])
+    chi2 = {}
+    for b, cand in enumerate(candidates):
+        s = sum(float(np.sum((out[c][b] - np.asarray(recorded[c], dtype=float)[:n]) ** 2)) / sigma[c] ** 2
+                for c in sigma)
+        chi2[cand.name] = s if math.isfinite(s) else math.inf
+    order = sorted(chi2, key=chi2.get)
+    return {"chi2": chi2, "first": order[0] if order else None, "order": order, "samples": int(n)}

@@ -1,0 +1,251 @@
+"""D-optimal design for the parameters a fit could not determine.
+
+The Fisher information of the logged outputs about parameters p_j (in log coordinates, so its
+inverse gives relative variances) for white measurement noise of σ_c per channel c:
+
+    F = Σ_c S_cᵀ S_c / σ_c²,   S_c[k, j] = ∂y_c[k] / ∂ln p_j,
+
+the sensitivities from forward differences (relative step :data:`REL_STEP`) of the rig's compiled
+replays from rest at the logging period (no new integrator). The parameters are the ones to
+determine and the **nuisance** parameters fitted beside them (a ``rig fit`` result's FITTED
+lines): left out, a parameter confounded with a nuisance one would read better than it is. The
+design is Ds-optimal: it maximises −log det of the block of the parameters to determine in
+(F_before + F_design + F_prior)⁻¹ (log det of the whole when there is no nuisance parameter:
+D-optimal). F_before is the information of the earlier recordings'
+commands replayed the same way (from rest, open loop; for closed-loop logs an approximation),
+F_prior = I (a relative prior σ of 1 per parameter, one e-fold: a parameter no recording
+determines reads ≈ 100 %). Each parameter's predicted relative 1σ is
+sqrt(diag((F_before + F_prior)⁻¹)) before and sqrt(diag((F_before + F_design + F_prior)⁻¹)) after.
+Like every Cramér-Rao figure it is a lower bound: model error and a closed loop widen it.
+
+No rclpy import: this module runs without ROS.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, check_mode, sequence
+from aeropend_ident.greybox.batch import RigReplays
+from aeropend_ident.greybox.fit import motor_equilibrium
+from aeropend_sim.params import Rig
+
+#: Relative forward-difference step of the sensitivities.
+REL_STEP = 1e-3
+#: Penalty of a sequence that leaves the angle range (in log det units).
+ANGLE_PENALTY = 1e3
+
+
+def perturbed(rig: Rig, key: str, factor: float) -> Rig:
+    """``rig`` with parameter ``section.name`` multiplied by ``factor``.
+
+    Raises
+    ------
+    aeropend_sim.params.RigFileError
+        On an unknown key or an invalid value.
+    """
+    section, name = key.split(".", 1)
+    return rig.with_params(section, **{name: rig.values()[key] * factor})
+
+
+def fisher(rig: Rig, keys: Sequence[str], duty: np.ndarray, dt: float, sigma: Mapping[str, float]
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Fisher information (p, p) in log coordinates of ``keys`` under ``duty`` from rest, and the
+    nominal angle (N,) (NaN when the replay failed).
+
+    Parameters
+    ----------
+    rig : Rig
+    keys : sequence of str
+        Rig keys ``section.name`` (strictly positive values).
+    duty : ndarray, shape (N,)
+        Commands on the logging grid.
+    dt : float
+        Logging period [s].
+    sigma : mapping
+        Noise σ per logged channel.
+    """
+    base = rig.with_effects(sensor_noise=False, quantisation=False)
+    rigs = [base] + [perturbed(base, k, 1.0 + REL_STEP) for k in keys]
+    x0 = np.array([[0.0, 0.0, *motor_equilibrium(r, 0.0)] for r in rigs])
+    sim, ok = RigReplays(np.asarray(duty, dtype=float), dt).run(rigs, x0, tuple(sigma))
+    p = len(keys)
+    if not ok.all():
+        return np.zeros((p, p)), np.full(np.asarray(duty).size, np.nan)
+    f = np.zeros((p, p))
+    for c, s in sigma.items():
+        sens = (sim[c][1:] - sim[c][0]) / math.log1p(REL_STEP)  # (p, N)
+        f += sens @ sens.T / s**2
+    return f, sim["theta"][0] if "theta" in sim else np.full(np.asarray(duty).size, np.nan)
+
+
+def relative_sd(f: np.ndarray) -> np.ndarray:
+    """sqrt(diag((F + I)⁻¹)): relative 1σ per parameter under the unit prior (module doc)."""
+    return np.sqrt(np.diag(np.linalg.inv(f + np.eye(f.shape[0]))))
+
+
+def ds_criterion(f: np.ndarray, n_interest: int) -> float:
+    """−log det of the first ``n_interest`` parameters' block of (F + I)⁻¹ (Ds-optimality; with no
+    nuisance parameter, log det(F + I))."""
+    cov = np.linalg.inv(f + np.eye(f.shape[0]))
+    sign, ld = np.linalg.slogdet(cov[:n_interest, :n_interest])
+    return float(-ld) if sign > 0 else -ANGLE_PENALTY
+
+
+@dataclass
+class ParameterDesign:
+    """A D-optimal design.
+
+    Attributes
+    ----------
+    duty, baseline : ndarray, shape (N,)
+        Designed sequence and the seeded APRBS of the same shape.
+    keys : tuple of str
+    logdet, baseline_logdet : float
+        The design criterion of each (:func:`ds_criterion`).
+    sd_before, sd_after, sd_after_baseline : dict
+        Predicted relative 1σ per key: earlier recordings only, with the design, with the APRBS.
+    evaluations : int
+    elapsed_s : float
+    """
+
+    duty: np.ndarray
+    baseline: np.ndarray
+    keys: tuple[str, ...]
+    logdet: float
+    baseline_logdet: float
+    sd_before: dict[str, float]
+    sd_after: dict[str, float]
+    sd_after_baseline: dict[str, float]
+    evaluations: int
+    elapsed_s: float
+
+
+def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float], limits: Limits,
+                      shape: AprbsShape | None = None, *, earlier: Sequence[tuple[np.ndarray, float]] = (),
+                      nuisance: Sequence[str] = (), seed: int = 0, budget_s: float = 45.0,
+                      max_evaluations: int = 300, mode: str = "open_loop") -> ParameterDesign:
+    """Search the APRBS parametrisation for the D-optimal sequence (module doc).
+
+    Parameters
+    ----------
+    rig : Rig
+        The fitted rig.
+    keys : sequence of str
+        Parameters to determine (``section.name``).
+    sigma : mapping
+        Noise σ per logged channel.
+    limits : Limits
+    shape : AprbsShape, optional
+    earlier : sequence of (ndarray, float)
+        Earlier recordings' commands and periods (their information is F_before).
+    nuisance : sequence of str
+        Parameters fitted beside ``keys`` (their information is counted, their uncertainty not
+        optimised).
+    seed : int
+    budget_s : float
+        Wall-time budget [s].
+    max_evaluations : int
+    mode : str
+        ``"open_loop"``; ``"reference"`` is refused until implemented
+        (:func:`~aeropend_ident.design.sequence.check_mode`).
+
+    Returns
+    -------
+    ParameterDesign
+
+    Raises
+    ------
+    ValueError
+        Without keys; :class:`~aeropend_ident.design.sequence.DesignError` for a mode other than
+        ``open_loop``.
+    """
+    import cma
+
+    check_mode(mode)
+    if not keys:
+        raise ValueError("no parameter to design for")
+    shape = shape or AprbsShape()
+    t0 = time.perf_counter()
+    keys = tuple(keys)
+    n_i = len(keys)
+    every = keys + tuple(k for k in nuisance if k not in keys)
+    f0 = sum((fisher(rig, every, d, dt, sigma)[0] for d, dt in earlier), np.zeros((len(every), len(every))))
+    calls = 0
+
+    def score(duty: np.ndarray) -> tuple[float, np.ndarray]:
+        nonlocal calls
+        calls += 1
+        f, th = fisher(rig, every, duty, limits.dt, sigma)
+        value = ds_criterion(f0 + f, n_i)
+        if not np.all(np.isfinite(th)) or th.max() > limits.theta_max or th.min() < limits.theta_min:
+            value -= ANGLE_PENALTY
+        return value, f
+
+    z0 = aprbs_vector(shape, seed)
+    base = sequence(z0, shape, limits)
+    v0, f_base = score(base)
+    best_z, best_v, best_f = z0, v0, f_base
+    es = cma.CMAEvolutionStrategy(z0, 0.25, {"bounds": [0.0, 1.0], "seed": seed + 1, "verbose": -9,
+                                             "maxfevals": max_evaluations, "popsize": 8 + shape.size // 6})
+    while not es.stop() and time.perf_counter() - t0 < budget_s:
+        zs = es.ask()
+        vals = []
+        for z in zs:  # the budget holds inside a generation too (an unfinished one is not told)
+            if time.perf_counter() - t0 >= budget_s:
+                break
+            v, f = score(sequence(np.asarray(z), shape, limits))
+            vals.append(v)
+            if v > best_v:
+                best_z, best_v, best_f = np.asarray(z).copy(), v, f
+        if len(vals) < len(zs):
+            break
+        es.tell(zs, [-v for v in vals])
+
+    def sd(f: np.ndarray) -> dict[str, float]:
+        return dict(zip(keys, map(float, relative_sd(f0 + f)[:n_i]), strict=True))
+
+    return ParameterDesign(duty=sequence(best_z, shape, limits), baseline=base, keys=keys, logdet=best_v,
+                           baseline_logdet=v0, sd_before=sd(np.zeros_like(f0)), sd_after=sd(best_f),
+                           sd_after_baseline=sd(f_base), evaluations=calls,
+                           elapsed_s=time.perf_counter() - t0)
+
+
+def fitted_keys(fitted_text: str) -> list[str]:
+    """Keys a ``rig fit`` result fitted (under a ``# rig fit: FITTED`` comment): the nuisance
+    parameters of a design for its undetermined ones."""
+    return _keys_under(fitted_text, ("rig fit: FITTED",))
+
+
+def weak_keys(fitted_text: str) -> list[str]:
+    """Keys a ``rig fit`` result left undetermined: the parameter lines under a
+    ``# rig fit: STILL TO BE FITTED`` or ``AT SEARCH BOUND`` comment
+    (:func:`aeropend_ident.greybox.rig_fit.fitted_text`).
+    """
+    return _keys_under(fitted_text, ("STILL TO BE FITTED", "AT SEARCH BOUND"))
+
+
+def _keys_under(fitted_text: str, marks: Sequence[str]) -> list[str]:
+    """Keys whose line follows a ``# rig fit:`` comment holding one of ``marks``."""
+    out: list[str] = []
+    section = None
+    flagged = False
+    for line in fitted_text.splitlines():
+        if line and not line[0].isspace() and not line.startswith("#"):
+            section = line.split(":")[0].strip()
+            flagged = False
+            continue
+        s = line.strip()
+        if s.startswith("# rig fit:"):
+            flagged |= any(m in s for m in marks)
+            continue
+        if section and ":" in s and not s.startswith("#"):
+            if flagged:
+                out.append(f"{section}.{s.split(':')[0].strip()}")
+            flagged = False
+    return out

@@ -1,0 +1,175 @@
+"""The design's files: the command CSV, ``design.json``, ``design.md``, the candidate rig files,
+and the comparison of the prediction with the outcome once the designed recording exists.
+
+Folder written by :func:`write_design`:
+
+``design.csv``
+    ``t,duty``: time [s] from 0 at the logging period and the command [1]; the format
+    ``excitation --signal file --file design.csv`` plays (and ``excitation --print`` writes), and a
+    lab's own controller can load (two numeric columns, one header line).
+``design.json``
+    Kind (``discrimination`` or ``parameters``), limits, shape, seed, channels and noise σ, the
+    prediction (and the seeded APRBS's, for comparison), the limit check on every candidate's
+    predicted angle, the candidates (effects, fitted values, measurement map) or parameters.
+``design.md``
+    The same in a few lines.
+``candidates/NN_<name>.yaml``
+    Each candidate's rig file (discrimination), reloaded by :func:`compare_outcome`.
+
+No rclpy import: this module runs without ROS.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from aeropend_ident.design.candidates import Candidate, diagnosis_view
+from aeropend_ident.gap.effects import MeasurementMap
+from aeropend_ident.io.jsonutil import jsonable
+from aeropend_sim.params import load_rig, rig_to_dict
+
+
+def csv_text(duty: np.ndarray, dt: float) -> str:
+    """``t,duty`` CSV of a sequence on the grid k·dt (the format of
+    :meth:`aeropend_sim.excitation.ExcitationSignal.to_csv`)."""
+    lines = ["t,duty"] + [f"{k * dt:.9g},{u:.9g}" for k, u in enumerate(np.asarray(duty, dtype=float))]
+    return "\n".join(lines) + "\n"
+
+
+def _safe(name: str) -> str:
+    return "".join(ch if ch.isalnum() or ch in "_+-" else "_" for ch in name)[:80]
+
+
+def write_design(out: Path, doc: Mapping[str, Any], duty: np.ndarray, dt: float,
+                 candidates: Sequence[Candidate] = ()) -> dict[str, Path]:
+    """Write the design folder (module doc) into ``out`` (created; files replaced).
+
+    Parameters
+    ----------
+    out : Path
+    doc : mapping
+        What ``design.json`` holds (:func:`aeropend_ident.design.cli` builds it).
+    duty : ndarray, shape (N,)
+        Designed commands.
+    dt : float
+        Logging period [s].
+    candidates : sequence of Candidate
+        Written as rig files (discrimination designs).
+
+    Returns
+    -------
+    dict
+        Name -> path of every file written.
+    """
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"csv": out / "design.csv", "json": out / "design.json", "md": out / "design.md"}
+    paths["csv"].write_text(csv_text(duty, dt), encoding="utf-8")
+    if candidates:
+        (out / "candidates").mkdir(exist_ok=True)
+    files = []
+    for i, c in enumerate(candidates):
+        p = out / "candidates" / f"{i:02d}_{_safe(c.name)}.yaml"
+        p.write_text(yaml.safe_dump(jsonable(rig_to_dict(c.rig)), sort_keys=False, allow_unicode=True),
+                     encoding="utf-8")
+        files.append(p.relative_to(out).as_posix())
+    full = dict(doc)
+    if files:
+        full["candidate_files"] = files
+    paths["json"].write_text(json.dumps(jsonable(full), indent=1, allow_nan=False), encoding="utf-8")
+    paths["md"].write_text(markdown(full), encoding="utf-8")
+    return paths
+
+
+def _pct(x: Any) -> str:
+    return "—" if x is None or not math.isfinite(float(x)) else f"{100 * float(x):.1f} %"
+
+
+def markdown(doc: Mapping[str, Any]) -> str:
+    """The short ``design.md`` of a design document."""
+    lim = doc["limits"]
+    lines = [f"# Experiment design ({doc['kind']})", "",
+             f"From `{doc.get('design_for', '?')}`; {doc['duration_s']:g} s at {1 / lim['dt']:.4g} Hz "
+             f"(`design.csv`, t,duty), seed {doc['seed']}, {doc['evaluations']} sequences simulated in "
+             f"{doc['elapsed_s']:.1f} s.",
+             f"Limits: command {lim['duty_min']:.3g} … {lim['duty_max']:.3g}, slew ≤ {lim['max_slew']:g} /s, "
+             f"angle {lim['theta_min']:.3g} … {lim['theta_max']:.3g} rad (every candidate's predicted angle: "
+             f"{'inside' if doc['limits_check']['ok'] else 'OUTSIDE'}).", ""]
+    if doc["kind"] == "discrimination":
+        pr, pb = doc["predicted"], doc["predicted_baseline_aprbs"]
+        lines += ["Predicted probability that each candidate ranks first when it is the truth (Monte-Carlo, "
+                  f"{pr['draws']} noise draws each, no refit):", "",
+                  "| candidate | designed | seeded APRBS of the same length |", "|---|---|---|"]
+        for name, p in pr["per_candidate"].items():
+            lines.append(f"| {name} | {_pct(p)} | {_pct(pb['per_candidate'].get(name))} |")
+        lines += ["", f"Smallest pairwise divergence Σ(Δy/σ)²: designed {doc['min_divergence']:.3g}, "
+                  f"APRBS {doc['baseline_min_divergence']:.3g}."]
+    else:
+        lines += ["Predicted relative 1σ per parameter (Cramér-Rao, unit prior; a lower bound):", "",
+                  "| parameter | before | after the design | after the seeded APRBS |", "|---|---|---|---|"]
+        for k in doc["parameters"]:
+            lines.append(f"| {k} | {_pct(doc['sd_before'][k])} | {_pct(doc['sd_after'][k])} | "
+                         f"{_pct(doc['sd_after_baseline'][k])} |")
+    lines += ["", "Play it: `excitation --signal file --file design.csv --mode realtime` (or load the CSV on "
+              "the lab's own controller), record, then rerun `gap` / `rig fit` with the recording beside the "
+              "earlier ones; `excitation_design --outcome NEW_GAP_REPORT --design THIS_FOLDER` compares.", ""]
+    return "\n".join(lines)
+
+
+def load_candidates(folder: Path) -> list[Candidate]:
+    """The candidates of a discrimination design folder (rig files and measurement maps)."""
+    doc = json.loads((folder / "design.json").read_text(encoding="utf-8"))
+    out = []
+    for row, rel in zip(doc["candidates"], doc.get("candidate_files", []), strict=True):
+        meas = MeasurementMap(float(row["theta_offset"]), float(row["theta_scale"]))
+        out.append(Candidate(row["name"], tuple(row["effects"]), load_rig(folder / rel), meas,
+                             float(row["fit_sse"]) if row.get("fit_sse") is not None else math.nan,
+                             row.get("values") or {}))
+    return out
+
+
+def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
+                    evidence: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The design's prediction against what the rerun diagnosis (and the recording) showed.
+
+    Parameters
+    ----------
+    design : mapping
+        ``design.json`` of a discrimination design.
+    gap_report : mapping
+        ``report.json`` of ``gap`` rerun with the designed recording among its fit recordings.
+    evidence : mapping, optional
+        :func:`aeropend_ident.design.discriminate.evidence` of the candidates on the designed
+        recording.
+
+    Returns
+    -------
+    dict
+        ``chosen_after`` (effects), ``matching_candidate`` (the candidate with exactly those
+        effects, or None), ``predicted_first`` (its predicted probability of ranking first),
+        ``chosen_before``, ``changed`` (the chosen set changed), ``separated`` (candidates the new
+        diagnosis excludes), and with ``evidence`` the candidate the recording ranks first and the
+        χ² per candidate.
+    """
+    chosen, _ranking = diagnosis_view(gap_report)
+    cands = design["candidates"]
+    match = next((c["name"] for c in cands if set(c["effects"]) == set(chosen)), None)
+    pred = design["predicted"]["per_candidate"]
+    before = list(cands[0]["effects"]) if design.get("chosen_first", True) and cands else []
+    out: dict[str, Any] = {
+        "chosen_before": design.get("chosen_before", before), "chosen_after": chosen,
+        "matching_candidate": match, "predicted_first": pred.get(match) if match else None,
+        "changed": set(chosen) != set(design.get("chosen_before", before)),
+        "separated": [c["name"] for c in cands if c["name"] != match],
+    }
+    if evidence is not None:
+        out["recording_first"] = evidence["first"]
+        out["recording_chi2"] = dict(evidence["chi2"])
+        out["recording_agrees_with_gap"] = evidence["first"] == match if match else None
+    return out

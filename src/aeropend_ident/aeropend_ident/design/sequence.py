@@ -1,0 +1,256 @@
+"""The designed command sequence: a compact APRBS parametrisation and the lab's limits.
+
+A design is an amplitude-modulated PRBS (the :func:`aeropend_sim.excitation.aprbs` family) of
+``M`` holds: ``M`` levels in the command range and ``M`` hold times in [min_hold, max_hold],
+scaled so that the holds fill the stated duration exactly. The optimiser searches the unit cube
+[0, 1]^(2M) (levels first, then holds); :func:`aprbs_vector` is the seeded random point of that
+cube, i.e. an ordinary APRBS, from which the search starts and against which it is compared.
+
+After the holds are laid on the logging grid the sequence passes a slew limiter (at most
+``max_slew·dt`` change per logged sample), so every sequence this module returns respects the
+command range and the slew limit by construction; the angle range is the simulators' business
+(:mod:`aeropend_ident.design.discriminate` penalises it, :func:`check_limits` checks it).
+
+No rclpy import: this module runs without ROS.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+#: Lead-in of every design [s] at the lowest command (0 by default): the rig starts at rest (rod
+#: hanging, motor off), the start the gap diagnosis' replays take for a log whose first command is 0.
+LEAD_IN_S = 0.5
+#: Default angle margin [rad] beyond the earlier recordings' angle range.
+ANGLE_MARGIN = 0.15
+#: The angle no design may reach, whatever the lab states [rad] (over the top is π).
+ANGLE_CAP = 2.5
+
+
+class DesignError(ValueError):
+    """Invalid design settings (a limit outside its range, a duration over the cap, ...)."""
+
+
+#: What a design is: an open-loop command sequence, or (not implemented yet) a reference sequence
+#: for the lab's controller (docs/design.md, "Closed loop").
+MODES = ("open_loop", "reference")
+
+
+def check_mode(mode: str) -> None:
+    """Refuse a mode other than ``open_loop``.
+
+    Raises
+    ------
+    DesignError
+        For ``reference`` (not implemented: its predictions need the lab's closed loop on every
+        candidate) and for an unknown mode.
+    """
+    if mode == "open_loop":
+        return
+    if mode == "reference":
+        raise DesignError("mode 'reference' is not implemented yet: the design is an open-loop command "
+                          "sequence (docs/design.md, 'Closed loop')")
+    raise DesignError(f"mode {mode!r}; expected one of {list(MODES)}")
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What a designed sequence must respect.
+
+    Attributes
+    ----------
+    duty_min, duty_max : float
+        Command range (duty τ ∈ [0, 1], or the family's command normalised the same way).
+    max_slew : float
+        Largest command change per second [1/s]; the per-sample step is ``max_slew·dt``.
+    theta_min, theta_max : float
+        Angle range the recorded angle must stay in [rad] (recording frame).
+    dt : float
+        Logging (and command) period [s].
+    quantum : float
+        Angle quantum of the logger [rad] (0: none).
+    """
+
+    duty_min: float = 0.0
+    duty_max: float = 1.0
+    max_slew: float = 20.0
+    theta_min: float = -ANGLE_CAP
+    theta_max: float = ANGLE_CAP
+    dt: float = 2.048e-3
+    quantum: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.duty_min < self.duty_max <= 1.0):
+            raise DesignError(f"command range [{self.duty_min}, {self.duty_max}] must lie in [0, 1] "
+                              "with min < max")
+        if not (self.max_slew > 0.0 and math.isfinite(self.max_slew)):
+            raise DesignError(f"max_slew = {self.max_slew} /s must be > 0")
+        if not (-ANGLE_CAP <= self.theta_min < self.theta_max <= ANGLE_CAP):
+            raise DesignError(f"angle range [{self.theta_min}, {self.theta_max}] rad must lie in "
+                              f"[-{ANGLE_CAP}, {ANGLE_CAP}] (never over the top) with min < max")
+        if not (self.dt > 0.0 and math.isfinite(self.dt)):
+            raise DesignError(f"dt = {self.dt} s must be > 0")
+
+    def as_dict(self) -> dict[str, float]:
+        return asdict(self)
+
+    @classmethod
+    def from_recordings(cls, thetas: Sequence[np.ndarray], duties: Sequence[np.ndarray], dt: float, *,
+                        quantum: float = 0.0, margin: float = ANGLE_MARGIN, max_slew: float = 20.0,
+                        stated: Mapping[str, float] | None = None) -> Limits:
+        """Default limits from the earlier recordings: their angle range plus ``margin`` (capped at
+        ±:data:`ANGLE_CAP`), commands from 0 to their largest command; ``stated`` overrides any
+        field (the lab's own limits).
+
+        Parameters
+        ----------
+        thetas, duties : sequence of ndarray, shape (N_i,)
+            Recorded angles [rad] and commands [1] of the earlier recordings.
+        dt : float
+            Logging period of the design [s].
+        """
+        th = np.concatenate([np.asarray(t, dtype=float) for t in thetas])
+        du = np.concatenate([np.asarray(d, dtype=float) for d in duties])
+        vals: dict[str, float] = {
+            "duty_min": 0.0, "duty_max": float(min(max(np.max(du), 0.05), 1.0)), "max_slew": max_slew,
+            "theta_min": float(max(np.min(th) - margin, -ANGLE_CAP)),
+            "theta_max": float(min(np.max(th) + margin, ANGLE_CAP)), "dt": float(dt), "quantum": quantum}
+        vals.update({k: float(v) for k, v in (stated or {}).items()})
+        return cls(**vals)
+
+
+@dataclass(frozen=True)
+class AprbsShape:
+    """How a point of the unit cube becomes a command sequence.
+
+    Attributes
+    ----------
+    duration : float
+        Length of the sequence [s], lead-in included (≤ 60 s in the benchmark and the CLI default).
+    segments : int
+        Number of holds M (the design has 2M numbers).
+    min_hold, max_hold : float
+        Hold-time range before the holds are scaled to fill the duration [s].
+    """
+
+    duration: float = 40.0
+    segments: int = 80
+    min_hold: float = 0.05
+    max_hold: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not (self.duration > LEAD_IN_S + 1.0):
+            raise DesignError(f"duration = {self.duration} s must exceed {LEAD_IN_S + 1.0} s")
+        if self.segments < 2:
+            raise DesignError(f"segments = {self.segments}: at least 2")
+        if not (0.0 < self.min_hold <= self.max_hold):
+            raise DesignError(f"hold range [{self.min_hold}, {self.max_hold}] s is empty")
+
+    @classmethod
+    def for_duration(cls, duration: float) -> AprbsShape:
+        """The default shape of a design of ``duration`` seconds: two holds per second (on the lab
+        benchmark's case 87, 80 holds in 40 s separated its two candidates 3× more than 16 holds)."""
+        return cls(duration=duration, segments=max(8, round(2.0 * duration)))
+
+    @property
+    def size(self) -> int:
+        """Dimension of the design vector (2M)."""
+        return 2 * self.segments
+
+
+def slew_limited(duty: np.ndarray, step: float, start: float = 0.0) -> np.ndarray:
+    """Rate-limit a sequence: each sample moves at most ``step`` from the previous one.
+
+    Parameters
+    ----------
+    duty : ndarray, shape (N,)
+        Commands [1].
+    step : float
+        Largest change per sample [1].
+    start : float
+        Command before the first sample.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+    """
+    out = np.empty_like(np.asarray(duty, dtype=float))
+    prev = start
+    for k, u in enumerate(np.asarray(duty, dtype=float)):
+        prev = prev + min(max(u - prev, -step), step)
+        out[k] = prev
+    return out
+
+
+def sequence(z: np.ndarray, shape: AprbsShape, limits: Limits) -> np.ndarray:
+    """The command sequence (N,) of design vector ``z`` ∈ [0, 1]^(2M) on the logging grid.
+
+    The first :data:`LEAD_IN_S` holds ``duty_min``; then hold i lasts a share of the remaining time
+    proportional to ``min_hold + z[M+i]·(max_hold − min_hold)`` at level
+    ``duty_min + z[i]·(duty_max − duty_min)``; the whole passes :func:`slew_limited`.
+
+    Raises
+    ------
+    DesignError
+        If ``z`` has the wrong size.
+    """
+    z = np.clip(np.asarray(z, dtype=float), 0.0, 1.0)
+    m = shape.segments
+    if z.size != 2 * m:
+        raise DesignError(f"design vector of size {z.size}; expected {2 * m}")
+    n = round(shape.duration / limits.dt)
+    n_lead = round(LEAD_IN_S / limits.dt)
+    levels = limits.duty_min + z[:m] * (limits.duty_max - limits.duty_min)
+    holds = shape.min_hold + z[m:] * (shape.max_hold - shape.min_hold)
+    edges = n_lead + np.rint(np.cumsum(holds) / holds.sum() * (n - n_lead)).astype(int)
+    counts = np.diff(np.concatenate([[n_lead], edges]))
+    duty = np.concatenate([np.full(n_lead, limits.duty_min), np.repeat(levels, counts)])
+    return slew_limited(duty, limits.max_slew * limits.dt, start=limits.duty_min)
+
+
+def aprbs_vector(shape: AprbsShape, seed: int) -> np.ndarray:
+    """A seeded uniform point of the unit cube: an ordinary APRBS of ``shape`` (levels and holds
+    drawn uniformly), the start of the search and its comparison."""
+    return np.random.default_rng(seed).uniform(0.0, 1.0, shape.size)
+
+
+def check_limits(duty: np.ndarray, limits: Limits, theta: np.ndarray | None = None) -> dict[str, Any]:
+    """Check a sequence (and, given, the angle it produced) against ``limits``.
+
+    Parameters
+    ----------
+    duty : ndarray, shape (N,)
+        Commands on the logging grid [1].
+    theta : ndarray, shape (N,), optional
+        Recorded (or simulated) angle under those commands [rad].
+
+    The slew is checked between consecutive samples (the first command is the start, reached as
+    the lab switches its motor on).
+
+    Returns
+    -------
+    dict
+        ``command_range``, ``slew``, ``angle_range`` (True / False / None when not checked),
+        ``ok`` (all checked ones hold) and the measured extremes.
+    """
+    duty = np.asarray(duty, dtype=float)
+    tol = 1e-9
+    slew = float(np.max(np.abs(np.diff(duty)))) / limits.dt if duty.size > 1 else 0.0
+    out: dict[str, Any] = {
+        "command_range": bool(duty.min() >= limits.duty_min - tol and duty.max() <= limits.duty_max + tol),
+        "slew": bool(slew <= limits.max_slew * (1 + 1e-9) + tol / limits.dt),
+        "duty_extremes": [float(duty.min()), float(duty.max())], "max_slew_seen": slew,
+        "angle_range": None,
+    }
+    if theta is not None:
+        th = np.asarray(theta, dtype=float)
+        out["angle_range"] = bool(np.all(np.isfinite(th)) and th.min() >= limits.theta_min
+                                  and th.max() <= limits.theta_max)
+        out["theta_extremes"] = [float(np.nanmin(th)), float(np.nanmax(th))]
+    out["ok"] = all(out[k] for k in ("command_range", "slew", "angle_range") if out[k] is not None)
+    return out

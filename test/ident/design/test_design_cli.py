@@ -1,0 +1,96 @@
+"""``excitation_design`` and ``excitation --design-for`` end to end on a small case (issue 63):
+a D-optimal design for two pendulum parameters of a rig file from a simulated step log, its
+files, the CSV the excitation node plays, and the error exits."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from aeropend_ident.design.cli import main
+from aeropend_ident.io.bag_writer import write_bag
+from aeropend_sim.excitation import make_signal
+from aeropend_sim.params import load_rig
+from aeropend_sim.recording import Recording
+from aeropend_sim.ros import excitation_node
+from aeropend_sim.simulation import simulate
+
+RIG = (Path(__file__).resolve().parents[3] / "src" / "aeropend_sim" / "aeropend_sim" / "rigs"
+       / "thesis_sim.yaml")
+DT = 0.02048
+
+
+@pytest.fixture(scope="module")
+def step_log(tmp_path_factory) -> Path:
+    duty = np.concatenate([np.zeros(25), np.full(250, 0.45)])
+    traj = simulate(load_rig("thesis_sim"), duty, dt=DT)
+    theta = traj.true["theta"] + np.random.default_rng(0).normal(0.0, 2e-3, duty.size)
+    rec = Recording(t=np.arange(duty.size) * DT, duty=duty, channels={"theta": theta}, source="step")
+    path = tmp_path_factory.mktemp("rec") / "step_bag"
+    write_bag(rec, path)
+    return path
+
+
+def test_parameter_design_writes_its_files(tmp_path, step_log, capsys):
+    out = tmp_path / "design"
+    code = excitation_node.main(["--design-for", str(RIG), str(step_log), "--parameters", "pendulum.c_over_J",
+                                 "pendulum.mgd_over_J", "--duration", "6", "--budget", "4", "-o", str(out)])
+    assert code == 0, capsys.readouterr().err
+    doc = json.loads((out / "design.json").read_text())
+    assert doc["kind"] == "parameters" and doc["limits_check"]["ok"]
+    for k in ("pendulum.c_over_J", "pendulum.mgd_over_J"):
+        assert doc["sd_after"][k] < doc["sd_before"][k]
+    sig = make_signal("file", file=str(out / "design.csv"))
+    assert sig.duration == pytest.approx(6.0, abs=DT) and sig.dt == pytest.approx(DT, rel=1e-3)
+    assert "Predicted relative 1σ" in (out / "design.md").read_text()
+
+
+def test_error_exits(tmp_path, step_log, capsys):
+    assert main(["--design-for", str(RIG), str(step_log), "--duration", "90", "-o", str(tmp_path / "x")]) == 2
+    assert "at most 60 s" in capsys.readouterr().err
+    ref = ["--mode", "reference", "-o", str(tmp_path / "x")]
+    assert main(["--design-for", str(RIG), str(step_log), *ref]) == 2
+    assert "not implemented" in capsys.readouterr().err
+    assert main(["--design-for", str(RIG), str(step_log), "-o", str(tmp_path / "x")]) == 2  # no weak key
+    assert "--parameters" in capsys.readouterr().err
+    (tmp_path / "notgap").mkdir()
+    (tmp_path / "notgap" / "report.json").write_text('{"tool": "other"}')
+    assert main(["--design-for", str(tmp_path / "notgap"), str(step_log), "-o", str(tmp_path / "x")]) == 2
+    assert "not a gap report" in capsys.readouterr().err
+
+
+def test_outcome_compares_the_prediction_with_a_new_report(tmp_path, capsys):
+    from aeropend_ident.design.candidates import Candidate
+    from aeropend_ident.design.discriminate import Predictor
+    from aeropend_ident.design.report import write_design
+    from aeropend_ident.gap.effects import apply_effects
+
+    rig = load_rig("thesis_sim")
+    lagged, meas = apply_effects(rig, {"actuator_lag": {"lag_time_constant": 0.02}})
+    cands = [Candidate("nominal", (), rig), Candidate("actuator_lag", ("actuator_lag",), lagged, meas)]
+    duty = np.concatenate([np.zeros(25), np.tile(np.repeat([0.3, 0.6], 15), 10)])
+    doc = {"kind": "discrimination", "rig": str(RIG), "sigma": {"theta": 2e-3}, "chosen_before": [],
+           "candidates": [c.as_dict() for c in cands], "duration_s": duty.size * DT, "seed": 0,
+           "limits": {"dt": DT, "duty_min": 0.0, "duty_max": 1.0, "max_slew": 1e3, "theta_min": -1.0,
+                      "theta_max": 1.0}, "limits_check": {"ok": True}, "evaluations": 1, "elapsed_s": 0.0,
+           "predicted": {"per_candidate": {"nominal": 0.97, "actuator_lag": 0.96}, "draws": 1},
+           "predicted_baseline_aprbs": {"per_candidate": {}, "draws": 1},
+           "min_divergence": 1.0, "baseline_min_divergence": 1.0}
+    write_design(tmp_path / "design", doc, duty, DT, cands)
+    theta = Predictor(cands, ("theta",), DT, duty.size)(duty)["theta"][1]
+    rec = Recording(t=np.arange(duty.size) * DT, duty=duty,
+                    channels={"theta": theta + np.random.default_rng(1).normal(0, 2e-3, duty.size)})
+    write_bag(rec, tmp_path / "designed")
+    (tmp_path / "gap").mkdir()
+    report = {"tool": "aeropend_ident gap", "which": {"significant": True, "chosen": ["actuator_lag"],
+                                                     "ranking": []}}
+    (tmp_path / "gap" / "report.json").write_text(json.dumps(report))
+    assert main(["--outcome", str(tmp_path / "gap"), "--design", str(tmp_path / "design"),
+                 str(tmp_path / "designed")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["matching_candidate"] == "actuator_lag" and out["predicted_first"] == 0.96
+    assert out["changed"] and out["recording_first"] == "actuator_lag" and out["recording_agrees_with_gap"]
+    assert out["recording_chi2"]["nominal"] > 2 * out["recording_chi2"]["actuator_lag"]
