@@ -1,6 +1,6 @@
 """Blind benchmark of the sim-to-real gap diagnosis (issue 5).
 
-A generator (:mod:`aeropend_ident.gap.synth`) makes "real" recordings from the plant model with
+A generator (:mod:`bench.fixtures.gap_synth`) makes "real" recordings from the plant model with
 one or two catalog effects at random magnitudes, noise (45-60 dB SNR) and excitation; the
 diagnosis (:func:`aeropend_ident.gap.which.diagnosis.diagnose_effects`) sees only the nominal rig file
 (``thesis_rig``) and the recordings, never the truth; the scorer compares afterwards. Fit
@@ -39,9 +39,9 @@ from pathlib import Path
 from typing import Any
 
 from aeropend_ident.gap.effects import catalog, identifiable
-from aeropend_ident.gap.synth import confusion, make_case, score_case, summarise
 from aeropend_ident.gap.which.diagnosis import diagnose_effects
 from aeropend_sim.params import load_rig
+from bench.fixtures.gap_synth import confusion, make_case, score_case, summarise
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RIG = "thesis_rig"

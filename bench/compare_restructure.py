@@ -74,8 +74,8 @@ def _run(checkout: Path, work: Path, script: str, *args: str) -> dict[str, Any]:
 
 def _synthetic_logs(folder: Path) -> list[str]:
     """A viscous-friction gap (×1.5) on the shipped simulated rig, as two CSV logs (fit, held-out)."""
-    from aeropend_ident.gap.synth import make_case
     from aeropend_sim.params import load_rig
+    from bench.fixtures.gap_synth import make_case
 
     rig = load_rig("thesis_sim")
     truth = {"viscous_friction": {"c_over_J": 1.5 * rig.pendulum.c_over_J}}

@@ -23,7 +23,6 @@ from aeropend_ident.gap.effects import (
     get_effect,
     identifiable,
 )
-from aeropend_ident.gap.synth import draw_truth, record
 from aeropend_ident.gap.which.data import FIT_CHANNELS, prepare, residuals
 from aeropend_ident.gap.which.fitting import fit_effects
 from aeropend_ident.greybox.fit import motor_equilibrium
@@ -32,6 +31,7 @@ from aeropend_sim.excitation import aprbs
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
+from bench.fixtures.gap_synth import draw_truth, record
 
 RIG = load_rig("thesis_rig")
 SUBSYSTEMS = {"electrical", "motor", "aerodynamic", "pendulum", "actuator", "sensor"}

@@ -21,12 +21,12 @@ from aeropend_ident.errors import GapError
 from aeropend_ident.gap.drift import noise_floor
 from aeropend_ident.gap.effects import EffectContext, detect_quantum, measurement_noise
 from aeropend_ident.gap.sessions import attainable
-from aeropend_ident.gap.synth import make_case
 from aeropend_ident.gap.which.data import prepare
 from aeropend_ident.gap.which.diagnosis import diagnose_effects
 from aeropend_ident.gap.which.fitting import fit_effects
 from aeropend_ident.greybox.fit import noise_level
 from aeropend_sim.params import load_rig
+from bench.fixtures.gap_synth import make_case
 
 RIG = load_rig("thesis_rig")
 Q = 0.015  # rad: a coarse angle LSB, far above the rig file's (quantisation off in it)

@@ -1,4 +1,4 @@
-"""Blind-benchmark generator and scorer of the gap diagnosis (aeropend_ident.gap.synth)."""
+"""Blind-benchmark generator and scorer of the gap diagnosis (bench.fixtures.gap_synth)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from aeropend_ident.errors import GapError
-from aeropend_ident.gap.synth import (
+from aeropend_sim.params import load_rig
+from bench.fixtures.gap_synth import (
     REST,
     confusion,
     draw_truth,
@@ -18,7 +19,6 @@ from aeropend_ident.gap.synth import (
     thrust_reference_speed,
     truth_ranges,
 )
-from aeropend_sim.params import load_rig
 
 RIG = load_rig("thesis_rig")
 

@@ -18,12 +18,12 @@ import pytest
 
 from aeropend_ident.errors import GapError
 from aeropend_ident.gap.effects import CATALOG, detect_quantum
-from aeropend_ident.gap.synth import make_case
 from aeropend_ident.gap.which.diagnosis import diagnose_effects
 from aeropend_ident.gap.which.ranking import plant_side_alternative
 from aeropend_ident.gap.which.screening import group_select
 from aeropend_sim.params import load_rig, rig_from_dict
 from aeropend_sim.recording import Recording
+from bench.fixtures.gap_synth import make_case
 
 RIG = load_rig("thesis_rig")
 

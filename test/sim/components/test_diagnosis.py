@@ -14,11 +14,12 @@ import numpy as np
 import pytest
 
 from aeropend_ident.errors import GapError, IdentificationError
-from aeropend_ident.gap import drift, synth
+from aeropend_ident.gap import drift
 from aeropend_ident.gap.effects import EFFECTS, EffectContext, catalog, drift_only, get_effect, timing_effects
 from aeropend_ident.greybox.parameters import parameter_spec
 from aeropend_sim.components import registry
 from aeropend_sim.params import load_rig
+from bench.fixtures import gap_synth as synth
 from bench.fixtures.component_rigs import rig as family_rig
 
 FAMILIES = [f.name for f in registry.families()]

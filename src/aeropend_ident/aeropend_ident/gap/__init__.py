@@ -1,4 +1,4 @@
-"""The sim-to-real gap diagnosis: where, which, drift and prediction, report, compare, synthetic checks.
+"""The sim-to-real gap diagnosis: where, which, drift and prediction, report, compare.
 
 ``from aeropend_ident.gap import run_gap``; ``compare`` is :func:`aeropend_ident.compare` (here the
 module of that name). Names are imported on first use (PEP 562). Reference: docs/api.md.
@@ -17,6 +17,5 @@ _API: dict[str, tuple[str, ...]] = {
     "aeropend_ident.gap.which.diagnosis": ("diagnose_effects", "EffectDiagnosis"),
     "aeropend_ident.gap.effects": ("catalog", "get_effect"),
     "aeropend_ident.gap.compare": ("CompareResult",),
-    "aeropend_ident.gap.synth": ("make_case", "score_case"),
 }
 __all__, __getattr__, __dir__ = lazy_api(__name__, globals(), _API)
