@@ -326,6 +326,46 @@ def test_free_decay_recording_gives_the_inertia_and_damping(tmp_path):
     assert "a balance table" in res.outcome("actuator.idle_duty").reason
 
 
+def test_a_quantised_log_gives_the_fitted_rig_its_angle_lsb(tmp_path):
+    """A free decay read by a 10-bit potentiometer ADC (q = 2π/1024 rad): rig fit writes the logs'
+    LSB into the fitted rig (sensors.theta_quantum, effects.quantisation on), so a closed-loop check
+    on it sees the sensor the controller reads; an unquantised log leaves the rig without one."""
+    from aeropend_ident.greybox.rig_fit import write_fitted
+    from aeropend_ident.greybox.rig_problem import apply_values
+    from aeropend_sim.simulation import simulate
+    from bench.fixtures.rig_lab import PRESET
+
+    rig_path = _new(tmp_path, "esc", ESC_STATED)
+    doc = yaml.safe_load(rig_path.read_text(encoding="utf-8"))
+    geo = {f"pendulum.{k}": float(doc["pendulum"][k]["value"])
+           for k in ("mass", "com_distance", "thrust_arm")}
+    rig = apply_values(load_rig(rig_path), geo, {"pendulum.inertia": 0.0052, "pendulum.c_over_J": 0.6})
+    n, dt, q = 800, 0.01, 2 * np.pi / 1024
+    theta = simulate(rig, np.zeros(n), x0=np.array([0.5, 0.0, 0.0, 0.0, 0.0]), dt=dt).theta
+    preset = tmp_path / "lab_log.yaml"
+    preset.write_text(PRESET, encoding="utf-8")
+    got = {}
+    for name, y in (("adc10", q * np.round(theta / q)), ("smooth", theta)):
+        log = tmp_path / f"{name}.csv"
+        rows = "".join(f"{k * dt},0,{float(v)!r}\n" for k, v in enumerate(y))
+        log.write_text("time_s,duty,theta_rad\n" + rows, encoding="utf-8")
+        res = fit_rig(rig_path, [f"{log}:{preset}"])
+        out = write_fitted(res, tmp_path / f"fitted_{name}.yaml")
+        got[name] = (res, load_rig(out))
+    res, fitted = got["adc10"]
+    assert res.theta_quantum is not None and res.theta_quantum[0] == pytest.approx(q, rel=1e-6)
+    assert fitted.effects.quantisation and fitted.sensors.theta_quantum == pytest.approx(q, rel=1e-6)
+    assert f"sensors.theta_quantum = {q:.5g} rad (detected in the logs" in res.summary()
+    res, fitted = got["smooth"]
+    assert res.theta_quantum is None and not fitted.effects.quantisation
+    # a quantum the lab states stands; the logs' other lattice is said in a note
+    stated = _new(tmp_path, "esc", [*ESC_STATED, "sensors.theta_quantum=0.01rad"], name="stated.yaml")
+    res = fit_rig(stated, [f"{tmp_path / 'adc10.csv'}:{preset}"])
+    assert res.theta_quantum is None and res.rig.sensors.theta_quantum == 0.01
+    assert any(f"lattice of {q:.5g} rad, the rig file states sensors.theta_quantum 0.01 rad" in n
+               for n in res.notes)
+
+
 def test_a_time_constant_refusal_quotes_the_holds_and_what_would_determine_it():
     from aeropend_ident.greybox.rig_fit import _timing_hint
 

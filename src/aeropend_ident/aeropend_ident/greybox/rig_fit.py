@@ -157,6 +157,9 @@ class RigFitResult:
     #: the one replay of every command: its start, divergence and NRMSE); ``nrmse`` and ``divergence``
     #: are read from it.
     runs: dict[str, FreeRun] = field(default_factory=dict)
+    #: The angle LSB q [rad] every recording's θ lies on (:func:`angle_quantum`), written into the
+    #: fitted rig (``sensors.theta_quantum``, ``effects.quantisation``) with its source; None: none.
+    theta_quantum: tuple[float, str] | None = None
 
     def outcome(self, key: str) -> Outcome:
         """The outcome of one key (KeyError if it was not to be fitted)."""
@@ -192,6 +195,9 @@ class RigFitResult:
         if self.runs:
             lines.append(f"free-run θ of the fitted rig ({START_RULE}; NRMSE = {NRMSE_RULE}):")
             lines += [f"  {run.line(k)}" for k, run in self.runs.items()]
+        if self.theta_quantum is not None:
+            lines.append(f"sensor: sensors.theta_quantum = {self.theta_quantum[0]:.5g} rad "
+                         f"({self.theta_quantum[1]}); effects.quantisation on")
         lines += [f"note: {n}" for n in self.notes]
         lines.append(f"uncertainty: {SE_METHOD}")
         return "\n".join(lines)
@@ -605,6 +611,31 @@ def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = No
     return _joint(problem, start, path, text, doc, rig, notes, sample_period, series, say)
 
 
+#: Recordings' angle LSBs agree when the largest is within this factor of the smallest.
+QUANTUM_AGREEMENT = 1.02
+
+
+def angle_quantum(series: Sequence[TimeSeries]) -> tuple[float, str] | None:
+    """The angle LSB q [rad] the recordings' θ lies on, and its source (written into the fitted rig
+    unless the rig file states a quantum, :func:`_joint`); None when a recording is not
+    quantised (its values off a lattice, :func:`aeropend_ident.io.recording_input.detect_quantum`)
+    or the recordings' lattices differ by more than :data:`QUANTUM_AGREEMENT`.
+
+    The sensor's resolution is a fact of the logs, not a parameter to fit: a 10-bit potentiometer
+    ADC or a 12-bit encoder puts every recorded angle on k·q. The fitted rig carries it so that a
+    closed-loop design checked on that rig (``design_gains``) sees the sensor the controller will
+    read (a small step can limit-cycle within one LSB). Replays compare the model's angle without
+    quantisation (:mod:`aeropend_ident.greybox.replay`), so no fit figure changes.
+    """
+    from aeropend_ident.io.recording_input import detect_quantum
+
+    qs = [detect_quantum(s.replayed.theta) for s in series]
+    if not qs or min(qs) <= 0.0 or max(qs) > QUANTUM_AGREEMENT * min(qs):
+        return None
+    q = float(np.median(qs))
+    return q, f"detected in the logs (rig fit): every recorded angle on a lattice of {q:.5g} rad"
+
+
 def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc: Mapping[str, Any], rig: Rig,
            notes: list[str], sample_period: tuple[float, str] | None, series: Sequence[TimeSeries],
            say: Callable[[str], None]) -> RigFitResult:
@@ -665,6 +696,16 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
             outcomes[s.name] = Outcome(s.name, s.unit, s.initial, status="to be fitted",
                                        reason=refused[s.name], lower=s.lower, upper=s.upper)
     fitted = problem.rig(z)
+    quantum = angle_quantum(series)
+    stated_q = rig.sensors.theta_quantum if rig.effects.quantisation else 0.0
+    if quantum is not None and stated_q > 0.0:  # the lab's own statement stands; a disagreement is said
+        if abs(quantum[0] / stated_q - 1.0) > QUANTUM_AGREEMENT - 1.0:
+            notes.append(f"the logs' angles lie on a lattice of {quantum[0]:.5g} rad, the rig file states "
+                         f"sensors.theta_quantum {stated_q:.5g} rad: check the sensor's resolution")
+        quantum = None
+    if quantum is not None:
+        quantisation = next(d for d in registry.diagnoses() if d.name == "quantisation")
+        fitted = quantisation.apply(fitted, {"theta_quantum": quantum[0]})
     # the figure of the fitted rig is the one replay of every command (not the fit's own start values),
     # on each whole recording (the fit's windows are its own business)
     runs: dict[str, FreeRun] = {}
@@ -679,7 +720,7 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
     ordered = [outcomes[s.name] for s in all_specs]
     inputs = list(dict.fromkeys((b.source, b.label) for b in problem.blocks))
     return RigFitResult(path, text, rig.family, ordered, fitted, inputs, nrmse, notes,  # type: ignore[arg-type]
-                        sample_period, divergence, runs)
+                        sample_period, divergence, runs, quantum)
 
 
 # ------------------------------------------------------------------------------ the fitted file
@@ -735,7 +776,29 @@ def fitted_text(result: RigFitResult) -> str:
         block = [*_comments(o, "  "), f"  {name}: {_quantity(o.value, o.unit, o.source)}"]
         at = ends.get(sec)
         out = out[:at] + block + out[at:] if at is not None else [*out, f"{sec}:", *block]
+    if result.theta_quantum is not None:
+        out = _with_quantum(out, *result.theta_quantum)
     return "\n".join(out) + "\n"
+
+
+def _with_quantum(lines: list[str], q: float, source: str) -> list[str]:
+    """The rig file's lines with ``sensors.theta_quantum`` set to ``q`` and ``effects.quantisation``
+    on (each line replaced where the file has it, else added to its section or a new section)."""
+    def put(out: list[str], section: str, name: str, line: str) -> list[str]:
+        start = next((i for i, x in enumerate(out) if x.split("#")[0].strip() == f"{section}:"), None)
+        if start is None:
+            return [*out, f"{section}:", line]
+        end = start + 1
+        while end < len(out) and (not out[end] or out[end][0].isspace() or out[end].startswith("#")):
+            if re.match(rf"^\s+{name}\s*:", out[end]):
+                return [*out[:end], line, *out[end + 1:]]
+            end += 1
+        while end > start + 1 and not out[end - 1].strip():
+            end -= 1
+        return [*out[:end], line, *out[end:]]
+
+    lines = put(lines, "sensors", "theta_quantum", f"  theta_quantum: {_quantity(q, 'rad', source)}")
+    return put(lines, "effects", "quantisation", "  quantisation: true  # the logs' angle LSB (rig fit)")
 
 
 #: A fitted value within this share of its search range (in the search coordinate: logarithmic for a
