@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.design.candidates import Candidate
-from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, check_mode, sequence
+from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, check_mode, search, sequence
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
 
@@ -197,8 +197,6 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
         With fewer than two candidates; :class:`~aeropend_ident.design.sequence.DesignError` for a
         mode other than ``open_loop``.
     """
-    import cma
-
     check_mode(mode)
     if len(candidates) < 2:
         raise ValueError("a discrimination design needs at least two candidates")
@@ -207,27 +205,13 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
     n = round(shape.duration / limits.dt)
     pred = Predictor(candidates, tuple(sigma), limits.dt, n)
 
-    def value(z: np.ndarray) -> float:
-        return criterion(pred(sequence(z, shape, limits)), sigma, limits)
+    def value(z: np.ndarray) -> tuple[float, None]:
+        return criterion(pred(sequence(z, shape, limits)), sigma, limits), None
 
     z0 = aprbs_vector(shape, seed)
-    v0 = value(z0)
-    best_z, best_v = z0.copy(), v0
-    opts = {"bounds": [0.0, 1.0], "seed": seed + 1, "verbose": -9, "maxfevals": max_evaluations,
-            "popsize": 8 + shape.size // 6, "tolfun": 1e-4}
-    es = cma.CMAEvolutionStrategy(z0, 0.25, opts)
-    while not es.stop() and time.perf_counter() - t0 < budget_s:
-        zs = es.ask()
-        vals = []
-        for z in zs:  # the budget holds inside a generation too (an unfinished one is not told)
-            if time.perf_counter() - t0 >= budget_s:
-                break
-            vals.append(value(np.asarray(z)))
-            if vals[-1] > best_v:
-                best_z, best_v = np.asarray(z).copy(), vals[-1]
-        if len(vals) < len(zs):
-            break
-        es.tell(zs, [-v for v in vals])
+    best_z, best_v, _, v0, _ = search(value, z0, seed=seed, budget_s=budget_s,
+                                      max_evaluations=max_evaluations, popsize=8 + shape.size // 6,
+                                      started=t0, tolfun=1e-4)
     duty, base = sequence(best_z, shape, limits), sequence(z0, shape, limits)
     return Discrimination(duty=duty, baseline=base, value=best_v, baseline_value=v0,
                           min_divergence=_min_div(pred(duty), sigma),

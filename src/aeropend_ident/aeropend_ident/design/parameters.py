@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, check_mode, sequence
+from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, check_mode, search, sequence
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_sim.params import Rig
@@ -165,8 +165,6 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
         Without keys; :class:`~aeropend_ident.design.sequence.DesignError` for a mode other than
         ``open_loop``.
     """
-    import cma
-
     check_mode(mode)
     if not keys:
         raise ValueError("no parameter to design for")
@@ -189,23 +187,9 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
 
     z0 = aprbs_vector(shape, seed)
     base = sequence(z0, shape, limits)
-    v0, f_base = score(base)
-    best_z, best_v, best_f = z0, v0, f_base
-    es = cma.CMAEvolutionStrategy(z0, 0.25, {"bounds": [0.0, 1.0], "seed": seed + 1, "verbose": -9,
-                                             "maxfevals": max_evaluations, "popsize": 8 + shape.size // 6})
-    while not es.stop() and time.perf_counter() - t0 < budget_s:
-        zs = es.ask()
-        vals = []
-        for z in zs:  # the budget holds inside a generation too (an unfinished one is not told)
-            if time.perf_counter() - t0 >= budget_s:
-                break
-            v, f = score(sequence(np.asarray(z), shape, limits))
-            vals.append(v)
-            if v > best_v:
-                best_z, best_v, best_f = np.asarray(z).copy(), v, f
-        if len(vals) < len(zs):
-            break
-        es.tell(zs, [-v for v in vals])
+    best_z, best_v, best_f, v0, f_base = search(
+        lambda z: score(sequence(z, shape, limits)), z0, seed=seed, budget_s=budget_s,
+        max_evaluations=max_evaluations, popsize=8 + shape.size // 6, started=t0)
 
     def sd(f: np.ndarray) -> dict[str, float]:
         return dict(zip(keys, map(float, relative_sd(f0 + f)[:n_i]), strict=True))

@@ -17,7 +17,8 @@ No rclpy import: this module runs without ROS.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -217,6 +218,61 @@ def aprbs_vector(shape: AprbsShape, seed: int) -> np.ndarray:
     """A seeded uniform point of the unit cube: an ordinary APRBS of ``shape`` (levels and holds
     drawn uniformly), the start of the search and its comparison."""
     return np.random.default_rng(seed).uniform(0.0, 1.0, shape.size)
+
+
+def search(score: Callable[[np.ndarray], tuple[float, Any]], z0: np.ndarray, *, seed: int, budget_s: float,
+           max_evaluations: int, popsize: int, started: float, tolfun: float | None = None
+           ) -> tuple[np.ndarray, float, Any, float, Any]:
+    """Maximise ``score(z)[0]`` over the unit box by CMA-ES (the ``cma`` package) from ``z0``.
+
+    The one search of every design. The budget holds inside a generation too: an unfinished
+    generation is not told to the strategy and ends the search.
+
+    Parameters
+    ----------
+    score : callable
+        ``score(z) -> (value, extra)``; larger values are better, ``extra`` is kept with the best.
+    z0 : ndarray, shape (n,)
+        Start in [0, 1]^n (also scored: the baseline).
+    seed : int
+        CMA-ES seed is ``seed + 1`` (the design is reproducible when ``max_evaluations`` stops it).
+    budget_s : float
+        Wall time [s] from ``started`` (a :func:`time.perf_counter` reading).
+    max_evaluations : int
+        Most evaluations (CMA-ES ``maxfevals``).
+    popsize : int
+        CMA-ES population.
+    tolfun : float, optional
+        CMA-ES ``tolfun`` (its default when None).
+
+    Returns
+    -------
+    tuple
+        ``(best_z, best_value, best_extra, baseline_value, baseline_extra)``.
+    """
+    import cma
+
+    v0, e0 = score(z0)
+    best_z, best_v, best_e = z0.copy(), v0, e0
+    opts: dict[str, Any] = {"bounds": [0.0, 1.0], "seed": seed + 1, "verbose": -9,
+                            "maxfevals": max_evaluations, "popsize": popsize}
+    if tolfun is not None:
+        opts["tolfun"] = tolfun
+    es = cma.CMAEvolutionStrategy(z0, 0.25, opts)
+    while not es.stop() and time.perf_counter() - started < budget_s:
+        zs = es.ask()
+        vals = []
+        for z in zs:
+            if time.perf_counter() - started >= budget_s:
+                break
+            v, e = score(np.asarray(z))
+            vals.append(v)
+            if v > best_v:
+                best_z, best_v, best_e = np.asarray(z).copy(), v, e
+        if len(vals) < len(zs):
+            break
+        es.tell(zs, [-v for v in vals])
+    return best_z, best_v, best_e, v0, e0
 
 
 def check_limits(duty: np.ndarray, limits: Limits, theta: np.ndarray | None = None) -> dict[str, Any]:
