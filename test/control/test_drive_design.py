@@ -9,8 +9,8 @@ design. A rig without a declared drive lag keeps the static (thesis) design.
 from __future__ import annotations
 
 import itertools
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 import pytest
 
@@ -45,6 +45,9 @@ from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig, rig_from_dict, rig_to_dict
 from aeropend_sim.simulation import PlantStepper
 
+if TYPE_CHECKING:
+    import control
+
 SPEC = PoleSpec(9.5)
 
 
@@ -62,12 +65,14 @@ def _rig(lag: float = 0.0, delay: float = 0.0, name: str = "thesis_rig", c_over_
 
 
 def _t63(sys: control.StateSpace) -> float:
+    import control  # python-control, imported here: collection does not pay for it
     t = np.linspace(0.0, 1.0, 20001)
     _, y = control.step_response(sys, t)
     return float(t[np.argmax(np.asarray(y).ravel() >= 0.632)])
 
 
 def test_drive_model_has_unit_dc_gain_and_is_slowed_by_the_declared_lag():
+    import control  # python-control, imported here: collection does not pay for it
     fast, slow = _rig(), _rig(lag=0.04, delay=0.004)
     assert not declares_drive_lag(fast) and declares_drive_lag(slow)
     for rig in (fast, slow):
@@ -103,6 +108,7 @@ def test_the_design_poles_are_poles_of_the_loop_with_the_drive(linearising):
 
 
 def test_designed_on_the_drive_the_loop_keeps_the_designed_step_where_static_gains_overshoot():
+    import control  # python-control, imported here: collection does not pay for it
     rig = _rig(lag=0.05, delay=0.004, name="thesis_sim")
     drive = DriveSpec("duty", thrust_gain=3.0)
     fl = design_fl_on_drive(rig, SPEC, drive, 0.3)
@@ -172,6 +178,7 @@ def test_a_cascade_on_a_quasi_static_armature_with_a_declared_lag_starts_on_the_
 def test_the_plant_error_of_the_linear_loop_is_the_known_residual_of_the_fl_law():
     """FL law with the nominal model on a plant with k_g·g, k_c·a1 and k_a·a0: θ̈ = k_g·(v + a0·θ +
     a1·θ̇) − k_a·a0·θ − k_c·a1·θ̇, so with an instantaneous drive the loop is the cubic below."""
+    import control  # python-control, imported here: collection does not pay for it
     m = PlantModel(load_rig("thesis_sim"))
     a0, a1, g = m.a_g * np.cos(0.3), m.a_c, m.b_f
     kp, ki, kd = place_ipd(0.0, 0.0, 1.0, SPEC)
