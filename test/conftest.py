@@ -8,7 +8,7 @@ tests know them: ``./scripts/test.sh`` (pytest from the root, ``pyproject.toml``
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 
 import pytest
 
@@ -25,6 +25,23 @@ MARKERS = (
 def pytest_configure(config: pytest.Config) -> None:
     for marker in MARKERS:
         config.addinivalue_line("markers", marker)
+
+
+@pytest.fixture(autouse=True)
+def _domain_claims_released() -> Iterator[None]:
+    """Give back the ROS domain IDs a test claimed (``random_domain``) once it is over.
+
+    A claim otherwise lasts as long as its process, and a pytest worker lives for the whole run:
+    the parallel workers of this suite and the suites and benchmarks of other checkouts on the
+    same host would fill the claimed ranges between them. The test's node processes are stopped
+    by then (every test reaps them in a ``finally``); claims of module-scoped fixtures are made
+    before this fixture starts and are kept.
+    """
+    from aeropend_sim.ros.harness import claimed_domains, release_domains
+
+    held = claimed_domains()
+    yield
+    release_domains(keep=held)
 
 
 @pytest.fixture
