@@ -8,9 +8,23 @@ tests know them: ``./scripts/test.sh`` (pytest from the root, ``pyproject.toml``
 
 from __future__ import annotations
 
+import os
+import sys
 from collections.abc import Callable, Iterator, Sequence
 
 import pytest
+
+#: In a pytest-xdist worker (``scripts/test.sh`` runs the suite in several): one replay thread and one
+#: BLAS/OpenMP thread per worker, as every pool or cluster worker of the product runs
+#: (``aeropend_ident.parallel.WORKER_ENV``). The workers are the parallelism; a worker that also
+#: split its replays and BLAS products over every core ran 4 workers x 2 threads on 2 cores, and
+#: OpenBLAS threads spinning against the other workers made CPU-bound tests time out after 600 s
+#: (docs/findings/test_suite.md). Set before numpy is imported, so OpenBLAS starts with one thread.
+PARALLEL_WORKER_ENV = {"AEROPEND_REPLAY_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+                       "MKL_NUM_THREADS": "1"}
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    for _key, _value in PARALLEL_WORKER_ENV.items():
+        os.environ.setdefault(_key, _value)
 
 #: Columns of a CSV log written by ``bench/fixtures/truth_plant.py`` (``TruthRecording.to_csv``).
 TRUTH_CSV_COLUMNS = {"i_a": "i_a_A", "v_a": "v_a_V", "omega_rotor": "omega_rad_s"}
@@ -19,12 +33,20 @@ MARKERS = (
     "ros: real multi-process ROS 2 test (rclpy nodes in separate processes)",
     "real_data: reads third-party recordings from ../shared/data/real",
     "slow: takes more than ~20 s",
+    # pytest-xdist's own marker, registered here too so --strict-markers knows it without xdist
+    "xdist_group(name): under --dist loadgroup, every test of the group runs on one worker "
+    "(a module whose fixture is expensive computes it once)",
 )
 
 
 def pytest_configure(config: pytest.Config) -> None:
     for marker in MARKERS:
         config.addinivalue_line("markers", marker)
+    if os.environ.get("PYTEST_XDIST_WORKER") and "numpy" in sys.modules:
+        # numpy came first (a plugin): limit its already started BLAS pool for the whole worker
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1)
 
 
 @pytest.fixture(autouse=True)

@@ -14,6 +14,9 @@ from pathlib import Path
 
 import pytest
 
+# an expensive module fixture: under --dist loadgroup the module runs on one worker, which computes it once
+pytestmark = pytest.mark.xdist_group("test_workspace")
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ["aeropend_sim", "aeropend_control", "aeropend_bridge", "aeropend_ident"]
 

@@ -16,6 +16,9 @@ from aeropend_ident.sindy.model import structure_errors
 from aeropend_ident.sindy.output_error import refine_output_error
 from bench.fixtures.sindy_case import TRUTH, case_data, weak_iv_fit
 
+# an expensive module fixture: under --dist loadgroup the module runs on one worker, which computes it once
+pytestmark = pytest.mark.xdist_group("test_output_error")
+
 OE = ("i_a", "omega_rotor")
 
 
