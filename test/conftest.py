@@ -32,7 +32,8 @@ TRUTH_CSV_COLUMNS = {"i_a": "i_a_A", "v_a": "v_a_V", "omega_rotor": "omega_rad_s
 MARKERS = (
     "ros: real multi-process ROS 2 test (rclpy nodes in separate processes)",
     "real_data: reads third-party recordings from ../shared/data/real",
-    "slow: takes more than ~20 s",
+    "slow: takes more than ~20 s in the parallel suite on a loaded 2-core machine (~5 s alone), or "
+    "shares a module fixture that does; -m 'not ros and not slow' is the fast subset (docs/testing.md)",
     # pytest-xdist's own marker, registered here too so --strict-markers knows it without xdist
     "xdist_group(name): under --dist loadgroup, every test of the group runs on one worker "
     "(a module whose fixture is expensive computes it once)",

@@ -136,6 +136,7 @@ def test_a_rig_without_a_declared_drive_lag_keeps_the_static_design():
     assert {d.drive for d in ss.table} == {"static"}
 
 
+@pytest.mark.slow
 def test_strategies_on_a_rig_that_declares_its_lag_are_designed_on_the_drive():
     rig = _rig(lag=0.04, delay=0.004, name="thesis_sim")
     assert FeedbackLinearizationPID.drive_for(rig) == DriveSpec("duty", thrust_gain=3.0)
@@ -196,6 +197,7 @@ def test_the_plant_error_of_the_linear_loop_is_the_known_residual_of_the_fl_law(
         assert slow == pytest.approx(np.sort_complex(want), rel=1e-3)
 
 
+@pytest.mark.slow
 def test_robust_spec_keeps_the_thesis_spec_without_a_declared_drive_and_is_minimax_with_one():
     rig = load_rig("thesis_rig")
     for name in ("fl_pid", "small_signal", "cascade", "fl_cascade"):
@@ -237,6 +239,7 @@ def _step_on_own_simulator(rig, strategy, r: float = 0.3, seconds: float = 5.0) 
     return (outside[-1] + 1) * rig.sample_period, 100.0 * max(y.max() - r, 0.0) / r
 
 
+@pytest.mark.slow
 def test_robust_spec_goes_slower_when_no_candidate_keeps_the_whole_box_stable():
     """A weakly damped rod (c/J 6.97 1/s instead of 13.82) on a drive with a declared 58 ms lag (the
     corrected rig of benchmark plant 34): with the cascades' speed loop at 24 rad/s every ζ at
@@ -266,6 +269,7 @@ def test_robust_spec_goes_slower_when_no_candidate_keeps_the_whole_box_stable():
     assert mp_fast > 5.0
 
 
+@pytest.mark.slow
 def test_the_thrust_loop_gain_keeps_its_inner_loop_stable_on_a_rig_with_a_pure_delay():
     """With a declared pure delay of 2 samples and no lag, the predictor's quasi-static motor follows
     the duty within a sample (J_m/(B_m + K_t·K_ω/R_a) ≈ 1.4 ms), so the thrust loop's inner loop is

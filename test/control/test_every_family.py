@@ -94,6 +94,7 @@ def test_cascades_refuse_an_esc_rig_by_name_and_run_on_a_quasi_static_armature(t
     assert math.isfinite(design.predicted.settling_time)  # the integral current loop's linear cascade settles
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("family", FAMILIES)
 def test_design_gains_controller_and_rig_check_on_every_rig_new_can_write(
         family: str, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
@@ -129,6 +130,7 @@ def test_design_gains_controller_and_rig_check_on_every_rig_new_can_write(
                 assert duty is not None and 0.0 <= duty <= 1.0, (tag, name)
 
 
+@pytest.mark.slow
 def test_design_gains_figures_are_the_closed_loop_the_node_runs(tmp_path: Path,
                                                                capsys: pytest.CaptureFixture) -> None:
     """The slow-rotor amplifier template: the default pattern limit-cycles on the rig's own simulator and

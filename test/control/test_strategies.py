@@ -191,6 +191,7 @@ def test_bad_strategy_config_names_value() -> None:
     assert OMEGA == 3  # state layout the ideal-thrust helper relies on
 
 
+@pytest.mark.slow
 def test_design_cli_writes_gains(tmp_path: pytest.TempPathFactory, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "gains.yaml"
     assert main(["--rig", "thesis_rig", "-o", str(out)]) == 0
@@ -238,6 +239,7 @@ def test_cascade_holds_duty_without_motor_measurements() -> None:
     assert o2.nan_input and o2.duty == o1.duty
 
 
+@pytest.mark.slow
 def test_each_strategy_chooses_its_robust_pole_spec_once(monkeypatch: pytest.MonkeyPatch) -> None:
     """``default_spec_for`` runs the robust-ζ search on a rig file that declares its drive (54 linear
     step responses); building a strategy runs it once, fl_cascade's outer FL loop included (it gets

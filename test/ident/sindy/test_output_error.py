@@ -34,6 +34,7 @@ def noisy50():
     return data, weak_iv_fit(data, output_error=OE)
 
 
+@pytest.mark.slow
 def test_noise_free_not_degraded(clean) -> None:
     data, m = clean
     exact = refine_output_error(m, data)
@@ -48,6 +49,7 @@ def test_noise_free_not_degraded(clean) -> None:
     assert (exact.coef[i] == m.coef[i]).all()
 
 
+@pytest.mark.slow
 def test_50db_structure_and_consistent_standard_errors(noisy50) -> None:
     _, m = noisy50
     errs = structure_errors(m, TRUTH)
