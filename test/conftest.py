@@ -8,9 +8,23 @@ tests know them: ``./scripts/test.sh`` (pytest from the root, ``pyproject.toml``
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import os
+import sys
+from collections.abc import Callable, Iterator, Sequence
 
 import pytest
+
+#: In a pytest-xdist worker (``scripts/test.sh`` runs the suite in several): one replay thread and one
+#: BLAS/OpenMP thread per worker, as every pool or cluster worker of the product runs
+#: (``aeropend_ident.parallel.WORKER_ENV``). The workers are the parallelism; a worker that also
+#: split its replays and BLAS products over every core ran 4 workers x 2 threads on 2 cores, and
+#: OpenBLAS threads spinning against the other workers made CPU-bound tests time out after 600 s
+#: (docs/findings/test_suite.md). Set before numpy is imported, so OpenBLAS starts with one thread.
+PARALLEL_WORKER_ENV = {"AEROPEND_REPLAY_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
+                       "MKL_NUM_THREADS": "1"}
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    for _key, _value in PARALLEL_WORKER_ENV.items():
+        os.environ.setdefault(_key, _value)
 
 #: Columns of a CSV log written by ``bench/fixtures/truth_plant.py`` (``TruthRecording.to_csv``).
 TRUTH_CSV_COLUMNS = {"i_a": "i_a_A", "v_a": "v_a_V", "omega_rotor": "omega_rad_s"}
@@ -18,13 +32,39 @@ TRUTH_CSV_COLUMNS = {"i_a": "i_a_A", "v_a": "v_a_V", "omega_rotor": "omega_rad_s
 MARKERS = (
     "ros: real multi-process ROS 2 test (rclpy nodes in separate processes)",
     "real_data: reads third-party recordings from ../shared/data/real",
-    "slow: takes more than ~20 s",
+    "slow: takes more than ~20 s in the parallel suite on a loaded 2-core machine (~5 s alone), or "
+    "shares a module fixture that does; -m 'not ros and not slow' is the fast subset (docs/testing.md)",
+    # pytest-xdist's own marker, registered here too so --strict-markers knows it without xdist
+    "xdist_group(name): under --dist loadgroup, every test of the group runs on one worker "
+    "(a module whose fixture is expensive computes it once)",
 )
 
 
 def pytest_configure(config: pytest.Config) -> None:
     for marker in MARKERS:
         config.addinivalue_line("markers", marker)
+    if os.environ.get("PYTEST_XDIST_WORKER") and "numpy" in sys.modules:
+        # numpy came first (a plugin): limit its already started BLAS pool for the whole worker
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1)
+
+
+@pytest.fixture(autouse=True)
+def _domain_claims_released() -> Iterator[None]:
+    """Give back the ROS domain IDs a test claimed (``random_domain``) once it is over.
+
+    A claim otherwise lasts as long as its process, and a pytest worker lives for the whole run:
+    the parallel workers of this suite and the suites and benchmarks of other checkouts on the
+    same host would fill the claimed ranges between them. The test's node processes are stopped
+    by then (every test reaps them in a ``finally``); claims of module-scoped fixtures are made
+    before this fixture starts and are kept.
+    """
+    from aeropend_sim.ros.harness import claimed_domains, release_domains
+
+    held = claimed_domains()
+    yield
+    release_domains(keep=held)
 
 
 @pytest.fixture

@@ -14,6 +14,9 @@ from pathlib import Path
 
 import pytest
 
+# an expensive module fixture: under --dist loadgroup the module runs on one worker, which computes it once
+pytestmark = pytest.mark.xdist_group("test_workspace")
+
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ["aeropend_sim", "aeropend_control", "aeropend_bridge", "aeropend_ident"]
 
@@ -70,6 +73,7 @@ def colcon_ws(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return ws
 
 
+@pytest.mark.slow
 def test_colcon_build_installs_entry_points(colcon_ws: Path) -> None:
     tmp_path = colcon_ws
     _, env = _colcon()
@@ -147,6 +151,7 @@ def test_every_test_file_belongs_to_one_package_or_the_workspace() -> None:
 _RESULT = re.compile(r"(\d+) tests, (\d+) errors, (\d+) failures, (\d+) skipped")
 
 
+@pytest.mark.slow
 def test_colcon_test_runs_each_packages_tests(colcon_ws: Path) -> None:
     """``colcon test`` runs the packages' own tests (here the fast ones of two packages)."""
     colcon, env = _colcon()

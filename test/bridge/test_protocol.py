@@ -106,6 +106,7 @@ _sample = st.builds(proto.SampleFrame, st.integers(0, 0xFFFF), st.integers(0, 2*
                     st.integers(0, 2**32 - 1), st.integers(0, 255), st.integers(0, 15))
 
 
+@pytest.mark.slow
 @settings(max_examples=max(FUZZ_EXAMPLES // 20, 200), deadline=None, database=None,
           suppress_health_check=list(HealthCheck))
 @given(st.lists(st.tuples(st.binary(max_size=60), _sample), min_size=1, max_size=8), st.binary(max_size=60))

@@ -9,8 +9,8 @@ design. A rig without a declared drive lag keeps the static (thesis) design.
 from __future__ import annotations
 
 import itertools
+from typing import TYPE_CHECKING
 
-import control
 import numpy as np
 import pytest
 
@@ -45,6 +45,9 @@ from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig, rig_from_dict, rig_to_dict
 from aeropend_sim.simulation import PlantStepper
 
+if TYPE_CHECKING:
+    import control
+
 SPEC = PoleSpec(9.5)
 
 
@@ -62,12 +65,14 @@ def _rig(lag: float = 0.0, delay: float = 0.0, name: str = "thesis_rig", c_over_
 
 
 def _t63(sys: control.StateSpace) -> float:
+    import control  # python-control, imported here: collection does not pay for it
     t = np.linspace(0.0, 1.0, 20001)
     _, y = control.step_response(sys, t)
     return float(t[np.argmax(np.asarray(y).ravel() >= 0.632)])
 
 
 def test_drive_model_has_unit_dc_gain_and_is_slowed_by_the_declared_lag():
+    import control  # python-control, imported here: collection does not pay for it
     fast, slow = _rig(), _rig(lag=0.04, delay=0.004)
     assert not declares_drive_lag(fast) and declares_drive_lag(slow)
     for rig in (fast, slow):
@@ -103,6 +108,7 @@ def test_the_design_poles_are_poles_of_the_loop_with_the_drive(linearising):
 
 
 def test_designed_on_the_drive_the_loop_keeps_the_designed_step_where_static_gains_overshoot():
+    import control  # python-control, imported here: collection does not pay for it
     rig = _rig(lag=0.05, delay=0.004, name="thesis_sim")
     drive = DriveSpec("duty", thrust_gain=3.0)
     fl = design_fl_on_drive(rig, SPEC, drive, 0.3)
@@ -130,6 +136,7 @@ def test_a_rig_without_a_declared_drive_lag_keeps_the_static_design():
     assert {d.drive for d in ss.table} == {"static"}
 
 
+@pytest.mark.slow
 def test_strategies_on_a_rig_that_declares_its_lag_are_designed_on_the_drive():
     rig = _rig(lag=0.04, delay=0.004, name="thesis_sim")
     assert FeedbackLinearizationPID.drive_for(rig) == DriveSpec("duty", thrust_gain=3.0)
@@ -172,6 +179,7 @@ def test_a_cascade_on_a_quasi_static_armature_with_a_declared_lag_starts_on_the_
 def test_the_plant_error_of_the_linear_loop_is_the_known_residual_of_the_fl_law():
     """FL law with the nominal model on a plant with k_g·g, k_c·a1 and k_a·a0: θ̈ = k_g·(v + a0·θ +
     a1·θ̇) − k_a·a0·θ − k_c·a1·θ̇, so with an instantaneous drive the loop is the cubic below."""
+    import control  # python-control, imported here: collection does not pay for it
     m = PlantModel(load_rig("thesis_sim"))
     a0, a1, g = m.a_g * np.cos(0.3), m.a_c, m.b_f
     kp, ki, kd = place_ipd(0.0, 0.0, 1.0, SPEC)
@@ -189,6 +197,7 @@ def test_the_plant_error_of_the_linear_loop_is_the_known_residual_of_the_fl_law(
         assert slow == pytest.approx(np.sort_complex(want), rel=1e-3)
 
 
+@pytest.mark.slow
 def test_robust_spec_keeps_the_thesis_spec_without_a_declared_drive_and_is_minimax_with_one():
     rig = load_rig("thesis_rig")
     for name in ("fl_pid", "small_signal", "cascade", "fl_cascade"):
@@ -230,6 +239,7 @@ def _step_on_own_simulator(rig, strategy, r: float = 0.3, seconds: float = 5.0) 
     return (outside[-1] + 1) * rig.sample_period, 100.0 * max(y.max() - r, 0.0) / r
 
 
+@pytest.mark.slow
 def test_robust_spec_goes_slower_when_no_candidate_keeps_the_whole_box_stable():
     """A weakly damped rod (c/J 6.97 1/s instead of 13.82) on a drive with a declared 58 ms lag (the
     corrected rig of benchmark plant 34): with the cascades' speed loop at 24 rad/s every ζ at
@@ -259,6 +269,7 @@ def test_robust_spec_goes_slower_when_no_candidate_keeps_the_whole_box_stable():
     assert mp_fast > 5.0
 
 
+@pytest.mark.slow
 def test_the_thrust_loop_gain_keeps_its_inner_loop_stable_on_a_rig_with_a_pure_delay():
     """With a declared pure delay of 2 samples and no lag, the predictor's quasi-static motor follows
     the duty within a sample (J_m/(B_m + K_t·K_ω/R_a) ≈ 1.4 ms), so the thrust loop's inner loop is

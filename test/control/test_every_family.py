@@ -94,41 +94,50 @@ def test_cascades_refuse_an_esc_rig_by_name_and_run_on_a_quasi_static_armature(t
     assert math.isfinite(design.predicted.settling_time)  # the integral current loop's linear cascade settles
 
 
-@pytest.mark.parametrize("family", FAMILIES)
+#: (family, variant, stated values) of every rig file ``rig new`` can write: one test case each, so the
+#: ~30 cases of the three families share out over the parallel workers (one case per family ran for
+#: over 600 s on a loaded 2-core machine)
+RIG_NEW_CASES = [(family, tag, stated) for family in FAMILIES for tag, stated in _variants(family)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("family", "tag", "stated"), RIG_NEW_CASES,
+                         ids=[f"{family}-{tag}" for family, tag, _ in RIG_NEW_CASES])
 def test_design_gains_controller_and_rig_check_on_every_rig_new_can_write(
-        family: str, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+        family: str, tag: str, stated: dict[str, float], tmp_path: Path,
+        capsys: pytest.CaptureFixture) -> None:
     names = [n for n in strategy_names() if not strategy_class(n).required]
-    for tag, stated in _variants(family):
-        path = _write(tmp_path, family, stated, tag)
-        out_file = tmp_path / f"{family}_{tag}_gains.yaml"
-        rc = design_gains(["--rig", str(path), "--steps", "0.3", "--no-tune", "-o", str(out_file)])
-        captured = capsys.readouterr()
-        assert rig_main(["check", str(path)]) == 0, tag
-        capsys.readouterr()
-        if rc == 2:  # a start value that cannot lift the rod: one line naming why, no traceback
-            assert re.fullmatch(r"design_gains: error: rig .* cannot lift the rod\n", captured.err), \
-                captured.err
-            with pytest.raises(ControllerConfigError, match="cannot lift the rod"):
-                ControllerLoop(make_settings(rig=str(path), strategy="fl_pid", mode="lockstep"))
+    path = _write(tmp_path, family, stated, tag)
+    out_file = tmp_path / f"{family}_{tag}_gains.yaml"
+    rc = design_gains(["--rig", str(path), "--steps", "0.3", "--no-tune", "-o", str(out_file)])
+    captured = capsys.readouterr()
+    assert rig_main(["check", str(path)]) == 0, tag
+    capsys.readouterr()
+    if rc == 2:  # a start value that cannot lift the rod: one line naming why, no traceback
+        assert re.fullmatch(r"design_gains: error: rig .* cannot lift the rod\n", captured.err), \
+            captured.err
+        with pytest.raises(ControllerConfigError, match="cannot lift the rod"):
+            ControllerLoop(make_settings(rig=str(path), strategy="fl_pid", mode="lockstep"))
+        return
+    assert rc == 0, (tag, captured.err)
+    out = captured.out
+    assert "closed loop on the whole rig file" in out
+    assert "recommended:" in out or "not attainable" in out
+    doc = yaml.safe_load(out_file.read_text(encoding="utf-8"))
+    assert set(doc["closed_loop"]) | set(doc["others"]) == set(names), tag
+    for name in names:
+        try:
+            settings = make_settings(rig=str(path), strategy=name, mode="lockstep", reference=0.3)
+            loop = ControllerLoop(settings)
+        except ControllerConfigError as exc:
+            assert family == "esc" and "cascade" in name, (tag, name, exc)
             continue
-        assert rc == 0, (tag, captured.err)
-        out = captured.out
-        assert "closed loop on the whole rig file" in out
-        assert "recommended:" in out or "not attainable" in out
-        doc = yaml.safe_load(out_file.read_text(encoding="utf-8"))
-        assert set(doc["closed_loop"]) | set(doc["others"]) == set(names), tag
-        for name in names:
-            try:
-                settings = make_settings(rig=str(path), strategy=name, mode="lockstep", reference=0.3)
-                loop = ControllerLoop(settings)
-            except ControllerConfigError as exc:
-                assert family == "esc" and "cascade" in name, (tag, name, exc)
-                continue
-            for k in range(20):
-                duty = loop.on_sample(k * 10_000_000, 0.01 * k)
-                assert duty is not None and 0.0 <= duty <= 1.0, (tag, name)
+        for k in range(20):
+            duty = loop.on_sample(k * 10_000_000, 0.01 * k)
+            assert duty is not None and 0.0 <= duty <= 1.0, (tag, name)
 
 
+@pytest.mark.slow
 def test_design_gains_figures_are_the_closed_loop_the_node_runs(tmp_path: Path,
                                                                capsys: pytest.CaptureFixture) -> None:
     """The slow-rotor amplifier template: the default pattern limit-cycles on the rig's own simulator and

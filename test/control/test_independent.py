@@ -124,6 +124,7 @@ def _step_on_truth(rig: str, strategy: str, plant: tp.TruthPlant, r: float = 0.2
     return theta
 
 
+@pytest.mark.slow
 def test_a_rig_file_that_knows_the_drive_lag_gives_a_better_controller(tmp_path):
     """Truth plant with a 50 ms drive lag, 2 samples delay, dead zone 0.04 and rod Coulomb friction
     1 rad/s²: FL designed on a rig file that declares it (thrust loop
@@ -181,6 +182,7 @@ def test_the_cascade_detunes_itself_out_of_a_limit_cycle_an_unknown_drive_lag_ca
 GAP_RIG = Path(__file__).resolve().parents[1] / "data" / "gap_corrected_rig.yaml"
 
 
+@pytest.mark.slow
 def test_design_gains_and_every_strategy_take_the_rig_file_gap_wrote(tmp_path, capsys):
     """``corrected_rig.yaml`` as ``gap`` wrote it for plant 1 of the independent closed-loop
     benchmark (``corrected_rig_dict`` of ``run_gap`` on a 40 s APRBS recording; effects added:
@@ -214,6 +216,7 @@ def test_design_gains_and_every_strategy_take_the_rig_file_gap_wrote(tmp_path, c
     assert abs(theta[-250:].mean() - 0.3) < 0.006
 
 
+@pytest.mark.slow
 def test_gap_on_one_recording_then_the_controllers_on_the_rig_file_it_wrote(tmp_path):
     """End to end, as a lab would: a 20 s open-loop APRBS recording of a truth plant whose drive
     has a 50 ms lag and 2 samples of delay (50 dB noise) → ``run_gap`` → ``corrected_rig.yaml`` →

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 
-import control
 import numpy as np
 import pytest
 import yaml
@@ -67,6 +66,7 @@ def test_place_ipd_matches_analytic_formulas() -> None:
 
 
 def test_predicted_metrics_are_python_control_step_info() -> None:
+    import control  # python-control, imported here: collection does not pay for it
     d = design_fl(RIG, SPEC)
     info = control.step_info(control.tf([729.0], [1.0, 21.6, 194.4, 729.0]), T=np.arange(0, 5.0005, 1e-3))
     assert d.predicted.rise_time == pytest.approx(info["RiseTime"], abs=1e-9)
@@ -97,6 +97,7 @@ def test_fl_law_cancels_nonlinearity_pointwise(cancel_damping: bool) -> None:
 @pytest.mark.parametrize("cancel_damping", [True, False])
 @pytest.mark.parametrize("r", [0.4, 0.7])
 def test_fl_closed_loop_equals_designed_linear_system(cancel_damping: bool, r: float) -> None:
+    import control  # python-control, imported here: collection does not pay for it
     design = design_fl(RIG, SPEC, cancel_damping)
     ctl = FeedbackLinearizationPID(RIG, design=design, cancel_damping=cancel_damping)
     d, m = ctl.design, ctl.model
@@ -190,6 +191,7 @@ def test_bad_strategy_config_names_value() -> None:
     assert OMEGA == 3  # state layout the ideal-thrust helper relies on
 
 
+@pytest.mark.slow
 def test_design_cli_writes_gains(tmp_path: pytest.TempPathFactory, capsys: pytest.CaptureFixture) -> None:
     out = tmp_path / "gains.yaml"
     assert main(["--rig", "thesis_rig", "-o", str(out)]) == 0
@@ -237,6 +239,7 @@ def test_cascade_holds_duty_without_motor_measurements() -> None:
     assert o2.nan_input and o2.duty == o1.duty
 
 
+@pytest.mark.slow
 def test_each_strategy_chooses_its_robust_pole_spec_once(monkeypatch: pytest.MonkeyPatch) -> None:
     """``default_spec_for`` runs the robust-ζ search on a rig file that declares its drive (54 linear
     step responses); building a strategy runs it once, fl_cascade's outer FL loop included (it gets

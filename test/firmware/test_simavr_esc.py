@@ -67,6 +67,9 @@ SILENT_FROM_S = 3.8
 
 pytestmark = [
     pytest.mark.timeout(180),
+    # one worker builds each firmware once (a module fixture per build; shared out test by test,
+    # every worker rebuilt the builds it met)
+    pytest.mark.xdist_group("test_simavr_esc"),
     pytest.mark.skipif(
         shutil.which("avr-gcc") is None or not Path("/usr/include/simavr/sim_avr.h").is_file(),
         reason="needs avr-gcc + libsimavr-dev/libsimavrparts1 (scripts/setup_env.sh installs them as root)"),

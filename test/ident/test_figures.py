@@ -232,6 +232,7 @@ def test_titles_name_the_recording_by_its_file() -> None:
     assert source_label("synthetic seed 3") == "synthetic seed 3"
 
 
+@pytest.mark.slow
 @needs_real
 @pytest.mark.real_data
 def test_identify_free_run_and_derivatives_share_the_recording_time(tmp_path, monkeypatch,

@@ -98,6 +98,7 @@ def _gap(rig: Path, fit: Path, rec: Path, out: Path) -> tuple[dict, str]:
     return json.loads((out / "report.json").read_text(encoding="utf-8"))["headline"], text
 
 
+@pytest.mark.slow
 def test_one_rig_on_one_recording_gives_one_figure_in_every_command(case) -> None:
     root, rig, rec = case["root"], case["rig"], case["rec"]
     # rig fit: the fitted rig's figure on the recording it was fitted to
@@ -210,6 +211,7 @@ def test_baseline_shows_no_figure_for_a_diverging_run(case, strong) -> None:
     assert any("nominal model diverges at t = " in w for w in base["warnings"])
 
 
+@pytest.mark.slow
 def test_gap_and_gap_batch_show_no_figure_for_a_diverging_run(case, strong) -> None:
     head, text = _gap(strong, case["fit"], case["rec"], case["root"] / "gap_strong")
     assert head["heldout_nrmse_nominal"] is None and head["heldout_shrink"] is None

@@ -73,6 +73,7 @@ def report(bags, tmp_path_factory) -> tuple[dict, Path, str]:
     return json.loads((out / "report.json").read_text()), out, buf.getvalue()
 
 
+@pytest.mark.slow
 def test_report_files(report):
     rep, out, text = report
     html = (out / "report.html").read_text()
@@ -89,6 +90,7 @@ def test_report_files(report):
     assert "held-out NRMSE" in text
 
 
+@pytest.mark.slow  # its module fixture is the slow part
 def test_gap_found_named_and_shrunk_on_held_out(report):
     rep, out, _ = report
     h = rep["headline"]
@@ -119,6 +121,7 @@ def test_gap_found_named_and_shrunk_on_held_out(report):
     assert where["located"][0]["top_group"] == "friction"
 
 
+@pytest.mark.slow
 def test_split_rule_and_ros2_entry_point(bags, tmp_path):
     out = tmp_path / "split"
     proc = subprocess.run(
@@ -280,6 +283,7 @@ def _step_from_rest(seed: int, level: float, duration: float = 12.0) -> Recordin
                                      source=f"step to {level} from rest, seed {seed}")
 
 
+@pytest.mark.slow
 def test_step_tests_and_holds_beside_an_excited_recording(bags, tmp_path, capsys):
     """Logs labs keep: a step logged from its first sample (constant duty) is a fit recording beside an
     excited one and a held-out recording of its own; only fit data that never changes is refused."""
@@ -299,6 +303,7 @@ def test_step_tests_and_holds_beside_an_excited_recording(bags, tmp_path, capsys
     assert "constant in every fit recording (τ = 0.5)" in msg and "\n" not in msg.strip()
 
 
+@pytest.mark.slow
 def test_a_nominal_rig_that_spins_over_the_top_gets_no_shrink_figure(bags, tmp_path):
     """A shrink between a run that left the recorded range and one that did not only measures how far
     the first went: the headline gives none and names the divergence (terminal, JSON, HTML)."""
@@ -333,6 +338,7 @@ def test_a_nominal_rig_that_spins_over_the_top_gets_no_shrink_figure(bags, tmp_p
     assert "removed" not in buf.getvalue() and "ATTAINABLE on" in buf.getvalue()
 
 
+@pytest.mark.slow
 def test_the_log_set_rig_fit_takes_is_accepted_as_it_is(bags, tmp_path):
     """Issue 60 item 5: a lab's ordinary set (a balance table, a recording whose command changes, a
     step logged from rest, a free decay) runs as it is, without flags: the table is checked against

@@ -227,6 +227,7 @@ def _real_recordings() -> list[tuple[Path, str]]:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.real_data
 @pytest.mark.skipif(not REAL.is_dir(), reason="../shared/data/real not present")
 def test_compare_runs_on_every_real_recording_with_an_input_and_an_angle(tmp_path: Path) -> None:

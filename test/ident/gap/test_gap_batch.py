@@ -66,6 +66,7 @@ def test_bad_inputs_exit_2_with_one_line(archive, tmp_path, capsys):
     assert (busy / "mine.txt").read_text() == "x"
 
 
+@pytest.mark.slow
 def test_batch_on_a_local_cluster_reports_each_session_and_the_drift(archive, tmp_path, capsys):
     out = tmp_path / "batch"
     assert main([str(archive), "--rig", "thesis_rig", "-o", str(out), "--workers", "2", "-q"]) == 0

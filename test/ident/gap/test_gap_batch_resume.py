@@ -61,6 +61,7 @@ def _tree(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
+@pytest.mark.slow
 def test_resume_recomputes_nothing_unchanged_and_the_session_whose_input_changed(tmp_path, gap_runs, capsys):
     counted = gap_runs["runs"]
     archive = _archive(tmp_path / "archive")
@@ -98,6 +99,7 @@ def test_resume_recomputes_nothing_unchanged_and_the_session_whose_input_changed
     assert [p.name for p in tmp_path.iterdir() if PARTIAL in p.name] == []
 
 
+@pytest.mark.slow
 def test_ctrl_c_and_a_full_disk_keep_the_earlier_batch_and_finished_sessions(tmp_path, gap_runs, monkeypatch,
                                                                                 capsys):
     counted = gap_runs["runs"]

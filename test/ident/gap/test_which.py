@@ -382,6 +382,7 @@ def test_a_numerical_setting_is_fitted_only_where_freed_and_a_held_one_says_so()
     assert "held" not in table["coulomb_over_J"]
 
 
+@pytest.mark.slow
 def test_an_effect_free_closed_loop_log_that_starts_the_motor_names_no_effect() -> None:
     # Lab benchmark case 0: an effect-free plant in closed loop, 50 Hz, a 10-bit encoder, 2.4 % stamp
     # jitter; the loop switches the motor on at the first sample. Its validation part shows no gap
@@ -494,6 +495,7 @@ def test_fits_in_threads_replay_on_their_own_thread(monkeypatch) -> None:
     assert replay_threads() is None
 
 
+@pytest.mark.slow
 def test_forward_selection_in_threads_gives_the_figures_of_fits_one_after_the_other(monkeypatch) -> None:
     # the joint fits of a forward-selection step (_add_effect) run at once; the step takes their
     # figures in order (its bootstrap draws from one generator), so one thread and two give the
@@ -517,6 +519,7 @@ def test_forward_selection_in_threads_gives_the_figures_of_fits_one_after_the_ot
     assert figures[1] == figures[2]
 
 
+@pytest.mark.slow
 def test_a_confusable_rival_a_hair_behind_is_reported_as_not_separated():
     """Lab case 37 (bench_gap_lab): an armature-resistance error, open loop, every channel. Fitted
     alone, a back-EMF error and the R_a error each explain about 97.4 % of the validation gap, one a

@@ -38,6 +38,9 @@ from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulation import simulate
 
+# an expensive module fixture: under --dist loadgroup the module runs on one worker, which computes it once
+pytestmark = pytest.mark.xdist_group("test_baseline_real")
+
 REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"
 AEROSHIELD = REAL / "gergelytakacs__AutomationShield" / "AeroShield" / "Identification_Data.csv"
 HOJA3 = REAL / "jahoyosr__Aeropendulum" / "sheet_Hoja3_pwm_steps_openloop.csv"

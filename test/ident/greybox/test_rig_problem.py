@@ -58,6 +58,7 @@ def test_an_uninformed_direction_has_no_finite_variance():
     assert cov[0, 0] == pytest.approx(np.linalg.inv(J[:, :2].T @ J[:, :2])[0, 0])
 
 
+@pytest.mark.slow
 def test_the_sandwich_covariance_widens_with_correlated_residuals():
     """A line fitted to 20 clusters of 50 points each sharing one offset (a misfit the white-noise
     weights do not know of): the Jacobian's σ of the intercept is ~0.1/√1000, the truth ~1/√20; the

@@ -47,6 +47,7 @@ def test_empty_storage_file_is_nothing_written(tmp_path: Path,
                    "recorder stopped or was killed before its first flush)")
 
 
+@pytest.mark.slow
 def test_corrupt_mcap_chunk_skipped_and_reported(tmp_path: Path,
                                                  capsys: pytest.CaptureFixture[str]) -> None:
     rec, bag, f = _bag(tmp_path, "mcap")

@@ -132,6 +132,7 @@ def test_binary_files_refused_within_a_second(tmp_path: Path, kind: str,
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_ctrl_c_ends_cleanly_with_nothing_written(tmp_path: Path) -> None:
     path = tmp_path / "big.csv"
     with path.open("w") as f:  # 1.5 M rows, about 30 MB: several seconds to import

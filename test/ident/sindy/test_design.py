@@ -30,6 +30,7 @@ def designed50():
     return data, weak_iv_fit(data, output_error=OE)
 
 
+@pytest.mark.slow
 def test_50db_bar_exact_structure_and_all_coefficients_within_one_percent(designed50) -> None:
     _, m = designed50
     for tg, e in structure_errors(m, TRUTH).items():
@@ -38,6 +39,7 @@ def test_50db_bar_exact_structure_and_all_coefficients_within_one_percent(design
     assert k_q_error(m) < 0.01
 
 
+@pytest.mark.slow  # its module fixture is the slow part
 def test_design_cuts_the_standard_error_of_r_over_l(designed50) -> None:
     _, m = designed50
     i, j = m.targets.index("i_a"), m.feature_names.index("i_a")
@@ -50,6 +52,7 @@ def test_design_cuts_the_standard_error_of_r_over_l(designed50) -> None:
             assert abs(m.coef[i, k] - c) < 3.0 * m.coef_std[i, k], (tg, name, m.equations())
 
 
+@pytest.mark.slow
 def test_20db_all_four_structures_and_thrust_coefficient() -> None:
     """20 dB on every channel, weak-iv alone: the design keeps all four supports exact
     (bench, seeds 7-9: θ̈ 0.52-0.75 %, di_a/dt 11-12 %); bar: K_q within 10 %."""

@@ -168,6 +168,7 @@ def test_identify_csv_logs_several_recordings(rig_runs, tmp_path, capsys) -> Non
     assert "weak form" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_identify_plots_in_child_process_equal_in_process(noisy_run, tmp_path, monkeypatch) -> None:
     """The forked plotting child (training-tail free run sent back through a pipe, then
     coefficients.png / derivatives.png) gives the same pictures as drawing everything in-process;

@@ -22,6 +22,7 @@ from bench.fixtures.sindy_case import TARGETS, TRUTH, case_data, k_q_error, weak
 H = 0.02
 
 
+@pytest.mark.slow
 def test_zoh_quadrature_and_curvature_noise_free() -> None:
     data = case_data(None)
     plain = fit(data, physics_library(), ["i_a"], threshold=0.1, method="weak", K=1000, H_xt=H, zoh_inputs=())
@@ -57,6 +58,7 @@ def test_30db_pendulum_structure_and_thrust_coefficient() -> None:
     assert k_q_error(m) < 0.05
 
 
+@pytest.mark.slow
 def test_instruments_remove_errors_in_variables_bias_50db() -> None:
     data = case_data(50.0)
     iv = weak_iv_fit(data, targets=["i_a", "omega_rotor"])

@@ -16,6 +16,9 @@ from aeropend_ident.sindy.model import structure_errors
 from aeropend_ident.sindy.output_error import refine_output_error
 from bench.fixtures.sindy_case import TRUTH, case_data, weak_iv_fit
 
+# an expensive module fixture: under --dist loadgroup the module runs on one worker, which computes it once
+pytestmark = pytest.mark.xdist_group("test_output_error")
+
 OE = ("i_a", "omega_rotor")
 
 
@@ -31,6 +34,7 @@ def noisy50():
     return data, weak_iv_fit(data, output_error=OE)
 
 
+@pytest.mark.slow
 def test_noise_free_not_degraded(clean) -> None:
     data, m = clean
     exact = refine_output_error(m, data)
@@ -45,6 +49,7 @@ def test_noise_free_not_degraded(clean) -> None:
     assert (exact.coef[i] == m.coef[i]).all()
 
 
+@pytest.mark.slow
 def test_50db_structure_and_consistent_standard_errors(noisy50) -> None:
     _, m = noisy50
     errs = structure_errors(m, TRUTH)

@@ -19,6 +19,8 @@ import pytest
 
 pytest.importorskip("rclpy")
 
+from rcl_interfaces.msg import Log
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
@@ -58,6 +60,9 @@ pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
 
 RIG = "thesis_rig" if "thesis_rig" in shipped_rigs() else "thesis_sim"
 PERIOD_NS = 2_048_000
+#: What rclpy publishes its log lines on /rosout with (reliable, transient local): earlier lines arrive too.
+ROSOUT_QOS = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
 @pytest.fixture
@@ -365,6 +370,13 @@ def test_lockstep_sample_zero_waits_for_the_clock_readers_it_is_told_of(domain):
     with plant(domain, "mode:=lockstep", "min_clock_subscribers:=1") as proc, \
             client(domain, lockstep=True) as c:
         _no_sample_zero(c, "with no /clock reader matched")
+        # the plant has looked and waits for the /clock reader (its log line on /rosout) before the
+        # reader exists: under parallel test workers a plant starved of CPU first looked after the
+        # reader had matched, started at once (rightly) and never wrote the line asserted below
+        waits: list[str] = []
+        c.node.create_subscription(Log, "/rosout", lambda m: waits.append(m.msg) if "/clock 0 of 1" in m.msg
+                                   else None, ROSOUT_QOS)
+        assert c.spin_until(lambda: bool(waits), 60.0), "the plant did not say that it waits for /clock"
         ticks: list[int] = []
         c.node.create_subscription(ClockMsg, TOPIC_CLOCK,
                                    lambda m: ticks.append(m.clock.sec * 1_000_000_000 + m.clock.nanosec),

@@ -9,6 +9,7 @@ import sys
 import pytest
 
 from aeropend_sim.ros.domain import DomainError, claim_domain
+from aeropend_sim.ros.harness import claimed_domains, random_domain, release_domains
 
 
 @pytest.fixture(autouse=True)
@@ -48,3 +49,21 @@ def test_a_claim_held_by_another_process_is_skipped_and_freed_when_it_exits():
 def test_invalid_ranges_are_refused(first, last):
     with pytest.raises(DomainError, match="expected 0 <= first <= last <= 232"):
         claim_domain(first, last)
+
+
+def test_released_harness_claims_are_free_again_and_older_ones_are_kept():
+    """What test/conftest.py does after every test: the claims made since are given back."""
+    before = claimed_domains()
+    kept = random_domain(30, 30)
+    held = claimed_domains()
+    assert random_domain(31, 31) == 31
+    with pytest.raises(ValueError, match=r"every ROS domain ID in 31\.\.31 is claimed"):
+        random_domain(31, 31)
+    release_domains(keep=held)
+    assert claimed_domains() == held
+    with claim_domain(31, 31) as again:  # free for anyone
+        assert again.domain_id == 31
+    with pytest.raises(DomainError):
+        claim_domain(30, 30)  # the older claim is still held
+    release_domains(keep=before)
+    assert claim_domain(kept, kept).domain_id == 30

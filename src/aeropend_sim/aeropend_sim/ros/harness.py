@@ -90,6 +90,28 @@ def random_domain(first: int = 1, last: int = 100) -> int:
     return claim.domain_id
 
 
+def claimed_domains() -> int:
+    """How many domain IDs :func:`random_domain` has claimed in this process and still holds."""
+    return len(_CLAIMS)
+
+
+def release_domains(keep: int = 0) -> None:
+    """Give back the domain IDs :func:`random_domain` claimed after the first ``keep`` ones.
+
+    For a long-lived process that runs one graph after another (a pytest worker): without it every
+    claim is held until the process exits, and several test runs and benchmarks on one host
+    (parallel workers, other checkouts) fill a range between them. Call it only once the nodes on
+    those domains have been stopped. ``test/conftest.py`` releases each test's claims after it.
+
+    Parameters
+    ----------
+    keep : int
+        Claims to keep (the oldest), e.g. :func:`claimed_domains` before the test started.
+    """
+    while len(_CLAIMS) > keep:
+        _CLAIMS.pop().release()
+
+
 def isolated_env(domain: int) -> dict[str, str]:
     """Environment for a node subprocess: this process's environment on a private ROS domain.
 
