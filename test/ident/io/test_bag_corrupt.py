@@ -81,6 +81,36 @@ def test_corrupt_mcap_chunk_skipped_and_reported(tmp_path: Path,
     assert (t1 - t0) / 1e9 <= gap <= (t1 - t0) / 1e9 + 0.0041
 
 
+def test_repair_writes_a_clean_copy_any_reader_takes_whole(tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """``reindex --repair NEW`` (issue 62): after 64 bytes flipped in a middle chunk, the new bag holds
+    every intact message (the same bytes and log times as the original's intact parts) and no
+    damage: scanned chunk by chunk nothing is left out, and the strict reader (the one that stops at
+    a corrupt chunk, as ``ros2 bag play`` does) reads it without a recovery. The original is as it was."""
+    from aeropend_ident.io.bags import RawBagReader
+
+    _, bag, f = _bag(tmp_path, "mcap")
+    whole = scan_storage(f, keep_messages=False)
+    start, end, _, _ = whole.chunks[len(whole.chunks) // 2]
+    _flip(f, (start + end) // 2)
+    damaged = f.read_bytes()
+    kept = scan_storage(f)
+    assert kept.skipped and kept.total < 3 * N
+    new = tmp_path / "repaired"
+    assert reindex_main([str(bag), "--overwrite", "--repair", str(new)]) == 0
+    assert f"reindex: wrote the repaired bag {new}: {kept.total} message(s)" in capsys.readouterr().out
+    assert f.read_bytes() == damaged
+    (g,) = [p for p in new.iterdir() if p.suffix == ".mcap"]
+    clean = scan_storage(g)
+    assert not clean.skipped and not clean.truncated and clean.total == kept.total
+    assert sorted(clean.messages, key=lambda m: m[1]) == sorted(kept.messages, key=lambda m: m[1])
+    with RawBagReader(new) as reader:
+        assert reader.recovery is None
+        assert sum(1 for _ in reader.messages()) == kept.total
+    assert reindex_main([str(bag), "--overwrite", "--repair", str(new)]) == 1  # never over a bag
+    assert f"'{new}' exists" in capsys.readouterr().err
+
+
 def test_corrupt_mcap_record_length_resynchronised(tmp_path: Path) -> None:
     f = _bag(tmp_path, "mcap")[2]
     whole = scan_storage(f, keep_messages=False)

@@ -1,4 +1,4 @@
-"""Rebuild a bag's ``metadata.yaml`` from its storage files: ``reindex BAG_DIR [--overwrite]``.
+"""Rebuild a bag's ``metadata.yaml`` from its storage files: ``reindex BAG_DIR [--overwrite] [--repair NEW]``.
 
 Command line of ``reindex`` (console script; ``ros2 run aeropend_ident reindex``), the
 counterpart of ``ros2 bag reindex`` for machines without the ``ros2`` CLI: a recorder that was
@@ -10,6 +10,9 @@ out and every intact one around it kept (a warning per part: its byte range, log
 messages it held); an empty storage file is reported as "empty: nothing was written". When the
 recorder stored no loss count (it was killed before it closed the bag), the loss per topic is
 counted from the header stamps, printed and stored in the metadata, where every reader finds it.
+``--repair NEW_BAG_DIR`` also writes a clean copy of every recoverable message
+(:func:`aeropend_ident.io.bag_repair.repair`), which tools that stop at a corrupt chunk
+(``ros2 bag play``) read whole.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from pathlib import Path
 
 from aeropend_ident.errors import BagError, BagTruncatedWarning, print_warnings_as_lines
 from aeropend_ident.io.bag_recover import REINDEX_LOSS_NOTE, reindex
+from aeropend_ident.io.bag_repair import repair
 from aeropend_ident.io.integrity.loss import loss_text, stored_loss
 
 
@@ -34,6 +38,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("bag", type=Path, metavar="BAG_DIR", help="bag directory holding the storage file(s)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing metadata.yaml")
+    p.add_argument("--repair", type=Path, metavar="NEW_BAG_DIR",
+                   help="also write a clean copy of every recoverable message to a new bag directory "
+                        "(the damaged parts left out), which any rosbag2 tool can play; the original "
+                        "is not changed")
     return p
 
 
@@ -61,6 +69,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     loss = stored_loss(info.get("custom_data") or {})
     if loss and any(r.get("note") == REINDEX_LOSS_NOTE for r in loss.values()):
         print(f"reindex: loss: {loss_text(loss)} ({REINDEX_LOSS_NOTE})")
+    if args.repair is not None:
+        try:
+            out, written, _ = repair(args.bag, args.repair)
+        except BagError as exc:
+            print(f"reindex: error: {exc}", file=sys.stderr)
+            return 1
+        print(f"reindex: wrote the repaired bag {out}: {written} message(s), the damaged parts left out "
+              f"({args.bag} unchanged)")
     return 0
 
 

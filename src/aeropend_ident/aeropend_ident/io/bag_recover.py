@@ -963,3 +963,4 @@ def reindex(bag: str | Path, overwrite: bool = False) -> tuple[Path, dict[str, A
     tmp.write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False), encoding="utf-8")
     tmp.replace(target)
     return target, info, scans
+
