@@ -53,7 +53,7 @@ from aeropend_bridge.protocol import (
     SampleFrame,
     StatusFrame,
 )
-from aeropend_bridge.simavr_harness import harness_link
+from aeropend_bridge.simavr_harness import harness_link, wait_drained
 
 ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware"
@@ -167,7 +167,7 @@ def _run(build: Build, harness: Path, tmp: Path) -> dict:
                 link.send(Duty.from_fraction(0.3))
             time.sleep(0.01)
         out, err = proc.communicate(timeout=30)
-        time.sleep(0.2)
+        wait_drained(link)  # the reader may run behind the emulator on a loaded host
     log = plog.read_text().split("\n")
     t1 = next(int(ln.split()[1]) for ln in log if ln.startswith("T1START"))
     edges = [(int(ln.split()[1]), int(ln.split()[2])) for ln in log if ln.startswith("P ")]
