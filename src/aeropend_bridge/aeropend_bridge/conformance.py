@@ -40,6 +40,9 @@ MAX_STAMP_AGE_S = 5.0
 DUTY_TOL = 0.01
 #: Time the applied τ may take to follow a command [s].
 FOLLOW_S = 0.5
+#: A pause of the checker's own commands longer than this (its host starved) may trip a conforming
+#: node's watchdog; the drive phase is not judged there [s].
+PAUSE_S = 0.1
 #: Delivery slack added to the silence limit (executor, DDS) [s].
 SILENCE_SLACK_S = 0.1
 #: Channel name -> (message, index) in :class:`Observation` arrays.
@@ -278,6 +281,16 @@ def check_commands(o: Observation, a: dict[str, np.ndarray]) -> list[Finding]:
     recv, duty = a["recv"], a["duty"]
     d0, d1 = o.phases["drive"]
     late = (recv >= d0 + FOLLOW_S * 1e9) & (recv < d1)
+    # a pause in the checker's own command stream (a starved host) may trip a conforming node's
+    # watchdog (the contract bounds it by the silence limit; a node may fall to 0 sooner): those
+    # stretches, and the follow time after them, are not judged
+    sent = np.sort(np.array([t for t, _ in o.commands], dtype=np.int64))
+    paused = 0
+    if sent.size > 1:
+        gaps = np.flatnonzero(np.diff(sent) > PAUSE_S * 1e9)
+        paused = gaps.size
+        for k in gaps:
+            late &= ~((recv > sent[k]) & (recv < sent[k + 1] + FOLLOW_S * 1e9))
     if not late.any() or np.any(np.abs(duty[late] - o.duty) > DUTY_TOL):
         got = np.unique(np.round(duty[late], 4))[:5] if late.any() else "no samples"
         out.append(Finding("command", False, f"applied τ {got} {FOLLOW_S:g} s after τ = {o.duty:g} was "
@@ -285,8 +298,10 @@ def check_commands(o: Observation, a: dict[str, np.ndarray]) -> list[Finding]:
                                              "duty_cycle as a fraction"))
     else:
         t_on = recv[(recv >= d0) & (np.abs(duty - o.duty) <= DUTY_TOL)]
+        note = (f" (the checker's commands paused {paused} time(s) over {PAUSE_S:g} s: those stretches "
+                "not judged)") if paused else ""
         out.append(Finding("command", True, f"τ = {o.duty:g} applied {(t_on[0] - d0) / 1e6:.0f} ms after the "
-                                            "first command"))
+                                            "first command" + note))
     if "invalid" in o.phases:
         i0, i1 = o.phases["invalid"]
         during = (recv >= i0 + 0.1e9) & (recv < i1)
