@@ -12,8 +12,8 @@ transfers do not depend on the host's scheduler, and the host kernel buffers ~64
 This script makes the same loss deterministic: it builds the firmware and the harness, reads
 the pty for ``--read`` s, stops reading for ``--pause`` s (the pty fills, then the FIFO), reads
 again, and counts the sequence gaps and malformed frames with the bridge's decoder and tracker. With the
-harness' flow control (``firmware/sim/harness.c``: the emulation waits while the FIFO is more
-than 3/4 full) the count must be 0.
+harness' flow control (``firmware/sim/harness.c``: the emulation waits while the host is behind;
+since the harness serves the pty itself, see ``simavr_link_race.py``) the count must be 0.
 
 Usage: ``python -m bench.repro.simavr_pty_overflow [--pause 8] [--read 2]``; writes
 ``bench/results/repro_simavr_pty_overflow.json``.

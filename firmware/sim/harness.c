@@ -1,23 +1,34 @@
 /*
  * simavr harness: runs the real aeropend firmware ELF on an emulated ATmega2560 at 16 MHz,
- * exposes USART0 as a pty (simavr's uart_pty part), drives the ADC inputs and, from an event
- * file, the IR propeller sensor on ICP4 and an AS5040 SSI slave on the GPIO pins.
+ * exposes USART0 as a pty (its own single-threaded link, below), drives the ADC inputs and, from
+ * an event file, the IR propeller sensor on ICP4 and an AS5040 SSI slave on the GPIO pins.
  *
  *   build/harness firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events.txt] [-r]
  *
- * Prints "PTY <slave path>" on stdout once the UART is connected, then runs `cycles` CPU
- * cycles of 1/16 us (0 = until SIGTERM / SIGINT) and prints "CYCLES <n>" on exit; with an
+ * Prints "PTY <path>" on stdout once the UART is connected (a symlink to the pty of this process's
+ * own, removed on exit; see link_open), then runs `cycles` CPU cycles of 1/16 us (0 = until
+ * SIGTERM / SIGINT) and prints "CYCLES <n>" on exit; with an
  * event file also "T4START <cycle>" (stderr) and "IREDGES <n>" / "SSIREADS <n> <bad>" /
  * "SSITIMING clkfe_min <ns> half_min <ns> read_min <ns> read_max <ns> rises <min> <max>" (stdout)
  * on exit. AVcc = 5 V. The firmware idles in SLEEP_MODE_IDLE between interrupts, so simavr's
  * raw sleep callback paces the simulation to wall-clock time (when the host is fast enough).
  *
- * UART flow control: simavr's uart_pty part copies the UART's bytes through a 512-byte FIFO that
- * its own thread writes to the pty, and drops a byte when the FIFO is full (pty not drained, or
- * its thread starved on a loaded host: 512 bytes are ~45 ms of 490 Hz samples). A real
+ * Host link: USART0 <-> a pty, served in the emulation thread itself (link_* below), not by
+ * simavr's uart_pty part, whose own thread calls into the UART (avr_raise_irq ->
+ * avr_uart_irq_input -> avr_cycle_timer_register) while avr_run() edits the same cycle-timer list
+ * (simavr's IRQs and timers are single-threaded by design). The host's bytes enter the UART at
+ * most one per byte time (22 us at 500 kbaud, 8N1 + simavr's parity slot), once the firmware has
+ * enabled its receiver (earlier bytes would be dropped by the UART: an RX error in the firmware's
+ * count); the MCU's bytes go to a 64 KiB buffer written to the pty without blocking. A real
  * USB-serial link does not lose bytes because the host's scheduler is busy, so the emulation
- * here waits (wall-clock time passes, MCU time does not) while the FIFO is more than 3/4 full:
- * the firmware's stream reaches the pty complete (bench/repro_simavr_pty_overflow.py).
+ * waits (wall-clock time passes, MCU time does not) while the host is behind by more than
+ * LINK_OUT_HIGH bytes beyond LINK_PTY_MAX unread in the pty (~0.3 s of 490 Hz frames): the
+ * firmware's stream reaches the host complete and the host's view of MCU time stays recent
+ * (bench/repro/simavr_pty_overflow.py); with no host reading, the emulation waits. On exit the
+ * harness waits until the host has read every byte (at most 10 s; "LINKLOST <n>" on stdout if it
+ * did not). The pty is announced by a name of this process's own (link_open): a host that
+ * reconnected by /dev/pts/N after the harness ended read the next harness's frames
+ * (bench/repro/simavr_pty_reuse.py).
  *
  * -r prints "REG <name> <value>" for the peripheral configuration registers on exit (data-space
  * values as the firmware wrote them), so a test can decode the production build's Timer1 set-up
@@ -55,11 +66,16 @@
  *
  * Not emulated: the analogue front end, the motor shield, the ESC itself.
  */
+#include <errno.h>
+#include <fcntl.h>
 #include <math.h>
+#include <pty.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
+#include <termios.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -69,12 +85,31 @@
 #include "sim_avr.h"
 #include "sim_elf.h"
 #include "sim_io.h"
-#include "uart_pty.h"
 
-/* the FIFO accessors (static inline; the struct is declared in uart_pty.h) */
-DEFINE_FIFO(uint8_t, uart_pty_fifo);
-/* UART flow control: wait while more than this many bytes are queued for the pty */
-#define PTY_FIFO_HIGH (3 * uart_pty_fifo_fifo_size / 4)
+/* Host link (see the header comment): MCU -> host buffer, its flow-control mark, host -> MCU
+ * pacing (one byte per UART byte time) and how often the pty is read and written [cycles]. */
+#define LINK_OUT_SIZE 65536
+#define LINK_OUT_HIGH 2048  /* ~0.17 s of 490 Hz sample frames */
+#define LINK_PTY_MAX 2048   /* bytes left unread by the host in the pty, at most */
+#define UCSR0B_ADDR 0xC1
+#define RXEN0_BIT 4
+#define LINK_BYTE_CYCLES 352 /* 22 us: simavr's USART byte time at 500 kbaud */
+#define LINK_IO_CYCLES 1408  /* 88 us */
+
+typedef struct {
+    int fd;    /* pty master, non-blocking */
+    int slave; /* kept open: the host's unread bytes are counted on it (FIONREAD) */
+    char path[256]; /* the name announced to the host: a symlink to slavename, removed on exit */
+    char slavename[64];
+    uint8_t out[LINK_OUT_SIZE]; /* ring: MCU bytes not yet written to the pty */
+    size_t out_head, out_len;
+    unsigned long out_dropped;  /* bytes the ring could not take (never expected) */
+    uint8_t in[512];            /* host bytes read from the pty, not yet given to the UART */
+    size_t in_len, in_done;
+    int xoff;                   /* the UART's input FIFO is full */
+    avr_irq_t *rx;              /* UART_IRQ_INPUT */
+    avr_cycle_count_t next_feed, next_io;
+} link_t;
 
 #define TCCR4B_ADDR 0xA1 /* data-space address on the ATmega2560 */
 #define TCCR1B_ADDR 0x81
@@ -303,6 +338,131 @@ static void on_tccr1b(struct avr_irq_t *irq, uint32_t value, void *param)
         avr_cycle_timer_register(s->avr, 16, enc_timer, s);
 }
 
+/* ------------------------------------------------------------------ host link (pty) */
+static void on_link_out(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    link_t *l = param;
+    if (l->out_len == LINK_OUT_SIZE) {
+        l->out_dropped++;
+        return;
+    }
+    l->out[(l->out_head + l->out_len) % LINK_OUT_SIZE] = (uint8_t)value;
+    l->out_len++;
+}
+
+static void on_link_xoff(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    ((link_t *)param)->xoff = value != 0;
+}
+
+static int link_open(link_t *l, avr_t *avr)
+{
+    if (openpty(&l->fd, &l->slave, l->slavename, NULL, NULL) < 0) {
+        fprintf(stderr, "cannot create a pty: %s\n", strerror(errno));
+        return -1;
+    }
+    struct termios tio;
+    tcgetattr(l->fd, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(l->fd, TCSANOW, &tio);
+    /* The host connects through a name of this process's own, not /dev/pts/N: once this process has
+     * exited, a host that reconnects (SerialLink does, as to a board unplugged) finds no such file,
+     * instead of the pty the kernel has meanwhile given to another harness (another test), whose
+     * frames it would read as ours. */
+    const char *dir = getenv("TMPDIR");
+    snprintf(l->path, sizeof l->path, "%s/aeropend-simavr-%ld.pty", dir && *dir ? dir : "/tmp", (long)getpid());
+    unlink(l->path);
+    if (symlink(l->slavename, l->path) != 0) {
+        fprintf(stderr, "cannot create %s: %s\n", l->path, strerror(errno));
+        return -1;
+    }
+    fcntl(l->fd, F_SETFL, fcntl(l->fd, F_GETFL) | O_NONBLOCK);
+    uint32_t f = 0; /* binary stream: no stdio echo of the UART's bytes */
+    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &f);
+    f &= ~AVR_UART_FLAG_STDIO;
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &f);
+    l->rx = avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_link_out, l);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUT_XOFF), on_link_xoff, l);
+    return 0;
+}
+
+/* Bytes the host has not read yet from the pty. */
+static size_t link_unread(const link_t *l)
+{
+    int n = 0;
+    return ioctl(l->slave, FIONREAD, &n) == 0 && n > 0 ? (size_t)n : 0;
+}
+
+/* Write to the pty what keeps the host's unread bytes within LINK_PTY_MAX (non-blocking). */
+static void link_write(link_t *l)
+{
+    size_t room = LINK_PTY_MAX - (link_unread(l) < LINK_PTY_MAX ? link_unread(l) : LINK_PTY_MAX);
+    while (l->out_len && room) {
+        size_t run = LINK_OUT_SIZE - l->out_head;
+        if (run > l->out_len)
+            run = l->out_len;
+        if (run > room)
+            run = room;
+        ssize_t w = write(l->fd, l->out + l->out_head, run);
+        if (w <= 0)
+            return; /* EAGAIN: the pty is full (host behind); EIO: no host */
+        l->out_head = (l->out_head + (size_t)w) % LINK_OUT_SIZE;
+        l->out_len -= (size_t)w;
+        room -= (size_t)w;
+    }
+}
+
+/* Called after every avr_run() step, in the emulation thread. */
+static void link_service(link_t *l, avr_t *avr)
+{
+    if (avr->cycle >= l->next_io) {
+        l->next_io = avr->cycle + LINK_IO_CYCLES;
+        link_write(l);
+        if (l->in_done == l->in_len) {
+            ssize_t r = read(l->fd, l->in, sizeof l->in);
+            l->in_len = r > 0 ? (size_t)r : 0;
+            l->in_done = 0;
+        }
+    }
+    /* a byte sent before the firmware enabled its receiver waits (the UART would drop it) */
+    if (avr->cycle >= l->next_feed && l->in_done < l->in_len && !l->xoff &&
+        (avr->data[UCSR0B_ADDR] & (1 << RXEN0_BIT))) {
+        avr_raise_irq(l->rx, l->in[l->in_done++]);
+        l->next_feed = avr->cycle + LINK_BYTE_CYCLES;
+    }
+}
+
+/* Flow control: while the host is behind by more than LINK_OUT_HIGH bytes, let wall-clock time
+ * pass (MCU time stands still), so the host's view of MCU time lags by ~0.2 s at most. */
+static void link_wait_below_high(link_t *l)
+{
+    const struct timespec tick = {0, 200000}; /* 0.2 ms */
+    while (!stop && l->out_len > LINK_OUT_HIGH) {
+        nanosleep(&tick, NULL);
+        link_write(l);
+    }
+}
+
+/* On exit: wait until the host has read every byte of the MCU's: the buffer empty and nothing
+ * unread in the pty for LINK_QUIET_MS in a row (FIONREAD counts only what the kernel has already
+ * moved to the slave's read buffer; bytes still in its flip buffers, moved by a kernel worker that
+ * a loaded host runs late, show as 0, and closing the master would discard them). At most
+ * timeout_ms; a host that stopped reading, or SIGTERM / SIGINT, ends the wait. */
+#define LINK_QUIET_MS 300
+static void link_flush(link_t *l, int timeout_ms)
+{
+    const struct timespec tick = {0, 1000000}; /* 1 ms */
+    int quiet = 0;
+    for (int waited = 0; quiet < LINK_QUIET_MS && waited < timeout_ms && !stop; waited++) {
+        nanosleep(&tick, NULL);
+        link_write(l);
+        quiet = l->out_len || link_unread(l) ? 0 : quiet + 1;
+    }
+}
+
 static int read_events(const char *path, sim_t *s)
 {
     FILE *f = fopen(path, "r");
@@ -426,10 +586,9 @@ int main(int argc, char **argv)
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A'), 1), on_clk, &s);
     set_dout(&s, 1);
 
-    uart_pty_t pty;
-    memset(&pty, 0, sizeof pty);
-    uart_pty_init(avr, &pty);
-    uart_pty_connect(&pty, '0');
+    static link_t link;
+    if (link_open(&link, avr) != 0)
+        return 2;
 
     unsigned long long max_cycles = npos > 1 ? strtoull(pos[1], NULL, 10) : 0;
     int mv[4] = {500, 1000, 2500, 1250};
@@ -440,17 +599,17 @@ int main(int argc, char **argv)
 
     signal(SIGTERM, on_signal);
     signal(SIGINT, on_signal);
-    printf("PTY %s\n", pty.port[0].slavename);
+    printf("PTY %s\n", link.path);
     fflush(stdout);
 
     int state = cpu_Running;
-    const struct timespec drain = {0, 100000}; /* 0.1 ms */
     while (!stop && state != cpu_Done && state != cpu_Crashed &&
            (max_cycles == 0 || avr->cycle < max_cycles)) {
         state = avr_run(avr);
-        while (!stop && uart_pty_fifo_get_read_size(&pty.port[0].in) > PTY_FIFO_HIGH)
-            nanosleep(&drain, NULL);
+        link_service(&link, avr);
+        link_wait_below_high(&link);
     }
+    link_flush(&link, 10000);
     printf("CYCLES %llu\n", (unsigned long long)avr->cycle);
     if (dump_regs)
         for (size_t i = 0; i < sizeof REGS / sizeof REGS[0]; i++)
@@ -468,8 +627,11 @@ int main(int argc, char **argv)
                (unsigned long long)(s.min_read * 1000000000ull / avr->frequency),
                (unsigned long long)(s.max_read * 1000000000ull / avr->frequency), s.min_rises, s.max_rises);
     fflush(stdout);
+    if (link.out_dropped || link.out_len || link_unread(&link))
+        printf("LINKLOST %lu\n", link.out_dropped + (unsigned long)(link.out_len + link_unread(&link)));
+    fflush(stdout);
+    unlink(link.path);
     fprintf(stderr, "harness: stopped (cpu state %d, %llu cycles)\n", state,
             (unsigned long long)avr->cycle);
-    /* uart_pty_stop() can block forever joining its pty thread (simavr 1.6): just exit. */
     _exit(state == cpu_Crashed ? 1 : 0);
 }

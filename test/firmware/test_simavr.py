@@ -2,7 +2,7 @@
 
 Builds the firmware with ``-DSIMAVR_TIMER1`` (simavr 1.6 lacks Timer1 phase-correct PWM on
 the ATmega2560: the only difference is fast PWM with TOP = ICR1 = 509, the same 510-tick
-2.040 ms period) and the harness ``firmware/sim/harness.c`` (libsimavr + uart_pty part: the
+2.040 ms period) and the harness ``firmware/sim/harness.c`` (libsimavr; the
 UART as a pty, ADC inputs driven in mV), runs 3 s of MCU time and checks: decoded ADC values,
 the sample rate in emulated time (490.2 Hz ± 1 %), no sequence gaps, commands (duty) applied,
 the 250 ms firmware watchdog, and firmware counters (no RX errors).

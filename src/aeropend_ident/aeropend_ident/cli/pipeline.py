@@ -95,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"pipeline: error: {exc}", file=sys.stderr)
         return 2
     stage = partial_folder(args.out, "run")
-    if stage.exists():  # what an earlier failed run left: this run starts afresh
+    if stage.exists():  # what an earlier failed run left (named on stderr then): this run starts afresh
+        print(f"pipeline: removing {stage}, the bag and logs an earlier failed run left", file=sys.stderr)
         shutil.rmtree(stage)
     try:
         summary = folder.write(lambda out: _run(out, folder.path, args), stage=stage, keep=True)

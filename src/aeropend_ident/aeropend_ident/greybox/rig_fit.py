@@ -35,6 +35,7 @@ least 10 % of a parameter's Fisher information, with their method.
 from __future__ import annotations
 
 import itertools
+import json
 import math
 import re
 from collections.abc import Callable, Mapping, Sequence
@@ -63,6 +64,7 @@ from aeropend_ident.greybox.rig_problem import (
     weak_directions,
 )
 from aeropend_ident.greybox.uniform import UniformData
+from aeropend_ident.io.recording_input import detect_quantum
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect
 from aeropend_sim.components.pendulum.rod import G
@@ -627,8 +629,6 @@ def angle_quantum(series: Sequence[TimeSeries]) -> tuple[float, str] | None:
     read (a small step can limit-cycle within one LSB). Replays compare the model's angle without
     quantisation (:mod:`aeropend_ident.greybox.replay`), so no fit figure changes.
     """
-    from aeropend_ident.io.recording_input import detect_quantum
-
     qs = [detect_quantum(s.replayed.theta) for s in series]
     if not qs or min(qs) <= 0.0 or max(qs) > QUANTUM_AGREEMENT * min(qs):
         return None
@@ -728,8 +728,6 @@ _LINE = re.compile(r"^(?P<indent>\s+)(?P<name>[A-Za-z_][A-Za-z0-9_]*):\s*\{.*\}\
 
 
 def _quantity(value: float, unit: str, source: str) -> str:
-    import json
-
     return f"{{value: {value!r}, unit: {json.dumps(unit)}, source: {json.dumps(source, ensure_ascii=False)}}}"
 
 
