@@ -66,6 +66,7 @@ def trial(builds: dict[str, Path], by_pts: bool) -> dict:
     link = SerialLink(port, lambda f, t: frames.append((t, f)) if isinstance(f, SampleFrame) else None,
                       clock_ns=time.monotonic_ns)
     link.start()
+    b = None
     try:
         assert link.wait_connected(5)
         a.communicate(timeout=60)
@@ -75,10 +76,12 @@ def trial(builds: dict[str, Path], by_pts: bool) -> dict:
         b = _start(builds["b"], 1.5)
         b_real = os.path.realpath(read_pty_path(b))
         time.sleep(2.0)  # B runs on only while someone reads it (the harness's flow control)
-        b.kill()
-        b.communicate()
     finally:
         link.stop()
+        for proc in (a, b):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.communicate()
     foreign = [f for t, f in frames if t > ended]
     return {"opened_by": "/dev/pts/N" if by_pts else "the harness's own name", "a_pty": a_real,
             "b_pty": b_real, "own_frames": n_own,

@@ -1,7 +1,9 @@
 """Start-up handshake of the simavr harness (``firmware/sim/harness``) for tests and benches.
 
 The harness runs the real firmware on an emulated ATmega2560 and exposes its UART0 as a pty;
-after simavr's own "Loaded ..." lines it prints ``PTY <path>`` on stdout. The bridge (or a
+after simavr's own "Loaded ..." lines it prints ``PTY <path>`` on stdout (a name of the harness's
+own, ``$TMPDIR/aeropend-simavr-<pid>.pty``, a symlink to the pty that it removes when it ends: a
+link that reconnects after that finds nothing, not another harness's pty). The bridge (or a
 :class:`~aeropend_bridge.serial_link.SerialLink`) then connects to that path like to a board;
 :func:`harness_link` does both and tears them down.
 """
@@ -9,6 +11,7 @@ after simavr's own "Loaded ..." lines it prints ``PTY <path>`` on stdout. The br
 from __future__ import annotations
 
 import contextlib
+import os
 import subprocess
 import time
 from collections.abc import Iterator, Sequence
@@ -100,12 +103,15 @@ def harness_link(
     HarnessError
         The harness did not announce its pty (:func:`read_pty_path`).
 
-    On exit the link is stopped and a harness that is still running is killed and reaped.
+    On exit the link is stopped and a harness that is still running is killed and reaped (and the
+    pty name it announced, a symlink it removes itself when it ends normally, removed).
     """
     proc = subprocess.Popen(list(argv), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     link = None
+    path = None
     try:
-        link = SerialLink(read_pty_path(proc), on_frame, clock_ns=time.monotonic_ns)
+        path = read_pty_path(proc)
+        link = SerialLink(path, on_frame, clock_ns=time.monotonic_ns)
         link.start()
         yield proc, link
     finally:
@@ -114,3 +120,5 @@ def harness_link(
         if proc.poll() is None:
             proc.kill()
             proc.communicate()
+            if path is not None and os.path.islink(path):  # a killed harness cannot remove its name
+                os.unlink(path)

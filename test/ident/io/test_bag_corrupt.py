@@ -111,6 +111,29 @@ def test_repair_writes_a_clean_copy_any_reader_takes_whole(tmp_path: Path,
     assert f"'{new}' exists" in capsys.readouterr().err
 
 
+def test_repair_of_a_sqlite3_bag_leaves_the_corrupt_rows_out(tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    """SQLite3 has no checksums: a flipped message blob is found by deserialising it. The repaired copy
+    holds exactly the rows the validated scan kept (not the undeserialisable one, which a reader of
+    the copy would then fail on) and reads whole."""
+    rec, bag, f = _bag(tmp_path, "sqlite3")
+    _flip(f, f.stat().st_size // 2)
+    kept = scan_storage(f, keep_messages=True, validate=True)
+    assert kept.skipped and kept.total < 3 * N
+    new = tmp_path / "repaired"
+    assert reindex_main([str(bag), "--overwrite", "--repair", str(new)]) == 0
+    assert f"reindex: wrote the repaired bag {new}: {kept.total} message(s)" in capsys.readouterr().out
+    (g,) = [p for p in new.iterdir() if p.suffix == ".db3"]
+    clean = scan_storage(g, keep_messages=True, validate=True)
+    assert not clean.skipped and clean.total == kept.total
+    assert clean.messages == kept.messages
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", BagTruncatedWarning)  # nothing left to skip in the copy
+        got = read_bag(new)
+    idx = np.round(got.t / 0.002).astype(int)
+    assert len(got) < N and np.array_equal(got.channels["theta"], rec.channels["theta"][idx])
+
+
 def test_corrupt_mcap_record_length_resynchronised(tmp_path: Path) -> None:
     f = _bag(tmp_path, "mcap")[2]
     whole = scan_storage(f, keep_messages=False)

@@ -829,13 +829,17 @@ def stored_metadata(path: str | Path) -> dict[str, Any] | None:
 # --------------------------------------------------------------------------------------------
 
 
-def rebuild_metadata(bag: str | Path) -> tuple[dict[str, Any], list[StorageScan]]:
+def rebuild_metadata(bag: str | Path, keep_messages: bool = False
+                     ) -> tuple[dict[str, Any], list[StorageScan]]:
     """``rosbag2_bagfile_information`` of a bag directory rebuilt from its storage files.
 
     Parameters
     ----------
     bag : str or Path
         Bag directory holding ``.mcap`` or ``.db3`` files (one storage kind).
+    keep_messages : bool
+        Keep the recovered messages in the returned scans (``reindex --repair`` writes them); the
+        loss count, when one is needed, is then made from them instead of a second read.
 
     Returns
     -------
@@ -859,7 +863,7 @@ def rebuild_metadata(bag: str | Path) -> tuple[dict[str, Any], list[StorageScan]
     kinds = {_SUFFIX_STORAGE[p.suffix] for p in files}
     if len(kinds) > 1:
         raise BagError(f"'{bag}' mixes storage kinds ({', '.join(p.name for p in files)}); expected one")
-    scans = [scan_storage(p, keep_messages=False, validate=True) for p in files]
+    scans = [scan_storage(p, keep_messages=keep_messages, validate=True) for p in files]
     topics: dict[str, StorageTopic] = {}
     counts: dict[str, int] = {}
     for s in scans:
@@ -901,7 +905,8 @@ def rebuild_metadata(bag: str | Path) -> tuple[dict[str, Any], list[StorageScan]
     # a storage file never closed (its metadata record missing: a killed recorder) or a recorder's
     # file without its count: the loss is counted here, from the stamps
     if LOSS_KEY not in custom and (not stored or RECORDER_KEY in custom):
-        info["custom_data"] = {**custom, LOSS_KEY: json.dumps(_loss_from_stamps(files, topics))}
+        loss = _loss_from_stamps(scans, topics, keep_messages)
+        info["custom_data"] = {**custom, LOSS_KEY: json.dumps(loss)}
     skipped = [{"file": s.path.name, "start": k.start, "end": k.end, "reason": k.reason, "counts": k.counts,
                 "first_ns": k.first_ns, "last_ns": k.last_ns} for s in scans for k in s.skipped]
     if skipped:  # readers then read the recovered messages (and say what was left out)
@@ -915,15 +920,18 @@ REINDEX_LOSS_NOTE = ("counted by reindex from the header stamps (the recorder st
                      "left out count as lost")
 
 
-def _loss_from_stamps(files: list[Path], topics: dict[str, StorageTopic]) -> dict[str, dict[str, Any]]:
+def _loss_from_stamps(scans: list[StorageScan], topics: dict[str, StorageTopic],
+                      have_messages: bool) -> dict[str, dict[str, Any]]:
     """Per-topic loss of the recovered messages, from the header stamps against the sample period
     (:class:`aeropend_ident.io.integrity.loss.LossCounter` without sequence numbers: a storage file
-    does not keep them), each topic's entry marked with :data:`REINDEX_LOSS_NOTE`."""
+    does not keep them), each topic's entry marked with :data:`REINDEX_LOSS_NOTE`. The messages are
+    the scans' own when ``have_messages``, else each file is read again (validated, like the scan)."""
     stamped = {n for n, t in topics.items() if t.msgtype in (TYPE_JOINT_STATES, TYPE_ARMATURE)}
     counter = LossCounter(stamped=lambda topic: topic in stamped)
-    for path in files:
-        for topic, log_ns, data in sorted(scan_storage(path, keep_messages=True).messages,
-                                          key=lambda m: m[1]):
+    for scan in scans:
+        messages = scan.messages if have_messages else \
+            scan_storage(scan.path, keep_messages=True, validate=True).messages  # log-time order
+        for topic, log_ns, data in messages:
             counter.add(topic, log_ns, data)
     return {name: {**r, "note": REINDEX_LOSS_NOTE} for name, r in counter.report().items()}
 

@@ -15,8 +15,6 @@ from aeropend_ident.io.bag_recover import (
     SKIPPED_KEY,
     StorageScan,
     rebuild_metadata,
-    scan_storage,
-    storage_files,
 )
 from aeropend_ident.io.mcap_jazzy import JazzyWriter
 
@@ -58,9 +56,9 @@ def repair(bag: str | Path, out: str | Path) -> tuple[Path, int, list[StorageSca
     bag, out = Path(bag), Path(out)
     if out.exists():
         raise BagError(f"'{out}' exists; reindex --repair writes a new bag directory (choose another name)")
-    info, _ = rebuild_metadata(bag)
-    files = storage_files(bag)
-    scans = [scan_storage(p, keep_messages=True) for p in files]
+    # one validated read of every file serves the metadata, the loss count and the copy (a SQLite3
+    # row that is not a message of its topic's type is left out of the copy, as readers skip it)
+    info, scans = rebuild_metadata(bag, keep_messages=True)
     topics = {n: t for s in scans for n, t in s.topics.items()}
     plugin = StoragePlugin.MCAP if info["storage_identifier"] == "mcap" else StoragePlugin.SQLITE3
     writer = JazzyWriter(out, version=9, storage_plugin=plugin)
