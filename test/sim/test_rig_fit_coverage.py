@@ -1,6 +1,7 @@
 """The bar of issue 36: per actuator family, ``rig new`` → ``rig fit`` on a lab's simulated data of a
 truth plant outside aeropend_sim (bench/fixtures/truth_plant.py) recovers the parameters within their
-reported uncertainty, with the coverage checked over 20 noise seeds.
+reported uncertainty, with the coverage checked over 20 noise seeds (at 2σ, and at the nominal 90 %
+of issue 60's bar: 80-99 % of the seeds).
 
 Each family's lab states what a lab knows (geometry, data-sheet motor constants, ...) and leaves the
 rest to be fitted; the experiments (test/sim/rig_lab.py: a balance table, a free decay, a PRBS run)
@@ -26,6 +27,7 @@ from bench.fixtures.rig_lab import tp
 
 SEEDS = 20
 SIGMA = 0.005  # rad, angle noise of the labs' sensors
+Z90 = 1.6449  # |z| of a two-sided 90 % interval of a Gaussian estimate
 
 
 @dataclass
@@ -87,7 +89,8 @@ CASES = {"esc": esc_case, "dc_hbridge": dc_case, "voltage_amplifier": amplifier_
 
 
 def coverage(case: Case, folder: Path, seeds: int = SEEDS) -> dict[str, dict[str, float]]:
-    """Per parameter: coverage at 2σ, seeds it was fitted on, median |error|/σ."""
+    """Per parameter: coverage at 2σ and at the nominal 90 % (:data:`Z90` σ), seeds it was fitted on,
+    median |error|/σ."""
     ex = rig_lab.experiments(case.plant, case.dt, **case.experiments)
     rig = folder / "my_rig.yaml"
     assert rig_main(["new", "--actuator", case.family, "--stated", *case.stated, "-o", str(rig)]) == 0
@@ -102,7 +105,8 @@ def coverage(case: Case, folder: Path, seeds: int = SEEDS) -> dict[str, dict[str
     out = {}
     for k, z in hits.items():
         z = np.array(z)
-        out[k] = {"coverage": float(np.mean(z <= 2.0)) if z.size else 0.0, "fitted": int(z.size),
+        out[k] = {"coverage": float(np.mean(z <= 2.0)) if z.size else 0.0,
+                  "coverage90": float(np.mean(z <= Z90)) if z.size else 0.0, "fitted": int(z.size),
                   "median_z": float(np.median(z)) if z.size else math.inf}
     return out
 
@@ -112,12 +116,15 @@ def coverage(case: Case, folder: Path, seeds: int = SEEDS) -> dict[str, dict[str
 def test_rig_fit_covers_the_truth_plant(family: str, tmp_path: Path) -> None:
     case = CASES[family]()
     table = coverage(case, tmp_path)
-    print(f"\n{family}: coverage of |fitted − true| ≤ 2σ over {SEEDS} seeds")
+    print(f"\n{family}: coverage of |fitted − true| ≤ 2σ and ≤ {Z90}σ (nominal 90 %) over {SEEDS} seeds")
     for k, row in table.items():
-        print(f"  {k:<26} {row['coverage']:.2f}  (fitted on {row['fitted']}/{SEEDS}, median |err|/σ "
-              f"{row['median_z']:.2f})")
+        print(f"  {k:<26} {row['coverage']:.2f}  {row['coverage90']:.2f}  (fitted on "
+              f"{row['fitted']}/{SEEDS}, median |err|/σ {row['median_z']:.2f})")
     for k, row in table.items():
         assert row["fitted"] == SEEDS, f"{k} refused on {SEEDS - row['fitted']} seed(s)"
         assert row["coverage"] >= 0.8, f"{k}: coverage {row['coverage']:.2f} (expected about 0.95)"
+        # issue 60's bar: a nominal 90 % interval holds the truth on 80-99 % of the seeds (1.00 would
+        # be σ too wide, below 0.80 too narrow; 20 seeds give ±0.07 of binomial spread at 0.90)
+        assert 0.80 <= row["coverage90"] <= 0.99, f"{k}: 90 % coverage {row['coverage90']:.2f}"
     mean = float(np.mean([r["coverage"] for r in table.values()]))
     assert mean >= 0.88, f"mean coverage {mean:.2f} (expected about 0.95)"
