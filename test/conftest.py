@@ -20,8 +20,10 @@ import pytest
 #: split its replays and BLAS products over every core ran 4 workers x 2 threads on 2 cores, and
 #: OpenBLAS threads spinning against the other workers made CPU-bound tests time out after 600 s
 #: (docs/findings/test_suite.md). Set before numpy is imported, so OpenBLAS starts with one thread.
+#: Likewise ``design_gains`` checks its strategies one after the other in a worker
+#: (``aeropend_control.design_gains.WORKERS_ENV``), not in a process pool of its own.
 PARALLEL_WORKER_ENV = {"AEROPEND_REPLAY_THREADS": "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1",
-                       "MKL_NUM_THREADS": "1"}
+                       "MKL_NUM_THREADS": "1", "AEROPEND_DESIGN_WORKERS": "1"}
 if os.environ.get("PYTEST_XDIST_WORKER"):
     for _key, _value in PARALLEL_WORKER_ENV.items():
         os.environ.setdefault(_key, _value)

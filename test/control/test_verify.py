@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from aeropend_control.design import PoleSpec
 from aeropend_control.metrics import step_metrics
@@ -44,3 +45,37 @@ def test_ending_in_the_band_ranks_before_diverging() -> None:
     assert not overshoots.settles and overshoots.ends_in_band and not diverges.ends_in_band
     assert settles.cost() < overshoots.cost() < diverges.cost()
     assert overshoots.cost() == (1, 9.6)
+
+
+def _run_figures(r: StepRun) -> tuple:
+    return r.reference, r.status, r.metrics.as_dict() if r.metrics is not None else None
+
+
+def test_design_gains_checks_strategies_in_worker_processes_with_the_same_verdicts(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """``design_gains`` checks each strategy in a worker process of its own (spawned); the verdicts
+    (every step's status and metrics, the tuned pattern) equal those checked one after the other in
+    this process: each closed loop is deterministic."""
+    from aeropend_control.design_gains import WORKERS_ENV, check
+    from aeropend_control.strategies.fl_pid import FeedbackLinearizationPID
+    from aeropend_control.strategies.small_signal import SmallSignalPID
+    from aeropend_sim.params import load_rig
+
+    rig = load_rig("thesis_rig")
+    specs = {cls.name: cls.default_spec_for(rig) for cls in (FeedbackLinearizationPID, SmallSignalPID)}
+
+    def verdicts(workers: str) -> dict:
+        monkeypatch.setenv(WORKERS_ENV, workers)
+        out = check(rig, specs, (0.2, 0.4), tune_specs=True)
+        flat = {}
+        for kind, table in out.items():
+            for name, value in table.items():
+                pair = value if isinstance(value, tuple) else (value,)
+                flat[(kind, name)] = [v if isinstance(v, str) else (v.spec, [_run_figures(r) for r in v.runs])
+                                      for v in pair]
+        return flat
+
+    here, pooled = verdicts("1"), verdicts("2")
+    assert set(here) == {("tuned", "fl_pid"), ("tuned", "small_signal"), ("others", "cascade"),
+                         ("others", "fl_cascade")}
+    assert pooled == here

@@ -98,34 +98,56 @@ def _print_verdict(label: str, v) -> None:
         print(f"  {label:24s} (stopped after the first failing step)")
 
 
-def check(rig: Rig, specs: dict[str, PoleSpec], steps: tuple[float, ...], tune_specs: bool = True) -> dict:
-    """Closed-loop verdicts of every strategy on ``rig``: θ-only strategies tuned
-    (:func:`~aeropend_control.verify.closed_loop.tune`), the others at their default pattern or
-    refused with the reason. Prints as it goes (progress on stderr)."""
+def _progress(text: str) -> None:
+    print(f"design_gains: checking {text} ...", file=sys.stderr, flush=True)
+
+
+def _check_one(rig: Rig, name: str, spec: PoleSpec | None, steps: tuple[float, ...], tune: bool) -> tuple:
+    """One strategy's closed-loop check (run in a worker process by :func:`check`): ``("tuned",
+    (first, best))`` for a pattern to tune or verify, ``("others", verdict or refusal text)``."""
     from aeropend_control.verify.closed_loop import tune as tune_fn
     from aeropend_control.verify.closed_loop import verify
 
-    def progress(text: str) -> None:
-        print(f"design_gains: checking {text} ...", file=sys.stderr, flush=True)
+    try:
+        pattern = spec or strategy_class(name).default_spec_for(rig)
+        _progress(f"{name}: ω_n {pattern.omega_n:.3g} rad/s, ζ {pattern.zeta:g}")
+        if spec is not None and tune:
+            return "tuned", tune_fn(rig, name, pattern, steps, _progress)
+        if spec is not None:
+            v = verify(rig, name, pattern, steps)
+            return "tuned", (v, v)
+        return "others", verify(rig, name, pattern, steps)
+    except ValueError as exc:  # ControllerConfigError, DesignError: refused with the reason
+        return "others", str(exc)
 
+
+#: Worker processes of :func:`check` (one strategy each; 1 = in this process).
+WORKERS_ENV = "AEROPEND_DESIGN_WORKERS"
+
+
+def check(rig: Rig, specs: dict[str, PoleSpec], steps: tuple[float, ...], tune_specs: bool = True) -> dict:
+    """Closed-loop verdicts of every strategy on ``rig``: θ-only strategies tuned
+    (:func:`~aeropend_control.verify.closed_loop.tune`), the others at their default pattern or
+    refused with the reason. Progress on stderr as it goes.
+
+    The strategies are checked in parallel, one worker process each, up to the machine's cores
+    (``AEROPEND_DESIGN_WORKERS`` sets the number; 1 runs them here, one after the other); the
+    verdicts do not depend on it (each closed loop is deterministic)."""
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+    from multiprocessing import get_context
+
+    names = [n for n in strategy_names() if not strategy_class(n).required]  # required: a setting of its own
+    jobs = [(rig, n, specs.get(n), steps, tune_specs) for n in names]
+    workers = int(os.environ.get(WORKERS_ENV, "0")) or min(len(jobs), os.cpu_count() or 1)
+    if workers > 1:
+        with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
+            results = list(pool.map(_check_one, *zip(*jobs, strict=True)))
+    else:
+        results = [_check_one(*job) for job in jobs]
     out: dict = {"tuned": {}, "others": {}}
-    for name in strategy_names():
-        cls = strategy_class(name)
-        if cls.required:
-            continue  # needs a setting of its own (small_signal_fixed: theta_op)
-        try:
-            spec = specs.get(name) or cls.default_spec_for(rig)
-            progress(f"{name}: ω_n {spec.omega_n:.3g} rad/s, ζ {spec.zeta:g}")
-            if name in specs and tune_specs:
-                first, best = tune_fn(rig, name, spec, steps, progress)
-                out["tuned"][name] = (first, best)
-            elif name in specs:
-                v = verify(rig, name, spec, steps)
-                out["tuned"][name] = (v, v)
-            else:
-                out["others"][name] = verify(rig, name, spec, steps)
-        except ValueError as exc:  # ControllerConfigError, DesignError: refused with the reason
-            out["others"][name] = str(exc)
+    for name, (kind, value) in zip(names, results, strict=True):
+        out[kind][name] = value
     return out
 
 

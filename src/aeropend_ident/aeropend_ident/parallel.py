@@ -40,11 +40,14 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
+from aeropend_control.design_gains import WORKERS_ENV as DESIGN_WORKERS_ENV
 from aeropend_ident.greybox.batch import THREADS_ENV, one_blas_thread
 from aeropend_ident.progress import bar
 
-#: Environment of every worker of a local cluster: one replay thread and one BLAS/OpenMP thread.
-WORKER_ENV = {THREADS_ENV: "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: Environment of every worker of a local cluster: one replay thread, one BLAS/OpenMP thread and
+#: ``design_gains``'s strategies checked in the worker itself (no process pool inside a pool).
+WORKER_ENV = {THREADS_ENV: "1", "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1",
+              DESIGN_WORKERS_ENV: "1"}
 
 
 def default_workers() -> int:
