@@ -327,7 +327,13 @@ static double enc_theta(const sim_t *s, double t_us)
 static void enc_set_lines(sim_t *s)
 {
     static const unsigned gray[4] = {0, 1, 3, 2}; /* bit0 = A, bit1 = B */
-    unsigned st = gray[((s->enc_count % 4) + 4) % 4];
+    /* -P: count 0 (the rod hanging at rest) reads A = B = 1. Both lines held low from reset, when
+     * EICRA still selects low-level INT2/INT3, start simavr 1.6's per-cycle level poll of the
+     * external interrupt, which runs until a line rises: the emulation then ran at 0.58 of real
+     * time (measured with the rod at rest; counts 1..3 and event-file runs that leave count 0 run
+     * at 1.00). The firmware counts steps from the lines it reads at start, so the phase is free. */
+    long phase = s->plant_fd >= 0 ? 2 : 0;
+    unsigned st = gray[(((s->enc_count + phase) % 4) + 4) % 4];
     avr_ioport_external_t ext = {.name = 'D', .mask = 0x0C, .value = (st & 3u) << 2};
     avr_ioctl(s->avr, AVR_IOCTL_IOPORT_SET_EXTERNAL('D'), &ext);
     avr_raise_irq(s->enc_a, st & 1u);
@@ -352,6 +358,8 @@ static avr_cycle_count_t enc_timer(avr_t *avr, avr_cycle_count_t when, void *par
     return when + 16; /* every microsecond */
 }
 
+static avr_cycle_count_t plant_timer(avr_t *avr, avr_cycle_count_t when, void *param);
+
 static void on_tccr1b(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq;
@@ -361,8 +369,10 @@ static void on_tccr1b(struct avr_irq_t *irq, uint32_t value, void *param)
     s->t1_start = s->avr->cycle;
     if (s->plog)
         fprintf(s->plog, "T1START %llu\n", (unsigned long long)s->t1_start);
-    if (s->n_seg && s->plant_fd < 0)
+    if (s->n_seg || s->plant_fd >= 0)
         avr_cycle_timer_register(s->avr, 16, enc_timer, s);
+    if (s->plant_fd >= 0)
+        avr_cycle_timer_register(s->avr, s->plant_every, plant_timer, s);
 }
 
 /* ------------------------------------------------------------------ closed-loop plant (-P) */
@@ -663,10 +673,6 @@ int main(int argc, char **argv)
     s.enc_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 3);
     if (s.n_seg || plant)
         enc_set_lines(&s);
-    if (plant) { /* from reset: the plant's time is the MCU's; the encoder follows it from the start */
-        avr_cycle_timer_register(avr, s.plant_every, plant_timer, &s);
-        avr_cycle_timer_register(avr, 16, enc_timer, &s);
-    }
     avr_irq_register_notify(avr_iomem_getirq(avr, TCCR1B_ADDR, NULL, AVR_IOMEM_IRQ_ALL), on_tccr1b, &s);
     s.icp = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('L'), 0);
     s.dout = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('A'), 2);

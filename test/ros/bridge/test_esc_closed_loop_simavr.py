@@ -129,7 +129,7 @@ def _tail(path: Path, n: int = 1500) -> str:
 
 
 def _hardware_graph(firmware: Path, rig: Path, tmp: Path) -> tuple[np.ndarray, np.ndarray, str]:
-    env = isolated_env(random_domain(231, 245))
+    env = isolated_env(random_domain(150, 230))
     sock_dir = Path(tempfile.mkdtemp(prefix="ap-plant-"))  # a short path: sun_path holds 108 bytes
     sock = sock_dir / "plant.sock"
     trace = tmp / "hw_trace.csv"
@@ -157,9 +157,10 @@ def _hardware_graph(firmware: Path, rig: Path, tmp: Path) -> tuple[np.ndarray, n
         assert ctl.returncode == 0, _tail(logs["controller"])
         stop(bridge, signal.SIGINT, timeout=10)
         assert bridge.returncode == 0, _tail(logs["bridge"])
+        # the harness's unread frames after the bridge left are no concern here (LINKLOST)
         out = stop(harness, signal.SIGTERM, timeout=20).stdout
-        plant_out = stop(plant, signal.SIGTERM, timeout=10).stdout
-        assert "PLANTLOST" not in out and "LINKLOST" not in out, out
+        plant_out, _ = plant.communicate(timeout=10)  # the harness closed the socket: it reports, exits
+        assert "PLANTLOST" not in out and plant.returncode == 0, (out, plant_out, _tail(logs["plant"]))
     finally:
         reap(bridge, ctl, harness, plant)
         shutil.rmtree(sock_dir, ignore_errors=True)
@@ -168,7 +169,7 @@ def _hardware_graph(firmware: Path, rig: Path, tmp: Path) -> tuple[np.ndarray, n
 
 
 def _sim_graph(rig: Path, tmp: Path) -> tuple[np.ndarray, np.ndarray]:
-    env = isolated_env(random_domain(231, 245))
+    env = isolated_env(random_domain(150, 230))
     trace = tmp / "sim_trace.csv"
     logs = {k: tmp / f"sim_{k}.log" for k in ("sim", "controller")}
     sim = ctl = None
