@@ -61,6 +61,7 @@ FW = ROOT / "firmware"
 CPR = 4000
 Q = 2 * math.pi / CPR          # encoder quantum [rad]
 TS = 2.040e-3                  # firmware sample period (TOV1: 510 × 4 µs) [s]
+EXCHANGE_US = 1000             # plant exchange interval of the harness (-Q) [µs]; 250 starved the 2-core host
 STEP = 0.5                     # set point after the step [rad]
 T_STEP = 2.5                   # step instant after the controller's first sample [s]; > ESC arming (2 s)
 AFTER = 3.5                    # record after the step [s]
@@ -136,12 +137,13 @@ def _hardware_graph(firmware: Path, rig: Path, tmp: Path) -> tuple[np.ndarray, n
     logs = {k: tmp / f"hw_{k}.log" for k in ("plant", "harness", "bridge", "controller")}
     plant = harness = bridge = ctl = None
     try:
-        plant = subprocess.Popen([sys.executable, "-m", "aeropend_bridge.simavr_plant", str(rig), str(sock)],
+        plant = subprocess.Popen([sys.executable, "-m", "aeropend_bridge.simavr_plant", str(rig), str(sock),
+                                  "--interval", f"{EXCHANGE_US * 1e-6}"],
                                  env=env, stdout=subprocess.PIPE, stderr=logs["plant"].open("w"), text=True)
         ready = plant.stdout.readline() if plant.stdout is not None else ""
         assert ready.startswith("LISTENING"), _tail(logs["plant"])
         harness = subprocess.Popen([str(firmware / "harness"), str(firmware / "aeropend.elf"), "0", "-P",
-                                    str(sock), "-Q", "1000"],
+                                    str(sock), "-Q", str(EXCHANGE_US)],
                                    stdout=subprocess.PIPE, stderr=logs["harness"].open("w"), text=True)
         port = read_pty_path(harness)
         # the controller designs (seconds) while the bridge connects and the ESC arms (2 s of MCU time)
