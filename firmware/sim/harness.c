@@ -66,8 +66,9 @@
  *
  * Closed-loop plant coupling (issue 61):
  *   -P SOCKET [-Q US]  connects to a plant process listening on the Unix stream socket SOCKET
- *                   (aeropend_bridge.simavr_plant). Every US microseconds of MCU time (default 1000,
- *                   from reset) the emulation thread sends the record {double t [s] since reset,
+ *                   (aeropend_bridge.simavr_plant). Every US microseconds of MCU time (default 1000;
+ *                   at k * US from reset, from the firmware's Timer1 start on; the rod rests
+ *                   before) the emulation thread sends the record {double t [s] since reset,
  *                   double pulse [s]} (native byte order, 16 bytes): the width of the last complete
  *                   high pulse on OC3A = PE3, measured from its edges (0 before the first one), and
  *                   blocks until it reads back {double theta [rad]}: the rod angle at t. The encoder
@@ -371,8 +372,8 @@ static void on_tccr1b(struct avr_irq_t *irq, uint32_t value, void *param)
         fprintf(s->plog, "T1START %llu\n", (unsigned long long)s->t1_start);
     if (s->n_seg || s->plant_fd >= 0)
         avr_cycle_timer_register(s->avr, 16, enc_timer, s);
-    if (s->plant_fd >= 0)
-        avr_cycle_timer_register(s->avr, s->plant_every, plant_timer, s);
+    if (s->plant_fd >= 0) /* on the grid k * US from reset, the plant's own time steps */
+        avr_cycle_timer_register(s->avr, s->plant_every - s->avr->cycle % s->plant_every, plant_timer, s);
 }
 
 /* ------------------------------------------------------------------ closed-loop plant (-P) */

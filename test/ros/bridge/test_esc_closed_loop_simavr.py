@@ -28,9 +28,18 @@ Tolerances, from the physics of the hardware path (q = 2π/4000 = 1.57 mrad, T_s
   plus the time a 2 q difference moves a crossing of the ±2 % band, 2 q/|θ̇(t_s)|; the peak (M_p
   × step) 3 q (2 q reading, 1 q loop).
 * The trajectories, aligned on the step instant: the bar of issue 61 is the encoder's quantisation,
-  2 q (the two readings of one angle differ by up to 1.5 q). That bar is asserted; the hardware
-  path's latency alone moves θ by 0.79 mrad/ms × L during the rise, so the bar holds only while the
-  extra latency stays below ≈ 4 ms.
+  2 q (the encoder's floor and the simulated sensor's rounding of one angle differ by up to one
+  count; one more for the two graphs' sample instants). That bar is asserted and NOT MET on this
+  host (4 runs at dc05bfe: max |Δθ| 3.00, 4.50, 2.99, 2.00 q, always in the rise, t − t_step ≈
+  0.26-0.28 s, where θ̇ ≈ 0.79 rad/s; from 1.5 s on 1.00 q; final value, rise and settling time and
+  M_p all within the tolerances above). Cause: the hardware path lags the simulated graph by 2-4 ms
+  (the shift of the simulated trajectory that minimises max |Δθ|; 2.0 q remain after it): the
+  ESC's own latency, which ``sim_node``'s plant does not have (its τ acts from the sample period's
+  start): the pin takes a new width at the next 490 Hz frame start (0-2 ms) and the ESC knows it at
+  the pulse's falling edge (1.0-1.3 ms at this τ); plus the emulation's own (the 1 ms exchange:
+  0-1 ms to read the width, 0-1 ms age of the angle the encoder follows). 0.79 rad/s × 3 ms = 1.5 q.
+  A fitted rig file of a real ESC rig carries that latency in its input delay; the rig file here is
+  one rig file for both graphs, so the hardware path has it on top.
 """
 
 from __future__ import annotations
@@ -229,4 +238,4 @@ def test_esc_firmware_closed_loop_matches_the_simulated_graph(firmware: Path, tm
     assert abs(hw.settling_time - sim.settling_time) <= 1.5 * LATENCY + 2 * TS + 2 * Q / slope, slope
     assert abs(hw.overshoot - sim.overshoot) / 100 * STEP <= 3 * Q  # StepMetrics.overshoot is in %
     # the bar of issue 61: the step responses agree within the encoder's quantisation
-    assert diff.max() <= 2 * Q, f"max |dtheta| {diff.max() / Q:.2f} quanta"
+    assert diff.max() <= 2 * Q + 1e-12, f"max |dtheta| {diff.max() / Q:.2f} quanta"
