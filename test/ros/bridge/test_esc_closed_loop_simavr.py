@@ -39,7 +39,12 @@ Tolerances, from the physics of the hardware path (q = 2π/4000 = 1.57 mrad, T_s
   the pulse's falling edge (1.0-1.3 ms at this τ); plus the emulation's own (the 1 ms exchange:
   0-1 ms to read the width, 0-1 ms age of the angle the encoder follows). 0.79 rad/s × 3 ms = 1.5 q.
   A fitted rig file of a real ESC rig carries that latency in its input delay; the rig file here is
-  one rig file for both graphs, so the hardware path has it on top.
+  one rig file for both graphs, so the hardware path has it on top. The run-to-run spread follows
+  the ESC frame's phase to the sample tick (2.041 ms against 2.040 ms: it drifts by 1 µs a frame)
+  and the real-time graphs' occasional late answers: against the deterministic loop of the same
+  rig and controller (batch, one sample of latency, what ``sim_node`` computes when every answer
+  makes its tick) 7 hardware traces differ by 2.0-3.5 q; with 2 ms more input delay in that model
+  (the ESC's mean latency) by 1.05-2.5 q.
 """
 
 from __future__ import annotations
