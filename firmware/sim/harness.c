@@ -64,6 +64,19 @@
  *                        floor(theta * cpr / 2pi) (A leads B for a rising count), and prints
  *                        "ENC <steps> <final count> <max lag counts>" on exit.
  *
+ * Closed-loop plant coupling (issue 61):
+ *   -P SOCKET [-Q US]  connects to a plant process listening on the Unix stream socket SOCKET
+ *                   (aeropend_bridge.simavr_plant). Every US microseconds of MCU time (default 1000;
+ *                   at k * US from reset, from the firmware's Timer1 start on; the rod rests
+ *                   before) the emulation thread sends the record {double t [s] since reset,
+ *                   double pulse [s]} (native byte order, 16 bytes): the width of the last complete
+ *                   high pulse on OC3A = PE3, measured from its edges (0 before the first one), and
+ *                   blocks until it reads back {double theta [rad]}: the rod angle at t. The encoder
+ *                   emulation then follows that angle (one x4 step per us towards
+ *                   floor(theta * cpr / 2pi)) instead of the event file's enc segments. MCU time
+ *                   stands still while the plant computes. On exit "PLANT <exchanges> <max lag
+ *                   counts>" on stdout; a plant that closes the socket ends the run ("PLANTLOST").
+ *
  * Not emulated: the analogue front end, the motor shield, the ESC itself.
  */
 #include <errno.h>
@@ -75,6 +88,8 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
+#include <sys/socket.h>
+#include <sys/un.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -141,6 +156,12 @@ typedef struct {
     int n_seg;
     long cpr, enc_count, enc_steps, enc_max_lag;
     avr_irq_t *enc_a, *enc_b;
+    /* closed-loop plant (-P): socket, exchange interval [cycles], the pulse seen on the pin */
+    int plant_fd;
+    avr_cycle_count_t plant_every, pulse_rise, pulse_width;
+    unsigned pulse_level;
+    double plant_theta;
+    unsigned long plant_exchanges;
 } sim_t;
 
 /* ATmega2560 data-space addresses (avr-libc iomxx0_1.h). */
@@ -274,6 +295,12 @@ static void on_pulse_pin(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq;
     sim_t *s = param;
+    value = value ? 1u : 0u;
+    if (value && !s->pulse_level)
+        s->pulse_rise = s->avr->cycle;
+    else if (!value && s->pulse_level && s->pulse_rise)
+        s->pulse_width = s->avr->cycle - s->pulse_rise; /* a complete high pulse */
+    s->pulse_level = value;
     if (s->plog)
         fprintf(s->plog, "P %llu %u\n", (unsigned long long)s->avr->cycle, value ? 1u : 0u);
 }
@@ -301,7 +328,13 @@ static double enc_theta(const sim_t *s, double t_us)
 static void enc_set_lines(sim_t *s)
 {
     static const unsigned gray[4] = {0, 1, 3, 2}; /* bit0 = A, bit1 = B */
-    unsigned st = gray[((s->enc_count % 4) + 4) % 4];
+    /* -P: count 0 (the rod hanging at rest) reads A = B = 1. Both lines held low from reset, when
+     * EICRA still selects low-level INT2/INT3, start simavr 1.6's per-cycle level poll of the
+     * external interrupt, which runs until a line rises: the emulation then ran at 0.58 of real
+     * time (measured with the rod at rest; counts 1..3 and event-file runs that leave count 0 run
+     * at 1.00). The firmware counts steps from the lines it reads at start, so the phase is free. */
+    long phase = s->plant_fd >= 0 ? 2 : 0;
+    unsigned st = gray[(((s->enc_count + phase) % 4) + 4) % 4];
     avr_ioport_external_t ext = {.name = 'D', .mask = 0x0C, .value = (st & 3u) << 2};
     avr_ioctl(s->avr, AVR_IOCTL_IOPORT_SET_EXTERNAL('D'), &ext);
     avr_raise_irq(s->enc_a, st & 1u);
@@ -313,7 +346,8 @@ static avr_cycle_count_t enc_timer(avr_t *avr, avr_cycle_count_t when, void *par
     (void)avr;
     sim_t *s = param;
     double t_us = (double)(when - s->t1_start) / 16.0;
-    long target = (long)floor(enc_theta(s, t_us) * (double)s->cpr / (2.0 * M_PI));
+    double theta = s->plant_fd >= 0 ? s->plant_theta : enc_theta(s, t_us);
+    long target = (long)floor(theta * (double)s->cpr / (2.0 * M_PI));
     long lag = labs(target - s->enc_count);
     if (lag > s->enc_max_lag)
         s->enc_max_lag = lag;
@@ -325,6 +359,8 @@ static avr_cycle_count_t enc_timer(avr_t *avr, avr_cycle_count_t when, void *par
     return when + 16; /* every microsecond */
 }
 
+static avr_cycle_count_t plant_timer(avr_t *avr, avr_cycle_count_t when, void *param);
+
 static void on_tccr1b(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq;
@@ -334,8 +370,59 @@ static void on_tccr1b(struct avr_irq_t *irq, uint32_t value, void *param)
     s->t1_start = s->avr->cycle;
     if (s->plog)
         fprintf(s->plog, "T1START %llu\n", (unsigned long long)s->t1_start);
-    if (s->n_seg)
+    if (s->n_seg || s->plant_fd >= 0)
         avr_cycle_timer_register(s->avr, 16, enc_timer, s);
+    if (s->plant_fd >= 0) /* on the grid k * US from reset, the plant's own time steps */
+        avr_cycle_timer_register(s->avr, s->plant_every - s->avr->cycle % s->plant_every, plant_timer, s);
+}
+
+/* ------------------------------------------------------------------ closed-loop plant (-P) */
+static int full_io(int fd, void *buf, size_t n, int writing)
+{
+    uint8_t *p = buf;
+    while (n) {
+        ssize_t r = writing ? write(fd, p, n) : read(fd, p, n);
+        if (r < 0 && errno == EINTR)
+            continue;
+        if (r <= 0)
+            return -1;
+        p += r;
+        n -= (size_t)r;
+    }
+    return 0;
+}
+
+static int plant_connect(sim_t *s, const char *path)
+{
+    struct sockaddr_un a = {.sun_family = AF_UNIX};
+    if (strlen(path) >= sizeof a.sun_path) {
+        fprintf(stderr, "plant socket path too long: %s\n", path);
+        return -1;
+    }
+    strcpy(a.sun_path, path);
+    s->plant_fd = socket(AF_UNIX, SOCK_STREAM, 0);
+    if (s->plant_fd < 0 || connect(s->plant_fd, (struct sockaddr *)&a, sizeof a) != 0) {
+        fprintf(stderr, "cannot connect to the plant at %s: %s\n", path, strerror(errno));
+        return -1;
+    }
+    return 0;
+}
+
+/* Every plant_every cycles: send (t, pulse), block until theta comes back (MCU time stands still). */
+static avr_cycle_count_t plant_timer(avr_t *avr, avr_cycle_count_t when, void *param)
+{
+    sim_t *s = param;
+    double out[2] = {(double)when / (double)avr->frequency, (double)s->pulse_width / (double)avr->frequency};
+    double theta;
+    if (full_io(s->plant_fd, out, sizeof out, 1) != 0 || full_io(s->plant_fd, &theta, sizeof theta, 0) != 0) {
+        printf("PLANTLOST\n");
+        fflush(stdout);
+        stop = 1;
+        return 0;
+    }
+    s->plant_theta = theta;
+    s->plant_exchanges++;
+    return when + s->plant_every;
 }
 
 /* ------------------------------------------------------------------ host link (pty) */
@@ -522,20 +609,25 @@ int main(int argc, char **argv)
 {
     const char *pos[6] = {0};
     int npos = 0;
-    const char *events = NULL, *pulses = NULL;
+    const char *events = NULL, *pulses = NULL, *plant = NULL;
+    double plant_us = 1000.0;
     int dump_regs = 0;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "-e") == 0 && i + 1 < argc)
             events = argv[++i];
         else if (strcmp(argv[i], "-p") == 0 && i + 1 < argc)
             pulses = argv[++i];
+        else if (strcmp(argv[i], "-P") == 0 && i + 1 < argc)
+            plant = argv[++i];
+        else if (strcmp(argv[i], "-Q") == 0 && i + 1 < argc)
+            plant_us = atof(argv[++i]);
         else if (strcmp(argv[i], "-r") == 0)
             dump_regs = 1;
         else if (npos < 6)
             pos[npos++] = argv[i];
     }
     if (npos < 1) {
-        fprintf(stderr, "usage: %s firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events] [-r]\n",
+        fprintf(stderr, "usage: %s firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events] [-p pulses] [-P socket [-Q us]] [-r]\n",
                 argv[0]);
         return 2;
     }
@@ -564,19 +656,23 @@ int main(int argc, char **argv)
     s.min_clkfe = s.min_half = s.min_read = ~(avr_cycle_count_t)0;
     s.min_rises = ~0u;
     s.cpr = 4000;
+    s.plant_fd = -1;
     if (events && read_events(events, &s) != 0)
         return 2;
+    if (plant && (plant_us < 1.0 || plant_connect(&s, plant) != 0))
+        return 2;
+    s.plant_every = (avr_cycle_count_t)(plant_us * (avr->frequency / 1e6) + 0.5);
     if (pulses && !(s.plog = fopen(pulses, "w"))) {
         fprintf(stderr, "cannot write pulse log %s\n", pulses);
         return 2;
     }
-    if (s.plog) {
+    if (s.plog || plant)
         avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('E'), 3), on_pulse_pin, &s);
+    if (s.plog)
         avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), on_uart_in, &s);
-    }
     s.enc_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2);
     s.enc_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 3);
-    if (s.n_seg)
+    if (s.n_seg || plant)
         enc_set_lines(&s);
     avr_irq_register_notify(avr_iomem_getirq(avr, TCCR1B_ADDR, NULL, AVR_IOMEM_IRQ_ALL), on_tccr1b, &s);
     s.icp = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('L'), 0);
@@ -616,8 +712,10 @@ int main(int argc, char **argv)
             printf("REG %s %u\n", REGS[i].name, avr->data[REGS[i].addr]);
     if (events)
         printf("IREDGES %lu\nSSIREADS %u %u\n", s.ir_edges, s.reads, s.bad_reads);
-    if (s.n_seg)
+    if (s.n_seg && !plant)
         printf("ENC %ld %ld %ld\n", s.enc_steps, s.enc_count, s.enc_max_lag);
+    if (plant)
+        printf("PLANT %lu %ld\n", s.plant_exchanges, s.enc_max_lag);
     if (s.plog)
         fclose(s.plog);
     if (s.reads) /* ns; CLK rising edges per read-out (min max) */

@@ -267,9 +267,24 @@ class CommandMap:
         """Motor off: DUTY 0, or the ESC's zero-throttle (disarm) pulse."""
         return self.command(0.0)
 
+    def tau_of_pulse(self, pulse_s: float) -> float:
+        """τ of an ESC pulse width: (pulse − pulse_offset) / pulse_span, clipped to [0, 1].
+
+        Parameters
+        ----------
+        pulse_s : float
+            Pulse width [s] (a width below ``pulse_offset``, e.g. 0 before the first pulse, is τ 0).
+
+        Returns
+        -------
+        float
+            τ ∈ [0, 1] [1].
+        """
+        tau = (float(pulse_s) - self.pulse_offset) / self.pulse_span
+        return min(1.0, max(0.0, tau))
+
     def applied(self, f: SampleFrame) -> float:
         """τ applied over the interval ending at sample ``f`` (ESC: from its pulse, clipped to [0, 1])."""
         if self.actuator == "esc" and f.pulse is not None:
-            tau = (f.pulse * PULSE_TICK_S - self.pulse_offset) / self.pulse_span
-            return min(1.0, max(0.0, tau))
+            return self.tau_of_pulse(f.pulse * PULSE_TICK_S)
         return f.duty / 255.0

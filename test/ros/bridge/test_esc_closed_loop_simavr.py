@@ -1,0 +1,246 @@
+"""End to end, closed loop: the ESC + encoder firmware in simavr against the all-simulated graph (issue 61).
+
+Hardware path: the plant of an ESC rig file (:mod:`aeropend_bridge.simavr_plant`, the simulator
+``sim_node`` steps, driven by the pulse width the firmware puts on its ESC pin, every 1 ms of MCU
+time) ↔ the simavr harness (``-P``: the real firmware ELF; its emulated quadrature encoder follows
+the plant's angle) ↔ the ``bridge`` node on the harness's pty ↔ the ``controller`` node (the default
+strategy, real-time mode). All-simulated graph: ``sim_node`` (real-time mode) with the same rig file
+↔ the same controller. Both take the same set-point step; the controllers' traces (θ as received on
+``joint_states``, the reference, the sample time) are compared.
+
+Tolerances, from the physics of the hardware path (q = 2π/4000 = 1.57 mrad, T_s = 2.040 ms):
+
+* The encoder reads floor(θ/q)·q (error in (−q, 0]), the simulated sensor round(θ/q)·q (error
+  within ±q/2): the same rod angle reads at most 1.5 q apart; the integral action holds each loop
+  within one quantum of the reference, so the final values differ by at most 2 q.
+* Extra latency of the hardware path over ``sim_node`` (both apply a command from the period after
+  the one it answered): the pin takes the firmware's new width at the next 490 Hz frame start
+  (≤ one frame ≈ T_s after the tick), the ESC (the plant process) knows the width at the pulse's
+  falling edge (≤ 2 ms) and reads it at its next 1 ms exchange, and the angle the encoder follows
+  is up to 1 ms old; the bridge's extra hop may make an answer miss the next tick (one more T_s):
+  L ≤ 2 T_s + 4 ms ≈ 8 ms (``LATENCY``).
+* What such a delay does to this loop, on the model (the controller designed on the rig file, the
+  plant's input delay lengthened by 8 ms, batch simulation): the robust design for the rig's 50 ms
+  input delay is overdamped (rise 639 ms, settling 1198 ms, peak 1 mrad over the set point); 8 ms
+  more delay shorten the rise time by 10 ms and the settling time by 14 ms, raise the peak by one
+  quantum (2 mrad) and move θ by 0.79 mrad per ms of delay during the rise (6.3 mrad for 8 ms).
+  Tolerances: rise time 1.5 L + 2 T_s (the metric's sample grid); settling time 1.5 L + 2 T_s
+  plus the time a 2 q difference moves a crossing of the ±2 % band, 2 q/|θ̇(t_s)|; the peak (M_p
+  × step) 3 q (2 q reading, 1 q loop).
+* The trajectories, aligned on the step instant: the bar of issue 61 is the encoder's quantisation,
+  2 q (the encoder's floor and the simulated sensor's rounding of one angle differ by up to one
+  count; one more for the two graphs' sample instants). That bar is asserted and NOT MET on this
+  host (4 runs at dc05bfe: max |Δθ| 3.00, 4.50, 2.99, 2.00 q, always in the rise, t − t_step ≈
+  0.26-0.28 s, where θ̇ ≈ 0.79 rad/s; from 1.5 s on 1.00 q; final value, rise and settling time and
+  M_p all within the tolerances above). Cause: the hardware path lags the simulated graph by 2-4 ms
+  (the shift of the simulated trajectory that minimises max |Δθ|; 2.0 q remain after it): the
+  ESC's own latency, which ``sim_node``'s plant does not have (its τ acts from the sample period's
+  start): the pin takes a new width at the next 490 Hz frame start (0-2 ms) and the ESC knows it at
+  the pulse's falling edge (1.0-1.3 ms at this τ); plus the emulation's own (the 1 ms exchange:
+  0-1 ms to read the width, 0-1 ms age of the angle the encoder follows). 0.79 rad/s × 3 ms = 1.5 q.
+  A fitted rig file of a real ESC rig carries that latency in its input delay; the rig file here is
+  one rig file for both graphs, so the hardware path has it on top. The run-to-run spread follows
+  the ESC frame's phase to the sample tick (2.041 ms against 2.040 ms: it drifts by 1 µs a frame)
+  and the real-time graphs' occasional late answers: against the deterministic loop of the same
+  rig and controller (batch, one sample of latency, what ``sim_node`` computes when every answer
+  makes its tick) 7 hardware traces differ by 2.0-3.5 q; with 2 ms more input delay in that model
+  (the ESC's mean latency) by 1.05-2.5 q.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("rclpy")
+
+from aeropend_bridge.simavr_harness import read_pty_path
+from aeropend_control.metrics import StepMetrics, step_metrics
+from aeropend_ident.cli.rig import main as rig_main
+from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap, stop
+
+ROOT = Path(__file__).resolve().parents[3]
+FW = ROOT / "firmware"
+CPR = 4000
+Q = 2 * math.pi / CPR          # encoder quantum [rad]
+TS = 2.040e-3                  # firmware sample period (TOV1: 510 × 4 µs) [s]
+EXCHANGE_US = 1000             # plant exchange interval of the harness (-Q) [µs]; 250 starved the 2-core host
+STEP = 0.5                     # set point after the step [rad]
+T_STEP = 2.5                   # step instant after the controller's first sample [s]; > ESC arming (2 s)
+AFTER = 3.5                    # record after the step [s]
+LATENCY = 2 * TS + 2e-3 + 2e-3  # the hardware path's extra latency, at most [s] (module docstring)
+
+pytestmark = [
+    pytest.mark.ros,
+    pytest.mark.timeout(150),
+    pytest.mark.xdist_group("test_esc_closed_loop_simavr"),
+    pytest.mark.skipif(
+        shutil.which("avr-gcc") is None or not Path("/usr/include/simavr/sim_avr.h").is_file(),
+        reason="needs avr-gcc + libsimavr-dev/libsimavrparts1 (scripts/setup_env.sh installs them as root)"),
+]
+BRIDGE = node_command("bridge", "aeropend_bridge.bridge_node")
+CONTROLLER = node_command("controller", "aeropend_control.controller_node")
+SIM = node_command("sim_node", "aeropend_sim.ros.sim_node")
+
+
+@pytest.fixture(scope="module")
+def firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    build = tmp_path_factory.mktemp("escfw490")
+    for extra in (["all", "ACTUATOR=esc", "ESC_HZ=490", "ANGLE=encoder", f"ENC_CPR={CPR}", "SPEED=none",
+                   "EXTRA_CFLAGS=-DSIMAVR_TIMER1"], ["harness"]):
+        r = subprocess.run(["make", "-C", str(FW), f"BUILD={build}", *extra], capture_output=True, text=True,
+                           timeout=120)
+        assert r.returncode == 0, r.stdout + r.stderr
+    return build
+
+
+def _esc_rig(path: Path) -> Path:
+    """``rig new --actuator esc`` (its starting values: ω_max 1000 rad/s, input delay 50 ms, T_m 0.1 s;
+    reach π/2) with the firmware's sample period, the encoder's quantum and a hardware block."""
+    assert rig_main(["new", "--actuator", "esc", "-o", str(path)]) == 0
+    data = yaml.safe_load(path.read_text())
+    q = {"unit": "s", "source": "ESC calibrated to 1.0-2.0 ms (test)"}
+    data["sample_period"] = {"value": TS, "unit": "s", "source": "firmware Timer1 tick: 510 x 4 us"}
+    data["sensors"] = {"theta_quantum": {"value": Q, "unit": "rad", "source": f"encoder, {CPR} counts/rev"}}
+    data["hardware"] = {"angle_sensor": "encoder",
+                        "counts_per_rev": {"value": CPR, "unit": "1", "source": "1000 lines x 4 (test)"},
+                        "pulse_offset": {"value": 1.0e-3, **q}, "pulse_span": {"value": 1.0e-3, **q}}
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _controller(rig: Path, trace: Path, env: dict[str, str], log: Path) -> subprocess.Popen:
+    """The controller node, default strategy, real-time mode: reference 0, then STEP at T_STEP."""
+    return subprocess.Popen(
+        [*CONTROLLER, "--ros-args", "-p", f"rig:={rig}", "-p", f"steps:=[0.0, 0.0, {T_STEP}, {STEP}]",
+         "-p", f"duration:={T_STEP + AFTER}", "-p", f"trace:={trace}"],
+        env=env, stdout=log.open("w"), stderr=subprocess.STDOUT, text=True)
+
+
+def _trace(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
+    """(t − t_step [s], θ [rad], t_step [s]) of a controller trace; t_step: first sample at the new
+    reference."""
+    rows = list(csv.reader(path.open()))
+    head, data = rows[0], np.array(rows[1:], dtype=float)
+    t, ref, theta = (data[:, head.index(k)] for k in ("t", "reference", "theta"))
+    t_step = float(t[np.argmax(ref >= STEP - 1e-12)])
+    assert ref[-1] == pytest.approx(STEP) and t_step > 0, "the step did not happen"
+    return t - t_step, theta, t_step
+
+
+def _tail(path: Path, n: int = 1500) -> str:
+    return path.read_text(errors="replace")[-n:] if path.is_file() else ""
+
+
+def _hardware_graph(firmware: Path, rig: Path, tmp: Path) -> tuple[np.ndarray, np.ndarray, str]:
+    env = isolated_env(random_domain(150, 230))
+    sock_dir = Path(tempfile.mkdtemp(prefix="ap-plant-"))  # a short path: sun_path holds 108 bytes
+    sock = sock_dir / "plant.sock"
+    trace = tmp / "hw_trace.csv"
+    logs = {k: tmp / f"hw_{k}.log" for k in ("plant", "harness", "bridge", "controller")}
+    plant = harness = bridge = ctl = None
+    try:
+        plant = subprocess.Popen([sys.executable, "-m", "aeropend_bridge.simavr_plant", str(rig), str(sock),
+                                  "--interval", f"{EXCHANGE_US * 1e-6}"],
+                                 env=env, stdout=subprocess.PIPE, stderr=logs["plant"].open("w"), text=True)
+        ready = plant.stdout.readline() if plant.stdout is not None else ""
+        assert ready.startswith("LISTENING"), _tail(logs["plant"])
+        harness = subprocess.Popen([str(firmware / "harness"), str(firmware / "aeropend.elf"), "0", "-P",
+                                    str(sock), "-Q", str(EXCHANGE_US)],
+                                   stdout=subprocess.PIPE, stderr=logs["harness"].open("w"), text=True)
+        port = read_pty_path(harness)
+        # the controller designs (seconds) while the bridge connects and the ESC arms (2 s of MCU time)
+        ctl = _controller(rig, trace, env, logs["controller"])
+        bridge = subprocess.Popen([*BRIDGE, "--ros-args", "-p", f"port:={port}", "-p", f"rig:={rig}"],
+                                  env=env, stdout=logs["bridge"].open("w"), stderr=subprocess.STDOUT,
+                                  text=True)
+        try:
+            ctl.wait(timeout=90)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"controller did not finish: {_tail(logs['controller'])}\n"
+                        f"bridge: {_tail(logs['bridge'])}")
+        assert ctl.returncode == 0, _tail(logs["controller"])
+        stop(bridge, signal.SIGINT, timeout=10)
+        assert bridge.returncode == 0, _tail(logs["bridge"])
+        # the harness's unread frames after the bridge left are no concern here (LINKLOST)
+        out = stop(harness, signal.SIGTERM, timeout=20).stdout
+        plant_out, _ = plant.communicate(timeout=10)  # the harness closed the socket: it reports, exits
+        assert "PLANTLOST" not in out and plant.returncode == 0, (out, plant_out, _tail(logs["plant"]))
+    finally:
+        reap(bridge, ctl, harness, plant)
+        shutil.rmtree(sock_dir, ignore_errors=True)
+    t, theta, _ = _trace(trace)
+    return t, theta, f"{out.strip()} | {plant_out.strip()}"
+
+
+def _sim_graph(rig: Path, tmp: Path) -> tuple[np.ndarray, np.ndarray]:
+    env = isolated_env(random_domain(150, 230))
+    trace = tmp / "sim_trace.csv"
+    logs = {k: tmp / f"sim_{k}.log" for k in ("sim", "controller")}
+    sim = ctl = None
+    try:
+        sim = subprocess.Popen([*SIM, "--ros-args", "-p", f"rig:={rig}", "-p",
+                                "effects:=[sensor_noise=false]"],
+                               env=env, stdout=logs["sim"].open("w"), stderr=subprocess.STDOUT, text=True)
+        ctl = _controller(rig, trace, env, logs["controller"])
+        try:
+            ctl.wait(timeout=90)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"controller did not finish: {_tail(logs['controller'])}\nsim: {_tail(logs['sim'])}")
+        assert ctl.returncode == 0, _tail(logs["controller"])
+        stop(sim, signal.SIGTERM, timeout=10)
+    finally:
+        reap(ctl, sim)
+    t, theta, _ = _trace(trace)
+    return t, theta
+
+
+def _slope_at(t: np.ndarray, y: np.ndarray, at: float, half: float = 0.01) -> float:
+    """|dy/dt| [rad/s] around ``at``, over ±``half`` seconds."""
+    k0, k1 = np.searchsorted(t, at - half), np.searchsorted(t, at + half)
+    k1 = min(k1, t.size - 1)
+    return abs(float(y[k1] - y[k0]) / float(t[k1] - t[k0])) if k1 > k0 else 0.0
+
+
+def _figures(name: str, m: StepMetrics) -> str:
+    return (f"{name}: final {STEP - m.steady_state_error:.5f} rad, rise {m.rise_time * 1e3:.1f} ms, "
+            f"settling {m.settling_time * 1e3:.1f} ms, M_p {m.overshoot:.2f} % (peak "
+            f"{m.overshoot / 100 * STEP * 1e3:.2f} mrad over)")
+
+
+def test_esc_firmware_closed_loop_matches_the_simulated_graph(firmware: Path, tmp_path: Path) -> None:
+    rig = _esc_rig(tmp_path / "esc_encoder_rig.yaml")
+    t0 = time.monotonic()
+    th_t, th_hw, counts = _hardware_graph(firmware, rig, tmp_path)
+    t1 = time.monotonic()
+    ts_t, th_sim = _sim_graph(rig, tmp_path)
+    t2 = time.monotonic()
+    hw, sim = step_metrics(th_t, th_hw, STEP), step_metrics(ts_t, th_sim, STEP)
+    # the trajectories on the hardware path's sample instants, from the step on
+    grid = (th_t >= 0) & (th_t <= min(th_t[-1], ts_t[-1]))
+    diff = np.abs(th_hw[grid] - np.interp(th_t[grid], ts_t, th_sim))
+    k_max = int(np.argmax(diff))
+    print(f"\nhardware path ({t1 - t0:.1f} s wall; harness/plant: {counts})")
+    print(_figures("  firmware + bridge", hw))
+    print(_figures("  sim_node         ", sim))
+    print(f"  max |dtheta| {diff.max() * 1e3:.2f} mrad = {diff.max() / Q:.2f} q at t - t_step = "
+          f"{th_t[grid][k_max] * 1e3:.0f} ms; after 1.5 s {diff[th_t[grid] >= 1.5].max() / Q:.2f} q "
+          f"(q = {Q * 1e3:.3f} mrad); sim graph {t2 - t1:.1f} s wall")
+    assert abs(hw.steady_state_error - sim.steady_state_error) <= 2 * Q
+    assert abs(hw.rise_time - sim.rise_time) <= 1.5 * LATENCY + 2 * TS
+    slope = max(_slope_at(ts_t, th_sim, sim.settling_time), 1e-3)
+    assert abs(hw.settling_time - sim.settling_time) <= 1.5 * LATENCY + 2 * TS + 2 * Q / slope, slope
+    assert abs(hw.overshoot - sim.overshoot) / 100 * STEP <= 3 * Q  # StepMetrics.overshoot is in %
+    # the bar of issue 61: the step responses agree within the encoder's quantisation
+    assert diff.max() <= 2 * Q + 1e-12, f"max |dtheta| {diff.max() / Q:.2f} quanta"
