@@ -522,8 +522,9 @@ static void link_service(link_t *l, avr_t *avr)
     }
 }
 
-/* Flow control: while the host is behind by more than LINK_OUT_HIGH bytes, let wall-clock time
- * pass (MCU time stands still), so the host's view of MCU time lags by ~0.2 s at most. */
+/* Flow control: while the host is behind by more than LINK_OUT_HIGH bytes (beyond LINK_PTY_MAX in
+ * the pty), let wall-clock time pass (MCU time stands still), so the host's view of MCU time lags
+ * by ~0.3 s at most. */
 static void link_wait_below_high(link_t *l)
 {
     const struct timespec tick = {0, 200000}; /* 0.2 ms */
