@@ -50,7 +50,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     print_warnings_as_lines("reindex")
     try:
-        target, info, scans = reindex(args.bag, overwrite=args.overwrite)
+        # --repair copies the messages of this one validated read
+        target, info, scans = reindex(args.bag, overwrite=args.overwrite,
+                                      keep_messages=args.repair is not None)
     except BagError as exc:
         print(f"reindex: error: {exc}", file=sys.stderr)
         return 1
@@ -71,7 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"reindex: loss: {loss_text(loss)} ({REINDEX_LOSS_NOTE})")
     if args.repair is not None:
         try:
-            out, written, _ = repair(args.bag, args.repair)
+            out, written, _ = repair(args.bag, args.repair, rebuilt=(info, scans))
         except BagError as exc:
             print(f"reindex: error: {exc}", file=sys.stderr)
             return 1

@@ -936,7 +936,8 @@ def _loss_from_stamps(scans: list[StorageScan], topics: dict[str, StorageTopic],
     return {name: {**r, "note": REINDEX_LOSS_NOTE} for name, r in counter.report().items()}
 
 
-def reindex(bag: str | Path, overwrite: bool = False) -> tuple[Path, dict[str, Any], list[StorageScan]]:
+def reindex(bag: str | Path, overwrite: bool = False, keep_messages: bool = False
+            ) -> tuple[Path, dict[str, Any], list[StorageScan]]:
     """Write ``metadata.yaml`` of a bag directory from its storage files (``ros2 bag reindex``).
 
     Parameters
@@ -945,6 +946,9 @@ def reindex(bag: str | Path, overwrite: bool = False) -> tuple[Path, dict[str, A
         Bag directory.
     overwrite : bool
         Replace an existing ``metadata.yaml`` (refused otherwise).
+    keep_messages : bool
+        Keep the recovered messages in the returned scans (:func:`rebuild_metadata`), e.g. for
+        :func:`aeropend_ident.io.bag_repair.repair` to copy without reading the files again.
 
     Returns
     -------
@@ -966,7 +970,7 @@ def reindex(bag: str | Path, overwrite: bool = False) -> tuple[Path, dict[str, A
     target = bag / METADATA_FILE
     if target.exists() and not overwrite:
         raise BagError(f"'{target}' already exists; reindex --overwrite replaces it")
-    info, scans = rebuild_metadata(bag)
+    info, scans = rebuild_metadata(bag, keep_messages)
     tmp = target.with_name(METADATA_FILE + ".tmp")
     tmp.write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}, sort_keys=False), encoding="utf-8")
     tmp.replace(target)

@@ -6,6 +6,7 @@ No rclpy import: this module runs without ROS.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from rosbags.rosbag2 import StoragePlugin
 
@@ -23,7 +24,8 @@ from aeropend_ident.io.mcap_jazzy import JazzyWriter
 REPAIRED_KEY = "aeropend.repaired_from"
 
 
-def repair(bag: str | Path, out: str | Path) -> tuple[Path, int, list[StorageScan]]:
+def repair(bag: str | Path, out: str | Path, rebuilt: tuple[dict[str, Any], list[StorageScan]] | None = None
+           ) -> tuple[Path, int, list[StorageScan]]:
     """Write a new bag at ``out`` holding every message recoverable from ``bag`` (``reindex --repair``).
 
     ``reindex`` leaves the storage file as it is: our readers skip a corrupt part it lists, but
@@ -39,6 +41,9 @@ def repair(bag: str | Path, out: str | Path) -> tuple[Path, int, list[StorageSca
         The damaged bag directory.
     out : str or Path
         The new bag directory (must not exist).
+    rebuilt : (dict, list of StorageScan), optional
+        What :func:`rebuild_metadata` (or ``reindex(..., keep_messages=True)``) already returned for
+        ``bag`` with the messages kept; None reads the files here (once, validated).
 
     Returns
     -------
@@ -51,14 +56,12 @@ def repair(bag: str | Path, out: str | Path) -> tuple[Path, int, list[StorageSca
     BagError
         ``out`` exists, ``bag`` is not a bag directory, or a topic's type is unknown to the writer.
     """
-
-
     bag, out = Path(bag), Path(out)
     if out.exists():
         raise BagError(f"'{out}' exists; reindex --repair writes a new bag directory (choose another name)")
     # one validated read of every file serves the metadata, the loss count and the copy (a SQLite3
     # row that is not a message of its topic's type is left out of the copy, as readers skip it)
-    info, scans = rebuild_metadata(bag, keep_messages=True)
+    info, scans = rebuild_metadata(bag, keep_messages=True) if rebuilt is None else rebuilt
     topics = {n: t for s in scans for n, t in s.topics.items()}
     plugin = StoragePlugin.MCAP if info["storage_identifier"] == "mcap" else StoragePlugin.SQLITE3
     writer = JazzyWriter(out, version=9, storage_plugin=plugin)
