@@ -93,3 +93,16 @@ def test_serve_answers_a_harness_over_the_socket(esc_rig: Path) -> None:
 def test_main_refuses_a_rig_without_an_esc(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["thesis_rig", "/tmp/unused.sock"]) == 2
     assert "is a dc_hbridge rig; the pulse plant drives an ESC rig" in capsys.readouterr().err
+
+
+def test_serve_never_replaces_a_file_that_is_not_a_socket(esc_rig: Path, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """A socket path that names a user's file is refused; the file is left as it was."""
+    mine = tmp_path / "results.csv"
+    mine.write_text("t,theta\n0,0\n")
+    with pytest.raises(FileExistsError, match="is not a socket"):
+        serve(mine, PulsePlant(esc_rig), accept_timeout_s=0.1)
+    assert mine.read_text() == "t,theta\n0,0\n"
+    assert main([str(esc_rig), str(mine), "--accept-timeout", "0.1"]) == 1
+    assert f"{mine} exists and is not a socket" in capsys.readouterr().err
+    assert mine.read_text() == "t,theta\n0,0\n"

@@ -28,6 +28,7 @@ import dataclasses
 import math
 import os
 import socket
+import stat
 import struct
 import sys
 from collections.abc import Callable
@@ -150,7 +151,7 @@ def serve(path: str | Path, plant: PulsePlant, on_listen: Callable[[str], None] 
     Parameters
     ----------
     path : str or Path
-        Socket path (an old socket file there is replaced; removed on return).
+        Socket path (an old socket there is replaced; removed on return).
     plant : PulsePlant
     on_listen : callable, optional
         Called with ``path`` once the socket listens (e.g. to print a ready line).
@@ -164,6 +165,8 @@ def serve(path: str | Path, plant: PulsePlant, on_listen: Callable[[str], None] 
 
     Raises
     ------
+    FileExistsError
+        If ``path`` exists and is not a socket (it is left as it is).
     TimeoutError
         If no harness connects in time.
     PlantProtocolError
@@ -171,6 +174,8 @@ def serve(path: str | Path, plant: PulsePlant, on_listen: Callable[[str], None] 
     """
     path = str(path)
     with contextlib.suppress(FileNotFoundError):
+        if not stat.S_ISSOCK(os.lstat(path).st_mode):  # never a user's file: only an old socket goes
+            raise FileExistsError(f"{path} exists and is not a socket; choose another socket path")
         os.unlink(path)
     srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
@@ -229,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         serve(args.socket, plant, lambda p: print(f"LISTENING {p}", flush=True), args.accept_timeout)
-    except (PlantProtocolError, TimeoutError) as exc:
+    except (PlantProtocolError, TimeoutError, FileExistsError) as exc:
         print(f"simavr_plant: {exc}", file=sys.stderr)
         return 1
     print(f"PLANT exchanges={plant.exchanges} t={plant.t:.6f} theta={plant.theta:.6f} "
