@@ -121,7 +121,7 @@ def _outputs(model: PlantModel, x: np.ndarray, u_eff: np.ndarray, u_before: np.n
     a quasi-static armature current is the one of the input held just before (``u_before``, as
     :func:`aeropend_sim.compiled.kernels.outputs`)."""
     out = model.outputs(x, u_eff)
-    if model.assembly.armature and not model.dynamic_current:
+    if model.assembly.armature and not model.dynamic_current and u_before is not u_eff:
         out["i_a"] = model.outputs(x, u_before)["i_a"]
     return out
 
