@@ -31,7 +31,7 @@ from pathlib import Path
 
 from aeropend_bridge.protocol import SampleFrame
 from aeropend_bridge.serial_link import SerialLink
-from aeropend_bridge.simavr_harness import read_pty_path
+from aeropend_bridge.simavr_harness import build_emulator, read_pty_path
 
 ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware"
@@ -41,15 +41,7 @@ BUILDS = {"a": ("ACTUATOR=esc", "ESC_HZ=490", "ANGLE=pwm"),
 
 
 def _build(tmp: Path) -> dict[str, Path]:
-    out = {}
-    for name, make in BUILDS.items():
-        d = tmp / name
-        r = subprocess.run(["make", "-C", str(FW), f"BUILD={d}", *make, "EXTRA_CFLAGS=-DSIMAVR_TIMER1", "all",
-                            "harness"], capture_output=True, text=True, timeout=300)
-        if r.returncode != 0:
-            raise SystemExit(r.stdout + r.stderr)
-        out[name] = d
-    return out
+    return {name: build_emulator(FW, tmp / name, make) for name, make in BUILDS.items()}
 
 
 def _start(d: Path, seconds: float) -> subprocess.Popen[str]:

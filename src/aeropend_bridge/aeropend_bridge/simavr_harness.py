@@ -5,7 +5,7 @@ after simavr's own "Loaded ..." lines it prints ``PTY <path>`` on stdout (a name
 own, ``$TMPDIR/aeropend-simavr-<pid>.pty``, a symlink to the pty that it removes when it ends: a
 link that reconnects after that finds nothing, not another harness's pty). The bridge (or a
 :class:`~aeropend_bridge.serial_link.SerialLink`) then connects to that path like to a board;
-:func:`harness_link` does both and tears them down.
+:func:`harness_link` does both and tears them down; :func:`build_emulator` builds both programs.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import os
 import subprocess
 import time
 from collections.abc import Iterator, Sequence
+from pathlib import Path
 
 from aeropend_bridge.serial_link import FrameCallback, SerialLink
 
@@ -58,6 +59,41 @@ def read_pty_path(proc: subprocess.Popen[str], max_lines: int = MAX_STARTUP_LINE
         err = proc.stderr.read() if proc.stderr is not None and proc.poll() is not None else ""
         raise HarnessError(f"simavr harness did not announce its pty: last line {line!r}; stderr: {err!r}")
     return line.split()[1]
+
+
+def build_emulator(firmware_dir: str | Path, build_dir: str | Path, make_vars: Sequence[str] = (),
+                   timeout_s: float = 300.0) -> Path:
+    """Build the firmware's emulator variant and the harness into ``build_dir``.
+
+    Parameters
+    ----------
+    firmware_dir : str or Path
+        The repository's ``firmware/`` folder (its Makefile).
+    build_dir : str or Path
+        Output folder: ``aeropend.elf`` (built with ``-DSIMAVR_TIMER1``, see firmware/README.md) and
+        ``harness``.
+    make_vars : sequence of str
+        The build's make variables, e.g. ``("ACTUATOR=esc", "ESC_HZ=490", "ANGLE=encoder")``.
+    timeout_s : float
+        Bound on the build [s].
+
+    Returns
+    -------
+    Path
+        ``build_dir``.
+
+    Raises
+    ------
+    HarnessError
+        make failed; the message holds its output.
+    """
+    r = subprocess.run(["make", "-C", str(firmware_dir), f"BUILD={build_dir}", *make_vars,
+                        "EXTRA_CFLAGS=-DSIMAVR_TIMER1", "all", "harness"],
+                       capture_output=True, text=True, timeout=timeout_s)
+    if r.returncode != 0:
+        raise HarnessError(f"building the emulator firmware ({' '.join(make_vars)}) failed:\n"
+                           f"{r.stdout}{r.stderr}")
+    return Path(build_dir)
 
 
 def wait_drained(link: SerialLink, quiet_s: float = 0.5, timeout_s: float = 15.0) -> None:

@@ -32,7 +32,7 @@ pytest.importorskip("rclpy")
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
-from aeropend_bridge.simavr_harness import read_pty_path
+from aeropend_bridge.simavr_harness import build_emulator, read_pty_path
 from aeropend_ident.cli.rig import main as rig_main
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.ros.harness import isolated_env, node_command, private_node, random_domain, reap, stop
@@ -55,12 +55,8 @@ BRIDGE = node_command("bridge", "aeropend_bridge.bridge_node")
 
 @pytest.fixture(scope="module")
 def firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    build = tmp_path_factory.mktemp("escfw")
-    for extra in (["all", "ACTUATOR=esc", "ESC_HZ=50", "ANGLE=encoder", f"ENC_CPR={CPR}", "SPEED=none",
-                   "EXTRA_CFLAGS=-DSIMAVR_TIMER1"], ["harness"]):
-        r = subprocess.run(["make", "-C", str(FW), f"BUILD={build}", *extra], capture_output=True, text=True,
-                           timeout=120)
-        assert r.returncode == 0, r.stdout + r.stderr
+    build = build_emulator(FW, tmp_path_factory.mktemp("escfw"),
+                           ("ACTUATOR=esc", "ESC_HZ=50", "ANGLE=encoder", f"ENC_CPR={CPR}", "SPEED=none"))
     # the rod rises smoothly (peak 1 rad/s) to THETA_HOLD at t = 0.1 s + π/4 s and stays there
     t1_us = 100_000 + math.pi / 4 * 1e6
     (build / "events.txt").write_text(f"enccpr {CPR}\nenc 100000 {t1_us:.3f} 0 {THETA_HOLD} 2\n")

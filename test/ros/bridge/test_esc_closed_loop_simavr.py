@@ -67,7 +67,7 @@ import yaml
 
 pytest.importorskip("rclpy")
 
-from aeropend_bridge.simavr_harness import read_pty_path
+from aeropend_bridge.simavr_harness import build_emulator, read_pty_path
 from aeropend_control.metrics import StepMetrics, step_metrics
 from aeropend_ident.cli.rig import main as rig_main
 from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap, stop
@@ -98,13 +98,8 @@ SIM = node_command("sim_node", "aeropend_sim.ros.sim_node")
 
 @pytest.fixture(scope="module")
 def firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    build = tmp_path_factory.mktemp("escfw490")
-    for extra in (["all", "ACTUATOR=esc", "ESC_HZ=490", "ANGLE=encoder", f"ENC_CPR={CPR}", "SPEED=none",
-                   "EXTRA_CFLAGS=-DSIMAVR_TIMER1"], ["harness"]):
-        r = subprocess.run(["make", "-C", str(FW), f"BUILD={build}", *extra], capture_output=True, text=True,
-                           timeout=120)
-        assert r.returncode == 0, r.stdout + r.stderr
-    return build
+    return build_emulator(FW, tmp_path_factory.mktemp("escfw490"),
+                          ("ACTUATOR=esc", "ESC_HZ=490", "ANGLE=encoder", f"ENC_CPR={CPR}", "SPEED=none"))
 
 
 def _esc_rig(path: Path) -> Path:
