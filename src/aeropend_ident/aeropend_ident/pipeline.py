@@ -32,8 +32,8 @@ from typing import Any
 
 from aeropend_ident.errors import BagError, PipelineError
 from aeropend_ident.io.bag_writer import claim_bag_folder
-from aeropend_ident.io.bags import read_bag
-from aeropend_sim.contract import TOPIC_DUTY_CYCLE, namespaced
+from aeropend_ident.io.bags import bag_metadata, read_bag
+from aeropend_sim.contract import TOPIC_CLOCK, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES, namespaced
 from aeropend_sim.output_folder import OutputFolderError
 from aeropend_sim.ros.domain import claim_domain
 from aeropend_sim.ros.harness import DISCOVERY, node_command, stop, summary_fields
@@ -174,20 +174,28 @@ def check_recording(bag: Path, log: Path, mode: str, namespace: str = "") -> dic
     dict
         ``published`` (None if the plant logged no summary), ``recorded`` (distinct sample
         stamps in the bag, the last sample included), ``commands`` (duty-cycle messages in the
-        bag: one per sample but the last in lock-step) and ``complete``: every published sample
-        and every command recorded (lock-step), or no published count to compare with (real
-        time: best effort).
+        bag: one per sample but the last in lock-step), ``clock_ticks`` (``/clock`` messages in
+        the bag, None when it holds no ``/clock``) and ``complete``: every published sample and
+        every command recorded and, with ``/clock``, one tick per ``joint_states`` message
+        (lock-step), or no published count to compare with (real time: best effort).
     """
     published = plant_sample_count(log)
+    clock_ticks = None
     try:
         rec = read_bag(bag, require_duty=False, namespace=_ns(namespace))
         recorded = len(rec)
-        commands = int(rec.meta["message_counts"].get(namespaced(TOPIC_DUTY_CYCLE, namespace), 0))
+        counts = {t["topic_metadata"]["name"]: int(t["message_count"])
+                  for t in bag_metadata(bag)["topics_with_message_count"]}
+        commands = counts.get(namespaced(TOPIC_DUTY_CYCLE, namespace), 0)
+        sample_messages = counts.get(namespaced(TOPIC_JOINT_STATES, namespace), 0)
+        clock_ticks = counts.get(TOPIC_CLOCK)
     except BagError:
-        recorded = commands = 0
+        recorded = commands = sample_messages = 0
     complete = mode != "lockstep" or (published is not None and recorded == published
-                                      and commands == published - 1)
-    return {"published": published, "recorded": recorded, "commands": commands, "complete": complete}
+                                      and commands == published - 1
+                                      and clock_ticks in (None, sample_messages))
+    return {"published": published, "recorded": recorded, "commands": commands, "clock_ticks": clock_ticks,
+            "complete": complete}
 
 
 def _ns(namespace: str) -> str:

@@ -66,7 +66,9 @@ def _run(out: Path, final: Path, args: argparse.Namespace) -> dict:
         raise PipelineError(
             f"incomplete lock-step recording: {completeness['recorded']} of "
             f"{completeness['published']} published samples and {completeness['commands']} of "
-            f"{(completeness['published'] or 1) - 1} commands in {bag} (see docs/data_plane.md)")
+            f"{(completeness['published'] or 1) - 1} commands"
+            + (f", {completeness['clock_ticks']} /clock ticks" if completeness["clock_ticks"] is not None else "")
+            + f" in {bag} (see docs/data_plane.md)")
     print(f"      bag {final / OUTPUTS['bag']} written in {t_graph:.1f} s", flush=True)
     print(f"[2/2] grey-box baseline of {args.nominal_rig} on the recording ...", flush=True)
     report = analyse(bag, out, args.nominal_rig, args.train_fraction, args.namespace,
