@@ -63,11 +63,12 @@ def _run(out: Path, final: Path, args: argparse.Namespace) -> dict:
     t_graph = time.monotonic() - t0
     completeness = check_recording(bag, out / OUTPUTS["logs"] / "sim_node.log", args.mode, args.namespace)
     if not completeness["complete"]:
+        ticks = completeness["clock_ticks"]
         raise PipelineError(
             f"incomplete lock-step recording: {completeness['recorded']} of "
             f"{completeness['published']} published samples and {completeness['commands']} of "
             f"{(completeness['published'] or 1) - 1} commands"
-            + (f", {completeness['clock_ticks']} /clock ticks" if completeness["clock_ticks"] is not None else "")
+            + (f", {ticks} /clock ticks (one per sample message expected)" if ticks is not None else "")
             + f" in {bag} (see docs/data_plane.md)")
     print(f"      bag {final / OUTPUTS['bag']} written in {t_graph:.1f} s", flush=True)
     print(f"[2/2] grey-box baseline of {args.nominal_rig} on the recording ...", flush=True)
