@@ -35,7 +35,14 @@ from scipy.optimize import brentq, least_squares, minimize
 from scipy.stats import qmc
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.greybox.fit import free_run_theta, initial_velocity, measurement_noise, motor_equilibrium
+from aeropend_ident.greybox.batch import RigReplays
+from aeropend_ident.greybox.fit import (
+    free_run_theta,
+    initial_state,
+    initial_velocity,
+    measurement_noise,
+    motor_equilibrium,
+)
 from aeropend_ident.greybox.parameters import ParameterSpec, apply_parameters
 from aeropend_ident.greybox.uniform import UniformData
 from aeropend_sim.components import registry
@@ -165,7 +172,14 @@ class ThrustBlock(Block):
 
 @dataclass
 class TimeBlock(Block):
-    """A recording: free-run θ minus recorded θ [rad], initial angle and velocity as nuisance."""
+    """A recording: free-run θ minus recorded θ [rad], initial angle and velocity as nuisance.
+
+    The free run is the fit replay of :class:`aeropend_ident.greybox.batch.RigReplays` (the noise-free
+    θ, RK4 sub-steps of at most 2.048 ms, as every other fit in aeropend; the figures the fitted rig
+    is reported with replay it with :func:`aeropend_sim.simulation.simulate`), and many rigs are one
+    batched replay (:meth:`residual_rows`: the Jacobian's columns). A stretch of several segments
+    runs through :func:`free_run_theta` instead.
+    """
 
     data: UniformData | None = None
     kind: str = ""
@@ -181,6 +195,7 @@ class TimeBlock(Block):
             ParameterSpec(f"{self.source}: θ̇(0)", "rad/s", thd0, thd0 - 5.0, thd0 + 5.0, False, 0.05),
         ]
         self.sigma = noise
+        self._replays: RigReplays | None = None
 
     def size(self) -> int:
         return len(self.data)  # type: ignore[arg-type]
@@ -189,9 +204,34 @@ class TimeBlock(Block):
         return max(float(np.ptp(self.data.theta)), 1e-3)  # type: ignore[union-attr]
 
     def residual(self, rig: Rig, nuis: Sequence[float]) -> np.ndarray:
+        r = self.residual_rows([rig], [nuis])[0]
+        if r is None:
+            raise IdentificationError(f"{self.source}: the free run of this rig failed")
+        return r
+
+    def residual_rows(self, rigs: Sequence[Rig], nuis: Sequence[Sequence[float]]) -> list[np.ndarray | None]:
+        """Free-run θ minus recorded θ [rad] of each rig with its own nuisance values (initial angle,
+        velocity), one batched replay; None for a row whose initial state or replay fails."""
         d = self.data
-        th = free_run_theta(rig, d, 0.0, float(nuis[1]), float(nuis[0]))  # type: ignore[arg-type]
-        return th - d.theta  # type: ignore[union-attr]
+        assert d is not None
+        if len(d.segments) > 1:
+            out: list[np.ndarray | None] = []
+            for rig, v in zip(rigs, nuis, strict=True):
+                try:
+                    out.append(free_run_theta(rig, d, 0.0, float(v[1]), float(v[0])) - d.theta)
+                except (IdentificationError, ModelError, ValueError, ZeroDivisionError, OverflowError):
+                    out.append(None)
+            return out
+        if self._replays is None:
+            self._replays = RigReplays(d.duty, d.dt, tau_before=float(d.duty[0]))
+        x0 = np.full((len(rigs), 5), np.nan)
+        for k, (rig, v) in enumerate(zip(rigs, nuis, strict=True)):
+            try:
+                x0[k] = initial_state(rig, d.theta, d.duty, d.dt, 0.0, float(v[1]), float(v[0]))
+            except (IdentificationError, ModelError, ValueError, ZeroDivisionError, OverflowError):
+                pass  # a non-finite initial state fails its row in the replay
+        theta, ok = self._replays.run(list(rigs), x0, ["theta"])
+        return [theta["theta"][k] - d.theta if ok[k] else None for k in range(len(rigs))]
 
 
 # ------------------------------------------------------------------------------ the problem
@@ -237,21 +277,31 @@ class Problem:
 
     def block_residuals(self, z: np.ndarray, only: Sequence[int] | None = None) -> list[np.ndarray]:
         """Weighted residual of each block (``only``: those indices; the others are empty)."""
-        try:
-            rig = self.rig(z)
-        except IdentificationError:
-            rig = None
+        rig = self._rig_or_none(z)
         nuis = self.nuisance_values(z)
-        out = []
-        for i, b in enumerate(self.blocks):
-            if only is not None and i not in only:
-                out.append(np.zeros(0))
-                continue
-            try:
-                r = b.residual(rig, nuis[i]) / b.sigma if rig is not None else self._penalty(b)
-            except (IdentificationError, ModelError, ValueError, ZeroDivisionError, OverflowError):
-                r = self._penalty(b)
-            out.append(r if np.all(np.isfinite(r)) else self._penalty(b))
+        return [np.zeros(0) if only is not None and i not in only else self._weighted(b, rig, nuis[i])
+                for i, b in enumerate(self.blocks)]
+
+    def _weighted(self, b: Block, rig: Rig | None, nuis: Sequence[float]) -> np.ndarray:
+        """Block ``b``'s residual divided by its σ; the penalty where the rig, the model or the
+        replay fails or a residual is not finite."""
+        try:
+            r = b.residual(rig, nuis) / b.sigma if rig is not None else self._penalty(b)
+        except (IdentificationError, ModelError, ValueError, ZeroDivisionError, OverflowError):
+            r = self._penalty(b)
+        return r if np.all(np.isfinite(r)) else self._penalty(b)
+
+    def _weighted_rows(self, b: Block, rigs: Sequence[Rig | None], nuis: Sequence[Sequence[float]]
+                       ) -> list[np.ndarray]:
+        """:meth:`_weighted` of many rigs: a recording's rows in one batched replay."""
+        if not isinstance(b, TimeBlock):
+            return [self._weighted(b, r, v) for r, v in zip(rigs, nuis, strict=True)]
+        rows = [k for k, r in enumerate(rigs) if r is not None]
+        got = b.residual_rows([rigs[k] for k in rows], [nuis[k] for k in rows])  # type: ignore[misc]
+        out = [self._penalty(b)] * len(rigs)
+        for k, r in zip(rows, got, strict=True):
+            if r is not None and np.all(np.isfinite(r)):
+                out[k] = r / b.sigma
         return out
 
     def fun(self, z: np.ndarray) -> np.ndarray:
@@ -272,6 +322,7 @@ class Problem:
         n_main = len(self.specs)
         J = np.zeros((int(offsets[-1]), z.size))
         owner = [None] * n_main + [i for i, b in enumerate(self.blocks) for _ in b.nuisance]
+        steps, points, touched = [], [], []
         for j in range(z.size):
             h = step * max(1.0, abs(z[j]))
             if z[j] + h > hi[j]:
@@ -285,12 +336,29 @@ class Problem:
                 only = [i for i, b in enumerate(self.blocks) if not (timing and b.static)]
             if blocks is not None:
                 only = [i for i in only if i in blocks]
-                if not only:
-                    continue
-            parts = self.block_residuals(zz, only)
-            for i in only:
-                J[offsets[i]:offsets[i + 1], j] = (parts[i] - base[i]) / h
+            steps.append(h)
+            points.append(zz)
+            touched.append(only)
+        # each column's rig (a nuisance coordinate leaves the rig as it is at z), then per block one
+        # batched replay of every column that moves it
+        base_rig = self._rig_or_none(z)
+        rigs = [self._rig_or_none(points[j]) if j < n_main and touched[j] else base_rig
+                for j in range(z.size)]
+        nuis = [self.nuisance_values(points[j]) if touched[j] else [] for j in range(z.size)]
+        for i, b in enumerate(self.blocks):
+            cols = [j for j in range(z.size) if i in touched[j]]
+            if not cols:
+                continue
+            rows = self._weighted_rows(b, [rigs[j] for j in cols], [nuis[j][i] for j in cols])
+            for j, r in zip(cols, rows, strict=True):
+                J[offsets[i]:offsets[i + 1], j] = (r - base[i]) / steps[j]
         return J
+
+    def _rig_or_none(self, z: np.ndarray) -> Rig | None:
+        try:
+            return self.rig(z)
+        except IdentificationError:
+            return None
 
     def solve(self, z0: np.ndarray, max_nfev: int = 60,
               tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, Any]:
