@@ -10,14 +10,28 @@ bash scripts/setup_env.sh
 VENV="${AEROPEND_VENV:-$ROOT/.venv}"
 "$VENV/bin/ruff" check src test bench tools
 parallel=(-n "${AEROPEND_TEST_WORKERS:-3}" --dist loadgroup)
+split=1  # the tests marked exclusive (real-time hardware in the loop) run after the others, alone
+alone=(-n 0)
 for arg in "$@"; do
   case "$arg" in
-    -n|-n*|--numprocesses|--numprocesses=*|no:xdist|--dist|--dist=*) parallel=() ;;
+    no:xdist) parallel=(); alone=() ;;
+    -n|-n*|--numprocesses|--numprocesses=*|--dist|--dist=*) parallel=() ;;
+    -m|-m*) split=0 ;;  # the caller selects by marker: one run, as asked
   esac
 done
 set +e
-"$VENV/bin/python" -m pytest "${parallel[@]}" "$@"
-rc=$?
+if [ "$split" = 1 ]; then
+  "$VENV/bin/python" -m pytest "${parallel[@]}" -m "not exclusive" "$@"
+  rc=$?
+  "$VENV/bin/python" -m pytest "${alone[@]}" -m exclusive "$@"
+  rc_alone=$?
+  # 5: nothing collected; a failure only when neither part collected a test
+  if [ "$rc" = 5 ] && [ "$rc_alone" != 5 ]; then rc=0; fi
+  if [ "$rc_alone" != 0 ] && [ "$rc_alone" != 5 ] && [ "$rc" = 0 ]; then rc=$rc_alone; fi
+else
+  "$VENV/bin/python" -m pytest "${parallel[@]}" "$@"
+  rc=$?
+fi
 set -e
 if [ "$rc" = 5 ]; then
   echo "pytest collected no tests: that is a failure" >&2

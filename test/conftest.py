@@ -36,6 +36,9 @@ MARKERS = (
     "real_data: reads third-party recordings from ../shared/data/real",
     "slow: takes more than ~20 s in the parallel suite on a loaded 2-core machine (~5 s alone), or "
     "shares a module fixture that does; -m 'not ros and not slow' is the fast subset (docs/testing.md)",
+    "exclusive: a real-time hardware-in-the-loop test that needs the machine to itself (its loop is "
+    "starved beside other tests on 2 cores); scripts/test.sh runs these one at a time after the "
+    "parallel part (docs/testing.md)",
     # pytest-xdist's own marker, registered here too so --strict-markers knows it without xdist
     "xdist_group(name): under --dist loadgroup, every test of the group runs on one worker "
     "(a module whose fixture is expensive computes it once)",
