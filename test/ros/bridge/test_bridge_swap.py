@@ -25,7 +25,12 @@ from aeropend_sim.params import load_rig
 from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, stop
 from aeropend_sim.simulation import PlantStepper
 
-pytestmark = [pytest.mark.ros, pytest.mark.timeout(60)]
+#: exclusive: the fake MCU streams 490 Hz from a thread of the pytest process itself, the bridge and the
+#: real-time controller answer it; beside the parallel suite (CI at f349c21) the controller's trace held
+#: 1538 samples of a 4 s run, under the 80 % of 490 Hz this test requires. The fake MCU drops a
+#: backlog over 0.5 s (docs/findings/data_plane.md, tenth cause), so a starved host process loses
+#: samples by design; which process was starved was not established (their output is not kept).
+pytestmark = [pytest.mark.ros, pytest.mark.exclusive, pytest.mark.timeout(60)]
 REF = 0.4
 DURATION = 4.0
 
