@@ -3,6 +3,8 @@
 # pytest runs in parallel worker processes (pytest-xdist): AEROPEND_TEST_WORKERS of them (default
 # below, chosen by measurement on a 2-core machine: docs/testing.md). Arguments go to pytest; one
 # that sets the workers itself (-n N, -n0, --numprocesses, -p no:xdist) replaces the default.
+# Tests marked exclusive (real-time hardware in the loop) then run alone, in one process; an
+# argument that selects by marker (-m ...) makes it one run, as asked.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
