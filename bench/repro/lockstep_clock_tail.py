@@ -32,14 +32,14 @@ from pathlib import Path
 
 def one_run(out: Path) -> tuple[int, int]:
     """One main-job graph into ``out``; returns (``/clock`` ticks, ``joint_states`` messages)."""
-    from aeropend_ident.io.bags import bag_metadata
+    from aeropend_ident.io.bags import RawBagReader
     from aeropend_ident.pipeline import run_graph
     from aeropend_sim.contract import TOPIC_CLOCK, TOPIC_JOINT_STATES
 
     signal_params = ["signal:=lhs", "n:=2", "tau_min:=0.35", "tau_max:=0.7", "hold_min:=1.0", "hold_max:=1.2"]
     bag = run_graph(out, "thesis_rig", "lockstep", 1, signal_params, noise=True)
-    counts = {t["topic_metadata"]["name"]: int(t["message_count"])
-              for t in bag_metadata(bag)["topics_with_message_count"]}
+    with RawBagReader(bag) as reader:
+        counts = {name: topic.count for name, topic in reader.topics.items()}
     return counts.get(TOPIC_CLOCK, 0), counts[TOPIC_JOINT_STATES]
 
 

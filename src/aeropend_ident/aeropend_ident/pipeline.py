@@ -32,7 +32,7 @@ from typing import Any
 
 from aeropend_ident.errors import BagError, PipelineError
 from aeropend_ident.io.bag_writer import claim_bag_folder
-from aeropend_ident.io.bags import bag_metadata, read_bag
+from aeropend_ident.io.bags import RawBagReader, read_bag
 from aeropend_sim.contract import TOPIC_CLOCK, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES, namespaced
 from aeropend_sim.output_folder import OutputFolderError
 from aeropend_sim.ros.domain import claim_domain
@@ -184,8 +184,8 @@ def check_recording(bag: Path, log: Path, mode: str, namespace: str = "") -> dic
     try:
         rec = read_bag(bag, require_duty=False, namespace=_ns(namespace))
         recorded = len(rec)
-        counts = {t["topic_metadata"]["name"]: int(t["message_count"])
-                  for t in bag_metadata(bag)["topics_with_message_count"]}
+        with RawBagReader(bag) as reader:
+            counts = {name: topic.count for name, topic in reader.topics.items()}
         commands = counts.get(namespaced(TOPIC_DUTY_CYCLE, namespace), 0)
         sample_messages = counts.get(namespaced(TOPIC_JOINT_STATES, namespace), 0)
         clock_ticks = counts.get(TOPIC_CLOCK)
