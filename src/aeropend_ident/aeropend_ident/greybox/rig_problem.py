@@ -55,6 +55,9 @@ INERTIA = "pendulum.inertia"
 THETA_CAP = math.pi / 2 - 1e-6
 
 
+#: What a model evaluation at a trial point may raise: the residual gets the block's penalty there.
+MODEL_FAILURES = (IdentificationError, ModelError, ValueError, ZeroDivisionError, OverflowError)
+
 #: Points of the global screen before a local solve (:meth:`Problem.screen`; a power of 2 keeps the
 #: Sobol sequence balanced).
 SCREEN_POINTS = 64
@@ -219,7 +222,7 @@ class TimeBlock(Block):
             for rig, v in zip(rigs, nuis, strict=True):
                 try:
                     out.append(free_run_theta(rig, d, 0.0, float(v[1]), float(v[0])) - d.theta)
-                except (IdentificationError, ModelError, ValueError, ZeroDivisionError, OverflowError):
+                except MODEL_FAILURES:
                     out.append(None)
             return out
         if self._replays is None:
@@ -228,7 +231,7 @@ class TimeBlock(Block):
         for k, (rig, v) in enumerate(zip(rigs, nuis, strict=True)):
             try:
                 x0[k] = initial_state(rig, d.theta, d.duty, d.dt, 0.0, float(v[1]), float(v[0]))
-            except (IdentificationError, ModelError, ValueError, ZeroDivisionError, OverflowError):
+            except MODEL_FAILURES:
                 pass  # a non-finite initial state fails its row in the replay
         theta, ok = self._replays.run(list(rigs), x0, ["theta"])
         return [theta["theta"][k] - d.theta if ok[k] else None for k in range(len(rigs))]
@@ -287,7 +290,7 @@ class Problem:
         replay fails or a residual is not finite."""
         try:
             r = b.residual(rig, nuis) / b.sigma if rig is not None else self._penalty(b)
-        except (IdentificationError, ModelError, ValueError, ZeroDivisionError, OverflowError):
+        except MODEL_FAILURES:
             r = self._penalty(b)
         return r if np.all(np.isfinite(r)) else self._penalty(b)
 
