@@ -221,3 +221,73 @@ def test_gap_and_gap_batch_show_no_figure_for_a_diverging_run(case, strong) -> N
                                        ["--no-oracle", "--max-effects", "1"]))
     assert row["nrmse_before"] is None
     assert "diverges →" in drift_markdown([row], None)
+
+
+def _held_decay(hold: float, theta0: float = 1.2, seconds: float = 8.0, seed: int = 3) -> tuple:
+    """A free decay (τ = 0) of the thesis rig from rest at ``theta0``, after ``hold`` s held there;
+    θ with white noise σ = 3 mrad: (t, duty, θ, the noise-free decay)."""
+    n = round(seconds / DT)
+    duty = np.zeros(n)
+    free = simulate(NOMINAL, duty, x0=np.array([theta0, 0.0, 0.0, 0.0, 0.0]), dt=DT).theta
+    k = round(hold / DT)
+    clean = np.concatenate([np.full(k, theta0), free])
+    noisy = clean + np.random.default_rng(seed).normal(0.0, 0.003, clean.size)
+    return np.arange(clean.size) * DT, np.zeros(clean.size), noisy, clean
+
+
+def test_a_rod_held_then_released_is_replayed_from_its_release() -> None:
+    """A constant-command log that begins with the rod held (cychitivav's free swing: 1.6 s at 83°
+    before the release) is replayed from the release; from t = 0 the same rig is a swing out of phase."""
+    t, duty, theta, _ = _held_decay(1.5)
+    run = free_run(NOMINAL, t, duty, theta)
+    assert run.initial.released_at == pytest.approx(1.5, abs=0.05)
+    assert "rod held until its release at t = 1.5" in run.initial.describe()
+    assert run.nrmse is not None and run.nrmse < 0.02
+    assert run.theta.shape == t.shape and np.allclose(run.theta[:100], run.initial.theta0)
+    # scored from the release: the held head (error ≈ the noise) does not dilute the figure
+    k = round(run.initial.released_at / DT)
+    assert run.nrmse == pytest.approx(float(np.sqrt(np.mean((run.theta[k:] - theta[k:]) ** 2)))
+                                      / float(np.ptp(theta[k:])), rel=1e-12)
+    # released at once (a swing's peak) or a command that changes: no hold
+    t0, duty0, theta0, _ = _held_decay(0.0)
+    assert free_run(NOMINAL, t0, duty0, theta0).initial.released_at == 0.0
+    steps = duty.copy()
+    steps[300:] = 0.5
+    assert free_run(NOMINAL, t, steps, theta).initial.released_at == 0.0
+
+
+def test_the_noise_of_a_log_written_in_bursts_is_its_measured_noise() -> None:
+    """A logger that writes 10 samples, then nothing for 25 grid steps: the samples filled on straight
+    lines between the bursts are not measurements (they read as noiseless: θ₀ ± 2e-17 rad)."""
+    from aeropend_ident.greybox.fit import measurement_noise
+    t, _, theta, _ = _held_decay(0.0, seconds=20.0)
+    filled = theta.copy()
+    for a in range(10, t.size, 35):
+        b = min(a + 25, t.size - 1)
+        filled[a:b] = np.interp(t[a:b], [t[a - 1], t[b]], [theta[a - 1], theta[b]])
+    sigma = measurement_noise(filled)
+    assert 0.0025 < sigma < 0.0036, sigma  # σ = 3 mrad: 9 % of the noise's second differences span gaps
+
+
+@pytest.mark.slow
+def test_rig_fit_fits_a_held_decay_from_its_release(tmp_path) -> None:
+    """``rig fit`` on that log: the rod's time scale and damping from the swing after the release
+    (from t = 0 the output error's best constant rod was a slow, damped one: mgd/J 3.17 for 54.5)."""
+    t, duty, theta, _ = _held_decay(1.5, seconds=10.0)
+    bag = write_bag(Recording(t=t, duty=duty, channels={"theta": theta}, source="held decay"),
+                    tmp_path / "decay", rig_name="thesis_rig")
+    doc = rig_to_dict(NOMINAL)
+    doc["name"] = "lab_rig"
+    for key in ("mgd_over_J", "c_over_J"):
+        doc["pendulum"][key]["source"] = TO_BE_FITTED
+        doc["pendulum"][key]["value"] *= 0.5
+    start = tmp_path / "start.yaml"
+    start.write_text(yaml.safe_dump(doc, sort_keys=False), encoding="utf-8")
+    result = fit_rig(start, [str(bag)])
+    got = {o.key: o for o in result.outcomes}
+    for key in ("mgd_over_J", "c_over_J"):
+        o = got[f"pendulum.{key}"]
+        truth = getattr(NOMINAL.pendulum, key)
+        assert o.status == "fitted" and abs(o.value - truth) <= max(3.0 * o.std, 0.02 * truth), (key, o)
+    (run,) = result.runs.values()
+    assert run.initial.released_at == pytest.approx(1.5, abs=0.05) and run.nrmse < 0.02

@@ -214,6 +214,11 @@ def initial_velocity(theta: np.ndarray, dt: float, n: int = N_DIFF) -> float:
     return float(coef[-2])
 
 
+#: A second difference below this (relative to the channel's magnitude) is a filled sample
+#: (:func:`noise_level`): rounding leaves ~1e-16 on a straight line, any measured noise far more.
+FILLED_D2 = 1e-11
+
+
 def noise_level(theta: np.ndarray, quantum: float = 0.0, keep: np.ndarray | None = None) -> float:
     """Robust estimate of white measurement noise σ on a recorded channel [its unit, e.g. rad].
 
@@ -271,7 +276,10 @@ def measurement_noise(y: np.ndarray, keep: np.ndarray | None = None) -> float:
     q/√12 (a quantised channel that rarely changes still has its resolution q bound what any model
     can match; the MAD alone reads such a log as noiseless). The one noise floor of a recording:
     the gap diagnosis (where-analysis, effect ranking, attainable shrink) and the grey-box fits
-    (initial-state bounds, ``rig fit``'s weights) read it.
+    (initial-state bounds, ``rig fit``'s weights) read it. Off a lattice, second differences of
+    (numerically) zero are left out (:data:`FILLED_D2`): they are samples filled on a straight line
+    across a logger's gap, and a log written in bursts (10 samples, then 128 ms of nothing) would
+    otherwise read as noiseless.
 
     Parameters
     ----------
@@ -285,7 +293,13 @@ def measurement_noise(y: np.ndarray, keep: np.ndarray | None = None) -> float:
     float
         σ ≥ 0.
     """
-    return noise_level(y, detect_quantum(y), keep=keep)
+    y = np.asarray(y, dtype=float)
+    q = detect_quantum(y)
+    if q <= 0.0 and y.size >= 3:
+        big = float(np.nanmax(np.abs(y))) if np.any(np.isfinite(y)) else 1.0
+        real = ~(np.abs(np.diff(y, 2)) <= FILLED_D2 * max(1.0, big))  # NaN stays in, as before
+        keep = real if keep is None else np.asarray(keep, dtype=bool) & real
+    return noise_level(y, q, keep=keep)
 
 
 def _slope_noise_gain(dt: float, n: int = N_DIFF) -> float:

@@ -24,6 +24,16 @@ rig is driven by the recorded duty cycle only, with no later correction from the
   recording's own i_a / ω₁ channels are not used for the start (most rigs log θ only, and the
   figure must not depend on which channels a log has).
 
+**A rod held, then released** (:func:`release_index`): in a recording whose command never changes,
+a rod that rests at its first angle and then moves was held there (by hand, a stop) and let go — a
+rod at rest under a constant input stays at rest. The replay starts at the release: the start above
+is estimated there, the run is scored from there, and before it the predicted θ is the held angle.
+At rest means within a band about the first angle — the larger of :data:`HOLD_BAND_SIGMAS` standard
+deviations of the start fit's residual, two angle quanta and :data:`HOLD_BAND_SHARE` of the
+recorded range — for at least :data:`HOLD_MIN_S`; the release is the last sample before the rod
+leaves that band that is within a quarter of it. A rod that starts at a swing's peak leaves the
+band within 0.28/ω s (ω its swing frequency), well inside :data:`HOLD_MIN_S` for every rod seen.
+
 **Divergence** (the rule of :func:`aeropend_ident.io.overlay_axes.diverges`): the predicted θ turns
 non-finite, or leaves the recorded range by more than
 :data:`~aeropend_ident.io.overlay_axes.DIVERGENCE_SPANS` recorded spans and at least
@@ -44,13 +54,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.fit import error_metrics, measurement_noise, motor_equilibrium
 from aeropend_ident.io.overlay_axes import divergence_window, diverges, excursions, short_number
+from aeropend_ident.io.recording_input import detect_quantum
 from aeropend_sim.model import ModelError
 from aeropend_sim.params import Rig
 from aeropend_sim.simulation import SimulationError, simulate
@@ -59,8 +70,17 @@ from aeropend_sim.simulation import SimulationError, simulate
 START_WINDOW = 0.1
 #: Fewest samples of that fit (a 50 Hz log gets 5 samples, 0.1 s).
 START_MIN_SAMPLES = 5
+#: Half-width of the band a held rod rests in, in standard deviations of the start fit's residual
+#: (:func:`release_index`).
+HOLD_BAND_SIGMAS = 5.0
+#: ... and at least this share of the recorded range (a logger's gaps, filled on the grid, shrink the
+#: residual below the noise).
+HOLD_BAND_SHARE = 0.02
+#: Shortest rest [s] that counts as a hold.
+HOLD_MIN_S = 0.5
 #: The initial-state rule in words, as every report states it.
-START_RULE = (f"θ₀, θ̇₀ from a quadratic fit over the first {START_WINDOW:g} s of the recorded θ; "
+START_RULE = (f"θ₀, θ̇₀ from a quadratic fit over the first {START_WINDOW:g} s of the recorded θ "
+              "(from the release, when a constant-command recording begins with the rod held); "
               "motor at the steady state of the first command")
 #: The NRMSE definition in words, as every report states it.
 NRMSE_RULE = "RMS(θ_sim − θ_rec) over every sample / (max θ_rec − min θ_rec)"
@@ -91,16 +111,18 @@ class InitialState:
     theta_dot0_sd: float
     duty0: float
     samples: int
+    released_at: float = 0.0
 
     def describe(self) -> str:
         """E.g. ``"θ₀ = 0.412 ± 0.0021 rad, θ̇₀ = 0.013 ± 0.051 rad/s, motor steady at τ = 0.43"``."""
         return start_text(self.as_dict())
 
     def as_dict(self) -> dict[str, float | int | str]:
-        """JSON-able: the values, their standard deviations and the rule."""
+        """JSON-able: the values, their standard deviations, the release time [s] (0: not held) and
+        the rule."""
         return {"rule": START_RULE, "theta0": self.theta0, "theta0_sd": self.theta0_sd,
                 "theta_dot0": self.theta_dot0, "theta_dot0_sd": self.theta_dot0_sd, "duty0": self.duty0,
-                "samples": self.samples}
+                "samples": self.samples, "released_at": self.released_at}
 
 
 def start_text(start: Mapping[str, object]) -> str:
@@ -108,7 +130,9 @@ def start_text(start: Mapping[str, object]) -> str:
     back from a JSON report): ``"θ₀ = 0.412 ± 0.0021 rad, θ̇₀ = 0.013 ± 0.051 rad/s, motor steady at
     τ = 0.43"``."""
     v = {k: float(start[k]) for k in ("theta0", "theta0_sd", "theta_dot0", "theta_dot0_sd", "duty0")}  # type: ignore[arg-type]
-    return (f"θ₀ = {short_number(v['theta0'])} ± {short_number(v['theta0_sd'], 2)} rad, "
+    released = float(start.get("released_at", 0.0) or 0.0)  # type: ignore[arg-type]
+    held = f"rod held until its release at t = {short_number(released)} s, then " if released > 0.0 else ""
+    return (f"{held}θ₀ = {short_number(v['theta0'])} ± {short_number(v['theta0_sd'], 2)} rad, "
             f"θ̇₀ = {short_number(v['theta_dot0'])} ± {short_number(v['theta_dot0_sd'], 2)} rad/s, "
             f"motor steady at τ = {short_number(v['duty0'])}")
 
@@ -230,6 +254,44 @@ def initial_state(rig: Rig, theta: np.ndarray, duty: np.ndarray, dt: float, thet
                         duty0=tau0, samples=int(k))
 
 
+def release_index(theta: np.ndarray, duty: np.ndarray, dt: float) -> int:
+    """Sample at which a rod held at its first angle was released (module docstring), 0 when the
+    recording does not begin with the rod held.
+
+    Parameters
+    ----------
+    theta : ndarray, shape (N,)
+        Recorded θ [rad].
+    duty : ndarray, shape (N,)
+        Duty cycle τ [1]; a recording whose command changes is never cut (its rest may be the
+        model's to explain).
+    dt : float
+        Sample period [s] > 0.
+
+    Returns
+    -------
+    int
+        0 ≤ index < N.
+    """
+    th = np.asarray(theta, dtype=float)
+    u = np.asarray(duty, dtype=float)
+    if th.size < 5 or not (dt > 0.0) or float(np.ptp(u)) > 0.0 or not np.all(np.isfinite(th)):
+        return 0
+    design = _start_design(dt, th.size)
+    k = design.shape[0]
+    coef, *_ = np.linalg.lstsq(design, th[:k], rcond=None)
+    resid = th[:k] - design @ coef
+    q = detect_quantum(th)
+    band = max(HOLD_BAND_SIGMAS * float(np.std(resid)), 2.0 * q, HOLD_BAND_SHARE * float(np.ptp(th)), 1e-9)
+    centre = float(np.median(th[:k]))
+    out = np.flatnonzero(np.abs(th - centre) > band)
+    if out.size == 0 or out[0] * dt < HOLD_MIN_S:  # never moves, or moves from the start
+        return 0
+    m = int(out[0])
+    near = np.flatnonzero(np.abs(th[:m] - centre) <= band / 4.0)
+    return int(near[-1]) if near.size else 0
+
+
 def nrmse(measured: np.ndarray, simulated: np.ndarray, span: float | None = None,
           ) -> tuple[float, float, float]:
     """The one θ NRMSE (module docstring): (nrmse [1], rms error [rad], span [rad]).
@@ -311,13 +373,20 @@ def free_run(rig: Rig, t: np.ndarray, duty: np.ndarray, theta: np.ndarray, *, th
         raise IdentificationError(f"free run on {name}: t, duty and θ need one shape (N,) with N ≥ 2 "
                                   f"(got {tt.shape}, {u.shape}, {y.shape})")
     dt = float(tt[-1] - tt[0]) / (tt.size - 1)
-    start = initial_state(rig, y, u, dt, theta_offset, theta_scale)
-    try:
-        sim, failed = _simulate(rig, u, start.x, dt)
-    except (SimulationError, ModelError) as exc:
-        raise IdentificationError(f"free run of rig {rig.name!r} on {name} failed: {exc}") from exc
     if not 0 <= lead < tt.size:
         raise IdentificationError(f"free run on {name}: lead = {lead} samples must be in [0, {tt.size})")
+    held = release_index(y, u, dt) if lead == 0 else 0
+    start = initial_state(rig, y[held:], u[held:], dt, theta_offset, theta_scale)
+    if held:
+        start = replace(start, released_at=held * dt)
+    try:
+        sim, failed = _simulate(rig, u[held:], start.x, dt)
+    except (SimulationError, ModelError) as exc:
+        raise IdentificationError(f"free run of rig {rig.name!r} on {name} failed: {exc}") from exc
+    if held:  # before the release the rod is where it was held
+        sim = {c: np.concatenate([np.full(held, start.x[0] if c == "theta" else v[0]), v])
+               for c, v in sim.items()}
+        failed = None if failed is None else failed + held
     tt, y = tt[lead:], y[lead:]
     rel = tt - tt[0]
     if failed is not None and failed < lead:
@@ -326,13 +395,14 @@ def free_run(rig: Rig, t: np.ndarray, duty: np.ndarray, theta: np.ndarray, *, th
         sim = {c: v[lead:] for c, v in sim.items()}
         th = theta_scale * (sim["theta"] - theta_offset)
         channels = {**{c: v for c, v in sim.items() if c in ("i_a", "v_a", "omega_rotor")}, "theta": th}
-        why = diverges(th, y, rel, span=span)
-        found = excursions(rel, {"": th}, *divergence_window(y, span)) if why is not None else []
+        why = diverges(th[held:], y[held:], rel[held:], span=span)
+        found = excursions(rel[held:], {"": th[held:]}, *divergence_window(y[held:], span)) \
+            if why is not None else []
         at = found[0].t if found else None
     else:  # the compiled step turned a state non-finite at sample `failed`: the trace ends there
         th, channels = np.full(y.size, np.nan), {}
         at = float(rel[min(failed - lead, rel.size - 1)])
         why = f"diverges at t = {short_number(at)} s (θ is not finite from there)"
-    value, rms, rng = nrmse(y, th, span)
+    value, rms, rng = nrmse(y[held:], th[held:], span)
     return FreeRun(theta=th, nrmse=None if why is not None else value, rms_error=rms, range=rng,
                    diverged_at=at, divergence=why, initial=start, channels=channels)

@@ -96,6 +96,10 @@ class Block:
     nuisance: list[ParameterSpec] = field(default_factory=list)
     static: bool = False   # a steady-state table: timing parameters do not act on it
     sigma_known: bool = False
+    #: The least σ a residual re-estimate may give [the block's unit]: a recording's measured noise
+    #: floor (a window where the model sits exactly on a quantised, constant angle has a residual of 0,
+    #: and a σ of 0 would weigh it 1e12-fold and make every other direction look blind).
+    floor: float = 0.0
 
     def residual(self, rig: Rig, nuis: Sequence[float]) -> np.ndarray:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -198,6 +202,7 @@ class TimeBlock(Block):
             ParameterSpec(f"{self.source}: θ̇(0)", "rad/s", thd0, thd0 - 5.0, thd0 + 5.0, False, 0.05),
         ]
         self.sigma = noise
+        self.floor = noise
         self._replays: RigReplays | None = None
 
     def size(self) -> int:
@@ -452,20 +457,24 @@ class Problem:
         best = nelder_mead_best(cost, ranked, [(-0.5, 0.5)] * m, OPEN_NFEV, fatol=1e-9)
         return point(best.x) if best.fun < costs[0] else z0
 
-    def solve_best_of(self, starts: Sequence[np.ndarray], max_nfev: int = 60,
-                      tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, Any]:
-        """:meth:`solve` from each distinct start; the result with the lowest final cost (the
-        first on a tie)."""
-        best = None
+    def solve_each(self, starts: Sequence[np.ndarray], max_nfev: int = 60,
+                   tol: float = 1e-7) -> list[tuple[np.ndarray, np.ndarray, Any]]:
+        """:meth:`solve` from each distinct start, in order: every (z, J, SciPy result)."""
+        out: list[tuple[np.ndarray, np.ndarray, Any]] = []
         seen: list[np.ndarray] = []
         for z in starts:
             if any(np.array_equal(z, w) for w in seen):
                 continue
             seen.append(z)
-            got = self.solve(z, max_nfev=max_nfev, tol=tol)
-            if best is None or got[2].cost < best[2].cost:
-                best = got
-        return best  # type: ignore[return-value]
+            out.append(self.solve(z, max_nfev=max_nfev, tol=tol))
+        return out
+
+    def solve_best_of(self, starts: Sequence[np.ndarray], max_nfev: int = 60,
+                      tol: float = 1e-7) -> tuple[np.ndarray, np.ndarray, Any]:
+        """:meth:`solve` from each distinct start; the result with the lowest final cost (the
+        first on a tie)."""
+        got = self.solve_each(starts, max_nfev=max_nfev, tol=tol)
+        return min(got, key=lambda r: r[2].cost)  # min keeps the first of equal costs
 
     def reweight(self, z: np.ndarray, known: bool = True) -> list[float]:
         """Each block's σ from its residual at ``z`` (tables with stated errors: scaled only up by
@@ -485,7 +494,7 @@ class Problem:
             if b.sigma_known:
                 b.sigma = max(1.0, rms) if known else old
             else:
-                b.sigma = max(rms, 1e-12)
+                b.sigma = max(rms, b.floor, 1e-12)
             if isinstance(b, TimeBlock):
                 b.sigma *= math.sqrt(autocorrelation_factor(raw))
             factors.append(old / b.sigma)
