@@ -141,7 +141,7 @@ def test_static_table_gives_the_map_and_refuses_what_it_cannot_separate(tmp_path
         o = res.outcome(key)
         assert o.status == "to be fitted" and key in o.reason
     assert "no recording changes the command" in res.outcome("motor.T_m").reason
-    assert "holds shorter than" in res.outcome("motor.T_m").reason
+    assert "holds of about" in res.outcome("motor.T_m").reason
 
 
 def test_only_the_product_is_determined_names_both_and_how_to_state_one(tmp_path):
@@ -370,8 +370,25 @@ def test_a_time_constant_refusal_quotes_the_holds_and_what_would_determine_it():
     from aeropend_ident.greybox.rig_fit import _timing_hint
 
     assert _timing_hint("motor.T_m", 0.05, 2.0, 0.01) == (
-        "the recordings never change the command faster than 2 s; a step or PRBS with holds shorter than "
+        "the recordings never change the command faster than 2 s; a step or PRBS with holds of about "
         "0.1 s would")
+    # a lag shorter than three samples: no hold a lab can command resolves it at this logging rate
+    # (the issue's user was told "holds shorter than 0.003 s would" on a 1 ms log)
+    short = _timing_hint("motor.T_m", 0.0012, 2.0, 0.001)
+    assert short.startswith("at 0.0012 s it is shorter than three samples of these logs (0.001 s each)")
+    assert "log faster (a sample period of 0.0004 s or less)" in short and "holds of" not in short
+
+
+def test_one_step_holds_the_command_as_long_as_its_shorter_side():
+    """A log with one step at 5 s (10 s after it) never changes the command faster than 5 s, not 10 s."""
+    from aeropend_ident.greybox.rig_inputs import shortest_hold
+
+    class _S:
+        def __init__(self, duty):
+            self.data = type("D", (), {"duty": duty, "dt": 0.01})()
+
+    duty = np.concatenate([np.full(500, 0.3), np.full(1000, 0.6)])
+    assert shortest_hold([_S(duty)]) == pytest.approx(5.0)
 
 
 def test_rig_check_of_a_shipped_rig_without_inputs(capsys):

@@ -244,3 +244,18 @@ def test_a_quantised_log_frees_the_start_within_its_rounding_noise():
     assert shift[0] != 0.0
     assert abs(shift[0]) <= 5.0 * q / math.sqrt(12.0) * (1 + 1e-9)
     assert free.cost <= held.cost
+
+
+def test_baseline_calls_a_fit_worse_only_beyond_its_printed_precision() -> None:
+    """A held-out NRMSE equal to the nominal's to 4 digits is not "worse … (+0 %)" (issue 60)."""
+    from types import SimpleNamespace
+
+    from aeropend_ident.greybox.baseline import _warnings
+
+    def warn(nominal: float, fitted: float) -> list[str]:
+        metrics = {"heldout": {"nominal": {"nrmse": nominal}, "fitted": {"nrmse": fitted}}}
+        return _warnings(SimpleNamespace(parameters=[]), metrics, {})
+
+    assert warn(0.003581, 0.003581 * 1.001) == []
+    (text,) = warn(0.003581, 0.0040)
+    assert "worse than the nominal: held-out NRMSE nominal 0.003581 -> fitted 0.004 (+12%)" in text

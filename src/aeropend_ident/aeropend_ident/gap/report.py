@@ -35,12 +35,18 @@ from aeropend_ident.gap.which.ranking import SWAP_GAIN
 from aeropend_ident.greybox.replay import start_text
 from aeropend_ident.io.jsonutil import jsonable
 
-
 # --------------------------------------------------------------------------- text
+#: A value below this magnitude (SI units) is a round-off of 0 (a parameter fitted onto its bound of
+#: 0 reads 1.854e-27, a difference of equal numbers 1.1102e-17): printed as 0.
+ZERO_BELOW = 1e-15
+
+
 def _fmt(v: Any, spec: str = ".4g") -> str:
     if v is None:
         return "–"
     if isinstance(v, float):
+        if math.isfinite(v) and abs(v) < ZERO_BELOW:
+            return "0"
         return format(v, spec) if math.isfinite(v) else "–"
     return str(v)
 
@@ -220,7 +226,8 @@ def _drift_html(result: GapResult) -> str:
         tables.insert(0, result.sessions["drift"])
     for t in tables:
         rows = [[f"{r['effect']}.{r['parameter']}{_derived_note(r)}", " / ".join(
-            f"{v:.4g} ± {_fmt(sd, '.2g')}" for v, sd in zip(r["values"], r["std"], strict=True)), r["unit"],
+            f"{_fmt(float(v))} ± {_fmt(sd, '.2g')}" for v, sd in zip(r["values"], r["std"], strict=True)),
+            r["unit"],
             _change(r), _fmt(r["z"], ".1f"), "yes" if r["drifts"] else ""] for r in t["rows"]]
         parts.append(f"<h3>Parameter drift: {' vs '.join(_label(x) for x in t['sessions'])}</h3>" + _table(
             rows, ["parameter", "values ± std", "unit", "change", "z", "drifts"]))

@@ -483,12 +483,18 @@ def _combination(group: Sequence[str], exps: np.ndarray) -> str:
 
 
 def _timing_hint(key: str, value: float, hold: float, dt: float) -> str:
-    need = max(2.0 * value, 3.0 * dt) if math.isfinite(value) and value > 0 else 3.0 * dt
+    """What would determine a timing parameter (a dead time, a lag, a time constant, in s) of value
+    ``value``, given the recordings' shortest hold ``hold`` and their sample period ``dt``."""
+    if math.isfinite(value) and 0.0 < value < 3.0 * dt:
+        return (f"at {value:.2g} s it is shorter than three samples of these logs ({dt:.2g} s each): it "
+                "hardly shapes the angle at this logging rate; state it from a data sheet, or log faster "
+                f"(a sample period of {value / 3.0:.2g} s or less) with steps")
+    need = max(2.0 * value, 10.0 * dt) if math.isfinite(value) and value > 0 else 10.0 * dt
     if not math.isfinite(hold):
         return (f"no recording changes the command (tables and free decays only); a step or PRBS with holds "
-                f"shorter than {need:.2g} s would")
+                f"of about {need:.2g} s would")
     return (f"the recordings never change the command faster than {hold:.3g} s; a step or PRBS with holds "
-            f"shorter than {need:.2g} s would")
+            f"of about {need:.2g} s would")
 
 
 def _hint(key: str, value: float, timing: frozenset[str], hold: float, dt: float) -> str:

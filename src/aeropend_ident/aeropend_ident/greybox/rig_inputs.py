@@ -212,8 +212,8 @@ def shortest_hold(series: list[TimeSeries]) -> float:
         h = holds(s.data.duty, s.data.dt)
         if h.size > 2:
             out = min(out, float(np.min(h[1:-1])))
-        elif h.size == 2:
-            out = min(out, float(np.max(h)))
+        elif h.size == 2:  # one step: the command held before it and after it
+            out = min(out, float(np.min(h)))
     return out
 
 
