@@ -25,9 +25,9 @@ import numpy as np
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.parameters import ParameterSpec
 from aeropend_ident.greybox.replay import free_run
-from aeropend_ident.greybox.rig_fit import blocks_of
 from aeropend_ident.greybox.rig_inputs import read_inputs
 from aeropend_ident.greybox.rig_problem import Problem, TimeBlock, covariance
+from aeropend_ident.greybox.rig_search import blocks_of
 from aeropend_sim.components import registry
 from aeropend_sim.files.safe_yaml import load_yaml
 from aeropend_sim.params import Rig, load_rig
