@@ -40,7 +40,6 @@ import io
 import json
 import math
 import os
-import platform
 import re
 import sys
 import tempfile
@@ -53,7 +52,7 @@ import yaml
 
 from bench.bench_control_independent import metrics
 from bench.fixtures import family_lab as fl
-from bench.fixtures.provenance import git_commit
+from bench.fixtures.provenance import run_meta
 
 RESULTS = Path(__file__).resolve().parent / "results"
 STEPS = (0.2, 0.4, 0.6)
@@ -293,11 +292,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[{len(rigs)}/{len(jobs)}] {r['rig']}: path {r['times_s'].get('path', math.nan):.0f} s, {got}",
               flush=True)
     rigs.sort(key=lambda r: (fl.FAMILIES.index(r["family"]), r["rig"]))
-    meta = {"workers": args.workers, "wall_s": time.perf_counter() - t0,
-            "load_before": [round(x, 2) for x in load_before],
-            "load_after": [round(x, 2) for x in os.getloadavg()],
-            "machine": f"{os.cpu_count()} cores, {platform.platform()}", "python": platform.python_version(),
-            "commit": git_commit(), "argv": sys.argv[1:] if argv is None else argv}
+    meta = run_meta(t0, load_before, argv, workers=args.workers)
     doc = {"summary": summarise(rigs), "meta": meta, "rigs": rigs}
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float), encoding="utf-8")

@@ -33,7 +33,6 @@ import io
 import json
 import math
 import os
-import platform
 import sys
 import tempfile
 import time
@@ -45,7 +44,7 @@ import numpy as np
 from bench.fixtures import family_lab as fl
 from bench.fixtures import truth_plant as tp
 from bench.fixtures.lab_logging import quantise
-from bench.fixtures.provenance import git_commit
+from bench.fixtures.provenance import run_meta
 from bench.fixtures.rig_lab import CSV_HEADER, PRESET
 
 RESULTS = Path(__file__).resolve().parent / "results"
@@ -267,10 +266,7 @@ def main(argv: list[str] | None = None) -> int:
             f"ratios {r['ratio']['steps']:.2f} / {r['ratio']['aprbs']:.2f}, fits " \
             f"{r['fit_s']['steps']:.0f} / {r['fit_s']['aprbs']:.0f} s"
         print(f"[{k + 1}/{len(jobs)}] {r['rig']} {r['logger']}: {got}", flush=True)
-    meta = {"wall_s": time.perf_counter() - t0, "load_before": [round(x, 2) for x in load_before],
-            "load_after": [round(x, 2) for x in os.getloadavg()],
-            "machine": f"{os.cpu_count()} cores, {platform.platform()}", "python": platform.python_version(),
-            "commit": git_commit(), "argv": sys.argv[1:] if argv is None else argv}
+    meta = run_meta(t0, load_before, argv)
     doc = {"summary": summarise(rows), "meta": meta, "rigs": rows}
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float), encoding="utf-8")

@@ -241,7 +241,7 @@ def test_a_rod_held_then_released_is_replayed_from_its_release() -> None:
     t, duty, theta, _ = _held_decay(1.5)
     run = free_run(NOMINAL, t, duty, theta)
     assert run.initial.released_at == pytest.approx(1.5, abs=0.05)
-    assert "rod held until its release at t = 1.5" in run.initial.describe()
+    assert "rod at rest until t = 1.5" in run.initial.describe()
     assert run.nrmse is not None and run.nrmse < 0.02
     assert run.theta.shape == t.shape and np.allclose(run.theta[:100], run.initial.theta0)
     # scored from the release: the held head (error ≈ the noise) does not dilute the figure

@@ -95,6 +95,9 @@ def test_gap_found_named_and_shrunk_on_held_out(report):
     rep, out, _ = report
     h = rep["headline"]
     assert h["significant_gap"]
+    # the yes says which analysis found it, and what the other one saw (issue 60)
+    assert h["significant_gap_why"].startswith("where-analysis: ") and "; effect screening: " in \
+        h["significant_gap_why"]
     assert h["effects_chosen"][0] == "coulomb_friction"
     assert h["heldout_shrink"] >= 0.5
     assert h["heldout_nrmse_corrected"] < h["heldout_nrmse_nominal"]

@@ -58,6 +58,23 @@ def test_an_uninformed_direction_has_no_finite_variance():
     assert cov[0, 0] == pytest.approx(np.linalg.inv(J[:, :2].T @ J[:, :2])[0, 0])
 
 
+def test_a_blind_direction_leaves_the_well_determined_coordinates_finite():
+    """jahoyosr's staircase: c/J (a column 1e-7 of the largest) is blind; the dead zone and the dry
+    friction, with a round-off share in that direction, read '± inf' until the SVD was taken again
+    without the blind coordinate. Their variances are now those with it held."""
+    from aeropend_ident.greybox.rig_problem import covariance
+
+    rng = np.random.default_rng(1)
+    a, b = rng.normal(size=200) * 700.0, rng.normal(size=200) * 9000.0
+    weak = 1e-5 * a + 1e-9 * rng.normal(size=200)  # nearly zero, and nearly along a
+    J = np.column_stack([a, b, weak])
+    cov = covariance(J, np.zeros(3, dtype=bool))
+    assert np.isinf(cov[2, 2])
+    held = np.linalg.inv(J[:, :2].T @ J[:, :2])
+    assert cov[0, 0] == pytest.approx(held[0, 0]) and cov[1, 1] == pytest.approx(held[1, 1])
+    assert np.isnan(cov[0, 2]) and np.isnan(cov[2, 1])
+
+
 @pytest.mark.slow
 def test_the_sandwich_covariance_widens_with_correlated_residuals():
     """A line fitted to 20 clusters of 50 points each sharing one offset (a misfit the white-noise

@@ -70,7 +70,7 @@ def terminal_summary(result: GapResult) -> str:
     lines = [
         f"gap: nominal rig {result.rig.name}; {h['n_fit_recordings']} fit / "
         f"{h['n_heldout_recordings']} held-out recording(s) ({result.split_rule})",
-        f"  significant gap: {'yes' if h['significant_gap'] else 'no'}",
+        f"  significant gap: {'yes' if h['significant_gap'] else 'no'} ({h['significant_gap_why']})",
         "  WHERE (nominal on fit recordings):",
     ]
     for row in result.where.located:
@@ -467,12 +467,14 @@ def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
         "body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em;color:#222}"
         "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 7px;"
         "font-size:13px}th{background:#eee}img{max-width:100%}.big{font-size:1.2em}"
+        ".small{font-size:0.75em;color:#555}"
     )
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>aeropend gap report: {html.escape(result.rig.name)}</title>
 <style>{css}</style></head><body>
 <h1>Sim-to-real gap report: {html.escape(result.rig.name)}</h1>
-<p class="big">{_headline_html(h, d)} Significant gap: {"yes" if h["significant_gap"] else "no"};
+<p class="big">{_headline_html(h, d)} Significant gap: {"yes" if h["significant_gap"] else "no"}
+<span class="small">({html.escape(h["significant_gap_why"])})</span>;
 located in: <b>{html.escape(str(h["where_subsystem"]))}</b>.</p>
 {_detected_html(d)}{_not_computed_html(result)}
 <p>Rig {html.escape(result.rig_ref)}; {len(result.fit)} fit recording(s), {len(result.held_out)} held-out

@@ -130,6 +130,23 @@ class GapResult:
     bound_notes: list[str] = field(default_factory=list)
 
     # ------------------------------------------------------------------ headline
+    def significance_why(self) -> str:
+        """Why the gap is (not) significant, from both analyses, so that a "yes" beside a
+        where-analysis that flags no equation says which analysis found it (issue 60)."""
+        w, d = self.where, self.diagnosis
+        flagged = [r["equation"] for r in w.located if r["flagged"]]
+        if w.significant and flagged:
+            where = (f"the free-run residual is not white beyond the noise floor and the "
+                     f"{', '.join(flagged)} equation(s) miss part of their driving term")
+        elif w.significant:
+            where = ("the free-run residual is not white beyond the noise floor, but no equation misses "
+                     "enough of its driving term to be flagged (a gap too small or too spread to locate)")
+        else:
+            where = "the free-run residual is white or within the noise/resolution floor"
+        which = d.reason or ("a candidate effect explains part of the validation error" if d.significant
+                             else "no candidate effect explains the validation error beyond its noise")
+        return f"where-analysis: {where}; effect screening: {which}"
+
     def headline(self) -> dict[str, Any]:
         """Held-out (test) NRMSE before/after: mean over held-out recordings of
         RMS(θ_sim − θ_meas)/range(θ_meas), the nominal and the corrected rig."""
@@ -142,6 +159,7 @@ class GapResult:
         ch0, ch1 = self.test[0].get("channel_nrmse", {}), self.test[-1].get("channel_nrmse", {})
         return {
             "significant_gap": bool(self.where.significant or d.significant),
+            "significant_gap_why": self.significance_why(),
             "where_subsystem": self.where.subsystem,
             "effects_chosen": list(d.chosen),
             "detected": dict(getattr(d, "detected", {})),

@@ -25,9 +25,11 @@ rig is driven by the recorded duty cycle only, with no later correction from the
   figure must not depend on which channels a log has).
 
 **A rod held, then released** (:func:`release_index`): in a recording whose command never changes,
-a rod that rests at its first angle and then moves was held there (by hand, a stop) and let go — a
-rod at rest under a constant input stays at rest. The replay starts at the release: the start above
-is estimated there, the run is scored from there, and before it the predicted θ is the held angle.
+a rod that rests at its first angle and then moves was held there (by hand, a stop) and let go, or
+waited for a motor that was still spinning up to the command the log shows from its first sample
+(dondi01's 8 V step: 0.69 s) — a rod at rest under a constant thrust stays at rest. The replay
+starts at the release: the start above is estimated there, the run is scored from there, and before
+it the predicted θ is the held angle.
 At rest means within a band about the first angle — the larger of :data:`HOLD_BAND_SIGMAS` standard
 deviations of the start fit's residual, two angle quanta and :data:`HOLD_BAND_SHARE` of the
 recorded range — for at least :data:`HOLD_MIN_S`; the release is the last sample before the rod
@@ -131,7 +133,8 @@ def start_text(start: Mapping[str, object]) -> str:
     τ = 0.43"``."""
     v = {k: float(start[k]) for k in ("theta0", "theta0_sd", "theta_dot0", "theta_dot0_sd", "duty0")}  # type: ignore[arg-type]
     released = float(start.get("released_at", 0.0) or 0.0)  # type: ignore[arg-type]
-    held = f"rod held until its release at t = {short_number(released)} s, then " if released > 0.0 else ""
+    held = (f"rod at rest until t = {short_number(released)} s (held, or waiting for the motor), then "
+            if released > 0.0 else "")
     return (f"{held}θ₀ = {short_number(v['theta0'])} ± {short_number(v['theta0_sd'], 2)} rad, "
             f"θ̇₀ = {short_number(v['theta_dot0'])} ± {short_number(v['theta_dot0_sd'], 2)} rad/s, "
             f"motor steady at τ = {short_number(v['duty0'])}")

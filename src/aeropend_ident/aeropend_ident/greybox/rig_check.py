@@ -26,7 +26,7 @@ from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.parameters import ParameterSpec
 from aeropend_ident.greybox.replay import free_run
 from aeropend_ident.greybox.rig_inputs import read_inputs
-from aeropend_ident.greybox.rig_problem import Problem, TimeBlock, covariance
+from aeropend_ident.greybox.rig_problem import Problem, covariance
 from aeropend_ident.greybox.rig_search import blocks_of
 from aeropend_sim.components import registry
 from aeropend_sim.files.safe_yaml import load_yaml
@@ -155,17 +155,16 @@ def check_rig(rig_path: str | Path, inputs: Sequence[str] = (), preset: str | No
     tables, series = read_inputs(list(inputs), preset)
     blocks = blocks_of(tables, series)
     diverged = []
-    for b in blocks:
-        if isinstance(b, TimeBlock):
-            try:
-                d = b.data
-                run = free_run(rig, d.t, d.duty, d.theta, source=d.source)  # type: ignore[union-attr]
-                lines.append(run.line(f"{b.source} ({b.kind})"))
-                if run.diverged:
-                    diverged.append(b.source)
-            except IdentificationError as exc:
-                lines.append(f"free-run θ on {b.source} ({b.kind}): not computed ({exc})")
-                diverged.append(b.source)
+    for ser in series:  # the whole recording, as every command replays it (a block may start later)
+        try:
+            d = ser.replayed
+            run = free_run(rig, d.t, d.duty, d.theta, source=d.source)
+            lines.append(run.line(f"{ser.source} ({ser.kind})"))
+            if run.diverged:
+                diverged.append(ser.source)
+        except IdentificationError as exc:
+            lines.append(f"free-run θ on {ser.source} ({ser.kind}): not computed ({exc})")
+            diverged.append(ser.source)
     specs = _sensitivity_specs(rig)
     if specs and diverged:
         lines.append(f"sensitivity: not computed: the free run diverges on {', '.join(diverged)} (the "

@@ -526,30 +526,48 @@ def autocorrelation_factor(r: np.ndarray) -> float:
     return max(1.0, 1.0 + 2.0 * s)
 
 
+#: A coordinate whose weight in a direction the data do not inform is at least this is undetermined
+#: (:func:`covariance`); the others' variances are then conditional on it.
+BLIND_SHARE = 0.2
+
+
 def covariance(J: np.ndarray, pinned: np.ndarray, blind: bool = True) -> np.ndarray:
-    """(JᵀJ)⁻¹ of the free coordinates (pinned ones: NaN rows and columns; with ``blind``, a coordinate
-    with a share in a direction the data do not inform has an infinite variance; without, the
-    pseudo-inverse's, whose correlations still show which coordinates only a combination fixes).
+    """(JᵀJ)⁻¹ of the free coordinates (pinned ones: NaN rows and columns; with ``blind``, the
+    coordinates that dominate a direction the data do not inform have an infinite variance and the
+    others' covariance is taken with them held; without, the pseudo-inverse's, whose correlations
+    still show which coordinates only a combination fixes).
 
     From the SVD of J (V·diag(1/s²)·Vᵀ over the singular values with s² > 1e-15·s_max², the cut of
     ``pinv(JᵀJ)``), not by inverting JᵀJ: forming JᵀJ squares J's condition number, and on an
     ill-conditioned J (YangZhu's step: rig check's joint σ) its pseudo-inverse came out with negative
-    variances.
+    variances. A blind direction (cut) makes the coordinates with weight ≥ :data:`BLIND_SHARE` in it
+    undetermined (inf), not "known exactly" as the pseudo-inverse says; the SVD is then taken again
+    without them, so that a well-determined coordinate with a round-off share in that direction keeps
+    its finite variance (jahoyosr's dead zone, ± 0.007, beside a c/J the staircase cannot see).
     """
     n = J.shape[1]
     cov = np.full((n, n), math.nan)
     free = np.flatnonzero(~pinned)
-    if free.size:
+    undetermined: list[int] = []
+    while free.size:
         _, s, vt = np.linalg.svd(J[:, free], full_matrices=True)
         s = np.concatenate([s, np.zeros(free.size - s.size)])
         keep = s**2 > 1e-15 * (float(s[0]) ** 2 if s.size else 0.0)
+        if blind and not np.all(keep):
+            w = np.abs(vt[~keep])
+            dom = np.any(w >= BLIND_SHARE, axis=0)
+            if not np.any(dom):
+                dom[int(np.argmax(w.max(axis=0)))] = True
+            undetermined += [int(j) for j in free[dom]]
+            free = free[~dom]
+            continue
         v = vt[keep].T / s[keep]
         cov[np.ix_(free, free)] = v @ v.T
-        # a direction the data do not inform (cut above) has no finite variance: every coordinate
-        # with a share in it is undetermined (inf), not "known exactly" as the pseudo-inverse says
-        if blind:
-            for j in free[np.any(np.abs(vt[~keep]) > 1e-6, axis=0)]:
-                cov[j, j] = math.inf
+        break
+    for j in undetermined:
+        cov[j, :] = math.nan
+        cov[:, j] = math.nan
+        cov[j, j] = math.inf
     return cov
 
 
