@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from aeropend_sim.model import PlantModel
+from aeropend_sim.model import plant_model
 from aeropend_sim.params import Rig
 
 #: Thesis Eq. 4.4 coefficients (a₂ [N/V²], a₁ [N/V], a₀ [N]) of f = a₂·v_a² + a₁·v_a + a₀.
@@ -109,7 +109,7 @@ class ModelAllocator:
     """
 
     def __init__(self, rig: Rig) -> None:
-        self.model = PlantModel(rig)
+        self.model = plant_model(rig)
         a = self.model.assembly
         if a.values["thrust.K_q"] <= 0.0:
             raise AllocationError(f"rig {rig.name!r}: K_q must be > 0 for allocation")

@@ -40,7 +40,7 @@ import numpy as np
 from aeropend_control.allocation import ModelAllocator
 from aeropend_control.metrics import StepMetrics, step_metrics
 from aeropend_control.pid import PIDGains
-from aeropend_sim.model import OMEGA, TAU_F, THETA, THETA_DOT, PlantModel
+from aeropend_sim.model import OMEGA, TAU_F, THETA, THETA_DOT, PlantModel, plant_model
 from aeropend_sim.params import Rig
 
 # python-control is imported inside the functions that use it: importing it costs ~2 s
@@ -171,7 +171,7 @@ def design_fl(rig: Rig, spec: PoleSpec | None = None, cancel_damping: bool = Tru
         False: thesis Eq. 6.4, plant 1/(s(s + c/J)).
     """
     spec = spec or PoleSpec()
-    a1 = 0.0 if cancel_damping else PlantModel(rig).a_c
+    a1 = 0.0 if cancel_damping else plant_model(rig).a_c
     kp, ki, kd = place_ipd(0.0, a1, 1.0, spec)
     pred = predict_step(_closed_loop_2nd(0.0, a1, 1.0, kp, ki, kd))
     return LoopDesign(kp, ki, kd, 0.0, a1, 1.0, math.nan, 0.0, math.nan, pred)
@@ -196,7 +196,7 @@ def linearise(rig: Rig, theta: float) -> tuple[PlantModel, np.ndarray, float, np
     DesignError
         If θ is not a reachable equilibrium.
     """
-    m = PlantModel(rig)
+    m = plant_model(rig)
     try:
         x_eq, tau_eq = m.equilibrium(theta)
     except ValueError as exc:
@@ -298,7 +298,7 @@ def reachable_angle(rig: Rig, duty_margin: float = REACH_DUTY_MARGIN, tol: float
     DesignError
         If not even a small angle (0.01 rad) is reachable (the actuator cannot lift the rod).
     """
-    m = PlantModel(rig)
+    m = plant_model(rig)
     top = 1.0 - duty_margin
     cap = REACH_ANGLE_MAX
     if m.stops:
@@ -427,7 +427,7 @@ def design_cascade(rig: Rig, omega_speed: float = 45.0, omega_current: float = 1
     for name, val in (("omega_speed", omega_speed), ("omega_current", omega_current), ("i_max", i_max)):
         if not (math.isfinite(val) and val > 0.0):
             raise DesignError(f"cascade {name} = {val!r} must be finite and > 0")
-    m = PlantModel(rig)
+    m = plant_model(rig)
     if not m.assembly.armature:
         raise DesignError(f"rig {rig.name!r}: a motor cascade (cascade, fl_cascade) closes loops "
                           "on the armature current i_a and the rotor speed ω₁ of a DC motor; the "

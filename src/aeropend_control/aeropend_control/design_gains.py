@@ -64,8 +64,8 @@ def _steps(text: str) -> tuple[float, ...]:
 def limits_of(rig: Rig) -> str:
     """What slows the drive of ``rig`` down, in words (dead time, lag, the rotor's slowest mode)."""
     from aeropend_control.drive_design import rotor_rate
-    from aeropend_sim.model import PlantModel
-    m = PlantModel(rig)
+    from aeropend_sim.model import plant_model
+    m = plant_model(rig)
     parts = []
     if m.delay > 0.0:
         parts.append(f"dead time {m.delay:.3g} s")

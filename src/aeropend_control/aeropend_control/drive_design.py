@@ -67,7 +67,7 @@ from aeropend_control.design import (
     reachable_angle,
 )
 from aeropend_control.metrics import GOAL
-from aeropend_sim.model import I_A, OMEGA, TAU_F, PlantModel
+from aeropend_sim.model import I_A, OMEGA, TAU_F, PlantModel, plant_model
 from aeropend_sim.params import Rig
 
 # python-control is imported inside the functions that use it: importing it costs ~2 s
@@ -374,7 +374,7 @@ def design_fl_on_drive(rig: Rig, spec: PoleSpec, drive: DriveSpec, theta0: float
         If θ₀ is not a reachable equilibrium.
     """
     base = design_fl(rig, spec)
-    m = PlantModel(rig)
+    m = plant_model(rig)
     try:
         d = drive_model(rig, theta0, drive)
     except DesignError:  # no model of this drive (a cascade on a quasi-static armature): static design
@@ -447,7 +447,7 @@ def thrust_loop_gain_limit(rig: Rig) -> float:
     """
     from aeropend_control.observer import ThrustPredictor
 
-    m = PlantModel(rig)
+    m = plant_model(rig)
     dt = float(rig.sample_period)
     x_eq, tau0 = m.equilibrium(0.5 * reachable_angle(rig))
     f0 = m.thrust(float(x_eq[OMEGA]))
@@ -490,7 +490,7 @@ def design_drive(rig: Rig, kind: str, cascade: CascadeDesign | None = None) -> D
     if not slow_drive(rig):
         return None
     if kind == "cascade":
-        if not PlantModel(rig).dynamic_current:
+        if not plant_model(rig).dynamic_current:
             return None  # quasi-static armature: drive_model has no current state for the PI (static design)
         return DriveSpec("cascade", cascade=cascade or design_cascade(rig))
     return DriveSpec("duty", thrust_gain=default_thrust_gain(rig))
@@ -613,7 +613,7 @@ def _minimax_spec(rig: Rig, linearising: bool, spec: PoleSpec, drive: DriveSpec,
     """(candidate of least :func:`worst_goal_ratio`, that score) over ω_n ∈ factors × ω_n(spec) and
     :data:`ROBUST_ZETAS`; ties and an all-``inf`` field go to the earliest candidate (slowest, least
     damped)."""
-    m = PlantModel(rig)
+    m = plant_model(rig)
     candidates = [dataclasses.replace(spec, omega_n=factor * spec.omega_n, zeta=zeta)
                   for factor, zeta in itertools.product(factors, ROBUST_ZETAS)]
     best, best_key = spec, (math.inf, len(candidates))

@@ -37,7 +37,7 @@ import numpy as np
 
 # python-control is imported inside the functions that use it: importing it costs ~2 s
 # (scipy.signal, matplotlib.pyplot), which `controller --help` and every importer would pay.
-from aeropend_sim.model import PlantModel
+from aeropend_sim.model import PlantModel, plant_model
 
 
 class ObserverError(ValueError):
@@ -128,7 +128,7 @@ class ThrustPredictor:
 
     def __init__(self, model: PlantModel, dt: float) -> None:
         self.m = model
-        self._rotor = PlantModel(model.rig.with_effects(armature_inductance="quasi_static"))
+        self._rotor = plant_model(model.rig.with_effects(armature_inductance="quasi_static"))
         self.dt = dt
         self.n_delay = round(model.delay / dt) if model.delay > 0.0 else 0
         self.reset()

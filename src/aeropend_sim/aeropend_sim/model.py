@@ -28,6 +28,8 @@ switched on.
 from __future__ import annotations
 
 import math
+import threading
+from collections import OrderedDict
 from collections.abc import Callable
 from functools import cached_property
 
@@ -62,6 +64,7 @@ __all__ = [
     "G",
     "ModelError",
     "PlantModel",
+    "plant_model",
 ]
 
 #: Short attribute names of earlier versions -> (parameter key, effective value?). An effective
@@ -317,4 +320,49 @@ class PlantModel:
         if not self.assembly.armature:
             raise ModelError(f"motor_energy: the {self.family} family has no armature or rotor inertia")
         return 0.5 * self.L * x[I_A] ** 2 + 0.5 * self.J_m * x[OMEGA] ** 2
+
+
+#: Plant models kept by :func:`plant_model`: the most recent rigs (a fit makes thousands of trial
+#: rigs; each model keeps its rig alive, so an unbounded cache would keep them all).
+PLANT_MODELS_KEPT = 64
+_MODELS: OrderedDict[int, PlantModel] = OrderedDict()
+_MODELS_LOCK = threading.Lock()
+
+
+def plant_model(rig: Rig) -> PlantModel:
+    """The :class:`PlantModel` of ``rig``, built once per rig object: the one place models are made.
+
+    A rig is frozen, and so is its model (its assembly, its generated right-hand side, the values it
+    read); every module that needs the model of a rig asks here, so a run that passes one rig down
+    builds its model once (issue 64) instead of once per call. Kept for the
+    :data:`PLANT_MODELS_KEPT` most recently asked rigs, keyed by the rig object's identity (the
+    cached model holds its rig, so an identity is not reused while cached).
+
+    Parameters
+    ----------
+    rig : Rig
+
+    Returns
+    -------
+    PlantModel
+        Shared: do not set attributes on it.
+
+    Raises
+    ------
+    aeropend_sim.params.RigFileError, ModelError
+        As :class:`PlantModel` does for a rig it cannot model.
+    """
+    key = id(rig)
+    with _MODELS_LOCK:
+        model = _MODELS.get(key)
+        if model is not None and model.rig is rig:
+            _MODELS.move_to_end(key)
+            return model
+    model = PlantModel(rig)
+    with _MODELS_LOCK:
+        _MODELS[key] = model
+        _MODELS.move_to_end(key)
+        while len(_MODELS) > PLANT_MODELS_KEPT:
+            _MODELS.popitem(last=False)
+    return model
 

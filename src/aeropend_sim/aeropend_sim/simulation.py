@@ -31,7 +31,7 @@ import numpy as np
 from scipy.integrate import odeint
 
 from aeropend_sim.compiled.plant import MAX_SUBSTEPS, CompiledPlant
-from aeropend_sim.model import I_A, N_STATES, TAU_F, PlantModel
+from aeropend_sim.model import I_A, N_STATES, TAU_F, PlantModel, plant_model
 from aeropend_sim.params import Rig
 
 #: ODE tolerances (relative, absolute) of the LSODA backend.
@@ -234,7 +234,7 @@ def simulate(
     dt = float(rig.sample_period if dt is None else dt)
     if not dt > 0.0:
         raise SimulationError(f"sample period dt = {dt!r} must be > 0")
-    model = PlantModel(rig)
+    model = plant_model(rig)
     if _check_backend(backend) == "compiled":
         plant = CompiledPlant(rig, dt, model=model)
         states, u, failed = plant.replay(duty, x, tau_before)
@@ -420,7 +420,7 @@ class PlantStepper:
 
     def __init__(self, rig: Rig, x0: np.ndarray | None = None, seed: int | None = 0,
                  backend: str = DEFAULT_BACKEND) -> None:
-        model = PlantModel(rig)
+        model = plant_model(rig)
         self.dt = rig.sample_period
         self.backend = _check_backend(backend)
         plant = CompiledPlant(rig, self.dt, model=model) if backend == "compiled" else None
@@ -454,7 +454,7 @@ class PlantStepper:
             If the sample period or the input delay differ (they size the command delay line,
             which cannot change under a running plant).
         """
-        model = PlantModel(rig)
+        model = plant_model(rig)
         if rig.sample_period != self.dt:
             raise ValueError(f"sample period {rig.sample_period} s differs from the running {self.dt} s")
         if model.delay != self.model.delay:

@@ -21,7 +21,7 @@ from aeropend_control.strategies.base import ControlOutput, Measurement, Strateg
 from aeropend_control.strategies.loop import PositionLoop
 from aeropend_control.strategies.registry import register
 from aeropend_control.strategies.small_signal import SmallSignalPID
-from aeropend_sim.model import PlantModel
+from aeropend_sim.model import plant_model
 from aeropend_sim.params import Rig
 
 #: Factor on the speed-loop bandwidth per detected limit cycle of the motor cascade.
@@ -64,7 +64,7 @@ class MotorCascade:
         self.rig = rig
         self.design = design or design_cascade(rig)
         d = self.design
-        self.model = PlantModel(rig)
+        self.model = plant_model(rig)
         self.dt = float(rig.sample_period if dt is None else dt)
         self.speed = PID(PIDGains(kp=d.kp_w, ki=d.ki_w, u_min=0.0, u_max=d.i_max), self.dt)
         self.current = PID(PIDGains(kp=d.kp_i, ki=d.ki_i, u_min=0.0, u_max=d.v_max), self.dt)

@@ -21,7 +21,7 @@ from aeropend_control.drive_design import default_thrust_gain
 from aeropend_control.observer import ObserverSpec, PendulumObserver
 from aeropend_control.pid import PID, PIDGains
 from aeropend_control.strategies.base import ControlOutput, Strategy, StrategyError
-from aeropend_sim.model import PlantModel
+from aeropend_sim.model import plant_model
 from aeropend_sim.params import Rig
 
 #: Default derivative / velocity filter time constant [s].
@@ -104,7 +104,7 @@ class PositionLoop(Strategy):
         if estimator not in ESTIMATORS:
             raise StrategyError(f"estimator = {estimator!r}; expected one of {ESTIMATORS}")
         self.rig = rig
-        self.model = PlantModel(rig)
+        self.model = plant_model(rig)
         self.dt = float(rig.sample_period if dt is None else dt)
         self.alloc = _allocator(rig, allocator)
         self.f_min = getattr(self.alloc, "f_min", 0.0)

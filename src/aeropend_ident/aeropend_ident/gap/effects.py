@@ -54,7 +54,7 @@ from aeropend_ident.io.recording_input import detect_quantum  # noqa: F401  (re-
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Diagnosis
 from aeropend_sim.components.xp import MATH
-from aeropend_sim.model import PlantModel
+from aeropend_sim.model import plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
@@ -142,7 +142,7 @@ class EffectContext:
         duty = np.asarray(duty, dtype=float)
         d_max = float(np.clip(np.quantile(duty, 0.99), 0.05, 1.0))
         d_med = float(np.clip(np.median(duty[duty > 0]) if np.any(duty > 0) else d_max, 0.05, 1.0))
-        model = PlantModel(rig)
+        model = plant_model(rig)
         try:
             _, w_max, _ = motor_equilibrium(rig, d_max)
             _, w_med, _ = motor_equilibrium(rig, d_med)
@@ -180,7 +180,7 @@ class EffectContext:
         GapError
             If the rig's family has no rotor torque balance (an ESC).
         """
-        model = PlantModel(self.rig.with_effects(armature_inductance="quasi_static"))
+        model = plant_model(self.rig.with_effects(armature_inductance="quasi_static"))
         a = model.assembly
         if not a.armature:
             raise GapError(f"rig {self.rig.name!r} ({self.rig.family}) has no rotor torque balance")
@@ -624,6 +624,6 @@ def check_recordings(recordings: Any, what: str = "recordings",
 def nominal_model_check(rig: Rig) -> None:
     """Raise :class:`GapError` if the nominal rig cannot be simulated (e.g. no motor steady state)."""
     try:
-        PlantModel(rig).equilibrium(0.1)
+        plant_model(rig).equilibrium(0.1)
     except Exception as exc:
         raise GapError(f"nominal rig {rig.name!r} is not usable: {exc}") from exc

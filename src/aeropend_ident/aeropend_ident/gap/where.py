@@ -97,7 +97,7 @@ from aeropend_ident.io.recording_input import uniform_recording
 from aeropend_sim.compiled.plant import CompiledPlant
 from aeropend_sim.components import registry
 from aeropend_sim.components.xp import NUMPY
-from aeropend_sim.model import I_A, OMEGA, TAU_F, ModelError, PlantModel
+from aeropend_sim.model import I_A, OMEGA, TAU_F, ModelError, PlantModel, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulation import SimulationError, simulate
@@ -506,7 +506,7 @@ def _short_horizon(
     n = data.t.size
     h = max(2, round(horizon / data.dt))
     pred = np.empty(n)
-    model = PlantModel(rig)
+    model = plant_model(rig)
     try:  # one compiled plant for every window (a window's replay equals simulate()'s bit for bit)
         plant = CompiledPlant(rig, data.dt, model=model)
     except (ValueError, ModelError) as exc:
@@ -736,7 +736,7 @@ def _equations(
     components (:meth:`aeropend_sim.components.assembly.Assembly.point` and ``slot_values``): the
     actuator-side input is the simulation's (``states[:, TAU_F]``: the delayed command, or the lag
     state), so the chain sees what the nominal simulator's actuator saw."""
-    model = PlantModel(rig)
+    model = plant_model(rig)
     n = theta.size
     w = _sg_window(n, dt)
     omega, omega_note = None, ""

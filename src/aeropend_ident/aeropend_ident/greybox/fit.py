@@ -98,7 +98,7 @@ from aeropend_ident.greybox.uniform import (
 )
 from aeropend_ident.io.recording_input import detect_quantum
 from aeropend_sim.components.xp import MATH
-from aeropend_sim.model import ModelError, PlantModel
+from aeropend_sim.model import ModelError, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulation import SimulationError, simulate
@@ -169,7 +169,7 @@ def motor_equilibrium(rig: Rig, duty: float) -> tuple[float, float, float]:
 
 def _motor_equilibrium(rig: Rig, duty: float) -> tuple[float, float, float]:
     """:func:`motor_equilibrium` computed."""
-    model = PlantModel(rig.with_effects(armature_inductance="quasi_static"))
+    model = plant_model(rig.with_effects(armature_inductance="quasi_static"))
     a = model.assembly
     duty = float(duty)
     slot = "rotor_torque" if a.armature else "rotor_response"

@@ -19,7 +19,7 @@ from typing import Any
 from aeropend_ident.errors import IdentificationError
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect
-from aeropend_sim.model import PlantModel
+from aeropend_sim.model import plant_model
 from aeropend_sim.params import Rig, RigFileError
 from aeropend_sim.recording_frame import FrameError, RecordingFrame, read_recording_frame
 
@@ -237,7 +237,7 @@ def _switch_needed(name: str, rig: Rig) -> tuple[str, Any] | None:
     if isinstance(owner, Effect):
         return None if getattr(rig.effects, owner.name) == owner.on else (owner.name, owner.on)
     pname = name.partition(".")[2]
-    drive = PlantModel(rig).assembly.slots.get("drive", ())
+    drive = plant_model(rig).assembly.slots.get("drive", ())
     if len(drive) > 1 and any(pname in t.param_names for t in drive[:-1]):
         top = next(e for e in registry.effects() if any(t is drive[-1] for t in e.terms))
         return top.name, top.off

@@ -46,7 +46,7 @@ from aeropend_ident.greybox.fit import (
 from aeropend_ident.greybox.parameters import ParameterSpec, apply_parameters
 from aeropend_ident.greybox.uniform import UniformData
 from aeropend_sim.components import registry
-from aeropend_sim.model import ModelError, PlantModel
+from aeropend_sim.model import ModelError, plant_model
 from aeropend_sim.params import Rig
 
 #: The rod's inertia, fitted instead of mgd/J and L/J when the rig file gives the geometry.
@@ -126,7 +126,7 @@ class BalanceBlock(Block):
         return max(float(np.ptp(self.angle)), 1e-3)
 
     def residual(self, rig: Rig, nuis: Sequence[float]) -> np.ndarray:
-        model = PlantModel(rig)
+        model = plant_model(rig)
 
         def tau(theta: float) -> float:
             try:
@@ -172,7 +172,7 @@ class ThrustBlock(Block):
         return max(float(np.max(np.abs(self.thrust))), 1e-6)
 
     def residual(self, rig: Rig, nuis: Sequence[float]) -> np.ndarray:
-        model = PlantModel(rig)
+        model = plant_model(rig)
         f = np.array([model.thrust(motor_equilibrium(rig, float(c))[1]) for c in self.command])
         return (f - self.thrust) / (self.std if self.std is not None else 1.0)
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from aeropend_ident.errors import IdentificationError, RecordingInputError
 from aeropend_ident.io.recording_input import grid_step, uniform_recording
-from aeropend_sim.model import THETA, THETA_DOT, PlantModel
+from aeropend_sim.model import THETA, THETA_DOT, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
@@ -190,7 +190,7 @@ def decimated(duty: np.ndarray, theta: np.ndarray, k: int) -> tuple[np.ndarray, 
 def rod_stiffness(rig: Rig, theta: float = 0.0) -> float:
     """Linearised restoring stiffness −∂θ̈/∂θ [1/s²] of the rod at angle θ [rad], at rest: the square
     of its small-signal swing frequency (:meth:`aeropend_sim.model.PlantModel.jacobian`)."""
-    a, _ = PlantModel(rig).jacobian([theta, 0.0, 0.0, 0.0, 0.0], 0.0)
+    a, _ = plant_model(rig).jacobian([theta, 0.0, 0.0, 0.0, 0.0], 0.0)
     return float(-a[THETA_DOT, THETA])
 
 

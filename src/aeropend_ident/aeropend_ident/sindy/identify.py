@@ -110,7 +110,7 @@ from aeropend_ident.sindy.partial import (
 )
 from aeropend_ident.sindy.preprocess import add_derivatives, differentiate
 from aeropend_ident.sindy.second_order import combine_models, fit_pendulum
-from aeropend_sim.model import PlantModel
+from aeropend_sim.model import plant_model
 from aeropend_sim.output_folder import is_fault
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
@@ -168,7 +168,7 @@ def data_from_recording(rec: Recording, rig: Rig | None = None) -> IdentData:
             raise IdentificationError(
                 f"{rec.source}: v_a not recorded; give a rig for the duty -> v_a map"
             )
-        m = PlantModel(rig)
+        m = plant_model(rig)
         v["v_a"] = np.array([m.armature_voltage(float(u)) for u in rec.duty])
     v["duty"] = np.asarray(rec.duty, dtype=float)
     return IdentData(t=rec.t - rec.t[0], variables=v, source=rec.source)
@@ -518,7 +518,7 @@ def _drive(rig: Rig | None) -> tuple[Any, str, str]:
     """(τ -> drive quantity map or None, its symbol, its description) of the partial-state path."""
     if rig is None:
         return None, "v_a", "duty cycle τ [1]"
-    model = PlantModel(rig)
+    model = plant_model(rig)
     if model.assembly.drive_name == "v_a":
         return model.drive, "v_a", "v_a [V] from the rig's duty map"
     return model.drive, "ω_sp", "the ESC's rotor-speed set-point ω_sp [rad/s] from the rig's throttle map"

@@ -23,7 +23,7 @@ import yaml
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.sindy.libraries import CandidateLibrary, symbol
 from aeropend_sim.compiled.plant import derivatives as model_rhs_at
-from aeropend_sim.model import N_STATES, PlantModel
+from aeropend_sim.model import N_STATES, plant_model
 from aeropend_sim.params import Rig
 
 #: Target state -> readable left-hand side.
@@ -166,7 +166,7 @@ def data_from_trajectory(traj: Any, rig: Rig | None = None, measured: bool = Fal
     if exact_derivatives:
         if rig is None:
             raise IdentificationError("exact_derivatives needs the rig that produced the trajectory")
-        model = PlantModel(rig)
+        model = plant_model(rig)
         u = traj.x[:, 4] if not model.lag else traj.duty
         f = model_rhs_at(model, traj.x, u)[0]  # model.rhs at each sample, bit for bit, compiled
         derivatives = {k: f[:, i].copy() for i, k in enumerate(_MODEL_STATES)}
@@ -185,7 +185,7 @@ def model_derivatives(rig: Rig, data: IdentData, targets: Sequence[str]) -> dict
         If a needed variable is missing or the rig has an actuator lag/delay (its hidden state
         cannot be reconstructed from the data).
     """
-    model = PlantModel(rig)
+    model = plant_model(rig)
     if model.lag or model.delay > 0:
         raise IdentificationError(
             f"rig {rig.name}: actuator lag / input delay switched on; the discrepancy model needs a "

@@ -34,7 +34,7 @@ from aeropend_sim.compiled.source import Layout, family_module, layout
 from aeropend_sim.components import registry
 from aeropend_sim.components.assembly import effect_active
 from aeropend_sim.components.base import Effect
-from aeropend_sim.model import I_A, THETA, THETA_DOT, ModelError, PlantModel
+from aeropend_sim.model import I_A, THETA, THETA_DOT, ModelError, PlantModel, plant_model
 from aeropend_sim.params import Rig, RigFileError
 
 #: Fewest RK4 sub-steps per sample (issue 37 study: K = 6 at the thesis rig's 2.048 ms keeps θ
@@ -142,7 +142,7 @@ class CompiledPlant:
             substeps = min(max(SUBSTEPS, math.ceil(self.dt / MAX_SUBSTEP - 1e-9)), MAX_SUBSTEPS)
         if not (isinstance(substeps, int | np.integer) and 1 <= substeps <= MAX_SUBSTEPS):
             raise ValueError(f"substeps = {substeps!r}: expected an integer in [1, {MAX_SUBSTEPS}]")
-        self.model = PlantModel(rig) if model is None else model
+        self.model = plant_model(rig) if model is None else model
         self.min_substeps = int(substeps)
         if not 0.0 < step_bound <= RK4_STABILITY:
             raise ValueError(f"step_bound = {step_bound!r}: expected a number in (0, {RK4_STABILITY}] "

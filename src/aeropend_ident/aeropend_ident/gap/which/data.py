@@ -19,7 +19,7 @@ from aeropend_ident.gap.effects import (
 )
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
-from aeropend_sim.model import ModelError, PlantModel
+from aeropend_sim.model import ModelError, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulation import SimulationError, simulate
@@ -174,7 +174,7 @@ def _initial_state(sim_rig: Rig, meas: MeasurementMap, prep: Prepared, at_rest: 
         w0 = start["omega_rotor"]
     if "v_a" in start and sim_rig.effects.actuator_lag:
         # the lag state from the recorded drive output (the stretch may start mid-transient)
-        model = PlantModel(sim_rig)
+        model = plant_model(sim_rig)
         v0 = min(max(start["v_a"], 0.0), model.armature_voltage(1.0))
         tf0 = model.duty_for_voltage(v0)
     return np.array([th0, thd0, i0, w0, tf0])

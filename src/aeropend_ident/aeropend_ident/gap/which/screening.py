@@ -28,7 +28,7 @@ from aeropend_ident.sindy.core import weak_matrices
 from aeropend_ident.sindy.model import IdentData
 from aeropend_sim.compiled.plant import derivatives
 from aeropend_sim.components import registry
-from aeropend_sim.model import PlantModel
+from aeropend_sim.model import plant_model
 from aeropend_sim.params import Rig
 
 #: BIC gain (negative change) an effect must reach on the fit data.
@@ -97,7 +97,7 @@ def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.nda
     GapError
         If the replay fails.
     """
-    model = PlantModel(_sim_rig(rig))
+    model = plant_model(_sim_rig(rig))
     if sim is None:
         sim = replay_many([(rig, meas)], prep, motor_channels(rig))[0]
         if sim is None:
