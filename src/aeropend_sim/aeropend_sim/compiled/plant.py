@@ -23,6 +23,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import threading
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -52,6 +53,23 @@ RK4_STABILITY = 2.785
 MAX_SUBSTEPS = 4096
 #: Angles [rad] of the equilibria among the representative states of the stiffness estimate.
 PROBE_ANGLES = (0.25, 0.75, 1.25)
+
+#: A batch of fewer row-samples than this is replayed in the calling thread (default ``threads``).
+INLINE_STEPS = 50_000
+_POOLS: dict[tuple[int, int], ThreadPoolExecutor] = {}
+_POOLS_LOCK = threading.Lock()
+
+
+def _replay_pool(n: int) -> ThreadPoolExecutor:
+    """A thread pool of ``n`` workers kept for this process (:meth:`CompiledPlant.replay_batch`):
+    a fit calls the replay tens of thousands of times, and a pool per call started 10 000 threads on
+    one fit (jahoyosr's 44 windows). Keyed by the process id too: a forked child gets its own."""
+    key = (os.getpid(), n)
+    with _POOLS_LOCK:
+        pool = _POOLS.get(key)
+        if pool is None:
+            pool = _POOLS[key] = ThreadPoolExecutor(max_workers=n, thread_name_prefix="aeropend-replay")
+        return pool
 
 
 @dataclass(frozen=True)
@@ -332,14 +350,16 @@ class CompiledPlant:
         args = (x0, duty, float(tau_before), plan.whole, plan.n_a, plan.h_a, plan.n_b, plan.h_b, p, codes,
                 out, failed)
         n = min(p.shape[0], int(threads) if threads is not None else len(os.sched_getaffinity(0)))
+        if threads is None and p.shape[0] * duty.size < INLINE_STEPS:
+            n = 1  # a short window's few rows: starting threads would cost more than the replay
         if n <= 1:
             self.module.replay_batch(*args, 0, p.shape[0])
             return out, failed
         bounds = np.linspace(0, p.shape[0], n + 1).round().astype(int)
-        with ThreadPoolExecutor(max_workers=n, thread_name_prefix="aeropend-replay") as pool:
-            for job in [pool.submit(self.module.replay_batch, *args, int(a), int(b))
-                        for a, b in itertools.pairwise(bounds)]:
-                job.result()
+        pool = _replay_pool(n)
+        for job in [pool.submit(self.module.replay_batch, *args, int(a), int(b))
+                    for a, b in itertools.pairwise(bounds)]:
+            job.result()
         return out, failed
 
     def step(self, x: np.ndarray, u_old: float, u_new: float) -> np.ndarray:
