@@ -12,11 +12,14 @@ of the joint problem (:mod:`aeropend_ident.greybox.rig_problem`):
    then the output-error fit of the swing;
 3. **steps, PRBS/APRBS and closed-loop logs**: the dead time's start from a grid over
    [0, min(1 s, ¼ of the shortest recording)] (ESC dead times reach 1 s), then
-4. the **joint fit** of every block (output error, free run, each block weighted by its noise),
-   twice: the second pass with each block's σ re-estimated from its residual (time series
-   inflated by the residual's autocorrelation).
+4. the **joint fit** of every block (output error, free run, each block weighted by its noise) in
+   windows of a few seconds, from two starts; the optimum kept, the parameters held at their
+   starting values freed when that fits better, and the result refined on each recording whole
+   (:mod:`aeropend_ident.greybox.rig_search`); then each block's σ re-estimated from its residual
+   (time series inflated by the residual's autocorrelation) for the uncertainties.
 
-What the inputs cannot determine is **refused by name** before the joint fit: the weak directions
+What the inputs cannot determine is **refused by name** before the joint fit (and judged again at
+the fit when held parameters were freed): the weak directions
 of the Jacobian (:func:`~aeropend_ident.greybox.rig_problem.weak_directions`) — a product only
 determined as a whole (K_q·L/J from θ) or a parameter nothing is sensitive to — and, after it, any
 parameter whose standard error exceeds half its value (a tenth of its range for a linear one). A
@@ -26,7 +29,8 @@ the hold length the recordings would need); members of a product hold the determ
 (the others at their starting values), so the rig still predicts. A value on its search bound is
 flagged (terminal and file).
 
-Uncertainty: 1σ standard errors from the Jacobian of the joint weighted fit (not a bootstrap: with
+Uncertainty: 1σ standard errors, the larger of the Jacobian's of the joint weighted fit and a
+cluster-robust sandwich over windows and tables (not a bootstrap: with
 one recording per kind there is nothing to resample, and the autocorrelation inflation covers the
 correlated residuals a bootstrap over recordings would show). Provenance: the inputs that hold at
 least 10 % of a parameter's Fisher information, with their method.
