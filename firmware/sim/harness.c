@@ -63,6 +63,11 @@
  *                        PD2 (INT2, D19) and B = PD3 (INT3, D18) one x4 step towards
  *                        floor(theta * cpr / 2pi) (A leads B for a rising count), and prints
  *                        "ENC <steps> <final count> <max lag counts>" on exit.
+ *   encindex <N>                        (event file) the encoder's gated index Z on PD0 (INT0, D21):
+ *                        high while the disk's count (mod cpr) is N; "INDEX <rising edges>" on exit
+ *   encslip <t_us> <n>                  (event file) the first n counts the disk moves from t_us on
+ *                        do not reach the lines A/B (a signal drop-out: they stay as they were;
+ *                        n = 4, one line period, leaves no impossible transition to see)
  *
  * Closed-loop plant coupling (issue 61):
  *   -P SOCKET [-Q US]  connects to a plant process listening on the Unix stream socket SOCKET
@@ -156,6 +161,10 @@ typedef struct {
     int n_seg;
     long cpr, enc_count, enc_steps, enc_max_lag;
     avr_irq_t *enc_a, *enc_b;
+    /* index Z on PD0 (-1: none), slip: counts the lines fall behind the disk from slip_t on */
+    long enc_index, enc_slip, slip_n, index_edges;
+    double slip_t;
+    avr_irq_t *enc_z;
     /* closed-loop plant (-P): socket, exchange interval [cycles], the pulse seen on the pin */
     int plant_fd;
     avr_cycle_count_t plant_every, pulse_rise, pulse_width;
@@ -334,11 +343,17 @@ static void enc_set_lines(sim_t *s)
      * time (measured with the rod at rest; counts 1..3 and event-file runs that leave count 0 run
      * at 1.00). The firmware counts steps from the lines it reads at start, so the phase is free. */
     long phase = s->plant_fd >= 0 ? 2 : 0;
-    unsigned st = gray[(((s->enc_count + phase) % 4) + 4) % 4];
-    avr_ioport_external_t ext = {.name = 'D', .mask = 0x0C, .value = (st & 3u) << 2};
+    unsigned st = gray[(((s->enc_count - s->enc_slip + phase) % 4) + 4) % 4];
+    unsigned z = s->enc_index >= 0 && ((s->enc_count % s->cpr) + s->cpr) % s->cpr == s->enc_index;
+    avr_ioport_external_t ext = {.name = 'D', .mask = 0x0D, .value = ((st & 3u) << 2) | z};
     avr_ioctl(s->avr, AVR_IOCTL_IOPORT_SET_EXTERNAL('D'), &ext);
     avr_raise_irq(s->enc_a, st & 1u);
     avr_raise_irq(s->enc_b, (st >> 1) & 1u);
+    if (s->enc_index >= 0) { /* after A/B: the firmware's INT0 sees the lines of the new count */
+        if (z && !s->enc_z->value)
+            s->index_edges++;
+        avr_raise_irq(s->enc_z, z);
+    }
 }
 
 static avr_cycle_count_t enc_timer(avr_t *avr, avr_cycle_count_t when, void *param)
@@ -352,7 +367,12 @@ static avr_cycle_count_t enc_timer(avr_t *avr, avr_cycle_count_t when, void *par
     if (lag > s->enc_max_lag)
         s->enc_max_lag = lag;
     if (target != s->enc_count) {
-        s->enc_count += target > s->enc_count ? 1 : -1;
+        long step = target > s->enc_count ? 1 : -1;
+        s->enc_count += step;
+        if (s->slip_n > 0 && t_us >= s->slip_t) { /* a drop-out: the lines do not show this step */
+            s->enc_slip += step;
+            s->slip_n--;
+        }
         s->enc_steps++;
         enc_set_lines(s);
     }
@@ -571,6 +591,18 @@ static int read_events(const char *path, sim_t *s)
             s->cpr = strtol(line + 6, NULL, 0);
             continue;
         }
+        if (strcmp(kind, "encindex") == 0) {
+            s->enc_index = strtol(line + 8, NULL, 0);
+            continue;
+        }
+        if (strcmp(kind, "encslip") == 0) {
+            if (sscanf(line, "%*s %lf %ld", &s->slip_t, &s->slip_n) != 2 || s->slip_t < 0) {
+                fprintf(stderr, "bad encslip line: %s", line);
+                fclose(f);
+                return -1;
+            }
+            continue;
+        }
         if (strcmp(kind, "enc") == 0 && s->n_seg < MAX_SEGMENTS) {
             double *g = &s->seg[s->n_seg].t0;
             if (sscanf(line, "%*s %lf %lf %lf %lf %lf", g, g + 1, g + 2, g + 3, g + 4) == 5) {
@@ -658,6 +690,7 @@ int main(int argc, char **argv)
     s.min_rises = ~0u;
     s.cpr = 4000;
     s.plant_fd = -1;
+    s.enc_index = -1;
     if (events && read_events(events, &s) != 0)
         return 2;
     if (plant && (plant_us < 1.0 || plant_connect(&s, plant) != 0))
@@ -673,6 +706,7 @@ int main(int argc, char **argv)
         avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_INPUT), on_uart_in, &s);
     s.enc_a = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2);
     s.enc_b = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 3);
+    s.enc_z = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 0);
     if (s.n_seg || plant)
         enc_set_lines(&s);
     avr_irq_register_notify(avr_iomem_getirq(avr, TCCR1B_ADDR, NULL, AVR_IOMEM_IRQ_ALL), on_tccr1b, &s);
@@ -715,6 +749,8 @@ int main(int argc, char **argv)
         printf("IREDGES %lu\nSSIREADS %u %u\n", s.ir_edges, s.reads, s.bad_reads);
     if (s.n_seg && !plant)
         printf("ENC %ld %ld %ld\n", s.enc_steps, s.enc_count, s.enc_max_lag);
+    if (s.enc_index >= 0)
+        printf("INDEX %ld\n", s.index_edges);
     if (plant)
         printf("PLANT %lu %ld\n", s.plant_exchanges, s.enc_max_lag);
     if (s.plog)

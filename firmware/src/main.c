@@ -23,6 +23,10 @@
  *         ANGLE=encoder (-DANGLE_ENCODER): a quadrature encoder, A on INT2 = PD2 (D19), B on
  *         INT3 = PD3 (D18), pull-ups on, any-edge interrupts decoded x4 (ap_quad_step); theta =
  *         position mod ENC_CPR counts (0 at reset: the rod hangs down at power-up).
+ *         ENC_INDEX=<count> (-DENC_INDEX_AT): the encoder's gated index Z on INT0 = PD0 (D21),
+ *         rising edge: the first index edge sets the position to ENC_INDEX_AT (homing; until then
+ *         flag bit5 says the angle counts from the power-up position), every later one checks it
+ *         (a different count: counts were missed; flag bit4, STATUS angle_errors + 1, re-homed).
  * Actuator default: H-bridge PWM (above). ACTUATOR=esc (-DACT_ESC): a hobby ESC's servo pulse on
  *         OC3A = PE3 = Mega D5, Timer3 fast PWM (WGM3 = 14, TOP = ICR3), prescaler 8 (0.5 us):
  *         frame ESC_HZ (50..490 Hz), pulse ESC_MIN_US..ESC_MAX_US; after reset the minimum pulse
@@ -107,6 +111,9 @@
 #if ENC_CPR < 4 || ENC_CPR > 65535
 #error "ENC_CPR must be 4..65535 counts per revolution"
 #endif
+#if defined(ENC_INDEX_AT) && (ENC_INDEX_AT < 0 || ENC_INDEX_AT >= ENC_CPR)
+#error "ENC_INDEX must be a count in 0..ENC_CPR-1 (the index's position from the rod hanging at rest)"
+#endif
 #endif
 
 #ifdef ANGLE_SSI
@@ -157,7 +164,10 @@ static volatile uint16_t arm_ticks = ESC_ARM_TICKS;       /* ticks of arming lef
 static volatile uint16_t enc_pos;       /* position in [0, ENC_CPR) */
 static volatile uint8_t enc_lines;      /* last line state, bit0 = A, bit1 = B */
 static volatile uint8_t enc_bad;        /* invalid transition since the last sample */
-static volatile uint16_t angle_errors;  /* invalid transitions (wrapping) */
+static volatile uint16_t angle_errors;  /* invalid transitions, index mismatches (wrapping) */
+#ifdef ENC_INDEX_AT
+static volatile uint8_t enc_homed;      /* an index edge has set the position since reset */
+#endif
 #endif
 static ap_speed_t speed;                /* touched only with interrupts disabled */
 static volatile uint8_t adc_step;       /* 0 idle, 1 i_a, 2 theta, 3 v_a dummy, 4 v_a */
@@ -259,7 +269,8 @@ ISR(TIMER3_OVF_vect) { OCR3A = pulse_written - 1u; }
 
 #ifdef ANGLE_ENCODER
 /* ------------------------------------------------------------------ quadrature encoder */
-ISR(INT2_vect)
+/* Count the step from the last line state to the one on the pins now (interrupts off). */
+static inline void enc_follow(void)
 {
     uint8_t now = (uint8_t)((PIND >> PD2) & 3u); /* PD2 = A, PD3 = B */
     int8_t step = ap_quad_step(enc_lines, now);
@@ -271,7 +282,24 @@ ISR(INT2_vect)
         enc_pos = ap_quad_wrap(enc_pos, step, ENC_CPR);
     }
 }
+ISR(INT2_vect) { enc_follow(); }
 ISR(INT3_vect, ISR_ALIASOF(INT2_vect));
+#ifdef ENC_INDEX_AT
+/* A gated index is high during one count, ENC_INDEX_AT: its rising edge comes with the A/B edge
+ * that enters that count from either side. INT0 outranks INT2/INT3, so that edge is counted here
+ * first (the INT2/INT3 interrupt then finds the lines unchanged): the position at a rising index
+ * edge is ENC_INDEX_AT in both directions. */
+ISR(INT0_vect)
+{
+    enc_follow();
+    if (enc_homed && enc_pos != (uint16_t)ENC_INDEX_AT) {
+        enc_bad = 1; /* counts were missed (or gained) since the last index edge */
+        angle_errors++;
+    }
+    enc_pos = (uint16_t)ENC_INDEX_AT;
+    enc_homed = 1;
+}
+#endif
 #endif
 
 /* ------------------------------------------------------------------ sampling */
@@ -345,6 +373,10 @@ ISR(TIMER1_OVF_vect)
     if (enc_bad)
         cur.flags |= AP_FLAG_ANGLE_INVALID;
     enc_bad = 0;
+#ifdef ENC_INDEX_AT
+    if (!enc_homed)
+        cur.flags |= AP_FLAG_ANGLE_UNHOMED;
+#endif
 #endif
 #ifdef ACT_ESC
     if (arm_ticks)
@@ -487,13 +519,25 @@ static void hw_init(void)
 #endif
     OCR1A = 0;
 #ifdef ANGLE_ENCODER
-    /* Encoder A = PD2 (INT2, D19), B = PD3 (INT3, D18): inputs with pull-ups, any edge. */
-    DDRD &= (uint8_t)~((1 << PD2) | (1 << PD3));
-    PORTD |= (1 << PD2) | (1 << PD3);
+    /* Encoder A = PD2 (INT2, D19), B = PD3 (INT3, D18): inputs with pull-ups, any edge; with an
+     * index, Z = PD0 (INT0, D21): input with pull-up, rising edge. The trigger is chosen with the
+     * interrupts masked, then the flags a change of ISCn may have set are cleared, in one write
+     * (simavr 1.6 stopped the emulated CPU after an EIFR write naming INTF0 alone that followed one
+     * naming INTF2 and INTF3), then enabled. */
+    uint8_t pins = (1 << PD2) | (1 << PD3), isc = (1 << ISC20) | (1 << ISC30);
+    uint8_t flags = (1 << INTF2) | (1 << INTF3), mask = (1 << INT2) | (1 << INT3);
+#ifdef ENC_INDEX_AT
+    pins |= (1 << PD0);
+    isc |= (1 << ISC01) | (1 << ISC00);
+    flags |= (1 << INTF0);
+    mask |= (1 << INT0);
+#endif
+    DDRD &= (uint8_t)~pins;
+    PORTD |= pins;
     enc_lines = (uint8_t)((PIND >> PD2) & 3u);
-    EICRA = (EICRA & 0x0F) | (1 << ISC20) | (1 << ISC30);
-    EIFR = (1 << INTF2) | (1 << INTF3);
-    EIMSK |= (1 << INT2) | (1 << INT3);
+    EICRA = (uint8_t)((EICRA & 0x0C) | isc);
+    EIFR = flags;
+    EIMSK |= mask;
 #endif
 #ifdef SIMAVR_TIMER1
     /* Emulator build only: simavr 1.6 does not implement Timer1 phase-correct PWM on the
@@ -552,6 +596,9 @@ static void send_hello(void)
 #if defined(ANGLE_ENCODER)
     h.sensor = AP_SENSOR_ENCODER;
     h.counts_per_rev = ENC_CPR;
+#ifdef ENC_INDEX_AT
+    h.channels |= AP_CH_INDEX;
+#endif
 #elif defined(ANGLE_SSI)
     h.sensor = AP_SENSOR_SSI;
     h.counts_per_rev = 1024;

@@ -43,6 +43,7 @@
 #define AP_CH_V_A 0x02u
 #define AP_CH_THETA 0x04u
 #define AP_CH_SPEED 0x08u
+#define AP_CH_INDEX 0x10u  /* encoder build: the index (Z) is wired; theta is absolute once homed */
 /* Wire value of a channel the build does not measure (the host publishes NaN, never 0). */
 #define AP_ABSENT_I16 (-32768)
 #define AP_ABSENT_U32 0xFFFFFFFFul
@@ -59,6 +60,10 @@
 #define AP_FLAG_ANGLE_SSI 0x40u      /* theta comes from the AS5040 SSI read-out (else RC-filtered PWM) */
 /* Encoder build: bit4 (AP_FLAG_ANGLE_INVALID) = an impossible quadrature transition (both lines
  * changed between two interrupts) since the previous sample. */
+/* Encoder build with an index (AP_CH_INDEX): bit5 (AP_FLAG_ANGLE_UNHOMED) = no index edge since
+ * reset, theta counts from the power-up position; bit4 also = the count at an index edge was not
+ * the index's count (counts missed since the previous one; re-homed). */
+#define AP_FLAG_ANGLE_UNHOMED 0x20u
 #define AP_FLAG_ARMING 0x80u         /* ESC build: arming sequence running (minimum pulse, commands held) */
 
 typedef struct {

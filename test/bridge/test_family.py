@@ -24,9 +24,12 @@ from aeropend_bridge.family import (
 from aeropend_bridge.protocol import (
     ABSENT_I16,
     ABSENT_U32,
+    CH_INDEX,
     CH_SPEED,
     CH_THETA,
+    FLAG_ANGLE_INVALID,
     FLAG_ANGLE_SSI,
+    FLAG_ANGLE_UNHOMED,
     Duty,
     HelloFrame,
     ProtocolError,
@@ -73,6 +76,8 @@ def test_rig_file_hardware_block_is_read_and_accepted_by_load_rig(esc_rig: Path)
     ({"pulse_span": _q(-1e-3, "s")}, "pulse_span = -0.001 must be a finite positive"),
     ({"counts_per_rev": _q(4000.5, "1")}, "must be a whole number"),
     ({"frame_rate": _q(50, "Hz")}, "unknown hardware key(s) ['frame_rate']"),
+    ({"angle_sensor": "encoder", "encoder_index": "yes"}, "encoder_index 'yes' must be true or false"),
+    ({"angle_sensor": "pot", "encoder_index": True}, "an index belongs to an encoder"),
 ])
 def test_malformed_hardware_block_names_the_key(esc_rig: Path, block: dict, message: str) -> None:
     data = yaml.safe_load(esc_rig.read_text())
@@ -153,3 +158,35 @@ def test_absent_channels_are_nan_never_zero() -> None:
     no_arm = Calibration(i_a_lsb=0.0, v_a_lsb=0.0, theta_lsb=2 * math.pi / 1024)
     n = no_arm.to_sample(SampleFrame(7, 2040, 12, 34, 0, 0, 0, 0), 5)
     assert math.isnan(n.i_a) and math.isnan(n.v_a)
+
+
+def test_encoder_index_stated_in_the_rig_must_match_the_firmware(esc_rig: Path) -> None:
+    """hardware.encoder_index: true needs an index build (HELLO CH_INDEX), false refuses one (it
+    would never home); unstated accepts either."""
+    data = yaml.safe_load(esc_rig.read_text())
+    index_hello = HelloFrame(2, 2, 3, CH_THETA | CH_INDEX, 50, 1000, 2000, 2000, 61, 4000)
+    assert read_rig_hardware(esc_rig, "esc").encoder_index is None
+    check_firmware(read_rig_hardware(esc_rig, "esc"), index_hello)
+    check_firmware(read_rig_hardware(esc_rig, "esc"), ESC_HELLO)
+    for stated, hello, message in ((True, ESC_HELLO, "has no index input: flash an ENC_INDEX build"),
+                                   (False, index_hello, "homes on an index (an ENC_INDEX build)")):
+        data["hardware"]["encoder_index"] = stated
+        esc_rig.write_text(yaml.safe_dump(data))
+        hw = read_rig_hardware(esc_rig, "esc", "my_esc")
+        assert hw.encoder_index is stated
+        with pytest.raises(FamilyMismatchError, match=r"rig 'my_esc' says its encoder's index is") as exc:
+            check_firmware(hw, hello)
+        assert message in str(exc.value)
+        check_firmware(hw, index_hello if stated else ESC_HELLO)
+
+
+def test_unhomed_encoder_angle_is_nan() -> None:
+    """An index build's θ before the first index edge is not in the rod's frame: NaN; a build
+    without an index never reads the bit as homing (in SSI builds it is the linearity alarm)."""
+    homing = Calibration(i_a_lsb=0.0, v_a_lsb=0.0, theta_lsb=2 * math.pi / 4000, homing=True)
+    unhomed = SampleFrame(7, 2040, ABSENT_I16, ABSENT_I16, 1000, ABSENT_U32, 0, FLAG_ANGLE_UNHOMED)
+    homed = SampleFrame(8, 4080, ABSENT_I16, ABSENT_I16, 1000, ABSENT_U32, 0, FLAG_ANGLE_INVALID)
+    assert not homing.homed(unhomed) and math.isnan(homing.to_sample(unhomed, 5).theta)
+    assert homing.homed(homed) and homing.to_sample(homed, 5).theta == pytest.approx(math.pi / 2)
+    plain = Calibration(i_a_lsb=0.0, v_a_lsb=0.0, theta_lsb=2 * math.pi / 4000)
+    assert plain.homed(unhomed) and plain.to_sample(unhomed, 5).theta == pytest.approx(math.pi / 2)

@@ -3,11 +3,12 @@ between the C and the Python codec (issue 61).
 
 Builds: ``ACTUATOR`` ∈ {hbridge, esc} × ``ANGLE`` ∈ {pwm, ssi, encoder}, the ESC at both ends of
 its frame range (50, 490 Hz), ``SPEED=none``: warning-free (-Werror), a few kB of flash, and the
-interrupt vectors each build relies on implemented (encoder: INT2 = vector 3, INT3 = 4; every
+interrupt vectors each build relies on implemented (encoder: INT2 = vector 3, INT3 = 4; its index,
+``ENC_INDEX``: INT0 = 1, in index builds only; every
 build: TIMER1_OVF = 20; the ESC build's Timer3 is a hardware PWM without an interrupt in the
 production build). Bad choices stop the build with a message naming the variable: an ESC frame
 rate outside 50–490 Hz, a watchdog silence + frame over 100 ms, counts per revolution beyond 16
-bits, an unknown actuator.
+bits, an index outside the revolution or without an encoder, an unknown actuator.
 
 Codec: a host program links ``firmware/src/protocol.c`` and prints the HELLO and SAMPLE_PULSE
 payloads it packs, its command parser's view of PULSE and HELLO_REQ, and the quadrature decoder's
@@ -27,6 +28,8 @@ import pytest
 from aeropend_bridge.protocol import (
     ABSENT_I16,
     ABSENT_U32,
+    CH_INDEX,
+    FLAG_ANGLE_UNHOMED,
     HelloFrame,
     HelloRequest,
     Pulse,
@@ -44,6 +47,9 @@ BUILDS = {f"{act}_{ang}": [f"ACTUATOR={act}", f"ANGLE={ang}"]
           for act, ang in itertools.product(("hbridge", "esc"), ("pwm", "ssi", "encoder"))}
 BUILDS["esc490_encoder8000_nospeed"] = ["ACTUATOR=esc", "ESC_HZ=490", "ANGLE=encoder", "ENC_CPR=8000",
                                         "SPEED=none"]
+BUILDS["esc490_encoder_index"] = ["ACTUATOR=esc", "ESC_HZ=490", "ANGLE=encoder", "ENC_CPR=4000",
+                                  "ENC_INDEX=3999"]
+BUILDS["hbridge_encoder_index"] = ["ANGLE=encoder", "ENC_CPR=2000", "ENC_INDEX=0"]
 
 
 def _make(build: Path, *args: str) -> subprocess.CompletedProcess:
@@ -65,7 +71,10 @@ def test_every_family_build_compiles(name: str, tmp_path: Path) -> None:
     want = {20, 25, 26}  # TIMER1_OVF, USART0_RX, USART0_UDRE
     if "encoder" in name:
         want |= {3, 4}  # INT2, INT3
+    if "index" in name:
+        want |= {1}  # INT0: the encoder's index
     assert want <= vectors, (name, sorted(vectors))
+    assert (1 in vectors) == ("index" in name), "INT0 is the index's, in index builds only"
     assert ("ap_quad_step" in nm) == ("encoder" in name)
     assert (" ap_sample_pulse_pack" in nm) == name.startswith("esc")
 
@@ -77,6 +86,8 @@ def test_every_family_build_compiles(name: str, tmp_path: Path) -> None:
     (["ACTUATOR=esc", "ESC_HZ=490", "ESC_MAX_US=2100"], "ESC pulse range must satisfy"),
     (["ANGLE=encoder", "ENC_CPR=70000"], "ENC_CPR must be 4..65535"),
     (["ACTUATOR=servo"], "ACTUATOR must be hbridge or esc"),
+    (["ANGLE=encoder", "ENC_CPR=4000", "ENC_INDEX=4000"], "ENC_INDEX must be a count in 0..ENC_CPR-1"),
+    (["ANGLE=pwm", "ENC_INDEX=10"], "ENC_INDEX needs ANGLE=encoder"),
 ])
 def test_bad_build_choices_are_refused(args: list[str], message: str, tmp_path: Path) -> None:
     r = _make(tmp_path, *args)
@@ -103,7 +114,8 @@ int main(void)
     printf("REQ %d %d\n", r, ap_command_parse(bad, 2, &c));
     printf("QUAD");
     for (int i = 0; i < 16; i++) printf(" %d", ap_quad_step((uint8_t)(i >> 2), (uint8_t)(i & 3)));
-    printf("\nWRAP %u %u %u %u\n", ap_quad_wrap(3999, 1, 4000), ap_quad_wrap(0, -1, 4000),
+    printf("\nBITS %u %u\n", AP_CH_INDEX, AP_FLAG_ANGLE_UNHOMED);
+    printf("WRAP %u %u %u %u\n", ap_quad_wrap(3999, 1, 4000), ap_quad_wrap(0, -1, 4000),
            ap_quad_wrap(17, 1, 4000), ap_quad_wrap(17, 0, 4000));
     return 0;
 }
@@ -144,3 +156,4 @@ def test_c_and_python_codecs_agree_on_the_new_frames(tmp_path: Path) -> None:
             want.append(2)  # both lines changed: invalid
     assert [int(v) for v in out["QUAD"]] == want
     assert out["WRAP"] == ["0", "3999", "18", "17"]
+    assert out["BITS"] == [str(CH_INDEX), str(FLAG_ANGLE_UNHOMED)]

@@ -19,7 +19,14 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
-from aeropend_bridge.protocol import ABSENT_I16, ABSENT_U32, FLAG_ANGLE_INVALID, TIMER4_TICK_S, SampleFrame
+from aeropend_bridge.protocol import (
+    ABSENT_I16,
+    ABSENT_U32,
+    FLAG_ANGLE_INVALID,
+    FLAG_ANGLE_UNHOMED,
+    TIMER4_TICK_S,
+    SampleFrame,
+)
 from aeropend_sim.contract import Sample, validate_duty
 
 TWO_PI = 2.0 * math.pi
@@ -54,6 +61,10 @@ class Calibration:
         Timer4 tick [s].
     pulses_per_rev : int
         IR pulses per propeller revolution.
+    homing : bool
+        The firmware homes its encoder on the index (HELLO channel
+        :data:`~aeropend_bridge.protocol.CH_INDEX`): until the first index edge (flag
+        :data:`~aeropend_bridge.protocol.FLAG_ANGLE_UNHOMED`) θ is unknown in the rod's frame (NaN).
     """
 
     i_a_lsb: float
@@ -63,6 +74,7 @@ class Calibration:
     gear_ratio: float = 1.0
     tick_s: float = TIMER4_TICK_S
     pulses_per_rev: int = 1
+    homing: bool = False
 
     def __post_init__(self) -> None:
         for name in ("i_a_lsb", "v_a_lsb", "theta_lsb", "gear_ratio", "tick_s"):
@@ -83,6 +95,11 @@ class Calibration:
                    theta_lsb=float(s.theta_quantum), theta_offset=float(theta_offset),
                    gear_ratio=float(rig.motor.gear_ratio))  # type: ignore[attr-defined]
 
+    def homed(self, f: SampleFrame) -> bool:
+        """Whether the frame's θ is in the rod's frame: always, unless the firmware homes on an
+        encoder index it has not seen yet."""
+        return not (self.homing and f.flags & FLAG_ANGLE_UNHOMED)
+
     def to_sample(self, f: SampleFrame, stamp_ns: int, duty: float | None = None) -> Sample:
         """Convert a sample frame to SI units.
 
@@ -90,11 +107,14 @@ class Calibration:
         (:data:`~aeropend_bridge.protocol.ABSENT_I16`, :data:`~aeropend_bridge.protocol.ABSENT_U32`)
         and those the rig does not measure (LSB 0): NaN, never 0. ``duty`` is the applied τ
         (:meth:`aeropend_bridge.family.CommandMap.applied`); default the H-bridge's ``duty / 255``.
+        θ is NaN while an index-homing encoder has not seen its index (:meth:`homed`).
         """
         theta = f.theta * self.theta_lsb - self.theta_offset
         theta = math.remainder(theta, TWO_PI)
         if theta == -math.pi:
             theta = math.pi
+        if not self.homed(f):
+            theta = math.nan
         if f.period == ABSENT_U32:
             omega_prop = math.nan
         elif f.period > 0:
@@ -409,8 +429,10 @@ class BridgeStats:
     """Counters reported on ``/diagnostics``.
 
     ``angle_invalid`` counts samples whose AS5040 SSI read-out the firmware rejected (flag
-    bit 4, ``ANGLE=ssi`` build: θ repeats the last valid angle); ``angle_valid`` is False
-    while the latest sample carries that flag.
+    bit 4, ``ANGLE=ssi`` build: θ repeats the last valid angle; encoder builds: an impossible
+    quadrature transition, or counts missed between two index edges); ``angle_valid`` is False
+    while the latest sample carries that flag. ``angle_homed`` is False while the latest sample's θ
+    is not in the rod's frame (an index-homing encoder before its first index edge).
     """
 
     samples: int = 0
@@ -419,11 +441,14 @@ class BridgeStats:
     connected: bool = False
     angle_invalid: int = 0
     angle_valid: bool = True
+    angle_homed: bool = True
     mcu_status: dict[str, int] = field(default_factory=dict)
 
-    def count_sample(self, f: SampleFrame) -> None:
-        """Register one received sample frame (sample and angle-validity counters)."""
+    def count_sample(self, f: SampleFrame, homed: bool = True) -> None:
+        """Register one received sample frame (sample and angle-validity counters); ``homed``:
+        :meth:`Calibration.homed` of the frame."""
         self.samples += 1
+        self.angle_homed = homed
         self.angle_valid = not f.flags & FLAG_ANGLE_INVALID
         if not self.angle_valid:
             self.angle_invalid += 1
@@ -436,6 +461,7 @@ class BridgeStats:
             ("rate_hz", f"{rate_hz:.2f}"),
             ("samples", str(self.samples)),
             ("angle_invalid_samples", str(self.angle_invalid)),
+            ("angle_homed", str(self.angle_homed)),
             ("sequence_gaps_lost_frames", str(seq.lost)),
             ("sequence_resets", str(seq.resets)),
             ("reconnects", str(self.reconnects)),

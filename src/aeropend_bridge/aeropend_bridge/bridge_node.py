@@ -59,7 +59,16 @@ from aeropend_bridge.bridge_core import (
     SequenceTracker,
 )
 from aeropend_bridge.family import CommandMap, check_firmware, legacy_hello, read_rig_hardware
-from aeropend_bridge.protocol import BAUD, Enable, HelloFrame, HelloRequest, Rate, SampleFrame, StatusFrame
+from aeropend_bridge.protocol import (
+    BAUD,
+    CH_INDEX,
+    Enable,
+    HelloFrame,
+    HelloRequest,
+    Rate,
+    SampleFrame,
+    StatusFrame,
+)
 from aeropend_bridge.serial_link import SerialLink
 from aeropend_sim.contract import REL_ARMATURE, REL_DUTY_CYCLE, REL_JOINT_STATES
 from aeropend_sim.params import RigFileError, load_rig
@@ -286,6 +295,7 @@ class BridgeNode(LifecycleNode):
                 f"keepalive_period {self.keepalive_s:g} s is too slow for the firmware's "
                 f"{hello.silence_ms} ms command watchdog (must be below half of it)")
         self.firmware = hello
+        self.cal = dataclasses.replace(self.cal, homing=hello.has(CH_INDEX))
         esc = (f", ESC {hello.frame_hz} Hz {hello.pulse_min_us}-{hello.pulse_max_us} µs, arming "
                f"{hello.arm_ms} ms" if hello.actuator_name == "esc" else "")
         self.get_logger().info(
@@ -464,7 +474,7 @@ class BridgeNode(LifecycleNode):
                 if self.seq.resets != resets:
                     self.clock_map.reset()  # MCU restarted: its clock restarted too
                 stamp = self.clock_map.update(frame.t_us, host_ns)
-                self.stats.count_sample(frame)
+                self.stats.count_sample(frame, self.cal.homed(frame))
                 self.rate.tick(time.monotonic_ns())
                 if not self._recognised.is_set() and self.handshake.update(frame.seq, frame.t_us):
                     self._recognised.set()
@@ -512,8 +522,15 @@ class BridgeNode(LifecycleNode):
             self._send_locked(duty)
 
     def _send_locked(self, duty: float) -> None:
-        """Send ``duty`` (fraction) and note it and the time; the caller holds ``_send_lock``."""
+        """Send ``duty`` (fraction) and note it and the time; the caller holds ``_send_lock``. Duty 0
+        while an index-homing encoder has not seen its index: the rod's angle is unknown."""
         link = self.link
+        if duty != 0.0 and not self.stats.angle_homed:
+            self.get_logger().warn(
+                f"duty {duty:g} held at 0: the encoder has not seen its index since the MCU started, so "
+                "the rod's angle is unknown; turn the rod by hand through the index",
+                throttle_duration_sec=LOG_THROTTLE_S)
+            duty = 0.0
         if link is not None:
             link.send(self.cmap.command(duty))
             self._last_sent = duty
@@ -557,11 +574,16 @@ class BridgeNode(LifecycleNode):
                                         self.clock_map)
             connected = self.stats.connected and self.link is not None and self.link.connected
             angle_valid = self.stats.angle_valid
+            homed = self.stats.angle_homed
         expected = NOMINAL_RATE_HZ / self.rate_divider
         if not connected:
             level, message = DiagnosticStatus.ERROR, f"not connected to {self.port}"
         elif abs(rate - expected) > 0.05 * expected:
             level, message = DiagnosticStatus.WARN, f"sample rate {rate:.1f} Hz, expected {expected:.1f} Hz"
+        elif not homed:
+            level, message = DiagnosticStatus.WARN, ("encoder index not seen since the MCU started: angle "
+                                                     "unknown (NaN), output held off; turn the rod "
+                                                     "through the index")
         elif not angle_valid:
             level, message = DiagnosticStatus.WARN, "AS5040 read-out rejected by the firmware: angle held"
         else:

@@ -6,6 +6,7 @@ carry a ``hardware`` block (ignored by :func:`aeropend_sim.params.load_rig`, rea
     hardware:
       angle_sensor: encoder            # pot (ADC), ssi (AS5040 SSI) or encoder
       counts_per_rev: {value: 4000, unit: "1", source: "1000-line encoder read x4"}
+      encoder_index: true              # encoder: its index (Z) is wired (firmware ENC_INDEX build)
       pulse_offset: {value: 1.0e-3, unit: s, source: "ESC calibrated 1.0-2.0 ms"}   # esc only
       pulse_span: {value: 1.0e-3, unit: s, source: "ESC calibrated 1.0-2.0 ms"}     # esc only
 
@@ -31,6 +32,7 @@ import yaml
 from aeropend_bridge.bridge_core import BridgeConfigError, FirmwareError
 from aeropend_bridge.protocol import (
     CH_I_A,
+    CH_INDEX,
     CH_SPEED,
     CH_THETA,
     CH_V_A,
@@ -74,6 +76,8 @@ class RigHardware:
         ``pot``, ``ssi``, ``encoder``; None: not stated (a 1024-count ADC or SSI interface).
     counts_per_rev : int or None
         Encoder counts per revolution (lines × 4); None unless stated.
+    encoder_index : bool or None
+        Whether the encoder's index (Z) is wired and the firmware homes on it; None: not stated.
     pulse_offset, pulse_span : float
         ESC map [s]: pulse = pulse_offset + τ·pulse_span.
     """
@@ -82,6 +86,7 @@ class RigHardware:
     family: str
     angle_sensor: str | None = None
     counts_per_rev: int | None = None
+    encoder_index: bool | None = None
     pulse_offset: float = DEFAULT_PULSE_OFFSET_S
     pulse_span: float = DEFAULT_PULSE_SPAN_S
 
@@ -148,10 +153,17 @@ def read_rig_hardware(rig_ref: str | Path, family: str, name: str | None = None)
     block = data.get("hardware") or {}
     if not isinstance(block, dict):
         raise HardwareError(f"{where}: hardware must be a mapping, got {block!r}")
-    unknown = sorted(set(block) - {"angle_sensor", "counts_per_rev", "pulse_offset", "pulse_span"})
+    unknown = sorted(set(block) - {"angle_sensor", "counts_per_rev", "encoder_index", "pulse_offset",
+                                   "pulse_span"})
     if unknown:
         raise HardwareError(f"{where}: unknown hardware key(s) {unknown}; expected angle_sensor, "
-                            "counts_per_rev, pulse_offset, pulse_span")
+                            "counts_per_rev, encoder_index, pulse_offset, pulse_span")
+    index = block.get("encoder_index")
+    if index is not None and not isinstance(index, bool):
+        raise HardwareError(f"{where}: hardware.encoder_index {index!r} must be true or false")
+    if index and block.get("angle_sensor") != "encoder":
+        raise HardwareError(f"{where}: hardware.encoder_index is true but angle_sensor is "
+                            f"{block.get('angle_sensor')!r}; an index belongs to an encoder")
     sensor = block.get("angle_sensor")
     if sensor is not None and sensor not in ANGLE_SENSORS:
         raise HardwareError(f"{where}: hardware.angle_sensor {sensor!r} is not one of {list(ANGLE_SENSORS)}")
@@ -161,7 +173,7 @@ def read_rig_hardware(rig_ref: str | Path, family: str, name: str | None = None)
     offset = _quantity(block, "pulse_offset", "s", where)
     span = _quantity(block, "pulse_span", "s", where)
     return RigHardware(rig=name or str(rig_ref), family=family, angle_sensor=sensor,
-                       counts_per_rev=None if cpr is None else int(cpr),
+                       counts_per_rev=None if cpr is None else int(cpr), encoder_index=index,
                        pulse_offset=DEFAULT_PULSE_OFFSET_S if offset is None else offset,
                        pulse_span=DEFAULT_PULSE_SPAN_S if span is None else span)
 
@@ -189,7 +201,7 @@ def check_firmware(hw: RigHardware, hello: HelloFrame, theta_quantum: float | No
     Raises
     ------
     FamilyMismatchError
-        Naming the rig's and the firmware's actuator, sensor, counts or pulse range.
+        Naming the rig's and the firmware's actuator, sensor, counts, encoder index or pulse range.
     """
     fw = f"the firmware on the port drives {hello.actuator_name!r} and reads {hello.sensor_name!r}"
     want = hw.actuator
@@ -209,6 +221,13 @@ def check_firmware(hw: RigHardware, hello: HelloFrame, theta_quantum: float | No
     if hw.counts_per_rev is not None and hw.counts_per_rev != hello.counts_per_rev:
         raise FamilyMismatchError(f"rig {hw.rig!r} states {hw.counts_per_rev} counts per revolution but the "
                              f"firmware counts {hello.counts_per_rev}")
+    if hw.encoder_index is not None and hw.encoder_index != hello.has(CH_INDEX):
+        raise FamilyMismatchError(
+            f"rig {hw.rig!r} says its encoder's index is {'' if hw.encoder_index else 'not '}wired "
+            f"(hardware.encoder_index: {str(hw.encoder_index).lower()}) but the firmware on the port "
+            + ("has no index input: flash an ENC_INDEX build" if hw.encoder_index else
+               "homes on an index (an ENC_INDEX build) and would hold the output off for ever")
+            + " (firmware/README.md)")
     if theta_quantum is not None and hello.sensor_name in ("ssi", "encoder"):
         if abs(theta_quantum * hello.counts_per_rev / (2 * math.pi) - 1) > 5e-3:
             raise FamilyMismatchError(f"rig {hw.rig!r}: sensors.theta_quantum {theta_quantum:.6g} rad is not "

@@ -53,6 +53,8 @@ CH_I_A = 0x01
 CH_V_A = 0x02
 CH_THETA = 0x04
 CH_SPEED = 0x08
+#: HELLO channel bit of an encoder build with its index (Z) wired: θ is absolute once homed.
+CH_INDEX = 0x10
 #: Wire value of an i16 channel the build does not measure (published as NaN, never 0).
 ABSENT_I16 = -32768
 #: Wire value of the propeller period when the build has no speed sensor.
@@ -76,6 +78,11 @@ FLAG_SPEED_STALE = 0x08
 FLAG_ANGLE_INVALID = 0x10
 #: SSI build: AS5040 linearity alarm (θ used, may be inaccurate).
 FLAG_ANGLE_LIN = 0x20
+#: Encoder build with an index (:data:`CH_INDEX`): no index edge since reset, θ counts from the
+#: power-up position, not from the rod hanging at rest (same bit as :data:`FLAG_ANGLE_LIN`). In
+#: such a build :data:`FLAG_ANGLE_INVALID` also marks an index edge at a count other than the
+#: index's (counts were missed since the previous one; the firmware re-homed).
+FLAG_ANGLE_UNHOMED = 0x20
 #: θ comes from the AS5040 SSI read-out (firmware built with ``ANGLE=ssi``), else PWM -> RC -> ADC.
 FLAG_ANGLE_SSI = 0x40
 #: ESC build: the arming sequence is running (minimum pulse; commands are not applied yet).
@@ -351,7 +358,8 @@ class HelloFrame:
     sensor : int
         1 ADC (AS5040 PWM -> RC, potentiometer), 2 AS5040 SSI, 3 quadrature encoder (:data:`SENSORS`).
     channels : int
-        Measured channels, bits :data:`CH_I_A`, :data:`CH_V_A`, :data:`CH_THETA`, :data:`CH_SPEED`.
+        Measured channels, bits :data:`CH_I_A`, :data:`CH_V_A`, :data:`CH_THETA`, :data:`CH_SPEED`;
+        :data:`CH_INDEX` when an encoder build has its index wired.
     frame_hz : int
         Actuator output frame rate [Hz] (H-bridge PWM 490; ESC 50..490).
     pulse_min_us, pulse_max_us : int

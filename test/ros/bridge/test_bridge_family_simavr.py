@@ -154,3 +154,76 @@ def test_bridge_refuses_a_rig_of_another_family(firmware: Path) -> None:
     assert ("rig 'thesis_rig' is a dc_hbridge rig (firmware actuator 'hbridge') but the firmware on the port "
             "drives 'esc' and reads 'encoder'") in r.stderr
     assert "active: duty output enabled" not in r.stderr  # refused at configure, nothing armed
+
+
+# ---------------------------------------------------------------------------------------- index
+#: The index build: the encoder's index lies INDEX_AT counts from the rod's rest; the rig is powered up
+#: with the rod REST_DISK counts from its rest (the harness's disk count 0 is the power-up position).
+INDEX_DISK, REST_DISK = 100, -200
+INDEX_AT = INDEX_DISK - REST_DISK
+T_SWING = 5.0  # [s of MCU time] the rod rests at its power-up position until then (ESC armed at 2 s)
+
+
+@pytest.fixture(scope="module")
+def index_firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    build = build_emulator(FW, tmp_path_factory.mktemp("escfwindex"),
+                           ("ACTUATOR=esc", "ESC_HZ=50", "ANGLE=encoder", f"ENC_CPR={CPR}", "SPEED=none",
+                            f"ENC_INDEX={INDEX_AT}"))
+    # at T_SWING the rod rises smoothly (peak 1 rad/s) through the index (disk count 100, 0.157 rad) to
+    # THETA_HOLD from the power-up position (disk count 318) and stays there
+    t0_us, t1_us = T_SWING * 1e6, T_SWING * 1e6 + math.pi / 4 * 1e6
+    (build / "events.txt").write_text(f"enccpr {CPR}\nencindex {INDEX_DISK}\n"
+                                      f"enc {t0_us:.3f} {t1_us:.3f} 0 {THETA_HOLD} 2\n")
+    return build
+
+
+def test_bridge_holds_the_output_until_the_encoder_is_homed(index_firmware: Path, tmp_path: Path) -> None:
+    """Until the encoder's index is seen θ is unknown: NaN on ``joint_states`` and τ held at 0 whatever
+    the controller sends; from the index on θ is the angle from the rod's rest and τ flows."""
+    rig = _esc_rig(tmp_path / "esc_index_rig.yaml")
+    data = yaml.safe_load(rig.read_text())
+    data["hardware"]["encoder_index"] = True
+    rig.write_text(yaml.safe_dump(data))
+    sim = _harness(index_firmware)
+    env = isolated_env(random_domain(201, 215))
+    bridge = None
+    client = ExitStack()
+    try:
+        node, ex = client.enter_context(private_node("esc_index_client", int(env["ROS_DOMAIN_ID"])))
+        js: list[JointState] = []
+        node.create_subscription(JointState, TOPIC_JOINT_STATES, js.append, SAMPLE_SUB_QOS)
+        pub = node.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
+        bridge = subprocess.Popen([*BRIDGE, "--ros-args", "-p", f"port:={read_pty_path(sim)}", "-p",
+                                   f"rig:={rig}"], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                  text=True)
+        end, nxt = time.monotonic() + 40, 0.0
+        homed_at = None
+        while time.monotonic() < end and bridge.poll() is None:
+            if time.monotonic() >= nxt:
+                pub.publish(Float64(data=0.5))  # the controller asks for τ 0.5 throughout
+                nxt = time.monotonic() + 0.02
+            ex.spin_once(timeout_sec=0.005)
+            if homed_at is None and js and math.isfinite(js[-1].position[0]):
+                homed_at = len(js) - 1
+            # the rod reaches THETA_HOLD π/4 s after it starts: 1 s of samples (490 Hz) after the index
+            if homed_at is not None and len(js) > homed_at + 490 and abs(js[-1].effort[1] - 0.5) < 1e-9:
+                break
+        assert homed_at is not None, f"the bridge never published a finite angle ({len(js)} samples)"
+        before, after = js[:homed_at], js[homed_at:]
+        assert len(before) > 50 and all(math.isnan(m.position[0]) for m in before)
+        # armed at 2 s, commanded τ 0.5 from the first sample on: held at the zero-throttle pulse
+        assert all(m.effort[1] == 0.0 for m in before), sorted({m.effort[1] for m in before})
+        assert all(math.isfinite(m.position[0]) for m in after)
+        rest = math.floor(THETA_HOLD * CPR / (2 * math.pi)) - REST_DISK  # 518 counts from the rod's rest
+        assert after[-1].position[0] == pytest.approx(rest * 2 * math.pi / CPR, abs=1e-12)
+        assert abs(after[-1].effort[1] - 0.5) < 1e-9, after[-1].effort[1]
+        err = stop(bridge, signal.SIGINT, timeout=10).stderr
+        assert bridge.returncode == 0, err
+        assert "held at 0: the encoder has not seen its index" in err, err[-2000:]
+        print(f"index: {len(before)} samples NaN and τ 0 before the index, then θ "
+              f"{after[-1].position[0]:.6f} rad, τ 0.5")
+    finally:
+        reap(bridge)
+        client.close()
+        sim.kill()
+        sim.communicate()
