@@ -60,7 +60,8 @@ def families_table() -> str:
 def components_table() -> str:
     rows = ["| component | part | families | equation | parameters |", "|---|---|---|---|---|"]
     for c in registry.components():
-        fams = ", ".join(c.families) if c.families else "all"
+        on = [f.name for f in registry.families() if c.applies_to(f) is None]
+        fams = "all" if len(on) == len(registry.families()) else ", ".join(on)
         geo = f"; or from {_keys(c.geometry)}" if c.geometry else ""
         rows.append(f"| `{c.name}` | {c.part} | {fams} | {_cell(c.description)} | {_keys(c.params)}{geo} |")
     return "\n".join(rows)

@@ -78,9 +78,12 @@
  *                   high pulse on OC3A = PE3, measured from its edges (0 before the first one), and
  *                   blocks until it reads back {double theta [rad]}: the rod angle at t. The encoder
  *                   emulation then follows that angle (one x4 step per us towards
- *                   floor(theta * cpr / 2pi)) instead of the event file's enc segments. MCU time
+ *                   floor(theta * cpr / 2pi + M)) instead of the event file's enc segments. MCU time
  *                   stands still while the plant computes. On exit "PLANT <exchanges> <max lag
  *                   counts>" on stdout; a plant that closes the socket ends the run ("PLANTLOST").
+ *   -M COUNTS       where the emulated encoder's disk is mounted (default 0: count k spans
+ *                   [k, k + 1) q from the rod's rest, the count floors the angle; 0.5: count k is
+ *                   centred on k q, the count rounds it as aeropend's quantisation effect does)
  *
  * Not emulated: the analogue front end, the motor shield, the ESC itself.
  */
@@ -163,7 +166,7 @@ typedef struct {
     avr_irq_t *enc_a, *enc_b;
     /* index Z on PD0 (-1: none), slip: counts the lines fall behind the disk from slip_t on */
     long enc_index, enc_slip, slip_n, index_edges;
-    double slip_t;
+    double slip_t, enc_mount;
     avr_irq_t *enc_z;
     /* closed-loop plant (-P): socket, exchange interval [cycles], the pulse seen on the pin */
     int plant_fd;
@@ -362,7 +365,7 @@ static avr_cycle_count_t enc_timer(avr_t *avr, avr_cycle_count_t when, void *par
     sim_t *s = param;
     double t_us = (double)(when - s->t1_start) / 16.0;
     double theta = s->plant_fd >= 0 ? s->plant_theta : enc_theta(s, t_us);
-    long target = (long)floor(theta * (double)s->cpr / (2.0 * M_PI));
+    long target = (long)floor(theta * (double)s->cpr / (2.0 * M_PI) + s->enc_mount);
     long lag = labs(target - s->enc_count);
     if (lag > s->enc_max_lag)
         s->enc_max_lag = lag;
@@ -643,7 +646,7 @@ int main(int argc, char **argv)
     const char *pos[6] = {0};
     int npos = 0;
     const char *events = NULL, *pulses = NULL, *plant = NULL;
-    double plant_us = 1000.0;
+    double plant_us = 1000.0, enc_mount = 0.0;
     int dump_regs = 0;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "-e") == 0 && i + 1 < argc)
@@ -654,13 +657,15 @@ int main(int argc, char **argv)
             plant = argv[++i];
         else if (strcmp(argv[i], "-Q") == 0 && i + 1 < argc)
             plant_us = atof(argv[++i]);
+        else if (strcmp(argv[i], "-M") == 0 && i + 1 < argc)
+            enc_mount = atof(argv[++i]);
         else if (strcmp(argv[i], "-r") == 0)
             dump_regs = 1;
         else if (npos < 6)
             pos[npos++] = argv[i];
     }
     if (npos < 1) {
-        fprintf(stderr, "usage: %s firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events] [-p pulses] [-P socket [-Q us]] [-r]\n",
+        fprintf(stderr, "usage: %s firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events] [-p pulses] [-P socket [-Q us] [-M counts]] [-r]\n",
                 argv[0]);
         return 2;
     }
@@ -691,6 +696,7 @@ int main(int argc, char **argv)
     s.cpr = 4000;
     s.plant_fd = -1;
     s.enc_index = -1;
+    s.enc_mount = enc_mount;
     if (events && read_events(events, &s) != 0)
         return 2;
     if (plant && (plant_us < 1.0 || plant_connect(&s, plant) != 0))

@@ -182,7 +182,8 @@ def check_layout_units(o: Observation, a: dict[str, np.ndarray]) -> list[Finding
     th = a["theta"][np.isfinite(a["theta"])]
     if th.size == 0:
         out.append(Finding("units", False, "θ is never a number (the angle is the one channel every bridge "
-                                           "measures)"))
+                                           "measures; an encoder that homes on its index publishes NaN "
+                                           "until the rod has passed it: turn the rod through it first)"))
     elif np.max(np.abs(th)) > math.pi + 1e-9:
         out.append(Finding("units", False, f"θ reaches {th[np.argmax(np.abs(th))]:g}: outside (−π, π] rad "
                                            "(degrees? not wrapped?)"))

@@ -650,3 +650,8 @@ def shipped_rigs() -> list[str]:
     folder = resources.files("aeropend_sim") / "rigs"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
 
+
+
+# a part registered later (registry.register) may change what a family's rig has
+registry.invalidate_with(section_class.cache_clear)
+registry.invalidate_with(_validation_plan.cache_clear)

@@ -71,6 +71,8 @@ pytest.importorskip("rclpy")
 from aeropend_bridge.simavr_harness import build_emulator, read_pty_path
 from aeropend_control.metrics import StepMetrics, step_metrics
 from aeropend_ident.cli.rig import main as rig_main
+from aeropend_sim.model import plant_model
+from aeropend_sim.params import load_rig
 from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap, stop
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -83,6 +85,8 @@ STEP = 0.5                     # set point after the step [rad]
 T_STEP = 2.5                   # step instant after the controller's first sample [s]; > ESC arming (2 s)
 AFTER = 3.5                    # record after the step [s]
 LATENCY = 2 * TS + 2e-3 + 2e-3  # the hardware path's extra latency, at most [s] (module docstring)
+FRAME_S = 4082 * 0.5e-6        # the 490 Hz build's ESC frame: Timer3 TOP 4081 at 0.5 µs [s]
+PULSE_OFFSET, PULSE_SPAN = 1.0e-3, 1.0e-3  # the rig's ESC map: pulse = offset + τ·span [s]
 
 pytestmark = [
     pytest.mark.ros,
@@ -117,9 +121,25 @@ def _esc_rig(path: Path) -> Path:
     data["sensors"] = {"theta_quantum": {"value": Q, "unit": "rad", "source": f"encoder, {CPR} counts/rev"}}
     data["hardware"] = {"angle_sensor": "encoder",
                         "counts_per_rev": {"value": CPR, "unit": "1", "source": "1000 lines x 4 (test)"},
-                        "pulse_offset": {"value": 1.0e-3, **q}, "pulse_span": {"value": 1.0e-3, **q}}
+                        "pulse_offset": {"value": PULSE_OFFSET, **q},
+                        "pulse_span": {"value": PULSE_SPAN, **q}}
     path.write_text(yaml.safe_dump(data))
     return path
+
+
+def _stand_in(rig: Path, path: Path) -> tuple[Path, float]:
+    """The hardware stand-in's plant: the rig file with the mean latency the ESC protocol and the
+    emulation add taken out of its input delay, so that the whole hardware path is the rig the file
+    describes (module docstring). Returns (its rig file, the latency taken out [s])."""
+    data = yaml.safe_load(rig.read_text())
+    tau_eq = plant_model(load_rig(rig)).equilibrium(STEP)[1]
+    width = PULSE_OFFSET + tau_eq * PULSE_SPAN
+    latency = FRAME_S / 2 + width + EXCHANGE_US * 1e-6  # 0.5 exchange to read the width, 0.5 angle age
+    delay = data["actuator"]["input_delay"]
+    delay["value"] = float(delay["value"]) - latency
+    delay["source"] = f"the rig file's less {latency * 1e3:.2f} ms: the ESC protocol's and the emulation's"
+    path.write_text(yaml.safe_dump(data))
+    return path, latency
 
 
 def _controller(rig: Path, trace: Path, env: dict[str, str], log: Path) -> subprocess.Popen:
@@ -150,16 +170,17 @@ def _hardware_graph(firmware: Path, rig: Path, tmp: Path) -> tuple[np.ndarray, n
     sock_dir = Path(tempfile.mkdtemp(prefix="ap-plant-"))  # a short path: sun_path holds 108 bytes
     sock = sock_dir / "plant.sock"
     trace = tmp / "hw_trace.csv"
+    stand_in, _ = _stand_in(rig, tmp / "stand_in_rig.yaml")
     logs = {k: tmp / f"hw_{k}.log" for k in ("plant", "harness", "bridge", "controller")}
     plant = harness = bridge = ctl = None
     try:
-        plant = subprocess.Popen([sys.executable, "-m", "aeropend_bridge.simavr_plant", str(rig), str(sock),
-                                  "--interval", f"{EXCHANGE_US * 1e-6}"],
+        plant = subprocess.Popen([sys.executable, "-m", "aeropend_bridge.simavr_plant", str(stand_in),
+                                  str(sock), "--interval", f"{EXCHANGE_US * 1e-6}"],
                                  env=env, stdout=subprocess.PIPE, stderr=logs["plant"].open("w"), text=True)
         ready = plant.stdout.readline() if plant.stdout is not None else ""
         assert ready.startswith("LISTENING"), _tail(logs["plant"])
         harness = subprocess.Popen([str(firmware / "harness"), str(firmware / "aeropend.elf"), "0", "-P",
-                                    str(sock), "-Q", str(EXCHANGE_US)],
+                                    str(sock), "-Q", str(EXCHANGE_US), "-M", "0.5"],
                                    stdout=subprocess.PIPE, stderr=logs["harness"].open("w"), text=True)
         port = read_pty_path(harness)
         # the controller designs (seconds) while the bridge connects and the ESC arms (2 s of MCU time)

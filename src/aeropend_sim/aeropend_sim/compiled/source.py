@@ -266,3 +266,8 @@ def family_module(family: str) -> ModuleType:
     sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
+
+
+# a part registered later (registry.register) may change a family's equations
+registry.invalidate_with(layout.cache_clear)
+registry.invalidate_with(family_module.cache_clear)

@@ -486,9 +486,14 @@ class Part:
     terms : tuple of Term
     diagnoses : tuple of Diagnosis
     families : tuple of str or None
-        Actuator families it belongs to; ``None``: every family whose slots it needs.
+        Actuator families it belongs to; ``None``: every family that has the slots it needs
+        (:attr:`slots`) and does not refuse it (:attr:`Family.refuses`), so a family written later
+        gets it without an edit here.
     why_not : str
         Why it does not apply to the other families (said when a rig file asks for it anyway).
+    needs : tuple of str
+        Slots it acts on besides its terms' (the armature inductance acts through the armature
+        equation itself): a family that lacks one (:attr:`Family.lacks`) has not this part.
     check : callable or None
         ``check(values) -> message or None``: a cross-parameter constraint (θ_min < θ_max), given
         ``{key: value}`` of the rig's parameters.
@@ -505,21 +510,27 @@ class Part:
     families: tuple[str, ...] | None = None
     why_not: str = ""
     check: Callable[[Mapping[str, float]], str | None] | None = field(default=None, compare=False)
+    needs: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.part not in PARTS:
             raise ValueError(f"{self.name}: part {self.part!r}; expected one of {PARTS}")
+        bad = [n for n in self.needs if n not in SLOTS]
+        if bad:
+            raise ValueError(f"{self.name}: needs slot(s) {bad}; expected some of {list(SLOTS)}")
 
     @property
     def slots(self) -> frozenset[str]:
-        """Slots its terms act in."""
-        return frozenset(t.slot for t in self.terms)
+        """Slots it acts in: its terms' and those it :attr:`needs`."""
+        return frozenset(t.slot for t in self.terms) | frozenset(self.needs)
 
     def applies_to(self, family: Family) -> str | None:
         """None if it belongs on a rig of ``family``, else the reason why not."""
         if self.families is not None and family.name not in self.families:
             fams = " and ".join(self.families)
             return self.why_not or f"{self.name} is part of {fams} rigs only"
+        if self.name in family.refuses:
+            return family.refuses[self.name]
         for slot in sorted(self.slots):
             if slot in family.lacks:
                 return (f"it acts on the {slot} slot, which the {family.name} family has not: "
@@ -560,11 +571,19 @@ class Family(Component):
     channels : tuple of str
         The measured channels a simulation of this family produces (no armature channels on an
         ESC: absent, not zeros).
+    refuses : mapping
+        Effects it has not although it has their slots, each with the physical reason (an ESC's
+        idle throttle is its dead zone: a second ``dead_zone`` could not be told from it).
+    usual_effects : tuple of str
+        Effects a lab's rig of this family usually has: ``rig new`` marks their parameters to be
+        fitted (the others are written commented out, not modelled).
     """
 
     drive: str = "v_a"
     lacks: Mapping[str, str] = field(default_factory=dict)
     channels: tuple[str, ...] = ("theta", "theta_dot", "omega_rotor", "omega_prop", "i_a", "v_a")
+    refuses: Mapping[str, str] = field(default_factory=dict)
+    usual_effects: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)

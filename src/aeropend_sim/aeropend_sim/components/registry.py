@@ -1,8 +1,14 @@
 """The registry: every component, family and effect declared under ``aeropend_sim.components``.
 
-Discovery is automatic: every module below this package that defines a module-level
-``COMPONENT``, ``FAMILY`` or ``EFFECT`` is registered (:func:`pkgutil.walk_packages`), so adding
-an effect is one new module and no list to edit. Lists are sorted by ``order``.
+Discovery is automatic and the same for shipped and lab-written parts: a module that defines a
+module-level ``COMPONENT``, ``FAMILY`` or ``EFFECT`` is registered when it lies below this package
+(:func:`pkgutil.walk_packages`), when an installed package names it under the entry-point group
+:data:`ENTRY_POINT_GROUP` (a lab's own effects and families, ``pip install``-ed), or when it is
+handed to :func:`register` (a script, a test). Adding an effect, a family or a component is one
+module and no list to edit. Every declaration is checked when it is registered
+(:func:`check_declarations`): a term of an effect that reads another part's parameter, a family
+without exactly one drive map, a name that does not exist are refused then, with the part's name.
+Lists are sorted by ``order``.
 
 Readers (the rig format, the model, the docs tables, the grey-box fit, the gap diagnosis) ask the
 registry, never a list of their own:
@@ -18,40 +24,194 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+from collections.abc import Callable, Iterable
 from functools import cache
+from importlib.metadata import entry_points
 from pathlib import Path
+from types import ModuleType
 
-from aeropend_sim.components.base import Component, Diagnosis, Effect, Family, Param, Part
+from aeropend_sim.components.base import (
+    INPUTS,
+    PARTS,
+    SLOT_INPUTS,
+    Component,
+    Diagnosis,
+    Effect,
+    Family,
+    Param,
+    Part,
+)
 
 #: Family of a rig file that does not name one (every rig file before issue 35).
 DEFAULT_FAMILY = "dc_hbridge"
+#: Entry-point group of lab-written parts: each entry names a module defining ``COMPONENT``,
+#: ``FAMILY`` and/or ``EFFECT``, e.g. in a lab package's pyproject.toml
+#: ``[project.entry-points."aeropend.components"] motor_heating = "mylab.motor_heating"``.
+ENTRY_POINT_GROUP = "aeropend.components"
+#: Slots whose terms must have an inverse (steady-state design runs them backwards).
+INVERTIBLE = ("duty", "drive", "thrust", "gear", "rotor_response")
+#: Every family is built of one part of each of these kinds.
+FAMILY_KINDS = frozenset(PARTS)
+
+_registered: list[Part] = []
+_invalidators: list[Callable[[], None]] = []
 
 
 class RegistryError(LookupError):
-    """An unknown family, component, effect or parameter name."""
+    """An unknown family, component, effect or parameter name, or a declaration the registry refuses."""
+
+
+def module_parts(module: ModuleType) -> list[Part]:
+    """The parts a module declares (its ``FAMILY``, ``COMPONENT``, ``EFFECT``)."""
+    return [d for name in ("FAMILY", "COMPONENT", "EFFECT") if (d := getattr(module, name, None)) is not None]
+
+
+def _discovered() -> list[Part]:
+    package = __name__.rpartition(".")[0]  # aeropend_sim.components
+    found: list[Part] = []
+    for info in pkgutil.walk_packages([str(Path(__file__).parent)], prefix=package + "."):
+        found += module_parts(importlib.import_module(info.name))
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            module = ep.load()
+        except Exception as exc:  # a broken plug-in is named, never skipped silently
+            raise RegistryError(f"plug-in {ep.name!r} ({ep.value}, entry point {ENTRY_POINT_GROUP!r}) "
+                                f"cannot be imported: {exc}") from exc
+        if not isinstance(module, ModuleType) or not module_parts(module):
+            raise RegistryError(f"plug-in {ep.name!r} ({ep.value}) must name a module defining COMPONENT, "
+                                "FAMILY or EFFECT")
+        found += module_parts(module)
+    return found
 
 
 @cache
 def _declarations() -> tuple[tuple[Part, ...], tuple[Family, ...], tuple[Effect, ...]]:
-    package = __name__.rpartition(".")[0]  # aeropend_sim.components
-    components: list[Part] = []
-    families: list[Family] = []
-    effects: list[Effect] = []
-    for info in pkgutil.walk_packages([str(Path(__file__).parent)], prefix=package + "."):
-        module = importlib.import_module(info.name)
-        if (d := getattr(module, "FAMILY", None)) is not None:
-            families.append(d)
-        if (d := getattr(module, "COMPONENT", None)) is not None:
-            components.append(d)
-        if (d := getattr(module, "EFFECT", None)) is not None:
-            effects.append(d)
-    names = [p.name for p in (*components, *families, *effects)]
+    found = [*_discovered(), *_registered]
+    families = [p for p in found if isinstance(p, Family)]
+    effects = [p for p in found if isinstance(p, Effect)]
+    components = [p for p in found if not isinstance(p, Family | Effect)]
+    names = [p.name for p in found]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise RegistryError(f"declared twice: {dup}")
     key = lambda p: (p.order, p.name)  # noqa: E731
-    return (tuple(sorted(components, key=key)), tuple(sorted(families, key=key)),
-            tuple(sorted(effects, key=key)))
+    out = (tuple(sorted(components, key=key)), tuple(sorted(families, key=key)),
+           tuple(sorted(effects, key=key)))
+    check_declarations(*out)
+    return out
+
+
+def check_declarations(components: Iterable[Part], families: Iterable[Family],
+                       effects: Iterable[Effect]) -> None:
+    """Refuse declarations that do not fit together, naming the part (run at every registration).
+
+    Checked: each term's inputs are its slot's (:data:`SLOT_INPUTS`) and its parameters exist; an
+    effect's terms read only the effect's own parameters (its switch turns exactly them on and
+    off); terms of :data:`INVERTIBLE` slots have an inverse; ``families``, ``refuses`` and
+    ``usual_effects`` name parts that exist; each family is built of one part of every kind in
+    :data:`FAMILY_KINDS` and has exactly one drive map (from :data:`INPUTS`).
+
+    Raises
+    ------
+    RegistryError
+        The first problem found, with the part's name.
+    """
+    components, families, effects = tuple(components), tuple(families), tuple(effects)
+    everything = (*components, *families, *effects)
+    names = {par.name for p in everything for par in p.params}
+    fam_names = {f.name for f in families}
+    eff_names = {e.name for e in effects}
+    for p in everything:
+        own = {par.name for par in p.params}
+        for term in p.terms:
+            if not set(term.inputs) <= set(SLOT_INPUTS[term.slot]):
+                raise RegistryError(f"{p.name}: term {term.label!r} in slot {term.slot!r} reads "
+                                    f"{sorted(set(term.inputs) - set(SLOT_INPUTS[term.slot]))}; that slot "
+                                    f"gives {list(SLOT_INPUTS[term.slot])}")
+            unknown = [a for a in term.param_names if a not in names]
+            if unknown:
+                raise RegistryError(f"{p.name}: term {term.label!r} reads unknown parameter(s) {unknown}")
+            if isinstance(p, Effect) and not set(term.param_names) <= own:
+                raise RegistryError(f"effect {p.name}: term {term.label!r} reads "
+                                    f"{sorted(set(term.param_names) - own)}, parameter(s) of another "
+                                    "part; an effect's terms read only its own parameters (its switch "
+                                    "turns exactly them on and off)")
+            if term.slot in INVERTIBLE and term.inverse is None:
+                raise RegistryError(f"{p.name}: term {term.label!r} in slot {term.slot!r} needs an inverse")
+        missing = sorted(set(p.families or ()) - fam_names)
+        if missing:
+            raise RegistryError(f"{p.name}: families {missing} do not exist; families are "
+                                f"{sorted(fam_names)}")
+    for fam in families:
+        for what, named in (("refuses", fam.refuses), ("usual_effects", fam.usual_effects)):
+            missing = sorted(set(named) - eff_names)
+            if missing:
+                raise RegistryError(f"family {fam.name}: {what} names {missing}, not effects; effects are "
+                                    f"{sorted(eff_names)}")
+        if fam.drive not in INPUTS:
+            raise RegistryError(f"family {fam.name}: drive {fam.drive!r} is not an input ({list(INPUTS)})")
+        built = [fam, *(c for c in components if c.applies_to(fam) is None)]
+        drives = [p.name for p in built for t in p.terms if t.slot == "drive"]
+        if len(drives) != 1:
+            raise RegistryError(f"family {fam.name}: {len(drives)} drive maps ({drives}); a family has "
+                                "exactly one, in its own module")
+        kinds = FAMILY_KINDS - {p.part for p in built}
+        if kinds:
+            raise RegistryError(f"family {fam.name}: no {sorted(kinds)} part applies to it (parts: "
+                                f"{[p.name for p in built]})")
+
+
+def refresh() -> None:
+    """Discover again (a plug-in installed in a running process) and drop every cache built from
+    the registry, here and where :func:`invalidate_with` was called."""
+    for fn in (_declarations, legacy_switches, family_parts, family_effects, owners, params, family_params,
+               diagnoses, diagnosis_owner):
+        fn.cache_clear()
+    for fn in _invalidators:
+        fn()
+
+
+def invalidate_with(fn: Callable[[], None]) -> None:
+    """Call ``fn`` whenever the registry changes (:func:`register`): a cache built from it elsewhere."""
+    _invalidators.append(fn)
+
+
+def register(*parts: Part | ModuleType) -> None:
+    """Register lab-written parts (or modules declaring them) the way shipped ones are found.
+
+    Parameters
+    ----------
+    *parts : Component, Family, Effect or module
+        The declarations (a module: its ``COMPONENT``, ``FAMILY``, ``EFFECT``).
+
+    Raises
+    ------
+    RegistryError
+        If a declaration does not fit (:func:`check_declarations`) or a name is taken; the registry
+        is then as it was.
+    """
+    new: list[Part] = []
+    for p in parts:
+        got = module_parts(p) if isinstance(p, ModuleType) else [p]
+        if not got or not all(isinstance(q, Component | Effect) for q in got):
+            raise RegistryError(f"register: {p!r} is not a Component, Family, Effect or a module "
+                                "declaring one")
+        new += got
+    _registered.extend(new)
+    refresh()
+    try:
+        _declarations()
+        owners()
+    except Exception:
+        del _registered[len(_registered) - len(new):]
+        refresh()
+        raise
+
+
+def unregister(*names: str) -> None:
+    """Remove parts added with :func:`register` (by name); shipped and entry-point parts stay."""
+    _registered[:] = [p for p in _registered if p.name not in names]
+    refresh()
 
 
 def families() -> tuple[Family, ...]:
@@ -116,7 +276,7 @@ def legacy_switches() -> dict[str, tuple[str, ...]]:
 def family_parts(name: str) -> tuple[Part, ...]:
     """The family and the components of a rig of family ``name`` (its non-optional parts), by order."""
     fam = family(name)
-    comps = [c for c in components() if c.families is None or name in c.families]
+    comps = [c for c in components() if c.applies_to(fam) is None]
     return tuple(sorted((fam, *comps), key=lambda p: (p.order, p.name)))
 
 

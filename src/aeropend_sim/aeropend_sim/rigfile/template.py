@@ -7,7 +7,7 @@ Each parameter is marked
 
 * **stated** — given by the lab (``--stated NAME=VALUE[unit]``, unit checked and converted);
 * **to be fitted** — the family's base parameters and the parameters of the effects a lab's rig
-  usually has (:data:`USUAL_EFFECTS`): a clearly marked starting value (the declaration's
+  usually has (its family's ``usual_effects``): a clearly marked starting value (the declaration's
   :attr:`~aeropend_sim.components.base.Param.typical`, or one derived from the stated geometry)
   with the source :data:`aeropend_sim.params.TO_BE_FITTED`, which ``rig fit`` replaces;
 * **not modelled** — the other effects: written as a commented-out to-be-fitted line, so a person
@@ -36,14 +36,6 @@ from aeropend_sim.files.safe_yaml import parse_yaml
 from aeropend_sim.params import TO_BE_FITTED, RigFileError, rig_from_dict
 from aeropend_sim.rigfile.units import UnitError, convert
 
-#: Effects a lab's rig of each family usually has: ``rig new`` marks their parameters to be fitted
-#: (the others are written commented out, not modelled). A DC motor has back-EMF and rotor
-#: friction, every rod has pivot friction, a hobby ESC a dead time of 0.2-1 s.
-USUAL_EFFECTS: dict[str, tuple[str, ...]] = {
-    "dc_hbridge": ("back_emf", "rotor_viscous_friction", "rod_viscous_friction"),
-    "voltage_amplifier": ("back_emf", "rotor_viscous_friction", "rod_viscous_friction"),
-    "esc": ("input_delay", "rod_viscous_friction"),
-}
 #: Base parameters a lab states (or leaves at their absent value) rather than fits, with the reason.
 STATED_ONLY: dict[str, str] = {
     "motor.gear_ratio": "stated or 1 (direct drive): θ and thrust cannot tell it from K_q",
@@ -193,7 +185,7 @@ def roles(family: str, stated: Mapping[str, float]) -> dict[str, str]:
     ``"stated"``, ``"to be fitted"``, ``"derived"`` (from the stated geometry), ``"absent"``
     (a base parameter the lab states or leaves at its absent value) or ``"not modelled"``."""
     fam_parts = {p.key for part in registry.family_parts(family) for p in part.params}
-    usual = set(USUAL_EFFECTS[family])
+    usual = set(registry.family(family).usual_effects)
     derived = _derived_by_geometry(stated)
     out: dict[str, str] = {}
     for key, p in registry.family_params(family).items():

@@ -89,6 +89,7 @@ FAMILY = Family(
     why_not="a parameter of the dc_hbridge family: its rig file says actuator.family: dc_hbridge",
     drive="v_a",
     lacks={"rotor_response": DC_ROTOR},
+    usual_effects=("back_emf", "rotor_viscous_friction", "rod_viscous_friction"),
     diagnoses=(
         Diagnosis("hbridge_drop", "electrical",
                   "H-bridge voltage drop V_d: v_a = max(0, k0 − V_d + k1·sqrt(k2·τ + k3)) (Eq. 4.3 map) or "

@@ -49,9 +49,6 @@ EFFECT = Effect(
     terms=(Term("duty", 10, effective_duty, "τ_e = max(0, τ − τ_dz)/(1 − τ_dz)",
                 partials={"tau": d_effective_duty}, inverse=duty_of_effective),),
     active_when=lambda v: v["actuator.dead_zone"] > 0.0,
-    families=("dc_hbridge", "voltage_amplifier"),
-    why_not="on an ESC the idle throttle actuator.idle_duty τ_0 of the throttle map is the dead zone; "
-            "a second one could not be told apart from it",
     diagnoses=(Diagnosis("dead_zone", "actuator",
                          "duty-cycle dead zone τ_dz: τ_e = max(0, τ − τ_dz)/(1 − τ_dz)", ("dead_zone",),
                          ("theta",),

@@ -101,6 +101,9 @@ FAMILY = Family(
                         "drag): only the speed response T_m remains",
     },
     channels=("theta", "theta_dot", "omega_rotor", "omega_prop"),
+    refuses={"dead_zone": "on an ESC the idle throttle actuator.idle_duty τ_0 of the throttle map is the "
+                          "dead zone; a second one could not be told apart from it"},
+    usual_effects=("input_delay", "rod_viscous_friction"),
     diagnoses=(
         Diagnosis("esc_idle", "actuator",
                   "ESC idle/arming throttle τ_0 wrong: ω_ss = ω_max·max(0, (τ − τ_0)/(1 − τ_0))^β (the ESC's "

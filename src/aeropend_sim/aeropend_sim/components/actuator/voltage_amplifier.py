@@ -60,6 +60,7 @@ FAMILY = Family(
             "actuator.family: voltage_amplifier",
     drive="v_a",
     lacks={"rotor_response": DC_ROTOR},
+    usual_effects=("back_emf", "rotor_viscous_friction", "rod_viscous_friction"),
     diagnoses=(Diagnosis("amplifier_offset", "electrical",
                          "amplifier output offset v_0 wrong: v_a = v_0 + V_max·τ (a negative offset acts "
                          "like a drop, a positive one drives the rotor at zero command)", ("v_offset",),

@@ -69,8 +69,7 @@ COMPONENT = Component(
     order=30,
     params=(R_A, K_T, J_M),
     terms=(Term("rotor_torque", 0, torque, "K_t·i_a", partials={"i_a": d_torque_d_i_a}),),
-    families=("dc_hbridge", "voltage_amplifier"),
-    why_not="a brushless motor behind an ESC has no armature to describe: its speed follows the ESC's map",
+    needs=("armature",),
     diagnoses=(
         Diagnosis("armature_resistance", "electrical",
                   "armature resistance R_a wrong: L_a·di_a/dt = v_a − R_a·i_a − K_ω·ω₁", ("R_a",), ("i_a",),

@@ -53,8 +53,6 @@ COMPONENT = Component(
     terms=(Term("rotor_response", 0, response, "ω̇₁ = (ω_ss − ω₁)/T_m",
                 partials={"omega_sp": d_response_d_omega_sp, "omega": d_response_d_omega},
                 inverse=steady_set_point),),
-    families=("esc",),
-    why_not="a DC motor's speed follows its torque balance (component dc_motor)",
     diagnoses=(Diagnosis("esc_response", "motor",
                          "rotor speed response T_m of the ESC, motor and propeller wrong: "
                          "ω̇₁ = (ω_ss − ω₁)/T_m; the thrust follows the throttle more slowly or faster",
