@@ -348,7 +348,10 @@ static void enc_set_lines(sim_t *s)
     long phase = s->plant_fd >= 0 ? 2 : 0;
     unsigned st = gray[(((s->enc_count - s->enc_slip + phase) % 4) + 4) % 4];
     unsigned z = s->enc_index >= 0 && ((s->enc_count % s->cpr) + s->cpr) % s->cpr == s->enc_index;
-    avr_ioport_external_t ext = {.name = 'D', .mask = 0x0D, .value = ((st & 3u) << 2) | z};
+    /* PD0 is driven only when an index is emulated: a low pin on INT0, still in its reset
+     * low-level mode in a build without an index, starts simavr's per-cycle level poll */
+    avr_ioport_external_t ext = {.name = 'D', .mask = s->enc_index >= 0 ? 0x0D : 0x0C,
+                                 .value = ((st & 3u) << 2) | z};
     avr_ioctl(s->avr, AVR_IOCTL_IOPORT_SET_EXTERNAL('D'), &ext);
     avr_raise_irq(s->enc_a, st & 1u);
     avr_raise_irq(s->enc_b, (st >> 1) & 1u);

@@ -8,45 +8,39 @@ strategy, real-time mode). All-simulated graph: ``sim_node`` (real-time mode) wi
 ↔ the same controller. Both take the same set-point step; the controllers' traces (θ as received on
 ``joint_states``, the reference, the sample time) are compared.
 
-Tolerances, from the physics of the hardware path (q = 2π/4000 = 1.57 mrad, T_s = 2.040 ms):
+The two graphs are one rig. The rig file describes the whole rig, ESC included; the hardware path
+adds on its own the latency of the ESC's servo protocol and of the emulation, which the
+all-simulated graph (``sim_node`` applies τ from the sample period's start) does not have:
 
-* The encoder reads floor(θ/q)·q (error in (−q, 0]), the simulated sensor round(θ/q)·q (error
-  within ±q/2): the same rod angle reads at most 1.5 q apart; the integral action holds each loop
-  within one quantum of the reference, so the final values differ by at most 2 q.
-* Extra latency of the hardware path over ``sim_node`` (both apply a command from the period after
-  the one it answered): the pin takes the firmware's new width at the next 490 Hz frame start
-  (≤ one frame ≈ T_s after the tick), the ESC (the plant process) knows the width at the pulse's
-  falling edge (≤ 2 ms) and reads it at its next 1 ms exchange, and the angle the encoder follows
-  is up to 1 ms old; the bridge's extra hop may make an answer miss the next tick (one more T_s):
-  L ≤ 2 T_s + 4 ms ≈ 8 ms (``LATENCY``).
-* What such a delay does to this loop, on the model (the controller designed on the rig file, the
-  plant's input delay lengthened by 8 ms, batch simulation): the robust design for the rig's 50 ms
-  input delay is overdamped (rise 639 ms, settling 1198 ms, peak 1 mrad over the set point); 8 ms
-  more delay shorten the rise time by 10 ms and the settling time by 14 ms, raise the peak by one
-  quantum (2 mrad) and move θ by 0.79 mrad per ms of delay during the rise (6.3 mrad for 8 ms).
-  Tolerances: rise time 1.5 L + 2 T_s (the metric's sample grid); settling time 1.5 L + 2 T_s
-  plus the time a 2 q difference moves a crossing of the ±2 % band, 2 q/|θ̇(t_s)|; the peak (M_p
-  × step) 3 q (2 q reading, 1 q loop).
-* The trajectories, aligned on the step instant: the bar of issue 61 is the encoder's quantisation,
-  2 q (the encoder's floor and the simulated sensor's rounding of one angle differ by up to one
-  count; one more for the two graphs' sample instants). That bar holds (and is asserted) once the
-  rod has settled (t ≥ 1.5 s: 1.00 q); over the whole response it is NOT MET on this host, and the
-  test asserts instead what the hardware path's extra latency explains, 2 q + |θ̇|max · L (about 6 q
-  for this step). Measured (4 runs at dc05bfe): max |Δθ| 3.00, 4.50, 2.99, 2.00 q, always in the
-  rise, t − t_step ≈ 0.26-0.28 s, where θ̇ ≈ 0.79 rad/s; from 1.5 s on 1.00 q; final value, rise and
-  settling time and M_p all within the tolerances above. Cause: the hardware path lags the simulated
-  graph by 2-4 ms (the shift of the simulated trajectory that minimises max |Δθ|; 2.0 q remain after
-  it): the ESC's own latency, which ``sim_node``'s plant does not have (its τ acts from the sample
-  period's start): the pin takes a new width at the next 490 Hz frame start (0-2 ms) and the ESC
-  knows it at the pulse's falling edge (1.0-1.3 ms at this τ); plus the emulation's own (the 1 ms
-  exchange: 0-1 ms to read the width, 0-1 ms age of the angle the encoder follows). 0.79 rad/s × 3
-  ms = 1.5 q. A fitted rig file of a real ESC rig carries that latency in its input delay; the rig
-  file here is one rig file for both graphs, so the hardware path has it on top. The run-to-run
-  spread follows the ESC frame's phase to the sample tick (2.041 ms against 2.040 ms: it drifts by 1
-  µs a frame) and the real-time graphs' occasional late answers: against the deterministic loop of
-  the same rig and controller (batch, one sample of latency, what ``sim_node`` computes when every
-  answer makes its tick) 7 hardware traces differ by 2.0-3.5 q; with 2 ms more input delay in that
-  model (the ESC's mean latency) by 1.05-2.5 q.
+* the pin takes the firmware's new width at the next 490 Hz frame start (0 to one frame after
+  the tick: T_frame/2 on average), the ESC (the plant process) knows the width at the pulse's
+  falling edge (the width itself, pulse_offset + τ·pulse_span: 1.26 ms at the set point's
+  τ_eq = 0.258), and reads it at its next 1 ms exchange (0.5 ms on average); the angle the encoder
+  follows is up to 1 ms old (0.5 ms on average): 3.28 ms in all.
+
+A lab's fitted rig file of such hardware carries that latency in its input delay. So the stand-in
+plant behind the firmware (:func:`_stand_in`) is the rig file with those 3.28 ms taken out of its
+input delay: the whole hardware path then has the rig file's 50 ms, as the simulated graph has.
+Before this (one rig file for both, the hardware path 3.3 ms slower) the trajectories differed by
+2.0-4.5 q during the rise (4 runs at dc05bfe; the shift that minimised the difference was 2-4 ms).
+The emulated encoder's disk is mounted with its counts centred on the rod's angles (harness ``-M
+0.5``: count = round(θ/q)), as aeropend's quantisation effect reads a sensor (q·round(θ/q)); a
+disk mounted at a count edge would read up to one count lower than the simulated sensor for one
+angle (floor against round), a constant offset that says nothing about the two paths.
+
+Tolerances (q = 2π/4000 = 1.57 mrad, T_s = 2.040 ms):
+
+* the trajectories, aligned on the step instant, sample by sample (both on the encoder's lattice):
+  issue 61's bar, the encoder's quantisation, 2 q: one count for the two readings of one angle
+  on either side of a count edge, one for the remaining run-to-run latency (the frame's phase to
+  the tick drifts 1 µs a frame, 2.041 ms against 2.040 ms; the 1 ms exchange). Measured beside a
+  1-core job: max |Δθ| sample by sample 2, 1, 1, 2, 2 q in 5 runs (from 1.5 s on 1 q in every
+  run); with the simulated trajectory interpolated to the hardware's instants, 5 other runs,
+  1.99, 1.96, 2.01, 2.00, 1.00 q (interpolation between two counts is off the lattice, hence the
+  sample-by-sample comparison asserted here); rise times 632-639 ms against 638.5 ms;
+* the step metrics: final value 2 q; rise and settling time 1.5 L + 2 T_s (``LATENCY``, the
+  hardware path's worst-case extra latency, + the metric's sample grid), the settling time also
+  the time a 2 q difference moves a crossing of the ±2 % band; the peak (M_p × step) 3 q.
 """
 
 from __future__ import annotations
@@ -258,8 +252,12 @@ def test_esc_firmware_closed_loop_matches_the_simulated_graph(firmware: Path, tm
     t2 = time.monotonic()
     hw, sim = step_metrics(th_t, th_hw, STEP), step_metrics(ts_t, th_sim, STEP)
     # the trajectories on the hardware path's sample instants, from the step on
+    # sample by sample from the step on: the simulated graph's sample nearest in time (aligned on
+    # the step, both traces run on the same 2.040 ms tick)
     grid = (th_t >= 0) & (th_t <= min(th_t[-1], ts_t[-1]))
-    diff = np.abs(th_hw[grid] - np.interp(th_t[grid], ts_t, th_sim))
+    k = np.clip(np.searchsorted(ts_t, th_t[grid]), 1, ts_t.size - 1)
+    k -= (th_t[grid] - ts_t[k - 1]) < (ts_t[k] - th_t[grid])
+    diff = np.abs(th_hw[grid] - th_sim[k])
     k_max = int(np.argmax(diff))
     print(f"\nhardware path ({t1 - t0:.1f} s wall; harness/plant: {counts})")
     print(_figures("  firmware + bridge", hw))
@@ -272,14 +270,6 @@ def test_esc_firmware_closed_loop_matches_the_simulated_graph(firmware: Path, tm
     slope = max(_slope_at(ts_t, th_sim, sim.settling_time), 1e-3)
     assert abs(hw.settling_time - sim.settling_time) <= 1.5 * LATENCY + 2 * TS + 2 * Q / slope, slope
     assert abs(hw.overshoot - sim.overshoot) / 100 * STEP <= 3 * Q  # StepMetrics.overshoot is in %
-    # issue 61's bar, the encoder's quantisation (2 q), holds once the rod has settled (t ≥ 1.5 s); during
-    # the rise it is NOT met (module docstring: 2.0-4.5 q measured, the ESC's own latency): asserted there
-    # is what the hardware path's extra latency explains, 2 q + |θ̇|max · LATENCY
-    settled = th_t[grid] >= 1.5
-    assert diff[settled].max() <= 2 * Q + 1e-12, f"settled: max |dtheta| {diff[settled].max() / Q:.2f} quanta"
-    w = 10  # rod rate over 20 ms: a one-sample difference of the quantised angle jumps by q / T_s
-    rate = float(np.max(np.abs((th_sim[2 * w:] - th_sim[:-2 * w]) / (ts_t[2 * w:] - ts_t[:-2 * w]))))
-    bound = 2 * Q + rate * LATENCY
-    print(f"  bar 2 q {'met' if diff.max() <= 2 * Q + 1e-12 else 'NOT met'}; latency bound 2 q + "
-          f"{rate:.3f} rad/s x {LATENCY * 1e3:.1f} ms = {bound / Q:.2f} q")
-    assert diff.max() <= bound, f"max |dtheta| {diff.max() / Q:.2f} q > {bound / Q:.2f} q"
+    # issue 61's bar: the step response within the encoder's quantisation (module docstring), 2 q
+    assert diff.max() <= 2 * Q + 1e-9, (f"max |dtheta| {diff.max() / Q:.2f} q at t - t_step = "
+                                        f"{th_t[grid][k_max] * 1e3:.0f} ms")
