@@ -9,7 +9,7 @@ with the shipped ESC speed response T_m; the steady angle it holds is worked out
 the rod's balance (mgd/J)·sin θ = (L/J)·K_q·(ω₁/n)², never by aeropend's model.
 
 Declarations that do not fit are refused when they are registered, naming the part: an effect
-whose term reads another part's parameter, a family without a drive map.
+whose term reads another effect's parameter, a family without a drive map.
 """
 
 from __future__ import annotations
@@ -103,7 +103,8 @@ def test_declarations_that_do_not_fit_are_refused_when_registered() -> None:
                   terms=(Term("rod", 99, lambda xp, theta_dot, nosy_c, c_over_J: -(nosy_c + c_over_J)
                               * theta_dot, "−(c_n + c/J)·Ω"),))
     with pytest.raises(registry.RegistryError, match=r"effect nosy_friction: term '−\(c_n \+ c/J\)·Ω' reads "
-                                                     r"\['c_over_J'\], parameter\(s\) of another part"):
+                                                     r"\['c_over_J'\], parameter\(s\) of effect "
+                                                     r"rod_viscous_friction"):
         registry.register(nosy)
     assert [e.name for e in registry.effects()] == before  # the registry is as it was
     driveless = Family(name="driveless", part="actuator", label="no drive", description="none", order=14,

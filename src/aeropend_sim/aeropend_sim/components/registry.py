@@ -6,7 +6,7 @@ module-level ``COMPONENT``, ``FAMILY`` or ``EFFECT`` is registered when it lies 
 :data:`ENTRY_POINT_GROUP` (a lab's own effects and families, ``pip install``-ed), or when it is
 handed to :func:`register` (a script, a test). Adding an effect, a family or a component is one
 module and no list to edit. Every declaration is checked when it is registered
-(:func:`check_declarations`): a term of an effect that reads another part's parameter, a family
+(:func:`check_declarations`): a term of an effect that reads another effect's parameter, a family
 without exactly one drive map, a name that does not exist are refused then, with the part's name.
 Lists are sorted by ``order``.
 
@@ -106,10 +106,11 @@ def check_declarations(components: Iterable[Part], families: Iterable[Family],
     """Refuse declarations that do not fit together, naming the part (run at every registration).
 
     Checked: each term's inputs are its slot's (:data:`SLOT_INPUTS`) and its parameters exist; an
-    effect's terms read only the effect's own parameters (its switch turns exactly them on and
-    off); terms of :data:`INVERTIBLE` slots have an inverse; ``families``, ``refuses`` and
-    ``usual_effects`` name parts that exist; each family is built of one part of every kind in
-    :data:`FAMILY_KINDS` and has exactly one drive map (from :data:`INPUTS`).
+    effect's terms read its own parameters and the components', never another effect's (which,
+    switched off, hold their absent values); terms of :data:`INVERTIBLE` slots have an inverse;
+    ``families``, ``refuses`` and ``usual_effects`` name parts that exist; each family is built of
+    one part of every kind in :data:`FAMILY_KINDS` and has exactly one drive map (from
+    :data:`INPUTS`).
 
     Raises
     ------
@@ -119,6 +120,7 @@ def check_declarations(components: Iterable[Part], families: Iterable[Family],
     components, families, effects = tuple(components), tuple(families), tuple(effects)
     everything = (*components, *families, *effects)
     names = {par.name for p in everything for par in p.params}
+    effect_of = {par.name: e.name for e in effects for par in e.params}
     fam_names = {f.name for f in families}
     eff_names = {e.name for e in effects}
     for p in everything:
@@ -131,11 +133,12 @@ def check_declarations(components: Iterable[Part], families: Iterable[Family],
             unknown = [a for a in term.param_names if a not in names]
             if unknown:
                 raise RegistryError(f"{p.name}: term {term.label!r} reads unknown parameter(s) {unknown}")
-            if isinstance(p, Effect) and not set(term.param_names) <= own:
-                raise RegistryError(f"effect {p.name}: term {term.label!r} reads "
-                                    f"{sorted(set(term.param_names) - own)}, parameter(s) of another "
-                                    "part; an effect's terms read only its own parameters (its switch "
-                                    "turns exactly them on and off)")
+            others = sorted(a for a in term.param_names if a not in own and a in effect_of)
+            if isinstance(p, Effect) and others:
+                raise RegistryError(f"effect {p.name}: term {term.label!r} reads {others}, parameter(s) of "
+                                    f"effect {effect_of[others[0]]}; an effect's terms read its own "
+                                    "parameters and the components' (always there), never another "
+                                    "effect's (switched off, they hold their absent values)")
             if term.slot in INVERTIBLE and term.inverse is None:
                 raise RegistryError(f"{p.name}: term {term.label!r} in slot {term.slot!r} needs an inverse")
         missing = sorted(set(p.families or ()) - fam_names)
