@@ -151,7 +151,7 @@ def terminal_summary(result: GapResult) -> str:
     else:
         lines.append(
             f"  held-out NRMSE θ {h['heldout_nrmse_nominal']:.4f} -> {h['heldout_nrmse_corrected']:.4f} "
-            f"(shrink {h['heldout_shrink']:.1%})"
+            f"(shrink {h['heldout_shrink']:.1%}{noise_floor_text(h)})"
             + "".join(f"; {c} {v:.1%}" for c, v in h["heldout_channel_shrink"].items() if c != "theta")
         )
     chk = result.prediction_check
@@ -243,7 +243,17 @@ def _headline_html(h: dict[str, Any], d: Any) -> str:
                 f"{' and the '.join(h['heldout_divergence'])} model diverges ({html.escape(whys)}).")
     return (f"Held-out NRMSE <b>{h['heldout_nrmse_nominal']:.4f}</b> (nominal) &rarr; "
             f"<b>{h['heldout_nrmse_corrected']:.4f}</b> (corrected with {with_}): "
-            f"shrink <b>{h['heldout_shrink']:.1%}</b>.")
+            f"shrink <b>{h['heldout_shrink']:.1%}</b>{html.escape(noise_floor_text(h))}.")
+
+
+def noise_floor_text(h: dict) -> str:
+    """``"; noise floor 0.0958 (…)"``: the held-out NRMSE a perfect model would have (the recorded θ
+    noise over the held-out ranges), said when the nominal NRMSE is within twice it; '' otherwise."""
+    floor, before = h.get("heldout_noise_floor_nrmse"), h.get("heldout_nrmse_nominal")
+    if floor is None or before is None or not before <= 2.0 * floor:
+        return ""
+    return (f"; noise floor {floor:.4f}: the held-out error is the sensor's noise over the held-out "
+            "ranges, not a model error")
 
 
 def _detected_html(diag: Any) -> str:

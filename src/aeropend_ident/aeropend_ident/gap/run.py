@@ -167,6 +167,9 @@ class GapResult:
             "heldout_nrmse_nominal": None if "nominal" in gone else before,
             "heldout_nrmse_corrected": None if "corrected" in gone else after,
             "heldout_shrink": None if gone else ((1.0 - after / before) if before > 0 else math.nan),
+            # the NRMSE a perfect model would have on these held-out recordings: their measured θ
+            # noise over their ranges (a decay come to rest is pure noise: NRMSE ~ 1/range in σ)
+            "heldout_noise_floor_nrmse": self.test[0].get("noise_floor_nrmse"),
             "heldout_divergence": gone,
             "heldout_free_run": {label: row.get("free_run", []) for label, row in rows},
             "heldout_channel_nrmse_nominal": dict(ch0),

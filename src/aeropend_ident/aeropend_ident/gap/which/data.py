@@ -80,6 +80,12 @@ class Prepared:
         return self._replays
 
     @functools.cached_property
+    def theta_noise_sd(self) -> float:
+        """Standard deviation [rad] of the recorded θ's measurement noise (:func:`_noise_var`: at
+        least the lattice's rounding noise)."""
+        return math.sqrt(_noise_var(self.y["theta"]))
+
+    @functools.cached_property
     def start(self) -> dict[str, float]:
         """The recording's smoothed start, the same for every rig replaying it
         (:func:`_initial_state`): the recorded θ's rate [rad/s] at the first sample as

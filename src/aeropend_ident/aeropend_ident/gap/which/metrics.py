@@ -54,7 +54,10 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
         ``steady_state_error`` (RMS over holds ≥ 0.5 s of the difference of the mean angles over
         each hold's last quarter [rad]), ``step_metrics`` (python-control ``step_info`` of the
         recorded and simulated response to the largest duty step of the first recording with one),
-        ``per_recording`` θ NRMSEs, ``channel_nrmse`` (mean NRMSE of every compared channel),
+        ``noise_floor_nrmse`` (the same mean with the recorded θ's measurement noise σ in place of
+        the error: the NRMSE of a perfect model; a held-out recording whose θ barely moves, a decay
+        come to rest, has a floor near 1/(its range in noise σ)), ``per_recording`` θ NRMSEs,
+        ``channel_nrmse`` (mean NRMSE of every compared channel),
         ``nrmse_channels`` (RMS over the compared channels of their NRMSEs: the gauge of a gap
         that lies in i_a, v_a or ω₁ rather than in θ), ``diverges`` (per recording whose free run
         diverges, :func:`aeropend_ident.io.overlay_axes.diverges`: its source and the reason; then
@@ -63,9 +66,12 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
     nrmse, maxe, ss, gone, runs = [], 0.0, [], [], []
     per_channel: dict[str, list[float]] = {}
     step: dict[str, Any] = {}
+    floor = []
     for p in preps:
         run = one_free_run(rig, meas, p)
-        runs.append({"recording": p.rec.source, **run.as_dict()})
+        floor.append(p.theta_noise_sd / p.scale["theta"])
+        runs.append({"recording": p.rec.source, **run.as_dict(), "noise_sd": p.theta_noise_sd,
+                     "noise_floor_nrmse": floor[-1]})
         th = run.theta
         y = p.y["theta"]
         for c, yc in p.y.items():
@@ -100,6 +106,7 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
     ch_nrmse = {c: float(np.mean(v)) for c, v in per_channel.items()}
     return {
         "nrmse": float(np.mean(nrmse)),
+        "noise_floor_nrmse": float(np.mean(floor)),
         "nrmse_channels": float(np.sqrt(np.mean(np.square(list(ch_nrmse.values()))))),
         "max_error": maxe,
         "steady_state_error": float(np.sqrt(np.mean(np.square(ss)))) if ss else math.nan,
