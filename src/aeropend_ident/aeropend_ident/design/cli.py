@@ -72,28 +72,45 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
 
 def _recordings(args: argparse.Namespace, offset: float) -> list[Any]:
     from aeropend_ident.gap.run import to_model_frame
+    from aeropend_ident.greybox.rig_inputs import is_table
     from aeropend_ident.io.recording_input import check_length, load_recording, uniform_recording
 
-    if not args.recordings:
-        raise DesignCliError("give the earlier recordings (the ones the report or the fit used)")
+    # the inputs rig fit and gap take are accepted as they are: a static table (balance / thrust)
+    # holds no command sequence to replay, so the design's earlier information is the recordings'
+    tables = [p for p in args.recordings if is_table(p)]
+    paths = [p for p in args.recordings if not is_table(p)]
+    if tables:
+        print(f"{', '.join(Path(t.partition(':')[0]).name for t in tables)}: static table(s), read by rig fit "
+              "and gap; the design replays the recordings only", file=sys.stderr)
+    if not paths:
+        raise DesignCliError("give the earlier recordings (the ones the report or the fit used)"
+                             + (": static tables alone hold no command sequence" if tables else ""))
     recs = []
-    for p in args.recordings:
+    for p in paths:
         r = uniform_recording(load_recording(p, args.preset))
         check_length(r, "earlier recording")
         recs.append(to_model_frame(r, offset) if offset else r)
     return recs
 
 
-def _limits(args: argparse.Namespace, recs: Sequence[Any]) -> Any:
+def _limits(args: argparse.Namespace, recs: Sequence[Any], offset: float = 0.0) -> Any:
+    """Default limits from the recordings and the static tables given beside them (a balance
+    table's commands and the angles they held, a thrust table's commands: the lab has driven its
+    rig there), the lab's stated limits over them."""
     from aeropend_ident.design.sequence import Limits
+    from aeropend_ident.greybox.rig_inputs import is_table, read_table
     from aeropend_ident.io.recording_input import detect_quantum
 
     dt = 1.0 / args.rate if args.rate else float(np.median([r.dt for r in recs]))
     stated = {k: getattr(args, k) for k in ("duty_min", "duty_max", "max_slew", "theta_min", "theta_max")
               if getattr(args, k) is not None}
     q = max(detect_quantum(np.asarray(r.channels["theta"])) for r in recs)
-    return Limits.from_recordings([r.channels["theta"] for r in recs], [r.duty for r in recs], dt,
-                                  quantum=q, stated=stated)
+    thetas, duties = [r.channels["theta"] for r in recs], [r.duty for r in recs]
+    for t in (read_table(x.partition(":")[0]) for x in args.recordings if is_table(x)):
+        duties.append(t.command)
+        if t.kind == "balance":
+            thetas.append(t.value + offset)
+    return Limits.from_recordings(thetas, duties, dt, quantum=q, stated=stated)
 
 
 def _channels(recs: Sequence[Any]) -> list[str]:
@@ -120,7 +137,7 @@ def discrimination(args: argparse.Namespace) -> dict[str, Any]:
     rig_ref = args.rig or report["inputs"]["rig"]["ref"]
     model = load_model(rig_ref)
     recs = _recordings(args, model.measurement.theta_offset)
-    limits = _limits(args, recs)
+    limits = _limits(args, recs, model.measurement.theta_offset)
     channels = _channels(recs)
     sigma = channel_noise(recs, channels)
     chosen, ranking = diagnosis_view(report)
