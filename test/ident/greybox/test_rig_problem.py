@@ -149,3 +149,16 @@ def test_screen_open_keeps_the_same_start_as_every_cost_in_full(monkeypatch):
     full = problem.screen_open(z0, [], n=32)
     np.testing.assert_array_equal(pruned, full)
     assert not np.array_equal(pruned, z0)
+
+
+def test_screen_keeps_its_best_points_exactly():
+    """The screen's ``keep`` best points and their costs are those of every cost in full; only the
+    others may be inf."""
+    problem = _toy_problem()
+    z0 = np.array([5.0, 5.0, 5.0])
+    full = problem.screen(z0, ["p.0", "p.1", "p.2"], n=32)
+    pruned = problem.screen(z0, ["p.0", "p.1", "p.2"], n=32, keep=3)
+    for (c1, z1), (c2, z2) in zip(full[:3], pruned[:3], strict=True):
+        assert c1 == c2
+        np.testing.assert_array_equal(z1, z2)
+    assert any(math.isinf(c) for c, _ in pruned)  # the toy's worse points were not evaluated in full

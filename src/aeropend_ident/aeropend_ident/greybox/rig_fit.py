@@ -271,7 +271,7 @@ def _stage(problem: Problem, blocks: Sequence[int], names: Sequence[str], start:
     z0, lo, hi = sub.z_bounds()
     # global screen first: at rig new's start a table is often flat (the model holds none of the
     # recorded angles), which would make every parameter look undetermined
-    ranked = [z for _, z in sub.screen(z0, [s.name for s in specs])[:SCREEN_STARTS]]
+    ranked = [z for _, z in sub.screen(z0, [s.name for s in specs], keep=SCREEN_STARTS)[:SCREEN_STARTS]]
     J = sub.jac(ranked[0], lo, hi)[:, : len(specs)]
     order = [_chain_order(s.name) for s in specs]
     weak = {f for f, _, _ in weak_directions(J, [s.name for s in specs], order)}
@@ -404,7 +404,7 @@ def _timing_start(problem: Problem, start: dict[str, float]) -> dict[str, float]
     z0, lo, hi = sub.z_bounds()
     k = len(specs)
     best = nelder_mead_best(lambda x: sub.cost(np.concatenate([x, z0[k:]])),
-                            [z[:k] for _, z in sub.screen(z0, keys)[:TIMING_STARTS]],
+                            [z[:k] for _, z in sub.screen(z0, keys, keep=TIMING_STARTS)[:TIMING_STARTS]],
                             list(zip(lo[:k], hi[:k], strict=True)), TIMING_NFEV)
     return {**start, **{s.name: s.from_z(best.x[j]) for j, s in enumerate(specs)}}
 
