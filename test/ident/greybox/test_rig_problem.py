@@ -99,3 +99,66 @@ def test_the_sandwich_covariance_widens_with_correlated_residuals():
     assert truth == pytest.approx(1.0 / math.sqrt(20.0), rel=0.2)
     assert np.median(naive) < 0.05 * truth
     assert math.sqrt(np.mean(np.square(robust))) == pytest.approx(truth, rel=0.5)
+
+
+class _Toy:
+    """Blocks of a toy problem: block i's residual is (z - c_i) weighted, no replay."""
+
+    def __init__(self, centres: np.ndarray) -> None:
+        self.centres = centres
+        self.nuisance: list = []
+
+
+def _toy_problem(n_blocks: int = 6, k: int = 3):
+    from aeropend_ident.greybox.parameters import ParameterSpec
+    from aeropend_ident.greybox.rig_problem import Problem
+
+    rng = np.random.default_rng(3)
+    centres = rng.uniform(2.0, 8.0, size=(n_blocks, k))
+    problem = object.__new__(Problem)
+    problem.specs = [ParameterSpec(f"p.{j}", "1", 5.0, 0.0, 10.0, False, 1.0) for j in range(k)]
+    problem.blocks = [_Toy(c) for c in centres]
+    problem.fixed = {}
+    problem._cache = None
+    problem._rig_or_none = lambda z: np.asarray(z, dtype=float)
+    problem.nuisance_values = lambda z: [[] for _ in centres]
+    # a residual that grows away from the block's centre (sin: several valleys for the screen)
+    problem._weighted = lambda b, rig, v: np.concatenate([rig[:k] - b.centres, np.sin(rig[:k] * b.centres)])
+    problem.block_residuals = lambda z, only=None: [problem._weighted(b, np.asarray(z), [])
+                                                    for b in problem.blocks]
+    return problem
+
+
+def test_cost_unless_above_is_the_cost_or_inf():
+    """The screen's pruned cost: the cost itself to the last bit when it stays below the limit,
+    inf as soon as the blocks so far exceed it."""
+    problem = _toy_problem()
+    z = np.array([4.0, 6.0, 3.0])
+    full = problem.cost(z)
+    assert problem.cost_unless_above(z, full * 1.5) == full
+    assert problem.cost_unless_above(z, math.inf) == full
+    assert problem.cost_unless_above(z, 0.5 * full) == math.inf
+
+
+def test_screen_open_keeps_the_same_start_as_every_cost_in_full(monkeypatch):
+    """Pruning the screen's points that cannot be among its best changes nothing it returns."""
+    problem = _toy_problem()
+    z0 = np.array([5.0, 5.0, 5.0])
+    pruned = problem.screen_open(z0, [], n=32)
+    monkeypatch.setattr(type(problem), "cost_unless_above", lambda self, z, limit: self.cost(z))
+    full = problem.screen_open(z0, [], n=32)
+    np.testing.assert_array_equal(pruned, full)
+    assert not np.array_equal(pruned, z0)
+
+
+def test_screen_keeps_its_best_points_exactly():
+    """The screen's ``keep`` best points and their costs are those of every cost in full; only the
+    others may be inf."""
+    problem = _toy_problem()
+    z0 = np.array([5.0, 5.0, 5.0])
+    full = problem.screen(z0, ["p.0", "p.1", "p.2"], n=32)
+    pruned = problem.screen(z0, ["p.0", "p.1", "p.2"], n=32, keep=3)
+    for (c1, z1), (c2, z2) in zip(full[:3], pruned[:3], strict=True):
+        assert c1 == c2
+        np.testing.assert_array_equal(z1, z2)
+    assert any(math.isinf(c) for c, _ in pruned)  # the toy's worse points were not evaluated in full

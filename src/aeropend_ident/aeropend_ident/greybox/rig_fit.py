@@ -50,6 +50,7 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import IdentificationError
+from aeropend_ident.greybox.batch import single_blas
 from aeropend_ident.greybox.decay import analyse_decay
 from aeropend_ident.greybox.parameters import ParameterSpec
 from aeropend_ident.greybox.replay import NRMSE_RULE, START_RULE, FreeRun, free_run
@@ -271,7 +272,7 @@ def _stage(problem: Problem, blocks: Sequence[int], names: Sequence[str], start:
     z0, lo, hi = sub.z_bounds()
     # global screen first: at rig new's start a table is often flat (the model holds none of the
     # recorded angles), which would make every parameter look undetermined
-    ranked = [z for _, z in sub.screen(z0, [s.name for s in specs])[:SCREEN_STARTS]]
+    ranked = [z for _, z in sub.screen(z0, [s.name for s in specs], keep=SCREEN_STARTS)[:SCREEN_STARTS]]
     J = sub.jac(ranked[0], lo, hi)[:, : len(specs)]
     order = [_chain_order(s.name) for s in specs]
     weak = {f for f, _, _ in weak_directions(J, [s.name for s in specs], order)}
@@ -404,7 +405,7 @@ def _timing_start(problem: Problem, start: dict[str, float]) -> dict[str, float]
     z0, lo, hi = sub.z_bounds()
     k = len(specs)
     best = nelder_mead_best(lambda x: sub.cost(np.concatenate([x, z0[k:]])),
-                            [z[:k] for _, z in sub.screen(z0, keys)[:TIMING_STARTS]],
+                            [z[:k] for _, z in sub.screen(z0, keys, keep=TIMING_STARTS)[:TIMING_STARTS]],
                             list(zip(lo[:k], hi[:k], strict=True)), TIMING_NFEV)
     return {**start, **{s.name: s.from_z(best.x[j]) for j, s in enumerate(specs)}}
 
@@ -492,9 +493,16 @@ def _provenance(J: np.ndarray, sizes: Sequence[int], blocks: Sequence[Block], j:
 
 
 # ------------------------------------------------------------------------------ the command
+@single_blas
 def fit_rig(rig_path: str | Path, inputs: Sequence[str], preset: str | None = None,
             progress: Callable[[str], None] | None = None) -> RigFitResult:
     """Fit every "to be fitted" parameter of a rig file (module docstring).
+
+    BLAS runs on one thread (:func:`~aeropend_ident.greybox.batch.single_blas`, as the grey-box fit
+    and the gap diagnosis): the joint solve's trust region takes an SVD of its tall Jacobian every
+    iteration (jahoyosr's staircase: 15 556 × 93, 145 times), and OpenBLAS' second thread spun against
+    the replays and any other process on a 2-core machine: that fit took 57-192 s wall (user time
+    up to 2× the wall time), 48 s on one BLAS thread with the same result.
 
     Parameters
     ----------
