@@ -133,7 +133,7 @@ def by_replay(problem: Problem, ends: Sequence[tuple[np.ndarray, np.ndarray, Any
     shooting: a basin wide enough to find); a compromise rig of a model that cannot follow the
     recordings may score lower there by following each window slowly, and then lag behind the
     whole recording (jahoyosr's staircase: mgd/J 0.17 and L/J 0.37 beat 18.6 and 67 on the windows,
-    free-run NRMSE 0.064 against 0.052). Among the fit's local optima the one that predicts is kept,
+    free-run NRMSE 0.063 against 0.050). Among the fit's local optima the one that predicts is kept,
     and the note says so when that is not the lowest cost.
     """
     lowest = min(range(len(ends)), key=lambda k: ends[k][2].cost)
