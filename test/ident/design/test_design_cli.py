@@ -94,3 +94,31 @@ def test_outcome_compares_the_prediction_with_a_new_report(tmp_path, capsys):
     assert out["matching_candidate"] == "actuator_lag" and out["predicted_first"] == 0.96
     assert out["changed"] and out["recording_first"] == "actuator_lag" and out["recording_agrees_with_gap"]
     assert out["recording_chi2"]["nominal"] > 2 * out["recording_chi2"]["actuator_lag"]
+
+
+def test_rig_fits_inputs_are_taken_as_they_are(tmp_path, capsys):
+    """A balance table beside a recording (what rig fit takes) is accepted: the design replays the
+    recording and takes its default command limit from the table too (a free decay alone, command
+    0, would leave no command to design with); a table alone is refused by name."""
+    rig = load_rig("thesis_sim")
+    n = 300
+    traj = simulate(rig, np.zeros(n), dt=DT, x0=np.array([0.5, 0.0, 0.0, 0.0, 0.0]))
+    theta = traj.true["theta"] + np.random.default_rng(1).normal(0.0, 2e-3, n)
+    decay = tmp_path / "decay_bag"
+    write_bag(Recording(t=np.arange(n) * DT, duty=np.zeros(n), channels={"theta": theta}, source="decay"),
+              decay)
+    table = tmp_path / "balance.csv"
+    table.write_text("command,angle_rad,angle_std_rad\n0.2,0.21,0.002\n0.35,0.52,0.002\n0.5,0.93,0.002\n")
+    out = tmp_path / "design"
+    code = main(["--design-for", str(RIG), str(table), str(decay), "--parameters", "pendulum.c_over_J",
+                 "--duration", "6", "--budget", "4", "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    assert "balance.csv: static table(s), read by rig fit and gap; the design replays the recordings" in err
+    doc = json.loads((out / "design.json").read_text())
+    assert doc["limits"]["duty_max"] == pytest.approx(0.5)  # the table's largest command
+    duty = np.loadtxt(out / "design.csv", delimiter=",", skiprows=1)[:, 1]
+    assert duty.max() > 0.05 and duty.max() <= 0.5 + 1e-12
+    assert main(["--design-for", str(RIG), str(table), "--parameters", "pendulum.c_over_J",
+                 "-o", str(tmp_path / "y")]) == 2
+    assert "static tables alone hold no command sequence" in capsys.readouterr().err

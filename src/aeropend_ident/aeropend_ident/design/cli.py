@@ -80,8 +80,9 @@ def _recordings(args: argparse.Namespace, offset: float) -> list[Any]:
     tables = [p for p in args.recordings if is_table(p)]
     paths = [p for p in args.recordings if not is_table(p)]
     if tables:
-        print(f"{', '.join(Path(t.partition(':')[0]).name for t in tables)}: static table(s), read by rig fit "
-              "and gap; the design replays the recordings only", file=sys.stderr)
+        names = ", ".join(Path(t.partition(":")[0]).name for t in tables)
+        print(f"{names}: static table(s), read by rig fit and gap; the design replays the recordings only",
+              file=sys.stderr)
     if not paths:
         raise DesignCliError("give the earlier recordings (the ones the report or the fit used)"
                              + (": static tables alone hold no command sequence" if tables else ""))
