@@ -3,12 +3,13 @@ undetermined?
 
 Each case is an independent rig of :mod:`bench.fixtures.family_lab` (ESC, voltage amplifier,
 H-bridge; angle only at 100 Hz on a 12-bit encoder or a 10-bit potentiometer, drawn from physics
-outside aeropend). A lab's first log is its 61 s of steps (``steps.csv``): ``rig new`` with what the
-lab states, then ``rig fit`` on the steps alone. The parameters that fit leaves STILL TO BE FITTED
+outside aeropend). A lab's first log is either its 61 s of steps (``steps.csv``) or its balance
+table and a free decay (a rig not yet driven dynamically): ``rig new`` with what the lab states,
+then ``rig fit`` on that log alone. The parameters that fit leaves STILL TO BE FITTED
 (refused) or AT SEARCH BOUND are the ones to determine. ``excitation --design-for`` designs 40 s
 for them (seed 0, its default limits: commands up to the largest recorded, the recorded angle
 range ± 0.15 rad); the design is played on the rig's own plant (its noise, lattice and rate), and
-``rig fit`` runs again on the steps and the designed recording. Control: a seeded APRBS of the same
+``rig fit`` runs again on the first log and the designed recording. Control: a seeded APRBS of the same
 length over the same command range, played and fitted the same way.
 
 Per parameter to determine: *determined* = the second fit reports it FITTED with a relative 1σ of
@@ -17,7 +18,7 @@ at most 10 % (issue 63's bar: ≥ 80 % of the refused parameters), and whether t
 ``bench/results/design_parameters.{json,md}``.
 
 Usage: ``PYTHONPATH=. python bench/bench_design_parameters.py [--families esc,voltage_amplifier,dc_hbridge]
-[--rigs 2]``.
+[--rigs 2] [--first-logs steps,decay]``.
 """
 
 from __future__ import annotations
@@ -121,7 +122,8 @@ def run_case(family: str, index: int, seed: int, first_log: str = "steps") -> di
         first_logs = [steps] if first_log == "steps" else \
             [i for i in inputs if "balance.csv" in i or "decay.csv" in i]
         new, first = d / "new.yaml", d / "first.yaml"
-        rc, text = _quiet(rig_main, ["new", "--actuator", family, "--stated", *fl.stated(rig), "-o", str(new)])
+        rc, text = _quiet(rig_main, ["new", "--actuator", family, "--stated", *fl.stated(rig), "-o",
+                                     str(new)])
         if rc:
             return {**row, "failed": f"rig new: {text[-300:]}"}
         t0 = time.perf_counter()
@@ -177,14 +179,14 @@ def render(res: dict[str, Any]) -> str:
              f"`PYTHONPATH=. python bench/bench_design_parameters.py` ({res['meta'].get('commit', '?')}, "
              f"{s['wall_s']:.0f} s). What it does: its module docstring. Determined = FITTED with a relative "
              f"1σ ≤ {DETERMINED:.0%} in the second fit.", "",
-             f"- parameters to determine after the steps alone: **{s['n_todo']}** in {s['n_cases']} cases",
-             f"- determined after the designed recording: **{s['design_determined']}/{s['n_todo']}**; after a "
-             f"seeded APRBS of the same length and range: {s['aprbs_determined']}/{s['n_todo']}",
-             f"- of those determined, truth within 3σ: design {s['design_within']}, APRBS {s['aprbs_within']} "
-             "(where the drawn rig has the parameter by name)",
+             f"- parameters to determine after the first log: **{s['n_todo']}** in {s['n_cases']} cases",
+             f"- determined after the designed recording: **{s['design_determined']}/{s['n_todo']}**; "
+             f"after a seeded APRBS of the same length and range: {s['aprbs_determined']}/{s['n_todo']}",
+             f"- of those determined, truth within 3σ: design {s['design_within']}, APRBS "
+             f"{s['aprbs_within']} (where the drawn rig has the parameter by name)",
              f"- design time median {s['design_s_median']:.0f} s, max {s['design_s_max']:.0f} s", "",
-             "| rig | sensor | parameter | after steps | after design (rel 1σ) | after APRBS (rel 1σ) | truth |",
-             "|---|---|---|---|---|---|---|"]
+             "| rig | sensor | first log | parameter | after it | after design (rel 1σ) | after APRBS "
+             "(rel 1σ) | truth |", "|---|---|---|---|---|---|---|---|"]
 
     def cell(x: dict[str, Any] | None) -> str:
         if not x:
@@ -195,14 +197,22 @@ def render(res: dict[str, Any]) -> str:
 
     for r in res["rows"]:
         if "failed" in r or "note" in r:
-            lines.append(f"| {r['rig']} | {r['sensor']} | {r.get('failed') or r.get('note')} | | | | |")
+            why = r.get("failed") or r.get("note")
+            lines.append(f"| {r['rig']} | {r['sensor']} | {r['first_log']} | {why} | | | | |")
             continue
         for k, b in r["to_determine"].items():
             first = b["status"] if b["status"] != "fitted" else f"{b['value']:.4g} ± {b['sd']:.2g}"
             tru = r.get("design", {}).get(k, {}).get("truth")
-            lines.append(f"| {r['rig']} | {r['sensor']} | `{k}` | {first} | {cell(r.get('design', {}).get(k))} "
-                         f"| {cell(r.get('aprbs', {}).get(k))} | {'—' if tru is None else f'{tru:.4g}'} |")
+            lines.append(f"| {r['rig']} | {r['sensor']} | {r['first_log']} | `{k}` | {first} | "
+                         f"{cell(r.get('design', {}).get(k))} | {cell(r.get('aprbs', {}).get(k))} | "
+                         f"{'—' if tru is None else f'{tru:.4g}'} |")
     return "\n".join(lines) + "\n"
+
+
+def _within(v: list[dict[str, Any]]) -> str:
+    """'k/n': of the determined parameters with a truth by name, those within 3σ of it."""
+    judged = [x for x in v if x.get("determined") and x.get("within_3sd") is not None]
+    return f"{sum(bool(x['within_3sd']) for x in judged)}/{len(judged)}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -230,9 +240,7 @@ def main(argv: list[str] | None = None) -> int:
     summary = {"n_cases": len(rows), "n_todo": len(todo), "wall_s": time.perf_counter() - t0,
                "design_s_median": float(np.median(times)), "design_s_max": float(np.max(times)),
                **{f"{lab}_determined": sum(bool(x.get("determined")) for x in v) for lab, v in det.items()},
-               **{f"{lab}_within": f"{sum(bool(x.get('within_3sd')) for x in v if x.get('determined'))}/"
-                                   f"{sum(1 for x in v if x.get('determined') and x.get('within_3sd') is not None)}"
-                  for lab, v in det.items()}}
+               **{f"{lab}_within": _within(v) for lab, v in det.items()}}
     res = {"summary": summary, "meta": run_meta(t0, load, argv), "rows": rows}
     args.out.with_suffix(".json").write_text(json.dumps(res, indent=1, default=str), encoding="utf-8")
     args.out.with_suffix(".md").write_text(render(res), encoding="utf-8")
