@@ -90,20 +90,25 @@ def _register(cls: type) -> type:
     return cls
 
 
-@cache
+#: Section classes made so far, by family, section and their parameters: a registry refresh
+#: (a part registered later) keeps the class of a section whose parameters did not change, so the
+#: rigs built before stay valid.
+_SECTION_CLASSES: dict[tuple[str, str, tuple[Any, ...]], type] = {}
+
+
 def section_class(family: str, section: str) -> type:
     """Frozen dataclass of one rig section for a family: one float field per parameter the family
     has in that section (:func:`aeropend_sim.components.registry.family_params`), with the field
     metadata ``unit``, ``doc``, ``positive``, ``nonneg`` and ``param`` (the :class:`Param`)."""
-    specs = []
-    for p in registry.family_params(family).values():
-        if p.section != section:
-            continue
-        meta = {"unit": p.unit, "doc": p.doc, "positive": p.sign == "positive", "nonneg": p.sign == "nonneg",
-                "param": p}
-        specs.append((p.name, float, field(metadata=meta)))
-    name = f"{_camel(family)}{_camel(section)}Params"
-    return _register(make_dataclass(name, specs, frozen=True))
+    params = tuple(p for p in registry.family_params(family).values() if p.section == section)
+    key = (family, section, params)
+    if key not in _SECTION_CLASSES:
+        specs = [(p.name, float, field(metadata={
+            "unit": p.unit, "doc": p.doc, "positive": p.sign == "positive", "nonneg": p.sign == "nonneg",
+            "param": p})) for p in params]
+        name = f"{_camel(family)}{_camel(section)}Params"
+        _SECTION_CLASSES[key] = _register(make_dataclass(name, specs, frozen=True))
+    return _SECTION_CLASSES[key]
 
 
 def __getattr__(name: str) -> type:
@@ -653,5 +658,4 @@ def shipped_rigs() -> list[str]:
 
 
 # a part registered later (registry.register) may change what a family's rig has
-registry.invalidate_with(section_class.cache_clear)
 registry.invalidate_with(_validation_plan.cache_clear)

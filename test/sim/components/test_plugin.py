@@ -26,7 +26,7 @@ from aeropend_ident.cli.rig import main as rig_main
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import Effect, Family, Param, Term
 from aeropend_sim.params import load_rig
-from aeropend_sim.simulate import simulate
+from aeropend_sim.simulation import simulate
 
 OMEGA_FULL = Param("actuator.omega_full", "rad/s", "rotor speed at full throttle (linear ESC)",
                    sign="positive", symbol="ω_full", typical=900.0, measure="a tachometer at full throttle")
@@ -136,3 +136,27 @@ def test_an_installed_plugin_is_found_through_its_entry_point(tmp_path: Path, mo
         sys.modules.pop("lab_linear_esc", None)
         registry.refresh()
     assert "linear_esc" not in [f.name for f in registry.families()]
+
+
+def test_rigs_loaded_before_a_registration_stay_valid() -> None:
+    """A family registered and removed later leaves the shipped families' rig sections as they were:
+    a rig loaded before still builds its variants (the section classes are kept by content; they
+    were remade, and every rig loaded before was refused, in the first version)."""
+    rig = load_rig("thesis_rig")
+    registry.register(FAMILY)
+    registry.unregister(FAMILY.name)
+    assert rig.with_params("pendulum", c_over_J=2.0 * rig.pendulum.c_over_J).pendulum.c_over_J > 0.0
+
+
+def test_an_effect_registered_after_the_rig_format_was_built_is_refused() -> None:
+    """The rig format's effects section is made when aeropend_sim.params is imported: a lab's effect
+    comes through its package's entry point; a late one is refused by name, the registry unchanged."""
+    late = Effect(name="late_friction", part="pendulum", label="late", description="−c_l·Ω", order=98,
+                  params=(Param("pendulum.late_c", "1/s", "a friction", absent=0.0, symbol="c_l",
+                                typical=0.1),),
+                  terms=(Term("rod", 98, lambda xp, theta_dot, late_c: -late_c * theta_dot, "−c_l·Ω"),))
+    before = [e.name for e in registry.effects()]
+    with pytest.raises(registry.RegistryError, match=r"effect\(s\) \['late_friction'\] after the rig format "
+                                                     r"was built"):
+        registry.register(late)
+    assert [e.name for e in registry.effects()] == before

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import importlib
 import pkgutil
+import sys
 from collections.abc import Callable, Iterable
 from functools import cache
 from importlib.metadata import entry_points
@@ -190,8 +191,10 @@ def register(*parts: Part | ModuleType) -> None:
     Raises
     ------
     RegistryError
-        If a declaration does not fit (:func:`check_declarations`) or a name is taken; the registry
-        is then as it was.
+        If a declaration does not fit (:func:`check_declarations`) or a name is taken, or for an
+        effect once :mod:`aeropend_sim.params` is imported (the rig format's ``effects`` section is
+        made once: a lab's effects come through :data:`ENTRY_POINT_GROUP`, found at the registry's
+        first use); the registry is then as it was.
     """
     new: list[Part] = []
     for p in parts:
@@ -205,6 +208,12 @@ def register(*parts: Part | ModuleType) -> None:
     try:
         _declarations()
         owners()
+        late = [q.name for q in new if isinstance(q, Effect)]
+        if late and "aeropend_sim.params" in sys.modules:
+            raise RegistryError(f"register: effect(s) {late} after the rig format was built "
+                                "(aeropend_sim.params is imported: its effects section is made once); name "
+                                f"the module under the entry-point group {ENTRY_POINT_GROUP!r}, or register "
+                                "before loading any rig")
     except Exception:
         del _registered[len(_registered) - len(new):]
         refresh()
