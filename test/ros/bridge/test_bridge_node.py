@@ -37,8 +37,8 @@ pytestmark = [
     # real time, as test_bridge_swap: the fake MCU's 490 Hz stream from a thread of this process, the
     # bridge's sample-rate diagnostic over its last second of host time and its 100 ms command watchdog.
     # Beside the parallel suite (the clean-clone CI of c986505) the diagnostic read 425 Hz while the
-    # MCU-clock stamps were 490.18 Hz apart: frames were late on the host, not lost on the wire; alone
-    # and beside four CPU hogs it read within 5 % in 7 of 7 runs
+    # MCU-clock stamps were 490.18 Hz apart: frames were late on the host, not lost on the wire; beside
+    # three or four CPU hogs it read within 5 % in 7 of 7 runs
     pytest.mark.exclusive,
     pytest.mark.timeout(60),
 ]
