@@ -144,7 +144,9 @@ def run_case(family: str, index: int, seed: int, first_log: str = "steps") -> di
         if rc:
             return {**row, "failed": f"design: {text[-400:]}"}
         spec = json.loads((d / "design" / "design.json").read_text(encoding="utf-8"))
-        row["predicted"] = spec.get("prediction") or spec.get("predicted")
+        # the design's own prediction (relative 1σ under its unit prior): before, with the design,
+        # with its seeded APRBS
+        row["predicted"] = {k: spec.get(k) for k in ("sd_before", "sd_after", "sd_after_baseline")}
         designed = _play(rig, d / "design" / "design.csv", d / "designed.csv", seed=77)
         cmd = np.loadtxt(d / "design" / "design.csv", delimiter=",", skiprows=1)[:, 1]
         aprbs = tp.aprbs(DURATION, seed=5, lo=float(cmd.min()), hi=float(cmd.max()), min_hold=0.2,
@@ -185,8 +187,8 @@ def render(res: dict[str, Any]) -> str:
              f"- of those determined, truth within 3σ: design {s['design_within']}, APRBS "
              f"{s['aprbs_within']} (where the drawn rig has the parameter by name)",
              f"- design time median {s['design_s_median']:.0f} s, max {s['design_s_max']:.0f} s", "",
-             "| rig | sensor | first log | parameter | after it | after design (rel 1σ) | after APRBS "
-             "(rel 1σ) | truth |", "|---|---|---|---|---|---|---|---|"]
+             "| rig | sensor | first log | parameter | after it | design's prediction | after design "
+             "(rel 1σ) | after APRBS (rel 1σ) | truth |", "|---|---|---|---|---|---|---|---|---|"]
 
     def cell(x: dict[str, Any] | None) -> str:
         if not x:
@@ -198,12 +200,14 @@ def render(res: dict[str, Any]) -> str:
     for r in res["rows"]:
         if "failed" in r or "note" in r:
             why = r.get("failed") or r.get("note")
-            lines.append(f"| {r['rig']} | {r['sensor']} | {r['first_log']} | {why} | | | | |")
+            lines.append(f"| {r['rig']} | {r['sensor']} | {r['first_log']} | {why} | | | | | |")
             continue
         for k, b in r["to_determine"].items():
             first = b["status"] if b["status"] != "fitted" else f"{b['value']:.4g} ± {b['sd']:.2g}"
             tru = r.get("design", {}).get(k, {}).get("truth")
-            lines.append(f"| {r['rig']} | {r['sensor']} | {r['first_log']} | `{k}` | {first} | "
+            pred = (r.get("predicted") or {}).get("sd_after") or {}
+            said = f"{pred[k]:.1%}" if isinstance(pred.get(k), (int, float)) else "—"
+            lines.append(f"| {r['rig']} | {r['sensor']} | {r['first_log']} | `{k}` | {first} | {said} | "
                          f"{cell(r.get('design', {}).get(k))} | {cell(r.get('aprbs', {}).get(k))} | "
                          f"{'—' if tru is None else f'{tru:.4g}'} |")
     return "\n".join(lines) + "\n"
