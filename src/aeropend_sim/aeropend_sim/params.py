@@ -33,7 +33,6 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, make_dataclass
-from functools import cache
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -179,7 +178,7 @@ def _why_not(key: str, family: str) -> str:
     return f"{key} is declared by {owner.name}, part of {fams} rigs: {reason}"
 
 
-@cache
+@registry.derived  # a part registered later may change it
 def _validation_plan(family: str) -> tuple[tuple, tuple, tuple, tuple]:
     """What :meth:`Rig.__post_init__` checks for a rig of ``family``, worked out once per family
     (a fit builds thousands of rigs): the section classes, the effects the family cannot have (with
@@ -654,8 +653,3 @@ def shipped_rigs() -> list[str]:
     """Names of the rig files shipped with ``aeropend_sim``."""
     folder = resources.files("aeropend_sim") / "rigs"
     return sorted(p.name[:-5] for p in folder.iterdir() if p.name.endswith(".yaml"))
-
-
-
-# a part registered later (registry.register) may change what a family's rig has
-registry.invalidate_with(_validation_plan.cache_clear)

@@ -42,7 +42,6 @@ import sys
 import tempfile
 import warnings
 from dataclasses import dataclass
-from functools import cache
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -139,7 +138,7 @@ def _missing(key: str, family: str) -> int:
     raise KeyError(f"the {family} family has no parameter {key!r}")
 
 
-@cache
+@registry.derived  # a part registered later may change it
 def layout(family: str) -> Layout:
     """The :class:`Layout` of ``family``'s compiled model."""
     flags = tuple(e.name for e in registry.family_effects(family)
@@ -248,7 +247,7 @@ def _write(name: str, text: str) -> Path:
     raise OSError(f"no writable folder for the compiled model (set {CACHE_ENV})")
 
 
-@cache
+@registry.derived  # a part registered later may change it
 def family_module(family: str) -> ModuleType:
     """The imported generated module of ``family`` (written to :func:`cache_dir` if needed).
 
@@ -266,8 +265,3 @@ def family_module(family: str) -> ModuleType:
     sys.modules[name] = module
     spec.loader.exec_module(module)
     return module
-
-
-# a part registered later (registry.register) may change a family's equations
-registry.invalidate_with(layout.cache_clear)
-registry.invalidate_with(family_module.cache_clear)

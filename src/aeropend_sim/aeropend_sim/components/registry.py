@@ -30,6 +30,7 @@ from functools import cache
 from importlib.metadata import entry_points
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 from aeropend_sim.components.base import (
     INPUTS,
@@ -55,7 +56,16 @@ INVERTIBLE = ("duty", "drive", "thrust", "gear", "rotor_response")
 FAMILY_KINDS = frozenset(PARTS)
 
 _registered: list[Part] = []
-_invalidators: list[Callable[[], None]] = []
+_derived: list[Any] = []
+
+
+def derived(fn: Callable[..., Any]) -> Any:
+    """:func:`functools.cache` for a function whose result is built from the registry, here or in
+    another module (the rig format's validation plan, the compiled layouts): :func:`refresh` clears
+    every such cache, so a part registered later is seen everywhere."""
+    cached = cache(fn)
+    _derived.append(cached)
+    return cached
 
 
 class RegistryError(LookupError):
@@ -85,7 +95,7 @@ def _discovered() -> list[Part]:
     return found
 
 
-@cache
+@derived
 def _declarations() -> tuple[tuple[Part, ...], tuple[Family, ...], tuple[Effect, ...]]:
     found = [*_discovered(), *_registered]
     families = [p for p in found if isinstance(p, Family)]
@@ -154,7 +164,7 @@ def check_declarations(components: Iterable[Part], families: Iterable[Family],
                                     f"{sorted(eff_names)}")
         if fam.drive not in INPUTS:
             raise RegistryError(f"family {fam.name}: drive {fam.drive!r} is not an input ({list(INPUTS)})")
-        built = [fam, *(c for c in components if c.applies_to(fam) is None)]
+        built = _built(fam, components)
         drives = [p.name for p in built for t in p.terms if t.slot == "drive"]
         if len(drives) != 1:
             raise RegistryError(f"family {fam.name}: {len(drives)} drive maps ({drives}); a family has "
@@ -165,19 +175,16 @@ def check_declarations(components: Iterable[Part], families: Iterable[Family],
                                 f"{[p.name for p in built]})")
 
 
+def _built(fam: Family, components: Iterable[Part]) -> list[Part]:
+    """The family and the components that apply to it (:meth:`Part.applies_to`), unsorted."""
+    return [fam, *(c for c in components if c.applies_to(fam) is None)]
+
+
 def refresh() -> None:
     """Discover again (a plug-in installed in a running process) and drop every cache built from
-    the registry, here and where :func:`invalidate_with` was called."""
-    for fn in (_declarations, legacy_switches, family_parts, family_effects, owners, params, family_params,
-               diagnoses, diagnosis_owner):
+    the registry (every :func:`derived` function, here and elsewhere)."""
+    for fn in _derived:
         fn.cache_clear()
-    for fn in _invalidators:
-        fn()
-
-
-def invalidate_with(fn: Callable[[], None]) -> None:
-    """Call ``fn`` whenever the registry changes (:func:`register`): a cache built from it elsewhere."""
-    _invalidators.append(fn)
 
 
 def register(*parts: Part | ModuleType) -> None:
@@ -274,7 +281,7 @@ def effect(name: str) -> Effect:
     raise RegistryError(f"unknown effect {name!r}; expected one of {[e.name for e in effects()]}")
 
 
-@cache
+@derived
 def legacy_switches() -> dict[str, tuple[str, ...]]:
     """Pre-issue-35 switch -> the effects it now stands for (``viscous_friction`` -> rod and rotor)."""
     out: dict[str, list[str]] = {}
@@ -284,22 +291,20 @@ def legacy_switches() -> dict[str, tuple[str, ...]]:
     return {k: tuple(v) for k, v in out.items()}
 
 
-@cache
+@derived
 def family_parts(name: str) -> tuple[Part, ...]:
     """The family and the components of a rig of family ``name`` (its non-optional parts), by order."""
-    fam = family(name)
-    comps = [c for c in components() if c.applies_to(fam) is None]
-    return tuple(sorted((fam, *comps), key=lambda p: (p.order, p.name)))
+    return tuple(sorted(_built(family(name), components()), key=lambda p: (p.order, p.name)))
 
 
-@cache
+@derived
 def family_effects(name: str) -> tuple[Effect, ...]:
     """The effects that apply to a rig of family ``name``, by order."""
     fam = family(name)
     return tuple(e for e in effects() if e.applies_to(fam) is None)
 
 
-@cache
+@derived
 def owners() -> dict[str, Part]:
     """Parameter key -> the component or effect that declares it.
 
@@ -323,7 +328,7 @@ def owners() -> dict[str, Part]:
     return out
 
 
-@cache
+@derived
 def params() -> dict[str, Param]:
     """Every parameter of the registry, key -> Param, in declaration order of their owners."""
     return {par.key: par for p in parts() for par in p.params}
@@ -343,13 +348,13 @@ def param(key: str) -> Param:
         raise RegistryError(f"no component or effect declares the parameter {key!r}") from None
 
 
-@cache
+@derived
 def family_params(name: str) -> dict[str, Param]:
     """Parameters a rig of family ``name`` has (its parts' and applicable effects'), key -> Param."""
     return {par.key: par for p in (*family_parts(name), *family_effects(name)) for par in p.params}
 
 
-@cache
+@derived
 def diagnoses(family_name: str | None = None) -> tuple[Diagnosis, ...]:
     """The gap diagnosis' hypotheses (:class:`Diagnosis`, catalog and drift), by catalog order.
 
@@ -373,7 +378,7 @@ def diagnoses(family_name: str | None = None) -> tuple[Diagnosis, ...]:
     return tuple(sorted(out.values(), key=lambda d: (d.order, d.name)))
 
 
-@cache
+@derived
 def diagnosis_owner(name: str) -> Part:
     """The component or effect that declares the diagnosis ``name``.
 
