@@ -44,7 +44,7 @@ from aeropend_bridge.protocol import (
     SampleFrame,
     StatusFrame,
 )
-from aeropend_bridge.simavr_harness import harness_link, wait_drained
+from aeropend_bridge.simavr_harness import encoder_angle, encoder_event_lines, harness_link, wait_drained
 
 ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware"
@@ -75,11 +75,8 @@ GRID = np.arange(0.0, SIM_S, 1e-6)  # the harness's encoder clock [s]
 
 
 def disk_count(t_s: np.ndarray) -> np.ndarray:
-    """The emulated disk's count at Timer1-relative times t_s [s] (the harness's formula)."""
-    th = np.zeros_like(t_s)
-    for t0, t1, th0, a, w in SEGMENTS:
-        th = np.where(t_s >= t0, th0 + a * np.sin(w * (np.minimum(t_s, t1) - t0)), th)
-    return np.floor(th * CPR / (2 * math.pi)).astype(np.int64)
+    """The emulated disk's count at Timer1-relative times t_s [s] (the harness's: floor)."""
+    return np.floor(encoder_angle(SEGMENTS, t_s) * CPR / (2 * math.pi)).astype(np.int64)
 
 
 @functools.cache
@@ -121,9 +118,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> dict:
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     events = tmp / "events.txt"
-    lines = [f"enccpr {CPR}", f"encindex {N_DISK}", f"encslip {T_SLIP * 1e6:.1f} {SLIP}"]
-    lines += [f"enc {t0 * 1e6:.1f} {t1 * 1e6:.1f} {th0:.17g} {a:.17g} {w:.17g}"
-              for t0, t1, th0, a, w in SEGMENTS]
+    lines = encoder_event_lines(SEGMENTS, CPR, index=N_DISK, slip=(T_SLIP, SLIP))
     events.write_text("\n".join(lines) + "\n")
     frames: list[object] = []
     lock = threading.Lock()

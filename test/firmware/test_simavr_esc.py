@@ -58,7 +58,7 @@ from aeropend_bridge.protocol import (
     SampleFrame,
     StatusFrame,
 )
-from aeropend_bridge.simavr_harness import harness_link, wait_drained
+from aeropend_bridge.simavr_harness import encoder_angle, encoder_event_lines, harness_link, wait_drained
 
 ROOT = Path(__file__).resolve().parents[2]
 FW = ROOT / "firmware"
@@ -148,12 +148,8 @@ class Schedule:
 
 
 def encoder_theta(t_s: np.ndarray) -> np.ndarray:
-    """The harness's rod angle [rad] at Timer1-relative times t_s (same formula as harness.c)."""
-    th = np.zeros_like(t_s)
-    for t0, t1, th0, a, w in SEGMENTS:
-        on = t_s >= t0
-        th = np.where(on, th0 + a * np.sin(w * (np.minimum(t_s, t1) - t0)), th)
-    return th
+    """The harness's rod angle [rad] at Timer1-relative times t_s."""
+    return encoder_angle(SEGMENTS, t_s)
 
 
 @pytest.fixture(scope="module")
@@ -170,10 +166,7 @@ def _run(build: Build, harness: Path, tmp: Path) -> dict:
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stdout + r.stderr
     events = tmp / "events.txt"
-    lines = [f"enccpr {build.cpr or 4000}"]
-    lines += [f"enc {t0 * 1e6:.1f} {t1 * 1e6:.1f} {th0:.17g} {a:.17g} {w:.17g}"
-              for t0, t1, th0, a, w in SEGMENTS]
-    events.write_text("\n".join(lines) + "\n")
+    events.write_text("\n".join(encoder_event_lines(SEGMENTS, build.cpr or 4000)) + "\n")
     plog = tmp / "pulses.txt"
     frames: list[object] = []
     lock = threading.Lock()

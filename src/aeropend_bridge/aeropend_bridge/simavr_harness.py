@@ -17,10 +17,49 @@ import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
+import numpy as np
+
 from aeropend_bridge.serial_link import FrameCallback, SerialLink
 
 #: simavr prints a few "Loaded ..." lines before the harness announces its pty.
 MAX_STARTUP_LINES = 20
+#: One swing of the emulated encoder's rod, an ``enc`` event line: (t0 [s], t1 [s], θ0 [rad], A [rad],
+#: W [rad/s]), θ = θ0 + A·sin(W·(t − t0)) from t0 to t1 (after the firmware's Timer1 start), held after.
+Swing = tuple[float, float, float, float, float]
+
+
+def encoder_event_lines(swings: Sequence[Swing], cpr: int, index: int | None = None,
+                        slip: tuple[float, int] | None = None) -> list[str]:
+    """The event-file lines of an emulated quadrature encoder (``firmware/sim/harness.c``, ``-e``).
+
+    Parameters
+    ----------
+    swings : sequence of Swing
+        The rod's trajectory, in order.
+    cpr : int
+        Counts per revolution of the emulated encoder (``enccpr``).
+    index : int, optional
+        The disk count at which the gated index Z is high (``encindex``).
+    slip : (float, int), optional
+        (t [s], n): the first n counts the disk moves from t on do not reach the lines (``encslip``).
+    """
+    lines = [f"enccpr {cpr}"]
+    if index is not None:
+        lines.append(f"encindex {index}")
+    if slip is not None:
+        lines.append(f"encslip {slip[0] * 1e6:.1f} {slip[1]}")
+    return lines + [f"enc {t0 * 1e6:.1f} {t1 * 1e6:.1f} {th0:.17g} {a:.17g} {w:.17g}"
+                    for t0, t1, th0, a, w in swings]
+
+
+def encoder_angle(swings: Sequence[Swing], t_s: np.ndarray) -> np.ndarray:
+    """The emulated encoder's rod angle [rad] at times ``t_s`` [s] after the Timer1 start: the
+    harness's ``enc_theta`` (0 before the first swing; each swing held after its end)."""
+    t_s = np.asarray(t_s, dtype=float)
+    th = np.zeros_like(t_s)
+    for t0, t1, th0, a, w in swings:
+        th = np.where(t_s >= t0, th0 + a * np.sin(w * (np.minimum(t_s, t1) - t0)), th)
+    return th
 
 
 class HarnessError(RuntimeError):

@@ -32,7 +32,7 @@ pytest.importorskip("rclpy")
 from sensor_msgs.msg import BatteryState, JointState
 from std_msgs.msg import Float64
 
-from aeropend_bridge.simavr_harness import build_emulator, read_pty_path
+from aeropend_bridge.simavr_harness import build_emulator, encoder_event_lines, read_pty_path
 from aeropend_ident.cli.rig import main as rig_main
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.ros.harness import isolated_env, node_command, private_node, random_domain, reap, stop
@@ -59,7 +59,8 @@ def firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
                            ("ACTUATOR=esc", "ESC_HZ=50", "ANGLE=encoder", f"ENC_CPR={CPR}", "SPEED=none"))
     # the rod rises smoothly (peak 1 rad/s) to THETA_HOLD at t = 0.1 s + π/4 s and stays there
     t1_us = 100_000 + math.pi / 4 * 1e6
-    (build / "events.txt").write_text(f"enccpr {CPR}\nenc 100000 {t1_us:.3f} 0 {THETA_HOLD} 2\n")
+    swing = (0.1, t1_us * 1e-6, 0.0, THETA_HOLD, 2.0)
+    (build / "events.txt").write_text("\n".join(encoder_event_lines([swing], CPR)) + "\n")
     return build
 
 
@@ -172,8 +173,8 @@ def index_firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
     # at T_SWING the rod rises smoothly (peak 1 rad/s) through the index (disk count 100, 0.157 rad) to
     # THETA_HOLD from the power-up position (disk count 318) and stays there
     t0_us, t1_us = T_SWING * 1e6, T_SWING * 1e6 + math.pi / 4 * 1e6
-    (build / "events.txt").write_text(f"enccpr {CPR}\nencindex {INDEX_DISK}\n"
-                                      f"enc {t0_us:.3f} {t1_us:.3f} 0 {THETA_HOLD} 2\n")
+    swing = (t0_us * 1e-6, t1_us * 1e-6, 0.0, THETA_HOLD, 2.0)
+    (build / "events.txt").write_text("\n".join(encoder_event_lines([swing], CPR, index=INDEX_DISK)) + "\n")
     return build
 
 
