@@ -3,7 +3,8 @@
 ::
 
     excitation_design --design-for GAP_REPORT RECORDING ... --rig RIG -o OUT
-        [--duration 40] [--rate HZ] [--seed 0] [--budget 45] [--max-effects 3] [--preset NAME]
+        [--duration 40] [--rate HZ] [--seed 0] [--max-evaluations N] [--budget 120] [--max-effects 3]
+        [--preset NAME]
         [--duty-min X] [--duty-max X] [--max-slew PER_S] [--theta-min RAD] [--theta-max RAD]
     excitation_design --design-for FITTED_RIG.yaml RECORDING ... -o OUT [--parameters KEY ...] [...]
     excitation_design --outcome NEW_GAP_REPORT --design OUT [DESIGNED_RECORDING]
@@ -33,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.design.sequence import MODES, DesignError, check_mode
+from aeropend_ident.design.sequence import BUDGET_S, MAX_REPLAYS, MODES, DesignError, check_mode
 from aeropend_ident.errors import IdentError
 
 
@@ -51,10 +52,13 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
     ap.add_argument("--duration", type=float, default=40.0, help="length of the design [s] (≤ 60)")
     ap.add_argument("--rate", type=float, help="logging rate [Hz] (default: the recordings')")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--budget", type=float, default=45.0, help="search wall-time budget [s]")
-    ap.add_argument("--max-evaluations", dest="max_evaluations", type=int, default=5000,
-                    help="most sequences simulated: with a budget that is not reached, the same seed gives "
-                         "the same design on any machine")
+    ap.add_argument("--budget", type=float, default=BUDGET_S,
+                    help="wall-time safety net of the search [s]; a search it cuts says so (another machine "
+                         "or load would give another design)")
+    ap.add_argument("--max-evaluations", dest="max_evaluations", type=int,
+                    help=f"most sequences scored (default: {MAX_REPLAYS} simulated runs' worth, i.e. "
+                         f"{MAX_REPLAYS} / (parameters + 1) for a rig fit result, {MAX_REPLAYS} / candidates "
+                         "for a gap report): the same seed then gives the same design on any machine")
     ap.add_argument("--max-effects", dest="max_effects", type=int, default=3)
     ap.add_argument("--parameters", nargs="+", help="rig keys section.name to determine (rig fit results)")
     ap.add_argument("--preset", help="CSV preset of the recordings")
@@ -163,7 +167,7 @@ def discrimination(args: argparse.Namespace) -> dict[str, Any]:
            "min_divergence": d.min_divergence, "baseline_min_divergence": d.baseline_min_divergence,
            "criterion": d.value, "baseline_criterion": d.baseline_value,
            "limits_check": check_limits(d.duty, limits, th.ravel()),
-           "evaluations": d.evaluations, "elapsed_s": d.elapsed_s}
+           "evaluations": d.evaluations, "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s}
     write_design(args.out, doc, d.duty, limits.dt, cands)
     return doc
 
@@ -201,7 +205,7 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
            "sd_after": d.sd_after,
            "sd_after_baseline": d.sd_after_baseline, "logdet": d.logdet, "baseline_logdet": d.baseline_logdet,
            "limits_check": check_limits(d.duty, limits, th), "evaluations": d.evaluations,
-           "elapsed_s": d.elapsed_s}
+           "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s}
     write_design(args.out, doc, d.duty, limits.dt)
     return doc
 
@@ -247,6 +251,11 @@ def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> 
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     print((args.out / "design.md").read_text(encoding="utf-8"))
+    if doc.get("stopped_by") == "budget":
+        print(f"{prog}: warning: the search was cut by --budget {args.budget:g} s after {doc['evaluations']} "
+              f"of --max-evaluations {args.max_evaluations}: this seed gives another design on another "
+              "machine or load (a smaller --max-evaluations or a larger --budget makes it reproducible)",
+              file=sys.stderr)
     print(f"{prog}: wrote {args.out}/design.csv, design.json, design.md ({doc['elapsed_s']:.1f} s)")
     return 0
 

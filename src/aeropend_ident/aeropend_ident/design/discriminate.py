@@ -47,7 +47,16 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.design.candidates import Candidate
-from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, check_mode, search, sequence
+from aeropend_ident.design.sequence import (
+    BUDGET_S,
+    AprbsShape,
+    Limits,
+    aprbs_vector,
+    check_mode,
+    default_evaluations,
+    search,
+    sequence,
+)
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
 
@@ -143,6 +152,9 @@ class Discrimination:
         Wall time of the search [s].
     z : ndarray, shape (2M,)
         The design vector.
+    stopped_by : str
+        What ended the search (:func:`~aeropend_ident.design.sequence.search`): ``"evaluations"``
+        or ``"converged"`` (reproducible from the seed) or ``"budget"`` (wall time).
     """
 
     duty: np.ndarray
@@ -154,6 +166,7 @@ class Discrimination:
     evaluations: int
     elapsed_s: float
     z: np.ndarray
+    stopped_by: str = "evaluations"
 
 
 def _min_div(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float]) -> float:
@@ -163,8 +176,8 @@ def _min_div(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float]) -> f
 
 
 def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, float], limits: Limits,
-                          shape: AprbsShape | None = None, *, seed: int = 0, budget_s: float = 45.0,
-                          max_evaluations: int = 5000, mode: str = "open_loop") -> Discrimination:
+                          shape: AprbsShape | None = None, *, seed: int = 0, budget_s: float = BUDGET_S,
+                          max_evaluations: int | None = None, mode: str = "open_loop") -> Discrimination:
     """Search the APRBS parametrisation for the sequence that best separates ``candidates``.
 
     Parameters
@@ -180,9 +193,11 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
     seed : int
         Seed of the starting APRBS and of CMA-ES (the design is reproducible).
     budget_s : float
-        Wall-time budget of the search [s] (checked between CMA-ES generations).
-    max_evaluations : int
-        Most sequences simulated.
+        Wall-time safety net of the search [s] (:func:`~aeropend_ident.design.sequence.search`).
+    max_evaluations : int, optional
+        Most sequences simulated (default
+        :func:`~aeropend_ident.design.sequence.default_evaluations` of the candidates: the design
+        is then reproducible from its seed).
     mode : str
         ``"open_loop"`` (a command sequence); ``"reference"`` (set points for the lab's
         controller) is refused until implemented (:func:`~aeropend_ident.design.sequence.check_mode`).
@@ -209,14 +224,17 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
         return criterion(pred(sequence(z, shape, limits)), sigma, limits), None
 
     z0 = aprbs_vector(shape, seed)
-    best_z, best_v, _, v0, _ = search(value, z0, seed=seed, budget_s=budget_s,
-                                      max_evaluations=max_evaluations, popsize=8 + shape.size // 6,
-                                      started=t0, tolfun=1e-4)
+    if max_evaluations is None:
+        max_evaluations = default_evaluations(len(candidates))
+    best_z, best_v, _, v0, _, stopped = search(value, z0, seed=seed, budget_s=budget_s,
+                                               max_evaluations=max_evaluations, popsize=8 + shape.size // 6,
+                                               started=t0, tolfun=1e-4)
     duty, base = sequence(best_z, shape, limits), sequence(z0, shape, limits)
     return Discrimination(duty=duty, baseline=base, value=best_v, baseline_value=v0,
                           min_divergence=_min_div(pred(duty), sigma),
                           baseline_min_divergence=_min_div(pred(base), sigma),
-                          evaluations=pred.calls, elapsed_s=time.perf_counter() - t0, z=best_z)
+                          evaluations=pred.calls, elapsed_s=time.perf_counter() - t0, z=best_z,
+                          stopped_by=stopped)
 
 
 def rank_first_probability(candidates: Sequence[Candidate], duty: np.ndarray, sigma: Mapping[str, float],

@@ -30,7 +30,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from aeropend_ident.design.sequence import AprbsShape, Limits, aprbs_vector, check_mode, search, sequence
+from aeropend_ident.design.sequence import (
+    BUDGET_S,
+    AprbsShape,
+    Limits,
+    aprbs_vector,
+    check_mode,
+    default_evaluations,
+    search,
+    sequence,
+)
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_sim.params import Rig
@@ -112,6 +121,8 @@ class ParameterDesign:
         Predicted relative 1σ per key: earlier recordings only, with the design, with the APRBS.
     evaluations : int
     elapsed_s : float
+    stopped_by : str
+        What ended the search (:func:`~aeropend_ident.design.sequence.search`).
     """
 
     duty: np.ndarray
@@ -124,12 +135,13 @@ class ParameterDesign:
     sd_after_baseline: dict[str, float]
     evaluations: int
     elapsed_s: float
+    stopped_by: str = "evaluations"
 
 
 def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float], limits: Limits,
                       shape: AprbsShape | None = None, *, earlier: Sequence[tuple[np.ndarray, float]] = (),
-                      nuisance: Sequence[str] = (), seed: int = 0, budget_s: float = 45.0,
-                      max_evaluations: int = 300, mode: str = "open_loop") -> ParameterDesign:
+                      nuisance: Sequence[str] = (), seed: int = 0, budget_s: float = BUDGET_S,
+                      max_evaluations: int | None = None, mode: str = "open_loop") -> ParameterDesign:
     """Search the APRBS parametrisation for the D-optimal sequence (module doc).
 
     Parameters
@@ -149,8 +161,10 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
         optimised).
     seed : int
     budget_s : float
-        Wall-time budget [s].
-    max_evaluations : int
+        Wall-time safety net [s] (:func:`~aeropend_ident.design.sequence.search`).
+    max_evaluations : int, optional
+        Most sequences scored (default :func:`~aeropend_ident.design.sequence.default_evaluations`
+        of the p + 1 rigs each replays: the design is then reproducible from its seed).
     mode : str
         ``"open_loop"``; ``"reference"`` is refused until implemented
         (:func:`~aeropend_ident.design.sequence.check_mode`).
@@ -187,7 +201,9 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
 
     z0 = aprbs_vector(shape, seed)
     base = sequence(z0, shape, limits)
-    best_z, best_v, best_f, v0, f_base = search(
+    if max_evaluations is None:
+        max_evaluations = default_evaluations(len(every) + 1)
+    best_z, best_v, best_f, v0, f_base, stopped = search(
         lambda z: score(sequence(z, shape, limits)), z0, seed=seed, budget_s=budget_s,
         max_evaluations=max_evaluations, popsize=8 + shape.size // 6, started=t0)
 
@@ -197,7 +213,7 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     return ParameterDesign(duty=sequence(best_z, shape, limits), baseline=base, keys=keys, logdet=best_v,
                            baseline_logdet=v0, sd_before=sd(np.zeros_like(f0)), sd_after=sd(best_f),
                            sd_after_baseline=sd(f_base), evaluations=calls,
-                           elapsed_s=time.perf_counter() - t0)
+                           elapsed_s=time.perf_counter() - t0, stopped_by=stopped)
 
 
 def fitted_keys(fitted_text: str) -> list[str]:

@@ -91,13 +91,23 @@ def _pct(x: Any) -> str:
     return "—" if x is None or not math.isfinite(float(x)) else f"{100 * float(x):.1f} %"
 
 
+def _stopped(why: Any) -> str:
+    """What ended the search, for a reader: whether the same seed gives the same design elsewhere."""
+    if why == "budget":
+        return ("the search was cut by its wall-time budget (--budget), so another machine or load gives "
+                "another design from this seed; a smaller --max-evaluations makes it reproducible")
+    if why == "converged":
+        return "the search converged: the same seed gives the same design on any machine"
+    return "the search ran its --max-evaluations: the same seed gives the same design on any machine"
+
+
 def markdown(doc: Mapping[str, Any]) -> str:
     """The short ``design.md`` of a design document."""
     lim = doc["limits"]
     lines = [f"# Experiment design ({doc['kind']})", "",
              f"From `{doc.get('design_for', '?')}`; {doc['duration_s']:g} s at {1 / lim['dt']:.4g} Hz "
              f"(`design.csv`, t,duty), seed {doc['seed']}, {doc['evaluations']} sequences simulated in "
-             f"{doc['elapsed_s']:.1f} s.",
+             f"{doc['elapsed_s']:.1f} s; {_stopped(doc.get('stopped_by'))}.",
              f"Limits: command {lim['duty_min']:.3g} … {lim['duty_max']:.3g}, slew ≤ {lim['max_slew']:g} /s, "
              f"angle {lim['theta_min']:.3g} … {lim['theta_max']:.3g} rad (every candidate's predicted angle: "
              f"{'inside' if doc['limits_check']['ok'] else 'OUTSIDE'}).", ""]

@@ -37,6 +37,20 @@ class DesignError(ValueError):
     """Invalid design settings (a limit outside its range, a duration over the cap, ...)."""
 
 
+#: The search's default length, in simulated runs of a rig (a parameter design replays p + 1 rigs
+#: per sequence, a discrimination design one per candidate): counted, not timed, so a seed gives
+#: one design on any machine under any load; about 20-40 s on two cores (docs/design.md).
+MAX_REPLAYS = 15000
+#: The search's default wall-time safety net [s]: a search cut by it says so (not reproducible).
+BUDGET_S = 120.0
+
+
+def default_evaluations(replays_per_evaluation: int) -> int:
+    """Sequences a search scores by default: :data:`MAX_REPLAYS` over the rigs replayed per
+    sequence (at least 200)."""
+    return max(200, MAX_REPLAYS // max(1, int(replays_per_evaluation)))
+
+
 #: What a design is: an open-loop command sequence, or (not implemented yet) a reference sequence
 #: for the lab's controller (docs/design.md, "Closed loop").
 MODES = ("open_loop", "reference")
@@ -222,11 +236,14 @@ def aprbs_vector(shape: AprbsShape, seed: int) -> np.ndarray:
 
 def search(score: Callable[[np.ndarray], tuple[float, Any]], z0: np.ndarray, *, seed: int, budget_s: float,
            max_evaluations: int, popsize: int, started: float, tolfun: float | None = None
-           ) -> tuple[np.ndarray, float, Any, float, Any]:
+           ) -> tuple[np.ndarray, float, Any, float, Any, str]:
     """Maximise ``score(z)[0]`` over the unit box by CMA-ES (the ``cma`` package) from ``z0``.
 
-    The one search of every design. The budget holds inside a generation too: an unfinished
-    generation is not told to the strategy and ends the search.
+    The one search of every design. It ends when ``max_evaluations`` sequences were scored or
+    CMA-ES converged: then the same seed gives the same design on any machine under any load.
+    ``budget_s`` is a safety net: when wall time runs out first (a slow or busy machine) the search
+    ends inside a generation too (an unfinished generation is not told to the strategy), and the
+    returned reason says so: that design depends on the machine's speed.
 
     Parameters
     ----------
@@ -235,9 +252,10 @@ def search(score: Callable[[np.ndarray], tuple[float, Any]], z0: np.ndarray, *, 
     z0 : ndarray, shape (n,)
         Start in [0, 1]^n (also scored: the baseline).
     seed : int
-        CMA-ES seed is ``seed + 1`` (the design is reproducible when ``max_evaluations`` stops it).
+        CMA-ES seed is ``seed + 1``.
     budget_s : float
-        Wall time [s] from ``started`` (a :func:`time.perf_counter` reading).
+        Wall time [s] from ``started`` (a :func:`time.perf_counter` reading) after which the search
+        stops whatever its evaluations.
     max_evaluations : int
         Most evaluations (CMA-ES ``maxfevals``).
     popsize : int
@@ -248,7 +266,9 @@ def search(score: Callable[[np.ndarray], tuple[float, Any]], z0: np.ndarray, *, 
     Returns
     -------
     tuple
-        ``(best_z, best_value, best_extra, baseline_value, baseline_extra)``.
+        ``(best_z, best_value, best_extra, baseline_value, baseline_extra, stopped_by)``;
+        ``stopped_by`` is ``"evaluations"``, ``"converged"`` (a CMA-ES tolerance) or ``"budget"``
+        (wall time: not reproducible).
     """
     import cma
 
@@ -259,20 +279,18 @@ def search(score: Callable[[np.ndarray], tuple[float, Any]], z0: np.ndarray, *, 
     if tolfun is not None:
         opts["tolfun"] = tolfun
     es = cma.CMAEvolutionStrategy(z0, 0.25, opts)
-    while not es.stop() and time.perf_counter() - started < budget_s:
+    while not es.stop():
         zs = es.ask()
         vals = []
         for z in zs:
             if time.perf_counter() - started >= budget_s:
-                break
+                return best_z, best_v, best_e, v0, e0, "budget"
             v, e = score(np.asarray(z))
             vals.append(v)
             if v > best_v:
                 best_z, best_v, best_e = np.asarray(z).copy(), v, e
-        if len(vals) < len(zs):
-            break
         es.tell(zs, [-v for v in vals])
-    return best_z, best_v, best_e, v0, e0
+    return best_z, best_v, best_e, v0, e0, "evaluations" if "maxfevals" in es.stop() else "converged"
 
 
 def check_limits(duty: np.ndarray, limits: Limits, theta: np.ndarray | None = None) -> dict[str, Any]:
