@@ -25,7 +25,7 @@ duty headroom). A run is *within reach* when the reference is inside both; the b
 With ``--gap`` (item 3), per plant: one 40 s open-loop APRBS recording of the truth plant (noise at
 the plant's SNR), split in time order 70/30 as ``gap`` does by default → the gap diagnosis
 (:func:`aeropend_ident.gap.run.run_gap`, up to 3 effects) → ``corrected_rig.yaml``
-(:func:`aeropend_ident.gap.run.corrected_rig_dict`, as the command writes it) → every strategy
+(:func:`aeropend_ident.gap.result.corrected_rig_dict`, as the command writes it) → every strategy
 designed on that file, same runs; metrics side by side with the nominal-designed runs.
 
 Writes ``bench/results/control_independent.{json,md}``.
@@ -221,7 +221,8 @@ def write_rig(doc: dict[str, Any], folder: Path, name: str) -> str:
 
 def gap_corrected_rig(plant: TruthPlant, nominal_path: str, snr_db: float, seed: int) -> tuple[dict, dict]:
     """One 40 s APRBS recording → ``gap`` (time-ordered 70/30 split) → corrected rig dict, summary."""
-    from aeropend_ident.gap.run import corrected_rig_dict, run_gap
+    from aeropend_ident.gap.result import corrected_rig_dict
+    from aeropend_ident.gap.run import run_gap
     from aeropend_ident.io.split import time_ordered
     from aeropend_sim.params import load_rig
     from aeropend_sim.recording import Recording

@@ -457,7 +457,7 @@ def _conditions(spec: dict[str, Any], case: dict[str, Any] | None = None) -> dic
 
 def lab_gap(case: dict[str, Any], fit: list[Any], held: list[Any]) -> Any:
     """``run_gap`` as the bench runs it: the lab's rig file, seed 0, :data:`MAX_EFFECTS`, session 2
-    held out (:class:`aeropend_ident.gap.run.GapResult`)."""
+    held out (:class:`aeropend_ident.gap.result.GapResult`)."""
     from aeropend_ident.gap.run import run_gap
 
     return run_gap(case["nominal"], fit, held, rig_ref=case["nominal"].name, seed=0,

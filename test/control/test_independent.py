@@ -225,7 +225,8 @@ def test_gap_on_one_recording_then_the_controllers_on_the_rig_file_it_wrote(tmp_
     the cascades 7.5-8.6 %; on the corrected rig (robust ω_n and ζ, ``drive_design.robust_spec``)
     every strategy settles within 0.85 s (0.54-0.78 s) and overshoots less than 3 % (0.44-0.75 %),
     at most a quarter of what it does designed on the nominal rig (measured 0.03-0.09 times)."""
-    from aeropend_ident.gap.run import corrected_rig_dict, run_gap
+    from aeropend_ident.gap.result import corrected_rig_dict
+    from aeropend_ident.gap.run import run_gap
     from aeropend_ident.io.split import time_ordered
     from aeropend_sim.params import load_rig
     from aeropend_sim.recording import Recording

@@ -40,7 +40,8 @@ _API: dict[str, tuple[str, ...]] = {
     "aeropend_ident.greybox.fit": ("fit_greybox", "GreyBoxResult"),
     "aeropend_ident.greybox.baseline": ("baseline", "run_baseline", "BaselineResult"),
     # the sim-to-real gap
-    "aeropend_ident.gap.run": ("run_gap", "GapResult"),
+    "aeropend_ident.gap.run": ("run_gap",),
+    "aeropend_ident.gap.result": ("GapResult",),
     "aeropend_ident.gap.compare": ("compare", "CompareResult"),
 }
 __all__, __getattr__, __dir__ = lazy_api(__name__, globals(), _API)

@@ -196,7 +196,7 @@ def test_corrected_rig_file_holds_the_plant_side_alternative_and_the_nominal_sen
     from types import SimpleNamespace
 
     from aeropend_ident.gap.effects import MeasurementMap
-    from aeropend_ident.gap.run import corrected_rig_dict
+    from aeropend_ident.gap.result import corrected_rig_dict
 
     nominal = load_rig("thesis_sim")
     k_q = nominal.thrust.K_q

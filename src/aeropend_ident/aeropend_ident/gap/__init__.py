@@ -11,7 +11,8 @@ from aeropend_sim.lazy_api import lazy_api
 #: The public API: defining module -> its names (the one list: ``__all__``, the lazy lookup and
 #: docs/api.md's check read it).
 _API: dict[str, tuple[str, ...]] = {
-    "aeropend_ident.gap.run": ("run_gap", "GapResult", "corrected_rig_dict"),
+    "aeropend_ident.gap.run": ("run_gap",),
+    "aeropend_ident.gap.result": ("GapResult", "corrected_rig_dict"),
     "aeropend_ident.gap.report": ("write_report", "terminal_summary"),
     "aeropend_ident.gap.where": ("locate_gap", "WhereReport"),
     "aeropend_ident.gap.which.diagnosis": ("diagnose_effects", "EffectDiagnosis"),

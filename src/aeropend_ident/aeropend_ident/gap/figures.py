@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.gap.run import (
+from aeropend_ident.gap.result import (
     GapResult,
     _label,
 )

@@ -1,4 +1,4 @@
-"""Sim-to-real gap, part 4: report a :class:`~aeropend_ident.gap.run.GapResult` (JSON, HTML, terminal).
+"""Sim-to-real gap, part 4: report a :class:`~aeropend_ident.gap.result.GapResult` (JSON, HTML, terminal).
 
 :func:`write_report` writes ``report.json`` (everything, machine-readable), ``report.html``
 (one self-contained page: the PNGs of :mod:`aeropend_ident.gap.figures` embedded as base64),
@@ -23,12 +23,12 @@ import yaml
 from aeropend_ident.gap.figures import (
     figures,
 )
-from aeropend_ident.gap.run import (
+from aeropend_ident.gap.result import (
     GapResult,
     _label,
     corrected_rig_dict,
-    run_gap,
 )
+from aeropend_ident.gap.run import run_gap
 from aeropend_ident.gap.where import EQUATIONS
 from aeropend_ident.gap.which.evidence import CANDIDATE_PRESENCE, NAMED_COMPLETENESS, NAMED_PRESENCE
 from aeropend_ident.gap.which.ranking import SWAP_GAIN

@@ -1,276 +1,60 @@
-"""Sim-to-real gap, part 3: run the whole diagnosis (where, which, after).
+"""Sim-to-real gap, part 3: the diagnosis as a pipeline of stages (where, which, after).
 
-:func:`run_gap` is the pipeline behind the ``gap`` command:
+:func:`run_gap` is the pipeline behind the ``gap`` command. It reads as its stages, each a function
+of one :class:`GapRun` (the immutable context :func:`prepare` builds once per run: the nominal rig
+and its plant model, the recordings in both angle frames, the fit / validation / held-out split,
+the options) and of the earlier stages' results:
 
-1. **where** — :func:`aeropend_ident.gap.where.locate_gap` of the nominal rig on the *fit*
-   recordings (equation errors per subsystem, regions, bands, residual tests);
-2. **which** — :func:`aeropend_ident.gap.which.diagnosis.diagnose_effects` screens, fits and ranks the
-   catalog's unmodelled effects (:mod:`aeropend_ident.gap.effects`). It fits on the *fit core*
-   and ranks / chooses on a *validation* part, both carved out of the fit recordings
-   (:func:`aeropend_ident.io.split.carve_validation`: train / validation / test), because the
-   ranking itself selects on the data it is given;
-3. **after** — the corrected rig is replayed on the **held-out** recordings, which neither step
-   has seen (overlay and before/after NRMSE, :func:`aeropend_ident.gap.which.metrics.gap_metrics`), and
+0. **prepare** — :func:`prepare`: the rig's plant is built once (a rig it cannot model is refused
+   before any stage), the recordings are split and moved into the model's angle frame once;
+1. **where** — :func:`locate`: :func:`aeropend_ident.gap.where.locate_gap` of the nominal rig on the
+   *fit* recordings (equation errors per subsystem, regions, bands, residual tests);
+2. **which** — :func:`choose`: :func:`aeropend_ident.gap.which.diagnosis.diagnose_effects` screens,
+   fits and ranks the catalog's unmodelled effects (:mod:`aeropend_ident.gap.effects`). It fits on
+   the *fit core* and ranks / chooses on a *validation* part, both carved out of the fit
+   recordings (:func:`aeropend_ident.io.split.carve_validation`: train / validation / test),
+   because the ranking itself selects on the data it is given;
+3. **sessions and prediction** — :func:`predict_held_out`: the leave-one-session-out diagnosis and drift
+   table (with sessions), and the held-out NRMSE predicted before the held-out replay;
+4. **after** — :func:`replay_held_out`: the corrected rig is replayed on the **held-out**
+   recordings, which no stage before has seen (overlay and before/after NRMSE,
+   :func:`aeropend_ident.gap.which.metrics.gap_metrics`), and
    :func:`~aeropend_ident.gap.where.locate_gap` is run again there, for the nominal and the
-   corrected rig (does the residual become white, does the flagged equation clear?).
+   corrected rig (does the residual become white, does the flagged equation clear?);
+   :func:`attainable_shrink`: a plain refit of the nominal parameters and the best catalog fit on
+   each held-out recording; :func:`check_tables`: the static tables against both rigs.
 
-The result (:class:`GapResult`, with its JSON form and :func:`corrected_rig_dict`) is written by
-:mod:`aeropend_ident.gap.report` and drawn by :mod:`aeropend_ident.gap.figures`.
+The result (:class:`aeropend_ident.gap.result.GapResult`, with its JSON form and the corrected rig
+file) is written by :mod:`aeropend_ident.gap.report` and drawn by :mod:`aeropend_ident.gap.figures`.
 
 No rclpy import, no matplotlib.
 """
 
 from __future__ import annotations
 
-import datetime as _dt
 import math
-import platform
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
-import scipy
 
 from aeropend_ident.errors import GapInputError, IdentError
 from aeropend_ident.gap.residual_tests import timing_lag_seen
+from aeropend_ident.gap.result import GapResult, where_which_agreement
 from aeropend_ident.gap.where import WhereReport, locate_gap
 from aeropend_ident.greybox.batch import single_blas
 from aeropend_ident.greybox.fit import error_metrics
-from aeropend_ident.greybox.parameters import THETA_OFFSET
-from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.split import (
     VALIDATION_FRACTION,
     carve_validation,
 )
-from aeropend_sim.params import Rig, rig_to_dict
+from aeropend_sim.model import PlantModel, plant_model
+from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
 
-@dataclass
-class GapResult:
-    """Everything :func:`run_gap` computed.
-
-    Attributes
-    ----------
-    rig : Rig
-        Nominal rig.
-    rig_ref : str
-        Rig name or file given (provenance).
-    theta_offset : float
-        θ_model − θ_recorded [rad].
-    fit, held_out : list[Recording]
-        Recordings used to find the effects / to prove them.
-    split_rule : str
-        How the held-out recordings were chosen.
-    where : WhereReport
-        Nominal rig on the fit recordings.
-    where_heldout_nominal, where_heldout_corrected : WhereReport
-        Nominal and corrected rig on the held-out recordings.
-    diagnosis : Any
-        :class:`aeropend_ident.gap.which.diagnosis.EffectDiagnosis`.
-    overlays : list[dict]
-        Per held-out recording: ``source``, ``t``, ``duty``, ``theta``, ``nominal``,
-        ``corrected`` (arrays, recording frame) and their ``metrics``.
-    fit_core, validation : list[Recording]
-        What the effect diagnosis saw: it fits on ``fit_core`` and chooses / ranks the effects on
-        ``validation`` (both carved from ``fit``); the held-out recordings stay unseen.
-    test : list[dict]
-        Held-out gap of the nominal rig (``effects`` = []) and of the corrected rig
-        (:func:`aeropend_ident.gap.which.metrics.gap_metrics`: ``nrmse`` = mean over recordings, ...).
-    prediction : dict, optional
-        Predicted held-out θ NRMSE of the corrected rig with its 80 % interval, made from the fit
-        data and the held-out duty (and its first second, where a replay's start is estimated)
-        before the held-out replay (:func:`aeropend_ident.gap.drift.predict_heldout`).
-    prediction_check : dict, optional
-        The prediction against the actual held-out NRMSE (``inside`` the interval or not).
-    attainable : list of dict, optional
-        Per held-out recording: oracle fits and the split of its gap
-        (:func:`aeropend_ident.gap.sessions.attainable`).
-    sessions : dict, optional
-        Leave-one-session-out diagnosis and drift table
-        (:func:`aeropend_ident.gap.sessions.session_analysis`).
-    refit : dict, optional
-        The corrected rig against a plain refit of the nominal parameters on the held-out
-        recordings (:func:`aeropend_ident.gap.drift.refit_comparison`).
-    not_computed : dict
-        Optional sections (sessions, prediction, refit comparison, attainable shrink) that could
-        not be computed, with the reason; the rest of the result stands.
-    bound_notes : list of str
-        Parameters ``rig fit`` left at a search bound and the effects confirmed for them
-        (:func:`bound_effects`).
-    tables : list of dict
-        Static tables given beside the recordings (balance / thrust tables, as ``rig fit`` takes
-        them), each checked against the nominal and the corrected rig (:func:`static_table_check`).
-    """
-
-    rig: Rig
-    rig_ref: str
-    theta_offset: float
-    fit: list[Recording]
-    held_out: list[Recording]
-    split_rule: str
-    where: WhereReport
-    where_heldout_nominal: WhereReport
-    where_heldout_corrected: WhereReport
-    diagnosis: Any
-    overlays: list[dict[str, Any]]
-    fit_core: list[Recording] = field(default_factory=list)
-    validation: list[Recording] = field(default_factory=list)
-    test: list[dict[str, Any]] = field(default_factory=list)
-    agreement: dict[str, Any] = field(default_factory=dict)
-    prediction: dict[str, Any] | None = None
-    prediction_check: dict[str, Any] | None = None
-    attainable: list[dict[str, Any]] | None = None
-    sessions: dict[str, Any] | None = None
-    refit: dict[str, Any] | None = None
-    not_computed: dict[str, str] = field(default_factory=dict)
-    tables: list[dict[str, Any]] = field(default_factory=list)
-    bound_notes: list[str] = field(default_factory=list)
-
-    # ------------------------------------------------------------------ headline
-    def significance_why(self) -> str:
-        """Why the gap is (not) significant, from both analyses, so that a "yes" beside a
-        where-analysis that flags no equation says which analysis found it (issue 60)."""
-        w, d = self.where, self.diagnosis
-        flagged = [r["equation"] for r in w.located if r["flagged"]]
-        if w.significant and flagged:
-            where = (f"the free-run residual is not white beyond the noise floor and the "
-                     f"{', '.join(flagged)} equation(s) miss part of their driving term")
-        elif w.significant:
-            where = ("the free-run residual is not white beyond the noise floor, but no equation misses "
-                     "enough of its driving term to be flagged (a gap too small or too spread to locate)")
-        else:
-            where = "the free-run residual is white or within the noise/resolution floor"
-        which = d.reason or ("a candidate effect explains part of the validation error" if d.significant
-                             else "no candidate effect explains the validation error beyond its noise")
-        return f"where-analysis: {where}; effect screening: {which}"
-
-    def headline(self) -> dict[str, Any]:
-        """Held-out (test) NRMSE before/after: mean over held-out recordings of
-        RMS(θ_sim − θ_meas)/range(θ_meas), the nominal and the corrected rig."""
-        before = float(self.test[0]["nrmse"])
-        after = float(self.test[-1]["nrmse"])
-        # a run that diverges on held-out data: its NRMSE measures how far it went, so no shrink
-        rows = (("nominal", self.test[0]), ("corrected", self.test[-1]))
-        gone = {label: row.get("diverges") for label, row in rows if row.get("diverges")}
-        d = self.diagnosis
-        ch0, ch1 = self.test[0].get("channel_nrmse", {}), self.test[-1].get("channel_nrmse", {})
-        return {
-            "significant_gap": bool(self.where.significant or d.significant),
-            "significant_gap_why": self.significance_why(),
-            "where_subsystem": self.where.subsystem,
-            "effects_chosen": list(d.chosen),
-            "detected": dict(getattr(d, "detected", {})),
-            # the one free run's figures (greybox.replay.free_run): none for a run that diverges
-            "heldout_nrmse_nominal": None if "nominal" in gone else before,
-            "heldout_nrmse_corrected": None if "corrected" in gone else after,
-            "heldout_shrink": None if gone else ((1.0 - after / before) if before > 0 else math.nan),
-            # the NRMSE a perfect model would have on these held-out recordings: their measured θ
-            # noise over their ranges (a decay come to rest is pure noise: NRMSE ~ 1/range in σ)
-            "heldout_noise_floor_nrmse": self.test[0].get("noise_floor_nrmse"),
-            "heldout_divergence": gone,
-            "heldout_free_run": {label: row.get("free_run", []) for label, row in rows},
-            "heldout_channel_nrmse_nominal": dict(ch0),
-            "heldout_channel_nrmse_corrected": dict(ch1),
-            "heldout_channel_shrink": {} if gone else {c: (1.0 - ch1[c] / v) if v > 0 else math.nan
-                                                       for c, v in ch0.items() if c in ch1},
-            "explained": getattr(d, "explained", {}).get("verdict", ""),
-            "completeness": getattr(d, "explained", {}).get("completeness"),
-            "refit": ({k: self.refit[k] for k in ("refit_nrmse", "corrected_nrmse", "worse_than_refit")}
-                      if self.refit else None),
-            "where_which_agree": self.agreement.get("agree"),
-            "n_fit_recordings": len(self.fit),
-            "n_heldout_recordings": len(self.held_out),
-            "heldout_never_seen_by_diagnosis": bool(self.validation is not self.held_out),
-        }
-
-    def as_dict(self) -> dict[str, Any]:
-        """What ``report.json`` holds."""
-        return jsonable(
-            {
-                "tool": "aeropend_ident gap",
-                "headline": self.headline(),
-                "where": self.where.as_dict(),
-                "which": self.diagnosis.as_dict(),
-                "where_which": self.agreement,
-                "sessions": self.sessions,
-                "prediction": self.prediction,
-                "not_computed": self.not_computed,
-                "static_tables": self.tables,
-                "rig_fit_bound_flags": self.bound_notes,
-                "after": {
-                    "refit": self.refit,
-                    "prediction_check": self.prediction_check,
-                    "attainable": self.attainable,
-                    "heldout_nominal": _where_brief(self.where_heldout_nominal),
-                    "heldout_corrected": _where_brief(self.where_heldout_corrected),
-                    "overlay_metrics": [{"source": o["source"], **o["metrics"]} for o in self.overlays],
-                    "test": self.test,
-                },
-                "inputs": {
-                    "rig": {
-                        "ref": self.rig_ref,
-                        "name": self.rig.name,
-                        "description": self.rig.description,
-                        "effects": dict(vars(self.rig.effects)),
-                    },
-                    "theta_offset_rad": self.theta_offset,
-                    "split_rule": self.split_rule,
-                    "fit": [_rec_info(r) for r in self.fit],
-                    "held_out": [_rec_info(r) for r in self.held_out],
-                    "diagnosis_fit": [_rec_info(r) for r in self.fit_core],
-                    "diagnosis_validation": [_rec_info(r) for r in self.validation],
-                },
-                "provenance": {
-                    "created_utc": _dt.datetime.now(_dt.UTC).isoformat(),
-                    "versions": {
-                        "python": platform.python_version(),
-                        "numpy": np.__version__,
-                        "scipy": scipy.__version__,
-                    },
-                },
-            }
-        )
-
-
-def _label(source: str) -> str:
-    """Short label of a recording source: the file name for files (and their slices), else as is."""
-    return Path(source).name if Path(source.split("[")[0]).exists() else source
-
-
-def _rec_info(r: Recording) -> dict[str, Any]:
-    return {
-        "source": r.source,
-        "n_samples": len(r),
-        "duration_s": float(r.t[-1] - r.t[0]),
-        "dt_s": r.dt,
-        "channels": sorted(r.channels),
-    }
-
-
-def _where_brief(w: WhereReport) -> dict[str, Any]:
-    return {
-        "significant": w.significant,
-        "subsystem": w.subsystem,
-        "located": w.located,
-        "verdict": w.verdict(),
-        "recordings": [
-            {
-                "source": r.source,
-                "free_run": r.free_run,
-                "short_horizon": r.short_horizon,
-                "whiteness_p": r.whiteness["p_value"],
-                "input_xcorr_p": r.input_xcorr["p_value"],
-                "significant": r.significant,
-            }
-            for r in w.recordings
-        ],
-    }
-
-
-# --------------------------------------------------------------------------- pipeline
+# --------------------------------------------------------------------------- helpers of the stages
 def to_model_frame(rec: Recording, offset: float) -> Recording:
     """The recording with θ moved into the model frame (θ_model = θ_recorded + offset)."""
     if offset == 0.0:
@@ -281,9 +65,6 @@ def to_model_frame(rec: Recording, offset: float) -> Recording:
     )
 
 
-_shift = to_model_frame  # the short name of this module's calls
-
-
 def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, Any]:
     """Held-out replay of the nominal and the corrected rig (the one free run of every command,
     :func:`aeropend_ident.greybox.replay.free_run`, as in the held-out table), θ in the recording's frame."""
@@ -291,7 +72,7 @@ def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, An
     from aeropend_ident.gap.which.data import prepare as which_prepare
     from aeropend_ident.gap.which.metrics import one_free_run
 
-    shifted = _shift(rec, offset)
+    shifted = to_model_frame(rec, offset)
     prep = which_prepare([shifted], frozenset(diag.channels or ("theta",)))[0]
     runs = {"nominal": one_free_run(rig, MeasurementMap(), prep),
             "corrected": one_free_run(diag.corrected_rig, diag.measurement, prep)}
@@ -330,83 +111,6 @@ class _Optional:
             self.not_computed[section] = why
             self.say(f"{section}: not computed: {why}")
             return None
-
-
-def _sessions_and_prediction(
-    rig: Rig, diag: Any, validation: list[Recording], held_out: list[Recording], *, theta_offset: float,
-    sessions: Sequence[Sequence[Recording]] | None, session_labels: Sequence[str] | None, max_effects: int,
-    seed: int, progress: Callable[[str], None] | None, predict: bool, drift_sigma: Mapping[str, float] | None,
-    optional: _Optional, engine: tuple[int | None, str | None] = (1, None),
-) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
-    """The session analysis (with ``sessions``, its cases run where ``engine`` = (workers,
-    scheduler) says) and the held-out prediction of :func:`run_gap` (each optional: a failure is
-    recorded in ``optional``)."""
-    from aeropend_ident.gap.drift import predict_heldout
-    from aeropend_ident.gap.sessions import session_analysis
-
-    say = progress or (lambda _msg: None)
-    sess = None
-    if sessions is not None:
-        say(f"sessions: {len(sessions)} sessions, leave-one-session-out and drift table")
-        sess = optional.run("sessions", lambda: session_analysis(
-            rig, [[_shift(r, theta_offset) for r in g] for g in sessions], diag.chosen, labels=session_labels,
-            channels=diag.channels or ("theta",), max_effects=max_effects, seed=seed, progress=progress,
-            workers=engine[0], scheduler=engine[1]))
-        if drift_sigma is None and sess is not None and sess["drift_sigma"]:
-            drift_sigma = sess["drift_sigma"]
-    prediction = None
-    if predict:
-        say("predict: held-out NRMSE of the corrected rig from the fit data and the held-out duty")
-        prediction = optional.run("prediction", lambda: predict_heldout(
-            rig, diag, [_shift(r, theta_offset) for r in validation],
-            targets=[_shift(r, theta_offset) for r in held_out], drift_sigma=drift_sigma, seed=seed))
-        if prediction is not None:
-            if sess is not None and drift_sigma is sess["drift_sigma"]:
-                prediction["drift_source"] = "sessions"
-            prediction["saw_heldout"] = validation is held_out
-    return sess, prediction
-
-
-def _replay_held_out(
-    rig: Rig, diag: Any, corrected: Rig, held_out: list[Recording], theta_offset: float, horizon: float,
-) -> tuple[list[dict[str, Any]], list[dict[str, Any]], WhereReport, WhereReport]:
-    """The after step of :func:`run_gap`: overlays, before/after metrics and where-analyses."""
-    from aeropend_ident.gap.effects import MeasurementMap
-    from aeropend_ident.gap.which.data import prepare as which_prepare
-    from aeropend_ident.gap.which.metrics import gap_metrics
-
-    overlays = [_overlay(rig, diag, r, theta_offset) for r in held_out]
-    preps = which_prepare([_shift(r, theta_offset) for r in held_out], frozenset(diag.channels or ("theta",)))
-    test = [{"effects": [], **gap_metrics(rig, MeasurementMap(), preps)}]
-    if diag.chosen:
-        test.append({"effects": list(diag.chosen), **gap_metrics(corrected, diag.measurement, preps)})
-    w_nom = locate_gap(rig, held_out, horizon=horizon, theta_offset=theta_offset)
-    # the corrected rig's where-analysis in the model frame of the diagnosis (sensor offset included)
-    meas = getattr(diag, "measurement", None)
-    off_c = theta_offset + (float(meas.theta_offset) if meas is not None else 0.0)
-    w_cor = locate_gap(corrected, held_out, horizon=horizon, theta_offset=off_c)
-    return overlays, test, w_nom, w_cor
-
-
-def _refit_and_attainable(
-    rig: Rig, diag: Any, fit: list[Recording], held_out: list[Recording], corrected_nrmse: float,
-    optional: _Optional, *, max_effects: int, seed: int, oracle: bool, progress: Callable[[str], None] | None,
-) -> tuple[dict[str, Any] | None, list[dict[str, Any]] | None]:
-    """The refit comparison and the attainable shrink of :func:`run_gap` (model-frame recordings; each
-    optional). The plain refit is the attainable shrink's fit-session drift fit when nothing is chosen
-    (the same effect set on the same recordings): fitted once."""
-    from aeropend_ident.gap.drift import refit_comparison
-    from aeropend_ident.gap.sessions import attainable
-
-    say = progress or (lambda _msg: None)
-    out = optional.run("refit comparison",
-                       lambda: refit_comparison(rig, diag, fit, held_out, corrected_nrmse))
-    refit, fitted = out if out is not None else (None, None)
-    say("after: attainable shrink (correction and best catalog set fitted on each held-out recording)")
-    attain = optional.run("attainable shrink", lambda: attainable(
-        rig, diag, held_out, max_effects=max_effects, seed=seed, best_set=oracle, fit=fit, progress=progress,
-        fitted=fitted))
-    return refit, attain
 
 
 def static_table_check(rig: Rig, corrected: Rig, measurement: Any, tables: Sequence[Any],
@@ -547,6 +251,237 @@ def _validation_set(fit: list[Recording], held_out: list[Recording], validation:
     return fit, held_out, split_rule
 
 
+# --------------------------------------------------------------------------- the context
+@dataclass(frozen=True)
+class GapOptions:
+    """The knobs of one run: :func:`run_gap`'s keyword arguments of the same names."""
+
+    max_effects: int = 2
+    horizon: float = 0.2
+    seed: int = 0
+    predict: bool = True
+    oracle: bool = False
+    drift_sigma: Mapping[str, float] | None = None
+    skip: tuple[str, ...] = ()
+    workers: int | None = 1
+    scheduler: str | None = None
+
+
+@dataclass(frozen=True)
+class GapRun:
+    """One run's context: built once by :func:`prepare`, read by every stage, never changed.
+
+    Attributes
+    ----------
+    rig : Rig
+        Nominal rig.
+    model : PlantModel
+        Its plant, built once (:func:`aeropend_sim.model.plant_model`, whose cache hands this
+        same object to every replay of ``rig`` in the stages).
+    rig_ref : str
+        Rig name or path (provenance).
+    theta_offset : float
+        θ_model − θ_recorded [rad].
+    fit, held_out : list[Recording]
+        The recordings as given (recording frame).
+    fit_core, validation : list[Recording]
+        What the diagnosis fits on and chooses on (recording frame); ``validation`` *is*
+        ``held_out`` when the held-out recordings are the validation set (fraction 0).
+    split_rule : str
+        How the held-out and the validation recordings were chosen.
+    fit_m, held_out_m, fit_core_m, validation_m : list[Recording]
+        The same recordings in the model's angle frame (:func:`to_model_frame`), made once.
+    sessions_m : list of list of Recording, optional
+        The fit recordings grouped by session, model frame.
+    session_labels : sequence of str, optional
+    tables : tuple
+        Static tables (``rig fit``'s balance / thrust tables).
+    options : GapOptions
+    progress : callable, optional
+        Receives one-line progress messages (passed on to the stages' own steps).
+    optional : _Optional
+        Collects the optional sections that could not be computed (the one part that grows).
+    """
+
+    rig: Rig
+    model: PlantModel
+    rig_ref: str
+    theta_offset: float
+    fit: list[Recording]
+    held_out: list[Recording]
+    fit_core: list[Recording]
+    validation: list[Recording]
+    split_rule: str
+    fit_m: list[Recording]
+    held_out_m: list[Recording]
+    fit_core_m: list[Recording]
+    validation_m: list[Recording]
+    sessions_m: list[list[Recording]] | None
+    session_labels: Sequence[str] | None
+    tables: tuple[Any, ...]
+    options: GapOptions
+    progress: Callable[[str], None] | None
+    optional: _Optional
+
+    def say(self, message: str) -> None:
+        """One progress line (nothing without a ``progress`` callback)."""
+        if self.progress is not None:
+            self.progress(message)
+
+
+class HeldOutReplay(NamedTuple):
+    """What :func:`replay_held_out` found: overlays, before/after metrics and where-analyses."""
+
+    overlays: list[dict[str, Any]]
+    test: list[dict[str, Any]]
+    where_nominal: WhereReport
+    where_corrected: WhereReport
+
+
+# --------------------------------------------------------------------------- the stages
+def prepare(rig: Rig, fit: Sequence[Recording], held_out: Sequence[Recording], *, rig_ref: str = "",
+            theta_offset: float = 0.0, split_rule: str = "",
+            validation_fraction: float = VALIDATION_FRACTION, validation: Sequence[Recording] | None = None,
+            sessions: Sequence[Sequence[Recording]] | None = None,
+            session_labels: Sequence[str] | None = None,
+            tables: Sequence[Any] = (), options: GapOptions | None = None,
+            progress: Callable[[str], None] | None = None) -> GapRun:
+    """Stage 0: the run's context (:class:`GapRun`; parameters as :func:`run_gap`'s).
+
+    Raises
+    ------
+    aeropend_ident.errors.GapInputError
+        No fit or no held-out recording, or explicit validation recordings that are empty.
+    aeropend_sim.params.RigFileError, aeropend_sim.model.ModelError
+        A rig that cannot be modelled.
+    """
+    say = progress or (lambda _msg: None)
+    fit, held_out = list(fit), list(held_out)
+    if not fit or not held_out:
+        raise GapInputError(f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} held)")
+    model = plant_model(rig)
+    fit_core, val, split_rule = _validation_set(fit, held_out, validation, validation_fraction, split_rule,
+                                                say)
+
+    def frame(recs: Sequence[Recording]) -> list[Recording]:
+        return [to_model_frame(r, theta_offset) for r in recs]
+
+    return GapRun(
+        rig=rig, model=model, rig_ref=rig_ref or rig.name, theta_offset=theta_offset, fit=fit,
+        held_out=held_out, fit_core=fit_core, validation=val, split_rule=split_rule, fit_m=frame(fit),
+        held_out_m=frame(held_out), fit_core_m=frame(fit_core), validation_m=frame(val),
+        sessions_m=None if sessions is None else [frame(g) for g in sessions],
+        session_labels=session_labels, tables=tuple(tables), options=options or GapOptions(),
+        progress=progress, optional=_Optional(say))
+
+
+def locate(run: GapRun) -> WhereReport:
+    """Stage 1, where: the nominal rig's equation errors on the fit recordings."""
+    run.say(f"where: nominal {run.rig.name} on {len(run.fit)} fit recording(s)")
+    return locate_gap(run.rig, run.fit, horizon=run.options.horizon, theta_offset=run.theta_offset)
+
+
+def choose(run: GapRun, where: WhereReport) -> tuple[list[str], Any]:
+    """Stage 2, which: the effect diagnosis on the fit core, chosen on the validation recordings.
+
+    Returns
+    -------
+    bound_notes : list of str
+        :func:`bound_effects`' notes.
+    diagnosis : EffectDiagnosis
+        :func:`aeropend_ident.gap.which.diagnosis.diagnose_effects` (model frame).
+    """
+    from aeropend_ident.gap.which.diagnosis import diagnose_effects
+
+    opt = run.options
+    run.say(f"which: screening and fitting the effect catalog ({len(run.fit_core)} fit / "
+            f"{len(run.validation)} validation recording(s))")
+    bound_notes, confirm = _to_confirm(run.rig, where, opt.skip, run.say)
+    diag = diagnose_effects(run.rig, run.fit_core_m, run.validation_m, max_effects=opt.max_effects,
+                            seed=opt.seed, progress=run.progress, also_confirm=confirm, skip=opt.skip)
+    return bound_notes, diag
+
+
+def predict_held_out(run: GapRun, diag: Any) -> tuple[dict[str, Any] | None, dict[str, Any] | None]:
+    """Stage 3: the session analysis (with sessions, its cases run where ``workers`` /
+    ``scheduler`` say) and the held-out prediction, made before any held-out replay (each optional:
+    a failure is recorded in ``run.optional``)."""
+    from aeropend_ident.gap.drift import predict_heldout
+    from aeropend_ident.gap.sessions import session_analysis
+
+    opt = run.options
+    drift_sigma = opt.drift_sigma
+    sess = None
+    if run.sessions_m is not None:
+        run.say(f"sessions: {len(run.sessions_m)} sessions, leave-one-session-out and drift table")
+        sess = run.optional.run("sessions", lambda: session_analysis(
+            run.rig, run.sessions_m, diag.chosen, labels=run.session_labels,
+            channels=diag.channels or ("theta",), max_effects=opt.max_effects, seed=opt.seed,
+            progress=run.progress, workers=opt.workers, scheduler=opt.scheduler))
+        if drift_sigma is None and sess is not None and sess["drift_sigma"]:
+            drift_sigma = sess["drift_sigma"]
+    prediction = None
+    if opt.predict:
+        run.say("predict: held-out NRMSE of the corrected rig from the fit data and the held-out duty")
+        prediction = run.optional.run("prediction", lambda: predict_heldout(
+            run.rig, diag, run.validation_m, targets=run.held_out_m, drift_sigma=drift_sigma, seed=opt.seed))
+        if prediction is not None:
+            if sess is not None and drift_sigma is sess["drift_sigma"]:
+                prediction["drift_source"] = "sessions"
+            prediction["saw_heldout"] = run.validation is run.held_out
+    return sess, prediction
+
+
+def replay_held_out(run: GapRun, diag: Any) -> HeldOutReplay:
+    """Stage 4, after: the nominal and the corrected rig replayed on the held-out recordings
+    (overlays, before/after metrics) and the where-analysis of each there."""
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.gap.which.data import prepare as which_prepare
+    from aeropend_ident.gap.which.metrics import gap_metrics
+
+    run.say("after: replaying the held-out recordings; a plain refit of the nominal parameters to compare")
+    rig, corrected, off, horizon = run.rig, diag.corrected_rig, run.theta_offset, run.options.horizon
+    overlays = [_overlay(rig, diag, r, off) for r in run.held_out]
+    preps = which_prepare(run.held_out_m, frozenset(diag.channels or ("theta",)))
+    test = [{"effects": [], **gap_metrics(rig, MeasurementMap(), preps)}]
+    if diag.chosen:
+        test.append({"effects": list(diag.chosen), **gap_metrics(corrected, diag.measurement, preps)})
+    w_nom = locate_gap(rig, run.held_out, horizon=horizon, theta_offset=off)
+    # the corrected rig's where-analysis in the model frame of the diagnosis (sensor offset included)
+    meas = getattr(diag, "measurement", None)
+    off_c = off + (float(meas.theta_offset) if meas is not None else 0.0)
+    w_cor = locate_gap(corrected, run.held_out, horizon=horizon, theta_offset=off_c)
+    return HeldOutReplay(overlays, test, w_nom, w_cor)
+
+
+def attainable_shrink(run: GapRun, diag: Any, test: list[dict[str, Any]]
+                      ) -> tuple[dict[str, Any] | None, list[dict[str, Any]] | None]:
+    """Stage 4, after: the refit comparison and the attainable shrink (model-frame recordings; each
+    optional). The plain refit is the attainable shrink's fit-session drift fit when nothing is chosen
+    (the same effect set on the same recordings): fitted once."""
+    from aeropend_ident.gap.drift import refit_comparison
+    from aeropend_ident.gap.sessions import attainable
+
+    opt = run.options
+    corrected_nrmse = float(test[-1]["nrmse"])
+    out = run.optional.run("refit comparison", lambda: refit_comparison(
+        run.rig, diag, run.fit_m, run.held_out_m, corrected_nrmse))
+    refit, fitted = out if out is not None else (None, None)
+    run.say("after: attainable shrink (correction and best catalog set fitted on each held-out recording)")
+    attain = run.optional.run("attainable shrink", lambda: attainable(
+        run.rig, diag, run.held_out_m, max_effects=opt.max_effects, seed=opt.seed, best_set=opt.oracle,
+        fit=run.fit_m, progress=run.progress, fitted=fitted))
+    return refit, attain
+
+
+def check_tables(run: GapRun, diag: Any) -> list[dict[str, Any]]:
+    """Stage 4, after: the static tables against the nominal and the corrected rig (optional)."""
+    if not run.tables:
+        return []
+    return run.optional.run("static tables", lambda: static_table_check(
+        run.rig, diag.corrected_rig, diag.measurement, run.tables, run.theta_offset)) or []
+
+
 @single_blas
 def run_gap(
     rig: Rig,
@@ -638,166 +573,22 @@ def run_gap(
     aeropend_ident.gap.effects.GapError, aeropend_ident.gap.where.GapInputError
         Unusable recordings (no θ, NaNs, too short, constant input) or rig (before any result).
     """
-    from aeropend_ident.gap.which.diagnosis import diagnose_effects
-
-    say = progress or (lambda _msg: None)
-    fit, held_out = list(fit), list(held_out)
-    if not fit or not held_out:
-        raise GapInputError(f"need fit and held-out recordings (got {len(fit)} fit, {len(held_out)} held)")
-    say(f"where: nominal {rig.name} on {len(fit)} fit recording(s)")
-    where = locate_gap(rig, fit, horizon=horizon, theta_offset=theta_offset)
-    fit_core, validation, split_rule = _validation_set(fit, held_out, validation, validation_fraction,
-                                                       split_rule, say)
-    say(f"which: screening and fitting the effect catalog ({len(fit_core)} fit / {len(validation)} "
-        "validation recording(s))")
-    # the diagnosis works in the model's angle frame (θ shifted by the rig's recording-frame offset)
-    bound_notes, confirm = _to_confirm(rig, where, skip, say)
-    diag = diagnose_effects(
-        rig, [_shift(r, theta_offset) for r in fit_core], [_shift(r, theta_offset) for r in validation],
-        max_effects=max_effects, seed=seed, progress=progress, also_confirm=confirm, skip=skip)
-    optional = _Optional(say)
-    fit_m, held_m = ([_shift(r, theta_offset) for r in recs] for recs in (fit, held_out))
-    sess, prediction = _sessions_and_prediction(
-        rig, diag, validation, held_out, theta_offset=theta_offset, sessions=sessions,
-        session_labels=session_labels, max_effects=max_effects, seed=seed, progress=progress,
-        predict=predict, drift_sigma=drift_sigma, optional=optional, engine=(workers, scheduler))
-    say("after: replaying the held-out recordings; a plain refit of the nominal parameters to compare")
-    overlays, test, w_nom, w_cor = _replay_held_out(rig, diag, diag.corrected_rig, held_out, theta_offset,
-                                                    horizon)
-    check = _prediction_check(prediction, test)
-    refit, attain = _refit_and_attainable(
-        rig, diag, fit_m, held_m, float(test[-1]["nrmse"]), optional, max_effects=max_effects, seed=seed,
-        oracle=oracle, progress=progress)
+    options = GapOptions(max_effects=max_effects, horizon=horizon, seed=seed, predict=predict, oracle=oracle,
+                         drift_sigma=drift_sigma, skip=tuple(skip), workers=workers, scheduler=scheduler)
+    run = prepare(rig, fit, held_out, rig_ref=rig_ref, theta_offset=theta_offset, split_rule=split_rule,
+                  validation_fraction=validation_fraction, validation=validation, sessions=sessions,
+                  session_labels=session_labels, tables=tables, options=options, progress=progress)
+    where = locate(run)
+    bound_notes, diag = choose(run, where)
+    sess, prediction = predict_held_out(run, diag)
+    after = replay_held_out(run, diag)
+    refit, attain = attainable_shrink(run, diag, after.test)
     return GapResult(
-        rig=rig,
-        rig_ref=rig_ref or rig.name,
-        theta_offset=theta_offset,
-        fit=fit,
-        held_out=held_out,
-        fit_core=fit_core,
-        validation=validation,
-        test=test,
-        split_rule=split_rule,
-        where=where,
-        where_heldout_nominal=w_nom,
-        where_heldout_corrected=w_cor,
-        diagnosis=diag,
-        overlays=overlays,
-        agreement=where_which_agreement(where, diag),
-        prediction=prediction,
-        prediction_check=check,
-        attainable=attain,
-        sessions=sess,
-        refit=refit,
-        not_computed=optional.not_computed,
-        bound_notes=bound_notes,
-        tables=(optional.run("static tables", lambda: static_table_check(
-            rig, diag.corrected_rig, diag.measurement, tables, theta_offset)) or []) if tables else [],
+        rig=run.rig, rig_ref=run.rig_ref, theta_offset=run.theta_offset, fit=run.fit, held_out=run.held_out,
+        fit_core=run.fit_core, validation=run.validation, test=after.test, split_rule=run.split_rule,
+        where=where, where_heldout_nominal=after.where_nominal, where_heldout_corrected=after.where_corrected,
+        diagnosis=diag, overlays=after.overlays, agreement=where_which_agreement(where, diag),
+        prediction=prediction, prediction_check=_prediction_check(prediction, after.test), attainable=attain,
+        sessions=sess, refit=refit, not_computed=run.optional.not_computed, bound_notes=bound_notes,
+        tables=check_tables(run, diag),
     )
-
-
-#: Where-analysis equation of each state equation a catalog effect's signature reaches.
-_EQUATION_OF_TERM = {"v_a": "actuator", "i_a": "armature", "omega_rotor": "rotor", "theta_dot": "pendulum"}
-
-
-def where_which_agreement(where: WhereReport, diag: Any) -> dict[str, Any]:
-    """Do the where-analysis (equation errors) and the which-analysis (chosen effects) agree?
-
-    They agree when an equation the where-analysis flags is one whose right-hand side the first
-    chosen effect changes (its catalog term group). Otherwise the returned ``explanation`` says
-    why they may disagree (nothing flagged: a gap below the equation-error floors that the free-run
-    output error still resolves; a sensor effect, which distorts the recorded angle rather than an
-    equation; an upstream effect seen downstream through simulated signals).
-
-    Returns
-    -------
-    dict
-        ``agree`` (bool or None when nothing was chosen), ``where_equations`` (flagged),
-        ``which_effect``, ``which_equations`` (equations its signature reaches), ``explanation``.
-    """
-    from aeropend_ident.gap.effects import get_effect
-
-    flagged = [r["equation"] for r in where.located if r["flagged"]]
-    chosen = list(getattr(diag, "chosen", []))
-    if not chosen:
-        note = (f"; the where-analysis flags {', '.join(flagged)}: a gap no catalog effect removes "
-                "significantly") if flagged else ""
-        return {"agree": None, "where_equations": flagged, "which_effect": None, "which_equations": [],
-                "explanation": "no effect chosen" + note}
-    eff = get_effect(chosen[0])
-    eqs = [_EQUATION_OF_TERM[k] for k in eff.terms if k in _EQUATION_OF_TERM]
-    agree = any(f in eqs for f in flagged)
-    if agree:
-        why = (f"the where-analysis flags the {', '.join(f for f in flagged if f in eqs)} equation, which "
-               f"{eff.name} changes")
-    elif not flagged:
-        why = ("the where-analysis flags no equation (each residual is within its noise and method floors); "
-               f"{eff.name} was found from the free-run output error, which integrates a small equation "
-               "error")
-    elif eff.kind == "measurement":
-        why = (f"{eff.name} distorts the recorded angle, so every equation evaluated on it shows a residual "
-               f"(flagged: {', '.join(flagged)})")
-    else:
-        why = (f"the where-analysis flags {', '.join(flagged)}, {eff.name} acts on {', '.join(eqs)}: the "
-               "located equation sees the effect only through simulated upstream signals, or the effect "
-               "stands in for one the catalog lacks")
-    return {"agree": agree, "where_equations": flagged, "which_effect": eff.name, "which_equations": eqs,
-            "explanation": why}
-
-
-# --------------------------------------------------------------------------- corrected rig file
-def corrected_rig_dict(result: GapResult) -> dict[str, Any]:
-    """The corrected rig in the rig-file format; the changed numbers' sources name the diagnosis.
-
-    When the data do not separate a chosen sensor-frame effect from a plant-side one
-    (``diagnosis.plant_side``, :func:`aeropend_ident.gap.which.ranking.plant_side_alternative`), the file
-    holds the plant-side alternative, jointly fitted with the other chosen effects, and the
-    nominal sensor frame: a controller designed on it then holds the angle the nominal rig file
-    would, never one off by an unconfirmed sensor gain. The description says so.
-    """
-    diag, nominal = result.diagnosis, result.rig
-    side = diag.plant_side
-    rig, meas = (side["rig"], side["measurement"]) if side else (diag.corrected_rig, diag.measurement)
-    data = rig_to_dict(rig)
-    base = rig_to_dict(nominal)
-    names = [side["by"] if side and n == side["replaces"] else n for n in diag.chosen]
-    chosen = ", ".join(names) or "none"
-    data["name"] = f"{nominal.name}_corrected"
-    data["description"] = (
-        f"{nominal.description} -- corrected by the gap diagnosis (aeropend_ident gap): "
-        f"effects added: {chosen}"
-        + (f" ({side['by']} written for {side['replaces']}, which these data do not separate from it: "
-           f"sensor frame kept nominal; check the angle sensor's calibration)" if side else "")
-    )
-    fits = ", ".join(_label(r.source) or "recording" for r in result.fit)
-    from aeropend_ident.gap.effects import get_effect
-
-    detected = dict(getattr(diag, "detected", {}))
-    by_detection = {p.rig_field: name for name in detected for p in get_effect(name).parameters}
-    if detected:
-        data["description"] += "; detected from the recorded values (not fitted): " + ", ".join(
-            f"{name} ({', '.join(f'{k} = {v:.6g}' for k, v in vals.items())})"
-            for name, vals in detected.items())
-    for section, fields in data.items():
-        if not isinstance(fields, dict) or section == "effects":
-            continue
-        for key, node in fields.items():
-            old = base.get(section, {}).get(key)
-            if isinstance(node, dict) and isinstance(old, dict) and node.get("value") != old.get("value"):
-                field_ = f"{section}.{key}"
-                how = (f"gap diagnosis: {by_detection[field_]} detected from the recorded values of"
-                       if field_ in by_detection else f"gap diagnosis ({chosen}) fitted on")
-                node["source"] = f"{how} {fits}; nominal {old.get('value')!r} ({old.get('source', '')})"
-    # the diagnosis' sensor map acts on θ_recorded + nominal offset: θ_rec + off_n = s·(θ_model − off_d),
-    # i.e. θ_rec = s·(θ_model − (off_d + off_n/s)) in the rig file's convention
-    scale = float(meas.theta_scale)
-    offset = float(meas.theta_offset) + result.theta_offset / scale
-    frame: dict[str, Any] = {}
-    if offset != 0.0:
-        frame[THETA_OFFSET] = {"value": offset, "unit": "rad", "source": (
-            "gap diagnosis: fitted sensor offset" if meas.theta_offset != 0.0 else "nominal rig file")}
-    if scale != 1.0:
-        frame["theta_scale"] = {"value": scale, "unit": "1", "source": "gap diagnosis: fitted sensor gain"}
-    if frame:
-        data["recording_frame"] = frame
-    return data

@@ -113,7 +113,7 @@ class EffectDiagnosis:
         (:func:`plant_side_alternative`): ``replaces``, ``by``, ``validation_explained``,
         ``parameters`` (the alternative's fitted values) and the jointly fitted ``rig`` and
         ``measurement`` with the alternative in its place. The corrected rig *file*
-        (:func:`aeropend_ident.gap.run.corrected_rig_dict`) is written from these.
+        (:func:`aeropend_ident.gap.result.corrected_rig_dict`) is written from these.
     """
 
     significant: bool
