@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         size = write_log(csv, args.rows)
         gen = time.perf_counter() - t0
         res = run_import(csv, tmp / "bag")
-        from aeropend_ident.io.bags import bag_metadata
+        from aeropend_ident.io.bag_reader import bag_metadata
 
         meta = bag_metadata(tmp / "bag")
         messages = int(meta["message_count"])

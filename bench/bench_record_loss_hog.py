@@ -39,7 +39,7 @@ import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
-from aeropend_ident.io.bags import bag_metadata
+from aeropend_ident.io.bag_reader import bag_metadata
 from aeropend_ident.io.integrity.loss import LOSS_KEY
 from aeropend_sim.contract import TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.params import load_rig

@@ -32,7 +32,7 @@ from pathlib import Path
 
 def one_run(out: Path) -> tuple[int, int]:
     """One main-job graph into ``out``; returns (``/clock`` ticks, ``joint_states`` messages)."""
-    from aeropend_ident.io.bags import RawBagReader
+    from aeropend_ident.io.bag_reader import RawBagReader
     from aeropend_ident.pipeline import run_graph
     from aeropend_sim.contract import TOPIC_CLOCK, TOPIC_JOINT_STATES
 

@@ -28,7 +28,8 @@ _API: dict[str, tuple[str, ...]] = {
     ),
     # recordings in and out
     "aeropend_ident.io.recording_input": ("load_recording", "load_and_split"),
-    "aeropend_ident.io.bags": ("read_bag", "RawBagReader"),
+    "aeropend_ident.io.bags": ("read_bag",),
+    "aeropend_ident.io.bag_reader": ("RawBagReader",),
     "aeropend_ident.io.bag_writer": ("write_bag",),
     "aeropend_ident.io.csv_import": ("import_csv", "import_csv_runs", "csv_to_bag", "stream_csv_to_bag"),
     "aeropend_ident.io.csvspec.spec": ("CsvSpec", "load_preset_file", "write_preset_file"),

@@ -31,8 +31,9 @@ from pathlib import Path
 from typing import Any
 
 from aeropend_ident.errors import BagError, PipelineError
+from aeropend_ident.io.bag_reader import RawBagReader
 from aeropend_ident.io.bag_writer import claim_bag_folder
-from aeropend_ident.io.bags import RawBagReader, read_bag
+from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_CLOCK, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES, namespaced
 from aeropend_sim.output_folder import OutputFolderError
 from aeropend_sim.ros.domain import claim_domain

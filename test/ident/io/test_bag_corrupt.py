@@ -87,7 +87,7 @@ def test_repair_writes_a_clean_copy_any_reader_takes_whole(tmp_path: Path,
     every intact message (the same bytes and log times as the original's intact parts) and no
     damage: scanned chunk by chunk nothing is left out, and the strict reader (the one that stops at
     a corrupt chunk, as ``ros2 bag play`` does) reads it without a recovery. The original is as it was."""
-    from aeropend_ident.io.bags import RawBagReader
+    from aeropend_ident.io.bag_reader import RawBagReader
 
     _, bag, f = _bag(tmp_path, "mcap")
     whole = scan_storage(f, keep_messages=False)

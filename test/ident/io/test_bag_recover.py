@@ -22,9 +22,10 @@ import yaml
 
 from aeropend_ident.cli import reindex as reindex_cli
 from aeropend_ident.errors import BagError, BagTruncatedWarning
+from aeropend_ident.io.bag_reader import RawBagReader, bag_metadata
 from aeropend_ident.io.bag_recover import reindex, scan_storage, stored_metadata
 from aeropend_ident.io.bag_writer import write_bag
-from aeropend_ident.io.bags import RawBagReader, bag_metadata, read_bag
+from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import TOPIC_ARMATURE, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES
 from aeropend_sim.recording import Recording
 

@@ -12,7 +12,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from aeropend_ident.errors import BagError
-from aeropend_ident.io import bag_codec, bags
+from aeropend_ident.io import bag_codec, bag_reader, bags
 from aeropend_ident.io.bag_writer import write_bag
 from aeropend_ident.io.bags import read_bag
 from aeropend_sim.contract import (
@@ -122,7 +122,7 @@ def test_metadata_has_qos_for_each_topic(tmp_path: Path, storage: str) -> None:
 
 def test_lockstep_qos_is_reliable(tmp_path: Path) -> None:
     path = write_bag(_recording(20), tmp_path / "ls", lockstep_qos=True)
-    info = bags.bag_metadata(path)
+    info = bag_reader.bag_metadata(path)
     qos = {t["topic_metadata"]["name"]: t["topic_metadata"]["offered_qos_profiles"][0]["reliability"]
            for t in info["topics_with_message_count"]}
     assert qos == {TOPIC_JOINT_STATES: "reliable", TOPIC_ARMATURE: "reliable", TOPIC_DUTY_CYCLE: "reliable"}

@@ -23,8 +23,9 @@ import numpy as np
 import pytest
 
 from aeropend_ident.errors import BagError, BagLossWarning
+from aeropend_ident.io.bag_reader import bag_metadata
 from aeropend_ident.io.bag_recover import reindex, scan_storage
-from aeropend_ident.io.bags import bag_metadata, read_bag
+from aeropend_ident.io.bags import read_bag
 from aeropend_ident.io.integrity.loss import LOSS_KEY
 from aeropend_sim.ros.harness import isolated_env, node_command, random_domain, reap
 

@@ -38,8 +38,8 @@ from aeropend_sim.ros.harness import (
 pytest.importorskip("rclpy")
 
 from aeropend_ident.io.bag_codec import typestore
+from aeropend_ident.io.bag_reader import RawBagReader
 from aeropend_ident.io.bag_writer import BagSink, write_bag
-from aeropend_ident.io.bags import RawBagReader
 from aeropend_ident.nodes.qos import INFINITE_TIME
 from aeropend_ident.pipeline import check_recording, run_graph
 from aeropend_sim.contract import TOPIC_CLOCK, TOPIC_DUTY_CYCLE, TOPIC_JOINT_STATES

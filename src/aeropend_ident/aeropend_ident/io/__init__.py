@@ -12,7 +12,8 @@ from aeropend_sim.lazy_api import lazy_api
 #: docs/api.md's check read it).
 _API: dict[str, tuple[str, ...]] = {
     "aeropend_ident.io.recording_input": ("load_recording", "load_and_split", "uniform_recording"),
-    "aeropend_ident.io.bags": ("read_bag", "RawBagReader", "bag_metadata"),
+    "aeropend_ident.io.bags": ("read_bag",),
+    "aeropend_ident.io.bag_reader": ("RawBagReader", "bag_metadata"),
     "aeropend_ident.io.bag_writer": ("write_bag", "BagSink"),
     "aeropend_ident.io.bag_recover": ("reindex", "is_truncated"),
     "aeropend_ident.io.csv_import": ("import_csv", "import_csv_runs", "csv_to_bag", "stream_csv_to_bag"),

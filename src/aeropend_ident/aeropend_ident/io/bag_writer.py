@@ -26,6 +26,7 @@ from aeropend_ident.io.bag_codec import (
     encode_joint_states,
     typestore,
 )
+from aeropend_ident.io.bag_reader import Storage
 from aeropend_ident.io.bags import (
     _CUSTOM_META,
     _CUSTOM_RIG,
@@ -33,7 +34,6 @@ from aeropend_ident.io.bags import (
     _STORAGE_PLUGINS,
     COMMAND_QOS,
     EXTRA_UNITS_META,
-    Storage,
     qos_for_topic,
 )
 from aeropend_sim.contract import (

@@ -1,7 +1,7 @@
 """``aeropend_player``: replay a bag's raw messages with their original timing (thin rclpy shell).
 
 ``play BAG [--rate 1.0] [--loop] [--topics T ...]`` reads the bag with ``rosbags``
-(:class:`aeropend_ident.io.bags.RawBagReader`) and publishes each message's serialised bytes
+(:class:`aeropend_ident.io.bag_reader.RawBagReader`) and publishes each message's serialised bytes
 unchanged (header stamps included) on its topic, with a publisher per topic offering the QoS the
 bag recorded for it, adapted as rosbag2's player adapts it
 (:func:`aeropend_ident.nodes.qos.playback_qos`: any tool's profile, ``history: unknown``
@@ -35,7 +35,7 @@ from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock as ClockMsg
 
 from aeropend_ident.errors import BagError, BagLossWarning, print_warnings_as_lines
-from aeropend_ident.io.bags import RawBagReader
+from aeropend_ident.io.bag_reader import RawBagReader
 from aeropend_ident.io.integrity.loss import loss_warning, stored_loss
 from aeropend_ident.nodes.qos import message_class, playback_qos
 from aeropend_sim.contract import TOPIC_CLOCK
@@ -99,7 +99,7 @@ def play(node: PlayerNode, reader: RawBagReader, rate: float, clock_hz: float = 
     """Publish every message of ``reader`` on schedule (streamed, constant memory).
 
     Message k is due at ``start + (log_k − log_0) / rate`` (as
-    :func:`aeropend_ident.io.bags.playback_deadlines` computes); stops early when rclpy shuts down.
+    :func:`aeropend_ident.io.bag_reader.playback_deadlines` computes); stops early when rclpy shuts down.
     With the node's ``/clock`` publisher, the bag time log_0 + (now − start)·rate is published
     every 1/``clock_hz`` s of wall time in between.
 
