@@ -21,14 +21,8 @@ from rosbags.interfaces import Qos
 
 from aeropend_ident.errors import BagError, BagTruncatedWarning
 from aeropend_ident.io.bag_codec import typestore
-from aeropend_ident.io.bag_recover import (
-    METADATA_FILE,
-    SKIPPED_KEY,
-    is_truncated,
-    scan_storage,
-    storage_files,
-    stored_metadata,
-)
+from aeropend_ident.io.bag_recover import scan_storage, stored_metadata
+from aeropend_ident.io.bag_storage import METADATA_FILE, SKIPPED_KEY, is_truncated, storage_files
 
 #: Storage plugins of a rosbag2 bag.
 Storage = Literal["mcap", "sqlite3"]

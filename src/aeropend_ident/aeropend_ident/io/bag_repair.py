@@ -12,11 +12,8 @@ from rosbags.rosbag2 import StoragePlugin
 
 from aeropend_ident.errors import BagError
 from aeropend_ident.io.bag_codec import typestore
-from aeropend_ident.io.bag_recover import (
-    SKIPPED_KEY,
-    StorageScan,
-    rebuild_metadata,
-)
+from aeropend_ident.io.bag_recover import rebuild_metadata
+from aeropend_ident.io.bag_storage import SKIPPED_KEY, StorageScan
 from aeropend_ident.io.mcap_jazzy import JazzyWriter
 
 #: ``custom_data`` key of a repaired bag: the parts of the original that were left out (JSON, as the
