@@ -197,3 +197,26 @@ def test_file_kind_checks_the_expected_period(tmp_path):
     assert make_signal("file", file=str(path), dt=0.01).dt == pytest.approx(0.01)
     with pytest.raises(ExcitationError, match="is not dt"):
         make_signal("file", file=str(path), dt=0.02)
+
+
+def test_a_design_whose_start_leaves_the_angle_range_is_brought_back_inside():
+    """A flat penalty for leaving the angle range let the search pick the most informative of the
+    sequences that leave it (on an ESC rig the designed recording sent the rod over the top, and
+    rig fit ended in a wrong timing optimum); the graded penalty moves the search inside."""
+    from aeropend_ident.design.parameters import fisher
+    from aeropend_ident.design.sequence import angle_penalty, aprbs_vector
+
+    rig = load_rig("thesis_sim")
+    keys = ("pendulum.c_over_J", "pendulum.mgd_over_J")
+    tight = Limits(duty_min=0.0, duty_max=0.9, max_slew=10.0, theta_min=-0.2, theta_max=0.5, dt=DT)
+    shape = AprbsShape(duration=8.0, segments=6)
+    start = sequence(aprbs_vector(shape, 0), shape, tight)
+    assert fisher(rig, keys, start, DT, SIGMA)[1].max() > tight.theta_max  # the seeded start leaves it
+    d = design_parameters(rig, keys, SIGMA, tight, shape, seed=0, max_evaluations=200)
+    theta = fisher(rig, keys, d.duty, DT, SIGMA)[1]
+    assert check_limits(d.duty, tight, theta)["ok"]
+    assert d.logdet > 0.0  # scored by its information, not by a penalty
+    # less excess scores higher; inside scores 0 (no penalty); a failed replay scores lowest
+    assert angle_penalty(np.array([0.0, 0.6]), tight) > angle_penalty(np.array([0.0, 0.9]), tight)
+    assert angle_penalty(np.array([0.0, 0.4]), tight) == 0.0
+    assert angle_penalty(np.array([0.0, np.nan]), tight) < angle_penalty(np.array([0.0, 1e6]), tight)

@@ -251,6 +251,12 @@ def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> 
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     print((args.out / "design.md").read_text(encoding="utf-8"))
+    if not doc["limits_check"]["ok"]:
+        lim = doc["limits"]
+        print(f"{prog}: warning: no sequence the search found keeps every predicted angle within "
+              f"{lim['theta_min']:.3g} … {lim['theta_max']:.3g} rad with commands up to "
+              f"{lim['duty_max']:.3g} (design.md: OUTSIDE): do not play it as it is; state a lower "
+              "--duty-max or the angle range the rig may reach (--theta-min/--theta-max)", file=sys.stderr)
     if doc.get("stopped_by") == "budget":
         print(f"{prog}: warning: the search was cut by --budget {args.budget:g} s after {doc['evaluations']} "
               f"of --max-evaluations {args.max_evaluations}: this seed gives another design on another "

@@ -48,9 +48,11 @@ import numpy as np
 
 from aeropend_ident.design.candidates import Candidate
 from aeropend_ident.design.sequence import (
+    ANGLE_PENALTY,
     BUDGET_S,
     AprbsShape,
     Limits,
+    angle_penalty,
     aprbs_vector,
     check_mode,
     default_evaluations,
@@ -59,9 +61,6 @@ from aeropend_ident.design.sequence import (
 )
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
-
-#: Penalty offset of a sequence that takes a candidate outside the angle range (log scale).
-ANGLE_PENALTY = 1e3
 
 
 class Predictor:
@@ -110,26 +109,17 @@ def pair_divergences(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, floa
     return d
 
 
-def angle_excess(outputs: Mapping[str, np.ndarray], limits: Limits) -> float:
-    """How far [rad] the worst candidate's predicted angle leaves the angle range (0 inside; ∞ for
-    a failed replay)."""
-    th = outputs["theta"]
-    if not np.all(np.isfinite(th)):
-        return math.inf
-    return float(max(0.0, th.max() - limits.theta_max, limits.theta_min - th.min()))
-
-
 def criterion(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float], limits: Limits) -> float:
-    """Mean over candidate pairs of log10(1 + D_ij), minus :data:`ANGLE_PENALTY` (and the excess)
-    when a candidate leaves the angle range or a replay fails (module doc)."""
+    """Mean over candidate pairs of log10(1 + D_ij); when a candidate's predicted angle leaves the
+    angle range or a replay fails, :func:`~aeropend_ident.design.sequence.angle_penalty` instead
+    (module doc)."""
+    outside = angle_penalty(outputs["theta"], limits)
+    if outside < 0.0:
+        return outside
     d = pair_divergences(outputs, sigma)
     iu = np.triu_indices(d.shape[0], 1)
     vals = d[iu]
-    value = float(np.mean(np.log10(1.0 + vals))) if np.all(np.isfinite(vals)) else -ANGLE_PENALTY
-    excess = angle_excess(outputs, limits)
-    if excess > 0.0:
-        value -= ANGLE_PENALTY + (excess if math.isfinite(excess) else ANGLE_PENALTY)
-    return value
+    return float(np.mean(np.log10(1.0 + vals))) if np.all(np.isfinite(vals)) else -ANGLE_PENALTY
 
 
 @dataclass

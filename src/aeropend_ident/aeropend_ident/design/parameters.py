@@ -31,9 +31,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from aeropend_ident.design.sequence import (
+    ANGLE_PENALTY,
     BUDGET_S,
     AprbsShape,
     Limits,
+    angle_penalty,
     aprbs_vector,
     check_mode,
     default_evaluations,
@@ -46,8 +48,6 @@ from aeropend_sim.params import Rig
 
 #: Relative forward-difference step of the sensitivities.
 REL_STEP = 1e-3
-#: Penalty of a sequence that leaves the angle range (in log det units).
-ANGLE_PENALTY = 1e3
 
 
 def perturbed(rig: Rig, key: str, factor: float) -> Rig:
@@ -194,10 +194,8 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
         nonlocal calls
         calls += 1
         f, th = fisher(rig, every, duty, limits.dt, sigma)
-        value = ds_criterion(f0 + f, n_i)
-        if not np.all(np.isfinite(th)) or th.max() > limits.theta_max or th.min() < limits.theta_min:
-            value -= ANGLE_PENALTY
-        return value, f
+        outside = angle_penalty(th, limits)
+        return (outside if outside < 0.0 else ds_criterion(f0 + f, n_i)), f
 
     z0 = aprbs_vector(shape, seed)
     base = sequence(z0, shape, limits)

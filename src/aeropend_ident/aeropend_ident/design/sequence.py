@@ -37,6 +37,24 @@ class DesignError(ValueError):
     """Invalid design settings (a limit outside its range, a duration over the cap, ...)."""
 
 
+#: Penalty scale of a sequence that takes a predicted angle outside the angle range (or whose
+#: replay fails): far below any criterion value inside it (log scale).
+ANGLE_PENALTY = 1e3
+
+
+def angle_penalty(theta: np.ndarray, limits: Limits) -> float:
+    """0 when every predicted angle ``theta`` (any shape) [rad] stays inside ``limits``' angle
+    range; else −:data:`ANGLE_PENALTY` × (1 + the excess [rad] beyond it, capped at 1000), so the
+    search, among sequences that leave the range, moves toward those that leave it least (a flat
+    penalty let it pick the most informative of them, which sent a rod over the top); a failed
+    replay (non-finite angle) scores below every finite excess."""
+    th = np.asarray(theta, dtype=float)
+    if not np.all(np.isfinite(th)):
+        return -ANGLE_PENALTY * 1002.0
+    excess = float(max(0.0, th.max() - limits.theta_max, limits.theta_min - th.min()))
+    return 0.0 if excess == 0.0 else -ANGLE_PENALTY * (1.0 + min(excess, 1000.0))
+
+
 #: The search's default length, in simulated runs of a rig (a parameter design replays p + 1 rigs
 #: per sequence, a discrimination design one per candidate): counted, not timed, so a seed gives
 #: one design on any machine under any load; about 20-40 s on two cores (docs/design.md).
