@@ -17,7 +17,7 @@ from aeropend_ident.gap.result import (
     GapResult,
     _label,
 )
-from aeropend_ident.gap.where import WhereReport
+from aeropend_ident.gap.where_report import WhereReport
 from aeropend_ident.io.overlay_axes import clip_to_recorded, fit_title
 from aeropend_ident.io.overlay_axes import short_number as num
 from aeropend_sim.output_folder import is_fault

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import scipy
 
-from aeropend_ident.gap.where import WhereReport
+from aeropend_ident.gap.where_report import WhereReport
 from aeropend_ident.greybox.parameters import THETA_OFFSET
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_sim.params import Rig, rig_to_dict

@@ -42,7 +42,8 @@ import numpy as np
 from aeropend_ident.errors import GapInputError, IdentError
 from aeropend_ident.gap.residual_tests import timing_lag_seen
 from aeropend_ident.gap.result import GapResult, where_which_agreement
-from aeropend_ident.gap.where import WhereReport, locate_gap
+from aeropend_ident.gap.where import locate_gap
+from aeropend_ident.gap.where_report import WhereReport
 from aeropend_ident.greybox.batch import single_blas
 from aeropend_ident.greybox.fit import error_metrics
 from aeropend_ident.io.split import (
