@@ -25,7 +25,8 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.greybox.fit import GreyBoxResult, fit_greybox
+from aeropend_ident.greybox.fit import fit_greybox
+from aeropend_ident.greybox.fit_result import GreyBoxResult
 from aeropend_ident.greybox.parameters import default_parameters, rig_theta_offset
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig

@@ -38,7 +38,8 @@ _API: dict[str, tuple[str, ...]] = {
     "aeropend_ident.sindy.identify": ("identify",),
     "aeropend_ident.sindy.model": ("SindyModel", "IdentData", "free_run"),
     # grey-box parameters
-    "aeropend_ident.greybox.fit": ("fit_greybox", "GreyBoxResult"),
+    "aeropend_ident.greybox.fit": ("fit_greybox",),
+    "aeropend_ident.greybox.fit_result": ("GreyBoxResult",),
     "aeropend_ident.greybox.baseline": ("baseline", "run_baseline", "BaselineResult"),
     # the sim-to-real gap
     "aeropend_ident.gap.run": ("run_gap",),

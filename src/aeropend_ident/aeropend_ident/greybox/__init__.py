@@ -11,9 +11,8 @@ from aeropend_sim.lazy_api import lazy_api
 #: The public API: defining module -> its names (the one list: ``__all__``, the lazy lookup and
 #: docs/api.md's check read it).
 _API: dict[str, tuple[str, ...]] = {
-    "aeropend_ident.greybox.fit": (
-        "fit_greybox", "GreyBoxResult", "ParameterEstimate", "free_run_theta", "error_metrics",
-    ),
+    "aeropend_ident.greybox.fit": ("fit_greybox", "free_run_theta", "error_metrics"),
+    "aeropend_ident.greybox.fit_result": ("GreyBoxResult", "ParameterEstimate"),
     "aeropend_ident.greybox.baseline": ("run_baseline", "BaselineResult", "fitted_rig_dict"),
     "aeropend_ident.greybox.static": (
         "armature_resistance", "armature_time_constant", "back_emf_constant", "fit_hbridge_map",

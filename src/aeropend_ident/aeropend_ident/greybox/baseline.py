@@ -61,13 +61,8 @@ import scipy
 import yaml
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.greybox.fit import (
-    GreyBoxResult,
-    ParameterEstimate,
-    error_metrics,
-    fit_greybox,
-    free_run_theta,
-)
+from aeropend_ident.greybox.fit import error_metrics, fit_greybox, free_run_theta
+from aeropend_ident.greybox.fit_result import GreyBoxResult, ParameterEstimate
 from aeropend_ident.greybox.parameters import (
     THETA_OFFSET,
     apply_parameters,
