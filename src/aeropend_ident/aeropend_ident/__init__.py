@@ -40,7 +40,8 @@ _API: dict[str, tuple[str, ...]] = {
     # grey-box parameters
     "aeropend_ident.greybox.fit": ("fit_greybox",),
     "aeropend_ident.greybox.fit_result": ("GreyBoxResult",),
-    "aeropend_ident.greybox.baseline": ("baseline", "run_baseline", "BaselineResult"),
+    "aeropend_ident.greybox.baseline": ("baseline", "run_baseline"),
+    "aeropend_ident.greybox.baseline_result": ("BaselineResult",),
     # the sim-to-real gap
     "aeropend_ident.gap.run": ("run_gap",),
     "aeropend_ident.gap.result": ("GapResult",),

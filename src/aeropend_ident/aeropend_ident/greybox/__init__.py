@@ -13,7 +13,8 @@ from aeropend_sim.lazy_api import lazy_api
 _API: dict[str, tuple[str, ...]] = {
     "aeropend_ident.greybox.fit": ("fit_greybox", "free_run_theta", "error_metrics"),
     "aeropend_ident.greybox.fit_result": ("GreyBoxResult", "ParameterEstimate"),
-    "aeropend_ident.greybox.baseline": ("run_baseline", "BaselineResult", "fitted_rig_dict"),
+    "aeropend_ident.greybox.baseline": ("run_baseline", "fitted_rig_dict"),
+    "aeropend_ident.greybox.baseline_result": ("BaselineResult",),
     "aeropend_ident.greybox.static": (
         "armature_resistance", "armature_time_constant", "back_emf_constant", "fit_hbridge_map",
         "fit_thrust_law",
