@@ -14,7 +14,8 @@ from scipy.integrate import solve_ivp
 
 from aeropend_ident.cli.rig import main
 from aeropend_ident.greybox.decay import analyse_decay
-from aeropend_ident.greybox.rig_fit import fit_rig, write_fitted
+from aeropend_ident.greybox.rig_fit import fit_rig
+from aeropend_ident.greybox.rig_fit_result import write_fitted
 from aeropend_ident.greybox.rig_inputs import is_table, read_table
 from aeropend_sim.components import registry
 from aeropend_sim.model import PlantModel
@@ -330,7 +331,7 @@ def test_a_quantised_log_gives_the_fitted_rig_its_angle_lsb(tmp_path):
     """A free decay read by a 10-bit potentiometer ADC (q = 2π/1024 rad): rig fit writes the logs'
     LSB into the fitted rig (sensors.theta_quantum, effects.quantisation on), so a closed-loop check
     on it sees the sensor the controller reads; an unquantised log leaves the rig without one."""
-    from aeropend_ident.greybox.rig_fit import write_fitted
+    from aeropend_ident.greybox.rig_fit_result import write_fitted
     from aeropend_ident.greybox.rig_problem import apply_values
     from aeropend_sim.simulation import simulate
     from bench.fixtures.rig_lab import PRESET

@@ -316,7 +316,7 @@ def test_a_parameter_rig_fit_left_at_a_bound_has_its_effects_confirmed():
     """Issue 60 item 5: a rig fit value at its search bound may have absorbed an effect; gap confirms
     the catalog effects that set that parameter (and those confusable with them), and says so."""
     from aeropend_ident.gap.run import bound_effects
-    from aeropend_ident.greybox.rig_fit import BOUND_FLAG
+    from aeropend_ident.greybox.rig_fit_result import BOUND_FLAG
     from aeropend_sim.params import load_rig, rig_from_dict, rig_to_dict
 
     doc = rig_to_dict(load_rig("thesis_rig"))

@@ -87,7 +87,8 @@ def _fit(args: argparse.Namespace) -> int:
     if out.resolve() == Path(args.rig).resolve() and not args.overwrite:
         raise RigFileError(f"-o {out} is the input rig file; choose another name")
     load_rig(args.rig)  # a bad rig file fails at once, before the identification modules load
-    from aeropend_ident.greybox.rig_fit import fit_rig, write_fitted
+    from aeropend_ident.greybox.rig_fit import fit_rig
+    from aeropend_ident.greybox.rig_fit_result import write_fitted
 
     say = None if args.quiet else (lambda m: print(f"rig fit: {m}", flush=True))
     result = fit_rig(args.rig, args.inputs, preset=args.preset, progress=say)

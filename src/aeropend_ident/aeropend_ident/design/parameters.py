@@ -223,7 +223,7 @@ def fitted_keys(fitted_text: str) -> list[str]:
 def weak_keys(fitted_text: str) -> list[str]:
     """Keys a ``rig fit`` result left undetermined: the parameter lines under a
     ``# rig fit: STILL TO BE FITTED`` or ``AT SEARCH BOUND`` comment
-    (:func:`aeropend_ident.greybox.rig_fit.fitted_text`).
+    (:func:`aeropend_ident.greybox.rig_fit_result.fitted_text`).
     """
     return _keys_under(fitted_text, ("STILL TO BE FITTED", "AT SEARCH BOUND"))
 

@@ -193,7 +193,7 @@ def _prediction_check(prediction: dict[str, Any] | None, test: list[dict[str, An
 def bound_effects(rig: Rig) -> tuple[list[str], list[str]]:
     """Effects ``gap`` confirms because ``rig fit`` left a parameter at a search bound.
 
-    A parameter fitted at its bound (:func:`aeropend_ident.greybox.rig_fit.bound_flags`) may have
+    A parameter fitted at its bound (:func:`aeropend_ident.greybox.rig_fit_result.bound_flags`) may have
     absorbed an unmodelled effect's signature (an amplifier input offset standing in for a sensor
     offset): the catalog effects that set that parameter, and those confusable with them, are
     fitted and ranked whether or not the screening shortlists them.
@@ -206,7 +206,7 @@ def bound_effects(rig: Rig) -> tuple[list[str], list[str]]:
         The effects to confirm (``diagnose_effects(..., also_confirm=)``).
     """
     from aeropend_ident.gap.effects import catalog
-    from aeropend_ident.greybox.rig_fit import bound_flags
+    from aeropend_ident.greybox.rig_fit_result import bound_flags
 
     flags = bound_flags(rig.sources)
     effects = {e.name: e for e in catalog(rig.family)}
