@@ -57,7 +57,7 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.sindy.core import WEAK_IV, fit, select_threshold, sweep_threshold, weak_iv_options
+from aeropend_ident.sindy.core import WEAK_IV, fit, weak_iv_options
 from aeropend_ident.sindy.libraries import (
     CandidateLibrary,
     collinearity_report,
@@ -74,6 +74,7 @@ from aeropend_ident.sindy.model import (
     structure_errors,
 )
 from aeropend_ident.sindy.preprocess import add_derivatives
+from aeropend_ident.sindy.sweep import select_threshold, sweep_threshold
 from aeropend_sim.excitation import aprbs, lhs_steps
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulation import simulate

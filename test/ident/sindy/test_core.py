@@ -15,7 +15,7 @@ import yaml
 from scipy.integrate import solve_ivp
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.sindy.core import fit, select_threshold, sweep_threshold
+from aeropend_ident.sindy.core import fit
 from aeropend_ident.sindy.libraries import (
     collinearity_report,
     physics_library,
@@ -31,6 +31,7 @@ from aeropend_ident.sindy.model import (
     structure_errors,
 )
 from aeropend_ident.sindy.preprocess import add_derivatives
+from aeropend_ident.sindy.sweep import select_threshold, sweep_threshold
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig

@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 from aeropend_ident.errors import IdentificationError
-from aeropend_ident.sindy.core import fit, regression_problem, sweep_threshold
+from aeropend_ident.sindy.core import fit, regression_problem
 from aeropend_ident.sindy.libraries import physics_library, structured_library
 from aeropend_ident.sindy.model import NoEquationError, data_from_trajectory
 from aeropend_ident.sindy.preprocess import add_derivatives
+from aeropend_ident.sindy.sweep import sweep_threshold
 from aeropend_sim.excitation import aprbs
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulation import simulate
@@ -209,7 +210,7 @@ def test_per_equation_libraries_share_one_weak_pass_over_their_union(split, monk
 def test_the_refinement_operator_reuses_the_weak_setups_subdomains(split) -> None:
     """``WeakOperator(..., lib=...)`` on the library the weak-form matrices built (same grid, K, p,
     H_xt, seed) has exactly the test-function integrals of one built from scratch."""
-    from aeropend_ident.sindy.core import _WeakSetup
+    from aeropend_ident.sindy.weak_form import _WeakSetup
     from aeropend_ident.sindy.weak_quadrature import WeakOperator
 
     train, _ = split

@@ -12,7 +12,8 @@ from aeropend_sim.lazy_api import lazy_api
 #: The public API: defining module -> its names (the one list: ``__all__``, the lazy lookup and
 #: docs/api.md's check read it).
 _API: dict[str, tuple[str, ...]] = {
-    "aeropend_ident.sindy.core": ("fit", "sweep_threshold", "select_threshold"),
+    "aeropend_ident.sindy.core": ("fit",),
+    "aeropend_ident.sindy.sweep": ("sweep_threshold", "select_threshold"),
     "aeropend_ident.sindy.model": (
         "IdentData", "SindyModel", "NoEquationError", "data_from_trajectory", "free_run",
         "structure_errors", "save_model",

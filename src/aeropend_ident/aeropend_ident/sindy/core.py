@@ -40,7 +40,6 @@ a message naming it (e.g. the current equation when i_a was not recorded).
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 import warnings
@@ -50,7 +49,6 @@ from typing import Any
 
 import numpy as np
 import pysindy as ps
-from pysindy.utils import AxesArray
 
 from aeropend_ident.errors import IdentificationError, LibraryError
 from aeropend_ident.sindy.libraries import CandidateLibrary
@@ -68,6 +66,14 @@ from aeropend_ident.sindy.model import (
     input_step_mask,
 )
 from aeropend_ident.sindy.output_error import refine_output_error
+from aeropend_ident.sindy.weak_form import (
+    WeakContext,
+    _check_half_width,
+    _node_data,
+    _WeakSetup,
+    column_rms,
+    weak_matrices,
+)
 from aeropend_ident.sindy.weak_quadrature import WeakOperator, curvature
 from aeropend_sim.params import Rig
 
@@ -79,14 +85,8 @@ METHODS = ("sindy", "ensemble", "weak")
 WEAK_IV: dict[str, float] = {"H_xt": 0.02, "coverage": 3.0, "refine": 2, "alpha": 1.0, "threshold": 0.1}
 
 
-# ---------------------------------------------------------------------------------- regression
-def _rms(a: np.ndarray) -> np.ndarray:
-    r = np.sqrt(np.mean(np.asarray(a) ** 2, axis=0))
-    return np.where(r > 0, r, 1.0)
-
-
 def _normalised_cond(theta: np.ndarray) -> float:
-    s = np.linalg.svd(theta / _rms(theta), compute_uv=False)
+    s = np.linalg.svd(theta / column_rms(theta), compute_uv=False)
     return float(s.max() / s.min()) if s.min() > 0 else float("inf")
 
 
@@ -127,7 +127,7 @@ def sparse_regression(
     """
     if not threshold >= 0:
         raise IdentificationError(f"threshold λ = {threshold!r} must be >= 0")
-    cs, ys = _rms(theta), _rms(y)
+    cs, ys = column_rms(theta), column_rms(y)
     zero = np.zeros(y.shape[1], dtype=bool) if zero_below is None else ys <= np.asarray(zero_below)
     if zero.all():
         m = theta.shape[1]
@@ -180,180 +180,6 @@ def _enforce_threshold(a: np.ndarray, b: np.ndarray, coef: np.ndarray, threshold
             if keep.any():
                 coef[i, keep] = np.linalg.lstsq(a[:, keep], b[:, i], rcond=None)[0]
     return coef
-
-
-def weak_matrices(data: IdentData, columns: np.ndarray, targets: Sequence[str], K: int = 200,
-                  p: int = 4, H_xt: float | None = None, seed: int = 0,
-                  columns_next: np.ndarray | None = None, zoh: np.ndarray | None = None,
-                  *, _setup: _WeakSetup | None = None,
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Weak-form regression matrices with pysindy's ``WeakPDELibrary`` (thesis Eqs. 3.20-3.30).
-
-    ``WeakPDELibrary(function_library=IdentityLibrary(), spatiotemporal_grid=t, K, p, H_xt)``
-    integrates each given column against K test functions φ_k = (1 − t̃²)^p (random subdomains)
-    assuming the column is linear between samples; the left side is pysindy's
-    ``convert_u_dot_integral`` of the target states, −∫φ_k'·x dt.
-
-    **Zero-order-hold inputs.** A column that reads an input held constant over each sample
-    period (the duty cycle τ_k and hence v_a on [t_k, t_k+1)) jumps at every sample instant, and
-    the linear-interpolation quadrature treats each jump as a ramp: an O(dt) error per step that
-    wrecks the current equation (thesis_sim di_a/dt off by 380 % noise-free). For the columns
-    flagged in ``zoh`` the integral is computed exactly for the held input instead: on each
-    sample interval the column is F(x(t), u_k), taken linear in t between F(x_k, u_k)
-    (``columns``) and F(x_k+1, u_k) (``columns_next``),
-
-        ∫ φ_k F dt = Σ_j a_kj·F(x_j, u_j) + b_kj·F(x_j+1, u_j),
-
-    with a_kj, b_kj the exact integrals of φ_k times the two linear hat halves on [t_j, t_j+1]
-    (pysindy's own ``_phi_int``/``_xphi_int`` antiderivatives, same subdomains and test
-    functions). For a column without input this is exactly pysindy's quadrature.
-
-    Parameters
-    ----------
-    columns : ndarray, shape (N, M)
-        Strong-form columns F(x_j, u_j) to integrate (library columns, model right-hand sides, ...).
-    H_xt : float, optional
-        Half-width of the subdomains [s] (pysindy default: 1/20 of the record).
-    columns_next : ndarray, shape (N, M), optional
-        F(x_j+1, u_j): the same columns with the states advanced one sample and the inputs not
-        (row N−1 is not used). Needed when ``zoh`` flags any column.
-    zoh : ndarray of bool, shape (M,), optional
-        Columns that read a zero-order-hold input.
-
-    Returns
-    -------
-    theta_w : ndarray, shape (K, M)
-    lhs_w : ndarray, shape (K, n_targets)
-    """
-    t = data.t
-    if _setup is None:
-        _check_half_width(t, H_xt)
-    cols_a = np.asarray(columns, dtype=float)
-    zoh_mask = np.zeros(cols_a.shape[1], dtype=bool) if zoh is None else np.asarray(zoh, dtype=bool)
-    if zoh_mask.shape != (cols_a.shape[1],):
-        raise IdentificationError(f"zoh mask has shape {zoh_mask.shape}, expected ({cols_a.shape[1]},)")
-    if zoh_mask.any() and (columns_next is None or np.shape(columns_next) != cols_a.shape):
-        raise IdentificationError(
-            f"zero-order-hold columns need columns_next of shape {cols_a.shape}, "
-            f"got {None if columns_next is None else np.shape(columns_next)}"
-        )
-    if _setup is None:
-        _setup = _weak_setup(np.asarray(t, dtype=float).tobytes(), K, p, H_xt, seed)
-    setup = _setup
-    lib = setup.lib
-    cols = AxesArray(cols_a, {"ax_time": 0, "ax_coord": 1})
-    x = np.column_stack([data.variables[tg] for tg in targets])
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        lib.fit([cols])
-        theta_w = np.asarray(lib.transform([cols])[0]).copy()
-        lhs_w = np.asarray(lib.convert_u_dot_integral(AxesArray(x, {"ax_time": 0, "ax_coord": 1})))
-    if zoh_mask.any():
-        nxt = np.asarray(columns_next, dtype=float)[:, zoh_mask]
-        cur = cols_a[:, zoh_mask]
-        for k, (idx, a, b) in enumerate(setup.zoh_weights()):
-            theta_w[k, zoh_mask] = a @ cur[idx[:-1]] + b @ nxt[idx[:-1]]
-    return theta_w, lhs_w
-
-
-def _check_half_width(t: np.ndarray, H_xt: float | None) -> None:
-    if H_xt is not None and not 0 < 2 * H_xt < t[-1] - t[0]:
-        raise IdentificationError(f"H_xt = {H_xt!r} s must be in (0, record/2 = {(t[-1] - t[0]) / 2:g} s)")
-
-
-class _WeakSetup:
-    """pysindy's ``WeakPDELibrary`` on one time grid and its exact zero-order-hold weights.
-
-    Both depend only on the grid, K, p, H_xt and the seed (not on the library columns, the
-    targets or λ), so one setup serves every equation and every λ of a sweep; building it is
-    most of the cost of :func:`weak_matrices` (0.12 s of 0.2 s for K = 300 on 16 500 samples).
-    """
-
-    def __init__(self, t: np.ndarray, K: int, p: int, H_xt: float | None, seed: int) -> None:
-        _check_half_width(t, H_xt)
-        self.t, self.p = t, p
-        np.random.seed(seed)  # pysindy draws the subdomain centres from the global generator
-        self.lib = ps.WeakPDELibrary(function_library=ps.IdentityLibrary(), spatiotemporal_grid=t, K=K, p=p,
-                                     H_xt=H_xt)
-        self._zoh: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None
-
-    def zoh_weights(self) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-        """Per subdomain: sample indices and the weights a, b of :func:`weak_matrices` (cached)."""
-        if self._zoh is None:
-            out = []
-            for k in range(self.lib.K):
-                idx = np.asarray(self.lib.inds_k[k][0])
-                out.append((idx, *_zoh_weights(self.lib, self.t[idx], self.p)))
-            self._zoh = out
-        return self._zoh
-
-
-@functools.lru_cache(maxsize=8)
-def _weak_setup(t_bytes: bytes, K: int, p: int, H_xt: float | None, seed: int) -> _WeakSetup:
-    """The :class:`_WeakSetup` of a time grid (given as its float64 bytes), kept for the next call on
-    the same grid: the gap's screening builds the weak form of every equation of a recording on one
-    grid, and its second-effect screening again."""
-    return _WeakSetup(np.frombuffer(t_bytes, dtype=float).copy(), K, p, H_xt, seed)
-
-
-def _zoh_weights(lib: ps.WeakPDELibrary, tk: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
-    """Exact ∫φ·(1−s) and ∫φ·s over each sample interval of one subdomain (s: 0→1 across it)."""
-    h = (tk[-1] - tk[0]) / 2.0
-    xs = (tk - (tk[-1] + tk[0]) / 2.0) / h
-    w = lib._phi_int(xs, 0, p)
-    z = lib._xphi_int(xs, 0, p)
-    dw, dz = np.diff(w), np.diff(z)
-    x1, x2 = xs[:-1], xs[1:]
-    span = x2 - x1
-    return h * (x2 * dw - dz) / span, h * (dz - x1 * dw) / span
-
-
-@dataclass
-class WeakContext:
-    """What a refinement pass of the weak form adds to the plain one (see :func:`fit_weak_refined`).
-
-    Attributes
-    ----------
-    operator : WeakOperator
-        Subdomains, test functions and Boole quadrature over the sample intervals.
-    held : list of str
-        Zero-order-hold inputs.
-    curvature : dict state -> ndarray (N−1, 5)
-        Intra-sample curvature correction of the measured path (previous model).
-    simulated : dict name -> ndarray (N,) or None
-        Free run of the previous model (targets simulated, the rest from the data): the
-        source of the instruments; None when no instruments are used.
-    simulated_curvature : dict state -> ndarray (N−1, 5)
-    """
-
-    operator: WeakOperator
-    held: list[str]
-    curvature: dict[str, np.ndarray]
-    simulated: dict[str, np.ndarray] | None = None
-    simulated_curvature: dict[str, np.ndarray] = field(default_factory=dict)
-
-    def matrices(self, data: IdentData, library: CandidateLibrary, targets: Sequence[str],
-                 base: Rig | BaseModel | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(regression matrix, left side, left side before the base model), each with K rows."""
-        op = self.operator
-        nodes = op.node_values(data.variables, self.held, self.curvature)
-        theta_w = op.integrate(library.evaluate(nodes))
-        y = y_ref = op.derivative_integral(np.column_stack([nodes[tg] for tg in targets]))
-        if base is not None:
-            fb = base_derivatives(base, _node_data(nodes, data.source), targets)
-            y = y - op.integrate(np.column_stack([fb[tg] for tg in targets]))
-        if self.simulated is None:
-            return theta_w, y, y_ref
-        sim_nodes = op.node_values(self.simulated, self.held, self.simulated_curvature)
-        z = op.integrate(library.evaluate(sim_nodes))
-        zs, ts = _rms(z), _rms(theta_w)
-        proj = np.linalg.lstsq(z / zs, theta_w / ts, rcond=None)[0]
-        return (z / zs) @ proj * ts, y, y_ref
-
-
-def _node_data(nodes: Mapping[str, np.ndarray], source: str) -> IdentData:
-    n = len(next(iter(nodes.values())))
-    return IdentData(t=np.arange(float(n)), variables=dict(nodes), source=f"{source}(quadrature nodes)")
 
 
 def _model_rhs(model: SindyModel) -> Callable[[Mapping[str, np.ndarray]], dict[str, np.ndarray]]:
@@ -705,7 +531,7 @@ def _build_regression(
     y.setflags(write=False)
     return _Regression(
         library=library, targets=list(targets), theta=theta_r, y=y,
-        zero_below=1e-9 * _rms(y_ref) if fb is not None else None, condition_number=cond,
+        zero_below=1e-9 * column_rms(y_ref) if fb is not None else None, condition_number=cond,
         name=method if base is None else f"discrepancy-{method}", base=base,
         build_time=time.perf_counter() - t0,
     )
@@ -897,79 +723,5 @@ def regression_problem(
     return RegressionProblem(data=data, library=lib, targets=targets, options=options, dropped=dropped,
                              _parts=parts, _per_target=isinstance(library, Mapping), _operator=op,
                              _drive=drive)
-
-
-# ---------------------------------------------------------------------------------- selection
-@dataclass(frozen=True)
-class SweepPoint:
-    """One λ of a threshold sweep, scored on held-out data.
-
-    Attributes
-    ----------
-    threshold : float
-    n_terms : dict[str, int]
-        Active terms per target.
-    test_mse : dict[str, float]
-        Held-out derivative MSE per target.
-    aic, bic : float
-        Sum over targets of N·ln(MSE/var) + 2k (AIC) or + k·ln N (BIC) on the held-out data
-        (MSE normalised by the target's variance, floored at 1e-300).
-    """
-
-    threshold: float
-    n_terms: dict[str, int]
-    test_mse: dict[str, float]
-    aic: float
-    bic: float
-
-
-def sweep_threshold(
-    train: IdentData, test: IdentData, library: CandidateLibrary | Mapping[str, CandidateLibrary],
-    thresholds: Sequence[float], targets: Sequence[str] = ("theta_dot", "i_a", "omega_rotor"), **fit_kw: Any,
-) -> tuple[list[SweepPoint], dict[float, SindyModel]]:
-    """Fit for each λ and score on held-out data (the Pareto front: terms vs test error).
-
-    ``fit_kw`` go to :func:`fit`; its ``exclude_input_steps`` also applies to the scoring. The
-    λ-independent part (library, weak-form matrices, rank check) is built once
-    (:func:`regression_problem`); each model equals ``fit(train, library, targets, threshold=λ,
-    **fit_kw)``.
-    """
-    points, models = [], {}
-    excl = int(fit_kw.get("exclude_input_steps", 0))
-    n = int(input_step_mask(test, excl).sum()) if excl > 0 else len(test)
-    problem = regression_problem(train, library, targets, **fit_kw)
-    for lam in thresholds:
-        m = problem.solve(float(lam))
-        mse = m.test_mse(test, exclude_input_steps=excl)
-        k = {tg: int(m.support()[i].sum()) for i, tg in enumerate(m.targets)}
-        aic = bic = 0.0
-        for tg in m.targets:
-            var = float(np.var(test.derivatives[tg])) or 1.0
-            ll = n * math.log(max(mse[tg] / var, 1e-300))
-            aic += ll + 2 * k[tg]
-            bic += ll + k[tg] * math.log(n)
-        points.append(SweepPoint(float(lam), k, mse, aic, bic))
-        models[float(lam)] = m
-    return points, models
-
-
-def select_threshold(points: Sequence[SweepPoint], criterion: str = "bic") -> SweepPoint:
-    """Pick the sweep point with the lowest ``"bic"``, ``"aic"`` or total relative ``"test"`` MSE.
-
-    Ties (within 1e-9 relative) go to the sparser model (larger λ).
-    """
-    if criterion not in ("bic", "aic", "test"):
-        raise IdentificationError(f"criterion = {criterion!r}; expected 'bic', 'aic' or 'test'")
-    if not points:
-        raise IdentificationError("empty sweep")
-
-    def score(pt: SweepPoint) -> float:
-        if criterion == "test":
-            return float(sum(pt.test_mse.values()))
-        return pt.bic if criterion == "bic" else pt.aic
-
-    best = min(score(pt) for pt in points)
-    ok = [pt for pt in points if score(pt) <= best + 1e-9 * abs(best)]
-    return max(ok, key=lambda pt: pt.threshold)
 
 

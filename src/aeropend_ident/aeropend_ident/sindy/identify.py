@@ -78,13 +78,7 @@ from aeropend_ident.io.recording_input import (
     timing_range,
     uniform_recording,
 )
-from aeropend_ident.sindy.core import (
-    WEAK_IV,
-    regression_problem,
-    select_threshold,
-    sweep_threshold,
-    weak_iv_options,
-)
+from aeropend_ident.sindy.core import WEAK_IV, regression_problem, weak_iv_options
 from aeropend_ident.sindy.libraries import (
     CandidateLibrary,
     physics_library,
@@ -110,6 +104,7 @@ from aeropend_ident.sindy.partial import (
 )
 from aeropend_ident.sindy.preprocess import add_derivatives, differentiate
 from aeropend_ident.sindy.second_order import combine_models, fit_pendulum
+from aeropend_ident.sindy.sweep import select_threshold, sweep_threshold
 from aeropend_sim.model import plant_model
 from aeropend_sim.output_folder import is_fault
 from aeropend_sim.params import Rig

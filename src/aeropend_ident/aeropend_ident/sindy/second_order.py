@@ -36,10 +36,11 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.errors import IdentificationError, LibraryError
-from aeropend_ident.sindy.core import SweepPoint, select_threshold, sparse_regression
+from aeropend_ident.sindy.core import sparse_regression
 from aeropend_ident.sindy.libraries import CandidateLibrary, pendulum_library
 from aeropend_ident.sindy.model import IdentData, SindyModel, free_run
 from aeropend_ident.sindy.preprocess import differentiate
+from aeropend_ident.sindy.sweep import SweepPoint, select_threshold
 from aeropend_ident.sindy.weak_quadrature import SecondOrderTestFunctions
 
 #: λ grid of the pendulum equation (dimensionless, unit-RMS scale as in :mod:`aeropend_ident.sindy.core`).

@@ -19,7 +19,7 @@ the fit data by :func:`aeropend_ident.io.split.validation_split`). The **held-ou
    effect parameter is the change of the model's right-hand side when it goes from its nominal
    (``off``) value to a typical physical magnitude (``probe``), evaluated on the recorded states.
    Strong form (estimated derivatives) and weak form (test-function integrals of
-   :func:`aeropend_ident.sindy.core.weak_matrices`). Whole groups are selected by group orthogonal
+   :func:`aeropend_ident.sindy.weak_form.weak_matrices`). Whole groups are selected by group orthogonal
    matching pursuit with a BIC stop (:func:`group_select`); a bootstrap over time segments gives
    each group's inclusion frequency. Each effect's own regression coefficient is its
    **equation-error estimate** of the physical parameter.

@@ -24,8 +24,8 @@ from aeropend_ident.gap.effects import (
 from aeropend_ident.gap.which.data import Prepared, _sim_rig, replay_many
 from aeropend_ident.gap.which.fitting import BIC_DECIMATION
 from aeropend_ident.gap.which.metrics import SEGMENT
-from aeropend_ident.sindy.core import weak_matrices
 from aeropend_ident.sindy.model import IdentData
+from aeropend_ident.sindy.weak_form import weak_matrices
 from aeropend_sim.compiled.plant import derivatives
 from aeropend_sim.components import registry
 from aeropend_sim.model import plant_model
