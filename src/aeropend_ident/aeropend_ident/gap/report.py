@@ -15,6 +15,7 @@ import base64
 import html
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -66,13 +67,31 @@ def table_line(row: dict[str, Any]) -> str:
 def terminal_summary(result: GapResult) -> str:
     """One-screen summary: verdict, located subsystem, ranked effects, before/after."""
     h = result.headline()
-    d = result.diagnosis
     lines = [
         f"gap: nominal rig {result.rig.name}; {h['n_fit_recordings']} fit / "
         f"{h['n_heldout_recordings']} held-out recording(s) ({result.split_rule})",
         f"  significant gap: {'yes' if h['significant_gap'] else 'no'} ({h['significant_gap_why']})",
-        "  WHERE (nominal on fit recordings):",
     ]
+    lines += _where_lines(result)
+    lines += _which_lines(result)
+    lines += _sessions_lines(result)
+    lines += _prediction_lines(result.prediction)
+    lines += _held_out_lines(result, h)
+    lines += _attainable_lines(result)
+    if result.refit:
+        lines.append(f"  {'WORSE THAN A REFIT' if result.refit['worse_than_refit'] else 'REFIT'}: "
+                     f"{result.refit['verdict']}")
+    for row in result.tables:
+        lines.append("  " + table_line(row))
+    lines += [f"  BOUND: {n}" for n in result.bound_notes]
+    for section, why in result.not_computed.items():
+        lines.append(f"  NOT COMPUTED: {section}: {why}")
+    return "\n".join(lines)
+
+
+def _where_lines(result: GapResult) -> list[str]:
+    """The WHERE section of :func:`terminal_summary`: the nominal rig's equations on the fit recordings."""
+    lines = ["  WHERE (nominal on fit recordings):"]
     for row in result.where.located:
         mark = "!" if row["flagged"] else " "
         lines.append(
@@ -89,6 +108,13 @@ def terminal_summary(result: GapResult) -> str:
         f"NRMSE {r0.short_horizon['nrmse']:.4f}; Ljung-Box p {r0.whiteness['p_value']:.2g}; "
         f"alignment lag {r0.alignment['lag_s']:.3f} s"
     )
+    return lines
+
+
+def _which_lines(result: GapResult) -> list[str]:
+    """The WHICH section: ranked effects, the chosen ones and how much they explain."""
+    d = result.diagnosis
+    lines: list[str] = []
     lines.append("  WHICH (ranked effects; 'validation' = the part of the fit data that chooses them):")
     for r in list(d.ranking)[:5]:
         lines.append(
@@ -114,6 +140,13 @@ def terminal_summary(result: GapResult) -> str:
                      f"completeness ≥ {NAMED_COMPLETENESS:g})")
     if result.agreement:
         lines.append(f"  WHERE vs WHICH: {result.agreement['explanation']}")
+    return lines
+
+
+def _sessions_lines(result: GapResult) -> list[str]:
+    """The VALIDATION and SESSIONS sections."""
+    d = result.diagnosis
+    lines: list[str] = []
     lines.append("  VALIDATION (carved from the fit data; chooses the effects):")
     for row in d.validation:
         lines.append(f"    {('+'.join(row['effects']) or 'nominal'):40s} NRMSE {row['nrmse']:.4f}")
@@ -123,7 +156,13 @@ def terminal_summary(result: GapResult) -> str:
             lines.append(f"    {row['left_out'][:30]:30s} {'+'.join(row['chosen_on_others']) or 'none':32s} "
                          f"{row['nrmse_nominal']:.4f} -> {row['nrmse_corrected']:.4f} ({row['shrink']:.1%})")
         lines += _drift_lines(result.sessions["drift"])
-    pr = result.prediction
+    return lines
+
+
+def _prediction_lines(prediction: dict[str, Any] | None) -> list[str]:
+    """The PREDICTED line (none without a prediction)."""
+    lines: list[str] = []
+    pr = prediction
     if pr and pr.get("useful") is False:
         lines.append(f"  PREDICTED held-out θ NRMSE of the corrected rig: {pr['why_not_useful']}")
     elif pr:
@@ -136,6 +175,13 @@ def terminal_summary(result: GapResult) -> str:
             f"{pr['predicted']:.4f}, 80 % interval [{pr['interval'][0]:.4f}, {pr['interval'][1]:.4f}] "
             f"(within session {pr['within_session']:.4f}, session drift {pr['drift_part']:.4f} from the "
             f"{pr['drift_source']}{alone})" + (f"; {pr['why_wide']}" if pr.get("why_wide") else ""))
+    return lines
+
+
+def _held_out_lines(result: GapResult, h: dict[str, Any]) -> list[str]:
+    """The HELD OUT section: per channel, the θ before/after (or why there is none), the prediction
+    check."""
+    lines: list[str] = []
     # the one free run's start (greybox.replay, its rule in report.json), stated with the held-out figures
     starts = [f"{_label(r['recording'] or 'held-out')[:40]}: {start_text(r['initial_state'])}"
               for r in h.get("heldout_free_run", {}).get("nominal", [])]
@@ -157,6 +203,12 @@ def terminal_summary(result: GapResult) -> str:
     chk = result.prediction_check
     if chk:  # on the held-out line: the screen is full
         lines[-1] += f"; prediction check: actual {chk['actual']:.4f} {chk['verdict']}"
+    return lines
+
+
+def _attainable_lines(result: GapResult) -> list[str]:
+    """The ATTAINABLE section, per held-out recording."""
+    lines: list[str] = []
     for a in result.attainable or []:
         sp = a["split"]
         if a.get("diverges"):  # no NRMSE, no split of a gap between runs that left the recorded range
@@ -174,15 +226,7 @@ def terminal_summary(result: GapResult) -> str:
             f"{sp['not_removable']:.0%}")
         if a.get("drift"):
             lines += _drift_lines(a["drift"])
-    if result.refit:
-        lines.append(f"  {'WORSE THAN A REFIT' if result.refit['worse_than_refit'] else 'REFIT'}: "
-                     f"{result.refit['verdict']}")
-    for row in result.tables:
-        lines.append("  " + table_line(row))
-    lines += [f"  BOUND: {n}" for n in result.bound_notes]
-    for section, why in result.not_computed.items():
-        lines.append(f"  NOT COMPUTED: {section}: {why}")
-    return "\n".join(lines)
+    return lines
 
 
 def _detected_text(diag: Any) -> str:
@@ -342,7 +386,11 @@ def _table(rows: list[list[Any]], head: list[str]) -> str:
 
 def _html_rows(result: GapResult) -> dict[str, Any]:
     """The rows of the HTML report's tables (and the verdict list, channels, explained share)."""
-    d = result.diagnosis
+    return {**_where_rows(result), **_which_rows(result), **_held_out_rows(result)}
+
+
+def _where_rows(result: GapResult) -> dict[str, Any]:
+    """The where-analysis' verdict list, equation rows and per-recording rows."""
     w = result.where
     verdict = "".join(f"<li>{html.escape(v)}</li>" for v in w.verdict())
     eq_rows = [
@@ -370,6 +418,12 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
         ]
         for r in w.recordings
     ]
+    return {"verdict": verdict, "eq_rows": eq_rows, "rec_rows": rec_rows}
+
+
+def _which_rows(result: GapResult) -> dict[str, Any]:
+    """The ranked effects, the not identifiable ones, the pairs not separated, the explained share."""
+    d = result.diagnosis
     rank_rows = [
         [
             k + 1,
@@ -390,6 +444,21 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
         for k, r in enumerate(d.ranking)
     ]
     ni_rows = [[n["effect"], n["reason"]] for n in d.not_identifiable]
+    amb_rows = [[r["effect"], ", ".join(r["ambiguous_with"]),
+                 "; ".join(f"{k}: validation explained {_fmt(v.get('validation_explained'), '.3f')}, "
+                           + (f"first in {v['bootstrap_first']:.0%} of resamples" if v.get("bootstrap_first")
+                              is not None else "as good in the joint fit with the other chosen effects"
+                              if v.get("joint_fit") else "fitted alone, neither removes "
+                              f"{SWAP_GAIN:.0%} of the gap above noise the other leaves")
+                           for k, v in r.get("ambiguity", {}).items())]
+                for r in d.ranking if r.get("ambiguous_with")]
+    explained = getattr(d, "explained", {}) or {}
+    return {"rank_rows": rank_rows, "ni_rows": ni_rows, "amb_rows": amb_rows, "explained": explained}
+
+
+def _held_out_rows(result: GapResult) -> dict[str, Any]:
+    """Before / after rows: held-out and validation figures, overlays, channels, residual tests."""
+    d = result.diagnosis
     shrink_rows = []
     for part, row in [("held out", r) for r in result.test] + [("validation", r) for r in d.validation]:
         sm = row.get("step_metrics") or {}
@@ -416,15 +485,6 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
     chans = list(result.test[0].get("channel_nrmse", {}))
     channel_rows = [["+".join(row["effects"]) or "nominal", *[row["channel_nrmse"].get(c) for c in chans]]
                     for row in result.test]
-    amb_rows = [[r["effect"], ", ".join(r["ambiguous_with"]),
-                 "; ".join(f"{k}: validation explained {_fmt(v.get('validation_explained'), '.3f')}, "
-                           + (f"first in {v['bootstrap_first']:.0%} of resamples" if v.get("bootstrap_first")
-                              is not None else "as good in the joint fit with the other chosen effects"
-                              if v.get("joint_fit") else "fitted alone, neither removes "
-                              f"{SWAP_GAIN:.0%} of the gap above noise the other leaves")
-                           for k, v in r.get("ambiguity", {}).items())]
-                for r in d.ranking if r.get("ambiguous_with")]
-    explained = getattr(d, "explained", {}) or {}
     wc = result.where_heldout_corrected
     wn = result.where_heldout_nominal
     white_rows = [
@@ -437,10 +497,8 @@ def _html_rows(result: GapResult) -> dict[str, Any]:
         ]
         for a, b in zip(wn.recordings, wc.recordings, strict=True)
     ]
-    return {"verdict": verdict, "eq_rows": eq_rows, "rec_rows": rec_rows, "rank_rows": rank_rows,
-            "ni_rows": ni_rows, "shrink_rows": shrink_rows, "after_rows": after_rows, "chans": chans,
-            "channel_rows": channel_rows, "amb_rows": amb_rows, "explained": explained,
-            "white_rows": white_rows}
+    return {"shrink_rows": shrink_rows, "after_rows": after_rows, "chans": chans,
+            "channel_rows": channel_rows, "white_rows": white_rows}
 
 
 #: What presence, completeness and the status words mean (the HTML report, section 4).
@@ -457,29 +515,19 @@ passing effect may stand in: presence at most ½). A chosen effect is <b>named</
 
 
 def html_page(result: GapResult, figs: dict[str, bytes]) -> str:
-    """The self-contained HTML report (figures embedded as base64 PNG)."""
+    """The self-contained HTML report (figures embedded as base64 PNG): the headline, then one
+    section per step (before / after on held-out recordings, where, which) and the definitions."""
     h = result.headline()
     d = result.diagnosis
-    w = result.where
-
-    def img(key: str, alt: str) -> str:
-        if key not in figs:
-            why = result.not_computed.get(f"figure {key}", "not drawn")
-            return f"<p><i>figure {html.escape(key)} not drawn: {html.escape(why)}</i></p>"
-        return f'<img alt="{alt}" src="data:image/png;base64,{base64.b64encode(figs[key]).decode()}">'
-
+    img = _figure_tag(result, figs)
     t = _html_rows(result)
-    verdict, eq_rows, rec_rows, rank_rows = t["verdict"], t["eq_rows"], t["rec_rows"], t["rank_rows"]
-    ni_rows, shrink_rows, after_rows, chans = t["ni_rows"], t["shrink_rows"], t["after_rows"], t["chans"]
-    channel_rows, amb_rows = t["channel_rows"], t["amb_rows"]
-    explained, white_rows = t["explained"], t["white_rows"]
     css = (
         "body{font-family:sans-serif;max-width:1200px;margin:auto;padding:1em;color:#222}"
         "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;padding:3px 7px;"
         "font-size:13px}th{background:#eee}img{max-width:100%}.big{font-size:1.2em}"
         ".small{font-size:0.75em;color:#555}"
     )
-    return f"""<!DOCTYPE html>
+    return (f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>aeropend gap report: {html.escape(result.rig.name)}</title>
 <style>{css}</style></head><body>
 <h1>Sim-to-real gap report: {html.escape(result.rig.name)}</h1>
@@ -491,7 +539,28 @@ located in: <b>{html.escape(str(h["where_subsystem"]))}</b>.</p>
 recording(s) ({html.escape(result.split_rule)}). The held-out recordings were used neither to locate the gap
 nor to choose or fit the effects: the diagnosis fitted on {len(result.fit_core)} part(s) of the fit recordings
 and chose the effects on {len(result.validation)} validation part(s) carved from them.</p>
-<h2>1. Before / after on held-out recordings</h2>
+"""
+            + _before_after_html(result, t, img) + _where_html(result, t, img) + _which_html(result, t, img)
+            + _DEFINITIONS_HTML)
+
+
+def _figure_tag(result: GapResult, figs: dict[str, bytes]) -> Callable[[str, str], str]:
+    """``img(key, alt)``: the figure embedded as base64 PNG, or why it was not drawn."""
+
+    def img(key: str, alt: str) -> str:
+        if key not in figs:
+            why = result.not_computed.get(f"figure {key}", "not drawn")
+            return f"<p><i>figure {html.escape(key)} not drawn: {html.escape(why)}</i></p>"
+        return f'<img alt="{alt}" src="data:image/png;base64,{base64.b64encode(figs[key]).decode()}">'
+
+    return img
+
+
+def _before_after_html(result: GapResult, t: dict[str, Any], img: Callable[[str, str], str]) -> str:
+    """Section 1 of :func:`html_page`: the held-out recordings before / after, per channel, residual tests."""
+    after_rows, shrink_rows, chans = t["after_rows"], t["shrink_rows"], t["chans"]
+    channel_rows, white_rows = t["channel_rows"], t["white_rows"]
+    return f"""<h2>1. Before / after on held-out recordings</h2>
 {img("overlay", "overlay")}
 {
         _table(
@@ -529,7 +598,13 @@ and chose the effects on {len(result.validation)} validation part(s) carved from
         )
     }
 {_drift_html(result)}
-<h2>2. Where: residual per state equation (fit recordings)</h2>
+"""
+
+
+def _where_html(result: GapResult, t: dict[str, Any], img: Callable[[str, str], str]) -> str:
+    """Sections 2 and 3 of :func:`html_page`: the residual per state equation, by region and band."""
+    verdict, eq_rows, rec_rows, w = t["verdict"], t["eq_rows"], t["rec_rows"], result.where
+    return f"""<h2>2. Where: residual per state equation (fit recordings)</h2>
 <ul>{verdict}</ul>
 <p>Each state equation is evaluated on the measured signals; its residual is shown relative to the equation's
 driving term (v<sub>a</sub> for the armature, K<sub>t</sub>i<sub>a</sub> for the rotor, (L/J)f for the
@@ -555,7 +630,13 @@ Equations whose channels were not recorded cannot be checked.</p>
 <h2>3. Where: residual by operating region, frequency band, residual tests</h2>
 {img("regions", "regions")}
 {img("tests", "residual tests")}
-<h2>4. Which: ranked unmodelled effects</h2>
+"""
+
+
+def _which_html(result: GapResult, t: dict[str, Any], img: Callable[[str, str], str]) -> str:
+    """Section 4 of :func:`html_page`: the ranked effects, completeness, what the data do not separate."""
+    rank_rows, ni_rows, amb_rows, explained = t["rank_rows"], t["ni_rows"], t["amb_rows"], t["explained"]
+    return f"""<h2>4. Which: ranked unmodelled effects</h2>
 {img("effects", "effects")}
 {
         _table(
@@ -585,7 +666,11 @@ validation residual / its noise part: {_fmt(explained.get("residual_over_noise")
 {_table(amb_rows, ["effect", "not separated from", "evidence"])}
 <h3>Not identifiable from these recordings</h3>
 {_table(ni_rows, ["effect", "reason"])}
-<h2>5. Definitions</h2>
+"""
+
+
+#: Section 5 of :func:`html_page`: the definitions.
+_DEFINITIONS_HTML = """<h2>5. Definitions</h2>
 <ul>
 <li>NRMSE = RMS(θ<sub>sim</sub> − θ<sub>meas</sub>) / (max θ<sub>meas</sub> − min θ<sub>meas</sub>),
 free run from the recording's first samples, driven by the recorded duty cycle only.</li>
