@@ -255,40 +255,47 @@ class Screening:
         }
 
 
-def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels: frozenset[str],
-           ctx: EffectContext, *, n_bootstrap: int = N_BOOTSTRAP, seed: int = 0, weak_K: int = 150,
-           meas: MeasurementMap | None = None, estimate: bool = True) -> Screening:
-    """Discrepancy SINDy (strong and weak form) over the catalog's term groups.
+def _estimates(effs: Sequence[Any], multipliers: dict[str, np.ndarray], ranges: dict[str, Any]
+               ) -> dict[str, dict[str, float]]:
+    """Each effect's equation-error estimate from its strong-form coefficients (:func:`screen`):
+    off + coefficient·(probe − off) per parameter, clipped to its range."""
+    estimates: dict[str, dict[str, float]] = {}
+    for e in effs:
+        est = {}
+        for prm, m in zip(e.parameters, multipliers.get(e.name, ()), strict=False):
+            r = ranges[e.name][prm.name]
+            v = r.off + float(m) * (r.probe - r.off)
+            if math.isfinite(v):
+                est[prm.name] = r.clip(v)
+        if est:
+            estimates[e.name] = est
+    return estimates
 
-    ``rig``/``meas`` are the base model (the nominal rig, or a corrected one when screening for a
-    second effect). See the module docstring, step 2. Each equation's rows are scaled by the RMS of its
-    nominal residual so the equations weigh alike; each column is scaled to unit RMS. The column of
-    parameter j is the change of the right-hand side when that parameter goes from its ``off`` value
-    to its probe value (``ctx``), the others staying off.
 
-    With ``estimate`` (base = the nominal rig), each effect's own strong-form regression coefficient
-    gives its **equation-error estimate**, off + coefficient·(probe − off) per parameter (exact for
-    parameters that enter the equations linearly, a start value for the others), reported in
-    :attr:`Screening.estimates` and used to start the output-error fits.
+@dataclass
+class _Rows:
+    """The discrepancy regression rows of :func:`screen`, stacked over the recordings: strong form
+    (every equation, scaled by its nominal residual's RMS; the equation and the resampling segment
+    of each row) and weak form, with each column's name and effect group."""
 
-    Returns
-    -------
-    Screening
-    """
-    eqs = screening_equations(channels)
-    effs = [get_effect(n) for n in effects]
-    rng = np.random.default_rng(seed)
-    strong_rows: list[np.ndarray] = []
-    strong_y: list[np.ndarray] = []
-    eq_of_row: list[np.ndarray] = []
-    seg_id: list[np.ndarray] = []
-    weak_rows: list[np.ndarray] = []
-    weak_y: list[np.ndarray] = []
-    col_names: dict[str, list[str]] = {e.name: [] for e in effs}
-    groups: list[int] = []
+    strong: list[np.ndarray] = field(default_factory=list)
+    strong_y: list[np.ndarray] = field(default_factory=list)
+    equation: list[np.ndarray] = field(default_factory=list)
+    segment: list[np.ndarray] = field(default_factory=list)
+    weak: list[np.ndarray] = field(default_factory=list)
+    weak_y: list[np.ndarray] = field(default_factory=list)
+    columns: dict[str, list[str]] = field(default_factory=dict)
+    groups: list[int] = field(default_factory=list)
+
+
+def _screening_rows(rig: Rig, base_meas: MeasurementMap, preps: Sequence[Prepared], effs: Sequence[Any],
+                    eqs: list[str], ranges: dict[str, Any], *, weak_K: int, seed: int) -> _Rows:
+    """Each recording's rows of :func:`screen` (module doc, step 2): the change of every
+    equation's right-hand side when one parameter goes from off to its probe value."""
+    out = _Rows(columns={e.name: [] for e in effs})
+    strong_rows, strong_y, eq_of_row, seg_id = out.strong, out.strong_y, out.equation, out.segment
+    weak_rows, weak_y, col_names = out.weak, out.weak_y, out.columns
     seg_base = 0
-    base_meas = meas or MeasurementMap()
-    ranges = {e.name: e.ranges(ctx) for e in effs}
     for pi, p in enumerate(preps):
         dec = max(1, round(SCREEN_DT / p.dt))
         th = p.y["theta"]
@@ -320,7 +327,7 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
                     col_names[e.name].append(
                         f"{prm.name}: " + ", ".join(e.terms.get(q, ("Δf",))[0] for q in eqs if q in e.terms))
         if pi == 0:
-            groups = grp
+            out.groups = grp
         # strong form: rows of every equation stacked, scaled by the RMS of its left side
         for q in eqs:
             res = lhs[q] - nominal[q]
@@ -344,6 +351,36 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
             sc = float(np.sqrt(np.mean(res**2))) or 1.0
             weak_rows.append(mat[:, 1:] / sc)
             weak_y.append(res / sc)
+    return out
+
+
+def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels: frozenset[str],
+           ctx: EffectContext, *, n_bootstrap: int = N_BOOTSTRAP, seed: int = 0, weak_K: int = 150,
+           meas: MeasurementMap | None = None, estimate: bool = True) -> Screening:
+    """Discrepancy SINDy (strong and weak form) over the catalog's term groups.
+
+    ``rig``/``meas`` are the base model (the nominal rig, or a corrected one when screening for a
+    second effect). See the module docstring, step 2. Each equation's rows are scaled by the RMS of its
+    nominal residual so the equations weigh alike; each column is scaled to unit RMS. The column of
+    parameter j is the change of the right-hand side when that parameter goes from its ``off`` value
+    to its probe value (``ctx``), the others staying off.
+
+    With ``estimate`` (base = the nominal rig), each effect's own strong-form regression coefficient
+    gives its **equation-error estimate**, off + coefficient·(probe − off) per parameter (exact for
+    parameters that enter the equations linearly, a start value for the others), reported in
+    :attr:`Screening.estimates` and used to start the output-error fits.
+
+    Returns
+    -------
+    Screening
+    """
+    eqs = screening_equations(channels)
+    effs = [get_effect(n) for n in effects]
+    rng = np.random.default_rng(seed)
+    ranges = {e.name: e.ranges(ctx) for e in effs}
+    rows = _screening_rows(rig, meas or MeasurementMap(), preps, effs, eqs, ranges, weak_K=weak_K, seed=seed)
+    strong_rows, strong_y, eq_of_row, seg_id = rows.strong, rows.strong_y, rows.equation, rows.segment
+    weak_rows, weak_y, col_names, groups = rows.weak, rows.weak_y, rows.columns, rows.groups
     Xs, ys, seg = np.vstack(strong_rows), np.concatenate(strong_y), np.concatenate(seg_id)
     Xw, yw = np.vstack(weak_rows), np.concatenate(weak_y)
     cs = np.sqrt(np.mean(Xs**2, axis=0))
@@ -366,17 +403,7 @@ def screen(rig: Rig, preps: Sequence[Prepared], effects: Sequence[str], channels
 
     n_eff_s = max(ys.size // BIC_DECIMATION, 10)
     exp_s = {e.name: explained(Xs, ys, g, cs) for g, e in enumerate(effs)}
-    estimates: dict[str, dict[str, float]] = {}
-    if estimate:
-        for e in effs:
-            est = {}
-            for prm, m in zip(e.parameters, multipliers.get(e.name, ()), strict=False):
-                r = ranges[e.name][prm.name]
-                v = r.off + float(m) * (r.probe - r.off)
-                if math.isfinite(v):
-                    est[prm.name] = r.clip(v)
-            if est:
-                estimates[e.name] = est
+    estimates = _estimates(effs, multipliers, ranges) if estimate else {}
     exp_w = {e.name: explained(Xw, yw, g) for g, e in enumerate(effs)}
     # the best share an effect explains within one equation: stacking the equations with equal
     # weight lets equations whose residual is noise dilute a gap that lives in one of them
