@@ -268,6 +268,87 @@ def _no_effect_reason(st: _Setup, best: dict[str, Any] | None, above_floor: bool
     return reason
 
 
+@dataclass
+class _Selection:
+    """The effects :func:`_select` chose and what they leave (the fields of :class:`EffectDiagnosis`
+    of the same meaning; ``shares`` / ``pvals``: each chosen effect's bootstrap share of presence
+    and split-test p-value)."""
+
+    chosen: list[str]
+    corrected: Rig
+    measurement: MeasurementMap
+    table: list[dict[str, Any]]
+    shares: dict[str, float]
+    pvals: dict[str, float]
+    plant_side: dict[str, Any] | None
+    explained: dict[str, Any]
+    reason: str
+
+
+def _select(st: _Setup, scr: Any, cands: _Candidates, ranking: list[dict[str, Any]], best: dict[str, Any],
+            screened: Any, forced: Any, *, max_effects: int, seed: int, say: Callable[[str], None]
+            ) -> _Selection:
+    """The first-ranked effect, then forward selection while the chosen set leaves some channel
+    above its noise, the swaps of confusable effects and the refinements (:func:`diagnose_effects`,
+    when the first effect is significant); ``ranking`` is completed in place."""
+    chosen: list[str] = []
+    table = [{"effects": [], **st.base_metrics}]
+    shares: dict[str, float] = {}  # chosen effect -> bootstrap share of its presence
+    pvals: dict[str, float] = {}  # chosen effect -> its split-test p-value
+    name = best["effect"]
+    chosen.append(name)
+    cur, cur_segs = cands.fits[name], cands.segs[name]
+    corrected, meas = cur.rig, cur.meas
+    table.append({"effects": list(chosen), **gap_metrics(corrected, meas, st.pv)})
+    say(f"{name} leaves a validation SSE of {st.noise_ratio(float(cur_segs.sum()))}")
+    shares[name], pvals[name] = best["bootstrap_first"], best["p_value"]
+    # forward selection: while the chosen set leaves some channel's residual above its noise
+    # (completeness < 1), screen its residual and confirm the best candidates by a joint fit with
+    # the effects already chosen
+    floor = unreachable_channels(st, cands)
+    while (len(chosen) < max_effects
+           and _completeness(st, channel_sse(corrected, meas, st.pv), floor)["completeness"] < 1.0):
+        added = _add_effect(st, cur, cur_segs, chosen, ranking, screened, forced, seed + 2 * len(chosen))
+        if added is None:
+            break
+        o = added.effect
+        chosen.append(o)
+        cur, cur_segs = added.fit, added.segs
+        corrected, meas = cur.rig, cur.meas
+        shares[o], pvals[o] = added.share, added.p_value
+        _record_added(ranking, st, added, chosen)
+        table.append({"effects": list(chosen), **gap_metrics(corrected, meas, st.pv)})
+    amb, alt_fits = _unseparated_single(st, best, cands, ranking) if len(chosen) == 1 else ({}, {})
+    if len(chosen) >= 2:
+        before = list(chosen)
+        cur, cur_segs, chosen, amb, alt_fits = _swap_confusables(st, cur, cur_segs, chosen)
+        for r in ranking:
+            alts = amb.get(r["effect"], {})
+            if alts:
+                r["ambiguous_with"] = list(dict.fromkeys([*r.get("ambiguous_with", []), *alts]))
+                r.setdefault("ambiguity", {}).update(
+                    {a: {"validation_explained": v, "bootstrap_first": None, "joint_fit": True}
+                     for a, v in alts.items()})
+        if chosen != before:
+            corrected, meas = _take_over(st, cur, before, chosen, (shares, pvals), ranking, scr, table,
+                                         "replacement")
+    if st.refinements:
+        before = list(chosen)
+        cur, cur_segs, chosen, tried = _refine(st, cur, cur_segs, chosen)
+        if chosen != before:
+            corrected, meas = _take_over(st, cur, before, chosen, (shares, pvals), ranking, scr, table,
+                                         "refinement")
+        for r in ranking:  # the figures of each tried refinement, on the refined and the refining entry
+            refs = {k: v for k, v in tried.items() if r["effect"] in (k, v["replaces"])}
+            if refs:
+                r["refinements"] = refs
+    plant_side = _plant_side_entry(chosen, amb, alt_fits)
+    explained = _completeness(st, channel_sse(corrected, meas, st.pv), unreachable_channels(st, cands))
+    reason = (f"{name} removes {100 * best['above_noise_explained']:.1f} % of the validation gap above "
+              f"noise (BIC change {best['bic_delta']:.1f}); {explained['verdict']}")
+    return _Selection(chosen, corrected, meas, table, shares, pvals, plant_side, explained, reason)
+
+
 def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Recording], *,
                      max_effects: int = 2, seed: int = 0,
                      progress: Callable[[str], None] | None = None,
@@ -337,57 +418,11 @@ def diagnose_effects(rig: Rig, fit: Sequence[Recording], validation: Sequence[Re
     shares: dict[str, float] = {}  # chosen effect -> bootstrap share of its presence
     pvals: dict[str, float] = {}  # chosen effect -> its split-test p-value
     if sig_first:
-        name = best["effect"]
-        chosen.append(name)
-        cur, cur_segs = cands.fits[name], cands.segs[name]
-        corrected, meas = cur.rig, cur.meas
-        table.append({"effects": list(chosen), **gap_metrics(corrected, meas, st.pv)})
-        say(f"{name} leaves a validation SSE of {st.noise_ratio(float(cur_segs.sum()))}")
-        shares[name], pvals[name] = best["bootstrap_first"], best["p_value"]
-        # forward selection: while the chosen set leaves some channel's residual above its noise
-        # (completeness < 1), screen its residual and confirm the best candidates by a joint fit with
-        # the effects already chosen
-        floor = unreachable_channels(st, cands)
-        while (len(chosen) < max_effects
-               and _completeness(st, channel_sse(corrected, meas, st.pv), floor)["completeness"] < 1.0):
-            added = _add_effect(st, cur, cur_segs, chosen, ranking, screened, forced, seed + 2 * len(chosen))
-            if added is None:
-                break
-            o = added.effect
-            chosen.append(o)
-            cur, cur_segs = added.fit, added.segs
-            corrected, meas = cur.rig, cur.meas
-            shares[o], pvals[o] = added.share, added.p_value
-            _record_added(ranking, st, added, chosen)
-            table.append({"effects": list(chosen), **gap_metrics(corrected, meas, st.pv)})
-        amb, alt_fits = _unseparated_single(st, best, cands, ranking) if len(chosen) == 1 else ({}, {})
-        if len(chosen) >= 2:
-            before = list(chosen)
-            cur, cur_segs, chosen, amb, alt_fits = _swap_confusables(st, cur, cur_segs, chosen)
-            for r in ranking:
-                alts = amb.get(r["effect"], {})
-                if alts:
-                    r["ambiguous_with"] = list(dict.fromkeys([*r.get("ambiguous_with", []), *alts]))
-                    r.setdefault("ambiguity", {}).update(
-                        {a: {"validation_explained": v, "bootstrap_first": None, "joint_fit": True}
-                         for a, v in alts.items()})
-            if chosen != before:
-                corrected, meas = _take_over(st, cur, before, chosen, (shares, pvals), ranking, scr, table,
-                                             "replacement")
-        if st.refinements:
-            before = list(chosen)
-            cur, cur_segs, chosen, tried = _refine(st, cur, cur_segs, chosen)
-            if chosen != before:
-                corrected, meas = _take_over(st, cur, before, chosen, (shares, pvals), ranking, scr, table,
-                                             "refinement")
-            for r in ranking:  # the figures of each tried refinement, on the refined and the refining entry
-                refs = {k: v for k, v in tried.items() if r["effect"] in (k, v["replaces"])}
-                if refs:
-                    r["refinements"] = refs
-        plant_side = _plant_side_entry(chosen, amb, alt_fits)
-        explained = _completeness(st, channel_sse(corrected, meas, st.pv), unreachable_channels(st, cands))
-        reason = (f"{name} removes {100 * best['above_noise_explained']:.1f} % of the validation gap above "
-                  f"noise (BIC change {best['bic_delta']:.1f}); {explained['verdict']}")
+        sel = _select(st, scr, cands, ranking, best, screened, forced, max_effects=max_effects, seed=seed,
+                      say=say)
+        chosen, corrected, meas, table = sel.chosen, sel.corrected, sel.measurement, sel.table
+        shares, pvals, plant_side = sel.shares, sel.pvals, sel.plant_side
+        explained, reason = sel.explained, sel.reason
     else:
         reason = _no_effect_reason(st, best, above_floor)
     detected: dict[str, dict[str, float]] = {}
