@@ -508,6 +508,39 @@ def _equations(
             _pendulum_check(s, theta, states, offset, theta_rate)]
 
 
+def _free_run_start(rig: Rig, data: Any, ch: dict[str, np.ndarray], theta_offset: float) -> np.ndarray:
+    """The free run's initial state (N_STATES,): from the first samples, the motor at the steady
+    state of the first duty, the recorded rate, rotor speed and (dynamic armature) current where
+    logged, then θ, θ̇ refined over :data:`INIT_WINDOW`."""
+    from aeropend_ident.greybox.fit import initial_state
+
+    x0 = initial_state(rig, data.theta, data.duty, data.dt, theta_offset)
+    x0[1] = ch["theta_dot"][0] if "theta_dot" in ch else initial_velocity(data.theta, data.dt)
+    if "omega_rotor" in ch or "omega_prop" in ch:
+        x0[OMEGA] = (
+            ch["omega_rotor"][0] if "omega_rotor" in ch else ch["omega_prop"][0] * rig.motor.gear_ratio
+        )
+    if "i_a" in ch and rig.effects.armature_inductance == "dynamic":
+        x0[I_A] = ch["i_a"][0]
+    return _refine_initial_state(rig, data, x0, theta_offset)
+
+
+def _method_floor(rig: Rig, data: Any, ch: dict[str, np.ndarray], traj: Any, theta_free: np.ndarray,
+                  theta_offset: float, eqs: list[EquationCheck]) -> None:
+    """Each checked equation's method floor (the same equation errors on the nominal simulation of
+    this input: what the derivative filters alone leave on a perfect model) and its flag, in place."""
+    dt = data.dt
+    sim_ch = {k: (traj.true[k] - (theta_offset if k == "theta" else 0.0)) for k in ch if k in traj.true}
+    sim_rate = sim_ch["theta_dot"] if "theta_dot" in sim_ch else measured_rate(theta_free, dt)
+    n_eff = max(data.t.size / _sg_window(data.t.size, dt, 2.0 * SG_WINDOW), 1.0)
+    for e, f in zip(
+        eqs, _equations(rig, theta_free, data.duty, dt, sim_ch, traj.x, theta_offset, sim_rate), strict=True
+    ):
+        if e.checked:
+            e.method_floor = f.rms
+            e.flagged = _flag(e, n_eff)
+
+
 def locate_recording(
     rig: Rig, recording: Recording, *, horizon: float = 0.2, theta_offset: float = 0.0, n_bins: int = 5
 ) -> RecordingWhere:
@@ -542,19 +575,7 @@ def locate_recording(
     ch = _grid(recording, data)
     dt = data.dt
     rate = measured_rate(data.theta, dt)
-    # free run from the first samples (motor at the steady state of the first duty)
-    from aeropend_ident.greybox.fit import initial_state
-
-    x0 = initial_state(rig, data.theta, data.duty, dt, theta_offset)
-    x0[1] = ch["theta_dot"][0] if "theta_dot" in ch else initial_velocity(data.theta, dt)
-    if "omega_rotor" in ch or "omega_prop" in ch:
-        x0[OMEGA] = (
-            ch["omega_rotor"][0] if "omega_rotor" in ch else ch["omega_prop"][0] * rig.motor.gear_ratio
-        )
-    if "i_a" in ch and rig.effects.armature_inductance == "dynamic":
-        x0[I_A] = ch["i_a"][0]
-    x0 = _refine_initial_state(rig, data, x0, theta_offset)
-    traj = _simulate(rig, data, x0)
+    traj = _simulate(rig, data, _free_run_start(rig, data, ch, theta_offset))
     states = traj.x
     theta_free = states[:, 0] - theta_offset
     omega = ch.get("omega_rotor")
@@ -575,18 +596,7 @@ def locate_recording(
     regions["rate_bins"] = residual_bins(np.abs(rate), resid, n_bins, "rad/s")
     regions["short_horizon"] = residual_regions(data.theta, data.duty, theta_short - data.theta, dt, n_bins)
     eqs = _equations(rig, data.theta, data.duty, dt, ch, states, theta_offset, theta_rate)
-    # method floor: the same equation errors on the nominal simulation of this input (what the
-    # derivative filters alone leave on a perfect model)
-    sim_theta = theta_free
-    sim_ch = {k: (traj.true[k] - (theta_offset if k == "theta" else 0.0)) for k in ch if k in traj.true}
-    sim_rate = sim_ch["theta_dot"] if "theta_dot" in sim_ch else measured_rate(sim_theta, dt)
-    n_eff = max(data.t.size / _sg_window(data.t.size, dt, 2.0 * SG_WINDOW), 1.0)
-    for e, f in zip(
-        eqs, _equations(rig, sim_theta, data.duty, dt, sim_ch, states, theta_offset, sim_rate), strict=True
-    ):
-        if e.checked:
-            e.method_floor = f.rms
-            e.flagged = _flag(e, n_eff)
+    _method_floor(rig, data, ch, traj, theta_free, theta_offset, eqs)
     pend = next(e for e in eqs if e.equation == "pendulum")
     if pend.residual is not None:
         regions["pendulum_equation"] = {
