@@ -491,6 +491,74 @@ def angle_quantum(series: Sequence[TimeSeries]) -> tuple[float, str] | None:
     return q, f"detected in the logs (rig fit): every recorded angle on a lattice of {q:.5g} rad"
 
 
+def _outcomes(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Mapping[str, str], sources: str,
+              hold: float | None, dt: float) -> dict[str, Outcome]:
+    """Each fitted parameter's :class:`Outcome` at the joint fit's end ``z`` (Jacobian ``J``, rows
+    weighted): the larger of the Jacobian's and the sandwich standard error, the search bound it
+    lies at, and whether it is refused (by ``refused``, or as not determined by the inputs)."""
+    outcomes: dict[str, Outcome] = {}
+    _, lo, hi = problem.z_bounds()
+    pinned = (np.abs(z - lo) <= 1e-4) | (np.abs(z - hi) <= 1e-4)
+    # a block's start (angle, velocity) the data do not see — a long free run forgets it — is held
+    # out of the covariance, where its blindness would spread to the parameters it barely touches
+    unseen = np.linalg.norm(J, axis=0) < NUISANCE_UNSEEN
+    unseen[: len(problem.specs)] = False
+    pinned |= unseen
+    cov = covariance(J, pinned)
+    sizes = [b.size() for b in problem.blocks]
+    # the larger of the Jacobian's and the blocks' sandwich variance: a misfit widens it (a whole
+    # recording counts as its windows: stretches of a few seconds, as the windowed fit's clusters)
+    robust = robust_covariance(J, problem.fun(z), clusters(problem.blocks), cov)
+    for j, s in enumerate(problem.specs):
+        v = s.from_z(z[j])
+        var = max(cov[j, j], robust[j, j]) if math.isfinite(cov[j, j]) else cov[j, j]
+        std = (abs(s.dp_dz(v)) * math.sqrt(var) if math.isfinite(var)
+               else math.inf if var == math.inf else math.nan)
+        bound = near_bound(z[j], lo[j], hi[j], s.lower, s.upper, v, std)
+        o = Outcome(s.name, s.unit, v, std, provenance=_provenance(J, sizes, problem.blocks, j),
+                    bound=bound, lower=s.lower, upper=s.upper)
+        limit = MAX_RELATIVE_STD * abs(v) if s.log else MAX_RANGE_STD * (s.upper - s.lower)
+        loose = std > limit
+        if s.name in refused:
+            o.status, o.reason = "to be fitted", refused[s.name]
+        elif math.isinf(std) or (math.isfinite(std) and loose):
+            o.status = "to be fitted"
+            o.reason = (f"{s.name}: not determined by {sources} ({v:.3g} ± {std:.2g} {s.unit}); "
+                        f"{_hint(s.name, v, problem.timing, hold, dt)}")
+        outcomes[s.name] = o
+    return outcomes
+
+
+def _with_logged_quantum(fitted: Rig, rig: Rig, series: Sequence[TimeSeries], notes: list[str]
+                         ) -> tuple[Rig, tuple[float, str] | None]:
+    """The fitted rig with the angle lattice the logs show (:func:`angle_quantum`) as its sensor's
+    quantisation, unless the lab stated one (then a disagreement is noted)."""
+    quantum = angle_quantum(series)
+    stated_q = rig.sensors.theta_quantum if rig.effects.quantisation else 0.0
+    if quantum is not None and stated_q > 0.0:  # the lab's own statement stands; a disagreement is said
+        if abs(quantum[0] / stated_q - 1.0) > QUANTUM_AGREEMENT - 1.0:
+            notes.append(f"the logs' angles lie on a lattice of {quantum[0]:.5g} rad, the rig file states "
+                         f"sensors.theta_quantum {stated_q:.5g} rad: check the sensor's resolution")
+        quantum = None
+    if quantum is not None:
+        quantisation = next(d for d in registry.diagnoses() if d.name == "quantisation")
+        fitted = quantisation.apply(fitted, {"theta_quantum": quantum[0]})
+    return fitted, quantum
+
+
+def _free_runs(fitted: Rig, series: Sequence[TimeSeries], notes: list[str]) -> dict[str, FreeRun]:
+    """The fitted rig's figure on each whole recording: the one replay of every command (not the
+    fit's own start values; the fit's windows are its own business)."""
+    runs: dict[str, FreeRun] = {}
+    for ser in series:
+        d = ser.replayed
+        try:
+            runs[ser.source] = free_run(fitted, d.t, d.duty, d.theta, source=d.source)
+        except IdentificationError as exc:
+            notes.append(f"{ser.source}: free run of the fitted rig failed ({exc})")
+    return runs
+
+
 def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc: Mapping[str, Any], rig: Rig,
            notes: list[str], sample_period: tuple[float, str] | None, series: Sequence[TimeSeries],
            say: Callable[[str], None]) -> RigFitResult:
@@ -540,59 +608,13 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
             refused = _refusals(weak_directions(J[:, : len(names_now)], names_now,
                                                 [_chain_order(n) for n in names_now]),
                                 sources, start, problem.timing, hold, dt)
-        _, lo, hi = problem.z_bounds()
-        pinned = (np.abs(z - lo) <= 1e-4) | (np.abs(z - hi) <= 1e-4)
-        # a block's start (angle, velocity) the data do not see — a long free run forgets it — is held
-        # out of the covariance, where its blindness would spread to the parameters it barely touches
-        unseen = np.linalg.norm(J, axis=0) < NUISANCE_UNSEEN
-        unseen[: len(problem.specs)] = False
-        pinned |= unseen
-        cov = covariance(J, pinned)
-        sizes = [b.size() for b in problem.blocks]
-        # the larger of the Jacobian's and the blocks' sandwich variance: a misfit widens it (a whole
-        # recording counts as its windows: stretches of a few seconds, as the windowed fit's clusters)
-        robust = robust_covariance(J, problem.fun(z), clusters(problem.blocks), cov)
-        for j, s in enumerate(problem.specs):
-            v = s.from_z(z[j])
-            var = max(cov[j, j], robust[j, j]) if math.isfinite(cov[j, j]) else cov[j, j]
-            std = (abs(s.dp_dz(v)) * math.sqrt(var) if math.isfinite(var)
-                   else math.inf if var == math.inf else math.nan)
-            bound = near_bound(z[j], lo[j], hi[j], s.lower, s.upper, v, std)
-            o = Outcome(s.name, s.unit, v, std, provenance=_provenance(J, sizes, problem.blocks, j),
-                        bound=bound, lower=s.lower, upper=s.upper)
-            limit = MAX_RELATIVE_STD * abs(v) if s.log else MAX_RANGE_STD * (s.upper - s.lower)
-            loose = std > limit
-            if s.name in refused:
-                o.status, o.reason = "to be fitted", refused[s.name]
-            elif math.isinf(std) or (math.isfinite(std) and loose):
-                o.status = "to be fitted"
-                o.reason = (f"{s.name}: not determined by {sources} ({v:.3g} ± {std:.2g} {s.unit}); "
-                            f"{_hint(s.name, v, problem.timing, hold, dt)}")
-            outcomes[s.name] = o
+        outcomes = _outcomes(problem, z, J, refused, sources, hold, dt)
     for s in all_specs:
         if s.name in held:
             outcomes[s.name] = Outcome(s.name, s.unit, s.initial, status="to be fitted",
                                        reason=refused[s.name], lower=s.lower, upper=s.upper)
-    fitted = problem.rig(z)
-    quantum = angle_quantum(series)
-    stated_q = rig.sensors.theta_quantum if rig.effects.quantisation else 0.0
-    if quantum is not None and stated_q > 0.0:  # the lab's own statement stands; a disagreement is said
-        if abs(quantum[0] / stated_q - 1.0) > QUANTUM_AGREEMENT - 1.0:
-            notes.append(f"the logs' angles lie on a lattice of {quantum[0]:.5g} rad, the rig file states "
-                         f"sensors.theta_quantum {stated_q:.5g} rad: check the sensor's resolution")
-        quantum = None
-    if quantum is not None:
-        quantisation = next(d for d in registry.diagnoses() if d.name == "quantisation")
-        fitted = quantisation.apply(fitted, {"theta_quantum": quantum[0]})
-    # the figure of the fitted rig is the one replay of every command (not the fit's own start values),
-    # on each whole recording (the fit's windows are its own business)
-    runs: dict[str, FreeRun] = {}
-    for ser in series:
-        d = ser.replayed
-        try:
-            runs[ser.source] = free_run(fitted, d.t, d.duty, d.theta, source=d.source)
-        except IdentificationError as exc:
-            notes.append(f"{ser.source}: free run of the fitted rig failed ({exc})")
+    fitted, quantum = _with_logged_quantum(problem.rig(z), rig, series, notes)
+    runs = _free_runs(fitted, series, notes)
     nrmse = {k: r.nrmse for k, r in runs.items()}
     divergence = {k: r.divergence for k, r in runs.items() if r.divergence is not None}
     ordered = [outcomes[s.name] for s in all_specs]
