@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.design.sequence import BUDGET_S, MAX_REPLAYS, MODES, DesignError, check_mode
+from aeropend_ident.design.sequence import BUDGET_S, MAX_REPLAY_SAMPLES, MODES, DesignError, check_mode
 from aeropend_ident.errors import IdentError
 
 
@@ -56,9 +56,10 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
                     help="wall-time safety net of the search [s]; a search it cuts says so (another machine "
                          "or load would give another design)")
     ap.add_argument("--max-evaluations", dest="max_evaluations", type=int,
-                    help=f"most sequences scored (default: {MAX_REPLAYS} simulated runs' worth, i.e. "
-                         f"{MAX_REPLAYS} / (parameters + 1) for a rig fit result, {MAX_REPLAYS} / candidates "
-                         "for a gap report): the same seed then gives the same design on any machine")
+                    help=f"most sequences scored (default: {MAX_REPLAY_SAMPLES:.0e} samples simulated over "
+                         "(parameters + 1) rigs for a rig fit result, over the candidates for a gap report, "
+                         "e.g. 2500 for 5 parameters and a 40 s design at 100 Hz): the same seed then gives "
+                         "the same design on any machine")
     ap.add_argument("--max-effects", dest="max_effects", type=int, default=3)
     ap.add_argument("--parameters", nargs="+", help="rig keys section.name to determine (rig fit results)")
     ap.add_argument("--preset", help="CSV preset of the recordings")
@@ -204,7 +205,8 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
            "sigma": sigma, "parameters": list(keys), "nuisance": nuisance, "sd_before": d.sd_before,
            "sd_after": d.sd_after,
            "sd_after_baseline": d.sd_after_baseline, "logdet": d.logdet, "baseline_logdet": d.baseline_logdet,
-           "limits_check": check_limits(d.duty, limits, th), "evaluations": d.evaluations,
+           "limits_check": check_limits(d.duty, limits, th), "angle_margin_rad": d.angle_margin,
+           "evaluations": d.evaluations,
            "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s}
     write_design(args.out, doc, d.duty, limits.dt)
     return doc

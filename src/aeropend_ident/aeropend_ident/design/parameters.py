@@ -63,9 +63,10 @@ def perturbed(rig: Rig, key: str, factor: float) -> Rig:
 
 
 def fisher(rig: Rig, keys: Sequence[str], duty: np.ndarray, dt: float, sigma: Mapping[str, float]
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """Fisher information (p, p) in log coordinates of ``keys`` under ``duty`` from rest, and the
-    nominal angle (N,) (NaN when the replay failed).
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fisher information (p, p) in log coordinates of ``keys`` under ``duty`` from rest, the
+    nominal angle (N,) (NaN when the replay failed) and its sensitivity (p, N) to each key's log
+    [rad] (zeros without an angle channel or when the replay failed).
 
     Parameters
     ----------
@@ -83,14 +84,23 @@ def fisher(rig: Rig, keys: Sequence[str], duty: np.ndarray, dt: float, sigma: Ma
     rigs = [base] + [perturbed(base, k, 1.0 + REL_STEP) for k in keys]
     x0 = np.array([[0.0, 0.0, *motor_equilibrium(r, 0.0)] for r in rigs])
     sim, ok = RigReplays(np.asarray(duty, dtype=float), dt).run(rigs, x0, tuple(sigma))
-    p = len(keys)
+    p, n = len(keys), np.asarray(duty).size
     if not ok.all():
-        return np.zeros((p, p)), np.full(np.asarray(duty).size, np.nan)
+        return np.zeros((p, p)), np.full(n, np.nan), np.zeros((p, n))
     f = np.zeros((p, p))
+    sens_theta = np.zeros((p, n))
     for c, s in sigma.items():
         sens = (sim[c][1:] - sim[c][0]) / math.log1p(REL_STEP)  # (p, N)
         f += sens @ sens.T / s**2
-    return f, sim["theta"][0] if "theta" in sim else np.full(np.asarray(duty).size, np.nan)
+        if c == "theta":
+            sens_theta = sens
+    return f, sim["theta"][0] if "theta" in sim else np.full(n, np.nan), sens_theta
+
+
+def angle_spread(sens_theta: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """1σ of the predicted angle (N,) [rad] under a covariance ``cov`` (p, p) of the parameters'
+    logs, to first order: sqrt(diag(Sᵀ·cov·S)) for the sensitivity ``sens_theta`` S (p, N)."""
+    return np.sqrt(np.maximum(np.einsum("it,ij,jt->t", sens_theta, cov, sens_theta), 0.0))
 
 
 def relative_sd(f: np.ndarray) -> np.ndarray:
@@ -123,6 +133,9 @@ class ParameterDesign:
     elapsed_s : float
     stopped_by : str
         What ended the search (:func:`~aeropend_ident.design.sequence.search`).
+    angle_margin : float
+        Largest 1σ [rad] of the design's predicted angle under what the earlier recordings leave
+        uncertain (:func:`angle_spread`): the margin the design kept from the angle limits.
     """
 
     duty: np.ndarray
@@ -136,6 +149,7 @@ class ParameterDesign:
     evaluations: int
     elapsed_s: float
     stopped_by: str = "evaluations"
+    angle_margin: float = 0.0
 
 
 def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float], limits: Limits,
@@ -190,17 +204,25 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     f0 = sum((fisher(rig, every, d, dt, sigma)[0] for d, dt in earlier), np.zeros((len(every), len(every))))
     calls = 0
 
+    # the angle must stay inside the range for the rig as the earlier recordings know it: the
+    # nominal prediction ± its 1σ under what they leave uncertain (the unit prior for a parameter
+    # they do not determine), so a design near a limit keeps a margin where the angle depends on
+    # the parameters it is to determine (esc_1 of bench_design_parameters: 0.12 rad above the fitted
+    # rig's peak on the rig itself)
+    prior = np.linalg.inv(f0 + np.eye(len(every)))
+
     def score(duty: np.ndarray) -> tuple[float, np.ndarray]:
         nonlocal calls
         calls += 1
-        f, th = fisher(rig, every, duty, limits.dt, sigma)
-        outside = angle_penalty(th, limits)
+        f, th, s_th = fisher(rig, every, duty, limits.dt, sigma)
+        spread = angle_spread(s_th, prior)
+        outside = angle_penalty(np.stack([th - spread, th + spread]), limits)
         return (outside if outside < 0.0 else ds_criterion(f0 + f, n_i)), f
 
     z0 = aprbs_vector(shape, seed)
     base = sequence(z0, shape, limits)
     if max_evaluations is None:
-        max_evaluations = default_evaluations(len(every) + 1)
+        max_evaluations = default_evaluations(len(every) + 1, base.size)
     best_z, best_v, best_f, v0, f_base, stopped = search(
         lambda z: score(sequence(z, shape, limits)), z0, seed=seed, budget_s=budget_s,
         max_evaluations=max_evaluations, popsize=8 + shape.size // 6, started=t0)
@@ -208,10 +230,12 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     def sd(f: np.ndarray) -> dict[str, float]:
         return dict(zip(keys, map(float, relative_sd(f0 + f)[:n_i]), strict=True))
 
-    return ParameterDesign(duty=sequence(best_z, shape, limits), baseline=base, keys=keys, logdet=best_v,
+    duty = sequence(best_z, shape, limits)
+    margin = float(np.max(angle_spread(fisher(rig, every, duty, limits.dt, sigma)[2], prior), initial=0.0))
+    return ParameterDesign(duty=duty, baseline=base, keys=keys, logdet=best_v,
                            baseline_logdet=v0, sd_before=sd(np.zeros_like(f0)), sd_after=sd(best_f),
                            sd_after_baseline=sd(f_base), evaluations=calls,
-                           elapsed_s=time.perf_counter() - t0, stopped_by=stopped)
+                           elapsed_s=time.perf_counter() - t0, stopped_by=stopped, angle_margin=margin)
 
 
 def fitted_keys(fitted_text: str) -> list[str]:

@@ -55,18 +55,19 @@ def angle_penalty(theta: np.ndarray, limits: Limits) -> float:
     return 0.0 if excess == 0.0 else -ANGLE_PENALTY * (1.0 + min(excess, 1000.0))
 
 
-#: The search's default length, in simulated runs of a rig (a parameter design replays p + 1 rigs
-#: per sequence, a discrimination design one per candidate): counted, not timed, so a seed gives
-#: one design on any machine under any load; about 20-40 s on two cores (docs/design.md).
-MAX_REPLAYS = 15000
+#: The search's default length, in samples simulated: rigs replayed per sequence (a parameter
+#: design replays p + 1 rigs, a discrimination design one per candidate) × the sequence's samples.
+#: Counted, not timed, so a seed gives one design on any machine under any load; 15 000 replays of
+#: a 40 s design at 100 Hz, about 30-50 s on two cores (docs/design.md).
+MAX_REPLAY_SAMPLES = 60_000_000
 #: The search's default wall-time safety net [s]: a search cut by it says so (not reproducible).
 BUDGET_S = 120.0
 
 
-def default_evaluations(replays_per_evaluation: int) -> int:
-    """Sequences a search scores by default: :data:`MAX_REPLAYS` over the rigs replayed per
-    sequence (at least 200)."""
-    return max(200, MAX_REPLAYS // max(1, int(replays_per_evaluation)))
+def default_evaluations(replays_per_evaluation: int, samples: int) -> int:
+    """Sequences a search scores by default: :data:`MAX_REPLAY_SAMPLES` over the samples simulated
+    per sequence (``replays_per_evaluation`` rigs × ``samples``), at least 200."""
+    return max(200, MAX_REPLAY_SAMPLES // max(1, int(replays_per_evaluation) * int(samples)))
 
 
 #: What a design is: an open-loop command sequence, or (not implemented yet) a reference sequence
