@@ -80,7 +80,7 @@ from aeropend_ident.io.recording_input import (
 from aeropend_ident.progress import reporter
 from aeropend_sim.output_folder import claim_output_folder, exits_cleanly_on_faults
 from aeropend_sim.params import RigFileError
-from aeropend_sim.recording import RecordingError
+from aeropend_sim.recording import Recording, RecordingError
 
 #: Stages of the progress bar: the prefixes of :func:`aeropend_ident.gap.run.run_gap`'s messages.
 STAGES = ("where", "which", "sessions", "predict", "after")
@@ -110,6 +110,7 @@ def resolve_rig(ref: str) -> tuple[object, float]:
     return model.rig, model.measurement.theta_offset
 
 
+# a table: the options of ``gap``, each with its help
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``gap``."""
     p = argparse.ArgumentParser(
@@ -239,6 +240,39 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _run(args, progress)
 
 
+def _session_inputs(args: argparse.Namespace) -> tuple[list[str], list[list[str]] | None]:
+    """(fit inputs, their grouping by session or None): the positional inputs, or ``--sessions``
+    (two or more groups of recordings joined by commas), never both.
+
+    Raises
+    ------
+    GapCliError
+        Both given, ``--sessions`` with ``--blocks``, or fewer than two non-empty sessions.
+    """
+    inputs: list[str] = list(args.inputs)
+    if not args.sessions:
+        return inputs, None
+    if inputs:
+        raise GapCliError("give the fit recordings either as positional arguments or as --sessions")
+    if args.blocks is not None:
+        raise GapCliError("--sessions works with --held-out or --split, not with --blocks")
+    groups = [[x for x in g.split(",") if x] for g in args.sessions]
+    if len(groups) < 2 or any(not g for g in groups):
+        raise GapCliError(f"--sessions {args.sessions}: expected two or more sessions, each one or "
+                          "more recordings joined by commas")
+    return [x for g in groups for x in g], groups
+
+
+def _validation_recordings(args: argparse.Namespace) -> list[Recording] | None:
+    """``--validation`` recordings, on a uniform grid and long enough (None without the option)."""
+    if not args.validation:
+        return None
+    val = [uniform_recording(load_recording(p, args.preset)) for p in args.validation]
+    for r in val:
+        check_length(r, "validation recording")
+    return val
+
+
 def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
     """The command after parsing, with the progress callback of :func:`main`."""
     from aeropend_ident.gap.report import REPORT_FILES, terminal_summary, write_report
@@ -255,17 +289,7 @@ def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
         rig, offset = resolve_rig(args.rig)
         if args.theta_offset is not None:
             offset = float(args.theta_offset)
-        inputs, groups = list(args.inputs), None
-        if args.sessions:
-            if inputs:
-                raise GapCliError("give the fit recordings either as positional arguments or as --sessions")
-            if args.blocks is not None:
-                raise GapCliError("--sessions works with --held-out or --split, not with --blocks")
-            groups = [[x for x in g.split(",") if x] for g in args.sessions]
-            if len(groups) < 2 or any(not g for g in groups):
-                raise GapCliError(f"--sessions {args.sessions}: expected two or more sessions, each one or "
-                                  "more recordings joined by commas")
-            inputs = [x for g in groups for x in g]
+        inputs, groups = _session_inputs(args)
         # the inputs rig fit takes are accepted as they are: static tables (balance / thrust) are read
         # and checked against the nominal and corrected rigs; the diagnosis works on the recordings
         tables = [read_table(x) for x in inputs if is_table(x)]
@@ -283,11 +307,8 @@ def _run(args: argparse.Namespace, progress: Callable[[str], None]) -> int:
             args.min_range,
             args.block_offset,
         )
-        val = None
-        if args.validation:
-            val = [uniform_recording(load_recording(p, args.preset)) for p in args.validation]
-            for r in val:
-                check_length(r, "validation recording")
+        val = _validation_recordings(args)
+        if val is not None:
             rule += f"; validation file(s): {', '.join(split_preset(p)[0].name for p in args.validation)}"
         sessions, labels = None, None
         if groups is not None:

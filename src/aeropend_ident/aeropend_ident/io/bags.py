@@ -360,6 +360,40 @@ def _cut_tail(paired: np.ndarray, recovered: bool) -> int:
     return int(paired.size - 1 - np.flatnonzero(paired)[-1])
 
 
+def _duty_of_samples(effort: np.ndarray, stamps: np.ndarray, js_log: np.ndarray, cmd: Any, cmd_log: Any
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """duty[k] of :func:`read_bag` (N,): the applied effort carried by sample k+1 (wire
+    convention); where that is NaN (bags whose duty exists only as commands), the last command
+    received before the interval [t_k, t_k+1) ended, judged on the recorder's clock (log times of
+    joint_states and commands are comparable even when header stamps come from another clock).
+
+    Returns
+    -------
+    duty, use_effort, use_command, gap_after : ndarray, shape (N,)
+        The duty and, per sample, whether it came from the effort or from a command, and whether a
+        gap in the stamps follows it.
+    """
+    d_next = np.concatenate((effort[1:], [np.nan]))
+    dstamp = np.diff(stamps)
+    gap_after = np.concatenate((dstamp > 1.5 * np.median(dstamp), [False]))
+    d_cmd = np.full(stamps.size, np.nan)
+    if cmd is not None:
+        c_log = np.asarray(cmd_log, dtype=np.int64)
+        c_val = cmd.columns["data"]
+        c_order = np.argsort(c_log, kind="stable")
+        c_log, c_val = c_log[c_order], c_val[c_order]
+        log_step = int(np.median(np.diff(js_log)))
+        # last sample: its command may trail it (recorder lag, DDS delivery order): allow 10 steps
+        bound = np.concatenate((js_log[1:], [js_log[-1] + 10 * log_step]))
+        bound[gap_after] = js_log[gap_after] + log_step
+        j = np.searchsorted(c_log, bound, side="left") - 1  # last command logged before the bound
+        d_cmd[j >= 0] = c_val[j[j >= 0]]
+    use_eff = np.isfinite(d_next)
+    use_cmd = ~use_eff & np.isfinite(d_cmd)
+    duty = np.where(use_eff, d_next, d_cmd)
+    return duty, use_eff, use_cmd, gap_after
+
+
 def read_bag(path: str | Path, *, namespace: str = "",
              decoder: Literal["vectorized", "typestore"] = "vectorized",
              require_duty: bool = True) -> Recording:
@@ -444,30 +478,11 @@ def read_bag(path: str | Path, *, namespace: str = "",
         meta["truncated"]["incomplete_samples_dropped"] = cut
     unmatched = int(n - paired.sum())
 
-    # duty[k]: the applied effort carried by sample k+1 (wire convention). Where that is NaN (bags
-    # whose duty exists only as commands), the last command received before the interval
-    # [t_k, t_k+1) ended, judged on the recorder's clock: log times of joint_states and commands are
-    # comparable even when header stamps come from another clock (a replayed bag).
+    # duty[k]: the effort sample k+1 carries, else the last command (_duty_of_samples)
     js_log = np.asarray(logs[t_js], dtype=np.int64)[order]
     effort = cols["effort"]
-    d_next = np.concatenate((effort[1:], [np.nan]))
-    dstamp = np.diff(stamps)
-    gap_after = np.concatenate((dstamp > 1.5 * np.median(dstamp), [False]))
-    d_cmd = np.full(n, np.nan)
-    if cmd is not None:
-        c_log = np.asarray(logs[t_cmd], dtype=np.int64)
-        c_val = cmd.columns["data"]
-        c_order = np.argsort(c_log, kind="stable")
-        c_log, c_val = c_log[c_order], c_val[c_order]
-        log_step = int(np.median(np.diff(js_log)))
-        # last sample: its command may trail it (recorder lag, DDS delivery order): allow 10 steps
-        bound = np.concatenate((js_log[1:], [js_log[-1] + 10 * log_step]))
-        bound[gap_after] = js_log[gap_after] + log_step
-        j = np.searchsorted(c_log, bound, side="left") - 1  # last command logged before the bound
-        d_cmd[j >= 0] = c_val[j[j >= 0]]
-    use_eff = np.isfinite(d_next)
-    use_cmd = ~use_eff & np.isfinite(d_cmd)
-    duty = np.where(use_eff, d_next, d_cmd)
+    duty, use_eff, use_cmd, gap_after = _duty_of_samples(effort, stamps, js_log, cmd,
+                                                         None if cmd is None else logs[t_cmd])
     n_after_gap = int((gap_after & use_eff).sum())
     held: list[str] = []
     if not np.isfinite(duty[-1]) and np.isfinite(duty[-2]):

@@ -389,6 +389,22 @@ def _held_out_runs(model: SindyModel, recs: Sequence[Recording], parts: Sequence
     return scores, held_runs
 
 
+def _pendulum_alone(train: IdentData, library: Any, extra: dict[str, Any], say: Progress) -> Any:
+    """The pendulum equation θ̈ from θ alone (second-order weak form,
+    :func:`~aeropend_ident.sindy.second_order.fit_pendulum`), its selection details in ``extra``."""
+    say("pendulum equation θ̈ from θ alone (second-order weak form; λ by BIC, pruning by the "
+        "validation free run)")
+    pendulum = fit_pendulum(train, library)
+    say(f"  {pendulum.model.equations()[0]} (λ = {pendulum.threshold:g})")
+    extra["pendulum"] = {
+        "form": "second-order weak form (θ̈ and θ̇ integrated onto the test functions)",
+        "threshold_selection": "BIC on the weak residual of the last 25 % of the training part",
+        "threshold": pendulum.threshold, "H_xt_s": pendulum.H_xt, "K": pendulum.K,
+        "sweep": pendulum.sweep, "pruning": pendulum.pruning,
+    }
+    return pendulum
+
+
 def _identify_full_state(
     recs: Sequence[Recording], paths: Sequence[str | Path], rig: Rig | None, method: str, library: str,
     train_fraction: float, threshold: float | None, output_error: bool, refused: dict[str, str],
@@ -410,16 +426,7 @@ def _identify_full_state(
     lib = _library(library, train, targets)
     pendulum = None
     if library == "physics-structured" and "theta_dot" in targets:
-        say("pendulum equation θ̈ from θ alone (second-order weak form; λ by BIC, pruning by the "
-            "validation free run)")
-        pendulum = fit_pendulum(train, lib["theta_dot"])
-        say(f"  {pendulum.model.equations()[0]} (λ = {pendulum.threshold:g})")
-        extra["pendulum"] = {
-            "form": "second-order weak form (θ̈ and θ̇ integrated onto the test functions)",
-            "threshold_selection": "BIC on the weak residual of the last 25 % of the training part",
-            "threshold": pendulum.threshold, "H_xt_s": pendulum.H_xt, "K": pendulum.K,
-            "sweep": pendulum.sweep, "pruning": pendulum.pruning,
-        }
+        pendulum = _pendulum_alone(train, lib["theta_dot"], extra, say)
         targets = [tg for tg in targets if tg != "theta_dot"]
         lib = {tg: lib[tg] for tg in targets}
     kw: dict[str, Any] = {"method": method, "exclude_input_steps": 3}
@@ -561,6 +568,47 @@ def _identify_partial_state(
     return model, parts, test_mse, targets
 
 
+def _read_recordings(paths: Sequence[Path], preset: Any, namespace: Any, say: Callable[[str], None]
+                     ) -> list[Recording]:
+    """The recordings, each checked for θ and put on one uniform grid (the first one's period: the
+    one resampling of the tools), their resampling said."""
+    recs: list[Recording] = []
+    for p in paths:
+        say(f"reading {p}")
+        rec = load_recording(p, preset, namespace)
+        _check_theta(rec)
+        rec = uniform_recording(rec, dt=recs[0].dt if recs else None)
+        say(f"  {len(rec)} samples at {1.0 / rec.dt:.4g} Hz, channels {sorted(rec.channels)}")
+        for note in resampling_notes([rec]):
+            say(f"  {note}")
+        recs.append(rec)
+    return recs
+
+
+def _method_and_threshold(method: str | None, threshold: float | None, full: bool, n_recordings: int
+                          ) -> tuple[str, float | None]:
+    """The regression method (default: the weak form for one full-state recording, else the strong
+    form) and the STLSQ threshold λ (weak-iv's own by default), checked.
+
+    Raises
+    ------
+    IdentificationError
+        An unknown method, a λ that is not finite and ≥ 0, or the weak form over several recordings.
+    """
+    if method is None:
+        method = "weak" if (full and n_recordings == 1) else "sindy"
+    if method not in METHODS:
+        raise IdentificationError(f"method = {method!r}; expected one of {list(METHODS)}")
+    if threshold is None and method == "weak-iv":
+        threshold = WEAK_IV_THRESHOLD
+    if threshold is not None and not (math.isfinite(threshold) and threshold >= 0.0):
+        raise IdentificationError(f"threshold = {threshold!r}; expected a finite λ >= 0")
+    if n_recordings > 1 and method in ("weak", "weak-iv"):
+        raise IdentificationError("several recordings are stacked for a strong-form regression; use "
+                                  "--method sindy or ensemble (the weak form would integrate across joins)")
+    return method, threshold
+
+
 def identify(
     bag: Path | Sequence[Path], out: Path, rig: Rig | None, method: str | None = None,
     library: str = "physics-structured", namespace: str = "", preset: str | None = None,
@@ -609,29 +657,10 @@ def identify(
         raise IdentificationError("no input recording given")
     if thrust_map not in ("first_order", "static"):
         raise IdentificationError(f"thrust_map = {thrust_map!r}; expected 'first_order' or 'static'")
-    recs = []
-    for p in paths:
-        say(f"reading {p}")
-        rec = load_recording(p, preset, namespace)
-        _check_theta(rec)
-        rec = uniform_recording(rec, dt=recs[0].dt if recs else None)  # the one resampling of the tools
-        say(f"  {len(rec)} samples at {1.0 / rec.dt:.4g} Hz, channels {sorted(rec.channels)}")
-        for note in resampling_notes([rec]):
-            say(f"  {note}")
-        recs.append(rec)
+    recs = _read_recordings(paths, preset, namespace, say)
     _check_excitation(recs, train_fraction)
     full = all({"i_a", "omega_rotor"} <= set(r.channels) for r in recs)
-    if method is None:
-        method = "weak" if (full and len(recs) == 1) else "sindy"
-    if method not in METHODS:
-        raise IdentificationError(f"method = {method!r}; expected one of {list(METHODS)}")
-    if threshold is None and method == "weak-iv":
-        threshold = WEAK_IV_THRESHOLD
-    if threshold is not None and not (math.isfinite(threshold) and threshold >= 0.0):
-        raise IdentificationError(f"threshold = {threshold!r}; expected a finite λ >= 0")
-    if len(recs) > 1 and method in ("weak", "weak-iv"):
-        raise IdentificationError("several recordings are stacked for a strong-form regression; use "
-                                  "--method sindy or ensemble (the weak form would integrate across joins)")
+    method, threshold = _method_and_threshold(method, threshold, full, len(recs))
     refused = {} if full else refused_targets(sorted(set.intersection(*(set(r.channels) for r in recs))))
     for why in refused.values():
         say(f"not identified: {why}")

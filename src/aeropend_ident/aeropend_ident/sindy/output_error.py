@@ -148,6 +148,23 @@ def _coef_std(model: SindyModel, coef: np.ndarray, sol: Any, rows: list[int], su
     return std
 
 
+def _window_data(data: IdentData, lib: Any, targets: Sequence[str], length: int, clean_inputs: bool
+                 ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """The windows of :func:`refine_output_error`: the recorded targets per window (n_w, L+1, n_s),
+    each target's RMS scale (n_s,) and the exogenous library variables at the window samples
+    (instrumented inputs with ``clean_inputs``)."""
+    variables = dict(data.variables)
+    if clean_inputs:
+        variables.update(input_instruments(data))
+    exo = [v for v in lib.variables if v not in targets]
+    starts = _windows(len(data), length)
+    idx = starts[:, None] + np.arange(length + 1)[None, :]  # (n_w, L+1) sample indices per window
+    y = np.stack([data.variables[tg][idx] for tg in targets], axis=-1)  # (n_w, L+1, n_s)
+    scale = np.sqrt(np.mean(np.stack([data.variables[tg] for tg in targets], axis=-1) ** 2, axis=0))
+    scale = np.where(scale > 0, scale, 1.0)
+    return y, scale, {v: np.asarray(variables[v])[idx] for v in exo}
+
+
 def refine_output_error(
     model: SindyModel,
     data: IdentData,
@@ -207,22 +224,11 @@ def refine_output_error(
     targets = list(targets)
     dt, length, rows, support, c0 = _checked_request(model, data, targets, window, substeps)
 
-    variables = dict(data.variables)
-    if clean_inputs:
-        variables.update(input_instruments(data))
     cols = np.flatnonzero(support.any(axis=0))
     lib = model.library.without(*[n for j, n in enumerate(model.feature_names) if j not in set(cols)])
-    exo = [v for v in lib.variables if v not in targets]
-    held = set(zoh_inputs)
-    starts = _windows(len(data), length)
-    n_w, n_s = starts.size, len(targets)
-    idx = starts[:, None] + np.arange(length + 1)[None, :]  # (n_w, L+1) sample indices per window
-    y = np.stack([data.variables[tg][idx] for tg in targets], axis=-1)  # (n_w, L+1, n_s)
-    scale = np.sqrt(np.mean(np.stack([data.variables[tg] for tg in targets], axis=-1) ** 2, axis=0))
-    scale = np.where(scale > 0, scale, 1.0)
-    exo_k = {v: np.asarray(variables[v])[idx] for v in exo}  # values at the window samples
-
-    simulate = _window_simulator(lib, targets, cols, exo_k, held, (n_w, length, n_s), dt, substeps)
+    y, scale, exo_k = _window_data(data, lib, targets, length, clean_inputs)
+    n_w, n_s = y.shape[0], len(targets)
+    simulate = _window_simulator(lib, targets, cols, exo_k, set(zoh_inputs), (n_w, length, n_s), dt, substeps)
 
     n_c = c0.size
 

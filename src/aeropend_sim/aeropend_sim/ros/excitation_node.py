@@ -307,14 +307,107 @@ class LockstepFeeder:
 
 
 # ---------------------------------------------------------------------------------- ROS part
+def _send_realtime(cfg: ExcitationConfig, pub: Any, float64: Any, executor: Any, stop: threading.Event,
+                   spin_until: Any, log: Any) -> int | tuple[int, bool]:
+    """Realtime mode of the node: wait for the duty readers, then publish one command per period on
+    a wall-clock schedule (a sender thread, deadlines absolute); (commands sent, interrupted), or
+    the exit status when no reader came."""
+    import rclpy
+
+    from aeropend_sim.sim_core import RealtimeSchedule
+
+    sig = cfg.signal
+    if not spin_until(lambda: pub.get_subscription_count() >= cfg.min_subscribers, cfg.wait_timeout):
+        if not stop.is_set():
+            log.error(
+                f"{pub.get_subscription_count()} of {cfg.min_subscribers} subscriber(s) on "
+                f"{pub.topic_name} within {cfg.wait_timeout:g} s; is the plant up?"
+            )
+        return 1
+    sent = [0]
+
+    def worker() -> None:
+        period_ns = round(sig.dt * 1e9)
+        sched = RealtimeSchedule(period_ns, time.monotonic_ns())
+        for k, u in enumerate(sig.duty):
+            while (rem := sched.deadline_ns(k) - time.monotonic_ns()) > 0 and not stop.is_set():
+                time.sleep(min(rem * 1e-9, 0.05))
+            if stop.is_set():
+                return
+            sched.on_wake(k, time.monotonic_ns())
+            pub.publish(float64(data=float(u)))
+            sent[0] += 1
+        if sched.overruns:
+            log.warn(f"{sched.overruns} overrun(s), {sched.dropped_ns / 1e6:.1f} ms behind schedule")
+
+    thread = threading.Thread(target=worker, name="excitation_sender", daemon=True)
+    thread.start()
+    while thread.is_alive() and not stop.is_set() and rclpy.ok():
+        executor.spin_once(timeout_sec=0.05)
+    stop_requested = stop.is_set()
+    stop.set()
+    thread.join(timeout=1.0)
+    n_sent = sent[0]
+    return n_sent, stop_requested
+
+
+def _send_lockstep(cfg: ExcitationConfig, node: Any, pub: Any, float64: Any, joint_state: Any, executor: Any,
+                   stop: threading.Event, spin_until: Any, log: Any) -> int | tuple[int, bool]:
+    """Lockstep mode of the node: answer each plant sample (``joint_states``) with the next command
+    (:class:`LockstepFeeder`); (commands sent, interrupted), or the exit status when no sample came."""
+    import rclpy
+
+    from aeropend_sim.ros.ros_contract import SAMPLE_QOS_LOCKSTEP
+
+    feeder = LockstepFeeder(cfg.signal.duty)
+    pending: list[float] = []
+
+    def on_sample(msg: Any) -> None:
+        stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        if pending and stamp == feeder.last_stamp:
+            return  # re-published sample whose answer is still waiting to be sent
+        value = feeder.on_sample(stamp, pub.get_subscription_count())
+        if value is not None:
+            pending.append(value)
+            flush()
+
+    def flush() -> None:
+        matched = pub.get_subscription_count()
+        if pending and matched >= cfg.min_subscribers:
+            feeder.mark_published(matched)
+            for value in pending:
+                pub.publish(float64(data=value))
+            pending.clear()
+
+    sub = node.create_subscription(joint_state, REL_JOINT_STATES, on_sample, SAMPLE_QOS_LOCKSTEP)
+    node.create_timer(0.01, flush)
+    if not spin_until(lambda: feeder.sent > 0, cfg.wait_timeout):
+        if not stop.is_set():
+            log.error(
+                f"no sample on {sub.topic_name} within {cfg.wait_timeout:g} s; "
+                "is the plant up in lockstep mode?"
+            )
+        return 1
+    while not stop.is_set() and rclpy.ok() and not (feeder.done and not pending):
+        executor.spin_once(timeout_sec=0.05)
+    stop_requested = stop.is_set() and not (feeder.done and not pending)
+    n_sent = feeder.sent
+    if feeder.resent:
+        log.warn(f"re-sent {feeder.resent} command(s) for re-published samples "
+                 "(a duty reader matched late)")
+    if feeder.skipped:
+        log.info(f"{feeder.skipped} re-published sample(s) not answered again: their command had "
+                 "reached every matched reader")
+    return n_sent, stop_requested
+
+
 def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
     import rclpy
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
     from aeropend_sim.ros.node_shell import declare_parameter_table, run_node, wait_acknowledged
-    from aeropend_sim.ros.ros_contract import COMMAND_QOS, COMMAND_QOS_LOCKSTEP, SAMPLE_QOS_LOCKSTEP
-    from aeropend_sim.sim_core import RealtimeSchedule
+    from aeropend_sim.ros.ros_contract import COMMAND_QOS, COMMAND_QOS_LOCKSTEP
 
     def run(node: Any, executor: Any, stop: threading.Event) -> int:
         log = node.get_logger()
@@ -341,77 +434,12 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
             return bool(cond())
 
         if cfg.mode == "realtime":
-            if not spin_until(lambda: pub.get_subscription_count() >= cfg.min_subscribers, cfg.wait_timeout):
-                if not stop.is_set():
-                    log.error(
-                        f"{pub.get_subscription_count()} of {cfg.min_subscribers} subscriber(s) on "
-                        f"{pub.topic_name} within {cfg.wait_timeout:g} s; is the plant up?"
-                    )
-                return 1
-            sent = [0]
-
-            def worker() -> None:
-                period_ns = round(sig.dt * 1e9)
-                sched = RealtimeSchedule(period_ns, time.monotonic_ns())
-                for k, u in enumerate(sig.duty):
-                    while (rem := sched.deadline_ns(k) - time.monotonic_ns()) > 0 and not stop.is_set():
-                        time.sleep(min(rem * 1e-9, 0.05))
-                    if stop.is_set():
-                        return
-                    sched.on_wake(k, time.monotonic_ns())
-                    pub.publish(Float64(data=float(u)))
-                    sent[0] += 1
-                if sched.overruns:
-                    log.warn(f"{sched.overruns} overrun(s), {sched.dropped_ns / 1e6:.1f} ms behind schedule")
-
-            thread = threading.Thread(target=worker, name="excitation_sender", daemon=True)
-            thread.start()
-            while thread.is_alive() and not stop.is_set() and rclpy.ok():
-                executor.spin_once(timeout_sec=0.05)
-            stop_requested = stop.is_set()
-            stop.set()
-            thread.join(timeout=1.0)
-            n_sent = sent[0]
+            out = _send_realtime(cfg, pub, Float64, executor, stop, spin_until, log)
         else:
-            feeder = LockstepFeeder(sig.duty)
-            pending: list[float] = []
-
-            def on_sample(msg: JointState) -> None:
-                stamp = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-                if pending and stamp == feeder.last_stamp:
-                    return  # re-published sample whose answer is still waiting to be sent
-                value = feeder.on_sample(stamp, pub.get_subscription_count())
-                if value is not None:
-                    pending.append(value)
-                    flush()
-
-            def flush() -> None:
-                matched = pub.get_subscription_count()
-                if pending and matched >= cfg.min_subscribers:
-                    feeder.mark_published(matched)
-                    for value in pending:
-                        pub.publish(Float64(data=value))
-                    pending.clear()
-
-            sub = node.create_subscription(JointState, REL_JOINT_STATES, on_sample, SAMPLE_QOS_LOCKSTEP)
-            node.create_timer(0.01, flush)
-            if not spin_until(lambda: feeder.sent > 0, cfg.wait_timeout):
-                if not stop.is_set():
-                    log.error(
-                        f"no sample on {sub.topic_name} within {cfg.wait_timeout:g} s; "
-                        "is the plant up in lockstep mode?"
-                    )
-                return 1
-            while not stop.is_set() and rclpy.ok() and not (feeder.done and not pending):
-                executor.spin_once(timeout_sec=0.05)
-            stop_requested = stop.is_set() and not (feeder.done and not pending)
-            n_sent = feeder.sent
-            if feeder.resent:
-                log.warn(f"re-sent {feeder.resent} command(s) for re-published samples "
-                         "(a duty reader matched late)")
-            if feeder.skipped:
-                log.info(f"{feeder.skipped} re-published sample(s) not answered again: their command had "
-                         "reached every matched reader")
+            out = _send_lockstep(cfg, node, pub, Float64, JointState, executor, stop, spin_until, log)
+        if isinstance(out, int):
+            return out
+        n_sent, stop_requested = out
         if cfg.zero_at_end and rclpy.ok():
             pub.publish(Float64(data=0.0))
         if rclpy.ok():  # a lagging recorder must get the last commands before the writer is gone
