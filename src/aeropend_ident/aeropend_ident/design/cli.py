@@ -34,7 +34,14 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.design.sequence import BUDGET_S, MAX_REPLAY_SAMPLES, MODES, DesignError, check_mode
+from aeropend_ident.design.sequence import (
+    ANGLE_PENALTY,
+    BUDGET_S,
+    MAX_REPLAY_SAMPLES,
+    MODES,
+    DesignError,
+    check_mode,
+)
 from aeropend_ident.errors import IdentError
 
 
@@ -206,6 +213,8 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
            "sd_after": d.sd_after,
            "sd_after_baseline": d.sd_after_baseline, "logdet": d.logdet, "baseline_logdet": d.baseline_logdet,
            "limits_check": check_limits(d.duty, limits, th), "angle_margin_rad": d.angle_margin,
+           # the search's best kept the angle ± its margin inside (else every sequence it tried left)
+           "angle_margin_held": bool(d.logdet > -ANGLE_PENALTY),
            "evaluations": d.evaluations,
            "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s}
     write_design(args.out, doc, d.duty, limits.dt)
@@ -259,9 +268,14 @@ def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> 
               f"{lim['theta_min']:.3g} … {lim['theta_max']:.3g} rad with commands up to "
               f"{lim['duty_max']:.3g} (design.md: OUTSIDE): do not play it as it is; state a lower "
               "--duty-max or the angle range the rig may reach (--theta-min/--theta-max)", file=sys.stderr)
+    elif doc.get("angle_margin_held") is False:
+        print(f"{prog}: warning: no sequence the search found keeps the predicted angle ± its uncertainty "
+              f"({doc['angle_margin_rad']:.3g} rad) inside the angle limits: the design stays as far inside "
+              "as it could, and its information was not the goal; state a lower --duty-max or the angle "
+              "range the rig may reach", file=sys.stderr)
     if doc.get("stopped_by") == "budget":
         print(f"{prog}: warning: the search was cut by --budget {args.budget:g} s after {doc['evaluations']} "
-              f"of --max-evaluations {args.max_evaluations}: this seed gives another design on another "
+              "sequences, before its number of evaluations: this seed gives another design on another "
               "machine or load (a smaller --max-evaluations or a larger --budget makes it reproducible)",
               file=sys.stderr)
     print(f"{prog}: wrote {args.out}/design.csv, design.json, design.md ({doc['elapsed_s']:.1f} s)")
