@@ -56,6 +56,7 @@ from aeropend_ident.design.sequence import (
     aprbs_vector,
     check_mode,
     default_evaluations,
+    recorded_margin,
     search,
     sequence,
 )
@@ -110,10 +111,12 @@ def pair_divergences(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, floa
 
 
 def criterion(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float], limits: Limits) -> float:
-    """Mean over candidate pairs of log10(1 + D_ij); when a candidate's predicted angle leaves the
-    angle range or a replay fails, :func:`~aeropend_ident.design.sequence.angle_penalty` instead
-    (module doc)."""
-    outside = angle_penalty(outputs["theta"], limits)
+    """Mean over candidate pairs of log10(1 + D_ij); when a candidate's predicted angle, widened by
+    what the recorded angle may stray from it (:func:`~aeropend_ident.design.sequence.recorded_margin`),
+    leaves the angle range or a replay fails, :func:`~aeropend_ident.design.sequence.angle_penalty`
+    instead (module doc)."""
+    theta, margin = outputs["theta"], recorded_margin(limits, sigma.get("theta", 0.0))
+    outside = angle_penalty(np.stack([theta - margin, theta + margin]), limits)
     if outside < 0.0:
         return outside
     d = pair_divergences(outputs, sigma)

@@ -35,6 +35,7 @@ from aeropend_ident.design.sequence import (
     BUDGET_S,
     AprbsShape,
     Limits,
+    angle_margin,
     angle_penalty,
     aprbs_vector,
     check_mode,
@@ -134,8 +135,8 @@ class ParameterDesign:
     stopped_by : str
         What ended the search (:func:`~aeropend_ident.design.sequence.search`).
     angle_margin : float
-        Largest 1σ [rad] of the design's predicted angle under what the earlier recordings leave
-        uncertain (:func:`angle_spread`): the margin the design kept from the angle limits.
+        Largest margin [rad] the design's predicted angle kept from the angle limits
+        (:func:`~aeropend_ident.design.sequence.angle_margin` of its :func:`angle_spread`).
     """
 
     duty: np.ndarray
@@ -206,17 +207,17 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
 
     # the angle must stay inside the range for the rig as the earlier recordings know it: the
     # nominal prediction ± its 1σ under what they leave uncertain (the unit prior for a parameter
-    # they do not determine), so a design near a limit keeps a margin where the angle depends on
-    # the parameters it is to determine (esc_1 of bench_design_parameters: 0.12 rad above the fitted
-    # rig's peak on the rig itself)
+    # they do not determine; capped), and the recorded angle's own noise and quantum (angle_margin),
+    # so a design near a limit keeps a margin where the angle depends on the parameters it is to
+    # determine (esc_1 of bench_design_parameters: 0.12 rad above the fitted rig's peak on the rig)
     prior = np.linalg.inv(f0 + np.eye(len(every)))
 
     def score(duty: np.ndarray) -> tuple[float, np.ndarray]:
         nonlocal calls
         calls += 1
         f, th, s_th = fisher(rig, every, duty, limits.dt, sigma)
-        spread = angle_spread(s_th, prior)
-        outside = angle_penalty(np.stack([th - spread, th + spread]), limits)
+        margin = angle_margin(angle_spread(s_th, prior), limits, sigma.get("theta", 0.0))
+        outside = angle_penalty(np.stack([th - margin, th + margin]), limits)
         return (outside if outside < 0.0 else ds_criterion(f0 + f, n_i)), f
 
     z0 = aprbs_vector(shape, seed)
@@ -231,7 +232,8 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
         return dict(zip(keys, map(float, relative_sd(f0 + f)[:n_i]), strict=True))
 
     duty = sequence(best_z, shape, limits)
-    margin = float(np.max(angle_spread(fisher(rig, every, duty, limits.dt, sigma)[2], prior), initial=0.0))
+    spread = angle_spread(fisher(rig, every, duty, limits.dt, sigma)[2], prior)
+    margin = float(np.max(angle_margin(spread, limits, sigma.get("theta", 0.0)), initial=0.0))
     return ParameterDesign(duty=duty, baseline=base, keys=keys, logdet=best_v,
                            baseline_logdet=v0, sd_before=sd(np.zeros_like(f0)), sd_after=sd(best_f),
                            sd_after_baseline=sd(f_base), evaluations=calls,

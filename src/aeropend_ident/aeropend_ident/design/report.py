@@ -122,8 +122,9 @@ def markdown(doc: Mapping[str, Any]) -> str:
                   f"APRBS {doc['baseline_min_divergence']:.3g}."]
     else:
         if doc.get("angle_margin_rad"):
-            lines += [f"The predicted angle keeps up to {doc['angle_margin_rad']:.3g} rad (its 1σ under what "
-                      "the earlier recordings leave uncertain) from the angle limits.", ""]
+            lines += [f"The predicted angle keeps up to {doc['angle_margin_rad']:.3g} rad from the angle "
+                      "limits (its 1σ under what the earlier recordings leave uncertain, at most a tenth "
+                      "of the range, and the recorded angle's noise and quantum).", ""]
         lines += ["Predicted relative 1σ per parameter (Cramér-Rao, unit prior; a lower bound):", "",
                   "| parameter | before | after the design | after the seeded APRBS |", "|---|---|---|---|"]
         for k in doc["parameters"]:

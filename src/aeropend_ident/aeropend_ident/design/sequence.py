@@ -55,6 +55,27 @@ def angle_penalty(theta: np.ndarray, limits: Limits) -> float:
     return 0.0 if excess == 0.0 else -ANGLE_PENALTY * (1.0 + min(excess, 1000.0))
 
 
+#: Largest margin [share of the stated angle range] kept for what the earlier recordings leave
+#: uncertain: beyond it the first-order spread of a parameter nothing determines (unit prior) says
+#: little, and an uncapped spread left no sequence inside (bench_design_parameters' esc_0).
+SPREAD_CAP = 0.1
+
+
+def recorded_margin(limits: Limits, sigma_theta: float) -> float:
+    """How far [rad] a recorded angle may lie from the true one: half the angle quantum and 2σ of
+    the measured noise. The limits are on the recorded angle, so a design keeps this much inside
+    them (a design that reached a stated limit exactly was recorded 0.002 rad beyond it)."""
+    return 0.5 * float(limits.quantum) + 2.0 * float(sigma_theta)
+
+
+def angle_margin(spread: np.ndarray | float, limits: Limits, sigma_theta: float) -> np.ndarray | float:
+    """The margin [rad] a predicted angle keeps from the limits: its ``spread`` (1σ under what the
+    earlier recordings leave uncertain, capped at :data:`SPREAD_CAP` of the angle range) plus
+    :func:`recorded_margin`."""
+    cap = SPREAD_CAP * (limits.theta_max - limits.theta_min)
+    return np.minimum(spread, cap) + recorded_margin(limits, sigma_theta)
+
+
 #: The search's default length, in samples simulated: rigs replayed per sequence (a parameter
 #: design replays p + 1 rigs, a discrimination design one per candidate) × the sequence's samples.
 #: Counted, not timed, so a seed gives one design on any machine under any load; 15 000 replays of
