@@ -37,7 +37,6 @@ import numpy as np
 from aeropend_ident.design.sequence import (
     ANGLE_PENALTY,
     BUDGET_S,
-    MAX_REPLAY_SAMPLES,
     MODES,
     DesignError,
     check_mode,
@@ -63,10 +62,10 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
                     help="wall-time safety net of the search [s]; a search it cuts says so (another machine "
                          "or load would give another design)")
     ap.add_argument("--max-evaluations", dest="max_evaluations", type=int,
-                    help=f"most sequences scored (default: {MAX_REPLAY_SAMPLES:.0e} samples simulated over "
-                         "(parameters + 1) rigs for a rig fit result, over the candidates for a gap report, "
-                         "e.g. 2500 for 5 parameters and a 40 s design at 100 Hz): the same seed then gives "
-                         "the same design on any machine")
+                    help="most sequences scored (default: a fixed amount of replay work, e.g. 1851 "
+                         "sequences for five parameters and a 40 s design at 100 Hz, 1093 for six candidates "
+                         "at 490 Hz; docs/design.md): the same seed then gives the same design on any "
+                         "machine")
     ap.add_argument("--max-effects", dest="max_effects", type=int, default=3)
     ap.add_argument("--parameters", nargs="+", help="rig keys section.name to determine (rig fit results)")
     ap.add_argument("--preset", help="CSV preset of the recordings")

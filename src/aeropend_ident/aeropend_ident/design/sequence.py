@@ -76,19 +76,23 @@ def angle_margin(spread: np.ndarray | float, limits: Limits, sigma_theta: float)
     return np.minimum(spread, cap) + recorded_margin(limits, sigma_theta)
 
 
-#: The search's default length, in samples simulated: rigs replayed per sequence (a parameter
-#: design replays p + 1 rigs, a discrimination design one per candidate) × the sequence's samples.
-#: Counted, not timed, so a seed gives one design on any machine under any load; 15 000 replays of
-#: a 40 s design at 100 Hz, about 30-50 s on two cores (docs/design.md).
-MAX_REPLAY_SAMPLES = 60_000_000
+#: The search's default length, in replay work: each rig replayed per sequence costs its samples
+#: plus :data:`REPLAY_OVERHEAD` (a replay's fixed cost in sample-equivalents: about 1.9 ms per
+#: replay and 0.1 µs per sample on two cores, measured on bench_design_discrimination's cases).
+#: Counted, not timed, so a seed gives one design on any machine under any load; about 20-40 s of
+#: search on two cores whatever the rate and the number of rigs (docs/design.md).
+MAX_REPLAY_WORK = 250_000_000
+#: A replay's fixed cost, in samples (see :data:`MAX_REPLAY_WORK`).
+REPLAY_OVERHEAD = 18_500
 #: The search's default wall-time safety net [s]: a search cut by it says so (not reproducible).
 BUDGET_S = 120.0
 
 
 def default_evaluations(replays_per_evaluation: int, samples: int) -> int:
-    """Sequences a search scores by default: :data:`MAX_REPLAY_SAMPLES` over the samples simulated
-    per sequence (``replays_per_evaluation`` rigs × ``samples``), at least 200."""
-    return max(200, MAX_REPLAY_SAMPLES // max(1, int(replays_per_evaluation) * int(samples)))
+    """Sequences a search scores by default: :data:`MAX_REPLAY_WORK` over the work of one sequence
+    (``replays_per_evaluation`` rigs × (``samples`` + :data:`REPLAY_OVERHEAD`)), at least 200."""
+    work = max(1, int(replays_per_evaluation)) * (int(samples) + REPLAY_OVERHEAD)
+    return max(200, MAX_REPLAY_WORK // work)
 
 
 #: What a design is: an open-loop command sequence, or (not implemented yet) a reference sequence
