@@ -156,7 +156,10 @@ def run_case(family: str, index: int, seed: int, first_log: str = "steps") -> di
         # the design's own prediction (relative 1σ under its unit prior): before, with the design,
         # with its seeded APRBS
         row["predicted"] = {k: spec.get(k) for k in ("sd_before", "sd_after", "sd_after_baseline")}
-        row["search"] = {k: spec.get(k) for k in ("evaluations", "stopped_by", "elapsed_s")}
+        row["search"] = {k: spec.get(k) for k in ("evaluations", "stopped_by", "elapsed_s",
+                                                  "angle_margin_rad", "angle_spread_rad",
+                                                  "angle_limits_assured")}
+        row["limits"] = spec["limits"]
         designed = _play(rig, d / "design" / "design.csv", d / "designed.csv", seed=77)
         row["limits_on_truth"] = _limits_on_truth(designed, spec["limits"])
         cmd = np.loadtxt(d / "design" / "design.csv", delimiter=",", skiprows=1)[:, 1]
@@ -207,7 +210,9 @@ def render(res: dict[str, Any]) -> str:
              f"determined **and** within 3σ of the truth: design **{s['design_right']}/{s['n_named']}**, "
              f"APRBS {s['aprbs_right']}/{s['n_named']}",
              f"- the design's limits (command range, slew, angle range) held on the rig's own recorded "
-             f"angle in {s['limits_held']}/{s['n_designs']} designs",
+             f"angle in {s['limits_held']}/{s['n_designs']} designs; the design said its limits were not "
+             f"assured (the angle depends on parameters the first log does not determine) in "
+             f"{s['not_assured']}, of which {s['not_assured_held']} held",
              f"- design time median {s['design_s_median']:.0f} s, max {s['design_s_max']:.0f} s", "",
              "| rig | sensor | first log | parameter | after it | design's prediction | after design "
              "(rel 1σ) | after APRBS (rel 1σ) | truth |", "|---|---|---|---|---|---|---|---|---|"]
@@ -233,6 +238,11 @@ def render(res: dict[str, Any]) -> str:
                          f"{cell(r.get('design', {}).get(k))} | {cell(r.get('aprbs', {}).get(k))} | "
                          f"{'—' if tru is None else f'{tru:.4g}'} |")
     return "\n".join(lines) + "\n"
+
+
+def _not_assured(row: dict[str, Any]) -> bool:
+    """The design said its angle limits were not assured (design.json ``angle_limits_assured``)."""
+    return (row.get("search") or {}).get("angle_limits_assured") is False
 
 
 def _refused(res: dict[str, Any], label: str) -> tuple[int, int]:
@@ -279,7 +289,9 @@ def main(argv: list[str] | None = None) -> int:
                **{f"{lab}_right": sum(bool(x.get("determined") and x.get("within_3sd")) for x in v)
                   for lab, v in det.items()},
                "n_designs": sum(1 for r in ok if "limits_on_truth" in r),
-               "limits_held": sum(bool(r["limits_on_truth"]["ok"]) for r in ok if "limits_on_truth" in r)}
+               "limits_held": sum(bool(r["limits_on_truth"]["ok"]) for r in ok if "limits_on_truth" in r),
+               "not_assured": sum(1 for r in ok if _not_assured(r)),
+               "not_assured_held": sum(1 for r in ok if _not_assured(r) and r["limits_on_truth"]["ok"])}
     res = {"summary": summary, "meta": run_meta(t0, load, argv), "rows": rows}
     args.out.with_suffix(".json").write_text(json.dumps(res, indent=1, default=str), encoding="utf-8")
     args.out.with_suffix(".md").write_text(render(res), encoding="utf-8")

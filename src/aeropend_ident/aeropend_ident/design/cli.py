@@ -38,6 +38,7 @@ from aeropend_ident.design.sequence import (
     ANGLE_PENALTY,
     BUDGET_S,
     MODES,
+    SPREAD_CAP,
     DesignError,
     check_mode,
 )
@@ -214,6 +215,8 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
            "limits_check": check_limits(d.duty, limits, th), "angle_margin_rad": d.angle_margin,
            # the search's best kept the angle ± its margin inside (else every sequence it tried left)
            "angle_margin_held": bool(d.logdet > -ANGLE_PENALTY),
+           "angle_spread_rad": d.angle_spread,
+           "angle_limits_assured": bool(d.angle_spread <= SPREAD_CAP * (limits.theta_max - limits.theta_min)),
            "evaluations": d.evaluations,
            "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s}
     write_design(args.out, doc, d.duty, limits.dt)
@@ -272,6 +275,11 @@ def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> 
               f"({doc['angle_margin_rad']:.3g} rad) inside the angle limits: the design stays as far inside "
               "as it could, and its information was not the goal; state a lower --duty-max or the angle "
               "range the rig may reach", file=sys.stderr)
+    if doc.get("angle_limits_assured") is False:
+        print(f"{prog}: warning: the limits are not assured: the predicted angle depends by up to "
+              f"{doc['angle_spread_rad']:.3g} rad (1σ) on parameters the earlier recordings do not "
+              "determine, more than the margin the design keeps; record it with the rig watched and a "
+              "lower --duty-max, or state those parameters first", file=sys.stderr)
     if doc.get("stopped_by") == "budget":
         print(f"{prog}: warning: the search was cut by --budget {args.budget:g} s after {doc['evaluations']} "
               "sequences, before its number of evaluations: this seed gives another design on another "

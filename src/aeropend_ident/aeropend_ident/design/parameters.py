@@ -137,6 +137,10 @@ class ParameterDesign:
     angle_margin : float
         Largest margin [rad] the design's predicted angle kept from the angle limits
         (:func:`~aeropend_ident.design.sequence.angle_margin` of its :func:`angle_spread`).
+    angle_spread : float
+        Largest 1σ [rad] of the design's predicted angle under what the earlier recordings leave
+        uncertain, uncapped: above the margin's cap the limits are not assured (the predicted angle
+        depends on parameters the earlier recordings do not determine).
     """
 
     duty: np.ndarray
@@ -151,6 +155,7 @@ class ParameterDesign:
     elapsed_s: float
     stopped_by: str = "evaluations"
     angle_margin: float = 0.0
+    angle_spread: float = 0.0
 
 
 def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float], limits: Limits,
@@ -234,10 +239,12 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     duty = sequence(best_z, shape, limits)
     spread = angle_spread(fisher(rig, every, duty, limits.dt, sigma)[2], prior)
     margin = float(np.max(angle_margin(spread, limits, sigma.get("theta", 0.0)), initial=0.0))
+    spread_max = float(np.max(spread, initial=0.0))
     return ParameterDesign(duty=duty, baseline=base, keys=keys, logdet=best_v,
                            baseline_logdet=v0, sd_before=sd(np.zeros_like(f0)), sd_after=sd(best_f),
                            sd_after_baseline=sd(f_base), evaluations=calls,
-                           elapsed_s=time.perf_counter() - t0, stopped_by=stopped, angle_margin=margin)
+                           elapsed_s=time.perf_counter() - t0, stopped_by=stopped, angle_margin=margin,
+                           angle_spread=spread_max)
 
 
 def fitted_keys(fitted_text: str) -> list[str]:

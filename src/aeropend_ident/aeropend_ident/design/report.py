@@ -124,7 +124,11 @@ def markdown(doc: Mapping[str, Any]) -> str:
         if doc.get("angle_margin_rad"):
             lines += [f"The predicted angle keeps up to {doc['angle_margin_rad']:.3g} rad from the angle "
                       "limits (its 1σ under what the earlier recordings leave uncertain, at most a tenth "
-                      "of the range, and the recorded angle's noise and quantum).", ""]
+                      "of the range, and the recorded angle's noise and quantum)"
+                      + ("." if doc.get("angle_limits_assured", True) else
+                         f"; **the limits are not assured**: the angle depends by up to "
+                         f"{doc['angle_spread_rad']:.3g} rad (1σ) on parameters the earlier recordings do "
+                         "not determine."), ""]
         lines += ["Predicted relative 1σ per parameter (Cramér-Rao, unit prior; a lower bound):", "",
                   "| parameter | before | after the design | after the seeded APRBS |", "|---|---|---|---|"]
         for k in doc["parameters"]:
