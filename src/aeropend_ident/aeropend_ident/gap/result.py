@@ -31,7 +31,7 @@ from aeropend_sim.recording import Recording
 
 @dataclass
 class GapResult:
-    """Everything :func:`run_gap` computed.
+    """Everything :func:`aeropend_ident.gap.run.run_gap` computed.
 
     Attributes
     ----------
@@ -80,10 +80,11 @@ class GapResult:
         not be computed, with the reason; the rest of the result stands.
     bound_notes : list of str
         Parameters ``rig fit`` left at a search bound and the effects confirmed for them
-        (:func:`bound_effects`).
+        (:func:`aeropend_ident.gap.run.bound_effects`).
     tables : list of dict
         Static tables given beside the recordings (balance / thrust tables, as ``rig fit`` takes
-        them), each checked against the nominal and the corrected rig (:func:`static_table_check`).
+        them), each checked against the nominal and the corrected rig
+        (:func:`aeropend_ident.gap.run.static_table_check`).
     """
 
     rig: Rig

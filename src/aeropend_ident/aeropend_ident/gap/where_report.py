@@ -51,7 +51,7 @@ class EquationCheck:
         RMS of the same equation error computed on the nominal model's own simulation of this
         input (what the derivative filters leave on a perfect model).
     flagged : bool
-        see :func:`_flag` (above the noise floor and 1.5× the method floor).
+        see :func:`aeropend_ident.gap.where._flag` (above the noise floor and 1.5× the method floor).
     groups : dict[str, float]
         R² of the residual on each term group alone (0..1).
     residual : ndarray, shape (N,)
@@ -157,7 +157,7 @@ class RecordingWhere:
 
 @dataclass
 class WhereReport:
-    """Result of :func:`locate_gap` over several recordings.
+    """Result of :func:`aeropend_ident.gap.where.locate_gap` over several recordings.
 
     Attributes
     ----------

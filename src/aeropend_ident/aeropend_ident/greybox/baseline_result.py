@@ -67,11 +67,12 @@ class BaselineResult:
     per_recording : list of dict
         The same per held-out recording (``recording``, ``nominal``, ``fitted``).
     regions : dict
-        ``regions[part][model]`` = :func:`residual_regions`.
+        ``regions[part][model]`` = :func:`aeropend_ident.greybox.baseline.residual_regions`.
     divergence : dict
-        ``divergence[part][model]``: why the model diverges there (:func:`diverges`), absent if not.
+        ``divergence[part][model]``: why the model diverges there
+        (:func:`aeropend_ident.io.overlay_axes.diverges`), absent if not.
     implausible : dict
-        Parameter name -> reasons it is implausible (:func:`implausible`).
+        Parameter name -> reasons it is implausible (:func:`aeropend_ident.greybox.baseline.implausible`).
     timing : TimingRange or None
         The search range of a fitted dead time or lag (None when none is fitted).
     warnings : list of str

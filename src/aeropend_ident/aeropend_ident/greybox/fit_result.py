@@ -59,7 +59,7 @@ class ParameterEstimate:
 
 @dataclass(frozen=True)
 class GreyBoxResult:
-    """Outcome of :func:`fit_greybox`.
+    """Outcome of :func:`aeropend_ident.greybox.fit.fit_greybox`.
 
     Attributes
     ----------
@@ -84,7 +84,8 @@ class GreyBoxResult:
     message : str
         From :func:`scipy.optimize.least_squares`.
     metrics : dict
-        :func:`error_metrics` of the fitted free run on the fit data (``nrmse``, ``rms_error``,
+        :func:`aeropend_ident.greybox.fit.error_metrics` of the fitted free run on the fit data
+        (``nrmse``, ``rms_error``,
         ``max_abs_error``, ...).
     data : UniformData
         The data the fit used.

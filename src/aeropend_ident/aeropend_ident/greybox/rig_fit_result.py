@@ -85,7 +85,8 @@ class Outcome:
 
 @dataclass
 class RigFitResult:
-    """Outcome of :func:`fit_rig`: per parameter, the fitted rig, the inputs and the notes."""
+    """Outcome of :func:`aeropend_ident.greybox.rig_fit.fit_rig`: per parameter, the fitted rig, the
+    inputs and the notes."""
 
     rig_path: Path
     text: str
@@ -103,8 +104,9 @@ class RigFitResult:
     #: the one replay of every command: its start, divergence and NRMSE); ``nrmse`` and ``divergence``
     #: are read from it.
     runs: dict[str, FreeRun] = field(default_factory=dict)
-    #: The angle LSB q [rad] every recording's θ lies on (:func:`angle_quantum`), written into the
-    #: fitted rig (``sensors.theta_quantum``, ``effects.quantisation``) with its source; None: none.
+    #: The angle LSB q [rad] every recording's θ lies on
+    #: (:func:`aeropend_ident.greybox.rig_fit.angle_quantum`), written into the fitted rig
+    #: (``sensors.theta_quantum``, ``effects.quantisation``) with its source; None: none.
     theta_quantum: tuple[float, str] | None = None
 
     def outcome(self, key: str) -> Outcome:

@@ -115,8 +115,8 @@ class BagTopic:
 class RawBagReader:
     """Raw (serialised) messages of a bag in log-time order: the one reader of every tool.
 
-    :func:`read_bag` (so ``identify``, ``baseline``, ``gap``, ``compare``) and the player read
-    bags through it. A bag whose storage is complete is read with rosbags' ``AnyReader``
+    :func:`aeropend_ident.io.bags.read_bag` (so ``identify``, ``baseline``, ``gap``, ``compare``) and
+    the player read bags through it. A bag whose storage is complete is read with rosbags' ``AnyReader``
     (streamed). A storage file cut short (no MCAP footer, an SQLite3 file shorter than its header
     says) is read with :func:`aeropend_ident.io.bag_recover.scan_storage`: every complete message
     is kept, :attr:`recovery` describes what was recovered and where the file ends, and a

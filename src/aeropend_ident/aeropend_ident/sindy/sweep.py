@@ -54,10 +54,10 @@ def sweep_threshold(
 ) -> tuple[list[SweepPoint], dict[float, SindyModel]]:
     """Fit for each λ and score on held-out data (the Pareto front: terms vs test error).
 
-    ``fit_kw`` go to :func:`fit`; its ``exclude_input_steps`` also applies to the scoring. The
-    λ-independent part (library, weak-form matrices, rank check) is built once
-    (:func:`regression_problem`); each model equals ``fit(train, library, targets, threshold=λ,
-    **fit_kw)``.
+    ``fit_kw`` go to :func:`aeropend_ident.sindy.core.fit`; its ``exclude_input_steps`` also applies
+    to the scoring. The λ-independent part (library, weak-form matrices, rank check) is built once
+    (:func:`aeropend_ident.sindy.core.regression_problem`); each model equals ``fit(train, library,
+    targets, threshold=λ, **fit_kw)``.
     """
     points, models = [], {}
     excl = int(fit_kw.get("exclude_input_steps", 0))

@@ -156,7 +156,8 @@ def _zoh_weights(lib: ps.WeakPDELibrary, tk: np.ndarray, p: int) -> tuple[np.nda
 
 @dataclass
 class WeakContext:
-    """What a refinement pass of the weak form adds to the plain one (see :func:`fit_weak_refined`).
+    """What a refinement pass of the weak form adds to the plain one (see
+    :func:`aeropend_ident.sindy.core.fit_weak_refined`).
 
     Attributes
     ----------
