@@ -218,7 +218,7 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
 
     z0 = aprbs_vector(shape, seed)
     if max_evaluations is None:
-        max_evaluations = default_evaluations(len(candidates), n)
+        max_evaluations = default_evaluations(len(candidates), n, len(sigma))
     best_z, best_v, _, v0, _, stopped = search(value, z0, seed=seed, budget_s=budget_s,
                                                max_evaluations=max_evaluations, popsize=8 + shape.size // 6,
                                                started=t0, tolfun=1e-4)

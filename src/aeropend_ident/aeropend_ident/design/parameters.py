@@ -228,7 +228,7 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     z0 = aprbs_vector(shape, seed)
     base = sequence(z0, shape, limits)
     if max_evaluations is None:
-        max_evaluations = default_evaluations(len(every) + 1, base.size)
+        max_evaluations = default_evaluations(len(every) + 1, base.size, len(sigma))
     best_z, best_v, best_f, v0, f_base, stopped = search(
         lambda z: score(sequence(z, shape, limits)), z0, seed=seed, budget_s=budget_s,
         max_evaluations=max_evaluations, popsize=8 + shape.size // 6, started=t0)

@@ -77,10 +77,11 @@ def angle_margin(spread: np.ndarray | float, limits: Limits, sigma_theta: float)
 
 
 #: The search's default length, in replay work: each rig replayed per sequence costs its samples
-#: plus :data:`REPLAY_OVERHEAD` (a replay's fixed cost in sample-equivalents: about 1.9 ms per
-#: replay and 0.1 µs per sample on two cores, measured on bench_design_discrimination's cases).
-#: Counted, not timed, so a seed gives one design on any machine under any load; about 20-40 s of
-#: search on two cores whatever the rate and the number of rigs (docs/design.md).
+#: × (1 + logged channels) / 2 plus :data:`REPLAY_OVERHEAD` (a replay's fixed cost in
+#: sample-equivalents). Measured on bench_design_discrimination's cases on two cores: about 1.9 ms
+#: per replay, 0.05 µs per sample and 0.05 µs per sample and logged channel. Counted, not timed, so a
+#: seed gives one design on any machine under any load; about 20-40 s of search on two cores
+#: whatever the rate, the channels and the number of rigs (docs/design.md).
 MAX_REPLAY_WORK = 250_000_000
 #: A replay's fixed cost, in samples (see :data:`MAX_REPLAY_WORK`).
 REPLAY_OVERHEAD = 18_500
@@ -88,11 +89,12 @@ REPLAY_OVERHEAD = 18_500
 BUDGET_S = 120.0
 
 
-def default_evaluations(replays_per_evaluation: int, samples: int) -> int:
+def default_evaluations(replays_per_evaluation: int, samples: int, channels: int = 1) -> int:
     """Sequences a search scores by default: :data:`MAX_REPLAY_WORK` over the work of one sequence
-    (``replays_per_evaluation`` rigs × (``samples`` + :data:`REPLAY_OVERHEAD`)), at least 200."""
-    work = max(1, int(replays_per_evaluation)) * (int(samples) + REPLAY_OVERHEAD)
-    return max(200, MAX_REPLAY_WORK // work)
+    (``replays_per_evaluation`` rigs × (``samples`` × (1 + ``channels``) / 2 +
+    :data:`REPLAY_OVERHEAD`)), at least 200."""
+    per_replay = int(samples) * (1 + max(1, int(channels))) // 2 + REPLAY_OVERHEAD
+    return max(200, MAX_REPLAY_WORK // (max(1, int(replays_per_evaluation)) * per_replay))
 
 
 #: What a design is: an open-loop command sequence, or (not implemented yet) a reference sequence
