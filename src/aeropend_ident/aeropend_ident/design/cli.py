@@ -34,14 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.design.sequence import (
-    ANGLE_PENALTY,
-    BUDGET_S,
-    MODES,
-    SPREAD_CAP,
-    DesignError,
-    check_mode,
-)
+from aeropend_ident.design.sequence import BUDGET_S, MODES, DesignError, check_mode
 from aeropend_ident.errors import IdentError
 
 
@@ -183,7 +176,7 @@ def discrimination(args: argparse.Namespace) -> dict[str, Any]:
 def parameters(args: argparse.Namespace) -> dict[str, Any]:
     """The D-optimal design of a rig fit result (module doc); writes the folder, returns design.json."""
     from aeropend_ident.design.candidates import channel_noise
-    from aeropend_ident.design.parameters import design_parameters, fisher, fitted_keys, weak_keys
+    from aeropend_ident.design.parameters import design_parameters, fitted_keys, weak_keys
     from aeropend_ident.design.report import write_design
     from aeropend_ident.design.sequence import AprbsShape, check_limits
     from aeropend_sim.params import load_rig
@@ -205,18 +198,15 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
     d = design_parameters(rig, keys, sigma, limits, shape, earlier=[(r.duty, r.dt) for r in recs],
                           nuisance=nuisance,
                           seed=args.seed, budget_s=args.budget, max_evaluations=args.max_evaluations)
-    th = fisher(rig, keys, d.duty, limits.dt, sigma)[1]
     doc = {"kind": "parameters", "design_for": str(path), "mode": args.mode, "seed": args.seed,
            "duration_s": shape.duration, "shape": vars(shape), "limits": limits.as_dict(),
            "channels": channels,
            "sigma": sigma, "parameters": list(keys), "nuisance": nuisance, "sd_before": d.sd_before,
            "sd_after": d.sd_after,
            "sd_after_baseline": d.sd_after_baseline, "logdet": d.logdet, "baseline_logdet": d.baseline_logdet,
-           "limits_check": check_limits(d.duty, limits, th), "angle_margin_rad": d.angle_margin,
-           # the search's best kept the angle ± its margin inside (else every sequence it tried left)
-           "angle_margin_held": bool(d.logdet > -ANGLE_PENALTY),
-           "angle_spread_rad": d.angle_spread,
-           "angle_limits_assured": bool(d.angle_spread <= SPREAD_CAP * (limits.theta_max - limits.theta_min)),
+           "limits_check": check_limits(d.duty, limits, d.theta), "angle_margin_rad": d.angle_margin,
+           "angle_margin_held": d.angle_margin_held, "angle_spread_rad": d.angle_spread,
+           "angle_limits_assured": d.angle_limits_assured,
            "evaluations": d.evaluations,
            "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s}
     write_design(args.out, doc, d.duty, limits.dt)

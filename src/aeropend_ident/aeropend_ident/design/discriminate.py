@@ -115,8 +115,7 @@ def criterion(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float], lim
     what the recorded angle may stray from it (:func:`~aeropend_ident.design.sequence.recorded_margin`),
     leaves the angle range or a replay fails, :func:`~aeropend_ident.design.sequence.angle_penalty`
     instead (module doc)."""
-    theta, margin = outputs["theta"], recorded_margin(limits, sigma.get("theta", 0.0))
-    outside = angle_penalty(np.stack([theta - margin, theta + margin]), limits)
+    outside = angle_penalty(outputs["theta"], limits, recorded_margin(limits, sigma.get("theta", 0.0)))
     if outside < 0.0:
         return outside
     d = pair_divergences(outputs, sigma)

@@ -42,6 +42,7 @@ from aeropend_ident.design.sequence import (
     default_evaluations,
     search,
     sequence,
+    spread_cap,
 )
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
@@ -134,13 +135,21 @@ class ParameterDesign:
     elapsed_s : float
     stopped_by : str
         What ended the search (:func:`~aeropend_ident.design.sequence.search`).
+    theta : ndarray, shape (N,)
+        The design's predicted (nominal) angle [rad] (NaN where the replay failed).
     angle_margin : float
         Largest margin [rad] the design's predicted angle kept from the angle limits
         (:func:`~aeropend_ident.design.sequence.angle_margin` of its :func:`angle_spread`).
     angle_spread : float
         Largest 1σ [rad] of the design's predicted angle under what the earlier recordings leave
-        uncertain, uncapped: above the margin's cap the limits are not assured (the predicted angle
-        depends on parameters the earlier recordings do not determine).
+        uncertain, uncapped.
+    angle_margin_held : bool
+        The search found a sequence that keeps the angle ± its margin inside the limits (else it
+        kept the one that left them least, whatever its information).
+    angle_limits_assured : bool
+        ``angle_spread`` within :func:`~aeropend_ident.design.sequence.spread_cap`: else the
+        predicted angle depends on parameters the earlier recordings do not determine by more than
+        the margin kept, and the limits are not assured.
     """
 
     duty: np.ndarray
@@ -154,8 +163,11 @@ class ParameterDesign:
     evaluations: int
     elapsed_s: float
     stopped_by: str = "evaluations"
+    theta: np.ndarray | None = None
     angle_margin: float = 0.0
     angle_spread: float = 0.0
+    angle_margin_held: bool = True
+    angle_limits_assured: bool = True
 
 
 def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float], limits: Limits,
@@ -217,34 +229,34 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     # determine (esc_1 of bench_design_parameters: 0.12 rad above the fitted rig's peak on the rig)
     prior = np.linalg.inv(f0 + np.eye(len(every)))
 
-    def score(duty: np.ndarray) -> tuple[float, np.ndarray]:
+    def score(duty: np.ndarray) -> tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         nonlocal calls
         calls += 1
         f, th, s_th = fisher(rig, every, duty, limits.dt, sigma)
-        margin = angle_margin(angle_spread(s_th, prior), limits, sigma.get("theta", 0.0))
-        outside = angle_penalty(np.stack([th - margin, th + margin]), limits)
-        return (outside if outside < 0.0 else ds_criterion(f0 + f, n_i)), f
+        spread = angle_spread(s_th, prior)
+        outside = angle_penalty(th, limits, angle_margin(spread, limits, sigma.get("theta", 0.0)))
+        return (outside if outside < 0.0 else ds_criterion(f0 + f, n_i)), (f, th, spread)
 
     z0 = aprbs_vector(shape, seed)
     base = sequence(z0, shape, limits)
     if max_evaluations is None:
         max_evaluations = default_evaluations(len(every) + 1, base.size, len(sigma))
-    best_z, best_v, best_f, v0, f_base, stopped = search(
+    best_z, best_v, (best_f, theta, spread), v0, (f_base, _, _), stopped = search(
         lambda z: score(sequence(z, shape, limits)), z0, seed=seed, budget_s=budget_s,
         max_evaluations=max_evaluations, popsize=8 + shape.size // 6, started=t0)
 
     def sd(f: np.ndarray) -> dict[str, float]:
         return dict(zip(keys, map(float, relative_sd(f0 + f)[:n_i]), strict=True))
 
-    duty = sequence(best_z, shape, limits)
-    spread = angle_spread(fisher(rig, every, duty, limits.dt, sigma)[2], prior)
     margin = float(np.max(angle_margin(spread, limits, sigma.get("theta", 0.0)), initial=0.0))
     spread_max = float(np.max(spread, initial=0.0))
-    return ParameterDesign(duty=duty, baseline=base, keys=keys, logdet=best_v,
+    return ParameterDesign(duty=sequence(best_z, shape, limits), baseline=base, keys=keys, logdet=best_v,
                            baseline_logdet=v0, sd_before=sd(np.zeros_like(f0)), sd_after=sd(best_f),
                            sd_after_baseline=sd(f_base), evaluations=calls,
-                           elapsed_s=time.perf_counter() - t0, stopped_by=stopped, angle_margin=margin,
-                           angle_spread=spread_max)
+                           elapsed_s=time.perf_counter() - t0, stopped_by=stopped, theta=theta,
+                           angle_margin=margin, angle_spread=spread_max,
+                           angle_margin_held=bool(best_v > -ANGLE_PENALTY),
+                           angle_limits_assured=bool(spread_max <= spread_cap(limits)))
 
 
 def fitted_keys(fitted_text: str) -> list[str]:

@@ -42,16 +42,17 @@ class DesignError(ValueError):
 ANGLE_PENALTY = 1e3
 
 
-def angle_penalty(theta: np.ndarray, limits: Limits) -> float:
-    """0 when every predicted angle ``theta`` (any shape) [rad] stays inside ``limits``' angle
-    range; else −:data:`ANGLE_PENALTY` × (1 + the excess [rad] beyond it, capped at 1000), so the
-    search, among sequences that leave the range, moves toward those that leave it least (a flat
-    penalty let it pick the most informative of them, which sent a rod over the top); a failed
-    replay (non-finite angle) scores below every finite excess."""
-    th = np.asarray(theta, dtype=float)
-    if not np.all(np.isfinite(th)):
+def angle_penalty(theta: np.ndarray, limits: Limits, margin: np.ndarray | float = 0.0) -> float:
+    """0 when every predicted angle ``theta`` (any shape) [rad], widened by ``margin`` [rad] (a
+    scalar or one per angle) on either side, stays inside ``limits``' angle range; else
+    −:data:`ANGLE_PENALTY` × (1 + the excess [rad] beyond it, capped at 1000), so the search, among
+    sequences that leave the range, moves toward those that leave it least (a flat penalty let it
+    pick the most informative of them, which sent a rod over the top); a failed replay (non-finite
+    angle or margin) scores below every finite excess."""
+    th, m = np.asarray(theta, dtype=float), np.asarray(margin, dtype=float)
+    if not (np.all(np.isfinite(th)) and np.all(np.isfinite(m))):
         return -ANGLE_PENALTY * 1002.0
-    excess = float(max(0.0, th.max() - limits.theta_max, limits.theta_min - th.min()))
+    excess = float(max(0.0, (th + m).max() - limits.theta_max, limits.theta_min - (th - m).min()))
     return 0.0 if excess == 0.0 else -ANGLE_PENALTY * (1.0 + min(excess, 1000.0))
 
 
@@ -68,12 +69,16 @@ def recorded_margin(limits: Limits, sigma_theta: float) -> float:
     return 0.5 * float(limits.quantum) + 2.0 * float(sigma_theta)
 
 
+def spread_cap(limits: Limits) -> float:
+    """The largest spread [rad] :func:`angle_margin` keeps: :data:`SPREAD_CAP` of the angle range.
+    A design whose spread exceeds it cannot assure its angle limits."""
+    return SPREAD_CAP * (limits.theta_max - limits.theta_min)
+
+
 def angle_margin(spread: np.ndarray | float, limits: Limits, sigma_theta: float) -> np.ndarray | float:
     """The margin [rad] a predicted angle keeps from the limits: its ``spread`` (1σ under what the
-    earlier recordings leave uncertain, capped at :data:`SPREAD_CAP` of the angle range) plus
-    :func:`recorded_margin`."""
-    cap = SPREAD_CAP * (limits.theta_max - limits.theta_min)
-    return np.minimum(spread, cap) + recorded_margin(limits, sigma_theta)
+    earlier recordings leave uncertain, capped at :func:`spread_cap`) plus :func:`recorded_margin`."""
+    return np.minimum(spread, spread_cap(limits)) + recorded_margin(limits, sigma_theta)
 
 
 #: The search's default length, in replay work: each rig replayed per sequence costs its samples
