@@ -66,15 +66,14 @@ def to_model_frame(rec: Recording, offset: float) -> Recording:
     )
 
 
-def _overlay(rig: Rig, diag: Any, rec: Recording, offset: float) -> dict[str, Any]:
+def _overlay(rig: Rig, diag: Any, rec: Recording, prep: Any, offset: float) -> dict[str, Any]:
     """Held-out replay of the nominal and the corrected rig (the one free run of every command,
-    :func:`aeropend_ident.greybox.replay.free_run`, as in the held-out table), θ in the recording's frame."""
+    :func:`aeropend_ident.greybox.replay.free_run`, as in the held-out table), θ in the recording's frame.
+    ``prep`` is the recording in the model frame, prepared for the replay
+    (:func:`aeropend_ident.gap.which.data.prepare`)."""
     from aeropend_ident.gap.effects import MeasurementMap
-    from aeropend_ident.gap.which.data import prepare as which_prepare
     from aeropend_ident.gap.which.metrics import one_free_run
 
-    shifted = to_model_frame(rec, offset)
-    prep = which_prepare([shifted], frozenset(diag.channels or ("theta",)))[0]
     runs = {"nominal": one_free_run(rig, MeasurementMap(), prep),
             "corrected": one_free_run(diag.corrected_rig, diag.measurement, prep)}
     theta = rec.channels["theta"]
@@ -442,8 +441,8 @@ def replay_held_out(run: GapRun, diag: Any) -> HeldOutReplay:
 
     run.say("after: replaying the held-out recordings; a plain refit of the nominal parameters to compare")
     rig, corrected, off, horizon = run.rig, diag.corrected_rig, run.theta_offset, run.options.horizon
-    overlays = [_overlay(rig, diag, r, off) for r in run.held_out]
     preps = which_prepare(run.held_out_m, frozenset(diag.channels or ("theta",)))
+    overlays = [_overlay(rig, diag, r, p, off) for r, p in zip(run.held_out, preps, strict=True)]
     test = [{"effects": [], **gap_metrics(rig, MeasurementMap(), preps)}]
     if diag.chosen:
         test.append({"effects": list(diag.chosen), **gap_metrics(corrected, diag.measurement, preps)})
