@@ -109,6 +109,20 @@ def slots_table() -> str:
     return "\n".join(rows)
 
 
+def states_table() -> str:
+    """The state vector: the chain's states in their fixed positions, then each effect's own."""
+    from aeropend_sim.components.states import CHAIN
+
+    rows = ["| index | state | symbol | unit | meaning | declared by |", "|---|---|---|---|---|---|"]
+    for k, st in enumerate(CHAIN):
+        rows.append(f"| {k} | `{st.name}` | {st.symbol} | {st.unit} | {_cell(st.description)} | the chain |")
+    for e in registry.effects():
+        for st in e.states:
+            rows.append(f"| after the chain's, when it acts | `{st.name}` | {st.symbol} | {st.unit} | "
+                        f"{_cell(st.description)} | `{e.name}` |")
+    return "\n".join(rows)
+
+
 def catalog_table() -> str:
     """The gap diagnosis' hypotheses (``aeropend_ident.gap.effects.catalog`` per family), by catalog order."""
     fams = [f.name for f in registry.families()]
@@ -127,7 +141,7 @@ def catalog_table() -> str:
 
 
 TABLES = {"families": families_table, "components": components_table, "effects": effects_table,
-          "parameters": params_table, "slots": slots_table}
+          "parameters": params_table, "slots": slots_table, "states": states_table}
 #: Tables of each docs file.
 FILES = {"model.md": TABLES, "gap.md": {"catalog": catalog_table}}
 

@@ -213,7 +213,8 @@ def test_a_switched_off_coulomb_friction_is_skipped_and_changes_nothing():
 def test_generated_module_calls_the_registry_terms():
     """No second copy of an equation: the module imports each term function of the family."""
     for fam in registry.families():
-        text = module_source(fam.name)
+        states = tuple(st.name for e in registry.family_effects(fam.name) for st in e.states)
+        text = module_source(fam.name, states)  # a rig with every effect state: every term
         for part in (*registry.family_parts(fam.name), *registry.family_effects(fam.name)):
             for term in part.terms:
                 assert f"from {term.fn.__module__} import {term.fn.__name__} as " in text, term.label

@@ -1,6 +1,7 @@
 """Aeropendulum plant model: the rig's components and effects as one state-space model.
 
-State vector ``x`` (shape (5,)), SI units:
+State vector ``x``, SI units: the state layout of the rig (:attr:`PlantModel.states`,
+:mod:`aeropend_sim.components.states`): the signal chain's five states in fixed positions,
 
 ====  ==========  =========  ===============================================================
 idx   symbol      unit       meaning
@@ -11,6 +12,10 @@ idx   symbol      unit       meaning
 3     ω₁          rad/s      rotor speed (motor side of the gearbox)
 4     τ_f         1          duty cycle after the first-order actuator lag (= τ without lag)
 ====  ==========  =========  ===============================================================
+
+then the own states of the effects acting on the rig, in their order (``motor_heating``: the
+winding's temperature rise T_m [K]). Indices come from the layout (``model.states.index("i_a")``);
+the constants :data:`THETA` … :data:`TAU_F` are the chain's fixed positions.
 
 Input ``u``: duty-cycle command τ ∈ [0, 1] (after the input delay, which the simulator applies
 by shifting the zero-order-hold input in time).
@@ -35,29 +40,15 @@ from functools import cached_property
 
 import numpy as np
 
-from aeropend_sim.components.assembly import (
-    I_A,
-    N_STATES,
-    OMEGA,
-    TAU_F,
-    THETA,
-    THETA_DOT,
-    Assembly,
-    AssemblyError,
-)
+from aeropend_sim.components.assembly import Assembly, AssemblyError
 from aeropend_sim.components.pendulum.rod import G
+from aeropend_sim.components.states import I_A, OMEGA, TAU_F, THETA, THETA_DOT, StateLayout
 from aeropend_sim.components.xp import MATH, NUMPY
 from aeropend_sim.params import Rig
 
-STATE_NAMES: tuple[str, ...] = ("theta", "theta_dot", "i_a", "omega_rotor", "tau_f")
-STATE_UNITS: tuple[str, ...] = ("rad", "rad/s", "A", "rad/s", "1")
-
 __all__ = [
     "I_A",
-    "N_STATES",
     "OMEGA",
-    "STATE_NAMES",
-    "STATE_UNITS",
     "TAU_F",
     "THETA",
     "THETA_DOT",
@@ -107,6 +98,8 @@ class PlantModel:
         The active components and effects, effective parameter values, terms per slot.
     lag, dynamic_current, hbridge, stops : bool
         Actuator lag active; armature current a state; H-bridge map on; end stops on.
+    states : StateLayout
+        The state vector (module doc): ``states.size`` entries, ``states.index(name)``.
     delay : float
         Input delay T_d [s] (0 when off), applied by the simulator.
     """
@@ -118,6 +111,7 @@ class PlantModel:
         self.family = rig.family
         self.lag = a.lag
         self.dynamic_current = a.dynamic_current
+        self.states: StateLayout = a.states
         self.hbridge = a.has("hbridge_map")
         self.stops = a.has("end_stops")
         self.delay = a.values["actuator.input_delay"]
@@ -214,10 +208,11 @@ class PlantModel:
         return float(self.assembly.point(MATH, [float(v) for v in x], float(u))["i_a"])
 
     def outputs(self, x: np.ndarray, u: np.ndarray) -> dict[str, np.ndarray]:
-        """Noise-free channels of the family for states x (N, 5) and actuator-side inputs u (N,).
+        """Noise-free channels of the family for states x (N, n) and actuator-side inputs u (N,).
 
-        Keys: ``theta``, ``theta_dot``, ``omega_rotor``, ``omega_prop``, ``thrust`` and, for the
-        voltage-driven families, ``i_a`` and ``v_a`` (absent on an ESC, not zeros).
+        Keys: ``theta``, ``theta_dot``, ``omega_rotor``, ``omega_prop``, ``thrust``, for the
+        voltage-driven families ``i_a`` and ``v_a`` (absent on an ESC, not zeros), and each effect
+        state by name (``T_m``).
         """
         x = np.asarray(x, dtype=float)
         u = np.asarray(u, dtype=float)
@@ -228,17 +223,19 @@ class PlantModel:
         if self.assembly.armature:
             out["i_a"] = x[:, I_A].copy() if self.dynamic_current else np.asarray(p["i_a"], dtype=float)
             out["v_a"] = np.asarray(p["v_a"], dtype=float) + 0.0 * u
+        for st in self.states.extra:
+            out[st.name] = x[:, self.states.index(st.name)].copy()
         return out
 
     # ------------------------------------------------------------------ dynamics
     @cached_property
     def rhs(self) -> Callable[[float, np.ndarray | list[float], float], list[float]]:
-        """The state derivative function ``rhs(t, x, u)`` -> dx/dt (list of 5 floats; see module doc),
-        generated for this rig on first use (:attr:`Assembly.rhs`) and then an attribute of the
+        """The state derivative function ``rhs(t, x, u)`` -> dx/dt (list of ``states.size`` floats; see
+        module doc), generated for this rig on first use (:attr:`Assembly.rhs`) and then an attribute of the
         instance (no property call per evaluation: ODE solvers call it directly).
 
         Its arguments: ``t`` [s], the time (unused: the model is time invariant; kept for ODE
-        solvers); ``x``, array_like of shape (5,), the state; ``u``, the duty cycle τ in [0, 1]
+        solvers); ``x``, array_like of shape (n,), the state; ``u``, the duty cycle τ in [0, 1]
         reaching the actuator (after the input delay).
         """
         return self.assembly.rhs
@@ -253,7 +250,7 @@ class PlantModel:
 
     def jacobian(self, x: np.ndarray | list[float], u: float,
                  dry_friction: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """Linearisation A = ∂f/∂x (5×5), B = ∂f/∂u (5×1) at (x, u).
+        """Linearisation A = ∂f/∂x (n×n), B = ∂f/∂u (n×1) at (x, u), n = ``states.size``.
 
         The chain rule over each active term's partial derivatives (declared with the term, or a
         documented central difference of it). Used for small-signal design (thesis Eq. 6.3);
@@ -286,7 +283,8 @@ class PlantModel:
 
         Returns
         -------
-        x_eq : ndarray, shape (5,)
+        x_eq : ndarray, shape (n,)
+            The effects' own states at their initial values (:meth:`Assembly.steady_state`).
         tau_eq : float
 
         Raises

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from aeropend_sim.components import registry
+from aeropend_sim.components.states import N_CHAIN, THETA
 from aeropend_sim.contract import ContractError, Sample, validate_duty
 from aeropend_sim.params import Rig, RigFileError, load_rig
 from aeropend_sim.simulation import PlantStepper
@@ -138,7 +139,8 @@ def _float_param(name: str, value: Any) -> float:
 
 
 def parse_initial_state(initial_theta: Any, initial_state: Any) -> np.ndarray:
-    """Initial plant state x0 (shape (5,): θ [rad], θ̇ [rad/s], i_a [A], ω₁ [rad/s], τ_f [1]).
+    """Initial plant state x0: the signal chain's five states (shape (5,): θ [rad], θ̇ [rad/s], i_a [A],
+    ω₁ [rad/s], τ_f [1]); an effect's own state (a winding temperature) starts at its initial value.
 
     Parameters
     ----------
@@ -155,8 +157,8 @@ def parse_initial_state(initial_theta: Any, initial_state: Any) -> np.ndarray:
     """
     theta = 0.0 if initial_theta is None else _float_param("initial_theta", initial_theta)
     if initial_state is None or (not isinstance(initial_state, str) and len(initial_state) == 0):
-        x0 = np.zeros(5)
-        x0[0] = theta
+        x0 = np.zeros(N_CHAIN)
+        x0[THETA] = theta
         return x0
     if isinstance(initial_state, str):
         raise SimConfigError(f"initial_state = {initial_state!r} must be a list of 5 numbers")
@@ -164,7 +166,7 @@ def parse_initial_state(initial_theta: Any, initial_state: Any) -> np.ndarray:
         x0 = np.asarray([float(v) for v in initial_state], dtype=float)
     except (TypeError, ValueError) as exc:
         raise SimConfigError(f"initial_state = {list(initial_state)!r} must be a list of 5 numbers") from exc
-    if x0.shape != (5,):
+    if x0.shape != (N_CHAIN,):
         raise SimConfigError(
             f"initial_state has {x0.size} value(s) {x0.tolist()}; expected 5: "
             "[theta rad, theta_dot rad/s, i_a A, omega_rotor rad/s, tau_f 1]"
@@ -173,9 +175,9 @@ def parse_initial_state(initial_theta: Any, initial_state: Any) -> np.ndarray:
         raise SimConfigError(
             f"initial_state = {x0.tolist()} has non-finite value(s); expected 5 finite numbers"
         )
-    if theta != 0.0 and theta != x0[0]:
+    if theta != 0.0 and theta != x0[THETA]:
         raise SimConfigError(
-            f"initial_theta = {theta:g} conflicts with initial_state[0] = {x0[0]:g}; give only one"
+            f"initial_theta = {theta:g} conflicts with initial_state[0] = {x0[THETA]:g}; give only one"
         )
     return x0
 

@@ -31,7 +31,8 @@ import numpy as np
 from scipy.integrate import odeint
 
 from aeropend_sim.compiled.plant import MAX_SUBSTEPS, CompiledPlant
-from aeropend_sim.model import I_A, N_STATES, TAU_F, PlantModel, plant_model
+from aeropend_sim.components.states import N_CHAIN
+from aeropend_sim.model import I_A, TAU_F, PlantModel, plant_model
 from aeropend_sim.params import Rig
 
 #: ODE tolerances (relative, absolute) of the LSODA backend.
@@ -71,12 +72,26 @@ def _check_backend(backend: str) -> str:
     return backend
 
 
-def _check_state(x0: np.ndarray | None) -> np.ndarray:
-    if x0 is None:
-        return np.zeros(N_STATES)
-    x = np.asarray(x0, dtype=float).copy()
-    if x.shape != (N_STATES,) or not np.isfinite(x).all():
-        raise SimulationError(f"initial state must be 5 finite numbers, got {x0!r}")
+def _check_state(model: PlantModel, x0: Any, rows: int | None = None) -> np.ndarray:
+    """The whole initial state (n,) (``rows``: (rows, n), one given row repeated) of ``x0``: None
+    (at rest: every state at its initial value), the rig's states, or the chain's five (the
+    effects' states then at their initial values, :meth:`StateLayout.complete`)."""
+    st = model.states
+    x = st.initial() if x0 is None else np.array(x0, dtype=float)
+    try:
+        x = st.complete(x, "initial state" if rows is None else "initial states").copy()
+    except ValueError as exc:
+        raise SimulationError(f"{exc}, finite numbers") from None
+    if rows is not None:
+        x = np.repeat(x[None, :], rows, axis=0) if x.ndim == 1 else x
+        if x.shape != (rows, st.size):
+            raise SimulationError(f"initial states of shape {np.shape(x0)}: expected ({st.size},) or "
+                                  f"({rows}, {st.size}) (or the chain's {N_CHAIN} states per row), finite "
+                                  "numbers")
+    elif x.ndim != 1:
+        raise SimulationError(f"initial state of shape {x.shape}: expected ({st.size},) {list(st.names)}")
+    if not np.isfinite(x).all():
+        raise SimulationError(f"initial state must be finite numbers, got {x0!r}")
     return x
 
 
@@ -84,9 +99,10 @@ def _check_state(x0: np.ndarray | None) -> np.ndarray:
 class Trajectory:
     """Result of :func:`simulate`; arrays of shape (N,) at the sample instants t_k.
 
-    ``x`` holds the true state (N, 5); the channel arrays are what the acquisition measures
-    (noise and quantisation applied when switched on); ``true`` holds the noise-free channels.
-    ``i_a`` and ``v_a`` are None for a family without an armature (``esc``): absent, not zeros.
+    ``x`` holds the true state (N, n) (the rig's :class:`StateLayout`); the channel arrays are what
+    the acquisition measures (noise and quantisation applied when switched on); ``true`` holds the
+    noise-free channels. ``i_a`` and ``v_a`` are None for a family without an armature (``esc``):
+    absent, not zeros.
     """
 
     t: np.ndarray
@@ -117,7 +133,7 @@ class Trajectory:
 
 def _outputs(model: PlantModel, x: np.ndarray, u_eff: np.ndarray, u_before: np.ndarray
              ) -> dict[str, np.ndarray]:
-    """Noise-free channels for states x (N, 5) and actuator-side inputs u_eff (N,) at the samples;
+    """Noise-free channels for states x (N, n) and actuator-side inputs u_eff (N,) at the samples;
     a quasi-static armature current is the one of the input held just before (``u_before``, as
     :func:`aeropend_sim.compiled.kernels.outputs`)."""
     out = model.outputs(x, u_eff)
@@ -205,8 +221,10 @@ def simulate(
         Parameters and effects.
     duty : ndarray, shape (N,)
         Duty cycle τ_k ∈ [0, 1] held over [k·dt, (k+1)·dt).
-    x0 : ndarray, shape (5,), optional
-        Initial state (default: at rest, hanging down, motor off).
+    x0 : ndarray, shape (n,) or (5,), optional
+        Initial state (default: at rest, hanging down, motor off): the rig's n states
+        (``plant_model(rig).states``), or the chain's five, the effects' own states then at their
+        initial values (a heated winding at ambient temperature).
     dt : float, optional
         Sample period [s] (default ``rig.sample_period``).
     seed : int or None
@@ -230,11 +248,11 @@ def simulate(
         a compiled replay that diverges (naming the sample).
     """
     duty = _check_duty(duty)
-    x = _check_state(x0)
     dt = float(rig.sample_period if dt is None else dt)
     if not dt > 0.0:
         raise SimulationError(f"sample period dt = {dt!r} must be > 0")
     model = plant_model(rig)
+    x = _check_state(model, x0)
     if _check_backend(backend) == "compiled":
         plant = CompiledPlant(rig, dt, model=model)
         states, u, failed = plant.replay(duty, x, tau_before)
@@ -275,11 +293,11 @@ def _check_replay(plant: CompiledPlant, failed: int, p: np.ndarray | None = None
 
 def _replay_lsoda(model: PlantModel, duty: np.ndarray, x: np.ndarray, dt: float,
                   tau_before: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """States (N, 5), actuator-side commands (N,) at the samples and those just before them, LSODA
+    """States (N, n), actuator-side commands (N,) at the samples and those just before them, LSODA
     over each stretch of constant delayed input."""
     n = duty.size
     edges, values = _delayed_segments(duty, dt, model.delay, tau_before)
-    states = np.empty((n, N_STATES))
+    states = np.empty((n, model.states.size))
     u_at_sample = np.empty(n)
     u_before = np.empty(n)
     u_prev = float(tau_before)
@@ -344,8 +362,9 @@ def simulate_batch(
     params : mapping or ndarray
         ``{"section.name": values (B,)}`` (an effect's parameter only when the effect is on in the
         rig), or parameter vectors (B, P) from :meth:`CompiledPlant.vectors`.
-    x0 : ndarray, shape (5,) or (B, 5), optional
-        Initial state(s) (default at rest).
+    x0 : ndarray, shape (n,) or (B, n), optional
+        Initial state(s) (default at rest); the chain's five states per row also do (the effects'
+        own states then at their initial values).
     dt : float, optional
         Sample period [s] (default: the rig's, or the plant's).
     tau_before : float
@@ -384,11 +403,7 @@ def simulate_batch(
         p = np.asarray(params, dtype=float)
         if p.ndim != 2 or p.shape[1] != plant.layout.size:
             raise SimulationError(f"parameter vectors of shape {p.shape}: expected (B, {plant.layout.size})")
-    xs = np.zeros((p.shape[0], N_STATES)) if x0 is None else np.asarray(x0, dtype=float)
-    xs = np.repeat(xs[None, :], p.shape[0], axis=0) if xs.shape == (N_STATES,) else xs
-    if xs.shape != (p.shape[0], N_STATES) or not np.isfinite(xs).all():
-        raise SimulationError(f"initial states of shape {np.shape(x0)}: expected 5 or ({p.shape[0]}, 5) "
-                              "finite numbers")
+    xs = _check_state(plant.model, x0, rows=p.shape[0])
     try:
         out, failed = plant.replay_batch(duty, p, np.ascontiguousarray(xs), tau_before, tuple(channels),
                                          threads)
@@ -409,8 +424,8 @@ class PlantStepper:
     Parameters
     ----------
     rig : Rig
-    x0 : ndarray, shape (5,), optional
-        Initial state (default at rest).
+    x0 : ndarray, shape (n,) or (5,), optional
+        Initial state (default at rest), as :func:`simulate` takes it.
     seed : int or None
         Seed of the measurement noise.
     backend : str
@@ -425,7 +440,7 @@ class PlantStepper:
         self.backend = _check_backend(backend)
         plant = CompiledPlant(rig, self.dt, model=model) if backend == "compiled" else None
         self._now: tuple[CompiledPlant | None, PlantModel, Rig] = (plant, model, rig)
-        self.x = _check_state(x0)
+        self.x = _check_state(model, x0)
         self.k = 0
         self.rng = np.random.default_rng(seed)
         n_delay = self.model.delay / self.dt
@@ -461,6 +476,13 @@ class PlantStepper:
             raise ValueError(f"input delay {model.delay} s differs from the running {self.model.delay} s "
                              "(it sizes the command delay line)")
         plant = CompiledPlant(rig, self.dt, model=model) if self.backend == "compiled" else None
+        old = self.model.states
+        if model.states != old:  # an effect with a state of its own switched: keep the common states
+            x = model.states.initial()
+            for k, name in enumerate(model.states.names):
+                if name in old.names:
+                    x[k] = self.x[old.index(name)]
+            self.x = x
         # one assignment: a concurrent step reads the old or the new (plant, model, rig), never a mix
         self._now = (plant, model, rig)
 

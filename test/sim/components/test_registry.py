@@ -39,6 +39,7 @@ ROWS: dict[str, dict[str, float]] = {
     "sensor_noise": {"sensors.snr_db": 30.0},
     "quantisation": {"sensors.theta_quantum": 0.01},
     "rotor_coulomb_friction": {"motor.T_c": 4e-4},
+    "motor_heating": {"motor.alpha_R": 3.93e-3, "motor.R_th": 20.0, "motor.C_th": 0.2},
 }
 
 CASES = [(f.name, e.name) for f in registry.families() for e in registry.family_effects(f.name)]
@@ -83,7 +84,8 @@ def test_registry_is_consistent():
     for part in registry.parts():
         assert part.label and part.description, part.name
         for term in part.terms:
-            assert term.slot in SLOTS and set(term.inputs) <= set(SLOT_INPUTS[term.slot]), term.label
+            assert term.slot in SLOTS, term.label
+            assert set(term.inputs) - set(term.states) <= set(SLOT_INPUTS[term.slot]), term.label
             for a in term.param_names:
                 names = {p.partition(".")[2] for p in registry.params()}
                 assert a in names, f"{term.label}: unknown parameter {a}"
@@ -131,7 +133,8 @@ def test_effect_acts_is_absent_when_absent_and_linearises(family, effect):
     rng = np.random.default_rng(1)
     for _ in range(4):
         x = np.array([rng.uniform(0.05, 0.45), rng.uniform(-1.0, 1.0), rng.uniform(0.05, 0.5),
-                      rng.uniform(50.0, 300.0), rng.uniform(0.2, 0.8)])
+                      rng.uniform(50.0, 300.0), rng.uniform(0.2, 0.8),
+                      *(rng.uniform(0.0, st.typical) for st in m.states.extra)])
         u = float(rng.uniform(0.2, 0.8))
         A, B = m.jacobian(x, u)
         A_fd, B_fd = _fd(m, x, u)
@@ -140,9 +143,10 @@ def test_effect_acts_is_absent_when_absent_and_linearises(family, effect):
 
 
 def _fd(m: PlantModel, x: np.ndarray, u: float, h: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
-    A = np.zeros((5, 5))
-    for j in range(5):
-        d = np.zeros(5)
+    n = m.states.size
+    A = np.zeros((n, n))
+    for j in range(n):
+        d = np.zeros(n)
         d[j] = h * max(1.0, abs(x[j]))
         A[:, j] = (np.array(m.rhs(0, x + d, u)) - np.array(m.rhs(0, x - d, u))) / (2 * d[j])
     B = ((np.array(m.rhs(0, x, u + h)) - np.array(m.rhs(0, x, u - h))) / (2 * h))[:, None]

@@ -101,7 +101,7 @@ from aeropend_ident.io.recording_input import uniform_recording
 from aeropend_sim.compiled.plant import CompiledPlant
 from aeropend_sim.components import registry
 from aeropend_sim.components.xp import NUMPY
-from aeropend_sim.model import I_A, OMEGA, TAU_F, ModelError, PlantModel, plant_model
+from aeropend_sim.model import I_A, OMEGA, TAU_F, THETA, THETA_DOT, ModelError, PlantModel, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulation import SimulationError, simulate
@@ -233,18 +233,18 @@ def _refine_initial_state(
     x = x0.copy()
     steps = (1e-4, 1e-3)
     for _ in range(2):
-        base = _simulate(rig, part, x).x[:, 0] - offset
+        base = _simulate(rig, part, x).x[:, THETA] - offset
         r = data.theta[:k] - base
         jac = np.empty((k, 2))
         for j, h in enumerate(steps):
             xp = x.copy()
-            xp[j] += h
-            jac[:, j] = (_simulate(rig, part, xp).x[:, 0] - offset - base) / h
+            xp[(THETA, THETA_DOT)[j]] += h
+            jac[:, j] = (_simulate(rig, part, xp).x[:, THETA] - offset - base) / h
         delta, *_ = np.linalg.lstsq(jac, r, rcond=None)
         if not np.all(np.isfinite(delta)):
             break
-        x[0] += delta[0]
-        x[1] += delta[1]
+        x[THETA] += delta[0]
+        x[THETA_DOT] += delta[1]
     return x
 
 
@@ -269,14 +269,14 @@ def _short_horizon(
     for k in range(0, n, h):
         stop = min(n, k + h)
         x0 = states[k].copy()
-        x0[0] = data.theta[k] + offset
-        x0[1] = theta_rate[k]
+        x0[THETA] = data.theta[k] + offset
+        x0[THETA_DOT] = theta_rate[k]
         if omega is not None:
             x0[OMEGA] = omega[k]
         if "i_a" in ch and model.dynamic_current:
             x0[I_A] = ch["i_a"][k]
         if stop - k < 2:
-            pred[k] = x0[0]
+            pred[k] = x0[THETA]
             continue
         x, _u, failed = plant.replay(np.ascontiguousarray(data.duty[k:stop]), x0,
                                      float(data.duty[k - 1]) if k else 0.0)
@@ -284,7 +284,7 @@ def _short_horizon(
             raise GapInputError(
                 f"short-horizon simulation of {data.source} at t = {data.t[k]:.3f} s failed: the replay "
                 f"diverged at sample {failed} of the window (a state is not finite)")
-        pred[k:stop] = x[:, 0]
+        pred[k:stop] = x[:, THETA]
     return pred - offset
 
 
@@ -509,13 +509,13 @@ def _equations(
 
 
 def _free_run_start(rig: Rig, data: Any, ch: dict[str, np.ndarray], theta_offset: float) -> np.ndarray:
-    """The free run's initial state (N_STATES,): from the first samples, the motor at the steady
-    state of the first duty, the recorded rate, rotor speed and (dynamic armature) current where
-    logged, then θ, θ̇ refined over :data:`INIT_WINDOW`."""
+    """The free run's initial state (n,) of the rig's state layout: from the first samples, the
+    motor at the steady state of the first duty, the recorded rate, rotor speed and (dynamic
+    armature) current where logged, then θ, θ̇ refined over :data:`INIT_WINDOW`."""
     from aeropend_ident.greybox.fit import initial_state
 
     x0 = initial_state(rig, data.theta, data.duty, data.dt, theta_offset)
-    x0[1] = ch["theta_dot"][0] if "theta_dot" in ch else initial_velocity(data.theta, data.dt)
+    x0[THETA_DOT] = ch["theta_dot"][0] if "theta_dot" in ch else initial_velocity(data.theta, data.dt)
     if "omega_rotor" in ch or "omega_prop" in ch:
         x0[OMEGA] = (
             ch["omega_rotor"][0] if "omega_rotor" in ch else ch["omega_prop"][0] * rig.motor.gear_ratio
@@ -577,7 +577,7 @@ def locate_recording(
     rate = measured_rate(data.theta, dt)
     traj = _simulate(rig, data, _free_run_start(rig, data, ch, theta_offset))
     states = traj.x
-    theta_free = states[:, 0] - theta_offset
+    theta_free = states[:, THETA] - theta_offset
     omega = ch.get("omega_rotor")
     if omega is None and "omega_prop" in ch:
         omega = ch["omega_prop"] * rig.motor.gear_ratio

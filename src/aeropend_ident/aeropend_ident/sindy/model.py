@@ -23,7 +23,7 @@ import yaml
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.sindy.libraries import CandidateLibrary, symbol
 from aeropend_sim.compiled.plant import derivatives as model_rhs_at
-from aeropend_sim.model import N_STATES, plant_model
+from aeropend_sim.model import TAU_F, plant_model
 from aeropend_sim.params import Rig
 
 #: Target state -> readable left-hand side.
@@ -48,7 +48,8 @@ TARGET_INFO: dict[str, tuple[str, str]] = {
 ZOH_INPUTS = ("v_a", "duty")
 
 
-#: Model state order of :mod:`aeropend_sim.model` (τ_f is the duty cycle without actuator lag).
+#: The model's states that have an equation here (names of the rig's state layout,
+#: :mod:`aeropend_sim.components.states`; τ_f is the duty cycle without actuator lag).
 _MODEL_STATES = ("theta", "theta_dot", "i_a", "omega_rotor")
 
 
@@ -167,9 +168,9 @@ def data_from_trajectory(traj: Any, rig: Rig | None = None, measured: bool = Fal
         if rig is None:
             raise IdentificationError("exact_derivatives needs the rig that produced the trajectory")
         model = plant_model(rig)
-        u = traj.x[:, 4] if not model.lag else traj.duty
+        u = traj.x[:, TAU_F] if not model.lag else traj.duty
         f = model_rhs_at(model, traj.x, u)[0]  # model.rhs at each sample, bit for bit, compiled
-        derivatives = {k: f[:, i].copy() for i, k in enumerate(_MODEL_STATES)}
+        derivatives = {k: f[:, model.states.index(k)].copy() for k in _MODEL_STATES}
     return IdentData(t=np.asarray(traj.t, dtype=float).copy(), variables=variables,
                      derivatives=derivatives, source=source)
 
@@ -186,10 +187,13 @@ def model_derivatives(rig: Rig, data: IdentData, targets: Sequence[str]) -> dict
         cannot be reconstructed from the data).
     """
     model = plant_model(rig)
-    if model.lag or model.delay > 0:
+    st = model.states
+    if model.lag or model.delay > 0 or st.extra:
+        hidden = ", ".join(["actuator lag / input delay"] * (model.lag or model.delay > 0)
+                           + [f"{s.name} ({s.description})" for s in st.extra])
         raise IdentificationError(
-            f"rig {rig.name}: actuator lag / input delay switched on; the discrepancy model needs a "
-            "model whose state is in the data"
+            f"rig {rig.name}: {hidden} switched on; the discrepancy model needs a model whose state is "
+            "in the data"
         )
     need = ["theta", "theta_dot", "omega_rotor", "duty"] + (["i_a"] if model.dynamic_current else [])
     missing = [v for v in need if v not in data.variables]
@@ -199,13 +203,12 @@ def model_derivatives(rig: Rig, data: IdentData, targets: Sequence[str]) -> dict
             f"{sorted(data.variables)}"
         )
     v = data.variables
-    x = np.zeros((len(data), N_STATES))
-    x[:, 0], x[:, 1], x[:, 3] = v["theta"], v["theta_dot"], v["omega_rotor"]
-    if model.dynamic_current:
-        x[:, 2] = v["i_a"]
-    x[:, 4] = v["duty"]
+    x = np.zeros((len(data), st.size))
+    for name in ("theta", "theta_dot", "omega_rotor") + (("i_a",) if model.dynamic_current else ()):
+        x[:, st.index(name)] = v[name]
+    x[:, TAU_F] = v["duty"]
     f = model_rhs_at(model, x, v["duty"])[0]  # model.rhs at each sample, bit for bit, compiled
-    return {k: f[:, _MODEL_STATES.index(k)] for k in targets}
+    return {k: f[:, st.index(k)] for k in targets}
 
 
 def input_step_mask(data: IdentData, width: int) -> np.ndarray:

@@ -35,7 +35,7 @@ from aeropend_sim.compiled.source import Layout, family_module, layout
 from aeropend_sim.components import registry
 from aeropend_sim.components.assembly import effect_active
 from aeropend_sim.components.base import Effect
-from aeropend_sim.model import I_A, THETA, THETA_DOT, ModelError, PlantModel, plant_model
+from aeropend_sim.model import THETA, THETA_DOT, ModelError, PlantModel, plant_model
 from aeropend_sim.params import Rig, RigFileError
 
 #: Fewest RK4 sub-steps per sample (issue 37 study: K = 6 at the thesis rig's 2.048 ms keeps θ
@@ -167,7 +167,8 @@ class CompiledPlant:
                              "(RK4's stability bound on the negative real axis)")
         self.step_bound = float(step_bound)
         self.layout: Layout = layout(rig.family)
-        self.module = family_module(rig.family)
+        self.states = self.model.states
+        self.module = family_module(rig.family, tuple(st.name for st in self.states.extra))
         self.p = self.layout.vector(self.model.assembly)
         self._probe_x, self._probe_u = _probes(self.model)
         self._delay = self.layout.index("actuator.input_delay")
@@ -280,7 +281,7 @@ class CompiledPlant:
     # ------------------------------------------------------------------ replays
     def replay(self, duty: np.ndarray, x0: np.ndarray, tau_before: float = 0.0,
                p: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, int]:
-        """States (N, 5) at the sample instants, the commands (2, N) the actuator sees there and
+        """States (N, n) at the sample instants, the commands (2, N) the actuator sees there and
         just before (:meth:`outputs` takes them), and -1 or the first sample whose state is not
         finite.
 
@@ -288,7 +289,8 @@ class CompiledPlant:
         ----------
         duty : ndarray, shape (N,)
             Validated duty cycles.
-        x0 : ndarray, shape (5,)
+        x0 : ndarray, shape (n,)
+            The whole state (:attr:`states`).
         tau_before : float
             Command the actuator sees before the first delayed command.
         p : ndarray, shape (P,), optional
@@ -296,7 +298,7 @@ class CompiledPlant:
         """
         plan = self.plan if p is None else self.plans(p[None, :])
         p = self.p if p is None else p
-        states = np.empty((duty.size, 5))
+        states = np.empty((duty.size, self.states.size))
         u_at = np.empty(duty.size)
         u_before = np.empty(duty.size)
         failed = self.module.replay(x0, duty, float(tau_before), *plan.row(0), p, states, u_at, u_before)
@@ -333,7 +335,7 @@ class CompiledPlant:
 
     def replay_batch(self, duty: np.ndarray, p: np.ndarray, x0: np.ndarray, tau_before: float,
                      names: Sequence[str], threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Channels (B, C, N) of one replay per row of ``p`` (B, P) from ``x0`` (B, 5), and the
+        """Channels (B, C, N) of one replay per row of ``p`` (B, P) from ``x0`` (B, n), and the
         failure index per row (-1: none).
 
         The rows are split into ``threads`` contiguous ranges (default: one per available core, at
@@ -378,14 +380,14 @@ def derivatives(model: PlantModel, x: Any, u: Any) -> tuple[np.ndarray, np.ndarr
     Parameters
     ----------
     model : PlantModel
-    x : array_like, shape (N, 5)
-        States.
+    x : array_like, shape (N, n)
+        States (``model.states``).
     u : array_like, shape (N,)
         Duty cycles τ reaching the actuator (after the input delay).
 
     Returns
     -------
-    f : ndarray, shape (N, 5)
+    f : ndarray, shape (N, n)
         dx/dt in the state's units per second.
     drive : ndarray, shape (N,)
         The drive quantity at each row: v_a [V] of the voltage families, the ESC's rotor-speed
@@ -394,33 +396,40 @@ def derivatives(model: PlantModel, x: Any, u: Any) -> tuple[np.ndarray, np.ndarr
     Raises
     ------
     ValueError
-        On shapes other than (N, 5) and (N,).
+        On shapes other than (N, n) and (N,).
     """
     x = np.ascontiguousarray(x, dtype=float)
     u = np.ascontiguousarray(u, dtype=float)
-    if x.ndim != 2 or x.shape[1] != 5 or u.shape != (x.shape[0],):
-        raise ValueError(f"states of shape {x.shape} and commands of shape {u.shape}: expected (N, 5) and "
+    n = model.states.size
+    if x.ndim != 2 or x.shape[1] != n or u.shape != (x.shape[0],):
+        raise ValueError(f"states of shape {x.shape} and commands of shape {u.shape}: expected (N, {n}) and "
                          "(N,)")
-    f = np.empty((x.shape[0], 5))
+    f = np.empty((x.shape[0], n))
     drive = np.empty(x.shape[0])
-    family_module(model.family).derivatives(x, u, layout(model.family).vector(model.assembly), f, drive)
+    module = family_module(model.family, tuple(st.name for st in model.states.extra))
+    module.derivatives(x, u, layout(model.family).vector(model.assembly), f, drive)
     return f, drive
 
 
 def _codes(model: PlantModel) -> dict[str, int]:
-    """Channel name -> output code of the family (kernels' CODE_* constants). A dynamic armature
-    current is its state, read directly; only a quasi-static one is the derived CODE_I_A (computed
-    from the command held before the instant, :func:`aeropend_sim.compiled.kernels.outputs`)."""
-    codes = {"theta": 0, "theta_dot": 1, "omega_rotor": 3, "tau_f": 4, "omega_prop": 7, "thrust": 8,
-             model.assembly.drive_name: 5}
+    """Channel name -> output code of the rig (kernels' CODE_* constants): a state's code is its
+    index in the layout, the derived channels follow the state. A dynamic armature current is its
+    state, read directly; only a quasi-static one is the derived CODE_I_A (computed from the command
+    held before the instant, :func:`aeropend_sim.compiled.kernels.outputs`)."""
+    st = model.states
+    n = st.size
+    codes = {name: st.index(name) for name in ("theta", "theta_dot", "omega_rotor", "tau_f")}
+    codes.update({model.assembly.drive_name: n, "omega_prop": n + 2, "thrust": n + 3})
     if model.assembly.armature:
-        codes["i_a"] = I_A if model.dynamic_current else 6
+        codes["i_a"] = st.index("i_a") if model.dynamic_current else n + 1
+    codes.update({s.name: st.index(s.name) for s in st.extra})
     return codes
 
 
 def _probes(model: PlantModel) -> tuple[np.ndarray, np.ndarray]:
-    """Representative states (R, 5) and commands (R,) of the stiffness estimate (module doc)."""
-    xs = [np.zeros(5), np.zeros(5)]
+    """Representative states (R, n) and commands (R,) of the stiffness estimate (module doc)."""
+    rest = model.states.initial()
+    xs = [rest, rest.copy()]
     us = [0.0, 1.0]
     for theta in PROBE_ANGLES:
         try:
@@ -433,7 +442,7 @@ def _probes(model: PlantModel) -> tuple[np.ndarray, np.ndarray]:
     if model.stops:
         for side, sign in (("pendulum.theta_max", 1.0), ("pendulum.theta_min", -1.0)):
             if math.isfinite(values[side]):
-                x = np.zeros(5)
+                x = rest.copy()
                 x[THETA] = values[side] + sign * 0.01
                 x[THETA_DOT] = sign * 0.1
                 xs.append(x)

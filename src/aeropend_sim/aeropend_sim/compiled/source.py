@@ -21,8 +21,10 @@ of an equation). Which of them act is data in ``p``:
   summed effect cost it 1.17-1.21×). Skipping changes no value (at most the sign of an exact zero
   sum).
 
-So a rig compiles once per machine whatever its switches (three modules in all: one per family),
-and a new parameter set or effect selection never recompiles. The source is written by the same
+So a rig compiles once per machine whatever its switches (one module per family, and one more
+per set of effect states a rig of it has: an effect with a state of its own, ``motor_heating``,
+lengthens the state the kernels integrate), and a new parameter set or effect selection never
+recompiles. The source is written by the same
 :func:`aeropend_sim.components.assembly.chain_source` as the LSODA right-hand side, followed by
 the integrator text of :mod:`.kernels`.
 
@@ -51,8 +53,9 @@ import numpy as np
 
 from aeropend_sim.compiled import kernels, xp_numba
 from aeropend_sim.components import registry
-from aeropend_sim.components.assembly import Assembly, AssemblyError, Wiring, chain_source
+from aeropend_sim.components.assembly import Assembly, AssemblyError, Wiring, chain_source, rates, state_args
 from aeropend_sim.components.base import SUM_SLOTS, Effect, Term
+from aeropend_sim.components.states import N_CHAIN
 
 #: Environment variable that moves the cache folder (default ``$XDG_CACHE_HOME/aeropend`` or
 #: ``~/.cache/aeropend``).
@@ -61,8 +64,6 @@ CACHE_ENV = "AEROPEND_CACHE_DIR"
 #: The line of :mod:`.kernels` after which its text goes into the generated modules.
 KERNELS_MARKER = "# ---- generated modules include the text below this line ----"
 
-#: Names of the state in the generated functions' arguments (the order of the state vector).
-STATE_ARGS = "theta, theta_dot, i_a, omega, tau_f"
 
 
 def switched_by_value(effect: Effect) -> bool:
@@ -146,9 +147,10 @@ def layout(family: str) -> Layout:
     return Layout(family, tuple(registry.family_params(family)), flags)
 
 
-def _wiring(family: str, lay: Layout, fn: Any) -> Wiring:
-    """Every term a rig of ``family`` can have, flagged effects behind their flags, parameters as
-    entries of ``p``."""
+def _wiring(family: str, lay: Layout, fn: Any, states: tuple[str, ...]) -> Wiring:
+    """Every term a rig of ``family`` with the effect states ``states`` can have, flagged effects
+    behind their flags, parameters as entries of ``p`` (a term that reads or drives a state not in
+    ``states`` belongs to an effect that is off on such a rig: left out)."""
     parts = sorted((*registry.family_parts(family), *registry.family_effects(family)),
                    key=lambda p: (p.order, p.name))
     slots: dict[str, list[tuple[Term, str | None]]] = {}
@@ -156,7 +158,8 @@ def _wiring(family: str, lay: Layout, fn: Any) -> Wiring:
         flagged = isinstance(part, Effect) and part.name in lay.flags
         guard = f"p[{lay.flag_index(part.name)}] != 0.0" if flagged else None
         for term in part.terms:
-            slots.setdefault(term.slot, []).append((term, guard))
+            if set(term.states) <= set(states) and (term.state is None or term.state in states):
+                slots.setdefault(term.slot, []).append((term, guard))
     ordered = {k: tuple(sorted(v, key=lambda tg: tg[0].order)) for k, v in slots.items()}
     fam = registry.family(family)
     armature = "armature" not in fam.lacks
@@ -166,7 +169,7 @@ def _wiring(family: str, lay: Layout, fn: Any) -> Wiring:
     position = {k.partition(".")[2]: i for i, k in enumerate(lay.keys)}
     return Wiring(armature=armature, drive=fam.drive, slots=ordered,
                   lag=(lag[-1][1] or True) if lag else False, dynamic_current=dynamic,
-                  arg=lambda name: f"p[{position[name]}]", fn=fn)
+                  arg=lambda name: f"p[{position[name]}]", fn=fn, states=states)
 
 
 def _stamp(module_name: str) -> str:
@@ -174,13 +177,30 @@ def _stamp(module_name: str) -> str:
     return f"# {module_name}: sha256 {hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]}"
 
 
-def _function(name: str, body: list[str], result: str) -> list[str]:
-    return ["", "", '@njit(error_model="numpy")',
-            f"def {name}({STATE_ARGS}, u, p):", *("    " + line for line in body), f"    return {result}"]
+def _function(name: str, states: tuple[str, ...], body: list[str], result: str) -> list[str]:
+    return ["", "", '@njit(error_model="numpy")', f"def {name}(x, u, p):",
+            f"    {state_args(states)} = x", *("    " + line for line in body), f"    return {result}"]
 
 
-def module_source(family: str) -> str:
-    """Text of the generated module of ``family`` (module doc).
+def _state_helpers(n: int) -> list[str]:
+    """The kernels' operations on a state held as a tuple of ``n`` floats (:mod:`.kernels`), each
+    written out entry by entry: the same floating-point operations as a hand-unrolled loop."""
+    def each(expr: str) -> str:
+        return "(" + ", ".join(expr.format(k=k) for k in range(n)) + ",)"
+
+    inline = '@njit(inline="always", error_model="numpy")'
+    total = " + ".join(f"x[{k}]" for k in range(n))
+    return ["", f"N_STATE = {n}",
+            "", "", inline, "def _axpy(x, h, a):", f"    return {each('x[{k}] + h * a[{k}]')}",
+            "", "", inline, "def _rk4_end(x, s, a, b, c, d):",
+            f"    return {each('x[{k}] + s * (a[{k}] + 2.0 * (b[{k}] + c[{k}]) + d[{k}])')}",
+            "", "", inline, "def _load(v):", f"    return {each('v[{k}]')}",
+            "", "", inline, "def _finite(x):", f"    return math.isfinite({total})"]
+
+
+def module_source(family: str, states: tuple[str, ...] = ()) -> str:
+    """Text of the generated module of ``family`` for rigs whose effects' own states are ``states``
+    (module doc).
 
     Raises
     ------
@@ -201,18 +221,20 @@ def module_source(family: str) -> str:
             imports.append(f'{n} = njit(error_model="numpy")(_py{n})')
         return names[id(term)]
 
-    w = _wiring(family, lay, fn)
+    w = _wiring(family, lay, fn, states)
     body = chain_source(w)
     contacts = [t for t, _ in w.slots.get("rod", ()) if t.contact]
     plain = all(set(t.inputs) <= {"theta", "theta_dot"} for t in contacts)
-    code = [*_function("rhs", body, "(theta_dot, dtheta_dot, di_a, domega, dtau_f)"),
-            *_function("contact", [] if plain else body, w.total("rod", contact=True)),
-            *_function("signals", body, f"(tau, {w.drive}, i_a, omega_prop, thrust)")]
+    code = [*_state_helpers(N_CHAIN + len(states)),
+            *_function("rhs", states, body, f"({rates(states)},)"),
+            *_function("contact", states, [] if plain else body, w.total("rod", contact=True)),
+            *_function("signals", states, body, f"(tau, {w.drive}, i_a, omega_prop, thrust)")]
     sources = sorted({t.fn.__module__ for part in (*registry.family_parts(family),
                                                     *registry.family_effects(family)) for t in part.terms})
     kernel_text = Path(kernels.__file__).read_text(encoding="utf-8").partition(KERNELS_MARKER)[2]
     head = [f'"""Generated by aeropend_sim.compiled.source for the {family} family: do not edit.',
-            "", f"p = ({', '.join(lay.keys)}) + flags ({', '.join(lay.flags)})", '"""',
+            "", f"x = ({state_args(states)})",
+            f"p = ({', '.join(lay.keys)}) + flags ({', '.join(lay.flags)})", '"""',
             f"# numba {numba.__version__}", *(_stamp(m) for m in (*sources, xp_numba.__name__)),
             "import math", "", "import numpy as np", "from numba import njit", "",
             "from aeropend_sim.compiled import xp_numba as _xp", *imports, "",
@@ -248,13 +270,15 @@ def _write(name: str, text: str) -> Path:
 
 
 @registry.derived  # a part registered later may change it
-def family_module(family: str) -> ModuleType:
-    """The imported generated module of ``family`` (written to :func:`cache_dir` if needed).
+def family_module(family: str, states: tuple[str, ...] = ()) -> ModuleType:
+    """The imported generated module of ``family`` for rigs with the effect states ``states`` (the
+    names after the chain's in their :class:`~aeropend_sim.components.states.StateLayout`; written
+    to :func:`cache_dir` if needed).
 
     Its functions (:mod:`.kernels`) compile on their first call in a machine's first process and
     load from numba's disk cache afterwards.
     """
-    text = module_source(family)
+    text = module_source(family, states)
     name = f"aeropend_{family}_{hashlib.sha256(text.encode()).hexdigest()[:16]}"
     if name in sys.modules:
         return sys.modules[name]

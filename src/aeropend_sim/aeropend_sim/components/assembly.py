@@ -42,11 +42,9 @@ from typing import Any
 import numpy as np
 
 from aeropend_sim.components import registry
-from aeropend_sim.components.base import Effect, Family, Part, Term
+from aeropend_sim.components.base import FD_STEP, Effect, Family, Part, Term
+from aeropend_sim.components.states import CHAIN, I_A, N_CHAIN, OMEGA, TAU_F, THETA, THETA_DOT, StateLayout
 from aeropend_sim.components.xp import MATH
-
-N_STATES = 5
-THETA, THETA_DOT, I_A, OMEGA, TAU_F = range(N_STATES)
 
 
 @lru_cache(maxsize=256)
@@ -86,6 +84,8 @@ class Wiring:
     arg : callable
         ``arg(name)`` -> source of the value of the parameter called ``name`` (a literal, a
         constant's name, ``p[3]``).
+    states : tuple of str
+        Variables of the effects' own states (after the chain's), each driven by its ``rate`` terms.
     fn : callable
         ``fn(term)`` -> name of the term's function in the generated namespace.
     xp : str
@@ -100,18 +100,22 @@ class Wiring:
     arg: Callable[[str], str]
     fn: Callable[[Term], str]
     xp: str = "_xp"
+    states: tuple[str, ...] = ()
 
     def call(self, term: Term) -> str:
         """Source of one call of ``term`` (inputs by their names, parameters by :attr:`arg`)."""
         args = [a if a in term.inputs else self.arg(a) for a in term.arguments]
         return f"{self.fn(term)}({self.xp}, {', '.join(args)})"
 
-    def total(self, slot: str, first: str | None = None, contact: bool | None = None) -> str:
+    def total(self, slot: str, first: str | None = None, contact: bool | None = None,
+              state: str | None = None) -> str:
         """Source of the sum of ``first`` and the slot's terms, in order (``contact``: only the
-        terms whose :attr:`Term.contact` equals it)."""
+        terms whose :attr:`Term.contact` equals it; ``state``: only the rate terms of that state)."""
         expr = first
         for term, guard in self.slots.get(slot, ()):
             if contact is not None and term.contact != contact:
+                continue
+            if state is not None and term.state != state:
                 continue
             call = self.call(term) if guard is None else f"({self.call(term)} if {guard} else 0.0)"
             expr = call if expr is None else f"({expr} + {call})"
@@ -144,13 +148,13 @@ def _one_of(w: Wiring, slot: str, target: str) -> list[str]:
 
 def chain_source(w: Wiring) -> list[str]:
     """Body lines of the plant's equations, from the names ``theta, theta_dot, i_a, omega, tau_f``
-    (the state) and ``u`` (the duty cycle reaching the actuator).
+    and :attr:`Wiring.states` (the state) and ``u`` (the duty cycle reaching the actuator).
 
     The lines define, in the order of the signal chain (module doc): ``dtau_f``, ``tau`` (after
-    the duty terms: τ_e), the drive quantity (:attr:`Wiring.drive`), ``i_a`` (redefined as the
-    algebraic current when the armature is quasi-static), ``di_a``, ``domega``, ``omega_prop``,
-    ``thrust`` and ``dtheta_dot``. The sums keep the terms' order (the order of floating-point
-    addition).
+    the duty terms: τ_e), the drive quantity (:attr:`Wiring.drive`), ``r_a`` (the armature
+    resistance), ``i_a`` (redefined as the algebraic current when the armature is quasi-static),
+    ``di_a``, ``domega``, ``omega_prop``, ``thrust``, ``dtheta_dot`` and ``d_<state>`` of each
+    effect state. The sums keep the terms' order (the order of floating-point addition).
     """
     lines: list[str] = []
     lag = w.slots.get("lag", ())
@@ -161,9 +165,10 @@ def chain_source(w: Wiring) -> list[str]:
     q = w.drive
     lines += _one_of(w, "drive", q)
     if w.armature:
-        r, la, jm = w.arg("R_a"), w.arg("L_a"), w.arg("J_m")
-        lines += _branch(w.dynamic_current, [f"di_a = {w.total('armature', f'({q} - {r} * i_a)')} / {la}"],
-                         [f"i_a = {w.total('armature', q)} / {r}", "di_a = 0.0"])
+        la, jm = w.arg("L_a"), w.arg("J_m")
+        lines += _one_of(w, "resistance", "r_a")
+        lines += _branch(w.dynamic_current, [f"di_a = {w.total('armature', f'({q} - r_a * i_a)')} / {la}"],
+                         [f"i_a = {w.total('armature', q)} / r_a", "di_a = 0.0"])
         lines.append(f"domega = {w.total('rotor_torque')} / {jm}")
     else:
         lines.append("di_a = 0.0")
@@ -171,7 +176,22 @@ def chain_source(w: Wiring) -> list[str]:
     lines += _one_of(w, "gear", "omega_prop")
     lines += _one_of(w, "thrust", "thrust")
     lines.append(f"dtheta_dot = {w.total('rod')}")
+    lines += [f"d_{v} = {w.total('rate', state=v)}" for v in w.states]
     return lines
+
+
+#: Names :func:`chain_source` gives the derivatives of the chain's states, in their order.
+CHAIN_RATES = ("theta_dot", "dtheta_dot", "di_a", "domega", "dtau_f")
+
+
+def state_args(extra: Sequence[str] = ()) -> str:
+    """Source of the state's names in order: the chain's, then the effects' states ``extra``."""
+    return ", ".join((*(st.variable for st in CHAIN), *extra))
+
+
+def rates(extra: Sequence[str] = ()) -> str:
+    """Source of the state's derivatives in order (the names :func:`chain_source` defines)."""
+    return ", ".join((*CHAIN_RATES, *(f"d_{v}" for v in extra)))
 
 
 def effect_active(effect: Effect, switch: bool | str, values: Mapping[str, float]) -> bool:
@@ -204,6 +224,8 @@ class Assembly:
         Slot -> active terms in order.
     lag, dynamic_current, armature : bool
         Actuator lag active; armature current a state; the family has an armature circuit.
+    states : StateLayout
+        The state vector: the chain's states, then the active effects' own states in their order.
     """
 
     def __init__(self, family: str, values: Mapping[str, float], switches: Mapping[str, bool | str]) -> None:
@@ -236,6 +258,7 @@ class Assembly:
         names = {p.name for p in self.active}
         self.dynamic_current = self.armature and "armature_inductance" in names
         self.drive_name = self.family.drive
+        self.states = StateLayout.of(st for part in self.active for st in part.states)
 
     @cached_property
     def _generated(self) -> tuple[str, Any]:
@@ -245,8 +268,8 @@ class Assembly:
 
     @cached_property
     def rhs(self) -> Callable[[float, Any, float], list[float]]:
-        """The scalar right-hand side ``rhs(t, x, u)`` -> dx/dt (list of 5 floats), generated on first
-        use (module doc)."""
+        """The scalar right-hand side ``rhs(t, x, u)`` -> dx/dt (list of :attr:`states` ``.size``
+        floats), generated on first use (module doc)."""
         return self._generated[1]
 
     # ------------------------------------------------------------------ helpers
@@ -292,15 +315,16 @@ class Assembly:
             consts[f"_c_{name}"] = v
             return f"_c_{name}"
 
+        extra = tuple(st.name for st in self.states.extra)
         wiring = Wiring(armature=self.armature, drive=self.drive_name,
                         slots={k: tuple((t, None) for t in v) for k, v in self.slots.items()},
-                        lag=self.lag, dynamic_current=self.dynamic_current, arg=arg, fn=fn)
+                        lag=self.lag, dynamic_current=self.dynamic_current, arg=arg, fn=fn, states=extra)
         lines = ["def rhs(t, x, u):",
                  "    if type(x) is _ndarray:",
                  "        x = x.tolist()",
-                 "    theta, theta_dot, i_a, omega, tau_f = x",
+                 f"    {state_args(extra)} = x",
                  *("    " + line for line in chain_source(wiring)),
-                 "    return [theta_dot, dtheta_dot, di_a, domega, dtau_f]"]
+                 f"    return [{rates(extra)}]"]
         src = "\n".join(lines) + "\n"
         return src, _compiled(src, tuple(sorted(consts.items(), key=lambda kv: kv[0])))
 
@@ -340,24 +364,32 @@ class Assembly:
         return 0.0 if total is None else total
 
     def point(self, xp: Any, x: Any, u: Any) -> dict[str, Any]:
-        """Every signal of the chain at state ``x`` (rows of shape (…, 5) or a sequence) and input ``u``.
+        """Every signal of the chain at state ``x`` (rows of shape (…, n) or a sequence of the
+        :attr:`states`) and input ``u``.
 
-        Returns ``{"tau", "tau_e", drive name, "i_a", "omega", "omega_prop", "thrust", "theta",
-        "theta_dot", "u", "tau_f"}``; ``i_a`` is the algebraic current when the armature is
-        quasi-static, 0 without an armature.
+        Returns ``{"tau", "tau_e", drive name, "r_a", "i_a", "omega", "omega_prop", "thrust",
+        "theta", "theta_dot", "u", "tau_f"}`` and each effect state by name; ``i_a`` is the
+        algebraic current when the armature is quasi-static, 0 without an armature; ``r_a`` the
+        armature resistance (absent without an armature).
         """
-        xs = [x[..., k] for k in range(N_STATES)] if isinstance(x, np.ndarray) else list(x)
-        theta, theta_dot, i_a, omega, tau_f = xs
+        n = self.states.size
+        xs = [x[..., k] for k in range(n)] if isinstance(x, np.ndarray) else list(x)
+        theta, theta_dot, i_a, omega, tau_f = xs[:N_CHAIN]
+        extra = {st.name: v for st, v in zip(self.states.extra, xs[N_CHAIN:], strict=True)}
         tau = tau_f if self.lag else u
         tau_e = self.duty_chain(xp, tau)
         q = self._eval(self._one("drive"), xp, {"tau": tau_e})
+        out = {"u": u, "tau_f": tau_f, "tau": tau, "tau_e": tau_e, self.drive_name: q, **extra}
         if not self.armature:
             i_a = 0.0 * omega
-        elif not self.dynamic_current:
-            i_a = self._sum_values("armature", xp, {"omega": omega}, first=q) / self.values["motor.R_a"]
+        else:
+            out["r_a"] = r_a = self._eval(self._one("resistance"), xp, extra)
+            if not self.dynamic_current:
+                i_a = self._sum_values("armature", xp, {"omega": omega}, first=q) / r_a
         w2, f = self.propeller(xp, omega)
-        return {"u": u, "tau_f": tau_f, "tau": tau, "tau_e": tau_e, self.drive_name: q, "i_a": i_a,
-                "omega": omega, "omega_prop": w2, "thrust": f, "theta": theta, "theta_dot": theta_dot}
+        out.update({"i_a": i_a, "omega": omega, "omega_prop": w2, "thrust": f, "theta": theta,
+                    "theta_dot": theta_dot})
+        return out
 
     # ------------------------------------------------------------------ linearisation
     def _d(self, slot: str, name: str, vals: Mapping[str, Any], skip_sign: bool = False) -> float:
@@ -366,13 +398,17 @@ class Assembly:
                     if not (skip_sign and t.regularised_sign)), 0.0)
 
     def jacobian(self, x: Any, u: float, dry_friction: bool = True) -> tuple[np.ndarray, np.ndarray]:
-        """A = ∂f/∂x (5×5), B = ∂f/∂u (5×1) at (x, u), by the chain rule over the terms' partials.
+        """A = ∂f/∂x (n×n), B = ∂f/∂u (n×1) at (x, u), n = :attr:`states` ``.size``: the chain's
+        entries by the chain rule over the terms' partials, those of the effects' own states
+        (their rows, and the chain's dependence on them) by central differences of :attr:`rhs`
+        (step :data:`~aeropend_sim.components.base.FD_STEP`·max(1, |x|)).
 
         ``dry_friction=False`` leaves out terms whose slope comes from a regularised sign (see
         :attr:`aeropend_sim.components.base.Term.regularised_sign`).
         """
-        A = np.zeros((N_STATES, N_STATES))
-        B = np.zeros((N_STATES, 1))
+        n = self.states.size
+        A = np.zeros((n, n))
+        B = np.zeros((n, 1))
         p = self.point(MATH, [float(v) for v in x], float(u))
         vals = self._with(p)
         # d(drive)/d(source), source = τ_f (lag) or u
@@ -383,13 +419,13 @@ class Assembly:
             dtau *= term.partial(MATH, "tau", v)
             tau = term(MATH, v)
         dq = self._one("drive").partial(MATH, "tau", self._with({"tau": p["tau_e"]})) * dtau
-        b = np.zeros(N_STATES)
+        b = np.zeros(n)
         if self.lag:
             lag = self._one("lag")
             A[TAU_F, TAU_F] = lag.partial(MATH, "tau_f", vals)
             B[TAU_F, 0] = lag.partial(MATH, "u", vals)
         if self.armature:
-            r, la, jm = self.values["motor.R_a"], self.values["motor.L_a"], self.values["motor.J_m"]
+            r, la, jm = p["r_a"], self.values["motor.L_a"], self.values["motor.J_m"]
             da_dw = self._d("armature", "omega", vals)
             dr_di = self._d("rotor_torque", "i_a", vals)
             dr_dw = self._d("rotor_torque", "omega", vals)
@@ -415,7 +451,27 @@ class Assembly:
             A[:, TAU_F] += b
         else:
             B[:, 0] += b
+        if n > N_CHAIN:
+            self._effect_state_jacobian(A, B, [float(v) for v in x], float(u))
         return A, B
+
+    def _effect_state_jacobian(self, A: np.ndarray, B: np.ndarray, x: list[float], u: float) -> None:
+        """Fill the effects' states' rows and columns of A and rows of B by central differences."""
+        def diff(k: int | None) -> np.ndarray:
+            h = FD_STEP * max(1.0, abs(x[k] if k is not None else u))
+            hi, lo = list(x), list(x)
+            if k is None:
+                return (np.array(self.rhs(0.0, x, u + h)) - np.array(self.rhs(0.0, x, u - h))) / (2.0 * h)
+            hi[k] += h
+            lo[k] -= h
+            return (np.array(self.rhs(0.0, hi, u)) - np.array(self.rhs(0.0, lo, u))) / (2.0 * h)
+
+        extra = range(N_CHAIN, self.states.size)
+        for k in extra:
+            A[:, k] = diff(k)
+        for j in range(N_CHAIN):
+            A[list(extra), j] = diff(j)[list(extra)]
+        B[list(extra), 0] = diff(None)[list(extra)]
 
     # ------------------------------------------------------------------ steady state
     def duty_for_drive(self, q: float) -> float:
@@ -461,19 +517,26 @@ class Assembly:
                     v = t(MATH, vals)
                     load = v if load is None else load + v
             i = -(load if load is not None else 0.0) / self._d("rotor_torque", "i_a", vals)
-            q = self.values["motor.R_a"] * i - self._sum_values("armature", MATH, {"omega": w1})
+            q = self._resistance_at_rest() * i - self._sum_values("armature", MATH, {"omega": w1})
         else:
             i = 0.0
             term = self._one("rotor_response")
             q = term.inverse(MATH, w1, *self._params_of(term))
         return float(i), float(w1), float(q)
 
+    def _resistance_at_rest(self) -> float:
+        """Armature resistance [Ω] with the effects' states at their initial values."""
+        rest = {st.name: st.initial for st in self.states.extra}
+        return float(self._eval(self._one("resistance"), MATH, rest))
+
     def steady_state(self, theta: float) -> tuple[list[float], float]:
-        """State (θ, 0, i_a, ω₁, q) with θ̈ = 0 and ω̇₁ = 0 at angle θ, and the drive quantity q.
+        """State (θ, 0, i_a, ω₁, q, <effect states>) with θ̈ = 0 and ω̇₁ = 0 at angle θ, and the
+        drive quantity q.
 
         Contact terms (end stops) are left out: the state is the one the thrust holds
-        (:meth:`thrust_to_hold`, then :meth:`drive_for_thrust`). The last state entry is left to the
-        caller (τ).
+        (:meth:`thrust_to_hold`, then :meth:`drive_for_thrust`). The τ_f entry is left to the
+        caller (τ). The effects' own states are held at their initial values (a heated winding at
+        ambient temperature: the chain's steady state on a time scale where they have not moved).
         """
         i, w1, q = self.drive_for_thrust(self.thrust_to_hold(theta))
-        return [theta, 0.0, i, w1, 0.0], q
+        return [theta, 0.0, i, w1, 0.0, *(st.initial for st in self.states.extra)], q

@@ -28,6 +28,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
+from aeropend_sim.components.states import State
+
 #: Rig-file sections, in file order.
 SECTIONS: tuple[str, ...] = ("actuator", "motor", "thrust", "pendulum", "sensors")
 
@@ -47,6 +49,9 @@ SLOTS: dict[str, str] = {
     "gear": "propeller speed ω₂ [rad/s] of the rotor speed ω₁ (one term)",
     "thrust": "thrust f [N] of the propeller speed ω₂ (one term)",
     "rod": "terms of θ̈ [rad/s²], summed in order",
+    "resistance": "armature resistance [Ω] of the armature circuit (DC motor); the active term of "
+                  "highest order is the resistance (R_a, or R_a(T_m) of a heated winding)",
+    "rate": "the time derivative of an effect's own state (Term.state names it), summed in order",
 }
 
 #: Slots whose terms are summed (an absent term, one whose parameters hold their absent values,
@@ -64,6 +69,8 @@ SLOT_INPUTS: dict[str, tuple[str, ...]] = {
     "gear": ("omega",),
     "thrust": ("omega_prop",),
     "rod": ("theta", "theta_dot", "thrust"),
+    "resistance": (),
+    "rate": ("u", "i_a", "omega", "theta", "theta_dot"),
 }
 
 #: Inputs a term may read (by argument name), with unit and meaning.
@@ -251,6 +258,11 @@ class Term:
     contact : bool
         A contact (constraint) force, e.g. an end stop: left out of the thrust-held steady state
         (:meth:`aeropend_sim.model.PlantModel.equilibrium` is the angle the thrust holds).
+    state : str or None
+        For a ``rate`` term: the state (declared by its part, :attr:`Part.states`) whose time
+        derivative it gives.
+    states : tuple of str
+        The part's own states the term reads (argument names; inputs besides the slot's).
     """
 
     slot: str
@@ -261,6 +273,8 @@ class Term:
     inverse: Callable[..., Any] | None = None
     regularised_sign: bool = False
     contact: bool = False
+    state: str | None = None
+    states: tuple[str, ...] = ()
     arguments: tuple[str, ...] = field(init=False, compare=False)
     inputs: tuple[str, ...] = field(init=False, compare=False)
     param_names: tuple[str, ...] = field(init=False, compare=False)
@@ -271,8 +285,11 @@ class Term:
         args = _signature(self.fn)
         # the argument names after ``xp``; the inputs (INPUTS) and the parameters (by Param.name) among them
         object.__setattr__(self, "arguments", args)
-        object.__setattr__(self, "inputs", tuple(a for a in args if a in INPUTS))
-        object.__setattr__(self, "param_names", tuple(a for a in args if a not in INPUTS))
+        if (self.slot == "rate") != (self.state is not None):
+            raise ValueError(f"term {self.label!r}: a rate term names the state it drives (state=...), and "
+                             "only a rate term does")
+        object.__setattr__(self, "inputs", tuple(a for a in args if a in INPUTS or a in self.states))
+        object.__setattr__(self, "param_names", tuple(a for a in args if a not in self.inputs))
         wrong = [a for a in args if a in INPUTS and a not in SLOT_INPUTS[self.slot]]
         if wrong:
             raise ValueError(f"term {self.label!r} in slot {self.slot!r} reads {wrong}; a {self.slot} term "
@@ -497,6 +514,9 @@ class Part:
     check : callable or None
         ``check(values) -> message or None``: a cross-parameter constraint (θ_min < θ_max), given
         ``{key: value}`` of the rig's parameters.
+    states : tuple of State
+        States of its own (an effect's: :mod:`aeropend_sim.components.states`), each driven by one
+        of its ``rate`` terms; a rig on which it acts has them after the chain's.
     """
 
     name: str
@@ -511,8 +531,19 @@ class Part:
     why_not: str = ""
     check: Callable[[Mapping[str, float]], str | None] | None = field(default=None, compare=False)
     needs: tuple[str, ...] = ()
+    states: tuple[State, ...] = ()
 
     def __post_init__(self) -> None:
+        own = {st.name for st in self.states}
+        if any(st.variable != st.name for st in self.states):
+            raise ValueError(f"{self.name}: a part's state is read by its name (no separate variable)")
+        for term in self.terms:
+            if not set(term.states) <= own or (term.state is not None and term.state not in own):
+                raise ValueError(f"{self.name}: term {term.label!r} reads or drives a state it does not "
+                                 f"declare (its states: {sorted(own)})")
+        undriven = sorted(own - {t.state for t in self.terms})
+        if undriven:
+            raise ValueError(f"{self.name}: state(s) {undriven} have no rate term")
         if self.part not in PARTS:
             raise ValueError(f"{self.name}: part {self.part!r}; expected one of {PARTS}")
         bad = [n for n in self.needs if n not in SLOTS]

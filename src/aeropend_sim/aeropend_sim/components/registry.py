@@ -137,10 +137,10 @@ def check_declarations(components: Iterable[Part], families: Iterable[Family],
     for p in everything:
         own = {par.name for par in p.params}
         for term in p.terms:
-            if not set(term.inputs) <= set(SLOT_INPUTS[term.slot]):
+            foreign = set(term.inputs) - set(term.states) - set(SLOT_INPUTS[term.slot])
+            if foreign:
                 raise RegistryError(f"{p.name}: term {term.label!r} in slot {term.slot!r} reads "
-                                    f"{sorted(set(term.inputs) - set(SLOT_INPUTS[term.slot]))}; that slot "
-                                    f"gives {list(SLOT_INPUTS[term.slot])}")
+                                    f"{sorted(foreign)}; that slot gives {list(SLOT_INPUTS[term.slot])}")
             unknown = [a for a in term.param_names if a not in names]
             if unknown:
                 raise RegistryError(f"{p.name}: term {term.label!r} reads unknown parameter(s) {unknown}")

@@ -28,7 +28,7 @@ from aeropend_ident.sindy.model import IdentData
 from aeropend_ident.sindy.weak_form import weak_matrices
 from aeropend_sim.compiled.plant import derivatives
 from aeropend_sim.components import registry
-from aeropend_sim.model import plant_model
+from aeropend_sim.model import I_A, OMEGA, TAU_F, THETA, THETA_DOT, plant_model
 from aeropend_sim.params import Rig
 
 #: BIC gain (negative change) an effect must reach on the fit data.
@@ -102,17 +102,20 @@ def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.nda
         sim = replay_many([(rig, meas)], prep, motor_channels(rig))[0]
         if sim is None:
             raise GapError(f"replay of {prep.rec.source or 'a recording'} with rig {rig.name!r} failed")
-    x = np.zeros((prep.n, 5))
+    st = model.states
+    x = np.tile(st.initial(), (prep.n, 1))
     s = meas.theta_scale
-    x[:, 0] = meas.to_model(prep.y["theta"])
-    x[:, 1] = theta_dot / s
-    x[:, 2] = sim.get("i_a", 0.0)
-    x[:, 3] = sim["omega_rotor"]
-    x[:, 4] = sim["tau_f"]
+    x[:, THETA] = meas.to_model(prep.y["theta"])
+    x[:, THETA_DOT] = theta_dot / s
+    x[:, I_A] = sim.get("i_a", 0.0)
+    x[:, OMEGA] = sim["omega_rotor"]
+    x[:, TAU_F] = sim["tau_f"]
+    for extra in st.extra:  # an effect's own state (a winding temperature) is the replay's
+        x[:, st.index(extra.name)] = sim.get(extra.name, extra.initial)
     if "i_a" in prep.y and model.dynamic_current:
-        x[:, 2] = prep.y["i_a"]
+        x[:, I_A] = prep.y["i_a"]
     if "omega_rotor" in prep.y:
-        x[:, 3] = prep.y["omega_rotor"]
+        x[:, OMEGA] = prep.y["omega_rotor"]
     u = _delayed(prep.duty, prep.dt, model.delay)
     x, u = x[::step], u[::step]
     need = set(equations)

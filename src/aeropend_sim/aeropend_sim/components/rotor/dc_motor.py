@@ -35,6 +35,11 @@ def d_torque_d_i_a(xp, i_a, K_t):
     return K_t + 0.0 * i_a
 
 
+def resistance(xp, R_a):
+    """Armature resistance R_a [Ω] (a heated winding's replaces it: ``motor_heating``)."""
+    return R_a
+
+
 def resistance_range(ctx):
     """0.2 … 5 × nominal R_a."""
     return scaled(ctx.rig.motor.R_a, 0.2, 5.0, 1.2)
@@ -68,7 +73,8 @@ COMPONENT = Component(
                 "(Eq. 3.8)",
     order=30,
     params=(R_A, K_T, J_M),
-    terms=(Term("rotor_torque", 0, torque, "K_t·i_a", partials={"i_a": d_torque_d_i_a}),),
+    terms=(Term("rotor_torque", 0, torque, "K_t·i_a", partials={"i_a": d_torque_d_i_a}),
+           Term("resistance", 0, resistance, "R_a")),
     needs=("armature",),
     diagnoses=(
         Diagnosis("armature_resistance", "electrical",
