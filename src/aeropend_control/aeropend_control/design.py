@@ -188,7 +188,7 @@ def linearise(rig: Rig, theta: float) -> tuple[PlantModel, np.ndarray, float, np
     Returns
     -------
     model, x_eq, tau_eq, A, B
-        :class:`PlantModel`, equilibrium state (shape (5,)) and duty cycle, Jacobians (5×5, 5×1)
+        :class:`PlantModel`, equilibrium state (shape (n,)) and duty cycle, Jacobians (n×n, n×1)
         of :meth:`PlantModel.jacobian` there.
 
     Raises

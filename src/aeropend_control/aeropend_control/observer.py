@@ -37,7 +37,7 @@ import numpy as np
 
 # python-control is imported inside the functions that use it: importing it costs ~2 s
 # (scipy.signal, matplotlib.pyplot), which `controller --help` and every importer would pay.
-from aeropend_sim.model import PlantModel, plant_model
+from aeropend_sim.model import OMEGA, TAU_F, PlantModel, plant_model
 
 
 class ObserverError(ValueError):
@@ -129,6 +129,7 @@ class ThrustPredictor:
     def __init__(self, model: PlantModel, dt: float) -> None:
         self.m = model
         self._rotor = plant_model(model.rig.with_effects(armature_inductance="quasi_static"))
+        self._rest = self._rotor.states.initial().tolist()  # an effect's own state held at its initial value
         self.dt = dt
         self.n_delay = round(model.delay / dt) if model.delay > 0.0 else 0
         self.reset()
@@ -141,8 +142,10 @@ class ThrustPredictor:
 
     def _deriv(self, w: float, tf: float, tau: float) -> tuple[float, float]:
         """(dω/dt, dτ_f/dt) at rotor speed w, lagged duty tf and commanded duty τ."""
-        f = self._rotor.rhs(0.0, [0.0, 0.0, 0.0, w, min(max(tf, 0.0), 1.0)], tau)
-        return f[3], f[4]
+        x = self._rest.copy()
+        x[OMEGA], x[TAU_F] = w, min(max(tf, 0.0), 1.0)
+        f = self._rotor.rhs(0.0, x, tau)
+        return f[OMEGA], f[TAU_F]
 
     def advance(self, duty: float) -> float:
         """Integrate the motor over one period at duty τ (after the delay line); return the mean

@@ -54,7 +54,7 @@ from aeropend_ident.io.recording_input import detect_quantum  # noqa: F401  (re-
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Diagnosis
 from aeropend_sim.components.xp import MATH
-from aeropend_sim.model import plant_model
+from aeropend_sim.model import OMEGA, TAU_F, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
@@ -184,7 +184,9 @@ class EffectContext:
         a = model.assembly
         if not a.armature:
             raise GapError(f"rig {self.rig.name!r} ({self.rig.family}) has no rotor torque balance")
-        point = a.point(MATH, [0.0, 0.0, 0.0, float(omega), self.duty_max], self.duty_max)
+        x = model.states.initial()  # an effect's own state at its initial value
+        x[OMEGA], x[TAU_F] = float(omega), self.duty_max
+        point = a.point(MATH, x.tolist(), self.duty_max)
         skip = {t.label for t in registry.effect(without).terms} if without else set()
         terms = a.slot_values("rotor_torque", MATH, {"i_a": point["i_a"], "omega": float(omega)})
         return sum((v for k, v in terms.items() if k not in skip), 0.0)

@@ -97,7 +97,7 @@ from aeropend_ident.greybox.uniform import (
 )
 from aeropend_ident.io.recording_input import detect_quantum
 from aeropend_sim.components.xp import MATH
-from aeropend_sim.model import ModelError, plant_model
+from aeropend_sim.model import OMEGA, TAU_F, ModelError, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 from aeropend_sim.simulation import SimulationError, simulate
@@ -173,8 +173,12 @@ def _motor_equilibrium(rig: Rig, duty: float) -> tuple[float, float, float]:
     duty = float(duty)
     slot = "rotor_torque" if a.armature else "rotor_response"
 
+    rest = model.states.initial()  # an effect's own state (a winding temperature) at its initial value
+
     def state(w: float) -> dict[str, Any]:
-        return a.point(MATH, [0.0, 0.0, 0.0, w, duty], duty)
+        x = rest.copy()
+        x[OMEGA], x[TAU_F] = w, duty
+        return a.point(MATH, x.tolist(), duty)
 
     def rate(w: float) -> float:  # net torque (or ω̇₁), decreasing in ω₁ through the steady state
         p = state(w)
@@ -310,7 +314,8 @@ def _slope_noise_gain(dt: float, n: int = N_DIFF) -> float:
 
 def initial_state(rig: Rig, theta: np.ndarray, duty: np.ndarray, dt: float, theta_offset: float = 0.0,
                   theta_dot0: float | None = None, theta0: float | None = None) -> np.ndarray:
-    """Model state (shape (5,)) at the first sample of a recorded stretch.
+    """Model state at the first sample of a recorded stretch: the chain's five states (shape (5,); a
+    simulation starts an effect's own state, a winding temperature, at its initial value).
 
     θ = θ_rec[0] + offset (or ``theta0`` + offset), θ̇ from :func:`initial_velocity` (unless
     ``theta_dot0`` is given), motor at the steady state of ``duty[0]``

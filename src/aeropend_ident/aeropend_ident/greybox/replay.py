@@ -94,7 +94,7 @@ class InitialState:
 
     Attributes
     ----------
-    x : ndarray, shape (5,)
+    x : ndarray, shape (n,)
         Model state [θ rad, θ̇ rad/s, i_a A, ω₁ rad/s, τ_f 1] in the model frame.
     theta0, theta_dot0 : float
         θ₀ [rad] and θ̇₀ [rad/s] in the recording's frame.

@@ -214,7 +214,7 @@ def replay(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarr
 
 def replay_reference(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str, np.ndarray]:
     """:func:`replay` by :func:`aeropend_sim.simulation.simulate` (the reference sub-steps), with the
-    model state (N, 5) as ``"_x"``.
+    model state (N, n) as ``"_x"``.
 
     Raises
     ------
