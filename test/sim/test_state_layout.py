@@ -90,3 +90,24 @@ def test_a_stepper_switched_to_a_heated_rig_keeps_the_chain_and_starts_t_m_at_am
     assert st.x[5] > 0.0
     st.set_rig(plain)
     assert st.x.shape == (N_CHAIN,)
+
+
+def test_the_compiled_replay_completes_a_chain_state_and_refuses_other_lengths():
+    """The kernels read x0 without bounds checks: a chain-only x0 (what a fit's start gives) on a
+    heated rig is completed with T_m = 0 before it reaches them (it read memory past the row before:
+    gap fits of a heated rig differed from run to run), any other length is refused."""
+    from aeropend_sim.compiled.plant import CompiledPlant
+
+    plant = CompiledPlant(_heated())
+    duty = np.full(200, 0.5)
+    p = np.repeat(plant.p[None, :], 2, axis=0)
+    chain = np.array([[0.1, 0.0, 0.0, 0.0, 0.0]] * 2)
+    whole = np.array([[0.1, 0.0, 0.0, 0.0, 0.0, 0.0]] * 2)
+    a, fa = plant.replay_batch(duty, p, chain, 0.0, ("theta", "T_m"), threads=1)
+    b, fb = plant.replay_batch(duty, p, whole, 0.0, ("theta", "T_m"), threads=1)
+    assert (fa < 0).all() and (fb < 0).all() and np.array_equal(a, b)
+    assert a[0, 1, 0] == 0.0 and a[0, 1, -1] > 0.0  # T_m from ambient, warming
+    states, _u, failed = plant.replay(duty, chain[0])
+    assert failed < 0 and np.array_equal(states[:, :5], plant.replay(duty, whole[0])[0][:, :5])
+    with pytest.raises(ValueError, match=r"initial state of shape \(2, 4\): expected 6 states"):
+        plant.replay_batch(duty, p, np.zeros((2, 4)), 0.0, ("theta",), threads=1)

@@ -261,6 +261,9 @@ TRUTH = {
     "input_delay": {"input_delay": 0.06}, "gravity": {"mgd_over_J": 1.2 * _P.mgd_over_J},
     "inertia": {"J_scale": 1.3}, "end_stops": {"theta_max": 0.7}, "sensor_offset": {"theta_offset": 0.06},
     "sensor_scale": {"theta_scale": 1.1}, "motor_time_constant": {"J_m": 3.0 * _M.J_m},
+    # a micro-motor's winding warming by about 40 K here (R_a +16 %) with a thermal time constant
+    # R_th·C_th = 3 s, a quarter of the recording: one far shorter than τ_th determines C_th only
+    "motor_heating": {"R_th": 150.0, "C_th": 0.02},
 }
 #: Relative tolerance on the effect size |value − nominal| (50 dB noise, 12 s recording).
 REL_TOL = 0.1

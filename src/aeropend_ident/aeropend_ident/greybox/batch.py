@@ -204,8 +204,9 @@ class RigReplays:
         ----------
         rigs : sequence of Rig
             Noise-free rigs (measurement effects are the caller's).
-        x0 : ndarray, shape (B, 5)
-            Initial states.
+        x0 : ndarray, shape (B, n) or (B, 5)
+            Initial states: each rig's whole state, or the chain's five (an effect's own state, a
+            winding temperature, then starts at its initial value).
         channels : sequence of str
             Channel names (:func:`aeropend_sim.simulation.simulate_batch`).
 
@@ -219,7 +220,7 @@ class RigReplays:
         n_rows = len(rigs)
         out = {c: np.full((n_rows, self.duty.size), np.nan) for c in channels}
         ok = np.zeros(n_rows, dtype=bool)
-        x0 = np.asarray(x0, dtype=float).reshape(n_rows, 5)
+        x0 = np.asarray(x0, dtype=float).reshape(n_rows, -1)
         groups: dict[tuple, list[int]] = {}
         for b, r in enumerate(rigs):
             groups.setdefault(structure(r), []).append(b)
@@ -238,7 +239,7 @@ class RigReplays:
 
     def _single(self, rig: Rig, x0: np.ndarray, channels: Sequence[str], out: dict[str, np.ndarray],
                 ok: np.ndarray, b: int) -> None:
-        """Replay row ``b`` alone (``x0``: the whole (B, 5) array of initial states, as in :meth:`run`)."""
+        """Replay row ``b`` alone (``x0``: the whole (B, n) array of initial states, as in :meth:`run`)."""
         try:
             plant, base = self.plant(rig)
             p = self._vectors(plant, base, [rig])
@@ -252,7 +253,7 @@ class RigReplays:
 
     def _replay(self, plant: CompiledPlant, p: np.ndarray, rows: Sequence[int], x0: np.ndarray,
                 channels: Sequence[str], out: dict[str, np.ndarray], ok: np.ndarray) -> None:
-        xs = np.ascontiguousarray(x0[list(rows)])
+        xs = np.ascontiguousarray(plant.states.complete(x0[list(rows)]))
         if not np.isfinite(xs).all():
             good = np.isfinite(xs).all(axis=1)
             rows = [b for b, g in zip(rows, good, strict=True) if g]

@@ -298,6 +298,7 @@ class CompiledPlant:
         """
         plan = self.plan if p is None else self.plans(p[None, :])
         p = self.p if p is None else p
+        x0 = self._whole(x0)
         states = np.empty((duty.size, self.states.size))
         u_at = np.empty(duty.size)
         u_before = np.empty(duty.size)
@@ -347,6 +348,7 @@ class CompiledPlant:
         plan = self.plans(p)
         codes = self.codes(names)
         p = np.ascontiguousarray(p)
+        x0 = self._whole(x0)
         out = np.empty((p.shape[0], len(names), duty.size))
         failed = np.empty(p.shape[0], dtype=np.int64)
         args = (x0, duty, float(tau_before), plan.whole, plan.n_a, plan.h_a, plan.n_b, plan.h_b, p, codes,
@@ -368,7 +370,15 @@ class CompiledPlant:
         """The state one sample after ``x``: ``u_old`` over the first ``frac·dt`` (a fractional
         input delay), ``u_new`` over the rest (:meth:`replay`'s scheme for one sample)."""
         _, n_a, h_a, n_b, h_b = self.plan.row(0)
-        return self.module.step(x, float(u_old), float(u_new), self.p, n_a, h_a, n_b, h_b)
+        return self.module.step(self._whole(x), float(u_old), float(u_new), self.p, n_a, h_a, n_b, h_b)
+
+    def _whole(self, x: np.ndarray) -> np.ndarray:
+        """``x`` (…, n) as the kernels read it: the rig's whole state, C-contiguous floats. The
+        compiled kernels do not check bounds, so a state of the chain's five given to a rig with an
+        effect state of its own would read its T_m from memory past the row (gap fits of a heated
+        rig gave run-to-run different residuals that way): completed here, any other length refused
+        (:meth:`~aeropend_sim.components.states.StateLayout.complete`)."""
+        return np.ascontiguousarray(self.states.complete(x), dtype=float)
 
 
 def derivatives(model: PlantModel, x: Any, u: Any) -> tuple[np.ndarray, np.ndarray]:
