@@ -365,7 +365,8 @@ class Assembly:
 
     def point(self, xp: Any, x: Any, u: Any) -> dict[str, Any]:
         """Every signal of the chain at state ``x`` (rows of shape (…, n) or a sequence of the
-        :attr:`states`) and input ``u``.
+        :attr:`states`; the chain's five also do, the effects' states then at their initial values)
+        and input ``u``.
 
         Returns ``{"tau", "tau_e", drive name, "r_a", "i_a", "omega", "omega_prop", "thrust",
         "theta", "theta_dot", "u", "tau_f"}`` and each effect state by name; ``i_a`` is the
@@ -373,7 +374,11 @@ class Assembly:
         armature resistance (absent without an armature).
         """
         n = self.states.size
-        xs = [x[..., k] for k in range(n)] if isinstance(x, np.ndarray) else list(x)
+        if isinstance(x, np.ndarray):
+            x = self.states.complete(x, "state")
+            xs = [x[..., k] for k in range(n)]
+        else:
+            xs = self._whole(x)
         theta, theta_dot, i_a, omega, tau_f = xs[:N_CHAIN]
         extra = {st.name: v for st, v in zip(self.states.extra, xs[N_CHAIN:], strict=True)}
         tau = tau_f if self.lag else u
@@ -409,7 +414,8 @@ class Assembly:
         n = self.states.size
         A = np.zeros((n, n))
         B = np.zeros((n, 1))
-        p = self.point(MATH, [float(v) for v in x], float(u))
+        x = self._whole(x)
+        p = self.point(MATH, x, float(u))
         vals = self._with(p)
         # d(drive)/d(source), source = τ_f (lag) or u
         dtau = 1.0
@@ -452,8 +458,19 @@ class Assembly:
         else:
             B[:, 0] += b
         if n > N_CHAIN:
-            self._effect_state_jacobian(A, B, [float(v) for v in x], float(u))
+            self._effect_state_jacobian(A, B, x, float(u))
         return A, B
+
+    def _whole(self, x: Any) -> list[float]:
+        """A state sequence as floats of the whole layout: the chain's five are completed with the
+        effects' states at their initial values (:meth:`StateLayout.complete`); other lengths refused."""
+        xs = [float(v) for v in x]
+        if len(xs) == N_CHAIN < self.states.size:
+            xs += [st.initial for st in self.states.extra]
+        elif len(xs) != self.states.size:
+            raise ValueError(f"state of {len(xs)} values: expected {self.states.size} "
+                             f"{list(self.states.names)} or the chain's {N_CHAIN}")
+        return xs
 
     def _effect_state_jacobian(self, A: np.ndarray, B: np.ndarray, x: list[float], u: float) -> None:
         """Fill the effects' states' rows and columns of A and rows of B by central differences."""

@@ -67,9 +67,25 @@ def _savgol(y: np.ndarray, dt: float, deriv: int) -> np.ndarray:
 
 def motor_channels(rig: Rig) -> tuple[str, ...]:
     """Channels of a replay that give the motor chain's states (i_a when the family has an
-    armature, ω₁, τ_f): what :func:`hybrid_rhs` takes from a simulation."""
+    armature, ω₁, τ_f) and the states of the rig's effects (a winding temperature, which no
+    recording holds): what :func:`hybrid_rhs` takes from a simulation."""
     armature = "armature" not in registry.family(rig.family).lacks
-    return (*(("i_a",) if armature else ()), "omega_rotor", "tau_f")
+    extra = tuple(st.name for st in plant_model(_sim_rig(rig)).states.extra)
+    return (*(("i_a",) if armature else ()), "omega_rotor", "tau_f", *extra)
+
+
+def _replay_probes(rows: Sequence[tuple[Rig, MeasurementMap]], prep: Prepared
+                   ) -> list[dict[str, np.ndarray] | None]:
+    """:func:`replay_many` of the probe rigs, in order, each with its own :func:`motor_channels`
+    (a probe of an effect with a state of its own replays that state too): one batch per set of
+    channels."""
+    chans = [motor_channels(r) for r, _ in rows]
+    out: list[dict[str, np.ndarray] | None] = [None] * len(rows)
+    for names in dict.fromkeys(chans):
+        idx = [i for i, c in enumerate(chans) if c == names]
+        for i, sim in zip(idx, replay_many([rows[i] for i in idx], prep, names), strict=True):
+            out[i] = sim
+    return out
 
 
 def hybrid_rhs(rig: Rig, meas: MeasurementMap, prep: Prepared, theta_dot: np.ndarray,
@@ -314,7 +330,7 @@ def _screening_rows(rig: Rig, base_meas: MeasurementMap, preps: Sequence[Prepare
         cols: dict[str, list[np.ndarray]] = {q: [] for q in eqs}
         grp: list[int] = []
         probes = _probe_rigs(rig, base_meas, effs, ranges)
-        sims = iter(replay_many([r for r in probes if r is not None], p, motor_channels(rig)))
+        sims = iter(_replay_probes([r for r in probes if r is not None], p))
         probe_of = iter(probes)
         for gi, e in enumerate(effs):
             for prm in e.parameters:

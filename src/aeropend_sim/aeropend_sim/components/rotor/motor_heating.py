@@ -77,14 +77,23 @@ def thermal_resistance_range(ctx):
     return 1e-3 * full, 3.0 * full, 0.0, 0.3 * full
 
 
+#: Heat capacity [J/K] the R_th search assumes until C_th is fitted: a small motor's winding
+#: (about 2.6 g of copper at 0.385 J/(g·K)).
+TYPICAL_HEAT_CAPACITY = 1.0
+
+
 def heat_capacity_range(ctx):
     """Heat capacities of 1 mJ/K … 100 J/K (a micro-motor's winding holds tens of mg of copper at
-    0.385 J/(g·K), a 20 W motor's tens of g), and 0.05 … 20 × a nominal C_th; the lower end stands
-    for "off" (the effect is absent at R_th = 0, whatever its heat capacity)."""
+    0.385 J/(g·K), a 20 W motor's tens of g), and 0.05 … 20 × a nominal C_th. The effect is absent
+    at R_th = 0 whatever its heat capacity, so "off" here is a typical winding's
+    (:data:`TYPICAL_HEAT_CAPACITY`): the screening's probe of R_th (the others at their off values)
+    is then a winding warming over tens of seconds, not one following its loss at once (C_th at the
+    range's end, which read like a constant change of R_a: the hypothesis was never fitted); its
+    probe is a lighter winding (0.3 ×)."""
     m = ctx.rig.motor
     if ctx.rig.effects.motor_heating and m.C_th > 0.0:
         return min(1e-3, 0.05 * m.C_th), max(100.0, 20.0 * m.C_th), m.C_th, m.C_th
-    return 1e-3, 100.0, 1e-3, 1.0
+    return 1e-3, 100.0, TYPICAL_HEAT_CAPACITY, 0.3 * TYPICAL_HEAT_CAPACITY
 
 
 def apply(rig, v):
