@@ -111,3 +111,20 @@ def test_the_compiled_replay_completes_a_chain_state_and_refuses_other_lengths()
     assert failed < 0 and np.array_equal(states[:, :5], plant.replay(duty, whole[0])[0][:, :5])
     with pytest.raises(ValueError, match=r"initial state of shape \(2, 4\): expected 6 states"):
         plant.replay_batch(duty, p, np.zeros((2, 4)), 0.0, ("theta",), threads=1)
+
+
+def test_effect_states_that_do_not_fit_are_refused_when_declared():
+    from aeropend_sim.components.base import Effect, Term
+    from aeropend_sim.components.states import State
+
+    def rate(xp, i_a, T_x, k_x):
+        return k_x * i_a - T_x
+
+    t_x = State("T_x", "T_x", "K", "a test state")
+    with pytest.raises(ValueError, match=r"state\(s\) \['T_x'\] have no rate term"):
+        Effect(name="x", part="rotor", label="x", description="x", order=1, states=(t_x,))
+    with pytest.raises(ValueError, match="reads or drives a state it does not declare"):
+        Effect(name="x", part="rotor", label="x", description="x", order=1,
+               terms=(Term("rate", 0, rate, "k·i_a − T_x", state="T_x", states=("T_x",)),))
+    with pytest.raises(ValueError, match="a rate term names the state it drives"):
+        Term("rate", 0, rate, "k·i_a − T_x", states=("T_x",))
