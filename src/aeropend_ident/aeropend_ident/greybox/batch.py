@@ -253,7 +253,7 @@ class RigReplays:
 
     def _replay(self, plant: CompiledPlant, p: np.ndarray, rows: Sequence[int], x0: np.ndarray,
                 channels: Sequence[str], out: dict[str, np.ndarray], ok: np.ndarray) -> None:
-        xs = np.ascontiguousarray(plant.states.complete(x0[list(rows)]))
+        xs = np.ascontiguousarray(x0[list(rows)])  # a chain-only state: completed by the plant
         if not np.isfinite(xs).all():
             good = np.isfinite(xs).all(axis=1)
             rows = [b for b, g in zip(rows, good, strict=True) if g]

@@ -168,7 +168,7 @@ class CompiledPlant:
         self.step_bound = float(step_bound)
         self.layout: Layout = layout(rig.family)
         self.states = self.model.states
-        self.module = family_module(rig.family, tuple(st.name for st in self.states.extra))
+        self.module = family_module(rig.family, self.states.extra_names)
         self.p = self.layout.vector(self.model.assembly)
         self._probe_x, self._probe_u = _probes(self.model)
         self._delay = self.layout.index("actuator.input_delay")
@@ -416,7 +416,7 @@ def derivatives(model: PlantModel, x: Any, u: Any) -> tuple[np.ndarray, np.ndarr
                          "(N,)")
     f = np.empty((x.shape[0], n))
     drive = np.empty(x.shape[0])
-    module = family_module(model.family, tuple(st.name for st in model.states.extra))
+    module = family_module(model.family, model.states.extra_names)
     module.derivatives(x, u, layout(model.family).vector(model.assembly), f, drive)
     return f, drive
 

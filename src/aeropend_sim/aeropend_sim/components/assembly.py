@@ -315,7 +315,7 @@ class Assembly:
             consts[f"_c_{name}"] = v
             return f"_c_{name}"
 
-        extra = tuple(st.name for st in self.states.extra)
+        extra = self.states.extra_names
         wiring = Wiring(armature=self.armature, drive=self.drive_name,
                         slots={k: tuple((t, None) for t in v) for k, v in self.slots.items()},
                         lag=self.lag, dynamic_current=self.dynamic_current, arg=arg, fn=fn, states=extra)
@@ -378,7 +378,7 @@ class Assembly:
             x = self.states.complete(x, "state")
             xs = [x[..., k] for k in range(n)]
         else:
-            xs = self._whole(x)
+            xs = self.states.whole(x)
         theta, theta_dot, i_a, omega, tau_f = xs[:N_CHAIN]
         extra = {st.name: v for st, v in zip(self.states.extra, xs[N_CHAIN:], strict=True)}
         tau = tau_f if self.lag else u
@@ -414,7 +414,7 @@ class Assembly:
         n = self.states.size
         A = np.zeros((n, n))
         B = np.zeros((n, 1))
-        x = self._whole(x)
+        x = self.states.whole(x)
         p = self.point(MATH, x, float(u))
         vals = self._with(p)
         # d(drive)/d(source), source = τ_f (lag) or u
@@ -460,17 +460,6 @@ class Assembly:
         if n > N_CHAIN:
             self._effect_state_jacobian(A, B, x, float(u))
         return A, B
-
-    def _whole(self, x: Any) -> list[float]:
-        """A state sequence as floats of the whole layout: the chain's five are completed with the
-        effects' states at their initial values (:meth:`StateLayout.complete`); other lengths refused."""
-        xs = [float(v) for v in x]
-        if len(xs) == N_CHAIN < self.states.size:
-            xs += [st.initial for st in self.states.extra]
-        elif len(xs) != self.states.size:
-            raise ValueError(f"state of {len(xs)} values: expected {self.states.size} "
-                             f"{list(self.states.names)} or the chain's {N_CHAIN}")
-        return xs
 
     def _effect_state_jacobian(self, A: np.ndarray, B: np.ndarray, x: list[float], u: float) -> None:
         """Fill the effects' states' rows and columns of A and rows of B by central differences."""

@@ -118,6 +118,12 @@ class StateLayout:
         """The effects' states (after the chain's)."""
         return self.states[len(CHAIN):]
 
+    @property
+    def extra_names(self) -> tuple[str, ...]:
+        """Names of the effects' states: what a compiled module is generated for
+        (:func:`aeropend_sim.compiled.source.family_module`)."""
+        return tuple(s.name for s in self.extra)
+
     def index(self, name: str) -> int:
         """Position of the state called ``name`` (its name or its variable).
 
@@ -150,12 +156,27 @@ class StateLayout:
         if x.ndim >= 1 and x.shape[-1] == len(CHAIN):
             tail = np.broadcast_to(self.initial()[len(CHAIN):], (*x.shape[:-1], self.size - len(CHAIN)))
             return np.concatenate([x, tail], axis=-1)
-        raise ValueError(f"{what} of shape {x.shape}: expected {self.size} states {list(self.names)} or the "
-                         f"chain's {len(CHAIN)} (the effects' states then start at their initial values)")
+        raise self._refused(x.shape, what)
 
-    def table(self) -> list[tuple[int, str, str, str]]:
-        """Rows (index, symbol, unit, meaning) for docs and reports."""
-        return [(k, s.symbol, s.unit, s.description) for k, s in enumerate(self.states)]
+    def whole(self, x: Any, what: str = "state") -> list[float]:
+        """One state as a list of floats (the scalar evaluators' form), completed as
+        :meth:`complete` completes an array, without building one.
+
+        Raises
+        ------
+        ValueError
+            As :meth:`complete`.
+        """
+        xs = [float(v) for v in x]
+        if len(xs) == len(CHAIN) < self.size:
+            xs += [s.initial for s in self.extra]
+        elif len(xs) != self.size:
+            raise self._refused((len(xs),), what)
+        return xs
+
+    def _refused(self, shape: tuple[int, ...], what: str) -> ValueError:
+        return ValueError(f"{what} of shape {shape}: expected {self.size} states {list(self.names)} or the "
+                          f"chain's {len(CHAIN)} (the effects' states then start at their initial values)")
 
 
 #: The chain's layout (a rig without effect states).

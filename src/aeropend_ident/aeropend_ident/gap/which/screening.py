@@ -70,7 +70,7 @@ def motor_channels(rig: Rig) -> tuple[str, ...]:
     armature, ω₁, τ_f) and the states of the rig's effects (a winding temperature, which no
     recording holds): what :func:`hybrid_rhs` takes from a simulation."""
     armature = "armature" not in registry.family(rig.family).lacks
-    extra = tuple(st.name for st in plant_model(_sim_rig(rig)).states.extra)
+    extra = plant_model(_sim_rig(rig)).states.extra_names
     return (*(("i_a",) if armature else ()), "omega_rotor", "tau_f", *extra)
 
 
