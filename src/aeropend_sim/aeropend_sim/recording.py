@@ -49,6 +49,11 @@ class Recording:
         back, and ignored by the tools that do not use them. NaN where not measured.
     extra_units : dict[str, str]
         Unit of every extra channel (filled from ``EXTRA_CHANNELS`` for its names).
+    duty_before : ndarray, shape (M,), optional
+        The duty cycles of the same run before t = 0, oldest first, at this recording's sample
+        period: set by :meth:`slice` on a later part of a run (a validation stretch carved from a
+        session), so that a replay can carry a state no channel holds (a winding temperature)
+        across the cut. None for a recording that starts its run.
     """
 
     t: np.ndarray
@@ -59,11 +64,17 @@ class Recording:
     meta: dict[str, Any] = field(default_factory=dict)
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     extra_units: dict[str, str] = field(default_factory=dict)
+    duty_before: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.t = np.asarray(self.t, dtype=float)
         self.duty = np.asarray(self.duty, dtype=float)
         n = self.t.size
+        if self.duty_before is not None:
+            self.duty_before = np.asarray(self.duty_before, dtype=float)
+            if self.duty_before.ndim != 1:
+                raise RecordingError(f"{self.source}: duty_before has shape {self.duty_before.shape}, "
+                                     "expected (M,)")
         if self.t.ndim != 1 or n < 2:
             raise RecordingError(f"{self.source}: need at least 2 samples, got t of shape {self.t.shape}")
         if not np.all(np.diff(self.t) > 0):
@@ -124,8 +135,17 @@ class Recording:
                 )
 
     def slice(self, start: int, stop: int) -> Recording:
-        """Samples [start, stop) as a new recording with time re-based to 0."""
+        """Samples [start, stop) as a new recording with time re-based to 0; the duty cycles before
+        ``start`` become its :attr:`duty_before` (a view of this recording's, not a copy, when this
+        one starts its run)."""
         t = self.t[start:stop]
+        start = int(start) if start >= 0 else len(self) + int(start)
+        if start == 0:
+            before = self.duty_before
+        elif self.duty_before is None:
+            before = self.duty[:start]
+        else:
+            before = np.concatenate([self.duty_before, self.duty[:start]])
         return Recording(
             t=t - t[0],
             duty=self.duty[start:stop].copy(),
@@ -135,6 +155,7 @@ class Recording:
             meta=dict(self.meta),
             extra={k: v[start:stop].copy() for k, v in self.extra.items()},
             extra_units=dict(self.extra_units),
+            duty_before=before,
         )
 
     def split(self, train_fraction: float) -> tuple[Recording, Recording]:

@@ -62,8 +62,8 @@ def to_model_frame(rec: Recording, offset: float) -> Recording:
         return rec
     ch = {**rec.channels, "theta": rec.channels["theta"] + offset}
     return Recording(
-        t=rec.t, duty=rec.duty, channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=dict(rec.meta)
-    )
+        t=rec.t, duty=rec.duty, channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=dict(rec.meta),
+        duty_before=rec.duty_before)
 
 
 def _overlay(rig: Rig, diag: Any, rec: Recording, prep: Any, offset: float) -> dict[str, Any]:

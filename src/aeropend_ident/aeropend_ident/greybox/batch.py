@@ -47,7 +47,7 @@ import functools
 import math
 import os
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from typing import Any
 
@@ -196,7 +196,8 @@ class RigReplays:
         table = np.array([[v[k] for k in keys] for v in values]).reshape(len(rigs), len(keys))
         return plant.vectors(keys, table)
 
-    def run(self, rigs: Sequence[Rig], x0: np.ndarray, channels: Sequence[str]
+    def run(self, rigs: Sequence[Rig], x0: np.ndarray, channels: Sequence[str],
+            carried: Sequence[Mapping[str, float] | None] | None = None
             ) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """Replay every rig from its initial state.
 
@@ -209,6 +210,10 @@ class RigReplays:
             winding temperature, then starts at its initial value).
         channels : sequence of str
             Channel names (:func:`aeropend_sim.simulation.simulate_batch`).
+        carried : sequence of (mapping or None), optional
+            Per row, values of some of the rig's own effect states by name (a winding temperature
+            [K] carried over from an earlier part of the run), set in the completed state; None (or
+            a row's None) leaves them at their initial values.
 
         Returns
         -------
@@ -230,15 +235,15 @@ class RigReplays:
                 p = self._vectors(plant, base, [rigs[b] for b in rows])
             except (RigFileError, ModelError, ValueError):
                 for b in rows:  # one by one: only the rows the format or the model refuses fail
-                    self._single(rigs[b], x0, channels, out, ok, b)
+                    self._single(rigs[b], x0, channels, out, ok, b, carried)
                 continue
-            self._replay(plant, p, rows, x0, channels, out, ok)
+            self._replay(plant, p, rows, x0, channels, out, ok, carried)
         with self._lock:
             self.rows += n_rows
         return out, ok
 
     def _single(self, rig: Rig, x0: np.ndarray, channels: Sequence[str], out: dict[str, np.ndarray],
-                ok: np.ndarray, b: int) -> None:
+                ok: np.ndarray, b: int, carried: Sequence[Mapping[str, float] | None] | None) -> None:
         """Replay row ``b`` alone (``x0``: the whole (B, n) array of initial states, as in :meth:`run`)."""
         try:
             plant, base = self.plant(rig)
@@ -249,11 +254,18 @@ class RigReplays:
             except (RigFileError, ModelError, ValueError):
                 return
             p = plant.p[None, :]
-        self._replay(plant, p, [b], x0, channels, out, ok)
+        self._replay(plant, p, [b], x0, channels, out, ok, carried)
 
     def _replay(self, plant: CompiledPlant, p: np.ndarray, rows: Sequence[int], x0: np.ndarray,
-                channels: Sequence[str], out: dict[str, np.ndarray], ok: np.ndarray) -> None:
+                channels: Sequence[str], out: dict[str, np.ndarray], ok: np.ndarray,
+                carried: Sequence[Mapping[str, float] | None] | None = None) -> None:
         xs = np.ascontiguousarray(x0[list(rows)])  # a chain-only state: completed by the plant
+        if carried is not None and any(carried[b] for b in rows):
+            layout = plant.states
+            xs = np.array(layout.complete(xs))
+            for i, b in enumerate(rows):
+                for name, value in (carried[b] or {}).items():
+                    xs[i, layout.index(name)] = value
         if not np.isfinite(xs).all():
             good = np.isfinite(xs).all(axis=1)
             rows = [b for b, g in zip(rows, good, strict=True) if g]

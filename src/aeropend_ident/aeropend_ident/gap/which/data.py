@@ -17,7 +17,7 @@ from aeropend_ident.gap.effects import (
     MeasurementMap,
     measurement_noise,
 )
-from aeropend_ident.greybox.batch import RigReplays
+from aeropend_ident.greybox.batch import RigReplays, structure
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_sim.model import ModelError, plant_model
 from aeropend_sim.params import Rig
@@ -67,6 +67,9 @@ class Prepared:
     #: How the log began, decided once by its first replay (:func:`_initial_states`): True when
     #: the motor and the rod were at rest, False when the motor ran at the first duty cycle.
     _at_rest: bool | None = field(default=None, repr=False, compare=False)
+    _history: RigReplays | None = field(default=None, repr=False, compare=False)
+    #: :func:`_carried_states` of each rig (its structure and values) replayed so far.
+    _carried: dict[tuple, dict[str, float] | None] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def n(self) -> int:
@@ -115,6 +118,20 @@ class Prepared:
         if self._head is None:
             self._head = RigReplays(self.duty[:k], self.dt, tau_before=float(self.duty[0]))
         return self._head
+
+
+    @property
+    def history(self) -> RigReplays | None:
+        """Batched replays of the run before this recording (:attr:`Recording.duty_before`, then the
+        first duty cycle, so that the replay's last sample is the state at this recording's first:
+        :func:`_carried_states`); None for a recording that starts its run."""
+        before = self.rec.duty_before
+        if before is None or not before.size:
+            return None
+        if self._history is None:
+            duty = np.clip(np.concatenate([before, self.duty[:1]]), 0.0, 1.0)
+            self._history = RigReplays(duty, self.dt, tau_before=float(duty[0]))
+        return self._history
 
 
 def prepare(recordings: Sequence[Recording], channels: frozenset[str]) -> list[Prepared]:
@@ -222,8 +239,14 @@ def replay_reference(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str
         If the simulation fails for this rig.
     """
     try:
-        (sim_rig,), x0 = _initial_states([(rig, meas)], prep)
-        traj = simulate(sim_rig, prep.duty, x0=x0[0], dt=prep.dt, tau_before=float(prep.duty[0]))
+        (sim_rig,), x0, (carried,) = _initial_states([(rig, meas)], prep)
+        x = x0[0]
+        if carried:
+            layout = plant_model(sim_rig).states
+            x = np.array(layout.complete(x))
+            for name, value in carried.items():
+                x[layout.index(name)] = value
+        traj = simulate(sim_rig, prep.duty, x0=x, dt=prep.dt, tau_before=float(prep.duty[0]))
     except (SimulationError, ModelError, IdentificationError, ValueError) as exc:
         raise GapError(
             f"replay of {prep.rec.source or 'a recording'} with rig {rig.name!r} failed: {exc}") from exc
@@ -236,10 +259,10 @@ def replay_reference(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str
 
 
 def _initial_states(rows: Sequence[tuple[Rig, MeasurementMap]], prep: Prepared
-                    ) -> tuple[list[Rig], np.ndarray]:
-    """The replay rigs (noise-free) and initial states (B, 5) of ``rows`` on ``prep``: the start of
-    :func:`_initial_state`, its θ and θ̇ then estimated by :func:`_refine_initial_states`; a row whose
-    start fails is NaN.
+                    ) -> tuple[list[Rig], np.ndarray, list[dict[str, float] | None]]:
+    """The replay rigs (noise-free), initial states (B, 5) of ``rows`` on ``prep`` and the values of
+    their own effects' states (:func:`_carried_states`): the start of :func:`_initial_state`, its θ
+    and θ̇ then estimated by :func:`_refine_initial_states`; a row whose start fails is NaN.
 
     The motor states a recording does not hold are not observed at its first sample. Two starts
     are possible when the first duty cycle is not 0: the motor steady at it and the rod's rate
@@ -270,18 +293,64 @@ def _initial_states(rows: Sequence[tuple[Rig, MeasurementMap]], prep: Prepared
                 x0[b] = np.nan
         return x0
 
+    carried = _carried_states(rigs, prep)
     if not two or not rows or prep._at_rest is False:
-        return rigs, _refine_initial_states(rigs, metas, starts(False), prep)[0]
+        return rigs, _refine_initial_states(rigs, metas, starts(False), prep, carried)[0], carried
     if prep._at_rest:
-        return rigs, _refine_initial_states(rigs, metas, starts(True), prep)[0]
-    run, run_err = _refine_initial_states(rigs, metas, starts(False), prep)
-    rest, rest_err = _refine_initial_states(rigs, metas, starts(True), prep)
+        return rigs, _refine_initial_states(rigs, metas, starts(True), prep, carried)[0], carried
+    run, run_err = _refine_initial_states(rigs, metas, starts(False), prep, carried)
+    rest, rest_err = _refine_initial_states(rigs, metas, starts(True), prep, carried)
     prep._at_rest = bool(rest_err[0] < run_err[0])
-    return rigs, rest if prep._at_rest else run
+    return rigs, rest if prep._at_rest else run, carried
+
+
+def _carried_states(rigs: Sequence[Rig], prep: Prepared) -> list[dict[str, float] | None]:
+    """Per replay rig, the values of its own effects' states (a winding temperature) at ``prep``'s
+    first sample, carried over from the run before it.
+
+    A state no channel holds cannot be read off the recording's start; a recording that is a later
+    part of a run (a validation stretch carved from a session: :attr:`Recording.duty_before`) starts
+    where the rig's replay of the commands before it ends (the rig's own values: each candidate
+    carries its own heating). That replay starts with the motor steady at the run's first duty cycle
+    and the effect states at their initial values (the run's start). None for a rig without such
+    states, a recording that starts its run (:attr:`Prepared.history` None) or a failed replay: the
+    states then start at their initial values. Computed once per rig (its structure and values).
+    """
+    history = prep.history
+    out: list[dict[str, float] | None] = [None] * len(rigs)
+    if history is None:
+        return out
+    todo: dict[tuple, list[int]] = {}
+    for b, rig in enumerate(rigs):
+        key = (structure(rig), tuple(sorted(rig.values().items())))
+        if key in prep._carried:
+            out[b] = prep._carried[key]
+        elif plant_model(rig).states.extra:
+            todo.setdefault(key, []).append(b)
+    by_names: dict[tuple[str, ...], list[tuple]] = {}
+    for key, idx in todo.items():
+        by_names.setdefault(plant_model(rigs[idx[0]]).states.extra_names, []).append(key)
+    for names, keys in by_names.items():
+        batch = [rigs[todo[k][0]] for k in keys]
+        x0 = np.full((len(batch), 5), np.nan)
+        for i, rig in enumerate(batch):
+            try:
+                x0[i, 2:] = motor_equilibrium(rig, float(history.duty[0]))
+                x0[i, :2] = 0.0
+            except (ModelError, IdentificationError, ValueError):
+                pass
+        sim, ok = history.run(batch, x0, names)
+        for i, key in enumerate(keys):
+            values = {n: float(sim[n][i, -1]) for n in names} if ok[i] else None
+            prep._carried[key] = values
+            for b in todo[key]:
+                out[b] = values
+    return out
 
 
 def _refine_initial_states(rigs: Sequence[Rig], metas: Sequence[MeasurementMap], x0: np.ndarray,
-                           prep: Prepared) -> tuple[np.ndarray, np.ndarray]:
+                           prep: Prepared, carried: Sequence[dict[str, float] | None] | None = None
+                           ) -> tuple[np.ndarray, np.ndarray]:
     """Initial θ, θ̇ of each row estimated on the recording's first :data:`INITIAL_STATE_WINDOW`.
 
     One Gauss-Newton step of the recorded angle's least squares over that window from the smoothed
@@ -304,6 +373,8 @@ def _refine_initial_states(rigs: Sequence[Rig], metas: Sequence[MeasurementMap],
         Starting states (NaN rows are left alone).
     prep : Prepared
         The recording.
+    carried : sequence of (dict or None), optional
+        The rows' own effect states at the start (:func:`_carried_states`).
 
     Returns
     -------
@@ -320,7 +391,8 @@ def _refine_initial_states(rigs: Sequence[Rig], metas: Sequence[MeasurementMap],
     trial = np.repeat(x0, 3, axis=0)
     trial[1::3, 0] += INITIAL_STATE_STEPS[0]
     trial[2::3, 1] += INITIAL_STATE_STEPS[1]
-    sim, ok = head.run([r for r in rigs for _ in range(3)], trial, ("theta",))
+    sim, ok = head.run([r for r in rigs for _ in range(3)], trial, ("theta",),
+                       None if carried is None else [c for c in carried for _ in range(3)])
     out = x0.copy()
     for b, meas in enumerate(metas):
         if not ok[3 * b: 3 * b + 3].all():
@@ -346,8 +418,8 @@ def replay_many(rows: Sequence[tuple[Rig, MeasurementMap]], prep: Prepared,
     A row whose initial state or replay fails is None.
     """
     names = tuple(prep.y) if channels is None else tuple(channels)
-    rigs, x0 = _initial_states(rows, prep)
-    sim, ok = prep.replays.run(rigs, x0, names)
+    rigs, x0, carried = _initial_states(rows, prep)
+    sim, ok = prep.replays.run(rigs, x0, names, carried)
     out: list[dict[str, np.ndarray] | None] = []
     for b, (_rig, meas) in enumerate(rows):
         if not ok[b]:
