@@ -322,14 +322,16 @@ def _carried_states(rigs: Sequence[Rig], prep: Prepared) -> list[dict[str, float
         return out
     todo: dict[tuple, list[int]] = {}
     for b, rig in enumerate(rigs):
+        if not _effect_states(structure(rig), rig):
+            continue
         key = (structure(rig), tuple(sorted(rig.values().items())))
         if key in prep._carried:
             out[b] = prep._carried[key]
-        elif plant_model(rig).states.extra:
+        else:
             todo.setdefault(key, []).append(b)
     by_names: dict[tuple[str, ...], list[tuple]] = {}
     for key, idx in todo.items():
-        by_names.setdefault(plant_model(rigs[idx[0]]).states.extra_names, []).append(key)
+        by_names.setdefault(_effect_states(key[0], rigs[idx[0]]), []).append(key)
     for names, keys in by_names.items():
         batch = [rigs[todo[k][0]] for k in keys]
         x0 = np.full((len(batch), 5), np.nan)
@@ -346,6 +348,18 @@ def _carried_states(rigs: Sequence[Rig], prep: Prepared) -> list[dict[str, float
             for b in todo[key]:
                 out[b] = values
     return out
+
+
+_EFFECT_STATES: dict[tuple, tuple[str, ...]] = {}
+
+
+def _effect_states(key: tuple, rig: Rig) -> tuple[str, ...]:
+    """Names of the effect states of ``rig``, whose :func:`structure` is ``key`` (asked of its plant
+    model once per structure: a fit's every new rig would otherwise build a model)."""
+    names = _EFFECT_STATES.get(key)
+    if names is None:
+        names = _EFFECT_STATES[key] = plant_model(rig).states.extra_names
+    return names
 
 
 def _refine_initial_states(rigs: Sequence[Rig], metas: Sequence[MeasurementMap], x0: np.ndarray,
