@@ -1,10 +1,11 @@
 """A state no channel holds, carried across a cut of the run (issue 64 item 3, motor heating).
 
 A validation stretch carved from a running session starts with the winding warm. The replay of
-such a stretch starts its winding temperature T_m where the candidate's own replay of the commands
-before the cut ends (:attr:`aeropend_sim.recording.Recording.duty_before`); the truth here is the
-whole run simulated in one piece. Before this, the stretch was replayed from a cold winding and the
-diagnosis named heating in 2 of 8 heated plants of ``bench/bench_gap_heating.py``.
+such a stretch (the diagnosis' batched replays and the one free run its figures come from) starts
+its winding temperature T_m where the candidate's own replay of the commands before the cut ends
+(:attr:`aeropend_sim.recording.Recording.duty_before`); the truth here is the whole run simulated
+in one piece. Before this, the stretch was replayed from a cold winding and the diagnosis named
+heating in 2 of 8 heated plants of ``bench/bench_gap_heating.py``.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import pytest
 
 from aeropend_ident.gap.effects import MeasurementMap
 from aeropend_ident.gap.which.data import prepare, replay_many, replay_reference
+from aeropend_ident.gap.which.metrics import one_free_run
 from aeropend_sim.model import plant_model
 from aeropend_sim.params import load_rig
 from aeropend_sim.recording import Recording
@@ -65,8 +67,33 @@ def test_a_stretch_cut_from_a_running_session_starts_with_the_winding_where_the_
     err_warm = float(np.sqrt(np.mean((w["i_a"] - i_rec) ** 2)))
     err_cold = float(np.sqrt(np.mean((c["i_a"] - i_rec) ** 2)))
     assert err_warm < 0.1 * err_cold
+    # the one free run the reported figures come from carries it the same way
+    runs = [one_free_run(rig, MeasurementMap(), p).channels["i_a"] - i_rec for p in (warm, cold)]
+    assert float(np.sqrt(np.mean(runs[0] ** 2))) < 0.1 * float(np.sqrt(np.mean(runs[1] ** 2)))
     # and a rig without the effect replays the stretch as before
     plain = load_rig("thesis_rig").with_effects(sensor_noise=False, quantisation=False)
     row = [(plain, MeasurementMap())]
     (a,), (b,) = replay_many(row, warm), replay_many(row, cold)
     np.testing.assert_array_equal(a["theta"], b["theta"])
+
+
+def test_baseline_replays_a_held_out_part_from_the_winding_its_fit_part_left():
+    """``baseline`` scores the held-out part of a recording as the continuation of its fit part."""
+    from aeropend_ident.greybox.baseline import _replay
+    from aeropend_ident.greybox.uniform import UniformData
+
+    rig = _heated()
+    dt = rig.sample_period
+    n = round(30.0 / dt)
+    duty = np.repeat(np.random.default_rng(4).uniform(0.45, 0.8, 15), -(-n // 15))[:n]
+    theta = simulate(rig, duty).true["theta"]
+    k = round(0.7 * n)
+
+    def part(a: int, b: int) -> UniformData:
+        return UniformData(t=np.arange(b - a) * dt, duty=duty[a:b], theta=theta[a:b], dt=dt, resampled=False,
+                           decimate=1, source="run")
+
+    held, fit = part(k, n), part(0, k)
+    err = [float(np.sqrt(np.mean((_replay(rig, 0.0, held, h, None).theta - held.theta) ** 2)))
+           for h in (fit, None)]
+    assert err[0] < 0.1 * err[1]

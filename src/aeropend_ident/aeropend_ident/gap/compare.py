@@ -300,7 +300,8 @@ def compare(models: Sequence[RigModel], recordings: Sequence[Recording],
             try:  # the one free-run replay of every command (start, divergence, NRMSE)
                 meas = m.measurement
                 run = free_run(m.rig, tr["t"], prep.duty, prep.y["theta"], theta_offset=meas.theta_offset,
-                               theta_scale=meas.theta_scale, source=rec.source or label)
+                               theta_scale=meas.theta_scale, source=rec.source or label,
+                               duty_before=rec.duty_before)
             except (GapError, IdentificationError) as exc:
                 res.scores.setdefault(mlabel, {})[label] = {"error": str(exc)}
                 continue

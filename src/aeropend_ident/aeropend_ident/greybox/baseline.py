@@ -312,15 +312,17 @@ def _replay(rig: Rig, off: float, data: UniformData, history: UniformData | None
             ) -> FreeRun:
     """The one free run (:func:`aeropend_ident.greybox.replay.free_run`) of a held-out part; with
     ``history`` (the fit part it continues) the run starts early enough that the rig's dead time
-    sees the commands before the split; ``span`` normalises a hold (:func:`_hold_span`)."""
+    sees the commands before the split and the rig's own effect states (a winding temperature) start
+    where its replay of the fit part ends; ``span`` normalises a hold (:func:`_hold_span`)."""
     delay = rig.actuator.input_delay if rig.effects.input_delay else 0.0
     k = math.ceil(delay / data.dt) + 1 if delay > 0.0 and history is not None else 0
     if k == 0 or history is None or len(history) < k:
-        return free_run(rig, data.t, data.duty, data.theta, theta_offset=off, span=span, source=data.source)
+        return free_run(rig, data.t, data.duty, data.theta, theta_offset=off, span=span, source=data.source,
+                        duty_before=None if history is None else history.duty)
     t = np.concatenate([data.t[0] - data.dt * np.arange(k, 0, -1), data.t])
     return free_run(rig, t, np.concatenate([history.duty[-k:], data.duty]),
                     np.concatenate([history.theta[-k:], data.theta]), theta_offset=off, span=span,
-                    source=data.source, lead=k)
+                    source=data.source, lead=k, duty_before=history.duty[:-k])
 
 
 def _hold_span(measured: np.ndarray, span_all: float) -> float | None:

@@ -55,16 +55,17 @@ rig without measurement noise or quantisation (the recording supplies those).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from aeropend_ident.errors import IdentificationError
+from aeropend_ident.greybox.batch import RigReplays, structure
 from aeropend_ident.greybox.fit import error_metrics, measurement_noise, motor_equilibrium
 from aeropend_ident.io.overlay_axes import divergence_window, diverges, excursions, short_number
 from aeropend_ident.io.recording_input import detect_quantum
-from aeropend_sim.model import ModelError
+from aeropend_sim.model import ModelError, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.simulation import SimulationError, simulate
 
@@ -315,13 +316,82 @@ def nrmse(measured: np.ndarray, simulated: np.ndarray, span: float | None = None
     return m["nrmse"], m["rms_error"], m["range"]
 
 
+def _noise_free(rig: Rig) -> Rig:
+    """``rig`` without sensor noise and quantisation (a replay's: the recording supplies those)."""
+    if rig.effects.sensor_noise or rig.effects.quantisation:
+        return rig.with_effects(sensor_noise=False, quantisation=False)
+    return rig
+
+
+_EFFECT_STATES: dict[tuple, tuple[str, ...]] = {}
+
+
+def effect_states(rig: Rig) -> tuple[str, ...]:
+    """Names of ``rig``'s own effect states (a winding temperature ``T_m``; none on most rigs), asked
+    of its plant model once per structure (:func:`aeropend_ident.greybox.batch.structure`): a fit's
+    every new rig would otherwise build a model."""
+    key = structure(rig)
+    names = _EFFECT_STATES.get(key)
+    if names is None:
+        names = _EFFECT_STATES[key] = plant_model(rig).states.extra_names
+    return names
+
+
+def carried_states(rigs: Sequence[Rig], history: RigReplays) -> list[dict[str, float] | None]:
+    """Each rig's own effect states at the end of the run before a recording that continues it.
+
+    No channel holds such a state (a winding temperature), so a recording that is a later part of a
+    run (:attr:`aeropend_sim.recording.Recording.duty_before`: a validation stretch or a held-out
+    part cut from a session) cannot start it from its own samples: it starts where the rig's replay
+    of the commands before ends. That replay starts with the rod at 0 and still, the motor steady at
+    the run's first command and the effect states at their initial values (the run's start).
+
+    Parameters
+    ----------
+    rigs : sequence of Rig
+        Noise-free replay rigs.
+    history : RigReplays
+        Replays of the commands before the recording, then its first command (so the last output
+        sample is the state at the recording's first).
+
+    Returns
+    -------
+    list of (dict or None)
+        Per rig, ``{state name: value}`` (SI units: K for ``T_m``); None for a rig without effect
+        states, or whose history replay fails (its states then start at their initial values).
+    """
+    out: list[dict[str, float] | None] = [None] * len(rigs)
+    groups: dict[tuple[str, ...], list[int]] = {}
+    for b, rig in enumerate(rigs):
+        names = effect_states(rig)
+        if names:
+            groups.setdefault(names, []).append(b)
+    for names, idx in groups.items():
+        x0 = np.full((len(idx), 5), np.nan)
+        for i, b in enumerate(idx):
+            try:
+                x0[i, 2:] = motor_equilibrium(rigs[b], float(history.duty[0]))
+                x0[i, :2] = 0.0
+            except (ModelError, IdentificationError, ValueError):
+                pass
+        sim, ok = history.run([rigs[b] for b in idx], x0, names)
+        for i, b in enumerate(idx):
+            out[b] = {n: float(sim[n][i, -1]) for n in names} if ok[i] else None
+    return out
+
+
+def history_replays(duty_before: np.ndarray, first: float, dt: float) -> RigReplays:
+    """The :class:`RigReplays` :func:`carried_states` takes: the commands before a recording
+    (clipped to [0, 1]), then its first command ``first``, at its sample period ``dt`` [s]."""
+    duty = np.clip(np.concatenate([np.asarray(duty_before, dtype=float), [first]]), 0.0, 1.0)
+    return RigReplays(duty, dt, tau_before=float(duty[0]))
+
+
 def _simulate(rig: Rig, duty: np.ndarray, x0: np.ndarray, dt: float,
               ) -> tuple[dict[str, np.ndarray], int | None]:
     """Noise-free channels of the replay and the first non-finite sample (None if none)."""
-    sim_rig = rig.with_effects(sensor_noise=False, quantisation=False) \
-        if rig.effects.sensor_noise or rig.effects.quantisation else rig
     try:
-        traj = simulate(sim_rig, duty, x0=x0, dt=dt, tau_before=float(duty[0]))
+        traj = simulate(_noise_free(rig), duty, x0=x0, dt=dt, tau_before=float(duty[0]))
     except SimulationError as exc:
         failed = getattr(exc, "sample", None)
         if failed is None:
@@ -332,7 +402,7 @@ def _simulate(rig: Rig, duty: np.ndarray, x0: np.ndarray, dt: float,
 
 def free_run(rig: Rig, t: np.ndarray, duty: np.ndarray, theta: np.ndarray, *, theta_offset: float = 0.0,
              theta_scale: float = 1.0, span: float | None = None, source: str = "", lead: int = 0,
-             ) -> FreeRun:
+             duty_before: np.ndarray | None = None) -> FreeRun:
     """Replay ``rig`` on a recorded stretch in free run and score its θ (module docstring).
 
     Parameters
@@ -357,6 +427,10 @@ def free_run(rig: Rig, t: np.ndarray, duty: np.ndarray, theta: np.ndarray, *, th
         time sees the commands before the split. The result (trace, NRMSE, divergence time from
         the scored part's first sample) covers the samples from ``lead`` on; the start is estimated
         at sample 0.
+    duty_before : ndarray, shape (M,), optional
+        Commands of the same run before ``t[0]`` (:attr:`aeropend_sim.recording.Recording.duty_before`):
+        the rig's own effect states (a winding temperature) then start where its replay of them
+        ends (:func:`carried_states`), not at their initial values.
 
     Returns
     -------
@@ -382,8 +456,17 @@ def free_run(rig: Rig, t: np.ndarray, duty: np.ndarray, theta: np.ndarray, *, th
     start = initial_state(rig, y[held:], u[held:], dt, theta_offset, theta_scale)
     if held:
         start = replace(start, released_at=held * dt)
+    x0 = start.x
+    if duty_before is not None and len(duty_before) and effect_states(rig):
+        before = np.concatenate([np.asarray(duty_before, dtype=float), u[:held]])
+        (carried,) = carried_states([_noise_free(rig)], history_replays(before, float(u[held]), dt))
+        if carried:
+            layout = plant_model(rig).states
+            x0 = np.array(layout.complete(x0))
+            for state, value in carried.items():
+                x0[layout.index(state)] = value
     try:
-        sim, failed = _simulate(rig, u[held:], start.x, dt)
+        sim, failed = _simulate(rig, u[held:], x0, dt)
     except (SimulationError, ModelError) as exc:
         raise IdentificationError(f"free run of rig {rig.name!r} on {name} failed: {exc}") from exc
     if held:  # before the release the rod is where it was held

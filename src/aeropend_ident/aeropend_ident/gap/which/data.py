@@ -19,6 +19,7 @@ from aeropend_ident.gap.effects import (
 )
 from aeropend_ident.greybox.batch import RigReplays, structure
 from aeropend_ident.greybox.fit import motor_equilibrium
+from aeropend_ident.greybox.replay import carried_states, effect_states, history_replays
 from aeropend_sim.model import ModelError, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
@@ -129,8 +130,7 @@ class Prepared:
         if before is None or not before.size:
             return None
         if self._history is None:
-            duty = np.clip(np.concatenate([before, self.duty[:1]]), 0.0, 1.0)
-            self._history = RigReplays(duty, self.dt, tau_before=float(duty[0]))
+            self._history = history_replays(before, float(self.duty[0]), self.dt)
         return self._history
 
 
@@ -306,15 +306,10 @@ def _initial_states(rows: Sequence[tuple[Rig, MeasurementMap]], prep: Prepared
 
 def _carried_states(rigs: Sequence[Rig], prep: Prepared) -> list[dict[str, float] | None]:
     """Per replay rig, the values of its own effects' states (a winding temperature) at ``prep``'s
-    first sample, carried over from the run before it.
-
-    A state no channel holds cannot be read off the recording's start; a recording that is a later
-    part of a run (a validation stretch carved from a session: :attr:`Recording.duty_before`) starts
-    where the rig's replay of the commands before it ends (the rig's own values: each candidate
-    carries its own heating). That replay starts with the motor steady at the run's first duty cycle
-    and the effect states at their initial values (the run's start). None for a rig without such
-    states, a recording that starts its run (:attr:`Prepared.history` None) or a failed replay: the
-    states then start at their initial values. Computed once per rig (its structure and values).
+    first sample: :func:`aeropend_ident.greybox.replay.carried_states` of the run before it
+    (:attr:`Prepared.history`), each rig carrying its own; None for a rig without such states, a
+    recording that starts its run or a failed replay (the states then start at their initial
+    values). Computed once per rig (its structure and values) and recording.
     """
     history = prep.history
     out: list[dict[str, float] | None] = [None] * len(rigs)
@@ -322,44 +317,19 @@ def _carried_states(rigs: Sequence[Rig], prep: Prepared) -> list[dict[str, float
         return out
     todo: dict[tuple, list[int]] = {}
     for b, rig in enumerate(rigs):
-        if not _effect_states(structure(rig), rig):
+        if not effect_states(rig):
             continue
         key = (structure(rig), tuple(sorted(rig.values().items())))
         if key in prep._carried:
             out[b] = prep._carried[key]
         else:
             todo.setdefault(key, []).append(b)
-    by_names: dict[tuple[str, ...], list[tuple]] = {}
-    for key, idx in todo.items():
-        by_names.setdefault(_effect_states(key[0], rigs[idx[0]]), []).append(key)
-    for names, keys in by_names.items():
-        batch = [rigs[todo[k][0]] for k in keys]
-        x0 = np.full((len(batch), 5), np.nan)
-        for i, rig in enumerate(batch):
-            try:
-                x0[i, 2:] = motor_equilibrium(rig, float(history.duty[0]))
-                x0[i, :2] = 0.0
-            except (ModelError, IdentificationError, ValueError):
-                pass
-        sim, ok = history.run(batch, x0, names)
-        for i, key in enumerate(keys):
-            values = {n: float(sim[n][i, -1]) for n in names} if ok[i] else None
-            prep._carried[key] = values
-            for b in todo[key]:
-                out[b] = values
+    keys = list(todo)
+    for key, values in zip(keys, carried_states([rigs[todo[k][0]] for k in keys], history), strict=True):
+        prep._carried[key] = values
+        for b in todo[key]:
+            out[b] = values
     return out
-
-
-_EFFECT_STATES: dict[tuple, tuple[str, ...]] = {}
-
-
-def _effect_states(key: tuple, rig: Rig) -> tuple[str, ...]:
-    """Names of the effect states of ``rig``, whose :func:`structure` is ``key`` (asked of its plant
-    model once per structure: a fit's every new rig would otherwise build a model)."""
-    names = _EFFECT_STATES.get(key)
-    if names is None:
-        names = _EFFECT_STATES[key] = plant_model(rig).states.extra_names
-    return names
 
 
 def _refine_initial_states(rigs: Sequence[Rig], metas: Sequence[MeasurementMap], x0: np.ndarray,

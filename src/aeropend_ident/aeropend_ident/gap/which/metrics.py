@@ -120,7 +120,9 @@ def gap_metrics(rig: Rig, meas: MeasurementMap, preps: Sequence[Prepared]) -> di
 
 def one_free_run(rig: Rig, meas: MeasurementMap, p: Prepared) -> FreeRun:
     """The one free run of every command (:func:`aeropend_ident.greybox.replay.free_run`) of ``rig``
-    seen through ``meas`` on the recording ``p``: the figures a diagnosis reports come from it.
+    seen through ``meas`` on the recording ``p``: the figures a diagnosis reports come from it. A
+    recording that continues a run (a carved validation stretch) starts the rig's own effect states
+    where its replay of the commands before ends, as the diagnosis' ranking replays do.
 
     Raises
     ------
@@ -129,7 +131,8 @@ def one_free_run(rig: Rig, meas: MeasurementMap, p: Prepared) -> FreeRun:
     """
     try:
         return free_run(rig, np.arange(p.n) * p.dt, p.duty, p.y["theta"], theta_offset=meas.theta_offset,
-                        theta_scale=meas.theta_scale, source=p.rec.source or "a recording")
+                        theta_scale=meas.theta_scale, source=p.rec.source or "a recording",
+                        duty_before=p.rec.duty_before)
     except IdentificationError as exc:
         raise GapError(str(exc)) from exc
 
