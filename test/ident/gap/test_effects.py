@@ -315,6 +315,15 @@ def test_fit_leaves_a_log_parameter_started_at_its_nominal_value():
     assert res.values["gravity"]["mgd_over_J"] == pytest.approx(0.8 * _P.mgd_over_J, rel=0.01)
 
 
+def test_a_fit_refuses_an_effect_of_another_family_by_name():
+    # an ESC's speed response on an H-bridge rig read the rig's missing T_m (AttributeError) before
+    rec = Recording(t=np.arange(200) * 0.01, duty=np.full(200, 0.5), channels={"theta": np.zeros(200)})
+    preps = prepare([rec], frozenset({"theta"}))
+    ctx = EffectContext.from_data(RIG, rec.channels["theta"], rec.duty)
+    with pytest.raises(GapError, match=r"\['esc_response'\] are not hypotheses for a dc_hbridge rig"):
+        fit_effects(RIG, ["inertia", "esc_response"], preps, ctx)
+
+
 def test_a_parameter_rig_fit_left_at_a_bound_has_its_effects_confirmed():
     """Issue 60 item 5: a rig fit value at its search bound may have absorbed an effect; gap confirms
     the catalog effects that set that parameter (and those confusable with them), and says so."""

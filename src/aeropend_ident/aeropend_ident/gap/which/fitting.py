@@ -21,6 +21,8 @@ from aeropend_ident.gap.effects import (
     MeasurementMap,
     ParamRange,
     apply_effects,
+    catalog,
+    drift_only,
     get_effect,
 )
 from aeropend_ident.gap.which.data import Prepared, residuals_many
@@ -183,12 +185,18 @@ def fit_effects(rig: Rig, effects: Sequence[str], preps: Sequence[Prepared], ctx
     Raises
     ------
     GapError
-        On an unknown or directly detected effect.
+        On an unknown or directly detected effect, or one that is not a hypothesis for the rig's
+        actuator family (an ESC's speed response on an H-bridge rig).
     """
     effs = [get_effect(n) for n in effects]
     bad = [e.name for e in effs if e.kind == "direct"]
     if bad:
         raise GapError(f"effect(s) {bad} are detected from the data, not fitted")
+    own = {e.name for e in (*catalog(rig.family), *drift_only(rig.family))}
+    foreign = [e.name for e in effs if e.name not in own]
+    if foreign:
+        raise GapError(f"effect(s) {foreign} are not hypotheses for a {rig.family} rig; its catalog has "
+                       f"{sorted(own)}")
     coords = _coords(effs, ctx)
     base = {e.name: {**e.probe_values(ctx), **dict((start or {}).get(e.name, {}))} for e in effs}
 
