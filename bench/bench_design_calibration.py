@@ -26,24 +26,20 @@ Scored: a reliability table of predicted probability (deciles) against the obser
 the bar is agreement within 10 points in every decile with ten cases or more. Also the Brier score
 of the predictions and the time per case.
 
-Usage: ``python -m bench.bench_design_calibration [--only 10,11] [--workers 2] [-q]`` ->
+Usage: ``python -m bench.bench_design_calibration [--only 24,73] [--workers 2] [-q]`` (default: every
+single and triple) ->
 ``bench/results/design_calibration.{json,md}``.
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 import math
-import platform
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-
-from bench.fixtures.provenance import git_commit
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: Length of every designed recording [s].
@@ -180,26 +176,11 @@ def default_cases() -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from aeropend_ident.parallel import run_cases
+    from bench.bench_design_discrimination import lab_case_bench
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    ap.add_argument("--only", default="",
-                    help="comma-separated lab case indices (default: the singles and the triples)")
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=RESULTS / "design_calibration")
-    ap.add_argument("-q", "--quiet", action="store_true")
-    args = ap.parse_args(argv)
-    idx = [int(x) for x in args.only.split(",") if x.strip()] or default_cases()
-    t0 = time.perf_counter()
-    rows = sorted((r for _i, r in run_cases(run_case, [{"index": i} for i in idx], workers=args.workers,
-                                             desc="calibration", quiet=args.quiet)), key=lambda r: r["index"])
-    doc = {"meta": {"commit": git_commit(), "python": platform.python_version(), "workers": args.workers,
-                    "wall_s": time.perf_counter() - t0, "duration_s": DURATION, "draws": DRAWS},
-           "summary": reliability(rows), "cases": rows}
-    args.out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
-    write_md(args.out.with_suffix(".md"), doc)
-    print(args.out.with_suffix(".md").read_text())
-    return 0
+    return lab_case_bench(__doc__.split("\n", 1)[0], run_case, reliability, write_md, default=default_cases(),
+                          out=RESULTS / "design_calibration", desc="calibration",
+                          meta={"duration_s": DURATION, "draws": DRAWS}, argv=argv)
 
 
 if __name__ == "__main__":

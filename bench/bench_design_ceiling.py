@@ -19,16 +19,12 @@ Usage: ``python -m bench.bench_design_ceiling [--only 73,80] [--workers 2] [-q]`
 
 from __future__ import annotations
 
-import argparse
-import json
-import platform
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
 from bench.bench_design_discrimination import DEFAULT_CASES, DURATION
-from bench.fixtures.provenance import git_commit
 
 RESULTS = Path(__file__).resolve().parent / "results"
 #: Seeds of the extra APRBS recordings (the design's own seed 0 is not reused).
@@ -87,29 +83,18 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     path.write_text("\n".join(lines))
 
 
-def main(argv: list[str] | None = None) -> int:
-    from aeropend_ident.parallel import run_cases
+def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    return {**{f"all_named_extra_{n}": sum(r[f"extra_{n}"]["pass"] for r in rows) for n in EXTRAS},
+            "cases": len(rows)}
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    triples = [i for i in DEFAULT_CASES if i not in (0, 2)]
-    ap.add_argument("--only", default=",".join(map(str, triples)), help="lab case indices")
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=RESULTS / "design_ceiling")
-    ap.add_argument("-q", "--quiet", action="store_true")
-    args = ap.parse_args(argv)
-    jobs = [{"index": int(x)} for x in args.only.split(",") if x.strip()]
-    t0 = time.perf_counter()
-    rows = sorted((r for _i, r in run_cases(run_case, jobs, workers=args.workers, desc="ceiling",
-                                             quiet=args.quiet)), key=lambda r: r["index"])
-    doc = {"meta": {"commit": git_commit(), "python": platform.python_version(), "workers": args.workers,
-                    "wall_s": time.perf_counter() - t0, "duration_s": DURATION, "seeds": list(SEEDS)},
-           "summary": {f"all_named_extra_{n}": sum(r[f"extra_{n}"]["pass"] for r in rows) for n in EXTRAS}
-           | {"cases": len(rows)},
-           "cases": rows}
-    args.out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
-    write_md(args.out.with_suffix(".md"), doc)
-    print(args.out.with_suffix(".md").read_text())
-    return 0
+
+def main(argv: list[str] | None = None) -> int:
+    from bench.bench_design_discrimination import lab_case_bench
+
+    return lab_case_bench(__doc__.split("\n", 1)[0], run_case, summarise, write_md,
+                          default=[i for i in DEFAULT_CASES if i not in (0, 2)],
+                          out=RESULTS / "design_ceiling", desc="ceiling",
+                          meta={"duration_s": DURATION, "seeds": list(SEEDS)}, argv=argv)
 
 
 if __name__ == "__main__":

@@ -45,6 +45,7 @@ import json
 import platform
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -282,26 +283,37 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
     path.write_text("\n".join(lines))
 
 
-def main(argv: list[str] | None = None) -> int:
+def lab_case_bench(description: str, run_case: Any, summarise: Any, write_md: Any, *, default: Sequence[int],
+                   out: Path, desc: str, meta: dict[str, Any], argv: list[str] | None = None) -> int:
+    """The command line shared by the design benchmarks over lab cases: ``--only`` (lab case indices,
+    default ``default``), ``--workers``, ``--out`` (stem, default ``out``), ``-q``; the cases run by
+    :func:`aeropend_ident.parallel.run_cases`, sorted by index, written as ``{meta, summary, cases}``
+    JSON (``meta`` gets the commit, Python, workers and wall time) and as markdown by ``write_md``."""
     from aeropend_ident.parallel import run_cases
 
-    ap = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    ap.add_argument("--only", default=",".join(map(str, DEFAULT_CASES)), help="lab case indices")
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--only", default=",".join(map(str, default)), help="comma-separated lab case indices")
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--out", type=Path, default=RESULTS / "design_discrimination")
+    ap.add_argument("--out", type=Path, default=out)
     ap.add_argument("-q", "--quiet", action="store_true")
     args = ap.parse_args(argv)
     jobs = [{"index": int(x)} for x in args.only.split(",") if x.strip()]
     t0 = time.perf_counter()
-    rows = sorted((r for _i, r in run_cases(run_case, jobs, workers=args.workers, desc="designs",
+    rows = sorted((r for _i, r in run_cases(run_case, jobs, workers=args.workers, desc=desc,
                                              quiet=args.quiet)), key=lambda r: r["index"])
     doc = {"meta": {"commit": git_commit(), "python": platform.python_version(), "workers": args.workers,
-                    "wall_s": time.perf_counter() - t0, "duration_s": DURATION},
+                    "wall_s": time.perf_counter() - t0, **meta},
            "summary": summarise(rows), "cases": rows}
     args.out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
     write_md(args.out.with_suffix(".md"), doc)
     print(args.out.with_suffix(".md").read_text())
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return lab_case_bench(__doc__.split("\n", 1)[0], run_case, summarise, write_md, default=DEFAULT_CASES,
+                          out=RESULTS / "design_discrimination", desc="designs",
+                          meta={"duration_s": DURATION}, argv=argv)
 
 
 if __name__ == "__main__":
