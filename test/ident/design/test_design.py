@@ -161,6 +161,17 @@ def test_candidate_sets_add_and_swap():
     assert candidate_sets([], ranking, max_effects=1)[:3] == [(), ("inertia",), ("actuator_lag",)]
 
 
+def test_candidate_sets_swap_two_chosen_effects_at_once():
+    # lab case 81: a sensor gain standing for a thrust coefficient and an input delay for an actuator
+    # lag; the truth needs both swaps (one at a time never reaches it)
+    chosen = ["sensor_scale", "viscous_friction", "input_delay"]
+    ranking = [{"effect": e} for e in (*chosen, "thrust_coefficient", "thrust_law", "gravity", "actuator_lag")]
+    sets = candidate_sets(chosen, ranking, max_effects=3)
+    assert ("actuator_lag", "thrust_coefficient", "viscous_friction") in sets
+    assert ("actuator_lag", "sensor_scale", "viscous_friction") in sets  # one swap still there
+    assert len(sets) == len(set(sets)) and all(len(x) <= 3 for x in sets)
+
+
 def test_d_optimal_design_shrinks_the_predicted_uncertainty():
     rig = load_rig("thesis_sim")
     keys = ("pendulum.c_over_J", "pendulum.mgd_over_J")

@@ -7,8 +7,8 @@ much) the truth may be another set. The candidates are:
 * the chosen set (the corrected rig; the nominal rig when nothing was chosen),
 * the chosen set plus each of the best-ranked other effects (while the set is below
   ``max_effects``), and
-* the chosen set with one of its members swapped for an effect confusable or ambiguous with it
-  (or from the same subsystem), and
+* the chosen set with one of its members, or two at once, swapped for an effect confusable or
+  ambiguous with it (or from the same subsystem), and
 * every compatible set of up to ``max_effects`` effects from a pool of the chosen effects and the
   best-ranked others (:data:`POOL` in all),
 
@@ -44,7 +44,7 @@ from aeropend_sim.recording import Recording
 #: A candidate whose fit error exceeds this multiple of the best one is refuted by the earlier data.
 KEEP_SSE_FACTOR = 1.25
 #: Ranked effects (besides the chosen ones) turned into candidates, best-ranked first.
-N_ALTERNATIVES = 6
+N_ALTERNATIVES = 9
 #: Effects (the chosen ones first) whose compatible subsets are candidates (:func:`candidate_sets`).
 POOL = 6
 #: An effect whose fitted parameters all lie within this share of their search span (or this
@@ -135,6 +135,7 @@ def candidate_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]], 
     sets: list[tuple[str, ...]] = [chosen]
     conf = {c: set(get_effect(c).confusable_with) for c in chosen}
     sub = {c: get_effect(c).subsystem for c in chosen}
+    stand_in: dict[str, list[str]] = {c: [] for c in chosen}  # ranked effects that may stand for c
     for r in others[:n_alternatives]:
         e = str(r["effect"])
         e_conf = set(get_effect(e).confusable_with) | set(r.get("confusable_with") or [])
@@ -142,9 +143,17 @@ def candidate_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]], 
             sets.append(tuple(sorted((*chosen, e))))
         for c in chosen:
             if e in conf[c] or c in e_conf or e in amb or sub[c] == get_effect(e).subsystem:
+                stand_in[c].append(e)
                 rest = tuple(x for x in chosen if x != c)
                 if e not in excluded_with(rest):
                     sets.append(tuple(sorted((*rest, e))))
+    # two chosen effects each standing for another (a sensor gain for a thrust coefficient and an
+    # input delay for an actuator lag at once)
+    for c1, c2 in itertools.combinations(chosen, 2):
+        rest = tuple(x for x in chosen if x not in (c1, c2))
+        for e1, e2 in itertools.product(stand_in[c1], stand_in[c2]):
+            if e1 != e2 and e1 not in excluded_with(rest) and e2 not in excluded_with((*rest, e1)):
+                sets.append(tuple(sorted((*rest, e1, e2))))
     names = list(chosen) + [str(r["effect"]) for r in others if r["effect"] not in chosen]
     names = names[:max(pool, len(chosen))]
     for k in range(1, max_effects + 1):
