@@ -165,7 +165,8 @@ def test_candidate_sets_swap_two_chosen_effects_at_once():
     # lab case 81: a sensor gain standing for a thrust coefficient and an input delay for an actuator
     # lag; the truth needs both swaps (one at a time never reaches it)
     chosen = ["sensor_scale", "viscous_friction", "input_delay"]
-    ranking = [{"effect": e} for e in (*chosen, "thrust_coefficient", "thrust_law", "gravity", "actuator_lag")]
+    others = ("thrust_coefficient", "thrust_law", "gravity", "actuator_lag")
+    ranking = [{"effect": e} for e in (*chosen, *others)]
     sets = candidate_sets(chosen, ranking, max_effects=3)
     assert ("actuator_lag", "thrust_coefficient", "viscous_friction") in sets
     assert ("actuator_lag", "sensor_scale", "viscous_friction") in sets  # one swap still there
