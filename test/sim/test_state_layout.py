@@ -76,6 +76,12 @@ def test_initial_states_of_the_chain_or_the_layout_and_nothing_else():
     assert warm.x[0, 5] == 20.0 and warm.true["i_a"][-1] < six.true["i_a"][-1]
     with pytest.raises(SimulationError, match=r"initial state of shape \(4,\): expected 6 states"):
         simulate(rig, duty, x0=[0.0] * 4)
+    layout = plant_model(rig).states
+    np.testing.assert_array_equal(layout.with_values([0.1, 0.0, 0.0, 0.0, 0.0], {"T_m": 20.0}),
+                                  [0.1, 0.0, 0.0, 0.0, 0.0, 20.0])
+    np.testing.assert_array_equal(layout.with_values([0.1, 0.0, 0.0, 0.0, 0.0], None), [0.1] + [0.0] * 5)
+    with pytest.raises(KeyError, match="no state 'T_w'"):
+        layout.with_values([0.0] * 5, {"T_w": 1.0})
 
 
 def test_a_stepper_switched_to_a_heated_rig_keeps_the_chain_and_starts_t_m_at_ambient():

@@ -261,11 +261,7 @@ class RigReplays:
                 carried: Sequence[Mapping[str, float] | None] | None = None) -> None:
         xs = np.ascontiguousarray(x0[list(rows)])  # a chain-only state: completed by the plant
         if carried is not None and any(carried[b] for b in rows):
-            layout = plant.states
-            xs = np.array(layout.complete(xs))
-            for i, b in enumerate(rows):
-                for name, value in (carried[b] or {}).items():
-                    xs[i, layout.index(name)] = value
+            xs = np.array([plant.states.with_values(x, carried[b]) for x, b in zip(xs, rows, strict=True)])
         if not np.isfinite(xs).all():
             good = np.isfinite(xs).all(axis=1)
             rows = [b for b, g in zip(rows, good, strict=True) if g]

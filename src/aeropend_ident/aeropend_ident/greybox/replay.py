@@ -460,11 +460,7 @@ def free_run(rig: Rig, t: np.ndarray, duty: np.ndarray, theta: np.ndarray, *, th
     if duty_before is not None and len(duty_before) and effect_states(rig):
         before = np.concatenate([np.asarray(duty_before, dtype=float), u[:held]])
         (carried,) = carried_states([_noise_free(rig)], history_replays(before, float(u[held]), dt))
-        if carried:
-            layout = plant_model(rig).states
-            x0 = np.array(layout.complete(x0))
-            for state, value in carried.items():
-                x0[layout.index(state)] = value
+        x0 = plant_model(rig).states.with_values(x0, carried)
     try:
         sim, failed = _simulate(rig, u[held:], x0, dt)
     except (SimulationError, ModelError) as exc:

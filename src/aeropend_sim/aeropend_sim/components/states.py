@@ -17,7 +17,7 @@ states existed.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -157,6 +157,24 @@ class StateLayout:
             tail = np.broadcast_to(self.initial()[len(CHAIN):], (*x.shape[:-1], self.size - len(CHAIN)))
             return np.concatenate([x, tail], axis=-1)
         raise self._refused(x.shape, what)
+
+    def with_values(self, x: Any, values: Mapping[str, float] | None, what: str = "initial state"
+                    ) -> np.ndarray:
+        """One state ``x`` completed as :meth:`complete` completes it, with the named states set to
+        ``values`` (a winding temperature carried over from an earlier part of the run); None or an
+        empty mapping leaves it as completed.
+
+        Raises
+        ------
+        KeyError
+            On a name that is not a state of this layout (naming its states).
+        ValueError
+            As :meth:`complete`.
+        """
+        out = np.array(self.complete(x, what), dtype=float)
+        for name, value in (values or {}).items():
+            out[..., self.index(name)] = value
+        return out
 
     def whole(self, x: Any, what: str = "state") -> list[float]:
         """One state as a list of floats (the scalar evaluators' form), completed as

@@ -120,7 +120,6 @@ class Prepared:
             self._head = RigReplays(self.duty[:k], self.dt, tau_before=float(self.duty[0]))
         return self._head
 
-
     @property
     def history(self) -> RigReplays | None:
         """Batched replays of the run before this recording (:attr:`Recording.duty_before`, then the
@@ -240,12 +239,7 @@ def replay_reference(rig: Rig, meas: MeasurementMap, prep: Prepared) -> dict[str
     """
     try:
         (sim_rig,), x0, (carried,) = _initial_states([(rig, meas)], prep)
-        x = x0[0]
-        if carried:
-            layout = plant_model(sim_rig).states
-            x = np.array(layout.complete(x))
-            for name, value in carried.items():
-                x[layout.index(name)] = value
+        x = plant_model(sim_rig).states.with_values(x0[0], carried)
         traj = simulate(sim_rig, prep.duty, x0=x, dt=prep.dt, tau_before=float(prep.duty[0]))
     except (SimulationError, ModelError, IdentificationError, ValueError) as exc:
         raise GapError(
