@@ -40,6 +40,9 @@ FW = ROOT / "firmware"
 
 pytestmark = [
     pytest.mark.ros,
+    # real time: the emulated MCU's 250 ms watchdog must not trip while the bridge feeds it; beside
+    # the parallel suite (3 workers on 2 cores) it tripped once more in the clean-clone CI of 338c05d
+    pytest.mark.exclusive,
     pytest.mark.timeout(60),
     pytest.mark.skipif(
         shutil.which("avr-gcc") is None or not Path("/usr/include/simavr/sim_avr.h").is_file(),

@@ -122,6 +122,8 @@ def _kill_round(env: dict[str, str], bags: list[Path], storages: list[str], kill
     return [killed_ns[k] for k in range(len(recs))]
 
 
+@pytest.mark.exclusive  # real time: beside the parallel suite (clean-clone CI of 338c05d) a starved
+# recorder had flushed 0.21 s of a 1.24 s run when killed; the bar is the recorder's, not the host's
 def test_sigkill_at_20_points_loses_at_most_one_second(tmp_path: Path) -> None:
     env = isolated_env(random_domain())
     pub = subprocess.Popen([sys.executable, "-c", PUBLISHER], env=env, stdout=subprocess.DEVNULL,
