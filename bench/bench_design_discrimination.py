@@ -133,7 +133,7 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     chosen, ranking = diagnosis_view(before.diagnosis.as_dict())
     sets = candidate_sets(chosen, ranking, max_effects=lab.MAX_EFFECTS)
     tc = time.perf_counter()
-    cands, rows = fit_candidates(case["nominal"], fit, sets, ranking=ranking)
+    cands, rows = fit_candidates(case["nominal"], fit, sets, ranking=ranking, keep_first=True)
     row["candidate_fits_s"] = time.perf_counter() - tc
     row["candidates"] = [c.name for c in cands]
     row["candidate_rows"] = rows
@@ -169,6 +169,11 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
         truth_name = next((c.name for c in cands if set(c.effects) == set(row["truth"])), None)
         row["outcome"] = {**ev, "truth_candidate": truth_name,
                           "truth_first": (ev["first"] == truth_name) if truth_name else None}
+        named = ev["named_effects"]
+    else:  # the earlier recordings leave one candidate: that is what they name
+        named = list(cands[0].effects)
+    row["recording_named"] = named
+    row["recording_named_truth"] = named is not None and set(named) == set(row["truth"])
     t1 = time.perf_counter()
     after = lab.lab_gap(case, [*fit, rec], held)
     row["gap_after_s"] = time.perf_counter() - t1
@@ -207,6 +212,9 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "design_all_named_after_validation_where_control": sum(r["after_validation"]["pass"] for r in tri
                                                                if "aprbs_after" in r),
         "truth_among_candidates": sum(r["truth_among_candidates"] for r in tri),
+        "triples_named_by_recording": sum(r["recording_named_truth"] for r in tri),
+        "triples_unseparated_by_recording": sum(r["recording_named"] is None for r in tri),
+        "effect_free_clean_by_recording": sum(r["recording_named_truth"] for r in clean),
         "effect_free": len(clean),
         "effect_free_clean_before": sum(r["before"]["pass"] for r in clean),
         "effect_free_clean_after": sum(r["after"]["pass"] for r in clean),
@@ -219,6 +227,13 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def _p(x: Any) -> str:
     return "—" if x is None else f"{100 * x:.0f} %"
+
+
+def _named_cell(r: dict[str, Any]) -> str:
+    n = r["recording_named"]
+    if n is None:
+        return "not separated: " + ", ".join(r["outcome"]["survivors"])
+    return f"{', '.join(n) or 'nothing'} ({'yes' if r['recording_named_truth'] else 'no'})"
 
 
 def write_md(path: Path, doc: dict[str, Any]) -> None:
@@ -238,6 +253,12 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         f"with the designed recording as the validation recording (`gap FIT --validation DESIGNED`) "
         f"{s['triples_all_named_after_validation']}/{s['triples']}; "
         f"the truth set was among the design's candidates in {s['truth_among_candidates']}/{s['triples']}",
+        f"- named by the designed recording's own verdict (the candidates fitted on the earlier data, "
+        f"replayed on it without refit; of the best and the rivals it does not refute second by second, "
+        f"the fewest effects; `excitation_design --outcome`): all truth effects **"
+        f"{s['triples_named_by_recording']}/{s['triples']}** triples; not separated (nothing named) in "
+        f"{s['triples_unseparated_by_recording']}; effect-free plants clean "
+        f"{s['effect_free_clean_by_recording']}/{s['effect_free']}",
         f"- control: where the design had candidates to separate ({s['aprbs_control_cases']} triples), the "
         f"seeded APRBS it started from, recorded the same way: all named {s['aprbs_all_named_after']} "
         f"as a fit recording, {s['aprbs_all_named_after_validation']} as the validation recording "
@@ -256,8 +277,9 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         "| case | kind | mode | Hz | channels | truth | chosen before | chosen after | named before → after "
         "| chosen with it as validation (named) | APRBS control: named as fit / as validation "
         "| candidates | truth a candidate | predicted P(first) design / APRBS "
-        "| min divergence design / APRBS | first on designed recording | limits on truth | design s |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| min divergence design / APRBS | first on designed recording | named by it | limits on truth "
+        "| design s |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in doc["cases"]:
         pr, pb = r.get("predicted") or {}, r.get("predicted_baseline_aprbs") or {}
@@ -277,7 +299,7 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
                   f"{'yes' if r['aprbs_after_validation']['pass'] else 'no'}" if "aprbs_after" in r else "—"),
                  str(len(r["candidates"])), "yes" if r["truth_among_candidates"] else "no",
                  f"{_p(pr.get('mean'))} / {_p(pb.get('mean'))}", md,
-                 (r.get("outcome") or {}).get("first") or "—", lim_s, f"{r['design_s']:.1f}"]
+                 (r.get("outcome") or {}).get("first") or "—", _named_cell(r), lim_s, f"{r['design_s']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
     path.write_text("\n".join(lines))

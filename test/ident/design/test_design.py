@@ -19,6 +19,7 @@ from aeropend_ident.design.discriminate import (
     evidence,
     pair_divergences,
     rank_first_probability,
+    verdict,
 )
 from aeropend_ident.design.parameters import design_parameters, fitted_keys, weak_keys
 from aeropend_ident.design.report import compare_outcome, csv_text
@@ -110,6 +111,37 @@ def test_evidence_ranks_the_truth_first_on_its_own_recording(pair, designed):
     ev = evidence(pair, designed.duty, {"theta": y + rng.normal(0, SIGMA["theta"], y.size)}, SIGMA, DT)
     assert ev["first"] == "actuator_lag"
     assert ev["chi2"]["nominal"] > ev["chi2"]["actuator_lag"] + 10.0
+    # the verdict: the nominal rig refuted second by second, the lag named
+    assert ev["named_effects"] == ["actuator_lag"] and ev["survivors"] == ["actuator_lag"]
+    assert ev["refuted_p"]["nominal"] < 1e-3
+
+
+def test_the_recording_names_no_effect_it_does_not_demand(pair, designed):
+    """On the nominal rig's own recording, a 0.1 ms lag (as good as absent) is not refuted, and of
+    the two survivors the one with fewer effects is named: the nominal rig."""
+    rig = pair[0].rig
+    faint, meas = apply_effects(rig, {"actuator_lag": {"lag_time_constant": 1e-4}})
+    cands = [pair[0], Candidate("actuator_lag", ("actuator_lag",), faint, meas)]
+    rng = np.random.default_rng(4)
+    y = Predictor(cands, ("theta",), DT, designed.duty.size)(designed.duty)["theta"][0]
+    ev = evidence(cands, designed.duty, {"theta": y + rng.normal(0, SIGMA["theta"], y.size)}, SIGMA, DT)
+    assert sorted(ev["survivors"]) == ["actuator_lag", "nominal"]
+    assert ev["named"] == "nominal" and ev["named_effects"] == []
+
+
+def test_verdict_names_nothing_when_two_sets_of_one_size_survive():
+    rig = load_rig("thesis_sim")
+    cands = [Candidate("a", ("inertia",), rig), Candidate("b", ("actuator_lag",), rig),
+             Candidate("c", ("inertia", "actuator_lag"), rig)]
+    noise = 50.0
+    # a and b alike second by second; c (two effects) worse in every second
+    segs = np.array([[60.0, 61.0, 59.0, 60.0] * 5, [61.0, 60.0, 60.0, 59.0] * 5, [400.0] * 20])
+    out = verdict(cands, segs, noise)
+    assert out["named"] is None and sorted(out["survivors"]) == ["a", "b"]
+    assert out["refuted_p"]["c"] < 1e-6
+    segs[1] *= 3.0  # b now worse every second: refuted, a named
+    out = verdict(cands, segs, noise)
+    assert out["named"] == "a" and out["survivors"] == ["a"]
 
 
 def test_reference_mode_is_refused_until_implemented(pair):
@@ -201,6 +233,11 @@ def test_compare_outcome_names_the_matching_candidate():
     out = compare_outcome(design, report)
     assert out["matching_candidate"] == "b" and out["predicted_first"] == 0.8 and out["changed"]
     assert out["separated"] == ["a"]
+    ev = {"first": "b", "chi2": {"a": 900.0, "b": 500.0}, "named_effects": ["inertia", "lag"],
+          "survivors": ["b"], "refuted_p": {"a": 1e-4}}
+    out = compare_outcome(design, report, ev)
+    assert out["recording_names"] == ["inertia", "lag"] and out["recording_agrees_with_gap"]
+    assert out["not_separated"] == ["b"] and out["refuted_p"] == {"a": 1e-4}
 
 
 def test_file_kind_checks_the_expected_period(tmp_path):

@@ -203,7 +203,8 @@ def absent_effects(values: Mapping[str, Mapping[str, float]], ctx: EffectContext
 
 def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Sequence[str]], *,
                    ranking: Sequence[Mapping[str, Any]] = (), max_candidates: int = 6,
-                   keep_factor: float = KEEP_SSE_FACTOR) -> tuple[list[Candidate], list[dict[str, Any]]]:
+                   keep_factor: float = KEEP_SSE_FACTOR, keep_first: bool = False
+                   ) -> tuple[list[Candidate], list[dict[str, Any]]]:
     """Fit each effect set on the earlier recordings and keep the ones the data do not refute.
 
     Parameters
@@ -220,6 +221,10 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
         Most candidates kept (best fit first).
     keep_factor : float
         Candidates whose fit error exceeds ``keep_factor`` × the best are dropped.
+    keep_first : bool
+        Keep the first set whatever its fit error (the diagnosis' own answer, the nominal rig when
+        it chose nothing: a fit on the earlier data always favours more effects, and a designed
+        recording is what tells whether they are needed), in the place of the last kept one.
 
     Returns
     -------
@@ -264,11 +269,17 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
     kept = sorted((c for c in fitted if c.fit_sse <= keep_factor * best),
                   key=lambda c: (c.fit_sse, len(c.effects)))
     kept = kept[:max_candidates]
+    first = next((c for c in fitted if sets and c.effects == tuple(sets[0])), None)
+    forced = keep_first and first is not None and all(c is not first for c in kept)
+    if forced:
+        kept = [*kept[:max_candidates - 1], first]
     names = {c.name for c in kept}
     for row in rows:
         if "fit_sse" in row and "why_not" not in row:
             row["kept"] = label(row["effects"]) in names
-            if not row["kept"]:
+            if row["kept"] and forced and row["effects"] == list(first.effects):
+                row["why"] = "the diagnosis' own answer, kept to be tested"
+            elif not row["kept"]:
                 row["why_not"] = (f"fit error {row['fit_sse'] / best:.2f}× the best: refuted by the earlier "
                                   "data" if row["fit_sse"] > keep_factor * best else "over max_candidates")
     return kept, rows

@@ -60,6 +60,7 @@ from aeropend_ident.design.sequence import (
     search,
     sequence,
 )
+from aeropend_ident.gap.which.metrics import SEGMENT
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
 
@@ -276,10 +277,17 @@ def rank_first_probability(candidates: Sequence[Candidate], duty: np.ndarray, si
     return {"per_candidate": probs, "mean": float(np.mean(finite)) if finite else math.nan, "draws": draws}
 
 
+#: Family-wise false-refutation rate of :func:`verdict` (Bonferroni over the rivals of the best).
+VERDICT_ALPHA = 0.05
+
+
 def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mapping[str, np.ndarray],
-             sigma: Mapping[str, float], dt: float) -> dict[str, Any]:
-    """Each candidate's free run from rest on a recorded sequence against the recording: the sum of
-    squared residuals over σ² per candidate (the outcome the prediction is compared with).
+             sigma: Mapping[str, float], dt: float, *, alpha: float = VERDICT_ALPHA) -> dict[str, Any]:
+    """Each candidate's free run from rest on a recorded sequence against the recording, and what
+    the recording names (:func:`verdict`).
+
+    The candidates keep the parameters fitted on the earlier recordings (no refit): the designed
+    recording is data none of them saw, so a candidate it refutes is refuted out of sample.
 
     Parameters
     ----------
@@ -292,20 +300,80 @@ def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mappin
         Noise σ per channel.
     dt : float
         Sample period [s].
+    alpha : float
+        Family-wise level of the refutations (:func:`verdict`).
 
     Returns
     -------
     dict
         ``chi2`` {name: Σ residual²/σ²}, ``first`` (the candidate with the least), ``order`` (best
-        first), ``samples``.
+        first), ``samples``, and :func:`verdict`'s ``named``, ``survivors``, ``refuted_p``.
     """
     n = min(np.asarray(duty).size, *(np.asarray(recorded[c]).size for c in sigma))
     pred = Predictor(candidates, tuple(sigma), dt, n)
     out = pred(np.asarray(duty, dtype=float)[:n])
-    chi2 = {}
-    for b, cand in enumerate(candidates):
-        s = sum(float(np.sum((out[c][b] - np.asarray(recorded[c], dtype=float)[:n]) ** 2)) / sigma[c] ** 2
-                for c in sigma)
-        chi2[cand.name] = s if math.isfinite(s) else math.inf
+    e2 = np.zeros((len(candidates), n))
+    for c in sigma:
+        e2 += (out[c] - np.asarray(recorded[c], dtype=float)[:n]) ** 2 / sigma[c] ** 2
+    e2 = np.where(np.isfinite(e2), e2, np.inf)
+    chi2 = {cand.name: float(np.sum(e2[b])) for b, cand in enumerate(candidates)}
     order = sorted(chi2, key=chi2.get)
-    return {"chi2": chi2, "first": order[0] if order else None, "order": order, "samples": int(n)}
+    w = min(max(round(SEGMENT / dt), 1), n)  # 1 s segments (one when the recording is shorter)
+    k = n // w
+    segs = np.add.reduceat(e2[:, : k * w], np.arange(0, k * w, w), axis=1)
+    segs[:, -1] += e2[:, k * w:].sum(axis=1)
+    res = {"chi2": chi2, "first": order[0] if order else None, "order": order, "samples": int(n)}
+    res.update(verdict(candidates, segs, noise=float(w * len(sigma)), alpha=alpha))
+    return res
+
+
+def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
+            alpha: float = VERDICT_ALPHA) -> dict[str, Any]:
+    """What one recording names among candidates fitted without it.
+
+    The candidate with the least error is the best; each other candidate is refuted when the
+    best removes its error second by second (the gap diagnosis' sample-split test,
+    :func:`aeropend_ident.gap.which.evidence.split_test`, asked for any share: H0 "the best does
+    not do better on average") at p < ``alpha`` / (candidates − 1). Of the best and the rivals
+    it does not refute, the one with the fewest effects is named (an effect the recording does
+    not demand is not named); when two of that size survive, nothing is named and both are
+    reported as not separated.
+
+    Parameters
+    ----------
+    candidates : sequence of Candidate
+    segments : ndarray, shape (B, S)
+        Normalised squared error (Σ residual²/σ² over channels) per candidate and 1 s segment.
+    noise : float
+        The noise part of one segment's error (its samples × channels).
+    alpha : float
+        Family-wise level.
+
+    Returns
+    -------
+    dict
+        ``named`` (the named candidate's name, or None), ``named_effects`` (its effects, or None),
+        ``survivors`` (names not refuted, best first), ``refuted_p`` {rival: p}, ``alpha``.
+    """
+    from aeropend_ident.gap.which.evidence import split_test
+
+    segments = np.asarray(segments, dtype=float)
+    tot = segments.sum(axis=1)
+    best = int(np.argmin(tot))
+    level = alpha / max(len(candidates) - 1, 1)
+    pvals: dict[str, float] = {}
+    alive = [best]
+    for b, cand in enumerate(candidates):
+        if b == best:
+            continue
+        p = 0.0 if not np.isfinite(tot[b]) else split_test(segments[b], segments[best], noise, 0.0)
+        pvals[cand.name] = float(p)
+        if p >= level:
+            alive.append(b)
+    alive.sort(key=lambda b: tot[b])
+    fewest = min(len(candidates[b].effects) for b in alive)
+    small = [b for b in alive if len(candidates[b].effects) == fewest]
+    named = candidates[small[0]] if len(small) == 1 else None
+    return {"named": named.name if named else None,
+            "named_effects": list(named.effects) if named else None,
+            "survivors": [candidates[b].name for b in alive], "refuted_p": pvals, "alpha": alpha}

@@ -172,8 +172,10 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         ``chosen_after`` (effects), ``matching_candidate`` (the candidate with exactly those
         effects, or None), ``predicted_first`` (its predicted probability of ranking first),
         ``chosen_before``, ``changed`` (the chosen set changed), ``separated`` (candidates the new
-        diagnosis excludes), and with ``evidence`` the candidate the recording ranks first and the
-        χ² per candidate.
+        diagnosis excludes), and with ``evidence`` the candidate the recording ranks first, the
+        χ² per candidate, and its verdict (:func:`aeropend_ident.design.discriminate.verdict`):
+        ``recording_names`` (the effects the recording names, None when the survivors are not
+        separated), ``not_separated`` (the candidates it does not refute) and ``refuted_p``.
     """
     chosen, _ranking = diagnosis_view(gap_report)
     cands = design["candidates"]
@@ -190,4 +192,7 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         out["recording_first"] = evidence["first"]
         out["recording_chi2"] = dict(evidence["chi2"])
         out["recording_agrees_with_gap"] = evidence["first"] == match if match else None
+        out["recording_names"] = evidence.get("named_effects")
+        out["not_separated"] = list(evidence.get("survivors") or [])
+        out["refuted_p"] = dict(evidence.get("refuted_p") or {})
     return out

@@ -85,9 +85,11 @@ def angle_margin(spread: np.ndarray | float, limits: Limits, sigma_theta: float)
 #: × (1 + logged channels) / 2 plus :data:`REPLAY_OVERHEAD` (a replay's fixed cost in
 #: sample-equivalents). Measured on bench_design_discrimination's cases on two cores: about 1.9 ms
 #: per replay, 0.05 µs per sample and 0.05 µs per sample and logged channel. Counted, not timed, so a
-#: seed gives one design on any machine under any load; about 20-40 s of search on two cores
-#: whatever the rate, the channels and the number of rigs (docs/design.md).
-MAX_REPLAY_WORK = 250_000_000
+#: seed gives one design on any machine under any load. A rig's own kernel can cost more per sample:
+#: a thrust law's power and a Coulomb friction's smooth sign made one replay of lab case 76's
+#: candidates 4.9 ms at 9 766 samples (the nominal rig 1.8 ms), and its search 68 s at
+#: 250 000 000; at this value about 12-40 s of search on two cores (docs/design.md).
+MAX_REPLAY_WORK = 150_000_000
 #: A replay's fixed cost, in samples (see :data:`MAX_REPLAY_WORK`).
 REPLAY_OVERHEAD = 18_500
 #: The search's default wall-time safety net [s]: a search cut by it says so (not reproducible).
