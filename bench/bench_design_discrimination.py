@@ -133,7 +133,8 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     chosen, ranking = diagnosis_view(before.diagnosis.as_dict())
     sets = candidate_sets(chosen, ranking, max_effects=lab.MAX_EFFECTS)
     tc = time.perf_counter()
-    cands, rows = fit_candidates(case["nominal"], fit, sets, ranking=ranking, keep_first=True)
+    cands, rows = fit_candidates(case["nominal"], fit, sets, ranking=ranking, keep_first=True,
+                                 neighbours=True)
     row["candidate_fits_s"] = time.perf_counter() - tc
     row["candidates"] = [c.name for c in cands]
     row["candidate_rows"] = rows

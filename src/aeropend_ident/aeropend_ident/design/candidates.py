@@ -10,7 +10,11 @@ much) the truth may be another set. The candidates are:
 * the chosen set with one of its members, or two at once, swapped for an effect confusable or
   ambiguous with it (or from the same subsystem), and
 * every compatible set of up to ``max_effects`` effects from a pool of the chosen effects and the
-  best-ranked others (:data:`POOL` in all),
+  best-ranked others (:data:`POOL` in all), and
+* once those are fitted, every set one swap away from the best fit: one of its effects replaced by
+  any other effect of the rig's catalog the logged channels can identify
+  (:func:`swap_neighbours`; an effect the ranking put low, a dead zone under a thrust law's
+  stronger single-effect signature, is reached this way),
 
 each fitted on the earlier recordings by the diagnosis' own fit
 (:func:`aeropend_ident.gap.which.fit_effects`, started from the ranking's single-effect values),
@@ -26,16 +30,26 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from aeropend_ident.errors import GapError
-from aeropend_ident.gap.effects import EffectContext, MeasurementMap, check_recordings, get_effect
+from aeropend_ident.gap.effects import (
+    EffectContext,
+    MeasurementMap,
+    catalog,
+    check_recordings,
+    get_effect,
+    identifiable,
+)
+from aeropend_ident.gap.which.context import fit_threads
 from aeropend_ident.gap.which.data import Prepared, prepare
 from aeropend_ident.gap.which.fitting import fit_effects
 from aeropend_ident.gap.which.ranking import excluded_with
+from aeropend_ident.greybox.batch import one_replay_thread
 from aeropend_ident.greybox.fit import measurement_noise
 from aeropend_ident.io.recording_input import detect_quantum
 from aeropend_sim.params import Rig
@@ -167,6 +181,39 @@ def candidate_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]], 
     return out
 
 
+def swap_neighbours(effects: Sequence[str], family: str, channels: frozenset[str] | set[str]
+                    ) -> list[tuple[str, ...]]:
+    """Every set one swap away from ``effects``: one member replaced by another effect of
+    ``family``'s catalog that ``channels`` can identify and that goes with the rest (sorted sets,
+    catalog order; the quantisation effect is never swapped in).
+
+    Parameters
+    ----------
+    effects : sequence of str
+        A fitted set.
+    family : str
+        Actuator family of the rig (:func:`aeropend_ident.gap.effects.catalog`).
+    channels : set of str
+        The logged channels.
+
+    Returns
+    -------
+    list of tuple of str
+    """
+    names = [e.name for e in catalog(family)
+             if e.name != "quantisation" and identifiable(e, frozenset(channels)) is None]
+    out: list[tuple[str, ...]] = []
+    for member in effects:
+        rest = tuple(x for x in effects if x != member)
+        for e in names:
+            if e in effects or e in excluded_with(rest):
+                continue
+            s = tuple(sorted((*rest, e)))
+            if s not in out:
+                out.append(s)
+    return out
+
+
 def _starts(ranking: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, float]]:
     """The ranking's single-effect fitted values ``{effect: {parameter: value}}``."""
     out: dict[str, dict[str, float]] = {}
@@ -203,8 +250,8 @@ def absent_effects(values: Mapping[str, Mapping[str, float]], ctx: EffectContext
 
 def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Sequence[str]], *,
                    ranking: Sequence[Mapping[str, Any]] = (), max_candidates: int = 6,
-                   keep_factor: float = KEEP_SSE_FACTOR, keep_first: bool = False
-                   ) -> tuple[list[Candidate], list[dict[str, Any]]]:
+                   keep_factor: float = KEEP_SSE_FACTOR, keep_first: bool = False,
+                   neighbours: bool = False) -> tuple[list[Candidate], list[dict[str, Any]]]:
     """Fit each effect set on the earlier recordings and keep the ones the data do not refute.
 
     Parameters
@@ -225,6 +272,9 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
         Keep the first set whatever its fit error (the diagnosis' own answer, the nominal rig when
         it chose nothing: a fit on the earlier data always favours more effects, and a designed
         recording is what tells whether they are needed), in the place of the last kept one.
+    neighbours : bool
+        Then fit every set one swap away from the best fit (:func:`swap_neighbours`): the truth of
+        a diagnosis that ranked one of its effects low is often there.
 
     Returns
     -------
@@ -242,27 +292,53 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
     starts = _starts(ranking)
     fitted: list[Candidate] = []
     rows: list[dict[str, Any]] = []
-    for s in sets:
-        s = tuple(s)
+    tried: set[tuple[str, ...]] = set()
+
+    def fit(s: tuple[str, ...]) -> Candidate | str:
         try:
             if s:
                 fr = fit_effects(rig, s, preps, ctx, start={e: starts[e] for e in s if e in starts})
-                cand = Candidate(label(s), s, fr.rig, fr.meas, float(fr.sse), fr.values)
-            else:
-                from aeropend_ident.gap.which.data import residuals
+                return Candidate(label(s), s, fr.rig, fr.meas, float(fr.sse), fr.values)
+            from aeropend_ident.gap.which.data import residuals
 
-                r = residuals(rig, MeasurementMap(), preps)
-                cand = Candidate("nominal", (), rig, MeasurementMap(), float(np.sum(r * r)))
+            r = residuals(rig, MeasurementMap(), preps)
+            return Candidate("nominal", (), rig, MeasurementMap(), float(np.sum(r * r)))
         except (GapError, ValueError) as exc:
-            rows.append({"effects": list(s), "error": str(exc), "kept": False})
-            continue
-        gone = absent_effects(cand.values, ctx) if len(s) > 1 else []
-        if gone and {x for x in s if x not in gone} in [set(c.effects) for c in fitted]:
-            rows.append({"effects": list(s), "fit_sse": cand.fit_sse, "kept": False,
-                         "why_not": f"{', '.join(gone)} fitted absent: the same model as a smaller set"})
-            continue
-        fitted.append(cand)
-        rows.append({"effects": list(s), "fit_sse": cand.fit_sse})
+            return str(exc)
+
+    def fit_on_one_thread(s: tuple[str, ...]) -> Candidate | str:
+        with one_replay_thread():  # one thread per fit already: its replays stay on it
+            return fit(s)
+
+    def fit_all(todo: Sequence[tuple[str, ...]]) -> None:
+        """Fit ``todo`` (independent fits, :func:`~aeropend_ident.gap.which.context.fit_threads`
+        threads at once) and file each result in order, so the outcome does not depend on them."""
+        todo = [s for s in dict.fromkeys(todo) if s not in tried]
+        tried.update(todo)
+        n = min(fit_threads(), len(todo))
+        if n > 1:
+            with ThreadPoolExecutor(max_workers=n, thread_name_prefix="aeropend-candidates") as pool:
+                results = list(pool.map(fit_on_one_thread, todo))
+        else:
+            results = [fit(s) for s in todo]
+        for s, cand in zip(todo, results, strict=True):
+            if isinstance(cand, str):
+                rows.append({"effects": list(s), "error": cand, "kept": False})
+                continue
+            gone = absent_effects(cand.values, ctx) if len(s) > 1 else []
+            if gone and {x for x in s if x not in gone} in [set(c.effects) for c in fitted]:
+                rows.append({"effects": list(s), "fit_sse": cand.fit_sse, "kept": False,
+                             "why_not": f"{', '.join(gone)} fitted absent: the same model as a smaller set"})
+                continue
+            fitted.append(cand)
+            rows.append({"effects": list(s), "fit_sse": cand.fit_sse})
+
+    for prep in preps:  # the compiled replays are built here, not raced for by the threads
+        _ = prep.replays, prep.head
+    fit_all([tuple(s) for s in sets])
+    if neighbours and fitted:
+        top = min(fitted, key=lambda c: c.fit_sse)
+        fit_all(swap_neighbours(top.effects, rig.family, channels))
     if not fitted:
         raise GapError("no candidate effect set could be fitted on the earlier recordings")
     best = min(c.fit_sse for c in fitted)

@@ -56,7 +56,7 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
                     help="wall-time safety net of the search [s]; a search it cuts says so (another machine "
                          "or load would give another design)")
     ap.add_argument("--max-evaluations", dest="max_evaluations", type=int,
-                    help="most sequences scored (default: a fixed amount of replay work, e.g. 1111 "
+                    help="most sequences scored (default: a fixed amount of replay work, e.g. 1851 "
                          "sequences for five parameters and a 40 s design at 100 Hz, 656 for six candidates "
                          "at 490 Hz; docs/design.md): the same seed then gives the same design on any "
                          "machine")
@@ -148,7 +148,8 @@ def discrimination(args: argparse.Namespace) -> dict[str, Any]:
     sigma = channel_noise(recs, channels)
     chosen, ranking = diagnosis_view(report)
     sets = candidate_sets(chosen, ranking, max_effects=args.max_effects)
-    cands, rows = fit_candidates(model.rig, recs, sets, ranking=ranking, keep_first=True)
+    cands, rows = fit_candidates(model.rig, recs, sets, ranking=ranking, keep_first=True,
+                                 neighbours=True)
     if len(cands) < 2:
         raise DesignCliError("the earlier recordings leave one candidate standing "
                              f"({cands[0].name}): nothing to discriminate; candidate fits: {rows}")

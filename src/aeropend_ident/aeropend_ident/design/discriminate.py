@@ -50,6 +50,7 @@ from aeropend_ident.design.candidates import Candidate
 from aeropend_ident.design.sequence import (
     ANGLE_PENALTY,
     BUDGET_S,
+    DISCRIMINATION_WORK,
     AprbsShape,
     Limits,
     angle_penalty,
@@ -218,7 +219,7 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
 
     z0 = aprbs_vector(shape, seed)
     if max_evaluations is None:
-        max_evaluations = default_evaluations(len(candidates), n, len(sigma))
+        max_evaluations = default_evaluations(len(candidates), n, len(sigma), work=DISCRIMINATION_WORK)
     best_z, best_v, _, v0, _, stopped = search(value, z0, seed=seed, budget_s=budget_s,
                                                max_evaluations=max_evaluations, popsize=8 + shape.size // 6,
                                                started=t0, tolfun=1e-4)

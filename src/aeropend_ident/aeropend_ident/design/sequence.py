@@ -85,23 +85,29 @@ def angle_margin(spread: np.ndarray | float, limits: Limits, sigma_theta: float)
 #: × (1 + logged channels) / 2 plus :data:`REPLAY_OVERHEAD` (a replay's fixed cost in
 #: sample-equivalents). Measured on bench_design_discrimination's cases on two cores: about 1.9 ms
 #: per replay, 0.05 µs per sample and 0.05 µs per sample and logged channel. Counted, not timed, so a
-#: seed gives one design on any machine under any load. A rig's own kernel can cost more per sample:
-#: a thrust law's power and a Coulomb friction's smooth sign made one replay of lab case 76's
-#: candidates 4.9 ms at 9 766 samples (the nominal rig 1.8 ms), and its search 68 s at
-#: 250 000 000; at this value about 12-40 s of search on two cores (docs/design.md).
-MAX_REPLAY_WORK = 150_000_000
+#: seed gives one design on any machine under any load; about 20-40 s of search on two cores
+#: (docs/design.md).
+MAX_REPLAY_WORK = 250_000_000
+#: The same for a discrimination design (:mod:`aeropend_ident.design.discriminate`), whose rigs are
+#: the candidates, each with its effects compiled in: a thrust law's power and a Coulomb friction's
+#: smooth sign cost 2.7 times the nominal rig per sample (lab case 76: 4.9 ms per replay of 9 766
+#: samples, the nominal rig 1.8 ms; its search took 68 s at :data:`MAX_REPLAY_WORK`). A parameter
+#: design replays the rig itself; its search keeps :data:`MAX_REPLAY_WORK` (a shorter one left the
+#: angle range on 2 more of bench_design_parameters' 8 designs).
+DISCRIMINATION_WORK = 150_000_000
 #: A replay's fixed cost, in samples (see :data:`MAX_REPLAY_WORK`).
 REPLAY_OVERHEAD = 18_500
 #: The search's default wall-time safety net [s]: a search cut by it says so (not reproducible).
 BUDGET_S = 120.0
 
 
-def default_evaluations(replays_per_evaluation: int, samples: int, channels: int = 1) -> int:
-    """Sequences a search scores by default: :data:`MAX_REPLAY_WORK` over the work of one sequence
-    (``replays_per_evaluation`` rigs × (``samples`` × (1 + ``channels``) / 2 +
-    :data:`REPLAY_OVERHEAD`)), at least 200."""
+def default_evaluations(replays_per_evaluation: int, samples: int, channels: int = 1,
+                        work: int = MAX_REPLAY_WORK) -> int:
+    """Sequences a search scores by default: ``work`` (:data:`MAX_REPLAY_WORK`, or
+    :data:`DISCRIMINATION_WORK`) over the work of one sequence (``replays_per_evaluation`` rigs ×
+    (``samples`` × (1 + ``channels``) / 2 + :data:`REPLAY_OVERHEAD`)), at least 200."""
     per_replay = int(samples) * (1 + max(1, int(channels))) // 2 + REPLAY_OVERHEAD
-    return max(200, MAX_REPLAY_WORK // (max(1, int(replays_per_evaluation)) * per_replay))
+    return max(200, int(work) // (max(1, int(replays_per_evaluation)) * per_replay))
 
 
 #: What a design is: an open-loop command sequence, or (not implemented yet) a reference sequence
