@@ -94,6 +94,9 @@ def test_outcome_compares_the_prediction_with_a_new_report(tmp_path, capsys):
     assert out["matching_candidate"] == "actuator_lag" and out["predicted_first"] == 0.96
     assert out["changed"] and out["recording_first"] == "actuator_lag" and out["recording_agrees_with_gap"]
     assert out["recording_chi2"]["nominal"] > 2 * out["recording_chi2"]["actuator_lag"]
+    # the recording's own verdict: the nominal rig refuted, the lag named
+    assert out["recording_names"] == ["actuator_lag"] and out["not_separated"] == ["actuator_lag"]
+    assert out["refuted_p"]["nominal"] < 0.05
 
 
 def test_rig_fits_inputs_are_taken_as_they_are(tmp_path, capsys):

@@ -57,7 +57,7 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
                          "or load would give another design)")
     ap.add_argument("--max-evaluations", dest="max_evaluations", type=int,
                     help="most sequences scored (default: a fixed amount of replay work, e.g. 1851 "
-                         "sequences for five parameters and a 40 s design at 100 Hz, 656 for six candidates "
+                         "sequences for five parameters and a 40 s design at 100 Hz, 437 for six candidates "
                          "at 490 Hz; docs/design.md): the same seed then gives the same design on any "
                          "machine")
     ap.add_argument("--max-effects", dest="max_effects", type=int, default=3)
