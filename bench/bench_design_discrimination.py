@@ -8,7 +8,8 @@ from its seed and:
    most): the **before** diagnosis;
 2. the candidates are built from that diagnosis and fitted on the fit session
    (:func:`aeropend_ident.design.candidates.candidate_sets`,
-   :func:`~aeropend_ident.design.candidates.fit_candidates`),
+   :func:`~aeropend_ident.design.candidates.fit_candidates` with the diagnosis' own answer kept and
+   the sets one swap away from the best fit added),
    and a sequence of :data:`DURATION` s at the case's logging rate is designed to separate them
    (:func:`aeropend_ident.design.discriminate.design_discrimination`, seed 0, its default
    number of evaluations: reproducible from the seed whatever the load) inside the default limits
@@ -17,7 +18,9 @@ from its seed and:
    (:class:`bench.fixtures.truth_plant.TruthPlant`, session-1 parameters and effects) with the
    case's noise σ (the same sensors as its fit session), angle quantum, logging rate, stamp
    jitter and dropped rows, open loop from rest, and checked against every limit (command range,
-   slew, angle range on the truth's recorded angle);
+   slew, angle range on the truth's recorded angle), and the candidates are replayed on it without
+   refit: what it names (:func:`aeropend_ident.design.discriminate.evidence` and its verdict; exactly
+   the truth set counts, nothing named or another set does not);
 4. ``gap`` runs again with the fit session **and** the designed recording as fit recordings (same
    held-out session): the **after** diagnosis; and once more with the fit session as the fit
    recording and the designed recording as the **validation** recording, the one on which the
