@@ -200,10 +200,24 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+def _exact(r: dict[str, Any], key: str) -> bool:
+    """The diagnosis ``key`` chose exactly the truth set (an effect only reported ambiguous with a
+    chosen one is not named)."""
+    return sorted(r[key]["chosen"]) == sorted(r["truth"])
+
+
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     tri = [r for r in rows if r["kind"] == "triple"]
     clean = [r for r in rows if r["kind"] == "none"]
+    one = [r for r in rows if r["kind"] == "single"]
     return {
+        "singles": len(one),
+        "singles_exact_before": sum(_exact(r, "before") for r in one),
+        "singles_exact_after": sum(_exact(r, "after") for r in one),
+        "singles_exact_after_validation": sum(_exact(r, "after_validation") for r in one),
+        "singles_named_by_recording": sum(r["recording_named_truth"] for r in one),
+        "singles_unseparated_by_recording": sum(r["recording_named"] is None for r in one),
+        "singles_truth_among_candidates": sum(r["truth_among_candidates"] for r in one),
         "triples": len(tri),
         "triples_all_named_before": sum(r["before"]["pass"] for r in tri),
         "triples_all_named_after": sum(r["after"]["pass"] for r in tri),
@@ -263,6 +277,14 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         f"{s['triples_named_by_recording']}/{s['triples']}** triples; not separated (nothing named) in "
         f"{s['triples_unseparated_by_recording']}; effect-free plants clean "
         f"{s['effect_free_clean_by_recording']}/{s['effect_free']}",
+        *([f"- single effects the lab benchmark named only as ambiguous with another, or missed "
+           f"(confusable pairs): the truth alone chosen **before {s['singles_exact_before']}/{s['singles']}**"
+           ", "
+           f"named by the designed recording's verdict **{s['singles_named_by_recording']}/{s['singles']}** "
+           f"(not separated in {s['singles_unseparated_by_recording']}; the truth a candidate in "
+           f"{s['singles_truth_among_candidates']}), chosen alone by `gap` with it as a fit recording "
+           f"{s['singles_exact_after']}/{s['singles']}, as the validation recording "
+           f"{s['singles_exact_after_validation']}/{s['singles']}"] if s.get("singles") else []),
         f"- control: where the design had candidates to separate ({s['aprbs_control_cases']} triples), the "
         f"seeded APRBS it started from, recorded the same way: all named {s['aprbs_all_named_after']} "
         f"as a fit recording, {s['aprbs_all_named_after_validation']} as the validation recording "
