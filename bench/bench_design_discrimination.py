@@ -115,7 +115,13 @@ def _named(spec: dict[str, Any], case: dict[str, Any], res: Any) -> dict[str, An
 
 def run_case(job: dict[str, Any]) -> dict[str, Any]:
     """One case (module doc): before, design, truth recording and limit check, after."""
-    from aeropend_ident.design.candidates import candidate_sets, channel_noise, diagnosis_view, fit_candidates
+    from aeropend_ident.design.candidates import (
+        candidate_sets,
+        channel_noise,
+        diagnosis_view,
+        fit_candidates,
+        unseparated_sets,
+    )
     from aeropend_ident.design.discriminate import design_discrimination, rank_first_probability
     from aeropend_ident.design.sequence import AprbsShape, Limits, check_limits
     from bench import bench_gap_lab as lab
@@ -136,8 +142,8 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     chosen, ranking = diagnosis_view(before.diagnosis.as_dict())
     sets = candidate_sets(chosen, ranking, max_effects=lab.MAX_EFFECTS)
     tc = time.perf_counter()
-    cands, rows = fit_candidates(case["nominal"], fit, sets, ranking=ranking, keep_first=True,
-                                 neighbours=True)
+    cands, rows = fit_candidates(case["nominal"], fit, sets, ranking=ranking,
+                                 keep=unseparated_sets(chosen, ranking), neighbours=True)
     row["candidate_fits_s"] = time.perf_counter() - tc
     row["candidates"] = [c.name for c in cands]
     row["candidate_rows"] = rows

@@ -12,7 +12,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.design.candidates import Candidate, candidate_sets, fit_candidates, swap_neighbours
+from aeropend_ident.design.candidates import (
+    Candidate,
+    candidate_sets,
+    fit_candidates,
+    swap_neighbours,
+    unseparated_sets,
+)
 from aeropend_ident.design.discriminate import (
     Predictor,
     design_discrimination,
@@ -205,6 +211,16 @@ def test_candidate_sets_swap_two_chosen_effects_at_once():
     assert len(sets) == len(set(sets)) and all(len(x) <= 3 for x in sets)
 
 
+def test_the_answer_and_what_it_could_not_separate_are_kept_to_be_tested():
+    ranking = [{"effect": "thrust_law", "ambiguous_with": ["sensor_scale"]},
+               {"effect": "coulomb_friction", "ambiguous_with": ["viscous_friction"]},
+               {"effect": "sensor_scale"}]
+    assert unseparated_sets(["thrust_law", "coulomb_friction"], ranking) == [
+        ("coulomb_friction", "thrust_law"), ("thrust_law", "viscous_friction"),
+        ("coulomb_friction", "sensor_scale")]
+    assert unseparated_sets([], ranking) == [()]
+
+
 def test_swap_neighbours_reach_an_effect_the_ranking_put_low():
     """Lab case 76: the best fit is Coulomb friction + sensor offset + a thrust law; the truth has a
     dead zone for the thrust law, one swap away, whatever the ranking said."""
@@ -234,7 +250,7 @@ def test_fit_candidates_reaches_the_truth_one_swap_away_the_same_on_any_thread_c
     runs = []
     for threads in ("1", "2"):
         monkeypatch.setenv("AEROPEND_REPLAY_THREADS", threads)
-        runs.append(fit_candidates(pair[0].rig, [rec], [(), ("inertia",)], keep_first=True, neighbours=True))
+        runs.append(fit_candidates(pair[0].rig, [rec], [(), ("inertia",)], keep=[()], neighbours=True))
     (cands, rows), (cands2, rows2) = runs
     assert cands[0].effects == ("actuator_lag",)
     assert abs(cands[0].values["actuator_lag"]["lag_time_constant"] - 0.02) < 0.004

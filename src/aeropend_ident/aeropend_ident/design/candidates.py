@@ -181,6 +181,35 @@ def candidate_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]], 
     return out
 
 
+def unseparated_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]]
+                     ) -> list[tuple[str, ...]]:
+    """The diagnosis' answer and the sets it could not separate from it: the chosen set (the
+    nominal rig when nothing was chosen), then the chosen set with one member swapped for an
+    effect its ranking entry lists as ``ambiguous_with`` it (compatible with the rest).
+
+    Parameters
+    ----------
+    chosen : sequence of str
+    ranking : sequence of dict
+        The diagnosis' ranking entries.
+
+    Returns
+    -------
+    list of tuple of str
+        Sorted sets, the chosen one first, no duplicates.
+    """
+    base = tuple(sorted(chosen))
+    amb = {str(r.get("effect")): list(r.get("ambiguous_with") or []) for r in ranking}
+    out = [base]
+    for c in base:
+        rest = tuple(x for x in base if x != c)
+        for a in amb.get(c, []):
+            s = tuple(sorted((*rest, a)))
+            if a not in base and a not in excluded_with(rest) and s not in out:
+                out.append(s)
+    return out
+
+
 def swap_neighbours(effects: Sequence[str], family: str, channels: frozenset[str] | set[str]
                     ) -> list[tuple[str, ...]]:
     """Every set one swap away from ``effects``: one member replaced by another effect of
@@ -250,7 +279,7 @@ def absent_effects(values: Mapping[str, Mapping[str, float]], ctx: EffectContext
 
 def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Sequence[str]], *,
                    ranking: Sequence[Mapping[str, Any]] = (), max_candidates: int = 6,
-                   keep_factor: float = KEEP_SSE_FACTOR, keep_first: bool = False,
+                   keep_factor: float = KEEP_SSE_FACTOR, keep: Sequence[Sequence[str]] = (),
                    neighbours: bool = False) -> tuple[list[Candidate], list[dict[str, Any]]]:
     """Fit each effect set on the earlier recordings and keep the ones the data do not refute.
 
@@ -268,10 +297,11 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
         Most candidates kept (best fit first).
     keep_factor : float
         Candidates whose fit error exceeds ``keep_factor`` × the best are dropped.
-    keep_first : bool
-        Keep the first set whatever its fit error (the diagnosis' own answer, the nominal rig when
-        it chose nothing: a fit on the earlier data always favours more effects, and a designed
-        recording is what tells whether they are needed), in the place of the last kept one.
+    keep : sequence of sequences of str
+        Sets fitted and kept whatever their fit error, in the places of the last kept ones
+        (:func:`unseparated_sets`: the diagnosis' own answer and the sets it could not separate
+        from it; a fit on the earlier data always favours more effects, and a designed recording is what
+        tells whether they are needed).
     neighbours : bool
         Then fit every set one swap away from the best fit (:func:`swap_neighbours`): the truth of
         a diagnosis that ranked one of its effects low is often there.
@@ -335,7 +365,7 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
 
     for prep in preps:  # the compiled replays are built here, not raced for by the threads
         _ = prep.replays, prep.head
-    fit_all([tuple(s) for s in sets])
+    fit_all([tuple(s) for s in (*sets, *keep)])
     if neighbours and fitted:
         top = min(fitted, key=lambda c: c.fit_sse)
         fit_all(swap_neighbours(top.effects, rig.family, channels))
@@ -344,17 +374,24 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
     best = min(c.fit_sse for c in fitted)
     kept = sorted((c for c in fitted if c.fit_sse <= keep_factor * best),
                   key=lambda c: (c.fit_sse, len(c.effects)))
-    kept = kept[:max_candidates]
-    first = next((c for c in fitted if sets and c.effects == tuple(sets[0])), None)
-    forced = keep_first and first is not None and all(c is not first for c in kept)
-    if forced:
-        kept = [*kept[:max_candidates - 1], first]
+    top = kept[:max_candidates]
+    musts: list[Candidate] = []
+    for k in keep:
+        m = next((c for c in fitted if c.effects == tuple(k)), None)
+        if m is not None and all(m is not x for x in musts):
+            musts.append(m)
+    musts = musts[:max_candidates]
+    in_top = [c for c in top if any(c is m for m in musts)]
+    extra = [m for m in musts if all(m is not c for c in top)]
+    others = [c for c in top if all(c is not m for m in musts)][:max(max_candidates - len(musts), 0)]
+    kept = [c for c in top if any(c is x for x in (*in_top, *others))] + extra
+    forced = {c.name for c in extra}
     names = {c.name for c in kept}
     for row in rows:
         if "fit_sse" in row and "why_not" not in row:
             row["kept"] = label(row["effects"]) in names
-            if row["kept"] and forced and row["effects"] == list(first.effects):
-                row["why"] = "the diagnosis' own answer, kept to be tested"
+            if label(row["effects"]) in forced:
+                row["why"] = "the diagnosis' answer or a set it could not separate from it, kept to be tested"
             elif not row["kept"]:
                 row["why_not"] = (f"fit error {row['fit_sse'] / best:.2f}× the best: refuted by the earlier "
                                   "data" if row["fit_sse"] > keep_factor * best else "over max_candidates")

@@ -131,6 +131,7 @@ def discrimination(args: argparse.Namespace) -> dict[str, Any]:
         channel_noise,
         diagnosis_view,
         fit_candidates,
+        unseparated_sets,
     )
     from aeropend_ident.design.discriminate import design_discrimination, rank_first_probability
     from aeropend_ident.design.report import write_design
@@ -148,8 +149,8 @@ def discrimination(args: argparse.Namespace) -> dict[str, Any]:
     sigma = channel_noise(recs, channels)
     chosen, ranking = diagnosis_view(report)
     sets = candidate_sets(chosen, ranking, max_effects=args.max_effects)
-    cands, rows = fit_candidates(model.rig, recs, sets, ranking=ranking, keep_first=True,
-                                 neighbours=True)
+    cands, rows = fit_candidates(model.rig, recs, sets, ranking=ranking,
+                                 keep=unseparated_sets(chosen, ranking), neighbours=True)
     if len(cands) < 2:
         raise DesignCliError("the earlier recordings leave one candidate standing "
                              f"({cands[0].name}): nothing to discriminate; candidate fits: {rows}")
