@@ -372,20 +372,7 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
     if not fitted:
         raise GapError("no candidate effect set could be fitted on the earlier recordings")
     best = min(c.fit_sse for c in fitted)
-    kept = sorted((c for c in fitted if c.fit_sse <= keep_factor * best),
-                  key=lambda c: (c.fit_sse, len(c.effects)))
-    top = kept[:max_candidates]
-    musts: list[Candidate] = []
-    for k in keep:
-        m = next((c for c in fitted if c.effects == tuple(k)), None)
-        if m is not None and all(m is not x for x in musts):
-            musts.append(m)
-    musts = musts[:max_candidates]
-    in_top = [c for c in top if any(c is m for m in musts)]
-    extra = [m for m in musts if all(m is not c for c in top)]
-    others = [c for c in top if all(c is not m for m in musts)][:max(max_candidates - len(musts), 0)]
-    kept = [c for c in top if any(c is x for x in (*in_top, *others))] + extra
-    forced = {c.name for c in extra}
+    kept, forced = _kept(fitted, keep_factor * best, keep, max_candidates)
     names = {c.name for c in kept}
     for row in rows:
         if "fit_sse" in row and "why_not" not in row:
@@ -396,6 +383,26 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
                 row["why_not"] = (f"fit error {row['fit_sse'] / best:.2f}× the best: refuted by the earlier "
                                   "data" if row["fit_sse"] > keep_factor * best else "over max_candidates")
     return kept, rows
+
+
+def _kept(fitted: Sequence[Candidate], max_sse: float, keep: Sequence[Sequence[str]],
+          max_candidates: int) -> tuple[list[Candidate], set[str]]:
+    """The candidates :func:`fit_candidates` keeps: the best ``max_candidates`` of those within
+    ``max_sse``, best fit first, the sets of ``keep`` in the places of the last ones; and the names
+    of those kept only because ``keep`` asks."""
+    top = sorted((c for c in fitted if c.fit_sse <= max_sse), key=lambda c: (c.fit_sse, len(c.effects)))
+    top = top[:max_candidates]
+    musts: list[Candidate] = []
+    for k in keep:
+        m = next((c for c in fitted if c.effects == tuple(k)), None)
+        if m is not None and all(m is not x for x in musts):
+            musts.append(m)
+    musts = musts[:max_candidates]
+    in_top = [c for c in top if any(c is m for m in musts)]
+    extra = [m for m in musts if all(m is not c for c in top)]
+    others = [c for c in top if all(c is not m for m in musts)][:max(max_candidates - len(musts), 0)]
+    kept = [c for c in top if any(c is x for x in (*in_top, *others))] + extra
+    return kept, {c.name for c in extra}
 
 
 def diagnosis_view(report: Mapping[str, Any]) -> tuple[list[str], list[dict[str, Any]]]:
