@@ -148,6 +148,7 @@ def test_verdict_names_nothing_when_two_sets_of_one_size_survive():
     segs[1] *= 3.0  # b now worse every second: refuted, a named
     out = verdict(cands, segs, noise)
     assert out["named"] == "a" and out["survivors"] == ["a"]
+    assert verdict(cands, np.full((3, 4), np.inf), noise)["named"] is None  # nothing replayed
 
 
 def test_reference_mode_is_refused_until_implemented(pair):

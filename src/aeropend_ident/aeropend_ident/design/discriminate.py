@@ -361,6 +361,8 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     segments = np.asarray(segments, dtype=float)
     tot = segments.sum(axis=1)
     best = int(np.argmin(tot))
+    if not np.isfinite(tot[best]):  # no candidate could be replayed on the recording: it names nothing
+        return {"named": None, "named_effects": None, "survivors": [], "refuted_p": {}, "alpha": alpha}
     level = alpha / max(len(candidates) - 1, 1)
     pvals: dict[str, float] = {}
     alive = [best]
