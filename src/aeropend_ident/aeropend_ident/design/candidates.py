@@ -158,9 +158,9 @@ def candidate_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]], 
         for c in chosen:
             if e in conf[c] or c in e_conf or e in amb or sub[c] == get_effect(e).subsystem:
                 stand_in[c].append(e)
-                rest = tuple(x for x in chosen if x != c)
-                if e not in excluded_with(rest):
-                    sets.append(tuple(sorted((*rest, e))))
+                swapped = _swap(chosen, c, e)
+                if swapped is not None:
+                    sets.append(swapped)
     # two chosen effects each standing for another (a sensor gain for a thrust coefficient and an
     # input delay for an actuator lag at once)
     for c1, c2 in itertools.combinations(chosen, 2):
@@ -202,10 +202,9 @@ def unseparated_sets(chosen: Sequence[str], ranking: Sequence[Mapping[str, Any]]
     amb = {str(r.get("effect")): list(r.get("ambiguous_with") or []) for r in ranking}
     out = [base]
     for c in base:
-        rest = tuple(x for x in base if x != c)
         for a in amb.get(c, []):
-            s = tuple(sorted((*rest, a)))
-            if a not in base and a not in excluded_with(rest) and s not in out:
+            s = _swap(base, c, a) if a not in base else None
+            if s is not None and s not in out:
                 out.append(s)
     return out
 
@@ -233,14 +232,18 @@ def swap_neighbours(effects: Sequence[str], family: str, channels: frozenset[str
              if e.name != "quantisation" and identifiable(e, frozenset(channels)) is None]
     out: list[tuple[str, ...]] = []
     for member in effects:
-        rest = tuple(x for x in effects if x != member)
         for e in names:
-            if e in effects or e in excluded_with(rest):
-                continue
-            s = tuple(sorted((*rest, e)))
-            if s not in out:
+            s = _swap(effects, member, e) if e not in effects else None
+            if s is not None and s not in out:
                 out.append(s)
     return out
+
+
+def _swap(effects: Sequence[str], member: str, other: str) -> tuple[str, ...] | None:
+    """``effects`` with ``member`` replaced by ``other`` (sorted), or None when ``other`` cannot go
+    with the rest (:func:`aeropend_ident.gap.which.ranking.excluded_with`)."""
+    rest = tuple(x for x in effects if x != member)
+    return None if other in excluded_with(rest) else tuple(sorted((*rest, other)))
 
 
 def _starts(ranking: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, float]]:
