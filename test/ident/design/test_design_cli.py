@@ -125,3 +125,32 @@ def test_rig_fits_inputs_are_taken_as_they_are(tmp_path, capsys):
     assert main(["--design-for", str(RIG), str(table), "--parameters", "pendulum.c_over_J",
                  "-o", str(tmp_path / "y")]) == 2
     assert "static tables alone hold no command sequence" in capsys.readouterr().err
+
+
+def test_an_earlier_design_is_replaced_only_with_overwrite(tmp_path, step_log, capsys):
+    """-o is checked before the search: a folder with a lab's files is refused (with or without
+    --overwrite); an earlier design is refused without --overwrite and left byte for byte as it was,
+    and replaced with it (no stale file of the earlier design stays)."""
+    args = ["--design-for", str(RIG), str(step_log), "--parameters", "pendulum.c_over_J", "--duration", "3",
+            "--max-evaluations", "4", "--budget", "4"]
+    lab = tmp_path / "lab"
+    lab.mkdir()
+    (lab / "notes.txt").write_text("mine")
+    for extra in ([], ["--overwrite"]):
+        assert main([*args, "-o", str(lab), *extra]) == 2
+        assert "notes.txt" in capsys.readouterr().err and (lab / "notes.txt").read_text() == "mine"
+    out = tmp_path / "design"
+    assert main([*args, "-o", str(out)]) == 0
+    capsys.readouterr()
+    earlier = {p.name: p.read_bytes() for p in out.iterdir()}
+    (out / "candidates").mkdir()  # as a discrimination design leaves it
+    assert main([*args, "--seed", "1", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "exists and is not empty" in err and "--overwrite" in err
+    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == earlier
+    assert main([*args, "--seed", "1", "-o", str(out), "--overwrite"]) == 0
+    assert json.loads((out / "design.json").read_text())["seed"] == 1
+    assert sorted(p.name for p in out.iterdir()) == ["design.csv", "design.json", "design.md"]
+    # the folder holding an input is never emptied
+    assert main([*args, "-o", str(step_log.parent), "--overwrite"]) == 2
+    assert step_log.exists()

@@ -2,7 +2,7 @@
 
 ::
 
-    excitation_design --design-for GAP_REPORT RECORDING ... --rig RIG -o OUT
+    excitation_design --design-for GAP_REPORT RECORDING ... --rig RIG -o OUT [--overwrite]
         [--duration 40] [--rate HZ] [--seed 0] [--max-evaluations N] [--budget 120] [--max-effects 3]
         [--preset NAME]
         [--duty-min X] [--duty-max X] [--max-slew PER_S] [--theta-min RAD] [--theta-max RAD]
@@ -20,7 +20,12 @@ their largest). ``--outcome`` compares a design's prediction with a ``gap`` repo
 designed recording among its fit recordings (and, given the designed recording, ranks the
 candidates on it).
 
-Exit status: 0 written, 2 bad input (message on stderr).
+``OUT`` is checked before the search and written at its end in one step: an existing, non-empty
+folder is refused unless ``--overwrite`` is given and it holds an earlier design (``design.*``),
+and a fault while writing (a full disk, Ctrl-C) leaves the earlier design as it was
+(:mod:`aeropend_sim.output_folder`).
+
+Exit status: 0 written, 2 bad input (message on stderr), 1 a fault while writing, 130 Ctrl-C.
 """
 
 from __future__ import annotations
@@ -36,6 +41,7 @@ import numpy as np
 
 from aeropend_ident.design.sequence import BUDGET_S, MODES, DesignError, check_mode
 from aeropend_ident.errors import IdentError
+from aeropend_sim.output_folder import OutputFolder, claim_output_folder, exits_cleanly_on_faults, is_fault
 
 
 class DesignCliError(IdentError):
@@ -48,7 +54,10 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
     ap.add_argument("recordings", nargs="*", help="earlier recordings (bag, .mcap, .db3, FILE.csv[:PRESET])")
     ap.add_argument("--design-for", dest="design_for", help="gap report folder or rig fit result (.yaml)")
     ap.add_argument("--rig", help="nominal rig (name or file) the gap report was made against")
-    ap.add_argument("-o", "--out", type=Path, help="output folder")
+    ap.add_argument("-o", "--out", type=Path,
+                    help="output folder (refused if it exists and is not empty, unless --overwrite)")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace an earlier design in -o (only a folder holding design.* files)")
     ap.add_argument("--duration", type=float, default=40.0, help="length of the design [s] (≤ 60)")
     ap.add_argument("--rate", type=float, help="logging rate [Hz] (default: the recordings')")
     ap.add_argument("--seed", type=int, default=0)
@@ -124,8 +133,8 @@ def _channels(recs: Sequence[Any]) -> list[str]:
     return sorted(common & {"theta", "i_a", "v_a", "omega_rotor"})
 
 
-def discrimination(args: argparse.Namespace) -> dict[str, Any]:
-    """The discrimination design of a gap report (module doc); writes the folder, returns design.json."""
+def discrimination(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any]:
+    """The discrimination design of a gap report (module doc); writes ``out``, returns design.json."""
     from aeropend_ident.design.candidates import (
         candidate_sets,
         channel_noise,
@@ -171,12 +180,12 @@ def discrimination(args: argparse.Namespace) -> dict[str, Any]:
            "criterion": d.value, "baseline_criterion": d.baseline_value,
            "limits_check": check_limits(d.duty, limits, th.ravel()),
            "evaluations": d.evaluations, "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s}
-    write_design(args.out, doc, d.duty, limits.dt, cands)
+    out.write(lambda folder: write_design(folder, doc, d.duty, limits.dt, cands))
     return doc
 
 
-def parameters(args: argparse.Namespace) -> dict[str, Any]:
-    """The D-optimal design of a rig fit result (module doc); writes the folder, returns design.json."""
+def parameters(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any]:
+    """The D-optimal design of a rig fit result (module doc); writes ``out``, returns design.json."""
     from aeropend_ident.design.candidates import channel_noise
     from aeropend_ident.design.parameters import design_parameters, fitted_keys, weak_keys
     from aeropend_ident.design.report import write_design
@@ -211,7 +220,7 @@ def parameters(args: argparse.Namespace) -> dict[str, Any]:
            "angle_limits_assured": d.angle_limits_assured,
            "evaluations": d.evaluations,
            "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s}
-    write_design(args.out, doc, d.duty, limits.dt)
+    out.write(lambda folder: write_design(folder, doc, d.duty, limits.dt))
     return doc
 
 
@@ -237,6 +246,7 @@ def outcome(args: argparse.Namespace) -> dict[str, Any]:
     return compare_outcome(design, report, ev)
 
 
+@exits_cleanly_on_faults("excitation_design")
 def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> int:
     """Entry point; returns the exit status."""
     args = build_parser(prog).parse_args(argv)
@@ -250,9 +260,18 @@ def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> 
         check_mode(args.mode)
         if not 1.0 < args.duration <= 60.0:
             raise DesignCliError(f"--duration {args.duration}: expected more than 1 s and at most 60 s")
+        from aeropend_ident.design.report import DESIGN_FILES
+
         target = Path(args.design_for)
-        doc = discrimination(args) if target.is_dir() else parameters(args)
+        # checked before the search (fail fast), written at its end in one step: an earlier
+        # design is replaced only with --overwrite, and never left half replaced
+        inputs = [target, *(x.partition(":")[0] for x in args.recordings)]
+        out = claim_output_folder(args.out, args.overwrite, own=DESIGN_FILES,
+                                  looks_like="an experiment design", inputs=inputs)
+        doc = discrimination(args, out) if target.is_dir() else parameters(args, out)
     except (IdentError, DesignError, ValueError, OSError, KeyError) as exc:
+        if is_fault(exc):  # a full disk or a refused write: one line, exit 1 (exits_cleanly_on_faults)
+            raise
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     print((args.out / "design.md").read_text(encoding="utf-8"))

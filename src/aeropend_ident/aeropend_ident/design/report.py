@@ -35,6 +35,10 @@ from aeropend_ident.gap.effects import MeasurementMap
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_sim.params import load_rig, rig_to_dict
 
+#: What :func:`write_design` writes at the folder's top level (``--overwrite`` replaces only a
+#: folder holding one of them).
+DESIGN_FILES = ("design.csv", "design.json", "design.md", "candidates")
+
 
 def csv_text(duty: np.ndarray, dt: float) -> str:
     """``t,duty`` CSV of a sequence on the grid k·dt (the format of
@@ -49,7 +53,10 @@ def _safe(name: str) -> str:
 
 def write_design(out: Path, doc: Mapping[str, Any], duty: np.ndarray, dt: float,
                  candidates: Sequence[Candidate] = ()) -> dict[str, Path]:
-    """Write the design folder (module doc) into ``out`` (created; files replaced).
+    """Write the design folder (module doc) into ``out`` (created if missing).
+
+    The command writes into a fresh folder (:meth:`aeropend_sim.output_folder.OutputFolder.write`);
+    files of the same name in ``out`` are replaced.
 
     Parameters
     ----------
