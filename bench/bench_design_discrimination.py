@@ -115,13 +115,7 @@ def _named(spec: dict[str, Any], case: dict[str, Any], res: Any) -> dict[str, An
 
 def run_case(job: dict[str, Any]) -> dict[str, Any]:
     """One case (module doc): before, design, truth recording and limit check, after."""
-    from aeropend_ident.design.candidates import (
-        candidate_sets,
-        channel_noise,
-        diagnosis_view,
-        fit_candidates,
-        unseparated_sets,
-    )
+    from aeropend_ident.design.candidates import channel_noise, diagnosis_candidates
     from aeropend_ident.design.discriminate import design_discrimination, rank_first_probability
     from aeropend_ident.design.sequence import AprbsShape, Limits, check_limits
     from bench import bench_gap_lab as lab
@@ -139,11 +133,9 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     row["gap_before_s"] = time.perf_counter() - t0
     row["before"] = _named(spec, case, before)
     td = time.perf_counter()
-    chosen, ranking = diagnosis_view(before.diagnosis.as_dict())
-    sets = candidate_sets(chosen, ranking, max_effects=lab.MAX_EFFECTS)
     tc = time.perf_counter()
-    cands, rows = fit_candidates(case["nominal"], fit, sets, ranking=ranking,
-                                 keep=unseparated_sets(chosen, ranking), neighbours=True)
+    cands, rows = diagnosis_candidates(before.diagnosis.as_dict(), case["nominal"], fit,
+                                       max_effects=lab.MAX_EFFECTS)
     row["candidate_fits_s"] = time.perf_counter() - tc
     row["candidates"] = [c.name for c in cands]
     row["candidate_rows"] = rows

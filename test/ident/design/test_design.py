@@ -12,9 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from aeropend_ident.design import candidates as candidates_module
 from aeropend_ident.design.candidates import (
+    MAX_UNRANKED,
     Candidate,
     candidate_sets,
+    diagnosis_candidates,
     fit_candidates,
     swap_neighbours,
     unseparated_sets,
@@ -259,6 +262,64 @@ def test_fit_candidates_reaches_the_truth_one_swap_away_the_same_on_any_thread_c
     assert len(rows) > 10 and [r["effects"] for r in rows] == [r["effects"] for r in rows2]
     assert [c.name for c in cands] == [c.name for c in cands2]
     assert [c.fit_sse for c in cands] == [c.fit_sse for c in cands2]
+
+
+def test_a_diagnosis_that_found_nothing_tests_every_single_effect(pair, monkeypatch):
+    """Earlier data without a significant gap (the nominal rig, noise alone, a log starting at
+    duty 0.3) rank no effect above another: the candidates are the nominal rig and every single
+    effect the angle identifies that is not fitted absent there (the same model as the nominal
+    rig); a significant diagnosis' candidates are six at most. The fits are the same in two threads
+    as in one: the nominal replay decides how the log began before any thread starts (in threads,
+    a candidate's probe could decide it, and every fit then ended about 1.7× the nominal's error)."""
+    from aeropend_ident.design.candidates import identifiable_effects
+    from aeropend_sim.excitation import aprbs
+    from aeropend_sim.recording import Recording
+
+    sig = aprbs(12.0, lo=0.3, hi=0.7, min_hold=0.2, max_hold=1.5, seed=2, dt=DT)
+    y = Predictor(pair[:1], ("theta",), DT, sig.duty.size)(sig.duty)["theta"][0]
+    rec = Recording(t=np.arange(sig.duty.size) * DT, duty=sig.duty,
+                    channels={"theta": y + np.random.default_rng(6).normal(0.0, SIGMA["theta"], y.size)})
+    rig = pair[0].rig
+    unranked = {"which": {"significant": False, "chosen": [], "ranking": []}}
+
+    class SecondFirst:
+        """A thread pool whose second task happens to run first (one order two threads may take)."""
+
+        def __init__(self, **_kw):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def map(self, fn, items):
+            items = list(items)
+            order = [1, 0, *range(2, len(items))] if len(items) > 1 else [0]
+            done = {i: fn(items[i]) for i in order}
+            return [done[i] for i in range(len(items))]
+
+    runs = []
+    for threads in ("2", "1"):
+        monkeypatch.setenv("AEROPEND_REPLAY_THREADS", threads)
+        monkeypatch.setattr(candidates_module, "ThreadPoolExecutor", SecondFirst)
+        runs.append(diagnosis_candidates(unranked, rig, [rec]))
+    (cands, rows), (cands1, rows1) = runs
+    assert [(r["effects"], r["fit_sse"]) for r in rows] == [(r["effects"], r["fit_sse"]) for r in rows1]
+    assert [c.name for c in cands] == [c.name for c in cands1]
+    singles = identifiable_effects(rig.family, {"theta"})
+    assert [r["effects"] for r in rows] == [[]] + [[e] for e in singles]
+    nominal = rows[0]["fit_sse"]
+    assert all(r["fit_sse"] < 1.02 * nominal for r in rows)  # noise alone: no effect fits better
+    absent = {r["effects"][0] for r in rows if "fitted absent" in r.get("why_not", "")}
+    assert len(absent) >= 6
+    assert "nominal" in [c.name for c in cands] and all(len(c.effects) <= 1 for c in cands)
+    assert not {c.effects[0] for c in cands if c.effects} & absent
+    assert len(cands) == 1 + len(singles) - len(absent) <= MAX_UNRANKED
+    ranked = diagnosis_candidates({"which": {"significant": True, "chosen": [], "ranking": []}}, rig, [rec],
+                                  max_effects=1)[0]
+    assert len(ranked) <= 6
 
 
 def test_d_optimal_design_shrinks_the_predicted_uncertainty():

@@ -4,7 +4,8 @@ determines the parameters a ``rig fit`` left undetermined, within a rig's limits
 Modules (import them directly; docs/design.md):
 
 * :mod:`aeropend_ident.design.sequence` -- ``Limits``, ``AprbsShape``, ``sequence``, ``check_limits``
-* :mod:`aeropend_ident.design.candidates` -- ``candidate_sets``, ``fit_candidates``, ``channel_noise``
+* :mod:`aeropend_ident.design.candidates` -- ``diagnosis_candidates``, ``candidate_sets``,
+  ``fit_candidates``, ``channel_noise``
 * :mod:`aeropend_ident.design.discriminate` -- ``design_discrimination``, ``rank_first_probability``,
   ``evidence``
 * :mod:`aeropend_ident.design.parameters` -- ``design_parameters`` (Ds-/D-optimal), ``weak_keys``
@@ -13,12 +14,11 @@ Modules (import them directly; docs/design.md):
 
 Example::
 
-    from aeropend_ident.design.candidates import candidate_sets, channel_noise, fit_candidates
+    from aeropend_ident.design.candidates import channel_noise, diagnosis_candidates
     from aeropend_ident.design.discriminate import design_discrimination
     from aeropend_ident.design.sequence import AprbsShape, Limits
 
-    chosen, ranking = result.diagnosis.chosen, result.diagnosis.ranking      # a GapResult
-    cands, _ = fit_candidates(rig, fit_recordings, candidate_sets(chosen, ranking), ranking=ranking)
+    cands, _ = diagnosis_candidates(result.diagnosis.as_dict(), rig, fit_recordings)   # a GapResult
     sigma = channel_noise(fit_recordings, ["theta"])
     limits = Limits.from_recordings([r.channels["theta"] for r in fit_recordings],
                                     [r.duty for r in fit_recordings], fit_recordings[0].dt)

@@ -46,7 +46,7 @@ from aeropend_ident.gap.effects import (
     identifiable,
 )
 from aeropend_ident.gap.which.context import fit_threads
-from aeropend_ident.gap.which.data import Prepared, prepare
+from aeropend_ident.gap.which.data import Prepared, prepare, residuals
 from aeropend_ident.gap.which.fitting import fit_effects
 from aeropend_ident.gap.which.ranking import excluded_with
 from aeropend_ident.greybox.batch import one_replay_thread
@@ -61,6 +61,8 @@ KEEP_SSE_FACTOR = 1.25
 N_ALTERNATIVES = 9
 #: Effects (the chosen ones first) whose compatible subsets are candidates (:func:`candidate_sets`).
 POOL = 6
+#: Most candidates when the earlier recordings show no significant gap (:func:`diagnosis_candidates`).
+MAX_UNRANKED = 12
 #: An effect whose fitted parameters all lie within this share of their search span (or this
 #: log-distance) of their "off" value is fitted absent (:func:`absent_effects`).
 ABSENT_TOL = 0.01
@@ -228,8 +230,7 @@ def swap_neighbours(effects: Sequence[str], family: str, channels: frozenset[str
     -------
     list of tuple of str
     """
-    names = [e.name for e in catalog(family)
-             if e.name != "quantisation" and identifiable(e, frozenset(channels)) is None]
+    names = identifiable_effects(family, channels)
     out: list[tuple[str, ...]] = []
     for member in effects:
         for e in names:
@@ -237,6 +238,13 @@ def swap_neighbours(effects: Sequence[str], family: str, channels: frozenset[str
             if s is not None and s not in out:
                 out.append(s)
     return out
+
+
+def identifiable_effects(family: str, channels: frozenset[str] | set[str]) -> list[str]:
+    """The effects of ``family``'s catalog that ``channels`` can identify, catalog order (the
+    quantisation effect left out: it is not fitted)."""
+    return [e.name for e in catalog(family)
+            if e.name != "quantisation" and identifiable(e, frozenset(channels)) is None]
 
 
 def _swap(effects: Sequence[str], member: str, other: str) -> tuple[str, ...] | None:
@@ -317,7 +325,7 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
     Raises
     ------
     GapError
-        When no set could be fitted.
+        When the nominal rig cannot be replayed on the recordings, or no set could be fitted.
     """
     channels = check_recordings(list(recordings), "earlier")
     preps: list[Prepared] = prepare(list(recordings), channels)
@@ -327,15 +335,18 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
     rows: list[dict[str, Any]] = []
     tried: set[tuple[str, ...]] = set()
 
-    def fit(s: tuple[str, ...]) -> Candidate | str:
-        try:
-            if s:
-                fr = fit_effects(rig, s, preps, ctx, start={e: starts[e] for e in s if e in starts})
-                return Candidate(label(s), s, fr.rig, fr.meas, float(fr.sse), fr.values)
-            from aeropend_ident.gap.which.data import residuals
+    # The nominal rig is replayed first, on this thread: a log's first replay decides how it began
+    # (at rest or running, gap.which.data._initial_states) for every later one, as in the diagnosis.
+    # Left to the fit threads, whichever candidate's first probe came first decided it (a thread
+    # race: the same fits then ended 1.7× worse on one run than on another).
+    nominal_sse = float(np.sum(residuals(rig, MeasurementMap(), preps) ** 2))
 
-            r = residuals(rig, MeasurementMap(), preps)
-            return Candidate("nominal", (), rig, MeasurementMap(), float(np.sum(r * r)))
+    def fit(s: tuple[str, ...]) -> Candidate | str:
+        if not s:
+            return Candidate("nominal", (), rig, MeasurementMap(), nominal_sse)
+        try:
+            fr = fit_effects(rig, s, preps, ctx, start={e: starts[e] for e in s if e in starts})
+            return Candidate(label(s), s, fr.rig, fr.meas, float(fr.sse), fr.values)
         except (GapError, ValueError) as exc:
             return str(exc)
 
@@ -358,7 +369,7 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
             if isinstance(cand, str):
                 rows.append({"effects": list(s), "error": cand, "kept": False})
                 continue
-            gone = absent_effects(cand.values, ctx) if len(s) > 1 else []
+            gone = absent_effects(cand.values, ctx)
             if gone and {x for x in s if x not in gone} in [set(c.effects) for c in fitted]:
                 rows.append({"effects": list(s), "fit_sse": cand.fit_sse, "kept": False,
                              "why_not": f"{', '.join(gone)} fitted absent: the same model as a smaller set"})
@@ -366,8 +377,6 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
             fitted.append(cand)
             rows.append({"effects": list(s), "fit_sse": cand.fit_sse})
 
-    for prep in preps:  # the compiled replays are built here, not raced for by the threads
-        _ = prep.replays, prep.head
     fit_all([tuple(s) for s in (*sets, *keep)])
     if neighbours and fitted:
         top = min(fitted, key=lambda c: c.fit_sse)
@@ -406,6 +415,53 @@ def _kept(fitted: Sequence[Candidate], max_sse: float, keep: Sequence[Sequence[s
     others = [c for c in top if all(c is not m for m in musts)][:max(max_candidates - len(musts), 0)]
     kept = [c for c in top if any(c is x for x in (*in_top, *others))] + extra
     return kept, {c.name for c in extra}
+
+
+def diagnosis_candidates(report: Mapping[str, Any], rig: Rig, recordings: Sequence[Recording], *,
+                         max_effects: int = 3) -> tuple[list[Candidate], list[dict[str, Any]]]:
+    """The candidates a discrimination design separates, from a gap diagnosis and the recordings
+    it was made from (what ``excitation_design --design-for GAP_REPORT`` tests).
+
+    * The diagnosis found a significant gap: :func:`candidate_sets` of its answer and ranking, its
+      answer and the sets it could not separate from it always kept (:func:`unseparated_sets`),
+      then the sets one swap from the best fit (:func:`swap_neighbours`); at most
+      ``max_candidates`` (6) of them, best fit first (:func:`fit_candidates`).
+    * It found none: then the earlier recordings hold no evidence for one effect over another (the
+      fit errors of the single effects differ by noise, and ranking by them would pick six of the
+      catalog at random). The candidates are the nominal rig and every single effect the logged
+      channels identify that is not fitted absent on those recordings (then it is the nominal
+      rig), at most :data:`MAX_UNRANKED`.
+
+    Parameters
+    ----------
+    report : mapping
+        A gap ``report.json`` or ``EffectDiagnosis.as_dict()``.
+    rig : Rig
+        The nominal rig the diagnosis was made against.
+    recordings : sequence of Recording
+        Its fit recordings, recording frame.
+    max_effects : int
+        Largest set size.
+
+    Returns
+    -------
+    (list of Candidate, list of dict)
+        As :func:`fit_candidates`.
+
+    Raises
+    ------
+    GapError
+        Bad recordings; no set could be fitted.
+    """
+    which = report.get("which", report)
+    chosen, ranking = diagnosis_view(report)
+    if which.get("significant", True):
+        return fit_candidates(rig, recordings, candidate_sets(chosen, ranking, max_effects=max_effects),
+                              ranking=ranking, keep=unseparated_sets(chosen, ranking), neighbours=True)
+    channels = check_recordings(list(recordings), "earlier")
+    singles = [(e,) for e in identifiable_effects(rig.family, channels)]
+    return fit_candidates(rig, recordings, [(), *singles], ranking=ranking, keep=[()],
+                          max_candidates=MAX_UNRANKED)
 
 
 def diagnosis_view(report: Mapping[str, Any]) -> tuple[list[str], list[dict[str, Any]]]:

@@ -135,13 +135,7 @@ def _channels(recs: Sequence[Any]) -> list[str]:
 
 def discrimination(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any]:
     """The discrimination design of a gap report (module doc); writes ``out``, returns design.json."""
-    from aeropend_ident.design.candidates import (
-        candidate_sets,
-        channel_noise,
-        diagnosis_view,
-        fit_candidates,
-        unseparated_sets,
-    )
+    from aeropend_ident.design.candidates import channel_noise, diagnosis_candidates, diagnosis_view
     from aeropend_ident.design.discriminate import design_discrimination, rank_first_probability
     from aeropend_ident.design.report import write_design
     from aeropend_ident.design.sequence import AprbsShape, check_limits
@@ -156,10 +150,8 @@ def discrimination(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any
     limits = _limits(args, recs, model.measurement.theta_offset)
     channels = _channels(recs)
     sigma = channel_noise(recs, channels)
-    chosen, ranking = diagnosis_view(report)
-    sets = candidate_sets(chosen, ranking, max_effects=args.max_effects)
-    cands, rows = fit_candidates(model.rig, recs, sets, ranking=ranking,
-                                 keep=unseparated_sets(chosen, ranking), neighbours=True)
+    chosen, _ranking = diagnosis_view(report)
+    cands, rows = diagnosis_candidates(report, model.rig, recs, max_effects=args.max_effects)
     if len(cands) < 2:
         raise DesignCliError("the earlier recordings leave one candidate standing "
                              f"({cands[0].name}): nothing to discriminate; candidate fits: {rows}")
