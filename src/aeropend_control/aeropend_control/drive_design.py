@@ -46,10 +46,12 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import itertools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -76,7 +78,48 @@ if TYPE_CHECKING:
     import control
 
 #: Drive kinds of :class:`DriveSpec`: the duty chain (FL, small-signal) or the motor cascade.
+T = TypeVar("T")
+
 DRIVES = ("duty", "cascade")
+
+#: Most answers :func:`once_per_rig` keeps per function (a long-lived process designing for many
+#: rigs starts afresh beyond this).
+ONCE_PER_RIG_MAX = 256
+
+
+def _physics(rig: Rig) -> tuple:
+    """What a loop design reads of ``rig`` (its family, sample period, sections and effect switches;
+    not its name or where its numbers come from), hashable."""
+    return (rig.family, rig.sample_period, rig.actuator, rig.motor, rig.thrust, rig.pendulum, rig.sensors,
+            rig.effects)
+
+
+def once_per_rig(design: Callable[..., T]) -> Callable[..., T]:
+    """Compute ``design(rig, *args)`` once per rig physics (:func:`_physics`) and arguments.
+
+    For the pure, slow designs of this module (:func:`robust_spec`'s search designs 168 loops and
+    predicts their steps, 2.4 s on an ESC rig): ``design_gains`` and then every controller built on
+    the same rig file ask for the same answers again. Answers are frozen dataclasses, shared. An
+    unhashable argument (or a NaN in it, which never equals itself) computes afresh.
+    """
+    answers: dict[tuple, T] = {}
+
+    @functools.wraps(design)
+    def cached(rig: Rig, *args: Any, **kwargs: Any) -> T:
+        try:
+            key = (_physics(rig), args, tuple(sorted(kwargs.items())))
+            hit = answers.get(key)
+        except TypeError:
+            return design(rig, *args, **kwargs)
+        if hit is None:
+            hit = design(rig, *args, **kwargs)
+            if len(answers) >= ONCE_PER_RIG_MAX:
+                answers.clear()
+            answers[key] = hit
+        return hit
+
+    cached.cache_clear = answers.clear  # type: ignore[attr-defined]
+    return cached
 
 
 @dataclass(frozen=True)
@@ -362,6 +405,7 @@ def _on_drive(base: LoopDesign, a0: float, a1: float, g: float, drive: control.S
     return base
 
 
+@once_per_rig
 def design_fl_on_drive(rig: Rig, spec: PoleSpec, drive: DriveSpec, theta0: float) -> LoopDesign:
     """:func:`~aeropend_control.design.design_fl` (damping cancelled) with the gains placed on the
     drive chain linearised at θ₀ (the FL loop's gains hardly depend on θ₀: the law cancels the
@@ -382,6 +426,7 @@ def design_fl_on_drive(rig: Rig, spec: PoleSpec, drive: DriveSpec, theta0: float
     return _on_drive(base, m.a_g * math.cos(theta0), m.a_c, m.b_f, d, spec, True, drive.kind)
 
 
+@once_per_rig
 def design_small_signal_on_drive(rig: Rig, theta0: float, spec: PoleSpec, drive: DriveSpec) -> LoopDesign:
     """:func:`~aeropend_control.design.design_small_signal` with the gains placed on the drive chain
     at θ₀; ``drive`` of the result says whether they were (:func:`_on_drive`; else the static design).
@@ -560,6 +605,7 @@ def worst_goal_ratio(a0: float, a1: float, g: float, drive: control.StateSpace,
     return worst
 
 
+@once_per_rig
 def robust_spec(rig: Rig, spec: PoleSpec, kind: str, linearising: bool,
                 cascade: CascadeDesign | None = None) -> PoleSpec:
     """``spec`` with the natural frequency and damping ratio that meet :data:`ROBUST_GOAL` (ts ≤ 1 s,
