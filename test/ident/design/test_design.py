@@ -138,7 +138,7 @@ def test_the_recording_names_no_effect_it_does_not_demand(pair, designed):
     assert ev["named"] == "nominal" and ev["named_effects"] == []
 
 
-def test_verdict_names_nothing_when_two_sets_of_one_size_survive():
+def test_verdict_names_nothing_when_two_sets_of_one_size_survive_or_nothing_is_refuted():
     rig = load_rig("thesis_sim")
     cands = [Candidate("a", ("inertia",), rig), Candidate("b", ("actuator_lag",), rig),
              Candidate("c", ("inertia", "actuator_lag"), rig)]
@@ -152,6 +152,19 @@ def test_verdict_names_nothing_when_two_sets_of_one_size_survive():
     out = verdict(cands, segs, noise)
     assert out["named"] == "a" and out["survivors"] == ["a"]
     assert verdict(cands, np.full((3, 4), np.inf), noise)["named"] is None  # nothing replayed
+    # all alike second by second: nothing refuted, no effect named (the fewest effects among all
+    # the candidates would not be the recording's choice), all reported; the nominal rig among
+    # them is named: the recording demands no effect (test_the_recording_names_no_effect_...)
+    segs[1] /= 3.0
+    segs[2] = [60.5, 60.0, 59.5, 60.5] * 5
+    out = verdict(cands, segs, noise)
+    assert out["named"] is None and sorted(out["survivors"]) == ["a", "b", "c"]
+    assert min(out["refuted_p"].values()) > 0.05 / 2
+    out = verdict([cands[0], cands[2]], segs[[0, 2]], noise)  # one size each: still nothing
+    assert out["named"] is None and len(out["survivors"]) == 2
+    nominal = Candidate("nominal", (), rig)
+    out = verdict([cands[0], nominal], segs[[0, 1]], noise)
+    assert out["named"] == "nominal" and out["named_effects"] == []
 
 
 def test_reference_mode_is_refused_until_implemented(pair):

@@ -308,7 +308,10 @@ def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mappin
     -------
     dict
         ``chi2`` {name: Σ residual²/σ²}, ``first`` (the candidate with the least), ``order`` (best
-        first), ``samples``, and :func:`verdict`'s ``named``, ``survivors``, ``refuted_p``.
+        first), ``samples``, ``best_rms_over_noise`` (the first one's error RMS over the noise σ:
+        about 1 when it explains the recording; far above, the recording shows a gap no candidate
+        explains, and a refit on it, ``gap``, is the next step), and :func:`verdict`'s ``named``,
+        ``survivors``, ``refuted_p``.
     """
     n = min(np.asarray(duty).size, *(np.asarray(recorded[c]).size for c in sigma))
     pred = Predictor(candidates, tuple(sigma), dt, n)
@@ -323,7 +326,8 @@ def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mappin
     k = n // w
     segs = np.add.reduceat(e2[:, : k * w], np.arange(0, k * w, w), axis=1)
     segs[:, -1] += e2[:, k * w:].sum(axis=1)
-    res = {"chi2": chi2, "first": order[0] if order else None, "order": order, "samples": int(n)}
+    res = {"chi2": chi2, "first": order[0] if order else None, "order": order, "samples": int(n),
+           "best_rms_over_noise": math.sqrt(chi2[order[0]] / (n * len(sigma))) if order else math.nan}
     res.update(verdict(candidates, segs, noise=float(w * len(sigma)), alpha=alpha))
     return res
 
@@ -338,7 +342,8 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     not do better on average") at p < ``alpha`` / (candidates − 1). Of the best and the rivals
     it does not refute, the one with the fewest effects is named (an effect the recording does
     not demand is not named); when two of that size survive, nothing is named and both are
-    reported as not separated.
+    reported as not separated. A recording that refutes no rival separated nothing: it names the
+    nominal rig (no effect) when that is a candidate, else nothing.
 
     Parameters
     ----------
@@ -376,7 +381,11 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     alive.sort(key=lambda b: tot[b])
     fewest = min(len(candidates[b].effects) for b in alive)
     small = [b for b in alive if len(candidates[b].effects) == fewest]
-    named = candidates[small[0]] if len(small) == 1 else None
+    # a recording that refutes none of the rivals separated nothing: it may still say that it
+    # demands no effect (the nominal rig among the survivors), but the fewest effects among all the
+    # candidates would be effects named without it (lab case 80 named such a set, wrongly)
+    refuted_any = len(alive) < len(candidates)
+    named = candidates[small[0]] if len(small) == 1 and (refuted_any or fewest == 0) else None
     return {"named": named.name if named else None,
             "named_effects": list(named.effects) if named else None,
             "survivors": [candidates[b].name for b in alive], "refuted_p": pvals, "alpha": alpha}

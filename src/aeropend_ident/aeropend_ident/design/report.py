@@ -182,7 +182,9 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         diagnosis excludes), and with ``evidence`` the candidate the recording ranks first, the
         χ² per candidate, and its verdict (:func:`aeropend_ident.design.discriminate.verdict`):
         ``recording_names`` (the effects the recording names, None when the survivors are not
-        separated), ``not_separated`` (the candidates it does not refute) and ``refuted_p``.
+        separated), ``not_separated`` (the candidates it does not refute), ``refuted_p`` and
+        ``recording_best_rms_over_noise`` (far above 1: a gap no candidate explains; refit with
+        ``gap``).
     """
     chosen, _ranking = diagnosis_view(gap_report)
     cands = design["candidates"]
@@ -202,4 +204,5 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         out["recording_names"] = evidence.get("named_effects")
         out["not_separated"] = list(evidence.get("survivors") or [])
         out["refuted_p"] = dict(evidence.get("refuted_p") or {})
+        out["recording_best_rms_over_noise"] = evidence.get("best_rms_over_noise")
     return out
