@@ -22,6 +22,9 @@ so every candidate explains the earlier data as well as it can. Candidates whose
 than :data:`KEEP_SSE_FACTOR` times the best candidate's error are already refuted by those data
 and dropped; at most ``max_candidates`` are kept, best fit first.
 
+A diagnosis that found no significant gap ranks nothing: its candidates are the nominal rig and
+every single effect the channels identify (:func:`diagnosis_candidates`, what the command runs).
+
 No rclpy import: this module runs without ROS.
 """
 
