@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from aeropend_ident.design import candidates as candidates_module
 from aeropend_ident.design.candidates import (
     MAX_UNRANKED,
     Candidate,
@@ -41,6 +40,7 @@ from aeropend_ident.design.sequence import (
     slew_limited,
 )
 from aeropend_ident.gap.effects import apply_effects
+from aeropend_ident.gap.which import context as fit_threads_module
 from aeropend_sim.excitation import ExcitationError, aprbs, make_signal
 from aeropend_sim.params import load_rig
 
@@ -299,7 +299,7 @@ def test_a_diagnosis_that_found_nothing_tests_every_single_effect(pair, monkeypa
         """A thread pool whose second task happens to run first (one order two threads may take)."""
 
         def __init__(self, **_kw):
-            pass
+            self.jobs = []
 
         def __enter__(self):
             return self
@@ -307,16 +307,28 @@ def test_a_diagnosis_that_found_nothing_tests_every_single_effect(pair, monkeypa
         def __exit__(self, *exc):
             return False
 
-        def map(self, fn, items):
-            items = list(items)
-            order = [1, 0, *range(2, len(items))] if len(items) > 1 else [0]
-            done = {i: fn(items[i]) for i in order}
-            return [done[i] for i in range(len(items))]
+        def submit(self, fn, *args):
+            pool = self
+
+            class Job:
+                def result(self):
+                    pool.run()
+                    return self.value
+
+            job = Job()
+            job.run = lambda: setattr(job, "value", fn(*args))
+            self.jobs.append(job)
+            return job
+
+        def run(self):
+            todo, self.jobs = self.jobs, []
+            for k in ([1, 0, *range(2, len(todo))] if len(todo) > 1 else [0] * len(todo)):
+                todo[k].run()
 
     runs = []
     for threads in ("2", "1"):
         monkeypatch.setenv("AEROPEND_REPLAY_THREADS", threads)
-        monkeypatch.setattr(candidates_module, "ThreadPoolExecutor", SecondFirst)
+        monkeypatch.setattr(fit_threads_module, "ThreadPoolExecutor", SecondFirst)
         runs.append(diagnosis_candidates(unranked, rig, [rec]))
     (cands, rows), (cands1, rows1) = runs
     assert [(r["effects"], r["fit_sse"]) for r in rows] == [(r["effects"], r["fit_sse"]) for r in rows1]

@@ -33,7 +33,6 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -48,11 +47,10 @@ from aeropend_ident.gap.effects import (
     get_effect,
     identifiable,
 )
-from aeropend_ident.gap.which.context import fit_threads
+from aeropend_ident.gap.which.context import each_in_fit_threads
 from aeropend_ident.gap.which.data import Prepared, prepare, residuals
 from aeropend_ident.gap.which.fitting import fit_effects
 from aeropend_ident.gap.which.ranking import excluded_with
-from aeropend_ident.greybox.batch import one_replay_thread
 from aeropend_ident.greybox.fit import measurement_noise
 from aeropend_ident.io.recording_input import detect_quantum
 from aeropend_sim.params import Rig
@@ -353,22 +351,13 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
         except (GapError, ValueError) as exc:
             return str(exc)
 
-    def fit_on_one_thread(s: tuple[str, ...]) -> Candidate | str:
-        with one_replay_thread():  # one thread per fit already: its replays stay on it
-            return fit(s)
-
     def fit_all(todo: Sequence[tuple[str, ...]]) -> None:
-        """Fit ``todo`` (independent fits, :func:`~aeropend_ident.gap.which.context.fit_threads`
-        threads at once) and file each result in order, so the outcome does not depend on them."""
+        """Fit ``todo`` (independent fits in the diagnosis' fit threads,
+        :func:`~aeropend_ident.gap.which.context.each_in_fit_threads`) and file each result in
+        order, so the outcome does not depend on them."""
         todo = [s for s in dict.fromkeys(todo) if s not in tried]
         tried.update(todo)
-        n = min(fit_threads(), len(todo))
-        if n > 1:
-            with ThreadPoolExecutor(max_workers=n, thread_name_prefix="aeropend-candidates") as pool:
-                results = list(pool.map(fit_on_one_thread, todo))
-        else:
-            results = [fit(s) for s in todo]
-        for s, cand in zip(todo, results, strict=True):
+        for s, cand in each_in_fit_threads(todo, lambda s, _say: fit(s), preps=preps):
             if isinstance(cand, str):
                 rows.append({"effects": list(s), "error": cand, "kept": False})
                 continue

@@ -12,7 +12,7 @@ import os
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -281,6 +281,9 @@ def _above_noise(sse_c: Mapping[str, float], noise_c: Mapping[str, float],
     return any(sse_c[c] > ABOVE_NOISE * noise_c[c] + chance_c[c] and sse_c[c] > 1e-8 for c in sse_c)
 
 
+#: An item of :func:`each_in_fit_threads`.
+T = TypeVar("T")
+
 def fit_threads() -> int:
     """Threads the independent fits of one diagnosis step run in (:func:`_each`):
     :func:`aeropend_ident.greybox.batch.replay_threads` if set (a pool or cluster worker running
@@ -291,20 +294,32 @@ def fit_threads() -> int:
 
 def _each(st: _Setup, items: Sequence[str], work: Callable[[str, Callable[[str], None]], Any]
           ) -> Iterator[tuple[str, Any]]:
-    """``(item, work(item, say))`` for every item, in order, the independent fits of one step run
-    in :func:`fit_threads` threads at once (the compiled replays release the GIL).
+    """:func:`each_in_fit_threads` of one diagnosis step: progress to ``st.say``, the fit and
+    validation recordings' compiled replays built first. ``work`` must not change ``st``."""
+    return each_in_fit_threads(items, work, st.say, (*st.pf, *st.pv))
+
+
+def each_in_fit_threads(items: Sequence[T], work: Callable[[T, Callable[[str], None]], Any],
+                        say: Callable[[str], None] = lambda _line: None, preps: Sequence[Any] = ()
+                        ) -> Iterator[tuple[T, Any]]:
+    """``(item, work(item, say))`` for every item, in order, independent fits run in
+    :func:`fit_threads` threads at once (the compiled replays release the GIL), each with its batch
+    replays on its own thread.
 
     ``work`` reports progress through the ``say`` it is given; in threads its lines are kept and
-    passed on to ``st.say`` in the order of ``items``, each before its result is yielded, so the
-    progress reads as when the fits run one after the other (which they do with one thread).
-    ``work`` must not change ``st``; an exception in one item is raised when its turn comes.
+    passed on to ``say`` in the order of ``items``, each before its result is yielded, so the
+    progress reads as when the fits run one after the other (which they do with one thread). An
+    exception in one item is raised when its turn comes. ``preps``
+    (:class:`~aeropend_ident.gap.which.data.Prepared`) have their compiled replays built before
+    the threads start, not raced for; how each of their logs began must already be decided (their
+    nominal replay done: :func:`aeropend_ident.gap.which.data.residuals`).
     """
     n = min(fit_threads(), len(items))
     if n <= 1:
         for item in items:
-            yield item, work(item, st.say)
+            yield item, work(item, say)
         return
-    for prep in (*st.pf, *st.pv):  # their compiled replays are built here, not raced for by the threads
+    for prep in preps:
         _ = prep.replays, prep.head
     with ThreadPoolExecutor(max_workers=n, thread_name_prefix="aeropend-fit") as pool:
         jobs = []
@@ -314,13 +329,14 @@ def _each(st: _Setup, items: Sequence[str], work: Callable[[str, Callable[[str],
         for item, lines, job in jobs:
             result = job.result()
             for line in lines:
-                st.say(line)
+                say(line)
             yield item, result
 
 
-def _on_one_replay_thread(work: Callable[[str, Callable[[str], None]], Any], item: str,
+def _on_one_replay_thread(work: Callable[[T, Callable[[str], None]], Any], item: T,
                           say: Callable[[str], None]) -> Any:
-    """``work(item, say)`` with its batch replays on the calling thread (one of :func:`_each`'s)."""
+    """``work(item, say)`` with its batch replays on the calling thread (one of
+    :func:`each_in_fit_threads`')."""
     with one_replay_thread():
         return work(item, say)
 
