@@ -77,9 +77,10 @@ from aeropend_sim.params import Rig
 if TYPE_CHECKING:
     import control
 
-#: Drive kinds of :class:`DriveSpec`: the duty chain (FL, small-signal) or the motor cascade.
+#: A design's answer (:func:`once_per_rig`).
 T = TypeVar("T")
 
+#: Drive kinds of :class:`DriveSpec`: the duty chain (FL, small-signal) or the motor cascade.
 DRIVES = ("duty", "cascade")
 
 #: Most answers :func:`once_per_rig` keeps per function (a long-lived process designing for many
