@@ -152,6 +152,11 @@ def test_an_earlier_design_is_replaced_only_with_overwrite(tmp_path, step_log, c
     assert main([*args, "--seed", "1", "-o", str(out), "--overwrite"]) == 0
     assert json.loads((out / "design.json").read_text())["seed"] == 1
     assert sorted(p.name for p in out.iterdir()) == ["design.csv", "design.json", "design.md"]
-    # the folder holding an input is never emptied
-    assert main([*args, "-o", str(step_log.parent), "--overwrite"]) == 2
-    assert step_log.exists()
+    # a design folder that holds one of the inputs is never emptied, even with --overwrite
+    import shutil
+
+    inside = out / "step_bag"
+    shutil.copytree(step_log, inside)
+    held = ["--design-for", str(RIG), str(inside), *args[3:]]
+    assert main([*held, "-o", str(out), "--overwrite"]) == 2
+    assert "holds the input" in capsys.readouterr().err and inside.is_dir() and (out / "design.json").exists()
