@@ -380,6 +380,11 @@ def test_compare_outcome_names_the_matching_candidate():
     out = compare_outcome(design, report, ev)
     assert out["recording_names"] == ["inertia", "lag"] and out["recording_agrees_with_gap"]
     assert out["not_separated"] == ["b"] and out["refuted_p"] == {"a": 1e-4}
+    assert "note" not in out  # no misfit figure given: nothing said
+    out = compare_outcome(design, report, {**ev, "best_rms_over_noise": 1.1})
+    assert out["recording_best_rms_over_noise"] == 1.1 and "note" not in out
+    out = compare_outcome(design, report, {**ev, "best_rms_over_noise": 9.1})
+    assert "9.1x its noise RMS" in out["note"] and "run gap" in out["note"]
 
 
 def test_file_kind_checks_the_expected_period(tmp_path):

@@ -98,6 +98,7 @@ def test_outcome_compares_the_prediction_with_a_new_report(tmp_path, capsys):
     assert out["recording_names"] == ["actuator_lag"] and out["not_separated"] == ["actuator_lag"]
     assert out["refuted_p"]["nominal"] < 0.05
     assert 0.8 < out["recording_best_rms_over_noise"] < 1.2  # the lag explains it: noise is left
+    assert "note" not in out
 
 
 def test_rig_fits_inputs_are_taken_as_they_are(tmp_path, capsys):
