@@ -155,7 +155,10 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     t = np.arange(200) * DT
     rows = [f"{a:.2f},{0.3 + 0.2 * (k // 50 % 2):.3f},{0.1 * np.sin(a):.5f}" for k, a in enumerate(t)]
     csv.write_text("t,duty,angle\n" + "\n".join(rows) + "\n")
-    return {"bag": write_bag(_recording(1, 12.0), root / "fit"),
+    import aeropend_sim
+
+    rig_file = Path(aeropend_sim.__file__).parent / "rigs" / "thesis_rig.yaml"
+    return {"thesis_rig_file": rig_file, "bag": write_bag(_recording(1, 12.0), root / "fit"),
             "held": write_bag(_recording(2, 8.0), root / "held"), "csv": csv, **_rig_fit_inputs(root)}
 
 
@@ -183,9 +186,11 @@ def _main(name: str) -> Callable[[list[str]], int]:
     from aeropend_control.design_gains import main as design_gains
     from aeropend_ident.cli import baseline, compare, csv_import, gap, identify
     from aeropend_ident.cli.rig import main as rig
+    from aeropend_ident.design.cli import main as excitation_design
 
     return {"baseline": baseline.main, "compare": compare.main, "identify": identify.main, "gap": gap.main,
-            "csv_import": csv_import.main, "design_gains": design_gains, "rig new": rig, "rig fit": rig}[name]
+            "csv_import": csv_import.main, "design_gains": design_gains, "rig new": rig, "rig fit": rig,
+            "excitation_design": excitation_design}[name]
 
 
 #: command -> (its arguments before the output, output option, its own file, result is a folder)
@@ -202,6 +207,9 @@ COMMANDS: dict[str, tuple[Callable[[dict[str, Path]], list[str]], str, str, bool
     "rig new": (lambda d: ["new", "--actuator", "esc"], "-o", "", False),
     "rig fit": (lambda d: ["fit", str(d["rig_template"]), str(d["balance"]), "-q"], "-o", "", False),
     "design_gains": (lambda d: ["--rig", "thesis_rig", "--no-tune", "--steps", "0.4"], "-o", "", False),
+    "excitation_design": (lambda d: ["--design-for", str(d["thesis_rig_file"]), str(d["bag"]), "--parameters",
+                                     "pendulum.c_over_J", "--duration", "3", "--max-evaluations", "4"],
+                          "-o", "design.json", True),
 }
 #: (command, fault) cases: every command under a full disk, a read-only folder and Ctrl-C; EACCES
 #: on two; design_gains (a 10 s closed-loop check before it writes) under a full disk only (its
