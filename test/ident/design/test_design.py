@@ -347,6 +347,27 @@ def test_a_diagnosis_that_found_nothing_tests_every_single_effect(pair, monkeypa
     assert len(ranked) <= 6
 
 
+def test_fits_in_threads_refuse_a_log_whose_start_is_not_decided():
+    """The shared mechanism holds the rule the race broke: before any fit runs (threaded or
+    not), every log that starts at a non-zero duty cycle has had its start decided by the
+    nominal replay; a caller that forgot is told, not given fits that depend on the order."""
+    from aeropend_ident.gap.effects import MeasurementMap
+    from aeropend_ident.gap.which.data import prepare, residuals
+    from aeropend_sim.recording import Recording
+
+    sig = aprbs(6.0, lo=0.3, hi=0.7, min_hold=0.2, max_hold=1.0, seed=3, dt=DT)
+    rec = Recording(t=np.arange(sig.duty.size) * DT, duty=sig.duty,
+                    channels={"theta": np.linspace(0.2, 0.4, sig.duty.size)}, source="running start")
+    preps = prepare([rec], frozenset({"theta"}))
+    assert not preps[0].start_decided
+    with pytest.raises(RuntimeError, match="running start began is not decided"):
+        list(fit_threads_module.each_in_fit_threads(["a", "b"], lambda x, _say: x, preps=preps))
+    residuals(load_rig("thesis_sim"), MeasurementMap(), preps)
+    assert preps[0].start_decided
+    assert list(fit_threads_module.each_in_fit_threads(["a", "b"], lambda x, _say: x, preps=preps)) == [
+        ("a", "a"), ("b", "b")]
+
+
 def test_d_optimal_design_shrinks_the_predicted_uncertainty():
     rig = load_rig("thesis_sim")
     keys = ("pendulum.c_over_J", "pendulum.mgd_over_J")

@@ -284,6 +284,7 @@ def _above_noise(sse_c: Mapping[str, float], noise_c: Mapping[str, float],
 #: An item of :func:`each_in_fit_threads`.
 T = TypeVar("T")
 
+
 def fit_threads() -> int:
     """Threads the independent fits of one diagnosis step run in (:func:`_each`):
     :func:`aeropend_ident.greybox.batch.replay_threads` if set (a pool or cluster worker running
@@ -312,8 +313,18 @@ def each_in_fit_threads(items: Sequence[T], work: Callable[[T, Callable[[str], N
     exception in one item is raised when its turn comes. ``preps``
     (:class:`~aeropend_ident.gap.which.data.Prepared`) have their compiled replays built before
     the threads start, not raced for; how each of their logs began must already be decided (their
-    nominal replay done: :func:`aeropend_ident.gap.which.data.residuals`).
+    nominal replay done: :func:`aeropend_ident.gap.which.data.residuals`), else whichever work item
+    replays a log first would decide it.
+
+    Raises
+    ------
+    RuntimeError
+        If how one of ``preps``' logs began is not decided yet (a caller's error).
     """
+    undecided = [p.rec.source or "a recording" for p in preps if not p.start_decided]
+    if undecided:
+        raise RuntimeError(f"how {', '.join(undecided)} began is not decided: replay the nominal rig on "
+                           "it first (gap.which.data.residuals), before the fits")
     n = min(fit_threads(), len(items))
     if n <= 1:
         for item in items:

@@ -77,6 +77,12 @@ class Prepared:
         return int(self.duty.size)
 
     @property
+    def start_decided(self) -> bool:
+        """Whether how the log began is settled: one start when its first duty cycle is 0, else
+        decided by its first replay (:func:`_initial_states`)."""
+        return float(self.duty[0]) <= 0.0 or self._at_rest is not None
+
+    @property
     def replays(self) -> RigReplays:
         """Batched replays of rig variants on this recording (:func:`replay_many`)."""
         if self._replays is None:
