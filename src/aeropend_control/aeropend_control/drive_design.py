@@ -119,7 +119,6 @@ def once_per_rig(design: Callable[..., T]) -> Callable[..., T]:
             answers[key] = hit
         return hit
 
-    cached.cache_clear = answers.clear  # type: ignore[attr-defined]
     return cached
 
 
