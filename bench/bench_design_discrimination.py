@@ -99,7 +99,7 @@ def designed_recording(case: dict[str, Any], spec: dict[str, Any], duty: np.ndar
     kept["theta"] = quantise(kept["theta"], case["quantum"])
     t = np.arange(kept["duty"].size) * k * DT
     log = lab.logged(t, kept.pop("duty"), kept, spec, 2)
-    from aeropend_ident.io.recording_input import uniform_recording
+    from aeropend_ident.io.resampling import uniform_recording
 
     truth_theta = np.asarray(rec.true["theta_recorded"])[::k]
     return uniform_recording(to_recording(log, f"lab-{spec['id']}-designed")), {"theta": truth_theta}

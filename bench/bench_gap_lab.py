@@ -337,7 +337,8 @@ def build_case(spec: dict[str, Any]) -> dict[str, Any]:
 
 def prepared(case: dict[str, Any], spec: dict[str, Any]) -> tuple[list[Any], list[Any]]:
     """The command's input steps on both sessions (resampling, length and excitation checks)."""
-    from aeropend_ident.io.recording_input import check_excited, check_length, uniform_recording
+    from aeropend_ident.io.recording_input import check_excited, check_length
+    from aeropend_ident.io.resampling import uniform_recording
 
     fit = uniform_recording(to_recording(case["fit"], f"lab-{spec['id']}-fit"))
     held = uniform_recording(to_recording(case["held"], f"lab-{spec['id']}-held"))

@@ -57,7 +57,7 @@ from aeropend_ident.gap.report import write_report
 from aeropend_ident.gap.run import run_gap
 from aeropend_ident.io.csv_import import import_csv, import_csv_runs
 from aeropend_ident.io.jsonutil import jsonable
-from aeropend_ident.io.recording_input import uniform_recording
+from aeropend_ident.io.resampling import uniform_recording
 from aeropend_ident.io.split import informative, interleaved_blocks, time_ordered
 from aeropend_sim.model import PlantModel
 from aeropend_sim.params import load_rig

@@ -22,7 +22,8 @@ from aeropend_ident.cli.compare import main
 from aeropend_ident.errors import CompareError, RecordingInputError
 from aeropend_ident.gap.compare import channel_scores, compare, load_model, step_metrics
 from aeropend_ident.io.csv_import import PRESETS
-from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
+from aeropend_ident.io.recording_input import load_recording, split_preset
+from aeropend_ident.io.resampling import uniform_recording
 from aeropend_sim.recording import Recording
 from bench.fixtures import truth_plant as tp
 from bench.fixtures.truth_rig import lab_rig_doc, write_rig

@@ -20,7 +20,7 @@ import pytest
 from aeropend_ident.cli.gap import main, resolve_rig
 from aeropend_ident.gap.where import locate_gap
 from aeropend_ident.io.csv_import import import_csv, import_csv_runs
-from aeropend_ident.io.recording_input import uniform_recording
+from aeropend_ident.io.resampling import uniform_recording
 from aeropend_ident.io.split import informative, interleaved_blocks
 
 REAL = Path(__file__).resolve().parents[4] / "shared" / "data" / "real"

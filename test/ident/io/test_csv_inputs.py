@@ -22,7 +22,8 @@ from aeropend_ident.io.csv_import import PRESETS, CsvSpec, find_preset, import_c
 from aeropend_ident.io.csvspec.constant_input import check_constant_input
 from aeropend_ident.io.csvspec.input_kinds import INPUT_KINDS, input_map
 from aeropend_ident.io.csvspec.spec import PRESET_KEYS, load_preset_file, spec_to_mapping
-from aeropend_ident.io.recording_input import ignored_channels, load_recording, uniform_recording
+from aeropend_ident.io.recording_input import ignored_channels, load_recording
+from aeropend_ident.io.resampling import grid_step, regular_sampling, uniform_recording
 from aeropend_sim.contract import EXTRA_CHANNELS
 from aeropend_sim.recording import Recording, RecordingError
 
@@ -307,7 +308,7 @@ def test_a_loggers_uneven_timing_is_not_called_dropped_rows() -> None:
     """A ~600 Hz logger that writes every 1 ms or every 3 ms (issue 60: a lab's step tests) has no
     dropped rows: a third of its intervals are 3 ms. The note says uneven timing and counts the
     grid samples filled between them; a log that lost 3 of 1500 rows still says dropped rows."""
-    from aeropend_ident.io.recording_input import UNEVEN_SHARE
+    from aeropend_ident.io.resampling import UNEVEN_SHARE
 
     rng = np.random.default_rng(5)
     steps = rng.choice([1e-3, 3e-3], size=6000, p=[2 / 3, 1 / 3])
@@ -330,7 +331,7 @@ def test_a_loggers_uneven_timing_is_not_called_dropped_rows() -> None:
     assert res["uneven_timing"] is False and "3 dropped row(s) filled" in res["note"]
 
 
-def test_host_stamp_jitter_keeps_each_command_on_its_own_sample() -> None:
+def test_host_stamp_jitter_keeps_each_row_on_its_own_sample() -> None:
     """A timer-driven rig at 50 Hz whose host stamps each row when it arrives (σ 4 % of the period,
     the first stamp late like any other): row k is the command of sample k. Holding the last row at
     or before each grid instant gave about half the rows to the next instant (a command one whole
@@ -358,6 +359,39 @@ def test_host_stamp_jitter_keeps_each_command_on_its_own_sample() -> None:
     rate = 0.5 * np.cos(0.5 * k * T)
     shift = float(np.sum((uni.channels["theta"] - theta) * rate) / np.sum(rate**2))
     assert abs(shift) < 0.01 * T
+    # ... and each is its row's own, beside its command (interpolating from the stamps moved θ by
+    # θ̇·δt, up to 0.4 mrad here); over a dropped row, the straight line between the slots around it
+    got = uni.channels["theta"]
+    assert np.array_equal(got[keep], theta[keep])
+    assert got[200] == pytest.approx(0.5 * (theta[199] + theta[201]), abs=1e-15)
+    assert got[701] == pytest.approx((theta[699] + 2 * theta[702]) / 3, abs=1e-15)
+
+
+def test_stamps_that_do_not_scatter_about_regular_instants_are_the_sample_instants() -> None:
+    """Stamps scattered about regular instants are moved to them (:func:`regular_sampling`), with
+    the period of the straight line through them, not the median interval; rows sharing a slot and
+    a logger restarting at another phase after a pause keep their stamps (as at cychitivav's free
+    decay); millisecond stamps of a 16.33 ms period scatter about it like any jitter."""
+    rng = np.random.default_rng(0)
+    T = 0.01
+    k = np.arange(2000)
+    err = rng.normal(0.0, 0.04 * T, k.size)
+    jittered = k * T + err - err[0]
+    reg = regular_sampling(jittered, grid_step(jittered))
+    assert reg is not None and np.array_equal(reg.slot, k)
+    assert reg.period == pytest.approx(T, rel=2e-5) and abs(grid_step(jittered) / T - 1) > 1e-4
+    assert np.max(np.abs(reg.instants - (k * T - err[0]))) < 0.005 * T
+    # over 2000 rows, the median interval would put the last rows this far off their slots:
+    assert abs(grid_step(jittered) - T) * k[-1] > 0.2 * T
+    assert regular_sampling(np.array([0.0, 0.01, 0.0125, 0.03, 0.04, 0.05]), T) is None  # a shared slot
+    assert regular_sampling(k * T, T) is None  # on the grid already
+    paused = np.concatenate([jittered[:1000], jittered[1000:] + 25.4 * T])  # back 0.4 T off the old phase
+    assert regular_sampling(paused, grid_step(paused)) is None
+    ms = np.round(k * 16.33) * 1e-3
+    assert grid_step(ms) == pytest.approx(0.016)
+    reg = regular_sampling(ms, grid_step(ms))
+    assert reg is not None and reg.period == pytest.approx(0.01633, rel=1e-5)
+    assert np.array_equal(reg.slot, k)
 
 
 # ------------------------------------------------------------------ no actuator command logged

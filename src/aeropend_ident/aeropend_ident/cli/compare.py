@@ -35,13 +35,8 @@ from aeropend_ident.errors import CompareError, print_warnings_as_lines
 from aeropend_ident.gap.compare import MIN_HOLD, CompareResult, compare, load_model
 from aeropend_ident.greybox.replay import NRMSE_RULE, START_RULE, start_text
 from aeropend_ident.io.jsonutil import jsonable
-from aeropend_ident.io.recording_input import (
-    ignored_channels,
-    load_recording,
-    resampling_notes,
-    split_preset,
-    uniform_recording,
-)
+from aeropend_ident.io.recording_input import ignored_channels, load_recording, split_preset
+from aeropend_ident.io.resampling import resampling_notes, uniform_recording
 from aeropend_sim.output_folder import claim_output_folder, exits_cleanly_on_faults
 from aeropend_sim.recording import RecordingError
 

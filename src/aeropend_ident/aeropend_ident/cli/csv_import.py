@@ -45,7 +45,7 @@ from aeropend_ident.io.csv_import import (
 )
 from aeropend_ident.io.csvspec.input_kinds import INPUT_KINDS, LAWS
 from aeropend_ident.io.csvspec.spec import is_preset_file, resolve_preset, write_preset_file
-from aeropend_ident.io.recording_input import resampling_notes, uniform_recording
+from aeropend_ident.io.resampling import resampling_notes, uniform_recording
 from aeropend_sim.contract import EXTRA_CHANNELS
 from aeropend_sim.output_folder import OutputFolderError, exits_cleanly_on_faults
 from aeropend_sim.recording import MEASURED_CHANNELS

@@ -73,10 +73,9 @@ from aeropend_ident.io.recording_input import (
     ignored_channels,
     load_and_split,
     load_recording,
-    resampling_notes,
     split_preset,
-    uniform_recording,
 )
+from aeropend_ident.io.resampling import resampling_notes, uniform_recording
 from aeropend_ident.progress import reporter
 from aeropend_sim.output_folder import claim_output_folder, exits_cleanly_on_faults
 from aeropend_sim.params import RigFileError

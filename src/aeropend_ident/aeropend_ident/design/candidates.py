@@ -52,7 +52,7 @@ from aeropend_ident.gap.which.data import Prepared, prepare, residuals
 from aeropend_ident.gap.which.fitting import fit_effects
 from aeropend_ident.gap.which.ranking import excluded_with
 from aeropend_ident.greybox.fit import measurement_noise
-from aeropend_ident.io.recording_input import detect_quantum
+from aeropend_ident.io.resampling import detect_quantum
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 

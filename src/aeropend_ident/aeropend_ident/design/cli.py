@@ -87,7 +87,8 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
 def _recordings(args: argparse.Namespace, offset: float) -> list[Any]:
     from aeropend_ident.gap.run import to_model_frame
     from aeropend_ident.greybox.rig_inputs import is_table
-    from aeropend_ident.io.recording_input import check_length, load_recording, uniform_recording
+    from aeropend_ident.io.recording_input import check_length, load_recording
+    from aeropend_ident.io.resampling import uniform_recording
 
     # the inputs rig fit and gap take are accepted as they are: a static table (balance / thrust)
     # holds no command sequence to replay, so the design's earlier information is the recordings'
@@ -114,7 +115,7 @@ def _limits(args: argparse.Namespace, recs: Sequence[Any], offset: float = 0.0) 
     rig there), the lab's stated limits over them."""
     from aeropend_ident.design.sequence import Limits
     from aeropend_ident.greybox.rig_inputs import is_table, read_table
-    from aeropend_ident.io.recording_input import detect_quantum
+    from aeropend_ident.io.resampling import detect_quantum
 
     dt = 1.0 / args.rate if args.rate else float(np.median([r.dt for r in recs]))
     stated = {k: getattr(args, k) for k in ("duty_min", "duty_max", "max_slew", "theta_min", "theta_max")

@@ -260,7 +260,7 @@ def compare(models: Sequence[RigModel], recordings: Sequence[Recording],
     ----------
     models : sequence of RigModel
     recordings : sequence of Recording
-        Uniform time grid (:func:`aeropend_ident.io.recording_input.uniform_recording`), θ required.
+        Uniform time grid (:func:`aeropend_ident.io.resampling.uniform_recording`), θ required.
     channels : sequence of str, optional
         Channels compared (of ``theta``, ``i_a``, ``v_a``, ``omega_rotor``); default every one a
         recording has. θ is always compared.

@@ -50,7 +50,7 @@ import numpy as np
 from aeropend_ident.errors import GapError
 from aeropend_ident.greybox.fit import measurement_noise  # noqa: F401  (re-exported: the gap tool's noise floor)
 from aeropend_ident.io.csvspec.constant_input import excitation_problem
-from aeropend_ident.io.recording_input import detect_quantum  # noqa: F401  (re-exported: the gap tool's name for it)
+from aeropend_ident.io.resampling import detect_quantum  # noqa: F401  (re-exported: the gap tool's name for it)
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Diagnosis
 from aeropend_sim.components.xp import MATH
@@ -610,7 +610,7 @@ def check_recordings(recordings: Any, what: str = "recordings",
         dt = np.diff(r.t)
         if np.ptp(dt) > 1e-3 * np.median(dt):
             raise GapError(f"{src}: non-uniform sampling (dt from {dt.min():.4g} to {dt.max():.4g} s); "
-                           "resample first (aeropend_ident.io.recording_input.uniform_recording, "
+                           "resample first (aeropend_ident.io.resampling.uniform_recording, "
                            "which every command applies)")
         ch = set(r.channels) & {"theta", "i_a", "v_a", "omega_rotor"}
         common = ch if common is None else common & ch

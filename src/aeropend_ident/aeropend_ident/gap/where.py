@@ -97,7 +97,7 @@ from aeropend_ident.gap.where_report import (
 from aeropend_ident.greybox.baseline import measured_rate, residual_bins, residual_regions
 from aeropend_ident.greybox.fit import error_metrics, initial_velocity
 from aeropend_ident.greybox.uniform import UniformData, rod_stiffness, uniform_data
-from aeropend_ident.io.recording_input import uniform_recording
+from aeropend_ident.io.resampling import uniform_recording
 from aeropend_sim.compiled.plant import CompiledPlant
 from aeropend_sim.components import registry
 from aeropend_sim.components.xp import NUMPY
@@ -193,7 +193,7 @@ def _check(
 
 def _grid(rec: Recording, data: UniformData) -> dict[str, np.ndarray]:
     """Every recorded channel on the uniform grid of ``data`` (the one resampling of the tools,
-    :func:`aeropend_ident.io.recording_input.uniform_recording`)."""
+    :func:`aeropend_ident.io.resampling.uniform_recording`)."""
     for name, y in rec.channels.items():
         if not np.all(np.isfinite(y)):
             raise GapInputError(

@@ -10,7 +10,7 @@ Pipeline (:func:`baseline`, :func:`run_baseline`):
    (:func:`aeropend_ident.greybox.uniform.check_excited`: the fitted data must excite the rig — a
    changing command, or a free decay or step from rest under a constant one).
 2. **Grid.** Every recording goes through the one resampling of the tools
-   (:func:`aeropend_ident.io.recording_input.uniform_recording`) onto the grid of the first fit
+   (:func:`aeropend_ident.io.resampling.uniform_recording`) onto the grid of the first fit
    recording; what was done (jitter, dropped rows, gaps) is reported.
 3. **Fit** the selected parameters on the fit data by output error
    (:func:`aeropend_ident.greybox.fit.fit_greybox`, default parameter set for θ-only data), every
@@ -247,7 +247,7 @@ def _resolve_rig(rig: Rig | str | Path) -> tuple[Rig, str, float]:
 def _on_grid(rec: Recording, dt: float, decimate: int, min_samples: int) -> tuple[UniformData, Recording]:
     """θ and the duty cycle of ``rec`` on the grid of step ``dt`` (the one resampling), and the resampled
     θ-only recording (its ``meta["resampling"]`` says what was done)."""
-    from aeropend_ident.io.recording_input import uniform_recording
+    from aeropend_ident.io.resampling import uniform_recording
 
     if "theta" not in rec.channels:
         uniform_data(rec)  # raises the grey-box fit's message (no θ)

@@ -21,7 +21,8 @@ from aeropend_ident.greybox.fit_result import GreyBoxResult
 from aeropend_ident.greybox.replay import START_RULE
 from aeropend_ident.greybox.uniform import UniformData
 from aeropend_ident.io.jsonutil import jsonable
-from aeropend_ident.io.recording_input import TimingRange, resampling_notes
+from aeropend_ident.io.recording_input import TimingRange
+from aeropend_ident.io.resampling import resampling_notes
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 

@@ -40,7 +40,7 @@ scale come from the parameter's declaration (:attr:`aeropend_sim.components.base
 the component or effect that owns it) or, for parameters without fit bounds, from its sign.
 
 Time grid: the simulator needs a uniform grid. A recording that is not on one goes through the one
-resampling of every tool (:func:`aeropend_ident.io.recording_input.uniform_recording`: grid step
+resampling of every tool (:func:`aeropend_ident.io.resampling.uniform_recording`: grid step
 the median interval unless given, θ interpolated linearly or, when quantised, taken at its nearest
 sample, the duty cycle held: the value commanded at the last recorded instant ≤ t_k, the
 recording's convention). Optional decimation by an integer factor keeps every ``decimate``-th θ
@@ -95,7 +95,7 @@ from aeropend_ident.greybox.uniform import (
     concat_uniform,
     uniform_data,
 )
-from aeropend_ident.io.recording_input import detect_quantum
+from aeropend_ident.io.resampling import detect_quantum
 from aeropend_sim.components.xp import MATH
 from aeropend_sim.model import OMEGA, TAU_F, ModelError, plant_model
 from aeropend_sim.params import Rig
@@ -228,7 +228,7 @@ def noise_level(theta: np.ndarray, quantum: float = 0.0, keep: np.ndarray | None
     σ̂ = 1.4826·MAD(Δ²θ)/√6: the second difference of white noise has variance 6σ², and smooth
     motion contributes little at the sample rate. Quantised signals that rarely change give 0.
 
-    On a quantised channel (``quantum`` q > 0, :func:`aeropend_ident.io.recording_input.detect_quantum`)
+    On a quantised channel (``quantum`` q > 0, :func:`aeropend_ident.io.resampling.detect_quantum`)
     Δ²θ takes lattice values k·q only, so the MAD snaps to 0, q or 2q and the estimate above reads
     one of three values whatever the noise (1.4826·q/√6 = 3.7 mrad for q = 6.1 mrad at 50 Hz for
     any white σ from 0.5 to 3.7 mrad, whose true noise RMS is 1.9-4.1 mrad). There the estimate
@@ -274,7 +274,7 @@ def measurement_noise(y: np.ndarray, keep: np.ndarray | None = None) -> float:
     """Standard deviation of the measurement noise of a recorded channel [its unit, e.g. rad].
 
     :func:`noise_level` given the channel's detected quantum
-    (:func:`aeropend_ident.io.recording_input.detect_quantum`): on a lattice the root mean square
+    (:func:`aeropend_ident.io.resampling.detect_quantum`): on a lattice the root mean square
     of the second differences (the MAD snaps to lattice steps there), at least the rounding noise
     q/√12 (a quantised channel that rarely changes still has its resolution q bound what any model
     can match; the MAD alone reads such a log as noiseless). The one noise floor of a recording:

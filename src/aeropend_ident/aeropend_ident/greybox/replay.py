@@ -64,7 +64,7 @@ from aeropend_ident.errors import IdentificationError
 from aeropend_ident.greybox.batch import RigReplays, structure
 from aeropend_ident.greybox.fit import error_metrics, measurement_noise, motor_equilibrium
 from aeropend_ident.io.overlay_axes import divergence_window, diverges, excursions, short_number
-from aeropend_ident.io.recording_input import detect_quantum
+from aeropend_ident.io.resampling import detect_quantum
 from aeropend_sim.model import ModelError, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.simulation import SimulationError, simulate

@@ -77,7 +77,7 @@ from aeropend_ident.greybox.rig_search import (
     free_held,
     whole_runs,
 )
-from aeropend_ident.io.recording_input import detect_quantum
+from aeropend_ident.io.resampling import detect_quantum
 from aeropend_sim.components import registry
 from aeropend_sim.components.base import SECTIONS, Effect
 from aeropend_sim.components.pendulum.rod import G
@@ -475,7 +475,7 @@ QUANTUM_AGREEMENT = 1.02
 def angle_quantum(series: Sequence[TimeSeries]) -> tuple[float, str] | None:
     """The angle LSB q [rad] the recordings' θ lies on, and its source (written into the fitted rig
     unless the rig file states a quantum, :func:`_joint`); None when a recording is not
-    quantised (its values off a lattice, :func:`aeropend_ident.io.recording_input.detect_quantum`)
+    quantised (its values off a lattice, :func:`aeropend_ident.io.resampling.detect_quantum`)
     or the recordings' lattices differ by more than :data:`QUANTUM_AGREEMENT`.
 
     The sensor's resolution is a fact of the logs, not a parameter to fit: a 10-bit potentiometer

@@ -41,7 +41,8 @@ import numpy as np
 from aeropend_ident.errors import RecordingInputError
 from aeropend_ident.greybox.fit import measurement_noise
 from aeropend_ident.greybox.uniform import UniformData, decimated, rod_stiffness
-from aeropend_ident.io.recording_input import load_recording, split_preset, uniform_recording
+from aeropend_ident.io.recording_input import load_recording, split_preset
+from aeropend_ident.io.resampling import uniform_recording
 from aeropend_sim.contract import REFERENCE_CHANNEL
 from aeropend_sim.recording import Recording
 
@@ -284,7 +285,7 @@ def time_series(rec: Recording, grid: float | None = None) -> TimeSeries:
     Raises
     ------
     RecordingInputError
-        No θ, NaNs, out-of-order stamps (:func:`~aeropend_ident.io.recording_input.uniform_recording`),
+        No θ, NaNs, out-of-order stamps (:func:`~aeropend_ident.io.resampling.uniform_recording`),
         or fewer than 20 samples.
     """
     u = uniform_recording(rec)

@@ -1,7 +1,7 @@
 """A recording made ready for a grey-box fit: on a uniform grid, checked, decimated (:class:`UniformData`).
 
 :func:`uniform_data` puts a recording on the fit's uniform grid (the one resampling of every tool,
-:func:`aeropend_ident.io.recording_input.uniform_recording`) and decimates it by blocks
+:func:`aeropend_ident.io.resampling.uniform_recording`) and decimates it by blocks
 (:func:`decimated`); :func:`check_recording` and :func:`check_excited` refuse recordings a fit cannot
 use, naming why; :func:`rod_stiffness` is the rod's small-signal stiffness that sets the fit grid.
 Used by :mod:`aeropend_ident.greybox.fit` and ``rig fit``.
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from aeropend_ident.errors import IdentificationError, RecordingInputError
-from aeropend_ident.io.recording_input import grid_step, uniform_recording
+from aeropend_ident.io.resampling import grid_step, uniform_recording
 from aeropend_sim.model import THETA, THETA_DOT, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording

@@ -42,7 +42,7 @@ the training parts are stacked (strong form: ``--method sindy`` or ``ensemble``)
 is scored alone.
 
 Timing: every recording goes through the one resampling of the tools
-(:func:`aeropend_ident.io.recording_input.uniform_recording`, onto the first recording's grid);
+(:func:`aeropend_ident.io.resampling.uniform_recording`, onto the first recording's grid);
 jitter, dropped rows and gaps are reported in the summary, never refused. Closed-loop logs are
 accepted as they are (the commanded duty is the input; see docs/identification.md on what closed
 loop means for the estimators). A recording whose constant duty cycle cannot explain θ (a closed
@@ -70,14 +70,8 @@ import numpy as np
 from aeropend_ident.errors import IdentificationError
 from aeropend_ident.io.csvspec.constant_input import excitation_problem
 from aeropend_ident.io.overlay_axes import diverges, hold_span
-from aeropend_ident.io.recording_input import (
-    TimingRange,
-    ignored_channels,
-    load_recording,
-    resampling_notes,
-    timing_range,
-    uniform_recording,
-)
+from aeropend_ident.io.recording_input import TimingRange, ignored_channels, load_recording, timing_range
+from aeropend_ident.io.resampling import resampling_notes, uniform_recording
 from aeropend_ident.sindy.core import WEAK_IV, regression_problem, weak_iv_options
 from aeropend_ident.sindy.libraries import (
     CandidateLibrary,
