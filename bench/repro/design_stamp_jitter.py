@@ -1,26 +1,20 @@
-"""Reproducer: logger stamp jitter makes a designed recording unexplained (issue 63, lab case 49).
+"""Reproducer: logger stamp jitter made a designed recording unexplained (issue 63, lab case 49).
 
 Lab case 49 (a motor time constant, the angle alone at 50 Hz, stamp jitter σ 3.06 % of the
-period): the designed recording is missed by every candidate by about 9 times the noise RMS, and
-``gap`` given it finds no significant effect (no catalog effect removes more than 0.1 % of its
-validation gap, θ 3.9 times its noise RMS). The same case with the logger's stamp jitter set to 0
-(everything else, seeds included, as it is): the candidates are the motor time constant and the
-nominal rig, the designed recording's best candidate leaves 0.60 times the noise RMS and the
-verdict names the motor time constant (``gap`` with it still chooses nothing: its validation parts
-are at the noise floor). Measured at 08c3e29. The designed sequence switches fast, and the design's
-noise model (σ per channel) has no term for timing error.
+period). Until 8209bd1 the designed recording was missed by every candidate by about 9 times the
+noise RMS, the verdict named the nominal rig, and ``gap`` given it found no significant effect;
+the same case with the logger's stamp jitter set to 0 (everything else, seeds included, as it is)
+named the motor time constant, its best candidate at 0.60 times the noise RMS (measured at 08c3e29).
 
-Where the residual comes from, in part: ``uniform_recording`` takes the duty of the row stamped
-within dt/2 of each grid instant (the rows belong to the rig's regular sampling instants, the
-stamps scatter about them: ``grid_phase``), but interpolates the measured channels linearly at
-the grid instants from the jittered stamps, which moves each θ by about θ̇ times its stamp's error.
-An experiment at f045227 (not committed) that took the measured channels of the row in the slot
-too, like the duty, for every recording of the case: the earlier data's candidates became the
-motor time constant first (then the nominal rig, end stops, a Stribeck friction), and the designed
-recording's best candidate 3.45 times the noise RMS instead of 9.1; the verdict still named the
-nominal rig. That rule would change every figure made from a jittered log (a quarter of the lab
-benchmark's cases, and real logs), so it was not made at the end of a session; the rest of the
-residual is not explained.
+The cause: ``uniform_recording`` took the duty of the row stamped within dt/2 of each grid instant
+(the rows belong to the rig's regular sampling instants, the stamps scatter about them), but
+interpolated the measured channels linearly at the grid instants from the jittered stamps, which
+moved each θ by about θ̇ times its stamp's error beside a command kept in its slot; the designed
+sequence switches fast. Since 8209bd1 each row goes to the regular instant its stamp scatters
+about, with its command and its measurements (:func:`aeropend_ident.io.resampling.regular_sampling`).
+Measured at 8209bd1, both runs give the same: candidates the motor time constant and the nominal
+rig, the verdict names the motor time constant, its error RMS 0.60 times the noise's; ``gap`` with
+the recording still chooses nothing (its validation parts are at the noise floor).
 
 Prints, for the case as it is and without jitter: the candidates, the verdict, the best
 candidate's error RMS over the noise, and what ``gap`` with the recording as a fit recording

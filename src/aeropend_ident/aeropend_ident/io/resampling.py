@@ -145,7 +145,7 @@ SLOT_WINDOW = 25
 SLOT_OFFSET_TOL = 0.1
 
 
-#: The resampling rule in words (docs/csv_import.md "Timing"; ``meta["resampling"]["rule"]``).
+#: The resampling rule in words (docs/csv_import.md, "Timing"; ``meta["resampling"]["rule"]``).
 RESAMPLING_RULE = (
     "stamps that scatter about regular instants (each row in a slot of its own, every running median "
     f"of {SLOT_WINDOW} offsets within {SLOT_OFFSET_TOL:g} period): grid t_k = t_0 + k*T, the least-squares "
