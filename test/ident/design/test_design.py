@@ -18,6 +18,7 @@ from aeropend_ident.design.candidates import (
     candidate_sets,
     diagnosis_candidates,
     fit_candidates,
+    nested_sets,
     swap_neighbours,
     unseparated_sets,
 )
@@ -165,6 +166,41 @@ def test_verdict_names_nothing_when_two_sets_of_one_size_survive_or_nothing_is_r
     nominal = Candidate("nominal", (), rig)
     out = verdict([cands[0], nominal], segs[[0, 1]], noise)
     assert out["named"] == "nominal" and out["named_effects"] == []
+
+
+def test_verdict_names_the_special_case_a_richer_effect_nests_unless_it_is_refuted():
+    """Lab case 81: the truth has a thrust coefficient; the same set with a thrust law (which nests
+    it, exponent free) survives the designed recording too. The richer set must earn its exponent
+    by refuting the special case; when it does not, the special case is named (the gap ranking's
+    parsimony), and two survivors not nested in each other still name nothing."""
+    rig = load_rig("thesis_sim")
+    simple = Candidate("simple", ("actuator_lag", "thrust_coefficient", "viscous_friction"), rig)
+    rich = Candidate("rich", ("actuator_lag", "thrust_law", "viscous_friction"), rig)
+    other = Candidate("other", ("actuator_lag", "gravity", "viscous_friction"), rig)
+    bad = Candidate("bad", ("actuator_lag", "sensor_scale", "viscous_friction"), rig)
+    cands = [simple, rich, other, bad]
+    noise = 50.0
+    alike = [60.0, 61.0, 59.0, 60.0] * 5
+    segs = np.array([alike, [59.5, 61.5, 58.5, 60.0] * 5, [400.0] * 20, [400.0] * 20])  # rich a hair ahead
+    out = verdict(cands, segs, noise)
+    assert sorted(out["survivors"]) == ["rich", "simple"] and out["named"] == "simple"
+    assert out["named_effects"] == ["actuator_lag", "thrust_coefficient", "viscous_friction"]
+    segs[0] *= 3.0  # the recording refutes the special case: the richer set is named
+    out = verdict(cands, segs, noise)
+    assert out["survivors"] == ["rich"] and out["named"] == "rich"
+    segs[0] /= 3.0
+    segs[2] = [60.5, 60.0, 59.5, 60.5] * 5  # a survivor not nested in the others: nothing named
+    out = verdict(cands, segs, noise)
+    assert out["named"] is None and sorted(out["survivors"]) == ["other", "rich", "simple"]
+
+
+def test_nested_sets_replace_a_richer_effect_by_its_special_case():
+    assert nested_sets(("coulomb_friction", "hbridge_drop", "thrust_law")) == [
+        ("coulomb_friction", "hbridge_drop", "thrust_coefficient")]
+    assert nested_sets(("gravity", "stribeck_friction", "thrust_law")) == [
+        ("coulomb_friction", "gravity", "thrust_law"), ("gravity", "stribeck_friction", "thrust_coefficient")]
+    assert nested_sets(("thrust_law", "thrust_coefficient")) == []  # never both
+    assert nested_sets(("inertia", "actuator_lag")) == []
 
 
 def test_reference_mode_is_refused_until_implemented(pair):

@@ -14,7 +14,11 @@ much) the truth may be another set. The candidates are:
 * once those are fitted, every set one swap away from the best fit: one of its effects replaced by
   any other effect of the rig's catalog the logged channels can identify
   (:func:`swap_neighbours`; an effect the ranking put low, a dead zone under a thrust law's
-  stronger single-effect signature, is reached this way),
+  stronger single-effect signature, is reached this way), and
+* beside every kept set, the sets with one of its effects replaced by the special case it nests
+  (:func:`nested_sets`: a thrust coefficient for a thrust law, a Coulomb friction for a Stribeck
+  curve), kept unless the earlier data refute them: a fit always prefers the richer effect, and
+  the designed recording is what tells whether it is needed,
 
 each fitted on the earlier recordings by the diagnosis' own fit
 (:func:`aeropend_ident.gap.which.fit_effects`, started from the ranking's single-effect values),
@@ -241,6 +245,35 @@ def swap_neighbours(effects: Sequence[str], family: str, channels: frozenset[str
     return out
 
 
+def nested_sets(effects: Sequence[str]) -> list[tuple[str, ...]]:
+    """The sets in which one member of ``effects`` is replaced by an effect it nests (contains as a
+    special case: a thrust law its thrust coefficient, a Stribeck friction its Coulomb friction;
+    the catalog's ``nests``), sorted, compatible with the rest.
+
+    A fit on the earlier recordings always prefers the richer effect (it can only fit as well or
+    better), so the best fits and their swap neighbours carry thrust laws and Stribeck curves where
+    the truth may have the special case; the designed recording is what tells whether the richer
+    one is needed (:func:`aeropend_ident.design.discriminate.verdict` names the special case when
+    it is not refuted, as the gap diagnosis' ranking does).
+
+    Parameters
+    ----------
+    effects : sequence of str
+        A fitted set.
+
+    Returns
+    -------
+    list of tuple of str
+    """
+    out: list[tuple[str, ...]] = []
+    for member in effects:
+        for simple in get_effect(member).nests:
+            s = _swap(effects, member, simple) if simple not in effects else None
+            if s is not None and s not in out:
+                out.append(s)
+    return out
+
+
 def identifiable_effects(family: str, channels: frozenset[str] | set[str]) -> list[str]:
     """The effects of ``family``'s catalog that ``channels`` can identify, catalog order (the
     quantisation effect left out: it is not fitted)."""
@@ -377,12 +410,23 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
         raise GapError("no candidate effect set could be fitted on the earlier recordings")
     best = min(c.fit_sse for c in fitted)
     kept, forced = _kept(fitted, keep_factor * best, keep, max_candidates)
+    if neighbours:  # each kept set's nested special cases, kept beside it unless the data refute them
+        fit_all([s for c in kept for s in nested_sets(c.effects)])
+        simpler = {s for c in kept for s in nested_sets(c.effects)}
+        extra = [c for c in fitted if c.effects in simpler and c.fit_sse <= keep_factor * best
+                 and all(c is not k for k in kept)]
+        kept += extra
+        nested = {c.name for c in extra}
+    else:
+        nested = set()
     names = {c.name for c in kept}
     for row in rows:
         if "fit_sse" in row and "why_not" not in row:
             row["kept"] = label(row["effects"]) in names
             if label(row["effects"]) in forced:
                 row["why"] = "the diagnosis' answer or a set it could not separate from it, kept to be tested"
+            elif label(row["effects"]) in nested:
+                row["why"] = "the special case of a kept set's richer effect, kept to be tested"
             elif not row["kept"]:
                 row["why_not"] = (f"fit error {row['fit_sse'] / best:.2f}× the best: refuted by the earlier "
                                   "data" if row["fit_sse"] > keep_factor * best else "over max_candidates")

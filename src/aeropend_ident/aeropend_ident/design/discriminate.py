@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.design.candidates import Candidate
+from aeropend_ident.design.candidates import Candidate, nested_sets
 from aeropend_ident.design.sequence import (
     ANGLE_PENALTY,
     BUDGET_S,
@@ -341,8 +341,12 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     :func:`aeropend_ident.gap.which.evidence.split_test`, asked for any share: H0 "the best does
     not do better on average") at p < ``alpha`` / (candidates − 1). Of the best and the rivals
     it does not refute, the one with the fewest effects is named (an effect the recording does
-    not demand is not named); when two of that size survive, nothing is named and both are
-    reported as not separated. A recording that refutes no rival separated nothing: it names the
+    not demand is not named), and of two such sets that differ by an effect and the effect that
+    nests it (a thrust law and its thrust coefficient,
+    :func:`~aeropend_ident.design.candidates.nested_sets`) the special case: the richer one must
+    earn its parameter by refuting it. When two of that size survive otherwise, nothing is named
+    and both are reported as not separated. A recording that refutes no rival separated nothing:
+    it names the
     nominal rig (no effect) when that is a candidate, else nothing.
 
     Parameters
@@ -381,6 +385,11 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     alive.sort(key=lambda b: tot[b])
     fewest = min(len(candidates[b].effects) for b in alive)
     small = [b for b in alive if len(candidates[b].effects) == fewest]
+    # a richer effect the recording does not demand is not named either: a survivor whose set is
+    # another survivor's with one effect replaced by an effect that nests it (a thrust law for the
+    # thrust coefficient it contains) gives way to it, as in the gap diagnosis' ranking
+    sets = {tuple(candidates[b].effects) for b in small}
+    small = [b for b in small if not any(s in sets for s in nested_sets(candidates[b].effects))]
     # a recording that refutes none of the rivals separated nothing: it may still say that it
     # demands no effect (the nominal rig among the survivors), but the fewest effects among all the
     # candidates would be effects named without it (lab case 80 named such a set, wrongly)
