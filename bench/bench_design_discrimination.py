@@ -214,6 +214,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "singles_exact_after_validation": sum(_exact(r, "after_validation") for r in one),
         "singles_named_by_recording": sum(r["recording_named_truth"] for r in one),
         "singles_unseparated_by_recording": sum(r["recording_named"] is None for r in one),
+        "singles_unexplained_by_recording": sum(bool(r["outcome"].get("unexplained")) for r in one),
         "singles_truth_among_candidates": sum(r["truth_among_candidates"] for r in one),
         "triples": len(tri),
         "triples_all_named_before": sum(r["before"]["pass"] for r in tri),
@@ -229,6 +230,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "truth_among_candidates": sum(r["truth_among_candidates"] for r in tri),
         "triples_named_by_recording": sum(r["recording_named_truth"] for r in tri),
         "triples_unseparated_by_recording": sum(r["recording_named"] is None for r in tri),
+        "triples_unexplained_by_recording": sum(bool(r["outcome"].get("unexplained")) for r in tri),
         "effect_free_clean_by_recording": sum(r["recording_named_truth"] for r in clean),
         "effect_free": len(clean),
         "effect_free_clean_before": sum(r["before"]["pass"] for r in clean),
@@ -246,6 +248,8 @@ def _p(x: Any) -> str:
 
 def _named_cell(r: dict[str, Any]) -> str:
     n = r["recording_named"]
+    if n is None and r["outcome"].get("unexplained"):
+        return f"nothing: no candidate explains it ({r['outcome']['best_rms_over_noise']:.1f}× the noise RMS)"
     if n is None:
         return "not separated: " + ", ".join(r["outcome"]["survivors"])
     return f"{', '.join(n) or 'nothing'} ({'yes' if r['recording_named_truth'] else 'no'})"
@@ -271,14 +275,19 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         f"- named by the designed recording's own verdict (the candidates fitted on the earlier data, "
         f"replayed on it without refit; of the best and the rivals it does not refute second by second, "
         f"the fewest effects; `excitation_design --outcome`): all truth effects **"
-        f"{s['triples_named_by_recording']}/{s['triples']}** triples; not separated (nothing named) in "
-        f"{s['triples_unseparated_by_recording']}; effect-free plants clean "
+        f"{s['triples_named_by_recording']}/{s['triples']}** triples; nothing named in "
+        f"{s['triples_unseparated_by_recording']} (no candidate explains the recording, as sized on the "
+        f"earlier data: {s.get('triples_unexplained_by_recording', 0)}; the rest not separated); a wrong "
+        f"set in {s['triples'] - s['triples_named_by_recording'] - s['triples_unseparated_by_recording']}; "
+        "effect-free plants clean "
         f"{s['effect_free_clean_by_recording']}/{s['effect_free']}",
         *([f"- single effects the lab benchmark named only as ambiguous with another, or missed "
            f"(confusable pairs): the truth alone chosen **before {s['singles_exact_before']}/{s['singles']}**"
            ", "
            f"named by the designed recording's verdict **{s['singles_named_by_recording']}/{s['singles']}** "
-           f"(not separated in {s['singles_unseparated_by_recording']}; the truth a candidate in "
+           f"(nothing named in {s['singles_unseparated_by_recording']}, "
+           f"{s.get('singles_unexplained_by_recording', 0)} of them explained by no candidate; "
+           "the truth a candidate in "
            f"{s['singles_truth_among_candidates']}), chosen alone by `gap` with it as a fit recording "
            f"{s['singles_exact_after']}/{s['singles']}, as the validation recording "
            f"{s['singles_exact_after_validation']}/{s['singles']}"] if s.get("singles") else []),

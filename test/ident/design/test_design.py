@@ -188,6 +188,11 @@ def test_verdict_names_the_special_case_a_richer_effect_nests_unless_it_is_refut
     segs[0] *= 3.0  # the recording refutes the special case: the richer set is named
     out = verdict(cands, segs, noise)
     assert out["survivors"] == ["rich"] and out["named"] == "rich"
+    # a recording no candidate explains (the best one 10 times the noise RMS): the refutations rank
+    # misfits, nothing is named (lab case 80 named a wrong pair that way)
+    out = verdict(cands, segs, noise, misfit=10.0)
+    assert out["named"] is None and out["unexplained"] and out["survivors"] == ["rich"]
+    assert verdict(cands, segs, noise, misfit=1.1)["named"] == "rich"
     segs[0] /= 3.0
     segs[2] = [60.5, 60.0, 59.5, 60.5] * 5  # a survivor not nested in the others: nothing named
     out = verdict(cands, segs, noise)

@@ -367,6 +367,27 @@ def test_host_stamp_jitter_keeps_each_row_on_its_own_sample() -> None:
     assert got[701] == pytest.approx((theta[699] + 2 * theta[702]) / 3, abs=1e-15)
 
 
+def test_a_period_imposed_from_another_recording_resamples_the_rows_instants() -> None:
+    """Millisecond stamps of a 16.33 ms period (median interval 16 ms) put on a 16 ms grid imposed
+    from another recording: each grid instant takes θ from the rows' regular instants, not from
+    their stamps nor from their slot numbers (which would stretch the time axis by 2 %); on the
+    rig's own period each row keeps its own sample."""
+    k = np.arange(800)
+    true_t = k * 0.01633
+    stamps = np.round(true_t * 1e3) * 1e-3
+    theta = np.sin(2.0 * true_t)
+    rec = Recording(t=stamps, duty=np.full(k.size, 0.4), channels={"theta": theta}, source="ms.csv")
+    own = uniform_recording(rec)
+    assert own.meta["resampling"]["regular_instants"] and own.dt == pytest.approx(0.01633, rel=1e-4)
+    assert np.array_equal(own.channels["theta"], theta)
+    imposed = uniform_recording(rec, dt=0.016)
+    assert imposed.dt == pytest.approx(0.016)
+    got = imposed.channels["theta"]
+    want = np.sin(2.0 * (imposed.t + true_t[0]))
+    assert np.max(np.abs(got - want)) < 3e-4  # linear interpolation of a 2 rad/s sine at 16 ms
+    assert imposed.t[-1] == pytest.approx(true_t[-1], abs=0.016)
+
+
 def test_stamps_that_do_not_scatter_about_regular_instants_are_the_sample_instants() -> None:
     """Stamps scattered about regular instants are moved to them (:func:`regular_sampling`), with
     the period of the straight line through them, not the median interval; rows sharing a slot and

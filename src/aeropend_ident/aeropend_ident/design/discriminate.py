@@ -65,6 +65,14 @@ from aeropend_ident.gap.which.metrics import SEGMENT
 from aeropend_ident.greybox.batch import RigReplays
 from aeropend_ident.greybox.fit import motor_equilibrium
 
+#: The best candidate's error RMS over the noise σ on a recording above which no candidate explains
+#: it as sized (:func:`verdict` names none; a candidate that explains it leaves the noise, about 1).
+#: A χ² of 9 per sample is not a noise draw: every candidate is mis-sized or mis-specified, and
+#: which of them the split test refutes then reflects their misfits, not which effects are there
+#: (lab case 80: the truth set, sized on the earlier data, refuted by a wrong one at 10 times the
+#: noise; case 76 named a wrong set at 17.6).
+UNEXPLAINED_RMS = 3.0
+
 
 class Predictor:
     """Noise-free logged outputs of the candidates under any command sequence of one length.
@@ -328,12 +336,13 @@ def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mappin
     segs[:, -1] += e2[:, k * w:].sum(axis=1)
     res = {"chi2": chi2, "first": order[0] if order else None, "order": order, "samples": int(n),
            "best_rms_over_noise": math.sqrt(chi2[order[0]] / (n * len(sigma))) if order else math.nan}
-    res.update(verdict(candidates, segs, noise=float(w * len(sigma)), alpha=alpha))
+    res.update(verdict(candidates, segs, noise=float(w * len(sigma)), alpha=alpha,
+                       misfit=res["best_rms_over_noise"]))
     return res
 
 
 def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
-            alpha: float = VERDICT_ALPHA) -> dict[str, Any]:
+            alpha: float = VERDICT_ALPHA, misfit: float | None = None) -> dict[str, Any]:
     """What one recording names among candidates fitted without it.
 
     The candidate with the least error is the best; each other candidate is refuted when the
@@ -347,7 +356,9 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     earn its parameter by refuting it. When two of that size survive otherwise, nothing is named
     and both are reported as not separated. A recording that refutes no rival separated nothing:
     it names the
-    nominal rig (no effect) when that is a candidate, else nothing.
+    nominal rig (no effect) when that is a candidate, else nothing. A recording that no candidate
+    explains (the best one's error RMS over :data:`UNEXPLAINED_RMS` times the noise) names nothing
+    either: the refutations then rank misfits, and a refit on the recording is the next step.
 
     Parameters
     ----------
@@ -358,12 +369,16 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
         The noise part of one segment's error (its samples × channels).
     alpha : float
         Family-wise level.
+    misfit : float, optional
+        The best candidate's error RMS over the noise σ (:func:`evidence`); above
+        :data:`UNEXPLAINED_RMS` nothing is named.
 
     Returns
     -------
     dict
         ``named`` (the named candidate's name, or None), ``named_effects`` (its effects, or None),
-        ``survivors`` (names not refuted, best first), ``refuted_p`` {rival: p}, ``alpha``.
+        ``survivors`` (names not refuted, best first), ``refuted_p`` {rival: p}, ``alpha``,
+        ``unexplained`` (the misfit is above :data:`UNEXPLAINED_RMS`).
     """
     from aeropend_ident.gap.which.evidence import split_test
 
@@ -371,7 +386,8 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     tot = segments.sum(axis=1)
     best = int(np.argmin(tot))
     if not np.isfinite(tot[best]):  # no candidate could be replayed on the recording: it names nothing
-        return {"named": None, "named_effects": None, "survivors": [], "refuted_p": {}, "alpha": alpha}
+        return {"named": None, "named_effects": None, "survivors": [], "refuted_p": {}, "alpha": alpha,
+                "unexplained": True}
     level = alpha / max(len(candidates) - 1, 1)
     pvals: dict[str, float] = {}
     alive = [best]
@@ -394,7 +410,10 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     # demands no effect (the nominal rig among the survivors), but the fewest effects among all the
     # candidates would be effects named without it (lab case 80 named such a set, wrongly)
     refuted_any = len(alive) < len(candidates)
-    named = candidates[small[0]] if len(small) == 1 and (refuted_any or fewest == 0) else None
+    unexplained = misfit is not None and not misfit <= UNEXPLAINED_RMS
+    named = (candidates[small[0]] if len(small) == 1 and (refuted_any or fewest == 0) and not unexplained
+             else None)
     return {"named": named.name if named else None,
             "named_effects": list(named.effects) if named else None,
-            "survivors": [candidates[b].name for b in alive], "refuted_p": pvals, "alpha": alpha}
+            "survivors": [candidates[b].name for b in alive], "refuted_p": pvals, "alpha": alpha,
+            "unexplained": unexplained}

@@ -31,15 +31,11 @@ import numpy as np
 import yaml
 
 from aeropend_ident.design.candidates import Candidate, diagnosis_view
+from aeropend_ident.design.discriminate import UNEXPLAINED_RMS
 from aeropend_ident.gap.effects import MeasurementMap
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_sim.params import load_rig, rig_to_dict
 
-#: The best candidate's error RMS over the noise σ on the designed recording above which
-#: :func:`compare_outcome` says that the recording shows a gap no candidate explains as sized (a
-#: candidate that explains it leaves the noise: about 1; lab case 49's four, all about the nominal
-#: rig, miss by 9).
-UNEXPLAINED_RMS = 3.0
 #: What :func:`write_design` writes at the folder's top level (``--overwrite`` replaces only a
 #: folder holding one of them).
 DESIGN_FILES = ("design.csv", "design.json", "design.md", "candidates")
@@ -189,7 +185,8 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         ``recording_names`` (the effects the recording names, None when the survivors are not
         separated), ``not_separated`` (the candidates it does not refute), ``refuted_p`` and
         ``recording_best_rms_over_noise`` (far above 1: a gap no candidate explains; refit with
-        ``gap``; above :data:`UNEXPLAINED_RMS` a ``note`` says so).
+        ``gap``; above :data:`~aeropend_ident.design.discriminate.UNEXPLAINED_RMS` the recording
+        names nothing and a ``note`` says why).
     """
     chosen, _ranking = diagnosis_view(gap_report)
     cands = design["candidates"]
@@ -214,6 +211,6 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         if rms is not None and math.isfinite(rms) and rms > UNEXPLAINED_RMS:
             out["note"] = (f"every candidate, as fitted on the earlier recordings, misses the designed "
                            f"recording by {rms:.1f}x its noise RMS or more: it shows a gap none of them "
-                           "explains as sized; what it names is relative to them. Refit: run gap with "
-                           "the designed recording among the fit recordings")
+                           "explains as sized, so it names none of them. Refit: run gap with the "
+                           "designed recording among the fit recordings")
     return out

@@ -252,8 +252,9 @@ def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
         Grid step [s] (default: the rig's sampling period when the stamps scatter about regular
         instants, :func:`regular_sampling`, else :func:`grid_step`, the median regular interval). A
         step other than the recording's own forces resampling (e.g. several recordings onto one
-        grid); one within :data:`UNIFORM_TOLERANCE` of the recording's period keeps each row at its
-        own slot on the step asked for (a clock rate error of at most 0.1 %).
+        grid); one within :data:`UNIFORM_TOLERANCE` of the rig's period keeps each row at its own
+        slot on the step asked for (a clock rate error of at most 0.1 %); another resamples the
+        rows' sampling instants (the stamps, or the regular instants they scatter about) onto it.
 
     Returns
     -------
@@ -287,18 +288,21 @@ def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
     step = median if dt is None else float(dt)
     if not (math.isfinite(step) and step > 0.0):
         raise RecordingInputError(f"{src}: grid step dt = {dt!r}; expected a finite value > 0 s")
-    regular = regular_sampling(t, median)
     own = dt is None or abs(step - median) <= UNIFORM_TOLERANCE * step
-    if regular is not None and not (own or abs(step - regular.period) <= UNIFORM_TOLERANCE * step):
-        regular = None  # a period imposed from another recording: interpolate from the stamps
     grid = uniform_grid(t, step, align=own)
     if grid is None:
         return rec
+    regular = regular_sampling(t, median)
     if regular is None:
         (tu, idx), at = grid, t
-    else:  # the rows at their instants, on the period asked for (within UNIFORM_TOLERANCE of theirs)
+    elif dt is None or abs(step - regular.period) <= UNIFORM_TOLERANCE * step:
+        # the rows at their instants, on the period asked for (within UNIFORM_TOLERANCE of theirs)
         regular = dataclasses.replace(regular, period=step) if dt is not None else regular
         (tu, idx), at, step = regular.grid(), regular.instants, regular.period
+    else:  # a period imposed from another recording: the rows' instants resampled onto its grid
+        at = regular.instants
+        tu, idx = uniform_grid(at - at[0], step, align=False) or (at - at[0], np.arange(at.size))
+        tu = tu + at[0]
     nearest = np.clip(np.searchsorted(at, tu, side="left"), 1, t.size - 1)
     nearest -= (tu - at[nearest - 1]) < (at[nearest] - tu)
     held = tuple(k for k, v in rec.channels.items() if detect_quantum(v) > 0.0)
