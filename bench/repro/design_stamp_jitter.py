@@ -12,7 +12,7 @@ interpolated the measured channels linearly at the grid instants from the jitter
 moved each θ by about θ̇ times its stamp's error beside a command kept in its slot; the designed
 sequence switches fast. Since 8209bd1 each row goes to the regular instant its stamp scatters
 about, with its command and its measurements (:func:`aeropend_ident.io.resampling.regular_sampling`).
-Measured at 8209bd1, both runs give the same: candidates the motor time constant and the nominal
+Measured at 293d5c8, both runs give the same: candidates the motor time constant and the nominal
 rig, the verdict names the motor time constant, its error RMS 0.60 times the noise's; ``gap`` with
 the recording still chooses nothing (its validation parts are at the noise floor).
 

@@ -445,8 +445,11 @@ def test_compare_outcome_names_the_matching_candidate():
     assert "note" not in out  # no misfit figure given: nothing said
     out = compare_outcome(design, report, {**ev, "best_rms_over_noise": 1.1})
     assert out["recording_best_rms_over_noise"] == 1.1 and "note" not in out
-    out = compare_outcome(design, report, {**ev, "best_rms_over_noise": 9.1})
+    assert out["recording_unexplained"] is False
+    out = compare_outcome(design, report, {**ev, "best_rms_over_noise": 9.1, "unexplained": True,
+                                           "named_effects": None})
     assert "9.1x its noise RMS" in out["note"] and "run gap" in out["note"]
+    assert out["recording_unexplained"] is True and out["recording_names"] is None
 
 
 def test_file_kind_checks_the_expected_period(tmp_path):

@@ -184,7 +184,8 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         χ² per candidate, and its verdict (:func:`aeropend_ident.design.discriminate.verdict`):
         ``recording_names`` (the effects the recording names, None when the survivors are not
         separated), ``not_separated`` (the candidates it does not refute), ``refuted_p`` and
-        ``recording_best_rms_over_noise`` (far above 1: a gap no candidate explains; refit with
+        ``recording_best_rms_over_noise`` and ``recording_unexplained`` (far above 1: a gap no
+        candidate explains; refit with
         ``gap``; above :data:`~aeropend_ident.design.discriminate.UNEXPLAINED_RMS` the recording
         names nothing and a ``note`` says why).
     """
@@ -208,6 +209,7 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         out["refuted_p"] = dict(evidence.get("refuted_p") or {})
         rms = evidence.get("best_rms_over_noise")
         out["recording_best_rms_over_noise"] = rms
+        out["recording_unexplained"] = bool(evidence.get("unexplained"))
         if rms is not None and math.isfinite(rms) and rms > UNEXPLAINED_RMS:
             out["note"] = (f"every candidate, as fitted on the earlier recordings, misses the designed "
                            f"recording by {rms:.1f}x its noise RMS or more: it shows a gap none of them "
