@@ -349,7 +349,9 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
         tells whether they are needed).
     neighbours : bool
         Then fit every set one swap away from the best fit (:func:`swap_neighbours`): the truth of
-        a diagnosis that ranked one of its effects low is often there.
+        a diagnosis that ranked one of its effects low is often there; and, once the candidates are
+        chosen, each kept set's nested special cases (:func:`nested_sets`), kept beside it (beyond
+        ``max_candidates``) unless their fit error exceeds ``keep_factor`` × the best.
 
     Returns
     -------
