@@ -355,10 +355,10 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     :func:`~aeropend_ident.design.candidates.nested_sets`) the special case: the richer one must
     earn its parameter by refuting it. When two of that size survive otherwise, nothing is named
     and both are reported as not separated. A recording that refutes no rival separated nothing:
-    it names the
-    nominal rig (no effect) when that is a candidate, else nothing. A recording that no candidate
-    explains (the best one's error RMS over :data:`UNEXPLAINED_RMS` times the noise) names nothing
-    either: the refutations then rank misfits, and a refit on the recording is the next step.
+    it names the nominal rig (no effect) when that is a candidate, else nothing. A recording that
+    no candidate explains (the best one's error RMS over :data:`UNEXPLAINED_RMS` times the noise)
+    names nothing either: the refutations then rank misfits, and a refit on the recording is the
+    next step.
 
     Parameters
     ----------

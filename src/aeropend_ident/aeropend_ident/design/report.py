@@ -185,9 +185,9 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         ``recording_names`` (the effects the recording names, None when the survivors are not
         separated), ``not_separated`` (the candidates it does not refute), ``refuted_p`` and
         ``recording_best_rms_over_noise`` and ``recording_unexplained`` (far above 1: a gap no
-        candidate explains; refit with
-        ``gap``; above :data:`~aeropend_ident.design.discriminate.UNEXPLAINED_RMS` the recording
-        names nothing and a ``note`` says why).
+        candidate explains, refit with ``gap``; above
+        :data:`~aeropend_ident.design.discriminate.UNEXPLAINED_RMS` the recording names nothing
+        and a ``note`` says why).
     """
     chosen, _ranking = diagnosis_view(gap_report)
     cands = design["candidates"]

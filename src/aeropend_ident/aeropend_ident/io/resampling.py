@@ -16,10 +16,9 @@ interpolated from them. Jitter, dropped rows (intervals up to :data:`GAP_STEPS` 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -297,7 +296,7 @@ def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
         (tu, idx), at = grid, t
     elif dt is None or abs(step - regular.period) <= UNIFORM_TOLERANCE * step:
         # the rows at their instants, on the period asked for (within UNIFORM_TOLERANCE of theirs)
-        regular = dataclasses.replace(regular, period=step) if dt is not None else regular
+        regular = replace(regular, period=step) if dt is not None else regular
         (tu, idx), at, step = regular.grid(), regular.instants, regular.period
     else:  # a period imposed from another recording: the rows' instants resampled onto its grid
         at = regular.instants
