@@ -413,8 +413,8 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
     best = min(c.fit_sse for c in fitted)
     kept, forced = _kept(fitted, keep_factor * best, keep, max_candidates)
     if neighbours:  # each kept set's nested special cases, kept beside it unless the data refute them
-        fit_all([s for c in kept for s in nested_sets(c.effects)])
-        simpler = {s for c in kept for s in nested_sets(c.effects)}
+        simpler = [s for c in kept for s in nested_sets(c.effects)]
+        fit_all(simpler)
         extra = [c for c in fitted if c.effects in simpler and c.fit_sse <= keep_factor * best
                  and all(c is not k for k in kept)]
         kept += extra

@@ -228,19 +228,20 @@ def _printed_lattice(u: np.ndarray, gaps: np.ndarray, smallest: float) -> float:
 def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
     """The recording on a uniform time grid: the one resampling of every command.
 
-    The rule (:data:`RESAMPLING_RULE`): grid t_k = φ + k·dt, dt the median interval unless given, φ
-    where the stamps scatter about (:func:`grid_phase`; through the first sample when dt is given
-    and differs from the recording's own); the duty cycle and the reference ``theta_ref`` (set
-    points) of the row stamped within dt/2 of t_k, else held from the last row before it
-    (:func:`uniform_grid`); measured channels (θ, the contract channels, the extra channels) of the
-    same row, each row placed at the instant of its slot (:func:`sample_instants`), and by linear
-    interpolation between slots over a dropped row or a gap, except a quantised one
-    (:func:`detect_quantum`), which takes its nearest sample so that it stays on its lattice. On a
-    grid period imposed from another recording (``dt`` given and not this recording's own) the
-    measured channels are interpolated from the stamps. The result's time starts at 0. Timestamp
-    jitter, dropped rows and gaps are measured and reported (:class:`Resampling` in
-    ``meta["resampling"]``, :func:`resampling_notes`), never refused. A
-    recording whose intervals are all within :data:`UNIFORM_TOLERANCE` of dt is returned unchanged.
+    The rule (:data:`RESAMPLING_RULE`): when the stamps scatter about regular instants
+    (:func:`regular_sampling`), the grid is those instants and each row sits at its own with its
+    duty cycle, its reference ``theta_ref`` and its measured channels (θ, the contract channels,
+    the extra channels); an empty slot (a dropped row, a gap) holds the duty and the reference of
+    the row before it and interpolates the measured channels linearly between the slots around it.
+    Other stamps are the sample instants: grid t_k = φ + k·dt, dt the median interval unless given,
+    φ where the stamps scatter about (:func:`grid_phase`; through the first sample when dt is given
+    and differs from the recording's own), the duty and the reference of the row stamped within
+    dt/2 of t_k, else held from the last row before it (:func:`uniform_grid`), the measured
+    channels interpolated from the stamps. A quantised measured channel (:func:`detect_quantum`)
+    takes its nearest sample either way, so that it stays on its lattice. The result's time starts
+    at 0. Timestamp jitter, dropped rows and gaps are measured and reported (:class:`Resampling` in
+    ``meta["resampling"]``, :func:`resampling_notes`), never refused. A recording whose intervals
+    are all within :data:`UNIFORM_TOLERANCE` of dt is returned unchanged (:func:`on_grid`).
     A constant input is accepted here (a step from rest or a free decay is a valid recording); the
     fits decide what the data can identify.
 
@@ -287,21 +288,19 @@ def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
     step = median if dt is None else float(dt)
     if not (math.isfinite(step) and step > 0.0):
         raise RecordingInputError(f"{src}: grid step dt = {dt!r}; expected a finite value > 0 s")
-    own = dt is None or abs(step - median) <= UNIFORM_TOLERANCE * step
-    grid = uniform_grid(t, step, align=own)
-    if grid is None:
+    if on_grid(t, step):
         return rec
     regular = regular_sampling(t, median)
-    if regular is None:
-        (tu, idx), at = grid, t
-    elif dt is None or abs(step - regular.period) <= UNIFORM_TOLERANCE * step:
-        # the rows at their instants, on the period asked for (within UNIFORM_TOLERANCE of theirs)
+    placed = regular is not None and (dt is None or abs(step - regular.period) <= UNIFORM_TOLERANCE * step)
+    if placed:  # the rows at their instants, on the period asked for (within UNIFORM_TOLERANCE of theirs)
         regular = replace(regular, period=step) if dt is not None else regular
         (tu, idx), at, step = regular.grid(), regular.instants, regular.period
-    else:  # a period imposed from another recording: the rows' instants resampled onto its grid
+    elif regular is not None:  # a period imposed from another recording: the rows' instants onto its grid
         at = regular.instants
-        tu, idx = uniform_grid(at - at[0], step, align=False) or (at - at[0], np.arange(at.size))
+        tu, idx = _grid(at - at[0], step, align=False)
         tu = tu + at[0]
+    else:
+        (tu, idx), at = _grid(t, step, align=dt is None or abs(step - median) <= UNIFORM_TOLERANCE * step), t
     nearest = np.clip(np.searchsorted(at, tu, side="left"), 1, t.size - 1)
     nearest -= (tu - at[nearest - 1]) < (at[nearest] - tu)
     held = tuple(k for k, v in rec.channels.items() if detect_quantum(v) > 0.0)
@@ -312,7 +311,7 @@ def uniform_recording(rec: Recording, dt: float | None = None) -> Recording:
     ch = {k: measured(k, v) for k, v in rec.channels.items()}
     # a set point (the reference) holds between samples like the duty; measured channels are interpolated
     extra = {k: v[idx] if k == REFERENCE_CHANNEL else measured(k, v) for k, v in rec.extra.items()}
-    report = _timing_report(src, t, step, tu.size, held, regular is not None)
+    report = _timing_report(src, t, step, tu.size, held, placed)
     meta = {**rec.meta, "resampling": report.as_dict()}
     return Recording(
         t=tu - tu[0], duty=rec.duty[idx], channels=ch, source=rec.source, stamp0_ns=rec.stamp0_ns, meta=meta,
@@ -380,8 +379,17 @@ def uniform_grid(t: np.ndarray, dt: float, align: bool = True) -> tuple[np.ndarr
         next instant, a command one whole sample late; None when every interval of ``t`` is within
         ±UNIFORM_TOLERANCE of ``dt`` (no resampling needed).
     """
-    if np.all(np.abs(np.diff(t) - dt) <= UNIFORM_TOLERANCE * dt):
-        return None
+    return None if on_grid(t, dt) else _grid(t, dt, align)
+
+
+def on_grid(t: np.ndarray, dt: float) -> bool:
+    """Whether every interval of time stamps ``t`` is within ±:data:`UNIFORM_TOLERANCE` of ``dt``
+    (no resampling needed)."""
+    return bool(np.all(np.abs(np.diff(t) - dt) <= UNIFORM_TOLERANCE * dt))
+
+
+def _grid(t: np.ndarray, dt: float, align: bool) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`uniform_grid` without its on-grid test."""
     phase = grid_phase(t, dt) if align else 0.0
     tu = phase + np.arange(math.floor((t[-1] - phase) / dt + 1e-9) + 1) * dt
     hold = np.clip(np.searchsorted(t, tu + 1e-9 * dt, side="right") - 1, 0, t.size - 1)
@@ -389,8 +397,6 @@ def uniform_grid(t: np.ndarray, dt: float, align: bool = True) -> tuple[np.ndarr
     near = np.where(np.abs(t[after] - tu) < np.abs(t[hold] - tu), after, hold)
     idx = np.where(np.abs(t[near] - tu) <= 0.5 * dt * (1 + 1e-9), near, hold)
     return tu, idx
-
-
 
 
 @dataclass(frozen=True)
@@ -440,7 +446,7 @@ def regular_sampling(t: np.ndarray, dt: float) -> RegularSampling | None:
     (:data:`SLOT_WINDOW` rows) of their offsets from it is within :data:`SLOT_OFFSET_TOL` periods.
     They do not when the logger restarts at another phase after a pause (cychitivav's free decay:
     0.4 period after each 25-period gap) or when two rows share a slot: then the stamps are the
-    instants. Stamps rounded to the logger's clock (matheusbucater's millisecond stamps of a 16.33 ms
+    instants. Stamps rounded to the logger's clock (matheusbucater's millisecond stamps of a 16.13 ms
     period: 16 and 17 ms intervals) scatter about the line like any jitter.
 
     Parameters
