@@ -34,6 +34,8 @@ def _observation(fault: str = "none", duty: float = 0.3) -> Observation:
     o.commands = [(k * 20 * MS, v) for k, v in enumerate(values)]
     if fault == "checker_pause":  # the checker's host starved for 400 ms in the drive phase
         o.commands = [(t, v) for t, v in o.commands if not 800 * MS <= t < 1200 * MS]
+    if fault == "checker_pause_invalid":  # ... and for 200 ms among the invalid commands
+        o.commands = [(t, v) for t, v in o.commands if not 2200 * MS <= t < 2400 * MS]
     applied, last_ok = 0.0, -10**12
     ci = 0
     for k in range(t_end // (5 * MS)):
@@ -68,6 +70,11 @@ def test_a_pause_of_the_checkers_own_commands_is_not_blamed_on_the_node() -> Non
     assert all(f.ok for f in findings), report(o, findings)
     cmd = next(f for f in findings if f.check == "command" and "applied" in f.detail)
     assert "commands paused 1 time(s) over 0.1 s" in cmd.detail
+    # the same among the invalid commands: the watchdog's 0 there is not a rejection failure
+    o = _observation("checker_pause_invalid")
+    findings = evaluate(o)
+    assert all(f.ok for f in findings), report(o, findings)
+    assert any(f.check == "command" and f.detail == "NaN and out-of-range commands rejected" for f in findings)
     # a node that applies a percentage still fails, pause or not
     assert "command" in _failed(_observation("percent")) or "units" in _failed(_observation("percent"))
 

@@ -281,17 +281,18 @@ def check_commands(o: Observation, a: dict[str, np.ndarray]) -> list[Finding]:
     out = []
     recv, duty = a["recv"], a["duty"]
     d0, d1 = o.phases["drive"]
-    late = (recv >= d0 + FOLLOW_S * 1e9) & (recv < d1)
     # a pause in the checker's own command stream (a starved host) may trip a conforming node's
     # watchdog (the contract bounds it by the silence limit; a node may fall to 0 sooner): those
-    # stretches, and the follow time after them, are not judged
+    # stretches, and the follow time after them, are not judged, in the drive phase and the invalid one
     sent = np.sort(np.array([t for t, _ in o.commands], dtype=np.int64))
+    judged = np.ones(recv.shape, dtype=bool)
     paused = 0
     if sent.size > 1:
         gaps = np.flatnonzero(np.diff(sent) > PAUSE_S * 1e9)
         paused = gaps.size
         for k in gaps:
-            late &= ~((recv > sent[k]) & (recv < sent[k + 1] + FOLLOW_S * 1e9))
+            judged &= ~((recv > sent[k]) & (recv < sent[k + 1] + FOLLOW_S * 1e9))
+    late = (recv >= d0 + FOLLOW_S * 1e9) & (recv < d1) & judged
     if not late.any() or np.any(np.abs(duty[late] - o.duty) > DUTY_TOL):
         got = np.unique(np.round(duty[late], 4))[:5] if late.any() else "no samples"
         out.append(Finding("command", False, f"applied τ {got} {FOLLOW_S:g} s after τ = {o.duty:g} was "
@@ -305,7 +306,7 @@ def check_commands(o: Observation, a: dict[str, np.ndarray]) -> list[Finding]:
                                             "first command" + note))
     if "invalid" in o.phases:
         i0, i1 = o.phases["invalid"]
-        during = (recv >= i0 + 0.1e9) & (recv < i1)
+        during = (recv >= i0 + 0.1e9) & (recv < i1) & judged
         bad = duty[during][np.abs(duty[during] - o.duty) > DUTY_TOL]
         if bad.size:
             out.append(Finding("command", False, f"applied τ became {bad[0]:g} while NaN and out-of-range "
