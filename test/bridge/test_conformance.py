@@ -74,7 +74,8 @@ def test_a_pause_of_the_checkers_own_commands_is_not_blamed_on_the_node() -> Non
     o = _observation("checker_pause_invalid")
     findings = evaluate(o)
     assert all(f.ok for f in findings), report(o, findings)
-    assert any(f.check == "command" and f.detail == "NaN and out-of-range commands rejected" for f in findings)
+    assert any(f.check == "command" and f.detail == "NaN and out-of-range commands rejected"
+               for f in findings)
     # a node that applies a percentage still fails, pause or not
     assert "command" in _failed(_observation("percent")) or "units" in _failed(_observation("percent"))
 
