@@ -161,25 +161,9 @@ def run_step(rig: Rig, strategy: str, reference: float, spec: PoleSpec, *, plant
     else:
         loop = copy.deepcopy(loop)
     loop.reference.steps = [(0.0, float(reference))]
-    sim = PlantStepper(plant or rig, seed=seed)
     dt = (plant or rig).sample_period
-    n = round(duration / dt) + 1
-    t, theta, duty = np.arange(n) * dt, np.full(n, math.nan), np.full(n, math.nan)
-    s = sim.sample()
-    status, detail = "ok", ""
-    for k in range(n):
-        theta[k] = sim.x[THETA]
-        d = loop.on_sample(round(k * dt * 1e9), s["theta"], s.get("omega_rotor", math.nan),
-                           s.get("i_a", math.nan))
-        duty[k] = d
-        if not (abs(theta[k]) < math.pi):
-            status, detail = "diverged", f"the rod went over the top (θ = {theta[k]:.3g} rad at {t[k]:.3g} s)"
-            break
-        try:
-            s = sim.step(min(max(float(d), 0.0), 1.0))
-        except SimulationError as exc:
-            status, detail = "diverged", str(exc)
-            break
+    run = drive(loop, plant or rig, round(duration / dt) + 1, seed=seed)
+    t, theta, duty, status, detail = run.t, run.theta, run.duty, run.status, run.detail
     r = loop.last_signals[SIGNALS.index("reference")]  # as the loop used it (clamped to the reach)
     if status != "ok":
         return StepRun(strategy, float(reference), r, t, theta, duty, None, status, detail)
@@ -193,6 +177,82 @@ def run_step(rig: Rig, strategy: str, reference: float, spec: PoleSpec, *, plant
         status, detail = "not settled", (f"θ ends {r - metrics.steady_state_error:.4g} rad against "
                                          f"{r:.4g} rad (outside the 2 % band)")
     return StepRun(strategy, float(reference), r, t, theta, duty, metrics, status, detail)
+
+
+@dataclass(frozen=True)
+class LoopRun:
+    """A controller loop driven on a simulated plant (:func:`drive`).
+
+    Attributes
+    ----------
+    t : ndarray, shape (N,)
+        Sample instants [s] from the first sample.
+    theta : ndarray, shape (N,)
+        True angle of the plant [rad] (NaN after a divergence).
+    seen : ndarray, shape (N,)
+        The angle the loop was given [rad] (the plant's measurement, through ``sensor`` when given).
+    duty : ndarray, shape (N,)
+        The loop's command at each sample (NaN after a divergence); the plant got it clipped to [0, 1].
+    status : str
+        ``"ok"`` or ``"diverged"``.
+    detail : str
+        Why it diverged (empty for ``ok``).
+    """
+
+    t: np.ndarray = field(repr=False)
+    theta: np.ndarray = field(repr=False)
+    seen: np.ndarray = field(repr=False)
+    duty: np.ndarray = field(repr=False)
+    status: str = "ok"
+    detail: str = ""
+
+
+def drive(loop: ControllerLoop, plant: Rig, n: int, *, seed: int | None = 0,
+          sensor: Callable[[float], float] | None = None) -> LoopRun:
+    """Run ``loop`` (lock-step, its reference as set) on :class:`~aeropend_sim.simulation.PlantStepper`
+    of ``plant`` for ``n`` samples at the plant's sample period, from rest hanging down.
+
+    At each sample the loop gets the plant's measured angle (its sensor noise and quantum as the
+    rig file switches them), mapped by ``sensor`` when given (a sensor gain or offset the rig file
+    does not hold), and the measured rotor speed and armature current; its command is applied
+    clipped to [0, 1]. The loop object is advanced: pass a copy to reuse a designed one.
+
+    Parameters
+    ----------
+    loop : ControllerLoop
+    plant : Rig
+        The simulated rig.
+    n : int
+        Samples.
+    seed : int or None
+        Seed of the plant's measurement noise.
+    sensor : callable, optional
+        Recorded angle [rad] of a measured angle [rad].
+
+    Returns
+    -------
+    LoopRun
+        Ended early (``diverged``) when the rod went over the top or the plant left a finite state.
+    """
+    sim = PlantStepper(plant, seed=seed)
+    dt = plant.sample_period
+    t, theta, seen, duty = (np.arange(n) * dt, np.full(n, math.nan), np.full(n, math.nan),
+                            np.full(n, math.nan))
+    s = sim.sample()
+    for k in range(n):
+        theta[k] = sim.x[THETA]
+        th = s["theta"] if sensor is None else sensor(s["theta"])
+        seen[k] = th
+        d = loop.on_sample(round(k * dt * 1e9), th, s.get("omega_rotor", math.nan), s.get("i_a", math.nan))
+        duty[k] = d
+        if not (abs(theta[k]) < math.pi):
+            return LoopRun(t, theta, seen, duty, "diverged",
+                           f"the rod went over the top (θ = {theta[k]:.3g} rad at {t[k]:.3g} s)")
+        try:
+            s = sim.step(min(max(float(d), 0.0), 1.0))
+        except SimulationError as exc:
+            return LoopRun(t, theta, seen, duty, "diverged", str(exc))
+    return LoopRun(t, theta, seen, duty)
 
 
 def _quantum(rig: Rig) -> float:

@@ -73,8 +73,15 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
     ap.add_argument("--parameters", nargs="+", help="rig keys section.name to determine (rig fit results)")
     ap.add_argument("--preset", help="CSV preset of the recordings")
     ap.add_argument("--mode", choices=MODES, default="open_loop",
-                    help="open_loop: a duty sequence (implemented); reference: a set-point sequence for the "
-                         "lab's controller (not implemented yet: docs/design.md)")
+                    help="open_loop: a command sequence played open loop; reference: set points for the "
+                         "lab's controller node (discrimination designs: the rig runs in closed loop, "
+                         "e.g. at set points it cannot hold open loop; docs/design.md, 'Closed loop')")
+    ap.add_argument("--controller",
+                    help="with --mode reference: the controller node's ROS parameters file (strategy, "
+                         "omega_n, zeta, rho, ...) the lab runs; default the node's defaults on the gap "
+                         "report's rig")
+    ap.add_argument("--strategy",
+                    help="with --mode reference: the controller's strategy (over --controller's)")
     for name, help_ in (("duty-min", "lowest command"), ("duty-max", "highest command"),
                         ("max-slew", "largest command change per second [1/s]"),
                         ("theta-min", "lowest angle [rad]"), ("theta-max", "highest angle [rad]")):
@@ -118,8 +125,12 @@ def _limits(args: argparse.Namespace, recs: Sequence[Any], offset: float = 0.0) 
     from aeropend_ident.io.resampling import detect_quantum
 
     dt = 1.0 / args.rate if args.rate else float(np.median([r.dt for r in recs]))
-    stated = {k: getattr(args, k) for k in ("duty_min", "duty_max", "max_slew", "theta_min", "theta_max")
-              if getattr(args, k) is not None}
+    # a closed-loop design's command is the lab's controller's: its range and slew are the
+    # controller's own (saturation at 0 and 1, no slew limit) unless the lab states them
+    stated: dict[str, float] = ({"duty_min": 0.0, "duty_max": 1.0, "max_slew": 1.0 / dt}
+                                if getattr(args, "mode", "open_loop") == "reference" else {})
+    stated.update({k: getattr(args, k) for k in ("duty_min", "duty_max", "max_slew", "theta_min", "theta_max")
+                   if getattr(args, k) is not None})
     q = max(detect_quantum(np.asarray(r.channels["theta"])) for r in recs)
     thetas, duties = [r.channels["theta"] for r in recs], [r.duty for r in recs]
     for t in (read_table(x.partition(":")[0]) for x in args.recordings if is_table(x)):
@@ -156,24 +167,66 @@ def discrimination(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any
     if len(cands) < 2:
         raise DesignCliError("the earlier recordings leave one candidate standing "
                              f"({cands[0].name}): nothing to discriminate; candidate fits: {rows}")
+    doc = {"kind": "discrimination", "design_for": str(args.design_for), "rig": rig_ref, "mode": args.mode,
+           "seed": args.seed, "duration_s": args.duration, "limits": limits.as_dict(),
+           "channels": channels, "sigma": sigma, "chosen_before": chosen,
+           "candidates": [c.as_dict() for c in cands], "candidate_fits": rows}
+    if args.mode == "reference":
+        return _reference_design(args, out, doc, model.rig, cands, sigma, limits)
     shape = AprbsShape.for_duration(args.duration)
     d = design_discrimination(cands, sigma, limits, shape, seed=args.seed, budget_s=args.budget,
                               max_evaluations=args.max_evaluations)
     from aeropend_ident.design.discriminate import Predictor
 
     th = Predictor(cands, ("theta",), limits.dt, d.duty.size)(d.duty)["theta"]
-    doc = {"kind": "discrimination", "design_for": str(args.design_for), "rig": rig_ref, "mode": args.mode,
-           "seed": args.seed, "duration_s": shape.duration, "shape": vars(shape), "limits": limits.as_dict(),
-           "channels": channels, "sigma": sigma, "chosen_before": chosen,
-           "candidates": [c.as_dict() for c in cands], "candidate_fits": rows,
-           "predicted": rank_first_probability(cands, d.duty, sigma, limits, seed=args.seed),
-           "predicted_baseline_aprbs": rank_first_probability(cands, d.baseline, sigma, limits,
-                                                              seed=args.seed),
-           "min_divergence": d.min_divergence, "baseline_min_divergence": d.baseline_min_divergence,
-           "criterion": d.value, "baseline_criterion": d.baseline_value,
-           "limits_check": check_limits(d.duty, limits, th.ravel()),
-           "evaluations": d.evaluations, "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s}
+    doc.update({"shape": vars(shape),
+                "predicted": rank_first_probability(cands, d.duty, sigma, limits, seed=args.seed),
+                "predicted_baseline_aprbs": rank_first_probability(cands, d.baseline, sigma, limits,
+                                                                   seed=args.seed),
+                "min_divergence": d.min_divergence, "baseline_min_divergence": d.baseline_min_divergence,
+                "criterion": d.value, "baseline_criterion": d.baseline_value,
+                "limits_check": check_limits(d.duty, limits, th.ravel()),
+                "evaluations": d.evaluations, "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s})
     out.write(lambda folder: write_design(folder, doc, d.duty, limits.dt, cands))
+    return doc
+
+
+def _reference_design(args: argparse.Namespace, out: OutputFolder, doc: dict[str, Any], rig: Any,
+                      cands: Sequence[Any], sigma: dict[str, float], limits: Any) -> dict[str, Any]:
+    """``--mode reference``: set points for the lab's controller (:mod:`aeropend_ident.design.reference`)."""
+    from aeropend_ident.design import reference
+    from aeropend_ident.design.report import write_design
+    from aeropend_ident.design.sequence import check_limits
+
+    params = reference.read_controller_params(args.controller) if args.controller else {}
+    if args.strategy:
+        params["strategy"] = args.strategy
+    loop = reference.lab_controller(rig, params, limits.dt)
+    shape = reference.reference_shape(args.duration)
+    d = reference.design_reference(cands, loop, sigma, limits, shape, seed=args.seed, budget_s=args.budget,
+                                   max_evaluations=args.max_evaluations)
+    n = d.duty.size
+    st = loop.settings
+    doc.update({"shape": vars(shape), "controller": {
+                    "strategy": st.strategy, "rig": rig.name, "omega_n": st.spec.omega_n,
+                    "zeta": st.spec.zeta, "rho": st.spec.rho, "allocator": st.allocator,
+                    "estimator": st.estimator,
+                    "reach_rad": loop.reach, "from": str(args.controller or "")},
+                "steps": d.steps, "driver": d.driver,
+                "predicted": reference.rank_first_probability(cands, loop, d.steps, n, sigma, limits,
+                                                              seed=args.seed),
+                "predicted_baseline_aprbs": reference.rank_first_probability(
+                    cands, loop, d.baseline_steps, n, sigma, limits, seed=args.seed),
+                "min_divergence": d.min_divergence, "baseline_min_divergence": d.baseline_min_divergence,
+                "criterion": d.value, "baseline_criterion": d.baseline_value,
+                "limits_check": check_limits(d.duty, limits, d.theta),
+                "evaluations": d.evaluations, "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s})
+    doc["limits_check"]["angle_range"] = doc["limits_check"]["angle_range"] and all(
+        r["status"] == "ok" and limits.theta_min <= r["theta_extremes"][0] and r["theta_extremes"][1]
+        <= limits.theta_max for r in doc["predicted"]["loop"].values())
+    doc["limits_check"]["ok"] = all(doc["limits_check"][k] for k in ("command_range", "slew", "angle_range"))
+    out.write(lambda folder: write_design(folder, doc, d.reference, limits.dt, cands, column="reference",
+                                          steps=d.steps))
     return doc
 
 
@@ -250,15 +303,20 @@ def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> 
             return 0
         if not args.design_for or args.out is None:
             raise DesignCliError("give --design-for REPORT and -o OUT (or --outcome REPORT --design FOLDER)")
-        check_mode(args.mode)
+        target = Path(args.design_for)
+        check_mode(args.mode, ("open_loop", "reference") if target.is_dir() else ("open_loop",),
+                   where="a gap report's discrimination design" if target.is_dir() else "a parameter design")
+        if args.mode != "reference" and (args.controller or args.strategy):
+            raise DesignCliError("--controller and --strategy describe the lab's controller of a --mode "
+                                 "reference design")
         if not 1.0 < args.duration <= 60.0:
             raise DesignCliError(f"--duration {args.duration}: expected more than 1 s and at most 60 s")
         from aeropend_ident.design.report import DESIGN_FILES
 
-        target = Path(args.design_for)
         # checked before the search (fail fast), written at its end in one step: an earlier
         # design is replaced only with --overwrite, and never left half replaced
-        inputs = [target, *(x.partition(":")[0] for x in args.recordings)]
+        inputs = [target, *(x.partition(":")[0] for x in args.recordings),
+                  *([args.controller] if args.controller else [])]
         out = claim_output_folder(args.out, args.overwrite, own=DESIGN_FILES,
                                   looks_like="an experiment design", inputs=inputs)
         doc = discrimination(args, out) if target.is_dir() else parameters(args, out)

@@ -40,7 +40,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -120,18 +120,24 @@ def pair_divergences(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, floa
     return d
 
 
-def criterion(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float], limits: Limits) -> float:
-    """Mean over candidate pairs of log10(1 + D_ij); when a candidate's predicted angle, widened by
-    what the recorded angle may stray from it (:func:`~aeropend_ident.design.sequence.recorded_margin`),
-    leaves the angle range or a replay fails, :func:`~aeropend_ident.design.sequence.angle_penalty`
-    instead (module doc)."""
-    outside = angle_penalty(outputs["theta"], limits, recorded_margin(limits, sigma.get("theta", 0.0)))
-    if outside < 0.0:
-        return outside
+def mean_log_divergence(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float]) -> float:
+    """Mean over candidate pairs of log10(1 + D_ij) (module doc); −:data:`ANGLE_PENALTY` when a
+    prediction failed (non-finite)."""
     d = pair_divergences(outputs, sigma)
     iu = np.triu_indices(d.shape[0], 1)
     vals = d[iu]
     return float(np.mean(np.log10(1.0 + vals))) if np.all(np.isfinite(vals)) else -ANGLE_PENALTY
+
+
+def criterion(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float], limits: Limits) -> float:
+    """:func:`mean_log_divergence`; when a candidate's predicted angle, widened by what the recorded
+    angle may stray from it (:func:`~aeropend_ident.design.sequence.recorded_margin`), leaves the
+    angle range or a replay fails, :func:`~aeropend_ident.design.sequence.angle_penalty` instead
+    (module doc)."""
+    outside = angle_penalty(outputs["theta"], limits, recorded_margin(limits, sigma.get("theta", 0.0)))
+    if outside < 0.0:
+        return outside
+    return mean_log_divergence(outputs, sigma)
 
 
 @dataclass
@@ -201,8 +207,8 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
         :func:`~aeropend_ident.design.sequence.default_evaluations` of the candidates: the design
         is then reproducible from its seed).
     mode : str
-        ``"open_loop"`` (a command sequence); ``"reference"`` (set points for the lab's
-        controller) is refused until implemented (:func:`~aeropend_ident.design.sequence.check_mode`).
+        ``"open_loop"`` (a command sequence) only; set points for the lab's controller are
+        :func:`aeropend_ident.design.reference.design_reference`'s.
 
     Returns
     -------
@@ -214,7 +220,7 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
         With fewer than two candidates; :class:`~aeropend_ident.design.sequence.DesignError` for a
         mode other than ``open_loop``.
     """
-    check_mode(mode)
+    check_mode(mode, where="an open-loop discrimination design (design_reference is the closed-loop one)")
     if len(candidates) < 2:
         raise ValueError("a discrimination design needs at least two candidates")
     shape = shape or AprbsShape()
@@ -261,13 +267,26 @@ def rank_first_probability(candidates: Sequence[Candidate], duty: np.ndarray, si
     dict
         ``per_candidate`` {name: probability}, ``mean`` over candidates, ``draws``.
     """
-    pred = Predictor(candidates, tuple(sigma), limits.dt, np.asarray(duty).size)
-    out = pred(duty)
+    out = Predictor(candidates, tuple(sigma), limits.dt, np.asarray(duty).size)(duty)
+    return rank_draws([c.name for c in candidates], lambda _t: out, sigma, limits.quantum, draws=draws,
+                      seed=seed)
+
+
+def rank_draws(names: Sequence[str], outputs_of: Callable[[int], Mapping[str, np.ndarray]],
+               sigma: Mapping[str, float], quantum: float, *, draws: int, seed: int) -> dict[str, Any]:
+    """The Monte-Carlo ranking of :func:`rank_first_probability`, the truth ``t``'s outputs and
+    every candidate's prediction given by ``outputs_of(t)`` (channel -> (B, N); row ``t`` is the
+    truth's noise-free output).
+
+    Returns
+    -------
+    dict
+        ``per_candidate`` {name: probability}, ``mean`` over candidates, ``draws``.
+    """
     rng = np.random.default_rng(seed)
-    q = limits.quantum
-    names = [c.name for c in candidates]
     probs: dict[str, float] = {}
     for t, name in enumerate(names):
+        out = outputs_of(t)
         if not all(np.all(np.isfinite(y[t])) for y in out.values()):
             probs[name] = math.nan
             continue
@@ -276,8 +295,8 @@ def rank_first_probability(candidates: Sequence[Candidate], duty: np.ndarray, si
             sse = np.zeros(len(names))
             for c, y in out.items():
                 obs = y[t] + rng.normal(0.0, sigma[c], y.shape[1])
-                if c == "theta" and q > 0.0:
-                    obs = np.round(obs / q) * q
+                if c == "theta" and quantum > 0.0:
+                    obs = np.round(obs / quantum) * quantum
                 sse += np.nansum((y - obs) ** 2, axis=1) / sigma[c] ** 2 + np.where(
                     np.all(np.isfinite(y), axis=1), 0.0, np.inf)
             wins += int(np.argmin(sse) == t)

@@ -211,7 +211,7 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
         Without keys; :class:`~aeropend_ident.design.sequence.DesignError` for a mode other than
         ``open_loop``.
     """
-    check_mode(mode)
+    check_mode(mode, where="a parameter design")
     if not keys:
         raise ValueError("no parameter to design for")
     shape = shape or AprbsShape()

@@ -6,7 +6,13 @@ Folder written by :func:`write_design`:
 ``design.csv``
     ``t,duty``: time [s] from 0 at the logging period and the command [1]; the format
     ``excitation --signal file --file design.csv`` plays (and ``excitation --print`` writes), and a
-    lab's own controller can load (two numeric columns, one header line).
+    lab's own controller can load (two numeric columns, one header line). A reference design
+    (``--mode reference``) writes ``t,reference`` instead: the set point [rad] (angle frame of the
+    controller: 0 with the rod hanging) at each logging instant.
+``design_controller.yaml``
+    A reference design's set points as the controller node's ``steps`` parameter (a ROS 2
+    parameters file: ``controller --ros-args --params-file LAB.yaml --params-file
+    design_controller.yaml``), with the strategy and pole pattern the prediction assumed.
 ``design.json``
     Kind (``discrimination`` or ``parameters``), limits, shape, seed, channels and noise σ, the
     prediction (and the seeded APRBS's, for comparison), the limit check on every candidate's
@@ -38,14 +44,30 @@ from aeropend_sim.params import load_rig, rig_to_dict
 
 #: What :func:`write_design` writes at the folder's top level (``--overwrite`` replaces only a
 #: folder holding one of them).
-DESIGN_FILES = ("design.csv", "design.json", "design.md", "candidates")
+DESIGN_FILES = ("design.csv", "design.json", "design.md", "candidates", "design_controller.yaml")
 
 
-def csv_text(duty: np.ndarray, dt: float) -> str:
-    """``t,duty`` CSV of a sequence on the grid k·dt (the format of
+def csv_text(duty: np.ndarray, dt: float, column: str = "duty") -> str:
+    """``t,<column>`` CSV of a sequence on the grid k·dt (with ``duty``, the format of
     :meth:`aeropend_sim.excitation.ExcitationSignal.to_csv`)."""
-    lines = ["t,duty"] + [f"{k * dt:.9g},{u:.9g}" for k, u in enumerate(np.asarray(duty, dtype=float))]
+    lines = [f"t,{column}"] + [f"{k * dt:.9g},{u:.9g}" for k, u in enumerate(np.asarray(duty, dtype=float))]
     return "\n".join(lines) + "\n"
+
+
+def controller_params(steps: Sequence[tuple[float, float]], controller: Mapping[str, Any]) -> str:
+    """The controller node's ROS 2 parameters file of a reference design: ``steps`` (t0, θ0, t1,
+    θ1, ... [s, rad]) and the controller settings the prediction assumed."""
+    from aeropend_ident.design.reference import CONTROLLER_NODE
+
+    keep = {k: controller[k] for k in ("rig", "strategy", "omega_n", "zeta", "rho", "allocator", "estimator")
+            if controller.get(k) is not None}
+    flat = [round(float(v), 9) for pair in steps for v in pair]
+    doc = {f"/**/{CONTROLLER_NODE}": {"ros__parameters": {**jsonable(keep), "steps": flat}}}
+    head = ("# A reference design (excitation_design --mode reference): the set points as the controller "
+            "node's steps.\n# controller --ros-args --params-file YOUR_CONTROLLER.yaml --params-file "
+            "design_controller.yaml\n# The strategy and pole pattern below are those the prediction assumed: "
+            "run the loop with them.\n")
+    return head + yaml.safe_dump(doc, sort_keys=False, default_flow_style=None, width=100)
 
 
 def _safe(name: str) -> str:
@@ -53,7 +75,8 @@ def _safe(name: str) -> str:
 
 
 def write_design(out: Path, doc: Mapping[str, Any], duty: np.ndarray, dt: float,
-                 candidates: Sequence[Candidate] = ()) -> dict[str, Path]:
+                 candidates: Sequence[Candidate] = (), *, column: str = "duty",
+                 steps: Sequence[tuple[float, float]] | None = None) -> dict[str, Path]:
     """Write the design folder (module doc) into ``out`` (created if missing).
 
     The command writes into a fresh folder (:meth:`aeropend_sim.output_folder.OutputFolder.write`);
@@ -70,6 +93,11 @@ def write_design(out: Path, doc: Mapping[str, Any], duty: np.ndarray, dt: float,
         Logging period [s].
     candidates : sequence of Candidate
         Written as rig files (discrimination designs).
+    column : str
+        Name of ``duty``'s column in ``design.csv`` (``reference`` for a reference design's set points).
+    steps : sequence of (float, float), optional
+        A reference design's set-point breakpoints: written as ``design_controller.yaml`` with
+        ``doc["controller"]``.
 
     Returns
     -------
@@ -78,7 +106,10 @@ def write_design(out: Path, doc: Mapping[str, Any], duty: np.ndarray, dt: float,
     """
     out.mkdir(parents=True, exist_ok=True)
     paths = {"csv": out / "design.csv", "json": out / "design.json", "md": out / "design.md"}
-    paths["csv"].write_text(csv_text(duty, dt), encoding="utf-8")
+    paths["csv"].write_text(csv_text(duty, dt, column), encoding="utf-8")
+    if steps is not None:
+        paths["controller"] = out / "design_controller.yaml"
+        paths["controller"].write_text(controller_params(steps, doc.get("controller", {})), encoding="utf-8")
     if candidates:
         (out / "candidates").mkdir(exist_ok=True)
     files = []
@@ -112,13 +143,22 @@ def _stopped(why: Any) -> str:
 def markdown(doc: Mapping[str, Any]) -> str:
     """The short ``design.md`` of a design document."""
     lim = doc["limits"]
-    lines = [f"# Experiment design ({doc['kind']})", "",
+    ref = doc.get("mode") == "reference"
+    lines = [f"# Experiment design ({doc['kind']}{', closed loop' if ref else ''})", "",
              f"From `{doc.get('design_for', '?')}`; {doc['duration_s']:g} s at {1 / lim['dt']:.4g} Hz "
-             f"(`design.csv`, t,duty), seed {doc['seed']}, {doc['evaluations']} sequences simulated in "
+             f"(`design.csv`, {'t,reference: set points [rad]' if ref else 't,duty'}), seed {doc['seed']}, "
+             f"{doc['evaluations']} sequences simulated in "
              f"{doc['elapsed_s']:.1f} s; {_stopped(doc.get('stopped_by'))}.",
              f"Limits: command {lim['duty_min']:.3g} … {lim['duty_max']:.3g}, slew ≤ {lim['max_slew']:g} /s, "
              f"angle {lim['theta_min']:.3g} … {lim['theta_max']:.3g} rad (every candidate's predicted angle: "
              f"{'inside' if doc['limits_check']['ok'] else 'OUTSIDE'}).", ""]
+    if ref:
+        c = doc["controller"]
+        lines += [f"Closed loop: {len(doc['steps']) - 1} set points for the lab's controller "
+                  f"({c['strategy']} on {c['rig']}, ω_n {c['omega_n']:.3g} rad/s, ζ {c['zeta']:.3g}; "
+                  "`design_controller.yaml`). "
+                  "Every prediction is that controller's loop on the candidate; the command and the angle "
+                  "limits above are checked on each candidate's loop.", ""]
     if doc["kind"] == "discrimination":
         pr, pb = doc["predicted"], doc["predicted_baseline_aprbs"]
         lines += ["Predicted probability that each candidate ranks first when it is the truth (Monte-Carlo, "
@@ -142,8 +182,11 @@ def markdown(doc: Mapping[str, Any]) -> str:
         for k in doc["parameters"]:
             lines.append(f"| {k} | {_pct(doc['sd_before'][k])} | {_pct(doc['sd_after'][k])} | "
                          f"{_pct(doc['sd_after_baseline'][k])} |")
-    lines += ["", "Play it: `excitation --signal file --file design.csv --mode realtime` (or load the CSV on "
-              "the lab's own controller), record, then rerun `gap` / `rig fit` with the recording beside the "
+    play = ("`controller --ros-args --params-file YOUR_CONTROLLER.yaml --params-file design_controller.yaml` "
+            "with the rig and the recorder running (the set points start at the controller's first sample)"
+            if ref else "`excitation --signal file --file design.csv --mode realtime` (or load the CSV on "
+            "the lab's own controller)")
+    lines += ["", f"Play it: {play}, record, then rerun `gap` / `rig fit` with the recording beside the "
               "earlier ones; `excitation_design --outcome NEW_GAP_REPORT --design THIS_FOLDER` compares.", ""]
     return "\n".join(lines)
 

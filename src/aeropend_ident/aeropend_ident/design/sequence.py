@@ -111,25 +111,27 @@ def default_evaluations(replays_per_evaluation: int, samples: int, channels: int
     return max(200, int(work) // (max(1, int(replays_per_evaluation)) * per_replay))
 
 
-#: What a design is: an open-loop command sequence, or (not implemented yet) a reference sequence
-#: for the lab's controller (docs/design.md, "Closed loop").
+#: What a design is: an open-loop command sequence, or a reference (set-point) sequence for the
+#: lab's controller (:mod:`aeropend_ident.design.reference`; docs/design.md, "Closed loop").
 MODES = ("open_loop", "reference")
 
 
-def check_mode(mode: str) -> None:
-    """Refuse a mode other than ``open_loop``.
+def check_mode(mode: str, supported: Sequence[str] = ("open_loop",), where: str = "this design") -> None:
+    """Refuse a mode ``where`` does not support.
 
     Raises
     ------
     DesignError
-        For ``reference`` (not implemented: its predictions need the lab's closed loop on every
-        candidate) and for an unknown mode.
+        For a known mode outside ``supported`` (naming what is supported there: a parameter design
+        is open loop only; a reference design is :func:`aeropend_ident.design.reference.design_reference`)
+        and for an unknown mode.
     """
-    if mode == "open_loop":
+    if mode in supported:
         return
-    if mode == "reference":
-        raise DesignError("mode 'reference' is not implemented yet: the design is an open-loop command "
-                          "sequence (docs/design.md, 'Closed loop')")
+    if mode in MODES:
+        raise DesignError(f"mode {mode!r} is not implemented for {where}: it supports {list(supported)} "
+                          "(a reference design is a discrimination design of a gap report; docs/design.md, "
+                          "'Closed loop')")
     raise DesignError(f"mode {mode!r}; expected one of {list(MODES)}")
 
 
