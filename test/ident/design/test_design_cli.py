@@ -53,7 +53,7 @@ def test_error_exits(tmp_path, step_log, capsys):
     assert "at most 60 s" in capsys.readouterr().err
     ref = ["--mode", "reference", "-o", str(tmp_path / "x")]
     assert main(["--design-for", str(RIG), str(step_log), *ref]) == 2
-    assert "not implemented" in capsys.readouterr().err
+    assert "not implemented for a parameter design" in capsys.readouterr().err
     assert main(["--design-for", str(RIG), str(step_log), "-o", str(tmp_path / "x")]) == 2  # no weak key
     assert "--parameters" in capsys.readouterr().err
     (tmp_path / "notgap").mkdir()
@@ -161,3 +161,51 @@ def test_an_earlier_design_is_replaced_only_with_overwrite(tmp_path, step_log, c
     held = ["--design-for", str(RIG), str(inside), *args[3:]]
     assert main([*held, "-o", str(out), "--overwrite"]) == 2
     assert "holds the input" in capsys.readouterr().err and inside.is_dir() and (out / "design.json").exists()
+
+
+def test_a_reference_design_of_a_gap_report_writes_the_controllers_steps(tmp_path, capsys):
+    """``--mode reference`` (closed loop): set points for the controller node, its parameters file,
+    the prediction made with the lab's controller on every candidate."""
+    import yaml
+
+    from aeropend_control.controller_core import parse_steps
+    from aeropend_ident.gap.effects import apply_effects
+
+    rig = load_rig("thesis_sim")
+    lagged, _ = apply_effects(rig, {"actuator_lag": {"lag_time_constant": 0.03}})
+    duty = np.concatenate([np.zeros(25), np.full(120, 0.45), np.full(120, 0.3), np.full(120, 0.5)])
+    traj = simulate(lagged, duty, dt=DT)
+    theta = traj.true["theta"] + np.random.default_rng(1).normal(0.0, 2e-3, duty.size)
+    log = tmp_path / "closed_bag"
+    write_bag(Recording(t=np.arange(duty.size) * DT, duty=duty, channels={"theta": theta}, source="x"), log)
+    report = tmp_path / "gap_report"
+    report.mkdir()
+    report.joinpath("report.json").write_text(json.dumps({
+        "tool": "aeropend_ident gap", "inputs": {"rig": {"ref": str(RIG)}},
+        "which": {"significant": True, "chosen": ["actuator_lag"],
+                  "ranking": [{"effect": "actuator_lag", "ambiguous_with": ["input_delay"]},
+                              {"effect": "input_delay", "ambiguous_with": ["actuator_lag"]}]}}))
+    lab = tmp_path / "lab_controller.yaml"
+    lab.write_text("/**/aeropend_controller:\n  ros__parameters:\n    strategy: fl_pid\n")
+    out = tmp_path / "design"
+    code = main(["--design-for", str(report), str(log), "--mode", "reference", "--controller", str(lab),
+                 "--duration", "10", "--max-evaluations", "12", "--max-effects", "1", "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    doc = json.loads((out / "design.json").read_text())
+    assert doc["mode"] == "reference" and doc["controller"]["strategy"] == "fl_pid"
+    assert doc["limits_check"]["ok"] and doc["evaluations"] <= 12 + 12
+    assert set(doc["predicted"]["loop"]) == {c["name"] for c in doc["candidates"]}
+    params = yaml.safe_load((out / "design_controller.yaml").read_text())["/**/aeropend_controller"]
+    steps = parse_steps(params["ros__parameters"]["steps"])
+    assert np.allclose(np.array(steps), np.array(doc["steps"]), atol=1e-9)
+    head = (out / "design.csv").read_text().splitlines()
+    assert head[0] == "t,reference" and len(head) == 1 + round(10 / DT)
+    ref_col = np.array([float(x.split(",")[1]) for x in head[1:]])
+    assert ref_col.min() >= 0.0 and ref_col.max() <= doc["limits"]["theta_max"]
+    md = (out / "design.md").read_text()
+    assert "closed loop" in md and "design_controller.yaml" in md
+    # the controller options belong to a reference design
+    y = tmp_path / "y"
+    assert main(["--design-for", str(report), str(log), "--strategy", "fl_pid", "-o", str(y)]) == 2
+    assert "--mode reference" in capsys.readouterr().err

@@ -10,6 +10,8 @@ and name the truth; the design's files are what the controller node reads.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 import yaml
@@ -37,7 +39,7 @@ def pair():
 
 @pytest.fixture(scope="module")
 def loop(pair):
-    return ref.lab_controller(pair[0].rig, {}, DT)
+    return ref.lab_controller("thesis_sim", {}, DT)
 
 
 @pytest.fixture(scope="module")
@@ -51,7 +53,7 @@ def test_set_points_lie_in_the_angle_range_within_the_reach(designed, loop):
     assert designed.steps[0] == (0.0, 0.0) and len(levels) == SHAPE.segments
     assert all(lo <= r <= hi for r in levels) and hi <= LIMITS.theta_max and lo >= 0.0
     times = [t for t, _r in designed.steps]
-    assert all(b > a for a, b in zip(times, times[1:], strict=False)) and times[-1] < SHAPE.duration
+    assert all(b > a for a, b in itertools.pairwise(times)) and times[-1] < SHAPE.duration
     grid = ref.on_grid(designed.steps, designed.reference.size, DT)
     np.testing.assert_array_equal(grid, designed.reference)
     with pytest.raises(DesignError, match="no set point"):
@@ -94,7 +96,7 @@ def test_a_closed_loop_recording_names_its_truth(pair, loop, designed):
         lp.reference.steps = list(designed.steps)
         plant = cand.rig.with_effects(sensor_noise=False, quantisation=False)
         run = drive(lp, ref.dataclasses.replace(plant, sample_period=DT), designed.duty.size, seed=None,
-                    sensor=lambda th: th + float(rng.normal(0.0, SIGMA["theta"])))
+                    sensor=lambda th, rng=rng: th + float(rng.normal(0.0, SIGMA["theta"])))
         assert run.status == "ok"
         ev = evidence(pair, np.clip(run.duty, 0.0, 1.0), {"theta": run.seen}, SIGMA, DT)
         assert ev["named"] == cand.name, ev["chi2"]
@@ -124,11 +126,11 @@ def test_the_controller_parameters_file_is_read_and_written_as_the_node_reads_it
     from aeropend_ident.design.report import controller_params
 
     lab = tmp_path / "lab.yaml"
-    lab.write_text("/**/aeropend_controller:\n  ros__parameters:\n    rig: thesis_sim\n    strategy: cascade\n"
-                   "    omega_n: 5.0\n")
+    lab.write_text("/**/aeropend_controller:\n  ros__parameters:\n    rig: thesis_sim\n"
+                   "    strategy: cascade\n    omega_n: 5.0\n")
     params = ref.read_controller_params(lab)
     assert params == {"rig": "thesis_sim", "strategy": "cascade", "omega_n": 5.0}
-    loop = ref.lab_controller(pair[0].rig, params, DT)
+    loop = ref.lab_controller("thesis_sim", params, DT)
     assert loop.settings.strategy == "cascade" and loop.settings.spec.omega_n == 5.0
     assert loop.settings.rig.sample_period == DT
     text = controller_params(designed.steps, {"strategy": "cascade", "rig": "thesis_sim", "omega_n": 5.0})
@@ -139,4 +141,4 @@ def test_the_controller_parameters_file_is_read_and_written_as_the_node_reads_it
     with pytest.raises(DesignError, match="mapping"):
         ref.read_controller_params(tmp_path / "bad.yaml")
     with pytest.raises(DesignError, match="lab's controller"):
-        ref.lab_controller(pair[0].rig, {"strategy": "no_such"}, DT)
+        ref.lab_controller("thesis_sim", {"strategy": "no_such"}, DT)

@@ -172,7 +172,7 @@ def discrimination(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any
            "channels": channels, "sigma": sigma, "chosen_before": chosen,
            "candidates": [c.as_dict() for c in cands], "candidate_fits": rows}
     if args.mode == "reference":
-        return _reference_design(args, out, doc, model.rig, cands, sigma, limits)
+        return _reference_design(args, out, doc, cands, sigma, limits)
     shape = AprbsShape.for_duration(args.duration)
     d = design_discrimination(cands, sigma, limits, shape, seed=args.seed, budget_s=args.budget,
                               max_evaluations=args.max_evaluations)
@@ -191,8 +191,8 @@ def discrimination(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any
     return doc
 
 
-def _reference_design(args: argparse.Namespace, out: OutputFolder, doc: dict[str, Any], rig: Any,
-                      cands: Sequence[Any], sigma: dict[str, float], limits: Any) -> dict[str, Any]:
+def _reference_design(args: argparse.Namespace, out: OutputFolder, doc: dict[str, Any], cands: Sequence[Any],
+                      sigma: dict[str, float], limits: Any) -> dict[str, Any]:
     """``--mode reference``: set points for the lab's controller (:mod:`aeropend_ident.design.reference`)."""
     from aeropend_ident.design import reference
     from aeropend_ident.design.report import write_design
@@ -201,17 +201,19 @@ def _reference_design(args: argparse.Namespace, out: OutputFolder, doc: dict[str
     params = reference.read_controller_params(args.controller) if args.controller else {}
     if args.strategy:
         params["strategy"] = args.strategy
-    loop = reference.lab_controller(rig, params, limits.dt)
+    loop = reference.lab_controller(doc["rig"], params, limits.dt)
     shape = reference.reference_shape(args.duration)
     d = reference.design_reference(cands, loop, sigma, limits, shape, seed=args.seed, budget_s=args.budget,
                                    max_evaluations=args.max_evaluations)
     n = d.duty.size
     st = loop.settings
     doc.update({"shape": vars(shape), "controller": {
-                    "strategy": st.strategy, "rig": rig.name, "omega_n": st.spec.omega_n,
+                    "strategy": st.strategy, "rig": st.rig_file, "omega_n": st.spec.omega_n,
                     "zeta": st.spec.zeta, "rho": st.spec.rho, "allocator": st.allocator,
                     "estimator": st.estimator,
-                    "reach_rad": loop.reach, "from": str(args.controller or "")},
+                    "reach_rad": loop.reach, "from": str(args.controller or ""),
+                    # the command limits the lab did not state are the controller's own
+                    "sets": [k for k in ("duty_min", "duty_max", "max_slew") if getattr(args, k) is None]},
                 "steps": d.steps, "driver": d.driver,
                 "predicted": reference.rank_first_probability(cands, loop, d.steps, n, sigma, limits,
                                                               seed=args.seed),

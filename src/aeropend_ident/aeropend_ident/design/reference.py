@@ -70,7 +70,6 @@ from aeropend_ident.design.sequence import (
     recorded_margin,
     search,
 )
-from aeropend_sim.params import Rig
 
 #: Node name of the controller in a ROS parameters file (``config/controller.yaml``).
 CONTROLLER_NODE = "aeropend_controller"
@@ -122,34 +121,37 @@ def read_controller_params(path: str | Path) -> dict[str, Any]:
     return dict(doc)
 
 
-def lab_controller(rig: Rig, params: Mapping[str, Any], dt: float) -> Any:
-    """The lab's controller loop (lock-step), designed on ``rig`` at sample period ``dt`` [s].
+def lab_controller(rig_ref: str, params: Mapping[str, Any], dt: float) -> Any:
+    """The lab's controller loop (lock-step) at sample period ``dt`` [s], as the controller node builds it.
 
     Parameters
     ----------
-    rig : Rig
-        The rig file the lab's controller is designed on (the nominal rig of the gap report).
+    rig_ref : str
+        Rig name or file the controller is designed on when ``params`` names none (the nominal rig of
+        the gap report).
     params : mapping
-        The controller node's parameters (``strategy``, ``omega_n``, ``zeta``, ``rho``, ``allocator``,
-        ``estimator``, ``tf``, ``theta_op``; :func:`aeropend_control.controller_core.make_settings`);
-        ``rig``, ``mode``, ``steps``, ``reference`` and ``duration`` are the design's.
+        The controller node's parameters (``rig``, ``strategy``, ``omega_n``, ``zeta``, ``rho``,
+        ``allocator``, ``estimator``, ``tf``, ``theta_op``; read by the node's own
+        :func:`aeropend_control.controller_core.make_settings`); ``mode``, ``steps``,
+        ``reference`` and ``duration`` are the design's.
 
     Raises
     ------
     DesignError
-        When the controller cannot be built on the rig (the node's own message).
+        When the controller cannot be built (the node's own message: an unknown strategy, a rig it
+        cannot design on).
     """
     from aeropend_control.controller_core import ControllerConfigError, ControllerLoop, make_settings
 
-    fixed = dataclasses.replace(rig, sample_period=float(dt))
-    raw = {k: v for k, v in params.items() if k not in ("rig", "mode", "steps", "reference", "duration",
-                                                        "trace", "rt_priority")}
+    raw = {k: v for k, v in params.items() if k not in ("mode", "steps", "reference", "duration", "trace",
+                                                        "rt_priority")}
+    raw.setdefault("rig", rig_ref)
     try:
-        settings = make_settings(**raw, rig=rig.name, mode="lockstep")
-        settings = dataclasses.replace(settings, rig=fixed, rig_file=rig.name, default_spec=settings.spec)
-        return ControllerLoop(settings)
+        settings = make_settings(**raw, mode="lockstep")
+        fixed = dataclasses.replace(settings.rig, sample_period=float(dt))
+        return ControllerLoop(dataclasses.replace(settings, rig=fixed))
     except ControllerConfigError as exc:
-        raise DesignError(f"the lab's controller on {rig.name}: {exc}") from exc
+        raise DesignError(f"the lab's controller on {raw['rig']}: {exc}") from exc
 
 
 def set_point_range(limits: Limits, reach: float, sigma_theta: float) -> tuple[float, float]:

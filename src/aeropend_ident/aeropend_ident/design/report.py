@@ -140,6 +140,11 @@ def _stopped(why: Any) -> str:
     return "the search ran its --max-evaluations: the same seed gives the same design on any machine"
 
 
+def _slew(lim: Mapping[str, Any], controllers: Sequence[str]) -> str:
+    """The slew limit in words (a reference design's controller sets its own unless the lab stated one)."""
+    return "slew: the controller's own" if "max_slew" in controllers else f"slew ≤ {lim['max_slew']:g} /s"
+
+
 def markdown(doc: Mapping[str, Any]) -> str:
     """The short ``design.md`` of a design document."""
     lim = doc["limits"]
@@ -149,7 +154,8 @@ def markdown(doc: Mapping[str, Any]) -> str:
              f"(`design.csv`, {'t,reference: set points [rad]' if ref else 't,duty'}), seed {doc['seed']}, "
              f"{doc['evaluations']} sequences simulated in "
              f"{doc['elapsed_s']:.1f} s; {_stopped(doc.get('stopped_by'))}.",
-             f"Limits: command {lim['duty_min']:.3g} … {lim['duty_max']:.3g}, slew ≤ {lim['max_slew']:g} /s, "
+             f"Limits: command {lim['duty_min']:.3g} … {lim['duty_max']:.3g}, "
+             f"{_slew(lim, doc.get('controller', {}).get('sets', ()) if ref else ())}, "
              f"angle {lim['theta_min']:.3g} … {lim['theta_max']:.3g} rad (every candidate's predicted angle: "
              f"{'inside' if doc['limits_check']['ok'] else 'OUTSIDE'}).", ""]
     if ref:
