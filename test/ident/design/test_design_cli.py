@@ -48,12 +48,28 @@ def test_parameter_design_writes_its_files(tmp_path, step_log, capsys):
     assert "Predicted relative 1σ" in (out / "design.md").read_text()
 
 
+def test_a_closed_loop_parameter_design_writes_the_controllers_steps(tmp_path, step_log, capsys):
+    import yaml
+
+    out = tmp_path / "design"
+    code = main(["--design-for", str(RIG), str(step_log), "--parameters", "pendulum.c_over_J", "--mode",
+                 "reference", "--duration", "8", "--max-evaluations", "10", "-o", str(out)])
+    assert code == 0, capsys.readouterr().err
+    doc = json.loads((out / "design.json").read_text())
+    assert doc["mode"] == "reference" and doc["limits_check"]["ok"]
+    assert doc["sd_after"]["pendulum.c_over_J"] < doc["sd_before"]["pendulum.c_over_J"]
+    params = yaml.safe_load((out / "design_controller.yaml").read_text())["/**/aeropend_controller"]
+    assert params["ros__parameters"]["rig"] == str(RIG) and len(params["ros__parameters"]["steps"]) >= 4
+    assert (out / "design.csv").read_text().startswith("t,reference\n")
+    assert "seeded set points" in (out / "design.md").read_text()
+
+
 def test_error_exits(tmp_path, step_log, capsys):
     assert main(["--design-for", str(RIG), str(step_log), "--duration", "90", "-o", str(tmp_path / "x")]) == 2
     assert "at most 60 s" in capsys.readouterr().err
-    ref = ["--mode", "reference", "-o", str(tmp_path / "x")]
-    assert main(["--design-for", str(RIG), str(step_log), *ref]) == 2
-    assert "not implemented for a parameter design" in capsys.readouterr().err
+    ref = ["--mode", "reference", "--strategy", "no_such_strategy", "-o", str(tmp_path / "x")]
+    assert main(["--design-for", str(RIG), str(step_log), "--parameters", "pendulum.c_over_J", *ref]) == 2
+    assert "no_such_strategy" in capsys.readouterr().err
     assert main(["--design-for", str(RIG), str(step_log), "-o", str(tmp_path / "x")]) == 2  # no weak key
     assert "--parameters" in capsys.readouterr().err
     (tmp_path / "notgap").mkdir()

@@ -112,10 +112,10 @@ def test_a_limit_the_lab_states_on_the_command_is_held_by_the_loop(pair, loop):
     assert ref.reference_criterion(out, run, SIGMA, tight) < 0.0
 
 
-def test_open_loop_and_parameter_designs_refuse_the_reference_mode(pair):
+def test_the_open_loop_design_refuses_the_reference_mode(pair):
     with pytest.raises(DesignError, match="design_reference is the closed-loop one"):
         design_discrimination(pair, SIGMA, LIMITS, SHAPE, mode="reference")
-    with pytest.raises(DesignError, match="not implemented for a parameter design"):
+    with pytest.raises(DesignError, match="needs the lab's controller"):
         design_parameters(pair[0].rig, ("pendulum.c_over_J",), SIGMA, LIMITS, SHAPE, mode="reference")
     with pytest.raises(DesignError, match="expected one of"):
         design_parameters(pair[0].rig, ("pendulum.c_over_J",), SIGMA, LIMITS, SHAPE, mode="dither")
@@ -142,3 +142,22 @@ def test_the_controller_parameters_file_is_read_and_written_as_the_node_reads_it
         ref.read_controller_params(tmp_path / "bad.yaml")
     with pytest.raises(DesignError, match="lab's controller"):
         ref.lab_controller("thesis_sim", {"strategy": "no_such"}, DT)
+
+
+def test_a_closed_loop_parameter_design_determines_the_parameter_within_the_limits(pair, loop):
+    """D-optimal set points for the pendulum's damping c/J: the information comes from the command
+    the loop logs (replayed as rig fit replays a closed-loop log), the limits from the loop's run."""
+    from aeropend_control.verify.closed_loop import drive
+
+    rig = pair[0].rig
+    d = design_parameters(rig, ("pendulum.c_over_J",), SIGMA, LIMITS, SHAPE, seed=0, max_evaluations=30,
+                          mode="reference", loop=loop)
+    assert d.steps is not None and d.baseline_steps is not None and d.steps[0] == (0.0, 0.0)
+    assert d.logdet >= d.baseline_logdet
+    assert d.sd_after["pendulum.c_over_J"] < 0.5 * d.sd_before["pendulum.c_over_J"]
+    assert check_limits(d.duty, LIMITS, d.theta)["ok"]
+    lp = __import__("copy").deepcopy(loop)
+    lp.reference.steps = list(d.steps)
+    run = drive(lp, ref.dataclasses.replace(rig.with_effects(sensor_noise=False, quantisation=False),
+                                            sample_period=DT), d.duty.size, seed=None)
+    np.testing.assert_allclose(np.clip(run.duty, 0.0, 1.0), d.duty)  # the command is the loop's

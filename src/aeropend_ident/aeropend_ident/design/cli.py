@@ -6,6 +6,8 @@
         [--duration 40] [--rate HZ] [--seed 0] [--max-evaluations N] [--budget 120] [--max-effects 3]
         [--preset NAME]
         [--duty-min X] [--duty-max X] [--max-slew PER_S] [--theta-min RAD] [--theta-max RAD]
+    excitation_design --design-for GAP_REPORT RECORDING ... -o OUT --mode reference
+        [--controller CONTROLLER_PARAMS.yaml] [--strategy NAME] [...]
     excitation_design --design-for FITTED_RIG.yaml RECORDING ... -o OUT [--parameters KEY ...] [...]
     excitation_design --outcome NEW_GAP_REPORT --design OUT [DESIGNED_RECORDING]
 
@@ -16,7 +18,15 @@ RECORDINGs (the earlier fit recordings, as ``gap`` took them) against ``--rig`` 
 parameters it left undetermined (``STILL TO BE FITTED`` or ``AT SEARCH BOUND``, or
 ``--parameters``). The RECORDINGs give the noise σ per logged channel, the angle quantum, the
 logging rate (unless ``--rate``) and the default limits (angle range ± 0.15 rad, commands from 0 to
-their largest). ``--outcome`` compares a design's prediction with a ``gap`` report made with the
+their largest).
+
+``--mode reference`` is for a rig that runs under feedback: set points for the lab's controller node
+(its parameters file, ``--controller``; the node's defaults on the rig otherwise), predicted with
+that controller in closed loop on every candidate (or on the fitted rig), written as
+``design_controller.yaml`` (the node's ``steps``) and ``design.csv`` (``t,reference``)
+(:mod:`aeropend_ident.design.reference`).
+
+``--outcome`` compares a design's prediction with a ``gap`` report made with the
 designed recording among its fit recordings (and, given the designed recording, ranks the
 candidates on it).
 
@@ -191,6 +201,26 @@ def discrimination(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any
     return doc
 
 
+def _controller_params(args: argparse.Namespace) -> dict[str, Any]:
+    """The lab's controller node parameters: ``--controller``'s file, ``--strategy`` over it."""
+    from aeropend_ident.design.reference import read_controller_params
+
+    params = read_controller_params(args.controller) if args.controller else {}
+    if args.strategy:
+        params["strategy"] = args.strategy
+    return params
+
+
+def _controller_doc(args: argparse.Namespace, loop: Any) -> dict[str, Any]:
+    """design.json's ``controller``: the loop the prediction assumed."""
+    st = loop.settings
+    return {"strategy": st.strategy, "rig": st.rig_file, "omega_n": st.spec.omega_n, "zeta": st.spec.zeta,
+            "rho": st.spec.rho, "allocator": st.allocator, "estimator": st.estimator, "reach_rad": loop.reach,
+            "from": str(args.controller or ""),
+            # the command limits the lab did not state are the controller's own
+            "sets": [k for k in ("duty_min", "duty_max", "max_slew") if getattr(args, k) is None]}
+
+
 def _reference_design(args: argparse.Namespace, out: OutputFolder, doc: dict[str, Any], cands: Sequence[Any],
                       sigma: dict[str, float], limits: Any) -> dict[str, Any]:
     """``--mode reference``: set points for the lab's controller (:mod:`aeropend_ident.design.reference`)."""
@@ -198,22 +228,12 @@ def _reference_design(args: argparse.Namespace, out: OutputFolder, doc: dict[str
     from aeropend_ident.design.report import write_design
     from aeropend_ident.design.sequence import check_limits
 
-    params = reference.read_controller_params(args.controller) if args.controller else {}
-    if args.strategy:
-        params["strategy"] = args.strategy
-    loop = reference.lab_controller(doc["rig"], params, limits.dt)
+    loop = reference.lab_controller(doc["rig"], _controller_params(args), limits.dt)
     shape = reference.reference_shape(args.duration)
     d = reference.design_reference(cands, loop, sigma, limits, shape, seed=args.seed, budget_s=args.budget,
                                    max_evaluations=args.max_evaluations)
     n = d.duty.size
-    st = loop.settings
-    doc.update({"shape": vars(shape), "controller": {
-                    "strategy": st.strategy, "rig": st.rig_file, "omega_n": st.spec.omega_n,
-                    "zeta": st.spec.zeta, "rho": st.spec.rho, "allocator": st.allocator,
-                    "estimator": st.estimator,
-                    "reach_rad": loop.reach, "from": str(args.controller or ""),
-                    # the command limits the lab did not state are the controller's own
-                    "sets": [k for k in ("duty_min", "duty_max", "max_slew") if getattr(args, k) is None]},
+    doc.update({"shape": vars(shape), "controller": _controller_doc(args, loop),
                 "steps": d.steps, "driver": d.driver,
                 "predicted": reference.rank_first_probability(cands, loop, d.steps, n, sigma, limits,
                                                               seed=args.seed),
@@ -253,10 +273,15 @@ def parameters(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any]:
     limits = _limits(args, recs)
     channels = _channels(recs)
     sigma = channel_noise(recs, channels)
-    shape = AprbsShape.for_duration(args.duration)
+    loop, shape = None, AprbsShape.for_duration(args.duration)
+    if args.mode == "reference":
+        from aeropend_ident.design import reference
+
+        loop = reference.lab_controller(str(path), _controller_params(args), limits.dt)
+        shape = reference.reference_shape(args.duration)
     d = design_parameters(rig, keys, sigma, limits, shape, earlier=[(r.duty, r.dt) for r in recs],
-                          nuisance=nuisance,
-                          seed=args.seed, budget_s=args.budget, max_evaluations=args.max_evaluations)
+                          nuisance=nuisance, seed=args.seed, budget_s=args.budget,
+                          max_evaluations=args.max_evaluations, mode=args.mode, loop=loop)
     doc = {"kind": "parameters", "design_for": str(path), "mode": args.mode, "seed": args.seed,
            "duration_s": shape.duration, "shape": vars(shape), "limits": limits.as_dict(),
            "channels": channels,
@@ -268,7 +293,14 @@ def parameters(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any]:
            "angle_limits_assured": d.angle_limits_assured,
            "evaluations": d.evaluations,
            "stopped_by": d.stopped_by, "elapsed_s": d.elapsed_s}
-    out.write(lambda folder: write_design(folder, doc, d.duty, limits.dt))
+    if loop is None:
+        out.write(lambda folder: write_design(folder, doc, d.duty, limits.dt))
+        return doc
+    from aeropend_ident.design.reference import on_grid
+
+    doc.update({"controller": _controller_doc(args, loop), "steps": d.steps})
+    grid = on_grid(d.steps or [], d.duty.size, limits.dt)
+    out.write(lambda folder: write_design(folder, doc, grid, limits.dt, column="reference", steps=d.steps))
     return doc
 
 
@@ -306,8 +338,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> 
         if not args.design_for or args.out is None:
             raise DesignCliError("give --design-for REPORT and -o OUT (or --outcome REPORT --design FOLDER)")
         target = Path(args.design_for)
-        check_mode(args.mode, ("open_loop", "reference") if target.is_dir() else ("open_loop",),
-                   where="a gap report's discrimination design" if target.is_dir() else "a parameter design")
+        check_mode(args.mode, ("open_loop", "reference"))
         if args.mode != "reference" and (args.controller or args.strategy):
             raise DesignCliError("--controller and --strategy describe the lab's controller of a --mode "
                                  "reference design")

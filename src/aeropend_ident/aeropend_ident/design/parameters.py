@@ -23,10 +23,12 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -34,6 +36,7 @@ from aeropend_ident.design.sequence import (
     ANGLE_PENALTY,
     BUDGET_S,
     AprbsShape,
+    DesignError,
     Limits,
     angle_margin,
     angle_penalty,
@@ -150,6 +153,9 @@ class ParameterDesign:
         ``angle_spread`` within :func:`~aeropend_ident.design.sequence.spread_cap`: else the
         predicted angle depends on parameters the earlier recordings do not determine by more than
         the margin kept, and the limits are not assured.
+    steps, baseline_steps : list of (float, float), optional
+        A closed-loop design's set points (t [s], θ_ref [rad]) and the seeded ones it started from;
+        ``duty`` and ``baseline`` are then the loop's predicted commands.
     """
 
     duty: np.ndarray
@@ -168,12 +174,15 @@ class ParameterDesign:
     angle_spread: float = 0.0
     angle_margin_held: bool = True
     angle_limits_assured: bool = True
+    steps: list[tuple[float, float]] | None = None
+    baseline_steps: list[tuple[float, float]] | None = None
 
 
 def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float], limits: Limits,
                       shape: AprbsShape | None = None, *, earlier: Sequence[tuple[np.ndarray, float]] = (),
                       nuisance: Sequence[str] = (), seed: int = 0, budget_s: float = BUDGET_S,
-                      max_evaluations: int | None = None, mode: str = "open_loop") -> ParameterDesign:
+                      max_evaluations: int | None = None, mode: str = "open_loop",
+                      loop: Any = None) -> ParameterDesign:
     """Search the APRBS parametrisation for the D-optimal sequence (module doc).
 
     Parameters
@@ -198,8 +207,13 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
         Most sequences scored (default :func:`~aeropend_ident.design.sequence.default_evaluations`
         of the p + 1 rigs each replays: the design is then reproducible from its seed).
     mode : str
-        ``"open_loop"``; ``"reference"`` is refused until implemented
-        (:func:`~aeropend_ident.design.sequence.check_mode`).
+        ``"open_loop"`` (a command sequence) or ``"reference"`` (set points for ``loop``, the lab's
+        controller: the sequence is scored on the command the loop gives on ``rig``, replayed as
+        ``rig fit`` replays a closed-loop log; the loop's angle, command range and slew are its
+        limits, :func:`aeropend_ident.design.reference.loop_penalty`).
+    loop : ControllerLoop, optional
+        The lab's controller (:func:`aeropend_ident.design.reference.lab_controller`); with
+        ``"reference"`` only.
 
     Returns
     -------
@@ -208,12 +222,18 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     Raises
     ------
     ValueError
-        Without keys; :class:`~aeropend_ident.design.sequence.DesignError` for a mode other than
-        ``open_loop``.
+        Without keys; :class:`~aeropend_ident.design.sequence.DesignError` for an unknown mode, or
+        ``reference`` without ``loop``.
     """
-    check_mode(mode, where="a parameter design")
+    check_mode(mode, ("open_loop", "reference"), where="a parameter design")
     if not keys:
         raise ValueError("no parameter to design for")
+    if (mode == "reference") != (loop is not None):
+        raise DesignError("a reference design needs the lab's controller (loop=), and only it takes one")
+    if loop is not None:
+        from aeropend_ident.design.reference import reference_shape
+
+        shape = shape or reference_shape(40.0)
     shape = shape or AprbsShape()
     t0 = time.perf_counter()
     keys = tuple(keys)
@@ -229,34 +249,75 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     # determine (esc_1 of bench_design_parameters: 0.12 rad above the fitted rig's peak on the rig)
     prior = np.linalg.inv(f0 + np.eye(len(every)))
 
-    def score(duty: np.ndarray) -> tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    play = _Player(rig, shape, limits, loop, float(sigma.get("theta", 0.0)))
+
+    def score(z: np.ndarray) -> tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         nonlocal calls
         calls += 1
+        duty, loop_theta, pen = play(z)
         f, th, s_th = fisher(rig, every, duty, limits.dt, sigma)
+        if loop_theta is not None:  # closed loop: the loop holds the angle, its run is the limit
+            return (pen if pen < 0.0 else ds_criterion(f0 + f, n_i)), (f, loop_theta, np.zeros_like(th))
         spread = angle_spread(s_th, prior)
         outside = angle_penalty(th, limits, angle_margin(spread, limits, sigma.get("theta", 0.0)))
         return (outside if outside < 0.0 else ds_criterion(f0 + f, n_i)), (f, th, spread)
 
     z0 = aprbs_vector(shape, seed)
-    base = sequence(z0, shape, limits)
+    base = play(z0)[0]
     if max_evaluations is None:
-        max_evaluations = default_evaluations(len(every) + 1, base.size, len(sigma))
+        if loop is None:
+            max_evaluations = default_evaluations(len(every) + 1, base.size, len(sigma))
+        else:
+            from aeropend_ident.design.reference import reference_evaluations
+
+            max_evaluations = reference_evaluations(base.size)
     best_z, best_v, (best_f, theta, spread), v0, (f_base, _, _), stopped = search(
-        lambda z: score(sequence(z, shape, limits)), z0, seed=seed, budget_s=budget_s,
-        max_evaluations=max_evaluations, popsize=8 + shape.size // 6, started=t0)
+        score, z0, seed=seed, budget_s=budget_s, max_evaluations=max_evaluations,
+        popsize=8 + shape.size // 6, started=t0)
 
     def sd(f: np.ndarray) -> dict[str, float]:
         return dict(zip(keys, map(float, relative_sd(f0 + f)[:n_i]), strict=True))
 
     margin = float(np.max(angle_margin(spread, limits, sigma.get("theta", 0.0)), initial=0.0))
     spread_max = float(np.max(spread, initial=0.0))
-    return ParameterDesign(duty=sequence(best_z, shape, limits), baseline=base, keys=keys, logdet=best_v,
+    return ParameterDesign(duty=play(best_z)[0], baseline=base, keys=keys, logdet=best_v,
                            baseline_logdet=v0, sd_before=sd(np.zeros_like(f0)), sd_after=sd(best_f),
                            sd_after_baseline=sd(f_base), evaluations=calls,
                            elapsed_s=time.perf_counter() - t0, stopped_by=stopped, theta=theta,
                            angle_margin=margin, angle_spread=spread_max,
                            angle_margin_held=bool(best_v > -ANGLE_PENALTY),
-                           angle_limits_assured=bool(spread_max <= spread_cap(limits)))
+                           angle_limits_assured=bool(spread_max <= spread_cap(limits)),
+                           steps=play.steps(best_z), baseline_steps=play.steps(z0))
+
+
+class _Player:
+    """Design vector -> (the command the rig gets, the loop's recorded angle or None, the loop's
+    limit penalty): the APRBS itself open loop, or the lab's loop on ``rig`` following the set points."""
+
+    def __init__(self, rig: Rig, shape: AprbsShape, limits: Limits, loop: Any, sigma_theta: float) -> None:
+        self.rig, self.shape, self.limits, self.loop, self.sigma_theta = rig, shape, limits, loop, sigma_theta
+        if loop is not None:
+            from aeropend_ident.design.reference import set_point_range
+
+            self.span = set_point_range(limits, loop.reach, sigma_theta)
+            self.plant = dataclasses.replace(rig.with_effects(sensor_noise=False, quantisation=False),
+                                             sample_period=limits.dt)
+
+    def steps(self, z: np.ndarray) -> list[tuple[float, float]] | None:
+        if self.loop is None:
+            return None
+        from aeropend_ident.design.reference import reference_steps
+
+        return reference_steps(z, self.shape, self.limits, self.span)
+
+    def __call__(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, float]:
+        if self.loop is None:
+            return sequence(z, self.shape, self.limits), None, 0.0
+        from aeropend_ident.design.reference import closed_loop, loop_command, loop_penalty
+
+        n = round(self.shape.duration / self.limits.dt)
+        run = closed_loop(self.loop, self.plant, self.steps(z), n)
+        return loop_command(run), run.seen, loop_penalty(run, self.limits, self.sigma_theta)
 
 
 def fitted_keys(fitted_text: str) -> list[str]:

@@ -70,6 +70,7 @@ from aeropend_ident.design.sequence import (
     recorded_margin,
     search,
 )
+from aeropend_sim.params import Rig
 
 #: Node name of the controller in a ROS parameters file (``config/controller.yaml``).
 CONTROLLER_NODE = "aeropend_controller"
@@ -208,6 +209,24 @@ def on_grid(steps: Sequence[tuple[float, float]], n: int, dt: float) -> np.ndarr
     return np.array([s[1] for s in steps])[np.maximum(idx, 0)]
 
 
+def closed_loop(loop: Any, plant: Rig, steps: Sequence[tuple[float, float]], n: int, meas: Any = None) -> Any:
+    """A copy of ``loop`` following ``steps`` for ``n`` samples on ``plant`` (noise-free: switch its
+    noise off; its sample period is the loop's), the sensor map ``meas``
+    (:class:`~aeropend_ident.gap.effects.MeasurementMap`) between plant and loop: a
+    :class:`aeropend_control.verify.closed_loop.LoopRun`, its ``seen`` the recorded angle."""
+    from aeropend_control.verify.closed_loop import drive
+
+    loop = copy.deepcopy(loop)
+    loop.reference.steps = list(steps)
+    sensor = None if meas is None or meas.identity else (lambda th: float(meas.to_recorded(th)))
+    return drive(loop, plant, n, seed=None, sensor=sensor)
+
+
+def loop_command(run: Any) -> np.ndarray:
+    """The command (N,) a loop's run logged, as applied: clipped to [0, 1] (0 after a divergence)."""
+    return np.clip(np.nan_to_num(run.duty, nan=0.0), 0.0, 1.0)
+
+
 class ClosedLoopPredictor:
     """The lab's controller in closed loop on the candidates, and every candidate replayed on its command.
 
@@ -233,22 +252,15 @@ class ClosedLoopPredictor:
         self.calls = 0
 
     def run(self, steps: Sequence[tuple[float, float]], b: int) -> Any:
-        """The loop on candidate ``b`` (noise-free, its sensor map between plant and loop): a
-        :class:`aeropend_control.verify.closed_loop.LoopRun`, its ``seen`` the recorded angle."""
-        from aeropend_control.verify.closed_loop import drive
-
-        loop = copy.deepcopy(self.loop)
-        loop.reference.steps = list(steps)
-        meas = self.candidates[b].meas
-        return drive(loop, self.plants[b], self.n, seed=None,
-                     sensor=None if meas.identity else (lambda th: float(meas.to_recorded(th))))
+        """The loop on candidate ``b`` (:func:`closed_loop`)."""
+        return closed_loop(self.loop, self.plants[b], steps, self.n, self.candidates[b].meas)
 
     def __call__(self, steps: Sequence[tuple[float, float]], b: int = 0) -> tuple[dict[str, np.ndarray], Any]:
         """(channel -> (B, N) replays of every candidate on the loop's command on candidate ``b``,
         that run)."""
         run = self.run(steps, b)
         self.calls += 1
-        return self.open(np.clip(np.nan_to_num(run.duty, nan=0.0), 0.0, 1.0)), run
+        return self.open(loop_command(run)), run
 
 
 def loop_penalty(run: Any, limits: Limits, sigma_theta: float) -> float:
@@ -356,7 +368,7 @@ def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[
     out, run = pred(steps)
     out0, run0 = pred(base)
     return ReferenceDesign(
-        duty=np.clip(run.duty, 0.0, 1.0), baseline=np.clip(run0.duty, 0.0, 1.0), value=best_v,
+        duty=loop_command(run), baseline=loop_command(run0), value=best_v,
         baseline_value=v0,
         min_divergence=_min_div(out, sigma), baseline_min_divergence=_min_div(out0, sigma),
         evaluations=pred.calls, elapsed_s=time.perf_counter() - t0, z=best_z, stopped_by=stopped,

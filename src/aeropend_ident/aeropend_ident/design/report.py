@@ -149,6 +149,7 @@ def markdown(doc: Mapping[str, Any]) -> str:
     """The short ``design.md`` of a design document."""
     lim = doc["limits"]
     ref = doc.get("mode") == "reference"
+    base = "seeded set points of the same length" if ref else "seeded APRBS of the same length"
     lines = [f"# Experiment design ({doc['kind']}{', closed loop' if ref else ''})", "",
              f"From `{doc.get('design_for', '?')}`; {doc['duration_s']:g} s at {1 / lim['dt']:.4g} Hz "
              f"(`design.csv`, {'t,reference: set points [rad]' if ref else 't,duty'}), seed {doc['seed']}, "
@@ -169,7 +170,7 @@ def markdown(doc: Mapping[str, Any]) -> str:
         pr, pb = doc["predicted"], doc["predicted_baseline_aprbs"]
         lines += ["Predicted probability that each candidate ranks first when it is the truth (Monte-Carlo, "
                   f"{pr['draws']} noise draws each, no refit):", "",
-                  "| candidate | designed | seeded APRBS of the same length |", "|---|---|---|"]
+                  f"| candidate | designed | {base} |", "|---|---|---|"]
         for name, p in pr["per_candidate"].items():
             lines.append(f"| {name} | {_pct(p)} | {_pct(pb['per_candidate'].get(name))} |")
         lines += ["", f"Smallest pairwise divergence Σ(Δy/σ)²: designed {doc['min_divergence']:.3g}, "
@@ -184,7 +185,7 @@ def markdown(doc: Mapping[str, Any]) -> str:
                          f"{doc['angle_spread_rad']:.3g} rad (1σ) on parameters the earlier recordings do "
                          "not determine."), ""]
         lines += ["Predicted relative 1σ per parameter (Cramér-Rao, unit prior; a lower bound):", "",
-                  "| parameter | before | after the design | after the seeded APRBS |", "|---|---|---|---|"]
+                  f"| parameter | before | after the design | after the {base} |", "|---|---|---|---|"]
         for k in doc["parameters"]:
             lines.append(f"| {k} | {_pct(doc['sd_before'][k])} | {_pct(doc['sd_after'][k])} | "
                          f"{_pct(doc['sd_after_baseline'][k])} |")
