@@ -167,14 +167,17 @@ def markdown(doc: Mapping[str, Any]) -> str:
                   "Every prediction is that controller's loop on the candidate; the command and the angle "
                   "limits above are checked on each candidate's loop.", ""]
     if doc["kind"] == "discrimination":
-        pr, pb = doc["predicted"], doc["predicted_baseline_aprbs"]
+        pr, pb = doc["predicted"], doc.get("predicted_baseline_aprbs")
         lines += ["Predicted probability that each candidate ranks first when it is the truth (Monte-Carlo, "
                   f"{pr['draws']} noise draws each, no refit):", "",
-                  f"| candidate | designed | {base} |", "|---|---|---|"]
+                  f"| candidate | designed |{f' {base} |' if pb else ''}",
+                  "|---|---|" + ("---|" if pb else "")]
         for name, p in pr["per_candidate"].items():
-            lines.append(f"| {name} | {_pct(p)} | {_pct(pb['per_candidate'].get(name))} |")
+            other = f" {_pct(pb['per_candidate'].get(name))} |" if pb else ""
+            lines.append(f"| {name} | {_pct(p)} |{other}")
         lines += ["", f"Smallest pairwise divergence Σ(Δy/σ)²: designed {doc['min_divergence']:.3g}, "
-                  f"APRBS {doc['baseline_min_divergence']:.3g}."]
+                  f"{'seeded set points (the loop on the best candidate)' if ref else 'APRBS'} "
+                  f"{doc['baseline_min_divergence']:.3g}."]
     else:
         if doc.get("angle_margin_rad"):
             lines += [f"The predicted angle keeps up to {doc['angle_margin_rad']:.3g} rad from the angle "
