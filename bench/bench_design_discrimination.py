@@ -113,15 +113,16 @@ def _named(spec: dict[str, Any], case: dict[str, Any], res: Any) -> dict[str, An
             "named_per_effect": s.get("named_per_effect")}
 
 
-def run_case(job: dict[str, Any]) -> dict[str, Any]:
-    """One case (module doc): before, design, truth recording and limit check, after."""
+def case_and_candidates(index: int) -> tuple[Any, ...]:
+    """Steps 1-2 of the module doc for lab case ``index`` (shared with
+    :mod:`bench.bench_design_reference`):
+    ``(spec, case, fit, held, row, candidates, sigma, t_design_start)``; ``row`` holds the case's
+    description, the before diagnosis and the candidates (with their fit rows)."""
     from aeropend_ident.design.candidates import channel_noise, diagnosis_candidates
-    from aeropend_ident.design.discriminate import design_discrimination, rank_first_probability
-    from aeropend_ident.design.sequence import AprbsShape, Limits, check_limits
     from bench import bench_gap_lab as lab
     from bench.fixtures.truth_plant import OUT_OF_CATALOG
 
-    spec = lab.case_list()[job["index"]]
+    spec = lab.case_list()[index]
     case = lab.build_case(spec)
     fit, held = lab.prepared(case, spec)
     row: dict[str, Any] = {"index": spec["index"], "kind": spec["kind"], "mode": spec["mode"],
@@ -140,7 +141,16 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     row["candidate_rows"] = rows
     row["truth_among_candidates"] = any(set(c.effects) == set(row["truth"]) for c in cands)
     channels = sorted(set(fit[0].channels) & {"theta", "i_a", "v_a", "omega_rotor"})
-    sigma = channel_noise(fit, channels)
+    return spec, case, fit, held, row, cands, channel_noise(fit, channels), td
+
+
+def run_case(job: dict[str, Any]) -> dict[str, Any]:
+    """One case (module doc): before, design, truth recording and limit check, after."""
+    from aeropend_ident.design.discriminate import design_discrimination, rank_first_probability
+    from aeropend_ident.design.sequence import AprbsShape, Limits, check_limits
+    from bench import bench_gap_lab as lab
+
+    spec, case, fit, held, row, cands, sigma, td = case_and_candidates(job["index"])
     limits = Limits.from_recordings([fit[0].channels["theta"]], [fit[0].duty], fit[0].dt,
                                     quantum=case["quantum"])
     row["limits"] = limits.as_dict()

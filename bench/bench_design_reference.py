@@ -35,7 +35,13 @@ from typing import Any
 
 import numpy as np
 
-from bench.bench_design_discrimination import DEFAULT_CASES, RESULTS, _named, _sigma, lab_case_bench
+from bench.bench_design_discrimination import (
+    DEFAULT_CASES,
+    RESULTS,
+    _sigma,
+    case_and_candidates,
+    lab_case_bench,
+)
 
 #: Length of every designed set-point sequence [s].
 DURATION = 40.0
@@ -83,7 +89,6 @@ def _judge(cands: list[Any], rec: Any, run: dict[str, Any], sigma: dict[str, flo
 
 def run_case(job: dict[str, Any]) -> dict[str, Any]:
     """One case (module doc)."""
-    from aeropend_ident.design.candidates import channel_noise, diagnosis_candidates
     from aeropend_ident.design.reference import (
         design_reference,
         lab_controller,
@@ -92,28 +97,8 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     )
     from aeropend_ident.design.sequence import Limits
     from aeropend_sim.params import save_rig
-    from bench import bench_gap_lab as lab
-    from bench.fixtures.truth_plant import OUT_OF_CATALOG
 
-    spec = lab.case_list()[job["index"]]
-    case = lab.build_case(spec)
-    fit, held = lab.prepared(case, spec)
-    row: dict[str, Any] = {"index": spec["index"], "kind": spec["kind"], "mode": spec["mode"],
-                           "rate_hz": spec["rate_hz"], "channels": spec["channels"],
-                           "truth": sorted(t for t in case["effects"] if t not in OUT_OF_CATALOG),
-                           "quantum": case["quantum"], "snr_db": case["snr_db"]}
-    t0 = time.perf_counter()
-    before = lab.lab_gap(case, fit, held)
-    row["gap_before_s"] = time.perf_counter() - t0
-    row["before"] = _named(spec, case, before)
-    td = time.perf_counter()
-    cands, _rows = diagnosis_candidates(before.diagnosis.as_dict(), case["nominal"], fit,
-                                       max_effects=lab.MAX_EFFECTS)
-    row["candidate_fits_s"] = time.perf_counter() - td
-    row["candidates"] = [c.name for c in cands]
-    row["truth_among_candidates"] = any(set(c.effects) == set(row["truth"]) for c in cands)
-    channels = sorted(set(fit[0].channels) & {"theta", "i_a", "v_a", "omega_rotor"})
-    sigma = channel_noise(fit, channels)
+    spec, case, fit, _held, row, cands, sigma, td = case_and_candidates(job["index"])
     dt = fit[0].dt
     limits = Limits.from_recordings([fit[0].channels["theta"]], [fit[0].duty], dt, quantum=case["quantum"],
                                     stated={"duty_min": 0.0, "duty_max": 1.0, "max_slew": 1.0 / dt})

@@ -61,12 +61,12 @@ from aeropend_ident.design.discriminate import (
 from aeropend_ident.design.sequence import (
     ANGLE_PENALTY,
     BUDGET_S,
-    LEAD_IN_S,
     AprbsShape,
     DesignError,
     Limits,
     angle_penalty,
     aprbs_vector,
+    holds,
     recorded_margin,
     search,
 )
@@ -181,26 +181,19 @@ def reference_steps(z: np.ndarray, shape: AprbsShape, limits: Limits, span: tupl
     """The set-point breakpoints [(t [s], θ_ref [rad])] of design vector ``z`` ∈ [0, 1]^(2M).
 
     0 rad over the first :data:`~aeropend_ident.design.sequence.LEAD_IN_S` (the rig at rest), then
-    ``M`` holds at ``lo + z[i]·(hi − lo)`` whose lengths are shares of the rest as in
-    :func:`~aeropend_ident.design.sequence.sequence`, breakpoints on the logging grid.
+    ``M`` holds at ``lo + z[i]·(hi − lo)`` laid on the logging grid as an open-loop design's
+    (:func:`~aeropend_ident.design.sequence.holds`).
 
     Raises
     ------
     DesignError
         If ``z`` has the wrong size.
     """
-    z = np.clip(np.asarray(z, dtype=float), 0.0, 1.0)
-    m = shape.segments
-    if z.size != 2 * m:
-        raise DesignError(f"design vector of size {z.size}; expected {2 * m}")
-    n = round(shape.duration / limits.dt)
-    n_lead = round(LEAD_IN_S / limits.dt)
+    share, ends, n_lead = holds(z, shape, limits.dt)
     lo, hi = span
-    levels = lo + z[:m] * (hi - lo)
-    holds = shape.min_hold + z[m:] * (shape.max_hold - shape.min_hold)
-    edges = np.rint(np.cumsum(holds) / holds.sum() * (n - n_lead)).astype(int)
-    starts = n_lead + np.concatenate([[0], edges[:-1]])
-    return [(0.0, 0.0)] + [(float(k * limits.dt), float(r)) for k, r in zip(starts, levels, strict=True)]
+    starts = np.concatenate([[n_lead], ends[:-1]])
+    return [(0.0, 0.0)] + [(float(k * limits.dt), float(lo + u * (hi - lo))) for k, u in zip(starts, share,
+                                                                                              strict=True)]
 
 
 def on_grid(steps: Sequence[tuple[float, float]], n: int, dt: float) -> np.ndarray:

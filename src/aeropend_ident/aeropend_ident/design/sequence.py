@@ -276,18 +276,40 @@ def sequence(z: np.ndarray, shape: AprbsShape, limits: Limits) -> np.ndarray:
     DesignError
         If ``z`` has the wrong size.
     """
+    share, edges, n_lead = holds(z, shape, limits.dt)
+    levels = limits.duty_min + share * (limits.duty_max - limits.duty_min)
+    counts = np.diff(np.concatenate([[n_lead], edges]))
+    duty = np.concatenate([np.full(n_lead, limits.duty_min), np.repeat(levels, counts)])
+    return slew_limited(duty, limits.max_slew * limits.dt, start=limits.duty_min)
+
+
+def holds(z: np.ndarray, shape: AprbsShape, dt: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """The holds of design vector ``z`` ∈ [0, 1]^(2M) (clipped to it) on the grid k·``dt``.
+
+    Returns
+    -------
+    levels : ndarray, shape (M,)
+        Each hold's level as a share of the range, ``z[:M]``.
+    ends : ndarray of int, shape (M,)
+        The sample each hold ends before: after the lead-in, hold i lasts a share of the rest
+        proportional to ``min_hold + z[M+i]·(max_hold − min_hold)``; the last ends at N.
+    n_lead : int
+        Samples of the lead-in (:data:`LEAD_IN_S`).
+
+    Raises
+    ------
+    DesignError
+        If ``z`` has the wrong size.
+    """
     z = np.clip(np.asarray(z, dtype=float), 0.0, 1.0)
     m = shape.segments
     if z.size != 2 * m:
         raise DesignError(f"design vector of size {z.size}; expected {2 * m}")
-    n = round(shape.duration / limits.dt)
-    n_lead = round(LEAD_IN_S / limits.dt)
-    levels = limits.duty_min + z[:m] * (limits.duty_max - limits.duty_min)
-    holds = shape.min_hold + z[m:] * (shape.max_hold - shape.min_hold)
-    edges = n_lead + np.rint(np.cumsum(holds) / holds.sum() * (n - n_lead)).astype(int)
-    counts = np.diff(np.concatenate([[n_lead], edges]))
-    duty = np.concatenate([np.full(n_lead, limits.duty_min), np.repeat(levels, counts)])
-    return slew_limited(duty, limits.max_slew * limits.dt, start=limits.duty_min)
+    n = round(shape.duration / dt)
+    n_lead = round(LEAD_IN_S / dt)
+    lengths = shape.min_hold + z[m:] * (shape.max_hold - shape.min_hold)
+    ends = n_lead + np.rint(np.cumsum(lengths) / lengths.sum() * (n - n_lead)).astype(int)
+    return z[:m], ends, n_lead
 
 
 def aprbs_vector(shape: AprbsShape, seed: int) -> np.ndarray:
