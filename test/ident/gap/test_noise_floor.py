@@ -49,3 +49,20 @@ def test_a_perfect_model_is_at_the_noise_floor() -> None:
     h = {"heldout_nrmse_nominal": m["nrmse"], "heldout_noise_floor_nrmse": m["noise_floor_nrmse"]}
     assert "the held-out error is the sensor's noise" in noise_floor_text(h)
     assert noise_floor_text({**h, "heldout_nrmse_nominal": 3.0 * m["noise_floor_nrmse"]}) == ""
+
+
+def test_a_share_of_a_gap_at_the_noise_floor_stays_a_share() -> None:
+    """The share of the validation gap above the noise a model removes is taken of at least the
+    smallest gap that counts as one (ABOVE_NOISE × the noise part + the rounding chance): a
+    nominal just above its noise part made a noise-sized change read 146.8 (lab case 0)."""
+    from types import SimpleNamespace
+
+    from aeropend_ident.gap.which.context import ABOVE_NOISE, _Setup
+
+    st = SimpleNamespace(sse_val0=1.001, noise_sse=1.0, chance_c={"theta": 0.01})
+    least = (ABOVE_NOISE - 1.0) * 1.0 + 0.01
+    assert _Setup.above_noise_share(st, 0.999) == pytest.approx(0.002 / least)  # not 2.0
+    assert _Setup.above_noise_share(st, 1.05) == pytest.approx(-0.049 / least)  # not −49
+    far = SimpleNamespace(sse_val0=3.0, noise_sse=1.0, chance_c={"theta": 0.01})
+    assert _Setup.above_noise_share(far, 2.0) == pytest.approx(0.5)  # a real gap: unchanged
+    assert _Setup.above_noise_share(far, 2.0, base=0.9) == 0.0  # a base under the noise: nothing to share

@@ -149,9 +149,19 @@ class _Setup:
 
     def above_noise_share(self, sse: float, base: float | None = None) -> float:
         """Share of the validation gap above the noise part (of ``base``, default nominal) removed
-        by a model with validation SSE ``sse``."""
+        by a model with validation SSE ``sse``: (base − sse) / (base − noise part), 0 when ``base``
+        is at or below the noise part.
+
+        The gap is taken as at least the smallest one that counts as a gap (:func:`_above_noise`:
+        :data:`ABOVE_NOISE` times the noise part plus the rounding chance margin, less the noise
+        part): a ``base`` just above the noise part would otherwise turn a change of noise size
+        into any share (an effect-free case's ranking read 146.8 and −56.9).
+        """
         b = self.sse_val0 if base is None else base
-        return (b - sse) / (b - self.noise_sse) if b > self.noise_sse else 0.0
+        if not b > self.noise_sse:
+            return 0.0
+        least = (ABOVE_NOISE - 1.0) * self.noise_sse + sum(self.chance_c.values())
+        return (b - sse) / max(b - self.noise_sse, least)
 
     def noise_ratio(self, sse: float) -> str:
         """``sse`` as a multiple of the validation noise part, for progress lines."""
