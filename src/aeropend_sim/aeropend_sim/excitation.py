@@ -513,6 +513,11 @@ def lhs_steps(
     return _segments_to_signal(design[:, 0], design[:, 1], dt, "lhs", params, design=design)
 
 
+#: Second-column headers of a CSV that holds an angle, not a duty cycle (a closed-loop design's
+#: ``t,reference``): :func:`from_file` refuses to play them.
+ANGLE_COLUMNS = frozenset({"reference", "theta", "theta_ref", "set_point", "setpoint"})
+
+
 def from_file(file: str, dt: float | None = None) -> ExcitationSignal:
     """A duty-cycle sequence read from a CSV of time [s] and duty [1] (``kind="file"``).
 
@@ -536,7 +541,8 @@ def from_file(file: str, dt: float | None = None) -> ExcitationSignal:
     ------
     ExcitationError
         On a missing or unreadable file, fewer than two rows, a non-numeric cell, a non-uniform or
-        non-increasing time column, a duty outside [0, 1], or a period other than ``dt``.
+        non-increasing time column, a duty outside [0, 1], a period other than ``dt``, or a header
+        naming an angle column (:data:`ANGLE_COLUMNS`: a closed-loop design's set points).
     """
     try:
         with open(file, encoding="utf-8-sig") as fh:
@@ -555,6 +561,12 @@ def from_file(file: str, dt: float | None = None) -> ExcitationSignal:
         except (ValueError, IndexError):
             if first:
                 first = False
+                if len(cells) > 1 and cells[1].lower() in ANGLE_COLUMNS:
+                    raise ExcitationError(
+                        f"file {file!r}: its second column is {cells[1]!r}, an angle [rad], not a duty "
+                        "cycle: a closed-loop design's set points are for the controller (controller "
+                        "--ros-args --params-file design_controller.yaml), never to be played as commands"
+                    ) from None
                 continue  # the header line
             raise ExcitationError(
                 f"file {file!r} line {i}: expected two numbers t,duty, got {line!r}") from None

@@ -221,6 +221,11 @@ def test_a_reference_design_of_a_gap_report_writes_the_controllers_steps(tmp_pat
     assert ref_col.min() >= 0.0 and ref_col.max() <= doc["limits"]["theta_max"]
     md = (out / "design.md").read_text()
     assert "closed loop" in md and "design_controller.yaml" in md
+    # set points are never played as commands
+    from aeropend_sim.excitation import ExcitationError
+
+    with pytest.raises(ExcitationError, match="an angle"):
+        make_signal("file", file=str(out / "design.csv"))
     # the controller options belong to a reference design
     y = tmp_path / "y"
     assert main(["--design-for", str(report), str(log), "--strategy", "fl_pid", "-o", str(y)]) == 2
