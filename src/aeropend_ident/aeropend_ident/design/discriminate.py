@@ -177,7 +177,8 @@ class Discrimination:
     stopped_by: str = "evaluations"
 
 
-def _min_div(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float]) -> float:
+def smallest_divergence(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, float]) -> float:
+    """The smallest :func:`pair_divergences` of the candidates (∞ with fewer than two)."""
     d = pair_divergences(outputs, sigma)
     iu = np.triu_indices(d.shape[0], 1)
     return float(np.min(d[iu])) if iu[0].size else math.inf
@@ -239,8 +240,8 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
                                                started=t0, tolfun=1e-4)
     duty, base = sequence(best_z, shape, limits), sequence(z0, shape, limits)
     return Discrimination(duty=duty, baseline=base, value=best_v, baseline_value=v0,
-                          min_divergence=_min_div(pred(duty), sigma),
-                          baseline_min_divergence=_min_div(pred(base), sigma),
+                          min_divergence=smallest_divergence(pred(duty), sigma),
+                          baseline_min_divergence=smallest_divergence(pred(base), sigma),
                           evaluations=pred.calls, elapsed_s=time.perf_counter() - t0, z=best_z,
                           stopped_by=stopped)
 

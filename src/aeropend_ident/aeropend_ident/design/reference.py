@@ -54,9 +54,9 @@ from aeropend_ident.design.candidates import Candidate
 from aeropend_ident.design.discriminate import (
     Discrimination,
     Predictor,
-    _min_div,
     mean_log_divergence,
     rank_draws,
+    smallest_divergence,
 )
 from aeropend_ident.design.sequence import (
     ANGLE_PENALTY,
@@ -260,15 +260,17 @@ class ClosedLoopPredictor:
 
 def loop_penalty(run: Any, limits: Limits, sigma_theta: float) -> float:
     """0 when the loop's run keeps its recorded angle (with the recorded margin) in the angle range,
-    its command in the command range and its command's change per sample within the slew limit;
-    else the largest of :func:`~aeropend_ident.design.sequence.angle_penalty`'s penalties on the
-    excesses (a diverged run scores below every finite one)."""
+    its logged command (:func:`loop_command`) in the command range and its change per sample within
+    the slew limit; else the more severe of :func:`~aeropend_ident.design.sequence.angle_penalty`'s
+    penalties on the angle's excess [rad] and on the command's (its excess plus a hundredth of the
+    slew's excess [1/s]); a diverged run scores below every finite excess."""
     if run.status != "ok" or not np.all(np.isfinite(run.duty)):
         return -ANGLE_PENALTY * 1002.0
     ang = angle_penalty(run.seen, limits, recorded_margin(limits, sigma_theta))
-    cmd = max(0.0, float(run.duty.max()) - limits.duty_max, limits.duty_min - float(run.duty.min()))
-    slew = max(0.0, float(np.max(np.abs(np.diff(run.duty)))) - limits.max_slew * limits.dt) / limits.dt \
-        if run.duty.size > 1 else 0.0
+    u = loop_command(run)
+    cmd = max(0.0, float(u.max()) - limits.duty_max, limits.duty_min - float(u.min()))
+    slew = max(0.0, float(np.max(np.abs(np.diff(u)))) - limits.max_slew * limits.dt) / limits.dt \
+        if u.size > 1 else 0.0
     other = 0.0 if cmd == 0.0 and slew == 0.0 else -ANGLE_PENALTY * (1.0 + min(cmd + slew / 100.0, 1000.0))
     return min(ang, other)
 
@@ -363,9 +365,9 @@ def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[
     out, run = pred(steps)
     out0, run0 = pred(base)
     return ReferenceDesign(
-        duty=loop_command(run), baseline=loop_command(run0), value=best_v,
-        baseline_value=v0,
-        min_divergence=_min_div(out, sigma), baseline_min_divergence=_min_div(out0, sigma),
+        duty=loop_command(run), baseline=loop_command(run0), value=best_v, baseline_value=v0,
+        min_divergence=smallest_divergence(out, sigma),
+        baseline_min_divergence=smallest_divergence(out0, sigma),
         evaluations=pred.calls, elapsed_s=time.perf_counter() - t0, z=best_z, stopped_by=stopped,
         steps=steps, baseline_steps=base, reference=on_grid(steps, n, limits.dt), theta=run.seen,
         driver=candidates[0].name)
