@@ -52,13 +52,6 @@ SHAPE = AprbsShape(duration=12.0, segments=8)
 
 
 @pytest.fixture(scope="module")
-def pair():
-    rig = load_rig("thesis_sim")
-    lagged, meas = apply_effects(rig, {"actuator_lag": {"lag_time_constant": 0.02}})
-    return [Candidate("nominal", (), rig), Candidate("actuator_lag", ("actuator_lag",), lagged, meas)]
-
-
-@pytest.fixture(scope="module")
 def designed(pair):
     return design_discrimination(pair, SIGMA, LIMITS, SHAPE, seed=0, budget_s=20.0, max_evaluations=200)
 

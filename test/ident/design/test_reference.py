@@ -17,24 +17,14 @@ import pytest
 import yaml
 
 from aeropend_ident.design import reference as ref
-from aeropend_ident.design.candidates import Candidate
 from aeropend_ident.design.discriminate import design_discrimination, evidence
 from aeropend_ident.design.parameters import design_parameters
 from aeropend_ident.design.sequence import DesignError, Limits, check_limits
-from aeropend_ident.gap.effects import apply_effects
-from aeropend_sim.params import load_rig
 
 DT = 0.02048  # 48.8 Hz: 10 truth samples
 SIGMA = {"theta": 3e-3}
 LIMITS = Limits(duty_min=0.0, duty_max=1.0, max_slew=1.0 / DT, theta_min=-0.2, theta_max=1.0, dt=DT)
 SHAPE = ref.AprbsShape(duration=12.0, segments=8, min_hold=0.5, max_hold=3.0)
-
-
-@pytest.fixture(scope="module")
-def pair():
-    rig = load_rig("thesis_sim")
-    lagged, meas = apply_effects(rig, {"actuator_lag": {"lag_time_constant": 0.02}})
-    return [Candidate("nominal", (), rig), Candidate("actuator_lag", ("actuator_lag",), lagged, meas)]
 
 
 @pytest.fixture(scope="module")
