@@ -108,6 +108,30 @@ def _play(rig: fl.LabRig, design_csv: Path, out: Path, seed: int) -> Path:
     return out
 
 
+def _play_closed(rig: fl.LabRig, design: Path, controller_rig: Path, out: Path, seed: int,
+                 baseline: bool = False) -> Path:
+    """A closed-loop design's set points (or, ``baseline``, the seeded ones its search started from)
+    followed by the lab's controller (the design's strategy and pole pattern on the lab's fitted rig
+    file, at the rig's period) on the rig's own plant: the logged command and the measured angle
+    (its noise and lattice), written as a lab log."""
+    from aeropend_ident.design.reference import lab_controller
+
+    spec = json.loads((design / "design.json").read_text(encoding="utf-8"))
+    steps = [tuple(s) for s in spec["baseline_steps" if baseline else "steps"]]
+    c = spec["controller"]
+    loop = lab_controller(str(controller_rig), {k: c[k] for k in ("strategy", "omega_n", "zeta", "rho")},
+                          fl.PERIOD)
+    loop.reference.steps = steps
+    st, rng = rig.stepper(), np.random.default_rng(seed)
+    n = round(spec["duration_s"] / fl.PERIOD)
+    cmd, y = np.empty(n), np.empty(n)
+    for k in range(n):
+        y[k] = fl._measure(rig, st, rng)
+        cmd[k] = min(max(float(loop.on_sample(round(k * fl.PERIOD * 1e9), y[k])), 0.0), 1.0)
+        st.step(cmd[k])
+    return fl._write(out, cmd, y)
+
+
 def _limits_on_truth(played: Path, limits: dict[str, float]) -> dict[str, Any]:
     """The design's limits (command range, slew, angle range) checked on the command played and
     the angle the rig's plant recorded (issue 63: every design, on the truth plant)."""
@@ -117,7 +141,8 @@ def _limits_on_truth(played: Path, limits: dict[str, float]) -> dict[str, Any]:
     return check_limits(duty, Limits(**limits), theta)
 
 
-def run_case(family: str, index: int, seed: int, first_log: str = "steps") -> dict[str, Any]:
+def run_case(family: str, index: int, seed: int, first_log: str = "steps", mode: str = "open_loop"
+             ) -> dict[str, Any]:
     from aeropend_ident.cli.rig import main as rig_main
     from aeropend_ident.design.cli import main as design_main
 
@@ -148,7 +173,7 @@ def run_case(family: str, index: int, seed: int, first_log: str = "steps") -> di
             return {**row, "note": "the steps determined every parameter"}
         t0 = time.perf_counter()
         rc, text = _quiet(design_main, ["--design-for", str(first), *first_logs, "-o", str(d / "design"),
-                                        "--duration", str(DURATION), "--parameters", *todo])
+                                        "--duration", str(DURATION), "--parameters", *todo, "--mode", mode])
         row["design_s"] = time.perf_counter() - t0
         if rc:
             return {**row, "failed": f"design: {text[-400:]}"}
@@ -160,13 +185,17 @@ def run_case(family: str, index: int, seed: int, first_log: str = "steps") -> di
                                                   "angle_margin_rad", "angle_spread_rad",
                                                   "angle_limits_assured")}
         row["limits"] = spec["limits"]
-        designed = _play(rig, d / "design" / "design.csv", d / "designed.csv", seed=77)
+        if mode == "reference":  # played by the lab's controller; control: the seeded set points
+            designed = _play_closed(rig, d / "design", first, d / "designed.csv", seed=77)
+            ctrl = _play_closed(rig, d / "design", first, d / "aprbs_control.csv", seed=78, baseline=True)
+        else:
+            designed = _play(rig, d / "design" / "design.csv", d / "designed.csv", seed=77)
+            cmd = np.loadtxt(d / "design" / "design.csv", delimiter=",", skiprows=1)[:, 1]
+            aprbs = tp.aprbs(DURATION, seed=5, lo=float(cmd.min()), hi=float(cmd.max()), min_hold=0.2,
+                             max_hold=1.5, rest=0.5, dt=fl.PERIOD)
+            ctrl = d / "aprbs_control.csv"
+            fl._write(ctrl, aprbs, fl.run_open_loop(rig, aprbs, 78))
         row["limits_on_truth"] = _limits_on_truth(designed, spec["limits"])
-        cmd = np.loadtxt(d / "design" / "design.csv", delimiter=",", skiprows=1)[:, 1]
-        aprbs = tp.aprbs(DURATION, seed=5, lo=float(cmd.min()), hi=float(cmd.max()), min_hold=0.2,
-                         max_hold=1.5, rest=0.5, dt=fl.PERIOD)
-        ctrl = d / "aprbs_control.csv"
-        fl._write(ctrl, aprbs, fl.run_open_loop(rig, aprbs, 78))
         for label, rec in (("design", designed), ("aprbs", ctrl)):
             out = d / f"after_{label}.yaml"
             t0 = time.perf_counter()
@@ -264,17 +293,24 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--families", default="esc,voltage_amplifier,dc_hbridge")
     ap.add_argument("--rigs", type=int, default=2, help="rigs per family")
     ap.add_argument("--seed", type=int, default=63000)
-    ap.add_argument("--out", type=Path, default=RESULTS / "design_parameters")
+    ap.add_argument("--out", type=Path, help="output stem (default design_parameters, or "
+                                             "design_parameters_reference with --mode reference)")
+    ap.add_argument("--mode", choices=("open_loop", "reference"), default="open_loop",
+                    help="reference: closed-loop designs (set points for the controller node's default "
+                         "strategy on the fitted rig file), played by that controller on the rig's plant; "
+                         "the control is the seeded set points")
     ap.add_argument("--first-logs", default="steps,decay",
                     help="a lab's first logs, one case each: steps (61 s of steps) and/or decay (the "
                          "balance table and a free decay)")
     args = ap.parse_args(argv)
+    args.out = args.out or RESULTS / ("design_parameters_reference" if args.mode == "reference"
+                                      else "design_parameters")
     t0, load = time.perf_counter(), os.getloadavg()
     rows = []
     for fam in args.families.split(","):
         for i in range(args.rigs):
             for first_log in args.first_logs.split(","):
-                r = run_case(fam, i, args.seed, first_log)
+                r = run_case(fam, i, args.seed, first_log, args.mode)
                 print(json.dumps({k: r.get(k) for k in ("rig", "first_log", "failed", "note")}), flush=True)
                 rows.append(r)
     ok = [r for r in rows if "to_determine" in r and "failed" not in r]

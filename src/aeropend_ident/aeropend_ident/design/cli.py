@@ -236,7 +236,7 @@ def _reference_design(args: argparse.Namespace, out: OutputFolder, doc: dict[str
     # the seeded set points are compared by their divergences on the driver's loop only: a prediction
     # runs the loop on every candidate, as long again as the design's own (docs/design.md, "Closed loop")
     doc.update({"shape": vars(shape), "controller": _controller_doc(args, loop),
-                "steps": d.steps, "driver": d.driver,
+                "steps": d.steps, "baseline_steps": d.baseline_steps, "driver": d.driver,
                 "predicted": reference.rank_first_probability(cands, loop, d.steps, n, sigma, limits,
                                                               seed=args.seed),
                 "min_divergence": d.min_divergence, "baseline_min_divergence": d.baseline_min_divergence,
@@ -298,7 +298,8 @@ def parameters(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any]:
         return doc
     from aeropend_ident.design.reference import on_grid
 
-    doc.update({"controller": _controller_doc(args, loop), "steps": d.steps})
+    doc.update({"controller": _controller_doc(args, loop), "steps": d.steps,
+                "baseline_steps": d.baseline_steps})
     grid = on_grid(d.steps or [], d.duty.size, limits.dt)
     out.write(lambda folder: write_design(folder, doc, grid, limits.dt, column="reference", steps=d.steps))
     return doc
