@@ -249,17 +249,23 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     # determine (esc_1 of bench_design_parameters: 0.12 rad above the fitted rig's peak on the rig)
     prior = np.linalg.inv(f0 + np.eye(len(every)))
 
-    play = _Player(rig, shape, limits, loop, float(sigma.get("theta", 0.0)))
+    play = _Player(rig, shape, limits, loop, every, float(sigma.get("theta", 0.0)))
 
     def score(z: np.ndarray) -> tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]]:
         nonlocal calls
         calls += 1
-        duty, loop_theta, pen = play(z)
+        duty, loop_run, loop_sens = play(z)
         f, th, s_th = fisher(rig, every, duty, limits.dt, sigma)
-        if loop_theta is not None:  # closed loop: the loop holds the angle, its run is the limit
-            return (pen if pen < 0.0 else ds_criterion(f0 + f, n_i)), (f, loop_theta, np.zeros_like(th))
+        if loop_run is not None:  # closed loop: the loop's run, and its spread, are the angle limit
+            th, s_th = loop_run.seen, loop_sens
         spread = angle_spread(s_th, prior)
-        outside = angle_penalty(th, limits, angle_margin(spread, limits, sigma.get("theta", 0.0)))
+        margin = angle_margin(spread, limits, sigma.get("theta", 0.0))
+        if loop_run is not None:
+            from aeropend_ident.design.reference import loop_penalty
+
+            outside = loop_penalty(loop_run, limits, sigma.get("theta", 0.0), margin)
+        else:
+            outside = angle_penalty(th, limits, margin)
         return (outside if outside < 0.0 else ds_criterion(f0 + f, n_i)), (f, th, spread)
 
     z0 = aprbs_vector(shape, seed)
@@ -267,10 +273,10 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
     if max_evaluations is None:
         if loop is None:
             max_evaluations = default_evaluations(len(every) + 1, base.size, len(sigma))
-        else:
+        else:  # a loop on the rig and on each perturbed rig per sequence
             from aeropend_ident.design.reference import reference_evaluations
 
-            max_evaluations = reference_evaluations(base.size)
+            max_evaluations = reference_evaluations(base.size * (len(every) + 1))
     best_z, best_v, (best_f, theta, spread), v0, (f_base, _, _), stopped = search(
         score, z0, seed=seed, budget_s=budget_s, max_evaluations=max_evaluations,
         popsize=8 + shape.size // 6, started=t0)
@@ -291,17 +297,21 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
 
 
 class _Player:
-    """Design vector -> (the command the rig gets, the loop's recorded angle or None, the loop's
-    limit penalty): the APRBS itself open loop, or the lab's loop on ``rig`` following the set points."""
+    """Design vector -> (the command the rig gets, the loop's run or None, the sensitivity (p, N) of
+    the loop's recorded angle to each key's log [rad] or None): the APRBS itself open loop, or the
+    lab's loop on ``rig`` (and on ``rig`` with each key perturbed, as :func:`fisher` perturbs it)
+    following the set points: in closed loop the angle depends on the parameters through the loop."""
 
-    def __init__(self, rig: Rig, shape: AprbsShape, limits: Limits, loop: Any, sigma_theta: float) -> None:
-        self.rig, self.shape, self.limits, self.loop, self.sigma_theta = rig, shape, limits, loop, sigma_theta
+    def __init__(self, rig: Rig, shape: AprbsShape, limits: Limits, loop: Any, keys: Sequence[str],
+                 sigma_theta: float) -> None:
+        self.shape, self.limits, self.loop = shape, limits, loop
         if loop is not None:
             from aeropend_ident.design.reference import set_point_range
 
             self.span = set_point_range(limits, loop.reach, sigma_theta)
-            self.plant = dataclasses.replace(rig.with_effects(sensor_noise=False, quantisation=False),
-                                             sample_period=limits.dt)
+            base = dataclasses.replace(rig.with_effects(sensor_noise=False, quantisation=False),
+                                       sample_period=limits.dt)
+            self.plants = [base] + [perturbed(base, k, 1.0 + REL_STEP) for k in keys]
 
     def steps(self, z: np.ndarray) -> list[tuple[float, float]] | None:
         if self.loop is None:
@@ -310,14 +320,18 @@ class _Player:
 
         return reference_steps(z, self.shape, self.limits, self.span)
 
-    def __call__(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, float]:
+    def __call__(self, z: np.ndarray) -> tuple[np.ndarray, Any, np.ndarray | None]:
         if self.loop is None:
-            return sequence(z, self.shape, self.limits), None, 0.0
-        from aeropend_ident.design.reference import closed_loop, loop_command, loop_penalty
+            return sequence(z, self.shape, self.limits), None, None
+        from aeropend_ident.design.reference import closed_loop, loop_command
 
         n = round(self.shape.duration / self.limits.dt)
-        run = closed_loop(self.loop, self.plant, self.steps(z), n)
-        return loop_command(run), run.seen, loop_penalty(run, self.limits, self.sigma_theta)
+        steps = self.steps(z)
+        runs = [closed_loop(self.loop, p, steps, n) for p in self.plants]
+        sens = np.array([(r.seen - runs[0].seen) / math.log1p(REL_STEP) for r in runs[1:]])
+        if not np.all(np.isfinite(sens)):
+            sens = np.zeros_like(sens)
+        return loop_command(runs[0]), runs[0], sens
 
 
 def fitted_keys(fitted_text: str) -> list[str]:

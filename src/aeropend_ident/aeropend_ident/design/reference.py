@@ -258,21 +258,28 @@ class ClosedLoopPredictor:
         return self.open(loop_command(run)), run
 
 
-def loop_penalty(run: Any, limits: Limits, sigma_theta: float) -> float:
-    """0 when the loop's run keeps its recorded angle (with the recorded margin) in the angle range,
-    its logged command (:func:`loop_command`) in the command range and its change per sample within
-    the slew limit; else the more severe of :func:`~aeropend_ident.design.sequence.angle_penalty`'s
-    penalties on the angle's excess [rad] and on the command's (its excess plus a hundredth of the
-    slew's excess [1/s]); a diverged run scores below every finite excess."""
+def loop_penalty(run: Any, limits: Limits, sigma_theta: float, margin: np.ndarray | float | None = None
+                 ) -> float:
+    """0 when the loop's run keeps its recorded angle, widened by ``margin`` [rad] (default
+    :func:`~aeropend_ident.design.sequence.recorded_margin`), in the angle range and its logged
+    command within the command limits (:func:`command_penalty`); else the more severe of
+    :func:`~aeropend_ident.design.sequence.angle_penalty`'s penalties; a diverged run scores below
+    every finite excess."""
     if run.status != "ok" or not np.all(np.isfinite(run.duty)):
         return -ANGLE_PENALTY * 1002.0
-    ang = angle_penalty(run.seen, limits, recorded_margin(limits, sigma_theta))
+    m = recorded_margin(limits, sigma_theta) if margin is None else margin
+    return min(angle_penalty(run.seen, limits, m), command_penalty(run, limits))
+
+
+def command_penalty(run: Any, limits: Limits) -> float:
+    """0 when the loop's logged command (:func:`loop_command`) stays in the command range and its
+    change per sample within the slew limit; else :func:`~aeropend_ident.design.sequence.angle_penalty`'s
+    scale on the excess (the range's plus a hundredth of the slew's [1/s])."""
     u = loop_command(run)
     cmd = max(0.0, float(u.max()) - limits.duty_max, limits.duty_min - float(u.min()))
     slew = max(0.0, float(np.max(np.abs(np.diff(u)))) - limits.max_slew * limits.dt) / limits.dt \
         if u.size > 1 else 0.0
-    other = 0.0 if cmd == 0.0 and slew == 0.0 else -ANGLE_PENALTY * (1.0 + min(cmd + slew / 100.0, 1000.0))
-    return min(ang, other)
+    return 0.0 if cmd == 0.0 and slew == 0.0 else -ANGLE_PENALTY * (1.0 + min(cmd + slew / 100.0, 1000.0))
 
 
 def reference_criterion(outputs: Mapping[str, np.ndarray], run: Any, sigma: Mapping[str, float],
