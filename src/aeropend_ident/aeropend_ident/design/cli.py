@@ -84,12 +84,12 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
     ap.add_argument("--preset", help="CSV preset of the recordings")
     ap.add_argument("--mode", choices=MODES, default="open_loop",
                     help="open_loop: a command sequence played open loop; reference: set points for the "
-                         "lab's controller node (discrimination designs: the rig runs in closed loop, "
-                         "e.g. at set points it cannot hold open loop; docs/design.md, 'Closed loop')")
+                         "lab's controller node, for a rig that runs only in closed loop (both kinds of "
+                         "design; docs/design.md, 'Closed loop')")
     ap.add_argument("--controller",
                     help="with --mode reference: the controller node's ROS parameters file (strategy, "
                          "omega_n, zeta, rho, ...) the lab runs; default the node's defaults on the gap "
-                         "report's rig")
+                         "report's rig (or on the rig fit result)")
     ap.add_argument("--strategy",
                     help="with --mode reference: the controller's strategy (over --controller's)")
     for name, help_ in (("duty-min", "lowest command"), ("duty-max", "highest command"),
