@@ -265,6 +265,15 @@ def _named_cell(r: dict[str, Any]) -> str:
     return f"{', '.join(n) or 'nothing'} ({'yes' if r['recording_named_truth'] else 'no'})"
 
 
+def limits_cell(lim: dict[str, Any]) -> str:
+    """A design's limit check on the truth plant in a table cell: ok, the limits violated, or
+    ``diverged`` (none of them checked)."""
+    if lim["ok"]:
+        return "ok"
+    bad = [k for k in ("command_range", "slew", "angle_range") if lim.get(k) is False]
+    return ", ".join(bad) + " violated" if bad else "diverged"
+
+
 def write_md(path: Path, doc: dict[str, Any]) -> None:
     s, m = doc["summary"], doc["meta"]
     lines = [
@@ -328,9 +337,7 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         d = r.get("design") or {}
         md = (f"{d['min_divergence']:.3g} / {d['baseline_min_divergence']:.3g}"
               if "min_divergence" in d else "—")
-        lim = r["limits_on_truth"]
-        lim_s = "ok" if lim["ok"] else ", ".join(k for k in ("command_range", "slew", "angle_range")
-                                                  if lim.get(k) is False) + " violated"
+        lim_s = limits_cell(r["limits_on_truth"])
         cells = [str(r["index"]), r["kind"], r["mode"], str(r["rate_hz"]), r["channels"],
                  ", ".join(r["truth"]) or "—", ", ".join(r["before"]["chosen"]) or "—",
                  ", ".join(r["after"]["chosen"]) or "—",

@@ -41,6 +41,7 @@ from bench.bench_design_discrimination import (
     _sigma,
     case_and_candidates,
     lab_case_bench,
+    limits_cell,
 )
 
 #: Length of every designed set-point sequence [s].
@@ -166,14 +167,6 @@ def _cell(j: dict[str, Any]) -> str:
     return f"{', '.join(n) or 'no effect'} ({'yes' if j['named_truth'] else 'no'})"
 
 
-def _lim(j: dict[str, Any]) -> str:
-    lim = j["limits_on_truth"]
-    if lim["ok"]:
-        return "ok"
-    bad = [k for k in ("command_range", "slew", "angle_range") if lim.get(k) is False]
-    return ", ".join(bad) + " violated" if bad else "diverged"
-
-
 def write_md(path: Path, doc: dict[str, Any]) -> None:
     s, m = doc["summary"], doc["meta"]
     lines = [
@@ -216,7 +209,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
                  f"{100 * pr['mean']:.0f} %",
                  f"{d['min_divergence']:.3g} / {d['baseline_min_divergence']:.3g}",
                  _cell(r["designed"]), _cell(r["baseline"]),
-                 f"{_lim(r['designed'])} / {_lim(r['baseline'])}", f"{r['design_s']:.1f}"]
+                 f"{limits_cell(r['designed']['limits_on_truth'])} / "
+                 f"{limits_cell(r['baseline']['limits_on_truth'])}", f"{r['design_s']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")
     path.write_text("\n".join(lines))

@@ -251,7 +251,7 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
 
     play = _Player(rig, shape, limits, loop, every, float(sigma.get("theta", 0.0)))
 
-    def score(z: np.ndarray) -> tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    def score(z: np.ndarray) -> tuple[float, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
         nonlocal calls
         calls += 1
         duty, loop_run, loop_sens = play(z)
@@ -266,18 +266,19 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
             outside = loop_penalty(loop_run, limits, sigma.get("theta", 0.0), margin)
         else:
             outside = angle_penalty(th, limits, margin)
-        return (outside if outside < 0.0 else ds_criterion(f0 + f, n_i)), (f, th, spread)
+        return (outside if outside < 0.0 else ds_criterion(f0 + f, n_i)), (f, th, spread, duty)
 
     z0 = aprbs_vector(shape, seed)
-    base = play(z0)[0]
+    n = round(shape.duration / limits.dt)
     if max_evaluations is None:
         if loop is None:
-            max_evaluations = default_evaluations(len(every) + 1, base.size, len(sigma))
+            max_evaluations = default_evaluations(len(every) + 1, n, len(sigma))
         else:  # a loop on the rig and on each perturbed rig per sequence
             from aeropend_ident.design.reference import reference_evaluations
 
-            max_evaluations = reference_evaluations(base.size * (len(every) + 1))
-    best_z, best_v, (best_f, theta, spread), v0, (f_base, _, _), stopped = search(
+            max_evaluations = reference_evaluations(n * (len(every) + 1))
+    # the search keeps the command (a closed loop's run) of the best sequence and of its start
+    best_z, best_v, (best_f, theta, spread, duty), v0, (f_base, _, _, base), stopped = search(
         score, z0, seed=seed, budget_s=budget_s, max_evaluations=max_evaluations,
         popsize=8 + shape.size // 6, started=t0)
 
@@ -286,7 +287,7 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
 
     margin = float(np.max(angle_margin(spread, limits, sigma.get("theta", 0.0)), initial=0.0))
     spread_max = float(np.max(spread, initial=0.0))
-    return ParameterDesign(duty=play(best_z)[0], baseline=base, keys=keys, logdet=best_v,
+    return ParameterDesign(duty=duty, baseline=base, keys=keys, logdet=best_v,
                            baseline_logdet=v0, sd_before=sd(np.zeros_like(f0)), sd_after=sd(best_f),
                            sd_after_baseline=sd(f_base), evaluations=calls,
                            elapsed_s=time.perf_counter() - t0, stopped_by=stopped, theta=theta,

@@ -362,15 +362,14 @@ def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[
 
     def value(z: np.ndarray) -> tuple[float, Any]:
         out, run = pred(reference_steps(z, shape, limits, span))
-        return reference_criterion(out, run, sigma, limits), None
+        return reference_criterion(out, run, sigma, limits), (out, run)
 
     z0 = aprbs_vector(shape, seed)
-    best_z, best_v, _, v0, _, stopped = search(
+    # the search keeps the replays and the loop's run of the best sequence and of its start: not run again
+    best_z, best_v, (out, run), v0, (out0, run0), stopped = search(
         value, z0, seed=seed, budget_s=budget_s, max_evaluations=max_evaluations or reference_evaluations(n),
         popsize=8 + shape.size // 6, started=t0, tolfun=1e-4)
     steps, base = reference_steps(best_z, shape, limits, span), reference_steps(z0, shape, limits, span)
-    out, run = pred(steps)
-    out0, run0 = pred(base)
     return ReferenceDesign(
         duty=loop_command(run), baseline=loop_command(run0), value=best_v, baseline_value=v0,
         min_divergence=smallest_divergence(out, sigma),
