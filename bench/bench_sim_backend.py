@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from aeropend_sim.compiled.plant import CompiledPlant
+from aeropend_sim.compiled.plant import compiled_plant
 from aeropend_sim.simulation import PlantStepper, simulate, simulate_batch
 from bench.backends import study
 
@@ -95,7 +95,7 @@ def batch(repeats: int) -> dict:
     """64 parameter sets on the per-sample input, 1 and 2 threads; against 64 single replays."""
     rig = study.all_effects_rig()
     duty = study.inputs(rig.sample_period)["per_sample"]
-    plant = CompiledPlant(rig)
+    plant = compiled_plant(rig)
     base = np.array([rig.value(k) for k in BATCH_KEYS])
     values = base * np.exp(np.random.default_rng(0).normal(0.0, 0.05, (BATCH_SIZE, len(BATCH_KEYS))))
     p = plant.vectors(BATCH_KEYS, values)
@@ -150,7 +150,7 @@ def compile_probe() -> dict:
 def _compile_family(rig, duty: np.ndarray) -> dict[str, float]:
     r = {}
     c0 = time.process_time()
-    plant = CompiledPlant(rig)
+    plant = compiled_plant(rig)
     r["module_and_jacobians"] = time.process_time() - c0
     calls = (("replay", lambda: plant.replay(duty, np.zeros(5))),
              ("outputs", lambda: plant.outputs(np.zeros((2, 5)), np.zeros(2))),

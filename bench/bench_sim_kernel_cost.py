@@ -8,7 +8,7 @@ inputs of ``bench/bench_sim_backend.py`` (steps, APRBS, per-sample), LSODA as th
   values: ``pow`` at α = 1.9, ``tanh`` off saturation, ``exp``, ``sin``; an add for scale);
 * **the right-hand side's machine code** (the generated module's ``rhs``, as numba compiled it):
   instructions, libm calls, divisions, stack accesses;
-* **RK4 with K sub-steps** (the product kernel, ``CompiledPlant(rig, substeps=K)``, K = 4-8): the
+* **RK4 with K sub-steps** (the product kernel, ``compiled_plant(rig, substeps=K)``, K = 4-8): the
   sub-steps a sample (the input delay splits one piece in two), max |Δθ| against LSODA, CPU ms a
   replay (median of ``--repeats``);
 * **fixed-step Dormand-Prince 5** (a prototype here, 6 evaluations a step; 1-2 steps in each of
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from aeropend_sim.compiled.plant import CompiledPlant
+from aeropend_sim.compiled.plant import CompiledPlant, compiled_plant
 from aeropend_sim.simulation import simulate
 from bench.backends import study
 from bench.bench_sim_backend import _times
@@ -195,7 +195,7 @@ def accuracy(repeats: int) -> dict:
     x0 = np.zeros(5)
     rk4 = {}
     for k in range(4, 9):
-        plant = CompiledPlant(rig, substeps=k)
+        plant = compiled_plant(rig, substeps=k)
         plan = plant.plan
         row = {"substeps_a_sample": int(plan.n_a[0] + plan.n_b[0]),
                "evaluations_a_sample": 4 * int(plan.n_a[0] + plan.n_b[0])}
@@ -206,7 +206,7 @@ def accuracy(repeats: int) -> dict:
             row[f"{name}_cpu_ms"] = 1e3 * float(np.median(cpu))
         rk4[str(k)] = row
         print("rk4", k, row, flush=True)
-    plant = CompiledPlant(rig)
+    plant = compiled_plant(rig)
     whole = int(plant.plan.whole[0])
     frac = rig.actuator.input_delay / plant.dt - whole
     first_second = round(1.0 / plant.dt)
@@ -234,7 +234,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=5, help="timing repeats of each RK4 replay")
     ap.add_argument("--out", type=Path, default=OUT, help=f"result file (default {OUT})")
     args = ap.parse_args()
-    plant = CompiledPlant(study.all_effects_rig())
+    plant = compiled_plant(study.all_effects_rig())
     report = {"date": datetime.now(UTC).isoformat(timespec="seconds"),
               "rig": "thesis_rig, every effect on (bench/backends/study.py)",
               "load_average_1min_at_start": os.getloadavg()[0],

@@ -20,7 +20,7 @@ import pytest
 
 from aeropend_sim.compiled import plant as plant_mod
 from aeropend_sim.compiled import xp_numba
-from aeropend_sim.compiled.plant import CompiledPlant
+from aeropend_sim.compiled.plant import compiled_plant
 from aeropend_sim.compiled.source import family_module, module_source, skipped_when_off, switched_by_value
 from aeropend_sim.components import registry
 from aeropend_sim.components.thrust.propeller import thrust
@@ -79,7 +79,7 @@ def test_batch_rows_equal_single_replays_bit_for_bit():
     keys = ("actuator.input_delay", "actuator.lag_time_constant", "actuator.dead_zone", "pendulum.c_over_J")
     values = np.array([[0.005, 0.01, 0.03, 2.0], [2 * dt, 0.0, 0.0, 2.5], [0.0, 0.03, 0.1, 1.5]])
     x0 = np.array([[0.1, 0.0, 0.0, 0.0, 0.0], [0.3, -0.2, 0.1, 50.0, 0.4], [0.0, 0.0, 0.0, 0.0, 0.0]])
-    plant = CompiledPlant(rig)
+    plant = compiled_plant(rig)
     channels = plant.channels
     batch = simulate_batch(plant, duty, plant.vectors(keys, values), x0=x0, tau_before=0.4, channels=channels)
     by_mapping = simulate_batch(rig, duty, dict(zip(keys, values.T, strict=True)), x0=x0, tau_before=0.4,
@@ -100,7 +100,7 @@ def test_batches_from_two_threads_at_once_equal_sequential_ones():
     rows out to threads of its own (the kernel releases the GIL)."""
     rig = all_effects()
     duty = aprbs(1.0, lo=0.3, hi=1.0, min_hold=0.05, max_hold=0.3, seed=5, dt=rig.sample_period).duty
-    plant = CompiledPlant(rig)
+    plant = compiled_plant(rig)
     p = plant.vectors(("pendulum.c_over_J",), np.linspace(1.5, 3.0, 8)[:, None])
     alone = simulate_batch(plant, duty, p, threads=1)["theta"]
     with ThreadPoolExecutor(max_workers=2) as pool:
@@ -111,7 +111,7 @@ def test_batches_from_two_threads_at_once_equal_sequential_ones():
 
 def test_vectors_follow_the_rig_and_refuse_bad_values():
     rig = all_effects()
-    plant = CompiledPlant(rig)
+    plant = compiled_plant(rig)
     keys = ("actuator.lag_time_constant", "motor.K_d", "pendulum.theta_max")
     rows = np.array([[0.0, 1e-7, 1.0], [0.02, 2e-7, 1.2]])
     got = plant.vectors(keys, rows)
@@ -170,7 +170,7 @@ def test_absent_values_switch_terms_off_exactly(family):
     """Effects kept in the compiled model (every term in a summed slot) add an exact 0.0 with their
     parameters at their absent values, on any input (where they also have a flag, it only saves
     evaluating them); the others have a flag."""
-    lay = CompiledPlant(family_rig(family)).layout
+    lay = compiled_plant(family_rig(family)).layout
     rng = np.random.default_rng(0)
     names = ("theta", "theta_dot", "i_a", "omega", "omega_prop", "thrust", "u", "tau_f", "tau", "omega_sp")
     inputs_ = {name: [0.0, -0.0, 1e-300, -1e6, *rng.normal(0.0, 100.0, 20).tolist()] for name in names}
@@ -193,7 +193,7 @@ def test_a_switched_off_coulomb_friction_is_skipped_and_changes_nothing():
     assert flagged == {"rotor_coulomb_friction", "rod_coulomb_friction"}
     rig = load_rig("thesis_rig")
     assert not rig.effects.rod_coulomb_friction and not rig.effects.rotor_coulomb_friction
-    plant = CompiledPlant(rig)
+    plant = compiled_plant(rig)
     dt = rig.sample_period
     duty = aprbs(3.0, lo=0.3, hi=1.0, min_hold=0.05, max_hold=0.3, seed=7, dt=dt).duty
     p = plant.p[None, :].copy()
@@ -249,7 +249,7 @@ def test_stiff_rig_gets_more_substeps_and_divergence_is_reported(monkeypatch):
     """L_a/R_a = 10 µs (|λ| ≈ 1e5/s): the plan adds sub-steps and the replay stays on LSODA's; with
     the sub-steps capped the replay diverges and says so."""
     rig = load_rig("thesis_rig").with_params("motor", L_a=1.08e-5)
-    plant = CompiledPlant(rig)
+    plant = compiled_plant(rig)
     assert plant.plan.substeps[0] > 400
     duty = np.r_[np.zeros(20), np.full(200, 0.7)]
     ref = simulate(rig, duty, backend="lsoda")

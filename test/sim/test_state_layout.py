@@ -102,9 +102,9 @@ def test_the_compiled_replay_completes_a_chain_state_and_refuses_other_lengths()
     """The kernels read x0 without bounds checks: a chain-only x0 (what a fit's start gives) on a
     heated rig is completed with T_m = 0 before it reaches them (it read memory past the row before:
     gap fits of a heated rig differed from run to run), any other length is refused."""
-    from aeropend_sim.compiled.plant import CompiledPlant
+    from aeropend_sim.compiled.plant import compiled_plant
 
-    plant = CompiledPlant(_heated())
+    plant = compiled_plant(_heated())
     duty = np.full(200, 0.5)
     p = np.repeat(plant.p[None, :], 2, axis=0)
     chain = np.array([[0.1, 0.0, 0.0, 0.0, 0.0]] * 2)

@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from scipy.integrate import odeint
 
-from aeropend_sim.compiled.plant import MAX_SUBSTEPS, CompiledPlant
+from aeropend_sim.compiled.plant import MAX_SUBSTEPS, CompiledPlant, compiled_plant
 from aeropend_sim.components.states import N_CHAIN
 from aeropend_sim.model import I_A, TAU_F, PlantModel, plant_model
 from aeropend_sim.params import Rig
@@ -254,7 +254,7 @@ def simulate(
     model = plant_model(rig)
     x = _check_state(model, x0)
     if _check_backend(backend) == "compiled":
-        plant = CompiledPlant(rig, dt, model=model)
+        plant = CompiledPlant(model, dt)
         states, u, failed = plant.replay(duty, x, tau_before)
         _check_replay(plant, failed)
         true = plant.outputs(states, u, _true_channels(model))
@@ -394,7 +394,7 @@ def simulate_batch(
         if dt is not None and float(dt) != plant.dt:
             raise SimulationError(f"dt = {dt!r} differs from the compiled plant's sample period {plant.dt}")
     else:
-        plant = CompiledPlant(rig, dt)
+        plant = compiled_plant(rig, dt)
     if isinstance(params, Mapping):
         keys = tuple(params)
         p = plant.vectors(keys, np.column_stack([np.asarray(params[k], dtype=float) for k in keys])
@@ -438,7 +438,7 @@ class PlantStepper:
         model = plant_model(rig)
         self.dt = rig.sample_period
         self.backend = _check_backend(backend)
-        plant = CompiledPlant(rig, self.dt, model=model) if backend == "compiled" else None
+        plant = CompiledPlant(model, self.dt) if backend == "compiled" else None
         self._now: tuple[CompiledPlant | None, PlantModel, Rig] = (plant, model, rig)
         self.x = _check_state(model, x0)
         self.k = 0
@@ -475,7 +475,7 @@ class PlantStepper:
         if model.delay != self.model.delay:
             raise ValueError(f"input delay {model.delay} s differs from the running {self.model.delay} s "
                              "(it sizes the command delay line)")
-        plant = CompiledPlant(rig, self.dt, model=model) if self.backend == "compiled" else None
+        plant = CompiledPlant(model, self.dt) if self.backend == "compiled" else None
         old = self.model.states
         if model.states != old:  # an effect with a state of its own switched: keep the common states
             x = model.states.initial()

@@ -19,7 +19,7 @@ from aeropend_ident.greybox.batch import (
     one_replay_thread,
     replay_threads,
 )
-from aeropend_sim.compiled.plant import STEP_BOUND, CompiledPlant
+from aeropend_sim.compiled.plant import STEP_BOUND, CompiledPlant, compiled_plant
 from aeropend_sim.simulation import simulate
 from bench.backends import study
 
@@ -56,14 +56,14 @@ def test_a_stiff_dry_friction_needs_fewer_fit_sub_steps_and_stays_accurate(coulo
     duty = study.inputs(rig.sample_period)["aprbs"][: round(SPAN_S / rig.sample_period)]
     ref = simulate(rig, duty, backend="lsoda")
     theta, k = _fit_replay(rig, duty, ref.x[0])
-    k_ref = int(CompiledPlant(rig, substeps=1, step_bound=STEP_BOUND).plan.substeps[0])
+    k_ref = int(compiled_plant(rig, substeps=1, step_bound=STEP_BOUND).plan.substeps[0])
     assert k <= max(1, int(np.ceil(k_ref * STEP_BOUND / FIT_STEP_BOUND)))
     assert np.abs(theta - ref.x[:, 0]).max() < 1e-5
 
 
 def test_a_step_bound_beyond_rk4_stability_is_refused():
     with pytest.raises(ValueError, match="step_bound"):
-        CompiledPlant(study.all_effects_rig(), step_bound=3.0)
+        compiled_plant(study.all_effects_rig(), step_bound=3.0)
 
 
 def test_one_replay_thread_holds_for_the_calling_thread_only(monkeypatch):

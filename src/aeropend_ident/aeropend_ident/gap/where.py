@@ -263,7 +263,7 @@ def _short_horizon(
     pred = np.empty(n)
     model = plant_model(rig)
     try:  # one compiled plant for every window (a window's replay equals simulate()'s bit for bit)
-        plant = CompiledPlant(rig, data.dt, model=model)
+        plant = CompiledPlant(model, data.dt)
     except (ValueError, ModelError) as exc:
         raise GapInputError(f"short-horizon simulation of {data.source} failed: {exc}") from exc
     for k in range(0, n, h):

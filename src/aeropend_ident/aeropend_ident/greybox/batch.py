@@ -53,7 +53,7 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_sim.compiled.plant import MAX_SUBSTEPS, CompiledPlant
+from aeropend_sim.compiled.plant import MAX_SUBSTEPS, CompiledPlant, compiled_plant
 from aeropend_sim.model import ModelError
 from aeropend_sim.params import Rig, RigFileError
 
@@ -185,7 +185,7 @@ class RigReplays:
         key = structure(rig)
         with self._lock:
             if key not in self._plants:
-                plant = CompiledPlant(rig, self.dt, substeps=self.substeps, step_bound=FIT_STEP_BOUND)
+                plant = compiled_plant(rig, self.dt, substeps=self.substeps, step_bound=FIT_STEP_BOUND)
                 self._plants[key] = (plant, rig.values())
             return self._plants[key]
 
@@ -250,7 +250,7 @@ class RigReplays:
             p = self._vectors(plant, base, [rig])
         except (RigFileError, ModelError, ValueError):
             try:
-                plant = CompiledPlant(rig, self.dt, substeps=self.substeps, step_bound=FIT_STEP_BOUND)
+                plant = compiled_plant(rig, self.dt, substeps=self.substeps, step_bound=FIT_STEP_BOUND)
             except (RigFileError, ModelError, ValueError):
                 return
             p = plant.p[None, :]

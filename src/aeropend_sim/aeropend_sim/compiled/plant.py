@@ -72,6 +72,13 @@ def _replay_pool(n: int) -> ThreadPoolExecutor:
         return pool
 
 
+def compiled_plant(rig: Rig, dt: float | None = None, substeps: int | None = None,
+                   step_bound: float = STEP_BOUND) -> CompiledPlant:
+    """The :class:`CompiledPlant` of ``rig`` (its plant model from :func:`aeropend_sim.model.plant_model`'s
+    cache); parameters and errors as :class:`CompiledPlant`'s."""
+    return CompiledPlant(plant_model(rig), dt, substeps, step_bound)
+
+
 @dataclass(frozen=True)
 class Plan:
     """Sub-step plan of each parameter row (arrays of shape (B,)).
@@ -118,14 +125,14 @@ class CompiledPlant:
 
     Parameters
     ----------
-    rig : Rig
+    model : PlantModel
+        The rig's plant model (:func:`aeropend_sim.model.plant_model`; :func:`compiled_plant`
+        builds both from a rig).
     dt : float, optional
-        Sample period [s] (default ``rig.sample_period``).
+        Sample period [s] (default ``model.rig.sample_period``).
     substeps : int, optional
         Fewest RK4 sub-steps per sample (default: :data:`SUBSTEPS`, or more to keep sub-steps
         within :data:`MAX_SUBSTEP`); the stiffness bound may add more (module doc).
-    model : PlantModel, optional
-        The rig's model, if the caller has built it already.
     step_bound : float
         Largest |h·λ| of a sub-step (default :data:`STEP_BOUND`; a fit that needs only the slow
         manifold of modes faster than a sample may loosen it up to :data:`RK4_STABILITY`).
@@ -138,6 +145,8 @@ class CompiledPlant:
 
     Attributes
     ----------
+    rig : Rig
+        ``model.rig``.
     layout : Layout
         The family's parameter vector layout.
     module : module
@@ -150,9 +159,10 @@ class CompiledPlant:
         Channel names :meth:`outputs` gives for this family.
     """
 
-    def __init__(self, rig: Rig, dt: float | None = None, substeps: int | None = None,
-                 model: PlantModel | None = None, step_bound: float = STEP_BOUND) -> None:
-        self.rig = rig
+    def __init__(self, model: PlantModel, dt: float | None = None, substeps: int | None = None,
+                 step_bound: float = STEP_BOUND) -> None:
+        self.model = model
+        self.rig = rig = model.rig
         self.dt = float(rig.sample_period if dt is None else dt)
         if not (self.dt > 0.0 and math.isfinite(self.dt)):
             raise ValueError(f"sample period dt = {self.dt!r} must be a finite number > 0")
@@ -160,7 +170,6 @@ class CompiledPlant:
             substeps = min(max(SUBSTEPS, math.ceil(self.dt / MAX_SUBSTEP - 1e-9)), MAX_SUBSTEPS)
         if not (isinstance(substeps, int | np.integer) and 1 <= substeps <= MAX_SUBSTEPS):
             raise ValueError(f"substeps = {substeps!r}: expected an integer in [1, {MAX_SUBSTEPS}]")
-        self.model = plant_model(rig) if model is None else model
         self.min_substeps = int(substeps)
         if not 0.0 < step_bound <= RK4_STABILITY:
             raise ValueError(f"step_bound = {step_bound!r}: expected a number in (0, {RK4_STABILITY}] "
