@@ -254,19 +254,55 @@ def simulate(
     model = plant_model(rig)
     x = _check_state(model, x0)
     if _check_backend(backend) == "compiled":
-        plant = CompiledPlant(model, dt)
-        states, u, failed = plant.replay(duty, x, tau_before)
-        _check_replay(plant, failed)
-        true = plant.outputs(states, u, _true_channels(model))
-        u_at_sample = u[0]
-    else:
-        states, u_at_sample, u_before = _replay_lsoda(model, duty, x, dt, tau_before)
-        true = _outputs(model, states, u_at_sample, u_before)
+        return _run_compiled(CompiledPlant(model, dt), duty, x, seed, tau_before)
+    states, u_at_sample, u_before = _replay_lsoda(model, duty, x, dt, tau_before)
+    return _trajectory(model, dt, duty, states, u_at_sample, _outputs(model, states, u_at_sample, u_before),
+                       seed)
+
+
+def simulate_plant(plant: CompiledPlant, duty: np.ndarray, x0: np.ndarray | None = None,
+                   seed: int | None = 0, tau_before: float = 0.0) -> Trajectory:
+    """:func:`simulate` (compiled backend) on a compiled plant kept across calls: the same
+    trajectory bit for bit, without building the plant again (a caller that replays one rig at one
+    sample period many times, as the where-analysis does, builds it once).
+
+    Parameters
+    ----------
+    plant : CompiledPlant
+        The rig's compiled plant at the sample period (:func:`aeropend_sim.compiled.plant.compiled_plant`).
+    duty, x0, seed, tau_before
+        As :func:`simulate`'s.
+
+    Returns
+    -------
+    Trajectory
+
+    Raises
+    ------
+    SimulationError
+        On NaN/out-of-range duty, a bad initial state, or a replay that diverges (naming the sample).
+    """
+    duty = _check_duty(duty)
+    return _run_compiled(plant, duty, _check_state(plant.model, x0), seed, tau_before)
+
+
+def _run_compiled(plant: CompiledPlant, duty: np.ndarray, x: np.ndarray, seed: int | None,
+                  tau_before: float) -> Trajectory:
+    """The compiled replay of checked inputs as a :class:`Trajectory`."""
+    states, u, failed = plant.replay(duty, x, tau_before)
+    _check_replay(plant, failed)
+    true = plant.outputs(states, u, _true_channels(plant.model))
+    return _trajectory(plant.model, plant.dt, duty, states, u[0], true, seed)
+
+
+def _trajectory(model: PlantModel, dt: float, duty: np.ndarray, states: np.ndarray, u_at_sample: np.ndarray,
+                true: dict[str, np.ndarray], seed: int | None) -> Trajectory:
+    """The replay's states (τ_f and a quasi-static i_a filled in) and its measured channels."""
     if not model.lag:
         states[:, TAU_F] = u_at_sample
     if model.assembly.armature and not model.dynamic_current:
         states[:, I_A] = true["i_a"]
-    meas = measure(rig, true, np.random.default_rng(seed))
+    meas = measure(model.rig, true, np.random.default_rng(seed))
     return Trajectory(t=np.arange(duty.size) * dt, duty=duty, x=states, thrust=true["thrust"], true=true,
                       **meas)
 

@@ -104,7 +104,7 @@ from aeropend_sim.components.xp import NUMPY
 from aeropend_sim.model import I_A, OMEGA, TAU_F, THETA, THETA_DOT, ModelError, PlantModel, plant_model
 from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
-from aeropend_sim.simulation import SimulationError, simulate
+from aeropend_sim.simulation import SimulationError, simulate_plant
 
 #: Window [s] over which the free run's initial θ, θ̇ are refined by least squares.
 INIT_WINDOW = 2.0
@@ -204,15 +204,26 @@ def _grid(rec: Recording, data: UniformData) -> dict[str, np.ndarray]:
     return {name: y[: data.t.size].copy() for name, y in grid.channels.items()}
 
 
-def _simulate(rig: Rig, data: UniformData, x0: np.ndarray) -> Any:
+def _plant(model: PlantModel, data: UniformData) -> CompiledPlant:
+    """The nominal rig's compiled plant at the recording's sample period: one for every replay of
+    the recording (free run, initial-state refinement, short-horizon windows, method floor)."""
     try:
-        return simulate(rig, data.duty, x0=x0, dt=data.dt)
+        return CompiledPlant(model, data.dt)
+    except (ValueError, ModelError) as exc:
+        raise GapInputError(f"simulation of {data.source or 'the recording'} failed: {exc}") from exc
+
+
+def _simulate(plant: CompiledPlant, data: UniformData, x0: np.ndarray) -> Any:
+    """:func:`aeropend_sim.simulation.simulate` of the recorded duty from ``x0`` (the same trajectory
+    bit for bit, on the kept plant)."""
+    try:
+        return simulate_plant(plant, data.duty, x0=x0)
     except (SimulationError, ModelError) as exc:
         raise GapInputError(f"simulation of {data.source or 'the recording'} failed: {exc}") from exc
 
 
 def _refine_initial_state(
-    rig: Rig, data: UniformData, x0: np.ndarray, offset: float, window: float = INIT_WINDOW
+    plant: CompiledPlant, data: UniformData, x0: np.ndarray, offset: float, window: float = INIT_WINDOW
 ) -> np.ndarray:
     """Least-squares correction of θ(0), θ̇(0) over the first ``window`` seconds of free run.
 
@@ -233,13 +244,13 @@ def _refine_initial_state(
     x = x0.copy()
     steps = (1e-4, 1e-3)
     for _ in range(2):
-        base = _simulate(rig, part, x).x[:, THETA] - offset
+        base = _simulate(plant, part, x).x[:, THETA] - offset
         r = data.theta[:k] - base
         jac = np.empty((k, 2))
         for j, h in enumerate(steps):
             xp = x.copy()
             xp[(THETA, THETA_DOT)[j]] += h
-            jac[:, j] = (_simulate(rig, part, xp).x[:, THETA] - offset - base) / h
+            jac[:, j] = (_simulate(plant, part, xp).x[:, THETA] - offset - base) / h
         delta, *_ = np.linalg.lstsq(jac, r, rcond=None)
         if not np.all(np.isfinite(delta)):
             break
@@ -249,7 +260,7 @@ def _refine_initial_state(
 
 
 def _short_horizon(
-    rig: Rig,
+    plant: CompiledPlant,
     data: UniformData,
     theta_rate: np.ndarray,
     states: np.ndarray,
@@ -261,11 +272,7 @@ def _short_horizon(
     n = data.t.size
     h = max(2, round(horizon / data.dt))
     pred = np.empty(n)
-    model = plant_model(rig)
-    try:  # one compiled plant for every window (a window's replay equals simulate()'s bit for bit)
-        plant = CompiledPlant(model, data.dt)
-    except (ValueError, ModelError) as exc:
-        raise GapInputError(f"short-horizon simulation of {data.source} failed: {exc}") from exc
+    model = plant.model  # the recording's plant serves every window (a replay equals simulate()'s)
     for k in range(0, n, h):
         stop = min(n, k + h)
         x0 = states[k].copy()
@@ -478,7 +485,7 @@ def _pendulum_check(s: _Signals, theta: np.ndarray, states: np.ndarray, offset: 
 
 
 def _equations(
-    rig: Rig,
+    model: PlantModel,
     theta: np.ndarray,
     duty: np.ndarray,
     dt: float,
@@ -491,7 +498,7 @@ def _equations(
     components (:meth:`aeropend_sim.components.assembly.Assembly.point` and ``slot_values``): the
     actuator-side input is the simulation's (``states[:, TAU_F]``: the delayed command, or the lag
     state), so the chain sees what the nominal simulator's actuator saw."""
-    model = plant_model(rig)
+    rig = model.rig
     n = theta.size
     w = _sg_window(n, dt)
     omega, omega_note = None, ""
@@ -508,12 +515,14 @@ def _equations(
             _pendulum_check(s, theta, states, offset, theta_rate)]
 
 
-def _free_run_start(rig: Rig, data: Any, ch: dict[str, np.ndarray], theta_offset: float) -> np.ndarray:
+def _free_run_start(plant: CompiledPlant, data: Any, ch: dict[str, np.ndarray], theta_offset: float
+                    ) -> np.ndarray:
     """The free run's initial state (n,) of the rig's state layout: from the first samples, the
     motor at the steady state of the first duty, the recorded rate, rotor speed and (dynamic
     armature) current where logged, then θ, θ̇ refined over :data:`INIT_WINDOW`."""
     from aeropend_ident.greybox.fit import initial_state
 
+    rig = plant.rig
     x0 = initial_state(rig, data.theta, data.duty, data.dt, theta_offset)
     x0[THETA_DOT] = ch["theta_dot"][0] if "theta_dot" in ch else initial_velocity(data.theta, data.dt)
     if "omega_rotor" in ch or "omega_prop" in ch:
@@ -522,10 +531,10 @@ def _free_run_start(rig: Rig, data: Any, ch: dict[str, np.ndarray], theta_offset
         )
     if "i_a" in ch and rig.effects.armature_inductance == "dynamic":
         x0[I_A] = ch["i_a"][0]
-    return _refine_initial_state(rig, data, x0, theta_offset)
+    return _refine_initial_state(plant, data, x0, theta_offset)
 
 
-def _method_floor(rig: Rig, data: Any, ch: dict[str, np.ndarray], traj: Any, theta_free: np.ndarray,
+def _method_floor(model: PlantModel, data: Any, ch: dict[str, np.ndarray], traj: Any, theta_free: np.ndarray,
                   theta_offset: float, eqs: list[EquationCheck]) -> None:
     """Each checked equation's method floor (the same equation errors on the nominal simulation of
     this input: what the derivative filters alone leave on a perfect model) and its flag, in place."""
@@ -534,7 +543,7 @@ def _method_floor(rig: Rig, data: Any, ch: dict[str, np.ndarray], traj: Any, the
     sim_rate = sim_ch["theta_dot"] if "theta_dot" in sim_ch else measured_rate(theta_free, dt)
     n_eff = max(data.t.size / _sg_window(data.t.size, dt, 2.0 * SG_WINDOW), 1.0)
     for e, f in zip(
-        eqs, _equations(rig, theta_free, data.duty, dt, sim_ch, traj.x, theta_offset, sim_rate), strict=True
+        eqs, _equations(model, theta_free, data.duty, dt, sim_ch, traj.x, theta_offset, sim_rate), strict=True
     ):
         if e.checked:
             e.method_floor = f.rms
@@ -575,14 +584,15 @@ def locate_recording(
     ch = _grid(recording, data)
     dt = data.dt
     rate = measured_rate(data.theta, dt)
-    traj = _simulate(rig, data, _free_run_start(rig, data, ch, theta_offset))
+    plant = _plant(plant_model(rig), data)
+    traj = _simulate(plant, data, _free_run_start(plant, data, ch, theta_offset))
     states = traj.x
     theta_free = states[:, THETA] - theta_offset
     omega = ch.get("omega_rotor")
     if omega is None and "omega_prop" in ch:
         omega = ch["omega_prop"] * rig.motor.gear_ratio
     theta_rate = ch["theta_dot"] if "theta_dot" in ch else rate
-    theta_short = _short_horizon(rig, data, theta_rate, states, ch, theta_offset, horizon, omega)
+    theta_short = _short_horizon(plant, data, theta_rate, states, ch, theta_offset, horizon, omega)
     resid = theta_free - data.theta
     free = error_metrics(data.theta, theta_free)
     all_holds = constant_holds(data.t, data.duty, data.theta, theta_free, limit=100_000)
@@ -595,8 +605,8 @@ def locate_recording(
     regions = residual_regions(data.theta, data.duty, resid, dt, n_bins)
     regions["rate_bins"] = residual_bins(np.abs(rate), resid, n_bins, "rad/s")
     regions["short_horizon"] = residual_regions(data.theta, data.duty, theta_short - data.theta, dt, n_bins)
-    eqs = _equations(rig, data.theta, data.duty, dt, ch, states, theta_offset, theta_rate)
-    _method_floor(rig, data, ch, traj, theta_free, theta_offset, eqs)
+    eqs = _equations(plant.model, data.theta, data.duty, dt, ch, states, theta_offset, theta_rate)
+    _method_floor(plant.model, data, ch, traj, theta_free, theta_offset, eqs)
     pend = next(e for e in eqs if e.equation == "pendulum")
     if pend.residual is not None:
         regions["pendulum_equation"] = {

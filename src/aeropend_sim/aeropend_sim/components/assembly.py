@@ -229,12 +229,13 @@ class Assembly:
     """
 
     def __init__(self, family: str, values: Mapping[str, float], switches: Mapping[str, bool | str]) -> None:
-        self.family: Family = registry.family(family)
+        built = registry.resolved(family)
+        self.family: Family = built.family
         raw = dict(values)
-        active: list[Part] = list(registry.family_parts(family))
+        active: list[Part] = list(built.parts)
         effective = dict(raw)
         on_effects: list[Effect] = []
-        for eff in registry.family_effects(family):
+        for eff in built.effects:
             if effect_active(eff, switches.get(eff.name, eff.off), raw):
                 on_effects.append(eff)
             else:

@@ -26,6 +26,7 @@ import importlib
 import pkgutil
 import sys
 from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from functools import cache
 from importlib.metadata import entry_points
 from pathlib import Path
@@ -291,17 +292,51 @@ def legacy_switches() -> dict[str, tuple[str, ...]]:
     return {k: tuple(v) for k, v in out.items()}
 
 
+@dataclass(frozen=True)
+class Resolved:
+    """A family resolved against the registry once: what a rig of it is built of.
+
+    Attributes
+    ----------
+    family : Family
+    parts : tuple of Part
+        The family and the components of such a rig (its non-optional parts), by order.
+    effects : tuple of Effect
+        The effects that apply to it, by order.
+    params : dict
+        Its parameters (the parts' and the applicable effects'), key -> :class:`Param`.
+    """
+
+    family: Family
+    parts: tuple[Part, ...]
+    effects: tuple[Effect, ...]
+    params: dict[str, Param]
+
+
 @derived
+def resolved(name: str) -> Resolved:
+    """The family called ``name`` with its parts, effects and parameters (:class:`Resolved`): what
+    the model, the compiled source and the rig format read of a family, resolved once.
+
+    Raises
+    ------
+    RegistryError
+        If there is no such family (the message lists the families).
+    """
+    fam = family(name)
+    parts = tuple(sorted(_built(fam, components()), key=lambda p: (p.order, p.name)))
+    effs = tuple(e for e in effects() if e.applies_to(fam) is None)
+    return Resolved(fam, parts, effs, {par.key: par for p in (*parts, *effs) for par in p.params})
+
+
 def family_parts(name: str) -> tuple[Part, ...]:
     """The family and the components of a rig of family ``name`` (its non-optional parts), by order."""
-    return tuple(sorted(_built(family(name), components()), key=lambda p: (p.order, p.name)))
+    return resolved(name).parts
 
 
-@derived
 def family_effects(name: str) -> tuple[Effect, ...]:
     """The effects that apply to a rig of family ``name``, by order."""
-    fam = family(name)
-    return tuple(e for e in effects() if e.applies_to(fam) is None)
+    return resolved(name).effects
 
 
 @derived
@@ -348,10 +383,9 @@ def param(key: str) -> Param:
         raise RegistryError(f"no component or effect declares the parameter {key!r}") from None
 
 
-@derived
 def family_params(name: str) -> dict[str, Param]:
     """Parameters a rig of family ``name`` has (its parts' and applicable effects'), key -> Param."""
-    return {par.key: par for p in (*family_parts(name), *family_effects(name)) for par in p.params}
+    return resolved(name).params
 
 
 @derived

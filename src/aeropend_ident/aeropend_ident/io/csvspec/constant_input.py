@@ -43,8 +43,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from scipy.ndimage import median_filter
-from scipy.signal import find_peaks
 
 __all__ = ["MEDIAN_SAMPLES", "RANGE_FRACTION", "REST_TIME_S", "ConstantInputCheck", "check_constant_input",
            "driven_message", "excitation_problem"]
@@ -125,6 +123,9 @@ def _rest_then_moves(t: np.ndarray, th: np.ndarray, band: float, margin: float) 
 
 def _swing_grows(t: np.ndarray, th: np.ndarray, band: float, theta_f: float) -> tuple[float, str]:
     """Rule 2: a turning point farther from θ_f than an earlier one on the same side; (growth [rad], text)."""
+    # imported here, not with the module: scipy.signal costs every command 0.8 s to start
+    from scipy.signal import find_peaks
+
     worst = (0.0, 0, 0, 1)
     for side in (1, -1):
         x = np.clip(side * (th - theta_f), 0.0, None)
@@ -149,6 +150,8 @@ def _swing_grows(t: np.ndarray, th: np.ndarray, band: float, theta_f: float) -> 
 
 def _turns_short(t: np.ndarray, th: np.ndarray, band: float, theta_f: float) -> tuple[float, str]:
     """Rule 3: θ turns back before reaching the final angle; (shortfall [rad], text)."""
+    from scipy.signal import find_peaks
+
     worst = (0.0, 0, 1)
     for side in (1, -1):  # local maxima must lie above θ_f, local minima below
         peaks, _ = find_peaks(side * th, prominence=band)
@@ -183,6 +186,8 @@ def check_constant_input(t: np.ndarray, theta: np.ndarray) -> ConstantInputCheck
     ConstantInputCheck
         ``driven`` with the reason when a rule is violated.
     """
+    from scipy.ndimage import median_filter  # here, not with the module (as find_peaks)
+
     t = np.asarray(t, dtype=float)
     raw = np.asarray(theta, dtype=float)
     band = noise_band(raw)
