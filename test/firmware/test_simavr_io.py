@@ -56,6 +56,9 @@ SIM_S = 3.45
 MARGIN_US = 5000.0            # keep assertions away from event instants (sample vs Timer4 clock offset)
 
 pytestmark = [
+    # one worker builds and runs the emulated firmware once (its module fixtures were made again on
+    # every worker that got one of its tests)
+    pytest.mark.xdist_group("test_simavr_io"),
     pytest.mark.timeout(90),
     pytest.mark.skipif(
         shutil.which("avr-gcc") is None or not Path("/usr/include/simavr/sim_avr.h").is_file(),

@@ -28,6 +28,9 @@ F_CPU = 16_000_000
 PRESCALER = {0: 0, 1: 1, 2: 8, 3: 64, 4: 256, 5: 1024}  # CSn2:0 of Timer1/3/4/5
 
 pytestmark = [
+    # one worker builds and runs the emulated firmware once (its module fixtures were made again on
+    # every worker that got one of its tests)
+    pytest.mark.xdist_group("test_simavr_registers"),
     pytest.mark.timeout(60),
     pytest.mark.skipif(
         shutil.which("avr-gcc") is None or not Path("/usr/include/simavr/sim_avr.h").is_file(),

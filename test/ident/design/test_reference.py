@@ -21,6 +21,10 @@ from aeropend_ident.design.discriminate import design_discrimination, evidence
 from aeropend_ident.design.parameters import design_parameters
 from aeropend_ident.design.sequence import DesignError, Limits, check_limits
 
+#: One worker runs this module: its module fixture (a closed-loop design, 9 s) was made again on every
+#: worker that got one of its tests (docs/testing.md, Groups).
+pytestmark = pytest.mark.xdist_group("test_reference")
+
 DT = 0.02048  # 48.8 Hz: 10 truth samples
 SIGMA = {"theta": 3e-3}
 LIMITS = Limits(duty_min=0.0, duty_max=1.0, max_slew=1.0 / DT, theta_min=-0.2, theta_max=1.0, dt=DT)

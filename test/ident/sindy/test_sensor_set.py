@@ -22,6 +22,10 @@ from aeropend_sim.excitation import density_modulated_prbs
 from bench.fixtures import truth_plant as tp
 from bench.fixtures.truth_rig import lab_rig_doc, write_rig
 
+#: One worker runs this module: its module fixture (a 120 s truth run, 4.6 s) was made again on every
+#: worker that got one of its tests (docs/testing.md, Groups).
+pytestmark = pytest.mark.xdist_group("test_sensor_set")
+
 P = tp.PlantParams()
 #: The true pendulum equation from the truth plant's physical parameters.
 TRUE_PENDULUM = {"θ̇": -P.c_over_J, "sin(θ)": -P.mgd_over_J, "ω₁²": P.L_over_J * P.K_q * tp.GEAR**2}

@@ -42,6 +42,9 @@ def _start(cmd: list[str], env: dict[str, str]) -> subprocess.Popen:
     return subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+# real time: the check's command clause waits 0.5 s for the applied τ; beside the parallel suite on the
+# slower machine of 2026-11-30 the sim node's samples reached it up to 0.89 s late
+@pytest.mark.exclusive
 def test_passes_on_sim_node() -> None:
     env = isolated_env(random_domain(101, 200))
     sim = _start([*SIM, "--ros-args", "-p", "mode:=realtime"], env)

@@ -178,6 +178,9 @@ def index_firmware(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return build
 
 
+# real time: the emulated MCU must turn the rod to the index within 40 s; beside the parallel suite on the
+# slower machine of 2026-11-30 it ran at a tenth of real time (1 781 samples in 40 s) and never got there
+@pytest.mark.exclusive
 def test_bridge_holds_the_output_until_the_encoder_is_homed(index_firmware: Path, tmp_path: Path) -> None:
     """Until the encoder's index is seen θ is unknown: NaN on ``joint_states`` and τ held at 0 whatever
     the controller sends; from the index on θ is the angle from the rod's rest and τ flows."""
