@@ -152,22 +152,13 @@ def encoder_theta(t_s: np.ndarray) -> np.ndarray:
     return encoder_angle(SEGMENTS, t_s)
 
 
-#: Each build's emulator run and the harness binary, made once per worker process. Not module
-#: fixtures: a pytest-xdist worker that has not yet been handed the module's next test tears every
-#: fixture down after the current one, and the module's 5 tests × 4 builds made 11 runs (94 s)
-#: instead of 4 (tmp_path_factory's folders last until the process ends).
-_MADE: dict[str, object] = {}
-
-
-@pytest.fixture
+@pytest.fixture(scope="module")
 def harness(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    if "harness" not in _MADE:
-        build = tmp_path_factory.mktemp("escharness")
-        r = subprocess.run(["make", "-C", str(FW), f"BUILD={build}", "harness"], capture_output=True,
-                           text=True, timeout=120)
-        assert r.returncode == 0, r.stdout + r.stderr
-        _MADE["harness"] = build / "harness"
-    return _MADE["harness"]  # type: ignore[return-value]
+    build = tmp_path_factory.mktemp("escharness")
+    r = subprocess.run(["make", "-C", str(FW), f"BUILD={build}", "harness"], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stdout + r.stderr
+    return build / "harness"
 
 
 def _run(build: Build, harness: Path, tmp: Path) -> dict:
@@ -219,12 +210,10 @@ def _run(build: Build, harness: Path, tmp: Path) -> dict:
     return {"frames": frames, "t1": t1, "edges": edges, "rx": rx, "out": kv, "err": err, "link": link_state}
 
 
-@pytest.fixture(params=sorted(BUILDS))
+@pytest.fixture(scope="module", params=sorted(BUILDS))
 def run(request: pytest.FixtureRequest, harness: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple:
     build = BUILDS[request.param]
-    if build.name not in _MADE:
-        _MADE[build.name] = (build, _run(build, harness, tmp_path_factory.mktemp(build.name)))
-    return _MADE[build.name]  # type: ignore[return-value]
+    return build, _run(build, harness, tmp_path_factory.mktemp(build.name))
 
 
 def _pulses(res: dict) -> list[tuple[float, float]]:
