@@ -98,6 +98,9 @@ class FakeMcu:
         #: time.monotonic() of each watchdog trip (a trip after the host's last command is the
         #: firmware doing its job once the host has gone)
         self.trip_times: list[float] = []
+        #: the writer thread's largest lateness [s]: how long after its due time a frame went out (a
+        #: stalled pytest process or host; the plant in the loop runs the backlog on the duty it held)
+        self.max_lateness_s = 0.0
         self.done = threading.Event()
         self._master: int | None = None
         self._slave: int | None = None
@@ -251,6 +254,7 @@ class FakeMcu:
         due = k + 1
         if self.period_s > 0:
             now = time.monotonic()
+            self.max_lateness_s = max(self.max_lateness_s, now - t0 - k * self.period_s)
             if now - t0 - k * self.period_s > 0.5:
                 t0 = now - k * self.period_s  # re-anchor after a long stall
             due = max(due, int((now - t0) / self.period_s) + 1)
