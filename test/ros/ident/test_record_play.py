@@ -117,6 +117,8 @@ def _qos(bag: Path) -> dict[str, dict[str, object]]:
             for t in info["topics_with_message_count"]}
 
 
+@pytest.mark.exclusive  # real time: beside the parallel suite (clean-clone CI of 83d8c14, load 4 on 2 cores)
+# the 2.5 s replay reached the recorder over 5.26 s, its rate's 10 % missed by both processes' starvation
 def test_play_then_record_mcap_ros_args_sigint(tmp_path: Path) -> None:
     src, source_bag = _source(tmp_path)
     out = tmp_path / "recorded"

@@ -430,3 +430,48 @@ def wait_for_server(client: Client, executor: SingleThreadedExecutor, probe: obj
         client.remove_pending_request(future)
         lost += 1
     raise TimeoutError(f"{client.srv_name}: no probe answered within {timeout} s ({lost} lost)")
+
+
+#: Share of the machine's CPU time that the hypervisor gave to other guests ("steal" in
+#: ``/proc/stat``) during a real-time test above which a failure of that test says nothing about
+#: aeropend: its loop lost the CPU to the host, not to anything the test runs (docs/testing.md).
+STEAL_LIMIT = 0.02
+
+
+def cpu_times(stat_text: str | None = None) -> tuple[int, int] | None:
+    """CPU steal and total time of all CPUs, in clock ticks, from ``/proc/stat``.
+
+    Parameters
+    ----------
+    stat_text : str, optional
+        The file's text (default: read ``/proc/stat``).
+
+    Returns
+    -------
+    (steal, total) : tuple of int, or None
+        None where there is no such file or its ``cpu`` line lacks the steal field (Linux < 2.6.11,
+        other systems). ``total`` sums user, nice, system, idle, iowait, irq, softirq and steal (guest
+        time is already counted in user and nice).
+    """
+    if stat_text is None:
+        try:
+            with open("/proc/stat", encoding="ascii") as f:
+                stat_text = f.readline()
+        except OSError:
+            return None
+    fields = stat_text.split("\n", 1)[0].split()
+    if len(fields) < 9 or fields[0] != "cpu":
+        return None
+    try:
+        ticks = [int(v) for v in fields[1:9]]
+    except ValueError:
+        return None
+    return ticks[7], sum(ticks)
+
+
+def steal_share(before: tuple[int, int] | None, after: tuple[int, int] | None) -> float | None:
+    """Share [0, 1] of the CPU time between two :func:`cpu_times` readings that was stolen (None when
+    either reading is missing or no time passed)."""
+    if before is None or after is None or after[1] <= before[1]:
+        return None
+    return (after[0] - before[0]) / (after[1] - before[1])
