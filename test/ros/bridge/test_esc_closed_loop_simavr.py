@@ -41,10 +41,11 @@ The host's reply latency is the hardware path's own as well (the sample frame on
 bridge, the controller, the command on the UART: :func:`_host_latency`); the stand-in assumes the
 host answers well within a sample period, as it did on the idle machine (1.3 ms median). On the
 same machine later that day, its host busier, the replies took 2.9-8.5 ms and the hardware path
-departed by 5, 3 and 2 q (3 runs). A host that does not answer a sample within the sample period T_s is not
-running this 490 Hz loop in real time, so when the measured median is over T_s and the step
+departed by 5, 3 and 2 q (3 runs). A host that does not answer a sample within the sample period
+T_s is not running this 490 Hz loop in real time, so when the measured median is over T_s and the step
 misses a tolerance, the verdict is withheld (a skip that names the latency and every departure);
 a pass stays a pass, and a departure with the host answering in time stays a failure.
+
 The emulated encoder's disk is mounted with its counts centred on the rod's angles (harness ``-M
 0.5``: count = round(θ/q)), as aeropend's quantisation effect reads a sensor (q·round(θ/q)); a
 disk mounted at a count edge would read up to one count lower than the simulated sensor for one
