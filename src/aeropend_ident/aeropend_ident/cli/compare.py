@@ -30,15 +30,18 @@ import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from aeropend_ident.errors import CompareError, print_warnings_as_lines
-from aeropend_ident.gap.compare import MIN_HOLD, CompareResult, compare, load_model
-from aeropend_ident.greybox.replay import NRMSE_RULE, START_RULE, start_text
+from aeropend_ident.gap.holds import MIN_HOLD
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_ident.io.recording_input import ignored_channels, load_recording, split_preset
 from aeropend_ident.io.resampling import resampling_notes, uniform_recording
 from aeropend_sim.output_folder import claim_output_folder, exits_cleanly_on_faults
 from aeropend_sim.recording import RecordingError
+
+if TYPE_CHECKING:
+    from aeropend_ident.gap.compare import CompareResult
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,6 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def summary_table(result: CompareResult) -> str:
     """Plain-text table: one row per recording and rig, θ scores and the other channels' NRMSE."""
+    from aeropend_ident.greybox.replay import NRMSE_RULE, START_RULE, start_text
+
     head = (f"{'recording':<28} {'rig':<24} {'θ NRMSE':>8} {'fit %':>7} {'max err':>8} {'ss err':>8} "
             f"{'white':>5} {'u-corr':>6}  other channels (NRMSE)")
     rows = [head, "-" * len(head)]
@@ -130,6 +135,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run ``compare``; print the table; write the report folder."""
     args = build_parser().parse_args(argv)
     print_warnings_as_lines("compare")
+    from aeropend_ident.gap.compare import compare, load_model  # scipy: not for --help
+
     try:
         out = claim_output_folder(args.out, args.overwrite, looks_like="a compare report",
                                   own=[n.format("*") for n in REPORT_FILES.values()],

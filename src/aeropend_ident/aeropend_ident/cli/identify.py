@@ -25,7 +25,7 @@ from aeropend_ident.errors import (
 )
 from aeropend_ident.io.recording_input import split_preset
 from aeropend_ident.progress import reporter
-from aeropend_ident.sindy.identify import LIBRARIES, METHODS, OUTPUT_FILES, identify
+from aeropend_ident.sindy.choices import LIBRARIES, METHODS, OUTPUT_FILES
 from aeropend_sim.model import ModelError
 from aeropend_sim.output_folder import OutputFolderError, claim_output_folder, exits_cleanly_on_faults
 from aeropend_sim.params import RigFileError, load_rig
@@ -73,6 +73,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _run(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     """The command after parsing, with the progress callback of :func:`main`."""
+    from aeropend_ident.sindy.identify import identify  # pysindy and scikit-learn: not for --help
+
     try:
         out = claim_output_folder(args.out, args.overwrite, own=OUTPUT_FILES, looks_like="identify results",
                                   option="-o", inputs=[split_preset(x)[0] for x in args.inputs])

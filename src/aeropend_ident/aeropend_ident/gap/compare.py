@@ -42,6 +42,7 @@ import numpy as np
 
 from aeropend_ident.errors import CompareError, GapError, IdentificationError
 from aeropend_ident.gap.effects import MeasurementMap
+from aeropend_ident.gap.holds import MIN_HOLD
 from aeropend_ident.gap.residual_tests import input_cross_correlation, ljung_box
 from aeropend_ident.gap.which.data import FIT_CHANNELS, prepare
 from aeropend_ident.gap.which.metrics import duty_holds, step_info
@@ -50,8 +51,6 @@ from aeropend_ident.greybox.replay import FreeRun, free_run
 from aeropend_sim.params import Rig, RigFileError, load_rig, shipped_rigs
 from aeropend_sim.recording import Recording
 
-#: Shortest constant-duty hold used for steady-state errors and step metrics [s].
-MIN_HOLD = 1.0
 #: Savitzky-Golay window smoothing the recorded angle before step metrics [s].
 STEP_SMOOTHING = 0.05
 #: Units of the compared channels.

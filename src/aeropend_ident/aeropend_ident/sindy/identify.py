@@ -72,6 +72,7 @@ from aeropend_ident.io.csvspec.constant_input import excitation_problem
 from aeropend_ident.io.overlay_axes import diverges, hold_span
 from aeropend_ident.io.recording_input import TimingRange, ignored_channels, load_recording, timing_range
 from aeropend_ident.io.resampling import resampling_notes, uniform_recording
+from aeropend_ident.sindy.choices import LIBRARIES, METHODS, OUTPUT_FILES  # noqa: F401 (re-exported)
 from aeropend_ident.sindy.core import WEAK_IV, regression_problem, weak_iv_options
 from aeropend_ident.sindy.libraries import (
     CandidateLibrary,
@@ -105,16 +106,6 @@ from aeropend_sim.params import Rig
 from aeropend_sim.recording import Recording
 
 LAMBDAS = (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5)
-#: Candidate libraries of ``--library``: ``physics-structured`` (default: which variable may enter which
-#: equation, θ̈ in the second-order weak form from θ alone), ``structured`` (per-equation, every effect's
-#: terms), ``physics`` (one library of named physical terms for every equation), ``thesis`` /
-#: ``full`` (the thesis' unrestricted 31-term library, for discovery and discrepancy SINDy).
-#: The files every ``identify`` run writes into its results folder (the plots come on top; the
-#: command's ``--overwrite`` replaces only a folder that holds one of these).
-OUTPUT_FILES = ("model.yaml", "summary.json")
-LIBRARIES = ("physics-structured", "structured", "physics", "thesis", "full")
-#: Estimators of ``--method``.
-METHODS = ("weak", "weak-iv", "sindy", "ensemble")
 #: Fixed λ of weak-iv (its refinement passes make a sweep costly; the benchmark's value).
 WEAK_IV_THRESHOLD = WEAK_IV["threshold"]
 #: Fewest samples per recording (derivative windows, split, library fit).
