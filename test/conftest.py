@@ -55,6 +55,10 @@ def pytest_configure(config: pytest.Config) -> None:
         threadpool_limits(limits=1)
 
 
+#: (before, after) :func:`~aeropend_sim.ros.harness.cpu_times` readings around an exclusive test's call
+_STEAL = pytest.StashKey[tuple]()
+
+
 @pytest.hookimpl(wrapper=True)
 def pytest_runtest_call(item: pytest.Item) -> Iterator[None]:
     """Read the CPU steal around the call of a test marked ``exclusive`` (see the report hook)."""
@@ -67,9 +71,6 @@ def pytest_runtest_call(item: pytest.Item) -> Iterator[None]:
         return (yield)
     finally:
         item.stash[_STEAL] = (before, cpu_times())
-
-
-_STEAL = pytest.StashKey[tuple]()
 
 
 @pytest.hookimpl(wrapper=True)

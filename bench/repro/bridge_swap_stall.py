@@ -60,8 +60,9 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     tmp = Path(tempfile.mkdtemp(prefix="swap-stall-"))
     env = isolated_env(random_domain(101, 200))
-    mcu = FakeMcu(tmp / "tty", plant=PlantStepper(load_rig("thesis_rig")),
-                  calibration=Calibration.from_rig(load_rig("thesis_rig"), theta_offset=math.pi)).start()
+    rig = load_rig("thesis_rig")
+    mcu = FakeMcu(tmp / "tty", plant=PlantStepper(rig),
+                  calibration=Calibration.from_rig(rig, theta_offset=math.pi)).start()
     bridge = subprocess.Popen([*node_command("bridge", "aeropend_bridge.bridge_node"), "--ros-args",
                                "-p", f"port:={tmp / 'tty'}", "-p", f"theta_offset:={math.pi}"],
                               env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

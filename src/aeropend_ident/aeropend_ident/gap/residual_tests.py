@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 from scipy import signal, stats
 
+from aeropend_ident.gap.holds import MIN_HOLD
+
 #: Significance level of the Ljung-Box and cross-correlation tests.
 ALPHA = 0.01
 
@@ -340,7 +342,7 @@ def constant_holds(
     duty: np.ndarray,
     theta: np.ndarray,
     sim: np.ndarray,
-    min_hold: float = 1.0,
+    min_hold: float = MIN_HOLD,
     tail: float = 0.25,
     limit: int = 60,
 ) -> list[dict[str, Any]]:
