@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 import socket
 import tempfile
@@ -14,7 +16,15 @@ import pytest
 import yaml
 
 from aeropend_bridge.family import CommandMap, read_rig_hardware
-from aeropend_bridge.simavr_plant import REPLY, REQUEST, PlantProtocolError, PulsePlant, main, serve
+from aeropend_bridge.simavr_plant import (
+    REPLY,
+    REQUEST,
+    TRACE_COLUMNS,
+    PlantProtocolError,
+    PulsePlant,
+    main,
+    serve,
+)
 from aeropend_ident.cli.rig import main as rig_main
 from aeropend_sim.params import load_rig
 from aeropend_sim.simulation import PlantStepper
@@ -73,7 +83,9 @@ def test_serve_answers_a_harness_over_the_socket(esc_rig: Path) -> None:
     plant = PulsePlant(esc_rig, 1e-3)
     ready = threading.Event()
     result: list[int] = []
-    th = threading.Thread(target=lambda: result.append(serve(path, plant, lambda _: ready.set(), 10.0)))
+    trace = io.StringIO()
+    th = threading.Thread(target=lambda: result.append(serve(path, plant, lambda _: ready.set(), 10.0,
+                                                             trace)))
     th.start()
     assert ready.wait(10)
     thetas = []
@@ -88,6 +100,22 @@ def test_serve_answers_a_harness_over_the_socket(esc_rig: Path) -> None:
     th.join(10)
     assert result == [400] and not path.exists()
     assert np.all(np.diff(thetas[100:]) >= 0) and thetas[-1] > 0.01
+    # the trace: one row per exchange, what the harness sent and what went back
+    rows = list(csv.reader(io.StringIO(trace.getvalue())))
+    assert tuple(rows[0]) == TRACE_COLUMNS and len(rows) == 401
+    data = np.array(rows[1:], dtype=float)
+    assert np.array_equal(data[:, 0], np.arange(1, 401) * 1e-3) and np.all(data[:, 1] == 1.9e-3)
+    assert np.allclose(data[:, 2], (1.9e-3 - 1.1e-3) / 0.8e-3) and np.array_equal(data[:, 3], thetas)
+
+
+def test_main_never_overwrites_a_trace(esc_rig: Path, tmp_path: Path,
+                                       capsys: pytest.CaptureFixture[str]) -> None:
+    mine = tmp_path / "trace.csv"
+    mine.write_text("my run\n")
+    sock = str(tmp_path / "p.sock")
+    assert main([str(esc_rig), sock, "--trace", str(mine), "--accept-timeout", "0.1"]) == 2
+    assert f"cannot create the trace {mine}: File exists" in capsys.readouterr().err
+    assert mine.read_text() == "my run\n"
 
 
 def test_main_refuses_a_rig_without_an_esc(capsys: pytest.CaptureFixture[str]) -> None:

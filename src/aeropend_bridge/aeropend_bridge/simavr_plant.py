@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import csv
 import dataclasses
 import math
 import os
@@ -33,7 +34,7 @@ import struct
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, TextIO
 
 import numpy as np
 
@@ -45,6 +46,9 @@ from aeropend_sim.simulation import PlantStepper
 REQUEST = struct.Struct("=dd")
 #: Plant → harness record: θ [rad].
 REPLY = struct.Struct("=d")
+#: Columns of the exchange trace (``--trace``): MCU time [s], pulse width [s], τ held from then [1],
+#: θ sent back [rad].
+TRACE_COLUMNS = ("t_s", "pulse_s", "tau", "theta_rad")
 #: Default exchange interval [s] (the harness's ``-Q 1000``).
 DEFAULT_INTERVAL_S = 1.0e-3
 
@@ -145,7 +149,7 @@ class PulsePlant:
 
 
 def serve(path: str | Path, plant: PulsePlant, on_listen: Callable[[str], None] | None = None,
-          accept_timeout_s: float = 60.0) -> int:
+          accept_timeout_s: float = 60.0, trace: TextIO | None = None) -> int:
     """Serve one harness on the Unix stream socket ``path`` until it closes the connection.
 
     Parameters
@@ -157,6 +161,9 @@ def serve(path: str | Path, plant: PulsePlant, on_listen: Callable[[str], None] 
         Called with ``path`` once the socket listens (e.g. to print a ready line).
     accept_timeout_s : float
         How long [s] to wait for the harness to connect.
+    trace : text file, optional
+        Receives one CSV row per exchange (:data:`TRACE_COLUMNS`: MCU time [s], pulse width [s], the
+        τ it holds [1], θ sent back [rad]) after a header row.
 
     Returns
     -------
@@ -186,6 +193,9 @@ def serve(path: str | Path, plant: PulsePlant, on_listen: Callable[[str], None] 
             on_listen(path)
         conn, _ = srv.accept()
         conn.settimeout(None)
+        rows = csv.writer(trace) if trace is not None else None
+        if rows is not None:
+            rows.writerow(TRACE_COLUMNS)
         with conn:
             rfile = conn.makefile("rb", buffering=0)
             while True:
@@ -193,7 +203,10 @@ def serve(path: str | Path, plant: PulsePlant, on_listen: Callable[[str], None] 
                 if buf is None:
                     return plant.exchanges
                 t_s, pulse_s = REQUEST.unpack(buf)
-                conn.sendall(REPLY.pack(plant.exchange(t_s, pulse_s)))
+                theta = plant.exchange(t_s, pulse_s)
+                conn.sendall(REPLY.pack(theta))
+                if rows is not None:
+                    rows.writerow((repr(t_s), repr(pulse_s), repr(plant.tau), repr(theta)))
     finally:
         srv.close()
         with contextlib.suppress(FileNotFoundError):
@@ -215,8 +228,9 @@ def main(argv: list[str] | None = None) -> int:
     """Command line: ``python -m aeropend_bridge.simavr_plant RIG SOCKET [--interval S]``.
 
     Prints ``LISTENING <socket>`` once the harness may connect and ``PLANT exchanges=<n> t=<s>
-    theta=<rad> tau_max=<1>`` when it has disconnected. Exit status 0, 2 on a bad rig or argument,
-    1 on a protocol error.
+    theta=<rad> tau_max=<1>`` when it has disconnected; ``--trace CSV`` writes every exchange to a new
+    file. Exit status 0, 2 on a bad rig, argument or trace path (an existing file is never
+    overwritten), 1 on a protocol error.
     """
     ap = argparse.ArgumentParser(prog="python -m aeropend_bridge.simavr_plant",
                                  description="Serve a rig file's simulated plant to the simavr harness "
@@ -226,17 +240,26 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--interval", type=float, default=DEFAULT_INTERVAL_S,
                     help="exchange interval [s], the harness's -Q in seconds (default 0.001)")
     ap.add_argument("--accept-timeout", type=float, default=60.0, help="wait for the harness [s]")
+    ap.add_argument("--trace", metavar="CSV", type=Path,
+                    help="write one row per exchange (t_s, pulse_s, tau, theta_rad) to this new file")
     args = ap.parse_args(argv)
     try:
         plant = PulsePlant(args.rig, args.interval)
     except (OSError, ValueError) as exc:
         print(f"simavr_plant: {exc}", file=sys.stderr)
         return 2
-    try:
-        serve(args.socket, plant, lambda p: print(f"LISTENING {p}", flush=True), args.accept_timeout)
-    except (PlantProtocolError, TimeoutError, FileExistsError) as exc:
-        print(f"simavr_plant: {exc}", file=sys.stderr)
-        return 1
+    with contextlib.ExitStack() as stack:
+        try:  # "x": a trace never overwrites a file
+            trace = stack.enter_context(args.trace.open("x", newline="")) if args.trace else None
+        except OSError as exc:
+            print(f"simavr_plant: cannot create the trace {args.trace}: {exc.strerror}", file=sys.stderr)
+            return 2
+        try:
+            serve(args.socket, plant, lambda p: print(f"LISTENING {p}", flush=True), args.accept_timeout,
+                  trace)
+        except (PlantProtocolError, TimeoutError, FileExistsError) as exc:
+            print(f"simavr_plant: {exc}", file=sys.stderr)
+            return 1
     print(f"PLANT exchanges={plant.exchanges} t={plant.t:.6f} theta={plant.theta:.6f} "
           f"tau_max={plant.tau_max:.4f}", flush=True)
     return 0
