@@ -81,6 +81,14 @@
  *                   floor(theta * cpr / 2pi + M)) instead of the event file's enc segments. MCU time
  *                   stands still while the plant computes. On exit "PLANT <exchanges> <max lag
  *                   counts>" on stdout; a plant that closes the socket ends the run ("PLANTLOST").
+ *   -H US           host lock-step: once the host has answered each of the MCU's last LINK_HOLD_STREAK
+ *                   sample frames (a DUTY or PULSE frame from the host after each), MCU time stands
+ *                   still US microseconds after the MCU's next sample frame until the host's answer
+ *                   has come (at most LINK_HOLD_MAX_US of wall-clock time: a host that stopped
+ *                   answering lets the MCU run on). With US shorter than the sample period less the
+ *                   frame's and the answer's bytes, every answer reaches the firmware before its
+ *                   next tick, as from a host that is never late; without -H the answers come when
+ *                   the host's scheduler delivers them. On exit "HOLDS <holds> <timeouts>" on stdout.
  *   -M COUNTS       where the emulated encoder's disk is mounted (default 0: count k spans
  *                   [k, k + 1) q from the rod's rest, the count floors the angle; 0.5: count k is
  *                   centred on k q, the count rounds it as aeropend's quantisation effect does)
@@ -118,6 +126,13 @@
 #define RXEN0_BIT 4
 #define LINK_BYTE_CYCLES 352 /* 22 us: simavr's USART byte time at 500 kbaud */
 #define LINK_IO_CYCLES 1408  /* 88 us */
+#define LINK_HOLD_MAX_US 10000 /* -H: the longest MCU time stands still for one answer [us, wall] */
+#define LINK_HOLD_STREAK 8     /* -H: sample frames answered in a row before MCU time waits for answers */
+/* frame types (firmware/src/protocol.h): the byte after a frame's COBS code byte */
+#define LINK_T_SAMPLE 0x01
+#define LINK_T_SAMPLE_PULSE 0x04
+#define LINK_T_DUTY 0x10
+#define LINK_T_PULSE 0x14
 
 typedef struct {
     int fd;    /* pty master, non-blocking */
@@ -129,6 +144,14 @@ typedef struct {
     unsigned long out_dropped;  /* bytes the ring could not take (never expected) */
     uint8_t in[512];            /* host bytes read from the pty, not yet given to the UART */
     size_t in_len, in_done;
+    /* -H host lock-step: hold_cycles (0: off); the byte position in the current MCU / host frame and
+     * its type; a host DUTY/PULSE frame read since the MCU's last sample frame; a sample frame
+     * ended (set by the UART callback, handled in link_service); the armed hold and its cycle */
+    avr_cycle_count_t hold_cycles, hold_at;
+    unsigned out_pos, in_pos;
+    uint8_t out_type, in_type;
+    int answered, sample_out, hold_armed, streak;
+    unsigned long holds, hold_timeouts;
     int xoff;                   /* the UART's input FIFO is full */
     avr_irq_t *rx;              /* UART_IRQ_INPUT */
     avr_cycle_count_t next_feed, next_io;
@@ -462,6 +485,13 @@ static void on_link_out(struct avr_irq_t *irq, uint32_t value, void *param)
     }
     l->out[(l->out_head + l->out_len) % LINK_OUT_SIZE] = (uint8_t)value;
     l->out_len++;
+    if (value == 0) { /* a frame's delimiter: link_service arms the -H hold after a sample frame */
+        if (l->out_type == LINK_T_SAMPLE || l->out_type == LINK_T_SAMPLE_PULSE)
+            l->sample_out = 1;
+        l->out_pos = 0;
+    } else if (l->out_pos++ == 1) {
+        l->out_type = (uint8_t)value;
+    }
 }
 
 static void on_link_xoff(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -528,23 +558,76 @@ static void link_write(link_t *l)
     }
 }
 
+/* Read what the host has sent (non-blocking) behind the bytes not yet given to the UART, and note
+ * a whole DUTY or PULSE frame among them (-H: the host's answer). */
+static void link_read(link_t *l)
+{
+    if (l->in_done == l->in_len)
+        l->in_done = l->in_len = 0;
+    if (l->in_len == sizeof l->in)
+        return;
+    ssize_t r = read(l->fd, l->in + l->in_len, sizeof l->in - l->in_len);
+    for (ssize_t i = 0; i < r; i++) {
+        uint8_t b = l->in[l->in_len + (size_t)i];
+        if (b == 0) {
+            if (l->in_type == LINK_T_DUTY || l->in_type == LINK_T_PULSE)
+                l->answered = 1;
+            l->in_pos = 0;
+        } else if (l->in_pos++ == 1) {
+            l->in_type = b;
+        }
+    }
+    if (r > 0)
+        l->in_len += (size_t)r;
+}
+
 /* Called after every avr_run() step, in the emulation thread. */
 static void link_service(link_t *l, avr_t *avr)
 {
+    if (l->sample_out) { /* -H: hold after this sample frame only while the host answers every one */
+        l->sample_out = 0;
+        l->streak = l->answered ? l->streak + 1 : 0;
+        l->hold_armed = l->hold_cycles && l->streak >= LINK_HOLD_STREAK;
+        l->hold_at = avr->cycle + l->hold_cycles;
+        l->answered = 0;
+    }
     if (avr->cycle >= l->next_io) {
         l->next_io = avr->cycle + LINK_IO_CYCLES;
         link_write(l);
-        if (l->in_done == l->in_len) {
-            ssize_t r = read(l->fd, l->in, sizeof l->in);
-            l->in_len = r > 0 ? (size_t)r : 0;
-            l->in_done = 0;
-        }
+        link_read(l);
     }
     /* a byte sent before the firmware enabled its receiver waits (the UART would drop it) */
     if (avr->cycle >= l->next_feed && l->in_done < l->in_len && !l->xoff &&
         (avr->data[UCSR0B_ADDR] & (1 << RXEN0_BIT))) {
         avr_raise_irq(l->rx, l->in[l->in_done++]);
         l->next_feed = avr->cycle + LINK_BYTE_CYCLES;
+    }
+}
+
+/* -H: at the armed cycle, while the host has not answered the MCU's last sample frame, let
+ * wall-clock time pass (MCU time stands still), at most LINK_HOLD_MAX_US. */
+static void link_hold(link_t *l, avr_t *avr)
+{
+    if (!l->hold_armed || avr->cycle < l->hold_at)
+        return;
+    l->hold_armed = 0;
+    link_write(l);
+    link_read(l);
+    if (l->answered)
+        return;
+    l->holds++;
+    const struct timespec tick = {0, 20000}; /* 20 us */
+    struct timespec t0, now;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    while (!l->answered && !stop) {
+        clock_gettime(CLOCK_MONOTONIC, &now);
+        if ((now.tv_sec - t0.tv_sec) * 1000000L + (now.tv_nsec - t0.tv_nsec) / 1000L >= LINK_HOLD_MAX_US) {
+            l->hold_timeouts++;
+            return;
+        }
+        nanosleep(&tick, NULL);
+        link_write(l);
+        link_read(l);
     }
 }
 
@@ -649,7 +732,7 @@ int main(int argc, char **argv)
     const char *pos[6] = {0};
     int npos = 0;
     const char *events = NULL, *pulses = NULL, *plant = NULL;
-    double plant_us = 1000.0, enc_mount = 0.0;
+    double plant_us = 1000.0, enc_mount = 0.0, hold_us = 0.0;
     int dump_regs = 0;
     for (int i = 1; i < argc; i++) {
         if (strcmp(argv[i], "-e") == 0 && i + 1 < argc)
@@ -662,13 +745,15 @@ int main(int argc, char **argv)
             plant_us = atof(argv[++i]);
         else if (strcmp(argv[i], "-M") == 0 && i + 1 < argc)
             enc_mount = atof(argv[++i]);
+        else if (strcmp(argv[i], "-H") == 0 && i + 1 < argc)
+            hold_us = atof(argv[++i]);
         else if (strcmp(argv[i], "-r") == 0)
             dump_regs = 1;
         else if (npos < 6)
             pos[npos++] = argv[i];
     }
     if (npos < 1) {
-        fprintf(stderr, "usage: %s firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events] [-p pulses] [-P socket [-Q us] [-M counts]] [-r]\n",
+        fprintf(stderr, "usage: %s firmware.elf [cycles [A0_mV A1_mV A2_mV A3_mV]] [-e events] [-p pulses] [-P socket [-Q us] [-M counts]] [-H us] [-r]\n",
                 argv[0]);
         return 2;
     }
@@ -729,6 +814,7 @@ int main(int argc, char **argv)
     static link_t link;
     if (link_open(&link, avr) != 0)
         return 2;
+    link.hold_cycles = (avr_cycle_count_t)(hold_us * (avr->frequency / 1e6) + 0.5);
 
     unsigned long long max_cycles = npos > 1 ? strtoull(pos[1], NULL, 10) : 0;
     int mv[4] = {500, 1000, 2500, 1250};
@@ -747,6 +833,7 @@ int main(int argc, char **argv)
            (max_cycles == 0 || avr->cycle < max_cycles)) {
         state = avr_run(avr);
         link_service(&link, avr);
+        link_hold(&link, avr);
         link_wait_below_high(&link);
     }
     link_flush(&link, 10000);
@@ -762,6 +849,8 @@ int main(int argc, char **argv)
         printf("INDEX %ld\n", s.index_edges);
     if (plant)
         printf("PLANT %lu %ld\n", s.plant_exchanges, s.enc_max_lag);
+    if (link.hold_cycles)
+        printf("HOLDS %lu %lu\n", link.holds, link.hold_timeouts);
     if (s.plog)
         fclose(s.plog);
     if (s.reads) /* ns; CLK rising edges per read-out (min max) */

@@ -552,7 +552,12 @@ class BridgeNode(LifecycleNode):
         """Every keep-alive period: the current duty (active), or duty 0 while configured but
         inactive, so the firmware's 250 ms command watchdog stays quiet as long as the bridge lives
         (it tripped between the duty 0 sent on connect and activation when configure → activate
-        took longer than 250 ms: ``bench/repro/firmware_watchdog_trip.py``)."""
+        took longer than 250 ms: ``bench/repro/firmware_watchdog_trip.py``).
+
+        While active it fills silence only: when that duty went out within the last period (the
+        controller's commands are flowing), nothing is sent. A repeat between two commands tells
+        the firmware nothing new, and an emulated MCU that waits for the host's answer to each
+        sample (simavr harness ``-H``) would take it for the answer."""
         if not self._active:
             self._send_duty(0.0)
             return
@@ -563,6 +568,8 @@ class BridgeNode(LifecycleNode):
             self.get_logger().warn(
                 f"no valid duty command for {self.command_timeout_s:g} s: duty -> 0 "
                 f"(watchdog trips so far: {self.watchdog.trips})")
+        elif duty == self._last_sent and now - self._last_send_ns < self.keepalive_s * 1e9:
+            return
         self._send_duty(duty)
 
     # ------------------------------------------------------------------ diagnostics
