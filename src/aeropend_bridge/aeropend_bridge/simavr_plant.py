@@ -225,7 +225,7 @@ def _read_exact(f: BinaryIO, n: int) -> bytes | None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Command line: ``python -m aeropend_bridge.simavr_plant RIG SOCKET [--interval S]``.
+    """Command line: ``python -m aeropend_bridge.simavr_plant RIG SOCKET [--interval S] [--trace CSV]``.
 
     Prints ``LISTENING <socket>`` once the harness may connect and ``PLANT exchanges=<n> t=<s>
     theta=<rad> tau_max=<1>`` when it has disconnected; ``--trace CSV`` writes every exchange to a new

@@ -313,8 +313,11 @@ def test_esc_firmware_closed_loop_matches_the_simulated_graph(firmware: Path, tm
           f"answer {holds} times, {timeouts} over {HOLD_MAX_S * 1e3:.0f} ms; the plant's exchanges "
           f"(t, pulse, τ, θ): {tmp_path / 'hw_plant_trace.csv'}")
     failed = _departures(hw, sim, ts_t, th_sim, diff, th_t[grid][k_max])
-    if failed and timeouts:
-        pytest.skip(f"verdict withheld: the host did not answer {timeouts} sample(s) within "
+    # one wait over the cap is the end of the run (the sample after the controller's last answer); more
+    # are samples of the run the host did not answer in time
+    late = timeouts - 1
+    if failed and late > 0:
+        pytest.skip(f"verdict withheld: the host did not answer {late} sample(s) within "
                     f"{HOLD_MAX_S * 1e3:.0f} ms of wall-clock time, so the MCU ran on without the answer "
                     f"(harness -H): the loop this comparison assumes did not run; {'; '.join(failed)}")
     assert not failed, "; ".join(failed)
