@@ -475,6 +475,19 @@ static avr_cycle_count_t plant_timer(avr_t *avr, avr_cycle_count_t when, void *p
 }
 
 /* ------------------------------------------------------------------ host link (pty) */
+/* Follow one byte of a COBS-framed stream (firmware/PROTOCOL.md): its position in the frame and the
+ * frame's type (the byte after the code byte). 1 at the 0x00 that ends a frame of type *type. */
+static int frame_byte(uint8_t b, unsigned *pos, uint8_t *type)
+{
+    if (b == 0) {
+        *pos = 0;
+        return 1;
+    }
+    if ((*pos)++ == 1)
+        *type = b;
+    return 0;
+}
+
 static void on_link_out(struct avr_irq_t *irq, uint32_t value, void *param)
 {
     (void)irq;
@@ -485,13 +498,10 @@ static void on_link_out(struct avr_irq_t *irq, uint32_t value, void *param)
     }
     l->out[(l->out_head + l->out_len) % LINK_OUT_SIZE] = (uint8_t)value;
     l->out_len++;
-    if (value == 0) { /* a frame's delimiter: link_service arms the -H hold after a sample frame */
-        if (l->out_type == LINK_T_SAMPLE || l->out_type == LINK_T_SAMPLE_PULSE)
-            l->sample_out = 1;
-        l->out_pos = 0;
-    } else if (l->out_pos++ == 1) {
-        l->out_type = (uint8_t)value;
-    }
+    /* a sample frame's delimiter: link_service arms the -H hold */
+    if (frame_byte((uint8_t)value, &l->out_pos, &l->out_type) &&
+        (l->out_type == LINK_T_SAMPLE || l->out_type == LINK_T_SAMPLE_PULSE))
+        l->sample_out = 1;
 }
 
 static void on_link_xoff(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -567,16 +577,10 @@ static void link_read(link_t *l)
     if (l->in_len == sizeof l->in)
         return;
     ssize_t r = read(l->fd, l->in + l->in_len, sizeof l->in - l->in_len);
-    for (ssize_t i = 0; i < r; i++) {
-        uint8_t b = l->in[l->in_len + (size_t)i];
-        if (b == 0) {
-            if (l->in_type == LINK_T_DUTY || l->in_type == LINK_T_PULSE)
-                l->answered = 1;
-            l->in_pos = 0;
-        } else if (l->in_pos++ == 1) {
-            l->in_type = b;
-        }
-    }
+    for (ssize_t i = 0; i < r; i++)
+        if (frame_byte(l->in[l->in_len + (size_t)i], &l->in_pos, &l->in_type) &&
+            (l->in_type == LINK_T_DUTY || l->in_type == LINK_T_PULSE))
+            l->answered = 1;
     if (r > 0)
         l->in_len += (size_t)r;
 }

@@ -72,7 +72,7 @@ from aeropend_ident.io.csvspec.constant_input import excitation_problem
 from aeropend_ident.io.overlay_axes import diverges, hold_span
 from aeropend_ident.io.recording_input import TimingRange, ignored_channels, load_recording, timing_range
 from aeropend_ident.io.resampling import resampling_notes, uniform_recording
-from aeropend_ident.sindy.choices import LIBRARIES, METHODS, OUTPUT_FILES  # noqa: F401 (re-exported)
+from aeropend_ident.sindy.choices import METHODS, OUTPUT_FILES
 from aeropend_ident.sindy.core import WEAK_IV, regression_problem, weak_iv_options
 from aeropend_ident.sindy.libraries import (
     CandidateLibrary,
@@ -621,9 +621,10 @@ def identify(
         Fixed STLSQ threshold λ (no sweep); default: λ by BIC over :data:`LAMBDAS` (weak-iv:
         :data:`WEAK_IV_THRESHOLD`).
     library : str
-        One of :data:`LIBRARIES` (full-state path). ``"physics-structured"``: θ̈ from the angle
-        alone in the second-order weak form (:func:`aeropend_ident.sindy.second_order.fit_pendulum`: λ by
-        BIC, terms pruned by the validation free run), di_a/dt and dω₁/dt from their physical
+        One of :data:`~aeropend_ident.sindy.choices.LIBRARIES` (full-state path).
+        ``"physics-structured"``: θ̈ from the angle alone in the second-order weak form
+        (:func:`aeropend_ident.sindy.second_order.fit_pendulum`: λ by BIC, terms pruned by the
+        validation free run), di_a/dt and dω₁/dt from their physical
         terms with ``method``.
     output_error : bool
         Full-state path: re-estimate the selected terms of di_a/dt and dω₁/dt by output-error
