@@ -75,6 +75,26 @@ def test_predicted_metrics_are_python_control_step_info() -> None:
     assert d.predicted.meets(TABLE_6_1) and d.predicted.meets(GOAL)
 
 
+def test_step_samples_are_python_control_step_response() -> None:
+    """The doubling of the exact discretisation gives python-control's samples (its per-sample loop
+    was half of ``design_gains``' time): a transfer function, a lightly damped state-space loop with
+    a feedthrough, a stiff one at 0.1 ms and an unstable one."""
+    import control
+
+    from aeropend_control.design import step_samples
+    loops = [(control.tf([729.0], [1.0, 21.6, 194.4, 729.0]), 1e-3, 5001),
+             (control.ss([[0.0, 1.0], [-400.0, -0.8]], [[0.0], [400.0]], [[1.0, 0.0]], [[0.25]]), 1e-3, 3001),
+             (control.tf([5e4], [1.0, 300.0, 2.2e4, 5e4]), 1e-4, 5001),
+             (control.tf([1.0], [1.0, -0.5]), 1e-3, 2001)]
+    for sys, dt, n in loops:
+        _, want = control.step_response(sys, np.arange(n) * dt)
+        want = np.asarray(want).ravel()
+        got = step_samples(sys, n, dt)
+        assert got.shape == (n,)
+        assert np.max(np.abs(got - want)) <= 1e-9 * np.max(np.abs(want)), sys
+    assert step_samples(control.tf([2.0], [1.0, 2.0]), 1, 1e-3).tolist() == [0.0]
+
+
 def _ideal_thrust_accel(model: PlantModel, theta: float, theta_dot: float, f: float) -> float:
     """θ̈ of the nominal model's pendulum equation with thrust f applied ideally."""
     w1 = model.n * math.copysign(abs(f / model.K_q) ** (1.0 / model.alpha), f)

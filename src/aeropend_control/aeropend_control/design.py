@@ -149,12 +149,57 @@ def _closed_loop_2nd(
     return control.tf([g * ki], [1.0, a1 + g * kd, a0 + g * kp, g * ki])
 
 
-def predict_step(sys: control.LTI, horizon: float = 5.0, dt: float = 1e-3) -> StepMetrics:
-    """Unit-step metrics (:func:`aeropend_control.metrics.step_metrics`) of a linear loop r → θ."""
+def step_samples(sys: control.LTI, n: int, dt: float) -> np.ndarray:
+    """Unit-step response of a continuous SISO loop at t = k·dt, k = 0 … n − 1, from rest.
+
+    The same samples as :func:`control.step_response` (its state-space realisation, zero initial
+    state, y(0) = D), computed without its per-sample Python loop: a constant input makes the
+    zero-order-hold discretisation exact, z[k+1] = E·z[k] with z = [x; u], u = 1 and
+    E = expm([[A, B], [0, 0]]·dt) (Van Loan's block exponential, :func:`scipy.linalg.expm`), and
+    the samples are filled by doubling, z[m … 2m − 1] = E^m·z[0 … m − 1] with E^m by repeated
+    squaring: 13 matrix products for 5 001 samples instead of 5 000 steps (python-control's loop
+    took 34 ms per 5 s response at 1 ms, half of ``design_gains``' time). The samples agree with
+    python-control's to rounding (``test_design.py`` checks 1e-9 relative).
+
+    Parameters
+    ----------
+    sys : control.LTI
+        Continuous-time single-input single-output loop (transfer function or state space).
+    n : int
+        Number of samples (≥ 1).
+    dt : float
+        Sample period [s] (> 0).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        y(k·dt) for a unit step of the input at t = 0.
+    """
     import control
+    from scipy.linalg import expm
+    s = control.ss(sys)
+    a, b, c, d = (np.atleast_2d(np.asarray(m, dtype=float)) for m in (s.A, s.B, s.C, s.D))
+    nx = a.shape[0]
+    block = np.zeros((nx + 1, nx + 1))
+    block[:nx, :nx] = a
+    block[:nx, nx:] = b[:, :1]
+    e = expm(block * dt)
+    z = np.zeros((nx + 1, n))
+    z[nx, 0] = 1.0
+    m, power = 1, e
+    while m < n:
+        k = min(m, n - m)
+        z[:, m:m + k] = power @ z[:, :k]
+        m += k
+        power = power @ power
+    return (c[:1] @ z[:nx]).ravel() + d[0, 0]
+
+
+def predict_step(sys: control.LTI, horizon: float = 5.0, dt: float = 1e-3) -> StepMetrics:
+    """Unit-step metrics (:func:`aeropend_control.metrics.step_metrics`) of a linear loop r → θ,
+    sampled every ``dt`` [s] over ``horizon`` [s] (:func:`step_samples`)."""
     t = np.arange(0.0, horizon + dt / 2, dt)
-    _, y = control.step_response(sys, t)
-    return step_metrics(t, np.asarray(y).ravel(), 1.0)
+    return step_metrics(t, step_samples(sys, t.size, dt), 1.0)
 
 
 def design_fl(rig: Rig, spec: PoleSpec | None = None, cancel_damping: bool = True) -> LoopDesign:
