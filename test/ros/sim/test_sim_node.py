@@ -199,7 +199,15 @@ def test_realtime_rate_and_stamps(domain):
     # JointState and BatteryState of one sample carry the identical stamp
     matched = [s for s in stamps if s in c.arm]
     assert len(matched) >= 0.98 * stamps.size
-    assert set(c.arm) <= set(stamps.tolist()) | {int(stamps[0]) - PERIOD_NS, int(stamps[-1]) + PERIOD_NS}
+    # a BatteryState whose JointState was lost on the way (best effort: the 5 % above) carries that
+    # lost sample's stamp, on the grid and inside the window (one period either side: the pair's
+    # other half fell outside it). Fresh-clone CI of 1f6a0e9: 7 JointStates lost, their
+    # BatteryStates received; an exact subset check failed on them.
+    first, last = int(stamps[0]), int(stamps[-1])
+    lone = sorted(set(c.arm) - set(stamps.tolist()))
+    off = [s for s in lone
+           if not (first - PERIOD_NS <= s <= last + PERIOD_NS and (s - first) % PERIOD_NS == 0)]
+    assert not off, f"BatteryState stamps of no sample: {off[:5]} (grid {first} + k·{PERIOD_NS} ns)"
     # clean shutdown on SIGTERM, summary logged
     assert status == 0, err
     assert "Traceback" not in err

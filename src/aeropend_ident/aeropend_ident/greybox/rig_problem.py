@@ -127,12 +127,20 @@ class BalanceBlock(Block):
 
     def residual(self, rig: Rig, nuis: Sequence[float]) -> np.ndarray:
         model = plant_model(rig)
+        # τ(θ) by angle: every command's root search starts from the bracket's ends 0 and `top`,
+        # whose holding commands are the lo and hi below (a fifth of the solves, each a root search
+        # of its own inside PlantModel.equilibrium)
+        known: dict[float, float] = {}
 
         def tau(theta: float) -> float:
+            if theta in known:
+                return known[theta]
             try:
-                return float(model.equilibrium(theta)[1])
+                value = float(model.equilibrium(theta)[1])
             except (ModelError, ValueError, ZeroDivisionError, OverflowError):
-                return math.inf
+                value = math.inf
+            known[theta] = value
+            return value
 
         top = THETA_CAP if math.isfinite(tau(THETA_CAP)) else _last_finite(tau)
         lo, hi = tau(0.0), tau(top)
