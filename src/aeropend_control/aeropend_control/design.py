@@ -158,8 +158,9 @@ def step_samples(sys: control.LTI, n: int, dt: float) -> np.ndarray:
     E = expm([[A, B], [0, 0]]·dt) (Van Loan's block exponential, :func:`scipy.linalg.expm`), and
     the samples are filled by doubling, z[m … 2m − 1] = E^m·z[0 … m − 1] with E^m by repeated
     squaring: 13 matrix products for 5 001 samples instead of 5 000 steps (python-control's loop
-    took 34 ms per 5 s response at 1 ms, half of ``design_gains``' time). The samples agree with
-    python-control's to rounding (``test_design.py`` checks 1e-9 relative).
+    took 17-46 ms per 5 s response at 1 ms, half of ``design_gains``' time on a ``rig new`` rig
+    file; this 0.2-0.4 ms, ``bench/results/step_response.json``). The samples agree with
+    python-control's to rounding (``test/control/test_strategies.py`` checks 1e-9 relative).
 
     Parameters
     ----------

@@ -128,8 +128,8 @@ class BalanceBlock(Block):
     def residual(self, rig: Rig, nuis: Sequence[float]) -> np.ndarray:
         model = plant_model(rig)
         # τ(θ) by angle: every command's root search starts from the bracket's ends 0 and `top`,
-        # whose holding commands are the lo and hi below (a fifth of the solves, each a root search
-        # of its own inside PlantModel.equilibrium)
+        # whose holding commands are the lo and hi below (10-22 % of the solves on the shipped rigs,
+        # each a root search of its own inside PlantModel.equilibrium)
         known: dict[float, float] = {}
 
         def tau(theta: float) -> float:
