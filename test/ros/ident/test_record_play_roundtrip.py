@@ -134,6 +134,9 @@ def _replay_and_record(bag: Path, out: Path, env: dict[str, str]) -> tuple[str, 
     return play_out, rec_out
 
 
+@pytest.mark.exclusive  # real time, as the record/play tests of test_record_play.py: beside the parallel
+# suite (fresh-clone CI of 3d2308b) the recorder re-recorded 912 of 979 replayed duty_cycle messages, its
+# keep-last queue overflowing while it was starved
 def test_sim_node_and_controller_recorded_replayed_rerecorded(tmp_path: Path) -> None:
     """(a) the recorder records a running lock-step ``sim_node`` + ``controller`` graph; ``play``
     replays that bag to a second recorder, which receives every message unchanged."""
