@@ -15,6 +15,7 @@ import json
 import os
 import random
 import time
+import typing
 from pathlib import Path
 
 from aeropend_bridge import protocol as proto
@@ -38,19 +39,41 @@ def throughput(n_frames: int = 200_000) -> dict[str, float]:
             "cpu_seconds": dc, "frames_per_cpu_s": n_frames / dc}
 
 
-def fuzz(n_inputs: int, seed: int = 0) -> dict[str, float]:
-    """Feed ``n_inputs`` random byte strings (0..128 bytes, some with valid frames spliced in)."""
+#: Every frame type the decoder can return (:data:`aeropend_bridge.protocol.Frame`).
+FRAME_TYPES = typing.get_args(proto.Frame)
+
+
+def fuzz(n_inputs: int, seed: int = 0, chunked: bool = False) -> dict[str, float]:
+    """Feed ``n_inputs`` random byte strings (0..128 bytes, some with valid frames spliced in).
+
+    Each input goes to a fresh :class:`~aeropend_bridge.protocol.FrameDecoder`, whole or (``chunked``)
+    in random pieces of 1-48 bytes so that frames cross ``feed`` calls. An exception from the decoder
+    ends the run (that is the failure the fuzz looks for); so does an output that is not a frame
+    dataclass or byte counters that do not account for the input (``AssertionError`` naming the
+    input's index and bytes).
+
+    Returns
+    -------
+    dict
+        ``inputs``, ``seconds`` (wall), ``frames`` found and ``errors`` counted over all inputs.
+    """
     rng = random.Random(seed)
     valid = proto.encode(proto.SampleFrame(1, 2, 3, 4, 5, 6, 7, 0))
     t0 = time.perf_counter()
     frames = errors = 0
-    for _ in range(n_inputs):
+    for k in range(n_inputs):
         data = rng.randbytes(rng.randint(0, 128))
         if rng.random() < 0.2:
             cut = rng.randint(0, len(data))
             data = data[:cut] + b"\x00" + valid + data[cut:]
         dec = proto.FrameDecoder()
-        frames += len(dec.feed(data))  # an exception here ends the run: that is the failure
+        step = rng.randint(1, 48) if chunked else max(len(data), 1)
+        got = [f for i in range(0, len(data), step) for f in dec.feed(data[i:i + step])]
+        bad = [f for f in got if not isinstance(f, FRAME_TYPES)]
+        if bad or dec.stats.bytes != len(data):
+            raise AssertionError(f"input {k} ({data.hex()}): outputs {bad!r}, {dec.stats.bytes} bytes "
+                                 f"counted of {len(data)}")
+        frames += len(got)
         errors += dec.stats.errors
     return {"inputs": n_inputs, "seconds": time.perf_counter() - t0, "frames": frames, "errors": errors}
 

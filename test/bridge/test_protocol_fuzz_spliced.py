@@ -1,6 +1,7 @@
-"""Hypothesis fuzz of the frame decoder, part 2: corrupted streams with valid frames spliced in.
+"""Fuzz of the frame decoder, part 2: corrupted streams with valid frames spliced in.
 
-``AEROPEND_FUZZ_EXAMPLES // 2`` examples (default 50 000; see ``test_protocol_fuzz.py``).
+``AEROPEND_FUZZ_INPUTS // 2`` plain random inputs fed whole (default 500 000) and
+``AEROPEND_FUZZ_EXAMPLES // 2`` hypothesis examples (default 5 000; see ``test_protocol_fuzz.py``).
 Random bytes with encoded frames inserted at random places and random bytes overwritten:
 no exception escapes, every output is a frame dataclass, and the counters account for all
 input bytes.
@@ -15,14 +16,21 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from aeropend_bridge import protocol as proto
+from bench.bench_bridge_decode import FRAME_TYPES, fuzz
 
-FUZZ_EXAMPLES = int(os.environ.get("AEROPEND_FUZZ_EXAMPLES", "100000")) // 2
-FRAME_TYPES = (proto.SampleFrame, proto.StatusFrame, proto.Duty, proto.Enable, proto.Rate, proto.Calibrate)
+FUZZ_INPUTS = int(os.environ.get("AEROPEND_FUZZ_INPUTS", "1000000")) // 2
+FUZZ_EXAMPLES = int(os.environ.get("AEROPEND_FUZZ_EXAMPLES", "10000")) // 2
 WIRES = [proto.encode(f) for f in (proto.SampleFrame(1, 2048, 100, -50, 512, 15000, 110, 1),
                                    proto.StatusFrame(1, 2, 3, 4, 5), proto.Duty(32768), proto.Rate(2),
                                    proto.Calibrate(2, -300), proto.Enable(True))]
 
 pytestmark = pytest.mark.slow
+
+
+def test_random_streams_with_a_frame_spliced_in_never_raise() -> None:
+    res = fuzz(FUZZ_INPUTS, seed=2)  # raises on an exception or a bad output
+    assert res["inputs"] == FUZZ_INPUTS
+    assert 0.19 * FUZZ_INPUTS < res["frames"] < 0.21 * FUZZ_INPUTS, res
 
 
 @settings(max_examples=FUZZ_EXAMPLES, deadline=None, database=None, suppress_health_check=list(HealthCheck))
