@@ -214,7 +214,8 @@ COMMANDS: dict[str, tuple[Callable[[dict[str, Path]], list[str]], str, str, bool
 #: (command, fault) cases: every command under a full disk, a read-only folder and Ctrl-C; EACCES
 #: on two; design_gains (a 10 s closed-loop check before it writes) under a full disk only (its
 #: write is the same helper as rig new's, tried under every fault).
-CASES = [(c, f) for c in COMMANDS if c != "design_gains" for f in ("ENOSPC", "EROFS", "Ctrl-C")]
+CASES = [pytest.param(c, f, marks=pytest.mark.slow if c == "gap" else ())  # a whole diagnosis: 8 s each
+         for c in COMMANDS if c != "design_gains" for f in ("ENOSPC", "EROFS", "Ctrl-C")]
 CASES += [("csv_import", "EACCES"), ("rig new", "EACCES"), ("design_gains", "ENOSPC")]
 
 

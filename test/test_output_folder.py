@@ -188,7 +188,8 @@ def _call(name: str, argv: list[str], capsys: pytest.CaptureFixture[str]) -> tup
     return rc, capsys.readouterr().err, time.perf_counter() - t0
 
 
-@pytest.mark.parametrize("name", sorted(COMMANDS))
+@pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow if n == "gap" else ())  # a diagnosis
+                                  for n in sorted(COMMANDS)])
 def test_command_refuses_then_overwrites(name: str, inputs: dict[str, Path], tmp_path: Path,
                                          capsys: pytest.CaptureFixture[str]) -> None:
     args, option, refusal, own, new_files = COMMANDS[name]

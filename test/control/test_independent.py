@@ -75,6 +75,7 @@ def test_a_malformed_recording_frame_is_refused_naming_the_key(tmp_path):
         make_settings(rig=str(path))
 
 
+@pytest.mark.slow
 def test_design_gains_schedules_a_weak_rig_up_to_its_reach(tmp_path, capsys):
     from aeropend_control.design_gains import main
 

@@ -51,6 +51,7 @@ def _run_figures(r: StepRun) -> tuple:
     return r.reference, r.status, r.metrics.as_dict() if r.metrics is not None else None
 
 
+@pytest.mark.slow
 def test_design_gains_checks_strategies_in_worker_processes_with_the_same_verdicts(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """``design_gains`` checks each strategy in a worker process of its own (spawned); the verdicts

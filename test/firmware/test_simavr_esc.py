@@ -79,6 +79,7 @@ pytestmark = [
     # one worker builds each firmware once (a module fixture per build; shared out test by test,
     # every worker rebuilt the builds it met)
     pytest.mark.xdist_group("test_simavr_esc"),
+    pytest.mark.slow,  # four firmware builds of 7-10 s each
     pytest.mark.skipif(
         shutil.which("avr-gcc") is None or not Path("/usr/include/simavr/sim_avr.h").is_file(),
         reason="needs avr-gcc + libsimavr-dev/libsimavrparts1 (scripts/setup_env.sh installs them as root)"),

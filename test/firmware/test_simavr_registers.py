@@ -81,6 +81,7 @@ def test_timer1_phase_correct_pwm_490hz(prod: dict, angle: str) -> None:
     assert r["DDRH"] & (1 << 5) and not r["PORTH"] & (1 << 5)
 
 
+@pytest.mark.slow
 def test_emulator_build_keeps_the_tov1_period(tmp_path: Path, prod: dict) -> None:
     emu = _regs(tmp_path, "ANGLE=pwm", "EXTRA_CFLAGS=-DSIMAVR_TIMER1")
     wgm, n, com1a = _timer1(emu)

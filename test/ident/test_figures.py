@@ -321,6 +321,7 @@ def test_baseline_writes_its_report_when_the_figure_fails(tmp_path, monkeypatch,
     assert "overlay: not drawn" in out
 
 
+@pytest.mark.slow
 def test_identify_writes_its_model_and_summary_when_a_plot_fails(tmp_path, monkeypatch, capsys) -> None:
     import json
 

@@ -327,6 +327,7 @@ def test_free_decay_recording_gives_the_inertia_and_damping(tmp_path):
     assert "a balance table" in res.outcome("actuator.idle_duty").reason
 
 
+@pytest.mark.slow
 def test_a_quantised_log_gives_the_fitted_rig_its_angle_lsb(tmp_path):
     """A free decay read by a 10-bit potentiometer ADC (q = 2π/1024 rad): rig fit writes the logs'
     LSB into the fitted rig (sensors.theta_quantum, effects.quantisation on), so a closed-loop check

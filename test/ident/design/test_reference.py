@@ -23,7 +23,8 @@ from aeropend_ident.design.sequence import DesignError, Limits, check_limits
 
 #: One worker runs this module: its module fixture (a closed-loop design, 9 s) was made again on every
 #: worker that got one of its tests (docs/testing.md, Groups).
-pytestmark = pytest.mark.xdist_group("test_reference")
+# slow: the module's closed-loop design takes ~10 s of the fast subset (docs/testing.md)
+pytestmark = [pytest.mark.xdist_group("test_reference"), pytest.mark.slow]
 
 DT = 0.02048  # 48.8 Hz: 10 truth samples
 SIGMA = {"theta": 3e-3}

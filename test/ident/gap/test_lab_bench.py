@@ -168,6 +168,7 @@ def test_timestamp_jitter_has_its_size_and_keeps_the_order():
     assert np.all(np.diff(big) > 0)
 
 
+@pytest.mark.slow
 def test_a_built_case_is_the_log_it_claims(cases):
     """An open-loop case at 100 Hz with a lattice, jitter and lost rows: the logged duty is held,
     θ on the lattice, the stamps jittered by the share asked, the rows lost as asked; the session-2
@@ -196,6 +197,7 @@ def test_a_built_case_is_the_log_it_claims(cases):
     assert len(rec_held[0]) > 0.99 * round(lab.HELD_DURATION / (5 * tp.DT))
 
 
+@pytest.mark.slow
 def test_both_sessions_of_an_open_loop_case_have_the_lab_sensors_noise(cases):
     """One lab's sensors: the held-out session's θ noise σ is the fit session's (set by the case's
     SNR there), not a fixed SNR on each recording's own RMS, which gave a session that swings the

@@ -146,6 +146,7 @@ def _rec(t: np.ndarray, theta: np.ndarray):
     return Recording(t=t, duty=np.full(t.size, 0.5), channels={"theta": theta}, source="lattice")
 
 
+@pytest.mark.slow
 def test_an_optional_section_that_fails_is_reported_and_the_report_is_written(quantised, tmp_path,
                                                                                 monkeypatch) -> None:
     """No command fails after its main result exists: a failing optional section (here the attainable
@@ -214,6 +215,7 @@ def test_the_above_noise_margin_counts_the_holds_of_a_rounding_error() -> None:
     assert _rounding_chance([white])["theta"] == 0.0
 
 
+@pytest.mark.slow
 def test_an_effect_free_closed_loop_holding_on_a_coarse_encoder_shows_no_gap() -> None:
     # Lab benchmark case 21: effect-free, closed loop without dither at 50 Hz, a 10-bit encoder
     # (q 6.1 mrad) over white noise of 0.4 mrad. Its nominal validation error was 1.43× its noise

@@ -75,6 +75,7 @@ def test_slow_motor_found_when_timing_effects_are_confirmed():
     assert d.validation[-1]["nrmse"] < 0.3 * d.validation[0]["nrmse"]
 
 
+@pytest.mark.slow
 def test_three_hidden_effects_found_by_forward_selection_with_max_effects_3():
     # the AeroShield pattern (bench/results/gap_real.md): a damping error, a slow motor and a
     # static error at once; θ only, 50 dB; each forward step must add the next true effect
@@ -442,6 +443,7 @@ def test_the_replay_starts_the_motor_at_rest_or_running_as_the_log_began(before:
     assert float(np.sqrt(np.mean(err**2))) < 1e-4
 
 
+@pytest.mark.slow
 def test_single_effect_fits_in_threads_give_the_figures_of_fits_one_after_the_other(monkeypatch) -> None:
     # _Candidates.confirm runs the independent single-effect fits in threads (one per core); a held
     # setting one of them frees (here the dry friction's onset width: a rod whose friction sets in

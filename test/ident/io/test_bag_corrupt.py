@@ -81,6 +81,7 @@ def test_corrupt_mcap_chunk_skipped_and_reported(tmp_path: Path,
     assert (t1 - t0) / 1e9 <= gap <= (t1 - t0) / 1e9 + 0.0041
 
 
+@pytest.mark.slow
 def test_repair_writes_a_clean_copy_any_reader_takes_whole(tmp_path: Path,
                                                           capsys: pytest.CaptureFixture[str]) -> None:
     """``reindex --repair NEW`` (issue 62): after 64 bytes flipped in a middle chunk, the new bag holds
@@ -111,6 +112,7 @@ def test_repair_writes_a_clean_copy_any_reader_takes_whole(tmp_path: Path,
     assert f"'{new}' exists" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_repair_of_a_sqlite3_bag_leaves_the_corrupt_rows_out(tmp_path: Path,
                                                              capsys: pytest.CaptureFixture[str]) -> None:
     """SQLite3 has no checksums: a flipped message blob is found by deserialising it. The repaired copy

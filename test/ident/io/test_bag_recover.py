@@ -140,6 +140,7 @@ def _mcap_cuts(path: Path) -> list[int]:
                    *(int(size * f) for f in FRACTIONS), size - 1])
 
 
+@pytest.mark.slow
 def test_truncated_mcap_recovers_every_message_written_before_the_cut(
         written: dict[str, Path], tmp_path: Path) -> None:
     src = _storage_file(written["mcap"])

@@ -34,6 +34,7 @@ def rig_runs():
                      seed=s, dt=0.01) for s in (4, 5)]
 
 
+@pytest.mark.slow
 def test_identify_bag_50db(noisy_run, tmp_path, capsys) -> None:
     bag = write_bag(Recording.from_trajectory(noisy_run), tmp_path / "run")
     out = tmp_path / "res"
@@ -69,6 +70,7 @@ def test_identify_angle_only_bag_and_errors(noisy_run, tmp_path, capsys) -> None
     assert "missing_bag does not exist" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_identify_weak_iv_output_error_on_the_design(tmp_path, capsys) -> None:
     """``--method weak-iv --output-error`` (the issue-4 estimator) through the command: 30 s of the
     identifiability design, noise-free, recovers all three equations; fixed λ in the summary."""
@@ -137,6 +139,7 @@ def test_identify_refuses_bad_recordings(noisy_run, tmp_path, capsys) -> None:
     assert "6 samples" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_identify_csv_logs_several_recordings(rig_runs, tmp_path, capsys) -> None:
     """Two angle-only CSV logs (PWM counts, degrees) through a custom-preset-free path: the
     etchepareborda preset's layout (t, pwm, theta [rad]); training parts stacked, each held-out

@@ -74,6 +74,7 @@ def test_sindy_and_weak_on_train_ic_predict_test_ic(test_traj) -> None:
         assert max(run.nrmse.values()) < 0.01, (method, run.nrmse)
 
 
+@pytest.mark.slow
 def test_weak_form_beats_strong_form_under_noise() -> None:
     """1 % noise: both find the exact structure, the weak form 5x more accurately (measured max
     coefficient error 0.09 % weak vs 0.49 % strong). 5 % noise, λ = 0.1: the strong form on estimated

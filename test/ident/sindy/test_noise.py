@@ -36,6 +36,7 @@ def test_zoh_quadrature_and_curvature_noise_free() -> None:
         assert e["max_rel_error"] < 1e-4, (tg, e)
 
 
+@pytest.mark.slow
 def test_50db_structure_and_coefficients() -> None:
     # Seed-dependent (bench/results/sindy.md, seeds 7/8/9): the structure of all four equations is exact
     # for seed 7 (seeds 8 and 9 put a spurious v_a into dω₁/dt, 2-3 %), and the current equation's
@@ -51,6 +52,7 @@ def test_50db_structure_and_coefficients() -> None:
     assert k_q_error(m) < 0.001
 
 
+@pytest.mark.slow
 def test_30db_pendulum_structure_and_thrust_coefficient() -> None:
     m = weak_iv_fit(case_data(30.0))
     e = structure_errors(m, TRUTH)["theta_dot"]

@@ -71,6 +71,7 @@ def test_50db_structure_and_consistent_standard_errors(noisy50) -> None:
     assert m.coef_std[m.targets.index("i_a"), j] / 8.6957 > 0.03
 
 
+@pytest.mark.slow
 def test_refuses_bad_requests(clean) -> None:
     data, m = clean
     with pytest.raises(IdentificationError, match="not equations of the model"):

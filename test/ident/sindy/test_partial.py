@@ -81,6 +81,7 @@ def test_two_level_input_drops_quadratic_term_and_several_records_refuse_weak() 
         concat_data([data, angle_only_data(tr.t[::2], tr.theta[::2], tr.duty[::2])])
 
 
+@pytest.mark.slow
 def test_first_order_map_beats_static_map_under_actuator_lag() -> None:
     """thesis_rig with a 0.15 s actuator lag (50 dB, 100 Hz, 80 s APRBS): the static map cannot
     follow the lagged thrust; the first-order map is selected on the training part and is better on

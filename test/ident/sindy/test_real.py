@@ -78,6 +78,7 @@ def test_aeroshield_static_map_is_worse_on_heldout() -> None:
     assert 0.08 < static.summary["heldout"]["nrmse_range"] < 0.14  # measured 0.105
 
 
+@pytest.mark.slow
 def test_yangzhu_pitch_rotor_and_armature_against_stated_parameters() -> None:
     res = yangzhu_case(REAL)
     s = res.summary
@@ -108,6 +109,7 @@ def test_quasi_static_armature_refuses_collinear_data() -> None:
         quasi_static_armature(16.5 * np.ones(100), i, w)
 
 
+@pytest.mark.slow
 def test_etchepareborda_random_binary_heldout_and_other_run() -> None:
     res = etchepareborda_case("openloop_random_binary_80_120.csv", REAL, time_constants=(0.0, 0.05),
                               delays=(0,), cross_runs=("openloop_steps_0_100_180.csv",))

@@ -24,7 +24,7 @@ from bench.fixtures.truth_rig import lab_rig_doc, write_rig
 
 #: One worker runs this module: its module fixture (a 120 s truth run, 4.6 s) was made again on every
 #: worker that got one of its tests (docs/testing.md, Groups).
-pytestmark = pytest.mark.xdist_group("test_sensor_set")
+pytestmark = [pytest.mark.xdist_group("test_sensor_set"), pytest.mark.slow]
 
 P = tp.PlantParams()
 #: The true pendulum equation from the truth plant's physical parameters.

@@ -83,6 +83,7 @@ def test_sweep_models_equal_independent_fits(split, case) -> None:
     assert supports == sorted(supports, reverse=True)
 
 
+@pytest.mark.slow
 def test_sweep_equal_for_ensemble_discrepancy_and_refined(split) -> None:
     train, test = split
     lib = physics_library(VARIABLES)

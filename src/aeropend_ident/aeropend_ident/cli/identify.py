@@ -73,12 +73,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _run(args: argparse.Namespace, say: Callable[[str], None]) -> int:
     """The command after parsing, with the progress callback of :func:`main`."""
-    from aeropend_ident.sindy.identify import identify  # pysindy and scikit-learn: not for --help
-
     try:
         out = claim_output_folder(args.out, args.overwrite, own=OUTPUT_FILES, looks_like="identify results",
                                   option="-o", inputs=[split_preset(x)[0] for x in args.inputs])
         rig = load_rig(args.rig) if args.rig else None
+        # pysindy and scikit-learn (1.5 s): only once the output folder and the rig are accepted
+        from aeropend_ident.sindy.identify import identify
         summary = out.write(lambda folder: identify(
             args.inputs, folder, rig, args.method, args.library, args.namespace, preset=args.preset,
             train_fraction=args.train_fraction, thrust_map=args.thrust_map, plots=not args.no_plots,
