@@ -57,6 +57,7 @@ from aeropend_bridge.bridge_core import (
     FirmwareHandshake,
     RateMeter,
     SequenceTracker,
+    sent_before,
 )
 from aeropend_bridge.family import CommandMap, check_firmware, legacy_hello, read_rig_hardware
 from aeropend_bridge.protocol import (
@@ -185,6 +186,9 @@ class BridgeNode(LifecycleNode):
         self._last_send_ns = 0
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._active = False
+        #: time.time_ns() at the last activation: a duty command the middleware received before it is
+        #: dropped (:meth:`_on_command`)
+        self._active_since_ns = 0
         self._finalized = False
         self.link: SerialLink | None = None
         self._pub_js: Any = None
@@ -307,6 +311,7 @@ class BridgeNode(LifecycleNode):
         """Enable the H-bridge output and forward duty commands (0 until the first one)."""
         def action() -> None:
             self.watchdog.disarm()  # no command from before the activation is applied
+            self._active_since_ns = time.time_ns()
             self._active = True
             self.link.send(Enable(True))  # type: ignore[union-attr]
             self._send_duty(0.0)
@@ -504,10 +509,23 @@ class BridgeNode(LifecycleNode):
                 }
 
     # ------------------------------------------------------------------ commands
-    def _on_command(self, msg: Float64) -> None:
+    def _on_command(self, msg: Float64, info: dict[str, Any]) -> None:
+        """A duty command: forwarded while active, unless it was sent before the activation.
+
+        rclpy's executor takes one message per subscription per wait, and serves a ready
+        subscription before a ready service: when it is behind, commands published while the bridge
+        was inactive wait in the queue (depth 10) beside the activate request, and all but the first
+        would be taken after the activation and applied as fresh ones; a reliable message lost on a
+        loaded host comes again later still (``bench/repro/bridge_queued_command.py``). Such
+        commands are dropped by their DDS times (:func:`~aeropend_bridge.bridge_core.sent_before`).
+        """
         if not self._active:
             self.get_logger().warn(f"duty command {msg.data!r} ignored: the bridge is not active",
                                    throttle_duration_sec=5.0)
+            return
+        if sent_before(info, self._active_since_ns):
+            self.get_logger().info(f"duty command {msg.data!r} dropped: sent before the activation",
+                                   throttle_duration_sec=LOG_THROTTLE_S)
             return
         reason = self.watchdog.offer(msg.data, time.monotonic_ns())
         if reason is not None:
