@@ -53,19 +53,32 @@ from aeropend_sim.ros.ros_contract import COMMAND_QOS
 NODE = "/aeropend_bridge"
 
 
-def _change(node, executor, client, transition: int, timeout: float = 15.0) -> bool:
-    future = client.call_async(ChangeState.Request(transition=Transition(id=transition)))
-    end = time.monotonic() + timeout
-    while not future.done() and time.monotonic() < end:
+def _spin(executor, seconds: float, until=None) -> bool:
+    """Spin ``executor`` for up to ``seconds``, or until ``until()`` holds; return ``until()`` (True
+    without one)."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end and not (until is not None and until()):
         executor.spin_once(timeout_sec=0.01)
-    return bool(future.done() and future.result().success)
+    return until() if until is not None else True
+
+
+def _request(client, transition: int):
+    return client.call_async(ChangeState.Request(transition=Transition(id=transition)))
+
+
+def _done(executor, future, timeout: float = 15.0) -> bool:
+    """Whether the lifecycle transition ``future`` succeeded within ``timeout`` [s]."""
+    return _spin(executor, timeout, future.done) and bool(future.result().success)
 
 
 def queued_commands_applied() -> tuple[int, list[int]]:
     """Run the sequence of the module doc; return the number of Duty frames the firmware read in the
     second after the activation and the non-zero ones among them (``Duty.value``, 65535 = 1)."""
-    tmp = Path(tempfile.mkdtemp())
-    link = tmp / "ttyACM_fake"
+    with tempfile.TemporaryDirectory() as tmp:
+        return _run(Path(tmp) / "ttyACM_fake")
+
+
+def _run(link: Path) -> tuple[int, list[int]]:
     mcu = FakeMcu(link).start()
     domain = random_domain(101, 200)
     proc = subprocess.Popen([*node_command("bridge", "aeropend_bridge.bridge_node"), "--ros-args", "-p",
@@ -78,27 +91,19 @@ def queued_commands_applied() -> tuple[int, list[int]]:
             wait_for_server(node.create_client(GetState, f"{NODE}/get_state"), executor, GetState.Request(),
                             30.0)
             assert change.wait_for_service(timeout_sec=30.0)
-            assert _change(node, executor, change, Transition.TRANSITION_CONFIGURE), "configure failed"
-            assert _change(node, executor, change, Transition.TRANSITION_ACTIVATE), "activate failed"
-            assert _change(node, executor, change, Transition.TRANSITION_DEACTIVATE), "deactivate failed"
-            for _ in range(50):  # the publisher matched by the bridge's subscription
-                executor.spin_once(timeout_sec=0.01)
+            for name in ("CONFIGURE", "ACTIVATE", "DEACTIVATE"):
+                assert _done(executor, _request(change, getattr(Transition, f"TRANSITION_{name}"))), name
+            _spin(executor, 0.5)  # the publisher matched by the bridge's subscription
             os.kill(proc.pid, signal.SIGSTOP)  # the bridge's executor falls behind
             for _ in range(10):
                 pub.publish(Float64(data=0.5))
                 time.sleep(0.01)
             n_cmd = len(mcu.commands)
-            future = change.call_async(ChangeState.Request(transition=Transition(
-                id=Transition.TRANSITION_ACTIVATE)))
+            future = _request(change, Transition.TRANSITION_ACTIVATE)
             time.sleep(0.2)
             os.kill(proc.pid, signal.SIGCONT)
-            end = time.monotonic() + 15.0
-            while not future.done() and time.monotonic() < end:
-                executor.spin_once(timeout_sec=0.01)
-            assert future.done() and future.result().success, "activate failed"
-            t_end = time.monotonic() + 1.0
-            while time.monotonic() < t_end:
-                executor.spin_once(timeout_sec=0.01)
+            assert _done(executor, future), "activate failed"
+            _spin(executor, 1.0)
             duties = [f.value for _, f in mcu.commands[n_cmd:] if isinstance(f, Duty)]
             return len(duties), [d for d in duties if d != 0]
     finally:

@@ -282,8 +282,8 @@ def test_autostart_keeps_the_firmware_watchdog_quiet_before_the_executor_spins(t
 def test_commands_queued_while_inactive_are_not_applied_after_activation() -> None:
     """The bridge stopped (SIGSTOP) while inactive, ten duty 0.5 commands and the activate request
     queued for it, then continued: rclpy serves the activate request after the first command and
-    before the other nine; the bridge drops those, received before its activation (before the
-    fix 9-10 of them reached the firmware: ``bench/repro/bridge_queued_command.py``)."""
+    before the other nine; the bridge drops those, sent before its activation (before the fix
+    9-10 of them reached the firmware: ``bench/repro/bridge_queued_command.py``)."""
     from bench.repro.bridge_queued_command import queued_commands_applied
 
     n, nonzero = queued_commands_applied()
