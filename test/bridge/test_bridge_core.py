@@ -17,6 +17,7 @@ from aeropend_bridge.bridge_core import (
     FirmwareHandshake,
     RateMeter,
     SequenceTracker,
+    firmware_trips_since,
     sent_before,
 )
 from aeropend_bridge.protocol import FLAG_ANGLE_INVALID, FLAG_ANGLE_SSI, FLAG_ENABLED, SampleFrame
@@ -188,3 +189,12 @@ def test_a_command_sent_before_the_activation_is_told_by_its_dds_times() -> None
     # a middleware that reports no times: every command passes
     assert not sent_before({}, t)
     assert not sent_before({"received_timestamp": 0, "source_timestamp": 0}, t)
+
+
+def test_firmware_trips_since_counts_across_the_16_bit_wrap() -> None:
+    """The firmware's STATUS counts its own watchdog's trips in a wrapping 16-bit counter; the first
+    STATUS after connecting may hold trips from before (none counted)."""
+    assert firmware_trips_since(None, 7) == 0
+    assert firmware_trips_since(7, 7) == 0
+    assert firmware_trips_since(7, 10) == 3
+    assert firmware_trips_since(65534, 1) == 3

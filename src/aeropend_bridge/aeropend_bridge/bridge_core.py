@@ -362,6 +362,25 @@ def sent_before(info: Mapping[str, Any], since_ns: int) -> bool:
     return 0 < source < since_ns and 0 <= received - source < CLOCK_AGREEMENT_NS
 
 
+def firmware_trips_since(before: int | None, now: int) -> int:
+    """Trips of the firmware's own command watchdog between two STATUS frames.
+
+    Parameters
+    ----------
+    before : int or None
+        ``watchdog_trips`` of the previous STATUS frame (None: this is the first one, whose count
+        may hold trips from before the bridge connected: 0 is returned).
+    now : int
+        ``watchdog_trips`` of this one (a 16-bit counter that wraps).
+
+    Returns
+    -------
+    int
+        The new trips, 0..65535.
+    """
+    return 0 if before is None else (int(now) - int(before)) & 0xFFFF
+
+
 @dataclass
 class CommandWatchdog:
     """Hold the last valid duty; 0 after ``timeout_ns`` without a valid command.

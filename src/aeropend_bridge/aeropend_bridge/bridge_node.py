@@ -57,6 +57,7 @@ from aeropend_bridge.bridge_core import (
     FirmwareHandshake,
     RateMeter,
     SequenceTracker,
+    firmware_trips_since,
     sent_before,
 )
 from aeropend_bridge.family import CommandMap, check_firmware, legacy_hello, read_rig_hardware
@@ -502,11 +503,19 @@ class BridgeNode(LifecycleNode):
         elif isinstance(frame, StatusFrame):
             with self._lock:
                 self.stats.status_frames += 1
+                before = self.stats.mcu_status.get("watchdog_trips")
                 self.stats.mcu_status = {
                     "rx_frames": frame.rx_frames, "rx_errors": frame.rx_errors,
                     "tx_overflows": frame.tx_overflows, "watchdog_trips": frame.watchdog_trips,
                     "speed_spikes": frame.spikes, "angle_errors": frame.angle_errors,
                 }
+            new = firmware_trips_since(before, frame.watchdog_trips)
+            if new and self._active:
+                silence = f"{self.hello.silence_ms} ms" if self.hello is not None else "its silence limit"
+                self.get_logger().warn(
+                    f"the firmware's own watchdog cut the output {new} time(s) since its last status: no "
+                    f"frame reached it for {silence}, the host was late (duty 0 until the next frame)",
+                    throttle_duration_sec=LOG_THROTTLE_S)
 
     # ------------------------------------------------------------------ commands
     def _on_command(self, msg: Float64, info: dict[str, Any]) -> None:
@@ -637,7 +646,8 @@ class BridgeNode(LifecycleNode):
         return (f"summary: samples={self.stats.samples} lost={self.seq.lost} crc_errors={s.crc_errors} "
                 f"decoder_errors={s.errors} reconnects={self.stats.reconnects} "
                 f"commands={self.watchdog.accepted} rejected={self.watchdog.rejected} "
-                f"watchdog_trips={self.watchdog.trips}")
+                f"watchdog_trips={self.watchdog.trips} "
+                f"firmware_watchdog_trips={self.stats.mcu_status.get('watchdog_trips', 'unknown')}")
 
 
 def main(args: list[str] | None = None) -> int:
