@@ -181,6 +181,19 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
         row["outcome"] = {**ev, "truth_candidate": truth_name,
                           "truth_first": (ev["first"] == truth_name) if truth_name else None}
         named = ev["named_effects"]
+        row["recording_named_as_sized"] = named
+        if ev["unexplained"]:  # no candidate explains it as sized: refit on it (excitation_design --outcome)
+            from aeropend_ident.design.discriminate import refit_evidence
+
+            t3 = time.perf_counter()
+            ref = refit_evidence(case["nominal"], fit, rec, [c.effects for c in cands], sigma)
+            row["refit"] = {k: ref[k] for k in ("named", "named_effects", "survivors", "first", "unexplained",
+                                                "best_rms_over_noise", "refit_free_settings")}
+            row["refit"]["sets"] = len(ref["chi2"])
+            row["refit"]["truth_fitted"] = any(set(x["effects"]) == set(row["truth"])
+                                               for x in ref["refit_rows"] if "fit_sse" in x)
+            row["refit_s"] = time.perf_counter() - t3
+            named = ref["named_effects"]
     else:  # the earlier recordings leave one candidate: that is what they name
         named = list(cands[0].effects)
     row["recording_named"] = named
@@ -213,6 +226,12 @@ def _exact(r: dict[str, Any], key: str) -> bool:
     return sorted(r[key]["chosen"]) == sorted(r["truth"])
 
 
+def _as_sized(r: dict[str, Any]) -> bool:
+    """The candidates as fitted on the earlier data, without the refit, named exactly the truth."""
+    n = r.get("recording_named_as_sized", r["recording_named"])
+    return n is not None and set(n) == set(r["truth"])
+
+
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     tri = [r for r in rows if r["kind"] == "triple"]
     clean = [r for r in rows if r["kind"] == "none"]
@@ -225,6 +244,9 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "singles_named_by_recording": sum(r["recording_named_truth"] for r in one),
         "singles_unseparated_by_recording": sum(r["recording_named"] is None for r in one),
         "singles_unexplained_by_recording": sum(bool(r["outcome"].get("unexplained")) for r in one),
+        "singles_named_as_sized": sum(_as_sized(r) for r in one),
+        "singles_refit": sum("refit" in r for r in one),
+        "singles_unexplained_after_refit": sum(bool(r.get("refit", {}).get("unexplained")) for r in one),
         "singles_truth_among_candidates": sum(r["truth_among_candidates"] for r in one),
         "triples": len(tri),
         "triples_all_named_before": sum(r["before"]["pass"] for r in tri),
@@ -241,6 +263,9 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "triples_named_by_recording": sum(r["recording_named_truth"] for r in tri),
         "triples_unseparated_by_recording": sum(r["recording_named"] is None for r in tri),
         "triples_unexplained_by_recording": sum(bool(r["outcome"].get("unexplained")) for r in tri),
+        "triples_named_as_sized": sum(_as_sized(r) for r in tri),
+        "triples_refit": sum("refit" in r for r in tri),
+        "triples_unexplained_after_refit": sum(bool(r.get("refit", {}).get("unexplained")) for r in tri),
         "effect_free_clean_by_recording": sum(r["recording_named_truth"] for r in clean),
         "effect_free": len(clean),
         "effect_free_clean_before": sum(r["before"]["pass"] for r in clean),
@@ -257,12 +282,14 @@ def _p(x: Any) -> str:
 
 
 def _named_cell(r: dict[str, Any]) -> str:
-    n = r["recording_named"]
-    if n is None and r["outcome"].get("unexplained"):
-        return f"nothing: no candidate explains it ({r['outcome']['best_rms_over_noise']:.1f}× the noise RMS)"
+    n, ev = r["recording_named"], r.get("refit") or r["outcome"]
+    pre = (f"refit ({r['outcome']['best_rms_over_noise']:.1f}× the noise RMS as sized, "
+           f"{ev['sets']} sets): " if "refit" in r else "")
+    if n is None and ev.get("unexplained"):
+        return pre + f"nothing: no candidate explains it ({ev['best_rms_over_noise']:.1f}× the noise RMS)"
     if n is None:
-        return "not separated: " + ", ".join(r["outcome"]["survivors"])
-    return f"{', '.join(n) or 'nothing'} ({'yes' if r['recording_named_truth'] else 'no'})"
+        return pre + "not separated: " + ", ".join(ev["survivors"])
+    return pre + f"{', '.join(n) or 'nothing'} ({'yes' if r['recording_named_truth'] else 'no'})"
 
 
 def limits_cell(lim: dict[str, Any]) -> str:
@@ -291,12 +318,15 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         f"with the designed recording as the validation recording (`gap FIT --validation DESIGNED`) "
         f"{s['triples_all_named_after_validation']}/{s['triples']}; "
         f"the truth set was among the design's candidates in {s['truth_among_candidates']}/{s['triples']}",
-        f"- named by the designed recording's own verdict (the candidates fitted on the earlier data, "
-        f"replayed on it without refit; of the best and the rivals it does not refute second by second, "
-        f"the fewest effects; `excitation_design --outcome`): all truth effects **"
-        f"{s['triples_named_by_recording']}/{s['triples']}** triples; nothing named in "
-        f"{s['triples_unseparated_by_recording']} (no candidate explains the recording, as sized on the "
-        f"earlier data: {s.get('triples_unexplained_by_recording', 0)}; the rest not separated); a wrong "
+        f"- named by the designed recording's own verdict (`excitation_design --outcome`: the candidates "
+        f"fitted on the earlier data, replayed on it; of the best and the rivals it does not refute second "
+        f"by second, the fewest effects; where none of them explains it as sized, all of them, their swap "
+        f"neighbours and nested special cases refitted on the earlier data and it together, then the same "
+        f"verdict): all truth effects **{s['triples_named_by_recording']}/{s['triples']}** triples "
+        f"({s.get('triples_named_as_sized', s['triples_named_by_recording'])} as sized, "
+        f"{s.get('triples_refit', 0)} refitted); nothing named in "
+        f"{s['triples_unseparated_by_recording']} (explained by no candidate after the refit: "
+        f"{s.get('triples_unexplained_after_refit', 0)}; the rest not separated); a wrong "
         f"set in {s['triples'] - s['triples_named_by_recording'] - s['triples_unseparated_by_recording']}; "
         "effect-free plants clean "
         f"{s['effect_free_clean_by_recording']}/{s['effect_free']}",
@@ -304,8 +334,10 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
            f"(confusable pairs): the truth alone chosen **before {s['singles_exact_before']}/{s['singles']}**"
            ", "
            f"named by the designed recording's verdict **{s['singles_named_by_recording']}/{s['singles']}** "
-           f"(nothing named in {s['singles_unseparated_by_recording']}, "
-           f"{s.get('singles_unexplained_by_recording', 0)} of them explained by no candidate; "
+           f"({s.get('singles_named_as_sized', s['singles_named_by_recording'])} as sized, "
+           f"{s.get('singles_refit', 0)} refitted; nothing named in {s['singles_unseparated_by_recording']}, "
+           f"{s.get('singles_unexplained_after_refit', 0)} of them explained by no candidate after the "
+           "refit; "
            "the truth a candidate in "
            f"{s['singles_truth_among_candidates']}), chosen alone by `gap` with it as a fit recording "
            f"{s['singles_exact_after']}/{s['singles']}, as the validation recording "

@@ -156,6 +156,10 @@ def test_verdict_names_nothing_when_two_sets_of_one_size_survive_or_nothing_is_r
     assert min(out["refuted_p"].values()) > 0.05 / 2
     out = verdict([cands[0], cands[2]], segs[[0, 2]], noise)  # one size each: still nothing
     assert out["named"] is None and len(out["survivors"]) == 2
+    # ... unless rivals were refuted before, by data that include this recording (a refit's sets
+    # fitted far worse on it and the earlier recordings together): the recording did separate
+    out = verdict([cands[0], cands[2]], segs[[0, 2]], noise, refuted_before=3)
+    assert out["named"] == "a" and len(out["survivors"]) == 2
     nominal = Candidate("nominal", (), rig)
     out = verdict([cands[0], nominal], segs[[0, 1]], noise)
     assert out["named"] == "nominal" and out["named_effects"] == []
@@ -443,6 +447,20 @@ def test_compare_outcome_names_the_matching_candidate():
                                            "named_effects": None})
     assert "9.1x its noise RMS" in out["note"] and "run gap" in out["note"]
     assert out["recording_unexplained"] is True and out["recording_names"] is None
+    # refitted on the earlier recordings and the designed one: its answer is the recording's
+    unexplained = {**ev, "best_rms_over_noise": 9.1, "unexplained": True, "named_effects": None}
+    refit = {"named_effects": ["inertia", "lag"], "first": "inertia+lag", "survivors": ["inertia+lag"],
+             "refuted_p": {"inertia": 1e-9}, "best_rms_over_noise": 1.05, "unexplained": False,
+             "refit_free_settings": ["coulomb_friction"],
+             "refit_rows": [{"effects": ["inertia"], "fit_sse": 2.0}]}
+    out = compare_outcome(design, report, unexplained, refit)
+    assert out["recording_names"] == ["inertia", "lag"] and out["recording_names_as_sized"] is None
+    assert out["refit"]["names"] == ["inertia", "lag"] and out["refit"]["best_rms_over_noise"] == 1.05
+    assert out["refit"]["sets_fitted"] == [{"effects": ["inertia"], "fit_sse": 2.0}]
+    assert "Refitted on the earlier recordings and the designed one" in out["note"]
+    out = compare_outcome(design, report, unexplained, {"skipped": "no refit: gone"})
+    assert out["refit"] == {"skipped": "no refit: gone"} and out["recording_names"] is None
+    assert "run gap" in out["note"]
 
 
 def test_file_kind_checks_the_expected_period(tmp_path):

@@ -117,6 +117,70 @@ def test_outcome_compares_the_prediction_with_a_new_report(tmp_path, capsys):
     assert "note" not in out
 
 
+@pytest.mark.slow
+def test_outcome_refits_the_candidates_when_none_explains_the_designed_recording(tmp_path, capsys):
+    """The truth has 30 % less thrust (K_q × 0.7); the design's candidates, the nominal rig and one
+    with 20 % more inertia, both miss its designed recording by far more than the noise. ``--outcome``
+    then refits them, their swap neighbours and nested special cases on the earlier recording
+    (design.json's ``earlier``) and the designed one together and judges again: the thrust
+    coefficient is named and explains the recording to its noise, the candidates given refuted;
+    ``--no-refit`` stops at "explained by none"."""
+    from aeropend_ident.design.candidates import Candidate
+    from aeropend_ident.design.discriminate import Predictor
+    from aeropend_ident.design.report import write_design
+    from aeropend_ident.gap.effects import apply_effects
+    from aeropend_sim.excitation import aprbs
+
+    rig = load_rig("thesis_sim")
+    kq = rig.thrust.K_q
+    truth, tmeas = apply_effects(rig, {"thrust_coefficient": {"K_q": 0.7 * kq}})
+    heavy, meas = apply_effects(rig, {"inertia": {"J_scale": 1.2}})
+    cands = [Candidate("nominal", (), rig), Candidate("inertia", ("inertia",), heavy, meas)]
+    rng = np.random.default_rng(3)
+
+    def record(duty: np.ndarray, name: str) -> Path:
+        y = Predictor([Candidate("truth", ("thrust_coefficient",), truth, tmeas)], ("theta",), DT,
+                      duty.size)(duty)["theta"][0]
+        rec = Recording(t=np.arange(duty.size) * DT, duty=duty,
+                        channels={"theta": y + rng.normal(0.0, 2e-3, duty.size)}, source=name)
+        write_bag(rec, tmp_path / name)
+        return tmp_path / name
+
+    earlier = record(aprbs(12.0, lo=0.35, hi=0.7, min_hold=0.2, max_hold=1.5, seed=1, dt=DT).duty, "earlier")
+    duty = aprbs(16.0, lo=0.2, hi=0.8, min_hold=0.1, max_hold=1.0, seed=4, dt=DT).duty
+    designed = record(duty, "designed")
+    doc = {"kind": "discrimination", "rig": str(RIG), "sigma": {"theta": 2e-3}, "chosen_before": ["inertia"],
+           "earlier": [str(earlier)], "preset": None,
+           "candidates": [c.as_dict() for c in cands], "duration_s": duty.size * DT, "seed": 0,
+           "limits": {"dt": DT, "duty_min": 0.0, "duty_max": 1.0, "max_slew": 1e3, "theta_min": -1.0,
+                      "theta_max": 1.5}, "limits_check": {"ok": True}, "evaluations": 1, "elapsed_s": 0.0,
+           "predicted": {"per_candidate": {"nominal": 0.9, "inertia": 0.9}, "draws": 1},
+           "predicted_baseline_aprbs": {"per_candidate": {}, "draws": 1},
+           "min_divergence": 1.0, "baseline_min_divergence": 1.0}
+    write_design(tmp_path / "design", doc, duty, DT, cands)
+    (tmp_path / "gap").mkdir()
+    (tmp_path / "gap" / "report.json").write_text(json.dumps(
+        {"tool": "aeropend_ident gap", "which": {"significant": True, "chosen": ["thrust_coefficient"],
+                                                 "ranking": []}}))
+    args = ["--outcome", str(tmp_path / "gap"), "--design", str(tmp_path / "design"), str(designed)]
+    assert main([*args, "--no-refit"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["recording_unexplained"] and out["recording_best_rms_over_noise"] > 3.0
+    assert out["recording_names"] is None and "refit" not in out
+    assert main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    ref = out["refit"]
+    assert "skipped" not in ref, ref
+    assert out["recording_names_as_sized"] is None
+    assert out["recording_names"] == ["thrust_coefficient"] == ref["names"], ref
+    assert not ref["unexplained"] and 0.8 < ref["best_rms_over_noise"] < 1.2
+    row = next(r for r in ref["sets_fitted"] if r["effects"] == ["thrust_coefficient"])
+    assert "fit_sse" in row
+    assert all(p < 0.05 / (len(ref["refuted_p"])) for n, p in ref["refuted_p"].items()
+               if n in ("nominal", "inertia")), ref["refuted_p"]
+    assert "Refitted on the earlier recordings and the designed one" in out["note"]
+
+
 def test_rig_fits_inputs_are_taken_as_they_are(tmp_path, capsys):
     """A balance table beside a recording (what rig fit takes) is accepted: the design replays the
     recording and takes its default command limit from the table too (a free decay alone, command

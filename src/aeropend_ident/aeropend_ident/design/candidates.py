@@ -34,6 +34,7 @@ No rclpy import: this module runs without ROS.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 from collections.abc import Mapping, Sequence
@@ -281,6 +282,13 @@ def identifiable_effects(family: str, channels: frozenset[str] | set[str]) -> li
             if e.name != "quantisation" and identifiable(e, frozenset(channels)) is None]
 
 
+def held_setting_effects(family: str) -> frozenset[str]:
+    """The effects of ``family``'s catalog with a held setting (a parameter the fits keep at the
+    rig file's value unless freed: the dry friction's onset width v_ε), the names
+    :attr:`aeropend_ident.gap.effects.EffectContext.free_settings` takes."""
+    return frozenset(e.name for e in catalog(family) if any(p.held for p in e.parameters))
+
+
 def _swap(effects: Sequence[str], member: str, other: str) -> tuple[str, ...] | None:
     """``effects`` with ``member`` replaced by ``other`` (sorted), or None when ``other`` cannot go
     with the rest (:func:`aeropend_ident.gap.which.ranking.excluded_with`)."""
@@ -325,7 +333,8 @@ def absent_effects(values: Mapping[str, Mapping[str, float]], ctx: EffectContext
 def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Sequence[str]], *,
                    ranking: Sequence[Mapping[str, Any]] = (), max_candidates: int = 6,
                    keep_factor: float = KEEP_SSE_FACTOR, keep: Sequence[Sequence[str]] = (),
-                   neighbours: bool = False) -> tuple[list[Candidate], list[dict[str, Any]]]:
+                   neighbours: bool = False, free_settings: Sequence[str] = ()
+                   ) -> tuple[list[Candidate], list[dict[str, Any]]]:
     """Fit each effect set on the earlier recordings and keep the ones the data do not refute.
 
     Parameters
@@ -365,7 +374,7 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
     """
     channels = check_recordings(list(recordings), "earlier")
     preps: list[Prepared] = prepare(list(recordings), channels)
-    ctx = EffectContext.from_prepared(rig, preps)
+    ctx = dataclasses.replace(EffectContext.from_prepared(rig, preps), free_settings=frozenset(free_settings))
     starts = _starts(ranking)
     fitted: list[Candidate] = []
     rows: list[dict[str, Any]] = []

@@ -9,7 +9,7 @@
     excitation_design --design-for GAP_REPORT RECORDING ... -o OUT --mode reference
         [--controller CONTROLLER_PARAMS.yaml] [--strategy NAME] [...]
     excitation_design --design-for FITTED_RIG.yaml RECORDING ... -o OUT [--parameters KEY ...] [...]
-    excitation_design --outcome NEW_GAP_REPORT --design OUT [DESIGNED_RECORDING]
+    excitation_design --outcome NEW_GAP_REPORT --design OUT [DESIGNED_RECORDING] [--no-refit]
 
 ``GAP_REPORT`` is a ``gap`` output folder (its ``report.json``): a **discrimination** design between
 the candidates built from its diagnosis (:mod:`aeropend_ident.design.candidates`), fitted on the
@@ -28,7 +28,9 @@ that controller in closed loop on every candidate (or on the fitted rig), writte
 
 ``--outcome`` compares a design's prediction with a ``gap`` report made with the
 designed recording among its fit recordings (and, given the designed recording, ranks the
-candidates on it).
+candidates on it and says what it names: the candidates as fitted on the earlier recordings, or,
+when none of them explains it as sized, refitted on the earlier recordings and it together,
+:func:`aeropend_ident.design.discriminate.refit_evidence`; ``--no-refit`` stops at the first).
 
 ``OUT`` is checked before the search and written at its end in one step: an existing, non-empty
 folder is refused unless ``--overwrite`` is given and it holds an earlier design (``design.*``),
@@ -98,6 +100,9 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
         ap.add_argument(f"--{name}", dest=name.replace("-", "_"), type=float, help=help_)
     ap.add_argument("--outcome", help="gap report made with the designed recording (compare prediction)")
     ap.add_argument("--design", type=Path, help="design folder (with --outcome)")
+    ap.add_argument("--no-refit", action="store_true",
+                    help="with --outcome: when no candidate explains the designed recording as sized on the "
+                         "earlier recordings, say so and stop (default: refit them on both and judge again)")
     return ap
 
 
@@ -124,6 +129,16 @@ def _recordings(args: argparse.Namespace, offset: float) -> list[Any]:
         check_length(r, "earlier recording")
         recs.append(to_model_frame(r, offset) if offset else r)
     return recs
+
+
+def _resolved(inputs: Sequence[str]) -> list[str]:
+    """The inputs as absolute paths (a ``:PRESET`` or ``:kind`` suffix kept): design.json's
+    ``earlier``, what ``--outcome`` refits on."""
+    out = []
+    for x in inputs:
+        path, sep, rest = x.partition(":")
+        out.append(str(Path(path).resolve()) + sep + rest)
+    return out
 
 
 def _limits(args: argparse.Namespace, recs: Sequence[Any], offset: float = 0.0) -> Any:
@@ -178,6 +193,7 @@ def discrimination(args: argparse.Namespace, out: OutputFolder) -> dict[str, Any
         raise DesignCliError("the earlier recordings leave one candidate standing "
                              f"({cands[0].name}): nothing to discriminate; candidate fits: {rows}")
     doc = {"kind": "discrimination", "design_for": str(args.design_for), "rig": rig_ref, "mode": args.mode,
+           "earlier": _resolved(args.recordings), "preset": args.preset,
            "seed": args.seed, "duration_s": args.duration, "limits": limits.as_dict(),
            "channels": channels, "sigma": sigma, "chosen_before": chosen,
            "candidates": [c.as_dict() for c in cands], "candidate_fits": rows}
@@ -317,14 +333,33 @@ def outcome(args: argparse.Namespace) -> dict[str, Any]:
         raise DesignCliError("--outcome compares discrimination designs (a parameter design's outcome is the "
                              "new rig fit's standard errors)")
     report = json.loads((Path(args.outcome) / "report.json").read_text(encoding="utf-8"))
-    ev = None
+    ev = refit = None
     if args.recordings:
         from aeropend_ident.gap.compare import load_model
 
-        offset = load_model(design["rig"]).measurement.theta_offset
+        model = load_model(design["rig"])
+        offset = model.measurement.theta_offset
         rec = _recordings(args, offset)[0]
         ev = evidence(load_candidates(args.design), rec.duty, rec.channels, design["sigma"], rec.dt)
-    return compare_outcome(design, report, ev)
+        if ev["unexplained"] and not args.no_refit:
+            refit = _refit(design, model, rec)
+    return compare_outcome(design, report, ev, refit)
+
+
+def _refit(design: dict[str, Any], model: Any, rec: Any) -> dict[str, Any]:
+    """``--outcome`` on a designed recording no candidate explains as sized: the candidates refitted
+    on the earlier recordings (design.json's ``earlier``) and the designed one
+    (:func:`aeropend_ident.design.discriminate.refit_evidence`)."""
+    from aeropend_ident.design.discriminate import refit_evidence
+
+    gone = [x for x in design.get("earlier") or [] if not Path(x.partition(":")[0]).exists()]
+    if gone or not design.get("earlier"):
+        why = f"the earlier recording(s) {', '.join(gone)} are gone" if gone else \
+            "design.json does not name the earlier recordings (a design made before they were kept)"
+        return {"skipped": f"no refit: {why}"}
+    ns = argparse.Namespace(recordings=design["earlier"], preset=design.get("preset"))
+    recs = _recordings(ns, model.measurement.theta_offset)
+    return refit_evidence(model.rig, recs, rec, [c["effects"] for c in design["candidates"]], design["sigma"])
 
 
 @exits_cleanly_on_faults("excitation_design")

@@ -46,7 +46,13 @@ from typing import Any
 
 import numpy as np
 
-from aeropend_ident.design.candidates import Candidate, nested_sets
+from aeropend_ident.design.candidates import (
+    KEEP_SSE_FACTOR,
+    Candidate,
+    fit_candidates,
+    held_setting_effects,
+    nested_sets,
+)
 from aeropend_ident.design.sequence import (
     ANGLE_PENALTY,
     BUDGET_S,
@@ -306,12 +312,17 @@ def rank_draws(names: Sequence[str], outputs_of: Callable[[int], Mapping[str, np
     return {"per_candidate": probs, "mean": float(np.mean(finite)) if finite else math.nan, "draws": draws}
 
 
+#: Most candidates a refit keeps for the verdict (:func:`refit_evidence`; its nested special cases
+#: beside them): every set one swap from the best within the fit-error factor fits in.
+REFIT_CANDIDATES = 16
+
 #: Family-wise false-refutation rate of :func:`verdict` (Bonferroni over the rivals of the best).
 VERDICT_ALPHA = 0.05
 
 
 def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mapping[str, np.ndarray],
-             sigma: Mapping[str, float], dt: float, *, alpha: float = VERDICT_ALPHA) -> dict[str, Any]:
+             sigma: Mapping[str, float], dt: float, *, alpha: float = VERDICT_ALPHA,
+             refuted_before: int = 0) -> dict[str, Any]:
     """Each candidate's free run from rest on a recorded sequence against the recording, and what
     the recording names (:func:`verdict`).
 
@@ -331,6 +342,8 @@ def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mappin
         Sample period [s].
     alpha : float
         Family-wise level of the refutations (:func:`verdict`).
+    refuted_before : int
+        Rivals refuted before this verdict by data that include this recording (:func:`verdict`).
 
     Returns
     -------
@@ -357,12 +370,72 @@ def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mappin
     res = {"chi2": chi2, "first": order[0] if order else None, "order": order, "samples": int(n),
            "best_rms_over_noise": math.sqrt(chi2[order[0]] / (n * len(sigma))) if order else math.nan}
     res.update(verdict(candidates, segs, noise=float(w * len(sigma)), alpha=alpha,
-                       misfit=res["best_rms_over_noise"]))
+                       misfit=res["best_rms_over_noise"], refuted_before=refuted_before))
+    return res
+
+
+def refit_evidence(rig: Any, earlier: Sequence[Any], designed: Any, sets: Sequence[Sequence[str]],
+                   sigma: Mapping[str, float], *, alpha: float = VERDICT_ALPHA) -> dict[str, Any]:
+    """What a designed recording names once the candidates are refitted on it: the step after a
+    recording that no candidate explains as sized on the earlier recordings (:func:`evidence`'s
+    ``unexplained``).
+
+    Every candidate set, the sets one swap away from the best refit and the nested special cases
+    of each (:func:`~aeropend_ident.design.candidates.fit_candidates` with ``neighbours``) are fitted
+    on the earlier recordings and the designed one together, the held settings of their effects
+    fitted too (the dry friction's onset width v_ε: a designed recording's holds show how slowly
+    the rod creeps, and at the rig file's width a Stribeck curve stood in for a plain Coulomb
+    friction on lab cases 73 and 76). A set whose fit error on all of them exceeds
+    :data:`~aeropend_ident.design.candidates.KEEP_SSE_FACTOR` × the best is refuted by data that
+    include the designed recording; the others (at most :data:`REFIT_CANDIDATES`, with the nested
+    special cases of each) go to :func:`verdict` on the designed recording's 1 s segments, which
+    refutes the rivals of the best and names the fewest effects among those it cannot refute. The
+    refutations are in sample (each set saw the recording), so a richer set fits at least as well as
+    the set it extends; what keeps an effect the recording does not demand out is the same rule as
+    without refit: of the sets not refuted the fewest effects, a nested special case before its
+    richer effect.
+
+    Parameters
+    ----------
+    rig : Rig
+        The nominal rig the diagnosis was made against.
+    earlier : sequence of Recording
+        The earlier recordings (recording frame), as given to the design.
+    designed : Recording
+        The designed recording (recording frame, uniform grid).
+    sets : sequence of sequences of str
+        The design's candidate effect sets.
+    sigma : mapping
+        Noise σ per channel (the design's).
+    alpha : float
+        Family-wise level of the refutations.
+
+    Returns
+    -------
+    dict
+        :func:`evidence` of the refitted candidates on the designed recording, with ``refit``
+        True, ``refit_rows`` (one row per set fitted: its fit error, or why it could not be
+        fitted) and ``refit_free_settings`` (the effects whose held settings were fitted).
+
+    Raises
+    ------
+    GapError
+        When the nominal rig cannot be replayed on the recordings, or no set could be fitted.
+    """
+    free = held_setting_effects(rig.family)
+    cands, rows = fit_candidates(rig, [*earlier, designed], sets, neighbours=True,
+                                 max_candidates=REFIT_CANDIDATES, free_settings=free)
+    sse = [float(r["fit_sse"]) for r in rows if "fit_sse" in r]
+    dropped = sum(1 for x in sse if x > KEEP_SSE_FACTOR * min(sse))
+    res = evidence(cands, designed.duty, designed.channels, sigma, designed.dt, alpha=alpha,
+                   refuted_before=dropped)
+    res.update({"refit": True, "refit_rows": rows, "refit_free_settings": sorted(free)})
     return res
 
 
 def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
-            alpha: float = VERDICT_ALPHA, misfit: float | None = None) -> dict[str, Any]:
+            alpha: float = VERDICT_ALPHA, misfit: float | None = None, refuted_before: int = 0
+            ) -> dict[str, Any]:
     """What one recording names among candidates fitted without it.
 
     The candidate with the least error is the best; each other candidate is refuted when the
@@ -392,6 +465,12 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     misfit : float, optional
         The best candidate's error RMS over the noise σ (:func:`evidence`); above
         :data:`UNEXPLAINED_RMS` nothing is named.
+    refuted_before : int
+        Rivals refuted before this verdict by data that include this recording (a refit's sets
+        whose fit error on the earlier recordings and this one together exceeds
+        :data:`~aeropend_ident.design.candidates.KEEP_SSE_FACTOR` × the best,
+        :func:`refit_evidence`): the recording has then separated something even when it refutes
+        none of the candidates left.
 
     Returns
     -------
@@ -429,7 +508,7 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     # a recording that refutes none of the rivals separated nothing: it may still say that it
     # demands no effect (the nominal rig among the survivors), but the fewest effects among all the
     # candidates would be effects named without it (lab case 80 named such a set, wrongly)
-    refuted_any = len(alive) < len(candidates)
+    refuted_any = len(alive) < len(candidates) or refuted_before > 0
     unexplained = misfit is not None and not misfit <= UNEXPLAINED_RMS
     named = (candidates[small[0]] if len(small) == 1 and (refuted_any or fewest == 0) and not unexplained
              else None)

@@ -214,7 +214,8 @@ def load_candidates(folder: Path) -> list[Candidate]:
 
 
 def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
-                    evidence: Mapping[str, Any] | None = None) -> dict[str, Any]:
+                    evidence: Mapping[str, Any] | None = None,
+                    refit: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The design's prediction against what the rerun diagnosis (and the recording) showed.
 
     Parameters
@@ -240,7 +241,11 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         ``recording_best_rms_over_noise`` and ``recording_unexplained`` (far above 1: a gap no
         candidate explains, refit with ``gap``; above
         :data:`~aeropend_ident.design.discriminate.UNEXPLAINED_RMS` the recording names nothing
-        and a ``note`` says why).
+        as sized and a ``note`` says why). With ``refit`` (the candidates refitted on the earlier
+        recordings and the designed one,
+        :func:`~aeropend_ident.design.discriminate.refit_evidence`, or ``{"skipped": why}``):
+        ``refit`` holds what it names, its survivors, refutations and misfit, and
+        ``recording_names`` becomes its answer (``recording_names_as_sized`` keeps the first).
     """
     chosen, _ranking = diagnosis_view(gap_report)
     cands = design["candidates"]
@@ -268,4 +273,26 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
                            f"recording by {rms:.1f}x its noise RMS or more: it shows a gap none of them "
                            "explains as sized, so it names none of them. Refit: run gap with the "
                            "designed recording among the fit recordings")
+    if refit is not None:
+        out["refit"] = _refit_summary(refit)
+        if "skipped" not in refit:
+            out["recording_names_as_sized"] = out.get("recording_names")
+            out["recording_names"] = refit.get("named_effects")
+            out["note"] = out.get("note", "").replace(
+                "Refit: run gap with the designed recording among the fit recordings",
+                "Refitted on the earlier recordings and the designed one: see refit")
     return out
+
+
+def _refit_summary(refit: Mapping[str, Any]) -> dict[str, Any]:
+    """``compare_outcome``'s ``refit`` entry."""
+    if "skipped" in refit:
+        return {"skipped": refit["skipped"]}
+    return {"names": refit.get("named_effects"), "first": refit.get("first"),
+            "not_separated": list(refit.get("survivors") or []),
+            "refuted_p": dict(refit.get("refuted_p") or {}),
+            "best_rms_over_noise": refit.get("best_rms_over_noise"),
+            "unexplained": bool(refit.get("unexplained")),
+            "free_settings": list(refit.get("refit_free_settings") or []),
+            "sets_fitted": list(refit.get("refit_rows") or [])}
+
