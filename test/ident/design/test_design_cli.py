@@ -78,6 +78,17 @@ def test_error_exits(tmp_path, step_log, capsys):
     assert "not a gap report" in capsys.readouterr().err
 
 
+def _design_doc(cands: list, duty: np.ndarray, predicted: dict, **extra) -> dict:
+    """A discrimination design.json of ``cands`` on ``duty`` (thesis_sim, θ alone, σ 2 mrad)."""
+    return {"kind": "discrimination", "rig": str(RIG), "sigma": {"theta": 2e-3},
+            "candidates": [c.as_dict() for c in cands], "duration_s": duty.size * DT, "seed": 0,
+            "limits": {"dt": DT, "duty_min": 0.0, "duty_max": 1.0, "max_slew": 1e3, "theta_min": -1.0,
+                       "theta_max": 1.5}, "limits_check": {"ok": True}, "evaluations": 1, "elapsed_s": 0.0,
+            "predicted": {"per_candidate": predicted, "draws": 1},
+            "predicted_baseline_aprbs": {"per_candidate": {}, "draws": 1},
+            "min_divergence": 1.0, "baseline_min_divergence": 1.0, **extra}
+
+
 def test_outcome_compares_the_prediction_with_a_new_report(tmp_path, capsys):
     from aeropend_ident.design.candidates import Candidate
     from aeropend_ident.design.discriminate import Predictor
@@ -88,13 +99,7 @@ def test_outcome_compares_the_prediction_with_a_new_report(tmp_path, capsys):
     lagged, meas = apply_effects(rig, {"actuator_lag": {"lag_time_constant": 0.02}})
     cands = [Candidate("nominal", (), rig), Candidate("actuator_lag", ("actuator_lag",), lagged, meas)]
     duty = np.concatenate([np.zeros(25), np.tile(np.repeat([0.3, 0.6], 15), 10)])
-    doc = {"kind": "discrimination", "rig": str(RIG), "sigma": {"theta": 2e-3}, "chosen_before": [],
-           "candidates": [c.as_dict() for c in cands], "duration_s": duty.size * DT, "seed": 0,
-           "limits": {"dt": DT, "duty_min": 0.0, "duty_max": 1.0, "max_slew": 1e3, "theta_min": -1.0,
-                      "theta_max": 1.0}, "limits_check": {"ok": True}, "evaluations": 1, "elapsed_s": 0.0,
-           "predicted": {"per_candidate": {"nominal": 0.97, "actuator_lag": 0.96}, "draws": 1},
-           "predicted_baseline_aprbs": {"per_candidate": {}, "draws": 1},
-           "min_divergence": 1.0, "baseline_min_divergence": 1.0}
+    doc = _design_doc(cands, duty, {"nominal": 0.97, "actuator_lag": 0.96}, chosen_before=[])
     write_design(tmp_path / "design", doc, duty, DT, cands)
     theta = Predictor(cands, ("theta",), DT, duty.size)(duty)["theta"][1]
     rec = Recording(t=np.arange(duty.size) * DT, duty=duty,
@@ -149,14 +154,8 @@ def test_outcome_refits_the_candidates_when_none_explains_the_designed_recording
     earlier = record(aprbs(12.0, lo=0.35, hi=0.7, min_hold=0.2, max_hold=1.5, seed=1, dt=DT).duty, "earlier")
     duty = aprbs(16.0, lo=0.2, hi=0.8, min_hold=0.1, max_hold=1.0, seed=4, dt=DT).duty
     designed = record(duty, "designed")
-    doc = {"kind": "discrimination", "rig": str(RIG), "sigma": {"theta": 2e-3}, "chosen_before": ["inertia"],
-           "earlier": [str(earlier)], "preset": None,
-           "candidates": [c.as_dict() for c in cands], "duration_s": duty.size * DT, "seed": 0,
-           "limits": {"dt": DT, "duty_min": 0.0, "duty_max": 1.0, "max_slew": 1e3, "theta_min": -1.0,
-                      "theta_max": 1.5}, "limits_check": {"ok": True}, "evaluations": 1, "elapsed_s": 0.0,
-           "predicted": {"per_candidate": {"nominal": 0.9, "inertia": 0.9}, "draws": 1},
-           "predicted_baseline_aprbs": {"per_candidate": {}, "draws": 1},
-           "min_divergence": 1.0, "baseline_min_divergence": 1.0}
+    doc = _design_doc(cands, duty, {"nominal": 0.9, "inertia": 0.9}, chosen_before=["inertia"],
+                      earlier=[str(earlier)], preset=None)
     write_design(tmp_path / "design", doc, duty, DT, cands)
     (tmp_path / "gap").mkdir()
     (tmp_path / "gap" / "report.json").write_text(json.dumps(
