@@ -647,7 +647,7 @@ class BridgeNode(LifecycleNode):
                 f"decoder_errors={s.errors} reconnects={self.stats.reconnects} "
                 f"commands={self.watchdog.accepted} rejected={self.watchdog.rejected} "
                 f"watchdog_trips={self.watchdog.trips} "
-                f"firmware_watchdog_trips={self.stats.mcu_status.get('watchdog_trips', 'unknown')}")
+                f"firmware_trips={self.stats.mcu_status.get('watchdog_trips', 'unknown')}")
 
 
 def main(args: list[str] | None = None) -> int:

@@ -239,7 +239,7 @@ def _hardware_graph(firmware: Path, rig: Path, tmp: Path) -> tuple[np.ndarray, n
         assert lost and int(lost[-1]) == 0, f"the bridge lost sample frames: {_tail(logs['bridge'])}"
         # one trip is the end of the run: the controller stops commanding at its duration, the bridge
         # stays active until it is stopped; more are the controller falling silent during the run
-        trips = re.findall(r"watchdog_trips=(\d+)", logs["bridge"].read_text(errors="replace"))
+        trips = re.findall(r"\bwatchdog_trips=(\d+)", logs["bridge"].read_text(errors="replace"))
         assert trips and int(trips[-1]) <= 1, (
             f"the controller fell silent for over the bridge's command timeout {int(trips[-1]) - 1} time(s) "
             f"during the run: the real-time loop was starved (the test needs the machine to itself: "
