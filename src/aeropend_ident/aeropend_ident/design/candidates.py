@@ -365,7 +365,8 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
     Returns
     -------
     (list of Candidate, list of dict)
-        The kept candidates, best fit first, and one row per set (fit error, kept or why not).
+        The kept candidates, best fit first, and one row per set (fit error, kept or why not;
+        ``refuted`` True where its fit error exceeds ``keep_factor`` × the best).
 
     Raises
     ------
@@ -439,8 +440,9 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
             elif label(row["effects"]) in nested:
                 row["why"] = "the special case of a kept set's richer effect, kept to be tested"
             elif not row["kept"]:
+                row["refuted"] = row["fit_sse"] > keep_factor * best
                 row["why_not"] = (f"fit error {row['fit_sse'] / best:.2f}× the best: refuted by the earlier "
-                                  "data" if row["fit_sse"] > keep_factor * best else "over max_candidates")
+                                  "data" if row["refuted"] else "over max_candidates")
     return kept, rows
 
 

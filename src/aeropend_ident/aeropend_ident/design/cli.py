@@ -117,7 +117,7 @@ def _recordings(args: argparse.Namespace, offset: float) -> list[Any]:
     tables = [p for p in args.recordings if is_table(p)]
     paths = [p for p in args.recordings if not is_table(p)]
     if tables:
-        names = ", ".join(Path(t.partition(":")[0]).name for t in tables)
+        names = ", ".join(_input_path(t).name for t in tables)
         print(f"{names}: static table(s), read by rig fit and gap; the design replays the recordings only",
               file=sys.stderr)
     if not paths:
@@ -129,6 +129,11 @@ def _recordings(args: argparse.Namespace, offset: float) -> list[Any]:
         check_length(r, "earlier recording")
         recs.append(to_model_frame(r, offset) if offset else r)
     return recs
+
+
+def _input_path(arg: str) -> Path:
+    """The file of an input argument (``FILE``, ``FILE:PRESET`` or a table's ``FILE:kind``)."""
+    return Path(arg.partition(":")[0])
 
 
 def _resolved(inputs: Sequence[str]) -> list[str]:
@@ -158,7 +163,7 @@ def _limits(args: argparse.Namespace, recs: Sequence[Any], offset: float = 0.0) 
                    if getattr(args, k) is not None})
     q = max(detect_quantum(np.asarray(r.channels["theta"])) for r in recs)
     thetas, duties = [r.channels["theta"] for r in recs], [r.duty for r in recs]
-    for t in (read_table(x.partition(":")[0]) for x in args.recordings if is_table(x)):
+    for t in (read_table(_input_path(x)) for x in args.recordings if is_table(x)):
         duties.append(t.command)
         if t.kind == "balance":
             thetas.append(t.value + offset)
@@ -352,7 +357,7 @@ def _refit(design: dict[str, Any], model: Any, rec: Any) -> dict[str, Any]:
     (:func:`aeropend_ident.design.discriminate.refit_evidence`)."""
     from aeropend_ident.design.discriminate import refit_evidence
 
-    gone = [x for x in design.get("earlier") or [] if not Path(x.partition(":")[0]).exists()]
+    gone = [x for x in design.get("earlier") or [] if not _input_path(x).exists()]
     if gone or not design.get("earlier"):
         why = f"the earlier recording(s) {', '.join(gone)} are gone" if gone else \
             "design.json does not name the earlier recordings (a design made before they were kept)"
@@ -384,7 +389,7 @@ def main(argv: Sequence[str] | None = None, prog: str = "excitation_design") -> 
 
         # checked before the search (fail fast), written at its end in one step: an earlier
         # design is replaced only with --overwrite, and never left half replaced
-        inputs = [target, *(x.partition(":")[0] for x in args.recordings),
+        inputs = [target, *(_input_path(x) for x in args.recordings),
                   *([args.controller] if args.controller else [])]
         out = claim_output_folder(args.out, args.overwrite, own=DESIGN_FILES,
                                   looks_like="an experiment design", inputs=inputs)

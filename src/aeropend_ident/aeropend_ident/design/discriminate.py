@@ -47,7 +47,6 @@ from typing import Any
 import numpy as np
 
 from aeropend_ident.design.candidates import (
-    KEEP_SSE_FACTOR,
     Candidate,
     fit_candidates,
     held_setting_effects,
@@ -425,10 +424,8 @@ def refit_evidence(rig: Any, earlier: Sequence[Any], designed: Any, sets: Sequen
     free = held_setting_effects(rig.family)
     cands, rows = fit_candidates(rig, [*earlier, designed], sets, neighbours=True,
                                  max_candidates=REFIT_CANDIDATES, free_settings=free)
-    sse = [float(r["fit_sse"]) for r in rows if "fit_sse" in r]
-    dropped = sum(1 for x in sse if x > KEEP_SSE_FACTOR * min(sse))
     res = evidence(cands, designed.duty, designed.channels, sigma, designed.dt, alpha=alpha,
-                   refuted_before=dropped)
+                   refuted_before=sum(bool(r.get("refuted")) for r in rows))
     res.update({"refit": True, "refit_rows": rows, "refit_free_settings": sorted(free)})
     return res
 

@@ -248,6 +248,7 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         ``recording_names`` becomes its answer (``recording_names_as_sized`` keeps the first).
     """
     chosen, _ranking = diagnosis_view(gap_report)
+    refitted = refit is not None and "skipped" not in refit
     cands = design["candidates"]
     match = next((c["name"] for c in cands if set(c["effects"]) == set(chosen)), None)
     pred = design["predicted"]["per_candidate"]
@@ -269,18 +270,16 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         out["recording_best_rms_over_noise"] = rms
         out["recording_unexplained"] = bool(evidence.get("unexplained"))
         if rms is not None and math.isfinite(rms) and rms > UNEXPLAINED_RMS:
+            step = ("Refitted on the earlier recordings and the designed one: see refit" if refitted else
+                    "Refit: run gap with the designed recording among the fit recordings")
             out["note"] = (f"every candidate, as fitted on the earlier recordings, misses the designed "
                            f"recording by {rms:.1f}x its noise RMS or more: it shows a gap none of them "
-                           "explains as sized, so it names none of them. Refit: run gap with the "
-                           "designed recording among the fit recordings")
+                           f"explains as sized, so it names none of them. {step}")
     if refit is not None:
         out["refit"] = _refit_summary(refit)
-        if "skipped" not in refit:
+        if refitted:
             out["recording_names_as_sized"] = out.get("recording_names")
             out["recording_names"] = refit.get("named_effects")
-            out["note"] = out.get("note", "").replace(
-                "Refit: run gap with the designed recording among the fit recordings",
-                "Refitted on the earlier recordings and the designed one: see refit")
     return out
 
 
