@@ -20,7 +20,9 @@ where the equation error is not. The record is cut into windows (multiple shooti
 Bock & Plitt 1984): each window starts from its own initial state, estimated as extra
 parameters, so an imperfect model cannot drift over the whole record and the problem stays
 well conditioned; the window states enter the Jacobian block-diagonally, so
-its forward differences cost one simulation per coefficient plus one per simulated state.
+its forward differences cost one simulation per coefficient plus one per simulated state, and it
+is kept sparse (n_r·(n_c + n_s) entries; the trust-region step is solved by LSMR): held dense, a
+120 s record at 1 kHz made a 0.9 GB matrix whose SVD took most of the fit (docs/identification.md).
 
 Integration: fixed-step RK4 with ``substeps`` steps per sample, all windows in parallel (one
 vectorised library evaluation per stage). Inputs held over each sample period (``zoh_inputs``:
@@ -38,6 +40,7 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.sparse import csr_matrix
 
 from aeropend_ident.errors import IdentificationError, LibraryError
 from aeropend_ident.sindy.libraries import CandidateLibrary
@@ -45,6 +48,8 @@ from aeropend_ident.sindy.model import ZOH_INPUTS, IdentData, SindyModel, input_
 
 #: Forward-difference step on the scaled parameters (coefficient multipliers ~1, states / RMS).
 _EPS = 1e-7
+#: Stopping tolerances (atol, btol) of LSMR, the trust-region step's sparse least-squares solver.
+LSMR_TOL = 1e-12
 
 
 def _windows(n: int, length: int) -> np.ndarray:
@@ -134,11 +139,12 @@ def _coef_std(model: SindyModel, coef: np.ndarray, sol: Any, rows: list[int], su
     """Standard errors of the refined coefficients from the Jacobian, s²·(JᵀJ)⁻¹ (others kept)."""
     n_c = c0.size
     std = np.full_like(coef, np.nan) if model.coef_std is None else model.coef_std.copy()  # NaN: unknown
-    jac = sol.jac.toarray() if hasattr(sol.jac, "toarray") else np.asarray(sol.jac)
+    jtj = sol.jac.T @ sol.jac  # (n_p, n_p): small whatever the record's length
+    jtj = jtj.toarray() if hasattr(jtj, "toarray") else np.asarray(jtj)
     dof = max(dof_raw, 1)
     s2 = 2.0 * sol.cost / dof
     try:
-        cov = np.linalg.inv(jac.T @ jac)[:n_c, :n_c] * s2
+        cov = np.linalg.inv(jtj)[:n_c, :n_c] * s2
         se = np.sqrt(np.clip(np.diag(cov), 0.0, None)) * np.abs(c0)
     except np.linalg.LinAlgError:
         se = np.full(n_c, np.nan)
@@ -257,22 +263,28 @@ def refine_output_error(
     per_w = (length + 1) * n_s
     cache: dict[str, np.ndarray] = {"p": p0, "r": r0}
 
-    def jacobian(p: np.ndarray) -> np.ndarray:
-        """Forward differences; one simulation per coefficient and per state for all window starts
-        together (a window's residuals depend only on its own initial state)."""
+    block_rows = np.arange(n_r)  # window w's residuals are rows w·per_w … (w+1)·per_w − 1
+
+    def jacobian(p: np.ndarray) -> csr_matrix:
+        """Forward differences, sparse (n_r, n_c + n_w·n_s): one simulation per coefficient (a dense
+        column) and per state for all window starts together (a window's residuals depend only on
+        its own initial state: one block of per_w rows per column)."""
         r = cache["r"] if np.array_equal(p, cache["p"]) else residuals(p)
-        jac = np.zeros((n_r, p.size))
+        dense = np.empty((n_r, n_c))
         for i in range(n_c):
             q = p.copy()
             q[i] += _EPS
-            jac[:, i] = (residuals(q) - r) / _EPS
-        block = np.arange(n_w)[:, None] * per_w + np.arange(per_w)[None, :]
+            dense[:, i] = (residuals(q) - r) / _EPS
+        vals, cols = [dense.ravel()], [np.tile(np.arange(n_c), n_r)]
+        rows_ = [np.repeat(block_rows, n_c)]
         for s_ in range(n_s):
             q = p.copy()
             q[n_c + s_::n_s] += _EPS
-            d = ((residuals(q) - r) / _EPS).reshape(n_w, per_w)
-            jac[block, (n_c + np.arange(n_w) * n_s + s_)[:, None]] = d
-        return jac
+            vals.append((residuals(q) - r) / _EPS)
+            cols.append(np.repeat(n_c + np.arange(n_w) * n_s + s_, per_w))
+            rows_.append(block_rows)
+        return csr_matrix((np.concatenate(vals), (np.concatenate(rows_), np.concatenate(cols))),
+                          shape=(n_r, p.size))
 
     def fun(p: np.ndarray) -> np.ndarray:
         r = residuals(p)
@@ -280,8 +292,9 @@ def refine_output_error(
         return r
 
     with np.errstate(all="ignore"):
-        sol = least_squares(fun, p0, jac=jacobian, method="trf", tr_solver="exact", x_scale=1.0,
-                            max_nfev=max_nfev, xtol=1e-12, ftol=1e-12, gtol=1e-10)
+        sol = least_squares(fun, p0, jac=jacobian, method="trf", tr_solver="lsmr", x_scale=1.0,
+                            max_nfev=max_nfev, xtol=1e-12, ftol=1e-12, gtol=1e-10,
+                            tr_options={"atol": LSMR_TOL, "btol": LSMR_TOL})
     coef_t, _ = unpack(sol.x)
     coef = model.coef.copy()
     coef[rows] = coef_t
