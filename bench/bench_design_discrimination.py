@@ -37,7 +37,7 @@ design time, the design's predicted probability that each candidate ranks first 
 truth (:func:`~aeropend_ident.design.discriminate.rank_first_probability`) against the seeded
 APRBS of the same length, and whether the truth set was among the candidates.
 
-Usage: ``python -m bench.bench_design_discrimination [--only 87,90] [--workers 2] [-q]`` ->
+Usage: ``python -m bench.bench_design_discrimination [--only 87,90] [--workers 1] [-q]`` ->
 ``bench/results/design_discrimination.{json,md}``.
 """
 
@@ -59,6 +59,10 @@ from bench.fixtures.provenance import git_commit
 RESULTS = Path(__file__).resolve().parent / "results"
 #: Length of every designed recording [s] (the issue's cap is 60 s).
 DURATION = 40.0
+#: Cases run at once by default: one, so a case's design time is what a lab running one design on this
+#: machine waits (the issue's per-case figure); two at once on the 2 cores each took about twice as
+#: long (on 2026-12-01, case 80: 116.1 s beside another case, 51.2 s alone; case 84: 63.5 s, 31.3 s).
+WORKERS = 1
 #: Default cases: unresolved triples of the lab benchmark (open and closed loop, 50-490 Hz, with
 #: and without every channel) and two effect-free plants.
 DEFAULT_CASES = (73, 80, 81, 84, 87, 90, 93, 95, 76, 86, 0, 2)
@@ -387,7 +391,8 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
 
 
 def lab_case_bench(description: str, run_case: Any, summarise: Any, write_md: Any, *, default: Sequence[int],
-                   out: Path, desc: str, meta: dict[str, Any], argv: list[str] | None = None) -> int:
+                   out: Path, desc: str, meta: dict[str, Any], argv: list[str] | None = None,
+                   workers: int = 2) -> int:
     """The command line shared by the design benchmarks over lab cases: ``--only`` (lab case indices,
     default ``default``), ``--workers``, ``--out`` (stem, default ``out``), ``-q``; the cases run by
     :func:`aeropend_ident.parallel.run_cases`, sorted by index, written as ``{meta, summary, cases}``
@@ -396,7 +401,7 @@ def lab_case_bench(description: str, run_case: Any, summarise: Any, write_md: An
 
     ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--only", default=",".join(map(str, default)), help="comma-separated lab case indices")
-    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--workers", type=int, default=workers)
     ap.add_argument("--out", type=Path, default=out)
     ap.add_argument("-q", "--quiet", action="store_true")
     args = ap.parse_args(argv)
@@ -416,7 +421,7 @@ def lab_case_bench(description: str, run_case: Any, summarise: Any, write_md: An
 def main(argv: list[str] | None = None) -> int:
     return lab_case_bench(__doc__.split("\n", 1)[0], run_case, summarise, write_md, default=DEFAULT_CASES,
                           out=RESULTS / "design_discrimination", desc="designs",
-                          meta={"duration_s": DURATION}, argv=argv)
+                          meta={"duration_s": DURATION}, argv=argv, workers=WORKERS)
 
 
 if __name__ == "__main__":
