@@ -40,6 +40,7 @@ from aeropend_ident.design.sequence import (
     sequence,
     slew_limited,
 )
+from aeropend_ident.errors import GapError
 from aeropend_ident.gap.effects import apply_effects
 from aeropend_ident.gap.which import context as fit_threads_module
 from aeropend_sim.excitation import ExcitationError, aprbs, make_signal
@@ -492,3 +493,33 @@ def test_a_design_whose_start_leaves_the_angle_range_is_brought_back_inside():
     assert angle_penalty(np.array([0.0, 0.6]), tight) > angle_penalty(np.array([0.0, 0.9]), tight)
     assert angle_penalty(np.array([0.0, 0.4]), tight) == 0.0
     assert angle_penalty(np.array([0.0, np.nan]), tight) < angle_penalty(np.array([0.0, 1e6]), tight)
+
+
+def test_the_candidate_fits_run_on_one_blas_thread_whatever_the_caller_set(pair, monkeypatch):
+    """The design's fits are least-squares solves whose result, on an ill-conditioned fit, depends on
+    the rounding of BLAS' threaded sums (bench/repro/design_blas_threads.py: lab case 73 named
+    another set with 2 OpenBLAS threads than with 1): ``fit_candidates`` holds BLAS to one thread
+    inside, as ``run_gap`` and ``fit_rig`` do, whatever the caller set."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    import aeropend_ident.design.candidates as candidates_module
+    from aeropend_sim.excitation import aprbs
+    from aeropend_sim.recording import Recording
+
+    sig = aprbs(8.0, lo=0.3, hi=0.7, min_hold=0.2, max_hold=1.0, seed=2, dt=DT)
+    y = Predictor(pair[:1], ("theta",), DT, sig.duty.size)(sig.duty)["theta"][0]
+    rec = Recording(t=np.arange(sig.duty.size) * DT, duty=sig.duty, channels={"theta": y}, source="spy")
+    seen = []
+
+    def spy(*_args, **_kwargs):
+        seen.append({i["internal_api"]: i["num_threads"] for i in threadpool_info()})
+        raise ValueError("spy: no fit")
+
+    monkeypatch.setattr(candidates_module, "fit_effects", spy)
+    monkeypatch.setenv("AEROPEND_REPLAY_THREADS", "1")  # the spy runs on this thread
+    with threadpool_limits(limits=2):
+        with pytest.raises(GapError, match="no candidate"):
+            fit_candidates(pair[0].rig, [rec], [("inertia",)])
+        after = {i["internal_api"]: i["num_threads"] for i in threadpool_info()}
+    assert seen and all(v == 1 for s in seen for v in s.values()), seen
+    assert all(v == 2 for v in after.values())  # the caller's setting back afterwards

@@ -56,6 +56,7 @@ from aeropend_ident.gap.which.context import each_in_fit_threads
 from aeropend_ident.gap.which.data import Prepared, prepare, residuals
 from aeropend_ident.gap.which.fitting import fit_effects
 from aeropend_ident.gap.which.ranking import excluded_with
+from aeropend_ident.greybox.batch import single_blas
 from aeropend_ident.greybox.fit import measurement_noise
 from aeropend_ident.io.resampling import detect_quantum
 from aeropend_sim.params import Rig
@@ -330,6 +331,7 @@ def absent_effects(values: Mapping[str, Mapping[str, float]], ctx: EffectContext
     return out
 
 
+@single_blas
 def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Sequence[str]], *,
                    ranking: Sequence[Mapping[str, Any]] = (), max_candidates: int = 6,
                    keep_factor: float = KEEP_SSE_FACTOR, keep: Sequence[Sequence[str]] = (),
@@ -466,6 +468,7 @@ def _kept(fitted: Sequence[Candidate], max_sse: float, keep: Sequence[Sequence[s
     return kept, {c.name for c in extra}
 
 
+@single_blas
 def diagnosis_candidates(report: Mapping[str, Any], rig: Rig, recordings: Sequence[Recording], *,
                          max_effects: int = 3) -> tuple[list[Candidate], list[dict[str, Any]]]:
     """The candidates a discrimination design separates, from a gap diagnosis and the recordings

@@ -67,7 +67,7 @@ from aeropend_ident.design.sequence import (
     sequence,
 )
 from aeropend_ident.gap.which.metrics import SEGMENT
-from aeropend_ident.greybox.batch import RigReplays
+from aeropend_ident.greybox.batch import RigReplays, single_blas
 from aeropend_ident.greybox.fit import motor_equilibrium
 
 #: The best candidate's error RMS over the noise σ on a recording above which no candidate explains
@@ -189,6 +189,7 @@ def smallest_divergence(outputs: Mapping[str, np.ndarray], sigma: Mapping[str, f
     return float(np.min(d[iu])) if iu[0].size else math.inf
 
 
+@single_blas
 def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, float], limits: Limits,
                           shape: AprbsShape | None = None, *, seed: int = 0, budget_s: float = BUDGET_S,
                           max_evaluations: int | None = None, mode: str = "open_loop") -> Discrimination:
@@ -251,6 +252,7 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
                           stopped_by=stopped)
 
 
+@single_blas
 def rank_first_probability(candidates: Sequence[Candidate], duty: np.ndarray, sigma: Mapping[str, float],
                            limits: Limits, *, draws: int = 200, seed: int = 0) -> dict[str, Any]:
     """Monte-Carlo probability that each candidate, when it is the truth, ranks first (module doc).
@@ -319,6 +321,7 @@ REFIT_CANDIDATES = 16
 VERDICT_ALPHA = 0.05
 
 
+@single_blas
 def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mapping[str, np.ndarray],
              sigma: Mapping[str, float], dt: float, *, alpha: float = VERDICT_ALPHA,
              refuted_before: int = 0) -> dict[str, Any]:
@@ -373,6 +376,7 @@ def evidence(candidates: Sequence[Candidate], duty: np.ndarray, recorded: Mappin
     return res
 
 
+@single_blas
 def refit_evidence(rig: Any, earlier: Sequence[Any], designed: Any, sets: Sequence[Sequence[str]],
                    sigma: Mapping[str, float], *, alpha: float = VERDICT_ALPHA) -> dict[str, Any]:
     """What a designed recording names once the candidates are refitted on it: the step after a

@@ -47,7 +47,7 @@ from aeropend_ident.design.sequence import (
     sequence,
     spread_cap,
 )
-from aeropend_ident.greybox.batch import RigReplays
+from aeropend_ident.greybox.batch import RigReplays, single_blas
 from aeropend_ident.greybox.fit import motor_equilibrium
 from aeropend_sim.params import Rig
 
@@ -67,6 +67,7 @@ def perturbed(rig: Rig, key: str, factor: float) -> Rig:
     return rig.with_params(section, **{name: rig.values()[key] * factor})
 
 
+@single_blas
 def fisher(rig: Rig, keys: Sequence[str], duty: np.ndarray, dt: float, sigma: Mapping[str, float]
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fisher information (p, p) in log coordinates of ``keys`` under ``duty`` from rest, the
@@ -178,6 +179,7 @@ class ParameterDesign:
     baseline_steps: list[tuple[float, float]] | None = None
 
 
+@single_blas
 def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float], limits: Limits,
                       shape: AprbsShape | None = None, *, earlier: Sequence[tuple[np.ndarray, float]] = (),
                       nuisance: Sequence[str] = (), seed: int = 0, budget_s: float = BUDGET_S,

@@ -70,6 +70,7 @@ from aeropend_ident.design.sequence import (
     recorded_margin,
     search,
 )
+from aeropend_ident.greybox.batch import single_blas
 from aeropend_sim.params import Rig
 
 #: Node name of the controller in a ROS parameters file (``config/controller.yaml``).
@@ -318,6 +319,7 @@ class ReferenceDesign(Discrimination):
     driver: str = ""
 
 
+@single_blas
 def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[str, float], limits: Limits,
                      shape: AprbsShape | None = None, *, seed: int = 0, budget_s: float = BUDGET_S,
                      max_evaluations: int | None = None) -> ReferenceDesign:
@@ -379,6 +381,7 @@ def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[
         driver=candidates[0].name)
 
 
+@single_blas
 def rank_first_probability(candidates: Sequence[Candidate], loop: Any, steps: Sequence[tuple[float, float]],
                            n: int, sigma: Mapping[str, float], limits: Limits, *, draws: int = 200,
                            seed: int = 0) -> dict[str, Any]:
