@@ -293,3 +293,17 @@ def test_stepper_rejects_bad_duty_without_changing_state():
         with pytest.raises(SimulationError):
             s.step(bad)
     assert np.array_equal(s.x, x) and s.k == 1
+
+
+def test_holding_duty_is_the_equilibrium_duty_and_passes_one_beyond_the_reach():
+    """The unclipped holding duty: equilibrium's τ where that holds; past the actuator's reach (the
+    thesis simulation holds at most 0.76 rad with τ ≤ 1) the τ > 1 it would take, smooth in θ."""
+    m = PlantModel(SIM)
+    for theta in (0.0, 0.3, 0.7):
+        assert m.holding_duty(theta) == m.equilibrium(theta)[1]
+    with pytest.raises(ModelError, match="duty cycle"):
+        m.equilibrium(1.2)
+    beyond = [m.holding_duty(t) for t in (1.2, 1.3, 1.4)]
+    assert 1.0 < beyond[0] < beyond[1] < beyond[2]
+    with pytest.raises(ModelError, match="outside"):
+        m.holding_duty(-0.1)

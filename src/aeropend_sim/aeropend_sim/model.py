@@ -292,16 +292,33 @@ class PlantModel:
         ModelError
             If θ is outside [0, π) or needs a duty cycle above 1.
         """
+        x, q = self._steady_state(theta)
+        tau = self.duty_for_drive(q) if q > 0.0 else 0.0
+        x[TAU_F] = tau
+        return np.array(x), tau
+
+    def holding_duty(self, theta: float) -> float:
+        """The duty cycle τ that holds the rod at angle θ, not limited to 1: :meth:`equilibrium`'s
+        τ where that is at most 1, and past the actuator's reach the τ > 1 it would take (a smooth
+        function of θ up to π/2, whose root τ(θ) = 1 is the reach).
+
+        Raises
+        ------
+        ModelError
+            If θ is outside [0, π) or the chain has no steady state there.
+        """
+        _, q = self._steady_state(theta)
+        return self.assembly.duty_for_drive(q) if q > 0.0 else 0.0
+
+    def _steady_state(self, theta: float) -> tuple[list[float], float]:
+        """:meth:`Assembly.steady_state` at θ (its state and drive quantity q), θ checked."""
         if not (0.0 <= theta < math.pi):
             raise ModelError(f"equilibrium angle {theta!r} rad outside [0, π) "
                              "(the thrust can only lift the rod)")
         try:
-            x, q = self.assembly.steady_state(theta)
+            return self.assembly.steady_state(theta)
         except (AssemblyError, ZeroDivisionError) as exc:
             raise ModelError(f"no steady state at θ = {theta:g} rad: {exc}") from exc
-        tau = self.duty_for_drive(q) if q > 0.0 else 0.0
-        x[TAU_F] = tau
-        return np.array(x), tau
 
     def pendulum_energy(self, x: np.ndarray | list[float]) -> float:
         """Rod mechanical energy per unit inertia, ½θ̇² + (mgd/J)(1 − cos θ) [rad²/s²]."""

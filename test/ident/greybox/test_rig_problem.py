@@ -12,7 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from aeropend_ident.greybox.rig_problem import covariance
+from aeropend_ident.greybox.rig_problem import _last_finite, _reach, covariance
+from aeropend_sim.model import ModelError, plant_model
+from aeropend_sim.params import load_rig
 
 
 def _ill_conditioned() -> np.ndarray:
@@ -162,3 +164,20 @@ def test_screen_keeps_its_best_points_exactly():
         assert c1 == c2
         np.testing.assert_array_equal(z1, z2)
     assert any(math.isinf(c) for c, _ in pruned)  # the toy's worse points were not evaluated in full
+
+
+def test_the_reach_by_brents_method_is_the_last_angle_the_bisection_finds():
+    """A balance table's top angle (the actuator's reach, where the holding duty crosses 1) found by
+    Brent's method on the unclipped duty is the last finite angle of the 40-step bisection."""
+    m = plant_model(load_rig("thesis_sim"))  # its reach is below π/2
+
+    def tau(theta: float) -> float:
+        try:
+            return float(m.equilibrium(theta)[1])
+        except ModelError:
+            return math.inf
+
+    brent, bisected = _reach(m, tau), _last_finite(tau)
+    assert 0.7 < brent < 0.8 and math.isfinite(tau(brent))
+    assert abs(brent - bisected) < 1e-11
+    assert m.holding_duty(brent) == pytest.approx(1.0, abs=1e-10)

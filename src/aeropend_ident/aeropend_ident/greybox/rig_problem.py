@@ -46,13 +46,15 @@ from aeropend_ident.greybox.fit import (
 from aeropend_ident.greybox.parameters import ParameterSpec, apply_parameters
 from aeropend_ident.greybox.uniform import UniformData
 from aeropend_sim.components import registry
-from aeropend_sim.model import ModelError, plant_model
+from aeropend_sim.model import ModelError, PlantModel, plant_model
 from aeropend_sim.params import Rig
 
 #: The rod's inertia, fitted instead of mgd/J and L/J when the rig file gives the geometry.
 INERTIA = "pendulum.inertia"
 #: Largest angle of a balance [rad] (the thrust only lifts the rod to the horizontal).
 THETA_CAP = math.pi / 2 - 1e-6
+#: Tolerance [rad] of the actuator's reach (:func:`_reach`).
+REACH_XTOL = 1e-12
 
 
 #: What a model evaluation at a trial point may raise: the residual gets the block's penalty there.
@@ -142,7 +144,7 @@ class BalanceBlock(Block):
             known[theta] = value
             return value
 
-        top = THETA_CAP if math.isfinite(tau(THETA_CAP)) else _last_finite(tau)
+        top = THETA_CAP if math.isfinite(tau(THETA_CAP)) else _reach(model, tau)
         lo, hi = tau(0.0), tau(top)
         out = np.empty(self.command.size)
         for i, (c, a) in enumerate(zip(self.command, self.angle, strict=True)):
@@ -154,6 +156,28 @@ class BalanceBlock(Block):
                 th = brentq(lambda x, c=c: tau(x) - c, 0.0, top, xtol=1e-10)
             out[i] = th - a
         return out / (self.std if self.std is not None else 1.0)
+
+
+def _reach(model: PlantModel, tau: Callable[[float], float]) -> float:
+    """The largest angle below :data:`THETA_CAP` whose holding command τ(θ) is finite: the actuator's
+    reach, where the unclipped holding duty (:meth:`~aeropend_sim.model.PlantModel.holding_duty`)
+    crosses 1, by Brent's method (about 10 evaluations, where the bisection of :func:`_last_finite`
+    takes 40); that bisection where the unclipped duty does not cross 1 on [0, THETA_CAP] or the
+    root's own τ is not finite."""
+    def excess(theta: float) -> float:
+        try:
+            return model.holding_duty(theta) - 1.0
+        except MODEL_FAILURES:
+            return math.nan
+
+    lo, hi = excess(0.0), excess(THETA_CAP)
+    if lo < 0.0 < hi:  # both finite, a crossing between
+        theta = brentq(excess, 0.0, THETA_CAP, xtol=REACH_XTOL)
+        for _ in range(4):  # the root may lie a rounding past τ = 1 + 1e-12 (what equilibrium accepts)
+            if math.isfinite(tau(theta)):
+                return theta
+            theta -= REACH_XTOL
+    return _last_finite(tau)
 
 
 def _last_finite(tau: Callable[[float], float]) -> float:
