@@ -171,6 +171,35 @@ def _window_data(data: IdentData, lib: Any, targets: Sequence[str], length: int,
     return y, scale, {v: np.asarray(variables[v])[idx] for v in exo}
 
 
+def _sparse_jacobian(residuals: Callable[[np.ndarray], np.ndarray], cache: dict[str, np.ndarray], n_c: int,
+                     n_w: int, n_s: int, per_w: int) -> Callable[[np.ndarray], csr_matrix]:
+    """The Jacobian of :func:`refine_output_error`'s residuals (``cache``: the last point and residual):
+    forward differences, sparse (n_r, n_c + n_w·n_s) with n_r = n_w·per_w: one simulation per
+    coefficient (a dense column) and one per state for all window starts together (a window's
+    residuals, rows w·per_w … (w+1)·per_w − 1, depend only on its own initial state)."""
+    n_r = n_w * per_w
+    every_row = np.arange(n_r)
+
+    def jacobian(p: np.ndarray) -> csr_matrix:
+        r = cache["r"] if np.array_equal(p, cache["p"]) else residuals(p)
+        dense = np.empty((n_r, n_c))
+        for i in range(n_c):
+            q = p.copy()
+            q[i] += _EPS
+            dense[:, i] = (residuals(q) - r) / _EPS
+        vals, cols, rows = [dense.ravel()], [np.tile(np.arange(n_c), n_r)], [np.repeat(every_row, n_c)]
+        for s_ in range(n_s):
+            q = p.copy()
+            q[n_c + s_::n_s] += _EPS
+            vals.append((residuals(q) - r) / _EPS)
+            cols.append(np.repeat(n_c + np.arange(n_w) * n_s + s_, per_w))
+            rows.append(every_row)
+        return csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(n_r, p.size))
+
+    return jacobian
+
+
 def refine_output_error(
     model: SindyModel,
     data: IdentData,
@@ -263,28 +292,7 @@ def refine_output_error(
     per_w = (length + 1) * n_s
     cache: dict[str, np.ndarray] = {"p": p0, "r": r0}
 
-    block_rows = np.arange(n_r)  # window w's residuals are rows w·per_w … (w+1)·per_w − 1
-
-    def jacobian(p: np.ndarray) -> csr_matrix:
-        """Forward differences, sparse (n_r, n_c + n_w·n_s): one simulation per coefficient (a dense
-        column) and per state for all window starts together (a window's residuals depend only on
-        its own initial state: one block of per_w rows per column)."""
-        r = cache["r"] if np.array_equal(p, cache["p"]) else residuals(p)
-        dense = np.empty((n_r, n_c))
-        for i in range(n_c):
-            q = p.copy()
-            q[i] += _EPS
-            dense[:, i] = (residuals(q) - r) / _EPS
-        vals, cols = [dense.ravel()], [np.tile(np.arange(n_c), n_r)]
-        rows_ = [np.repeat(block_rows, n_c)]
-        for s_ in range(n_s):
-            q = p.copy()
-            q[n_c + s_::n_s] += _EPS
-            vals.append((residuals(q) - r) / _EPS)
-            cols.append(np.repeat(n_c + np.arange(n_w) * n_s + s_, per_w))
-            rows_.append(block_rows)
-        return csr_matrix((np.concatenate(vals), (np.concatenate(rows_), np.concatenate(cols))),
-                          shape=(n_r, p.size))
+    jacobian = _sparse_jacobian(residuals, cache, n_c, n_w, n_s, per_w)
 
     def fun(p: np.ndarray) -> np.ndarray:
         r = residuals(p)
