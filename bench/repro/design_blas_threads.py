@@ -13,7 +13,7 @@ different rounding ends in a different local minimum. ``run_gap``, ``fit_rig`` a
 already ran with one BLAS thread (:func:`aeropend_ident.greybox.batch.single_blas`); the design's
 entry points did not. They do now (``fit_candidates``, ``diagnosis_candidates``,
 ``design_discrimination``, ``evidence``, ``refit_evidence``, ``rank_first_probability``,
-``design_parameters``, ``fisher``, ``design_reference``), so a design is the same from the command
+``design_parameters``, ``design_reference``), so a design is the same from the command
 line, from Python and in a worker, whatever the machine's core count.
 
 This script rebuilds case 73 (its before diagnosis, candidates, design and designed recording on the

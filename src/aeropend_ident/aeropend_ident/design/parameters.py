@@ -67,7 +67,6 @@ def perturbed(rig: Rig, key: str, factor: float) -> Rig:
     return rig.with_params(section, **{name: rig.values()[key] * factor})
 
 
-@single_blas
 def fisher(rig: Rig, keys: Sequence[str], duty: np.ndarray, dt: float, sigma: Mapping[str, float]
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fisher information (p, p) in log coordinates of ``keys`` under ``duty`` from rest, the

@@ -139,8 +139,7 @@ def _coef_std(model: SindyModel, coef: np.ndarray, sol: Any, rows: list[int], su
     """Standard errors of the refined coefficients from the Jacobian, s²·(JᵀJ)⁻¹ (others kept)."""
     n_c = c0.size
     std = np.full_like(coef, np.nan) if model.coef_std is None else model.coef_std.copy()  # NaN: unknown
-    jtj = sol.jac.T @ sol.jac  # (n_p, n_p): small whatever the record's length
-    jtj = jtj.toarray() if hasattr(jtj, "toarray") else np.asarray(jtj)
+    jtj = (sol.jac.T @ sol.jac).toarray()  # sparse J (_sparse_jacobian); JᵀJ (n_p, n_p) small
     dof = max(dof_raw, 1)
     s2 = 2.0 * sol.cost / dof
     try:
