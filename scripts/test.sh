@@ -28,9 +28,12 @@ for arg in "$@"; do
 done
 set +e
 if [ "$split" = 1 ]; then
-  "$VENV/bin/python" -m pytest "${parallel[@]}" -m "not exclusive" "$@"
+  # the parallel run stores which test files hold an exclusive test; the run alone imports only those
+  # (test/conftest.py, AEROPEND_EXCLUSIVE_FILES), instead of collecting the whole suite a second time
+  token="$$-$(date +%s%N)"
+  AEROPEND_EXCLUSIVE_FILES="list:$token" "$VENV/bin/python" -m pytest "${parallel[@]}" -m "not exclusive" "$@"
   rc=$?
-  "$VENV/bin/python" -m pytest "${alone[@]}" -m exclusive "$@"
+  AEROPEND_EXCLUSIVE_FILES="only:$token" "$VENV/bin/python" -m pytest "${alone[@]}" -m exclusive "$@"
   rc_alone=$?
   # 5: nothing collected; a failure only when neither part collected a test
   if [ "$rc" = 5 ] && [ "$rc_alone" != 5 ]; then rc=0; fi

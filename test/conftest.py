@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 
 import pytest
 
@@ -55,9 +56,63 @@ def pytest_configure(config: pytest.Config) -> None:
         threadpool_limits(limits=1)
 
 
+#: Environment variable through which ``scripts/test.sh`` has its run of the ``exclusive`` tests alone
+#: import only the test files that hold one, instead of collecting the whole suite a second time
+#: (12 s for 12 tests in 10 files on this machine): ``list:TOKEN`` in the parallel run, which stores
+#: those files in pytest's cache (``.pytest_cache``, under the run's root folder) with the token;
+#: ``only:TOKEN`` in the run alone, which collects just the stored files when the token is the same
+#: (else, e.g. when the parallel run stopped before it collected, everything as usual).
+EXCLUSIVE_FILES_ENV = "AEROPEND_EXCLUSIVE_FILES"
+_EXCLUSIVE_KEY = "aeropend/exclusive_files"
+#: the stored exclusive files of this run (None: collect as usual), read once
+_LISTED = pytest.StashKey["set[str] | None"]()
+
+
+def _exclusive_mode() -> tuple[str, str]:
+    """(``"list"``, ``"only"`` or ``""``, the run's token) from :data:`EXCLUSIVE_FILES_ENV`."""
+    mode, _, token = os.environ.get(EXCLUSIVE_FILES_ENV, "").partition(":")
+    return (mode, token) if mode in ("list", "only") and token else ("", "")
+
+
+def _listed_exclusive_files(config: pytest.Config) -> set[str] | None:
+    """The test files the parallel run of the same token stored (absolute paths), or None."""
+    mode, token = _exclusive_mode()
+    cache = getattr(config, "cache", None)
+    if mode != "only" or cache is None:
+        return None
+    stored = cache.get(_EXCLUSIVE_KEY, None)
+    if not isinstance(stored, dict) or stored.get("token") != token:
+        return None
+    return set(stored.get("files", ()))
+
+
+def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool | None:
+    """In the run of the ``exclusive`` tests alone, leave out the test files the parallel run found
+    none in (a folder is still walked; a file that is not a test module is collected as usual)."""
+    if _LISTED not in config.stash:
+        config.stash[_LISTED] = _listed_exclusive_files(config)
+    listed = config.stash[_LISTED]
+    if listed is None or collection_path.is_dir() or not collection_path.name.startswith("test_"):
+        return None
+    return str(collection_path.resolve()) not in listed or None
+
+
+def _store_exclusive_files(config: pytest.Config, items: Sequence[pytest.Item]) -> None:
+    """Store the files of the items marked ``exclusive`` with the run's token (every xdist worker
+    collects the same items and stores the same value)."""
+    mode, token = _exclusive_mode()
+    cache = getattr(config, "cache", None)
+    if mode != "list" or cache is None:
+        return
+    files = sorted({str(Path(item.path).resolve()) for item in items if item.get_closest_marker("exclusive")})
+    cache.set(_EXCLUSIVE_KEY, {"token": token, "files": files})
+
+
+@pytest.hookimpl(tryfirst=True)  # before the -m selection deselects the exclusive tests
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Run the test modules that hold a test marked ``slow`` first, the others after, each module's tests
-    together and in their collected order.
+    together and in their collected order (and list the files of the ``exclusive`` tests for
+    ``scripts/test.sh``'s run of them alone: :data:`EXCLUSIVE_FILES_ENV`).
 
     pytest-xdist hands the work out in this order (an ``xdist_group`` as one unit, the larger groups
     first), and a 100 s test handed out last leaves the other workers idle while it runs: the CI of
@@ -68,6 +123,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     def module(item: pytest.Item) -> str:
         return item.nodeid.split("::")[0]
 
+    _store_exclusive_files(config, items)
     slow = {module(item) for item in items if item.get_closest_marker("slow") is not None}
     items.sort(key=lambda item: module(item) not in slow)  # a stable sort: the modules with slow tests first
 

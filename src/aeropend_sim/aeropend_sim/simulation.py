@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.integrate import odeint
 
 from aeropend_sim.compiled.plant import MAX_SUBSTEPS, CompiledPlant, compiled_plant
 from aeropend_sim.components.states import N_CHAIN
@@ -41,6 +40,15 @@ RTOL, ATOL = 1e-8, 1e-10
 #: Simulation backends (module doc); the first is the default.
 BACKENDS: tuple[str, ...] = ("compiled", "lsoda")
 DEFAULT_BACKEND = BACKENDS[0]
+
+
+def _odeint() -> Any:
+    """``scipy.integrate.odeint``, imported on the first LSODA run: scipy.integrate takes about 1 s to
+    import, and the processes that never run LSODA (the simulator node on the compiled backend, every
+    command that replays) need not pay for it."""
+    from scipy.integrate import odeint
+
+    return odeint
 
 
 class SimulationError(ValueError):
@@ -357,7 +365,7 @@ def _replay_lsoda(model: PlantModel, duty: np.ndarray, x: np.ndarray, dt: float,
             u_at_sample[k] = u
             u_before[k] = u_prev
             k += 1
-        sol = odeint(model.rhs, x, t_grid, args=(u,), tfirst=True, rtol=RTOL, atol=ATOL, mxstep=50000)
+        sol = _odeint()(model.rhs, x, t_grid, args=(u,), tfirst=True, rtol=RTOL, atol=ATOL, mxstep=50000)
         # record samples that fall on interior grid points
         for j in range(1, t_grid.size - 1):
             if k < n and abs(t_grid[j] - sample_t[k]) < 1e-9 * max(dt, 1.0):
@@ -584,7 +592,7 @@ class PlantStepper:
                 x[TAU_F] = u
             if not model.dynamic_current:
                 x[I_A] = model.current(x, u)
-            x = odeint(model.rhs, x, [0.0, length], args=(u,), tfirst=True, rtol=RTOL, atol=ATOL,
+            x = _odeint()(model.rhs, x, [0.0, length], args=(u,), tfirst=True, rtol=RTOL, atol=ATOL,
                        mxstep=50000)[-1].copy()
             self._u_now = u
         self.x = x
