@@ -30,6 +30,7 @@ from bench.fixtures.gap_synth import make_case
 
 RIG = load_rig("thesis_rig")
 Q = 0.015  # rad: a coarse angle LSB, far above the rig file's (quantisation off in it)
+pytestmark = pytest.mark.xdist_group("test_quantised")  # its module fixture is made once, by one worker
 
 
 @pytest.fixture(scope="module")

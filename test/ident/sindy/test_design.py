@@ -22,6 +22,9 @@ from bench.fixtures.sindy_case import TRUTH, case_data, k_q_error, weak_iv_fit
 OE = ("i_a", "omega_rotor")
 R_OVER_L = 8.6957
 DESIGN = density_modulated_prbs(120.0, seed=1).duty
+# the module fixture (weak-iv and output-error fit, 23-27 s) is made once, by one worker: without the
+# group the CI of bf2189d made it in two workers (docs/testing.md, "Groups")
+pytestmark = pytest.mark.xdist_group("sindy_test_design")
 
 
 @pytest.fixture(scope="module")
