@@ -99,10 +99,16 @@ def pytest_ignore_collect(collection_path: Path, config: pytest.Config) -> bool 
 
 def _store_exclusive_files(config: pytest.Config, items: Sequence[pytest.Item]) -> None:
     """Store the files of the items marked ``exclusive`` with the run's token (every xdist worker
-    collects the same items and stores the same value)."""
+    collects the same items and stores the same value). The first collection of a token is the
+    run's own: a pytest that a test starts in the same folder inherits the variable
+    (``test_workspace`` collects one package's tests to count them) and is collected after every
+    worker, so a list already stored under the token is kept."""
     mode, token = _exclusive_mode()
     cache = getattr(config, "cache", None)
     if mode != "list" or cache is None:
+        return
+    stored = cache.get(_EXCLUSIVE_KEY, None)
+    if isinstance(stored, dict) and stored.get("token") == token:
         return
     files = sorted({str(Path(item.path).resolve()) for item in items if item.get_closest_marker("exclusive")})
     cache.set(_EXCLUSIVE_KEY, {"token": token, "files": files})

@@ -52,3 +52,12 @@ def test_a_list_of_another_run_collects_everything(suite, monkeypatch) -> None:
     stale = _run(suite, monkeypatch, "only:run2", "exclusive")
     stale.assert_outcomes(errors=1)  # the broken module was imported: a full collection
     assert "imported" in stale.stdout.str()
+
+
+def test_a_pytest_started_by_a_test_keeps_the_runs_list(suite, monkeypatch) -> None:
+    """A test that starts pytest in the same folder (``test_workspace`` counts a package's tests)
+    inherits the token; its collection of a part of the suite must not replace the run's list."""
+    _run(suite, monkeypatch, "list:run1", "not exclusive").assert_outcomes(passed=2, deselected=1)
+    monkeypatch.setenv("AEROPEND_EXCLUSIVE_FILES", "list:run1")
+    suite.runpytest_subprocess("-p", "no:xdist", "-q", "test_plain.py").assert_outcomes(passed=1)
+    _run(suite, monkeypatch, "only:run1", "exclusive").assert_outcomes(passed=1, deselected=1)

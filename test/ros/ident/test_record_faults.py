@@ -3,10 +3,11 @@ the loss ``record`` counts equals the loss found in the bag.
 
 One publisher process sends ``joint_states`` at 50 Hz (stamped with the wall clock) on a private
 ROS domain; 20 recorders run, at most :data:`AT_ONCE` at a time, and each is killed with SIGKILL at
-its own time, 0.4 to 8 s after its first message reached the disk. A killed recorder leaves an MCAP file without
-footer (and no ``metadata.yaml``); ``reindex`` rebuilds the metadata from it and the recovered
-messages must reach within 1 s of the kill (the recorder flushes every 0.5 s by default), with
-no gap inside. One more recorder uses SQLite3 storage (its transaction committed on each flush).
+its own time, 0.4 to 8 s after its first message reached the disk. A killed recorder leaves an
+MCAP file without footer (and no ``metadata.yaml``); ``reindex`` rebuilds the metadata from it and
+the recovered messages must reach within 1 s of the kill (the recorder flushes every 0.5 s by
+default), with no gap inside. One more recorder uses SQLite3 storage (its transaction committed on
+each flush).
 """
 
 from __future__ import annotations
