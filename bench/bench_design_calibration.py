@@ -26,7 +26,7 @@ Scored: a reliability table of predicted probability (deciles) against the obser
 the bar is agreement within 10 points in every decile with ten cases or more. Also the Brier score
 of the predictions and the time per case.
 
-Usage: ``python -m bench.bench_design_calibration [--only 24,73] [--workers 2] [-q]`` (default: every
+Usage: ``python -m bench.bench_design_calibration [--only 24,73] [--workers N] [-q]`` (default: every
 single and triple) ->
 ``bench/results/design_calibration.{json,md}``.
 """

@@ -392,10 +392,11 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
 
 def lab_case_bench(description: str, run_case: Any, summarise: Any, write_md: Any, *, default: Sequence[int],
                    out: Path, desc: str, meta: dict[str, Any], argv: list[str] | None = None,
-                   workers: int = 2) -> int:
+                   workers: int = WORKERS) -> int:
     """The command line shared by the design benchmarks over lab cases: ``--only`` (lab case indices,
-    default ``default``), ``--workers``, ``--out`` (stem, default ``out``), ``-q``; the cases run by
-    :func:`aeropend_ident.parallel.run_cases`, sorted by index, written as ``{meta, summary, cases}``
+    default ``default``), ``--workers`` (default :data:`WORKERS`: one case at a time), ``--out``
+    (stem, default ``out``), ``-q``; the cases run by :func:`aeropend_ident.parallel.run_cases`,
+    sorted by index, written as ``{meta, summary, cases}``
     JSON (``meta`` gets the commit, Python, workers and wall time) and as markdown by ``write_md``."""
     from aeropend_ident.parallel import run_cases
 
@@ -421,7 +422,7 @@ def lab_case_bench(description: str, run_case: Any, summarise: Any, write_md: An
 def main(argv: list[str] | None = None) -> int:
     return lab_case_bench(__doc__.split("\n", 1)[0], run_case, summarise, write_md, default=DEFAULT_CASES,
                           out=RESULTS / "design_discrimination", desc="designs",
-                          meta={"duration_s": DURATION}, argv=argv, workers=WORKERS)
+                          meta={"duration_s": DURATION}, argv=argv)
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ the fit session). Then, for a lab that runs its rig only under feedback:
 Control: the seeded set-point sequence the search starts from (same length, range and holds),
 recorded and judged the same way. No ``gap`` after (the open-loop bench measures that).
 
-Usage: ``python -m bench.bench_design_reference [--only 87,90] [--workers 2] [-q]`` ->
+Usage: ``python -m bench.bench_design_reference [--only 87,90] [--workers N] [-q]`` ->
 ``bench/results/design_reference.{json,md}``.
 """
 
