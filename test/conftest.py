@@ -114,6 +114,21 @@ def _store_exclusive_files(config: pytest.Config, items: Sequence[pytest.Item]) 
     cache.set(_EXCLUSIVE_KEY, {"token": token, "files": files})
 
 
+def pytest_runtest_setup(item: pytest.Item) -> None:
+    """In ``scripts/test.sh``'s run of the ``exclusive`` tests alone, wait (at most 20 s) until the
+    CPUs are idle before each: that run starts as soon as the parallel part ends, and a real-time
+    test must not share the machine with processes of that part still exiting or writing back
+    (``aeropend_sim.ros.harness.wait_until_idle``); a wait over 1 s is listed in the test's report."""
+    if item.get_closest_marker("exclusive") is None or _exclusive_mode()[0] != "only":
+        return
+    from aeropend_sim.ros.harness import IDLE_LIMIT, wait_until_idle
+
+    waited = wait_until_idle()
+    if waited > 1.0:
+        item.add_report_section("setup", "idle wait", f"waited {waited:.1f} s for the CPUs to be busy under "
+                                f"{IDLE_LIMIT:.0%} before this real-time test")
+
+
 @pytest.hookimpl(tryfirst=True)  # before the -m selection deselects the exclusive tests
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Run the test modules that hold a test marked ``slow`` first, the others after, each module's tests

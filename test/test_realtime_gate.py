@@ -3,6 +3,7 @@ host steals CPU time is reported as skipped with the steal and the failure; noth
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import pytest
@@ -68,3 +69,21 @@ def test_a_real_time_failure_under_steal_is_withheld_and_named(pytester: pytest.
 def test_without_steal_a_real_time_failure_stays_a_failure(pytester: pytest.Pytester) -> None:
     result = _run(pytester, steal=STEAL_LIMIT / 2)
     result.assert_outcomes(passed=1, failed=2)
+
+
+def test_busy_share_counts_all_but_idle_and_iowait() -> None:
+    from aeropend_sim.ros.harness import busy_share
+
+    lines = iter(["cpu  100 0 50 800 50 0 0 0 0 0\n", "cpu  160 0 70 900 70 0 0 0 0 0\n"])
+    # 80 busy (user 60, system 20) of 200 ticks
+    assert busy_share(0.0, stat=lambda: next(lines)) == pytest.approx(0.4)
+    assert busy_share(0.0, stat=lambda: "cpu  1 2\n") is None
+
+
+def test_wait_until_idle_returns_at_once_on_an_idle_machine_and_gives_up_on_a_busy_one(monkeypatch) -> None:
+    from aeropend_sim.ros import harness
+
+    monkeypatch.setattr(harness, "busy_share", lambda window: 0.01)
+    assert harness.wait_until_idle(timeout=5.0) < 1.0
+    monkeypatch.setattr(harness, "busy_share", lambda window: (time.sleep(window), 0.9)[1])
+    assert 0.3 <= harness.wait_until_idle(timeout=0.3, window=0.05) < 1.0

@@ -30,7 +30,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
@@ -467,6 +467,53 @@ def cpu_times(stat_text: str | None = None) -> tuple[int, int] | None:
     except ValueError:
         return None
     return ticks[7], sum(ticks)
+
+
+#: Busy share of all CPUs [0, 1] under which the machine counts as idle (:func:`wait_until_idle`).
+IDLE_LIMIT = 0.15
+
+
+def busy_share(window: float = 0.25, stat: Callable[[], str] | None = None) -> float | None:
+    """Share [0, 1] of all CPUs' time over ``window`` seconds that was not idle (user, system, irq,
+    steal ...; idle and iowait are idle), from two readings of ``/proc/stat``'s ``cpu`` line; None
+    where it cannot be read. ``stat`` returns the line (default: the file's)."""
+    def ticks() -> tuple[int, int] | None:
+        try:
+            if stat is not None:
+                text = stat()
+            else:
+                with open("/proc/stat", encoding="ascii") as f:
+                    text = f.readline()
+            values = [int(v) for v in text.split("\n", 1)[0].split()[1:9]]
+        except (OSError, ValueError):
+            return None
+        if len(values) < 5:
+            return None
+        return sum(values) - values[3] - values[4], sum(values)
+
+    before = ticks()
+    time.sleep(window)
+    after = ticks()
+    if before is None or after is None or after[1] <= before[1]:
+        return None
+    return (after[0] - before[0]) / (after[1] - before[1])
+
+
+def wait_until_idle(limit: float = IDLE_LIMIT, timeout: float = 20.0, window: float = 0.25) -> float:
+    """Wait until the CPUs were busy less than ``limit`` over one ``window`` (processes of an earlier
+    part of a run still exiting, writing back or shutting a cluster down), at most ``timeout`` s.
+
+    Returns
+    -------
+    float
+        Seconds waited (about ``window`` when the machine was idle at once; ``timeout`` or more when
+        it never was, or /proc/stat cannot be read: the caller goes on either way).
+    """
+    start = time.monotonic()
+    while True:
+        share = busy_share(window)
+        if share is None or share < limit or time.monotonic() - start >= timeout:
+            return time.monotonic() - start
 
 
 def steal_share(before: tuple[int, int] | None, after: tuple[int, int] | None) -> float | None:
