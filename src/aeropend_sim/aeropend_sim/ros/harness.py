@@ -438,6 +438,25 @@ def wait_for_server(client: Client, executor: SingleThreadedExecutor, probe: obj
 STEAL_LIMIT = 0.02
 
 
+def _cpu_ticks(stat_text: str | None = None) -> list[int] | None:
+    """The first ticks (up to 8: user, nice, system, idle, iowait, irq, softirq, steal) of all CPUs from
+    ``/proc/stat``'s ``cpu`` line (``stat_text``: the file's text; default: read it); None where the
+    file or the line cannot be read."""
+    if stat_text is None:
+        try:
+            with open("/proc/stat", encoding="ascii") as f:
+                stat_text = f.readline()
+        except OSError:
+            return None
+    fields = stat_text.split("\n", 1)[0].split()
+    if not fields or fields[0] != "cpu":
+        return None
+    try:
+        return [int(v) for v in fields[1:9]]
+    except ValueError:
+        return None
+
+
 def cpu_times(stat_text: str | None = None) -> tuple[int, int] | None:
     """CPU steal and total time of all CPUs, in clock ticks, from ``/proc/stat``.
 
@@ -453,18 +472,8 @@ def cpu_times(stat_text: str | None = None) -> tuple[int, int] | None:
         other systems). ``total`` sums user, nice, system, idle, iowait, irq, softirq and steal (guest
         time is already counted in user and nice).
     """
-    if stat_text is None:
-        try:
-            with open("/proc/stat", encoding="ascii") as f:
-                stat_text = f.readline()
-        except OSError:
-            return None
-    fields = stat_text.split("\n", 1)[0].split()
-    if len(fields) < 9 or fields[0] != "cpu":
-        return None
-    try:
-        ticks = [int(v) for v in fields[1:9]]
-    except ValueError:
+    ticks = _cpu_ticks(stat_text)
+    if ticks is None or len(ticks) < 8:
         return None
     return ticks[7], sum(ticks)
 
@@ -478,16 +487,8 @@ def busy_share(window: float = 0.25, stat: Callable[[], str] | None = None) -> f
     steal ...; idle and iowait are idle), from two readings of ``/proc/stat``'s ``cpu`` line; None
     where it cannot be read. ``stat`` returns the line (default: the file's)."""
     def ticks() -> tuple[int, int] | None:
-        try:
-            if stat is not None:
-                text = stat()
-            else:
-                with open("/proc/stat", encoding="ascii") as f:
-                    text = f.readline()
-            values = [int(v) for v in text.split("\n", 1)[0].split()[1:9]]
-        except (OSError, ValueError):
-            return None
-        if len(values) < 5:
+        values = _cpu_ticks(stat() if stat is not None else None)
+        if values is None or len(values) < 5:
             return None
         return sum(values) - values[3] - values[4], sum(values)
 
