@@ -178,6 +178,23 @@ def test_plant_clock_matches_stepper_and_wire_convention():
         assert (s.theta, s.i_a, s.v_a) == (r["theta"], r["i_a"], r["v_a"])
 
 
+def test_a_warmed_clock_started_later_gives_the_samples_of_a_cold_one():
+    """``sim_node`` builds and warms its plant before it offers its topics and stamps sample 0 when
+    the sampler starts (bench/repro/sim_start_stall.py): same samples, bit for bit, as a clock built
+    at the start; only sample 0 can be re-stamped."""
+    settings = make_settings(rig=RIG, mode="realtime", seed=5, noise=True)
+    cold = PlantClock(settings, origin_ns=7_000)
+    warm = PlantClock(settings, origin_ns=0)
+    warm.stepper.warm()
+    warm.start_at(7_000)
+    assert warm.last == cold.last
+    for u in [0.0, 0.4, 0.4, 0.1]:
+        assert warm.advance(u) == cold.advance(u)
+    assert np.array_equal(warm.stepper.x, cold.stepper.x)
+    with pytest.raises(RuntimeError, match="sample 4"):
+        warm.start_at(0)
+
+
 def test_set_rig_continues_from_the_state_and_refuses_a_new_delay_line():
     rig = load_rig(RIG)
     a, b = PlantStepper(rig), PlantStepper(rig)

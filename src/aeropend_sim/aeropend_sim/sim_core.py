@@ -20,6 +20,7 @@ stamps), so no floating-point drift accumulates over long runs.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -480,6 +481,19 @@ class PlantClock:
     def stamp_ns(self, k: int) -> int:
         """Stamp of sample k [ns]."""
         return sample_stamp_ns(k, self.period_s, self.origin_ns)
+
+    def start_at(self, origin_ns: int) -> None:
+        """Stamp sample 0 ``origin_ns`` [ns]: a clock built (and warmed) ahead of its start.
+
+        Raises
+        ------
+        RuntimeError
+            If the plant has already advanced (its stamps are out).
+        """
+        if self.k != 0:
+            raise RuntimeError(f"the plant clock is at sample {self.k}: only sample 0 can be re-stamped")
+        self.origin_ns = int(origin_ns)
+        self.last = dataclasses.replace(self.last, stamp_ns=self.stamp_ns(0))
 
     def advance(self, duty: float) -> Sample:
         """Apply ``duty`` (already validated) for one period; return and remember the new sample."""

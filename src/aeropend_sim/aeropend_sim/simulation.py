@@ -530,6 +530,20 @@ class PlantStepper:
         # one assignment: a concurrent step reads the old or the new (plant, model, rig), never a mix
         self._now = (plant, model, rig)
 
+    def warm(self) -> None:
+        """Load the compiled kernels one :meth:`step` and :meth:`sample` call, on a copy of the state:
+        the state, the delay line and the noise generator are left as they were.
+
+        The first step of a new process otherwise loads them from the disk cache (10-15 ms; the
+        plant's construction loads the sub-step planner, 0.5-1 s): a real-time caller warms the
+        stepper before its first deadline (``sim_node``: before the node offers its topics).
+        """
+        plant = self._now[0]
+        if plant is None:
+            return
+        x = plant.step(self.x.copy(), self._u_now, self._u_now)
+        plant.outputs(x[None, :], np.array([self._u_now]))
+
     def sample(self) -> dict[str, float]:
         """Measured channels at the current sample instant (noise/quantisation applied)."""
         plant, model, rig = self._now

@@ -190,6 +190,12 @@ class SimPlantNode(Node):
             raise
         self._raw = raw
         s = self.settings
+        # the plant is built and its kernels loaded (0.5-1 s) before the node offers its topics: built
+        # in the sampler thread, sample 0 was 0.5-0.7 s late (the stamps lagged wall time by that for
+        # good) and the executor thread, starved meanwhile, applied a checker's first command up to
+        # 0.5 s late (bench/repro/sim_start_stall.py)
+        self.plant = PlantClock(s, origin_ns=0)
+        self.plant.stepper.warm()
         lockstep = s.mode == "lockstep"
         sample_qos = SAMPLE_QOS_LOCKSTEP if lockstep else SAMPLE_QOS
         self._pub_js = self.create_publisher(JointState, REL_JOINT_STATES, sample_qos)
@@ -208,7 +214,6 @@ class SimPlantNode(Node):
         self.republished = 0
         self.error: BaseException | None = None
         self.schedule: RealtimeSchedule | None = None
-        self.plant: PlantClock | None = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._wait_timer: Any = None
@@ -230,8 +235,7 @@ class SimPlantNode(Node):
         changes = {p.name: p.value for p in params}
         try:
             settings = make_settings(**{**self._raw, **changes})
-            if self.plant is not None:
-                self.plant.stepper.set_rig(settings.rig)
+            self.plant.stepper.set_rig(settings.rig)
         except (SimConfigError, ValueError) as exc:
             self.get_logger().warn(f"parameter change {changes} refused: {exc}")
             return SetParametersResult(successful=False, reason=str(exc))
@@ -255,7 +259,6 @@ class SimPlantNode(Node):
     def start(self) -> None:
         """Publish sample 0 (lock-step) or start the real-time sampler thread."""
         if self.settings.mode == "lockstep":
-            self.plant = PlantClock(self.settings, origin_ns=0)
             self._last_msgs = self._msgs(self.plant.last)
             self._waiting_since_ns = time.monotonic_ns()
             self._wait_timer = self.create_timer(0.005, self._start_when_matched, clock=self._steady)
@@ -340,7 +343,6 @@ class SimPlantNode(Node):
                 max(self.settings.min_clock_subscribers, self.count_subscribers(self._pub_clock.topic_name)))
 
     def _publish_first_sample(self) -> None:
-        assert self.plant is not None
         self._wait_timer.cancel()
         self._wait_timer = None
         self.get_logger().info("lock-step: sample 0 published (matched subscriptions: joint_states, "
@@ -370,7 +372,6 @@ class SimPlantNode(Node):
         if self.timing is not None:
             self.timing.on_command(now, float(msg.data))
         if self.settings.mode == "lockstep":
-            assert self.plant is not None
             if self._wait_timer is not None:
                 self.get_logger().warn(f"lock-step: command before sample 0 (matched {self._matched()}); "
                                        "starting the run")
@@ -383,7 +384,7 @@ class SimPlantNode(Node):
 
     def _republish_if_idle(self) -> None:
         now = time.monotonic_ns()
-        if self.plant is not None and now - self._last_activity_ns >= LOCKSTEP_REPUBLISH_S * 1e9:
+        if now - self._last_activity_ns >= LOCKSTEP_REPUBLISH_S * 1e9:
             self._publish(self._last_msgs, self.plant.last.stamp_ns)
             self.republished += 1
             self._last_activity_ns = now
@@ -418,8 +419,8 @@ class SimPlantNode(Node):
         mono0 = time.monotonic_ns()
         ros0 = self.get_clock().now().nanoseconds
         # ROS time of sample 0 = ROS time now + lead (mapped once, here).
-        plant = PlantClock(self.settings, origin_ns=ros0 + lead_ns)
-        self.plant = plant
+        plant = self.plant
+        plant.start_at(ros0 + lead_ns)
         sched = RealtimeSchedule(period_ns, mono0 + lead_ns)
         self.schedule = sched
         msgs = self._msgs(plant.last)
