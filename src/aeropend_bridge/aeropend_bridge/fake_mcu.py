@@ -156,7 +156,10 @@ class FakeMcu:
 
     # ------------------------------------------------------------------ run
     def start(self) -> FakeMcu:
-        """Open the pty and start the writer thread."""
+        """Open the pty and start the writer thread (a plant's compiled kernels loaded first: on the
+        writer thread its first two frames took 6-10 ms each, against 0.06 ms after)."""
+        if self.plant is not None:
+            self.plant.warm()  # type: ignore[attr-defined]
         self._open_pty()
         self._thread = threading.Thread(target=self._run, name="fake_mcu", daemon=True)
         self._thread.start()

@@ -130,6 +130,7 @@ class ThrustPredictor:
         self.m = model
         self._rotor = plant_model(model.rig.with_effects(armature_inductance="quasi_static"))
         self._rest = self._rotor.states.initial().tolist()  # an effect's own state held at its initial value
+        self._rhs = self._rotor.rhs  # its code is generated here, not on the loop's first sample
         self.dt = dt
         self.n_delay = round(model.delay / dt) if model.delay > 0.0 else 0
         self.reset()
@@ -144,7 +145,7 @@ class ThrustPredictor:
         """(dω/dt, dτ_f/dt) at rotor speed w, lagged duty tf and commanded duty τ."""
         x = self._rest.copy()
         x[OMEGA], x[TAU_F] = w, min(max(tf, 0.0), 1.0)
-        f = self._rotor.rhs(0.0, x, tau)
+        f = self._rhs(0.0, x, tau)
         return f[OMEGA], f[TAU_F]
 
     def advance(self, duty: float) -> float:

@@ -418,6 +418,10 @@ def _run_ros(argv: list[str], flags: argparse.Namespace) -> int:
             log.error(f"invalid excitation: {exc}")
             return 2
         sig = cfg.signal
+        if cfg.mode == "realtime":
+            # the real-time schedule's module loads the simulator (0.4-0.6 s, holding the GIL): before the
+            # command topic is offered, not between a plant's match and the first command
+            import aeropend_sim.sim_core  # noqa: F401
         pub = node.create_publisher(Float64, REL_DUTY_CYCLE,
                                     COMMAND_QOS_LOCKSTEP if cfg.mode == "lockstep" else COMMAND_QOS)
         log.info(
