@@ -129,7 +129,13 @@ def test_bridge_drives_the_esc_encoder_firmware(firmware: Path, tmp_path: Path) 
         assert math.isnan(m.velocity[1]) and math.isnan(m.velocity[2]), list(m.velocity)
         assert math.isnan(b.voltage) and math.isnan(b.current), (b.voltage, b.current)
         n_on = len(js)
-        spin(1.0)  # controller silent: the bridge sends the zero-throttle pulse
+        # controller silent: the bridge sends the zero-throttle pulse. The silence lasts 1 s of host time
+        # and 300 samples (0.6 s of the MCU's): beside the parallel suite the emulated MCU ran at an
+        # eighth of real time (65 samples in the 1 s; fresh-clone CI of f40fd9a)
+        end = time.monotonic() + 30
+        spin(1.0)
+        while len(js) - n_on < 300 and time.monotonic() < end:
+            spin(0.1)
         off = [x.effort[1] for x in js[n_on:]]
         # the bridge's cut holds: the last 0.2 s of samples (490 Hz) at the zero-throttle pulse
         assert len(off) > 100 and all(t == 0.0 for t in off[-100:]), off[-100:]
