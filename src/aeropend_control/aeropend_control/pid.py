@@ -187,7 +187,10 @@ class PID:
         self.gains = gains
 
     def set_limits(self, u_min: float, u_max: float) -> None:
-        """Change the output limits (bumpless as far as the limits allow)."""
+        """Change the output limits (bumpless as far as the limits allow); the same limits change nothing
+        (a loop that sets them every sample does not rebuild its gains every sample)."""
+        if u_min == self.gains.u_min and u_max == self.gains.u_max:
+            return
         self.set_gains(replace(self.gains, u_min=u_min, u_max=u_max))
 
     def set_manual(self, u: float) -> None:

@@ -578,7 +578,9 @@ class PlantStepper:
         SimulationError
             If ``duty`` is NaN or outside [0, 1] (the state is left unchanged).
         """
-        _check_duty(np.array([duty]))
+        # a float in [0, 1] passes at once (NaN does not); anything else gets the array check's error
+        if not (isinstance(duty, float) and 0.0 <= duty <= 1.0):
+            _check_duty(np.array([duty]))
         self._queue.append(float(duty))
         u_old = self._queue.pop(0)  # command that was active delay_whole samples ago
         u_new = self._queue[0]
