@@ -531,8 +531,8 @@ class PlantStepper:
         self._now = (plant, model, rig)
 
     def warm(self) -> None:
-        """Load the compiled kernels one :meth:`step` and :meth:`sample` call, on a copy of the state:
-        the state, the delay line and the noise generator are left as they were.
+        """Load the compiled kernels that :meth:`step` and :meth:`sample` call, by one call of each on a
+        copy of the state: the state, the delay line and the noise generator are left as they were.
 
         The first step of a new process otherwise loads them from the disk cache (10-15 ms; the
         plant's construction loads the sub-step planner, 0.5-1 s): a real-time caller warms the
