@@ -9,6 +9,7 @@ tests know them: ``./scripts/test.sh`` (pytest from the root, ``pyproject.toml``
 from __future__ import annotations
 
 import os
+import signal
 import sys
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
@@ -28,6 +29,14 @@ PARALLEL_WORKER_ENV = {"AEROPEND_REPLAY_THREADS": "1", "OMP_NUM_THREADS": "1", "
 if os.environ.get("PYTEST_XDIST_WORKER"):
     for _key, _value in PARALLEL_WORKER_ENV.items():
         os.environ.setdefault(_key, _value)
+
+#: Ctrl-C as a terminal gives it. A script or CI runner that starts the suite as a background job
+#: without job control (bash's ``cmd &``) starts it with SIGINT ignored, and every command a test
+#: starts inherits that disposition: the tests that interrupt a command (csv_import's and gap-batch's
+#: Ctrl-C, bridge_check stopping the fake MCU) then saw it ignored and failed, 3 of them in every such
+#: run (test/test_sigint_inherited.py). A handler, unlike "ignored", is not inherited across exec.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 #: Columns of a CSV log written by ``bench/fixtures/truth_plant.py`` (``TruthRecording.to_csv``).
 TRUTH_CSV_COLUMNS = {"i_a": "i_a_A", "v_a": "v_a_V", "omega_rotor": "omega_rad_s"}
