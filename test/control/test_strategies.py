@@ -252,6 +252,31 @@ def test_cascade_design_gains_and_speed_loop_on_the_plant() -> None:
     assert 0.0 <= cas.i_ref <= d.i_max
 
 
+def test_a_limit_cycle_detunes_the_cascade_without_designing_in_the_sample_call(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The detuned designs (45 → 30 → 20 rad/s, the floor) are made when the cascade is built: the
+    sample that detects a limit cycle only switches gains (a design takes about 8 ms, four samples at
+    490 Hz). They are the designs ``design_cascade`` gives at those bandwidths."""
+    import aeropend_control.strategies.cascade as cascade
+
+    cas, fixed = MotorCascade(RIG), MotorCascade(RIG, detune=False)
+    expected = [design_cascade(RIG, omega_speed=w, omega_current=min(120.0, 2.5 * w)) for w in (30.0, 20.0)]
+
+    def refused(*_a, **_k):
+        raise AssertionError("design_cascade called in the per-sample path")
+
+    monkeypatch.setattr(cascade, "design_cascade", refused)
+    events = []
+    for _ in range(3):
+        cas._detune()  # what step() calls on the sample whose duty the monitor flags as cycling
+        events.append(cas.detune_event)
+    assert events == [(45.0, 30.0), (30.0, 20.0), (20.0, 20.0)] and cas.detuned == [30.0, 20.0]
+    assert cas.design == expected[1]
+    assert (cas.speed.gains.kp, cas.speed.gains.ki) == (expected[1].kp_w, expected[1].ki_w)
+    assert (cas.current.gains.kp, cas.current.gains.ki) == (expected[1].kp_i, expected[1].ki_i)
+    assert fixed._detuned_designs == []
+
+
 def test_cascade_holds_duty_without_motor_measurements() -> None:
     ctl = make_strategy("fl_cascade", RIG)
     o1 = ctl.step(0.4, Measurement(0.0, 0.0, 0.0))
