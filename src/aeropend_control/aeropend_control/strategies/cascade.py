@@ -85,7 +85,7 @@ class MotorCascade:
         #: equal values mean the floor was reached and nothing changed.
         self.detune_event: tuple[float, float] | None = None
         #: The designs the detuning steps through after :attr:`design`, made here rather than in the
-        #: per-sample call that detects the cycle (a design takes about 8 ms: four samples at 490 Hz).
+        #: per-sample call that detects the cycle (a design takes 1.4-8 ms: up to four samples at 490 Hz).
         self._detuned_designs = self._detune_chain() if detune else []
 
     def _detune_chain(self) -> list[CascadeDesign]:
