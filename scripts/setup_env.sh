@@ -63,8 +63,4 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   done
   echo "$want" > "$stamp"
 fi
-# the simulator's compiled kernels of every actuator family, once (aeropend_sim.compiled.warm; 0.1-0.5 s a
-# family once cached): on an empty cache the test suite's parallel workers and the commands they start
-# would each compile the same kernels at once (about 40 s of CPU for one process to compile them all)
-"$VENV/bin/python" -m aeropend_sim.compiled.warm
 echo "aeropend environment ready: $VENV"
