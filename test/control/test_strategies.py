@@ -255,7 +255,7 @@ def test_cascade_design_gains_and_speed_loop_on_the_plant() -> None:
 def test_a_limit_cycle_detunes_the_cascade_without_designing_in_the_sample_call(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """The detuned designs (45 → 30 → 20 rad/s, the floor) are made when the cascade is built: the
-    sample that detects a limit cycle only switches gains (a design takes about 8 ms, four samples at
+    sample that detects a limit cycle only switches gains (a design takes 1.4-8 ms, up to four samples at
     490 Hz). They are the designs ``design_cascade`` gives at those bandwidths."""
     import aeropend_control.strategies.cascade as cascade
 
