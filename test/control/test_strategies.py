@@ -274,7 +274,7 @@ def test_a_limit_cycle_detunes_the_cascade_without_designing_in_the_sample_call(
     assert cas.design == expected[1]
     assert (cas.speed.gains.kp, cas.speed.gains.ki) == (expected[1].kp_w, expected[1].ki_w)
     assert (cas.current.gains.kp, cas.current.gains.ki) == (expected[1].kp_i, expected[1].ki_i)
-    assert fixed._detuned_designs == []
+    assert fixed._detuned_designs == ()
 
 
 def test_cascade_holds_duty_without_motor_measurements() -> None:

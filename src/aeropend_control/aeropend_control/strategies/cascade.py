@@ -15,6 +15,7 @@ from abc import abstractmethod
 from dataclasses import replace
 
 from aeropend_control.design import LAG_CURRENT_RATIO, CascadeDesign, PoleSpec, design_cascade
+from aeropend_control.drive_design import once_per_rig
 from aeropend_control.oscillation import OscillationMonitor
 from aeropend_control.pid import PID, PIDGains
 from aeropend_control.strategies.base import ControlOutput, Measurement, Strategy, StrategyError
@@ -35,6 +36,18 @@ def _detuned_speed(design: CascadeDesign) -> float:
     """The speed-loop bandwidth [rad/s] one detuning step below ``design``'s (at least
     :data:`MIN_OMEGA_SPEED`)."""
     return max(design.omega_speed * DETUNE_FACTOR, MIN_OMEGA_SPEED)
+
+
+@once_per_rig
+def detune_chain(rig: Rig, design: CascadeDesign) -> tuple[CascadeDesign, ...]:
+    """Each design :class:`MotorCascade`'s detuning moves to in turn from ``design``, down to the floor
+    (once per rig and design: every cascade built on the rig shares them)."""
+    chain = [design]
+    while (w_s := _detuned_speed(chain[-1])) < chain[-1].omega_speed:
+        d = chain[-1]
+        w_c = min(d.omega_current, LAG_CURRENT_RATIO * w_s)
+        chain.append(design_cascade(rig, omega_speed=w_s, omega_current=w_c, i_max=d.i_max))
+    return tuple(chain[1:])
 
 
 class MotorCascade:
@@ -86,17 +99,7 @@ class MotorCascade:
         self.detune_event: tuple[float, float] | None = None
         #: The designs the detuning steps through after :attr:`design`, made here rather than in the
         #: per-sample call that detects the cycle (a design takes 1.4-8 ms: up to four samples at 490 Hz).
-        self._detuned_designs = self._detune_chain() if detune else []
-
-    def _detune_chain(self) -> list[CascadeDesign]:
-        """Each design :meth:`_detune` moves to in turn, from :attr:`design` down to the floor."""
-        chain = [self.design]
-        while (w_s := _detuned_speed(chain[-1])) < chain[-1].omega_speed:
-            d = chain[-1]
-            chain.append(design_cascade(self.rig, omega_speed=w_s,
-                                        omega_current=min(d.omega_current, LAG_CURRENT_RATIO * w_s),
-                                        i_max=d.i_max))
-        return chain[1:]
+        self._detuned_designs = detune_chain(rig, self.design) if detune else ()
 
     def reset(self) -> None:
         """Clear both integrators and the limit-cycle monitor (the design is kept)."""
