@@ -1,24 +1,28 @@
-"""Reproducer (CI flake, 2026-11-30): the fresh-clone CI of the commit that ordered the suite's slow
-modules first failed ``test_bridge_lifecycle_transitions``: after deactivate → activate, a non-zero
-Duty frame reached the firmware although the only non-zero commands had been published while the
-bridge was inactive ("the command held before deactivation is not applied again").
+"""Reproducer (CI flake, 2026-11-30 and 2026-12-01): duty commands published while the bridge was
+inactive reached the firmware after its activation.
 
-The mechanism: rclpy's executor takes **one** message per subscription per wait, and a ready
+The mechanisms: rclpy's executor takes **one** message per subscription per wait, and a ready
 subscription before a ready service. When the bridge's executor is behind (a loaded machine), the
 duty commands published while it was inactive wait in the subscription's queue (depth 10) beside
 the activate request: the first is taken and ignored (inactive), then the activate request is
-served, then the rest are taken **after** the activation and forwarded as fresh commands.
+served, then the rest are taken **after** the activation. And a reliable sample or request lost
+while the receiving process could not run comes again only at the writer's next heartbeat, about
+3 s later: in 3 of 25 runs of this script beside the ROS tests, the activation itself took 2.6 s
+longer than in the others.
+
+Two fixes that filtered an always-on subscription in its callback held on an idle machine and
+failed under load: one judging by the DDS reception time (1 failure in 8 runs beside the bridge
+tests), one also judging by the publisher's source time, trusted when the transit was under 5 s
+(one failure in a fresh-clone CI: one duty-0.5 command applied, seen as three frames with the
+keep-alive repeats). The bridge now subscribes to duty commands only while it is active
+(``BridgeNode.on_activate``): a new volatile reader receives nothing published before it matched.
 
 This script makes the executor late on purpose: it configures and activates the ``bridge`` against
 the pty fake firmware, deactivates it, stops the bridge process (SIGSTOP), publishes duty 0.5 ten
 times and sends the activate request, continues the bridge (SIGCONT) and lists the Duty frames the
-firmware reads after the activation. Before the fix (bridge_node ``_on_command``): 9-10 non-zero
-frames in each run; with it: duty 0 only. A first fix that judged by the DDS reception time alone
-(on the bridge's own clock) held on the idle machine and beside busy loops, and failed once in 8
-runs beside the parallel bridge tests (4 commands, received after the activation although sent
-before it); the fix also drops a command whose source time, from a clock that agrees with the
-bridge's within 5 s, is before the activation (``bridge_core.sent_before``): 0 failures in 6 such
-runs.
+firmware reads after the activation. Then, as a control, it waits until the bridge's new
+subscription has matched and publishes duty 0.25, which must reach the firmware. Before the first
+fix: 9-10 non-zero frames of duty 0.5 in each run; now none.
 
 Usage: ``python -m bench.repro.bridge_queued_command``
 """
@@ -30,6 +34,7 @@ import signal
 import subprocess
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from lifecycle_msgs.msg import Transition
@@ -71,19 +76,33 @@ def _done(executor, future, timeout: float = 15.0) -> bool:
     return _spin(executor, timeout, future.done) and bool(future.result().success)
 
 
-def queued_commands_applied() -> tuple[int, list[int]]:
-    """Run the sequence of the module doc; return the number of Duty frames the firmware read in the
-    second after the activation and the non-zero ones among them (``Duty.value``, 65535 = 1)."""
+#: The duty published while the bridge is inactive, and the one published after its activation.
+QUEUED, FRESH = 0.5, 0.25
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What the firmware read after the activation, and what the bridge logged while inactive."""
+
+    frames: int  #: Duty frames in the second after the activation
+    queued_applied: int  #: of them, frames of the duty published while inactive
+    fresh_applied: bool  #: the duty published after the activation reached the firmware
+    warned: bool  #: the bridge warned, while inactive, that something publishes duty commands
+
+
+def queued_commands_applied() -> Outcome:
+    """Run the sequence of the module doc and say what reached the firmware."""
     with tempfile.TemporaryDirectory() as tmp:
-        return _run(Path(tmp) / "ttyACM_fake")
+        return _run(Path(tmp) / "ttyACM_fake", Path(tmp) / "bridge.log")
 
 
-def _run(link: Path) -> tuple[int, list[int]]:
+def _run(link: Path, log: Path) -> Outcome:
     mcu = FakeMcu(link).start()
     domain = random_domain(101, 200)
-    proc = subprocess.Popen([*node_command("bridge", "aeropend_bridge.bridge_node"), "--ros-args", "-p",
-                             "autostart:=false", "-p", f"port:={link}"], env=isolated_env(domain),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    with open(log, "wb") as err:
+        proc = subprocess.Popen([*node_command("bridge", "aeropend_bridge.bridge_node"), "--ros-args", "-p",
+                                 "autostart:=false", "-p", f"port:={link}"], env=isolated_env(domain),
+                                stdout=subprocess.DEVNULL, stderr=err)
     try:
         with private_node("repro_manager", domain) as (node, executor):
             pub = node.create_publisher(Float64, TOPIC_DUTY_CYCLE, COMMAND_QOS)
@@ -93,10 +112,10 @@ def _run(link: Path) -> tuple[int, list[int]]:
             assert change.wait_for_service(timeout_sec=30.0)
             for name in ("CONFIGURE", "ACTIVATE", "DEACTIVATE"):
                 assert _done(executor, _request(change, getattr(Transition, f"TRANSITION_{name}"))), name
-            _spin(executor, 0.5)  # the publisher matched by the bridge's subscription
+            _spin(executor, 0.5)  # a keep-alive of the inactive bridge sees the publisher
             os.kill(proc.pid, signal.SIGSTOP)  # the bridge's executor falls behind
             for _ in range(10):
-                pub.publish(Float64(data=0.5))
+                pub.publish(Float64(data=QUEUED))
                 time.sleep(0.01)
             n_cmd = len(mcu.commands)
             future = _request(change, Transition.TRANSITION_ACTIVATE)
@@ -105,18 +124,28 @@ def _run(link: Path) -> tuple[int, list[int]]:
             assert _done(executor, future), "activate failed"
             _spin(executor, 1.0)
             duties = [f.value for _, f in mcu.commands[n_cmd:] if isinstance(f, Duty)]
-            return len(duties), [d for d in duties if d != 0]
+            matched = _spin(executor, 15.0, lambda: pub.get_subscription_count() > 0)
+            n_fresh = len(mcu.commands)
+            if matched:
+                pub.publish(Float64(data=FRESH))
+                _spin(executor, 1.0, lambda: Duty.from_fraction(FRESH) in
+                      [f for _, f in mcu.commands[n_fresh:]])
+            fresh = Duty.from_fraction(FRESH) in [f for _, f in mcu.commands[n_fresh:]]
     finally:
         stop(proc)
         reap(proc)
         mcu.stop()
+    queued = Duty.from_fraction(QUEUED).value
+    return Outcome(frames=len(duties), queued_applied=sum(d == queued for d in duties), fresh_applied=fresh,
+                   warned="their duty commands are not applied while the bridge is inactive" in
+                   log.read_text(errors="replace"))
 
 
 def main() -> None:
-    n, nonzero = queued_commands_applied()
-    print(f"Duty frames after the activation: {n}, non-zero: {len(nonzero)} {sorted(set(nonzero))[:4]}")
-    print("queued commands from before the activation were applied" if nonzero else
-          "no command from before the activation was applied")
+    out = queued_commands_applied()
+    print(f"Duty frames after the activation: {out.frames}, of the duty {QUEUED} published while inactive: "
+          f"{out.queued_applied}; duty {FRESH} published after it applied: {out.fresh_applied}; "
+          f"inactive bridge warned of the publisher: {out.warned}")
 
 
 if __name__ == "__main__":

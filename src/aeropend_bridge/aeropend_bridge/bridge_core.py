@@ -17,9 +17,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
 
 from aeropend_bridge.protocol import (
     ABSENT_I16,
@@ -325,41 +323,6 @@ class ClockMapper:
         # Lower envelope: shift the line down to touch the lowest minimum.
         intercept = min(p[1] - slope * (p[0] - self._t_ref) for p in pts)
         self._slope, self._intercept = slope, intercept
-
-
-#: Largest publisher-to-bridge transit [ns] for which :func:`sent_before` trusts the publisher's clock:
-#: a message whose reception − source time is in [0, 5 s) comes from a clock that agrees with this
-#: host's (same host, or NTP-synchronised hosts; a retransmission on a loaded host took over 1 s);
-#: a clock ahead gives a negative difference, one behind by more than 5 s a larger one. A publisher's
-#: clock behind by less than 5 s has its commands dropped for that long after an activation (duty 0
-#: meanwhile): the price of never applying a command sent before it.
-CLOCK_AGREEMENT_NS = 5_000_000_000
-
-
-def sent_before(info: Mapping[str, Any], since_ns: int) -> bool:
-    """Whether a command was sent before ``since_ns`` (the bridge's activation), by its DDS times.
-
-    Parameters
-    ----------
-    info : mapping
-        rclpy's message info: ``received_timestamp`` (the middleware's reception, this host's clock)
-        and ``source_timestamp`` (the publisher's clock), ns since the epoch; 0 or missing where the
-        middleware does not report one.
-    since_ns : int
-        The instant [ns since the epoch, ``time.time_ns()``].
-
-    Returns
-    -------
-    bool
-        True if it was received before ``since_ns``, or published before it by a clock that agrees
-        with this host's (:data:`CLOCK_AGREEMENT_NS`): a command queued, or retransmitted, while the
-        bridge was inactive. False when neither time tells (a message with no times passes).
-    """
-    received = int(info.get("received_timestamp") or 0)
-    source = int(info.get("source_timestamp") or 0)
-    if 0 < received < since_ns:
-        return True
-    return 0 < source < since_ns and 0 <= received - source < CLOCK_AGREEMENT_NS
 
 
 def firmware_trips_since(before: int | None, now: int) -> int:

@@ -3,8 +3,8 @@
 Connects to the acquisition firmware over a serial port (``firmware/PROTOCOL.md``) and makes
 the real rig look exactly like the simulated plant (:mod:`aeropend_sim.ros.sim_node`): publishes
 ``/aeropend/joint_states`` + ``/aeropend/armature`` (same stamp per sample, SI units, sensor
-data QoS) and subscribes ``/aeropend/duty_cycle`` (reliable). Stamps come from the MCU clock
-mapped to ROS time (:class:`~aeropend_bridge.bridge_core.ClockMapper`).
+data QoS) and, while active, subscribes ``/aeropend/duty_cycle`` (reliable). Stamps come from
+the MCU clock mapped to ROS time (:class:`~aeropend_bridge.bridge_core.ClockMapper`).
 
 A managed (lifecycle) node: ``configure`` opens the port and recognises the firmware,
 ``activate`` enables the duty output, ``deactivate`` drives 0 and stops, ``cleanup`` closes the
@@ -58,7 +58,6 @@ from aeropend_bridge.bridge_core import (
     RateMeter,
     SequenceTracker,
     firmware_trips_since,
-    sent_before,
 )
 from aeropend_bridge.family import CommandMap, check_firmware, legacy_hello, read_rig_hardware
 from aeropend_bridge.protocol import (
@@ -81,6 +80,8 @@ from aeropend_sim.ros.ros_contract import COMMAND_QOS, SAMPLE_QOS, sample_to_msg
 NODE_NAME = "aeropend_bridge"
 TOPIC_DIAGNOSTICS = "/diagnostics"
 LOG_THROTTLE_S = 1.0
+#: While inactive: how often [s] the bridge looks for (and warns about) duty-command publishers
+IDLE_WARN_PERIOD_S = 5.0
 #: Nominal firmware sample rate [Hz]: 16 MHz / 64 / 510.
 NOMINAL_RATE_HZ = 16e6 / 64 / 510
 #: How long configure waits for the firmware's HELLO after recognising its samples [s]: more than
@@ -170,9 +171,10 @@ class BridgeNode(LifecycleNode):
       off (ENABLE 0, duty 0 or the ESC's zero-throttle pulse).
       ``/diagnostics`` runs from here on. Fails (state stays *unconfigured*, port closed) with
       the reason logged.
-    * ``activate``: ENABLE 1, duty commands are forwarded (duty 0 until the first command after
-      activation), keep-alives feed the firmware watchdog, samples are published.
-    * ``deactivate``: duty 0 on the wire, ENABLE 0, commands ignored, samples no longer
+    * ``activate``: ENABLE 1, the duty-command subscription is created and its commands forwarded
+      (duty 0 until the first one), keep-alives feed the firmware watchdog, samples are published.
+    * ``deactivate``: duty 0 on the wire, ENABLE 0, the subscription destroyed (while inactive
+      a duty-command publisher is warned about every 5 s), samples no longer
       published (the port stays open, diagnostics continue).
     * ``cleanup``: close the port and drop publishers, subscription and timers.
     * ``shutdown`` (from any state, also on SIGINT/SIGTERM): motor off, port closed.
@@ -187,9 +189,9 @@ class BridgeNode(LifecycleNode):
         self._last_send_ns = 0
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._active = False
-        #: time.time_ns() at the last activation: a duty command the middleware received before it is
-        #: dropped (:meth:`_on_command`)
-        self._active_since_ns = 0
+        #: the duty-command subscription: it exists only while active (:meth:`on_activate`)
+        self._command_sub: Any = None
+        self._idle_publishers_checked_ns = 0
         self._finalized = False
         self.link: SerialLink | None = None
         self._pub_js: Any = None
@@ -252,7 +254,6 @@ class BridgeNode(LifecycleNode):
         self._pub_arm = self.create_lifecycle_publisher(BatteryState, REL_ARMATURE, SAMPLE_QOS)
         self._pub_diag = self.create_publisher(DiagnosticArray, TOPIC_DIAGNOSTICS, 10)
         self._entities = [
-            self.create_subscription(Float64, REL_DUTY_CYCLE, self._on_command, COMMAND_QOS),
             self.create_timer(self.keepalive_s, self._keepalive, clock=self._steady),
             self.create_timer(self.diag_period_s, self._publish_diagnostics, clock=self._steady),
         ]
@@ -309,11 +310,21 @@ class BridgeNode(LifecycleNode):
             f"{hello.silence_ms} ms{esc}")
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Enable the H-bridge output and forward duty commands (0 until the first one)."""
+        """Enable the H-bridge output and subscribe to duty commands (duty 0 until the first one).
+
+        The subscription is created here and destroyed on deactivate, so no command published while
+        the bridge was inactive can be applied: a new volatile reader receives only what is
+        published after it matched. Filtering an always-on subscription in its callback did not
+        hold: rclpy's executor takes one message per subscription per wait and serves a ready
+        subscription before a ready service, so commands queued beside the activate request were
+        taken after it; and a reliable command lost by a loaded host comes again at the writer's
+        next heartbeat, seconds later (``bench/repro/bridge_queued_command.py``).
+        """
         def action() -> None:
             self.watchdog.disarm()  # no command from before the activation is applied
-            self._active_since_ns = time.time_ns()
             self._active = True
+            self._command_sub = self.create_subscription(Float64, REL_DUTY_CYCLE, self._on_command,
+                                                         COMMAND_QOS)
             self.link.send(Enable(True))  # type: ignore[union-attr]
             self._send_duty(0.0)
             self.get_logger().info("active: duty output enabled")
@@ -321,8 +332,10 @@ class BridgeNode(LifecycleNode):
         return super().on_activate(state) if ret == TransitionCallbackReturn.SUCCESS else ret
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Duty 0 on the wire, output disabled, commands ignored."""
+        """Duty 0 on the wire, output disabled, the duty-command subscription destroyed."""
         self._motor_off()
+        self._unsubscribe()
+        self._idle_publishers_checked_ns = 0  # warn at once if a controller still publishes
         self.get_logger().info("inactive: duty 0 sent, output disabled")
         return super().on_deactivate(state)
 
@@ -354,12 +367,19 @@ class BridgeNode(LifecycleNode):
             time.sleep(0.005)
         self.link.send(Enable(False))
 
+    def _unsubscribe(self) -> None:
+        """Destroy the duty-command subscription, if there is one."""
+        sub, self._command_sub = self._command_sub, None
+        if sub is not None:
+            self.destroy_subscription(sub)
+
     def _release(self) -> None:
         """Motor off if the port is open, close it, destroy the configured entities."""
         link, was_active = self.link, self._active
         if link is not None and was_active:
             self._motor_off()
         self._active = False
+        self._unsubscribe()
         if link is not None:
             link.stop()
             self.link = None
@@ -518,23 +538,9 @@ class BridgeNode(LifecycleNode):
                     throttle_duration_sec=LOG_THROTTLE_S)
 
     # ------------------------------------------------------------------ commands
-    def _on_command(self, msg: Float64, info: dict[str, Any]) -> None:
-        """A duty command: forwarded while active, unless it was sent before the activation.
-
-        rclpy's executor takes one message per subscription per wait, and serves a ready
-        subscription before a ready service: when it is behind, commands published while the bridge
-        was inactive wait in the queue (depth 10) beside the activate request, and all but the first
-        would be taken after the activation and applied as fresh ones; a reliable message lost on a
-        loaded host comes again later still (``bench/repro/bridge_queued_command.py``). Such
-        commands are dropped by their DDS times (:func:`~aeropend_bridge.bridge_core.sent_before`).
-        """
+    def _on_command(self, msg: Float64) -> None:
+        """A duty command (the subscription exists only while active: :meth:`on_activate`)."""
         if not self._active:
-            self.get_logger().warn(f"duty command {msg.data!r} ignored: the bridge is not active",
-                                   throttle_duration_sec=5.0)
-            return
-        if sent_before(info, self._active_since_ns):
-            self.get_logger().info(f"duty command {msg.data!r} dropped: sent before the activation",
-                                   throttle_duration_sec=LOG_THROTTLE_S)
             return
         reason = self.watchdog.offer(msg.data, time.monotonic_ns())
         if reason is not None:
@@ -587,6 +593,7 @@ class BridgeNode(LifecycleNode):
         sample (simavr harness ``-H``) would take it for the answer."""
         if not self._active:
             self._send_duty(0.0)
+            self._warn_idle_publishers()
             return
         now = time.monotonic_ns()
         trips = self.watchdog.trips
@@ -598,6 +605,20 @@ class BridgeNode(LifecycleNode):
         elif duty == self._last_sent and now - self._last_send_ns < self.keepalive_s * 1e9:
             return
         self._send_duty(duty)
+
+    def _warn_idle_publishers(self) -> None:
+        """While inactive, every :data:`IDLE_WARN_PERIOD_S`: warn when something publishes duty
+        commands, which the bridge does not subscribe to until it is activated."""
+        now = time.monotonic_ns()
+        if now - self._idle_publishers_checked_ns < IDLE_WARN_PERIOD_S * 1e9:
+            return
+        self._idle_publishers_checked_ns = now
+        n = self.count_publishers(REL_DUTY_CYCLE)
+        if n:
+            self.get_logger().warn(
+                f"{n} publisher(s) on {self.resolve_topic_name(REL_DUTY_CYCLE)}: their duty commands "
+                "are not applied while the bridge is inactive (activate it: ros2 lifecycle set "
+                f"{self.get_fully_qualified_name()} activate)")
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostics(self) -> DiagnosticStatus:
