@@ -1,5 +1,6 @@
-"""Reproducer (2026-12-01, not fixed): ``rig fit`` reports a rod damping as determined from a free
-decay in which the rod hardly moves, at a value the rig does not have.
+"""Reproducer (2026-12-01, fixed the same day by ``rig_search.open_profile``): ``rig fit`` reported a
+rod damping as determined from a free decay in which the rod hardly moves, at a value the rig does
+not have.
 
 Found through ``bench_design_parameters``: its one design whose angle limits failed on the rig
 (dc_hbridge_0, first log = balance table + free decay) said the limits were assured, and the rig's
@@ -8,29 +9,29 @@ recorded angle went 0.020 rad below the stated range. The design trusted the fir
 
 The free decay (``decay.csv``, 14 s logged once the propeller has stopped) holds almost nothing: the
 rod is heavily damped (ζ ≈ 0.45), so the log shows it creep from −4 to +1 encoder quanta in 0.3 s
-and then 0 for the rest. ``rig fit`` refuses mgd/J and L/J (the table fixes only their ratio) and
-leaves mgd/J at its best value, 0.082 1/s² (the rig: 127), where the model has no restoring force:
+and then 0 for the rest. ``rig fit`` refused mgd/J and L/J (the table fixes only their ratio) and
+left mgd/J at its best value, 0.082 1/s² (the rig: 127), where the model has no restoring force:
 with the initial angle and velocity free (the decay block's nuisance parameters) a damped creep
-θ₀ + θ̇₀/c·(1 − e^(−c·t)) reproduces the −4 → 0 quanta, and c/J is then fitted as its time constant.
-With the restoring force of the rig the same samples are fitted as well (an overshoot of one
-quantum), at another c/J: with mgd/J and L/J stated at the rig's values the same inputs fit
-c/J = 9.76 ± 0.8 1/s. So c/J is determined only *given* a value of mgd/J that these inputs do not
-determine; the local analysis at the optimum does not see it (there mgd/J hardly moves the
-output, so its correlation with c/J is small).
+θ₀ + θ̇₀/c·(1 − e^(−c·t)) reproduces the −4 → 0 quanta, and c/J was fitted as its time constant.
+With mgd/J and L/J stated at the rig's values the same inputs fit c/J = 9.76 ± 0.8 1/s. The free
+run from the measured start (``rig check``, and ``rig fit``'s own summary) gave NRMSE 0.47 on the
+decay for the fitted rig and 0.015 for the same file with the drawn rig's mgd/J, L/J and c/J.
 
-The free run from the measured start (``rig check``, and ``rig fit``'s own summary) gives NRMSE 0.47
-on the decay for the fitted rig and 0.015 for the same file with the drawn rig's mgd/J, L/J and c/J:
-the fit's block, with its start free, and the free run from the measured start judge the two rigs
-differently.
-
-A fix to consider: before calling a parameter determined, refit it with each refused parameter moved
-across its plausible range (a profile), and report it as determined only together with them when its
-estimate moves by more than its 1σ ("c/J: determined only given mgd/J, which these inputs leave
-open"), as ``rig fit`` already says "only K_q·L/J is determined" for a product.
+In the fit's own terms the creep was not the better fit: at the rod's mgd/J and L/J the joint cost
+½‖r‖² is 8.2 against the creep's 28.8. The joint fit had stopped in the creep's valley; the
+refusals then said only that the inputs do not fix mgd/J *there*. The fix
+(:func:`aeropend_ident.greybox.rig_search.open_profile`, stage 7 of docs/rig_command.md) profiles
+the fit along what its refused parameters leave open: the refused parameter that weighs most in each
+open direction held at points out to its search bound, everything else solved again; a lower probe is
+a better valley and the fit is solved again from it (a probe as good shows a fitted parameter that
+holds only given the refused ones, refused then too). Here it finds the rod's valley, and the fit
+gives mgd/J 128.0 ± 14.3, L/J 497.7 ± 55 and c/J 9.77 ± 0.85 (the rig: 126.9, 493.2, 10.10).
 
 This script draws the rig, writes its lab logs, runs ``rig new`` and ``rig fit`` on the balance
-table and the decay, and prints the fitted c/J against the drawn one, the two free-run NRMSEs, and
-c/J fitted again with mgd/J and L/J stated at the rig's values. About 15 s.
+table and the decay, and prints the fitted c/J against the drawn one, the free-run NRMSE of the
+fitted rig and of the rig's own values, and c/J fitted again with mgd/J and L/J stated at the rig's
+values. Before the fix: c/J = 14.863 ± 2.2, NRMSE 0.4696 against 0.0146; with it, c/J = 9.77 ±
+0.85 and the two NRMSEs alike. About 20 s.
 
 Usage: ``python -m bench.repro.rig_fit_flat_decay``
 """

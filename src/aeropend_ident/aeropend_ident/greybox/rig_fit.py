@@ -71,10 +71,13 @@ from aeropend_ident.greybox.rig_problem import (
     weak_directions,
 )
 from aeropend_ident.greybox.rig_search import (
+    GIVEN_SIGMAS,
+    OpenProfile,
     blocks_of,
     by_replay,
     clusters,
     free_held,
+    open_profile,
     whole_runs,
 )
 from aeropend_ident.io.resampling import detect_quantum
@@ -529,6 +532,39 @@ def _outcomes(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Mapping[s
     return outcomes
 
 
+def _profiled(problem: Problem, z: np.ndarray, J: np.ndarray, outcomes: dict[str, Outcome],
+              start: Mapping[str, float], sources: str, hold: float | None, dt: float, notes: list[str]
+              ) -> tuple[dict[str, Outcome], np.ndarray]:
+    """The outcomes after the profile along what the refused parameters leave open
+    (:func:`~aeropend_ident.greybox.rig_search.open_profile`): fitted again from a better valley
+    found there (refusals judged at the new end), and the fitted parameters that hold only given
+    refused ones refused too. Returns (outcomes, the fit's end)."""
+    def profile() -> OpenProfile:
+        return open_profile(problem, z, J, [k for k, o in outcomes.items() if o.status != "fitted"],
+                            {k: o.std for k, o in outcomes.items() if o.status == "fitted"})
+
+    prof = profile()
+    if prof.lower is not None:
+        was = sorted(k for k, o in outcomes.items() if o.status != "fitted")
+        z, J, _ = problem.solve(prof.lower, max_nfev=80)
+        J = J * np.repeat(problem.reweight(z), [b.size() for b in problem.blocks])[:, None]
+        names = [sp.name for sp in problem.specs]
+        refused = _refusals(weak_directions(J[:, : len(names)], names, [_chain_order(n) for n in names]),
+                            sources, start, problem.timing, hold, dt)
+        outcomes = _outcomes(problem, z, J, refused, sources, hold, dt)
+        notes.append(f"{', '.join(was)}: not determined where the fit first ended; further along what the "
+                     "inputs left open the fit was better by more than its noise, and it was fitted again "
+                     "from there")
+        prof = profile()
+    for k, on in prof.given.items():
+        o = outcomes[k]
+        o.status = "to be fitted"
+        o.reason = (f"{k}: determined by {sources} only given {' and '.join(on)}, which they leave open "
+                    f"({o.value:.3g} ± {o.std:.2g} {o.unit} here, more than {GIVEN_SIGMAS:g}σ away where "
+                    f"{'it fits' if len(on) == 1 else 'they fit'} as well); state {' or '.join(on)}")
+    return outcomes, z
+
+
 def _with_logged_quantum(fitted: Rig, rig: Rig, series: Sequence[TimeSeries], notes: list[str]
                          ) -> tuple[Rig, tuple[float, str] | None]:
     """The fitted rig with the angle lattice the logs show (:func:`angle_quantum`) as its sensor's
@@ -609,6 +645,7 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
                                                 [_chain_order(n) for n in names_now]),
                                 sources, start, problem.timing, hold, dt)
         outcomes = _outcomes(problem, z, J, refused, sources, hold, dt)
+        outcomes, z = _profiled(problem, z, J, outcomes, start, sources, hold, dt, notes)
     for s in all_specs:
         if s.name in held:
             outcomes[s.name] = Outcome(s.name, s.unit, s.initial, status="to be fitted",

@@ -17,7 +17,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -243,3 +243,121 @@ def free_held(problem: Problem, all_specs: Sequence[ParameterSpec], held: set[st
     problem.specs, problem.fixed = saved
     problem._cache = None
     return None
+
+
+#: Points probed along each direction the refused parameters leave open, on each side of the fit's
+#: end, evenly out to the search box's edge (:func:`open_profile`).
+PROFILE_POINTS = 6
+#: A fitted parameter that moves by more than this many of its 1σ where the refused parameters fit
+#: as well is determined only given them (:func:`open_profile`).
+GIVEN_SIGMAS = 2.0
+
+
+@dataclass(frozen=True)
+class OpenProfile:
+    """What :func:`open_profile` found along the directions the refused parameters leave open.
+
+    Attributes
+    ----------
+    lower : ndarray or None
+        A point (the problem's coordinates) whose cost is below the fit's by more than the noise,
+        the lowest probed: the fit stopped in a worse valley. None when no probe is lower.
+    given : dict
+        Fitted parameter -> the refused parameters it depends on: where they fit as well, it moved
+        by more than :data:`GIVEN_SIGMAS` × its 1σ.
+    """
+
+    lower: np.ndarray | None
+    given: dict[str, list[str]]
+
+
+def open_profile(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Sequence[str],
+                 std: dict[str, float]) -> OpenProfile:
+    """Profile of the fit along the directions its refused parameters leave open.
+
+    A parameter refused at the fit keeps its best value, which the inputs do not determine locally;
+    further along the same direction the fit may be better, or as good with the fitted parameters
+    elsewhere. A free decay that shows a heavily damped rod at rest was fitted by a creep without
+    restoring force (mgd/J at 0.082 1/s², refused; cost ½‖r‖² 28.8) with c/J = 14.9 ± 2.2 1/s,
+    while the rod's own mgd/J and L/J (127 1/s², 493) fit it at cost 8.2 with c/J = 9.8
+    (``bench/repro/rig_fit_flat_decay.py``). For each direction of the refused parameters the inputs
+    leave open (a right singular vector of their columns of ``J`` whose standard error exceeds one
+    coordinate unit, as :func:`~aeropend_ident.greybox.rig_problem.weak_directions` refuses), the
+    refused parameter that weighs most in it is held at :data:`PROFILE_POINTS` points on each side
+    of its best value, out to its search bound, and every other parameter solved again (the others
+    refused beside it follow what the inputs do fix: a balance table's ratio of mgd/J to L/J). A
+    probe lower than the fit by more than the noise (:data:`FREE_SHARE`, :data:`FREE_CHI2` per
+    refused parameter) is a better valley; one within it fits as well, and a fitted parameter that
+    moved there by more than :data:`GIVEN_SIGMAS` × its 1σ is determined only given the refused ones.
+
+    Parameters
+    ----------
+    problem : Problem
+        The joint problem at the fit's end (its blocks' σ as they weigh the refusals); left as it was.
+    z : ndarray
+        The fit's end (the specs' coordinates, then the blocks' nuisance coordinates).
+    J : ndarray, shape (rows, len(z))
+        The weighted Jacobian at ``z``.
+    refused : sequence of str
+        The parameters among ``problem.specs`` refused at the fit.
+    std : dict
+        1σ of each fitted parameter (its unit).
+
+    Returns
+    -------
+    OpenProfile
+    """
+    names = [s.name for s in problem.specs]
+    r_idx = [names.index(n) for n in refused if n in names]
+    k_idx = [j for j, n in enumerate(names) if n not in refused and math.isfinite(std.get(n, math.nan))]
+    none = OpenProfile(None, {})
+    if not r_idx or not k_idx:
+        return none
+    _, sv, vt = np.linalg.svd(J[:, r_idx], full_matrices=False)
+    pivots = list(dict.fromkeys(r_idx[int(np.argmax(np.abs(vt[i])))] for i in range(sv.size) if sv[i] < 1.0))
+    if not pivots:
+        return none
+    best = problem.cost(z)
+    tolerance = max(FREE_SHARE * best, FREE_CHI2 * len(r_idx))
+    lower, lowest, given = None, best - tolerance, {}
+    for pivot in pivots:
+        for zp, cost in _probes(problem, z, pivot):
+            if cost < lowest:
+                lower, lowest = zp, cost
+            elif cost <= best + tolerance:
+                for j in k_idx:
+                    spec = problem.specs[j]
+                    if abs(spec.from_z(zp[j]) - spec.from_z(z[j])) > GIVEN_SIGMAS * std[names[j]]:
+                        on = given.setdefault(names[j], [])
+                        on += [names[r] for r in r_idx if names[r] not in on]
+    return OpenProfile(lower, given)
+
+
+def _probes(problem: Problem, z: np.ndarray, pivot: int) -> list[tuple[np.ndarray, float]]:
+    """(point, cost) of each probe of :func:`open_profile`: the parameter ``pivot`` held, every other
+    coordinate solved again (``problem`` left as it was)."""
+    specs, fixed = problem.specs, problem.fixed
+    _, lo, hi = problem.z_bounds()
+    free = [j for j in range(len(z)) if j != pivot]
+    out = []
+    try:
+        problem.specs = [replace(sp, initial=sp.from_z(z[j])) for j, sp in enumerate(specs) if j != pivot]
+        for end in (lo[pivot], hi[pivot]):
+            for share in np.arange(1, PROFILE_POINTS + 1) / PROFILE_POINTS:
+                zk = z[pivot] + share * (end - z[pivot])
+                if abs(zk - z[pivot]) <= 1e-9:
+                    continue
+                problem.fixed = {**fixed, specs[pivot].name: specs[pivot].from_z(float(zk))}
+                problem._cache = None
+                try:
+                    z2, _, sol = problem.solve(z[free], max_nfev=80)
+                except (IdentificationError, ValueError, ArithmeticError):
+                    continue
+                if math.isfinite(sol.cost):
+                    zp = z.copy()
+                    zp[pivot], zp[free] = zk, z2
+                    out.append((zp, float(sol.cost)))
+    finally:
+        problem.specs, problem.fixed = specs, fixed
+        problem._cache = None
+    return out
