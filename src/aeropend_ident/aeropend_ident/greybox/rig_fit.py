@@ -537,8 +537,9 @@ def _profiled(problem: Problem, z: np.ndarray, J: np.ndarray, outcomes: dict[str
               ) -> tuple[dict[str, Outcome], np.ndarray]:
     """The outcomes after the profile along what the refused parameters leave open
     (:func:`~aeropend_ident.greybox.rig_search.open_profile`): fitted again from a better valley
-    found there (refusals judged at the new end), and the fitted parameters that hold only given
-    refused ones refused too. Returns (outcomes, the fit's end)."""
+    found there (refusals judged at the new end), and the 1σ of a fitted parameter that moves where
+    refused ones fit as well widened to half that move (refused when that exceeds the refusal
+    limits, with a note when not). Returns (outcomes, the fit's end)."""
     def profile() -> OpenProfile:
         return open_profile(problem, z, J, [k for k, o in outcomes.items() if o.status != "fitted"],
                             {k: o.std for k, o in outcomes.items() if o.status == "fitted"})
@@ -556,12 +557,19 @@ def _profiled(problem: Problem, z: np.ndarray, J: np.ndarray, outcomes: dict[str
                      "inputs left open the fit was better by more than its noise, and it was fitted again "
                      "from there")
         prof = profile()
-    for k, on in prof.given.items():
+    for k, (move, on) in prof.given.items():
         o = outcomes[k]
-        o.status = "to be fitted"
-        o.reason = (f"{k}: determined by {sources} only given {' and '.join(on)}, which they leave open "
-                    f"({o.value:.3g} ± {o.std:.2g} {o.unit} here, more than {GIVEN_SIGMAS:g}σ away where "
-                    f"{'it fits' if len(on) == 1 else 'they fit'} as well); state {' or '.join(on)}")
+        spec = next(sp for sp in problem.specs if sp.name == k)
+        was, o.std = o.std, move / GIVEN_SIGMAS
+        limit = MAX_RELATIVE_STD * abs(o.value) if spec.log else MAX_RANGE_STD * (spec.upper - spec.lower)
+        why = (f"where {' and '.join(on)}, which {sources} leave open, {'fits' if len(on) == 1 else 'fit'} "
+               f"as well, {k} moves by up to {move:.2g} {o.unit}")
+        if o.std > limit:
+            o.status = "to be fitted"
+            o.reason = (f"{k}: determined by {sources} only given {' or '.join(on)} ({why}); "
+                        f"state {' or '.join(on)}")
+        else:
+            notes.append(f"{k}: 1σ widened from {was:.2g} to {o.std:.2g} {o.unit}: {why}")
     return outcomes, z
 
 

@@ -248,8 +248,8 @@ def free_held(problem: Problem, all_specs: Sequence[ParameterSpec], held: set[st
 #: Points probed along each direction the refused parameters leave open, on each side of the fit's
 #: end, evenly out to the search box's edge (:func:`open_profile`).
 PROFILE_POINTS = 6
-#: A fitted parameter that moves by more than this many of its 1σ where the refused parameters fit
-#: as well is determined only given them (:func:`open_profile`).
+#: Where the refused parameters fit as well, a fitted parameter may move by this many of its 1σ; its
+#: 1σ is widened to cover a larger move (:func:`open_profile`, ``rig_fit._profiled``).
 GIVEN_SIGMAS = 2.0
 
 
@@ -263,12 +263,13 @@ class OpenProfile:
         A point (the problem's coordinates) whose cost is below the fit's by more than the noise,
         the lowest probed: the fit stopped in a worse valley. None when no probe is lower.
     given : dict
-        Fitted parameter -> the refused parameters it depends on: where they fit as well, it moved
-        by more than :data:`GIVEN_SIGMAS` × its 1σ.
+        Fitted parameter -> (its largest move where the refused parameters fit as well, in its
+        unit; the refused parameters held in those probes), for the parameters that moved by more
+        than :data:`GIVEN_SIGMAS` × their 1σ.
     """
 
     lower: np.ndarray | None
-    given: dict[str, list[str]]
+    given: dict[str, tuple[float, list[str]]]
 
 
 def open_profile(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Sequence[str],
@@ -286,9 +287,10 @@ def open_profile(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Sequen
     refused parameter that weighs most in it is held at :data:`PROFILE_POINTS` points on each side
     of its best value, out to its search bound, and every other parameter solved again (the others
     refused beside it follow what the inputs do fix: a balance table's ratio of mgd/J to L/J). A
-    probe lower than the fit by more than the noise (:data:`FREE_SHARE`, :data:`FREE_CHI2` per
-    refused parameter) is a better valley; one within it fits as well, and a fitted parameter that
-    moved there by more than :data:`GIVEN_SIGMAS` × its 1σ is determined only given the refused ones.
+    probe lower than the fit by more than the noise (:data:`FREE_SHARE`, and :data:`FREE_CHI2` for the
+    one parameter a probe holds) is a better valley; one within it fits as well, and a fitted
+    parameter that moved there by more than :data:`GIVEN_SIGMAS` × its 1σ is known only within that
+    move while the refused ones stay open.
 
     Parameters
     ----------
@@ -318,7 +320,7 @@ def open_profile(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Sequen
     if not pivots:
         return none
     best = problem.cost(z)
-    tolerance = max(FREE_SHARE * best, FREE_CHI2 * len(r_idx))
+    tolerance = max(FREE_SHARE * best, FREE_CHI2)  # a probe holds one parameter
     lower, lowest, given = None, best - tolerance, {}
     for pivot in pivots:
         for zp, cost in _probes(problem, z, pivot):
@@ -327,9 +329,10 @@ def open_profile(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Sequen
             elif cost <= best + tolerance:
                 for j in k_idx:
                     spec = problem.specs[j]
-                    if abs(spec.from_z(zp[j]) - spec.from_z(z[j])) > GIVEN_SIGMAS * std[names[j]]:
-                        on = given.setdefault(names[j], [])
-                        on += [names[r] for r in r_idx if names[r] not in on]
+                    move = abs(spec.from_z(zp[j]) - spec.from_z(z[j]))
+                    if move > GIVEN_SIGMAS * std[names[j]]:
+                        was, on = given.get(names[j], (0.0, []))
+                        given[names[j]] = (max(was, move), on + [names[pivot]] * (names[pivot] not in on))
     return OpenProfile(lower, given)
 
 
