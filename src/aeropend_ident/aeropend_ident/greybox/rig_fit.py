@@ -520,8 +520,7 @@ def _outcomes(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Mapping[s
         bound = near_bound(z[j], lo[j], hi[j], s.lower, s.upper, v, std)
         o = Outcome(s.name, s.unit, v, std, provenance=_provenance(J, sizes, problem.blocks, j),
                     bound=bound, lower=s.lower, upper=s.upper)
-        limit = MAX_RELATIVE_STD * abs(v) if s.log else MAX_RANGE_STD * (s.upper - s.lower)
-        loose = std > limit
+        loose = std > _refusal_limit(s, v)
         if s.name in refused:
             o.status, o.reason = "to be fitted", refused[s.name]
         elif math.isinf(std) or (math.isfinite(std) and loose):
@@ -530,6 +529,26 @@ def _outcomes(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Mapping[s
                         f"{_hint(s.name, v, problem.timing, hold, dt)}")
         outcomes[s.name] = o
     return outcomes
+
+
+def _refusal_limit(spec: ParameterSpec, value: float) -> float:
+    """The 1σ above which a fitted parameter is refused (:data:`MAX_RELATIVE_STD` of its value for a
+    log parameter, :data:`MAX_RANGE_STD` of its search range for a linear one)."""
+    return MAX_RELATIVE_STD * abs(value) if spec.log else MAX_RANGE_STD * (spec.upper - spec.lower)
+
+
+def _reweighted(problem: Problem, z: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """``J`` with each block's rows rescaled after its σ is re-estimated at ``z``
+    (:meth:`~aeropend_ident.greybox.rig_problem.Problem.reweight`)."""
+    return J * np.repeat(problem.reweight(z), [b.size() for b in problem.blocks])[:, None]
+
+
+def _refusals_at(problem: Problem, J: np.ndarray, sources: str, start: Mapping[str, float],
+                 hold: float | None, dt: float) -> dict[str, str]:
+    """:func:`_refusals` judged on the weighted Jacobian ``J`` at the fit, not at the start."""
+    names = [sp.name for sp in problem.specs]
+    return _refusals(weak_directions(J[:, : len(names)], names, [_chain_order(n) for n in names]),
+                     sources, start, problem.timing, hold, dt)
 
 
 def _profiled(problem: Problem, z: np.ndarray, J: np.ndarray, outcomes: dict[str, Outcome],
@@ -548,11 +567,9 @@ def _profiled(problem: Problem, z: np.ndarray, J: np.ndarray, outcomes: dict[str
     if prof.lower is not None:
         was = sorted(k for k, o in outcomes.items() if o.status != "fitted")
         z, J, _ = problem.solve(prof.lower, max_nfev=80)
-        J = J * np.repeat(problem.reweight(z), [b.size() for b in problem.blocks])[:, None]
-        names = [sp.name for sp in problem.specs]
-        refused = _refusals(weak_directions(J[:, : len(names)], names, [_chain_order(n) for n in names]),
-                            sources, start, problem.timing, hold, dt)
-        outcomes = _outcomes(problem, z, J, refused, sources, hold, dt)
+        J = _reweighted(problem, z, J)
+        outcomes = _outcomes(problem, z, J, _refusals_at(problem, J, sources, start, hold, dt), sources, hold,
+                             dt)
         notes.append(f"{', '.join(was)}: not determined where the fit first ended; further along what the "
                      "inputs left open the fit was better by more than its noise, and it was fitted again "
                      "from there")
@@ -561,10 +578,9 @@ def _profiled(problem: Problem, z: np.ndarray, J: np.ndarray, outcomes: dict[str
         o = outcomes[k]
         spec = next(sp for sp in problem.specs if sp.name == k)
         was, o.std = o.std, move / GIVEN_SIGMAS
-        limit = MAX_RELATIVE_STD * abs(o.value) if spec.log else MAX_RANGE_STD * (spec.upper - spec.lower)
         why = (f"where {' and '.join(on)}, which {sources} leave open, {'fits' if len(on) == 1 else 'fit'} "
                f"as well, {k} moves by up to {move:.2g} {o.unit}")
-        if o.std > limit:
+        if o.std > _refusal_limit(spec, o.value):
             o.status = "to be fitted"
             o.reason = (f"{k}: determined by {sources} only given {' or '.join(on)} ({why}); "
                         f"state {' or '.join(on)}")
@@ -644,14 +660,9 @@ def _joint(problem: Problem, start: dict[str, float], path: Path, text: str, doc
         if refined is not None:
             problem, z, J = refined
         say("[5/5] uncertainties: each input weighted by its residual noise")
-        factors = problem.reweight(z)
-        rows = np.repeat(factors, [b.size() for b in problem.blocks])
-        J = J * rows[:, None]
+        J = _reweighted(problem, z, J)
         if freed is not None:  # what the data do not determine, judged at the fit, not at the start
-            names_now = [sp.name for sp in problem.specs]
-            refused = _refusals(weak_directions(J[:, : len(names_now)], names_now,
-                                                [_chain_order(n) for n in names_now]),
-                                sources, start, problem.timing, hold, dt)
+            refused = _refusals_at(problem, J, sources, start, hold, dt)
         outcomes = _outcomes(problem, z, J, refused, sources, hold, dt)
         outcomes, z = _profiled(problem, z, J, outcomes, start, sources, hold, dt, notes)
     for s in all_specs:
