@@ -8,8 +8,9 @@ the fit session). Then, for a lab that runs its rig only under feedback:
    rig file (:func:`aeropend_ident.design.reference.lab_controller`, at the case's logging rate),
    and :data:`DURATION` s of set points are designed to separate the candidates in closed loop
    (:func:`aeropend_ident.design.reference.design_reference`, seed 0, its default number of
-   sequences) inside the default limits of ``excitation_design --mode reference`` (the fit
-   session's angle range ± 0.15 rad; the command range and slew the controller's own);
+   sequences, each generation's loops in :func:`aeropend_control.design_gains.design_workers`
+   processes, as ``excitation_design --mode reference`` runs them) inside its default limits (the
+   fit session's angle range ± 0.15 rad; the command range and slew the controller's own);
 4. the set points are recorded **in closed loop on the case's independent truth plant**: the same
    controller reads the truth plant's measured channels (the case's noise σ, angle quantum) at the
    logging rate and drives it (:func:`bench.fixtures.truth_loop.drive_truth`), the log gets the
@@ -90,10 +91,13 @@ def _judge(cands: list[Any], rec: Any, run: dict[str, Any], sigma: dict[str, flo
 
 def run_case(job: dict[str, Any]) -> dict[str, Any]:
     """One case (module doc)."""
+    from aeropend_control.design_gains import design_workers
     from aeropend_ident.design.reference import (
+        ClosedLoopPredictor,
         design_reference,
         lab_controller,
         rank_first_probability,
+        reference_popsize,
         reference_shape,
     )
     from aeropend_ident.design.sequence import Limits
@@ -115,12 +119,18 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
         row["design_s"] = time.perf_counter() - td
         return row
     shape = reference_shape(DURATION)
-    d = design_reference(cands, loop, sigma, limits, shape, seed=0)
-    n = d.duty.size
-    row["design"] = {"evaluations": d.evaluations, "stopped_by": d.stopped_by, "search_s": d.elapsed_s,
-                     "value": d.value, "baseline_value": d.baseline_value, "min_divergence": d.min_divergence,
-                     "baseline_min_divergence": d.baseline_min_divergence, "set_points": len(d.steps) - 1}
-    row["predicted"] = rank_first_probability(cands, loop, d.steps, n, sigma, limits, draws=100)
+    n = round(shape.duration / dt)
+    # as `excitation --design-for ... --mode reference` runs it: the loops in design_workers() processes
+    workers = design_workers(reference_popsize(shape))
+    with ClosedLoopPredictor(cands, loop, tuple(sigma), dt, n, workers) as pred:
+        d = design_reference(cands, loop, sigma, limits, shape, seed=0, predictor=pred)
+        row["design"] = {"evaluations": d.evaluations, "stopped_by": d.stopped_by, "search_s": d.elapsed_s,
+                         "value": d.value, "baseline_value": d.baseline_value,
+                         "min_divergence": d.min_divergence,
+                         "baseline_min_divergence": d.baseline_min_divergence,
+                         "set_points": len(d.steps) - 1, "workers": workers}
+        row["predicted"] = rank_first_probability(cands, loop, d.steps, n, sigma, limits, draws=100,
+                                                  predictor=pred)
     row["design_s"] = time.perf_counter() - td
     for key, steps, salt in (("designed", d.steps, 0), ("baseline", d.baseline_steps, 1)):
         rec, run = closed_loop_recording(case, spec, loop, steps, n, salt)

@@ -121,8 +121,17 @@ def _check_one(rig: Rig, name: str, spec: PoleSpec | None, steps: tuple[float, .
         return "others", str(exc)
 
 
-#: Worker processes of :func:`check` (one strategy each; 1 = in this process).
+#: Worker processes of a design's closed loops (:func:`check`'s strategies, a closed-loop
+#: excitation design's sequences: :func:`design_workers`); 1 = in this process.
 WORKERS_ENV = "AEROPEND_DESIGN_WORKERS"
+
+
+def design_workers(jobs: int) -> int:
+    """Worker processes for ``jobs`` independent closed loops: ``AEROPEND_DESIGN_WORKERS`` when set
+    (1 runs them in this process), else one per job up to the machine's cores."""
+    import os
+
+    return int(os.environ.get(WORKERS_ENV, "0")) or max(1, min(int(jobs), os.cpu_count() or 1))
 
 
 def check(rig: Rig, specs: dict[str, PoleSpec], steps: tuple[float, ...], tune_specs: bool = True) -> dict:
@@ -133,13 +142,12 @@ def check(rig: Rig, specs: dict[str, PoleSpec], steps: tuple[float, ...], tune_s
     The strategies are checked in parallel, one worker process each, up to the machine's cores
     (``AEROPEND_DESIGN_WORKERS`` sets the number; 1 runs them here, one after the other); the
     verdicts do not depend on it (each closed loop is deterministic)."""
-    import os
     from concurrent.futures import ProcessPoolExecutor
     from multiprocessing import get_context
 
     names = [n for n in strategy_names() if not strategy_class(n).required]  # required: a setting of its own
     jobs = [(rig, n, specs.get(n), steps, tune_specs) for n in names]
-    workers = int(os.environ.get(WORKERS_ENV, "0")) or min(len(jobs), os.cpu_count() or 1)
+    workers = design_workers(len(jobs))
     if workers > 1:
         with ProcessPoolExecutor(workers, mp_context=get_context("spawn")) as pool:
             results = list(pool.map(_check_one, *zip(*jobs, strict=True)))

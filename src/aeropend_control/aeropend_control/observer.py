@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -134,6 +135,16 @@ class ThrustPredictor:
         self.dt = dt
         self.n_delay = round(model.delay / dt) if model.delay > 0.0 else 0
         self.reset()
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickled without the generated right-hand side (a function made at run time, which
+        pickle cannot name): :meth:`__setstate__` takes it from the rotor model again, which is
+        pickled as its rig (:meth:`aeropend_sim.model.PlantModel.__reduce__`)."""
+        return {k: v for k, v in self.__dict__.items() if k != "_rhs"}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._rhs = self._rotor.rhs
 
     def reset(self) -> None:
         """Motor at rest, delay line empty (zeros)."""

@@ -59,12 +59,24 @@ def test_design_separates_at_least_as_well_as_its_start_and_is_reproducible(pair
     assert designed.value >= designed.baseline_value
     assert designed.min_divergence >= designed.baseline_min_divergence
     assert designed.min_divergence > 100.0  # a 20 ms lag shows in closed loop at 3 mrad of noise
-    again = ref.design_reference(pair, loop, SIGMA, LIMITS, SHAPE, seed=0, max_evaluations=40)
-    assert again.steps == designed.steps
     assert designed.stopped_by in ("evaluations", "converged")
-    p = ref.rank_first_probability(pair, loop, designed.steps, designed.duty.size, SIGMA, LIMITS, draws=50)
+    n = designed.duty.size
+    p = ref.rank_first_probability(pair, loop, designed.steps, n, SIGMA, LIMITS, draws=50)
     assert p["mean"] == pytest.approx(1.0) and set(p["loop"]) == {"nominal", "actuator_lag"}
     assert all(r["status"] == "ok" for r in p["loop"].values())
+    # again, each generation's loops and the prediction's in two worker processes: the same, bit for bit
+    with ref.ClosedLoopPredictor(pair, loop, tuple(SIGMA), DT, n, workers=2) as pred:
+        again = ref.design_reference(pair, loop, SIGMA, LIMITS, SHAPE, seed=0, max_evaluations=40,
+                                     predictor=pred)
+        p_again = ref.rank_first_probability(pair, loop, again.steps, n, SIGMA, LIMITS, draws=50,
+                                             predictor=pred)
+        assert pred._pool is not None  # the loops did run in the workers
+    assert again.steps == designed.steps and again.evaluations == designed.evaluations
+    assert (again.value, again.baseline_value, again.min_divergence) == (
+        designed.value, designed.baseline_value, designed.min_divergence)
+    np.testing.assert_array_equal(again.duty, designed.duty)
+    np.testing.assert_array_equal(again.theta, designed.theta)
+    assert p_again == p
 
 
 def test_recorded_on_the_truth_plant_in_closed_loop_it_keeps_every_limit(pair, loop, designed):

@@ -70,7 +70,7 @@ from aeropend_ident.design.sequence import (
     recorded_margin,
     search,
 )
-from aeropend_ident.greybox.batch import single_blas
+from aeropend_ident.greybox.batch import one_blas_thread, one_replay_thread, single_blas
 from aeropend_sim.params import Rig
 
 #: Node name of the controller in a ROS parameters file (``config/controller.yaml``).
@@ -92,6 +92,11 @@ def reference_evaluations(samples: int) -> int:
     """Sequences a reference design of ``samples`` samples scores by default:
     :data:`CLOSED_LOOP_WORK` / ``samples``, at least :data:`MIN_EVALUATIONS`."""
     return max(MIN_EVALUATIONS, CLOSED_LOOP_WORK // max(1, int(samples)))
+
+
+def reference_popsize(shape: AprbsShape) -> int:
+    """CMA-ES population of a reference design of ``shape`` (sequences scored per generation)."""
+    return 8 + shape.size // 6
 
 
 def reference_shape(duration: float) -> AprbsShape:
@@ -237,15 +242,23 @@ class ClosedLoopPredictor:
         Logging and control period [s].
     n : int
         Samples per sequence.
+    workers : int
+        Processes :meth:`many` runs its loops in (1: this one). Each worker holds a copy of this
+        predictor, made once (the loop pickled, the candidates' replays compiled there); the
+        results are the same bit for bit (each loop is deterministic). Use the predictor as a context
+        manager, or call :meth:`close`, to end them.
     """
 
     def __init__(self, candidates: Sequence[Candidate], loop: Any, channels: Sequence[str], dt: float,
-                 n: int) -> None:
+                 n: int, workers: int = 1) -> None:
         self.candidates = list(candidates)
         self.loop, self.dt, self.n = loop, float(dt), int(n)
         self.open = Predictor(candidates, channels, dt, n)
         self.plants = [dataclasses.replace(r, sample_period=self.dt) for r in self.open.rigs]
         self.calls = 0
+        self.workers = max(1, int(workers))
+        self._made = (self.candidates, loop, tuple(channels), self.dt, self.n)
+        self._pool: Any = None
 
     def run(self, steps: Sequence[tuple[float, float]], b: int) -> Any:
         """The loop on candidate ``b`` (:func:`closed_loop`)."""
@@ -257,6 +270,56 @@ class ClosedLoopPredictor:
         run = self.run(steps, b)
         self.calls += 1
         return self.open(loop_command(run)), run
+
+    def many(self, jobs: Sequence[tuple[Sequence[tuple[float, float]], int]]
+             ) -> list[tuple[dict[str, np.ndarray], Any]]:
+        """``self(steps, b)`` of each ``(steps, b)`` job, in order; in the worker processes when there
+        are several (started at the first call, or by :meth:`start`)."""
+        if self.workers == 1 or len(jobs) < 2:
+            return [self(steps, b) for steps, b in jobs]
+        self.start()
+        out = list(self._pool.map(_held_prediction, *zip(*jobs, strict=True)))
+        self.calls += len(jobs)
+        return out
+
+    def start(self) -> None:
+        """Start the worker processes (no wait: each builds its copy while this process goes on)."""
+        if self.workers > 1 and self._pool is None:
+            from concurrent.futures import ProcessPoolExecutor
+            from multiprocessing import get_context
+
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"),
+                                             initializer=_hold_predictor, initargs=self._made)
+            for _ in range(self.workers):
+                self._pool.submit(int)
+
+    def close(self) -> None:
+        """End the worker processes (if any)."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __enter__(self) -> ClosedLoopPredictor:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+
+#: A worker process's copy of the :class:`ClosedLoopPredictor` that started it.
+_HELD: ClosedLoopPredictor | None = None
+
+
+def _hold_predictor(*made: Any) -> None:
+    global _HELD
+    _HELD = ClosedLoopPredictor(*made)
+
+
+def _held_prediction(steps: Sequence[tuple[float, float]], b: int) -> tuple[dict[str, np.ndarray], Any]:
+    """The worker's prediction, on one BLAS and one replay thread (the workers share the cores)."""
+    assert _HELD is not None, "a ClosedLoopPredictor worker without its predictor"
+    with one_blas_thread(), one_replay_thread():
+        return _HELD(steps, b)
 
 
 def loop_penalty(run: Any, limits: Limits, sigma_theta: float, margin: np.ndarray | float | None = None
@@ -322,7 +385,8 @@ class ReferenceDesign(Discrimination):
 @single_blas
 def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[str, float], limits: Limits,
                      shape: AprbsShape | None = None, *, seed: int = 0, budget_s: float = BUDGET_S,
-                     max_evaluations: int | None = None) -> ReferenceDesign:
+                     max_evaluations: int | None = None, workers: int = 1,
+                     predictor: ClosedLoopPredictor | None = None) -> ReferenceDesign:
     """Search the set-point sequence (module doc) that best separates ``candidates`` in closed loop.
 
     Parameters
@@ -343,6 +407,14 @@ def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[
         Wall-time safety net of the search [s].
     max_evaluations : int, optional
         Most sequences scored (default :func:`reference_evaluations`: reproducible from the seed).
+    workers : int
+        Processes the loops of each CMA-ES generation run in (:class:`ClosedLoopPredictor`; the
+        same design whatever the number). A lab's default:
+        :func:`aeropend_control.design_gains.design_workers`.
+    predictor : ClosedLoopPredictor, optional
+        One to use (and leave open: its workers serve :func:`rank_first_probability` next), made for
+        these candidates, this loop, ``sigma``'s channels, ``limits.dt`` and the shape's samples;
+        ``workers`` is then its own.
 
     Returns
     -------
@@ -351,7 +423,8 @@ def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[
     Raises
     ------
     ValueError
-        With fewer than two candidates; :class:`~aeropend_ident.design.sequence.DesignError` when no
+        With fewer than two candidates, or a ``predictor`` made for another number of samples;
+        :class:`~aeropend_ident.design.sequence.DesignError` when no
         set point lies in the angle range within the controller's reach.
     """
     if len(candidates) < 2:
@@ -360,23 +433,37 @@ def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[
     t0 = time.perf_counter()
     n = round(shape.duration / limits.dt)
     span = set_point_range(limits, loop.reach, float(sigma.get("theta", 0.0)))
-    pred = ClosedLoopPredictor(candidates, loop, tuple(sigma), limits.dt, n)
+    pred = predictor or ClosedLoopPredictor(candidates, loop, tuple(sigma), limits.dt, n, workers)
+    if pred.n != n:
+        raise ValueError(f"the predictor runs {pred.n} samples, the design {n}")
+    calls0 = pred.calls
 
-    def value(z: np.ndarray) -> tuple[float, Any]:
-        out, run = pred(reference_steps(z, shape, limits, span))
+    def scored(prediction: tuple[dict[str, np.ndarray], Any]) -> tuple[float, Any]:
+        out, run = prediction
         return reference_criterion(out, run, sigma, limits), (out, run)
 
+    def value(z: np.ndarray) -> tuple[float, Any]:
+        return scored(pred(reference_steps(z, shape, limits, span)))
+
+    def values(zs: list[np.ndarray]) -> list[tuple[float, Any]]:
+        return [scored(p) for p in pred.many([(reference_steps(z, shape, limits, span), 0) for z in zs])]
+
     z0 = aprbs_vector(shape, seed)
-    # the search keeps the replays and the loop's run of the best sequence and of its start: not run again
-    best_z, best_v, (out, run), v0, (out0, run0), stopped = search(
-        value, z0, seed=seed, budget_s=budget_s, max_evaluations=max_evaluations or reference_evaluations(n),
-        popsize=8 + shape.size // 6, started=t0, tolfun=1e-4)
+    pred.start()  # the workers get ready while the start is scored here
+    try:  # the search keeps the replays and the loop's run of the best sequence and of its start
+        best_z, best_v, (out, run), v0, (out0, run0), stopped = search(
+            value, z0, seed=seed, budget_s=budget_s,
+            max_evaluations=max_evaluations or reference_evaluations(n), popsize=reference_popsize(shape),
+            started=t0, tolfun=1e-4, batch=values if pred.workers > 1 else None)
+    finally:
+        if predictor is None:
+            pred.close()
     steps, base = reference_steps(best_z, shape, limits, span), reference_steps(z0, shape, limits, span)
     return ReferenceDesign(
         duty=loop_command(run), baseline=loop_command(run0), value=best_v, baseline_value=v0,
         min_divergence=smallest_divergence(out, sigma),
         baseline_min_divergence=smallest_divergence(out0, sigma),
-        evaluations=pred.calls, elapsed_s=time.perf_counter() - t0, z=best_z, stopped_by=stopped,
+        evaluations=pred.calls - calls0, elapsed_s=time.perf_counter() - t0, z=best_z, stopped_by=stopped,
         steps=steps, baseline_steps=base, reference=on_grid(steps, n, limits.dt), theta=run.seen,
         driver=candidates[0].name)
 
@@ -384,11 +471,14 @@ def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[
 @single_blas
 def rank_first_probability(candidates: Sequence[Candidate], loop: Any, steps: Sequence[tuple[float, float]],
                            n: int, sigma: Mapping[str, float], limits: Limits, *, draws: int = 200,
-                           seed: int = 0) -> dict[str, Any]:
+                           seed: int = 0, workers: int = 1, predictor: ClosedLoopPredictor | None = None
+                           ) -> dict[str, Any]:
     """Probability that each candidate, when it is the truth, ranks first on a closed-loop recording
     of ``steps``: the loop is run on that candidate, every candidate is replayed on the loop's
     command (``n`` samples), and the truth's replay plus noise is ranked as in
     :func:`aeropend_ident.design.discriminate.rank_first_probability` (no refit: an upper bound).
+
+    ``workers`` and ``predictor`` as :func:`design_reference`'s: the candidates' loops run there.
 
     Returns
     -------
@@ -396,11 +486,18 @@ def rank_first_probability(candidates: Sequence[Candidate], loop: Any, steps: Se
         ``per_candidate`` {name: probability}, ``mean``, ``draws``, and ``loop`` {name: the loop's
         run on that candidate: ``status`` and the recorded angle's extremes [rad]}.
     """
-    pred = ClosedLoopPredictor(candidates, loop, tuple(sigma), limits.dt, n)
+    pred = predictor or ClosedLoopPredictor(candidates, loop, tuple(sigma), limits.dt, n, workers)
+    if pred.n != n:
+        raise ValueError(f"the predictor runs {pred.n} samples, the prediction {n}")
+    try:
+        loops = pred.many([(steps, t) for t in range(len(candidates))])
+    finally:
+        if predictor is None:
+            pred.close()
     runs: dict[str, Any] = {}
 
     def outputs_of(t: int) -> Mapping[str, np.ndarray]:
-        out, run = pred(steps, t)
+        out, run = loops[t]
         runs[candidates[t].name] = {"status": run.status, "theta_extremes": [float(np.nanmin(run.seen)),
                                                                             float(np.nanmax(run.seen))]}
         return out if run.status == "ok" else {c: np.full_like(y, np.nan) for c, y in out.items()}

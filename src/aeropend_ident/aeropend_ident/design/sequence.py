@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -319,7 +319,8 @@ def aprbs_vector(shape: AprbsShape, seed: int) -> np.ndarray:
 
 
 def search(score: Callable[[np.ndarray], tuple[float, Any]], z0: np.ndarray, *, seed: int, budget_s: float,
-           max_evaluations: int, popsize: int, started: float, tolfun: float | None = None
+           max_evaluations: int, popsize: int, started: float, tolfun: float | None = None,
+           batch: Callable[[list[np.ndarray]], list[tuple[float, Any]]] | None = None
            ) -> tuple[np.ndarray, float, Any, float, Any, str]:
     """Maximise ``score(z)[0]`` over the unit box by CMA-ES (the ``cma`` package) from ``z0``.
 
@@ -346,6 +347,10 @@ def search(score: Callable[[np.ndarray], tuple[float, Any]], z0: np.ndarray, *, 
         CMA-ES population.
     tolfun : float, optional
         CMA-ES ``tolfun`` (its default when None).
+    batch : callable, optional
+        ``batch(zs) -> [score(z) for z in zs]`` for a whole generation at once (in worker
+        processes); the same values, so the same search. The wall-time safety net is then checked
+        once a generation.
 
     Returns
     -------
@@ -364,17 +369,31 @@ def search(score: Callable[[np.ndarray], tuple[float, Any]], z0: np.ndarray, *, 
         opts["tolfun"] = tolfun
     es = cma.CMAEvolutionStrategy(z0, 0.25, opts)
     while not es.stop():
-        zs = es.ask()
+        zs = [np.asarray(z) for z in es.ask()]
         vals = []
-        for z in zs:
-            if time.perf_counter() - started >= budget_s:
-                return best_z, best_v, best_e, v0, e0, "budget"
-            v, e = score(np.asarray(z))
+        for z, (v, e) in _scored(zs, score, batch, lambda: time.perf_counter() - started >= budget_s):
             vals.append(v)
             if v > best_v:
-                best_z, best_v, best_e = np.asarray(z).copy(), v, e
+                best_z, best_v, best_e = z.copy(), v, e
+        if len(vals) < len(zs):
+            return best_z, best_v, best_e, v0, e0, "budget"
         es.tell(zs, [-v for v in vals])
     return best_z, best_v, best_e, v0, e0, "evaluations" if "maxfevals" in es.stop() else "converged"
+
+
+def _scored(zs: list[np.ndarray], score: Callable[[np.ndarray], tuple[float, Any]],
+            batch: Callable[[list[np.ndarray]], list[tuple[float, Any]]] | None,
+            late: Callable[[], bool]) -> Iterator[tuple[np.ndarray, tuple[float, Any]]]:
+    """(z, score(z)) of one generation, in order, until ``late()`` (checked before each z, or once
+    before a ``batch``)."""
+    if batch is not None:
+        if not late():
+            yield from zip(zs, batch(zs), strict=True)
+        return
+    for z in zs:
+        if late():
+            return
+        yield z, score(z)
 
 
 def check_limits(duty: np.ndarray, limits: Limits, theta: np.ndarray | None = None) -> dict[str, Any]:
