@@ -24,7 +24,9 @@ their largest).
 (its parameters file, ``--controller``; the node's defaults on the rig otherwise), predicted with
 that controller in closed loop on every candidate (or on the fitted rig), written as
 ``design_controller.yaml`` (the node's ``steps``) and ``design.csv`` (``t,reference``)
-(:mod:`aeropend_ident.design.reference`).
+(:mod:`aeropend_ident.design.reference`). A discrimination design's closed loops (the controller
+run sample by sample) run in worker processes, one per core (``AEROPEND_DESIGN_WORKERS=N`` sets
+how many; 1 runs them in the command's own process); the design does not depend on their number.
 
 ``--outcome`` compares a design's prediction with a ``gap`` report made with the
 designed recording among its fit recordings (and, given the designed recording, ranks the
@@ -87,7 +89,9 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
     ap.add_argument("--mode", choices=MODES, default="open_loop",
                     help="open_loop: a command sequence played open loop; reference: set points for the "
                          "lab's controller node, for a rig that runs only in closed loop (both kinds of "
-                         "design; docs/design.md, 'Closed loop')")
+                         "design; docs/design.md, 'Closed loop'); a discrimination design's closed "
+                         "loops run in one worker process per core (AEROPEND_DESIGN_WORKERS=N sets "
+                         "the number, the design does not depend on it)")
     ap.add_argument("--controller",
                     help="with --mode reference: the controller node's ROS parameters file (strategy, "
                          "omega_n, zeta, rho, ...) the lab runs; default the node's defaults on the gap "
