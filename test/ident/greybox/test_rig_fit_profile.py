@@ -126,3 +126,24 @@ def test_a_refused_parameter_nothing_depends_on_changes_nothing() -> None:
     z, J = _at_start(toy)
     prof = open_profile(toy, z, J, ["toy.p"], {"toy.k": 0.01})
     assert prof == OpenProfile(None, {})
+
+
+def test_no_probe_on_a_side_where_the_refused_parameter_sits_at_its_bound() -> None:
+    from aeropend_ident.greybox.rig_search import PROFILE_MIN_SPAN, PROFILE_POINTS
+
+    toy = _Toy()
+    z, J = _at_start(toy)
+    z[0] = toy.all[0].to_z(0.5 * PROFILE_MIN_SPAN)  # p within half the span of its lower bound, 0
+    held: list[float] = []
+    solve = toy.solve
+
+    def spy(z0: np.ndarray, max_nfev: int = 60) -> tuple[np.ndarray, np.ndarray, object]:
+        held.append(toy.fixed["toy.p"])
+        return solve(z0, max_nfev)
+
+    toy.solve = spy  # type: ignore[method-assign]
+    prof = open_profile(toy, z, J, ["toy.p"], {"toy.k": 0.01})
+    # the upper side alone, out to the bound 10: no solve spent next to the bound p sits at
+    assert len(held) == PROFILE_POINTS and min(held) > 0.5 * PROFILE_MIN_SPAN
+    assert max(held) == pytest.approx(10.0)
+    assert prof.given["toy.k"][1] == ["toy.p"]  # and it still finds that k follows p

@@ -248,6 +248,10 @@ def free_held(problem: Problem, all_specs: Sequence[ParameterSpec], held: set[st
 #: Points probed along each direction the refused parameters leave open, on each side of the fit's
 #: end, evenly out to the search box's edge (:func:`open_profile`).
 PROFILE_POINTS = 6
+#: A side of the fit's end narrower than this (in the pivot's coordinate: 0.1 is 10 % of a log-scaled
+#: parameter) is not probed: the pivot is refused because its 1σ exceeds one coordinate unit, so its
+#: points would lie well inside what the fit's end already stands for (:func:`_probes`).
+PROFILE_MIN_SPAN = 0.1
 #: Where the refused parameters fit as well, a fitted parameter may move by this many of its 1σ; its
 #: 1σ is widened to cover a larger move (:func:`open_profile`, ``rig_fit._profiled``).
 GIVEN_SIGMAS = 2.0
@@ -285,7 +289,8 @@ def open_profile(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Sequen
     leave open (a right singular vector of their columns of ``J`` whose standard error exceeds one
     coordinate unit, as :func:`~aeropend_ident.greybox.rig_problem.weak_directions` refuses), the
     refused parameter that weighs most in it is held at :data:`PROFILE_POINTS` points on each side
-    of its best value, out to its search bound, and every other parameter solved again (the others
+    of its best value, out to its search bound (a side narrower than :data:`PROFILE_MIN_SPAN` is
+    skipped), and every other parameter solved again (the others
     refused beside it follow what the inputs do fix: a balance table's ratio of mgd/J to L/J). A
     probe lower than the fit by more than the noise (:data:`FREE_SHARE`, and :data:`FREE_CHI2` for the
     one parameter a probe holds) is a better valley; one within it fits as well, and a fitted
@@ -338,7 +343,8 @@ def open_profile(problem: Problem, z: np.ndarray, J: np.ndarray, refused: Sequen
 
 def _probes(problem: Problem, z: np.ndarray, pivot: int) -> list[tuple[np.ndarray, float]]:
     """(point, cost) of each probe of :func:`open_profile`: the parameter ``pivot`` held, every other
-    coordinate solved again (``problem`` left as it was)."""
+    coordinate solved again (``problem`` left as it was); none on a side narrower than
+    :data:`PROFILE_MIN_SPAN`."""
     specs, fixed = problem.specs, problem.fixed
     _, lo, hi = problem.z_bounds()
     free = [j for j in range(len(z)) if j != pivot]
@@ -346,10 +352,10 @@ def _probes(problem: Problem, z: np.ndarray, pivot: int) -> list[tuple[np.ndarra
     try:
         problem.specs = [replace(sp, initial=sp.from_z(z[j])) for j, sp in enumerate(specs) if j != pivot]
         for end in (lo[pivot], hi[pivot]):
+            if abs(end - z[pivot]) < PROFILE_MIN_SPAN:  # the pivot sits at this bound already
+                continue
             for share in np.arange(1, PROFILE_POINTS + 1) / PROFILE_POINTS:
                 zk = z[pivot] + share * (end - z[pivot])
-                if abs(zk - z[pivot]) <= 1e-9:
-                    continue
                 problem.fixed = {**fixed, specs[pivot].name: specs[pivot].from_z(float(zk))}
                 problem._cache = None
                 try:
