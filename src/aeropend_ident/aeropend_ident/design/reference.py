@@ -285,11 +285,9 @@ class ClosedLoopPredictor:
     def start(self) -> None:
         """Start the worker processes (no wait: each builds its copy while this process goes on)."""
         if self.workers > 1 and self._pool is None:
-            from concurrent.futures import ProcessPoolExecutor
-            from multiprocessing import get_context
+            from aeropend_control.design_gains import design_pool
 
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"),
-                                             initializer=_hold_predictor, initargs=self._made)
+            self._pool = design_pool(self.workers, _hold_predictor, self._made)
             for _ in range(self.workers):
                 self._pool.submit(int)
 
