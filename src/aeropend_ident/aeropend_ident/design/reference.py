@@ -292,9 +292,10 @@ class ClosedLoopPredictor:
                 self._pool.submit(int)
 
     def close(self) -> None:
-        """End the worker processes (if any)."""
+        """End the worker processes (if any; loops not yet started are dropped: after an interrupt
+        only the running ones are waited for)."""
         if self._pool is not None:
-            self._pool.shutdown()
+            self._pool.shutdown(cancel_futures=True)
             self._pool = None
 
     def __enter__(self) -> ClosedLoopPredictor:
