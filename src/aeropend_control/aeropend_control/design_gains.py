@@ -23,8 +23,9 @@ import argparse
 import dataclasses
 import math
 import sys
+from collections.abc import Callable
 from dataclasses import asdict
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -40,6 +41,9 @@ from aeropend_sim.output_folder import (
     write_file_atomically,
 )
 from aeropend_sim.params import Rig, load_rig
+
+if TYPE_CHECKING:
+    from concurrent.futures import ProcessPoolExecutor
 
 #: The strategies whose position-loop gains the CLI designs, prints and tunes (θ only).
 DESIGNED = (FeedbackLinearizationPID, SmallSignalPID)
@@ -135,7 +139,8 @@ def design_workers(jobs: int) -> int:
     return int(os.environ.get(WORKERS_ENV, "0")) or max(1, min(int(jobs), os.cpu_count() or 1))
 
 
-def design_pool(workers: int, initializer: Any = None, initargs: tuple = ()) -> Any:
+def design_pool(workers: int, initializer: Callable[..., None] | None = None, initargs: tuple[Any, ...] = ()
+                ) -> ProcessPoolExecutor:
     """A pool of ``workers`` processes for a design's closed loops (a
     :class:`concurrent.futures.ProcessPoolExecutor`, spawned: no thread or OpenMP runtime of this
     process is forked). Each worker first starts a thread that ends it when this process is gone
@@ -149,7 +154,7 @@ def design_pool(workers: int, initializer: Any = None, initargs: tuple = ()) -> 
                                initargs=(os.getpid(), initializer, initargs))
 
 
-def _start_worker(parent: int, initializer: Any, initargs: tuple) -> None:
+def _start_worker(parent: int, initializer: Callable[..., None] | None, initargs: tuple[Any, ...]) -> None:
     _end_with_parent(parent)
     if initializer is not None:
         initializer(*initargs)
