@@ -91,13 +91,11 @@ def _judge(cands: list[Any], rec: Any, run: dict[str, Any], sigma: dict[str, flo
 
 def run_case(job: dict[str, Any]) -> dict[str, Any]:
     """One case (module doc)."""
-    from aeropend_control.design_gains import design_workers
     from aeropend_ident.design.reference import (
-        ClosedLoopPredictor,
         design_reference,
         lab_controller,
+        lab_predictor,
         rank_first_probability,
-        reference_popsize,
         reference_shape,
     )
     from aeropend_ident.design.sequence import Limits
@@ -119,10 +117,9 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
         row["design_s"] = time.perf_counter() - td
         return row
     shape = reference_shape(DURATION)
-    n = round(shape.duration / dt)
     # as `excitation --design-for ... --mode reference` runs it: the loops in design_workers() processes
-    workers = design_workers(reference_popsize(shape))
-    with ClosedLoopPredictor(cands, loop, tuple(sigma), dt, n, workers) as pred:
+    with lab_predictor(cands, loop, sigma, limits, shape) as pred:
+        n, workers = pred.n, pred.workers
         d = design_reference(cands, loop, sigma, limits, shape, seed=0, predictor=pred)
         row["design"] = {"evaluations": d.evaluations, "stopped_by": d.stopped_by, "search_s": d.elapsed_s,
                          "value": d.value, "baseline_value": d.baseline_value,

@@ -249,24 +249,21 @@ def _controller_doc(args: argparse.Namespace, loop: Any) -> dict[str, Any]:
 def _reference_design(args: argparse.Namespace, out: OutputFolder, doc: dict[str, Any], cands: Sequence[Any],
                       sigma: dict[str, float], limits: Any) -> dict[str, Any]:
     """``--mode reference``: set points for the lab's controller (:mod:`aeropend_ident.design.reference`)."""
-    from aeropend_control.design_gains import design_workers
     from aeropend_ident.design import reference
     from aeropend_ident.design.report import write_design
     from aeropend_ident.design.sequence import check_limits
 
     loop = reference.lab_controller(doc["rig"], _controller_params(args), limits.dt)
     shape = reference.reference_shape(args.duration)
-    n = round(shape.duration / limits.dt)
     # one set of worker processes for the search's loops and the prediction's (each candidate's)
-    with reference.ClosedLoopPredictor(cands, loop, tuple(sigma), limits.dt, n,
-                                       design_workers(reference.reference_popsize(shape))) as pred:
+    with reference.lab_predictor(cands, loop, sigma, limits, shape) as pred:
         d = reference.design_reference(cands, loop, sigma, limits, shape, seed=args.seed,
                                        budget_s=args.budget, max_evaluations=args.max_evaluations,
                                        predictor=pred)
         # the seeded set points are compared by their divergences on the driver's loop only: a prediction
         # runs the loop on every candidate, as long again as the design's own (docs/design.md, "Closed loop")
-        predicted = reference.rank_first_probability(cands, loop, d.steps, n, sigma, limits, seed=args.seed,
-                                                     predictor=pred)
+        predicted = reference.rank_first_probability(cands, loop, d.steps, pred.n, sigma, limits,
+                                                     seed=args.seed, predictor=pred)
     doc.update({"shape": vars(shape), "controller": _controller_doc(args, loop),
                 "steps": d.steps, "baseline_steps": d.baseline_steps, "driver": d.driver,
                 "predicted": predicted,

@@ -305,6 +305,18 @@ class ClosedLoopPredictor:
         self.close()
 
 
+def lab_predictor(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[str, float], limits: Limits,
+                  shape: AprbsShape) -> ClosedLoopPredictor:
+    """The predictor ``excitation_design --mode reference`` designs and predicts with: ``shape``'s
+    samples at ``limits.dt``, ``sigma``'s channels, its loops in
+    :func:`aeropend_control.design_gains.design_workers` processes (one per core unless
+    ``AEROPEND_DESIGN_WORKERS`` says otherwise). Use it as a context manager."""
+    from aeropend_control.design_gains import design_workers
+
+    return ClosedLoopPredictor(candidates, loop, tuple(sigma), limits.dt, round(shape.duration / limits.dt),
+                               design_workers(reference_popsize(shape)))
+
+
 #: A worker process's copy of the :class:`ClosedLoopPredictor` that started it.
 _HELD: ClosedLoopPredictor | None = None
 
