@@ -165,6 +165,13 @@ def _production_rate(c: Client) -> tuple[float, float, str]:
     return slots / span_source, slots / span_arrival, text
 
 
+# real time, with the machine to itself (run alone after the parallel suite, as test_bridge_node): the
+# Python subscriber of this process takes 488 samples a second over best effort. Beside the parallel
+# suite it lost samples (the fresh-clone CI of 909e8d6 received 94.1 % while the plant's own rate was
+# on time). This test run beside busy processes (2026-12-01): alone 100 % in 4 of 4 runs; beside one
+# to three CPU hogs 11 of 14 runs failed (89-94 %, or under 1500 samples). bench/repro/
+# sim_node_subscriber_load.py measures the same subscriber beside 0-3 hogs.
+@pytest.mark.exclusive
 def test_realtime_rate_and_stamps(domain):
     # SCHED_FIFO for the sampler thread (falls back to normal scheduling with a warning where not
     # permitted): on a loaded 2-CPU machine normal scheduling loses 1-4 % of the wall-clock
@@ -190,7 +197,7 @@ def test_realtime_rate_and_stamps(domain):
     assert rate_plant == pytest.approx(SAMPLE_RATE_HZ, rel=0.02), f"plant rate: {how}; plant: {summary}"
     slots = (stamps[-1] - stamps[0]) // PERIOD_NS
     assert slots * PERIOD_NS * 1e-9 == pytest.approx(span_stamp)
-    # delivery to a Python subscriber over best-effort QoS: at most 5 % lost on a loaded machine
+    # delivery to a Python subscriber over best-effort QoS, with the machine to itself: at most 5 % lost
     received = (stamps.size - 1) / slots
     assert received >= 0.95, f"subscriber received only {received:.1%} of the samples"
     # stamps on the k·T_s grid, strictly increasing
