@@ -37,7 +37,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -335,7 +335,9 @@ def absent_effects(values: Mapping[str, Mapping[str, float]], ctx: EffectContext
 def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Sequence[str]], *,
                    ranking: Sequence[Mapping[str, Any]] = (), max_candidates: int = 6,
                    keep_factor: float = KEEP_SSE_FACTOR, keep: Sequence[Sequence[str]] = (),
-                   neighbours: bool = False, free_settings: Sequence[str] = ()
+                   neighbours: bool = False, free_settings: Sequence[str] = (),
+                   climb: Callable[[Sequence[Candidate]], Sequence[tuple[str, ...]]] | None = None,
+                   max_rounds: int = 1
                    ) -> tuple[list[Candidate], list[dict[str, Any]]]:
     """Fit each effect set on the earlier recordings and keep the ones the data do not refute.
 
@@ -363,6 +365,14 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
         a diagnosis that ranked one of its effects low is often there; and, once the candidates are
         chosen, each kept set's nested special cases (:func:`nested_sets`), kept beside it (beyond
         ``max_candidates``) unless their fit error exceeds ``keep_factor`` × the best.
+    climb : callable, optional
+        With ``neighbours``: called with every candidate fitted so far after each round of swap
+        neighbours, it returns the sets to climb from next (empty: stop); the sets one swap from
+        each of them not climbed from yet are fitted in the next round (a search through the
+        catalog one swap a round, from every set its caller cannot tell from the best), at most
+        ``max_rounds`` rounds in all. None: one round, from the best fit.
+    max_rounds : int
+        Most rounds of swap neighbours (with ``climb``).
 
     Returns
     -------
@@ -417,9 +427,16 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
             rows.append({"effects": list(s), "fit_sse": cand.fit_sse})
 
     fit_all([tuple(s) for s in (*sets, *keep)])
-    if neighbours and fitted:
-        top = min(fitted, key=lambda c: c.fit_sse)
-        fit_all(swap_neighbours(top.effects, rig.family, channels))
+    climbed: set[tuple[str, ...]] = set()
+    frontier = [min(fitted, key=lambda c: c.fit_sse).effects] if neighbours and fitted else []
+    for _round in range(max(max_rounds, 1)):
+        climbed.update(frontier)
+        fit_all([n for f in frontier for n in swap_neighbours(f, rig.family, channels)])
+        if climb is None:
+            break
+        frontier = [tuple(f) for f in climb(fitted) if tuple(f) not in climbed]
+        if not frontier:
+            break
     if not fitted:
         raise GapError("no candidate effect set could be fitted on the earlier recordings")
     best = min(c.fit_sse for c in fitted)

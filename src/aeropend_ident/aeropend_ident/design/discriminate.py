@@ -317,6 +317,14 @@ def rank_draws(names: Sequence[str], outputs_of: Callable[[int], Mapping[str, np
 #: beside them): every set one swap from the best within the fit-error factor fits in.
 REFIT_CANDIDATES = 16
 
+#: Most rounds of swap neighbours a refit climbs through while no set it fitted explains the designed
+#: recording (:func:`refit_evidence`): from the first best, then twice more from the sets the
+#: recording cannot tell from the best (a truth two swaps from every candidate is reached).
+REFIT_ROUNDS = 3
+
+#: Most sets a refit's later round climbs from (the best first; :func:`refit_evidence`).
+REFIT_FRONTIER = 8
+
 #: Family-wise false-refutation rate of :func:`verdict` (Bonferroni over the rivals of the best).
 VERDICT_ALPHA = 0.05
 
@@ -385,8 +393,11 @@ def refit_evidence(rig: Any, earlier: Sequence[Any], designed: Any, sets: Sequen
 
     Every candidate set, the sets one swap away from the best refit and the nested special cases
     of each (:func:`~aeropend_ident.design.candidates.fit_candidates` with ``neighbours``) are fitted
-    on the earlier recordings and the designed one together, the held settings of their effects
-    fitted too (the dry friction's onset width v_ε: a designed recording's holds show how slowly
+    on the earlier recordings and the designed one together (while none of the sets fitted
+    explains the designed recording, the sets one swap from each set the recording cannot tell
+    from the best too, at most :data:`REFIT_FRONTIER` of them a round and :data:`REFIT_ROUNDS`
+    rounds: a truth two swaps from every candidate is reached; lab case 95), the held settings of
+    their effects fitted too (the dry friction's onset width v_ε: a designed recording's holds show how slowly
     the rod creeps, and at the rig file's width a Stribeck curve stood in for a plain Coulomb
     friction on lab cases 73 and 76). A set whose fit error on all of them exceeds
     :data:`~aeropend_ident.design.candidates.KEEP_SSE_FACTOR` × the best is refuted by data that
@@ -426,8 +437,19 @@ def refit_evidence(rig: Any, earlier: Sequence[Any], designed: Any, sets: Sequen
         When the nominal rig cannot be replayed on the recordings, or no set could be fitted.
     """
     free = held_setting_effects(rig.family)
+
+    def climb_from(fitted: Sequence[Candidate]) -> list[tuple[str, ...]]:
+        """While no set fitted so far explains the designed recording: the sets it cannot tell
+        from the best (its verdict's survivors, best first), to climb on from."""
+        ev = evidence(fitted, designed.duty, designed.channels, sigma, designed.dt, alpha=alpha)
+        if ev["best_rms_over_noise"] <= UNEXPLAINED_RMS:
+            return []
+        effects = {c.name: c.effects for c in fitted}
+        return [effects[n] for n in ev["survivors"]][:REFIT_FRONTIER]
+
     cands, rows = fit_candidates(rig, [*earlier, designed], sets, neighbours=True,
-                                 max_candidates=REFIT_CANDIDATES, free_settings=free)
+                                 max_candidates=REFIT_CANDIDATES, free_settings=free,
+                                 climb=climb_from, max_rounds=REFIT_ROUNDS)
     res = evidence(cands, designed.duty, designed.channels, sigma, designed.dt, alpha=alpha,
                    refuted_before=sum(bool(r.get("refuted")) for r in rows))
     res.update({"refit": True, "refit_rows": rows, "refit_free_settings": sorted(free)})
