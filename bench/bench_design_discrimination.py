@@ -187,17 +187,8 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
         named = ev["named_effects"]
         row["recording_named_as_sized"] = named
         if ev["unexplained"]:  # no candidate explains it as sized: refit on it (excitation_design --outcome)
-            from aeropend_ident.design.discriminate import refit_evidence
-
-            t3 = time.perf_counter()
-            ref = refit_evidence(case["nominal"], fit, rec, [c.effects for c in cands], sigma)
-            row["refit"] = {k: ref[k] for k in ("named", "named_effects", "survivors", "first", "unexplained",
-                                                "best_rms_over_noise", "refit_free_settings")}
-            row["refit"]["sets"] = len(ref["chi2"])
-            row["refit"]["truth_fitted"] = any(set(x["effects"]) == set(row["truth"])
-                                               for x in ref["refit_rows"] if "fit_sse" in x)
-            row["refit_s"] = time.perf_counter() - t3
-            named = ref["named_effects"]
+            row["refit"], row["refit_s"] = refit_row(case["nominal"], fit, rec, cands, sigma, row["truth"])
+            named = row["refit"]["named_effects"]
     else:  # the earlier recordings leave one candidate: that is what they name
         named = list(cands[0].effects)
     row["recording_named"] = named
@@ -222,6 +213,24 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
             case["nominal"], fit, held, rig_ref=case["nominal"].name, seed=0, max_effects=lab.MAX_EFFECTS,
             split_rule="separate held-out recording", validation=[rec_b]))
     return row
+
+
+def refit_row(nominal: Any, fit: list[Any], rec: Any, cands: list[Any], sigma: dict[str, float],
+              truth: list[str]) -> tuple[dict[str, Any], float]:
+    """What ``excitation_design --outcome`` does with a recording no candidate explains as sized:
+    the candidates refitted on the earlier recordings and it together
+    (:func:`aeropend_ident.design.discriminate.refit_evidence`); the row's summary and its time [s]."""
+    from aeropend_ident.design.discriminate import refit_evidence
+
+    t = time.perf_counter()
+    ref = refit_evidence(nominal, fit, rec, [c.effects for c in cands], sigma)
+    out = {k: ref[k] for k in ("named", "named_effects", "survivors", "first", "unexplained",
+                               "best_rms_over_noise", "refit_free_settings")}
+    out["sets"] = len(ref["chi2"])
+    fitted = [x for x in ref["refit_rows"] if "fit_sse" in x]
+    out["sets_fitted"] = len(fitted)
+    out["truth_fitted"] = any(set(x["effects"]) == set(truth) for x in fitted)
+    return out, time.perf_counter() - t
 
 
 def _exact(r: dict[str, Any], key: str) -> bool:

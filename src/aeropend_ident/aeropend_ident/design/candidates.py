@@ -450,19 +450,24 @@ def fit_candidates(rig: Rig, recordings: Sequence[Recording], sets: Sequence[Seq
         nested = {c.name for c in extra}
     else:
         nested = set()
-    names = {c.name for c in kept}
+    _file_rows(rows, {c.name for c in kept}, forced, nested, keep_factor * best, best)
+    return kept, rows
+
+
+def _file_rows(rows: list[dict[str, Any]], kept: set[str], forced: set[str], nested: set[str],
+               max_sse: float, best: float) -> None:
+    """Say in each fitted row of :func:`fit_candidates` whether its set was kept and why (or why not)."""
     for row in rows:
         if "fit_sse" in row and "why_not" not in row:
-            row["kept"] = label(row["effects"]) in names
+            row["kept"] = label(row["effects"]) in kept
             if label(row["effects"]) in forced:
                 row["why"] = "the diagnosis' answer or a set it could not separate from it, kept to be tested"
             elif label(row["effects"]) in nested:
                 row["why"] = "the special case of a kept set's richer effect, kept to be tested"
             elif not row["kept"]:
-                row["refuted"] = row["fit_sse"] > keep_factor * best
+                row["refuted"] = row["fit_sse"] > max_sse
                 row["why_not"] = (f"fit error {row['fit_sse'] / best:.2f}× the best: refuted by the earlier "
                                   "data" if row["refuted"] else "over max_candidates")
-    return kept, rows
 
 
 def _kept(fitted: Sequence[Candidate], max_sse: float, keep: Sequence[Sequence[str]],
