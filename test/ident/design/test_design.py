@@ -320,9 +320,9 @@ def test_a_refit_climbs_to_a_truth_two_swaps_from_every_candidate(pair, monkeypa
     """Lab case 95's situation on a small plant: the truth (a 60 ms actuator lag and a 0.06 rad
     sensor offset) is two swaps from the only candidate (inertia + viscous friction), so no set one
     swap from the refit's first best explains the designed recording. While nothing explains it, the
-    refit climbs: the sets one swap from the new best are fitted too, and the truth is reached and
-    named. Held to one round (the refit before 2026-12-01), the truth is never fitted and the
-    recording is left unexplained."""
+    refit climbs: the sets one swap from every set the recording cannot tell from the best are
+    fitted too, and the truth is reached and named. Held to one round (the refit before
+    2026-12-01), the truth is never fitted and the recording is left unexplained."""
     from aeropend_ident.design import discriminate
     from aeropend_ident.design.discriminate import refit_evidence
     from aeropend_sim.recording import Recording

@@ -31,7 +31,8 @@ how many; 1 runs them in the command's own process); the design does not depend 
 ``--outcome`` compares a design's prediction with a ``gap`` report made with the
 designed recording among its fit recordings (and, given the designed recording, ranks the
 candidates on it and says what it names: the candidates as fitted on the earlier recordings, or,
-when none of them explains it as sized, refitted on the earlier recordings and it together,
+when none of them explains it as sized, refitted on the earlier recordings and it together, and
+while none explains it the sets one swap further on too,
 :func:`aeropend_ident.design.discriminate.refit_evidence`; ``--no-refit`` stops at the first).
 
 ``OUT`` is checked before the search and written at its end in one step: an existing, non-empty
