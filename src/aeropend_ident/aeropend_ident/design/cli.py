@@ -107,7 +107,8 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
     ap.add_argument("--design", type=Path, help="design folder (with --outcome)")
     ap.add_argument("--no-refit", action="store_true",
                     help="with --outcome: when no candidate explains the designed recording as sized on the "
-                         "earlier recordings, say so and stop (default: refit them on both and judge again)")
+                         "earlier recordings, say so and stop (default: refit them on both and judge again, "
+                         "searching on swap by swap while none explains it)")
     return ap
 
 
