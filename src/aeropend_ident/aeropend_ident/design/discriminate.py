@@ -232,7 +232,7 @@ def design_discrimination(candidates: Sequence[Candidate], sigma: Mapping[str, f
         raise ValueError("a discrimination design needs at least two candidates")
     shape = shape or AprbsShape()
     t0 = time.perf_counter()
-    n = round(shape.duration / limits.dt)
+    n = shape.samples(limits.dt)
     pred = Predictor(candidates, tuple(sigma), limits.dt, n)
 
     def value(z: np.ndarray) -> tuple[float, None]:

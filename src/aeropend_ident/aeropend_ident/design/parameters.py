@@ -270,7 +270,7 @@ def design_parameters(rig: Rig, keys: Sequence[str], sigma: Mapping[str, float],
         return (outside if outside < 0.0 else ds_criterion(f0 + f, n_i)), (f, th, spread, duty)
 
     z0 = aprbs_vector(shape, seed)
-    n = round(shape.duration / limits.dt)
+    n = shape.samples(limits.dt)
     if max_evaluations is None:
         if loop is None:
             max_evaluations = default_evaluations(len(every) + 1, n, len(sigma))

@@ -313,7 +313,7 @@ def lab_predictor(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[str
     ``AEROPEND_DESIGN_WORKERS`` says otherwise). Use it as a context manager."""
     from aeropend_control.design_gains import design_workers
 
-    return ClosedLoopPredictor(candidates, loop, tuple(sigma), limits.dt, round(shape.duration / limits.dt),
+    return ClosedLoopPredictor(candidates, loop, tuple(sigma), limits.dt, shape.samples(limits.dt),
                                design_workers(reference_popsize(shape)))
 
 
@@ -442,7 +442,7 @@ def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[
         raise ValueError("a discrimination design needs at least two candidates")
     shape = shape or reference_shape(40.0)
     t0 = time.perf_counter()
-    n = round(shape.duration / limits.dt)
+    n = shape.samples(limits.dt)
     span = set_point_range(limits, loop.reach, float(sigma.get("theta", 0.0)))
     pred = predictor or ClosedLoopPredictor(candidates, loop, tuple(sigma), limits.dt, n, workers)
     if pred.n != n:

@@ -228,6 +228,10 @@ class AprbsShape:
         if not (0.0 < self.min_hold <= self.max_hold):
             raise DesignError(f"hold range [{self.min_hold}, {self.max_hold}] s is empty")
 
+    def samples(self, dt: float) -> int:
+        """Samples of a sequence of this shape at period ``dt`` [s]: ``round(duration / dt)``."""
+        return round(self.duration / dt)
+
     @classmethod
     def for_duration(cls, duration: float) -> AprbsShape:
         """The default shape of a design of ``duration`` seconds: two holds per second (on the lab
@@ -305,7 +309,7 @@ def holds(z: np.ndarray, shape: AprbsShape, dt: float) -> tuple[np.ndarray, np.n
     m = shape.segments
     if z.size != 2 * m:
         raise DesignError(f"design vector of size {z.size}; expected {2 * m}")
-    n = round(shape.duration / dt)
+    n = shape.samples(dt)
     n_lead = round(LEAD_IN_S / dt)
     lengths = shape.min_hold + z[m:] * (shape.max_hold - shape.min_hold)
     ends = n_lead + np.rint(np.cumsum(lengths) / lengths.sum() * (n - n_lead)).astype(int)
