@@ -17,7 +17,9 @@ the fit session). Then, for a lab that runs its rig only under feedback:
    case's stamp jitter and dropped rows; the limits are checked on the truth's recorded angle and on
    the logged commands, and the candidates are replayed on the logged command without refit: what
    the recording names (:func:`aeropend_ident.design.discriminate.evidence` and its verdict;
-   exactly the truth set counts).
+   exactly the truth set counts); where no candidate explains it as sized, what it names once the
+   candidates are refitted on the fit session and it together, as ``excitation_design --outcome``
+   does (:func:`aeropend_ident.design.discriminate.refit_evidence`).
 
 Control: the seeded set-point sequence the search starts from (same length, range and holds),
 recorded and judged the same way. No ``gap`` after (the open-loop bench measures that).
@@ -43,6 +45,7 @@ from bench.bench_design_discrimination import (
     case_and_candidates,
     lab_case_bench,
     limits_cell,
+    refit_row,
 )
 
 #: Length of every designed set-point sequence [s].
@@ -71,7 +74,7 @@ def closed_loop_recording(case: dict[str, Any], spec: dict[str, Any], loop: Any,
 
 
 def _judge(cands: list[Any], rec: Any, run: dict[str, Any], sigma: dict[str, float], limits: Any,
-           truth: list[str]) -> dict[str, Any]:
+           truth: list[str], nominal: Any, fit: list[Any]) -> dict[str, Any]:
     from aeropend_ident.design.discriminate import evidence
     from aeropend_ident.design.sequence import check_limits
 
@@ -82,10 +85,14 @@ def _judge(cands: list[Any], rec: Any, run: dict[str, Any], sigma: dict[str, flo
         return {**out, "named": None, "named_truth": False}
     ev = evidence(cands, rec.duty, rec.channels, sigma, rec.dt)
     truth_name = next((c.name for c in cands if set(c.effects) == set(truth)), None)
+    named = ev["named_effects"]
     out.update({"outcome": {**ev, "truth_candidate": truth_name,
                             "truth_first": (ev["first"] == truth_name) if truth_name else None},
-                "named": ev["named_effects"],
-                "named_truth": ev["named_effects"] is not None and set(ev["named_effects"]) == set(truth)})
+                "named_as_sized": named})
+    if ev["unexplained"]:  # nothing explains it as sized: refit on it, as excitation_design --outcome does
+        out["refit"], out["refit_s"] = refit_row(nominal, fit, rec, cands, sigma, truth)
+        named = out["refit"]["named_effects"]
+    out.update({"named": named, "named_truth": named is not None and set(named) == set(truth)})
     return out
 
 
@@ -131,7 +138,7 @@ def run_case(job: dict[str, Any]) -> dict[str, Any]:
     row["design_s"] = time.perf_counter() - td
     for key, steps, salt in (("designed", d.steps, 0), ("baseline", d.baseline_steps, 1)):
         rec, run = closed_loop_recording(case, spec, loop, steps, n, salt)
-        row[key] = _judge(cands, rec, run, sigma, limits, row["truth"])
+        row[key] = _judge(cands, rec, run, sigma, limits, row["truth"], case["nominal"], fit)
     return row
 
 
@@ -147,6 +154,11 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "cases": len(rows), "designed": len(done), "triples": len(tri), "effect_free": len(clean),
         "triples_named_designed": count(tri, "designed", "named_truth"),
         "triples_named_baseline": count(tri, "baseline", "named_truth"),
+        "triples_named_designed_as_sized": sum(_as_sized(r["designed"], r["truth"]) for r in tri),
+        "triples_named_baseline_as_sized": sum(_as_sized(r["baseline"], r["truth"]) for r in tri),
+        "triples_refit_designed": sum("refit" in r["designed"] for r in tri),
+        "triples_unexplained_after_refit_designed": sum(
+            bool(r["designed"].get("refit", {}).get("unexplained")) for r in tri),
         "triples_nothing_designed": sum(r["designed"]["named"] is None for r in tri),
         "triples_unexplained_designed": sum(bool((r["designed"].get("outcome") or {}).get("unexplained"))
                                             for r in tri),
@@ -163,15 +175,29 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+def _as_sized(j: dict[str, Any], truth: list[str]) -> bool:
+    """The candidates as fitted on the fit session, without the refit, named exactly the truth."""
+    n = j.get("named_as_sized", j.get("named"))
+    return n is not None and set(n) == set(truth)
+
+
 def _cell(j: dict[str, Any]) -> str:
     if j.get("diverged"):
         return "the loop diverged"
-    n, o = j["named"], j.get("outcome") or {}
+    o = j.get("outcome") or {}
+    if "refit" in j:  # no candidate explained it as sized: what the refit named
+        ref = j["refit"]
+        head = f"refit ({o['best_rms_over_noise']:.1f}× the noise RMS as sized, {ref['sets']} sets): "
+        return head + _named_text(j["named"], j["named_truth"], ref)
+    return _named_text(j["named"], j["named_truth"], o)
+
+
+def _named_text(n: list[str] | None, truth: bool, o: dict[str, Any]) -> str:
     if n is None and o.get("unexplained"):
         return f"nothing: no candidate explains it ({o['best_rms_over_noise']:.1f}× the noise RMS)"
     if n is None:
         return "not separated: " + ", ".join(o.get("survivors") or [])
-    return f"{', '.join(n) or 'no effect'} ({'yes' if j['named_truth'] else 'no'})"
+    return f"{', '.join(n) or 'no effect'} ({'yes' if truth else 'no'})"
 
 
 def write_md(path: Path, doc: dict[str, Any]) -> None:
@@ -186,8 +212,12 @@ def write_md(path: Path, doc: dict[str, Any]) -> None:
         "- triples: all truth effects named by the closed-loop recording's verdict "
         f"**{s['triples_named_designed']}/{s['triples']}** designed, "
         f"{s['triples_named_baseline']}/{s['triples']} with the seeded set points "
-        f"the search starts from; nothing named {s['triples_nothing_designed']} (no candidate explains the "
-        f"recording: {s['triples_unexplained_designed']}); the truth set a candidate in "
+        f"the search starts from (as sized, without the refit: {s['triples_named_designed_as_sized']} / "
+        f"{s['triples_named_baseline_as_sized']}); no candidate explains the designed recording as sized in "
+        f"{s['triples_unexplained_designed']}, refitted (as `excitation_design --outcome` does) in "
+        f"{s['triples_refit_designed']}, still unexplained after the refit in "
+        f"{s['triples_unexplained_after_refit_designed']}; nothing named {s['triples_nothing_designed']}; "
+        "the truth set a candidate in "
         f"{s['truth_among_candidates']}/{s['triples']}, first on the designed recording in "
         f"{s['truth_first_designed']}",
         f"- effect-free plants clean: designed {s['effect_free_clean_designed']}/{s['effect_free']}, seeded "
