@@ -73,9 +73,20 @@ def test_design_separates_better_than_a_default_aprbs(pair, designed):
     assert p["mean"] >= rank_first_probability(pair, _default_aprbs(), SIGMA, LIMITS, draws=100)["mean"]
 
 
-def test_design_is_reproducible_and_within_budget(pair, designed):
+def test_design_is_reproducible_and_within_budget(pair, designed, monkeypatch):
+    from aeropend_control.design_gains import WORKERS_ENV
+    from aeropend_ident.design.discriminate import design_threads
+
     again = design_discrimination(pair, SIGMA, LIMITS, SHAPE, seed=0, budget_s=20.0, max_evaluations=200)
     np.testing.assert_array_equal(again.duty, designed.duty)
+    # each generation scored in one thread or in three (more than this machine's cores): the same
+    # sequences in the same order, so the same design and the same count of sequences
+    for workers in (1, 3):
+        monkeypatch.setenv(WORKERS_ENV, str(workers))
+        assert design_threads(popsize=8) == workers
+        other = design_discrimination(pair, SIGMA, LIMITS, SHAPE, seed=0, budget_s=20.0, max_evaluations=200)
+        np.testing.assert_array_equal(other.duty, designed.duty)
+        assert (other.evaluations, other.value) == (designed.evaluations, designed.value)
     # ended by its evaluations or by converging, never by the wall clock: the same on any machine
     assert designed.stopped_by in ("evaluations", "converged") and designed.evaluations <= 200 + 20
 
