@@ -25,8 +25,9 @@ their largest).
 that controller in closed loop on every candidate (or on the fitted rig), written as
 ``design_controller.yaml`` (the node's ``steps``) and ``design.csv`` (``t,reference``)
 (:mod:`aeropend_ident.design.reference`). A discrimination design's closed loops (the controller
-run sample by sample) run in worker processes, one per core (``AEROPEND_DESIGN_WORKERS=N`` sets
-how many; 1 runs them in the command's own process); the design does not depend on their number.
+run sample by sample) run in worker processes, one per core, and an open-loop one scores each
+search generation in one thread per core (``AEROPEND_DESIGN_WORKERS=N`` sets how many; 1 runs them
+in the command's own thread); the design does not depend on their number.
 
 ``--outcome`` compares a design's prediction with a ``gap`` report made with the
 designed recording among its fit recordings (and, given the designed recording, ranks the
@@ -91,8 +92,9 @@ def build_parser(prog: str = "excitation_design") -> argparse.ArgumentParser:
                     help="open_loop: a command sequence played open loop; reference: set points for the "
                          "lab's controller node, for a rig that runs only in closed loop (both kinds of "
                          "design; docs/design.md, 'Closed loop'); a discrimination design's closed "
-                         "loops run in one worker process per core (AEROPEND_DESIGN_WORKERS=N sets "
-                         "the number, the design does not depend on it)")
+                         "loops run in one worker process per core, its open-loop sequences in one "
+                         "thread per core (AEROPEND_DESIGN_WORKERS=N sets the number, the design does "
+                         "not depend on it)")
     ap.add_argument("--controller",
                     help="with --mode reference: the controller node's ROS parameters file (strategy, "
                          "omega_n, zeta, rho, ...) the lab runs; default the node's defaults on the gap "
