@@ -43,6 +43,7 @@ from aeropend_ident.design.sequence import (
 from aeropend_ident.errors import GapError
 from aeropend_ident.gap.effects import apply_effects
 from aeropend_ident.gap.which import context as fit_threads_module
+from aeropend_ident.gap.which.evidence import split_test
 from aeropend_sim.excitation import ExcitationError, aprbs, make_signal
 from aeropend_sim.params import load_rig
 
@@ -206,6 +207,29 @@ def test_verdict_names_the_special_case_a_richer_effect_nests_unless_it_is_refut
     segs[2] = [60.5, 60.0, 59.5, 60.5] * 5  # a survivor not nested in the others: nothing named
     out = verdict(cands, segs, noise)
     assert out["named"] is None and sorted(out["survivors"]) == ["other", "rich", "simple"]
+
+
+def test_a_richer_set_a_consistent_hair_ahead_does_not_refute_its_special_case():
+    """Lab case 95 in closed loop: after a refit on the designed recording the thrust law (truth: a
+    thrust coefficient) led its special case by 0.01 % in every second, which the split test at
+    share 0 called significant (p < 1e-16). The richer set must remove MIN_EXPLAINED_SECOND (30 %)
+    of its special case's error, as in the gap ranking; a rival not nested in it is still refuted
+    at share 0, and a richer set that removes half of the special case's error refutes it."""
+    rig = load_rig("thesis_sim")
+    simple = Candidate("simple", ("input_delay", "thrust_coefficient", "viscous_friction"), rig)
+    rich = Candidate("rich", ("input_delay", "thrust_law", "viscous_friction"), rig)
+    other = Candidate("other", ("gravity", "input_delay", "viscous_friction"), rig)
+    noise = 50.0
+    rng = np.random.default_rng(0)
+    best = 80.0 + rng.normal(0.0, 5.0, 40)  # above noise in every second
+    segs = np.array([best * 1.0001, best, best * 1.0001])
+    assert split_test(segs[0], segs[1], noise, 0.0) < 1e-6  # the hair alone is "significant"
+    out = verdict([simple, rich, other], segs, noise)
+    assert out["refuted_p"]["simple"] > 0.5 and out["refuted_p"]["other"] < 1e-6
+    assert out["named"] == "simple" and out["survivors"] == ["rich", "simple"]
+    segs[0] = best * 2.0  # the richer set removes half of the special case's error
+    out = verdict([simple, rich, other], segs, noise)
+    assert out["refuted_p"]["simple"] < 1e-6 and out["named"] == "rich"
 
 
 def test_nested_sets_replace_a_richer_effect_by_its_special_case():
