@@ -227,6 +227,7 @@ def test_a_richer_set_a_consistent_hair_ahead_does_not_refute_its_special_case()
     out = verdict([simple, rich, other], segs, noise)
     assert out["refuted_p"]["simple"] > 0.5 and out["refuted_p"]["other"] < 1e-6
     assert out["named"] == "simple" and out["survivors"] == ["rich", "simple"]
+    assert out["gave_way"] == {"rich": "simple"}
     segs[0] = best * 2.0  # the richer set removes half of the special case's error
     out = verdict([simple, rich, other], segs, noise)
     assert out["refuted_p"]["simple"] < 1e-6 and out["named"] == "rich"
@@ -530,6 +531,12 @@ def test_compare_outcome_names_the_matching_candidate():
     assert out["refit"]["names"] == ["inertia", "lag"] and out["refit"]["best_rms_over_noise"] == 1.05
     assert out["refit"]["sets_fitted"] == [{"effects": ["inertia"], "fit_sse": 2.0}]
     assert "Refitted on the earlier recordings and the designed one" in out["note"]
+    assert "special_case_note" not in out
+    # the refit's answer a special case named over a survivor whose richer effect nests it: said why
+    nested = {**refit, "named": "inertia+lag", "gave_way": {"inertia+rich_lag": "inertia+lag"}}
+    out = compare_outcome(design, report, unexplained, nested)
+    assert out["special_case_note"].startswith("inertia+rich_lag also explains the recording")
+    assert "30 % of its error" in out["special_case_note"]
     out = compare_outcome(design, report, unexplained, {"skipped": "no refit: gone"})
     assert out["refit"] == {"skipped": "no refit: gone"} and out["recording_names"] is None
     assert "run gap" in out["note"]

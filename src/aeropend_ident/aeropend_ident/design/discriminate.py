@@ -463,7 +463,7 @@ def refit_evidence(rig: Any, earlier: Sequence[Any], designed: Any, sets: Sequen
     refutations are in sample (each set saw the recording), so a richer set fits at least as well as
     the set it extends; what keeps an effect the recording does not demand out is the same rule as
     without refit: of the sets not refuted the fewest effects, a nested special case before its
-    richer effect.
+    richer effect, which refutes it only by removing a share of its error (:func:`verdict`).
 
     Parameters
     ----------
@@ -560,7 +560,8 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     dict
         ``named`` (the named candidate's name, or None), ``named_effects`` (its effects, or None),
         ``survivors`` (names not refuted, best first), ``refuted_p`` {rival: p}, ``alpha``,
-        ``unexplained`` (the misfit is above :data:`UNEXPLAINED_RMS`).
+        ``unexplained`` (the misfit is above :data:`UNEXPLAINED_RMS`), ``gave_way`` {survivor: the
+        surviving special case it gave way to (its richer effect did not refute it)}.
     """
     from aeropend_ident.gap.which.evidence import split_test
 
@@ -569,7 +570,7 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     best = int(np.argmin(tot))
     if not np.isfinite(tot[best]):  # no candidate could be replayed on the recording: it names nothing
         return {"named": None, "named_effects": None, "survivors": [], "refuted_p": {}, "alpha": alpha,
-                "unexplained": True}
+                "unexplained": True, "gave_way": {}}
     level = alpha / max(len(candidates) - 1, 1)
     pvals: dict[str, float] = {}
     alive = [best]
@@ -593,8 +594,10 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     # a richer effect the recording does not demand is not named either: a survivor whose set is
     # another survivor's with one effect replaced by an effect that nests it (a thrust law for the
     # thrust coefficient it contains) gives way to it, as in the gap diagnosis' ranking
-    sets = {tuple(candidates[b].effects) for b in small}
-    small = [b for b in small if not any(s in sets for s in nested_sets(candidates[b].effects))]
+    sets = {tuple(candidates[b].effects): candidates[b].name for b in small}
+    gave_way = {candidates[b].name: sets[s] for b in small for s in nested_sets(candidates[b].effects)
+                if s in sets}
+    small = [b for b in small if candidates[b].name not in gave_way]
     # a recording that refutes none of the rivals separated nothing: it may still say that it
     # demands no effect (the nominal rig among the survivors), but the fewest effects among all the
     # candidates would be effects named without it (lab case 80 named such a set, wrongly)
@@ -605,4 +608,4 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     return {"named": named.name if named else None,
             "named_effects": list(named.effects) if named else None,
             "survivors": [candidates[b].name for b in alive], "refuted_p": pvals, "alpha": alpha,
-            "unexplained": unexplained}
+            "unexplained": unexplained, "gave_way": gave_way}

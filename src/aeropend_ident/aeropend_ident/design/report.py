@@ -39,6 +39,7 @@ import yaml
 from aeropend_ident.design.candidates import Candidate, diagnosis_view
 from aeropend_ident.design.discriminate import UNEXPLAINED_RMS
 from aeropend_ident.gap.effects import MeasurementMap
+from aeropend_ident.gap.which.ranking import MIN_EXPLAINED_SECOND
 from aeropend_ident.io.jsonutil import jsonable
 from aeropend_sim.params import load_rig, rig_to_dict
 
@@ -246,6 +247,8 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         :func:`~aeropend_ident.design.discriminate.refit_evidence`, or ``{"skipped": why}``):
         ``refit`` holds what it names, its survivors, refutations and misfit, and
         ``recording_names`` becomes its answer (``recording_names_as_sized`` keeps the first).
+        ``special_case_note`` says why, when the answer is a special case named over survivors
+        whose richer effect nests it (the verdict's ``gave_way``).
     """
     chosen, _ranking = diagnosis_view(gap_report)
     refitted = refit is not None and "skipped" not in refit
@@ -280,7 +283,23 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
         if refitted:
             out["recording_names_as_sized"] = out.get("recording_names")
             out["recording_names"] = refit.get("named_effects")
+    answer = refit if refitted else evidence
+    if answer is not None and _special_case_note(answer):
+        out["special_case_note"] = _special_case_note(answer)
     return out
+
+
+def _special_case_note(verdict: Mapping[str, Any]) -> str | None:
+    """Why a verdict named a special case over survivors whose richer effect nests it (None when
+    it did not)."""
+    named = verdict.get("named")
+    richer = [r for r, s in (verdict.get("gave_way") or {}).items() if s == named]
+    if not named or not richer:
+        return None
+    share = 100 * MIN_EXPLAINED_SECOND
+    return (f"{', '.join(richer)} also explains the recording, but a richer effect refutes the special "
+            f"case it nests only by removing {share:.0f} % of its error second by second, and it did "
+            f"not: the special case {named} is named")
 
 
 def _refit_summary(refit: Mapping[str, Any]) -> dict[str, Any]:
