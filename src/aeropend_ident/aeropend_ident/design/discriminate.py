@@ -529,12 +529,11 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     :data:`~aeropend_ident.gap.which.ranking.MIN_EXPLAINED_SECOND` of the special case's error
     second by second (the split test asked for that share: H0 "it removes less"; a second at the
     noise floor weighs nothing), the share a richer effect must remove in the gap diagnosis'
-    ranking. When two of that size survive otherwise,
-    nothing is named and both are reported as not separated. A recording that refutes no rival
-    separated nothing: it names the nominal rig (no effect) when that is a candidate, else nothing.
-    A recording that no candidate explains (the best one's error RMS over :data:`UNEXPLAINED_RMS`
-    times the noise) names nothing either: the refutations then rank misfits, and a refit on the
-    recording is the next step.
+    ranking. When two of that size survive otherwise, nothing is named and both are reported as
+    not separated. A recording that refutes no rival separated nothing: it names the nominal rig
+    (no effect) when that is a candidate, else nothing. A recording that no candidate explains (the
+    best one's error RMS over :data:`UNEXPLAINED_RMS` times the noise) names nothing either: the
+    refutations then rank misfits, and a refit on the recording is the next step.
 
     Parameters
     ----------
