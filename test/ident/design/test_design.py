@@ -211,10 +211,11 @@ def test_verdict_names_the_special_case_a_richer_effect_nests_unless_it_is_refut
 
 def test_a_richer_set_a_consistent_hair_ahead_does_not_refute_its_special_case():
     """Lab case 95 in closed loop: after a refit on the designed recording the thrust law (truth: a
-    thrust coefficient) led its special case by 0.01 % in every second, which the split test at
-    share 0 called significant (p < 1e-16). The richer set must remove MIN_EXPLAINED_SECOND (30 %)
-    of its special case's error, as in the gap ranking; a rival not nested in it is still refuted
-    at share 0, and a richer set that removes half of the special case's error refutes it."""
+    thrust coefficient) led its special case by 3 parts in a million, second by second, which the
+    split test at share 0 called significant (p < 1e-16). The richer set must remove
+    MIN_EXPLAINED_SECOND (30 %) of its special case's error, as in the gap ranking; a rival not
+    nested in it is still refuted at share 0, and a richer set that removes half of the special
+    case's error refutes it."""
     rig = load_rig("thesis_sim")
     simple = Candidate("simple", ("input_delay", "thrust_coefficient", "viscous_friction"), rig)
     rich = Candidate("rich", ("input_delay", "thrust_law", "viscous_friction"), rig)

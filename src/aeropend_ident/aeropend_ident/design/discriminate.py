@@ -577,7 +577,7 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     # remove MIN_EXPLAINED_SECOND of their error to refute them, the share a richer effect must
     # remove in the gap diagnosis' ranking. Share 0 would let a consistent hair refute them: after
     # a refit both sets saw the recording, and a thrust law whose exponent fits the noise led its
-    # thrust coefficient by 0.01 % in every second at p < 1e-16 (lab case 95 in closed loop)
+    # thrust coefficient by 3 parts in a million of its error at p < 1e-16 (lab case 95 in closed loop)
     special = set(nested_sets(candidates[best].effects))
     for b, cand in enumerate(candidates):
         if b == best:
