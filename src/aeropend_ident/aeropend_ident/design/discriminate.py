@@ -558,8 +558,9 @@ def verdict(candidates: Sequence[Candidate], segments: np.ndarray, noise: float,
     -------
     dict
         ``named`` (the named candidate's name, or None), ``named_effects`` (its effects, or None),
-        ``survivors`` (names not refuted, best first), ``refuted_p`` {rival: p}, ``alpha``,
-        ``unexplained`` (the misfit is above :data:`UNEXPLAINED_RMS`), ``gave_way`` {survivor: the
+        ``survivors`` (names not refuted, best first), ``refuted_p`` {rival: p; for the best's
+        special cases the p of the share :data:`~aeropend_ident.gap.which.ranking.MIN_EXPLAINED_SECOND`},
+        ``alpha``, ``unexplained`` (the misfit is above :data:`UNEXPLAINED_RMS`), ``gave_way`` {survivor: the
         surviving special case it gave way to (its richer effect did not refute it)}.
     """
     from aeropend_ident.gap.which.evidence import split_test

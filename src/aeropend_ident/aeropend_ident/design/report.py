@@ -284,8 +284,9 @@ def compare_outcome(design: Mapping[str, Any], gap_report: Mapping[str, Any],
             out["recording_names_as_sized"] = out.get("recording_names")
             out["recording_names"] = refit.get("named_effects")
     answer = refit if refitted else evidence
-    if answer is not None and _special_case_note(answer):
-        out["special_case_note"] = _special_case_note(answer)
+    note = _special_case_note(answer) if answer is not None else None
+    if note:
+        out["special_case_note"] = note
     return out
 
 
