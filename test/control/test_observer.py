@@ -8,9 +8,15 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from aeropend_control.observer import ObserverError, ObserverSpec, PendulumObserver, kalman_gain
+from aeropend_control.observer import (
+    ObserverError,
+    ObserverSpec,
+    PendulumObserver,
+    ThrustPredictor,
+    kalman_gain,
+)
 from aeropend_control.strategies import VelocityEstimator
-from aeropend_sim.model import THETA, THETA_DOT, PlantModel
+from aeropend_sim.model import OMEGA, TAU_F, THETA, THETA_DOT, PlantModel
 from aeropend_sim.params import Rig, load_rig
 from aeropend_sim.simulation import PlantStepper
 
@@ -126,3 +132,45 @@ def test_closed_loop_at_50_dB_observer_vs_difference() -> None:
     assert met_o.settling_time < 0.6 < met_d.settling_time  # the difference's noise widens the settling
     tail = slice(-round(1.0 / H), None)
     assert np.std(duty_o[tail]) < 0.5 * np.std(duty_d[tail])  # far less actuator noise
+
+
+def _python_rotor_step(pred: ThrustPredictor, duty: float) -> tuple[float, float, float]:
+    """The thrust predictor's step written in Python on the rotor model's generated right-hand side
+    (what :meth:`ThrustPredictor.advance` computed before its compiled kernel): (ω₁, τ_f, mean f)."""
+    rhs, rest, h, m = pred._rotor.rhs, pred._rest.tolist(), pred.dt, pred.m
+    duty = pred._fifo[0] if pred._fifo else duty  # the command of n_delay samples ago
+
+    def deriv(w: float, tf: float) -> tuple[float, float]:
+        x = list(rest)
+        x[OMEGA], x[TAU_F] = w, min(max(tf, 0.0), 1.0)
+        f = rhs(0.0, x, duty)
+        return f[OMEGA], f[TAU_F]
+
+    w, tf = pred.omega, pred.tau_f
+    d1 = deriv(w, tf)
+    d2 = deriv(w + 0.5 * h * d1[0], tf + 0.5 * h * d1[1])
+    d3 = deriv(w + 0.5 * h * d2[0], tf + 0.5 * h * d2[1])
+    d4 = deriv(w + h * d3[0], tf + h * d3[1])
+    w_mid = max(w + 0.5 * h * d2[0], 0.0)
+    w_end = max(w + h * (d1[0] + 2.0 * d2[0] + 2.0 * d3[0] + d4[0]) / 6.0, 0.0)
+    tf_end = tf + h * (d1[1] + 2.0 * d2[1] + 2.0 * d3[1] + d4[1]) / 6.0
+    return w_end, tf_end, (m.thrust(w) + 4.0 * m.thrust(w_mid) + m.thrust(w_end)) / 6.0
+
+
+@pytest.mark.parametrize("family", ["dc_hbridge", "voltage_amplifier", "esc"])
+def test_the_compiled_thrust_predictor_is_the_models_arithmetic_bit_for_bit(family: str, tmp_path) -> None:
+    from aeropend_sim.rigfile.template import new_rig_text
+
+    path = tmp_path / f"{family}.yaml"
+    stated = {"actuator.lag_time_constant": 0.03}  # a lag; a voltage family's winding heats too
+    if family != "esc":
+        stated.update({"motor.alpha_R": 0.004, "motor.R_th": 3.0, "motor.C_th": 40.0})
+    path.write_text(new_rig_text(family, stated, name=family, file=path.name), encoding="utf-8")
+    rig = load_rig(path)
+    pred = ThrustPredictor(PlantModel(rig), 1.0 / 200.0)
+    rng = np.random.default_rng(0)
+    for duty in rng.uniform(-0.1, 1.1, 300).clip(0.0, 1.0):  # the clipped command, as advance() sees it
+        want = _python_rotor_step(pred, float(duty))
+        f = pred.advance(float(duty))
+        assert (pred.omega, pred.tau_f, f) == want
+    assert pred.omega > 0.0 and f > 0.0

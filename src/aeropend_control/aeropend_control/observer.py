@@ -38,7 +38,8 @@ import numpy as np
 
 # python-control is imported inside the functions that use it: importing it costs ~2 s
 # (scipy.signal, matplotlib.pyplot), which `controller --help` and every importer would pay.
-from aeropend_sim.model import OMEGA, TAU_F, PlantModel, plant_model
+from aeropend_sim.compiled.source import family_module, layout
+from aeropend_sim.model import PlantModel, plant_model
 
 
 class ObserverError(ValueError):
@@ -114,10 +115,13 @@ class ThrustPredictor:
     when the rig enables it), then the model's own right-hand side for the actuator lag (when
     enabled), the dead zone and drive map and the rotor (J_m·ω̇₁ = K_t·i − B_m·ω₁ − K_d·ω₁|ω₁| − …
     with the armature current quasi-static, i = (v_a − K_ω·ω₁)/R_a; an ESC's speed response);
-    RK4 over one period, the thrust averaged by Simpson's rule on the stages. A rig that knows its
-    lag or delay thus predicts the thrust the plant really produces. (The armature current as a state, for
-    thesis_sim's L_a/R_a = 115 ms, was tried: on the independent benchmark the cascades then
-    limit-cycled in 24 instead of 18 of 48 runs, FL/small-signal unchanged; docs/control.md.)
+    RK4 over one period, the thrust averaged by Simpson's rule on the stages, in one call of the
+    compiled kernel :func:`aeropend_sim.compiled.kernels.rotor_step` (the plant simulator's equations
+    of the rig's family; 3 µs a sample where the same arithmetic in Python took 27 µs). A rig that
+    knows its lag or delay thus predicts the thrust the plant really produces. (The armature current
+    as a state, for thesis_sim's L_a/R_a = 115 ms, was tried: on the independent benchmark the
+    cascades then limit-cycled in 24 instead of 18 of 48 runs, FL/small-signal unchanged;
+    docs/control.md.)
 
     Parameters
     ----------
@@ -130,21 +134,28 @@ class ThrustPredictor:
     def __init__(self, model: PlantModel, dt: float) -> None:
         self.m = model
         self._rotor = plant_model(model.rig.with_effects(armature_inductance="quasi_static"))
-        self._rest = self._rotor.states.initial().tolist()  # an effect's own state held at its initial value
-        self._rhs = self._rotor.rhs  # its code is generated here, not on the loop's first sample
+        self._rest = self._rotor.states.initial()  # an effect's own state held at its initial value
+        self._p = layout(self._rotor.family).vector(self._rotor.assembly)
+        self._step = self._kernel()  # loaded here, not on the loop's first sample
         self.dt = dt
         self.n_delay = round(model.delay / dt) if model.delay > 0.0 else 0
         self.reset()
 
+    def _kernel(self) -> Any:
+        """The compiled rotor step of the rotor model's family module
+        (:func:`aeropend_sim.compiled.kernels.rotor_step`, the model's right-hand side)."""
+        rotor = self._rotor
+        return family_module(rotor.family, rotor.states.extra_names).rotor_step
+
     def __getstate__(self) -> dict[str, Any]:
-        """Pickled without the generated right-hand side (a function made at run time, which
-        pickle cannot name): :meth:`__setstate__` takes it from the rotor model again, which is
+        """Pickled without the compiled kernel (a function of a module generated at run time, which
+        pickle cannot name): :meth:`__setstate__` loads it again for the rotor model, which is
         pickled as its rig (:meth:`aeropend_sim.model.PlantModel.__reduce__`)."""
-        return {k: v for k, v in self.__dict__.items() if k != "_rhs"}
+        return {k: v for k, v in self.__dict__.items() if k != "_step"}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
-        self._rhs = self._rotor.rhs
+        self._step = self._kernel()
 
     def reset(self) -> None:
         """Motor at rest, delay line empty (zeros)."""
@@ -152,30 +163,19 @@ class ThrustPredictor:
         self.tau_f = 0.0
         self._fifo = [0.0] * self.n_delay
 
-    def _deriv(self, w: float, tf: float, tau: float) -> tuple[float, float]:
-        """(dω/dt, dτ_f/dt) at rotor speed w, lagged duty tf and commanded duty τ."""
-        x = self._rest.copy()
-        x[OMEGA], x[TAU_F] = w, min(max(tf, 0.0), 1.0)
-        f = self._rhs(0.0, x, tau)
-        return f[OMEGA], f[TAU_F]
-
     def advance(self, duty: float) -> float:
         """Integrate the motor over one period at duty τ (after the delay line); return the mean
         thrust [N] over the period."""
-        m, h = self.m, self.dt
+        h = self.dt
         tau = min(max(duty, 0.0), 1.0)
         if self._fifo:
             self._fifo.append(tau)
             tau = self._fifo.pop(0)
-        w, tf = self.omega, self.tau_f
-        d1 = self._deriv(w, tf, tau)
-        d2 = self._deriv(w + 0.5 * h * d1[0], tf + 0.5 * h * d1[1], tau)
-        d3 = self._deriv(w + 0.5 * h * d2[0], tf + 0.5 * h * d2[1], tau)
-        d4 = self._deriv(w + h * d3[0], tf + h * d3[1], tau)
-        w_mid = max(w + 0.5 * h * d2[0], 0.0)
-        self.omega = max(w + h * (d1[0] + 2.0 * d2[0] + 2.0 * d3[0] + d4[0]) / 6.0, 0.0)
-        self.tau_f = tf + h * (d1[1] + 2.0 * d2[1] + 2.0 * d3[1] + d4[1]) / 6.0
-        return (m.thrust(w) + 4.0 * m.thrust(w_mid) + m.thrust(self.omega)) / 6.0
+        # RK4 of (ω₁, τ_f), τ_f clipped to [0, 1] at each stage, and Simpson's mean thrust, compiled:
+        # the rotor's equations of the rig's family module (the plant simulator's), one call instead
+        # of four Python evaluations of the right-hand side and three of the thrust
+        self.omega, self.tau_f, f = self._step(self._rest, self.omega, self.tau_f, tau, h, self._p)
+        return f
 
 
 class PendulumObserver:

@@ -35,7 +35,7 @@ Continuous law (Åström & Hägglund, *Advanced PID Control*, §3.5; the form of
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 #: Anti-windup schemes.
 ANTI_WINDUP = ("back_calculation", "conditional", "none")
@@ -189,9 +189,17 @@ class PID:
     def set_limits(self, u_min: float, u_max: float) -> None:
         """Change the output limits (bumpless as far as the limits allow); the same limits change nothing
         (a loop that sets them every sample does not rebuild its gains every sample)."""
-        if u_min == self.gains.u_min and u_max == self.gains.u_max:
+        g = self.gains
+        if u_min == g.u_min and u_max == g.u_max:
             return
-        self.set_gains(replace(self.gains, u_min=u_min, u_max=u_max))
+        if math.isnan(u_min) or math.isnan(u_max) or not u_min < u_max:
+            raise PIDConfigError(f"PID output limits u_min = {u_min!r} >= u_max = {u_max!r}")
+        # only the limits change (a feedback-linearising loop moves them every sample): the other
+        # fields were validated with these gains, and set_gains' bumpless correction of the
+        # proportional term would add kp·(b·r − y) − kp·(b·r − y) = 0 to the integrator
+        new = object.__new__(PIDGains)  # dataclasses.replace without its per-call cost
+        new.__dict__.update(g.__dict__, u_min=u_min, u_max=u_max)
+        self.gains = new
 
     def set_manual(self, u: float) -> None:
         """Switch to manual mode with output ``u`` (clamped to the limits)."""

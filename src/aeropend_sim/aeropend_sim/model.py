@@ -196,7 +196,7 @@ class PlantModel:
 
     def thrust(self, omega_rotor: float) -> float:
         """Thrust f [N] = K_q·|ω₂|^α·sign(ω₂) with ω₂ = ω₁/n (thesis Eqs. 3.3-3.4)."""
-        return float(self.assembly.propeller(MATH, float(omega_rotor))[1])
+        return float(self.assembly.thrust_scalar(float(omega_rotor)))
 
     def current(self, x: np.ndarray | list[float], u: float) -> float:
         """Armature current i_a [A]: the state, algebraic in quasi-static mode (Eq. 3.6), 0 without

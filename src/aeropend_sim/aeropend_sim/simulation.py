@@ -157,6 +157,21 @@ def _quanta(rig: Rig) -> dict[str, float]:
             "omega_rotor": s.omega_quantum, "omega_prop": s.omega_quantum}
 
 
+def _sensed(rig: Rig) -> tuple[tuple[str, float | None, float], ...]:
+    """(channel, noise σ or None, quantum or 0) of each channel :meth:`PlantStepper.sample` may
+    measure, in :func:`_quanta`'s order, as the rig's switches apply them: σ = the channel's RMS over
+    10^(SNR/20) with sensor noise on (θ̇'s RMS 5·θ's, ω₂'s ω₁'s over the gear ratio), the quantum
+    with quantisation on (and > 0)."""
+    s, e = rig.sensors, rig.effects
+    rms = {
+        "theta": s.theta_rms, "theta_dot": s.theta_rms * 5.0, "i_a": s.i_a_rms,
+        "v_a": s.v_a_rms, "omega_rotor": s.omega_rms,
+        "omega_prop": s.omega_rms / rig.motor.gear_ratio,
+    }
+    return tuple((name, rms[name] / 10 ** (s.snr_db / 20.0) if e.sensor_noise else None,
+                  q if e.quantisation and q > 0.0 else 0.0) for name, q in _quanta(rig).items())
+
+
 def measure(rig: Rig, true: dict[str, np.ndarray], rng: np.random.Generator) -> dict[str, np.ndarray]:
     """Apply sensor noise (at ``rig.sensors.snr_db``) and ADC quantisation to channels.
 
@@ -483,7 +498,9 @@ class PlantStepper:
         self.dt = rig.sample_period
         self.backend = _check_backend(backend)
         plant = CompiledPlant(model, self.dt) if backend == "compiled" else None
-        self._now: tuple[CompiledPlant | None, PlantModel, Rig] = (plant, model, rig)
+        # (plant, model, rig, _sensed(rig)): replaced as one by set_rig
+        self._now: tuple[CompiledPlant | None, PlantModel, Rig, tuple[tuple[str, float | None, float], ...]]
+        self._now = (plant, model, rig, _sensed(rig))
         self.x = _check_state(model, x0)
         self.k = 0
         self.rng = np.random.default_rng(seed)
@@ -528,7 +545,7 @@ class PlantStepper:
                     x[k] = self.x[old.index(name)]
             self.x = x
         # one assignment: a concurrent step reads the old or the new (plant, model, rig), never a mix
-        self._now = (plant, model, rig)
+        self._now = (plant, model, rig, _sensed(rig))
 
     def warm(self) -> None:
         """Load the compiled kernels that :meth:`step` and :meth:`sample` call, by one call of each on a
@@ -546,26 +563,24 @@ class PlantStepper:
 
     def sample(self) -> dict[str, float]:
         """Measured channels at the current sample instant (noise/quantisation applied)."""
-        plant, model, rig = self._now
+        plant, model, _, _ = self._now
         u = np.array([self._u_now])  # held over the last sample: both at and just before the instant
         # the compiled plant's outputs are the same equations (aeropend_sim.compiled.kernels.outputs),
         # a hundred times cheaper per sample than the model's array path
         x = self.x[None, :]
-        true = plant.outputs(x, u) if plant is not None else _outputs(model, x, u, u)
-        s, e = rig.sensors, rig.effects
-        rms = {
-            "theta": s.theta_rms, "theta_dot": s.theta_rms * 5.0, "i_a": s.i_a_rms,
-            "v_a": s.v_a_rms, "omega_rotor": s.omega_rms,
-            "omega_prop": s.omega_rms / rig.motor.gear_ratio,
-        }
+        return self._measure(plant.outputs(x, u) if plant is not None else _outputs(model, x, u, u))
+
+    def _measure(self, true: Mapping[str, np.ndarray]) -> dict[str, float]:
+        """The channels measured from the noise-free ones ``true`` (name -> (1,) array) of the
+        current instant: noise drawn and quantisation applied as the rig switches them."""
         out = {}
-        for name, q in _quanta(rig).items():
+        for name, sd, q in self._now[3]:
             if name not in true:
                 continue  # a channel the family does not have
             y = float(true[name][0])
-            if e.sensor_noise:
-                y += float(self.rng.normal(0.0, rms[name] / 10 ** (s.snr_db / 20.0)))
-            if e.quantisation and q > 0.0:
+            if sd is not None:
+                y += float(self.rng.normal(0.0, sd))
+            if q > 0.0:
                 y = round(y / q) * q
             out[name] = y
         return out
@@ -584,14 +599,12 @@ class PlantStepper:
         self._queue.append(float(duty))
         u_old = self._queue.pop(0)  # command that was active delay_whole samples ago
         u_new = self._queue[0]
-        pieces = [(self._delay_frac, u_old), (self.dt - self._delay_frac, u_new)]
-        if self._delay_whole == 0 and self._delay_frac == 0.0:
-            pieces = [(self.dt, float(duty))]
-        plant, model, _ = self._now
+        plant, model, _, _ = self._now
         x = self.x
+        true = None
         if plant is not None:
             x = plant.step(x, u_old, u_new)
-            if not np.isfinite(x).all():
+            if not all(map(math.isfinite, x.tolist())):
                 self._queue.insert(0, u_old)
                 self._queue.pop()
                 raise SimulationError(f"the compiled step {self.k} diverged (a state is not finite): the "
@@ -600,7 +613,14 @@ class PlantStepper:
             if not model.lag:
                 x[TAU_F] = u_new
             if model.assembly.armature and not model.dynamic_current:
-                x[I_A] = plant.outputs(x[None, :], np.array([u_new]), ("i_a",))["i_a"][0]
+                # every channel at once: with the current quasi-static no channel reads the i_a state
+                # (the current is the algebraic one), so they are those :meth:`sample` would compute
+                # again from the state with its i_a set
+                true = plant.outputs(x[None, :], np.array([u_new]))
+                x[I_A] = true["i_a"][0]
+        pieces = [(self._delay_frac, u_old), (self.dt - self._delay_frac, u_new)]
+        if self._delay_whole == 0 and self._delay_frac == 0.0:
+            pieces = [(self.dt, float(duty))]
         for length, u in pieces if plant is None else ():
             if length <= 0.0:
                 continue
@@ -613,4 +633,4 @@ class PlantStepper:
             self._u_now = u
         self.x = x
         self.k += 1
-        return self.sample()
+        return self.sample() if true is None else self._measure(true)

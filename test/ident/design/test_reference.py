@@ -68,9 +68,18 @@ def test_design_separates_at_least_as_well_as_its_start_and_is_reproducible(pair
     with ref.ClosedLoopPredictor(pair, loop, tuple(SIGMA), DT, n, workers=2) as pred:
         again = ref.design_reference(pair, loop, SIGMA, LIMITS, SHAPE, seed=0, max_evaluations=40,
                                      predictor=pred)
+        calls = pred.calls
         p_again = ref.rank_first_probability(pair, loop, again.steps, n, SIGMA, LIMITS, draws=50,
                                              predictor=pred)
         assert pred._pool is not None  # the loops did run in the workers
+        # the loop on the driver (candidate 0) was the search's best, kept: only the others ran
+        assert pred.calls == calls + len(pair) - 1
+        (kept_out, kept_run), = pred.many([(again.steps, 0)])
+        assert pred.calls == calls + len(pair) - 1
+    fresh_out, fresh_run = ref.ClosedLoopPredictor(pair, loop, tuple(SIGMA), DT, n)(again.steps, 0)
+    np.testing.assert_array_equal(kept_run.duty, fresh_run.duty)
+    for c, y in fresh_out.items():
+        np.testing.assert_array_equal(kept_out[c], y)
     assert again.steps == designed.steps and again.evaluations == designed.evaluations
     assert (again.value, again.baseline_value, again.min_divergence) == (
         designed.value, designed.baseline_value, designed.min_divergence)

@@ -259,6 +259,15 @@ class ClosedLoopPredictor:
         self.workers = max(1, int(workers))
         self._made = (self.candidates, loop, tuple(channels), self.dt, self.n)
         self._pool: Any = None
+        #: Predictions already made, by (set points, candidate): :meth:`keep`.
+        self._kept: dict[tuple[tuple[tuple[float, float], ...], int], tuple[dict[str, np.ndarray], Any]] = {}
+
+    def keep(self, steps: Sequence[tuple[float, float]], b: int,
+             prediction: tuple[dict[str, np.ndarray], Any]) -> None:
+        """Hold ``self(steps, b)`` (made already: a design's best sequence on its driver), which
+        :meth:`many` then returns instead of running that loop again (each loop is deterministic: the
+        same result bit for bit)."""
+        self._kept[_job_key(steps, b)] = prediction
 
     def run(self, steps: Sequence[tuple[float, float]], b: int) -> Any:
         """The loop on candidate ``b`` (:func:`closed_loop`)."""
@@ -274,13 +283,16 @@ class ClosedLoopPredictor:
     def many(self, jobs: Sequence[tuple[Sequence[tuple[float, float]], int]]
              ) -> list[tuple[dict[str, np.ndarray], Any]]:
         """``self(steps, b)`` of each ``(steps, b)`` job, in order; in the worker processes when there
-        are several (started at the first call, or by :meth:`start`)."""
-        if self.workers == 1 or len(jobs) < 2:
-            return [self(steps, b) for steps, b in jobs]
-        self.start()
-        out = list(self._pool.map(_held_prediction, *zip(*jobs, strict=True)))
-        self.calls += len(jobs)
-        return out
+        are several (started at the first call, or by :meth:`start`); a job :meth:`keep` holds is not
+        run again."""
+        todo = [(steps, b) for steps, b in jobs if _job_key(steps, b) not in self._kept]
+        if self.workers == 1 or len(todo) < 2:
+            made = iter([self(steps, b) for steps, b in todo])
+        else:
+            self.start()
+            made = iter(list(self._pool.map(_held_prediction, *zip(*todo, strict=True))))
+            self.calls += len(todo)
+        return [self._kept.get(_job_key(steps, b)) or next(made) for steps, b in jobs]
 
     def start(self) -> None:
         """Start the worker processes (no wait: each builds its copy while this process goes on)."""
@@ -303,6 +315,10 @@ class ClosedLoopPredictor:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def _job_key(steps: Sequence[tuple[float, float]], b: int) -> tuple[tuple[tuple[float, float], ...], int]:
+    return tuple((float(t), float(r)) for t, r in steps), int(b)
 
 
 def lab_predictor(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[str, float], limits: Limits,
@@ -470,6 +486,7 @@ def design_reference(candidates: Sequence[Candidate], loop: Any, sigma: Mapping[
         if predictor is None:
             pred.close()
     steps, base = reference_steps(best_z, shape, limits, span), reference_steps(z0, shape, limits, span)
+    pred.keep(steps, 0, (out, run))  # the prediction's loop on the driver is this one
     return ReferenceDesign(
         duty=loop_command(run), baseline=loop_command(run0), value=best_v, baseline_value=v0,
         min_divergence=smallest_divergence(out, sigma),

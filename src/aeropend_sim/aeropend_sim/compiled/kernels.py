@@ -25,12 +25,12 @@ rest, so RK4 keeps its order through contacts.
 """
 
 # ruff: noqa: F821 - rhs, contact, signals, HAS_CONTACT, N_STATE and the state helpers are defined by the
-# generated part
+# generated part (which imports OMEGA and TAU_F as this file does)
 
 import numpy as np
 from numba import njit
 
-from aeropend_sim.components.states import N_CHAIN
+from aeropend_sim.components.states import N_CHAIN, OMEGA, TAU_F
 
 #: The generated part sets the rig's state length; this one lets the file import as a module.
 N_STATE = N_CHAIN
@@ -263,3 +263,41 @@ def jacobians(x, u, p):
                 for k in range(N_STATE):
                     out[b, r, k, c] = (fh[k] - fl[k]) / (2.0 * h)
     return out
+
+
+@njit(inline="always", error_model="numpy")
+def _rotor_rates(y, w, tf, u, p):
+    """(dω₁/dt, dτ_f/dt) of :func:`rhs` at ``y`` (N_STATE,) with ω₁ = ``w`` and τ_f = ``tf``
+    clipped to [0, 1] written into it, at the command ``u``."""
+    y[OMEGA] = w
+    y[TAU_F] = min(max(tf, 0.0), 1.0)
+    d = rhs(_load(y), u, p)
+    return d[OMEGA], d[TAU_F]
+
+
+@njit(inline="always", error_model="numpy")
+def _thrust_at(y, w, u, p):
+    """The thrust [N] at the rotor speed ``w`` (:func:`signals`' last value; the other entries of
+    ``y`` do not reach it)."""
+    y[OMEGA] = w
+    return signals(_load(y), u, p)[4]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def rotor_step(x, w, tf, u, h, p):
+    """One RK4 step of length ``h`` [s] of the rotor speed ω₁ and the lagged duty τ_f alone, from
+    ``w`` and ``tf``, the other entries of the state ``x`` (N_STATE,) held, at the command ``u``:
+    the thrust predictor of a controller's observer
+    (:class:`aeropend_control.observer.ThrustPredictor`), the same floating-point operations in
+    the same order (τ_f clipped to [0, 1] at each stage). Returns (ω₁ at the end, clipped at 0; τ_f
+    at the end; the mean thrust over the step [N] by Simpson's rule on ω₁ at the start, at the
+    second stage's midpoint, clipped at 0, and at the end)."""
+    y = x.copy()
+    a_w, a_t = _rotor_rates(y, w, tf, u, p)
+    b_w, b_t = _rotor_rates(y, w + 0.5 * h * a_w, tf + 0.5 * h * a_t, u, p)
+    c_w, c_t = _rotor_rates(y, w + 0.5 * h * b_w, tf + 0.5 * h * b_t, u, p)
+    d_w, d_t = _rotor_rates(y, w + h * c_w, tf + h * c_t, u, p)
+    w_mid = max(w + 0.5 * h * b_w, 0.0)
+    w_end = max(w + h * (a_w + 2.0 * b_w + 2.0 * c_w + d_w) / 6.0, 0.0)
+    f = (_thrust_at(y, w, u, p) + 4.0 * _thrust_at(y, w_mid, u, p) + _thrust_at(y, w_end, u, p)) / 6.0
+    return w_end, tf + h * (a_t + 2.0 * b_t + 2.0 * c_t + d_t) / 6.0, f

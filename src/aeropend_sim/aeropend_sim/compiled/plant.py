@@ -27,6 +27,7 @@ import threading
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -185,6 +186,7 @@ class CompiledPlant:
         self.channels = tuple(self._codes)
         self._maps: dict[tuple[str, ...], _Map] = {}
         self.plan = self.plans(self.p[None, :])
+        self._code_arrays: dict[tuple[str, ...], np.ndarray] = {}
 
     # ------------------------------------------------------------------ parameter vectors
     def vectors(self, keys: Sequence[str], values: Any) -> np.ndarray:
@@ -326,7 +328,7 @@ class CompiledPlant:
         u_at, u_before = (u[0], u[1]) if u.ndim == 2 else (u, u)
         out = np.empty((len(names), u_at.size))
         self.module.outputs(states, np.ascontiguousarray(u_at), np.ascontiguousarray(u_before),
-                            self.p if p is None else p, self.codes(names), out)
+                            self.p if p is None else p, self._code_array(names), out)
         return dict(zip(names, out, strict=True))
 
     def codes(self, names: Sequence[str]) -> np.ndarray:
@@ -342,6 +344,14 @@ class CompiledPlant:
             raise ValueError(f"channel(s) {bad} do not exist for a {self.rig.family} rig; expected some of "
                              f"{list(self._codes)}")
         return np.array([self._codes[n] for n in names], dtype=np.int64)
+
+    def _code_array(self, names: tuple[str, ...]) -> np.ndarray:
+        """:meth:`codes` of ``names``, made once per tuple of names (a stepper asks for the same
+        channels at every sample); the array is only read."""
+        got = self._code_arrays.get(names)
+        if got is None:
+            got = self._code_arrays[names] = self.codes(names)
+        return got
 
     def replay_batch(self, duty: np.ndarray, p: np.ndarray, x0: np.ndarray, tau_before: float,
                      names: Sequence[str], threads: int | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -378,8 +388,13 @@ class CompiledPlant:
     def step(self, x: np.ndarray, u_old: float, u_new: float) -> np.ndarray:
         """The state one sample after ``x``: ``u_old`` over the first ``frac·dt`` (a fractional
         input delay), ``u_new`` over the rest (:meth:`replay`'s scheme for one sample)."""
-        _, n_a, h_a, n_b, h_b = self.plan.row(0)
+        _, n_a, h_a, n_b, h_b = self._row0
         return self.module.step(self._whole(x), float(u_old), float(u_new), self.p, n_a, h_a, n_b, h_b)
+
+    @cached_property
+    def _row0(self) -> tuple[int, int, float, int, float]:
+        """:attr:`plan`'s row of the rig's parameters (:meth:`step` reads it at every sample)."""
+        return self.plan.row(0)
 
     def _whole(self, x: np.ndarray) -> np.ndarray:
         """``x`` (…, n) as the kernels read it: the rig's whole state, C-contiguous floats. The

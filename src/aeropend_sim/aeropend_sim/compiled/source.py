@@ -239,7 +239,8 @@ def module_source(family: str, states: tuple[str, ...] = ()) -> str:
             f"p = ({', '.join(lay.keys)}) + flags ({', '.join(lay.flags)})", '"""',
             f"# numba {numba.__version__}", *(_stamp(m) for m in (*sources, xp_numba.__name__)),
             "import math", "", "import numpy as np", "from numba import njit", "",
-            "from aeropend_sim.compiled import xp_numba as _xp", *imports, "",
+            "from aeropend_sim.compiled import xp_numba as _xp",
+            "from aeropend_sim.components.states import OMEGA, TAU_F", *imports, "",
             f"HAS_CONTACT = {bool(contacts)}"]
     return "\n".join([*head, *code]) + "\n" + kernel_text
 
