@@ -77,12 +77,12 @@ from aeropend_sim.params import Rig
 CONTROLLER_NODE = "aeropend_controller"
 #: Samples a reference design's search simulates in closed loop by default (every scored sequence
 #: costs one closed loop of its length on the driver): 60 sequences of 40 s at 100 Hz, 12 at 490 Hz.
-#: The loop is the controller node's own per-sample Python loop (its observer integrates the model
-#: at every sample: three quarters of the cost) on the plant stepper, 60-110 µs a sample with the
-#: candidates' batch replay on two cores, so a reference design scores far fewer sequences than an
-#: open-loop one (whose replays are compiled) in the same time. On bench_design_reference's cases at
-#: twice this, the search alone took 30-54 s, over the issue's 60 s per design with the candidate
-#: fits and the prediction. Counted, not timed: a seed gives one design on any machine.
+#: The loop is the controller node's own per-sample Python loop on the plant stepper, 92 µs a
+#: sample on lab case 80's candidates since ccd196a (176 µs before: docs/design.md), so a reference
+#: design scores far fewer sequences than an open-loop one (whose replays are compiled) in the same
+#: time. On bench_design_reference's cases at twice this, the search alone took 30-54 s (at 176 µs),
+#: over the issue's 60 s per design with the candidate fits and the prediction. Counted, not timed:
+#: a seed gives one design on any machine.
 CLOSED_LOOP_WORK = 240_000
 #: Fewest sequences a reference design scores by default.
 MIN_EVALUATIONS = 12
