@@ -563,18 +563,20 @@ class PlantStepper:
 
     def sample(self) -> dict[str, float]:
         """Measured channels at the current sample instant (noise/quantisation applied)."""
-        plant, model, _, _ = self._now
+        plant, model, _, sensed = self._now
         u = np.array([self._u_now])  # held over the last sample: both at and just before the instant
         # the compiled plant's outputs are the same equations (aeropend_sim.compiled.kernels.outputs),
         # a hundred times cheaper per sample than the model's array path
         x = self.x[None, :]
-        return self._measure(plant.outputs(x, u) if plant is not None else _outputs(model, x, u, u))
+        return self._measure(plant.outputs(x, u) if plant is not None else _outputs(model, x, u, u), sensed)
 
-    def _measure(self, true: Mapping[str, np.ndarray]) -> dict[str, float]:
+    def _measure(self, true: Mapping[str, np.ndarray], sensed: tuple[tuple[str, float | None, float], ...]
+                 ) -> dict[str, float]:
         """The channels measured from the noise-free ones ``true`` (name -> (1,) array) of the
-        current instant: noise drawn and quantisation applied as the rig switches them."""
+        current instant: noise drawn and quantisation applied as ``sensed`` (:func:`_sensed` of the
+        rig the plant of ``true`` simulates) says."""
         out = {}
-        for name, sd, q in self._now[3]:
+        for name, sd, q in sensed:
             if name not in true:
                 continue  # a channel the family does not have
             y = float(true[name][0])
@@ -599,7 +601,7 @@ class PlantStepper:
         self._queue.append(float(duty))
         u_old = self._queue.pop(0)  # command that was active delay_whole samples ago
         u_new = self._queue[0]
-        plant, model, _, _ = self._now
+        plant, model, _, sensed = self._now
         x = self.x
         true = None
         if plant is not None:
@@ -633,4 +635,4 @@ class PlantStepper:
             self._u_now = u
         self.x = x
         self.k += 1
-        return self.sample() if true is None else self._measure(true)
+        return self.sample() if true is None else self._measure(true, sensed)
