@@ -174,20 +174,3 @@ def test_the_compiled_thrust_predictor_is_the_models_arithmetic_bit_for_bit(fami
         f = pred.advance(float(duty))
         assert (pred.omega, pred.tau_f, f) == want
     assert pred.omega > 0.0 and f > 0.0
-
-
-def test_the_thrust_predictor_loads_its_kernel_before_the_first_sample() -> None:
-    """numba loads (or compiles) a kernel at its first call: a real-time loop's first sample must
-    not be it. In a fresh process, the predictor's kernel has its machine code once it is built,
-    and again once it is unpickled (a design's worker process)."""
-    import subprocess
-    import sys
-
-    code = ("import pickle; from aeropend_sim.params import load_rig; from aeropend_sim.model import "
-            "PlantModel; from aeropend_control.observer import ThrustPredictor; "
-            "p = ThrustPredictor(PlantModel(load_rig('thesis_rig')), 1 / 490); "
-            "ready = [len(p._step.signatures)]; q = pickle.loads(pickle.dumps(p)); "
-            "ready.append(len(q._step.signatures)); print(ready)")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
-                         check=True)
-    assert out.stdout.strip() == "[1, 1]"

@@ -136,20 +136,16 @@ class ThrustPredictor:
         self._rotor = plant_model(model.rig.with_effects(armature_inductance="quasi_static"))
         self._rest = self._rotor.states.initial()  # an effect's own state held at its initial value
         self._p = layout(self._rotor.family).vector(self._rotor.assembly)
+        self._step = self._kernel()  # loaded here, not on the loop's first sample
         self.dt = dt
-        self._step = self._kernel()
         self.n_delay = round(model.delay / dt) if model.delay > 0.0 else 0
         self.reset()
 
     def _kernel(self) -> Any:
         """The compiled rotor step of the rotor model's family module
-        (:func:`aeropend_sim.compiled.kernels.rotor_step`, the model's right-hand side), called once
-        here: numba loads its machine code from the disk cache (or compiles it, a machine's first
-        time) at its first call, which must not be a real-time loop's first sample."""
+        (:func:`aeropend_sim.compiled.kernels.rotor_step`, the model's right-hand side)."""
         rotor = self._rotor
-        step = family_module(rotor.family, rotor.states.extra_names).rotor_step
-        step(self._rest, 0.0, 0.0, 0.0, self.dt, self._p)
-        return step
+        return family_module(rotor.family, rotor.states.extra_names).rotor_step
 
     def __getstate__(self) -> dict[str, Any]:
         """Pickled without the compiled kernel (a function of a module generated at run time, which
