@@ -134,10 +134,11 @@ def test_closed_loop_at_50_dB_observer_vs_difference() -> None:
     assert np.std(duty_o[tail]) < 0.5 * np.std(duty_d[tail])  # far less actuator noise
 
 
-def _python_rotor_step(pred: ThrustPredictor, duty: float) -> tuple[float, float, float]:
+def _python_rotor_step(pred: ThrustPredictor, m: PlantModel, duty: float) -> tuple[float, float, float]:
     """The thrust predictor's step written in Python on the rotor model's generated right-hand side
-    (what :meth:`ThrustPredictor.advance` computed before its compiled kernel): (ω₁, τ_f, mean f)."""
-    rhs, rest, h, m = pred._rotor.rhs, pred._rest.tolist(), pred.dt, pred.m
+    and ``m``'s thrust (what :meth:`ThrustPredictor.advance` computed before its compiled kernel):
+    (ω₁, τ_f, mean f)."""
+    rhs, rest, h = pred._rotor.rhs, pred._rest.tolist(), pred.dt
     duty = pred._fifo[0] if pred._fifo else duty  # the command of n_delay samples ago
 
     def deriv(w: float, tf: float) -> tuple[float, float]:
@@ -167,10 +168,11 @@ def test_the_compiled_thrust_predictor_is_the_models_arithmetic_bit_for_bit(fami
         stated.update({"motor.alpha_R": 0.004, "motor.R_th": 3.0, "motor.C_th": 40.0})
     path.write_text(new_rig_text(family, stated, name=family, file=path.name), encoding="utf-8")
     rig = load_rig(path)
-    pred = ThrustPredictor(PlantModel(rig), 1.0 / 200.0)
+    model = PlantModel(rig)
+    pred = ThrustPredictor(model, 1.0 / 200.0)
     rng = np.random.default_rng(0)
     for duty in rng.uniform(-0.1, 1.1, 300).clip(0.0, 1.0):  # the clipped command, as advance() sees it
-        want = _python_rotor_step(pred, float(duty))
+        want = _python_rotor_step(pred, model, float(duty))
         f = pred.advance(float(duty))
         assert (pred.omega, pred.tau_f, f) == want
     assert pred.omega > 0.0 and f > 0.0

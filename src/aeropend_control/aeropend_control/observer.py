@@ -132,7 +132,6 @@ class ThrustPredictor:
     """
 
     def __init__(self, model: PlantModel, dt: float) -> None:
-        self.m = model
         self._rotor = plant_model(model.rig.with_effects(armature_inductance="quasi_static"))
         self._rest = self._rotor.states.initial()  # an effect's own state held at its initial value
         self._p = layout(self._rotor.family).vector(self._rotor.assembly)

@@ -47,6 +47,12 @@ class PIDConfigError(ValueError):
     """Invalid PID gains, limits or options (the message names the bad value)."""
 
 
+def check_limits(u_min: float, u_max: float) -> None:
+    """Raise :class:`PIDConfigError` unless the output limits satisfy u_min < u_max (NaN refused)."""
+    if math.isnan(u_min) or math.isnan(u_max) or not u_min < u_max:
+        raise PIDConfigError(f"PID output limits u_min = {u_min!r} >= u_max = {u_max!r}")
+
+
 @dataclass(frozen=True)
 class PIDGains:
     """Gains and options of :class:`PID` (SI; the output unit is the actuator's).
@@ -96,8 +102,7 @@ class PIDGains:
                 raise PIDConfigError(f"PID {name} = {val!r} is not finite")
         if self.tf < 0.0:
             raise PIDConfigError(f"PID derivative filter tf = {self.tf!r} s must be >= 0")
-        if math.isnan(self.u_min) or math.isnan(self.u_max) or not self.u_min < self.u_max:
-            raise PIDConfigError(f"PID output limits u_min = {self.u_min!r} >= u_max = {self.u_max!r}")
+        check_limits(self.u_min, self.u_max)
         if self.anti_windup not in ANTI_WINDUP:
             raise PIDConfigError(f"PID anti_windup = {self.anti_windup!r}; expected one of {ANTI_WINDUP}")
         if self.method not in METHODS:
@@ -192,8 +197,7 @@ class PID:
         g = self.gains
         if u_min == g.u_min and u_max == g.u_max:
             return
-        if math.isnan(u_min) or math.isnan(u_max) or not u_min < u_max:
-            raise PIDConfigError(f"PID output limits u_min = {u_min!r} >= u_max = {u_max!r}")
+        check_limits(u_min, u_max)
         # only the limits change (a feedback-linearising loop moves them every sample): the other
         # fields were validated with these gains, and set_gains' bumpless correction of the
         # proportional term would add kp·(b·r − y) − kp·(b·r − y) = 0 to the integrator

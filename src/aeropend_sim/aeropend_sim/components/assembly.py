@@ -557,7 +557,7 @@ class Assembly:
         (ESC) i_a = 0 and q = ω_ss = rotor-response⁻¹(ω₁). The drive quantity is the family's:
         armature voltage [V] or the ESC's rotor-speed set-point [rad/s] (:attr:`drive_name`).
         """
-        thrust, gear, load_terms, torque, armature, r_rest = self._steady_chain
+        thrust, gear, load_terms, torque, r_rest = self._steady_chain
         w2 = thrust.inverse(MATH, f, *self._params_of(thrust))
         w1 = gear.inverse(MATH, w2, *self._params_of(gear))
         if self.armature:
@@ -567,11 +567,7 @@ class Assembly:
                 v = self._eval(t, MATH, at)
                 load = v if load is None else load + v
             i = -(load if load is not None else 0.0) / sum((self._partial(t, "i_a", at) for t in torque), 0.0)
-            back = None  # Σ armature terms at ω₁, in order (:meth:`_sum_values`)
-            for t in armature:
-                v = self._eval(t, MATH, {"omega": w1})
-                back = v if back is None else back + v
-            q = r_rest * i - (0.0 if back is None else back)
+            q = r_rest * i - self._sum_values("armature", MATH, {"omega": w1})
         else:
             i = 0.0
             term = self._one("rotor_response")
@@ -579,14 +575,13 @@ class Assembly:
         return float(i), float(w1), float(q)
 
     @cached_property
-    def _steady_chain(self) -> tuple[Term, Term, tuple[Term, ...], tuple[Term, ...], tuple[Term, ...], float]:
+    def _steady_chain(self) -> tuple[Term, Term, tuple[Term, ...], tuple[Term, ...], float]:
         """What :meth:`drive_for_thrust` reads at every call, looked up once: the thrust and gear
-        terms, the rotor torques without and all with the armature current, the armature terms and
-        the armature resistance at rest (NaN without an armature)."""
+        terms, the rotor torques without and all with the armature current, and the armature
+        resistance at rest (NaN without an armature)."""
         torque = self.slots.get("rotor_torque", ())
         return (self._one("thrust"), self._one("gear"), tuple(t for t in torque if "i_a" not in t.inputs),
-                torque, self.slots.get("armature", ()),
-                self._resistance_at_rest() if self.armature else math.nan)
+                torque, self._resistance_at_rest() if self.armature else math.nan)
 
     def _resistance_at_rest(self) -> float:
         """Armature resistance [Ω] with the effects' states at their initial values."""
